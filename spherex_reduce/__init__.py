@@ -1,0 +1,44 @@
+"""spherex_reduce: simulate, reduce and measure H2RG readout noise.
+
+Implements Heaton et al., *Noise Reduction Methods for Large-Scale Intensity
+Mapping Measurements with Infrared Detector Arrays*: the readout schedule
+(row chopping, reference and phantom reads), the reduction pipeline and the
+spatial power-spectrum analysis.
+"""
+
+import logging
+
+from . import dq
+from ._version import __version__
+from .errors import ConfigError, FormatError, PluginError, SpherexReduceError, StepSkipped
+from .exposure import Exposure, ReferenceReads
+from .fits_format import read, write
+from .geometry import DetectorGeometry
+from .pipeline import Pipeline
+from .schedule import ReadoutSchedule
+from .step import Simulator, Step, Strategy
+from .steps import rechop, unchop
+
+logging.getLogger("spherex_reduce").addHandler(logging.NullHandler())
+
+__all__ = [
+    "ConfigError",
+    "DetectorGeometry",
+    "Exposure",
+    "FormatError",
+    "Pipeline",
+    "PluginError",
+    "ReadoutSchedule",
+    "ReferenceReads",
+    "Simulator",
+    "SpherexReduceError",
+    "Step",
+    "StepSkipped",
+    "Strategy",
+    "__version__",
+    "dq",
+    "read",
+    "rechop",
+    "unchop",
+    "write",
+]

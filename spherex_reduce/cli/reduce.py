@@ -1,0 +1,25 @@
+"""``spherex-reduce reduce``: run a pipeline config on a FITS file."""
+
+from ..fits_format import atomic_output, write
+from ..pipeline import Pipeline
+
+
+def add_parser(sub):
+    p = sub.add_parser("reduce", help="run a pipeline on a raw FITS file",
+                       description="Reduce IN.fits with the steps of a pipeline YAML file (or a "
+                       "shipped config name, see show-config --list) and write OUT.fits.")
+    p.add_argument("input", metavar="IN.fits")
+    p.add_argument("-c", "--config", required=True, metavar="PIPELINE.yaml")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.fits")
+    p.add_argument("--overwrite", action="store_true", help="replace OUT.fits if it exists")
+    p.set_defaults(func=run)
+
+
+def run(args):
+    pipeline = Pipeline.from_yaml(args.config)
+    atomic_output(args.output, args.overwrite)  # refuse before reducing
+    result = pipeline.run(args.input, progress=not args.quiet)
+    write(result, args.output, overwrite=args.overwrite)
+    status = ", ".join(f"{n}={result.header.get(pipeline.registry.step(n).keyword, '?')}"
+                       for n, _ in pipeline.steps)
+    print(f"wrote {args.output} ({status})")

@@ -1,0 +1,282 @@
+"""Read and write exposures as FITS.
+
+Layout (extension names):
+
+``PRIMARY``
+    No data; the readout keywords (`ReadoutSchedule.to_header`), ``BUNIT``,
+    ``ORDER`` (``READOUT`` or ``PHYSICAL``) and the provenance of every step.
+``SCI``
+    Pixels: ramps ``(frames, reads, columns)`` or a 2-D image, in the order
+    ``ORDER`` says.
+``ERR``, ``DQ``
+    Standard deviation and data-quality flags (`spherex_reduce.dq`), if any.
+``PHANTOM``
+    Phantom values, ``(frames, reads, channels)`` or ``(reads, channels)``.
+``READOUT``
+    One row per read of a frame: ``row kind start time``; cross-checked
+    against the header keywords on read.
+``REFPIX``, ``REFPHANT``, ``REFREADS``
+    Reference reads kept aside by ``unchop`` (pixels, phantoms, and a table
+    ``read row time``).
+Any other table extension holds a table recorded by a step (e.g. ``REFOFFS``).
+
+Writes go to a temporary file in the target directory, with FITS checksums,
+and are renamed into place only when complete; an existing file is kept unless
+``overwrite=True``.
+"""
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from astropy import units as u
+from astropy.io import fits
+from astropy.nddata import StdDevUncertainty
+from astropy.table import Table
+
+from .errors import FormatError
+from .exposure import Exposure, ReferenceReads
+from .schedule import ReadoutSchedule
+
+__all__ = ["atomic_output", "read", "write"]
+
+_RESERVED = {"PRIMARY", "SCI", "ERR", "DQ", "PHANTOM", "READOUT", "REFPIX", "REFPHANT", "REFREADS"}
+
+
+class atomic_output:
+    """Context manager giving a temporary path that is renamed to ``path`` on success.
+
+    Refuses to start if ``path`` exists and ``overwrite`` is False, so nothing
+    is computed only to be thrown away.  On error the temporary file is removed
+    and an existing ``path`` is left untouched.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> out = pathlib.Path(tempfile.mkdtemp()) / "a.txt"
+    >>> with atomic_output(out) as tmp:
+    ...     _ = tmp.write_text("done")
+    >>> out.read_text()
+    'done'
+    """
+
+    def __init__(self, path, overwrite=False):
+        self.path = Path(path)
+        self.overwrite = overwrite
+        if self.path.exists() and not overwrite:
+            raise FileExistsError(
+                f"{self.path} exists; not overwriting it (pass overwrite=True / --overwrite)"
+            )
+        if not self.path.parent.is_dir():
+            raise FileNotFoundError(f"output directory {self.path.parent} does not exist")
+
+    def __enter__(self):
+        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp",
+                                   dir=self.path.parent)
+        os.close(fd)
+        os.unlink(tmp)
+        self.tmp = Path(tmp)
+        return self.tmp
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None:
+            if self.path.exists() and not self.overwrite:
+                self.tmp.unlink(missing_ok=True)
+                raise FileExistsError(f"{self.path} appeared while writing; not overwriting it")
+            os.replace(self.tmp, self.path)
+        else:
+            self.tmp.unlink(missing_ok=True)
+        return False
+
+
+def _image(data, name, unit=None):
+    hdu = fits.ImageHDU(np.asarray(data), name=name)
+    if unit is not None:
+        hdu.header["BUNIT"] = _unit_str(unit)
+    return hdu
+
+
+def write(exposure, path, overwrite=False):
+    """Write an `Exposure` to a FITS file, atomically and with checksums.
+
+    Parameters
+    ----------
+    exposure : `Exposure`
+        Raw (readout order) or reduced (physical order) exposure.
+    path : str or `pathlib.Path`
+        Output file.
+    overwrite : bool
+        Replace an existing file.  Without it an existing file is kept and
+        `FileExistsError` is raised.
+
+    Returns
+    -------
+    path : `pathlib.Path`
+
+    Examples
+    --------
+    >>> import tempfile, pathlib, numpy as np
+    >>> from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule, read, write
+    >>> s = ReadoutSchedule(DetectorGeometry(12, 8, 2, ref_border=2), skip=3, ref_reads=4,
+    ...                     phantom_reads=2, nframes=2)
+    >>> e = Exposure.from_arrays(np.ones((2, s.n_reads, 8), "f4"), s,
+    ...                          phantom=np.zeros((2, s.n_reads, 2), "f4"))
+    >>> out = write(e, pathlib.Path(tempfile.mkdtemp()) / "raw.fits")
+    >>> read(out).schedule == s
+    True
+    """
+    path = Path(path)
+    header = exposure.schedule.to_header(exposure.header)
+    header["ORDER"] = (exposure.order.upper(), "row order of SCI: READOUT or PHYSICAL")
+    unit = exposure.unit or u.dimensionless_unscaled
+    header["BUNIT"] = (_unit_str(unit), "unit of SCI and ERR")
+    hdus = [fits.PrimaryHDU(header=header), _image(exposure.data.data, "SCI", unit)]
+    unc = exposure.data.uncertainty
+    if unc is not None:
+        hdus.append(_image(unc.represent_as(StdDevUncertainty).array, "ERR", unit))
+    dq = exposure.dq
+    if dq is not None:
+        hdus.append(_image(dq, "DQ"))
+    if exposure.phantom is not None:
+        hdus.append(_image(exposure.phantom, "PHANTOM", unit))
+    hdus.append(_table_hdu(exposure.schedule.to_table(), "READOUT"))
+    ref = exposure.reference
+    if ref is not None:
+        hdus.append(_image(ref.data, "REFPIX", unit))
+        if ref.phantom is not None:
+            hdus.append(_image(ref.phantom, "REFPHANT", unit))
+        times = exposure.schedule.start_times[ref.reads]
+        hdus.append(_table_hdu(Table({"read": ref.reads, "row": ref.rows, "time": times}),
+                               "REFREADS"))
+    for name, table in exposure.tables.items():
+        if name.upper() in _RESERVED:
+            raise ValueError(f"table name {name!r} is reserved for the format")
+        hdus.append(_table_hdu(table, name.upper()))
+    with atomic_output(path, overwrite) as tmp:
+        fits.HDUList(hdus).writeto(tmp, checksum=True)
+    return path
+
+
+def _table_hdu(table, name):
+    t = Table(table, copy=False)
+    t.meta = {k: v for k, v in t.meta.items() if k != "comments"}
+    hdu = fits.table_to_hdu(t)
+    hdu.name = name
+    return hdu
+
+
+def read(path, **supplied):
+    """Read an exposure written by `write` (or raw data from other electronics).
+
+    Parameters
+    ----------
+    path : str or `pathlib.Path`
+        FITS file.  It is opened read-only (memory-mapped); it is never
+        changed.
+    **supplied
+        Geometry and readout parameters (``nrows``, ``skip``, ``frame_time``
+        ...) used where the header lacks them, e.g. from a pipeline config's
+        ``geometry:`` and ``readout:`` sections.
+
+    Returns
+    -------
+    exposure : `Exposure`
+
+    Raises
+    ------
+    FormatError
+        The file lacks ``SCI``, a keyword is missing, or the header, the
+        ``READOUT`` table and the array shapes disagree; the message names the
+        keyword or dimension.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no such file: {path}")
+    try:
+        hdul = fits.open(path, memmap=True, mode="readonly")
+    except OSError as exc:
+        raise FormatError(f"{path} is not a readable FITS file: {exc}") from exc
+    with hdul:
+        names = [h.name for h in hdul]
+        header = hdul[0].header.copy()
+        if "SCI" in names:
+            sci = hdul["SCI"]
+        elif hdul[0].data is not None:
+            sci = hdul[0]
+        else:
+            raise FormatError(f"{path} has no SCI extension and no primary data")
+        data = sci.data
+        table = Table.read(hdul["READOUT"]) if "READOUT" in names else None
+        schedule = ReadoutSchedule.from_header(header, table, **supplied)
+        order = str(header.get("ORDER", "READOUT")).strip().lower()
+        if order not in ("readout", "physical"):
+            raise FormatError(f"keyword ORDER must be READOUT or PHYSICAL, got {order!r}")
+        _check_shape(data.shape, schedule, order, "SCI")
+        unit = _unit(header.get("BUNIT", sci.header.get("BUNIT", "electron")))
+        err = hdul["ERR"].data if "ERR" in names else None
+        mask = hdul["DQ"].data if "DQ" in names else None
+        phantom = hdul["PHANTOM"].data if "PHANTOM" in names else None
+        if phantom is not None:
+            expected = (*_expected(data.ndim, schedule, order)[:-1], schedule.geometry.nchannels)
+            if phantom.shape != expected:
+                raise FormatError(
+                    f"PHANTOM has shape {phantom.shape}, the schedule gives {expected} "
+                    "(frames, reads, channels): check NFRAMES, NCHAN and the read order keywords"
+                )
+        elif schedule.phantom_reads and order == "readout":
+            raise FormatError(
+                f"NPHANT={schedule.phantom_reads} but the file has no PHANTOM extension"
+            )
+        reference = None
+        if "REFPIX" in names:
+            rt = Table.read(hdul["REFREADS"])
+            reference = ReferenceReads(
+                data=hdul["REFPIX"].data, rows=np.asarray(rt["row"]), reads=np.asarray(rt["read"]),
+                phantom=hdul["REFPHANT"].data if "REFPHANT" in names else None,
+            )
+        tables = {
+            h.name: Table.read(h)
+            for h in hdul
+            if isinstance(h, fits.BinTableHDU) and h.name not in _RESERVED
+        }
+    for key in ("CHECKSUM", "DATASUM", "ORDER"):
+        header.remove(key, ignore_missing=True)
+    return Exposure.from_arrays(data, schedule, unit=unit, uncertainty=err, mask=mask,
+                                phantom=phantom, header=header, order=order,
+                                reference=reference, tables=tables)
+
+
+def _unit_str(unit):
+    """Units in astropy's generic format ('electron / s'): 'electron' is not a FITS unit."""
+    return "" if unit == u.one else unit.to_string()
+
+
+def _unit(value):
+    try:
+        return u.Unit(str(value).strip(), parse_strict="raise")
+    except ValueError as exc:
+        raise FormatError(f"keyword BUNIT={value!r} is not a unit astropy understands") from exc
+
+
+def _expected(ndim, schedule, order):
+    n = schedule.n_reads if order == "readout" else schedule.geometry.nrows
+    shape = (n, schedule.geometry.ncols)
+    return (schedule.nframes, *shape) if ndim == 3 else shape
+
+
+def _check_shape(shape, schedule, order, name):
+    if len(shape) not in (2, 3):
+        raise FormatError(f"{name} must be 2-D or 3-D, got shape {shape}")
+    expected = _expected(len(shape), schedule, order)
+    if shape == expected:
+        return
+    labels = ["frames (NFRAMES)"] if len(shape) == 3 else []
+    labels += ["reads (NROWS, REFBORD, NREFRD, REFMODE)" if order == "readout" else
+               "rows (NROWS)", "columns (NCOLS)"]
+    for axis, (got, want, label) in enumerate(zip(shape, expected, labels, strict=True)):
+        if got != want:
+            raise FormatError(
+                f"{name} has shape {shape} but the header keywords give {expected}: axis {axis}, "
+                f"{label}, is {got}, expected {want}"
+            )

@@ -1,0 +1,222 @@
+"""Plugin manager factory and the registry of steps, strategies and simulators.
+
+Plugins are found through the entry-point group ``spherex_reduce``.  Set the
+environment variable ``SPHEREX_REDUCE_BLOCK_PLUGINS`` to a comma-separated
+list of entry-point names to keep those plugins from loading (e.g. a broken
+one).  There is no global state: every call of :func:`get_plugin_manager`
+builds a new manager.
+"""
+
+import importlib
+import importlib.metadata
+import inspect
+import logging
+import os
+from dataclasses import dataclass
+
+import pluggy
+
+from . import hookspecs
+from .errors import PluginError
+from .step import Simulator, Step, Strategy
+
+__all__ = ["BLOCK_ENV", "ENTRY_POINT_GROUP", "Registry", "get_plugin_manager", "get_registry"]
+
+ENTRY_POINT_GROUP = "spherex_reduce"
+#: Modules of the package that are plugins themselves, registered under their
+#: short names; they are always present and cannot be blocked.
+BUILTIN_PLUGINS = {
+    "builtin": "spherex_reduce.builtin",
+}
+BLOCK_ENV = "SPHEREX_REDUCE_BLOCK_PLUGINS"
+log = logging.getLogger("spherex_reduce")
+
+
+def blocked_plugins(block=None):
+    """Names blocked by argument and by ``SPHEREX_REDUCE_BLOCK_PLUGINS``."""
+    names = set(block or ())
+    names |= {n.strip() for n in os.environ.get(BLOCK_ENV, "").split(",") if n.strip()}
+    return names
+
+
+def get_plugin_manager(*, entry_points=True, block=None, plugins=()):
+    """Build a plugin manager with the built-in plugin and the installed ones.
+
+    Parameters
+    ----------
+    entry_points : bool
+        Load plugins from the ``spherex_reduce`` entry-point group.
+    block : iterable of str, optional
+        Plugin names not to load, besides those in ``SPHEREX_REDUCE_BLOCK_PLUGINS``.
+    plugins : iterable
+        Extra plugin objects or modules to register (e.g. in tests).
+
+    Raises
+    ------
+    PluginError
+        A plugin fails to import or to register; the message names it and
+        says how to block it.
+
+    Examples
+    --------
+    >>> from spherex_reduce.plugins import get_plugin_manager
+    >>> pm = get_plugin_manager(entry_points=False)
+    >>> pm.has_plugin("builtin")
+    True
+    """
+    pm = pluggy.PluginManager(hookspecs.PROJECT)
+    pm.add_hookspecs(hookspecs)
+    for name, module in BUILTIN_PLUGINS.items():
+        pm.register(importlib.import_module(module), name=name)
+    blocked = blocked_plugins(block)
+    if entry_points:
+        for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+            if ep.name in blocked or pm.has_plugin(ep.name):
+                if ep.name in blocked:
+                    log.info("plugin %r blocked", ep.name)
+                    pm.set_blocked(ep.name)
+                continue
+            try:
+                obj = ep.load()
+            except Exception as exc:
+                raise PluginError(
+                    f"plugin {ep.name!r} ({ep.value}) failed to load: {type(exc).__name__}: "
+                    f"{exc}. Block it with {BLOCK_ENV}={ep.name}"
+                ) from exc
+            _register(pm, obj, ep.name)
+    for obj in plugins:
+        _register(pm, obj, None)
+    return pm
+
+
+def _register(pm, obj, name):
+    label = name or getattr(obj, "__name__", type(obj).__name__)
+    try:
+        pm.register(obj, name=name)
+    except Exception as exc:
+        raise PluginError(
+            f"plugin {label!r} failed to register: {exc}. Block it with {BLOCK_ENV}={label}"
+        ) from exc
+
+
+@dataclass(frozen=True)
+class Registered:
+    """Something a plugin registered, and which plugin."""
+
+    obj: type
+    plugin: str
+
+
+class Registry:
+    """Steps, strategies and simulators by name, each with the plugin providing it.
+
+    Parameters
+    ----------
+    plugin_manager : `pluggy.PluginManager`, optional
+        Defaults to :func:`get_plugin_manager`.
+
+    Examples
+    --------
+    >>> from spherex_reduce.plugins import Registry, get_plugin_manager
+    >>> reg = Registry(get_plugin_manager(entry_points=False))
+    >>> reg.step("unchop").keyword
+    'S_UNCHOP'
+    >>> reg.providers["step"]["unchop"]
+    'builtin'
+    """
+
+    def __init__(self, plugin_manager=None):
+        self.pm = plugin_manager or get_plugin_manager()
+        self.steps = self._collect("register_steps", Step, "step")
+        self.simulators = self._collect("register_simulators", Simulator, "simulator")
+        strategies = self._collect("register_strategies", Strategy, "strategy", key=_kind_name)
+        self.strategies = {}
+        for (kind, name), reg in strategies.items():
+            self.strategies.setdefault(kind, {})[name] = reg
+        for reg in self.steps.values():
+            cls = reg.obj
+            if cls.strategy_kind and cls.default_strategy is not None and (
+                cls.default_strategy not in self.strategies.get(cls.strategy_kind, {})
+            ):
+                raise PluginError(
+                    f"plugin {reg.plugin!r}: step {cls.name!r} defaults to strategy "
+                    f"{cls.default_strategy!r} of kind {cls.strategy_kind!r}, which no plugin "
+                    "registers"
+                )
+
+    def _collect(self, hook, base, what, key=None):
+        key = key or (lambda cls: cls.name)
+        found = {}
+        for impl in getattr(self.pm.hook, hook).get_hookimpls():
+            plugin = self.pm.get_name(impl.plugin) or repr(impl.plugin)
+            try:
+                items = impl.function() or []
+            except Exception as exc:
+                raise PluginError(
+                    f"plugin {plugin!r} failed in {hook}: {type(exc).__name__}: {exc}"
+                ) from exc
+            for cls in items:
+                if not (inspect.isclass(cls) and issubclass(cls, base)) or not cls.name:
+                    raise PluginError(
+                        f"plugin {plugin!r}: {hook} returned {cls!r}, which is not a named "
+                        f"{base.__name__} subclass"
+                    )
+                if what == "step" and not (cls.keyword and len(cls.keyword) <= 8):
+                    raise PluginError(
+                        f"plugin {plugin!r}: step {cls.name!r} needs a FITS status keyword of "
+                        f"1 to 8 characters, got {cls.keyword!r}"
+                    )
+                k = key(cls)
+                if k in found:
+                    raise PluginError(
+                        f"{what} {k!r} is registered by both plugin {found[k].plugin!r} and "
+                        f"plugin {plugin!r}; block one with {BLOCK_ENV}"
+                    )
+                found[k] = Registered(cls, plugin)
+        return found
+
+    @property
+    def providers(self):
+        """``{'step': {name: plugin}, 'strategy': {'kind/name': plugin}, 'simulator': ...}``."""
+        return {
+            "step": {n: r.plugin for n, r in self.steps.items()},
+            "strategy": {f"{k}/{n}": r.plugin for k, d in self.strategies.items()
+                         for n, r in d.items()},
+            "simulator": {n: r.plugin for n, r in self.simulators.items()},
+        }
+
+    def step(self, name):
+        """The step class called ``name``; `KeyError` lists the valid names."""
+        try:
+            return self.steps[name].obj
+        except KeyError:
+            raise KeyError(f"unknown step {name!r}; valid: {', '.join(sorted(self.steps))}") \
+                from None
+
+    def strategy(self, kind, name):
+        """The strategy class ``name`` of ``kind``; `KeyError` lists the valid names."""
+        options = self.strategies.get(kind, {})
+        try:
+            return options[name].obj
+        except KeyError:
+            raise KeyError(
+                f"unknown {kind} strategy {name!r}; valid: {', '.join(sorted(options)) or 'none'}"
+            ) from None
+
+    def simulator(self, name):
+        """The simulator class ``name``; `KeyError` lists the valid names."""
+        try:
+            return self.simulators[name].obj
+        except KeyError:
+            raise KeyError(
+                f"unknown simulator {name!r}; valid: {', '.join(sorted(self.simulators)) or 'none'}"
+            ) from None
+
+
+def _kind_name(cls):
+    return (cls.kind, cls.name)
+
+
+def get_registry(**kwargs):
+    """Shortcut: ``Registry(get_plugin_manager(**kwargs))``."""
+    return Registry(get_plugin_manager(**kwargs))

@@ -1,0 +1,499 @@
+"""When every sample of a frame is taken: row chopping, reference and phantom reads.
+
+:class:`ReadoutSchedule` is the single source of truth for read order and
+timing.  The simulator places noise with it, the reduction steps un-chop and
+find reference reads with it, and it round-trips through FITS (header keywords
+plus a ``READOUT`` table, cross-checked on read).
+
+Timing model (all in samples of one channel at ``pixel_rate``): every row read
+takes ``phantom_reads + channel_width + row_overhead`` samples, the ``c``
+phantom samples of the Video8 reference first, then the row's pixels in the
+channel's fast-scan direction, then the row overhead.  After the last row read
+of a frame come ``frame_overhead`` samples (reset, idle).  A frame therefore
+lasts ``n_reads * row_samples + frame_overhead`` samples.
+"""
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+from astropy import units as u
+from astropy.io import fits
+from astropy.table import Table
+
+from .errors import FormatError
+from .geometry import DetectorGeometry, _check_int
+
+__all__ = ["REF_MODES", "ReadoutSchedule", "chopped_order"]
+
+REF_MODES = ("none", "repeated", "distributed")
+
+#: Row and frame overheads (samples) that give the paper's 1.51 s frame for
+#: S = 24, r = 32, c = 4 on the SPHEREx array (Table 3):
+#: 2072 reads x (4 + 64 + 4) samples + 1816 samples = 151000 samples at 100 kHz.
+DEFAULT_ROW_OVERHEAD = 4
+DEFAULT_FRAME_OVERHEAD = 1816
+
+ACTIVE, REFERENCE = "active", "reference"
+
+
+def chopped_order(n, skip):
+    """Order in which ``n`` rows are read with row-chopping skip ``skip``.
+
+    Rows ``k, k+S, k+2S, ...`` are read for ``k = 0 ... S-1``: after the
+    bottom of the array the read returns to the first unread row (paper §2.3,
+    Fig. 3).  ``skip = 1`` is physical order; ``skip >= n`` is too.
+
+    Parameters
+    ----------
+    n : int
+        Number of rows.
+    skip : int
+        Skip parameter ``S`` (>= 1).
+
+    Returns
+    -------
+    order : `numpy.ndarray` of int
+        Row indices (0-based) in read order; a permutation of ``range(n)``.
+
+    Examples
+    --------
+    >>> from spherex_reduce.schedule import chopped_order
+    >>> chopped_order(16, 4).tolist()
+    [0, 4, 8, 12, 1, 5, 9, 13, 2, 6, 10, 14, 3, 7, 11, 15]
+    """
+    skip = _check_int("skip", skip, 1)
+    return np.concatenate([np.arange(k, n, skip) for k in range(min(skip, n))] or [[]]).astype(
+        int
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class ReadoutSchedule:
+    """Read order and sample times of every frame of an exposure.
+
+    Parameters
+    ----------
+    geometry : `DetectorGeometry`, optional
+        Array layout; the SPHEREx H2RG by default.
+    skip : int
+        Row-chopping skip ``S`` (>= 1; 1 is physical order).  It need not
+        divide the number of rows.
+    ref_reads : int
+        Number ``r`` of reference-row reads per frame for ``ref_mode``
+        ``'repeated'`` and ``'distributed'`` (>= 0).  Ignored for ``'none'``.
+    ref_mode : {'none', 'repeated', 'distributed'}
+        ``'none'``: the physical reference rows are read once each, the first
+        ``ref_border`` before the active rows and the last ones after.
+        ``'repeated'``: the top reference rows are re-read in place at the
+        start of the frame (``ceil(r/2)`` reads) and the bottom ones at the end
+        (``floor(r/2)``), cycling through the rows.
+        ``'distributed'``: ``r`` reference reads evenly spaced through the
+        frame (gaps differ by at most one read), cycling through all
+        ``2 * ref_border`` physical reference rows (paper §4.3).
+    phantom_reads : int
+        ``c``, samples of the Video8 reference voltage before every row read
+        (averaged into one phantom value per read and channel); 0 for none.
+    row_overhead, frame_overhead : int, optional
+        Idle samples after each row read and after each frame.
+        ``frame_overhead`` defaults to the value giving 1.51 s for the paper's
+        parameters, unless ``frame_time`` is given.
+    nframes : int
+        Frames up the ramp, ``N``.
+    frame_time : `~astropy.units.Quantity` or float, optional
+        State the frame time (s) directly instead of ``frame_overhead``; the
+        overhead is derived from it and must not be negative.
+
+    Examples
+    --------
+    >>> from spherex_reduce import ReadoutSchedule
+    >>> s = ReadoutSchedule()             # the paper's Table 3 case
+    >>> s.n_reads, s.frame_time
+    (2072, <Quantity 1.51 s>)
+    >>> s.integration_time.round(2)
+    <Quantity 111.74 s>
+    """
+
+    geometry: DetectorGeometry = dataclasses.field(default_factory=DetectorGeometry)
+    skip: int = 24
+    ref_reads: int = 32
+    ref_mode: str = "distributed"
+    phantom_reads: int = 4
+    row_overhead: int = DEFAULT_ROW_OVERHEAD
+    frame_overhead: int | None = None
+    nframes: int = 74
+    frame_time: object = None
+
+    def __post_init__(self):
+        set_ = object.__setattr__
+        if not isinstance(self.geometry, DetectorGeometry):
+            raise ValueError(
+                f"geometry must be a DetectorGeometry, got {type(self.geometry).__name__}"
+            )
+        set_(self, "skip", _check_int("skip", self.skip, 1))
+        set_(self, "ref_reads", _check_int("ref_reads", self.ref_reads, 0))
+        if self.ref_mode not in REF_MODES:
+            raise ValueError(f"ref_mode must be one of {REF_MODES}, got {self.ref_mode!r}")
+        set_(self, "phantom_reads", _check_int("phantom_reads", self.phantom_reads, 0))
+        set_(self, "row_overhead", _check_int("row_overhead", self.row_overhead, 0))
+        set_(self, "nframes", _check_int("nframes", self.nframes, 1))
+        if self.ref_mode != "none" and self.ref_reads > 0 and self.geometry.ref_border == 0:
+            raise ValueError(
+                f"ref_reads={self.ref_reads} with ref_mode={self.ref_mode!r} needs reference "
+                "rows, but ref_border is 0: set ref_reads to 0 or ref_mode to 'none'"
+            )
+        rows, kinds = self._build_order()
+        set_(self, "_rows", rows)
+        set_(self, "_is_ref", kinds)
+        self._set_frame_timing()
+        for arr in (rows, kinds):
+            arr.setflags(write=False)
+
+    # -- construction -------------------------------------------------------
+    def _set_frame_timing(self):
+        set_ = object.__setattr__
+        rate = self.geometry.pixel_rate
+        read_samples = self.n_reads * self.row_samples
+        if self.frame_time is None:
+            overhead = self.frame_overhead
+            if overhead is None:
+                overhead = DEFAULT_FRAME_OVERHEAD
+            overhead = _check_int("frame_overhead", overhead, 0)
+            set_(self, "frame_overhead", overhead)
+            set_(self, "frame_time", ((read_samples + overhead) / rate) * u.s)
+            return
+        tframe = u.Quantity(self.frame_time, u.s)
+        if not tframe.isscalar or not np.isfinite(tframe.value) or tframe.value <= 0:
+            raise ValueError(f"frame_time must be a positive time, got {self.frame_time!r}")
+        overhead = round(tframe.to_value(u.s) * rate) - read_samples
+        if overhead < 0:
+            raise ValueError(
+                f"frame_time must be >= {read_samples / rate:.6g} s, the time to read "
+                f"{self.n_reads} rows of {self.row_samples} samples; got {tframe}"
+            )
+        if self.frame_overhead is not None and int(self.frame_overhead) != overhead:
+            raise ValueError(
+                f"frame_time={tframe} implies frame_overhead={overhead} samples, but "
+                f"frame_overhead={self.frame_overhead} was also given: give only one"
+            )
+        set_(self, "frame_overhead", overhead)
+        set_(self, "frame_time", tframe)
+
+    def _build_order(self):
+        g = self.geometry
+        active = g.active_rows[chopped_order(g.n_active_rows, self.skip)]
+        top = np.arange(g.ref_border)
+        bottom = np.arange(g.nrows - g.ref_border, g.nrows)
+        r = self.ref_reads
+        if self.ref_mode == "none":
+            rows = np.concatenate([top, active, bottom])
+            is_ref = np.concatenate([np.ones(top.size, bool), np.zeros(active.size, bool),
+                                     np.ones(bottom.size, bool)])
+        elif self.ref_mode == "repeated":
+            n_top, n_bottom = (r + 1) // 2, r // 2
+            head = top[np.arange(n_top) % top.size] if n_top else top[:0]
+            tail = bottom[np.arange(n_bottom) % bottom.size] if n_bottom else bottom[:0]
+            rows = np.concatenate([head, active, tail])
+            is_ref = np.concatenate([np.ones(n_top, bool), np.zeros(active.size, bool),
+                                     np.ones(n_bottom, bool)])
+        else:  # distributed
+            refs = g.reference_rows
+            n = active.size + r
+            rows = np.empty(n, dtype=int)
+            is_ref = np.zeros(n, dtype=bool)
+            if r:
+                # reference read j goes before active read floor(j * n_active / r)
+                before = (np.arange(r) * active.size) // r
+                pos = before + np.arange(r)
+                is_ref[pos] = True
+                rows[pos] = refs[np.arange(r) % refs.size]
+            rows[~is_ref] = active
+        return rows.astype(int), is_ref
+
+    # -- read order -----------------------------------------------------------
+    @property
+    def n_reads(self):
+        """Row reads per frame (active plus reference)."""
+        return int(self._rows.size)
+
+    @property
+    def rows(self):
+        """Physical row of every read of a frame, shape ``(n_reads,)``."""
+        return self._rows
+
+    @property
+    def is_reference(self):
+        """True for reads of a reference row, shape ``(n_reads,)``."""
+        return self._is_ref
+
+    @property
+    def kinds(self):
+        """``'active'`` or ``'reference'`` for every read."""
+        return np.where(self._is_ref, REFERENCE, ACTIVE)
+
+    @property
+    def row_samples(self):
+        """Samples taken per row read: phantom + pixels + overhead."""
+        return self.phantom_reads + self.geometry.channel_width + self.row_overhead
+
+    @property
+    def starts(self):
+        """Sample index (within the frame) of the first pixel of every read."""
+        return np.arange(self.n_reads, dtype=np.int64) * self.row_samples + self.phantom_reads
+
+    @property
+    def start_times(self):
+        """Time (s, within the frame) of the first pixel of every read."""
+        return (self.starts / self.geometry.pixel_rate) * u.s
+
+    @property
+    def frame_samples(self):
+        """Samples per frame (the frame time times the pixel rate)."""
+        return self.n_reads * self.row_samples + self.frame_overhead
+
+    @property
+    def integration_time(self):
+        """``nframes`` times the frame time."""
+        return self.nframes * self.frame_time
+
+    @property
+    def frame_starts(self):
+        """Start time of every frame, shape ``(nframes,)``, in s."""
+        return np.arange(self.nframes) * self.frame_time
+
+    def pixel_samples(self):
+        """Sample index (within the frame) of every pixel read, shape ``(n_reads, ncols)``."""
+        return self.starts[:, None] + self.geometry.column_offsets()[None, :]
+
+    def pixel_times(self):
+        """Time (s, within the frame) of every pixel read, shape ``(n_reads, ncols)``."""
+        return (self.pixel_samples() / self.geometry.pixel_rate) * u.s
+
+    def phantom_samples(self):
+        """Sample index of every phantom sample, shape ``(n_reads, phantom_reads)``."""
+        c = self.phantom_reads
+        return self.starts[:, None] - c + np.arange(c)[None, :]
+
+    def phantom_times(self):
+        """Time (s, within the frame) of every phantom sample, shape ``(n_reads, c)``."""
+        return (self.phantom_samples() / self.geometry.pixel_rate) * u.s
+
+    def read_of_row(self):
+        """Read index of every physical row's *first* read; -1 where a row is never read."""
+        first = np.full(self.geometry.nrows, -1, dtype=int)
+        order = np.arange(self.n_reads)[::-1]
+        first[self._rows[::-1]] = order  # later writes win: the first read stays
+        return first
+
+    @property
+    def reference_read_indices(self):
+        """Indices of the reference reads within a frame."""
+        return np.flatnonzero(self._is_ref)
+
+    @property
+    def active_read_indices(self):
+        """Indices of the active reads within a frame."""
+        return np.flatnonzero(~self._is_ref)
+
+    # -- parameters, tables, FITS ---------------------------------------------
+    def to_dict(self):
+        """Readout parameters as plain values (the ``readout:`` YAML section)."""
+        return {
+            "skip": self.skip,
+            "ref_reads": self.ref_reads,
+            "ref_mode": self.ref_mode,
+            "phantom_reads": self.phantom_reads,
+            "row_overhead": self.row_overhead,
+            "frame_overhead": self.frame_overhead,
+            "nframes": self.nframes,
+        }
+
+    def replace(self, **changes):
+        """A copy with some parameters changed (``geometry`` too).
+
+        The frame overhead is kept as samples unless ``frame_time`` is changed.
+        """
+        params = {"geometry": self.geometry, **self.to_dict()}
+        params.update(changes)
+        if "frame_time" in changes:
+            params.pop("frame_overhead", None) if "frame_overhead" not in changes else None
+        return ReadoutSchedule(**params)
+
+    def __eq__(self, other):
+        if not isinstance(other, ReadoutSchedule):
+            return NotImplemented
+        return (
+            self.geometry == other.geometry
+            and self.to_dict() == other.to_dict()
+            and np.isclose(self.frame_time.to_value(u.s), other.frame_time.to_value(u.s))
+        )
+
+    __hash__ = None
+
+    def to_table(self):
+        """One row per read: ``read row kind start time`` (time in s, within a frame).
+
+        Examples
+        --------
+        >>> from spherex_reduce import ReadoutSchedule
+        >>> t = ReadoutSchedule().to_table()
+        >>> t.colnames
+        ['read', 'row', 'kind', 'start', 'time']
+        >>> t["kind"][0], int(t["row"][0])
+        (np.str_('reference'), 0)
+        """
+        return Table(
+            {
+                "read": np.arange(self.n_reads),
+                "row": self._rows,
+                "kind": self.kinds,
+                "start": self.starts,
+                "time": self.start_times,
+            },
+            meta={"comments": [self.summary()]},
+        )
+
+    def summary(self):
+        """One line describing the schedule."""
+        g = self.geometry
+        return (
+            f"{g.nrows}x{g.ncols} array, {g.nchannels} channels of {g.channel_width} columns, "
+            f"S={self.skip}, r={self.ref_reads} ({self.ref_mode}), c={self.phantom_reads}: "
+            f"{self.n_reads} reads/frame ({int(self._is_ref.sum())} reference), frame time "
+            f"{self.frame_time.to_value(u.s):.6g} s, N={self.nframes}, "
+            f"{self.integration_time.to_value(u.s):.6g} s"
+        )
+
+    def to_header(self, header=None):
+        """Write the readout keywords into ``header`` (a copy; a new one if None)."""
+        h = fits.Header() if header is None else header.copy()
+        g = self.geometry
+        cards = [
+            ("NFRAMES", self.nframes, "frames up the ramp N"),
+            ("TFRAME", self.frame_time.to_value(u.s), "[s] frame time"),
+            ("PIXRATE", g.pixel_rate, "[Hz] pixel rate per channel"),
+            ("NROWS", g.nrows, "array rows"),
+            ("NCOLS", g.ncols, "array columns"),
+            ("NCHAN", g.nchannels, "readout channels"),
+            ("CHANW", g.channel_width, "columns per channel"),
+            ("REFBORD", g.ref_border, "reference border width (pixels)"),
+            ("SCANDIR", g.scan_label, "fast-scan direction per channel"),
+            ("ROWSKIP", self.skip, "row-chopping skip S"),
+            ("NREFRD", self.ref_reads, "reference row reads per frame r"),
+            ("REFMODE", self.ref_mode, "reference read mode"),
+            ("NPHANT", self.phantom_reads, "phantom samples per row read c"),
+            ("ROWOVH", self.row_overhead, "[samples] overhead per row read"),
+            ("FRMOVH", self.frame_overhead, "[samples] overhead per frame"),
+        ]
+        for key, value, comment in cards:
+            h[key] = (value, comment)
+        return h
+
+    @classmethod
+    def from_header(cls, header, table=None, **supplied):
+        """Rebuild a schedule from FITS keywords, checked against a ``READOUT`` table.
+
+        Parameters
+        ----------
+        header : `astropy.io.fits.Header`
+            Primary header with the readout keywords.
+        table : `astropy.table.Table`, optional
+            The ``READOUT`` table (``row kind start``); when given, every read
+            must agree with the schedule the keywords describe.
+        **supplied
+            Geometry or readout parameters (the YAML names, e.g. ``skip=24``)
+            used where the header lacks the keyword, for files from other
+            electronics.
+
+        Raises
+        ------
+        FormatError
+            A keyword is missing and not supplied, invalid, or disagrees with
+            the table; the message names it.
+        """
+        keys = {  # YAML name -> (keyword, converter)
+            "nrows": ("NROWS", int), "ncols": ("NCOLS", int), "nchannels": ("NCHAN", int),
+            "ref_border": ("REFBORD", int), "scan": ("SCANDIR", str),
+            "pixel_rate": ("PIXRATE", float), "skip": ("ROWSKIP", int),
+            "ref_reads": ("NREFRD", int), "ref_mode": ("REFMODE", str),
+            "phantom_reads": ("NPHANT", int), "row_overhead": ("ROWOVH", int),
+            "frame_overhead": ("FRMOVH", int), "nframes": ("NFRAMES", int),
+            "frame_time": ("TFRAME", float),
+        }
+        unknown = set(supplied) - set(keys)
+        if unknown:
+            raise FormatError(
+                f"unknown readout parameter(s) {sorted(unknown)}; valid: {sorted(keys)}"
+            )
+        values = {}
+        for name, (key, conv) in keys.items():
+            if key in header:
+                try:
+                    values[name] = conv(header[key])
+                except (TypeError, ValueError) as exc:
+                    raise FormatError(
+                        f"keyword {key} has an invalid value {header[key]!r}"
+                    ) from exc
+            elif supplied.get(name) is not None:
+                values[name] = supplied[name]
+        required = ["nrows", "ncols", "nchannels", "nframes"]
+        missing = [keys[n][0] for n in required if n not in values]
+        if "frame_time" not in values and "frame_overhead" not in values:
+            missing.append("TFRAME (or FRMOVH)")
+        if missing:
+            raise FormatError(
+                f"missing readout keyword(s) {', '.join(missing)}: the file does not say how it "
+                "was read; supply them in the pipeline config's geometry:/readout: sections"
+            )
+        geo_names = ["nrows", "ncols", "nchannels", "ref_border", "pixel_rate"]
+        gkw = {n: values[n] for n in geo_names if n in values}
+        try:
+            geometry = DetectorGeometry.from_scan_label(values.get("scan", "same"), **gkw)
+            rkw = {n: values[n] for n in ["skip", "ref_reads", "ref_mode", "phantom_reads",
+                                          "row_overhead", "nframes"] if n in values}
+            if "frame_overhead" in values:
+                sched = cls(geometry, frame_overhead=values["frame_overhead"], **rkw)
+            else:
+                sched = cls(geometry, frame_time=values["frame_time"], **rkw)
+        except ValueError as exc:
+            raise FormatError(f"readout keywords describe an invalid schedule: {exc}") from exc
+        if "frame_time" in values and "frame_overhead" in values:
+            if not np.isclose(values["frame_time"], sched.frame_time.to_value(u.s), rtol=1e-9,
+                              atol=0.5 / geometry.pixel_rate):
+                raise FormatError(
+                    f"keyword TFRAME={values['frame_time']} disagrees with the frame time "
+                    f"{sched.frame_time.to_value(u.s)} s implied by FRMOVH and the read order"
+                )
+        if "CHANW" in header and int(header["CHANW"]) != geometry.channel_width:
+            raise FormatError(
+                f"keyword CHANW={header['CHANW']} disagrees with NCOLS/NCHAN="
+                f"{geometry.channel_width}"
+            )
+        if table is not None:
+            sched.check_table(table)
+        return sched
+
+    def check_table(self, table):
+        """Raise `FormatError` naming the first column where ``table`` disagrees."""
+        if len(table) != self.n_reads:
+            raise FormatError(
+                f"READOUT table has {len(table)} reads but the header keywords give "
+                f"{self.n_reads} reads per frame (check ROWSKIP, NREFRD, REFMODE, NROWS, REFBORD)"
+            )
+        for col, expected, hint in [
+            ("row", self._rows, "ROWSKIP/NREFRD/REFMODE"),
+            ("kind", self.kinds, "NREFRD/REFMODE/REFBORD"),
+            ("start", self.starts, "NPHANT/ROWOVH/NCHAN"),
+        ]:
+            if col not in table.colnames:
+                raise FormatError(f"READOUT table lacks column {col!r}")
+            got = np.asarray(table[col])
+            if col == "kind":
+                got = np.char.strip(got.astype(str))
+            bad = np.flatnonzero(got != expected)
+            if bad.size:
+                i = bad[0]
+                raise FormatError(
+                    f"READOUT column {col!r} disagrees with the header keywords ({hint}) at read "
+                    f"{i}: table has {got[i]!r}, keywords give {expected[i]!r}"
+                )

@@ -1,0 +1,141 @@
+"""Readout order to physical order, and back."""
+
+import numpy as np
+
+from .. import dq
+from ..errors import StepSkipped
+from ..exposure import ReferenceReads
+
+__all__ = ["rechop", "unchop"]
+
+
+def _physical_index(schedule):
+    """Read index feeding each physical row (first read), and rows read several times."""
+    first = schedule.read_of_row()
+    counts = np.bincount(schedule.rows, minlength=schedule.geometry.nrows)
+    return first, np.flatnonzero(counts > 1)
+
+
+def _to_physical(values, schedule, first, repeated):
+    """Gather ``values`` (..., n_reads, m) into (..., nrows, m); NaN for unread rows."""
+    if values is None:
+        return None
+    out = np.take(values, np.maximum(first, 0), axis=-2)
+    if not np.issubdtype(out.dtype, np.floating):
+        out = out.astype(np.float64)
+    if (first < 0).any():
+        out[..., first < 0, :] = np.nan
+    for row in repeated:  # mean of every read of a re-read reference row
+        idx = np.flatnonzero(schedule.rows == row)
+        out[..., row, :] = np.take(values, idx, axis=-2).mean(axis=-2, dtype=np.float64)
+    return out
+
+
+def unchop(exposure):
+    """Put the rows of an exposure into physical order (paper §2.3).
+
+    Every active row is read once per frame and goes to its physical place.
+    Reference reads are kept aside, with their read indices (hence their
+    times), as ``exposure.reference``; each physical reference row of the
+    image holds the mean of its reads.  Rows the schedule never reads are NaN
+    and flagged `~spherex_reduce.dq.NOT_READ`.
+
+    Parameters
+    ----------
+    exposure : `~spherex_reduce.Exposure`
+        In readout order: ramps ``(frames, reads, columns)`` or slopes
+        ``(reads, columns)``, any unit.
+
+    Returns
+    -------
+    `~spherex_reduce.Exposure`
+        A new exposure in physical order (rows ``(..., nrows, ncols)``); the
+        input is not modified.
+
+    Raises
+    ------
+    StepSkipped
+        The exposure is already in physical order.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule, unchop
+    >>> s = ReadoutSchedule(DetectorGeometry(8, 4, 1, ref_border=1), skip=3, ref_reads=2,
+    ...                     phantom_reads=0, nframes=1)
+    >>> s.rows.tolist()
+    [0, 1, 4, 2, 7, 5, 3, 6]
+    >>> raw = Exposure.from_arrays(s.rows[:, None] * np.ones((1, 4)), s)  # value = its row
+    >>> unchop(raw).data.data[:, 0].tolist()
+    [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0]
+    """
+    if exposure.order == "physical":
+        raise StepSkipped("the exposure is already in physical order")
+    schedule = exposure.schedule
+    first, repeated = _physical_index(schedule)
+    nd = exposure.data
+    data = _to_physical(nd.data, schedule, first, repeated)
+    unc = None
+    if nd.uncertainty is not None:
+        unc = _to_physical(nd.uncertainty.array, schedule, first, repeated)
+        for row in repeated:  # the error of a mean of n independent reads
+            n = int((schedule.rows == row).sum())
+            unc[..., row, :] /= np.sqrt(n)
+    mask = None if nd.mask is None else np.take(nd.mask, np.maximum(first, 0), axis=-2)
+    unread = first < 0
+    if unread.any():
+        base = np.zeros(data.shape, np.uint16) if mask is None else mask.astype(np.uint16)
+        base[..., unread, :] |= dq.NOT_READ
+        mask = base
+    ref_idx = schedule.reference_read_indices
+    reference = ReferenceReads(
+        data=np.take(nd.data, ref_idx, axis=-2),
+        rows=schedule.rows[ref_idx],
+        reads=ref_idx,
+        phantom=None if exposure.phantom is None else np.take(exposure.phantom, ref_idx, axis=-2),
+    )
+    phantom = _to_physical(exposure.phantom, schedule, first, repeated)
+    return exposure.replace(data=data, uncertainty=unc, mask=mask, phantom=phantom,
+                            order="physical", reference=reference)
+
+
+def rechop(exposure):
+    """Put a physical-order exposure back into readout order (inverse of `unchop`).
+
+    Active rows go back to their reads; reference reads come from
+    ``exposure.reference``.  Used to check un-chopping and to write simulated
+    images as an instrument would deliver them.
+
+    Parameters
+    ----------
+    exposure : `~spherex_reduce.Exposure`
+        In physical order, with the reference reads kept aside by `unchop`
+        (if the schedule has reference reads).
+
+    Returns
+    -------
+    `~spherex_reduce.Exposure`
+        A new exposure in readout order.
+    """
+    if exposure.order == "readout":
+        raise StepSkipped("the exposure is already in readout order")
+    schedule = exposure.schedule
+    ref_idx = schedule.reference_read_indices
+    ref = exposure.reference
+    if ref_idx.size and (ref is None or not np.array_equal(ref.reads, ref_idx)):
+        raise ValueError("rechop needs the reference reads kept aside by unchop")
+
+    def back(values, refvalues):
+        if values is None:
+            return None
+        out = np.take(values, schedule.rows, axis=-2)
+        if ref_idx.size:
+            out[..., ref_idx, :] = refvalues
+        return out
+
+    nd = exposure.data
+    data = back(nd.data, None if ref is None else ref.data)
+    phantom = back(exposure.phantom, None if ref is None else ref.phantom)
+    mask = None if nd.mask is None else np.take(nd.mask, schedule.rows, axis=-2)
+    return exposure.replace(data=data, mask=mask, uncertainty=None, phantom=phantom,
+                            order="readout", reference=None)

@@ -48,7 +48,7 @@ def after_step(step, exposure, result, params, status, reason, elapsed):
         value = _short_value(value)
         card = f"HIERARCH SXR {step.name.upper()} {key.upper()}"
         if len(card) + len(repr(value)) + 3 <= 80:  # fits one card; HISTORY has all
-            cards.append((card[len("HIERARCH "):], value, None))
+            cards.append((card, value, None))
     text = json.dumps(params, default=str, sort_keys=True)
     cards.append(("HISTORY", f"{step.name} {status.lower()} in {elapsed:.3g} s: {text}", None))
     if reason:

@@ -8,12 +8,30 @@ from astropy import units as u
 from astropy.io import fits
 from astropy.nddata import CCDData, NDData, StdDevUncertainty
 
+from .dq import DO_NOT_USE
 from .schedule import ReadoutSchedule
 
-__all__ = ["ORDERS", "Exposure", "ReferenceReads"]
+__all__ = ["ORDERS", "Exposure", "ReferenceReads", "as_dq"]
 
 ORDERS = ("readout", "physical")
 _KEEP = object()
+
+
+def as_dq(mask):
+    """Flags from a mask: booleans become `~spherex_reduce.dq.DO_NOT_USE`, integers are kept."""
+    mask = np.asarray(mask)
+    if mask.dtype == bool:
+        return mask.astype(np.uint16) * np.uint16(DO_NOT_USE)
+    return mask.astype(np.uint16)
+
+
+def _nddata(values, unit, uncertainty, flags):
+    """CCDData for 2-D, NDData for 3-D; the mask is ``flags != 0``."""
+    if uncertainty is not None and not hasattr(uncertainty, "uncertainty_type"):
+        uncertainty = StdDevUncertainty(np.asarray(uncertainty))
+    mask = None if flags is None else flags != 0
+    cls = CCDData if values.ndim == 2 else NDData
+    return cls(values, unit=unit, uncertainty=uncertainty, mask=mask)
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,6 +88,10 @@ class Exposure:
         The reference reads, kept aside once the exposure is un-chopped.
     tables : dict of `~astropy.table.Table`
         Tables recorded by steps (e.g. ``REFOFFS``); written as extensions.
+    dq : `numpy.ndarray` of uint16, optional
+        Data-quality flags (`spherex_reduce.dq` bits), same shape as the
+        pixels.  ``data.mask`` is always ``dq != 0``; when only a mask is
+        given, masked pixels get `~spherex_reduce.dq.DO_NOT_USE`.
 
     Examples
     --------
@@ -90,6 +112,7 @@ class Exposure:
     order: str = "readout"
     reference: ReferenceReads | None = None
     tables: dict = field(default_factory=dict)
+    dq: np.ndarray | None = None
 
     def __post_init__(self):
         if self.order not in ORDERS:
@@ -104,6 +127,10 @@ class Exposure:
                 f"data shape {self.data.data.shape} disagrees with the schedule, which gives "
                 f"{expected} in {self.order} order"
             )
+        if self.dq is None and self.data.mask is not None:
+            object.__setattr__(self, "dq", as_dq(self.data.mask))
+        if self.dq is not None and self.dq.shape != self.data.data.shape:
+            raise ValueError(f"dq shape {self.dq.shape} differs from data {self.data.data.shape}")
         if self.phantom is not None:
             pexp = (*expected[:-1], self.schedule.geometry.nchannels)
             if self.phantom.shape != pexp:
@@ -126,14 +153,10 @@ class Exposure:
 
         ``uncertainty`` is a standard deviation array in ``unit``.
         """
-        data = np.asarray(data)
-        unc = None if uncertainty is None else StdDevUncertainty(np.asarray(uncertainty))
-        if data.ndim == 2:
-            nd = CCDData(data, unit=unit, uncertainty=unc, mask=mask)
-        else:
-            nd = NDData(data, unit=unit, uncertainty=unc, mask=mask)
+        flags = None if mask is None else as_dq(mask)
+        nd = _nddata(np.asarray(data), unit, uncertainty, flags)
         return cls(nd, schedule, header=fits.Header() if header is None else header.copy(),
-                   phantom=phantom, order=order, **kwargs)
+                   phantom=phantom, order=order, dq=flags, **kwargs)
 
     # -- convenience -------------------------------------------------------
     @property
@@ -156,41 +179,34 @@ class Exposure:
         """The detector geometry of the schedule."""
         return self.schedule.geometry
 
-    @property
-    def dq(self):
-        """Data-quality flags as ``uint16`` (``mask`` True becomes `dq.DO_NOT_USE`), or None."""
-        mask = self.data.mask
-        if mask is None:
-            return None
-        mask = np.asarray(mask)
-        return mask.astype(np.uint16)  # bool True -> 1 = DO_NOT_USE
-
     def replace(self, **changes):
         """A new Exposure with some fields changed (the input is left as it was).
 
         ``data`` may be given as an array, which keeps the unit, uncertainty
-        and mask unless ``unit``, ``uncertainty`` (std-dev array or None) or
-        ``mask`` are also given.  The header is copied.
+        and flags unless ``unit``, ``uncertainty`` (std-dev array or None),
+        ``dq`` (flags) or ``mask`` (bool or flags) are also given.  The header
+        is copied.
         """
         arrays = {k: changes.pop(k) for k in ("unit", "uncertainty", "mask") if k in changes}
+        if "mask" in arrays:
+            if "dq" in changes:
+                raise ValueError("give mask or dq, not both")
+            changes["dq"] = None if arrays["mask"] is None else as_dq(arrays["mask"])
         data = changes.pop("data", None)
-        if data is None and not arrays:
+        if data is None and not arrays and "dq" not in changes:
             nd = self.data
+        elif isinstance(data, NDData):
+            nd = data
+            changes.setdefault("dq", None if nd.mask is None else as_dq(nd.mask))
         else:
             base = self.data
-            values = base.data if data is None else data
-            if isinstance(values, NDData):
-                nd = values
-            else:
-                unit = arrays.get("unit", base.unit)
-                unc = arrays.get("uncertainty", _KEEP)
-                if unc is _KEEP:
-                    unc = base.uncertainty
-                elif unc is not None and not hasattr(unc, "uncertainty_type"):
-                    unc = StdDevUncertainty(np.asarray(unc))
-                mask = arrays.get("mask", base.mask)
-                cls = CCDData if np.ndim(values) == 2 else NDData
-                nd = cls(np.asarray(values), unit=unit, uncertainty=unc, mask=mask)
+            values = np.asarray(base.data if data is None else data)
+            unc = arrays.get("uncertainty", _KEEP)
+            if unc is _KEEP:
+                unc = None if base.uncertainty is None else base.uncertainty.array
+            flags = changes.get("dq", self.dq)
+            changes["dq"] = flags
+            nd = _nddata(values, arrays.get("unit", base.unit), unc, flags)
         header = changes.pop("header", self.header).copy()
         tables = changes.pop("tables", self.tables)
         return dataclasses.replace(self, data=nd, header=header, tables=dict(tables), **changes)

@@ -18,6 +18,7 @@ Layout (extension names):
 ``REFPIX``, ``REFPHANT``, ``REFREADS``
     Reference reads kept aside by ``unchop`` (pixels, phantoms, and a table
     ``read row time``).
+
 Any other table extension holds a table recorded by a step (e.g. ``REFOFFS``).
 
 Writes go to a temporary file in the target directory, with FITS checksums,
@@ -137,7 +138,7 @@ def write(exposure, path, overwrite=False):
         hdus.append(_image(unc.represent_as(StdDevUncertainty).array, "ERR", unit))
     dq = exposure.dq
     if dq is not None:
-        hdus.append(_image(dq, "DQ"))
+        hdus.append(_image(dq.astype(np.int32), "DQ"))  # unsigned would need BZERO: no memmap
     if exposure.phantom is not None:
         hdus.append(_image(exposure.phantom, "PHANTOM", unit))
     hdus.append(_table_hdu(exposure.schedule.to_table(), "READOUT"))
@@ -242,6 +243,10 @@ def read(path, **supplied):
         }
     for key in ("CHECKSUM", "DATASUM", "ORDER"):
         header.remove(key, ignore_missing=True)
+    for array in (data, err, mask, phantom, *(() if reference is None else
+                                                 (reference.data, reference.phantom))):
+        if array is not None:  # the file's own pages: a step must never write into them
+            array.setflags(write=False)
     return Exposure.from_arrays(data, schedule, unit=unit, uncertainty=err, mask=mask,
                                 phantom=phantom, header=header, order=order,
                                 reference=reference, tables=tables)

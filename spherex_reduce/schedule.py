@@ -457,6 +457,8 @@ class ReadoutSchedule:
                 sched = cls(geometry, frame_time=values["frame_time"], **rkw)
         except ValueError as exc:
             raise FormatError(f"readout keywords describe an invalid schedule: {exc}") from exc
+        if table is not None:  # first: it names the read-order keyword at fault
+            sched.check_table(table)
         if "frame_time" in values and "frame_overhead" in values:
             if not np.isclose(values["frame_time"], sched.frame_time.to_value(u.s), rtol=1e-9,
                               atol=0.5 / geometry.pixel_rate):
@@ -469,8 +471,6 @@ class ReadoutSchedule:
                 f"keyword CHANW={header['CHANW']} disagrees with NCOLS/NCHAN="
                 f"{geometry.channel_width}"
             )
-        if table is not None:
-            sched.check_table(table)
         return sched
 
     def check_table(self, table):

@@ -81,12 +81,11 @@ def unchop(exposure):
         for row in repeated:  # the error of a mean of n independent reads
             n = int((schedule.rows == row).sum())
             unc[..., row, :] /= np.sqrt(n)
-    mask = None if nd.mask is None else np.take(nd.mask, np.maximum(first, 0), axis=-2)
+    flags = None if exposure.dq is None else np.take(exposure.dq, np.maximum(first, 0), axis=-2)
     unread = first < 0
     if unread.any():
-        base = np.zeros(data.shape, np.uint16) if mask is None else mask.astype(np.uint16)
-        base[..., unread, :] |= dq.NOT_READ
-        mask = base
+        flags = np.zeros(data.shape, np.uint16) if flags is None else flags.copy()
+        flags[..., unread, :] |= dq.NOT_READ
     ref_idx = schedule.reference_read_indices
     reference = ReferenceReads(
         data=np.take(nd.data, ref_idx, axis=-2),
@@ -95,7 +94,7 @@ def unchop(exposure):
         phantom=None if exposure.phantom is None else np.take(exposure.phantom, ref_idx, axis=-2),
     )
     phantom = _to_physical(exposure.phantom, schedule, first, repeated)
-    return exposure.replace(data=data, uncertainty=unc, mask=mask, phantom=phantom,
+    return exposure.replace(data=data, uncertainty=unc, dq=flags, phantom=phantom,
                             order="physical", reference=reference)
 
 
@@ -136,6 +135,6 @@ def rechop(exposure):
     nd = exposure.data
     data = back(nd.data, None if ref is None else ref.data)
     phantom = back(exposure.phantom, None if ref is None else ref.phantom)
-    mask = None if nd.mask is None else np.take(nd.mask, schedule.rows, axis=-2)
-    return exposure.replace(data=data, mask=mask, uncertainty=None, phantom=phantom,
+    flags = None if exposure.dq is None else np.take(exposure.dq, schedule.rows, axis=-2)
+    return exposure.replace(data=data, dq=flags, uncertainty=None, phantom=phantom,
                             order="readout", reference=None)

@@ -1,0 +1,111 @@
+"""The command line: subcommands, outputs, exit codes and messages."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from astropy.table import Table
+
+import spherex_reduce
+from spherex_reduce import read, write
+from spherex_reduce.cli import main
+from spherex_reduce.examples import example_raw_exposure
+
+
+def run(*args):
+    return main([str(a) for a in args])
+
+
+def test_version_and_help(capsys):
+    with pytest.raises(SystemExit) as info:
+        run("--version")
+    assert info.value.code == 0
+    assert spherex_reduce.__version__ in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        run("--help")
+    out = capsys.readouterr().out
+    for command in ("demo", "readout", "reduce", "plugins", "show-config"):
+        assert command in out
+
+
+def test_readout_summary_table_and_plot(tmp_path, capsys):
+    out, png = tmp_path / "s.ecsv", tmp_path / "order.png"
+    assert run("readout", "-o", out, "--plot", png) == 0
+    text = capsys.readouterr().out
+    assert "2072 reads/frame" in text and "frame time 1.51 s" in text
+    t = Table.read(out)
+    assert t.colnames == ["read", "row", "kind", "start", "time"] and len(t) == 2072
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    assert run("readout", "-o", out) == 2  # exists: refused
+    assert "exists" in capsys.readouterr().err
+    assert run("readout", "--nrows", 16, "--ncols", 16, "--nchannels", 2, "--ref-border", 2,
+               "--skip", 4, "--ref-mode", "none", "-o", out, "--overwrite") == 0
+    assert Table.read(out)["row"].tolist() == [0, 1, 2, 6, 10, 3, 7, 11, 4, 8, 12, 5, 9, 13,
+                                               14, 15]
+
+
+def test_readout_from_config(tmp_path, capsys):
+    cfg = tmp_path / "scene.yaml"
+    cfg.write_text("geometry: {nrows: 64, ncols: 64, nchannels: 4}\nreadout: {skip: 8}\n")
+    assert run("readout", "--config", cfg, "--ref-reads", 4) == 0
+    assert "S=8, r=4" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["readout", "--skip", "0"], "readout.skip: must be >= 1"),
+        (["readout", "--ref-mode", "sometimes"], "readout.ref_mode: 'sometimes' is not one of"),
+        (["readout", "--ncols", "100"], "nchannels x channel width must equal ncols"),
+        (["show-config", "nosuch"], "no pipeline config file 'nosuch'"),
+        (["reduce", "missing.fits", "-c", "unchop", "-o", "x.fits"], "no such file"),
+    ],
+)
+def test_input_errors_exit_2_with_one_line(args, message, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert run(*args) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+def test_reduce_and_show_config(tmp_path, capsys, small_schedule):
+    raw = example_raw_exposure(small_schedule, seed=2)
+    write(raw, tmp_path / "raw.fits")
+    cfg = tmp_path / "p.yaml"
+    cfg.write_text("steps:\n  - unchop: {}\n")
+    assert run("reduce", tmp_path / "raw.fits", "-c", cfg, "-o", tmp_path / "out.fits") == 0
+    out = read(tmp_path / "out.fits")
+    assert out.order == "physical" and out.header["S_UNCHOP"] == "COMPLETE"
+    np.testing.assert_array_equal(out.data.data, spherex_reduce.unchop(raw).data.data)
+    assert run("reduce", tmp_path / "raw.fits", "-c", cfg, "-o", tmp_path / "out.fits") == 2
+    capsys.readouterr()
+    assert run("show-config", cfg) == 0
+    text = capsys.readouterr().out
+    assert "config hash" in text and "unchop: {}" in text
+    assert run("show-config", "--list") == 0
+    assert "unchop" in capsys.readouterr().out.split()
+
+
+def test_plugins_lists_providers(capsys):
+    assert run("plugins") == 0
+    out = capsys.readouterr().out
+    assert "unchop [S_UNCHOP]" in out and "builtin" in out
+
+
+def test_demo_runs_and_refuses_to_overwrite(tmp_path, capsys):
+    assert run("-q", "demo", "-o", tmp_path / "d") == 0
+    files = {p.name for p in (tmp_path / "d").iterdir()}
+    assert {"raw.fits", "reduced.fits", "schedule.ecsv", "read_order.png"} <= files
+    assert run("demo", "-o", tmp_path / "d") == 2
+    assert "exists" in capsys.readouterr().err
+
+
+def test_console_script_unexpected_and_usage(tmp_path):
+    """The installed console script: usage errors exit 2, no traceback."""
+    exe = [sys.executable, "-m", "spherex_reduce.cli"]
+    r = subprocess.run([*exe, "readout", "--skip", "x"], capture_output=True, text=True)
+    assert r.returncode == 2 and "invalid int value" in r.stderr
+    r = subprocess.run([*exe, "reduce", str(tmp_path / "none.fits"), "-c", "unchop", "-o",
+                        str(tmp_path / "o.fits")], capture_output=True, text=True)
+    assert r.returncode == 2 and "Traceback" not in r.stderr

@@ -1,0 +1,160 @@
+"""FITS format: round trips, cross-checks, atomic writes, inputs never touched."""
+
+import hashlib
+
+import numpy as np
+import pytest
+from astropy import units as u
+from astropy.io import fits
+
+from spherex_reduce import Exposure, FormatError, Pipeline, read, unchop, write
+from spherex_reduce.examples import example_raw_exposure
+
+
+def digest(path):
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+@pytest.fixture
+def raw(small_schedule):
+    return example_raw_exposure(small_schedule, seed=3)
+
+
+def test_raw_round_trip(tmp_path, raw):
+    path = write(raw, tmp_path / "raw.fits")
+    back = read(path)
+    assert back.schedule == raw.schedule
+    assert back.order == "readout" and back.unit == u.electron
+    np.testing.assert_array_equal(back.data.data, raw.data.data)
+    np.testing.assert_array_equal(back.phantom, raw.phantom)
+    with fits.open(path) as hdul:
+        names = [h.name for h in hdul]
+        assert names == ["PRIMARY", "SCI", "PHANTOM", "READOUT"]
+        assert hdul["SCI"].data.shape == (4, raw.schedule.n_reads, 16)
+        assert hdul["PHANTOM"].data.shape == (4, raw.schedule.n_reads, 2)
+        for key in ("NFRAMES TFRAME PIXRATE NROWS NCOLS NCHAN CHANW REFBORD SCANDIR ROWSKIP "
+                    "NREFRD REFMODE NPHANT ROWOVH FRMOVH BUNIT").split():
+            assert key in hdul[0].header, key
+        assert hdul[0].header["ROWSKIP"] == 5 and hdul[0].header["REFMODE"] == "distributed"
+        assert hdul.readall() is None or True
+        for h in hdul:
+            assert "CHECKSUM" in h.header and "DATASUM" in h.header
+            assert h.verify_checksum() == 1
+
+
+def test_slopes_and_reduced_round_trip(tmp_path, small_schedule):
+    rng = np.random.default_rng(0)
+    slopes = Exposure.from_arrays(
+        rng.normal(size=(small_schedule.n_reads, 16)), small_schedule, unit=u.electron / u.s,
+        uncertainty=np.full((small_schedule.n_reads, 16), 0.5),
+        mask=rng.random((small_schedule.n_reads, 16)) > 0.9,
+        phantom=rng.normal(size=(small_schedule.n_reads, 2)))
+    back = read(write(slopes, tmp_path / "slopes.fits"))
+    assert back.unit == u.electron / u.s
+    np.testing.assert_array_equal(back.data.uncertainty.array, 0.5)
+    np.testing.assert_array_equal(back.data.mask != 0, slopes.data.mask)
+    reduced = unchop(slopes)
+    again = read(write(reduced, tmp_path / "reduced.fits"))
+    assert again.order == "physical" and again.shape == (32, 16)
+    np.testing.assert_array_equal(again.data.data, reduced.data.data)
+    np.testing.assert_array_equal(again.reference.rows, reduced.reference.rows)
+    np.testing.assert_array_equal(again.reference.data, reduced.reference.data)
+
+
+def test_existing_output_is_kept(tmp_path, raw):
+    path = tmp_path / "raw.fits"
+    path.write_bytes(b"precious")
+    with pytest.raises(FileExistsError, match="overwrite"):
+        write(raw, path)
+    assert path.read_bytes() == b"precious"
+    write(raw, path, overwrite=True)
+    assert read(path).schedule == raw.schedule
+    assert [p.name for p in tmp_path.iterdir()] == ["raw.fits"]  # no temporary left over
+
+
+def test_failed_write_leaves_nothing(tmp_path, raw):
+    bad = raw.replace(tables={"SCI": None})  # a reserved name: refused while writing
+    with pytest.raises(ValueError, match="reserved"):
+        write(bad, tmp_path / "x.fits")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_reading_never_modifies_the_file(tmp_path, raw):
+    path = write(raw, tmp_path / "raw.fits")
+    before = digest(path)
+    e = read(path)
+    with pytest.raises(ValueError):  # read-only memory map
+        e.data.data[0, 0, 0] = 1.0
+    Pipeline({"steps": ["unchop"]}).run(path)
+    assert digest(path) == before
+
+
+def _edit(path, out, hdu=0, **cards):
+    with fits.open(path) as hdul:
+        for key, value in cards.items():
+            if value is None:
+                del hdul[hdu].header[key]
+            else:
+                hdul[hdu].header[key] = value
+        hdul.writeto(out)
+    return out
+
+
+@pytest.mark.parametrize(
+    ("cards", "message"),
+    [
+        ({"ROWSKIP": 4}, "READOUT column 'row' disagrees"),
+        ({"NREFRD": 5}, "READOUT table has"),
+        ({"NPHANT": 2}, "READOUT column 'start' disagrees"),
+        ({"NFRAMES": 3}, "axis 0, frames (NFRAMES), is 4, expected 3"),
+        ({"TFRAME": 9.0}, "keyword TFRAME=9.0 disagrees"),
+        ({"CHANW": 7}, "keyword CHANW=7 disagrees"),
+        ({"NROWS": None}, "missing readout keyword(s) NROWS"),
+        ({"REFMODE": "weird"}, "ref_mode must be one of"),
+    ],
+)
+def test_inconsistent_files_are_refused(tmp_path, raw, cards, message):
+    path = write(raw, tmp_path / "raw.fits")
+    bad = _edit(path, tmp_path / "bad.fits", **cards)
+    with pytest.raises(FormatError) as info:
+        read(bad)
+    assert message in str(info.value)
+
+
+def test_sci_shape_mismatch_names_the_axis(tmp_path, raw):
+    path = write(raw, tmp_path / "raw.fits")
+    with fits.open(path) as hdul:
+        hdul["SCI"].data = hdul["SCI"].data[:, :, :15]
+        hdul["READOUT"].header["EXTNAME"] = "OLDREAD"  # keep the table consistent otherwise
+        hdul.writeto(tmp_path / "bad.fits")
+    with pytest.raises(FormatError, match=r"axis 2, columns \(NCOLS\), is 15, expected 16"):
+        read(tmp_path / "bad.fits")
+
+
+def test_foreign_file_read_with_supplied_readout(tmp_path, raw):
+    """A file from other electronics: bare SCI + PHANTOM, readout from the pipeline config."""
+    s = raw.schedule
+    fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(np.asarray(raw.data.data), name="SCI"),
+                  fits.ImageHDU(raw.phantom, name="PHANTOM")]).writeto(tmp_path / "foreign.fits")
+    with pytest.raises(FormatError, match="supply them in the pipeline config"):
+        read(tmp_path / "foreign.fits")
+    config = {
+        "geometry": {"nrows": 32, "ncols": 16, "nchannels": 2, "ref_border": 2},
+        "readout": {"skip": 5, "ref_reads": 6, "phantom_reads": 3, "row_overhead": 2,
+                    "frame_overhead": 50, "nframes": 4},
+        "steps": [{"unchop": {}}],
+    }
+    pipe = Pipeline(config)
+    e = pipe.read(tmp_path / "foreign.fits")
+    assert e.schedule == s
+    out = pipe.run(tmp_path / "foreign.fits")
+    np.testing.assert_array_equal(out.data.data, unchop(raw).data.data)
+
+
+def test_not_fits_is_a_clear_error(tmp_path):
+    p = tmp_path / "notes.fits"
+    p.write_text("hello")
+    with pytest.raises(FormatError, match="not a readable FITS file"):
+        read(p)
+    with pytest.raises(FileNotFoundError):
+        read(tmp_path / "missing.fits")

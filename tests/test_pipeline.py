@@ -1,0 +1,247 @@
+"""Pipeline from YAML, plugin discovery, hooks and provenance."""
+
+import importlib.metadata
+import types
+
+import numpy as np
+import pytest
+
+import spherex_reduce
+from spherex_reduce import ConfigError, Exposure, Pipeline, PluginError, Step, StepSkipped, unchop
+from spherex_reduce.examples import example_raw_exposure
+from spherex_reduce.hookspecs import hookimpl
+from spherex_reduce.parameters import Parameter
+from spherex_reduce.plugins import Registry, get_plugin_manager
+
+
+@pytest.fixture
+def raw(small_schedule):
+    return example_raw_exposure(small_schedule, seed=5)
+
+
+class Offset(Step):
+    name, keyword = "offset", "S_OFFSET"
+    parameters = (Parameter("value", 0.0, (float,), "added (e)"),
+                  Parameter("mode", "add", (str,), "add or skip", choices=("add", "skip")))
+
+    def run(self, exposure, value, mode):
+        if mode == "skip":
+            raise StepSkipped("asked to skip")
+        return exposure.replace(data=exposure.data.data + value)
+
+
+class OffsetPlugin:
+    def __init__(self):
+        self.calls = []
+
+    @hookimpl
+    def register_steps(self):
+        return [Offset]
+
+    @hookimpl
+    def before_step(self, step, exposure, params):
+        self.calls.append(("before", step.name, dict(params)))
+
+    @hookimpl
+    def after_step(self, step, exposure, result, params, status, reason, elapsed):
+        self.calls.append(("after", step.name, status))
+        return [("QA_" + step.name[:5].upper(), float(elapsed >= 0), "qa")]
+
+
+def registry_with(*plugins):
+    return Registry(get_plugin_manager(entry_points=False, plugins=plugins))
+
+
+def test_steps_run_in_yaml_order_with_provenance(tmp_path, raw):
+    plugin = OffsetPlugin()
+    config = tmp_path / "p.yaml"
+    config.write_text("steps:\n  - offset: {value: 2}\n  - unchop: {}\n  - offset: {value: 3}\n")
+    pipe = Pipeline.from_yaml(config, registry=registry_with(plugin))
+    out = pipe.run(raw)
+    expected = unchop(raw).data.data + 5.0
+    np.testing.assert_allclose(out.data.data, expected, rtol=1e-6)
+    assert [c[:2] for c in plugin.calls] == [("before", "offset"), ("after", "offset"),
+                                               ("before", "unchop"), ("after", "unchop"),
+                                               ("before", "offset"), ("after", "offset")]
+    h = out.header
+    assert h["S_UNCHOP"] == "COMPLETE" and h["S_OFFSET"] == "COMPLETE"
+    assert h["SXR OFFSET VALUE"] == 3.0  # the last run's parameters
+    assert h["SXRVERS"] == spherex_reduce.__version__
+    assert h["SXRCONF"] == pipe.config_hash and len(pipe.config_hash) == 16
+    assert h["QA_OFFSE"] == 1.0
+    history = "\n".join(str(v) for v in h["HISTORY"])
+    assert '"value": 2.0' in history and '"value": 3.0' in history
+    assert raw.header.get("S_UNCHOP") is None  # input untouched
+
+
+def test_skipped_step_is_recorded(raw):
+    pipe = Pipeline({"steps": [{"offset": {"mode": "skip"}}]}, registry=registry_with(
+        OffsetPlugin()))
+    out = pipe.run(raw)
+    assert out.header["S_OFFSET"] == "SKIPPED"
+    assert any("asked to skip" in str(v) for v in out.header["HISTORY"])
+    np.testing.assert_array_equal(out.data.data, raw.data.data)
+
+
+def test_effective_config_fills_defaults():
+    pipe = Pipeline({"steps": ["unchop", {"offset": {"value": 1}}]},
+                    registry=registry_with(OffsetPlugin()))
+    assert pipe.config == {"steps": [{"unchop": {}},
+                                     {"offset": {"value": 1.0, "mode": "add"}}]}
+    assert "value: 1.0" in pipe.to_yaml()
+    same = Pipeline({"steps": ["unchop", {"offset": {"value": 1.0, "mode": "add"}}]},
+                    registry=registry_with(OffsetPlugin()))
+    assert same.config_hash == pipe.config_hash
+
+
+@pytest.mark.parametrize(
+    ("config", "message"),
+    [
+        ({"steps": [{"unchop": {}}, {"unchopp": {}}]},
+         "steps[1].unchopp: unknown step 'unchopp'; valid: offset, unchop"),
+        ({"steps": [{"offset": {"valu": 1}}]},
+         "steps[0].offset.valu: unknown parameter; valid: value, mode"),
+        ({"steps": [{"offset": {"value": "big"}}]}, "steps[0].offset.value: expected number"),
+        ({"steps": [{"offset": {"mode": "sub"}}]}, "steps[0].offset.mode: 'sub' is not one of"),
+        ({"steps": [{"unchop": {"x": 1}}]}, "steps[0].unchop.x: unknown parameter; valid: (none"),
+        ({"steps": []}, "steps: a non-empty list"),
+        ({"stepz": []}, "stepz: unknown top-level key"),
+        ({"steps": ["unchop"], "readout": {"skip": "many"}}, "readout.skip: expected integer"),
+        ({"steps": ["unchop"], "geometry": {"nrow": 5}}, "geometry.nrow: unknown parameter"),
+    ],
+)
+def test_config_errors_name_the_yaml_path(config, message):
+    with pytest.raises(ConfigError) as info:
+        Pipeline(config, registry=registry_with(OffsetPlugin()))
+    assert message in str(info.value)
+
+
+def test_bad_yaml_file(tmp_path):
+    p = tmp_path / "bad.yaml"
+    p.write_text("steps: [unchop\n")
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        Pipeline.from_yaml(p)
+    with pytest.raises(FileNotFoundError, match="shipped: "):
+        Pipeline.from_yaml(tmp_path / "missing.yaml")
+
+
+def test_shipped_config_by_name(raw):
+    out = Pipeline.from_yaml("unchop").run(raw)
+    assert out.order == "physical"
+
+
+class FakeEntryPoint:
+    def __init__(self, name, value, loader):
+        self.name, self.value, self._loader = name, value, loader
+
+    def load(self):
+        return self._loader()
+
+
+def _fake_entry_points(monkeypatch, eps):
+    real = importlib.metadata.entry_points
+
+    def entry_points(**kwargs):
+        if kwargs.get("group") == "spherex_reduce":
+            return list(eps)
+        return real(**kwargs)
+
+    monkeypatch.setattr(importlib.metadata, "entry_points", entry_points)
+
+
+def test_broken_plugin_is_named_and_can_be_blocked(monkeypatch):
+    def boom():
+        raise ImportError("No module named 'numpyy'")
+
+    _fake_entry_points(monkeypatch, [FakeEntryPoint("brokenplug", "broken.mod:plugin", boom)])
+    with pytest.raises(PluginError) as info:
+        get_plugin_manager()
+    assert "'brokenplug'" in str(info.value) and "numpyy" in str(info.value)
+    assert "SPHEREX_REDUCE_BLOCK_PLUGINS=brokenplug" in str(info.value)
+    monkeypatch.setenv("SPHEREX_REDUCE_BLOCK_PLUGINS", "other, brokenplug")
+    pm = get_plugin_manager()
+    assert pm.is_blocked("brokenplug")
+
+
+def test_plugin_with_bad_hook_signature_is_named(monkeypatch):
+    bad = types.SimpleNamespace()
+
+    @hookimpl
+    def before_step(step, exposure, params, unexpected):
+        pass
+
+    bad.before_step = before_step
+    _fake_entry_points(monkeypatch, [FakeEntryPoint("badsig", "bad:plugin", lambda: bad)])
+    with pytest.raises(PluginError, match="'badsig' failed to register"):
+        get_plugin_manager()
+
+
+def test_registration_errors_are_named():
+    class NoKeyword(Step):
+        name = "nokw"
+
+    class Bad:
+        @hookimpl
+        def register_steps(self):
+            return [NoKeyword]
+
+    with pytest.raises(PluginError, match="step 'nokw' needs a FITS status keyword"):
+        registry_with(Bad())
+
+    class Dup:
+        @hookimpl
+        def register_steps(self):
+            return [Offset]
+
+    with pytest.raises(PluginError, match="registered by both"):
+        registry_with(OffsetPlugin(), Dup())
+
+    class Raises:
+        @hookimpl
+        def register_steps(self):
+            raise RuntimeError("oops")
+
+    with pytest.raises(PluginError, match="failed in register_steps: RuntimeError: oops"):
+        registry_with(Raises())
+
+
+def test_no_global_state():
+    a = get_plugin_manager(entry_points=False)
+    b = get_plugin_manager(entry_points=False, plugins=[OffsetPlugin()])
+    assert "offset" in Registry(b).steps and "offset" not in Registry(a).steps
+
+
+def test_example_plugin_through_its_entry_point(raw):
+    """plugins/destripe, installed by the test command, found via the entry-point group."""
+    eps = [ep.name for ep in importlib.metadata.entry_points(group="spherex_reduce")]
+    assert "destripe" in eps, "install the example plugin: pip install ./plugins/destripe"
+    registry = Registry()
+    assert registry.providers["step"]["destripe"] == "destripe"
+    pipe = Pipeline({"steps": ["unchop", {"destripe": {"sigma": 3}}]}, registry=registry)
+    out = pipe.run(raw)
+    # independent expectation: every active row's clipped median is now ~0
+    from astropy.stats import sigma_clipped_stats
+
+    active_cols = ~raw.geometry.reference_column_mask()
+    _, med, _ = sigma_clipped_stats(out.data.data[..., active_cols], sigma=3.0, axis=-1)
+    np.testing.assert_allclose(med, 0.0, atol=1e-3)
+    assert out.header["S_DESTRP"] == "COMPLETE"
+    assert "DESTRIPE" in out.tables
+    with pytest.raises(spherex_reduce.SpherexReduceError, match="run unchop before it"):
+        Pipeline({"steps": ["destripe"]}, registry=registry).run(raw)
+
+
+def test_example_plugin_docstring_examples_run():
+    import doctest
+
+    module = pytest.importorskip("spherex_reduce_destripe.plugin")
+    result = doctest.testmod(module, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted > 0 and result.failed == 0
+
+
+def test_input_exposure_is_not_mutated(raw):
+    data = raw.data.data.copy()
+    header = raw.header.copy()
+    Pipeline({"steps": ["unchop"]}).run(raw)
+    np.testing.assert_array_equal(raw.data.data, data)
+    assert raw.header == header and isinstance(raw, Exposure)

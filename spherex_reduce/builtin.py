@@ -19,6 +19,7 @@ class UnchopStep(Step):
 
     name = "unchop"
     keyword = "S_UNCHOP"
+    per_frame = True
 
     def run(self, exposure):
         return unchop(exposure)

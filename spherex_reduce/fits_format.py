@@ -40,7 +40,7 @@ from .errors import FormatError
 from .exposure import Exposure, ReferenceReads
 from .schedule import ReadoutSchedule
 
-__all__ = ["atomic_output", "read", "write"]
+__all__ = ["FrameReader", "atomic_output", "read", "write"]
 
 _RESERVED = {"PRIMARY", "SCI", "ERR", "DQ", "PHANTOM", "READOUT", "REFPIX", "REFPHANT", "REFREADS"}
 
@@ -167,14 +167,64 @@ def _table_hdu(table, name):
     return hdu
 
 
+def _open(path, memmap):
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no such file: {path}")
+    try:
+        return fits.open(path, memmap=memmap, mode="readonly")
+    except OSError as exc:
+        raise FormatError(f"{path} is not a readable FITS file: {exc}") from exc
+
+
+def _describe(hdul, path, supplied):
+    """Validate an open file; return what every reader needs (no pixel data loaded)."""
+    names = [h.name for h in hdul]
+    header = hdul[0].header.copy()
+    if "SCI" in names:
+        sci = hdul["SCI"]
+    elif hdul[0].header.get("NAXIS", 0) > 0:
+        sci = hdul[0]
+    else:
+        raise FormatError(f"{path} has no SCI extension and no primary data")
+    shape = tuple(sci.header[f"NAXIS{i}"] for i in range(sci.header["NAXIS"], 0, -1))
+    table = Table.read(hdul["READOUT"]) if "READOUT" in names else None
+    schedule = ReadoutSchedule.from_header(header, table, **supplied)
+    order = str(header.get("ORDER", "READOUT")).strip().lower()
+    if order not in ("readout", "physical"):
+        raise FormatError(f"keyword ORDER must be READOUT or PHYSICAL, got {order!r}")
+    _check_shape(shape, schedule, order, "SCI")
+    if "PHANTOM" in names:
+        pshape = tuple(hdul["PHANTOM"].shape)
+        expected = (*_expected(len(shape), schedule, order)[:-1], schedule.geometry.nchannels)
+        if pshape != expected:
+            raise FormatError(
+                f"PHANTOM has shape {pshape}, the schedule gives {expected} "
+                "(frames, reads, channels): check NFRAMES, NCHAN and the read order keywords"
+            )
+    elif schedule.phantom_reads and order == "readout":
+        raise FormatError(f"NPHANT={schedule.phantom_reads} but the file has no PHANTOM extension")
+    unit = _unit(header.get("BUNIT", sci.header.get("BUNIT", "electron")))
+    for key in ("CHECKSUM", "DATASUM", "ORDER"):
+        header.remove(key, ignore_missing=True)
+    return {"names": names, "header": header, "sci": sci, "shape": shape,
+            "schedule": schedule, "order": order, "unit": unit}
+
+
+def _readonly(*arrays):
+    for array in arrays:
+        if array is not None:  # the file's own pages: a step must never write into them
+            array.setflags(write=False)
+
+
 def read(path, **supplied):
     """Read an exposure written by `write` (or raw data from other electronics).
 
     Parameters
     ----------
     path : str or `pathlib.Path`
-        FITS file.  It is opened read-only (memory-mapped); it is never
-        changed.
+        FITS file.  It is opened read-only (memory-mapped) and never changed;
+        the arrays of the returned exposure are read-only.
     **supplied
         Geometry and readout parameters (``nrows``, ``skip``, ``frame_time``
         ...) used where the header lacks them, e.g. from a pipeline config's
@@ -191,44 +241,13 @@ def read(path, **supplied):
         ``READOUT`` table and the array shapes disagree; the message names the
         keyword or dimension.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no such file: {path}")
-    try:
-        hdul = fits.open(path, memmap=True, mode="readonly")
-    except OSError as exc:
-        raise FormatError(f"{path} is not a readable FITS file: {exc}") from exc
-    with hdul:
-        names = [h.name for h in hdul]
-        header = hdul[0].header.copy()
-        if "SCI" in names:
-            sci = hdul["SCI"]
-        elif hdul[0].data is not None:
-            sci = hdul[0]
-        else:
-            raise FormatError(f"{path} has no SCI extension and no primary data")
-        data = sci.data
-        table = Table.read(hdul["READOUT"]) if "READOUT" in names else None
-        schedule = ReadoutSchedule.from_header(header, table, **supplied)
-        order = str(header.get("ORDER", "READOUT")).strip().lower()
-        if order not in ("readout", "physical"):
-            raise FormatError(f"keyword ORDER must be READOUT or PHYSICAL, got {order!r}")
-        _check_shape(data.shape, schedule, order, "SCI")
-        unit = _unit(header.get("BUNIT", sci.header.get("BUNIT", "electron")))
+    with _open(path, memmap=True) as hdul:
+        d = _describe(hdul, path, supplied)
+        names = d["names"]
+        data = d["sci"].data
         err = hdul["ERR"].data if "ERR" in names else None
         mask = hdul["DQ"].data if "DQ" in names else None
         phantom = hdul["PHANTOM"].data if "PHANTOM" in names else None
-        if phantom is not None:
-            expected = (*_expected(data.ndim, schedule, order)[:-1], schedule.geometry.nchannels)
-            if phantom.shape != expected:
-                raise FormatError(
-                    f"PHANTOM has shape {phantom.shape}, the schedule gives {expected} "
-                    "(frames, reads, channels): check NFRAMES, NCHAN and the read order keywords"
-                )
-        elif schedule.phantom_reads and order == "readout":
-            raise FormatError(
-                f"NPHANT={schedule.phantom_reads} but the file has no PHANTOM extension"
-            )
         reference = None
         if "REFPIX" in names:
             rt = Table.read(hdul["REFREADS"])
@@ -236,20 +255,76 @@ def read(path, **supplied):
                 data=hdul["REFPIX"].data, rows=np.asarray(rt["row"]), reads=np.asarray(rt["read"]),
                 phantom=hdul["REFPHANT"].data if "REFPHANT" in names else None,
             )
+            _readonly(reference.data, reference.phantom)
         tables = {
             h.name: Table.read(h)
             for h in hdul
             if isinstance(h, fits.BinTableHDU) and h.name not in _RESERVED
         }
-    for key in ("CHECKSUM", "DATASUM", "ORDER"):
-        header.remove(key, ignore_missing=True)
-    for array in (data, err, mask, phantom, *(() if reference is None else
-                                                 (reference.data, reference.phantom))):
-        if array is not None:  # the file's own pages: a step must never write into them
-            array.setflags(write=False)
-    return Exposure.from_arrays(data, schedule, unit=unit, uncertainty=err, mask=mask,
-                                phantom=phantom, header=header, order=order,
+    _readonly(data, err, mask, phantom)
+    return Exposure.from_arrays(data, d["schedule"], unit=d["unit"], uncertainty=err, mask=mask,
+                                phantom=phantom, header=d["header"], order=d["order"],
                                 reference=reference, tables=tables)
+
+
+class FrameReader:
+    """Read a raw ramp file one frame at a time, without mapping the whole file.
+
+    Used by `~spherex_reduce.Pipeline` to reduce ramps frame by frame in
+    memory near one frame.  Use as a context manager.
+
+    Parameters
+    ----------
+    path : str or `pathlib.Path`
+        A file of ramps ``(frames, reads, columns)`` in readout order.
+    **supplied
+        As for `read`.
+
+    Attributes
+    ----------
+    schedule : `ReadoutSchedule`
+        The full exposure's schedule.
+    header : `astropy.io.fits.Header`
+    """
+
+    def __init__(self, path, **supplied):
+        self.path = Path(path)
+        self._hdul = _open(path, memmap=False)
+        try:
+            d = _describe(self._hdul, path, supplied)
+            if len(d["shape"]) != 3 or d["order"] != "readout" or "DQ" in d["names"] \
+                    or "ERR" in d["names"]:
+                raise FormatError(f"{path} is not a raw ramp file in readout order")
+            self._d = d
+            self.schedule, self.header, self.unit = d["schedule"], d["header"], d["unit"]
+            self._phantom = (np.asarray(self._hdul["PHANTOM"].data)
+                             if "PHANTOM" in d["names"] else None)
+        except Exception:
+            self._hdul.close()
+            raise
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+    def close(self):
+        """Close the file."""
+        self._hdul.close()
+
+    @property
+    def nframes(self):
+        """Number of frames in the file."""
+        return self.schedule.nframes
+
+    def frame(self, k):
+        """Frame ``k`` as a one-frame `Exposure` (schedule with ``nframes=1``)."""
+        data = np.asarray(self._d["sci"].section[k : k + 1])
+        phantom = None if self._phantom is None else self._phantom[k : k + 1]
+        return Exposure.from_arrays(data, self.schedule.replace(nframes=1), unit=self.unit,
+                                    phantom=phantom, header=self.header)
 
 
 def _unit_str(unit):

@@ -5,7 +5,10 @@ import hashlib
 import json
 import time
 
+import numpy as np
 import yaml
+from astropy.io import fits
+from astropy.table import vstack
 from tqdm.auto import tqdm
 
 from ._version import __version__
@@ -19,9 +22,10 @@ from .config import (
 )
 from .errors import ConfigError, StepSkipped
 from .exposure import Exposure
-from .fits_format import read
+from .fits_format import FrameReader, read
 from .parameters import Parameter, validate_parameters
 from .plugins import Registry
+from .step import Step
 
 __all__ = ["Pipeline"]
 
@@ -150,10 +154,21 @@ class Pipeline:
     # -- running ------------------------------------------------------------------
     def read(self, path):
         """Read a FITS file, with this config's geometry/readout for missing keywords."""
-        supplied = {**self._config.get("geometry", {}), **self._config.get("readout", {})}
-        return read(path, **supplied)
+        return read(path, **self._supplied())
 
-    def run(self, exposure, progress=False):
+    def _supplied(self):
+        return {**self._config.get("geometry", {}), **self._config.get("readout", {})}
+
+    def _stream_split(self, steps):
+        """Index of the accumulating step if every step before it is per-frame, else None."""
+        for i, (_, _, step) in enumerate(steps):
+            if type(step).accumulator is not Step.accumulator:
+                return i
+            if not step.per_frame:
+                return None
+        return None
+
+    def run(self, exposure, progress=False, stream=True):
         """Run every step in order and return the reduced exposure.
 
         Parameters
@@ -161,7 +176,13 @@ class Pipeline:
         exposure : `Exposure` or path
             The input (a path is read with :meth:`read`); never modified.
         progress : bool
-            Show a progress bar over the steps.
+            Show progress bars (steps, and frames when streaming).
+        stream : bool
+            When the steps allow it (per-frame steps followed by one with an
+            accumulator, e.g. ``unchop, subtract_phantom, correct_reference,
+            fit_ramp``) and the input is ramps, push the frames through one at
+            a time: a raw file is then read frame by frame and memory stays near
+            one frame plus the output.  The result is the same either way.
 
         Returns
         -------
@@ -169,35 +190,139 @@ class Pipeline:
             With each step's status keyword, parameters, the package version
             (``SXRVERS``) and the config hash (``SXRCONF``) in its header.
         """
-        if not isinstance(exposure, Exposure):
-            exposure = self.read(exposure)
-        hook = self.registry.pm.hook
-        current = exposure
-        bar = tqdm(self.steps, desc="reduce", unit="step", disable=not progress, leave=False)
-        for name, params in bar:
+        steps = [(name, params, self.registry.step(name)(self.registry))
+                 for name, params in self.steps]
+        split = self._stream_split(steps) if stream else None
+        current, done = exposure, 0
+        if split is not None:
+            source = self._frame_source(exposure)
+            if source is not None:
+                with source:
+                    current = self._run_streamed(source, steps[: split + 1], progress)
+                done = split + 1
+        if not isinstance(current, Exposure):
+            current = self.read(current)
+        bar = tqdm(steps[done:], desc="reduce", unit="step", disable=not progress, leave=False)
+        for name, params, step in bar:
             bar.set_postfix_str(name)
-            step = self.registry.step(name)(self.registry)
-            hook.before_step(step=step, exposure=current, params=params)
+            self.registry.pm.hook.before_step(step=step, exposure=current, params=params)
             t0 = time.perf_counter()
             try:
                 result, status, reason = step.run(current, **params), "COMPLETE", None
             except StepSkipped as skip:
                 result, status, reason = current, "SKIPPED", skip.reason
-            elapsed = time.perf_counter() - t0
-            replies = hook.after_step(step=step, exposure=current, result=result, params=params,
-                                      status=status, reason=reason, elapsed=elapsed)
-            header = result.header.copy()
-            for cards in replies:
-                for key, value, comment in cards or ():
-                    if key in ("HISTORY", "COMMENT"):
-                        header.add_history(value) if key == "HISTORY" else header.add_comment(
-                            value)
-                    else:
-                        header[key] = (value, comment)
-            current = result.replace(header=header)
+            current = self._record(step, params, current, result, status, reason,
+                                   time.perf_counter() - t0)
         header = current.header.copy()
         header["SXRVERS"] = (__version__, "spherex_reduce version")
         header["SXRCONF"] = (self.config_hash, "SHA-256 of the effective pipeline config")
         header.add_history(f"pipeline {self.source}: "
                            + json.dumps(self._config, sort_keys=True, default=str))
         return current.replace(header=header)
+
+    def _record(self, step, params, before, result, status, reason, elapsed):
+        """Call the after-step hooks and put their cards in a copy of the result's header."""
+        replies = self.registry.pm.hook.after_step(
+            step=step, exposure=before, result=result, params=params, status=status,
+            reason=reason, elapsed=elapsed)
+        header = result.header.copy()
+        for cards in replies:
+            for key, value, comment in cards or ():
+                if key == "HISTORY":
+                    header.add_history(value)
+                elif key == "COMMENT":
+                    header.add_comment(value)
+                else:
+                    header[key] = (value, comment)
+        return result.replace(header=header)
+
+    def _frame_source(self, exposure):
+        """Frames of a ramp input (file or Exposure), or None if it is not ramps."""
+        if isinstance(exposure, Exposure):
+            return _ExposureFrames(exposure) if exposure.is_ramp else None
+        if not _is_raw_ramp_file(exposure):
+            return None
+        return FrameReader(exposure, **self._supplied())
+
+    def _run_streamed(self, source, steps, progress):
+        """Per-frame steps on each frame in turn, into the last step's accumulator."""
+        hook = self.registry.pm.hook
+        *prefix, (_, cparams, consumer) = steps
+        first = source.frame(0)
+        for _, params, step in steps:
+            hook.before_step(step=step, exposure=first, params=params)
+        acc = consumer.accumulator(source.schedule, source.header, **cparams)
+        elapsed = [0.0] * len(steps)
+        status = [("COMPLETE", None)] * len(prefix)
+        tables = {}
+        frames = tqdm(range(source.nframes), desc="reduce frames", unit="frame",
+                      disable=not progress, leave=False)
+        for k in frames:
+            frame = first if k == 0 else source.frame(k)
+            for j, (_, params, step) in enumerate(prefix):
+                t0 = time.perf_counter()
+                try:
+                    out = step.run(frame, **params)
+                except StepSkipped as skip:
+                    out, status[j] = frame, ("SKIPPED", skip.reason)
+                elapsed[j] += time.perf_counter() - t0
+                for name, table in out.tables.items():
+                    if table is not frame.tables.get(name):  # recorded by this step
+                        t = table.copy()
+                        t["frame"] = np.full(len(t), k, dtype=np.int32)
+                        tables.setdefault(name, []).append(t)
+                frame = out
+            t0 = time.perf_counter()
+            acc.add(k, frame)
+            elapsed[-1] += time.perf_counter() - t0
+        result = acc.finish()
+        merged = {name: vstack(parts, metadata_conflicts="silent")
+                  for name, parts in tables.items()}
+        result = result.replace(tables={**result.tables, **merged})
+        for j, (_, params, step) in enumerate(prefix):
+            result = self._record(step, params, first, result, *status[j], elapsed[j])
+        return self._record(consumer, cparams, first, result, "COMPLETE", None, elapsed[-1])
+
+
+class _ExposureFrames:
+    """Frames of an in-memory ramp Exposure, as one-frame views."""
+
+    def __init__(self, exposure):
+        self.exposure = exposure
+        self.schedule = exposure.schedule
+        self.header = exposure.header
+        self.nframes = exposure.schedule.nframes
+        self._one = exposure.schedule.replace(nframes=1)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def frame(self, k):
+        e = self.exposure
+        sl = slice(k, k + 1)
+        unc = None if e.data.uncertainty is None else e.data.uncertainty.array[sl]
+        return Exposure.from_arrays(
+            e.data.data[sl], self._one, unit=e.unit, uncertainty=unc,
+            mask=None if e.dq is None else e.dq[sl],
+            phantom=None if e.phantom is None else e.phantom[sl], header=e.header,
+            order=e.order,
+            reference=None if e.reference is None else e.reference.replace(
+                data=e.reference.data[sl],
+                phantom=None if e.reference.phantom is None else e.reference.phantom[sl]),
+            tables=e.tables)
+
+
+def _is_raw_ramp_file(path):
+    """True for a file whose SCI is 3-D ramps in readout order (headers only are read)."""
+    try:
+        with fits.open(path, memmap=False) as hdul:
+            names = [h.name for h in hdul]
+            sci = hdul["SCI"] if "SCI" in names else hdul[0]
+            order = str(hdul[0].header.get("ORDER", "READOUT")).strip().upper()
+            return (sci.header.get("NAXIS") == 3 and order == "READOUT"
+                    and "DQ" not in names and "ERR" not in names)
+    except (OSError, KeyError, IndexError):
+        return False  # the ordinary reader gives the proper error

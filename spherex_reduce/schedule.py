@@ -356,9 +356,11 @@ class ReadoutSchedule:
     def summary(self):
         """One line describing the schedule."""
         g = self.geometry
+        refs = ("reference rows once" if self.ref_mode == "none"
+                else f"r={self.ref_reads} ({self.ref_mode})")
         return (
             f"{g.nrows}x{g.ncols} array, {g.nchannels} channels of {g.channel_width} columns, "
-            f"S={self.skip}, r={self.ref_reads} ({self.ref_mode}), c={self.phantom_reads}: "
+            f"S={self.skip}, {refs}, c={self.phantom_reads}: "
             f"{self.n_reads} reads/frame ({int(self._is_ref.sum())} reference), frame time "
             f"{self.frame_time.to_value(u.s):.6g} s, N={self.nframes}, "
             f"{self.integration_time.to_value(u.s):.6g} s"

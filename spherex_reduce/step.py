@@ -2,7 +2,7 @@
 
 from typing import ClassVar
 
-__all__ = ["Simulator", "Step", "Strategy"]
+__all__ = ["FrameAccumulator", "Simulator", "Step", "Strategy"]
 
 
 class Step:
@@ -26,6 +26,13 @@ class Step:
         step's.
     default_strategy : str or None
         Strategy used when the YAML file names none.
+    per_frame : bool
+        True if running the step on ramps gives the same as running it on
+        each frame alone (as a one-frame exposure) and stacking the results.
+        The pipeline then streams frames through it, one at a time, into a
+        following step that has an :meth:`accumulator` (e.g. ``fit_ramp``),
+        so memory stays near one frame.  Tables such a step records get a
+        ``frame`` column.
 
     Examples
     --------
@@ -43,6 +50,7 @@ class Step:
     parameters: ClassVar[tuple] = ()
     strategy_kind: ClassVar[str | None] = None
     default_strategy: ClassVar[str | None] = None
+    per_frame: ClassVar[bool] = False
 
     def __init__(self, registry=None):
         self.registry = registry
@@ -51,9 +59,34 @@ class Step:
         """Return a new exposure; never modify ``exposure``."""
         raise NotImplementedError
 
+    def accumulator(self, schedule, header, **params):
+        """A `FrameAccumulator` that reduces ramps frame by frame, or None.
+
+        Steps that turn frames into one image (``fit_ramp``) return one, so
+        the pipeline can feed them frames as it reads them.  ``schedule`` is
+        the whole exposure's; ``header`` the input's.  The default is None.
+        """
+        return None
+
     def strategy(self, name):
         """The registered strategy class ``name`` of this step's kind."""
         return self.registry.strategy(self.strategy_kind, name)
+
+
+class FrameAccumulator:
+    """Receives the frames of a ramp one at a time and returns the reduced exposure.
+
+    The result must equal what the step's :meth:`Step.run` returns on the
+    whole ramp.
+    """
+
+    def add(self, index, frame):
+        """Take frame ``index`` (a one-frame `~spherex_reduce.Exposure`)."""
+        raise NotImplementedError
+
+    def finish(self):
+        """The reduced `~spherex_reduce.Exposure`, after every frame was added."""
+        raise NotImplementedError
 
 
 class Strategy:

@@ -245,3 +245,89 @@ def test_input_exposure_is_not_mutated(raw):
     Pipeline({"steps": ["unchop"]}).run(raw)
     np.testing.assert_array_equal(raw.data.data, data)
     assert raw.header == header and isinstance(raw, Exposure)
+
+
+class FrameSum(Step):
+    """Toy accumulating step: the sum of the frames (a stand-in for fit_ramp)."""
+
+    name, keyword = "framesum", "S_FSUM"
+
+    def run(self, exposure):
+        total = exposure.data.data.sum(axis=0, dtype=np.float64)
+        return Exposure.from_arrays(total, exposure.schedule, order=exposure.order,
+                                    header=exposure.header, tables=exposure.tables)
+
+    def accumulator(self, schedule, header):
+        return _SumAccumulator()
+
+
+class _SumAccumulator:
+    def __init__(self):
+        self.total, self.seen = None, []
+
+    def add(self, index, frame):
+        self.seen.append(index)
+        self.total = frame.data.data[0].astype(np.float64) + (0 if self.total is None
+                                                              else self.total)
+        self.schedule, self.order, self.header = frame.schedule, frame.order, frame.header
+
+    def finish(self):
+        return Exposure.from_arrays(self.total, self.schedule, order=self.order,
+                                    header=self.header)
+
+
+class PerFrameNote(Step):
+    """Toy per-frame step that records a table, like correct_reference does."""
+
+    name, keyword, per_frame = "note", "S_NOTE", True
+
+    def run(self, exposure):
+        from astropy.table import Table
+
+        means = np.atleast_1d(exposure.data.data.mean(axis=(-2, -1)))
+        return exposure.replace(data=exposure.data.data - 1.0, tables={
+            **exposure.tables, "NOTE": Table({"frame": np.arange(means.size), "mean": means})})
+
+
+class ToyPlugin:
+    @hookimpl
+    def register_steps(self):
+        return [FrameSum, PerFrameNote]
+
+
+def test_streamed_run_equals_in_memory_run(tmp_path, raw):
+    path = write_raw(tmp_path, raw)
+    registry = registry_with(ToyPlugin())
+    pipe = Pipeline({"steps": ["unchop", "note", "framesum"]}, registry=registry)
+    in_memory = pipe.run(raw, stream=False)
+    for source in (raw, path):
+        streamed = pipe.run(source)
+        np.testing.assert_allclose(streamed.data.data, in_memory.data.data, rtol=1e-12)
+        assert streamed.order == "physical" and streamed.data.data.ndim == 2
+        for key in ("S_UNCHOP", "S_NOTE", "S_FSUM"):
+            assert streamed.header[key] == in_memory.header[key] == "COMPLETE"
+        note, expected = streamed.tables["NOTE"], in_memory.tables["NOTE"]
+        assert note["frame"].tolist() == expected["frame"].tolist() == list(range(4))
+        np.testing.assert_allclose(note["mean"], expected["mean"], rtol=1e-12)
+
+
+def write_raw(tmp_path, raw):
+    from spherex_reduce import write
+
+    return write(raw, tmp_path / "raw.fits")
+
+
+def test_streaming_reads_one_frame_at_a_time(tmp_path, raw, monkeypatch):
+    from spherex_reduce import fits_format
+
+    path = write_raw(tmp_path, raw)
+    asked = []
+    original = fits_format.FrameReader.frame
+
+    def spy(self, k):
+        asked.append(k)
+        return original(self, k)
+
+    monkeypatch.setattr(fits_format.FrameReader, "frame", spy)
+    Pipeline({"steps": ["unchop", "framesum"]}, registry=registry_with(ToyPlugin())).run(path)
+    assert asked == list(range(raw.schedule.nframes))

@@ -322,7 +322,7 @@ class ReadoutSchedule:
     def __eq__(self, other):
         if not isinstance(other, ReadoutSchedule):
             return NotImplemented
-        return (
+        return bool(
             self.geometry == other.geometry
             and self.to_dict() == other.to_dict()
             and np.isclose(self.frame_time.to_value(u.s), other.frame_time.to_value(u.s))

@@ -23,6 +23,7 @@ __all__ = [
 ]
 
 _NUM = (int, float)
+#: Keys of the ``geometry:`` section, with defaults (the SPHEREx H2RG).
 GEOMETRY_PARAMETERS = (
     Parameter("nrows", 2048, (int,), "array rows", minimum=1),
     Parameter("ncols", 2048, (int,), "array columns", minimum=1),
@@ -31,6 +32,7 @@ GEOMETRY_PARAMETERS = (
     Parameter("scan", "same", (str, list), "fast-scan direction: same, alternate or +1/-1 list"),
     Parameter("pixel_rate", 100_000.0, _NUM, "pixel rate per channel (Hz)", minimum=0),
 )
+#: Keys of the ``readout:`` section, with defaults (the paper's Table 3).
 READOUT_PARAMETERS = (
     Parameter("skip", 24, (int,), "row-chopping skip S", minimum=1),
     Parameter("ref_reads", 32, (int,), "reference row reads per frame r", minimum=0),

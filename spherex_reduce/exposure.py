@@ -13,6 +13,7 @@ from .schedule import ReadoutSchedule
 
 __all__ = ["ORDERS", "Exposure", "ReferenceReads", "as_dq"]
 
+#: Row orders of an exposure: as read (``readout``) or as on the array (``physical``).
 ORDERS = ("readout", "physical")
 _KEEP = object()
 

@@ -26,6 +26,7 @@ from .geometry import DetectorGeometry, _check_int
 
 __all__ = ["REF_MODES", "ReadoutSchedule", "chopped_order"]
 
+#: The reference read modes a schedule accepts (``ref_mode``).
 REF_MODES = ("none", "repeated", "distributed")
 
 #: Row and frame overheads (samples) that give the paper's 1.51 s frame for
@@ -438,7 +439,12 @@ class ReadoutSchedule:
                     ) from exc
             elif supplied.get(name) is not None:
                 values[name] = supplied[name]
-        required = ["nrows", "ncols", "nchannels", "nframes"]
+        # Everything that decides read order and timing is required: guessing the
+        # SPHEREx defaults for a foreign file would un-chop it wrongly and silently.
+        required = ["nrows", "ncols", "nchannels", "ref_border", "pixel_rate", "nframes",
+                    "skip", "ref_mode", "phantom_reads"]
+        if values.get("ref_mode", "none") != "none":
+            required.append("ref_reads")
         missing = [keys[n][0] for n in required if n not in values]
         if "frame_time" not in values and "frame_overhead" not in values:
             missing.append("TFRAME (or FRMOVH)")
@@ -497,5 +503,5 @@ class ReadoutSchedule:
                 i = bad[0]
                 raise FormatError(
                     f"READOUT column {col!r} disagrees with the header keywords ({hint}) at read "
-                    f"{i}: table has {got[i]!r}, keywords give {expected[i]!r}"
+                    f"{i}: table has {got[i].item()!r}, keywords give {expected[i].item()!r}"
                 )

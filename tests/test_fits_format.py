@@ -103,7 +103,8 @@ def _edit(path, out, hdu=0, **cards):
 @pytest.mark.parametrize(
     ("cards", "message"),
     [
-        ({"ROWSKIP": 4}, "READOUT column 'row' disagrees"),
+        ({"ROWSKIP": 4}, "READOUT column 'row' disagrees with the header keywords "
+                         "(ROWSKIP/NREFRD/REFMODE) at read 2: table has 7, keywords give 6"),
         ({"NREFRD": 5}, "READOUT table has"),
         ({"NPHANT": 2}, "READOUT column 'start' disagrees"),
         ({"NFRAMES": 3}, "axis 0, frames (NFRAMES), is 4, expected 3"),
@@ -139,11 +140,15 @@ def test_foreign_file_read_with_supplied_readout(tmp_path, raw):
     with pytest.raises(FormatError, match="supply them in the pipeline config"):
         read(tmp_path / "foreign.fits")
     config = {
-        "geometry": {"nrows": 32, "ncols": 16, "nchannels": 2, "ref_border": 2},
-        "readout": {"skip": 5, "ref_reads": 6, "phantom_reads": 3, "row_overhead": 2,
-                    "frame_overhead": 50, "nframes": 4},
+        "geometry": {"nrows": 32, "ncols": 16, "nchannels": 2, "ref_border": 2,
+                     "pixel_rate": 100000},
+        "readout": {"skip": 5, "ref_reads": 6, "ref_mode": "distributed", "phantom_reads": 3,
+                    "row_overhead": 2, "frame_overhead": 50, "nframes": 4},
         "steps": [{"unchop": {}}],
     }
+    partial = {k: v for k, v in config["readout"].items() if k != "skip"}
+    with pytest.raises(FormatError, match="missing readout keyword.s. ROWSKIP"):
+        Pipeline({**config, "readout": partial}).read(tmp_path / "foreign.fits")
     pipe = Pipeline(config)
     e = pipe.read(tmp_path / "foreign.fits")
     assert e.schedule == s

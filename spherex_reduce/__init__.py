@@ -16,8 +16,19 @@ from .fits_format import read, write
 from .geometry import DetectorGeometry
 from .pipeline import Pipeline
 from .schedule import ReadoutSchedule
+from .simulation import expected_slope_variance, simulate
 from .step import Simulator, Step, Strategy
-from .steps import rechop, unchop
+from .steps import (
+    combine_darks,
+    correct_reference,
+    fit_ramp,
+    pair_difference,
+    rechop,
+    sigma_clip,
+    subtract_dark,
+    subtract_phantom,
+    unchop,
+)
 
 logging.getLogger("spherex_reduce").addHandler(logging.NullHandler())
 
@@ -36,9 +47,18 @@ __all__ = [
     "StepSkipped",
     "Strategy",
     "__version__",
+    "combine_darks",
+    "correct_reference",
     "dq",
+    "expected_slope_variance",
+    "fit_ramp",
+    "pair_difference",
     "read",
     "rechop",
+    "sigma_clip",
+    "simulate",
+    "subtract_dark",
+    "subtract_phantom",
     "unchop",
     "write",
 ]

@@ -27,6 +27,8 @@ ENTRY_POINT_GROUP = "spherex_reduce"
 #: short names; they are always present and cannot be blocked.
 BUILTIN_PLUGINS = {
     "builtin": "spherex_reduce.builtin",
+    "reduction": "spherex_reduce.reduction_plugin",
+    "simulation": "spherex_reduce.simulation_plugin",
 }
 BLOCK_ENV = "SPHEREX_REDUCE_BLOCK_PLUGINS"
 log = logging.getLogger("spherex_reduce")
@@ -91,11 +93,19 @@ def get_plugin_manager(*, entry_points=True, block=None, plugins=()):
 
 def _register(pm, obj, name):
     label = name or getattr(obj, "__name__", type(obj).__name__)
+    if name is None:  # plugin objects: a readable, unique name for messages
+        name, n = label, 1
+        while pm.has_plugin(name) or pm.is_blocked(name):
+            n += 1
+            name = f"{label}-{n}"
     try:
         pm.register(obj, name=name)
+        # a hook implementation no spec matches (e.g. register_stepz) is an error, not a no-op
+        pm.check_pending()
     except Exception as exc:
+        pm.unregister(name=name) if pm.has_plugin(name) else None
         raise PluginError(
-            f"plugin {label!r} failed to register: {exc}. Block it with {BLOCK_ENV}={label}"
+            f"plugin {name!r} failed to register: {exc}. Block it with {BLOCK_ENV}={name}"
         ) from exc
 
 

@@ -94,11 +94,22 @@ def test_plugins_lists_providers(capsys):
 
 
 def test_demo_runs_and_refuses_to_overwrite(tmp_path, capsys):
-    assert run("-q", "demo", "-o", tmp_path / "d") == 0
-    files = {p.name for p in (tmp_path / "d").iterdir()}
-    assert {"raw.fits", "reduced.fits", "schedule.ecsv", "read_order.png"} <= files
-    assert run("demo", "-o", tmp_path / "d") == 2
+    from spherex_reduce.demo import PRODUCTS
+
+    assert run("-q", "demo", "-o", tmp_path / "d", "--size", 128, "--nframes", 6) == 0
+    out = capsys.readouterr().out
+    assert "band power 5-20'" in out and "photon noise of 1 e/s" in out
+    assert {p.name for p in (tmp_path / "d").iterdir()} == set(PRODUCTS)
+    raw = read(tmp_path / "d" / "raw_chopped.fits")
+    assert raw.schedule.skip == 24 and raw.is_ramp and raw.schedule.nframes == 6
+    reduced = read(tmp_path / "d" / "reduced_chopped.fits")
+    assert reduced.header["S_REFCOR"] == "COMPLETE" and reduced.order == "physical"
+    spectra = Table.read(tmp_path / "d" / "spectra.ecsv")
+    assert {"k", "theta", "power_chopped", "power_unchopped"} <= set(spectra.colnames)
+    assert run("demo", "-o", tmp_path / "d", "--size", 128) == 2
     assert "exists" in capsys.readouterr().err
+    assert run("demo", "-o", tmp_path / "e", "--size", 100) == 2
+    assert "multiple of 64" in capsys.readouterr().err
 
 
 def test_console_script_unexpected_and_usage(tmp_path):

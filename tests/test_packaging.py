@@ -64,7 +64,8 @@ def test_wheel_in_fresh_venv_runs_from_another_directory(tmp_path):
     r = subprocess.run([*cli, "show-config", "--list"], cwd=work, env=env, capture_output=True,
                        text=True)
     assert r.returncode == 0 and "unchop" in r.stdout.split(), r.stderr
-    r = subprocess.run([*cli, "-q", "demo", "-o", "out"], cwd=work, env=env,
+    r = subprocess.run([*cli, "-q", "demo", "-o", "out", "--size", "64", "--nframes", "3"],
+                       cwd=work, env=env,
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
-    assert (work / "out" / "reduced.fits").is_file()
+    assert (work / "out" / "reduced_chopped.fits").is_file()

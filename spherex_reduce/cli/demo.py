@@ -4,18 +4,27 @@ from pathlib import Path
 
 
 def add_parser(sub):
-    p = sub.add_parser("demo", help="simulate, reduce and measure on built-in defaults",
-                       description="Run the package end to end on built-in inputs and write "
-                       "FITS files, a table and plots to a directory.")
+    p = sub.add_parser(
+        "demo", help="simulate, reduce and measure the paper's case on built-in defaults",
+        description="Simulate raw ramps of the paper's readout (S=24, r=32, c=4, N=74) and of "
+        "the same array read without chopping, reduce both, and write FITS files, the spatial "
+        "power spectra (ECSV) and plots to a directory. Full size writes about 2.5 GB.")
     p.add_argument("-o", "--output", default="spherex-demo", metavar="DIR",
                    help="output directory (default: %(default)s)")
+    p.add_argument("--size", type=int, default=2048,
+                   help="array size in pixels, a multiple of 64 (default: %(default)s)")
+    p.add_argument("--nframes", type=int, default=74, help="frames up the ramp (default: 74)")
+    p.add_argument("--seed", type=int, default=2024, help="simulation seed")
     p.add_argument("--overwrite", action="store_true", help="replace files in DIR")
     p.set_defaults(func=run)
 
 
 def run(args):
     from ..demo import run_demo
+    from ..errors import SpherexReduceError
 
-    out = Path(args.output)
-    for line in run_demo(out, overwrite=args.overwrite, progress=not args.quiet):
-        print(line)
+    if args.size < 64 or args.size % 64:
+        raise SpherexReduceError(f"--size must be a multiple of 64, >= 64; got {args.size}")
+    for line in run_demo(Path(args.output), overwrite=args.overwrite, progress=not args.quiet,
+                         size=args.size, nframes=args.nframes, seed=args.seed):
+        print(line, flush=True)

@@ -1,0 +1,215 @@
+"""Benchmark of the reduction steps at full size (one process; prints a table).
+
+    python benchmarks/bench_reduce.py [--quick] [--no-stcal] [--no-file] [--out FILE.md]
+
+* ``fit_ramp`` on a (74, 2048, 2048) float32 cube on a 6e4 pedestal: time against
+  ``cube.sum()`` on the same array (target <= 3x), against stcal's OLS_C ramp fit
+  (target >= 50x faster), and the largest error against a float64 least-squares
+  reference, in units of the slope's sigma (target <= 1e-3).
+* ``correct_reference`` (mean) on a 74-frame full-size cube (target <= 1 s).
+* ``spherex-reduce reduce`` of a full-size raw FITS file (N = 74, ~1.3 GB in /tmp,
+  deleted afterwards): wall time against reading the file's data once (target <= 3x)
+  and peak RSS against the file size (target <= 1.5x), each in a fresh subprocess.
+
+The machine is shared: each timing is the best of a few runs.  ``--quick`` uses
+N = 10 frames (for a smoke test of the script).
+"""
+
+import argparse
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from spherex_reduce import Exposure, ReadoutSchedule, correct_reference, fit_ramp, unchop, write
+
+READ_NOISE = 10.0
+
+
+def best(fn, repeat=3):
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return min(times), out
+
+
+def make_cube(nframes, schedule, rng, nrows):
+    """Float32 ramps on a 6e4 pedestal: 0.02 e/s dark current plus white read noise."""
+    t = schedule.frame_starts.value
+    cube = np.empty((nframes, nrows, 2048), np.float32)
+    for f in range(nframes):
+        cube[f] = rng.standard_normal((nrows, 2048), dtype=np.float32)
+        cube[f] *= READ_NOISE
+        cube[f] += np.float32(6e4 + 0.02 * t[f])
+    return cube
+
+
+def float64_reference(cube, t):
+    tc = t - t.mean()
+    w = tc / (tc @ tc)
+    ref = np.empty(cube.shape[1:])
+    for r0 in range(0, cube.shape[1], 128):
+        ref[r0:r0 + 128] = np.einsum("f,fij->ij", w, cube[:, r0:r0 + 128].astype(np.float64))
+    return ref, READ_NOISE * np.sqrt(w @ w)
+
+
+def stcal_fit(cube, frame_time):
+    from stcal.ramp_fitting.ramp_fit import ramp_fit_data
+    from stcal.ramp_fitting.ramp_fit_class import RampData
+
+    ny, nx = cube.shape[1:]
+    rd = RampData()
+    rd.set_arrays(cube[None], np.zeros((1, *cube.shape), np.uint8),
+                  np.zeros((ny, nx), np.uint32), np.zeros((ny, nx), np.float32))
+    rd.set_meta(name="MIRI", frame_time=frame_time, group_time=frame_time, groupgap=0,
+                nframes=1, drop_frames1=None)
+    rd.set_dqflags({"DO_NOT_USE": 1, "SATURATED": 2, "JUMP_DET": 4, "NO_GAIN_VALUE": 8,
+                    "UNRELIABLE_SLOPE": 16, "PERSISTENCE": 32, "CHARGELOSS": 64})
+    rd.start_row, rd.num_rows = 0, ny
+    img, _, _ = ramp_fit_data(rd, False, np.full((ny, nx), 1e4, np.float32),
+                              np.ones((ny, nx), np.float32), "OLS_C", "optimal", "none")
+    return img["slope"]
+
+
+def write_raw_file(path, schedule, rng):
+    """A full-size raw exposure (readout order) with phantom reads and channel drifts."""
+    g = schedule.geometry
+    nf, nr = schedule.nframes, schedule.n_reads
+    data = np.empty((nf, nr, g.ncols), np.float32)
+    phantom = np.empty((nf, nr, g.nchannels), np.float32)
+    walk = np.zeros(g.nchannels)
+    for f in range(nf):
+        steps = rng.normal(0, 3.0, (nr, g.nchannels))
+        drift = walk + np.cumsum(steps, axis=0)
+        walk = drift[-1]
+        data[f] = rng.standard_normal((nr, g.ncols), dtype=np.float32)
+        data[f] *= READ_NOISE
+        data[f] += (6e4 + np.repeat(drift, g.channel_width, axis=1)).astype(np.float32)
+        phantom[f] = drift + rng.normal(0, 5.0, drift.shape)
+    write(Exposure.from_arrays(data, schedule, phantom=phantom), path, overwrite=True)
+    return path
+
+
+def measured(cmd):
+    """Wall time and peak RSS (bytes) of a command run in a fresh subprocess."""
+    probe = ("import resource, subprocess, sys, time; t0 = time.perf_counter(); "
+             "r = subprocess.run(sys.argv[1:]); dt = time.perf_counter() - t0; "
+             "print(r.returncode, dt, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)")
+    out = subprocess.run([sys.executable, "-c", probe, *cmd], capture_output=True, text=True,
+                         check=True)
+    code, dt, rss = out.stdout.split()[-3:]
+    if int(code):
+        raise RuntimeError(f"{cmd} failed: {out.stderr[-2000:]}")
+    return float(dt), int(rss) * 1024
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--quick", action="store_true", help="N = 10 frames")
+    p.add_argument("--no-stcal", action="store_true")
+    p.add_argument("--no-file", action="store_true", help="skip the FITS reduce benchmark")
+    p.add_argument("--out", help="also write the table (markdown) here")
+    args = p.parse_args(argv)
+    nframes = 10 if args.quick else 74
+    rng = np.random.default_rng(1)
+    rows = []
+
+    def row(work, ours, peer_label, peer, ratio, error="", target=""):
+        rows.append((work, ours, peer_label, peer, ratio, error, target))
+        print(" | ".join(str(c) for c in rows[-1]), flush=True)
+
+    s = ReadoutSchedule(nframes=nframes)
+    bench_fit(s, nframes, rng, row, args.no_stcal)
+    bench_reference(s, nframes, rng, row)
+    if not args.no_file:
+        bench_file(s, rng, row)
+    header = ("| work | ours | peer / limit | peer time | ratio | error / memory | target |\n"
+              "|---|---|---|---|---|---|---|")
+    table = header + "\n" + "\n".join("| " + " | ".join(r) + " |" for r in rows)
+    print()
+    print(table)
+    if args.out:
+        Path(args.out).write_text(
+            "# Reduction benchmark\n\n"
+            f"`python benchmarks/bench_reduce.py` on {os.cpu_count()} cores "
+            f"(numpy {np.__version__}), {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}."
+            "\nThe machine was shared with other jobs: timings are the best of a few runs.\n\n"
+            + table + "\n")
+    return 0
+
+
+def bench_fit(s, nframes, rng, row, no_stcal):
+    cube = make_cube(nframes, s, rng, 2048)
+    e = Exposure.from_arrays(cube, s, order="physical")
+    t_sum, _ = best(cube.sum, 5)
+    t_fit, out = best(lambda: fit_ramp(e), 3)
+    ref, sigma = float64_reference(cube, s.frame_starts.value)
+    err = np.abs(out.data.data - ref).max() / sigma
+    row(f"fit_ramp ({nframes}, 2048, 2048) f32", f"{t_fit:.3f} s", "cube.sum()",
+        f"{t_sum:.3f} s", f"{t_fit / t_sum:.2f}x", f"{err:.1e} sigma", "<= 3x, <= 1e-3 sigma")
+    t_nov, _ = best(lambda: fit_ramp(e, read_noise=READ_NOISE), 3)
+    row("fit_ramp, uncertainty from read_noise", f"{t_nov:.3f} s", "cube.sum()",
+        f"{t_sum:.3f} s", f"{t_nov / t_sum:.2f}x", "", "<= 3x")
+    from spherex_reduce.reduction_plugin import FitRampStep
+
+    def streamed():
+        acc = FitRampStep().accumulator(s, e.header)
+        one = s.replace(nframes=1)
+        for k in range(nframes):
+            acc.add(k, Exposure.from_arrays(cube[k:k + 1], one, order="physical"))
+        return acc.finish()
+
+    t_str, sout = best(streamed, 2)
+    err_s = np.abs(sout.data.data - ref).max() / sigma
+    row("fit_ramp streamed frame by frame", f"{t_str:.3f} s", "cube.sum()", f"{t_sum:.3f} s",
+        f"{t_str / t_sum:.2f}x", f"{err_s:.1e} sigma", "")
+    if not no_stcal:
+        t_st, st = best(lambda: stcal_fit(cube, s.frame_time.value), 1)
+        err_st = np.nanmax(np.abs(st - ref)) / sigma
+        row("fit_ramp vs stcal OLS_C (same cube)", f"{t_fit:.3f} s", "stcal OLS_C",
+            f"{t_st:.1f} s", f"{t_st / t_fit:.0f}x faster", f"stcal {err_st:.1e} sigma",
+            ">= 50x")
+
+
+def bench_reference(s, nframes, rng, row):
+    phys = unchop(Exposure.from_arrays(make_cube(nframes, s, rng, s.n_reads), s))
+    t_ref, _ = best(lambda: correct_reference(phys, "mean"), 3)
+    row(f"correct_reference mean, {nframes} frames", f"{t_ref:.3f} s", "target", "1 s",
+        f"{t_ref:.2f}x", "", "<= 1 s")
+    t_acn, _ = best(lambda: correct_reference(phys, "acn"), 3)
+    row(f"correct_reference acn, {nframes} frames", f"{t_acn:.3f} s", "target", "1 s",
+        f"{t_acn:.2f}x", "", "<= 1 s")
+
+
+def bench_file(s, rng, row):
+    with tempfile.TemporaryDirectory(dir="/tmp") as tmp:
+        path = Path(tmp) / "raw.fits"
+        write_raw_file(path, s, rng)
+        size = path.stat().st_size
+        read_once = [sys.executable, "-c",
+                     "import sys; from astropy.io import fits; "
+                     "h = fits.open(sys.argv[1], memmap=False); "
+                     "d = h['SCI'].data; print(float(d[-1, -1, -1]))",
+                     str(path)]
+        t_read, rss_read = min(measured(read_once) for _ in range(2))
+        exe = [str(Path(sys.executable).parent / "spherex-reduce")]
+        for config in ("spherex-default", "spherex-slopes"):
+            cmd = [*exe, "-q", "reduce", str(path), "-c", config, "-o",
+                   str(Path(tmp) / "out.fits"), "--overwrite"]
+            t_red, rss = min(measured(cmd) for _ in range(2))
+            row(f"reduce -c {config} ({size / 1e9:.2f} GB file)", f"{t_red:.2f} s",
+                "read data once", f"{t_read:.2f} s", f"{t_red / t_read:.2f}x",
+                f"peak RSS {rss / 1e9:.2f} GB = {rss / size:.2f}x file", "<= 3x, <= 1.5x")
+        row("(read data once: peak RSS)", "", "", "", "", f"{rss_read / 1e9:.2f} GB", "")
+
+
+if __name__ == "__main__":
+    resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+    sys.exit(main())

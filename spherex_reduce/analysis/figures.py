@@ -1,0 +1,492 @@
+"""The paper's simulated figures, reproduced: PNGs, numbers (ECSV) and a Markdown report.
+
+`make_figures` simulates with `spherex_reduce.simulate`, reduces with the
+pipeline steps and measures with `power_spectrum` / `band_power`; the
+parameter scans (Figs. 5, 6, 8, 10) run as sweeps (`run_sweep`) on dask.
+The report states, with the numbers, whether each claim of the paper holds in
+our simulation.  ``quick=True`` runs a reduced version (512 × 512 array of 8
+channels, N = 20, few grid points, one realisation) for tests.
+"""
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from astropy import units as u
+from astropy.table import Table
+
+from ..errors import SpherexReduceError
+from .spectrum import (
+    BAND_KMAX,
+    BAND_KMIN,
+    band_power,
+    fft_magnitude,
+    photon_noise_power,
+    power_spectrum,
+)
+
+__all__ = ["FigureSettings", "make_figures"]
+
+#: Pipelines (inline configs) used by the figures.
+PIPELINES = {
+    "raw": {"name": "raw", "steps": [{"unchop": {}}]},
+    "phantom": {"name": "phantom", "steps": [{"unchop": {}}, {"subtract_phantom": {}}]},
+    "reference": "spherex-default",
+    "acn": "acn",
+}
+PIXEL_COMPONENTS = ["video8", "roic", "bias_correlated", "bias_pixels_only"]
+NO_ROIC = ["video8", "bias_correlated", "bias_phantom_only", "bias_pixels_only"]
+
+
+@dataclass(frozen=True)
+class FigureSettings:
+    """Sizes of the reproduction (full: the paper's; quick: for tests)."""
+
+    geometry: dict
+    nframes: int
+    skips: tuple
+    ref_reads: tuple
+    realizations: int
+    n_values: tuple
+    geometry_12a: dict
+    bins: int = 30
+
+    @classmethod
+    def full(cls, realizations=5):
+        return cls({"nrows": 2048, "ncols": 2048, "nchannels": 32, "ref_border": 4}, 74,
+                   (1, 2, 4, 8, 12, 16, 20, 24, 32, 40, 48, 64, 96, 128, 256, 512),
+                   (4, 8, 16, 32, 64), realizations, (2, 4, 8, 16, 32, 74, 150, 386),
+                   {"nrows": 2048, "ncols": 512, "nchannels": 8, "ref_border": 4})
+
+    @classmethod
+    def quick(cls, realizations=1):
+        return cls({"nrows": 512, "ncols": 512, "nchannels": 8, "ref_border": 4}, 20,
+                   (1, 4, 16, 64), (8, 32), realizations, (4, 16, 74),
+                   {"nrows": 512, "ncols": 128, "nchannels": 2, "ref_border": 4}, 20)
+
+
+def _scene(settings, components=None, geometry=None, **readout):
+    ro = {"skip": 24, "ref_reads": 32, "ref_mode": "distributed", "phantom_reads": 4,
+          "nframes": settings.nframes}
+    ro.update(readout)
+    scene = {"geometry": dict(geometry or settings.geometry), "readout": ro}
+    if components is not None:
+        scene["noise"] = {"components": list(components)}
+    return scene
+
+
+def _reduce(scene, pipeline, seed):
+    from .. import simulate
+    from ..pipeline import Pipeline
+
+    raw = simulate(scene, seed=seed)
+    pipe = PIPELINES[pipeline]
+    p = Pipeline(pipe, source=pipe["name"]) if isinstance(pipe, dict) else Pipeline.from_yaml(pipe)
+    return p.run(raw).to_ccddata()
+
+
+def _mean_spectrum(rows):
+    """Mean P(k) over the rows (realisations) of a sweep, with the standard error."""
+    k = np.nanmean(np.asarray(rows["k"], float), axis=0)
+    p = np.asarray(rows["power"], float)
+    mean = np.nanmean(p, axis=0)
+    err = np.nanstd(p, axis=0, ddof=1) / np.sqrt(len(p)) if len(p) > 1 else np.zeros_like(mean)
+    keep = np.isfinite(k) & np.isfinite(mean)
+    unit = rows["power"].unit or u.one
+    return Table({"k": k[keep] * u.rad / u.pix, "power": mean[keep] * unit,
+                  "power_err": err[keep] * unit})
+
+
+def _band_stats(rows):
+    bp = np.asarray(rows["band_power"], float)
+    err = bp.std(ddof=1) / np.sqrt(bp.size) if bp.size > 1 else float(rows["band_power_err"][0])
+    return float(bp.mean()), float(err)
+
+
+class _Report:
+    def __init__(self, outdir, overwrite):
+        self.outdir = outdir
+        self.overwrite = overwrite
+        self.md = []
+        self.numbers = []
+        self.claims = []
+
+    def save(self, fig, name):
+        from ..plotting import save_figure
+
+        save_figure(fig, self.outdir / name, overwrite=self.overwrite)
+        return name
+
+    def number(self, figure, series, x_name, x, y_name, y, y_err=np.nan, unit=""):
+        self.numbers.append({"figure": figure, "series": str(series), "x_name": x_name,
+                             "x": float(x), "y_name": y_name, "y": float(y),
+                             "y_err": float(y_err), "unit": str(unit)})
+
+    def claim(self, text, holds, evidence):
+        verdict = "**holds**" if holds else "**does not hold**"
+        self.claims.append(f"- {text}: {verdict} in our simulation — {evidence}")
+        return holds
+
+
+def _sweep(scene, grid, pipelines, settings, scheduler, workers, progress, measure=None,
+           seed=0):
+    from .sweep import run_sweep
+
+    sw = {"scene": scene, "grid": grid, "pipeline": [PIPELINES[p] for p in pipelines],
+          "realizations": settings.realizations, "seed": seed,
+          "measure": {"bins": settings.bins, **(measure or {})}}
+    res = run_sweep(sw, scheduler=scheduler, workers=workers, progress=progress)
+    if res.failed:
+        f = res.failed[0]
+        raise SpherexReduceError(f"figure sweep cell {f['cell']} failed: {f['error']}")
+    return res.table
+
+
+def _spectra_fig(spectra, title, photon=None):
+    from .plots import plot_spectra
+
+    return plot_spectra(spectra, photon=photon, title=title)
+
+
+def make_figures(outdir, quick=False, *, realizations=None, scheduler=None, workers=2,
+                 overwrite=False, progress=False, log=print):
+    """Reproduce the paper's simulated figures into ``outdir``.
+
+    Writes ``fig4_components.png``, ``fig5_phantom.png``, ``fig6_skip.png``,
+    ``fig7_fft2d.png``, ``fig8_reference_reads.png``, ``fig9_image.png``,
+    ``fig9_spectrum.png``, ``fig10_corrected.png``, ``fig12a_sigma_vs_n.png``,
+    ``figures.ecsv`` (every number plotted: figure, series, x, y, error) and
+    ``report.md`` (the figures, the numbers and whether each claim holds).
+
+    Parameters
+    ----------
+    outdir : str or `pathlib.Path`
+        Created if missing; existing files are kept unless ``overwrite``.
+    quick : bool
+        Reduced sizes (`FigureSettings.quick`), run serially unless a
+        scheduler is given.
+    realizations : int, optional
+        Realisations per point (default 5 full, 1 quick).
+    scheduler, workers
+        As `run_sweep`: ``None`` embeds a LocalCluster of ``workers`` processes.
+    log : callable
+        Called with one line per finished figure.
+
+    Returns
+    -------
+    `pathlib.Path`
+        The report.
+    """
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    names = ["report.md", "figures.ecsv"]
+    if not overwrite:
+        clash = [n for n in names if (outdir / n).exists()]
+        if clash:
+            raise FileExistsError(f"{outdir / clash[0]} exists; pass overwrite (--overwrite)")
+    s = FigureSettings.quick(realizations or 1) if quick else FigureSettings.full(
+        realizations or 5)
+    if quick and scheduler is None:
+        scheduler = "serial"
+    cleanup = None
+    if scheduler != "serial":  # one cluster for every sweep of the figures
+        from .sweep import _client
+
+        client, cluster, owned = _client(scheduler, workers)
+        scheduler = client
+
+        def cleanup():
+            if owned:
+                client.close()
+            if cluster is not None:
+                cluster.close()
+    try:
+        return _make_figures(outdir, quick, s, scheduler, workers, overwrite, progress, log)
+    finally:
+        if cleanup is not None:
+            cleanup()
+
+
+def _make_figures(outdir, quick, s, scheduler, workers, overwrite, progress, log):
+    rep = _Report(outdir, overwrite)
+    t_start = time.perf_counter()
+    g = s.geometry
+    rep.md += [
+        "# The paper's simulated figures, reproduced",
+        "",
+        f"Array {g['nrows']} × {g['ncols']}, {g['nchannels']} channels, N = {s.nframes} "
+        f"frames, {s.realizations} realisation(s) per point, slopes mode, "
+        f"{'quick' if quick else 'full'} settings. Band power: {BAND_KMIN} < k < {BAND_KMAX} "
+        "rad/pixel (θ = 5–20′). Every number is in `figures.ecsv`.",
+        "",
+    ]
+
+    # -- Fig. 4: component spectra -------------------------------------------------------
+    spectra = {}
+    for i, comp in enumerate(PIXEL_COMPONENTS):
+        img = _reduce(_scene(s, [comp], skip=1, ref_mode="none"), "raw", 400 + i)
+        spectra[comp] = power_spectrum(img, bins=s.bins)
+        bp = band_power(img)
+        rep.number("4", comp, "k", np.nan, "band_power", bp.value, unit=bp.unit)
+    dominant = max(spectra, key=lambda c: float(np.mean(spectra[c]["power"])))
+    rep.save(_spectra_fig(spectra, "Fig. 4: one component at a time, S = 1, no corrections"),
+             "fig4_components.png")
+    rep.md += ["## Fig. 4: component spectra", "", "![](fig4_components.png)", "",
+               "Each pixel-visible Table 2 component alone, read in physical order (S = 1), no "
+               "correction. `bias_phantom_only` is invisible to pixels (zero image), so it is "
+               "not drawn.", ""]
+    rep.claim("The ROIC amplifier noise dominates at all spatial frequencies (Fig. 4)",
+              dominant == "roic" and all(
+                  np.all(np.asarray(spectra["roic"]["power"]) >= np.asarray(t["power"]))
+                  for c, t in spectra.items() if c != "roic" and len(t) == len(spectra["roic"])),
+              f"highest mean P(k): {dominant}")
+    log("fig 4 done")
+
+    # -- Fig. 5: phantom correction, phantom-visible sources -------------------------------
+    t5 = _sweep(_scene(s, NO_ROIC, skip=1, ref_mode="none"), {"phantom_reads": [4]},
+                ["raw", "phantom"], s, scheduler, workers, progress, seed=5)
+    sp = {}
+    for name in ("raw", "phantom"):
+        rows = t5[t5["pipeline"] == name]
+        sp[f"{'before' if name == 'raw' else 'after'} phantom correction"] = _mean_spectrum(rows)
+        m, e = _band_stats(rows)
+        rep.number("5", name, "c", 4, "band_power", m, e, rows["band_power"].unit)
+    before = _band_stats(t5[t5["pipeline"] == "raw"])
+    after = _band_stats(t5[t5["pipeline"] == "phantom"])
+    rep.save(_spectra_fig(sp, "Fig. 5: all sources but ROIC, c = 4, S = 1"), "fig5_phantom.png")
+    rep.md += ["## Fig. 5: phantom correction (c = 4), phantom-visible sources", "",
+               "![](fig5_phantom.png)", "",
+               f"Band power before {before[0]:.3g} ± {before[1]:.2g}, after "
+               f"{after[0]:.3g} ± {after[1]:.2g} ({t5['band_power'].unit}).", ""]
+    rep.claim("Phantom correction removes phantom-visible 1/f noise (Fig. 5, §4.1)",
+              after[0] < 0.5 * before[0],
+              f"band power falls by a factor {before[0] / after[0]:.3g}")
+    log("fig 5 done")
+
+    # -- Fig. 6: band power against S ------------------------------------------------------
+    t6 = _sweep(_scene(s), {"skip": list(s.skips)}, ["reference"], s, scheduler, workers,
+                progress, measure={"exclude_horizontal": True}, seed=6)
+    sk, m6, e6 = [], [], []
+    for skip in s.skips:
+        rows = t6[t6["skip"] == skip]
+        m, e = _band_stats(rows)
+        sk.append(skip)
+        m6.append(m)
+        e6.append(e)
+        rep.number("6", "reference corrected, ky=0 excluded", "S", skip, "band_power", m, e,
+                   t6["band_power"].unit)
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7, 5))
+    ax = fig.subplots()
+    ax.errorbar(sk, m6, yerr=e6, fmt="o-", capsize=3)
+    ax.set_xscale("log")
+    ax.set_xlabel("skip S (rows)")
+    ax.set_ylabel(f"band power ({t6['band_power'].unit})")
+    ax.set_title("Fig. 6: band power (θ = 5–20′, k_y = 0 excluded) against S", fontsize=10)
+    ax.grid(True, alpha=0.3)
+    rep.save(fig, "fig6_skip.png")
+    best = sk[int(np.argmin(m6))]
+    s24 = m6[sk.index(24)] if 24 in sk else np.nan
+    rep.md += ["## Fig. 6: band power against S", "", "![](fig6_skip.png)", "",
+               "| S | band power | error |", "|---|---|---|"]
+    rep.md += [f"| {a} | {b:.4g} | {c:.2g} |" for a, b, c in zip(sk, m6, e6, strict=True)] + [""]
+    rep.claim("The optimal S is a few dozen rows (Fig. 6, §4.2)", 8 <= best <= 128,
+              f"minimum at S = {best} ({min(m6):.3g}); S = 1 gives {m6[0]:.3g}"
+              + (f", S = 24 gives {s24:.3g}" if np.isfinite(s24) else ""))
+    log("fig 6 done")
+
+    # -- Fig. 7: 2-D FFT before/after S = 24 ----------------------------------------------
+    ffts, axis_frac, near_frac = {}, {}, {}
+    for skip in (1, 24):
+        img = _reduce(_scene(s, skip=skip), "phantom", 700)
+        # crop to |k| <~ 0.35 rad/pixel: the S = 24 packets sit at k_y = 2π/24 ≈ 0.26
+        f = fft_magnitude(img, size=max(129, 2 * int(np.ceil(0.35 * img.shape[0] / (2 * np.pi)))
+                                        + 1))
+        ffts[f"S = {skip}"] = f
+        mag2 = f.magnitude.value ** 2
+        aky = np.abs(f.ky.value)[:, None] * np.ones(mag2.shape[1])[None, :]
+        iy0 = aky == aky.min()
+        near = (~iy0) & (aky < np.pi / 24)  # between the axis and the first S = 24 packet
+        axis_frac[skip] = float(mag2[iy0].sum() / mag2.sum())
+        near_frac[skip] = float(mag2[near].sum() / mag2.sum())
+        rep.number("7", f"S={skip}", "S", skip, "ky0_power_fraction", axis_frac[skip])
+        rep.number("7", f"S={skip}", "S", skip, "near_axis_power_fraction", near_frac[skip])
+    from .plots import plot_fft_magnitude
+
+    rep.save(plot_fft_magnitude(ffts, "Fig. 7: |FFT| near the origin, phantom-corrected, "
+                                "no reference correction"), "fig7_fft2d.png")
+    rep.md += ["## Fig. 7: 2-D FFT before/after S = 24", "", "![](fig7_fft2d.png)", "",
+               "Fraction of the cropped Fourier power on "
+               "the horizontal axis k_y = 0, and near it (0 < |k_y| < π/24, between the axis "
+               f"and the first S = 24 packet): S = 1: {axis_frac[1]:.3f} and "
+               f"{near_frac[1]:.3f}; S = 24: {axis_frac[24]:.3f} and {near_frac[24]:.3f}.", ""]
+    rep.claim("Row chopping moves power from near the horizontal axis to packets, but "
+              "significant power remains on the axis (Fig. 7)",
+              near_frac[24] < near_frac[1] and axis_frac[24] > 0.01,
+              f"near-axis fraction {near_frac[1]:.3f} → {near_frac[24]:.3f}, on-axis "
+              f"{axis_frac[1]:.3f} → {axis_frac[24]:.3f}")
+    log("fig 7 done")
+
+    # -- Fig. 8: distributed vs repeated reference reads ---------------------------------
+    t8 = _sweep(_scene(s), {"ref_reads": list(s.ref_reads),
+                            "ref_mode": ["repeated", "distributed"]},
+                ["reference"], s, scheduler, workers, progress, seed=8)
+    fig = Figure(figsize=(7, 5))
+    ax = fig.subplots()
+    res8 = {}
+    for mode in ("repeated", "distributed"):
+        ms, es = [], []
+        for r in s.ref_reads:
+            rows = t8[(t8["ref_mode"] == mode) & (t8["ref_reads"] == r)]
+            m, e = _band_stats(rows)
+            ms.append(m)
+            es.append(e)
+            rep.number("8", mode, "r", r, "band_power", m, e, t8["band_power"].unit)
+        res8[mode] = (np.array(ms), np.array(es))
+        ax.errorbar(s.ref_reads, ms, yerr=es, fmt="o-", capsize=3, label=mode)
+    ax.set_xscale("log", base=2)
+    ax.set_xlabel("reference row reads r")
+    ax.set_ylabel(f"band power ({t8['band_power'].unit})")
+    ax.legend()
+    ax.grid(True, alpha=0.3)
+    ax.set_title("Fig. 8: reference correction with repeated / distributed reads, S = 24",
+                 fontsize=10)
+    rep.save(fig, "fig8_reference_reads.png")
+    better = res8["distributed"][0] < res8["repeated"][0]
+    rep.md += ["## Fig. 8: distributed against repeated reference reads", "",
+               "![](fig8_reference_reads.png)", "",
+               "| r | repeated | distributed |", "|---|---|---|"]
+    rep.md += [f"| {r} | {a:.4g} ± {ae:.2g} | {b:.4g} ± {be:.2g} |" for r, a, ae, b, be in zip(
+        s.ref_reads, *res8["repeated"], *res8["distributed"], strict=True)] + [""]
+    wins = [r for r, b in zip(s.ref_reads, better, strict=True) if b]
+    rep.claim("Distributed reference reads beat repeated ones at every r (Fig. 8, §4.3)",
+              bool(np.all(better)), f"distributed lower at r = {wins} of {list(s.ref_reads)}")
+    log("fig 8 done")
+
+    # -- Fig. 9: an N = 74 image before reference correction -------------------------------
+    img9 = _reduce(_scene(s), "phantom", 900)
+    from ..plotting import plot_image
+
+    rep.save(plot_image(img9, "Fig. 9a: S = 24, phantom-corrected, before reference correction",
+                        str(img9.unit)), "fig9_image.png")
+    sp9 = power_spectrum(img9, bins=s.bins)
+    bp9 = band_power(img9)
+    sched = _scene_schedule(_scene(s))
+    photon = photon_noise_power(1 * u.electron / u.s, schedule=sched)
+    rep.save(_spectra_fig({"before reference correction": sp9}, "Fig. 9b", photon),
+             "fig9_spectrum.png")
+    rep.number("9", "before reference correction", "k", np.nan, "band_power", bp9.value,
+               unit=bp9.unit)
+    rep.md += ["## Fig. 9: an image and its spectrum before reference correction", "",
+               "![](fig9_image.png) ![](fig9_spectrum.png)", "",
+               f"Band power {bp9.value:.4g} {bp9.unit}; photon noise of 1 e/s: "
+               f"{photon.value:.3g}.", ""]
+    log("fig 9 done")
+
+    # -- Fig. 10: corrected against uncorrected --------------------------------------------
+    tc = _sweep(_scene(s), {"skip": [24]}, ["reference"], s, scheduler, workers, progress,
+                seed=10)
+    tu = _sweep(_scene(s, skip=1, ref_mode="none"), {"skip": [1]}, ["raw"], s, scheduler,
+                workers, progress, seed=10)
+    corr, unc = _band_stats(tc), _band_stats(tu)
+    rep.number("10", "S=24, r=32, corrected", "k", np.nan, "band_power", *corr,
+               tc["band_power"].unit)
+    rep.number("10", "uncorrected (S=1)", "k", np.nan, "band_power", *unc,
+               tu["band_power"].unit)
+    rep.save(_spectra_fig({"S = 24, r = 32 distributed, corrected": _mean_spectrum(tc),
+                           "uncorrected (S = 1, no corrections)": _mean_spectrum(tu)},
+                          "Fig. 10", photon), "fig10_corrected.png")
+    rep.md += ["## Fig. 10: S = 24 and r = 32 against uncorrected", "",
+               "![](fig10_corrected.png)", "",
+               f"Band power corrected {corr[0]:.4g} ± {corr[1]:.2g}, uncorrected "
+               f"{unc[0]:.4g} ± {unc[1]:.2g}; ratio {corr[0] / unc[0]:.3g}. Photon noise "
+               f"(1 e/s): {photon.value:.3g}.", ""]
+    rep.claim("Corrections bring large-scale noise well below the uncorrected level "
+              "(Fig. 10, §5.2)", corr[0] < 0.3 * unc[0],
+              f"corrected / uncorrected band power = {corr[0] / unc[0]:.3g}")
+    log("fig 10 done")
+
+    # -- Fig. 12a: pixel sigma against N ---------------------------------------------------
+    from ..simulation import expected_slope_variance
+
+    sig, pred = [], []
+    for i, n in enumerate(s.n_values):
+        scene = _scene(s, geometry=s.geometry_12a, nframes=n)
+        img = _reduce(scene, "acn", 1200 + i)
+        data = np.asarray(img.data, float)
+        good = np.isfinite(data) & (np.asarray(img.mask) == 0 if img.mask is not None else True)
+        sig.append(float(np.std(data[good])))
+        var = expected_slope_variance("spherex-table2", _scene_schedule(scene))
+        pred.append(float(np.sqrt(u.Quantity(var)).to_value(img.unit)))
+        rep.number("12a", "simulated, ACN reference-corrected, clipped", "N", n, "sigma",
+                   sig[-1], unit=img.unit)
+        rep.number("12a", "analytic per-pixel slope sigma (before corrections)", "N", n,
+                   "sigma", pred[-1], unit=img.unit)
+    fig = Figure(figsize=(7, 5))
+    ax = fig.subplots()
+    ax.plot(s.n_values, sig, "o-", label="simulated, r = 32 ACN reference correction, 5σ clip")
+    ax.plot(s.n_values, pred, "k--", label="analytic ∫p|H|²df per pixel (before correction)")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("frames N")
+    ax.set_ylabel(f"pixel σ ({img.unit})")
+    ax.legend(fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.set_title(f"Fig. 12a: one Video8 ({s.geometry_12a['nchannels']} channels)", fontsize=10)
+    rep.save(fig, "fig12a_sigma_vs_n.png")
+    rep.md += ["## Fig. 12a: pixel σ against N", "", "![](fig12a_sigma_vs_n.png)", "",
+               "| N | σ simulated | σ analytic |", "|---|---|---|"]
+    rep.md += [f"| {n} | {a:.4g} | {b:.4g} |" for n, a, b in zip(s.n_values, sig, pred,
+                                                                   strict=True)] + [""]
+    dev = np.array(sig) / np.array(pred) - 1
+    rep.claim("Pixel σ falls with N (Fig. 12a)", bool(np.all(np.diff(sig) < 0)),
+              f"σ from {sig[0]:.3g} (N = {s.n_values[0]}) to {sig[-1]:.3g} "
+              f"(N = {s.n_values[-1]}); against the analytic per-pixel σ before correction "
+              f"{dev[0]:+.1%} at N = {s.n_values[0]} and {dev[-1]:+.1%} at N = "
+              f"{s.n_values[-1]}: at large N the low-frequency, channel-common part that "
+              "reference correction removes is a growing share of the uncorrected σ")
+    log("fig 12a done")
+
+    # -- the report --------------------------------------------------------------------------
+    rep.md[4:4] = ["## The paper's claims in our simulation", "", *rep.claims, ""]
+    rep.md += [
+        "## Where we differ from the paper, and why", "",
+        "- **Wrap-around bias.** The paper draws each timestream with period equal to the "
+        "exposure (eq. 2–5), which suppresses the lowest frequencies that drive slopes and "
+        "large-scale offsets. Our simulator draws Gaussian Fourier amplitudes on a padded, "
+        "aperiodic grid (design.md: the periodic draw left the slope variance of a γ/f^1.3 "
+        "term ≈ 54 % low at N = 10). Our uncorrected and channel-offset power at low k is "
+        "therefore expected to be higher than the paper's, and the gain from reference "
+        "correction larger.",
+        "- **Per-pixel telegraph noise** (§3.3) is not in these scenes (it is off by default), "
+        "so Fig. 12a shows the simulation curve only; the paper's ≈ 30 % excess of measured "
+        "over simulated white noise at N = 74 is a property of the measured array.",
+        "- **Measured-data figures** (11, 12b, 13, 14) need laboratory darks and are not "
+        "reproduced; the photon-noise line of Fig. 13 is drawn in Figs. 9 and 10.",
+        "- **Fig. 4** is drawn in physical row order (S = 1) without corrections; the "
+        "phantom-only bias term is invisible to pixels and has no spatial spectrum.",
+    ]
+    if quick:
+        rep.md += ["- **Quick run**: a 512 × 512 array with N = 20 and one realisation per "
+                   "point: the numbers are noisy and the band holds few modes; run without "
+                   "`--quick` for the paper's sizes."]
+    rep.md += ["", f"Run time {time.perf_counter() - t_start:.0f} s.", ""]
+    from ..fits_format import atomic_output
+
+    table = Table(rows=rep.numbers) if rep.numbers else Table()
+    table.meta["settings"] = json.loads(json.dumps(s.__dict__, default=list))
+    with atomic_output(outdir / "figures.ecsv", overwrite) as tmp:
+        table.write(tmp, format="ascii.ecsv")
+    report = outdir / "report.md"
+    with atomic_output(report, overwrite) as tmp:
+        tmp.write_text("\n".join(rep.md))
+    return report
+
+
+def _scene_schedule(scene):
+    from ..simulation import load_scene
+
+    return load_scene(scene).schedule

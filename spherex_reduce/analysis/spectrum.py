@@ -1,0 +1,565 @@
+"""Spatial power spectra of images: P(k), band power, 2-D FFT, photon noise.
+
+Conventions (paper §1): the wave number of an angular period ``θ`` is
+``k = 2π · pixel_scale / θ`` in rad/pixel, so a pattern repeating every ``p``
+pixels has ``k = 2π / p``.  SPHEREx pixels are 6.2″, so the paper's band
+θ = 5–20′ is ``0.03 < k < 0.13``.
+
+Normalisation: ``P(k) = |FFT(image)|² / (ny · nx)`` (in image unit² · pixel²),
+averaged over the Fourier modes in each annulus of ``|k|``.  White noise of
+variance σ² per pixel therefore gives ``P(k) = σ²`` at every ``k``, and by
+Parseval the mode-weighted sum of ``P`` over the whole Fourier plane divided
+by the number of pixels is the image variance.
+
+Masked pixels: the mean of the unmasked pixels is subtracted, masked pixels
+are set to zero and the spectrum is divided by the unmasked fraction ``f``
+(the "f_sky" pseudo-spectrum correction).  This is exact on average for white
+noise; for a coloured spectrum and a sparse mask (hot or clipped pixels) each
+bin is ``≈ f · P(k) + (1 − f) · ⟨P⟩`` to first order, i.e. a fraction ``1 − f``
+of the mean power is spread flat over ``k``.  Keep the masked fraction small
+(a few per cent) where the shape matters.
+"""
+
+import functools
+import warnings
+from typing import NamedTuple
+
+import numpy as np
+import scipy.fft
+from astropy import units as u
+from astropy.nddata import NDData
+from astropy.table import Table
+
+from ..errors import SpherexReduceError
+
+__all__ = [
+    "BAND_KMAX",
+    "BAND_KMIN",
+    "SPHEREX_PIXEL_SCALE",
+    "FFTImage",
+    "band_power",
+    "fft_magnitude",
+    "k_from_theta",
+    "photon_noise_power",
+    "power_spectrum",
+    "slope_variance_factor",
+    "source_mask",
+    "theta_from_k",
+]
+
+#: Angular size of a SPHEREx pixel (paper §1).
+SPHEREX_PIXEL_SCALE = 6.2 * u.arcsec
+#: The paper's band θ = 5–20′ in rad/pixel (Figs. 6, 8, 13, 14).
+BAND_KMIN, BAND_KMAX = 0.03, 0.13
+_K_UNIT = u.rad / u.pix
+
+
+def k_from_theta(theta, pixel_scale=SPHEREX_PIXEL_SCALE):
+    """Wave number ``k = 2π · pixel_scale / θ`` in rad/pixel.
+
+    Examples
+    --------
+    >>> from astropy import units as u
+    >>> from spherex_reduce.analysis import k_from_theta
+    >>> k_from_theta([20, 5] * u.arcmin).round(3)
+    <Quantity [0.032, 0.13 ] rad / pix>
+    """
+    theta = u.Quantity(theta, u.arcmin)
+    ratio = (u.Quantity(pixel_scale, u.arcsec) / theta).to_value(u.one)
+    return 2 * np.pi * ratio * _K_UNIT
+
+
+def theta_from_k(k, pixel_scale=SPHEREX_PIXEL_SCALE):
+    """Angular period ``θ = 2π · pixel_scale / k`` in arcmin (``k`` in rad/pixel).
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis import theta_from_k
+    >>> theta_from_k(0.13).round(2)
+    <Quantity 4.99 arcmin>
+    """
+    k = _k_value(k)
+    with np.errstate(divide="ignore"):
+        return (2 * np.pi / k * u.Quantity(pixel_scale, u.arcsec)).to(u.arcmin)
+
+
+def _k_value(k):
+    """``k`` as a float array in rad/pixel (plain numbers are taken as rad/pixel)."""
+    if isinstance(k, u.Quantity):
+        with u.set_enabled_equivalencies(u.dimensionless_angles()):
+            return k.to_value(_K_UNIT)
+    return np.asarray(k, dtype=float)
+
+
+# -- input handling -------------------------------------------------------------
+def _as_image(image, mask=None):
+    """``(data float64 copy-free view, bad-pixel mask, unit)`` of a 2-D image.
+
+    Accepts `~astropy.nddata.CCDData`/`~astropy.nddata.NDData` (its ``mask`` is
+    used), a `~astropy.units.Quantity`, a `numpy.ma.MaskedArray` or an array.
+    Non-finite pixels are masked.
+    """
+    unit = u.one
+    own_mask = None
+    if isinstance(image, NDData):
+        unit = image.unit or u.one
+        own_mask = image.mask
+        data = image.data
+    elif isinstance(image, u.Quantity):
+        unit = image.unit
+        data = image.value
+    elif isinstance(image, np.ma.MaskedArray):
+        own_mask = np.ma.getmaskarray(image)
+        data = image.data
+    else:
+        data = image
+    data = np.asarray(data)
+    if data.ndim != 2:
+        raise SpherexReduceError(
+            f"a power spectrum needs a 2-D image, got shape {data.shape}; fit the ramps first "
+            "(fit_ramp) or pass one frame"
+        )
+    if not np.issubdtype(data.dtype, np.number) or np.iscomplexobj(data):
+        raise SpherexReduceError(f"image must be real numbers, got dtype {data.dtype}")
+    bad = ~np.isfinite(data)
+    for m in (own_mask, mask):
+        if m is not None:
+            m = np.asarray(m)
+            if m.shape != data.shape:
+                raise SpherexReduceError(
+                    f"mask shape {m.shape} differs from the image shape {data.shape}"
+                )
+            bad = bad | (m != 0)
+    return data, bad, unit
+
+
+def _prepared(data, bad):
+    """Mean-subtracted float64 image with masked pixels zeroed, and the unmasked fraction."""
+    good = ~bad
+    ngood = int(good.sum())
+    if ngood < 2:
+        raise SpherexReduceError(
+            f"only {ngood} unmasked finite pixel(s) in the image; nothing to measure"
+        )
+    x = np.array(data, dtype=np.float64)  # a copy: the input is never changed
+    if ngood == x.size:
+        x -= x.mean()
+    else:
+        x[bad] = 0.0
+        x[good] -= x[good].mean()
+        x[bad] = 0.0
+    return x, ngood / x.size
+
+
+# -- the Fourier grid -------------------------------------------------------------
+@functools.lru_cache(maxsize=8)
+def _grid(ny, nx, edges, exclude_horizontal):
+    """Bin index, weight and |k| of every cell of the ``rfft2`` grid (cached per shape)."""
+    ky = 2 * np.pi * np.fft.fftfreq(ny)
+    kx = 2 * np.pi * np.fft.rfftfreq(nx)
+    kk = np.hypot(ky[:, None], kx[None, :])
+    edges = np.asarray(edges)
+    nb = edges.size - 1
+    idx = np.searchsorted(edges, kk, side="right") - 1
+    idx[(idx < 0) | (idx >= nb)] = nb  # the overflow bin, dropped
+    idx[kk == edges[-1]] = nb - 1  # the last edge is inclusive
+    idx[0, 0] = nb  # the mean (k = 0) never counts
+    if exclude_horizontal:
+        idx[0, :] = nb
+    # full-plane weight: interior rfft columns stand for +kx and -kx
+    w = np.full(kx.size, 2.0)
+    w[0] = 1.0
+    if nx % 2 == 0:
+        w[-1] = 1.0
+    wgrid = np.broadcast_to(w, kk.shape)
+    idx = idx.ravel()
+    nfull = np.bincount(idx, weights=wgrid.ravel(), minlength=nb + 1)[:nb]
+    ksum = np.bincount(idx, weights=(wgrid * kk).ravel(), minlength=nb + 1)[:nb]
+    # self-conjugate cells (their own mirror image) are one mode, not half of a pair
+    selfc = np.zeros(kk.shape, dtype=bool)
+    rows = [0] + ([ny // 2] if ny % 2 == 0 else [])
+    cols = [0] + ([kx.size - 1] if nx % 2 == 0 else [])
+    selfc[np.ix_(rows, cols)] = True
+    nself = np.bincount(idx, weights=selfc.ravel().astype(float), minlength=nb + 1)[:nb]
+    weights = wgrid.ravel().copy()
+    for arr in (idx, weights, nfull, ksum, nself):
+        arr.setflags(write=False)
+    return idx, weights, nfull, ksum, nself
+
+
+def _edges(bins, ny, nx):
+    if isinstance(bins, (int, np.integer)) and not isinstance(bins, bool):
+        if bins < 1:
+            raise SpherexReduceError(f"bins must be >= 1, got {bins}")
+        kmin = 2 * np.pi / max(ny, nx)
+        return np.geomspace(kmin, np.pi, int(bins) + 1)
+    edges = _k_value(bins).astype(float).ravel()
+    if edges.size < 2 or np.any(np.diff(edges) <= 0) or edges[0] < 0:
+        raise SpherexReduceError(
+            "bins must be a number of bins or at least two increasing, non-negative bin "
+            f"edges in rad/pixel; got {bins!r}"
+        )
+    return edges
+
+
+def power_spectrum(image, pixel_scale=SPHEREX_PIXEL_SCALE, mask=None, bins=30,
+                   mask_sources=False, exclude_horizontal=False):
+    """Azimuthally averaged spatial power spectrum ``P(k)`` of a 2-D image.
+
+    Parameters
+    ----------
+    image : `~astropy.nddata.CCDData`, `~astropy.nddata.NDData`, `~astropy.units.Quantity` or array
+        The image (e.g. a slope image in e/s).  Its ``mask`` (NDData) and any
+        non-finite pixels are excluded.  The input is not changed.
+    pixel_scale : `~astropy.units.Quantity`
+        Angle per pixel (6.2″ for SPHEREx); used only for the ``theta`` column.
+    mask : array-like of bool, optional
+        Extra pixels to exclude (True = bad), e.g. hot or clipped pixels.
+    bins : int or array-like
+        Number of logarithmic bins from the fundamental ``2π/max(ny, nx)`` to
+        the Nyquist wave number ``π`` (the corners of the Fourier plane beyond
+        ``π`` are left out), or bin edges in rad/pixel (floats or a Quantity).
+        Empty bins are dropped.
+    mask_sources : bool
+        Also mask sources and hot pixels found by `source_mask` (photutils
+        segmentation on a `photutils.background.Background2D` estimate), for
+        images that contain sky.
+    exclude_horizontal : bool
+        Leave out the horizontal axis of the Fourier plane (``k_y = 0``: the
+        modes that channel offsets feed), as the paper does for Fig. 6.
+
+    Returns
+    -------
+    spectrum : `~astropy.table.Table`
+        One row per non-empty bin: ``k`` (rad/pixel, mode-weighted mean of
+        ``|k|`` in the bin), ``theta`` (arcmin), ``power`` (image unit² ·
+        pixel²), ``power_err`` and ``nmodes`` (independent Fourier modes: a
+        real image's ``k`` and ``−k`` count once).  ``power_err`` is the
+        standard error of the bin mean for a Gaussian field,
+        ``sqrt(Σ P_i²) / n`` over the ``n`` cells of the full plane (≈
+        ``P / sqrt(nmodes)`` when the bin is isotropic); bins of a few modes
+        are χ²-distributed with ``2 · nmodes`` degrees of freedom and their
+        error estimate is itself uncertain.  ``meta`` holds
+        ``pixel_scale``, ``shape``, ``masked_fraction``, ``mask_method``,
+        ``exclude_horizontal`` and ``kmin``/``kmax`` of each bin as columns
+        ``k_lo``/``k_hi``.
+
+    Notes
+    -----
+    ``P(k) = |FFT|² / (ny · nx) / f`` with ``f`` the unmasked fraction
+    (masked pixels zeroed after subtracting the unmasked mean); see the module
+    documentation for what masking does to a coloured spectrum.
+
+    Examples
+    --------
+    White noise of σ = 2 gives ``P(k) ≈ σ² = 4`` at every ``k``:
+
+    >>> import numpy as np
+    >>> from astropy import units as u
+    >>> from spherex_reduce.analysis import power_spectrum
+    >>> img = np.random.default_rng(1).normal(0, 2, (256, 256)) * u.electron / u.s
+    >>> t = power_spectrum(img, bins=8)
+    >>> t.colnames
+    ['k', 'theta', 'power', 'power_err', 'nmodes', 'k_lo', 'k_hi']
+    >>> bool(np.all(abs(t["power"].value - 4) < 4 * t["power_err"].value)), t["power"].unit
+    (True, Unit("electron2 pix2 / s2"))
+    """
+    data, bad, unit = _as_image(image, mask)
+    if mask_sources:
+        bad = bad | source_mask(np.where(bad, np.nan, data), mask=bad)
+    ny, nx = data.shape
+    edges = _edges(bins, ny, nx)
+    x, fgood = _prepared(data, bad)
+    f = scipy.fft.rfft2(x, workers=-1)
+    p = f.real**2
+    p += f.imag**2
+    del f
+    idx, w, nfull, ksum, nself = _grid(ny, nx, tuple(edges), bool(exclude_horizontal))
+    nb = edges.size - 1
+    pw = p.ravel() * w
+    psum = np.bincount(idx, weights=pw, minlength=nb + 1)[:nb]
+    p2sum = np.bincount(idx, weights=pw * p.ravel(), minlength=nb + 1)[:nb]
+    scale = 1.0 / (ny * nx * fgood)
+    keep = nfull > 0
+    n = nfull[keep]
+    k = ksum[keep] / n
+    power = psum[keep] / n * scale
+    err = np.sqrt(p2sum[keep]) / n * scale
+    nmodes = np.rint((n + nself[keep]) / 2).astype(np.int64)
+    punit = unit**2 * u.pix**2
+    table = Table(
+        {
+            "k": k * _K_UNIT,
+            "theta": theta_from_k(k, pixel_scale),
+            "power": power * punit,
+            "power_err": err * punit,
+            "nmodes": nmodes,
+            "k_lo": edges[:-1][keep] * _K_UNIT,
+            "k_hi": edges[1:][keep] * _K_UNIT,
+        },
+        meta={
+            "pixel_scale": f"{u.Quantity(pixel_scale, u.arcsec).value} arcsec",
+            "shape": [int(ny), int(nx)],
+            "masked_fraction": float(1 - fgood),
+            "mask_method": "mean-subtracted, masked pixels zeroed, divided by unmasked fraction",
+            "exclude_horizontal": bool(exclude_horizontal),
+        },
+    )
+    return table
+
+
+def band_power(spectrum, kmin=BAND_KMIN, kmax=BAND_KMAX, return_error=False, **kwargs):
+    """Mean noise power over ``kmin ≤ k ≤ kmax`` (default θ = 5–20′, paper Fig. 6).
+
+    Parameters
+    ----------
+    spectrum : `~astropy.table.Table` or image
+        A table from `power_spectrum` (bins whose ``k`` lies in the band are
+        averaged, weighted by ``nmodes``), or an image, for which the band is
+        computed exactly as one bin over every Fourier mode with
+        ``kmin ≤ |k| ≤ kmax`` (``kwargs`` go to `power_spectrum`).
+    kmin, kmax : float or `~astropy.units.Quantity`
+        Band edges in rad/pixel.
+    return_error : bool
+        Also return the standard error.
+
+    Returns
+    -------
+    power : `~astropy.units.Quantity`
+        Band power in the spectrum's unit; ``(power, error)`` if ``return_error``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.analysis import band_power
+    >>> img = np.random.default_rng(2).normal(0, 3, (512, 512))
+    >>> p, err = band_power(img, return_error=True)
+    >>> bool(abs(p.value - 9) < 4 * err.value)
+    True
+    """
+    lo, hi = float(_k_value(kmin)), float(_k_value(kmax))
+    if not 0 <= lo < hi:
+        raise SpherexReduceError(f"band needs 0 <= kmin < kmax, got kmin={lo}, kmax={hi}")
+    if isinstance(spectrum, Table):
+        for col in ("k", "power", "power_err", "nmodes"):
+            if col not in spectrum.colnames:
+                raise SpherexReduceError(
+                    f"spectrum table lacks column {col!r}; use a table from power_spectrum"
+                )
+        k = _k_value(u.Quantity(spectrum["k"]))
+        sel = (k >= lo) & (k <= hi)
+        if not sel.any():
+            raise SpherexReduceError(
+                f"no spectrum bin has {lo} <= k <= {hi} rad/pixel (bins span "
+                f"{k.min():.3g}–{k.max():.3g}); use finer bins or pass the image"
+            )
+        n = np.asarray(spectrum["nmodes"][sel], dtype=float)
+        pw = u.Quantity(spectrum["power"][sel])
+        pe = u.Quantity(spectrum["power_err"][sel])
+        power = (pw * n).sum() / n.sum()
+        error = np.sqrt(((pe * n) ** 2).sum()) / n.sum()
+    else:
+        t = power_spectrum(spectrum, bins=[lo, hi], **kwargs)
+        if len(t) == 0:
+            raise SpherexReduceError(f"the image has no Fourier mode with {lo} <= k <= {hi}")
+        power, error = u.Quantity(t["power"])[0], u.Quantity(t["power_err"])[0]
+    return (power, error) if return_error else power
+
+
+class FFTImage(NamedTuple):
+    """Centred 2-D FFT magnitude near the origin (paper Fig. 7)."""
+
+    #: ``sqrt(|FFT|² / (ny · nx · f))`` (image unit · pixel), ``ky`` down, ``kx`` across.
+    magnitude: u.Quantity
+    #: wave numbers of the columns (rad/pixel)
+    kx: u.Quantity
+    #: wave numbers of the rows (rad/pixel)
+    ky: u.Quantity
+
+
+def fft_magnitude(image, mask=None, size=129):
+    """2-D FFT magnitude of an image, centred and cropped to the origin (Fig. 7).
+
+    Normalised like `power_spectrum`: the magnitude squared is the power of
+    each Fourier cell, so white noise of variance σ² gives magnitudes of
+    order σ.  Masked pixels are treated as in `power_spectrum`.
+
+    Parameters
+    ----------
+    image : CCDData, NDData, Quantity or array
+    mask : array-like of bool, optional
+    size : int
+        Cells kept along each axis around ``k = 0`` (odd; clipped to the image).
+
+    Returns
+    -------
+    `FFTImage`
+        ``magnitude`` (``size × size``), ``kx``, ``ky``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.analysis import fft_magnitude
+    >>> img = np.sin(2 * np.pi * np.arange(64) / 16)[None, :] * np.ones((64, 1))
+    >>> f = fft_magnitude(img, size=33)
+    >>> iy, ix = np.unravel_index(np.argmax(f.magnitude.value), f.magnitude.shape)
+    >>> round(abs(float(f.kx[ix].value)), 4), float(f.ky[iy].value)   # 2π/16
+    (0.3927, 0.0)
+    """
+    data, bad, unit = _as_image(image, mask)
+    x, fgood = _prepared(data, bad)
+    ny, nx = x.shape
+    f = np.fft.fftshift(scipy.fft.fft2(x, workers=-1))
+    mag = np.abs(f) / np.sqrt(ny * nx * fgood)
+    half = max(int(size), 1) // 2
+    cy, cx = ny // 2, nx // 2
+    ys = slice(max(cy - half, 0), min(cy + half + 1, ny))
+    xs = slice(max(cx - half, 0), min(cx + half + 1, nx))
+    ky = 2 * np.pi * np.fft.fftshift(np.fft.fftfreq(ny))[ys]
+    kx = 2 * np.pi * np.fft.fftshift(np.fft.fftfreq(nx))[xs]
+    return FFTImage(mag[ys, xs] * unit * u.pix, kx * _K_UNIT, ky * _K_UNIT)
+
+
+def slope_variance_factor(nframes):
+    """Photon-noise variance of a least-squares up-the-ramp slope, in units of ``i / t_frame``.
+
+    For ``N`` reads spaced ``t_frame`` apart of a Poisson charge accumulating
+    at ``i`` e/s, the uniformly weighted least-squares slope has variance
+    ``6 (N² + 1) / (5 N (N² − 1)) · i / t_frame`` (the photon term of the
+    standard up-the-ramp noise formula; ``N = 2`` gives ``i / t_frame``).
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis import slope_variance_factor
+    >>> slope_variance_factor(2)
+    1.0
+    >>> round(slope_variance_factor(74), 5)
+    0.01622
+    """
+    n = int(nframes)
+    if n < 2:
+        raise SpherexReduceError(f"a slope needs nframes >= 2, got {nframes}")
+    return 6 * (n**2 + 1) / (5 * n * (n**2 - 1))
+
+
+def photon_noise_power(photocurrent=1 * u.electron / u.s, integration_time=None, *,
+                       nframes=None, schedule=None):
+    """White spatial power of the photon noise of a slope image (paper Fig. 13).
+
+    Every pixel's slope carries independent Poisson noise, so the spectrum is
+    flat at the slope variance (image unit² · pixel²).
+
+    Parameters
+    ----------
+    photocurrent : `~astropy.units.Quantity`
+        Signal in e/s (e.g. Zodiacal light ≈ 1 e/s); plain numbers are e/s.
+    integration_time : `~astropy.units.Quantity`, optional
+        Total time ``T`` (s).  Without ``nframes`` the slope is taken as the
+        charge collected over ``T`` divided by ``T`` (variance ``i / T``).
+    nframes : int, optional
+        Reads up the ramp ``N``: the slope is the least-squares fit to ``N``
+        reads ``T / N`` apart (variance `slope_variance_factor` ``· i N / T``,
+        about 1.2 ``i / T`` for large ``N``).
+    schedule : `~spherex_reduce.ReadoutSchedule`, optional
+        Takes ``N`` and ``T`` from the schedule.
+
+    Returns
+    -------
+    power : `~astropy.units.Quantity`
+        In (photocurrent unit)² · pixel².
+
+    Examples
+    --------
+    >>> from astropy import units as u
+    >>> from spherex_reduce.analysis import photon_noise_power
+    >>> photon_noise_power(1 * u.electron / u.s, 112 * u.s)
+    <Quantity 0.00892857 electron2 pix2 / s2>
+    >>> photon_noise_power(1 * u.electron / u.s, 111.74 * u.s, nframes=74).round(5)
+    <Quantity 0.01074 electron2 pix2 / s2>
+    """
+    i = u.Quantity(photocurrent, u.electron / u.s) if not isinstance(
+        photocurrent, u.Quantity) else photocurrent
+    if schedule is not None:
+        nframes = schedule.nframes if nframes is None else nframes
+        integration_time = schedule.integration_time if integration_time is None \
+            else integration_time
+    if integration_time is None:
+        raise SpherexReduceError("photon_noise_power needs integration_time or a schedule")
+    t = u.Quantity(integration_time, u.s)
+    if t.value <= 0:
+        raise SpherexReduceError(f"integration_time must be positive, got {t}")
+    charge_rate = i.to(u.electron / u.s)
+    if nframes is None:
+        var = charge_rate.value / t.value
+    else:
+        tframe = t.value / int(nframes)
+        var = slope_variance_factor(nframes) * charge_rate.value / tframe
+    return (var * (u.electron / u.s) ** 2).to(i.unit**2) * u.pix**2
+
+
+# -- sources and hot pixels -----------------------------------------------------------
+def source_mask(image, mask=None, nsigma=5.0, npixels=1, box_size=64, dilate=3):
+    """Mask of sources and hot pixels from a photutils segmentation map.
+
+    A background and its RMS are estimated with
+    `photutils.background.Background2D` (σ-clipped medians in boxes of
+    ``box_size``), then every connected group of at least ``npixels`` pixels
+    deviating from the background by more than ``nsigma`` times the RMS (in
+    either sign, so negative hot pixels of pair differences count too) is a
+    segment (`photutils.segmentation.detect_sources`); segments are dilated
+    by a ``dilate × dilate`` box.
+
+    Parameters
+    ----------
+    image : CCDData, NDData, Quantity or array
+    mask : array-like of bool, optional
+        Pixels already known to be bad (ignored by the estimate).
+    nsigma : float
+        Detection threshold in background RMS.
+    npixels : int
+        Minimum connected pixels of a detection (1 catches single hot pixels).
+    box_size : int
+        Background box size in pixels (reduced for small images).
+    dilate : int
+        Odd size of the dilation box; 1 for none.
+
+    Returns
+    -------
+    mask : `numpy.ndarray` of bool
+        True for source or hot pixels (not including ``mask``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.analysis import source_mask
+    >>> img = np.random.default_rng(0).normal(0, 1, (128, 128))
+    >>> img[40, 50] = 100.0
+    >>> m = source_mask(img)
+    >>> bool(m[40, 50]), int(m.sum())
+    (True, 9)
+    """
+    from astropy.stats import SigmaClip
+    from astropy.utils.exceptions import AstropyUserWarning
+    from photutils.background import Background2D, MedianBackground, StdBackgroundRMS
+    from photutils.segmentation import detect_sources
+    from photutils.utils.exceptions import NoDetectionsWarning
+
+    data, bad, _ = _as_image(image, mask)
+    box = int(min(box_size, max(min(data.shape) // 4, 4)))
+    with warnings.catch_warnings():
+        # photutils' notes about boxes with few unmasked pixels (they are excluded)
+        warnings.simplefilter("ignore", category=AstropyUserWarning)
+        bkg = Background2D(np.where(bad, 0.0, data), box, mask=bad,
+                           sigma_clip=SigmaClip(sigma=3.0, maxiters=10),
+                           bkg_estimator=MedianBackground(),
+                           bkg_rms_estimator=StdBackgroundRMS())
+    resid = np.abs(np.where(bad, 0.0, data - bkg.background))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", category=NoDetectionsWarning)
+        segm = detect_sources(resid, nsigma * bkg.background_rms, n_pixels=int(npixels),
+                              mask=bad)
+    if segm is None:
+        return np.zeros(data.shape, dtype=bool)
+    if dilate and int(dilate) > 1:
+        return segm.make_source_mask(size=int(dilate))
+    return segm.data > 0

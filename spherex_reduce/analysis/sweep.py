@@ -1,0 +1,515 @@
+"""Parameter sweeps on dask.distributed: grid × realisations × pipeline variants.
+
+Each cell of a sweep is simulated (slopes by default), reduced with a pipeline
+config and measured (band power and P(k)).  Cells run on a
+`dask.distributed` cluster: an embedded `~distributed.LocalCluster` by
+default, or an existing scheduler by address; ``scheduler="serial"`` runs them
+in this process.
+
+Determinism: the seed of a cell is a `numpy.random.SeedSequence` whose
+entropy is the sweep's ``seed`` plus a hash of the cell's readout values and
+realisation number (not the pipeline: pipeline variants reduce the same
+simulated exposure, a paired comparison).  Results therefore do not depend on
+the number of workers, the scheduling or which cells were already done.
+
+Sweep file (YAML or dict)::
+
+    scene: {readout: {nframes: 74}}     # a scene as for simulate (or a path); the base case
+    pipeline: spherex-default           # shipped name or path; a list runs variants
+    grid: {skip: [1, 8, 24], ref_reads: [8, 32], ref_mode: [repeated, distributed]}
+    realizations: 5
+    seed: 2024
+    mode: slopes                        # or ramps
+    measure: {kmin: 0.03, kmax: 0.13, bins: 30, exclude_horizontal: false, mask_sources: false}
+"""
+
+import copy
+import hashlib
+import itertools
+import json
+import logging
+import time
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from astropy import units as u
+from astropy.table import Table
+
+from ..config import READOUT_PARAMETERS, load_yaml
+from ..errors import ConfigError
+
+__all__ = ["Sweep", "SweepResult", "load_sweep", "plot_sweep", "run_cell", "run_sweep"]
+
+log = logging.getLogger(__name__)
+
+_TOP = ("scene", "pipeline", "grid", "realizations", "seed", "mode", "measure")
+_MEASURE = {"kmin": 0.03, "kmax": 0.13, "bins": 30, "exclude_horizontal": False,
+            "mask_sources": False}
+_READOUT_KEYS = tuple(p.name for p in READOUT_PARAMETERS)
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """A validated sweep; build it with `load_sweep`."""
+
+    scene: dict
+    pipelines: tuple
+    grid: dict
+    realizations: int
+    seed: int
+    mode: str
+    measure: dict
+    source: str = "sweep"
+    #: pipeline name -> shipped name, path or inline config (dict)
+    pipeline_configs: dict = field(default_factory=dict)
+
+    @property
+    def keys(self):
+        """Grid keys in file order."""
+        return tuple(self.grid)
+
+    @property
+    def fingerprint(self):
+        """Hash of what makes a cell's result (scene, seed, mode, measure, pipeline configs).
+
+        The grid and the number of realisations are left out: a results file
+        may be extended with more of either.
+        """
+        key = {"scene": self.scene, "seed": self.seed, "mode": self.mode,
+               "measure": self.measure, "pipelines": self.pipeline_configs}
+        return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[
+            :16]
+
+    def cells(self):
+        """Every cell: ``{grid values..., 'pipeline', 'realization'}`` in a fixed order."""
+        out = []
+        for values in itertools.product(*self.grid.values()):
+            for pipe in self.pipelines:
+                for r in range(self.realizations):
+                    out.append({**dict(zip(self.keys, values, strict=True)), "pipeline": pipe,
+                                "realization": r})
+        return out
+
+    def cell_seed(self, cell):
+        """The `~numpy.random.SeedSequence` of a cell (from its readout values and realisation)."""
+        key = {k: cell[k] for k in self.keys}
+        key["realization"] = int(cell["realization"])
+        digest = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).digest()
+        words = [int.from_bytes(digest[i:i + 4], "little") for i in range(0, 16, 4)]
+        return np.random.SeedSequence([int(self.seed), *words])
+
+    def task(self, cell):
+        """The plain, picklable description of a cell that `run_cell` executes."""
+        scene = copy.deepcopy(self.scene)
+        readout = dict(scene.get("readout") or {})
+        readout.update({k: cell[k] for k in self.keys})
+        scene["readout"] = readout
+        scene.pop("seed", None)
+        pipe = self.pipeline_configs.get(cell["pipeline"], cell["pipeline"])
+        return {"cell": cell, "scene": scene, "pipeline": pipe,
+                "entropy": self.cell_seed(cell).entropy, "mode": self.mode,
+                "measure": dict(self.measure)}
+
+
+def load_sweep(source):
+    """Validate a sweep file (path, YAML text or dict).
+
+    Raises
+    ------
+    ConfigError
+        Unknown keys, grid keys that are not readout parameters, empty lists;
+        the message names the entry.
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.sweep import load_sweep
+    >>> sw = load_sweep({"grid": {"skip": [1, 24]}, "realizations": 2})
+    >>> len(sw.cells()), sw.pipelines
+    (4, ('spherex-default',))
+    """
+    config, label = load_yaml(source, "sweep")
+    for key in config:
+        if key not in _TOP:
+            raise ConfigError(f"{label}: {key}: unknown key; valid: {', '.join(_TOP)}")
+    scene = config.get("scene") or {}
+    if isinstance(scene, str):
+        base = Path(label).parent if Path(label).is_file() else Path(".")
+        path = Path(scene) if Path(scene).is_absolute() else base / scene
+        scene, _ = load_yaml(path if path.is_file() else Path(scene), "scene")
+    if not isinstance(scene, dict):
+        raise ConfigError(f"{label}: scene: expected a mapping or a path")
+    pipes = config.get("pipeline", "spherex-default")
+    pipes = [pipes] if isinstance(pipes, (str, dict)) else list(pipes or [])
+    if not pipes or not all(isinstance(p, (str, dict)) for p in pipes):
+        raise ConfigError(f"{label}: pipeline: expected a shipped name, a path, an inline "
+                          "config or a list of them")
+    base = Path(label).parent if Path(label).is_file() else None
+    configs = {}
+    for i, p in enumerate(pipes):
+        if isinstance(p, dict):
+            name = str(p.get("name") or f"pipeline-{i}")
+        else:
+            name = p
+            p = str(base / p) if base is not None and (base / p).is_file() else p
+        if name in configs:
+            raise ConfigError(f"{label}: pipeline[{i}]: name {name!r} is used twice")
+        configs[name] = p
+    grid = config.get("grid") or {}
+    if not isinstance(grid, dict):
+        raise ConfigError(f"{label}: grid: expected a mapping of readout key -> list")
+    clean = {}
+    for key, values in grid.items():
+        if key not in _READOUT_KEYS:
+            raise ConfigError(f"{label}: grid.{key}: not a readout parameter; valid: "
+                              f"{', '.join(_READOUT_KEYS)}")
+        values = values if isinstance(values, list) else [values]
+        if not values:
+            raise ConfigError(f"{label}: grid.{key}: empty list")
+        clean[key] = values
+    nreal = config.get("realizations", 1)
+    if isinstance(nreal, bool) or not isinstance(nreal, int) or nreal < 1:
+        raise ConfigError(f"{label}: realizations: expected an integer >= 1, got {nreal!r}")
+    seed = config.get("seed", scene.get("seed") or 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ConfigError(f"{label}: seed: expected a non-negative integer, got {seed!r}")
+    mode = config.get("mode", "slopes")
+    if mode not in ("slopes", "ramps"):
+        raise ConfigError(f"{label}: mode: expected slopes or ramps, got {mode!r}")
+    measure = dict(_MEASURE)
+    for key, value in (config.get("measure") or {}).items():
+        if key not in _MEASURE:
+            raise ConfigError(f"{label}: measure.{key}: unknown; valid: {', '.join(_MEASURE)}")
+        measure[key] = value
+    return Sweep(scene, tuple(configs), clean, nreal, seed, mode, measure, label, configs)
+
+
+# -- one cell -----------------------------------------------------------------------
+def _edges(measure):
+    bins = measure["bins"]
+    if isinstance(bins, int):
+        return None
+    return np.asarray(bins, dtype=float)
+
+
+def run_cell(task):
+    """Simulate, reduce and measure one cell; returns a result row (never raises).
+
+    The row has the cell's values, ``seed`` (the entropy, as text),
+    ``band_power``, ``band_power_err``, ``std`` (of the unmasked pixels),
+    ``masked_fraction``, ``k`` and ``power`` (the binned P(k) as arrays) and
+    ``seconds``; a failed cell returns ``{"cell": ..., "error": message}``.
+    """
+    from ..pipeline import Pipeline
+    from ..simulation import simulate
+    from .spectrum import band_power, power_spectrum
+
+    t0 = time.perf_counter()
+    cell = task["cell"]
+    try:
+        # a 64-bit integer drawn from the cell's SeedSequence: plain, printable, exact
+        seed = int(np.random.SeedSequence(task["entropy"]).generate_state(1, np.uint64)[0])
+        raw = simulate(task["scene"], mode=task["mode"], seed=seed)
+        pipe = task["pipeline"]
+        pipeline = Pipeline(pipe, source=str(pipe.get("name", "pipeline"))) if isinstance(
+            pipe, dict) else Pipeline.from_yaml(pipe)
+        reduced = pipeline.run(raw)
+        if reduced.is_ramp:
+            raise ValueError("the pipeline left ramps; it must end with an image (fit_ramp)")
+        image = reduced.to_ccddata()
+        m = task["measure"]
+        kw = {"exclude_horizontal": bool(m["exclude_horizontal"]),
+              "mask_sources": bool(m["mask_sources"])}
+        ny, nx = image.shape
+        bins = m["bins"] if isinstance(m["bins"], int) else np.asarray(m["bins"], float)
+        if isinstance(bins, int):  # fixed edges from the geometry, so rows line up
+            bins = np.geomspace(2 * np.pi / max(ny, nx), np.pi, bins + 1)
+        spec = power_spectrum(image, bins=bins, **kw)
+        # every bin, empty ones as NaN, so all rows of a sweep share one k grid
+        k = np.full(len(bins) - 1, np.nan)
+        power = np.full(len(bins) - 1, np.nan)
+        pos = np.searchsorted(bins, np.asarray(spec["k_lo"]) * (1 + 1e-12)) - 1
+        k[pos] = np.asarray(spec["k"])
+        power[pos] = np.asarray(spec["power"])
+        bp, err = band_power(image, m["kmin"], m["kmax"], return_error=True, **kw)
+        data = np.asarray(image.data, dtype=float)
+        good = np.isfinite(data)
+        if image.mask is not None:
+            good &= np.asarray(image.mask) == 0
+        return {
+            "cell": cell, "seed": json.dumps(task["entropy"]),
+            "band_power": float(bp.value), "band_power_err": float(err.value),
+            "unit": str(bp.unit), "std": float(np.std(data[good])) if good.any() else np.nan,
+            "masked_fraction": float(spec.meta["masked_fraction"]),
+            "k": k, "power": power, "seconds": time.perf_counter() - t0,
+        }
+    except Exception as exc:  # reported with the cell's parameters; the sweep goes on
+        return {"cell": cell, "error": f"{type(exc).__name__}: {exc}",
+                "traceback": traceback.format_exc(limit=6)}
+
+
+# -- the sweep ----------------------------------------------------------------------------
+@dataclass
+class SweepResult:
+    """What `run_sweep` did: the full results table, and counts."""
+
+    table: Table
+    computed: int = 0
+    skipped: int = 0
+    failed: list = field(default_factory=list)
+    seconds: float = 0.0
+
+
+def _key(row, keys):
+    return tuple(json.dumps(_plain(row[k])) for k in (*keys, "pipeline", "realization"))
+
+
+def _plain(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, bytes):
+        return value.decode()
+    return value
+
+
+def _rows_to_table(rows, sweep, unit):
+    keys = sweep.keys
+    cols = {}
+    for k in keys:
+        cols[k] = [_plain(r["cell"][k]) for r in rows]
+    cols["pipeline"] = [r["cell"]["pipeline"] for r in rows]
+    cols["realization"] = np.array([r["cell"]["realization"] for r in rows], dtype=int)
+    cols["seed"] = [r["seed"] for r in rows]
+    for c in ("band_power", "band_power_err", "std", "masked_fraction", "seconds"):
+        cols[c] = np.array([r[c] for r in rows], dtype=float)
+    cols["k"] = np.array([r["k"] for r in rows], dtype=float) if rows else np.zeros((0, 0))
+    cols["power"] = np.array([r["power"] for r in rows], dtype=float) if rows else np.zeros(
+        (0, 0))
+    t = Table(cols)
+    if unit:
+        for c in ("band_power", "band_power_err", "power"):
+            t[c].unit = u.Unit(unit)
+        t["std"].unit = u.Unit(unit) ** 0.5 / u.pix
+        t["k"].unit = u.rad / u.pix
+    t["seconds"].unit = u.s
+    return t
+
+
+def _merge(existing, new, keys):
+    from astropy.table import vstack
+
+    if existing is None or len(existing) == 0:
+        out = new
+    elif len(new) == 0:
+        out = existing
+    else:
+        out = vstack([existing, new], metadata_conflicts="silent")
+    if len(out):
+        order = sorted(range(len(out)), key=lambda i: _key(out[i], keys))
+        out = out[order]
+    return out
+
+
+def quiet_dask_logs(level=logging.WARNING):
+    """Raise the level of dask.distributed's loggers (they log every connection at INFO)."""
+    import distributed  # noqa: F401  (creates its loggers)
+
+    for name in list(logging.root.manager.loggerDict):
+        if name.split(".")[0] == "distributed":
+            logging.getLogger(name).setLevel(level)
+
+
+def _client(scheduler, workers):
+    """``(client, cluster, owned)``: a client for ``scheduler`` (None: a new LocalCluster)."""
+    from distributed import Client, LocalCluster
+
+    if isinstance(scheduler, Client):
+        return scheduler, None, False
+    if scheduler:
+        return Client(scheduler), None, True
+    cluster = LocalCluster(n_workers=int(workers or 2), threads_per_worker=1, processes=True,
+                           dashboard_address=":0")
+    return Client(cluster), cluster, True
+
+
+def run_sweep(sweep, output=None, *, scheduler=None, workers=None, overwrite=False,
+              progress=False, checkpoint_seconds=30.0):
+    """Run every cell of a sweep not yet in ``output``; write and return the results.
+
+    Parameters
+    ----------
+    sweep : `Sweep`, dict, YAML text or path
+    output : str or `pathlib.Path`, optional
+        ECSV results file.  If it exists (and not ``overwrite``), the cells it
+        holds are skipped and the new rows added; it is rewritten atomically
+        (also every ``checkpoint_seconds`` while running).
+    scheduler : str or `distributed.Client`, optional
+        ``None``: an embedded `~distributed.LocalCluster` of ``workers``
+        processes (one thread each); an address (``tcp://host:8786``): an
+        existing dask scheduler; a ``Client``: used as it is (not closed);
+        ``"serial"``: in this process, no dask.
+    workers : int, optional
+        Worker processes of the LocalCluster (default 2).
+    overwrite : bool
+        Ignore and replace an existing ``output``.
+    progress : bool
+        Show a tqdm progress bar.
+
+    Returns
+    -------
+    `SweepResult`
+        ``table`` (one row per cell and realisation, sorted by cell), the
+        numbers of cells computed and skipped, and the failures
+        (``{"cell": ..., "error": ...}``), which are not written as rows, so a
+        re-run tries them again.
+    """
+    from ..fits_format import atomic_output
+
+    sw = sweep if isinstance(sweep, Sweep) else load_sweep(sweep)
+    keys = sw.keys
+    existing = None
+    if output is not None:
+        output = Path(output)
+        if output.exists() and not overwrite:
+            existing = Table.read(output, format="ascii.ecsv")
+            missing = [c for c in (*keys, "pipeline", "realization", "band_power")
+                       if c not in existing.colnames]
+            if missing:
+                raise ConfigError(
+                    f"{output} has no column(s) {missing}: it holds another sweep; choose "
+                    "another output or pass overwrite"
+                )
+            old = existing.meta.get("fingerprint")
+            if old is not None and old != sw.fingerprint:
+                raise ConfigError(
+                    f"{output} was made with a different scene, seed, mode, measure or "
+                    "pipeline config; its rows would not match this sweep: choose another "
+                    "output or pass overwrite"
+                )
+        elif not output.parent.is_dir():
+            raise FileNotFoundError(f"output directory {output.parent} does not exist")
+    done = set() if existing is None else {_key(r, keys) for r in existing}
+    todo = [c for c in sw.cells() if _key(c, keys) not in done]
+    result = SweepResult(existing if existing is not None else _rows_to_table([], sw, None),
+                         skipped=len(sw.cells()) - len(todo))
+    t0 = time.perf_counter()
+    rows, unit = [], None
+    last_write = time.perf_counter()
+
+    def write(final=False):
+        nonlocal last_write
+        if output is None:
+            return
+        table = _merge(existing, _rows_to_table(rows, sw, unit), keys)
+        table.meta.update({"sweep": sw.source, "grid": {k: [_plain(v) for v in vals]
+                                                         for k, vals in sw.grid.items()},
+                           "pipelines": list(sw.pipelines), "realizations": sw.realizations,
+                           "seed": sw.seed, "mode": sw.mode, "measure": _jsonable(sw.measure),
+                           "fingerprint": sw.fingerprint})
+        if result.failed:
+            table.meta["failed"] = [{"cell": f["cell"], "error": f["error"]}
+                                    for f in result.failed]
+        else:
+            table.meta.pop("failed", None)
+        with atomic_output(output, overwrite=True) as tmp:
+            table.write(tmp, format="ascii.ecsv")
+        last_write = time.perf_counter()
+
+    def collect(res):
+        nonlocal unit
+        if "error" in res:
+            result.failed.append(res)
+            log.warning("sweep cell %s failed: %s", res["cell"], res["error"])
+            return
+        unit = unit or res["unit"]
+        rows.append(res)
+        result.computed += 1
+        if time.perf_counter() - last_write > checkpoint_seconds:
+            write()
+
+    bar = _bar(len(todo), progress)
+    tasks = [sw.task(c) for c in todo]
+    if todo and scheduler == "serial":
+        for task in tasks:
+            collect(run_cell(task))
+            bar.update(1)
+    elif todo:
+        from distributed import as_completed
+
+        client, cluster, owned = _client(scheduler, workers)
+        try:
+            futures = client.map(run_cell, tasks, pure=False)
+            for fut in as_completed(futures):
+                try:
+                    res = fut.result()
+                except Exception as exc:  # a worker died: report the cell, go on
+                    idx = futures.index(fut)
+                    res = {"cell": todo[idx], "error": f"{type(exc).__name__}: {exc}"}
+                collect(res)
+                bar.update(1)
+                fut.release()
+        finally:
+            if owned:
+                client.close()
+            if cluster is not None:
+                cluster.close()
+    bar.close()
+    result.table = _merge(existing, _rows_to_table(rows, sw, unit), keys)
+    write(final=True)
+    result.seconds = time.perf_counter() - t0
+    return result
+
+
+def _jsonable(d):
+    return {k: (list(v) if isinstance(v, (list, tuple, np.ndarray)) else v) for k, v in d.items()}
+
+
+def _bar(total, progress):
+    from tqdm import tqdm
+
+    return tqdm(total=total, disable=not progress, desc="sweep cells", unit="cell")
+
+
+def plot_sweep(table, x=None, title=""):
+    """Band power against the first grid key, mean ± standard error over realisations.
+
+    One line per combination of the other grid keys and the pipeline.
+
+    Returns
+    -------
+    `matplotlib.figure.Figure`
+    """
+    from matplotlib.figure import Figure
+
+    grid = list(table.meta.get("grid", {}))
+    x = x or (grid[0] if grid else "realization")
+    others = [k for k in grid if k != x] + ["pipeline"]
+    fig = Figure(figsize=(7, 5))
+    ax = fig.subplots()
+    groups = {}
+    for row in table:
+        label = ", ".join(f"{k}={_plain(row[k])}" for k in others
+                          if len(set(table[k])) > 1 or k != "pipeline")
+        groups.setdefault(label, {}).setdefault(_plain(row[x]), []).append(row["band_power"])
+    numeric = all(isinstance(v, (int, float)) for g in groups.values() for v in g)
+    for label, points in groups.items():
+        xs = sorted(points) if numeric else list(points)
+        mean = np.array([np.mean(points[v]) for v in xs])
+        err = np.array([np.std(points[v], ddof=1) / np.sqrt(len(points[v]))
+                        if len(points[v]) > 1 else 0.0 for v in xs])
+        pos = xs if numeric else np.arange(len(xs))
+        ax.errorbar(pos, mean, yerr=err, fmt="o-", capsize=3, label=label or None)
+        if not numeric:
+            ax.set_xticks(pos, [str(v) for v in xs])
+    unit = table["band_power"].unit
+    ax.set_xlabel(x)
+    ax.set_ylabel(f"band power ({unit})" if unit else "band power")
+    ax.set_yscale("log")
+    if any(groups):
+        ax.legend(fontsize=8)
+    ax.grid(True, alpha=0.3)
+    m = table.meta.get("measure", {})
+    ax.set_title(title or f"band power {m.get('kmin', 0.03)} < k < {m.get('kmax', 0.13)} "
+                 "rad/pixel (mean ± s.e. over realisations)", fontsize=10)
+    return fig

@@ -1,0 +1,31 @@
+"""``spherex-reduce combine``: a master dark from reduced exposures (ccdproc.combine)."""
+
+from ..fits_format import atomic_output, read, write
+from ..steps.dark import COMBINE_METHODS, combine_darks
+
+
+def add_parser(sub):
+    p = sub.add_parser(
+        "combine", help="combine reduced exposures into a master dark",
+        description="Combine two or more reduced 2-D exposures (e.g. slopes written by "
+        "`spherex-reduce reduce`) into a master dark with ccdproc.combine (sigma-clipped "
+        "average by default, uncertainty propagated), for the subtract_dark step.")
+    p.add_argument("inputs", nargs="+", metavar="IN.fits")
+    p.add_argument("-o", "--output", required=True, metavar="MASTER.fits")
+    p.add_argument("--method", choices=COMBINE_METHODS, default="average")
+    p.add_argument("--sigma", type=float, default=3.0,
+                   help="clip each pixel at this many standard deviations across the "
+                   "inputs (0: no clipping; default 3)")
+    p.add_argument("--overwrite", action="store_true", help="replace MASTER.fits if it exists")
+    p.set_defaults(func=run)
+
+
+def run(args):
+    atomic_output(args.output, args.overwrite)  # refuse before reading anything
+    exposures = [read(path) for path in args.inputs]
+    master = combine_darks(exposures, method=args.method, sigma=args.sigma)
+    header = master.header.copy()
+    for path in args.inputs:
+        header.add_history(f"combine input: {path}")
+    write(master.replace(header=header), args.output, overwrite=args.overwrite)
+    print(f"wrote {args.output} ({args.method} of {len(exposures)} exposures)")

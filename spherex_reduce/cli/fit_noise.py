@@ -1,0 +1,68 @@
+"""``spherex-reduce fit-noise``: fit α + β/f + γ/f^1.3 to the streams of a raw file."""
+
+from pathlib import Path
+
+from ..fits_format import atomic_output
+
+
+def add_parser(sub):
+    p = sub.add_parser(
+        "fit-noise", help="fit the noise model of paper eq. 1 to a raw file's reference "
+        "and phantom streams",
+        description="Take the reference-pixel and phantom streams of RAW.fits (ramps in readout "
+        "order) in time order, estimate their PSDs (Welch, within frames) and fit "
+        "p(f) = alpha + beta/f + gamma/f^exponent for the pixel-rate process, with "
+        "uncertainties (how the paper's Table 2 was made).")
+    p.add_argument("input", metavar="RAW.fits")
+    p.add_argument("-o", "--output", required=True, metavar="FIT.ecsv")
+    p.add_argument("--plot", nargs="?", const=True, metavar="PNG",
+                   help="draw the PSDs and fits (default name: the output with .png)")
+    p.add_argument("--exponent", type=float, default=1.3,
+                   help="exponent of the third term (default 1.3, the paper's)")
+    p.add_argument("--fit-exponent", action="store_true",
+                   help="fit the exponent too (per stream, error from Δχ² = 1)")
+    p.add_argument("--nbins", type=int, default=30, help="log frequency bins per spectrum")
+    p.add_argument("--nperseg", type=int, default=None,
+                   help="Welch segment length in row reads (default: a power of two <= reads "
+                   "per frame)")
+    p.add_argument("--no-acn", dest="acn", action="store_false",
+                   help="use all reference columns as one stream (default: even and odd "
+                   "columns apart, right with or without alternating column noise)")
+    p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
+    p.set_defaults(func=run)
+
+
+def run(args):
+    from ..analysis import fit_raw_noise
+    from ..fits_format import read
+
+    plot = args.plot
+    if plot is True:
+        plot = str(Path(args.output).with_suffix(".png"))
+    for path in (args.output, plot):
+        if path:
+            atomic_output(path, args.overwrite)
+    exposure = read(args.input)
+    exponent = None if args.fit_exponent else args.exponent
+    table = fit_raw_noise(exposure, exponent=exponent, nperseg=args.nperseg,
+                          nbins=args.nbins, acn=args.acn)
+    fits_ = table.meta.pop("fits")
+    table.meta["source"] = str(args.input)
+    with atomic_output(args.output, args.overwrite) as tmp:
+        table.write(tmp, format="ascii.ecsv")
+    for row in table:
+        print(f"{row['stream']:>9}: alpha = {row['alpha']:.3g} ± {row['alpha_err']:.2g}, "
+              f"beta = {row['beta']:.3g} ± {row['beta_err']:.2g}, "
+              f"gamma = {row['gamma']:.3g} ± {row['gamma_err']:.2g}, "
+              f"exponent = {row['exponent']:.3g}"
+              + (f" ± {row['exponent_err']:.2g} " if row["exponent_err"] else " ")
+              + f"(chi2/dof = {row['chi2']:.1f}/{row['dof']})")
+    print(f"wrote {args.output}")
+    if plot:
+        from ..analysis.plots import plot_noise_fit
+        from ..plotting import save_figure
+
+        label = "fitted" if exponent is None else exponent
+        save_figure(plot_noise_fit(fits_, title=f"{Path(args.input).name}: stream PSDs and "
+                                   f"fits (exponent {label})"), plot, args.overwrite)
+        print(f"wrote {plot}")

@@ -1,0 +1,128 @@
+"""``spherex-reduce spectrum``: the spatial power spectrum P(k) of an image."""
+
+from pathlib import Path
+
+import numpy as np
+from astropy import units as u
+from astropy.table import join
+
+from ..errors import SpherexReduceError
+from ..fits_format import atomic_output
+
+_DEFAULT_TINT = 111.74  # s: N = 74 frames of 1.51 s (paper Table 3)
+
+
+def add_parser(sub):
+    p = sub.add_parser(
+        "spectrum", help="azimuthally averaged power spectrum P(k) of an image",
+        description="Measure P(k) of IMAGE.fits (k in rad/pixel, k = 2π·pixel scale/θ), write "
+        "it as ECSV (columns k theta power power_err nmodes; the 5–20′ band power in the meta) "
+        "and optionally plot it with the band shaded and the photon-noise line. Images in "
+        "readout order are un-chopped first.")
+    p.add_argument("input", metavar="IMAGE.fits")
+    p.add_argument("-o", "--output", required=True, metavar="SPECTRUM.ecsv")
+    p.add_argument("--plot", nargs="?", const=True, metavar="PNG",
+                   help="draw P(k) (default name: the output with .png)")
+    p.add_argument("--compare", metavar="OTHER.fits",
+                   help="a second image measured on the same bins (columns *_compare)")
+    p.add_argument("--bins", type=int, default=30, help="log-spaced k bins (default 30)")
+    p.add_argument("--pixel-scale", type=float, default=6.2, metavar="ARCSEC",
+                   help="pixel scale in arcsec (default 6.2, SPHEREx)")
+    p.add_argument("--kmin", type=float, default=0.03, help="band lower edge (rad/pixel)")
+    p.add_argument("--kmax", type=float, default=0.13, help="band upper edge (rad/pixel)")
+    p.add_argument("--mask-sources", action="store_true",
+                   help="mask sources and hot pixels (photutils segmentation) first")
+    p.add_argument("--exclude-horizontal", action="store_true",
+                   help="leave out the k_y = 0 axis of the Fourier plane (paper Fig. 6)")
+    p.add_argument("--photocurrent", type=float, default=1.0, metavar="E_PER_S",
+                   help="photocurrent of the photon-noise line in e/s (default 1, Zodiacal "
+                   "light); 0 for none")
+    p.add_argument("--integration-time", type=float, default=None, metavar="S",
+                   help="integration time of the photon-noise line (default: from the file, "
+                   f"else {_DEFAULT_TINT} s)")
+    p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
+    p.set_defaults(func=run)
+
+
+def _measure(image, args, bins=None):
+    from ..analysis import band_power, power_spectrum
+
+    scale = args.pixel_scale * u.arcsec
+    kw = {"pixel_scale": scale, "mask_sources": args.mask_sources,
+          "exclude_horizontal": args.exclude_horizontal}
+    table = power_spectrum(image, bins=args.bins if bins is None else bins, **kw)
+    band, err = band_power(image, args.kmin, args.kmax, return_error=True, **kw)
+    return table, band, err
+
+
+def _photon(image, args):
+    from ..analysis import photon_noise_power
+
+    if not args.photocurrent:
+        return None
+    if not (image.unit or u.one).is_equivalent(u.electron / u.s):
+        return None
+    nframes = image.meta.get("NFRAMES")
+    tint = args.integration_time or image.meta.get("INTTIME") or _DEFAULT_TINT
+    power = photon_noise_power(args.photocurrent * u.electron / u.s, tint * u.s,
+                               nframes=nframes if nframes and nframes >= 2 else None)
+    return power.to(image.unit**2 * u.pix**2)
+
+
+def run(args):
+    from ..analysis.io import read_image
+
+    if args.kmin >= args.kmax:
+        raise SpherexReduceError(f"--kmin ({args.kmin}) must be below --kmax ({args.kmax})")
+    plot = args.plot
+    if plot is True:
+        plot = str(Path(args.output).with_suffix(".png"))
+    for path in (args.output, plot):
+        if path:
+            atomic_output(path, args.overwrite)
+    image = read_image(args.input)
+    table, band, err = _measure(image, args)
+    table.meta.update({
+        "source": str(args.input), "band_kmin": args.kmin, "band_kmax": args.kmax,
+        "band_power": float(band.value), "band_power_err": float(err.value),
+        "band_power_unit": band.unit.to_string(),
+    })
+    photon = _photon(image, args)
+    if photon is not None:
+        table.meta["photon_noise_power"] = float(photon.value)
+        table.meta["photocurrent_e_per_s"] = args.photocurrent
+    lines = [f"{args.input}: band power ({args.kmin} < k < {args.kmax} rad/pixel) = "
+             f"{band.value:.4g} ± {err.value:.2g} {band.unit}"]
+    spectra = {Path(args.input).name: table}
+    if args.compare:
+        other = read_image(args.compare)
+        edges = np.unique(np.concatenate([table["k_lo"], table["k_hi"]]))
+        ot, oband, oerr = _measure(other, args, bins=edges)
+        spectra[Path(args.compare).name] = ot
+        sub = ot["k_lo", "power", "power_err", "nmodes"]
+        for c in ("power", "power_err", "nmodes"):
+            sub.rename_column(c, f"{c}_compare")
+        meta = table.meta
+        table = join(table, sub, keys="k_lo", join_type="left")
+        table.sort("k")
+        table.meta.update(meta)
+        table.meta.update({"compare": str(args.compare), "band_power_compare": float(oband.value),
+                           "band_power_compare_err": float(oerr.value)})
+        ratio = (band / oband).to_value(u.one) if oband.value else np.inf
+        lines.append(f"{args.compare}: band power = {oband.value:.4g} ± {oerr.value:.2g} "
+                     f"{oband.unit} (ratio {ratio:.3g})")
+    if photon is not None:
+        lines.append(f"photon noise of {args.photocurrent:g} e/s: {photon.value:.4g} {photon.unit}")
+    with atomic_output(args.output, args.overwrite) as tmp:
+        table.write(tmp, format="ascii.ecsv")
+    lines.append(f"wrote {args.output}")
+    if plot:
+        from ..analysis.plots import plot_spectra
+        from ..plotting import save_figure
+
+        fig = plot_spectra(spectra, band=(args.kmin, args.kmax), photon=photon,
+                           title=f"P(k), band power {band.value:.3g} {band.unit}",
+                           pixel_scale=args.pixel_scale * u.arcsec)
+        save_figure(fig, plot, args.overwrite)
+        lines.append(f"wrote {plot}")
+    print("\n".join(lines))

@@ -1,0 +1,59 @@
+"""``spherex-reduce sweep``: a parameter sweep on dask.distributed."""
+
+import sys
+from pathlib import Path
+
+from ..fits_format import atomic_output
+
+
+def add_parser(sub):
+    p = sub.add_parser(
+        "sweep", help="simulate, reduce and measure a grid of readout parameters on dask",
+        description="Run SWEEP.yaml (scene:, pipeline:, grid:, realizations:, seed:): every "
+        "cell is simulated (slopes by default), reduced with the pipeline and measured "
+        "(band power, P(k)). Runs on an embedded dask LocalCluster, or on an existing "
+        "scheduler with --scheduler. Cells already in OUTPUT are skipped, so an interrupted "
+        "sweep resumes; failed cells are reported and retried on the next run.")
+    p.add_argument("input", metavar="SWEEP.yaml")
+    p.add_argument("-o", "--output", required=True, metavar="RESULTS.ecsv")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="dask scheduler address (tcp://host:8786); 'serial' runs in-process")
+    p.add_argument("--workers", type=int, default=2,
+                   help="worker processes of the embedded LocalCluster (default 2)")
+    p.add_argument("--plot", nargs="?", const=True, metavar="PNG",
+                   help="band power against the first grid key (default: OUTPUT with .png)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="discard OUTPUT's rows and run every cell again")
+    p.set_defaults(func=run)
+
+
+def run(args):
+    from ..analysis.sweep import load_sweep, plot_sweep, run_sweep
+
+    if not args.verbose:  # dask's INFO lines about workers and connections
+        from ..analysis.sweep import quiet_dask_logs
+
+        quiet_dask_logs()
+    sweep = load_sweep(args.input)
+    plot = args.plot
+    if plot is True:
+        plot = str(Path(args.output).with_suffix(".png"))
+    if plot:
+        atomic_output(plot, True)  # checks the directory; the plot follows the results
+    if args.workers < 1:
+        from ..errors import ConfigError
+
+        raise ConfigError(f"--workers must be >= 1, got {args.workers}")
+    res = run_sweep(sweep, args.output, scheduler=args.scheduler, workers=args.workers,
+                    overwrite=args.overwrite, progress=not args.quiet)
+    print(f"{len(sweep.cells())} cells: {res.computed} computed, {res.skipped} already in "
+          f"{args.output}, {len(res.failed)} failed ({res.seconds:.1f} s)")
+    for f in res.failed:
+        print(f"failed cell {f['cell']}: {f['error']}", file=sys.stderr)
+    print(f"wrote {args.output}")
+    if plot and len(res.table):
+        from ..plotting import save_figure
+
+        save_figure(plot_sweep(res.table), plot, overwrite=True)
+        print(f"wrote {plot}")
+    return 1 if res.failed else 0

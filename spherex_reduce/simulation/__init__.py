@@ -1,0 +1,25 @@
+"""The noise simulator: the paper's Table 2 model on the readout schedule.
+
+`simulate` turns a scene (YAML or dict) into raw ramps or a slope image;
+`expected_slope_variance` predicts the slope noise without simulating.
+"""
+
+from .components import NoiseComponent, load_noise_table, noise_components
+from .engine import NoiseEngine
+from .scene import Scene, load_scene
+from .simulator import SpherexSimulator, simulate, simulate_to_fits
+from .variance import expected_slope_variance, ls_weights
+
+__all__ = [
+    "NoiseComponent",
+    "NoiseEngine",
+    "Scene",
+    "SpherexSimulator",
+    "expected_slope_variance",
+    "load_noise_table",
+    "load_scene",
+    "ls_weights",
+    "noise_components",
+    "simulate",
+    "simulate_to_fits",
+]

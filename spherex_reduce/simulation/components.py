@@ -1,0 +1,283 @@
+"""Noise components of the readout electronics (paper §3, Table 2) as data.
+
+Every component has a one-sided power spectral density (PSD) in e²/Hz of the
+timestream of one readout channel sampled at the pixel rate ``fs``::
+
+    p(f) = alpha + beta / f + gamma / f**exponent,     0 < f <= fs / 2
+
+a *scope* (``channel``: an independent stream per channel; ``common``: one
+stream for all channels), a *visibility* (which samples see it: ``pixels``,
+``phantom`` or ``both``) and ``acn`` (independent even/odd-column
+realisations, paper §3.2).  A sampled stream with this PSD has the
+per-sample white variance ``alpha * fs / 2``.
+"""
+
+import importlib.resources
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+from astropy import units as u
+from astropy.table import Table
+from scipy import integrate, special
+
+from ..errors import ConfigError
+
+__all__ = [
+    "BUILTIN_TABLES",
+    "NoiseComponent",
+    "load_noise_table",
+    "noise_components",
+]
+
+SCOPES = ("channel", "common")
+VISIBILITIES = ("pixels", "phantom", "both")
+#: Built-in noise tables (name -> file in ``spherex_reduce/data``).
+BUILTIN_TABLES = {"spherex-table2": "spherex-table2.ecsv"}
+_PSD_UNIT = u.electron**2 / u.Hz
+
+
+@dataclass(frozen=True)
+class NoiseComponent:
+    """One noise source: its PSD coefficients, scope, visibility and ACN.
+
+    Parameters
+    ----------
+    name : str
+        Identifier (``video8``, ``roic``, ...).
+    alpha : float
+        White level, e²/Hz.
+    beta : float
+        ``1/f`` coefficient, e².
+    gamma : float
+        ``1/f**exponent`` coefficient, e² Hz^(exponent - 1).
+    exponent : float
+        Power of the ``gamma`` term, in (0, 3) and not 1 (the paper: 1.3).
+    scope : {'channel', 'common'}
+        ``channel``: an independent stream per readout channel;
+        ``common``: one stream shared by all channels.
+    visibility : {'pixels', 'phantom', 'both'}
+        Which samples see the component: the array pixels, the phantom
+        (Video8 reference) samples, or both.
+    acn : bool
+        Split into two independent realisations, one for even and one for
+        odd columns (alternating column noise).  Channel scope only.
+
+    Examples
+    --------
+    >>> from spherex_reduce.simulation import NoiseComponent
+    >>> c = NoiseComponent("white", alpha=2e-3)
+    >>> float(c.psd(10.0))                        # e^2/Hz
+    0.002
+    >>> c.white_variance(1e5)                     # e^2 per sample
+    100.0
+    """
+
+    name: str
+    alpha: float = 0.0
+    beta: float = 0.0
+    gamma: float = 0.0
+    exponent: float = 1.3
+    scope: str = "channel"
+    visibility: str = "pixels"
+    acn: bool = False
+
+    def __post_init__(self):
+        for key in ("alpha", "beta", "gamma"):
+            value = float(getattr(self, key))
+            if not np.isfinite(value) or value < 0:
+                raise ValueError(f"component {self.name!r}: {key} must be >= 0, got {value}")
+            object.__setattr__(self, key, value)
+        e = float(self.exponent)
+        if not (0 < e < 3) or e == 1:
+            raise ValueError(f"component {self.name!r}: exponent must be in (0, 3) and not 1 "
+                             f"(use beta for 1/f), got {e}")
+        object.__setattr__(self, "exponent", e)
+        if self.scope not in SCOPES:
+            raise ValueError(f"component {self.name!r}: scope must be one of {SCOPES}")
+        if self.visibility not in VISIBILITIES:
+            raise ValueError(f"component {self.name!r}: visibility must be one of "
+                             f"{VISIBILITIES}")
+        if self.acn and self.scope != "channel":
+            raise ValueError(f"component {self.name!r}: acn applies to channel-scope "
+                             "components only (the common bias terms are not split)")
+        object.__setattr__(self, "acn", bool(self.acn))
+
+    # -- properties -----------------------------------------------------------
+    @property
+    def is_zero(self):
+        """True if all coefficients are zero (the component costs nothing)."""
+        return self.alpha == 0 and self.beta == 0 and self.gamma == 0
+
+    @property
+    def seen_by_pixels(self):
+        return self.visibility in ("pixels", "both")
+
+    @property
+    def seen_by_phantom(self):
+        return self.visibility in ("phantom", "both")
+
+    def to_dict(self):
+        """Plain values (the inline YAML form)."""
+        return asdict(self)
+
+    def replace(self, **changes):
+        """A copy with some fields changed."""
+        return NoiseComponent(**{**self.to_dict(), **changes})
+
+    # -- spectra --------------------------------------------------------------
+    def psd(self, f):
+        """One-sided PSD at frequencies ``f`` (Hz, > 0), in e²/Hz (plain floats)."""
+        f = np.asarray(f, dtype=float)
+        with np.errstate(divide="ignore"):
+            out = self.alpha + self.beta / f + self.gamma * f ** (-self.exponent)
+        return out
+
+    def white_variance(self, fs):
+        """Per-sample variance (e²) of the white part at sample rate ``fs`` (Hz)."""
+        return self.alpha * fs / 2
+
+    def structure_function(self, lag, fs):
+        """``D(lag) = E[(x(t + lag) - x(t))^2]`` of the sampled stream, e².
+
+        ``D(tau) = 2 * integral_0^{fs/2} p(f) (1 - cos(2 pi f tau)) df`` with
+        ``tau = lag / fs``; finite for all three terms.  Closed forms: the
+        white term gives ``alpha * fs`` for integer lags > 0, the ``1/f``
+        term ``2 beta Cin(pi lag)`` and the power-law term uses the
+        asymptotic or numerical cosine integral.
+
+        Parameters
+        ----------
+        lag : array_like
+            Lags in samples (integers for the white term to be exact).
+        fs : float
+            Sample rate, Hz.
+        """
+        lag = np.abs(np.asarray(lag, dtype=float))
+        out = np.zeros_like(lag)
+        nz = lag > 0
+        if self.alpha:
+            # 2 alpha (fs/2 - sin(pi lag) fs / (2 pi lag))
+            x = lag[nz]
+            out[nz] += self.alpha * fs * (1 - np.sinc(x))
+        if self.beta:
+            out[nz] += 2 * self.beta * _cin(np.pi * lag[nz])
+        if self.gamma:
+            e = self.exponent
+            z = np.pi * lag[nz]
+            out[nz] += 2 * self.gamma * (2 * np.pi * lag[nz] / fs) ** (e - 1) * _g_power(z, e)
+        return out
+
+
+def _cin(x):
+    """Cin(x) = integral_0^x (1 - cos t)/t dt."""
+    x = np.asarray(x, dtype=float)
+    small = x < 1e-3
+    out = np.empty_like(x)
+    out[small] = x[small] ** 2 / 4
+    xs = x[~small]
+    out[~small] = np.euler_gamma + np.log(xs) - special.sici(xs)[1]
+    return out
+
+
+def _g_power(z, e):
+    """G_e(z) = integral_0^z (1 - cos u) u^(-e) du for 0 < e < 3, e != 1."""
+    z = np.atleast_1d(np.asarray(z, dtype=float))
+    k_e = np.pi / (2 * special.gamma(e) * np.sin(np.pi * (e - 1) / 2))
+    out = np.empty_like(z)
+    big = z >= 40
+    zb = z[big]
+    # tail T(z) = int_z^inf cos(u) u^-e du, asymptotic series
+    s, c = np.sin(zb), np.cos(zb)
+    tail = (-s / zb**e + e * c / zb ** (e + 1) + e * (e + 1) * s / zb ** (e + 2)
+            - e * (e + 1) * (e + 2) * c / zb ** (e + 3)
+            - e * (e + 1) * (e + 2) * (e + 3) * s / zb ** (e + 4))
+    out[big] = k_e - zb ** (1 - e) / (e - 1) + tail
+    for i in np.flatnonzero(~big):
+        zi = z[i]
+        if zi < 1e-6:
+            out[i] = zi ** (3 - e) / (2 * (3 - e))
+            continue
+        val, _ = integrate.quad(lambda t: (1 - np.cos(t)) * t ** (-e), 0, zi, limit=200,
+                                epsabs=0, epsrel=1e-11)
+        out[i] = val
+    return out
+
+
+# -- tables ---------------------------------------------------------------------
+def _table_path(source):
+    if str(source) in BUILTIN_TABLES:
+        return importlib.resources.files("spherex_reduce") / "data" / BUILTIN_TABLES[source]
+    path = Path(source)
+    if not path.is_file():
+        raise ConfigError(
+            f"noise.table: {source!r} is neither a built-in table "
+            f"({', '.join(BUILTIN_TABLES)}) nor an existing file"
+        )
+    return path
+
+
+def load_noise_table(source="spherex-table2"):
+    """The noise table as an astropy `~astropy.table.Table` with units and provenance.
+
+    Parameters
+    ----------
+    source : str or path
+        A built-in table name (``'spherex-table2'``, the paper's Table 2) or
+        an ECSV file with the columns ``name alpha beta gamma exponent scope
+        visibility acn``.
+
+    Examples
+    --------
+    >>> from spherex_reduce.simulation import load_noise_table
+    >>> t = load_noise_table()
+    >>> [str(n) for n in t["name"]]
+    ['video8', 'roic', 'bias_correlated', 'bias_phantom_only', 'bias_pixels_only']
+    >>> t["alpha"].unit
+    Unit("electron2 / Hz")
+    """
+    path = _table_path(source)
+    with importlib.resources.as_file(path) as p:
+        table = Table.read(p, format="ascii.ecsv")
+    missing = [c for c in ("name", "alpha", "beta", "gamma") if c not in table.colnames]
+    if missing:
+        raise ConfigError(f"noise.table: {source} lacks column(s) {missing}")
+    return table
+
+
+def noise_components(source="spherex-table2"):
+    """Components of a noise table as ``{name: NoiseComponent}`` (in table order).
+
+    Examples
+    --------
+    >>> from spherex_reduce.simulation import noise_components
+    >>> comps = noise_components()
+    >>> comps["roic"].visibility, comps["bias_correlated"].scope
+    ('pixels', 'common')
+    """
+    table = load_noise_table(source)
+    out = {}
+    for i, row in enumerate(table):
+        kw = {"name": str(row["name"])}
+        for key, unit in (("alpha", _PSD_UNIT), ("beta", u.electron**2)):
+            kw[key] = _value(table, row, key, unit)
+        exponent = float(row["exponent"]) if "exponent" in table.colnames else 1.3
+        kw["exponent"] = exponent
+        kw["gamma"] = _value(table, row, "gamma", u.electron**2 * u.Hz ** (exponent - 1))
+        for key in ("scope", "visibility"):
+            if key in table.colnames:
+                kw[key] = str(row[key])
+        if "acn" in table.colnames:
+            kw["acn"] = bool(row["acn"])
+        try:
+            out[kw["name"]] = NoiseComponent(**kw)
+        except ValueError as exc:
+            raise ConfigError(f"noise.table[{i}] ({kw['name']}): {exc}") from exc
+    return out
+
+
+def _value(table, row, key, unit):
+    col = table[key]
+    if col.unit is None:
+        return float(row[key])
+    return float((row[key] * col.unit).to_value(unit))

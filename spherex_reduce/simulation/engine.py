@@ -1,0 +1,637 @@
+"""Readout noise placed at every sample time of a schedule, in three frequency tiers.
+
+A full-rate FFT of every stream over the whole exposure is far too slow for a
+2048² array, so each PSD is split with smooth (cos²) crossovers into
+
+``slow A``  f < f_A, on a grid of ``16 d_B`` samples spanning the exposure
+            ``padding`` times over (no wrap-around bias);
+``slow B``  f_A/2 < f < f_B, on a grid of ``d_B = 2 row_samples`` samples (two
+            row reads) spanning the exposure plus a gap of ``4 / f_A``;
+``fast``    f > f_B/2 plus all white noise, at the full sample rate, per block of
+            frames (one frame at full size) — for pixels one stream per channel
+            (and one common stream) with all pixel-visible components summed.
+
+with ``f_B = fs / (16 d_B)`` (43 Hz at full size) and ``f_A = f_B / 16``
+(2.7 Hz), so each slow grid oversamples its band 8 to 16 times.  The slow
+tiers are interpolated linearly to the first and last sample of every row
+read and linearly in between (a read lasts ``1/32`` of the shortest slow
+period).  The phantom value of a read (the mean of its ``c`` samples) gets its
+fast part from a sequence over reads with the exact covariance of that mean.
+
+What is approximated (measured in ``benchmarks/README_simulate.md``):
+
+* the fast tier of a phantom-visible component is drawn independently for
+  the pixels and for the phantom means (their covariance above ``f_B/2`` is
+  dropped: the per-sample residual after phantom subtraction is 1.6 % too
+  large for Video8 alone, 0.04 % with all Table 2 terms);
+* the fast tier is not split into even/odd realisations (ACN acts on the
+  slow tiers, which carry the even/odd offsets);
+* fast-tier blocks are independent (their correlation time is < 1/32 of a
+  block) and periodic within a block.
+
+In slope mode the slow tiers and the phantom sequences are the same streams
+(same seeds) weighted with the least-squares weights ``w_k``.  When a block is
+one frame (full size) the frames' fast tiers are independent, so the fast
+part of the slope image is one frame-length stream with the fast PSD times
+``sum w_k²``; with shorter frames the fast blocks of the ramps are fitted.
+"""
+
+import math
+
+import numpy as np
+import scipy.fft as sfft
+from scipy import signal, sparse
+
+from .synthesis import covariance_from_weights, psd_weights, rng_for, synthesize
+from .variance import ls_weights
+
+__all__ = ["NoiseEngine"]
+
+_SCOPE = {"channel": 0, "common": 1}
+_VIS = {"pixels": 0, "phantom": 1, "both": 2}
+TIER_A, TIER_B, TIER_FAST, TIER_PHANTOM, TIER_SLOPE_FAST = range(5)
+
+
+
+def _fft_len(n):
+    """Smallest 2-3-5-smooth integer >= n (faster than lengths with factors 7, 11)."""
+    best = 1 << max(0, math.ceil(math.log2(max(n, 1))))
+    p5 = 1
+    while p5 < best:
+        p35 = p5
+        while p35 < best:
+            m = p35
+            while m < n:
+                m *= 2
+            best = min(best, m)
+            p35 *= 3
+        p5 *= 5
+    return best
+
+
+def _taper(f, f_hi):
+    """1 below f_hi/2, cos² down to 0 at f_hi."""
+    x = np.clip((f - f_hi / 2) / (f_hi / 2), 0, 1)
+    return np.cos(0.5 * np.pi * x) ** 2
+
+
+class _PSD:
+    """Sum of component PSDs times a band window; callable on f > 0."""
+
+    def __init__(self, comps, band, f_a, f_b, white=False):
+        self.comps, self.band, self.f_a, self.f_b = comps, band, f_a, f_b
+        self.white = white
+        self.dc = sum(c.alpha for c in comps) if white else 0.0
+
+    def window(self, f):
+        wa = _taper(f, self.f_a)
+        wb = _taper(f, self.f_b)
+        return {"A": wa, "B": wb - wa, "fast": 1 - wb}[self.band]
+
+    def __call__(self, f):
+        f = np.asarray(f, dtype=float)
+        colored = np.zeros_like(f)
+        for c in self.comps:
+            colored += c.beta / f + c.gamma * f ** (-c.exponent)
+        out = colored * self.window(f)
+        if self.white:
+            out += self.dc
+        return out
+
+    @property
+    def empty(self):
+        if self.white and self.dc > 0:
+            return False
+        return not any(c.beta or c.gamma for c in self.comps)
+
+
+def _functional_variance(a, lam, m):
+    """Variance of ``sum a_n x_n`` for the period-``m`` stream with spectral weights ``lam``."""
+    spec = np.abs(sfft.rfft(a, n=m)) ** 2
+    wgt = np.full(spec.size, 2.0)
+    wgt[0] = 1.0
+    if m % 2 == 0:
+        wgt[-1] = 1.0
+    return float(np.sum(wgt * lam * spec) / m)
+
+
+class _KernelStream:
+    """Stationary Gaussian streams ``x = h * xi``, made window by window in bounded memory.
+
+    ``h = irfft(sqrt(lam))`` is the kernel whose circular convolution with
+    white noise gives the period-``m`` stream with spectral weights ``lam``;
+    truncated where it holds all but ``tol`` of its energy and applied as a
+    *linear* convolution, it gives an aperiodic stream with (almost) the same
+    covariance, computable for any range of samples from white noise drawn in
+    fixed blocks (each block its own seed), so memory does not grow with the
+    exposure and the numbers do not depend on the windows asked for.
+    """
+
+    BLOCK = 1 << 15
+    OFFSET = 1 << 40  # keeps block indices (which may be negative) non-negative
+
+    def __init__(self, lam, m, ns, entropy, key, dtype, tol=1e-7):
+        h = sfft.irfft(np.sqrt(np.clip(lam, 0, None)), n=m)
+        energy = h[: m // 2 + 1] ** 2
+        energy[1:] *= 2
+        cum = np.cumsum(energy)
+        half = int(min(m // 2 - 1, np.searchsorted(cum, (1 - tol) * cum[-1]) + 1))
+        half = max(half, 1)
+        self.kernel = np.concatenate([h[m - half:], h[: half + 1]]).astype(dtype)
+        self.half, self.ns, self.entropy, self.key, self.dtype = half, ns, entropy, key, dtype
+        self._blocks = {}
+
+    def _xi(self, b):
+        if b not in self._blocks:
+            if len(self._blocks) > 8:
+                self._blocks.pop(next(iter(self._blocks)))
+            rng = rng_for(self.entropy, *self.key, b + self.OFFSET)
+            self._blocks[b] = rng.standard_normal((self.ns, self.BLOCK), dtype=self.dtype)
+        return self._blocks[b]
+
+    def window(self, j0, j1):
+        """Samples ``j0 ... j1 - 1`` of every stream, shape ``(j1 - j0, ns)``."""
+        lo, hi = j0 - self.half, j1 + self.half
+        b0, b1 = lo // self.BLOCK, (hi - 1) // self.BLOCK
+        xi = np.concatenate([self._xi(b) for b in range(b0, b1 + 1)], axis=1)
+        xi = xi[:, lo - b0 * self.BLOCK: hi - b0 * self.BLOCK]
+        x = signal.fftconvolve(xi, self.kernel[None, :], mode="valid", axes=1)
+        return np.ascontiguousarray(x.T, dtype=self.dtype)
+
+    def functional_variance(self, a):
+        """Variance of ``sum_n a_n x_n``: the energy of ``a`` convolved with the kernel."""
+        return float(np.sum(signal.fftconvolve(a, self.kernel.astype(float)) ** 2))
+
+
+class _Group:
+    """Components sharing scope, visibility and ACN: one set of slow streams."""
+
+    def __init__(self, key, comps, nch):
+        self.scope, self.visibility, self.acn = key
+        self.comps = comps
+        self.gid = _SCOPE[self.scope] * 6 + _VIS[self.visibility] * 2 + int(self.acn)
+        per = 2 if self.acn else 1
+        self.nstreams = nch * per if self.scope == "channel" else 1
+        self.colored = any(c.beta or c.gamma for c in comps)
+
+
+#: Streams whose spectra have at most this many bins share one generator per call.
+SHARED_BELOW = 16384
+
+
+def _rngs(entropy, ns, nbins, *key):
+    """Per-stream generators for long streams, one shared generator for short ones."""
+    if nbins <= SHARED_BELOW:
+        return rng_for(entropy, *key, 1 << 30)
+    return [rng_for(entropy, *key, i) for i in range(ns)]
+
+
+class NoiseEngine:
+    """The noise of a schedule's samples for a set of components.
+
+    Parameters
+    ----------
+    schedule : `~spherex_reduce.ReadoutSchedule`
+    components : sequence of `NoiseComponent`
+        Zero components are dropped; phantom-only ones too when ``c = 0``.
+    seed : int or `numpy.random.SeedSequence`
+    method : {'gaussian', 'random_phase'}
+    padding : float
+        Length of the slow-A synthesis relative to the exposure (>= 1).
+        ``1`` makes the stream periodic over the exposure (the paper's method
+        and its low bias).
+    dtype : numpy dtype
+        ``float32`` (default) or ``float64`` for the full-rate arrays.
+    oversample : int
+        Ratio of the slow-B grid rate to ``f_B`` (16 by default).
+    b_reads : int
+        Row reads per step of the slow-B grid (2 by default).
+
+    Examples
+    --------
+    >>> from spherex_reduce.examples import tiny_schedule
+    >>> from spherex_reduce.simulation import NoiseComponent
+    >>> from spherex_reduce.simulation.engine import NoiseEngine
+    >>> eng = NoiseEngine(tiny_schedule(), [NoiseComponent("w", alpha=2e-3)], seed=1)
+    >>> frames = list(eng.frames())
+    >>> frames[0][0].shape, frames[0][1].shape       # pixels, phantom of frame 0
+    ((64, 64), (64, 4))
+    """
+
+    def __init__(self, schedule, components, seed=0, *, method="gaussian", padding=16.0,
+                 dtype=np.float32, oversample=16, b_reads=2):
+        self.schedule = s = schedule
+        g = s.geometry
+        self.fs = g.pixel_rate
+        self.nch, self.width, self.ncols = g.nchannels, g.channel_width, g.ncols
+        self.c, self.rs, self.n_reads = s.phantom_reads, s.row_samples, s.n_reads
+        self.F, self.N = s.frame_samples, s.nframes
+        self.method, self.dtype = method, np.dtype(dtype)
+        self.padding = float(padding)
+        self.slow_dtype = np.float64 if self.dtype == np.float64 else np.float32
+        self.gap_factor = 4
+        if isinstance(seed, np.random.SeedSequence):
+            self.entropy = (seed.entropy, tuple(seed.spawn_key))
+        else:
+            self.entropy = (seed, ())
+        comps = [c for c in components if not c.is_zero]
+        if self.c == 0:
+            comps = [c for c in comps if c.seen_by_pixels]
+        self.components = comps
+        keys = {}
+        for c in comps:
+            keys.setdefault((c.scope, c.visibility, c.acn), []).append(c)
+        self.groups = [_Group(k, v, self.nch) for k, v in keys.items()]
+        self.slow_groups = [gr for gr in self.groups if gr.colored]
+        # tiers
+        self.d_b = self.rs * b_reads
+        self.f_b = self.fs / (oversample * self.d_b)
+        self.d_a = 16 * self.d_b
+        self.f_a = self.f_b / 16
+        self.exposure = self.N * self.F
+        self.l_corr = int(32 * self.fs / self.f_b)
+        self.block = max(1, math.ceil(self.l_corr / self.F))
+        self._column_maps()
+        self._slow = None
+        self._phantom = None
+        self._lam_cache = {}
+        self._bcache = {}
+        self._pcache = {}
+
+    # -- layout ----------------------------------------------------------------
+    def _column_maps(self):
+        g = self.schedule.geometry
+        off = g.column_offsets()
+        self.col_off = off
+        self.col_parity = off % 2
+        self.col_chan = g.channel_of_column()
+        span = max(self.c + self.width - 1, 1)
+        self.span = span
+        self.col_frac = ((self.c + off) / span).astype(self.dtype)
+        self.reverse = g.scan_directions < 0
+        # (nch, 4, width): weights of [K0 even, K0 odd, K1 even, K1 odd] for each column
+        pat = np.zeros((self.nch, 4, self.width))
+        frac = self.col_frac.astype(float).reshape(self.nch, self.width)
+        par = self.col_parity.reshape(self.nch, self.width)
+        for p in (0, 1):
+            pat[:, p] = np.where(par == p, 1 - frac, 0)
+            pat[:, 2 + p] = np.where(par == p, frac, 0)
+        self.knot_pattern = pat.astype(self.dtype)
+        # phantom sample i (0..c-1) sits at position i of the read, parity (i - c) % 2
+        i = np.arange(self.c)
+        par = (i - self.c) % 2
+        fr = i / span
+        self.ph_a = np.array([np.sum((1 - fr)[par == p]) for p in (0, 1)]) / max(self.c, 1)
+        self.ph_b = np.array([np.sum(fr[par == p]) for p in (0, 1)]) / max(self.c, 1)
+
+    # -- slow tiers ------------------------------------------------------------
+    def _slow_sizes(self):
+        """Samples used and FFT lengths of the slow grids: ``(ja, ma, jb, mb)``."""
+        jb = self.exposure // self.d_b + 3
+        gap = math.ceil(self.gap_factor * self.fs / self.f_a / self.d_b)
+        mb = _fft_len(jb + gap)
+        ja = self.exposure // self.d_a + 3
+        ma = _fft_len(max(ja, math.ceil(self.padding * ja)))
+        if self.padding <= 1:
+            ma, mb = ja, jb
+        return ja, ma, jb, mb
+
+    @property
+    def streaming(self):
+        """Slow B and phantom sequences made window by window (not for the paper's method)."""
+        return self.method == "gaussian" and self.padding > 1
+
+    def slow_streams(self):
+        """Slow tiers of every group: ``{gid: (A grid (J_A, ns), B)}``.
+
+        B is a grid ``(J_B, ns)``, or a `_KernelStream` when streaming.
+        """
+        if self._slow is not None:
+            return self._slow
+        out = {}
+        ja, ma, jb, mb = self._slow_sizes()
+        for gr in self.slow_groups:
+            rng_a = _rngs(self.entropy, gr.nstreams, ma // 2 + 1, TIER_A, gr.gid)
+            psd_b = _PSD(gr.comps, "B", self.f_a, self.f_b)
+            psd_a = _PSD(gr.comps, "A", self.f_a, self.f_b)
+            # stored (samples, streams) so that the sparse interpolation needs no copies
+            xa = np.empty((ja, gr.nstreams), dtype=self.slow_dtype)
+            synthesize(psd_weights(psd_a, ma, self.fs / self.d_a), ma, ja, rng_a,
+                       method=self.method, dtype=self.slow_dtype, nstreams=gr.nstreams,
+                       out=xa.T)
+            lam_b = psd_weights(psd_b, mb, self.fs / self.d_b)
+            if self.streaming:
+                xb = _KernelStream(lam_b, mb, gr.nstreams, self.entropy, (TIER_B, gr.gid),
+                                   self.slow_dtype)
+            else:
+                rng_b = _rngs(self.entropy, gr.nstreams, mb // 2 + 1, TIER_B, gr.gid)
+                xb = np.empty((jb, gr.nstreams), dtype=self.slow_dtype)
+                synthesize(lam_b, mb, jb, rng_b, method=self.method, dtype=self.slow_dtype,
+                           nstreams=gr.nstreams, out=xb.T)
+            out[gr.gid] = (xa, xb)
+        self._slow = out
+        return out
+
+    def _interp_matrix(self, ks, weights, step, size, offset=0):
+        """Sparse ``(2 n_reads, size)``: linear interpolation at the knots, weighted by frame.
+
+        Column ``j`` is grid point ``offset + j``.
+        """
+        s0 = np.arange(self.n_reads, dtype=np.int64) * self.rs
+        base = np.concatenate([s0, s0 + self.span])
+        ks = np.asarray(list(ks))
+        wts = np.ones(ks.size) if weights is None else np.asarray(weights, dtype=float)
+        pos = (base[:, None] + ks[None, :] * self.F) / step  # (knots, frames)
+        i0 = np.floor(pos).astype(np.int64)
+        fr = pos - i0
+        i0 -= offset
+        idx = np.stack([i0, i0 + 1], axis=-1).reshape(base.size, -1)
+        val = np.stack([(1 - fr) * wts, fr * wts], axis=-1).reshape(base.size, -1)
+        indptr = np.arange(base.size + 1) * idx.shape[1]
+        return sparse.csr_matrix((val.ravel().astype(self.slow_dtype), idx.ravel(), indptr),
+                                 shape=(base.size, size))
+
+    CHUNK = 16  # frames per window of the streamed slow-B tier and phantom sequences
+
+    def _chunks(self, ks, weights):
+        ks = list(ks)
+        wts = np.ones(len(ks)) if weights is None else np.asarray(weights, dtype=float)
+        for i in range(0, len(ks), self.CHUNK):
+            yield ks[i:i + self.CHUNK], wts[i:i + self.CHUNK]
+
+    def _b_range(self, ks):
+        """Grid points of the slow-B tier that the knots of frames ``ks`` use."""
+        first = (min(ks) * self.F) // self.d_b
+        last = (max(ks) * self.F + (self.n_reads - 1) * self.rs + self.span) // self.d_b + 2
+        return first, last
+
+    def _b_window(self, gid, xb, ks):
+        if not isinstance(xb, _KernelStream):
+            return 0, xb
+        j0, j1 = self._b_range(ks)
+        key = (gid, j0, j1)
+        if self._bcache.get("key") != key:
+            self._bcache = {"key": key, "value": xb.window(j0, j1)}
+        return j0, self._bcache["value"]
+
+    def _slow_knots(self, ks, weights=None):
+        """Knot values ``{gid: (nstreams, 2, n_reads)}`` of frames ``ks`` (weighted sum)."""
+        slow = self.slow_streams()
+        out = {}
+        for gid, (xa, xb) in slow.items():
+            mat_a = self._interp_matrix(ks, weights, self.d_a, xa.shape[0])
+            v = np.asarray(mat_a @ xa, dtype=np.float64)
+            for kc, wc in self._chunks(ks, weights):
+                cache_ks = kc
+                if len(kc) == 1:  # ramps: one window serves a chunk of frames
+                    q = kc[0] // self.CHUNK
+                    cache_ks = range(q * self.CHUNK, min(self.N, (q + 1) * self.CHUNK))
+                j0, win = self._b_window(gid, xb, cache_ks)
+                v += self._interp_matrix(kc, wc, self.d_b, win.shape[0], offset=j0) @ win
+            out[gid] = v.T.reshape(xa.shape[1], 2, self.n_reads)
+        return out
+
+    def _combine_slow(self, knots):
+        """Pixel knots (2, n_reads, nch*2) and phantom values (n_reads, nch)."""
+        nch = self.nch
+        pix = np.zeros((2, self.n_reads, nch, 2))
+        ph = np.zeros((self.n_reads, nch))
+        for gr in self.slow_groups:
+            v = knots[gr.gid]  # (nstreams, 2, n_reads)
+            if gr.scope == "channel":
+                v = v.reshape(nch, 2 if gr.acn else 1, 2, self.n_reads)
+            else:
+                v = v.reshape(1, 1, 2, self.n_reads)
+            vt = v.transpose(2, 3, 0, 1)  # (knot, read, ch, parity)
+            if gr.visibility in ("pixels", "both"):
+                pix += vt
+            if gr.visibility in ("phantom", "both") and self.c:
+                a, b = self.ph_a, self.ph_b
+                if v.shape[1] == 1:
+                    a, b = a.sum(keepdims=True), b.sum(keepdims=True)
+                ph += np.einsum("krcp,p->rc", vt[:1], a) + np.einsum("krcp,p->rc", vt[1:], b)
+        return pix.reshape(2, self.n_reads, nch * 2), ph
+
+    def _pixels_from_knots(self, pix, out, assign=False):
+        """Add (or assign) the slow tiers, linear between the knots of each read.
+
+        One small batched matrix product per read and channel:
+        ``[K0 even, K0 odd, K1 even, K1 odd] @ pattern`` with the pattern
+        holding ``1 - frac`` and ``frac`` of each column at its parity.
+        """
+        nr, nch, w = self.n_reads, self.nch, self.width
+        x = pix.reshape(2, nr, nch, 2).transpose(1, 2, 0, 3).reshape(nr, nch, 1, 4)
+        x = x.astype(self.dtype)
+        if assign:
+            np.matmul(x, self.knot_pattern, out=out.reshape(nr, nch, 1, w))
+        else:
+            out += np.matmul(x, self.knot_pattern).reshape(nr, nch * w)
+
+    # -- fast tier (pixels) ----------------------------------------------------------
+    def _fast_psds(self, kind):
+        """Fast-tier PSDs ``{'channel': psd, 'common': psd}`` seen by ``kind``."""
+        res = {}
+        for scope in ("channel", "common"):
+            comps = [c for c in self.components if c.scope == scope and
+                     (c.seen_by_pixels if kind == "pixels" else c.seen_by_phantom)]
+            psd = _PSD(comps, "fast", self.f_a, self.f_b, white=True)
+            if comps and not psd.empty:
+                res[scope] = psd
+        return res
+
+    def _block_fft_len(self):
+        if self.block == 1:
+            return _fft_len(self.F)
+        return _fft_len(self.block * self.F + self.l_corr)
+
+    def _fast_lam(self, scope, psd, m):
+        key = (scope, m)
+        if key not in self._lam_cache:
+            self._lam_cache[key] = psd_weights(psd, m, self.fs)
+        return self._lam_cache[key]
+
+    def _fast_block(self, b, nframes):
+        """Full-rate fast streams of frame block ``b``: channel (nch, n) and common (n,)."""
+        n = nframes * self.F
+        m = self._block_fft_len()
+        res = {}
+        for scope, psd in self._fast_psds("pixels").items():
+            lam = self._fast_lam(scope, psd, m)
+            ns = self.nch if scope == "channel" else 1
+            rngs = _rngs(self.entropy, ns, m // 2 + 1, TIER_FAST, _SCOPE[scope], b)
+            res[scope] = synthesize(lam, m, n, rngs, method=self.method, dtype=self.dtype,
+                                    nstreams=ns)
+        return res
+
+    def _pixels_from_stream(self, ch_stream, common_stream, k_in_block, out, assign=False):
+        """Add (or assign) the samples of frame ``k_in_block`` of the fast streams to ``out``."""
+        lo = k_in_block * self.F
+        nr, rs, c, w = self.n_reads, self.rs, self.c, self.width
+        o3 = out.reshape(nr, self.nch, w)
+        fwd = ~self.reverse
+        if ch_stream is not None:
+            seg = ch_stream[:, lo:lo + nr * rs].reshape(self.nch, nr, rs)[:, :, c:c + w]
+            if fwd.all():
+                if assign:
+                    np.copyto(o3, seg.transpose(1, 0, 2))
+                else:
+                    o3 += seg.transpose(1, 0, 2)
+            else:
+                if assign:
+                    out[...] = 0
+                o3[:, fwd] += seg[fwd].transpose(1, 0, 2)
+                o3[:, ~fwd] += seg[~fwd][:, :, ::-1].transpose(1, 0, 2)
+            assign = False
+        if common_stream is not None:
+            part = common_stream[0, lo:lo + nr * rs].reshape(nr, rs)[:, c:c + w]
+            if assign:
+                out[...] = 0
+            if fwd.all():
+                o3 += part[:, None, :]
+            else:
+                o3[:, fwd] += part[:, None, :]
+                o3[:, ~fwd] += part[:, None, ::-1]
+
+    # -- phantom fast tier -------------------------------------------------------
+    def _fast_covariance(self, psd, max_lag):
+        """Autocovariance of a fast-tier stream at lags 0 ... max_lag (samples)."""
+        m = sfft.next_fast_len(max(4 * max_lag, 8 * self.l_corr, 1024))
+        lam = psd_weights(psd, m, self.fs)
+        return covariance_from_weights(lam, m)[: max_lag + 1]
+
+    def phantom_sequences(self):
+        """Fast part of the phantom means on a grid of reads: ``{scope: (ns, J)}``."""
+        if self._phantom is not None:
+            return self._phantom
+        res = {}
+        if self.c:
+            g_lag = math.ceil(2 * self.l_corr / self.rs) + 2
+            jp = self.exposure // self.rs + 2
+            mp = sfft.next_fast_len(max(jp + g_lag, 2 * g_lag + 2))
+            for scope, psd in self._fast_psds("phantom").items():
+                cf = self._fast_covariance(psd, g_lag * self.rs + self.c)
+                i = np.arange(self.c)
+                dd = (i[:, None] - i[None, :]).ravel()
+                lags = np.abs(np.arange(g_lag + 1)[:, None] * self.rs + dd[None, :])
+                r = cf[lags].mean(axis=1)
+                emb = np.zeros(mp)
+                emb[: g_lag + 1] = r
+                emb[mp - g_lag:] = r[1:][::-1]
+                lam = sfft.rfft(emb).real
+                ns = self.nch if scope == "channel" else 1
+                rngs = _rngs(self.entropy, ns, mp // 2 + 1, TIER_PHANTOM, _SCOPE[scope])
+                res[scope] = synthesize(lam, mp, jp, rngs, method=self.method,
+                                        dtype=np.float32, nstreams=ns)
+        self._phantom = res
+        return res
+
+    def _phantom_index(self, k):
+        return (k * self.F) // self.rs + np.arange(self.n_reads)
+
+    def _phantom_fast(self, ks, weights=None):
+        seqs = self.phantom_sequences()
+        out = np.zeros((self.n_reads, self.nch))
+        for _scope, x in seqs.items():
+            acc = np.zeros((x.shape[0], self.n_reads))
+            for j, k in enumerate(ks):
+                v = x[:, self._phantom_index(k)]
+                acc += v if weights is None else weights[j] * v
+            out += acc.T  # (n_reads, ns) broadcasts for common
+        return out
+
+    # -- ramps -------------------------------------------------------------------------
+    def frames(self):
+        """Yield ``(pixels, phantom)`` of each frame: ``(n_reads, ncols)``, ``(n_reads, nch)``.
+
+        Pixels in the engine's dtype, phantom in float64 (or None when c = 0).
+        Memory does not grow with the number of frames beyond the slow-tier
+        grids (about 1.2 MB per frame at full size).
+        """
+        self.slow_streams()
+        self.phantom_sequences()
+        for b0 in range(0, self.N, self.block):
+            nb = min(self.block, self.N - b0)
+            fast = self._fast_block(b0 // self.block, nb)
+            for j in range(nb):
+                k = b0 + j
+                out = np.empty((self.n_reads, self.ncols), dtype=self.dtype)
+                pix, ph = self._combine_slow(self._slow_knots([k]))
+                self._pixels_from_knots(pix, out, assign=True)
+                self._pixels_from_stream(fast.get("channel"), fast.get("common"), j, out)
+                phantom = None
+                if self.c:
+                    phantom = ph + self._phantom_fast([k])
+                yield out, phantom
+
+    # -- slopes --------------------------------------------------------------------------
+    def expected_slope_variance(self, read=0, column=0):
+        """Exact variance (e²/s²) of this engine's simulated slope of one pixel.
+
+        Computed from the spectral weights of every tier and the linear map
+        from the streams to the slope (interpolation, least-squares weights):
+        what an infinite ensemble of this engine gives, including its
+        approximations (finite padding, tier crossovers, interpolation).
+        The same in ramp and slope mode.  Compare with the aperiodic
+        `~spherex_reduce.expected_slope_variance` to measure the bias.
+        """
+        w = self.frame_weights()
+        ja, ma, jb, mb = self._slow_sizes()
+        frac = float(self.col_frac[column])
+        total = 0.0
+        for gr in self.slow_groups:
+            if gr.visibility == "phantom":
+                continue
+            for band, step, j, m in (("A", self.d_a, ja, ma), ("B", self.d_b, jb, mb)):
+                mat = self._interp_matrix(range(self.N), w, step, j).astype(float)
+                a = ((1 - frac) * mat[read].toarray()[0]
+                     + frac * mat[self.n_reads + read].toarray()[0])
+                lam = psd_weights(_PSD(gr.comps, band, self.f_a, self.f_b), m, self.fs / step)
+                total += _functional_variance(a, lam, m)
+        for _scope, psd in self._fast_psds("pixels").items():
+            m = self._block_fft_len()
+            cov = covariance_from_weights(psd_weights(psd, m, self.fs), m)
+            for b0 in range(0, self.N, self.block):
+                ks = np.arange(b0, min(self.N, b0 + self.block))
+                lag = np.abs(ks[:, None] - ks[None, :]) * self.F
+                lag = np.minimum(lag, m - lag)
+                total += float(np.sum(w[ks, None] * w[None, ks] * cov[lag]))
+        return total
+
+    def frame_weights(self):
+        """Least-squares slope weights (1/s) of the frames."""
+        return ls_weights(np.arange(self.N) * self.F / self.fs)
+
+    def slopes(self):
+        """Slope image ``(n_reads, ncols)`` (e/s) and phantom slopes ``(n_reads, nch)``."""
+        w = self.frame_weights()
+        ks = range(self.N)
+        out = np.zeros((self.n_reads, self.ncols), dtype=self.dtype)
+        if self.block == 1:
+            # frames' fast tiers are independent: the slope is sqrt(sum w^2) times one
+            # frame-length stream with the fast PSD
+            m = self._block_fft_len()
+            scale = float(np.sum(w * w))
+            fast = {}
+            for scope, psd in self._fast_psds("pixels").items():
+                lam = psd_weights(psd, m, self.fs) * scale
+                ns = self.nch if scope == "channel" else 1
+                rngs = _rngs(self.entropy, ns, m // 2 + 1, TIER_SLOPE_FAST, _SCOPE[scope])
+                fast[scope] = synthesize(lam, m, self.F, rngs, method=self.method,
+                                         dtype=self.dtype, nstreams=ns)
+            self._pixels_from_stream(fast.get("channel"), fast.get("common"), 0, out)
+        else:
+            # short frames: the fast tier is correlated across frames; fit the same
+            # blocks the ramps use
+            for b0 in range(0, self.N, self.block):
+                nb = min(self.block, self.N - b0)
+                fast = self._fast_block(b0 // self.block, nb)
+                for j in range(nb):
+                    tmp = np.zeros_like(out)
+                    self._pixels_from_stream(fast.get("channel"), fast.get("common"), j, tmp)
+                    out += w[b0 + j] * tmp
+        pix, ph = self._combine_slow(self._slow_knots(ks, w))
+        self._pixels_from_knots(pix, out)
+        phantom = None
+        if self.c:
+            phantom = ph + self._phantom_fast(ks, w)
+        return out, phantom

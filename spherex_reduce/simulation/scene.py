@@ -1,0 +1,190 @@
+"""The scene file (YAML or dict): validation with errors that name the YAML path."""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..config import GEOMETRY_PARAMETERS, READOUT_PARAMETERS, load_yaml, schedule_from_config
+from ..errors import ConfigError
+from ..parameters import Parameter, validate_parameters
+from .components import NoiseComponent, noise_components
+from .synthesis import METHODS
+
+__all__ = ["MODES", "Scene", "load_scene"]
+
+MODES = ("slopes", "ramps")
+DEFAULT_COMPONENTS = ["video8", "roic", "bias_correlated", "bias_phantom_only",
+                      "bias_pixels_only"]
+_NUM = (int, float)
+SCENE_PARAMETERS = (
+    Parameter("dark_current", 0.0, _NUM, "dark current of every active pixel (e/s)", minimum=0),
+    Parameter("hot_pixel_fraction", 0.0, _NUM, "fraction of active pixels that are hot",
+              minimum=0),
+    Parameter("hot_pixel_current", 10.0, _NUM, "dark current of a hot pixel (e/s)", minimum=0),
+    Parameter("photocurrent", 0.0, _NUM, "photocurrent of every active pixel (e/s)",
+              minimum=0),
+    Parameter("leakage", 0.0, _NUM, "Video8 leakage drift, seen by pixels and phantom (e/s)"),
+    Parameter("poisson", True, (bool,), "Poisson noise on dark current and photocurrent"),
+    Parameter("rtn", None, (dict, type(None)), "random telegraph noise: fraction, amplitude "
+              "(e), rate (Hz)"),
+)
+RTN_PARAMETERS = (
+    Parameter("fraction", 0.0, _NUM, "fraction of active pixels with telegraph noise",
+              minimum=0),
+    Parameter("amplitude", 0.0, _NUM, "step between the two states (e)", minimum=0),
+    Parameter("rate", 0.1, _NUM, "switching rate of each state (Hz)", minimum=0),
+)
+OUTPUT_PARAMETERS = (
+    Parameter("mode", "slopes", (str,), "slopes or ramps", choices=MODES),
+)
+SYNTHESIS_PARAMETERS = (
+    Parameter("method", "gaussian", (str,), "Fourier amplitudes: gaussian or random_phase "
+              "(the paper's eq. 2-5)", choices=METHODS),
+    Parameter("padding", None, (int, float, type(None)), "length of the low-frequency "
+              "synthesis relative to the exposure (default 16; 1 for random_phase)", minimum=1),
+    Parameter("dtype", "float32", (str,), "dtype of the simulated arrays",
+              choices=("float32", "float64")),
+    Parameter("simulator", "spherex", (str,), "registered simulator that runs the scene"),
+)
+NOISE_KEYS = ("table", "components", "acn")
+TOP_KEYS = ("geometry", "readout", "noise", "scene", "output", "synthesis", "seed")
+COMPONENT_KEYS = ("name", "alpha", "beta", "gamma", "exponent", "scope", "visibility", "acn")
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A validated scene: schedule, noise components, scene terms and options.
+
+    Build it with :func:`load_scene`.
+    """
+
+    schedule: object
+    components: tuple
+    terms: dict
+    mode: str = "slopes"
+    seed: object = None
+    synthesis: dict = field(default_factory=dict)
+    source: str = "scene"
+    config: dict = field(default_factory=dict)
+
+
+def load_scene(source=None):
+    """Validate a scene (path, YAML text or dict; None = all defaults).
+
+    Every key is optional; the defaults are the paper's Table 2/3 case.
+
+    Raises
+    ------
+    ConfigError
+        Unknown keys, wrong types, negative coefficients, unknown component
+        names; the message names the YAML path (e.g. ``noise.components[2].beta``).
+
+    Examples
+    --------
+    >>> from spherex_reduce.simulation import load_scene
+    >>> sc = load_scene({"readout": {"nframes": 10}, "noise": {"components": ["roic"]}})
+    >>> sc.schedule.nframes, [c.name for c in sc.components], sc.mode
+    (10, ['roic'], 'slopes')
+    >>> load_scene({"noise": {"components": [{"name": "x", "beta": -1}]}})
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.errors.ConfigError: noise.components[0].beta: must be >= 0, got -1.0
+    """
+    config, label = load_yaml({} if source is None else source, "scene")
+    for key in config:
+        if key not in TOP_KEYS:
+            raise ConfigError(f"{label}: {key}: unknown section; valid: {', '.join(TOP_KEYS)}")
+    validate_parameters(config.get("geometry"), GEOMETRY_PARAMETERS, "geometry")
+    validate_parameters(config.get("readout"), READOUT_PARAMETERS, "readout")
+    schedule = schedule_from_config(config.get("geometry"), config.get("readout"))
+    components = _components(config.get("noise"))
+    terms = validate_parameters(config.get("scene"), SCENE_PARAMETERS, "scene")
+    if terms["hot_pixel_fraction"] > 1:
+        raise ConfigError("scene.hot_pixel_fraction: must be <= 1")
+    if terms["rtn"] is not None:
+        terms["rtn"] = validate_parameters(terms["rtn"], RTN_PARAMETERS, "scene.rtn")
+        if terms["rtn"]["fraction"] > 1:
+            raise ConfigError("scene.rtn.fraction: must be <= 1")
+    output = validate_parameters(config.get("output"), OUTPUT_PARAMETERS, "output")
+    synth = validate_parameters(config.get("synthesis"), SYNTHESIS_PARAMETERS, "synthesis")
+    seed = config.get("seed")
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or seed < 0):
+        raise ConfigError(f"seed: expected a non-negative integer or null, got {seed!r}")
+    return Scene(schedule, tuple(components), terms, output["mode"], seed, synth, label, config)
+
+
+def _components(noise):
+    if noise is None:
+        noise = {}
+    if not isinstance(noise, dict):
+        raise ConfigError(f"noise: expected a mapping, got {noise!r}")
+    for key in noise:
+        if key not in NOISE_KEYS:
+            raise ConfigError(f"noise.{key}: unknown key; valid: {', '.join(NOISE_KEYS)}")
+    table_name = noise.get("table", "spherex-table2")
+    if not isinstance(table_name, str):
+        raise ConfigError(f"noise.table: expected a table name or path, got {table_name!r}")
+    table = noise_components(table_name)
+    items = noise.get("components")
+    if items is None:
+        items = list(table) if table_name != "spherex-table2" else DEFAULT_COMPONENTS
+    if not isinstance(items, list):
+        raise ConfigError(f"noise.components: expected a list, got {items!r}")
+    acn = noise.get("acn")
+    if acn is not None and not isinstance(acn, bool):
+        raise ConfigError(f"noise.acn: expected true, false or null, got {acn!r}")
+    out = []
+    for i, item in enumerate(items):
+        path = f"noise.components[{i}]"
+        if isinstance(item, str):
+            if item not in table:
+                raise ConfigError(f"{path}: {item!r} is not in table {table_name}; "
+                                  f"valid: {', '.join(table)}")
+            comp = table[item]
+        elif isinstance(item, dict):
+            comp = _inline(item, path, table)
+        else:
+            raise ConfigError(f"{path}: expected a component name or a mapping, got {item!r}")
+        if acn is not None and comp.scope == "channel":
+            comp = comp.replace(acn=acn)
+        out.append(comp)
+    names = [c.name for c in out]
+    dup = {n for n in names if names.count(n) > 1}
+    if dup:
+        raise ConfigError(f"noise.components: duplicate name(s) {sorted(dup)}")
+    return out
+
+
+def _inline(item, path, table):
+    for key in item:
+        if key not in COMPONENT_KEYS:
+            raise ConfigError(f"{path}.{key}: unknown key; valid: {', '.join(COMPONENT_KEYS)}")
+    name = item.get("name")
+    if not isinstance(name, str) or not name:
+        raise ConfigError(f"{path}.name: every inline component needs a name (string)")
+    base = table[name].to_dict() if name in table else {"name": name}
+    kw = dict(base)
+    checks = {"alpha": _NUM, "beta": _NUM, "gamma": _NUM, "exponent": _NUM, "scope": (str,),
+              "visibility": (str,), "acn": (bool,)}
+    for key, types in checks.items():
+        if key not in item:
+            continue
+        value = item[key]
+        if types is _NUM and isinstance(value, str):
+            # YAML 1.1 reads 1e-3 (no dot) as a string: accept numbers written that way
+            try:
+                value = float(value)
+            except ValueError:
+                pass
+        if (isinstance(value, bool) and bool not in types) or not isinstance(value, types):
+            what = "number" if types is _NUM else types[0].__name__
+            raise ConfigError(f"{path}.{key}: expected {what}, got {value!r}")
+        if key in ("alpha", "beta", "gamma"):
+            value = float(value)
+            if not np.isfinite(value) or value < 0:
+                raise ConfigError(f"{path}.{key}: must be >= 0, got {value!r}")
+        kw[key] = value
+    try:
+        return NoiseComponent(**kw)
+    except ValueError as exc:
+        raise ConfigError(f"{path}: {exc}") from exc

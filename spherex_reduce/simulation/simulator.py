@@ -1,0 +1,367 @@
+"""The built-in simulator: scene -> raw ramps or a slope image, in readout order."""
+
+import collections
+import io
+import json
+import logging
+import tempfile
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+from astropy import units as u
+from astropy.io import fits
+
+from ..exposure import Exposure
+from ..fits_format import _table_hdu, _unit_str, atomic_output
+from ..step import Simulator
+from .engine import NoiseEngine
+from .scene import MODES, load_scene
+from .synthesis import rng_for
+
+__all__ = ["SpherexSimulator", "simulate", "simulate_to_fits"]
+
+log = logging.getLogger("spherex_reduce")
+TIER_SIGNAL, TIER_HOT, TIER_RTN = 100, 101, 102
+
+
+class SpherexSimulator(Simulator):
+    """The paper's noise model (Table 2) placed on the readout schedule.
+
+    Registered under the name ``spherex`` by the ``simulation`` built-in
+    plugin; a scene selects another registered simulator with
+    ``synthesis: {simulator: NAME}``.
+    """
+
+    name = "spherex"
+
+    def simulate(self, scene, *, mode=None, seed=None):
+        return _simulate(scene, mode=mode, seed=seed)
+
+
+def _prepare(scene, mode, seed):
+    sc = load_scene(scene) if not hasattr(scene, "schedule") else scene
+    mode = sc.mode if mode is None else mode
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    seed = sc.seed if seed is None else seed
+    if seed is None:
+        seed = np.random.SeedSequence().entropy
+        log.info("simulate: no seed given; using %d", seed)
+    synth = dict(sc.synthesis)
+    padding = synth.get("padding")
+    if padding is None:
+        padding = 1.0 if synth.get("method") == "random_phase" else 16.0
+    engine = NoiseEngine(sc.schedule, sc.components, seed, method=synth.get("method",
+                         "gaussian"), padding=padding, dtype=synth.get("dtype", "float32"))
+    return sc, mode, seed, engine
+
+
+def _header(sc, mode, seed, engine):
+    h = fits.Header()
+    h["SIMULATR"] = ("spherex", "simulator that made this exposure")
+    h["SIMMODE"] = (mode, "ramps or slopes")
+    if isinstance(seed, np.random.SeedSequence):
+        seed_text = f"{seed.entropy} spawn_key {list(seed.spawn_key)}"
+    else:
+        seed_text = str(seed)
+    h["SIMSEED"] = (seed_text, "seed of the SeedSequence")
+    h["SIMMETH"] = (engine.method, "Fourier amplitudes: gaussian or random_phase")
+    h["SIMPAD"] = (engine.padding, "low-frequency synthesis length / exposure")
+    for c in sc.components:
+        h.add_history(f"noise {json.dumps(c.to_dict())}")
+    h.add_history(f"scene {json.dumps(sc.terms, default=str)}")
+    return h
+
+
+def simulate(scene=None, *, mode=None, seed=None, registry=None):
+    """Simulate a scene with the registered simulator it names (``spherex`` by default).
+
+    Parameters
+    ----------
+    scene : str, path, dict or None
+        Scene YAML file, YAML text or mapping (see :func:`load_scene`); None
+        for the paper's case.
+    mode : {'slopes', 'ramps'}, optional
+        Overrides ``output.mode``.
+    seed : int or `numpy.random.SeedSequence`, optional
+        Overrides ``seed``; the same scene and seed give the same result.
+    registry : `~spherex_reduce.plugins.Registry`, optional
+        Where to look up the simulator (plugins included by default).
+
+    Returns
+    -------
+    `~spherex_reduce.Exposure`
+        ``ramps``: raw frames ``(N, reads, columns)`` in electrons, readout
+        order, with phantom values ``(N, reads, channels)``.  ``slopes``: the
+        least-squares slope image ``(reads, columns)`` in e/s, readout order,
+        with phantom slopes ``(reads, channels)``.
+
+    Examples
+    --------
+    >>> from spherex_reduce import simulate
+    >>> scene = {"geometry": {"nrows": 32, "ncols": 32, "nchannels": 2, "ref_border": 2},
+    ...          "readout": {"skip": 4, "ref_reads": 4, "nframes": 5, "phantom_reads": 2}}
+    >>> e = simulate(scene, seed=1)
+    >>> e.shape, e.unit, e.phantom.shape
+    ((32, 32), Unit("electron / s"), (32, 2))
+    >>> simulate(scene, seed=1, mode="ramps").shape
+    (5, 32, 32)
+    """
+    sc = load_scene(scene) if not hasattr(scene, "schedule") else scene
+    name = sc.synthesis.get("simulator", "spherex")
+    if name == "spherex" and registry is None:
+        return _simulate(sc, mode=mode, seed=seed)
+    if registry is None:
+        from ..plugins import get_registry
+
+        registry = get_registry()
+    return registry.simulator(name)().simulate(sc, mode=mode, seed=seed)
+
+
+def _simulate(scene, *, mode=None, seed=None):
+    sc, mode, seed, engine = _prepare(scene, mode, seed)
+    header = _header(sc, mode, seed, engine)
+    s = sc.schedule
+    if mode == "slopes":
+        data, phantom = engine.slopes()
+        terms = _Terms(sc, engine)
+        terms.add_slopes(data, phantom)
+        return Exposure.from_arrays(data, s, unit=u.electron / u.s,
+                                    phantom=None if phantom is None else
+                                    phantom.astype(engine.dtype), header=header)
+    cube = np.empty((s.nframes, s.n_reads, s.geometry.ncols), dtype=engine.dtype)
+    ph = np.empty((s.nframes, s.n_reads, s.geometry.nchannels), dtype=engine.dtype) \
+        if s.phantom_reads else None
+    for k, (frame, phantom) in enumerate(_frames(sc, engine)):
+        cube[k] = frame
+        if ph is not None:
+            ph[k] = phantom
+    return Exposure.from_arrays(cube, s, unit=u.electron, phantom=ph, header=header)
+
+
+def _frames(sc, engine):
+    terms = _Terms(sc, engine)
+    for k, (frame, phantom) in enumerate(engine.frames()):
+        terms.add_frame(k, frame, phantom)
+        yield frame, phantom
+
+
+class _Terms:
+    """Scene terms: dark current, hot pixels, photocurrent, leakage, telegraph noise."""
+
+    def __init__(self, sc, engine):
+        self.t = sc.terms
+        self.e = engine
+        s = sc.schedule
+        g = s.geometry
+        self.active = (~s.is_reference)[:, None] & (~g.reference_column_mask())[None, :]
+        self.tau = s.pixel_samples() / g.pixel_rate  # s within frame
+        self.tframe = s.frame_samples / g.pixel_rate
+        rate = np.where(self.active, self.t["dark_current"] + self.t["photocurrent"], 0.0)
+        if self.t["hot_pixel_fraction"] > 0:
+            rng = rng_for(engine.entropy, TIER_HOT)
+            hot = (rng.random(rate.shape) < self.t["hot_pixel_fraction"]) & self.active
+            rate = rate + hot * self.t["hot_pixel_current"]
+        self.rate = rate if np.any(rate) else None
+        self.charge = None
+        self.rtn = None
+        r = self.t.get("rtn")
+        if r and r["fraction"] > 0 and r["amplitude"] > 0:
+            rng = rng_for(engine.entropy, TIER_RTN)
+            idx = np.flatnonzero((rng.random(rate.size) < r["fraction"]) & self.active.ravel())
+            self.rtn = (idx, rng, r["amplitude"], (1 - np.exp(-2 * r["rate"] * self.tframe)) / 2)
+            self.rtn_state = rng.random(idx.size) < 0.5
+        s_ph = s.phantom_samples()
+        self.tau_ph = (s_ph.mean(axis=1) / g.pixel_rate) if s.phantom_reads else None
+        self.sig_rng = rng_for(engine.entropy, TIER_SIGNAL)
+
+    def _rtn_step(self, k):
+        idx, rng, amp, p = self.rtn
+        if k > 0:
+            self.rtn_state ^= rng.random(idx.size) < p
+        return idx, amp * self.rtn_state
+
+    def add_frame(self, k, frame, phantom):
+        t0 = k * self.tframe
+        if self.rate is not None:
+            dt = self.tau if k == 0 else self.tframe
+            mean = self.rate * dt
+            inc = self.sig_rng.poisson(mean) if self.t["poisson"] else mean
+            self.charge = inc if self.charge is None else self.charge + inc
+            frame += self.charge.astype(frame.dtype)
+        leak = self.t["leakage"]
+        if leak:
+            frame += (leak * (t0 + self.tau)).astype(frame.dtype)
+            if phantom is not None:
+                phantom += (leak * (t0 + self.tau_ph))[:, None]
+        if self.rtn is not None:
+            idx, val = self._rtn_step(k)
+            frame.reshape(-1)[idx] += val.astype(frame.dtype)
+
+    def add_slopes(self, data, phantom):
+        w = self.e.frame_weights()
+        n = w.size
+        if self.rate is not None:
+            data += self.rate.astype(data.dtype)
+            if self.t["poisson"]:
+                k = np.arange(n)
+                var_unit = self.tframe * np.sum(w[:, None] * w[None, :] *
+                                                np.minimum(k[:, None], k[None, :]))
+                noise = self.sig_rng.standard_normal(data.shape)
+                data += (noise * np.sqrt(self.rate * var_unit)).astype(data.dtype)
+        leak = self.t["leakage"]
+        if leak:
+            data += np.asarray(leak, dtype=data.dtype)
+            if phantom is not None:
+                phantom += leak
+        if self.rtn is not None:
+            acc = 0.0
+            for k in range(n):
+                idx, val = self._rtn_step(k)
+                acc = acc + w[k] * val
+            data.reshape(-1)[idx] += np.asarray(acc, dtype=data.dtype)
+
+
+def simulate_to_fits(scene, path, *, mode=None, seed=None, overwrite=False, progress=False):
+    """Simulate and write a FITS file; ramps are streamed frame by frame.
+
+    Peak memory does not hold the cube: each frame is written as it is made
+    (big-endian, with ``DATASUM``/``CHECKSUM`` computed on the fly) into a
+    temporary file that is renamed into place when complete; the phantom
+    frames are spilled to a temporary file and appended after ``SCI``.  An
+    existing ``path`` is refused before anything is computed unless
+    ``overwrite``.
+
+    Returns
+    -------
+    path : `pathlib.Path`
+    """
+    out = atomic_output(path, overwrite)  # refuse before computing
+    sc, mode, seed, engine = _prepare(scene, mode, seed)
+    if mode == "slopes":
+        from ..fits_format import write
+
+        return write(_simulate(sc, mode=mode, seed=seed), path, overwrite=overwrite)
+    s = sc.schedule
+    g = s.geometry
+    header = s.to_header(_header(sc, mode, seed, engine))
+    header["ORDER"] = ("READOUT", "row order of SCI: READOUT or PHYSICAL")
+    header["BUNIT"] = (_unit_str(u.electron), "unit of SCI and ERR")
+    dtype = np.dtype(engine.dtype).newbyteorder(">")
+    frames = _frames(sc, engine)
+    if progress:
+        from tqdm.auto import tqdm
+
+        frames = tqdm(frames, total=s.nframes, unit="frame", desc="simulate ramps")
+    buf = io.BytesIO()
+    fits.HDUList([fits.PrimaryHDU(header=header)]).writeto(buf, checksum=True)
+    with out as tmp, open(tmp, "wb") as f, tempfile.TemporaryFile(dir=tmp.parent) as spill:
+        f.write(buf.getvalue())
+        sci = _ImageWriter(f, "SCI", dtype, (s.nframes, s.n_reads, g.ncols))
+        ph_sum = _DataSum()
+        try:
+            for frame, ph in frames:
+                sci.write(frame)
+                if s.phantom_reads:
+                    raw = np.ascontiguousarray(ph, dtype=dtype)
+                    ph_sum.add(raw)
+                    spill.write(raw.tobytes())
+        finally:
+            sci._drain()
+        sci.close()
+        if s.phantom_reads:
+            phw = _ImageWriter(f, "PHANTOM", dtype, (s.nframes, s.n_reads, g.nchannels))
+            spill.seek(0)
+            while chunk := spill.read(1 << 24):
+                f.write(chunk)
+            phw.nbytes, phw.sum = spill.tell(), ph_sum
+            phw.close()
+        buf = io.BytesIO()
+        fits.HDUList([fits.PrimaryHDU(), _table_hdu(s.to_table(), "READOUT")]).writeto(
+            buf, checksum=True)
+        first = len(fits.PrimaryHDU().header.tostring())
+        f.write(buf.getvalue()[first:])
+    return out.path
+
+
+class _DataSum:
+    """FITS 32-bit ones' complement sum, accumulated over big-endian chunks."""
+
+    def __init__(self):
+        self.total = 0
+
+    def add(self, raw):
+        self.total += int(raw.view(">u4").sum(dtype="u8"))
+
+    @property
+    def value(self):
+        t = self.total
+        while t >> 32:
+            t = (t & 0xFFFFFFFF) + (t >> 32)
+        return t
+
+
+class _ImageWriter:
+    """An image extension written in pieces; checksums filled in by `close`."""
+
+    def __init__(self, f, name, dtype, shape):
+        bitpix = -32 if dtype.itemsize == 4 else -64
+        cards = [("XTENSION", "IMAGE"), ("BITPIX", bitpix), ("NAXIS", len(shape))]
+        cards += [(f"NAXIS{i + 1}", n) for i, n in enumerate(shape[::-1])]
+        cards += [("PCOUNT", 0), ("GCOUNT", 1), ("EXTNAME", name),
+                  ("BUNIT", _unit_str(u.electron)), ("CHECKSUM", "0" * 16), ("DATASUM", "0")]
+        self.f, self.dtype = f, dtype
+        self.header = fits.Header(cards)
+        self.pos = f.tell()
+        self.hbytes = self.header.tostring().encode("ascii")
+        f.write(self.hbytes)
+        self.sum = _DataSum()
+        self.nbytes = 0
+        self._io = None
+        self._pending = collections.deque()
+
+    def write(self, arr):
+        """Append ``arr`` (native float array; byte-swapped in place, so it is consumed).
+
+        The disk write runs in a background thread (at most two frames in
+        flight), overlapping the synthesis of the next frame.
+        """
+        raw = np.ascontiguousarray(arr, dtype=self.dtype.newbyteorder("="))
+        raw.byteswap(inplace=True)
+        raw = raw.view(self.dtype)
+        self.sum.add(raw)
+        if self._io is None:
+            self._io = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sxr-fits")
+        self._pending.append(self._io.submit(self.f.write, memoryview(raw).cast("B")))
+        while len(self._pending) > 2:
+            self._pending.popleft().result()
+        self.nbytes += raw.nbytes
+
+    def _drain(self):
+        while self._pending:
+            self._pending.popleft().result()
+        if self._io is not None:
+            self._io.shutdown()
+            self._io = None
+
+    def close(self):
+        self._drain()
+        f = self.f
+        f.write(b"\0" * ((-self.nbytes) % 2880))
+        end = f.tell()
+        datasum = self.sum.value
+        self.header["DATASUM"] = str(datasum)
+        self.header["CHECKSUM"] = _checksum(self.header, datasum)
+        new = self.header.tostring().encode("ascii")
+        if len(new) != len(self.hbytes):  # pragma: no cover - card layout is fixed
+            raise RuntimeError("header changed size while adding checksums")
+        f.seek(self.pos)
+        f.write(new)
+        f.seek(end)
+
+
+def _checksum(header, datasum):
+    """FITS CHECKSUM of an HDU from its header and DATASUM (astropy's encoder)."""
+    helper = fits.ImageHDU()
+    helper._header = header
+    return helper._calculate_checksum(datasum)

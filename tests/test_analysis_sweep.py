@@ -1,0 +1,104 @@
+"""Sweeps: the same results serially and on a 2-process dask LocalCluster; failures; resume."""
+
+import numpy as np
+import pytest
+from astropy.table import Table
+
+from spherex_reduce.analysis.sweep import load_sweep, plot_sweep, run_sweep
+from spherex_reduce.cli import main
+from spherex_reduce.errors import ConfigError
+
+SWEEP = {
+    "scene": {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 4, "ref_border": 4},
+              "readout": {"nframes": 10, "phantom_reads": 2, "ref_reads": 8}},
+    "grid": {"skip": [1, 4], "ref_mode": ["repeated", "distributed"]},
+    "realizations": 2,
+    "seed": 11,
+    "measure": {"kmin": 0.1, "kmax": 1.0, "bins": 8},
+}
+
+
+@pytest.fixture(scope="module")
+def serial():
+    return run_sweep(SWEEP, scheduler="serial")
+
+
+def test_serial_sweep_table(serial):
+    t = serial.table
+    assert serial.computed == 8 and not serial.failed and len(t) == 8
+    assert t.colnames[:4] == ["skip", "ref_mode", "pipeline", "realization"]
+    assert np.all(t["band_power"] > 0) and np.all(t["band_power_err"] > 0)
+    assert t["power"].shape == (8, 8)
+    # realisations differ; the same cell and seed repeat exactly
+    assert t["band_power"][0] != t["band_power"][1]
+    again = run_sweep(SWEEP, scheduler="serial")
+    assert np.array_equal(again.table["band_power"], t["band_power"])
+
+
+@pytest.mark.slow
+def test_local_cluster_two_processes_matches_serial(serial):
+    par = run_sweep(SWEEP, workers=2)  # embedded LocalCluster, processes=True
+    assert par.computed == 8 and not par.failed
+    for col in ("skip", "ref_mode", "realization", "seed", "band_power", "band_power_err",
+                "std"):
+        assert list(par.table[col]) == list(serial.table[col]), col
+    assert np.array_equal(par.table["power"], serial.table["power"], equal_nan=True)
+
+
+def test_failed_cell_is_reported_and_others_finish(tmp_path):
+    bad = dict(SWEEP, grid={"skip": [4, 0]}, realizations=1)  # skip 0 is invalid
+    out = tmp_path / "r.ecsv"
+    res = run_sweep(bad, out, scheduler="serial")
+    assert res.computed == 1 and len(res.failed) == 1
+    assert res.failed[0]["cell"]["skip"] == 0 and "skip" in res.failed[0]["error"]
+    t = Table.read(out)
+    assert list(t["skip"]) == [4]
+    assert t.meta["failed"][0]["cell"]["skip"] == 0
+    # a re-run skips the finished cell and tries the failed one again
+    res2 = run_sweep(bad, out, scheduler="serial")
+    assert res2.skipped == 1 and res2.computed == 0 and len(res2.failed) == 1
+
+
+def test_rerun_skips_cells_already_in_results(tmp_path):
+    out = tmp_path / "r.ecsv"
+    small = dict(SWEEP, grid={"skip": [1, 4]}, realizations=1)
+    first = run_sweep(small, out, scheduler="serial")
+    assert first.computed == 2
+    bigger = dict(small, realizations=2)
+    second = run_sweep(bigger, out, scheduler="serial")
+    assert second.skipped == 2 and second.computed == 2
+    t = Table.read(out)
+    assert len(t) == 4
+    # the resumed rows equal a fresh run's
+    fresh = run_sweep(bigger, scheduler="serial").table
+    assert np.array_equal(np.asarray(t["band_power"]), np.asarray(fresh["band_power"]))
+    fig = plot_sweep(t)
+    assert fig.axes[0].get_xlabel() == "skip"
+    # a different scene would not match the rows already there
+    other = dict(bigger, seed=99)
+    with pytest.raises(ConfigError, match="different scene, seed"):
+        run_sweep(other, out, scheduler="serial")
+    assert run_sweep(other, out, scheduler="serial", overwrite=True).computed == 4
+
+
+def test_sweep_validation():
+    with pytest.raises(ConfigError, match=r"grid\.colour"):
+        load_sweep({"grid": {"colour": [1]}})
+    with pytest.raises(ConfigError, match="realizations"):
+        load_sweep({"realizations": 0})
+    with pytest.raises(ConfigError, match="unknown key"):
+        load_sweep({"grids": {}})
+
+
+def test_sweep_cli_serial(tmp_path, capsys):
+    import yaml
+
+    path = tmp_path / "sweep.yaml"
+    path.write_text(yaml.safe_dump(dict(SWEEP, grid={"skip": [1, 4]}, realizations=1)))
+    out = tmp_path / "res.ecsv"
+    assert main(["-q", "sweep", str(path), "-o", str(out), "--scheduler", "serial",
+                 "--plot"]) == 0
+    assert "2 computed" in capsys.readouterr().out
+    assert (tmp_path / "res.png").exists() and len(Table.read(out)) == 2
+    assert main(["-q", "sweep", str(path), "-o", str(out), "--scheduler", "serial"]) == 0
+    assert "0 computed, 2 already" in capsys.readouterr().out

@@ -1,0 +1,224 @@
+"""Temporal PSD, the α + β/f + γ/f^1.3 fit and raw-file streams, on streams made here.
+
+Streams are drawn by Fourier synthesis on a grid 8× (4× for raw files) longer
+than the stream, of which the first part is kept: an exact draw of the
+stationary Gaussian process whose spectrum is ``p`` on that fine grid, with no
+periodic wrap-around of the kept part.  None of this uses the package's
+simulator.
+"""
+
+import numpy as np
+import pytest
+
+from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule
+from spherex_reduce.analysis import (
+    aliased_basis,
+    fit_noise_model,
+    fit_raw_noise,
+    model_basis,
+    phantom_timestream,
+    reference_timestream,
+    temporal_psd,
+)
+from spherex_reduce.errors import SpherexReduceError
+
+FS = 1e5
+#: the paper's Table 2: alpha (e²/Hz), beta (e²), gamma (e² Hz^0.3)
+TABLE2 = {
+    "video8": (3.71e-5, 8.40e-3, 0.0),
+    "roic": (1.97e-3, 0.0, 1e-1),
+    "bias_correlated": (0.0, 8.80e-5, 0.0),
+    "bias_phantom_only": (0.0, 3.64e-6, 0.0),
+    "bias_pixels_only": (2.91e-6, 3.07e-7, 0.0),
+}
+
+
+def synth(n, coeffs, rng, nstreams=1, pad=8, fs=FS, exponent=1.3):
+    a, b, g = coeffs
+    length = pad * n
+    f = np.fft.rfftfreq(length, 1 / fs)
+    p = np.zeros_like(f)
+    p[1:-1] = a + b / f[1:-1] + g / f[1:-1] ** exponent
+    amp = np.sqrt(p * fs * length / 4)
+    z = rng.normal(size=(nstreams, f.size)) + 1j * rng.normal(size=(nstreams, f.size))
+    return np.fft.irfft(amp * z, length, axis=-1)[:, :n]
+
+
+def pulls(result, truth, names=("alpha", "beta", "gamma")):
+    return np.array([(result.values[k] - v) / result.errors[k]
+                     for k, v in zip(names, truth, strict=False)])
+
+
+def test_welch_white_normalisation_one_sided():
+    sigma, fs = 2.0, 1000.0
+    x = np.random.default_rng(0).normal(0, sigma, (4, 2**15))
+    t = temporal_psd(x, fs, nperseg=1024)
+    assert np.mean(t["psd"]) == pytest.approx(2 * sigma**2 / fs, rel=0.01)
+    assert t["frequency"].unit == "Hz" and t["psd"].unit == "1 / Hz"
+    assert t["frequency"][0] > 0 and t["frequency"][-1] < fs / 2
+    assert t.meta["nstreams"] == 4 and t.meta["nsegments"] == 63
+
+
+@pytest.mark.parametrize("name", sorted(TABLE2))
+def test_fit_recovers_table2_component(name):
+    truth = TABLE2[name]
+    rng = np.random.default_rng(sorted(TABLE2).index(name))
+    x = synth(2**16, truth, rng, nstreams=4)
+    r = fit_noise_model(temporal_psd(x, FS, nperseg=4096))
+    assert np.all(np.abs(pulls(r, truth)) < 4), (r.values, r.errors)
+    assert 0.5 < r.chi2 / r.dof < 1.6
+    for k, v in zip(("alpha", "beta", "gamma"), truth, strict=True):
+        if v > 5 * r.errors[k]:  # a term well above its error is detected, with the right sign
+            assert r.values[k] > 2 * r.errors[k]
+
+
+def test_fit_uncertainties_are_calibrated():
+    """Over independent streams the pulls have mean ~0 and spread ~1."""
+    truth = TABLE2["roic"]
+    p = np.array([pulls(fit_noise_model(temporal_psd(
+        synth(2**14, truth, np.random.default_rng(100 + s), nstreams=2), FS, nperseg=2048)),
+        truth) for s in range(16)])
+    assert np.all(np.abs(p.mean(axis=0)) < 0.9)
+    assert np.all((p.std(axis=0) > 0.55) & (p.std(axis=0) < 1.6))
+
+
+def test_fit_subset_and_model():
+    truth = (1e-3, 5e-2, 0.0)
+    x = synth(2**15, truth, np.random.default_rng(7), nstreams=2)
+    r = fit_noise_model(temporal_psd(x, FS, nperseg=4096), fit=("alpha", "beta"))
+    assert r.values["gamma"] == 0 and r.errors["gamma"] == 0
+    assert np.all(np.abs(pulls(r, truth, ("alpha", "beta"))) < 4)
+    assert r.model([10.0])[0] == pytest.approx(r.values["alpha"] + r.values["beta"] / 10)
+    row = r.to_row()
+    assert set(row) >= {"alpha", "alpha_err", "beta", "chi2", "dof", "fmin", "fmax"}
+    with pytest.raises(SpherexReduceError, match="fit must name"):
+        fit_noise_model(temporal_psd(x, FS, nperseg=256), fit=("delta",))
+
+
+def test_fit_exponent():
+    """A steeper excess term (exponent 1.8) is found, within the Δχ² = 1 error."""
+    truth = (1e-3, 0.0, 20.0)  # the excess term crosses the white level near 110 Hz
+    x = synth(2**16, truth, np.random.default_rng(31), nstreams=4, exponent=1.8)
+    r = fit_noise_model(temporal_psd(x, FS, nperseg=4096), exponent=None,
+                        fit=("alpha", "gamma"))
+    assert 0 < r.exponent_err < 0.2
+    assert abs(r.exponent - 1.8) < 4 * r.exponent_err
+    assert abs(r.values["alpha"] - truth[0]) < 4 * r.errors["alpha"]
+    assert r.to_row()["exponent_err"] == r.exponent_err
+    with pytest.raises(SpherexReduceError, match="needs 'gamma'"):
+        fit_noise_model(temporal_psd(x, FS, nperseg=256), exponent=None, fit=("alpha",))
+
+
+def test_model_and_aliased_basis():
+    b = model_basis([2.0], exponent=1.3)[0]
+    assert b == pytest.approx([1, 0.5, 2**-1.3])
+    # white noise averaged over nbox samples every m samples: alpha * m / nbox
+    assert aliased_basis([10.0, 300.0], FS, 72, 4)[:, 0] == pytest.approx([18, 18])
+    # no decimation, no box: the plain model
+    f = np.array([5.0, 50.0, 500.0])
+    assert np.allclose(aliased_basis(f, FS, 1, 1), model_basis(f))
+
+
+def test_aliased_stream_fit_recovers_pixel_rate_coefficients():
+    """Means of c = 4 samples every 72 samples (phantom reads) fit with the aliased model."""
+    truth = (3.71e-5, 8.40e-3, 0.0)  # Video8
+    x = synth(72 * 2**12, truth, np.random.default_rng(21), nstreams=4, pad=4)
+    y = x.reshape(4, -1, 72)[:, :, :4].mean(axis=-1)
+    spec = temporal_psd(y, FS / 72, nperseg=512)
+    r = fit_noise_model(spec, basis=lambda f, e: aliased_basis(f, FS, 72, 4, e))
+    assert np.all(np.abs(pulls(r, truth)) < 4), (r.values, r.errors)
+    # the plain model would be wrong by the aliasing factor 72/4 on alpha
+    plain = fit_noise_model(spec)
+    assert plain.values["alpha"] / truth[0] > 10
+
+
+# -- raw exposures built here: every sample placed at its schedule time ----------------
+PIXELS = (2.0071e-3, 8.4e-3, 0.1)  # Video8 + ROIC: what reference pixels see
+PHANTOM = (3.71e-5, 8.4e-3, 0.0)  # Video8: what phantom reads see
+
+
+def raw_exposure(seed, nframes=12, pixels=PIXELS, acn=False):
+    """Raw ramps whose every sample is drawn at its schedule time.
+
+    With ``acn`` the even and odd columns of each channel get independent
+    realisations of the pixel noise (alternating column noise).
+    """
+    g = DetectorGeometry(512, 64, 4, ref_border=4)
+    s = ReadoutSchedule(g, skip=24, ref_reads=32, phantom_reads=4, nframes=nframes,
+                        frame_overhead=40)
+    rng = np.random.default_rng(seed)
+    total = s.nframes * s.frame_samples
+    nreal = 2 * g.nchannels if acn else g.nchannels
+    xp = synth(total, pixels, rng, nstreams=nreal, pad=4)
+    xf = synth(total, PHANTOM, rng, nstreams=g.nchannels, pad=4)
+    frames = np.arange(s.nframes)[:, None, None] * s.frame_samples
+    samples = frames + s.pixel_samples()[None]
+    stream = g.channel_of_column()
+    if acn:
+        stream = 2 * stream + np.arange(g.ncols) % 2
+    data = xp[stream[None, None, :], samples]
+    data = data + 1000.0 + 7.0 * np.arange(s.nframes)[:, None, None]  # offset + dark ramp
+    psamp = frames + s.phantom_samples()[None]
+    phantom = np.stack([xf[c][psamp].mean(axis=-1) for c in range(g.nchannels)], axis=-1)
+    phantom = phantom + 3.0 * np.arange(s.nframes)[:, None, None]  # leakage drift
+    return Exposure.from_arrays(data.astype(np.float32), s, phantom=phantom.astype(np.float32))
+
+
+def test_streams_in_time_order():
+    e = raw_exposure(1, nframes=4)
+    s, g = e.schedule, e.geometry
+    tp = phantom_timestream(e)
+    assert tp.values.shape == (g.nchannels, s.nframes, s.n_reads)
+    assert np.all(np.diff(tp.samples.ravel()) > 0)  # strictly increasing in time
+    assert tp.samples[1, 0] - tp.samples[0, 0] == s.frame_samples
+    # residuals equal an independent per-position straight-line fit over frames
+    raw = np.asarray(e.phantom, dtype=float)[:, :, 2]  # frames, reads of channel 2
+    t = np.arange(s.nframes)
+    fitted = np.polynomial.polynomial.polyfit(t, raw, 1)
+    resid = raw - np.polynomial.polynomial.polyval(t, fitted).T
+    assert np.allclose(tp.values[2], resid * np.sqrt(4 / 2), atol=1e-3)
+    tc = reference_timestream(e, "columns")
+    assert tc.values.shape == (2, s.nframes, s.n_reads)
+    assert np.all(np.diff(tc.samples.ravel()) > 0)
+    tr = reference_timestream(e, "rows")
+    nref = s.reference_read_indices.size
+    assert tr.values.shape == (g.nchannels, s.nframes, nref, g.channel_width)
+    assert np.all(np.diff(tr.samples.ravel()) > 0)
+
+
+def test_fit_raw_noise_recovers_coefficients():
+    t = fit_raw_noise(raw_exposure(2))
+    assert list(t["stream"]) == ["reference", "phantom"]
+    for row in t:
+        truth = PIXELS if row["stream"] == "reference" else PHANTOM
+        for k, v in zip(("alpha", "beta", "gamma"), truth, strict=True):
+            assert abs(row[k] - v) < 4 * row[f"{k}_err"], (row["stream"], k, row[k], v)
+    ref = t[0]
+    assert ref["alpha_err"] < 0.05 * PIXELS[0]  # the white level is measured well
+    assert str(t["alpha"].unit) == "electron2 / Hz"
+
+
+def test_fit_raw_noise_with_alternating_column_noise():
+    """Independent even/odd column noise: per-parity streams give the per-column PSD."""
+    pixels = (1e-4, 5e-2, 0.0)
+    e = raw_exposure(4, pixels=pixels, acn=True)
+    ref = fit_raw_noise(e, fit=("alpha", "beta"))[0]
+    for k, v in zip(("alpha", "beta"), pixels, strict=False):
+        assert abs(ref[k] - v) < 4 * ref[f"{k}_err"], (k, ref[k], v, ref[f"{k}_err"])
+    # mixing the parities halves the 1/f power of the border-column average
+    mixed = fit_raw_noise(e, fit=("alpha", "beta"), acn=False)[0]
+    assert mixed["beta"] < pixels[1] - 4 * mixed["beta_err"]
+
+
+def test_raw_stream_errors():
+    e = raw_exposure(3, nframes=4)
+    from spherex_reduce import unchop
+
+    with pytest.raises(SpherexReduceError, match="readout order"):
+        phantom_timestream(unchop(e))
+    with pytest.raises(SpherexReduceError, match="columns' or 'rows"):
+        reference_timestream(e, "diagonal")
+    with pytest.raises(SpherexReduceError, match="at least 4 samples"):
+        temporal_psd([1.0, 2.0], 10.0)
+    with pytest.raises(SpherexReduceError, match="NaN"):
+        temporal_psd([1.0, np.nan, 2.0, 3.0, 4.0], 10.0)

@@ -1,0 +1,232 @@
+"""Phantom and reference correction: injected offsets, hard cases, strategies."""
+
+import numpy as np
+import pytest
+from astropy.stats import sigma_clip as astropy_sigma_clip
+
+from spherex_reduce import (
+    DetectorGeometry,
+    Exposure,
+    Pipeline,
+    ReadoutSchedule,
+    correct_reference,
+    dq,
+    subtract_phantom,
+    unchop,
+)
+from spherex_reduce.errors import StepSkipped
+from spherex_reduce.steps.reference import (
+    NoReferenceError,
+    NoReferenceWarning,
+    clipped_mean,
+    source_mask,
+)
+
+
+def sched(skip=3, ref_reads=8, ref_mode="distributed", phantom=2, nframes=3, nrows=32,
+          ncols=32, nch=4, border=4, scan="same"):
+    return ReadoutSchedule(DetectorGeometry(nrows, ncols, nch, ref_border=border, scan=scan),
+                           skip=skip, ref_reads=ref_reads, ref_mode=ref_mode,
+                           phantom_reads=phantom, nframes=nframes)
+
+
+def offsets_image(s, per_channel, even_odd=None, nframes=None, rng=None, noise=0.0):
+    """Raw ramps (readout order) made of per-channel (and even/odd) offsets only."""
+    g = s.geometry
+    col = np.repeat(per_channel, g.channel_width).astype(float)
+    if even_odd is not None:
+        col = col + np.where(g.column_offsets() % 2 == 0, even_odd[0], even_odd[1])
+    nf = s.nframes if nframes is None else nframes
+    data = np.broadcast_to(col, (nf, s.n_reads, g.ncols)).copy()
+    if noise:
+        data += rng.normal(0, noise, data.shape)
+    return data
+
+
+# -- clipped mean ---------------------------------------------------------------------------
+@pytest.mark.parametrize("sigma,maxiters", [(3.0, 5), (2.0, None), (1.5, 1)])
+def test_clipped_mean_equals_astropy_sigma_clip_mean(sigma, maxiters):
+    rng = np.random.default_rng(0)
+    vals = rng.normal(0, 1, (6, 300))
+    vals[:, :5] += 40  # outliers
+    vals[0, 7] = np.nan
+    mean, used, clipped = clipped_mean(vals, sigma=sigma, maxiters=maxiters)
+    for i in range(6):
+        row = vals[i][np.isfinite(vals[i])]
+        ref = astropy_sigma_clip(row, sigma=sigma, maxiters=maxiters, masked=True)
+        assert mean[i] == pytest.approx(ref.mean(), rel=1e-12, abs=1e-12)
+        assert used[i] == ref.count()
+        assert clipped[i] == row.size - ref.count()
+
+
+def test_clipped_mean_zero_spread_and_empty():
+    mean, used, clipped = clipped_mean([[5.0] * 10, [np.nan] * 10])
+    assert mean[0] == 5.0 and used[0] == 10 and clipped[0] == 0
+    assert np.isnan(mean[1]) and used[1] == 0
+
+
+# -- phantom -----------------------------------------------------------------------------------
+def test_subtract_phantom_per_channel_and_row_read_and_reference_reads():
+    s = sched()
+    rng = np.random.default_rng(1)
+    phantom = rng.normal(0, 5, (3, s.n_reads, 4))
+    data = np.repeat(phantom, 8, axis=2) + 7.0  # pixels see the phantom drift
+    e = Exposure.from_arrays(data, s, phantom=phantom)
+    out = subtract_phantom(e)
+    np.testing.assert_allclose(out.data.data, 7.0, atol=1e-12)
+    assert out.phantom is None
+    phys = subtract_phantom(unchop(e))
+    np.testing.assert_allclose(phys.reference.data, 7.0, atol=1e-12)
+    with pytest.raises(StepSkipped, match="no phantom"):
+        subtract_phantom(out)
+
+
+def test_phantom_skipped_with_c_zero_in_pipeline():
+    s = sched(phantom=0)
+    e = Exposure.from_arrays(np.zeros((3, s.n_reads, 32)), s)
+    out = Pipeline({"steps": ["subtract_phantom"]}).run(e)
+    assert out.header["S_PHANTM"] == "SKIPPED"
+
+
+# -- reference: exact removal on noise-free input -------------------------------------------------
+@pytest.mark.parametrize("mode,skip", [("distributed", 3), ("repeated", 1), ("none", 40),
+                                      ("distributed", 5)])
+def test_mean_removes_channel_offsets_exactly(mode, skip):
+    s = sched(ref_mode=mode, skip=skip)
+    offs = np.array([10.0, -3.0, 2.5, 100.0])
+    raw = Exposure.from_arrays(offsets_image(s, offs), s)
+    for e in (raw, unchop(raw)):
+        out = correct_reference(e, "mean")
+        np.testing.assert_allclose(out.data.data, 0.0, atol=1e-9)
+        t = out.tables["REFOFFS"]
+        assert t.colnames == ["frame", "channel", "parity", "offset", "n_used", "n_clipped",
+                              "flag"]
+        np.testing.assert_allclose(t["offset"].value, np.tile(offs, 3))
+        assert (t["parity"] == -1).all() and (t["flag"] == 0).all()
+        if e.order == "physical" and e.reference is not None:
+            np.testing.assert_allclose(out.reference.data, 0.0, atol=1e-9)
+
+
+def test_acn_removes_even_odd_offsets_exactly_also_with_alternate_scan():
+    for scan in ("same", "alternate"):
+        s = sched(scan=scan)
+        offs = np.array([1.0, 2.0, 3.0, 4.0])
+        e = unchop(Exposure.from_arrays(offsets_image(s, offs, even_odd=(0.5, -0.7)), s))
+        out = correct_reference(e, "acn")
+        np.testing.assert_allclose(out.data.data[:, 4:-4], 0.0, atol=1e-9)
+        t = out.tables["REFOFFS"]
+        assert len(t) == 3 * 4 * 2 and set(t["parity"]) == {0, 1}
+        mean_only = correct_reference(e, "mean")
+        assert np.abs(mean_only.data.data).max() == pytest.approx(0.6)
+
+
+def test_statistical_error_on_noisy_input():
+    s = sched(nframes=40, ref_reads=16)
+    rng = np.random.default_rng(2)
+    offs = np.array([5.0, -5.0, 0.0, 20.0])
+    e = Exposure.from_arrays(offsets_image(s, offs, rng=rng, noise=1.0), s)
+    out = correct_reference(unchop(e), "mean", sigma=5.0)
+    t = out.tables["REFOFFS"]
+    err = t["offset"].value - np.tile(offs, 40)
+    n = t["n_used"]
+    assert (n == 16 * 8).all()  # 16 reference reads x 8 columns per channel
+    z = err * np.sqrt(n)  # unit-variance if the error is the statistical one
+    assert abs(z.mean()) < 4 / np.sqrt(z.size)
+    assert 0.8 < z.std() < 1.2
+
+
+def test_outlier_reference_pixels_are_clipped():
+    s = sched()
+    raw = offsets_image(s, np.zeros(4))
+    raw[:, s.reference_read_indices[0], 3] = 1e4  # a hot reference pixel
+    rng = np.random.default_rng(3)
+    raw += rng.normal(0, 1, raw.shape)
+    out = correct_reference(Exposure.from_arrays(raw, s), "mean")
+    t = out.tables["REFOFFS"]
+    assert (t["n_clipped"][t["channel"] == 0] >= 1).all()
+    assert np.abs(t["offset"].value).max() < 1.0
+
+
+def test_all_reference_values_identical():
+    s = sched()
+    e = Exposure.from_arrays(np.full((3, s.n_reads, 32), 42.0), s)
+    out = correct_reference(e, "mean", sigma=3.0)
+    assert (out.tables["REFOFFS"]["n_clipped"] == 0).all()
+    np.testing.assert_allclose(out.data.data, 0.0)
+
+
+def test_no_usable_reference_pixels_flag_warning_channel_left_alone():
+    s = sched()
+    data = offsets_image(s, np.array([1.0, 2.0, 3.0, 4.0]))
+    data[:, s.reference_read_indices, 8:16] = np.nan  # channel 1's reference pixels
+    before = data.copy()
+    e = Exposure.from_arrays(data, s)
+    with pytest.warns(NoReferenceWarning, match=r"channel\(s\) \[1\]"):
+        out = correct_reference(e, "mean")
+    t = out.tables["REFOFFS"]
+    bad = t["channel"] == 1
+    assert np.isnan(t["offset"][bad]).all() and (t["flag"][bad] == dq.NO_REFERENCE).all()
+    assert (t["flag"][~bad] == 0).all()
+    active = s.active_read_indices
+    np.testing.assert_array_equal(out.data.data[:, active, 8:16], before[:, active, 8:16])
+    np.testing.assert_allclose(out.data.data[:, active, :8], 0.0)
+    assert (out.dq[:, :, 8:16] & dq.NO_REFERENCE).all()
+    assert not (out.dq[:, :, :8]).any()
+    assert np.array_equal(e.data.data, before, equal_nan=True)  # input untouched
+
+
+def test_no_reference_rows_is_a_clear_error():
+    s = sched(ref_reads=0, border=4)  # distributed with r = 0: reference rows never read
+    e = unchop(Exposure.from_arrays(np.zeros((3, s.n_reads, 32)), s))
+    with pytest.raises(NoReferenceError, match="no reference rows"):
+        correct_reference(e, "mean")
+    s0 = sched(ref_reads=0, ref_mode="none", border=0)
+    with pytest.raises(NoReferenceError, match="ref_border=0"):
+        correct_reference(Exposure.from_arrays(np.zeros((3, s0.n_reads, 32)), s0), "acn")
+
+
+def test_side_columns_are_used_for_the_edge_channels():
+    s = sched()
+    data = offsets_image(s, np.zeros(4))
+    data[:, s.active_read_indices, :4] = 9.0  # the left side reference columns
+    e = unchop(Exposure.from_arrays(data, s))
+    without = correct_reference(e, "mean", sigma=100.0).tables["REFOFFS"]
+    with_side = correct_reference(e, "mean", sigma=100.0, side_columns=True).tables["REFOFFS"]
+    assert without["offset"].value[0] == 0
+    nref = 8 * 8  # reference reads x channel width
+    nside = 24 * 4  # active rows x side columns
+    assert with_side["offset"].value[0] == pytest.approx(9.0 * nside / (nref + nside))
+    assert with_side["n_used"][0] == nref + nside and with_side["n_used"][1] == nref
+
+
+def test_slopes_are_corrected_too():
+    s = sched(nframes=1)
+    img = offsets_image(s, np.array([1.0, -1.0, 2.0, 0.5]), nframes=1)[0]
+    out = correct_reference(unchop(Exposure.from_arrays(img, s)), "mean")
+    np.testing.assert_allclose(out.data.data[4:-4], 0.0, atol=1e-12)
+    assert "frame" not in out.tables["REFOFFS"].colnames
+
+
+# -- median ------------------------------------------------------------------------------------
+def test_median_strategy_and_source_mask():
+    s = sched(nframes=1, nrows=64, ncols=64)
+    rng = np.random.default_rng(4)
+    offs = np.array([3.0, -2.0, 1.0, 0.0])
+    img = np.repeat(offs, 16)[None, :] + rng.normal(0, 1, (64, 64))
+    img[10:40, 2:14] += 30.0  # a large source in channel 0 biases the plain median
+    e = Exposure.from_arrays(img, s, order="physical")
+    plain = correct_reference(e, "median").tables["REFOFFS"]["offset"].value
+    masked = correct_reference(e, "median", mask_sources=True, box_size=16)
+    mo = masked.tables["REFOFFS"]["offset"].value
+    assert abs(plain[0] - offs[0]) > 0.5  # the source pulls the plain median up
+    assert np.abs(mo - offs).max() < 0.2
+    assert masked.tables["REFOFFS"]["n_clipped"][0] > 200
+    m = source_mask(img, box_size=16)
+    assert m[20:30, 5:10].all() and m[:, 40:].mean() < 0.05
+
+
+def test_unknown_strategy_lists_the_valid_ones():
+    s = sched()
+    e = Exposure.from_arrays(np.zeros((3, s.n_reads, 32)), s)
+    with pytest.raises(KeyError, match=r"valid: .*mean"):
+        correct_reference(e, "nonesuch")

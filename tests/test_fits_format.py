@@ -147,7 +147,7 @@ def test_foreign_file_read_with_supplied_readout(tmp_path, raw):
         "steps": [{"unchop": {}}],
     }
     partial = {k: v for k, v in config["readout"].items() if k != "skip"}
-    with pytest.raises(FormatError, match="missing readout keyword.s. ROWSKIP"):
+    with pytest.raises(FormatError, match=r"missing readout keyword\(s\) ROWSKIP"):
         Pipeline({**config, "readout": partial}).read(tmp_path / "foreign.fits")
     pipe = Pipeline(config)
     e = pipe.read(tmp_path / "foreign.fits")

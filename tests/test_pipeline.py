@@ -182,7 +182,7 @@ def test_unknown_hook_name_is_an_error_naming_the_plugin():
         def register_stepz(self):
             return [Offset]
 
-    with pytest.raises(PluginError, match="plugin 'Typo' failed to register.*register_stepz"):
+    with pytest.raises(PluginError, match=r"plugin 'Typo' failed to register.*register_stepz"):
         registry_with(Typo())
 
 

@@ -369,10 +369,10 @@ class NoiseEngine:
         if not isinstance(xb, _KernelStream):
             return 0, xb
         j0, j1 = self._b_range(ks)
-        key = (gid, j0, j1)
-        if self._bcache.get("key") != key:
-            self._bcache = {"key": key, "value": xb.window(j0, j1)}
-        return j0, self._bcache["value"]
+        cached = self._bcache.get(gid)
+        if cached is None or cached[0] != (j0, j1):
+            cached = self._bcache[gid] = ((j0, j1), xb.window(j0, j1))
+        return j0, cached[1]
 
     def _slow_knots(self, ks, weights=None):
         """Knot values ``{gid: (nstreams, 2, n_reads)}`` of frames ``ks`` (weighted sum)."""
@@ -500,7 +500,10 @@ class NoiseEngine:
         return covariance_from_weights(lam, m)[: max_lag + 1]
 
     def phantom_sequences(self):
-        """Fast part of the phantom means on a grid of reads: ``{scope: (ns, J)}``."""
+        """Fast part of the phantom means on a grid of reads: ``{scope: stream}``.
+
+        Each stream is an array ``(ns, J)`` or, when streaming, a `_KernelStream`.
+        """
         if self._phantom is not None:
             return self._phantom
         res = {}
@@ -508,6 +511,8 @@ class NoiseEngine:
             g_lag = math.ceil(2 * self.l_corr / self.rs) + 2
             jp = self.exposure // self.rs + 2
             mp = sfft.next_fast_len(max(jp + g_lag, 2 * g_lag + 2))
+            if self.streaming:
+                mp = sfft.next_fast_len(8 * g_lag + 2)
             for scope, psd in self._fast_psds("phantom").items():
                 cf = self._fast_covariance(psd, g_lag * self.rs + self.c)
                 i = np.arange(self.c)
@@ -519,6 +524,10 @@ class NoiseEngine:
                 emb[mp - g_lag:] = r[1:][::-1]
                 lam = sfft.rfft(emb).real
                 ns = self.nch if scope == "channel" else 1
+                if self.streaming:
+                    res[scope] = _KernelStream(lam, mp, ns, self.entropy,
+                                               (TIER_PHANTOM, _SCOPE[scope]), np.float32)
+                    continue
                 rngs = _rngs(self.entropy, ns, mp // 2 + 1, TIER_PHANTOM, _SCOPE[scope])
                 res[scope] = synthesize(lam, mp, jp, rngs, method=self.method,
                                         dtype=np.float32, nstreams=ns)
@@ -531,12 +540,26 @@ class NoiseEngine:
     def _phantom_fast(self, ks, weights=None):
         seqs = self.phantom_sequences()
         out = np.zeros((self.n_reads, self.nch))
-        for _scope, x in seqs.items():
-            acc = np.zeros((x.shape[0], self.n_reads))
-            for j, k in enumerate(ks):
-                v = x[:, self._phantom_index(k)]
-                acc += v if weights is None else weights[j] * v
-            out += acc.T  # (n_reads, ns) broadcasts for common
+        for scope, x in seqs.items():
+            acc = np.zeros((self.n_reads, self.nch if scope == "channel" else 1))
+            for kc, wc in self._chunks(ks, weights):
+                if isinstance(x, _KernelStream):
+                    cache_ks = kc
+                    if len(kc) == 1:
+                        q = kc[0] // self.CHUNK
+                        cache_ks = range(q * self.CHUNK, min(self.N, (q + 1) * self.CHUNK))
+                    j0 = self._phantom_index(min(cache_ks))[0]
+                    j1 = self._phantom_index(max(cache_ks))[-1] + 1
+                    cached = self._pcache.get(scope)
+                    if cached is None or cached[0] != (j0, j1):
+                        cached = self._pcache[scope] = ((j0, j1), x.window(j0, j1))
+                    win = cached[1]
+                    for k, wk in zip(kc, wc, strict=True):
+                        acc += wk * win[self._phantom_index(k) - j0]
+                else:
+                    for k, wk in zip(kc, wc, strict=True):
+                        acc += wk * x[:, self._phantom_index(k)].T
+            out += acc  # (n_reads, ns) broadcasts for common
         return out
 
     # -- ramps -------------------------------------------------------------------------
@@ -586,7 +609,11 @@ class NoiseEngine:
                 a = ((1 - frac) * mat[read].toarray()[0]
                      + frac * mat[self.n_reads + read].toarray()[0])
                 lam = psd_weights(_PSD(gr.comps, band, self.f_a, self.f_b), m, self.fs / step)
-                total += _functional_variance(a, lam, m)
+                if band == "B" and self.streaming:
+                    total += _KernelStream(lam, m, 1, self.entropy, (), np.float64
+                                           ).functional_variance(a)
+                else:
+                    total += _functional_variance(a, lam, m)
         for _scope, psd in self._fast_psds("pixels").items():
             m = self._block_fft_len()
             cov = covariance_from_weights(psd_weights(psd, m, self.fs), m)

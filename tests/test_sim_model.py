@@ -151,6 +151,17 @@ def test_simulator_expectation_matches_analytic(geo, n):
         assert sim == pytest.approx(ana, rel=0.02), comp.name
 
 
+@pytest.mark.parametrize("streaming", [False, True])
+def test_expectation_streamed_and_in_memory_slow_tier(streaming):
+    g, r = SMALL
+    s = schedule_from_config(g, {**r, "nframes": 74})
+    for comp in SINGLE[1:]:
+        eng = NoiseEngine(s, [comp], 0, streaming=streaming)
+        assert eng.streaming is streaming
+        ana = expected_slope_variance(comp, s).value
+        assert eng.expected_slope_variance(2, 7) == pytest.approx(ana, rel=0.02)
+
+
 def test_random_phase_without_padding_reproduces_the_low_bias():
     """The paper's method (period = exposure) is ~50 % low for gamma/f^1.3 at N = 10."""
     s = schedule_from_config({}, {"nframes": 10})

@@ -17,6 +17,9 @@ tiers are interpolated linearly to the first and last sample of every row
 read and linearly in between (a read lasts ``1/32`` of the shortest slow
 period).  The phantom value of a read (the mean of its ``c`` samples) gets its
 fast part from a sequence over reads with the exact covariance of that mean.
+For long or large exposures the slow-B tier and the phantom sequences are made
+window by window (``_KernelStream``: white noise in seeded blocks convolved with
+a truncated kernel), so memory does not grow with the exposure.
 
 What is approximated (measured in ``benchmarks/README_simulate.md``):
 
@@ -24,8 +27,9 @@ What is approximated (measured in ``benchmarks/README_simulate.md``):
   the pixels and for the phantom means (their covariance above ``f_B/2`` is
   dropped: the per-sample residual after phantom subtraction is 1.6 % too
   large for Video8 alone, 0.04 % with all Table 2 terms);
-* the fast tier is not split into even/odd realisations (ACN acts on the
-  slow tiers, which carry the even/odd offsets);
+* the fast tier of the pixels is not split into even/odd realisations (ACN
+  acts on the slow tiers, which carry the even/odd offsets; the phantom means
+  do use the split covariance);
 * fast-tier blocks are independent (their correlation time is < 1/32 of a
   block) and periodic within a block.
 
@@ -127,10 +131,9 @@ class _KernelStream:
     exposure and the numbers do not depend on the windows asked for.
     """
 
-    BLOCK = 1 << 15
     OFFSET = 1 << 40  # keeps block indices (which may be negative) non-negative
 
-    def __init__(self, lam, m, ns, entropy, key, dtype, tol=1e-7):
+    def __init__(self, lam, m, ns, entropy, key, dtype, tol=1e-7, total=None, window=0):
         h = sfft.irfft(np.sqrt(np.clip(lam, 0, None)), n=m)
         energy = h[: m // 2 + 1] ** 2
         energy[1:] *= 2
@@ -139,11 +142,16 @@ class _KernelStream:
         half = max(half, 1)
         self.kernel = np.concatenate([h[m - half:], h[: half + 1]]).astype(dtype)
         self.half, self.ns, self.entropy, self.key, self.dtype = half, ns, entropy, key, dtype
+        # white-noise block length: fixed by the scene (total samples, window), not by calls
+        need = 2 * half + max(window, 1)
+        if total is not None:
+            need = min(need, total + 2 * half)
+        self.BLOCK = int(min(1 << 15, max(1024, 1 << math.ceil(math.log2(need)))))
         self._blocks = {}
 
     def _xi(self, b):
         if b not in self._blocks:
-            if len(self._blocks) > 8:
+            if len(self._blocks) > 3:
                 self._blocks.pop(next(iter(self._blocks)))
             rng = rng_for(self.entropy, *self.key, b + self.OFFSET)
             self._blocks[b] = rng.standard_normal((self.ns, self.BLOCK), dtype=self.dtype)
@@ -206,6 +214,10 @@ class NoiseEngine:
         Ratio of the slow-B grid rate to ``f_B`` (16 by default).
     b_reads : int
         Row reads per step of the slow-B grid (2 by default).
+    streaming : bool, optional
+        Make the slow-B tier and the phantom sequences window by window from
+        a truncated convolution kernel, so memory does not grow with the
+        exposure; by default when they would hold more than 4 M values.
 
     Examples
     --------
@@ -219,7 +231,7 @@ class NoiseEngine:
     """
 
     def __init__(self, schedule, components, seed=0, *, method="gaussian", padding=16.0,
-                 dtype=np.float32, oversample=16, b_reads=2):
+                 dtype=np.float32, oversample=16, b_reads=2, streaming=None):
         self.schedule = s = schedule
         g = s.geometry
         self.fs = g.pixel_rate
@@ -257,6 +269,7 @@ class NoiseEngine:
         self._lam_cache = {}
         self._bcache = {}
         self._pcache = {}
+        self._streaming = streaming
 
     # -- layout ----------------------------------------------------------------
     def _column_maps(self):
@@ -296,15 +309,25 @@ class NoiseEngine:
             ma, mb = ja, jb
         return ja, ma, jb, mb
 
+    #: Stream the slow-B tier and phantom sequences when they would hold more values
+    STREAM_ABOVE = 1 << 22
+
     @property
     def streaming(self):
-        """Slow B and phantom sequences made window by window (not for the paper's method)."""
-        return self.method == "gaussian" and self.padding > 1
+        """Slow B and phantom sequences made window by window, in memory that does not grow
+        with the exposure (Gaussian method with padding only; automatic for long or large
+        exposures, fixed by the scene so results never depend on it changing)."""
+        if self.method != "gaussian" or self.padding <= 1:
+            return False
+        if self._streaming is not None:
+            return bool(self._streaming)
+        ns = sum(gr.nstreams for gr in self.slow_groups) + self.nch + 1
+        return (self.exposure // self.d_b) * ns > self.STREAM_ABOVE
 
     def slow_streams(self):
         """Slow tiers of every group: ``{gid: (A grid (J_A, ns), B)}``.
 
-        B is a grid ``(J_B, ns)``, or a `_KernelStream` when streaming.
+        B is a grid ``(J_B, ns)``, or a ``_KernelStream`` when streaming.
         """
         if self._slow is not None:
             return self._slow
@@ -322,7 +345,8 @@ class NoiseEngine:
             lam_b = psd_weights(psd_b, mb, self.fs / self.d_b)
             if self.streaming:
                 xb = _KernelStream(lam_b, mb, gr.nstreams, self.entropy, (TIER_B, gr.gid),
-                                   self.slow_dtype)
+                                   self.slow_dtype, total=jb,
+                                   window=self.CHUNK * self.F // self.d_b)
             else:
                 rng_b = _rngs(self.entropy, gr.nstreams, mb // 2 + 1, TIER_B, gr.gid)
                 xb = np.empty((jb, gr.nstreams), dtype=self.slow_dtype)
@@ -502,7 +526,7 @@ class NoiseEngine:
     def phantom_sequences(self):
         """Fast part of the phantom means on a grid of reads: ``{scope: stream}``.
 
-        Each stream is an array ``(ns, J)`` or, when streaming, a `_KernelStream`.
+        Each stream is an array ``(ns, J)`` or, when streaming, a ``_KernelStream``.
         """
         if self._phantom is not None:
             return self._phantom
@@ -513,12 +537,23 @@ class NoiseEngine:
             mp = sfft.next_fast_len(max(jp + g_lag, 2 * g_lag + 2))
             if self.streaming:
                 mp = sfft.next_fast_len(8 * g_lag + 2)
-            for scope, psd in self._fast_psds("phantom").items():
-                cf = self._fast_covariance(psd, g_lag * self.rs + self.c)
-                i = np.arange(self.c)
-                dd = (i[:, None] - i[None, :]).ravel()
-                lags = np.abs(np.arange(g_lag + 1)[:, None] * self.rs + dd[None, :])
-                r = cf[lags].mean(axis=1)
+            i = np.arange(self.c)
+            dd = (i[:, None] - i[None, :]).ravel()
+            same = (((i - self.c) % 2)[:, None] == ((i - self.c) % 2)[None, :]).ravel()
+            lags = np.abs(np.arange(g_lag + 1)[:, None] * self.rs + dd[None, :])
+            for scope in self._fast_psds("phantom"):
+                # covariance of the mean of the c samples; with ACN only samples of the
+                # same parity (the same realisation) are correlated
+                r = np.zeros(g_lag + 1)
+                for acn in (False, True):
+                    comps = [c for c in self.components if c.scope == scope and
+                             c.seen_by_phantom and c.acn == acn]
+                    psd = _PSD(comps, "fast", self.f_a, self.f_b, white=True)
+                    if not comps or psd.empty:
+                        continue
+                    cf = self._fast_covariance(psd, g_lag * self.rs + self.c)
+                    pairs = cf[lags] * (same if acn else 1.0)
+                    r += pairs.sum(axis=1) / self.c**2
                 emb = np.zeros(mp)
                 emb[: g_lag + 1] = r
                 emb[mp - g_lag:] = r[1:][::-1]
@@ -526,7 +561,8 @@ class NoiseEngine:
                 ns = self.nch if scope == "channel" else 1
                 if self.streaming:
                     res[scope] = _KernelStream(lam, mp, ns, self.entropy,
-                                               (TIER_PHANTOM, _SCOPE[scope]), np.float32)
+                                               (TIER_PHANTOM, _SCOPE[scope]), np.float32,
+                                               total=jp, window=self.CHUNK * self.F // self.rs)
                     continue
                 rngs = _rngs(self.entropy, ns, mp // 2 + 1, TIER_PHANTOM, _SCOPE[scope])
                 res[scope] = synthesize(lam, mp, jp, rngs, method=self.method,

@@ -66,7 +66,8 @@ def expected_slope_variance(noise, schedule, *, kind="pixels"):
         ``'pixels'``: the slope of one pixel (every pixel has the same
         variance, since all are read once per frame at the same spacing).
         ``'phantom'``: the slope of one read's phantom value (the mean of the
-        ``c`` phantom samples).
+        ``c`` phantom samples; for a component with ``acn`` the samples of
+        each parity see an independent realisation, as in the simulator).
 
     Returns
     -------
@@ -106,21 +107,30 @@ def expected_slope_variance(noise, schedule, *, kind="pixels"):
     w = ls_weights(np.arange(n) * F / fs)
     # a_d = sum_k w_k w_{k+d}, d >= 1
     a = np.array([np.dot(w[:-d], w[d:]) for d in range(1, n)])
-    if kind == "pixels":
-        offsets, pw = np.array([0.0]), np.array([1.0])
-    else:
-        c = schedule.phantom_reads
-        i = np.arange(c)
-        diff = (i[:, None] - i[None, :]).ravel()
-        offsets, counts = np.unique(diff, return_counts=True)
-        pw = counts / c**2
-    lags = np.arange(1, n)[:, None] * F + offsets[None, :]
+    c = schedule.phantom_reads
     total = 0.0
     for comp in comps:
-        d = comp.structure_function(lags, fs)  # (n-1, n_offsets)
-        # lag 0 frames: within-read offsets (phantom averaging); D(0) = 0
-        d0 = comp.structure_function(offsets, fs)
-        total += -np.sum(a[:, None] * d * pw) - 0.5 * np.sum(w * w) * np.sum(d0 * pw)
+        if kind == "pixels":
+            groups = [np.array([0])]
+        elif comp.acn:
+            # even/odd realisations: phantom sample i takes parity (i - c) % 2
+            i = np.arange(c)
+            groups = [i[(i - c) % 2 == p] for p in (0, 1)]
+        else:
+            groups = [np.arange(c)]
+        for grp in groups:
+            if grp.size == 0:
+                continue
+            scale = 1.0 if kind == "pixels" else (grp.size / c) ** 2
+            diff = (grp[:, None] - grp[None, :]).ravel()
+            offsets, counts = np.unique(diff, return_counts=True)
+            pw = counts / grp.size**2
+            lags = np.arange(1, n)[:, None] * F + offsets[None, :]
+            d = comp.structure_function(lags, fs)  # (n-1, n_offsets)
+            # lag 0 frames: within-read offsets (phantom averaging); D(0) = 0
+            d0 = comp.structure_function(offsets, fs)
+            total += scale * (-np.sum(a[:, None] * d * pw)
+                              - 0.5 * np.sum(w * w) * np.sum(d0 * pw))
     return total * unit
 
 

@@ -16,7 +16,6 @@ from .fits_format import read, write
 from .geometry import DetectorGeometry
 from .pipeline import Pipeline
 from .schedule import ReadoutSchedule
-from .simulation import expected_slope_variance, simulate
 from .step import Simulator, Step, Strategy
 from .steps import (
     combine_darks,
@@ -62,3 +61,13 @@ __all__ = [
     "unchop",
     "write",
 ]
+
+
+def __getattr__(name):
+    # The simulator (scipy.signal, its engine) costs ~0.4 s to import; load it only
+    # when asked for, so that reducing a file does not pay for it.
+    if name in ("simulate", "expected_slope_variance"):
+        from . import simulation
+
+        return getattr(simulation, name)
+    raise AttributeError(f"module 'spherex_reduce' has no attribute {name!r}")

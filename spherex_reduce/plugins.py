@@ -7,6 +7,7 @@ one).  There is no global state: every call of :func:`get_plugin_manager`
 builds a new manager.
 """
 
+import functools
 import importlib
 import importlib.metadata
 import inspect
@@ -138,7 +139,6 @@ class Registry:
     def __init__(self, plugin_manager=None):
         self.pm = plugin_manager or get_plugin_manager()
         self.steps = self._collect("register_steps", Step, "step")
-        self.simulators = self._collect("register_simulators", Simulator, "simulator")
         strategies = self._collect("register_strategies", Strategy, "strategy", key=_kind_name)
         self.strategies = {}
         for (kind, name), reg in strategies.items():
@@ -184,6 +184,12 @@ class Registry:
                     )
                 found[k] = Registered(cls, plugin)
         return found
+
+    @functools.cached_property
+    def simulators(self):
+        """Registered simulators by name (collected when first asked for: the built-in
+        simulator's import is slow, and reducing a file does not need it)."""
+        return self._collect("register_simulators", Simulator, "simulator")
 
     @property
     def providers(self):

@@ -45,6 +45,9 @@ def test_sphinx_build_is_warning_free(tmp_path):
     # land in the checkout, and a concurrent build of docs/ is not disturbed.
     src = tmp_path / "docs"
     shutil.copytree(DOCS, src, ignore=shutil.ignore_patterns("_build", "api", "__pycache__"))
+    # the performance page includes the benchmark reports from ../benchmarks
+    shutil.copytree(ROOT / "benchmarks", tmp_path / "benchmarks",
+                    ignore=shutil.ignore_patterns("*.py", "__pycache__"))
     env = dict(
         os.environ,
         MPLBACKEND="Agg",

@@ -54,9 +54,9 @@ def load_yaml(source, what="config"):
     """
     if isinstance(source, dict):
         return dict(source), what
-    path = Path(source)
-    if isinstance(source, Path) or (isinstance(source, str) and "\n" not in source
-                                    and source.endswith((".yaml", ".yml"))):
+    path = Path(source) if "\n" not in str(source) else None
+    if isinstance(source, Path) or (path is not None and (path.is_file() or str(source).endswith(
+            (".yaml", ".yml")))):
         if not path.is_file():
             raise FileNotFoundError(f"{what} file not found: {path}")
         text, label = path.read_text(), str(path)

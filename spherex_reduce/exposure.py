@@ -50,12 +50,15 @@ class ReferenceReads:
         ``schedule.start_times[reads]``).
     phantom : `numpy.ndarray` or None
         Phantom values of these reads, shape ``(..., n, nchannels)``.
+    dq : `numpy.ndarray` or None
+        Data-quality flags of these reads (same shape as ``data``).
     """
 
     data: np.ndarray
     rows: np.ndarray
     reads: np.ndarray
     phantom: np.ndarray | None = None
+    dq: np.ndarray | None = None
 
     def replace(self, **changes):
         """A copy with some fields changed."""

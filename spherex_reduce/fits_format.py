@@ -15,9 +15,9 @@ Layout (extension names):
 ``READOUT``
     One row per read of a frame: ``row kind start time``; cross-checked
     against the header keywords on read.
-``REFPIX``, ``REFPHANT``, ``REFREADS``
-    Reference reads kept aside by ``unchop`` (pixels, phantoms, and a table
-    ``read row time``).
+``REFPIX``, ``REFPHANT``, ``REFDQ``, ``REFREADS``
+    Reference reads kept aside by ``unchop`` (pixels, phantoms, flags, and a
+    table ``read row time``).
 
 Any other table extension holds a table recorded by a step (e.g. ``REFOFFS``).
 
@@ -42,7 +42,8 @@ from .schedule import ReadoutSchedule
 
 __all__ = ["FrameReader", "atomic_output", "read", "write"]
 
-_RESERVED = {"PRIMARY", "SCI", "ERR", "DQ", "PHANTOM", "READOUT", "REFPIX", "REFPHANT", "REFREADS"}
+_RESERVED = {"PRIMARY", "SCI", "ERR", "DQ", "PHANTOM", "READOUT", "REFPIX", "REFPHANT", "REFDQ",
+             "REFREADS"}
 
 
 class atomic_output:
@@ -147,6 +148,8 @@ def write(exposure, path, overwrite=False):
         hdus.append(_image(ref.data, "REFPIX", unit))
         if ref.phantom is not None:
             hdus.append(_image(ref.phantom, "REFPHANT", unit))
+        if ref.dq is not None:
+            hdus.append(_image(np.asarray(ref.dq).astype(np.int32), "REFDQ"))
         times = exposure.schedule.start_times[ref.reads]
         hdus.append(_table_hdu(Table({"read": ref.reads, "row": ref.rows, "time": times}),
                                "REFREADS"))
@@ -254,6 +257,7 @@ def read(path, **supplied):
             reference = ReferenceReads(
                 data=hdul["REFPIX"].data, rows=np.asarray(rt["row"]), reads=np.asarray(rt["read"]),
                 phantom=hdul["REFPHANT"].data if "REFPHANT" in names else None,
+                dq=(hdul["REFDQ"].data.astype(np.uint16) if "REFDQ" in names else None),
             )
             _readonly(reference.data, reference.phantom)
         tables = {
@@ -299,6 +303,8 @@ class FrameReader:
             self.schedule, self.header, self.unit = d["schedule"], d["header"], d["unit"]
             self._phantom = (np.asarray(self._hdul["PHANTOM"].data)
                              if "PHANTOM" in d["names"] else None)
+            self._tables = {h.name: Table.read(h) for h in self._hdul
+                            if isinstance(h, fits.BinTableHDU) and h.name not in _RESERVED}
         except Exception:
             self._hdul.close()
             raise
@@ -324,7 +330,7 @@ class FrameReader:
         data = np.asarray(self._d["sci"].section[k : k + 1])
         phantom = None if self._phantom is None else self._phantom[k : k + 1]
         return Exposure.from_arrays(data, self.schedule.replace(nframes=1), unit=self.unit,
-                                    phantom=phantom, header=self.header)
+                                    phantom=phantom, header=self.header, tables=self._tables)
 
 
 def _unit_str(unit):

@@ -161,10 +161,10 @@ class Pipeline:
 
     def _stream_split(self, steps):
         """Index of the accumulating step if every step before it is per-frame, else None."""
-        for i, (_, _, step) in enumerate(steps):
+        for i, (_, params, step) in enumerate(steps):
             if type(step).accumulator is not Step.accumulator:
                 return i
-            if not step.per_frame:
+            if not step.streams(params):
                 return None
         return None
 
@@ -280,6 +280,8 @@ class Pipeline:
                   for name, parts in tables.items()}
         result = result.replace(tables={**result.tables, **merged})
         for j, (_, params, step) in enumerate(prefix):
+            if status[j][0] == "COMPLETE":
+                result = step.merge_frames(result, params)
             result = self._record(step, params, first, result, *status[j], elapsed[j])
         return self._record(consumer, cparams, first, result, "COMPLETE", None, elapsed[-1])
 
@@ -311,7 +313,8 @@ class _ExposureFrames:
             order=e.order,
             reference=None if e.reference is None else e.reference.replace(
                 data=e.reference.data[sl],
-                phantom=None if e.reference.phantom is None else e.reference.phantom[sl]),
+                phantom=None if e.reference.phantom is None else e.reference.phantom[sl],
+                dq=None if e.reference.dq is None else e.reference.dq[sl]),
             tables=e.tables)
 
 

@@ -53,6 +53,19 @@ class CorrectReferenceStep(Step):
     def run(self, exposure, strategy="mean", **params):
         return self.strategy(strategy)()(exposure, **params)
 
+    def streams(self, params):
+        # source masking detects sources on the last-minus-first frame: needs the whole ramp
+        return not params.get("mask_sources", False)
+
+    def merge_frames(self, exposure, params):
+        table = exposure.tables.get("REFOFFS")
+        if table is None or "flag" not in table.colnames:
+            return exposure
+        header = exposure.header.copy()
+        header["NNOREF"] = (int((table["flag"] != 0).sum()),
+                            "offsets without usable reference pixels")
+        return exposure.replace(header=header)
+
 
 class FitRampStep(Step):
     """Least-squares slopes (`~spherex_reduce.fit_ramp`)."""

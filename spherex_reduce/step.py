@@ -59,6 +59,24 @@ class Step:
         """Return a new exposure; never modify ``exposure``."""
         raise NotImplementedError
 
+    def streams(self, params):
+        """Whether the pipeline may stream frames through this step with ``params``.
+
+        Defaults to :attr:`per_frame`; a step whose result depends on several
+        frames only for some parameters (e.g. source masking on the
+        difference of the last and first frames) says so here.
+        """
+        return self.per_frame
+
+    def merge_frames(self, exposure, params):
+        """Recompute header summaries after a streamed run (default: unchanged).
+
+        A per-frame step's header keywords come from the last frame when the
+        pipeline streams; the merged tables (with their ``frame`` column) are
+        complete, so a step that writes summary keywords recomputes them here.
+        """
+        return exposure
+
     def accumulator(self, schedule, header, **params):
         """A `FrameAccumulator` that reduces ramps frame by frame, or None.
 

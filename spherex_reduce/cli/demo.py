@@ -25,6 +25,8 @@ def run(args):
 
     if args.size < 64 or args.size % 64:
         raise SpherexReduceError(f"--size must be a multiple of 64, >= 64; got {args.size}")
+    if args.nframes < 2:
+        raise SpherexReduceError(f"--nframes must be >= 2 to fit a slope; got {args.nframes}")
     for line in run_demo(Path(args.output), overwrite=args.overwrite, progress=not args.quiet,
                          size=args.size, nframes=args.nframes, seed=args.seed):
         print(line, flush=True)

@@ -42,6 +42,12 @@ def run(args):
     for path in (args.output, plot):
         if path:
             atomic_output(path, args.overwrite)
+    from ..errors import SpherexReduceError
+
+    if args.nbins < 1:
+        raise SpherexReduceError(f"--nbins must be >= 1, got {args.nbins}")
+    if args.nperseg is not None and args.nperseg < 4:
+        raise SpherexReduceError(f"--nperseg must be >= 4 row reads, got {args.nperseg}")
     exposure = read(args.input)
     exponent = None if args.fit_exponent else args.exponent
     table = fit_raw_noise(exposure, exponent=exponent, nperseg=args.nperseg,

@@ -44,6 +44,18 @@ def add_parser(sub):
     p.set_defaults(func=run)
 
 
+def _check_args(args):
+    if args.pixel_scale <= 0:
+        raise SpherexReduceError(f"--pixel-scale must be > 0 arcsec, got {args.pixel_scale}")
+    if args.photocurrent < 0:
+        raise SpherexReduceError(f"--photocurrent must be >= 0 e/s, got {args.photocurrent}")
+    if args.integration_time is not None and args.integration_time <= 0:
+        raise SpherexReduceError(
+            f"--integration-time must be > 0 s, got {args.integration_time}")
+    if args.bins < 1:
+        raise SpherexReduceError(f"--bins must be >= 1, got {args.bins}")
+
+
 def _measure(image, args, bins=None):
     from ..analysis import band_power, power_spectrum
 
@@ -63,13 +75,16 @@ def _photon(image, args):
     if not (image.unit or u.one).is_equivalent(u.electron / u.s):
         return None
     nframes = image.meta.get("NFRAMES")
-    tint = args.integration_time or image.meta.get("INTTIME") or _DEFAULT_TINT
+    tint = args.integration_time
+    if tint is None:
+        tint = image.meta.get("INTTIME") or _DEFAULT_TINT
     power = photon_noise_power(args.photocurrent * u.electron / u.s, tint * u.s,
                                nframes=nframes if nframes and nframes >= 2 else None)
     return power.to(image.unit**2 * u.pix**2)
 
 
 def run(args):
+    _check_args(args)
     from ..analysis.io import read_image
 
     if args.kmin >= args.kmax:
@@ -96,6 +111,10 @@ def run(args):
     spectra = {Path(args.input).name: table}
     if args.compare:
         other = read_image(args.compare)
+        if not (other.unit or u.one).is_equivalent(image.unit or u.one):
+            raise SpherexReduceError(
+                f"--compare: {args.compare} is in {other.unit or 'no unit'}, but {args.input} "
+                f"is in {image.unit or 'no unit'}; compare images of the same quantity")
         edges = np.unique(np.concatenate([table["k_lo"], table["k_hi"]]))
         ot, oband, oerr = _measure(other, args, bins=edges)
         spectra[Path(args.compare).name] = ot

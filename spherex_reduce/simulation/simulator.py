@@ -11,6 +11,7 @@ import numpy as np
 from astropy import units as u
 from astropy.io import fits
 
+from ..errors import ConfigError
 from ..exposure import Exposure
 from ..fits_format import _table_hdu, _unit_str, atomic_output
 from ..step import Simulator
@@ -44,6 +45,8 @@ def _prepare(scene, mode, seed):
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     seed = sc.seed if seed is None else seed
+    if isinstance(seed, (int, np.integer)) and seed < 0:
+        raise ConfigError(f"seed: must be a non-negative integer, got {seed}")
     if seed is None:
         seed = np.random.SeedSequence().entropy
         log.info("simulate: no seed given; using %d", seed)
@@ -237,7 +240,12 @@ def simulate_to_fits(scene, path, *, mode=None, seed=None, overwrite=False, prog
     path : `pathlib.Path`
     """
     out = atomic_output(path, overwrite)  # refuse before computing
-    sc, mode, seed, engine = _prepare(scene, mode, seed)
+    sc = load_scene(scene) if not hasattr(scene, "schedule") else scene
+    if sc.synthesis.get("simulator", "spherex") != "spherex":  # a plugin's simulator
+        from ..fits_format import write
+
+        return write(simulate(sc, mode=mode, seed=seed), path, overwrite=overwrite)
+    sc, mode, seed, engine = _prepare(sc, mode, seed)
     if mode == "slopes":
         from ..fits_format import write
 

@@ -27,7 +27,7 @@ from astropy.table import Table
 
 from .. import dq
 from ..errors import SpherexReduceError, StepSkipped
-from ..exposure import ReferenceReads
+from ..exposure import ReferenceReads, as_dq
 from ..step import FrameAccumulator
 
 __all__ = ["RampAccumulator", "fit_ramp", "ramp_weights"]
@@ -135,14 +135,6 @@ def _fit_masked(y, good, times, read_noise, poisson_scale):
     return slope, var, n.astype(np.int16)
 
 
-def _as_flags(values):
-    """Mask values as uint16 DQ bits (bool True becomes DO_NOT_USE)."""
-    values = np.asarray(values)
-    if values.dtype == bool:
-        return values.astype(np.uint16) * np.uint16(dq.DO_NOT_USE)
-    return values.astype(np.uint16)
-
-
 def _fit_cube(cube, times, *, mask=None, saturation=None, weighting="uniform", read_noise=None,
               gain=1.0, want_var=True):
     """Fit every ramp of ``cube`` (nframes, n, m) read at ``times`` (nframes,).
@@ -236,7 +228,7 @@ def _fit_cube(cube, times, *, mask=None, saturation=None, weighting="uniform", r
             rmask = np.asarray(mask[:, r0:r1, :]).reshape(nf, npx)
             bad |= np.any(rmask != 0, axis=0)
         if mask_pix is not None:
-            pmask = _as_flags(mask_pix[r0:r1]).reshape(npx)
+            pmask = as_dq(mask_pix[r0:r1]).reshape(npx)
             bad |= pmask != 0
         if weighting == "optimal" and nf >= 2:
             rate = np.maximum(np.where(bad, 0, slope), 0) * pscale
@@ -267,7 +259,7 @@ def _fit_cube(cube, times, *, mask=None, saturation=None, weighting="uniform", r
                 good &= ~sat
             pix_flags = np.zeros(bidx.size, np.uint16)
             if mask_read:
-                rm = _as_flags(rmask[:, bidx])
+                rm = as_dq(rmask[:, bidx])
                 good &= rm == 0
                 # bits set on every read (e.g. NOT_READ rows) belong to the pixel
                 pix_flags |= np.bitwise_and.reduce(rm, axis=0)
@@ -372,11 +364,12 @@ def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, satura
         phantom = _fit_cube(exposure.phantom, times, want_var=False).slope
     reference = exposure.reference
     if reference is not None and np.ndim(reference.data) == 3:
-        rdata = _fit_cube(reference.data, times, saturation=saturation, want_var=False).slope
+        rfit = _fit_cube(reference.data, times, mask=reference.dq, saturation=saturation,
+                         want_var=False)
         rphant = (None if reference.phantom is None
                   else _fit_cube(reference.phantom, times, want_var=False).slope)
-        reference = ReferenceReads(data=rdata, rows=reference.rows, reads=reference.reads,
-                                   phantom=rphant)
+        reference = ReferenceReads(data=rfit.slope, rows=reference.rows, reads=reference.reads,
+                                   phantom=rphant, dq=rfit.flags)
     return _result(exposure, schedule, fit, phantom, reference, weighting)
 
 
@@ -447,7 +440,7 @@ class _StreamFit:
         marked = np.zeros(0, dtype=np.intp)
         if flags is not None and (self.all_flags is None or self.all_flags.any()
                                   or np.any(flags)):
-            f = _as_flags(flags).reshape(self.npx)
+            f = as_dq(flags).reshape(self.npx)
             marked = np.flatnonzero(f)
             self.all_flags = f.copy() if self.all_flags is None else self.all_flags & f
         elif self.all_flags is None or self.all_flags.any():
@@ -680,7 +673,8 @@ class RampAccumulator(FrameAccumulator):
         if "phantom" in self.fits:
             self.fits["phantom"].add(index, frame.phantom[0])
         if "ref" in self.fits:
-            self.fits["ref"].add(index, frame.reference.data[0])
+            rdq = frame.reference.dq
+            self.fits["ref"].add(index, frame.reference.data[0], None if rdq is None else rdq[0])
         if "refph" in self.fits:
             self.fits["refph"].add(index, frame.reference.phantom[0])
 
@@ -692,9 +686,11 @@ class RampAccumulator(FrameAccumulator):
         phantom = f["phantom"].finish(False).slope if "phantom" in f else None
         reference = self.last.reference
         if "ref" in f:
+            rfit = f["ref"].finish(False)
             reference = ReferenceReads(
-                data=f["ref"].finish(False).slope, rows=reference.rows, reads=reference.reads,
-                phantom=f["refph"].finish(False).slope if "refph" in f else None)
+                data=rfit.slope, rows=reference.rows, reads=reference.reads,
+                phantom=f["refph"].finish(False).slope if "refph" in f else None,
+                dq=rfit.flags)
         return _result(self.last, self.schedule, fit, phantom, reference,
                        self.params["weighting"])
 
@@ -711,7 +707,8 @@ def _stack(frames, schedule):
     ref = first.reference
     if ref is not None:
         ref = ref.replace(data=cat(lambda f: f.reference.data),
-                          phantom=cat(lambda f: f.reference.phantom))
+                          phantom=cat(lambda f: f.reference.phantom),
+                          dq=cat(lambda f: f.reference.dq))
     return first.replace(data=cat(lambda f: f.data.data), uncertainty=unc,
                          dq=cat(lambda f: f.dq), phantom=cat(lambda f: f.phantom),
                          reference=ref, schedule=schedule)

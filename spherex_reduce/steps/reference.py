@@ -134,7 +134,7 @@ def _reference_rows(exposure):
         vals = np.take(nd.data, idx, axis=-2)
         m = None if mask is None else np.take(mask, idx, axis=-2)
     elif exposure.reference is not None and np.shape(exposure.reference.data)[-2] > 0:
-        vals, m = exposure.reference.data, None
+        vals, m = exposure.reference.data, exposure.reference.dq
     else:
         rows = g.reference_rows
         rows = rows[s.read_of_row()[rows] >= 0] if rows.size else rows

@@ -16,8 +16,12 @@ def _physical_index(schedule):
     return first, np.flatnonzero(counts > 1)
 
 
-def _to_physical(values, schedule, first, repeated):
-    """Gather ``values`` (..., n_reads, m) into (..., nrows, m); NaN for unread rows."""
+def _to_physical(values, schedule, first, repeated, flags=None):
+    """Gather ``values`` (..., n_reads, m) into (..., nrows, m); NaN for unread rows.
+
+    A re-read row gets the mean of its usable reads (finite, not flagged in
+    ``flags``); NaN if none is usable.
+    """
     if values is None:
         return None
     out = np.take(values, np.maximum(first, 0), axis=-2)
@@ -25,9 +29,24 @@ def _to_physical(values, schedule, first, repeated):
         out = out.astype(np.float64)
     if (first < 0).any():
         out[..., first < 0, :] = np.nan
-    for row in repeated:  # mean of every read of a re-read reference row
+    for row in repeated:
         idx = np.flatnonzero(schedule.rows == row)
-        out[..., row, :] = np.take(values, idx, axis=-2).mean(axis=-2, dtype=np.float64)
+        reads = np.take(values, idx, axis=-2).astype(np.float64)
+        if flags is not None:
+            reads[np.take(flags, idx, axis=-2) != 0] = np.nan
+        with np.errstate(invalid="ignore", divide="ignore"):
+            count = np.isfinite(reads).sum(axis=-2)
+            out[..., row, :] = np.where(count > 0, np.nansum(reads, axis=-2) / count, np.nan)
+    return out
+
+
+def _flags_to_physical(flags, schedule, first, repeated):
+    """Flags in physical order; a re-read row is usable where any of its reads is."""
+    out = np.take(flags, np.maximum(first, 0), axis=-2)
+    for row in repeated:
+        reads = np.take(flags, np.flatnonzero(schedule.rows == row), axis=-2)
+        usable = (reads == 0).any(axis=-2)
+        out[..., row, :] = np.where(usable, 0, np.bitwise_or.reduce(reads, axis=-2))
     return out
 
 
@@ -74,14 +93,15 @@ def unchop(exposure):
     schedule = exposure.schedule
     first, repeated = _physical_index(schedule)
     nd = exposure.data
-    data = _to_physical(nd.data, schedule, first, repeated)
+    data = _to_physical(nd.data, schedule, first, repeated, exposure.dq)
     unc = None
     if nd.uncertainty is not None:
         unc = _to_physical(nd.uncertainty.array, schedule, first, repeated)
         for row in repeated:  # the error of a mean of n independent reads
             n = int((schedule.rows == row).sum())
             unc[..., row, :] /= np.sqrt(n)
-    flags = None if exposure.dq is None else np.take(exposure.dq, np.maximum(first, 0), axis=-2)
+    flags = (None if exposure.dq is None
+             else _flags_to_physical(exposure.dq, schedule, first, repeated))
     unread = first < 0
     if unread.any():
         flags = np.zeros(data.shape, np.uint16) if flags is None else flags.copy()
@@ -92,6 +112,7 @@ def unchop(exposure):
         rows=schedule.rows[ref_idx],
         reads=ref_idx,
         phantom=None if exposure.phantom is None else np.take(exposure.phantom, ref_idx, axis=-2),
+        dq=None if exposure.dq is None else np.take(exposure.dq, ref_idx, axis=-2),
     )
     phantom = _to_physical(exposure.phantom, schedule, first, repeated)
     return exposure.replace(data=data, uncertainty=unc, dq=flags, phantom=phantom,

@@ -18,6 +18,16 @@ ORDERS = ("readout", "physical")
 _KEEP = object()
 
 
+def expected_shape(schedule, order, ramp):
+    """Pixel-array shape for ``schedule`` in ``order``: ramps ``(N, n, ncols)`` or ``(n, ncols)``.
+
+    ``n`` is the reads per frame in readout order, the rows in physical order.
+    """
+    n = schedule.n_reads if order == "readout" else schedule.geometry.nrows
+    shape = (n, schedule.geometry.ncols)
+    return (schedule.nframes, *shape) if ramp else shape
+
+
 def as_dq(mask):
     """Flags from a mask: booleans become `~spherex_reduce.dq.DO_NOT_USE`, integers are kept."""
     mask = np.asarray(mask)
@@ -145,10 +155,7 @@ class Exposure:
 
     def expected_shape(self, ramp):
         """Shape of ``data`` that the schedule and ``order`` call for."""
-        s = self.schedule
-        n = s.n_reads if self.order == "readout" else s.geometry.nrows
-        shape = (n, s.geometry.ncols)
-        return (s.nframes, *shape) if ramp else shape
+        return expected_shape(self.schedule, self.order, ramp)
 
     @classmethod
     def from_arrays(cls, data, schedule, *, unit=u.electron, uncertainty=None, mask=None,

@@ -37,7 +37,7 @@ from astropy.nddata import StdDevUncertainty
 from astropy.table import Table
 
 from .errors import FormatError
-from .exposure import Exposure, ReferenceReads
+from .exposure import Exposure, ReferenceReads, expected_shape
 from .schedule import ReadoutSchedule
 
 __all__ = ["FrameReader", "atomic_output", "read", "write"]
@@ -199,7 +199,8 @@ def _describe(hdul, path, supplied):
     _check_shape(shape, schedule, order, "SCI")
     if "PHANTOM" in names:
         pshape = tuple(hdul["PHANTOM"].shape)
-        expected = (*_expected(len(shape), schedule, order)[:-1], schedule.geometry.nchannels)
+        frames_reads = expected_shape(schedule, order, len(shape) == 3)[:-1]
+        expected = (*frames_reads, schedule.geometry.nchannels)
         if pshape != expected:
             raise FormatError(
                 f"PHANTOM has shape {pshape}, the schedule gives {expected} "
@@ -345,16 +346,10 @@ def _unit(value):
         raise FormatError(f"keyword BUNIT={value!r} is not a unit astropy understands") from exc
 
 
-def _expected(ndim, schedule, order):
-    n = schedule.n_reads if order == "readout" else schedule.geometry.nrows
-    shape = (n, schedule.geometry.ncols)
-    return (schedule.nframes, *shape) if ndim == 3 else shape
-
-
 def _check_shape(shape, schedule, order, name):
     if len(shape) not in (2, 3):
         raise FormatError(f"{name} must be 2-D or 3-D, got shape {shape}")
-    expected = _expected(len(shape), schedule, order)
+    expected = expected_shape(schedule, order, len(shape) == 3)
     if shape == expected:
         return
     labels = ["frames (NFRAMES)"] if len(shape) == 3 else []

@@ -267,9 +267,12 @@ def test_streaming_accumulator_equals_fit_ramp(nframes):
     cube[:, 2, 2] = 7e4                        # all saturated
     if nframes > 3:
         cube[3:, 3, 3] = 7e4                   # saturates after 3 reads
+    cube[:9, 6, 6] = np.nan                    # no usable read in the first buffered group
+    cube[10:12, 7, 7] = np.nan                 # unusable reads in a later group
     mask = np.zeros(cube.shape, np.uint16)
     mask[:, 4, 4] = dq.NOT_READ
     mask[0, 5, 5] = dq.DO_NOT_USE
+    mask[nframes // 2, 8, 8] = dq.DO_NOT_USE
     e = Exposure.from_arrays(cube, s, mask=mask)
     whole = fit_ramp(e, saturation=65000.0)
     streamed = _stream(e, saturation=65000.0)

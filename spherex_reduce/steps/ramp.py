@@ -396,6 +396,26 @@ def _result(template, schedule, fit, phantom, reference, weighting):
                             schedule=schedule)
 
 
+def _line(d, t):
+    """Least-squares line ``a + g t`` through the finite values of each column of ``d``.
+
+    ``d`` is ``(n, m)``, ``t`` ``(n,)``; computed in float64.  Where the line is
+    undefined ``g = 0``, and ``a = 0`` if no value is finite.  Returns ``g, a``.
+    """
+    db = np.asarray(d, dtype=np.float64)
+    good = np.isfinite(db)
+    db = np.where(good, db, 0.0)
+    nb = good.sum(axis=0)
+    t = np.asarray(t, dtype=np.float64)[:, None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tm = (good * t).sum(axis=0) / nb
+        tcb = np.where(good, t - tm, 0.0)
+        g = (tcb * db).sum(axis=0) / (tcb * tcb).sum(axis=0)
+        g = np.where(np.isfinite(g), g, 0.0)
+        a = db.sum(axis=0) / nb - g * tm
+    return g, np.where(np.isfinite(a), a, 0.0)
+
+
 class _StreamFit:
     """Least-squares sums of one family of ramps, fed one frame at a time.
 
@@ -489,6 +509,10 @@ class _StreamFit:
                 j = np.argmax(has, axis=0)
                 ref[missing] = np.where(has.any(axis=0), col[j, np.arange(missing.size)],
                                         np.nan)
+                if not first:  # and their own line through this group (else float32
+                    # sums of their undetrended squares lose the residuals)
+                    g, a = _line(col - ref[missing], tk)
+                    self.g[p0 + missing], self.a[p0 + missing] = g, a
             sub -= ref
             if first:  # a line through the first group keeps the later squares small
                 gl, al = self.g[p0:p1], self.a[p0:p1]
@@ -499,18 +523,7 @@ class _StreamFit:
                     al[:] = sub[0]
                 odd = np.flatnonzero(~np.isfinite(gl) | ~np.isfinite(al))
                 if odd.size:  # least squares on their usable reads, in float64
-                    db = sub[:, odd].astype(np.float64)
-                    good = np.isfinite(db)
-                    db[~good] = 0
-                    nb = good.sum(axis=0)
-                    with np.errstate(invalid="ignore", divide="ignore"):
-                        tm = (good * tk[:, None]).sum(axis=0) / nb
-                        tcb = np.where(good, tk[:, None] - tm, 0.0)
-                        gs = (tcb * db).sum(axis=0) / (tcb * tcb).sum(axis=0)
-                        gs = np.where(np.isfinite(gs), gs, 0.0)
-                        am = db.sum(axis=0) / nb - gs * tm
-                    gl[odd] = gs
-                    al[odd] = np.where(np.isfinite(am), am, 0.0)
+                    gl[odd], al[odd] = _line(sub[:, odd], tk)
             sub -= self.a[p0:p1]
             sub -= np.multiply.outer(tk, self.g[p0:p1])
             a = np.einsum("f,fp->p", wk, sub)

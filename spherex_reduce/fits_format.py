@@ -26,6 +26,7 @@ and are renamed into place only when complete; an existing file is kept unless
 ``overwrite=True``.
 """
 
+import mmap
 import os
 import tempfile
 from pathlib import Path
@@ -294,6 +295,7 @@ class FrameReader:
 
     def __init__(self, path, **supplied):
         self.path = Path(path)
+        self._map = None
         self._hdul = _open(path, memmap=False)
         try:
             d = _describe(self._hdul, path, supplied)
@@ -306,6 +308,7 @@ class FrameReader:
                              if "PHANTOM" in d["names"] else None)
             self._tables = {h.name: Table.read(h) for h in self._hdul
                             if isinstance(h, fits.BinTableHDU) and h.name not in _RESERVED}
+            self._map = _map_frames(d["sci"], path)
         except Exception:
             self._hdul.close()
             raise
@@ -319,6 +322,9 @@ class FrameReader:
 
     def close(self):
         """Close the file."""
+        if self._map is not None:
+            self._map[0].close()
+            self._map = None
         self._hdul.close()
 
     @property
@@ -328,10 +334,54 @@ class FrameReader:
 
     def frame(self, k):
         """Frame ``k`` as a one-frame `Exposure` (schedule with ``nframes=1``)."""
-        data = np.asarray(self._d["sci"].section[k : k + 1])
+        if self._map is None:  # scaled or unusual data: astropy reads the section
+            data = np.asarray(self._d["sci"].section[k : k + 1])
+        else:
+            data = self._mapped_frame(k)
         phantom = None if self._phantom is None else self._phantom[k : k + 1]
         return Exposure.from_arrays(data, self.schedule.replace(nframes=1), unit=self.unit,
                                     phantom=phantom, header=self.header, tables=self._tables)
+
+
+    def _mapped_frame(self, k):
+        """Frame ``k`` copied from the mapped file into a native-endian array.
+
+        The file's pages are then released from this process (``MADV_DONTNEED``):
+        they stay in the page cache, but the resident memory stays near one frame.
+        """
+        mm, offset, dtype = self._map
+        shape = self._d["shape"][1:]
+        count = int(np.prod(shape))
+        start = offset + k * count * dtype.itemsize
+        view = np.frombuffer(mm, dtype=dtype, count=count, offset=start)
+        data = view.astype(dtype.newbyteorder("="))
+        del view
+        if hasattr(mm, "madvise"):
+            page = start - start % mmap.PAGESIZE
+            end = start + count * dtype.itemsize
+            length = (end - page) // mmap.PAGESIZE * mmap.PAGESIZE
+            if length:
+                mm.madvise(mmap.MADV_DONTNEED, page, length)
+        return data.reshape(1, *shape)
+
+
+_FITS_DTYPES = {8: "u1", 16: ">i2", 32: ">i4", 64: ">i8", -32: ">f4", -64: ">f8"}
+
+
+def _map_frames(hdu, path):
+    """``(mmap, data offset, dtype)`` of an unscaled image HDU, or None (read by sections).
+
+    Reading frames from a memory map and converting them to native byte order
+    in one pass is ~2x faster than astropy's section reads followed by
+    arithmetic on big-endian arrays.
+    """
+    h = hdu.header
+    dtype = _FITS_DTYPES.get(h.get("BITPIX"))
+    if dtype is None or h.get("BSCALE", 1) != 1 or h.get("BZERO", 0) != 0:
+        return None
+    with open(path, "rb") as fh:
+        mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+    return mm, hdu.fileinfo()["datLoc"], np.dtype(dtype)
 
 
 def _unit_str(unit):

@@ -41,6 +41,27 @@ def test_raw_round_trip(tmp_path, raw):
             assert h.verify_checksum() == 1
 
 
+def test_frame_reader_gives_each_frame_in_native_byte_order(tmp_path, raw):
+    from spherex_reduce.fits_format import FrameReader
+
+    path = write(raw, tmp_path / "raw.fits")
+    with FrameReader(path) as frames:
+        assert frames._map is not None  # float32 data: read through the memory map
+        for k in range(raw.schedule.nframes):
+            frame = frames.frame(k)
+            assert frame.data.data.dtype == np.dtype("=f4")
+            np.testing.assert_array_equal(frame.data.data[0], raw.data.data[k])
+            np.testing.assert_array_equal(frame.phantom[0], raw.phantom[k])
+    # integers stored with BZERO (unsigned 16-bit): astropy's scaled section reads
+    ints = raw.replace(data=np.round(raw.data.data - raw.data.data.min()).astype(np.uint16))
+    scaled = write(ints, tmp_path / "uint16.fits")
+    with fits.open(scaled) as hdul:
+        assert hdul["SCI"].header["BZERO"] == 32768
+    with FrameReader(scaled) as frames:
+        assert frames._map is None
+        np.testing.assert_array_equal(frames.frame(2).data.data[0], ints.data.data[2])
+
+
 def test_slopes_and_reduced_round_trip(tmp_path, small_schedule):
     rng = np.random.default_rng(0)
     slopes = Exposure.from_arrays(

@@ -3,6 +3,8 @@
 import copy
 import hashlib
 import json
+import queue
+import threading
 import time
 
 import numpy as np
@@ -251,12 +253,31 @@ class Pipeline:
         first = source.frame(0)
         for _, params, step in steps:
             hook.before_step(step=step, exposure=first, params=params)
-        acc = consumer.accumulator(source.schedule, source.header, **cparams)
+        acc = _Background(consumer.accumulator(source.schedule, source.header, **cparams))
         elapsed = [0.0] * len(steps)
         status = [("COMPLETE", None)] * len(prefix)
         tables = {}
         frames = tqdm(range(source.nframes), desc="reduce frames", unit="frame",
                       disable=not progress, leave=False)
+        try:
+            self._stream_frames(source, first, prefix, acc, frames, elapsed, status, tables)
+        finally:
+            acc.stop()  # also when a step failed: no thread is left waiting
+        t0 = time.perf_counter()
+        result = acc.finish()
+        elapsed[-1] = acc.busy + time.perf_counter() - t0
+        merged = {name: vstack(parts, metadata_conflicts="silent")
+                  for name, parts in tables.items()}
+        result = result.replace(tables={**result.tables, **merged})
+        for j, (_, params, step) in enumerate(prefix):
+            if status[j][0] == "COMPLETE":
+                result = step.merge_frames(result, params)
+            result = self._record(step, params, first, result, *status[j], elapsed[j])
+        return self._record(consumer, cparams, first, result, "COMPLETE", None, elapsed[-1])
+
+    @staticmethod
+    def _stream_frames(source, first, prefix, acc, frames, elapsed, status, tables):
+        """Each frame through the per-frame steps, then to the accumulator."""
         for k in frames:
             frame = first if k == 0 else source.frame(k)
             for j, (_, params, step) in enumerate(prefix):
@@ -272,18 +293,55 @@ class Pipeline:
                         t["frame"] = np.full(len(t), k, dtype=np.int32)
                         tables.setdefault(name, []).append(t)
                 frame = out
-            t0 = time.perf_counter()
             acc.add(k, frame)
-            elapsed[-1] += time.perf_counter() - t0
-        result = acc.finish()
-        merged = {name: vstack(parts, metadata_conflicts="silent")
-                  for name, parts in tables.items()}
-        result = result.replace(tables={**result.tables, **merged})
-        for j, (_, params, step) in enumerate(prefix):
-            if status[j][0] == "COMPLETE":
-                result = step.merge_frames(result, params)
-            result = self._record(step, params, first, result, *status[j], elapsed[j])
-        return self._record(consumer, cparams, first, result, "COMPLETE", None, elapsed[-1])
+
+
+class _Background:
+    """An accumulator fed from a thread of its own, so that its work on frame ``k``
+    overlaps the reading and per-frame steps of frame ``k + 1`` (the two use
+    different cores: numpy releases the GIL in its loops).  At most ``depth``
+    frames wait in the queue.  An error in the accumulator is raised in the
+    caller at the next `add` or at `finish`.
+    """
+
+    def __init__(self, accumulator, depth=2):
+        self.accumulator = accumulator
+        self.busy = 0.0  # seconds spent in the accumulator's add
+        self._queue = queue.Queue(maxsize=depth)
+        self._error = None
+        self._thread = threading.Thread(target=self._work, name="spherex-reduce-accumulate",
+                                        daemon=True)
+        self._thread.start()
+
+    def _work(self):
+        while (item := self._queue.get()) is not None:
+            if self._error is None:
+                t0 = time.perf_counter()
+                try:
+                    self.accumulator.add(*item)
+                except BaseException as exc:  # raised again in the caller
+                    self._error = exc
+                self.busy += time.perf_counter() - t0
+
+    def _raise(self):
+        if self._error is not None:
+            error, self._error = self._error, None
+            raise error
+
+    def add(self, index, frame):
+        self._raise()
+        self._queue.put((index, frame))
+
+    def finish(self):
+        self.stop()
+        self._raise()
+        return self.accumulator.finish()
+
+    def stop(self):
+        """End the thread (after the frames already queued)."""
+        if self._thread.is_alive():
+            self._queue.put(None)
+            self._thread.join()
 
 
 class _ExposureFrames:

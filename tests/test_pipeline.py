@@ -341,3 +341,49 @@ def test_streaming_reads_one_frame_at_a_time(tmp_path, raw, monkeypatch):
     monkeypatch.setattr(fits_format.FrameReader, "frame", spy)
     Pipeline({"steps": ["unchop", "framesum"]}, registry=registry_with(ToyPlugin())).run(path)
     assert asked == list(range(raw.schedule.nframes))
+
+
+class _FailingAccumulator(_SumAccumulator):
+    def add(self, index, frame):
+        if index == 2:
+            raise RuntimeError("accumulator broke on frame 2")
+        super().add(index, frame)
+
+
+class FailingSum(FrameSum):
+    name, keyword = "failsum", "S_FAILS"
+
+    def accumulator(self, schedule, header):
+        return _FailingAccumulator()
+
+
+class FailingNote(PerFrameNote):
+    name, keyword = "failnote", "S_FAILN"
+
+    def run(self, exposure):
+        raise RuntimeError("per-frame step broke")
+
+
+class FailingPlugin:
+    @hookimpl
+    def register_steps(self):
+        return [FrameSum, FailingSum, FailingNote]
+
+
+def _accumulating_threads():
+    import threading
+
+    return [t for t in threading.enumerate() if t.name == "spherex-reduce-accumulate"]
+
+
+@pytest.mark.parametrize("steps, message", [
+    (["unchop", "failsum"], "accumulator broke on frame 2"),
+    (["unchop", "failnote", "framesum"], "per-frame step broke"),
+])
+def test_streaming_errors_reach_the_caller_and_leave_no_thread(raw, steps, message):
+    # the accumulator runs in a thread of its own; its errors and the steps' errors
+    # must still stop the run, in the caller, without leaving that thread behind
+    pipe = Pipeline({"steps": steps}, registry=registry_with(FailingPlugin()))
+    with pytest.raises(RuntimeError, match=message):
+        pipe.run(raw)
+    assert _accumulating_threads() == []

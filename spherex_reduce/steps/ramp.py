@@ -490,6 +490,7 @@ class _StreamFit:
             self.ref = np.empty(self.npx, d.dtype)
             self.g = np.zeros(self.npx, d.dtype)
             self.a = np.zeros(self.npx, d.dtype)
+            self.base = np.empty(self.npx, d.dtype)  # ref + a: one subtraction per read
         tg = tk - tk.mean()
         sg = float(tg @ tg)
         wk = self.w[ks].astype(d.dtype)
@@ -503,6 +504,8 @@ class _StreamFit:
             if first:
                 ref[:] = sub[0]
             missing = np.flatnonzero(np.isnan(ref)) if first or self.no_ref.size else ()
+            if not first and not len(missing):
+                sub -= self.base[p0:p1]  # every pixel of the block has its line
             if len(missing):  # first usable read of pixels that had none yet
                 col = sub[:, missing]
                 has = np.isfinite(col)
@@ -513,7 +516,8 @@ class _StreamFit:
                     # sums of their undetrended squares lose the residuals)
                     g, a = _line(col - ref[missing], tk)
                     self.g[p0 + missing], self.a[p0 + missing] = g, a
-            sub -= ref
+            if first or len(missing):
+                sub -= ref
             if first:  # a line through the first group keeps the later squares small
                 gl, al = self.g[p0:p1], self.a[p0:p1]
                 if nk >= 2:
@@ -524,9 +528,11 @@ class _StreamFit:
                 odd = np.flatnonzero(~np.isfinite(gl) | ~np.isfinite(al))
                 if odd.size:  # least squares on their usable reads, in float64
                     gl[odd], al[odd] = _line(sub[:, odd], tk)
-            sub -= self.a[p0:p1]
+            if first or len(missing):
+                sub -= self.a[p0:p1]
+                np.add(ref, self.a[p0:p1], out=self.base[p0:p1])
             sub -= np.multiply.outer(tk, self.g[p0:p1])
-            a = np.einsum("f,fp->p", wk, sub)
+            a = np.einsum("f,fp->p", wk, sub)  # einsum, not BLAS: no spinning BLAS threads
             b = np.einsum("f,fp->p", ones, sub)
             c = np.einsum("fp,fp->p", sub, sub)
             fix = np.flatnonzero(~np.isfinite(c))  # pixels with an unusable read here

@@ -39,7 +39,8 @@ def as_dq(mask):
 def _nddata(values, unit, uncertainty, flags):
     """CCDData for 2-D, NDData for 3-D; the mask is ``flags != 0``."""
     if uncertainty is not None and not hasattr(uncertainty, "uncertainty_type"):
-        uncertainty = StdDevUncertainty(np.asarray(uncertainty))
+        # shared, like the values: steps never write into their inputs' arrays
+        uncertainty = StdDevUncertainty(np.asarray(uncertainty), copy=False)
     mask = None if flags is None else flags != 0
     cls = CCDData if values.ndim == 2 else NDData
     return cls(values, unit=unit, uncertainty=uncertainty, mask=mask)

@@ -343,26 +343,53 @@ class FrameReader:
                                     phantom=phantom, header=self.header, tables=self._tables)
 
 
+    @property
+    def has_phantom(self):
+        """Whether the file has phantom values."""
+        return self._phantom is not None
+
+    def fusable(self):
+        """Whether `raw` gives floating-point pixels (what the fused path needs)."""
+        dtype = self._map[2] if self._map is not None else None
+        return dtype is not None and dtype.kind == "f"
+
+    def raw(self, k):
+        """Frame ``k`` as it is in the file, without copying it.
+
+        Returns ``(pixels, phantom, release)``: pixels ``(reads, columns)``,
+        possibly big-endian and read-only (a view of the memory-mapped file);
+        phantom values ``(reads, channels)`` or None; and ``release()``, to
+        call once the pixels have been used (frees the file's pages in this
+        process).  Only for files whose data are not scaled (`fusable`).
+        """
+        mm, offset, dtype = self._map
+        shape = self._d["shape"][1:]
+        count = int(np.prod(shape))
+        start = offset + k * count * dtype.itemsize
+        view = np.frombuffer(mm, dtype=dtype, count=count, offset=start).reshape(shape)
+        phantom = None if self._phantom is None else self._phantom[k]
+        return view, phantom, lambda: self._release(start, count * dtype.itemsize)
+
+    def _release(self, start, nbytes):
+        mm = self._map[0] if self._map is not None else None
+        if mm is None or not hasattr(mm, "madvise"):
+            return
+        page = start - start % mmap.PAGESIZE
+        length = (start + nbytes - page) // mmap.PAGESIZE * mmap.PAGESIZE
+        if length:
+            mm.madvise(mmap.MADV_DONTNEED, page, length)
+
     def _mapped_frame(self, k):
         """Frame ``k`` copied from the mapped file into a native-endian array.
 
         The file's pages are then released from this process (``MADV_DONTNEED``):
         they stay in the page cache, but the resident memory stays near one frame.
         """
-        mm, offset, dtype = self._map
-        shape = self._d["shape"][1:]
-        count = int(np.prod(shape))
-        start = offset + k * count * dtype.itemsize
-        view = np.frombuffer(mm, dtype=dtype, count=count, offset=start)
-        data = view.astype(dtype.newbyteorder("="))
+        view, _, release = self.raw(k)
+        data = view.astype(view.dtype.newbyteorder("="))
         del view
-        if hasattr(mm, "madvise"):
-            page = start - start % mmap.PAGESIZE
-            end = start + count * dtype.itemsize
-            length = (end - page) // mmap.PAGESIZE * mmap.PAGESIZE
-            if length:
-                mm.madvise(mmap.MADV_DONTNEED, page, length)
-        return data.reshape(1, *shape)
+        release()
+        return data[None]
 
 
 _FITS_DTYPES = {8: "u1", 16: ">i2", 32: ">i4", 64: ">i8", -32: ">f4", -64: ">f8"}

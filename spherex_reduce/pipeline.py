@@ -25,6 +25,7 @@ from .config import (
 from .errors import ConfigError, StepSkipped
 from .exposure import Exposure
 from .fits_format import FrameReader, read
+from .fused import fused_plan
 from .parameters import Parameter, validate_parameters
 from .plugins import Registry
 from .step import Step
@@ -170,7 +171,7 @@ class Pipeline:
                 return None
         return None
 
-    def run(self, exposure, progress=False, stream=True):
+    def run(self, exposure, progress=False, stream=True, fuse=True):
         """Run every step in order and return the reduced exposure.
 
         Parameters
@@ -185,6 +186,12 @@ class Pipeline:
             fit_ramp``) and the input is ramps, push the frames through one at
             a time: a raw file is then read frame by frame and memory stays near
             one frame plus the output.  The result is the same either way.
+        fuse : bool
+            When streaming exactly ``unchop``, ``subtract_phantom`` and
+            ``correct_reference`` (``mean`` or ``acn``) into ``fit_ramp``,
+            apply the corrections while the fit copies each frame (see
+            `spherex_reduce.fused`): the same numbers, bit for bit, in one
+            pass over the pixels instead of four.
 
         Returns
         -------
@@ -200,7 +207,7 @@ class Pipeline:
             source = self._frame_source(exposure)
             if source is not None:
                 with source:
-                    current = self._run_streamed(source, steps[: split + 1], progress)
+                    current = self._run_streamed(source, steps[: split + 1], progress, fuse)
                 done = split + 1
         if not isinstance(current, Exposure):
             current = self.read(current)
@@ -246,7 +253,7 @@ class Pipeline:
             return None
         return FrameReader(exposure, **self._supplied())
 
-    def _run_streamed(self, source, steps, progress):
+    def _run_streamed(self, source, steps, progress, fuse=True):
         """Per-frame steps on each frame in turn, into the last step's accumulator."""
         hook = self.registry.pm.hook
         *prefix, (_, cparams, consumer) = steps
@@ -259,8 +266,10 @@ class Pipeline:
         tables = {}
         frames = tqdm(range(source.nframes), desc="reduce frames", unit="frame",
                       disable=not progress, leave=False)
+        plan = fused_plan(prefix, consumer, cparams, source) if fuse else None
         try:
-            self._stream_frames(source, first, prefix, acc, frames, elapsed, status, tables)
+            fused = self._stream_frames(source, first, prefix, acc, frames, elapsed, status,
+                                        tables, plan)
         finally:
             acc.stop()  # also when a step failed: no thread is left waiting
         t0 = time.perf_counter()
@@ -269,6 +278,13 @@ class Pipeline:
         merged = {name: vstack(parts, metadata_conflicts="silent")
                   for name, parts in tables.items()}
         result = result.replace(tables={**result.tables, **merged})
+        if fused:
+            header = result.header.copy()
+            header.add_history(
+                f"{', '.join(name for name, _, _ in prefix)} fused into {consumer.name} for "
+                f"frames 1-{source.nframes - 1}: offsets from the phantom values and "
+                "reference reads, one pass over the pixels (same numbers)")
+            result = result.replace(header=header)
         for j, (_, params, step) in enumerate(prefix):
             if status[j][0] == "COMPLETE":
                 result = step.merge_frames(result, params)
@@ -276,9 +292,24 @@ class Pipeline:
         return self._record(consumer, cparams, first, result, "COMPLETE", None, elapsed[-1])
 
     @staticmethod
-    def _stream_frames(source, first, prefix, acc, frames, elapsed, status, tables):
-        """Each frame through the per-frame steps, then to the accumulator."""
+    def _stream_frames(source, first, prefix, acc, frames, elapsed, status, tables, plan):
+        """Each frame through the per-frame steps, then to the accumulator.
+
+        With a fused ``plan`` (see `spherex_reduce.fused`), frames after the
+        first go the fused way if every step completed on the first.  Returns
+        whether any frame did.
+        """
+        fused = None  # the first frame after the steps, once fusing
         for k in frames:
+            if fused is not None:
+                frame, recorded, times = plan.frame(k, *source.raw(k), template=fused)
+                for j, dt in enumerate(times):
+                    elapsed[j] += dt
+                for name, table in recorded.items():
+                    table["frame"] = np.full(len(table), k, dtype=np.int32)
+                    tables.setdefault(name, []).append(table)
+                acc.add(k, frame)
+                continue
             frame = first if k == 0 else source.frame(k)
             for j, (_, params, step) in enumerate(prefix):
                 t0 = time.perf_counter()
@@ -294,6 +325,9 @@ class Pipeline:
                         tables.setdefault(name, []).append(t)
                 frame = out
             acc.add(k, frame)
+            if plan is not None and all(st == "COMPLETE" for st, _ in status):
+                fused = frame
+        return fused is not None
 
 
 class _Background:
@@ -351,6 +385,7 @@ class _ExposureFrames:
         self.exposure = exposure
         self.schedule = exposure.schedule
         self.header = exposure.header
+        self.unit = exposure.unit
         self.nframes = exposure.schedule.nframes
         self._one = exposure.schedule.replace(nframes=1)
 
@@ -359,6 +394,21 @@ class _ExposureFrames:
 
     def __exit__(self, *exc):
         return False
+
+    @property
+    def has_phantom(self):
+        return self.exposure.phantom is not None
+
+    def fusable(self):
+        e = self.exposure
+        return (e.dq is None and e.data.uncertainty is None and e.order == "readout"
+                and e.data.data.dtype.kind == "f"
+                and (e.phantom is None or e.phantom.dtype.kind == "f"))
+
+    def raw(self, k):
+        e = self.exposure
+        return (e.data.data[k], None if e.phantom is None else e.phantom[k],
+                lambda: None)
 
     def frame(self, k):
         e = self.exposure

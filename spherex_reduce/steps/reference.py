@@ -221,11 +221,19 @@ def reference_offsets(exposure, *, acn=False, sigma=3.0, maxiters=5, side_column
         The exposure has no reference rows at all.
     """
     g = exposure.geometry
-    groups = _group_columns(g, acn)
-    vals = _gather(_reference_rows(exposure), groups)
-    if side_columns and g.ref_border:
-        side = _gather(_side_columns(exposure), groups)
-        vals = np.concatenate([vals, side], axis=-1)
+    side = _side_columns(exposure) if side_columns and g.ref_border else None
+    return _offsets_of(g, _reference_rows(exposure), side, acn=acn, sigma=sigma,
+                       maxiters=maxiters)
+
+
+def _offsets_of(geometry, reference, side=None, *, acn=False, sigma=3.0, maxiters=5):
+    """`reference_offsets` of reference-row pixels ``(L, k, ncols)`` (NaN: unusable)
+    and optionally side-column pixels ``(L, rows, ncols)`` (NaN outside the side columns).
+    """
+    groups = _group_columns(geometry, acn)
+    vals = _gather(reference, groups)
+    if side is not None:
+        vals = np.concatenate([vals, _gather(side, groups)], axis=-1)
         # channels without side columns get only NaN there; drop the padding cost
         keep = np.isfinite(vals).any(axis=tuple(range(vals.ndim - 1)))
         vals = vals[..., keep]
@@ -268,16 +276,7 @@ def apply_offsets(exposure, offsets, parity, n_used, n_clipped, strategy, acn=Fa
     `~spherex_reduce.Exposure`
     """
     g = exposure.geometry
-    groups = _group_columns(g, acn)
-    offsets = np.asarray(offsets, dtype=np.float64)
-    missing = ~np.isfinite(offsets)
-    if missing.any():
-        chans = sorted({int(c) for c in np.nonzero(missing)[1]})
-        warnings.warn(
-            f"correct_reference ({strategy}): no usable reference pixels for channel(s) "
-            f"{chans}; offset NaN, flagged NO_REFERENCE, those channels left uncorrected",
-            NoReferenceWarning, stacklevel=3)
-    col = _column_offsets(np.where(missing, 0.0, offsets), groups, g.ncols)
+    offsets, missing, col = _column_plan(g, offsets, strategy, acn)
     nd = exposure.data
     data = np.asarray(nd.data)
     dtype = np.result_type(data.dtype, np.float32)
@@ -289,7 +288,7 @@ def apply_offsets(exposure, offsets, parity, n_used, n_clipped, strategy, acn=Fa
         np.subtract(data, col[0].astype(dtype), out=out)
     flags = exposure.dq
     if missing.any():
-        colmiss = _column_offsets(missing.astype(float), groups, g.ncols) > 0  # (L, ncols)
+        colmiss = missing_columns(g, missing, acn)  # (L, ncols)
         if data.ndim == 2:
             colmiss = colmiss[0]
         add = np.where(colmiss[..., None, :], np.uint16(dq.NO_REFERENCE), np.uint16(0))
@@ -299,10 +298,45 @@ def apply_offsets(exposure, offsets, parity, n_used, n_clipped, strategy, acn=Fa
         rd = np.asarray(reference.data)
         sub = col[:, None, :] if rd.ndim == 3 else col[0][None, :]
         reference = reference.replace(data=(rd - sub).astype(np.result_type(rd, np.float32)))
+    tables = dict(exposure.tables)
+    tables["REFOFFS"] = offsets_table(offsets, missing, parity, n_used, n_clipped, strategy,
+                                      exposure.unit, ramp=data.ndim == 3)
+    header = exposure.header.copy()
+    header["REFSTRAT"] = (strategy, "reference correction strategy")
+    header["NNOREF"] = (int(missing.sum()), "offsets without usable reference pixels")
+    return exposure.replace(data=out, dq=flags, reference=reference, tables=tables,
+                            header=header)
+
+
+def _column_plan(geometry, offsets, strategy, acn):
+    """Offsets (float64), the groups without one (warned about), and per-column offsets.
+
+    Returns ``offsets, missing, col``; ``col`` ``(L, ncols)`` has 0 where the
+    offset is missing (those channels are left uncorrected).
+    """
+    offsets = np.asarray(offsets, dtype=np.float64)
+    missing = ~np.isfinite(offsets)
+    if missing.any():
+        chans = sorted({int(c) for c in np.nonzero(missing)[1]})
+        warnings.warn(
+            f"correct_reference ({strategy}): no usable reference pixels for channel(s) "
+            f"{chans}; offset NaN, flagged NO_REFERENCE, those channels left uncorrected",
+            NoReferenceWarning, stacklevel=4)
+    groups = _group_columns(geometry, acn)
+    return offsets, missing, _column_offsets(np.where(missing, 0.0, offsets), groups,
+                                             geometry.ncols)
+
+
+def missing_columns(geometry, missing, acn):
+    """Columns ``(L, ncols)`` of the (frame, channel, parity) groups flagged ``missing``."""
+    groups = _group_columns(geometry, acn)
+    return _column_offsets(missing.astype(float), groups, geometry.ncols) > 0
+
+
+def offsets_table(offsets, missing, parity, n_used, n_clipped, strategy, unit, ramp):
+    """The ``REFOFFS`` table of offsets ``(L, nchannels, P)`` (see `correct_reference`)."""
     L, nch, P = offsets.shape
-    ramp = data.ndim == 3
     fr, ch, pa = np.meshgrid(np.arange(L), np.arange(nch), np.arange(P), indexing="ij")
-    unit = exposure.unit
     cols = {}
     if ramp:
         cols["frame"] = fr.ravel()
@@ -315,13 +349,7 @@ def apply_offsets(exposure, offsets, parity, n_used, n_clipped, strategy, acn=Fa
     # the unit goes in the description: 'electron' is not a FITS unit
     table = Table(cols, meta={"strategy": strategy, "bunit": str(unit or "")})
     table["offset"].description = f"offset subtracted ({unit or 'data unit'})"
-    tables = dict(exposure.tables)
-    tables["REFOFFS"] = table
-    header = exposure.header.copy()
-    header["REFSTRAT"] = (strategy, "reference correction strategy")
-    header["NNOREF"] = (int(missing.sum()), "offsets without usable reference pixels")
-    return exposure.replace(data=out, dq=flags, reference=reference, tables=tables,
-                            header=header)
+    return table
 
 
 def correct_reference(exposure, strategy="mean", *, registry=None, **params):

@@ -30,14 +30,19 @@ def _to_physical(values, schedule, first, repeated, flags=None):
     if (first < 0).any():
         out[..., first < 0, :] = np.nan
     for row in repeated:
-        idx = np.flatnonzero(schedule.rows == row)
-        reads = np.take(values, idx, axis=-2).astype(np.float64)
-        if flags is not None:
-            reads[np.take(flags, idx, axis=-2) != 0] = np.nan
-        with np.errstate(invalid="ignore", divide="ignore"):
-            count = np.isfinite(reads).sum(axis=-2)
-            out[..., row, :] = np.where(count > 0, np.nansum(reads, axis=-2) / count, np.nan)
+        out[..., row, :] = _reread_mean(values, schedule, row, flags)
     return out
+
+
+def _reread_mean(values, schedule, row, flags=None):
+    """Mean (float64) of the usable reads of physical ``row``: ``(..., m)``, NaN if none."""
+    idx = np.flatnonzero(schedule.rows == row)
+    reads = np.take(values, idx, axis=-2).astype(np.float64)
+    if flags is not None:
+        reads[np.take(flags, idx, axis=-2) != 0] = np.nan
+    with np.errstate(invalid="ignore", divide="ignore"):
+        count = np.isfinite(reads).sum(axis=-2)
+        return np.where(count > 0, np.nansum(reads, axis=-2) / count, np.nan)
 
 
 def _flags_to_physical(flags, schedule, first, repeated):

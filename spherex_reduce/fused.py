@@ -1,0 +1,216 @@
+"""Fused streaming: the paper's per-frame corrections folded into the ramp fit.
+
+At full size the per-frame steps ``unchop``, ``subtract_phantom`` and
+``correct_reference`` (strategies ``mean`` and ``acn``) each read and write
+every pixel of every frame into a new frame.  Each of them, though, only moves
+rows and subtracts from a pixel an offset that is constant along a row read of
+a channel (the phantom value) or along a channel's (even or odd) columns (the
+reference offset), and the offsets come from a few thousand values per frame:
+the phantom values and the reference reads.
+
+When a pipeline streams a raw ramp through exactly these steps into
+``fit_ramp`` (uniform weights, no saturation level), the first frame goes
+through the steps as usual; every later frame is built by `FusedFrames.frame`:
+the offsets come from the steps' own functions applied to the phantom values
+and reference reads, then the pixels are copied from the (memory-mapped) input
+into physical order, minus their phantom value, minus their offset, in blocks
+of rows that stay in cache.  The arithmetic is the same, in the same order and
+precision, so the result is identical, bit for bit, to running the steps one
+after another (``tests/test_fused.py``), with one pass over the pixels instead
+of four and no intermediate frames.  Every other case (another strategy or
+step, side reference columns, a step skipped on the first frame, flags or
+uncertainties in the input) runs the steps one by one.
+"""
+
+import time
+
+import numpy as np
+
+from . import dq
+from .steps.phantom import _subtract_rows
+from .steps.reference import (
+    ALL,
+    EVEN,
+    ODD,
+    _column_plan,
+    _offsets_of,
+    _usable,
+    missing_columns,
+    offsets_table,
+)
+from .steps.unchop import _physical_index, _reread_mean
+
+__all__ = ["FusedFrames", "fused_plan"]
+
+_ROWS = 32  # rows per block when copying a frame (32 x 2048 x 4 B = 256 kB, in cache)
+
+
+def fused_plan(prefix, consumer, cparams, source):
+    """`FusedFrames` if ``prefix`` steps and the ``consumer`` step can be fused, else None.
+
+    Parameters
+    ----------
+    prefix : list of ``(name, params, step)``
+        The per-frame steps before the accumulating one.
+    consumer : `~spherex_reduce.step.Step`
+        The accumulating step; ``cparams`` its parameters.
+    source
+        The pipeline's frame source (it must offer ``raw(k)``).
+    """
+    from .builtin import UnchopStep
+    from .reduction_plugin import CorrectReferenceStep, FitRampStep, SubtractPhantomStep
+    from .steps.reference import AcnReference, MeanReference
+
+    if type(consumer) is not FitRampStep or not hasattr(source, "raw"):
+        return None
+    if cparams.get("weighting", "uniform") != "uniform" or cparams.get("saturation") is not None:
+        return None
+    kinds = [type(step) for _, _, step in prefix]
+    if kinds not in ([UnchopStep], [UnchopStep, SubtractPhantomStep],
+                     [UnchopStep, CorrectReferenceStep],
+                     [UnchopStep, SubtractPhantomStep, CorrectReferenceStep]):
+        return None
+    reference = None
+    if kinds[-1] is CorrectReferenceStep:
+        _, params, step = prefix[-1]
+        name = params.get("strategy", "mean")
+        if name not in ("mean", "acn") or params.get("side_columns", False):
+            return None
+        if step.strategy(name) not in (MeanReference, AcnReference):
+            return None  # a plugin replaced the built-in strategy
+        reference = {"acn": name == "acn", "sigma": params.get("sigma", 3.0),
+                     "maxiters": params.get("maxiters", 5), "strategy": name}
+    schedule = source.schedule
+    if reference is not None and schedule.reference_read_indices.size == 0:
+        return None
+    # raw floating-point pixels without flags or uncertainties, and phantom values
+    # exactly when subtract_phantom is asked for (it would be skipped otherwise)
+    if not source.fusable() or source.has_phantom != (SubtractPhantomStep in kinds):
+        return None
+    return FusedFrames(schedule, source.unit, phantom=source.has_phantom, reference=reference)
+
+
+class FusedFrames:
+    """Offsets of each frame for the fused path, and the copy that applies them.
+
+    Parameters
+    ----------
+    schedule : `~spherex_reduce.ReadoutSchedule`
+    unit : `astropy.units.Unit`
+        Unit of the pixels (for the ``REFOFFS`` table).
+    phantom : bool
+        Whether ``subtract_phantom`` is among the steps.
+    reference : dict or None
+        ``correct_reference`` settings (``acn``, ``sigma``, ``maxiters``,
+        ``strategy``), or None if that step is not among them.
+    """
+
+    def __init__(self, schedule, unit, *, phantom, reference):
+        self.schedule = schedule
+        self.unit = unit
+        self.phantom = phantom
+        self.reference = reference
+        self.first, self.repeated = _physical_index(schedule)
+        self.unread = self.first < 0
+        self.src = np.maximum(self.first, 0)
+        self.ref_idx = schedule.reference_read_indices
+        nrows = schedule.geometry.nrows
+        self.reread_in_block = {b0: [int(r) for r in self.repeated if b0 <= r < b0 + _ROWS]
+                                for b0 in range(0, nrows, _ROWS)}
+
+    def frame(self, k, raw, phantom, release, template):
+        """Frame ``k`` after the steps, computed in one pass over its pixels.
+
+        Parameters
+        ----------
+        k : int
+        raw : `numpy.ndarray`
+            The frame's pixels ``(reads, columns)`` in readout order (not modified).
+        phantom : `numpy.ndarray` or None
+            Its phantom values ``(reads, channels)``.
+        release : callable
+            Called once the pixels have been copied (frees the file's pages).
+        template : `~spherex_reduce.Exposure`
+            The first frame after the steps (run one by one): header, tables,
+            reference read rows and schedule of the result.
+
+        Returns
+        -------
+        frame : `~spherex_reduce.Exposure`
+            What the steps would have returned for frame ``k``.
+        tables : dict
+            The tables the steps recorded for it (``REFOFFS``).
+        elapsed : tuple of float
+            Seconds spent for ``unchop``, ``subtract_phantom`` and
+            ``correct_reference``.
+        """
+        s = self.schedule
+        g = s.geometry
+        width, nch = g.channel_width, g.nchannels
+        t0 = time.perf_counter()
+        use_ph = self.phantom
+        # the steps' precisions: un-chopped rows keep the pixels' type, the corrections
+        # work in the common type of pixels, phantom values and float32
+        raw_t = raw.dtype.newbyteorder("=")
+        ph_t = phantom.dtype.newbyteorder("=") if use_ph else raw_t
+        native = np.result_type(raw_t, ph_t, np.float32)
+        ref = np.take(raw, self.ref_idx, axis=0).astype(raw_t)
+        reread = {row: _reread_mean(raw, s, row).astype(raw_t) for row in self.repeated}
+        flags = None
+        if self.unread.any():
+            flags = np.zeros((g.nrows, g.ncols), np.uint16)
+            flags[self.unread] |= dq.NOT_READ
+        t1 = time.perf_counter()
+        if use_ph:  # subtract_phantom on the reference reads and the re-read rows
+            ref = _subtract_rows(ref[None], np.take(phantom, self.ref_idx, axis=0)[None],
+                                 width)[0]
+            for row, value in reread.items():
+                ph_row = _reread_mean(phantom, s, row).astype(ph_t)
+                reread[row] = value.astype(native) - np.repeat(ph_row, width).astype(native)
+        t2 = time.perf_counter()
+        tables = {}
+        header = template.header
+        col = None
+        if self.reference is not None:  # correct_reference: offsets from the reference reads
+            r = self.reference
+            off, used, clipped = _offsets_of(g, _usable(ref[None], None), acn=r["acn"],
+                                             sigma=r["sigma"], maxiters=r["maxiters"])
+            offsets, missing, col = _column_plan(g, off, r["strategy"], r["acn"])
+            if missing.any():
+                flags = np.zeros((g.nrows, g.ncols), np.uint16) if flags is None else flags
+                flags |= np.where(missing_columns(g, missing, r["acn"])[0], dq.NO_REFERENCE,
+                                  0).astype(np.uint16)[None, :]
+            ref = (ref - col).astype(np.result_type(ref, np.float32))
+            parity = [EVEN, ODD] if r["acn"] else [ALL]
+            tables["REFOFFS"] = offsets_table(offsets, missing, parity, used, clipped,
+                                              r["strategy"], self.unit, ramp=True)
+            header = header.copy()
+            header["NNOREF"] = (int(missing.sum()), "offsets without usable reference pixels")
+            col = col[0].astype(native)
+        t3 = time.perf_counter()
+        # the pixels, in blocks of rows that stay in cache: into place, minus the
+        # phantom value, minus the offset (the steps' order of operations)
+        out = np.empty((g.nrows, g.ncols), native)
+        for b0 in range(0, g.nrows, _ROWS):
+            b1 = min(g.nrows, b0 + _ROWS)
+            src = self.src[b0:b1]
+            blk = out[b0:b1]
+            if use_ph:
+                np.subtract(np.take(raw, src, axis=0).reshape(b1 - b0, nch, width),
+                            np.take(phantom, src, axis=0)[:, :, None],
+                            out=blk.reshape(b1 - b0, nch, width))
+            else:
+                blk[...] = np.take(raw, src, axis=0)
+            for row in self.reread_in_block[b0]:
+                blk[row - b0] = reread[row]  # re-read rows: the mean of their reads
+            if col is not None:
+                blk -= col
+        out[self.unread] = np.nan
+        release()
+        reference = template.reference.replace(data=ref[None])
+        frame = template.replace(data=out[None], dq=None if flags is None else flags[None],
+                                 reference=reference, header=header,
+                                 tables={**template.tables, **tables})
+        t4 = time.perf_counter()
+        # the pass over the pixels is shared: counted as un-chopping
+        return frame, tables, ((t1 - t0) + (t4 - t3), t2 - t1, t3 - t2)

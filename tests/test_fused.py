@@ -1,0 +1,127 @@
+"""The fused streaming path gives the numbers of the steps run one after another, bit for bit."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from spherex_reduce import DetectorGeometry, Pipeline, ReadoutSchedule, write
+from spherex_reduce.examples import example_raw_exposure
+from spherex_reduce.steps.reference import NoReferenceWarning
+
+FIT = {"fit_ramp": {}}
+
+
+def schedule(ref_mode="distributed", nframes=11, skip=5, phantom_reads=3):
+    # 11 frames: the fit's buffer of 8 frames fills once and is flushed partly full
+    return ReadoutSchedule(DetectorGeometry(32, 16, 2, ref_border=2), skip=skip, ref_reads=6,
+                           ref_mode=ref_mode, phantom_reads=phantom_reads, row_overhead=2,
+                           frame_overhead=50, nframes=nframes)
+
+
+def fused_and_not(config, source):
+    pipe = Pipeline(config)
+    with warnings.catch_warnings(record=True) as w_fused:
+        warnings.simplefilter("always")
+        fused = pipe.run(source)
+    with warnings.catch_warnings(record=True) as w_plain:
+        warnings.simplefilter("always")
+        plain = pipe.run(source, fuse=False)
+    return fused, plain, w_fused, w_plain
+
+
+def was_fused(exposure):
+    return any("fused into fit_ramp" in str(h) for h in exposure.header["HISTORY"])
+
+
+def assert_identical(fused, plain):
+    np.testing.assert_array_equal(fused.data.data, plain.data.data)
+    np.testing.assert_array_equal(fused.data.uncertainty.array, plain.data.uncertainty.array)
+    np.testing.assert_array_equal(fused.dq, plain.dq)
+    np.testing.assert_array_equal(fused.reference.data, plain.reference.data)
+    assert sorted(fused.tables) == sorted(plain.tables)
+    for name in fused.tables:
+        a, b = fused.tables[name], plain.tables[name]
+        assert a.colnames == b.colnames
+        for col in a.colnames:
+            np.testing.assert_array_equal(np.asarray(a[col]), np.asarray(b[col]), err_msg=name)
+    skip = {"HISTORY"}
+    keys = [k for k in plain.header if k not in skip]
+    assert [k for k in fused.header if k not in skip] == keys
+    for key in keys:
+        assert fused.header[key] == plain.header[key], key
+
+
+STEPS = {
+    "mean": [{"unchop": {}}, {"subtract_phantom": {}},
+             {"correct_reference": {"strategy": "mean"}}, FIT],
+    "acn": [{"unchop": {}}, {"subtract_phantom": {}},
+            {"correct_reference": {"strategy": "acn", "sigma": 2.5, "maxiters": 3}}, FIT],
+    "phantom only": [{"unchop": {}}, {"subtract_phantom": {}}, FIT],
+    "read noise": [{"unchop": {}}, {"subtract_phantom": {}},
+                   {"correct_reference": {"strategy": "mean"}},
+                   {"fit_ramp": {"read_noise": 10.0}}],
+}
+
+
+@pytest.mark.parametrize("name", sorted(STEPS))
+@pytest.mark.parametrize("ref_mode", ["distributed", "repeated"])
+def test_fused_equals_the_steps_on_a_file_and_in_memory(tmp_path, name, ref_mode):
+    raw = example_raw_exposure(schedule(ref_mode), seed=4)
+    path = write(raw, tmp_path / "raw.fits")
+    for source in (path, raw):
+        fused, plain, _, _ = fused_and_not({"steps": STEPS[name]}, source)
+        assert was_fused(fused) and not was_fused(plain)
+        assert_identical(fused, plain)
+
+
+def test_fused_with_unusable_reads_and_a_channel_without_reference(tmp_path):
+    s = schedule()
+    raw = example_raw_exposure(s, seed=5)
+    data = raw.data.data.copy()
+    data[3, 10, 5] = np.nan  # one unusable read of an active pixel
+    data[:9, 20, 9] = np.nan  # a pixel without a usable read in the fit's first buffer
+    ref = s.reference_read_indices
+    data[np.ix_([2, 6], ref, np.arange(8, 16))] = np.nan  # channel 1: no reference, 2 frames
+    data[4, ref[0], 3] = np.nan  # one reference pixel
+    raw = raw.replace(data=data)
+    path = write(raw, tmp_path / "raw.fits")
+    fused, plain, w_fused, w_plain = fused_and_not({"steps": STEPS["acn"]}, path)
+    assert was_fused(fused)
+    assert_identical(fused, plain)
+    assert fused.header["NNOREF"] == 4  # two frames x (even, odd) of channel 1
+    noref = [w for w in w_fused if issubclass(w.category, NoReferenceWarning)]
+    assert len(noref) == len([w for w in w_plain if issubclass(w.category, NoReferenceWarning)])
+    assert len(noref) == 2
+
+
+def test_fused_on_float64_input_in_memory():
+    raw = example_raw_exposure(schedule(), seed=6)
+    raw = raw.replace(data=raw.data.data.astype(np.float64), phantom=raw.phantom.astype(np.float64))
+    fused, plain, _, _ = fused_and_not({"steps": STEPS["mean"]}, raw)
+    assert was_fused(fused)
+    assert_identical(fused, plain)
+
+
+@pytest.mark.parametrize("steps", [
+    [{"unchop": {}}, {"subtract_phantom": {}}, {"correct_reference": {"strategy": "median"}},
+     FIT],
+    [{"unchop": {}}, {"subtract_phantom": {}},
+     {"correct_reference": {"strategy": "mean", "side_columns": True}}, FIT],
+    [{"unchop": {}}, {"subtract_phantom": {}}, {"fit_ramp": {"saturation": 1e5}}],
+    [{"unchop": {}}, {"subtract_phantom": {}},
+     {"fit_ramp": {"weighting": "optimal", "read_noise": 10.0}}],
+    [{"unchop": {}}, {"correct_reference": {"strategy": "mean"}}, FIT],  # phantom kept
+])
+def test_other_step_lists_are_not_fused(steps):
+    raw = example_raw_exposure(schedule(nframes=4), seed=7)
+    out = Pipeline({"steps": steps}).run(raw)
+    assert not was_fused(out)
+
+
+def test_skipped_step_on_the_first_frame_stops_fusing():
+    # no phantom reads: subtract_phantom is skipped on the first frame, so the later
+    # frames go through the steps too (and it is reported skipped)
+    raw = example_raw_exposure(schedule(phantom_reads=0, nframes=4), seed=8)
+    out = Pipeline({"steps": STEPS["mean"]}).run(raw)
+    assert out.header["S_PHANTM"] == "SKIPPED" and not was_fused(out)

@@ -529,8 +529,10 @@ class _StreamFit:
                 if odd.size:  # least squares on their usable reads, in float64
                     gl[odd], al[odd] = _line(sub[:, odd], tk)
             if first or len(missing):
-                sub -= self.a[p0:p1]
-                np.add(ref, self.a[p0:p1], out=self.base[p0:p1])
+                base = self.base[p0:p1]
+                np.add(ref, self.a[p0:p1], out=base)
+                # minus (base - ref), exact near ref: the shift of every later group too
+                sub -= base - ref
             sub -= np.multiply.outer(tk, self.g[p0:p1])
             a = np.einsum("f,fp->p", wk, sub)  # einsum, not BLAS: no spinning BLAS threads
             b = np.einsum("f,fp->p", ones, sub)

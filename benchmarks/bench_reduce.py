@@ -9,7 +9,9 @@
 * ``correct_reference`` (mean) on a 74-frame full-size cube (target <= 1 s).
 * ``spherex-reduce reduce`` of a full-size raw FITS file (N = 74, ~1.3 GB in /tmp,
   deleted afterwards): wall time against reading the file's data once (target <= 3x)
-  and peak RSS against the file size (target <= 1.5x), each in a fresh subprocess.
+  and peak RSS against the file size (target <= 1.5x), each in a fresh subprocess;
+  the paper's steps fused (default) and one by one (``--no-fuse``), and the slopes-first
+  config.
 
 The machine is shared: each timing is the best of a few runs.  ``--quick`` uses
 N = 10 frames (for a smoke test of the script).
@@ -203,9 +205,12 @@ def bench_file(s, rng, row):
                      str(path)]
         exe = [str(Path(sys.executable).parent / "spherex-reduce")]
         cmds = {"read": read_once}
-        for config in ("spherex-default", "spherex-slopes"):
-            cmds[config] = [*exe, "-q", "reduce", str(path), "-c", config, "-o",
-                            str(Path(tmp) / "out.fits"), "--overwrite"]
+        variants = {"spherex-default": ("spherex-default", []),
+                    "spherex-default --no-fuse": ("spherex-default", ["--no-fuse"]),
+                    "spherex-slopes": ("spherex-slopes", [])}
+        for key, (config, extra) in variants.items():
+            cmds[key] = [*exe, "-q", "reduce", str(path), "-c", config, "-o",
+                         str(Path(tmp) / "out.fits"), "--overwrite", *extra]
         runs = {k: [] for k in cmds}
         for _ in range(REPEATS):  # interleaved: the read-once time itself varies a lot
             for key, cmd in cmds.items():
@@ -213,7 +218,7 @@ def bench_file(s, rng, row):
         t_read = min(t for t, _ in runs["read"])
         m_read = float(np.median([t for t, _ in runs["read"]]))
         rss_read = max(r for _, r in runs["read"])
-        for config in ("spherex-default", "spherex-slopes"):
+        for config in variants:
             times = [t for t, _ in runs[config]]
             rss = max(r for _, r in runs[config])
             t_red, m_red = min(times), float(np.median(times))

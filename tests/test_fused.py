@@ -125,3 +125,19 @@ def test_skipped_step_on_the_first_frame_stops_fusing():
     raw = example_raw_exposure(schedule(phantom_reads=0, nframes=4), seed=8)
     out = Pipeline({"steps": STEPS["mean"]}).run(raw)
     assert out.header["S_PHANTM"] == "SKIPPED" and not was_fused(out)
+
+
+def test_cli_no_fuse_gives_the_same_file_contents(tmp_path):
+    from spherex_reduce import read
+    from spherex_reduce.cli import main
+
+    path = write(example_raw_exposure(schedule(), seed=9), tmp_path / "raw.fits")
+    outs = {}
+    for flag in ([], ["--no-fuse"]):
+        out = tmp_path / f"out{len(flag)}.fits"
+        assert main(["-q", "reduce", str(path), "-c", "spherex-default", "-o", str(out),
+                     *flag]) == 0
+        outs[len(flag)] = read(out)
+    assert was_fused(outs[0]) and not was_fused(outs[1])
+    np.testing.assert_array_equal(outs[0].data.data, outs[1].data.data)
+    np.testing.assert_array_equal(outs[0].dq, outs[1].dq)

@@ -12,13 +12,16 @@ def add_parser(sub):
     p.add_argument("-c", "--config", required=True, metavar="PIPELINE.yaml")
     p.add_argument("-o", "--output", required=True, metavar="OUT.fits")
     p.add_argument("--overwrite", action="store_true", help="replace OUT.fits if it exists")
+    p.add_argument("--no-fuse", dest="fuse", action="store_false",
+                   help="run unchop, subtract_phantom and correct_reference one by one on "
+                   "every frame instead of in one pass (same numbers, slower; for checking)")
     p.set_defaults(func=run)
 
 
 def run(args):
     pipeline = Pipeline.from_yaml(args.config)
     atomic_output(args.output, args.overwrite)  # refuse before reducing
-    result = pipeline.run(args.input, progress=not args.quiet)
+    result = pipeline.run(args.input, progress=not args.quiet, fuse=args.fuse)
     write(result, args.output, overwrite=args.overwrite)
     status = ", ".join(f"{n}={result.header.get(pipeline.registry.step(n).keyword, '?')}"
                        for n, _ in pipeline.steps)

@@ -56,6 +56,29 @@ def test_sigma_clip_masks_exactly_what_astropy_masks(kw):
     assert len(out.tables["HOTPIX"]) == hot.sum()
 
 
+@pytest.mark.parametrize("kw", [{}, {"sigma": 3.0, "cenfunc": "mean", "stdfunc": "mad_std"}])
+def test_sigma_clip_matches_astropy_on_a_large_heavy_tailed_image(kw):
+    # a million pixels and a few hundred clipped: the bounds must select exactly the
+    # pixels astropy's own (axis=None) sigma_clip masks
+    s = ReadoutSchedule(DetectorGeometry(1024, 1024, 16, ref_border=4), skip=1,
+                        ref_mode="none", phantom_reads=0, nframes=2)
+    rng = np.random.default_rng(1)
+    data = rng.standard_t(4, (1024, 1024))
+    data[rng.random((1024, 1024)) < 1e-3] = np.nan
+    out = sigma_clip(image(s, data), **kw)
+    ref = astropy_sigma_clip(np.ma.MaskedArray(data, mask=np.isnan(data)),
+                             **{"sigma": 5.0, "maxiters": None, **kw})
+    expected = np.ma.getmaskarray(ref) & np.isfinite(data)
+    assert expected.sum() > 100
+    assert np.array_equal(out.dq & dq.HOT != 0, expected)
+
+
+def test_sigma_clip_of_an_image_without_usable_pixels():
+    data = np.full((32, 32), np.nan)
+    out = sigma_clip(image(sched(), data))
+    assert out.header["NHOTPIX"] == 0
+
+
 def test_sigma_clip_finds_injected_hot_pixels_only():
     rng = np.random.default_rng(1)
     data = rng.normal(0, 1, (32, 32))

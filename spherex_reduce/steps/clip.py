@@ -2,6 +2,7 @@
 
 import json
 import re
+import warnings
 
 import numpy as np
 from astropy.nddata import StdDevUncertainty
@@ -69,8 +70,17 @@ def sigma_clip(exposure, *, sigma=5.0, sigma_lower=None, sigma_upper=None, maxit
     usable = ~old & np.isfinite(data)
     clipper = SigmaClip(sigma=sigma, sigma_lower=sigma_lower, sigma_upper=sigma_upper,
                         maxiters=maxiters, cenfunc=cenfunc, stdfunc=stdfunc)
-    clipped = clipper(np.ma.MaskedArray(data, mask=~usable), masked=True, copy=True)
-    hot = np.ma.getmaskarray(clipped) & usable
+    hot = np.zeros(data.shape, bool)
+    if usable.any():
+        # the usable pixels as one column: astropy clips along an axis with its
+        # compiled code (same iterations, ~3x faster than its axis=None path);
+        # its bounds then select the same pixels (tested against sigma_clip)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            _, lower, upper = clipper(data[usable][:, None], axis=0, masked=False,
+                                      return_bounds=True, copy=False)
+        with np.errstate(invalid="ignore"):
+            hot = usable & ((data < lower[0]) | (data > upper[0]))
     rows, cols = np.nonzero(hot)
     tables = dict(exposure.tables)
     tables["HOTPIX"] = Table({"row": rows, "column": cols, "value": data[rows, cols]})

@@ -10,14 +10,16 @@ the phantom values and the reference reads.
 
 When a pipeline streams a raw ramp through exactly these steps into
 ``fit_ramp`` (uniform weights, no saturation level), the first frame goes
-through the steps as usual; every later frame is built by `FusedFrames.frame`:
-the offsets come from the steps' own functions applied to the phantom values
-and reference reads, then the pixels are copied from the (memory-mapped) input
-into physical order, minus their phantom value, minus their offset, in blocks
-of rows that stay in cache.  The arithmetic is the same, in the same order and
+through the steps as usual; for every later frame `FusedFrames.prepare` takes
+the offsets from the steps' own functions applied to the phantom values and
+reference reads, and the ramp fit's accumulator has `FusedFrame.fill` copy the
+pixels from the (memory-mapped) input straight into its buffer, in physical
+order, minus their phantom value, minus their offset, in blocks of rows that
+stay in cache.  The arithmetic is the same, in the same order and
 precision, so the result is identical, bit for bit, to running the steps one
 after another (``tests/test_fused.py``), with one pass over the pixels instead
-of four and no intermediate frames.  Every other case (another strategy or
+of five (reading, un-chopping, phantom, reference, copying into the fit's
+buffer) and no intermediate frames.  Every other case (another strategy or
 step, side reference columns, a step skipped on the first frame, flags or
 uncertainties in the input) runs the steps one by one.
 """
@@ -40,7 +42,7 @@ from .steps.reference import (
 )
 from .steps.unchop import _physical_index, _reread_mean
 
-__all__ = ["FusedFrames", "fused_plan"]
+__all__ = ["FusedFrame", "FusedFrames", "fused_plan"]
 
 _ROWS = 32  # rows per block when copying a frame (32 x 2048 x 4 B = 256 kB, in cache)
 
@@ -118,8 +120,8 @@ class FusedFrames:
         self.reread_in_block = {b0: [int(r) for r in self.repeated if b0 <= r < b0 + _ROWS]
                                 for b0 in range(0, nrows, _ROWS)}
 
-    def frame(self, k, raw, phantom, release, template):
-        """Frame ``k`` after the steps, computed in one pass over its pixels.
+    def prepare(self, k, raw, phantom, template):
+        """The offsets of frame ``k`` and a function that writes its corrected pixels.
 
         Parameters
         ----------
@@ -128,25 +130,16 @@ class FusedFrames:
             The frame's pixels ``(reads, columns)`` in readout order (not modified).
         phantom : `numpy.ndarray` or None
             Its phantom values ``(reads, channels)``.
-        release : callable
-            Called once the pixels have been copied (frees the file's pages).
         template : `~spherex_reduce.Exposure`
-            The first frame after the steps (run one by one): header, tables,
-            reference read rows and schedule of the result.
+            The first frame after the steps (run one by one): its header.
 
         Returns
         -------
-        frame : `~spherex_reduce.Exposure`
-            What the steps would have returned for frame ``k``.
-        tables : dict
-            The tables the steps recorded for it (``REFOFFS``).
-        elapsed : tuple of float
-            Seconds spent for ``unchop``, ``subtract_phantom`` and
-            ``correct_reference``.
+        `FusedFrame`
         """
         s = self.schedule
         g = s.geometry
-        width, nch = g.channel_width, g.nchannels
+        width = g.channel_width
         t0 = time.perf_counter()
         use_ph = self.phantom
         # the steps' precisions: un-chopped rows keep the pixels' type, the corrections
@@ -188,29 +181,61 @@ class FusedFrames:
             header["NNOREF"] = (int(missing.sum()), "offsets without usable reference pixels")
             col = col[0].astype(native)
         t3 = time.perf_counter()
-        # the pixels, in blocks of rows that stay in cache: into place, minus the
-        # phantom value, minus the offset (the steps' order of operations)
-        out = np.empty((g.nrows, g.ncols), native)
+        return FusedFrame(self, raw, phantom if use_ph else None, native, reread, col, flags,
+                          ref, tables, header, [t1 - t0, t2 - t1, t3 - t2])
+
+
+class FusedFrame:
+    """One frame prepared by `FusedFrames.prepare`.
+
+    Attributes
+    ----------
+    dtype : `numpy.dtype`
+        Type of the corrected pixels.
+    flags : `numpy.ndarray` or None
+        DQ flags ``(rows, columns)`` the steps would set (``NOT_READ``,
+        ``NO_REFERENCE``).
+    reference : `numpy.ndarray`
+        The corrected reference reads ``(reads, columns)``.
+    tables : dict
+        The tables the steps record for this frame (``REFOFFS``).
+    header : `astropy.io.fits.Header`
+    elapsed : list of float
+        Seconds spent for ``unchop``, ``subtract_phantom`` and
+        ``correct_reference`` (`fill` adds its time to the first).
+    """
+
+    def __init__(self, plan, raw, phantom, dtype, reread, col, flags, reference, tables,
+                 header, elapsed):
+        self.plan, self.raw, self.phantom, self.dtype = plan, raw, phantom, dtype
+        self.reread, self.col = reread, col
+        self.flags, self.reference, self.tables, self.header = flags, reference, tables, header
+        self.elapsed = elapsed
+
+    def fill(self, out):
+        """Write the corrected frame, physical order, into ``out`` (flat, ``rows*columns``).
+
+        Blocks of rows stay in cache: into place, minus the phantom value,
+        minus the offset (the steps' order of operations).
+        """
+        t0 = time.perf_counter()
+        plan, raw, ph, col = self.plan, self.raw, self.phantom, self.col
+        g = plan.schedule.geometry
+        width, nch = g.channel_width, g.nchannels
+        out = out.reshape(g.nrows, g.ncols)
         for b0 in range(0, g.nrows, _ROWS):
             b1 = min(g.nrows, b0 + _ROWS)
-            src = self.src[b0:b1]
+            src = plan.src[b0:b1]
             blk = out[b0:b1]
-            if use_ph:
+            if ph is not None:
                 np.subtract(np.take(raw, src, axis=0).reshape(b1 - b0, nch, width),
-                            np.take(phantom, src, axis=0)[:, :, None],
+                            np.take(ph, src, axis=0)[:, :, None],
                             out=blk.reshape(b1 - b0, nch, width))
             else:
                 blk[...] = np.take(raw, src, axis=0)
-            for row in self.reread_in_block[b0]:
-                blk[row - b0] = reread[row]  # re-read rows: the mean of their reads
+            for row in plan.reread_in_block[b0]:
+                blk[row - b0] = self.reread[row]  # re-read rows: the mean of their reads
             if col is not None:
                 blk -= col
-        out[self.unread] = np.nan
-        release()
-        reference = template.reference.replace(data=ref[None])
-        frame = template.replace(data=out[None], dq=None if flags is None else flags[None],
-                                 reference=reference, header=header,
-                                 tables={**template.tables, **tables})
-        t4 = time.perf_counter()
-        # the pass over the pixels is shared: counted as un-chopping
-        return frame, tables, ((t1 - t0) + (t4 - t3), t2 - t1, t3 - t2)
+        out[plan.unread] = np.nan
+        self.elapsed[0] += time.perf_counter() - t0

@@ -302,13 +302,20 @@ class Pipeline:
         fused = None  # the first frame after the steps, once fusing
         for k in frames:
             if fused is not None:
-                frame, recorded, times = plan.frame(k, *source.raw(k), template=fused)
-                for j, dt in enumerate(times):
+                raw, phantom, release = source.raw(k)
+                part = plan.prepare(k, raw, phantom, template=fused)
+                # straight into the fit's buffer, from this thread (the fit sums full
+                # buffers in a thread of its own)
+                before, t0 = part.elapsed[0], time.perf_counter()
+                acc.accumulator.add_fused(k, part)
+                release()
+                # the copy counts as un-chopping (part.elapsed[0]), the rest as fitting
+                acc.busy += time.perf_counter() - t0 - (part.elapsed[0] - before)
+                for j, dt in enumerate(part.elapsed):
                     elapsed[j] += dt
-                for name, table in recorded.items():
+                for name, table in part.tables.items():
                     table["frame"] = np.full(len(table), k, dtype=np.int32)
                     tables.setdefault(name, []).append(table)
-                acc.add(k, frame)
                 continue
             frame = first if k == 0 else source.frame(k)
             for j, (_, params, step) in enumerate(prefix):
@@ -326,6 +333,7 @@ class Pipeline:
                 frame = out
             acc.add(k, frame)
             if plan is not None and all(st == "COMPLETE" for st, _ in status):
+                acc.drain()  # the first frame is in; the later ones go in from here
                 fused = frame
         return fused is not None
 
@@ -370,6 +378,11 @@ class _Background:
         self.stop()
         self._raise()
         return self.accumulator.finish()
+
+    def drain(self):
+        """Wait for the frames already queued; raise what the accumulator raised."""
+        self.stop()
+        self._raise()
 
     def stop(self):
         """End the thread (after the frames already queued)."""

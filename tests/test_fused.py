@@ -141,3 +141,13 @@ def test_cli_no_fuse_gives_the_same_file_contents(tmp_path):
     assert was_fused(outs[0]) and not was_fused(outs[1])
     np.testing.assert_array_equal(outs[0].data.data, outs[1].data.data)
     np.testing.assert_array_equal(outs[0].dq, outs[1].dq)
+
+
+def test_fused_equals_the_steps_with_background_sums(monkeypatch):
+    from spherex_reduce.steps import ramp
+
+    monkeypatch.setattr(ramp, "_ASYNC_PIXELS", 0)  # the full-size path, on a small image
+    raw = example_raw_exposure(schedule(nframes=20), seed=10)
+    fused, plain, _, _ = fused_and_not({"steps": STEPS["acn"]}, raw)
+    assert was_fused(fused)
+    assert_identical(fused, plain)

@@ -330,3 +330,25 @@ def test_streamed_fit_on_a_pedestal_matches_float64_least_squares(nframes):
     sigma = 10.0 / np.sqrt(((t - t.mean()) ** 2).sum())
     streamed = _stream(Exposure.from_arrays(cube, s))
     assert np.abs(streamed.data.data - ref).max() <= 1e-5 * sigma
+
+
+def test_streamed_sums_in_the_background_equal_the_whole_fit(monkeypatch):
+    # large images sum each full buffer in a thread while the next one fills; force
+    # that path on a small image (3 buffers of frames: both buffers are reused)
+    from spherex_reduce.steps import ramp
+
+    monkeypatch.setattr(ramp, "_ASYNC_PIXELS", 0)
+    s = schedule(nframes=20)
+    t = s.frame_starts.value
+    rng = np.random.default_rng(12)
+    cube = (6e4 + 30.0 * t[:, None, None] + rng.normal(0, 5, (20, 16, 16))).astype(np.float32)
+    cube[12, 3, 4] = np.nan
+    streamed = _stream(Exposure.from_arrays(cube, s))
+    whole = fit_ramp(Exposure.from_arrays(cube, s))
+    np.testing.assert_allclose(streamed.data.data, whole.data.data, rtol=1e-6, atol=1e-5)
+    np.testing.assert_allclose(streamed.data.uncertainty.array, whole.data.uncertainty.array,
+                               rtol=1e-4)
+    assert streamed.tables["RAMPFIT"]["nreads"][3][4] == 19
+    import threading
+
+    assert not [th for th in threading.enumerate() if th.name.startswith("spherex-reduce-sums")]

@@ -35,6 +35,7 @@ __all__ = ["RampAccumulator", "fit_ramp", "ramp_weights"]
 _GROUP = 32  # frames per float32 partial sum; the groups are summed in float64
 _THREADS = max(1, min(4, os.cpu_count() or 1))  # threads over blocks of rows
 _STREAM_GROUP = 8  # frames buffered by the frame-by-frame accumulator
+_ASYNC_PIXELS = 1 << 20  # from this size on, a full buffer is summed in the background
 _BLOCK_PIXELS = 1 << 15  # pixels per block (74 frames x 32768 x 4 B = 9.7 MB): fewer calls
 WEIGHTINGS = ("uniform", "optimal")
 
@@ -439,6 +440,10 @@ class _StreamFit:
         self.w = self.tc / self.stt if self.stt > 0 else np.zeros_like(self.tc)
         self.saturation, self.read_noise, self.gain = saturation, read_noise, gain
         self.buf = None
+        self.bufs = [None, None]  # filled in turn: one takes frames while the other is summed
+        self.cur = 0  # the buffer taking frames
+        self.busy = [None, None]  # the summing of each buffer (a Future), if under way
+        self.pool = None  # one thread that sums full buffers (large images only)
         self.ks = []
         self.flagged = []  # per buffered frame: pixel indices flagged or saturated
         self.ref = None
@@ -452,11 +457,25 @@ class _StreamFit:
         self.sat_any = np.zeros(self.npx, bool)
         self.all_flags = None
 
-    def add(self, k, values, flags=None):
-        y = np.asarray(values).reshape(self.npx)
+    def add(self, k, values, flags=None, dtype=None):
+        """Frame ``k``: ``values``, an array or ``fill(out)`` writing the frame into the
+        flat buffer row ``out`` (then ``dtype`` is the frame's type, and no
+        saturation level can be checked), and optional per-pixel ``flags``."""
+        fill = values if callable(values) else None
+        if fill is None:
+            y = np.asarray(values).reshape(self.npx)
+            dtype = y.dtype
+        elif self.saturation is not None:
+            raise ValueError("frames given by a fill function cannot be checked for saturation")
         if self.buf is None:
-            work = np.float64 if y.dtype == np.float64 else np.float32
-            self.buf = np.empty((min(_STREAM_GROUP, self.times.size), self.npx), dtype=work)
+            work = np.float64 if dtype == np.float64 else np.float32
+            shape = (min(_STREAM_GROUP, self.times.size), self.npx)
+            self.bufs[0] = self.buf = np.empty(shape, dtype=work)
+            if self.npx >= _ASYNC_PIXELS and self.times.size > shape[0]:
+                self.bufs[1] = np.empty(shape, dtype=work)
+                self.pool = ThreadPoolExecutor(1, thread_name_prefix="spherex-reduce-sums")
+        if not self.ks:
+            self._wait(self.cur)
         marked = np.zeros(0, dtype=np.intp)
         if flags is not None and (self.all_flags is None or self.all_flags.any()
                                   or np.any(flags)):
@@ -470,19 +489,48 @@ class _StreamFit:
                 sat = y > self.saturation
             self.sat_any |= sat
             marked = np.union1d(marked, np.flatnonzero(sat))
-        np.copyto(self.buf[len(self.ks)], y, casting="unsafe")
+        if fill is None:
+            np.copyto(self.buf[len(self.ks)], y, casting="unsafe")
+        else:
+            fill(self.buf[len(self.ks)])
         self.flagged.append(marked)
         self.ks.append(k)
         if len(self.ks) == self.buf.shape[0]:
-            self._flush()
+            self._submit()
 
-    def _flush(self):
+    def _wait(self, i):
+        """Wait until buffer ``i`` has been summed (raising what the summing raised)."""
+        if self.busy[i] is not None:
+            future, self.busy[i] = self.busy[i], None
+            future.result()
+
+    def _submit(self):
+        """Sum the full buffer: in the background if there is a second buffer to fill."""
         if not self.ks:
             return
-        ks = np.asarray(self.ks)
+        ks, flagged, buf = np.asarray(self.ks), self.flagged, self.buf
+        self.ks, self.flagged = [], []
+        if self.pool is None:
+            self._flush(ks, flagged, buf)
+            return
+        self.busy[self.cur] = self.pool.submit(self._flush, ks, flagged, buf)
+        self.cur = 1 - self.cur
+        self.buf = self.bufs[self.cur]
+
+    def _drain(self):
+        """Sum what is buffered and wait for every summing; release the thread."""
+        self._submit()
+        for i in (0, 1):
+            self._wait(i)
+        if self.pool is not None:
+            self.pool.shutdown()
+            self.pool = None
+
+    def _flush(self, ks, flagged, buf):
+        """Add the frames ``ks`` held in ``buf`` to the sums (one thread at a time)."""
         nk = ks.size
-        d = self.buf[:nk]
-        for j, idx in enumerate(self.flagged):  # flagged reads count as unusable (NaN)
+        d = buf[:nk]
+        for j, idx in enumerate(flagged):  # flagged reads count as unusable (NaN)
             d[j, idx] = np.nan
         tk = self.tc[ks].astype(d.dtype)
         first = self.ref is None
@@ -545,7 +593,8 @@ class _StreamFit:
             self.C[p0:p1] += c
 
         starts = list(range(0, self.npx, step))
-        nthreads = min(_THREADS, len(starts))
+        # summed beside the caller's thread already: one thread here
+        nthreads = 1 if self.pool is not None else min(_THREADS, len(starts))
         if nthreads <= 1:
             for p0 in starts:
                 one(p0)
@@ -554,7 +603,6 @@ class _StreamFit:
                 list(pool.map(one, starts))
         if first or self.no_ref.size:
             self.no_ref = np.flatnonzero(np.isnan(self.ref))
-        self.ks, self.flagged = [], []
 
     def _fix(self, sub, fix, p0, ks, a, b, c):
         """Zero the unusable reads of pixels ``fix`` (block columns) and redo their sums."""
@@ -571,7 +619,7 @@ class _StreamFit:
         c[fix] = np.einsum("fp,fp->p", cols, cols)
 
     def finish(self, want_var=True):
-        self._flush()
+        self._drain()
         nf, npx = self.times.size, self.npx
         fit = _Fit(self.shape, np.float64)
         slope = fit.slope.reshape(npx)
@@ -698,6 +746,20 @@ class RampAccumulator(FrameAccumulator):
             self.fits["ref"].add(index, frame.reference.data[0], None if rdq is None else rdq[0])
         if "refph" in self.fits:
             self.fits["refph"].add(index, frame.reference.phantom[0])
+
+    def add_fused(self, index, frame):
+        """Frame ``index`` prepared by the fused path (`spherex_reduce.fused.FusedFrame`).
+
+        Its pixels are written straight into the fit's buffer.  The first frame
+        must have gone through `add` (it sets the families fitted and the
+        template of the result), with uniform weights and no phantom values left.
+        """
+        if self.fits is None or self.frames is not None or "phantom" in self.fits:
+            raise RuntimeError("add_fused needs uniform weights and a first frame, "
+                               "phantom-corrected, given to add()")
+        self.fits["data"].add(index, frame.fill, frame.flags, dtype=frame.dtype)
+        if "ref" in self.fits:
+            self.fits["ref"].add(index, frame.reference)
 
     def finish(self):
         if self.frames is not None:

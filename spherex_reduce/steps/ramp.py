@@ -628,6 +628,7 @@ class _StreamFit:
         # in blocks, so that temporaries stay small (fresh large arrays page-fault)
         pf = _poisson_factor(self.times, self.w) if nf >= 2 else 0.0
         step = self._STEP
+        tmp = np.empty(min(step, npx))
         for p0 in range(0, npx, step):
             p1 = min(npx, p0 + step)
             sl, v = slope[p0:p1], var[p0:p1]
@@ -635,11 +636,16 @@ class _StreamFit:
             np.add(A, 0.0 if self.g is None else self.g[p0:p1], out=sl)
             with np.errstate(invalid="ignore", divide="ignore"):
                 if want_var and self.read_noise is None and nf > 2:
-                    B = self.B[p0:p1]
-                    chi2 = self.C[p0:p1] - B * B / nf
-                    chi2 -= A * A * self.stt
-                    np.maximum(chi2, 0, out=chi2)
-                    np.multiply(chi2, 1 / ((nf - 2) * self.stt), out=v)
+                    # chi2 = C - B^2/n - A^2 stt, in place (no temporaries)
+                    B, t = self.B[p0:p1], tmp[: p1 - p0]
+                    np.multiply(B, B, out=v)
+                    v *= -1.0 / nf
+                    v += self.C[p0:p1]
+                    np.multiply(A, A, out=t)
+                    t *= self.stt
+                    v -= t
+                    np.maximum(v, 0, out=v)
+                    v *= 1 / ((nf - 2) * self.stt)
                 elif want_var and self.read_noise is not None and nf >= 2:
                     np.maximum(sl, 0, out=v)
                     v *= pf / self.gain

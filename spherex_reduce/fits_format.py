@@ -323,7 +323,10 @@ class FrameReader:
     def close(self):
         """Close the file."""
         if self._map is not None:
-            self._map[0].close()
+            try:
+                self._map[0].close()
+            except BufferError:  # a frame view is still alive (e.g. in a traceback):
+                pass  # the map closes when it is collected
             self._map = None
         self._hdul.close()
 

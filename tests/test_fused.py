@@ -151,3 +151,19 @@ def test_fused_equals_the_steps_with_background_sums(monkeypatch):
     fused, plain, _, _ = fused_and_not({"steps": STEPS["acn"]}, raw)
     assert was_fused(fused)
     assert_identical(fused, plain)
+
+
+def test_an_error_while_fusing_reaches_the_caller(tmp_path, monkeypatch):
+    from spherex_reduce import fused
+
+    path = write(example_raw_exposure(schedule(), seed=11), tmp_path / "raw.fits")
+
+    def broken(self, k, raw, phantom, template):
+        if k == 3:
+            raise RuntimeError("fused frame 3 broke")
+        return original(self, k, raw, phantom, template)
+
+    original = fused.FusedFrames.prepare
+    monkeypatch.setattr(fused.FusedFrames, "prepare", broken)
+    with pytest.raises(RuntimeError, match="fused frame 3 broke"):
+        Pipeline({"steps": STEPS["mean"]}).run(path)

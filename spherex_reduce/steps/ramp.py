@@ -93,9 +93,9 @@ def _poisson_factor(times, w):
 class _Fit:
     """Results of fitting one family of ramps (pixels, phantoms, reference reads)."""
 
-    def __init__(self, shape, dtype):
-        self.slope = np.empty(shape, dtype)
-        self.var = np.empty(shape, np.float64)
+    def __init__(self, shape, dtype, slope=None, var=None):
+        self.slope = np.empty(shape, dtype) if slope is None else slope.reshape(shape)
+        self.var = np.empty(shape, np.float64) if var is None else var.reshape(shape)
         self.nreads = np.empty(shape, np.int16)
         self.flags = np.zeros(shape, np.uint16)
 
@@ -619,39 +619,46 @@ class _StreamFit:
         c[fix] = np.einsum("fp,fp->p", cols, cols)
 
     def finish(self, want_var=True):
+        """The fit of every pixel (once: the sums' memory becomes the result's)."""
         self._drain()
         nf, npx = self.times.size, self.npx
-        fit = _Fit(self.shape, np.float64)
+        bad = None
+        if nf >= 2 and self.bad_reads:  # their sums, before they are overwritten
+            badpix = np.unique(np.concatenate([idx for _, idx in self.bad_reads]))
+            bad = badpix, self.A[badpix], self.B[badpix], self.C[badpix]
+        # slopes in place of A, variances in place of C: no fresh 2 x 32 MB (page faults)
+        fit = _Fit(self.shape, np.float64, slope=self.A, var=self.C)
         slope = fit.slope.reshape(npx)
         var = fit.var.reshape(npx)
         # every read usable (most pixels): n, sums of t and t^2 are the full ones;
-        # in blocks, so that temporaries stay small (fresh large arrays page-fault)
+        # in blocks, so that temporaries stay small
         pf = _poisson_factor(self.times, self.w) if nf >= 2 else 0.0
         step = self._STEP
         tmp = np.empty(min(step, npx))
         for p0 in range(0, npx, step):
             p1 = min(npx, p0 + step)
-            sl, v = slope[p0:p1], var[p0:p1]
-            A = self.A[p0:p1]
-            np.add(A, 0.0 if self.g is None else self.g[p0:p1], out=sl)
+            sl, v = slope[p0:p1], var[p0:p1]  # A and C of the block
             with np.errstate(invalid="ignore", divide="ignore"):
                 if want_var and self.read_noise is None and nf > 2:
-                    # chi2 = C - B^2/n - A^2 stt, in place (no temporaries)
+                    # chi2 = C - B^2/n - A^2 stt, in place
                     B, t = self.B[p0:p1], tmp[: p1 - p0]
-                    np.multiply(B, B, out=v)
-                    v *= -1.0 / nf
-                    v += self.C[p0:p1]
-                    np.multiply(A, A, out=t)
+                    np.multiply(B, B, out=t)
+                    t *= -1.0 / nf
+                    v += t
+                    np.multiply(sl, sl, out=t)
                     t *= self.stt
                     v -= t
                     np.maximum(v, 0, out=v)
                     v *= 1 / ((nf - 2) * self.stt)
-                elif want_var and self.read_noise is not None and nf >= 2:
+                if self.g is not None:
+                    sl += self.g[p0:p1]
+                if want_var and self.read_noise is not None and nf >= 2:
                     np.maximum(sl, 0, out=v)
                     v *= pf / self.gain
                     v += self.read_noise**2 / self.stt
-                else:
+                elif not (want_var and self.read_noise is None and nf > 2):
                     v[:] = np.nan
+        self.A = self.C = None  # now the result's
         nreads = fit.nreads.reshape(npx)
         nreads[:] = nf
         flags = fit.flags.reshape(npx)
@@ -665,10 +672,10 @@ class _StreamFit:
             nreads[:] = nf - np.isin(np.arange(npx), np.concatenate(
                 [idx for _, idx in self.bad_reads] or [np.zeros(0, int)]))
             return fit
-        if not self.bad_reads:
+        if bad is None:
             return fit
         # pixels with unusable reads: least squares on their usable reads, from the sums
-        badpix = np.unique(np.concatenate([idx for _, idx in self.bad_reads]))
+        badpix, a, b, c = bad
         col = np.searchsorted(badpix, np.arange(npx))  # only used at badpix
         good = np.ones((nf, badpix.size), bool)
         for k, idx in self.bad_reads:
@@ -677,7 +684,6 @@ class _StreamFit:
         tcol = self.tc[:, None]
         st = (good * tcol).sum(axis=0)
         stt = (good * tcol**2).sum(axis=0)
-        a, b, c = self.A[badpix], self.B[badpix], self.C[badpix]
         gb = 0.0 if self.g is None else self.g[badpix].astype(np.float64)
         with np.errstate(invalid="ignore", divide="ignore"):
             sc = stt - st * st / n  # centred sum of squares of the usable times

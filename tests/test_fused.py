@@ -13,7 +13,7 @@ FIT = {"fit_ramp": {}}
 
 
 def schedule(ref_mode="distributed", nframes=11, skip=5, phantom_reads=3):
-    # 11 frames: the fit's buffer of 8 frames fills once and is flushed partly full
+    # 11 frames: the fit's buffers of 4 frames fill twice and are summed partly full once
     return ReadoutSchedule(DetectorGeometry(32, 16, 2, ref_border=2), skip=skip, ref_reads=6,
                            ref_mode=ref_mode, phantom_reads=phantom_reads, row_overhead=2,
                            frame_overhead=50, nframes=nframes)

@@ -34,7 +34,7 @@ __all__ = ["RampAccumulator", "fit_ramp", "ramp_weights"]
 
 _GROUP = 32  # frames per float32 partial sum; the groups are summed in float64
 _THREADS = max(1, min(4, os.cpu_count() or 1))  # threads over blocks of rows
-_STREAM_GROUP = 8  # frames buffered by the frame-by-frame accumulator
+_STREAM_GROUP = 4  # frames per buffer of the frame-by-frame accumulator (two buffers)
 _ASYNC_PIXELS = 1 << 20  # from this size on, a full buffer is summed in the background
 _BLOCK_PIXELS = 1 << 15  # pixels per block (74 frames x 32768 x 4 B = 9.7 MB): fewer calls
 WEIGHTINGS = ("uniform", "optimal")

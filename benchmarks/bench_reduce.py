@@ -13,8 +13,8 @@
   the paper's steps fused (default) and one by one (``--no-fuse``), and the slopes-first
   config.
 
-The machine is shared: each timing is the best of a few runs.  ``--quick`` uses
-N = 10 frames (for a smoke test of the script).
+Each timing is the best of a few repeats (the reduce rows: 5 interleaved subprocess
+repeats, min and median).  ``--quick`` uses N = 10 frames (for a smoke test of the script).
 """
 
 import argparse
@@ -145,7 +145,8 @@ def main(argv=None):
             "# Reduction benchmark\n\n"
             f"`python benchmarks/bench_reduce.py` on {os.cpu_count()} cores "
             f"(numpy {np.__version__}), {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}."
-            "\nThe machine was shared with other jobs: timings are the best of a few runs.\n\n"
+            "\nTimings are the best of a few repeats; the reduce rows: 5 interleaved "
+            "subprocess repeats, min and median.\n\n"
             + table + "\n")
     return 0
 

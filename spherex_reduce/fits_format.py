@@ -352,9 +352,11 @@ class FrameReader:
         return self._phantom is not None
 
     def fusable(self):
-        """Whether `raw` gives floating-point pixels (what the fused path needs)."""
+        """Whether `raw` gives floating-point pixels and phantom values (what the fused
+        path needs)."""
         dtype = self._map[2] if self._map is not None else None
-        return dtype is not None and dtype.kind == "f"
+        return (dtype is not None and dtype.kind == "f"
+                and (self._phantom is None or self._phantom.dtype.kind == "f"))
 
     def raw(self, k):
         """Frame ``k`` as it is in the file, without copying it.
@@ -407,11 +409,18 @@ def _map_frames(hdu, path):
     """
     h = hdu.header
     dtype = _FITS_DTYPES.get(h.get("BITPIX"))
-    if dtype is None or h.get("BSCALE", 1) != 1 or h.get("BZERO", 0) != 0:
+    if (dtype is None or h.get("BSCALE", 1) != 1 or h.get("BZERO", 0) != 0
+            or isinstance(hdu, fits.CompImageHDU)):  # tile-compressed: astropy decompresses
         return None
+    dtype = np.dtype(dtype)
+    start = hdu.fileinfo()["datLoc"]
+    nbytes = int(np.prod(hdu.shape)) * dtype.itemsize
     with open(path, "rb") as fh:
+        # a plain FITS file on disk (not .gz, .bz2 or .zip, which astropy unpacks)
+        if fh.read(9) != b"SIMPLE  =" or os.fstat(fh.fileno()).st_size < start + nbytes:
+            return None
         mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
-    return mm, hdu.fileinfo()["datLoc"], np.dtype(dtype)
+    return mm, start, dtype
 
 
 def _unit_str(unit):

@@ -8,7 +8,9 @@ a channel (the phantom value) or along a channel's (even or odd) columns (the
 reference offset), and the offsets come from a few thousand values per frame:
 the phantom values and the reference reads.
 
-When a pipeline streams a raw ramp through exactly these steps into
+When a pipeline streams a raw ramp through ``unchop``, then
+``subtract_phantom`` (exactly when the input has phantom values) and
+optionally ``correct_reference`` (``mean`` or ``acn``, no side columns), into
 ``fit_ramp`` (uniform weights, no saturation level), the first frame goes
 through the steps as usual; for every later frame `FusedFrames.prepare` takes
 the offsets from the steps' own functions applied to the phantom values and
@@ -89,7 +91,11 @@ def fused_plan(prefix, consumer, cparams, source):
     # exactly when subtract_phantom is asked for (it would be skipped otherwise)
     if not source.fusable() or source.has_phantom != (SubtractPhantomStep in kinds):
         return None
-    return FusedFrames(schedule, source.unit, phantom=source.has_phantom, reference=reference)
+    plan = FusedFrames(schedule, source.unit, phantom=source.has_phantom, reference=reference)
+    # where each part's time goes: unchop, subtract_phantom, correct_reference (or nowhere)
+    plan.slots = [kinds.index(k) if k in kinds else None
+                  for k in (UnchopStep, SubtractPhantomStep, CorrectReferenceStep)]
+    return plan
 
 
 class FusedFrames:

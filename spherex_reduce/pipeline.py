@@ -187,11 +187,12 @@ class Pipeline:
             a time: a raw file is then read frame by frame and memory stays near
             one frame plus the output.  The result is the same either way.
         fuse : bool
-            When streaming exactly ``unchop``, ``subtract_phantom`` and
-            ``correct_reference`` (``mean`` or ``acn``) into ``fit_ramp``,
+            When streaming ``unchop``, then ``subtract_phantom`` (if the input
+            has phantom values) and optionally ``correct_reference``
+            (``mean`` or ``acn``), into ``fit_ramp``,
             apply the corrections while the fit copies each frame (see
             `spherex_reduce.fused`): the same numbers, bit for bit, in one
-            pass over the pixels instead of four.
+            pass over the pixels instead of five.
 
         Returns
         -------
@@ -270,6 +271,12 @@ class Pipeline:
         try:
             fused = self._stream_frames(source, first, prefix, acc, frames, elapsed, status,
                                         tables, plan)
+        except BaseException:
+            acc.stop()
+            close = getattr(acc.accumulator, "close", None)
+            if close is not None:  # its own threads too
+                close()
+            raise
         finally:
             acc.stop()  # also when a step failed: no thread is left waiting
         t0 = time.perf_counter()
@@ -311,8 +318,9 @@ class Pipeline:
                 release()
                 # the copy counts as un-chopping (part.elapsed[0]), the rest as fitting
                 acc.busy += time.perf_counter() - t0 - (part.elapsed[0] - before)
-                for j, dt in enumerate(part.elapsed):
-                    elapsed[j] += dt
+                for j, dt in zip(plan.slots, part.elapsed, strict=True):
+                    if j is not None:
+                        elapsed[j] += dt
                 for name, table in part.tables.items():
                     table["frame"] = np.full(len(table), k, dtype=np.int32)
                     tables.setdefault(name, []).append(table)

@@ -106,6 +106,9 @@ class FrameAccumulator:
         """The reduced `~spherex_reduce.Exposure`, after every frame was added."""
         raise NotImplementedError
 
+    def close(self):
+        """Release threads or memory when the run failed before `finish` (optional)."""
+
 
 class Strategy:
     """A variant of a step (e.g. the ``mean`` reference correction).

@@ -95,6 +95,28 @@ def test_fused_with_unusable_reads_and_a_channel_without_reference(tmp_path):
     assert len(noref) == 2
 
 
+@pytest.mark.parametrize("steps", [
+    [{"unchop": {}}, FIT],
+    [{"unchop": {}}, {"correct_reference": {"strategy": "acn"}}, FIT],
+])
+def test_fused_without_phantom_reads(tmp_path, steps):
+    raw = example_raw_exposure(schedule(phantom_reads=0), seed=12)
+    path = write(raw, tmp_path / "raw.fits")
+    fused, plain, _, _ = fused_and_not({"steps": steps}, path)
+    assert was_fused(fused)
+    assert_identical(fused, plain)
+
+
+def test_integer_phantom_values_in_a_file_are_not_fused(tmp_path):
+    # the steps work in float64 with integer phantom values: not the fused path's precision
+    raw = example_raw_exposure(schedule(), seed=13)
+    raw = raw.replace(phantom=np.round(raw.phantom).astype(np.int16))
+    path = write(raw, tmp_path / "raw.fits")
+    fused, plain, _, _ = fused_and_not({"steps": STEPS["mean"]}, path)
+    assert not was_fused(fused)
+    assert_identical(fused, plain)
+
+
 def test_fused_on_float64_input_in_memory():
     raw = example_raw_exposure(schedule(), seed=6)
     raw = raw.replace(data=raw.data.data.astype(np.float64), phantom=raw.phantom.astype(np.float64))
@@ -159,11 +181,17 @@ def test_an_error_while_fusing_reaches_the_caller(tmp_path, monkeypatch):
     path = write(example_raw_exposure(schedule(), seed=11), tmp_path / "raw.fits")
 
     def broken(self, k, raw, phantom, template):
-        if k == 3:
-            raise RuntimeError("fused frame 3 broke")
+        if k == 9:  # two buffers of frames are being summed or were
+            raise RuntimeError("fused frame 9 broke")
         return original(self, k, raw, phantom, template)
+
+    import threading
+
+    from spherex_reduce.steps import ramp
 
     original = fused.FusedFrames.prepare
     monkeypatch.setattr(fused.FusedFrames, "prepare", broken)
-    with pytest.raises(RuntimeError, match="fused frame 3 broke"):
+    monkeypatch.setattr(ramp, "_ASYNC_PIXELS", 0)  # with the fit's summing thread
+    with pytest.raises(RuntimeError, match="fused frame 9 broke"):
         Pipeline({"steps": STEPS["mean"]}).run(path)
+    assert not [t for t in threading.enumerate() if t.name.startswith("spherex-reduce")]

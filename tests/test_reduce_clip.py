@@ -73,6 +73,17 @@ def test_sigma_clip_matches_astropy_on_a_large_heavy_tailed_image(kw):
     assert np.array_equal(out.dq & dq.HOT != 0, expected)
 
 
+@pytest.mark.parametrize("kw", [{"sigma": 0.5}, {"sigma_lower": 0.3, "sigma_upper": 0.6},
+                                {"sigma": 0.5, "cenfunc": "mean", "stdfunc": "mad_std"}])
+def test_sigma_clip_below_one_sigma_matches_astropy(kw):
+    # thresholds under 1 sigma, iterated to the end, clip everything on astropy's
+    # compiled path but nothing on its axis=None path: the step must follow the latter
+    data = np.random.default_rng(2).normal(0, 1, (32, 32))
+    out = sigma_clip(image(sched(), data), **kw)
+    ref = astropy_sigma_clip(data, **{"sigma": 5.0, "maxiters": None, **kw})
+    assert np.array_equal(out.dq & dq.HOT != 0, np.ma.getmaskarray(ref))
+
+
 def test_sigma_clip_of_an_image_without_usable_pixels():
     data = np.full((32, 32), np.nan)
     out = sigma_clip(image(sched(), data))

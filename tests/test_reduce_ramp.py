@@ -352,3 +352,58 @@ def test_streamed_sums_in_the_background_equal_the_whole_fit(monkeypatch):
     import threading
 
     assert not [th for th in threading.enumerate() if th.name.startswith("spherex-reduce-sums")]
+
+
+@pytest.mark.parametrize("background", [False, True])
+@pytest.mark.parametrize("first_usable", [3, 7])
+def test_streamed_variance_when_the_first_usable_read_ends_a_buffer(monkeypatch, background,
+                                                                    first_usable):
+    # with one usable read in its first buffer a pixel has no line yet; without one,
+    # a bright pixel's float32 squares lost its residuals (variance off by -22 % / +275 %)
+    from spherex_reduce.steps import ramp
+
+    if background:
+        monkeypatch.setattr(ramp, "_ASYNC_PIXELS", 0)
+    s = schedule(nframes=30)
+    t = s.frame_starts.value
+    rng = np.random.default_rng(13)
+    cube = (1000.0 * t[:, None, None] + rng.normal(0, 10, (30, 16, 16))).astype(np.float32)
+    cube[:first_usable] = np.nan  # e.g. reset frames masked for every pixel
+    cube[first_usable + 1 : first_usable + 6, 2, 3] = np.nan  # and a pixel with a gap
+    streamed = _stream(Exposure.from_arrays(cube, s))
+    whole = fit_ramp(Exposure.from_arrays(cube, s))
+    np.testing.assert_allclose(streamed.data.uncertainty.array, whole.data.uncertainty.array,
+                               rtol=1e-3)
+    np.testing.assert_allclose(streamed.data.data, whole.data.data, rtol=1e-6)
+
+
+def test_accumulator_finishes_once():
+    from spherex_reduce.reduction_plugin import FitRampStep
+
+    s = schedule(nframes=5)
+    cube = np.random.default_rng(14).normal(0, 1, (5, 16, 16))
+    acc = FitRampStep().accumulator(s, Exposure.from_arrays(cube, s).header)
+    for k in range(5):
+        acc.add(k, Exposure.from_arrays(cube[k : k + 1], s.replace(nframes=1)))
+    acc.finish()
+    with pytest.raises(RuntimeError, match="called already"):
+        acc.finish()
+
+
+@pytest.mark.parametrize("masked", [0, 7])
+def test_streamed_fit_of_bright_ramps_matches_float64_least_squares(masked):
+    # 1000 e/s over 74 frames on a 6e4 pedestal: float32 values to 1.7e5, and g t up to
+    # 5e4 in the detrending (computed in float64 for such ramps); the first `masked`
+    # frames unusable (the line then waits for a second usable read)
+    s = schedule(nframes=74, nrows=32, ncols=32)
+    t = s.frame_starts.value
+    rng = np.random.default_rng(15)
+    cube = (6e4 + 1000.0 * t[:, None, None] + rng.normal(0, 10, (74, 32, 32)))
+    cube = cube.astype(np.float32)
+    cube[:masked] = np.nan
+    good = np.isfinite(cube)
+    ref, _ = lstsq_reference(cube, t, good)
+    tt = t[masked:]
+    sigma = 10.0 / np.sqrt(((tt - tt.mean()) ** 2).sum())
+    streamed = _stream(Exposure.from_arrays(cube, s))
+    assert np.abs(streamed.data.data - ref).max() <= 5e-4 * sigma

@@ -81,6 +81,11 @@ def sigma_clip(exposure, *, sigma=5.0, sigma_lower=None, sigma_upper=None, maxit
                                       return_bounds=True, copy=False)
         with np.errstate(invalid="ignore"):
             hot = usable & ((data < lower[0]) | (data > upper[0]))
+        if np.array_equal(hot, usable):
+            # everything clipped (thresholds below 1 sigma): astropy's axis=None path
+            # goes on to NaN bounds there and keeps every pixel; follow it exactly
+            clipped = clipper(np.ma.MaskedArray(data, mask=~usable), masked=True, copy=True)
+            hot = np.ma.getmaskarray(clipped) & usable
     rows, cols = np.nonzero(hot)
     tables = dict(exposure.tables)
     tables["HOTPIX"] = Table({"row": rows, "column": cols, "value": data[rows, cols]})

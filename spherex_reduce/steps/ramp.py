@@ -401,7 +401,8 @@ def _line(d, t):
     """Least-squares line ``a + g t`` through the finite values of each column of ``d``.
 
     ``d`` is ``(n, m)``, ``t`` ``(n,)``; computed in float64.  Where the line is
-    undefined ``g = 0``, and ``a = 0`` if no value is finite.  Returns ``g, a``.
+    undefined ``g = 0``, and ``a = 0`` if no value is finite.  Returns ``g, a``,
+    the number of finite values of each column and the time of its first one.
     """
     db = np.asarray(d, dtype=np.float64)
     good = np.isfinite(db)
@@ -414,7 +415,7 @@ def _line(d, t):
         g = (tcb * db).sum(axis=0) / (tcb * tcb).sum(axis=0)
         g = np.where(np.isfinite(g), g, 0.0)
         a = db.sum(axis=0) / nb - g * tm
-    return g, np.where(np.isfinite(a), a, 0.0)
+    return g, np.where(np.isfinite(a), a, 0.0), nb, t[np.argmax(good, axis=0), 0]
 
 
 class _StreamFit:
@@ -448,6 +449,8 @@ class _StreamFit:
         self.flagged = []  # per buffered frame: pixel indices flagged or saturated
         self.ref = None
         self.no_ref = None
+        self.pending = None  # pixels whose line waits for a second usable read
+        self.anchor = None
         self.g = None
         self.a = None
         self.A = np.zeros(self.npx)
@@ -526,6 +529,12 @@ class _StreamFit:
             self.pool.shutdown()
             self.pool = None
 
+    def close(self):
+        """Stop the summing thread without finishing (after a failed run)."""
+        if self.pool is not None:
+            self.pool.shutdown(wait=True, cancel_futures=True)
+            self.pool = None
+
     def _flush(self, ks, flagged, buf):
         """Add the frames ``ks`` held in ``buf`` to the sums (one thread at a time)."""
         nk = ks.size
@@ -533,6 +542,10 @@ class _StreamFit:
         for j, idx in enumerate(flagged):  # flagged reads count as unusable (NaN)
             d[j, idx] = np.nan
         tk = self.tc[ks].astype(d.dtype)
+        tk64 = self.tc[ks]
+        # bright: |g t| above 1e3 (data unit) somewhere, where float32 rounds g t by more
+        # than 6e-5 (18 e/s at N = 74; a dark's line, noisy after 4 frames, stays below)
+        bright_g = 1e3 / max(np.abs(self.tc).max(), 1e-30)
         first = self.ref is None
         if first:
             self.ref = np.empty(self.npx, d.dtype)
@@ -544,11 +557,13 @@ class _StreamFit:
         wk = self.w[ks].astype(d.dtype)
         ones = np.ones(nk, d.dtype)
         step = self._STEP
+        pending = self.pending is not None and self.pending.any()
 
         def one(p0):
             p1 = min(self.npx, p0 + step)
             sub = d[:, p0:p1]
             ref = self.ref[p0:p1]
+            new_pending = []  # pixels with one usable read so far: no line yet
             if first:
                 ref[:] = sub[0]
             missing = np.flatnonzero(np.isnan(ref)) if first or self.no_ref.size else ()
@@ -562,8 +577,10 @@ class _StreamFit:
                                         np.nan)
                 if not first:  # and their own line through this group (else float32
                     # sums of their undetrended squares lose the residuals)
-                    g, a = _line(col - ref[missing], tk)
+                    g, a, n, t1 = _line(col - ref[missing], tk)
                     self.g[p0 + missing], self.a[p0 + missing] = g, a
+                    lone = (n == 1).nonzero()[0]
+                    new_pending.append((p0 + missing[lone], t1[lone]))
             if first or len(missing):
                 sub -= ref
             if first:  # a line through the first group keeps the later squares small
@@ -575,13 +592,29 @@ class _StreamFit:
                     al[:] = sub[0]
                 odd = np.flatnonzero(~np.isfinite(gl) | ~np.isfinite(al))
                 if odd.size:  # least squares on their usable reads, in float64
-                    gl[odd], al[odd] = _line(sub[:, odd], tk)
+                    gl[odd], al[odd], n, t1 = _line(sub[:, odd], tk)
+                    lone = (n == 1).nonzero()[0]
+                    new_pending.append((p0 + odd[lone], t1[lone]))
             if first or len(missing):
                 base = self.base[p0:p1]
                 np.add(ref, self.a[p0:p1], out=base)
                 # minus (base - ref), exact near ref: the shift of every later group too
                 sub -= base - ref
-            sub -= np.multiply.outer(tk, self.g[p0:p1])
+            if pending and not first:
+                self._anchored_lines(sub, tk, p0, p1)
+            for idx, t1 in new_pending:
+                if idx.size:
+                    self._pend(idx, t1)
+            gb = self.g[p0:p1]
+            sub -= np.multiply.outer(tk, gb)
+            if sub.dtype == np.float32:
+                # bright ramps: g t reaches ~1e5 and its float32 rounding ~1e-3 of the
+                # slope's sigma; redo their line in float64, rounded once
+                bright = np.flatnonzero(np.abs(gb) > bright_g)
+                if bright.size:
+                    line32 = np.multiply.outer(tk, gb[bright]).astype(np.float64)
+                    line64 = np.multiply.outer(tk64, gb[bright].astype(np.float64))
+                    sub[:, bright] = sub[:, bright] + (line32 - line64)
             a = np.einsum("f,fp->p", wk, sub)  # einsum, not BLAS: no spinning BLAS threads
             b = np.einsum("f,fp->p", ones, sub)
             c = np.einsum("fp,fp->p", sub, sub)
@@ -604,6 +637,44 @@ class _StreamFit:
         if first or self.no_ref.size:
             self.no_ref = np.flatnonzero(np.isnan(self.ref))
 
+    def _pend(self, idx, t1):
+        """Pixels ``idx`` have one usable read, at centred time ``t1``: no line yet.
+
+        Their read was summed as 0 (``y - ref`` with ``ref = y``); the line is fitted
+        to the next group through that point (`_anchored_lines`), which keeps it 0.
+        """
+        if self.pending is None:
+            self.pending = np.zeros(self.npx, bool)
+            self.anchor = np.zeros(self.npx)
+        self.pending[idx] = True
+        self.anchor[idx] = t1
+
+    def _anchored_lines(self, sub, tk, p0, p1):
+        """Lines through the anchor read of the pending pixels of block ``p0:p1``.
+
+        ``sub`` holds ``y - ref`` for them; it becomes ``y - base`` (before the
+        common ``- g t``), with ``a = -g t1`` so that the anchor stays at 0.
+        """
+        pend = np.flatnonzero(self.pending[p0:p1])
+        if not pend.size:
+            return
+        vals = sub[:, pend].astype(np.float64)
+        good = np.isfinite(vals)
+        dt = tk.astype(np.float64)[:, None] - self.anchor[p0 + pend]
+        num = np.where(good, dt * vals, 0.0).sum(axis=0)
+        den = np.where(good, dt * dt, 0.0).sum(axis=0)
+        ok = den > 0
+        sel = pend[ok]
+        if not sel.size:
+            return
+        g = num[ok] / den[ok]
+        idx = p0 + sel
+        self.g[idx] = g
+        self.a[idx] = -g * self.anchor[idx]
+        self.base[idx] = self.ref[idx] + self.a[idx]
+        sub[:, sel] -= self.base[idx] - self.ref[idx]
+        self.pending[idx] = False
+
     def _fix(self, sub, fix, p0, ks, a, b, c):
         """Zero the unusable reads of pixels ``fix`` (block columns) and redo their sums."""
         cols = sub[:, fix]
@@ -620,6 +691,8 @@ class _StreamFit:
 
     def finish(self, want_var=True):
         """The fit of every pixel (once: the sums' memory becomes the result's)."""
+        if self.A is None:
+            raise RuntimeError("finish() was called already: the sums became its result")
         self._drain()
         nf, npx = self.times.size, self.npx
         bad = None
@@ -772,6 +845,10 @@ class RampAccumulator(FrameAccumulator):
         self.fits["data"].add(index, frame.fill, frame.flags, dtype=frame.dtype)
         if "ref" in self.fits:
             self.fits["ref"].add(index, frame.reference)
+
+    def close(self):
+        for fit in (self.fits or {}).values():
+            fit.close()
 
     def finish(self):
         if self.frames is not None:

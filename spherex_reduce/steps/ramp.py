@@ -543,9 +543,10 @@ class _StreamFit:
             d[j, idx] = np.nan
         tk = self.tc[ks].astype(d.dtype)
         tk64 = self.tc[ks]
-        # bright: |g t| above 1e3 (data unit) somewhere, where float32 rounds g t by more
-        # than 6e-5 (18 e/s at N = 74; a dark's line, noisy after 4 frames, stays below)
-        bright_g = 1e3 / max(np.abs(self.tc).max(), 1e-30)
+        # bright: |g t| above 1e4 (data unit) somewhere, where float32 rounds g t by
+        # more than 6e-4 per read (3.5e-5 of a 10 e read noise's slope sigma): 180 e/s
+        # at N = 74, above the channel drifts of raw frames and a dark's noisy line
+        bright_g = 1e4 / max(np.abs(self.tc).max(), 1e-30)
         first = self.ref is None
         if first:
             self.ref = np.empty(self.npx, d.dtype)

@@ -91,11 +91,10 @@ def fused_plan(prefix, consumer, cparams, source):
     # exactly when subtract_phantom is asked for (it would be skipped otherwise)
     if not source.fusable() or source.has_phantom != (SubtractPhantomStep in kinds):
         return None
-    plan = FusedFrames(schedule, source.unit, phantom=source.has_phantom, reference=reference)
-    # where each part's time goes: unchop, subtract_phantom, correct_reference (or nowhere)
-    plan.slots = [kinds.index(k) if k in kinds else None
-                  for k in (UnchopStep, SubtractPhantomStep, CorrectReferenceStep)]
-    return plan
+    slots = [kinds.index(k) if k in kinds else None
+             for k in (UnchopStep, SubtractPhantomStep, CorrectReferenceStep)]
+    return FusedFrames(schedule, source.unit, phantom=source.has_phantom, reference=reference,
+                       slots=slots)
 
 
 class FusedFrames:
@@ -111,13 +110,18 @@ class FusedFrames:
     reference : dict or None
         ``correct_reference`` settings (``acn``, ``sigma``, ``maxiters``,
         ``strategy``), or None if that step is not among them.
+    slots : list of int or None, optional
+        Index, among the pipeline's per-frame steps, of ``unchop``,
+        ``subtract_phantom`` and ``correct_reference`` (None if absent): where
+        the time of each part of `FusedFrame.elapsed` is booked.
     """
 
-    def __init__(self, schedule, unit, *, phantom, reference):
+    def __init__(self, schedule, unit, *, phantom, reference, slots=(0, None, None)):
         self.schedule = schedule
         self.unit = unit
         self.phantom = phantom
         self.reference = reference
+        self.slots = list(slots)
         self.first, self.repeated = _physical_index(schedule)
         self.unread = self.first < 0
         self.src = np.maximum(self.first, 0)

@@ -202,6 +202,10 @@ class Pipeline:
         """
         steps = [(name, params, self.registry.step(name)(self.registry))
                  for name, params in self.steps]
+        sections = {key: dict(self._config[key]) for key in ("geometry", "readout")
+                    if self._config.get(key)}
+        for _, _, step in steps:
+            step.file_sections = sections
         split = self._stream_split(steps) if stream else None
         current, done = exposure, 0
         if split is not None:

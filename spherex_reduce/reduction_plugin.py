@@ -142,11 +142,13 @@ class PairDifferenceStep(Step):
             todo = [{name: params} for name, status, params in recorded_steps(exposure.header)
                     if status == "COMPLETE"
                     and done.get(registry.step(name).keyword) != "COMPLETE"]
+        # a file lacking read-order keywords gets them from the pipeline config too
+        sections = dict(self.file_sections)
         if todo:  # the same steps, streamed frame by frame like the first exposure
-            b = Pipeline({"steps": todo}, registry=registry,
+            b = Pipeline({"steps": todo, **sections}, registry=registry,
                          source="pair_difference.other").run(other)
         else:
-            b = read(other)
+            b = read(other, **{k: v for section in sections.values() for k, v in section.items()})
         result = pair_difference(exposure, b)
         header = result.header.copy()
         header["PAIROTHR"] = (str(other)[-68:], "second exposure of the pair")

@@ -1,5 +1,7 @@
 """Base classes for what plugins register: steps, strategies, simulators."""
 
+from collections.abc import Mapping
+from types import MappingProxyType
 from typing import ClassVar
 
 __all__ = ["FrameAccumulator", "Simulator", "Step", "Strategy"]
@@ -33,6 +35,11 @@ class Step:
         following step that has an :meth:`accumulator` (e.g. ``fit_ramp``),
         so memory stays near one frame.  Tables such a step records get a
         ``frame`` column.
+    file_sections : dict
+        The pipeline config's ``geometry:`` and ``readout:`` sections, set by
+        the `~spherex_reduce.Pipeline` on the steps it runs: a step that reads
+        another file (``pair_difference``) supplies them for keywords the file
+        lacks, as the pipeline does for its input.
 
     Examples
     --------
@@ -51,6 +58,7 @@ class Step:
     strategy_kind: ClassVar[str | None] = None
     default_strategy: ClassVar[str | None] = None
     per_frame: ClassVar[bool] = False
+    file_sections: ClassVar[Mapping] = MappingProxyType({})
 
     def __init__(self, registry=None):
         self.registry = registry

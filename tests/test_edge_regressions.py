@@ -115,3 +115,46 @@ def test_cli_rejects_bad_numbers(tmp_path, monkeypatch, capsys, args, message):
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err
+
+
+def test_pair_difference_reads_a_foreign_second_file_with_the_config_sections(tmp_path):
+    # both files of the pair lack the read-order keywords; the config's geometry:/readout:
+    # sections must serve the second one too (it failed with "supply them in the config")
+    from astropy.io import fits
+
+    from spherex_reduce import (
+        DetectorGeometry,
+        Pipeline,
+        ReadoutSchedule,
+        fit_ramp,
+        pair_difference,
+        subtract_phantom,
+        unchop,
+    )
+    from spherex_reduce.examples import example_raw_exposure
+
+    s = ReadoutSchedule(DetectorGeometry(32, 16, 2, ref_border=2), skip=5, ref_reads=6,
+                        ref_mode="distributed", phantom_reads=3, row_overhead=2,
+                        frame_overhead=50, nframes=4)
+    raws = [example_raw_exposure(s, seed=seed) for seed in (1, 2)]
+    paths = []
+    for k, raw in enumerate(raws):
+        paths.append(tmp_path / f"foreign{k}.fits")
+        fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(np.asarray(raw.data.data), name="SCI"),
+                      fits.ImageHDU(raw.phantom, name="PHANTOM")]).writeto(paths[-1])
+    config = {
+        "geometry": {"nrows": 32, "ncols": 16, "nchannels": 2, "ref_border": 2,
+                     "pixel_rate": 100000},
+        "readout": {"skip": 5, "ref_reads": 6, "ref_mode": "distributed", "phantom_reads": 3,
+                    "row_overhead": 2, "frame_overhead": 50, "nframes": 4},
+        "steps": [{"unchop": {}}, {"subtract_phantom": {}}, {"fit_ramp": {}},
+                  {"pair_difference": {"other": str(paths[1])}}],
+    }
+    out = Pipeline(config).run(paths[0])
+    expected = pair_difference(*[fit_ramp(subtract_phantom(unchop(r))) for r in raws])
+    np.testing.assert_allclose(out.data.data, expected.data.data, rtol=1e-5, atol=1e-3)
+    # and when the second file is already at the same stage (read, not reduced)
+    config["steps"][-1]["pair_difference"]["reduce_other"] = False
+    config["steps"] = config["steps"][-1:]
+    out = Pipeline(config).run(paths[0])
+    assert out.header["S_PAIRDF"] == "COMPLETE"

@@ -88,6 +88,28 @@ def test_slopes_with_uncertainty(small_schedule):
         np.testing.assert_allclose(out.data.uncertainty.array[row], 1 / np.sqrt(k))
 
 
+def test_uncertainty_of_a_re_read_row_with_unequal_and_unusable_reads(small_schedule):
+    # the mean of the usable reads has sigma sqrt(sum sigma_i^2) / n, not mean(sigma)/sqrt(N)
+    s = small_schedule
+    n = s.n_reads
+    rng = np.random.default_rng(3)
+    sigma = rng.uniform(1, 5, (n, 16))
+    data = rng.normal(0, 1, (n, 16))
+    flags = np.zeros((n, 16), np.uint16)
+    row = int(s.rows[s.is_reference][0])
+    reads = np.flatnonzero(s.rows == row)
+    assert reads.size >= 2
+    data[reads[0], 2] = np.nan  # unusable: not finite
+    flags[reads[1], 3] = dq.DO_NOT_USE  # unusable: flagged
+    out = unchop(Exposure.from_arrays(data, s, uncertainty=sigma, mask=flags))
+    for col in range(16):
+        use = [r for r in reads if np.isfinite(data[r, col]) and flags[r, col] == 0]
+        expected = np.sqrt(sum(sigma[r, col] ** 2 for r in use)) / len(use)
+        np.testing.assert_allclose(out.data.uncertainty.array[row, col], expected, rtol=1e-12)
+        np.testing.assert_allclose(out.data.data[row, col], np.mean(data[use, col]),
+                                   rtol=1e-12)
+
+
 def test_already_physical_is_skipped(small_schedule):
     out = unchop(encoded(small_schedule))
     with pytest.raises(StepSkipped, match="already in physical order"):

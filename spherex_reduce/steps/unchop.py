@@ -45,6 +45,19 @@ def _reread_mean(values, schedule, row, flags=None):
         return np.where(count > 0, np.nansum(reads, axis=-2) / count, np.nan)
 
 
+def _reread_sigma(values, sigma, schedule, row, flags=None):
+    """Standard deviation of `_reread_mean`: ``sqrt(sum sigma_i^2) / n`` over the usable reads."""
+    idx = np.flatnonzero(schedule.rows == row)
+    good = np.isfinite(np.take(values, idx, axis=-2))
+    if flags is not None:
+        good &= np.take(flags, idx, axis=-2) == 0
+    sig = np.take(sigma, idx, axis=-2).astype(np.float64)
+    n = good.sum(axis=-2)
+    var = np.where(good, sig * sig, 0.0).sum(axis=-2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, np.sqrt(var) / n, np.nan)
+
+
 def _flags_to_physical(flags, schedule, first, repeated):
     """Flags in physical order; a re-read row is usable where any of its reads is."""
     out = np.take(flags, np.maximum(first, 0), axis=-2)
@@ -61,7 +74,8 @@ def unchop(exposure):
     Every active row is read once per frame and goes to its physical place.
     Reference reads are kept aside, with their read indices (hence their
     times), as ``exposure.reference``; each physical reference row of the
-    image holds the mean of its reads.  Rows the schedule never reads are NaN
+    image holds the mean of its usable reads (finite, not flagged), with the
+    uncertainty of that mean.  Rows the schedule never reads are NaN
     and flagged `~spherex_reduce.dq.NOT_READ`.
 
     Parameters
@@ -102,9 +116,9 @@ def unchop(exposure):
     unc = None
     if nd.uncertainty is not None:
         unc = _to_physical(nd.uncertainty.array, schedule, first, repeated)
-        for row in repeated:  # the error of a mean of n independent reads
-            n = int((schedule.rows == row).sum())
-            unc[..., row, :] /= np.sqrt(n)
+        for row in repeated:  # the error of the mean of its usable reads
+            unc[..., row, :] = _reread_sigma(nd.data, nd.uncertainty.array, schedule, row,
+                                             exposure.dq)
     flags = (None if exposure.dq is None
              else _flags_to_physical(exposure.dq, schedule, first, repeated))
     unread = first < 0

@@ -122,9 +122,9 @@ class FusedFrames:
         self.phantom = phantom
         self.reference = reference
         self.slots = list(slots)
-        self.first, self.repeated = _physical_index(schedule)
-        self.unread = self.first < 0
-        self.src = np.maximum(self.first, 0)
+        first, self.repeated = _physical_index(schedule)
+        self.unread = first < 0  # rows never read
+        self.src = np.maximum(first, 0)  # the read each physical row is copied from
         self.ref_idx = schedule.reference_read_indices
         nrows = schedule.geometry.nrows
         self.reread_in_block = {b0: [int(r) for r in self.repeated if b0 <= r < b0 + _ROWS]

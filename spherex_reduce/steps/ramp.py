@@ -440,7 +440,6 @@ class _StreamFit:
         self.stt = float(self.tc @ self.tc)
         self.w = self.tc / self.stt if self.stt > 0 else np.zeros_like(self.tc)
         self.saturation, self.read_noise, self.gain = saturation, read_noise, gain
-        self.buf = None
         self.bufs = [None, None]  # filled in turn: one takes frames while the other is summed
         self.cur = 0  # the buffer taking frames
         self.busy = [None, None]  # the summing of each buffer (a Future), if under way
@@ -460,6 +459,11 @@ class _StreamFit:
         self.sat_any = np.zeros(self.npx, bool)
         self.all_flags = None
 
+    @property
+    def buf(self):
+        """The buffer taking frames (None before the first frame)."""
+        return self.bufs[self.cur]
+
     def add(self, k, values, flags=None, dtype=None):
         """Frame ``k``: ``values``, an array or ``fill(out)`` writing the frame into the
         flat buffer row ``out`` (then ``dtype`` is the frame's type, and no
@@ -473,7 +477,7 @@ class _StreamFit:
         if self.buf is None:
             work = np.float64 if dtype == np.float64 else np.float32
             shape = (min(_STREAM_GROUP, self.times.size), self.npx)
-            self.bufs[0] = self.buf = np.empty(shape, dtype=work)
+            self.bufs[0] = np.empty(shape, dtype=work)
             if self.npx >= _ASYNC_PIXELS and self.times.size > shape[0]:
                 self.bufs[1] = np.empty(shape, dtype=work)
                 self.pool = ThreadPoolExecutor(1, thread_name_prefix="spherex-reduce-sums")
@@ -518,7 +522,6 @@ class _StreamFit:
             return
         self.busy[self.cur] = self.pool.submit(self._flush, ks, flagged, buf)
         self.cur = 1 - self.cur
-        self.buf = self.bufs[self.cur]
 
     def _drain(self):
         """Sum what is buffered and wait for every summing; release the thread."""

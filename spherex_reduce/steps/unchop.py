@@ -115,7 +115,7 @@ def unchop(exposure):
     data = _to_physical(nd.data, schedule, first, repeated, exposure.dq)
     unc = None
     if nd.uncertainty is not None:
-        unc = _to_physical(nd.uncertainty.array, schedule, first, repeated)
+        unc = _to_physical(nd.uncertainty.array, schedule, first, ())
         for row in repeated:  # the error of the mean of its usable reads
             unc[..., row, :] = _reread_sigma(nd.data, nd.uncertainty.array, schedule, row,
                                              exposure.dq)

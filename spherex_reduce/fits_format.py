@@ -309,6 +309,7 @@ class FrameReader:
             self._tables = {h.name: Table.read(h) for h in self._hdul
                             if isinstance(h, fits.BinTableHDU) and h.name not in _RESERVED}
             self._map = _map_frames(d["sci"], path)
+            self._fd = os.open(path, os.O_RDONLY) if self._map is not None else None
         except Exception:
             self._hdul.close()
             raise
@@ -322,6 +323,9 @@ class FrameReader:
 
     def close(self):
         """Close the file."""
+        if getattr(self, "_fd", None) is not None:
+            os.close(self._fd)
+            self._fd = None
         if self._map is not None:
             try:
                 self._map[0].close()
@@ -374,6 +378,31 @@ class FrameReader:
         view = np.frombuffer(mm, dtype=dtype, count=count, offset=start).reshape(shape)
         phantom = None if self._phantom is None else self._phantom[k]
         return view, phantom, lambda: self._release(start, count * dtype.itemsize)
+
+    def reads(self, k, first, stop):
+        """Reads ``first:stop`` of frame ``k`` as they are in the file (a copy).
+
+        Read with ``pread``: no page of the memory map is touched, and several
+        threads may read at once.  Only for files whose data are not scaled
+        (`fusable`).
+
+        Returns
+        -------
+        `numpy.ndarray`
+            ``(stop - first, columns)``, possibly big-endian.
+        """
+        _, offset, dtype = self._map
+        nreads, ncols = self._d["shape"][1:]
+        buf = np.empty((stop - first, ncols), dtype)
+        view = memoryview(buf).cast("B")
+        pos = offset + (k * nreads + first) * ncols * dtype.itemsize
+        done = 0
+        while done < view.nbytes:
+            got = os.preadv(self._fd, [view[done:]], pos + done)
+            if got <= 0:
+                raise FormatError(f"{self.path}: the file ends inside frame {k}")
+            done += got
+        return buf
 
     def _release(self, start, nbytes):
         mm = self._map[0] if self._map is not None else None

@@ -127,8 +127,12 @@ class FusedFrames:
         self.src = np.maximum(first, 0)  # the read each physical row is copied from
         self.ref_idx = schedule.reference_read_indices
         nrows = schedule.geometry.nrows
-        self.reread_in_block = {b0: [int(r) for r in self.repeated if b0 <= r < b0 + _ROWS]
+        self.reread_in_block = {b0: [(int(r) - b0, int(r)) for r in self.repeated
+                                     if b0 <= r < b0 + _ROWS]
                                 for b0 in range(0, nrows, _ROWS)}
+        #: physical rows in the order of their (first) read: bands of it read the
+        #: file in order
+        self.order = np.argsort(self.src, kind="stable")
 
     def prepare(self, k, raw, phantom, template):
         """The offsets of frame ``k`` and a function that writes its corrected pixels.
@@ -195,6 +199,49 @@ class FusedFrames:
                           ref, tables, header, [t1 - t0, t2 - t1, t3 - t2])
 
 
+    def bandable(self, first, parts):
+        """Whether frame ``first`` (after the steps) and the prepared ``parts`` of the
+        later frames can be fitted band by band (`band_fill`): nothing flagged
+        (no rows left unread, no channel without reference pixels), and every
+        frame's pixels of one type."""
+        ref = first.reference
+        dtype = first.data.data.dtype
+        return (first.dq is None and first.phantom is None
+                and (ref is None or (ref.dq is None and ref.phantom is None))
+                and all(p.flags is None and p.dtype == dtype for p in parts))
+
+    def band_fill(self, first, parts, source):
+        """``fill(rows, out)``: the corrected pixels of image ``rows`` of every frame.
+
+        ``out`` is ``(frames, len(rows), columns)``: frame 0 from ``first``
+        (after the steps), the others from their `FusedFrame` in ``parts``,
+        their reads taken from ``source.reads`` (for a file, ``pread`` into a
+        small buffer: no page faults, and threads read side by side).
+        """
+        data0 = np.asarray(first.data.data[0])
+        repeated = np.zeros(self.schedule.geometry.nrows, bool)
+        repeated[self.repeated] = True
+
+        def fill(rows, out):
+            src = self.src[rows]
+            rereads = [(int(i), int(rows[i])) for i in np.flatnonzero(repeated[rows])]
+            np.take(data0, rows, axis=0, out=out[0])
+            lo, hi = int(src.min()), int(src.max()) + 1
+            for k, part in enumerate(parts, start=1):
+                part.rows(src, rereads, out[k], raw=source.reads(k, lo, hi), first=lo)
+
+        return fill
+
+    @staticmethod
+    def reference_reads(first, parts):
+        """The corrected reference reads of every frame ``(frames, reads, columns)``,
+        or None if the frames carry none."""
+        ref = first.reference
+        if ref is None or np.ndim(ref.data) != 3:
+            return None
+        return np.concatenate([np.asarray(ref.data)] + [p.reference[None] for p in parts])
+
+
 class FusedFrame:
     """One frame prepared by `FusedFrames.prepare`.
 
@@ -221,31 +268,43 @@ class FusedFrame:
         self.reread, self.col = reread, col
         self.flags, self.reference, self.tables, self.header = flags, reference, tables, header
         self.elapsed = elapsed
+        #: ``release()``: frees the file pages of the frame once copied (set by the
+        #: caller; by default nothing to free)
+        self.release = lambda: None
 
     def fill(self, out):
         """Write the corrected frame, physical order, into ``out`` (flat, ``rows*columns``).
 
-        Blocks of rows stay in cache: into place, minus the phantom value,
-        minus the offset (the steps' order of operations).
+        Blocks of rows stay in cache (see `rows`).
         """
         t0 = time.perf_counter()
-        plan, raw, ph, col = self.plan, self.raw, self.phantom, self.col
+        plan = self.plan
         g = plan.schedule.geometry
-        width, nch = g.channel_width, g.nchannels
         out = out.reshape(g.nrows, g.ncols)
         for b0 in range(0, g.nrows, _ROWS):
             b1 = min(g.nrows, b0 + _ROWS)
-            src = plan.src[b0:b1]
-            blk = out[b0:b1]
-            if ph is not None:
-                np.subtract(np.take(raw, src, axis=0).reshape(b1 - b0, nch, width),
-                            np.take(ph, src, axis=0)[:, :, None],
-                            out=blk.reshape(b1 - b0, nch, width))
-            else:
-                blk[...] = np.take(raw, src, axis=0)
-            for row in plan.reread_in_block[b0]:
-                blk[row - b0] = self.reread[row]  # re-read rows: the mean of their reads
-            if col is not None:
-                blk -= col
+            self.rows(plan.src[b0:b1], plan.reread_in_block[b0], out[b0:b1])
         out[plan.unread] = np.nan
         self.elapsed[0] += time.perf_counter() - t0
+
+    def rows(self, src, rereads, out, raw=None, first=0):
+        """Corrected image rows read at ``src`` into ``out`` ``(len(src), columns)``.
+
+        ``raw``: the reads to take them from (default: the frame's), starting
+        at read ``first``.
+
+        In the steps' order of operations: copied into native byte order, minus
+        the phantom value of their row read and channel, re-read rows
+        (``rereads``: pairs of index in ``src`` and image row) replaced by the
+        mean of their reads, minus the column offsets.
+        """
+        g = self.plan.schedule.geometry
+        out[...] = np.take(self.raw, src, axis=0) if raw is None else raw[src - first]
+        if self.phantom is not None:
+            per_channel = out.reshape(len(src), g.nchannels, g.channel_width)
+            np.subtract(per_channel, np.take(self.phantom, src, axis=0)[:, :, None],
+                        out=per_channel)
+        for i, row in rereads:
+            out[i] = self.reread[row]
+        if self.col is not None:
+            out -= self.col

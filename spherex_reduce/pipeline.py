@@ -274,7 +274,7 @@ class Pipeline:
         plan = fused_plan(prefix, consumer, cparams, source) if fuse else None
         try:
             fused = self._stream_frames(source, first, prefix, acc, frames, elapsed, status,
-                                        tables, plan)
+                                        tables, plan, progress)
         except BaseException:
             acc.stop()
             close = getattr(acc.accumulator, "close", None)
@@ -290,11 +290,14 @@ class Pipeline:
                   for name, parts in tables.items()}
         result = result.replace(tables={**result.tables, **merged})
         if fused:
+            how = ("every frame fitted at once, a band of rows at a time (the numbers of "
+                   "the steps on the whole ramp)" if fused == "bands" else
+                   "frame by frame (the numbers of the steps frame by frame)")
             header = result.header.copy()
             header.add_history(
                 f"{', '.join(name for name, _, _ in prefix)} fused into {consumer.name} for "
                 f"frames 1-{source.nframes - 1}: offsets from the phantom values and "
-                "reference reads, one pass over the pixels (same numbers)")
+                f"reference reads, one pass over the pixels; {how}")
             result = result.replace(header=header)
         for j, (_, params, step) in enumerate(prefix):
             if status[j][0] == "COMPLETE":
@@ -303,32 +306,17 @@ class Pipeline:
         return self._record(consumer, cparams, first, result, "COMPLETE", None, elapsed[-1])
 
     @staticmethod
-    def _stream_frames(source, first, prefix, acc, frames, elapsed, status, tables, plan):
+    def _stream_frames(source, first, prefix, acc, frames, elapsed, status, tables, plan,
+                       progress=False):
         """Each frame through the per-frame steps, then to the accumulator.
 
-        With a fused ``plan`` (see `spherex_reduce.fused`), frames after the
+        With a fused ``plan`` (see `spherex_reduce.fused`), the frames after the
         first go the fused way if every step completed on the first.  Returns
-        whether any frame did.
+        None if no frame did, else ``'bands'`` or ``'frames'`` (how they were
+        fitted).
         """
-        fused = None  # the first frame after the steps, once fusing
+        frames = iter(frames)
         for k in frames:
-            if fused is not None:
-                raw, phantom, release = source.raw(k)
-                part = plan.prepare(k, raw, phantom, template=fused)
-                # straight into the fit's buffer, from this thread (the fit sums full
-                # buffers in a thread of its own)
-                before, t0 = part.elapsed[0], time.perf_counter()
-                acc.accumulator.add_fused(k, part)
-                release()
-                # the copy counts as un-chopping (part.elapsed[0]), the rest as fitting
-                acc.busy += time.perf_counter() - t0 - (part.elapsed[0] - before)
-                for j, dt in zip(plan.slots, part.elapsed, strict=True):
-                    if j is not None:
-                        elapsed[j] += dt
-                for name, table in part.tables.items():
-                    table["frame"] = np.full(len(table), k, dtype=np.int32)
-                    tables.setdefault(name, []).append(table)
-                continue
             frame = first if k == 0 else source.frame(k)
             for j, (_, params, step) in enumerate(prefix):
                 t0 = time.perf_counter()
@@ -343,11 +331,59 @@ class Pipeline:
                         t["frame"] = np.full(len(t), k, dtype=np.int32)
                         tables.setdefault(name, []).append(t)
                 frame = out
+            if k == 0 and plan is not None and all(st == "COMPLETE" for st, _ in status):
+                return Pipeline._fuse(source, frame, frames, acc, elapsed, tables, plan,
+                                      progress)
             acc.add(k, frame)
-            if plan is not None and all(st == "COMPLETE" for st, _ in status):
-                acc.drain()  # the first frame is in; the later ones go in from here
-                fused = frame
-        return fused is not None
+        return None
+
+    @staticmethod
+    def _fuse(source, first, frames, acc, elapsed, tables, plan, progress):
+        """The frames after ``first`` (frame 0 after the steps) the fused way.
+
+        Their offsets come first (`FusedFrames.prepare`, from the phantom values
+        and reference reads).  Then, if nothing is flagged, the fit reads every
+        frame a band of rows at a time (`RampAccumulator.fit_bands`); else the
+        frames are copied one by one into the fit's buffer.
+        """
+        parts = []
+        for k in frames:
+            raw, phantom, release = source.raw(k)
+            part = plan.prepare(k, raw, phantom, template=first)
+            release()  # the reference reads are copied; the pixels are read again later
+            part.release = release
+            for j, dt in zip(plan.slots, part.elapsed, strict=True):
+                if j is not None:
+                    elapsed[j] += dt
+            for name, table in part.tables.items():
+                table["frame"] = np.full(len(table), k, dtype=np.int32)
+                tables.setdefault(name, []).append(table)
+            parts.append(part)
+        if plan.bandable(first, parts):
+            t0 = time.perf_counter()
+            with tqdm(desc="fit bands", unit="band", disable=not progress,
+                      leave=False) as bar:
+                filling = acc.accumulator.fit_bands(first, plan.band_fill(first, parts, source),
+                                                  plan.order, plan.reference_reads(first, parts),
+                                                  progress=bar)
+            # the share of the time spent reading and correcting counts as un-chopping
+            share = (time.perf_counter() - t0) * filling
+            elapsed[plan.slots[0]] += share
+            acc.busy += time.perf_counter() - t0 - share
+            return "bands"
+        acc.add(0, first)
+        acc.drain()  # the first frame is in; the later ones go in from here
+        for k, part in enumerate(parts, start=1):
+            # straight into the fit's buffer, from this thread (the fit sums full
+            # buffers in a thread of its own)
+            before, t0 = part.elapsed[0], time.perf_counter()
+            acc.accumulator.add_fused(k, part)
+            part.release()
+            # the copy counts as un-chopping (part.elapsed[0]), the rest as fitting
+            dt = part.elapsed[0] - before
+            elapsed[plan.slots[0]] += dt
+            acc.busy += time.perf_counter() - t0 - dt
+        return "frames"
 
 
 class _Background:
@@ -434,6 +470,9 @@ class _ExposureFrames:
         e = self.exposure
         return (e.data.data[k], None if e.phantom is None else e.phantom[k],
                 lambda: None)
+
+    def reads(self, k, first, stop):
+        return self.exposure.data.data[k, first:stop]
 
     def frame(self, k):
         e = self.exposure

@@ -20,18 +20,27 @@ def schedule(ref_mode="distributed", nframes=11, skip=5, phantom_reads=3):
 
 
 def fused_and_not(config, source):
+    """The fused run, and the steps run one by one: on the whole ramp if the fused
+    run fitted it band by band, else frame by frame."""
     pipe = Pipeline(config)
     with warnings.catch_warnings(record=True) as w_fused:
         warnings.simplefilter("always")
         fused = pipe.run(source)
     with warnings.catch_warnings(record=True) as w_plain:
         warnings.simplefilter("always")
-        plain = pipe.run(source, fuse=False)
+        if was_banded(fused):
+            plain = pipe.run(source, stream=False)
+        else:
+            plain = pipe.run(source, fuse=False)
     return fused, plain, w_fused, w_plain
 
 
 def was_fused(exposure):
     return any("fused into fit_ramp" in str(h) for h in exposure.header["HISTORY"])
+
+
+def was_banded(exposure):
+    return any("a band of rows at a time" in str(h) for h in exposure.header["HISTORY"])
 
 
 def assert_identical(fused, plain):
@@ -47,7 +56,9 @@ def assert_identical(fused, plain):
             np.testing.assert_array_equal(np.asarray(a[col]), np.asarray(b[col]), err_msg=name)
     skip = {"HISTORY"}
     keys = [k for k in plain.header if k not in skip]
-    assert [k for k in fused.header if k not in skip] == keys
+    # the whole-ramp run records each step's keywords as it goes, the streamed
+    # ones after the frames: the same keywords in another order
+    assert sorted(k for k in fused.header if k not in skip) == sorted(keys)
     for key in keys:
         assert fused.header[key] == plain.header[key], key
 
@@ -160,19 +171,79 @@ def test_cli_no_fuse_gives_the_same_file_contents(tmp_path):
         assert main(["-q", "reduce", str(path), "-c", "spherex-default", "-o", str(out),
                      *flag]) == 0
         outs[len(flag)] = read(out)
-    assert was_fused(outs[0]) and not was_fused(outs[1])
-    np.testing.assert_array_equal(outs[0].data.data, outs[1].data.data)
+    assert was_banded(outs[0]) and not was_fused(outs[1])
+    # fitted at once vs frame by frame: the same fit up to float32 rounding
+    err = outs[1].data.uncertainty.array
+    assert np.abs(outs[0].data.data - outs[1].data.data).max() < 1e-4 * np.nanmin(err)
     np.testing.assert_array_equal(outs[0].dq, outs[1].dq)
 
 
+def test_bands_on_threads_equal_the_steps_on_the_whole_ramp(tmp_path, monkeypatch):
+    from spherex_reduce.steps import ramp
+
+    monkeypatch.setattr(ramp, "_BAND_PIXELS", 48)  # 3 rows of 16 columns: 11 bands
+    monkeypatch.setattr(ramp, "_PARALLEL_SIZE", 0)  # on two threads however small
+    monkeypatch.setattr(ramp, "_THREADS", 2)
+    s = schedule()
+    raw = example_raw_exposure(s, seed=14)
+    data = raw.data.data.copy()
+    data[3, 10, 5] = np.nan  # unusable reads: refitted on the usable ones, no flag
+    data[:, 12, 7] = np.nan
+    data[4, s.reference_read_indices[0], 3] = np.nan  # one reference pixel
+    path = write(raw.replace(data=data), tmp_path / "raw.fits")
+    for name in ("mean", "acn"):
+        fused, plain, w_fused, w_plain = fused_and_not({"steps": STEPS[name]}, path)
+        assert was_banded(fused)
+        assert_identical(fused, plain)
+        assert len(w_fused) == len(w_plain)
+    assert fused.header["NFEWRDS"] >= 1
+
+
+def test_flags_fit_frame_by_frame_as_the_steps_do(tmp_path):
+    s = schedule()
+    raw = example_raw_exposure(s, seed=15)
+    data = raw.data.data.copy()
+    data[np.ix_([2], s.reference_read_indices, np.arange(8, 16))] = np.nan  # NO_REFERENCE
+    path = write(raw.replace(data=data), tmp_path / "raw.fits")
+    fused, plain, _, _ = fused_and_not({"steps": STEPS["mean"]}, path)
+    assert was_fused(fused) and not was_banded(fused)
+    assert_identical(fused, plain)
+
+
 def test_fused_equals_the_steps_with_background_sums(monkeypatch):
+    from spherex_reduce import fused as fused_module
     from spherex_reduce.steps import ramp
 
     monkeypatch.setattr(ramp, "_ASYNC_PIXELS", 0)  # the full-size path, on a small image
+    # frame by frame, as when something is flagged
+    monkeypatch.setattr(fused_module.FusedFrames, "bandable", lambda self, first, parts: False)
     raw = example_raw_exposure(schedule(nframes=20), seed=10)
     fused, plain, _, _ = fused_and_not({"steps": STEPS["acn"]}, raw)
-    assert was_fused(fused)
+    assert was_fused(fused) and not was_banded(fused)
     assert_identical(fused, plain)
+
+
+def test_an_error_in_a_band_reaches_the_caller(tmp_path, monkeypatch):
+    import threading
+
+    from spherex_reduce import fused
+    from spherex_reduce.steps import ramp
+
+    monkeypatch.setattr(ramp, "_BAND_PIXELS", 48)
+    monkeypatch.setattr(ramp, "_PARALLEL_SIZE", 0)
+    monkeypatch.setattr(ramp, "_THREADS", 2)
+    path = write(example_raw_exposure(schedule(), seed=16), tmp_path / "raw.fits")
+    original = fused.FusedFrame.rows
+
+    def broken(self, src, rereads, out, raw=None, first=0):
+        if src.max() > 20:  # a later band, while others are fitted
+            raise RuntimeError("a band broke")
+        return original(self, src, rereads, out, raw, first)
+
+    monkeypatch.setattr(fused.FusedFrame, "rows", broken)
+    with pytest.raises(RuntimeError, match="a band broke"):
+        Pipeline({"steps": STEPS["mean"]}).run(path)
+    assert not [t for t in threading.enumerate() if t.name.startswith("spherex-reduce")]
 
 
 def test_an_error_while_fusing_reaches_the_caller(tmp_path, monkeypatch):

@@ -19,6 +19,7 @@ vectorised float64 path that uses only their usable reads.
 """
 
 import os
+import time
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -37,6 +38,8 @@ _THREADS = max(1, min(4, os.cpu_count() or 1))  # threads over blocks of rows
 _STREAM_GROUP = 4  # frames per buffer of the frame-by-frame accumulator (two buffers)
 _ASYNC_PIXELS = 1 << 20  # from this size on, a full buffer is summed in the background
 _BLOCK_PIXELS = 1 << 15  # pixels per block (74 frames x 32768 x 4 B = 9.7 MB): fewer calls
+_PARALLEL_SIZE = 1 << 22  # values from which a fit runs on several threads
+_BAND_PIXELS = 1 << 17  # pixels per band of _fit_bands (74 frames x 131072 x 4 B = 39 MB)
 WEIGHTINGS = ("uniform", "optimal")
 
 
@@ -137,11 +140,13 @@ def _fit_masked(y, good, times, read_noise, poisson_scale):
 
 
 def _fit_cube(cube, times, *, mask=None, saturation=None, weighting="uniform", read_noise=None,
-              gain=1.0, want_var=True):
+              gain=1.0, want_var=True, threads=None, buf=None):
     """Fit every ramp of ``cube`` (nframes, n, m) read at ``times`` (nframes,).
 
     ``mask`` is None, or an integer/bool array of the cube's shape (per read)
-    or of ``(n, m)`` (per pixel).  Returns a `_Fit` of shape ``(n, m)``.
+    or of ``(n, m)`` (per pixel).  ``threads`` caps the threads (default: by
+    size); ``buf``, a work buffer ``(nframes, >= _BLOCK_PIXELS)`` of the work
+    type, is used when one thread runs.  Returns a `_Fit` of shape ``(n, m)``.
     """
     nf, n, m = cube.shape
     work = np.float64 if cube.dtype == np.float64 else np.float32
@@ -278,19 +283,66 @@ def _fit_cube(cube, times, *, mask=None, saturation=None, weighting="uniform", r
             fit.flags[r0:r1].reshape(npx)[bidx] = pix_flags
 
     starts = list(range(0, n, rows_per_block))
-    nthreads = min(_THREADS, len(starts)) if nf * n * m >= (1 << 22) else 1
+    nthreads = min(_THREADS, len(starts)) if nf * n * m >= _PARALLEL_SIZE else 1
+    if threads is not None:
+        nthreads = min(nthreads, threads)
 
-    def worker(part):
-        buf = np.empty((nf, rows_per_block * m), dtype=work)
+    def worker(part, buf=None):
+        if buf is None:
+            buf = np.empty((nf, rows_per_block * m), dtype=work)
         for r0 in part:
             run_block(r0, buf)
 
     if nthreads <= 1:
-        worker(starts)
+        worker(starts, buf)
     else:  # numpy releases the GIL in these loops: blocks run on every core
         with ThreadPoolExecutor(nthreads) as pool:
             list(pool.map(worker, [starts[k::nthreads] for k in range(nthreads)]))
     return fit
+
+
+def _fit_bands(shape, times, fill, order, dtype, progress=None, **kw):
+    """Fit ramps of every pixel of an image ``shape`` whose frames are written, a
+    band of rows at a time, by ``fill(rows, out)`` (``out``: frames x rows x columns).
+
+    ``order`` lists every row once; consecutive rows of it form a band (whatever
+    keeps ``fill``'s reads together).  Each band is fitted by `_fit_cube`, so the
+    result is, pixel by pixel, the fit of the whole cube; bands run on
+    ``_THREADS`` threads (numpy releases the GIL), each with its own buffers.
+    ``kw`` goes to `_fit_cube`; ``progress`` (a tqdm bar) counts the bands.
+    Returns the `_Fit` and the fraction of the threads' time ``fill`` took.
+    """
+    n, m = shape
+    nf = len(times)
+    fit = _Fit(shape, np.float64)
+    per = max(1, _BAND_PIXELS // max(m, 1))
+    bands = [order[i:i + per] for i in range(0, len(order), per)]
+    nthreads = min(_THREADS, len(bands)) if nf * n * m >= _PARALLEL_SIZE else 1
+    work = np.float64 if dtype == np.float64 else np.float32
+    filling = []
+
+    def worker(mine):
+        cube = np.empty(nf * per * m, dtype)
+        buf = np.empty((nf, min(per, max(1, _BLOCK_PIXELS // max(m, 1))) * m), work)
+        spent, start = 0.0, time.perf_counter()
+        for rows in mine:
+            band = cube[: nf * rows.size * m].reshape(nf, rows.size, m)
+            t0 = time.perf_counter()
+            fill(rows, band)
+            spent += time.perf_counter() - t0
+            part = _fit_cube(band, times, threads=1, buf=buf, **kw)
+            fit.slope[rows], fit.var[rows] = part.slope, part.var
+            fit.nreads[rows], fit.flags[rows] = part.nreads, part.flags
+            if progress is not None:
+                progress.update(1)
+        filling.append((spent, time.perf_counter() - start))
+
+    if nthreads <= 1:
+        worker(bands)
+    else:
+        with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-bands") as pool:
+            list(pool.map(worker, [bands[k::nthreads] for k in range(nthreads)]))
+    return fit, sum(f for f, _ in filling) / max(sum(t for _, t in filling), 1e-12)
 
 
 def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, saturation=None):
@@ -810,6 +862,7 @@ class RampAccumulator(FrameAccumulator):
         self.frames = [] if weighting == "optimal" else None
         self.fits = None
         self.last = None
+        self.banded = None  # (fit, reference fit) of fit_bands
 
     def add(self, index, frame):
         self.last = frame
@@ -850,6 +903,50 @@ class RampAccumulator(FrameAccumulator):
         if "ref" in self.fits:
             self.fits["ref"].add(index, frame.reference)
 
+    def fit_bands(self, first, fill, order, reference=None, progress=None):
+        """Every frame at once, a band of rows at a time (`spherex_reduce.fused`).
+
+        For a file read by the fused path: memory stays near one band of every
+        frame plus the output, and each band is fitted as `fit_ramp` fits a
+        whole cube, so the result is the one of `fit_ramp` on the whole ramp.
+
+        Parameters
+        ----------
+        first : `~spherex_reduce.Exposure`
+            Frame 0 after the per-frame steps: the template of the result (its
+            header and reference reads' rows); not given to `add`.
+        fill : callable
+            ``fill(rows, out)`` writes the pixels of image ``rows`` of every
+            frame into ``out`` ``(frames, len(rows), columns)``, of the type of
+            ``first``'s pixels.
+        order : `numpy.ndarray`
+            Every image row once; bands are consecutive rows of it.
+        reference : `numpy.ndarray`, optional
+            The reference reads of every frame ``(frames, reads, columns)``.
+        progress : tqdm bar, optional
+            Advanced by one per band.
+
+        Returns
+        -------
+        float
+            The fraction of the time spent in ``fill``.
+        """
+        p = self.params
+        if (self.fits is not None or self.frames is not None or p["saturation"] is not None
+                or p["weighting"] != "uniform" or first.phantom is not None
+                or first.dq is not None):
+            raise RuntimeError("fit_bands needs uniform weights, no saturation level, no flags "
+                               "or phantom values, and no frame given to add()")
+        self.last = first
+        kw = dict(read_noise=p["read_noise"], gain=p["gain"])
+        fit, filling = _fit_bands(first.shape[-2:], self.times, fill, order,
+                                first.data.data.dtype, progress, **kw)
+        rfit = None
+        if reference is not None:
+            rfit = _fit_cube(reference, self.times, want_var=False)
+        self.banded = fit, rfit
+        return filling
+
     def close(self):
         for fit in (self.fits or {}).values():
             fit.close()
@@ -857,6 +954,14 @@ class RampAccumulator(FrameAccumulator):
     def finish(self):
         if self.frames is not None:
             return fit_ramp(_stack(self.frames, self.schedule), **self.params)
+        if self.banded is not None:
+            fit, rfit = self.banded
+            self.banded = None
+            reference = self.last.reference
+            if rfit is not None:
+                reference = ReferenceReads(data=rfit.slope, rows=reference.rows,
+                                           reads=reference.reads, dq=rfit.flags)
+            return _result(self.last, self.schedule, fit, None, reference, "uniform")
         f = self.fits
         fit = f["data"].finish()
         phantom = f["phantom"].finish(False).slope if "phantom" in f else None

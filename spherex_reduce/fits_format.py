@@ -137,7 +137,9 @@ def write(exposure, path, overwrite=False):
     hdus = [fits.PrimaryHDU(header=header), _image(exposure.data.data, "SCI", unit)]
     unc = exposure.data.uncertainty
     if unc is not None:
-        hdus.append(_image(unc.represent_as(StdDevUncertainty).array, "ERR", unit))
+        if not isinstance(unc, StdDevUncertainty):  # (converting costs two passes)
+            unc = unc.represent_as(StdDevUncertainty)
+        hdus.append(_image(unc.array, "ERR", unit))
     dq = exposure.dq
     if dq is not None:
         hdus.append(_image(dq.astype(np.int32), "DQ"))  # unsigned would need BZERO: no memmap

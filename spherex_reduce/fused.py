@@ -42,7 +42,7 @@ from .steps.reference import (
     missing_columns,
     offsets_table,
 )
-from .steps.unchop import _physical_index, _reread_mean
+from .steps.unchop import _mean_of_reads, _physical_index
 
 __all__ = ["FusedFrame", "FusedFrames", "fused_plan"]
 
@@ -133,6 +133,10 @@ class FusedFrames:
         #: physical rows in the order of their (first) read: bands of it read the
         #: file in order
         self.order = np.argsort(self.src, kind="stable")
+        # the reads of the re-read rows, and where each row's are among them
+        self.reread_reads = np.flatnonzero(np.isin(schedule.rows, self.repeated))
+        self.reread_idx = {int(row): np.flatnonzero(schedule.rows[self.reread_reads] == row)
+                           for row in self.repeated}
 
     def prepare(self, k, raw, phantom, template):
         """The offsets of frame ``k`` and a function that writes its corrected pixels.
@@ -151,6 +155,16 @@ class FusedFrames:
         -------
         `FusedFrame`
         """
+        return self.prepare_frames([k], [raw], [phantom], template)[0]
+
+    def prepare_frames(self, ks, raws, phantoms, template):
+        """`prepare` for several frames at once (the reference pixels of all of
+        them are sorted in one call).
+
+        Returns
+        -------
+        list of `FusedFrame`
+        """
         s = self.schedule
         g = s.geometry
         width = g.channel_width
@@ -158,46 +172,59 @@ class FusedFrames:
         use_ph = self.phantom
         # the steps' precisions: un-chopped rows keep the pixels' type, the corrections
         # work in the common type of pixels, phantom values and float32
-        raw_t = raw.dtype.newbyteorder("=")
-        ph_t = phantom.dtype.newbyteorder("=") if use_ph else raw_t
+        raw_t = raws[0].dtype.newbyteorder("=")
+        ph_t = phantoms[0].dtype.newbyteorder("=") if use_ph else raw_t
         native = np.result_type(raw_t, ph_t, np.float32)
-        ref = np.take(raw, self.ref_idx, axis=0).astype(raw_t)
-        reread = {row: _reread_mean(raw, s, row).astype(raw_t) for row in self.repeated}
+        ref = np.stack([np.take(raw, self.ref_idx, axis=0) for raw in raws]).astype(raw_t)
+        # the reads of re-read rows: (frames, reads, columns)
+        again = np.stack([np.take(raw, self.reread_reads, axis=0) for raw in raws])
+        reread = {row: _mean_of_reads(again, idx).astype(raw_t)
+                  for row, idx in self.reread_idx.items()}
         flags = None
         if self.unread.any():
             flags = np.zeros((g.nrows, g.ncols), np.uint16)
             flags[self.unread] |= dq.NOT_READ
         t1 = time.perf_counter()
         if use_ph:  # subtract_phantom on the reference reads and the re-read rows
-            ref = _subtract_rows(ref[None], np.take(phantom, self.ref_idx, axis=0)[None],
-                                 width)[0]
-            for row, value in reread.items():
-                ph_row = _reread_mean(phantom, s, row).astype(ph_t)
-                reread[row] = value.astype(native) - np.repeat(ph_row, width).astype(native)
+            ph = np.stack(phantoms)
+            ref = _subtract_rows(ref, np.take(ph, self.ref_idx, axis=1), width)
+            ph_again = np.take(ph, self.reread_reads, axis=1)
+            for row, idx in self.reread_idx.items():
+                ph_row = _mean_of_reads(ph_again, idx).astype(ph_t)
+                reread[row] = (reread[row].astype(native)
+                               - np.repeat(ph_row, width, axis=-1).astype(native))
         t2 = time.perf_counter()
-        tables = {}
-        header = template.header
-        col = None
+        n = len(ks)
+        tables = [{} for _ in ks]
+        headers = [template.header] * n
+        cols = [None] * n
+        frame_flags = [flags] * n
+        refs = list(ref)
         if self.reference is not None:  # correct_reference: offsets from the reference reads
             r = self.reference
-            off, used, clipped = _offsets_of(g, _usable(ref[None], None), acn=r["acn"],
+            off, used, clipped = _offsets_of(g, _usable(ref, None), acn=r["acn"],
                                              sigma=r["sigma"], maxiters=r["maxiters"])
-            offsets, missing, col = _column_plan(g, off, r["strategy"], r["acn"])
-            if missing.any():
-                flags = np.zeros((g.nrows, g.ncols), np.uint16) if flags is None else flags
-                flags |= np.where(missing_columns(g, missing, r["acn"])[0], dq.NO_REFERENCE,
-                                  0).astype(np.uint16)[None, :]
-            ref = (ref - col).astype(np.result_type(ref, np.float32))
             parity = [EVEN, ODD] if r["acn"] else [ALL]
-            tables["REFOFFS"] = offsets_table(offsets, missing, parity, used, clipped,
-                                              r["strategy"], self.unit, ramp=True)
-            header = header.copy()
-            header["NNOREF"] = (int(missing.sum()), "offsets without usable reference pixels")
-            col = col[0].astype(native)
+            for i in range(n):  # frame by frame, as the step warns
+                offsets, missing, col = _column_plan(g, off[i:i + 1], r["strategy"], r["acn"])
+                if missing.any():
+                    fl = np.zeros((g.nrows, g.ncols), np.uint16) if flags is None else flags
+                    frame_flags[i] = fl | np.where(missing_columns(g, missing, r["acn"])[0],
+                                                   dq.NO_REFERENCE, 0).astype(np.uint16)[None, :]
+                refs[i] = (ref[i] - col).astype(np.result_type(ref, np.float32))
+                tables[i]["REFOFFS"] = offsets_table(
+                    offsets, missing, parity, used[i:i + 1], clipped[i:i + 1], r["strategy"],
+                    self.unit, ramp=True)
+                headers[i] = template.header.copy()
+                headers[i]["NNOREF"] = (int(missing.sum()),
+                                        "offsets without usable reference pixels")
+                cols[i] = col[0].astype(native)
         t3 = time.perf_counter()
-        return FusedFrame(self, raw, phantom if use_ph else None, native, reread, col, flags,
-                          ref, tables, header, [t1 - t0, t2 - t1, t3 - t2])
-
+        spent = [(t1 - t0) / n, (t2 - t1) / n, (t3 - t2) / n]
+        return [FusedFrame(self, raws[i], phantoms[i] if use_ph else None, native,
+                           {row: v[i] for row, v in reread.items()}, cols[i], frame_flags[i],
+                           refs[i], tables[i], headers[i], list(spent))
+                for i in range(n)]
 
     def bandable(self, first, parts):
         """Whether frame ``first`` (after the steps) and the prepared ``parts`` of the

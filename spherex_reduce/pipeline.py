@@ -6,6 +6,7 @@ import json
 import queue
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import yaml
@@ -346,19 +347,28 @@ class Pipeline:
         frame a band of rows at a time (`RampAccumulator.fit_bands`); else the
         frames are copied one by one into the fit's buffer.
         """
+        def prepare(chunk):
+            raws = [source.raw(k) for k in chunk]
+            prepared = plan.prepare_frames(chunk, [r for r, _, _ in raws],
+                                           [p for _, p, _ in raws], template=first)
+            return zip(chunk, prepared, raws, strict=True)
+
         parts = []
-        for k in frames:
-            raw, phantom, release = source.raw(k)
-            part = plan.prepare(k, raw, phantom, template=first)
-            release()  # the reference reads are copied; the pixels are read again later
-            part.release = release
-            for j, dt in zip(plan.slots, part.elapsed, strict=True):
-                if j is not None:
-                    elapsed[j] += dt
-            for name, table in part.tables.items():
-                table["frame"] = np.full(len(table), k, dtype=np.int32)
-                tables.setdefault(name, []).append(table)
-            parts.append(part)
+        ks = list(frames)
+        chunks = [ks[c:c + _PREPARE] for c in range(0, len(ks), _PREPARE)]
+        with ThreadPoolExecutor(2, thread_name_prefix="spherex-reduce-prepare") as pool:
+            done = list(pool.map(prepare, chunks))
+        for chunk in done:
+            for k, part, (_, _, release) in chunk:
+                release()  # the reference reads are copied; the pixels are read again later
+                part.release = release
+                for j, dt in zip(plan.slots, part.elapsed, strict=True):
+                    if j is not None:
+                        elapsed[j] += dt
+                for name, table in part.tables.items():
+                    table["frame"] = np.full(len(table), k, dtype=np.int32)
+                    tables.setdefault(name, []).append(table)
+                parts.append(part)
         if plan.bandable(first, parts):
             t0 = time.perf_counter()
             with tqdm(desc="fit bands", unit="band", disable=not progress,
@@ -384,6 +394,9 @@ class Pipeline:
             elapsed[plan.slots[0]] += dt
             acc.busy += time.perf_counter() - t0 - dt
         return "frames"
+
+
+_PREPARE = 4  # frames whose offsets are computed together by the fused path (in cache)
 
 
 class _Background:

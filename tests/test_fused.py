@@ -247,21 +247,23 @@ def test_an_error_in_a_band_reaches_the_caller(tmp_path, monkeypatch):
 
 
 def test_an_error_while_fusing_reaches_the_caller(tmp_path, monkeypatch):
-    from spherex_reduce import fused
-
-    path = write(example_raw_exposure(schedule(), seed=11), tmp_path / "raw.fits")
-
-    def broken(self, k, raw, phantom, template):
-        if k == 9:  # two buffers of frames are being summed or were
-            raise RuntimeError("fused frame 9 broke")
-        return original(self, k, raw, phantom, template)
-
     import threading
 
+    from spherex_reduce import fused
     from spherex_reduce.steps import ramp
 
-    original = fused.FusedFrames.prepare
-    monkeypatch.setattr(fused.FusedFrames, "prepare", broken)
+    path = write(example_raw_exposure(schedule(), seed=11), tmp_path / "raw.fits")
+    original = fused.FusedFrame.fill
+    calls = []
+
+    def broken(self, out):
+        calls.append(1)
+        if len(calls) == 9:  # two buffers of frames are being summed or were
+            raise RuntimeError("fused frame 9 broke")
+        return original(self, out)
+
+    monkeypatch.setattr(fused.FusedFrame, "fill", broken)
+    monkeypatch.setattr(fused.FusedFrames, "bandable", lambda self, first, parts: False)
     monkeypatch.setattr(ramp, "_ASYNC_PIXELS", 0)  # with the fit's summing thread
     with pytest.raises(RuntimeError, match="fused frame 9 broke"):
         Pipeline({"steps": STEPS["mean"]}).run(path)

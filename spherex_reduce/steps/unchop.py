@@ -36,7 +36,11 @@ def _to_physical(values, schedule, first, repeated, flags=None):
 
 def _reread_mean(values, schedule, row, flags=None):
     """Mean (float64) of the usable reads of physical ``row``: ``(..., m)``, NaN if none."""
-    idx = np.flatnonzero(schedule.rows == row)
+    return _mean_of_reads(values, np.flatnonzero(schedule.rows == row), flags)
+
+
+def _mean_of_reads(values, idx, flags=None):
+    """Mean (float64) of the usable reads ``idx`` of ``values (..., reads, m)``."""
     reads = np.take(values, idx, axis=-2).astype(np.float64)
     if flags is not None:
         reads[np.take(flags, idx, axis=-2) != 0] = np.nan

@@ -351,6 +351,10 @@ class Pipeline:
             raws = [source.raw(k) for k in chunk]
             prepared = plan.prepare_frames(chunk, [r for r, _, _ in raws],
                                            [p for _, p, _ in raws], template=first)
+            for _, _, release in raws:
+                # the reference reads are copied; the pixels are read again later (the
+                # page cache may map a frame's pages in large pieces: release them now)
+                release()
             return zip(chunk, prepared, raws, strict=True)
 
         parts = []
@@ -360,7 +364,6 @@ class Pipeline:
             done = list(pool.map(prepare, chunks))
         for chunk in done:
             for k, part, (_, _, release) in chunk:
-                release()  # the reference reads are copied; the pixels are read again later
                 part.release = release
                 for j, dt in zip(plan.slots, part.elapsed, strict=True):
                     if j is not None:

@@ -62,6 +62,25 @@ def test_frame_reader_gives_each_frame_in_native_byte_order(tmp_path, raw):
         np.testing.assert_array_equal(frames.frame(2).data.data[0], ints.data.data[2])
 
 
+def test_frame_reader_reads_a_few_reads_of_a_frame(tmp_path, raw):
+    from spherex_reduce.fits_format import FrameReader
+
+    path = write(raw, tmp_path / "raw.fits")
+    with fits.open(path) as hdul:
+        sci = np.array(hdul["SCI"].data)  # astropy's reading, for comparison
+    with FrameReader(path) as frames:
+        n = raw.schedule.n_reads
+        for k, first, stop in [(0, 0, n), (2, 5, 9), (3, n - 1, n)]:
+            got = frames.reads(k, first, stop)
+            assert got.shape == (stop - first, 16)
+            np.testing.assert_array_equal(got, sci[k, first:stop])
+        view, phantom, release = frames.raw(1)
+        np.testing.assert_array_equal(view, sci[1])
+        np.testing.assert_array_equal(phantom, raw.phantom[1])
+        release()
+        np.testing.assert_array_equal(view, sci[1])  # released pages are read again
+
+
 def test_frame_reader_on_compressed_files(tmp_path, raw):
     # gzip and tile compression: the bytes on disk are not the pixels, so frames must
     # come from astropy (and the pipeline must give the numbers of the plain file)

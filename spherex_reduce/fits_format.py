@@ -311,7 +311,6 @@ class FrameReader:
             self._tables = {h.name: Table.read(h) for h in self._hdul
                             if isinstance(h, fits.BinTableHDU) and h.name not in _RESERVED}
             self._map = _map_frames(d["sci"], path)
-            self._fd = os.open(path, os.O_RDONLY) if self._map is not None else None
         except Exception:
             self._hdul.close()
             raise
@@ -325,12 +324,11 @@ class FrameReader:
 
     def close(self):
         """Close the file."""
-        if getattr(self, "_fd", None) is not None:
-            os.close(self._fd)
-            self._fd = None
         if self._map is not None:
+            mm, _, _, fd = self._map
+            os.close(fd)
             try:
-                self._map[0].close()
+                mm.close()
             except BufferError:  # a frame view is still alive (e.g. in a traceback):
                 pass  # the map closes when it is collected
             self._map = None
@@ -373,7 +371,7 @@ class FrameReader:
         call once the pixels have been used (frees the file's pages in this
         process).  Only for files whose data are not scaled (`fusable`).
         """
-        mm, offset, dtype = self._map
+        mm, offset, dtype, _ = self._map
         shape = self._d["shape"][1:]
         count = int(np.prod(shape))
         start = offset + k * count * dtype.itemsize
@@ -393,14 +391,19 @@ class FrameReader:
         `numpy.ndarray`
             ``(stop - first, columns)``, possibly big-endian.
         """
-        _, offset, dtype = self._map
+        mm, offset, dtype, fd = self._map
         nreads, ncols = self._d["shape"][1:]
+        pos = offset + (k * nreads + first) * ncols * dtype.itemsize
+        if not hasattr(os, "preadv"):  # (Windows) from the map, then release its pages
+            count = (stop - first) * ncols
+            buf = np.frombuffer(mm, dtype, count=count, offset=pos).reshape(-1, ncols).copy()
+            self._release(pos, count * dtype.itemsize)
+            return buf
         buf = np.empty((stop - first, ncols), dtype)
         view = memoryview(buf).cast("B")
-        pos = offset + (k * nreads + first) * ncols * dtype.itemsize
         done = 0
         while done < view.nbytes:
-            got = os.preadv(self._fd, [view[done:]], pos + done)
+            got = os.preadv(fd, [view[done:]], pos + done)
             if got <= 0:
                 raise FormatError(f"{self.path}: the file ends inside frame {k}")
             done += got
@@ -432,7 +435,8 @@ _FITS_DTYPES = {8: "u1", 16: ">i2", 32: ">i4", 64: ">i8", -32: ">f4", -64: ">f8"
 
 
 def _map_frames(hdu, path):
-    """``(mmap, data offset, dtype)`` of an unscaled image HDU, or None (read by sections).
+    """``(mmap, data offset, dtype, file descriptor)`` of an unscaled image HDU, or None
+    (read by sections).  The descriptor (kept open, the map's own file) serves `pread`.
 
     Reading frames from a memory map and converting them to native byte order
     in one pass is ~2x faster than astropy's section reads followed by
@@ -446,12 +450,17 @@ def _map_frames(hdu, path):
     dtype = np.dtype(dtype)
     start = hdu.fileinfo()["datLoc"]
     nbytes = int(np.prod(hdu.shape)) * dtype.itemsize
-    with open(path, "rb") as fh:
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_BINARY", 0))
+    try:
         # a plain FITS file on disk (not .gz, .bz2 or .zip, which astropy unpacks)
-        if fh.read(9) != b"SIMPLE  =" or os.fstat(fh.fileno()).st_size < start + nbytes:
+        if os.read(fd, 9) != b"SIMPLE  =" or os.fstat(fd).st_size < start + nbytes:
+            os.close(fd)
             return None
-        mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
-    return mm, start, dtype
+        mm = mmap.mmap(fd, 0, access=mmap.ACCESS_READ)
+    except BaseException:
+        os.close(fd)
+        raise
+    return mm, start, dtype, fd
 
 
 def _unit_str(unit):

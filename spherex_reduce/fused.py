@@ -12,18 +12,28 @@ When a pipeline streams a raw ramp through ``unchop``, then
 ``subtract_phantom`` (exactly when the input has phantom values) and
 optionally ``correct_reference`` (``mean`` or ``acn``, no side columns), into
 ``fit_ramp`` (uniform weights, no saturation level), the first frame goes
-through the steps as usual; for every later frame `FusedFrames.prepare` takes
-the offsets from the steps' own functions applied to the phantom values and
-reference reads, and the ramp fit's accumulator has `FusedFrame.fill` copy the
-pixels from the (memory-mapped) input straight into its buffer, in physical
-order, minus their phantom value, minus their offset, in blocks of rows that
-stay in cache.  The arithmetic is the same, in the same order and
-precision, so the result is identical, bit for bit, to running the steps one
-after another (``tests/test_fused.py``), with one pass over the pixels instead
-of five (reading, un-chopping, phantom, reference, copying into the fit's
-buffer) and no intermediate frames.  Every other case (another strategy or
-step, side reference columns, a step skipped on the first frame, flags or
-uncertainties in the input) runs the steps one by one.
+through the steps as usual, and `FusedFrames.prepare_frames` takes the offsets
+of every later frame from the steps' own functions applied to the phantom
+values and reference reads.  Then:
+
+* if nothing is flagged (no row left unread, no channel without reference
+  pixels), the ramp fit's accumulator reads every frame a band of image rows
+  at a time (`FusedFrames.band_fill`: the rows' reads copied with ``pread``,
+  minus their phantom value, minus their offset) and fits each band as
+  ``fit_ramp`` fits a whole cube (`~spherex_reduce.steps.ramp.RampAccumulator.fit_bands`):
+  the result is identical, bit for bit, to running the steps on the whole
+  ramp (``Pipeline.run(..., stream=False)``);
+* otherwise `FusedFrame.fill` copies each frame, corrected the same way, from
+  the memory-mapped input straight into the frame-by-frame fit's buffer, in
+  blocks of rows that stay in cache: identical to running the steps frame by
+  frame (``fuse=False``).
+
+Either way the arithmetic of the corrections is the steps', in the same order
+and precision (``tests/test_fused.py``), with one pass over the pixels instead
+of five (reading, un-chopping, phantom, reference, copying into the fit) and
+no intermediate frames.  Every other case (another strategy or step, side
+reference columns, a step skipped on the first frame, flags or uncertainties
+in the input) runs the steps one by one.
 """
 
 import time
@@ -180,10 +190,6 @@ class FusedFrames:
         again = np.stack([np.take(raw, self.reread_reads, axis=0) for raw in raws])
         reread = {row: _mean_of_reads(again, idx).astype(raw_t)
                   for row, idx in self.reread_idx.items()}
-        flags = None
-        if self.unread.any():
-            flags = np.zeros((g.nrows, g.ncols), np.uint16)
-            flags[self.unread] |= dq.NOT_READ
         t1 = time.perf_counter()
         if use_ph:  # subtract_phantom on the reference reads and the re-read rows
             ph = np.stack(phantoms)
@@ -198,7 +204,7 @@ class FusedFrames:
         tables = [{} for _ in ks]
         headers = [template.header] * n
         cols = [None] * n
-        frame_flags = [flags] * n
+        noref = [None] * n  # per frame: columns without a reference offset
         refs = list(ref)
         if self.reference is not None:  # correct_reference: offsets from the reference reads
             r = self.reference
@@ -208,9 +214,7 @@ class FusedFrames:
             for i in range(n):  # frame by frame, as the step warns
                 offsets, missing, col = _column_plan(g, off[i:i + 1], r["strategy"], r["acn"])
                 if missing.any():
-                    fl = np.zeros((g.nrows, g.ncols), np.uint16) if flags is None else flags
-                    frame_flags[i] = fl | np.where(missing_columns(g, missing, r["acn"])[0],
-                                                   dq.NO_REFERENCE, 0).astype(np.uint16)[None, :]
+                    noref[i] = missing_columns(g, missing, r["acn"])[0]
                 refs[i] = (ref[i] - col).astype(np.result_type(ref, np.float32))
                 tables[i]["REFOFFS"] = offsets_table(
                     offsets, missing, parity, used[i:i + 1], clipped[i:i + 1], r["strategy"],
@@ -222,7 +226,7 @@ class FusedFrames:
         t3 = time.perf_counter()
         spent = [(t1 - t0) / n, (t2 - t1) / n, (t3 - t2) / n]
         return [FusedFrame(self, raws[i], phantoms[i] if use_ph else None, native,
-                           {row: v[i] for row, v in reread.items()}, cols[i], frame_flags[i],
+                           {row: v[i] for row, v in reread.items()}, cols[i], noref[i],
                            refs[i], tables[i], headers[i], list(spent))
                 for i in range(n)]
 
@@ -235,7 +239,7 @@ class FusedFrames:
         dtype = first.data.data.dtype
         return (first.dq is None and first.phantom is None
                 and (ref is None or (ref.dq is None and ref.phantom is None))
-                and all(p.flags is None and p.dtype == dtype for p in parts))
+                and all(not p.flagged and p.dtype == dtype for p in parts))
 
     def band_fill(self, first, parts, source):
         """``fill(rows, out)``: the corrected pixels of image ``rows`` of every frame.
@@ -278,7 +282,10 @@ class FusedFrame:
         Type of the corrected pixels.
     flags : `numpy.ndarray` or None
         DQ flags ``(rows, columns)`` the steps would set (``NOT_READ``,
-        ``NO_REFERENCE``).
+        ``NO_REFERENCE``), made when asked for (frames waiting to be fitted
+        keep only which rows and columns are flagged).
+    flagged : bool
+        Whether ``flags`` would not be None.
     reference : `numpy.ndarray`
         The corrected reference reads ``(reads, columns)``.
     tables : dict
@@ -289,15 +296,30 @@ class FusedFrame:
         ``correct_reference`` (`fill` adds its time to the first).
     """
 
-    def __init__(self, plan, raw, phantom, dtype, reread, col, flags, reference, tables,
+    def __init__(self, plan, raw, phantom, dtype, reread, col, noref, reference, tables,
                  header, elapsed):
         self.plan, self.raw, self.phantom, self.dtype = plan, raw, phantom, dtype
-        self.reread, self.col = reread, col
-        self.flags, self.reference, self.tables, self.header = flags, reference, tables, header
+        self.reread, self.col, self.noref = reread, col, noref
+        self.reference, self.tables, self.header = reference, tables, header
         self.elapsed = elapsed
         #: ``release()``: frees the file pages of the frame once copied (set by the
         #: caller; by default nothing to free)
         self.release = lambda: None
+
+    @property
+    def flagged(self):
+        return bool(self.plan.unread.any()) or self.noref is not None
+
+    @property
+    def flags(self):
+        if not self.flagged:
+            return None
+        g = self.plan.schedule.geometry
+        flags = np.zeros((g.nrows, g.ncols), np.uint16)
+        flags[self.plan.unread] |= dq.NOT_READ
+        if self.noref is not None:
+            flags[:, self.noref] |= dq.NO_REFERENCE
+        return flags
 
     def fill(self, out):
         """Write the corrected frame, physical order, into ``out`` (flat, ``rows*columns``).

@@ -6,7 +6,6 @@ import json
 import queue
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import yaml
@@ -186,14 +185,17 @@ class Pipeline:
             accumulator, e.g. ``unchop, subtract_phantom, correct_reference,
             fit_ramp``) and the input is ramps, push the frames through one at
             a time: a raw file is then read frame by frame and memory stays near
-            one frame plus the output.  The result is the same either way.
+            a few frames plus the output.  The result is the same either way
+            (to float32 rounding: the fit's sums are formed in another order).
         fuse : bool
             When streaming ``unchop``, then ``subtract_phantom`` (if the input
             has phantom values) and optionally ``correct_reference``
-            (``mean`` or ``acn``), into ``fit_ramp``,
-            apply the corrections while the fit copies each frame (see
-            `spherex_reduce.fused`): the same numbers, bit for bit, in one
-            pass over the pixels instead of five.
+            (``mean`` or ``acn``), into ``fit_ramp``, compute each frame's
+            offsets from its phantom values and reference reads, and apply them
+            while the fit reads the pixels (see `spherex_reduce.fused`): when
+            nothing is flagged, every frame is fitted at once a band of rows at
+            a time, giving bit for bit the numbers of ``stream=False``; else
+            frame by frame, giving those of ``fuse=False``.
 
         Returns
         -------
@@ -347,23 +349,17 @@ class Pipeline:
         frame a band of rows at a time (`RampAccumulator.fit_bands`); else the
         frames are copied one by one into the fit's buffer.
         """
-        def prepare(chunk):
+        parts = []
+        ks = list(frames)
+        for c in range(0, len(ks), _PREPARE):  # a few frames per call: temporaries in cache
+            chunk = ks[c:c + _PREPARE]
             raws = [source.raw(k) for k in chunk]
             prepared = plan.prepare_frames(chunk, [r for r, _, _ in raws],
                                            [p for _, p, _ in raws], template=first)
-            for _, _, release in raws:
+            for k, part, (_, _, release) in zip(chunk, prepared, raws, strict=True):
                 # the reference reads are copied; the pixels are read again later (the
                 # page cache may map a frame's pages in large pieces: release them now)
                 release()
-            return zip(chunk, prepared, raws, strict=True)
-
-        parts = []
-        ks = list(frames)
-        chunks = [ks[c:c + _PREPARE] for c in range(0, len(ks), _PREPARE)]
-        with ThreadPoolExecutor(2, thread_name_prefix="spherex-reduce-prepare") as pool:
-            done = list(pool.map(prepare, chunks))
-        for chunk in done:
-            for k, part, (_, _, release) in chunk:
                 part.release = release
                 for j, dt in zip(plan.slots, part.elapsed, strict=True):
                     if j is not None:

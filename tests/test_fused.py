@@ -82,7 +82,7 @@ def test_fused_equals_the_steps_on_a_file_and_in_memory(tmp_path, name, ref_mode
     path = write(raw, tmp_path / "raw.fits")
     for source in (path, raw):
         fused, plain, _, _ = fused_and_not({"steps": STEPS[name]}, source)
-        assert was_fused(fused) and not was_fused(plain)
+        assert was_banded(fused) and not was_fused(plain)
         assert_identical(fused, plain)
 
 
@@ -199,6 +199,28 @@ def test_bands_on_threads_equal_the_steps_on_the_whole_ramp(tmp_path, monkeypatc
     assert fused.header["NFEWRDS"] >= 1
 
 
+def test_bright_pixels_refitted_in_bands_equal_the_whole_ramp(tmp_path, monkeypatch):
+    # pixels refitted in float64 (here: bright ramps) are fitted in batches that differ
+    # between bands (rows in read order) and whole-cube blocks (rows in order): a
+    # pixel's numbers must not depend on its batch
+    from spherex_reduce.steps import ramp
+
+    monkeypatch.setattr(ramp, "_BAND_PIXELS", 48)
+    monkeypatch.setattr(ramp, "_PARALLEL_SIZE", 0)
+    monkeypatch.setattr(ramp, "_THREADS", 2)
+    s = schedule()
+    first = s.read_of_row()
+    raw = example_raw_exposure(s, seed=14)
+    data = raw.data.data.copy()
+    for row, col in [(10, 3), (11, 4), (12, 5), (20, 9)]:  # a source over a few rows
+        data[:, first[row], col] += (2e4 * np.arange(s.nframes)).astype(np.float32)
+    path = write(raw.replace(data=data), tmp_path / "raw.fits")
+    for name in ("mean", "read noise"):
+        fused, plain, _, _ = fused_and_not({"steps": STEPS[name]}, path)
+        assert was_banded(fused)
+        assert_identical(fused, plain)
+
+
 def test_flags_fit_frame_by_frame_as_the_steps_do(tmp_path):
     s = schedule()
     raw = example_raw_exposure(s, seed=15)
@@ -223,20 +245,25 @@ def test_fused_equals_the_steps_with_background_sums(monkeypatch):
     assert_identical(fused, plain)
 
 
-def test_an_error_in_a_band_reaches_the_caller(tmp_path, monkeypatch):
+def test_an_error_in_a_band_reaches_the_caller_and_stops_the_others(tmp_path, monkeypatch):
     import threading
 
     from spherex_reduce import fused
     from spherex_reduce.steps import ramp
 
-    monkeypatch.setattr(ramp, "_BAND_PIXELS", 48)
+    monkeypatch.setattr(ramp, "_BAND_PIXELS", 16)  # one row per band: 32 bands
     monkeypatch.setattr(ramp, "_PARALLEL_SIZE", 0)
     monkeypatch.setattr(ramp, "_THREADS", 2)
     path = write(example_raw_exposure(schedule(), seed=16), tmp_path / "raw.fits")
     original = fused.FusedFrame.rows
+    failed = threading.Event()
+    after = []
 
     def broken(self, src, rereads, out, raw=None, first=0):
-        if src.max() > 20:  # a later band, while others are fitted
+        if failed.is_set():
+            after.append(1)
+        elif src.max() > 15:  # a band in the middle, while the other thread works
+            failed.set()
             raise RuntimeError("a band broke")
         return original(self, src, rereads, out, raw, first)
 
@@ -244,6 +271,9 @@ def test_an_error_in_a_band_reaches_the_caller(tmp_path, monkeypatch):
     with pytest.raises(RuntimeError, match="a band broke"):
         Pipeline({"steps": STEPS["mean"]}).run(path)
     assert not [t for t in threading.enumerate() if t.name.startswith("spherex-reduce")]
+    # the other thread finishes at most the band it was copying (10 frames), not all
+    # of its remaining ~8 bands
+    assert len(after) <= 10
 
 
 def test_an_error_while_fusing_reaches_the_caller(tmp_path, monkeypatch):

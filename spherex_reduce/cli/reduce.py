@@ -14,7 +14,8 @@ def add_parser(sub):
     p.add_argument("--overwrite", action="store_true", help="replace OUT.fits if it exists")
     p.add_argument("--no-fuse", dest="fuse", action="store_false",
                    help="run unchop, subtract_phantom and correct_reference one by one on "
-                   "every frame instead of in one pass (same numbers, slower; for checking)")
+                   "every frame and fit frame by frame, instead of in one pass (the same "
+                   "numbers to float32 rounding, slower; for checking)")
     p.set_defaults(func=run)
 
 

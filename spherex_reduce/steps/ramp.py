@@ -19,6 +19,7 @@ vectorised float64 path that uses only their usable reads.
 """
 
 import os
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 
@@ -107,8 +108,16 @@ def _fit_masked(y, good, times, read_noise, poisson_scale):
     """Vectorised float64 least squares on the usable reads of some pixels.
 
     ``y`` and ``good`` have shape ``(nframes, m)``; returns slope, variance
-    (NaN where undefined) and the number of reads used, each ``(m,)``.
+    (NaN where undefined) and the number of reads used, each ``(m,)``.  A
+    pixel's numbers do not depend on the other pixels fitted with it: numpy
+    sums a lone (contiguous) column pairwise but the columns of a C-ordered
+    array one frame after another, so the arrays are made C-ordered with at
+    least two columns.
     """
+    m = y.shape[1]
+    y, good = np.ascontiguousarray(y), np.ascontiguousarray(good)
+    if m == 1:
+        y, good = np.repeat(y, 2, axis=1), np.repeat(good, 2, axis=1)
     g = good.astype(np.float64)
     n = g.sum(axis=0)
     t = (times - times.mean())[:, None]
@@ -136,7 +145,7 @@ def _fit_masked(y, good, times, read_noise, poisson_scale):
     few = n < 2
     slope[few] = np.nan
     var[few] = np.nan
-    return slope, var, n.astype(np.int16)
+    return slope[:m], var[:m], n[:m].astype(np.int16)
 
 
 def _fit_cube(cube, times, *, mask=None, saturation=None, weighting="uniform", read_noise=None,
@@ -320,12 +329,27 @@ def _fit_bands(shape, times, fill, order, dtype, progress=None, **kw):
     nthreads = min(_THREADS, len(bands)) if nf * n * m >= _PARALLEL_SIZE else 1
     work = np.float64 if dtype == np.float64 else np.float32
     filling = []
+    if progress is not None:
+        progress.reset(total=len(bands))
+
+    stop = threading.Event()  # set when a band failed: the other threads stop too
 
     def worker(mine):
         cube = np.empty(nf * per * m, dtype)
         buf = np.empty((nf, min(per, max(1, _BLOCK_PIXELS // max(m, 1))) * m), work)
-        spent, start = 0.0, time.perf_counter()
+        start = time.perf_counter()
+        try:
+            spent = fit_all(mine, cube, buf)
+        except BaseException:
+            stop.set()
+            raise
+        filling.append((spent, time.perf_counter() - start))
+
+    def fit_all(mine, cube, buf):
+        spent = 0.0
         for rows in mine:
+            if stop.is_set():
+                break
             band = cube[: nf * rows.size * m].reshape(nf, rows.size, m)
             t0 = time.perf_counter()
             fill(rows, band)
@@ -335,13 +359,19 @@ def _fit_bands(shape, times, fill, order, dtype, progress=None, **kw):
             fit.nreads[rows], fit.flags[rows] = part.nreads, part.flags
             if progress is not None:
                 progress.update(1)
-        filling.append((spent, time.perf_counter() - start))
+        return spent
 
     if nthreads <= 1:
         worker(bands)
     else:
         with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-bands") as pool:
-            list(pool.map(worker, [bands[k::nthreads] for k in range(nthreads)]))
+            futures = [pool.submit(worker, bands[k::nthreads]) for k in range(nthreads)]
+            try:
+                for future in futures:
+                    future.result()
+            except BaseException:  # a band failed, or the caller was interrupted
+                stop.set()
+                raise
     return fit, sum(f for f, _ in filling) / max(sum(t for _, t in filling), 1e-12)
 
 

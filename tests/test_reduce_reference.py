@@ -65,6 +65,15 @@ def test_clipped_mean_zero_spread_and_empty():
     assert np.isnan(mean[1]) and used[1] == 0
 
 
+def test_clipped_mean_ignores_infinite_values_as_unusable():
+    # -inf sorts first, not last with the NaNs: it once made every value unusable
+    vals = [-np.inf, 1.0, 1.1, 0.9, 1.0, 50.0, np.inf, np.nan]
+    mean, used, clipped = clipped_mean(vals, sigma=2)
+    ref = astropy_sigma_clip(np.array([1.0, 1.1, 0.9, 1.0, 50.0]), sigma=2, masked=True)
+    assert float(mean) == pytest.approx(ref.mean(), rel=1e-12)
+    assert int(used) == ref.count() == 4 and int(clipped) == 1
+
+
 # -- phantom -----------------------------------------------------------------------------------
 def test_subtract_phantom_per_channel_and_row_read_and_reference_reads():
     s = sched()

@@ -70,7 +70,8 @@ def clipped_mean(values, sigma=3.0, maxiters=5):
     >>> float(mean), int(used), int(clipped)
     (1.0, 4, 1)
     """
-    s = np.sort(np.asarray(values, dtype=np.float64), axis=-1)  # NaN sort last
+    v = np.asarray(values, dtype=np.float64)
+    s = np.sort(np.where(np.isfinite(v), v, np.nan), axis=-1)  # unusable (NaN) sort last
     nvalid = np.isfinite(s).sum(axis=-1)
     lead = s.shape[:-1]
     lo = np.zeros(lead, dtype=np.int64)
@@ -116,7 +117,7 @@ def clipped_mean(values, sigma=3.0, maxiters=5):
 
 
 def _usable(values, mask):
-    """Values as float64 with NaN where masked or not finite."""
+    """Values as float64 with NaN where masked (`clipped_mean` ignores NaN and inf)."""
     out = np.array(values, dtype=np.float64)
     if mask is not None:
         out[np.asarray(mask) != 0] = np.nan

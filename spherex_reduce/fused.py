@@ -148,28 +148,21 @@ class FusedFrames:
         self.reread_idx = {int(row): np.flatnonzero(schedule.rows[self.reread_reads] == row)
                            for row in self.repeated}
 
-    def prepare(self, k, raw, phantom, template):
-        """The offsets of frame ``k`` and a function that writes its corrected pixels.
+    def prepare_frames(self, ks, raws, phantoms, template):
+        """The offsets of frames ``ks``, and what writes their corrected pixels.
+
+        The reference pixels of all of them are σ-clipped in one call (a few
+        frames at a time keep the temporaries in cache).
 
         Parameters
         ----------
-        k : int
-        raw : `numpy.ndarray`
-            The frame's pixels ``(reads, columns)`` in readout order (not modified).
-        phantom : `numpy.ndarray` or None
-            Its phantom values ``(reads, channels)``.
+        ks : list of int
+        raws : list of `numpy.ndarray`
+            Each frame's pixels ``(reads, columns)`` in readout order (not modified).
+        phantoms : list of `numpy.ndarray` or None
+            Their phantom values ``(reads, channels)``.
         template : `~spherex_reduce.Exposure`
             The first frame after the steps (run one by one): its header.
-
-        Returns
-        -------
-        `FusedFrame`
-        """
-        return self.prepare_frames([k], [raw], [phantom], template)[0]
-
-    def prepare_frames(self, ks, raws, phantoms, template):
-        """`prepare` for several frames at once (the reference pixels of all of
-        them are sorted in one call).
 
         Returns
         -------
@@ -225,10 +218,10 @@ class FusedFrames:
                 cols[i] = col[0].astype(native)
         t3 = time.perf_counter()
         spent = [(t1 - t0) / n, (t2 - t1) / n, (t3 - t2) / n]
-        return [FusedFrame(self, raws[i], phantoms[i] if use_ph else None, native,
+        return [FusedFrame(self, k, raws[i], phantoms[i] if use_ph else None, native,
                            {row: v[i] for row, v in reread.items()}, cols[i], noref[i],
                            refs[i], tables[i], headers[i], list(spent))
-                for i in range(n)]
+                for i, k in enumerate(ks)]
 
     def bandable(self, first, parts):
         """Whether frame ``first`` (after the steps) and the prepared ``parts`` of the
@@ -258,8 +251,8 @@ class FusedFrames:
             rereads = [(int(i), int(rows[i])) for i in np.flatnonzero(repeated[rows])]
             np.take(data0, rows, axis=0, out=out[0])
             lo, hi = int(src.min()), int(src.max()) + 1
-            for k, part in enumerate(parts, start=1):
-                part.rows(src, rereads, out[k], raw=source.reads(k, lo, hi), first=lo)
+            for i, part in enumerate(parts, start=1):
+                part.rows(src, rereads, out[i], raw=source.reads(part.k, lo, hi), first=lo)
 
         return fill
 
@@ -274,10 +267,12 @@ class FusedFrames:
 
 
 class FusedFrame:
-    """One frame prepared by `FusedFrames.prepare`.
+    """One frame prepared by `FusedFrames.prepare_frames`.
 
     Attributes
     ----------
+    k : int
+        The frame's index.
     dtype : `numpy.dtype`
         Type of the corrected pixels.
     flags : `numpy.ndarray` or None
@@ -296,9 +291,9 @@ class FusedFrame:
         ``correct_reference`` (`fill` adds its time to the first).
     """
 
-    def __init__(self, plan, raw, phantom, dtype, reread, col, noref, reference, tables,
+    def __init__(self, plan, k, raw, phantom, dtype, reread, col, noref, reference, tables,
                  header, elapsed):
-        self.plan, self.raw, self.phantom, self.dtype = plan, raw, phantom, dtype
+        self.plan, self.k, self.raw, self.phantom, self.dtype = plan, k, raw, phantom, dtype
         self.reread, self.col, self.noref = reread, col, noref
         self.reference, self.tables, self.header = reference, tables, header
         self.elapsed = elapsed

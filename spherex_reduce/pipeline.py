@@ -344,7 +344,7 @@ class Pipeline:
     def _fuse(source, first, frames, acc, elapsed, tables, plan, progress):
         """The frames after ``first`` (frame 0 after the steps) the fused way.
 
-        Their offsets come first (`FusedFrames.prepare`, from the phantom values
+        Their offsets come first (`FusedFrames.prepare_frames`, from the phantom values
         and reference reads).  Then, if nothing is flagged, the fit reads every
         frame a band of rows at a time (`RampAccumulator.fit_bands`); else the
         frames are copied one by one into the fit's buffer.
@@ -376,17 +376,17 @@ class Pipeline:
                                                   plan.order, plan.reference_reads(first, parts),
                                                   progress=bar)
             # the share of the time spent reading and correcting counts as un-chopping
-            share = (time.perf_counter() - t0) * filling
-            elapsed[plan.slots[0]] += share
-            acc.busy += time.perf_counter() - t0 - share
+            wall = time.perf_counter() - t0
+            elapsed[plan.slots[0]] += wall * filling
+            acc.busy += wall * (1 - filling)
             return "bands"
         acc.add(0, first)
         acc.drain()  # the first frame is in; the later ones go in from here
-        for k, part in enumerate(parts, start=1):
+        for part in parts:
             # straight into the fit's buffer, from this thread (the fit sums full
             # buffers in a thread of its own)
             before, t0 = part.elapsed[0], time.perf_counter()
-            acc.accumulator.add_fused(k, part)
+            acc.accumulator.add_fused(part.k, part)
             part.release()
             # the copy counts as un-chopping (part.elapsed[0]), the rest as fitting
             dt = part.elapsed[0] - before

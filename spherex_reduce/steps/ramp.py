@@ -16,6 +16,9 @@ matrix product in groups of frames whose partial sums are accumulated in
 float64.  Pixels with a NaN, saturated or flagged read (and the few whose
 residuals are too small to be computed from float32 sums) are refitted on a
 vectorised float64 path that uses only their usable reads.
+The fused reduction of a raw file (`spherex_reduce.fused`) runs the same code
+on one band of image rows of every frame at a time (`RampAccumulator.fit_bands`),
+so its result is, pixel by pixel, the fit of the whole cube.
 """
 
 import os

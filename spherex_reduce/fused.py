@@ -134,6 +134,7 @@ class FusedFrames:
         self.slots = list(slots)
         first, self.repeated = _physical_index(schedule)
         self.unread = first < 0  # rows never read
+        self.any_unread = bool(self.unread.any())
         self.src = np.maximum(first, 0)  # the read each physical row is copied from
         self.ref_idx = schedule.reference_read_indices
         nrows = schedule.geometry.nrows
@@ -303,7 +304,7 @@ class FusedFrame:
 
     @property
     def flagged(self):
-        return bool(self.plan.unread.any()) or self.noref is not None
+        return self.plan.any_unread or self.noref is not None
 
     @property
     def flags(self):

@@ -32,6 +32,8 @@ from .step import Step
 
 __all__ = ["Pipeline"]
 
+_PREPARE = 4  # frames whose offsets are computed together by the fused path (in cache)
+
 _TOP_KEYS = ("steps", "geometry", "readout", "name", "description")
 
 
@@ -393,9 +395,6 @@ class Pipeline:
             elapsed[plan.slots[0]] += dt
             acc.busy += time.perf_counter() - t0 - dt
         return "frames"
-
-
-_PREPARE = 4  # frames whose offsets are computed together by the fused path (in cache)
 
 
 class _Background:

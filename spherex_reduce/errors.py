@@ -9,6 +9,7 @@ __all__ = [
     "ConfigError",
     "FormatError",
     "PluginError",
+    "ResourceError",
     "SpherexReduceError",
     "StepSkipped",
 ]
@@ -32,6 +33,14 @@ class FormatError(SpherexReduceError):
 
 class PluginError(SpherexReduceError):
     """A plugin failed to load or register; the message names the plugin."""
+
+
+class ResourceError(SpherexReduceError):
+    """The work asked for needs more memory or time than is reasonable here.
+
+    Raised before allocating, e.g. for a header claiming 1e15 rows, with the
+    size needed and the size available in the message.
+    """
 
 
 class StepSkipped(Exception):

@@ -3,6 +3,7 @@
 import importlib.metadata
 import os
 import re
+import shlex
 import shutil
 import subprocess
 import sys
@@ -14,16 +15,55 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_readme_quick_start_is_two_commands_and_ci_runs_the_second():
+def _quick_start():
     text = (ROOT / "README.md").read_text()
     block = re.search(r"## Quick start\s+```bash\n(.*?)```", text, re.S)
     assert block, "README must start with a Quick start code block"
-    commands = [line for line in block.group(1).splitlines() if line.strip()]
+    return text, [line for line in block.group(1).splitlines() if line.strip()]
+
+
+def test_readme_quick_start_is_two_commands_and_ci_runs_the_second():
+    text, commands = _quick_start()
     assert len(commands) == 2
     assert "spherex-reduce demo" in commands[0]
     assert "pytest" in commands[1] and ".[test]" in commands[1]
     assert commands[1] in (ROOT / ".ci" / "run").read_text().splitlines()
     assert text.index("## Quick start") < 40
+
+
+def test_ci_runs_the_readme_line_in_a_stock_venv_with_nothing_before_it():
+    """A newcomer's venv has the pip ``python3 -m venv`` ships; CI must not upgrade it."""
+    script = (ROOT / ".ci" / "run").read_text().splitlines()
+    steps = [line for line in script if line.strip() and not line.lstrip().startswith("#")]
+    venv = next(i for i, line in enumerate(steps) if "-m venv" in line)
+    test = steps.index(_quick_start()[1][1])
+    between = steps[venv + 1:test]
+    assert all(line.startswith("source ") for line in between), between
+    assert not any(re.search(r"\bpip\b", line) for line in steps[:test]), steps[:test]
+
+
+@pytest.mark.slow
+def test_readme_test_command_resolves_with_the_pip_a_stock_venv_ships(tmp_path):
+    """Resolve the README's install line with the pip of a fresh ``python -m venv``.
+
+    pip 23.2 (what Python 3.11 ships) did not accept a local ``.[test]`` as the
+    ``spherex-reduce`` the local plugin packages depend on, when the plugins were
+    given as plain paths; the line must resolve with that pip, not only with a
+    newer one.  A dry run resolves everything and installs nothing.
+    """
+    install = shlex.split(_quick_start()[1][1].split("&&")[0])
+    assert install[:4] == ["python", "-m", "pip", "install"], install
+    env_dir = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(env_dir)], check=True)
+    py = env_dir / "bin" / "python"
+    # nothing of this environment may satisfy a requirement (a PYTHONPATH would)
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    r = subprocess.run([py, "-m", "pip", "install", "--dry-run", "--quiet", *install[4:]],
+                       cwd=ROOT, env=env, capture_output=True, text=True)
+    out = r.stdout + r.stderr
+    if r.returncode != 0 and re.search(r"No matching distribution found for (?!spherex)", out):
+        pytest.skip("no package index reachable to resolve the dependencies")
+    assert r.returncode == 0, out[-3000:]
 
 
 @pytest.mark.slow

@@ -335,13 +335,14 @@ def _scan(path):
             pcount = _card_int(cards, "PCOUNT", 0, path, index)
             gcount = _card_int(cards, "GCOUNT", 1, path, index)
             nbytes = abs(bitpix) // 8 * gcount * (pcount + count) if naxis else 0
-            if pos + nbytes > size:
+            padded = -(-nbytes // _BLOCK) * _BLOCK  # the standard's padding is part of it
+            if pos + padded > size:
                 raise FormatError(f"{path} is truncated: {_hdu_label(index, cards)} needs "
-                                  f"{pos + nbytes} bytes, the file ends after {size}")
+                                  f"{pos + padded} bytes, the file ends after {size}")
             hdus.append({"name": cards.get("EXTNAME") or ("PRIMARY" if index == 0 else
                                                           f"HDU {index}"),
                          "header": start, "data": pos, "nbytes": nbytes, "cards": cards})
-            pos += -(-nbytes // _BLOCK) * _BLOCK
+            pos += padded
     if hdus:
         nextend = hdus[0]["cards"].get("NEXTEND")
         if nextend is not None:
@@ -559,29 +560,34 @@ def read(path, verify_checksum=None, **supplied):
     """
     hdul, bad, plain = _open(path, memmap=True, verify=verify_checksum)
     with hdul:
-        d = _describe(hdul, path, supplied, bad)
-        names = d["names"]
+        return _exposure(hdul, path, bad, plain, supplied)
 
-        def image(name, flags=False):
-            return _physical(hdul[name], path, plain, flags) if name in names else None
 
-        data = _physical(d["sci"], path, plain)
-        err, mask, phantom = image("ERR"), image("DQ", flags=True), image("PHANTOM")
-        reference = None
-        if "REFPIX" in names:
-            rt = Table.read(hdul["REFREADS"])
-            refdq = image("REFDQ", flags=True)
-            reference = ReferenceReads(
-                data=image("REFPIX"), rows=np.asarray(rt["row"]), reads=np.asarray(rt["read"]),
-                phantom=image("REFPHANT"),
-                dq=None if refdq is None else refdq.astype(np.uint16),
-            )
-            _readonly(reference.data, reference.phantom)
-        tables = {
-            h.name: Table.read(h)
-            for h in hdul
-            if isinstance(h, fits.BinTableHDU) and h.name not in _RESERVED
-        }
+def _exposure(hdul, path, bad, plain, supplied):
+    """The `Exposure` in an HDU list opened by `_open` (which the caller closes)."""
+    d = _describe(hdul, path, supplied, bad)
+    names = d["names"]
+
+    def image(name, flags=False):
+        return _physical(hdul[name], path, plain, flags) if name in names else None
+
+    data = _physical(d["sci"], path, plain)
+    err, mask, phantom = image("ERR"), image("DQ", flags=True), image("PHANTOM")
+    reference = None
+    if "REFPIX" in names:
+        rt = Table.read(hdul["REFREADS"])
+        refdq = image("REFDQ", flags=True)
+        reference = ReferenceReads(
+            data=image("REFPIX"), rows=np.asarray(rt["row"]), reads=np.asarray(rt["read"]),
+            phantom=image("REFPHANT"),
+            dq=None if refdq is None else refdq.astype(np.uint16),
+        )
+        _readonly(reference.data, reference.phantom)
+    tables = {
+        h.name: Table.read(h)
+        for h in hdul
+        if isinstance(h, fits.BinTableHDU) and h.name not in _RESERVED
+    }
     _readonly(data, err, mask, phantom)
     return Exposure.from_arrays(data, d["schedule"], unit=d["unit"], uncertainty=err, mask=mask,
                                 phantom=phantom, header=d["header"], order=d["order"],

@@ -375,8 +375,6 @@ def _flip_sci_byte(path, out):
 
 
 def test_word_sum_is_the_fits_datasum(tmp_path):
-    import mmap
-
     from spherex_reduce.fits_format import _word_sum
 
     rng = np.random.default_rng(5)
@@ -388,16 +386,15 @@ def test_word_sum_is_the_fits_datasum(tmp_path):
         total = int(sum(words))  # Python integers: the plain definition
         while total >> 32:
             total = (total & 0xFFFFFFFF) + (total >> 32)
-        with open(path, "rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
-            assert _word_sum(mm, 0, n, chunk=4096) == total
+        with open(path, "rb") as fh:
+            assert _word_sum(fh, 0, n, chunk=4096) == total
     # and astropy's DATASUM of a real HDU
     hdu = fits.ImageHDU(rng.normal(size=(37, 11)).astype(">f4"), name="X")
     fits.HDUList([fits.PrimaryHDU(), hdu]).writeto(tmp_path / "x.fits", checksum=True)
     with fits.open(tmp_path / "x.fits") as hdul:
         info, declared = hdul["X"].fileinfo(), int(hdul["X"].header["DATASUM"])
-    with open(tmp_path / "x.fits", "rb") as fh, \
-            mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
-        assert _word_sum(mm, info["datLoc"], info["datSpan"]) == declared
+    with open(tmp_path / "x.fits", "rb") as fh:
+        assert _word_sum(fh, info["datLoc"], info["datSpan"]) == declared
 
 
 def test_flipped_byte_is_an_error_unless_asked_to_continue(tmp_path, raw, capsys, caplog):

@@ -498,8 +498,8 @@ def _describe(hdul, path, supplied, bad=()):
             )
     elif schedule.phantom_reads and order == "readout":
         raise FormatError(f"NPHANT={schedule.phantom_reads} but the file has no PHANTOM extension")
-    unit = _unit(header_keyword(header, "BUNIT", str, default=None)
-                 or header_keyword(sci.header, "BUNIT", str, default="electron"))
+    unit = _unit(header_keyword(header if "BUNIT" in header else sci.header, "BUNIT", str,
+                                default="electron"))
     for key in ("CHECKSUM", "DATASUM", "ORDER", "NEXTEND"):
         header.remove(key, ignore_missing=True)
     _note_bad_checksums(header, bad, path)

@@ -265,84 +265,154 @@ def _scan(path):
     """The HDUs of a plain FITS file from its bytes: ``[{name, header, data, nbytes, cards}]``.
 
     ``header`` and ``data`` are byte offsets, ``nbytes`` the data size without
-    padding.  Only headers are read.  Returns None for a file that is not plain
-    FITS on disk (gzip, bzip2, zip: astropy unpacks those).
+    padding.  Only headers are read.  A gzip-, bzip2- or xz-compressed file is
+    checked the same way while it is decompressed (one pass, nothing kept), and
+    then None is returned, as for a file that is not FITS at all (astropy
+    unpacks the first, and names the problem of the second).
 
     Raises
     ------
     FormatError
-        A header has no ``END`` card, a structural keyword is invalid, or the
-        file ends before a header or data block it announces ("truncated").
+        A header has no ``END`` card, a structural keyword is invalid, the
+        file (decompressed) ends before a header or data block it announces
+        ("truncated"), or a compressed stream is damaged.
     """
-    size = os.path.getsize(path)
-    hdus = []
     with open(path, "rb") as fh:
-        if fh.read(9) != b"SIMPLE  =":
-            return None
-        pos = 0
-        while pos < size:
+        magic = fh.read(9)
+        if magic == b"SIMPLE  =":
+            fh.seek(0)
+            return _scan_stream(fh, path, os.path.getsize(path))
+    opener = _DECOMPRESSORS.get(next((m for m in _DECOMPRESSORS if magic.startswith(m)), None))
+    if opener is None:
+        return None
+    try:
+        with opener(path) as fh:
+            if fh.read(9) == b"SIMPLE  =":
+                _scan_stream(_Rewound(fh, b"SIMPLE  ="), path, None)
+    except (EOFError, OSError, ValueError) as exc:
+        if isinstance(exc, FormatError):
+            raise
+        raise FormatError(f"{path}: the compressed data are damaged or truncated ({exc})") \
+            from exc
+    return None
+
+
+def _open_xz(path):
+    import lzma
+
+    return lzma.open(path)
+
+
+def _open_bz2(path):
+    import bz2
+
+    return bz2.open(path)
+
+
+def _open_gzip(path):
+    import gzip
+
+    return gzip.open(path)
+
+
+_DECOMPRESSORS = {b"\x1f\x8b": _open_gzip, b"BZh": _open_bz2, b"\xfd7zXZ\x00": _open_xz}
+
+
+class _Rewound:
+    """A forward-only stream with ``head`` (already read) put back in front."""
+
+    def __init__(self, fh, head):
+        self.fh, self.head = fh, head
+
+    def read(self, n):
+        out, self.head = self.head[:n], self.head[n:]
+        return out + self.fh.read(n - len(out)) if n > len(out) else out
+
+
+def _skip(fh, nbytes):
+    """Read ``nbytes`` forward, keeping nothing; the number of bytes there were."""
+    done = 0
+    while done < nbytes:
+        got = len(fh.read(min(1 << 20, nbytes - done)))
+        if not got:
+            break
+        done += got
+    return done
+
+
+def _scan_stream(fh, path, size):
+    """`_scan` of a stream: seekable with its ``size`` known (a plain file), or read
+    forward only (``size`` None: decompressed)."""
+    hdus = []
+    pos = 0
+    seekable = size is not None
+    where = "the file ends" if seekable else "the file, decompressed, ends"
+    while True:
+        if seekable:
             fh.seek(pos)
-            first = fh.read(_BLOCK)
-            if len(hdus) and not first.startswith(b"XTENSION"):
-                if first.strip(b"\0 "):  # zero (or blank) padding is tolerated
-                    raise FormatError(f"{path}: the {size - pos} bytes after its last HDU "
-                                      f"(byte {pos}) are not a FITS extension: the file is "
-                                      "damaged")
-                break
-            cards, start, block, nblocks = {}, pos, first, 0
-            while True:
-                index = len(hdus)
-                if len(block) < _BLOCK:
-                    named = re.search(rb"EXTNAME = '([^']*)'", block)
-                    label = _hdu_label(index, {"EXTNAME": named.group(1).decode(
-                        "ascii", "replace").strip()} if named else {})
-                    raise FormatError(f"{path} is truncated: {label} needs at least "
-                                      f"{pos + _BLOCK} bytes for its header, the file ends "
-                                      f"after {size}")
-                pos += _BLOCK
-                nblocks += 1
-                end = False
-                for i in range(0, _BLOCK, 80):
-                    key = block[i : i + 8].rstrip()
-                    if key == b"END":
-                        end = True
-                        break
-                    if key in _SCAN_KEYS or key.startswith(b"NAXIS"):
-                        value = _card_value(block[i : i + 80])
-                        if value is not None:
-                            cards.setdefault(key.decode(), value)
-                if end:
+        first = fh.read(_BLOCK)
+        if not first:
+            break
+        if len(hdus) and not first.startswith(b"XTENSION"):
+            if first.strip(b"\0 ") or (not seekable and fh.read(1 << 16).strip(b"\0 ")):
+                raise FormatError(f"{path}: the bytes after its last HDU (byte {pos}) are not "
+                                  "a FITS extension: the file is damaged")
+            break
+        cards, start, block, nblocks = {}, pos, first, 0
+        while True:
+            index = len(hdus)
+            if len(block) < _BLOCK:
+                named = re.search(rb"EXTNAME = '([^']*)'", block)
+                label = _hdu_label(index, {"EXTNAME": named.group(1).decode(
+                    "ascii", "replace").strip()} if named else {})
+                raise FormatError(f"{path} is truncated: {label} needs at least "
+                                  f"{pos + _BLOCK} bytes for its header, {where} after "
+                                  f"{pos + len(block)}")
+            pos += _BLOCK
+            nblocks += 1
+            end = False
+            for i in range(0, _BLOCK, 80):
+                key = block[i : i + 8].rstrip()
+                if key == b"END":
+                    end = True
                     break
-                if nblocks >= _MAX_HEADER_BLOCKS:
-                    raise FormatError(f"{path}: {_hdu_label(index, cards)} has no END card in "
-                                      f"its first {_MAX_HEADER_BLOCKS * _BLOCK} bytes")
-                block = fh.read(_BLOCK)
-            bitpix = _card_int(cards, "BITPIX", None, path, index, minimum=-64)
-            if bitpix not in (8, 16, 32, 64, -32, -64):
-                raise FormatError(f"{path}: {_hdu_label(index, cards)} has BITPIX = {bitpix}, "
-                                  "not one of 8, 16, 32, 64, -32, -64")
-            naxis = _card_int(cards, "NAXIS", None, path, index)
-            if naxis > 999:
-                raise FormatError(f"{path}: {_hdu_label(index, cards)} has NAXIS = {naxis} > 999")
-            axes = [_card_int(cards, f"NAXIS{i}", None, path, index) for i in range(1, naxis + 1)]
-            if cards.get("GROUPS") == "T" and axes and axes[0] == 0:
-                axes = axes[1:]  # random groups
-            count = 0
-            if axes:
-                count = 1
-                for n in axes:
-                    count *= n
-            pcount = _card_int(cards, "PCOUNT", 0, path, index)
-            gcount = _card_int(cards, "GCOUNT", 1, path, index)
-            nbytes = abs(bitpix) // 8 * gcount * (pcount + count) if naxis else 0
-            padded = -(-nbytes // _BLOCK) * _BLOCK  # the standard's padding is part of it
-            if pos + padded > size:
-                raise FormatError(f"{path} is truncated: {_hdu_label(index, cards)} needs "
-                                  f"{pos + padded} bytes, the file ends after {size}")
-            hdus.append({"name": cards.get("EXTNAME") or ("PRIMARY" if index == 0 else
-                                                          f"HDU {index}"),
-                         "header": start, "data": pos, "nbytes": nbytes, "cards": cards})
-            pos += padded
+                if key in _SCAN_KEYS or key.startswith(b"NAXIS"):
+                    value = _card_value(block[i : i + 80])
+                    if value is not None:
+                        cards.setdefault(key.decode(), value)
+            if end:
+                break
+            if nblocks >= _MAX_HEADER_BLOCKS:
+                raise FormatError(f"{path}: {_hdu_label(index, cards)} has no END card in "
+                                  f"its first {_MAX_HEADER_BLOCKS * _BLOCK} bytes")
+            block = fh.read(_BLOCK)
+        bitpix = _card_int(cards, "BITPIX", None, path, index, minimum=-64)
+        if bitpix not in (8, 16, 32, 64, -32, -64):
+            raise FormatError(f"{path}: {_hdu_label(index, cards)} has BITPIX = {bitpix}, "
+                              "not one of 8, 16, 32, 64, -32, -64")
+        naxis = _card_int(cards, "NAXIS", None, path, index)
+        if naxis > 999:
+            raise FormatError(f"{path}: {_hdu_label(index, cards)} has NAXIS = {naxis} > 999")
+        axes = [_card_int(cards, f"NAXIS{i}", None, path, index) for i in range(1, naxis + 1)]
+        if cards.get("GROUPS") == "T" and axes and axes[0] == 0:
+            axes = axes[1:]  # random groups
+        count = 0
+        if axes:
+            count = 1
+            for n in axes:
+                count *= n
+        pcount = _card_int(cards, "PCOUNT", 0, path, index)
+        gcount = _card_int(cards, "GCOUNT", 1, path, index)
+        nbytes = abs(bitpix) // 8 * gcount * (pcount + count) if naxis else 0
+        padded = -(-nbytes // _BLOCK) * _BLOCK  # the standard's padding is part of it
+        there = (size - pos) if seekable else _skip(fh, padded)
+        if there < padded:
+            raise FormatError(f"{path} is truncated: {_hdu_label(index, cards)} needs "
+                              f"{pos + padded} bytes, {where} after {pos + max(there, 0)}")
+        hdus.append({"name": cards.get("EXTNAME") or ("PRIMARY" if index == 0 else
+                                                      f"HDU {index}"),
+                     "header": start, "data": pos, "nbytes": nbytes, "cards": cards})
+        pos += padded
     if hdus:
         nextend = hdus[0]["cards"].get("NEXTEND")
         if nextend is not None:

@@ -448,3 +448,29 @@ def test_files_without_checksums_are_read(tmp_path, raw):
             del h.header["CHECKSUM"], h.header["DATASUM"]
         hdul.writeto(tmp_path / "plain.fits")
     np.testing.assert_array_equal(read(tmp_path / "plain.fits").data.data, raw.data.data)
+
+
+@pytest.mark.parametrize("module", ["gzip", "bz2", "lzma"])
+def test_truncated_compressed_files(tmp_path, raw, module, capsys):
+    import importlib
+
+    opener = importlib.import_module(module)
+    path = write(raw, tmp_path / "raw.fits")
+    data = path.read_bytes()
+    whole = tmp_path / "whole.fits.z"
+    with opener.open(whole, "wb") as fh:
+        fh.write(data)
+    np.testing.assert_array_equal(read(whole).data.data, raw.data.data)  # complete: fine
+    cut = _cuts(path)["mid-SCI"]
+    inner = tmp_path / "inner.fits.z"  # the FITS bytes cut, then compressed
+    with opener.open(inner, "wb") as fh:
+        fh.write(data[:cut])
+    with pytest.raises(FormatError, match=rf"is truncated: HDU 1 \('SCI'\) needs \d+ bytes, "
+                                          rf"the file, decompressed, ends after {cut}"):
+        read(inner)
+    outer = tmp_path / "outer.fits.z"  # the compressed stream cut
+    outer.write_bytes(whole.read_bytes()[: len(whole.read_bytes()) // 2])
+    with pytest.raises(FormatError, match="truncated"):
+        read(outer)
+    assert main(["reduce", str(outer), "-c", "unchop", "-o", str(tmp_path / "o.fits")]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1

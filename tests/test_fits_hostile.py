@@ -474,3 +474,22 @@ def test_truncated_compressed_files(tmp_path, raw, module, capsys):
         read(outer)
     assert main(["reduce", str(outer), "-c", "unchop", "-o", str(tmp_path / "o.fits")]) == 2
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_simulated_raw_file_missing_its_last_hdu(tmp_path):
+    from spherex_reduce.simulation import simulate_to_fits
+
+    scene = tmp_path / "scene.yaml"
+    scene.write_text("geometry: {nrows: 32, ncols: 16, nchannels: 2, ref_border: 2}\n"
+                     "readout: {skip: 5, ref_reads: 4, phantom_reads: 2, nframes: 3,"
+                     " frame_overhead: 100}\noutput: {mode: ramps}\nseed: 1\n")
+    path = simulate_to_fits(str(scene), tmp_path / "raw.fits")
+    read(path)  # whole: fine (its checksums too)
+    with fits.open(path) as hdul:
+        assert hdul[0].header["NEXTEND"] == 3
+        cut = hdul["READOUT"].fileinfo()["hdrLoc"]
+    short = tmp_path / "short.fits"
+    short.write_bytes(path.read_bytes()[:cut])
+    with pytest.raises(FormatError, match="announces NEXTEND = 3 extensions, the file ends "
+                                          "after 2"):
+        read(short)

@@ -155,6 +155,13 @@ def test_integer_files_through_the_commands(tmp_path, uint16_file, capsys):
     np.testing.assert_array_equal(unchopped.data.data[1, rows["row"][first]],
                                   values[1, first] * bscale + bzero)
     assert main(["fit-noise", str(uint16_file), "-o", str(tmp_path / "fit.ecsv")]) == 0
+    as_float = read(uint16_file)
+    float_file = write(as_float.replace(data=np.array(as_float.data.data),
+                                        phantom=np.array(as_float.phantom)), tmp_path / "f.fits")
+    assert main(["fit-noise", str(float_file), "-o", str(tmp_path / "fitf.ecsv")]) == 0
+    fit, fitf = Table.read(tmp_path / "fit.ecsv"), Table.read(tmp_path / "fitf.ecsv")
+    for col in ("alpha", "beta", "gamma"):
+        np.testing.assert_allclose(fit[col], fitf[col], rtol=1e-6)
     # two reduced images stored as scaled int16: combine gives their numpy mean
     slopes = Pipeline(STEPS).run(uint16_file)
     images = []
@@ -315,6 +322,8 @@ def _set_card(src, out, key, text, hdu_name=None):
     ("PIXRATE", "0", "keyword PIXRATE must be > 0, got 0"),
     ("REFMODE", "3", "keyword REFMODE must be a string, got 3"),
     ("ORDER", "1", "keyword ORDER must be a string, got 1"),
+    ("SCANDIR", "'+x'", "SCANDIR must be 'same', 'alternate' or one '+' or '-' per channel, "
+                        "got '+x'"),
 ])
 def test_bad_header_values_name_the_keyword(tmp_path, raw, key, text, message, capsys):
     path = _set_card(write(raw, tmp_path / "raw.fits"), tmp_path / "bad.fits", key, text)

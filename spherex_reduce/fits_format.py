@@ -776,7 +776,11 @@ class FrameReader:
     Parameters
     ----------
     path : str or `pathlib.Path`
-        A file of ramps ``(frames, reads, columns)`` in readout order.
+        A file of ramps ``(frames, reads, columns)`` in readout order.  It is
+        checked as by `read` (structure, checksums, keywords) when opened.
+        Scaled integer data come as floating point frames (`frame`).
+    verify_checksum : bool, optional
+        As for `read`.
     **supplied
         As for `read`.
 

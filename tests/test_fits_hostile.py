@@ -502,3 +502,21 @@ def test_simulated_raw_file_missing_its_last_hdu(tmp_path):
     with pytest.raises(FormatError, match="announces NEXTEND = 3 extensions, the file ends "
                                           "after 2"):
         read(short)
+
+
+def test_combine_records_every_input_read_despite_its_checksum(tmp_path, small_schedule, capsys):
+    rng = np.random.default_rng(4)
+    images = []
+    for i in range(3):
+        e = Exposure.from_arrays(rng.normal(size=(small_schedule.geometry.nrows, 16)),
+                                 small_schedule, unit=u.electron / u.s, order="physical")
+        images.append(write(e, tmp_path / f"img{i}.fits"))
+    damaged = _flip_sci_byte(images[1], tmp_path / "damaged.fits")
+    master = tmp_path / "master.fits"
+    inputs = [str(images[0]), str(damaged), str(images[2])]
+    assert main(["combine", *inputs, "-o", str(master)]) == 2
+    assert "damaged.fits: the checksum of HDU(s) SCI" in capsys.readouterr().err
+    assert main(["combine", *inputs, "-o", str(master), "--ignore-checksum"]) == 0
+    with fits.open(master) as hdul:
+        assert hdul[0].header["SXRCKBAD"] == "SCI"
+        assert any("damaged.fits did not match" in h for h in hdul[0].header["HISTORY"])

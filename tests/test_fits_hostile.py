@@ -430,6 +430,10 @@ def test_flipped_byte_is_an_error_unless_asked_to_continue(tmp_path, raw, capsys
         assert hdul[0].header["SXRCKBAD"] == "SCI"
         assert any("did not match" in h for h in hdul[0].header["HISTORY"])
     read(out)  # the output's own checksums are valid
+    fit = tmp_path / "fit.ecsv"
+    assert main(["fit-noise", str(path), "-o", str(fit), "--ignore-checksum"]) == 0
+    assert Table.read(fit).meta["input_checksum_failed"] == "SCI"
+    capsys.readouterr()
     assert digest(path) == before
 
 

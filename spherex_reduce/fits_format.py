@@ -21,14 +21,28 @@ Layout (extension names):
 
 Any other table extension holds a table recorded by a step (e.g. ``REFOFFS``).
 
-Writes go to a temporary file in the target directory, with FITS checksums,
-and are renamed into place only when complete; an existing file is kept unless
+Writes go to a temporary file in the target directory, with FITS checksums
+and ``NEXTEND`` (the number of extensions) in the primary header, and are
+renamed into place only when complete; an existing file is kept unless
 ``overwrite=True``.
+
+Reads check the file before trusting it: every header must end and every data
+block must fit in the file (a truncated file is named as such), ``NEXTEND``
+extensions must be present, and ``CHECKSUM``/``DATASUM`` are verified where
+present (see `checksum_policy` to read a damaged file anyway).  Integer data
+with ``BSCALE``/``BZERO``/``BLANK`` are scaled to floating point on read (the
+file is never changed).
 """
 
+import contextlib
+import contextvars
+import logging
+import math
 import mmap
 import os
+import re
 import tempfile
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -39,9 +53,13 @@ from astropy.table import Table
 
 from .errors import FormatError
 from .exposure import Exposure, ReferenceReads, expected_shape
-from .schedule import ReadoutSchedule
+from .limits import check_size
+from .schedule import ReadoutSchedule, header_keyword
 
-__all__ = ["FrameReader", "atomic_output", "read", "write"]
+__all__ = ["FrameReader", "atomic_output", "checksum_policy", "is_raw_ramp_file", "read",
+           "write"]
+
+log = logging.getLogger(__name__)
 
 _RESERVED = {"PRIMARY", "SCI", "ERR", "DQ", "PHANTOM", "READOUT", "REFPIX", "REFPHANT", "REFDQ",
              "REFREADS"}
@@ -160,6 +178,8 @@ def write(exposure, path, overwrite=False):
         if name.upper() in _RESERVED:
             raise ValueError(f"table name {name!r} is reserved for the format")
         hdus.append(_table_hdu(table, name.upper()))
+    # a file cut at an HDU boundary is still valid FITS: the count tells it is not whole
+    hdus[0].header["NEXTEND"] = (len(hdus) - 1, "number of extensions")
     with atomic_output(path, overwrite) as tmp:
         fits.HDUList(hdus).writeto(tmp, checksum=True)
     return path
@@ -173,17 +193,354 @@ def _table_hdu(table, name):
     return hdu
 
 
-def _open(path, memmap):
+_VERIFY = contextvars.ContextVar("spherex_reduce_verify_checksum", default=True)
+
+
+@contextlib.contextmanager
+def checksum_policy(verify=True):
+    """Set whether reads in this context stop at a checksum mismatch.
+
+    `read` and `FrameReader` verify ``CHECKSUM`` and ``DATASUM`` of every HDU
+    that has them.  By default a mismatch is a `FormatError`; inside
+    ``checksum_policy(verify=False)`` it is logged as a warning and recorded
+    in the header of what is read (``HISTORY`` and the keyword ``SXRCKBAD``
+    listing the HDUs), which travels to any file written from it.  The
+    command line's ``--ignore-checksum`` sets this for the whole command, so
+    that every file it reads (including e.g. a pipeline's dark) follows it.
+
+    Parameters
+    ----------
+    verify : bool
+        False to read files whose checksum does not match.
+
+    Examples
+    --------
+    >>> from spherex_reduce.fits_format import checksum_policy
+    >>> with checksum_policy(verify=False):
+    ...     pass  # read(...) here warns instead of failing on a bad checksum
+    """
+    token = _VERIFY.set(bool(verify))
+    try:
+        yield
+    finally:
+        _VERIFY.reset(token)
+
+
+_BLOCK = 2880
+_MAX_HEADER_BLOCKS = 10_000  # 28.8 MB of header cards: far beyond any real file
+_SCAN_KEYS = {b"XTENSION", b"EXTNAME", b"BITPIX", b"NAXIS", b"PCOUNT", b"GCOUNT", b"GROUPS",
+              b"NEXTEND", b"CHECKSUM", b"DATASUM"}
+_STRING = re.compile(r"'((?:[^']|'')*)'")
+
+
+def _card_value(image):
+    """The value of an 80-byte card as text (strings unquoted), or None."""
+    if image[8:10] != b"= ":
+        return None
+    text = image[10:].decode("ascii", "replace").strip()
+    if text.startswith("'"):
+        m = _STRING.match(text)
+        return m.group(1).replace("''", "'").rstrip() if m else text
+    return text.split("/", 1)[0].strip()
+
+
+def _hdu_label(index, cards):
+    name = cards.get("EXTNAME") or ("PRIMARY" if index == 0 else None)
+    return f"HDU {index} ({name!r})" if name else f"HDU {index}"
+
+
+def _card_int(cards, key, default, path, index, minimum=0):
+    text = cards.get(key)
+    if text is None:
+        if default is None:
+            raise FormatError(f"{path}: {_hdu_label(index, cards)} lacks the keyword {key}")
+        return default
+    if not re.fullmatch(r"[+-]?\d+", text) or not minimum <= int(text) < 2**62:
+        raise FormatError(f"{path}: {_hdu_label(index, cards)} has {key} = {text!r}, not an "
+                          f"integer >= {minimum}")
+    return int(text)
+
+
+def _scan(path):
+    """The HDUs of a plain FITS file from its bytes: ``[{name, header, data, nbytes, cards}]``.
+
+    ``header`` and ``data`` are byte offsets, ``nbytes`` the data size without
+    padding.  Only headers are read.  A gzip-, bzip2- or xz-compressed file is
+    checked the same way while it is decompressed (one pass, nothing kept), and
+    then None is returned, as for a file that is not FITS at all (astropy
+    unpacks the first, and names the problem of the second).
+
+    Raises
+    ------
+    FormatError
+        A header has no ``END`` card, a structural keyword is invalid, the
+        file (decompressed) ends before a header or data block it announces
+        ("truncated"), or a compressed stream is damaged.
+    """
+    with open(path, "rb") as fh:
+        magic = fh.read(9)
+        if magic == b"SIMPLE  =":
+            fh.seek(0)
+            return _scan_stream(fh, path, os.path.getsize(path))
+    opener = _DECOMPRESSORS.get(next((m for m in _DECOMPRESSORS if magic.startswith(m)), None))
+    if opener is None:
+        return None
+    try:
+        with opener(path) as fh:
+            if fh.read(9) == b"SIMPLE  =":
+                _scan_stream(_Rewound(fh, b"SIMPLE  ="), path, None)
+    except (EOFError, OSError, ValueError) as exc:
+        if isinstance(exc, FormatError):
+            raise
+        raise FormatError(f"{path}: the compressed data are damaged or truncated ({exc})") \
+            from exc
+    return None
+
+
+def _open_xz(path):
+    import lzma
+
+    return lzma.open(path)
+
+
+def _open_bz2(path):
+    import bz2
+
+    return bz2.open(path)
+
+
+def _open_gzip(path):
+    import gzip
+
+    return gzip.open(path)
+
+
+_DECOMPRESSORS = {b"\x1f\x8b": _open_gzip, b"BZh": _open_bz2, b"\xfd7zXZ\x00": _open_xz}
+
+
+class _Rewound:
+    """A forward-only stream with ``head`` (already read) put back in front."""
+
+    def __init__(self, fh, head):
+        self.fh, self.head = fh, head
+
+    def read(self, n):
+        out, self.head = self.head[:n], self.head[n:]
+        return out + self.fh.read(n - len(out)) if n > len(out) else out
+
+
+def _skip(fh, nbytes):
+    """Read ``nbytes`` forward, keeping nothing; the number of bytes there were."""
+    done = 0
+    while done < nbytes:
+        got = len(fh.read(min(1 << 20, nbytes - done)))
+        if not got:
+            break
+        done += got
+    return done
+
+
+def _scan_stream(fh, path, size):
+    """`_scan` of a stream: seekable with its ``size`` known (a plain file), or read
+    forward only (``size`` None: decompressed)."""
+    hdus = []
+    pos = 0
+    seekable = size is not None
+    where = "the file ends" if seekable else "the file, decompressed, ends"
+    while True:
+        if seekable:
+            fh.seek(pos)
+        first = fh.read(_BLOCK)
+        if not first:
+            break
+        if len(hdus) and not first.startswith(b"XTENSION"):
+            if first.strip(b"\0 ") or (not seekable and fh.read(1 << 16).strip(b"\0 ")):
+                raise FormatError(f"{path}: the bytes after its last HDU (byte {pos}) are not "
+                                  "a FITS extension: the file is damaged")
+            break
+        cards, start, block, nblocks = {}, pos, first, 0
+        while True:
+            index = len(hdus)
+            if len(block) < _BLOCK:
+                named = re.search(rb"EXTNAME = '([^']*)'", block)
+                label = _hdu_label(index, {"EXTNAME": named.group(1).decode(
+                    "ascii", "replace").strip()} if named else {})
+                raise FormatError(f"{path} is truncated: {label} needs at least "
+                                  f"{pos + _BLOCK} bytes for its header, {where} after "
+                                  f"{pos + len(block)}")
+            pos += _BLOCK
+            nblocks += 1
+            end = False
+            for i in range(0, _BLOCK, 80):
+                key = block[i : i + 8].rstrip()
+                if key == b"END":
+                    end = True
+                    break
+                if key in _SCAN_KEYS or key.startswith(b"NAXIS"):
+                    value = _card_value(block[i : i + 80])
+                    if value is not None:
+                        cards.setdefault(key.decode(), value)
+            if end:
+                break
+            if nblocks >= _MAX_HEADER_BLOCKS:
+                raise FormatError(f"{path}: {_hdu_label(index, cards)} has no END card in "
+                                  f"its first {_MAX_HEADER_BLOCKS * _BLOCK} bytes")
+            block = fh.read(_BLOCK)
+        bitpix = _card_int(cards, "BITPIX", None, path, index, minimum=-64)
+        if bitpix not in (8, 16, 32, 64, -32, -64):
+            raise FormatError(f"{path}: {_hdu_label(index, cards)} has BITPIX = {bitpix}, "
+                              "not one of 8, 16, 32, 64, -32, -64")
+        naxis = _card_int(cards, "NAXIS", None, path, index)
+        if naxis > 999:
+            raise FormatError(f"{path}: {_hdu_label(index, cards)} has NAXIS = {naxis} > 999")
+        axes = [_card_int(cards, f"NAXIS{i}", None, path, index) for i in range(1, naxis + 1)]
+        if cards.get("GROUPS") == "T" and axes and axes[0] == 0:
+            axes = axes[1:]  # random groups
+        count = 0
+        if axes:
+            count = 1
+            for n in axes:
+                count *= n
+        pcount = _card_int(cards, "PCOUNT", 0, path, index)
+        gcount = _card_int(cards, "GCOUNT", 1, path, index)
+        nbytes = abs(bitpix) // 8 * gcount * (pcount + count) if naxis else 0
+        padded = -(-nbytes // _BLOCK) * _BLOCK  # the standard's padding is part of it
+        there = (size - pos) if seekable else _skip(fh, padded)
+        if there < padded:
+            raise FormatError(f"{path} is truncated: {_hdu_label(index, cards)} needs "
+                              f"{pos + padded} bytes, {where} after {pos + max(there, 0)}")
+        hdus.append({"name": cards.get("EXTNAME") or ("PRIMARY" if index == 0 else
+                                                      f"HDU {index}"),
+                     "header": start, "data": pos, "nbytes": nbytes, "cards": cards})
+        pos += padded
+    if hdus:
+        nextend = hdus[0]["cards"].get("NEXTEND")
+        if nextend is not None:
+            want = _card_int(hdus[0]["cards"], "NEXTEND", None, path, 0)
+            if want > len(hdus) - 1:
+                raise FormatError(f"{path} is truncated: its primary header announces NEXTEND = "
+                                  f"{want} extensions, the file ends after {len(hdus) - 1}")
+    return hdus
+
+
+def _fold(total):
+    """32-bit ones'-complement sum (end-around carry) of a non-negative integer sum."""
+    while total >> 32:
+        total = (total & 0xFFFFFFFF) + (total >> 32)
+    return total
+
+
+def _word_sum(fh, start, nbytes, chunk=1 << 20):
+    """Ones'-complement sum of the big-endian 32-bit words of bytes ``start:start+nbytes``.
+
+    The FITS checksum algorithm (FITS standard 4.0, appendix J): numpy sums
+    the words in 64-bit integers a chunk at a time (no carry is lost: 2**18
+    words of < 2**32 each), then the total is folded.  A tail shorter than a
+    word is padded with zeros, as the file's padding would be.  The chunks are
+    read into one reused buffer (``readinto``): memory stays at one chunk, the
+    sum runs from the cache, and no page of the file is mapped (faster than a
+    memory map by ~30 %, measured).
+    """
+    buf = np.zeros(chunk // 4, ">u4")
+    raw = memoryview(buf).cast("B")
+    total, left = 0, nbytes
+    fh.seek(start)
+    while left:
+        n = got = min(chunk, left)
+        while got:
+            k = fh.readinto(raw[n - got : n])
+            if not k:
+                raise FormatError(f"{fh.name}: the file ends inside an HDU")  # (scanned before)
+            got -= k
+        if n % 4:  # the last bytes of the data: pad the word with zeros
+            raw[n : n + 4 - n % 4] = bytes(4 - n % 4)
+        total += int(np.add.reduce(buf[: -(-n // 4)], dtype=np.uint64))
+        left -= n
+    return _fold(total)
+
+
+def _verify(path, hdus):
+    """Names of the HDUs whose ``DATASUM`` or ``CHECKSUM`` does not match their bytes."""
+    wanted = [h for h in hdus if "DATASUM" in h["cards"] or "CHECKSUM" in h["cards"]]
+    bad = []
+    with open(path, "rb", buffering=0) as fh:
+        for h in wanted:
+            datasum = _word_sum(fh, h["data"], h["nbytes"])
+            declared = h["cards"].get("DATASUM")
+            ok = declared is None or (declared.strip().isdigit() and int(declared) == datasum)
+            if ok and "CHECKSUM" in h["cards"]:
+                # header words plus the data's sum: all ones (-0) when nothing changed
+                ok = _fold(_word_sum(fh, h["header"], h["data"] - h["header"]) + datasum) \
+                    == 0xFFFFFFFF
+            if not ok:
+                bad.append(h["name"])
+    return bad
+
+
+def _open(path, memmap, verify=None):
+    """Open a FITS file read-only after checking its structure and checksums.
+
+    Returns ``(hdul, bad, plain)``: the astropy HDU list, the names of HDUs
+    whose checksum failed (only when ``verify`` is False: else that is an
+    error), and whether the file is plain FITS on disk (not gzip etc., which
+    astropy unpacks: those are never memory-mapped).  ``verify=None`` follows
+    `checksum_policy`.
+    """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}")
+    verify = _VERIFY.get() if verify is None else verify
+    hdus = _scan(path)
+    bad = _verify(path, hdus) if hdus else []
+    if bad:
+        msg = (f"{path}: the checksum of HDU(s) {', '.join(bad)} does not match the bytes "
+               "(CHECKSUM/DATASUM): the file is damaged or was changed after writing")
+        if verify:
+            raise FormatError(f"{msg}; to read it anyway, pass --ignore-checksum "
+                              "(verify_checksum=False)")
+        log.warning("%s; read anyway (checksum verification off)", msg)
+    plain = hdus is not None
     try:
-        return fits.open(path, memmap=memmap, mode="readonly")
+        hdul = fits.open(path, memmap=memmap and plain, mode="readonly")
     except OSError as exc:
         raise FormatError(f"{path} is not a readable FITS file: {exc}") from exc
+    try:
+        for hdu in hdul:
+            _check_cards(hdu, path)
+    except BaseException:
+        hdul.close()
+        raise
+    return hdul, bad, plain
 
 
-def _describe(hdul, path, supplied):
+def _check_cards(hdu, path):
+    """Every card of ``hdu``'s header parses and holds no infinite or NaN number."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # astropy's notes on non-standard cards
+        for card in hdu.header.cards:
+            try:
+                value = card.value
+            except Exception as exc:  # VerifyError: e.g. "X = NAN", "X = 1E9999x"
+                raw = str(getattr(card, "_image", "") or "")[10:].split("/")[0].strip()
+                raise FormatError(f"{path}: HDU {hdu.name!r} has the unreadable header card "
+                                  f"{card.keyword} = {raw}") from exc
+            if isinstance(value, float) and not math.isfinite(value):
+                raise FormatError(f"{path}: HDU {hdu.name!r} has the header card "
+                                  f"{card.keyword} = {value}, not a finite number")
+
+
+def _note_bad_checksums(header, bad, path):
+    """Record in ``header`` (in place) that HDUs ``bad`` of ``path`` failed their checksum."""
+    if not bad:
+        return
+    previous = str(header.get("SXRCKBAD", "")).strip()
+    header["SXRCKBAD"] = (",".join(filter(None, [previous, *bad]))[:68],
+                          "input HDUs whose checksum failed, read anyway")
+    header.add_history(f"checksum of {', '.join(bad)} in {Path(path).name} did not match; "
+                       "read anyway (checksum verification off)")
+
+
+def _describe(hdul, path, supplied, bad=()):
     """Validate an open file; return what every reader needs (no pixel data loaded)."""
     names = [h.name for h in hdul]
     header = hdul[0].header.copy()
@@ -196,7 +553,7 @@ def _describe(hdul, path, supplied):
     shape = tuple(sci.header[f"NAXIS{i}"] for i in range(sci.header["NAXIS"], 0, -1))
     table = Table.read(hdul["READOUT"]) if "READOUT" in names else None
     schedule = ReadoutSchedule.from_header(header, table, **supplied)
-    order = str(header.get("ORDER", "READOUT")).strip().lower()
+    order = header_keyword(header, "ORDER", str, default="READOUT").strip().lower()
     if order not in ("readout", "physical"):
         raise FormatError(f"keyword ORDER must be READOUT or PHYSICAL, got {order!r}")
     _check_shape(shape, schedule, order, "SCI")
@@ -211,9 +568,11 @@ def _describe(hdul, path, supplied):
             )
     elif schedule.phantom_reads and order == "readout":
         raise FormatError(f"NPHANT={schedule.phantom_reads} but the file has no PHANTOM extension")
-    unit = _unit(header.get("BUNIT", sci.header.get("BUNIT", "electron")))
-    for key in ("CHECKSUM", "DATASUM", "ORDER"):
+    unit = _unit(header_keyword(header if "BUNIT" in header else sci.header, "BUNIT", str,
+                                default="electron"))
+    for key in ("CHECKSUM", "DATASUM", "ORDER", "NEXTEND"):
         header.remove(key, ignore_missing=True)
+    _note_bad_checksums(header, bad, path)
     return {"names": names, "header": header, "sci": sci, "shape": shape,
             "schedule": schedule, "order": order, "unit": unit}
 
@@ -224,14 +583,21 @@ def _readonly(*arrays):
             array.setflags(write=False)
 
 
-def read(path, **supplied):
+def read(path, verify_checksum=None, **supplied):
     """Read an exposure written by `write` (or raw data from other electronics).
 
     Parameters
     ----------
     path : str or `pathlib.Path`
         FITS file.  It is opened read-only (memory-mapped) and never changed;
-        the arrays of the returned exposure are read-only.
+        the arrays of the returned exposure are read-only.  Integer data with
+        ``BSCALE``/``BZERO``/``BLANK`` are scaled to floating point
+        (``float32`` for 8- and 16-bit data, else ``float64``; ``BLANK`` is
+        NaN) in memory.
+    verify_checksum : bool, optional
+        Whether a ``CHECKSUM``/``DATASUM`` mismatch is an error (True), or a
+        logged warning recorded in the returned header (False: ``HISTORY``
+        and ``SXRCKBAD``).  Default: `checksum_policy` (True).
     **supplied
         Geometry and readout parameters (``nrows``, ``skip``, ``frame_time``
         ...) used where the header lacks them, e.g. from a pipeline config's
@@ -244,35 +610,161 @@ def read(path, **supplied):
     Raises
     ------
     FormatError
-        The file lacks ``SCI``, a keyword is missing, or the header, the
-        ``READOUT`` table and the array shapes disagree; the message names the
-        keyword or dimension.
+        The file is truncated or damaged (checksum), lacks ``SCI``, a keyword
+        is missing or invalid, or the header, the ``READOUT`` table and the
+        array shapes disagree; the message names the keyword or dimension.
+    ResourceError
+        Scaled data would not fit in memory once in floating point.
+
+    Examples
+    --------
+    Unsigned 16-bit data (stored with ``BZERO = 32768``) come back as floats:
+
+    >>> import tempfile, pathlib, numpy as np
+    >>> from spherex_reduce import Exposure, ReadoutSchedule, DetectorGeometry, read, write
+    >>> s = ReadoutSchedule(DetectorGeometry(8, 8, 2, ref_border=0), ref_mode="none",
+    ...                     phantom_reads=0, nframes=2)
+    >>> counts = np.arange(2 * 8 * 8, dtype=np.uint16).reshape(2, 8, 8) + 60000
+    >>> out = write(Exposure.from_arrays(counts, s), pathlib.Path(tempfile.mkdtemp()) / "u.fits")
+    >>> e = read(out)
+    >>> e.data.data.dtype, float(e.data.data.max())
+    (dtype('float32'), 60127.0)
     """
-    with _open(path, memmap=True) as hdul:
-        d = _describe(hdul, path, supplied)
-        names = d["names"]
-        data = d["sci"].data
-        err = hdul["ERR"].data if "ERR" in names else None
-        mask = hdul["DQ"].data if "DQ" in names else None
-        phantom = hdul["PHANTOM"].data if "PHANTOM" in names else None
-        reference = None
-        if "REFPIX" in names:
-            rt = Table.read(hdul["REFREADS"])
-            reference = ReferenceReads(
-                data=hdul["REFPIX"].data, rows=np.asarray(rt["row"]), reads=np.asarray(rt["read"]),
-                phantom=hdul["REFPHANT"].data if "REFPHANT" in names else None,
-                dq=(hdul["REFDQ"].data.astype(np.uint16) if "REFDQ" in names else None),
-            )
-            _readonly(reference.data, reference.phantom)
-        tables = {
-            h.name: Table.read(h)
-            for h in hdul
-            if isinstance(h, fits.BinTableHDU) and h.name not in _RESERVED
-        }
+    hdul, bad, plain = _open(path, memmap=True, verify=verify_checksum)
+    with hdul:
+        return _exposure(hdul, path, bad, plain, supplied)
+
+
+def _exposure(hdul, path, bad, plain, supplied):
+    """The `Exposure` in an HDU list opened by `_open` (which the caller closes)."""
+    d = _describe(hdul, path, supplied, bad)
+    names = d["names"]
+
+    def image(name, flags=False):
+        return _physical(hdul[name], path, plain, flags) if name in names else None
+
+    data = _physical(d["sci"], path, plain)
+    err, mask, phantom = image("ERR"), image("DQ", flags=True), image("PHANTOM")
+    reference = None
+    if "REFPIX" in names:
+        rt = Table.read(hdul["REFREADS"])
+        refdq = image("REFDQ", flags=True)
+        reference = ReferenceReads(
+            data=image("REFPIX"), rows=np.asarray(rt["row"]), reads=np.asarray(rt["read"]),
+            phantom=image("REFPHANT"),
+            dq=None if refdq is None else refdq.astype(np.uint16),
+        )
+        _readonly(reference.data, reference.phantom)
+    tables = {
+        h.name: Table.read(h)
+        for h in hdul
+        if isinstance(h, fits.BinTableHDU) and h.name not in _RESERVED
+    }
     _readonly(data, err, mask, phantom)
     return Exposure.from_arrays(data, d["schedule"], unit=d["unit"], uncertainty=err, mask=mask,
                                 phantom=phantom, header=d["header"], order=d["order"],
                                 reference=reference, tables=tables)
+
+
+_FLOAT_FOR = {8: "f4", 16: "f4", 32: "f8", 64: "f8", -32: "f4", -64: "f8"}
+
+
+def _scaling(hdu, path):
+    """``(bscale, bzero, blank)`` of an image HDU, checked, or None if its values are stored
+    as they are."""
+    h = hdu.header
+    if not any(key in h for key in ("BSCALE", "BZERO", "BLANK")):
+        return None
+    try:
+        bscale = header_keyword(h, "BSCALE", float, default=1.0)
+        bzero = header_keyword(h, "BZERO", float, default=0.0)
+        blank = header_keyword(h, "BLANK", int, default=None) if h["BITPIX"] > 0 else None
+    except FormatError as exc:
+        raise FormatError(f"{path}: HDU {hdu.name!r}: {exc}") from exc
+    if bscale == 0:
+        raise FormatError(f"{path}: HDU {hdu.name!r} has BSCALE = 0")
+    if bscale == 1 and bzero == 0 and blank is None:
+        return None
+    return bscale, bzero, blank
+
+
+def _to_physical(stored, scale, dtype):
+    """``BZERO + BSCALE * stored`` (``BLANK`` -> NaN) as a new array of ``dtype``."""
+    bscale, bzero, blank = scale
+    out = stored.astype(dtype)
+    if out.dtype.kind in "iu":  # flags: integer offsets only (checked by the caller)
+        out += int(bzero)
+        return out
+    if bscale != 1:
+        out *= bscale
+    if bzero:
+        out += bzero
+    if blank is not None:
+        out[stored == blank] = np.nan
+    return out
+
+
+def _physical(hdu, path, plain, flags=False):
+    """The data of an image HDU in physical values.
+
+    Unscaled data come as astropy gives them (memory-mapped if the file is).
+    Scaled data are converted here from the stored values (astropy refuses
+    to scale a memory-mapped image): floating point, or 64-bit integers for
+    flags (``DQ``), whose ``BSCALE`` must be 1 and ``BZERO`` whole.
+    """
+    if hdu.header.get("NAXIS", 0) == 0:
+        return None
+    scale = _scaling(hdu, path)
+    if scale is None:
+        return hdu.data
+    bitpix = hdu.header["BITPIX"]
+    if flags:
+        if bitpix < 0 or scale[0] != 1 or scale[1] != int(scale[1]):
+            raise FormatError(f"{path}: HDU {hdu.name!r} holds flags, which must be integers; "
+                              f"it has BITPIX = {bitpix}, BSCALE = {scale[0]}, "
+                              f"BZERO = {scale[1]}")
+        dtype = np.dtype("i8")
+    else:
+        dtype = np.dtype(_FLOAT_FOR[bitpix])
+    shape = tuple(hdu.shape)
+    check_size(int(np.prod(shape, dtype=float)) * dtype.itemsize,
+               f"HDU {hdu.name!r} of {path} {shape} scaled to {dtype}")
+    if not plain or isinstance(hdu, fits.CompImageHDU):  # astropy unpacks and scales
+        return np.asarray(hdu.data).astype(dtype)
+    stored = np.memmap(path, dtype=_FITS_DTYPES[bitpix], mode="r",
+                       offset=hdu.fileinfo()["datLoc"], shape=shape)
+    try:
+        return _to_physical(stored, scale, dtype)
+    finally:
+        del stored
+
+
+def is_raw_ramp_file(path):
+    """True for a file whose SCI is 3-D ramps in readout order (headers only are read).
+
+    A file that cannot be read gives False: the ordinary reader, `read`, then
+    gives the proper error.
+
+    Examples
+    --------
+    >>> from spherex_reduce.fits_format import is_raw_ramp_file
+    >>> is_raw_ramp_file("no-such-file.fits")
+    False
+    """
+    try:
+        if not Path(path).is_file():
+            return False
+        _scan(path)  # truncated or damaged: not astropy's guess, read's error
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with fits.open(path, memmap=False) as hdul:
+                names = [h.name for h in hdul]
+                sci = hdul["SCI"] if "SCI" in names else hdul[0]
+                order = str(hdul[0].header.get("ORDER", "READOUT")).strip().upper()
+                return (sci.header.get("NAXIS") == 3 and order == "READOUT"
+                        and "DQ" not in names and "ERR" not in names)
+    except (OSError, KeyError, IndexError, ValueError):  # FormatError is a ValueError
+        return False
 
 
 class FrameReader:
@@ -284,7 +776,11 @@ class FrameReader:
     Parameters
     ----------
     path : str or `pathlib.Path`
-        A file of ramps ``(frames, reads, columns)`` in readout order.
+        A file of ramps ``(frames, reads, columns)`` in readout order.  It is
+        checked as by `read` (structure, checksums, keywords) when opened.
+        Scaled integer data come as floating point frames (`frame`).
+    verify_checksum : bool, optional
+        As for `read`.
     **supplied
         As for `read`.
 
@@ -295,22 +791,23 @@ class FrameReader:
     header : `astropy.io.fits.Header`
     """
 
-    def __init__(self, path, **supplied):
+    def __init__(self, path, verify_checksum=None, **supplied):
         self.path = Path(path)
         self._map = None
-        self._hdul = _open(path, memmap=False)
+        self._hdul, bad, plain = _open(path, memmap=False, verify=verify_checksum)
         try:
-            d = _describe(self._hdul, path, supplied)
+            d = _describe(self._hdul, path, supplied, bad)
             if len(d["shape"]) != 3 or d["order"] != "readout" or "DQ" in d["names"] \
                     or "ERR" in d["names"]:
                 raise FormatError(f"{path} is not a raw ramp file in readout order")
             self._d = d
             self.schedule, self.header, self.unit = d["schedule"], d["header"], d["unit"]
-            self._phantom = (np.asarray(self._hdul["PHANTOM"].data)
+            self._phantom = (np.asarray(_physical(self._hdul["PHANTOM"], path, plain))
                              if "PHANTOM" in d["names"] else None)
+            self._scale = _scaling(d["sci"], path)
             self._tables = {h.name: Table.read(h) for h in self._hdul
                             if isinstance(h, fits.BinTableHDU) and h.name not in _RESERVED}
-            self._map = _map_frames(d["sci"], path)
+            self._map = _map_frames(d["sci"], path) if plain else None
         except Exception:
             self._hdul.close()
             raise
@@ -341,8 +838,10 @@ class FrameReader:
 
     def frame(self, k):
         """Frame ``k`` as a one-frame `Exposure` (schedule with ``nframes=1``)."""
-        if self._map is None:  # scaled or unusual data: astropy reads the section
+        if self._map is None:  # compressed: astropy unpacks (and scales) the section
             data = np.asarray(self._d["sci"].section[k : k + 1])
+            if data.dtype.kind in "iu":
+                data = data.astype(_FLOAT_FOR[self._d["sci"].header["BITPIX"]])
         else:
             data = self._mapped_frame(k)
         phantom = None if self._phantom is None else self._phantom[k : k + 1]
@@ -359,7 +858,7 @@ class FrameReader:
         """Whether `raw` gives floating-point pixels and phantom values (what the fused
         path needs)."""
         dtype = self._map[2] if self._map is not None else None
-        return (dtype is not None and dtype.kind == "f"
+        return (dtype is not None and dtype.kind == "f" and self._scale is None
                 and (self._phantom is None or self._phantom.dtype.kind == "f"))
 
     def raw(self, k):
@@ -369,7 +868,8 @@ class FrameReader:
         possibly big-endian and read-only (a view of the memory-mapped file);
         phantom values ``(reads, channels)`` or None; and ``release()``, to
         call once the pixels have been used (frees the file's pages in this
-        process).  Only for files whose data are not scaled (`fusable`).
+        process).  The pixels are stored values: `fusable` says whether they
+        are the physical values (floating point, not scaled).
         """
         mm, offset, dtype, _ = self._map
         shape = self._d["shape"][1:]
@@ -425,7 +925,10 @@ class FrameReader:
         they stay in the page cache, but the resident memory stays near one frame.
         """
         view, _, release = self.raw(k)
-        data = view.astype(view.dtype.newbyteorder("="))
+        if self._scale is None:
+            data = view.astype(view.dtype.newbyteorder("="))
+        else:  # BZERO + BSCALE * stored, in floating point
+            data = _to_physical(view, self._scale, _FLOAT_FOR[self._d["sci"].header["BITPIX"]])
         del view
         release()
         return data[None]
@@ -435,8 +938,10 @@ _FITS_DTYPES = {8: "u1", 16: ">i2", 32: ">i4", 64: ">i8", -32: ">f4", -64: ">f8"
 
 
 def _map_frames(hdu, path):
-    """``(mmap, data offset, dtype, file descriptor)`` of an unscaled image HDU, or None
-    (read by sections).  The descriptor (kept open, the map's own file) serves `pread`.
+    """``(mmap, data offset, dtype, file descriptor)`` of an image HDU stored as it is on
+    disk, or None (tile-compressed: read by sections).  ``dtype`` is the stored type:
+    scaling (`_scaling`) is the caller's.  The descriptor (kept open, the map's own
+    file) serves `pread`.
 
     Reading frames from a memory map and converting them to native byte order
     in one pass is ~2x faster than astropy's section reads followed by
@@ -444,8 +949,7 @@ def _map_frames(hdu, path):
     """
     h = hdu.header
     dtype = _FITS_DTYPES.get(h.get("BITPIX"))
-    if (dtype is None or h.get("BSCALE", 1) != 1 or h.get("BZERO", 0) != 0
-            or isinstance(hdu, fits.CompImageHDU)):  # tile-compressed: astropy decompresses
+    if dtype is None or isinstance(hdu, fits.CompImageHDU):  # astropy decompresses those
         return None
     dtype = np.dtype(dtype)
     start = hdu.fileinfo()["datLoc"]

@@ -177,7 +177,24 @@ class DetectorGeometry:
 
     @classmethod
     def from_scan_label(cls, label, **kwargs):
-        """Build from a ``SCANDIR`` value (the inverse of :attr:`scan_label`)."""
+        """Build from a ``SCANDIR`` value (the inverse of :attr:`scan_label`).
+
+        Raises
+        ------
+        ValueError
+            ``label`` is neither a scan mode nor a string of ``+`` and ``-``
+            (any other character used to be read as ``-``).
+
+        Examples
+        --------
+        >>> from spherex_reduce import DetectorGeometry
+        >>> g = DetectorGeometry.from_scan_label("+-", nrows=8, ncols=8, nchannels=2, ref_border=0)
+        >>> g.scan_directions.tolist()
+        [1, -1]
+        """
         if label in _SCAN_MODES:
             return cls(scan=label, **kwargs)
-        return cls(scan=[1 if ch == "+" else -1 for ch in str(label)], **kwargs)
+        if not isinstance(label, str) or not label or set(label) - {"+", "-"}:
+            raise ValueError(f"SCANDIR must be 'same', 'alternate' or one '+' or '-' per "
+                             f"channel, got {label!r}")
+        return cls(scan=[1 if ch == "+" else -1 for ch in label], **kwargs)

@@ -9,7 +9,6 @@ import time
 
 import numpy as np
 import yaml
-from astropy.io import fits
 from astropy.table import vstack
 from tqdm.auto import tqdm
 
@@ -24,7 +23,7 @@ from .config import (
 )
 from .errors import ConfigError, StepSkipped
 from .exposure import Exposure
-from .fits_format import FrameReader, read
+from .fits_format import FrameReader, is_raw_ramp_file, read
 from .fused import fused_plan
 from .parameters import Parameter, validate_parameters
 from .plugins import Registry
@@ -259,7 +258,7 @@ class Pipeline:
         """Frames of a ramp input (file or Exposure), or None if it is not ramps."""
         if isinstance(exposure, Exposure):
             return _ExposureFrames(exposure) if exposure.is_ramp else None
-        if not _is_raw_ramp_file(exposure):
+        if not is_raw_ramp_file(exposure):
             return None
         return FrameReader(exposure, **self._supplied())
 
@@ -499,16 +498,3 @@ class _ExposureFrames:
                 phantom=None if e.reference.phantom is None else e.reference.phantom[sl],
                 dq=None if e.reference.dq is None else e.reference.dq[sl]),
             tables=e.tables)
-
-
-def _is_raw_ramp_file(path):
-    """True for a file whose SCI is 3-D ramps in readout order (headers only are read)."""
-    try:
-        with fits.open(path, memmap=False) as hdul:
-            names = [h.name for h in hdul]
-            sci = hdul["SCI"] if "SCI" in names else hdul[0]
-            order = str(hdul[0].header.get("ORDER", "READOUT")).strip().upper()
-            return (sci.header.get("NAXIS") == 3 and order == "READOUT"
-                    and "DQ" not in names and "ERR" not in names)
-    except (OSError, KeyError, IndexError):
-        return False  # the ordinary reader gives the proper error

@@ -14,6 +14,7 @@ lasts ``n_reads * row_samples + frame_overhead`` samples.
 """
 
 import dataclasses
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,6 +24,7 @@ from astropy.table import Table
 
 from .errors import FormatError
 from .geometry import DetectorGeometry, _check_int
+from .limits import check_size
 
 __all__ = ["REF_MODES", "ReadoutSchedule", "chopped_order"]
 
@@ -67,6 +69,79 @@ def chopped_order(n, skip):
     return np.concatenate([np.arange(k, n, skip) for k in range(min(skip, n))] or [[]]).astype(
         int
     )
+
+
+_MISSING = object()
+
+
+def header_keyword(header, key, kind, minimum=None, default=_MISSING, positive=False):
+    """``header[key]`` checked for type, finiteness and range.
+
+    Parameters
+    ----------
+    header : `astropy.io.fits.Header`
+    key : str
+        Keyword.
+    kind : {int, float, str}
+        Expected type.  An integer may be written as a real with no fraction
+        (``16.0``); booleans and strings are never numbers.
+    minimum : int or float, optional
+        Smallest allowed value (numbers).
+    default : optional
+        Returned when the keyword is absent; without it, absence is an error.
+    positive : bool
+        The number must be > 0.
+
+    Returns
+    -------
+    int, float or str
+
+    Raises
+    ------
+    FormatError
+        Naming the keyword and the value (also for a card astropy cannot
+        parse, e.g. ``NAN``).
+
+    Examples
+    --------
+    >>> from astropy.io import fits
+    >>> from spherex_reduce.schedule import header_keyword
+    >>> header_keyword(fits.Header({"NFRAMES": 10}), "NFRAMES", int, minimum=1)
+    10
+    >>> header_keyword(fits.Header({"NFRAMES": 5.5}), "NFRAMES", int, minimum=1)
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.errors.FormatError: keyword NFRAMES must be an integer, got 5.5
+    """
+    if key not in header:
+        if default is _MISSING:
+            raise FormatError(f"keyword {key} is missing")
+        return default
+    try:
+        value = header.cards[key].value
+    except Exception as exc:  # VerifyError: a card astropy cannot parse (NAN, 1E999x, ...)
+        raw = str(getattr(header.cards[key], "_image", "") or "")[10:].split("/")[0].strip()
+        raise FormatError(f"keyword {key} has an unreadable value {raw!r}") from exc
+    if kind is str:
+        if not isinstance(value, str):
+            raise FormatError(f"keyword {key} must be a string, got {value!r}")
+        return value
+    number = (isinstance(value, (int, float, np.integer, np.floating))
+              and not isinstance(value, (bool, np.bool_)))
+    if not number or not math.isfinite(value):
+        what = "an integer" if kind is int else "a finite number"
+        raise FormatError(f"keyword {key} must be {what}, got {value!r}")
+    if kind is int:
+        if value != int(value):
+            raise FormatError(f"keyword {key} must be an integer, got {value!r}")
+        value = int(value)
+    else:
+        value = float(value)
+    if minimum is not None and value < minimum:
+        raise FormatError(f"keyword {key} must be >= {minimum}, got {value!r}")
+    if positive and value <= 0:
+        raise FormatError(f"keyword {key} must be > 0, got {value!r}")
+    return value
 
 
 @dataclass(frozen=True, eq=False)
@@ -414,14 +489,14 @@ class ReadoutSchedule:
             A keyword is missing and not supplied, invalid, or disagrees with
             the table; the message names it.
         """
-        keys = {  # YAML name -> (keyword, converter)
-            "nrows": ("NROWS", int), "ncols": ("NCOLS", int), "nchannels": ("NCHAN", int),
-            "ref_border": ("REFBORD", int), "scan": ("SCANDIR", str),
-            "pixel_rate": ("PIXRATE", float), "skip": ("ROWSKIP", int),
-            "ref_reads": ("NREFRD", int), "ref_mode": ("REFMODE", str),
-            "phantom_reads": ("NPHANT", int), "row_overhead": ("ROWOVH", int),
-            "frame_overhead": ("FRMOVH", int), "nframes": ("NFRAMES", int),
-            "frame_time": ("TFRAME", float),
+        keys = {  # YAML name -> (keyword, type, minimum; 0.0: must be > 0)
+            "nrows": ("NROWS", int, 1), "ncols": ("NCOLS", int, 1),
+            "nchannels": ("NCHAN", int, 1), "ref_border": ("REFBORD", int, 0),
+            "scan": ("SCANDIR", str, None), "pixel_rate": ("PIXRATE", float, 0.0),
+            "skip": ("ROWSKIP", int, 1), "ref_reads": ("NREFRD", int, 0),
+            "ref_mode": ("REFMODE", str, None), "phantom_reads": ("NPHANT", int, 0),
+            "row_overhead": ("ROWOVH", int, 0), "frame_overhead": ("FRMOVH", int, 0),
+            "nframes": ("NFRAMES", int, 1), "frame_time": ("TFRAME", float, 0.0),
         }
         unknown = set(supplied) - set(keys)
         if unknown:
@@ -429,14 +504,11 @@ class ReadoutSchedule:
                 f"unknown readout parameter(s) {sorted(unknown)}; valid: {sorted(keys)}"
             )
         values = {}
-        for name, (key, conv) in keys.items():
+        for name, (key, kind, minimum) in keys.items():
             if key in header:
-                try:
-                    values[name] = conv(header[key])
-                except (TypeError, ValueError) as exc:
-                    raise FormatError(
-                        f"keyword {key} has an invalid value {header[key]!r}"
-                    ) from exc
+                positive = isinstance(minimum, float)
+                values[name] = header_keyword(header, key, kind, minimum=None if positive
+                                              else minimum, positive=positive)
             elif supplied.get(name) is not None:
                 values[name] = supplied[name]
         # Everything that decides read order and timing is required: guessing the
@@ -453,6 +525,7 @@ class ReadoutSchedule:
                 f"missing readout keyword(s) {', '.join(missing)}: the file does not say how it "
                 "was read; supply them in the pipeline config's geometry:/readout: sections"
             )
+        _check_schedule_size(values)
         geo_names = ["nrows", "ncols", "nchannels", "ref_border", "pixel_rate"]
         gkw = {n: values[n] for n in geo_names if n in values}
         try:
@@ -474,7 +547,8 @@ class ReadoutSchedule:
                     f"keyword TFRAME={values['frame_time']} disagrees with the frame time "
                     f"{sched.frame_time.to_value(u.s)} s implied by FRMOVH and the read order"
                 )
-        if "CHANW" in header and int(header["CHANW"]) != geometry.channel_width:
+        if ("CHANW" in header
+                and header_keyword(header, "CHANW", int, 1) != geometry.channel_width):
             raise FormatError(
                 f"keyword CHANW={header['CHANW']} disagrees with NCOLS/NCHAN="
                 f"{geometry.channel_width}"
@@ -505,3 +579,22 @@ class ReadoutSchedule:
                     f"READOUT column {col!r} disagrees with the header keywords ({hint}) at read "
                     f"{i}: table has {got[i].item()!r}, keywords give {expected[i].item()!r}"
                 )
+
+
+def _check_schedule_size(values):
+    """Refuse header or supplied sizes whose schedule tables would not fit in memory.
+
+    A schedule holds a few arrays of one entry per read of a frame (at most
+    ``nrows + ref_reads`` of them, ~100 bytes each) and per column; they are
+    built before the file's arrays can be compared with them.
+    """
+    def count(name):
+        value = values.get(name, 0)
+        ok = isinstance(value, (int, float, np.integer, np.floating)) and math.isfinite(value)
+        return max(float(value), 0.0) if ok else 0.0  # wrong types: the constructor says
+
+    reads = count("nrows") + count("ref_reads") + 2 * count("ref_border")
+    nbytes = 100 * reads + 40 * (count("ncols") + count("nchannels"))
+    check_size(nbytes, f"a readout schedule of NROWS={values.get('nrows')}, NCOLS="
+               f"{values.get('ncols')}, NCHAN={values.get('nchannels')}, NREFRD="
+               f"{values.get('ref_reads')}")

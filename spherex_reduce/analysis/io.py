@@ -36,42 +36,65 @@ def read_image(path, ext=None):
     ------
     SpherexReduceError
         The file holds ramps (3-D); fit the ramps first.
+    FormatError
+        The file is truncated, damaged (checksum, see
+        `~spherex_reduce.fits_format.checksum_policy`), in this package's
+        format but inconsistent, or has no 2-D image.
     """
-    from ..fits_format import read
+    from ..fits_format import _exposure, _open
 
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no such file: {path}")
-    try:
-        exposure = read(path)
-    except FormatError:
-        exposure = None
-    if exposure is not None:
-        if exposure.is_ramp:
-            raise SpherexReduceError(
-                f"{path} holds ramps {exposure.shape}; fit them first (spherex-reduce reduce "
-                "with a pipeline that ends in fit_ramp) to get an image"
-            )
-        if exposure.order == "readout":
-            from ..steps import unchop
+    hdul, bad, plain = _open(path, memmap=True)  # truncation, checksums, unreadable cards
+    with hdul:
+        if "READOUT" not in hdul and "ROWSKIP" not in hdul[0].header:
+            return _foreign_image(hdul, path, ext, bad, plain)
+        # this package's format: its errors are the answer (no second guess as a plain image)
+        exposure = _exposure(hdul, path, bad, plain, {})
+    if exposure.is_ramp:
+        raise SpherexReduceError(
+            f"{path} holds ramps {exposure.shape}; fit them first (spherex-reduce reduce "
+            "with a pipeline that ends in fit_ramp) to get an image"
+        )
+    if exposure.order == "readout":
+        from ..steps import unchop
 
-            exposure = unchop(exposure)
-        ccd = exposure.to_ccddata()
-        ccd.meta["SCHEDULE"] = exposure.schedule.summary()[:68]
-        ccd.meta["INTTIME"] = exposure.schedule.integration_time.to_value(u.s)
-        ccd.meta["NFRAMES"] = exposure.schedule.nframes
-        return ccd
-    with fits.open(path, memmap=True) as hdul:
-        hdus = [hdul[ext]] if ext is not None else [h for h in hdul
-                                                    if h.data is not None and h.data.ndim == 2]
-        if not hdus or hdus[0].data is None or hdus[0].data.ndim != 2:
-            raise FormatError(f"{path} has no 2-D image HDU")
-        hdu = hdus[0]
-        unit = hdu.header.get("BUNIT", hdul[0].header.get("BUNIT", ""))
-        try:
-            unit = u.Unit(str(unit).strip(), parse_strict="raise") if unit else u.one
-        except ValueError as exc:
-            raise FormatError(f"BUNIT={unit!r} in {path} is not a unit astropy knows") from exc
-        header = hdul[0].header.copy()
-        header.update(hdu.header)
-        return CCDData(np.array(hdu.data), unit=unit, meta=header)
+        exposure = unchop(exposure)
+    ccd = exposure.to_ccddata()
+    ccd.meta["SCHEDULE"] = exposure.schedule.summary()[:68]
+    ccd.meta["INTTIME"] = exposure.schedule.integration_time.to_value(u.s)
+    ccd.meta["NFRAMES"] = exposure.schedule.nframes
+    return ccd
+
+
+def _foreign_image(hdul, path, ext, bad, plain):
+    """The 2-D image of a FITS file not in this package's format."""
+    from ..fits_format import _note_bad_checksums, _physical
+    from ..limits import check_size
+
+    try:
+        hdus = [hdul[ext]] if ext is not None else list(hdul)
+    except (KeyError, IndexError) as exc:
+        raise FormatError(f"{path} has no HDU {ext!r}") from exc
+    hdus = [h for h in hdus if isinstance(h, (fits.PrimaryHDU, fits.ImageHDU, fits.CompImageHDU))
+            and h.header.get("NAXIS", 0) == 2]
+    if not hdus:
+        raise FormatError(f"{path} has no 2-D image HDU")
+    hdu = hdus[0]
+    shape = tuple(hdu.shape)
+    check_size(8.0 * shape[0] * shape[1], f"the {shape} image of {path}")
+    unit = hdu.header.get("BUNIT", hdul[0].header.get("BUNIT", ""))
+    try:
+        unit = u.Unit(str(unit).strip(), parse_strict="raise") if unit else u.one
+    except ValueError as exc:
+        raise FormatError(f"BUNIT={unit!r} in {path} is not a unit astropy knows") from exc
+    header = hdul[0].header.copy()
+    header.update(hdu.header)
+    for key in ("CHECKSUM", "DATASUM", "NEXTEND"):
+        header.remove(key, ignore_missing=True)
+    for key in ("NFRAMES", "INTTIME"):  # used by the photon-noise line: numbers or nothing
+        value = header.get(key)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
+                                  or not value > 0):
+            raise FormatError(f"{path}: keyword {key} = {value!r} is not a positive number")
+    _note_bad_checksums(header, bad, path)
+    return CCDData(np.array(_physical(hdu, path, plain), dtype=float), unit=unit, meta=header)

@@ -12,11 +12,15 @@ import sys
 
 from .._version import __version__
 from ..errors import SpherexReduceError
+from ..fits_format import checksum_policy
 
 __all__ = ["COMMANDS", "main"]
 
 COMMANDS = ["demo", "readout", "reduce", "show_config", "plugins", "simulate", "combine",
             "spectrum", "fit_noise", "sweep", "figures"]
+
+#: Commands that read FITS files: they take ``--ignore-checksum``.
+READS_FITS = ("reduce", "combine", "spectrum", "fit-noise")
 
 #: Errors caused by the user's input: exit code 2, one line, no traceback.
 INPUT_ERRORS = (SpherexReduceError, FileNotFoundError, FileExistsError, IsADirectoryError,
@@ -35,6 +39,11 @@ def build_parser():
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
         importlib.import_module(f".{name}", __name__).add_parser(sub)
+    for name in READS_FITS:
+        sub.choices[name].add_argument(
+            "--ignore-checksum", action="store_true",
+            help="read FITS files whose CHECKSUM/DATASUM do not match (damaged or edited): "
+            "warn, and record it in the output (HISTORY, SXRCKBAD) instead of stopping")
     return parser
 
 
@@ -48,7 +57,8 @@ def main(argv=None):
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     try:
-        return args.func(args) or 0
+        with checksum_policy(verify=not getattr(args, "ignore_checksum", False)):
+            return args.func(args) or 0
     except INPUT_ERRORS as exc:
         if args.debug:
             raise

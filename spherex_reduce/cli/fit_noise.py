@@ -54,6 +54,8 @@ def run(args):
                           nbins=args.nbins, acn=args.acn)
     fits_ = table.meta.pop("fits")
     table.meta["source"] = str(args.input)
+    if "SXRCKBAD" in exposure.header:  # read with --ignore-checksum: say so in the output
+        table.meta["input_checksum_failed"] = str(exposure.header["SXRCKBAD"])
     with atomic_output(args.output, args.overwrite) as tmp:
         table.write(tmp, format="ascii.ecsv")
     for row in table:

@@ -102,6 +102,8 @@ def run(args):
         "band_power": float(band.value), "band_power_err": float(err.value),
         "band_power_unit": band.unit.to_string(),
     })
+    if "SXRCKBAD" in image.meta:  # read with --ignore-checksum: say so in the output
+        table.meta["input_checksum_failed"] = str(image.meta["SXRCKBAD"])
     photon = _photon(image, args)
     if photon is not None:
         table.meta["photon_noise_power"] = float(photon.value)
@@ -127,6 +129,8 @@ def run(args):
         table.meta.update(meta)
         table.meta.update({"compare": str(args.compare), "band_power_compare": float(oband.value),
                            "band_power_compare_err": float(oerr.value)})
+        if "SXRCKBAD" in other.meta:
+            table.meta["compare_checksum_failed"] = str(other.meta["SXRCKBAD"])
         ratio = (band / oband).to_value(u.one) if oband.value else np.inf
         lines.append(f"{args.compare}: band power = {oband.value:.4g} ± {oerr.value:.2g} "
                      f"{oband.unit} (ratio {ratio:.3g})")

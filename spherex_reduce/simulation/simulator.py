@@ -13,7 +13,7 @@ from astropy.io import fits
 
 from ..errors import ConfigError
 from ..exposure import Exposure
-from ..fits_format import _table_hdu, _unit_str, atomic_output
+from ..fits_format import _fold, _table_hdu, _unit_str, atomic_output
 from ..step import Simulator
 from .engine import NoiseEngine
 from .scene import MODES, load_scene
@@ -255,6 +255,7 @@ def simulate_to_fits(scene, path, *, mode=None, seed=None, overwrite=False, prog
     header = s.to_header(_header(sc, mode, seed, engine))
     header["ORDER"] = ("READOUT", "row order of SCI: READOUT or PHYSICAL")
     header["BUNIT"] = (_unit_str(u.electron), "unit of SCI and ERR")
+    header["NEXTEND"] = (2 + bool(s.phantom_reads), "number of extensions")  # as write() does
     dtype = np.dtype(engine.dtype).newbyteorder(">")
     frames = _frames(sc, engine)
     if progress:
@@ -303,10 +304,7 @@ class _DataSum:
 
     @property
     def value(self):
-        t = self.total
-        while t >> 32:
-            t = (t & 0xFFFFFFFF) + (t >> 32)
-        return t
+        return _fold(self.total)
 
 
 class _ImageWriter:

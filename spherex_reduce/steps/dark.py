@@ -98,6 +98,13 @@ def combine_darks(exposures, *, method="average", sigma=3.0):
                       sigma_clip_func=np.ma.median, sigma_clip_dev_func=mad_std)
     master = ccdproc.combine(ccds, method=method, dtype=np.float64, **kwargs)
     header = first.header.copy()
+    for e in items[1:]:  # an input read despite a bad checksum: the master says so too
+        if "SXRCKBAD" in e.header:
+            bad = ",".join(filter(None, [str(header.get("SXRCKBAD", "")), e.header["SXRCKBAD"]]))
+            header["SXRCKBAD"] = (bad[:68], e.header.comments["SXRCKBAD"])
+            for line in e.header.get("HISTORY", []):
+                if "read anyway" in line:
+                    header.add_history(line)
     header["NCOMBINE"] = (len(items), "exposures combined into this master dark")
     header["COMBMETH"] = (method, "ccdproc.combine method")
     unc = master.uncertainty

@@ -27,7 +27,7 @@ def _available_bytes():
     try:
         with open("/proc/meminfo") as fh:
             for line in fh:
-                if line.startswith("MemAvailable:"):
+                if line.startswith("MemAvailable:") and int(line.split()[1]) > 0:
                     return int(line.split()[1]) * 1024
     except (OSError, ValueError, IndexError):
         pass

@@ -6,7 +6,7 @@ import numpy as np
 from astropy import units as u
 from astropy.table import Table
 
-from .analysis import band_power, photon_noise_power, power_spectrum
+from .analysis import band_label, band_power, photon_noise_power, power_spectrum
 from .analysis.plots import plot_spectra
 from .fits_format import atomic_output, write
 from .pipeline import Pipeline
@@ -84,13 +84,14 @@ def run_demo(outdir, overwrite=False, progress=True, size=2048, nframes=74, seed
         result = pipeline.run(raw_path, progress=progress)
         write(result, outdir / f"reduced_{label}.fits", overwrite=overwrite)
         reduced[label] = result
-        spectra[label] = power_spectrum(result.to_ccddata())
-        summary[label] = band_power(spectra[label])
+        image = result.to_ccddata()
+        spectra[label] = power_spectrum(image)
+        summary[label] = band_power(image)  # as ``spherex-reduce spectrum`` measures the file
         if label == "chopped":
             schedule = result.schedule
             yield schedule.summary()
         yield (f"{label}: simulated raw ramps (S={skip}), reduced with {pipeline.source}; "
-               f"band power 5-20' = {summary[label]:.4g}")
+               f"band power = {summary[label]:.4g}")
     photon = photon_noise_power(1 * u.electron / u.s, schedule=schedule)
     table = Table({"k": spectra["chopped"]["k"], "theta": spectra["chopped"]["theta"]})
     for label, t in spectra.items():
@@ -98,11 +99,12 @@ def run_demo(outdir, overwrite=False, progress=True, size=2048, nframes=74, seed
         table[f"power_err_{label}"] = t["power_err"]
     table["nmodes"] = spectra["chopped"]["nmodes"]
     table.meta.update({
-        "band": "0.03 < k < 0.13 rad/pixel (theta = 5-20 arcmin)",
+        "band": band_label(),
         "band_power_chopped": str(summary["chopped"]),
         "band_power_unchopped": str(summary["unchopped"]),
         "photon_noise_power": str(photon),
-        "photon_noise": "1 e/s Zodiacal light, least-squares slope over the schedule's reads",
+        "photon_noise": "1 e/s Zodiacal light, least-squares slope over the schedule's reads "
+                        f"({schedule.nframes} reads, {schedule.integration_time:.4g})",
     })
     with atomic_output(outdir / "spectra.ecsv", overwrite) as tmp:
         table.write(tmp, format="ascii.ecsv")
@@ -114,7 +116,7 @@ def run_demo(outdir, overwrite=False, progress=True, size=2048, nframes=74, seed
     save_figure(_images(reduced, labels), outdir / "images.png", overwrite)
     save_figure(plot_read_order(schedule), outdir / "read_order.png", overwrite)
     ratio = (summary["unchopped"] / summary["chopped"]).decompose().value
-    yield (f"band power 5-20': {summary['unchopped']:.4g} uncorrected -> "
+    yield (f"band power {band_label()}: {summary['unchopped']:.4g} uncorrected -> "
            f"{summary['chopped']:.4g} with chopping and reference correction "
            f"({ratio:.1f}x lower); photon noise of 1 e/s: {photon:.4g}")
     for name in PRODUCTS:

@@ -55,3 +55,39 @@ def test_sweep_plot_in_memory_equals_plot_of_the_file(tmp_path, monkeypatch):
     # one line per ref_mode, two points (skip 1, 4) each
     assert [(lab, x) for lab, x, _ in _lines(fig)] == [
         ("ref_mode=distributed", (1, 4)), ("ref_mode=repeated", (1, 4))]
+
+
+# -- one band power -----------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def demo_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("demo")
+    assert main(["-q", "demo", "--size", "256", "--nframes", "3", "-o", str(out)]) == 0
+    return out
+
+
+def test_demo_and_spectrum_give_one_band_power(demo_dir, tmp_path):
+    """The same file, the same band: the same number from ``demo`` and ``spectrum``.
+
+    256² is the smallest size at which the binned P(k) that demo used straddles the band.
+    """
+    demo_meta = Table.read(demo_dir / "spectra.ecsv").meta
+    for label in ("chopped", "unchopped"):
+        out = tmp_path / f"{label}.ecsv"
+        assert main(["spectrum", str(demo_dir / f"reduced_{label}.fits"), "-o", str(out)]) == 0
+        spec = Table.read(out).meta
+        demo = u.Quantity(demo_meta[f"band_power_{label}"])
+        assert demo.unit == u.Unit(spec["band_power_unit"])
+        assert demo.value == pytest.approx(spec["band_power"], rel=1e-12)
+
+
+def test_band_power_of_a_table_is_the_band_power_of_the_image():
+    """A table only gives the band power if its bins tile the band (else it is refused)."""
+    from spherex_reduce.analysis import band_power, power_spectrum
+    from spherex_reduce.errors import SpherexReduceError
+
+    img = np.random.default_rng(5).normal(0, 1, (128, 128)) * np.linspace(1, 3, 128)
+    exact = band_power(img)
+    tiled = power_spectrum(img, bins=[0.01, 0.03, 0.07, 0.13, 1.0])
+    assert band_power(tiled).value == pytest.approx(exact.value, rel=1e-9)
+    with pytest.raises(SpherexReduceError, match="tile"):
+        band_power(power_spectrum(img, bins=30))  # bins straddle the band edges

@@ -91,3 +91,79 @@ def test_band_power_of_a_table_is_the_band_power_of_the_image():
     assert band_power(tiled).value == pytest.approx(exact.value, rel=1e-9)
     with pytest.raises(SpherexReduceError, match="tile"):
         band_power(power_spectrum(img, bins=30))  # bins straddle the band edges
+
+
+# -- help texts and listings -------------------------------------------------------------
+def test_readout_help_describes_every_option_with_its_default(capsys):
+    from spherex_reduce.cli.readout import OPTIONS
+    from spherex_reduce.config import GEOMETRY_PARAMETERS, READOUT_PARAMETERS
+
+    with pytest.raises(SystemExit):
+        main(["readout", "--help"])
+    text = " ".join(capsys.readouterr().out.split())  # unwrap argparse's lines
+    declared = {p.name: p for p in (*GEOMETRY_PARAMETERS, *READOUT_PARAMETERS)}
+    assert len(OPTIONS) == 14
+    for flag, _, key, _ in OPTIONS:
+        p = declared[key]
+        after = text.split(f"{flag} {key.upper()} ", 1)[1]
+        assert after.startswith(p.doc), flag
+        if p.default is not None:
+            default = f"{p.default:g}" if isinstance(p.default, float) else str(p.default)
+            assert after.split("(default: ", 1)[1].startswith(default + ")"), flag
+        else:
+            assert "(default: " in after.split(" --", 1)[0], flag
+    assert "(default: 1816, the paper's 1.51 s frame" in text
+
+
+def test_show_config_list_gives_each_shipped_config_its_description(capsys):
+    import importlib.resources
+
+    import yaml
+
+    assert main(["show-config", "--list"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    configs = importlib.resources.files("spherex_reduce") / "data" / "configs"
+    shipped = sorted(p.name[:-5] for p in configs.iterdir() if p.name.endswith(".yaml"))
+    assert [line.split()[0] for line in lines] == shipped
+    for name, line in zip(shipped, lines, strict=True):
+        description = yaml.safe_load((configs / f"{name}.yaml").read_text())["description"]
+        assert 10 < len(description) < 62 and "\n" not in description
+        assert line.split(None, 1)[1] == description
+        assert line.index(description) == lines[0].index(lines[0].split(None, 1)[1])
+
+
+def test_plugins_names_distribution_and_version_in_aligned_columns(capsys):
+    import importlib.metadata
+
+    import spherex_reduce
+
+    assert main(["plugins"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    header = lines[0]
+    assert header.split() == ["kind", "name", "keyword", "strategies", "plugin", "distribution"]
+    starts = [header.index(w) for w in header.split()]
+    rows = [line for line in lines[1:] if not line.startswith("blocked")]
+    for line in rows:
+        for s in starts[1:]:  # every column starts where its heading does
+            assert line[s - 2:s] == "  " or len(line) <= s, line
+        assert line[starts[4]] != " " and line[starts[5]] != " ", line
+    by_name = {line.split()[1]: line for line in rows}
+    own = f"spherex-reduce {spherex_reduce.__version__}"
+    assert by_name["correct_reference"].endswith(own)
+    assert "S_REFCOR" in by_name["correct_reference"]
+    assert by_name["unchop"][starts[4]:].split()[0] == "builtin"
+    for ep in importlib.metadata.entry_points(group="spherex_reduce"):
+        installed = f"{ep.dist.name} {ep.dist.version}"  # e.g. spherex-reduce-destripe 0.1.0
+        assert any(line.endswith(installed) and f" {ep.name} " in line for line in rows)
+
+
+def test_counts_of_one_are_singular(capsys):
+    from spherex_reduce import DetectorGeometry, ReadoutSchedule
+
+    summary = ReadoutSchedule(DetectorGeometry(64, 64, 1, ref_border=4)).summary()
+    assert "1 channel of 64 columns" in summary
+    assert "2 channels of 32 columns" in ReadoutSchedule(DetectorGeometry(64, 64, 2,
+                                                                          ref_border=4)).summary()
+    assert main(["readout", "--nrows", "64", "--ncols", "64", "--nchannels", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "1 channel of" in out and "channels" not in out

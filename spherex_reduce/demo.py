@@ -2,15 +2,20 @@
 
 from pathlib import Path
 
-import numpy as np
 from astropy import units as u
 from astropy.table import Table
 
-from .analysis import band_label, band_power, photon_noise_power, power_spectrum
+from .analysis import (
+    band_label,
+    band_power,
+    photon_noise_label,
+    photon_noise_power,
+    power_spectrum,
+)
 from .analysis.plots import plot_spectra
 from .fits_format import atomic_output, write
 from .pipeline import Pipeline
-from .plotting import plot_read_order, save_figure
+from .plotting import plot_images, plot_read_order, save_figure
 
 __all__ = ["PRODUCTS", "run_demo"]
 
@@ -111,6 +116,7 @@ def run_demo(outdir, overwrite=False, progress=True, size=2048, nframes=74, seed
     labels = {"chopped": "S=24, r=32 distributed, phantom + reference corrected",
               "unchopped": "S=1, phantom corrected only"}
     fig = plot_spectra({labels[k]: v for k, v in spectra.items()}, photon=photon,
+                       photon_label=photon_noise_label(1 * u.electron / u.s, schedule=schedule),
                        title=f"{size}x{size}, N={nframes}: spatial power spectra")
     save_figure(fig, outdir / "spectra.png", overwrite)
     save_figure(_images(reduced, labels), outdir / "images.png", overwrite)
@@ -124,17 +130,6 @@ def run_demo(outdir, overwrite=False, progress=True, size=2048, nframes=74, seed
 
 
 def _images(reduced, labels):
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(12, 5.5))
-    axes = fig.subplots(1, len(reduced))
-    for ax, (label, e) in zip(np.atleast_1d(axes), reduced.items(), strict=True):
-        data = np.where(e.data.mask, np.nan, e.data.data) if e.data.mask is not None else \
-            e.data.data
-        lo, hi = np.nanpercentile(data, [1, 99])
-        im = ax.imshow(data, vmin=lo, vmax=hi, cmap="gray", interpolation="nearest")
-        fig.colorbar(im, ax=ax, label=str(e.unit), shrink=0.8)
-        ax.set_title(labels[label], fontsize=9)
-        ax.set_xlabel("column")
-        ax.set_ylabel("row")
-    return fig
+    """The reduced images side by side, on one grey scale (block means if large)."""
+    return plot_images({labels[k]: e.to_ccddata() for k, e in reduced.items()},
+                       title="reduced slope images, one grey scale (1–99 % of both)")

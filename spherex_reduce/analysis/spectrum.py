@@ -41,6 +41,7 @@ __all__ = [
     "band_power",
     "fft_magnitude",
     "k_from_theta",
+    "photon_noise_label",
     "photon_noise_power",
     "power_spectrum",
     "slope_variance_factor",
@@ -539,6 +540,30 @@ def photon_noise_power(photocurrent=1 * u.electron / u.s, integration_time=None,
         tframe = t.value / int(nframes)
         var = slope_variance_factor(nframes) * charge_rate.value / tframe
     return (var * (u.electron / u.s) ** 2).to(i.unit**2) * u.pix**2
+
+
+def photon_noise_label(photocurrent=1 * u.electron / u.s, integration_time=None, *,
+                       nframes=None, schedule=None):
+    """Legend of a photon-noise line: the photocurrent and the time it is integrated for.
+
+    Takes the arguments of `photon_noise_power`.
+
+    Examples
+    --------
+    >>> from astropy import units as u
+    >>> from spherex_reduce.analysis import photon_noise_label
+    >>> photon_noise_label(1 * u.electron / u.s, 111.74 * u.s, nframes=74)
+    'photon noise of 1 e/s over 112 s (N = 74)'
+    """
+    if schedule is not None:
+        nframes = schedule.nframes if nframes is None else nframes
+        integration_time = schedule.integration_time if integration_time is None \
+            else integration_time
+    i = u.Quantity(photocurrent, u.electron / u.s)
+    text = f"photon noise of {i.to_value(u.electron / u.s):.3g} e/s"
+    if integration_time is not None:
+        text += f" over {u.Quantity(integration_time, u.s).to_value(u.s):.3g} s"
+    return text + (f" (N = {int(nframes)})" if nframes else "")
 
 
 # -- sources and hot pixels -----------------------------------------------------------

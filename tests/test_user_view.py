@@ -52,6 +52,8 @@ def test_sweep_plot_in_memory_equals_plot_of_the_file(tmp_path, monkeypatch):
     assert fig.axes[0].get_xlabel() == "skip"
     from_file = plot_sweep(Table.read(out))
     assert _lines(fig) == _lines(from_file)
+    unit = Table.read(out)["band_power"].unit
+    assert fig.axes[0].get_ylabel() == f"band power ({unit.to_string('latex_inline')})"
     # one line per ref_mode, two points (skip 1, 4) each
     assert [(lab, x) for lab, x, _ in _lines(fig)] == [
         ("ref_mode=distributed", (1, 4)), ("ref_mode=repeated", (1, 4))]
@@ -491,3 +493,14 @@ def test_figures_report_states_its_verdict_rules(quick_figures):
     assert float(_margin(1.0, 0.1, 1.5, 0.2)) == pytest.approx(0.5 / np.sqrt(0.05))
     assert _verdict([3.0, 2.24]) == "holds" and _verdict([3.0, 1.9]) == "within the noise"
     assert _verdict([3.0, -2.1]) == "does not hold"
+
+
+def test_figure_units_are_latex(quick_figures):
+    _, figs = quick_figures
+    for name, fig in figs.items():
+        for ax in fig.axes:
+            label = ax.get_ylabel()
+            assert "electron2" not in label and " / s" not in label, (name, label)
+    for name in ("fig4_components.png", "fig6_skip.png", "fig8_reference_reads.png",
+                 "fig10_corrected.png", "fig12a_sigma_vs_n.png"):
+        assert "$\\mathrm{" in figs[name].axes[0].get_ylabel(), name

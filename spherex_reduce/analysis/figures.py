@@ -306,7 +306,7 @@ def _make_figures(outdir, quick, s, scheduler, workers, overwrite, progress, log
     rep.md += ["## Fig. 5: phantom correction (c = 4), phantom-visible sources", "",
                "![](fig5_phantom.png)", "",
                f"Band power before {before[0]:.3g} ± {before[1]:.2g}, after "
-               f"{after[0]:.3g} ± {after[1]:.2g} ({t5['band_power'].unit}).", ""]
+               f"{after[0]:.3g} ± {after[1]:.2g} ({_unicode(t5['band_power'].unit)}).", ""]
     rep.claim("Phantom correction removes phantom-visible 1/f noise (Fig. 5, §4.1)",
               [_margin(after[0], after[1], 0.5 * before[0], 0.5 * before[1])],
               f"band power falls by a factor {before[0] / after[0]:.3g}",
@@ -328,12 +328,14 @@ def _make_figures(outdir, quick, s, scheduler, workers, overwrite, progress, log
                    t6["band_power"].unit)
     from matplotlib.figure import Figure
 
+    from ..plotting import unit_label
+
     fig = Figure(figsize=(7, 5))
     ax = fig.subplots()
     ax.errorbar(sk, m6, yerr=e6, fmt="o-", capsize=3)
     ax.set_xscale("log")
     ax.set_xlabel("skip S (rows)")
-    ax.set_ylabel(f"band power ({t6['band_power'].unit})")
+    ax.set_ylabel(f"band power ({unit_label(t6['band_power'].unit)})")
     ax.set_title("Fig. 6: band power (θ = 5–20′, k_y = 0 excluded) against S", fontsize=10)
     ax.grid(True, alpha=0.3)
     rep.save(fig, "fig6_skip.png")
@@ -412,7 +414,7 @@ def _make_figures(outdir, quick, s, scheduler, workers, overwrite, progress, log
         ax.errorbar(s.ref_reads, ms, yerr=es, fmt="o-", capsize=3, label=mode)
     ax.set_xscale("log", base=2)
     ax.set_xlabel("reference row reads r")
-    ax.set_ylabel(f"band power ({t8['band_power'].unit})")
+    ax.set_ylabel(f"band power ({unit_label(t8['band_power'].unit)})")
     ax.legend()
     ax.grid(True, alpha=0.3)
     ax.set_title("Fig. 8: reference correction with repeated / distributed reads, S = 24",
@@ -450,7 +452,7 @@ def _make_figures(outdir, quick, s, scheduler, workers, overwrite, progress, log
                unit=bp9.unit)
     rep.md += ["## Fig. 9: an image and its spectrum before reference correction", "",
                "![](fig9_image.png) ![](fig9_spectrum.png)", "",
-               f"Band power {bp9.value:.4g} {bp9.unit}; photon noise of 1 e/s: "
+               f"Band power {bp9.value:.4g} {_unicode(bp9.unit)}; photon noise of 1 e/s: "
                f"{photon.value:.3g}.", ""]
     log("fig 9 done")
 
@@ -556,6 +558,11 @@ def _make_figures(outdir, quick, s, scheduler, workers, overwrite, progress, log
     with atomic_output(report, overwrite) as tmp:
         tmp.write_text("\n".join(rep.md))
     return report
+
+
+def _unicode(unit):
+    """A unit for the Markdown report: ``electron² pix² s⁻²``, not ``electron2 pix2 / s2``."""
+    return u.Unit(unit).to_string("unicode")
 
 
 def _sigma_figure(n_values, sig, pred, unit, title):

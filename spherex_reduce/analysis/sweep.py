@@ -487,6 +487,8 @@ def plot_sweep(table, x=None, title=""):
     """
     from matplotlib.figure import Figure
 
+    from ..plotting import unit_label
+
     # grid keys in column order: the sweep's order (a mapping read back from ECSV is sorted)
     grid = [c for c in table.colnames if c in table.meta.get("grid", {})]
     x = x or (grid[0] if grid else "realization")
@@ -510,7 +512,7 @@ def plot_sweep(table, x=None, title=""):
             ax.set_xticks(pos, [str(v) for v in xs])
     unit = table["band_power"].unit
     ax.set_xlabel(x)
-    ax.set_ylabel(f"band power ({unit})" if unit else "band power")
+    ax.set_ylabel(f"band power ({unit_label(unit)})" if unit_label(unit) else "band power")
     ax.set_yscale("log")
     if any(groups):
         ax.legend(fontsize=8)

@@ -240,8 +240,8 @@ def plot_images(images, title="", unit="", percentile=(1, 99), max_pixels=400):
         fig.colorbar(im, ax=ax, label=label, shrink=0.9)
         ax.set_xlabel("column")
         ax.set_ylabel("row")
-        note = f" ({factor}×{factor}-pixel means)" if factor > 1 else ""
-        ax.set_title(f"{name}{note}" if name else note.strip(" ()"), fontsize=9, wrap=True)
+        note = f"({factor}×{factor}-pixel means)" if factor > 1 else ""
+        ax.set_title("\n".join(t for t in (name, note) if t), fontsize=9)
     if title:
         fig.suptitle(title, fontsize=10)
     return fig

@@ -93,7 +93,7 @@ def plot_spectra(spectra, band=(BAND_KMIN, BAND_KMAX), photon=None, title="",
 
     top = ax.secondary_xaxis("top", functions=(to_theta, to_theta))
     top.set_xlabel("θ (arcmin)")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="best")  # the place that covers fewest points
     ax.grid(True, which="both", alpha=0.2)
     if title:
         ax.set_title(title, fontsize=10)

@@ -2,15 +2,20 @@
 
 from pathlib import Path
 
-import numpy as np
 from astropy import units as u
 from astropy.table import Table
 
-from .analysis import band_power, photon_noise_power, power_spectrum
+from .analysis import (
+    band_label,
+    band_power,
+    photon_noise_label,
+    photon_noise_power,
+    power_spectrum,
+)
 from .analysis.plots import plot_spectra
 from .fits_format import atomic_output, write
 from .pipeline import Pipeline
-from .plotting import plot_read_order, save_figure
+from .plotting import plot_images, plot_read_order, save_figure
 
 __all__ = ["PRODUCTS", "run_demo"]
 
@@ -84,13 +89,14 @@ def run_demo(outdir, overwrite=False, progress=True, size=2048, nframes=74, seed
         result = pipeline.run(raw_path, progress=progress)
         write(result, outdir / f"reduced_{label}.fits", overwrite=overwrite)
         reduced[label] = result
-        spectra[label] = power_spectrum(result.to_ccddata())
-        summary[label] = band_power(spectra[label])
+        image = result.to_ccddata()
+        spectra[label] = power_spectrum(image)
+        summary[label] = band_power(image)  # as ``spherex-reduce spectrum`` measures the file
         if label == "chopped":
             schedule = result.schedule
             yield schedule.summary()
         yield (f"{label}: simulated raw ramps (S={skip}), reduced with {pipeline.source}; "
-               f"band power 5-20' = {summary[label]:.4g}")
+               f"band power = {summary[label]:.4g}")
     photon = photon_noise_power(1 * u.electron / u.s, schedule=schedule)
     table = Table({"k": spectra["chopped"]["k"], "theta": spectra["chopped"]["theta"]})
     for label, t in spectra.items():
@@ -98,23 +104,25 @@ def run_demo(outdir, overwrite=False, progress=True, size=2048, nframes=74, seed
         table[f"power_err_{label}"] = t["power_err"]
     table["nmodes"] = spectra["chopped"]["nmodes"]
     table.meta.update({
-        "band": "0.03 < k < 0.13 rad/pixel (theta = 5-20 arcmin)",
+        "band": band_label(),
         "band_power_chopped": str(summary["chopped"]),
         "band_power_unchopped": str(summary["unchopped"]),
         "photon_noise_power": str(photon),
-        "photon_noise": "1 e/s Zodiacal light, least-squares slope over the schedule's reads",
+        "photon_noise": "1 e/s Zodiacal light, least-squares slope over the schedule's reads "
+                        f"({schedule.nframes} reads, {schedule.integration_time:.4g})",
     })
     with atomic_output(outdir / "spectra.ecsv", overwrite) as tmp:
         table.write(tmp, format="ascii.ecsv")
     labels = {"chopped": "S=24, r=32 distributed, phantom + reference corrected",
               "unchopped": "S=1, phantom corrected only"}
     fig = plot_spectra({labels[k]: v for k, v in spectra.items()}, photon=photon,
+                       photon_label=photon_noise_label(1 * u.electron / u.s, schedule=schedule),
                        title=f"{size}x{size}, N={nframes}: spatial power spectra")
     save_figure(fig, outdir / "spectra.png", overwrite)
     save_figure(_images(reduced, labels), outdir / "images.png", overwrite)
     save_figure(plot_read_order(schedule), outdir / "read_order.png", overwrite)
     ratio = (summary["unchopped"] / summary["chopped"]).decompose().value
-    yield (f"band power 5-20': {summary['unchopped']:.4g} uncorrected -> "
+    yield (f"band power {band_label()}: {summary['unchopped']:.4g} uncorrected -> "
            f"{summary['chopped']:.4g} with chopping and reference correction "
            f"({ratio:.1f}x lower); photon noise of 1 e/s: {photon:.4g}")
     for name in PRODUCTS:
@@ -122,17 +130,6 @@ def run_demo(outdir, overwrite=False, progress=True, size=2048, nframes=74, seed
 
 
 def _images(reduced, labels):
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(12, 5.5))
-    axes = fig.subplots(1, len(reduced))
-    for ax, (label, e) in zip(np.atleast_1d(axes), reduced.items(), strict=True):
-        data = np.where(e.data.mask, np.nan, e.data.data) if e.data.mask is not None else \
-            e.data.data
-        lo, hi = np.nanpercentile(data, [1, 99])
-        im = ax.imshow(data, vmin=lo, vmax=hi, cmap="gray", interpolation="nearest")
-        fig.colorbar(im, ax=ax, label=str(e.unit), shrink=0.8)
-        ax.set_title(labels[label], fontsize=9)
-        ax.set_xlabel("column")
-        ax.set_ylabel("row")
-    return fig
+    """The reduced images side by side, on one grey scale (block means if large)."""
+    return plot_images({labels[k]: e.to_ccddata() for k, e in reduced.items()},
+                       title="reduced slope images, one grey scale (1–99 % of both)")

@@ -22,6 +22,7 @@ from astropy import units as u
 from astropy.io import fits
 from astropy.table import Table
 
+from ._text import plural
 from .errors import FormatError
 from .geometry import DetectorGeometry, _check_int
 from .limits import check_size
@@ -435,7 +436,8 @@ class ReadoutSchedule:
         refs = ("reference rows once" if self.ref_mode == "none"
                 else f"r={self.ref_reads} ({self.ref_mode})")
         return (
-            f"{g.nrows}x{g.ncols} array, {g.nchannels} channels of {g.channel_width} columns, "
+            f"{g.nrows}x{g.ncols} array, {plural(g.nchannels, 'channel')} of "
+            f"{plural(g.channel_width, 'column')}, "
             f"S={self.skip}, {refs}, c={self.phantom_reads}: "
             f"{self.n_reads} reads/frame ({int(self._is_ref.sum())} reference), frame time "
             f"{self.frame_time.to_value(u.s):.6g} s, N={self.nframes}, "

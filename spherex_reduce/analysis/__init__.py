@@ -1,7 +1,7 @@
 """Measure noise: spatial power spectra, band power, temporal PSD fits.
 
 Spatial (`spherex_reduce.analysis.spectrum`): `power_spectrum` (P(k), k in
-rad/pixel, k = 2π · pixel scale / θ), `band_power` (θ = 5–20′ by default),
+rad/pixel, k = 2π · pixel scale / θ), `band_power` (θ = 5–20′ by default; `band_label`),
 `fft_magnitude` (paper Fig. 7), `photon_noise_power` (the Zodiacal-light line
 of Fig. 13) and `source_mask` (photutils segmentation).
 
@@ -16,9 +16,11 @@ from .spectrum import (
     BAND_KMIN,
     SPHEREX_PIXEL_SCALE,
     FFTImage,
+    band_label,
     band_power,
     fft_magnitude,
     k_from_theta,
+    photon_noise_label,
     photon_noise_power,
     power_spectrum,
     slope_variance_factor,
@@ -45,6 +47,7 @@ __all__ = [
     "NoiseModelFit",
     "Timestream",
     "aliased_basis",
+    "band_label",
     "band_power",
     "fft_magnitude",
     "fit_noise_model",
@@ -52,6 +55,7 @@ __all__ = [
     "k_from_theta",
     "model_basis",
     "phantom_timestream",
+    "photon_noise_label",
     "photon_noise_power",
     "power_spectrum",
     "reference_timestream",

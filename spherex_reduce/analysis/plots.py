@@ -8,24 +8,36 @@ import numpy as np
 from astropy import units as u
 from matplotlib.figure import Figure
 
-from .spectrum import BAND_KMAX, BAND_KMIN, SPHEREX_PIXEL_SCALE, theta_from_k
+from .spectrum import BAND_KMAX, BAND_KMIN, SPHEREX_PIXEL_SCALE, band_label
 
 __all__ = ["plot_fft_magnitude", "plot_noise_fit", "plot_spectra"]
 
 
 def plot_spectra(spectra, band=(BAND_KMIN, BAND_KMAX), photon=None, title="",
-                 pixel_scale=SPHEREX_PIXEL_SCALE):
-    """Log-log P(k) of one or more spectra with the 5–20′ band shaded.
+                 pixel_scale=SPHEREX_PIXEL_SCALE, photon_label="photon noise"):
+    """Log-log P(k) of one or more spectra with the band shaded.
+
+    Bins with no power (P ≤ 0, e.g. a component that feeds only some modes)
+    cannot be drawn on a log axis and are left out, breaking the line.  Error
+    bars are drawn where the spectra have them (a lower end that would reach
+    zero stops one decade below the point); a spectrum without errors (one
+    realisation of a mean) is a plain line, and its legend entry shows no bar.
 
     Parameters
     ----------
     spectra : dict of label -> `~astropy.table.Table`
-        Tables from `~spherex_reduce.analysis.power_spectrum`.
+        Tables from `~spherex_reduce.analysis.power_spectrum` (``k``,
+        ``power`` and optionally ``power_err``).
     band : (float, float) or None
-        Band to shade, in rad/pixel.
+        Band to shade, in rad/pixel; labelled by `band_label`.
     photon : `~astropy.units.Quantity`, optional
         Photon-noise power, drawn as a horizontal line.
     title : str
+    pixel_scale : `~astropy.units.Quantity`
+        For the θ axis and the band label.
+    photon_label : str
+        Legend of the photon-noise line: say its photocurrent and time, e.g.
+        ``"photon noise, 1 e/s for 112 s"`` (`photon_noise_label`).
 
     Returns
     -------
@@ -41,30 +53,38 @@ def plot_spectra(spectra, band=(BAND_KMIN, BAND_KMAX), photon=None, title="",
     >>> fig.axes[0].get_xscale()
     'log'
     """
-    fig = Figure(figsize=(7, 5))
+    from ..plotting import unit_label
+
+    fig = Figure(figsize=(7, 5.2), layout="constrained")
     ax = fig.subplots()
     unit = None
     for label, t in spectra.items():
         p = u.Quantity(t["power"])
         unit = unit or p.unit
-        k = np.asarray(t["k"])
+        k = np.asarray(u.Quantity(t["k"]).value, dtype=float)
         pv = p.to_value(unit)
-        err = u.Quantity(t["power_err"]).to_value(unit)
-        lower = np.minimum(err, 0.9 * pv)  # keep the bar on a log axis
-        ax.errorbar(k, pv, yerr=[lower, err], fmt="o-", ms=3, lw=1, capsize=2, label=label)
+        drawn = np.isfinite(pv) & (pv > 0)  # a log axis has no place for P <= 0
+        pv = np.where(drawn, pv, np.nan)
+        err = (u.Quantity(t["power_err"]).to_value(unit) if "power_err" in t.colnames
+               else np.zeros_like(pv))
+        err = np.where(drawn & np.isfinite(err) & (err > 0), err, 0.0)
+        if np.any(err > 0):
+            lower = np.minimum(err, 0.9 * np.nan_to_num(pv))  # stop a decade below at most
+            ax.errorbar(k, pv, yerr=[lower, err], fmt="o-", ms=3, lw=1, capsize=2, label=label)
+        else:
+            ax.plot(k, pv, "o-", ms=3, lw=1, label=label)
     if band is not None:
         ax.axvspan(band[0], band[1], color="tab:red", alpha=0.15,
-                   label=f"band {band[0]:g} < k < {band[1]:g} "
-                   f"(θ ≈ {theta_from_k(band[1], pixel_scale).value:.0f}–"
-                   f"{theta_from_k(band[0], pixel_scale).value:.0f}′)")
+                   label="band " + band_label(band[0], band[1], pixel_scale))
     if photon is not None:
         ph = u.Quantity(photon)
         value = ph.to_value(unit) if (unit is not None and ph.unit != u.one) else ph.value
-        ax.axhline(value, color="0.3", ls="--", lw=1, label="photon noise")
+        ax.axhline(value, color="0.3", ls="--", lw=1, label=photon_label)
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("k (rad / pixel)")
-    ax.set_ylabel(f"P(k) ({unit.to_string() if unit not in (None, u.one) else 'pixel²'})")
+    shown = unit_label(unit) if unit not in (None, u.one) else "pixel$^{2}$"
+    ax.set_ylabel(f"P(k) ({shown})")
     scale = u.Quantity(pixel_scale, u.arcmin).value
 
     def to_theta(k):
@@ -73,7 +93,7 @@ def plot_spectra(spectra, band=(BAND_KMIN, BAND_KMAX), photon=None, title="",
 
     top = ax.secondary_xaxis("top", functions=(to_theta, to_theta))
     top.set_xlabel("θ (arcmin)")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="best")  # the place that covers fewest points
     ax.grid(True, which="both", alpha=0.2)
     if title:
         ax.set_title(title, fontsize=10)
@@ -109,33 +129,48 @@ def plot_fft_magnitude(images, title=""):
     return fig
 
 
-def plot_noise_fit(fits, title=""):
+def plot_noise_fit(fits, title="", unit=None):
     """Binned temporal PSDs with their fitted ``α + β/f + γ/f^e`` models.
 
     Parameters
     ----------
     fits : dict of label -> `~spherex_reduce.analysis.NoiseModelFit`
+        A fit of several spectra at once (e.g. the reference columns and the
+        reference-row reads of `~spherex_reduce.analysis.fit_raw_noise`)
+        draws each, named from its ``bins.meta["spectra"]``.
+    title : str
+    unit : `~astropy.units.Unit`, optional
+        Unit of the PSD values; default ``bins.meta["psd_unit"]`` (set by
+        `~spherex_reduce.analysis.fit_raw_noise`).
 
     Returns
     -------
     `matplotlib.figure.Figure`
     """
-    fig = Figure(figsize=(7, 5))
+    from ..plotting import unit_label
+
+    fig = Figure(figsize=(7, 5.2), layout="constrained")
     ax = fig.subplots()
     for i, (label, fit) in enumerate(fits.items()):
         b = fit.bins
-        colour = f"C{i}"
-        for s in np.unique(b["spectrum"]):
+        unit = unit if unit is not None else b.meta.get("psd_unit")
+        which = np.unique(b["spectrum"])
+        names = list(b.meta.get("spectra") or [f"spectrum {s}" for s in which])
+        markers = "os^vD"
+        for j, s in enumerate(which):
             sel = b["spectrum"] == s
             f = np.asarray(b["frequency"][sel])
-            ax.errorbar(f, b["psd"][sel], yerr=b["psd_err"][sel], fmt="o", ms=3, color=colour,
-                        label=f"{label} (spectrum {s})" if len(np.unique(b["spectrum"])) > 1
-                        else label)
-            ax.plot(f, b["model"][sel], "-", color=colour, lw=1)
+            name = names[int(s)] if int(s) < len(names) else f"spectrum {s}"
+            text = label if len(which) == 1 and name == label else f"{label}: {name}"
+            ax.errorbar(f, b["psd"][sel], yerr=b["psd_err"][sel], fmt=markers[j % 5], ms=3,
+                        color=f"C{i}", label=text)
+            ax.plot(f, b["model"][sel], "-", color=f"C{i}", lw=1)
+    ax.plot([], [], "-", color="0.3", lw=1, label="lines: fitted model")
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("frequency (Hz)")
-    ax.set_ylabel("PSD of the stream (unit² / Hz)")
+    shown = unit_label(unit)
+    ax.set_ylabel(f"one-sided PSD ({shown})" if shown else "one-sided PSD")
     ax.legend(fontsize=8)
     ax.grid(True, which="both", alpha=0.2)
     ax.set_title(title or "temporal PSD and fitted α + β/f + γ/f^e", fontsize=10)

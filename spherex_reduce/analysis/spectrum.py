@@ -3,7 +3,7 @@
 Conventions (paper §1): the wave number of an angular period ``θ`` is
 ``k = 2π · pixel_scale / θ`` in rad/pixel, so a pattern repeating every ``p``
 pixels has ``k = 2π / p``.  SPHEREx pixels are 6.2″, so the paper's band
-θ = 5–20′ is ``0.03 < k < 0.13``.
+θ = 5–20′ is ``0.03 < k < 0.13`` (exactly θ = 4.99–21.6′; `band_label`).
 
 Normalisation: ``P(k) = |FFT(image)|² / (ny · nx)`` (in image unit² · pixel²),
 averaged over the Fourier modes in each annulus of ``|k|``.  White noise of
@@ -37,9 +37,11 @@ __all__ = [
     "BAND_KMIN",
     "SPHEREX_PIXEL_SCALE",
     "FFTImage",
+    "band_label",
     "band_power",
     "fft_magnitude",
     "k_from_theta",
+    "photon_noise_label",
     "photon_noise_power",
     "power_spectrum",
     "slope_variance_factor",
@@ -81,6 +83,40 @@ def theta_from_k(k, pixel_scale=SPHEREX_PIXEL_SCALE):
     k = _k_value(k)
     with np.errstate(divide="ignore"):
         return (2 * np.pi / k * u.Quantity(pixel_scale, u.arcsec)).to(u.arcmin)
+
+
+def band_label(kmin=BAND_KMIN, kmax=BAND_KMAX, pixel_scale=SPHEREX_PIXEL_SCALE):
+    """The band by its ``k`` limits and the angular periods they really give.
+
+    Parameters
+    ----------
+    kmin, kmax : float or `~astropy.units.Quantity`
+        Band edges in rad/pixel.
+    pixel_scale : `~astropy.units.Quantity`
+        Angle per pixel.
+
+    Returns
+    -------
+    str
+        ``θ`` in arcmin (′), or arcsec (″) when the longest period is under 1′.
+
+    Examples
+    --------
+    >>> from astropy import units as u
+    >>> from spherex_reduce.analysis import band_label
+    >>> band_label()
+    '0.03 ≤ k ≤ 0.13 rad/pixel (θ = 4.99–21.6′)'
+    >>> band_label(0.03, 0.13, 0.1 * u.arcsec)
+    '0.03 ≤ k ≤ 0.13 rad/pixel (θ = 4.83–20.9″)'
+    """
+    lo, hi = float(_k_value(kmin)), float(_k_value(kmax))
+    short, long_ = theta_from_k(hi, pixel_scale), theta_from_k(lo, pixel_scale)
+    unit, mark = (u.arcmin, "′") if np.isinf(long_) or long_ >= 1 * u.arcmin else (u.arcsec,
+                                                                                    "″")
+    short = short.to_value(unit)
+    theta = f"θ ≥ {short:.3g}{mark}" if lo == 0 else \
+        f"θ = {short:.3g}–{long_.to_value(unit):.3g}{mark}"
+    return f"{lo:g} ≤ k ≤ {hi:g} rad/pixel ({theta})"
 
 
 def _k_value(k):
@@ -309,15 +345,18 @@ def power_spectrum(image, pixel_scale=SPHEREX_PIXEL_SCALE, mask=None, bins=30,
 
 
 def band_power(spectrum, kmin=BAND_KMIN, kmax=BAND_KMAX, return_error=False, **kwargs):
-    """Mean noise power over ``kmin ≤ k ≤ kmax`` (default θ = 5–20′, paper Fig. 6).
+    """Mean noise power over ``kmin ≤ |k| ≤ kmax`` (default: the paper's θ = 5–20′ band, Fig. 6).
 
     Parameters
     ----------
     spectrum : `~astropy.table.Table` or image
-        A table from `power_spectrum` (bins whose ``k`` lies in the band are
-        averaged, weighted by ``nmodes``), or an image, for which the band is
-        computed exactly as one bin over every Fourier mode with
-        ``kmin ≤ |k| ≤ kmax`` (``kwargs`` go to `power_spectrum`).
+        An image (``kwargs`` go to `power_spectrum`), or a table from
+        `power_spectrum` whose bins tile the band exactly (edges at ``kmin``
+        and ``kmax``; others are refused).  Either way the band power is the
+        one definition used everywhere (``demo``, ``spectrum``, sweeps,
+        figures): the mean power of every Fourier mode with
+        ``kmin ≤ |k| ≤ kmax``, i.e. `power_spectrum` with the band as its
+        only bin.
     kmin, kmax : float or `~astropy.units.Quantity`
         Band edges in rad/pixel.
     return_error : bool
@@ -341,17 +380,23 @@ def band_power(spectrum, kmin=BAND_KMIN, kmax=BAND_KMAX, return_error=False, **k
     if not 0 <= lo < hi:
         raise SpherexReduceError(f"band needs 0 <= kmin < kmax, got kmin={lo}, kmax={hi}")
     if isinstance(spectrum, Table):
-        for col in ("k", "power", "power_err", "nmodes"):
+        for col in ("k", "power", "power_err", "nmodes", "k_lo", "k_hi"):
             if col not in spectrum.colnames:
                 raise SpherexReduceError(
                     f"spectrum table lacks column {col!r}; use a table from power_spectrum"
                 )
-        k = _k_value(u.Quantity(spectrum["k"]))
-        sel = (k >= lo) & (k <= hi)
-        if not sel.any():
+        k_lo = _k_value(u.Quantity(spectrum["k_lo"]))
+        k_hi = _k_value(u.Quantity(spectrum["k_hi"]))
+        sel = (k_lo >= lo * (1 - 1e-9)) & (k_hi <= hi * (1 + 1e-9))
+        # only bins that tile the band exactly give the same number as the image
+        tiled = sel.any() and np.isclose(k_lo[sel].min(), lo, rtol=1e-9, atol=0) and \
+            np.isclose(k_hi[sel].max(), hi, rtol=1e-9, atol=0) and \
+            np.allclose(k_lo[sel][1:], k_hi[sel][:-1], rtol=1e-9, atol=0)
+        if not tiled:
             raise SpherexReduceError(
-                f"no spectrum bin has {lo} <= k <= {hi} rad/pixel (bins span "
-                f"{k.min():.3g}–{k.max():.3g}); use finer bins or pass the image"
+                f"no spectrum bins tile {lo:g} <= k <= {hi:g} rad/pixel exactly (bins span "
+                f"{k_lo.min():.3g}–{k_hi.max():.3g}); pass the image, or a spectrum whose "
+                "bin edges include the band limits"
             )
         n = np.asarray(spectrum["nmodes"][sel], dtype=float)
         pw = u.Quantity(spectrum["power"][sel])
@@ -495,6 +540,30 @@ def photon_noise_power(photocurrent=1 * u.electron / u.s, integration_time=None,
         tframe = t.value / int(nframes)
         var = slope_variance_factor(nframes) * charge_rate.value / tframe
     return (var * (u.electron / u.s) ** 2).to(i.unit**2) * u.pix**2
+
+
+def photon_noise_label(photocurrent=1 * u.electron / u.s, integration_time=None, *,
+                       nframes=None, schedule=None):
+    """Legend of a photon-noise line: the photocurrent and the time it is integrated for.
+
+    Takes the arguments of `photon_noise_power`.
+
+    Examples
+    --------
+    >>> from astropy import units as u
+    >>> from spherex_reduce.analysis import photon_noise_label
+    >>> photon_noise_label(1 * u.electron / u.s, 111.74 * u.s, nframes=74)
+    'photon noise of 1 e/s over 112 s (N = 74)'
+    """
+    if schedule is not None:
+        nframes = schedule.nframes if nframes is None else nframes
+        integration_time = schedule.integration_time if integration_time is None \
+            else integration_time
+    i = u.Quantity(photocurrent, u.electron / u.s)
+    text = f"photon noise of {i.to_value(u.electron / u.s):.3g} e/s"
+    if integration_time is not None:
+        text += f" over {u.Quantity(integration_time, u.s).to_value(u.s):.3g} s"
+    return text + (f" (N = {int(nframes)})" if nframes else "")
 
 
 # -- sources and hot pixels -----------------------------------------------------------

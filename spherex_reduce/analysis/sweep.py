@@ -397,16 +397,21 @@ def run_sweep(sweep, output=None, *, scheduler=None, workers=None, overwrite=Fal
     rows, unit = [], None
     last_write = time.perf_counter()
 
-    def write(final=False):
-        nonlocal last_write
-        if output is None:
-            return
+    def merged():
+        """Every row so far, with the sweep's metadata (grid, measure, ...) in ``meta``."""
         table = _merge(existing, _rows_to_table(rows, sw, unit), keys)
         table.meta.update({"sweep": sw.source, "grid": {k: [_plain(v) for v in vals]
                                                          for k, vals in sw.grid.items()},
                            "pipelines": list(sw.pipelines), "realizations": sw.realizations,
                            "seed": sw.seed, "mode": sw.mode, "measure": _jsonable(sw.measure),
                            "fingerprint": sw.fingerprint})
+        return table
+
+    def write(final=False):
+        nonlocal last_write
+        if output is None:
+            return
+        table = merged()
         if result.failed:
             table.meta["failed"] = [{"cell": f["cell"], "error": f["error"]}
                                     for f in result.failed]
@@ -455,7 +460,7 @@ def run_sweep(sweep, output=None, *, scheduler=None, workers=None, overwrite=Fal
             if cluster is not None:
                 cluster.close()
     bar.close()
-    result.table = _merge(existing, _rows_to_table(rows, sw, unit), keys)
+    result.table = merged()  # the same table and metadata as the file: plot_sweep needs both
     write(final=True)
     result.seconds = time.perf_counter() - t0
     return result
@@ -482,7 +487,10 @@ def plot_sweep(table, x=None, title=""):
     """
     from matplotlib.figure import Figure
 
-    grid = list(table.meta.get("grid", {}))
+    from ..plotting import unit_label
+
+    # grid keys in column order: the sweep's order (a mapping read back from ECSV is sorted)
+    grid = [c for c in table.colnames if c in table.meta.get("grid", {})]
     x = x or (grid[0] if grid else "realization")
     others = [k for k in grid if k != x] + ["pipeline"]
     fig = Figure(figsize=(7, 5))
@@ -504,7 +512,7 @@ def plot_sweep(table, x=None, title=""):
             ax.set_xticks(pos, [str(v) for v in xs])
     unit = table["band_power"].unit
     ax.set_xlabel(x)
-    ax.set_ylabel(f"band power ({unit})" if unit else "band power")
+    ax.set_ylabel(f"band power ({unit_label(unit)})" if unit_label(unit) else "band power")
     ax.set_yscale("log")
     if any(groups):
         ax.legend(fontsize=8)

@@ -602,11 +602,12 @@ def fit_raw_noise(exposure, exponent=1.3, nperseg=None, nbins=30, fit=PARAMS, ac
     nper = min(nper, nreads)
     rows, fits_ = [], {}
     frate = fs / m
-    spectra, bases = [], []
+    spectra, bases, names = [], [], []
     if g.ref_border:
         split = acn and g.ref_border >= 2
         spec, ts = _parity_psd(exposure, "columns", frate, nper, split)
         spectra.append(spec)
+        names.append("border columns")
         bases.append(lambda f, e, b=ts.nbox, st=ts.stride: aliased_basis(f, fs, m, b, e,
                                                                          stride=st))
     if s.reference_read_indices.size:
@@ -614,6 +615,7 @@ def fit_raw_noise(exposure, exponent=1.3, nperseg=None, nbins=30, fit=PARAMS, ac
         rate = fs / 2 if split else fs
         spec, tr = _parity_psd(exposure, "rows", rate, _burst_length(g, split), split)
         spectra.append(spec)
+        names.append("re-read rows")
         bases.append(lambda f, e, d=tr.stride: aliased_basis(f, fs, d, 1, e))
     unit = exposure.unit or u.one
     if spectra:
@@ -627,6 +629,9 @@ def fit_raw_noise(exposure, exponent=1.3, nperseg=None, nbins=30, fit=PARAMS, ac
             basis=lambda f, e: aliased_basis(f, fs, m, s.phantom_reads, e))
     if not fits_:
         raise SpherexReduceError("the exposure has neither reference pixels nor phantom reads")
+    for name, fit_ in fits_.items():  # for plots: what each spectrum is, and the PSD's unit
+        fit_.bins.meta.update({"spectra": names if name == "reference" else [name],
+                               "psd_unit": unit**2 / u.Hz})
     for name, r in fits_.items():
         rows.append({"stream": name, **r.to_row()})
     t = Table(rows=rows)

@@ -5,28 +5,54 @@ from ..plugins import BLOCK_ENV, Registry, blocked_plugins
 
 def add_parser(sub):
     p = sub.add_parser("plugins", help="list steps, strategies and simulators and their plugins",
-                       description="List every registered step, strategy and simulator with the "
-                       f"plugin that provides it. Block plugins with {BLOCK_ENV}=name1,name2.")
+                       description="List every registered step (with its FITS status keyword "
+                       "and the kind of its strategies), strategy and simulator, with the plugin "
+                       "that provides it and the distribution (and version) that installed the "
+                       f"plugin. Block plugins by name with {BLOCK_ENV}=name1,name2.")
     p.set_defaults(func=run)
+
+
+def distributions():
+    """``{plugin name: "distribution version"}`` of the built-in and installed plugins.
+
+    Named as pytest names its plugins: the distribution that installs the entry
+    point, and its version; the package's own plugins are the package's.
+    """
+    import importlib.metadata
+
+    from .. import __version__
+    from ..plugins import BUILTIN_PLUGINS, ENTRY_POINT_GROUP
+
+    dists = dict.fromkeys(BUILTIN_PLUGINS, f"spherex-reduce {__version__}")
+    for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+        if ep.dist is not None:
+            dists.setdefault(ep.name, f"{ep.dist.name} {ep.dist.version}")
+    return dists
+
+
+def _columns(rows):
+    """Rows of strings as left-aligned columns two spaces apart."""
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    return ["  ".join(f"{c:<{w}}" for c, w in zip(r, widths, strict=True)).rstrip()
+            for r in rows]
 
 
 def run(args):
     registry = Registry()
-    rows = []
+    dists = distributions()
+    rows = [("kind", "name", "keyword", "strategies", "plugin", "distribution")]
+
+    def add(kind, name, reg, keyword="", strategies=""):
+        rows.append((kind, name, keyword, strategies, reg.plugin, dists.get(reg.plugin, "-")))
+
     for name, reg in sorted(registry.steps.items()):
-        extra = f" [{reg.obj.keyword}]"
-        if reg.obj.strategy_kind:
-            extra += f" strategies: {reg.obj.strategy_kind}"
-        rows.append(("step", name + extra, reg.plugin))
+        add("step", name, reg, reg.obj.keyword, reg.obj.strategy_kind or "")
     for kind, options in sorted(registry.strategies.items()):
         for name, reg in sorted(options.items()):
-            rows.append(("strategy", f"{kind}/{name}", reg.plugin))
+            add("strategy", f"{kind}/{name}", reg)
     for name, reg in sorted(registry.simulators.items()):
-        rows.append(("simulator", name, reg.plugin))
-    width = max(len(r[1]) for r in rows)
-    print(f"{'kind':<10} {'name':<{width}} plugin")
-    for kind, name, plugin in rows:
-        print(f"{kind:<10} {name:<{width}} {plugin}")
+        add("simulator", name, reg)
+    print("\n".join(_columns(rows)))
     blocked = blocked_plugins()
     if blocked:
         print(f"blocked: {', '.join(sorted(blocked))}")

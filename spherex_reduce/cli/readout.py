@@ -1,7 +1,8 @@
 """``spherex-reduce readout``: build, print, save and draw a readout schedule."""
 
-from ..config import load_yaml, schedule_from_config
+from ..config import GEOMETRY_PARAMETERS, READOUT_PARAMETERS, load_yaml, schedule_from_config
 from ..fits_format import atomic_output
+from ..schedule import DEFAULT_FRAME_OVERHEAD
 
 OPTIONS = [  # (flag, YAML section, key, type)
     ("--nrows", "geometry", "nrows", int), ("--ncols", "geometry", "ncols", int),
@@ -16,16 +17,39 @@ OPTIONS = [  # (flag, YAML section, key, type)
 ]
 
 
+#: What a default of None means, for the help.
+_NONE_DEFAULT = {
+    "frame_overhead": f"{DEFAULT_FRAME_OVERHEAD}, the paper's 1.51 s frame; unless "
+                      "--frame-time is given",
+    "frame_time": "from --frame-overhead",
+}
+
+
+def _option_help(key):
+    """Help of one option from its YAML parameter declaration: meaning, choices, default."""
+    param = {p.name: p for p in (*GEOMETRY_PARAMETERS, *READOUT_PARAMETERS)}[key]
+    text = param.doc
+    if param.choices:
+        text += f": {', '.join(param.choices)}"
+    default = _NONE_DEFAULT.get(key) if param.default is None else f"{param.default:g}" \
+        if isinstance(param.default, float) else param.default
+    return f"{text} (default: {default})".replace("%", "%%")
+
+
 def add_parser(sub):
     p = sub.add_parser("readout", help="build a readout schedule; print, save or draw it",
-                       description="Build a readout schedule (defaults: the paper's Table 3) "
-                       "from options or a scene/pipeline YAML file.")
-    p.add_argument("--config", help="YAML file with geometry: and readout: sections")
+                       description="Build a readout schedule (defaults: the SPHEREx array "
+                       "and the paper's Table 3) from options or a scene/pipeline YAML file; "
+                       "options override the file. Print its summary, save it as a table or "
+                       "draw its read order.")
+    p.add_argument("--config", metavar="YAML",
+                   help="scene or pipeline YAML file whose geometry: and readout: sections "
+                   "give the starting values")
     for flag, _, key, typ in OPTIONS:
-        p.add_argument(flag, dest=key, type=typ, default=None)
-    p.add_argument("-o", "--output", help="write the schedule table (ECSV: read row kind start "
-                   "time)")
-    p.add_argument("--plot", help="draw the read order to this PNG")
+        p.add_argument(flag, dest=key, type=typ, default=None, help=_option_help(key))
+    p.add_argument("-o", "--output", metavar="SCHEDULE.ecsv",
+                   help="write the schedule table (ECSV: read row kind start time)")
+    p.add_argument("--plot", metavar="PNG", help="draw the read order to this PNG")
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     p.set_defaults(func=run)
 

@@ -9,7 +9,8 @@ def add_parser(sub):
                        description="Validate a pipeline YAML file (or shipped config name) and "
                        "print the effective configuration.")
     p.add_argument("config", nargs="?", metavar="PIPELINE.yaml")
-    p.add_argument("--list", action="store_true", help="list the shipped configs")
+    p.add_argument("--list", action="store_true",
+                   help="list the shipped configs, each with its description")
     p.set_defaults(func=run)
 
 
@@ -17,8 +18,11 @@ def run(args):
     if args.list or not args.config:
         if not args.list:
             print("give PIPELINE.yaml or a shipped name; shipped configs:")
-        for name in shipped_configs():
-            print(name)
+        names = shipped_configs()
+        width = max(map(len, names))
+        for name in names:
+            description = Pipeline.from_yaml(name).config.get("description", "")
+            print(f"{name:<{width}}  {description}".rstrip())
         return 0 if args.list else 2
     pipeline = Pipeline.from_yaml(args.config)
     print(f"# {pipeline.source}, config hash {pipeline.config_hash}")

@@ -68,19 +68,20 @@ def _measure(image, args, bins=None):
 
 
 def _photon(image, args):
-    from ..analysis import photon_noise_power
+    from ..analysis import photon_noise_label, photon_noise_power
 
     if not args.photocurrent:
-        return None
+        return None, None
     if not (image.unit or u.one).is_equivalent(u.electron / u.s):
-        return None
+        return None, None
     nframes = image.meta.get("NFRAMES")
     tint = args.integration_time
     if tint is None:
         tint = image.meta.get("INTTIME") or _DEFAULT_TINT
-    power = photon_noise_power(args.photocurrent * u.electron / u.s, tint * u.s,
-                               nframes=nframes if nframes and nframes >= 2 else None)
-    return power.to(image.unit**2 * u.pix**2)
+    kw = {"nframes": nframes if nframes and nframes >= 2 else None}
+    power = photon_noise_power(args.photocurrent * u.electron / u.s, tint * u.s, **kw)
+    label = photon_noise_label(args.photocurrent * u.electron / u.s, tint * u.s, **kw)
+    return power.to(image.unit**2 * u.pix**2), label
 
 
 def run(args):
@@ -104,7 +105,7 @@ def run(args):
     })
     if "SXRCKBAD" in image.meta:  # read with --ignore-checksum: say so in the output
         table.meta["input_checksum_failed"] = str(image.meta["SXRCKBAD"])
-    photon = _photon(image, args)
+    photon, photon_label = _photon(image, args)
     if photon is not None:
         table.meta["photon_noise_power"] = float(photon.value)
         table.meta["photocurrent_e_per_s"] = args.photocurrent
@@ -141,10 +142,11 @@ def run(args):
     lines.append(f"wrote {args.output}")
     if plot:
         from ..analysis.plots import plot_spectra
-        from ..plotting import save_figure
+        from ..plotting import save_figure, unit_label
 
         fig = plot_spectra(spectra, band=(args.kmin, args.kmax), photon=photon,
-                           title=f"P(k), band power {band.value:.3g} {band.unit}",
+                           photon_label=photon_label,
+                           title=f"P(k), band power {band.value:.3g} {unit_label(band.unit)}",
                            pixel_scale=args.pixel_scale * u.arcsec)
         save_figure(fig, plot, args.overwrite)
         lines.append(f"wrote {plot}")

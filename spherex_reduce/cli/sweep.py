@@ -3,6 +3,7 @@
 import sys
 from pathlib import Path
 
+from .._text import plural
 from ..fits_format import atomic_output
 
 
@@ -46,8 +47,8 @@ def run(args):
         raise ConfigError(f"--workers must be >= 1, got {args.workers}")
     res = run_sweep(sweep, args.output, scheduler=args.scheduler, workers=args.workers,
                     overwrite=args.overwrite, progress=not args.quiet)
-    print(f"{len(sweep.cells())} cells: {res.computed} computed, {res.skipped} already in "
-          f"{args.output}, {len(res.failed)} failed ({res.seconds:.1f} s)")
+    print(f"{plural(len(sweep.cells()), 'cell')}: {res.computed} computed, {res.skipped} "
+          f"already in {args.output}, {len(res.failed)} failed ({res.seconds:.1f} s)")
     for f in res.failed:
         print(f"failed cell {f['cell']}: {f['error']}", file=sys.stderr)
     print(f"wrote {args.output}")

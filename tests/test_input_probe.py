@@ -52,7 +52,7 @@ output header.
 
 import re
 import shutil
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import _probe
 import numpy as np
@@ -125,7 +125,6 @@ class Case:
     mentions: str = None
     check: object = None  # None: must be refused
     timeout: float = _probe.TIMEOUT
-    extra: dict = field(default_factory=dict)
 
 
 def refused(id, argv, setup=None, mentions=None, timeout=_probe.TIMEOUT, marks=()):

@@ -1,0 +1,727 @@
+"""The input probe: hostile input to every command, checked against the error contract.
+
+Every case runs ``spherex-reduce`` in a child process (see ``tests/_probe.py``)
+capped at 2 GiB of address space and `_probe.TIMEOUT` seconds, in a fresh
+directory holding copies of small inputs made once per session by the package
+itself (a 64 x 64, 2-channel, 3-frame scene: ``scene.yaml``, raw ramps
+``raw.fits``, their reduction ``red.fits``, a second reduction ``red2.fits``, a
+one-step pipeline ``fit.yaml``, a serial sweep ``sweep.yaml`` and its results
+``res.ecsv``).  The case damages what it needs, then runs the command with
+``-q`` and the directory as working directory.
+
+A **refused** case must meet the contract of bad input (``docs/cli.rst``):
+
+* exit code 2, within the time limit and the memory cap;
+* stderr is exactly one non-empty line, ``spherex-reduce COMMAND: error: ...``
+  (no traceback, no warning lines), naming the problem where the case says
+  what the message must mention;
+* no file appears in, or disappears from, the directory (no partial output,
+  no leftover ``.NAME.*.tmp``), and every file's bytes are unchanged (so no
+  input is ever modified).
+
+A **working** case (for example integer FITS data, which must be read right)
+exits 0 and its check compares the result with an independent computation.
+
+Adding a case
+=============
+Append to the list of the right section below:
+
+* ``refused("command-what", [ARGV...], setup=FUNC, mentions=REGEX)`` for input
+  that must be refused.  ``ARGV`` is the command line without ``-q``; ``{dir}``
+  in an argument is replaced by the absolute path of the case's directory.
+  ``setup(d)`` receives that directory (a `pathlib.Path` holding the copies) and
+  damages or creates files in it; `_probe.cut`, `_probe.flip_byte`,
+  `_probe.edit_cards` and `_probe.span` help with FITS files, `write` with text.
+  ``mentions`` is a regular expression (case-insensitive) the error line must
+  contain; give it only where any correct message must contain it (an option
+  or keyword name).
+* ``works("command-what", [ARGV...], setup=FUNC, check=FUNC)`` for input that
+  must be processed: ``check(d, result, run)`` asserts on the outputs and may
+  run more commands (``run(argv)``) to compare with.
+
+Give ids as ``command-what-is-wrong``.  Keep inputs small: the whole module
+should run in well under a minute once every case holds.  Run one case with
+``pytest tests/test_input_probe.py -k ID``; set ``SPHEREX_PROBE_SPAWN=1`` to run
+each case as ``python -m spherex_reduce.cli`` instead of through the fork
+server.
+
+Names the cases rely on that may not exist yet: ``--ignore-checksum`` (an option
+of the subcommand) to read a file whose checksum fails, recorded in the
+output header.
+"""
+
+import re
+import shutil
+from dataclasses import dataclass
+
+import _probe
+import numpy as np
+import pytest
+from astropy.io import fits
+from astropy.table import Table
+
+SCENE = """\
+geometry: {nrows: 64, ncols: 64, nchannels: 2, ref_border: 4}
+readout: {skip: 4, ref_reads: 4, phantom_reads: 2, nframes: 3, frame_overhead: 10}
+seed: 1
+"""
+SWEEP = """\
+scene: {geometry: {nrows: 64, ncols: 64, nchannels: 2}, readout: {skip: 4, ref_reads: 4,
+        phantom_reads: 2, nframes: 3, frame_overhead: 10}}
+pipeline: spherex-default
+grid: {skip: [1, 4]}
+realizations: 1
+seed: 1
+"""
+FIT = "steps:\n  - fit_ramp: {weighting: uniform}\n"
+DEFAULT_STEPS = """\
+steps:
+  - unchop: {}
+  - subtract_phantom: {}
+  - correct_reference: {strategy: mean, sigma: 3.0, maxiters: 5}
+  - fit_ramp: {weighting: uniform}
+"""
+REDUCE = ["reduce", "raw.fits", "-c", "spherex-default", "-o", "out.fits"]
+SPECTRUM = ["spectrum", "red.fits", "-o", "sp.ecsv"]
+FIT_NOISE = ["fit-noise", "raw.fits", "-o", "fit.ecsv"]
+COMBINE = ["combine", "red.fits", "red2.fits", "-o", "master.fits"]
+SERIAL = ["--scheduler", "serial"]
+ERROR_LINE = re.compile(r"^spherex-reduce [\w-]+: error: \S")
+
+
+# -- the session's inputs ----------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def runner():
+    r = _probe.Runner()
+    yield r
+    r.close()
+
+
+@pytest.fixture(scope="module")
+def inputs(runner, tmp_path_factory):
+    """Small inputs made by the command line itself, shared by every case (read-only)."""
+    d = tmp_path_factory.mktemp("probe-inputs")
+    (d / "scene.yaml").write_text(SCENE)
+    (d / "sweep.yaml").write_text(SWEEP)
+    (d / "fit.yaml").write_text(FIT)
+    for argv in (["simulate", "scene.yaml", "--mode", "ramps", "-o", "raw.fits"],
+                 ["simulate", "scene.yaml", "--mode", "ramps", "--seed", "2", "-o", "raw2.fits"],
+                 ["reduce", "raw.fits", "-c", "spherex-default", "-o", "red.fits"],
+                 ["reduce", "raw2.fits", "-c", "spherex-default", "-o", "red2.fits"],
+                 ["sweep", "sweep.yaml", "-o", "res.ecsv", *SERIAL]):
+        result = runner.run(["-q", *argv], d, timeout=120)
+        assert result.rc == 0, result.describe()
+    (d / "raw2.fits").unlink()
+    return d
+
+
+# -- cases -------------------------------------------------------------------------------------
+
+@dataclass
+class Case:
+    argv: list
+    setup: object = None
+    mentions: str = None
+    check: object = None  # None: must be refused
+    timeout: float = _probe.TIMEOUT
+
+
+def refused(id, argv, setup=None, mentions=None, timeout=_probe.TIMEOUT, marks=()):
+    return pytest.param(Case(list(argv), setup, mentions, None, timeout), id=id, marks=marks)
+
+
+def works(id, argv, setup=None, check=None, timeout=_probe.TIMEOUT, marks=()):
+    return pytest.param(Case(list(argv), setup, None, check, timeout), id=id, marks=marks)
+
+
+def write(name, text):
+    """Setup: write ``text`` (str or bytes) to ``name``."""
+    def setup(d):
+        path = d / name
+        if isinstance(text, bytes):
+            path.write_bytes(text)
+        else:
+            path.write_text(text)
+    return setup
+
+
+def chain(*setups):
+    def setup(d):
+        for s in setups:
+            s(d)
+    return setup
+
+
+def cards(name, hdu="PRIMARY", **values):
+    """Setup: rewrite raw header cards (`_probe.edit_cards`) of ``name``."""
+    def setup(d):
+        _probe.edit_cards(d / name, hdu, values)
+    return setup
+
+
+def cut_data(name, hdu, fraction=0.5):
+    """Setup: truncate ``name`` inside the data of ``hdu``."""
+    def setup(d):
+        _, _, start, size = _probe.span(d / name, hdu)
+        assert size > 0
+        _probe.cut(d / name, start + int(size * fraction))
+    return setup
+
+
+def cut_last_hdu(name):
+    """Setup: truncate ``name`` inside its last HDU (its data, or its header if it has none)."""
+    def setup(d):
+        _, head, start, size = _probe.hdu_spans(d / name)[-1]
+        _probe.cut(d / name, start + size // 2 if size else head + (start - head) // 2)
+    return setup
+
+
+def drop_last_hdu(name):
+    """Setup: cut ``name`` exactly before its last HDU (a valid FITS file, one HDU short)."""
+    def setup(d):
+        _probe.cut(d / name, _probe.hdu_spans(d / name)[-1][1])
+    return setup
+
+
+def flip_sci(name):
+    """Setup: flip the lowest bit of the first SCI value (CHECKSUM/DATASUM are present)."""
+    def setup(d):
+        with fits.open(d / name) as hdul:
+            assert "DATASUM" in hdul["SCI"].header
+            itemsize = hdul["SCI"].data.dtype.itemsize
+        _, _, start, _ = _probe.span(d / name, "SCI")
+        _probe.flip_byte(d / name, start + itemsize - 1)
+    return setup
+
+
+def link(name, target):
+    def setup(d):
+        (d / name).symlink_to(target)
+    return setup
+
+
+def mkdir(name):
+    def setup(d):
+        (d / name).mkdir()
+    return setup
+
+
+def rewrite_hdus(src, dst, change):
+    """Copy FITS file ``src`` to ``dst`` (fresh checksums) after ``change(hdul)``."""
+    with fits.open(src) as hdul:
+        hdul = fits.HDUList([h.copy() for h in hdul])
+    change(hdul)
+    hdul.writeto(dst, checksum=True, overwrite=True)
+
+
+def billion_laughs(key):
+    """``key:`` holding a YAML alias bomb: 9 levels of 9 aliases (9**9 strings expanded)."""
+    items = ['&l0 ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]']
+    items += [f"&l{i} [" + ", ".join([f"*l{i - 1}"] * 9) + "]" for i in range(1, 9)]
+    return f"{key}: [" + ", ".join(items) + "]"
+
+
+def deep_list(key, depth=5000):
+    return f"{key}: " + "[" * depth + "]" * depth + "\n"
+
+
+# Header values astropy would never write; each is a raw card value.
+HEADER_CASES = [
+    ("nrows-1e15", {"NROWS": "1000000000000000"}, None),
+    ("nrows-1e999", {"NROWS": "1E999"}, None),
+    ("nrows-minus-1e999", {"NROWS": "-1E999"}, None),
+    ("tframe-1e999", {"TFRAME": "1E999"}, None),
+    ("tframe-nan", {"TFRAME": "NAN"}, None),
+    ("chanw-abc", {"CHANW": "'abc'"}, "CHANW"),
+    ("nframes-3.5", {"NFRAMES": "3.5"}, "NFRAMES"),  # the data have 3 frames
+    ("nrows-string", {"NROWS": "'abc'"}, "NROWS"),
+    ("nrows-logical", {"NROWS": "T"}, "NROWS"),
+    ("ncols-logical", {"NCOLS": "T"}, "NCOLS"),
+]
+
+FITS_DAMAGE = [
+    refused("reduce-truncated-last-hdu", REDUCE, cut_last_hdu("raw.fits")),
+    refused("reduce-truncated-mid-data", REDUCE, cut_data("raw.fits", "SCI")),
+    refused("reduce-truncated-in-phantom", REDUCE, cut_data("raw.fits", "PHANTOM")),
+    refused("spectrum-truncated-last-hdu", SPECTRUM, cut_last_hdu("red.fits")),
+    refused("spectrum-truncated-mid-data", SPECTRUM, cut_data("red.fits", "SCI")),
+    refused("spectrum-reduced-missing-last-hdu", SPECTRUM, drop_last_hdu("red.fits")),
+    refused("combine-truncated-mid-data", COMBINE, cut_data("red2.fits", "SCI")),
+    refused("fit-noise-truncated-mid-data", FIT_NOISE, cut_data("raw.fits", "SCI")),
+    refused("reduce-checksum-flipped-byte", REDUCE, flip_sci("raw.fits"), mentions="checksum"),
+    refused("spectrum-checksum-flipped-byte", SPECTRUM, flip_sci("red.fits"),
+            mentions="checksum"),
+    refused("fit-noise-checksum-flipped-byte", FIT_NOISE, flip_sci("raw.fits"),
+            mentions="checksum"),
+    *[refused(f"reduce-header-{name}", REDUCE, cards("raw.fits", **values), mentions=mention)
+      for name, values, mention in HEADER_CASES],
+    refused("spectrum-header-nrows-1e15", SPECTRUM, cards("red.fits", NROWS="1000000000000000")),
+    refused("spectrum-header-tframe-nan", SPECTRUM, cards("red.fits", TFRAME="NAN")),
+    refused("spectrum-sci-disagrees-with-header", SPECTRUM, cards("red.fits", NROWS="32")),
+]
+
+
+def _check_checksum_warning(d, result, run):
+    with fits.open(d / "out.fits", checksum=True) as hdul:
+        header = hdul[0].header
+        noted = [c for c in header.cards if c.keyword not in ("CHECKSUM", "DATASUM")
+                 and "checksum" in f"{c.keyword} {c.value} {c.comment}".lower()]
+        assert noted, "the output header does not record that a checksum failed"
+        assert hdul["SCI"].data.shape == (64, 64)
+
+
+CHECKSUM_OPT_OUT = [
+    # Needs the opt-out option of the fix (name assumed: --ignore-checksum).
+    works("reduce-checksum-flipped-byte-ignored", [*REDUCE, "--ignore-checksum"],
+          flip_sci("raw.fits"), _check_checksum_warning),
+]
+
+
+# -- integer FITS data: must be read right (scaled by BZERO/BSCALE) ----------------------------
+
+def _integer_raw(kind):
+    """Setup: int.fits (integer SCI and PHANTOM) and flt.fits (the same values as floats)."""
+    def setup(d):
+        def change(hdul):
+            for name in ("SCI", "PHANTOM"):
+                if kind == "uint16":  # unsigned: BITPIX 16, BZERO 32768
+                    hdul[name].data = (np.round(hdul[name].data * 10) + 1000).astype(np.uint16)
+                else:  # int16 with BSCALE 0.5, BZERO 1000
+                    hdul[name].data = np.round(hdul[name].data * 20) * 0.5 + 1000
+                    hdul[name].scale("int16", bscale=0.5, bzero=1000)
+
+        rewrite_hdus(d / "raw.fits", d / "int.fits", change)
+        with fits.open(d / "int.fits") as hdul:
+            h = hdul["SCI"].header
+            assert h["BITPIX"] == 16 and h["BZERO"] in (32768, 1000)
+            assert kind == "uint16" or h["BSCALE"] == 0.5
+            physical = {n: hdul[n].data.astype(np.float32) for n in ("SCI", "PHANTOM")}
+
+        def as_float(hdul):
+            for name, values in physical.items():
+                hdul[name].data = values
+
+        rewrite_hdus(d / "int.fits", d / "flt.fits", as_float)
+    return setup
+
+
+def _integer_reduced(*names):
+    """Setup: X-int.fits (uint16 SCI) and X-flt.fits (the same values as floats) per name."""
+    def setup(d):
+        for name in names:
+            stem = name.removesuffix(".fits")
+            with fits.open(d / name) as hdul:
+                values = np.nan_to_num(np.round(hdul["SCI"].data) + 2000, nan=0.0)
+            assert 0 <= values.min() and values.max() < 2**16
+
+            def to_int(hdul, values=values):
+                hdul["SCI"].data = values.astype(np.uint16)
+
+            def to_float(hdul, values=values):
+                hdul["SCI"].data = values.astype(np.float64)
+
+            rewrite_hdus(d / name, d / f"{stem}-int.fits", to_int)
+            rewrite_hdus(d / name, d / f"{stem}-flt.fits", to_float)
+    return setup
+
+
+def _lstsq_slopes(path):
+    """Least-squares slope of every pixel over the frames, from the scaled FITS values."""
+    with fits.open(path) as hdul:
+        ramps = hdul["SCI"].data.astype(np.float64)  # astropy applies BSCALE/BZERO
+        tframe = hdul[0].header["TFRAME"]
+    n = ramps.shape[0]
+    design = np.vstack([np.arange(n) * tframe, np.ones(n)]).T
+    coef = np.linalg.lstsq(design, ramps.reshape(n, -1), rcond=None)[0]
+    return coef[0].reshape(ramps.shape[1:]), np.abs(ramps).max() / tframe
+
+
+def _check_fit_ramp(d, result, run):
+    expected, scale = _lstsq_slopes(d / "int.fits")
+    with fits.open(d / "out.fits") as hdul:
+        np.testing.assert_allclose(hdul["SCI"].data, expected, rtol=0, atol=1e-5 * scale)
+
+
+def _same_column_values(a, b):
+    ta, tb = Table.read(a), Table.read(b)
+    assert ta.colnames == tb.colnames and len(ta) == len(tb)
+    for name in ta.colnames:
+        if ta[name].dtype.kind == "f":
+            np.testing.assert_allclose(np.asarray(ta[name]), np.asarray(tb[name]), rtol=1e-9,
+                                       equal_nan=True, err_msg=name)
+
+
+def _rerun(argv):
+    def check(d, result, run):
+        again = run(argv)
+        assert again.rc == 0, again.describe()
+        return again
+    return check
+
+
+def _check_same_fits(argv_float, out, out_float):
+    def check(d, result, run):
+        _rerun(argv_float)(d, result, run)
+        with fits.open(d / out) as a, fits.open(d / out_float) as b:
+            np.testing.assert_allclose(a["SCI"].data, b["SCI"].data, rtol=1e-6, equal_nan=True)
+    return check
+
+
+def _check_same_table(argv_float, out, out_float):
+    def check(d, result, run):
+        _rerun(argv_float)(d, result, run)
+        _same_column_values(d / out, d / out_float)
+    return check
+
+
+INTEGER_DATA = [
+    works("reduce-uint16-bzero-fit-ramp", ["reduce", "int.fits", "-c", "fit.yaml", "-o",
+          "out.fits"], _integer_raw("uint16"), _check_fit_ramp),
+    works("reduce-int16-bscale-fit-ramp", ["reduce", "int.fits", "-c", "fit.yaml", "-o",
+          "out.fits"], _integer_raw("int16"), _check_fit_ramp),
+    works("reduce-uint16-bzero-unchop", ["reduce", "int.fits", "-c", "unchop", "-o", "out.fits"],
+          _integer_raw("uint16"),
+          _check_same_fits(["reduce", "flt.fits", "-c", "unchop", "-o", "ref.fits"],
+                           "out.fits", "ref.fits")),
+    works("fit-noise-uint16-bzero", ["fit-noise", "int.fits", "-o", "fit.ecsv"],
+          _integer_raw("uint16"),
+          _check_same_table(["fit-noise", "flt.fits", "-o", "ref.ecsv"], "fit.ecsv", "ref.ecsv")),
+    works("spectrum-uint16-bzero", ["spectrum", "red-int.fits", "-o", "sp.ecsv"],
+          _integer_reduced("red.fits"),
+          _check_same_table(["spectrum", "red-flt.fits", "-o", "ref.ecsv"], "sp.ecsv",
+                            "ref.ecsv")),
+    works("combine-uint16-bzero", ["combine", "red-int.fits", "red2-int.fits", "-o", "m.fits"],
+          _integer_reduced("red.fits", "red2.fits"),
+          _check_same_fits(["combine", "red-flt.fits", "red2-flt.fits", "-o", "ref.fits"],
+                           "m.fits", "ref.fits")),
+]
+
+
+# -- YAML ----------------------------------------------------------------------------------------
+
+NOT_UTF8 = b"steps:\n  - unchop: {}\nname: caf\xe9 \xff\xfe\n"
+BOMB_NAME = billion_laughs("name") + "\nsteps:\n  - unchop: {}\n"
+BOMB_DESCRIPTION = billion_laughs("description") + "\nsteps:\n  - unchop: {}\n"
+BOMB_SCENE = "noise: {" + billion_laughs("components") + "}\n"
+BOMB_SWEEP = ("pipeline: {" + billion_laughs("description") + ", steps: [{fit_ramp: {}}]}\n"
+              "scene: scene.yaml\ngrid: {skip: [1]}\n")
+
+
+def scene(extra):
+    """Setup: bad.yaml = the session's scene plus ``extra`` (YAML text)."""
+    def setup(d):
+        (d / "bad.yaml").write_text(SCENE + extra)
+    return setup
+
+
+def scene_with(section, text):
+    """Setup: bad.yaml = the session's scene with ``text`` added to flow mapping ``section``."""
+    def setup(d):
+        lines = []
+        for line in SCENE.splitlines():
+            if line.startswith(f"{section}: {{"):
+                line = line[:-1] + f", {text}}}"
+            lines.append(line)
+        if not any(line.startswith(f"{section}:") for line in lines):
+            lines.append(f"{section}: {{{text}}}")
+        (d / "bad.yaml").write_text("\n".join(lines) + "\n")
+    return setup
+
+
+def scene_replace(old, new):
+    """Setup: bad.yaml = the session's scene with ``old`` replaced by ``new``."""
+    def setup(d):
+        assert old in SCENE
+        (d / "bad.yaml").write_text(SCENE.replace(old, new))
+    return setup
+
+
+SIMULATE_BAD = ["simulate", "bad.yaml", "-o", "out.fits"]
+REDUCE_BAD = ["reduce", "raw.fits", "-c", "bad.yaml", "-o", "out.fits"]
+
+YAML = [
+    refused("reduce-config-not-utf8", REDUCE_BAD, write("bad.yaml", NOT_UTF8)),
+    refused("show-config-not-utf8", ["show-config", "bad.yaml"], write("bad.yaml", NOT_UTF8)),
+    refused("simulate-scene-not-utf8", SIMULATE_BAD, write("bad.yaml", NOT_UTF8)),
+    refused("readout-config-not-utf8", ["readout", "--config", "bad.yaml"],
+            write("bad.yaml", NOT_UTF8)),
+    refused("sweep-file-not-utf8", ["sweep", "bad.yaml", "-o", "new.ecsv", *SERIAL],
+            write("bad.yaml", NOT_UTF8)),
+    refused("reduce-fits-file-as-config", ["reduce", "red.fits", "-c", "raw.fits", "-o",
+                                           "out.fits"]),
+    refused("simulate-fits-file-as-scene", ["simulate", "raw.fits", "-o", "out.fits"]),
+    refused("readout-fits-file-as-config", ["readout", "--config", "raw.fits"]),
+    refused("show-config-alias-bomb-in-name", ["show-config", "bad.yaml"],
+            write("bad.yaml", BOMB_NAME)),
+    refused("reduce-config-alias-bomb-in-description", REDUCE_BAD,
+            write("bad.yaml", BOMB_DESCRIPTION)),
+    refused("simulate-scene-alias-bomb", SIMULATE_BAD, write("bad.yaml", BOMB_SCENE)),
+    refused("sweep-alias-bomb-in-pipeline", ["sweep", "bad.yaml", "-o", "new.ecsv", *SERIAL],
+            write("bad.yaml", BOMB_SWEEP)),
+    refused("show-config-5000-deep-list", ["show-config", "bad.yaml"],
+            write("bad.yaml", deep_list("steps"))),
+    refused("simulate-scene-5000-deep-list", SIMULATE_BAD, write("bad.yaml", deep_list("noise"))),
+    refused("reduce-config-not-yaml", REDUCE_BAD, write("bad.yaml", "steps: [unchop\n")),
+    refused("reduce-config-duplicate-key", REDUCE_BAD,
+            write("bad.yaml", "steps:\n  - unchop: {}\nsteps:\n  - fit_ramp: {}\n"),
+            mentions="steps"),
+    refused("show-config-duplicate-step-parameter", ["show-config", "bad.yaml"],
+            write("bad.yaml", "steps:\n  - correct_reference: {sigma: 3.0, sigma: 4.0}\n"),
+            mentions="sigma"),
+    refused("simulate-scene-duplicate-key", SIMULATE_BAD, scene("seed: 2\n"), mentions="seed"),
+    refused("reduce-config-sigma-nan", REDUCE_BAD,
+            write("bad.yaml", DEFAULT_STEPS + "  - sigma_clip: {sigma: .nan}\n"),
+            mentions="sigma"),
+    refused("show-config-readout-frame-time-nan", ["show-config", "bad.yaml"],
+            write("bad.yaml", "readout: {frame_time: .nan}\nsteps:\n  - unchop: {}\n"),
+            mentions="frame_time"),
+    refused("simulate-frame-time-nan", SIMULATE_BAD,
+            scene_replace("frame_overhead: 10", "frame_time: .nan"),
+            mentions="frame_time"),
+    refused("simulate-pixel-rate-zero", SIMULATE_BAD, scene_with("geometry", "pixel_rate: 0"),
+            mentions="pixel_rate"),
+    refused("simulate-photocurrent-nan", SIMULATE_BAD, scene_with("scene", "photocurrent: .nan"),
+            mentions="photocurrent"),
+    refused("simulate-dark-current-inf", SIMULATE_BAD, scene_with("scene", "dark_current: .inf"),
+            mentions="dark_current"),
+    refused("simulate-leakage-minus-1e300", SIMULATE_BAD, scene_with("scene", "leakage: -1.0e+300"),
+            mentions="leakage"),
+    refused("simulate-one-frame-slopes", [*SIMULATE_BAD, "--mode", "slopes"],
+            scene_with("readout", "nframes: 1"), mentions="nframes"),
+    refused("simulate-nframes-1e12", SIMULATE_BAD, scene_with("readout", "nframes: 1000000000000")),
+    refused("simulate-padding-1e12", SIMULATE_BAD, scene_with("synthesis", "padding: 1.0e+12")),
+    refused("simulate-frame-time-1e12", SIMULATE_BAD,
+            scene_replace("frame_overhead: 10", "frame_time: 1.0e+12")),
+    refused("sweep-realizations-1e11", ["sweep", "bad.yaml", "-o", "new.ecsv", *SERIAL],
+            write("bad.yaml", SWEEP.replace("realizations: 1", "realizations: 100000000000")),
+            mentions="realizations"),
+]
+
+
+# -- numbers on the command line ----------------------------------------------------------------
+
+def _all_zero_raw(d):
+    def change(hdul):
+        for name in ("SCI", "PHANTOM"):
+            hdul[name].data = np.zeros_like(hdul[name].data)
+    rewrite_hdus(d / "raw.fits", d / "zero.fits", change)
+
+
+CLI_NUMBERS = [
+    *[refused(f"spectrum-{opt}-{value}", [*SPECTRUM, f"--{opt}", value],
+              mentions=opt.replace("-", "[-_ ]"))
+      for opt in ("pixel-scale", "photocurrent", "integration-time") for value in ("nan", "inf")],
+    refused("spectrum-bins-1e8", [*SPECTRUM, "--bins", "100000000"], mentions="bins"),
+    refused("combine-sigma-negative", [*COMBINE, "--sigma", "-1"], mentions="sigma"),
+    refused("combine-sigma-nan", [*COMBINE, "--sigma", "nan"], mentions="sigma"),
+    refused("fit-noise-exponent-nan", [*FIT_NOISE, "--exponent", "nan"], mentions="exponent"),
+    refused("fit-noise-exponent-inf", [*FIT_NOISE, "--exponent", "inf"], mentions="exponent"),
+    refused("fit-noise-nbins-1e8", [*FIT_NOISE, "--nbins", "100000000"], mentions="nbins"),
+    refused("fit-noise-all-zero-data", ["fit-noise", "zero.fits", "-o", "fit.ecsv"],
+            _all_zero_raw),
+    refused("figures-realizations-zero", ["figures", "-o", "figs", "--quick",
+                                          "--realizations", "0"], mentions="realizations"),
+    refused("figures-workers-negative", ["figures", "-o", "figs", "--workers", "-1"],
+            mentions="workers"),
+    refused("figures-workers-zero", ["figures", "-o", "figs", "--workers", "0"],
+            mentions="workers"),
+    refused("figures-scheduler-not-a-url", ["figures", "-o", "figs", "--scheduler", "not a url"],
+            mentions="scheduler"),
+    refused("sweep-scheduler-not-a-url", ["sweep", "sweep.yaml", "-o", "new.ecsv",
+                                          "--scheduler", "not a url"], mentions="scheduler"),
+    refused("sweep-scheduler-unreachable", ["sweep", "sweep.yaml", "-o", "new.ecsv",
+                                            "--scheduler", "tcp://127.0.0.1:9"],
+            mentions="scheduler|127.0.0.1", timeout=60, marks=pytest.mark.slow),
+    refused("readout-nrows-3e8", ["readout", "--nrows", "300000000"]),
+    refused("readout-frame-time-nan", ["readout", "--frame-time", "nan"],
+            mentions="frame[-_ ]time"),
+    refused("readout-pixel-rate-zero", ["readout", "--pixel-rate", "0"],
+            mentions="pixel[-_ ]rate"),
+    refused("demo-size-huge", ["demo", "-o", "d", "--size", "1048576"]),
+]
+
+
+# -- an output must never be an input ----------------------------------------------------------
+
+DARK_CONFIG = DEFAULT_STEPS + "  - subtract_dark: {dark: red2.fits}\n"
+
+OUTPUT_IS_INPUT = [
+    refused("reduce-output-is-input", ["reduce", "raw.fits", "-c", "spherex-default", "-o",
+                                       "raw.fits", "--overwrite"]),
+    refused("reduce-output-is-input-dot-slash", ["reduce", "raw.fits", "-c", "spherex-default",
+                                                 "-o", "./raw.fits", "--overwrite"]),
+    refused("reduce-output-is-input-absolute", ["reduce", "raw.fits", "-c", "spherex-default",
+                                                "-o", "{dir}/raw.fits", "--overwrite"]),
+    refused("reduce-output-is-input-dot-dot", ["reduce", "raw.fits", "-c", "spherex-default",
+                                               "-o", "sub/../raw.fits", "--overwrite"],
+            mkdir("sub")),
+    refused("reduce-output-is-input-via-symlink", ["reduce", "lnk.fits", "-c", "spherex-default",
+                                                   "-o", "raw.fits", "--overwrite"],
+            link("lnk.fits", "raw.fits")),
+    refused("reduce-output-is-symlink-to-input", ["reduce", "raw.fits", "-c", "spherex-default",
+                                                  "-o", "lnk.fits", "--overwrite"],
+            link("lnk.fits", "raw.fits")),
+    refused("reduce-output-is-pipeline-config", ["reduce", "raw.fits", "-c", "fit.yaml", "-o",
+                                                 "fit.yaml", "--overwrite"]),
+    refused("reduce-output-is-dark", ["reduce", "raw.fits", "-c", "dark.yaml", "-o",
+                                      "red2.fits", "--overwrite"],
+            write("dark.yaml", DARK_CONFIG)),
+    refused("simulate-output-is-scene", ["simulate", "scene.yaml", "-o", "scene.yaml",
+                                         "--overwrite"]),
+    refused("spectrum-output-is-input", ["spectrum", "red.fits", "-o", "red.fits",
+                                         "--overwrite"]),
+    refused("spectrum-output-is-input-via-symlink", ["spectrum", "lnk.fits", "-o", "red.fits",
+                                                     "--overwrite"],
+            link("lnk.fits", "red.fits")),
+    refused("spectrum-plot-is-input", [*SPECTRUM, "--plot", "red.fits", "--overwrite"]),
+    refused("spectrum-output-is-compare", ["spectrum", "red.fits", "--compare", "red2.fits",
+                                           "-o", "red2.fits", "--overwrite"]),
+    refused("combine-output-is-input", ["combine", "red.fits", "red2.fits", "-o",
+                                        "./red2.fits", "--overwrite"]),
+    refused("fit-noise-output-is-input", ["fit-noise", "raw.fits", "-o", "{dir}/raw.fits",
+                                          "--overwrite"]),
+    refused("fit-noise-plot-is-input", [*FIT_NOISE, "--plot", "raw.fits", "--overwrite"]),
+    refused("readout-output-is-config", ["readout", "--config", "scene.yaml", "-o",
+                                         "scene.yaml", "--overwrite"]),
+    refused("readout-plot-is-config", ["readout", "--config", "scene.yaml", "--plot",
+                                       "scene.yaml", "--overwrite"]),
+    refused("sweep-output-is-sweep-file", ["sweep", "sweep.yaml", "-o", "sweep.yaml",
+                                           "--overwrite", *SERIAL]),
+    refused("sweep-output-is-its-scene", ["sweep", "bad.yaml", "-o", "scene.yaml",
+                                          "--overwrite", *SERIAL],
+            write("bad.yaml", "scene: scene.yaml\npipeline: spherex-default\n"
+                              "grid: {skip: [1]}\n")),
+    refused("sweep-plot-is-sweep-file", ["sweep", "sweep.yaml", "-o", "new.ecsv", "--plot",
+                                         "sweep.yaml", "--overwrite", *SERIAL]),
+]
+
+
+# -- where outputs go ----------------------------------------------------------------------------
+
+def _damage_results(kind):
+    def setup(d):
+        path = d / "res.ecsv"
+        if kind == "truncated":
+            _probe.cut(path, len(path.read_bytes()) // 2)
+        else:
+            path.write_bytes(bytes(range(256)) * 8)
+    return setup
+
+
+OUTPUT_PLACES = [
+    refused("reduce-output-existing-dir-overwrite", [*REDUCE[:-1], "outdir", "--overwrite"],
+            mkdir("outdir")),
+    refused("reduce-output-trailing-slash", [*REDUCE[:-1], "out/"]),
+    refused("simulate-output-trailing-slash", ["simulate", "scene.yaml", "-o", "out/"]),
+    refused("spectrum-output-existing-dir-overwrite", [*SPECTRUM[:-1], "outdir", "--overwrite"],
+            mkdir("outdir")),
+    refused("sweep-damaged-results-truncated", ["sweep", "sweep.yaml", "-o", "res.ecsv", *SERIAL],
+            _damage_results("truncated")),
+    refused("sweep-damaged-results-garbage", ["sweep", "sweep.yaml", "-o", "res.ecsv", *SERIAL],
+            _damage_results("garbage")),
+]
+
+
+# -- what the user sees besides errors -----------------------------------------------------------
+
+def _warning_text(line):
+    line = re.sub(r"^WARNING(:| astropy:)\s*", "", line.strip())
+    return re.sub(r"\s*\[[\w.]+\]$", "", line)
+
+
+def _check_warnings_once(d, result, run):
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert not [line for line in lines if line[0].isspace() or re.search(r"\.py:\d+:", line)], \
+        "warnings show source lines"
+    texts = [_warning_text(line) for line in lines]
+    assert len(texts) == len(set(texts)), "a warning is printed more than once"
+
+
+MESSAGES = [
+    works("combine-warnings-once", COMBINE, check=_check_warnings_once),
+]
+
+
+# -- what held when the probe ran: keep it so -----------------------------------------------------
+
+HELD = [
+    refused("reduce-missing-file", ["reduce", "none.fits", "-c", "unchop", "-o", "out.fits"]),
+    refused("reduce-zero-byte-file", REDUCE, write("raw.fits", b"")),
+    refused("reduce-not-fits", REDUCE, write("raw.fits", "this is not FITS\n" * 200)),
+    refused("reduce-header-missing-nrows", REDUCE, cards("raw.fits", NROWS=None),
+            mentions="NROWS"),
+    refused("reduce-header-rowskip-disagrees-with-readout-table", REDUCE,
+            cards("raw.fits", ROWSKIP="8")),
+    refused("reduce-wrong-shape", REDUCE, cards("raw.fits", NCOLS="128", CHANW="64")),
+    refused("reduce-config-python-tag", REDUCE_BAD,
+            write("bad.yaml", 'name: !!python/object/apply:os.system ["touch pwned"]\n'
+                              "steps:\n  - unchop: {}\n")),
+    refused("reduce-config-unknown-step", REDUCE_BAD,
+            write("bad.yaml", "steps:\n  - nosuchstep: {}\n"), mentions="nosuchstep"),
+    refused("reduce-output-exists", [*REDUCE[:-1], "red.fits"], mentions="exists"),
+    refused("simulate-scene-not-a-mapping", SIMULATE_BAD, write("bad.yaml", "- 1\n- 2\n")),
+]
+
+CASES = [*FITS_DAMAGE, *CHECKSUM_OPT_OUT, *INTEGER_DATA, *YAML, *CLI_NUMBERS, *OUTPUT_IS_INPUT,
+         *OUTPUT_PLACES, *MESSAGES, *HELD]
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_input(case, inputs, runner, tmp_path):
+    d = tmp_path / "case"
+    shutil.copytree(inputs, d, symlinks=True)
+    if case.setup is not None:
+        case.setup(d)
+    before = _probe.snapshot(d)
+    argv = [a.replace("{dir}", str(d)) for a in case.argv]
+
+    def run(more):
+        return runner.run(["-q", *more], d, timeout=case.timeout)
+
+    result = run(argv)
+    assert not result.timed_out, f"hang: {result.describe()}"
+    assert "Traceback" not in result.stderr, result.describe()
+    if case.check is not None:
+        assert result.rc == 0, result.describe()
+        case.check(d, result, run)
+        return
+    assert result.rc == 2, result.describe()
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and ERROR_LINE.match(lines[0]), \
+        f"stderr is not one error line: {result.describe()}"
+    if case.mentions:
+        assert re.search(case.mentions, lines[0], re.IGNORECASE), \
+            f"the message does not name {case.mentions!r}: {lines[0]}"
+    after = _probe.snapshot(d)
+    assert sorted(set(after) - set(before)) == [], f"new files: {result.describe()}"
+    assert sorted(set(before) - set(after)) == [], f"files gone: {result.describe()}"
+    changed = sorted(k for k in before if before[k] != after[k])
+    assert changed == [], f"changed: {changed}; {result.describe()}"
+
+
+def test_case_ids_are_unique():
+    ids = [p.id for p in CASES]
+    assert len(ids) == len(set(ids))
+    assert all(re.fullmatch(r"[a-z0-9][a-z0-9.-]*", i) for i in ids)
+
+
+def test_probe_tools(tmp_path):
+    """The damaging tools do what the cases need (a check that the probe itself is right)."""
+    path = tmp_path / "x.fits"
+    hdu = fits.ImageHDU(np.arange(12, dtype=">f4").reshape(3, 4), name="SCI")
+    fits.HDUList([fits.PrimaryHDU(), hdu]).writeto(path, checksum=True)
+    with pytest.raises(KeyError):
+        _probe.edit_cards(path, "PRIMARY", {"NROWS": "1"})
+    _probe.edit_cards(path, "SCI", {"NAXIS1": "4", "EXTNAME": "'SCI'"})
+    with fits.open(path, checksum=True) as hdul:
+        assert "CHECKSUM" not in hdul["SCI"].header and hdul["SCI"].data[2, 3] == 11
+        assert hdul["SCI"].header["EXTNAME"] == "SCI" and "CHECKSUM" in hdul[0].header
+    _, _, start, size = _probe.span(path, "SCI")
+    assert size == 2880 and start % 2880 == 0
+    flip = tmp_path / "y.fits"
+    shutil.copy(path, flip)
+    _probe.flip_byte(flip, start + 3)
+    assert fits.getdata(flip, "SCI")[0, 0] != 0
+    state = _probe.snapshot(tmp_path)
+    assert state["x.fits"] != state["y.fits"]

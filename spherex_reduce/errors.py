@@ -12,6 +12,7 @@ __all__ = [
     "ResourceError",
     "SpherexReduceError",
     "StepSkipped",
+    "UnknownNameError",
 ]
 
 
@@ -33,6 +34,17 @@ class FormatError(SpherexReduceError):
 
 class PluginError(SpherexReduceError):
     """A plugin failed to load or register; the message names the plugin."""
+
+
+class UnknownNameError(ConfigError, KeyError):
+    """A step, strategy or simulator name that no plugin registers.
+
+    Also a `KeyError` (it is a failed lookup by name); its message lists the
+    valid names and is printed without quotes.
+    """
+
+    def __str__(self):
+        return str(self.args[0]) if self.args else ""
 
 
 class ResourceError(SpherexReduceError):

@@ -36,6 +36,7 @@ file is never changed).
 
 import contextlib
 import contextvars
+import glob
 import logging
 import math
 import mmap
@@ -68,9 +69,13 @@ _RESERVED = {"PRIMARY", "SCI", "ERR", "DQ", "PHANTOM", "READOUT", "REFPIX", "REF
 class atomic_output:
     """Context manager giving a temporary path that is renamed to ``path`` on success.
 
-    Refuses to start if ``path`` exists and ``overwrite`` is False, so nothing
-    is computed only to be thrown away.  On error the temporary file is removed
-    and an existing ``path`` is left untouched.
+    Refuses to start if ``path`` exists and ``overwrite`` is False, or names a
+    directory, so nothing is computed only to be thrown away.  On error
+    (including an interrupt) the temporary file is removed and an existing
+    ``path`` is left untouched.  The temporary file, ``.NAME.PID.XXXX.tmp`` in
+    the target directory, carries the writer's process id: temporary files for
+    ``path`` left by a process that no longer runs (killed outright) are
+    removed when the next write of ``path`` starts.
 
     Examples
     --------
@@ -83,8 +88,11 @@ class atomic_output:
     """
 
     def __init__(self, path, overwrite=False):
+        text = os.fspath(path)
         self.path = Path(path)
         self.overwrite = overwrite
+        if text.endswith(("/", os.sep)) or self.path.is_dir():
+            raise IsADirectoryError(f"{text} is a directory; give a file name to write")
         if self.path.exists() and not overwrite:
             raise FileExistsError(
                 f"{self.path} exists; not overwriting it (pass overwrite=True / --overwrite)"
@@ -92,8 +100,22 @@ class atomic_output:
         if not self.path.parent.is_dir():
             raise FileNotFoundError(f"output directory {self.path.parent} does not exist")
 
+    def _remove_stale(self):
+        prefix = f".{self.path.name}."
+        for old in self.path.parent.glob(f"{glob.escape(prefix)}*.tmp"):
+            pid = old.name[len(prefix):].split(".")[0]
+            if not pid.isdigit() or int(pid) == os.getpid():
+                continue
+            try:
+                os.kill(int(pid), 0)
+            except ProcessLookupError:  # its writer is gone
+                old.unlink(missing_ok=True)
+            except (OSError, OverflowError):  # alive but not ours, or not a pid
+                pass
+
     def __enter__(self):
-        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp",
+        self._remove_stale()
+        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.{os.getpid()}.", suffix=".tmp",
                                    dir=self.path.parent)
         os.close(fd)
         os.unlink(tmp)
@@ -101,13 +123,16 @@ class atomic_output:
         return self.tmp
 
     def __exit__(self, exc_type, exc, tb):
-        if exc_type is None:
-            if self.path.exists() and not self.overwrite:
-                self.tmp.unlink(missing_ok=True)
-                raise FileExistsError(f"{self.path} appeared while writing; not overwriting it")
-            os.replace(self.tmp, self.path)
-        else:
+        try:
+            if exc_type is None:
+                if self.path.exists() and not self.overwrite:
+                    raise FileExistsError(
+                        f"{self.path} appeared while writing; not overwriting it")
+                os.replace(self.tmp, self.path)
+        finally:
             self.tmp.unlink(missing_ok=True)
+        if isinstance(exc, OSError) and exc.filename is None:
+            exc.filename = str(self.path)  # e.g. a full disk: say which output
         return False
 
 

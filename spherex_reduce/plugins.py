@@ -18,10 +18,11 @@ from dataclasses import dataclass
 import pluggy
 
 from . import hookspecs
-from .errors import PluginError
+from .errors import PluginError, UnknownNameError
 from .step import Simulator, Step, Strategy
 
-__all__ = ["BLOCK_ENV", "ENTRY_POINT_GROUP", "Registry", "get_plugin_manager", "get_registry"]
+__all__ = ["BLOCK_ENV", "ENTRY_POINT_GROUP", "Registry", "describe_plugin", "get_plugin_manager",
+           "get_registry"]
 
 ENTRY_POINT_GROUP = "spherex_reduce"
 #: Modules of the package that are plugins themselves, registered under their
@@ -40,6 +41,46 @@ def blocked_plugins(block=None):
     names = set(block or ())
     names |= {n.strip() for n in os.environ.get(BLOCK_ENV, "").split(",") if n.strip()}
     return names
+
+
+def _distribution(ep):
+    """``'name version'`` of the distribution providing entry point ``ep``, or None."""
+    dist = getattr(ep, "dist", None)
+    if dist is None:
+        return None
+    try:
+        return f"{dist.name} {dist.version}"
+    except Exception:  # a damaged METADATA file: the entry-point name will do
+        return None
+
+
+def describe_plugin(name):
+    """The plugin ``name`` for messages: with its distribution and version if installed.
+
+    Parameters
+    ----------
+    name : str
+        The plugin's name in the plugin manager (for installed plugins, the
+        entry-point name).
+
+    Returns
+    -------
+    str
+        E.g. ``"plugin 'destripe' (spherex-reduce-destripe 0.1.0)"``, or
+        ``"plugin 'builtin'"`` for a plugin that no installed distribution provides.
+
+    Examples
+    --------
+    >>> from spherex_reduce.plugins import describe_plugin
+    >>> describe_plugin("builtin")
+    "plugin 'builtin'"
+    """
+    if name not in BUILTIN_PLUGINS:
+        for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+            if ep.name == name:
+                dist = _distribution(ep)
+                return f"plugin {name!r} ({dist})" if dist else f"plugin {name!r}"
+    return f"plugin {name!r}"
 
 
 def get_plugin_manager(*, entry_points=True, block=None, plugins=()):
@@ -81,10 +122,11 @@ def get_plugin_manager(*, entry_points=True, block=None, plugins=()):
                 continue
             try:
                 obj = ep.load()
-            except Exception as exc:
+            except (Exception, SystemExit) as exc:  # sys.exit() in a plugin must not end us
+                dist = _distribution(ep)
                 raise PluginError(
-                    f"plugin {ep.name!r} ({ep.value}) failed to load: {type(exc).__name__}: "
-                    f"{exc}. Block it with {BLOCK_ENV}={ep.name}"
+                    f"plugin {ep.name!r} ({f'{dist}, ' if dist else ''}{ep.value}) failed to "
+                    f"load: {type(exc).__name__}: {exc}. Block it with {BLOCK_ENV}={ep.name}"
                 ) from exc
             _register(pm, obj, ep.name)
     for obj in plugins:
@@ -161,9 +203,10 @@ class Registry:
             plugin = self.pm.get_name(impl.plugin) or repr(impl.plugin)
             try:
                 items = impl.function() or []
-            except Exception as exc:
+            except (Exception, SystemExit) as exc:
                 raise PluginError(
-                    f"plugin {plugin!r} failed in {hook}: {type(exc).__name__}: {exc}"
+                    f"{describe_plugin(plugin)} failed in {hook}: {type(exc).__name__}: {exc}. "
+                    f"Block it with {BLOCK_ENV}={plugin}"
                 ) from exc
             for cls in items:
                 if not (inspect.isclass(cls) and issubclass(cls, base)) or not cls.name:
@@ -202,29 +245,32 @@ class Registry:
         }
 
     def step(self, name):
-        """The step class called ``name``; `KeyError` lists the valid names."""
+        """The step class called ``name``; `~spherex_reduce.errors.UnknownNameError` (a
+        `KeyError`) lists the valid names."""
         try:
             return self.steps[name].obj
         except KeyError:
-            raise KeyError(f"unknown step {name!r}; valid: {', '.join(sorted(self.steps))}") \
-                from None
+            raise UnknownNameError(
+                f"unknown step {name!r}; valid: {', '.join(sorted(self.steps))}") from None
 
     def strategy(self, kind, name):
-        """The strategy class ``name`` of ``kind``; `KeyError` lists the valid names."""
+        """The strategy class ``name`` of ``kind``; `~spherex_reduce.errors.UnknownNameError`
+        lists the valid names."""
         options = self.strategies.get(kind, {})
         try:
             return options[name].obj
         except KeyError:
-            raise KeyError(
+            raise UnknownNameError(
                 f"unknown {kind} strategy {name!r}; valid: {', '.join(sorted(options)) or 'none'}"
             ) from None
 
     def simulator(self, name):
-        """The simulator class ``name``; `KeyError` lists the valid names."""
+        """The simulator class ``name``; `~spherex_reduce.errors.UnknownNameError` lists the
+        valid names."""
         try:
             return self.simulators[name].obj
         except KeyError:
-            raise KeyError(
+            raise UnknownNameError(
                 f"unknown simulator {name!r}; valid: {', '.join(sorted(self.simulators)) or 'none'}"
             ) from None
 

@@ -384,6 +384,7 @@ def test_streaming_errors_reach_the_caller_and_leave_no_thread(raw, steps, messa
     # the accumulator runs in a thread of its own; its errors and the steps' errors
     # must still stop the run, in the caller, without leaving that thread behind
     pipe = Pipeline({"steps": steps}, registry=registry_with(FailingPlugin()))
-    with pytest.raises(RuntimeError, match=message):
+    with pytest.raises(PluginError, match=message) as info:  # a plugin's failure, named
         pipe.run(raw)
+    assert isinstance(info.value.__cause__, RuntimeError)
     assert _accumulating_threads() == []

@@ -2,13 +2,19 @@
 
 Each subcommand lives in its own module exposing ``add_parser(subparsers)``;
 :data:`COMMANDS` lists them in the order ``--help`` shows.  Exit codes: 0 ok,
-2 usage or input error (one line on stderr, no traceback), 1 unexpected failure.
+2 usage, input or environment error (one line on stderr, no traceback: bad
+input, a failing plugin, a full disk or read-only file system), 1 unexpected
+failure (a bug), 130 interrupted, 143 terminated (SIGTERM).
 """
 
 import argparse
+import contextlib
+import errno
 import importlib
 import logging
+import signal
 import sys
+import warnings
 
 from .._version import __version__
 from ..errors import SpherexReduceError
@@ -24,11 +30,74 @@ READS_FITS = ("reduce", "combine", "spectrum", "fit-noise")
 
 #: Errors caused by the user's input: exit code 2, one line, no traceback.
 INPUT_ERRORS = (SpherexReduceError, FileNotFoundError, FileExistsError, IsADirectoryError,
-                NotADirectoryError, PermissionError, KeyError)
+                NotADirectoryError, PermissionError)
+
+#: Errors of the machine, not of the package (a full disk, a read-only file
+#: system): exit code 2, one line naming the path and the reason.
+ENVIRONMENT_ERRNOS = frozenset(getattr(errno, name) for name in (
+    "EROFS", "ENOSPC", "EDQUOT", "EACCES", "EPERM", "EFBIG", "EIO", "EMFILE", "ENFILE",
+    "ENAMETOOLONG", "ELOOP", "EXDEV", "ETXTBSY", "ENODEV", "ENXIO") if hasattr(errno, name))
+
+
+class Terminated(BaseException):
+    """SIGTERM, raised in the main thread so that temporary files are removed."""
+
+
+def _terminate(signum, frame):
+    raise Terminated()
+
+
+def _message(exc):
+    """One line for an input or environment error."""
+    if isinstance(exc, OSError) and exc.strerror and exc.filename is not None:
+        return f"{exc.filename}: {exc.strerror}"
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+@contextlib.contextmanager
+def _one_line_warnings(command):
+    """Show each distinct warning once, as one line ``spherex-reduce CMD: warning: ...``.
+
+    Replaces the default display (file, line and source of the warning) and
+    astropy's, which is also logged, so each warning would appear twice.
+    """
+    seen = set()
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        text = " ".join(str(message).split())
+        if (category, text) in seen:
+            return
+        seen.add((category, text))
+        print(f"spherex-reduce {command}: warning: {text}", file=file or sys.stderr)
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        yield
+
+
+@contextlib.contextmanager
+def _sigterm_raises():
+    """Turn SIGTERM into `Terminated` while a command runs (main thread only)."""
+    try:
+        old = signal.signal(signal.SIGTERM, _terminate)
+    except ValueError:  # not the main thread: leave signals alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+class _Parser(argparse.ArgumentParser):
+    """Usage errors as one line naming the command and option (exit 2)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def build_parser():
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="spherex-reduce",
         description="Simulate, reduce and measure the readout noise of H2RG detector arrays.",
     )
@@ -50,30 +119,49 @@ def build_parser():
 def main(argv=None):
     """Run the command line; returns the exit code."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help and --version exit 0 as argparse does
+        if exc.code == 2:
+            return 2
+        raise
     if args.command is None:
         parser.print_help()
         return 2
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     try:
-        with checksum_policy(verify=not getattr(args, "ignore_checksum", False)):
+        with _sigterm_raises(), _one_line_warnings(args.command), \
+                checksum_policy(verify=not getattr(args, "ignore_checksum", False)):
             return args.func(args) or 0
     except INPUT_ERRORS as exc:
         if args.debug:
             raise
-        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
-        print(f"spherex-reduce {args.command}: error: {msg}", file=sys.stderr)
+        print(f"spherex-reduce {args.command}: error: {_message(exc)}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        if args.debug:
+            raise
+        if exc.errno not in ENVIRONMENT_ERRNOS:
+            return _unexpected(args, exc)
+        print(f"spherex-reduce {args.command}: error: {_message(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("spherex-reduce: interrupted", file=sys.stderr)
         return 130
+    except Terminated:
+        print("spherex-reduce: terminated", file=sys.stderr)
+        return 128 + signal.SIGTERM
     except Exception as exc:
         if args.debug:
             raise
-        print(f"spherex-reduce {args.command}: unexpected failure: {type(exc).__name__}: {exc} "
-              "(run with --debug for the traceback)", file=sys.stderr)
-        return 1
+        return _unexpected(args, exc)
+
+
+def _unexpected(args, exc):
+    print(f"spherex-reduce {args.command}: unexpected failure: {type(exc).__name__}: {exc} "
+          "(run with --debug for the traceback)", file=sys.stderr)
+    return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

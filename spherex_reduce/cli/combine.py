@@ -2,6 +2,7 @@
 
 from ..fits_format import atomic_output, read, write
 from ..steps.dark import COMBINE_METHODS, combine_darks
+from ._common import check_paths, nonnegative_float
 
 
 def add_parser(sub):
@@ -13,7 +14,7 @@ def add_parser(sub):
     p.add_argument("inputs", nargs="+", metavar="IN.fits")
     p.add_argument("-o", "--output", required=True, metavar="MASTER.fits")
     p.add_argument("--method", choices=COMBINE_METHODS, default="average")
-    p.add_argument("--sigma", type=float, default=3.0,
+    p.add_argument("--sigma", type=nonnegative_float, default=3.0,
                    help="clip each pixel at this many standard deviations across the "
                    "inputs (0: no clipping; default 3)")
     p.add_argument("--overwrite", action="store_true", help="replace MASTER.fits if it exists")
@@ -21,6 +22,7 @@ def add_parser(sub):
 
 
 def run(args):
+    check_paths(args.inputs, [args.output])
     atomic_output(args.output, args.overwrite)  # refuse before reading anything
     exposures = [read(path) for path in args.inputs]
     master = combine_darks(exposures, method=args.method, sigma=args.sigma)

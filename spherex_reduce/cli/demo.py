@@ -2,6 +2,8 @@
 
 from pathlib import Path
 
+from ._common import count
+
 
 def add_parser(sub):
     p = sub.add_parser(
@@ -11,9 +13,10 @@ def add_parser(sub):
         "power spectra (ECSV) and plots to a directory. Full size writes about 2.5 GB.")
     p.add_argument("-o", "--output", default="spherex-demo", metavar="DIR",
                    help="output directory (default: %(default)s)")
-    p.add_argument("--size", type=int, default=2048,
+    p.add_argument("--size", type=count(2**16), default=2048,
                    help="array size in pixels, a multiple of 64 (default: %(default)s)")
-    p.add_argument("--nframes", type=int, default=74, help="frames up the ramp (default: 74)")
+    p.add_argument("--nframes", type=count(10_000), default=74,
+                   help="frames up the ramp (default: 74)")
     p.add_argument("--seed", type=int, default=2024, help="simulation seed")
     p.add_argument("--overwrite", action="store_true", help="replace files in DIR")
     p.set_defaults(func=run)
@@ -22,11 +25,14 @@ def add_parser(sub):
 def run(args):
     from ..demo import run_demo
     from ..errors import SpherexReduceError
+    from ..limits import check_size
 
     if args.size < 64 or args.size % 64:
         raise SpherexReduceError(f"--size must be a multiple of 64, >= 64; got {args.size}")
     if args.nframes < 2:
         raise SpherexReduceError(f"--nframes must be >= 2 to fit a slope; got {args.nframes}")
+    # a few float64 images of the array at once (the ramps are streamed frame by frame)
+    check_size(8 * 8 * args.size**2, f"--size {args.size} (a {args.size} x {args.size} array)")
     for line in run_demo(Path(args.output), overwrite=args.overwrite, progress=not args.quiet,
                          size=args.size, nframes=args.nframes, seed=args.seed):
         print(line, flush=True)

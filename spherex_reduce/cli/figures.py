@@ -1,5 +1,6 @@
 """``spherex-reduce figures``: reproduce the paper's simulated figures with a report."""
 
+from ._common import check_scheduler, count
 
 
 def add_parser(sub):
@@ -11,11 +12,12 @@ def add_parser(sub):
         "LocalCluster; --quick runs a reduced version in under a minute.")
     p.add_argument("-o", "--output", required=True, metavar="DIR")
     p.add_argument("--quick", action="store_true", help="reduced sizes, serial, < 1 minute")
-    p.add_argument("--realizations", type=int, default=None,
+    p.add_argument("--realizations", type=count(1000), default=None,
                    help="realisations per point (default 5; 1 with --quick)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="dask scheduler address; 'serial' runs in-process")
-    p.add_argument("--workers", type=int, default=2, help="LocalCluster worker processes")
+    p.add_argument("--workers", type=count(256), default=2,
+                   help="LocalCluster worker processes (default 2)")
     p.add_argument("--overwrite", action="store_true", help="replace files in DIR")
     p.set_defaults(func=run)
 
@@ -23,6 +25,7 @@ def add_parser(sub):
 def run(args):
     from ..analysis.figures import make_figures
 
+    check_scheduler(args.scheduler)  # fail fast, not after dask's 30 s timeout
     if not args.verbose:  # dask's INFO lines about workers and connections
         from ..analysis.sweep import quiet_dask_logs
 

@@ -3,6 +3,10 @@
 from pathlib import Path
 
 from ..fits_format import atomic_output
+from ._common import all_or_nothing, check_paths, count, positive_float
+
+#: More log bins than this resolve nothing a Welch PSD holds, and take minutes.
+MAX_BINS = 1000
 
 
 def add_parser(sub):
@@ -17,12 +21,13 @@ def add_parser(sub):
     p.add_argument("-o", "--output", required=True, metavar="FIT.ecsv")
     p.add_argument("--plot", nargs="?", const=True, metavar="PNG",
                    help="draw the PSDs and fits (default name: the output with .png)")
-    p.add_argument("--exponent", type=float, default=1.3,
+    p.add_argument("--exponent", type=positive_float, default=1.3,
                    help="exponent of the third term (default 1.3, the paper's)")
     p.add_argument("--fit-exponent", action="store_true",
                    help="fit the exponent too (per stream, error from Δχ² = 1)")
-    p.add_argument("--nbins", type=int, default=30, help="log frequency bins per spectrum")
-    p.add_argument("--nperseg", type=int, default=None,
+    p.add_argument("--nbins", type=count(MAX_BINS), default=30,
+                   help=f"log frequency bins per spectrum (default 30, at most {MAX_BINS})")
+    p.add_argument("--nperseg", type=count(2**24), default=None,
                    help="Welch segment length in row reads (default: a power of two <= reads "
                    "per frame)")
     p.add_argument("--no-acn", dest="acn", action="store_false",
@@ -39,13 +44,12 @@ def run(args):
     plot = args.plot
     if plot is True:
         plot = str(Path(args.output).with_suffix(".png"))
+    check_paths([args.input], [args.output, plot])
     for path in (args.output, plot):
         if path:
             atomic_output(path, args.overwrite)
     from ..errors import SpherexReduceError
 
-    if args.nbins < 1:
-        raise SpherexReduceError(f"--nbins must be >= 1, got {args.nbins}")
     if args.nperseg is not None and args.nperseg < 4:
         raise SpherexReduceError(f"--nperseg must be >= 4 row reads, got {args.nperseg}")
     exposure = read(args.input)
@@ -56,8 +60,15 @@ def run(args):
     table.meta["source"] = str(args.input)
     if "SXRCKBAD" in exposure.header:  # read with --ignore-checksum: say so in the output
         table.meta["input_checksum_failed"] = str(exposure.header["SXRCKBAD"])
-    with atomic_output(args.output, args.overwrite) as tmp:
+    with all_or_nothing([args.output, plot], args.overwrite) as (tmp, tmp_plot):
         table.write(tmp, format="ascii.ecsv")
+        if plot:
+            from ..analysis.plots import plot_noise_fit
+            from ..plotting import save_figure
+
+            label = "fitted" if exponent is None else exponent
+            save_figure(plot_noise_fit(fits_, title=f"{Path(args.input).name}: stream PSDs "
+                                       f"and fits (exponent {label})"), tmp_plot)
     for row in table:
         print(f"{row['stream']:>9}: alpha = {row['alpha']:.3g} ± {row['alpha_err']:.2g}, "
               f"beta = {row['beta']:.3g} ± {row['beta_err']:.2g}, "
@@ -67,10 +78,4 @@ def run(args):
               + f"(chi2/dof = {row['chi2']:.1f}/{row['dof']})")
     print(f"wrote {args.output}")
     if plot:
-        from ..analysis.plots import plot_noise_fit
-        from ..plotting import save_figure
-
-        label = "fitted" if exponent is None else exponent
-        save_figure(plot_noise_fit(fits_, title=f"{Path(args.input).name}: stream PSDs and "
-                                   f"fits (exponent {label})"), plot, args.overwrite)
         print(f"wrote {plot}")

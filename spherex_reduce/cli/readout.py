@@ -3,17 +3,21 @@
 from ..config import GEOMETRY_PARAMETERS, READOUT_PARAMETERS, load_yaml, schedule_from_config
 from ..fits_format import atomic_output
 from ..schedule import DEFAULT_FRAME_OVERHEAD
+from ._common import all_or_nothing, check_paths, count, positive_float
 
-OPTIONS = [  # (flag, YAML section, key, type)
-    ("--nrows", "geometry", "nrows", int), ("--ncols", "geometry", "ncols", int),
-    ("--nchannels", "geometry", "nchannels", int), ("--ref-border", "geometry", "ref_border", int),
-    ("--scan", "geometry", "scan", str), ("--pixel-rate", "geometry", "pixel_rate", float),
-    ("--skip", "readout", "skip", int), ("--ref-reads", "readout", "ref_reads", int),
+OPTIONS = [  # (flag, YAML section, key, type); counts bounded by what a schedule can hold
+    ("--nrows", "geometry", "nrows", count(2**16)), ("--ncols", "geometry", "ncols", count(2**16)),
+    ("--nchannels", "geometry", "nchannels", count(2**12)),
+    ("--ref-border", "geometry", "ref_border", count(2**10, minimum=0)),
+    ("--scan", "geometry", "scan", str), ("--pixel-rate", "geometry", "pixel_rate", positive_float),
+    ("--skip", "readout", "skip", count(2**16)),
+    ("--ref-reads", "readout", "ref_reads", count(2**16, minimum=0)),
     ("--ref-mode", "readout", "ref_mode", str),
-    ("--phantom-reads", "readout", "phantom_reads", int),
-    ("--row-overhead", "readout", "row_overhead", int),
-    ("--frame-overhead", "readout", "frame_overhead", int),
-    ("--nframes", "readout", "nframes", int), ("--frame-time", "readout", "frame_time", float),
+    ("--phantom-reads", "readout", "phantom_reads", count(2**12, minimum=0)),
+    ("--row-overhead", "readout", "row_overhead", count(2**20, minimum=0)),
+    ("--frame-overhead", "readout", "frame_overhead", count(2**30, minimum=0)),
+    ("--nframes", "readout", "nframes", count(2**20)),
+    ("--frame-time", "readout", "frame_time", positive_float),
 ]
 
 
@@ -67,17 +71,19 @@ def schedule_from_args(args):
 
 
 def run(args):
+    check_paths([args.config], [args.output, args.plot])
     schedule = schedule_from_args(args)
     for path in (args.output, args.plot):  # refuse early, before any work
         if path:
             atomic_output(path, args.overwrite)
     print(schedule.summary())
-    if args.output:
-        with atomic_output(args.output, args.overwrite) as tmp:
+    with all_or_nothing([args.output, args.plot], args.overwrite) as (tmp, tmp_plot):
+        if args.output:
             schedule.to_table().write(tmp, format="ascii.ecsv")
-        print(f"wrote {args.output}")
-    if args.plot:
-        from ..plotting import plot_read_order, save_figure
+        if args.plot:
+            from ..plotting import plot_read_order, save_figure
 
-        save_figure(plot_read_order(schedule), args.plot, args.overwrite)
-        print(f"wrote {args.plot}")
+            save_figure(plot_read_order(schedule), tmp_plot)
+    for path in (args.output, args.plot):
+        if path:
+            print(f"wrote {path}")

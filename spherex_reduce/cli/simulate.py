@@ -1,6 +1,7 @@
 """``spherex-reduce simulate``: simulate a scene to a FITS file."""
 
 from ..fits_format import atomic_output
+from ._common import check_paths
 
 
 def add_parser(sub):
@@ -21,6 +22,7 @@ def add_parser(sub):
 def run(args):
     from ..simulation import load_scene, simulate_to_fits
 
+    check_paths([args.scene], [args.output])
     scene = load_scene(args.scene)
     atomic_output(args.output, args.overwrite)  # refuse before computing
     mode = args.mode or scene.mode

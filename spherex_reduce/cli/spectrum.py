@@ -8,6 +8,14 @@ from astropy.table import join
 
 from ..errors import SpherexReduceError
 from ..fits_format import atomic_output
+from ._common import (
+    all_or_nothing,
+    check_paths,
+    count,
+    finite_float,
+    nonnegative_float,
+    positive_float,
+)
 
 _DEFAULT_TINT = 111.74  # s: N = 74 frames of 1.51 s (paper Table 3)
 
@@ -25,35 +33,23 @@ def add_parser(sub):
                    help="draw P(k) (default name: the output with .png)")
     p.add_argument("--compare", metavar="OTHER.fits",
                    help="a second image measured on the same bins (columns *_compare)")
-    p.add_argument("--bins", type=int, default=30, help="log-spaced k bins (default 30)")
-    p.add_argument("--pixel-scale", type=float, default=6.2, metavar="ARCSEC",
+    p.add_argument("--bins", type=count(10_000), default=30, help="log-spaced k bins (default 30)")
+    p.add_argument("--pixel-scale", type=positive_float, default=6.2, metavar="ARCSEC",
                    help="pixel scale in arcsec (default 6.2, SPHEREx)")
-    p.add_argument("--kmin", type=float, default=0.03, help="band lower edge (rad/pixel)")
-    p.add_argument("--kmax", type=float, default=0.13, help="band upper edge (rad/pixel)")
+    p.add_argument("--kmin", type=finite_float, default=0.03, help="band lower edge (rad/pixel)")
+    p.add_argument("--kmax", type=finite_float, default=0.13, help="band upper edge (rad/pixel)")
     p.add_argument("--mask-sources", action="store_true",
                    help="mask sources and hot pixels (photutils segmentation) first")
     p.add_argument("--exclude-horizontal", action="store_true",
                    help="leave out the k_y = 0 axis of the Fourier plane (paper Fig. 6)")
-    p.add_argument("--photocurrent", type=float, default=1.0, metavar="E_PER_S",
+    p.add_argument("--photocurrent", type=nonnegative_float, default=1.0, metavar="E_PER_S",
                    help="photocurrent of the photon-noise line in e/s (default 1, Zodiacal "
                    "light); 0 for none")
-    p.add_argument("--integration-time", type=float, default=None, metavar="S",
+    p.add_argument("--integration-time", type=positive_float, default=None, metavar="S",
                    help="integration time of the photon-noise line (default: from the file, "
                    f"else {_DEFAULT_TINT} s)")
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     p.set_defaults(func=run)
-
-
-def _check_args(args):
-    if args.pixel_scale <= 0:
-        raise SpherexReduceError(f"--pixel-scale must be > 0 arcsec, got {args.pixel_scale}")
-    if args.photocurrent < 0:
-        raise SpherexReduceError(f"--photocurrent must be >= 0 e/s, got {args.photocurrent}")
-    if args.integration_time is not None and args.integration_time <= 0:
-        raise SpherexReduceError(
-            f"--integration-time must be > 0 s, got {args.integration_time}")
-    if args.bins < 1:
-        raise SpherexReduceError(f"--bins must be >= 1, got {args.bins}")
 
 
 def _measure(image, args, bins=None):
@@ -85,7 +81,6 @@ def _photon(image, args):
 
 
 def run(args):
-    _check_args(args)
     from ..analysis.io import read_image
 
     if args.kmin >= args.kmax:
@@ -93,6 +88,7 @@ def run(args):
     plot = args.plot
     if plot is True:
         plot = str(Path(args.output).with_suffix(".png"))
+    check_paths([args.input, args.compare], [args.output, plot])
     for path in (args.output, plot):
         if path:
             atomic_output(path, args.overwrite)
@@ -137,17 +133,19 @@ def run(args):
                      f"{oband.unit} (ratio {ratio:.3g})")
     if photon is not None:
         lines.append(f"photon noise of {args.photocurrent:g} e/s: {photon.value:.4g} {photon.unit}")
-    with atomic_output(args.output, args.overwrite) as tmp:
+    with all_or_nothing([args.output, plot], args.overwrite) as (tmp, tmp_plot):
         table.write(tmp, format="ascii.ecsv")
+        if plot:
+            from ..analysis.plots import plot_spectra
+            from ..plotting import save_figure, unit_label
+
+            fig = plot_spectra(spectra, band=(args.kmin, args.kmax), photon=photon,
+                               photon_label=photon_label,
+                               title=f"P(k), band power {band.value:.3g} "
+                               f"{unit_label(band.unit)}",
+                               pixel_scale=args.pixel_scale * u.arcsec)
+            save_figure(fig, tmp_plot)
     lines.append(f"wrote {args.output}")
     if plot:
-        from ..analysis.plots import plot_spectra
-        from ..plotting import save_figure, unit_label
-
-        fig = plot_spectra(spectra, band=(args.kmin, args.kmax), photon=photon,
-                           photon_label=photon_label,
-                           title=f"P(k), band power {band.value:.3g} {unit_label(band.unit)}",
-                           pixel_scale=args.pixel_scale * u.arcsec)
-        save_figure(fig, plot, args.overwrite)
         lines.append(f"wrote {plot}")
     print("\n".join(lines))

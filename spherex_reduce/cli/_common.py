@@ -1,0 +1,291 @@
+"""What every command shares: checked option types, inputs vs outputs, all-or-nothing writes.
+
+Numbers given on the command line are checked by argparse ``type=`` functions
+(:func:`finite_float`, :func:`positive_float`, :func:`nonnegative_float`,
+:func:`count`), so a bad value is a usage error naming the option (exit 2)
+before any work.  :func:`check_paths` refuses an output that is one of the
+command's inputs, however either is spelled; :func:`all_or_nothing` writes a
+command's outputs together or not at all.
+"""
+
+import argparse
+import contextlib
+import math
+import os
+import socket
+
+from ..errors import ResourceError, SpherexReduceError
+from ..fits_format import atomic_output
+from ..limits import check_count
+
+__all__ = ["all_or_nothing", "check_paths", "check_scheduler", "count", "finite_float",
+           "named_files", "nonnegative_float", "positive_float"]
+
+
+def _float(text):
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
+    return value
+
+
+def finite_float(text):
+    """A finite number (not nan or inf).
+
+    Examples
+    --------
+    >>> from spherex_reduce.cli._common import finite_float
+    >>> finite_float("-1.5")
+    -1.5
+    >>> finite_float("nan")
+    Traceback (most recent call last):
+    ...
+    argparse.ArgumentTypeError: must be a finite number, got 'nan'
+    """
+    return _float(text)
+
+
+def positive_float(text):
+    """A finite number > 0.
+
+    Examples
+    --------
+    >>> from spherex_reduce.cli._common import positive_float
+    >>> positive_float("6.2")
+    6.2
+    >>> positive_float("0")
+    Traceback (most recent call last):
+    ...
+    argparse.ArgumentTypeError: must be > 0, got '0'
+    """
+    value = _float(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
+    return value
+
+
+def nonnegative_float(text):
+    """A finite number >= 0.
+
+    Examples
+    --------
+    >>> from spherex_reduce.cli._common import nonnegative_float
+    >>> nonnegative_float("0")
+    0.0
+    """
+    value = _float(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
+    return value
+
+
+def count(maximum, minimum=1):
+    """An argparse type: a whole number from ``minimum`` (0 or 1) to ``maximum``.
+
+    ``3e8`` is accepted as a whole number (and then refused if too large), so
+    the message says what is wrong with it.  The check is
+    `spherex_reduce.limits.check_count`.
+
+    Examples
+    --------
+    >>> from spherex_reduce.cli._common import count
+    >>> count(100)("30")
+    30
+    >>> count(100, minimum=0)("0")
+    0
+    >>> count(100)("1e8")
+    Traceback (most recent call last):
+    ...
+    argparse.ArgumentTypeError: must be a whole number from 1 to 100, got 100000000
+    """
+    def parse(text):
+        try:
+            value = int(text)
+        except ValueError:
+            value = _float(text)
+        if minimum == 0 and value == 0:
+            return 0
+        try:
+            return check_count(value, "", maximum)
+        except ResourceError:
+            shown = int(value) if value == int(value) else value
+            lo = 1 if minimum else 0
+            raise argparse.ArgumentTypeError(
+                f"must be a whole number from {lo} to {maximum}, got {shown}") from None
+
+    parse.__name__ = "count"  # argparse names the type in some messages
+    return parse
+
+
+def named_files(obj, _depth=0):
+    """Existing files named by strings anywhere in a config (dicts, lists, strings).
+
+    Parameters
+    ----------
+    obj : object
+        A parsed configuration, e.g. a pipeline's steps and parameters.
+
+    Returns
+    -------
+    list of str
+        Each string of ``obj`` that names an existing file (relative to the
+        current directory), e.g. a ``subtract_dark`` step's dark.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> from spherex_reduce.cli._common import named_files
+    >>> f = pathlib.Path(tempfile.mkdtemp()) / "dark.fits"
+    >>> _ = f.write_bytes(b"")
+    >>> named_files({"steps": [{"subtract_dark": {"dark": str(f)}}], "x": "no such"}) == [str(f)]
+    True
+    """
+    if _depth > 50:  # configs are shallow; a deeper one names nothing we would miss
+        return []
+    if isinstance(obj, (str, os.PathLike)):
+        text = os.fspath(obj)
+        if isinstance(text, str) and 0 < len(text) < 4096 and "\0" not in text:
+            with contextlib.suppress(OSError, ValueError):
+                if os.path.isfile(text):
+                    return [text]
+        return []
+    if isinstance(obj, dict):
+        obj = list(obj.values())
+    if isinstance(obj, (list, tuple)):
+        return [f for item in obj for f in named_files(item, _depth + 1)]
+    return []
+
+
+def _same(a, b):
+    try:
+        return os.path.samefile(a, b)
+    except (OSError, ValueError):
+        return os.path.abspath(a) == os.path.abspath(b)
+
+
+def check_paths(inputs, outputs):
+    """Refuse, before any work, an output that is an input or another output.
+
+    Paths are compared as files (`os.path.samefile`: symbolic links, ``./x``
+    and hard links are the same file) and, for files that do not exist yet, as
+    absolute paths.
+
+    Parameters
+    ----------
+    inputs : iterable of str or None
+        Every file the command reads (None entries are ignored).
+    outputs : iterable of str or None
+        Every file it writes.
+
+    Raises
+    ------
+    SpherexReduceError
+        Naming both paths.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> from spherex_reduce.cli._common import check_paths
+    >>> d = pathlib.Path(tempfile.mkdtemp())
+    >>> _ = (d / "raw.fits").write_bytes(b"")
+    >>> check_paths([d / "raw.fits"], [d / "red.fits"])
+    >>> check_paths([d / "raw.fits"], [d / "." / "raw.fits"])
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.errors.SpherexReduceError: output .../raw.fits is the input .../raw.fits; ...
+    """
+    inputs = [os.fspath(p) for p in inputs if p is not None]
+    outputs = [os.fspath(p) for p in outputs if p is not None]
+    for i, out in enumerate(outputs):
+        for src in inputs:
+            if _same(out, src):
+                raise SpherexReduceError(
+                    f"output {out} is the input {src}; writing it would destroy the input: "
+                    "choose another output")
+        for other in outputs[:i]:
+            if _same(out, other):
+                raise SpherexReduceError(
+                    f"outputs {other} and {out} are the same file; give each its own name")
+
+
+@contextlib.contextmanager
+def all_or_nothing(paths, overwrite):
+    """Temporary paths for several outputs, all renamed into place only if all were written.
+
+    Parameters
+    ----------
+    paths : sequence of str or None
+        The outputs (None: not written; its temporary path is None too).
+    overwrite : bool
+        Replace existing outputs.
+
+    Yields
+    ------
+    list of `pathlib.Path` or None
+        Where to write each output.  If the block raises, every temporary file
+        is removed and no output is touched.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> from spherex_reduce.cli._common import all_or_nothing
+    >>> d = pathlib.Path(tempfile.mkdtemp())
+    >>> try:
+    ...     with all_or_nothing([d / "a.txt", d / "b.txt"], False) as (a, b):
+    ...         _ = a.write_text("a")
+    ...         raise OSError(28, "No space left on device")
+    ... except OSError:
+    ...     pass
+    >>> sorted(p.name for p in d.iterdir())
+    []
+    """
+    with contextlib.ExitStack() as stack:
+        yield [None if p is None else stack.enter_context(atomic_output(p, overwrite))
+               for p in paths]
+
+
+def check_scheduler(address, timeout=5.0):
+    """Refuse, within ``timeout`` seconds, a dask scheduler address that is not reachable.
+
+    ``None`` and ``"serial"`` pass.  Otherwise the address must parse as a dask
+    address and, for TCP, accept a connection.
+
+    Raises
+    ------
+    SpherexReduceError
+        Naming the address and the reason.
+
+    Examples
+    --------
+    >>> from spherex_reduce.cli._common import check_scheduler
+    >>> check_scheduler("serial")
+    >>> check_scheduler("not a url")
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.errors.SpherexReduceError: --scheduler 'not a url': not a dask ...
+    """
+    if address is None or address == "serial":
+        return
+    from distributed.comm import parse_address, parse_host_port
+
+    try:
+        scheme, loc = parse_address(address)
+        host, port = parse_host_port(loc) if scheme in ("tcp", "tls") else (None, None)
+        if any(c.isspace() for c in address) or (scheme in ("tcp", "tls") and not port):
+            raise ValueError("no host:port")
+    except (ValueError, TypeError):
+        raise SpherexReduceError(
+            f"--scheduler {address!r}: not a dask scheduler address (e.g. tcp://host:8786, "
+            "or 'serial')") from None
+    if host is None:
+        return
+    try:
+        socket.create_connection((host, port), timeout=timeout).close()
+    except OSError as exc:
+        reason = exc.strerror or str(exc) or type(exc).__name__
+        raise SpherexReduceError(
+            f"--scheduler {address}: cannot connect within {timeout:g} s ({reason})") from None
+

@@ -92,7 +92,7 @@ class atomic_output:
         self.path = Path(path)
         self.overwrite = overwrite
         if text.endswith(("/", os.sep)) or self.path.is_dir():
-            raise IsADirectoryError(f"{text} is a directory; give a file name to write")
+            raise IsADirectoryError(f"{text} names a directory; give a file name to write")
         if self.path.exists() and not overwrite:
             raise FileExistsError(
                 f"{self.path} exists; not overwriting it (pass overwrite=True / --overwrite)"

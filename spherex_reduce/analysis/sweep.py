@@ -372,7 +372,13 @@ def run_sweep(sweep, output=None, *, scheduler=None, workers=None, overwrite=Fal
     if output is not None:
         output = Path(output)
         if output.exists() and not overwrite:
-            existing = Table.read(output, format="ascii.ecsv")
+            try:
+                existing = Table.read(output, format="ascii.ecsv")
+            except (ValueError, KeyError, IndexError, TypeError) as exc:  # damaged or not ECSV
+                reason = " ".join(str(exc).split())[:200]
+                raise ConfigError(
+                    f"{output} is not a sweep's results table ({type(exc).__name__}: {reason}); "
+                    "choose another output or pass overwrite") from None
             missing = [c for c in (*keys, "pipeline", "realization", "band_power")
                        if c not in existing.colnames]
             if missing:

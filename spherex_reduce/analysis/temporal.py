@@ -366,6 +366,10 @@ def _fit_fixed(spectra, exponent, fmin, fmax, nbins, fit, basis, maxiter):
             "fmin/fmax or use longer streams"
         )
     y, x, rv = np.array(ys), np.array(xs), np.array(rv)
+    if not (np.all(np.isfinite(y)) and np.max(np.abs(y)) > 0):
+        raise SpherexReduceError(
+            "the power spectrum is not finite, or zero at every frequency: no noise to fit "
+            "(is the stream constant, e.g. all zero, or not a number?)")
     var = np.maximum(y, np.max(np.abs(y)) * 1e-12) ** 2 * rv
     theta = np.zeros(len(fit))
     for _ in range(maxiter):

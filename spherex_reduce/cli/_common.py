@@ -120,19 +120,22 @@ def count(maximum, minimum=1):
     return parse
 
 
-def named_files(obj, _depth=0):
+def named_files(obj, base=None, _depth=0):
     """Existing files named by strings anywhere in a config (dicts, lists, strings).
 
     Parameters
     ----------
     obj : object
         A parsed configuration, e.g. a pipeline's steps and parameters.
+    base : str or path-like, optional
+        A directory relative paths may also be relative to (e.g. that of the
+        config file).
 
     Returns
     -------
     list of str
         Each string of ``obj`` that names an existing file (relative to the
-        current directory), e.g. a ``subtract_dark`` step's dark.
+        current directory or ``base``), e.g. a ``subtract_dark`` step's dark.
 
     Examples
     --------
@@ -147,15 +150,17 @@ def named_files(obj, _depth=0):
         return []
     if isinstance(obj, (str, os.PathLike)):
         text = os.fspath(obj)
+        found = []
         if isinstance(text, str) and 0 < len(text) < 4096 and "\0" not in text:
-            with contextlib.suppress(OSError, ValueError):
-                if os.path.isfile(text):
-                    return [text]
-        return []
+            for path in (text, None if base is None else os.path.join(base, text)):
+                with contextlib.suppress(OSError, ValueError, TypeError):
+                    if path is not None and os.path.isfile(path):
+                        found.append(path)
+        return found
     if isinstance(obj, dict):
         obj = list(obj.values())
     if isinstance(obj, (list, tuple)):
-        return [f for item in obj for f in named_files(item, _depth + 1)]
+        return [f for item in obj for f in named_files(item, base, _depth + 1)]
     return []
 
 

@@ -1,5 +1,7 @@
 """``spherex-reduce reduce``: run a pipeline config on a FITS file."""
 
+from pathlib import Path
+
 from ..fits_format import atomic_output, write
 from ..pipeline import Pipeline
 from ._common import check_paths, named_files
@@ -23,7 +25,8 @@ def add_parser(sub):
 def run(args):
     pipeline = Pipeline.from_yaml(args.config)
     # the raw file, the config file and any file the config names (e.g. a dark)
-    check_paths([args.input, args.config, *named_files(pipeline.steps)], [args.output])
+    check_paths([args.input, args.config, *named_files(pipeline.steps, Path(args.config).parent)],
+                [args.output])
     atomic_output(args.output, args.overwrite)  # refuse before reducing
     result = pipeline.run(args.input, progress=not args.quiet, fuse=args.fuse)
     write(result, args.output, overwrite=args.overwrite)

@@ -31,6 +31,7 @@ def add_parser(sub):
 
 def run(args):
     from ..analysis.sweep import load_sweep, plot_sweep, run_sweep
+    from ..config import load_yaml
 
     if not args.verbose:  # dask's INFO lines about workers and connections
         from ..analysis.sweep import quiet_dask_logs
@@ -40,7 +41,10 @@ def run(args):
     plot = args.plot
     if plot is True:
         plot = str(Path(args.output).with_suffix(".png"))
-    check_paths([args.input, *named_files(sweep.pipeline_configs)], [args.output, plot])
+    # the sweep file, and the scene and pipeline files it names
+    named = load_yaml(args.input, "sweep")[0]
+    check_paths([args.input, *named_files(named, Path(args.input).parent)],
+                [args.output, plot])
     atomic_output(args.output, True)  # checks the name and directory
     if plot:
         atomic_output(plot, True)  # checks the directory; the plot follows the results

@@ -103,13 +103,14 @@ class atomic_output:
     def _remove_stale(self):
         prefix = f".{self.path.name}."
         for old in self.path.parent.glob(f"{glob.escape(prefix)}*.tmp"):
-            pid = old.name[len(prefix):].split(".")[0]
-            if not pid.isdigit() or int(pid) == os.getpid():
-                continue
+            parts = old.name[len(prefix):-len(".tmp")].split(".")
+            if len(parts) != 2 or not parts[0].isdigit() or int(parts[0]) == os.getpid():
+                continue  # not ours (e.g. of an output "NAME.1"), or this process's
             try:
-                os.kill(int(pid), 0)
+                os.kill(int(parts[0]), 0)
             except ProcessLookupError:  # its writer is gone
-                old.unlink(missing_ok=True)
+                with contextlib.suppress(OSError):  # a clean-up: never a reason to fail
+                    old.unlink()
             except (OSError, OverflowError):  # alive but not ours, or not a pid
                 pass
 

@@ -62,6 +62,8 @@ def _one_line_warnings(command):
     astropy's, which is also logged, so each warning would appear twice.
     """
     seen = set()
+    astropy_log = logging.getLogger("astropy")  # has a handler of its own: not the root's too
+    propagate, astropy_log.propagate = astropy_log.propagate, False
 
     def show(message, category, filename, lineno, file=None, line=None):
         text = " ".join(str(message).split())
@@ -70,9 +72,12 @@ def _one_line_warnings(command):
         seen.add((category, text))
         print(f"spherex-reduce {command}: warning: {text}", file=file or sys.stderr)
 
-    with warnings.catch_warnings():
-        warnings.showwarning = show
-        yield
+    try:
+        with warnings.catch_warnings():
+            warnings.showwarning = show
+            yield
+    finally:
+        astropy_log.propagate = propagate
 
 
 @contextlib.contextmanager

@@ -116,8 +116,12 @@ class atomic_output:
 
     def __enter__(self):
         self._remove_stale()
-        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.{os.getpid()}.", suffix=".tmp",
-                                   dir=self.path.parent)
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.{os.getpid()}.",
+                                       suffix=".tmp", dir=self.path.parent)
+        except OSError as exc:  # e.g. a read-only file system: say which output
+            exc.filename = str(self.path)
+            raise
         os.close(fd)
         os.unlink(tmp)
         self.tmp = Path(tmp)
@@ -132,7 +136,8 @@ class atomic_output:
                 os.replace(self.tmp, self.path)
         finally:
             self.tmp.unlink(missing_ok=True)
-        if isinstance(exc, OSError) and exc.errno is not None and exc.filename is None:
+        if isinstance(exc, OSError) and exc.errno is not None and (
+                exc.filename is None or os.fspath(exc.filename) == str(self.tmp)):
             exc.filename = str(self.path)  # e.g. a full disk: say which output
         return False
 

@@ -271,12 +271,12 @@ def test_full_disk_is_an_environment_error_naming_the_output(files, tmp_path, mo
 def test_read_only_file_system_is_an_environment_error(files, tmp_path, monkeypatch, capsys):
     import tempfile
 
-    def read_only(*args, **kwargs):
-        raise OSError(errno.EROFS, "Read-only file system", str(tmp_path / "x"))
+    def read_only(*args, dir=None, **kwargs):
+        raise OSError(errno.EROFS, "Read-only file system", str(dir / ".s.ecsv.1.x.tmp"))
 
     monkeypatch.setattr(tempfile, "mkstemp", read_only)
     assert run("-q", "readout", "-o", tmp_path / "s.ecsv") == 2
-    one_line_error(capsys, "Read-only file system")
+    one_line_error(capsys, f"{tmp_path / 's.ecsv'}: Read-only file system")
 
 
 @pytest.mark.parametrize("fail", ["table", "plot"])

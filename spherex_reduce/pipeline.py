@@ -2,7 +2,6 @@
 
 import copy
 import hashlib
-import inspect
 import json
 import queue
 import threading
@@ -22,12 +21,12 @@ from .config import (
     schedule_from_config,
     section_values,
 )
-from .errors import ConfigError, PluginError, SpherexReduceError, StepSkipped
+from .errors import ConfigError, SpherexReduceError, StepSkipped
 from .exposure import Exposure
 from .fits_format import FrameReader, is_raw_ramp_file, read
 from .fused import fused_plan
 from .parameters import Parameter, validate_parameters
-from .plugins import BLOCK_ENV, BUILTIN_PLUGINS, Registry, describe_plugin
+from .plugins import Registry, blame_plugin
 from .step import Step
 
 __all__ = ["Pipeline"]
@@ -217,45 +216,10 @@ class Pipeline:
         except SpherexReduceError:
             raise
         except (Exception, SystemExit) as exc:
-            blame = self._blame(exc)
+            blame = blame_plugin(exc, self.registry)
             if blame is None:
                 raise
             raise blame from exc
-
-    def _blame(self, exc):
-        """A `PluginError` naming the installed plugin whose code raised ``exc``, or None.
-
-        The plugin is the owner of the innermost frame of the traceback that lies
-        in a package of a plugin other than the built-in ones; the step is the
-        innermost step whose method is on the traceback.
-        """
-        owners = {}  # top-level package of a plugin's code -> plugin name
-        for name, plugin in self.registry.pm.list_name_plugin():
-            if plugin is None or name in BUILTIN_PLUGINS:
-                continue
-            module = plugin.__name__ if inspect.ismodule(plugin) else type(plugin).__module__
-            owners.setdefault(module.split(".")[0], name)
-        for regs in (self.registry.steps, *self.registry.strategies.values()):
-            for reg in regs.values():
-                if reg.plugin not in BUILTIN_PLUGINS:
-                    owners.setdefault(reg.obj.__module__.split(".")[0], reg.plugin)
-        owners.pop(__name__.split(".")[0], None)  # this package's own code is not a plugin
-        culprit = step = None
-        tb = exc.__traceback__
-        while tb is not None:
-            frame = tb.tb_frame
-            top = str(frame.f_globals.get("__name__", "")).split(".")[0]
-            culprit = owners.get(top, culprit)
-            this = frame.f_locals.get("self")
-            if isinstance(this, Step):
-                step = this.name
-            tb = tb.tb_next
-        if culprit is None:
-            return None
-        where = f" in step {step!r}" if step else ""
-        return PluginError(f"{describe_plugin(culprit)} failed{where}: {type(exc).__name__}: "
-                           f"{exc}. Report it to the plugin's authors, or block it with "
-                           f"{BLOCK_ENV}={culprit}")
 
     def _run(self, exposure, progress, stream, fuse):
         steps = [(name, params, self.registry.step(name)(self.registry))

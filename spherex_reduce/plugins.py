@@ -21,8 +21,8 @@ from . import hookspecs
 from .errors import PluginError, UnknownNameError
 from .step import Simulator, Step, Strategy
 
-__all__ = ["BLOCK_ENV", "ENTRY_POINT_GROUP", "Registry", "describe_plugin", "get_plugin_manager",
-           "get_registry"]
+__all__ = ["BLOCK_ENV", "ENTRY_POINT_GROUP", "Registry", "blame_plugin", "describe_plugin",
+           "get_plugin_manager", "get_registry"]
 
 ENTRY_POINT_GROUP = "spherex_reduce"
 #: Modules of the package that are plugins themselves, registered under their
@@ -282,3 +282,62 @@ def _kind_name(cls):
 def get_registry(**kwargs):
     """Shortcut: ``Registry(get_plugin_manager(**kwargs))``."""
     return Registry(get_plugin_manager(**kwargs))
+
+
+def blame_plugin(exc, registry):
+    """A `PluginError` naming the installed plugin whose code raised ``exc``, or None.
+
+    The plugin is the owner of the innermost frame of the traceback that lies
+    in the package of a plugin other than the built-in ones (its module, or
+    the module of a step or strategy it registers); the step is the innermost
+    step whose method is on the traceback.  A plugin's bug is then reported as
+    that plugin's failure, not as the user's error nor as a bug of this package.
+
+    Parameters
+    ----------
+    exc : BaseException
+        The exception, with its traceback.
+    registry : `Registry`
+        The plugins that may have raised it.
+
+    Returns
+    -------
+    `~spherex_reduce.errors.PluginError` or None
+        None if no installed plugin's code is on the traceback.
+
+    Examples
+    --------
+    >>> from spherex_reduce.plugins import blame_plugin, get_registry
+    >>> try:
+    ...     {}["x"]
+    ... except KeyError as exc:
+    ...     print(blame_plugin(exc, get_registry(entry_points=False)))
+    None
+    """
+    owners = {}  # top-level package of a plugin's code -> plugin name
+    for name, plugin in registry.pm.list_name_plugin():
+        if plugin is None or name in BUILTIN_PLUGINS:
+            continue
+        module = plugin.__name__ if inspect.ismodule(plugin) else type(plugin).__module__
+        owners.setdefault(module.split(".")[0], name)
+    for regs in (registry.steps, *registry.strategies.values()):
+        for reg in regs.values():
+            if reg.plugin not in BUILTIN_PLUGINS:
+                owners.setdefault(reg.obj.__module__.split(".")[0], reg.plugin)
+    owners.pop(__name__.split(".")[0], None)  # this package's own code is not a plugin
+    culprit = step = None
+    tb = exc.__traceback__
+    while tb is not None:
+        frame = tb.tb_frame
+        top = str(frame.f_globals.get("__name__", "")).split(".")[0]
+        culprit = owners.get(top, culprit)
+        this = frame.f_locals.get("self")
+        if isinstance(this, Step):
+            step = this.name
+        tb = tb.tb_next
+    if culprit is None:
+        return None
+    where = f" in step {step!r}" if step else ""
+    return PluginError(f"{describe_plugin(culprit)} failed{where}: {type(exc).__name__}: {exc}. "
+                       f"Report it to the plugin's authors, or block it with "
+                       f"{BLOCK_ENV}={culprit}")

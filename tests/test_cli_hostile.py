@@ -338,7 +338,7 @@ def test_warnings_are_one_line_each_and_shown_once(tmp_path):
 PLUGIN = """\
 import sys
 from spherex_reduce.hookspecs import hookimpl
-from spherex_reduce.step import Step
+from spherex_reduce.step import Simulator, Step
 
 {at_import}
 
@@ -348,9 +348,19 @@ class Explode(Step):
     def run(self, exposure):
         {in_run}
 
+class Boom(Simulator):
+    name = "boom"
+
+    def simulate(self, scene, *, mode=None, seed=None):
+        raise ZeroDivisionError("boom simulator broke")
+
 @hookimpl
 def register_steps():
     return [Explode]
+
+@hookimpl
+def register_simulators():
+    return [Boom]
 """
 
 
@@ -410,3 +420,14 @@ def test_unknown_step_is_still_a_one_line_input_error(tmp_path, capsys):
     cfg.write_text("steps:\n  - nosuch: {}\n")
     assert run("show-config", cfg) == 2
     one_line_error(capsys, "unknown step 'nosuch'; valid:")
+
+
+def test_plugin_simulator_failing_is_named(tmp_path, monkeypatch, capsys):
+    _install_plugin(tmp_path, monkeypatch)
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(SCENE + "synthesis: {simulator: boom}\n")
+    out = tmp_path / "o.fits"
+    assert run("-q", "simulate", scene, "-o", out) == 2
+    one_line_error(capsys, "plugin 'explode' (spherex-reduce-explode 0.1.0)",
+                   "ZeroDivisionError: boom simulator broke")
+    assert not out.exists()

@@ -164,9 +164,23 @@ def main(argv=None):
 
 
 def _unexpected(args, exc):
+    blame = _blame_plugin(exc)
+    if blame is not None:  # a plugin's bug (e.g. in a simulator it registers): name it
+        print(f"spherex-reduce {args.command}: error: {blame}", file=sys.stderr)
+        return 2
     print(f"spherex-reduce {args.command}: unexpected failure: {type(exc).__name__}: {exc} "
           "(run with --debug for the traceback)", file=sys.stderr)
     return 1
+
+
+def _blame_plugin(exc):
+    """The `PluginError` for an installed plugin's code on the traceback of ``exc``, or None."""
+    from ..plugins import Registry, blame_plugin
+
+    try:
+        return blame_plugin(exc, Registry())
+    except Exception:  # the plugins cannot even be listed: the error stays unexpected
+        return None
 
 
 if __name__ == "__main__":  # pragma: no cover

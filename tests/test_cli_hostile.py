@@ -318,6 +318,8 @@ def test_warnings_are_one_line_each_and_shown_once(tmp_path):
             "    for _ in range(3):\n"
             "        warnings.warn(AstropyWarning('an astropy warning'))\n"
             "        np.log(np.zeros(2))\n"
+            "    import logging\n"
+            "    logging.getLogger('spherex_reduce.x').warning('logged  by\\nus')\n"
             "    from astropy import log\n"
             "    log.warning('logged by astropy')\n"
             "    return real(args)\n"
@@ -330,6 +332,7 @@ def test_warnings_are_one_line_each_and_shown_once(tmp_path):
     assert lines == [
         "spherex-reduce readout: warning: an astropy warning",
         "spherex-reduce readout: warning: divide by zero encountered in log",
+        "spherex-reduce readout: warning: logged by us",
     ]
 
 

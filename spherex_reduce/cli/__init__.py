@@ -94,6 +94,18 @@ def _sigterm_raises():
         signal.signal(signal.SIGTERM, old)
 
 
+class _LogFormat(logging.Formatter):
+    """Logged warnings and errors as ``spherex-reduce CMD: warning: ...``, like the others."""
+
+    command = None
+
+    def format(self, record):
+        if record.levelno >= logging.WARNING and self.command:
+            text = " ".join(record.getMessage().split())
+            return f"spherex-reduce {self.command}: {record.levelname.lower()}: {text}"
+        return super().format(record)
+
+
 class _Parser(argparse.ArgumentParser):
     """Usage errors as one line naming the command and option (exit 2)."""
 
@@ -133,8 +145,11 @@ def main(argv=None):
     if args.command is None:
         parser.print_help()
         return 2
+    _LogFormat.command = args.command
+    handler = logging.StreamHandler()
+    handler.setFormatter(_LogFormat("%(levelname)s %(name)s: %(message)s"))
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
+                        handlers=[handler])
     try:
         with _sigterm_raises(), _one_line_warnings(args.command), \
                 checksum_policy(verify=not getattr(args, "ignore_checksum", False)):

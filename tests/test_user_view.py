@@ -394,7 +394,9 @@ def test_fit_noise_plot_names_streams_and_unit(demo_dir, tmp_path, monkeypatch):
 
     out, _ = demo_dir
     figs = []
-    monkeypatch.setattr(plotting, "save_figure", lambda fig, *a, **k: figs.append(fig))
+    real_save = plotting.save_figure  # still written: the outputs are renamed together
+    monkeypatch.setattr(plotting, "save_figure",
+                        lambda fig, *a, **k: (figs.append(fig), real_save(fig, *a, **k))[1])
     raw = out / "raw_chopped.fits"
     assert main(["-q", "fit-noise", str(raw), "-o", str(tmp_path / "fit.ecsv"), "--plot",
                  str(tmp_path / "fit.png")]) == 0

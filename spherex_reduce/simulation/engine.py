@@ -38,22 +38,32 @@ In slope mode the slow tiers and the phantom sequences are the same streams
 one frame (full size) the frames' fast tiers are independent, so the fast
 part of the slope image is one frame-length stream with the fast PSD times
 ``sum w_k²``; with shorter frames the fast blocks of the ramps are fitted.
+
+Small scenes take another route in slope mode (``slope_route='exact'``, chosen
+by cost): the slopes of a stream at the samples a frame reads form a Gaussian
+vector whose covariance is known exactly from the structure function
+(`~spherex_reduce.simulation.slope_covariance`), so only the pixels and
+phantom means asked for are drawn, from the Cholesky factor of that
+covariance (per component group, one factor for every stream).  Its cost
+follows the pixels per channel read, not the samples of the frame with its
+overheads, and its statistics are the analytic, aperiodic ones (no tiers, no
+padding).
 """
 
 import math
 
 import numpy as np
 import scipy.fft as sfft
-from scipy import signal, sparse
+from scipy import linalg, signal, sparse
 
 from .synthesis import covariance_from_weights, psd_weights, rng_for, synthesize
-from .variance import ls_weights
+from .variance import ls_weights, slope_covariance
 
 __all__ = ["NoiseEngine"]
 
 _SCOPE = {"channel": 0, "common": 1}
 _VIS = {"pixels": 0, "phantom": 1, "both": 2}
-TIER_A, TIER_B, TIER_FAST, TIER_PHANTOM, TIER_SLOPE_FAST = range(5)
+TIER_A, TIER_B, TIER_FAST, TIER_PHANTOM, TIER_SLOPE_FAST, TIER_EXACT = range(6)
 
 
 
@@ -218,6 +228,12 @@ class NoiseEngine:
         Make the slow-B tier and the phantom sequences window by window from
         a truncated convolution kernel, so memory does not grow with the
         exposure; by default when they would hold more than 4 M values.
+    slope_route : {'exact', 'tiered'}, optional
+        How `slopes` draws the image: ``'exact'`` from the covariance of the
+        samples read (small scenes), ``'tiered'`` from the synthesised tiers.
+        By default the cheaper one (see `slope_route`); ``'exact'`` is only
+        chosen by default for Gaussian amplitudes with at least the default
+        padding, since it is aperiodic whatever the padding.
 
     Examples
     --------
@@ -231,7 +247,8 @@ class NoiseEngine:
     """
 
     def __init__(self, schedule, components, seed=0, *, method="gaussian", padding=16.0,
-                 dtype=np.float32, oversample=16, b_reads=2, streaming=None):
+                 dtype=np.float32, oversample=16, b_reads=2, streaming=None,
+                 slope_route=None):
         self.schedule = s = schedule
         g = s.geometry
         self.fs = g.pixel_rate
@@ -270,6 +287,10 @@ class NoiseEngine:
         self._bcache = {}
         self._pcache = {}
         self._streaming = streaming
+        if slope_route not in (None, "auto", *self.SLOPE_ROUTES):
+            raise ValueError(f"slope_route must be one of {self.SLOPE_ROUTES} or None, "
+                             f"got {slope_route!r}")
+        self._slope_route = None if slope_route == "auto" else slope_route
 
     # -- layout ----------------------------------------------------------------
     def _column_maps(self):
@@ -664,8 +685,145 @@ class NoiseEngine:
         """Least-squares slope weights (1/s) of the frames."""
         return ls_weights(np.arange(self.N) * self.F / self.fs)
 
+    # -- slopes: choice of route ------------------------------------------------------------
+    SLOPE_ROUTES = ("exact", "tiered")
+    #: The exact route draws at most this many samples per stream jointly (its covariance
+    #: is a dense float64 matrix of this size squared).
+    EXACT_MAX = 3072
+
+    def _exact_kinds(self, gr):
+        """Positions (samples after a read's first pixel) drawn for each independent stream of
+        group ``gr``: ``[(pixel positions, phantom positions)]``, one pair per parity with ACN.
+
+        Pixels at ``0 ... width - 1`` (the offset of their column in the read), phantom
+        samples at ``-c ... -1``; ACN gives a position ``q`` the realisation ``q % 2``
+        (as the tiers do: column parity, and ``(i - c) % 2`` for phantom sample ``i``).
+        """
+        pix = np.arange(self.width) if gr.visibility != "phantom" else np.arange(0)
+        ph = np.arange(-self.c, 0) if gr.visibility != "pixels" else np.arange(0)
+        if gr.acn:
+            return [(pix[pix % 2 == p], ph[ph % 2 == p]) for p in (0, 1)]
+        return [(pix, ph)]
+
+    def _exact_cost(self):
+        """Rough operation count of the exact route, and its largest joint draw."""
+        nr, span = self.n_reads, self.c + self.width
+        nbasis = len({key for c in self.components for key, coef in
+                      (("alpha", c.alpha), ("beta", c.beta), (c.exponent, c.gamma)) if coef})
+        ops = 60.0 * nbasis * nr * (2 * span - 1) * (2 * self.N - 1)
+        biggest = 0
+        for gr in self.groups:
+            ns = self.nch if gr.scope == "channel" else 1
+            for pix, ph in self._exact_kinds(gr):
+                m = nr * (pix.size + (1 if ph.size else 0))
+                biggest = max(biggest, m)
+                ops += m**3 / 3 + 2.0 * m * m * ns + 4.0 * (nr * (pix.size + ph.size)) ** 2
+        return ops, biggest
+
+    def _tiered_cost(self):
+        """Rough operation count of the tiered route in slope mode (FFT synthesis)."""
+        def fft(m, ns=1):
+            return ns * m * (5 * math.log2(max(m, 2)) + 30)
+
+        _, ma, _, mb = self._slow_sizes()
+        ops = sum(fft(ma, gr.nstreams) + fft(mb, gr.nstreams) for gr in self.slow_groups)
+        nfast = sum(self.nch if scope == "channel" else 1 for scope in self._fast_psds("pixels"))
+        if self.block == 1:  # one frame-length stream (the frames' fast tiers are independent)
+            ops += fft(self._block_fft_len(), nfast)
+        else:  # the ramps' blocks, fitted
+            ops += math.ceil(self.N / self.block) * fft(self._block_fft_len(), nfast)
+            ops += 4.0 * self.N * self.n_reads * self.ncols
+        if self.c:
+            g_lag = math.ceil(2 * self.l_corr / self.rs) + 2
+            m = sfft.next_fast_len(max(4 * (g_lag * self.rs + self.c), 8 * self.l_corr, 1024))
+            ops += 2 * len(self._fast_psds("phantom")) * fft(m)
+            ops += fft(self.exposure // self.rs + 2 * g_lag, self.nch + 1)
+        return ops
+
+    @property
+    def slope_route(self):
+        """``'exact'`` or ``'tiered'``: how `slopes` draws the image.
+
+        By default the route with the smaller operation count (``_exact_cost``
+        against ``_tiered_cost``): the exact route for few pixels per channel
+        (its cost grows as their cube), the tiered one for large arrays (its
+        cost grows with the samples of a frame, overheads included).  The
+        random-phase method and paddings below the default keep the tiered
+        synthesis, whose periodicity they are there to reproduce.
+        """
+        if self._slope_route is not None:
+            return self._slope_route
+        if self.method != "gaussian" or self.padding < 16:
+            return "tiered"
+        cost, biggest = self._exact_cost()
+        if biggest > self.EXACT_MAX:
+            return "tiered"
+        return "exact" if cost < self._tiered_cost() else "tiered"
+
+    # -- slopes: exact route ---------------------------------------------------------------
+    def _exact_slopes(self):
+        """Slopes of every group drawn at the samples read, from their exact covariance."""
+        nr, c, w, nch = self.n_reads, self.c, self.width, self.nch
+        span = c + w
+        # slope covariance of one stream at lags dr * row_samples + dq (dr >= 0)
+        lags = np.abs(np.arange(nr)[:, None] * self.rs + np.arange(-(span - 1), span)[None, :])
+        cov = slope_covariance(self.components, self.schedule, lags)
+        index = {id(comp): i for i, comp in enumerate(self.components)}
+        out = np.zeros((nr, self.ncols), dtype=self.dtype)
+        ph = np.zeros((nr, nch)) if c else None
+        chan = self.col_chan
+        drs = np.arange(-(nr - 1), nr)
+        ri = np.arange(nr)
+        for gr in self.groups:
+            g = sum(cov[index[id(comp)]] for comp in gr.comps)
+            ns = nch if gr.scope == "channel" else 1
+            for kind, (pix, phq) in enumerate(self._exact_kinds(gr)):
+                q = np.concatenate([pix, phq])
+                if q.size == 0:
+                    continue
+                # variables of one read: its pixels, then the phantom mean's share
+                wmat = np.eye(pix.size, q.size)
+                if phq.size:
+                    wmat = np.vstack([wmat, np.r_[np.zeros(pix.size), np.full(phq.size, 1 / c)]])
+                dq = q[:, None] - q[None, :]
+                sgn = np.where(drs < 0, -1, 1)[:, None, None]
+                t = g[np.abs(drs)[:, None, None], sgn * dq[None] + span - 1]  # (2nr-1, k, k)
+                t = wmat @ t @ wmat.T
+                k = wmat.shape[0]
+                sigma = t[ri[:, None] - ri[None, :] + nr - 1].transpose(0, 2, 1, 3)
+                sigma = sigma.reshape(nr * k, nr * k)
+                rng = rng_for(self.entropy, TIER_EXACT, gr.gid, kind)
+                z = rng.standard_normal((nr * k, ns))
+                v = _gaussian_factor(sigma) @ z
+                v = v.reshape(nr, k, ns)
+                if pix.size:
+                    pos = np.full(w, -1)
+                    pos[pix] = np.arange(pix.size)
+                    cols = np.flatnonzero(pos[self.col_off] >= 0)
+                    st = chan[cols] if ns > 1 else np.zeros(cols.size, dtype=int)
+                    out[:, cols] += v[:, pos[self.col_off[cols]], st].astype(self.dtype)
+                if phq.size and c:
+                    ph += v[:, -1, :]
+        return out, ph
+
+    # -- slopes ----------------------------------------------------------------------------
     def slopes(self):
-        """Slope image ``(n_reads, ncols)`` (e/s) and phantom slopes ``(n_reads, nch)``."""
+        """Slope image ``(n_reads, ncols)`` (e/s) and phantom slopes ``(n_reads, nch)``.
+
+        Drawn by the route `slope_route` names; both have the statistics of
+        the least-squares fit of the frames (the exact route exactly, the
+        tiered one up to the approximations `expected_slope_variance` measures).
+        """
+        route = self.slope_route
+        if route == "exact":
+            biggest = self._exact_cost()[1]
+            if biggest > self.EXACT_MAX:
+                raise ValueError(f"slope_route='exact' would draw {biggest} samples per stream "
+                                 f"jointly (at most {self.EXACT_MAX}); use the tiered route")
+            return self._exact_slopes()
+        return self._tiered_slopes()
+
+    def _tiered_slopes(self):
         w = self.frame_weights()
         ks = range(self.N)
         out = np.zeros((self.n_reads, self.ncols), dtype=self.dtype)
@@ -698,3 +856,12 @@ class NoiseEngine:
         if self.c:
             phantom = ph + self._phantom_fast(ks, w)
         return out, phantom
+
+
+def _gaussian_factor(sigma):
+    """``L`` with ``L @ L.T = sigma``: Cholesky, or eigenvectors if ``sigma`` is singular."""
+    try:
+        return linalg.cholesky(sigma, lower=True, check_finite=False)
+    except linalg.LinAlgError:
+        val, vec = linalg.eigh(sigma, check_finite=False)
+        return vec * np.sqrt(np.clip(val, 0, None))

@@ -167,8 +167,12 @@ def slope_covariance(noise, schedule, lags):
     >>> from spherex_reduce.simulation import NoiseComponent, slope_covariance
     >>> s = ReadoutSchedule(nframes=2)
     >>> white = NoiseComponent("white", alpha=2e-3)
-    >>> [round(float(v), 3) for v in slope_covariance(white, s, [0, 1])[0]]
-    [87.715, 0.0]
+    >>> pink = NoiseComponent("pink", beta=1e-2)
+    >>> c = slope_covariance([white, pink], s, [0, 1, 100000])   # lags in samples
+    >>> round(float(c[0, 0]), 3), abs(round(float(c[0, 1]), 3))  # white: uncorrelated
+    (87.715, 0.0)
+    >>> [round(float(v), 4) for v in c[1]]                         # 1/f: correlated
+    [0.1197, 0.1052, 0.0011]
     """
     comps = _as_components(noise)
     lags = np.asarray(lags, dtype=float)

@@ -12,6 +12,7 @@ realisations, paper §3.2).  A sampled stream with this PSD has the
 per-sample white variance ``alpha * fs / 2``.
 """
 
+import functools
 import importlib.resources
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -247,15 +248,21 @@ def _g_power(z, e, cos_z=None):
     tail = zme * (-s + inv * (e * c + inv * (e * (e + 1) * s - inv * (
         e * (e + 1) * (e + 2) * c + inv * e * (e + 1) * (e + 2) * (e + 3) * s))))
     out[big] = k_e - zb * zme / (e - 1) + tail
-    for i in np.flatnonzero(~big):
-        zi = z[i]
-        if zi < 1e-6:
-            out[i] = zi ** (3 - e) / (2 * (3 - e))
-            continue
-        val, _ = integrate.quad(lambda t: (1 - np.cos(t)) * t ** (-e), 0, zi, limit=200,
-                                epsabs=0, epsrel=1e-11)
-        out[i] = val
+    small = np.flatnonzero(~big)
+    if small.size:
+        values, inverse = np.unique(z[small], return_inverse=True)
+        out[small] = np.array([_g_power_quad(float(v), float(e)) for v in values])[inverse]
     return out
+
+
+@functools.lru_cache(maxsize=4096)
+def _g_power_quad(z, e):
+    """``G_e(z)`` for ``z < 40`` by quadrature (cached: the same small lags recur)."""
+    if z < 1e-6:
+        return z ** (3 - e) / (2 * (3 - e))
+    val, _ = integrate.quad(lambda t: (1 - np.cos(t)) * t ** (-e), 0, z, limit=200,
+                            epsabs=0, epsrel=1e-11)
+    return val
 
 
 # -- tables ---------------------------------------------------------------------
@@ -269,6 +276,12 @@ def _table_path(source):
             f"({', '.join(BUILTIN_TABLES)}) nor an existing file"
         )
     return path
+
+
+@functools.cache
+def _builtin_table(name):
+    with importlib.resources.as_file(_table_path(name)) as p:
+        return Table.read(p, format="ascii.ecsv")
 
 
 def load_noise_table(source="spherex-table2"):
@@ -290,6 +303,8 @@ def load_noise_table(source="spherex-table2"):
     >>> t["alpha"].unit
     Unit("electron2 / Hz")
     """
+    if str(source) in BUILTIN_TABLES:  # parsed once per process
+        return _builtin_table(str(source)).copy()
     path = _table_path(source)
     with importlib.resources.as_file(path) as p:
         table = Table.read(p, format="ascii.ecsv")

@@ -50,6 +50,7 @@ overheads, and its statistics are the analytic, aperiodic ones (no tiers, no
 padding).
 """
 
+import collections
 import math
 
 import numpy as np
@@ -192,6 +193,9 @@ class _Group:
         self.nstreams = nch * per if self.scope == "channel" else 1
         self.colored = any(c.beta or c.gamma for c in comps)
 
+
+#: Factors of the exact slope route, by scene timing and components (least recent first).
+_EXACT_FACTORS = collections.OrderedDict()
 
 #: Streams whose spectra have at most this many bins share one generator per call.
 SHARED_BELOW = 16384
@@ -761,49 +765,75 @@ class NoiseEngine:
         return "exact" if cost < self._tiered_cost() else "tiered"
 
     # -- slopes: exact route ---------------------------------------------------------------
-    def _exact_slopes(self):
-        """Slopes of every group drawn at the samples read, from their exact covariance."""
-        nr, c, w, nch = self.n_reads, self.c, self.width, self.nch
+    def _exact_factors(self):
+        """``{(group index, kind): (factor, positions, n pixels)}`` of the exact route.
+
+        Cached by the schedule's timing and the components (`EXACT_CACHE`
+        scenes): realisations of one scene only draw.
+        """
+        key = (self.N, self.F, self.fs, self.rs, self.n_reads, self.c, self.width,
+               tuple(self.components))
+        if key in _EXACT_FACTORS:
+            _EXACT_FACTORS.move_to_end(key)
+            return _EXACT_FACTORS[key]
+        nr, c, w = self.n_reads, self.c, self.width
         span = c + w
         # slope covariance of one stream at lags dr * row_samples + dq (dr >= 0)
         lags = np.abs(np.arange(nr)[:, None] * self.rs + np.arange(-(span - 1), span)[None, :])
         cov = slope_covariance(self.components, self.schedule, lags)
         index = {id(comp): i for i, comp in enumerate(self.components)}
-        out = np.zeros((nr, self.ncols), dtype=self.dtype)
-        ph = np.zeros((nr, nch)) if c else None
-        chan = self.col_chan
         drs = np.arange(-(nr - 1), nr)
         ri = np.arange(nr)
-        for gr in self.groups:
+        factors, done = {}, {}
+        for gi, gr in enumerate(self.groups):
             g = sum(cov[index[id(comp)]] for comp in gr.comps)
-            ns = nch if gr.scope == "channel" else 1
             for kind, (pix, phq) in enumerate(self._exact_kinds(gr)):
                 q = np.concatenate([pix, phq])
                 if q.size == 0:
                     continue
-                # variables of one read: its pixels, then the phantom mean's share
-                wmat = np.eye(pix.size, q.size)
-                if phq.size:
-                    wmat = np.vstack([wmat, np.r_[np.zeros(pix.size), np.full(phq.size, 1 / c)]])
-                dq = q[:, None] - q[None, :]
-                sgn = np.where(drs < 0, -1, 1)[:, None, None]
-                t = g[np.abs(drs)[:, None, None], sgn * dq[None] + span - 1]  # (2nr-1, k, k)
-                t = wmat @ t @ wmat.T
-                k = wmat.shape[0]
-                sigma = t[ri[:, None] - ri[None, :] + nr - 1].transpose(0, 2, 1, 3)
-                sigma = sigma.reshape(nr * k, nr * k)
-                rng = rng_for(self.entropy, TIER_EXACT, gr.gid, kind)
-                z = rng.standard_normal((nr * k, ns))
-                v = _gaussian_factor(sigma) @ z
-                v = v.reshape(nr, k, ns)
-                if pix.size:
-                    pos = np.full(w, -1)
-                    pos[pix] = np.arange(pix.size)
-                    cols = np.flatnonzero(pos[self.col_off] >= 0)
-                    st = chan[cols] if ns > 1 else np.zeros(cols.size, dtype=int)
-                    out[:, cols] += v[:, pos[self.col_off[cols]], st].astype(self.dtype)
-                if phq.size and c:
-                    ph += v[:, -1, :]
+                # the even and odd streams of ACN often see the same pattern, shifted
+                pattern = (gi, pix.size, tuple(q - q.min()))
+                if pattern not in done:
+                    # variables of one read: its pixels, then the phantom mean's share
+                    wmat = np.eye(pix.size, q.size)
+                    if phq.size:
+                        wmat = np.vstack([wmat, np.r_[np.zeros(pix.size),
+                                                      np.full(phq.size, 1 / c)]])
+                    k = wmat.shape[0]
+                    # covariance of the variables of reads dr apart: (2 nr - 1, k, k)
+                    dq = q[:, None] - q[None, :]
+                    sgn = np.where(drs < 0, -1, 1)[:, None, None]
+                    t = wmat @ g[np.abs(drs)[:, None, None], sgn * dq[None] + span - 1] @ wmat.T
+                    sigma = t[ri[:, None] - ri[None, :] + nr - 1].transpose(0, 2, 1, 3)
+                    done[pattern] = _gaussian_factor(sigma.reshape(nr * k, nr * k))
+                factors[gi, kind] = (done[pattern], pix, phq.size)
+        _EXACT_FACTORS[key] = factors
+        while len(_EXACT_FACTORS) > self.EXACT_CACHE:
+            _EXACT_FACTORS.popitem(last=False)
+        return factors
+
+    #: Scenes whose exact-route factors are kept (a few MB each at most).
+    EXACT_CACHE = 8
+
+    def _exact_slopes(self):
+        """Slopes of every group drawn at the samples read, from their exact covariance."""
+        nr, w, nch = self.n_reads, self.width, self.nch
+        out = np.zeros((nr, self.ncols), dtype=self.dtype)
+        ph = np.zeros((nr, nch)) if self.c else None
+        for (gi, kind), (factor, pix, nph) in self._exact_factors().items():
+            gr = self.groups[gi]
+            ns = nch if gr.scope == "channel" else 1
+            rng = rng_for(self.entropy, TIER_EXACT, gr.gid, kind)
+            v = factor @ rng.standard_normal((factor.shape[0], ns))
+            v = v.reshape(nr, -1, ns)
+            if pix.size:
+                pos = np.full(w, -1)
+                pos[pix] = np.arange(pix.size)
+                cols = np.flatnonzero(pos[self.col_off] >= 0)
+                st = self.col_chan[cols] if ns > 1 else np.zeros(cols.size, dtype=int)
+                out[:, cols] += v[:, pos[self.col_off[cols]], st].astype(self.dtype)
+            if nph:
+                ph += v[:, -1, :]
         return out, ph
 
     # -- slopes ----------------------------------------------------------------------------

@@ -110,6 +110,7 @@ def test_slope_route_is_chosen_by_cost():
     # the paper's periodic random-phase synthesis is reproduced, never replaced
     rp = NoiseEngine(small.schedule, small.components, 0, method="random_phase", padding=1)
     assert rp.slope_route == "tiered"
+    assert simulate(small, seed=1).header["SIMROUTE"] == "exact"
     with pytest.raises(ValueError, match="slope_route"):
         NoiseEngine(small.schedule, small.components, 0, slope_route="fast")
 

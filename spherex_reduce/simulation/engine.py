@@ -655,8 +655,10 @@ class NoiseEngine:
         from the streams to the slope (interpolation, least-squares weights):
         what an infinite ensemble of this engine gives, including its
         approximations (finite padding, tier crossovers, interpolation).
-        The same in ramp and slope mode.  Compare with the aperiodic
-        `~spherex_reduce.expected_slope_variance` to measure the bias.
+        The same in ramp mode and in slope mode on the tiered route (the
+        exact route of `slopes` has the analytic variance itself).  Compare
+        with the aperiodic `~spherex_reduce.expected_slope_variance` to
+        measure the bias.
         """
         w = self.frame_weights()
         ja, ma, jb, mb = self._slow_sizes()

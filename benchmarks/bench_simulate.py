@@ -298,6 +298,19 @@ def speed_error_table(nframes_list, lines):
                  "one full-size slope image with all Table 2 terms (N = 74).")
 
 
+def _replace_section(path, section):
+    """Put ``section`` (lines, starting with its ``## `` title) into the report at ``path``,
+    replacing the section of that title or going before "## Speed against error"."""
+    text = path.read_text().splitlines()
+    title = section[0]
+    if title in text:
+        i = text.index(title)
+        j = next((m for m in range(i + 1, len(text)) if text[m].startswith("## ")), len(text))
+    else:
+        i = j = text.index("## Speed against error")
+    path.write_text("\n".join([*text[:i], *section, "", *text[j:]]) + "\n")
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="N = 8 instead of 74, no N = 386")
@@ -320,8 +333,12 @@ def main(argv=None):
     k = show(0)
     if args.small_only:
         lines.append("## Small scenes (slopes, exact route)")
+        lines.append(f"(`python benchmarks/bench_simulate.py --small-only`, {lines[1][6:]}, "
+                     f"load {os.getloadavg()[0]:.2f} at start)")
         bench_small([2, 10, 74], lines, nimages=10 if args.quick else 30, tiered=not args.quick)
         show(k)
+        if not args.no_write:
+            _replace_section(HERE / "README_simulate.md", lines[k:])
         return
     lines.append("## Ramps (full size, all Table 2 terms with ACN)")
     bench_ramps(n, lines)

@@ -68,15 +68,30 @@ def test_exact_route_covariance_is_the_analytic_one(n):
     nr, w = eng.n_reads, eng.width
     var_pix = np.zeros((nr, w))
     var_ph = np.zeros(nr)
-    for (gi, _kind), (factor, pix, nph) in eng._exact_factors().items():
+    for plan, pix, phq in eng._exact_factors().values():
+        m = nr * plan.k  # the draw is linear: unit vectors give the factor L, L L^T = Sigma
+        factor = plan.draw(np.eye(m).reshape(nr, plan.k, m)).reshape(m, m)
         d = np.sum(factor**2, axis=1).reshape(nr, -1)
         var_pix[:, pix] += d[:, :pix.size]
-        if nph:
+        if phq.size:
             var_ph += d[:, -1]
     ana = expected_slope_variance(list(sc.components), sc.schedule).value
     ana_ph = expected_slope_variance(list(sc.components), sc.schedule, kind="phantom").value
     np.testing.assert_allclose(var_pix, ana, rtol=1e-9)
     np.testing.assert_allclose(var_ph, ana_ph, rtol=1e-9)
+
+
+def test_block_levinson_draws_have_the_covariance_asked_for():
+    """The sampler against a dense block-Toeplitz covariance (a moving average of 3-vectors)."""
+    rng = np.random.default_rng(1)
+    nr, k = 12, 3
+    a = [rng.standard_normal((k, k)) * 0.7**i for i in range(30)]
+    gam = np.array([sum(a[i + h] @ a[i].T for i in range(30 - h)) for h in range(nr)])
+    full = np.block([[gam[r - c] if r >= c else gam[c - r].T for c in range(nr)]
+                     for r in range(nr)])
+    plan = engine_module._BlockLevinson(gam)
+    factor = plan.draw(np.eye(nr * k).reshape(nr, k, nr * k)).reshape(nr * k, nr * k)
+    np.testing.assert_allclose(factor @ factor.T, full, atol=1e-12 * np.abs(full).max())
 
 
 def test_slope_covariance_against_frames_of_white_and_pink_noise():

@@ -55,7 +55,7 @@ import math
 
 import numpy as np
 import scipy.fft as sfft
-from scipy import linalg, signal, sparse
+from scipy import signal, sparse
 
 from .synthesis import covariance_from_weights, psd_weights, rng_for, synthesize
 from .variance import ls_weights, slope_covariance
@@ -697,19 +697,18 @@ class NoiseEngine:
     #: is a dense float64 matrix of this size squared).
     EXACT_MAX = 3072
 
-    def _exact_kinds(self, gr):
-        """Positions (samples after a read's first pixel) drawn for each independent stream of
-        group ``gr``: ``[(pixel positions, phantom positions)]``, one pair per parity with ACN.
+    def _exact_points(self, scope):
+        """Positions (samples after a read's first pixel) that the streams of ``scope`` must
+        give: ``(pixel positions, phantom positions)``, each empty if no component of that
+        scope is seen there.
 
         Pixels at ``0 ... width - 1`` (the offset of their column in the read), phantom
-        samples at ``-c ... -1``; ACN gives a position ``q`` the realisation ``q % 2``
-        (as the tiers do: column parity, and ``(i - c) % 2`` for phantom sample ``i``).
+        samples at ``-c ... -1``.
         """
-        pix = np.arange(self.width) if gr.visibility != "phantom" else np.arange(0)
-        ph = np.arange(-self.c, 0) if gr.visibility != "pixels" else np.arange(0)
-        if gr.acn:
-            return [(pix[pix % 2 == p], ph[ph % 2 == p]) for p in (0, 1)]
-        return [(pix, ph)]
+        comps = [c for c in self.components if c.scope == scope]
+        pix = np.arange(self.width if any(c.seen_by_pixels for c in comps) else 0)
+        ph = np.arange(-self.c if any(c.seen_by_phantom for c in comps) else 0, 0)
+        return pix, ph
 
     def _exact_cost(self):
         """Rough operation count of the exact route, and its largest joint draw."""
@@ -718,12 +717,12 @@ class NoiseEngine:
                       (("alpha", c.alpha), ("beta", c.beta), (c.exponent, c.gamma)) if coef})
         ops = 60.0 * nbasis * nr * (2 * span - 1) * (2 * self.N - 1)
         biggest = 0
-        for gr in self.groups:
-            ns = self.nch if gr.scope == "channel" else 1
-            for pix, ph in self._exact_kinds(gr):
-                m = nr * (pix.size + (1 if ph.size else 0))
-                biggest = max(biggest, m)
-                ops += m**3 / 3 + 2.0 * m * m * ns + 4.0 * (nr * (pix.size + ph.size)) ** 2
+        for scope in ("channel", "common"):
+            pix, ph = self._exact_points(scope)
+            ns = self.nch if scope == "channel" else 1
+            m = nr * (pix.size + (1 if ph.size else 0))
+            biggest = max(biggest, m)
+            ops += m**3 / 3 + 2.0 * m * m * ns + 4.0 * (nr * (pix.size + ph.size)) ** 2
         return ops, biggest
 
     def _tiered_cost(self):
@@ -768,10 +767,18 @@ class NoiseEngine:
 
     # -- slopes: exact route ---------------------------------------------------------------
     def _exact_factors(self):
-        """``{(group index, kind): (factor, positions, n pixels)}`` of the exact route.
+        """``{scope: (_BlockLevinson, pixel positions, phantom positions)}`` of the exact route.
 
-        Cached by the schedule's timing and the components (`EXACT_CACHE`
-        scenes): realisations of one scene only draw.
+        Every stream of a scope (one per channel, or the common one) is drawn
+        as one Gaussian vector: the slopes at its pixel positions of every
+        read and the phantom mean of every read, a stationary sequence over
+        the reads.  Its covariance sums the
+        components of that scope: each seen only by the samples its
+        visibility names, and with ACN only between samples of the same
+        parity (independent even and odd realisations: column parity, and
+        ``(i - c) % 2`` for phantom sample ``i``, as in the tiers).  Cached
+        by the schedule's timing and the components (`EXACT_CACHE` scenes),
+        so further realisations of a scene only draw.
         """
         key = (self.N, self.F, self.fs, self.rs, self.n_reads, self.c, self.width,
                tuple(self.components))
@@ -783,32 +790,31 @@ class NoiseEngine:
         # slope covariance of one stream at lags dr * row_samples + dq (dr >= 0)
         lags = np.abs(np.arange(nr)[:, None] * self.rs + np.arange(-(span - 1), span)[None, :])
         cov = slope_covariance(self.components, self.schedule, lags)
-        index = {id(comp): i for i, comp in enumerate(self.components)}
-        drs = np.arange(-(nr - 1), nr)
-        ri = np.arange(nr)
-        factors, done = {}, {}
-        for gi, gr in enumerate(self.groups):
-            g = sum(cov[index[id(comp)]] for comp in gr.comps)
-            for kind, (pix, phq) in enumerate(self._exact_kinds(gr)):
-                q = np.concatenate([pix, phq])
-                if q.size == 0:
+        factors = {}
+        for scope in ("channel", "common"):
+            pix, phq = self._exact_points(scope)
+            q = np.concatenate([pix, phq])
+            if q.size == 0:
+                continue
+            is_pix = np.arange(q.size) < pix.size
+            same_parity = (q[:, None] % 2) == (q[None, :] % 2)
+            # covariance of the samples of read r + h with those of read r: (nr, k, k)
+            index = (np.arange(nr)[:, None, None], (q[:, None] - q[None, :])[None] + span - 1)
+            t = np.zeros((nr, q.size, q.size))
+            for i, comp in enumerate(self.components):
+                if comp.scope != scope:
                     continue
-                # the even and odd streams of ACN often see the same pattern, shifted
-                pattern = (gi, pix.size, tuple(q - q.min()))
-                if pattern not in done:
-                    # variables of one read: its pixels, then the phantom mean's share
-                    wmat = np.eye(pix.size, q.size)
-                    if phq.size:
-                        wmat = np.vstack([wmat, np.r_[np.zeros(pix.size),
-                                                      np.full(phq.size, 1 / c)]])
-                    k = wmat.shape[0]
-                    # covariance of the variables of reads dr apart: (2 nr - 1, k, k)
-                    dq = q[:, None] - q[None, :]
-                    sgn = np.where(drs < 0, -1, 1)[:, None, None]
-                    t = wmat @ g[np.abs(drs)[:, None, None], sgn * dq[None] + span - 1] @ wmat.T
-                    sigma = t[ri[:, None] - ri[None, :] + nr - 1].transpose(0, 2, 1, 3)
-                    done[pattern] = _gaussian_factor(sigma.reshape(nr * k, nr * k))
-                factors[gi, kind] = (done[pattern], pix, phq.size)
+                seen = is_pix if comp.visibility == "pixels" else (
+                    ~is_pix if comp.visibility == "phantom" else np.ones(q.size, bool))
+                mask = seen[:, None] & seen[None, :]
+                if comp.acn:
+                    mask &= same_parity
+                t += cov[i][index] * mask
+            # variables of one read: its pixels, then the mean of its phantom samples
+            wmat = np.eye(pix.size, q.size)
+            if phq.size:
+                wmat = np.vstack([wmat, np.r_[np.zeros(pix.size), np.full(phq.size, 1 / c)]])
+            factors[scope] = (_BlockLevinson(wmat @ t @ wmat.T), pix, phq)
         _EXACT_FACTORS[key] = factors
         while len(_EXACT_FACTORS) > self.EXACT_CACHE:
             _EXACT_FACTORS.popitem(last=False)
@@ -818,23 +824,18 @@ class NoiseEngine:
     EXACT_CACHE = 8
 
     def _exact_slopes(self):
-        """Slopes of every group drawn at the samples read, from their exact covariance."""
-        nr, w, nch = self.n_reads, self.width, self.nch
+        """Slopes of every stream drawn at the samples read, from their exact covariance."""
+        nr, nch = self.n_reads, self.nch
         out = np.zeros((nr, self.ncols), dtype=self.dtype)
         ph = np.zeros((nr, nch)) if self.c else None
-        for (gi, kind), (factor, pix, nph) in self._exact_factors().items():
-            gr = self.groups[gi]
-            ns = nch if gr.scope == "channel" else 1
-            rng = rng_for(self.entropy, TIER_EXACT, gr.gid, kind)
-            v = factor @ rng.standard_normal((factor.shape[0], ns))
-            v = v.reshape(nr, -1, ns)
+        for scope, (plan, pix, phq) in self._exact_factors().items():
+            ns = nch if scope == "channel" else 1
+            rng = rng_for(self.entropy, TIER_EXACT, _SCOPE[scope])
+            v = plan.draw(rng.standard_normal((nr, plan.k, ns)))
             if pix.size:
-                pos = np.full(w, -1)
-                pos[pix] = np.arange(pix.size)
-                cols = np.flatnonzero(pos[self.col_off] >= 0)
-                st = self.col_chan[cols] if ns > 1 else np.zeros(cols.size, dtype=int)
-                out[:, cols] += v[:, pos[self.col_off[cols]], st].astype(self.dtype)
-            if nph:
+                st = self.col_chan if ns > 1 else np.zeros(self.ncols, dtype=int)
+                out += v[:, self.col_off, st].astype(self.dtype)
+            if phq.size:
                 ph += v[:, -1, :]
         return out, ph
 
@@ -890,10 +891,51 @@ class NoiseEngine:
         return out, phantom
 
 
-def _gaussian_factor(sigma):
-    """``L`` with ``L @ L.T = sigma``: Cholesky, or eigenvectors if ``sigma`` is singular."""
+class _BlockLevinson:
+    """Exact draws of a stationary sequence of vectors ``v_0 ... v_{R-1}`` (``k`` values each).
+
+    ``gam[h] = Cov(v_{r+h}, v_r)``, ``h = 0 ... R - 1``, shape ``(R, k, k)``.  The
+    multivariate Durbin-Levinson recursion (Whittle 1963; Brockwell & Davis,
+    *Time Series: Theory and Methods*, Prop. 11.4.1) gives the best linear
+    predictor ``sum_j Phi_{n,j} v_{n-j}`` of each vector from the ones before and
+    the covariance ``V_n`` of its error, so ``v_n = prediction + chol(V_n) z_n``
+    has exactly the covariance asked for.  It costs ``R^2 k^3`` in small ``k x k``
+    products (never a large matrix: no threaded BLAS calls, which stall on a
+    busy machine), against ``R^3 k^3 / 3`` for the Cholesky factor of the whole.
+    """
+
+    def __init__(self, gam):
+        gam = np.asarray(gam, dtype=float)
+        nr, k, _ = gam.shape
+        self.k = k
+        fwd = bwd = gam[0]
+        phi = psi = np.zeros((0, k, k))
+        self.pred = [np.zeros((k, 0))]  # [Phi_{n,1} ... Phi_{n,n}] as (k, n k)
+        self.innov = [_small_factor(fwd)]
+        for n in range(1, nr):
+            delta = gam[n] - np.einsum("jab,jbc->ac", phi, gam[n - 1:0:-1])
+            a = np.linalg.solve(bwd.T, delta.T).T  # Phi_{n,n} = delta U^-1
+            b = np.linalg.solve(fwd.T, delta).T  # Psi_{n,n} = delta^T V^-1
+            phi, psi = (np.concatenate([phi - a @ psi[::-1], a[None]]),
+                        np.concatenate([psi - b @ phi[::-1], b[None]]))
+            fwd, bwd = fwd - a @ delta.T, bwd - b @ delta
+            self.pred.append(phi.transpose(1, 0, 2).reshape(k, n * k))
+            self.innov.append(_small_factor(fwd))
+
+    def draw(self, z):
+        """The sequence ``(R, k, ns)`` from standard normals ``z`` of that shape."""
+        v = np.empty_like(z, dtype=float)
+        for n, (pred, innov) in enumerate(zip(self.pred, self.innov, strict=True)):
+            v[n] = innov @ z[n]
+            if n:
+                v[n] += pred @ v[n - 1::-1].reshape(n * self.k, -1)
+        return v
+
+
+def _small_factor(cov):
+    """``L`` with ``L @ L.T = cov``: Cholesky, or eigenvectors if ``cov`` is singular."""
     try:
-        return linalg.cholesky(sigma, lower=True, check_finite=False)
-    except linalg.LinAlgError:
-        val, vec = linalg.eigh(sigma, check_finite=False)
+        return np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        val, vec = np.linalg.eigh((cov + cov.T) / 2)
         return vec * np.sqrt(np.clip(val, 0, None))

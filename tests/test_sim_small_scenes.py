@@ -4,7 +4,7 @@ The scene of issue 11: 64 x 64 pixels, 16 channels of 4 columns, a 2000-sample
 row overhead (frames of 178 520 samples for 88 reads of 4 pixels per channel),
 all Table 2 terms.  The tiered synthesis made every sample of every frame and
 took 1.3 s (N = 10) to 9 s (N = 74); the exact route draws the 88 x 4 pixels
-and 88 phantom means per stream from their covariance.
+and 88 phantom means per stream from their covariance (block Durbin-Levinson).
 """
 
 import time
@@ -22,16 +22,17 @@ def _scene(n, **readout):
             "readout": {"nframes": n, "row_overhead": 2000, **readout}}
 
 
-@pytest.mark.parametrize("n, nreal", [(2, 16), (10, 16), (74, 144)])
+@pytest.mark.parametrize("n, nreal", [(2, 64), (10, 64), (74, 400)])
 def test_small_scene_slope_variance_within_2_percent(n, nreal):
     """Mean square slope over the image and ``nreal`` realisations against the analytic value.
 
     The mean square of one image scatters by 1.9 % (N = 2), 2.0 % (N = 10) and
-    5.9 % (N = 74) from image to image (measured over 100, 100 and 30 images:
-    the 1/f terms of one channel, and the common terms of all, are shared by
-    many pixels), so with these ``nreal`` the standard error is <= 0.5 % and
-    2 % is >= 4 standard errors.  Phantom slopes scatter twice as much (3.7 %,
-    4.1 %, 10.5 % per image): tolerance 4 standard errors (4 %, 4.1 %, 3.5 %).
+    6.3 % (N = 74) from image to image (measured over 400 images each: the 1/f
+    terms of one channel, and the common terms of all, are shared by many
+    pixels), so with these ``nreal`` the standard error is 0.24 %, 0.25 % and
+    0.32 %: 2 % is more than 6 standard errors.  Phantom means scatter about
+    twice as much (3.7 %, 4.3 %, 12.0 % per image): tolerance 2 % or 4
+    standard errors, whichever is larger (2 %, 2.1 %, 2.4 %).
     """
     sc = load_scene(_scene(n))
     ana = expected_slope_variance(list(sc.components), sc.schedule).value
@@ -42,20 +43,21 @@ def test_small_scene_slope_variance_within_2_percent(n, nreal):
         pix.append(np.mean(np.asarray(e.data, float) ** 2))
         ph.append(np.mean(np.asarray(e.phantom, float) ** 2))
     assert np.mean(pix) / ana == pytest.approx(1, abs=0.02)
-    tol_ph = 4 * {2: 0.037, 10: 0.041, 74: 0.105}[n] / np.sqrt(nreal)
+    tol_ph = max(0.02, 4 * {2: 0.037, 10: 0.043, 74: 0.120}[n] / np.sqrt(nreal))
     assert np.mean(ph) / ana_ph == pytest.approx(1, abs=tol_ph)
 
 
 def test_small_scene_slopes_are_fast():
-    """N = 74 in process, no cached factors: < 1.5 s (it took 6.7-9.3 s, 16-29 s on a loaded
-    machine); the target of the issue, <= 0.1 s, is measured in benchmarks/bench_simulate.py."""
+    """N = 74 in process, no cached factors: < 1 s (it took 6.7-9.3 s, 30-85 s on a loaded
+    machine; now about 0.06 s); the target of the issue, <= 0.1 s, is measured in
+    benchmarks/bench_simulate.py."""
     times = []
     for seed in range(2):
         engine_module._EXACT_FACTORS.clear()
         t = time.perf_counter()
         simulate(_scene(74), seed=seed, mode="slopes")
         times.append(time.perf_counter() - t)
-    assert min(times) < 1.5, times
+    assert min(times) < 1.0, times
 
 
 @pytest.mark.parametrize("n", [2, 74])

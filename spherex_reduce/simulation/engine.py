@@ -43,11 +43,11 @@ Small scenes take another route in slope mode (``slope_route='exact'``, chosen
 by cost): the slopes of a stream at the samples a frame reads form a Gaussian
 vector whose covariance is known exactly from the structure function
 (`~spherex_reduce.simulation.slope_covariance`), so only the pixels and
-phantom means asked for are drawn, from the Cholesky factor of that
-covariance (per component group, one factor for every stream).  Its cost
-follows the pixels per channel read, not the samples of the frame with its
-overheads, and its statistics are the analytic, aperiodic ones (no tiers, no
-padding).
+phantom means asked for are drawn, exactly, by a block Durbin-Levinson
+recursion over the reads (one per scope, shared by every channel's stream).
+Its cost follows the pixels per channel read, not the samples of the frame
+with its overheads, and its statistics are the analytic, aperiodic ones (no
+tiers, no padding).
 """
 
 import collections
@@ -693,9 +693,9 @@ class NoiseEngine:
 
     # -- slopes: choice of route ------------------------------------------------------------
     SLOPE_ROUTES = ("exact", "tiered")
-    #: The exact route draws at most this many samples per stream jointly (its covariance
-    #: is a dense float64 matrix of this size squared).
-    EXACT_MAX = 3072
+    #: The exact route draws at most this many values per stream jointly (its predictors
+    #: hold half this number squared float64 values).
+    EXACT_MAX = 6144
 
     def _exact_points(self, scope):
         """Positions (samples after a read's first pixel) that the streams of ``scope`` must
@@ -715,14 +715,17 @@ class NoiseEngine:
         nr, span = self.n_reads, self.c + self.width
         nbasis = len({key for c in self.components for key, coef in
                       (("alpha", c.alpha), ("beta", c.beta), (c.exponent, c.gamma)) if coef})
-        ops = 60.0 * nbasis * nr * (2 * span - 1) * (2 * self.N - 1)
+        ops = 100.0 * nbasis * nr * (2 * span - 1) * (2 * self.N - 1)
         biggest = 0
         for scope in ("channel", "common"):
             pix, ph = self._exact_points(scope)
             ns = self.nch if scope == "channel" else 1
-            m = nr * (pix.size + (1 if ph.size else 0))
-            biggest = max(biggest, m)
-            ops += m**3 / 3 + 2.0 * m * m * ns + 4.0 * (nr * (pix.size + ph.size)) ** 2
+            k = pix.size + (1 if ph.size else 0)
+            biggest = max(biggest, nr * k)
+            # Levinson recursion and draws (k x k blocks), covariance tables, per-step overhead
+            # (numpy loops over small blocks: ~10 operations' time per multiply-add)
+            ops += (10.0 * nr * nr * (k**3 + k * k * ns) + 2e5 * nr * (k > 0)
+                    + 2.0 * nr * (pix.size + ph.size) ** 2 * len(self.components))
         return ops, biggest
 
     def _tiered_cost(self):
@@ -751,8 +754,8 @@ class NoiseEngine:
 
         By default the route with the smaller operation count (``_exact_cost``
         against ``_tiered_cost``): the exact route for few pixels per channel
-        (its cost grows as their cube), the tiered one for large arrays (its
-        cost grows with the samples of a frame, overheads included).  The
+        (its cost grows as ``reads² × (width + 1)³``), the tiered one for large
+        arrays (its cost grows with the samples of a frame, overheads included).  The
         random-phase method and paddings below the default keep the tiered
         synthesis, whose periodicity they are there to reproduce.
         """

@@ -197,7 +197,9 @@ def _d_power(lag, fs, e):
     out = np.zeros_like(lag)
     nz = lag > 0
     x = lag[nz]
-    out[nz] = 2 * (2 * np.pi * x / fs) ** (e - 1) * _g_power(np.pi * x, e, _integer_parity(x))
+    z = np.pi * x
+    z_e1 = z ** (e - 1)  # (2 pi x / fs)^(e-1) = (2 / fs)^(e-1) z^(e-1)
+    out[nz] = 2 * (2 / fs) ** (e - 1) * z_e1 * _g_power(z, e, _integer_parity(x), z_e1)
     return out.reshape(shape)
 
 
@@ -224,11 +226,12 @@ def _cin(x, cos_x=None):
     return out
 
 
-def _g_power(z, e, cos_z=None):
+def _g_power(z, e, cos_z=None, z_e1=None):
     """G_e(z) = integral_0^z (1 - cos u) u^(-e) du for 0 < e < 3, e != 1.
 
     ``cos_z``, where finite, is ``cos z`` at a multiple of pi (``sin z = 0``),
-    which spares the trigonometric functions of the asymptotic series.
+    which spares the trigonometric functions of the asymptotic series;
+    ``z_e1``, if given, is ``z**(e - 1)`` (spares a power).
     """
     z = np.atleast_1d(np.asarray(z, dtype=float))
     k_e = np.pi / (2 * special.gamma(e) * np.sin(np.pi * (e - 1) / 2))
@@ -236,7 +239,7 @@ def _g_power(z, e, cos_z=None):
     big = z >= 40
     zb = z[big]
     # tail T(z) = int_z^inf cos(u) u^-e du, asymptotic series
-    zme = zb ** (-e)
+    zme = zb ** (-e) if z_e1 is None else 1 / (np.asarray(z_e1)[big] * zb)
     inv = 1 / zb
     if cos_z is None:
         s, c = np.sin(zb), np.cos(zb)

@@ -916,7 +916,8 @@ class _BlockLevinson:
         self.pred = [np.zeros((k, 0))]  # [Phi_{n,1} ... Phi_{n,n}] as (k, n k)
         self.innov = [_small_factor(fwd)]
         for n in range(1, nr):
-            delta = gam[n] - np.einsum("jab,jbc->ac", phi, gam[n - 1:0:-1])
+            # delta = gam[n] - sum_j Phi_{n-1,j} gam[n-j]
+            delta = gam[n] - self.pred[-1] @ gam[n - 1:0:-1].reshape((n - 1) * k, k)
             a = np.linalg.solve(bwd.T, delta.T).T  # Phi_{n,n} = delta U^-1
             b = np.linalg.solve(fwd.T, delta).T  # Psi_{n,n} = delta^T V^-1
             phi, psi = (np.concatenate([phi - a @ psi[::-1], a[None]]),

@@ -208,7 +208,7 @@ def small_scene(nframes):
 SMALL_LIMIT = 0.1  # s per slope image, issue 11 target
 
 
-def bench_small(nframes_list, lines, nimages=30, tiered=True, runs=5):
+def bench_small(nframes_list, lines, nimages=200, tiered=True, runs=5):
     """Slope images of the small scene: exact route (cold and warm) against the limit.
 
     *cold*: median of ``runs`` images each made with the factor cache emptied
@@ -335,7 +335,7 @@ def main(argv=None):
         lines.append("## Small scenes (slopes, exact route)")
         lines.append(f"(`python benchmarks/bench_simulate.py --small-only`, {lines[1][6:]}, "
                      f"load {os.getloadavg()[0]:.2f} at start)")
-        bench_small([2, 10, 74], lines, nimages=10 if args.quick else 30, tiered=not args.quick)
+        bench_small([2, 10, 74], lines, nimages=20 if args.quick else 200, tiered=not args.quick)
         show(k)
         if not args.no_write:
             _replace_section(HERE / "README_simulate.md", lines[k:])
@@ -351,7 +351,7 @@ def main(argv=None):
     k = show(k)
     lines.append("")
     lines.append("## Small scenes (slopes, exact route)")
-    bench_small([2, 10, 74], lines, nimages=10 if args.quick else 30, tiered=not args.quick)
+    bench_small([2, 10, 74], lines, nimages=20 if args.quick else 200, tiered=not args.quick)
     k = show(k)
     lines.append("")
     lines.append("## Speed against error")

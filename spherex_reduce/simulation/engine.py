@@ -52,6 +52,7 @@ tiers, no padding).
 
 import collections
 import math
+import threading
 
 import numpy as np
 import scipy.fft as sfft
@@ -196,6 +197,7 @@ class _Group:
 
 #: Factors of the exact slope route, by scene timing and components (least recent first).
 _EXACT_FACTORS = collections.OrderedDict()
+_EXACT_LOCK = threading.Lock()
 
 #: Streams whose spectra have at most this many bins share one generator per call.
 SHARED_BELOW = 16384
@@ -761,7 +763,7 @@ class NoiseEngine:
         """
         if self._slope_route is not None:
             return self._slope_route
-        if self.method != "gaussian" or self.padding < 16:
+        if self.method != "gaussian" or self.padding < 16 or self.N < 2:
             return "tiered"
         cost, biggest = self._exact_cost()
         if biggest > self.EXACT_MAX:
@@ -785,9 +787,10 @@ class NoiseEngine:
         """
         key = (self.N, self.F, self.fs, self.rs, self.n_reads, self.c, self.width,
                tuple(self.components))
-        if key in _EXACT_FACTORS:
-            _EXACT_FACTORS.move_to_end(key)
-            return _EXACT_FACTORS[key]
+        with _EXACT_LOCK:
+            if key in _EXACT_FACTORS:
+                _EXACT_FACTORS.move_to_end(key)
+                return _EXACT_FACTORS[key]
         nr, c, w = self.n_reads, self.c, self.width
         span = c + w
         # slope covariance of one stream at lags dr * row_samples + dq (dr >= 0)
@@ -818,9 +821,10 @@ class NoiseEngine:
             if phq.size:
                 wmat = np.vstack([wmat, np.r_[np.zeros(pix.size), np.full(phq.size, 1 / c)]])
             factors[scope] = (_BlockLevinson(wmat @ t @ wmat.T), pix, phq)
-        _EXACT_FACTORS[key] = factors
-        while len(_EXACT_FACTORS) > self.EXACT_CACHE:
-            _EXACT_FACTORS.popitem(last=False)
+        with _EXACT_LOCK:
+            _EXACT_FACTORS[key] = factors
+            while len(_EXACT_FACTORS) > self.EXACT_CACHE:
+                _EXACT_FACTORS.popitem(last=False)
         return factors
 
     #: Scenes whose exact-route factors are kept (a few MB each at most).

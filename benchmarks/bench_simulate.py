@@ -4,6 +4,8 @@ Run from the repository root::
 
     python benchmarks/bench_simulate.py            # full run, writes README_simulate.md
     python benchmarks/bench_simulate.py --quick    # small N, for a smoke test
+    python benchmarks/bench_simulate.py --small-only   # only the small scenes (no full size);
+                                                       # replaces their section of the report
 
 Everything is measured in one process.  Peak RSS per phase comes from a thread
 sampling ``/proc/self/status`` every 10 ms (``VmRSS``), so phases do not hide

@@ -4,10 +4,18 @@ Run from the repository root::
 
     python benchmarks/bench_simulate.py            # full run, writes README_simulate.md
     python benchmarks/bench_simulate.py --quick    # small N, for a smoke test
+    python benchmarks/bench_simulate.py --small-only   # only the small scenes (no full size);
+                                                       # replaces their section of the report
 
 Everything is measured in one process.  Peak RSS per phase comes from a thread
 sampling ``/proc/self/status`` every 10 ms (``VmRSS``), so phases do not hide
 behind the process-lifetime high-water mark; ``VmHWM`` is printed as well.
+
+Small scenes (64², 16 channels, a 2000-sample row overhead: issue 11 §4) take
+the exact route of slope mode; their rows give the first image of a scene
+(nothing cached), the next images of the same scene (factors cached), the
+tiered route for comparison, and the mean square slope of many images against
+the analytic value.
 
 Errors against the analytic, aperiodic slope variance
 (`spherex_reduce.expected_slope_variance`) are computed two ways:
@@ -32,6 +40,7 @@ import numpy as np
 from spherex_reduce import expected_slope_variance, simulate
 from spherex_reduce.analysis.spectrum import band_power
 from spherex_reduce.simulation import NoiseComponent, NoiseEngine, load_scene, simulate_to_fits
+from spherex_reduce.simulation import engine as engine_module
 from spherex_reduce.simulation.variance import ls_weights
 
 HERE = Path(__file__).resolve().parent
@@ -192,6 +201,64 @@ def bench_slopes(nframes, lines, nreal=3):
     return {"slopes_time": float(np.median(times)), "rss": mem.peak}
 
 
+def small_scene(nframes):
+    """The issue's small scene: 64 x 64, 16 channels of 4 columns, row overhead 2000 samples."""
+    return {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 16},
+            "readout": {"nframes": nframes, "row_overhead": 2000}}
+
+
+SMALL_LIMIT = 0.1  # s per slope image, issue 11 target
+
+
+def bench_small(nframes_list, lines, nimages=200, tiered=True, runs=5):
+    """Slope images of the small scene: exact route (cold and warm) against the limit.
+
+    *cold*: median of ``runs`` images each made with the factor cache emptied
+    (what a new scene costs); *warm*: median per image over ``nimages`` images
+    of one scene with different seeds (a sweep over realisations).  The error
+    is the mean square slope of the ``nimages`` images against
+    `expected_slope_variance`, with its standard error (image-to-image scatter
+    / sqrt(nimages)).  The tiered route (the only route before) is timed once.
+    """
+    lines.append("")
+    lines.append("| scene | route | ours, first image (s) | ours, next images (s) | limit (s) "
+                 "| ratio (first / limit) | tiered route (s) | mean square / analytic − 1 |")
+    lines.append("|---|---|---|---|---|---|---|---|")
+    for n in nframes_list:
+        sc = load_scene(small_scene(n))
+        ana = expected_slope_variance(list(sc.components), sc.schedule).value
+        route = NoiseEngine(sc.schedule, sc.components, 0).slope_route
+        cold = []
+        for k in range(runs):
+            engine_module._EXACT_FACTORS.clear()
+            t = time.perf_counter()
+            simulate(small_scene(n), seed=1000 + k, mode="slopes")
+            cold.append(time.perf_counter() - t)
+        ms = []
+        t = time.perf_counter()
+        for k in range(nimages):
+            e = simulate(small_scene(n), seed=k, mode="slopes")
+            ms.append(np.mean(np.asarray(e.data, float) ** 2) / ana)
+        warm = (time.perf_counter() - t) / nimages
+        tier = "not run"
+        if tiered:
+            eng = NoiseEngine(sc.schedule, sc.components, 0, slope_route="tiered")
+            t = time.perf_counter()
+            eng.slopes()
+            tier = f"{time.perf_counter() - t:.2f}"
+        cold_med = float(np.median(cold))
+        lines.append(f"| 64², 16 ch, row overhead 2000, N = {n} | {route} | {cold_med:.3f} "
+                     f"(median of {runs}: {min(cold):.3f}-{max(cold):.3f}) | {warm:.4f} | "
+                     f"{SMALL_LIMIT} | {cold_med / SMALL_LIMIT:.2f} | {tier} | "
+                     f"{np.mean(ms) - 1:+.2%} ± {np.std(ms, ddof=1) / np.sqrt(nimages):.2%} "
+                     f"({nimages} images) |")
+    lines.append("")
+    lines.append("Times are in process (`simulate(scene, mode='slopes')`, scene terms and "
+                 "Exposure included); the exact route's covariance matches the analytic one "
+                 "to rounding (tests/test_sim_small_scenes.py), so the error column is Monte "
+                 "Carlo scatter.")
+
+
 def speed_error_table(nframes_list, lines):
     """Each synthesis option: slope-image time (full size) and bias against the analytic value."""
     comps = {"gamma/f^1.3": NoiseComponent("g", gamma=0.1),
@@ -233,10 +300,25 @@ def speed_error_table(nframes_list, lines):
                  "one full-size slope image with all Table 2 terms (N = 74).")
 
 
+def _replace_section(path, section):
+    """Put ``section`` (lines, starting with its ``## `` title) into the report at ``path``,
+    replacing the section of that title or going before "## Speed against error"."""
+    text = path.read_text().splitlines()
+    title = section[0]
+    if title in text:
+        i = text.index(title)
+        j = next((m for m in range(i + 1, len(text)) if text[m].startswith("## ")), len(text))
+    else:
+        i = j = text.index("## Speed against error")
+    path.write_text("\n".join([*text[:i], *section, "", *text[j:]]) + "\n")
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="N = 8 instead of 74, no N = 386")
     p.add_argument("--no-write", action="store_true", help="do not write README_simulate.md")
+    p.add_argument("--small-only", action="store_true",
+                   help="only the small scenes (no full-size work)")
     args = p.parse_args(argv)
     lines = [f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
              f"python {sys.version.split()[0]}, numpy {np.__version__}",
@@ -251,6 +333,15 @@ def main(argv=None):
         return len(lines)
 
     k = show(0)
+    if args.small_only:
+        lines.append("## Small scenes (slopes, exact route)")
+        lines.append(f"(`python benchmarks/bench_simulate.py --small-only`, {lines[1][6:]}, "
+                     f"load {os.getloadavg()[0]:.2f} at start)")
+        bench_small([2, 10, 74], lines, nimages=20 if args.quick else 200, tiered=not args.quick)
+        show(k)
+        if not args.no_write:
+            _replace_section(HERE / "README_simulate.md", lines[k:])
+        return
     lines.append("## Ramps (full size, all Table 2 terms with ACN)")
     bench_ramps(n, lines)
     if not args.quick:
@@ -259,6 +350,10 @@ def main(argv=None):
     lines.append("")
     lines.append("## Slopes (full size, all Table 2 terms with ACN)")
     bench_slopes(n, lines, nreal=2 if args.quick else 3)
+    k = show(k)
+    lines.append("")
+    lines.append("## Small scenes (slopes, exact route)")
+    bench_small([2, 10, 74], lines, nimages=20 if args.quick else 200, tiered=not args.quick)
     k = show(k)
     lines.append("")
     lines.append("## Speed against error")

@@ -1,14 +1,15 @@
 """The noise simulator: the paper's Table 2 model on the readout schedule.
 
 `simulate` turns a scene (YAML or dict) into raw ramps or a slope image;
-`expected_slope_variance` predicts the slope noise without simulating.
+`expected_slope_variance` predicts the slope noise without simulating, and
+`slope_covariance` its covariance between samples of a frame.
 """
 
 from .components import NoiseComponent, load_noise_table, noise_components
 from .engine import NoiseEngine
 from .scene import Scene, load_scene
 from .simulator import SpherexSimulator, simulate, simulate_to_fits
-from .variance import expected_slope_variance, ls_weights
+from .variance import expected_slope_variance, ls_weights, slope_covariance
 
 __all__ = [
     "NoiseComponent",
@@ -22,4 +23,5 @@ __all__ = [
     "noise_components",
     "simulate",
     "simulate_to_fits",
+    "slope_covariance",
 ]

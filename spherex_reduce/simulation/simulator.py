@@ -70,6 +70,8 @@ def _header(sc, mode, seed, engine):
     h["SIMSEED"] = (seed_text, "seed of the SeedSequence")
     h["SIMMETH"] = (engine.method, "Fourier amplitudes: gaussian or random_phase")
     h["SIMPAD"] = (engine.padding, "low-frequency synthesis length / exposure")
+    if mode == "slopes":
+        h["SIMROUTE"] = (engine.slope_route, "slopes drawn exactly or from synthesised tiers")
     for c in sc.components:
         h.add_history(f"noise {json.dumps(c.to_dict())}")
     h.add_history(f"scene {json.dumps(sc.terms, default=str)}")

@@ -13,9 +13,16 @@ periodic wrap-around bias of FFT synthesis.
 import numpy as np
 from astropy import units as u
 
-from .components import NoiseComponent, load_noise_table, noise_components
+from .components import (
+    NoiseComponent,
+    _d_inv_f,
+    _d_power,
+    _d_white,
+    load_noise_table,
+    noise_components,
+)
 
-__all__ = ["expected_slope_variance", "ls_weights"]
+__all__ = ["expected_slope_variance", "ls_weights", "slope_covariance"]
 
 
 def ls_weights(times):
@@ -102,36 +109,99 @@ def expected_slope_variance(noise, schedule, *, kind="pixels"):
         return (np.nan if n < 2 else 0.0) * unit
     if kind == "phantom" and schedule.phantom_reads == 0:
         return np.nan * unit
-    fs = schedule.geometry.pixel_rate
-    F = schedule.frame_samples
-    w = ls_weights(np.arange(n) * F / fs)
-    # a_d = sum_k w_k w_{k+d}, d >= 1
-    a = np.array([np.dot(w[:-d], w[d:]) for d in range(1, n)])
     c = schedule.phantom_reads
+    i = np.arange(c)
     total = 0.0
     for comp in comps:
         if kind == "pixels":
             groups = [np.array([0])]
         elif comp.acn:
             # even/odd realisations: phantom sample i takes parity (i - c) % 2
-            i = np.arange(c)
             groups = [i[(i - c) % 2 == p] for p in (0, 1)]
         else:
-            groups = [np.arange(c)]
+            groups = [i]
         for grp in groups:
             if grp.size == 0:
                 continue
-            scale = 1.0 if kind == "pixels" else (grp.size / c) ** 2
+            # the mean of the group's samples, weighted by its share of the c samples
             diff = (grp[:, None] - grp[None, :]).ravel()
-            offsets, counts = np.unique(diff, return_counts=True)
-            pw = counts / grp.size**2
-            lags = np.arange(1, n)[:, None] * F + offsets[None, :]
-            d = comp.structure_function(lags, fs)  # (n-1, n_offsets)
-            # lag 0 frames: within-read offsets (phantom averaging); D(0) = 0
-            d0 = comp.structure_function(offsets, fs)
-            total += scale * (-np.sum(a[:, None] * d * pw)
-                              - 0.5 * np.sum(w * w) * np.sum(d0 * pw))
+            offsets, counts = np.unique(np.abs(diff), return_counts=True)
+            cov = slope_covariance(comp, schedule, offsets)[0]
+            scale = 1.0 if kind == "pixels" else (grp.size / c) ** 2
+            total += scale * np.sum(cov * counts) / grp.size**2
     return total * unit
+
+
+def slope_covariance(noise, schedule, lags):
+    """Covariance of the ramp-fitted slopes of two samples ``lags`` apart within a frame.
+
+    The slope of the sample taken ``t`` samples into every frame is
+    ``y(t) = sum_k w_k x(t + k F)`` (``F`` samples per frame, least-squares
+    weights ``w_k``); for a stationary stream ``x`` it is a stationary process
+    in ``t`` with the covariance::
+
+        C(L) = Cov(y(t), y(t + L)) = -1/2 sum_jk w_j w_k D(L + (j - k) F)
+
+    where ``D`` is the structure function of ``x`` (the weights sum to zero,
+    so ``1/f`` noise needs no low-frequency cut-off).  Exact and aperiodic:
+    no frequency grid.
+
+    Parameters
+    ----------
+    noise : `NoiseComponent`, list or dict of them, table name or `~astropy.table.Table`
+        The components (each gets its own row; scope and visibility are not
+        looked at).
+    schedule : `~spherex_reduce.ReadoutSchedule`
+        Frames, frame samples and pixel rate.
+    lags : array_like of int
+        Lags in samples.
+
+    Returns
+    -------
+    `numpy.ndarray`, shape ``(n_components, *lags.shape)``
+        Covariances in (e/s)² (plain floats).
+
+    Examples
+    --------
+    >>> from spherex_reduce import ReadoutSchedule
+    >>> from spherex_reduce.simulation import NoiseComponent, slope_covariance
+    >>> s = ReadoutSchedule(nframes=2)
+    >>> white = NoiseComponent("white", alpha=2e-3)
+    >>> pink = NoiseComponent("pink", beta=1e-2)
+    >>> c = slope_covariance([white, pink], s, [0, 1, 100000])   # lags in samples
+    >>> round(float(c[0, 0]), 3), abs(round(float(c[0, 1]), 3))  # white: uncorrelated
+    (87.715, 0.0)
+    >>> [round(float(v), 4) for v in c[1]]                         # 1/f: correlated
+    [0.1197, 0.1052, 0.0011]
+    """
+    comps = _as_components(noise)
+    lags = np.asarray(lags, dtype=float)
+    n, big_f, fs = schedule.nframes, schedule.frame_samples, schedule.geometry.pixel_rate
+    w = ls_weights(np.arange(n) * big_f / fs)
+    # A_d = sum_k w_k w_{k+d} for d = -(n-1) ... n-1
+    a = np.correlate(w, w, mode="full")
+    x = np.abs(lags.reshape(1, -1) + (np.arange(-(n - 1), n) * big_f)[:, None])
+
+    def combine(d):
+        return (-0.5 * (a @ d)).reshape(lags.shape)
+
+    basis = {}
+    out = np.zeros((len(comps), *lags.shape))
+    for i, comp in enumerate(comps):
+        for key, coef in (("alpha", comp.alpha), ("beta", comp.beta),
+                          (("gamma", comp.exponent), comp.gamma)):
+            if not coef:
+                continue
+            if key not in basis:
+                if key == "alpha":
+                    d = _d_white(x, fs)
+                elif key == "beta":
+                    d = _d_inv_f(x)
+                else:
+                    d = _d_power(x, fs, key[1])
+                basis[key] = combine(d)
+            out[i] += coef * basis[key]
+    return out
 
 
 def _table_names():  # pragma: no cover - convenience for the docs

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import yaml
 
-from .errors import ConfigError
+from .errors import ConfigError, ResourceError
 from .geometry import DetectorGeometry
 from .parameters import Parameter, validate_parameters
 from .schedule import REF_MODES, ReadoutSchedule
@@ -309,6 +309,8 @@ def schedule_from_config(geometry=None, readout=None):
     try:
         geo = DetectorGeometry(**g)
         return ReadoutSchedule(geo, **r)
+    except ResourceError:
+        raise
     except ValueError as exc:
         raise ConfigError(f"geometry/readout: {exc}") from exc
 

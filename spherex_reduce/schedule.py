@@ -150,7 +150,8 @@ class ReadoutSchedule:
             )
         g = self.geometry
         reads = g.nrows + (self.ref_reads if self.ref_mode != "none" else 0)
-        check_size(reads * 40.0, f"a readout schedule of {reads} row reads")
+        check_size(reads * 40.0, f"a readout schedule of {reads} row reads (nrows={g.nrows}, "
+                   f"ref_reads={self.ref_reads})")
         rows, kinds = self._build_order()
         set_(self, "_rows", rows)
         set_(self, "_is_ref", kinds)

@@ -229,7 +229,8 @@ def _inline(item, path, table):
         if key in ("alpha", "beta", "gamma"):
             value = float(value)
             if not np.isfinite(value) or value < 0:
-                raise ConfigError(f"{path}.{key}: must be >= 0, got {value!r}")
+                what = "a finite number >= 0" if not np.isfinite(value) else ">= 0"
+                raise ConfigError(f"{path}.{key}: must be {what}, got {value!r}")
         kw[key] = value
     try:
         return NoiseComponent(**kw)

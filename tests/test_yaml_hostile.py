@@ -312,3 +312,46 @@ def test_schedule_api_refuses_nan_and_absurd_sizes():
         ReadoutSchedule(DetectorGeometry(nrows=10**13, ncols=64, nchannels=1))
     with pytest.raises(ResourceError, match="channels"):
         DetectorGeometry(ncols=2**50, nchannels=2**50)
+
+
+# -- noise tables: coefficients finite, >= 0 and bounded; exponent in (0, 3) ----------------
+def _table_with(column, value):
+    import importlib.resources
+
+    from astropy.table import Table
+
+    path = importlib.resources.files("spherex_reduce") / "data" / "spherex-table2.ecsv"
+    with importlib.resources.as_file(path) as p:
+        table = Table.read(p, format="ascii.ecsv")
+    table[column][0] = value
+    return table
+
+
+@pytest.mark.parametrize(
+    ("column", "value", "needle"),
+    [("alpha", np.nan, "alpha must be >= 0"), ("beta", np.inf, "beta must be >= 0"),
+     ("gamma", 1e300, "gamma must be >= 0 and <= 1e+12"), ("alpha", -1e300, "alpha must be"),
+     ("exponent", np.nan, "exponent must be in (0, 3)"),
+     ("exponent", np.inf, "exponent must be in (0, 3)"),
+     ("exponent", 0.0, "exponent must be in (0, 3)"),
+     ("exponent", 1.0, "exponent must be in (0, 3)")],
+)
+def test_noise_table_values(tmp_path, capsys, column, value, needle):
+    table_path = tmp_path / "table.ecsv"
+    _table_with(column, value).write(table_path, format="ascii.ecsv")
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(f"noise: {{table: {table_path}}}\n")
+    out = tmp_path / "out.fits"
+    line = _one_line_error(capsys, main(["-q", "simulate", str(scene), "-o", str(out)]), needle)
+    assert "noise.table[0] (video8)" in line and not out.exists()
+
+
+@pytest.mark.parametrize("content", [b"not a table\n", b"\x00\xff" * 100,
+                                     b"# %ECSV 1.0\n" + b"#" * (2 << 20)])
+def test_noise_table_not_a_table(tmp_path, capsys, content):
+    table_path = tmp_path / "table.ecsv"
+    table_path.write_bytes(content)
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(f"noise: {{table: {table_path}}}\n")
+    code = main(["-q", "simulate", str(scene), "-o", str(tmp_path / "out.fits")])
+    _one_line_error(capsys, code, "noise.table:", str(table_path))

@@ -355,3 +355,21 @@ def test_noise_table_not_a_table(tmp_path, capsys, content):
     scene.write_text(f"noise: {{table: {table_path}}}\n")
     code = main(["-q", "simulate", str(scene), "-o", str(tmp_path / "out.fits")])
     _one_line_error(capsys, code, "noise.table:", str(table_path))
+
+
+def test_optimal_weighting_with_zero_read_noise(tmp_path, capsys):
+    """Was a singular covariance matrix: exit 1, 'unexpected failure: LinAlgError'."""
+    import yaml
+
+    raw = tmp_path / "raw.fits"
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(yaml.safe_dump({**SMALL_SCENE, "output": {"mode": "ramps"},
+                                     "scene": {"photocurrent": 1.0}}))
+    assert main(["-q", "simulate", str(scene), "-o", str(raw)]) == 0
+    config = tmp_path / "p.yaml"
+    config.write_text("steps:\n  - fit_ramp: {weighting: optimal, read_noise: 0}\n")
+    out = tmp_path / "red.fits"
+    capsys.readouterr()
+    code = main(["-q", "reduce", str(raw), "-c", str(config), "-o", str(out)])
+    _one_line_error(capsys, code, "read_noise > 0")
+    assert not out.exists()

@@ -101,7 +101,7 @@ class SigmaClipStep(Step):
         Parameter("sigma_upper", None, _OPT_NUM, "upper threshold (default sigma)", minimum=0,
                   exclusive_minimum=True),
         Parameter("maxiters", None, (int, type(None)), "iterations (null: until converged)",
-                  minimum=1),
+                  minimum=1, maximum=1000),
         Parameter("cenfunc", "median", (str,), "centre", choices=("median", "mean")),
         Parameter("stdfunc", "std", (str,), "spread", choices=("std", "mad_std")),
     )

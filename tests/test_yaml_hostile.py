@@ -373,3 +373,12 @@ def test_optimal_weighting_with_zero_read_noise(tmp_path, capsys):
     code = main(["-q", "reduce", str(raw), "-c", str(config), "-o", str(out)])
     _one_line_error(capsys, code, "read_noise > 0")
     assert not out.exists()
+
+
+@pytest.mark.parametrize("step", ["sigma_clip: {maxiters: 1000000000000}",
+                                  "correct_reference: {strategy: mean, maxiters: 1000000000000}"])
+def test_iteration_counts_are_bounded(tmp_path, capsys, step):
+    """Was exit 1 at run time: 'OverflowError: Python integer ... out of bounds for int32'."""
+    path = tmp_path / "p.yaml"
+    path.write_text(f"steps:\n  - {step}\n")
+    _one_line_error(capsys, main(["show-config", str(path)]), "maxiters: must be in [1, 1000]")

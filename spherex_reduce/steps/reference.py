@@ -413,7 +413,7 @@ _CLIP_PARAMETERS = (
     Parameter("sigma", 3.0, (float,), "clip threshold for reference pixels (standard "
               "deviations)", minimum=0, exclusive_minimum=True),
     Parameter("maxiters", 5, (int, type(None)), "clipping iterations (null: until converged)",
-              minimum=1),
+              minimum=1, maximum=1000),
     Parameter("side_columns", False, (bool,), "also use the side reference columns of the "
               "first and last channel"),
 )

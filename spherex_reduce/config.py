@@ -216,7 +216,7 @@ def parse_yaml(text, label="config"):
     ...
     spherex_reduce.errors.ConfigError: my.yaml: line 2: key 'skip' appears twice in one mapping ...
     """
-    if len(text) > MAX_YAML_BYTES and len(text.encode("utf-8")) > MAX_YAML_BYTES:
+    if len(text) > MAX_YAML_BYTES or len(text.encode("utf-8", "surrogatepass")) > MAX_YAML_BYTES:
         raise ConfigError(f"{label}: larger than {MAX_YAML_BYTES >> 20} MiB, the limit for a "
                           "YAML file")
     loader = None

@@ -1,8 +1,12 @@
 """Detector layout: rows, columns, readout channels and the reference border."""
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from astropy import units as u
+
+from .limits import check_size
 
 __all__ = ["DetectorGeometry"]
 
@@ -17,6 +21,28 @@ def _check_int(name, value, minimum, maximum=None):
     if value < minimum or (maximum is not None and value > maximum):
         raise ValueError(f"{name} must be {allowed}, got {value}")
     return int(value)
+
+
+def _positive_finite(name, value, unit):
+    """``value`` (a number, or a `~astropy.units.Quantity` in ``unit``) as a float > 0.
+
+    Raises a ValueError naming ``name`` for anything else: strings, booleans,
+    arrays, NaN, infinities, zero and negative values.
+    """
+    try:
+        if isinstance(value, u.Quantity):
+            number = value.to_value(unit)
+        elif isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
+                value, (bool, np.bool_)):
+            number = float(value)
+        else:
+            raise TypeError
+        number = float(number)
+    except (TypeError, ValueError, u.UnitsError):
+        number = float("nan")
+    if not math.isfinite(number) or number <= 0:
+        raise ValueError(f"{name} must be a positive, finite number ({unit}), got {value!r}")
+    return number
 
 
 @dataclass(frozen=True)
@@ -76,13 +102,8 @@ class DetectorGeometry:
             )
         limit = (min(self.nrows, self.ncols) - 1) // 2
         set_(self, "ref_border", _check_int("ref_border", self.ref_border, 0, max(limit, 0)))
-        try:
-            rate = float(self.pixel_rate)
-        except (TypeError, ValueError):
-            rate = float("nan")
-        if not np.isfinite(rate) or rate <= 0:
-            raise ValueError(f"pixel_rate must be a positive number of Hz, got {self.pixel_rate!r}")
-        set_(self, "pixel_rate", rate)
+        set_(self, "pixel_rate", _positive_finite("pixel_rate", self.pixel_rate, u.Hz))
+        check_size(self.nchannels * 16.0, f"{self.nchannels} readout channels")
         set_(self, "_directions", self._parse_scan(self.scan))
 
     def _parse_scan(self, scan):

@@ -1,5 +1,6 @@
 """Declared parameters of steps, strategies and simulators, and their validation."""
 
+import math
 from dataclasses import dataclass
 
 from .errors import ConfigError
@@ -28,6 +29,27 @@ class Parameter:
         The allowed values.
     minimum : float, optional
         Smallest allowed value for numbers.
+    maximum : float, optional
+        Largest allowed value for numbers.
+    exclusive_minimum : bool
+        If true, ``minimum`` itself is not allowed (``> minimum``: for
+        quantities where zero is meaningless, such as a rate or a threshold).
+
+    Numbers must be finite (``.nan`` and ``.inf`` are refused) and within the
+    bounds.
+
+    Examples
+    --------
+    >>> from spherex_reduce.parameters import Parameter
+    >>> rate = Parameter("pixel_rate", 1e5, (float,), "Hz", minimum=0, exclusive_minimum=True)
+    >>> rate.bounds
+    '> 0'
+    >>> rate.check(2e5, "geometry.pixel_rate")
+    200000.0
+    >>> rate.check(float("nan"), "geometry.pixel_rate")
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.errors.ConfigError: geometry.pixel_rate: must be a finite number > 0, got nan
     """
 
     name: str
@@ -36,6 +58,20 @@ class Parameter:
     doc: str = ""
     choices: tuple | None = None
     minimum: float | None = None
+    maximum: float | None = None
+    exclusive_minimum: bool = False
+
+    @property
+    def bounds(self):
+        """The allowed range as text (``'>= 1'``, ``'> 0'``, ``'in [0, 1]'``), or ``''``."""
+        lo, hi = self.minimum, self.maximum
+        if lo is None and hi is None:
+            return ""
+        if hi is None:
+            return f"{'>' if self.exclusive_minimum else '>='} {lo:g}"
+        if lo is None:
+            return f"<= {hi:g}"
+        return f"in {'(' if self.exclusive_minimum else '['}{lo:g}, {hi:g}]"
 
     def check(self, value, path):
         """Return ``value`` converted for use, or raise `ConfigError` naming ``path``."""
@@ -48,9 +84,14 @@ class Parameter:
             raise ConfigError(f"{path}: expected {names}, got {value!r}")
         if self.choices is not None and value not in self.choices:
             raise ConfigError(f"{path}: {value!r} is not one of {list(self.choices)}")
-        if (self.minimum is not None and isinstance(value, (int, float))
-                and not isinstance(value, bool) and value < self.minimum):
-            raise ConfigError(f"{path}: must be >= {self.minimum}, got {value!r}")
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            if not math.isfinite(value):
+                raise ConfigError(f"{path}: must be a finite number {self.bounds}".rstrip()
+                                  + f", got {value!r}")
+            lo, hi = self.minimum, self.maximum
+            if ((lo is not None and (value < lo or (self.exclusive_minimum and value == lo)))
+                    or (hi is not None and value > hi)):
+                raise ConfigError(f"{path}: must be {self.bounds}, got {value!r}")
         return value
 
 

@@ -76,7 +76,8 @@ class FitRampStep(Step):
                   choices=WEIGHTINGS),
         Parameter("read_noise", None, _OPT_NUM, "read noise per read (data unit); null: "
                   "uncertainty from the fit residuals", minimum=0),
-        Parameter("gain", 1.0, (float,), "electrons per data unit (shot noise)", minimum=0),
+        Parameter("gain", 1.0, (float,), "electrons per data unit (shot noise)", minimum=0,
+                  exclusive_minimum=True),
         Parameter("saturation", None, _OPT_NUM, "reads above this level are not used "
                   "(data unit)"),
     )
@@ -93,11 +94,14 @@ class SigmaClipStep(Step):
 
     name, keyword = "sigma_clip", "S_SIGCLP"
     parameters = (
-        Parameter("sigma", 5.0, (float,), "threshold (standard deviations)", minimum=0),
-        Parameter("sigma_lower", None, _OPT_NUM, "lower threshold (default sigma)", minimum=0),
-        Parameter("sigma_upper", None, _OPT_NUM, "upper threshold (default sigma)", minimum=0),
+        Parameter("sigma", 5.0, (float,), "threshold (standard deviations)", minimum=0,
+                  exclusive_minimum=True),
+        Parameter("sigma_lower", None, _OPT_NUM, "lower threshold (default sigma)", minimum=0,
+                  exclusive_minimum=True),
+        Parameter("sigma_upper", None, _OPT_NUM, "upper threshold (default sigma)", minimum=0,
+                  exclusive_minimum=True),
         Parameter("maxiters", None, (int, type(None)), "iterations (null: until converged)",
-                  minimum=1),
+                  minimum=1, maximum=1000),
         Parameter("cenfunc", "median", (str,), "centre", choices=("median", "mean")),
         Parameter("stdfunc", "std", (str,), "spread", choices=("std", "mad_std")),
     )

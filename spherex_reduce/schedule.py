@@ -24,7 +24,7 @@ from astropy.table import Table
 
 from ._text import plural
 from .errors import FormatError
-from .geometry import DetectorGeometry, _check_int
+from .geometry import DetectorGeometry, _check_int, _positive_finite
 from .limits import check_size
 
 __all__ = ["REF_MODES", "ReadoutSchedule", "chopped_order"]
@@ -39,6 +39,10 @@ DEFAULT_ROW_OVERHEAD = 4
 DEFAULT_FRAME_OVERHEAD = 1816
 
 ACTIVE, REFERENCE = "active", "reference"
+
+#: Samples of one channel an exposure may have (2**53: sample times stay exact in
+#: float64; at 100 kHz, 2850 years).
+MAX_SAMPLES = 2**53
 
 
 def chopped_order(n, skip):
@@ -219,6 +223,10 @@ class ReadoutSchedule:
                 f"ref_reads={self.ref_reads} with ref_mode={self.ref_mode!r} needs reference "
                 "rows, but ref_border is 0: set ref_reads to 0 or ref_mode to 'none'"
             )
+        g = self.geometry
+        reads = g.nrows + (self.ref_reads if self.ref_mode != "none" else 0)
+        check_size(reads * 40.0, f"a readout schedule of {reads} row reads (nrows={g.nrows}, "
+                   f"ref_reads={self.ref_reads})")
         rows, kinds = self._build_order()
         set_(self, "_rows", rows)
         set_(self, "_is_ref", kinds)
@@ -235,26 +243,39 @@ class ReadoutSchedule:
             overhead = self.frame_overhead
             if overhead is None:
                 overhead = DEFAULT_FRAME_OVERHEAD
-            overhead = _check_int("frame_overhead", overhead, 0)
+            overhead = _check_int("frame_overhead", overhead, 0, MAX_SAMPLES - 1 - read_samples)
             set_(self, "frame_overhead", overhead)
             set_(self, "frame_time", ((read_samples + overhead) / rate) * u.s)
+            self._check_exposure()
             return
-        tframe = u.Quantity(self.frame_time, u.s)
-        if not tframe.isscalar or not np.isfinite(tframe.value) or tframe.value <= 0:
-            raise ValueError(f"frame_time must be a positive time, got {self.frame_time!r}")
-        overhead = round(tframe.to_value(u.s) * rate) - read_samples
+        tframe = _positive_finite("frame_time", self.frame_time, u.s) * u.s
+        samples = tframe.to_value(u.s) * rate
+        if samples >= MAX_SAMPLES:
+            raise ValueError(f"frame_time={tframe} is {samples:.3g} samples at {rate:g} Hz, "
+                             f"more than the {MAX_SAMPLES:.3g} a schedule can count")
+        overhead = round(samples) - read_samples
         if overhead < 0:
             raise ValueError(
                 f"frame_time must be >= {read_samples / rate:.6g} s, the time to read "
                 f"{self.n_reads} rows of {self.row_samples} samples; got {tframe}"
             )
-        if self.frame_overhead is not None and int(self.frame_overhead) != overhead:
+        if self.frame_overhead is not None and _check_int(
+                "frame_overhead", self.frame_overhead, 0) != overhead:
             raise ValueError(
                 f"frame_time={tframe} implies frame_overhead={overhead} samples, but "
                 f"frame_overhead={self.frame_overhead} was also given: give only one"
             )
         set_(self, "frame_overhead", overhead)
         set_(self, "frame_time", tframe)
+        self._check_exposure()
+
+    def _check_exposure(self):
+        total = self.nframes * self.frame_samples
+        if total >= MAX_SAMPLES or not np.isfinite(self.frame_time.value):
+            raise ValueError(
+                f"nframes={self.nframes} frames of {self.frame_samples} samples make "
+                f"{total:.3g} samples, more than the {MAX_SAMPLES:.3g} a schedule can count"
+            )
 
     def _build_order(self):
         g = self.geometry

@@ -156,6 +156,16 @@ def test_other_layouts(kwargs, width, channels):
          "[0, 3]"),
         (lambda: DetectorGeometry(pixel_rate=-5), "pixel_rate", "positive"),
         (lambda: ReadoutSchedule(skip=2.5), "skip", "integer"),
+        (lambda: DetectorGeometry(pixel_rate=float("nan")), "pixel_rate", "finite"),
+        (lambda: DetectorGeometry(pixel_rate="100000"), "pixel_rate", "positive"),
+        (lambda: DetectorGeometry(pixel_rate=True), "pixel_rate", "positive"),
+        (lambda: ReadoutSchedule(frame_time=float("nan")), "frame_time", "finite"),
+        (lambda: ReadoutSchedule(frame_time=float("inf")), "frame_time", "finite"),
+        (lambda: ReadoutSchedule(frame_time=True), "frame_time", "positive"),
+        (lambda: ReadoutSchedule(frame_time=1.51, frame_overhead=1816.5), "frame_overhead",
+         "integer"),
+        (lambda: ReadoutSchedule(frame_overhead=2**60), "frame_overhead", "in [0,"),
+        (lambda: ReadoutSchedule(nframes=10**12), "nframes", "samples"),
     ],
 )
 def test_invalid_parameters_name_the_parameter(make, name, allowed):

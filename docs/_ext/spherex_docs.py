@@ -85,8 +85,8 @@ def _parameter_items(parameters):
         text = f" (default {_yaml_value(p.default)})"
         if p.choices:
             text += f", one of {', '.join(_yaml_value(c) for c in p.choices)}"
-        if p.minimum is not None:
-            text += f", ≥ {p.minimum:g}"
+        if p.bounds:
+            text += f", {p.bounds}"
         item = nodes.list_item()
         item += _para((p.name,), text + (f": {p.doc}" if p.doc else ""))
         items += item

@@ -28,6 +28,7 @@ import hashlib
 import itertools
 import json
 import logging
+import math
 import time
 import traceback
 from dataclasses import dataclass, field
@@ -39,6 +40,7 @@ from astropy.table import Table
 
 from ..config import READOUT_PARAMETERS, load_yaml
 from ..errors import ConfigError
+from ..limits import check_count
 
 __all__ = ["Sweep", "SweepResult", "load_sweep", "plot_sweep", "run_cell", "run_sweep"]
 
@@ -48,6 +50,9 @@ _TOP = ("scene", "pipeline", "grid", "realizations", "seed", "mode", "measure")
 _MEASURE = {"kmin": 0.03, "kmax": 0.13, "bins": 30, "exclude_horizontal": False,
             "mask_sources": False}
 _READOUT_KEYS = tuple(p.name for p in READOUT_PARAMETERS)
+#: Most realisations per cell, and most cells, a sweep file may ask for.
+MAX_REALIZATIONS = 10_000
+MAX_CELLS = 100_000
 
 
 @dataclass(frozen=True)
@@ -119,8 +124,12 @@ def load_sweep(source):
     Raises
     ------
     ConfigError
-        Unknown keys, grid keys that are not readout parameters, empty lists;
-        the message names the entry.
+        Unknown keys, grid keys that are not readout parameters, empty lists,
+        an invalid scene (the values the grid varies are checked by each
+        cell); the message names the entry.
+    ResourceError
+        More than `MAX_REALIZATIONS` realisations or `MAX_CELLS` cells, or a
+        scene that needs more memory than this machine has.
 
     Examples
     --------
@@ -171,18 +180,41 @@ def load_sweep(source):
     nreal = config.get("realizations", 1)
     if isinstance(nreal, bool) or not isinstance(nreal, int) or nreal < 1:
         raise ConfigError(f"{label}: realizations: expected an integer >= 1, got {nreal!r}")
+    check_count(nreal, f"{label}: realizations", MAX_REALIZATIONS)
+    ncells = math.prod(len(v) for v in clean.values()) * len(configs) * nreal
+    check_count(ncells, f"{label}: the number of cells (grid x pipelines x realizations)",
+                MAX_CELLS)
     seed = config.get("seed", scene.get("seed") or 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ConfigError(f"{label}: seed: expected a non-negative integer, got {seed!r}")
     mode = config.get("mode", "slopes")
     if mode not in ("slopes", "ramps"):
         raise ConfigError(f"{label}: mode: expected slopes or ramps, got {mode!r}")
+    _check_scene(scene, clean, mode, label)
     measure = dict(_MEASURE)
     for key, value in (config.get("measure") or {}).items():
         if key not in _MEASURE:
             raise ConfigError(f"{label}: measure.{key}: unknown; valid: {', '.join(_MEASURE)}")
         measure[key] = value
     return Sweep(scene, tuple(configs), clean, nreal, seed, mode, measure, label, configs)
+
+
+def _check_scene(scene, grid, mode, label):
+    """Validate the scene now, not in every cell at run time.
+
+    The readout keys the grid varies take their defaults here: each cell
+    checks its own values, and one that is invalid fails that cell only.
+    """
+    from ..simulation import load_scene
+
+    first = dict(scene)
+    first["readout"] = {k: v for k, v in (scene.get("readout") or {}).items() if k not in grid}
+    if isinstance(scene.get("output"), dict) or scene.get("output") is None:
+        first["output"] = {**(scene.get("output") or {}), "mode": mode}
+    try:
+        load_scene(first)
+    except ConfigError as exc:
+        raise ConfigError(f"{label}: scene: {exc}") from None
 
 
 # -- one cell -----------------------------------------------------------------------

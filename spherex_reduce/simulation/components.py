@@ -36,6 +36,12 @@ VISIBILITIES = ("pixels", "phantom", "both")
 #: Built-in noise tables (name -> file in ``spherex_reduce/data``).
 BUILTIN_TABLES = {"spherex-table2": "spherex-table2.ecsv"}
 _PSD_UNIT = u.electron**2 / u.Hz
+#: Largest noise table file accepted, in bytes.
+MAX_TABLE_BYTES = 1 << 20
+#: Largest PSD coefficient accepted (in the units of each term): a white level of 1e12 e²/Hz
+#: is a standard deviation of 2e8 e per 100 kHz sample, far beyond any detector, while the
+#: simulated numbers stay finite in float32.
+MAX_COEFFICIENT = 1e12
 
 
 @dataclass(frozen=True)
@@ -86,8 +92,9 @@ class NoiseComponent:
     def __post_init__(self):
         for key in ("alpha", "beta", "gamma"):
             value = float(getattr(self, key))
-            if not np.isfinite(value) or value < 0:
-                raise ValueError(f"component {self.name!r}: {key} must be >= 0, got {value}")
+            if not np.isfinite(value) or not 0 <= value <= MAX_COEFFICIENT:
+                raise ValueError(f"component {self.name!r}: {key} must be >= 0 and <= "
+                                 f"{MAX_COEFFICIENT:g}, got {value}")
             object.__setattr__(self, key, value)
         e = float(self.exponent)
         if not (0 < e < 3) or e == 1:
@@ -310,7 +317,15 @@ def load_noise_table(source="spherex-table2"):
         return _builtin_table(str(source)).copy()
     path = _table_path(source)
     with importlib.resources.as_file(path) as p:
-        table = Table.read(p, format="ascii.ecsv")
+        if p.stat().st_size > MAX_TABLE_BYTES:
+            raise ConfigError(f"noise.table: {source} is larger than {MAX_TABLE_BYTES >> 20} MiB, "
+                              "the limit for a noise table")
+        try:
+            table = Table.read(p, format="ascii.ecsv")
+        except Exception as exc:  # astropy raises many kinds for a file that is not ECSV
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+            raise ConfigError(f"noise.table: {source} is not a readable ECSV table "
+                              f"({type(exc).__name__}: {first})") from None
     missing = [c for c in ("name", "alpha", "beta", "gamma") if c not in table.colnames]
     if missing:
         raise ConfigError(f"noise.table: {source} lacks column(s) {missing}")
@@ -331,11 +346,17 @@ def noise_components(source="spherex-table2"):
     out = {}
     for i, row in enumerate(table):
         kw = {"name": str(row["name"])}
-        for key, unit in (("alpha", _PSD_UNIT), ("beta", u.electron**2)):
-            kw[key] = _value(table, row, key, unit)
-        exponent = float(row["exponent"]) if "exponent" in table.colnames else 1.3
-        kw["exponent"] = exponent
-        kw["gamma"] = _value(table, row, "gamma", u.electron**2 * u.Hz ** (exponent - 1))
+        where = f"noise.table[{i}] ({kw['name']})"
+        try:
+            exponent = float(row["exponent"]) if "exponent" in table.colnames else 1.3
+            if not (0 < exponent < 3) or exponent == 1:
+                raise ValueError(f"exponent must be in (0, 3) and not 1, got {exponent}")
+            kw["exponent"] = exponent
+            for key, unit in (("alpha", _PSD_UNIT), ("beta", u.electron**2),
+                              ("gamma", u.electron**2 * u.Hz ** (exponent - 1))):
+                kw[key] = _value(table, row, key, unit)
+        except (TypeError, ValueError, u.UnitsError) as exc:
+            raise ConfigError(f"{where}: {exc}") from None
         for key in ("scope", "visibility"):
             if key in table.colnames:
                 kw[key] = str(row[key])
@@ -344,7 +365,7 @@ def noise_components(source="spherex-table2"):
         try:
             out[kw["name"]] = NoiseComponent(**kw)
         except ValueError as exc:
-            raise ConfigError(f"noise.table[{i}] ({kw['name']}): {exc}") from exc
+            raise ConfigError(f"{where}: {exc}") from exc
     return out
 
 

@@ -6,6 +6,7 @@ import numpy as np
 
 from ..config import GEOMETRY_PARAMETERS, READOUT_PARAMETERS, load_yaml, schedule_from_config
 from ..errors import ConfigError
+from ..limits import check_size
 from ..parameters import Parameter, validate_parameters
 from .components import NoiseComponent, noise_components
 from .synthesis import METHODS
@@ -16,23 +17,33 @@ MODES = ("slopes", "ramps")
 DEFAULT_COMPONENTS = ["video8", "roic", "bias_correlated", "bias_phantom_only",
                       "bias_pixels_only"]
 _NUM = (int, float)
+#: Largest current or telegraph step a scene accepts (e/s, e, Hz): far beyond any detector,
+#: far below what overflows float32 or the Poisson generator.
+MAX_RATE = 1e9
+#: Longest low-frequency synthesis relative to the exposure.
+MAX_PADDING = 1024
 SCENE_PARAMETERS = (
-    Parameter("dark_current", 0.0, _NUM, "dark current of every active pixel (e/s)", minimum=0),
+    Parameter("dark_current", 0.0, _NUM, "dark current of every active pixel (e/s)", minimum=0,
+              maximum=MAX_RATE),
     Parameter("hot_pixel_fraction", 0.0, _NUM, "fraction of active pixels that are hot",
-              minimum=0),
-    Parameter("hot_pixel_current", 10.0, _NUM, "dark current of a hot pixel (e/s)", minimum=0),
+              minimum=0, maximum=1),
+    Parameter("hot_pixel_current", 10.0, _NUM, "dark current of a hot pixel (e/s)", minimum=0,
+              maximum=MAX_RATE),
     Parameter("photocurrent", 0.0, _NUM, "photocurrent of every active pixel (e/s)",
-              minimum=0),
-    Parameter("leakage", 0.0, _NUM, "Video8 leakage drift, seen by pixels and phantom (e/s)"),
+              minimum=0, maximum=MAX_RATE),
+    Parameter("leakage", 0.0, _NUM, "Video8 leakage drift, seen by pixels and phantom (e/s)",
+              minimum=-MAX_RATE, maximum=MAX_RATE),
     Parameter("poisson", True, (bool,), "Poisson noise on dark current and photocurrent"),
     Parameter("rtn", None, (dict, type(None)), "random telegraph noise: fraction, amplitude "
               "(e), rate (Hz)"),
 )
 RTN_PARAMETERS = (
     Parameter("fraction", 0.0, _NUM, "fraction of active pixels with telegraph noise",
-              minimum=0),
-    Parameter("amplitude", 0.0, _NUM, "step between the two states (e)", minimum=0),
-    Parameter("rate", 0.1, _NUM, "switching rate of each state (Hz)", minimum=0),
+              minimum=0, maximum=1),
+    Parameter("amplitude", 0.0, _NUM, "step between the two states (e)", minimum=0,
+              maximum=MAX_RATE),
+    Parameter("rate", 0.1, _NUM, "switching rate of each state (Hz)", minimum=0,
+              maximum=MAX_RATE),
 )
 OUTPUT_PARAMETERS = (
     Parameter("mode", "slopes", (str,), "slopes or ramps", choices=MODES),
@@ -41,7 +52,8 @@ SYNTHESIS_PARAMETERS = (
     Parameter("method", "gaussian", (str,), "Fourier amplitudes: gaussian or random_phase "
               "(the paper's eq. 2-5)", choices=METHODS),
     Parameter("padding", None, (int, float, type(None)), "length of the low-frequency "
-              "synthesis relative to the exposure (default 16; 1 for random_phase)", minimum=1),
+              "synthesis relative to the exposure (default 16; 1 for random_phase)", minimum=1,
+              maximum=MAX_PADDING),
     Parameter("dtype", "float32", (str,), "dtype of the simulated arrays",
               choices=("float32", "float64")),
     Parameter("simulator", "spherex", (str,), "registered simulator that runs the scene"),
@@ -66,6 +78,42 @@ class Scene:
     synthesis: dict = field(default_factory=dict)
     source: str = "scene"
     config: dict = field(default_factory=dict)
+
+    def check_mode(self, mode):
+        """Refuse to simulate this scene in ``mode`` if it cannot give a result.
+
+        A slope needs at least two frames, and the simulation must fit in
+        memory: one image (a frame, or the slopes), the low-frequency noise
+        synthesised over ``padding`` times the exposure (at least one complex
+        value per 32 row reads of every channel), and in ``ramps`` mode every
+        sample of a frame of every channel.  This is a lower bound, made before
+        anything is allocated, to refuse absurd scenes (``nframes: 1e12``) at
+        once.
+
+        Raises
+        ------
+        ConfigError
+            ``mode`` unknown, or ``slopes`` with fewer than 2 frames.
+        ResourceError
+            The estimate exceeds what this machine can hold.
+        """
+        if mode not in MODES:
+            raise ConfigError(f"output.mode: must be one of {list(MODES)}, got {mode!r}")
+        s = self.schedule
+        g = s.geometry
+        if mode == "slopes" and s.nframes < 2:
+            raise ConfigError(f"readout.nframes: a slope needs at least 2 frames, got "
+                              f"{s.nframes} (use output.mode: ramps for one frame)")
+        item = 8 if self.synthesis.get("dtype") == "float64" else 4
+        padding = self.synthesis.get("padding")
+        padding = 16.0 if padding is None else float(padding)
+        exposure = float(s.nframes) * float(s.frame_samples)  # samples per channel
+        nbytes = padding * exposure / (32 * s.row_samples) * (g.nchannels + 1) * 16
+        nbytes += float(s.n_reads) * g.ncols * (item if mode == "ramps" else 8)
+        if mode == "ramps":
+            nbytes += float(s.frame_samples) * g.nchannels * item
+        check_size(nbytes, f"a {mode} simulation of {s.nframes} frames of {s.frame_samples} "
+                   f"samples x {g.nchannels} channels, padding {padding:g}")
 
 
 def load_scene(source=None):
@@ -99,18 +147,17 @@ def load_scene(source=None):
     schedule = schedule_from_config(config.get("geometry"), config.get("readout"))
     components = _components(config.get("noise"))
     terms = validate_parameters(config.get("scene"), SCENE_PARAMETERS, "scene")
-    if terms["hot_pixel_fraction"] > 1:
-        raise ConfigError("scene.hot_pixel_fraction: must be <= 1")
     if terms["rtn"] is not None:
         terms["rtn"] = validate_parameters(terms["rtn"], RTN_PARAMETERS, "scene.rtn")
-        if terms["rtn"]["fraction"] > 1:
-            raise ConfigError("scene.rtn.fraction: must be <= 1")
     output = validate_parameters(config.get("output"), OUTPUT_PARAMETERS, "output")
     synth = validate_parameters(config.get("synthesis"), SYNTHESIS_PARAMETERS, "synthesis")
     seed = config.get("seed")
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or seed < 0):
         raise ConfigError(f"seed: expected a non-negative integer or null, got {seed!r}")
-    return Scene(schedule, tuple(components), terms, output["mode"], seed, synth, label, config)
+    scene = Scene(schedule, tuple(components), terms, output["mode"], seed, synth, label,
+                  config)
+    scene.check_mode(scene.mode)
+    return scene
 
 
 def _components(noise):
@@ -182,7 +229,8 @@ def _inline(item, path, table):
         if key in ("alpha", "beta", "gamma"):
             value = float(value)
             if not np.isfinite(value) or value < 0:
-                raise ConfigError(f"{path}.{key}: must be >= 0, got {value!r}")
+                what = "a finite number >= 0" if not np.isfinite(value) else ">= 0"
+                raise ConfigError(f"{path}.{key}: must be {what}, got {value!r}")
         kw[key] = value
     try:
         return NoiseComponent(**kw)

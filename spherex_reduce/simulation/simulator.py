@@ -16,7 +16,7 @@ from ..exposure import Exposure
 from ..fits_format import _fold, _table_hdu, _unit_str, atomic_output
 from ..step import Simulator
 from .engine import NoiseEngine
-from .scene import MODES, load_scene
+from .scene import load_scene
 from .synthesis import rng_for
 
 __all__ = ["SpherexSimulator", "simulate", "simulate_to_fits"]
@@ -42,8 +42,7 @@ class SpherexSimulator(Simulator):
 def _prepare(scene, mode, seed):
     sc = load_scene(scene) if not hasattr(scene, "schedule") else scene
     mode = sc.mode if mode is None else mode
-    if mode not in MODES:
-        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    sc.check_mode(mode)
     seed = sc.seed if seed is None else seed
     if isinstance(seed, (int, np.integer)) and seed < 0:
         raise ConfigError(f"seed: must be a non-negative integer, got {seed}")

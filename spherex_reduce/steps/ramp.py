@@ -462,8 +462,9 @@ def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, satura
 def _check_params(weighting, read_noise):
     if weighting not in WEIGHTINGS:
         raise SpherexReduceError(f"weighting must be one of {WEIGHTINGS}, got {weighting!r}")
-    if weighting == "optimal" and read_noise is None:
-        raise SpherexReduceError("weighting='optimal' needs read_noise (in the data unit)")
+    if weighting == "optimal" and (read_noise is None or not read_noise > 0):
+        raise SpherexReduceError("weighting='optimal' needs read_noise > 0 (in the data unit), "
+                                 f"got {read_noise!r}")
 
 
 def _result(template, schedule, fit, phantom, reference, weighting):

@@ -411,9 +411,9 @@ def correct_reference(exposure, strategy="mean", *, registry=None, **params):
 # -- strategies ------------------------------------------------------------------------------
 _CLIP_PARAMETERS = (
     Parameter("sigma", 3.0, (float,), "clip threshold for reference pixels (standard "
-              "deviations)", minimum=0),
+              "deviations)", minimum=0, exclusive_minimum=True),
     Parameter("maxiters", 5, (int, type(None)), "clipping iterations (null: until converged)",
-              minimum=1),
+              minimum=1, maximum=1000),
     Parameter("side_columns", False, (bool,), "also use the side reference columns of the "
               "first and last channel"),
 )
@@ -507,7 +507,7 @@ class MedianReference(Strategy):
         Parameter("mask_sources", False, (bool,), "exclude photutils-segmented sources "
                   "and hot pixels before the median"),
         Parameter("source_sigma", 3.0, (float,), "source detection threshold (background "
-                  "rms)", minimum=0),
+                  "rms)", minimum=0, exclusive_minimum=True),
         Parameter("source_npixels", 5, (int,), "minimum source size (pixels)", minimum=1),
         Parameter("box_size", 64, (int,), "background box size (pixels)", minimum=2),
     )

@@ -102,3 +102,39 @@ def test_sweep_cli_serial(tmp_path, capsys):
     assert (tmp_path / "res.png").exists() and len(Table.read(out)) == 2
     assert main(["-q", "sweep", str(path), "-o", str(out), "--scheduler", "serial"]) == 0
     assert "0 computed, 2 already" in capsys.readouterr().out
+
+
+def test_scheduler_that_is_not_dask_is_an_input_error_named_fast():
+    """A loopback server that answers garbage (not a dask scheduler): one error, no hang."""
+    import socket
+    import threading
+    import time
+
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(1)
+    port = server.getsockname()[1]
+
+    def answer_garbage():
+        conn, _ = server.accept()
+        with conn:
+            conn.sendall(b"\xff" * 64)  # read by dask as an absurd message length
+            time.sleep(2)
+
+    thread = threading.Thread(target=answer_garbage, daemon=True)
+    thread.start()
+    t0 = time.perf_counter()
+    try:
+        with pytest.raises(ConfigError, match=f"scheduler tcp://127.0.0.1:{port}"):
+            run_sweep(SWEEP, scheduler=f"tcp://127.0.0.1:{port}")
+    finally:
+        server.close()
+    assert time.perf_counter() - t0 < 15
+
+
+@pytest.mark.parametrize("workers", [0, -1, 2.5])
+def test_workers_outside_one_to_many_are_refused(workers):
+    from spherex_reduce.errors import ResourceError
+
+    with pytest.raises(ResourceError, match="workers must be a whole number"):
+        run_sweep(SWEEP, workers=workers)

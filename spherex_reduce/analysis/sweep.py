@@ -359,8 +359,14 @@ def _client(scheduler, workers):
     if isinstance(scheduler, Client):
         return scheduler, None, False
     if scheduler:
-        return Client(scheduler), None, True
-    cluster = LocalCluster(n_workers=int(workers or 2), threads_per_worker=1, processes=True,
+        try:
+            return Client(scheduler, timeout=10), None, True
+        except (OSError, TimeoutError, ValueError, TypeError, MemoryError) as exc:
+            # a closed port, a server that does not speak dask, an address that does not parse
+            raise ConfigError(f"scheduler {scheduler}: cannot connect as a dask client "
+                              f"({type(exc).__name__}: {exc})") from None
+    workers = 2 if workers is None else check_count(workers, "workers", 1024)
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                            dashboard_address=":0")
     return Client(cluster), cluster, True
 
@@ -382,7 +388,7 @@ def run_sweep(sweep, output=None, *, scheduler=None, workers=None, overwrite=Fal
         existing dask scheduler; a ``Client``: used as it is (not closed);
         ``"serial"``: in this process, no dask.
     workers : int, optional
-        Worker processes of the LocalCluster (default 2).
+        Worker processes of the LocalCluster (default 2; 1 to 1024).
     overwrite : bool
         Ignore and replace an existing ``output``.
     progress : bool

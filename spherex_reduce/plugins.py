@@ -22,7 +22,7 @@ from .errors import PluginError, UnknownNameError
 from .step import Simulator, Step, Strategy
 
 __all__ = ["BLOCK_ENV", "ENTRY_POINT_GROUP", "Registry", "blame_plugin", "describe_plugin",
-           "get_plugin_manager", "get_registry"]
+           "get_plugin_manager", "get_registry", "plugin_distributions"]
 
 ENTRY_POINT_GROUP = "spherex_reduce"
 #: Modules of the package that are plugins themselves, registered under their
@@ -52,6 +52,33 @@ def _distribution(ep):
         return f"{dist.name} {dist.version}"
     except Exception:  # a damaged METADATA file: the entry-point name will do
         return None
+
+
+def plugin_distributions():
+    """``{plugin name: "distribution version"}`` of the built-in and installed plugins.
+
+    Named as pytest names its plugins: the distribution that installs the entry
+    point, and its version; the package's own plugins are the package's.  An
+    entry point whose distribution metadata cannot be read is left out.
+
+    Returns
+    -------
+    dict of str
+
+    Examples
+    --------
+    >>> from spherex_reduce.plugins import plugin_distributions
+    >>> plugin_distributions()["builtin"]
+    'spherex-reduce ...'
+    """
+    from ._version import __version__
+
+    dists = dict.fromkeys(BUILTIN_PLUGINS, f"spherex-reduce {__version__}")
+    for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+        dist = _distribution(ep)
+        if dist is not None:
+            dists.setdefault(ep.name, dist)
+    return dists
 
 
 def describe_plugin(name):

@@ -434,3 +434,31 @@ def test_plugin_simulator_failing_is_named(tmp_path, monkeypatch, capsys):
     one_line_error(capsys, "plugin 'explode' (spherex-reduce-explode 0.1.0)",
                    "ZeroDivisionError: boom simulator broke")
     assert not out.exists()
+
+
+def test_plugins_listing_survives_a_plugin_with_damaged_metadata(monkeypatch, capsys):
+    """A distribution whose METADATA has no Version: ``plugins`` still lists, exit 0."""
+    import importlib.metadata
+
+    class Damaged:
+        name = "damaged-plugin"
+
+        @property
+        def version(self):
+            raise KeyError("Version")
+
+    class EntryPoint:
+        name, group, value = "damaged", "spherex_reduce", "no_such_module_xyz"
+        dist = Damaged()
+
+    real = importlib.metadata.entry_points
+
+    def entry_points(**kw):
+        found = real(**kw)
+        return [*found, EntryPoint()] if kw.get("group") == "spherex_reduce" else found
+
+    monkeypatch.setattr(importlib.metadata, "entry_points", entry_points)
+    monkeypatch.setenv("SPHEREX_REDUCE_BLOCK_PLUGINS", "damaged")  # listed, never imported
+    assert run("plugins") == 0, capsys.readouterr().err
+    out = capsys.readouterr().out
+    assert "correct_reference" in out and "damaged-plugin" not in out

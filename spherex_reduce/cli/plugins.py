@@ -1,6 +1,6 @@
 """``spherex-reduce plugins``: what each plugin provides."""
 
-from ..plugins import BLOCK_ENV, Registry, blocked_plugins
+from ..plugins import BLOCK_ENV, Registry, blocked_plugins, plugin_distributions
 
 
 def add_parser(sub):
@@ -12,24 +12,6 @@ def add_parser(sub):
     p.set_defaults(func=run)
 
 
-def distributions():
-    """``{plugin name: "distribution version"}`` of the built-in and installed plugins.
-
-    Named as pytest names its plugins: the distribution that installs the entry
-    point, and its version; the package's own plugins are the package's.
-    """
-    import importlib.metadata
-
-    from .. import __version__
-    from ..plugins import BUILTIN_PLUGINS, ENTRY_POINT_GROUP
-
-    dists = dict.fromkeys(BUILTIN_PLUGINS, f"spherex-reduce {__version__}")
-    for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
-        if ep.dist is not None:
-            dists.setdefault(ep.name, f"{ep.dist.name} {ep.dist.version}")
-    return dists
-
-
 def _columns(rows):
     """Rows of strings as left-aligned columns two spaces apart."""
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
@@ -39,7 +21,7 @@ def _columns(rows):
 
 def run(args):
     registry = Registry()
-    dists = distributions()
+    dists = plugin_distributions()
     rows = [("kind", "name", "keyword", "strategies", "plugin", "distribution")]
 
     def add(kind, name, reg, keyword="", strategies=""):

@@ -15,7 +15,10 @@ import os
 
 from .errors import ResourceError
 
-__all__ = ["check_count", "check_size", "memory_budget"]
+__all__ = ["MAX_WORKERS", "check_count", "check_size", "memory_budget"]
+
+#: Most worker processes an embedded dask LocalCluster may start.
+MAX_WORKERS = 256
 
 try:  # not on every platform
     import resource

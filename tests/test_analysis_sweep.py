@@ -115,14 +115,16 @@ def test_scheduler_that_is_not_dask_is_an_input_error_named_fast():
     server.listen(1)
     port = server.getsockname()[1]
 
-    def answer_garbage():
-        conn, _ = server.accept()
-        with conn:
+    def answer_garbage():  # every connection (the reachability check's, then dask's)
+        while True:
+            try:
+                conn, _ = server.accept()
+            except OSError:  # closed at the end of the test
+                return
             conn.sendall(b"\xff" * 64)  # read by dask as an absurd message length
-            time.sleep(2)
+            threading.Timer(2, conn.close).start()
 
-    thread = threading.Thread(target=answer_garbage, daemon=True)
-    thread.start()
+    threading.Thread(target=answer_garbage, daemon=True).start()
     t0 = time.perf_counter()
     try:
         with pytest.raises(ConfigError, match=f"scheduler tcp://127.0.0.1:{port}"):
@@ -138,3 +140,20 @@ def test_workers_outside_one_to_many_are_refused(workers):
 
     with pytest.raises(ResourceError, match="workers must be a whole number"):
         run_sweep(SWEEP, workers=workers)
+
+
+def test_scheduler_that_accepts_and_stays_silent_is_refused_within_the_timeout():
+    """dask's own client waits for ever on such a server (even with its timeout)."""
+    import socket
+    import time
+
+    from spherex_reduce.analysis.sweep import check_scheduler
+
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen(1)  # the kernel completes the connection; nobody answers
+        address = f"tcp://127.0.0.1:{server.getsockname()[1]}"
+        t0 = time.perf_counter()
+        with pytest.raises(ConfigError, match="no dask scheduler answered within 2 s"):
+            check_scheduler(address, timeout=2)
+        assert time.perf_counter() - t0 < 10

@@ -23,6 +23,8 @@ Sweep file (YAML or dict)::
     measure: {kmin: 0.03, kmax: 0.13, bins: 30, exclude_horizontal: false, mask_sources: false}
 """
 
+import asyncio
+import concurrent.futures
 import copy
 import hashlib
 import itertools
@@ -40,7 +42,7 @@ from astropy.table import Table
 
 from ..config import READOUT_PARAMETERS, load_yaml
 from ..errors import ConfigError
-from ..limits import check_count
+from ..limits import MAX_WORKERS, check_count
 
 __all__ = ["Sweep", "SweepResult", "load_sweep", "plot_sweep", "run_cell", "run_sweep"]
 
@@ -352,6 +354,74 @@ def quiet_dask_logs(level=logging.WARNING):
             logging.getLogger(name).setLevel(level)
 
 
+def check_scheduler(address, timeout=5.0, name="scheduler"):
+    """Refuse, within ``timeout`` seconds, a dask scheduler address that is not reachable.
+
+    ``None`` (an embedded cluster) and ``"serial"`` pass.  Otherwise the address
+    must parse as a dask address, and a dask scheduler must answer there: dask's
+    own client waits 30 s, or for ever on a server that accepts and stays silent.
+
+    Parameters
+    ----------
+    address : str or None
+        E.g. ``"tcp://host:8786"``.
+    timeout : float
+        Seconds to wait for the connection.
+    name : str
+        How the message names the setting (the CLI passes ``"--scheduler"``).
+
+    Raises
+    ------
+    ConfigError
+        Naming the address and the reason.
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.sweep import check_scheduler
+    >>> check_scheduler("serial")
+    >>> check_scheduler("not a url")
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.errors.ConfigError: scheduler 'not a url': not a dask ...
+    """
+    if address is None or address == "serial":
+        return
+    from distributed.comm import parse_address, parse_host_port
+
+    try:
+        scheme, loc = parse_address(address)
+        port = parse_host_port(loc)[1] if scheme in ("tcp", "tls") else None
+        if any(c.isspace() for c in address) or (scheme in ("tcp", "tls") and not port):
+            raise ValueError("no host:port")
+    except (ValueError, TypeError):
+        raise ConfigError(f"{name} {address!r}: not a dask scheduler address (e.g. "
+                          "tcp://host:8786, or 'serial')") from None
+    try:
+        with concurrent.futures.ThreadPoolExecutor(1) as pool:  # also under a running loop
+            reply = pool.submit(asyncio.run, _identity(address, timeout)).result()
+    except Exception as exc:
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise ConfigError(f"{name} {address}: no dask scheduler answered within {timeout:g} s "
+                          f"({reason})") from None
+    if not (isinstance(reply, dict) and reply.get("type") == "Scheduler"):
+        raise ConfigError(f"{name} {address}: answered, but is not a dask scheduler")
+
+
+async def _identity(address, timeout):
+    """The ``identity`` reply of the dask server at ``address``, within ``timeout`` seconds."""
+    from distributed.comm import connect
+
+    async def ask():
+        comm = await connect(address, timeout=timeout)
+        try:
+            await comm.write({"op": "identity"})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    return await asyncio.wait_for(ask(), timeout)
+
+
 def _client(scheduler, workers):
     """``(client, cluster, owned)``: a client for ``scheduler`` (None: a new LocalCluster)."""
     from distributed import Client, LocalCluster
@@ -359,13 +429,14 @@ def _client(scheduler, workers):
     if isinstance(scheduler, Client):
         return scheduler, None, False
     if scheduler:
+        check_scheduler(scheduler)
         try:
             return Client(scheduler, timeout=10), None, True
         except (OSError, TimeoutError, ValueError, TypeError, MemoryError) as exc:
             # a closed port, a server that does not speak dask, an address that does not parse
             raise ConfigError(f"scheduler {scheduler}: cannot connect as a dask client "
                               f"({type(exc).__name__}: {exc})") from None
-    workers = 2 if workers is None else check_count(workers, "workers", 1024)
+    workers = 2 if workers is None else check_count(workers, "workers", MAX_WORKERS)
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                            dashboard_address=":0")
     return Client(cluster), cluster, True
@@ -388,7 +459,7 @@ def run_sweep(sweep, output=None, *, scheduler=None, workers=None, overwrite=Fal
         existing dask scheduler; a ``Client``: used as it is (not closed);
         ``"serial"``: in this process, no dask.
     workers : int, optional
-        Worker processes of the LocalCluster (default 2; 1 to 1024).
+        Worker processes of the LocalCluster (default 2; 1 to `spherex_reduce.limits.MAX_WORKERS`).
     overwrite : bool
         Ignore and replace an existing ``output``.
     progress : bool

@@ -12,13 +12,12 @@ import argparse
 import contextlib
 import math
 import os
-import socket
 
 from ..errors import ResourceError, SpherexReduceError
 from ..fits_format import atomic_output
 from ..limits import check_count
 
-__all__ = ["all_or_nothing", "check_paths", "check_scheduler", "count", "finite_float",
+__all__ = ["all_or_nothing", "check_paths", "count", "finite_float",
            "named_files", "nonnegative_float", "positive_float"]
 
 
@@ -250,47 +249,3 @@ def all_or_nothing(paths, overwrite):
     with contextlib.ExitStack() as stack:
         yield [None if p is None else stack.enter_context(atomic_output(p, overwrite))
                for p in paths]
-
-
-def check_scheduler(address, timeout=5.0):
-    """Refuse, within ``timeout`` seconds, a dask scheduler address that is not reachable.
-
-    ``None`` and ``"serial"`` pass.  Otherwise the address must parse as a dask
-    address and, for TCP, accept a connection.
-
-    Raises
-    ------
-    SpherexReduceError
-        Naming the address and the reason.
-
-    Examples
-    --------
-    >>> from spherex_reduce.cli._common import check_scheduler
-    >>> check_scheduler("serial")
-    >>> check_scheduler("not a url")
-    Traceback (most recent call last):
-    ...
-    spherex_reduce.errors.SpherexReduceError: --scheduler 'not a url': not a dask ...
-    """
-    if address is None or address == "serial":
-        return
-    from distributed.comm import parse_address, parse_host_port
-
-    try:
-        scheme, loc = parse_address(address)
-        host, port = parse_host_port(loc) if scheme in ("tcp", "tls") else (None, None)
-        if any(c.isspace() for c in address) or (scheme in ("tcp", "tls") and not port):
-            raise ValueError("no host:port")
-    except (ValueError, TypeError):
-        raise SpherexReduceError(
-            f"--scheduler {address!r}: not a dask scheduler address (e.g. tcp://host:8786, "
-            "or 'serial')") from None
-    if host is None:
-        return
-    try:
-        socket.create_connection((host, port), timeout=timeout).close()
-    except OSError as exc:
-        reason = exc.strerror or str(exc) or type(exc).__name__
-        raise SpherexReduceError(
-            f"--scheduler {address}: cannot connect within {timeout:g} s ({reason})") from None
-

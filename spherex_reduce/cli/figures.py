@@ -1,6 +1,7 @@
 """``spherex-reduce figures``: reproduce the paper's simulated figures with a report."""
 
-from ._common import check_scheduler, count
+from ..limits import MAX_WORKERS
+from ._common import count
 
 
 def add_parser(sub):
@@ -16,7 +17,7 @@ def add_parser(sub):
                    help="realisations per point (default 5; 1 with --quick)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="dask scheduler address; 'serial' runs in-process")
-    p.add_argument("--workers", type=count(256), default=2,
+    p.add_argument("--workers", type=count(MAX_WORKERS), default=2,
                    help="LocalCluster worker processes (default 2)")
     p.add_argument("--overwrite", action="store_true", help="replace files in DIR")
     p.set_defaults(func=run)
@@ -24,8 +25,9 @@ def add_parser(sub):
 
 def run(args):
     from ..analysis.figures import make_figures
+    from ..analysis.sweep import check_scheduler
 
-    check_scheduler(args.scheduler)  # fail fast, not after dask's 30 s timeout
+    check_scheduler(args.scheduler, name="--scheduler")  # before any work
     if not args.verbose:  # dask's INFO lines about workers and connections
         from ..analysis.sweep import quiet_dask_logs
 

@@ -5,7 +5,8 @@ from pathlib import Path
 
 from .._text import plural
 from ..fits_format import atomic_output
-from ._common import check_paths, check_scheduler, count, named_files
+from ..limits import MAX_WORKERS
+from ._common import check_paths, count, named_files
 
 
 def add_parser(sub):
@@ -20,7 +21,7 @@ def add_parser(sub):
     p.add_argument("-o", "--output", required=True, metavar="RESULTS.ecsv")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="dask scheduler address (tcp://host:8786); 'serial' runs in-process")
-    p.add_argument("--workers", type=count(256), default=2,
+    p.add_argument("--workers", type=count(MAX_WORKERS), default=2,
                    help="worker processes of the embedded LocalCluster (default 2)")
     p.add_argument("--plot", nargs="?", const=True, metavar="PNG",
                    help="band power against the first grid key (default: OUTPUT with .png)")
@@ -48,7 +49,9 @@ def run(args):
     atomic_output(args.output, True)  # checks the name and directory
     if plot:
         atomic_output(plot, True)  # checks the directory; the plot follows the results
-    check_scheduler(args.scheduler)  # fail fast, not after dask's 30 s timeout
+    from ..analysis.sweep import check_scheduler
+
+    check_scheduler(args.scheduler, name="--scheduler")  # before any work
     res = run_sweep(sweep, args.output, scheduler=args.scheduler, workers=args.workers,
                     overwrite=args.overwrite, progress=not args.quiet)
     print(f"{plural(len(sweep.cells()), 'cell')}: {res.computed} computed, {res.skipped} "

@@ -55,7 +55,7 @@ from astropy.table import Table
 from .errors import FormatError
 from .exposure import Exposure, ReferenceReads, expected_shape
 from .limits import check_size
-from .schedule import ReadoutSchedule, header_keyword
+from .schedule import ReadoutSchedule, _card_text, header_keyword
 
 __all__ = ["FrameReader", "atomic_output", "checksum_policy", "is_raw_ramp_file", "read",
            "write"]
@@ -571,9 +571,8 @@ def _check_cards(hdu, path):
             try:
                 value = card.value
             except Exception as exc:  # VerifyError: e.g. "X = NAN", "X = 1E9999x"
-                raw = str(getattr(card, "_image", "") or "")[10:].split("/")[0].strip()
                 raise FormatError(f"{path}: HDU {hdu.name!r} has the unreadable header card "
-                                  f"{card.keyword} = {raw}") from exc
+                                  f"{card.keyword} = {_card_text(card)}") from exc
             if isinstance(value, float) and not math.isfinite(value):
                 raise FormatError(f"{path}: HDU {hdu.name!r} has the header card "
                                   f"{card.keyword} = {value}, not a finite number")

@@ -57,8 +57,8 @@ from .exposure import Exposure, ReferenceReads, expected_shape
 from .limits import check_size
 from .schedule import ReadoutSchedule, _card_text, header_keyword
 
-__all__ = ["FrameReader", "atomic_output", "checksum_policy", "is_raw_ramp_file", "read",
-           "write"]
+__all__ = ["CheckedFITS", "FrameReader", "atomic_output", "checksum_policy", "is_raw_ramp_file",
+           "open_checked", "read", "write"]
 
 log = logging.getLogger(__name__)
 
@@ -632,6 +632,99 @@ def _readonly(*arrays):
             array.setflags(write=False)
 
 
+class CheckedFITS:
+    """A FITS file opened read-only by `open_checked`, after the checks `read` makes.
+
+    Use it as a context manager (the file is closed on exit).
+
+    Attributes
+    ----------
+    path : `pathlib.Path`
+    hdul : `astropy.io.fits.HDUList`
+        The file's HDUs, read-only (memory-mapped for plain FITS on disk).
+    bad : list of str
+        Names of the HDUs whose checksum failed; only ever non-empty when the
+        file was opened with checksum verification off.
+    """
+
+    def __init__(self, path, verify_checksum=None, memmap=True):
+        self.path, self._name = Path(path), path  # messages name the path as given
+        self.hdul, self.bad, self._plain = _open(path, memmap, verify_checksum)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self):
+        """Close the file (arrays already returned stay valid)."""
+        self.hdul.close()
+
+    def exposure(self, **supplied):
+        """The `Exposure` of a file in this package's format, as `read` returns it.
+
+        ``supplied`` are the readout parameters `read` takes.
+        """
+        return _exposure(self.hdul, self._name, self.bad, self._plain, supplied)
+
+    def physical(self, hdu):
+        """The data of image HDU ``hdu`` in physical values (``BSCALE``/``BZERO``
+        applied, ``BLANK`` as NaN; as stored if unscaled), or None if it has none."""
+        return _physical(hdu, self._name, self._plain)
+
+    def note_bad_checksums(self, header):
+        """Record in ``header`` (changed in place) which HDUs failed their checksum:
+        ``SXRCKBAD`` and a ``HISTORY`` card, as `read` does; nothing if none did."""
+        _note_bad_checksums(header, self.bad, self._name)
+
+
+def open_checked(path, verify_checksum=None):
+    """Open any FITS file read-only after checking it as `read` does, without reading it.
+
+    The structure is scanned first (a truncated file is named as such),
+    ``CHECKSUM``/``DATASUM`` are verified and every header card must parse
+    to a finite value.  Use this to read files that may or may not be in this
+    package's format.
+
+    Parameters
+    ----------
+    path : str or `pathlib.Path`
+        FITS file (plain, or compressed as astropy reads it); never changed.
+    verify_checksum : bool, optional
+        As for `read`: a checksum mismatch is an error (True) or only noted
+        in `CheckedFITS.bad` (False).  Default: `checksum_policy`.
+
+    Returns
+    -------
+    `CheckedFITS`
+        A context manager holding the open HDU list.
+
+    Raises
+    ------
+    FileNotFoundError
+        No file at ``path``.
+    FormatError
+        The file is truncated, not FITS, has a bad checksum (when verified)
+        or a header card that does not parse.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib, numpy as np
+    >>> from astropy.io import fits
+    >>> from spherex_reduce.fits_format import open_checked
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "img.fits"
+    >>> hdu = fits.PrimaryHDU(np.array([[0, 1], [2, 3]], dtype=np.int16))
+    >>> hdu.header["BSCALE"], hdu.header["BZERO"] = 0.5, 10.0
+    >>> hdu.writeto(path, checksum=True)
+    >>> with open_checked(path) as f:
+    ...     data = f.physical(f.hdul[0])
+    >>> data.tolist(), f.bad
+    ([[10.0, 10.5], [11.0, 11.5]], [])
+    """
+    return CheckedFITS(path, verify_checksum)
+
+
 def read(path, verify_checksum=None, **supplied):
     """Read an exposure written by `write` (or raw data from other electronics).
 
@@ -679,9 +772,8 @@ def read(path, verify_checksum=None, **supplied):
     >>> e.data.data.dtype, float(e.data.data.max())
     (dtype('float32'), 60127.0)
     """
-    hdul, bad, plain = _open(path, memmap=True, verify=verify_checksum)
-    with hdul:
-        return _exposure(hdul, path, bad, plain, supplied)
+    with CheckedFITS(path, verify_checksum) as f:
+        return f.exposure(**supplied)
 
 
 def _exposure(hdul, path, bad, plain, supplied):

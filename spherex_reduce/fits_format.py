@@ -55,10 +55,10 @@ from astropy.table import Table
 from .errors import FormatError
 from .exposure import Exposure, ReferenceReads, expected_shape
 from .limits import check_size
-from .schedule import ReadoutSchedule, header_keyword
+from .schedule import ReadoutSchedule, _card_text, header_keyword
 
-__all__ = ["FrameReader", "atomic_output", "checksum_policy", "is_raw_ramp_file", "read",
-           "write"]
+__all__ = ["CheckedFITS", "FrameReader", "atomic_output", "checksum_policy", "is_raw_ramp_file",
+           "open_checked", "read", "write"]
 
 log = logging.getLogger(__name__)
 
@@ -461,20 +461,39 @@ def _fold(total):
     return total
 
 
+class _DataSum:
+    """Running FITS ones'-complement sum of big-endian 32-bit words (``DATASUM``).
+
+    The FITS checksum algorithm (FITS standard 4.0, appendix J).  `add` takes
+    whole words as they are on disk: a big-endian array or bytes whose length
+    is a multiple of 4.  numpy sums each piece in 64-bit integers (no carry is
+    lost below 2**32 words, 16 GB, per piece); `value` folds the total.
+    """
+
+    __slots__ = ("total",)
+
+    def __init__(self):
+        self.total = 0
+
+    def add(self, raw):
+        self.total += int(np.add.reduce(np.frombuffer(raw, ">u4"), dtype=np.uint64))
+
+    @property
+    def value(self):
+        return _fold(self.total)
+
+
 def _word_sum(fh, start, nbytes, chunk=1 << 20):
     """Ones'-complement sum of the big-endian 32-bit words of bytes ``start:start+nbytes``.
 
-    The FITS checksum algorithm (FITS standard 4.0, appendix J): numpy sums
-    the words in 64-bit integers a chunk at a time (no carry is lost: 2**18
-    words of < 2**32 each), then the total is folded.  A tail shorter than a
-    word is padded with zeros, as the file's padding would be.  The chunks are
-    read into one reused buffer (``readinto``): memory stays at one chunk, the
-    sum runs from the cache, and no page of the file is mapped (faster than a
+    Summed by `_DataSum` a chunk at a time.  A tail shorter than a word is
+    padded with zeros, as the file's padding would be.  The chunks are read
+    into one reused buffer (``readinto``): memory stays at one chunk, the sum
+    runs from the cache, and no page of the file is mapped (faster than a
     memory map by ~30 %, measured).
     """
-    buf = np.zeros(chunk // 4, ">u4")
-    raw = memoryview(buf).cast("B")
-    total, left = 0, nbytes
+    raw = memoryview(np.zeros(chunk // 4 + 1, ">u4")).cast("B")  # aligned, room to pad
+    total, left = _DataSum(), nbytes
     fh.seek(start)
     while left:
         n = got = min(chunk, left)
@@ -485,9 +504,9 @@ def _word_sum(fh, start, nbytes, chunk=1 << 20):
             got -= k
         if n % 4:  # the last bytes of the data: pad the word with zeros
             raw[n : n + 4 - n % 4] = bytes(4 - n % 4)
-        total += int(np.add.reduce(buf[: -(-n // 4)], dtype=np.uint64))
+        total.add(raw[: n + (-n) % 4])
         left -= n
-    return _fold(total)
+    return total.value
 
 
 def _verify(path, hdus):
@@ -552,9 +571,8 @@ def _check_cards(hdu, path):
             try:
                 value = card.value
             except Exception as exc:  # VerifyError: e.g. "X = NAN", "X = 1E9999x"
-                raw = str(getattr(card, "_image", "") or "")[10:].split("/")[0].strip()
                 raise FormatError(f"{path}: HDU {hdu.name!r} has the unreadable header card "
-                                  f"{card.keyword} = {raw}") from exc
+                                  f"{card.keyword} = {_card_text(card)}") from exc
             if isinstance(value, float) and not math.isfinite(value):
                 raise FormatError(f"{path}: HDU {hdu.name!r} has the header card "
                                   f"{card.keyword} = {value}, not a finite number")
@@ -614,6 +632,99 @@ def _readonly(*arrays):
             array.setflags(write=False)
 
 
+class CheckedFITS:
+    """A FITS file opened read-only by `open_checked`, after the checks `read` makes.
+
+    Use it as a context manager (the file is closed on exit).
+
+    Attributes
+    ----------
+    path : `pathlib.Path`
+    hdul : `astropy.io.fits.HDUList`
+        The file's HDUs, read-only (memory-mapped for plain FITS on disk).
+    bad : list of str
+        Names of the HDUs whose checksum failed; only ever non-empty when the
+        file was opened with checksum verification off.
+    """
+
+    def __init__(self, path, verify_checksum=None, memmap=True):
+        self.path, self._name = Path(path), path  # messages name the path as given
+        self.hdul, self.bad, self._plain = _open(path, memmap, verify_checksum)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self):
+        """Close the file (arrays already returned stay valid)."""
+        self.hdul.close()
+
+    def exposure(self, **supplied):
+        """The `Exposure` of a file in this package's format, as `read` returns it.
+
+        ``supplied`` are the readout parameters `read` takes.
+        """
+        return _exposure(self.hdul, self._name, self.bad, self._plain, supplied)
+
+    def physical(self, hdu):
+        """The data of image HDU ``hdu`` in physical values (``BSCALE``/``BZERO``
+        applied, ``BLANK`` as NaN; as stored if unscaled), or None if it has none."""
+        return _physical(hdu, self._name, self._plain)
+
+    def note_bad_checksums(self, header):
+        """Record in ``header`` (changed in place) which HDUs failed their checksum:
+        ``SXRCKBAD`` and a ``HISTORY`` card, as `read` does; nothing if none did."""
+        _note_bad_checksums(header, self.bad, self._name)
+
+
+def open_checked(path, verify_checksum=None):
+    """Open any FITS file read-only after checking it as `read` does, without reading it.
+
+    The structure is scanned first (a truncated file is named as such),
+    ``CHECKSUM``/``DATASUM`` are verified and every header card must parse
+    to a finite value.  Use this to read files that may or may not be in this
+    package's format.
+
+    Parameters
+    ----------
+    path : str or `pathlib.Path`
+        FITS file (plain, or compressed as astropy reads it); never changed.
+    verify_checksum : bool, optional
+        As for `read`: a checksum mismatch is an error (True) or only noted
+        in `CheckedFITS.bad` (False).  Default: `checksum_policy`.
+
+    Returns
+    -------
+    `CheckedFITS`
+        A context manager holding the open HDU list.
+
+    Raises
+    ------
+    FileNotFoundError
+        No file at ``path``.
+    FormatError
+        The file is truncated, not FITS, has a bad checksum (when verified)
+        or a header card that does not parse.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib, numpy as np
+    >>> from astropy.io import fits
+    >>> from spherex_reduce.fits_format import open_checked
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "img.fits"
+    >>> hdu = fits.PrimaryHDU(np.array([[0, 1], [2, 3]], dtype=np.int16))
+    >>> hdu.header["BSCALE"], hdu.header["BZERO"] = 0.5, 10.0
+    >>> hdu.writeto(path, checksum=True)
+    >>> with open_checked(path) as f:
+    ...     data = f.physical(f.hdul[0])
+    >>> data.tolist(), f.bad
+    ([[10.0, 10.5], [11.0, 11.5]], [])
+    """
+    return CheckedFITS(path, verify_checksum)
+
+
 def read(path, verify_checksum=None, **supplied):
     """Read an exposure written by `write` (or raw data from other electronics).
 
@@ -661,9 +772,8 @@ def read(path, verify_checksum=None, **supplied):
     >>> e.data.data.dtype, float(e.data.data.max())
     (dtype('float32'), 60127.0)
     """
-    hdul, bad, plain = _open(path, memmap=True, verify=verify_checksum)
-    with hdul:
-        return _exposure(hdul, path, bad, plain, supplied)
+    with CheckedFITS(path, verify_checksum) as f:
+        return f.exposure(**supplied)
 
 
 def _exposure(hdul, path, bad, plain, supplied):

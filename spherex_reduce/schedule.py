@@ -44,6 +44,11 @@ ACTIVE, REFERENCE = "active", "reference"
 #: float64; at 100 kHz, 2850 years).
 MAX_SAMPLES = 2**53
 
+# Memory a schedule holds per read of a frame and per column (all its arrays,
+# with room to spare): the one estimate `_check_schedule_size` uses.
+_BYTES_PER_READ = 100
+_BYTES_PER_COLUMN = 40
+
 
 def chopped_order(n, skip):
     """Order in which ``n`` rows are read with row-chopping skip ``skip``.
@@ -125,8 +130,8 @@ def header_keyword(header, key, kind, minimum=None, default=_MISSING, positive=F
     try:
         value = header.cards[key].value
     except Exception as exc:  # VerifyError: a card astropy cannot parse (NAN, 1E999x, ...)
-        raw = str(getattr(header.cards[key], "_image", "") or "")[10:].split("/")[0].strip()
-        raise FormatError(f"keyword {key} has an unreadable value {raw!r}") from exc
+        raise FormatError(f"keyword {key} has an unreadable value "
+                          f"{_card_text(header.cards[key])!r}") from exc
     if kind is str:
         if not isinstance(value, str):
             raise FormatError(f"keyword {key} must be a string, got {value!r}")
@@ -147,6 +152,11 @@ def header_keyword(header, key, kind, minimum=None, default=_MISSING, positive=F
     if positive and value <= 0:
         raise FormatError(f"keyword {key} must be > 0, got {value!r}")
     return value
+
+
+def _card_text(card):
+    """The value of a header card as written in the file (for a card astropy cannot parse)."""
+    return str(getattr(card, "_image", "") or "")[10:].split("/")[0].strip()
 
 
 @dataclass(frozen=True, eq=False)
@@ -224,9 +234,8 @@ class ReadoutSchedule:
                 "rows, but ref_border is 0: set ref_reads to 0 or ref_mode to 'none'"
             )
         g = self.geometry
-        reads = g.nrows + (self.ref_reads if self.ref_mode != "none" else 0)
-        check_size(reads * 40.0, f"a readout schedule of {reads} row reads (nrows={g.nrows}, "
-                   f"ref_reads={self.ref_reads})")
+        _check_schedule_size(g.nrows, g.ncols, g.nchannels,
+                             self.ref_reads if self.ref_mode != "none" else 0, g.ref_border)
         rows, kinds = self._build_order()
         set_(self, "_rows", rows)
         set_(self, "_is_ref", kinds)
@@ -548,7 +557,8 @@ class ReadoutSchedule:
                 f"missing readout keyword(s) {', '.join(missing)}: the file does not say how it "
                 "was read; supply them in the pipeline config's geometry:/readout: sections"
             )
-        _check_schedule_size(values)
+        _check_schedule_size(*(values.get(n, 0) for n in ("nrows", "ncols", "nchannels",
+                                                          "ref_reads", "ref_border")))
         geo_names = ["nrows", "ncols", "nchannels", "ref_border", "pixel_rate"]
         gkw = {n: values[n] for n in geo_names if n in values}
         try:
@@ -604,20 +614,22 @@ class ReadoutSchedule:
                 )
 
 
-def _check_schedule_size(values):
-    """Refuse header or supplied sizes whose schedule tables would not fit in memory.
+def _check_schedule_size(nrows, ncols, nchannels, ref_reads, ref_border):
+    """Refuse sizes whose schedule tables would not fit in memory, before building them.
 
     A schedule holds a few arrays of one entry per read of a frame (at most
-    ``nrows + ref_reads`` of them, ~100 bytes each) and per column; they are
-    built before the file's arrays can be compared with them.
+    ``nrows + ref_reads`` reads, plus index arrays of the ``2 * ref_border``
+    reference rows; `_BYTES_PER_READ` each) and per column and channel
+    (`_BYTES_PER_COLUMN` each).  The values may come straight from a header
+    or a config: any that is not a finite number counts as 0 here (the
+    constructor names it).
     """
-    def count(name):
-        value = values.get(name, 0)
+    def count(value):
         ok = isinstance(value, (int, float, np.integer, np.floating)) and math.isfinite(value)
-        return max(float(value), 0.0) if ok else 0.0  # wrong types: the constructor says
+        return max(float(value), 0.0) if ok else 0.0
 
-    reads = count("nrows") + count("ref_reads") + 2 * count("ref_border")
-    nbytes = 100 * reads + 40 * (count("ncols") + count("nchannels"))
-    check_size(nbytes, f"a readout schedule of NROWS={values.get('nrows')}, NCOLS="
-               f"{values.get('ncols')}, NCHAN={values.get('nchannels')}, NREFRD="
-               f"{values.get('ref_reads')}")
+    reads = count(nrows) + count(ref_reads)
+    nbytes = (_BYTES_PER_READ * (reads + 2 * count(ref_border))
+              + _BYTES_PER_COLUMN * (count(ncols) + count(nchannels)))
+    check_size(nbytes, f"a readout schedule of {reads:.6g} row reads (nrows={nrows}, "
+               f"ref_reads={ref_reads}, ncols={ncols}, nchannels={nchannels})")

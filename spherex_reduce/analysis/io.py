@@ -41,15 +41,14 @@ def read_image(path, ext=None):
         `~spherex_reduce.fits_format.checksum_policy`), in this package's
         format but inconsistent, or has no 2-D image.
     """
-    from ..fits_format import _exposure, _open
+    from ..fits_format import open_checked
 
     path = Path(path)
-    hdul, bad, plain = _open(path, memmap=True)  # truncation, checksums, unreadable cards
-    with hdul:
-        if "READOUT" not in hdul and "ROWSKIP" not in hdul[0].header:
-            return _foreign_image(hdul, path, ext, bad, plain)
+    with open_checked(path) as f:  # truncation, checksums, unreadable cards
+        if "READOUT" not in f.hdul and "ROWSKIP" not in f.hdul[0].header:
+            return _foreign_image(f, path, ext)
         # this package's format: its errors are the answer (no second guess as a plain image)
-        exposure = _exposure(hdul, path, bad, plain, {})
+        exposure = f.exposure()
     if exposure.is_ramp:
         raise SpherexReduceError(
             f"{path} holds ramps {exposure.shape}; fit them first (spherex-reduce reduce "
@@ -66,10 +65,11 @@ def read_image(path, ext=None):
     return ccd
 
 
-def _foreign_image(hdul, path, ext, bad, plain):
-    """The 2-D image of a FITS file not in this package's format."""
-    from ..fits_format import _note_bad_checksums, _physical
+def _foreign_image(f, path, ext):
+    """The 2-D image of a FITS file not in this package's format (``f``: `open_checked`)."""
     from ..limits import check_size
+
+    hdul = f.hdul
 
     try:
         hdus = [hdul[ext]] if ext is not None else list(hdul)
@@ -96,5 +96,5 @@ def _foreign_image(hdul, path, ext, bad, plain):
         if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
                                   or not value > 0):
             raise FormatError(f"{path}: keyword {key} = {value!r} is not a positive number")
-    _note_bad_checksums(header, bad, path)
-    return CCDData(np.array(_physical(hdu, path, plain), dtype=float), unit=unit, meta=header)
+    f.note_bad_checksums(header)
+    return CCDData(np.array(f.physical(hdu), dtype=float), unit=unit, meta=header)

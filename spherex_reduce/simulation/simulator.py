@@ -13,7 +13,7 @@ from astropy.io import fits
 
 from ..errors import ConfigError
 from ..exposure import Exposure
-from ..fits_format import _fold, _table_hdu, _unit_str, atomic_output
+from ..fits_format import _DataSum, _table_hdu, _unit_str, atomic_output
 from ..step import Simulator
 from .engine import NoiseEngine
 from .scene import load_scene
@@ -292,20 +292,6 @@ def simulate_to_fits(scene, path, *, mode=None, seed=None, overwrite=False, prog
         first = len(fits.PrimaryHDU().header.tostring())
         f.write(buf.getvalue()[first:])
     return out.path
-
-
-class _DataSum:
-    """FITS 32-bit ones' complement sum, accumulated over big-endian chunks."""
-
-    def __init__(self):
-        self.total = 0
-
-    def add(self, raw):
-        self.total += int(raw.view(">u4").sum(dtype="u8"))
-
-    @property
-    def value(self):
-        return _fold(self.total)
 
 
 class _ImageWriter:

@@ -762,7 +762,7 @@ class NoiseEngine:
         against ``_tiered_cost``): the exact route for few pixels per channel
         (its cost grows as ``reads² × (width + 1)³``), the tiered one for large
         arrays (its cost grows with the samples of a frame, overheads included),
-        but never the exact route if its memory (`_exact_memory`, mostly its
+        but never the exact route if its memory (``_exact_memory``, mostly its
         predictors: ``(reads × (width + 1))² / 2`` float64 values per scope)
         exceeds `~spherex_reduce.limits.memory_budget`.  The
         random-phase method and paddings below the default keep the tiered

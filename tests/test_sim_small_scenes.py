@@ -7,12 +7,14 @@ took 1.3 s (N = 10) to 9 s (N = 74); the exact route draws the 88 x 4 pixels
 and 88 phantom means per stream from their covariance (block Durbin-Levinson).
 """
 
+import collections
 import time
 
 import numpy as np
 import pytest
 
-from spherex_reduce import expected_slope_variance, simulate
+from spherex_reduce import expected_slope_variance, limits, simulate
+from spherex_reduce.errors import ResourceError
 from spherex_reduce.simulation import NoiseComponent, NoiseEngine, load_scene, slope_covariance
 from spherex_reduce.simulation import engine as engine_module
 
@@ -20,6 +22,26 @@ from spherex_reduce.simulation import engine as engine_module
 def _scene(n, **readout):
     return {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 16},
             "readout": {"nframes": n, "row_overhead": 2000, **readout}}
+
+
+#: Per-pixel and per-phantom-mean slope variance ((e/s)²) of ``_scene(n)`` with all Table 2
+#: terms: ``expected_slope_variance`` of the code of commit b35dab9, before the exact route and
+#: before `slope_covariance` existed (it summed each component's structure function frame lag
+#: by frame lag), run on this scene with that checkout.  Independent of the code under test.
+B35DAB9_VARIANCE = {
+    2: (63.63533480281887, 0.3249341652051702),
+    10: (0.39317453183099194, 0.00206400902911213),
+    74: (0.0012224968607698985, 6.953688111611447e-06),
+}
+
+
+@pytest.mark.parametrize("n", [2, 10, 74])
+def test_analytic_variance_equals_the_code_before_the_exact_route(n):
+    sc = load_scene(_scene(n))
+    pix = expected_slope_variance(list(sc.components), sc.schedule).value
+    ph = expected_slope_variance(list(sc.components), sc.schedule, kind="phantom").value
+    assert pix == pytest.approx(B35DAB9_VARIANCE[n][0], rel=1e-9)
+    assert ph == pytest.approx(B35DAB9_VARIANCE[n][1], rel=1e-9)
 
 
 @pytest.mark.parametrize("n, nreal", [(2, 64), (10, 64), (74, 400)])
@@ -35,8 +57,7 @@ def test_small_scene_slope_variance_within_2_percent(n, nreal):
     standard errors, whichever is larger (2 %, 2.1 %, 2.4 %).
     """
     sc = load_scene(_scene(n))
-    ana = expected_slope_variance(list(sc.components), sc.schedule).value
-    ana_ph = expected_slope_variance(list(sc.components), sc.schedule, kind="phantom").value
+    ana, ana_ph = B35DAB9_VARIANCE[n]
     pix, ph = [], []
     for seed in range(nreal):
         e = simulate(sc, seed=seed, mode="slopes")
@@ -63,7 +84,7 @@ def test_small_scene_slopes_are_fast():
 @pytest.mark.parametrize("n", [2, 74])
 def test_exact_route_covariance_is_the_analytic_one(n):
     """No Monte Carlo: the drawn vectors' variances (rows of the factors) sum, per pixel and per
-    phantom mean, to `expected_slope_variance` (the same structure function, summed otherwise)."""
+    phantom mean, to the analytic variance of the code before the exact route."""
     sc = load_scene(_scene(n))
     eng = NoiseEngine(sc.schedule, sc.components, 0)
     assert eng.slope_route == "exact"
@@ -77,8 +98,7 @@ def test_exact_route_covariance_is_the_analytic_one(n):
         var_pix[:, pix] += d[:, :pix.size]
         if phq.size:
             var_ph += d[:, -1]
-    ana = expected_slope_variance(list(sc.components), sc.schedule).value
-    ana_ph = expected_slope_variance(list(sc.components), sc.schedule, kind="phantom").value
+    ana, ana_ph = B35DAB9_VARIANCE[n]
     np.testing.assert_allclose(var_pix, ana, rtol=1e-9)
     np.testing.assert_allclose(var_ph, ana_ph, rtol=1e-9)
 
@@ -148,3 +168,69 @@ def test_exact_route_common_terms_follow_the_scan_direction():
     np.testing.assert_array_equal(img[:, :w], img[:, 2 * w:3 * w])
     assert np.all(ph == ph[:, :1])  # bias_correlated reaches every phantom mean alike
     assert np.std(img) > 0
+
+
+def _tiny(n):
+    """A small scene (16 x 16 pixels, 4 channels) whose exact factors build in milliseconds."""
+    return {"geometry": {"nrows": 16, "ncols": 16, "nchannels": 4},
+            "readout": {"nframes": n, "row_overhead": 50}}
+
+
+def _held(factors):
+    """Bytes of the predictors and innovation factors of an exact-route entry."""
+    return sum(a.nbytes for plan, _, _ in factors.values() for a in plan.pred + plan.innov)
+
+
+def _cached_bytes():
+    entries = engine_module._EXACT_FACTORS.values()
+    return sum(_held(v[0] if isinstance(v, tuple) else v) for v in entries)
+
+
+def test_exact_factor_cache_is_bounded_by_bytes(monkeypatch):
+    """Several distinct scenes (a sweep over N) keep at most the byte bound alive (it was 8
+    scenes whatever their size: up to 2.4 GB); an entry larger than the bound is used, not
+    kept."""
+    monkeypatch.setattr(engine_module, "_EXACT_FACTORS", collections.OrderedDict())
+    scenes = [load_scene(_tiny(n)) for n in range(2, 8)]
+    engines = [NoiseEngine(sc.schedule, sc.components, 0) for sc in scenes]
+    assert {e.slope_route for e in engines} == {"exact"}
+    size = _held(engines[0]._exact_factors())  # the same reads and widths: the same size
+    assert size > 0
+    engine_module._EXACT_FACTORS.clear()
+    bound = int(2.5 * size)
+    monkeypatch.setattr(NoiseEngine, "EXACT_CACHE_BYTES", bound, raising=False)
+    for sc in scenes:
+        img = simulate(sc, seed=1, mode="slopes")
+        assert img.header["SIMROUTE"] == "exact"
+        assert 0 < _cached_bytes() <= bound
+    assert len(engine_module._EXACT_FACTORS) == 2  # the two most recent scenes
+    # an entry larger than the bound: drawn, not kept, and the others left alone
+    monkeypatch.setattr(NoiseEngine, "EXACT_CACHE_BYTES", size // 2, raising=False)
+    engine_module._EXACT_FACTORS.clear()
+    img, ph = engines[0].slopes()
+    assert np.std(img) > 0 and np.std(ph) > 0
+    assert len(engine_module._EXACT_FACTORS) == 0
+
+
+def test_exact_route_is_not_chosen_beyond_the_memory_budget(monkeypatch):
+    """The exact route's factors must fit in what the process may allocate: a 1024-row, 64-col,
+    32-channel scene with a 2000-sample overhead at N = 74 keeps 79 MB of predictors (measured,
+    1.1 s to build), so with a 100 MB budget it takes the tiered route; asked for explicitly,
+    the exact route is refused before anything is allocated."""
+    big = load_scene({"geometry": {"nrows": 1024, "ncols": 64, "nchannels": 32},
+                      "readout": {"nframes": 74, "row_overhead": 2000}})
+    eng = NoiseEngine(big.schedule, big.components, 0)
+    monkeypatch.setattr(limits, "memory_budget", lambda: 2**40)
+    assert eng.slope_route == "exact"
+    monkeypatch.setattr(limits, "memory_budget", lambda: 100 * 10**6)
+    assert eng.slope_route == "tiered"
+    forced = NoiseEngine(big.schedule, big.components, 0, slope_route="exact")
+    with pytest.raises(ResourceError, match="exact slope route"):
+        forced.slopes()
+    # the estimate bounds what a small scene really keeps
+    small = load_scene(_tiny(3))
+    eng = NoiseEngine(small.schedule, small.components, 0)
+    held = _held(eng._exact_factors())
+    assert eng._exact_memory() >= held
+    monkeypatch.setattr(limits, "memory_budget", lambda: held // 2)
+    assert eng.slope_route == "tiered"

@@ -58,6 +58,7 @@ import numpy as np
 import scipy.fft as sfft
 from scipy import signal, sparse
 
+from .. import limits
 from .synthesis import covariance_from_weights, psd_weights, rng_for, synthesize
 from .variance import ls_weights, slope_covariance
 
@@ -195,7 +196,8 @@ class _Group:
         self.colored = any(c.beta or c.gamma for c in comps)
 
 
-#: Factors of the exact slope route, by scene timing and components (least recent first).
+#: Factors of the exact slope route, by scene timing and components (least recent first):
+#: ``key -> (factors, nbytes)``, at most `NoiseEngine.EXACT_CACHE_BYTES` in all.
 _EXACT_FACTORS = collections.OrderedDict()
 _EXACT_LOCK = threading.Lock()
 
@@ -237,7 +239,9 @@ class NoiseEngine:
     slope_route : {'exact', 'tiered'}, optional
         How `slopes` draws the image: ``'exact'`` from the covariance of the
         samples read (small scenes), ``'tiered'`` from the synthesised tiers.
-        By default the cheaper one (see `slope_route`); ``'exact'`` is only
+        By default the cheaper one that fits in memory (see `slope_route`;
+        ``'exact'`` given for a scene whose factors do not fit raises
+        `~spherex_reduce.errors.ResourceError`); ``'exact'`` is only
         chosen by default for Gaussian amplitudes with at least the default
         padding, since it is aperiodic whatever the padding.
 
@@ -757,7 +761,10 @@ class NoiseEngine:
         By default the route with the smaller operation count (``_exact_cost``
         against ``_tiered_cost``): the exact route for few pixels per channel
         (its cost grows as ``reads² × (width + 1)³``), the tiered one for large
-        arrays (its cost grows with the samples of a frame, overheads included).  The
+        arrays (its cost grows with the samples of a frame, overheads included),
+        but never the exact route if its memory (``_exact_memory``, mostly its
+        predictors: ``(reads × (width + 1))² / 2`` float64 values per scope)
+        exceeds `~spherex_reduce.limits.memory_budget`.  The
         random-phase method and paddings below the default keep the tiered
         synthesis, whose periodicity they are there to reproduce.
         """
@@ -766,9 +773,31 @@ class NoiseEngine:
         if self.method != "gaussian" or self.padding < 16 or self.N < 2:
             return "tiered"
         cost, biggest = self._exact_cost()
-        if biggest > self.EXACT_MAX:
+        if biggest > self.EXACT_MAX or cost >= self._tiered_cost():
             return "tiered"
-        return "exact" if cost < self._tiered_cost() else "tiered"
+        # never a route this process cannot hold (a dask worker's memory limit, say)
+        return "exact" if self._exact_memory() <= limits.memory_budget() else "tiered"
+
+    def _exact_memory(self):
+        """Bytes the exact route allocates at its peak (an upper estimate).
+
+        Its predictors hold ``k² R (R + 1) / 2`` float64 values per scope
+        (``R`` reads of ``k`` values: about ``(R k)² / 2``, 151 MB at
+        `EXACT_MAX`), kept while the scene is cached; making them takes the
+        covariance tables of every lag (the structure functions of ``2 N - 1``
+        frame lags at ``R (2 span - 1)`` sample lags, with their temporaries)
+        and the ``R`` blocks of covariance of each scope's samples.
+        """
+        nr, span = self.n_reads, self.c + self.width
+        tables = 20 * (2 * self.N - 1) * nr * (2 * span - 1)
+        total = (len(self.components) + 1) * nr * (2 * span - 1)
+        for scope in ("channel", "common"):
+            pix, ph = self._exact_points(scope)
+            q = pix.size + ph.size
+            k = pix.size + (1 if ph.size else 0)
+            ns = self.nch if scope == "channel" else 1
+            total += k * k * (nr * (nr + 1) // 2 + 4 * nr) + 3 * nr * q * q + 3 * nr * k * ns
+        return 8 * (total + tables)
 
     # -- slopes: exact route ---------------------------------------------------------------
     def _exact_factors(self):
@@ -782,15 +811,16 @@ class NoiseEngine:
         visibility names, and with ACN only between samples of the same
         parity (independent even and odd realisations: column parity, and
         ``(i - c) % 2`` for phantom sample ``i``, as in the tiers).  Cached
-        by the schedule's timing and the components (`EXACT_CACHE` scenes),
-        so further realisations of a scene only draw.
+        by the schedule's timing and the components (at most
+        `EXACT_CACHE_BYTES` in all, least recently used dropped first), so
+        further realisations of a scene only draw.
         """
         key = (self.N, self.F, self.fs, self.rs, self.n_reads, self.c, self.width,
                tuple(self.components))
         with _EXACT_LOCK:
             if key in _EXACT_FACTORS:
                 _EXACT_FACTORS.move_to_end(key)
-                return _EXACT_FACTORS[key]
+                return _EXACT_FACTORS[key][0]
         nr, c, w = self.n_reads, self.c, self.width
         span = c + w
         # slope covariance of one stream at lags dr * row_samples + dq (dr >= 0)
@@ -821,14 +851,23 @@ class NoiseEngine:
             if phq.size:
                 wmat = np.vstack([wmat, np.r_[np.zeros(pix.size), np.full(phq.size, 1 / c)]])
             factors[scope] = (_BlockLevinson(wmat @ t @ wmat.T), pix, phq)
+        nbytes = sum(plan.nbytes + pix.nbytes + phq.nbytes
+                     for plan, pix, phq in factors.values())
+        bound = self.EXACT_CACHE_BYTES
         with _EXACT_LOCK:
-            _EXACT_FACTORS[key] = factors
-            while len(_EXACT_FACTORS) > self.EXACT_CACHE:
-                _EXACT_FACTORS.popitem(last=False)
+            _EXACT_FACTORS.pop(key, None)
+            if nbytes <= bound:  # a larger entry is used, not kept
+                _EXACT_FACTORS[key] = (factors, nbytes)
+                while sum(n for _, n in _EXACT_FACTORS.values()) > bound:
+                    _EXACT_FACTORS.popitem(last=False)
         return factors
 
-    #: Scenes whose exact-route factors are kept (a few MB each at most).
-    EXACT_CACHE = 8
+    #: Bytes of exact-route factors kept for further realisations, all scenes together.  A
+    #: scene's predictors hold about ``(reads × k)² / 2`` float64 values per scope (two
+    #: scopes): 1.6 MB for 64 × 64 pixels in 16 channels, 79 MB for 1024 rows of 2 columns
+    #: per channel, up to 151 MB per scope at `EXACT_MAX`.  A scene needing more is drawn but
+    #: not kept.
+    EXACT_CACHE_BYTES = 256 * 2**20
 
     def _exact_slopes(self):
         """Slopes of every stream drawn at the samples read, from their exact covariance."""
@@ -860,6 +899,7 @@ class NoiseEngine:
             if biggest > self.EXACT_MAX:
                 raise ValueError(f"slope_route='exact' would draw {biggest} samples per stream "
                                  f"jointly (at most {self.EXACT_MAX}); use the tiered route")
+            limits.check_size(self._exact_memory(), "the exact slope route's factors")
             return self._exact_slopes()
         return self._tiered_slopes()
 
@@ -929,6 +969,11 @@ class _BlockLevinson:
             fwd, bwd = fwd - a @ delta.T, bwd - b @ delta
             self.pred.append(phi.transpose(1, 0, 2).reshape(k, n * k))
             self.innov.append(_small_factor(fwd))
+
+    @property
+    def nbytes(self):
+        """Bytes held by the predictors and innovation factors."""
+        return sum(a.nbytes for a in self.pred) + sum(a.nbytes for a in self.innov)
 
     def draw(self, z):
         """The sequence ``(R, k, ns)`` from standard normals ``z`` of that shape."""

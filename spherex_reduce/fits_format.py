@@ -37,11 +37,13 @@ file is never changed).
 import contextlib
 import contextvars
 import glob
+import hashlib
 import logging
 import math
 import mmap
 import os
 import re
+import socket
 import tempfile
 import warnings
 from pathlib import Path
@@ -72,10 +74,11 @@ class atomic_output:
     Refuses to start if ``path`` exists and ``overwrite`` is False, or names a
     directory, so nothing is computed only to be thrown away.  On error
     (including an interrupt) the temporary file is removed and an existing
-    ``path`` is left untouched.  The temporary file, ``.NAME.PID.XXXX.tmp`` in
-    the target directory, carries the writer's process id: temporary files for
-    ``path`` left by a process that no longer runs (killed outright) are
-    removed when the next write of ``path`` starts.
+    ``path`` is left untouched.  The temporary file, ``.NAME.HOST-PID.XXXX.tmp``
+    in the target directory, carries a tag of the writer's host and its process
+    id: temporary files for ``path`` left by a process of this host that no
+    longer runs (killed outright) are removed when the next write of ``path``
+    starts; those of other hosts (a shared file system) are never touched.
 
     Examples
     --------
@@ -100,8 +103,11 @@ class atomic_output:
         if not self.path.parent.is_dir():
             raise FileNotFoundError(f"output directory {self.path.parent} does not exist")
 
+    #: Tag of this host in temporary names: a process id means something only here.
+    HOST = hashlib.sha1(socket.gethostname().encode()).hexdigest()[:8]
+
     def _remove_stale(self):
-        prefix = f".{self.path.name}."
+        prefix = f".{self.path.name}.{self.HOST}-"
         for old in self.path.parent.glob(f"{glob.escape(prefix)}*.tmp"):
             parts = old.name[len(prefix):-len(".tmp")].split(".")
             if len(parts) != 2 or not parts[0].isdigit() or int(parts[0]) == os.getpid():
@@ -117,7 +123,7 @@ class atomic_output:
     def __enter__(self):
         self._remove_stale()
         try:
-            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.{os.getpid()}.",
+            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.{self.HOST}-{os.getpid()}.",
                                        suffix=".tmp", dir=self.path.parent)
         except OSError as exc:  # e.g. a read-only file system: say which output
             exc.filename = str(self.path)

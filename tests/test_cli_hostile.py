@@ -213,16 +213,19 @@ def test_stale_temporary_files_of_a_killed_writer_are_removed(tmp_path):
     out = tmp_path / "x.txt"
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
-    stale = tmp_path / f".x.txt.{dead.pid}.abcd1234.tmp"
-    alive = tmp_path / f".x.txt.{os.getppid()}.efgh5678.tmp"  # a running writer's: kept
-    other = tmp_path / f".y.txt.{dead.pid}.abcd1234.tmp"  # another output's: kept
-    longer = tmp_path / f".x.txt.1.{dead.pid}.abcd1234.tmp"  # output x.txt.1's: kept
-    for p in (stale, alive, other, longer):
+    host = atomic_output.HOST
+    stale = tmp_path / f".x.txt.{host}-{dead.pid}.abcd1234.tmp"
+    alive = tmp_path / f".x.txt.{host}-{os.getppid()}.efgh5678.tmp"  # a running writer's
+    other = tmp_path / f".y.txt.{host}-{dead.pid}.abcd1234.tmp"  # another output's
+    longer = tmp_path / f".x.txt.1.{host}-{dead.pid}.abcd1234.tmp"  # output x.txt.1's
+    remote = tmp_path / f".x.txt.0badc0de-{dead.pid}.abcd1234.tmp"  # another host's writer
+    for p in (stale, alive, other, longer, remote):
         p.write_text("partial")
     with atomic_output(out) as tmp:
+        assert tmp.name.startswith(f".x.txt.{host}-{os.getpid()}.")
         tmp.write_text("done")
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["x.txt", alive.name,
-                                                                  other.name, longer.name])
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        ["x.txt", alive.name, other.name, longer.name, remote.name])
 
 
 def test_sigterm_during_a_write_removes_the_temporary_file(files, tmp_path):

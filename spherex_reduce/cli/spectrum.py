@@ -105,7 +105,10 @@ def run(args):
     if photon is not None:
         table.meta["photon_noise_power"] = float(photon.value)
         table.meta["photocurrent_e_per_s"] = args.photocurrent
-    lines = [f"{args.input}: band power ({args.kmin} < k < {args.kmax} rad/pixel) = "
+    from ..analysis import band_label
+
+    band_text = band_label(args.kmin, args.kmax, args.pixel_scale * u.arcsec)
+    lines = [f"{args.input}: band power {band_text} = "
              f"{band.value:.4g} ± {err.value:.2g} {band.unit}"]
     spectra = {Path(args.input).name: table}
     if args.compare:

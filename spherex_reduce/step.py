@@ -1,10 +1,96 @@
 """Base classes for what plugins register: steps, strategies, simulators."""
 
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import ClassVar
 
-__all__ = ["FrameAccumulator", "Simulator", "Step", "Strategy"]
+__all__ = ["Consumer", "FrameAccumulator", "Kernel", "Record", "Simulator", "Step", "Strategy"]
+
+
+@dataclass
+class Record:
+    """What a kernel leaves besides corrected pixels (see `Kernel.record`).
+
+    Attributes
+    ----------
+    tables : dict of `~astropy.table.Table`
+        Tables for the output (e.g. ``REFOFFS``).
+    cards : list of ``(keyword, value, comment)``
+        Header cards for the output (e.g. ``NNOREF``).
+    """
+
+    tables: dict = field(default_factory=dict)
+    cards: list = field(default_factory=list)
+
+
+class Kernel:
+    """How a step corrects any band of rows of every frame (the step's one implementation).
+
+    A step whose correction works row by row, from coefficients that a few
+    side values determine (reference reads, phantom values), returns a
+    kernel from :meth:`Step.kernel`.  The executor then calls, in order:
+
+    1. ``coefficients = kernel.prepare(side)``: from the side block (the
+       reference reads of every frame, with their phantom values; see
+       `~spherex_reduce.executor.side_block`), e.g. one offset per frame and
+       channel;
+    2. ``side = kernel.apply_side(coefficients, side)``: the side block as this
+       step leaves it, for the next kernel's ``prepare``;
+    3. ``kernel.apply(coefficients, block)`` on every band of rows, in any
+       order and from several threads at once;
+    4. ``kernel.record(coefficients)``: tables and header cards.
+
+    Running the step on a whole exposure is the same with one band, so a
+    streamed reduction and an in-memory one give the same numbers bit for bit.
+
+    A kernel is configured when it is made (the step's parameters and the
+    input's `~spherex_reduce.block.Context`) and keeps no state between
+    calls of ``apply``.
+    """
+
+    def prepare(self, side):
+        """Coefficients from the side block (default: None, nothing to estimate)."""
+        return None
+
+    def apply(self, coefficients, block):
+        """The corrected `~spherex_reduce.block.Block` (a new one, or ``block`` if owned)."""
+        raise NotImplementedError
+
+    def apply_side(self, coefficients, side):
+        """The side block after this step (default: `apply` to it)."""
+        return self.apply(coefficients, side)
+
+    def extra_rows(self, coefficients):
+        """A block of rows no band of the input holds (e.g. rows never read), or None."""
+        return None
+
+    def record(self, coefficients):
+        """A `Record` of tables and header cards (default: empty)."""
+        return Record()
+
+
+class Consumer:
+    """Turns bands of a ramp into the step's result (``fit_ramp``: slopes).
+
+    `band` is called once for every band of rows, from several threads at
+    once (bands never share rows); `finish` then returns the exposure.
+    """
+
+    def band(self, block):
+        """Take one band (a `~spherex_reduce.block.Block`)."""
+        raise NotImplementedError
+
+    def finish(self, side, header, tables):
+        """The result `~spherex_reduce.Exposure`.
+
+        ``side`` is the side block as the kernels before this step leave it
+        (the reference reads, reduced the same way when in readout order, or
+        None); ``header`` and ``tables`` those of the input after those kernels.
+        The consumer knows the schedule from the `~spherex_reduce.block.Context`
+        it was made with.
+        """
+        raise NotImplementedError
 
 
 class Step:

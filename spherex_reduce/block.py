@@ -92,6 +92,8 @@ class Context:
         Unit of the pixels.
     header : `astropy.io.fits.Header`
         The input's header (read only).
+    phantom : bool
+        Whether the blocks carry phantom values.
     """
 
     schedule: object
@@ -99,6 +101,7 @@ class Context:
     ramp: bool
     unit: object = None
     header: object = None
+    phantom: bool = False
 
     def replace(self, **changes):
         """A copy with some fields changed."""

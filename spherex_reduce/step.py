@@ -5,6 +5,8 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import ClassVar
 
+from .executor import MemorySource, execute
+
 __all__ = ["Consumer", "FrameAccumulator", "Kernel", "Record", "Simulator", "Step", "Strategy"]
 
 
@@ -47,7 +49,27 @@ class Kernel:
     A kernel is configured when it is made (the step's parameters and the
     input's `~spherex_reduce.block.Context`) and keeps no state between
     calls of ``apply``.
+
+    Attributes
+    ----------
+    context : `~spherex_reduce.block.Context`
+        What its blocks are (set by the constructor).
+    needs_exposure : bool
+        True if `prepare` needs the whole exposure (``prepare(side,
+        exposure)``), not only the side block: the step then runs on the
+        exposure in memory (e.g. the ``median`` reference strategy).
     """
+
+    context = None
+    needs_exposure = False
+
+    def __init__(self, context):
+        self.context = context
+
+    @property
+    def output(self):
+        """The context of the blocks `apply` returns (default: the input's)."""
+        return self.context
 
     def prepare(self, side):
         """Coefficients from the side block (default: None, nothing to estimate)."""
@@ -149,9 +171,38 @@ class Step:
     def __init__(self, registry=None):
         self.registry = registry
 
+    #: bands corrected at once when the step runs through the executor (None: its default)
+    threads = None
+
+    def kernel(self, context, **params):
+        """The step's `Kernel` for blocks of ``context`` (a `~spherex_reduce.block.Context`),
+        or None if it has none (then :meth:`run` works on whole exposures).
+
+        Raises `~spherex_reduce.errors.StepSkipped` when there is nothing to do.
+        """
+        return None
+
+    def consumer(self, context, **params):
+        """The step's `Consumer` of bands of ``context``, or None (the default).
+
+        A step that turns ramps into an image (``fit_ramp``) consumes the bands
+        the kernels before it leave.
+        """
+        return None
+
     def run(self, exposure, **params):
-        """Return a new exposure; never modify ``exposure``."""
-        raise NotImplementedError
+        """Return a new exposure; never modify ``exposure``.
+
+        The default runs the step's kernel or consumer on the whole exposure,
+        through the executor (one implementation for both routes).
+        """
+        source = MemorySource(exposure)
+        kernel = self.kernel(source.context, **params)
+        consumer = self.consumer(source.context, **params)
+        if kernel is None and consumer is None:
+            raise NotImplementedError(f"step {self.name!r} has neither run, kernel nor consumer")
+        return execute(source, [] if kernel is None else [kernel], consumer,
+                       threads=self.threads)
 
     def streams(self, params):
         """Whether the pipeline may stream frames through this step with ``params``.

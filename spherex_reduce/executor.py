@@ -26,14 +26,15 @@ steps can run themselves through it.
 
 import os
 import threading
+import time
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from .block import Block, Context
-from .exposure import ReferenceReads
+from .exposure import Exposure, ReferenceReads
 
-__all__ = ["MemorySource", "default_threads", "execute", "side_block", "side_indices"]
+__all__ = ["FileSource", "MemorySource", "default_threads", "execute", "side_block", "side_indices"]
 
 #: pixels per band (all frames together): 74 frames x 2**17 x 4 B = 39 MB per band
 BAND_PIXELS = 1 << 17
@@ -127,6 +128,59 @@ class MemorySource:
         return data.shape[0] * data.shape[-1] * data.dtype.itemsize
 
 
+class FileSource:
+    """Bands of a raw ramp file, read with ``pread`` (no page of the file is mapped).
+
+    Parameters
+    ----------
+    reader : `~spherex_reduce.io.FrameReader`
+        An open reader of a file whose pixels are stored as they are
+        (floating point, not scaled, not compressed: ``reader.fusable()``).
+    """
+
+    def __init__(self, reader):
+        self.reader = reader
+        s = reader.schedule
+        self.context = Context(s, "readout", True, reader.unit, reader.header,
+                               phantom=reader.has_phantom)
+        self.header, self.tables = reader.header, reader.tables
+        self.reference = None
+        self.nrows = s.n_reads
+        self._dtype = reader.stored_dtype.newbyteorder("=")
+        self._phantom = reader.phantom
+
+    @staticmethod
+    def usable(reader):
+        """Whether a reader's file can be read in bands (else: read it whole)."""
+        return reader.fusable()
+
+    def bytes_per_row(self):
+        return self.context.schedule.nframes * self.context.geometry.ncols * self._dtype.itemsize
+
+    def _reads(self, idx):
+        """Reads ``idx`` (sorted) of every frame ``(frames, len(idx), ncols)``, native order."""
+        s = self.context.schedule
+        out = np.empty((s.nframes, idx.size, s.geometry.ncols), self._dtype)
+        if idx.size == 0:
+            return out
+        runs = np.split(np.arange(idx.size), np.flatnonzero(np.diff(idx) != 1) + 1)
+        for k in range(s.nframes):
+            for run in runs:
+                out[k, run[0]:run[-1] + 1] = self.reader.reads(k, int(idx[run[0]]),
+                                                              int(idx[run[-1]]) + 1)
+        return out
+
+    def side(self):
+        idx = side_indices(self.context.schedule)
+        phantom = None if self._phantom is None else self._phantom[:, idx]
+        return Block(self._reads(idx), idx, "readout", phantom=phantom, owned=True)
+
+    def read(self, lo, hi):
+        idx = np.arange(lo, hi)
+        phantom = None if self._phantom is None else self._phantom[:, lo:hi]
+        return Block(self._reads(idx), idx, "readout", phantom=phantom, owned=True)
+
+
 def context_of(exposure):
     """The `~spherex_reduce.block.Context` of an exposure."""
     return Context(exposure.schedule, exposure.order, exposure.is_ramp, exposure.unit,
@@ -177,7 +231,7 @@ class _Assembly:
 
 
 def execute(source, kernels, consumer=None, *, threads=None, rows_per_band=None,
-            progress=None):
+            progress=None, timings=None):
     """Run ``kernels`` over bands of ``source``, into ``consumer`` or a new exposure.
 
     Parameters
@@ -197,26 +251,56 @@ def execute(source, kernels, consumer=None, *, threads=None, rows_per_band=None,
         every frame; the whole input when it is in memory and small).
     progress : callable, optional
         Called with the number of rows done after each band.
+    timings : dict, optional
+        Filled with the seconds spent in each kernel (``kernels``), in the
+        consumer (``consumer``) and reading (``read``), summed over threads,
+        and the number of ``bands`` and ``threads``.
 
     Returns
     -------
     `~spherex_reduce.Exposure`
     """
     context = source.context
+    busy = [0.0] * (len(kernels) + 2)  # seconds in each kernel, the consumer, reading
+    lock = threading.Lock()
+
+    def spent(i, t0):
+        t1 = time.perf_counter()
+        with lock:
+            busy[i] += t1 - t0
+        return t1
+
+    t = time.perf_counter()
     side = source.side()
+    t = spent(-1, t)
     coefficients = []
-    for kernel in kernels:
-        c = kernel.prepare(side)
+    for i, kernel in enumerate(kernels):
+        if kernel.needs_exposure:
+            if getattr(source, "exposure", None) is None:
+                raise ValueError(f"{type(kernel).__name__} needs the whole exposure in memory")
+            c = kernel.prepare(side, source.exposure)
+        else:
+            c = kernel.prepare(side)
         side = kernel.apply_side(c, side)
         coefficients.append(c)
+        t = spent(i, t)
     out_context = kernels[-1].output if kernels else context
     sink = consumer if consumer is not None else _Assembly(out_context)
 
     def run(block, start=0):
-        for kernel, c in zip(kernels[start:], coefficients[start:], strict=True):
-            block = kernel.apply(c, block)
+        t = time.perf_counter()
+        for i in range(start, len(kernels)):
+            block = kernels[i].apply(coefficients[i], block)
+            t = spent(i, t)
         sink.band(block)
+        spent(len(kernels), t)
         return block.data.shape[1]
+
+    def read(lo, hi):
+        t = time.perf_counter()
+        block = source.read(lo, hi)
+        spent(-1, t)
+        return block
 
     if rows_per_band is None:
         ncols = context.geometry.ncols
@@ -225,12 +309,12 @@ def execute(source, kernels, consumer=None, *, threads=None, rows_per_band=None,
     nthreads = default_threads() if threads is None else max(1, int(threads))
     if nthreads == 1 or len(cuts) == 1:
         for lo, hi in cuts:
-            run(source.read(lo, hi))
+            run(read(lo, hi))
             if progress is not None:
                 progress(hi - lo)
     else:
         with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-band") as pool:
-            futures = [pool.submit(lambda lo=lo, hi=hi: run(source.read(lo, hi)))
+            futures = [pool.submit(lambda lo=lo, hi=hi: run(read(lo, hi)))
                        for lo, hi in cuts]
             for (lo, hi), future in zip(cuts, futures, strict=True):
                 future.result()
@@ -248,9 +332,16 @@ def execute(source, kernels, consumer=None, *, threads=None, rows_per_band=None,
         for key, value, comment in record.cards:
             header[key] = (value, comment)
     reference = reference_after(source.reference, side, context, out_context)
+    t = time.perf_counter()
     if consumer is not None:
-        return consumer.finish(reference, header, tables)
-    return _exposure(source, sink, reference, header, tables, out_context)
+        result = consumer.finish(reference, header, tables)
+    else:
+        result = _exposure(source, sink, reference, header, tables, out_context)
+    spent(len(kernels), t)
+    if timings is not None:
+        timings.update(kernels=busy[:len(kernels)], consumer=busy[len(kernels)],
+                       read=busy[-1], bands=len(cuts), threads=nthreads)
+    return result
 
 
 def reference_after(reference, side, before, after):
@@ -274,12 +365,10 @@ def reference_after(reference, side, before, after):
 
 
 def _exposure(source, sink, reference, header, tables, context):
-    """The assembled output as an `~spherex_reduce.Exposure` like the source's."""
-    template = source.exposure if hasattr(source, "exposure") else None
+    """The assembled output as an `~spherex_reduce.Exposure`."""
     ramp = context.ramp
-    unc = sink.get("uncertainty", ramp)
-    changes = dict(data=sink.get("data", ramp), dq=sink.get("dq", ramp),
-                   phantom=sink.get("phantom", ramp), order=sink.order, reference=reference,
-                   header=header, tables=tables,
-                   uncertainty=unc)
-    return template.replace(**changes)
+    return Exposure.from_arrays(sink.get("data", ramp), context.schedule, unit=context.unit,
+                                uncertainty=sink.get("uncertainty", ramp),
+                                mask=sink.get("dq", ramp), phantom=sink.get("phantom", ramp),
+                                header=header, order=sink.order, reference=reference,
+                                tables=tables)

@@ -958,6 +958,10 @@ class FrameReader:
         except Exception:
             self._hdul.close()
             raise
+        #: tables of the file (e.g. ``PROVENANCE``), phantom values ``(frames, reads,
+        #: channels)`` or None, and the type the pixels are stored as
+        self.tables, self.phantom = self._tables, self._phantom
+        self.stored_dtype = None if self._map is None else self._map[2]
 
     def __enter__(self):
         return self

@@ -3,13 +3,10 @@
 import copy
 import hashlib
 import json
-import queue
-import threading
-import time
+from pathlib import Path
 
-import numpy as np
 import yaml
-from astropy.table import vstack
+from astropy.io import fits
 from tqdm.auto import tqdm
 
 from ._version import __version__
@@ -23,15 +20,12 @@ from .config import (
 )
 from .errors import ConfigError, SpherexReduceError, StepSkipped
 from .exposure import Exposure
+from .executor import FileSource, MemorySource, execute
 from .fits_format import FrameReader, is_raw_ramp_file, read
-from .fused import fused_plan
-from .parameters import Parameter, validate_parameters
 from .plugins import Registry, blame_plugin
 from .step import Step
 
 __all__ = ["Pipeline"]
-
-_PREPARE = 4  # frames whose offsets are computed together by the fused path (in cache)
 
 _TOP_KEYS = ("steps", "geometry", "readout", "name", "description")
 
@@ -119,16 +113,7 @@ class Pipeline:
         return out
 
     def _step_params(self, cls, params, path):
-        declared = list(cls.parameters)
-        if cls.strategy_kind:
-            options = sorted(self.registry.strategies.get(cls.strategy_kind, {}))
-            name = (params or {}).get("strategy", cls.default_strategy)
-            strategy_param = Parameter("strategy", cls.default_strategy, (str,),
-                                       f"{cls.strategy_kind} strategy", choices=tuple(options))
-            strategy_param.check(name, f"{path}.strategy")
-            declared = [strategy_param, *declared,
-                        *self.registry.strategy(cls.strategy_kind, name).parameters]
-        return validate_parameters(params, declared, path)
+        return cls(self.registry).validate(params, path)
 
     # -- what it is -----------------------------------------------------------
     @property
@@ -163,46 +148,32 @@ class Pipeline:
     def _supplied(self):
         return {**self._config.get("geometry", {}), **self._config.get("readout", {})}
 
-    def _stream_split(self, steps):
-        """Index of the accumulating step if every step before it is per-frame, else None."""
-        for i, (_, params, step) in enumerate(steps):
-            if type(step).accumulator is not Step.accumulator:
-                return i
-            if not step.streams(params):
-                return None
-        return None
-
-    def run(self, exposure, progress=False, stream=True, fuse=True):
+    def run(self, exposure, progress=False, threads=None):
         """Run every step in order and return the reduced exposure.
+
+        Consecutive steps that have kernels (``unchop``, ``subtract_phantom``,
+        ``correct_reference`` with a streaming strategy, a plugin's) run in one
+        pass of the executor (`spherex_reduce.executor`), ending in a step that
+        consumes bands (``fit_ramp``) if one follows: a raw file is then read
+        once, a band of rows of every frame at a time, and memory stays near
+        the output plus a few bands.  Other steps run on the whole exposure.
+        The numbers are those of the steps run one by one, bit for bit.
 
         Parameters
         ----------
         exposure : `Exposure` or path
-            The input (a path is read with :meth:`read`); never modified.
+            The input (a path is read as :meth:`read` does); never modified.
         progress : bool
-            Show progress bars (steps, and frames when streaming).
-        stream : bool
-            When the steps allow it (per-frame steps followed by one with an
-            accumulator, e.g. ``unchop, subtract_phantom, correct_reference,
-            fit_ramp``) and the input is ramps, push the frames through one at
-            a time: a raw file is then read frame by frame and memory stays near
-            a few frames plus the output.  The result is the same either way
-            (to float32 rounding: the fit's sums are formed in another order).
-        fuse : bool
-            When streaming ``unchop``, then ``subtract_phantom`` (if the input
-            has phantom values) and optionally ``correct_reference``
-            (``mean`` or ``acn``), into ``fit_ramp``, compute each frame's
-            offsets from its phantom values and reference reads, and apply them
-            while the fit reads the pixels (see `spherex_reduce.fused`): when
-            nothing is flagged, every frame is fitted at once a band of rows at
-            a time, giving bit for bit the numbers of ``stream=False``; else
-            frame by frame, giving those of ``fuse=False``.
+            Show progress bars (steps, and rows of a pass).
+        threads : int, optional
+            Bands corrected at once (default: the cores available, at most 4).
 
         Returns
         -------
         `Exposure`
-            With each step's status keyword, parameters, the package version
-            (``SXRVERS``) and the config hash (``SXRCONF``) in its header.
+            With each step's status keyword, parameters, a row of the
+            ``PROVENANCE`` table, the package version (``SXRVERS``) and the
+            config hash (``SXRCONF``) in its header.
 
         Raises
         ------
@@ -212,7 +183,7 @@ class Pipeline:
             plugin, its distribution and the step.
         """
         try:
-            return self._run(exposure, progress, stream, fuse)
+            return self._run(exposure, progress, threads)
         except SpherexReduceError:
             raise
         except (Exception, SystemExit) as exc:
@@ -221,34 +192,19 @@ class Pipeline:
                 raise
             raise blame from exc
 
-    def _run(self, exposure, progress, stream, fuse):
-        steps = [(name, params, self.registry.step(name)(self.registry))
-                 for name, params in self.steps]
+    def _steps(self, threads):
         sections = {key: dict(self._config[key]) for key in ("geometry", "readout")
                     if self._config.get(key)}
-        for _, _, step in steps:
+        steps = []
+        for name, params in self.steps:
+            step = self.registry.step(name)(self.registry, threads=threads)
             step.file_sections = sections
-        split = self._stream_split(steps) if stream else None
-        current, done = exposure, 0
-        if split is not None:
-            source = self._frame_source(exposure)
-            if source is not None:
-                with source:
-                    current = self._run_streamed(source, steps[: split + 1], progress, fuse)
-                done = split + 1
-        if not isinstance(current, Exposure):
-            current = self.read(current)
-        bar = tqdm(steps[done:], desc="reduce", unit="step", disable=not progress, leave=False)
-        for name, params, step in bar:
-            bar.set_postfix_str(name)
-            self.registry.pm.hook.before_step(step=step, exposure=current, params=params)
-            t0 = time.perf_counter()
-            try:
-                result, status, reason = step.run(current, **params), "COMPLETE", None
-            except StepSkipped as skip:
-                result, status, reason = current, "SKIPPED", skip.reason
-            current = self._record(step, params, current, result, status, reason,
-                                   time.perf_counter() - t0)
+            steps.append((name, params, step))
+        return steps
+
+    def _run(self, exposure, progress, threads):
+        steps = self._steps(threads)
+        current = self._run_steps(exposure, steps, progress, threads)
         header = current.header.copy()
         header["SXRVERS"] = (__version__, "spherex_reduce version")
         header["SXRCONF"] = (self.config_hash, "SHA-256 of the effective pipeline config")
@@ -256,263 +212,151 @@ class Pipeline:
                            + json.dumps(self._config, sort_keys=True, default=str))
         return current.replace(header=header)
 
-    def _record(self, step, params, before, result, status, reason, elapsed):
-        """Call the after-step hooks and put their cards in a copy of the result's header."""
-        replies = self.registry.pm.hook.after_step(
-            step=step, exposure=before, result=result, params=params, status=status,
-            reason=reason, elapsed=elapsed)
-        header = result.header.copy()
-        for cards in replies:
-            for key, value, comment in cards or ():
-                if key == "HISTORY":
-                    header.add_history(value)
-                elif key == "COMMENT":
-                    header.add_comment(value)
-                else:
-                    header[key] = (value, comment)
-        return result.replace(header=header)
+    def _run_steps(self, exposure, steps, progress, threads):
+        """Run ``steps`` (``(name, params, step)``) on an exposure or a file, pass by pass."""
+        current, i = exposure, 0
+        status = {}  # step index -> 'COMPLETE' or 'SKIPPED'
+        bar = tqdm(total=len(steps), desc="reduce", unit="step", disable=not progress,
+                   leave=False)
+        with bar:
+            while i < len(steps):
+                done, current = self._pass(current, steps, i, status, progress, threads)
+                if done == i:  # no kernel: the step on the whole exposure
+                    current = self._whole(current, steps, i, status, progress, threads)
+                    done = i + 1
+                bar.update(done - i)
+                i = done
+        if not isinstance(current, Exposure):
+            current = self.read(current)
+        return current
 
-    def _frame_source(self, exposure):
-        """Frames of a ramp input (file or Exposure), or None if it is not ramps."""
-        if isinstance(exposure, Exposure):
-            return _ExposureFrames(exposure) if exposure.is_ramp else None
-        if not is_raw_ramp_file(exposure):
-            return None
-        return FrameReader(exposure, **self._supplied())
+    def _source(self, current):
+        """Where a pass reads from: the file in bands if it can, else the exposure in memory."""
+        if isinstance(current, Exposure):
+            return MemorySource(current), None
+        if is_raw_ramp_file(current):
+            reader = FrameReader(current, **self._supplied())
+            if FileSource.usable(reader):
+                return FileSource(reader), reader
+            reader.close()
+        return MemorySource(self.read(current)), None
 
-    def _run_streamed(self, source, steps, progress, fuse=True):
-        """Per-frame steps on each frame in turn, into the last step's accumulator."""
-        hook = self.registry.pm.hook
-        *prefix, (_, cparams, consumer) = steps
-        first = source.frame(0)
-        for _, params, step in steps:
-            hook.before_step(step=step, exposure=first, params=params)
-        acc = _Background(consumer.accumulator(source.schedule, source.header, **cparams))
-        elapsed = [0.0] * len(steps)
-        status = [("COMPLETE", None)] * len(prefix)
-        tables = {}
-        frames = tqdm(range(source.nframes), desc="reduce frames", unit="frame",
-                      disable=not progress, leave=False)
-        plan = fused_plan(prefix, consumer, cparams, source) if fuse else None
+    def _pass(self, current, steps, i, status, progress, threads):
+        """Steps ``i, i+1, ...`` that have kernels (and a consumer after them) in one pass.
+
+        Returns the index of the first step not run and the result (``current``
+        itself if no step could run in a pass).
+        """
+        first = steps[i][2]
+        if first.inputs or (type(first).kernel is Step.kernel
+                            and type(first).consumer is Step.consumer):
+            return i, current
+        source, reader = self._source(current)
         try:
-            fused = self._stream_frames(source, first, prefix, acc, frames, elapsed, status,
-                                        tables, plan, progress)
-        except BaseException:
-            acc.stop()
-            close = getattr(acc.accumulator, "close", None)
-            if close is not None:  # its own threads too
-                close()
-            raise
+            return self._pass_on(source, current, steps, i, status, progress, threads)
         finally:
-            acc.stop()  # also when a step failed: no thread is left waiting
-        t0 = time.perf_counter()
-        result = acc.finish()
-        elapsed[-1] = acc.busy + time.perf_counter() - t0
-        merged = {name: vstack(parts, metadata_conflicts="silent")
-                  for name, parts in tables.items()}
-        result = result.replace(tables={**result.tables, **merged})
-        if fused:
-            how = ("every frame fitted at once, a band of rows at a time (the numbers of "
-                   "the steps on the whole ramp)" if fused == "bands" else
-                   "frame by frame (the numbers of the steps frame by frame)")
-            header = result.header.copy()
-            header.add_history(
-                f"{', '.join(name for name, _, _ in prefix)} fused into {consumer.name} for "
-                f"frames 1-{source.nframes - 1}: offsets from the phantom values and "
-                f"reference reads, one pass over the pixels; {how}")
-            result = result.replace(header=header)
-        for j, (_, params, step) in enumerate(prefix):
-            if status[j][0] == "COMPLETE":
-                result = step.merge_frames(result, params)
-            result = self._record(step, params, first, result, *status[j], elapsed[j])
-        return self._record(consumer, cparams, first, result, "COMPLETE", None, elapsed[-1])
+            if reader is not None:
+                reader.close()
 
-    @staticmethod
-    def _stream_frames(source, first, prefix, acc, frames, elapsed, status, tables, plan,
-                       progress=False):
-        """Each frame through the per-frame steps, then to the accumulator.
+    def _plan(self, source, steps, i):
+        """The kernels and consumer of the pass from step ``i``: ``(kernels, consumer,
+        members, skipped, end)``."""
+        context = source.context
+        kernels, consumer, members, skipped = [], None, [], {}
+        j = i
+        while j < len(steps):
+            name, params, step = steps[j]
+            if step.inputs:
+                break
+            try:
+                kernel = step.kernel(context, **params)
+                consumer = None if kernel is not None else step.consumer(context, **params)
+            except StepSkipped as skip:
+                skipped[j] = skip.reason
+                members.append(j)
+                j += 1
+                continue
+            if kernel is not None:
+                if kernel.needs_exposure and (kernels or not isinstance(source, MemorySource)):
+                    break  # its prepare needs the exposure as it comes to it, in memory
+                kernels.append(kernel)
+                context = kernel.output
+                members.append(j)
+                j += 1
+                continue
+            if consumer is not None:
+                members.append(j)
+                j += 1
+            break
+        return kernels, consumer, members, skipped, j
 
-        With a fused ``plan`` (see `spherex_reduce.fused`), the frames after the
-        first go the fused way if every step completed on the first.  Returns
-        None if no frame did, else ``'bands'`` or ``'frames'`` (how they were
-        fitted).
-        """
-        frames = iter(frames)
-        for k in frames:
-            frame = first if k == 0 else source.frame(k)
-            for j, (_, params, step) in enumerate(prefix):
-                t0 = time.perf_counter()
-                try:
-                    out = step.run(frame, **params)
-                except StepSkipped as skip:
-                    out, status[j] = frame, ("SKIPPED", skip.reason)
-                elapsed[j] += time.perf_counter() - t0
-                for name, table in out.tables.items():
-                    if table is not frame.tables.get(name):  # recorded by this step
-                        t = table.copy()
-                        t["frame"] = np.full(len(t), k, dtype=np.int32)
-                        tables.setdefault(name, []).append(t)
-                frame = out
-            if k == 0 and plan is not None and all(st == "COMPLETE" for st, _ in status):
-                return Pipeline._fuse(source, frame, frames, acc, elapsed, tables, plan,
-                                      progress)
-            acc.add(k, frame)
-        return None
+    def _pass_on(self, source, current, steps, i, status, progress, threads):
+        kernels, consumer, members, skipped, j = self._plan(source, steps, i)
+        if not kernels and consumer is None:
+            if not members:
+                return i, current
+            # only skipped steps (e.g. subtract_phantom without phantom values)
+            if not isinstance(current, Exposure):
+                current = (source.exposure if isinstance(source, MemorySource)
+                           else self.read(current))
+            return j, self._record_pass(current, steps, members, skipped, {}, status, "")
+        hook = self.registry.pm.hook
+        before = current if isinstance(current, Exposure) else None
+        for k in members:
+            hook.before_step(step=steps[k][2], exposure=before, params=steps[k][1])
+        timings = {}
+        rows = tqdm(total=source.nrows, desc="reduce rows", unit="row", disable=not progress,
+                    leave=False)
+        with rows:
+            result = execute(source, kernels, consumer, threads=threads, progress=rows.update,
+                             timings=timings)
+        ran = [k for k in members if k not in skipped]
+        where = "a file" if isinstance(source, FileSource) else "memory"
+        route = (f"executor pass of {len(ran)} step(s): {timings['bands']} band(s) of rows "
+                 f"from {where} on {timings['threads']} thread(s)")
+        # each step's busy seconds (over threads); reading counts for the first
+        busy = dict(zip(ran, [*timings["kernels"], timings["consumer"]], strict=False))
+        busy[ran[0]] += timings["read"]
+        return j, self._record_pass(result, steps, members, skipped, busy, status, route,
+                                    before)
 
-    @staticmethod
-    def _fuse(source, first, frames, acc, elapsed, tables, plan, progress):
-        """The frames after ``first`` (frame 0 after the steps) the fused way.
+    def _record_pass(self, result, steps, members, skipped, busy, status, route, before=None):
+        for k in members:
+            name, params, step = steps[k]
+            if k in skipped:
+                result = step.record(before, result, params, "SKIPPED", skipped[k], 0.0,
+                                     route="skipped")
+                status[k] = "SKIPPED"
+            else:
+                result = step.record(before, result, params, "COMPLETE", None,
+                                     busy.get(k, 0.0), route=route)
+                status[k] = "COMPLETE"
+        return result
 
-        Their offsets come first (`FusedFrames.prepare_frames`, from the phantom values
-        and reference reads).  Then, if nothing is flagged, the fit reads every
-        frame a band of rows at a time (`RampAccumulator.fit_bands`); else the
-        frames are copied one by one into the fit's buffer.
-        """
-        parts = []
-        ks = list(frames)
-        for c in range(0, len(ks), _PREPARE):  # a few frames per call: temporaries in cache
-            chunk = ks[c:c + _PREPARE]
-            raws = [source.raw(k) for k in chunk]
-            prepared = plan.prepare_frames(chunk, [r for r, _, _ in raws],
-                                           [p for _, p, _ in raws], template=first)
-            for k, part, (_, _, release) in zip(chunk, prepared, raws, strict=True):
-                # the reference reads are copied; the pixels are read again later (the
-                # page cache may map a frame's pages in large pieces: release them now)
-                release()
-                part.release = release
-                for j, dt in zip(plan.slots, part.elapsed, strict=True):
-                    if j is not None:
-                        elapsed[j] += dt
-                for name, table in part.tables.items():
-                    table["frame"] = np.full(len(table), k, dtype=np.int32)
-                    tables.setdefault(name, []).append(table)
-                parts.append(part)
-        if plan.bandable(first, parts):
-            t0 = time.perf_counter()
-            with tqdm(desc="fit bands", unit="band", disable=not progress,
-                      leave=False) as bar:
-                filling = acc.accumulator.fit_bands(first, plan.band_fill(first, parts, source),
-                                                  plan.order, plan.reference_reads(first, parts),
-                                                  progress=bar)
-            # the share of the time spent reading and correcting counts as un-chopping
-            wall = time.perf_counter() - t0
-            elapsed[plan.slots[0]] += wall * filling
-            acc.busy += wall * (1 - filling)
-            return "bands"
-        acc.add(0, first)
-        acc.drain()  # the first frame is in; the later ones go in from here
-        for part in parts:
-            # straight into the fit's buffer, from this thread (the fit sums full
-            # buffers in a thread of its own)
-            before, t0 = part.elapsed[0], time.perf_counter()
-            acc.accumulator.add_fused(part.k, part)
-            part.release()
-            # the copy counts as un-chopping (part.elapsed[0]), the rest as fitting
-            dt = part.elapsed[0] - before
-            elapsed[plan.slots[0]] += dt
-            acc.busy += time.perf_counter() - t0 - dt
-        return "frames"
+    def _whole(self, current, steps, i, status, progress, threads):
+        """Step ``i`` on the whole exposure, its declared inputs prepared by the pipeline."""
+        name, params, step = steps[i]
+        if not isinstance(current, Exposure):
+            current = self.read(current)
+        inputs = {}
+        for key in step.inputs:
+            path = params.get(key)
+            reduces = getattr(step, "reduces_input", None)
+            if isinstance(path, str) and reduces is not None and reduces(key, params):
+                inputs[key] = self._same_stage(path, key, steps, i, status, progress,
+                                               threads, step)
+        result = step.apply_to(current, params, inputs=inputs)
+        status[i] = result.header.get(step.keyword, "COMPLETE")
+        return result
 
-
-class _Background:
-    """An accumulator fed from a thread of its own, so that its work on frame ``k``
-    overlaps the reading and per-frame steps of frame ``k + 1`` (the two use
-    different cores: numpy releases the GIL in its loops).  At most ``depth``
-    frames wait in the queue.  An error in the accumulator is raised in the
-    caller at the next `add` or at `finish`.
-    """
-
-    def __init__(self, accumulator, depth=2):
-        self.accumulator = accumulator
-        self.busy = 0.0  # seconds spent in the accumulator's add
-        self._queue = queue.Queue(maxsize=depth)
-        self._error = None
-        self._thread = threading.Thread(target=self._work, name="spherex-reduce-accumulate",
-                                        daemon=True)
-        self._thread.start()
-
-    def _work(self):
-        while (item := self._queue.get()) is not None:
-            if self._error is None:
-                t0 = time.perf_counter()
-                try:
-                    self.accumulator.add(*item)
-                except BaseException as exc:  # raised again in the caller
-                    self._error = exc
-                self.busy += time.perf_counter() - t0
-
-    def _raise(self):
-        if self._error is not None:
-            error, self._error = self._error, None
-            raise error
-
-    def add(self, index, frame):
-        self._raise()
-        self._queue.put((index, frame))
-
-    def finish(self):
-        self.stop()
-        self._raise()
-        return self.accumulator.finish()
-
-    def drain(self):
-        """Wait for the frames already queued; raise what the accumulator raised."""
-        self.stop()
-        self._raise()
-
-    def stop(self):
-        """End the thread (after the frames already queued)."""
-        if self._thread.is_alive():
-            self._queue.put(None)
-            self._thread.join()
-
-
-class _ExposureFrames:
-    """Frames of an in-memory ramp Exposure, as one-frame views."""
-
-    def __init__(self, exposure):
-        self.exposure = exposure
-        self.schedule = exposure.schedule
-        self.header = exposure.header
-        self.unit = exposure.unit
-        self.nframes = exposure.schedule.nframes
-        self._one = exposure.schedule.replace(nframes=1)
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        return False
-
-    @property
-    def has_phantom(self):
-        return self.exposure.phantom is not None
-
-    def fusable(self):
-        e = self.exposure
-        return (e.dq is None and e.data.uncertainty is None and e.order == "readout"
-                and e.data.data.dtype.kind == "f"
-                and (e.phantom is None or e.phantom.dtype.kind == "f"))
-
-    def raw(self, k):
-        e = self.exposure
-        return (e.data.data[k], None if e.phantom is None else e.phantom[k],
-                lambda: None)
-
-    def reads(self, k, first, stop):
-        return self.exposure.data.data[k, first:stop]
-
-    def frame(self, k):
-        e = self.exposure
-        sl = slice(k, k + 1)
-        unc = None if e.data.uncertainty is None else e.data.uncertainty.array[sl]
-        return Exposure.from_arrays(
-            e.data.data[sl], self._one, unit=e.unit, uncertainty=unc,
-            mask=None if e.dq is None else e.dq[sl],
-            phantom=None if e.phantom is None else e.phantom[sl], header=e.header,
-            order=e.order,
-            reference=None if e.reference is None else e.reference.replace(
-                data=e.reference.data[sl],
-                phantom=None if e.reference.phantom is None else e.reference.phantom[sl],
-                dq=None if e.reference.dq is None else e.reference.dq[sl]),
-            tables=e.tables)
+    def _same_stage(self, path, key, steps, i, status, progress, threads, step):
+        """The file ``path`` with the steps before ``i`` that completed here and not there
+        (None: nothing to do, the step reads it as it is)."""
+        if not Path(path).is_file():
+            raise FileNotFoundError(f"{step.name}.{key}: no such file: {path}")
+        there = fits.getheader(path)
+        todo = [steps[k] for k in range(i) if status.get(k) == "COMPLETE"
+                and there.get(steps[k][2].keyword) != "COMPLETE"]
+        if not todo:
+            return None
+        return self._run_steps(path, todo, progress, threads)

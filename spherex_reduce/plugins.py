@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import pluggy
 
 from . import hookspecs
+from ._version import __version__
 from .errors import PluginError, UnknownNameError
 from .step import Simulator, Step, Strategy
 
@@ -28,8 +29,13 @@ ENTRY_POINT_GROUP = "spherex_reduce"
 #: Modules of the package that are plugins themselves, registered under their
 #: short names; they are always present and cannot be blocked.
 BUILTIN_PLUGINS = {
-    "builtin": "spherex_reduce.builtin",
-    "reduction": "spherex_reduce.reduction_plugin",
+    "builtin.unchop": "spherex_reduce.steps.unchop",
+    "builtin.phantom": "spherex_reduce.steps.phantom",
+    "builtin.reference": "spherex_reduce.steps.reference",
+    "builtin.fit_ramp": "spherex_reduce.steps.fit_ramp",
+    "builtin.clipping": "spherex_reduce.steps.clipping",
+    "builtin.pairs": "spherex_reduce.steps.pairs",
+    "builtin.dark": "spherex_reduce.steps.dark",
     "simulation": "spherex_reduce.simulation_plugin",
 }
 BLOCK_ENV = "SPHEREX_REDUCE_BLOCK_PLUGINS"
@@ -68,11 +74,9 @@ def plugin_distributions():
     Examples
     --------
     >>> from spherex_reduce.plugins import plugin_distributions
-    >>> plugin_distributions()["builtin"]
+    >>> plugin_distributions()["builtin.unchop"]
     'spherex-reduce ...'
     """
-    from ._version import __version__
-
     dists = dict.fromkeys(BUILTIN_PLUGINS, f"spherex-reduce {__version__}")
     for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
         dist = _distribution(ep)
@@ -94,13 +98,13 @@ def describe_plugin(name):
     -------
     str
         E.g. ``"plugin 'destripe' (spherex-reduce-destripe 0.1.0)"``, or
-        ``"plugin 'builtin'"`` for a plugin that no installed distribution provides.
+        ``"plugin 'builtin.unchop'"`` for a plugin that no installed distribution provides.
 
     Examples
     --------
     >>> from spherex_reduce.plugins import describe_plugin
-    >>> describe_plugin("builtin")
-    "plugin 'builtin'"
+    >>> describe_plugin("builtin.unchop")
+    "plugin 'builtin.unchop'"
     """
     if name not in BUILTIN_PLUGINS:
         for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
@@ -132,7 +136,7 @@ def get_plugin_manager(*, entry_points=True, block=None, plugins=()):
     --------
     >>> from spherex_reduce.plugins import get_plugin_manager
     >>> pm = get_plugin_manager(entry_points=False)
-    >>> pm.has_plugin("builtin")
+    >>> pm.has_plugin("builtin.unchop")
     True
     """
     pm = pluggy.PluginManager(hookspecs.PROJECT)
@@ -202,7 +206,7 @@ class Registry:
     >>> reg.step("unchop").keyword
     'S_UNCHOP'
     >>> reg.providers["step"]["unchop"]
-    'builtin'
+    'builtin.unchop'
     """
 
     def __init__(self, plugin_manager=None):

@@ -1,13 +1,20 @@
 """Base classes for what plugins register: steps, strategies, simulators."""
 
+import os
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from types import MappingProxyType
 from typing import ClassVar
 
+from .errors import StepSkipped, UnknownNameError
 from .executor import MemorySource, execute
+from .fits_format import read
+from .parameters import Parameter, validate_parameters
+from .provenance import record_step
 
-__all__ = ["Consumer", "FrameAccumulator", "Kernel", "Record", "Simulator", "Step", "Strategy"]
+__all__ = ["Consumer", "Kernel", "Record", "Simulator", "Step", "Strategy"]
 
 
 @dataclass
@@ -116,10 +123,15 @@ class Consumer:
 
 
 class Step:
-    """A pipeline step: a thin wrapper around a plain function on `Exposure`.
+    """A pipeline step: one correction, run alone or by a `~spherex_reduce.Pipeline`.
 
-    Subclasses set the class attributes and implement :meth:`run`.  A step that
-    has nothing to do raises `~spherex_reduce.errors.StepSkipped` with a reason.
+    Subclasses set the class attributes and either return a `Kernel` from
+    :meth:`kernel` (a correction that works on any band of rows: it then
+    streams through the executor), a `Consumer` from :meth:`consumer`
+    (``fit_ramp``), or implement :meth:`run` (a step that needs the whole
+    exposure).  Calling the step (``step(exposure, **params)``) validates the
+    parameters, runs it and records its provenance.  A step that has nothing
+    to do raises `~spherex_reduce.errors.StepSkipped` with a reason.
 
     Attributes
     ----------
@@ -136,18 +148,16 @@ class Step:
         step's.
     default_strategy : str or None
         Strategy used when the YAML file names none.
-    per_frame : bool
-        True if running the step on ramps gives the same as running it on
-        each frame alone (as a one-frame exposure) and stacking the results.
-        The pipeline then streams frames through it, one at a time, into a
-        following step that has an :meth:`accumulator` (e.g. ``fit_ramp``),
-        so memory stays near one frame.  Tables such a step records get a
-        ``frame`` column.
+    builtin_strategies : mapping
+        Strategies of this kind the package provides, by name (looked up when
+        the step has no registry).
+    inputs : tuple of str
+        Parameters naming another exposure's FITS file (see :meth:`apply_to`).
     file_sections : dict
         The pipeline config's ``geometry:`` and ``readout:`` sections, set by
-        the `~spherex_reduce.Pipeline` on the steps it runs: a step that reads
-        another file (``pair_difference``) supplies them for keywords the file
-        lacks, as the pipeline does for its input.
+        the `~spherex_reduce.Pipeline` on the steps it runs: supplied for
+        keywords that a file of :attr:`inputs` lacks, as the pipeline does for
+        its input.
 
     Examples
     --------
@@ -165,11 +175,146 @@ class Step:
     parameters: ClassVar[tuple] = ()
     strategy_kind: ClassVar[str | None] = None
     default_strategy: ClassVar[str | None] = None
-    per_frame: ClassVar[bool] = False
     file_sections: ClassVar[Mapping] = MappingProxyType({})
 
-    def __init__(self, registry=None):
+    #: parameters that name another exposure's FITS file (``pair_difference``'s
+    #: ``other``, ``subtract_dark``'s ``dark``): read before :meth:`run`, which
+    #: receives the `~spherex_reduce.Exposure`
+    inputs: ClassVar[tuple] = ()
+
+    #: strategies of :attr:`strategy_kind` the package provides (used without a registry)
+    builtin_strategies: ClassVar[Mapping] = MappingProxyType({})
+
+    def __init__(self, registry=None, threads=None):
         self.registry = registry
+        self.threads = threads
+
+    def __call__(self, exposure, **params):
+        """Run the step: validate ``params``, call the plugins' hooks, run, record provenance.
+
+        This is what a pipeline does for each step it runs whole, and what the
+        package's functions (`~spherex_reduce.unchop`, `~spherex_reduce.fit_ramp`
+        ...) do: the result carries the step's status keyword, its parameters
+        and a row of the ``PROVENANCE`` table however the step was run.
+
+        Parameters
+        ----------
+        exposure : `~spherex_reduce.Exposure`
+            Not modified.
+        **params
+            The step's parameters (defaults filled in; unknown names and wrong
+            types raise `~spherex_reduce.errors.ConfigError`).  Parameters in
+            :attr:`inputs` name FITS files, read before the step runs.
+
+        Returns
+        -------
+        `~spherex_reduce.Exposure`
+        """
+        return self.apply_to(exposure, params)
+
+    def apply_to(self, exposure, params, inputs=None):
+        """`__call__` with the second inputs given as exposures (``{name: Exposure}``)
+        instead of files: how a pipeline passes an input it reduced itself."""
+        params = self.validate(params)
+        given, labels, paths = dict(inputs or {}), {}, {}
+        for name in self.inputs:
+            path = params.get(name)
+            if isinstance(path, (str, os.PathLike)):
+                labels[name] = paths[name] = str(path)
+                if given.get(name) is None:
+                    given[name] = self.read_input(name, path)
+            elif given.get(name) is not None:
+                labels[name] = "exposure given in memory"
+        hook = None if self.registry is None else self.registry.pm.hook
+        if hook is not None:
+            hook.before_step(step=self, exposure=exposure, params=params)
+        t0 = time.perf_counter()
+        try:
+            result = self.run(exposure, **{**params, **given})
+            status, reason = "COMPLETE", None
+        except StepSkipped as skip:
+            result, status, reason = exposure, "SKIPPED", skip.reason
+        if status == "COMPLETE":
+            result = self._input_cards(result, paths)
+        return self.record(exposure, result, params, status, reason,
+                           time.perf_counter() - t0, route="whole exposure",
+                           inputs=labels)
+
+    def read_input(self, name, path):
+        """Read the FITS file a parameter of :attr:`inputs` names (with the pipeline
+        config's ``geometry:``/``readout:`` sections for keywords it lacks)."""
+        if not Path(path).is_file():
+            raise FileNotFoundError(f"{self.name}.{name}: no such file: {path}")
+        supplied = {k: v for section in self.file_sections.values() for k, v in section.items()}
+        return read(path, **supplied)
+
+    def input_card(self, name, label):
+        """A header card ``(keyword, value, comment)`` naming the file of input ``name``,
+        or None (the default)."""
+        return None
+
+    def _input_cards(self, result, labels):
+        cards = [c for name, label in labels.items()
+                 if label and (c := self.input_card(name, label)) is not None]
+        if not cards:
+            return result
+        header = result.header.copy()
+        for key, value, comment in cards:
+            header[key] = (value, comment)
+        return result.replace(header=header)
+
+    def record(self, before, result, params, status, reason, elapsed, route, inputs=None):
+        """``result`` with this step's provenance: status keyword, parameters, HISTORY, the
+        cards the plugins' ``after_step`` hooks return, and a ``PROVENANCE`` row.
+
+        ``before`` is the step's input exposure (None when it ran inside a
+        streamed pass over a file); ``route`` says how it ran; ``inputs``
+        names other files it used (e.g. ``{'other': 'b.fits'}``).
+        """
+        replies = []
+        if self.registry is not None:
+            replies = self.registry.pm.hook.after_step(
+                step=self, exposure=before, result=result, params=params, status=status,
+                reason=reason, elapsed=elapsed)
+        return record_step(self, result, params, status, reason, elapsed, route,
+                           inputs=inputs, extra_cards=[c for r in replies for c in (r or ())])
+
+    # -- parameters ------------------------------------------------------------
+    def strategy_names(self):
+        """Names of the strategies this step may use."""
+        if self.registry is not None:
+            return sorted(self.registry.strategies.get(self.strategy_kind, {}))
+        return sorted(self.builtin_strategies)
+
+    def strategy(self, name):
+        """The strategy class ``name`` of this step's kind; `~spherex_reduce.errors.
+        UnknownNameError` (a `KeyError`) lists the valid names."""
+        if self.registry is not None:
+            return self.registry.strategy(self.strategy_kind, name)
+        try:
+            return self.builtin_strategies[name]
+        except KeyError:
+            raise UnknownNameError(
+                f"unknown {self.strategy_kind} strategy {name!r}; valid: "
+                f"{', '.join(self.strategy_names()) or 'none'} (a plugin's strategy: give "
+                "registry=spherex_reduce.plugins.Registry())") from None
+
+    def declared(self, params, path=None):
+        """The `~spherex_reduce.parameters.Parameter` list for ``params`` (with the chosen
+        strategy's own parameters)."""
+        declared = list(self.parameters)
+        if self.strategy_kind:
+            name = (params or {}).get("strategy", self.default_strategy)
+            choice = Parameter("strategy", self.default_strategy, (str,),
+                               f"{self.strategy_kind} strategy",
+                               choices=tuple(self.strategy_names()))
+            choice.check(name, f"{path or self.name}.strategy")
+            declared = [choice, *declared, *self.strategy(name).parameters]
+        return declared
+
+    def validate(self, params, path=None):
+        """``params`` checked against :meth:`declared`, defaults filled in (a new dict)."""
+        return validate_parameters(params, self.declared(params, path), path or self.name)
 
     #: bands corrected at once when the step runs through the executor (None: its default)
     threads = None
@@ -204,57 +349,6 @@ class Step:
         return execute(source, [] if kernel is None else [kernel], consumer,
                        threads=self.threads)
 
-    def streams(self, params):
-        """Whether the pipeline may stream frames through this step with ``params``.
-
-        Defaults to :attr:`per_frame`; a step whose result depends on several
-        frames only for some parameters (e.g. source masking on the
-        difference of the last and first frames) says so here.
-        """
-        return self.per_frame
-
-    def merge_frames(self, exposure, params):
-        """Recompute header summaries after a streamed run (default: unchanged).
-
-        A per-frame step's header keywords come from the last frame when the
-        pipeline streams; the merged tables (with their ``frame`` column) are
-        complete, so a step that writes summary keywords recomputes them here.
-        """
-        return exposure
-
-    def accumulator(self, schedule, header, **params):
-        """A `FrameAccumulator` that reduces ramps frame by frame, or None.
-
-        Steps that turn frames into one image (``fit_ramp``) return one, so
-        the pipeline can feed them frames as it reads them.  ``schedule`` is
-        the whole exposure's; ``header`` the input's.  The default is None.
-        """
-        return None
-
-    def strategy(self, name):
-        """The registered strategy class ``name`` of this step's kind."""
-        return self.registry.strategy(self.strategy_kind, name)
-
-
-class FrameAccumulator:
-    """Receives the frames of a ramp one at a time and returns the reduced exposure.
-
-    The result must equal what the step's :meth:`Step.run` returns on the
-    whole ramp.
-    """
-
-    def add(self, index, frame):
-        """Take frame ``index`` (a one-frame `~spherex_reduce.Exposure`)."""
-        raise NotImplementedError
-
-    def finish(self):
-        """The reduced `~spherex_reduce.Exposure`, after every frame was added."""
-        raise NotImplementedError
-
-    def close(self):
-        """Release threads or memory when the run failed before `finish` (optional)."""
-
-
 class Strategy:
     """A variant of a step (e.g. the ``mean`` reference correction).
 
@@ -272,7 +366,24 @@ class Strategy:
     name: ClassVar[str] = ""
     parameters: ClassVar[tuple] = ()
 
+    #: True if `estimate` needs the whole exposure, not only the side block
+    needs_exposure = False
+
+    def __init__(self, **params):
+        self.params = params
+
+    def estimate(self, side, schedule, exposure=None):
+        """Offsets from the side block (a `~spherex_reduce.block.Block` of the reference
+        reads of every frame), or from ``exposure`` when `needs_exposure`.
+
+        Returns a `~spherex_reduce.steps.reference_strategies.ReferenceOffsets`;
+        the step's kernel subtracts them.  A strategy that defines it streams
+        like the built-in ones.
+        """
+        raise NotImplementedError
+
     def __call__(self, exposure, **params):
+        """Correct a whole exposure (strategies written before `estimate`)."""
         raise NotImplementedError
 
 

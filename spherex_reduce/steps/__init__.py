@@ -1,9 +1,15 @@
-"""Reduction steps as plain functions (each also runs as a pipeline step)."""
+"""Reduction steps: one module per step, with its function, `Step` class and hook.
 
-from .clip import pair_difference, sigma_clip
+Each module registers its step with the plugin system (it is a built-in plugin,
+see `spherex_reduce.plugins.BUILTIN_PLUGINS`); the functions here run the step
+alone, with its provenance recorded.
+"""
+
+from .clipping import sigma_clip
 from .dark import combine_darks, subtract_dark
+from .fit_ramp import fit_ramp
+from .pairs import pair_difference
 from .phantom import subtract_phantom
-from .ramp import fit_ramp
 from .reference import correct_reference
 from .unchop import rechop, unchop
 

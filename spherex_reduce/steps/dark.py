@@ -1,12 +1,17 @@
 """Master darks: combine reduced exposures and subtract them (paper §5.3, Fig. 12a)."""
 
+import os
 from pathlib import Path
 
 import numpy as np
 from astropy.nddata import CCDData, StdDevUncertainty
 
-from ..errors import SpherexReduceError
-from ..exposure import as_dq
+from ..errors import ConfigError, SpherexReduceError
+from ..exposure import Exposure, as_dq
+from ..fits_format import read
+from ..hookspecs import hookimpl
+from ..parameters import Parameter
+from ..step import Step
 
 __all__ = ["combine_darks", "subtract_dark"]
 
@@ -14,9 +19,6 @@ COMBINE_METHODS = ("average", "median", "sum")
 
 
 def _as_exposure(item, what):
-    from ..exposure import Exposure
-    from ..fits_format import read
-
     if isinstance(item, Exposure):
         return item
     if isinstance(item, (str, Path)):
@@ -147,14 +149,18 @@ def subtract_dark(exposure, dark):
     >>> float(subtract_dark(e, CCDData(np.full((4, 4), 2.0), unit="electron")).data.data[1, 1])
     3.0
     """
+    if isinstance(dark, (str, os.PathLike)):
+        return SubtractDarkStep()(exposure, dark=str(dark))
+    return SubtractDarkStep().apply_to(exposure, {}, inputs={"dark": dark})
+
+
+def _subtract_dark(exposure, dark):
+    """`subtract_dark` itself (its step's run), ``dark`` an Exposure or CCDData."""
     _check_image(exposure, "the exposure")
-    label = None
     if isinstance(dark, CCDData):
         d_data, d_unit, d_unc, d_order = dark.data, dark.unit, dark.uncertainty, exposure.order
         d_flags = None if dark.mask is None else as_dq(dark.mask)
     else:
-        if isinstance(dark, (str, Path)):
-            label = Path(dark).name
         d = _as_exposure(dark, "dark")
         _check_image(d, "the dark")
         d_data, d_unit, d_unc, d_order = d.data.data, d.unit, d.data.uncertainty, d.order
@@ -183,7 +189,32 @@ def subtract_dark(exposure, dark):
     flags = exposure.dq
     if d_flags is not None:
         flags = (np.zeros(out.shape, np.uint16) if flags is None else flags) | d_flags
-    header = exposure.header.copy()
-    if label:
-        header["DARKFILE"] = (label[:68], "master dark subtracted")
-    return exposure.replace(data=out, uncertainty=unc, dq=flags, header=header)
+    return exposure.replace(data=out, uncertainty=unc, dq=flags)
+
+
+class SubtractDarkStep(Step):
+    """Subtract a master dark image (`~spherex_reduce.subtract_dark`).
+
+    ``dark`` names the master dark's FITS file, a declared input read before
+    the step runs; its name goes into ``DARKFILE``.
+    """
+
+    name, keyword = "subtract_dark", "S_DARK"
+    inputs = ("dark",)
+    parameters = (
+        Parameter("dark", None, (str, type(None)), "FITS file of the master dark (e.g. from "
+                  "spherex-reduce combine)"),
+    )
+
+    def run(self, exposure, dark=None):
+        if dark is None:
+            raise ConfigError("subtract_dark.dark: give the master dark's FITS file")
+        return _subtract_dark(exposure, dark)
+
+    def input_card(self, name, label):
+        return ("DARKFILE", Path(label).name[:68], "master dark subtracted")
+
+
+@hookimpl
+def register_steps():
+    return [SubtractDarkStep]

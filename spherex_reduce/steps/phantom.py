@@ -3,23 +3,10 @@
 import numpy as np
 
 from ..errors import StepSkipped
+from ..hookspecs import hookimpl
+from ..step import Kernel, Step
 
 __all__ = ["subtract_phantom"]
-
-
-def _subtract_rows(values, phantom, width):
-    """``values (..., n, ncols) - phantom (..., n, nch)`` repeated over each channel's columns."""
-    values = np.asarray(values)
-    dtype = np.result_type(values.dtype, phantom.dtype, np.float32)
-    out = np.empty(values.shape, dtype=dtype)
-    lead = values.shape[:-2]
-    n, ncols = values.shape[-2:]
-    nch = ncols // width
-    # one frame at a time: temporaries stay the size of a frame
-    for idx in np.ndindex(*lead):
-        np.subtract(values[idx].reshape(n, nch, width), phantom[idx][:, :, None],
-                    out=out[idx].reshape(n, nch, width))
-    return out
 
 
 def subtract_phantom(exposure):
@@ -59,12 +46,46 @@ def subtract_phantom(exposure):
     >>> subtract_phantom(e).data.data[0].tolist()
     [4.0, 4.0, 3.0, 3.0]
     """
-    if exposure.phantom is None:
-        raise StepSkipped("the input has no phantom values (c = 0, or already subtracted)")
-    width = exposure.geometry.channel_width
-    data = _subtract_rows(exposure.data.data, exposure.phantom, width)
-    reference = exposure.reference
-    if reference is not None and reference.phantom is not None:
-        reference = reference.replace(
-            data=_subtract_rows(reference.data, reference.phantom, width), phantom=None)
-    return exposure.replace(data=data, phantom=None, reference=reference)
+    return SubtractPhantomStep()(exposure)
+
+
+class PhantomKernel(Kernel):
+    """`subtract_phantom` on a block: each row read minus its channels' phantom values.
+
+    The pixels become the common type of pixels, phantom values and float32;
+    the block's phantom values are consumed (None afterwards).
+    """
+
+    def __init__(self, context):
+        if not context.phantom:
+            raise StepSkipped("the input has no phantom values (c = 0, or already subtracted)")
+        super().__init__(context)
+
+    @property
+    def output(self):
+        return self.context.replace(phantom=False)
+
+    def apply(self, coefficients, block):
+        if block.phantom is None:
+            return block
+        dtype = np.result_type(block.data.dtype, block.phantom.dtype, np.float32)
+        out = block.writable(dtype)
+        f, n, ncols = out.shape
+        nch = block.phantom.shape[-1]
+        per_channel = out.reshape(f, n, nch, ncols // nch)
+        np.subtract(per_channel, block.phantom[..., None], out=per_channel)
+        return block.replace(data=out, phantom=None, owned=True)
+
+
+class SubtractPhantomStep(Step):
+    """Subtract each row read's phantom value (`~spherex_reduce.subtract_phantom`)."""
+
+    name, keyword = "subtract_phantom", "S_PHANTM"
+
+    def kernel(self, context):
+        return PhantomKernel(context)
+
+
+@hookimpl
+def register_steps():
+    return [SubtractPhantomStep]

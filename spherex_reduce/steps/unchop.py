@@ -3,8 +3,10 @@
 import numpy as np
 
 from .. import dq
+from ..block import Block
 from ..errors import StepSkipped
-from ..exposure import ReferenceReads
+from ..hookspecs import hookimpl
+from ..step import Kernel, Step
 
 __all__ = ["rechop", "unchop"]
 
@@ -16,29 +18,6 @@ def _physical_index(schedule):
     return first, np.flatnonzero(counts > 1)
 
 
-def _to_physical(values, schedule, first, repeated, flags=None):
-    """Gather ``values`` (..., n_reads, m) into (..., nrows, m); NaN for unread rows.
-
-    A re-read row gets the mean of its usable reads (finite, not flagged in
-    ``flags``); NaN if none is usable.
-    """
-    if values is None:
-        return None
-    out = np.take(values, np.maximum(first, 0), axis=-2)
-    if not np.issubdtype(out.dtype, np.floating):
-        out = out.astype(np.float64)
-    if (first < 0).any():
-        out[..., first < 0, :] = np.nan
-    for row in repeated:
-        out[..., row, :] = _reread_mean(values, schedule, row, flags)
-    return out
-
-
-def _reread_mean(values, schedule, row, flags=None):
-    """Mean (float64) of the usable reads of physical ``row``: ``(..., m)``, NaN if none."""
-    return _mean_of_reads(values, np.flatnonzero(schedule.rows == row), flags)
-
-
 def _mean_of_reads(values, idx, flags=None):
     """Mean (float64) of the usable reads ``idx`` of ``values (..., reads, m)``."""
     reads = np.take(values, idx, axis=-2).astype(np.float64)
@@ -47,29 +26,6 @@ def _mean_of_reads(values, idx, flags=None):
     with np.errstate(invalid="ignore", divide="ignore"):
         count = np.isfinite(reads).sum(axis=-2)
         return np.where(count > 0, np.nansum(reads, axis=-2) / count, np.nan)
-
-
-def _reread_sigma(values, sigma, schedule, row, flags=None):
-    """Standard deviation of `_reread_mean`: ``sqrt(sum sigma_i^2) / n`` over the usable reads."""
-    idx = np.flatnonzero(schedule.rows == row)
-    good = np.isfinite(np.take(values, idx, axis=-2))
-    if flags is not None:
-        good &= np.take(flags, idx, axis=-2) == 0
-    sig = np.take(sigma, idx, axis=-2).astype(np.float64)
-    n = good.sum(axis=-2)
-    var = np.where(good, sig * sig, 0.0).sum(axis=-2)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(n > 0, np.sqrt(var) / n, np.nan)
-
-
-def _flags_to_physical(flags, schedule, first, repeated):
-    """Flags in physical order; a re-read row is usable where any of its reads is."""
-    out = np.take(flags, np.maximum(first, 0), axis=-2)
-    for row in repeated:
-        reads = np.take(flags, np.flatnonzero(schedule.rows == row), axis=-2)
-        usable = (reads == 0).any(axis=-2)
-        out[..., row, :] = np.where(usable, 0, np.bitwise_or.reduce(reads, axis=-2))
-    return out
 
 
 def unchop(exposure):
@@ -111,35 +67,135 @@ def unchop(exposure):
     >>> unchop(raw).data.data[:, 0].tolist()
     [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0]
     """
-    if exposure.order == "physical":
-        raise StepSkipped("the exposure is already in physical order")
-    schedule = exposure.schedule
-    first, repeated = _physical_index(schedule)
-    nd = exposure.data
-    data = _to_physical(nd.data, schedule, first, repeated, exposure.dq)
-    unc = None
-    if nd.uncertainty is not None:
-        unc = _to_physical(nd.uncertainty.array, schedule, first, ())
-        for row in repeated:  # the error of the mean of its usable reads
-            unc[..., row, :] = _reread_sigma(nd.data, nd.uncertainty.array, schedule, row,
-                                             exposure.dq)
-    flags = (None if exposure.dq is None
-             else _flags_to_physical(exposure.dq, schedule, first, repeated))
-    unread = first < 0
-    if unread.any():
-        flags = np.zeros(data.shape, np.uint16) if flags is None else flags.copy()
-        flags[..., unread, :] |= dq.NOT_READ
-    ref_idx = schedule.reference_read_indices
-    reference = ReferenceReads(
-        data=np.take(nd.data, ref_idx, axis=-2),
-        rows=schedule.rows[ref_idx],
-        reads=ref_idx,
-        phantom=None if exposure.phantom is None else np.take(exposure.phantom, ref_idx, axis=-2),
-        dq=None if exposure.dq is None else np.take(exposure.dq, ref_idx, axis=-2),
-    )
-    phantom = _to_physical(exposure.phantom, schedule, first, repeated)
-    return exposure.replace(data=data, uncertainty=unc, dq=flags, phantom=phantom,
-                            order="physical", reference=reference)
+    return UnchopStep()(exposure)
+
+
+class UnchopKernel(Kernel):
+    """`unchop` on bands of reads: each read goes to its physical row.
+
+    ``prepare`` takes, from the side block (which holds every read of the rows
+    read more than once), the mean of the usable reads of each such row; a
+    band of reads then gives the rows whose first read is in it, and
+    `extra_rows` the rows never read (NaN, flagged
+    `~spherex_reduce.dq.NOT_READ`).
+    """
+
+    def __init__(self, context):
+        if context.order == "physical":
+            raise StepSkipped("the exposure is already in physical order")
+        super().__init__(context)
+        s = context.schedule
+        self.first, self.repeated = _physical_index(s)
+        #: physical row first read by each read (-1: a later read of its row)
+        self.row_of_read = np.full(s.n_reads, -1)
+        read = self.first >= 0
+        self.row_of_read[self.first[read]] = np.flatnonzero(read)
+
+    @property
+    def output(self):
+        return self.context.replace(order="physical")
+
+    def prepare(self, side):
+        """Mean of the usable reads of every row read more than once (and its error)."""
+        s = self.context.schedule
+        pos = np.full(s.n_reads, -1)
+        pos[side.index] = np.arange(side.index.size)
+        means = {}
+        for row in self.repeated:
+            idx = pos[np.flatnonzero(s.rows == row)]
+            data = _mean_of_reads(side.data, idx, side.dq)
+            phantom = None if side.phantom is None else _mean_of_reads(side.phantom, idx)
+            unc = None
+            if side.uncertainty is not None:
+                unc = _sigma_of_mean(side.data, side.uncertainty, idx, side.dq)
+            flags = None if side.dq is None else _usable_flags(side.dq, idx)
+            means[int(row)] = (data, phantom, unc, flags)
+        return {"means": means, "dtype": _float_type(side.data.dtype),
+                "phantom_dtype": None if side.phantom is None else side.phantom.dtype,
+                "nframes": side.data.shape[0], "unc": side.uncertainty is not None,
+                "dq": side.dq is not None, "ncols": side.data.shape[-1]}
+
+    def apply_side(self, coefficients, side):
+        return side  # the reads stay reads: they are kept aside as the reference reads
+
+    def apply(self, coefficients, block):
+        rows = self.row_of_read[block.index]
+        src = np.flatnonzero(rows >= 0)
+        rows = rows[src]
+        dtype = coefficients["dtype"]
+
+        def gather(values, kind):
+            if values is None:
+                return None
+            out = np.take(values, src, axis=1)
+            if kind == "data" and out.dtype != dtype:
+                out = out.astype(dtype)
+            return out
+
+        data = gather(block.data, "data")
+        phantom = gather(block.phantom, "phantom")
+        unc = gather(block.uncertainty, "unc")
+        flags = gather(block.dq, "dq")
+        for i in np.flatnonzero(np.isin(rows, self.repeated)):
+            mean, ph, sig, fl = coefficients["means"][int(rows[i])]
+            data[:, i] = mean
+            if phantom is not None:
+                phantom[:, i] = ph
+            if unc is not None:
+                unc[:, i] = sig
+            if flags is not None:
+                flags[:, i] = fl
+        return Block(data, rows, "physical", phantom=phantom, dq=flags, uncertainty=unc,
+                     owned=True)
+
+    def extra_rows(self, coefficients):
+        """The rows the schedule never reads: NaN, flagged `~spherex_reduce.dq.NOT_READ`."""
+        unread = np.flatnonzero(self.first < 0)
+        if unread.size == 0:
+            return None
+        c = coefficients
+        shape = (c["nframes"], unread.size, c["ncols"])
+        g = self.context.geometry
+        phantom = None
+        if c["phantom_dtype"] is not None:
+            phantom = np.full((*shape[:2], g.nchannels), np.nan, c["phantom_dtype"])
+        return Block(np.full(shape, np.nan, c["dtype"]), unread, "physical", phantom=phantom,
+                     dq=np.full(shape, dq.NOT_READ, np.uint16),
+                     uncertainty=np.full(shape, np.nan) if c["unc"] else None, owned=True)
+
+
+def _float_type(dtype):
+    """The type of un-chopped pixels: the input's if floating point, else float64."""
+    return dtype if np.issubdtype(dtype, np.floating) else np.dtype(np.float64)
+
+
+def _sigma_of_mean(values, sigma, idx, flags=None):
+    """Standard deviation of `_mean_of_reads`: ``sqrt(sum sigma_i^2) / n`` over usable reads."""
+    good = np.isfinite(np.take(values, idx, axis=-2))
+    if flags is not None:
+        good &= np.take(flags, idx, axis=-2) == 0
+    sig = np.take(sigma, idx, axis=-2).astype(np.float64)
+    n = good.sum(axis=-2)
+    var = np.where(good, sig * sig, 0.0).sum(axis=-2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, np.sqrt(var) / n, np.nan)
+
+
+def _usable_flags(flags, idx):
+    """Flags of a row read several times: 0 where any read is usable, else all its flags."""
+    reads = np.take(flags, idx, axis=-2)
+    usable = (reads == 0).any(axis=-2)
+    return np.where(usable, 0, np.bitwise_or.reduce(reads, axis=-2)).astype(np.uint16)
+
+
+class UnchopStep(Step):
+    """Readout order to physical order; reference re-reads kept aside (`unchop`)."""
+
+    name = "unchop"
+    keyword = "S_UNCHOP"
+
+    def kernel(self, context):
+        return UnchopKernel(context)
 
 
 def rechop(exposure):
@@ -182,3 +238,8 @@ def rechop(exposure):
     flags = None if exposure.dq is None else np.take(exposure.dq, schedule.rows, axis=-2)
     return exposure.replace(data=data, dq=flags, uncertainty=None, phantom=phantom,
                             order="readout", reference=None)
+
+
+@hookimpl
+def register_steps():
+    return [UnchopStep]

@@ -216,8 +216,9 @@ class Pipeline:
         """Run ``steps`` (``(name, params, step)``) on an exposure or a file, pass by pass."""
         current, i = exposure, 0
         status = {}  # step index -> 'COMPLETE' or 'SKIPPED'
+        # shown after a second: a bad input is refused before any bar is drawn
         bar = tqdm(total=len(steps), desc="reduce", unit="step", disable=not progress,
-                   leave=False)
+                   leave=False, delay=1.0)
         with bar:
             while i < len(steps):
                 done, current = self._pass(current, steps, i, status, progress, threads)
@@ -306,7 +307,7 @@ class Pipeline:
             hook.before_step(step=steps[k][2], exposure=before, params=steps[k][1])
         timings = {}
         rows = tqdm(total=source.nrows, desc="reduce rows", unit="row", disable=not progress,
-                    leave=False)
+                    leave=False, delay=1.0)
         with rows:
             result = execute(source, kernels, consumer, threads=threads, progress=rows.update,
                              timings=timings)

@@ -4,7 +4,8 @@ from pathlib import Path
 
 from ..fits_format import atomic_output, write
 from ..pipeline import Pipeline
-from ._common import check_paths, named_files
+from ..limits import MAX_WORKERS
+from ._common import check_paths, count, named_files
 
 
 def add_parser(sub):
@@ -15,10 +16,9 @@ def add_parser(sub):
     p.add_argument("-c", "--config", required=True, metavar="PIPELINE.yaml")
     p.add_argument("-o", "--output", required=True, metavar="OUT.fits")
     p.add_argument("--overwrite", action="store_true", help="replace OUT.fits if it exists")
-    p.add_argument("--no-fuse", dest="fuse", action="store_false",
-                   help="run unchop, subtract_phantom and correct_reference one by one on "
-                   "every frame and fit frame by frame, instead of in one pass (the same "
-                   "numbers to float32 rounding, slower; for checking)")
+    p.add_argument("--threads", type=count(MAX_WORKERS), default=None, metavar="N",
+                   help="bands of rows corrected at once (default: the cores available, "
+                   "at most 4); the numbers do not depend on it")
     p.set_defaults(func=run)
 
 
@@ -28,7 +28,7 @@ def run(args):
     check_paths([args.input, args.config, *named_files(pipeline.steps, Path(args.config).parent)],
                 [args.output])
     atomic_output(args.output, args.overwrite)  # refuse before reducing
-    result = pipeline.run(args.input, progress=not args.quiet, fuse=args.fuse)
+    result = pipeline.run(args.input, progress=not args.quiet, threads=args.threads)
     write(result, args.output, overwrite=args.overwrite)
     status = ", ".join(f"{n}={result.header.get(pipeline.registry.step(n).keyword, '?')}"
                        for n, _ in pipeline.steps)

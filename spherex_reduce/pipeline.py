@@ -23,8 +23,8 @@ from .config import (
 )
 from .errors import ConfigError, SpherexReduceError, StepSkipped
 from .exposure import Exposure
-from .fits_format import FrameReader, is_raw_ramp_file, read
 from .fused import fused_plan
+from .io import FrameReader, is_raw_ramp_file, read
 from .parameters import Parameter, validate_parameters
 from .plugins import Registry, blame_plugin
 from .step import Step

@@ -129,7 +129,7 @@ class PairDifferenceStep(Step):
     def run(self, exposure, other=None, reduce_other=True):
         from astropy.io import fits
 
-        from .fits_format import read
+        from .io import read
         from .pipeline import Pipeline
         from .plugins import Registry
 

@@ -42,7 +42,7 @@ def test_raw_round_trip(tmp_path, raw):
 
 
 def test_frame_reader_gives_each_frame_in_native_byte_order(tmp_path, raw):
-    from spherex_reduce.fits_format import FrameReader
+    from spherex_reduce.io import FrameReader
 
     path = write(raw, tmp_path / "raw.fits")
     with FrameReader(path) as frames:
@@ -65,7 +65,7 @@ def test_frame_reader_gives_each_frame_in_native_byte_order(tmp_path, raw):
 
 
 def test_frame_reader_reads_a_few_reads_of_a_frame(tmp_path, raw):
-    from spherex_reduce.fits_format import FrameReader
+    from spherex_reduce.io import FrameReader
 
     path = write(raw, tmp_path / "raw.fits")
     with fits.open(path) as hdul:
@@ -89,7 +89,7 @@ def test_frame_reader_on_compressed_files(tmp_path, raw):
     import gzip
     import shutil
 
-    from spherex_reduce.fits_format import FrameReader
+    from spherex_reduce.io import FrameReader
 
     plain = write(raw, tmp_path / "raw.fits")
     gz = tmp_path / "raw.fits.gz"

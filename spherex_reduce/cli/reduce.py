@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from ..fits_format import atomic_output, write
+from ..io import atomic_output, write
 from ..pipeline import Pipeline
 from ._common import check_paths, named_files
 

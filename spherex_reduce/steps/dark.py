@@ -15,7 +15,7 @@ COMBINE_METHODS = ("average", "median", "sum")
 
 def _as_exposure(item, what):
     from ..exposure import Exposure
-    from ..fits_format import read
+    from ..io import read
 
     if isinstance(item, Exposure):
         return item

@@ -35,21 +35,18 @@ def _image(data, name, unit=None):
     return hdu
 
 
-def _primary(schedule, header, order, unit):
-    """The primary HDU: readout keywords, ``ORDER`` and ``BUNIT`` after ``header``'s cards,
-    and ``EXTEND`` where astropy puts it when it writes extensions after it."""
+def _primary(schedule, header, order, unit, nextend):
+    """The primary HDU: readout keywords, ``ORDER``, ``BUNIT`` and ``NEXTEND`` after
+    ``header``'s cards, and ``EXTEND`` where astropy puts it when extensions follow."""
     header = schedule.to_header(header)
     header["ORDER"] = (order.upper(), "row order of SCI: READOUT or PHYSICAL")
     header["BUNIT"] = (_unit_str(unit), "unit of SCI and ERR")
+    # a file cut at an HDU boundary is still valid FITS: the count tells it is not whole
+    header["NEXTEND"] = (nextend, "number of extensions")
     hdu = fits.PrimaryHDU(header=header)
     if "EXTEND" not in hdu.header:
         hdu.header.set("EXTEND", True, after="NAXIS")
     return hdu
-
-
-def _count_extensions(hdus):
-    # a file cut at an HDU boundary is still valid FITS: the count tells it is not whole
-    hdus[0].header["NEXTEND"] = (len(hdus) - 1, "number of extensions")
 
 
 def _table_hdu(table, name):
@@ -91,8 +88,7 @@ def write(exposure, path, overwrite=False):
     """
     path = Path(path)
     unit = exposure.unit or u.dimensionless_unscaled
-    hdus = [_primary(exposure.schedule, exposure.header, exposure.order, unit),
-            _image(exposure.data.data, "SCI", unit)]
+    hdus = [_image(exposure.data.data, "SCI", unit)]
     unc = exposure.data.uncertainty
     if unc is not None:
         if not isinstance(unc, StdDevUncertainty):  # (converting costs two passes)
@@ -118,7 +114,7 @@ def write(exposure, path, overwrite=False):
         if name.upper() in _RESERVED:
             raise ValueError(f"table name {name!r} is reserved for the format")
         hdus.append(_table_hdu(table, name.upper()))
-    _count_extensions(hdus)
+    hdus.insert(0, _primary(exposure.schedule, exposure.header, exposure.order, unit, len(hdus)))
     with atomic_output(path, overwrite) as tmp:
         fits.HDUList(hdus).writeto(tmp, checksum=True)
     return path
@@ -183,13 +179,9 @@ def write_frames(frames, path, schedule, *, header=None, unit=u.electron, dtype=
         raise ValueError(f"dtype must be float32 or float64, got {dtype!r}")
     nframes, nreads = schedule.nframes, schedule.n_reads
     ncols, nchannels = schedule.geometry.ncols, schedule.geometry.nchannels
-    hdus = [_primary(schedule, header, "readout", unit), None]
-    if schedule.phantom_reads:
-        hdus.append(None)
-    hdus.append(_table_hdu(schedule.to_table(), "READOUT"))
-    _count_extensions(hdus)
+    primary = _primary(schedule, header, "readout", unit, 2 + bool(schedule.phantom_reads))
     with out as tmp, open(tmp, "wb") as f, tempfile.TemporaryFile(dir=tmp.parent) as spill:
-        f.write(_hdu_bytes(hdus[0]))
+        f.write(_hdu_bytes(primary))
         sci = _StreamedImage(f, "SCI", stored, (nframes, nreads, ncols), unit)
         count = 0
         try:
@@ -212,7 +204,7 @@ def write_frames(frames, path, schedule, *, header=None, unit=u.electron, dtype=
             while chunk := spill.read(1 << 24):
                 phantom.write_stored(chunk)
             phantom.close()
-        f.write(_hdu_bytes(hdus[-1]))
+        f.write(_hdu_bytes(_table_hdu(schedule.to_table(), "READOUT")))
     return out.path
 
 

@@ -12,8 +12,8 @@ from . import dq
 from ._version import __version__
 from .errors import ConfigError, FormatError, PluginError, SpherexReduceError, StepSkipped
 from .exposure import Exposure, ReferenceReads
-from .fits_format import read, write
 from .geometry import DetectorGeometry
+from .io import read, write
 from .pipeline import Pipeline
 from .schedule import ReadoutSchedule
 from .step import Simulator, Step, Strategy

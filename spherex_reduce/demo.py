@@ -13,7 +13,7 @@ from .analysis import (
     power_spectrum,
 )
 from .analysis.plots import plot_spectra
-from .fits_format import atomic_output, write
+from .io import atomic_output, write
 from .pipeline import Pipeline
 from .plotting import plot_images, plot_read_order, save_figure
 

@@ -21,7 +21,7 @@ from .config import (
 from .errors import ConfigError, SpherexReduceError, StepSkipped
 from .exposure import Exposure
 from .executor import FileSource, MemorySource, execute
-from .fits_format import FrameReader, is_raw_ramp_file, read
+from .io import FrameReader, is_raw_ramp_file, read
 from .plugins import Registry, blame_plugin
 from .step import Step
 

@@ -7,7 +7,7 @@ needed) and saved atomically with :func:`save_figure`.
 import numpy as np
 from matplotlib.figure import Figure
 
-from .fits_format import atomic_output
+from .io import atomic_output
 
 __all__ = ["bin_image", "plot_image", "plot_images", "plot_read_order", "save_figure",
            "unit_label"]

@@ -10,7 +10,7 @@ from typing import ClassVar
 
 from .errors import StepSkipped, UnknownNameError
 from .executor import MemorySource, execute
-from .fits_format import read
+from .io import read
 from .parameters import Parameter, validate_parameters
 from .provenance import record_step
 

@@ -14,7 +14,7 @@ import warnings
 import pytest
 
 from spherex_reduce.cli import main
-from spherex_reduce.fits_format import atomic_output
+from spherex_reduce.io import atomic_output
 
 SCENE = """\
 geometry: {nrows: 64, ncols: 64, nchannels: 4, ref_border: 4}
@@ -236,7 +236,7 @@ def test_sigterm_during_a_write_removes_the_temporary_file(files, tmp_path):
             "from spherex_reduce.cli import main\n"
             "real = r.write\n"
             "def slow(result, path, overwrite=False):\n"
-            "    from spherex_reduce.fits_format import atomic_output\n"
+            "    from spherex_reduce.io import atomic_output\n"
             "    with atomic_output(path, overwrite) as tmp:\n"
             "        tmp.write_bytes(b'partial')\n"
             "        print('writing', flush=True)\n"

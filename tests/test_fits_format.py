@@ -42,7 +42,7 @@ def test_raw_round_trip(tmp_path, raw):
 
 
 def test_frame_reader_gives_each_frame_in_native_byte_order(tmp_path, raw):
-    from spherex_reduce.fits_format import FrameReader
+    from spherex_reduce.io import FrameReader
 
     path = write(raw, tmp_path / "raw.fits")
     with FrameReader(path) as frames:
@@ -65,7 +65,7 @@ def test_frame_reader_gives_each_frame_in_native_byte_order(tmp_path, raw):
 
 
 def test_frame_reader_reads_a_few_reads_of_a_frame(tmp_path, raw):
-    from spherex_reduce.fits_format import FrameReader
+    from spherex_reduce.io import FrameReader
 
     path = write(raw, tmp_path / "raw.fits")
     with fits.open(path) as hdul:
@@ -89,7 +89,7 @@ def test_frame_reader_on_compressed_files(tmp_path, raw):
     import gzip
     import shutil
 
-    from spherex_reduce.fits_format import FrameReader
+    from spherex_reduce.io import FrameReader
 
     plain = write(raw, tmp_path / "raw.fits")
     gz = tmp_path / "raw.fits.gz"
@@ -233,3 +233,85 @@ def test_not_fits_is_a_clear_error(tmp_path):
         read(p)
     with pytest.raises(FileNotFoundError):
         read(tmp_path / "missing.fits")
+
+
+# --- the streamed writer (write_frames): the same file as write, checksums of our own ---
+
+SCENE = {"geometry": {"nrows": 16, "ncols": 32, "nchannels": 2, "ref_border": 2},
+         "readout": {"skip": 3, "ref_reads": 4, "phantom_reads": 2, "nframes": 3},
+         "scene": {"photocurrent": 2.0, "leakage": 1.0}, "output": {"mode": "ramps"}, "seed": 11}
+
+
+def _without_checksum_cards(path):
+    """The file's bytes with every CHECKSUM/DATASUM card blanked (their comments carry the
+    time of writing)."""
+    data = bytearray(path.read_bytes())
+    for i in range(0, len(data), 80):
+        if data[i : i + 9] in (b"CHECKSUM=", b"DATASUM ="):
+            data[i : i + 80] = b" " * 80
+    return bytes(data)
+
+
+@pytest.mark.parametrize("phantom_reads, dtype", [(2, "float32"), (0, "float64")])
+def test_simulated_file_streamed_is_the_file_write_gives(tmp_path, phantom_reads, dtype):
+    from spherex_reduce import simulate
+    from spherex_reduce.simulation import simulate_to_fits
+
+    scene = {**SCENE, "readout": {**SCENE["readout"], "phantom_reads": phantom_reads},
+             "synthesis": {"dtype": dtype}}
+    streamed = simulate_to_fits(scene, tmp_path / "streamed.fits")
+    mem = simulate(scene)
+    with fits.open(streamed, checksum=True) as hdul:  # a mismatch warns: an error here
+        assert [h.verify_checksum() for h in hdul] == [1] * len(hdul)  # every HDU, by astropy
+        assert hdul[0].header["EXTEND"] is True
+        np.testing.assert_array_equal(hdul["SCI"].data, mem.data.data)
+        assert hdul["SCI"].data.dtype == np.dtype(dtype).newbyteorder(">")
+        if phantom_reads:
+            np.testing.assert_array_equal(hdul["PHANTOM"].data, mem.phantom)
+        else:
+            assert "PHANTOM" not in hdul
+    whole = write(mem, tmp_path / "whole.fits")
+    assert _without_checksum_cards(streamed) == _without_checksum_cards(whole)
+
+
+def test_write_frames_refuses_wrong_frames_and_leaves_nothing(tmp_path, raw):
+    from spherex_reduce.io import write_frames
+
+    s = raw.schedule
+    frames = list(zip(raw.data.data, raw.phantom, strict=True))
+    out = tmp_path / "raw.fits"
+    with pytest.raises(ValueError, match="3 frames given, the schedule has 4"):
+        write_frames(iter([(f.copy(), p) for f, p in frames[:3]]), out, s)
+    with pytest.raises(ValueError, match="more frames than"):
+        write_frames(iter([(f.copy(), p) for f, p in frames + frames[:1]]), out, s)
+    with pytest.raises(ValueError, match=r"phantom have shape None"):
+        write_frames(iter([(f.copy(), None) for f, _ in frames]), out, s)
+    with pytest.raises(ValueError, match=r"pixels have shape \(2, 16\)"):
+        write_frames(iter([(f[:2].copy(), p) for f, p in frames]), out, s)
+    assert list(tmp_path.iterdir()) == []
+    write_frames(iter([(f.copy(), p) for f, p in frames]), out, s, header=raw.header)
+    back = read(out)
+    np.testing.assert_array_equal(back.data.data, raw.data.data)
+    np.testing.assert_array_equal(back.phantom, raw.phantom)
+    assert back.schedule == s
+
+
+def test_checksum_text_is_the_fits_checksum(tmp_path):
+    """Our encoder gives the CHECKSUM astropy writes (headers and data of many sums)."""
+    from spherex_reduce.io.fits_structure import _checksum_text, _DataSum
+
+    rng = np.random.default_rng(2)
+    for k in range(60):
+        data = (rng.standard_normal((3, 1 + k)) * 10.0 ** rng.integers(-6, 6)).astype(">f4")
+        hdu = fits.ImageHDU(data, name=f"X{k}")
+        hdu.header["NOTE"] = "".join(map(chr, rng.integers(32, 127, k % 60)))
+        path = tmp_path / f"x{k}.fits"
+        hdu.writeto(path, checksum=True)
+        with fits.open(path) as hdul:
+            header = hdul[1].header
+        words = _DataSum()
+        words.add(data.tobytes() + bytes((-data.nbytes) % 4))
+        assert int(header["DATASUM"]) == words.value
+        want = header["CHECKSUM"]
+        header["CHECKSUM"] = "0" * 16
+        assert _checksum_text(header.tostring().encode("ascii"), words.value) == want

@@ -27,7 +27,7 @@ from spherex_reduce.analysis.io import read_image
 from spherex_reduce.cli import main
 from spherex_reduce.errors import ResourceError
 from spherex_reduce.examples import example_raw_exposure
-from spherex_reduce.fits_format import FrameReader, checksum_policy
+from spherex_reduce.io import FrameReader, checksum_policy
 
 STEPS = {"steps": ["unchop", "subtract_phantom", {"correct_reference": {"strategy": "mean"}},
                    "fit_ramp"]}
@@ -268,9 +268,9 @@ def test_frame_reader_refuses_a_truncated_raw_file(tmp_path, raw):
     (b"this is not FITS at all" * 200, "not a readable FITS file"),
 ])
 def test_spectrum_on_corrupt_files(tmp_path, content, message, capsys, monkeypatch):
-    from spherex_reduce import fits_format
+    from spherex_reduce.io import fits_structure
 
-    monkeypatch.setattr(fits_format, "_MAX_HEADER_BLOCKS", 2)  # (the real limit is 28.8 MB)
+    monkeypatch.setattr(fits_structure, "_MAX_HEADER_BLOCKS", 2)  # (the real limit is 28.8 MB)
     path = tmp_path / "bad.fits"
     path.write_bytes(content)
     assert main(["spectrum", str(path), "-o", str(tmp_path / "s.ecsv")]) == 2
@@ -384,7 +384,7 @@ def _flip_sci_byte(path, out):
 
 
 def test_word_sum_is_the_fits_datasum(tmp_path):
-    from spherex_reduce.fits_format import _word_sum
+    from spherex_reduce.io.fits_structure import _word_sum
 
     rng = np.random.default_rng(5)
     for n in (1, 7, 1000, 30001):  # also lengths that are not whole words

@@ -328,7 +328,7 @@ def write_raw(tmp_path, raw):
 
 
 def test_streaming_reads_one_frame_at_a_time(tmp_path, raw, monkeypatch):
-    from spherex_reduce import fits_format
+    from spherex_reduce.io import frames as fits_format
 
     path = write_raw(tmp_path, raw)
     asked = []

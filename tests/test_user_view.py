@@ -375,7 +375,7 @@ def test_spectra_band_labelled_by_k_and_the_theta_it_gives(scale):
 
 def test_demo_spectra_legend_and_unit(demo_dir):
     """The photon line says its flux and time; the P(k) unit is LaTeX, not 'electron2'."""
-    from spherex_reduce.fits_format import read
+    from spherex_reduce.io import read
 
     out, figs = demo_dir
     ax = figs["spectra.png"].axes[0]
@@ -390,7 +390,7 @@ def test_demo_spectra_legend_and_unit(demo_dir):
 
 def test_fit_noise_plot_names_streams_and_unit(demo_dir, tmp_path, monkeypatch):
     import spherex_reduce.plotting as plotting
-    from spherex_reduce.fits_format import read
+    from spherex_reduce.io import read
 
     out, _ = demo_dir
     figs = []

@@ -548,7 +548,7 @@ def _make_figures(outdir, quick, s, scheduler, workers, overwrite, progress, log
                    "point: the numbers are noisy and the band holds few modes; run without "
                    "`--quick` for the paper's sizes."]
     rep.md += ["", f"Run time {time.perf_counter() - t_start:.0f} s.", ""]
-    from ..fits_format import atomic_output
+    from ..io import atomic_output
 
     table = Table(rows=rep.numbers) if rep.numbers else Table()
     table.meta["settings"] = json.loads(json.dumps(s.__dict__, default=list))

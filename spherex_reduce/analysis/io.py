@@ -38,10 +38,10 @@ def read_image(path, ext=None):
         The file holds ramps (3-D); fit the ramps first.
     FormatError
         The file is truncated, damaged (checksum, see
-        `~spherex_reduce.fits_format.checksum_policy`), in this package's
+        `~spherex_reduce.io.checksum_policy`), in this package's
         format but inconsistent, or has no 2-D image.
     """
-    from ..fits_format import open_checked
+    from ..io import open_checked
 
     path = Path(path)
     with open_checked(path) as f:  # truncation, checksums, unreadable cards

@@ -473,7 +473,7 @@ def run_sweep(sweep, output=None, *, scheduler=None, workers=None, overwrite=Fal
         (``{"cell": ..., "error": ...}``), which are not written as rows, so a
         re-run tries them again.
     """
-    from ..fits_format import atomic_output
+    from ..io import atomic_output
 
     sw = sweep if isinstance(sweep, Sweep) else load_sweep(sweep)
     keys = sw.keys

@@ -18,7 +18,7 @@ import warnings
 
 from .._version import __version__
 from ..errors import SpherexReduceError
-from ..fits_format import checksum_policy
+from ..io import checksum_policy
 
 __all__ = ["COMMANDS", "main"]
 

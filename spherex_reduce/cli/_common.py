@@ -14,7 +14,7 @@ import math
 import os
 
 from ..errors import ResourceError, SpherexReduceError
-from ..fits_format import atomic_output
+from ..io import atomic_output
 from ..limits import check_count
 
 __all__ = ["all_or_nothing", "check_paths", "count", "finite_float",

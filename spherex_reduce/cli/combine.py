@@ -1,6 +1,6 @@
 """``spherex-reduce combine``: a master dark from reduced exposures (ccdproc.combine)."""
 
-from ..fits_format import atomic_output, read, write
+from ..io import atomic_output, read, write
 from ..steps.dark import COMBINE_METHODS, combine_darks
 from ._common import check_paths, nonnegative_float
 

@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from ..fits_format import atomic_output
+from ..io import atomic_output
 from ._common import all_or_nothing, check_paths, count, positive_float
 
 #: More log bins than this resolve nothing a Welch PSD holds, and take minutes.
@@ -39,7 +39,7 @@ def add_parser(sub):
 
 def run(args):
     from ..analysis import fit_raw_noise
-    from ..fits_format import read
+    from ..io import read
 
     plot = args.plot
     if plot is True:

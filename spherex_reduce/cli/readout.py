@@ -1,7 +1,7 @@
 """``spherex-reduce readout``: build, print, save and draw a readout schedule."""
 
 from ..config import GEOMETRY_PARAMETERS, READOUT_PARAMETERS, load_yaml, schedule_from_config
-from ..fits_format import atomic_output
+from ..io import atomic_output
 from ..schedule import DEFAULT_FRAME_OVERHEAD
 from ._common import all_or_nothing, check_paths, count, positive_float
 

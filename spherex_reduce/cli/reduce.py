@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from ..fits_format import atomic_output, write
+from ..io import atomic_output, write
 from ..pipeline import Pipeline
 from ..limits import MAX_WORKERS
 from ._common import check_paths, count, named_files

@@ -1,6 +1,6 @@
 """``spherex-reduce simulate``: simulate a scene to a FITS file."""
 
-from ..fits_format import atomic_output
+from ..io import atomic_output
 from ._common import check_paths
 
 

@@ -7,7 +7,7 @@ from astropy import units as u
 from astropy.table import join
 
 from ..errors import SpherexReduceError
-from ..fits_format import atomic_output
+from ..io import atomic_output
 from ._common import (
     all_or_nothing,
     check_paths,

@@ -4,7 +4,7 @@ import sys
 from pathlib import Path
 
 from .._text import plural
-from ..fits_format import atomic_output
+from ..io import atomic_output
 from ..limits import MAX_WORKERS
 from ._common import check_paths, count, named_files
 

@@ -1,11 +1,7 @@
 """The built-in simulator: scene -> raw ramps or a slope image, in readout order."""
 
-import collections
-import io
 import json
 import logging
-import tempfile
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from astropy import units as u
@@ -13,7 +9,7 @@ from astropy.io import fits
 
 from ..errors import ConfigError
 from ..exposure import Exposure
-from ..fits_format import _DataSum, _table_hdu, _unit_str, atomic_output
+from ..io import atomic_output, write, write_frames
 from ..step import Simulator
 from .engine import NoiseEngine
 from .scene import load_scene
@@ -230,131 +226,27 @@ def simulate_to_fits(scene, path, *, mode=None, seed=None, overwrite=False, prog
     """Simulate and write a FITS file; ramps are streamed frame by frame.
 
     Peak memory does not hold the cube: each frame is written as it is made
-    (big-endian, with ``DATASUM``/``CHECKSUM`` computed on the fly) into a
-    temporary file that is renamed into place when complete; the phantom
-    frames are spilled to a temporary file and appended after ``SCI``.  An
-    existing ``path`` is refused before anything is computed unless
-    ``overwrite``.
+    by `~spherex_reduce.io.write_frames` (the file is the one
+    `~spherex_reduce.io.write` gives for the simulated exposure), into a
+    temporary file renamed into place when complete.  An existing ``path``
+    is refused before anything is computed unless ``overwrite``.
 
     Returns
     -------
     path : `pathlib.Path`
     """
-    out = atomic_output(path, overwrite)  # refuse before computing
+    atomic_output(path, overwrite)  # refuse before computing
     sc = load_scene(scene) if not hasattr(scene, "schedule") else scene
     if sc.synthesis.get("simulator", "spherex") != "spherex":  # a plugin's simulator
-        from ..fits_format import write
-
         return write(simulate(sc, mode=mode, seed=seed), path, overwrite=overwrite)
     sc, mode, seed, engine = _prepare(sc, mode, seed)
     if mode == "slopes":
-        from ..fits_format import write
-
         return write(_simulate(sc, mode=mode, seed=seed), path, overwrite=overwrite)
     s = sc.schedule
-    g = s.geometry
-    header = s.to_header(_header(sc, mode, seed, engine))
-    header["ORDER"] = ("READOUT", "row order of SCI: READOUT or PHYSICAL")
-    header["BUNIT"] = (_unit_str(u.electron), "unit of SCI and ERR")
-    header["NEXTEND"] = (2 + bool(s.phantom_reads), "number of extensions")  # as write() does
-    dtype = np.dtype(engine.dtype).newbyteorder(">")
     frames = _frames(sc, engine)
     if progress:
         from tqdm.auto import tqdm
 
         frames = tqdm(frames, total=s.nframes, unit="frame", desc="simulate ramps")
-    buf = io.BytesIO()
-    fits.HDUList([fits.PrimaryHDU(header=header)]).writeto(buf, checksum=True)
-    with out as tmp, open(tmp, "wb") as f, tempfile.TemporaryFile(dir=tmp.parent) as spill:
-        f.write(buf.getvalue())
-        sci = _ImageWriter(f, "SCI", dtype, (s.nframes, s.n_reads, g.ncols))
-        ph_sum = _DataSum()
-        try:
-            for frame, ph in frames:
-                sci.write(frame)
-                if s.phantom_reads:
-                    raw = np.ascontiguousarray(ph, dtype=dtype)
-                    ph_sum.add(raw)
-                    spill.write(raw.tobytes())
-        finally:
-            sci._drain()
-        sci.close()
-        if s.phantom_reads:
-            phw = _ImageWriter(f, "PHANTOM", dtype, (s.nframes, s.n_reads, g.nchannels))
-            spill.seek(0)
-            while chunk := spill.read(1 << 24):
-                f.write(chunk)
-            phw.nbytes, phw.sum = spill.tell(), ph_sum
-            phw.close()
-        buf = io.BytesIO()
-        fits.HDUList([fits.PrimaryHDU(), _table_hdu(s.to_table(), "READOUT")]).writeto(
-            buf, checksum=True)
-        first = len(fits.PrimaryHDU().header.tostring())
-        f.write(buf.getvalue()[first:])
-    return out.path
-
-
-class _ImageWriter:
-    """An image extension written in pieces; checksums filled in by `close`."""
-
-    def __init__(self, f, name, dtype, shape):
-        bitpix = -32 if dtype.itemsize == 4 else -64
-        cards = [("XTENSION", "IMAGE"), ("BITPIX", bitpix), ("NAXIS", len(shape))]
-        cards += [(f"NAXIS{i + 1}", n) for i, n in enumerate(shape[::-1])]
-        cards += [("PCOUNT", 0), ("GCOUNT", 1), ("EXTNAME", name),
-                  ("BUNIT", _unit_str(u.electron)), ("CHECKSUM", "0" * 16), ("DATASUM", "0")]
-        self.f, self.dtype = f, dtype
-        self.header = fits.Header(cards)
-        self.pos = f.tell()
-        self.hbytes = self.header.tostring().encode("ascii")
-        f.write(self.hbytes)
-        self.sum = _DataSum()
-        self.nbytes = 0
-        self._io = None
-        self._pending = collections.deque()
-
-    def write(self, arr):
-        """Append ``arr`` (native float array; byte-swapped in place, so it is consumed).
-
-        The disk write runs in a background thread (at most two frames in
-        flight), overlapping the synthesis of the next frame.
-        """
-        raw = np.ascontiguousarray(arr, dtype=self.dtype.newbyteorder("="))
-        raw.byteswap(inplace=True)
-        raw = raw.view(self.dtype)
-        self.sum.add(raw)
-        if self._io is None:
-            self._io = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sxr-fits")
-        self._pending.append(self._io.submit(self.f.write, memoryview(raw).cast("B")))
-        while len(self._pending) > 2:
-            self._pending.popleft().result()
-        self.nbytes += raw.nbytes
-
-    def _drain(self):
-        while self._pending:
-            self._pending.popleft().result()
-        if self._io is not None:
-            self._io.shutdown()
-            self._io = None
-
-    def close(self):
-        self._drain()
-        f = self.f
-        f.write(b"\0" * ((-self.nbytes) % 2880))
-        end = f.tell()
-        datasum = self.sum.value
-        self.header["DATASUM"] = str(datasum)
-        self.header["CHECKSUM"] = _checksum(self.header, datasum)
-        new = self.header.tostring().encode("ascii")
-        if len(new) != len(self.hbytes):  # pragma: no cover - card layout is fixed
-            raise RuntimeError("header changed size while adding checksums")
-        f.seek(self.pos)
-        f.write(new)
-        f.seek(end)
-
-
-def _checksum(header, datasum):
-    """FITS CHECKSUM of an HDU from its header and DATASUM (astropy's encoder)."""
-    helper = fits.ImageHDU()
-    helper._header = header
-    return helper._calculate_checksum(datasum)
+    return write_frames(frames, path, s, header=_header(sc, mode, seed, engine), unit=u.electron,
+                        dtype=engine.dtype, overwrite=overwrite)

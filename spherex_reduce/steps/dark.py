@@ -8,7 +8,7 @@ from astropy.nddata import CCDData, StdDevUncertainty
 
 from ..errors import ConfigError, SpherexReduceError
 from ..exposure import Exposure, as_dq
-from ..fits_format import read
+from ..io import read
 from ..hookspecs import hookimpl
 from ..parameters import Parameter
 from ..step import Step

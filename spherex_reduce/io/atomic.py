@@ -1,0 +1,96 @@
+"""Write a file atomically: a temporary file in the target directory, renamed into place.
+
+Used by every writer of the package (FITS, tables, plots), so that an
+interrupted or failed write never leaves a partial output, nor replaces an
+existing file that was not meant to be replaced.
+"""
+
+import contextlib
+import glob
+import hashlib
+import os
+import socket
+import tempfile
+from pathlib import Path
+
+__all__ = ["atomic_output"]
+
+
+class atomic_output:
+    """Context manager giving a temporary path that is renamed to ``path`` on success.
+
+    Refuses to start if ``path`` exists and ``overwrite`` is False, or names a
+    directory, so nothing is computed only to be thrown away.  On error
+    (including an interrupt) the temporary file is removed and an existing
+    ``path`` is left untouched.  The temporary file, ``.NAME.HOST-PID.XXXX.tmp``
+    in the target directory, carries a tag of the writer's host and its process
+    id: temporary files for ``path`` left by a process of this host that no
+    longer runs (killed outright) are removed when the next write of ``path``
+    starts; those of other hosts (a shared file system) are never touched.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> out = pathlib.Path(tempfile.mkdtemp()) / "a.txt"
+    >>> with atomic_output(out) as tmp:
+    ...     _ = tmp.write_text("done")
+    >>> out.read_text()
+    'done'
+    """
+
+    def __init__(self, path, overwrite=False):
+        text = os.fspath(path)
+        self.path = Path(path)
+        self.overwrite = overwrite
+        if text.endswith(("/", os.sep)) or self.path.is_dir():
+            raise IsADirectoryError(f"{text} names a directory; give a file name to write")
+        if self.path.exists() and not overwrite:
+            raise FileExistsError(
+                f"{self.path} exists; not overwriting it (pass overwrite=True / --overwrite)"
+            )
+        if not self.path.parent.is_dir():
+            raise FileNotFoundError(f"output directory {self.path.parent} does not exist")
+
+    #: Tag of this host in temporary names: a process id means something only here.
+    HOST = hashlib.sha1(socket.gethostname().encode()).hexdigest()[:8]
+
+    def _remove_stale(self):
+        prefix = f".{self.path.name}.{self.HOST}-"
+        for old in self.path.parent.glob(f"{glob.escape(prefix)}*.tmp"):
+            parts = old.name[len(prefix):-len(".tmp")].split(".")
+            if len(parts) != 2 or not parts[0].isdigit() or int(parts[0]) == os.getpid():
+                continue  # not ours (e.g. of an output "NAME.1"), or this process's
+            try:
+                os.kill(int(parts[0]), 0)
+            except ProcessLookupError:  # its writer is gone
+                with contextlib.suppress(OSError):  # a clean-up: never a reason to fail
+                    old.unlink()
+            except (OSError, OverflowError):  # alive but not ours, or not a pid
+                pass
+
+    def __enter__(self):
+        self._remove_stale()
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.{self.HOST}-{os.getpid()}.",
+                                       suffix=".tmp", dir=self.path.parent)
+        except OSError as exc:  # e.g. a read-only file system: say which output
+            exc.filename = str(self.path)
+            raise
+        os.close(fd)
+        os.unlink(tmp)
+        self.tmp = Path(tmp)
+        return self.tmp
+
+    def __exit__(self, exc_type, exc, tb):
+        try:
+            if exc_type is None:
+                if self.path.exists() and not self.overwrite:
+                    raise FileExistsError(
+                        f"{self.path} appeared while writing; not overwriting it")
+                os.replace(self.tmp, self.path)
+        finally:
+            self.tmp.unlink(missing_ok=True)
+        if isinstance(exc, OSError) and exc.errno is not None and (
+                exc.filename is None or os.fspath(exc.filename) == str(self.tmp)):
+            exc.filename = str(self.path)  # e.g. a full disk: say which output
+        return False

@@ -1,0 +1,462 @@
+"""Read FITS files: exposures in this package's layout, and any FITS file checked.
+
+Reads check the file before trusting it: every header must end and every data
+block must fit in the file (a truncated file is named as such), ``NEXTEND``
+extensions must be present, and ``CHECKSUM``/``DATASUM`` are verified where
+present (see `checksum_policy` to read a damaged file anyway).  Integer data
+with ``BSCALE``/``BZERO``/``BLANK`` are scaled to floating point on read (the
+file is never changed).  The layout is described in `spherex_reduce.io.layout`.
+"""
+
+import contextlib
+import contextvars
+import logging
+import math
+import warnings
+from pathlib import Path
+
+import numpy as np
+from astropy.io import fits
+from astropy.table import Table
+
+from ..errors import FormatError
+from ..exposure import Exposure, ReferenceReads, expected_shape
+from ..limits import check_size
+from ..schedule import ReadoutSchedule, _card_text, header_keyword
+from .fits_structure import _scan, _verify
+from .layout import _RESERVED, _unit
+
+__all__ = ["CheckedFITS", "checksum_policy", "is_raw_ramp_file", "open_checked", "read"]
+
+log = logging.getLogger(__name__)
+
+_VERIFY = contextvars.ContextVar("spherex_reduce_verify_checksum", default=True)
+
+
+@contextlib.contextmanager
+def checksum_policy(verify=True):
+    """Set whether reads in this context stop at a checksum mismatch.
+
+    `read` and `~spherex_reduce.io.FrameReader` verify ``CHECKSUM`` and ``DATASUM`` of every HDU
+    that has them.  By default a mismatch is a `FormatError`; inside
+    ``checksum_policy(verify=False)`` it is logged as a warning and recorded
+    in the header of what is read (``HISTORY`` and the keyword ``SXRCKBAD``
+    listing the HDUs), which travels to any file written from it.  The
+    command line's ``--ignore-checksum`` sets this for the whole command, so
+    that every file it reads (including e.g. a pipeline's dark) follows it.
+
+    Parameters
+    ----------
+    verify : bool
+        False to read files whose checksum does not match.
+
+    Examples
+    --------
+    >>> from spherex_reduce.io import checksum_policy
+    >>> with checksum_policy(verify=False):
+    ...     pass  # read(...) here warns instead of failing on a bad checksum
+    """
+    token = _VERIFY.set(bool(verify))
+    try:
+        yield
+    finally:
+        _VERIFY.reset(token)
+
+
+def _open(path, memmap, verify=None):
+    """Open a FITS file read-only after checking its structure and checksums.
+
+    Returns ``(hdul, bad, plain)``: the astropy HDU list, the names of HDUs
+    whose checksum failed (only when ``verify`` is False: else that is an
+    error), and whether the file is plain FITS on disk (not gzip etc., which
+    astropy unpacks: those are never memory-mapped).  ``verify=None`` follows
+    `checksum_policy`.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no such file: {path}")
+    verify = _VERIFY.get() if verify is None else verify
+    hdus = _scan(path)
+    bad = _verify(path, hdus) if hdus else []
+    if bad:
+        msg = (f"{path}: the checksum of HDU(s) {', '.join(bad)} does not match the bytes "
+               "(CHECKSUM/DATASUM): the file is damaged or was changed after writing")
+        if verify:
+            raise FormatError(f"{msg}; to read it anyway, pass --ignore-checksum "
+                              "(verify_checksum=False)")
+        log.warning("%s; read anyway (checksum verification off)", msg)
+    plain = hdus is not None
+    try:
+        hdul = fits.open(path, memmap=memmap and plain, mode="readonly")
+    except OSError as exc:
+        raise FormatError(f"{path} is not a readable FITS file: {exc}") from exc
+    try:
+        for hdu in hdul:
+            _check_cards(hdu, path)
+    except BaseException:
+        hdul.close()
+        raise
+    return hdul, bad, plain
+
+
+def _check_cards(hdu, path):
+    """Every card of ``hdu``'s header parses and holds no infinite or NaN number."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # astropy's notes on non-standard cards
+        for card in hdu.header.cards:
+            try:
+                value = card.value
+            except Exception as exc:  # VerifyError: e.g. "X = NAN", "X = 1E9999x"
+                raise FormatError(f"{path}: HDU {hdu.name!r} has the unreadable header card "
+                                  f"{card.keyword} = {_card_text(card)}") from exc
+            if isinstance(value, float) and not math.isfinite(value):
+                raise FormatError(f"{path}: HDU {hdu.name!r} has the header card "
+                                  f"{card.keyword} = {value}, not a finite number")
+
+
+def _note_bad_checksums(header, bad, path):
+    """Record in ``header`` (in place) that HDUs ``bad`` of ``path`` failed their checksum."""
+    if not bad:
+        return
+    previous = str(header.get("SXRCKBAD", "")).strip()
+    header["SXRCKBAD"] = (",".join(filter(None, [previous, *bad]))[:68],
+                          "input HDUs whose checksum failed, read anyway")
+    header.add_history(f"checksum of {', '.join(bad)} in {Path(path).name} did not match; "
+                       "read anyway (checksum verification off)")
+
+
+def _describe(hdul, path, supplied, bad=()):
+    """Validate an open file; return what every reader needs (no pixel data loaded)."""
+    names = [h.name for h in hdul]
+    header = hdul[0].header.copy()
+    if "SCI" in names:
+        sci = hdul["SCI"]
+    elif hdul[0].header.get("NAXIS", 0) > 0:
+        sci = hdul[0]
+    else:
+        raise FormatError(f"{path} has no SCI extension and no primary data")
+    shape = tuple(sci.header[f"NAXIS{i}"] for i in range(sci.header["NAXIS"], 0, -1))
+    table = Table.read(hdul["READOUT"]) if "READOUT" in names else None
+    schedule = ReadoutSchedule.from_header(header, table, **supplied)
+    order = header_keyword(header, "ORDER", str, default="READOUT").strip().lower()
+    if order not in ("readout", "physical"):
+        raise FormatError(f"keyword ORDER must be READOUT or PHYSICAL, got {order!r}")
+    _check_shape(shape, schedule, order, "SCI")
+    if "PHANTOM" in names:
+        pshape = tuple(hdul["PHANTOM"].shape)
+        frames_reads = expected_shape(schedule, order, len(shape) == 3)[:-1]
+        expected = (*frames_reads, schedule.geometry.nchannels)
+        if pshape != expected:
+            raise FormatError(
+                f"PHANTOM has shape {pshape}, the schedule gives {expected} "
+                "(frames, reads, channels): check NFRAMES, NCHAN and the read order keywords"
+            )
+    elif schedule.phantom_reads and order == "readout":
+        raise FormatError(f"NPHANT={schedule.phantom_reads} but the file has no PHANTOM extension")
+    unit = _unit(header_keyword(header if "BUNIT" in header else sci.header, "BUNIT", str,
+                                default="electron"))
+    for key in ("CHECKSUM", "DATASUM", "ORDER", "NEXTEND"):
+        header.remove(key, ignore_missing=True)
+    _note_bad_checksums(header, bad, path)
+    return {"names": names, "header": header, "sci": sci, "shape": shape,
+            "schedule": schedule, "order": order, "unit": unit}
+
+
+def _readonly(*arrays):
+    for array in arrays:
+        if array is not None:  # the file's own pages: a step must never write into them
+            array.setflags(write=False)
+
+
+class CheckedFITS:
+    """A FITS file opened read-only by `open_checked`, after the checks `read` makes.
+
+    Use it as a context manager (the file is closed on exit).
+
+    Attributes
+    ----------
+    path : `pathlib.Path`
+    hdul : `astropy.io.fits.HDUList`
+        The file's HDUs, read-only (memory-mapped for plain FITS on disk).
+    bad : list of str
+        Names of the HDUs whose checksum failed; only ever non-empty when the
+        file was opened with checksum verification off.
+    """
+
+    def __init__(self, path, verify_checksum=None, memmap=True):
+        self.path, self._name = Path(path), path  # messages name the path as given
+        self.hdul, self.bad, self._plain = _open(path, memmap, verify_checksum)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self):
+        """Close the file (arrays already returned stay valid)."""
+        self.hdul.close()
+
+    def exposure(self, **supplied):
+        """The `Exposure` of a file in this package's format, as `read` returns it.
+
+        ``supplied`` are the readout parameters `read` takes.
+        """
+        return _exposure(self.hdul, self._name, self.bad, self._plain, supplied)
+
+    def physical(self, hdu):
+        """The data of image HDU ``hdu`` in physical values (``BSCALE``/``BZERO``
+        applied, ``BLANK`` as NaN; as stored if unscaled), or None if it has none."""
+        return _physical(hdu, self._name, self._plain)
+
+    def note_bad_checksums(self, header):
+        """Record in ``header`` (changed in place) which HDUs failed their checksum:
+        ``SXRCKBAD`` and a ``HISTORY`` card, as `read` does; nothing if none did."""
+        _note_bad_checksums(header, self.bad, self._name)
+
+
+def open_checked(path, verify_checksum=None):
+    """Open any FITS file read-only after checking it as `read` does, without reading it.
+
+    The structure is scanned first (a truncated file is named as such),
+    ``CHECKSUM``/``DATASUM`` are verified and every header card must parse
+    to a finite value.  Use this to read files that may or may not be in this
+    package's format.
+
+    Parameters
+    ----------
+    path : str or `pathlib.Path`
+        FITS file (plain, or compressed as astropy reads it); never changed.
+    verify_checksum : bool, optional
+        As for `read`: a checksum mismatch is an error (True) or only noted
+        in `CheckedFITS.bad` (False).  Default: `checksum_policy`.
+
+    Returns
+    -------
+    `CheckedFITS`
+        A context manager holding the open HDU list.
+
+    Raises
+    ------
+    FileNotFoundError
+        No file at ``path``.
+    FormatError
+        The file is truncated, not FITS, has a bad checksum (when verified)
+        or a header card that does not parse.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib, numpy as np
+    >>> from astropy.io import fits
+    >>> from spherex_reduce.io import open_checked
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "img.fits"
+    >>> hdu = fits.PrimaryHDU(np.array([[0, 1], [2, 3]], dtype=np.int16))
+    >>> hdu.header["BSCALE"], hdu.header["BZERO"] = 0.5, 10.0
+    >>> hdu.writeto(path, checksum=True)
+    >>> with open_checked(path) as f:
+    ...     data = f.physical(f.hdul[0])
+    >>> data.tolist(), f.bad
+    ([[10.0, 10.5], [11.0, 11.5]], [])
+    """
+    return CheckedFITS(path, verify_checksum)
+
+
+def read(path, verify_checksum=None, **supplied):
+    """Read an exposure written by `write` (or raw data from other electronics).
+
+    Parameters
+    ----------
+    path : str or `pathlib.Path`
+        FITS file.  It is opened read-only (memory-mapped) and never changed;
+        the arrays of the returned exposure are read-only.  Integer data with
+        ``BSCALE``/``BZERO``/``BLANK`` are scaled to floating point
+        (``float32`` for 8- and 16-bit data, else ``float64``; ``BLANK`` is
+        NaN) in memory.
+    verify_checksum : bool, optional
+        Whether a ``CHECKSUM``/``DATASUM`` mismatch is an error (True), or a
+        logged warning recorded in the returned header (False: ``HISTORY``
+        and ``SXRCKBAD``).  Default: `checksum_policy` (True).
+    **supplied
+        Geometry and readout parameters (``nrows``, ``skip``, ``frame_time``
+        ...) used where the header lacks them, e.g. from a pipeline config's
+        ``geometry:`` and ``readout:`` sections.
+
+    Returns
+    -------
+    exposure : `Exposure`
+
+    Raises
+    ------
+    FormatError
+        The file is truncated or damaged (checksum), lacks ``SCI``, a keyword
+        is missing or invalid, or the header, the ``READOUT`` table and the
+        array shapes disagree; the message names the keyword or dimension.
+    ResourceError
+        Scaled data would not fit in memory once in floating point.
+
+    Examples
+    --------
+    Unsigned 16-bit data (stored with ``BZERO = 32768``) come back as floats:
+
+    >>> import tempfile, pathlib, numpy as np
+    >>> from spherex_reduce import Exposure, ReadoutSchedule, DetectorGeometry, read, write
+    >>> s = ReadoutSchedule(DetectorGeometry(8, 8, 2, ref_border=0), ref_mode="none",
+    ...                     phantom_reads=0, nframes=2)
+    >>> counts = np.arange(2 * 8 * 8, dtype=np.uint16).reshape(2, 8, 8) + 60000
+    >>> out = write(Exposure.from_arrays(counts, s), pathlib.Path(tempfile.mkdtemp()) / "u.fits")
+    >>> e = read(out)
+    >>> e.data.data.dtype, float(e.data.data.max())
+    (dtype('float32'), 60127.0)
+    """
+    with CheckedFITS(path, verify_checksum) as f:
+        return f.exposure(**supplied)
+
+
+def _exposure(hdul, path, bad, plain, supplied):
+    """The `Exposure` in an HDU list opened by `_open` (which the caller closes)."""
+    d = _describe(hdul, path, supplied, bad)
+    names = d["names"]
+
+    def image(name, flags=False):
+        return _physical(hdul[name], path, plain, flags) if name in names else None
+
+    data = _physical(d["sci"], path, plain)
+    err, mask, phantom = image("ERR"), image("DQ", flags=True), image("PHANTOM")
+    reference = None
+    if "REFPIX" in names:
+        rt = Table.read(hdul["REFREADS"])
+        refdq = image("REFDQ", flags=True)
+        reference = ReferenceReads(
+            data=image("REFPIX"), rows=np.asarray(rt["row"]), reads=np.asarray(rt["read"]),
+            phantom=image("REFPHANT"),
+            dq=None if refdq is None else refdq.astype(np.uint16),
+        )
+        _readonly(reference.data, reference.phantom)
+    tables = {
+        h.name: Table.read(h)
+        for h in hdul
+        if isinstance(h, fits.BinTableHDU) and h.name not in _RESERVED
+    }
+    _readonly(data, err, mask, phantom)
+    return Exposure.from_arrays(data, d["schedule"], unit=d["unit"], uncertainty=err, mask=mask,
+                                phantom=phantom, header=d["header"], order=d["order"],
+                                reference=reference, tables=tables)
+
+
+_FLOAT_FOR = {8: "f4", 16: "f4", 32: "f8", 64: "f8", -32: "f4", -64: "f8"}
+_FITS_DTYPES = {8: "u1", 16: ">i2", 32: ">i4", 64: ">i8", -32: ">f4", -64: ">f8"}  # as stored
+
+
+def _scaling(hdu, path):
+    """``(bscale, bzero, blank)`` of an image HDU, checked, or None if its values are stored
+    as they are."""
+    h = hdu.header
+    if not any(key in h for key in ("BSCALE", "BZERO", "BLANK")):
+        return None
+    try:
+        bscale = header_keyword(h, "BSCALE", float, default=1.0)
+        bzero = header_keyword(h, "BZERO", float, default=0.0)
+        blank = header_keyword(h, "BLANK", int, default=None) if h["BITPIX"] > 0 else None
+    except FormatError as exc:
+        raise FormatError(f"{path}: HDU {hdu.name!r}: {exc}") from exc
+    if bscale == 0:
+        raise FormatError(f"{path}: HDU {hdu.name!r} has BSCALE = 0")
+    if bscale == 1 and bzero == 0 and blank is None:
+        return None
+    return bscale, bzero, blank
+
+
+def _to_physical(stored, scale, dtype):
+    """``BZERO + BSCALE * stored`` (``BLANK`` -> NaN) as a new array of ``dtype``."""
+    bscale, bzero, blank = scale
+    out = stored.astype(dtype)
+    if out.dtype.kind in "iu":  # flags: integer offsets only (checked by the caller)
+        out += int(bzero)
+        return out
+    if bscale != 1:
+        out *= bscale
+    if bzero:
+        out += bzero
+    if blank is not None:
+        out[stored == blank] = np.nan
+    return out
+
+
+def _physical(hdu, path, plain, flags=False):
+    """The data of an image HDU in physical values.
+
+    Unscaled data come as astropy gives them (memory-mapped if the file is).
+    Scaled data are converted here from the stored values (astropy refuses
+    to scale a memory-mapped image): floating point, or 64-bit integers for
+    flags (``DQ``), whose ``BSCALE`` must be 1 and ``BZERO`` whole.
+    """
+    if hdu.header.get("NAXIS", 0) == 0:
+        return None
+    scale = _scaling(hdu, path)
+    if scale is None:
+        return hdu.data
+    bitpix = hdu.header["BITPIX"]
+    if flags:
+        if bitpix < 0 or scale[0] != 1 or scale[1] != int(scale[1]):
+            raise FormatError(f"{path}: HDU {hdu.name!r} holds flags, which must be integers; "
+                              f"it has BITPIX = {bitpix}, BSCALE = {scale[0]}, "
+                              f"BZERO = {scale[1]}")
+        dtype = np.dtype("i8")
+    else:
+        dtype = np.dtype(_FLOAT_FOR[bitpix])
+    shape = tuple(hdu.shape)
+    check_size(int(np.prod(shape, dtype=float)) * dtype.itemsize,
+               f"HDU {hdu.name!r} of {path} {shape} scaled to {dtype}")
+    if not plain or isinstance(hdu, fits.CompImageHDU):  # astropy unpacks and scales
+        return np.asarray(hdu.data).astype(dtype)
+    stored = np.memmap(path, dtype=_FITS_DTYPES[bitpix], mode="r",
+                       offset=hdu.fileinfo()["datLoc"], shape=shape)
+    try:
+        return _to_physical(stored, scale, dtype)
+    finally:
+        del stored
+
+
+def is_raw_ramp_file(path):
+    """True for a file whose SCI is 3-D ramps in readout order (headers only are read).
+
+    A file that cannot be read gives False: the ordinary reader, `read`, then
+    gives the proper error.
+
+    Examples
+    --------
+    >>> from spherex_reduce.io import is_raw_ramp_file
+    >>> is_raw_ramp_file("no-such-file.fits")
+    False
+    """
+    try:
+        if not Path(path).is_file():
+            return False
+        _scan(path)  # truncated or damaged: not astropy's guess, read's error
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with fits.open(path, memmap=False) as hdul:
+                names = [h.name for h in hdul]
+                sci = hdul["SCI"] if "SCI" in names else hdul[0]
+                order = str(hdul[0].header.get("ORDER", "READOUT")).strip().upper()
+                return (sci.header.get("NAXIS") == 3 and order == "READOUT"
+                        and "DQ" not in names and "ERR" not in names)
+    except (OSError, KeyError, IndexError, ValueError):  # FormatError is a ValueError
+        return False
+
+
+def _check_shape(shape, schedule, order, name):
+    if len(shape) not in (2, 3):
+        raise FormatError(f"{name} must be 2-D or 3-D, got shape {shape}")
+    expected = expected_shape(schedule, order, len(shape) == 3)
+    if shape == expected:
+        return
+    labels = ["frames (NFRAMES)"] if len(shape) == 3 else []
+    labels += ["reads (NROWS, REFBORD, NREFRD, REFMODE)" if order == "readout" else
+               "rows (NROWS)", "columns (NCOLS)"]
+    for axis, (got, want, label) in enumerate(zip(shape, expected, labels, strict=True)):
+        if got != want:
+            raise FormatError(
+                f"{name} has shape {shape} but the header keywords give {expected}: axis {axis}, "
+                f"{label}, is {got}, expected {want}"
+            )

@@ -19,9 +19,12 @@ from astropy.table import Table
 
 from .._text import plural
 from ..errors import SpherexReduceError
+from ..simulation import expected_slope_variance, load_scene
 from .case import SpectrumMeasure, run_case
 from .photon_noise import photon_noise_label, photon_noise_power
+from .scheduler import _client
 from .spectrum import band_label, fft_magnitude
+from .sweep import run_sweep
 
 __all__ = ["FigureSettings", "make_figures"]
 
@@ -161,8 +164,6 @@ class _Report:
 
 def _sweep(scene, grid, pipelines, settings, scheduler, workers, progress, measure=None,
            seed=0):
-    from .sweep import run_sweep
-
     sw = {"scene": scene, "grid": grid, "pipeline": [PIPELINES[p] for p in pipelines],
           "realizations": settings.realizations, "seed": seed,
           "measure": {"bins": settings.bins, **(measure or {})}}
@@ -221,8 +222,6 @@ def make_figures(outdir, quick=False, *, realizations=None, scheduler=None, work
         scheduler = "serial"
     cleanup = None
     if scheduler != "serial":  # one cluster for every sweep of the figures
-        from .scheduler import _client
-
         client, cluster, owned = _client(scheduler, workers)
         scheduler = client
 
@@ -472,8 +471,6 @@ def _make_figures(outdir, quick, s, scheduler, workers, overwrite, progress, log
     log("fig 10 done")
 
     # -- Fig. 12a: pixel sigma against N ---------------------------------------------------
-    from ..simulation import expected_slope_variance
-
     sig, pred, npix = [], [], []
     for i, n in enumerate(s.n_values):
         scene = _scene(s, geometry=s.geometry_12a, nframes=n)
@@ -581,6 +578,4 @@ def _sigma_figure(n_values, sig, pred, unit, title):
 
 
 def _scene_schedule(scene):
-    from ..simulation import load_scene
-
     return load_scene(scene).schedule

@@ -41,6 +41,7 @@ from astropy.table import Table
 from ..config import READOUT_PARAMETERS, load_yaml
 from ..errors import ConfigError
 from ..limits import check_count
+from ..simulation import load_scene
 from .case import SpectrumMeasure, run_case
 from .scheduler import _client, check_scheduler, quiet_dask_logs
 
@@ -208,8 +209,6 @@ def _check_scene(scene, grid, mode, label):
     The readout keys the grid varies take their defaults here: each cell
     checks its own values, and one that is invalid fails that cell only.
     """
-    from ..simulation import load_scene
-
     first = dict(scene)
     first["readout"] = {k: v for k, v in (scene.get("readout") or {}).items() if k not in grid}
     if isinstance(scene.get("output"), dict) or scene.get("output") is None:

@@ -6,15 +6,15 @@ from astropy import units as u
 from astropy.table import Table
 
 from .analysis import (
+    SpectrumMeasure,
+    as_pipeline,
     band_label,
-    band_power,
     photon_noise_label,
     photon_noise_power,
-    power_spectrum,
+    run_case,
 )
 from .analysis.plots import plot_spectra
 from .io import atomic_output, write
-from .pipeline import Pipeline
 from .plotting import plot_images, plot_read_order, save_figure
 
 __all__ = ["PRODUCTS", "run_demo"]
@@ -75,23 +75,19 @@ def run_demo(outdir, overwrite=False, progress=True, size=2048, nframes=74, seed
     outdir.mkdir(parents=True, exist_ok=True)
     for name in PRODUCTS:  # refuse before doing any work
         atomic_output(outdir / name, overwrite)
-    from .simulation import simulate_to_fits
-
-    cases = {
-        "chopped": (24, Pipeline.from_yaml("spherex-default")),
-        "unchopped": (1, Pipeline(UNCORRECTED_PIPELINE, source="demo-uncorrected")),
-    }
+    cases = {"chopped": (24, as_pipeline("spherex-default")),
+             "unchopped": (1, as_pipeline(UNCORRECTED_PIPELINE))}
     spectra, reduced, summary = {}, {}, {}
     for label, (skip, pipeline) in cases.items():
-        raw_path = outdir / f"raw_{label}.fits"
-        simulate_to_fits(_scene(size, nframes, skip, seed), raw_path, overwrite=overwrite,
-                         progress=progress)
-        result = pipeline.run(raw_path, progress=progress)
+        # simulated into a file and reduced from it, frame by frame: full size fits in memory
+        case = run_case(_scene(size, nframes, skip, seed), {label: pipeline}, SpectrumMeasure(),
+                        seed=seed, raw_path=outdir / f"raw_{label}.fits", overwrite=overwrite,
+                        progress=progress, keep=True)
+        result, measured = case.reduced[label], case.measured[label]
         write(result, outdir / f"reduced_{label}.fits", overwrite=overwrite)
         reduced[label] = result
-        image = result.to_ccddata()
-        spectra[label] = power_spectrum(image)
-        summary[label] = band_power(image)  # as ``spherex-reduce spectrum`` measures the file
+        spectra[label] = measured["spectrum"]
+        summary[label] = measured["band_power"]  # as ``spherex-reduce spectrum`` measures it
         if label == "chopped":
             schedule = result.schedule
             yield schedule.summary()

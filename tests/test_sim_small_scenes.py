@@ -16,7 +16,7 @@ import pytest
 from spherex_reduce import expected_slope_variance, limits, simulate
 from spherex_reduce.errors import ResourceError
 from spherex_reduce.simulation import NoiseComponent, NoiseEngine, load_scene, slope_covariance
-from spherex_reduce.simulation import engine as engine_module
+from spherex_reduce.simulation import slope_routes as engine_module
 
 
 def _scene(n, **readout):

@@ -2,15 +2,23 @@
 
 Spatial (`spherex_reduce.analysis.spectrum`): `power_spectrum` (P(k), k in
 rad/pixel, k = 2π · pixel scale / θ), `band_power` (θ = 5–20′ by default; `band_label`),
-`fft_magnitude` (paper Fig. 7), `photon_noise_power` (the Zodiacal-light line
-of Fig. 13) and `source_mask` (photutils segmentation).
+`fft_magnitude` (paper Fig. 7); `source_mask` (photutils segmentation,
+`spherex_reduce.source_mask`).  Photon noise (`spherex_reduce.analysis.photon_noise`):
+`photon_noise_power` (the Zodiacal-light line of Fig. 13).
 
 Temporal (`spherex_reduce.analysis.temporal`): `temporal_psd` (Welch),
 `fit_noise_model` (α + β/f + γ/f^1.3 with uncertainties, paper eq. 1 and
-Table 2), and the reference-pixel and phantom streams of a raw exposure in time
-order (`reference_timestream`, `phantom_timestream`, `fit_raw_noise`).
+Table 2).  Streams of a raw exposure (`spherex_reduce.analysis.timestreams`):
+the reference-pixel and phantom streams in time order (`reference_timestream`,
+`phantom_timestream`, `fit_raw_noise`).
+
+Simulate, reduce and measure one case: `run_case` (`spherex_reduce.analysis.case`),
+used by the demo, the figures and the sweeps.
 """
 
+from ..source_mask import source_mask
+from .case import CaseResult, SpectrumMeasure, as_pipeline, run_case
+from .photon_noise import photon_noise_label, photon_noise_power, slope_variance_factor
 from .spectrum import (
     BAND_KMAX,
     BAND_KMIN,
@@ -20,33 +28,23 @@ from .spectrum import (
     band_power,
     fft_magnitude,
     k_from_theta,
-    photon_noise_label,
-    photon_noise_power,
     power_spectrum,
-    slope_variance_factor,
-    source_mask,
     theta_from_k,
 )
-from .temporal import (
-    NoiseModelFit,
-    Timestream,
-    aliased_basis,
-    fit_noise_model,
-    fit_raw_noise,
-    model_basis,
-    phantom_timestream,
-    reference_timestream,
-    temporal_psd,
-)
+from .temporal import NoiseModelFit, aliased_basis, fit_noise_model, model_basis, temporal_psd
+from .timestreams import Timestream, fit_raw_noise, phantom_timestream, reference_timestream
 
 __all__ = [
     "BAND_KMAX",
     "BAND_KMIN",
     "SPHEREX_PIXEL_SCALE",
+    "CaseResult",
     "FFTImage",
     "NoiseModelFit",
+    "SpectrumMeasure",
     "Timestream",
     "aliased_basis",
+    "as_pipeline",
     "band_label",
     "band_power",
     "fft_magnitude",
@@ -59,6 +57,7 @@ __all__ = [
     "photon_noise_power",
     "power_spectrum",
     "reference_timestream",
+    "run_case",
     "slope_variance_factor",
     "source_mask",
     "temporal_psd",

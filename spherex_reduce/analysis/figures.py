@@ -1,7 +1,7 @@
 """The paper's simulated figures, reproduced: PNGs, numbers (ECSV) and a Markdown report.
 
-`make_figures` simulates with `spherex_reduce.simulate`, reduces with the
-pipeline steps and measures with `power_spectrum` / `band_power`; the
+`make_figures` simulates, reduces and measures each case with `run_case`
+(`power_spectrum` / `band_power` through `SpectrumMeasure`); the
 parameter scans (Figs. 5, 6, 8, 10) run as sweeps (`run_sweep`) on dask.
 The report states, with the numbers, whether each claim of the paper holds in
 our simulation.  ``quick=True`` runs a reduced version (512 × 512 array of 8
@@ -19,14 +19,12 @@ from astropy.table import Table
 
 from .._text import plural
 from ..errors import SpherexReduceError
-from .spectrum import (
-    band_label,
-    band_power,
-    fft_magnitude,
-    photon_noise_label,
-    photon_noise_power,
-    power_spectrum,
-)
+from ..simulation import expected_slope_variance, load_scene
+from .case import SpectrumMeasure, run_case
+from .photon_noise import photon_noise_label, photon_noise_power
+from .scheduler import _client
+from .spectrum import band_label, fft_magnitude
+from .sweep import run_sweep
 
 __all__ = ["FigureSettings", "make_figures"]
 
@@ -78,14 +76,10 @@ def _scene(settings, components=None, geometry=None, **readout):
     return scene
 
 
-def _reduce(scene, pipeline, seed):
-    from .. import simulate
-    from ..pipeline import Pipeline
-
-    raw = simulate(scene, seed=seed)
-    pipe = PIPELINES[pipeline]
-    p = Pipeline(pipe, source=pipe["name"]) if isinstance(pipe, dict) else Pipeline.from_yaml(pipe)
-    return p.run(raw).to_ccddata()
+def _measure(scene, pipeline, seed, measure=None):
+    """``measure`` (default: the reduced image itself) of a scene reduced with a pipeline."""
+    return run_case(scene, PIPELINES[pipeline], measure or (lambda image: image),
+                    seed=seed).measurement
 
 
 def _mean_spectrum(rows):
@@ -170,8 +164,6 @@ class _Report:
 
 def _sweep(scene, grid, pipelines, settings, scheduler, workers, progress, measure=None,
            seed=0):
-    from .sweep import run_sweep
-
     sw = {"scene": scene, "grid": grid, "pipeline": [PIPELINES[p] for p in pipelines],
           "realizations": settings.realizations, "seed": seed,
           "measure": {"bins": settings.bins, **(measure or {})}}
@@ -230,8 +222,6 @@ def make_figures(outdir, quick=False, *, realizations=None, scheduler=None, work
         scheduler = "serial"
     cleanup = None
     if scheduler != "serial":  # one cluster for every sweep of the figures
-        from .sweep import _client
-
         client, cluster, owned = _client(scheduler, workers)
         scheduler = client
 
@@ -268,9 +258,9 @@ def _make_figures(outdir, quick, s, scheduler, workers, overwrite, progress, log
     # -- Fig. 4: component spectra -------------------------------------------------------
     spectra = {}
     for i, comp in enumerate(PIXEL_COMPONENTS):
-        img = _reduce(_scene(s, [comp], skip=1, ref_mode="none"), "raw", 400 + i)
-        spectra[comp] = power_spectrum(img, bins=s.bins)
-        bp = band_power(img)
+        m = _measure(_scene(s, [comp], skip=1, ref_mode="none"), "raw", 400 + i,
+                     SpectrumMeasure(bins=s.bins))
+        spectra[comp], bp = m["spectrum"], m["band_power"]
         rep.number("4", comp, "k", np.nan, "band_power", bp.value, unit=bp.unit)
     dominant = max(spectra, key=lambda c: float(np.mean(spectra[c]["power"])))
     rep.save(_spectra_fig(spectra, "Fig. 4: one component at a time, S = 1, no corrections"),
@@ -359,7 +349,7 @@ def _make_figures(outdir, quick, s, scheduler, workers, overwrite, progress, log
     # -- Fig. 7: 2-D FFT before/after S = 24 ----------------------------------------------
     ffts, axis_frac, near_frac, frac_err = {}, {}, {}, {}
     for skip in (1, 24):
-        img = _reduce(_scene(s, skip=skip), "phantom", 700)
+        img = _measure(_scene(s, skip=skip), "phantom", 700)
         # crop to |k| <~ 0.35 rad/pixel: the S = 24 packets sit at k_y = 2π/24 ≈ 0.26
         f = fft_magnitude(img, size=max(129, 2 * int(np.ceil(0.35 * img.shape[0] / (2 * np.pi)))
                                         + 1))
@@ -435,13 +425,13 @@ def _make_figures(outdir, quick, s, scheduler, workers, overwrite, progress, log
     log("fig 8 done")
 
     # -- Fig. 9: an N = 74 image before reference correction -------------------------------
-    img9 = _reduce(_scene(s), "phantom", 900)
+    img9 = _measure(_scene(s), "phantom", 900)
     from ..plotting import plot_image
 
     rep.save(plot_image(img9, "Fig. 9a: S = 24, phantom-corrected, before reference correction",
                         str(img9.unit)), "fig9_image.png")
-    sp9 = power_spectrum(img9, bins=s.bins)
-    bp9 = band_power(img9)
+    m9 = SpectrumMeasure(bins=s.bins)(img9)
+    sp9, bp9 = m9["spectrum"], m9["band_power"]
     sched = _scene_schedule(_scene(s))
     photon = photon_noise_power(1 * u.electron / u.s, schedule=sched)
     photon_label = photon_noise_label(1 * u.electron / u.s, schedule=sched)
@@ -481,12 +471,10 @@ def _make_figures(outdir, quick, s, scheduler, workers, overwrite, progress, log
     log("fig 10 done")
 
     # -- Fig. 12a: pixel sigma against N ---------------------------------------------------
-    from ..simulation import expected_slope_variance
-
     sig, pred, npix = [], [], []
     for i, n in enumerate(s.n_values):
         scene = _scene(s, geometry=s.geometry_12a, nframes=n)
-        img = _reduce(scene, "acn", 1200 + i)
+        img = _measure(scene, "acn", 1200 + i)
         data = np.asarray(img.data, float)
         good = np.isfinite(data) & (np.asarray(img.mask) == 0 if img.mask is not None else True)
         sig.append(float(np.std(data[good])))
@@ -590,6 +578,4 @@ def _sigma_figure(n_values, sig, pred, unit, title):
 
 
 def _scene_schedule(scene):
-    from ..simulation import load_scene
-
     return load_scene(scene).schedule

@@ -21,7 +21,6 @@ of the mean power is spread flat over ``k``.  Keep the masked fraction small
 """
 
 import functools
-import warnings
 from typing import NamedTuple
 
 import numpy as np
@@ -31,6 +30,7 @@ from astropy.nddata import NDData
 from astropy.table import Table
 
 from ..errors import SpherexReduceError
+from ..source_mask import source_mask
 
 __all__ = [
     "BAND_KMAX",
@@ -41,11 +41,7 @@ __all__ = [
     "band_power",
     "fft_magnitude",
     "k_from_theta",
-    "photon_noise_label",
-    "photon_noise_power",
     "power_spectrum",
-    "slope_variance_factor",
-    "source_mask",
     "theta_from_k",
 ]
 
@@ -463,172 +459,3 @@ def fft_magnitude(image, mask=None, size=129):
     ky = 2 * np.pi * np.fft.fftshift(np.fft.fftfreq(ny))[ys]
     kx = 2 * np.pi * np.fft.fftshift(np.fft.fftfreq(nx))[xs]
     return FFTImage(mag[ys, xs] * unit * u.pix, kx * _K_UNIT, ky * _K_UNIT)
-
-
-def slope_variance_factor(nframes):
-    """Photon-noise variance of a least-squares up-the-ramp slope, in units of ``i / t_frame``.
-
-    For ``N`` reads spaced ``t_frame`` apart of a Poisson charge accumulating
-    at ``i`` e/s, the uniformly weighted least-squares slope has variance
-    ``6 (N² + 1) / (5 N (N² − 1)) · i / t_frame`` (the photon term of the
-    standard up-the-ramp noise formula; ``N = 2`` gives ``i / t_frame``).
-
-    Examples
-    --------
-    >>> from spherex_reduce.analysis import slope_variance_factor
-    >>> slope_variance_factor(2)
-    1.0
-    >>> round(slope_variance_factor(74), 5)
-    0.01622
-    """
-    n = int(nframes)
-    if n < 2:
-        raise SpherexReduceError(f"a slope needs nframes >= 2, got {nframes}")
-    return 6 * (n**2 + 1) / (5 * n * (n**2 - 1))
-
-
-def photon_noise_power(photocurrent=1 * u.electron / u.s, integration_time=None, *,
-                       nframes=None, schedule=None):
-    """White spatial power of the photon noise of a slope image (paper Fig. 13).
-
-    Every pixel's slope carries independent Poisson noise, so the spectrum is
-    flat at the slope variance (image unit² · pixel²).
-
-    Parameters
-    ----------
-    photocurrent : `~astropy.units.Quantity`
-        Signal in e/s (e.g. Zodiacal light ≈ 1 e/s); plain numbers are e/s.
-    integration_time : `~astropy.units.Quantity`, optional
-        Total time ``T`` (s).  Without ``nframes`` the slope is taken as the
-        charge collected over ``T`` divided by ``T`` (variance ``i / T``).
-    nframes : int, optional
-        Reads up the ramp ``N``: the slope is the least-squares fit to ``N``
-        reads ``T / N`` apart (variance `slope_variance_factor` ``· i N / T``,
-        about 1.2 ``i / T`` for large ``N``).
-    schedule : `~spherex_reduce.ReadoutSchedule`, optional
-        Takes ``N`` and ``T`` from the schedule.
-
-    Returns
-    -------
-    power : `~astropy.units.Quantity`
-        In (photocurrent unit)² · pixel².
-
-    Examples
-    --------
-    >>> from astropy import units as u
-    >>> from spherex_reduce.analysis import photon_noise_power
-    >>> photon_noise_power(1 * u.electron / u.s, 112 * u.s)
-    <Quantity 0.00892857 electron2 pix2 / s2>
-    >>> photon_noise_power(1 * u.electron / u.s, 111.74 * u.s, nframes=74).round(5)
-    <Quantity 0.01074 electron2 pix2 / s2>
-    """
-    i = u.Quantity(photocurrent, u.electron / u.s) if not isinstance(
-        photocurrent, u.Quantity) else photocurrent
-    if schedule is not None:
-        nframes = schedule.nframes if nframes is None else nframes
-        integration_time = schedule.integration_time if integration_time is None \
-            else integration_time
-    if integration_time is None:
-        raise SpherexReduceError("photon_noise_power needs integration_time or a schedule")
-    t = u.Quantity(integration_time, u.s)
-    if t.value <= 0:
-        raise SpherexReduceError(f"integration_time must be positive, got {t}")
-    charge_rate = i.to(u.electron / u.s)
-    if nframes is None:
-        var = charge_rate.value / t.value
-    else:
-        tframe = t.value / int(nframes)
-        var = slope_variance_factor(nframes) * charge_rate.value / tframe
-    return (var * (u.electron / u.s) ** 2).to(i.unit**2) * u.pix**2
-
-
-def photon_noise_label(photocurrent=1 * u.electron / u.s, integration_time=None, *,
-                       nframes=None, schedule=None):
-    """Legend of a photon-noise line: the photocurrent and the time it is integrated for.
-
-    Takes the arguments of `photon_noise_power`.
-
-    Examples
-    --------
-    >>> from astropy import units as u
-    >>> from spherex_reduce.analysis import photon_noise_label
-    >>> photon_noise_label(1 * u.electron / u.s, 111.74 * u.s, nframes=74)
-    'photon noise of 1 e/s over 112 s (N = 74)'
-    """
-    if schedule is not None:
-        nframes = schedule.nframes if nframes is None else nframes
-        integration_time = schedule.integration_time if integration_time is None \
-            else integration_time
-    i = u.Quantity(photocurrent, u.electron / u.s)
-    text = f"photon noise of {i.to_value(u.electron / u.s):.3g} e/s"
-    if integration_time is not None:
-        text += f" over {u.Quantity(integration_time, u.s).to_value(u.s):.3g} s"
-    return text + (f" (N = {int(nframes)})" if nframes else "")
-
-
-# -- sources and hot pixels -----------------------------------------------------------
-def source_mask(image, mask=None, nsigma=5.0, npixels=1, box_size=64, dilate=3):
-    """Mask of sources and hot pixels from a photutils segmentation map.
-
-    A background and its RMS are estimated with
-    `photutils.background.Background2D` (σ-clipped medians in boxes of
-    ``box_size``), then every connected group of at least ``npixels`` pixels
-    deviating from the background by more than ``nsigma`` times the RMS (in
-    either sign, so negative hot pixels of pair differences count too) is a
-    segment (`photutils.segmentation.detect_sources`); segments are dilated
-    by a ``dilate × dilate`` box.
-
-    Parameters
-    ----------
-    image : CCDData, NDData, Quantity or array
-    mask : array-like of bool, optional
-        Pixels already known to be bad (ignored by the estimate).
-    nsigma : float
-        Detection threshold in background RMS.
-    npixels : int
-        Minimum connected pixels of a detection (1 catches single hot pixels).
-    box_size : int
-        Background box size in pixels (reduced for small images).
-    dilate : int
-        Odd size of the dilation box; 1 for none.
-
-    Returns
-    -------
-    mask : `numpy.ndarray` of bool
-        True for source or hot pixels (not including ``mask``).
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from spherex_reduce.analysis import source_mask
-    >>> img = np.random.default_rng(0).normal(0, 1, (128, 128))
-    >>> img[40, 50] = 100.0
-    >>> m = source_mask(img)
-    >>> bool(m[40, 50]), int(m.sum())
-    (True, 9)
-    """
-    from astropy.stats import SigmaClip
-    from astropy.utils.exceptions import AstropyUserWarning
-    from photutils.background import Background2D, MedianBackground, StdBackgroundRMS
-    from photutils.segmentation import detect_sources
-    from photutils.utils.exceptions import NoDetectionsWarning
-
-    data, bad, _ = _as_image(image, mask)
-    box = int(min(box_size, max(min(data.shape) // 4, 4)))
-    with warnings.catch_warnings():
-        # photutils' notes about boxes with few unmasked pixels (they are excluded)
-        warnings.simplefilter("ignore", category=AstropyUserWarning)
-        bkg = Background2D(np.where(bad, 0.0, data), box, mask=bad,
-                           sigma_clip=SigmaClip(sigma=3.0, maxiters=10),
-                           bkg_estimator=MedianBackground(),
-                           bkg_rms_estimator=StdBackgroundRMS())
-    resid = np.abs(np.where(bad, 0.0, data - bkg.background))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", category=NoDetectionsWarning)
-        segm = detect_sources(resid, nsigma * bkg.background_rms, n_pixels=int(npixels),
-                              mask=bad)
-    if segm is None:
-        return np.zeros(data.shape, dtype=bool)
-    if dilate and int(dilate) > 1:
-        return segm.make_source_mask(size=int(dilate))
-    return segm.data > 0

@@ -23,8 +23,6 @@ Sweep file (YAML or dict)::
     measure: {kmin: 0.03, kmax: 0.13, bins: 30, exclude_horizontal: false, mask_sources: false}
 """
 
-import asyncio
-import concurrent.futures
 import copy
 import hashlib
 import itertools
@@ -33,7 +31,7 @@ import logging
 import math
 import time
 import traceback
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -42,15 +40,19 @@ from astropy.table import Table
 
 from ..config import READOUT_PARAMETERS, load_yaml
 from ..errors import ConfigError
-from ..limits import MAX_WORKERS, check_count
+from ..limits import check_count
+from ..simulation import load_scene
+from .case import SpectrumMeasure, run_case
+from .scheduler import _client, check_scheduler, quiet_dask_logs
 
-__all__ = ["Sweep", "SweepResult", "load_sweep", "plot_sweep", "run_cell", "run_sweep"]
+__all__ = ["Sweep", "SweepResult", "check_scheduler", "load_sweep", "plot_sweep",
+           "quiet_dask_logs", "run_cell", "run_sweep"]
 
 log = logging.getLogger(__name__)
 
 _TOP = ("scene", "pipeline", "grid", "realizations", "seed", "mode", "measure")
-_MEASURE = {"kmin": 0.03, "kmax": 0.13, "bins": 30, "exclude_horizontal": False,
-            "mask_sources": False}
+#: the measure's keys and defaults: those of `SpectrumMeasure`
+_MEASURE = {f.name: f.default for f in fields(SpectrumMeasure)}
 _READOUT_KEYS = tuple(p.name for p in READOUT_PARAMETERS)
 #: Most realisations per cell, and most cells, a sweep file may ask for.
 MAX_REALIZATIONS = 10_000
@@ -207,8 +209,6 @@ def _check_scene(scene, grid, mode, label):
     The readout keys the grid varies take their defaults here: each cell
     checks its own values, and one that is invalid fails that cell only.
     """
-    from ..simulation import load_scene
-
     first = dict(scene)
     first["readout"] = {k: v for k, v in (scene.get("readout") or {}).items() if k not in grid}
     if isinstance(scene.get("output"), dict) or scene.get("output") is None:
@@ -220,63 +220,28 @@ def _check_scene(scene, grid, mode, label):
 
 
 # -- one cell -----------------------------------------------------------------------
-def _edges(measure):
-    bins = measure["bins"]
-    if isinstance(bins, int):
-        return None
-    return np.asarray(bins, dtype=float)
-
-
 def run_cell(task):
-    """Simulate, reduce and measure one cell; returns a result row (never raises).
+    """Simulate, reduce and measure one cell (`run_case`); returns a result row (never raises).
 
     The row has the cell's values, ``seed`` (the entropy, as text),
     ``band_power``, ``band_power_err``, ``std`` (of the unmasked pixels),
     ``masked_fraction``, ``k`` and ``power`` (the binned P(k) as arrays) and
     ``seconds``; a failed cell returns ``{"cell": ..., "error": message}``.
     """
-    from ..pipeline import Pipeline
-    from ..simulation import simulate
-    from .spectrum import band_power, power_spectrum
-
     t0 = time.perf_counter()
     cell = task["cell"]
     try:
         # a 64-bit integer drawn from the cell's SeedSequence: plain, printable, exact
         seed = int(np.random.SeedSequence(task["entropy"]).generate_state(1, np.uint64)[0])
-        raw = simulate(task["scene"], mode=task["mode"], seed=seed)
-        pipe = task["pipeline"]
-        pipeline = Pipeline(pipe, source=str(pipe.get("name", "pipeline"))) if isinstance(
-            pipe, dict) else Pipeline.from_yaml(pipe)
-        reduced = pipeline.run(raw)
-        if reduced.is_ramp:
-            raise ValueError("the pipeline left ramps; it must end with an image (fit_ramp)")
-        image = reduced.to_ccddata()
-        m = task["measure"]
-        kw = {"exclude_horizontal": bool(m["exclude_horizontal"]),
-              "mask_sources": bool(m["mask_sources"])}
-        ny, nx = image.shape
-        bins = m["bins"] if isinstance(m["bins"], int) else np.asarray(m["bins"], float)
-        if isinstance(bins, int):  # fixed edges from the geometry, so rows line up
-            bins = np.geomspace(2 * np.pi / max(ny, nx), np.pi, bins + 1)
-        spec = power_spectrum(image, bins=bins, **kw)
-        # every bin, empty ones as NaN, so all rows of a sweep share one k grid
-        k = np.full(len(bins) - 1, np.nan)
-        power = np.full(len(bins) - 1, np.nan)
-        pos = np.searchsorted(bins, np.asarray(spec["k_lo"]) * (1 + 1e-12)) - 1
-        k[pos] = np.asarray(spec["k"])
-        power[pos] = np.asarray(spec["power"])
-        bp, err = band_power(image, m["kmin"], m["kmax"], return_error=True, **kw)
-        data = np.asarray(image.data, dtype=float)
-        good = np.isfinite(data)
-        if image.mask is not None:
-            good &= np.asarray(image.mask) == 0
+        m = run_case(task["scene"], task["pipeline"], SpectrumMeasure(**task["measure"]),
+                     seed=seed, mode=task["mode"]).measurement
         return {
             "cell": cell, "seed": json.dumps(task["entropy"]),
-            "band_power": float(bp.value), "band_power_err": float(err.value),
-            "unit": str(bp.unit), "std": float(np.std(data[good])) if good.any() else np.nan,
-            "masked_fraction": float(spec.meta["masked_fraction"]),
-            "k": k, "power": power, "seconds": time.perf_counter() - t0,
+            "band_power": float(m["band_power"].value),
+            "band_power_err": float(m["band_power_err"].value),
+            "unit": str(m["band_power"].unit), "std": m["std"],
+            "masked_fraction": m["masked_fraction"],
+            "k": m["k"], "power": m["power"], "seconds": time.perf_counter() - t0,
         }
     except Exception as exc:  # reported with the cell's parameters; the sweep goes on
         return {"cell": cell, "error": f"{type(exc).__name__}: {exc}",
@@ -343,103 +308,6 @@ def _merge(existing, new, keys):
         order = sorted(range(len(out)), key=lambda i: _key(out[i], keys))
         out = out[order]
     return out
-
-
-def quiet_dask_logs(level=logging.WARNING):
-    """Raise the level of dask.distributed's loggers (they log every connection at INFO)."""
-    import distributed  # noqa: F401  (creates its loggers)
-
-    for name in list(logging.root.manager.loggerDict):
-        if name.split(".")[0] == "distributed":
-            logging.getLogger(name).setLevel(level)
-
-
-def check_scheduler(address, timeout=5.0, name="scheduler"):
-    """Refuse, within ``timeout`` seconds, a dask scheduler address that is not reachable.
-
-    ``None`` (an embedded cluster) and ``"serial"`` pass.  Otherwise the address
-    must parse as a dask address, and a dask scheduler must answer there: dask's
-    own client waits 30 s, or for ever on a server that accepts and stays silent.
-
-    Parameters
-    ----------
-    address : str or None
-        E.g. ``"tcp://host:8786"``.
-    timeout : float
-        Seconds to wait for the connection.
-    name : str
-        How the message names the setting (the CLI passes ``"--scheduler"``).
-
-    Raises
-    ------
-    ConfigError
-        Naming the address and the reason.
-
-    Examples
-    --------
-    >>> from spherex_reduce.analysis.sweep import check_scheduler
-    >>> check_scheduler("serial")
-    >>> check_scheduler("not a url")
-    Traceback (most recent call last):
-    ...
-    spherex_reduce.errors.ConfigError: scheduler 'not a url': not a dask ...
-    """
-    if address is None or address == "serial":
-        return
-    from distributed.comm import parse_address, parse_host_port
-
-    try:
-        scheme, loc = parse_address(address)
-        port = parse_host_port(loc)[1] if scheme in ("tcp", "tls") else None
-        if any(c.isspace() for c in address) or (scheme in ("tcp", "tls") and not port):
-            raise ValueError("no host:port")
-    except (ValueError, TypeError):
-        raise ConfigError(f"{name} {address!r}: not a dask scheduler address (e.g. "
-                          "tcp://host:8786, or 'serial')") from None
-    try:
-        with concurrent.futures.ThreadPoolExecutor(1) as pool:  # also under a running loop
-            reply = pool.submit(asyncio.run, _identity(address, timeout)).result()
-    except Exception as exc:
-        reason = " ".join(str(exc).split()) or type(exc).__name__
-        raise ConfigError(f"{name} {address}: no dask scheduler answered within {timeout:g} s "
-                          f"({reason})") from None
-    if not (isinstance(reply, dict) and reply.get("type") == "Scheduler"):
-        raise ConfigError(f"{name} {address}: answered, but is not a dask scheduler")
-
-
-async def _identity(address, timeout):
-    """The ``identity`` reply of the dask server at ``address``, within ``timeout`` seconds."""
-    from distributed.comm import connect
-
-    async def ask():
-        comm = await connect(address, timeout=timeout)
-        try:
-            await comm.write({"op": "identity"})
-            return await comm.read()
-        finally:
-            comm.abort()
-
-    return await asyncio.wait_for(ask(), timeout)
-
-
-def _client(scheduler, workers):
-    """``(client, cluster, owned)``: a client for ``scheduler`` (None: a new LocalCluster)."""
-    from distributed import Client, LocalCluster
-
-    if isinstance(scheduler, Client):
-        return scheduler, None, False
-    if scheduler:
-        check_scheduler(scheduler)
-        try:
-            return Client(scheduler, timeout=10), None, True
-        except (OSError, TimeoutError, ValueError, TypeError, MemoryError) as exc:
-            # a closed port, a server that does not speak dask, an address that does not parse
-            raise ConfigError(f"scheduler {scheduler}: cannot connect as a dask client "
-                              f"({type(exc).__name__}: {exc})") from None
-    workers = 2 if workers is None else check_count(workers, "workers", MAX_WORKERS)
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                           dashboard_address=":0")
-    return Client(cluster), cluster, True
 
 
 def run_sweep(sweep, output=None, *, scheduler=None, workers=None, overwrite=False,

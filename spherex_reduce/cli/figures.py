@@ -25,11 +25,11 @@ def add_parser(sub):
 
 def run(args):
     from ..analysis.figures import make_figures
-    from ..analysis.sweep import check_scheduler
+    from ..analysis.scheduler import check_scheduler
 
     check_scheduler(args.scheduler, name="--scheduler")  # before any work
     if not args.verbose:  # dask's INFO lines about workers and connections
-        from ..analysis.sweep import quiet_dask_logs
+        from ..analysis.scheduler import quiet_dask_logs
 
         quiet_dask_logs()
     report = make_figures(args.output, quick=args.quick, realizations=args.realizations,

@@ -35,7 +35,7 @@ def run(args):
     from ..config import load_yaml
 
     if not args.verbose:  # dask's INFO lines about workers and connections
-        from ..analysis.sweep import quiet_dask_logs
+        from ..analysis.scheduler import quiet_dask_logs
 
         quiet_dask_logs()
     sweep = load_sweep(args.input)
@@ -49,7 +49,7 @@ def run(args):
     atomic_output(args.output, True)  # checks the name and directory
     if plot:
         atomic_output(plot, True)  # checks the directory; the plot follows the results
-    from ..analysis.sweep import check_scheduler
+    from ..analysis.scheduler import check_scheduler
 
     check_scheduler(args.scheduler, name="--scheduler")  # before any work
     res = run_sweep(sweep, args.output, scheduler=args.scheduler, workers=args.workers,

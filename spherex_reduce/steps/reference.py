@@ -31,7 +31,6 @@ from .reference_strategies import (
     _group_columns,
     clipped_mean,
     reference_offsets,
-    source_mask,
 )
 
 __all__ = [
@@ -48,7 +47,6 @@ __all__ = [
     "missing_columns",
     "offsets_table",
     "reference_offsets",
-    "source_mask",
 ]
 
 _ = (_CLIP_PARAMETERS, AcnReference, MeanReference, MedianReference)  # re-exported names

@@ -18,6 +18,7 @@ from astropy.utils.exceptions import AstropyUserWarning
 from ..errors import SpherexReduceError
 from ..executor import side_block
 from ..parameters import Parameter
+from ..source_mask import source_mask
 from ..step import Strategy
 
 __all__ = [
@@ -33,7 +34,6 @@ __all__ = [
     "clipped_mean",
     "reference_offsets",
     "reference_pixels",
-    "source_mask",
 ]
 
 #: Parity values of the ``REFOFFS`` table: all columns, even samples, odd samples.
@@ -338,58 +338,6 @@ class AcnReference(MeanReference):
     acn = True
 
 
-def source_mask(image, *, nsigma=3.0, npixels=5, box_size=64, dilate=5, mask=None):
-    """Pixels belonging to sources or hot pixels, by `photutils` segmentation.
-
-    The background and its rms are estimated with
-    `photutils.background.Background2D` (boxes of ``box_size`` pixels); pixels
-    more than ``nsigma`` rms above it in groups of at least ``npixels`` are
-    sources, dilated by a ``dilate`` x ``dilate`` box.
-
-    Parameters
-    ----------
-    image : array_like
-        2-D image.
-    mask : array_like of bool, optional
-        Pixels to ignore (NaN are ignored anyway).
-
-    Returns
-    -------
-    `numpy.ndarray` of bool
-        True on sources.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from spherex_reduce.steps.reference import source_mask
-    >>> img = np.random.default_rng(0).normal(0, 1, (64, 64))
-    >>> img[30:34, 30:34] += 50
-    >>> m = source_mask(img, box_size=16)
-    >>> bool(m[31, 31]), int(m.sum()) < 200
-    (True, True)
-    """
-    from photutils.background import Background2D
-    from photutils.segmentation import detect_sources
-    from photutils.utils import NoDetectionsWarning
-
-    img = np.asarray(image, dtype=np.float64)
-    bad = ~np.isfinite(img)
-    if mask is not None:
-        bad |= np.asarray(mask, bool)
-    filled = np.where(bad, 0.0, img)
-    box = int(min(box_size, *img.shape))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", AstropyUserWarning)
-        bkg = Background2D(filled, box, mask=bad, filter_size=(3, 3))
-    resid = filled - bkg.background
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", NoDetectionsWarning)
-        segm = detect_sources(resid, nsigma * bkg.background_rms, npixels, mask=bad)
-    if segm is None:
-        return np.zeros(img.shape, bool)
-    return segm.make_source_mask(size=dilate) if dilate > 1 else segm.data > 0
-
-
 class MedianReference(Strategy):
     """Median of all pixels (optical and reference) per channel (paper §5.4).
 
@@ -429,8 +377,10 @@ class MedianReference(Strategy):
         if mask_sources:
             image = frames[-1] - frames[0] if data.ndim == 3 else frames[0]
             pix_bad = None if bad is None else bad.any(axis=0)
-            excluded = source_mask(image, nsigma=source_sigma, npixels=source_npixels,
-                                   box_size=box_size, mask=pix_bad)
+            excluded = source_mask(np.asarray(image, dtype=np.float64), pix_bad,
+                                   nsigma=source_sigma, npixels=source_npixels,
+                                   box_size=box_size, dilate=5, background="sextractor",
+                                   two_sided=False, min_boxes=1)
         nch, width = g.nchannels, g.channel_width
         L = frames.shape[0]
         off = np.full((L, nch, 1), np.nan)

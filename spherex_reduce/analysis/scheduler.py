@@ -1,0 +1,112 @@
+"""Where sweep cells run: dask scheduler addresses checked, clients and local clusters.
+
+`check_scheduler` refuses, within seconds, an address where no dask scheduler
+answers; `quiet_dask_logs` keeps dask.distributed's connection logs out of
+the output.
+"""
+
+import asyncio
+import concurrent.futures
+import logging
+
+from ..errors import ConfigError
+from ..limits import MAX_WORKERS, check_count
+
+__all__ = ["check_scheduler", "quiet_dask_logs"]
+
+
+def quiet_dask_logs(level=logging.WARNING):
+    """Raise the level of dask.distributed's loggers (they log every connection at INFO)."""
+    import distributed  # noqa: F401  (creates its loggers)
+
+    for name in list(logging.root.manager.loggerDict):
+        if name.split(".")[0] == "distributed":
+            logging.getLogger(name).setLevel(level)
+
+
+def check_scheduler(address, timeout=5.0, name="scheduler"):
+    """Refuse, within ``timeout`` seconds, a dask scheduler address that is not reachable.
+
+    ``None`` (an embedded cluster) and ``"serial"`` pass.  Otherwise the address
+    must parse as a dask address, and a dask scheduler must answer there: dask's
+    own client waits 30 s, or for ever on a server that accepts and stays silent.
+
+    Parameters
+    ----------
+    address : str or None
+        E.g. ``"tcp://host:8786"``.
+    timeout : float
+        Seconds to wait for the connection.
+    name : str
+        How the message names the setting (the CLI passes ``"--scheduler"``).
+
+    Raises
+    ------
+    ConfigError
+        Naming the address and the reason.
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.scheduler import check_scheduler
+    >>> check_scheduler("serial")
+    >>> check_scheduler("not a url")
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.errors.ConfigError: scheduler 'not a url': not a dask ...
+    """
+    if address is None or address == "serial":
+        return
+    from distributed.comm import parse_address, parse_host_port
+
+    try:
+        scheme, loc = parse_address(address)
+        port = parse_host_port(loc)[1] if scheme in ("tcp", "tls") else None
+        if any(c.isspace() for c in address) or (scheme in ("tcp", "tls") and not port):
+            raise ValueError("no host:port")
+    except (ValueError, TypeError):
+        raise ConfigError(f"{name} {address!r}: not a dask scheduler address (e.g. "
+                          "tcp://host:8786, or 'serial')") from None
+    try:
+        with concurrent.futures.ThreadPoolExecutor(1) as pool:  # also under a running loop
+            reply = pool.submit(asyncio.run, _identity(address, timeout)).result()
+    except Exception as exc:
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise ConfigError(f"{name} {address}: no dask scheduler answered within {timeout:g} s "
+                          f"({reason})") from None
+    if not (isinstance(reply, dict) and reply.get("type") == "Scheduler"):
+        raise ConfigError(f"{name} {address}: answered, but is not a dask scheduler")
+
+
+async def _identity(address, timeout):
+    """The ``identity`` reply of the dask server at ``address``, within ``timeout`` seconds."""
+    from distributed.comm import connect
+
+    async def ask():
+        comm = await connect(address, timeout=timeout)
+        try:
+            await comm.write({"op": "identity"})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    return await asyncio.wait_for(ask(), timeout)
+
+
+def _client(scheduler, workers):
+    """``(client, cluster, owned)``: a client for ``scheduler`` (None: a new LocalCluster)."""
+    from distributed import Client, LocalCluster
+
+    if isinstance(scheduler, Client):
+        return scheduler, None, False
+    if scheduler:
+        check_scheduler(scheduler)
+        try:
+            return Client(scheduler, timeout=10), None, True
+        except (OSError, TimeoutError, ValueError, TypeError, MemoryError) as exc:
+            # a closed port, a server that does not speak dask, an address that does not parse
+            raise ConfigError(f"scheduler {scheduler}: cannot connect as a dask client "
+                              f"({type(exc).__name__}: {exc})") from None
+    workers = 2 if workers is None else check_count(workers, "workers", MAX_WORKERS)
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                           dashboard_address=":0")
+    return Client(cluster), cluster, True

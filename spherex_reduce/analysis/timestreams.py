@@ -1,0 +1,279 @@
+"""The noise streams of a raw exposure in time order, and the fit of their PSDs.
+
+`reference_timestream` and `phantom_timestream` read the reference pixels and
+the phantom values of a raw exposure in time order; `fit_raw_noise` fits the
+noise model of `spherex_reduce.analysis.temporal` to their PSDs.
+
+Streams read out of a raw exposure are not sampled at the pixel rate: a
+phantom value is the mean of ``c`` consecutive samples, taken once per row read
+(every ``row_samples`` samples), and a reference-column value likewise the mean
+of the ``ref_border`` border columns.  Their PSD is the pixel-rate PSD filtered
+by the ``c``-sample box and aliased into the row rate;
+`aliased_basis` gives the three model terms of such a stream, so the fit
+returns the coefficients of the underlying 100 kHz process directly.
+"""
+
+from typing import NamedTuple
+
+import numpy as np
+from astropy import units as u
+from astropy.table import Table
+
+from ..errors import SpherexReduceError
+from .temporal import PARAMS, aliased_basis, fit_noise_model, temporal_psd
+
+__all__ = ["Timestream", "fit_raw_noise", "phantom_timestream", "reference_timestream"]
+
+
+# -- streams of a raw exposure ----------------------------------------------------------
+class Timestream(NamedTuple):
+    """Values of a stream with the sample index of each value (in pixel-rate samples)."""
+
+    #: ``(..., nframes, n)``: streams first (channels), then frames, then time within a frame
+    values: np.ndarray
+    #: ``(nframes, n)``: sample index from the start of the exposure (the value's first sample)
+    samples: np.ndarray
+    #: samples averaged into each value (``c`` for phantoms)
+    nbox: int
+    #: the pixel rate (Hz)
+    sample_rate: float
+    #: spacing (samples) of the averaged samples, or of the values of a burst
+    stride: int = 1
+
+
+def _raw(exposure):
+    if not exposure.is_ramp or exposure.order != "readout":
+        raise SpherexReduceError(
+            "noise streams come from a raw exposure: ramps (frames × reads × columns) in "
+            f"readout order; got {'ramps' if exposure.is_ramp else 'an image'} in "
+            f"{exposure.order} order"
+        )
+    if exposure.schedule.nframes < 3:
+        raise SpherexReduceError("noise streams need at least 3 frames (a line is removed "
+                                 "from every position across frames)")
+
+
+def _detrend_frames(values):
+    """Remove a straight line across frames (axis -2) at every position; float64 copy.
+
+    Returns the residual scaled by ``sqrt(N / (N - 2))`` so that noise that is
+    independent from frame to frame keeps its variance.
+    """
+    v = np.asarray(values, dtype=np.float64)
+    n = v.shape[-2]
+    t = np.arange(n, dtype=float) - (n - 1) / 2
+    mean = v.mean(axis=-2, keepdims=True)
+    slope = np.tensordot(t, v, axes=([0], [v.ndim - 2])) / np.sum(t**2)
+    res = v - mean - t[:, None] * slope[..., None, :]
+    return res * np.sqrt(n / (n - 2))
+
+
+def _frame_samples(schedule, within):
+    within = np.asarray(within, dtype=np.int64)
+    frames = np.arange(schedule.nframes, dtype=np.int64) * schedule.frame_samples
+    return frames.reshape((-1,) + (1,) * within.ndim) + within[None, ...]
+
+
+def phantom_timestream(exposure):
+    """Phantom values of every channel in time order, detrended across frames.
+
+    Parameters
+    ----------
+    exposure : `~spherex_reduce.Exposure`
+        Raw ramps in readout order with a ``phantom`` array.
+
+    Returns
+    -------
+    `Timestream`
+        ``values`` ``(nchannels, nframes, n_reads)``; ``samples`` the first of
+        the ``c`` phantom samples of each read.  A straight line across frames
+        is removed at every read position (the Video8 leakage drift and any
+        offset) and the residual rescaled by ``sqrt(N/(N−2))``.
+    """
+    _raw(exposure)
+    s = exposure.schedule
+    if exposure.phantom is None or s.phantom_reads == 0:
+        raise SpherexReduceError("the exposure has no phantom reads (c = 0 or no PHANTOM)")
+    vals = np.moveaxis(np.asarray(exposure.phantom), -1, 0)  # channels, frames, reads
+    return Timestream(_detrend_frames(vals), _frame_samples(s, s.phantom_samples()[:, 0]),
+                      s.phantom_reads, s.geometry.pixel_rate)
+
+
+def reference_timestream(exposure, source="columns", parity=None):
+    """Reference-pixel values in time order, detrended across frames.
+
+    Parameters
+    ----------
+    exposure : `~spherex_reduce.Exposure`
+        Raw ramps in readout order.
+    source : {'columns', 'rows'}
+        ``'columns'``: the side border columns (left of the first channel,
+        right of the last), averaged per read: one value per row read,
+        ``values`` ``(2, nframes, n_reads)``.  ``'rows'``: every reference-row
+        read of every channel at the pixel rate, in each channel's scan order,
+        ``values`` ``(nchannels, nframes, n_ref_reads, width)``.
+    parity : {None, 'even', 'odd'}
+        Keep only the pixels sampled at even or odd offsets of a channel's
+        row read (the column parities that alternating column noise, ACN,
+        gives independent realisations); ``stride`` becomes 2.
+
+    Returns
+    -------
+    `Timestream`
+        ``samples`` has the sample index of each value (the first averaged
+        sample for ``'columns'``).
+    """
+    _raw(exposure)
+    s, g = exposure.schedule, exposure.geometry
+    if parity not in (None, "even", "odd"):
+        raise SpherexReduceError(f"parity must be None, 'even' or 'odd', got {parity!r}")
+    first_off = {None: 0, "even": 0, "odd": 1}[parity]
+    stride = 1 if parity is None else 2
+    data = np.asarray(exposure.data.data)
+    offs = g.column_offsets()
+    if source == "columns":
+        b = g.ref_border
+        if b == 0:
+            raise SpherexReduceError("the array has no reference border (ref_border = 0)")
+        sides = [np.arange(b), np.arange(g.ncols - b, g.ncols)]
+        if parity is not None:
+            sides = [c[offs[c] % 2 == first_off] for c in sides]
+            if any(c.size == 0 for c in sides):
+                raise SpherexReduceError("the border has no columns of that parity")
+        nbox = sides[0].size
+        vals = np.stack([data[:, :, c].mean(axis=-1) for c in sides])
+        first = s.starts + offs[sides[0]].min()
+        return Timestream(_detrend_frames(vals), _frame_samples(s, first), nbox,
+                          g.pixel_rate, stride)
+    if source == "rows":
+        reads = s.reference_read_indices
+        if reads.size == 0:
+            raise SpherexReduceError("the schedule has no reference-row reads")
+        w = g.channel_width
+        order = np.argsort(offs.reshape(g.nchannels, w), axis=1)
+        cols = order + (np.arange(g.nchannels) * w)[:, None]  # (nchannels, w) in scan order
+        cols = cols[:, first_off::stride]
+        vals = data[:, reads][:, :, cols]  # frames, nref, nchannels, w'
+        vals = np.moveaxis(vals, 2, 0)  # channels, frames, nref, w'
+        flat = _detrend_frames(vals.reshape(g.nchannels, s.nframes, -1))
+        samples = s.starts[reads][:, None] + np.arange(first_off, w, stride)[None, :]
+        return Timestream(flat.reshape(vals.shape), _frame_samples(s, samples), 1, g.pixel_rate,
+                          stride)
+    raise SpherexReduceError(f"source must be 'columns' or 'rows', got {source!r}")
+
+
+def _burst_length(g, split):
+    """Samples per reference-row burst of one channel (one parity if ``split``)."""
+    return g.channel_width // 2 if split else g.channel_width
+
+
+def _parity_psd(exposure, source, rate, nperseg, acn):
+    """Welch PSD of a reference stream, split by column parity when ``acn``.
+
+    The even and odd PSDs are averaged but the uncertainty counts the streams
+    of one parity only: right when the parities are correlated (no ACN),
+    conservative by up to √2 when they are independent.
+    """
+    if not acn:
+        ts = reference_timestream(exposure, source)
+        return temporal_psd(ts.values, rate, nperseg=nperseg), ts
+    even = reference_timestream(exposure, source, "even")
+    odd = reference_timestream(exposure, source, "odd")
+    pe = temporal_psd(even.values, rate, nperseg=nperseg)
+    po = temporal_psd(odd.values, rate, nperseg=nperseg)
+    pe["psd"] = (pe["psd"] + po["psd"]) / 2
+    return pe, even
+
+
+def fit_raw_noise(exposure, exponent=1.3, nperseg=None, nbins=30, fit=PARAMS, acn=True):
+    """Fit eq. 1 to the reference-pixel and phantom streams of a raw exposure.
+
+    Welch spectra are computed within frames (segments never span the
+    frame overhead).  Reference columns and phantom values are modelled as
+    box-averaged, decimated streams (`aliased_basis`); reference rows are
+    bursts at the pixel rate.  The reference fit joins columns and rows.
+
+    Parameters
+    ----------
+    exposure : `~spherex_reduce.Exposure`
+        Raw ramps in readout order.
+    exponent : float or None
+        Exponent of the third term; ``None`` fits it per stream.
+    nperseg : int, optional
+        Welch segment length of the per-read streams (default: the largest
+        power of two not above the reads per frame).
+    nbins : int
+        Logarithmic bins per spectrum.
+    fit : sequence of str
+        Terms to fit.
+    acn : bool
+        Treat even and odd columns (offsets within a channel's row read) as
+        separate streams, as alternating column noise makes them (paper §3.2;
+        the simulator's default for Video8 and ROIC).  Averaging across
+        parities would halve the low-frequency power of ACN terms.  The
+        result is right with or without ACN; the uncertainties count one
+        parity's streams, so they are conservative (by up to √2) when the
+        parities are independent.  ``False`` uses every column as one stream.
+
+    Returns
+    -------
+    `~astropy.table.Table`
+        One row per stream (``reference``, ``phantom`` where the exposure has
+        phantom reads): ``stream alpha alpha_err beta beta_err gamma gamma_err
+        exponent chi2 dof fmin fmax`` (coefficients in the exposure's unit²
+        per Hz etc., for the pixel-rate process).  ``meta['fits']`` holds the
+        `NoiseModelFit` objects (not written to files).
+    """
+    _raw(exposure)
+    s, g = exposure.schedule, exposure.geometry
+    fs, m = g.pixel_rate, s.row_samples
+    nreads = s.n_reads
+    nper = nperseg or 2 ** int(np.floor(np.log2(nreads)))
+    nper = min(nper, nreads)
+    rows, fits_ = [], {}
+    frate = fs / m
+    spectra, bases, names = [], [], []
+    if g.ref_border:
+        split = acn and g.ref_border >= 2
+        spec, ts = _parity_psd(exposure, "columns", frate, nper, split)
+        spectra.append(spec)
+        names.append("border columns")
+        bases.append(lambda f, e, b=ts.nbox, st=ts.stride: aliased_basis(f, fs, m, b, e,
+                                                                         stride=st))
+    if s.reference_read_indices.size:
+        split = acn and g.channel_width >= 8
+        rate = fs / 2 if split else fs
+        spec, tr = _parity_psd(exposure, "rows", rate, _burst_length(g, split), split)
+        spectra.append(spec)
+        names.append("re-read rows")
+        bases.append(lambda f, e, d=tr.stride: aliased_basis(f, fs, d, 1, e))
+    unit = exposure.unit or u.one
+    if spectra:
+        fits_["reference"] = fit_noise_model(spectra, exponent, nbins=nbins, fit=fit,
+                                             basis=bases)
+    if exposure.phantom is not None and s.phantom_reads:
+        tp = phantom_timestream(exposure)
+        spec = temporal_psd(tp.values, frate, nperseg=nper)
+        fits_["phantom"] = fit_noise_model(
+            spec, exponent, nbins=nbins, fit=fit,
+            basis=lambda f, e: aliased_basis(f, fs, m, s.phantom_reads, e))
+    if not fits_:
+        raise SpherexReduceError("the exposure has neither reference pixels nor phantom reads")
+    for name, fit_ in fits_.items():  # for plots: what each spectrum is, and the PSD's unit
+        fit_.bins.meta.update({"spectra": names if name == "reference" else [name],
+                               "psd_unit": unit**2 / u.Hz})
+    for name, r in fits_.items():
+        rows.append({"stream": name, **r.to_row()})
+    t = Table(rows=rows)
+    units = {"alpha": unit**2 / u.Hz, "beta": unit**2}
+    if exponent is not None:
+        units["gamma"] = unit**2 * u.Hz ** (exponent - 1)
+    for p, unit_p in units.items():
+        t[p].unit = unit_p
+        t[f"{p}_err"].unit = unit_p
+    t["fmin"].unit = t["fmax"].unit = u.Hz
+    t.meta["fits"] = fits_
+    label = "exponent" if exponent is None else exponent
+    t.meta["comments"] = [f"p(f) = alpha + beta/f + gamma/f^{label}, one-sided, "
+                          f"pixel rate {fs:g} Hz; {s.summary()}"]
+    return t

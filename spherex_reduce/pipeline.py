@@ -19,8 +19,8 @@ from .config import (
     section_values,
 )
 from .errors import ConfigError, SpherexReduceError, StepSkipped
-from .exposure import Exposure
 from .executor import FileSource, MemorySource, execute
+from .exposure import Exposure
 from .io import FrameReader, is_raw_ramp_file, read
 from .plugins import Registry, blame_plugin
 from .step import Step
@@ -266,7 +266,7 @@ class Pipeline:
         kernels, consumer, members, skipped = [], None, [], {}
         j = i
         while j < len(steps):
-            name, params, step = steps[j]
+            _, params, step = steps[j]
             if step.inputs:
                 break
             try:
@@ -323,7 +323,7 @@ class Pipeline:
 
     def _record_pass(self, result, steps, members, skipped, busy, status, route, before=None):
         for k in members:
-            name, params, step = steps[k]
+            _, params, step = steps[k]
             if k in skipped:
                 result = step.record(before, result, params, "SKIPPED", skipped[k], 0.0,
                                      route="skipped")
@@ -336,7 +336,7 @@ class Pipeline:
 
     def _whole(self, current, steps, i, status, progress, threads):
         """Step ``i`` on the whole exposure, its declared inputs prepared by the pipeline."""
-        name, params, step = steps[i]
+        _, params, step = steps[i]
         if not isinstance(current, Exposure):
             current = self.read(current)
         inputs = {}

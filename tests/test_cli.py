@@ -90,7 +90,8 @@ def test_reduce_and_show_config(tmp_path, capsys, small_schedule):
 def test_plugins_lists_providers(capsys):
     assert run("plugins") == 0
     out = capsys.readouterr().out
-    assert any(line.split()[:5] == ["step", "unchop", "S_UNCHOP", "builtin", "spherex-reduce"]
+    assert any(line.split()[:5] == ["step", "unchop", "S_UNCHOP", "builtin.unchop",
+                                    "spherex-reduce"]
                for line in out.splitlines())
 
 

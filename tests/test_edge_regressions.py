@@ -4,6 +4,7 @@ import warnings
 
 import numpy as np
 import pytest
+from _one_by_one import one_by_one
 
 from spherex_reduce import (
     DetectorGeometry,
@@ -66,20 +67,26 @@ def test_streamed_summary_keywords_cover_every_frame():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # "no usable reference pixels", tested elsewhere
         streamed = Pipeline(cfg).run(raw)
-        in_memory = Pipeline(cfg).run(raw, stream=False)
+        in_memory = one_by_one(cfg, raw)
     assert streamed.header["NNOREF"] == in_memory.header["NNOREF"] == 2
 
 
-def test_source_masking_is_not_streamed():
-    p = Pipeline({"steps": ["unchop", {"correct_reference": {"strategy": "median",
-                                                             "mask_sources": True}},
-                            "fit_ramp"]})
-    steps = [(n, prm, p.registry.step(n)(p.registry)) for n, prm in p.steps]
-    assert p._stream_split(steps) is None
-    plain = Pipeline({"steps": ["unchop", {"correct_reference": {"strategy": "median"}},
-                                "fit_ramp"]})
-    steps = [(n, prm, plain.registry.step(n)(plain.registry)) for n, prm in plain.steps]
-    assert plain._stream_split(steps) == 2
+def test_source_masking_runs_on_the_whole_exposure(tmp_path):
+    """The median strategy estimates from every pixel (and masks sources on the last minus
+    the first frame): it cannot run in a streamed pass; the reference strategies can."""
+    raw = example_raw_exposure(tiny_schedule(nframes=3), seed=2)
+    path = write(raw, tmp_path / "raw.fits")
+
+    def routes(steps):
+        out = Pipeline({"steps": steps}).run(path)
+        return [(row["step"], row["route"]) for row in out.tables["PROVENANCE"]]
+
+    masked = routes(["unchop", {"correct_reference": {"strategy": "median",
+                                                      "mask_sources": True}}, "fit_ramp"])
+    assert "from a file" in masked[0][1] and "1 step" in masked[0][1]
+    assert all("from memory" in route for _, route in masked[1:])
+    mean = routes(["unchop", {"correct_reference": {"strategy": "mean"}}, "fit_ramp"])
+    assert all("pass of 3 step(s)" in route and "from a file" in route for _, route in mean)
 
 
 def test_streamed_file_keeps_its_tables(tmp_path):

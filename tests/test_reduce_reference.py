@@ -14,8 +14,9 @@ from spherex_reduce import (
     subtract_phantom,
     unchop,
 )
-from spherex_reduce.errors import StepSkipped
+from spherex_reduce.errors import ConfigError, StepSkipped
 from spherex_reduce.source_mask import source_mask
+from spherex_reduce.steps.phantom import SubtractPhantomStep
 from spherex_reduce.steps.reference import (
     NoReferenceError,
     NoReferenceWarning,
@@ -86,8 +87,11 @@ def test_subtract_phantom_per_channel_and_row_read_and_reference_reads():
     assert out.phantom is None
     phys = subtract_phantom(unchop(e))
     np.testing.assert_allclose(phys.reference.data, 7.0, atol=1e-12)
+    again = subtract_phantom(out)
+    assert again.header["S_PHANTM"] == "SKIPPED"
+    np.testing.assert_array_equal(again.data.data, out.data.data)
     with pytest.raises(StepSkipped, match="no phantom"):
-        subtract_phantom(out)
+        SubtractPhantomStep().run(out)
 
 
 def test_phantom_skipped_with_c_zero_in_pipeline():
@@ -239,5 +243,5 @@ def test_median_strategy_and_source_mask():
 def test_unknown_strategy_lists_the_valid_ones():
     s = sched()
     e = Exposure.from_arrays(np.zeros((3, s.n_reads, 32)), s)
-    with pytest.raises(KeyError, match=r"valid: .*mean"):
+    with pytest.raises(ConfigError, match=r"'nonesuch' is not one of .*mean"):
         correct_reference(e, "nonesuch")

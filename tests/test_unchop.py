@@ -12,6 +12,7 @@ from spherex_reduce import (
     rechop,
     unchop,
 )
+from spherex_reduce.steps.unchop import UnchopStep
 
 
 def encoded(schedule, nframes=2):
@@ -112,5 +113,10 @@ def test_uncertainty_of_a_re_read_row_with_unequal_and_unusable_reads(small_sche
 
 def test_already_physical_is_skipped(small_schedule):
     out = unchop(encoded(small_schedule))
+    again = unchop(out)  # skipped, stpipe style: the input back, the status recorded
+    assert again.header["S_UNCHOP"] == "SKIPPED"
+    assert any("already in physical order" in str(h) for h in again.header["HISTORY"])
+    assert again.tables["PROVENANCE"]["status"].tolist() == ["COMPLETE", "SKIPPED"]
+    np.testing.assert_array_equal(again.data.data, out.data.data)
     with pytest.raises(StepSkipped, match="already in physical order"):
-        unchop(out)
+        UnchopStep().run(out)  # the step's own run says why

@@ -163,7 +163,7 @@ def test_plugins_names_distribution_and_version_in_aligned_columns(capsys):
     own = f"spherex-reduce {spherex_reduce.__version__}"
     assert by_name["correct_reference"].endswith(own)
     assert "S_REFCOR" in by_name["correct_reference"]
-    assert by_name["unchop"][starts[4]:].split()[0] == "builtin"
+    assert by_name["unchop"][starts[4]:].split()[0] == "builtin.unchop"
     for ep in importlib.metadata.entry_points(group="spherex_reduce"):
         installed = f"{ep.dist.name} {ep.dist.version}"  # e.g. spherex-reduce-destripe 0.1.0
         assert any(line.endswith(installed) and f" {ep.name} " in line for line in rows)

@@ -3,8 +3,8 @@
 from pathlib import Path
 
 from ..io import atomic_output, write
-from ..pipeline import Pipeline
 from ..limits import MAX_WORKERS
+from ..pipeline import Pipeline
 from ._common import check_paths, count, named_files
 
 

@@ -3,7 +3,6 @@
 import warnings
 
 import numpy as np
-from astropy.nddata import StdDevUncertainty
 from astropy.stats import SigmaClip
 from astropy.table import Table
 

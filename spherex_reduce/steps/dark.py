@@ -8,8 +8,8 @@ from astropy.nddata import CCDData, StdDevUncertainty
 
 from ..errors import ConfigError, SpherexReduceError
 from ..exposure import Exposure, as_dq
-from ..io import read
 from ..hookspecs import hookimpl
+from ..io import read
 from ..parameters import Parameter
 from ..step import Step
 

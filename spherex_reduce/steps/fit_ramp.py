@@ -8,7 +8,7 @@ from ..exposure import Exposure, ReferenceReads
 from ..hookspecs import hookimpl
 from ..parameters import Parameter
 from ..step import Consumer, Step
-from .ramp import WEIGHTINGS, _check_params, _fit_cube, _Fit, _result
+from .ramp import WEIGHTINGS, _check_params, _Fit, _fit_cube, _result
 
 _OPT_NUM = (int, float, type(None))
 

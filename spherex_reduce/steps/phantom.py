@@ -31,10 +31,11 @@ def subtract_phantom(exposure):
         so the correction cannot be applied twice.  Uncertainty and mask are
         unchanged (the phantom noise is small, paper §4.1).
 
-    Raises
-    ------
-    StepSkipped
-        The exposure has no phantom values (``c = 0``, or already subtracted).
+    Notes
+    -----
+    When there is nothing to do (the exposure has no phantom values (``c = 0``, or already subtracted)) the step is
+    skipped, stpipe style: the input comes back unchanged, with the status
+    keyword set to ``SKIPPED`` and the reason in HISTORY and ``PROVENANCE``.
 
     Examples
     --------

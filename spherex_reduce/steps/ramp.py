@@ -33,6 +33,7 @@ from astropy.table import Table
 from .. import dq
 from ..errors import SpherexReduceError, StepSkipped
 from ..exposure import ReferenceReads, as_dq
+
 FrameAccumulator = object  # interim: the ramp module is being rewritten
 
 __all__ = ["RampAccumulator", "fit_ramp", "ramp_weights"]

@@ -170,31 +170,6 @@ def _column_plan(geometry, offsets, strategy, acn):
                                              geometry.ncols)
 
 
-def missing_columns(geometry, missing, acn):
-    """Columns ``(L, ncols)`` of the (frame, channel, parity) groups flagged ``missing``."""
-    groups = _group_columns(geometry, acn)
-    return _column_offsets(missing.astype(float), groups, geometry.ncols) > 0
-
-
-def offsets_table(offsets, missing, parity, n_used, n_clipped, strategy, unit, ramp):
-    """The ``REFOFFS`` table of offsets ``(L, nchannels, P)`` (see `correct_reference`)."""
-    L, nch, P = offsets.shape
-    fr, ch, pa = np.meshgrid(np.arange(L), np.arange(nch), np.arange(P), indexing="ij")
-    cols = {}
-    if ramp:
-        cols["frame"] = fr.ravel()
-    cols["channel"] = ch.ravel()
-    cols["parity"] = np.asarray(parity)[pa.ravel()]
-    cols["offset"] = offsets.ravel()
-    cols["n_used"] = np.asarray(n_used).ravel()
-    cols["n_clipped"] = np.asarray(n_clipped).ravel()
-    cols["flag"] = np.where(missing.ravel(), dq.NO_REFERENCE, 0).astype(np.uint16)
-    # the unit goes in the description: 'electron' is not a FITS unit
-    table = Table(cols, meta={"strategy": strategy, "bunit": str(unit or "")})
-    table["offset"].description = f"offset subtracted ({unit or 'data unit'})"
-    return table
-
-
 def _column_offsets(offsets, groups, ncols):
     """Per-column offsets ``(L, ncols)`` from per-group offsets ``(L, nch, P)``."""
     col = np.zeros((offsets.shape[0], ncols))

@@ -50,10 +50,11 @@ def unchop(exposure):
         A new exposure in physical order (rows ``(..., nrows, ncols)``); the
         input is not modified.
 
-    Raises
-    ------
-    StepSkipped
-        The exposure is already in physical order.
+    Notes
+    -----
+    When there is nothing to do (the exposure is already in physical order) the step is
+    skipped, stpipe style: the input comes back unchanged, with the status
+    keyword set to ``SKIPPED`` and the reason in HISTORY and ``PROVENANCE``.
 
     Examples
     --------

@@ -10,9 +10,10 @@ from pathlib import Path
 import yaml
 
 from .errors import ConfigError, ResourceError
+from .fields import section_fields
 from .geometry import DetectorGeometry
-from .parameters import Parameter, validate_parameters
-from .schedule import REF_MODES, ReadoutSchedule
+from .parameters import validate_parameters
+from .schedule import ReadoutSchedule
 
 __all__ = [
     "GEOMETRY_PARAMETERS",
@@ -27,30 +28,10 @@ __all__ = [
     "shipped_configs",
 ]
 
-_NUM = (int, float)
-#: Keys of the ``geometry:`` section, with defaults (the SPHEREx H2RG).
-GEOMETRY_PARAMETERS = (
-    Parameter("nrows", 2048, (int,), "array rows", minimum=1),
-    Parameter("ncols", 2048, (int,), "array columns", minimum=1),
-    Parameter("nchannels", 32, (int,), "readout channels", minimum=1),
-    Parameter("ref_border", 4, (int,), "reference border width (pixels)", minimum=0),
-    Parameter("scan", "same", (str, list), "fast-scan direction: same, alternate or +1/-1 list"),
-    Parameter("pixel_rate", 100_000.0, _NUM, "pixel rate per channel (Hz)", minimum=0,
-              exclusive_minimum=True),
-)
-#: Keys of the ``readout:`` section, with defaults (the paper's Table 3).
-READOUT_PARAMETERS = (
-    Parameter("skip", 24, (int,), "row-chopping skip S", minimum=1),
-    Parameter("ref_reads", 32, (int,), "reference row reads per frame r", minimum=0),
-    Parameter("ref_mode", "distributed", (str,), "reference read mode", choices=REF_MODES),
-    Parameter("phantom_reads", 4, (int,), "phantom samples per row read c", minimum=0),
-    Parameter("row_overhead", 4, (int,), "samples of overhead per row read", minimum=0),
-    Parameter("frame_overhead", None, (int, type(None)), "samples of overhead per frame",
-              minimum=0),
-    Parameter("nframes", 74, (int,), "frames up the ramp N", minimum=1),
-    Parameter("frame_time", None, (int, float, type(None)), "frame time (s), instead of "
-              "frame_overhead", minimum=0, exclusive_minimum=True),
-)
+#: Keys of the ``geometry:`` section, with defaults (the SPHEREx H2RG); from the field table.
+GEOMETRY_PARAMETERS = tuple(f.parameter() for f in section_fields("geometry"))
+#: Keys of the ``readout:`` section, with defaults (the paper's Table 3); from the field table.
+READOUT_PARAMETERS = tuple(f.parameter() for f in section_fields("readout"))
 
 
 #: Largest YAML file (or text) accepted, in bytes.

@@ -1,11 +1,8 @@
 """Detector layout: rows, columns, readout channels and the reference border."""
 
-import math
-from dataclasses import dataclass, field
-
 import numpy as np
-from astropy import units as u
 
+from .fields import check_field, section_fields, table_dataclass
 from .limits import check_size
 
 __all__ = ["DetectorGeometry"]
@@ -13,39 +10,7 @@ __all__ = ["DetectorGeometry"]
 _SCAN_MODES = ("same", "alternate")
 
 
-def _check_int(name, value, minimum, maximum=None):
-    """Return ``value`` as int or raise a ValueError naming ``name`` and its range."""
-    allowed = f">= {minimum}" if maximum is None else f"in [{minimum}, {maximum}]"
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"{name} must be an integer {allowed}, got {value!r}")
-    if value < minimum or (maximum is not None and value > maximum):
-        raise ValueError(f"{name} must be {allowed}, got {value}")
-    return int(value)
-
-
-def _positive_finite(name, value, unit):
-    """``value`` (a number, or a `~astropy.units.Quantity` in ``unit``) as a float > 0.
-
-    Raises a ValueError naming ``name`` for anything else: strings, booleans,
-    arrays, NaN, infinities, zero and negative values.
-    """
-    try:
-        if isinstance(value, u.Quantity):
-            number = value.to_value(unit)
-        elif isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
-                value, (bool, np.bool_)):
-            number = float(value)
-        else:
-            raise TypeError
-        number = float(number)
-    except (TypeError, ValueError, u.UnitsError):
-        number = float("nan")
-    if not math.isfinite(number) or number <= 0:
-        raise ValueError(f"{name} must be a positive, finite number ({unit}), got {value!r}")
-    return number
-
-
-@dataclass(frozen=True)
+@table_dataclass("geometry")
 class DetectorGeometry:
     """Layout of an HxRG array read by parallel output channels.
 
@@ -82,29 +47,21 @@ class DetectorGeometry:
     (512, [1, -1, 1, -1])
     """
 
-    nrows: int = 2048
-    ncols: int = 2048
-    nchannels: int = 32
-    ref_border: int = 4
-    scan: object = "same"
-    pixel_rate: float = 100_000.0
-    _directions: tuple = field(init=False, repr=False, compare=False)
+    # The fields, their defaults and checks: `spherex_reduce.fields.FIELDS` ("geometry").
 
     def __post_init__(self):
-        set_ = object.__setattr__
-        set_(self, "nrows", _check_int("nrows", self.nrows, 1))
-        set_(self, "ncols", _check_int("ncols", self.ncols, 1))
-        set_(self, "nchannels", _check_int("nchannels", self.nchannels, 1, self.ncols))
+        maxima = {"nchannels": lambda: self.ncols,  # bounds that depend on checked fields
+                  "ref_border": lambda: max((min(self.nrows, self.ncols) - 1) // 2, 0)}
+        for f in section_fields("geometry"):
+            maximum = maxima[f.name]() if f.name in maxima else None
+            object.__setattr__(self, f.name, check_field(f, getattr(self, f.name), maximum))
         if self.ncols % self.nchannels:
             raise ValueError(
                 f"nchannels x channel width must equal ncols: ncols={self.ncols} is not a "
                 f"multiple of nchannels={self.nchannels}"
             )
-        limit = (min(self.nrows, self.ncols) - 1) // 2
-        set_(self, "ref_border", _check_int("ref_border", self.ref_border, 0, max(limit, 0)))
-        set_(self, "pixel_rate", _positive_finite("pixel_rate", self.pixel_rate, u.Hz))
         check_size(self.nchannels * 16.0, f"{self.nchannels} readout channels")
-        set_(self, "_directions", self._parse_scan(self.scan))
+        object.__setattr__(self, "_directions", self._parse_scan(self.scan))
 
     def _parse_scan(self, scan):
         if isinstance(scan, str):
@@ -186,15 +143,10 @@ class DetectorGeometry:
 
     def to_dict(self):
         """The constructor arguments, as plain Python values."""
-        scan = self.scan if isinstance(self.scan, str) else list(self.scan)
-        return {
-            "nrows": self.nrows,
-            "ncols": self.ncols,
-            "nchannels": self.nchannels,
-            "ref_border": self.ref_border,
-            "scan": scan,
-            "pixel_rate": self.pixel_rate,
-        }
+        values = {f.name: getattr(self, f.name) for f in section_fields("geometry")}
+        if not isinstance(self.scan, str):
+            values["scan"] = list(self.scan)
+        return values
 
     @classmethod
     def from_scan_label(cls, label, **kwargs):

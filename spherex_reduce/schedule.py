@@ -3,7 +3,8 @@
 :class:`ReadoutSchedule` is the single source of truth for read order and
 timing.  The simulator places noise with it, the reduction steps un-chop and
 find reference reads with it, and it round-trips through FITS (header keywords
-plus a ``READOUT`` table, cross-checked on read).
+plus a ``READOUT`` table, cross-checked on read); its parameters are the
+``readout`` fields of the one table `spherex_reduce.fields.FIELDS`.
 
 Timing model (all in samples of one channel at ``pixel_rate``): every row read
 takes ``phantom_reads + channel_width + row_overhead`` samples, the ``c``
@@ -15,7 +16,6 @@ lasts ``n_reads * row_samples + frame_overhead`` samples.
 
 import dataclasses
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from astropy import units as u
@@ -24,19 +24,19 @@ from astropy.table import Table
 
 from ._text import plural
 from .errors import FormatError
-from .geometry import DetectorGeometry, _check_int, _positive_finite
+from .fields import (
+    DEFAULT_FRAME_OVERHEAD,
+    FIELD,
+    FIELDS,
+    REF_MODES,
+    check_field,
+    section_fields,
+    table_dataclass,
+)
+from .geometry import DetectorGeometry
 from .limits import check_size
 
 __all__ = ["REF_MODES", "ReadoutSchedule", "chopped_order"]
-
-#: The reference read modes a schedule accepts (``ref_mode``).
-REF_MODES = ("none", "repeated", "distributed")
-
-#: Row and frame overheads (samples) that give the paper's 1.51 s frame for
-#: S = 24, r = 32, c = 4 on the SPHEREx array (Table 3):
-#: 2072 reads x (4 + 64 + 4) samples + 1816 samples = 151000 samples at 100 kHz.
-DEFAULT_ROW_OVERHEAD = 4
-DEFAULT_FRAME_OVERHEAD = 1816
 
 ACTIVE, REFERENCE = "active", "reference"
 
@@ -75,7 +75,7 @@ def chopped_order(n, skip):
     >>> chopped_order(16, 4).tolist()
     [0, 4, 8, 12, 1, 5, 9, 13, 2, 6, 10, 14, 3, 7, 11, 15]
     """
-    skip = _check_int("skip", skip, 1)
+    skip = check_field(FIELD["skip"], skip)
     return np.concatenate([np.arange(k, n, skip) for k in range(min(skip, n))] or [[]]).astype(
         int
     )
@@ -159,7 +159,7 @@ def _card_text(card):
     return str(getattr(card, "_image", "") or "")[10:].split("/")[0].strip()
 
 
-@dataclass(frozen=True, eq=False)
+@table_dataclass("readout", eq=False)
 class ReadoutSchedule:
     """Read order and sample times of every frame of an exposure.
 
@@ -206,14 +206,7 @@ class ReadoutSchedule:
     """
 
     geometry: DetectorGeometry = dataclasses.field(default_factory=DetectorGeometry)
-    skip: int = 24
-    ref_reads: int = 32
-    ref_mode: str = "distributed"
-    phantom_reads: int = 4
-    row_overhead: int = DEFAULT_ROW_OVERHEAD
-    frame_overhead: int | None = None
-    nframes: int = 74
-    frame_time: object = None
+    # Then the fields of `spherex_reduce.fields.FIELDS` (section "readout"), in its order.
 
     def __post_init__(self):
         set_ = object.__setattr__
@@ -221,13 +214,9 @@ class ReadoutSchedule:
             raise ValueError(
                 f"geometry must be a DetectorGeometry, got {type(self.geometry).__name__}"
             )
-        set_(self, "skip", _check_int("skip", self.skip, 1))
-        set_(self, "ref_reads", _check_int("ref_reads", self.ref_reads, 0))
-        if self.ref_mode not in REF_MODES:
-            raise ValueError(f"ref_mode must be one of {REF_MODES}, got {self.ref_mode!r}")
-        set_(self, "phantom_reads", _check_int("phantom_reads", self.phantom_reads, 0))
-        set_(self, "row_overhead", _check_int("row_overhead", self.row_overhead, 0))
-        set_(self, "nframes", _check_int("nframes", self.nframes, 1))
+        for f in section_fields("readout"):
+            if not f.nullable:  # frame_overhead, frame_time: see _set_frame_timing
+                set_(self, f.name, check_field(f, getattr(self, f.name)))
         if self.ref_mode != "none" and self.ref_reads > 0 and self.geometry.ref_border == 0:
             raise ValueError(
                 f"ref_reads={self.ref_reads} with ref_mode={self.ref_mode!r} needs reference "
@@ -250,14 +239,14 @@ class ReadoutSchedule:
         read_samples = self.n_reads * self.row_samples
         if self.frame_time is None:
             overhead = self.frame_overhead
-            if overhead is None:
-                overhead = DEFAULT_FRAME_OVERHEAD
-            overhead = _check_int("frame_overhead", overhead, 0, MAX_SAMPLES - 1 - read_samples)
+            overhead = DEFAULT_FRAME_OVERHEAD if overhead is None else overhead
+            limit = MAX_SAMPLES - 1 - read_samples
+            overhead = check_field(FIELD["frame_overhead"], overhead, limit)
             set_(self, "frame_overhead", overhead)
             set_(self, "frame_time", ((read_samples + overhead) / rate) * u.s)
             self._check_exposure()
             return
-        tframe = _positive_finite("frame_time", self.frame_time, u.s) * u.s
+        tframe = check_field(FIELD["frame_time"], self.frame_time) * u.s
         samples = tframe.to_value(u.s) * rate
         if samples >= MAX_SAMPLES:
             raise ValueError(f"frame_time={tframe} is {samples:.3g} samples at {rate:g} Hz, "
@@ -268,8 +257,8 @@ class ReadoutSchedule:
                 f"frame_time must be >= {read_samples / rate:.6g} s, the time to read "
                 f"{self.n_reads} rows of {self.row_samples} samples; got {tframe}"
             )
-        if self.frame_overhead is not None and _check_int(
-                "frame_overhead", self.frame_overhead, 0) != overhead:
+        if self.frame_overhead is not None and check_field(
+                FIELD["frame_overhead"], self.frame_overhead) != overhead:
             raise ValueError(
                 f"frame_time={tframe} implies frame_overhead={overhead} samples, but "
                 f"frame_overhead={self.frame_overhead} was also given: give only one"
@@ -404,16 +393,12 @@ class ReadoutSchedule:
 
     # -- parameters, tables, FITS ---------------------------------------------
     def to_dict(self):
-        """Readout parameters as plain values (the ``readout:`` YAML section)."""
-        return {
-            "skip": self.skip,
-            "ref_reads": self.ref_reads,
-            "ref_mode": self.ref_mode,
-            "phantom_reads": self.phantom_reads,
-            "row_overhead": self.row_overhead,
-            "frame_overhead": self.frame_overhead,
-            "nframes": self.nframes,
-        }
+        """Readout parameters as plain values (the ``readout:`` YAML section).
+
+        ``frame_time`` is left out: ``frame_overhead`` states it in samples.
+        """
+        return {f.name: getattr(self, f.name) for f in section_fields("readout")
+                if f.instead_of is None}
 
     def replace(self, **changes):
         """A copy with some parameters changed (``geometry`` too).
@@ -478,25 +463,15 @@ class ReadoutSchedule:
         """Write the readout keywords into ``header`` (a copy; a new one if None)."""
         h = fits.Header() if header is None else header.copy()
         g = self.geometry
-        cards = [
-            ("NFRAMES", self.nframes, "frames up the ramp N"),
-            ("TFRAME", self.frame_time.to_value(u.s), "[s] frame time"),
-            ("PIXRATE", g.pixel_rate, "[Hz] pixel rate per channel"),
-            ("NROWS", g.nrows, "array rows"),
-            ("NCOLS", g.ncols, "array columns"),
-            ("NCHAN", g.nchannels, "readout channels"),
-            ("CHANW", g.channel_width, "columns per channel"),
-            ("REFBORD", g.ref_border, "reference border width (pixels)"),
-            ("SCANDIR", g.scan_label, "fast-scan direction per channel"),
-            ("ROWSKIP", self.skip, "row-chopping skip S"),
-            ("NREFRD", self.ref_reads, "reference row reads per frame r"),
-            ("REFMODE", self.ref_mode, "reference read mode"),
-            ("NPHANT", self.phantom_reads, "phantom samples per row read c"),
-            ("ROWOVH", self.row_overhead, "[samples] overhead per row read"),
-            ("FRMOVH", self.frame_overhead, "[samples] overhead per frame"),
-        ]
-        for key, value, comment in cards:
-            h[key] = (value, comment)
+        for f in FIELDS:
+            value = getattr(g if f.section == "geometry" else self, f.name)
+            if f.name == "scan":
+                value = g.scan_label
+            elif isinstance(value, u.Quantity):
+                value = value.to_value(f.unit)
+            h[f.keyword] = (value, f.card_comment)
+            if f.name == "nchannels":  # derived, checked on read
+                h["CHANW"] = (g.channel_width, "columns per channel")
         return h
 
     @classmethod
@@ -521,37 +496,27 @@ class ReadoutSchedule:
             A keyword is missing and not supplied, invalid, or disagrees with
             the table; the message names it.
         """
-        keys = {  # YAML name -> (keyword, type, minimum; 0.0: must be > 0)
-            "nrows": ("NROWS", int, 1), "ncols": ("NCOLS", int, 1),
-            "nchannels": ("NCHAN", int, 1), "ref_border": ("REFBORD", int, 0),
-            "scan": ("SCANDIR", str, None), "pixel_rate": ("PIXRATE", float, 0.0),
-            "skip": ("ROWSKIP", int, 1), "ref_reads": ("NREFRD", int, 0),
-            "ref_mode": ("REFMODE", str, None), "phantom_reads": ("NPHANT", int, 0),
-            "row_overhead": ("ROWOVH", int, 0), "frame_overhead": ("FRMOVH", int, 0),
-            "nframes": ("NFRAMES", int, 1), "frame_time": ("TFRAME", float, 0.0),
-        }
-        unknown = set(supplied) - set(keys)
+        unknown = set(supplied) - set(FIELD)
         if unknown:
             raise FormatError(
-                f"unknown readout parameter(s) {sorted(unknown)}; valid: {sorted(keys)}"
+                f"unknown readout parameter(s) {sorted(unknown)}; valid: {sorted(FIELD)}"
             )
         values = {}
-        for name, (key, kind, minimum) in keys.items():
-            if key in header:
-                positive = isinstance(minimum, float)
-                values[name] = header_keyword(header, key, kind, minimum=None if positive
-                                              else minimum, positive=positive)
-            elif supplied.get(name) is not None:
-                values[name] = supplied[name]
+        for f in FIELDS:
+            if f.keyword in header:
+                values[f.name] = header_keyword(
+                    header, f.keyword, f.kind, positive=f.exclusive_minimum,
+                    minimum=None if f.exclusive_minimum else f.minimum)
+            elif supplied.get(f.name) is not None:
+                values[f.name] = supplied[f.name]
         # Everything that decides read order and timing is required: guessing the
         # SPHEREx defaults for a foreign file would un-chop it wrongly and silently.
-        required = ["nrows", "ncols", "nchannels", "ref_border", "pixel_rate", "nframes",
-                    "skip", "ref_mode", "phantom_reads"]
+        required = [f for f in FIELDS if f.required is True]
         if values.get("ref_mode", "none") != "none":
-            required.append("ref_reads")
-        missing = [keys[n][0] for n in required if n not in values]
-        if "frame_time" not in values and "frame_overhead" not in values:
-            missing.append("TFRAME (or FRMOVH)")
+            required.append(FIELD["ref_reads"])
+        missing = [f.keyword for f in required if f.name not in values]
+        missing += [f"{f.keyword} (or {FIELD[f.instead_of].keyword})" for f in FIELDS
+                    if f.instead_of and f.name not in values and f.instead_of not in values]
         if missing:
             raise FormatError(
                 f"missing readout keyword(s) {', '.join(missing)}: the file does not say how it "
@@ -559,27 +524,26 @@ class ReadoutSchedule:
             )
         _check_schedule_size(*(values.get(n, 0) for n in ("nrows", "ncols", "nchannels",
                                                           "ref_reads", "ref_border")))
-        geo_names = ["nrows", "ncols", "nchannels", "ref_border", "pixel_rate"]
-        gkw = {n: values[n] for n in geo_names if n in values}
+        gkw = {f.name: values[f.name] for f in section_fields("geometry")
+               if f.name in values and f.name != "scan"}
+        rkw = {f.name: values[f.name] for f in section_fields("readout")
+               if f.name in values and not f.instead_of}
+        if "frame_overhead" not in values:
+            rkw["frame_time"] = values["frame_time"]
         try:
             geometry = DetectorGeometry.from_scan_label(values.get("scan", "same"), **gkw)
-            rkw = {n: values[n] for n in ["skip", "ref_reads", "ref_mode", "phantom_reads",
-                                          "row_overhead", "nframes"] if n in values}
-            if "frame_overhead" in values:
-                sched = cls(geometry, frame_overhead=values["frame_overhead"], **rkw)
-            else:
-                sched = cls(geometry, frame_time=values["frame_time"], **rkw)
+            sched = cls(geometry, **rkw)
         except ValueError as exc:
             raise FormatError(f"readout keywords describe an invalid schedule: {exc}") from exc
         if table is not None:  # first: it names the read-order keyword at fault
             sched.check_table(table)
-        if "frame_time" in values and "frame_overhead" in values:
-            if not np.isclose(values["frame_time"], sched.frame_time.to_value(u.s), rtol=1e-9,
-                              atol=0.5 / geometry.pixel_rate):
-                raise FormatError(
-                    f"keyword TFRAME={values['frame_time']} disagrees with the frame time "
-                    f"{sched.frame_time.to_value(u.s)} s implied by FRMOVH and the read order"
-                )
+        if "frame_time" in values and "frame_overhead" in values and not np.isclose(
+                values["frame_time"], sched.frame_time.to_value(u.s), rtol=1e-9,
+                atol=0.5 / geometry.pixel_rate):
+            raise FormatError(
+                f"keyword TFRAME={values['frame_time']} disagrees with the frame time "
+                f"{sched.frame_time.to_value(u.s)} s implied by FRMOVH and the read order"
+            )
         if ("CHANW" in header
                 and header_keyword(header, "CHANW", int, 1) != geometry.channel_width):
             raise FormatError(

@@ -1,42 +1,37 @@
 """``spherex-reduce readout``: build, print, save and draw a readout schedule."""
 
-from ..config import GEOMETRY_PARAMETERS, READOUT_PARAMETERS, load_yaml, schedule_from_config
+from ..config import load_yaml, schedule_from_config
+from ..fields import FIELDS
 from ..io import atomic_output
-from ..schedule import DEFAULT_FRAME_OVERHEAD
-from ._common import all_or_nothing, check_paths, count, positive_float
-
-OPTIONS = [  # (flag, YAML section, key, type); counts bounded by what a schedule can hold
-    ("--nrows", "geometry", "nrows", count(2**16)), ("--ncols", "geometry", "ncols", count(2**16)),
-    ("--nchannels", "geometry", "nchannels", count(2**12)),
-    ("--ref-border", "geometry", "ref_border", count(2**10, minimum=0)),
-    ("--scan", "geometry", "scan", str), ("--pixel-rate", "geometry", "pixel_rate", positive_float),
-    ("--skip", "readout", "skip", count(2**16)),
-    ("--ref-reads", "readout", "ref_reads", count(2**16, minimum=0)),
-    ("--ref-mode", "readout", "ref_mode", str),
-    ("--phantom-reads", "readout", "phantom_reads", count(2**12, minimum=0)),
-    ("--row-overhead", "readout", "row_overhead", count(2**20, minimum=0)),
-    ("--frame-overhead", "readout", "frame_overhead", count(2**30, minimum=0)),
-    ("--nframes", "readout", "nframes", count(2**20)),
-    ("--frame-time", "readout", "frame_time", positive_float),
-]
+from ._common import all_or_nothing, check_paths, count, finite_float, positive_float
 
 
-#: What a default of None means, for the help.
-_NONE_DEFAULT = {
-    "frame_overhead": f"{DEFAULT_FRAME_OVERHEAD}, the paper's 1.51 s frame; unless "
-                      "--frame-time is given",
-    "frame_time": "from --frame-overhead",
-}
+def _flag(field):
+    return "--" + field.name.replace("_", "-")
 
 
-def _option_help(key):
-    """Help of one option from its YAML parameter declaration: meaning, choices, default."""
-    param = {p.name: p for p in (*GEOMETRY_PARAMETERS, *READOUT_PARAMETERS)}[key]
-    text = param.doc
-    if param.choices:
-        text += f": {', '.join(param.choices)}"
-    default = _NONE_DEFAULT.get(key) if param.default is None else f"{param.default:g}" \
-        if isinstance(param.default, float) else param.default
+def _option_type(field):
+    """The argparse type of a field: its bounds (counts up to ``cli_max``)."""
+    if field.kind is int:
+        return count(field.cli_max, minimum=field.minimum)
+    if field.kind is float:  # the YAML check that follows applies any other bound
+        return positive_float if field.exclusive_minimum and field.minimum == 0 else finite_float
+    return str
+
+
+#: One option per field of the table: (flag, YAML section, key, type).
+OPTIONS = [(_flag(f), f.section, f.name, _option_type(f)) for f in FIELDS]
+
+
+def _option_help(field):
+    """Help of one option from its field: meaning, choices, default."""
+    text = field.doc
+    if field.choices:
+        text += f": {', '.join(field.choices)}"
+    if field.default is None:
+        default = field.none_means.format(**{f.name: _flag(f) for f in FIELDS})
+    else:
+        default = f"{field.default:g}" if isinstance(field.default, float) else field.default
     return f"{text} (default: {default})".replace("%", "%%")
 
 
@@ -49,8 +44,8 @@ def add_parser(sub):
     p.add_argument("--config", metavar="YAML",
                    help="scene or pipeline YAML file whose geometry: and readout: sections "
                    "give the starting values")
-    for flag, _, key, typ in OPTIONS:
-        p.add_argument(flag, dest=key, type=typ, default=None, help=_option_help(key))
+    for field, (flag, _, key, typ) in zip(FIELDS, OPTIONS, strict=True):
+        p.add_argument(flag, dest=key, type=typ, default=None, help=_option_help(field))
     p.add_argument("-o", "--output", metavar="SCHEDULE.ecsv",
                    help="write the schedule table (ECSV: read row kind start time)")
     p.add_argument("--plot", metavar="PNG", help="draw the read order to this PNG")

@@ -10,6 +10,7 @@ from astropy.io import fits
 from ..errors import ConfigError
 from ..exposure import Exposure
 from ..io import atomic_output, write, write_frames
+from ..plugins import get_registry
 from ..step import Simulator
 from .engine import NoiseEngine
 from .scene import load_scene
@@ -112,8 +113,6 @@ def simulate(scene=None, *, mode=None, seed=None, registry=None):
     if name == "spherex" and registry is None:
         return _simulate(sc, mode=mode, seed=seed)
     if registry is None:
-        from ..plugins import get_registry
-
         registry = get_registry()
     return registry.simulator(name)().simulate(sc, mode=mode, seed=seed)
 

@@ -316,10 +316,15 @@ def execute(source, kernels, consumer=None, *, threads=None, rows_per_band=None,
         with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-band") as pool:
             futures = [pool.submit(lambda lo=lo, hi=hi: run(read(lo, hi)))
                        for lo, hi in cuts]
-            for (lo, hi), future in zip(cuts, futures, strict=True):
-                future.result()
-                if progress is not None:
-                    progress(hi - lo)
+            try:
+                for (lo, hi), future in zip(cuts, futures, strict=True):
+                    future.result()
+                    if progress is not None:
+                        progress(hi - lo)
+            except BaseException:  # a band failed (or Ctrl-C): the others are not started
+                for future in futures:
+                    future.cancel()
+                raise
     for i, (kernel, c) in enumerate(zip(kernels, coefficients, strict=True)):
         extra = kernel.extra_rows(c)
         if extra is not None:

@@ -5,6 +5,8 @@ import types
 
 import numpy as np
 import pytest
+from _one_by_one import one_by_one
+from astropy.table import Table
 
 import spherex_reduce
 from spherex_reduce import ConfigError, Exposure, Pipeline, PluginError, Step, StepSkipped, unchop
@@ -12,6 +14,7 @@ from spherex_reduce.examples import example_raw_exposure
 from spherex_reduce.hookspecs import hookimpl
 from spherex_reduce.parameters import Parameter
 from spherex_reduce.plugins import Registry, get_plugin_manager
+from spherex_reduce.step import Consumer, Kernel, Record
 
 
 @pytest.fixture
@@ -257,46 +260,53 @@ def test_input_exposure_is_not_mutated(raw):
     assert raw.header == header and isinstance(raw, Exposure)
 
 
-class FrameSum(Step):
-    """Toy accumulating step: the sum of the frames (a stand-in for fit_ramp)."""
+class _SumConsumer(Consumer):
+    """Toy consumer: the sum of the frames (a stand-in for fit_ramp), band by band."""
 
+    def __init__(self, context):
+        self.context = context
+        n = (context.schedule.n_reads if context.order == "readout"
+             else context.geometry.nrows)
+        self.total = np.full((n, context.geometry.ncols), np.nan)
+        self.bands = []
+
+    def band(self, block):
+        self.bands.append(len(block.index))
+        self.total[block.index] = block.data.sum(axis=0, dtype=np.float64)
+
+    def finish(self, reference, header, tables):
+        c = self.context
+        return Exposure.from_arrays(self.total, c.schedule, order=c.order, header=header,
+                                    tables=tables)
+
+
+class FrameSum(Step):
     name, keyword = "framesum", "S_FSUM"
 
-    def run(self, exposure):
-        total = exposure.data.data.sum(axis=0, dtype=np.float64)
-        return Exposure.from_arrays(total, exposure.schedule, order=exposure.order,
-                                    header=exposure.header, tables=exposure.tables)
-
-    def accumulator(self, schedule, header):
-        return _SumAccumulator()
+    def consumer(self, context):
+        if not context.ramp:
+            raise StepSkipped("not ramps")
+        return _SumConsumer(context)
 
 
-class _SumAccumulator:
-    def __init__(self):
-        self.total, self.seen = None, []
+class _NoteKernel(Kernel):
+    """Toy kernel: minus each frame's mean reference read; the means in a table."""
 
-    def add(self, index, frame):
-        self.seen.append(index)
-        self.total = frame.data.data[0].astype(np.float64) + (0 if self.total is None
-                                                              else self.total)
-        self.schedule, self.order, self.header = frame.schedule, frame.order, frame.header
+    def prepare(self, side):
+        return side.data.mean(axis=(1, 2), dtype=np.float64)
 
-    def finish(self):
-        return Exposure.from_arrays(self.total, self.schedule, order=self.order,
-                                    header=self.header)
+    def apply(self, means, block):
+        return block.replace(data=block.data - means[:, None, None], owned=True)
+
+    def record(self, means):
+        return Record({"NOTE": Table({"frame": np.arange(means.size), "mean": means})})
 
 
 class PerFrameNote(Step):
-    """Toy per-frame step that records a table, like correct_reference does."""
+    name, keyword = "note", "S_NOTE"
 
-    name, keyword, per_frame = "note", "S_NOTE", True
-
-    def run(self, exposure):
-        from astropy.table import Table
-
-        means = np.atleast_1d(exposure.data.data.mean(axis=(-2, -1)))
-        return exposure.replace(data=exposure.data.data - 1.0, tables={
-            **exposure.tables, "NOTE": Table({"frame": np.arange(means.size), "mean": means})})
+    def kernel(self, context):
+        return _NoteKernel(context)
 
 
 class ToyPlugin:
@@ -305,86 +315,101 @@ class ToyPlugin:
         return [FrameSum, PerFrameNote]
 
 
-def test_streamed_run_equals_in_memory_run(tmp_path, raw):
-    path = write_raw(tmp_path, raw)
-    registry = registry_with(ToyPlugin())
-    pipe = Pipeline({"steps": ["unchop", "note", "framesum"]}, registry=registry)
-    in_memory = pipe.run(raw, stream=False)
-    for source in (raw, path):
-        streamed = pipe.run(source)
-        np.testing.assert_allclose(streamed.data.data, in_memory.data.data, rtol=1e-12)
-        assert streamed.order == "physical" and streamed.data.data.ndim == 2
-        for key in ("S_UNCHOP", "S_NOTE", "S_FSUM"):
-            assert streamed.header[key] == in_memory.header[key] == "COMPLETE"
-        note, expected = streamed.tables["NOTE"], in_memory.tables["NOTE"]
-        assert note["frame"].tolist() == expected["frame"].tolist() == list(range(4))
-        np.testing.assert_allclose(note["mean"], expected["mean"], rtol=1e-12)
-
-
 def write_raw(tmp_path, raw):
     from spherex_reduce import write
 
     return write(raw, tmp_path / "raw.fits")
 
 
-def test_streaming_reads_one_frame_at_a_time(tmp_path, raw, monkeypatch):
-    from spherex_reduce.io import frames as fits_format
+def test_a_plugin_kernel_and_consumer_stream_like_the_steps_called_one_by_one(tmp_path, raw):
+    path = write_raw(tmp_path, raw)
+    registry = registry_with(ToyPlugin())
+    pipe = Pipeline({"steps": ["unchop", "note", "framesum"]}, registry=registry)
+    s = raw.schedule
+    # independently: the reference reads' mean of each frame, off the un-chopped pixels
+    means = raw.data.data[:, s.reference_read_indices].mean(axis=(1, 2), dtype=np.float64)
+    expected = (unchop(raw).data.data - means[:, None, None]).sum(axis=0)
+    by_hand = one_by_one(pipe, raw)
+    for source in (raw, path):
+        out = pipe.run(source, threads=3)
+        np.testing.assert_allclose(out.data.data, expected, rtol=1e-12)
+        np.testing.assert_array_equal(out.data.data, by_hand.data.data)
+        assert out.order == "physical" and out.data.data.ndim == 2
+        for key in ("S_UNCHOP", "S_NOTE", "S_FSUM"):
+            assert out.header[key] == by_hand.header[key] == "COMPLETE"
+        np.testing.assert_allclose(out.tables["NOTE"]["mean"], means, rtol=1e-12)
+        routes = out.tables["PROVENANCE"]["route"].tolist()
+        assert all("pass of 3 step(s)" in r for r in routes)
+
+
+def test_a_file_is_read_once_in_bands_of_reads_never_whole_frames(tmp_path, raw, monkeypatch):
+    from spherex_reduce.executor import FileSource
+    from spherex_reduce.io import FrameReader
 
     path = write_raw(tmp_path, raw)
-    asked = []
-    original = fits_format.FrameReader.frame
-
-    def spy(self, k):
-        asked.append(k)
-        return original(self, k)
-
-    monkeypatch.setattr(fits_format.FrameReader, "frame", spy)
-    Pipeline({"steps": ["unchop", "framesum"]}, registry=registry_with(ToyPlugin())).run(path)
-    assert asked == list(range(raw.schedule.nframes))
-
-
-class _FailingAccumulator(_SumAccumulator):
-    def add(self, index, frame):
-        if index == 2:
-            raise RuntimeError("accumulator broke on frame 2")
-        super().add(index, frame)
+    asked, frames = [], []
+    original = FileSource.read
+    monkeypatch.setattr(FileSource, "read", lambda self, lo, hi: (asked.append((lo, hi)),
+                                                                  original(self, lo, hi))[1])
+    monkeypatch.setattr(FrameReader, "frame", lambda self, k: frames.append(k))
+    with patch_band_rows(monkeypatch, 5):
+        Pipeline({"steps": ["unchop", "framesum"]}, registry=registry_with(ToyPlugin())).run(
+            path, threads=2)
+    covered = sorted(r for lo, hi in asked for r in range(lo, hi))
+    assert covered == list(range(raw.schedule.n_reads))  # every read once
+    assert max(hi - lo for lo, hi in asked) == 5 and frames == []
 
 
-class FailingSum(FrameSum):
-    name, keyword = "failsum", "S_FAILS"
+class patch_band_rows:
+    """Bands of ``rows`` rows in the executor (small files would otherwise be one band)."""
 
-    def accumulator(self, schedule, header):
-        return _FailingAccumulator()
+    def __init__(self, monkeypatch, rows):
+        from spherex_reduce import executor
+
+        self.monkeypatch, self.executor, self.rows = monkeypatch, executor, rows
+
+    def __enter__(self):
+        ncols = 16
+        self.monkeypatch.setattr(self.executor, "BAND_PIXELS", self.rows * ncols)
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
+class _BrokenKernel(_NoteKernel):
+    def apply(self, means, block):
+        if block.index[0] > 10:
+            raise RuntimeError("kernel broke on a band")
+        return super().apply(means, block)
 
 
 class FailingNote(PerFrameNote):
     name, keyword = "failnote", "S_FAILN"
 
-    def run(self, exposure):
-        raise RuntimeError("per-frame step broke")
+    def kernel(self, context):
+        return _BrokenKernel(context)
 
 
 class FailingPlugin:
     @hookimpl
     def register_steps(self):
-        return [FrameSum, FailingSum, FailingNote]
+        return [FrameSum, FailingNote]
 
 
-def _accumulating_threads():
+def _band_threads():
     import threading
 
-    return [t for t in threading.enumerate() if t.name == "spherex-reduce-accumulate"]
+    return [t for t in threading.enumerate() if t.name.startswith("spherex-reduce-band")]
 
 
-@pytest.mark.parametrize("steps, message", [
-    (["unchop", "failsum"], "accumulator broke on frame 2"),
-    (["unchop", "failnote", "framesum"], "per-frame step broke"),
-])
-def test_streaming_errors_reach_the_caller_and_leave_no_thread(raw, steps, message):
-    # the accumulator runs in a thread of its own; its errors and the steps' errors
-    # must still stop the run, in the caller, without leaving that thread behind
-    pipe = Pipeline({"steps": steps}, registry=registry_with(FailingPlugin()))
-    with pytest.raises(PluginError, match=message) as info:  # a plugin's failure, named
-        pipe.run(raw)
+@pytest.mark.parametrize("threads", [1, 3])
+def test_a_kernel_error_in_a_band_reaches_the_caller_and_leaves_no_thread(raw, monkeypatch,
+                                                                          threads):
+    pipe = Pipeline({"steps": ["unchop", "failnote", "framesum"]},
+                    registry=registry_with(FailingPlugin()))
+    with patch_band_rows(monkeypatch, 4), pytest.raises(PluginError,
+                                                        match="kernel broke") as info:
+        pipe.run(raw, threads=threads)
     assert isinstance(info.value.__cause__, RuntimeError)
-    assert _accumulating_threads() == []
+    assert _band_threads() == []

@@ -6,12 +6,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _one_by_one import one_by_one
 
 from spherex_reduce import Pipeline, unchop, write
 from spherex_reduce.examples import example_raw_exposure
 from spherex_reduce.plugins import Registry, get_plugin_manager
-
-from _one_by_one import one_by_one
 
 EXAMPLE = Path(__file__).parents[1] / "docs" / "examples" / "reference_median.py"
 

@@ -287,8 +287,11 @@ class Step:
         return sorted(self.builtin_strategies)
 
     def strategy(self, name):
-        """The strategy class ``name`` of this step's kind; `~spherex_reduce.errors.
-        UnknownNameError` (a `KeyError`) lists the valid names."""
+        """The strategy class ``name`` of this step's kind.
+
+        Raises `~spherex_reduce.errors.UnknownNameError` (a `KeyError`) listing
+        the valid names.
+        """
         if self.registry is not None:
             return self.registry.strategy(self.strategy_kind, name)
         try:

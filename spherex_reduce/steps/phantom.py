@@ -33,9 +33,10 @@ def subtract_phantom(exposure):
 
     Notes
     -----
-    When there is nothing to do (the exposure has no phantom values (``c = 0``, or already subtracted)) the step is
-    skipped, stpipe style: the input comes back unchanged, with the status
-    keyword set to ``SKIPPED`` and the reason in HISTORY and ``PROVENANCE``.
+    When the exposure has no phantom values (``c = 0``, or already
+    subtracted) the step is skipped, stpipe style: the input comes back
+    unchanged, with the status keyword set to ``SKIPPED`` and the reason in
+    HISTORY and ``PROVENANCE``.
 
     Examples
     --------

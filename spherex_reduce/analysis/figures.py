@@ -19,6 +19,7 @@ from astropy.table import Table
 
 from .._text import plural
 from ..errors import SpherexReduceError
+from ..io import atomic_output
 from ..simulation import expected_slope_variance, load_scene
 from .case import SpectrumMeasure, run_case
 from .photon_noise import photon_noise_label, photon_noise_power
@@ -536,8 +537,6 @@ def _make_figures(outdir, quick, s, scheduler, workers, overwrite, progress, log
                    "point: the numbers are noisy and the band holds few modes; run without "
                    "`--quick` for the paper's sizes."]
     rep.md += ["", f"Run time {time.perf_counter() - t_start:.0f} s.", ""]
-    from ..io import atomic_output
-
     table = Table(rows=rep.numbers) if rep.numbers else Table()
     table.meta["settings"] = json.loads(json.dumps(s.__dict__, default=list))
     with atomic_output(outdir / "figures.ecsv", overwrite) as tmp:

@@ -8,6 +8,9 @@ from astropy.io import fits
 from astropy.nddata import CCDData
 
 from ..errors import FormatError, SpherexReduceError
+from ..io import open_checked
+from ..limits import check_size
+from ..steps import unchop
 
 __all__ = ["read_image"]
 
@@ -41,8 +44,6 @@ def read_image(path, ext=None):
         `~spherex_reduce.io.checksum_policy`), in this package's
         format but inconsistent, or has no 2-D image.
     """
-    from ..io import open_checked
-
     path = Path(path)
     with open_checked(path) as f:  # truncation, checksums, unreadable cards
         if "READOUT" not in f.hdul and "ROWSKIP" not in f.hdul[0].header:
@@ -55,8 +56,6 @@ def read_image(path, ext=None):
             "with a pipeline that ends in fit_ramp) to get an image"
         )
     if exposure.order == "readout":
-        from ..steps import unchop
-
         exposure = unchop(exposure)
     ccd = exposure.to_ccddata()
     ccd.meta["SCHEDULE"] = exposure.schedule.summary()[:68]
@@ -67,8 +66,6 @@ def read_image(path, ext=None):
 
 def _foreign_image(f, path, ext):
     """The 2-D image of a FITS file not in this package's format (``f``: `open_checked`)."""
-    from ..limits import check_size
-
     hdul = f.hdul
 
     try:

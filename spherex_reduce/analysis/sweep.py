@@ -40,6 +40,7 @@ from astropy.table import Table
 
 from ..config import READOUT_PARAMETERS, load_yaml
 from ..errors import ConfigError
+from ..io import atomic_output
 from ..limits import check_count
 from ..simulation import load_scene
 from .case import SpectrumMeasure, run_case
@@ -341,8 +342,6 @@ def run_sweep(sweep, output=None, *, scheduler=None, workers=None, overwrite=Fal
         (``{"cell": ..., "error": ...}``), which are not written as rows, so a
         re-run tries them again.
     """
-    from ..io import atomic_output
-
     sw = sweep if isinstance(sweep, Sweep) else load_sweep(sweep)
     keys = sw.keys
     existing = None

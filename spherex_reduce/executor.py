@@ -16,9 +16,10 @@ of its step, and ``fit_ramp`` is a `~spherex_reduce.step.Consumer` of bands.
    ``threads`` threads;
 3. the kernels' ``record`` gives the tables and header cards.
 
-A step run alone (``Step.run``) is `execute` on the whole exposure as one
-band, so the numbers of a streamed reduction and of the steps run one by one
-agree bit for bit: each pixel's arithmetic does not depend on the band.
+A step run alone (``Step.run``) is `execute` on the exposure in memory
+(`MemorySource`), so the numbers of a streamed reduction and of the steps run
+one by one agree bit for bit: each pixel's arithmetic does not depend on the
+band that holds it.
 
 It sits at the bottom of the steps layer (it imports no step) so that the
 steps can run themselves through it.

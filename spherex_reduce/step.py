@@ -50,8 +50,10 @@ class Kernel:
        order and from several threads at once;
     4. ``kernel.record(coefficients)``: tables and header cards.
 
-    Running the step on a whole exposure is the same with one band, so a
-    streamed reduction and an in-memory one give the same numbers bit for bit.
+    A step run alone goes through the same executor (on the exposure in
+    memory), and each pixel's arithmetic does not depend on which band holds
+    it, so a streamed reduction and the steps called one by one give the same
+    numbers bit for bit.
 
     A kernel is configured when it is made (the step's parameters and the
     input's `~spherex_reduce.block.Context`) and keeps no state between

@@ -136,7 +136,7 @@ class FileSource:
     ----------
     reader : `~spherex_reduce.io.FrameReader`
         An open reader of a file whose pixels are stored as they are
-        (floating point, not scaled, not compressed: ``reader.fusable()``).
+        (floating point, not scaled, not compressed: ``reader.readable_in_bands()``).
     """
 
     def __init__(self, reader):
@@ -153,7 +153,7 @@ class FileSource:
     @staticmethod
     def usable(reader):
         """Whether a reader's file can be read in bands (else: read it whole)."""
-        return reader.fusable()
+        return reader.readable_in_bands()
 
     def bytes_per_row(self):
         return self.context.schedule.nframes * self.context.geometry.ncols * self._dtype.itemsize
@@ -248,8 +248,8 @@ def execute(source, kernels, consumer=None, *, threads=None, rows_per_band=None,
     threads : int, optional
         Bands corrected at once (default `default_threads`).
     rows_per_band : int, optional
-        Rows of every frame per band (default: about `BAND_PIXELS` pixels of
-        every frame; the whole input when it is in memory and small).
+        Rows of every frame per band (default: `BAND_PIXELS` pixels of every
+        frame, in memory as from a file).
     progress : callable, optional
         Called with the number of rows done after each band.
     timings : dict, optional

@@ -300,7 +300,11 @@ class Pipeline:
             if not isinstance(current, Exposure):
                 current = (source.exposure if isinstance(source, MemorySource)
                            else self.read(current))
-            return j, self._record_pass(current, steps, members, skipped, {}, status, "")
+            for k in members:
+                self.registry.pm.hook.before_step(step=steps[k][2], exposure=current,
+                                                  params=steps[k][1])
+            return j, self._record_pass(current, steps, members, skipped, {}, status, "",
+                                        current)
         hook = self.registry.pm.hook
         before = current if isinstance(current, Exposure) else None
         for k in members:

@@ -117,6 +117,7 @@ def record_step(step, result, params, status, reason, elapsed, route, inputs=Non
     row = {"step": step.name, "status": status, "parameters": text,
            "inputs": json.dumps(inputs or {}, default=str, sort_keys=True),
            "versions": json.dumps(_version_of(type(step).__module__), sort_keys=True),
-           "elapsed": float(elapsed), "route": route if status == "COMPLETE" else "skipped"}
+           "elapsed": float(elapsed),
+           "route": route if status == "COMPLETE" else f"skipped: {reason}"}
     rows = [*provenance_rows(result.tables), row]
     return result.replace(header=header, tables={**result.tables, "PROVENANCE": _table(rows)})

@@ -112,14 +112,14 @@ class Consumer:
         """Take one band (a `~spherex_reduce.block.Block`)."""
         raise NotImplementedError
 
-    def finish(self, side, header, tables):
+    def finish(self, reference, header, tables):
         """The result `~spherex_reduce.Exposure`.
 
-        ``side`` is the side block as the kernels before this step leave it
-        (the reference reads, reduced the same way when in readout order, or
-        None); ``header`` and ``tables`` those of the input after those kernels.
-        The consumer knows the schedule from the `~spherex_reduce.block.Context`
-        it was made with.
+        ``reference`` is the `~spherex_reduce.ReferenceReads` kept aside after
+        the kernels before this step (corrected like the pixels), or None;
+        ``header`` and ``tables`` those of the input after those kernels.  The
+        consumer knows the schedule from the `~spherex_reduce.block.Context` it
+        was made with.
         """
         raise NotImplementedError
 

@@ -1,6 +1,7 @@
 """Shipped configs end to end: FITS file in, same numbers as the functions by hand."""
 
 import importlib.metadata
+import json
 
 import numpy as np
 import pytest
@@ -107,6 +108,11 @@ def test_measured_dark_pair_reduces_the_other_exposure_the_same_way(tmp_path):
     ref = sigma_clip(correct_reference(pair_difference(slopes(a), slopes(b)), "mean"))
     np.testing.assert_allclose(out.data.data, ref.data.data, rtol=1e-5, atol=1e-4)
     assert out.header["S_PAIRDF"] == "COMPLETE" and out.header["PAIRDIFF"]
+    # the provenance of the first exposure goes on through the difference
+    prov = out.tables["PROVENANCE"]
+    assert prov["step"].tolist() == [name for name, _ in Pipeline(config).steps]
+    assert json.loads(prov["inputs"][3]) == {"other": str(pb)}
+    assert out.header["PAIROTHR"] == str(pb)[-68:]
 
 
 def test_subtract_dark_step(tmp_path):

@@ -117,6 +117,8 @@ def test_already_physical_is_skipped(small_schedule):
     assert again.header["S_UNCHOP"] == "SKIPPED"
     assert any("already in physical order" in str(h) for h in again.header["HISTORY"])
     assert again.tables["PROVENANCE"]["status"].tolist() == ["COMPLETE", "SKIPPED"]
+    assert again.tables["PROVENANCE"]["route"][1] == (
+        "skipped: the exposure is already in physical order")
     np.testing.assert_array_equal(again.data.data, out.data.data)
     with pytest.raises(StepSkipped, match="already in physical order"):
         UnchopStep().run(out)  # the step's own run says why

@@ -17,10 +17,12 @@ __all__ = ["FrameReader"]
 
 
 class FrameReader:
-    """Read a raw ramp file one frame at a time, without mapping the whole file.
+    """Read a raw ramp file by reads of every frame (or by frames), never all of it at once.
 
-    Used by `~spherex_reduce.Pipeline` to reduce ramps frame by frame in
-    memory near one frame.  Use as a context manager.
+    The executor (`spherex_reduce.executor.FileSource`) reads bands of rows of
+    every frame with `reads` (``pread``), so a `~spherex_reduce.Pipeline`
+    reduces a file in memory near the output plus a few bands.  Use as a
+    context manager.
 
     Parameters
     ----------
@@ -107,37 +109,18 @@ class FrameReader:
         """Whether the file has phantom values."""
         return self._phantom is not None
 
-    def fusable(self):
-        """Whether `raw` gives floating-point pixels and phantom values (what the fused
-        path needs)."""
+    def readable_in_bands(self):
+        """Whether `reads` serves this file: pixels stored as floating point, neither
+        scaled nor compressed (other files are read whole)."""
         dtype = self._map[2] if self._map is not None else None
         return (dtype is not None and dtype.kind == "f" and self._scale is None
                 and (self._phantom is None or self._phantom.dtype.kind == "f"))
-
-    def raw(self, k):
-        """Frame ``k`` as it is in the file, without copying it.
-
-        Returns ``(pixels, phantom, release)``: pixels ``(reads, columns)``,
-        possibly big-endian and read-only (a view of the memory-mapped file);
-        phantom values ``(reads, channels)`` or None; and ``release()``, to
-        call once the pixels have been used (frees the file's pages in this
-        process).  The pixels are stored values: `fusable` says whether they
-        are the physical values (floating point, not scaled).
-        """
-        mm, offset, dtype, _ = self._map
-        shape = self._d["shape"][1:]
-        count = int(np.prod(shape))
-        start = offset + k * count * dtype.itemsize
-        view = np.frombuffer(mm, dtype=dtype, count=count, offset=start).reshape(shape)
-        phantom = None if self._phantom is None else self._phantom[k]
-        return view, phantom, lambda: self._release(start, count * dtype.itemsize)
 
     def reads(self, k, first, stop):
         """Reads ``first:stop`` of frame ``k`` as they are in the file (a copy).
 
         Read with ``pread``: no page of the memory map is touched, and several
-        threads may read at once.  Only for files whose data are not scaled
-        (`fusable`).
+        threads may read at once.  Only for files `readable_in_bands`.
 
         Returns
         -------
@@ -177,13 +160,17 @@ class FrameReader:
         The file's pages are then released from this process (``MADV_DONTNEED``):
         they stay in the page cache, but the resident memory stays near one frame.
         """
-        view, _, release = self.raw(k)
+        mm, offset, dtype, _ = self._map
+        shape = self._d["shape"][1:]
+        count = int(np.prod(shape))
+        start = offset + k * count * dtype.itemsize
+        view = np.frombuffer(mm, dtype=dtype, count=count, offset=start).reshape(shape)
         if self._scale is None:
             data = view.astype(view.dtype.newbyteorder("="))
         else:  # BZERO + BSCALE * stored, in floating point
             data = _to_physical(view, self._scale, _FLOAT_FOR[self._d["sci"].header["BITPIX"]])
         del view
-        release()
+        self._release(start, count * dtype.itemsize)
         return data[None]
 
 

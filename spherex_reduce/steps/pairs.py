@@ -103,7 +103,13 @@ def _pair_difference(a, b):
     header = a.header.copy()
     header["PAIRDIFF"] = (True, "pair difference (a - b)/sqrt(2)")
     return a.replace(data=data, uncertainty=unc, dq=flags, phantom=phantom,
-                     reference=reference, tables={}, header=header)
+                     reference=reference, tables=_provenance_only(a.tables), header=header)
+
+
+def _provenance_only(tables):
+    """The tables a difference keeps: the provenance of ``a`` (the others, e.g. ``REFOFFS``,
+    describe one exposure of the pair, not the difference)."""
+    return {name: t for name, t in tables.items() if name == "PROVENANCE"}
 
 
 class PairDifferenceStep(Step):

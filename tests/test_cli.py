@@ -87,6 +87,29 @@ def test_reduce_and_show_config(tmp_path, capsys, small_schedule):
     assert "unchop" in capsys.readouterr().out.split()
 
 
+@pytest.mark.parametrize("threads", ["1", "3"])
+def test_reduce_threads_give_the_same_numbers(tmp_path, capsys, small_schedule, threads,
+                                              monkeypatch):
+    from spherex_reduce import executor
+
+    monkeypatch.setattr(executor, "BAND_PIXELS", 4 * 16)  # several bands of 4 rows
+    raw = example_raw_exposure(small_schedule, seed=7)
+    write(raw, tmp_path / "raw.fits")
+    out = tmp_path / f"out{threads}.fits"
+    assert run("reduce", tmp_path / "raw.fits", "-c", "spherex-default", "-o", out,
+               "--threads", threads) == 0
+    reduced = read(out)
+    by_hand = spherex_reduce.sigma_clip(spherex_reduce.fit_ramp(
+        spherex_reduce.correct_reference(spherex_reduce.subtract_phantom(
+            spherex_reduce.unchop(raw)))))
+    np.testing.assert_array_equal(reduced.data.data, by_hand.data.data)
+    assert f"on {threads} thread(s)" in reduced.tables["PROVENANCE"]["route"][0]
+    capsys.readouterr()
+    assert run("reduce", tmp_path / "raw.fits", "-c", "spherex-default", "-o",
+               tmp_path / "x.fits", "--threads", "0") == 2
+    assert "--threads" in capsys.readouterr().err
+
+
 def test_plugins_lists_providers(capsys):
     assert run("plugins") == 0
     out = capsys.readouterr().out

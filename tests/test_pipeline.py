@@ -1,6 +1,7 @@
 """Pipeline from YAML, plugin discovery, hooks and provenance."""
 
 import importlib.metadata
+import json
 import types
 
 import numpy as np
@@ -413,3 +414,22 @@ def test_a_kernel_error_in_a_band_reaches_the_caller_and_leaves_no_thread(raw, m
         pipe.run(raw, threads=threads)
     assert isinstance(info.value.__cause__, RuntimeError)
     assert _band_threads() == []
+
+
+def test_provenance_rows_survive_a_file_and_grow_with_the_next_reduction(tmp_path, raw):
+    from spherex_reduce import fit_ramp, read, write
+
+    first = Pipeline({"steps": ["unchop", "subtract_phantom"]}).run(raw)
+    path = write(first, tmp_path / "stage1.fits")
+    again = read(path)
+    second = Pipeline({"steps": ["correct_reference"]}).run(again)
+    rows = second.tables["PROVENANCE"]
+    assert rows["step"].tolist() == ["unchop", "subtract_phantom", "correct_reference"]
+    assert json.loads(rows["parameters"][2])["strategy"] == "mean"
+    assert json.loads(rows["versions"][0]) == {"spherex-reduce": spherex_reduce.__version__}
+    assert rows["elapsed"].unit == "s" and (rows["elapsed"] >= 0).all()
+    # a function called alone records its step too (stpipe style)
+    alone = fit_ramp(second)
+    assert alone.header["S_RAMPFT"] == "COMPLETE"
+    assert alone.tables["PROVENANCE"]["step"].tolist()[-1] == "fit_ramp"
+    assert alone.tables["PROVENANCE"]["route"][-1] == "whole exposure"

@@ -13,30 +13,35 @@ from astropy.nddata import NDData
 
 from .errors import SpherexReduceError
 
-__all__ = ["source_mask"]
+__all__ = ["image_and_mask", "source_mask"]
 
 #: Background estimators `source_mask` knows, by name.
 BACKGROUNDS = ("median", "sextractor")
 
 
-def _data_and_mask(image, mask):
-    """``(floating-point data, bad-pixel mask)`` of a 2-D image; non-finite pixels are bad."""
-    own = None
+def image_and_mask(image, mask=None, what="source_mask needs a 2-D image", hint=""):
+    """``(data, bad-pixel mask, unit)`` of a 2-D image; non-finite pixels are bad.
+
+    Accepts `~astropy.nddata.CCDData`/`~astropy.nddata.NDData` (its ``mask``
+    is used), a `~astropy.units.Quantity`, a `numpy.ma.MaskedArray` or an
+    array; ``mask`` (bool or flags, nonzero = bad) is or-ed in.  ``data`` is a
+    view when it can be.  ``what`` and ``hint`` make the message for input
+    that is not 2-D.
+    """
+    unit, own = u.one, None
     if isinstance(image, NDData):
-        own, data = image.mask, image.data
+        unit, own, data = image.unit or u.one, image.mask, image.data
     elif isinstance(image, u.Quantity):
-        data = image.value
+        unit, data = image.unit, image.value
     elif isinstance(image, np.ma.MaskedArray):
         own, data = np.ma.getmaskarray(image), image.data
     else:
         data = image
     data = np.asarray(data)
     if data.ndim != 2:
-        raise SpherexReduceError(f"source_mask needs a 2-D image, got shape {data.shape}")
+        raise SpherexReduceError(f"{what}, got shape {data.shape}{hint}")
     if not np.issubdtype(data.dtype, np.number) or np.iscomplexobj(data):
         raise SpherexReduceError(f"image must be real numbers, got dtype {data.dtype}")
-    if data.dtype.kind != "f":
-        data = data.astype(np.float64)
     bad = ~np.isfinite(data)
     for m in (own, mask):
         if m is not None:
@@ -45,7 +50,7 @@ def _data_and_mask(image, mask):
                 raise SpherexReduceError(
                     f"mask shape {m.shape} differs from the image shape {data.shape}")
             bad = bad | (m != 0)
-    return data, bad
+    return data, bad, unit
 
 
 def source_mask(image, mask=None, *, nsigma=5.0, npixels=1, box_size=64, dilate=3,
@@ -134,7 +139,9 @@ def source_mask(image, mask=None, *, nsigma=5.0, npixels=1, box_size=64, dilate=
     if background not in BACKGROUNDS:
         raise SpherexReduceError(
             f"background must be one of {', '.join(BACKGROUNDS)}; got {background!r}")
-    data, bad = _data_and_mask(image, mask)
+    data, bad, _ = image_and_mask(image, mask)
+    if data.dtype.kind != "f":
+        data = data.astype(np.float64)
     side = min(data.shape)
     box = int(min(box_size, max(side // max(int(min_boxes), 1), min(4, side))))
     estimator = MedianBackground() if background == "median" else SExtractorBackground()

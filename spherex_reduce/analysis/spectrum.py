@@ -26,11 +26,10 @@ from typing import NamedTuple
 import numpy as np
 import scipy.fft
 from astropy import units as u
-from astropy.nddata import NDData
 from astropy.table import Table
 
 from ..errors import SpherexReduceError
-from ..source_mask import source_mask
+from ..source_mask import image_and_mask, source_mask
 
 __all__ = [
     "BAND_KMAX",
@@ -125,44 +124,11 @@ def _k_value(k):
 
 # -- input handling -------------------------------------------------------------
 def _as_image(image, mask=None):
-    """``(data float64 copy-free view, bad-pixel mask, unit)`` of a 2-D image.
-
-    Accepts `~astropy.nddata.CCDData`/`~astropy.nddata.NDData` (its ``mask`` is
-    used), a `~astropy.units.Quantity`, a `numpy.ma.MaskedArray` or an array.
-    Non-finite pixels are masked.
-    """
-    unit = u.one
-    own_mask = None
-    if isinstance(image, NDData):
-        unit = image.unit or u.one
-        own_mask = image.mask
-        data = image.data
-    elif isinstance(image, u.Quantity):
-        unit = image.unit
-        data = image.value
-    elif isinstance(image, np.ma.MaskedArray):
-        own_mask = np.ma.getmaskarray(image)
-        data = image.data
-    else:
-        data = image
-    data = np.asarray(data)
-    if data.ndim != 2:
-        raise SpherexReduceError(
-            f"a power spectrum needs a 2-D image, got shape {data.shape}; fit the ramps first "
-            "(fit_ramp) or pass one frame"
-        )
-    if not np.issubdtype(data.dtype, np.number) or np.iscomplexobj(data):
-        raise SpherexReduceError(f"image must be real numbers, got dtype {data.dtype}")
-    bad = ~np.isfinite(data)
-    for m in (own_mask, mask):
-        if m is not None:
-            m = np.asarray(m)
-            if m.shape != data.shape:
-                raise SpherexReduceError(
-                    f"mask shape {m.shape} differs from the image shape {data.shape}"
-                )
-            bad = bad | (m != 0)
-    return data, bad, unit
+    """``(data, bad-pixel mask, unit)`` of a 2-D image (see
+    `~spherex_reduce.source_mask.image_and_mask`), with the power spectrum's
+    message for ramps."""
+    return image_and_mask(image, mask, "a power spectrum needs a 2-D image",
+                          "; fit the ramps first (fit_ramp) or pass one frame")
 
 
 def _prepared(data, bad):

@@ -220,15 +220,6 @@ def _gather(values, groups):
     return out.reshape(*out.shape[:3], -1)
 
 
-def _gather(values, groups):
-    """``values (L, r, ncols)`` -> ``(L, nch, P, r * k)`` by column group, NaN for pads."""
-    idx = np.maximum(groups, 0)
-    out = values[:, :, idx]  # (L, r, nch, P, k)
-    out[:, :, groups < 0] = np.nan
-    out = np.moveaxis(out, 1, -2)  # (L, nch, P, r, k)
-    return out.reshape(*out.shape[:3], -1)
-
-
 def reference_offsets(exposure, *, acn=False, sigma=3.0, maxiters=5, side_columns=False):
     """σ-clipped mean of the reference pixels of every channel (and parity).
 
@@ -262,20 +253,6 @@ def reference_offsets(exposure, *, acn=False, sigma=3.0, maxiters=5, side_column
     side = _side_columns(exposure) if side_columns and g.ref_border else None
     return _offsets_of(g, reference_pixels(side_block(exposure), exposure.schedule), side,
                        acn=acn, sigma=sigma, maxiters=maxiters)
-
-
-def _offsets_of(geometry, reference, side=None, *, acn=False, sigma=3.0, maxiters=5):
-    """`reference_offsets` of reference-row pixels ``(L, k, ncols)`` (NaN: unusable)
-    and optionally side-column pixels ``(L, rows, ncols)`` (NaN outside the side columns).
-    """
-    groups = _group_columns(geometry, acn)
-    vals = _gather(reference, groups)
-    if side is not None:
-        vals = np.concatenate([vals, _gather(side, groups)], axis=-1)
-        # channels without side columns get only NaN there; drop the padding cost
-        keep = np.isfinite(vals).any(axis=tuple(range(vals.ndim - 1)))
-        vals = vals[..., keep]
-    return clipped_mean(vals, sigma=sigma, maxiters=maxiters)
 
 
 def _offsets_of(geometry, reference, side=None, *, acn=False, sigma=3.0, maxiters=5):

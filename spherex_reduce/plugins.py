@@ -30,6 +30,7 @@ ENTRY_POINT_GROUP = "spherex_reduce"
 BUILTIN_PLUGINS = {
     "builtin": "spherex_reduce.builtin",
     "reduction": "spherex_reduce.reduction_plugin",
+    "fit_ramp": "spherex_reduce.steps.fit_ramp",
     "simulation": "spherex_reduce.simulation_plugin",
 }
 BLOCK_ENV = "SPHEREX_REDUCE_BLOCK_PLUGINS"

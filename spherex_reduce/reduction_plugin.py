@@ -16,12 +16,10 @@ from .step import Step
 from .steps.clip import pair_difference, recorded_steps, sigma_clip
 from .steps.dark import subtract_dark
 from .steps.phantom import subtract_phantom
-from .steps.ramp import WEIGHTINGS, RampAccumulator, fit_ramp
 from .steps.reference import AcnReference, MeanReference, MedianReference
 
 __all__ = [
     "CorrectReferenceStep",
-    "FitRampStep",
     "PairDifferenceStep",
     "SigmaClipStep",
     "SubtractDarkStep",
@@ -65,28 +63,6 @@ class CorrectReferenceStep(Step):
         header["NNOREF"] = (int((table["flag"] != 0).sum()),
                             "offsets without usable reference pixels")
         return exposure.replace(header=header)
-
-
-class FitRampStep(Step):
-    """Least-squares slopes (`~spherex_reduce.fit_ramp`)."""
-
-    name, keyword = "fit_ramp", "S_RAMPFT"
-    parameters = (
-        Parameter("weighting", "uniform", (str,), "uniform (paper) or optimal",
-                  choices=WEIGHTINGS),
-        Parameter("read_noise", None, _OPT_NUM, "read noise per read (data unit); null: "
-                  "uncertainty from the fit residuals", minimum=0),
-        Parameter("gain", 1.0, (float,), "electrons per data unit (shot noise)", minimum=0,
-                  exclusive_minimum=True),
-        Parameter("saturation", None, _OPT_NUM, "reads above this level are not used "
-                  "(data unit)"),
-    )
-
-    def run(self, exposure, **params):
-        return fit_ramp(exposure, **params)
-
-    def accumulator(self, schedule, header, **params):
-        return RampAccumulator(schedule, header, **params)
 
 
 class SigmaClipStep(Step):
@@ -176,7 +152,7 @@ class SubtractDarkStep(Step):
 
 @hookimpl
 def register_steps():
-    return [SubtractPhantomStep, CorrectReferenceStep, FitRampStep, SigmaClipStep,
+    return [SubtractPhantomStep, CorrectReferenceStep, SigmaClipStep,
             PairDifferenceStep, SubtractDarkStep]
 
 

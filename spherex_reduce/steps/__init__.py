@@ -2,8 +2,8 @@
 
 from .clip import pair_difference, sigma_clip
 from .dark import combine_darks, subtract_dark
+from .fit_ramp import fit_ramp
 from .phantom import subtract_phantom
-from .ramp import fit_ramp
 from .reference import correct_reference
 from .unchop import rechop, unchop
 

@@ -306,6 +306,7 @@ class LeastSquares:
         flags[:] = 0
         saturation, read_noise = self.saturation, self.read_noise
         kcrit = self._kcrit(work)
+        imprecise = None  # pixels whose float32 sums are too coarse for a uniform slope
         if nf >= 2:
             # one pass: reads minus the first read, into a buffer that stays in cache
             if block.dtype == work and block.dtype.isnative:
@@ -323,7 +324,7 @@ class LeastSquares:
                 slope += np.einsum("f,fp->p", wwork[g], x[g])
                 if self.resid:
                     sumd += np.einsum("f,fp->p", ones[g], x[g])
-            bad = ~np.isfinite(slope)
+            bad = ~np.isfinite(slope)  # pixels with an unusable read, then imprecise ones
             if saturation is not None:
                 with np.errstate(invalid="ignore"):
                     bad |= np.max(x, axis=0) + np.asarray(block[0]).reshape(npx) > saturation
@@ -344,7 +345,7 @@ class LeastSquares:
                 if work is np.float32 and nf > 2:
                     amp = nf * (slope * (self.times[-1] - self.times[0])) ** 2
                     with np.errstate(invalid="ignore"):
-                        bad |= amp * kcrit / (nf - 2) * self.sumw2 > var
+                        imprecise = amp * kcrit / (nf - 2) * self.sumw2 > var
             else:
                 var[:] = np.nan
         else:
@@ -355,13 +356,18 @@ class LeastSquares:
             rmask = np.asarray(rmask).reshape(nf, npx)
             bad |= np.any(rmask != 0, axis=0)
         if self.weighting == "optimal" and nf >= 2:
-            self._optimal(x, slope, var, bad)
+            fitted = self._optimal(x, slope, var, bad)
+            if imprecise is not None:  # their slopes are float64 sums now
+                imprecise[fitted] = False
+        if imprecise is not None:
+            bad |= imprecise
         bidx = np.flatnonzero(bad)
         if bidx.size:
             self._refit(block, rmask, bidx, slope, var, nreads, flags)
 
     def _optimal(self, x, slope, var, bad):
-        """Generalised least squares for the pixels with every read usable."""
+        """Generalised least squares for the pixels with every read usable (not ``bad``);
+        returns their flat indices."""
         rate = np.maximum(np.where(bad, 0, slope), 0) * self.pscale
         # quantise the expected rate (0.02 dex): pixels in a bin share weights
         with np.errstate(divide="ignore"):
@@ -369,7 +375,7 @@ class LeastSquares:
                          -np.inf)
         idx = np.flatnonzero(~bad & np.isfinite(q))
         if not idx.size:
-            return
+            return idx
         keys, inv = np.unique(q[idx], return_inverse=True)
         for k, key in enumerate(keys):
             weights = self._gls.get(key)
@@ -383,6 +389,7 @@ class LeastSquares:
             slope[cols] = np.einsum("f,fp->p", wk, x[:, cols].astype(np.float64))
             if self.want_var:
                 var[cols] = vk
+        return idx
 
     def _refit(self, block, rmask, bidx, slope, var, nreads, flags):
         """Least squares on the usable reads of pixels ``bidx`` (flat indices of the block)."""

@@ -72,7 +72,8 @@ def fused_plan(prefix, consumer, cparams, source):
         The pipeline's frame source (it must offer ``raw(k)``).
     """
     from .builtin import UnchopStep
-    from .reduction_plugin import CorrectReferenceStep, FitRampStep, SubtractPhantomStep
+    from .reduction_plugin import CorrectReferenceStep, SubtractPhantomStep
+    from .steps.fit_ramp import FitRampStep
     from .steps.reference import AcnReference, MeanReference
 
     if type(consumer) is not FitRampStep or not hasattr(source, "raw"):

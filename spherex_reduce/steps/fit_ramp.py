@@ -141,8 +141,9 @@ class RampFit(Consumer):
         self.phantom_solver = LeastSquares(times, want_var=False)
         self.reference_solver = LeastSquares(times, saturation=saturation, want_var=False)
         nrows = s.n_reads if context.order == "readout" else s.geometry.nrows
+        # every row comes in exactly one band (the executor's bands cover the input)
         self.fit = RampSolution((nrows, s.geometry.ncols))
-        self.phantom = (np.empty((nrows, s.geometry.nchannels)) if context.phantom else None)
+        self.phantom = np.full((nrows, s.geometry.nchannels), np.nan) if context.phantom else None
         self._local = threading.local()  # a work buffer per thread
 
     def _buffer(self, data):

@@ -141,10 +141,13 @@ class RampFit(Consumer):
         self.phantom_solver = LeastSquares(times, want_var=False)
         self.reference_solver = LeastSquares(times, saturation=saturation, want_var=False)
         nrows = s.n_reads if context.order == "readout" else s.geometry.nrows
-        # every row comes in exactly one band (the executor's bands cover the input)
+        # every row comes in exactly one band (the executor's bands cover the input);
+        # ``var`` holds the standard deviations once a band is fitted
         self.fit = RampSolution((nrows, s.geometry.ncols))
         self.phantom = np.full((nrows, s.geometry.nchannels), np.nan) if context.phantom else None
         self._local = threading.local()  # a work buffer per thread
+        self._lock = threading.Lock()
+        self._few = 0  # pixels with fewer than 2 usable reads so far
 
     def _buffer(self, data):
         """The calling thread's work buffer for blocks like ``data``."""
@@ -161,10 +164,15 @@ class RampFit(Consumer):
                              f"{self.solver.nf}")
         rows = _rows(block.index)
         buf = self._buffer(block.data)
-        if isinstance(rows, slice):
-            self.solver.fit(block.data, block.dq, out=self.fit.rows(rows), buf=buf)
-        else:
-            self.fit.put(rows, self.solver.fit(block.data, block.dq, buf=buf))
+        part = self.fit.rows(rows) if isinstance(rows, slice) else None
+        part = self.solver.fit(block.data, block.dq, out=part, buf=buf)
+        # uncertainties and the count of unfitted pixels here, in the band's thread
+        np.sqrt(part.var, out=part.var)
+        few = int(np.count_nonzero(part.flags & dq.FEW_READS))
+        if not isinstance(rows, slice):
+            self.fit.put(rows, part)
+        with self._lock:
+            self._few += few
         if self.phantom is not None and block.phantom is not None:
             self.phantom[rows] = self.phantom_solver.fit(block.phantom).slope
 
@@ -185,12 +193,10 @@ class RampFit(Consumer):
         tables["RAMPFIT"] = Table({"nreads": fit.nreads},
                                   meta={"comments": ["reads used, one row per image row"]})
         header = header.copy()
-        header["NFEWRDS"] = (int(np.count_nonzero(fit.flags & dq.FEW_READS)),
-                             "pixels with fewer than 2 usable reads")
+        header["NFEWRDS"] = (self._few, "pixels with fewer than 2 usable reads")
         header["RAMPWGT"] = (self.weighting, "ramp-fit weighting")
-        unc = np.sqrt(fit.var, out=fit.var)  # the variance is not needed any more
         return Exposure.from_arrays(fit.slope, self.context.schedule,
-                                    unit=(self.context.unit or u.one) / u.s, uncertainty=unc,
+                                    unit=(self.context.unit or u.one) / u.s, uncertainty=fit.var,
                                     mask=fit.flags, phantom=self.phantom,
                                     order=self.context.order, header=header, tables=tables,
                                     reference=reference)

@@ -495,3 +495,17 @@ def test_optimal_weighting_of_bright_float32_ramps_is_gls_not_uniform():
         beta = np.linalg.solve(x.T @ ci @ x, x.T @ ci @ cube[:, i, j].astype(float))
         assert out.data.data[i, j] == pytest.approx(beta[1], rel=1e-9)
         assert abs(beta[1] - uniform[i, j]) > 1e-3
+
+
+def test_least_squares_refuses_an_output_it_could_not_write_through():
+    from spherex_reduce.steps.ramp_least_squares import LeastSquares, RampSolution
+
+    ls = LeastSquares(np.arange(4.0))
+    whole = RampSolution((3, 8))
+    cols = RampSolution.__new__(RampSolution)
+    for name in ("slope", "var", "nreads", "flags"):
+        setattr(cols, name, getattr(whole, name)[:, ::2])  # a strided view: reshape copies
+    with pytest.raises(ValueError, match="C-ordered"):
+        ls.fit(np.zeros((4, 3, 4)), out=cols)
+    ramps = np.arange(4.0)[:, None, None] * np.ones((4, 3, 8))
+    assert np.array_equal(ls.fit(ramps, out=whole).slope, np.ones((3, 8)))

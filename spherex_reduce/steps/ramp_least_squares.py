@@ -264,7 +264,7 @@ class LeastSquares:
 
         Parameters
         ----------
-        cube : array_like
+        cube : `numpy.ndarray`
             Reads ``(nframes, n, m)`` (any real type; never written).
         mask : array_like, optional
             Flags of every read, shape of ``cube`` (non-zero: not used).
@@ -280,6 +280,9 @@ class LeastSquares:
         nf, n, m = cube.shape
         if out is None:
             out = RampSolution((n, m))
+        elif not all(getattr(out, k).flags.c_contiguous for k in ("slope", "var", "nreads",
+                                                                   "flags")):
+            raise ValueError("out must hold C-ordered arrays (they are written through views)")
         if (buf is None or buf.dtype != self.work_type(cube.dtype) or buf.shape[0] != nf
                 or buf.shape[1] < m):
             rows = min(self.rows_per_block(m), max(n, 1))

@@ -1,12 +1,15 @@
-"""fit_ramp against float64 least squares, stcal, and the hard cases."""
+"""fit_ramp against float64 least squares, stcal, and the hard cases; its consumer of bands."""
 
 import numpy as np
 import pytest
 from astropy import units as u
 
 from spherex_reduce import DetectorGeometry, Exposure, Pipeline, ReadoutSchedule, dq, fit_ramp
+from spherex_reduce.block import Block
 from spherex_reduce.errors import SpherexReduceError, StepSkipped
 from spherex_reduce.examples import example_raw_exposure, tiny_schedule
+from spherex_reduce.executor import MemorySource, execute
+from spherex_reduce.steps.fit_ramp import FitRampStep, RampFit
 
 
 def schedule(nframes=10, nrows=16, ncols=16, nch=2, frame_time=1.5):
@@ -229,8 +232,9 @@ def test_fits_phantom_and_reference_reads_and_never_modifies_input():
     np.testing.assert_allclose(out.reference.data,
                                np.einsum("f,fij->ij", w, phys.reference.data.astype(float)),
                                rtol=1e-5, atol=1e-4)
-    with pytest.raises(StepSkipped):
-        fit_ramp(out)
+    again = fit_ramp(out)  # slopes already: skipped, the input comes back
+    assert again.header["S_RAMPFT"] == "SKIPPED"
+    np.testing.assert_array_equal(again.data.data, out.data.data)
 
 
 def test_pipeline_step_parameters():
@@ -239,65 +243,6 @@ def test_pipeline_step_parameters():
     out = p.run(raw)
     assert out.header["S_RAMPFT"] == "COMPLETE"
     assert out.data.data.shape == (raw.schedule.n_reads, 64)
-
-
-def _stream(exposure, **params):
-    """Feed the frames one at a time to the step's accumulator (as the pipeline does)."""
-    from spherex_reduce.reduction_plugin import FitRampStep
-
-    acc = FitRampStep().accumulator(exposure.schedule, exposure.header, **params)
-    one = exposure.schedule.replace(nframes=1)
-    for k in range(exposure.schedule.nframes):
-        sl = slice(k, k + 1)
-        acc.add(k, Exposure.from_arrays(
-            exposure.data.data[sl], one, mask=None if exposure.dq is None else exposure.dq[sl],
-            order=exposure.order))
-    return acc.finish()
-
-
-@pytest.mark.parametrize("nframes", [1, 2, 5, 9, 20])
-def test_streaming_accumulator_equals_fit_ramp(nframes):
-    s = schedule(nframes=nframes)
-    t = s.frame_starts.value
-    rng = np.random.default_rng(7)
-    cube = (6e4 + 50.0 * t[:, None, None] + rng.normal(0, 5, (nframes, 16, 16)))
-    cube = cube.astype(np.float32)
-    cube[-1, 0, 0] = np.nan
-    cube[0, 1, 1] = np.nan                     # first read unusable
-    cube[:, 2, 2] = 7e4                        # all saturated
-    if nframes > 3:
-        cube[3:, 3, 3] = 7e4                   # saturates after 3 reads
-    cube[:9, 6, 6] = np.nan                    # no usable read in the first buffered group
-    cube[10:12, 7, 7] = np.nan                 # unusable reads in a later group
-    mask = np.zeros(cube.shape, np.uint16)
-    mask[:, 4, 4] = dq.NOT_READ
-    mask[0, 5, 5] = dq.DO_NOT_USE
-    mask[nframes // 2, 8, 8] = dq.DO_NOT_USE
-    e = Exposure.from_arrays(cube, s, mask=mask)
-    whole = fit_ramp(e, saturation=65000.0)
-    streamed = _stream(e, saturation=65000.0)
-    np.testing.assert_allclose(streamed.data.data, whole.data.data, rtol=1e-6, atol=1e-5,
-                               equal_nan=True)
-    np.testing.assert_allclose(streamed.data.uncertainty.array, whole.data.uncertainty.array,
-                               rtol=1e-4, equal_nan=True)
-    assert np.array_equal(streamed.dq, whole.dq)
-    assert np.array_equal(streamed.tables["RAMPFIT"]["nreads"], whole.tables["RAMPFIT"]["nreads"])
-    if nframes >= 3:  # the NaN read is left out, not turned into a wrong number
-        assert streamed.data.data[0, 0] == pytest.approx(50.0, abs=10)
-
-
-def test_streaming_with_read_noise_and_optimal():
-    s = schedule(nframes=9)
-    t = s.frame_starts.value
-    rng = np.random.default_rng(8)
-    cube = 100 + 30.0 * t[:, None, None] + rng.normal(0, 5, (9, 16, 16))
-    cube[2, 0, 0] = np.nan
-    e = Exposure.from_arrays(cube, s)
-    for params in ({"read_noise": 5.0}, {"read_noise": 5.0, "weighting": "optimal"}):
-        whole, streamed = fit_ramp(e, **params), _stream(e, **params)
-        np.testing.assert_allclose(streamed.data.data, whole.data.data, rtol=1e-9)
-        np.testing.assert_allclose(streamed.data.uncertainty.array,
-                                   whole.data.uncertainty.array, rtol=1e-9)
 
 
 def test_drift_dominating_by_1e5_stays_accurate():
@@ -312,89 +257,12 @@ def test_drift_dominating_by_1e5_stays_accurate():
     sigma = np.sqrt(var)  # the slope's sigma for this stream (the fit's uncertainty)
     np.testing.assert_allclose(out.data.uncertainty.array, sigma, rtol=1e-3)
     assert (np.abs(out.data.data - ref) <= 1e-3 * sigma).all()
-    streamed = _stream(Exposure.from_arrays(cube, s))
-    assert (np.abs(streamed.data.data - ref) <= 1e-3 * sigma).all()
-
-
-@pytest.mark.parametrize("nframes", [10, 20])
-def test_streamed_fit_on_a_pedestal_matches_float64_least_squares(nframes):
-    # every buffered group of frames must be shifted by exactly the same per-pixel base:
-    # a rounding difference between the first group and the later ones is a step in the
-    # ramp (it once gave 1.7e-4 sigma for 10 frames)
-    s = schedule(nframes=nframes, nrows=32, ncols=32)
-    t = s.frame_starts.value
-    rng = np.random.default_rng(11)
-    cube = (6e4 + 0.02 * t[:, None, None] + rng.normal(0, 10, (nframes, 32, 32)))
-    cube = cube.astype(np.float32)
-    ref, _ = lstsq_reference(cube, t)
-    sigma = 10.0 / np.sqrt(((t - t.mean()) ** 2).sum())
-    streamed = _stream(Exposure.from_arrays(cube, s))
-    assert np.abs(streamed.data.data - ref).max() <= 1e-5 * sigma
-
-
-def test_streamed_sums_in_the_background_equal_the_whole_fit(monkeypatch):
-    # large images sum each full buffer in a thread while the next one fills; force
-    # that path on a small image (3 buffers of frames: both buffers are reused)
-    from spherex_reduce.steps import ramp
-
-    monkeypatch.setattr(ramp, "_ASYNC_PIXELS", 0)
-    s = schedule(nframes=20)
-    t = s.frame_starts.value
-    rng = np.random.default_rng(12)
-    cube = (6e4 + 30.0 * t[:, None, None] + rng.normal(0, 5, (20, 16, 16))).astype(np.float32)
-    cube[12, 3, 4] = np.nan
-    streamed = _stream(Exposure.from_arrays(cube, s))
-    whole = fit_ramp(Exposure.from_arrays(cube, s))
-    np.testing.assert_allclose(streamed.data.data, whole.data.data, rtol=1e-6, atol=1e-5)
-    np.testing.assert_allclose(streamed.data.uncertainty.array, whole.data.uncertainty.array,
-                               rtol=1e-4)
-    assert streamed.tables["RAMPFIT"]["nreads"][3][4] == 19
-    import threading
-
-    assert not [th for th in threading.enumerate() if th.name.startswith("spherex-reduce-sums")]
-
-
-@pytest.mark.parametrize("background", [False, True])
-@pytest.mark.parametrize("first_usable", [3, 7])
-def test_streamed_variance_when_the_first_usable_read_ends_a_buffer(monkeypatch, background,
-                                                                    first_usable):
-    # with one usable read in its first buffer a pixel has no line yet; without one,
-    # a bright pixel's float32 squares lost its residuals (variance off by -22 % / +275 %)
-    from spherex_reduce.steps import ramp
-
-    if background:
-        monkeypatch.setattr(ramp, "_ASYNC_PIXELS", 0)
-    s = schedule(nframes=30)
-    t = s.frame_starts.value
-    rng = np.random.default_rng(13)
-    cube = (1000.0 * t[:, None, None] + rng.normal(0, 10, (30, 16, 16))).astype(np.float32)
-    cube[:first_usable] = np.nan  # e.g. reset frames masked for every pixel
-    cube[first_usable + 1 : first_usable + 6, 2, 3] = np.nan  # and a pixel with a gap
-    streamed = _stream(Exposure.from_arrays(cube, s))
-    whole = fit_ramp(Exposure.from_arrays(cube, s))
-    np.testing.assert_allclose(streamed.data.uncertainty.array, whole.data.uncertainty.array,
-                               rtol=1e-3)
-    np.testing.assert_allclose(streamed.data.data, whole.data.data, rtol=1e-6)
-
-
-def test_accumulator_finishes_once():
-    from spherex_reduce.reduction_plugin import FitRampStep
-
-    s = schedule(nframes=5)
-    cube = np.random.default_rng(14).normal(0, 1, (5, 16, 16))
-    acc = FitRampStep().accumulator(s, Exposure.from_arrays(cube, s).header)
-    for k in range(5):
-        acc.add(k, Exposure.from_arrays(cube[k : k + 1], s.replace(nframes=1)))
-    acc.finish()
-    with pytest.raises(RuntimeError, match="called already"):
-        acc.finish()
 
 
 @pytest.mark.parametrize("masked", [0, 7])
-def test_streamed_fit_of_bright_ramps_matches_float64_least_squares(masked):
-    # 1000 e/s over 74 frames on a 6e4 pedestal: float32 values to 1.7e5, and g t up to
-    # 5e4 in the detrending (computed in float64 for such ramps); the first `masked`
-    # frames unusable (the line then waits for a second usable read)
+def test_bright_ramps_match_float64_least_squares(masked):
+    # 1000 e/s over 74 frames on a 6e4 pedestal: float32 values to 1.7e5; the first
+    # `masked` frames unusable (those pixels are refitted in float64)
     s = schedule(nframes=74, nrows=32, ncols=32)
     t = s.frame_starts.value
     rng = np.random.default_rng(15)
@@ -405,5 +273,240 @@ def test_streamed_fit_of_bright_ramps_matches_float64_least_squares(masked):
     ref, _ = lstsq_reference(cube, t, good)
     tt = t[masked:]
     sigma = 10.0 / np.sqrt(((tt - tt.mean()) ** 2).sum())
-    streamed = _stream(Exposure.from_arrays(cube, s))
-    assert np.abs(streamed.data.data - ref).max() <= 5e-4 * sigma
+    out = fit_ramp(Exposure.from_arrays(cube, s))
+    assert np.abs(out.data.data - ref).max() <= 5e-4 * sigma
+
+
+def test_unknown_weighting_is_one_clear_error():
+    s = schedule(nframes=4)
+    e = Exposure.from_arrays(np.zeros((4, 16, 16)), s)
+    with pytest.raises(SpherexReduceError, match=r"weighting: 'best' is not one of"):
+        fit_ramp(e, weighting="best")
+
+
+# -- the consumer of bands -------------------------------------------------------------
+
+CASES = ["masked", "saturation", "nan", "optimal", "read_noise", "phantom_reference",
+         "raw_phantom", "int", "two_frames"]
+
+
+def _case(name):
+    """An input exercising one path of the fit: ``(exposure, params, cube, usable reads)``."""
+    rng = np.random.default_rng(CASES.index(name) + 20)
+    s = schedule(nframes=2 if name == "two_frames" else 9)
+    t = s.frame_starts.value
+    rate = rng.uniform(0, 300, (16, 16))
+    cube = 6e4 + rate * t[:, None, None] + rng.normal(0, 5, (t.size, 16, 16))
+    params, mask = {}, None
+    if name in ("phantom_reference", "raw_phantom"):
+        raw = example_raw_exposure(tiny_schedule(nframes=5))
+        from spherex_reduce import unchop
+
+        e = unchop(raw) if name == "phantom_reference" else raw
+        data = e.data.data
+        good = np.isfinite(data) & (e.dq == 0 if e.dq is not None else True)
+        return e, params, data, good
+    if name == "masked":
+        mask = np.zeros(cube.shape, np.uint16)
+        mask[2, 1, 1] = dq.DO_NOT_USE
+        mask[:, 3, 3] = dq.NOT_READ
+        mask[:7, 9, 9] = dq.DO_NOT_USE
+        cube[2, 1, 1] = 1e6  # a jump the caller flagged
+    elif name == "saturation":
+        params = {"saturation": 6.1e4}
+        cube[:, 0, 2] = 7e4
+    elif name in ("nan", "optimal", "read_noise"):
+        cube[3, 4, 5] = cube[0, 7, 7] = np.nan
+        cube[:, 6, 6] = np.nan
+        if name == "optimal":
+            params = {"weighting": "optimal", "read_noise": 5.0}
+        elif name == "read_noise":
+            params = {"read_noise": 5.0, "gain": 2.0}
+    if name == "int":
+        cube = np.round(cube).astype(np.int32)
+    else:
+        cube = cube.astype(np.float32)
+    good = np.isfinite(cube)
+    if mask is not None:
+        good &= mask == 0
+    if "saturation" in params:
+        good &= cube <= params["saturation"]
+    return Exposure.from_arrays(cube, s, mask=mask, order="physical"), params, cube, good
+
+
+def _in_bands(exposure, rows, threads, **params):
+    source = MemorySource(exposure)
+    return execute(source, [], FitRampStep().consumer(source.context, **params),
+                   threads=threads, rows_per_band=rows)
+
+
+def _assert_identical(a, b):
+    for x, y in [(a.data.data, b.data.data), (a.data.uncertainty.array, b.data.uncertainty.array),
+                 (a.dq, b.dq), (a.tables["RAMPFIT"]["nreads"], b.tables["RAMPFIT"]["nreads"]),
+                 (a.phantom, b.phantom)]:
+        assert (x is None and y is None) or np.array_equal(np.asarray(x), np.asarray(y),
+                                                           equal_nan=True)
+    if a.reference is not None:
+        for name in ("data", "phantom", "dq", "rows", "reads"):
+            x, y = getattr(a.reference, name), getattr(b.reference, name)
+            assert (x is None and y is None) or np.array_equal(x, y, equal_nan=True), name
+    else:
+        assert b.reference is None
+    for key in ("NFEWRDS", "RAMPWGT"):
+        assert a.header[key] == b.header[key]
+    assert (a.unit, a.order) == (b.unit, b.order)
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_bands_and_threads_give_one_band_bit_for_bit(name):
+    exposure, params, *_ = _case(name)
+    one = _in_bands(exposure, exposure.shape[-2], 1, **params)
+    _assert_identical(fit_ramp(exposure, **params), one)
+    for rows in (1, 3, 7):
+        for threads in (1, 3):
+            _assert_identical(_in_bands(exposure, rows, threads, **params), one)
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_every_path_matches_float64_least_squares(name):
+    exposure, params, cube, good = _case(name)
+    out = fit_ramp(exposure, **params)
+    t = exposure.schedule.frame_starts.value
+    ref, var = lstsq_reference(np.asarray(cube, np.float64), t, good)
+    n = good.sum(axis=0)
+    assert np.array_equal(np.asarray(out.tables["RAMPFIT"]["nreads"]), n)
+    assert np.array_equal(np.isnan(out.data.data), n < 2)
+    assert np.array_equal(out.dq & dq.FEW_READS != 0, n < 2)
+    slope = out.data.data
+    sigma = 5.0 / np.sqrt(((t - t.mean()) ** 2).sum())
+    if name == "optimal":  # masked pixels: uniform weights; the others: checked below
+        sel = n < t.size
+        np.testing.assert_allclose(slope[sel], ref[sel], rtol=1e-9, atol=1e-9)
+        rn = params["read_noise"]
+        for i, j in [(0, 0), (5, 9), (12, 3)]:
+            # GLS for the pixel's uniform-fit rate rounded to 0.02 dex (the documented bins)
+            rate = 10 ** (np.round(np.log10(ref[i, j]) * 50) / 50)
+            cov = rn**2 * np.eye(t.size) + rate * np.minimum.outer(t - t[0], t - t[0])
+            x = np.stack([np.ones(t.size), t], 1)
+            ci = np.linalg.inv(cov)
+            beta = np.linalg.solve(x.T @ ci @ x, x.T @ ci @ cube[:, i, j].astype(float))
+            assert slope[i, j] == pytest.approx(beta[1], rel=1e-9)
+            unc = out.data.uncertainty.array[i, j]
+            assert unc**2 == pytest.approx(np.linalg.inv(x.T @ ci @ x)[1, 1], rel=1e-9)
+    else:
+        np.testing.assert_allclose(slope, ref, rtol=1e-6, atol=1e-3 * sigma)
+    unc2 = out.data.uncertainty.array ** 2
+    if "read_noise" not in params:
+        np.testing.assert_allclose(unc2, var, rtol=1e-3, atol=1e-12)
+    elif name == "read_noise":
+        rn, gain = params["read_noise"], params["gain"]
+        for i, j in [(0, 0), (4, 5), (6, 6), (7, 7)]:
+            g = good[:, i, j]
+            if g.sum() < 2:
+                assert np.isnan(unc2[i, j])
+                continue
+            tc = t[g] - t[g].mean()
+            w = tc / (tc @ tc)
+            shot = max(slope[i, j], 0) / gain * (w @ np.minimum.outer(t[g], t[g]) @ w)
+            assert unc2[i, j] == pytest.approx(rn**2 * (w @ w) + shot, rel=1e-9)
+    if exposure.phantom is not None:
+        tc = t - t.mean()
+        np.testing.assert_allclose(out.phantom, np.einsum("f,fij->ij", tc / (tc @ tc),
+                                                          exposure.phantom.astype(float)),
+                                   rtol=1e-6, atol=1e-4)
+    if exposure.reference is not None:
+        rdata = exposure.reference.data.astype(float)
+        rref, _ = lstsq_reference(rdata, t, np.isfinite(rdata))
+        np.testing.assert_allclose(out.reference.data, rref, rtol=1e-6, atol=1e-4)
+
+
+def test_consumer_takes_bands_of_scattered_rows_from_several_threads():
+    # bands whose rows are not consecutive (e.g. after a kernel reorders rows) are
+    # fitted apart and written at their rows; the result is the whole fit, bit for bit
+    import threading
+
+    exposure, params, *_ = _case("masked")
+    whole = fit_ramp(exposure, **params)
+    source = MemorySource(exposure)
+    consumer = RampFit(source.context, **params)
+    data, flags = exposure.data.data, exposure.dq
+    parts = [np.arange(0, 16, 2), np.arange(1, 16, 4), np.arange(15, 2, -4)]
+    workers = [threading.Thread(target=consumer.band, args=(
+        Block(data[:, idx], idx, "physical", dq=flags[:, idx]),)) for idx in parts]
+    for w in workers:
+        w.start()
+    for w in workers:
+        w.join()
+    out = consumer.finish(None, exposure.header.copy(), dict(exposure.tables))
+    _assert_identical(out, whole)
+
+
+def test_consumer_refuses_images_and_bad_parameters():
+    s = schedule(nframes=4)
+    image = MemorySource(Exposure.from_arrays(np.zeros((16, 16)), s))
+    with pytest.raises(StepSkipped, match="2-D image"):
+        FitRampStep().consumer(image.context)
+    ramps = MemorySource(Exposure.from_arrays(np.zeros((4, 16, 16)), s))
+    with pytest.raises(SpherexReduceError, match="read_noise > 0"):
+        FitRampStep().consumer(ramps.context, weighting="optimal", read_noise=0)
+    consumer = FitRampStep().consumer(ramps.context)
+    with pytest.raises(ValueError, match="3 frames"):
+        consumer.band(Block(np.zeros((3, 2, 16)), np.arange(2), "readout"))
+
+
+def test_threads_are_the_steps_option_not_fixed_at_import():
+    exposure, params, *_ = _case("nan")
+    step = FitRampStep()
+    step.threads = 3
+    calls = []
+    import spherex_reduce.executor as executor_module
+
+    real = executor_module.ThreadPoolExecutor
+
+    class Counting(real):
+        def __init__(self, n, **kw):
+            calls.append(n)
+            super().__init__(n, **kw)
+
+    try:
+        executor_module.ThreadPoolExecutor = Counting
+        source = MemorySource(exposure)
+        out = execute(source, [], step.consumer(source.context, **params), threads=step.threads,
+                      rows_per_band=4)
+    finally:
+        executor_module.ThreadPoolExecutor = real
+    assert calls == [3]
+    _assert_identical(out, fit_ramp(exposure, **params))
+
+
+def test_optimal_weighting_of_bright_float32_ramps_is_gls_not_uniform():
+    # bright float32 ramps were refitted with uniform weights in float64 (their float32
+    # sums are too coarse for a uniform slope), silently dropping the optimal weights
+    s = schedule(nframes=9, nrows=4, ncols=4, nch=1)
+    t = s.frame_starts.value
+    rng = np.random.default_rng(30)
+    rn = 5.0
+    cube = (6e4 + 200.0 * t[:, None, None] + rng.normal(0, rn, (9, 4, 4))).astype(np.float32)
+    out = fit_ramp(Exposure.from_arrays(cube, s), weighting="optimal", read_noise=rn)
+    uniform, _ = lstsq_reference(cube, t)
+    x = np.stack([np.ones(t.size), t], 1)
+    for i, j in [(0, 0), (3, 2)]:
+        rate = 10 ** (np.round(np.log10(uniform[i, j]) * 50) / 50)
+        ci = np.linalg.inv(rn**2 * np.eye(t.size) + rate * np.minimum.outer(t - t[0], t - t[0]))
+        beta = np.linalg.solve(x.T @ ci @ x, x.T @ ci @ cube[:, i, j].astype(float))
+        assert out.data.data[i, j] == pytest.approx(beta[1], rel=1e-9)
+        assert abs(beta[1] - uniform[i, j]) > 1e-3
+
+
+def test_least_squares_refuses_an_output_it_could_not_write_through():
+    from spherex_reduce.steps.ramp_least_squares import LeastSquares, RampSolution
+
+    ls = LeastSquares(np.arange(4.0))
+    whole = RampSolution((3, 8))
+    cols = RampSolution.__new__(RampSolution)
+    for name in ("slope", "var", "nreads", "flags"):
+        setattr(cols, name, getattr(whole, name)[:, ::2])  # a strided view: reshape copies
+    with pytest.raises(ValueError, match="C-ordered"):
+        ls.fit(np.zeros((4, 3, 4)), out=cols)
+    ramps = np.arange(4.0)[:, None, None] * np.ones((4, 3, 8))
+    assert np.array_equal(ls.fit(ramps, out=whole).slope, np.ones((3, 8)))

@@ -94,6 +94,8 @@ class Context:
         The input's header (read only).
     phantom : bool
         Whether the blocks carry phantom values.
+    threads : int or None
+        Threads a kernel's ``prepare`` may use (None: the executor's default).
     """
 
     schedule: object
@@ -102,6 +104,7 @@ class Context:
     unit: object = None
     header: object = None
     phantom: bool = False
+    threads: int | None = None
 
     def replace(self, **changes):
         """A copy with some fields changed."""

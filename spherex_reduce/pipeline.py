@@ -259,10 +259,10 @@ class Pipeline:
             if reader is not None:
                 reader.close()
 
-    def _plan(self, source, steps, i):
+    def _plan(self, source, steps, i, threads=None):
         """The kernels and consumer of the pass from step ``i``: ``(kernels, consumer,
         members, skipped, end)``."""
-        context = source.context
+        context = source.context.replace(threads=threads)
         kernels, consumer, members, skipped = [], None, [], {}
         j = i
         while j < len(steps):
@@ -292,7 +292,7 @@ class Pipeline:
         return kernels, consumer, members, skipped, j
 
     def _pass_on(self, source, current, steps, i, status, progress, threads):
-        kernels, consumer, members, skipped, j = self._plan(source, steps, i)
+        kernels, consumer, members, skipped, j = self._plan(source, steps, i, threads)
         if not kernels and consumer is None:
             if not members:
                 return i, current

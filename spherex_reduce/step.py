@@ -347,8 +347,9 @@ class Step:
         through the executor (one implementation for both routes).
         """
         source = MemorySource(exposure)
-        kernel = self.kernel(source.context, **params)
-        consumer = self.consumer(source.context, **params)
+        context = source.context.replace(threads=self.threads)
+        kernel = self.kernel(context, **params)
+        consumer = self.consumer(context, **params)
         if kernel is None and consumer is None:
             raise NotImplementedError(f"step {self.name!r} has neither run, kernel nor consumer")
         return execute(source, [] if kernel is None else [kernel], consumer,
@@ -377,9 +378,12 @@ class Strategy:
     def __init__(self, **params):
         self.params = params
 
-    def estimate(self, side, schedule, exposure=None):
+    def estimate(self, side, context, exposure=None):
         """Offsets from the side block (a `~spherex_reduce.block.Block` of the reference
         reads of every frame), or from ``exposure`` when `needs_exposure`.
+
+        ``context`` is the `~spherex_reduce.block.Context` of the blocks the
+        offsets apply to (schedule, unit, row order, the threads it may use).
 
         Returns a `~spherex_reduce.steps.reference_strategies.ReferenceOffsets`;
         the step's kernel subtracts them.  A strategy that defines it streams

@@ -38,9 +38,9 @@ class ReferenceMedian(Strategy):
     def __init__(self, min_pixels=8):
         self.min_pixels = min_pixels
 
-    def estimate(self, side, schedule, exposure=None):
-        pixels = reference_pixels(side, schedule)  # (frames, reads, columns); NaN: unusable
-        g = schedule.geometry
+    def estimate(self, side, context, exposure=None):
+        pixels = reference_pixels(side, context.schedule)  # (frames, reads, columns); NaN: unusable
+        g = context.geometry
         frames, reads, _ = pixels.shape
         per_channel = (pixels.reshape(frames, reads, g.nchannels, g.channel_width)
                        .transpose(0, 2, 1, 3).reshape(frames, g.nchannels, -1))

@@ -68,7 +68,7 @@ class ReferenceKernel(Kernel):
         self.needs_exposure = bool(getattr(strategy, "needs_exposure", False))
 
     def prepare(self, side, exposure=None):
-        est = self.strategy.estimate(side, self.context.schedule, exposure)
+        est = self.strategy.estimate(side, self.context, exposure)
         return _plan(self.context.geometry, est, self.strategy.name)
 
     def apply(self, c, block):
@@ -115,7 +115,7 @@ class _Given:
     def __init__(self, estimate, name):
         self.estimate_, self.name = estimate, name
 
-    def estimate(self, side, schedule, exposure=None):
+    def estimate(self, side, context, exposure=None):
         return self.estimate_
 
 

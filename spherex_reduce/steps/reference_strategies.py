@@ -10,13 +10,14 @@ all pixels of the channel, optionally excluding sources found with
 """
 
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 from astropy.utils.exceptions import AstropyUserWarning
 
 from ..errors import SpherexReduceError
-from ..executor import side_block
+from ..executor import default_threads, side_block
 from ..parameters import Parameter
 from ..source_mask import source_mask
 from ..step import Strategy
@@ -38,6 +39,9 @@ __all__ = [
 
 #: Parity values of the ``REFOFFS`` table: all columns, even samples, odd samples.
 ALL, EVEN, ODD = -1, 0, 1
+
+#: frames σ-clipped together (their temporaries stay in cache)
+_FRAMES_PER_CLIP = 4
 
 
 class NoReferenceError(SpherexReduceError):
@@ -255,18 +259,35 @@ def reference_offsets(exposure, *, acn=False, sigma=3.0, maxiters=5, side_column
                        acn=acn, sigma=sigma, maxiters=maxiters)
 
 
-def _offsets_of(geometry, reference, side=None, *, acn=False, sigma=3.0, maxiters=5):
+def _offsets_of(geometry, reference, side=None, *, acn=False, sigma=3.0, maxiters=5,
+                threads=None):
     """`reference_offsets` of reference-row pixels ``(L, k, ncols)`` (NaN: unusable)
     and optionally side-column pixels ``(L, rows, ncols)`` (NaN outside the side columns).
+
+    Frames are clipped a few at a time (temporaries stay in cache) on
+    ``threads`` threads; each group's numbers do not depend on the others.
     """
     groups = _group_columns(geometry, acn)
-    vals = _gather(reference, groups)
+    keep = None
     if side is not None:
-        vals = np.concatenate([vals, _gather(side, groups)], axis=-1)
         # channels without side columns get only NaN there; drop the padding cost
-        keep = np.isfinite(vals).any(axis=tuple(range(vals.ndim - 1)))
-        vals = vals[..., keep]
-    return clipped_mean(vals, sigma=sigma, maxiters=maxiters)
+        keep = np.isfinite(_gather(side, groups)).any(axis=(0, 1, 2))
+
+    def clip(lo):
+        vals = _gather(reference[lo:lo + _FRAMES_PER_CLIP], groups)
+        if side is not None:
+            more = _gather(side[lo:lo + _FRAMES_PER_CLIP], groups)
+            vals = np.concatenate([vals, more[..., keep]], axis=-1)
+        return clipped_mean(vals, sigma=sigma, maxiters=maxiters)
+
+    starts = range(0, reference.shape[0], _FRAMES_PER_CLIP)
+    nthreads = min(len(starts), default_threads() if threads is None else max(1, threads))
+    if nthreads > 1:
+        with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-clip") as pool:
+            parts = list(pool.map(clip, starts))
+    else:
+        parts = [clip(lo) for lo in starts]
+    return tuple(np.concatenate([p[i] for p in parts]) for i in range(3))
 
 
 # -- strategies ------------------------------------------------------------------------------
@@ -299,12 +320,12 @@ class MeanReference(Strategy):
     def needs_exposure(self):
         return bool(self.side_columns)
 
-    def estimate(self, side, schedule, exposure=None):
-        g = schedule.geometry
+    def estimate(self, side, context, exposure=None):
+        g = context.geometry
         columns = (_side_columns(exposure) if self.side_columns and g.ref_border else None)
-        off, used, clipped = _offsets_of(g, reference_pixels(side, schedule), columns,
+        off, used, clipped = _offsets_of(g, reference_pixels(side, context.schedule), columns,
                                          acn=self.acn, sigma=self.sigma,
-                                         maxiters=self.maxiters)
+                                         maxiters=self.maxiters, threads=context.threads)
         return ReferenceOffsets(off, used, clipped, [EVEN, ODD] if self.acn else [ALL])
 
 
@@ -342,7 +363,7 @@ class MedianReference(Strategy):
         self.mask_sources, self.source_sigma = mask_sources, source_sigma
         self.source_npixels, self.box_size = source_npixels, box_size
 
-    def estimate(self, side, schedule, exposure=None):
+    def estimate(self, side, context, exposure=None):
         mask_sources, source_sigma = self.mask_sources, self.source_sigma
         source_npixels, box_size = self.source_npixels, self.box_size
         g = exposure.geometry

@@ -37,8 +37,11 @@ from .exposure import Exposure, ReferenceReads
 
 __all__ = ["FileSource", "MemorySource", "default_threads", "execute", "side_block", "side_indices"]
 
-#: pixels per band (all frames together): 74 frames x 2**17 x 4 B = 39 MB per band
+#: pixels per band of a file (all frames together): 74 frames x 2**17 x 4 B = 39 MB per
+#: band and thread, so memory stays near the output
 BAND_PIXELS = 1 << 17
+#: in memory a band is a view, so bands twice as large cost nothing and fit ~5 % faster
+MEMORY_BAND_FACTOR = 2
 
 
 def default_threads():
@@ -249,7 +252,7 @@ def execute(source, kernels, consumer=None, *, threads=None, rows_per_band=None,
         Bands corrected at once (default `default_threads`).
     rows_per_band : int, optional
         Rows of every frame per band (default: `BAND_PIXELS` pixels of every
-        frame, in memory as from a file).
+        frame from a file, `MEMORY_BAND_FACTOR` times more in memory).
     progress : callable, optional
         Called with the number of rows done after each band.
     timings : dict, optional
@@ -305,7 +308,8 @@ def execute(source, kernels, consumer=None, *, threads=None, rows_per_band=None,
 
     if rows_per_band is None:
         ncols = context.geometry.ncols
-        rows_per_band = max(1, BAND_PIXELS // ncols)
+        pixels = BAND_PIXELS * (MEMORY_BAND_FACTOR if isinstance(source, MemorySource) else 1)
+        rows_per_band = max(1, pixels // ncols)
     cuts = bands(source.nrows, rows_per_band)
     nthreads = default_threads() if threads is None else max(1, int(threads))
     if nthreads == 1 or len(cuts) == 1:

@@ -8,7 +8,8 @@ exposed through the entry-point group ``spherex_reduce``::
     myplugin = "my_package.plugin"
 
 Registration hooks return lists of classes; the run hooks are called around
-every step the pipeline runs.  Step **order** comes from the pipeline's YAML
+every step run by a pipeline, or called alone with a registry
+(``Step(registry)(exposure)``).  Step **order** comes from the pipeline's YAML
 file, never from hook order.
 """
 
@@ -40,15 +41,24 @@ def register_simulators():
 
 @hookspec
 def before_step(step, exposure, params):
-    """Called before a step runs, with the validated parameters (a dict)."""
+    """Called before a step runs, with the validated parameters (a dict).
+
+    ``exposure`` is the step's input, or None when the step runs in an
+    executor pass over a file (its pixels are never whole in memory).  For the
+    steps of one pass, every ``before_step`` comes before the pass and every
+    ``after_step`` after it, in YAML order.
+    """
 
 
 @hookspec
 def after_step(step, exposure, result, params, status, reason, elapsed):
     """Called after a step ran.
 
-    ``status`` is ``'COMPLETE'`` or ``'SKIPPED'`` (then ``reason`` says why and
-    ``result is exposure``); ``elapsed`` is the wall time in seconds.  Return
-    a list of header cards ``(keyword, value, comment)`` to record in the
-    result's header (``'HISTORY'`` cards may repeat), or None.
+    ``status`` is ``'COMPLETE'`` or ``'SKIPPED'`` (then ``reason`` says why;
+    for a step run alone ``result is exposure``).  ``elapsed`` is in seconds:
+    the wall time of a step run alone; in an executor pass, the time its
+    kernel or consumer was busy, summed over threads (reading the file counts
+    for the first step), and ``result`` is the pass's result.  Return a list
+    of header cards ``(keyword, value, comment)`` to record in the result's
+    header (``'HISTORY'`` cards may repeat), or None.
     """

@@ -294,8 +294,8 @@ class Pipeline:
     def _pass_on(self, source, current, steps, i, status, progress, threads):
         kernels, consumer, members, skipped, j = self._plan(source, steps, i, threads)
         if not kernels and consumer is None:
-            if not members:
-                return i, current
+            if not members:  # the step runs whole: on what was read, if it was
+                return i, (source.exposure if isinstance(source, MemorySource) else current)
             # only skipped steps (e.g. subtract_phantom without phantom values)
             if not isinstance(current, Exposure):
                 current = (source.exposure if isinstance(source, MemorySource)

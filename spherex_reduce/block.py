@@ -12,7 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Block", "Context"]
+__all__ = ["ARRAYS", "Block", "Context"]
+
+#: The arrays a block may hold besides its index.
+ARRAYS = frozenset({"data", "phantom", "dq", "uncertainty"})
 
 
 @dataclass(frozen=True, eq=False)
@@ -34,11 +37,12 @@ class Block:
         Flags, same shape as ``data``.
     uncertainty : `numpy.ndarray` or None
         Standard deviations, same shape as ``data``.
-    owned : bool
-        True when the arrays belong to the executor (read from a file into
-        its buffers, or made by a kernel): a kernel may then write into
-        them.  Arrays of a caller's `~spherex_reduce.Exposure` are never
-        written (``owned=False``).
+    owned : frozenset of str, or bool
+        Names of the arrays (``'data'``, ``'phantom'``, ``'dq'``,
+        ``'uncertainty'``) that belong to the executor (read from a file into
+        its buffers, or made by a kernel): a kernel may write into those, and
+        only those.  Arrays of a caller's `~spherex_reduce.Exposure` are
+        never written.  ``True`` means all four, ``False`` none.
     """
 
     data: np.ndarray
@@ -47,7 +51,11 @@ class Block:
     phantom: np.ndarray | None = None
     dq: np.ndarray | None = None
     uncertainty: np.ndarray | None = None
-    owned: bool = False
+    owned: frozenset = frozenset()
+
+    def __post_init__(self):
+        if isinstance(self.owned, bool):
+            object.__setattr__(self, "owned", ARRAYS if self.owned else frozenset())
 
     def replace(self, **changes):
         """A copy with some fields changed."""
@@ -58,23 +66,26 @@ class Block:
         return self.data.shape[0]
 
     def writable(self, dtype):
-        """``data`` as an array of ``dtype`` that may be written: itself if owned and
-        of that type, else a copy (the caller's arrays are never written)."""
+        """``data`` as a C-contiguous array of ``dtype`` that may be written: itself if
+        owned, of that type and layout, else a copy (a caller's arrays are never
+        written)."""
         dtype = np.dtype(dtype)
-        if self.owned and self.data.dtype == dtype and self.data.flags.writeable:
-            return self.data
-        return self.data.astype(dtype)
+        d = self.data
+        if ("data" in self.owned and d.dtype == dtype and d.flags.writeable
+                and d.flags.c_contiguous):
+            return d
+        return np.array(d, dtype=dtype, order="C")
 
     def with_flags(self, flags):
         """A copy whose ``dq`` has ``flags`` (broadcast to the data's shape) or-ed in."""
         if self.dq is None:
             dq = np.zeros(self.data.shape, np.uint16)
-        elif self.owned and self.dq.flags.writeable:
+        elif "dq" in self.owned and self.dq.flags.writeable:
             dq = self.dq
         else:
             dq = self.dq.copy()
         dq |= flags
-        return self.replace(dq=dq)
+        return self.replace(dq=dq, owned=self.owned | {"dq"})
 
 
 @dataclass(frozen=True, eq=False)

@@ -33,7 +33,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from .block import Block, Context
-from .exposure import Exposure, ReferenceReads
+from .exposure import Exposure, ReferenceReads, expected_shape
 
 __all__ = ["FileSource", "MemorySource", "default_threads", "execute", "side_block", "side_indices"]
 
@@ -127,10 +127,6 @@ class MemorySource:
         return Block(data, np.arange(lo, hi), self.context.order, phantom=phantom, dq=flags,
                      uncertainty=unc)
 
-    def bytes_per_row(self):
-        data = self._arrays[0]
-        return data.shape[0] * data.shape[-1] * data.dtype.itemsize
-
 
 class FileSource:
     """Bands of a raw ramp file, read with ``pread`` (no page of the file is mapped).
@@ -158,9 +154,6 @@ class FileSource:
         """Whether a reader's file can be read in bands (else: read it whole)."""
         return reader.readable_in_bands()
 
-    def bytes_per_row(self):
-        return self.context.schedule.nframes * self.context.geometry.ncols * self._dtype.itemsize
-
     def _reads(self, idx):
         """Reads ``idx`` (sorted) of every frame ``(frames, len(idx), ncols)``, native order."""
         s = self.context.schedule
@@ -177,12 +170,12 @@ class FileSource:
     def side(self):
         idx = side_indices(self.context.schedule)
         phantom = None if self._phantom is None else self._phantom[:, idx]
-        return Block(self._reads(idx), idx, "readout", phantom=phantom, owned=True)
+        return Block(self._reads(idx), idx, "readout", phantom=phantom, owned={"data"})
 
     def read(self, lo, hi):
         idx = np.arange(lo, hi)
         phantom = None if self._phantom is None else self._phantom[:, lo:hi]
-        return Block(self._reads(idx), idx, "readout", phantom=phantom, owned=True)
+        return Block(self._reads(idx), idx, "readout", phantom=phantom, owned={"data"})
 
 
 def context_of(exposure):
@@ -201,13 +194,10 @@ class _Assembly:
     """The output arrays of a chain of kernels with no consumer: bands written in place."""
 
     def __init__(self, context):
-        self.context = context
-        self.nrows = (context.schedule.n_reads if context.order == "readout"
-                      else context.geometry.nrows)
+        self.nrows = expected_shape(context.schedule, context.order, False)[0]
+        self.order = context.order
         self._arrays = {}
         self._lock = threading.Lock()
-        self.order = context.order
-        self.nframes = None
 
     def _array(self, name, like):
         with self._lock:
@@ -219,13 +209,10 @@ class _Assembly:
         return out
 
     def band(self, block):
-        self.order = block.order
         for name in ("data", "phantom", "dq", "uncertainty"):
             values = getattr(block, name)
             if values is not None:
                 self._array(name, values)[:, block.index] = values
-        if "data" in self._arrays:
-            self.nframes = self._arrays["data"].shape[0]
 
     def get(self, name, ramp):
         values = self._arrays.get(name)
@@ -240,9 +227,9 @@ def execute(source, kernels, consumer=None, *, threads=None, rows_per_band=None,
 
     Parameters
     ----------
-    source : `MemorySource` or `~spherex_reduce.io.FrameReader`
+    source : `MemorySource` or `FileSource`
         Where bands come from (``side()``, ``read(lo, hi)``, ``context``,
-        ``header``, ``tables``, ``reference``, ``nrows``, ``bytes_per_row()``).
+        ``header``, ``tables``, ``reference``, ``nrows``).
     kernels : list of `~spherex_reduce.step.Kernel`
         In the order they run (each made for the previous one's output context).
     consumer : `~spherex_reduce.step.Consumer`, optional
@@ -280,8 +267,10 @@ def execute(source, kernels, consumer=None, *, threads=None, rows_per_band=None,
     coefficients = []
     for i, kernel in enumerate(kernels):
         if kernel.needs_exposure:
-            if getattr(source, "exposure", None) is None:
-                raise ValueError(f"{type(kernel).__name__} needs the whole exposure in memory")
+            if i > 0 or getattr(source, "exposure", None) is None:
+                # its estimate would see the pixels before the kernels ahead of it
+                raise ValueError(f"{type(kernel).__name__} needs the whole exposure in memory, "
+                                 "as the first kernel of a pass")
             c = kernel.prepare(side, source.exposure)
         else:
             c = kernel.prepare(side)

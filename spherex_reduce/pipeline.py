@@ -239,7 +239,8 @@ class Pipeline:
             reader = FrameReader(current, **self._supplied())
             if FileSource.usable(reader):
                 return FileSource(reader), reader
-            reader.close()
+            with reader:  # read whole from the file already open and checked
+                return MemorySource(reader.exposure()), None
         return MemorySource(self.read(current)), None
 
     def _pass(self, current, steps, i, status, progress, threads):
@@ -254,7 +255,10 @@ class Pipeline:
             return i, current
         source, reader = self._source(current)
         try:
-            return self._pass_on(source, current, steps, i, status, progress, threads)
+            done, result = self._pass_on(source, current, steps, i, status, progress, threads)
+            if done == i and reader is not None:  # the step runs whole: on the file open here
+                result = reader.exposure()
+            return done, result
         finally:
             if reader is not None:
                 reader.close()
@@ -306,7 +310,7 @@ class Pipeline:
             return j, self._record_pass(current, steps, members, skipped, {}, status, "",
                                         current)
         hook = self.registry.pm.hook
-        before = current if isinstance(current, Exposure) else None
+        before = source.exposure if isinstance(source, MemorySource) else None
         for k in members:
             hook.before_step(step=steps[k][2], exposure=before, params=steps[k][1])
         timings = {}

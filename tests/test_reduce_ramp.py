@@ -510,3 +510,15 @@ def test_least_squares_refuses_an_output_it_could_not_write_through():
         ls.fit(np.zeros((4, 3, 4)), out=cols)
     ramps = np.arange(4.0)[:, None, None] * np.ones((4, 3, 8))
     assert np.array_equal(ls.fit(ramps, out=whole).slope, np.ones((3, 8)))
+
+
+def test_big_endian_float64_ramps_are_fitted_in_float64(tmp_path):
+    """FITS stores float64 big-endian: the fit must not fall back to float32 sums for it."""
+    s = schedule(nframes=5)
+    rng = np.random.default_rng(3)
+    cube = 6e4 + rng.normal(0, 10, (5, 16, 16)) + 0.37 * np.arange(5)[:, None, None]
+    native = fit_ramp(Exposure.from_arrays(cube, s))
+    swapped = fit_ramp(Exposure.from_arrays(cube.astype(">f8"), s))
+    np.testing.assert_array_equal(swapped.data.data, native.data.data)
+    np.testing.assert_array_equal(swapped.data.uncertainty.array,
+                                  native.data.uncertainty.array)

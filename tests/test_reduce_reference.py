@@ -245,3 +245,21 @@ def test_unknown_strategy_lists_the_valid_ones():
     e = Exposure.from_arrays(np.zeros((3, s.n_reads, 32)), s)
     with pytest.raises(ConfigError, match=r"'nonesuch' is not one of .*mean"):
         correct_reference(e, "nonesuch")
+
+
+@pytest.mark.parametrize("steps", [["correct_reference"], ["subtract_phantom",
+                                                          "correct_reference"]])
+def test_flags_never_go_into_the_callers_dq_array(steps):
+    """A channel without reference pixels is flagged in the result, never in the input's dq."""
+    s = sched()
+    data = offsets_image(s, np.array([1.0, 2.0, 3.0, 4.0]))
+    data[:, s.reference_read_indices, 8:16] = np.nan
+    flags = np.zeros(data.shape, np.uint16)
+    flags[0, 5, 3] = dq.DO_NOT_USE  # a caller's flag: the input has its own dq array
+    e = Exposure.from_arrays(data, s, mask=flags, phantom=np.zeros((*data.shape[:2], 4)))
+    before = e.dq.copy()
+    with pytest.warns(NoReferenceWarning):
+        out = Pipeline({"steps": steps}).run(e)
+    assert (out.dq[:, :, 8:16] & dq.NO_REFERENCE).all()
+    np.testing.assert_array_equal(e.dq, before)
+    np.testing.assert_array_equal(e.data.mask, before != 0)

@@ -10,7 +10,16 @@ from astropy.table import Table
 
 from ..errors import FormatError
 from ..exposure import Exposure
-from .fits_read import _FITS_DTYPES, _FLOAT_FOR, _describe, _open, _physical, _scaling, _to_physical
+from .fits_read import (
+    _FITS_DTYPES,
+    _FLOAT_FOR,
+    _describe,
+    _exposure,
+    _open,
+    _physical,
+    _scaling,
+    _to_physical,
+)
 from .layout import _RESERVED
 
 __all__ = ["FrameReader"]
@@ -66,6 +75,13 @@ class FrameReader:
         #: channels)`` or None, and the type the pixels are stored as
         self.tables, self.phantom = self._tables, self._phantom
         self.stored_dtype = None if self._map is None else self._map[2]
+        self._opened = (bad, plain, supplied)
+
+    def exposure(self):
+        """The whole file as the `Exposure` `~spherex_reduce.io.read` gives, from the file
+        already open and checked (not opened or verified again)."""
+        bad, plain, supplied = self._opened
+        return _exposure(self._hdul, self.path, bad, plain, supplied)
 
     def __enter__(self):
         return self

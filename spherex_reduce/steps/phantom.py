@@ -76,7 +76,7 @@ class PhantomKernel(Kernel):
         nch = block.phantom.shape[-1]
         per_channel = out.reshape(f, n, nch, ncols // nch)
         np.subtract(per_channel, block.phantom[..., None], out=per_channel)
-        return block.replace(data=out, phantom=None, owned=True)
+        return block.replace(data=out, phantom=None, owned=block.owned | {"data"})
 
 
 class SubtractPhantomStep(Step):

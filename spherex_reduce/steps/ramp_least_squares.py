@@ -236,7 +236,8 @@ class LeastSquares:
 
     def work_type(self, dtype):
         """The type sums are formed in for pixels of ``dtype``: float64 or float32."""
-        return np.float64 if np.dtype(dtype) == np.float64 else np.float32
+        # by type, not byte order: big-endian float64 (as FITS stores it) is float64 too
+        return np.float64 if np.dtype(dtype).newbyteorder("=") == np.float64 else np.float32
 
     def rows_per_block(self, ncols):
         """Rows of a block of the work buffer for ``ncols`` columns."""

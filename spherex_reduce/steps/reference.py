@@ -77,7 +77,7 @@ class ReferenceKernel(Kernel):
         col = c["col"]
         for f in range(out.shape[0]):
             np.subtract(out[f], col[f].astype(dtype), out=out[f])
-        block = block.replace(data=out, owned=True)
+        block = block.replace(data=out, owned=block.owned | {"data"})
         if c["columns_missing"] is not None:
             flags = np.where(c["columns_missing"][:, None, :], np.uint16(dq.NO_REFERENCE),
                              np.uint16(0))
@@ -90,7 +90,7 @@ class ReferenceKernel(Kernel):
         # the reference reads kept aside: minus the offsets in float64
         rd = side.data
         data = (rd - c["col"][:, None, :]).astype(np.result_type(rd, np.float32))
-        return side.replace(data=data, owned=True)
+        return side.replace(data=data, owned=side.owned | {"data"})
 
     def record(self, c):
         est = c["estimate"]

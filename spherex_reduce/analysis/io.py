@@ -50,6 +50,29 @@ def read_image(path, ext=None, pipeline=None):
         The file is truncated, damaged (checksum, see
         `~spherex_reduce.io.checksum_policy`), in this package's
         format but inconsistent, or has no 2-D image.
+
+    Examples
+    --------
+    A file without readout keywords is a plain image; with a pipeline whose
+    ``geometry:``/``readout:`` say how it was read (rows chopped by ``S = 2``),
+    it is un-chopped:
+
+    >>> import tempfile, pathlib, numpy as np
+    >>> from astropy.io import fits
+    >>> from spherex_reduce import Pipeline
+    >>> from spherex_reduce.analysis.io import read_image
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "lab.fits"
+    >>> fits.PrimaryHDU(np.arange(8.0)[:, None].repeat(4, axis=1)).writeto(path)
+    >>> read_image(path).data[:, 0].tolist()
+    [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0]
+    >>> lab = Pipeline({
+    ...     "geometry": {"nrows": 8, "ncols": 4, "nchannels": 2, "ref_border": 0,
+    ...                  "pixel_rate": 1e5},
+    ...     "readout": {"skip": 2, "ref_mode": "none", "phantom_reads": 0, "nframes": 2,
+    ...                 "frame_time": 1.0},
+    ...     "steps": [{"unchop": {}}]})
+    >>> read_image(path, pipeline=lab).data[:, 0].tolist()
+    [0.0, 4.0, 1.0, 5.0, 2.0, 6.0, 3.0, 7.0]
     """
     path = Path(path)
     if pipeline is not None:

@@ -75,3 +75,115 @@ def test_fit_noise_cli(tmp_path, capsys):
     assert {"alpha", "alpha_err", "beta_err", "gamma_err", "chi2", "dof"} <= set(t.colnames)
     assert (tmp_path / "fit.png").exists()
     assert "alpha" in capsys.readouterr().out
+
+
+# -- -c PIPELINE.yaml and small images (issue 13) -----------------------------------------------
+
+def _strip_schedule(src, dst):
+    """Copy FITS ``src`` to ``dst`` without its schedule: no geometry or readout keyword, no
+    ``READOUT`` table (as a file from other electronics comes)."""
+    from spherex_reduce.fields import FIELDS
+
+    with fits.open(src) as hdul:
+        hdus = fits.HDUList([h.copy() for h in hdul if h.name != "READOUT"])
+    for hdu in hdus:
+        for key in [f.keyword for f in FIELDS] + ["CHECKSUM", "DATASUM", "NEXTEND"]:
+            hdu.header.remove(key, ignore_missing=True)
+    hdus.writeto(dst)
+    return dst
+
+
+def _bytes(*paths):
+    return [p.read_bytes() for p in paths]
+
+
+def _assert_same_table(a, b):
+    """Every column of ECSV table ``a`` is in ``b`` with the same values (``b`` may have more)."""
+    ta, tb = Table.read(a), Table.read(b)
+    assert tb.colnames[:len(ta.colnames)] == ta.colnames and len(ta) == len(tb) > 0
+    for name in ta.colnames:
+        if ta[name].dtype.kind in "fi":
+            np.testing.assert_array_equal(np.asarray(ta[name]), np.asarray(tb[name]), name)
+    return ta, tb
+
+
+def test_fit_noise_config_supplies_what_the_file_lacks(tmp_path, capsys):
+    from test_analysis_temporal import raw_exposure
+
+    full = write(raw_exposure(5, nframes=6), tmp_path / "raw.fits")  # 512 x 64, 4 channels
+    bare = _strip_schedule(full, tmp_path / "bare.fits")
+    config = tmp_path / "lab.yaml"
+    config.write_text("geometry: {nrows: 512, ncols: 64, nchannels: 4, ref_border: 4, "
+                      "pixel_rate: 100000.0}\n"
+                      "readout: {skip: 24, ref_reads: 32, ref_mode: distributed, phantom_reads: 4, "
+                      "nframes: 6, frame_overhead: 40}\nsteps:\n  - unchop: {}\n")
+    before = _bytes(bare, config)
+    # without -c the file does not say how it was read
+    assert main(["fit-noise", str(bare), "-o", str(tmp_path / "no.ecsv")]) == 2
+    assert "missing readout keyword" in capsys.readouterr().err
+    assert main(["fit-noise", str(full), "-o", str(tmp_path / "ref.ecsv")]) == 0
+    assert main(["fit-noise", str(bare), "-c", str(config), "-o", str(tmp_path / "c.ecsv")]) == 0
+    _, got = _assert_same_table(tmp_path / "ref.ecsv", tmp_path / "c.ecsv")
+    assert list(got["stream"]) == ["reference", "phantom"]
+    assert got.meta["config"] == str(config)
+    assert _bytes(bare, config) == before
+    assert not (tmp_path / "no.ecsv").exists()
+
+
+def test_spectrum_config_supplies_what_the_file_lacks(tmp_path):
+    from spherex_reduce import Pipeline
+    from spherex_reduce.analysis.io import read_image
+
+    g = DetectorGeometry(64, 64, 4, ref_border=4)
+    s = ReadoutSchedule(g, skip=8, ref_reads=8, phantom_reads=0, nframes=10, frame_overhead=40)
+    rng = np.random.default_rng(3)
+    slopes = Exposure.from_arrays(rng.normal(0, 2.0, (s.n_reads, 64)), s, unit=u.electron / u.s)
+    full = write(slopes, tmp_path / "slopes.fits")  # readout order: un-chopped when read
+    bare = _strip_schedule(full, tmp_path / "bare.fits")
+    config = tmp_path / "lab.yaml"
+    config.write_text("geometry: {nrows: 64, ncols: 64, nchannels: 4, ref_border: 4, "
+                      "pixel_rate: 100000.0}\n"
+                      "readout: {skip: 8, ref_reads: 8, ref_mode: distributed, phantom_reads: 0, "
+                      "nframes: 10, frame_overhead: 40}\nsteps:\n  - unchop: {}\n")
+    before = _bytes(bare, config)
+    assert main(["spectrum", str(full), "-o", str(tmp_path / "ref.ecsv"), "--bins", "8"]) == 0
+    assert main(["spectrum", str(bare), "-c", str(config), "-o", str(tmp_path / "c.ecsv"),
+                 "--bins", "8", "--compare", str(bare)]) == 0
+    ref, got = _assert_same_table(tmp_path / "ref.ecsv", tmp_path / "c.ecsv")
+    for key in ("band_power", "band_power_err", "photon_noise_power"):
+        assert got.meta[key] == ref.meta[key], key
+    assert got.meta["band_power_compare"] == ref.meta["band_power"]  # --compare: read with -c
+    np.testing.assert_array_equal(got["power_compare"], ref["power"])
+    assert abs(ref.meta["band_power"] - 4.0) < 4 * ref.meta["band_power_err"]
+    assert got.meta["config"] == str(config)
+    assert _bytes(bare, config) == before
+    # the Python API reads it the same way: the pixels of the complete file, un-chopped
+    image = read_image(bare, pipeline=Pipeline.from_yaml(config))
+    np.testing.assert_array_equal(image.data, read_image(full).data)
+    assert image.meta["NFRAMES"] == 10
+
+
+def test_spectrum_of_an_image_too_small_for_the_band(tmp_path, caplog):
+    img = np.random.default_rng(4).normal(0, 0.5, (32, 32))
+    path = tmp_path / "small.fits"
+    hdu = fits.PrimaryHDU(img)
+    hdu.header["BUNIT"] = "electron / s"
+    hdu.writeto(path)
+    before = path.read_bytes()
+    out = tmp_path / "small.ecsv"
+    with caplog.at_level("WARNING"):
+        assert main(["spectrum", str(path), "-o", str(out), "--plot"]) == 0
+    warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warnings) == 1, warnings
+    assert "0.03 <= k <= 0.13" in warnings[0] and "32 x 32" in warnings[0]
+    assert "2 pi/32 = 0.196" in warnings[0]  # why: the fundamental is above the band
+    t = Table.read(out)
+    assert t.meta["band_power"] is None and t.meta["band_power_err"] is None
+    assert "no Fourier mode" in t.meta["band_power_missing"]
+    # P(k) is written all the same: modes from the fundamental 2π/32 up, white at σ² = 0.25
+    assert t["k"][0] == pytest.approx(2 * np.pi / 32)
+    assert int(np.sum(t["nmodes"])) > 300
+    mean = np.sum(t["power"] * t["nmodes"]) / np.sum(t["nmodes"])
+    assert abs(mean - 0.25) < 0.05
+    assert (tmp_path / "small.png").stat().st_size > 1000
+    assert path.read_bytes() == before

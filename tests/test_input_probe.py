@@ -623,6 +623,99 @@ OUTPUT_PLACES = [
 ]
 
 
+# -- -c PIPELINE.yaml of fit-noise and spectrum ---------------------------------------------------
+
+#: The session's schedule as a pipeline config (what a file stripped of its keywords lacks).
+LAB = """\
+geometry: {nrows: 64, ncols: 64, nchannels: 2, ref_border: 4, pixel_rate: 100000.0}
+readout: {skip: 4, ref_reads: 4, ref_mode: distributed, phantom_reads: 2, nframes: 3,
+          frame_overhead: 10}
+steps:
+  - unchop: {}
+"""
+
+
+def _stripped(name, bare="bare.fits"):
+    """Setup: ``bare`` = ``name`` without any geometry or readout keyword or READOUT table,
+    and ``lab.yaml`` = `LAB`."""
+    def setup(d):
+        from spherex_reduce.fields import FIELDS
+
+        def strip(hdul):
+            del hdul["READOUT"]
+            for hdu in hdul:
+                for key in [f.keyword for f in FIELDS] + ["NEXTEND"]:
+                    hdu.header.remove(key, ignore_missing=True)
+
+        rewrite_hdus(d / name, d / bare, strip)
+        (d / "lab.yaml").write_text(LAB)
+    return setup
+
+
+def _small_image(d):
+    hdu = fits.PrimaryHDU(np.random.default_rng(0).normal(0, 1, (32, 32)))
+    hdu.header["BUNIT"] = "electron / s"
+    hdu.writeto(d / "small.fits")
+
+
+def _check_band_missing(d, result, run):
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("spherex-reduce spectrum: warning: "), \
+        result.describe()
+    assert "small.fits" in lines[0] and "0.03 <= k <= 0.13" in lines[0], lines[0]
+    t = Table.read(d / "sp.ecsv")
+    assert len(t) > 0 and t.meta["band_power"] is None and t.meta["band_power_err"] is None
+    assert "no Fourier mode" in t.meta["band_power_missing"]
+    assert "missing" in result.stdout
+
+
+FIT_NOISE_C = [*FIT_NOISE, "-c", "bad.yaml"]
+SPECTRUM_C = [*SPECTRUM, "-c", "bad.yaml"]
+
+INPUT_CONFIG = [
+    refused("fit-noise-config-missing-file", [*FIT_NOISE, "-c", "none.yaml"],
+            mentions="none.yaml"),
+    refused("spectrum-config-missing-file", [*SPECTRUM, "-c", "none.yaml"], mentions="none.yaml"),
+    refused("spectrum-config-no-such-shipped-name", [*SPECTRUM, "-c", "nosuchconfig"],
+            mentions="nosuchconfig"),
+    refused("fit-noise-config-not-a-mapping", FIT_NOISE_C, write("bad.yaml", "- 1\n- 2\n"),
+            mentions="mapping"),
+    refused("spectrum-config-not-a-mapping", SPECTRUM_C, write("bad.yaml", "- 1\n- 2\n"),
+            mentions="mapping"),
+    refused("spectrum-config-not-utf8", SPECTRUM_C, write("bad.yaml", NOT_UTF8)),
+    refused("fit-noise-config-not-yaml", FIT_NOISE_C, write("bad.yaml", "steps: [unchop\n")),
+    refused("spectrum-config-unknown-step", SPECTRUM_C,
+            write("bad.yaml", "steps:\n  - nosuchstep: {}\n"), mentions="nosuchstep"),
+    refused("fit-noise-config-readout-frame-time-nan", FIT_NOISE_C,
+            write("bad.yaml", "readout: {frame_time: .nan}\nsteps:\n  - unchop: {}\n"),
+            mentions="frame_time"),
+    refused("spectrum-fits-file-as-config", [*SPECTRUM, "-c", "raw.fits"]),
+    refused("fit-noise-config-wrong-geometry", ["fit-noise", "bare.fits", "-c", "bad.yaml", "-o",
+                                                "fit.ecsv"],
+            lambda d: (_stripped("raw.fits")(d),
+                       (d / "bad.yaml").write_text(LAB.replace("nrows: 64", "nrows: 128")))),
+    refused("fit-noise-stripped-without-config", ["fit-noise", "bare.fits", "-o", "fit.ecsv"],
+            _stripped("raw.fits"), mentions="missing readout keyword"),
+    refused("spectrum-output-is-config", ["spectrum", "red.fits", "-c", "fit.yaml", "-o",
+                                          "fit.yaml", "--overwrite"]),
+    refused("fit-noise-output-is-config", ["fit-noise", "raw.fits", "-c", "fit.yaml", "-o",
+                                           "fit.yaml", "--overwrite"]),
+    refused("fit-noise-plot-is-config", [*FIT_NOISE, "-c", "fit.yaml", "--plot", "fit.yaml",
+                                         "--overwrite"]),
+    refused("spectrum-output-is-file-config-names", ["spectrum", "red.fits", "-c", "dark.yaml",
+                                                     "-o", "red2.fits", "--overwrite"],
+            write("dark.yaml", DARK_CONFIG)),
+    works("fit-noise-config-supplies-stripped-keywords",
+          ["fit-noise", "bare.fits", "-c", "lab.yaml", "-o", "fit.ecsv"], _stripped("raw.fits"),
+          _check_same_table([*FIT_NOISE[:-1], "ref.ecsv"], "fit.ecsv", "ref.ecsv")),
+    works("spectrum-config-supplies-stripped-keywords",
+          ["spectrum", "bare.fits", "-c", "lab.yaml", "-o", "sp.ecsv"], _stripped("red.fits"),
+          _check_same_table([*SPECTRUM[:-1], "ref.ecsv"], "sp.ecsv", "ref.ecsv")),
+    works("spectrum-small-image-band-missing", ["spectrum", "small.fits", "-o", "sp.ecsv"],
+          _small_image, _check_band_missing),
+]
+
+
 # -- what the user sees besides errors -----------------------------------------------------------
 
 def _warning_text(line):
@@ -664,7 +757,7 @@ HELD = [
 ]
 
 CASES = [*FITS_DAMAGE, *CHECKSUM_OPT_OUT, *INTEGER_DATA, *YAML, *CLI_NUMBERS, *OUTPUT_IS_INPUT,
-         *OUTPUT_PLACES, *MESSAGES, *HELD]
+         *INPUT_CONFIG, *OUTPUT_PLACES, *MESSAGES, *HELD]
 
 
 @pytest.mark.parametrize("case", CASES)

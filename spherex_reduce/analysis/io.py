@@ -15,7 +15,7 @@ from ..steps import unchop
 __all__ = ["read_image"]
 
 
-def read_image(path, ext=None):
+def read_image(path, ext=None, pipeline=None):
     """A 2-D image from a FITS file as `~astropy.nddata.CCDData` in physical row order.
 
     Files in this package's format (readout keywords present) are read with
@@ -23,13 +23,20 @@ def read_image(path, ext=None):
     from the simulator or an on-board processor) is un-chopped first, so rows
     are where they are on the array.  The ``DQ`` flags become the mask.
     Other FITS files: the first 2-D image HDU (or ``ext``), with ``BUNIT`` if
-    present.  The header goes to ``meta``; the file is never modified.
+    present.  With ``pipeline``, the file is read as `Pipeline.read
+    <spherex_reduce.Pipeline.read>` reads a pipeline's input (the config's
+    ``geometry:`` and ``readout:`` sections supply the keywords the file
+    lacks), then un-chopped if in readout order.  The header goes to
+    ``meta``; the file is never modified.
 
     Parameters
     ----------
     path : str or `pathlib.Path`
     ext : int or str, optional
-        HDU to read from a file not in this package's format.
+        HDU to read from a file not in this package's format (not with ``pipeline``).
+    pipeline : `~spherex_reduce.Pipeline`, optional
+        Read the file as this pipeline reads its input, e.g. the one
+        ``spherex-reduce spectrum -c`` names.
 
     Returns
     -------
@@ -43,13 +50,41 @@ def read_image(path, ext=None):
         The file is truncated, damaged (checksum, see
         `~spherex_reduce.io.checksum_policy`), in this package's
         format but inconsistent, or has no 2-D image.
+
+    Examples
+    --------
+    A file without readout keywords is a plain image; with a pipeline whose
+    ``geometry:``/``readout:`` say how it was read (rows chopped by ``S = 2``),
+    it is un-chopped:
+
+    >>> import tempfile, pathlib, numpy as np
+    >>> from astropy.io import fits
+    >>> from spherex_reduce import Pipeline
+    >>> from spherex_reduce.analysis.io import read_image
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "lab.fits"
+    >>> fits.PrimaryHDU(np.arange(8.0)[:, None].repeat(4, axis=1)).writeto(path)
+    >>> read_image(path).data[:, 0].tolist()
+    [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0]
+    >>> lab = Pipeline({
+    ...     "geometry": {"nrows": 8, "ncols": 4, "nchannels": 2, "ref_border": 0,
+    ...                  "pixel_rate": 1e5},
+    ...     "readout": {"skip": 2, "ref_mode": "none", "phantom_reads": 0, "nframes": 2,
+    ...                 "frame_time": 1.0},
+    ...     "steps": [{"unchop": {}}]})
+    >>> read_image(path, pipeline=lab).data[:, 0].tolist()
+    [0.0, 4.0, 1.0, 5.0, 2.0, 6.0, 3.0, 7.0]
     """
     path = Path(path)
-    with open_checked(path) as f:  # truncation, checksums, unreadable cards
-        if "READOUT" not in f.hdul and "ROWSKIP" not in f.hdul[0].header:
-            return _foreign_image(f, path, ext)
-        # this package's format: its errors are the answer (no second guess as a plain image)
-        exposure = f.exposure()
+    if pipeline is not None:
+        if ext is not None:
+            raise ValueError("read_image: give ext or pipeline, not both")
+        exposure = pipeline.read(path)
+    else:
+        with open_checked(path) as f:  # truncation, checksums, unreadable cards
+            if "READOUT" not in f.hdul and "ROWSKIP" not in f.hdul[0].header:
+                return _foreign_image(f, path, ext)
+            # this package's format: its errors are the answer (no second guess as a plain image)
+            exposure = f.exposure()
     if exposure.is_ramp:
         raise SpherexReduceError(
             f"{path} holds ramps {exposure.shape}; fit them first (spherex-reduce reduce "

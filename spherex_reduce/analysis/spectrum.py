@@ -35,6 +35,7 @@ __all__ = [
     "BAND_KMAX",
     "BAND_KMIN",
     "SPHEREX_PIXEL_SCALE",
+    "EmptyBandError",
     "FFTImage",
     "band_label",
     "band_power",
@@ -49,6 +50,14 @@ SPHEREX_PIXEL_SCALE = 6.2 * u.arcsec
 #: The paper's band θ = 5–20′ in rad/pixel (Figs. 6, 8, 13, 14).
 BAND_KMIN, BAND_KMAX = 0.03, 0.13
 _K_UNIT = u.rad / u.pix
+
+
+class EmptyBandError(SpherexReduceError):
+    """An image has no Fourier mode in the band asked for (e.g. an image too small for it).
+
+    Raised by `band_power`; ``spherex-reduce spectrum`` reports the band power as
+    missing instead (its message is the warning).
+    """
 
 
 def k_from_theta(theta, pixel_scale=SPHEREX_PIXEL_SCALE):
@@ -329,6 +338,17 @@ def band_power(spectrum, kmin=BAND_KMIN, kmax=BAND_KMAX, return_error=False, **k
     power : `~astropy.units.Quantity`
         Band power in the spectrum's unit; ``(power, error)`` if ``return_error``.
 
+    Raises
+    ------
+    EmptyBandError
+        The image has no Fourier mode in the band: its lowest ``k``,
+        ``2π / max(ny, nx)``, is above ``kmax`` (an image of fewer than
+        ``2π / kmax`` pixels on its longer side: 49 for the default band), or
+        the band falls between its modes.  The message names the band, the
+        image's shape and its lowest ``k``.
+    SpherexReduceError
+        ``kmin``/``kmax`` out of order, or a table whose bins do not tile the band.
+
     Examples
     --------
     >>> import numpy as np
@@ -337,6 +357,10 @@ def band_power(spectrum, kmin=BAND_KMIN, kmax=BAND_KMAX, return_error=False, **k
     >>> p, err = band_power(img, return_error=True)
     >>> bool(abs(p.value - 9) < 4 * err.value)
     True
+    >>> band_power(img[:32, :32])
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.analysis.spectrum.EmptyBandError: no Fourier mode of the 32 x 32 image has ...
     """
     lo, hi = float(_k_value(kmin)), float(_k_value(kmax))
     if not 0 <= lo < hi:
@@ -368,7 +392,11 @@ def band_power(spectrum, kmin=BAND_KMIN, kmax=BAND_KMAX, return_error=False, **k
     else:
         t = power_spectrum(spectrum, bins=[lo, hi], **kwargs)
         if len(t) == 0:
-            raise SpherexReduceError(f"the image has no Fourier mode with {lo} <= k <= {hi}")
+            ny, nx = t.meta["shape"]
+            side = max(ny, nx)
+            raise EmptyBandError(
+                f"no Fourier mode of the {ny} x {nx} image has {lo:g} <= k <= {hi:g} rad/pixel "
+                f"(its lowest k is 2 pi/{side} = {2 * np.pi / side:.3g} rad/pixel)")
         power, error = u.Quantity(t["power"])[0], u.Quantity(t["power_err"])[0]
     return (power, error) if return_error else power
 

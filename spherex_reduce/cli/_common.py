@@ -12,13 +12,15 @@ import argparse
 import contextlib
 import math
 import os
+from pathlib import Path
 
 from ..errors import ResourceError, SpherexReduceError
 from ..io import atomic_output
 from ..limits import check_count
+from ..pipeline import Pipeline
 
-__all__ = ["all_or_nothing", "check_paths", "count", "finite_float",
-           "named_files", "nonnegative_float", "positive_float"]
+__all__ = ["add_config_option", "all_or_nothing", "check_paths", "count", "finite_float",
+           "input_config", "named_files", "nonnegative_float", "positive_float"]
 
 
 def _float(text):
@@ -161,6 +163,57 @@ def named_files(obj, base=None, _depth=0):
     if isinstance(obj, (list, tuple)):
         return [f for item in obj for f in named_files(item, base, _depth + 1)]
     return []
+
+
+def add_config_option(parser):
+    """``-c PIPELINE.yaml`` of a command that reads FITS files without reducing them.
+
+    See `input_config`.
+    """
+    parser.add_argument(
+        "-c", "--config", metavar="PIPELINE.yaml",
+        help="pipeline YAML file or shipped config name (see show-config --list) whose "
+        "geometry: and readout: sections supply the keywords the input files lack, as for "
+        "reduce -c (its steps are validated, not run)")
+
+
+def input_config(config):
+    """The `~spherex_reduce.Pipeline` of a ``-c`` option and the files it reads.
+
+    Parameters
+    ----------
+    config : str or None
+        A pipeline YAML file or a shipped config name, as ``reduce -c`` takes.
+
+    Returns
+    -------
+    pipeline : `~spherex_reduce.Pipeline` or None
+        Its `Pipeline.read <spherex_reduce.Pipeline.read>` reads a FITS file
+        with the config's ``geometry:``/``readout:`` for missing keywords.
+    files : list of str
+        The config file and every existing file it names (e.g. a dark), the
+        inputs `check_paths` must protect; empty without ``config``.
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file and no shipped config of that name.
+    ConfigError
+        The config is not valid YAML, not a mapping, or not a valid pipeline.
+
+    Examples
+    --------
+    >>> from spherex_reduce.cli._common import input_config
+    >>> pipeline, files = input_config("unchop")
+    >>> pipeline.steps, files
+    ([('unchop', {})], ['unchop'])
+    >>> input_config(None)
+    (None, [])
+    """
+    if config is None:
+        return None, []
+    pipeline = Pipeline.from_yaml(config)
+    return pipeline, [config, *named_files(pipeline.steps, Path(config).parent)]
 
 
 def _same(a, b):

@@ -3,7 +3,14 @@
 from pathlib import Path
 
 from ..io import atomic_output
-from ._common import all_or_nothing, check_paths, count, positive_float
+from ._common import (
+    add_config_option,
+    all_or_nothing,
+    check_paths,
+    count,
+    input_config,
+    positive_float,
+)
 
 #: More log bins than this resolve nothing a Welch PSD holds, and take minutes.
 MAX_BINS = 1000
@@ -19,6 +26,7 @@ def add_parser(sub):
         "uncertainties (how the paper's Table 2 was made).")
     p.add_argument("input", metavar="RAW.fits")
     p.add_argument("-o", "--output", required=True, metavar="FIT.ecsv")
+    add_config_option(p)
     p.add_argument("--plot", nargs="?", const=True, metavar="PNG",
                    help="draw the PSDs and fits (default name: the output with .png)")
     p.add_argument("--exponent", type=positive_float, default=1.3,
@@ -44,7 +52,8 @@ def run(args):
     plot = args.plot
     if plot is True:
         plot = str(Path(args.output).with_suffix(".png"))
-    check_paths([args.input], [args.output, plot])
+    pipeline, config_files = input_config(args.config)
+    check_paths([args.input, *config_files], [args.output, plot])
     for path in (args.output, plot):
         if path:
             atomic_output(path, args.overwrite)
@@ -52,12 +61,14 @@ def run(args):
 
     if args.nperseg is not None and args.nperseg < 4:
         raise SpherexReduceError(f"--nperseg must be >= 4 row reads, got {args.nperseg}")
-    exposure = read(args.input)
+    exposure = read(args.input) if pipeline is None else pipeline.read(args.input)
     exponent = None if args.fit_exponent else args.exponent
     table = fit_raw_noise(exposure, exponent=exponent, nperseg=args.nperseg,
                           nbins=args.nbins, acn=args.acn)
     fits_ = table.meta.pop("fits")
     table.meta["source"] = str(args.input)
+    if pipeline is not None:
+        table.meta["config"] = pipeline.source
     if "SXRCKBAD" in exposure.header:  # read with --ignore-checksum: say so in the output
         table.meta["input_checksum_failed"] = str(exposure.header["SXRCKBAD"])
     with all_or_nothing([args.output, plot], args.overwrite) as (tmp, tmp_plot):

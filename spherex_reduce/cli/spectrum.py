@@ -1,5 +1,6 @@
 """``spherex-reduce spectrum``: the spatial power spectrum P(k) of an image."""
 
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -9,13 +10,17 @@ from astropy.table import join
 from ..errors import SpherexReduceError
 from ..io import atomic_output
 from ._common import (
+    add_config_option,
     all_or_nothing,
     check_paths,
     count,
     finite_float,
+    input_config,
     nonnegative_float,
     positive_float,
 )
+
+log = logging.getLogger(__name__)
 
 _DEFAULT_TINT = 111.74  # s: N = 74 frames of 1.51 s (paper Table 3)
 
@@ -24,11 +29,13 @@ def add_parser(sub):
     p = sub.add_parser(
         "spectrum", help="azimuthally averaged power spectrum P(k) of an image",
         description="Measure P(k) of IMAGE.fits (k in rad/pixel, k = 2π·pixel scale/θ), write "
-        "it as ECSV (columns k theta power power_err nmodes; the 5–20′ band power in the meta) "
-        "and optionally plot it with the band shaded and the photon-noise line. Images in "
+        "it as ECSV (columns k theta power power_err nmodes; the 5–20′ band power in the meta, "
+        "null with a warning when no Fourier mode of the image falls in the band) and "
+        "optionally plot it with the band shaded and the photon-noise line. Images in "
         "readout order are un-chopped first.")
     p.add_argument("input", metavar="IMAGE.fits")
     p.add_argument("-o", "--output", required=True, metavar="SPECTRUM.ecsv")
+    add_config_option(p)
     p.add_argument("--plot", nargs="?", const=True, metavar="PNG",
                    help="draw P(k) (default name: the output with .png)")
     p.add_argument("--compare", metavar="OTHER.fits",
@@ -52,15 +59,30 @@ def add_parser(sub):
     p.set_defaults(func=run)
 
 
-def _measure(image, args, bins=None):
-    from ..analysis import band_power, power_spectrum
+def _measure(image, args, path, bins=None):
+    """P(k) of ``image``, its band power and error, and None; or, when no Fourier mode of the
+    image is in the band, P(k), None, None and why (logged as a warning)."""
+    from ..analysis import EmptyBandError, band_power, power_spectrum
 
     scale = args.pixel_scale * u.arcsec
     kw = {"pixel_scale": scale, "mask_sources": args.mask_sources,
           "exclude_horizontal": args.exclude_horizontal}
     table = power_spectrum(image, bins=args.bins if bins is None else bins, **kw)
-    band, err = band_power(image, args.kmin, args.kmax, return_error=True, **kw)
-    return table, band, err
+    try:
+        band, err = band_power(image, args.kmin, args.kmax, return_error=True, **kw)
+    except EmptyBandError as exc:
+        log.warning("%s: band power missing: %s", path, exc)
+        return table, None, None, str(exc)
+    return table, band, err, None
+
+
+def _value(quantity):
+    """A band power for the table's meta: its value, or None (YAML null) when missing."""
+    return None if quantity is None else float(quantity.value)
+
+
+def _text(band, err):
+    return "missing" if band is None else f"{band.value:.4g} ± {err.value:.2g} {band.unit}"
 
 
 def _photon(image, args):
@@ -81,6 +103,7 @@ def _photon(image, args):
 
 
 def run(args):
+    from ..analysis import band_label
     from ..analysis.io import read_image
 
     if args.kmin >= args.kmax:
@@ -88,37 +111,39 @@ def run(args):
     plot = args.plot
     if plot is True:
         plot = str(Path(args.output).with_suffix(".png"))
-    check_paths([args.input, args.compare], [args.output, plot])
+    pipeline, config_files = input_config(args.config)
+    check_paths([args.input, args.compare, *config_files], [args.output, plot])
     for path in (args.output, plot):
         if path:
             atomic_output(path, args.overwrite)
-    image = read_image(args.input)
-    table, band, err = _measure(image, args)
+    image = read_image(args.input, pipeline=pipeline)
+    table, band, err, missing = _measure(image, args, args.input)
     table.meta.update({
         "source": str(args.input), "band_kmin": args.kmin, "band_kmax": args.kmax,
-        "band_power": float(band.value), "band_power_err": float(err.value),
-        "band_power_unit": band.unit.to_string(),
+        "band_power": _value(band), "band_power_err": _value(err),
+        "band_power_unit": u.Quantity(table["power"]).unit.to_string(),
     })
+    if missing:
+        table.meta["band_power_missing"] = missing
+    if pipeline is not None:
+        table.meta["config"] = pipeline.source
     if "SXRCKBAD" in image.meta:  # read with --ignore-checksum: say so in the output
         table.meta["input_checksum_failed"] = str(image.meta["SXRCKBAD"])
     photon, photon_label = _photon(image, args)
     if photon is not None:
         table.meta["photon_noise_power"] = float(photon.value)
         table.meta["photocurrent_e_per_s"] = args.photocurrent
-    from ..analysis import band_label
-
     band_text = band_label(args.kmin, args.kmax, args.pixel_scale * u.arcsec)
-    lines = [f"{args.input}: band power {band_text} = "
-             f"{band.value:.4g} ± {err.value:.2g} {band.unit}"]
+    lines = [f"{args.input}: band power {band_text} = {_text(band, err)}"]
     spectra = {Path(args.input).name: table}
     if args.compare:
-        other = read_image(args.compare)
+        other = read_image(args.compare, pipeline=pipeline)
         if not (other.unit or u.one).is_equivalent(image.unit or u.one):
             raise SpherexReduceError(
                 f"--compare: {args.compare} is in {other.unit or 'no unit'}, but {args.input} "
                 f"is in {image.unit or 'no unit'}; compare images of the same quantity")
         edges = np.unique(np.concatenate([table["k_lo"], table["k_hi"]]))
-        ot, oband, oerr = _measure(other, args, bins=edges)
+        ot, oband, oerr, omissing = _measure(other, args, args.compare, bins=edges)
         spectra[Path(args.compare).name] = ot
         sub = ot["k_lo", "power", "power_err", "nmodes"]
         for c in ("power", "power_err", "nmodes"):
@@ -127,13 +152,16 @@ def run(args):
         table = join(table, sub, keys="k_lo", join_type="left")
         table.sort("k")
         table.meta.update(meta)
-        table.meta.update({"compare": str(args.compare), "band_power_compare": float(oband.value),
-                           "band_power_compare_err": float(oerr.value)})
+        table.meta.update({"compare": str(args.compare), "band_power_compare": _value(oband),
+                           "band_power_compare_err": _value(oerr)})
+        if omissing:
+            table.meta["band_power_compare_missing"] = omissing
         if "SXRCKBAD" in other.meta:
             table.meta["compare_checksum_failed"] = str(other.meta["SXRCKBAD"])
-        ratio = (band / oband).to_value(u.one) if oband.value else np.inf
-        lines.append(f"{args.compare}: band power = {oband.value:.4g} ± {oerr.value:.2g} "
-                     f"{oband.unit} (ratio {ratio:.3g})")
+        ratio = ""
+        if band is not None and oband is not None:
+            ratio = f" (ratio {(band / oband).to_value(u.one) if oband.value else np.inf:.3g})"
+        lines.append(f"{args.compare}: band power = {_text(oband, oerr)}{ratio}")
     if photon is not None:
         lines.append(f"photon noise of {args.photocurrent:g} e/s: {photon.value:.4g} {photon.unit}")
     with all_or_nothing([args.output, plot], args.overwrite) as (tmp, tmp_plot):
@@ -142,10 +170,10 @@ def run(args):
             from ..analysis.plots import plot_spectra
             from ..plotting import save_figure, unit_label
 
+            title = "P(k), band power missing" if band is None else \
+                f"P(k), band power {band.value:.3g} {unit_label(band.unit)}"
             fig = plot_spectra(spectra, band=(args.kmin, args.kmax), photon=photon,
-                               photon_label=photon_label,
-                               title=f"P(k), band power {band.value:.3g} "
-                               f"{unit_label(band.unit)}",
+                               photon_label=photon_label, title=title,
                                pixel_scale=args.pixel_scale * u.arcsec)
             save_figure(fig, tmp_plot)
     lines.append(f"wrote {args.output}")

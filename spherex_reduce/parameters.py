@@ -5,7 +5,10 @@ from dataclasses import dataclass
 
 from .errors import ConfigError
 
-__all__ = ["Parameter", "validate_parameters"]
+__all__ = ["OPTIONAL_NUMBER", "Parameter", "validate_parameters"]
+
+#: Types of a number parameter that may be null (``None``).
+OPTIONAL_NUMBER = (int, float, type(None))
 
 _TYPE_NAMES = {bool: "boolean", int: "integer", float: "number", str: "string", list: "list",
                dict: "mapping", type(None): "null"}

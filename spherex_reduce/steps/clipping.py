@@ -9,7 +9,7 @@ from astropy.table import Table
 from .. import dq
 from ..errors import SpherexReduceError
 from ..hookspecs import hookimpl
-from ..parameters import Parameter
+from ..parameters import OPTIONAL_NUMBER, Parameter
 from ..step import Step
 
 __all__ = ["SigmaClipStep", "sigma_clip"]
@@ -103,7 +103,6 @@ def _sigma_clip(exposure, *, sigma=5.0, sigma_lower=None, sigma_upper=None, maxi
                             tables=tables, header=header)
 
 
-_OPT_NUM = (int, float, type(None))
 
 
 class SigmaClipStep(Step):
@@ -113,10 +112,10 @@ class SigmaClipStep(Step):
     parameters = (
         Parameter("sigma", 5.0, (float,), "threshold (standard deviations)", minimum=0,
                   exclusive_minimum=True),
-        Parameter("sigma_lower", None, _OPT_NUM, "lower threshold (default sigma)", minimum=0,
-                  exclusive_minimum=True),
-        Parameter("sigma_upper", None, _OPT_NUM, "upper threshold (default sigma)", minimum=0,
-                  exclusive_minimum=True),
+        Parameter("sigma_lower", None, OPTIONAL_NUMBER, "lower threshold (default sigma)",
+                  minimum=0, exclusive_minimum=True),
+        Parameter("sigma_upper", None, OPTIONAL_NUMBER, "upper threshold (default sigma)",
+                  minimum=0, exclusive_minimum=True),
         Parameter("maxiters", None, (int, type(None)), "iterations (null: until converged)",
                   minimum=1, maximum=1000),
         Parameter("cenfunc", "median", (str,), "centre", choices=("median", "mean")),

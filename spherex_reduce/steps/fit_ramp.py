@@ -20,7 +20,7 @@ from .. import dq
 from ..errors import SpherexReduceError, StepSkipped
 from ..exposure import Exposure, ReferenceReads
 from ..hookspecs import hookimpl
-from ..parameters import Parameter
+from ..parameters import OPTIONAL_NUMBER, Parameter
 from ..step import Consumer, Step
 from .ramp_least_squares import LeastSquares, RampSolution, ramp_weights
 
@@ -28,7 +28,6 @@ __all__ = ["WEIGHTINGS", "FitRampStep", "RampFit", "fit_ramp", "ramp_weights"]
 
 #: values of the ``weighting`` parameter
 WEIGHTINGS = ("uniform", "optimal")
-_OPT_NUM = (int, float, type(None))
 
 
 def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, saturation=None):
@@ -212,11 +211,11 @@ class FitRampStep(Step):
     parameters = (
         Parameter("weighting", "uniform", (str,), "uniform (paper) or optimal",
                   choices=WEIGHTINGS),
-        Parameter("read_noise", None, _OPT_NUM, "read noise per read (data unit); null: "
+        Parameter("read_noise", None, OPTIONAL_NUMBER, "read noise per read (data unit); null: "
                   "uncertainty from the fit residuals", minimum=0),
         Parameter("gain", 1.0, (float,), "electrons per data unit (shot noise)", minimum=0,
                   exclusive_minimum=True),
-        Parameter("saturation", None, _OPT_NUM, "reads above this level are not used "
+        Parameter("saturation", None, OPTIONAL_NUMBER, "reads above this level are not used "
                   "(data unit)"),
     )
 

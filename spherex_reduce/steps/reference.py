@@ -124,8 +124,9 @@ def apply_offsets(exposure, offsets, parity, n_used, n_clipped, strategy, acn=Fa
 
     Groups whose offset is NaN are left uncorrected, flagged in the table and
     the mask (`~spherex_reduce.dq.NO_REFERENCE`), and reported with a
-    `NoReferenceWarning`.  Used by every reference strategy, including those
-    of plugins.
+    `NoReferenceWarning`.  This is the ``correct_reference`` kernel applied
+    with offsets given instead of estimated: for a whole-exposure strategy
+    (``__call__``) that computes its offsets itself.
 
     Parameters
     ----------
@@ -138,7 +139,8 @@ def apply_offsets(exposure, offsets, parity, n_used, n_clipped, strategy, acn=Fa
     strategy : str
         Name recorded in the header (``REFSTRAT``).
     acn : bool
-        Whether the groups are even/odd samples (``P == 2``).
+        Ignored: the groups are even/odd samples when ``parity`` has two
+        entries (kept for callers that pass it).
 
     Returns
     -------

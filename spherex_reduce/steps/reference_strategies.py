@@ -17,7 +17,7 @@ import numpy as np
 from astropy.utils.exceptions import AstropyUserWarning
 
 from ..errors import SpherexReduceError
-from ..executor import default_threads, side_block
+from ..executor import context_of, default_threads, side_block
 from ..parameters import Parameter
 from ..source_mask import source_mask
 from ..step import Strategy
@@ -253,10 +253,9 @@ def reference_offsets(exposure, *, acn=False, sigma=3.0, maxiters=5, side_column
     NoReferenceError
         The exposure has no reference rows at all.
     """
-    g = exposure.geometry
-    side = _side_columns(exposure) if side_columns and g.ref_border else None
-    return _offsets_of(g, reference_pixels(side_block(exposure), exposure.schedule), side,
-                       acn=acn, sigma=sigma, maxiters=maxiters)
+    strategy = (AcnReference if acn else MeanReference)(sigma, maxiters, side_columns)
+    est = strategy.estimate(side_block(exposure), context_of(exposure), exposure)
+    return est.offsets, est.n_used, est.n_clipped
 
 
 def _offsets_of(geometry, reference, side=None, *, acn=False, sigma=3.0, maxiters=5,

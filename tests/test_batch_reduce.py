@@ -164,3 +164,40 @@ def test_output_names():
     names = batch.output_paths(["d/x.fits", "e/y.FITS.gz", "z.fit", "w"], "o")
     assert [p.name for p in names] == ["x_reduced.fits", "y_reduced.fits", "z_reduced.fits",
                                        "w_reduced.fits"]
+
+
+def test_a_worker_follows_the_checksum_policy_it_is_given(tmp_path, raws):
+    """The policy travels with the task (a worker process does not share this one's)."""
+    from astropy.io import fits
+
+    damaged = tmp_path / "damaged.fits"
+    data = bytearray(raws[0].read_bytes())
+    with fits.open(raws[0]) as hdul:
+        offset = hdul["SCI"]._data_offset
+    data[offset:offset + 4] = np.float32(12345.0).tobytes()[::-1]  # big-endian, another value
+    damaged.write_bytes(bytes(data))
+    task = {"input": str(damaged), "output": str(tmp_path / "out.fits"),
+            "config": {"steps": [{"unchop": {}}]}, "source": "unchop"}
+    failed = batch.reduce_file(task)
+    assert failed["status"] == "failed" and "checksum" in failed["error"]
+    assert failed["kind"] == "input" and not (tmp_path / "out.fits").exists()
+    done = batch.reduce_file({**task, "verify_checksum": False})
+    assert done["status"] == "done", done["error"]
+    assert "SCI" in read(tmp_path / "out.fits").header["SXRCKBAD"]
+    assert any("checksum" in note for note in done["notes"])  # the warning, for the log
+
+
+def test_warnings_while_reducing_a_file_are_logged_naming_it(tmp_path, raws, monkeypatch,
+                                                             caplog):
+    import warnings
+
+    real = batch.write
+
+    def warn(result, path, overwrite=False):
+        warnings.warn("something odd", UserWarning, stacklevel=2)
+        return real(result, path, overwrite=overwrite)
+
+    monkeypatch.setattr(batch, "write", warn)
+    res = batch.run_batch("unchop", raws[:1], tmp_path / "out", scheduler="serial")
+    assert res.count("done") == 1
+    assert [r.getMessage() for r in caplog.records] == [f"{raws[0]}: something odd"]

@@ -140,6 +140,8 @@ def test_an_unexpected_failure_is_status_1_and_the_others_finish(tmp_path, raws,
     (["{twin}"], [], "would both be reduced to"),
     (["{raw}/a_reduced.fits"], [], "is the input"),
     (["{raw}/nosuch.fits"], [], "no such file"),
+    (["{dir}"], [], "is a directory; give the files in it"),
+    ([], ["-o", "{taken}"], "a_reduced.fits names a directory; it is the output of"),
 ])
 def test_bad_arguments_exit_2_with_one_line_and_write_nothing(tmp_path, raws, capsys, inputs,
                                                               options, message):
@@ -147,8 +149,10 @@ def test_bad_arguments_exit_2_with_one_line_and_write_nothing(tmp_path, raws, ca
     (tmp_path / "twin" / "a.fits").write_bytes(raws[0].read_bytes())
     (raws[0].parent / "a_reduced.fits").write_bytes(raws[0].read_bytes())
     (tmp_path / "file").write_text("not a directory")
+    (tmp_path / "taken" / "a_reduced.fits").mkdir(parents=True)
     names = {"file": tmp_path / "file", "missing": tmp_path / "missing",
-             "twin": tmp_path / "twin" / "a.fits", "raw": raws[0].parent}
+             "taken": tmp_path / "taken", "twin": tmp_path / "twin" / "a.fits",
+             "dir": tmp_path / "twin", "raw": raws[0].parent}
     inputs = [*raws[:2], *(i.format(**names) for i in inputs)]
     options = [o.format(**names) for o in options]
     out = [] if "-o" in options else ["-o", raws[0].parent]

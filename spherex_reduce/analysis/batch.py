@@ -347,6 +347,8 @@ def run_batch(pipeline, inputs, outdir, *, scheduler=None, workers=None, threads
     if not inputs:
         raise ConfigError("no input files to reduce")
     for p in inputs:
+        if p.is_dir():
+            raise IsADirectoryError(f"input {p} is a directory; give the files in it")
         if not p.is_file():
             raise FileNotFoundError(f"no such file: {p}")
     outdir = Path(outdir)
@@ -362,12 +364,12 @@ def run_batch(pipeline, inputs, outdir, *, scheduler=None, workers=None, threads
         raise IsADirectoryError(f"{summary} names a directory; the summary table goes there")
     rows, tasks = [], []
     for src, out in zip(inputs, outputs, strict=True):
+        if out.is_dir():
+            raise IsADirectoryError(f"{out} names a directory; it is the output of {src}")
         if out.exists() and not overwrite:
             rows.append({"input": str(src), "output": str(out),
                          **_done_output(out, pipeline.config_hash)})
             continue
-        if out.is_dir():
-            raise IsADirectoryError(f"{out} names a directory; it is the output of {src}")
         rows.append(None)
         tasks.append({"input": str(src.absolute()), "output": str(out.absolute()),
                       "config": pipeline.config, "source": pipeline.source,

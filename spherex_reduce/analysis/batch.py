@@ -301,6 +301,8 @@ def run_batch(pipeline, inputs, outdir, *, scheduler=None, workers=None, threads
     ----------
     pipeline : `~spherex_reduce.Pipeline`, shipped name, path or dict
         The pipeline (as `~spherex_reduce.analysis.as_pipeline` takes it).
+        Each file's reduction builds it again from its effective
+        configuration, with the installed plugins' steps.
     inputs : sequence of str or path-like
         The input files; each must exist (checked before any work).  They
         are never modified.

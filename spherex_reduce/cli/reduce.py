@@ -1,7 +1,9 @@
-"""``spherex-reduce reduce``: run a pipeline config on a FITS file."""
+"""``spherex-reduce reduce``: run a pipeline config on one FITS file, or on many on dask."""
 
+import sys
 from pathlib import Path
 
+from .._text import plural
 from ..io import atomic_output, write
 from ..limits import MAX_WORKERS
 from ..pipeline import Pipeline
@@ -9,27 +11,75 @@ from ._common import check_paths, count, named_files
 
 
 def add_parser(sub):
-    p = sub.add_parser("reduce", help="run a pipeline on a raw FITS file",
-                       description="Reduce IN.fits with the steps of a pipeline YAML file (or a "
-                       "shipped config name, see show-config --list) and write OUT.fits.")
-    p.add_argument("input", metavar="IN.fits")
+    p = sub.add_parser(
+        "reduce", help="run a pipeline on raw FITS files",
+        description="Reduce IN.fits with the steps of a pipeline YAML file (or a shipped "
+        "config name, see show-config --list) and write OUT.fits. With several inputs (or "
+        "--workers/--scheduler), -o names a directory: each file is reduced on dask (an "
+        "embedded LocalCluster, or an existing scheduler) into OUTDIR/<stem>_reduced.fits, "
+        "with a summary table OUTDIR/summary.ecsv; outputs already done with this config are "
+        "skipped, a file that fails is reported and the others finish.")
+    p.add_argument("input", metavar="IN.fits", nargs="+")
     p.add_argument("-c", "--config", required=True, metavar="PIPELINE.yaml")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.fits")
-    p.add_argument("--overwrite", action="store_true", help="replace OUT.fits if it exists")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.fits|OUTDIR")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace OUT.fits if it exists (several inputs: reduce every file "
+                   "again, replacing outputs already done)")
     p.add_argument("--threads", type=count(MAX_WORKERS), default=None, metavar="N",
                    help="bands of rows corrected at once (default: the cores available, "
                    "at most 4); the numbers do not depend on it")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=count(MAX_WORKERS), default=None, metavar="N",
+                       help="several inputs: worker processes of the embedded dask "
+                       "LocalCluster (default 2)")
+    where.add_argument("--scheduler", metavar="ADDRESS",
+                       help="several inputs: an existing dask scheduler (tcp://host:8786; the "
+                       "files must be at the same paths on its workers); 'serial' reduces "
+                       "them one after the other in this process")
     p.set_defaults(func=run)
 
 
 def run(args):
+    if len(args.input) > 1 or args.workers is not None or args.scheduler is not None:
+        return _batch(args)
+    (source,) = args.input
     pipeline = Pipeline.from_yaml(args.config)
     # the raw file, the config file and any file the config names (e.g. a dark)
-    check_paths([args.input, args.config, *named_files(pipeline.steps, Path(args.config).parent)],
+    check_paths([source, args.config, *named_files(pipeline.steps, Path(args.config).parent)],
                 [args.output])
     atomic_output(args.output, args.overwrite)  # refuse before reducing
-    result = pipeline.run(args.input, progress=not args.quiet, threads=args.threads)
+    result = pipeline.run(source, progress=not args.quiet, threads=args.threads)
     write(result, args.output, overwrite=args.overwrite)
     status = ", ".join(f"{n}={result.header.get(pipeline.registry.step(n).keyword, '?')}"
                        for n, _ in pipeline.steps)
     print(f"wrote {args.output} ({status})")
+    return 0
+
+
+def _batch(args):
+    """Several inputs: one output each in the directory ``-o``, reduced on dask."""
+    from ..analysis.batch import SUMMARY_NAME, output_paths, run_batch
+    from ..analysis.scheduler import check_scheduler, quiet_dask_logs
+
+    if not args.verbose:  # dask's INFO lines about workers and connections
+        quiet_dask_logs()
+    pipeline = Pipeline.from_yaml(args.config)
+    outputs = output_paths(args.input, args.output)  # refuses two inputs of one output name
+    check_paths([*args.input, args.config,
+                 *named_files(pipeline.steps, Path(args.config).parent)],
+                [*outputs, Path(args.output) / SUMMARY_NAME])
+    check_scheduler(args.scheduler, name="--scheduler")  # before any work
+    res = run_batch(pipeline, args.input, args.output, scheduler=args.scheduler,
+                    workers=args.workers, threads=args.threads, overwrite=args.overwrite,
+                    progress=not args.quiet,
+                    verify_checksum=not getattr(args, "ignore_checksum", False))
+    for row in res.failed:
+        named = row["error"] if row["input"] in row["error"] else f"{row['input']}: {row['error']}"
+        print(f"spherex-reduce reduce: error: {named}", file=sys.stderr)
+    print(f"{plural(len(args.input), 'file')}: {res.count('done')} reduced, "
+          f"{res.count('skipped')} already done, {res.count('failed')} failed "
+          f"({res.seconds:.1f} s)")
+    print(f"wrote {res.summary}")
+    if any(row["kind"] == "unexpected" for row in res.failed):
+        return 1  # as a single file's unexpected failure (a bug)
+    return 2 if res.failed else 0

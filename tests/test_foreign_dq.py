@@ -103,6 +103,7 @@ def test_pixel_mask_masks_every_read_of_its_rows(tmp_path, option):
     assert len(masked) > len(cells)  # re-read rows: more than one read per flagged row
     with fits.open(out) as hdul:
         slopes, flags = hdul["SCI"].data, hdul["DQ"].data
+        assert hdul[0].header["SXRDQBIT"] == (0x80000005 if option else 1)
     expected = _lstsq(sci, 2.0)
     for i in range(s.n_reads):
         for c in range(8):
@@ -159,6 +160,8 @@ def test_foreign_bits(tmp_path):
     assert masked() == set(FLAGGED)
     e = sr.read(raw, **NONE, dq_bits=0)
     assert e.dq is not None and not e.dq.any()
+    e = sr.read(raw, **NONE, dq_bits=5)
+    assert e.header["SXRDQBIT"] == 5 and "lab.fits" in str(e.header["HISTORY"])
     for bad in (-1, 2**32, 1.0, True, "1"):
         with pytest.raises(ConfigError, match="dq_bits"):
             sr.read(raw, **NONE, dq_bits=bad)
@@ -173,7 +176,11 @@ def test_own_files_keep_every_bit(tmp_path):
     flags[2, 7, 0] = dq.SATURATED | dq.DO_NOT_USE
     path = sr.write(sr.Exposure.from_arrays(_ramps(s), s, mask=flags), tmp_path / "own.fits")
     for bits in (None, 0, 1):
-        np.testing.assert_array_equal(sr.read(path, dq_bits=bits).dq, flags)
+        e = sr.read(path, dq_bits=bits)
+        np.testing.assert_array_equal(e.dq, flags)
+        assert "SXRDQBIT" not in e.header
+    with pytest.raises(ConfigError, match="dq_bits"):  # checked even where unused
+        sr.read(path, dq_bits=-1)
 
 
 def test_other_layouts_of_a_2d_dq(tmp_path):

@@ -24,7 +24,7 @@ from ..exposure import Exposure, ReferenceReads, expected_shape
 from ..limits import check_size
 from ..schedule import ReadoutSchedule, _card_text, header_keyword
 from .fits_structure import _scan, _verify
-from .flags import file_flags, is_own_file
+from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq
 from .layout import _RESERVED, _unit
 
 __all__ = ["CheckedFITS", "checksum_policy", "is_raw_ramp_file", "open_checked", "read"]
@@ -331,9 +331,12 @@ def _exposure(hdul, path, bad, plain, supplied, dq_bits=None):
 
     data = _physical(d["sci"], path, plain)
     err, mask, phantom = image("ERR"), image("DQ", flags=True), image("PHANTOM")
-    if mask is not None:
-        mask = file_flags(mask, d["shape"], d["schedule"], d["order"], is_own_file(names),
-                          dq_bits, path)
+    bits = foreign_bits(dq_bits)  # checked even if unused
+    if mask is not None:  # a DQ from other software: its bits are not ours
+        bits = None if is_own_file(names) else bits
+        mask = file_flags(mask, d["shape"], d["schedule"], d["order"], bits, path)
+        if bits is not None:
+            note_foreign_dq(d["header"], bits, path)
     reference = None
     if "REFPIX" in names:
         rt = Table.read(hdul["REFREADS"])

@@ -18,6 +18,7 @@ schedule's ``rows`` say which row each read is).
 
 import contextlib
 import contextvars
+from pathlib import Path
 
 import numpy as np
 
@@ -104,7 +105,27 @@ def is_own_file(names):
     return "READOUT" in names
 
 
-def file_flags(stored, sci_shape, schedule, order, own, bits, path):
+def foreign_bits(bits=None):
+    """The bits of a foreign ``DQ`` that mask: ``bits`` checked, or `foreign_dq_bits`'s if None.
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.flags import foreign_bits
+    >>> foreign_bits(), foreign_bits(6)
+    (1, 6)
+    """
+    return _BITS.get() if bits is None else check_dq_bits(bits)
+
+
+def note_foreign_dq(header, bits, path):
+    """Record in ``header`` (in place) which bits of the foreign ``DQ`` of ``path`` masked:
+    ``SXRDQBIT`` and a ``HISTORY`` line (the setting is not in the pipeline config)."""
+    header["SXRDQBIT"] = (bits, "bits of the input's foreign DQ that masked")
+    header.add_history(f"DQ of {Path(path).name} not written by spherex_reduce: pixels with "
+                       f"any of bits {bits:#x} set masked as DO_NOT_USE, other bits ignored")
+
+
+def file_flags(stored, sci_shape, schedule, order, bits, path):
     """The flags of a file's ``DQ`` for an exposure of shape ``sci_shape``.
 
     Parameters
@@ -115,17 +136,16 @@ def file_flags(stored, sci_shape, schedule, order, own, bits, path):
         Shape of ``SCI``.
     schedule : `~spherex_reduce.ReadoutSchedule`
     order : {'readout', 'physical'}
-    own : bool
-        The file was written by this package: its flags are kept as they are.
     bits : int or None
-        Bits of a foreign ``DQ`` that mask (None: `foreign_dq_bits`).
+        Bits of a foreign ``DQ`` that mask (`foreign_bits`), or None for a
+        file written by this package, whose flags are kept as they are.
     path : str
         Names the file in messages.
 
     Returns
     -------
     `numpy.ndarray`
-        Integer flags (own file) or booleans (foreign: masked pixels), of
+        Integer flags (``bits`` None) or booleans (foreign: masked pixels), of
         ``sci_shape`` or broadcast to it (a read-only view).
 
     Raises
@@ -139,11 +159,11 @@ def file_flags(stored, sci_shape, schedule, order, own, bits, path):
         raise FormatError(f"{path}: HDU 'DQ' holds flags, which must be integers; it holds "
                           f"{stored.dtype.name} values")
     rows = _rows_of(shape, sci_shape, schedule, order, path)
-    check_size(3 * int(np.prod(sci_shape, dtype=float)), f"the flags of {path} {sci_shape}")
-    if own:
+    # the uint16 flags and boolean mask of the exposure, the foreign DQ's booleans
+    check_size(4 * int(np.prod(sci_shape, dtype=float)), f"the flags of {path} {sci_shape}")
+    if bits is None:
         flags = stored
     else:
-        bits = _BITS.get() if bits is None else check_dq_bits(bits)
         mask = np.asarray(bits, np.int64).astype(stored.dtype)  # the same low bits
         flags = np.empty(shape, bool)
         for i in range(shape[0]):  # a frame (or a row) at a time: no temporary of DQ's size

@@ -159,8 +159,8 @@ def file_flags(stored, sci_shape, schedule, order, bits, path):
         raise FormatError(f"{path}: HDU 'DQ' holds flags, which must be integers; it holds "
                           f"{stored.dtype.name} values")
     rows = _rows_of(shape, sci_shape, schedule, order, path)
-    # the uint16 flags and boolean mask of the exposure, the foreign DQ's booleans
-    check_size(4 * int(np.prod(sci_shape, dtype=float)), f"the flags of {path} {sci_shape}")
+    # the exposure's uint16 flags (twice while made from booleans) and boolean mask
+    check_size(5 * int(np.prod(sci_shape, dtype=float)), f"the flags of {path} {sci_shape}")
     if bits is None:
         flags = stored
     else:

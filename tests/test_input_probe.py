@@ -398,6 +398,67 @@ INTEGER_DATA = [
 ]
 
 
+# -- a DQ written by other software: a 2-D pixel mask over 3-D ramps ------------------------------
+
+def _with_dq(src, dst, mask, foreign=True):
+    """Copy ``src`` to ``dst`` with a ``DQ`` extension ``mask`` (and, for a file as other
+    software writes it, without the ``READOUT`` table)."""
+    def change(hdul):
+        if foreign:
+            del hdul["READOUT"]
+        hdul.insert(2, fits.ImageHDU(mask, name="DQ"))
+    rewrite_hdus(src, dst, change)
+
+
+def _dq_setup(shape, dtype=np.uint32):
+    """Setup: lab.fits, raw.fits without READOUT and with a DQ of ``shape`` (bits 0 and 3 at
+    rows 10 and 40, bit 2 alone at row 21), and lab-copy.fits to compare its bytes with."""
+    def setup(d):
+        mask = np.zeros(shape, dtype)
+        if shape == (64, 64):
+            mask[10, 5] = mask[40, 33] = 1 | 8
+            mask[21, 7] = 4
+        _with_dq(d / "raw.fits", d / "lab.fits", mask)
+        shutil.copyfile(d / "lab.fits", d / "lab-copy.fits")
+    return setup
+
+
+def _check_foreign_dq(d, result, run):
+    """Every read of rows 10 and 40 (bit 0) masked, row 21 (bit 2) only with --dq-bits 5;
+    the other slopes are numpy's least squares; lab.fits unchanged."""
+    with fits.open(d / "raw.fits") as hdul:
+        rows = np.asarray(hdul["READOUT"].data["row"])
+    expected, scale = _lstsq_slopes(d / "lab.fits")
+    for out, cells in (("out.fits", [(10, 5), (40, 33)]),
+                       ("out5.fits", [(10, 5), (40, 33), (21, 7)])):
+        if out == "out5.fits":
+            again = run(["reduce", "lab.fits", "-c", "fit.yaml", "-o", out, "--dq-bits", "5"])
+            assert again.rc == 0, again.describe()
+        masked = np.zeros(expected.shape, bool)
+        for r, c in cells:
+            masked[rows == r, c] = True
+        assert not any(masked[r, c] for r, c in cells)  # chopped: read i is not row i
+        with fits.open(d / out) as hdul:
+            slopes = hdul["SCI"].data
+        assert np.isnan(slopes[masked]).all() and np.isfinite(slopes[~masked]).all()
+        np.testing.assert_allclose(slopes[~masked], expected[~masked], rtol=0,
+                                   atol=1e-5 * scale)
+    assert (d / "lab.fits").read_bytes() == (d / "lab-copy.fits").read_bytes()
+
+
+FOREIGN_DQ = [
+    works("reduce-2d-dq-over-3d-sci", ["reduce", "lab.fits", "-c", "fit.yaml", "-o", "out.fits"],
+          _dq_setup((64, 64)), _check_foreign_dq),
+    refused("reduce-dq-shape-disagrees", ["reduce", "lab.fits", "-c", "fit.yaml", "-o",
+                                          "out.fits"], _dq_setup((10, 64)),
+            mentions=r"DQ has shape \(10, 64\), SCI has shape \(3, \d+, 64\)"),
+    refused("reduce-dq-float", ["reduce", "lab.fits", "-c", "fit.yaml", "-o", "out.fits"],
+            _dq_setup((64, 64), np.float32), mentions="DQ"),
+    refused("reduce-dq-bits-negative", [*REDUCE, "--dq-bits", "-1"], mentions="dq-bits"),
+    refused("reduce-dq-bits-33-bits", [*REDUCE, "--dq-bits", "0x100000000"], mentions="dq-bits"),
+]
+
+
 # -- YAML ----------------------------------------------------------------------------------------
 
 NOT_UTF8 = b"steps:\n  - unchop: {}\nname: caf\xe9 \xff\xfe\n"
@@ -756,8 +817,8 @@ HELD = [
     refused("simulate-scene-not-a-mapping", SIMULATE_BAD, write("bad.yaml", "- 1\n- 2\n")),
 ]
 
-CASES = [*FITS_DAMAGE, *CHECKSUM_OPT_OUT, *INTEGER_DATA, *YAML, *CLI_NUMBERS, *OUTPUT_IS_INPUT,
-         *INPUT_CONFIG, *OUTPUT_PLACES, *MESSAGES, *HELD]
+CASES = [*FITS_DAMAGE, *CHECKSUM_OPT_OUT, *INTEGER_DATA, *FOREIGN_DQ, *YAML, *CLI_NUMBERS,
+         *OUTPUT_IS_INPUT, *INPUT_CONFIG, *OUTPUT_PLACES, *MESSAGES, *HELD]
 
 
 @pytest.mark.parametrize("case", CASES)

@@ -18,14 +18,15 @@ import warnings
 
 from .._version import __version__
 from ..errors import SpherexReduceError
-from ..io import checksum_policy
+from ..io import checksum_policy, foreign_dq_bits
+from ..io.flags import DEFAULT_DQ_BITS, check_dq_bits
 
 __all__ = ["COMMANDS", "main"]
 
 COMMANDS = ["demo", "readout", "reduce", "show_config", "plugins", "simulate", "combine",
             "spectrum", "fit_noise", "sweep", "figures"]
 
-#: Commands that read FITS files: they take ``--ignore-checksum``.
+#: Commands that read FITS files: they take ``--ignore-checksum`` and ``--dq-bits``.
 READS_FITS = ("reduce", "combine", "spectrum", "fit-noise")
 
 #: Errors caused by the user's input: exit code 2, one line, no traceback.
@@ -130,7 +131,24 @@ def build_parser():
             "--ignore-checksum", action="store_true",
             help="read FITS files whose CHECKSUM/DATASUM do not match (damaged or edited): "
             "warn, and record it in the output (HISTORY, SXRCKBAD) instead of stopping")
+        sub.choices[name].add_argument(
+            "--dq-bits", type=_dq_bits, default=DEFAULT_DQ_BITS, metavar="N",
+            help="bits of a DQ written by other software (a file without a READOUT table) "
+            "that mask a pixel, as a sum of 2**bit, e.g. 0x5 for bits 0 and 2; 0: none "
+            f"(default {DEFAULT_DQ_BITS}: bit 0, do-not-use); our own files keep all their flags")
     return parser
+
+
+def _dq_bits(text):
+    """``--dq-bits``: an integer (decimal, 0x hex or 0b binary) that `check_dq_bits` accepts."""
+    try:
+        value = int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    try:
+        return check_dq_bits(value, "")
+    except SpherexReduceError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix(": ")) from None
 
 
 def main(argv=None):
@@ -152,7 +170,8 @@ def main(argv=None):
                         handlers=[handler])
     try:
         with _sigterm_raises(), _one_line_warnings(args.command), \
-                checksum_policy(verify=not getattr(args, "ignore_checksum", False)):
+                checksum_policy(verify=not getattr(args, "ignore_checksum", False)), \
+                foreign_dq_bits(getattr(args, "dq_bits", DEFAULT_DQ_BITS)):
             return args.func(args) or 0
     except INPUT_ERRORS as exc:
         if args.debug:

@@ -3,14 +3,16 @@
 `read` and `write` handle a whole exposure in the layout of
 `spherex_reduce.io.layout`; `write_frames` writes raw ramps as they are made
 and `FrameReader` reads them a frame at a time; `open_checked` opens any FITS
-file after the checks `read` makes (structure, checksums, header cards), and
-`atomic_output` is how every output of the package is written.
+file after the checks `read` makes (structure, checksums, header cards),
+`foreign_dq_bits` chooses which bits of a ``DQ`` written by other software
+mask a pixel, and `atomic_output` is how every output of the package is written.
 """
 
 from .atomic import atomic_output
 from .fits_read import CheckedFITS, checksum_policy, is_raw_ramp_file, open_checked, read
 from .fits_write import write, write_frames
+from .flags import foreign_dq_bits
 from .frames import FrameReader
 
-__all__ = ["CheckedFITS", "FrameReader", "atomic_output", "checksum_policy", "is_raw_ramp_file",
-           "open_checked", "read", "write", "write_frames"]
+__all__ = ["CheckedFITS", "FrameReader", "atomic_output", "checksum_policy", "foreign_dq_bits",
+           "is_raw_ramp_file", "open_checked", "read", "write", "write_frames"]

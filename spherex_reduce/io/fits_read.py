@@ -24,6 +24,7 @@ from ..exposure import Exposure, ReferenceReads, expected_shape
 from ..limits import check_size
 from ..schedule import ReadoutSchedule, _card_text, header_keyword
 from .fits_structure import _scan, _verify
+from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq
 from .layout import _RESERVED, _unit
 
 __all__ = ["CheckedFITS", "checksum_policy", "is_raw_ramp_file", "open_checked", "read"]
@@ -197,12 +198,12 @@ class CheckedFITS:
         """Close the file (arrays already returned stay valid)."""
         self.hdul.close()
 
-    def exposure(self, **supplied):
+    def exposure(self, dq_bits=None, **supplied):
         """The `Exposure` of a file in this package's format, as `read` returns it.
 
-        ``supplied`` are the readout parameters `read` takes.
+        ``dq_bits`` and ``supplied`` (the readout parameters) are as for `read`.
         """
-        return _exposure(self.hdul, self._name, self.bad, self._plain, supplied)
+        return _exposure(self.hdul, self._name, self.bad, self._plain, supplied, dq_bits)
 
     def physical(self, hdu):
         """The data of image HDU ``hdu`` in physical values (``BSCALE``/``BZERO``
@@ -261,7 +262,7 @@ def open_checked(path, verify_checksum=None):
     return CheckedFITS(path, verify_checksum)
 
 
-def read(path, verify_checksum=None, **supplied):
+def read(path, verify_checksum=None, dq_bits=None, **supplied):
     """Read an exposure written by `write` (or raw data from other electronics).
 
     Parameters
@@ -276,6 +277,14 @@ def read(path, verify_checksum=None, **supplied):
         Whether a ``CHECKSUM``/``DATASUM`` mismatch is an error (True), or a
         logged warning recorded in the returned header (False: ``HISTORY``
         and ``SXRCKBAD``).  Default: `checksum_policy` (True).
+    dq_bits : int, optional
+        Which bits of a ``DQ`` written by other software (a file without a
+        ``READOUT`` table) mask a pixel, as a sum of ``2**bit``; such pixels
+        get `~spherex_reduce.dq.DO_NOT_USE` and other bits are dropped.
+        Default: `~spherex_reduce.io.foreign_dq_bits` (1: bit 0, "do not
+        use").  A file written by this package keeps all its flags.  A 2-D
+        ``DQ`` with ramps applies to every frame (a pixel mask ``(nrows,
+        ncols)`` to every read of each row).
     **supplied
         Geometry and readout parameters (``nrows``, ``skip``, ``frame_time``
         ...) used where the header lacks them, e.g. from a pipeline config's
@@ -309,10 +318,10 @@ def read(path, verify_checksum=None, **supplied):
     (dtype('float32'), 60127.0)
     """
     with CheckedFITS(path, verify_checksum) as f:
-        return f.exposure(**supplied)
+        return f.exposure(dq_bits=dq_bits, **supplied)
 
 
-def _exposure(hdul, path, bad, plain, supplied):
+def _exposure(hdul, path, bad, plain, supplied, dq_bits=None):
     """The `Exposure` in an HDU list opened by `_open` (which the caller closes)."""
     d = _describe(hdul, path, supplied, bad)
     names = d["names"]
@@ -322,6 +331,12 @@ def _exposure(hdul, path, bad, plain, supplied):
 
     data = _physical(d["sci"], path, plain)
     err, mask, phantom = image("ERR"), image("DQ", flags=True), image("PHANTOM")
+    bits = foreign_bits(dq_bits)  # checked even if unused
+    if mask is not None:  # a DQ from other software: its bits are not ours
+        bits = None if is_own_file(names) else bits
+        mask = file_flags(mask, d["shape"], d["schedule"], d["order"], bits, path)
+        if bits is not None:
+            note_foreign_dq(d["header"], bits, path)
     reference = None
     if "REFPIX" in names:
         rt = Table.read(hdul["REFREADS"])

@@ -41,6 +41,10 @@ class FrameReader:
         Scaled integer data come as floating point frames (`frame`).
     verify_checksum : bool, optional
         As for `~spherex_reduce.io.read`.
+    dq_bits : int, optional
+        Accepted as by `~spherex_reduce.io.read`, unused: a file with a
+        ``DQ`` (or ``ERR``) is not a raw ramp file to this reader (read it
+        whole with `~spherex_reduce.io.read`).
     **supplied
         As for `~spherex_reduce.io.read`.
 
@@ -51,7 +55,7 @@ class FrameReader:
     header : `astropy.io.fits.Header`
     """
 
-    def __init__(self, path, verify_checksum=None, **supplied):
+    def __init__(self, path, verify_checksum=None, dq_bits=None, **supplied):
         self.path = Path(path)
         self._map = None
         self._hdul, bad, plain = _open(path, memmap=False, verify=verify_checksum)

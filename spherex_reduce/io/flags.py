@@ -1,0 +1,191 @@
+"""The ``DQ`` extension of a file: whose bits they are, and how a 2-D ``DQ`` covers ramps.
+
+A file written by this package (it has a ``READOUT`` table: both writers put
+one in every file) holds `spherex_reduce.dq` bits, kept as they are.  In any
+other file the bits follow the convention of the system that wrote it
+(JWST, a lab's electronics), whose meanings are not ours: by default only
+bit 0 (value 1, "do not use" in the JWST and most other conventions) masks a
+pixel, and a masked pixel gets `~spherex_reduce.dq.DO_NOT_USE`; the other
+bits are dropped.  `foreign_dq_bits` (``--dq-bits`` on the command line) or
+the ``dq_bits`` argument of `~spherex_reduce.io.read` choose other bits.
+
+A ``DQ`` has the shape of ``SCI``, or, over ramps (3-D ``SCI``), the shape of
+one frame: a pixel mask of the array ``(nrows, ncols)`` (the JWST layout),
+or, in readout order, one row per read ``(n_reads, ncols)``.  It then applies
+to every frame; a pixel mask applies to every read of each row (the
+schedule's ``rows`` say which row each read is).
+"""
+
+import contextlib
+import contextvars
+from pathlib import Path
+
+import numpy as np
+
+from ..dq import DO_NOT_USE
+from ..errors import ConfigError, FormatError
+from ..limits import check_size
+
+__all__ = ["DEFAULT_DQ_BITS", "check_dq_bits", "foreign_dq_bits", "is_own_file"]
+
+#: Bits of a foreign ``DQ`` that mask a pixel unless told otherwise: bit 0 (do not use).
+DEFAULT_DQ_BITS = DO_NOT_USE
+_MAX_BITS = 2**32 - 1
+
+_BITS = contextvars.ContextVar("spherex_reduce_dq_bits", default=DEFAULT_DQ_BITS)
+
+
+def check_dq_bits(bits, what="dq_bits"):
+    """``bits`` if it is a valid mask of foreign DQ bits (an integer, 0 to 2**32 - 1).
+
+    Raises
+    ------
+    ConfigError
+        Naming ``what`` and the value.
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.flags import check_dq_bits
+    >>> check_dq_bits(5)
+    5
+    >>> check_dq_bits(-1)
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.errors.ConfigError: dq_bits: must be an integer from 0 to 4294967295 ... got -1
+    """
+    if isinstance(bits, bool) or not isinstance(bits, (int, np.integer)) \
+            or not 0 <= bits <= _MAX_BITS:
+        raise ConfigError(f"{what}: must be an integer from 0 to {_MAX_BITS} (a sum of 2**bit "
+                          f"for bits 0-31), got {bits!r}")
+    return int(bits)
+
+
+@contextlib.contextmanager
+def foreign_dq_bits(bits=DEFAULT_DQ_BITS):
+    """Set which bits of a foreign ``DQ`` mask a pixel, for every read in this context.
+
+    A foreign file is one this package did not write (it has no ``READOUT``
+    table).  The command line's ``--dq-bits`` sets this for the whole command,
+    so that every file it reads (including e.g. a pipeline's dark) follows it.
+    Files written by this package keep all their flags.
+
+    Parameters
+    ----------
+    bits : int
+        Sum of ``2**bit`` of the bits that mask, 0 to 2**32 - 1 (bits 0 to
+        31); default 1 (bit 0 only).  0: a foreign ``DQ`` masks nothing.
+
+    Raises
+    ------
+    ConfigError
+        ``bits`` is not an integer in that range.
+
+    Examples
+    --------
+    >>> from spherex_reduce.io import foreign_dq_bits
+    >>> with foreign_dq_bits(1 | 4):
+    ...     pass  # read(...) here masks pixels with bit 0 or bit 2 set in a foreign DQ
+    """
+    token = _BITS.set(check_dq_bits(bits))
+    try:
+        yield
+    finally:
+        _BITS.reset(token)
+
+
+def is_own_file(names):
+    """Whether a file with HDUs ``names`` was written by this package (it has ``READOUT``).
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.flags import is_own_file
+    >>> is_own_file(["PRIMARY", "SCI", "DQ", "READOUT"]), is_own_file(["PRIMARY", "SCI", "DQ"])
+    (True, False)
+    """
+    return "READOUT" in names
+
+
+def foreign_bits(bits=None):
+    """The bits of a foreign ``DQ`` that mask: ``bits`` checked, or `foreign_dq_bits`'s if None.
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.flags import foreign_bits
+    >>> foreign_bits(), foreign_bits(6)
+    (1, 6)
+    """
+    return _BITS.get() if bits is None else check_dq_bits(bits)
+
+
+def note_foreign_dq(header, bits, path):
+    """Record in ``header`` (in place) which bits of the foreign ``DQ`` of ``path`` masked:
+    ``SXRDQBIT`` and a ``HISTORY`` line (the setting is not in the pipeline config)."""
+    header["SXRDQBIT"] = (bits, "bits of the input's foreign DQ that masked")
+    header.add_history(f"DQ of {Path(path).name} not written by spherex_reduce: pixels with "
+                       f"any of bits {bits:#x} set masked as DO_NOT_USE, other bits ignored")
+
+
+def file_flags(stored, sci_shape, schedule, order, bits, path):
+    """The flags of a file's ``DQ`` for an exposure of shape ``sci_shape``.
+
+    Parameters
+    ----------
+    stored : `numpy.ndarray`
+        The ``DQ`` as stored (integers; possibly a memory map, never written).
+    sci_shape : tuple
+        Shape of ``SCI``.
+    schedule : `~spherex_reduce.ReadoutSchedule`
+    order : {'readout', 'physical'}
+    bits : int or None
+        Bits of a foreign ``DQ`` that mask (`foreign_bits`), or None for a
+        file written by this package, whose flags are kept as they are.
+    path : str
+        Names the file in messages.
+
+    Returns
+    -------
+    `numpy.ndarray`
+        Integer flags (``bits`` None) or booleans (foreign: masked pixels), of
+        ``sci_shape`` or broadcast to it (a read-only view).
+
+    Raises
+    ------
+    FormatError
+        The ``DQ`` holds floating-point values or has a shape that fits neither
+        ``SCI`` nor one frame of it.
+    """
+    shape = tuple(stored.shape)
+    if stored.dtype.kind not in "iu":
+        raise FormatError(f"{path}: HDU 'DQ' holds flags, which must be integers; it holds "
+                          f"{stored.dtype.name} values")
+    rows = _rows_of(shape, sci_shape, schedule, order, path)
+    # the exposure's uint16 flags (twice while made from booleans) and boolean mask
+    check_size(5 * int(np.prod(sci_shape, dtype=float)), f"the flags of {path} {sci_shape}")
+    if bits is None:
+        flags = stored
+    else:
+        mask = np.asarray(bits, np.int64).astype(stored.dtype)  # the same low bits
+        flags = np.empty(shape, bool)
+        for i in range(shape[0]):  # a frame (or a row) at a time: no temporary of DQ's size
+            np.not_equal(np.bitwise_and(stored[i], mask), 0, out=flags[i])
+    if rows is not None:
+        flags = flags[rows]
+    return flags if shape == sci_shape else np.broadcast_to(flags, sci_shape)
+
+
+def _rows_of(shape, sci_shape, schedule, order, path):
+    """None if a ``DQ`` of ``shape`` applies as it is (then broadcast over frames), or the
+    row of each read (a pixel mask over ramps in readout order).  Refuses other shapes."""
+    if shape == sci_shape:
+        return None
+    nrows, ncols = schedule.geometry.nrows, schedule.geometry.ncols
+    if len(sci_shape) == 3 and len(shape) == 2:
+        if shape == (nrows, ncols):  # a pixel mask of the array (also when n_reads == nrows)
+            return schedule.rows if order == "readout" else None
+        if shape == sci_shape[1:]:  # one row per read of a frame
+            return None
+    frame = "" if len(sci_shape) == 2 else (
+        f", one frame's {sci_shape[1:]}"
+        + (f" or the array's ({nrows}, {ncols})" if sci_shape[1:] != (nrows, ncols) else ""))
+    raise FormatError(f"{path}: DQ has shape {shape}, SCI has shape {sci_shape}: a DQ must have "
+                      f"SCI's shape{frame}")

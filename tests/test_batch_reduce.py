@@ -205,3 +205,26 @@ def test_warnings_while_reducing_a_file_are_logged_naming_it(tmp_path, raws, mon
     res = batch.run_batch("unchop", raws[:1], tmp_path / "out", scheduler="serial")
     assert res.count("done") == 1
     assert [r.getMessage() for r in caplog.records] == [f"{raws[0]}: something odd"]
+
+
+def test_a_worker_follows_the_dq_bits_it_is_given(tmp_path, small_schedule):
+    """``--dq-bits`` travels with the task too: a foreign DQ bit 2 masks only when asked."""
+    from astropy.io import fits
+
+    raw = example_raw_exposure(small_schedule, seed=3)
+    path = write(raw, tmp_path / "ours.fits")
+    foreign = tmp_path / "foreign.fits"
+    with fits.open(path) as hdul:  # no READOUT table: a file of other software
+        hdus = [h.copy() for h in hdul if h.name != "READOUT"]
+        g = small_schedule.geometry
+        flags = np.zeros((g.nrows, g.ncols), np.uint16)
+        flags[10, 3] = 4  # bit 2 only
+        hdus.append(fits.ImageHDU(flags, name="DQ"))
+        fits.HDUList(hdus).writeto(foreign)
+    task = {"input": str(foreign), "config": {"steps": ["unchop", "fit_ramp"]},
+            "source": "test"}
+    plain = batch.reduce_file({**task, "output": str(tmp_path / "a.fits"), "dq_bits": 1})
+    masked = batch.reduce_file({**task, "output": str(tmp_path / "b.fits"), "dq_bits": 4})
+    assert plain["status"] == masked["status"] == "done", (plain["error"], masked["error"])
+    assert np.isfinite(read(tmp_path / "a.fits").data.data[10, 3])
+    assert np.isnan(read(tmp_path / "b.fits").data.data[10, 3])

@@ -34,7 +34,14 @@ from astropy.table import Table
 
 from .._version import __version__
 from ..errors import ConfigError, SpherexReduceError
-from ..io import atomic_output, checksum_policy, read, write
+from ..io import (
+    atomic_output,
+    checksum_policy,
+    current_dq_bits,
+    foreign_dq_bits,
+    read,
+    write,
+)
 from ..pipeline import Pipeline
 from .case import as_pipeline
 from .scheduler import _client
@@ -202,7 +209,8 @@ def reduce_file(task):
     task : dict
         ``input`` and ``output`` (paths), ``config`` and ``source`` (the
         pipeline's effective configuration and label), ``overwrite``,
-        ``threads`` (None: the executor's default) and ``verify_checksum``.
+        ``threads`` (None: the executor's default), ``verify_checksum`` and ``dq_bits``
+        (the policies of the command, which a worker process does not share).
 
     Returns
     -------
@@ -220,7 +228,8 @@ def reduce_file(task):
            "median": np.nan, "robust_std": np.nan, "unit": "", "error": "", "kind": "",
            "notes": []}
     try:
-        with _notes() as notes, checksum_policy(verify=task.get("verify_checksum", True)):
+        with _notes() as notes, checksum_policy(verify=task.get("verify_checksum", True)), \
+                foreign_dq_bits(task.get("dq_bits", current_dq_bits())):
             row["notes"] = notes
             pipeline = Pipeline(task["config"], source=task["source"])
             result = pipeline.run(task["input"], progress=False, threads=task.get("threads"))
@@ -376,7 +385,8 @@ def run_batch(pipeline, inputs, outdir, *, scheduler=None, workers=None, threads
         tasks.append({"input": str(src.absolute()), "output": str(out.absolute()),
                       "config": pipeline.config, "source": pipeline.source,
                       "overwrite": overwrite, "threads": threads,
-                      "verify_checksum": verify_checksum, "index": len(rows) - 1})
+                      "verify_checksum": verify_checksum, "dq_bits": current_dq_bits(),
+                      "index": len(rows) - 1})
     outdir.mkdir(exist_ok=True)
     t0 = time.perf_counter()
     bar = _bar(len(inputs), progress)

@@ -26,7 +26,8 @@ from ..dq import DO_NOT_USE
 from ..errors import ConfigError, FormatError
 from ..limits import check_size
 
-__all__ = ["DEFAULT_DQ_BITS", "check_dq_bits", "foreign_dq_bits", "is_own_file"]
+__all__ = ["DEFAULT_DQ_BITS", "check_dq_bits", "current_dq_bits", "foreign_dq_bits",
+           "is_own_file"]
 
 #: Bits of a foreign ``DQ`` that mask a pixel unless told otherwise: bit 0 (do not use).
 DEFAULT_DQ_BITS = DO_NOT_USE
@@ -58,6 +59,19 @@ def check_dq_bits(bits, what="dq_bits"):
         raise ConfigError(f"{what}: must be an integer from 0 to {_MAX_BITS} (a sum of 2**bit "
                           f"for bits 0-31), got {bits!r}")
     return int(bits)
+
+
+def current_dq_bits():
+    """The bits of a foreign ``DQ`` that mask a pixel here (see `foreign_dq_bits`).
+
+    Examples
+    --------
+    >>> from spherex_reduce.io import current_dq_bits, foreign_dq_bits
+    >>> with foreign_dq_bits(5):
+    ...     current_dq_bits()
+    5
+    """
+    return _BITS.get()
 
 
 @contextlib.contextmanager

@@ -24,7 +24,7 @@ from spherex_reduce.config import (
     schedule_from_config,
 )
 from spherex_reduce.errors import ConfigError, FormatError
-from spherex_reduce.fields import FIELD, FIELDS, section_fields
+from spherex_reduce.fields import FIELD, FIELDS, SIDES, section_fields
 from spherex_reduce.parameters import validate_parameters
 
 DOCS = Path(__file__).resolve().parent.parent / "docs"
@@ -280,12 +280,14 @@ def test_readout_option_sets_the_field(field):
 
 # -- the docs ------------------------------------------------------------------------------
 def _type_text(field):
-    words = {int: "integer", float: "number", str: "string", list: "list"}
+    words = {int: "integer", float: "number", str: "string", list: "list", dict: "mapping"}
     kinds = [words[t] for t in field.types if t in words and not (t is int and float in
                                                                     field.types)]
     text = " or ".join(kinds)
     if field.bounds:
         text += " " + field.bounds.replace(">=", "≥")
+    if field.side_keywords:  # "integer ≥ 0 or mapping of top, ...": the bound is each side's
+        text = text.replace(" or mapping", "") + f" or mapping of {', '.join(SIDES)}"
     if field.nullable:
         text += " or null"
     return text
@@ -316,7 +318,10 @@ def fits_keyword_table():
         else:
             absent = f"required {f.required}"
         meaning = f.card_comment.removeprefix(f"[{f.unit}] ")  # the unit has its column
-        lines += [f"   * - ``{f.keyword}``", f"     - ``{f.name}``", f"     - {f.unit}".rstrip(),
+        keyword = f"``{f.keyword}``"
+        if f.side_keywords:
+            keyword += f" or {' '.join(f'``{k}``' for k in f.side_keywords)}"
+        lines += [f"   * - {keyword}", f"     - ``{f.name}``", f"     - {f.unit}".rstrip(),
                   f"     - {meaning}{_choices_text(f)}", f"     - {absent}"]
     return "\n".join(lines) + "\n"
 

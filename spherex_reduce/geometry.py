@@ -188,7 +188,7 @@ class DetectorGeometry:
 
     @property
     def top_rows(self):
-        """Physical reference rows at the top: ``0 ... top - 1``."""
+        """Physical reference rows at the top: the first ``top`` rows, from row 0."""
         return np.arange(self._border.top)
 
     @property

@@ -217,7 +217,7 @@ class ReadoutSchedule:
             is_ref = np.concatenate([np.ones(top.size, bool), np.zeros(active.size, bool),
                                      np.ones(bottom.size, bool)])
         elif self.ref_mode == "repeated":
-            n_top = (r + 1) // 2 if bottom.size else r if top.size else 0
+            n_top = (r + 1) // 2 if top.size and bottom.size else r if top.size else 0
             n_bottom = r - n_top
             head = top[np.arange(n_top) % top.size] if n_top else top[:0]
             tail = bottom[np.arange(n_bottom) % bottom.size] if n_bottom else bottom[:0]

@@ -26,6 +26,7 @@ from spherex_reduce import (
     unchop,
     write,
 )
+from spherex_reduce.analysis.timestreams import reference_timestream
 from spherex_reduce.cli import main
 from spherex_reduce.config import load_yaml, schedule_from_config
 from spherex_reduce.errors import ConfigError, FormatError
@@ -286,3 +287,20 @@ def test_simulator_puts_reference_pixels_where_declared():
     expected[:2], expected[:, :3] = False, False  # reference pixels see no light
     assert (signal[expected] > 0.1).all()
     np.testing.assert_array_equal(signal[~expected], 0.0)
+
+
+def test_border_column_stream_uses_the_declared_side_columns_only():
+    s = corner_schedule({"top": 2, "left": 3, "right": 1}, ref_reads=0, ref_mode="none",
+                        nframes=4)
+    rng = np.random.default_rng(5)
+    raw = rng.normal(0, 1, (4, s.n_reads, 40))
+    stream = reference_timestream(Exposure.from_arrays(raw, s), "columns")
+    assert stream.values.shape == (2, 4, s.n_reads) and stream.nbox == 1
+    for values, column in zip(stream.values, (0, 39), strict=True):  # one column each side
+        v = raw[:, :, column]
+        t = np.arange(4) - 1.5
+        fit = v.mean(axis=0) + t[:, None] * (t @ v / (t @ t))
+        np.testing.assert_allclose(values, (v - fit) * np.sqrt(2), atol=1e-12)
+    left = corner_schedule({"top": 2, "left": 3}, ref_reads=0, ref_mode="none", nframes=4)
+    one = reference_timestream(Exposure.from_arrays(raw, left), "columns")
+    assert one.values.shape == (1, 4, left.n_reads) and one.nbox == 3

@@ -108,8 +108,9 @@ def reference_timestream(exposure, source="columns", parity=None):
         Raw ramps in readout order.
     source : {'columns', 'rows'}
         ``'columns'``: the side border columns (left of the first channel,
-        right of the last), averaged per read: one value per row read,
-        ``values`` ``(2, nframes, n_reads)``.  ``'rows'``: every reference-row
+        right of the last: the sides ``ref_border`` declares, the same
+        number from each, the narrower width), averaged per read: one value
+        per row read, ``values`` ``(sides, nframes, n_reads)``.  ``'rows'``: every reference-row
         read of every channel at the pixel rate, in each channel's scan order,
         ``values`` ``(nchannels, nframes, n_ref_reads, width)``.
     parity : {None, 'even', 'odd'}

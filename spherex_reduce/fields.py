@@ -9,8 +9,11 @@ and one line of documentation.  Everything else is derived from the table:
   (:func:`table_dataclass`, :func:`check_field`);
 - the ``geometry:`` and ``readout:`` YAML sections
   (`spherex_reduce.config.GEOMETRY_PARAMETERS`, ``READOUT_PARAMETERS``);
-- the FITS keywords written by ``ReadoutSchedule.to_header`` and read back by
-  ``from_header``, and both ``to_dict`` methods;
+- the FITS keywords written by ``ReadoutSchedule.to_header`` (:func:`field_cards`)
+  and read back by ``from_header`` (:func:`read_field`): one keyword per field,
+  or for a field that may differ per side of the array (``ref_border``,
+  `Field.side_keywords`) one keyword when the sides are equal and one per side
+  when they differ; and both ``to_dict`` methods;
 - the options and limits of ``spherex-reduce readout``.
 
 Adding a field means adding one entry here (and handling its meaning in the

@@ -12,7 +12,7 @@ from . import dq
 from ._version import __version__
 from .errors import ConfigError, FormatError, PluginError, SpherexReduceError, StepSkipped
 from .exposure import Exposure, ReferenceReads
-from .geometry import DetectorGeometry
+from .geometry import DetectorGeometry, RefBorder
 from .io import read, write
 from .pipeline import Pipeline
 from .schedule import ReadoutSchedule
@@ -39,6 +39,7 @@ __all__ = [
     "Pipeline",
     "PluginError",
     "ReadoutSchedule",
+    "RefBorder",
     "ReferenceReads",
     "Simulator",
     "SpherexReduceError",

@@ -9,8 +9,11 @@ and one line of documentation.  Everything else is derived from the table:
   (:func:`table_dataclass`, :func:`check_field`);
 - the ``geometry:`` and ``readout:`` YAML sections
   (`spherex_reduce.config.GEOMETRY_PARAMETERS`, ``READOUT_PARAMETERS``);
-- the FITS keywords written by ``ReadoutSchedule.to_header`` and read back by
-  ``from_header``, and both ``to_dict`` methods;
+- the FITS keywords written by ``ReadoutSchedule.to_header`` (:func:`field_cards`)
+  and read back by ``from_header`` (:func:`read_field`): one keyword per field,
+  or for a field that may differ per side of the array (``ref_border``,
+  `Field.side_keywords`) one keyword when the sides are equal and one per side
+  when they differ; and both ``to_dict`` methods;
 - the options and limits of ``spherex-reduce readout``.
 
 Adding a field means adding one entry here (and handling its meaning in the
@@ -30,15 +33,23 @@ import functools
 import inspect
 import math
 import operator
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 from astropy import units as u
 
+from .errors import FormatError
 from .parameters import Parameter
 
-__all__ = ["DEFAULT_FRAME_OVERHEAD", "FIELD", "FIELDS", "REF_MODES", "Field", "check_field",
+__all__ = ["DEFAULT_FRAME_OVERHEAD", "FIELD", "FIELDS", "REF_MODES", "SIDES", "Field",
+           "check_field", "check_sides", "field_cards", "header_keyword", "read_field",
            "section_fields", "table_dataclass"]
+
+#: The sides of the array a per-side field (``ref_border``) has a value for: ``top`` is
+#: the rows from row 0 (read first), ``bottom`` the last rows, ``left`` the columns from
+#: column 0 (left of the first channel), ``right`` the last columns.
+SIDES = ("top", "bottom", "left", "right")
 
 #: The reference read modes a schedule accepts (``ref_mode``).
 REF_MODES = ("none", "repeated", "distributed")
@@ -96,6 +107,12 @@ class Field:
     instead_of : str, optional
         Name of the field this one states differently (``frame_time`` instead
         of ``frame_overhead``); such a field is not part of ``to_dict``.
+    side_keywords : tuple of str, optional
+        For a count that may differ on each side of the array (`SIDES`): the
+        FITS keyword of each side, in `SIDES` order.  ``to_header`` writes
+        them when the sides differ and ``keyword`` alone when all are equal;
+        ``from_header`` reads either form.  The YAML value is then one number
+        (every side) or a mapping of sides (missing sides 0).
     """
 
     name: str
@@ -113,6 +130,7 @@ class Field:
     required: bool | str = True
     none_means: str | None = None
     instead_of: str | None = None
+    side_keywords: tuple | None = None
 
     @property
     def kind(self):
@@ -148,8 +166,10 @@ FIELDS = (
           cli_max=2**16),
     Field("nchannels", "geometry", "NCHAN", (int,), 32, "readout channels", minimum=1,
           cli_max=2**12),
-    Field("ref_border", "geometry", "REFBORD", (int,), 4, "reference border width (pixels)",
-          unit="pix", minimum=0, cli_max=2**10),
+    Field("ref_border", "geometry", "REFBORD", (int, dict), 4,
+          "reference border width (pixels): one for every side, or per side",
+          unit="pix", minimum=0, cli_max=2**10, comment="reference border width (pixels)",
+          required=False, side_keywords=("REFBTOP", "REFBBOT", "REFBLEFT", "REFBRIGH")),
     Field("scan", "geometry", "SCANDIR", (str, list), "same",
           "fast-scan direction: same, alternate or +1/-1 list",
           comment="fast-scan direction per channel", required=False),
@@ -244,6 +264,108 @@ def _positive_finite(name, value, unit):
     return number
 
 
+def check_sides(field, value):
+    """A per-side value (`Field.side_keywords`) as a dict of `SIDES`, each side checked.
+
+    ``value`` is one number (every side) or a mapping of sides to numbers
+    (sides left out are 0).
+
+    Raises
+    ------
+    ValueError
+        An unknown side, or a side that is not an integer >= the field's
+        minimum; the message names ``field.side``.
+
+    Examples
+    --------
+    >>> from spherex_reduce.fields import FIELD, check_sides
+    >>> check_sides(FIELD["ref_border"], {"top": 4, "left": 4})
+    {'top': 4, 'bottom': 0, 'left': 4, 'right': 0}
+    >>> check_sides(FIELD["ref_border"], {"up": 4})
+    Traceback (most recent call last):
+    ...
+    ValueError: ref_border has no side 'up'; the sides are top, bottom, left, right
+    """
+    if not isinstance(value, Mapping):
+        number = _check_int(field.name, value, field.minimum)
+        return dict.fromkeys(SIDES, number)
+    unknown = [k for k in value if k not in SIDES]
+    if unknown:
+        raise ValueError(f"{field.name} has no side {unknown[0]!r}; the sides are "
+                         f"{', '.join(SIDES)}")
+    return {side: _check_int(f"{field.name}.{side}", value.get(side, 0), field.minimum)
+            for side in SIDES}
+
+
+def field_cards(field, value):
+    """The FITS cards ``(keyword, value, comment)`` of a field's value.
+
+    A per-side field (`Field.side_keywords`) is one card ``field.keyword``
+    when every side is equal, else one card per side.
+
+    Examples
+    --------
+    >>> from spherex_reduce.fields import FIELD, field_cards
+    >>> field_cards(FIELD["ref_border"], 4)
+    [('REFBORD', 4, 'reference border width (pixels)')]
+    >>> [card[:2] for card in field_cards(FIELD["ref_border"], {"top": 4, "left": 4})]
+    [('REFBTOP', 4), ('REFBBOT', 0), ('REFBLEFT', 4), ('REFBRIGH', 0)]
+    """
+    if field.side_keywords is None:
+        return [(field.keyword, value, field.card_comment)]
+    sides = check_sides(field, value)
+    if len(set(sides.values())) == 1:
+        return [(field.keyword, sides["top"], field.card_comment)]
+    return [(key, sides[side], f"{field.card_comment.removesuffix(' (pixels)')}, {side} "
+             "side (pixels)") for side, key in zip(SIDES, field.side_keywords, strict=True)]
+
+
+def read_field(header, field):
+    """A field's value from a FITS header (checked), or None if the header has none.
+
+    A per-side field is read from ``field.keyword`` (every side) and from its
+    side keywords (sides whose keyword is absent take ``field.keyword``'s
+    value, or 0); the result is an int when every side is equal, else a dict
+    of `SIDES`.
+
+    Raises
+    ------
+    FormatError
+        A keyword of the wrong type or below the minimum, or both forms in
+        the header with values that disagree; the message names them.
+
+    Examples
+    --------
+    >>> from astropy.io import fits
+    >>> from spherex_reduce.fields import FIELD, read_field
+    >>> read_field(fits.Header({"REFBTOP": 4, "REFBLEFT": 4}), FIELD["ref_border"])
+    {'top': 4, 'bottom': 0, 'left': 4, 'right': 0}
+    >>> read_field(fits.Header({"REFBORD": 4, "REFBBOT": 0}), FIELD["ref_border"])
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.errors.FormatError: keywords REFBORD=4 and REFBBOT=0 disagree: give REFBORD \
+for every side or REFBTOP REFBBOT REFBLEFT REFBRIGH, not both
+    """
+    def read(key):
+        return header_keyword(header, key, field.kind, positive=field.exclusive_minimum,
+                              minimum=None if field.exclusive_minimum else field.minimum)
+
+    one = read(field.keyword) if field.keyword in header else None
+    if field.side_keywords is None:
+        return one
+    given = {side: (key, read(key)) for side, key in zip(SIDES, field.side_keywords,
+                                                          strict=True) if key in header}
+    if not given:
+        return one
+    for key, value in given.values():
+        if one is not None and value != one:
+            raise FormatError(
+                f"keywords {field.keyword}={one} and {key}={value} disagree: give "
+                f"{field.keyword} for every side or {' '.join(field.side_keywords)}, not both")
+    sides = {side: given[side][1] if side in given else (one or 0) for side in SIDES}
+    return sides["top"] if len(set(sides.values())) == 1 else sides
+
+
 def check_field(field, value, maximum=None):
     """A constructor argument checked against its field: the value to store.
 
@@ -273,3 +395,81 @@ def check_field(field, value, maximum=None):
     if field.choices is not None and value not in field.choices:
         raise ValueError(f"{field.name} must be one of {field.choices}, got {value!r}")
     return value
+
+
+_MISSING = object()
+
+
+def header_keyword(header, key, kind, minimum=None, default=_MISSING, positive=False):
+    """``header[key]`` checked for type, finiteness and range.
+
+    Parameters
+    ----------
+    header : `astropy.io.fits.Header`
+    key : str
+        Keyword.
+    kind : {int, float, str}
+        Expected type.  An integer may be written as a real with no fraction
+        (``16.0``); booleans and strings are never numbers.
+    minimum : int or float, optional
+        Smallest allowed value (numbers).
+    default : optional
+        Returned when the keyword is absent; without it, absence is an error.
+    positive : bool
+        The number must be > 0.
+
+    Returns
+    -------
+    int, float or str
+
+    Raises
+    ------
+    FormatError
+        Naming the keyword and the value (also for a card astropy cannot
+        parse, e.g. ``NAN``).
+
+    Examples
+    --------
+    >>> from astropy.io import fits
+    >>> from spherex_reduce.fields import header_keyword
+    >>> header_keyword(fits.Header({"NFRAMES": 10}), "NFRAMES", int, minimum=1)
+    10
+    >>> header_keyword(fits.Header({"NFRAMES": 5.5}), "NFRAMES", int, minimum=1)
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.errors.FormatError: keyword NFRAMES must be an integer, got 5.5
+    """
+    if key not in header:
+        if default is _MISSING:
+            raise FormatError(f"keyword {key} is missing")
+        return default
+    try:
+        value = header.cards[key].value
+    except Exception as exc:  # VerifyError: a card astropy cannot parse (NAN, 1E999x, ...)
+        raise FormatError(f"keyword {key} has an unreadable value "
+                          f"{_card_text(header.cards[key])!r}") from exc
+    if kind is str:
+        if not isinstance(value, str):
+            raise FormatError(f"keyword {key} must be a string, got {value!r}")
+        return value
+    number = (isinstance(value, (int, float, np.integer, np.floating))
+              and not isinstance(value, (bool, np.bool_)))
+    if not number or not math.isfinite(value):
+        what = "an integer" if kind is int else "a finite number"
+        raise FormatError(f"keyword {key} must be {what}, got {value!r}")
+    if kind is int:
+        if value != int(value):
+            raise FormatError(f"keyword {key} must be an integer, got {value!r}")
+        value = int(value)
+    else:
+        value = float(value)
+    if minimum is not None and value < minimum:
+        raise FormatError(f"keyword {key} must be >= {minimum}, got {value!r}")
+    if positive and value <= 0:
+        raise FormatError(f"keyword {key} must be > 0, got {value!r}")
+    return value
+
+
+def _card_text(card):
+    """The value of a header card as written in the file (for a card astropy cannot parse)."""
+    return str(getattr(card, "_image", "") or "")[10:].split("/")[0].strip()

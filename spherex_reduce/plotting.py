@@ -57,11 +57,10 @@ def plot_read_order(schedule, max_rows=48):
     g = schedule.geometry
     sel = np.flatnonzero(rows < shown)
     npass = min(schedule.skip, max(g.n_active_rows, 1))
-    x = np.where(is_ref[sel], 0, 1 + (rows[sel] - g.ref_border) % npass)
+    x = np.where(is_ref[sel], 0, 1 + (rows[sel] - g.border.top) % npass)
     y = rows[sel]
     for r in range(shown):
-        ref = r < g.ref_border or r >= nrows - g.ref_border
-        if ref:
+        if r < g.border.top or r >= nrows - g.border.bottom:
             ax.axhspan(r - 0.5, r + 0.5, color="0.88", lw=0)
     for k in range(len(sel) - 1):
         if sel[k + 1] != sel[k] + 1:  # a jump over rows outside the panel

@@ -15,7 +15,9 @@ lasts ``n_reads * row_samples + frame_overhead`` samples.
 """
 
 import dataclasses
+import logging
 import math
+from collections.abc import Mapping
 
 import numpy as np
 from astropy import units as u
@@ -24,19 +26,25 @@ from astropy.table import Table
 
 from ._text import plural
 from .errors import FormatError
-from .fields import (
+from .fields import (  # header_keyword, _card_text: importable from here as before
     DEFAULT_FRAME_OVERHEAD,
     FIELD,
     FIELDS,
     REF_MODES,
+    _card_text,  # noqa: F401
     check_field,
+    field_cards,
+    header_keyword,
+    read_field,
     section_fields,
     table_dataclass,
 )
-from .geometry import DetectorGeometry
+from .geometry import DetectorGeometry, RefBorder
 from .limits import check_size
 
 __all__ = ["REF_MODES", "ReadoutSchedule", "chopped_order"]
+
+log = logging.getLogger(__name__)
 
 ACTIVE, REFERENCE = "active", "reference"
 
@@ -81,84 +89,6 @@ def chopped_order(n, skip):
     )
 
 
-_MISSING = object()
-
-
-def header_keyword(header, key, kind, minimum=None, default=_MISSING, positive=False):
-    """``header[key]`` checked for type, finiteness and range.
-
-    Parameters
-    ----------
-    header : `astropy.io.fits.Header`
-    key : str
-        Keyword.
-    kind : {int, float, str}
-        Expected type.  An integer may be written as a real with no fraction
-        (``16.0``); booleans and strings are never numbers.
-    minimum : int or float, optional
-        Smallest allowed value (numbers).
-    default : optional
-        Returned when the keyword is absent; without it, absence is an error.
-    positive : bool
-        The number must be > 0.
-
-    Returns
-    -------
-    int, float or str
-
-    Raises
-    ------
-    FormatError
-        Naming the keyword and the value (also for a card astropy cannot
-        parse, e.g. ``NAN``).
-
-    Examples
-    --------
-    >>> from astropy.io import fits
-    >>> from spherex_reduce.schedule import header_keyword
-    >>> header_keyword(fits.Header({"NFRAMES": 10}), "NFRAMES", int, minimum=1)
-    10
-    >>> header_keyword(fits.Header({"NFRAMES": 5.5}), "NFRAMES", int, minimum=1)
-    Traceback (most recent call last):
-    ...
-    spherex_reduce.errors.FormatError: keyword NFRAMES must be an integer, got 5.5
-    """
-    if key not in header:
-        if default is _MISSING:
-            raise FormatError(f"keyword {key} is missing")
-        return default
-    try:
-        value = header.cards[key].value
-    except Exception as exc:  # VerifyError: a card astropy cannot parse (NAN, 1E999x, ...)
-        raise FormatError(f"keyword {key} has an unreadable value "
-                          f"{_card_text(header.cards[key])!r}") from exc
-    if kind is str:
-        if not isinstance(value, str):
-            raise FormatError(f"keyword {key} must be a string, got {value!r}")
-        return value
-    number = (isinstance(value, (int, float, np.integer, np.floating))
-              and not isinstance(value, (bool, np.bool_)))
-    if not number or not math.isfinite(value):
-        what = "an integer" if kind is int else "a finite number"
-        raise FormatError(f"keyword {key} must be {what}, got {value!r}")
-    if kind is int:
-        if value != int(value):
-            raise FormatError(f"keyword {key} must be an integer, got {value!r}")
-        value = int(value)
-    else:
-        value = float(value)
-    if minimum is not None and value < minimum:
-        raise FormatError(f"keyword {key} must be >= {minimum}, got {value!r}")
-    if positive and value <= 0:
-        raise FormatError(f"keyword {key} must be > 0, got {value!r}")
-    return value
-
-
-def _card_text(card):
-    """The value of a header card as written in the file (for a card astropy cannot parse)."""
-    return str(getattr(card, "_image", "") or "")[10:].split("/")[0].strip()
-
-
 @table_dataclass("readout", eq=False)
 class ReadoutSchedule:
     """Read order and sample times of every frame of an exposure.
@@ -174,14 +104,16 @@ class ReadoutSchedule:
         Number ``r`` of reference-row reads per frame for ``ref_mode``
         ``'repeated'`` and ``'distributed'`` (>= 0).  Ignored for ``'none'``.
     ref_mode : {'none', 'repeated', 'distributed'}
-        ``'none'``: the physical reference rows are read once each, the first
-        ``ref_border`` before the active rows and the last ones after.
+        ``'none'``: the physical reference rows are read once each, the top
+        ones (``top`` of ``ref_border``, from row 0) before the active rows and the
+        bottom ones after.
         ``'repeated'``: the top reference rows are re-read in place at the
         start of the frame (``ceil(r/2)`` reads) and the bottom ones at the end
-        (``floor(r/2)``), cycling through the rows.
+        (``floor(r/2)``), cycling through the rows; all ``r`` at the one end
+        that has reference rows if the other has none.
         ``'distributed'``: ``r`` reference reads evenly spaced through the
-        frame (gaps differ by at most one read), cycling through all
-        ``2 * ref_border`` physical reference rows (paper §4.3).
+        frame (gaps differ by at most one read), cycling through all the
+        declared physical reference rows, top then bottom (paper §4.3).
     phantom_reads : int
         ``c``, samples of the Video8 reference voltage before every row read
         (averaged into one phantom value per read and channel); 0 for none.
@@ -217,14 +149,14 @@ class ReadoutSchedule:
         for f in section_fields("readout"):
             if not f.nullable:  # frame_overhead, frame_time: see _set_frame_timing
                 set_(self, f.name, check_field(f, getattr(self, f.name)))
-        if self.ref_mode != "none" and self.ref_reads > 0 and self.geometry.ref_border == 0:
+        g = self.geometry
+        if self.ref_mode != "none" and self.ref_reads > 0 and g.border.rows == 0:
             raise ValueError(
                 f"ref_reads={self.ref_reads} with ref_mode={self.ref_mode!r} needs reference "
-                "rows, but ref_border is 0: set ref_reads to 0 or ref_mode to 'none'"
+                f"rows, but ref_border is {g.border}: set ref_reads to 0 or ref_mode to 'none'"
             )
-        g = self.geometry
         _check_schedule_size(g.nrows, g.ncols, g.nchannels,
-                             self.ref_reads if self.ref_mode != "none" else 0, g.ref_border)
+                             self.ref_reads if self.ref_mode != "none" else 0, g.border)
         rows, kinds = self._build_order()
         set_(self, "_rows", rows)
         set_(self, "_is_ref", kinds)
@@ -278,15 +210,15 @@ class ReadoutSchedule:
     def _build_order(self):
         g = self.geometry
         active = g.active_rows[chopped_order(g.n_active_rows, self.skip)]
-        top = np.arange(g.ref_border)
-        bottom = np.arange(g.nrows - g.ref_border, g.nrows)
+        top, bottom = g.top_rows, g.bottom_rows
         r = self.ref_reads
         if self.ref_mode == "none":
             rows = np.concatenate([top, active, bottom])
             is_ref = np.concatenate([np.ones(top.size, bool), np.zeros(active.size, bool),
                                      np.ones(bottom.size, bool)])
         elif self.ref_mode == "repeated":
-            n_top, n_bottom = (r + 1) // 2, r // 2
+            n_top = (r + 1) // 2 if top.size and bottom.size else r if top.size else 0
+            n_bottom = r - n_top
             head = top[np.arange(n_top) % top.size] if n_top else top[:0]
             tail = bottom[np.arange(n_bottom) % bottom.size] if n_bottom else bottom[:0]
             rows = np.concatenate([head, active, tail])
@@ -469,7 +401,11 @@ class ReadoutSchedule:
                 value = g.scan_label
             elif isinstance(value, u.Quantity):
                 value = value.to_value(f.unit)
-            h[f.keyword] = (value, f.card_comment)
+            cards = field_cards(f, g.border.to_value() if f.side_keywords else value)
+            for key in {f.keyword, *(f.side_keywords or ())} - {c[0] for c in cards}:
+                h.remove(key, ignore_missing=True)  # a per-side field: only one form
+            for key, card_value, comment in cards:
+                h[key] = (card_value, comment)
             if f.name == "nchannels":  # derived, checked on read
                 h["CHANW"] = (g.channel_width, "columns per channel")
         return h
@@ -503,10 +439,9 @@ class ReadoutSchedule:
             )
         values = {}
         for f in FIELDS:
-            if f.keyword in header:
-                values[f.name] = header_keyword(
-                    header, f.keyword, f.kind, positive=f.exclusive_minimum,
-                    minimum=None if f.exclusive_minimum else f.minimum)
+            value = read_field(header, f)
+            if value is not None:
+                values[f.name] = value
             elif supplied.get(f.name) is not None:
                 values[f.name] = supplied[f.name]
         # Everything that decides read order and timing is required: guessing the
@@ -535,6 +470,11 @@ class ReadoutSchedule:
             sched = cls(geometry, **rkw)
         except ValueError as exc:
             raise FormatError(f"readout keywords describe an invalid schedule: {exc}") from exc
+        if "ref_border" not in values:
+            log.warning("the file has no reference border keyword (REFBORD, or REFBTOP REFBBOT "
+                        "REFBLEFT REFBRIGH) and none was supplied: assuming the default "
+                        "ref_border=%s on every side; state geometry.ref_border in the config "
+                        "if that is not the file's layout", geometry.ref_border)
         if table is not None:  # first: it names the read-order keyword at fault
             sched.check_table(table)
         if "frame_time" in values and "frame_overhead" in values and not np.isclose(
@@ -582,18 +522,22 @@ def _check_schedule_size(nrows, ncols, nchannels, ref_reads, ref_border):
     """Refuse sizes whose schedule tables would not fit in memory, before building them.
 
     A schedule holds a few arrays of one entry per read of a frame (at most
-    ``nrows + ref_reads`` reads, plus index arrays of the ``2 * ref_border``
-    reference rows; `_BYTES_PER_READ` each) and per column and channel
-    (`_BYTES_PER_COLUMN` each).  The values may come straight from a header
-    or a config: any that is not a finite number counts as 0 here (the
-    constructor names it).
+    ``nrows + ref_reads`` reads, plus index arrays of the reference rows,
+    ``top + bottom`` of ``ref_border``; `_BYTES_PER_READ` each) and per column
+    and channel (`_BYTES_PER_COLUMN` each).  The values may come straight from
+    a header or a config: any that is not a finite number counts as 0 here
+    (the constructor names it).
     """
     def count(value):
         ok = isinstance(value, (int, float, np.integer, np.floating)) and math.isfinite(value)
         return max(float(value), 0.0) if ok else 0.0
 
+    if isinstance(ref_border, RefBorder):
+        ref_border = ref_border.sides()
+    border_rows = (count(ref_border.get("top")) + count(ref_border.get("bottom"))
+                   if isinstance(ref_border, Mapping) else 2 * count(ref_border))
     reads = count(nrows) + count(ref_reads)
-    nbytes = (_BYTES_PER_READ * (reads + 2 * count(ref_border))
+    nbytes = (_BYTES_PER_READ * (reads + border_rows)
               + _BYTES_PER_COLUMN * (count(ncols) + count(nchannels)))
     check_size(nbytes, f"a readout schedule of {reads:.6g} row reads (nrows={nrows}, "
                f"ref_reads={ref_reads}, ncols={ncols}, nchannels={nchannels})")

@@ -24,7 +24,7 @@ from spherex_reduce.config import (
     schedule_from_config,
 )
 from spherex_reduce.errors import ConfigError, FormatError
-from spherex_reduce.fields import FIELD, FIELDS, section_fields
+from spherex_reduce.fields import FIELD, FIELDS, SIDES, section_fields
 from spherex_reduce.parameters import validate_parameters
 
 DOCS = Path(__file__).resolve().parent.parent / "docs"
@@ -96,8 +96,10 @@ def test_known_names_keywords_and_defaults_are_kept():
         assert (FIELD[name].keyword, FIELD[name].default) == (keyword, default), name
         assert FIELD[name].section == ("geometry" if name in BASE_GEOMETRY
                                        or name in ("scan", "pixel_rate") else "readout")
-    assert len({f.keyword for f in FIELDS}) == len(FIELDS)
-    assert all(len(f.keyword) <= 8 and f.keyword.isupper() for f in FIELDS)
+    keywords = [k for f in FIELDS for k in (f.keyword, *(f.side_keywords or ()))]
+    assert len(set(keywords)) == len(keywords)
+    assert all(len(k) <= 8 and k.isupper() for k in keywords)
+    assert all(len(f.side_keywords) == len(SIDES) for f in FIELDS if f.side_keywords)
     assert {f.section for f in FIELDS} == {"geometry", "readout"}
 
 
@@ -153,6 +155,27 @@ def test_header_round_trip_of_a_non_default_value(field):
     again = ReadoutSchedule.from_header(h, s.to_table())
     assert again == s
     assert same(field, getattr(holder(again, field), field.name), got)
+
+
+@pytest.mark.parametrize("field", [f for f in FIELDS if f.side_keywords], ids=lambda f: f.name)
+def test_per_side_field_round_trips_through_header_yaml_and_command_line(field):
+    value = {"top": 3, "left": 2}
+    s = build(field.name, value)
+    sides = [value.get(side, 0) for side in SIDES]
+    h = s.to_header()
+    assert field.keyword not in h and [h[k] for k in field.side_keywords] == sides
+    assert ReadoutSchedule.from_header(h, s.to_table()) == s
+    section = s.geometry.to_dict() if field.section == "geometry" else s.to_dict()
+    assert section[field.name] == dict(zip(SIDES, sides, strict=True))
+    config, _ = load_yaml(yaml.safe_dump({field.section: section}), "scene")
+    assert schedule_from_config(config.get("geometry"), config.get("readout")) == s
+    args = [x for k, v in BASE_GEOMETRY.items() if k != field.name
+            for x in ("--" + k.replace("_", "-"), v)]
+    flag = "--" + field.name.replace("_", "-")
+    assert readout_cli.schedule_from_args(_parse(flag, "top=3,left=2", *args)) == s
+    equal = build(field.name, dict.fromkeys(SIDES, 2))  # all sides equal: the one keyword
+    assert equal == build(field.name, 2) and field.keyword in equal.to_header()
+    assert not set(field.side_keywords) & set(equal.to_header())
 
 
 def test_header_has_one_card_per_field_and_the_channel_width():
@@ -280,12 +303,14 @@ def test_readout_option_sets_the_field(field):
 
 # -- the docs ------------------------------------------------------------------------------
 def _type_text(field):
-    words = {int: "integer", float: "number", str: "string", list: "list"}
+    words = {int: "integer", float: "number", str: "string", list: "list", dict: "mapping"}
     kinds = [words[t] for t in field.types if t in words and not (t is int and float in
                                                                     field.types)]
     text = " or ".join(kinds)
     if field.bounds:
         text += " " + field.bounds.replace(">=", "≥")
+    if field.side_keywords:  # "integer ≥ 0 or mapping of top, ...": the bound is each side's
+        text = text.replace(" or mapping", "") + f" or mapping of {', '.join(SIDES)}"
     if field.nullable:
         text += " or null"
     return text
@@ -316,7 +341,10 @@ def fits_keyword_table():
         else:
             absent = f"required {f.required}"
         meaning = f.card_comment.removeprefix(f"[{f.unit}] ")  # the unit has its column
-        lines += [f"   * - ``{f.keyword}``", f"     - ``{f.name}``", f"     - {f.unit}".rstrip(),
+        keyword = f"``{f.keyword}``"
+        if f.side_keywords:
+            keyword += f" or {' '.join(f'``{k}``' for k in f.side_keywords)}"
+        lines += [f"   * - {keyword}", f"     - ``{f.name}``", f"     - {f.unit}".rstrip(),
                   f"     - {meaning}{_choices_text(f)}", f"     - {absent}"]
     return "\n".join(lines) + "\n"
 

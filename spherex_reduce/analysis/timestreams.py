@@ -108,8 +108,9 @@ def reference_timestream(exposure, source="columns", parity=None):
         Raw ramps in readout order.
     source : {'columns', 'rows'}
         ``'columns'``: the side border columns (left of the first channel,
-        right of the last), averaged per read: one value per row read,
-        ``values`` ``(2, nframes, n_reads)``.  ``'rows'``: every reference-row
+        right of the last: the sides ``ref_border`` declares, the same
+        number from each, the narrower width), averaged per read: one value
+        per row read, ``values`` ``(sides, nframes, n_reads)``.  ``'rows'``: every reference-row
         read of every channel at the pixel rate, in each channel's scan order,
         ``values`` ``(nchannels, nframes, n_ref_reads, width)``.
     parity : {None, 'even', 'odd'}
@@ -132,10 +133,13 @@ def reference_timestream(exposure, source="columns", parity=None):
     data = np.asarray(exposure.data.data)
     offs = g.column_offsets()
     if source == "columns":
-        b = g.ref_border
-        if b == 0:
-            raise SpherexReduceError("the array has no reference border (ref_border = 0)")
-        sides = [np.arange(b), np.arange(g.ncols - b, g.ncols)]
+        b = g.border
+        if b.columns == 0:
+            raise SpherexReduceError("the array has no side reference columns "
+                                     f"(ref_border = {b})")
+        width = min(w for w in (b.left, b.right) if w)  # the same number from each side
+        sides = [c for w, c in ((b.left, np.arange(width)),
+                                (b.right, np.arange(g.ncols - width, g.ncols))) if w]
         if parity is not None:
             sides = [c[offs[c] % 2 == first_off] for c in sides]
             if any(c.size == 0 for c in sides):
@@ -233,8 +237,8 @@ def fit_raw_noise(exposure, exponent=1.3, nperseg=None, nbins=30, fit=PARAMS, ac
     rows, fits_ = [], {}
     frate = fs / m
     spectra, bases, names = [], [], []
-    if g.ref_border:
-        split = acn and g.ref_border >= 2
+    if g.border.columns:
+        split = acn and min(w for w in (g.border.left, g.border.right) if w) >= 2
         spec, ts = _parity_psd(exposure, "columns", frate, nper, split)
         spectra.append(spec)
         names.append("border columns")

@@ -1,7 +1,9 @@
 """``spherex-reduce readout``: build, print, save and draw a readout schedule."""
 
+import argparse
+
 from ..config import load_yaml, schedule_from_config
-from ..fields import FIELDS
+from ..fields import FIELDS, SIDES
 from ..io import atomic_output
 from ._common import all_or_nothing, check_paths, count, finite_float, positive_float
 
@@ -10,8 +12,42 @@ def _flag(field):
     return "--" + field.name.replace("_", "-")
 
 
+def per_side(number):
+    """An argparse type: one ``number`` (every side) or ``side=number,...`` (others 0).
+
+    Examples
+    --------
+    >>> from spherex_reduce.cli._common import count
+    >>> from spherex_reduce.cli.readout import per_side
+    >>> per_side(count(1024, minimum=0))("top=4,left=4")
+    {'top': 4, 'left': 4}
+    >>> per_side(count(1024, minimum=0))("4")
+    4
+    """
+    def parse(text):
+        if "=" not in text:
+            return number(text)
+        sides = {}
+        for item in text.split(","):
+            side, _, value = (part.strip() for part in item.partition("="))
+            if side not in SIDES or side in sides:
+                raise argparse.ArgumentTypeError(
+                    f"expected a number or side=number,... with sides {', '.join(SIDES)}; "
+                    f"got {text!r}")
+            try:
+                sides[side] = number(value)
+            except argparse.ArgumentTypeError as exc:
+                raise argparse.ArgumentTypeError(f"{side}: {exc}") from None
+        return sides
+
+    parse.__name__ = "per_side"
+    return parse
+
+
 def _option_type(field):
     """The argparse type of a field: its bounds (counts up to ``cli_max``)."""
+    if field.side_keywords:
+        return per_side(count(field.cli_max, minimum=field.minimum))
     if field.kind is int:
         return count(field.cli_max, minimum=field.minimum)
     if field.kind is float:  # the YAML check that follows applies any other bound
@@ -26,6 +62,8 @@ OPTIONS = [(_flag(f), f.section, f.name, _option_type(f)) for f in FIELDS]
 def _option_help(field):
     """Help of one option from its field: meaning, choices, default."""
     text = field.doc
+    if field.side_keywords:
+        text += f", e.g. top=4,left=4 (sides {', '.join(SIDES)}; others 0)"
     if field.choices:
         text += f": {', '.join(field.choices)}"
     if field.default is None:

@@ -177,14 +177,18 @@ def reference_pixels(side, schedule):
     if vals.shape[-2] == 0:
         raise NoReferenceError(
             "correct_reference: the exposure has no reference rows "
-            f"(ref_border={g.ref_border}, {schedule.ref_reads} reference reads in mode "
+            f"(ref_border={g.border}, {schedule.ref_reads} reference reads in mode "
             f"{schedule.ref_mode!r}); use the 'median' strategy, or a schedule with reference reads"
         )
     return _usable(vals, m)
 
 
 def _side_columns(exposure):
-    """Side reference columns of the active rows ``(L, rows, ncols)``, NaN elsewhere."""
+    """Side reference columns of the active rows ``(L, rows, ncols)``, NaN elsewhere.
+
+    Only the declared side columns: ``left`` of ``ref_border`` from column 0,
+    ``right`` at the end (`~spherex_reduce.DetectorGeometry.reference_column_mask`).
+    """
     s = exposure.schedule
     g = s.geometry
     nd = exposure.data
@@ -239,7 +243,8 @@ def reference_offsets(exposure, *, acn=False, sigma=3.0, maxiters=5, side_column
     sigma, maxiters
         σ-clipping of the reference pixels (see `clipped_mean`).
     side_columns : bool
-        Also use the side reference columns of the first and last channel.
+        Also use the side reference columns of the first and last channel
+        (those of the sides ``ref_border`` declares).
 
     Returns
     -------
@@ -321,7 +326,7 @@ class MeanReference(Strategy):
 
     def estimate(self, side, context, exposure=None):
         g = context.geometry
-        columns = (_side_columns(exposure) if self.side_columns and g.ref_border else None)
+        columns = _side_columns(exposure) if self.side_columns and g.border.columns else None
         off, used, clipped = _offsets_of(g, reference_pixels(side, context.schedule), columns,
                                          acn=self.acn, sigma=self.sigma,
                                          maxiters=self.maxiters, threads=context.threads)

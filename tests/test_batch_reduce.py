@@ -1,32 +1,15 @@
 """``reduce A.fits B.fits ... -o OUTDIR``: each file reduced on dask exactly as alone, a summary."""
 
-import hashlib
 
 import numpy as np
 import pytest
+from _cli_helpers import digest, one_line_error, run
 from astropy.stats import mad_std
 from astropy.table import Table
 
 from spherex_reduce import read, write
 from spherex_reduce.analysis import batch
-from spherex_reduce.cli import main
 from spherex_reduce.examples import example_raw_exposure
-
-
-def run(*args):
-    return main([str(a) for a in args])
-
-
-def digest(path):
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def one_line_error(capsys, *words):
-    err = capsys.readouterr().err
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert "Traceback" not in err and all(w in err for w in words), err
-    return err
 
 
 @pytest.fixture

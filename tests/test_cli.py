@@ -5,16 +5,12 @@ import sys
 
 import numpy as np
 import pytest
+from _cli_helpers import run
 from astropy.table import Table
 
 import spherex_reduce
 from spherex_reduce import read, write
-from spherex_reduce.cli import main
 from spherex_reduce.examples import example_raw_exposure
-
-
-def run(*args):
-    return main([str(a) for a in args])
 
 
 def test_version_and_help(capsys):

@@ -3,7 +3,6 @@ disks, signals, broken plugins.  Each case: one line on stderr, exit 2, nothing 
 the input unchanged."""
 
 import errno
-import hashlib
 import os
 import signal
 import subprocess
@@ -12,8 +11,8 @@ import time
 import warnings
 
 import pytest
+from _cli_helpers import digest, one_line_error, run
 
-from spherex_reduce.cli import main
 from spherex_reduce.io import atomic_output
 
 SCENE = """\
@@ -23,20 +22,7 @@ seed: 1
 """
 
 
-def run(*args):
-    return main([str(a) for a in args])
 
-
-def digest(path):
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def one_line_error(capsys, *words):
-    err = capsys.readouterr().err
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert "Traceback" not in err and all(w in err for w in words), err
-    return err
 
 
 @pytest.fixture(scope="module")

@@ -1,19 +1,15 @@
 """FITS format: round trips, cross-checks, atomic writes, inputs never touched."""
 
-import hashlib
 
 import numpy as np
 import pytest
+from _cli_helpers import digest
 from _one_by_one import one_by_one
 from astropy import units as u
 from astropy.io import fits
 
 from spherex_reduce import Exposure, FormatError, Pipeline, read, unchop, write
 from spherex_reduce.examples import example_raw_exposure
-
-
-def digest(path):
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 @pytest.fixture

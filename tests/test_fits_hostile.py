@@ -6,10 +6,10 @@ Every file is built here from small arrays; integer results are checked against 
 arithmetic on the stored values, read independently of the package.
 """
 
-import hashlib
 
 import numpy as np
 import pytest
+from _cli_helpers import digest
 from _one_by_one import one_by_one
 from astropy import units as u
 from astropy.io import fits
@@ -33,9 +33,6 @@ from spherex_reduce.io import FrameReader, checksum_policy
 STEPS = {"steps": ["unchop", "subtract_phantom", {"correct_reference": {"strategy": "mean"}},
                    "fit_ramp"]}
 
-
-def digest(path):
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def stored(path, name):

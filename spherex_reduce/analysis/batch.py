@@ -44,7 +44,7 @@ from ..io import (
 )
 from ..pipeline import Pipeline
 from .case import as_pipeline
-from .scheduler import _client
+from .scheduler import map_on_dask
 
 __all__ = ["OUTPUT_SUFFIX", "STATUSES", "SUMMARY_NAME", "BatchResult", "image_statistics",
            "output_paths", "reduce_file", "run_batch"]
@@ -419,29 +419,15 @@ def run_batch(pipeline, inputs, outdir, *, scheduler=None, workers=None, threads
 
 def _on_dask(tasks, scheduler, workers, collect):
     """Run `reduce_file` on every task on dask; ``collect(task, row)`` as each finishes."""
-    from distributed import as_completed
-
     if scheduler is None:
         workers = min(2 if workers is None else workers, len(tasks))
-    client, cluster, owned = _client(scheduler, workers)
-    try:
-        futures = client.map(reduce_file, tasks, pure=False)
-        index = {fut.key: task for fut, task in zip(futures, tasks, strict=True)}
-        for fut in as_completed(futures):
-            task = index[fut.key]
-            try:
-                res = fut.result()
-            except Exception as exc:  # the worker died (e.g. out of memory): report, go on
-                res = {"status": "failed", "median": np.nan, "robust_std": np.nan, "unit": "",
-                       "seconds": np.nan, "kind": "unexpected",
-                       "error": f"{type(exc).__name__}: {_one_line(exc)}"}
-            collect(task, res)
-            fut.release()
-    finally:
-        if owned:
-            client.close()
-        if cluster is not None:
-            cluster.close()
+
+    def died(task, exc):  # the worker died (e.g. out of memory): report, go on
+        return {"status": "failed", "median": np.nan, "robust_std": np.nan, "unit": "",
+                "seconds": np.nan, "kind": "unexpected",
+                "error": f"{type(exc).__name__}: {_one_line(exc)}"}
+
+    map_on_dask(reduce_file, tasks, scheduler, workers, collect, died)
 
 
 def _bar(total, progress):

@@ -12,7 +12,7 @@ import logging
 from ..errors import ConfigError
 from ..limits import MAX_WORKERS, check_count
 
-__all__ = ["check_scheduler", "quiet_dask_logs"]
+__all__ = ["check_scheduler", "map_on_dask", "quiet_dask_logs"]
 
 
 def quiet_dask_logs(level=logging.WARNING):
@@ -110,3 +110,34 @@ def _client(scheduler, workers):
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                            dashboard_address=":0")
     return Client(cluster), cluster, True
+
+
+def map_on_dask(function, tasks, scheduler, workers, collect, failed):
+    """Run ``function`` on every task on dask, handing each result over as it comes.
+
+    ``scheduler`` and ``workers`` are as for the sweep: None and a number of
+    worker processes for a new `~distributed.LocalCluster` (closed at the
+    end), or a scheduler's address.  ``collect(task, result)`` is called in
+    this process as each task finishes; a task whose worker died (e.g. out of
+    memory) gets ``failed(task, exception)`` as its result instead, and the
+    others go on.
+    """
+    from distributed import as_completed
+
+    client, cluster, owned = _client(scheduler, workers)
+    try:
+        futures = client.map(function, tasks, pure=False)
+        task_of = {fut.key: task for fut, task in zip(futures, tasks, strict=True)}
+        for fut in as_completed(futures):
+            task = task_of[fut.key]
+            try:
+                result = fut.result()
+            except Exception as exc:  # the worker died: report this task, go on
+                result = failed(task, exc)
+            collect(task, result)
+            fut.release()
+    finally:
+        if owned:
+            client.close()
+        if cluster is not None:
+            cluster.close()

@@ -44,7 +44,7 @@ from ..io import atomic_output
 from ..limits import check_count
 from ..simulation import load_scene
 from .case import SpectrumMeasure, run_case
-from .scheduler import _client, check_scheduler, quiet_dask_logs
+from .scheduler import check_scheduler, map_on_dask, quiet_dask_logs
 
 __all__ = ["Sweep", "SweepResult", "check_scheduler", "load_sweep", "plot_sweep",
            "quiet_dask_logs", "run_cell", "run_sweep"]
@@ -422,25 +422,15 @@ def run_sweep(sweep, output=None, *, scheduler=None, workers=None, overwrite=Fal
             collect(run_cell(task))
             bar.update(1)
     elif todo:
-        from distributed import as_completed
+        def cell_done(task, res):
+            collect(res)
+            bar.update(1)
 
-        client, cluster, owned = _client(scheduler, workers)
-        try:
-            futures = client.map(run_cell, tasks, pure=False)
-            for fut in as_completed(futures):
-                try:
-                    res = fut.result()
-                except Exception as exc:  # a worker died: report the cell, go on
-                    idx = futures.index(fut)
-                    res = {"cell": todo[idx], "error": f"{type(exc).__name__}: {exc}"}
-                collect(res)
-                bar.update(1)
-                fut.release()
-        finally:
-            if owned:
-                client.close()
-            if cluster is not None:
-                cluster.close()
+        def cell_failed(task, exc):  # a worker died: report the cell, go on
+            cell = next(c for c, t in zip(todo, tasks, strict=True) if t is task)
+            return {"cell": cell, "error": f"{type(exc).__name__}: {exc}"}
+
+        map_on_dask(run_cell, tasks, scheduler, workers, cell_done, cell_failed)
     bar.close()
     result.table = merged()  # the same table and metadata as the file: plot_sweep needs both
     write(final=True)

@@ -95,16 +95,24 @@ class _ReadFile:
                 raise FormatError(f"{path}: a file per read holds one 2-D image (rows x "
                                   f"columns), its {'SCI' if 'SCI' in names else 'primary HDU'} "
                                   f"has {naxis} axes")
-            self.d = _describe(self.hdul, path, supplied, bad)
+            try:
+                self.d = _describe(self.hdul, path, supplied, bad)
+            except FormatError as exc:  # name the file: there are many
+                if str(path) in str(exc):
+                    raise
+                raise FormatError(f"{path}: {exc}") from exc
             if "DQ" in self.d["names"] or "ERR" in self.d["names"]:
                 raise FormatError(f"{path}: a file per read holds the pixels only (and "
                                   "optionally PHANTOM), not DQ or ERR")
             sci = self.d["sci"]
             self.scale = _scaling(sci, path)
             self.bitpix = sci.header["BITPIX"]
-            self.phantom = (np.asarray(_physical(self.hdul["PHANTOM"], path, self.plain),
-                                       dtype=float)
-                            if "PHANTOM" in self.d["names"] else None)
+            self.phantom = None
+            if "PHANTOM" in self.d["names"]:  # as a 3-D file's (FrameReader), in floats
+                hdu = self.hdul["PHANTOM"]
+                self.phantom = np.array(_physical(hdu, path, self.plain))
+                if self.phantom.dtype.kind != "f":
+                    self.phantom = self.phantom.astype(_FLOAT_FOR[hdu.header["BITPIX"]])
             self.map = _map_frames(sci, path) if self.plain else None
         except Exception:
             self.close()

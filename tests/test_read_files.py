@@ -8,6 +8,7 @@ ramp written as one 3-D file.
 """
 
 import hashlib
+import os
 
 import numpy as np
 import pytest
@@ -220,3 +221,29 @@ def test_files_that_disagree_are_refused(tmp_path):
         ReadFiles(paths, **supplied)
     with pytest.raises(FormatError, match="two files"):
         ReadFiles(paths[:1], **supplied)
+
+
+def test_gzipped_files_are_read_by_sections_with_the_same_result(tmp_path):
+    """Files astropy unpacks (gzip) are read by sections: the same slopes as plain files."""
+    s = _schedule()
+    sci = _ramps(s)
+    plain = _write_reads(tmp_path / "p", sci)
+    (tmp_path / "z").mkdir()
+    for path in plain:
+        fits.PrimaryHDU(fits.getdata(path)).writeto(tmp_path / "z" / (path.name + ".gz"))
+    cfg = _config(tmp_path / "full.yaml", FULL)
+    for d in ("p", "z"):
+        assert main(["-q", "reduce", "--reads", str(tmp_path / d / "read_*.fits*"), "-c",
+                     str(cfg), "-o", str(tmp_path / f"{d}.fits")]) == 0
+    np.testing.assert_array_equal(fits.getdata(tmp_path / "z.fits", "SCI"),
+                                  fits.getdata(tmp_path / "p.fits", "SCI"))
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/fd"), reason="counts /proc/self/fd")
+def test_one_descriptor_per_plain_file_while_open(tmp_path):
+    """A ramp of many reads must not run out of file descriptors: one per plain file."""
+    paths = _write_reads(tmp_path / "r", _ramps(_schedule()))
+    before = len(os.listdir("/proc/self/fd"))
+    with ReadFiles(paths, **GEOMETRY, **READOUT):
+        assert len(os.listdir("/proc/self/fd")) - before == len(paths)
+    assert len(os.listdir("/proc/self/fd")) == before

@@ -84,7 +84,7 @@ def read_file_paths(pattern):
 class _ReadFile:
     """One open file of a read: its checked description, and how its rows are read."""
 
-    def __init__(self, path, verify, supplied):
+    def __init__(self, path, verify, supplied, tables=False):
         self.path = path
         self.hdul, bad, self.plain = _open(path, memmap=False, verify=verify)
         self.map = None
@@ -113,7 +113,17 @@ class _ReadFile:
                 self.phantom = np.array(_physical(hdu, path, self.plain))
                 if self.phantom.dtype.kind != "f":
                     self.phantom = self.phantom.astype(_FLOAT_FOR[hdu.header["BITPIX"]])
-            self.map = _map_frames(sci, path) if self.plain else None
+            #: the file's tables (only if asked: the first file's are the exposure's)
+            self.tables = ({h.name: Table.read(h) for h in self.hdul
+                            if isinstance(h, fits.BinTableHDU) and h.name not in _RESERVED}
+                           if tables else {})
+            if self.plain and hasattr(os, "preadv"):
+                self.map = _map_frames(sci, path)
+            if self.map is not None:  # read with pread from one descriptor per file
+                mm, offset, stored, fd = self.map
+                mm.close()
+                self.map = (None, offset, stored, fd)
+                self.hdul.close()
         except Exception:
             self.close()
             raise
@@ -122,6 +132,7 @@ class _ReadFile:
         """Rows ``first:stop`` of the image as ``dtype`` (physical values, native order)."""
         ncols = self.d["shape"][1]
         if self.map is None:  # compressed: astropy unpacks (and scales) the section
+            # (the file is kept open; also without pread, e.g. on Windows)
             return np.asarray(self.d["sci"].section[first:stop]).astype(dtype)
         _, offset, stored, fd = self.map
         buf = _pread(fd, np.empty((stop - first, ncols), stored),
@@ -133,12 +144,7 @@ class _ReadFile:
 
     def close(self):
         if self.map is not None:
-            mm, _, _, fd = self.map
-            os.close(fd)
-            try:
-                mm.close()
-            except BufferError:  # pragma: no cover - a view is still alive
-                pass
+            os.close(self.map[3])
             self.map = None
         self.hdul.close()
 
@@ -205,7 +211,8 @@ class ReadFiles:
         self._files = []
         try:
             for path in paths:
-                self._files.append(_ReadFile(path, verify_checksum, supplied))
+                self._files.append(_ReadFile(path, verify_checksum, supplied,
+                                             tables=not self._files))
                 self._check_like_first(self._files[-1])
             first = self._files[0]
             self.schedule = first.d["schedule"].replace(nframes=len(paths))
@@ -214,8 +221,7 @@ class ReadFiles:
             self.header["NFRAMES"] = (len(paths), "frames up the ramp: one file per read")
             self.header.add_history(f"ramp of {len(paths)} files, one per read: "
                                     f"{paths[0].name} ... {paths[-1].name}")
-            self.tables = {h.name: Table.read(h) for h in first.hdul
-                           if isinstance(h, fits.BinTableHDU) and h.name not in _RESERVED}
+            self.tables = first.tables
             self._dtype = np.dtype(_FLOAT_FOR[first.bitpix])
             phantoms = [f.phantom for f in self._files]
             self.phantom = None if phantoms[0] is None else np.stack(phantoms)

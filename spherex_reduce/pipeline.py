@@ -161,8 +161,12 @@ class Pipeline:
 
         Parameters
         ----------
-        exposure : `Exposure` or path
-            The input (a path is read as :meth:`read` does); never modified.
+        exposure : `Exposure`, path, or an open reader
+            The input, never modified: a path is read as :meth:`read` does; an
+            open reader of raw ramps (`~spherex_reduce.io.FrameReader`, or
+            `~spherex_reduce.io.read_files.ReadFiles` for one file per read) is
+            read in bands, or whole when a pass cannot stream it (the caller
+            closes it).
         progress : bool
             Show progress bars (steps, and rows of a pass).
         threads : int, optional
@@ -227,23 +231,41 @@ class Pipeline:
                     done = i + 1
                 bar.update(done - i)
                 i = done
-        if not isinstance(current, Exposure):
-            current = self.read(current)
-        return current
+        return self._loaded(current)
+
+    @staticmethod
+    def _is_reader(current):
+        """An open reader of raw ramps (`~spherex_reduce.io.FrameReader`, ``ReadFiles``)."""
+        return hasattr(current, "reads") and hasattr(current, "exposure")
+
+    def _loaded(self, current):
+        """``current`` (an exposure, an open reader or a path) as an exposure in memory."""
+        if isinstance(current, Exposure):
+            return current
+        return current.exposure() if self._is_reader(current) else self.read(current)
 
     def _source(self, current):
-        """Where a pass reads from: the file in bands if it can, else the exposure in memory."""
-        if hasattr(current, "side") and hasattr(current, "read"):  # a source (e.g. read files)
-            return current, None
+        """Where a pass reads from: ``(source, reader, opened)``.
+
+        The source is the file in bands if it can be, else the exposure in memory;
+        the reader is what the bands come from (the whole file comes from it too if
+        the pass cannot stream); ``opened`` says the pipeline opened it (and closes it).
+        """
         if isinstance(current, Exposure):
-            return MemorySource(current), None
-        if is_raw_ramp_file(current):
-            reader = FrameReader(current, **self._supplied())
-            if FileSource.usable(reader):
-                return FileSource(reader), reader
-            with reader:  # read whole from the file already open and checked
-                return MemorySource(reader.exposure()), None
-        return MemorySource(self.read(current)), None
+            return MemorySource(current), None, False
+        if self._is_reader(current):
+            reader, opened = current, False
+        elif is_raw_ramp_file(current):
+            reader, opened = FrameReader(current, **self._supplied()), True
+        else:
+            return MemorySource(self.read(current)), None, False
+        if FileSource.usable(reader):
+            return FileSource(reader), reader, opened
+        try:  # read whole from the file already open and checked
+            return MemorySource(reader.exposure()), None, False
+        finally:
+            if opened:
+                reader.close()
 
     def _pass(self, current, steps, i, status, progress, threads):
         """Steps ``i, i+1, ...`` that have kernels (and a consumer after them) in one pass.
@@ -255,14 +277,14 @@ class Pipeline:
         if first.inputs or (type(first).kernel is Step.kernel
                             and type(first).consumer is Step.consumer):
             return i, current
-        source, reader = self._source(current)
+        source, reader, opened = self._source(current)
         try:
             done, result = self._pass_on(source, current, steps, i, status, progress, threads)
             if done == i and reader is not None:  # the step runs whole: on the file open here
                 result = reader.exposure()
             return done, result
         finally:
-            if reader is not None:
+            if opened:
                 reader.close()
 
     def _plan(self, source, steps, i, threads=None):
@@ -305,7 +327,7 @@ class Pipeline:
             # only skipped steps (e.g. subtract_phantom without phantom values)
             if not isinstance(current, Exposure):
                 current = (source.exposure if isinstance(source, MemorySource)
-                           else self.read(current))
+                           else self._loaded(current))
             for k in members:
                 self.registry.pm.hook.before_step(step=steps[k][2], exposure=current,
                                                   params=steps[k][1])
@@ -347,8 +369,7 @@ class Pipeline:
     def _whole(self, current, steps, i, status, progress, threads):
         """Step ``i`` on the whole exposure, its declared inputs prepared by the pipeline."""
         _, params, step = steps[i]
-        if not isinstance(current, Exposure):
-            current = self.read(current)
+        current = self._loaded(current)
         inputs = {}
         for key in step.inputs:
             path = params.get(key)

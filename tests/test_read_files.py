@@ -147,7 +147,7 @@ def test_the_files_are_read_in_bands_never_whole(tmp_path, monkeypatch):
     cfg = _config(tmp_path / "full.yaml", FULL, nframes=len(NUMBERS))
     out = sr.Pipeline.from_yaml(cfg)
     with ReadFiles(paths, **out._supplied()) as reader:
-        result = out.run(FileSource(reader), threads=2)
+        result = out.run(reader, threads=2)
     covered = sorted(r for lo, hi in asked for r in range(lo, hi))
     assert covered == list(range(s.n_reads))  # every read once
     assert max(hi - lo for lo, hi in asked) == 5

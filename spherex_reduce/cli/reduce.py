@@ -5,7 +5,6 @@ from pathlib import Path
 
 from .._text import plural
 from ..errors import ConfigError
-from ..executor import FileSource
 from ..io import atomic_output, write
 from ..io.read_files import ReadFiles, read_file_paths
 from ..limits import MAX_WORKERS
@@ -85,19 +84,10 @@ def _reads(args):
     check_paths([*paths, args.config, *named_files(pipeline.steps, Path(args.config).parent)],
                 [args.output])
     atomic_output(args.output, args.overwrite)  # refuse before reducing
-    with ReadFiles(paths, **pipeline._supplied()) as reader:
-        source = FileSource(reader) if reader.readable_in_bands() else None
-        if source is None or not _streams(pipeline, source, args.threads):
-            source = reader.exposure()  # physical order, or a first step on the whole ramp
-        result = pipeline.run(source, progress=not args.quiet, threads=args.threads)
+    supplied = {**pipeline.config.get("geometry", {}), **pipeline.config.get("readout", {})}
+    with ReadFiles(paths, **supplied) as reader:  # streamed in bands where the steps allow
+        result = pipeline.run(reader, progress=not args.quiet, threads=args.threads)
     return _written(pipeline, result, args)
-
-
-def _streams(pipeline, source, threads):
-    """Whether the pipeline's first pass runs on bands of ``source`` (else its first step
-    needs the whole exposure: read it into memory)."""
-    kernels, consumer, *_ = pipeline._plan(source, pipeline._steps(threads), 0, threads)
-    return bool(kernels) or consumer is not None
 
 
 def _batch(args):

@@ -18,6 +18,7 @@ DOCS = ROOT / "docs"
 #: lines that do).
 DOCTEST_PAGES = [
     "overview.rst",
+    "measured_darks.rst",
     "readout.rst",
     "reduction.rst",
     "fits.rst",
@@ -76,6 +77,7 @@ def test_sphinx_build_is_warning_free(tmp_path):
         "overview",
         "readout",
         "fits",
+        "measured_darks",
         "yaml",
         "cli",
         "plugins",

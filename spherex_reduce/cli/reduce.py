@@ -4,7 +4,7 @@ import sys
 from pathlib import Path
 
 from .._text import plural
-from ..io import atomic_output, write
+from ..integrations import reduce_one
 from ..limits import MAX_WORKERS
 from ..pipeline import Pipeline
 from ._common import check_paths, count, named_files
@@ -14,7 +14,10 @@ def add_parser(sub):
     p = sub.add_parser(
         "reduce", help="run a pipeline on raw FITS files",
         description="Reduce IN.fits with the steps of a pipeline YAML file (or a shipped "
-        "config name, see show-config --list) and write OUT.fits. With several inputs (or "
+        "config name, see show-config --list) and write OUT.fits. A file whose SCI is 4-D "
+        "(integrations, groups, rows, columns) has each integration reduced as a ramp: OUT.fits "
+        "holds their weighted mean and each one's image (INTSLOPE, INTERR, INTDQ). With "
+        "several inputs (or "
         "--workers/--scheduler), -o names a directory: each file is reduced on dask (an "
         "embedded LocalCluster, or an existing scheduler) into OUTDIR/<stem>_reduced.fits, "
         "with a summary table OUTDIR/summary.ecsv; outputs already done with this config are "
@@ -47,9 +50,9 @@ def run(args):
     # the raw file, the config file and any file the config names (e.g. a dark)
     check_paths([source, args.config, *named_files(pipeline.steps, Path(args.config).parent)],
                 [args.output])
-    atomic_output(args.output, args.overwrite)  # refuse before reducing
-    result = pipeline.run(source, progress=not args.quiet, threads=args.threads)
-    write(result, args.output, overwrite=args.overwrite)
+    # a 4-D SCI: each integration fitted, their mean and INTSLOPE/INTERR/INTDQ written
+    result = reduce_one(pipeline, source, args.output, overwrite=args.overwrite,
+                        progress=not args.quiet, threads=args.threads)
     status = ", ".join(f"{n}={result.header.get(pipeline.registry.step(n).keyword, '?')}"
                        for n, _ in pipeline.steps)
     print(f"wrote {args.output} ({status})")

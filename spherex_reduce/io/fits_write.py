@@ -124,8 +124,8 @@ def write(exposure, path, overwrite=False, images=None):
                                "REFREADS"))
     taken = set(_RESERVED)
     for name, array in (images or {}).items():
-        values, unit = _value_unit(array)
-        hdus.append(_image(values, _extra(name, taken, "image"), unit))
+        values, extra_unit = _value_unit(array)
+        hdus.append(_image(values, _extra(name, taken, "image"), extra_unit))
     for name, table in exposure.tables.items():
         hdus.append(_table_hdu(table, _extra(name, taken, "table")))
     hdus.insert(0, _primary(exposure.schedule, exposure.header, exposure.order, unit, len(hdus)))

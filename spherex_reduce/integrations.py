@@ -6,7 +6,7 @@ reads of the array.  `reduce_integrations` reads one integration at a time
 pipeline's ``geometry:``/``readout:`` for the keywords it lacks), runs the
 pipeline on it, which must turn it into an image (``fit_ramp``), and combines
 the images with `combine_integrations`: the inverse-variance weighted mean of
-the usable slopes of each pixel.  `reduce_one` is what ``spherex-reduce
+the usable slopes of each pixel.  `reduce_input` is what ``spherex-reduce
 reduce`` does with one input, whatever its layout.
 
 The output file (`Integrations.write`) holds the mean as ``SCI``/``ERR``/``DQ``
@@ -26,11 +26,16 @@ from astropy.table import Table, vstack
 from . import dq
 from .errors import ConfigError
 from .exposure import Exposure
-from .io import CheckedFITS, atomic_output, integration_count, write
+from .io import CheckedFITS, integration_count, write
 from .limits import check_size
 
-__all__ = ["INTEGRATION_IMAGES", "Integrations", "combine_integrations", "reduce_integrations",
-           "reduce_one"]
+__all__ = [
+    "INTEGRATION_IMAGES",
+    "Integrations",
+    "combine_integrations",
+    "reduce_input",
+    "reduce_integrations",
+]
 
 #: The image extensions of the per-integration results in an output file.
 INTEGRATION_IMAGES = ("INTSLOPE", "INTERR", "INTDQ")
@@ -240,20 +245,17 @@ def reduce_integrations(path, pipeline, *, progress=False, threads=None):
     return combine_integrations(results)
 
 
-def reduce_one(pipeline, path, output, *, overwrite=False, progress=False, threads=None):
-    """Reduce one file and write the result, as ``spherex-reduce reduce`` does.
+def reduce_input(pipeline, path, *, progress=False, threads=None):
+    """Reduce one file, as ``spherex-reduce reduce`` does, whatever its layout.
 
-    A file with a 4-D ``SCI`` is reduced by `reduce_integrations` (the mean
-    and the ``INTSLOPE``/``INTERR``/``INTDQ`` extensions); any other by
-    `Pipeline.run <spherex_reduce.Pipeline.run>`, streamed from the file.
+    A file with a 4-D ``SCI`` is reduced by `reduce_integrations`; any other
+    by `Pipeline.run <spherex_reduce.Pipeline.run>`, streamed from the file.
 
     Parameters
     ----------
     pipeline : `~spherex_reduce.Pipeline`
-    path, output : str or `pathlib.Path`
-        The input (never changed) and the output (written atomically).
-    overwrite : bool
-        Replace an existing output; without it, it is refused before any work.
+    path : str or `pathlib.Path`
+        The input; never changed.
     progress : bool
         Show progress bars.
     threads : int, optional
@@ -261,14 +263,14 @@ def reduce_one(pipeline, path, output, *, overwrite=False, progress=False, threa
 
     Returns
     -------
-    `~spherex_reduce.Exposure`
-        What was written (for several integrations, their mean).
+    exposure : `~spherex_reduce.Exposure`
+        The result (for several integrations, their mean).
+    images : dict
+        The extra image extensions to write with it (`Integrations.images`:
+        ``INTSLOPE``, ``INTERR``, ``INTDQ``), empty for a file of one ramp:
+        ``write(exposure, output, images=images)``.
     """
-    atomic_output(output, overwrite)  # refuse an existing output before reducing
     if integration_count(path) is not None:
         result = reduce_integrations(path, pipeline, progress=progress, threads=threads)
-        result.write(output, overwrite=overwrite)
-        return result.exposure
-    result = pipeline.run(path, progress=progress, threads=threads)
-    write(result, output, overwrite=overwrite)
-    return result
+        return result.exposure, result.images()
+    return pipeline.run(path, progress=progress, threads=threads), {}

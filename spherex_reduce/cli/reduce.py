@@ -4,7 +4,8 @@ import sys
 from pathlib import Path
 
 from .._text import plural
-from ..integrations import reduce_one
+from ..integrations import reduce_input
+from ..io import atomic_output, write
 from ..limits import MAX_WORKERS
 from ..pipeline import Pipeline
 from ._common import check_paths, count, named_files
@@ -50,9 +51,11 @@ def run(args):
     # the raw file, the config file and any file the config names (e.g. a dark)
     check_paths([source, args.config, *named_files(pipeline.steps, Path(args.config).parent)],
                 [args.output])
-    # a 4-D SCI: each integration fitted, their mean and INTSLOPE/INTERR/INTDQ written
-    result = reduce_one(pipeline, source, args.output, overwrite=args.overwrite,
-                        progress=not args.quiet, threads=args.threads)
+    atomic_output(args.output, args.overwrite)  # refuse before reducing
+    # a 4-D SCI: each integration fitted; their mean, with INTSLOPE/INTERR/INTDQ
+    result, images = reduce_input(pipeline, source, progress=not args.quiet,
+                                  threads=args.threads)
+    write(result, args.output, overwrite=args.overwrite, images=images)
     status = ", ".join(f"{n}={result.header.get(pipeline.registry.step(n).keyword, '?')}"
                        for n, _ in pipeline.steps)
     print(f"wrote {args.output} ({status})")

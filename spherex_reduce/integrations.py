@@ -113,6 +113,12 @@ def combine_integrations(results):
     ConfigError
         An integration is still ramps (the pipeline lacks ``fit_ramp``).
 
+    Notes
+    -----
+    The weights are as good as the uncertainties: ``fit_ramp``'s from the
+    residuals of a few groups scatter from pixel to pixel, and so do the
+    weights; its ``read_noise`` gives model uncertainties instead.
+
     Examples
     --------
     >>> import numpy as np

@@ -152,6 +152,18 @@ def test_read_one_integration(tmp_path):
     for bad in (NINT, -1, 1.0, True):
         with pytest.raises(FormatError, match="not one of the file's 3 integrations"):
             sr.read(raw, integration=bad, **GEOMETRY, **READOUT)
+    mask = np.zeros((NROWS, NCOLS), np.int32)
+    mask[4, 6] = 1  # a 2-D DQ: every read of one pixel in every integration
+    pixel = sr.read(_uncal(tmp_path / "mask.fits", sci, mask), integration=2, **GEOMETRY,
+                    **READOUT)
+    (read,) = np.flatnonzero(pixel.schedule.rows == 4)  # row 4's read (chopped order)
+    assert [tuple(i) for i in np.argwhere(pixel.dq)] == [(g, read, 6) for g in range(NGROUPS)]
+    phantom = _uncal(tmp_path / "phantom.fits", sci)
+    with fits.open(phantom, mode="append") as hdul:
+        hdul.append(fits.ImageHDU(np.arange(NINT * NGROUPS * NROWS * 2, dtype="f4").reshape(
+            NINT, NGROUPS, NROWS, 2), name="PHANTOM"))
+    e = sr.read(phantom, integration=1, **GEOMETRY, **{**READOUT, "phantom_reads": 2})
+    assert e.phantom.shape == (NGROUPS, NROWS, 2) and e.phantom[0, 0, 0] == NGROUPS * NROWS * 2
     flat = _uncal(tmp_path / "ramps.fits", sci[0])
     with pytest.raises(FormatError, match="not 4-D"):
         sr.read(flat, integration=0, **GEOMETRY, **READOUT)

@@ -159,6 +159,8 @@ def _describe(hdul, path, supplied, bad=(), integration=None):
     _check_shape(shape, schedule, order, "SCI")
     if "PHANTOM" in names:
         pshape = tuple(hdul["PHANTOM"].shape)
+        if integration is not None and len(pshape) == 4:  # one integration's, as SCI's
+            pshape = pshape[1:]
         frames_reads = expected_shape(schedule, order, len(shape) == 3)[:-1]
         expected = (*frames_reads, schedule.geometry.nchannels)
         if pshape != expected:

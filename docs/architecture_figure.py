@@ -16,7 +16,8 @@ LAYERS = [  # (name, what it holds), top to bottom: each imports only from those
     ("demo", "demo.py"),
     ("analysis", "run_case, P(k), sweeps, figures"),
     ("simulation", "noise engine, scenes, simulation_plugin"),
-    ("pipeline", "pipeline.py (passes), plugins.py (registry)"),
+    ("pipeline", "pipeline.py (passes), plugins.py (registry),\n"
+                 "integrations.py (4-D SCI)"),
     ("steps", "steps/* (one module per step), step.py,\n"
               "provenance.py, hookspecs.py, executor.py"),
     ("io", "io/ (FITS read, write, FrameReader), config.py,\n"

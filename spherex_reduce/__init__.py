@@ -13,6 +13,7 @@ from ._version import __version__
 from .errors import ConfigError, FormatError, PluginError, SpherexReduceError, StepSkipped
 from .exposure import Exposure, ReferenceReads
 from .geometry import DetectorGeometry, RefBorder
+from .integrations import reduce_integrations
 from .io import read, write
 from .pipeline import Pipeline
 from .schedule import ReadoutSchedule
@@ -55,6 +56,7 @@ __all__ = [
     "pair_difference",
     "read",
     "rechop",
+    "reduce_integrations",
     "sigma_clip",
     "simulate",
     "subtract_dark",

@@ -99,10 +99,10 @@ def test_an_unexpected_failure_is_status_1_and_the_others_finish(tmp_path, raws,
                                                                 monkeypatch):
     real = batch.write
 
-    def fail_b(result, path, overwrite=False):
+    def fail_b(result, path, overwrite=False, images=None):
         if "b_reduced" in str(path):
             raise RuntimeError("a bug")
-        return real(result, path, overwrite=overwrite)
+        return real(result, path, overwrite=overwrite, images=images)
 
     monkeypatch.setattr(batch, "write", fail_b)
     out = tmp_path / "out"
@@ -180,9 +180,9 @@ def test_warnings_while_reducing_a_file_are_logged_naming_it(tmp_path, raws, mon
 
     real = batch.write
 
-    def warn(result, path, overwrite=False):
+    def warn(result, path, overwrite=False, images=None):
         warnings.warn("something odd", UserWarning, stacklevel=2)
-        return real(result, path, overwrite=overwrite)
+        return real(result, path, overwrite=overwrite, images=images)
 
     monkeypatch.setattr(batch, "write", warn)
     res = batch.run_batch("unchop", raws[:1], tmp_path / "out", scheduler="serial")

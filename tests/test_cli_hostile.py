@@ -221,7 +221,7 @@ def test_sigterm_during_a_write_removes_the_temporary_file(files, tmp_path):
             "import spherex_reduce.cli.reduce as r\n"
             "from spherex_reduce.cli import main\n"
             "real = r.write\n"
-            "def slow(result, path, overwrite=False):\n"
+            "def slow(result, path, overwrite=False, images=None):\n"
             "    from spherex_reduce.io import atomic_output\n"
             "    with atomic_output(path, overwrite) as tmp:\n"
             "        tmp.write_bytes(b'partial')\n"

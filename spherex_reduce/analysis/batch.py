@@ -34,6 +34,7 @@ from astropy.table import Table
 
 from .._version import __version__
 from ..errors import ConfigError, SpherexReduceError
+from ..integrations import reduce_input
 from ..io import (
     atomic_output,
     checksum_policy,
@@ -232,8 +233,8 @@ def reduce_file(task):
                 foreign_dq_bits(task.get("dq_bits", current_dq_bits())):
             row["notes"] = notes
             pipeline = Pipeline(task["config"], source=task["source"])
-            result = pipeline.run(task["input"], progress=False, threads=task.get("threads"))
-            write(result, task["output"], overwrite=task.get("overwrite", False))
+            result, images = reduce_input(pipeline, task["input"], threads=task.get("threads"))
+            write(result, task["output"], overwrite=task.get("overwrite", False), images=images)
             median, sigma = image_statistics(result)
         row.update(status="done", median=median.value, robust_std=sigma.value,
                    unit=median.unit.to_string())

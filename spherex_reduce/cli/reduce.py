@@ -5,6 +5,7 @@ from pathlib import Path
 
 from .._text import plural
 from ..errors import ConfigError
+from ..integrations import reduce_input
 from ..io import atomic_output, write
 from ..io.read_files import ReadFiles, read_file_paths
 from ..limits import MAX_WORKERS
@@ -16,7 +17,10 @@ def add_parser(sub):
     p = sub.add_parser(
         "reduce", help="run a pipeline on raw FITS files",
         description="Reduce IN.fits with the steps of a pipeline YAML file (or a shipped "
-        "config name, see show-config --list) and write OUT.fits. With several inputs (or "
+        "config name, see show-config --list) and write OUT.fits. A file whose SCI is 4-D "
+        "(integrations, groups, rows, columns) has each integration reduced as a ramp: OUT.fits "
+        "holds their weighted mean and each one's image (INTSLOPE, INTERR, INTDQ). With "
+        "several inputs (or "
         "--workers/--scheduler), -o names a directory: each file is reduced on dask (an "
         "embedded LocalCluster, or an existing scheduler) into OUTDIR/<stem>_reduced.fits, "
         "with a summary table OUTDIR/summary.ecsv; outputs already done with this config are "
@@ -59,12 +63,14 @@ def run(args):
     check_paths([source, args.config, *named_files(pipeline.steps, Path(args.config).parent)],
                 [args.output])
     atomic_output(args.output, args.overwrite)  # refuse before reducing
-    result = pipeline.run(source, progress=not args.quiet, threads=args.threads)
-    return _written(pipeline, result, args)
+    # a 4-D SCI: each integration fitted; their mean, with INTSLOPE/INTERR/INTDQ
+    result, images = reduce_input(pipeline, source, progress=not args.quiet,
+                                  threads=args.threads)
+    return _written(pipeline, result, args, images)
 
 
-def _written(pipeline, result, args):
-    write(result, args.output, overwrite=args.overwrite)
+def _written(pipeline, result, args, images=None):
+    write(result, args.output, overwrite=args.overwrite, images=images)
     status = ", ".join(f"{n}={result.header.get(pipeline.registry.step(n).keyword, '?')}"
                        for n, _ in pipeline.steps)
     print(f"wrote {args.output} ({status})")

@@ -9,10 +9,18 @@ mask a pixel, and `atomic_output` is how every output of the package is written.
 """
 
 from .atomic import atomic_output
-from .fits_read import CheckedFITS, checksum_policy, is_raw_ramp_file, open_checked, read
+from .fits_read import (
+    CheckedFITS,
+    checksum_policy,
+    integration_count,
+    is_raw_ramp_file,
+    open_checked,
+    read,
+)
 from .fits_write import write, write_frames
 from .flags import current_dq_bits, foreign_dq_bits
 from .frames import FrameReader
 
 __all__ = ["CheckedFITS", "FrameReader", "atomic_output", "checksum_policy", "current_dq_bits",
-           "foreign_dq_bits", "is_raw_ramp_file", "open_checked", "read", "write", "write_frames"]
+           "foreign_dq_bits", "integration_count", "is_raw_ramp_file", "open_checked", "read",
+           "write", "write_frames"]

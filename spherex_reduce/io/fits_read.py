@@ -27,7 +27,8 @@ from .fits_structure import _scan, _verify
 from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq
 from .layout import _RESERVED, _unit
 
-__all__ = ["CheckedFITS", "checksum_policy", "is_raw_ramp_file", "open_checked", "read"]
+__all__ = ["CheckedFITS", "checksum_policy", "integration_count", "is_raw_ramp_file",
+           "open_checked", "read"]
 
 log = logging.getLogger(__name__)
 
@@ -126,17 +127,30 @@ def _note_bad_checksums(header, bad, path):
                        "read anyway (checksum verification off)")
 
 
-def _describe(hdul, path, supplied, bad=()):
-    """Validate an open file; return what every reader needs (no pixel data loaded)."""
+def _sci(hdul, path):
+    """The HDU holding the pixels: ``SCI``, else the primary HDU if it has data."""
+    if "SCI" in [h.name for h in hdul]:
+        return hdul["SCI"]
+    if hdul[0].header.get("NAXIS", 0) > 0:
+        return hdul[0]
+    raise FormatError(f"{path} has no SCI extension and no primary data")
+
+
+def _shape(hdu):
+    """The shape of an image HDU from its header (numpy order; no data read)."""
+    return tuple(hdu.header[f"NAXIS{i}"] for i in range(hdu.header.get("NAXIS", 0), 0, -1))
+
+
+def _describe(hdul, path, supplied, bad=(), integration=None):
+    """Validate an open file; return what every reader needs (no pixel data loaded).
+
+    With ``integration``, ``SCI`` must be 4-D (integrations, groups, rows,
+    columns) and what is described is that integration's ramps.
+    """
     names = [h.name for h in hdul]
     header = hdul[0].header.copy()
-    if "SCI" in names:
-        sci = hdul["SCI"]
-    elif hdul[0].header.get("NAXIS", 0) > 0:
-        sci = hdul[0]
-    else:
-        raise FormatError(f"{path} has no SCI extension and no primary data")
-    shape = tuple(sci.header[f"NAXIS{i}"] for i in range(sci.header["NAXIS"], 0, -1))
+    sci = _sci(hdul, path)
+    shape = _integration_shape(_shape(sci), integration, path)
     table = Table.read(hdul["READOUT"]) if "READOUT" in names else None
     schedule = ReadoutSchedule.from_header(header, table, **supplied)
     order = header_keyword(header, "ORDER", str, default="READOUT").strip().lower()
@@ -145,6 +159,8 @@ def _describe(hdul, path, supplied, bad=()):
     _check_shape(shape, schedule, order, "SCI")
     if "PHANTOM" in names:
         pshape = tuple(hdul["PHANTOM"].shape)
+        if integration is not None and len(pshape) == 4:  # one integration's, as SCI's
+            pshape = pshape[1:]
         frames_reads = expected_shape(schedule, order, len(shape) == 3)[:-1]
         expected = (*frames_reads, schedule.geometry.nchannels)
         if pshape != expected:
@@ -159,8 +175,29 @@ def _describe(hdul, path, supplied, bad=()):
     for key in ("CHECKSUM", "DATASUM", "ORDER", "NEXTEND"):
         header.remove(key, ignore_missing=True)
     _note_bad_checksums(header, bad, path)
+    if integration is not None:
+        header["SXRINT"] = (integration, "integration of the input's 4-D SCI (from 0)")
     return {"names": names, "header": header, "sci": sci, "shape": shape,
             "schedule": schedule, "order": order, "unit": unit}
+
+
+def _integration_shape(shape, integration, path):
+    """The shape of the ramps read: ``shape`` itself, or one integration's of a 4-D SCI."""
+    if len(shape) == 4 and integration is None:
+        raise FormatError(
+            f"{path}: SCI is 4-D {shape} (integrations, groups, rows, columns): reduce it with "
+            "'spherex-reduce reduce' (or spherex_reduce.reduce_integrations), which fits each "
+            "integration, or read one integration with read(path, integration=i)")
+    if integration is None:
+        return shape
+    if len(shape) != 4:
+        raise FormatError(f"{path}: integration={integration!r} given but SCI has shape {shape}, "
+                          "not 4-D (integrations, groups, rows, columns)")
+    if (isinstance(integration, bool) or not isinstance(integration, (int, np.integer))
+            or not 0 <= integration < shape[0]):
+        raise FormatError(f"{path}: integration={integration!r} is not one of the file's "
+                          f"{shape[0]} integrations (0 to {shape[0] - 1})")
+    return shape[1:]
 
 
 def _readonly(*arrays):
@@ -198,12 +235,14 @@ class CheckedFITS:
         """Close the file (arrays already returned stay valid)."""
         self.hdul.close()
 
-    def exposure(self, dq_bits=None, **supplied):
+    def exposure(self, dq_bits=None, integration=None, **supplied):
         """The `Exposure` of a file in this package's format, as `read` returns it.
 
-        ``dq_bits`` and ``supplied`` (the readout parameters) are as for `read`.
+        ``dq_bits``, ``integration`` and ``supplied`` (the readout parameters)
+        are as for `read`.
         """
-        return _exposure(self.hdul, self._name, self.bad, self._plain, supplied, dq_bits)
+        return _exposure(self.hdul, self._name, self.bad, self._plain, supplied, dq_bits,
+                         integration)
 
     def physical(self, hdu):
         """The data of image HDU ``hdu`` in physical values (``BSCALE``/``BZERO``
@@ -262,7 +301,7 @@ def open_checked(path, verify_checksum=None):
     return CheckedFITS(path, verify_checksum)
 
 
-def read(path, verify_checksum=None, dq_bits=None, **supplied):
+def read(path, verify_checksum=None, dq_bits=None, integration=None, **supplied):
     """Read an exposure written by `write` (or raw data from other electronics).
 
     Parameters
@@ -285,6 +324,14 @@ def read(path, verify_checksum=None, dq_bits=None, **supplied):
         use").  A file written by this package keeps all its flags.  A 2-D
         ``DQ`` with ramps applies to every frame (a pixel mask ``(nrows,
         ncols)`` to every read of each row).
+    integration : int, optional
+        For a 4-D ``SCI`` (integrations, groups, rows, columns: the JWST
+        "uncal" layout), which integration to read (from 0): its ramps, with
+        the file's header (plus ``SXRINT``, the integration) and schedule,
+        and the same integration of a 4-D ``ERR``, ``DQ`` or ``PHANTOM`` (a
+        ``DQ`` of lower dimension applies to every integration).  A 4-D
+        ``SCI`` is refused without it; `~spherex_reduce.reduce_integrations`
+        reduces every integration.
     **supplied
         Geometry and readout parameters (``nrows``, ``skip``, ``frame_time``
         ...) used where the header lacks them, e.g. from a pipeline config's
@@ -318,18 +365,22 @@ def read(path, verify_checksum=None, dq_bits=None, **supplied):
     (dtype('float32'), 60127.0)
     """
     with CheckedFITS(path, verify_checksum) as f:
-        return f.exposure(dq_bits=dq_bits, **supplied)
+        return f.exposure(dq_bits=dq_bits, integration=integration, **supplied)
 
 
-def _exposure(hdul, path, bad, plain, supplied, dq_bits=None):
+def _exposure(hdul, path, bad, plain, supplied, dq_bits=None, integration=None):
     """The `Exposure` in an HDU list opened by `_open` (which the caller closes)."""
-    d = _describe(hdul, path, supplied, bad)
+    d = _describe(hdul, path, supplied, bad, integration)
     names = d["names"]
 
     def image(name, flags=False):
-        return _physical(hdul[name], path, plain, flags) if name in names else None
+        if name not in names:
+            return None
+        hdu = hdul[name]
+        index = integration if integration is not None and len(_shape(hdu)) == 4 else None
+        return _physical(hdu, path, plain, flags, index)
 
-    data = _physical(d["sci"], path, plain)
+    data = _physical(d["sci"], path, plain, index=integration)
     err, mask, phantom = image("ERR"), image("DQ", flags=True), image("PHANTOM")
     bits = foreign_bits(dq_bits)  # checked even if unused
     if mask is not None:  # a DQ from other software: its bits are not ours
@@ -397,8 +448,8 @@ def _to_physical(stored, scale, dtype):
     return out
 
 
-def _physical(hdu, path, plain, flags=False):
-    """The data of an image HDU in physical values.
+def _physical(hdu, path, plain, flags=False, index=None):
+    """The data of an image HDU in physical values (``data[index]`` if ``index`` is given).
 
     Unscaled data come as astropy gives them (memory-mapped if the file is).
     Scaled data are converted here from the stored values (astropy refuses
@@ -409,7 +460,7 @@ def _physical(hdu, path, plain, flags=False):
         return None
     scale = _scaling(hdu, path)
     if scale is None:
-        return hdu.data
+        return hdu.data if index is None else hdu.data[index]
     bitpix = hdu.header["BITPIX"]
     if flags:
         if bitpix < 0 or scale[0] != 1 or scale[1] != int(scale[1]):
@@ -420,14 +471,16 @@ def _physical(hdu, path, plain, flags=False):
     else:
         dtype = np.dtype(_FLOAT_FOR[bitpix])
     shape = tuple(hdu.shape)
-    check_size(int(np.prod(shape, dtype=float)) * dtype.itemsize,
-               f"HDU {hdu.name!r} of {path} {shape} scaled to {dtype}")
+    part = shape if index is None else shape[1:]
+    check_size(int(np.prod(part, dtype=float)) * dtype.itemsize,
+               f"HDU {hdu.name!r} of {path} {part} scaled to {dtype}")
     if not plain or isinstance(hdu, fits.CompImageHDU):  # astropy unpacks and scales
-        return np.asarray(hdu.data).astype(dtype)
+        data = np.asarray(hdu.data)
+        return (data if index is None else data[index]).astype(dtype)
     stored = np.memmap(path, dtype=_FITS_DTYPES[bitpix], mode="r",
                        offset=hdu.fileinfo()["datLoc"], shape=shape)
     try:
-        return _to_physical(stored, scale, dtype)
+        return _to_physical(stored if index is None else stored[index], scale, dtype)
     finally:
         del stored
 
@@ -460,9 +513,41 @@ def is_raw_ramp_file(path):
         return False
 
 
+def integration_count(path):
+    """The number of integrations of a file whose SCI is 4-D, else None (headers only are read).
+
+    A 4-D ``SCI`` (integrations, groups, rows, columns) is the JWST "uncal"
+    layout: each integration is a ramp (`read` with ``integration=``).  A file
+    that cannot be read gives None: `read` then gives the proper error.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib, numpy as np
+    >>> from astropy.io import fits
+    >>> from spherex_reduce.io import integration_count
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "uncal.fits"
+    >>> fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(np.zeros((3, 4, 8, 8), "f4"),
+    ...                                                name="SCI")]).writeto(path)
+    >>> integration_count(path), integration_count("no-such-file.fits")
+    (3, None)
+    """
+    try:
+        if not Path(path).is_file():
+            return None
+        _scan(path)  # truncated or damaged: not astropy's guess, read's error
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with fits.open(path, memmap=False, lazy_load_hdus=True) as hdul:
+                shape = _shape(_sci(hdul, path))
+        return shape[0] if len(shape) == 4 else None
+    except (OSError, KeyError, IndexError, ValueError):  # FormatError is a ValueError
+        return None
+
+
 def _check_shape(shape, schedule, order, name):
     if len(shape) not in (2, 3):
-        raise FormatError(f"{name} must be 2-D or 3-D, got shape {shape}")
+        raise FormatError(f"{name} must be 2-D (an image), 3-D (groups, rows, columns) or 4-D "
+                          f"(integrations, groups, rows, columns), got shape {shape}")
     expected = expected_shape(schedule, order, len(shape) == 3)
     if shape == expected:
         return

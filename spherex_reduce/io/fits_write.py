@@ -57,7 +57,7 @@ def _table_hdu(table, name):
     return hdu
 
 
-def write(exposure, path, overwrite=False):
+def write(exposure, path, overwrite=False, images=None):
     """Write an `Exposure` to a FITS file, atomically and with checksums.
 
     Parameters
@@ -69,10 +69,22 @@ def write(exposure, path, overwrite=False):
     overwrite : bool
         Replace an existing file.  Without it an existing file is kept and
         `FileExistsError` is raised.
+    images : dict of str to array or `~astropy.units.Quantity`, optional
+        More image extensions, by name, written after the exposure's
+        own and before its tables (e.g. the per-integration slopes
+        ``INTSLOPE`` of `~spherex_reduce.reduce_integrations`); a
+        `~astropy.units.Quantity` gets its unit as ``BUNIT``.  `read`
+        ignores them.
 
     Returns
     -------
     path : `pathlib.Path`
+
+    Raises
+    ------
+    ValueError
+        A table or image name is reserved for the format (`spherex_reduce.io.layout`)
+        or given twice.
 
     Examples
     --------
@@ -110,14 +122,32 @@ def write(exposure, path, overwrite=False):
         times = exposure.schedule.start_times[ref.reads]
         hdus.append(_table_hdu(Table({"read": ref.reads, "row": ref.rows, "time": times}),
                                "REFREADS"))
+    taken = set(_RESERVED)
+    for name, array in (images or {}).items():
+        values, extra_unit = _value_unit(array)
+        hdus.append(_image(values, _extra(name, taken, "image"), extra_unit))
     for name, table in exposure.tables.items():
-        if name.upper() in _RESERVED:
-            raise ValueError(f"table name {name!r} is reserved for the format")
-        hdus.append(_table_hdu(table, name.upper()))
+        hdus.append(_table_hdu(table, _extra(name, taken, "table")))
     hdus.insert(0, _primary(exposure.schedule, exposure.header, exposure.order, unit, len(hdus)))
     with atomic_output(path, overwrite) as tmp:
         fits.HDUList(hdus).writeto(tmp, checksum=True)
     return path
+
+
+def _extra(name, taken, what):
+    """``name`` in upper case, if neither the format nor another extension uses it."""
+    upper = name.upper()
+    if upper in taken:
+        raise ValueError(f"{what} name {name!r} is reserved for the format or already used")
+    taken.add(upper)
+    return upper
+
+
+def _value_unit(array):
+    """``(values, unit)`` of an extra image: a Quantity's unit, else None."""
+    if isinstance(array, u.Quantity):
+        return array.value, array.unit
+    return np.asarray(array), None
 
 
 def write_frames(frames, path, schedule, *, header=None, unit=u.electron, dtype="float32",

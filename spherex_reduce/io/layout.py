@@ -20,6 +20,9 @@ Extension names:
     table ``read row time``).
 
 Any other table extension holds a table recorded by a step (e.g. ``REFOFFS``).
+Any other image extension is written from `write`'s ``images`` (e.g. the
+per-integration slopes ``INTSLOPE``, ``INTERR``, ``INTDQ`` of a 4-D input) and
+skipped by `read`.
 """
 
 from astropy import units as u

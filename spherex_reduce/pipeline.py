@@ -22,12 +22,13 @@ from .errors import ConfigError, SpherexReduceError, StepSkipped
 from .executor import FileSource, MemorySource, execute
 from .exposure import Exposure
 from .io import FrameReader, is_raw_ramp_file, read
+from .io.input import InputOptions
 from .plugins import Registry, blame_plugin
 from .step import Step
 
 __all__ = ["Pipeline"]
 
-_TOP_KEYS = ("steps", "geometry", "readout", "name", "description")
+_TOP_KEYS = ("steps", "input", "geometry", "readout", "name", "description")
 
 
 class Pipeline:
@@ -36,6 +37,7 @@ class Pipeline:
     The configuration is a mapping::
 
         name: my-reduction              # optional
+        input: {unit: adu, gain: 1.8}   # optional: what a file needs before the steps
         geometry: {nrows: 2048, ...}    # optional: for files lacking the keywords
         readout:  {skip: 24, ...}       # optional: idem
         steps:                          # run in this order
@@ -91,6 +93,9 @@ class Pipeline:
             raise ConfigError("steps: a non-empty list of {step_name: {parameters}} is required")
         geometry = section_values(config, "geometry", GEOMETRY_PARAMETERS)
         readout = section_values(config, "readout", READOUT_PARAMETERS)
+        options = InputOptions.from_config(config.get("input"))
+        if "nchannels" in geometry:
+            options.check_channels(geometry["nchannels"])
         effective = []
         for i, item in enumerate(steps):
             path = f"steps[{i}]"
@@ -105,6 +110,8 @@ class Pipeline:
                 raise ConfigError(f"{path}.{name}: {exc.args[0]}") from None
             effective.append({name: self._step_params(cls, params, f"{path}.{name}")})
         out = {k: config[k] for k in ("name", "description") if k in config}
+        if "input" in config:
+            out["input"] = options.to_config()
         if geometry:
             out["geometry"] = geometry
         if readout:
@@ -141,9 +148,21 @@ class Pipeline:
         return schedule_from_config(self._config.get("geometry"), self._config.get("readout"))
 
     # -- running ------------------------------------------------------------------
+    @property
+    def input_options(self):
+        """The ``input:`` section (`~spherex_reduce.io.input.InputOptions`; defaults if none)."""
+        return InputOptions.from_config(self._config.get("input"))
+
     def read(self, path):
-        """Read a FITS file, with this config's geometry/readout for missing keywords."""
-        return read(path, **self._supplied())
+        """Read a FITS file as this config's ``input:`` section says, with its
+        ``geometry:``/``readout:`` values for keywords the file lacks (or, with
+        ``input: {header: override}``, instead of the file's).
+
+        The same as ``spherex_reduce.read(path, input=config["input"],
+        **geometry, **readout)``.  `run` on a path reads it so (streamed when it
+        can), and gives the numbers that `run` on the exposure read here gives.
+        """
+        return read(path, input=self.input_options, **self._supplied())
 
     def _supplied(self):
         return {**self._config.get("geometry", {}), **self._config.get("readout", {})}
@@ -236,7 +255,7 @@ class Pipeline:
         if isinstance(current, Exposure):
             return MemorySource(current), None
         if is_raw_ramp_file(current):
-            reader = FrameReader(current, **self._supplied())
+            reader = FrameReader(current, input=self.input_options, **self._supplied())
             if FileSource.usable(reader):
                 return FileSource(reader), reader
             with reader:  # read whole from the file already open and checked

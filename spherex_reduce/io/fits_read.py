@@ -25,7 +25,8 @@ from ..limits import check_size
 from ..schedule import ReadoutSchedule, _card_text, header_keyword
 from .fits_structure import _scan, _verify
 from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq
-from .layout import _RESERVED, _unit
+from .input import InputOptions, scale_columns
+from .layout import _RESERVED
 
 __all__ = ["CheckedFITS", "checksum_policy", "is_raw_ramp_file", "open_checked", "read"]
 
@@ -126,10 +127,18 @@ def _note_bad_checksums(header, bad, path):
                        "read anyway (checksum verification off)")
 
 
-def _describe(hdul, path, supplied, bad=()):
-    """Validate an open file; return what every reader needs (no pixel data loaded)."""
+def _describe(hdul, path, supplied, bad=(), options=None):
+    """Validate an open file; return what every reader needs (no pixel data loaded).
+
+    ``options`` (`InputOptions`, the ``input:`` section) is applied: config
+    keywords fill or override the file's, the unit, the frames dropped
+    (``schedule`` is then that of the kept frames, ``drop`` their number)
+    and the gain per channel (``gain``, or None).
+    """
+    options = InputOptions() if options is None else options
     names = [h.name for h in hdul]
     header = hdul[0].header.copy()
+    options.reconcile(header, supplied, path)
     if "SCI" in names:
         sci = hdul["SCI"]
     elif hdul[0].header.get("NAXIS", 0) > 0:
@@ -154,13 +163,17 @@ def _describe(hdul, path, supplied, bad=()):
             )
     elif schedule.phantom_reads and order == "readout":
         raise FormatError(f"NPHANT={schedule.phantom_reads} but the file has no PHANTOM extension")
-    unit = _unit(header_keyword(header if "BUNIT" in header else sci.header, "BUNIT", str,
-                                default="electron"))
+    bunit = header_keyword(header if "BUNIT" in header else sci.header, "BUNIT", str,
+                           default=None)
+    unit = options.unit_of(bunit, header, path)
+    drop, kept = options.frames(header, schedule, len(shape) == 3, path)
+    gain, unit = options.gains(unit, header, schedule.geometry.nchannels, path)
     for key in ("CHECKSUM", "DATASUM", "ORDER", "NEXTEND"):
         header.remove(key, ignore_missing=True)
     _note_bad_checksums(header, bad, path)
     return {"names": names, "header": header, "sci": sci, "shape": shape,
-            "schedule": schedule, "order": order, "unit": unit}
+            "schedule": schedule, "order": order, "unit": unit, "kept": kept, "drop": drop,
+            "gain": gain}
 
 
 def _readonly(*arrays):
@@ -198,12 +211,13 @@ class CheckedFITS:
         """Close the file (arrays already returned stay valid)."""
         self.hdul.close()
 
-    def exposure(self, dq_bits=None, **supplied):
+    def exposure(self, dq_bits=None, input=None, **supplied):
         """The `Exposure` of a file in this package's format, as `read` returns it.
 
-        ``dq_bits`` and ``supplied`` (the readout parameters) are as for `read`.
+        ``dq_bits``, ``input`` and ``supplied`` (the readout parameters) are as for `read`.
         """
-        return _exposure(self.hdul, self._name, self.bad, self._plain, supplied, dq_bits)
+        return _exposure(self.hdul, self._name, self.bad, self._plain, supplied, dq_bits,
+                         input)
 
     def physical(self, hdu):
         """The data of image HDU ``hdu`` in physical values (``BSCALE``/``BZERO``
@@ -262,7 +276,7 @@ def open_checked(path, verify_checksum=None):
     return CheckedFITS(path, verify_checksum)
 
 
-def read(path, verify_checksum=None, dq_bits=None, **supplied):
+def read(path, verify_checksum=None, dq_bits=None, input=None, **supplied):
     """Read an exposure written by `write` (or raw data from other electronics).
 
     Parameters
@@ -284,7 +298,18 @@ def read(path, verify_checksum=None, dq_bits=None, **supplied):
         Default: `~spherex_reduce.io.foreign_dq_bits` (1: bit 0, "do not
         use").  A file written by this package keeps all its flags.  A 2-D
         ``DQ`` with ramps applies to every frame (a pixel mask ``(nrows,
-        ncols)`` to every read of each row).
+        ncols)`` to every read of each row).  When not given: ``input``'s
+        ``dq_bits`` if it has one.
+    input : dict or `~spherex_reduce.io.input.InputOptions`, optional
+        What the file needs before the steps, as the ``input:`` section of a
+        pipeline config (:ref:`yaml`): ``unit`` (``BUNIT`` when the file lacks
+        it; ADU, DN and counts are read as ``adu``), ``gain`` (e-/ADU, one
+        number or one per channel: the data, uncertainties and phantom values
+        are multiplied by it and become electrons; recorded as ``GAIN``),
+        ``drop_first_reads`` (frames left out at the start of every ramp;
+        recorded as ``NDROPRD``), ``header`` (``fill``: a ``supplied`` value
+        that disagrees with the file's keyword is an error; ``override``: it
+        replaces it, with a warning and a ``HISTORY`` card) and ``dq_bits``.
     **supplied
         Geometry and readout parameters (``nrows``, ``skip``, ``frame_time``
         ...) used where the header lacks them, e.g. from a pipeline config's
@@ -318,13 +343,16 @@ def read(path, verify_checksum=None, dq_bits=None, **supplied):
     (dtype('float32'), 60127.0)
     """
     with CheckedFITS(path, verify_checksum) as f:
-        return f.exposure(dq_bits=dq_bits, **supplied)
+        return f.exposure(dq_bits=dq_bits, input=input, **supplied)
 
 
-def _exposure(hdul, path, bad, plain, supplied, dq_bits=None):
+def _exposure(hdul, path, bad, plain, supplied, dq_bits=None, options=None):
     """The `Exposure` in an HDU list opened by `_open` (which the caller closes)."""
-    d = _describe(hdul, path, supplied, bad)
+    options = InputOptions.from_config(options)
+    d = _describe(hdul, path, supplied, bad, options)
     names = d["names"]
+    if dq_bits is None:
+        dq_bits = options.dq_bits
 
     def image(name, flags=False):
         return _physical(hdul[name], path, plain, flags) if name in names else None
@@ -352,10 +380,29 @@ def _exposure(hdul, path, bad, plain, supplied, dq_bits=None):
         for h in hdul
         if isinstance(h, fits.BinTableHDU) and h.name not in _RESERVED
     }
+    data, err, mask, phantom = _prepared(d, data, err, mask, phantom)
     _readonly(data, err, mask, phantom)
-    return Exposure.from_arrays(data, d["schedule"], unit=d["unit"], uncertainty=err, mask=mask,
+    return Exposure.from_arrays(data, d["kept"], unit=d["unit"], uncertainty=err, mask=mask,
                                 phantom=phantom, header=d["header"], order=d["order"],
                                 reference=reference, tables=tables)
+
+
+def _prepared(d, data, err, mask, phantom):
+    """The arrays of a file described by `_describe` with its first frames dropped and its
+    gain applied (``input:``); the readers of bands (`FrameReader`) do the same."""
+    drop = d["drop"]
+    if drop:
+        data, err, mask, phantom = (None if a is None else a[drop:]
+                                    for a in (data, err, mask, phantom))
+    gain = d["gain"]
+    if gain is not None:
+        geometry = d["kept"].geometry
+        data = data * scale_columns(gain, geometry, data.dtype)
+        if err is not None:
+            err = err * scale_columns(gain, geometry, err.dtype)
+        if phantom is not None:
+            phantom = phantom * gain.astype(phantom.dtype)
+    return data, err, mask, phantom
 
 
 _FLOAT_FOR = {8: "f4", 16: "f4", 32: "f8", 64: "f8", -32: "f4", -64: "f8"}

@@ -24,8 +24,6 @@ Any other table extension holds a table recorded by a step (e.g. ``REFOFFS``).
 
 from astropy import units as u
 
-from ..errors import FormatError
-
 _RESERVED = {"PRIMARY", "SCI", "ERR", "DQ", "PHANTOM", "READOUT", "REFPIX", "REFPHANT", "REFDQ",
              "REFREADS"}
 
@@ -34,9 +32,3 @@ def _unit_str(unit):
     """Units in astropy's generic format ('electron / s'): 'electron' is not a FITS unit."""
     return "" if unit == u.one else unit.to_string()
 
-
-def _unit(value):
-    try:
-        return u.Unit(str(value).strip(), parse_strict="raise")
-    except ValueError as exc:
-        raise FormatError(f"keyword BUNIT={value!r} is not a unit astropy understands") from exc

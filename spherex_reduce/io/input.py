@@ -162,8 +162,12 @@ class InputOptions:
         header.add_history(f"input.header override: {keyword} {have} -> {value} (config)")
 
     def unit_of(self, text, header, name):
-        """The data's unit from the file's ``BUNIT`` text (None: absent) and ``unit``."""
-        mine = None if self.unit is None else parse_unit(self.unit)
+        """The data's unit from the file's ``BUNIT`` text (None: absent) and ``unit``.
+
+        ``unit`` is that of raw data: a file written by a pipeline (``SXRCONF``)
+        keeps its own.
+        """
+        mine = None if self.unit is None or "SXRCONF" in header else parse_unit(self.unit)
         if text is None:
             return mine if mine is not None else u.electron
         try:
@@ -204,9 +208,12 @@ class InputOptions:
         if schedule.nframes - n < 2:
             raise FormatError(f"{name}: input.drop_first_reads is {n} but the file has "
                               f"NFRAMES={schedule.nframes}: at least 2 frames must remain")
+        kept = schedule.replace(nframes=schedule.nframes - n)
+        for key, value, comment in field_cards(FIELD["nframes"], kept.nframes):
+            header[key] = (value, comment)
         header["NDROPRD"] = (n, "frames dropped at the start of every ramp")
         header.add_history(f"input: the first {n} frame(s) of every ramp dropped (not fitted)")
-        return n, schedule.replace(nframes=schedule.nframes - n)
+        return n, kept
 
     def gains(self, unit, header, nchannels, name):
         """The gain per channel ``(nchannels,)`` to apply (None: none) and the new unit.

@@ -232,3 +232,28 @@ def test_dq_bits_from_the_input_section(tmp_path):
                   fits.ImageHDU(dq, name="DQ")]).writeto(path)
     assert not read(path).dq.any()
     assert read(path, input={"dq_bits": 4}).dq[:, 1, 1].all()
+
+
+def test_gain_scales_phantom_values_and_uncertainties(tmp_path):
+    from spherex_reduce import Exposure, write
+    s = ReadoutSchedule(DetectorGeometry(8, 8, 2, ref_border=0), ref_mode="none",
+                        phantom_reads=2, nframes=4)
+    rng = np.random.default_rng(5)
+    data = rng.normal(1000, 5, (4, 8, 8)).astype(np.float32)
+    phantom = rng.normal(900, 5, (4, 8, 2)).astype(np.float32)
+    path = write(Exposure.from_arrays(data, s, unit=u.adu, phantom=phantom), tmp_path / "p.fits")
+    gain = np.array([1.5, 3.0], np.float32)
+    pipe = Pipeline({"input": {"gain": [1.5, 3.0]},
+                     "steps": ["subtract_phantom", "fit_ramp"]})
+    streamed = pipe.run(path)
+    assert "a file" in str(streamed.tables["PROVENANCE"]["route"][0])
+    by_hand = Exposure.from_arrays(data * np.repeat(gain, 4), s, unit=u.electron,
+                                   phantom=phantom * gain)
+    expected = Pipeline({"steps": ["subtract_phantom", "fit_ramp"]}).run(by_hand)
+    np.testing.assert_array_equal(streamed.data.data, expected.data.data)
+    image = write(Exposure.from_arrays(data[0], SCHEDULE, unit=u.adu / u.s,
+                                       uncertainty=np.ones((8, 8), np.float32)),
+                  tmp_path / "img.fits")
+    e = read(image, input={"gain": [1.5, 3.0]})
+    assert e.unit == u.electron / u.s
+    np.testing.assert_array_equal(e.data.uncertainty.array, np.repeat(gain, 4)[None].repeat(8, 0))

@@ -397,7 +397,8 @@ def _prepared(d, data, err, mask, phantom):
     gain = d["gain"]
     if gain is not None:
         geometry = d["kept"].geometry
-        data = data * scale_columns(gain, geometry, data.dtype)
+        if data is not None:
+            data = data * scale_columns(gain, geometry, data.dtype)
         if err is not None:
             err = err * scale_columns(gain, geometry, err.dtype)
         if phantom is not None:

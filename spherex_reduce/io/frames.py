@@ -77,8 +77,7 @@ class FrameReader:
             self._drop, self._gain = d["drop"], d["gain"]
             phantom = (np.asarray(_physical(self._hdul["PHANTOM"], path, plain))
                        if "PHANTOM" in d["names"] else None)
-            self._phantom = _prepared(d, np.empty((0, 0)), None, None, phantom)[3] \
-                if phantom is not None else None
+            self._phantom = _prepared(d, None, None, None, phantom)[3]
             self._scale = _scaling(d["sci"], path)
             self._tables = {h.name: Table.read(h) for h in self._hdul
                             if isinstance(h, fits.BinTableHDU) and h.name not in _RESERVED}

@@ -167,7 +167,7 @@ def test_unit_disagreement_is_refused_unless_override(tmp_path):
     with pytest.raises(FormatError, match="keyword BUNIT is 'electron' in the file but unit"):
         read(path, input={"unit": "adu"})
     assert read(path, input={"unit": "adu", "header": "override"}).unit == u.adu
-    with pytest.raises(FormatError, match="input.gain converts ADU to electrons"):
+    with pytest.raises(FormatError, match=r"input\.gain converts ADU to electrons"):
         read(path, input={"gain": 2.0})
 
 
@@ -257,3 +257,16 @@ def test_gain_scales_phantom_values_and_uncertainties(tmp_path):
     e = read(image, input={"gain": [1.5, 3.0]})
     assert e.unit == u.electron / u.s
     np.testing.assert_array_equal(e.data.uncertainty.array, np.repeat(gain, 4)[None].repeat(8, 0))
+
+
+def test_frame_time_against_a_file_with_frame_overhead_only(tmp_path):
+    """The file states the frame time by FRMOVH: a config frame_time is checked against it."""
+    values = adu_ramps()
+    path = write_file(tmp_path / "adu.fits", values, dtype="float32", drop_keys=("TFRAME",))
+    assert "FRMOVH" in fits.getheader(path)
+    with pytest.raises(FormatError, match=r"keyword FRMOVH gives frame_time = 0\.0188 in the file "
+                                          r"but frame_time is 0\.0376 in the config"):
+        fit({}, readout={"frame_time": 0.0376}).run(path)
+    fit({}, readout={"frame_time": 0.0188}).run(path)  # agrees: read
+    out = fit({"header": "override"}, readout={"frame_time": 0.0376}).run(path)
+    np.testing.assert_allclose(out.data.data, lstsq_slopes(values, 2 * TIMES), rtol=1e-5)

@@ -138,7 +138,7 @@ def _describe(hdul, path, supplied, bad=(), options=None):
     options = InputOptions() if options is None else options
     names = [h.name for h in hdul]
     header = hdul[0].header.copy()
-    options.reconcile(header, supplied, path)
+    derived = options.reconcile(header, supplied, path)
     if "SCI" in names:
         sci = hdul["SCI"]
     elif hdul[0].header.get("NAXIS", 0) > 0:
@@ -147,7 +147,9 @@ def _describe(hdul, path, supplied, bad=(), options=None):
         raise FormatError(f"{path} has no SCI extension and no primary data")
     shape = tuple(sci.header[f"NAXIS{i}"] for i in range(sci.header["NAXIS"], 0, -1))
     table = Table.read(hdul["READOUT"]) if "READOUT" in names else None
-    schedule = ReadoutSchedule.from_header(header, table, **supplied)
+    schedule = ReadoutSchedule.from_header(
+        header, table, **{k: v for k, v in supplied.items() if k not in derived})
+    options.check_derived(schedule, derived, supplied, path)
     order = header_keyword(header, "ORDER", str, default="READOUT").strip().lower()
     if order not in ("readout", "physical"):
         raise FormatError(f"keyword ORDER must be READOUT or PHYSICAL, got {order!r}")

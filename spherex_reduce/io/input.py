@@ -135,13 +135,24 @@ class InputOptions:
         ``fill``: a keyword the file has and the config gives differently is
         refused (`FormatError` naming both).  ``override``: the file's keyword
         is replaced in ``header`` (changed in place) by the config's, logged as
-        a warning and recorded in ``HISTORY``.
+        a warning and recorded in ``HISTORY``.  Returns the keys that the file
+        states by another keyword only, for `check_derived`.
         """
+        derived = []  # keys the file states only by another keyword (TFRAME / FRMOVH)
         for key, value in supplied.items():
             field = FIELD.get(key)
             if value is None or field is None:
                 continue
             have = read_field(header, field)
+            partners = [f.keyword for f in _partners(field) if f.keyword in header]
+            if have is None and partners:
+                if self.header == "fill":
+                    derived.append(key)
+                    continue
+                self._override(header, "/".join(partners), "given", value, name)
+            if self.header == "override":
+                for kw in partners:  # the config's value alone states it
+                    header.remove(kw, ignore_missing=True)
             if have is None or _same(field, have, value):
                 continue
             shown = field.keyword if field.side_keywords is None else \
@@ -155,6 +166,20 @@ class InputOptions:
                 header.remove(kw, ignore_missing=True)
             for kw, v, comment in field_cards(field, value):
                 header[kw] = (v, comment)
+        return derived
+
+    def check_derived(self, schedule, derived, supplied, name):
+        """``fill``: the schedule's value of each ``derived`` key (stated in the file by
+        another keyword, e.g. ``FRMOVH`` for ``frame_time``) must be the config's."""
+        for key in derived:
+            have = getattr(schedule, key)
+            have = have.to_value(u.s) if isinstance(have, u.Quantity) else have
+            if not _same(FIELD[key], float(have), supplied[key]):
+                shown = "/".join(f.keyword for f in _partners(FIELD[key]))
+                raise FormatError(
+                    f"{name}: keyword {shown} gives {key} = {have:.6g} in the file but {key} "
+                    f"is {supplied[key]} in the config; fix the config, or set input.header: "
+                    "override to use the config's")
 
     def _override(self, header, keyword, have, value, name):
         log.warning("%s: keyword %s = %s replaced by the config's %s (input.header: override)",
@@ -245,6 +270,13 @@ class InputOptions:
         header.add_history(f"input: data multiplied by the gain {list(per)} e-/ADU "
                            "(per channel)")
         return per, unit * u.electron / u.adu
+
+
+def _partners(field):
+    """Fields that state the same quantity another way (``frame_overhead``, ``frame_time``)."""
+    if field.instead_of:
+        return [FIELD[field.instead_of]]
+    return [f for f in FIELD.values() if f.instead_of == field.name]
 
 
 def _same(field, have, value):

@@ -133,9 +133,10 @@ class FileSource:
 
     Parameters
     ----------
-    reader : `~spherex_reduce.io.FrameReader`
+    reader : `~spherex_reduce.io.FrameReader` or `~spherex_reduce.io.read_files.ReadFiles`
         An open reader of a file whose pixels are stored as they are
-        (floating point, not scaled, not compressed: ``reader.readable_in_bands()``).
+        (floating point, not scaled, not compressed: ``reader.readable_in_bands()``),
+        or of a ramp stored as one file per read, in readout order.
     """
 
     def __init__(self, reader):

@@ -252,6 +252,8 @@ class Pipeline:
 
     def _source(self, current):
         """Where a pass reads from: the file in bands if it can, else the exposure in memory."""
+        if hasattr(current, "side") and hasattr(current, "read"):  # a source (e.g. read files)
+            return current, None
         if isinstance(current, Exposure):
             return MemorySource(current), None
         if is_raw_ramp_file(current):

@@ -459,6 +459,54 @@ FOREIGN_DQ = [
 ]
 
 
+def _split_reads(numbers=(1, 2, 10), change=None):
+    """Setup: frame ``k`` of ``raw.fits`` (its SCI and PHANTOM) into ``read_{numbers[k]}.fits``,
+    each with the primary header and the READOUT table; ``change(k, hdul)`` before writing."""
+    def setup(d):
+        with fits.open(d / "raw.fits") as hdul:
+            header = hdul[0].header.copy()
+            for key in ("NEXTEND", "CHECKSUM", "DATASUM"):
+                header.remove(key, ignore_missing=True)
+            for k, n in enumerate(numbers):
+                hdus = fits.HDUList([fits.PrimaryHDU(header=header),
+                                     fits.ImageHDU(hdul["SCI"].data[k], name="SCI"),
+                                     fits.ImageHDU(hdul["PHANTOM"].data[k], name="PHANTOM"),
+                                     hdul["READOUT"].copy()])
+                if change is not None:
+                    change(k, hdus)
+                hdus.writeto(d / f"read_{n}.fits", checksum=True)
+    return setup
+
+
+def _crop_second(k, hdul):
+    if k == 1:
+        hdul["SCI"].data = hdul["SCI"].data[:, :32]
+
+
+def _check_reads_as_raw(d, result, run):
+    """The read files reduce as raw.fits does (same pipeline), bit for bit."""
+    again = run(["reduce", "raw.fits", "-c", "spherex-default", "-o", "one.fits"])
+    assert again.rc == 0, again.describe()
+    with fits.open(d / "out.fits") as a, fits.open(d / "one.fits") as b:
+        np.testing.assert_array_equal(a["SCI"].data, b["SCI"].data)
+        assert a[0].header["NFRAMES"] == 3 and a[0].header["S_PHANTM"] == "COMPLETE"
+
+
+READS = ["reduce", "--reads", "read_*.fits", "-c", "spherex-default", "-o", "out.fits"]
+READ_FILES = [
+    works("reduce-reads-files-as-one-ramp", READS, _split_reads(), _check_reads_as_raw),
+    refused("reduce-reads-match-no-file", READS, mentions="matches no file"),
+    refused("reduce-reads-one-file", READS, _split_reads((1,)), mentions="one file"),
+    refused("reduce-reads-shapes-differ", READS, _split_reads(change=_crop_second),
+            mentions="read_2.fits"),
+    refused("reduce-reads-truncated-file", READS,
+            chain(_split_reads(), cut_data("read_10.fits", "SCI")), mentions="read_10.fits"),
+    refused("reduce-reads-and-an-input", ["reduce", "raw.fits", *READS[1:]], mentions="--reads"),
+    refused("reduce-no-input", ["reduce", "-c", "spherex-default", "-o", "out.fits"],
+            mentions="--reads"),
+]
+
+
 # -- YAML ----------------------------------------------------------------------------------------
 
 NOT_UTF8 = b"steps:\n  - unchop: {}\nname: caf\xe9 \xff\xfe\n"
@@ -858,8 +906,9 @@ HELD = [
     refused("simulate-scene-not-a-mapping", SIMULATE_BAD, write("bad.yaml", "- 1\n- 2\n")),
 ]
 
-CASES = [*FITS_DAMAGE, *CHECKSUM_OPT_OUT, *INTEGER_DATA, *FOREIGN_DQ, *YAML, *CLI_NUMBERS,
-         *OUTPUT_IS_INPUT, *INPUT_CONFIG, *INPUT_SECTION, *OUTPUT_PLACES, *MESSAGES, *HELD]
+CASES = [*FITS_DAMAGE, *CHECKSUM_OPT_OUT, *INTEGER_DATA, *FOREIGN_DQ, *READ_FILES, *YAML,
+         *CLI_NUMBERS, *OUTPUT_IS_INPUT, *INPUT_CONFIG, *INPUT_SECTION, *OUTPUT_PLACES,
+         *MESSAGES, *HELD]
 
 
 @pytest.mark.parametrize("case", CASES)

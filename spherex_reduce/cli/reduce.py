@@ -4,7 +4,10 @@ import sys
 from pathlib import Path
 
 from .._text import plural
+from ..errors import ConfigError
+from ..executor import FileSource
 from ..io import atomic_output, write
+from ..io.read_files import ReadFiles, read_file_paths
 from ..limits import MAX_WORKERS
 from ..pipeline import Pipeline
 from ._common import check_paths, count, named_files
@@ -18,8 +21,13 @@ def add_parser(sub):
         "--workers/--scheduler), -o names a directory: each file is reduced on dask (an "
         "embedded LocalCluster, or an existing scheduler) into OUTDIR/<stem>_reduced.fits, "
         "with a summary table OUTDIR/summary.ecsv; outputs already done with this config are "
-        "skipped, a file that fails is reported and the others finish.")
-    p.add_argument("input", metavar="IN.fits", nargs="+")
+        "skipped, a file that fails is reported and the others finish. With --reads "
+        "'DIR/read_*.fits' instead of IN.fits, the files are the reads of one ramp.")
+    p.add_argument("input", metavar="IN.fits", nargs="*")
+    p.add_argument("--reads", metavar="GLOB",
+                   help="reduce one ramp stored as one file per read: the files the glob "
+                   "matches (quote it), in natural order (read_2 before read_10), each one 2-D "
+                   "frame; the first file's header is the exposure's")
     p.add_argument("-c", "--config", required=True, metavar="PIPELINE.yaml")
     p.add_argument("-o", "--output", required=True, metavar="OUT.fits|OUTDIR")
     p.add_argument("--overwrite", action="store_true",
@@ -40,6 +48,10 @@ def add_parser(sub):
 
 
 def run(args):
+    if args.reads is not None:
+        return _reads(args)
+    if not args.input:
+        raise ConfigError("give the input: IN.fits (one or more), or --reads GLOB")
     if len(args.input) > 1 or args.workers is not None or args.scheduler is not None:
         return _batch(args)
     (source,) = args.input
@@ -49,11 +61,43 @@ def run(args):
                 [args.output])
     atomic_output(args.output, args.overwrite)  # refuse before reducing
     result = pipeline.run(source, progress=not args.quiet, threads=args.threads)
+    return _written(pipeline, result, args)
+
+
+def _written(pipeline, result, args):
     write(result, args.output, overwrite=args.overwrite)
     status = ", ".join(f"{n}={result.header.get(pipeline.registry.step(n).keyword, '?')}"
                        for n, _ in pipeline.steps)
     print(f"wrote {args.output} ({status})")
     return 0
+
+
+def _reads(args):
+    """``--reads GLOB``: one ramp stored as one file per read, streamed from the files."""
+    if args.input:
+        raise ConfigError(f"--reads reduces one ramp from its read files: give no IN.fits "
+                          f"as well (got {args.input[0]})")
+    if args.workers is not None or args.scheduler is not None:
+        raise ConfigError("--reads reduces one ramp: --workers and --scheduler are for "
+                          "several input files")
+    pipeline = Pipeline.from_yaml(args.config)
+    paths = read_file_paths(args.reads)
+    check_paths([*paths, args.config, *named_files(pipeline.steps, Path(args.config).parent)],
+                [args.output])
+    atomic_output(args.output, args.overwrite)  # refuse before reducing
+    with ReadFiles(paths, **pipeline._supplied()) as reader:
+        source = FileSource(reader) if reader.readable_in_bands() else None
+        if source is None or not _streams(pipeline, source, args.threads):
+            source = reader.exposure()  # physical order, or a first step on the whole ramp
+        result = pipeline.run(source, progress=not args.quiet, threads=args.threads)
+    return _written(pipeline, result, args)
+
+
+def _streams(pipeline, source, threads):
+    """Whether the pipeline's first pass runs on bands of ``source`` (else its first step
+    needs the whole exposure: read it into memory)."""
+    kernels, consumer, *_ = pipeline._plan(source, pipeline._steps(threads), 0, threads)
+    return bool(kernels) or consumer is not None
 
 
 def _batch(args):

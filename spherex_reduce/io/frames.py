@@ -176,15 +176,8 @@ class FrameReader:
             buf = np.frombuffer(mm, dtype, count=count, offset=pos).reshape(-1, ncols).copy()
             self._release(pos, count * dtype.itemsize)
             return buf
-        buf = np.empty((stop - first, ncols), dtype)
-        view = memoryview(buf).cast("B")
-        done = 0
-        while done < view.nbytes:
-            got = os.preadv(fd, [view[done:]], pos + done)
-            if got <= 0:
-                raise FormatError(f"{self.path}: the file ends inside frame {k}")
-            done += got
-        return buf
+        return _pread(fd, np.empty((stop - first, ncols), dtype), pos,
+                      f"{self.path}: the file ends inside frame {k}")
 
     def _release(self, start, nbytes):
         mm = self._map[0] if self._map is not None else None
@@ -213,6 +206,19 @@ class FrameReader:
         del view
         self._release(start, count * dtype.itemsize)
         return data[None]
+
+
+def _pread(fd, buf, pos, short):
+    """Fill ``buf`` with the bytes of file ``fd`` from ``pos`` (``pread``: no file position
+    moves, several threads may read at once); ``short`` is the error if the file ends first."""
+    view = memoryview(buf).cast("B")
+    done = 0
+    while done < view.nbytes:
+        got = os.preadv(fd, [view[done:]], pos + done)
+        if got <= 0:
+            raise FormatError(short)
+        done += got
+    return buf
 
 
 def _map_frames(hdu, path):

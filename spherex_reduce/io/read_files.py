@@ -1,0 +1,292 @@
+"""Read a ramp stored as one FITS file per read (frame up the ramp), a band of rows at a time.
+
+Many test sets (e.g. ASIC-driven labs) store a ramp as files ``read_1.fits``,
+``read_2.fits`` ...: each holds one 2-D image, one frame of the ramp.
+`ReadFiles` opens them all, checks each as `~spherex_reduce.io.read` checks a
+file (structure, checksums, header cards, shape against the schedule) and that
+they agree (shape, ``BITPIX``, unit, ``ORDER``), and serves rows of every frame
+like `~spherex_reduce.io.FrameReader` does for one 3-D file, so the executor's
+``FileSource`` streams them.  The files are never modified.
+"""
+
+import glob
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+from astropy.io import fits
+from astropy.table import Table
+
+from ..errors import FormatError
+from ..exposure import Exposure
+from ..limits import check_count, check_size
+from .fits_read import _FLOAT_FOR, _describe, _open, _physical, _scaling, _to_physical
+from .frames import _map_frames, _pread
+from .layout import _RESERVED
+
+__all__ = ["MAX_READ_FILES", "ReadFiles", "natural_key", "read_file_paths"]
+
+#: most files one ramp may be read from (each stays open while it is read)
+MAX_READ_FILES = 400
+
+
+def natural_key(path):
+    """Sort key of a path in natural order: the numbers in its name compare as numbers.
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.read_files import natural_key
+    >>> sorted(["read_10.fits", "read_2.fits", "read_1.fits"], key=natural_key)
+    ['read_1.fits', 'read_2.fits', 'read_10.fits']
+    """
+    parts = re.split(r"(\d+)", str(path))
+    return [(0, int(p), "") if p.isdigit() else (1, 0, p) for p in parts]
+
+
+def read_file_paths(pattern):
+    """The files a glob pattern matches, in natural order (``read_2`` before ``read_10``).
+
+    Parameters
+    ----------
+    pattern : str
+        A glob pattern (``DIR/read_*.fits``).
+
+    Returns
+    -------
+    list of str
+
+    Raises
+    ------
+    FormatError
+        The pattern matches no file, or only one (a ramp needs two reads at least).
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> from spherex_reduce.io.read_files import read_file_paths
+    >>> d = pathlib.Path(tempfile.mkdtemp())
+    >>> for n in (10, 2, 1):
+    ...     _ = (d / f"read_{n}.fits").write_bytes(b"")
+    >>> [pathlib.Path(p).name for p in read_file_paths(str(d / "read_*.fits"))]
+    ['read_1.fits', 'read_2.fits', 'read_10.fits']
+    """
+    paths = sorted((p for p in glob.glob(pattern) if Path(p).is_file()), key=natural_key)
+    if not paths:
+        raise FormatError(f"--reads {pattern!r} matches no file")
+    if len(paths) == 1:
+        raise FormatError(f"--reads {pattern!r} matches one file ({paths[0]}); a ramp needs "
+                          "two reads at least, one file each")
+    check_count(len(paths), f"the number of files --reads {pattern!r} matches", MAX_READ_FILES)
+    return paths
+
+
+class _ReadFile:
+    """One open file of a read: its checked description, and how its rows are read."""
+
+    def __init__(self, path, verify, supplied, tables=False):
+        self.path = path
+        self.hdul, bad, self.plain = _open(path, memmap=False, verify=verify)
+        self.map = None
+        try:
+            names = [h.name for h in self.hdul]
+            naxis = self.hdul["SCI" if "SCI" in names else 0].header.get("NAXIS", 0)
+            if naxis != 2:
+                raise FormatError(f"{path}: a file per read holds one 2-D image (rows x "
+                                  f"columns), its {'SCI' if 'SCI' in names else 'primary HDU'} "
+                                  f"has {naxis} axes")
+            try:
+                self.d = _describe(self.hdul, path, supplied, bad)
+            except FormatError as exc:  # name the file: there are many
+                if str(path) in str(exc):
+                    raise
+                raise FormatError(f"{path}: {exc}") from exc
+            if "DQ" in self.d["names"] or "ERR" in self.d["names"]:
+                raise FormatError(f"{path}: a file per read holds the pixels only (and "
+                                  "optionally PHANTOM), not DQ or ERR")
+            sci = self.d["sci"]
+            self.scale = _scaling(sci, path)
+            self.bitpix = sci.header["BITPIX"]
+            self.phantom = None
+            if "PHANTOM" in self.d["names"]:  # as a 3-D file's (FrameReader), in floats
+                hdu = self.hdul["PHANTOM"]
+                self.phantom = np.array(_physical(hdu, path, self.plain))
+                if self.phantom.dtype.kind != "f":
+                    self.phantom = self.phantom.astype(_FLOAT_FOR[hdu.header["BITPIX"]])
+            #: the file's tables (only if asked: the first file's are the exposure's)
+            self.tables = ({h.name: Table.read(h) for h in self.hdul
+                            if isinstance(h, fits.BinTableHDU) and h.name not in _RESERVED}
+                           if tables else {})
+            if self.plain and hasattr(os, "preadv"):
+                self.map = _map_frames(sci, path)
+            if self.map is not None:  # read with pread from one descriptor per file
+                mm, offset, stored, fd = self.map
+                mm.close()
+                self.map = (None, offset, stored, fd)
+                self.hdul.close()
+        except Exception:
+            self.close()
+            raise
+
+    def rows(self, first, stop, dtype):
+        """Rows ``first:stop`` of the image as ``dtype`` (physical values, native order)."""
+        ncols = self.d["shape"][1]
+        if self.map is None:  # compressed: astropy unpacks (and scales) the section
+            # (the file is kept open; also without pread, e.g. on Windows)
+            return np.asarray(self.d["sci"].section[first:stop]).astype(dtype)
+        _, offset, stored, fd = self.map
+        buf = _pread(fd, np.empty((stop - first, ncols), stored),
+                     offset + first * ncols * stored.itemsize,
+                     f"{self.path}: the file ends inside the image")
+        if self.scale is not None:
+            return _to_physical(buf, self.scale, dtype)
+        return buf.astype(dtype)
+
+    def close(self):
+        if self.map is not None:
+            os.close(self.map[3])
+            self.map = None
+        self.hdul.close()
+
+
+class ReadFiles:
+    """A ramp stored as one FITS file per read, read a band of rows of every frame at a time.
+
+    It offers what `~spherex_reduce.executor.FileSource` asks of a
+    `~spherex_reduce.io.FrameReader` (``schedule``, ``header``, ``unit``,
+    ``tables``, ``phantom``, ``stored_dtype``, `reads`), so a
+    `~spherex_reduce.Pipeline` streams the ramp from the files: memory stays
+    near the output plus a few bands.  Use as a context manager.
+
+    Parameters
+    ----------
+    paths : sequence of str or `pathlib.Path`
+        The files, one per read, in the order of the ramp (`read_file_paths`
+        sorts a glob's matches).  Each holds one 2-D image (``SCI`` or the
+        primary HDU), rows in the order the header's (or config's) ``ORDER``
+        says, and optionally a 2-D ``PHANTOM`` (reads x channels); nothing else
+        is read from it.  Each is checked as by `~spherex_reduce.io.read`.
+    verify_checksum : bool, optional
+        As for `~spherex_reduce.io.read`.
+    **supplied
+        Geometry and readout values for keywords the first file lacks (as for
+        `~spherex_reduce.io.read`); ``nframes`` is always the number of files
+        (the first file's ``NFRAMES``, and the config's, are replaced).
+
+    Attributes
+    ----------
+    schedule : `~spherex_reduce.ReadoutSchedule`
+        The first file's schedule with ``nframes`` = the number of files.
+    header : `astropy.io.fits.Header`
+        The first file's header (the exposure's), with ``NFRAMES`` and a
+        HISTORY line naming the files.
+    order : str
+        ``'readout'`` or ``'physical'``.
+    unit : `astropy.units.Unit`
+
+    Examples
+    --------
+    >>> import tempfile, pathlib, numpy as np
+    >>> from astropy.io import fits
+    >>> from spherex_reduce.io.read_files import ReadFiles
+    >>> from spherex_reduce.examples import tiny_schedule
+    >>> d = pathlib.Path(tempfile.mkdtemp())
+    >>> header = tiny_schedule(phantom_reads=0).to_header()
+    >>> header["ORDER"] = "PHYSICAL"
+    >>> for k in range(3):
+    ...     fits.PrimaryHDU(np.full((64, 64), k, np.float32), header).writeto(
+    ...         d / f"read_{k}.fits")
+    >>> with ReadFiles(sorted(d.glob("read_*.fits"))) as r:
+    ...     print(r.schedule.nframes, r.order, r.frame_rows(2, 0, 1)[0, :3].tolist())
+    3 physical [2.0, 2.0, 2.0]
+    """
+
+    def __init__(self, paths, verify_checksum=None, **supplied):
+        paths = [Path(p) for p in paths]
+        if len(paths) < 2:
+            raise FormatError("a ramp read from files needs two files at least, one per read")
+        check_count(len(paths), "the number of read files", MAX_READ_FILES)
+        supplied = {**supplied, "nframes": len(paths)}  # whatever the config says
+        self.paths = paths
+        self._files = []
+        try:
+            for path in paths:
+                self._files.append(_ReadFile(path, verify_checksum, supplied,
+                                             tables=not self._files))
+                self._check_like_first(self._files[-1])
+            first = self._files[0]
+            self.schedule = first.d["schedule"].replace(nframes=len(paths))
+            self.order, self.unit = first.d["order"], first.d["unit"]
+            self.header = first.d["header"].copy()
+            self.header["NFRAMES"] = (len(paths), "frames up the ramp: one file per read")
+            self.header.add_history(f"ramp of {len(paths)} files, one per read: "
+                                    f"{paths[0].name} ... {paths[-1].name}")
+            self.tables = first.tables
+            self._dtype = np.dtype(_FLOAT_FOR[first.bitpix])
+            phantoms = [f.phantom for f in self._files]
+            self.phantom = None if phantoms[0] is None else np.stack(phantoms)
+        except BaseException:
+            self.close()
+            raise
+        #: the type `reads` returns (floating point, native order)
+        self.stored_dtype = self._dtype
+
+    def _check_like_first(self, f):
+        first = self._files[0]
+        for what, got, want in (("shape", f.d["shape"], first.d["shape"]),
+                                ("BITPIX", f.bitpix, first.bitpix),
+                                ("unit (BUNIT)", f.d["unit"], first.d["unit"]),
+                                ("ORDER", f.d["order"], first.d["order"]),
+                                ("PHANTOM", f.phantom is not None, first.phantom is not None)):
+            if got != want:
+                raise FormatError(f"{f.path}: {what} is {got}, but {first.path} has {want}: the "
+                                  "files of one ramp must agree")
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+    def close(self):
+        """Close every file."""
+        for f in self._files:
+            f.close()
+        self._files = []
+
+    @property
+    def nframes(self):
+        """Number of frames: the files."""
+        return self.schedule.nframes
+
+    @property
+    def has_phantom(self):
+        """Whether the files have phantom values."""
+        return self.phantom is not None
+
+    def readable_in_bands(self):
+        """Whether the rows are in readout order, as the executor streams them (else use
+        `exposure`)."""
+        return self.order == "readout"
+
+    def frame_rows(self, k, first, stop):
+        """Rows ``first:stop`` of frame ``k`` (file ``k``), floating point (a new array)."""
+        return self._files[k].rows(first, stop, self._dtype)
+
+    def reads(self, k, first, stop):
+        """Reads ``first:stop`` of frame ``k``, as `~spherex_reduce.io.FrameReader.reads`
+        gives them (here always floating point, scaled, native byte order)."""
+        return self.frame_rows(k, first, stop)
+
+    def exposure(self):
+        """The whole ramp in memory as an `~spherex_reduce.Exposure` (checked to fit)."""
+        nrows, ncols = self._files[0].d["shape"]
+        shape = (self.nframes, nrows, ncols)
+        check_size(float(np.prod(shape)) * self._dtype.itemsize,
+                   f"a ramp of {self.nframes} files of {nrows} x {ncols}")
+        data = np.empty(shape, self._dtype)
+        for k in range(self.nframes):
+            data[k] = self.frame_rows(k, 0, nrows)
+        return Exposure.from_arrays(data, self.schedule, unit=self.unit, phantom=self.phantom,
+                                    header=self.header, order=self.order, tables=self.tables)

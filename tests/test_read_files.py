@@ -1,0 +1,240 @@
+"""One file per read: ``spherex-reduce reduce --reads 'DIR/read_*.fits'``.
+
+Each ramp is built here from small arrays, as a lab whose electronics write
+one 2-D image per read would store it (no ``READOUT`` table, the readout
+parameters from the pipeline config).  Slopes are checked against numpy's
+least squares over the frames in natural order, and against reducing the same
+ramp written as one 3-D file.
+"""
+
+import hashlib
+import os
+
+import numpy as np
+import pytest
+from astropy.io import fits
+
+import spherex_reduce as sr
+from spherex_reduce import executor
+from spherex_reduce.cli import main
+from spherex_reduce.errors import FormatError
+from spherex_reduce.executor import FileSource
+from spherex_reduce.io.read_files import ReadFiles, read_file_paths
+
+GEOMETRY = {"nrows": 32, "ncols": 16, "nchannels": 2, "ref_border": 2, "pixel_rate": 1e5}
+#: chopped, with re-read reference rows: reads in a mixed order
+READOUT = {"skip": 4, "ref_reads": 8, "ref_mode": "repeated", "phantom_reads": 0,
+           "nframes": 3, "frame_time": 2.0}
+#: the numbers in the file names: natural order differs from lexicographic (1, 10, 2, ...)
+NUMBERS = [1, 2, 3, 5, 9, 10]
+LEXICOGRAPHIC = sorted(range(len(NUMBERS)), key=lambda k: f"read_{NUMBERS[k]}.fits")
+
+
+def _schedule(**readout):
+    return sr.ReadoutSchedule(sr.DetectorGeometry(32, 16, 2, ref_border=2, pixel_rate=1e5),
+                              **{**READOUT, "nframes": len(NUMBERS), **readout})
+
+
+def _ramps(schedule, seed=7):
+    """Ramps (frames, reads, columns) with a different rate in every pixel, float32."""
+    rng = np.random.default_rng(seed)
+    k = np.arange(schedule.nframes)[:, None, None]
+    rate = rng.uniform(1, 5, (1, schedule.n_reads, 16))
+    noise = rng.normal(0, 0.5, (schedule.nframes, schedule.n_reads, 16))
+    return (100 + rate * k * 2.0 + noise).astype(np.float32)
+
+
+def _lstsq(ramps, tframe=2.0):
+    """Least-squares slope of every pixel over the frames (numpy, float64)."""
+    n = ramps.shape[0]
+    design = np.vstack([np.arange(n) * tframe, np.ones(n)]).T
+    coef = np.linalg.lstsq(design, ramps.reshape(n, -1).astype(np.float64), rcond=None)[0]
+    return coef[0].reshape(ramps.shape[1:])
+
+
+def _config(path, steps, **readout):
+    def flow(d):
+        return "{" + ", ".join(f"{k}: {v}" for k, v in d.items()) + "}"
+    path.write_text(f"geometry: {flow(GEOMETRY)}\nreadout: {flow({**READOUT, **readout})}\n"
+                    "steps:\n" + "".join(f"  - {s}\n" for s in steps))
+    return path
+
+
+def _write_reads(directory, ramps, header=None):
+    """Frame ``k`` of ``ramps`` into ``directory/read_{NUMBERS[k]}.fits``; the paths."""
+    directory.mkdir(exist_ok=True)
+    paths = []
+    for k, frame in enumerate(ramps):
+        path = directory / f"read_{NUMBERS[k]}.fits"
+        fits.PrimaryHDU(frame, header).writeto(path, checksum=True)
+        paths.append(path)
+    return paths
+
+
+def _digests(paths):
+    return [hashlib.sha256(p.read_bytes()).hexdigest() for p in paths]
+
+
+FIT = ["fit_ramp: {weighting: uniform}"]
+FULL = ["unchop: {}", "correct_reference: {strategy: mean}", "fit_ramp: {weighting: uniform}"]
+
+
+def test_natural_order_of_the_files(tmp_path):
+    paths = _write_reads(tmp_path / "r", _ramps(_schedule()))
+    found = read_file_paths(str(tmp_path / "r" / "read_*.fits"))
+    assert found == [str(p) for p in paths]
+    assert [int(p.split("_")[-1][:-5]) for p in found] == NUMBERS
+
+
+def test_slopes_are_least_squares_over_the_reads_in_natural_order(tmp_path):
+    s = _schedule()
+    sci = _ramps(s)
+    paths = _write_reads(tmp_path / "r", sci)
+    before = _digests(paths)
+    cfg = _config(tmp_path / "fit.yaml", FIT)
+    out = tmp_path / "out.fits"
+    assert main(["-q", "reduce", "--reads", str(tmp_path / "r" / "read_*.fits"), "-c",
+                 str(cfg), "-o", str(out)]) == 0
+    assert _digests(paths) == before
+    with fits.open(out) as hdul:
+        slopes = hdul["SCI"].data
+        assert hdul[0].header["NFRAMES"] == len(NUMBERS)
+    expected = _lstsq(sci)
+    np.testing.assert_allclose(slopes, expected, rtol=1e-6, atol=1e-6)
+    wrong = _lstsq(sci[LEXICOGRAPHIC])  # the files in the order 1, 10, 2, 3, 5, 9
+    assert np.abs(slopes - wrong).max() > 0.1
+
+
+@pytest.mark.parametrize("stored", ["float32", "uint16"])
+def test_same_result_as_the_ramp_in_one_3d_file(tmp_path, stored):
+    """Streamed from the read files, the reduction equals that of the 3-D file, bit for bit
+    (unsigned integer files, stored with BZERO = 32768, are scaled on read as a 3-D file is)."""
+    s = _schedule()
+    sci = _ramps(s)
+    if stored == "uint16":
+        sci = (np.round(sci * 10) + 30000).astype(np.uint16)  # beyond int16
+    paths = _write_reads(tmp_path / "r", sci)
+    if stored == "uint16":
+        assert fits.getheader(paths[0])["BZERO"] == 32768
+    cube = fits.PrimaryHDU(sci)
+    cube.writeto(tmp_path / "cube.fits", checksum=True)
+    before = _digests(paths)
+    cfg = _config(tmp_path / "full.yaml", FULL, nframes=len(NUMBERS))
+    pipeline = sr.Pipeline.from_yaml(cfg)
+    one = pipeline.run(tmp_path / "cube.fits")
+    out = tmp_path / "out.fits"
+    assert main(["-q", "reduce", "--reads", str(tmp_path / "r" / "read_*.fits"), "-c",
+                 str(cfg), "-o", str(out)]) == 0
+    assert _digests(paths) == before
+    with fits.open(out) as hdul:
+        np.testing.assert_array_equal(hdul["SCI"].data, one.data.data)
+        assert hdul[0].header["S_REFCOR"] == "COMPLETE"
+    assert np.isfinite(one.data.data[GEOMETRY["ref_border"]:-2, 2:-2]).all()
+
+
+def test_the_files_are_read_in_bands_never_whole(tmp_path, monkeypatch):
+    s = _schedule()
+    sci = _ramps(s)
+    paths = _write_reads(tmp_path / "r", sci)
+    asked, rows = [], []
+    original_read, original_rows = FileSource.read, ReadFiles.frame_rows
+    monkeypatch.setattr(FileSource, "read", lambda self, lo, hi: (asked.append((lo, hi)),
+                                                                  original_read(self, lo, hi))[1])
+    monkeypatch.setattr(ReadFiles, "frame_rows", lambda self, k, a, b: (
+        rows.append(b - a), original_rows(self, k, a, b))[1])
+    monkeypatch.setattr(ReadFiles, "exposure", lambda self: pytest.fail("read whole"))
+    monkeypatch.setattr(executor, "BAND_PIXELS", 5 * GEOMETRY["ncols"])
+    cfg = _config(tmp_path / "full.yaml", FULL, nframes=len(NUMBERS))
+    out = sr.Pipeline.from_yaml(cfg)
+    with ReadFiles(paths, **out._supplied()) as reader:
+        result = out.run(FileSource(reader), threads=2)
+    covered = sorted(r for lo, hi in asked for r in range(lo, hi))
+    assert covered == list(range(s.n_reads))  # every read once
+    assert max(hi - lo for lo, hi in asked) == 5
+    assert max(rows) < s.n_reads  # no file is ever read whole
+    assert result.header["S_RAMPFT"] == "COMPLETE"
+    one = sr.Pipeline.from_yaml(cfg).run(_one_file(tmp_path, sci))
+    np.testing.assert_array_equal(result.data.data, one.data.data)
+
+
+def _one_file(tmp_path, sci):
+    path = tmp_path / "cube.fits"
+    fits.PrimaryHDU(sci).writeto(path)
+    return path
+
+
+def test_physical_order_files_are_reduced_in_memory(tmp_path):
+    """Files in physical order (ORDER = PHYSICAL) give the slopes of the same 3-D file."""
+    s = _schedule(ref_mode="none")
+    raw = _ramps(s)
+    physical = np.empty((s.nframes, 32, 16), np.float32)
+    physical[:, s.rows] = raw
+    header = fits.Header({"ORDER": "PHYSICAL"})
+    paths = _write_reads(tmp_path / "r", physical, header)
+    cfg = _config(tmp_path / "fit.yaml", FIT, ref_mode="none")
+    with ReadFiles(paths, **sr.Pipeline.from_yaml(cfg)._supplied()) as reader:
+        assert not reader.readable_in_bands()
+    out = tmp_path / "out.fits"
+    assert main(["-q", "reduce", "--reads", str(tmp_path / "r" / "read_*.fits"), "-c",
+                 str(cfg), "-o", str(out)]) == 0
+    np.testing.assert_allclose(fits.getdata(out, "SCI"), _lstsq(physical), rtol=1e-6,
+                               atol=1e-6)
+
+
+def test_a_first_step_on_the_whole_ramp_reads_it_into_memory(tmp_path):
+    """A first step that needs the whole ramp (the median reference strategy) gets it in
+    memory."""
+    s = _schedule()
+    sci = _ramps(s)
+    _write_reads(tmp_path / "r", sci)
+    cfg = _config(tmp_path / "median.yaml", ["correct_reference: {strategy: median}", *FIT],
+                  nframes=len(NUMBERS))
+    out = tmp_path / "out.fits"
+    assert main(["-q", "reduce", "--reads", str(tmp_path / "r" / "read_*.fits"), "-c",
+                 str(cfg), "-o", str(out)]) == 0
+    one = sr.Pipeline.from_yaml(cfg).run(_one_file(tmp_path, sci))
+    np.testing.assert_array_equal(fits.getdata(out, "SCI"), one.data.data)
+
+
+def test_files_that_disagree_are_refused(tmp_path):
+    s = _schedule()
+    sci = _ramps(s)
+    paths = _write_reads(tmp_path / "r", sci)
+    supplied = {**GEOMETRY, **READOUT}
+    fits.PrimaryHDU(sci[0].astype(np.float64)).writeto(paths[3], overwrite=True)
+    with pytest.raises(FormatError, match=r"BITPIX is -64, but .*read_1\.fits has -32"):
+        ReadFiles(paths, **supplied)
+    fits.PrimaryHDU(sci[0], fits.Header({"BUNIT": "adu"})).writeto(paths[3], overwrite=True)
+    with pytest.raises(FormatError, match="unit"):
+        ReadFiles(paths, **supplied)
+    fits.PrimaryHDU(sci[:2]).writeto(paths[3], overwrite=True)
+    with pytest.raises(FormatError, match="one 2-D image"):
+        ReadFiles(paths, **supplied)
+    with pytest.raises(FormatError, match="two files"):
+        ReadFiles(paths[:1], **supplied)
+
+
+def test_gzipped_files_are_read_by_sections_with_the_same_result(tmp_path):
+    """Files astropy unpacks (gzip) are read by sections: the same slopes as plain files."""
+    s = _schedule()
+    sci = _ramps(s)
+    plain = _write_reads(tmp_path / "p", sci)
+    (tmp_path / "z").mkdir()
+    for path in plain:
+        fits.PrimaryHDU(fits.getdata(path)).writeto(tmp_path / "z" / (path.name + ".gz"))
+    cfg = _config(tmp_path / "full.yaml", FULL)
+    for d in ("p", "z"):
+        assert main(["-q", "reduce", "--reads", str(tmp_path / d / "read_*.fits*"), "-c",
+                     str(cfg), "-o", str(tmp_path / f"{d}.fits")]) == 0
+    np.testing.assert_array_equal(fits.getdata(tmp_path / "z.fits", "SCI"),
+                                  fits.getdata(tmp_path / "p.fits", "SCI"))
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/fd"), reason="counts /proc/self/fd")
+def test_one_descriptor_per_plain_file_while_open(tmp_path):
+    """A ramp of many reads must not run out of file descriptors: one per plain file."""
+    paths = _write_reads(tmp_path / "r", _ramps(_schedule()))
+    before = len(os.listdir("/proc/self/fd"))
+    with ReadFiles(paths, **GEOMETRY, **READOUT):
+        assert len(os.listdir("/proc/self/fd")) - before == len(paths)
+    assert len(os.listdir("/proc/self/fd")) == before

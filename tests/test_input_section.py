@@ -270,3 +270,30 @@ def test_frame_time_against_a_file_with_frame_overhead_only(tmp_path):
     fit({}, readout={"frame_time": 0.0188}).run(path)  # agrees: read
     out = fit({"header": "override"}, readout={"frame_time": 0.0376}).run(path)
     np.testing.assert_allclose(out.data.data, lstsq_slopes(values, 2 * TIMES), rtol=1e-5)
+
+
+@pytest.mark.parametrize("dtype", ["float32", "uint16"])
+def test_reads_as_files_with_gain_and_dropped_reads(tmp_path, dtype):
+    """``reduce --reads``: the input: section applies to a ramp stored one file per read."""
+    values = adu_ramps(7)
+    values[:1] -= 300  # the first read off
+    (tmp_path / "r").mkdir()
+    header = SCHEDULE.to_header(fits.Header())
+    header["BUNIT"] = "DN"
+    for k in range(NFRAMES):
+        hdu = fits.PrimaryHDU(values[k].astype(np.float32), header=header)
+        if dtype == "uint16":
+            hdu.scale("int16", bzero=32768)
+        hdu.writeto(tmp_path / "r" / f"read_{k + 1}.fits")
+    before = {p.name: digest(p) for p in (tmp_path / "r").iterdir()}
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("input: {gain: [2.0, 0.5], drop_first_reads: 1}\nsteps: [fit_ramp]\n")
+    out = tmp_path / "o.fits"
+    assert main(["-q", "reduce", "--reads", str(tmp_path / "r" / "read_*.fits"), "-c", str(cfg),
+                 "-o", str(out)]) == 0
+    gain = np.repeat([2.0, 0.5], 4)[None, :]
+    with fits.open(out) as hdul:
+        assert hdul[0].header["BUNIT"] == "electron / s" and hdul[0].header["NDROPRD"] == 1
+        np.testing.assert_allclose(hdul["SCI"].data,
+                                   gain * lstsq_slopes(values[1:], TIMES[1:]), rtol=1e-5)
+    assert {p.name: digest(p) for p in (tmp_path / "r").iterdir()} == before

@@ -85,7 +85,7 @@ def _reads(args):
     check_paths([*paths, args.config, *named_files(pipeline.steps, Path(args.config).parent)],
                 [args.output])
     atomic_output(args.output, args.overwrite)  # refuse before reducing
-    with ReadFiles(paths, **pipeline._supplied()) as reader:
+    with ReadFiles(paths, input=pipeline.input_options, **pipeline._supplied()) as reader:
         source = FileSource(reader) if reader.readable_in_bands() else None
         if source is None or not _streams(pipeline, source, args.threads):
             source = reader.exposure()  # physical order, or a first step on the whole ramp

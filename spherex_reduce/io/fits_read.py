@@ -127,18 +127,20 @@ def _note_bad_checksums(header, bad, path):
                        "read anyway (checksum verification off)")
 
 
-def _describe(hdul, path, supplied, bad=(), options=None):
+def _describe(hdul, path, supplied, bad=(), options=None, decided=()):
     """Validate an open file; return what every reader needs (no pixel data loaded).
 
     ``options`` (`InputOptions`, the ``input:`` section) is applied: config
     keywords fill or override the file's, the unit, the frames dropped
     (``schedule`` is then that of the kept frames, ``drop`` their number)
-    and the gain per channel (``gain``, or None).
+    and the gain per channel (``gain``, or None).  ``decided``: supplied keys
+    the caller sets whatever the file says (not compared with its keywords).
     """
     options = InputOptions() if options is None else options
     names = [h.name for h in hdul]
     header = hdul[0].header.copy()
-    derived = options.reconcile(header, supplied, path)
+    derived = options.reconcile(header, {k: v for k, v in supplied.items()
+                                         if k not in decided}, path)
     if "SCI" in names:
         sci = hdul["SCI"]
     elif hdul[0].header.get("NAXIS", 0) > 0:

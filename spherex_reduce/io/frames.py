@@ -21,7 +21,7 @@ from .fits_read import (
     _scaling,
     _to_physical,
 )
-from .input import InputOptions, scale_columns
+from .input import InputOptions, apply_gain
 from .layout import _RESERVED
 
 __all__ = ["FrameReader"]
@@ -100,9 +100,7 @@ class FrameReader:
     def scale(self, values):
         """``values`` (reads ``(..., columns)`` as `reads` gives them) multiplied in place
         by the gain of ``input:`` (nothing if none), as `~spherex_reduce.io.read` does."""
-        if self._gain is not None:
-            values *= scale_columns(self._gain, self.schedule.geometry, values.dtype)
-        return values
+        return apply_gain(values, self._gain, self.schedule.geometry)
 
     def __enter__(self):
         return self

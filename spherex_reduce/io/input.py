@@ -302,3 +302,13 @@ def scale_columns(per_channel, geometry, dtype):
     if per_channel is None:
         return None
     return per_channel[geometry.channel_of_column()].astype(dtype)
+
+
+def apply_gain(values, per_channel, geometry):
+    """``values`` (``(..., columns)``, floating point) multiplied in place by the gain of
+    each column's channel (``per_channel`` from `InputOptions.gains`; None: unchanged).
+    The readers of bands use it, with the arithmetic of a whole read, bit for bit."""
+    if per_channel is not None:
+        values *= scale_columns(per_channel, geometry, values.dtype)
+    return values
+

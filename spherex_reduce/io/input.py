@@ -25,7 +25,7 @@ from ..fields import FIELD, check_sides, field_cards, read_field
 from ..parameters import Parameter, validate_parameters
 from .flags import check_dq_bits
 
-__all__ = ["INPUT_PARAMETERS", "InputOptions", "parse_unit"]
+__all__ = ["INPUT_PARAMETERS", "InputOptions", "apply_gain", "parse_unit"]
 
 log = logging.getLogger(__name__)
 

@@ -297,3 +297,21 @@ def test_reads_as_files_with_gain_and_dropped_reads(tmp_path, dtype):
         np.testing.assert_allclose(hdul["SCI"].data,
                                    gain * lstsq_slopes(values[1:], TIMES[1:]), rtol=1e-5)
     assert {p.name: digest(p) for p in (tmp_path / "r").iterdir()} == before
+
+
+def test_unreadable_bunit_needs_override_to_be_replaced(tmp_path):
+    path = write_file(tmp_path / "x.fits", adu_ramps(), bunit="bogons")
+    with pytest.raises(FormatError, match=r"keyword BUNIT='bogons' is not a unit astropy "
+                                          r"understands; set input\.unit to give the unit"):
+        read(path)
+    with pytest.raises(FormatError, match=r"set input\.header: override to give the unit"):
+        read(path, input={"unit": "adu"})
+    assert read(path, input={"unit": "adu", "header": "override"}).unit == u.adu
+
+
+def test_drop_first_reads_of_an_image_is_refused(tmp_path):
+    from spherex_reduce import Exposure, write
+    path = write(Exposure.from_arrays(np.ones((8, 8), np.float32), SCHEDULE, unit=u.adu / u.s),
+                 tmp_path / "img.fits")
+    with pytest.raises(FormatError, match="holds an image, not ramps: there are no reads"):
+        read(path, input={"drop_first_reads": 1})

@@ -166,7 +166,7 @@ class FileSource:
             for run in runs:
                 out[k, run[0]:run[-1] + 1] = self.reader.reads(k, int(idx[run[0]]),
                                                               int(idx[run[-1]]) + 1)
-        return out
+        return self.reader.scale(out)  # the gain of input:, as a whole read applies it
 
     def side(self):
         idx = side_indices(self.context.schedule)

@@ -239,10 +239,11 @@ def reduce_integrations(path, pipeline, *, progress=False, threads=None):
     with CheckedFITS(path) as f:
         nint = integration_count(path)
         if nint is None:  # let the reader say what the file is
-            f.exposure(integration=0, **pipeline._supplied())
+            f.exposure(integration=0, input=pipeline.input_options, **pipeline.supplied())
         results = []
         for k in range(nint):
-            ramps = f.exposure(integration=k, **pipeline._supplied())
+            ramps = f.exposure(integration=k, input=pipeline.input_options,
+                               **pipeline.supplied())
             if k == 0:  # the per-integration images (and the mean), before fitting them all
                 check_size(nint * ramps.shape[-2] * ramps.shape[-1] * 40,
                            f"the images of {nint} integrations of {path}")

@@ -22,12 +22,13 @@ from .errors import ConfigError, SpherexReduceError, StepSkipped
 from .executor import FileSource, MemorySource, execute
 from .exposure import Exposure
 from .io import FrameReader, is_raw_ramp_file, read
+from .io.input import InputOptions
 from .plugins import Registry, blame_plugin
 from .step import Step
 
 __all__ = ["Pipeline"]
 
-_TOP_KEYS = ("steps", "geometry", "readout", "name", "description")
+_TOP_KEYS = ("steps", "input", "geometry", "readout", "name", "description")
 
 
 class Pipeline:
@@ -36,6 +37,7 @@ class Pipeline:
     The configuration is a mapping::
 
         name: my-reduction              # optional
+        input: {unit: adu, gain: 1.8}   # optional: what a file needs before the steps
         geometry: {nrows: 2048, ...}    # optional: for files lacking the keywords
         readout:  {skip: 24, ...}       # optional: idem
         steps:                          # run in this order
@@ -91,6 +93,9 @@ class Pipeline:
             raise ConfigError("steps: a non-empty list of {step_name: {parameters}} is required")
         geometry = section_values(config, "geometry", GEOMETRY_PARAMETERS)
         readout = section_values(config, "readout", READOUT_PARAMETERS)
+        options = InputOptions.from_config(config.get("input"))
+        if "nchannels" in geometry:
+            options.check_channels(geometry["nchannels"])
         effective = []
         for i, item in enumerate(steps):
             path = f"steps[{i}]"
@@ -105,6 +110,8 @@ class Pipeline:
                 raise ConfigError(f"{path}.{name}: {exc.args[0]}") from None
             effective.append({name: self._step_params(cls, params, f"{path}.{name}")})
         out = {k: config[k] for k in ("name", "description") if k in config}
+        if "input" in config:
+            out["input"] = options.to_config()
         if geometry:
             out["geometry"] = geometry
         if readout:
@@ -141,11 +148,25 @@ class Pipeline:
         return schedule_from_config(self._config.get("geometry"), self._config.get("readout"))
 
     # -- running ------------------------------------------------------------------
-    def read(self, path):
-        """Read a FITS file, with this config's geometry/readout for missing keywords."""
-        return read(path, **self._supplied())
+    @property
+    def input_options(self):
+        """The ``input:`` section (`~spherex_reduce.io.input.InputOptions`; defaults if none)."""
+        return InputOptions.from_config(self._config.get("input"))
 
-    def _supplied(self):
+    def read(self, path):
+        """Read a FITS file as this config's ``input:`` section says, with its
+        ``geometry:``/``readout:`` values for keywords the file lacks (or, with
+        ``input: {header: override}``, instead of the file's).
+
+        The same as ``spherex_reduce.read(path, input=config["input"],
+        **geometry, **readout)``.  `run` on a path reads it so (streamed when it
+        can), and gives the numbers that `run` on the exposure read here gives.
+        """
+        return read(path, input=self.input_options, **self.supplied())
+
+    def supplied(self):
+        """The ``geometry:`` and ``readout:`` values, one mapping: what a reader takes for
+        keywords a file lacks (with `input_options` for the ``input:`` section)."""
         return {**self._config.get("geometry", {}), **self._config.get("readout", {})}
 
     def run(self, exposure, progress=False, threads=None):
@@ -256,7 +277,8 @@ class Pipeline:
         if self._is_reader(current):
             reader, opened = current, False
         elif is_raw_ramp_file(current):
-            reader, opened = FrameReader(current, **self._supplied()), True
+            reader = FrameReader(current, input=self.input_options, **self.supplied())
+            opened = True
         else:
             return MemorySource(self.read(current)), None, False
         if FileSource.usable(reader):

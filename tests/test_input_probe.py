@@ -825,6 +825,47 @@ INPUT_CONFIG = [
 ]
 
 
+# -- the input: section of a pipeline config ------------------------------------------------------
+
+def _input_yaml(section):
+    return write("bad.yaml", f"input: {section}\nsteps:\n  - fit_ramp: {{weighting: uniform}}\n")
+
+
+def _check_gain_two(d, result, run):
+    expected, scale = _lstsq_slopes(d / "int.fits")
+    with fits.open(d / "out.fits") as hdul:
+        assert hdul[0].header["BUNIT"] == "electron / s" and hdul[0].header["GAIN"] == 2.0
+        np.testing.assert_allclose(hdul["SCI"].data, 2 * expected, rtol=0, atol=2e-5 * scale)
+
+
+INPUT_SECTION = [
+    refused("reduce-input-gain-zero", REDUCE_BAD, _input_yaml("{gain: 0}"),
+            mentions=r"input\.gain: must be > 0, got 0"),
+    refused("reduce-input-gain-negative", REDUCE_BAD, _input_yaml("{gain: -1.8}"),
+            mentions=r"input\.gain: must be > 0"),
+    refused("reduce-input-gain-per-channel-count", REDUCE_BAD, _input_yaml("{gain: [1, 2, 3]}"),
+            mentions=r"input\.gain: 3 values for 2 readout channels"),
+    refused("reduce-input-unknown-key", REDUCE_BAD, _input_yaml("{gian: 2}"),
+            mentions=r"input\.gian: unknown parameter"),
+    refused("reduce-input-header-not-a-choice", REDUCE_BAD, _input_yaml("{header: merge}"),
+            mentions=r"input\.header"),
+    refused("reduce-input-drop-all-reads", REDUCE_BAD, _input_yaml("{drop_first_reads: 2}"),
+            mentions="at least 2 frames must remain"),
+    refused("reduce-input-fill-disagrees-with-file", REDUCE_BAD,
+            write("bad.yaml", "geometry: {nrows: 128}\nsteps:\n  - fit_ramp: {}\n"),
+            mentions="keyword NROWS is 64 in the file but nrows is 128 in the config"),
+    refused("spectrum-input-gain-on-electrons", SPECTRUM_C, _input_yaml("{gain: 2.0}"),
+            mentions="input.gain converts ADU to electrons"),
+    refused("fit-noise-input-unit-disagrees", FIT_NOISE_C, _input_yaml("{unit: adu}"),
+            mentions="keyword BUNIT is 'electron' in the file but unit is 'adu'"),
+    works("reduce-uint16-input-gain", ["reduce", "int.fits", "-c", "gain.yaml", "-o", "out.fits"],
+          chain(_integer_raw("uint16"),
+                write("gain.yaml", "input: {unit: adu, gain: 2.0, header: override}\n"
+                                   "steps:\n  - fit_ramp: {weighting: uniform}\n")),
+          _check_gain_two),
+]
+
+
 # -- what the user sees besides errors -----------------------------------------------------------
 
 def _warning_text(line):
@@ -866,7 +907,8 @@ HELD = [
 ]
 
 CASES = [*FITS_DAMAGE, *CHECKSUM_OPT_OUT, *INTEGER_DATA, *FOREIGN_DQ, *READ_FILES, *YAML,
-         *CLI_NUMBERS, *OUTPUT_IS_INPUT, *INPUT_CONFIG, *OUTPUT_PLACES, *MESSAGES, *HELD]
+         *CLI_NUMBERS, *OUTPUT_IS_INPUT, *INPUT_CONFIG, *INPUT_SECTION, *OUTPUT_PLACES,
+         *MESSAGES, *HELD]
 
 
 @pytest.mark.parametrize("case", CASES)

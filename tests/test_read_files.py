@@ -146,7 +146,7 @@ def test_the_files_are_read_in_bands_never_whole(tmp_path, monkeypatch):
     monkeypatch.setattr(executor, "BAND_PIXELS", 5 * GEOMETRY["ncols"])
     cfg = _config(tmp_path / "full.yaml", FULL, nframes=len(NUMBERS))
     out = sr.Pipeline.from_yaml(cfg)
-    with ReadFiles(paths, **out._supplied()) as reader:
+    with ReadFiles(paths, **out.supplied()) as reader:
         result = out.run(reader, threads=2)
     covered = sorted(r for lo, hi in asked for r in range(lo, hi))
     assert covered == list(range(s.n_reads))  # every read once
@@ -172,7 +172,7 @@ def test_physical_order_files_are_reduced_in_memory(tmp_path):
     header = fits.Header({"ORDER": "PHYSICAL"})
     paths = _write_reads(tmp_path / "r", physical, header)
     cfg = _config(tmp_path / "fit.yaml", FIT, ref_mode="none")
-    with ReadFiles(paths, **sr.Pipeline.from_yaml(cfg)._supplied()) as reader:
+    with ReadFiles(paths, **sr.Pipeline.from_yaml(cfg).supplied()) as reader:
         assert not reader.readable_in_bands()
     out = tmp_path / "out.fits"
     assert main(["-q", "reduce", "--reads", str(tmp_path / "r" / "read_*.fits"), "-c",

@@ -173,8 +173,8 @@ def add_config_option(parser):
     parser.add_argument(
         "-c", "--config", metavar="PIPELINE.yaml",
         help="pipeline YAML file or shipped config name (see show-config --list) whose "
-        "geometry: and readout: sections supply the keywords the input files lack, as for "
-        "reduce -c (its steps are validated, not run)")
+        "input:, geometry: and readout: sections say how to read the input files (unit, "
+        "gain, keywords they lack), as for reduce -c (its steps are validated, not run)")
 
 
 def input_config(config):

@@ -90,8 +90,8 @@ def _reads(args):
     check_paths([*paths, args.config, *named_files(pipeline.steps, Path(args.config).parent)],
                 [args.output])
     atomic_output(args.output, args.overwrite)  # refuse before reducing
-    supplied = {**pipeline.config.get("geometry", {}), **pipeline.config.get("readout", {})}
-    with ReadFiles(paths, **supplied) as reader:  # streamed in bands where the steps allow
+    with ReadFiles(paths, input=pipeline.input_options, **pipeline.supplied()) as reader:
+        # streamed in bands where the steps allow
         result = pipeline.run(reader, progress=not args.quiet, threads=args.threads)
     return _written(pipeline, result, args)
 

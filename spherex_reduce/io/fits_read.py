@@ -25,7 +25,8 @@ from ..limits import check_size
 from ..schedule import ReadoutSchedule, _card_text, header_keyword
 from .fits_structure import _scan, _verify
 from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq
-from .layout import _RESERVED, _unit
+from .input import InputOptions, apply_input
+from .layout import _RESERVED, _integration_shape
 
 __all__ = ["CheckedFITS", "checksum_policy", "integration_count", "is_raw_ramp_file",
            "open_checked", "read"]
@@ -141,18 +142,28 @@ def _shape(hdu):
     return tuple(hdu.header[f"NAXIS{i}"] for i in range(hdu.header.get("NAXIS", 0), 0, -1))
 
 
-def _describe(hdul, path, supplied, bad=(), integration=None):
+def _describe(hdul, path, supplied, bad=(), options=None, decided=(), integration=None):
     """Validate an open file; return what every reader needs (no pixel data loaded).
 
+    ``options`` (`InputOptions`, the ``input:`` section) is applied: config
+    keywords fill or override the file's, the unit, the frames dropped
+    (``schedule`` is then that of the kept frames, ``drop`` their number)
+    and the gain per channel (``gain``, or None).  ``decided``: supplied keys
+    the caller sets whatever the file says (not compared with its keywords).
     With ``integration``, ``SCI`` must be 4-D (integrations, groups, rows,
     columns) and what is described is that integration's ramps.
     """
+    options = InputOptions() if options is None else options
     names = [h.name for h in hdul]
     header = hdul[0].header.copy()
+    derived = options.reconcile(header, {k: v for k, v in supplied.items()
+                                         if k not in decided}, path)
     sci = _sci(hdul, path)
     shape = _integration_shape(_shape(sci), integration, path)
     table = Table.read(hdul["READOUT"]) if "READOUT" in names else None
-    schedule = ReadoutSchedule.from_header(header, table, **supplied)
+    schedule = ReadoutSchedule.from_header(
+        header, table, **{k: v for k, v in supplied.items() if k not in derived})
+    options.check_derived(schedule, derived, supplied, path)
     order = header_keyword(header, "ORDER", str, default="READOUT").strip().lower()
     if order not in ("readout", "physical"):
         raise FormatError(f"keyword ORDER must be READOUT or PHYSICAL, got {order!r}")
@@ -170,34 +181,19 @@ def _describe(hdul, path, supplied, bad=(), integration=None):
             )
     elif schedule.phantom_reads and order == "readout":
         raise FormatError(f"NPHANT={schedule.phantom_reads} but the file has no PHANTOM extension")
-    unit = _unit(header_keyword(header if "BUNIT" in header else sci.header, "BUNIT", str,
-                                default="electron"))
+    bunit = header_keyword(header if "BUNIT" in header else sci.header, "BUNIT", str,
+                           default=None)
+    unit = options.unit_of(bunit, header, path)
+    drop, kept = options.frames(header, schedule, len(shape) == 3, path)
+    gain, unit = options.gains(unit, header, schedule.geometry.nchannels, path)
     for key in ("CHECKSUM", "DATASUM", "ORDER", "NEXTEND"):
         header.remove(key, ignore_missing=True)
     _note_bad_checksums(header, bad, path)
     if integration is not None:
         header["SXRINT"] = (integration, "integration of the input's 4-D SCI (from 0)")
     return {"names": names, "header": header, "sci": sci, "shape": shape,
-            "schedule": schedule, "order": order, "unit": unit}
-
-
-def _integration_shape(shape, integration, path):
-    """The shape of the ramps read: ``shape`` itself, or one integration's of a 4-D SCI."""
-    if len(shape) == 4 and integration is None:
-        raise FormatError(
-            f"{path}: SCI is 4-D {shape} (integrations, groups, rows, columns): reduce it with "
-            "'spherex-reduce reduce' (or spherex_reduce.reduce_integrations), which fits each "
-            "integration, or read one integration with read(path, integration=i)")
-    if integration is None:
-        return shape
-    if len(shape) != 4:
-        raise FormatError(f"{path}: integration={integration!r} given but SCI has shape {shape}, "
-                          "not 4-D (integrations, groups, rows, columns)")
-    if (isinstance(integration, bool) or not isinstance(integration, (int, np.integer))
-            or not 0 <= integration < shape[0]):
-        raise FormatError(f"{path}: integration={integration!r} is not one of the file's "
-                          f"{shape[0]} integrations (0 to {shape[0] - 1})")
-    return shape[1:]
+            "schedule": schedule, "order": order, "unit": unit, "kept": kept, "drop": drop,
+            "gain": gain}
 
 
 def _readonly(*arrays):
@@ -235,14 +231,14 @@ class CheckedFITS:
         """Close the file (arrays already returned stay valid)."""
         self.hdul.close()
 
-    def exposure(self, dq_bits=None, integration=None, **supplied):
+    def exposure(self, dq_bits=None, input=None, integration=None, **supplied):
         """The `Exposure` of a file in this package's format, as `read` returns it.
 
-        ``dq_bits``, ``integration`` and ``supplied`` (the readout parameters)
-        are as for `read`.
+        ``dq_bits``, ``input``, ``integration`` and ``supplied`` (the readout
+        parameters) are as for `read`.
         """
         return _exposure(self.hdul, self._name, self.bad, self._plain, supplied, dq_bits,
-                         integration)
+                         input, integration)
 
     def physical(self, hdu):
         """The data of image HDU ``hdu`` in physical values (``BSCALE``/``BZERO``
@@ -301,7 +297,7 @@ def open_checked(path, verify_checksum=None):
     return CheckedFITS(path, verify_checksum)
 
 
-def read(path, verify_checksum=None, dq_bits=None, integration=None, **supplied):
+def read(path, verify_checksum=None, dq_bits=None, input=None, integration=None, **supplied):
     """Read an exposure written by `write` (or raw data from other electronics).
 
     Parameters
@@ -323,7 +319,18 @@ def read(path, verify_checksum=None, dq_bits=None, integration=None, **supplied)
         Default: `~spherex_reduce.io.foreign_dq_bits` (1: bit 0, "do not
         use").  A file written by this package keeps all its flags.  A 2-D
         ``DQ`` with ramps applies to every frame (a pixel mask ``(nrows,
-        ncols)`` to every read of each row).
+        ncols)`` to every read of each row).  When not given: ``input``'s
+        ``dq_bits`` if it has one.
+    input : dict or `~spherex_reduce.io.input.InputOptions`, optional
+        What the file needs before the steps, as the ``input:`` section of a
+        pipeline config (:ref:`yaml`): ``unit`` (``BUNIT`` when the file lacks
+        it; ADU, DN and counts are read as ``adu``), ``gain`` (e-/ADU, one
+        number or one per channel: the data, uncertainties and phantom values
+        are multiplied by it and become electrons; recorded as ``GAIN``),
+        ``drop_first_reads`` (frames left out at the start of every ramp;
+        recorded as ``NDROPRD``), ``header`` (``fill``: a ``supplied`` value
+        that disagrees with the file's keyword is an error; ``override``: it
+        replaces it, with a warning and a ``HISTORY`` card) and ``dq_bits``.
     integration : int, optional
         For a 4-D ``SCI`` (integrations, groups, rows, columns: the JWST
         "uncal" layout), which integration to read (from 0): its ramps, with
@@ -365,13 +372,16 @@ def read(path, verify_checksum=None, dq_bits=None, integration=None, **supplied)
     (dtype('float32'), 60127.0)
     """
     with CheckedFITS(path, verify_checksum) as f:
-        return f.exposure(dq_bits=dq_bits, integration=integration, **supplied)
+        return f.exposure(dq_bits=dq_bits, input=input, integration=integration, **supplied)
 
 
-def _exposure(hdul, path, bad, plain, supplied, dq_bits=None, integration=None):
+def _exposure(hdul, path, bad, plain, supplied, dq_bits=None, options=None, integration=None):
     """The `Exposure` in an HDU list opened by `_open` (which the caller closes)."""
-    d = _describe(hdul, path, supplied, bad, integration)
+    options = InputOptions.from_config(options)
+    d = _describe(hdul, path, supplied, bad, options, integration=integration)
     names = d["names"]
+    if dq_bits is None:
+        dq_bits = options.dq_bits
 
     def image(name, flags=False):
         if name not in names:
@@ -403,8 +413,9 @@ def _exposure(hdul, path, bad, plain, supplied, dq_bits=None, integration=None):
         for h in hdul
         if isinstance(h, fits.BinTableHDU) and h.name not in _RESERVED
     }
+    data, err, mask, phantom = apply_input(d, data, err, mask, phantom)
     _readonly(data, err, mask, phantom)
-    return Exposure.from_arrays(data, d["schedule"], unit=d["unit"], uncertainty=err, mask=mask,
+    return Exposure.from_arrays(data, d["kept"], unit=d["unit"], uncertainty=err, mask=mask,
                                 phantom=phantom, header=d["header"], order=d["order"],
                                 reference=reference, tables=tables)
 

@@ -20,6 +20,7 @@ from .fits_read import (
     _scaling,
     _to_physical,
 )
+from .input import InputOptions, apply_gain, apply_input
 from .layout import _RESERVED
 
 __all__ = ["FrameReader"]
@@ -45,29 +46,37 @@ class FrameReader:
         Accepted as by `~spherex_reduce.io.read`, unused: a file with a
         ``DQ`` (or ``ERR``) is not a raw ramp file to this reader (read it
         whole with `~spherex_reduce.io.read`).
+    input : dict or `~spherex_reduce.io.input.InputOptions`, optional
+        As for `~spherex_reduce.io.read`: frames dropped at the start of
+        every ramp are never read (frame ``k`` is the file's ``k + dropped``)
+        and `reads` gives the file's values, which `scale` multiplies by the
+        gain as `~spherex_reduce.io.read` does.
     **supplied
         As for `~spherex_reduce.io.read`.
 
     Attributes
     ----------
     schedule : `ReadoutSchedule`
-        The full exposure's schedule.
+        The schedule of the frames served (the file's, less the dropped frames).
     header : `astropy.io.fits.Header`
     """
 
-    def __init__(self, path, verify_checksum=None, dq_bits=None, **supplied):
+    def __init__(self, path, verify_checksum=None, dq_bits=None, input=None, **supplied):
         self.path = Path(path)
         self._map = None
+        options = InputOptions.from_config(input)
         self._hdul, bad, plain = _open(path, memmap=False, verify=verify_checksum)
         try:
-            d = _describe(self._hdul, path, supplied, bad)
+            d = _describe(self._hdul, path, supplied, bad, options)
             if len(d["shape"]) != 3 or d["order"] != "readout" or "DQ" in d["names"] \
                     or "ERR" in d["names"]:
                 raise FormatError(f"{path} is not a raw ramp file in readout order")
             self._d = d
-            self.schedule, self.header, self.unit = d["schedule"], d["header"], d["unit"]
-            self._phantom = (np.asarray(_physical(self._hdul["PHANTOM"], path, plain))
-                             if "PHANTOM" in d["names"] else None)
+            self.schedule, self.header, self.unit = d["kept"], d["header"], d["unit"]
+            self._drop, self._gain = d["drop"], d["gain"]
+            phantom = (np.asarray(_physical(self._hdul["PHANTOM"], path, plain))
+                       if "PHANTOM" in d["names"] else None)
+            self._phantom = apply_input(d, None, None, None, phantom)[3]
             self._scale = _scaling(d["sci"], path)
             self._tables = {h.name: Table.read(h) for h in self._hdul
                             if isinstance(h, fits.BinTableHDU) and h.name not in _RESERVED}
@@ -79,13 +88,18 @@ class FrameReader:
         #: channels)`` or None, and the type the pixels are stored as
         self.tables, self.phantom = self._tables, self._phantom
         self.stored_dtype = None if self._map is None else self._map[2]
-        self._opened = (bad, plain, supplied)
+        self._opened = (bad, plain, supplied, options)
 
     def exposure(self):
         """The whole file as the `Exposure` `~spherex_reduce.io.read` gives, from the file
         already open and checked (not opened or verified again)."""
-        bad, plain, supplied = self._opened
-        return _exposure(self._hdul, self.path, bad, plain, supplied)
+        bad, plain, supplied, options = self._opened
+        return _exposure(self._hdul, self.path, bad, plain, supplied, options=options)
+
+    def scale(self, values):
+        """``values`` (reads ``(..., columns)`` as `reads` gives them) multiplied in place
+        by the gain of ``input:`` (nothing if none), as `~spherex_reduce.io.read` does."""
+        return apply_gain(values, self._gain, self.schedule.geometry)
 
     def __enter__(self):
         return self
@@ -113,13 +127,15 @@ class FrameReader:
 
     def frame(self, k):
         """Frame ``k`` as a one-frame `Exposure` (schedule with ``nframes=1``)."""
+        k += self._drop
         if self._map is None:  # compressed: astropy unpacks (and scales) the section
             data = np.asarray(self._d["sci"].section[k : k + 1])
             if data.dtype.kind in "iu":
                 data = data.astype(_FLOAT_FOR[self._d["sci"].header["BITPIX"]])
         else:
             data = self._mapped_frame(k)
-        phantom = None if self._phantom is None else self._phantom[k : k + 1]
+        data = self.scale(data)
+        phantom = None if self._phantom is None else self._phantom[k - self._drop:][:1]
         return Exposure.from_arrays(data, self.schedule.replace(nframes=1), unit=self.unit,
                                     phantom=phantom, header=self.header, tables=self._tables)
 
@@ -137,7 +153,8 @@ class FrameReader:
                 and (self._phantom is None or self._phantom.dtype.kind == "f"))
 
     def reads(self, k, first, stop):
-        """Reads ``first:stop`` of frame ``k`` as they are in the file (a copy).
+        """Reads ``first:stop`` of frame ``k`` (after the dropped frames) as they are in the
+        file (a copy): `scale` applies the gain.
 
         Read with ``pread``: no page of the memory map is touched, and several
         threads may read at once.  Only for files `readable_in_bands`.
@@ -149,6 +166,7 @@ class FrameReader:
         """
         mm, offset, dtype, fd = self._map
         nreads, ncols = self._d["shape"][1:]
+        k += self._drop
         pos = offset + (k * nreads + first) * ncols * dtype.itemsize
         if not hasattr(os, "preadv"):  # (Windows) from the map, then release its pages
             count = (stop - first) * ncols

@@ -25,6 +25,7 @@ per-integration slopes ``INTSLOPE``, ``INTERR``, ``INTDQ`` of a 4-D input) and
 skipped by `read`.
 """
 
+import numpy as np
 from astropy import units as u
 
 from ..errors import FormatError
@@ -38,8 +39,20 @@ def _unit_str(unit):
     return "" if unit == u.one else unit.to_string()
 
 
-def _unit(value):
-    try:
-        return u.Unit(str(value).strip(), parse_strict="raise")
-    except ValueError as exc:
-        raise FormatError(f"keyword BUNIT={value!r} is not a unit astropy understands") from exc
+def _integration_shape(shape, integration, path):
+    """The shape of the ramps read: ``shape`` itself, or one integration's of a 4-D SCI."""
+    if len(shape) == 4 and integration is None:
+        raise FormatError(
+            f"{path}: SCI is 4-D {shape} (integrations, groups, rows, columns): reduce it with "
+            "'spherex-reduce reduce' (or spherex_reduce.reduce_integrations), which fits each "
+            "integration, or read one integration with read(path, integration=i)")
+    if integration is None:
+        return shape
+    if len(shape) != 4:
+        raise FormatError(f"{path}: integration={integration!r} given but SCI has shape {shape}, "
+                          "not 4-D (integrations, groups, rows, columns)")
+    if (isinstance(integration, bool) or not isinstance(integration, (int, np.integer))
+            or not 0 <= integration < shape[0]):
+        raise FormatError(f"{path}: integration={integration!r} is not one of the file's "
+                          f"{shape[0]} integrations (0 to {shape[0] - 1})")
+    return shape[1:]

@@ -9,6 +9,7 @@ like `~spherex_reduce.io.FrameReader` does for one 3-D file, so the executor's
 ``FileSource`` streams them.  The files are never modified.
 """
 
+import dataclasses
 import glob
 import os
 import re
@@ -21,8 +22,16 @@ from astropy.table import Table
 from ..errors import FormatError
 from ..exposure import Exposure
 from ..limits import check_count, check_size
-from .fits_read import _FLOAT_FOR, _describe, _open, _physical, _scaling, _to_physical
+from .fits_read import (
+    _FLOAT_FOR,
+    _describe,
+    _open,
+    _physical,
+    _scaling,
+    _to_physical,
+)
 from .frames import _map_frames, _pread
+from .input import InputOptions, apply_gain, apply_input
 from .layout import _RESERVED
 
 __all__ = ["MAX_READ_FILES", "ReadFiles", "natural_key", "read_file_paths"]
@@ -84,7 +93,7 @@ def read_file_paths(pattern):
 class _ReadFile:
     """One open file of a read: its checked description, and how its rows are read."""
 
-    def __init__(self, path, verify, supplied, tables=False):
+    def __init__(self, path, verify, supplied, tables=False, options=None):
         self.path = path
         self.hdul, bad, self.plain = _open(path, memmap=False, verify=verify)
         self.map = None
@@ -96,7 +105,8 @@ class _ReadFile:
                                   f"columns), its {'SCI' if 'SCI' in names else 'primary HDU'} "
                                   f"has {naxis} axes")
             try:
-                self.d = _describe(self.hdul, path, supplied, bad)
+                self.d = _describe(self.hdul, path, supplied, bad, options,
+                                   decided=("nframes",))
             except FormatError as exc:  # name the file: there are many
                 if str(path) in str(exc):
                     raise
@@ -168,6 +178,10 @@ class ReadFiles:
         is read from it.  Each is checked as by `~spherex_reduce.io.read`.
     verify_checksum : bool, optional
         As for `~spherex_reduce.io.read`.
+    input : dict or `~spherex_reduce.io.input.InputOptions`, optional
+        As for `~spherex_reduce.io.read` (the ``input:`` section): the unit,
+        the gain (`reads` and `exposure` give the values multiplied by it) and
+        the first files (reads) left out.
     **supplied
         Geometry and readout values for keywords the first file lacks (as for
         `~spherex_reduce.io.read`); ``nframes`` is always the number of files
@@ -201,7 +215,9 @@ class ReadFiles:
     3 physical [2.0, 2.0, 2.0]
     """
 
-    def __init__(self, paths, verify_checksum=None, **supplied):
+    def __init__(self, paths, verify_checksum=None, input=None, **supplied):
+        options = InputOptions.from_config(input)
+        each = dataclasses.replace(options, drop_first_reads=0)  # a file holds one read
         paths = [Path(p) for p in paths]
         if len(paths) < 2:
             raise FormatError("a ramp read from files needs two files at least, one per read")
@@ -212,7 +228,7 @@ class ReadFiles:
         try:
             for path in paths:
                 self._files.append(_ReadFile(path, verify_checksum, supplied,
-                                             tables=not self._files))
+                                             tables=not self._files, options=each))
                 self._check_like_first(self._files[-1])
             first = self._files[0]
             self.schedule = first.d["schedule"].replace(nframes=len(paths))
@@ -221,10 +237,16 @@ class ReadFiles:
             self.header["NFRAMES"] = (len(paths), "frames up the ramp: one file per read")
             self.header.add_history(f"ramp of {len(paths)} files, one per read: "
                                     f"{paths[0].name} ... {paths[-1].name}")
+            self._gain = first.d["gain"]
+            drop, self.schedule = options.frames(self.header, self.schedule, True, paths[0])
+            for f in self._files[:drop]:  # the reads left out (input.drop_first_reads)
+                f.close()
+            self._files, self.paths = self._files[drop:], paths[drop:]
             self.tables = first.tables
             self._dtype = np.dtype(_FLOAT_FOR[first.bitpix])
             phantoms = [f.phantom for f in self._files]
-            self.phantom = None if phantoms[0] is None else np.stack(phantoms)
+            self.phantom = (None if phantoms[0] is None else  # the gain as a 3-D file's
+                            apply_input(first.d, None, None, None, np.stack(phantoms))[3])
         except BaseException:
             self.close()
             raise
@@ -271,8 +293,14 @@ class ReadFiles:
         return self.order == "readout"
 
     def frame_rows(self, k, first, stop):
-        """Rows ``first:stop`` of frame ``k`` (file ``k``), floating point (a new array)."""
+        """Rows ``first:stop`` of frame ``k`` (file ``k``), floating point (a new array),
+        as stored: `scale` applies the gain."""
         return self._files[k].rows(first, stop, self._dtype)
+
+    def scale(self, values):
+        """``values`` (``(..., columns)``) multiplied in place by the gain of ``input:``,
+        as `~spherex_reduce.io.FrameReader.scale`."""
+        return apply_gain(values, self._gain, self.schedule.geometry)
 
     def reads(self, k, first, stop):
         """Reads ``first:stop`` of frame ``k``, as `~spherex_reduce.io.FrameReader.reads`
@@ -288,5 +316,6 @@ class ReadFiles:
         data = np.empty(shape, self._dtype)
         for k in range(self.nframes):
             data[k] = self.frame_rows(k, 0, nrows)
+        self.scale(data)
         return Exposure.from_arrays(data, self.schedule, unit=self.unit, phantom=self.phantom,
                                     header=self.header, order=self.order, tables=self.tables)

@@ -315,3 +315,17 @@ def test_drop_first_reads_of_an_image_is_refused(tmp_path):
                  tmp_path / "img.fits")
     with pytest.raises(FormatError, match="holds an image, not ramps: there are no reads"):
         read(path, input={"drop_first_reads": 1})
+
+
+def test_reduced_file_reads_again_with_the_config_that_gives_nframes(tmp_path):
+    """``spectrum -c`` of a reduction made with ``drop_first_reads``: its NFRAMES counts the
+    frames kept, the config's nframes the frames of the ramp; the two agree."""
+    from spherex_reduce import write
+    path = write_file(tmp_path / "adu.fits", adu_ramps())
+    pipe = fit({"unit": "adu", "gain": 2.0, "drop_first_reads": 1}, readout={"nframes": NFRAMES})
+    out = write(pipe.run(path), tmp_path / "red.fits")
+    again = pipe.read(out)
+    np.testing.assert_array_equal(again.data.data, read(out).data.data)
+    with pytest.raises(FormatError, match=r"NFRAMES \(\+ NDROPRD 1 reads dropped\) is 5 in "
+                                          "the file but nframes is 7"):
+        fit({"unit": "adu"}, readout={"nframes": NFRAMES + 1}).read(out)

@@ -144,6 +144,9 @@ class InputOptions:
             if value is None or field is None:
                 continue
             have = read_field(header, field)
+            dropped = 0  # a file this package wrote after dropping reads: the ramp had more
+            if key == "nframes" and have is not None and "NDROPRD" in header:
+                dropped = int(header["NDROPRD"])
             partners = [f.keyword for f in _partners(field) if f.keyword in header]
             if have is None and partners:
                 if self.header == "fill":
@@ -153,10 +156,12 @@ class InputOptions:
             if self.header == "override":
                 for kw in partners:  # the config's value alone states it
                     header.remove(kw, ignore_missing=True)
-            if have is None or _same(field, have, value):
+            if have is None or _same(field, have + dropped if dropped else have, value):
                 continue
             shown = field.keyword if field.side_keywords is None else \
                 "/".join((field.keyword, *field.side_keywords))
+            if dropped:
+                shown = f"{shown} (+ NDROPRD {dropped} reads dropped)"
             if self.header == "fill":
                 raise FormatError(
                     f"{name}: keyword {shown} is {have} in the file but {key} is {value} in the "

@@ -9,8 +9,7 @@ from ..integrations import reduce_input
 from ..io import atomic_output, write
 from ..io.read_files import ReadFiles, read_file_paths
 from ..limits import MAX_WORKERS
-from ..pipeline import Pipeline
-from ._common import check_paths, count, named_files
+from ._common import check_paths, count, input_config
 
 
 def add_parser(sub):
@@ -58,10 +57,9 @@ def run(args):
     if len(args.input) > 1 or args.workers is not None or args.scheduler is not None:
         return _batch(args)
     (source,) = args.input
-    pipeline = Pipeline.from_yaml(args.config)
+    pipeline, config_files = input_config(args.config)
     # the raw file, the config file and any file the config names (e.g. a dark)
-    check_paths([source, args.config, *named_files(pipeline.steps, Path(args.config).parent)],
-                [args.output])
+    check_paths([source, *config_files], [args.output])
     atomic_output(args.output, args.overwrite)  # refuse before reducing
     # a 4-D SCI: each integration fitted; their mean, with INTSLOPE/INTERR/INTDQ
     result, images = reduce_input(pipeline, source, progress=not args.quiet,
@@ -85,10 +83,9 @@ def _reads(args):
     if args.workers is not None or args.scheduler is not None:
         raise ConfigError("--reads reduces one ramp: --workers and --scheduler are for "
                           "several input files")
-    pipeline = Pipeline.from_yaml(args.config)
+    pipeline, config_files = input_config(args.config)
     paths = read_file_paths(args.reads)
-    check_paths([*paths, args.config, *named_files(pipeline.steps, Path(args.config).parent)],
-                [args.output])
+    check_paths([*paths, *config_files], [args.output])
     atomic_output(args.output, args.overwrite)  # refuse before reducing
     with ReadFiles(paths, input=pipeline.input_options, **pipeline.supplied()) as reader:
         # streamed in bands where the steps allow
@@ -103,11 +100,9 @@ def _batch(args):
 
     if not args.verbose:  # dask's INFO lines about workers and connections
         quiet_dask_logs()
-    pipeline = Pipeline.from_yaml(args.config)
+    pipeline, config_files = input_config(args.config)
     outputs = output_paths(args.input, args.output)  # refuses two inputs of one output name
-    check_paths([*args.input, args.config,
-                 *named_files(pipeline.steps, Path(args.config).parent)],
-                [*outputs, Path(args.output) / SUMMARY_NAME])
+    check_paths([*args.input, *config_files], [*outputs, Path(args.output) / SUMMARY_NAME])
     check_scheduler(args.scheduler, name="--scheduler")  # before any work
     res = run_batch(pipeline, args.input, args.output, scheduler=args.scheduler,
                     workers=args.workers, threads=args.threads, overwrite=args.overwrite,

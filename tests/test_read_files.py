@@ -12,6 +12,7 @@ import os
 
 import numpy as np
 import pytest
+from _configs import write_config
 from astropy.io import fits
 
 import spherex_reduce as sr
@@ -53,11 +54,7 @@ def _lstsq(ramps, tframe=2.0):
 
 
 def _config(path, steps, **readout):
-    def flow(d):
-        return "{" + ", ".join(f"{k}: {v}" for k, v in d.items()) + "}"
-    path.write_text(f"geometry: {flow(GEOMETRY)}\nreadout: {flow({**READOUT, **readout})}\n"
-                    "steps:\n" + "".join(f"  - {s}\n" for s in steps))
-    return path
+    return write_config(path, GEOMETRY, {**READOUT, **readout}, steps)
 
 
 def _write_reads(directory, ramps, header=None):

@@ -5,11 +5,11 @@
 `slope_covariance` its covariance between samples of a frame.
 """
 
-from .components import NoiseComponent, load_noise_table, noise_components
+from ..noise import NoiseComponent, load_noise_table, noise_components
 from .engine import NoiseEngine
 from .scene import Scene, load_scene
 from .simulator import SpherexSimulator, simulate, simulate_to_fits
-from .variance import expected_slope_variance, ls_weights, slope_covariance
+from ..noise import expected_slope_variance, ls_weights, slope_covariance
 
 __all__ = [
     "NoiseComponent",

@@ -67,7 +67,7 @@ from .streams import (
     _rngs,
 )
 from .synthesis import covariance_from_weights, psd_weights, synthesize
-from .variance import ls_weights
+from ..noise.variance import ls_weights
 
 __all__ = ["NoiseEngine"]
 

@@ -8,7 +8,7 @@ from ..config import GEOMETRY_PARAMETERS, READOUT_PARAMETERS, load_yaml, schedul
 from ..errors import ConfigError
 from ..limits import check_size
 from ..parameters import Parameter, validate_parameters
-from .components import NoiseComponent, noise_components
+from ..noise.components import NoiseComponent, noise_components
 from .synthesis import METHODS
 
 __all__ = ["MODES", "Scene", "load_scene"]

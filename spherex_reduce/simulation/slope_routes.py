@@ -25,7 +25,7 @@ import scipy.fft as sfft
 from .. import limits
 from .streams import _SCOPE, TIER_EXACT
 from .synthesis import rng_for
-from .variance import slope_covariance
+from ..noise.variance import slope_covariance
 
 __all__ = ["SlopeRoutes"]
 

@@ -39,9 +39,9 @@ import numpy as np
 
 from spherex_reduce import expected_slope_variance, simulate
 from spherex_reduce.analysis.spectrum import band_power
+from spherex_reduce.noise.variance import ls_weights
 from spherex_reduce.simulation import NoiseComponent, NoiseEngine, load_scene, simulate_to_fits
 from spherex_reduce.simulation import slope_routes as engine_module
-from spherex_reduce.noise.variance import ls_weights
 
 HERE = Path(__file__).resolve().parent
 

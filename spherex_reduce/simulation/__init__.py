@@ -5,11 +5,17 @@
 `slope_covariance` its covariance between samples of a frame.
 """
 
-from ..noise import NoiseComponent, load_noise_table, noise_components
+from ..noise import (
+    NoiseComponent,
+    expected_slope_variance,
+    load_noise_table,
+    ls_weights,
+    noise_components,
+    slope_covariance,
+)
 from .engine import NoiseEngine
 from .scene import Scene, load_scene
 from .simulator import SpherexSimulator, simulate, simulate_to_fits
-from ..noise import expected_slope_variance, ls_weights, slope_covariance
 
 __all__ = [
     "NoiseComponent",

@@ -51,6 +51,7 @@ import numpy as np
 import scipy.fft as sfft
 from scipy import sparse
 
+from ..noise.variance import ls_weights
 from .slope_routes import SlopeRoutes
 from .streams import (
     _PSD,
@@ -67,7 +68,6 @@ from .streams import (
     _rngs,
 )
 from .synthesis import covariance_from_weights, psd_weights, synthesize
-from ..noise.variance import ls_weights
 
 __all__ = ["NoiseEngine"]
 

@@ -7,8 +7,8 @@ import numpy as np
 from ..config import GEOMETRY_PARAMETERS, READOUT_PARAMETERS, load_yaml, schedule_from_config
 from ..errors import ConfigError
 from ..limits import check_size
-from ..parameters import Parameter, validate_parameters
 from ..noise.components import NoiseComponent, noise_components
+from ..parameters import Parameter, validate_parameters
 from .synthesis import METHODS
 
 __all__ = ["MODES", "Scene", "load_scene"]

@@ -23,9 +23,9 @@ import numpy as np
 import scipy.fft as sfft
 
 from .. import limits
+from ..noise.variance import slope_covariance
 from .streams import _SCOPE, TIER_EXACT
 from .synthesis import rng_for
-from ..noise.variance import slope_covariance
 
 __all__ = ["SlopeRoutes"]
 

@@ -37,6 +37,11 @@ class Block:
         Flags, same shape as ``data``.
     uncertainty : `numpy.ndarray` or None
         Standard deviations, same shape as ``data``.
+    read_phantom : `numpy.ndarray` or None
+        On the side block only: the phantom values of every read of every
+        frame ``(frames, n_reads, nchannels)``, in readout order whatever
+        ``order`` is (for a strategy that estimates from them); None once the
+        phantom is subtracted, and on the blocks of rows.
     owned : frozenset of str, or bool
         Names of the arrays (``'data'``, ``'phantom'``, ``'dq'``,
         ``'uncertainty'``) that belong to the executor (read from a file into
@@ -52,6 +57,7 @@ class Block:
     dq: np.ndarray | None = None
     uncertainty: np.ndarray | None = None
     owned: frozenset = frozenset()
+    read_phantom: np.ndarray | None = None
 
     def __post_init__(self):
         if isinstance(self.owned, bool):

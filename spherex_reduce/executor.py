@@ -83,20 +83,43 @@ def side_block(exposure):
     def take(values, idx):
         return None if values is None else np.take(_frames(values, ramp), idx, axis=-2)
 
+    every = read_phantom(exposure)
     if exposure.order == "readout":
         idx = side_indices(s)
         return Block(take(exposure.data.data, idx), idx, "readout",
                      phantom=take(exposure.phantom, idx), dq=take(exposure.dq, idx),
-                     uncertainty=take(unc, idx))
+                     uncertainty=take(unc, idx), read_phantom=every)
     ref = exposure.reference
     if ref is not None and np.shape(ref.data)[-2] > 0:
         return Block(_frames(ref.data, ramp), np.asarray(ref.reads), "readout",
-                     phantom=_frames(ref.phantom, ramp), dq=_frames(ref.dq, ramp))
+                     phantom=_frames(ref.phantom, ramp), dq=_frames(ref.dq, ramp),
+                     read_phantom=every)
     rows = s.geometry.reference_rows
     rows = rows[s.read_of_row()[rows] >= 0] if rows.size else rows
     return Block(take(exposure.data.data, rows), rows, "physical",
                  phantom=take(exposure.phantom, rows), dq=take(exposure.dq, rows),
-                 uncertainty=take(unc, rows))
+                 uncertainty=take(unc, rows), read_phantom=every)
+
+
+def read_phantom(exposure):
+    """The phantom values of every read of every frame ``(frames, n_reads, nchannels)``, in
+    readout order (None without phantom values).
+
+    In physical order a read takes its row's phantom value (the mean over the
+    row's reads for a row read more than once), and the reference reads kept
+    aside by ``unchop`` their own.
+    """
+    if exposure.phantom is None:
+        return None
+    ph = _frames(exposure.phantom, exposure.is_ramp)
+    if exposure.order == "readout":
+        return ph
+    s = exposure.schedule
+    out = np.take(ph, s.rows, axis=1)
+    ref = exposure.reference
+    if ref is not None and ref.phantom is not None and np.shape(ref.data)[-2] > 0:
+        out[:, np.asarray(ref.reads)] = _frames(ref.phantom, exposure.is_ramp)
+    return out
 
 
 class MemorySource:
@@ -171,7 +194,8 @@ class FileSource:
     def side(self):
         idx = side_indices(self.context.schedule)
         phantom = None if self._phantom is None else self._phantom[:, idx]
-        return Block(self._reads(idx), idx, "readout", phantom=phantom, owned={"data"})
+        return Block(self._reads(idx), idx, "readout", phantom=phantom, owned={"data"},
+                     read_phantom=self._phantom)
 
     def read(self, lo, hi):
         idx = np.arange(lo, hi)

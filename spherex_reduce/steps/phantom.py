@@ -69,14 +69,15 @@ class PhantomKernel(Kernel):
 
     def apply(self, coefficients, block):
         if block.phantom is None:
-            return block
+            return block.replace(read_phantom=None)
         dtype = np.result_type(block.data.dtype, block.phantom.dtype, np.float32)
         out = block.writable(dtype)
         f, n, ncols = out.shape
         nch = block.phantom.shape[-1]
         per_channel = out.reshape(f, n, nch, ncols // nch)
         np.subtract(per_channel, block.phantom[..., None], out=per_channel)
-        return block.replace(data=out, phantom=None, owned=block.owned | {"data"})
+        return block.replace(data=out, phantom=None, read_phantom=None,
+                             owned=block.owned | {"data"})
 
 
 class SubtractPhantomStep(Step):

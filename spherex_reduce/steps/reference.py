@@ -32,6 +32,10 @@ from .reference_strategies import (
     clipped_mean,
     reference_offsets,
 )
+from .wiener import WienerReference
+
+#: The built-in strategies of ``correct_reference``, by name.
+STRATEGIES = {**BUILTIN_STRATEGIES, WienerReference.name: WienerReference}
 
 __all__ = [
     "ALL",
@@ -66,22 +70,37 @@ class ReferenceKernel(Kernel):
         super().__init__(context)
         self.strategy = strategy
         self.needs_exposure = bool(getattr(strategy, "needs_exposure", False))
+        #: the strategy estimates from the phantom values, which it then consumes (a later
+        #: ``subtract_phantom`` is skipped, as after that step)
+        uses = getattr(strategy, "uses_phantom", None)
+        self.consumes_phantom = bool(uses(context)) if uses is not None else False
+
+    @property
+    def output(self):
+        return self.context.replace(phantom=False) if self.consumes_phantom else self.context
 
     def prepare(self, side, exposure=None):
         est = self.strategy.estimate(side, self.context, exposure)
-        return _plan(self.context.geometry, est, self.strategy.name)
+        return _plan(self.context, est, self.strategy.name)
 
     def apply(self, c, block):
         dtype = np.result_type(block.data.dtype, np.float32)
         out = block.writable(dtype)
         col = c["col"]
+        rows = _row_table(c, block.order)
         for f in range(out.shape[0]):
-            np.subtract(out[f], col[f].astype(dtype), out=out[f])
+            if rows is None:
+                np.subtract(out[f], col[f].astype(dtype), out=out[f])
+            else:  # an offset per read: the row's own
+                np.subtract(out[f], rows[f][block.index][:, c["colgroup"]], out=out[f],
+                            casting="unsafe")
         block = block.replace(data=out, owned=block.owned | {"data"})
         if c["columns_missing"] is not None:
             flags = np.where(c["columns_missing"][:, None, :], np.uint16(dq.NO_REFERENCE),
                              np.uint16(0))
             block = block.with_flags(flags)
+        if self.consumes_phantom:
+            block = block.replace(phantom=None, read_phantom=None)
         return block
 
     def apply_side(self, c, side):
@@ -89,24 +108,67 @@ class ReferenceKernel(Kernel):
             return self.apply(c, side)  # the side block is part of the pixels
         # the reference reads kept aside: minus the offsets in float64
         rd = side.data
-        data = (rd - c["col"][:, None, :]).astype(np.result_type(rd, np.float32))
-        return side.replace(data=data, owned=side.owned | {"data"})
+        rows = _row_table(c, "readout")
+        sub = c["col"][:, None, :] if rows is None else rows[:, side.index][..., c["colgroup"]]
+        data = (rd - sub).astype(np.result_type(rd, np.float32))
+        side = side.replace(data=data, owned=side.owned | {"data"})
+        if self.consumes_phantom:
+            side = side.replace(phantom=None, read_phantom=None)
+        return side
 
     def record(self, c):
         est = c["estimate"]
         table = offsets_table(c["offsets"], c["missing"], est.parity, est.n_used,
                               est.n_clipped, self.strategy.name, self.context.unit,
                               ramp=self.context.ramp)
-        return Record({"REFOFFS": table}, [
+        return Record({"REFOFFS": table, **est.tables}, [
             ("REFSTRAT", self.strategy.name, "reference correction strategy"),
-            ("NNOREF", int(c["missing"].sum()), "offsets without usable reference pixels")])
+            ("NNOREF", int(c["missing"].sum()), "offsets without usable reference pixels"),
+            *([("REFPHANT", True, "the strategy estimated from the phantom values")]
+              if self.consumes_phantom else [])])
 
 
-def _plan(geometry, est, name):
+def _plan(context, est, name):
+    geometry = context.geometry
     offsets, missing, col = _column_plan(geometry, est.offsets, name, est.acn)
     colmiss = missing_columns(geometry, missing, est.acn) if missing.any() else None
-    return {"estimate": est, "offsets": offsets, "missing": missing, "col": col,
+    plan = {"estimate": est, "offsets": offsets, "missing": missing, "col": col,
             "columns_missing": colmiss}
+    if est.rows is not None:
+        plan.update(_row_plan(context, est))
+    return plan
+
+
+def _row_plan(context, est):
+    """Per-read offsets ``(L, n_reads, groups)`` (0 where missing), the group of every
+    column, and the same per physical row (the mean over the row's reads) when the
+    blocks are in physical order."""
+    s = context.schedule
+    groups = _group_columns(s.geometry, est.acn)  # (nch, P, k)
+    colgroup = np.zeros(s.geometry.ncols, dtype=np.intp)
+    for ch in range(groups.shape[0]):
+        for p in range(groups.shape[1]):
+            cols = groups[ch, p][groups[ch, p] >= 0]
+            colgroup[cols] = ch * groups.shape[1] + p
+    rows = np.asarray(est.rows, dtype=np.float64)
+    rows = np.where(np.isfinite(rows), rows, 0.0).reshape(rows.shape[0], rows.shape[1], -1)
+    plan = {"rows_readout": rows, "colgroup": colgroup, "rows_physical": None}
+    if context.order == "physical":
+        nrows = s.geometry.nrows
+        counts = np.bincount(s.rows, minlength=nrows).astype(float)
+        phys = np.zeros((rows.shape[0], nrows, rows.shape[2]))
+        for f in range(rows.shape[0]):
+            np.add.at(phys[f], s.rows, rows[f])
+        phys /= np.maximum(counts, 1)[None, :, None]
+        plan["rows_physical"] = phys
+    return plan
+
+
+def _row_table(c, order):
+    """The per-row offsets for blocks in ``order``, or None (one offset per group)."""
+    if c.get("colgroup") is None:
+        return None
+    return c["rows_physical"] if order == "physical" else c["rows_readout"]
 
 
 class _Given:
@@ -268,7 +330,7 @@ class CorrectReferenceStep(Step):
 
     name, keyword = "correct_reference", "S_REFCOR"
     strategy_kind, default_strategy = "reference", "mean"
-    builtin_strategies = BUILTIN_STRATEGIES
+    builtin_strategies = STRATEGIES
 
     def kernel(self, context, strategy="mean", **params):
         cls = self.strategy(strategy)
@@ -290,4 +352,4 @@ def register_steps():
 
 @hookimpl
 def register_strategies():
-    return list(BUILTIN_STRATEGIES.values())
+    return list(STRATEGIES.values())

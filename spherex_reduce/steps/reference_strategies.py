@@ -11,7 +11,7 @@ all pixels of the channel, optionally excluding sources found with
 
 import warnings
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from astropy.utils.exceptions import AstropyUserWarning
@@ -70,6 +70,12 @@ class ReferenceOffsets:
     n_used: np.ndarray
     n_clipped: np.ndarray
     parity: list
+    #: Optional ``(L, n_reads, nchannels, P)``: an offset for every read of a frame (the
+    #: ``wiener`` strategy's drift estimate), subtracted row by row instead of ``offsets``;
+    #: NaN where the group has none.
+    rows: np.ndarray | None = None
+    #: More tables for the output (name -> `~astropy.table.Table`), e.g. ``REFDRIFT``.
+    tables: dict = field(default_factory=dict)
 
     @property
     def acn(self):

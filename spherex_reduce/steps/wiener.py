@@ -1,0 +1,377 @@
+"""The ``wiener`` reference strategy: each channel's drift at the time of every row read.
+
+The paper's reference correction subtracts one constant per channel (and
+frame).  Distributed reference reads sample the channel's readout drift all
+through the frame, and the schedule knows the time of every read, so the
+drift at the time of each row read can be estimated: the best linear unbiased
+estimate from that channel's reference reads given the noise model's PSDs
+(universal kriging, `~spherex_reduce.noise.read_covariance`).  Each frame's
+and channel's offset is an unknown constant (a flat prior), the rest of the
+drift has the PSDs' covariance.  With white noise only, the estimate is the
+mean of the reference pixels: the ``mean`` strategy.  The ``correct_reference``
+kernel subtracts the estimate row by row.
+"""
+
+import json
+import threading
+import warnings
+from pathlib import Path
+
+import numpy as np
+from astropy.table import Table
+
+from ..config import load_yaml
+from ..errors import ConfigError
+from ..noise import BUILTIN_TABLES, NoiseComponent, noise_components
+from ..noise.read_covariance import DOMAINS, ReadCovariance, kriging_weights
+from ..noise.section import section_components
+from ..parameters import Parameter
+from ..step import Strategy
+from .reference_strategies import (
+    ALL,
+    EVEN,
+    ODD,
+    NoReferenceError,
+    ReferenceOffsets,
+    _group_columns,
+    reference_pixels,
+)
+
+__all__ = ["WienerReference", "load_noise_model"]
+
+_MAD_TO_SIGMA = 1.4826
+#: Models kept for reuse (each holds its solved weights: tens of MB at full size).
+_MAX_MODELS = 4
+_MODELS = {}
+_MODELS_LOCK = threading.Lock()
+#: Sets of weights a model keeps (one per pattern of reads without usable pixels).
+_MAX_WEIGHTS = 8
+
+
+def load_noise_model(source, where="correct_reference.noise"):
+    """Noise components from a table name, a noise table or ``fit-noise`` result, or a scene.
+
+    Parameters
+    ----------
+    source : str or path
+        A built-in table (``'spherex-table2'``), an ECSV noise table (columns
+        ``name alpha beta gamma ...``), an ECSV written by ``spherex-reduce
+        fit-noise`` (its ``reference`` stream becomes a channel component seen
+        by the pixels, its ``phantom`` stream one seen by the phantom reads),
+        or a scene file (YAML; its ``noise:`` section).
+    where : str
+        Where the value came from, for error messages.
+
+    Returns
+    -------
+    list of `~spherex_reduce.noise.NoiseComponent`
+
+    Raises
+    ------
+    ConfigError
+        The source cannot be read or describes no noise.
+
+    Examples
+    --------
+    >>> from spherex_reduce.steps.wiener import load_noise_model
+    >>> [c.name for c in load_noise_model("spherex-table2")][:2]
+    ['video8', 'roic']
+    """
+    text = str(source)
+    if text.lower().endswith((".yaml", ".yml")):
+        config, _ = load_yaml(Path(text), "noise model")
+        comps = section_components(config.get("noise"))
+    elif text in BUILTIN_TABLES or not text.lower().endswith(".fits"):
+        comps = _table_components(text, where)
+    else:
+        raise ConfigError(f"{where}: expected a noise table name, an ECSV table or a scene "
+                          f"YAML file, got {text!r}")
+    if not comps or all(c.is_zero for c in comps):
+        raise ConfigError(f"{where}: {text} describes no noise (every coefficient is zero)")
+    return comps
+
+
+def _table_components(source, where):
+    if source not in BUILTIN_TABLES:
+        path = Path(source)
+        if not path.is_file():
+            raise ConfigError(f"{where}: {source!r} is neither a built-in table "
+                              f"({', '.join(BUILTIN_TABLES)}) nor an existing file")
+        try:
+            head = Table.read(path, format="ascii.ecsv")
+        except Exception as exc:  # many kinds for a file that is not ECSV
+            raise ConfigError(f"{where}: {source} is not a readable ECSV table "
+                              f"({type(exc).__name__})") from None
+        if "stream" in head.colnames:  # a fit-noise result
+            visibility = {"reference": "pixels", "phantom": "phantom"}
+            comps = []
+            for row in head:
+                if str(row["stream"]) in visibility:
+                    try:
+                        comps.append(NoiseComponent(
+                            str(row["stream"]), alpha=float(row["alpha"]),
+                            beta=float(row["beta"]), gamma=float(row["gamma"]),
+                            exponent=float(row["exponent"]),
+                            visibility=visibility[str(row["stream"])]))
+                    except (KeyError, ValueError) as exc:
+                        raise ConfigError(f"{where}: {source}: {exc}") from None
+            return comps
+    return list(noise_components(source).values())
+
+
+def _reads_of(side, schedule):
+    """Read index (within a frame) of every reference read of a side block."""
+    if side.order == "readout":
+        return np.asarray(side.index)[schedule.is_reference[side.index]]
+    return schedule.read_of_row()[np.asarray(side.index)]
+
+
+class WienerReference(Strategy):
+    """Each channel's drift at every row read, from its reference reads and the noise PSDs.
+
+    The optimal linear (kriging) estimate under an unknown constant per frame,
+    channel and parity group; subtracted row by row.  Streams like ``mean``.
+    """
+
+    kind, name = "reference", "wiener"
+    parameters = (
+        Parameter("noise", "spherex-table2", (str,), "noise model: a table name or ECSV "
+                  "path, a fit-noise result (ECSV) or a scene file (YAML, its noise: section)"),
+        Parameter("common", "auto", (str, list), "components one stream of which every "
+                  "channel sees: auto (scope common), none, or a list of names"),
+        Parameter("acn", False, (bool,), "estimate even and odd samples separately "
+                  "(alternating column noise)"),
+        Parameter("domain", "auto", (str,), "auto (frames for ramps, slopes for an image), "
+                  "frames or slopes (weights for the ramp-fitted slope, applied to each frame)",
+                  choices=("auto", *DOMAINS)),
+        Parameter("regularization", 1e-9, (float,), "added to the diagonal of the reference "
+                  "reads' covariance, relative to its mean", minimum=0, maximum=1),
+        Parameter("phantom", "auto", (str,), "auto: when the phantom values are not yet "
+                  "subtracted, estimate from them too (and consume them); ignore: never",
+                  choices=("auto", "ignore")),
+        Parameter("sigma", 5.0, (float,), "reference pixels beyond this many robust (MAD) "
+                  "standard deviations from the channel's median are not used",
+                  minimum=0, exclusive_minimum=True),
+    )
+
+    def __init__(self, noise="spherex-table2", common="auto", acn=False, domain="auto",
+                 regularization=1e-9, phantom="auto", sigma=5.0):
+        self.noise, self.acn, self.domain, self.phantom = noise, bool(acn), domain, phantom
+        self.regularization, self.sigma = float(regularization), float(sigma)
+        self.components = load_noise_model(noise)
+        names = [c.name for c in self.components]
+        if common == "auto":
+            self.common = frozenset(c.name for c in self.components if c.scope == "common")
+        elif common == "none":
+            self.common = frozenset()
+        elif isinstance(common, list) and all(isinstance(n, str) for n in common):
+            unknown = sorted(set(common) - set(names))
+            if unknown:
+                raise ConfigError(f"correct_reference.common: {unknown} not in the noise model "
+                                  f"({', '.join(names)})")
+            self.common = frozenset(common)
+        else:
+            raise ConfigError("correct_reference.common: expected auto, none or a list of "
+                              f"component names, got {common!r}")
+
+    def uses_phantom(self, context):
+        """Whether the phantom values of every read are observations (and get consumed)."""
+        return (self.phantom == "auto" and bool(context.phantom)
+                and context.schedule.phantom_reads > 0)
+
+    # -- the model ----------------------------------------------------------------------
+    def _model(self, schedule, domain, offsets):
+        """The model of one parity group; shared by every strategy of this process with the
+        same noise model and schedule (its weights are solved once)."""
+        key = (repr([c.to_dict() for c in self.components]), tuple(sorted(self.common)),
+               json.dumps([schedule.geometry.to_dict(), schedule.to_dict()], sort_keys=True,
+                          default=str), domain, offsets.tobytes(), self.regularization)
+        with _MODELS_LOCK:
+            model = _MODELS.pop(key, None)
+            if model is None:
+                model = _Model(ReadCovariance(schedule, self.components, offsets, domain,
+                                              common=self.common))
+            _MODELS[key] = model  # most recently used last
+            while len(_MODELS) > _MAX_MODELS:
+                _MODELS.pop(next(iter(_MODELS)))
+        return model
+
+    # -- the estimate -------------------------------------------------------------------
+    def estimate(self, side, context, exposure=None):
+        s = context.schedule
+        g = s.geometry
+        values = reference_pixels(side, s)  # (L, k, ncols), NaN: unusable
+        reads = _reads_of(side, s)
+        domain = self.domain if self.domain != "auto" else (
+            "frames" if context.ramp else "slopes")
+        phantom = None
+        if self.uses_phantom(context) and side.read_phantom is not None:
+            phantom = np.asarray(side.read_phantom, dtype=np.float64)
+            if not np.isfinite(phantom).all():
+                raise NoReferenceError("correct_reference (wiener): the phantom values are "
+                                       "not all finite; subtract_phantom first, or phantom: "
+                                       "ignore")
+        subtracted = bool(s.phantom_reads) and not context.phantom
+        kind = "subtracted" if subtracted and phantom is None else "pixels"
+        groups = _group_columns(g, self.acn)  # (nch, P, w), -1 pads
+        nch, npar = groups.shape[:2]
+        obs, n, clipped = self._reference_values(values, groups)
+        L, n_reads = values.shape[0], s.n_reads
+        rows = np.full((L, n_reads, nch, npar), np.nan)
+        predicted = np.full((npar, n_reads), np.nan)
+        mean_predicted = np.full((npar, n_reads), np.nan)
+        for p in range(npar):
+            cols = groups[0, p][groups[0, p] >= 0]
+            model = self._model(s, domain, g.column_offsets()[cols])
+            for f in range(L):
+                ph = None if phantom is None else phantom[f]
+                var, mvar = model.frame(self, kind, reads, obs[f, :, :, p], n[f, :, :, p],
+                                        cols.size, ph, rows[f, :, :, p])
+                if f == 0:
+                    predicted[p], mean_predicted[p] = var, mvar
+        active = s.active_read_indices
+        offsets = np.nanmean(rows[:, active], axis=1) if active.size else np.nanmean(rows, 1)
+        parity = [EVEN, ODD] if self.acn else [ALL]
+        drift = self._drift_table(rows, parity, context, domain, predicted, mean_predicted,
+                                  active, phantom is not None)
+        return ReferenceOffsets(offsets, n.sum(axis=1), clipped, parity, rows=rows,
+                                tables={"REFDRIFT": drift})
+
+    def _reference_values(self, values, groups):
+        """Each reference read's value per channel and group ``(L, k, nch, P)`` (the mean of
+        its usable pixels, outliers beyond ``sigma`` robust deviations left out), the
+        pixels averaged, and the pixels left out per ``(L, nch, P)``."""
+        v = values[:, :, np.maximum(groups, 0)]  # (L, k, nch, P, w)
+        v[:, :, groups < 0] = np.nan
+        usable = np.isfinite(v)
+        with warnings.catch_warnings():  # a group without usable pixels: NaN, flagged later
+            warnings.simplefilter("ignore", RuntimeWarning)
+            med = np.nanmedian(v, axis=(1, 4), keepdims=True)
+            mad = np.nanmedian(np.abs(v - med), axis=(1, 4), keepdims=True)
+        with np.errstate(invalid="ignore"):
+            clipped = usable & (np.abs(v - med) > self.sigma * _MAD_TO_SIGMA * mad) & (mad > 0)
+        v[clipped] = np.nan
+        n = np.isfinite(v).sum(axis=-1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            obs = np.where(n > 0, np.nansum(v, axis=-1) / np.maximum(n, 1), np.nan)
+        return obs, n, clipped.sum(axis=(1, 4))
+
+    def _drift_table(self, rows, parity, context, domain, predicted, mean_predicted, active,
+                     used_phantom):
+        L, n_reads, nch, npar = rows.shape
+        fr, ch, pa = np.meshgrid(np.arange(L), np.arange(nch), np.arange(npar), indexing="ij")
+        cols = {}
+        if context.ramp:
+            cols["frame"] = fr.ravel()
+        cols["channel"] = ch.ravel()
+        cols["parity"] = np.asarray(parity)[pa.ravel()]
+        cols["drift"] = rows.transpose(0, 2, 3, 1).reshape(-1, n_reads).astype(np.float32)
+
+        def rms(v):
+            v = v[:, active] if active.size else v
+            return float(np.sqrt(np.nanmean(v))) if np.isfinite(v).any() else float("nan")
+
+        unit = str(context.unit or "")
+        table = Table(cols, meta={
+            "strategy": self.name, "bunit": unit, "domain": domain,
+            "noise": str(self.noise), "common": sorted(self.common),
+            "phantom_used": bool(used_phantom),
+            "predicted_rms_error": rms(predicted),
+            "mean_predicted_rms_error": rms(mean_predicted)})
+        table["drift"].description = (f"drift subtracted from each read of the frame, in read "
+                                      f"order ({unit or 'data unit'})")
+        return table
+
+
+class _Model:
+    """The covariance of one parity group's read values, its lag tables and the weights
+    already solved (per set of reference reads and pixel counts)."""
+
+    def __init__(self, cov):
+        self.cov = cov
+        self.n_reads = cov.schedule.n_reads
+        self._lags, self._weights = {}, {}
+
+    def lags(self, kind_a, kind_b, scope):
+        """Covariance of values ``m`` reads apart, indexed by ``m + n_reads - 1``."""
+        key = (kind_a, kind_b)
+        if key not in self._lags:
+            m = np.arange(-(self.n_reads - 1), self.n_reads)
+            self._lags[key] = self.cov.colored(m, kind_a, kind_b)
+        return self._lags[key][scope]
+
+    def _system(self, kind, reads, n_used, n_group, scope, phantom):
+        """Covariances (observations, observations-targets, targets) for one scope."""
+        cov, off = self.cov, self.n_reads - 1
+        t = np.arange(self.n_reads)
+        white_t = cov.white(kind, n_group, scope)
+        lag = self.lags(kind, kind, scope)
+        k_oo = lag[reads[None, :] - reads[:, None] + off] + np.diag(
+            cov.white(kind, n_used, scope))
+        k_ot = lag[t[None, :] - reads[:, None] + off] + (t[None, :] == reads[:, None]) * white_t
+        k_tt = np.full(self.n_reads, lag[off] + white_t)
+        if not phantom:
+            return k_oo, k_ot, k_tt
+        hh = self.lags("phantom", "phantom", scope)[t[None, :] - t[:, None] + off]
+        hh[t, t] += cov.white("phantom", n_group, scope)
+        rh = self.lags(kind, "phantom", scope)[t[None, :] - reads[:, None] + off]
+        ht = self.lags("phantom", kind, scope)[t[None, :] - t[:, None] + off]
+        return np.block([[k_oo, rh], [rh.T, hh]]), np.vstack([k_ot, ht]), k_tt
+
+    def weights(self, strategy, kind, reads, n_used, n_group, nch, joint, phantom):
+        """Weights ``(T, k [+ n_reads])`` for channel deviations and for the channel mean
+        (equal without ``joint``), the predicted error variance of one channel's estimate
+        and that of the pixel mean (the ``mean`` strategy) under the same model."""
+        key = (kind, reads.tobytes(), n_used.tobytes(), nch, joint, phantom)
+        if key in self._weights:
+            return self._weights[key]
+        ch = self._system(kind, reads, n_used, n_group, "channel", phantom)
+        com = self._system(kind, reads, n_used, n_group, "common", phantom)
+        constants = np.r_[np.zeros(reads.size, int), np.ones(self.n_reads * phantom, int)]
+        reg = strategy.regularization
+        total = [a + b for a, b in zip(ch, com, strict=True)]
+        if joint and nch > 1:
+            w1, v1 = kriging_weights(*ch, reg, constants)
+            w0, v0 = kriging_weights(*(a + nch * b for a, b in zip(ch, com, strict=True)), reg,
+                                     constants)
+            out = (w1, w0, v0 / nch + (1 - 1 / nch) * v1)
+        else:
+            w, v = kriging_weights(*total, reg, constants)
+            out = (w, w, v)
+        mean_kind = "subtracted" if phantom else kind
+        m_oo, m_ot, m_tt = [a + b for a, b in zip(
+            self._system(mean_kind, reads, n_used, n_group, "channel", False),
+            self._system(mean_kind, reads, n_used, n_group, "common", False), strict=True)]
+        mean = n_used / n_used.sum()
+        mean_var = m_tt - 2 * mean @ m_ot + mean @ m_oo @ mean
+        if len(self._weights) >= _MAX_WEIGHTS:
+            self._weights.pop(next(iter(self._weights)))
+        self._weights[key] = (*out, mean_var)
+        return self._weights[key]
+
+    def frame(self, strategy, kind, reads, y, n, n_group, phantom, out):
+        """Estimates ``out (n_reads, nch)`` of one frame from the reference reads' values
+        ``y (k, nch)`` averaging ``n (k, nch)`` pixels, and the phantom values
+        ``(n_reads, nch)`` (or None); returns the predicted error variances."""
+        nch = y.shape[1]
+        valid = n > 0
+        use = phantom is not None
+        if valid.all():  # every read has pixels in every channel: the weights of full reads
+            w1, w0, var, mvar = self.weights(strategy, kind, reads,
+                                             np.full(reads.size, float(n_group)), n_group, nch,
+                                             True, use)
+            obs = y if phantom is None else np.vstack([y, phantom])
+            mean = obs.mean(axis=1, keepdims=True)
+            out[:] = w1 @ (obs - mean) + w0 @ mean
+            return var, mvar
+        var = mvar = np.full(self.n_reads, np.nan)
+        for c in range(nch):  # channels differ: each from its own reads
+            ok = valid[:, c]
+            if not ok.any():
+                continue  # no usable reference pixel: NaN, flagged by the kernel
+            w, _, var, mvar = self.weights(strategy, kind, reads[ok],
+                                           np.full(int(ok.sum()), float(n_group)), n_group, nch,
+                                           False, use)
+            obs = y[ok, c] if phantom is None else np.r_[y[ok, c], phantom[:, c]]
+            out[:, c] = w @ obs
+        return var, mvar

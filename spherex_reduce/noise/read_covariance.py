@@ -20,15 +20,18 @@ the noise is white, the weights are equal: the estimate is the mean.
 
 import numpy as np
 
-from .components import _d_inv_f, _d_power
+from .components import _cin, _d_inv_f, _d_power, _g_power
 from .variance import ls_weights
 
 __all__ = ["DOMAINS", "KINDS", "ReadCovariance", "kriging_weights"]
 
 #: ``frames``: the stream of each frame; ``slopes``: the ramp-fitted slope image.
 DOMAINS = ("frames", "slopes")
-#: Reads apart beyond which the sum over a read's samples uses a quadrature rule.
+#: Reads apart up to which the sum over a read's samples is exact (beyond: a quadrature rule).
 _EXACT_READS = 3
+#: Lags (samples) from which the structure functions take their asymptotic form, whose
+#: smooth and alternating parts the rule integrates separately (``pi * lag >= 40``).
+_ASYMPTOTIC = 16
 #: Nodes of that rule (Chebyshev): exact for polynomials of degree < this in the offset.
 _NODES = 16
 
@@ -160,31 +163,61 @@ class ReadCovariance:
                     _functional(comp, kind_b, self.pixel_offsets, c))
                 if d.size:
                     half = float(self.schedule.row_samples)  # offsets within a read differ
-                    parts.append((comp, self._scope(comp), d, h,   # by less than this
-                                  _chebyshev_weights(d, h, half)))
+                    alt = np.where(d % 2 == 0, h, -h)        # by less than this
+                    parts.append((comp, self._scope(comp), d, h,
+                                  (_chebyshev_weights(d, h, half),
+                                   _chebyshev_weights(d, alt, half))))
             self._parts[key] = parts
         return self._parts[key]
 
     def _scope(self, comp):
         return "common" if comp.name in self.common else "channel"
 
-    def _k(self, x, basis):
-        """The (generalised) covariance of the stream, or of its slopes, at lags ``x``."""
-        fs = self.schedule.geometry.pixel_rate
-
-        def d(lag):
-            lag = np.abs(lag)
-            return _d_inv_f(lag) if basis == "beta" else _d_power(lag, fs, basis)
-
-        if self._frame_weights is None:
-            return -0.5 * d(x)
+    def _shifts(self):
+        """Frame weights ``a_j`` and shifts ``j F`` (samples) of the slopes domain."""
         a = self._frame_weights
         n = (a.size + 1) // 2
-        shifts = np.arange(-(n - 1), n) * float(self.schedule.frame_samples)
+        return a, np.arange(-(n - 1), n) * self.schedule.frame_samples
+
+    def _k(self, x, basis, parity=None):
+        """The (generalised) covariance of the stream, or of its slopes, at lags ``x``.
+
+        With ``parity`` (+1 or -1), the structure functions' asymptotic form with
+        ``cos(pi lag)`` set to it (their values at integer lags of that parity,
+        continued smoothly): for lags beyond `_ASYMPTOTIC` only.
+        """
+        fs = self.schedule.geometry.pixel_rate
+
+        def d(lag, sign):
+            lag = np.abs(lag)
+            if sign is None:
+                return _d_inv_f(lag) if basis == "beta" else _d_power(lag, fs, basis)
+            z = np.pi * lag
+            cos = np.full(lag.shape, float(sign))
+            if basis == "beta":
+                return 2 * _cin(z, cos)
+            z_e1 = z ** (basis - 1)
+            return 2 * (2 / fs) ** (basis - 1) * z_e1 * _g_power(z.ravel(), basis, cos.ravel(),
+                                                                z_e1.ravel()).reshape(z.shape)
+
+        if self._frame_weights is None:
+            return -0.5 * d(x, parity)
+        a, shifts = self._shifts()
         out = np.zeros(np.shape(x))
         for aj, sj in zip(a, shifts, strict=True):
-            out += aj * d(x + sj)
+            # (-1)^(x + jF) = (-1)^x (-1)^(jF): the parity of the shifted lag
+            sign = None if parity is None else parity * (1 - 2 * (int(sj) % 2))
+            out += aj * d(x + float(sj), sign)
         return -0.5 * out
+
+    def _near(self, m):
+        """Which reads-apart ``m`` need the exact sum: a read's samples reach lags (of any
+        frame shift) where the structure functions are not yet asymptotic."""
+        rs = self.schedule.row_samples
+        near = np.abs(m) <= _EXACT_READS
+        shifts = np.zeros(1, np.int64) if self._frame_weights is None else self._shifts()[1]
+        closest = np.min(np.abs(np.abs(m)[:, None] * rs + shifts[None, :]), axis=1)
+        return near | (closest < rs + _ASYMPTOTIC)
 
     def colored(self, reads_apart, kind_a="subtracted", kind_b=None):
         """Covariance of the correlated (``1/f``, power-law) terms of two read values.
@@ -211,9 +244,10 @@ class ReadCovariance:
             return out
         rs = float(self.schedule.row_samples)
         uniq, inverse = np.unique(m, return_inverse=True)
-        near = np.abs(uniq) <= _EXACT_READS
+        near = self._near(uniq)
+        sign = np.where((uniq * self.schedule.row_samples) % 2 == 0, 1.0, -1.0)[~near]
         cache = {}
-        for comp, scope, d, h, weights in parts:
+        for comp, scope, d, h, (smooth, alternating) in parts:
             value = np.zeros(uniq.size)
             for basis, coef in (("beta", comp.beta), (comp.exponent, comp.gamma)):
                 if not coef:
@@ -222,25 +256,35 @@ class ReadCovariance:
                 if key not in cache:
                     k = np.empty(uniq.size)
                     k[near] = self._k(uniq[near, None] * rs + d[None, :], basis) @ h
-                    k[~near] = self._far(basis, uniq[~near]) @ weights
+                    s_far, a_far = self._far(basis, uniq[~near])
+                    k[~near] = s_far @ smooth + sign * (a_far @ alternating)
                     cache[key] = k
                 value += coef * cache[key]
             out[scope] += value[inverse.reshape(m.shape)]
         return out
 
     def _far(self, basis, m):
-        """``K(m R + node)`` at the Chebyshev nodes, ``(len(m), nodes)``: computed once per
-        basis for ``m >= 0`` (``K`` is even and the nodes symmetric)."""
+        """The smooth and the alternating part of ``K(m R + node)`` at the Chebyshev nodes
+        (at integer lags ``K = smooth + (-1)^lag alternating``), each ``(len(m), nodes)``:
+        computed once per basis for ``m >= 0`` (``K`` is even and the nodes symmetric)."""
         rs = float(self.schedule.row_samples)
-        table = self._far_tables.get(basis)
+        tables = self._far_tables.get(basis)
         top = int(np.max(np.abs(m))) if m.size else 0
-        if table is None or table.shape[0] <= top:
+        if tables is None or tables[0].shape[0] <= top:
             reach = np.arange(max(top, self.schedule.n_reads) + 1)
-            table = self._k(reach[:, None] * rs + _chebyshev_nodes(rs)[None, :], basis)
-            self._far_tables[basis] = table
-        out = table[np.abs(m)]
-        neg = m < 0
-        out[neg] = out[neg][:, ::-1]  # K(-|m| R + x) = K(|m| R - x)
+            x = reach[:, None] * rs + _chebyshev_nodes(rs)[None, :]
+            far = ~self._near(reach)
+            plus, minus = np.zeros(x.shape), np.zeros(x.shape)
+            plus[far] = self._k(x[far], basis, +1)
+            minus[far] = self._k(x[far], basis, -1)
+            tables = ((plus + minus) / 2, (plus - minus) / 2)
+            self._far_tables[basis] = tables
+        out = []
+        for table in tables:
+            t = table[np.abs(m)]
+            neg = m < 0
+            t[neg] = t[neg][:, ::-1]  # K(-|m| R + x) = K(|m| R - x)
+            out.append(t)
         return out
 
 

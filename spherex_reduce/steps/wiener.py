@@ -196,6 +196,55 @@ class WienerReference(Strategy):
                 _MODELS.pop(next(iter(_MODELS)))
         return model
 
+    def predicted_variance(self, context, reads=None, parity=0):
+        """Predicted error variance of each read's estimate, and of the ``mean`` strategy's.
+
+        For full reference reads (no pixel left out) in every channel, under
+        the strategy's noise model: what the estimate of one channel's value
+        at each read misses, ``E[(t̂ - t)^2]``, where ``t`` is the mean of
+        the group's pixels of that read (minus its phantom value when the
+        phantom is subtracted).
+
+        Parameters
+        ----------
+        context : `~spherex_reduce.block.Context`
+            The schedule, whether the input is ramps (``domain: auto``) and
+            whether it carries phantom values (used with ``phantom: auto``).
+        reads : array_like of int, optional
+            The reference reads (default: the schedule's).
+        parity : int
+            The group (0, or 1 for odd samples with ``acn``).
+
+        Returns
+        -------
+        wiener, mean : `numpy.ndarray`, shape ``(n_reads,)``
+            In the data unit squared (the slope unit for ``domain: slopes``).
+
+        Examples
+        --------
+        >>> from spherex_reduce import ReadoutSchedule
+        >>> from spherex_reduce.block import Context
+        >>> from spherex_reduce.steps.wiener import WienerReference
+        >>> s = ReadoutSchedule()   # the paper's case, slopes with phantom values
+        >>> w, m = WienerReference().predicted_variance(Context(s, "readout", False,
+        ...                                                     phantom=True))
+        >>> a = s.active_read_indices
+        >>> bool(w[a].mean() < 0.8 * m[a].mean())
+        True
+        """
+        s = context.schedule
+        reads = s.reference_read_indices if reads is None else np.asarray(reads, dtype=int)
+        groups = _group_columns(s.geometry, self.acn)
+        cols = groups[0, parity][groups[0, parity] >= 0]
+        domain = self.domain if self.domain != "auto" else (
+            "frames" if context.ramp else "slopes")
+        use = self.uses_phantom(context)
+        kind = "pixels" if use or not (s.phantom_reads and not context.phantom) else "subtracted"
+        model = self._model(s, domain, s.geometry.column_offsets()[cols])
+        _, _, var, mvar = model.weights(self, kind, reads, np.full(reads.size, float(cols.size)),
+                                        cols.size, s.geometry.nchannels, True, use)
+        return var, mvar
+
     # -- the estimate -------------------------------------------------------------------
     def estimate(self, side, context, exposure=None):
         s = context.schedule

@@ -19,6 +19,7 @@ used by the demo, the figures and the sweeps.
 from ..source_mask import source_mask
 from .case import CaseResult, SpectrumMeasure, as_pipeline, run_case
 from .photon_noise import photon_noise_label, photon_noise_power, slope_variance_factor
+from .sky import inject_sky, light_sensitive, sky_field
 from .spectrum import (
     BAND_KMAX,
     BAND_KMIN,
@@ -54,7 +55,9 @@ __all__ = [
     "fft_magnitude",
     "fit_noise_model",
     "fit_raw_noise",
+    "inject_sky",
     "k_from_theta",
+    "light_sensitive",
     "model_basis",
     "phantom_timestream",
     "photon_noise_label",
@@ -62,6 +65,7 @@ __all__ = [
     "power_spectrum",
     "reference_timestream",
     "run_case",
+    "sky_field",
     "slope_variance_factor",
     "source_mask",
     "temporal_psd",

@@ -293,7 +293,7 @@ def cross_spectrum(image, other, pixel_scale=SPHEREX_PIXEL_SCALE, mask=None, bin
 
     Parameters
     ----------
-    image, other : `~astropy.nddata.CCDData`, `~astropy.nddata.NDData`, `~astropy.units.Quantity` or array
+    image, other : CCDData, NDData, Quantity or array
         The two images (their masks are or-ed).  Not changed.
     pixel_scale, mask, bins, exclude_horizontal
         As `power_spectrum`.

@@ -416,32 +416,49 @@ def summarize(table):
 def format_summary(table, reference=None):
     """The summary as a text table: one line per pipeline, mean ± standard error.
 
-    Columns: noise band power, excess over the white floor, the excess
+    Columns: noise band power, the white floor, the excess over it, the excess
     relative to ``reference``'s (a pipeline name; default the first), sky
-    transfer and seconds per exposure (reduction only); then the floor and
-    the photon-noise level.
+    transfer and seconds per exposure (the reduction alone); then a line with
+    the floor and the photon-noise level and their unit.
+
+    Examples
+    --------
+    >>> from astropy.table import Table
+    >>> from spherex_reduce.analysis.compare import format_summary
+    >>> t = Table({"pipeline": ["mean", "mean", "wiener", "wiener"],
+    ...            "noise_band_power": [3.0, 3.2, 2.2, 2.4], "excess": [2.0, 2.2, 1.2, 1.4],
+    ...            "sky_transfer": [1.0, 1.0, 0.99, 0.99], "seconds": [1.0, 1.0, 2.0, 2.0]},
+    ...           meta={"floor": 1.0, "photon_noise": 10.0, "unit": "(e/s)2 pix2",
+    ...                 "photon_noise_label": "1 e/s"})
+    >>> print(format_summary(t))  # doctest: +NORMALIZE_WHITESPACE
+    pipeline   noise band power    floor    excess   excess/mean   sky transfer  s/exposure
+    mean    3.100e+00 ± 1.0e-01  1.000e+00  2.100e+00 ± 1.0e-01   1.000  1.000 ± 0.000   1.00
+    wiener  2.300e+00 ± 1.0e-01  1.000e+00  1.300e+00 ± 1.0e-01   0.619  0.990 ± 0.000   2.00
+    white floor 1.000e+00 (e/s)2 pix2; photon noise 1.000e+01 (e/s)2 pix2 (1 e/s)
     """
-    summary = table.meta.get("summary") or summarize(table)
-    names = list(summary)
+    summary = summarize(table)
+    names = list(summary)  # the table's order (a mapping read back from ECSV is sorted)
     reference = names[0] if reference is None or reference not in summary else reference
     ref_excess = summary[reference]["excess"]["mean"]
-    unit = table.meta.get("unit", "")
+    floor, unit = table.meta["floor"], table.meta.get("unit", "")
     width = max(8, *(len(n) for n in names))
 
-    def pm(entry, fmt):
+    def pm(entry, fmt, efmt):
         sem = entry["sem"]
-        return f"{entry['mean']:{fmt}} ± {sem:{fmt}}" if math.isfinite(sem) else \
+        return f"{entry['mean']:{fmt}} ± {sem:{efmt}}" if math.isfinite(sem) else \
             f"{entry['mean']:{fmt}}"
 
-    lines = [f"{'pipeline':<{width}}  {'noise band power':>22}  {'excess':>22}  "
-             f"{'excess/' + reference[:10]:>18}  {'sky transfer':>16}  {'s/exposure':>10}"]
+    rel = f"excess/{reference}"
+    lines = [f"{'pipeline':<{width}}  {'noise band power':>19}  {'floor':>9}  {'excess':>19}  "
+             f"{rel:>{max(len(rel), 6)}}  {'sky transfer':>13}  {'s/exposure':>10}"]
     for name in names:
         s = summary[name]
-        rel = s["excess"]["mean"] / ref_excess if ref_excess else math.nan
-        lines.append(f"{name:<{width}}  {pm(s['noise_band_power'], '.3e'):>22}  "
-                     f"{pm(s['excess'], '.3e'):>22}  {rel:>18.3f}  "
-                     f"{pm(s['sky_transfer'], '.3f'):>16}  {s['seconds']['mean']:>10.2f}")
-    lines.append(f"white floor {table.meta['floor']:.3e} {unit}; photon noise "
+        ratio = s["excess"]["mean"] / ref_excess if ref_excess else math.nan
+        lines.append(f"{name:<{width}}  {pm(s['noise_band_power'], '.3e', '.1e'):>19}  "
+                     f"{floor:>9.3e}  {pm(s['excess'], '.3e', '.1e'):>19}  "
+                     f"{ratio:>{max(len(rel), 6)}.3f}  {pm(s['sky_transfer'], '.3f', '.3f'):>13}"
+                     f"  {s['seconds']['mean']:>10.2f}")
+    lines.append(f"white floor {floor:.3e} {unit}; photon noise "
                  f"{table.meta['photon_noise']:.3e} {unit} ({table.meta['photon_noise_label']})")
     return "\n".join(lines)
 

@@ -252,12 +252,13 @@ def plot_comparison(table, title="", pixel_scale=SPHEREX_PIXEL_SCALE):
         left.axhline(meta["floor"], color="0.3", ls=":", lw=1.2,
                      label="white floor (noise model's α terms)")
     left.legend(fontsize=8, loc="upper right")
-    left.set_title("residual noise: reduced − injected sky", fontsize=10)
+    left.set_title("residual: reduced − injected sky (noise left + sky lost)", fontsize=10)
     for i, (name, (k, t, err)) in enumerate(transfers.items()):
         good = np.isfinite(t)
         right.errorbar(k[good], t[good], yerr=err[good], fmt="o-", ms=3, lw=1, capsize=2,
                        color=f"C{i}", label=name)
-    right.axvspan(*band, color="tab:red", alpha=0.15, label="band")
+    right.axvspan(*band, color="tab:red", alpha=0.15,
+                  label="band " + band_label(band[0], band[1], pixel_scale))
     right.axhline(1.0, color="0.3", ls="--", lw=1)
     right.axhline(0.0, color="0.3", ls="-", lw=0.8)
     right.set_xscale("log")
@@ -266,7 +267,7 @@ def plot_comparison(table, title="", pixel_scale=SPHEREX_PIXEL_SCALE):
     _theta_axis(right, pixel_scale)
     right.grid(True, which="both", alpha=0.2)
     right.legend(fontsize=8, loc="lower right")
-    right.set_title("sky kept: 1 = kept, 0 = removed", fontsize=10)
+    right.set_title("sky kept at each scale: 1 = all kept, 0 = all removed", fontsize=10)
     sky = (meta.get("config") or {}).get("sky") or {}
     n_real = len(table) // max(len(names), 1)
     fig.suptitle(title or f"{len(names)} pipelines, {n_real} realisation(s), sky rms "

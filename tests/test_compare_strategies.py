@@ -243,6 +243,10 @@ def test_floor_equals_the_band_power_of_white_pixel_noise():
     ({"scene": {"readout": {"skip": -1}}}, ["scene", "skip"]),
     ({"measure": {"kmin": 1, "kmax": 0.5}}, ["measure"]),
     ({"measure": {"mask_sources": True}}, ["measure.mask_sources"]),
+    ({"measure": {"bins": 0}}, ["measure.bins"]),
+    ({"measure": {"bins": [0.5, 0.2]}}, ["measure.bins"]),
+    ({"measure": {"kmin": 0.01, "kmax": 0.02}}, ["measure", "no Fourier mode"]),
+    ({"measure": {"exclude_horizontal": "yes"}}, ["measure.exclude_horizontal"]),
 ])
 def test_cli_bad_comparison_is_one_line_exit_2_no_output(tmp_path, capsys, change, words):
     cfg = dict(_comparison(["spherex-default"]), **change)
@@ -280,3 +284,21 @@ def test_load_comparison_defaults_and_scene_mode():
     assert c.measure == {"kmin": 0.03, "kmax": 0.13, "bins": 30, "exclude_horizontal": False}
     with pytest.raises(ConfigError, match="pipelines"):
         load_comparison({"pipelines": []})
+
+
+def test_benchmark_quick_smoke(tmp_path, capsys):
+    """benchmarks/bench_compare.py --quick: every available pipeline, table and figure."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).parents[1] / "benchmarks" / "bench_compare.py"
+    spec = importlib.util.spec_from_file_location("bench_compare", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    assert bench.main(["-o", str(tmp_path), "--quick", "--scheduler", "serial"]) == 0
+    text = capsys.readouterr().out
+    t = Table.read(tmp_path / "compare.ecsv")
+    names = list(dict.fromkeys(t["pipeline"]))
+    assert names[:3] == ["spherex-default", "acn", "median"] and len(t) == 2 * len(names)
+    assert all(name in text for name in names) and "excess/spherex-default" in text
+    assert (tmp_path / "compare.png").stat().st_size > 0

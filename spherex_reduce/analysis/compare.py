@@ -51,7 +51,7 @@ from .photon_noise import photon_noise_label, photon_noise_power
 from .plots import plot_comparison
 from .scheduler import map_on_dask
 from .sky import inject_sky, light_sensitive, sky_field
-from .spectrum import cross_spectrum, power_spectrum
+from .spectrum import EmptyBandError, band_power, cross_spectrum, power_spectrum
 from .sweep import (
     measure_section,
     pipeline_section,
@@ -79,6 +79,8 @@ _MEASURE_KEYS = ("kmin", "kmax", "bins", "exclude_horizontal")
 INDEX_RANGE = (-6.0, 4.0)
 #: Most pipelines one comparison may name.
 MAX_PIPELINES = 100
+#: Most k bins of the measure.
+MAX_BINS = 10_000
 #: Third word of the sky's SeedSequence, so that a sky seed equal to the noise seed
 #: still gives a sky independent of the noise.
 SKY_TAG = 0x736B79
@@ -207,7 +209,29 @@ def load_comparison(source):
     if not 0 <= measure["kmin"] < measure["kmax"]:
         raise ConfigError(f"{label}: measure: needs 0 <= kmin < kmax, got "
                           f"{measure['kmin']:g}, {measure['kmax']:g}")
+    _check_bins(measure["bins"], label)
+    if not isinstance(measure["exclude_horizontal"], bool):
+        raise ConfigError(f"{label}: measure.exclude_horizontal: expected true or false, got "
+                          f"{measure['exclude_horizontal']!r}")
+    rows, cols = light_sensitive(sc.schedule.geometry)
+    try:  # a band with no Fourier mode on the light-sensitive area: say so now
+        band_power(np.ones((rows.stop - rows.start, cols.stop - cols.start)),
+                   measure["kmin"], measure["kmax"])
+    except EmptyBandError as exc:
+        raise ConfigError(f"{label}: measure: {exc}") from None
     return Comparison(scene, sc.mode, sky, configs, nreal, seed, measure, label)
+
+
+def _check_bins(bins, label):
+    """A number of bins (1 to `MAX_BINS`) or at least two increasing edges >= 0."""
+    if isinstance(bins, int) and not isinstance(bins, bool) and 1 <= bins <= MAX_BINS:
+        return
+    if isinstance(bins, list) and 2 <= len(bins) <= MAX_BINS + 1 and all(
+            isinstance(b, (int, float)) and not isinstance(b, bool) and math.isfinite(b)
+            for b in bins) and bins[0] >= 0 and all(np.diff(bins) > 0):
+        return
+    raise ConfigError(f"{label}: measure.bins: expected a number of bins from 1 to {MAX_BINS} "
+                      f"or at least two increasing bin edges >= 0 (rad/pixel), got {bins!r}")
 
 
 def white_floor(scene):

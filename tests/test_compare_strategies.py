@@ -258,6 +258,18 @@ def test_cli_bad_comparison_is_one_line_exit_2_no_output(tmp_path, capsys, chang
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cmp.yaml"]
 
 
+def test_cli_failing_realisation_is_one_line_and_writes_nothing(tmp_path, capsys):
+    """A pipeline that leaves ramps cannot be measured: named, exit 2, no table, no plot."""
+    path = tmp_path / "cmp.yaml"
+    ramps = dict(NOISELESS, output={"mode": "ramps"})
+    path.write_text(yaml.safe_dump(_comparison(["spherex-default", "unchop"], ramps,
+                                               realizations=2)))
+    assert run("-q", "compare-strategies", path, "-o", tmp_path / "r.ecsv", "--plot",
+               "--scheduler", "serial") == 2
+    one_line_error(capsys, "realisation 0 failed", "unchop left ramps", "(and 1 more)")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cmp.yaml"]
+
+
 def test_cli_writes_table_plot_and_summary_and_refuses_to_overwrite(tmp_path, capsys):
     path = tmp_path / "cmp.yaml"
     path.write_text(yaml.safe_dump(_comparison(["spherex-default", "median"], NOISY)))

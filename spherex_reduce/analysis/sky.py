@@ -2,18 +2,22 @@
 
 `sky_field` draws the field (in e/s, physical row order, zero on reference
 pixels), `inject_sky` adds it to a simulated exposure (slopes or ramps, in
-readout or physical order) and `light_sensitive` is the rectangle of
-light-sensitive pixels both work on.  ``compare-strategies`` uses them to
-measure how much of the sky a correction keeps.
+readout or physical order), `light_sensitive` is the rectangle of
+light-sensitive pixels they work on, and `measure_against_sky` measures a
+reduced image against the sky it was given: the noise left and the sky kept.
+``compare-strategies`` is built on them.
 """
 
 import numpy as np
 import scipy.fft
 from astropy import units as u
+from astropy.nddata import CCDData
 
 from ..errors import SpherexReduceError
+from .case import SpectrumMeasure
+from .spectrum import cross_spectrum, power_spectrum
 
-__all__ = ["inject_sky", "light_sensitive", "sky_field"]
+__all__ = ["inject_sky", "light_sensitive", "measure_against_sky", "sky_field"]
 
 _RATE = u.electron / u.s
 
@@ -177,3 +181,88 @@ def inject_sky(exposure, sky):
         for j in range(data.shape[0]):  # one frame at a time: no cube-sized temporary
             new[j] = data[j] + rate * ((starts[j] + times) * factor)
     return exposure.replace(data=new)
+
+
+def measure_against_sky(image, sky, measure=None, light=None):
+    """The noise left in a reduced image and the fraction of the injected sky it kept.
+
+    On the light-sensitive pixels (`light_sensitive`; pixels masked in the
+    image's ``mask`` or not finite are left out, as `power_spectrum` does):
+
+    - ``noise_band_power`` (and ``_err``): `band_power` of ``image − sky``,
+      with ``k`` and ``power`` its binned P(k) (`SpectrumMeasure`);
+    - ``transfer``: per ``k`` bin, ``P_cross(image, sky) / P_sky`` (the same
+      bins; 1 = sky kept, 0 = removed; NaN for an empty bin);
+    - ``sky_transfer``: over the band, ``Σ P_cross / Σ P_sky`` over its
+      Fourier modes (power-weighted).
+
+    Parameters
+    ----------
+    image : `~astropy.nddata.CCDData`
+        A reduced slope image, physical row order, unit convertible to e/s.
+    sky : array
+        The injected sky (`sky_field`), e/s, the image's shape.
+    measure : `SpectrumMeasure` or dict, optional
+        Band and bins (default: the paper's 5–20′ band, 30 bins).
+    light : tuple of slice, optional
+        The light-sensitive pixels (`light_sensitive` of the image's
+        geometry); default the whole image.
+
+    Returns
+    -------
+    dict
+        The keys above (plain floats and arrays in the image's unit squared ×
+        pixel²), ``unit`` and ``masked_fraction``.
+
+    Examples
+    --------
+    An image that is the sky and a little white noise keeps the whole sky:
+
+    >>> import numpy as np
+    >>> from astropy.nddata import CCDData
+    >>> from spherex_reduce import DetectorGeometry
+    >>> from spherex_reduce.analysis import sky_field
+    >>> from spherex_reduce.analysis import measure_against_sky
+    >>> sky = sky_field(DetectorGeometry(128, 128, 4, ref_border=4), 0.05, -2.0, 1)
+    >>> noise = np.random.default_rng(2).normal(0, 0.01, sky.shape)
+    >>> m = measure_against_sky(CCDData(sky + noise, unit="electron/s"), sky, {"bins": 6},
+    ...                         light=(slice(4, 124), slice(4, 124)))
+    >>> err = 3 * m["noise_band_power_err"]
+    >>> round(m["sky_transfer"], 2), bool(abs(m["noise_band_power"] - 1e-4) < err)
+    (1.0, True)
+    """
+    measure = SpectrumMeasure(**(measure or {})) if not isinstance(
+        measure, SpectrumMeasure) else measure
+    if image.data.shape != np.shape(sky):
+        raise SpherexReduceError(f"the reduced image {image.data.shape} and the sky "
+                                 f"{np.shape(sky)} differ in shape")
+    light = (slice(None), slice(None)) if light is None else tuple(light)
+    cut = image[light]
+    try:
+        factor = (1.0 * u.electron / u.s).to_value(cut.unit)
+    except u.UnitConversionError:
+        raise SpherexReduceError(f"a reduced image in {cut.unit} cannot be compared with a "
+                                 "sky in e/s") from None
+    sky_cut = np.asarray(sky, dtype=float)[light] * factor
+    residual = CCDData(np.asarray(cut.data, dtype=float) - sky_cut, unit=cut.unit,
+                       mask=cut.mask)
+    m = measure(residual)
+    kw = {"exclude_horizontal": bool(measure.exclude_horizontal)}
+    bad = ~np.isfinite(cut.data) | (np.zeros(cut.shape, bool) if cut.mask is None
+                                    else np.asarray(cut.mask) != 0)
+    edges = measure.edges(cut.shape)
+    cross = cross_spectrum(cut, sky_cut, bins=edges, **kw)
+    auto = power_spectrum(sky_cut, mask=bad, bins=edges, **kw)
+    transfer = np.full(edges.size - 1, np.nan)
+    pos = np.searchsorted(edges, np.asarray(cross["k_lo"]) * (1 + 1e-12)) - 1
+    with np.errstate(divide="ignore", invalid="ignore"):
+        transfer[pos] = np.asarray(cross["power"]) / np.asarray(auto["power"])
+    band = [measure.kmin, measure.kmax]
+    bc = cross_spectrum(cut, sky_cut, bins=band, **kw)
+    ba = power_spectrum(sky_cut, mask=bad, bins=band, **kw)
+    sky_transfer = float(bc["power"][0] / ba["power"][0]) if len(ba) else np.nan
+    return {"noise_band_power": float(m["band_power"].value),
+            "noise_band_power_err": float(m["band_power_err"].value),
+            "unit": str(m["band_power"].unit), "k": m["k"], "power": m["power"],
+            "transfer": transfer, "sky_transfer": sky_transfer,
+            "masked_fraction": m["masked_fraction"]}

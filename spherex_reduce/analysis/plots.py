@@ -266,7 +266,7 @@ def plot_comparison(table, title="", pixel_scale=SPHEREX_PIXEL_SCALE):
     right.set_ylabel("sky transfer T(k) = P_cross(reduced, sky) / P_sky")
     _theta_axis(right, pixel_scale)
     right.grid(True, which="both", alpha=0.2)
-    right.legend(fontsize=8, loc="lower right")
+    right.legend(fontsize=8, loc="center right")  # T is near 1 or dips: the middle is free
     right.set_title("sky kept at each scale: 1 = all kept, 0 = all removed", fontsize=10)
     sky = (meta.get("config") or {}).get("sky") or {}
     n_real = len(table) // max(len(names), 1)

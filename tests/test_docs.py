@@ -25,6 +25,7 @@ DOCTEST_PAGES = [
     "yaml.rst",
     "cli.rst",
     "plugins.rst",
+    "judging.rst",
 ]
 
 _BUILD_MODULES = ["sphinx", "sphinx_automodapi", "numpydoc", "matplotlib"]

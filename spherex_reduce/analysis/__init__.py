@@ -13,12 +13,24 @@ the reference-pixel and phantom streams in time order (`reference_timestream`,
 `phantom_timestream`, `fit_raw_noise`).
 
 Simulate, reduce and measure one case: `run_case` (`spherex_reduce.analysis.case`),
-used by the demo, the figures and the sweeps.
+used by the demo, the figures and the sweeps.  Judge correction strategies on
+the same noise and an injected sky (`sky_field`, `inject_sky`):
+`compare_strategies` (`spherex_reduce.analysis.compare`), with the white floor
+of the noise model (`white_floor`) and the cross-spectrum (`cross_spectrum`).
 """
 
 from ..source_mask import source_mask
 from .case import CaseResult, SpectrumMeasure, as_pipeline, run_case
+from .compare import (
+    CompareResult,
+    Comparison,
+    compare_strategies,
+    load_comparison,
+    measure_against_sky,
+    white_floor,
+)
 from .photon_noise import photon_noise_label, photon_noise_power, slope_variance_factor
+from .sky import inject_sky, light_sensitive, sky_field
 from .spectrum import (
     BAND_KMAX,
     BAND_KMIN,
@@ -27,6 +39,7 @@ from .spectrum import (
     FFTImage,
     band_label,
     band_power,
+    cross_spectrum,
     fft_magnitude,
     k_from_theta,
     power_spectrum,
@@ -40,6 +53,8 @@ __all__ = [
     "BAND_KMIN",
     "SPHEREX_PIXEL_SCALE",
     "CaseResult",
+    "CompareResult",
+    "Comparison",
     "EmptyBandError",
     "FFTImage",
     "NoiseModelFit",
@@ -49,10 +64,16 @@ __all__ = [
     "as_pipeline",
     "band_label",
     "band_power",
+    "compare_strategies",
+    "cross_spectrum",
     "fft_magnitude",
     "fit_noise_model",
     "fit_raw_noise",
+    "inject_sky",
     "k_from_theta",
+    "light_sensitive",
+    "load_comparison",
+    "measure_against_sky",
     "model_basis",
     "phantom_timestream",
     "photon_noise_label",
@@ -60,8 +81,10 @@ __all__ = [
     "power_spectrum",
     "reference_timestream",
     "run_case",
+    "sky_field",
     "slope_variance_factor",
     "source_mask",
     "temporal_psd",
     "theta_from_k",
+    "white_floor",
 ]

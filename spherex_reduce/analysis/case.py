@@ -74,13 +74,23 @@ class SpectrumMeasure:
     exclude_horizontal: bool = False
     mask_sources: bool = False
 
+    def edges(self, shape):
+        """The bin edges (rad/pixel) for an image of ``shape``: fixed, so measures line up.
+
+        Examples
+        --------
+        >>> from spherex_reduce.analysis.case import SpectrumMeasure
+        >>> SpectrumMeasure(bins=2).edges((64, 32)).round(3).tolist()
+        [0.098, 0.555, 3.142]
+        """
+        if isinstance(self.bins, int):
+            return np.geomspace(2 * np.pi / max(shape), np.pi, self.bins + 1)
+        return np.asarray(self.bins, float)
+
     def __call__(self, image):
         kw = {"exclude_horizontal": bool(self.exclude_horizontal),
               "mask_sources": bool(self.mask_sources)}
-        ny, nx = np.shape(getattr(image, "data", image))
-        bins = self.bins if isinstance(self.bins, int) else np.asarray(self.bins, float)
-        if isinstance(bins, int):  # fixed edges from the shape, so measures line up
-            bins = np.geomspace(2 * np.pi / max(ny, nx), np.pi, bins + 1)
+        bins = self.edges(np.shape(getattr(image, "data", image)))
         spec = power_spectrum(image, bins=bins, **kw)
         # every bin, empty ones as NaN
         k = np.full(len(bins) - 1, np.nan)
@@ -111,6 +121,8 @@ class CaseResult:
     reduced: dict = field(default_factory=dict)
     #: ``"simulate"`` and, per label, the reduction and measurement, in seconds
     seconds: dict = field(default_factory=dict)
+    #: per label, the reduction alone (``Pipeline.run``), in seconds
+    reduce_seconds: dict = field(default_factory=dict)
     #: the simulated raw exposure (in memory, with ``keep=True``) or its FITS path
     raw: object = None
 
@@ -124,7 +136,7 @@ class CaseResult:
 
 
 def run_case(scene, pipelines, measure=None, *, seed=None, mode=None, raw_path=None,
-             overwrite=False, progress=False, keep=False):
+             overwrite=False, progress=False, keep=False, inject=None):
     """Simulate a scene once, reduce it with each pipeline and measure each reduced image.
 
     Parameters
@@ -151,6 +163,11 @@ def run_case(scene, pipelines, measure=None, *, seed=None, mode=None, raw_path=N
         For the raw file and the pipelines.
     keep : bool
         Keep the reduced exposures (and the in-memory raw exposure).
+    inject : callable, optional
+        ``inject(raw) -> raw``: applied once to the simulated exposure before
+        any pipeline sees it (e.g. `~spherex_reduce.analysis.inject_sky`
+        adding a sky); it must return a new exposure, not change its input.
+        In memory only (not with ``raw_path``).
 
     Returns
     -------
@@ -185,6 +202,9 @@ def run_case(scene, pipelines, measure=None, *, seed=None, mode=None, raw_path=N
         pipes = {str(pipelines) if isinstance(pipelines, (str, Path)) else p.source: p}
     if isinstance(measure, dict):
         measure = SpectrumMeasure(**measure)
+    if inject is not None and raw_path is not None:
+        raise SpherexReduceError("run_case: inject works on an exposure in memory, not with "
+                                 "raw_path")
     result = CaseResult(seed)
     t0 = time.perf_counter()
     if raw_path is not None:
@@ -193,11 +213,14 @@ def run_case(scene, pipelines, measure=None, *, seed=None, mode=None, raw_path=N
                          progress=progress)
     else:
         raw = simulate(scene, mode=mode, seed=seed)
+        if inject is not None:
+            raw = inject(raw)
     result.raw = raw if raw_path is not None or keep else None
     result.seconds["simulate"] = time.perf_counter() - t0
     for label, pipeline in pipes.items():
         t0 = time.perf_counter()
         reduced = pipeline.run(raw, progress=progress)
+        result.reduce_seconds[label] = time.perf_counter() - t0
         if keep:
             result.reduced[label] = reduced
         if measure is not None:

@@ -10,11 +10,11 @@ from matplotlib.figure import Figure
 
 from .spectrum import BAND_KMAX, BAND_KMIN, SPHEREX_PIXEL_SCALE, band_label
 
-__all__ = ["plot_fft_magnitude", "plot_noise_fit", "plot_spectra"]
+__all__ = ["plot_comparison", "plot_fft_magnitude", "plot_noise_fit", "plot_spectra"]
 
 
 def plot_spectra(spectra, band=(BAND_KMIN, BAND_KMAX), photon=None, title="",
-                 pixel_scale=SPHEREX_PIXEL_SCALE, photon_label="photon noise"):
+                 pixel_scale=SPHEREX_PIXEL_SCALE, photon_label="photon noise", ax=None):
     """Log-log P(k) of one or more spectra with the band shaded.
 
     Bins with no power (P ≤ 0, e.g. a component that feeds only some modes)
@@ -38,6 +38,8 @@ def plot_spectra(spectra, band=(BAND_KMIN, BAND_KMAX), photon=None, title="",
     photon_label : str
         Legend of the photon-noise line: say its photocurrent and time, e.g.
         ``"photon noise, 1 e/s for 112 s"`` (`photon_noise_label`).
+    ax : `matplotlib.axes.Axes`, optional
+        Draw into this axes (a panel of a larger figure) instead of a new figure.
 
     Returns
     -------
@@ -55,8 +57,10 @@ def plot_spectra(spectra, band=(BAND_KMIN, BAND_KMAX), photon=None, title="",
     """
     from ..plotting import unit_label
 
-    fig = Figure(figsize=(7, 5.2), layout="constrained")
-    ax = fig.subplots()
+    if ax is None:
+        fig = Figure(figsize=(7, 5.2), layout="constrained")
+        ax = fig.subplots()
+    fig = ax.figure
     unit = None
     for label, t in spectra.items():
         p = u.Quantity(t["power"])
@@ -85,6 +89,16 @@ def plot_spectra(spectra, band=(BAND_KMIN, BAND_KMAX), photon=None, title="",
     ax.set_xlabel("k (rad / pixel)")
     shown = unit_label(unit) if unit not in (None, u.one) else "pixel$^{2}$"
     ax.set_ylabel(f"P(k) ({shown})")
+    _theta_axis(ax, pixel_scale)
+    ax.legend(fontsize=8, loc="best")  # the place that covers fewest points
+    ax.grid(True, which="both", alpha=0.2)
+    if title:
+        ax.set_title(title, fontsize=10)
+    return fig
+
+
+def _theta_axis(ax, pixel_scale):
+    """A secondary x axis at the top: the angular period θ (arcmin) of the k axis."""
     scale = u.Quantity(pixel_scale, u.arcmin).value
 
     def to_theta(k):
@@ -93,11 +107,7 @@ def plot_spectra(spectra, band=(BAND_KMIN, BAND_KMAX), photon=None, title="",
 
     top = ax.secondary_xaxis("top", functions=(to_theta, to_theta))
     top.set_xlabel("θ (arcmin)")
-    ax.legend(fontsize=8, loc="best")  # the place that covers fewest points
-    ax.grid(True, which="both", alpha=0.2)
-    if title:
-        ax.set_title(title, fontsize=10)
-    return fig
+    return top
 
 
 def plot_fft_magnitude(images, title=""):
@@ -174,4 +184,93 @@ def plot_noise_fit(fits, title="", unit=None):
     ax.legend(fontsize=8)
     ax.grid(True, which="both", alpha=0.2)
     ax.set_title(title or "temporal PSD and fitted α + β/f + γ/f^e", fontsize=10)
+    return fig
+
+
+def _mean(values):
+    """Mean over the rows of the finite values (NaN where a column has none)."""
+    good = np.isfinite(values)
+    n = good.sum(axis=0)
+    total = np.where(good, values, 0.0).sum(axis=0)
+    return np.where(n > 0, total / np.maximum(n, 1), np.nan)
+
+
+def _sem(values):
+    """Standard error of the mean over the rows of the finite values (0 with fewer than 2)."""
+    good = np.isfinite(values)
+    n = good.sum(axis=0)
+    dev = np.where(good, values - _mean(values), 0.0)
+    var = (dev**2).sum(axis=0) / np.maximum(n - 1, 1)
+    return np.where(n > 1, np.sqrt(var / np.maximum(n, 1)), 0.0)
+
+
+def plot_comparison(table, title="", pixel_scale=SPHEREX_PIXEL_SCALE):
+    """The two panels of ``compare-strategies``: residual noise P(k) and sky transfer T(k).
+
+    Left: the P(k) of ``reduced − injected sky`` per pipeline (mean over
+    realisations, error bars their standard error), the band shaded, the
+    photon-noise level and the white floor (the noise model's white terms,
+    which no correction removes).  Right: the transfer ``T(k) = P_cross /
+    P_sky`` per pipeline (1: the sky is kept at that scale, 0: removed).
+
+    Parameters
+    ----------
+    table : `~astropy.table.Table`
+        From `~spherex_reduce.analysis.compare.compare_strategies` (its
+        columns ``pipeline``, ``k``, ``power``, ``transfer`` and its meta).
+    title : str
+    pixel_scale : `~astropy.units.Quantity`
+        For the θ axes.
+
+    Returns
+    -------
+    `matplotlib.figure.Figure`
+    """
+    from astropy.table import Table
+
+    meta = table.meta
+    band = tuple(meta.get("band", (BAND_KMIN, BAND_KMAX)))
+    fig = Figure(figsize=(13, 5.6), layout="constrained")
+    left, right = fig.subplots(1, 2)
+    names = list(dict.fromkeys(str(p) for p in table["pipeline"]))
+    unit = u.Unit(table["power"].unit or "")
+    spectra, transfers = {}, {}
+    k_all = np.asarray(table["k"], dtype=float)
+    for name in names:
+        sel = np.asarray(table["pipeline"]) == name
+        k = _mean(k_all[sel])
+        power = np.asarray(table["power"][sel], dtype=float)
+        tr = np.asarray(table["transfer"][sel], dtype=float)
+        spectra[name] = Table({"k": k, "power": _mean(power) * unit,
+                               "power_err": _sem(power) * unit})
+        transfers[name] = (k, _mean(tr), _sem(tr))
+    photon = meta.get("photon_noise")
+    plot_spectra(spectra, band=band, photon=None if photon is None else photon * unit,
+                 pixel_scale=pixel_scale, ax=left,
+                 photon_label=meta.get("photon_noise_label") or "photon noise")
+    if meta.get("floor") is not None:
+        left.axhline(meta["floor"], color="0.3", ls=":", lw=1.2,
+                     label="white floor (noise model's α terms)")
+    left.legend(fontsize=8, loc="upper right")
+    left.set_title("residual: reduced − injected sky (noise left + sky lost)", fontsize=10)
+    for i, (name, (k, t, err)) in enumerate(transfers.items()):
+        good = np.isfinite(t)
+        right.errorbar(k[good], t[good], yerr=err[good], fmt="o-", ms=3, lw=1, capsize=2,
+                       color=f"C{i}", label=name)
+    right.axvspan(*band, color="tab:red", alpha=0.15,
+                  label="band " + band_label(band[0], band[1], pixel_scale))
+    right.axhline(1.0, color="0.3", ls="--", lw=1)
+    right.axhline(0.0, color="0.3", ls="-", lw=0.8)
+    right.set_xscale("log")
+    right.set_xlabel("k (rad / pixel)")
+    right.set_ylabel("sky transfer T(k) = P_cross(reduced, sky) / P_sky")
+    _theta_axis(right, pixel_scale)
+    right.grid(True, which="both", alpha=0.2)
+    right.legend(fontsize=8, loc="center right")  # T is near 1 or dips: the middle is free
+    right.set_title("sky kept at each scale: 1 = all kept, 0 = all removed", fontsize=10)
+    sky = (meta.get("config") or {}).get("sky") or {}
+    n_real = len(table) // max(len(names), 1)
+    fig.suptitle(title or f"{len(names)} pipelines, {n_real} realisation(s), sky rms "
+                 f"{sky.get('rms', '?')} e/s, P(k) ∝ k^{sky.get('index', '?')}; "
+                 "mean ± s.e. over realisations", fontsize=11)
     return fig

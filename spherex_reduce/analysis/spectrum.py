@@ -39,6 +39,7 @@ __all__ = [
     "FFTImage",
     "band_label",
     "band_power",
+    "cross_spectrum",
     "fft_magnitude",
     "k_from_theta",
     "power_spectrum",
@@ -274,18 +275,83 @@ def power_spectrum(image, pixel_scale=SPHEREX_PIXEL_SCALE, mask=None, bins=30,
     data, bad, unit = _as_image(image, mask)
     if mask_sources:
         bad = bad | source_mask(np.where(bad, np.nan, data), mask=bad)
+    return _binned_spectrum(data, None, bad, unit, unit, bins, pixel_scale, exclude_horizontal)
+
+
+def cross_spectrum(image, other, pixel_scale=SPHEREX_PIXEL_SCALE, mask=None, bins=30,
+                   exclude_horizontal=False):
+    """Azimuthally averaged cross power spectrum ``P_ab(k)`` of two images of one shape.
+
+    ``P_ab(k) = Re(FFT(a) · conj(FFT(b))) / (ny · nx · f)``, averaged over the
+    Fourier modes of each annulus exactly as `power_spectrum` averages
+    ``|FFT|²`` (it is the same code: ``cross_spectrum(a, a)`` is
+    ``power_spectrum(a)``).  Pixels masked or non-finite in *either* image are
+    masked in both, each image's unmasked mean is subtracted and ``f`` is the
+    unmasked fraction.  The ratio of ``cross_spectrum(out, sky)`` to
+    ``power_spectrum(sky)`` (same mask and bins) is the transfer function of
+    whatever turned ``sky`` into ``out``.
+
+    Parameters
+    ----------
+    image, other : CCDData, NDData, Quantity or array
+        The two images (their masks are or-ed).  Not changed.
+    pixel_scale, mask, bins, exclude_horizontal
+        As `power_spectrum`.
+
+    Returns
+    -------
+    spectrum : `~astropy.table.Table`
+        The columns of `power_spectrum`; ``power`` is in (unit of ``image``) ·
+        (unit of ``other``) · pixel².  ``power_err`` is the standard error of
+        the bin mean for Gaussian fields, ``sqrt(Σ (|A_i|² |B_i|² + C_i²) / 2)
+        / n`` over the ``n`` cells (``C_i`` the cross power of cell ``i``),
+        which is `power_spectrum`'s error when ``other`` is ``image``.
+
+    Examples
+    --------
+    An image and half of it: the cross power is half the image's power.
+
+    >>> import numpy as np
+    >>> from spherex_reduce.analysis import cross_spectrum, power_spectrum
+    >>> a = np.random.default_rng(4).normal(0, 1, (64, 64))
+    >>> c, p = cross_spectrum(0.5 * a, a, bins=4), power_spectrum(a, bins=4)
+    >>> bool(np.allclose(c["power"], 0.5 * p["power"]))
+    True
+    """
+    data, bad, unit = _as_image(image, mask)
+    data_b, bad_b, unit_b = _as_image(other)
+    if data_b.shape != data.shape:
+        raise SpherexReduceError(f"cross_spectrum: the images differ in shape, {data.shape} "
+                                 f"and {data_b.shape}")
+    bad = bad | bad_b
+    return _binned_spectrum(data, data_b, bad, unit, unit_b, bins, pixel_scale,
+                            exclude_horizontal)
+
+
+def _binned_spectrum(data, data_b, bad, unit, unit_b, bins, pixel_scale, exclude_horizontal):
+    """The table of `power_spectrum` (``data_b`` None) or `cross_spectrum`: one implementation."""
     ny, nx = data.shape
     edges = _edges(bins, ny, nx)
     x, fgood = _prepared(data, bad)
     f = scipy.fft.rfft2(x, workers=-1)
-    p = f.real**2
-    p += f.imag**2
+    del x
+    if data_b is None:
+        p = f.real**2
+        p += f.imag**2
+        var = None  # each cell's Gaussian variance (|A|²|B|² + C²) / 2 is then p²
+    else:
+        g = scipy.fft.rfft2(_prepared(data_b, bad)[0], workers=-1)
+        p = f.real * g.real
+        p += f.imag * g.imag
+        var = (np.abs(f) ** 2 * np.abs(g) ** 2 + p * p) / 2
+        del g
     del f
     idx, w, nfull, ksum, nself = _grid(ny, nx, tuple(edges), bool(exclude_horizontal))
     nb = edges.size - 1
     pw = p.ravel() * w
     psum = np.bincount(idx, weights=pw, minlength=nb + 1)[:nb]
-    p2sum = np.bincount(idx, weights=pw * p.ravel(), minlength=nb + 1)[:nb]
+    p2w = pw * p.ravel() if var is None else var.ravel() * w
+    p2sum = np.bincount(idx, weights=p2w, minlength=nb + 1)[:nb]
     scale = 1.0 / (ny * nx * fgood)
     keep = nfull > 0
     n = nfull[keep]
@@ -293,7 +359,7 @@ def power_spectrum(image, pixel_scale=SPHEREX_PIXEL_SCALE, mask=None, bins=30,
     power = psum[keep] / n * scale
     err = np.sqrt(p2sum[keep]) / n * scale
     nmodes = np.rint((n + nself[keep]) / 2).astype(np.int64)
-    punit = unit**2 * u.pix**2
+    punit = unit * unit_b * u.pix**2
     table = Table(
         {
             "k": k * _K_UNIT,

@@ -31,7 +31,7 @@ import logging
 import math
 import time
 import traceback
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +45,14 @@ from ..limits import check_count
 from ..simulation import load_scene
 from .case import SpectrumMeasure, run_case
 from .scheduler import check_scheduler, map_on_dask, quiet_dask_logs
+from .sections import (  # MAX_REALIZATIONS: the sweep's limit, named here too
+    MAX_REALIZATIONS,  # noqa: F401
+    measure_section,
+    pipeline_section,
+    realizations_section,
+    scene_section,
+    seed_section,
+)
 
 __all__ = ["Sweep", "SweepResult", "check_scheduler", "load_sweep", "plot_sweep",
            "quiet_dask_logs", "run_cell", "run_sweep"]
@@ -52,11 +60,8 @@ __all__ = ["Sweep", "SweepResult", "check_scheduler", "load_sweep", "plot_sweep"
 log = logging.getLogger(__name__)
 
 _TOP = ("scene", "pipeline", "grid", "realizations", "seed", "mode", "measure")
-#: the measure's keys and defaults: those of `SpectrumMeasure`
-_MEASURE = {f.name: f.default for f in fields(SpectrumMeasure)}
 _READOUT_KEYS = tuple(p.name for p in READOUT_PARAMETERS)
-#: Most realisations per cell, and most cells, a sweep file may ask for.
-MAX_REALIZATIONS = 10_000
+#: Most cells a sweep file may ask for (and realisations per cell: `MAX_REALIZATIONS`).
 MAX_CELLS = 100_000
 
 
@@ -147,29 +152,8 @@ def load_sweep(source):
     for key in config:
         if key not in _TOP:
             raise ConfigError(f"{label}: {key}: unknown key; valid: {', '.join(_TOP)}")
-    scene = config.get("scene") or {}
-    if isinstance(scene, str):
-        base = Path(label).parent if Path(label).is_file() else Path(".")
-        path = Path(scene) if Path(scene).is_absolute() else base / scene
-        scene, _ = load_yaml(path if path.is_file() else Path(scene), "scene")
-    if not isinstance(scene, dict):
-        raise ConfigError(f"{label}: scene: expected a mapping or a path")
-    pipes = config.get("pipeline", "spherex-default")
-    pipes = [pipes] if isinstance(pipes, (str, dict)) else list(pipes or [])
-    if not pipes or not all(isinstance(p, (str, dict)) for p in pipes):
-        raise ConfigError(f"{label}: pipeline: expected a shipped name, a path, an inline "
-                          "config or a list of them")
-    base = Path(label).parent if Path(label).is_file() else None
-    configs = {}
-    for i, p in enumerate(pipes):
-        if isinstance(p, dict):
-            name = str(p.get("name") or f"pipeline-{i}")
-        else:
-            name = p
-            p = str(base / p) if base is not None and (base / p).is_file() else p
-        if name in configs:
-            raise ConfigError(f"{label}: pipeline[{i}]: name {name!r} is used twice")
-        configs[name] = p
+    scene = scene_section(config.get("scene"), label)
+    configs = pipeline_section(config.get("pipeline", "spherex-default"), label, "pipeline")
     grid = config.get("grid") or {}
     if not isinstance(grid, dict):
         raise ConfigError(f"{label}: grid: expected a mapping of readout key -> list")
@@ -182,25 +166,16 @@ def load_sweep(source):
         if not values:
             raise ConfigError(f"{label}: grid.{key}: empty list")
         clean[key] = values
-    nreal = config.get("realizations", 1)
-    if isinstance(nreal, bool) or not isinstance(nreal, int) or nreal < 1:
-        raise ConfigError(f"{label}: realizations: expected an integer >= 1, got {nreal!r}")
-    check_count(nreal, f"{label}: realizations", MAX_REALIZATIONS)
+    nreal = realizations_section(config.get("realizations", 1), label)
     ncells = math.prod(len(v) for v in clean.values()) * len(configs) * nreal
     check_count(ncells, f"{label}: the number of cells (grid x pipelines x realizations)",
                 MAX_CELLS)
-    seed = config.get("seed", scene.get("seed") or 0)
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ConfigError(f"{label}: seed: expected a non-negative integer, got {seed!r}")
+    seed = seed_section(config.get("seed", scene.get("seed") or 0), label, "seed")
     mode = config.get("mode", "slopes")
     if mode not in ("slopes", "ramps"):
         raise ConfigError(f"{label}: mode: expected slopes or ramps, got {mode!r}")
     _check_scene(scene, clean, mode, label)
-    measure = dict(_MEASURE)
-    for key, value in (config.get("measure") or {}).items():
-        if key not in _MEASURE:
-            raise ConfigError(f"{label}: measure.{key}: unknown; valid: {', '.join(_MEASURE)}")
-        measure[key] = value
+    measure = measure_section(config.get("measure"), label)
     return Sweep(scene, tuple(configs), clean, nreal, seed, mode, measure, label, configs)
 
 

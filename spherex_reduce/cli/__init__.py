@@ -24,7 +24,7 @@ from ..io.flags import DEFAULT_DQ_BITS, check_dq_bits
 __all__ = ["COMMANDS", "main"]
 
 COMMANDS = ["demo", "readout", "reduce", "show_config", "plugins", "simulate", "combine",
-            "spectrum", "fit_noise", "sweep", "figures"]
+            "spectrum", "fit_noise", "sweep", "compare_strategies", "figures"]
 
 #: Commands that read FITS files: they take ``--ignore-checksum`` and ``--dq-bits``.
 READS_FITS = ("reduce", "combine", "spectrum", "fit-noise")

@@ -1,0 +1,268 @@
+"""An injected sky: a Gaussian random field on the light-sensitive pixels, added to raw data.
+
+`sky_field` draws the field (in e/s, physical row order, zero on reference
+pixels), `inject_sky` adds it to a simulated exposure (slopes or ramps, in
+readout or physical order), `light_sensitive` is the rectangle of
+light-sensitive pixels they work on, and `measure_against_sky` measures a
+reduced image against the sky it was given: the noise left and the sky kept.
+``compare-strategies`` is built on them.
+"""
+
+import numpy as np
+import scipy.fft
+from astropy import units as u
+from astropy.nddata import CCDData
+
+from ..errors import SpherexReduceError
+from .case import SpectrumMeasure
+from .spectrum import cross_spectrum, power_spectrum
+
+__all__ = ["inject_sky", "light_sensitive", "measure_against_sky", "sky_field"]
+
+_RATE = u.electron / u.s
+
+
+def light_sensitive(geometry):
+    """The light-sensitive pixels: active rows × non-reference columns, as two slices.
+
+    The reference rows are a border at the top and bottom and the reference
+    columns one at each side, so the light-sensitive pixels are a rectangle.
+
+    Parameters
+    ----------
+    geometry : `~spherex_reduce.DetectorGeometry`
+
+    Returns
+    -------
+    tuple of slice
+        ``(rows, columns)``, to index a physical-order image.
+
+    Examples
+    --------
+    >>> from spherex_reduce import DetectorGeometry
+    >>> from spherex_reduce.analysis import light_sensitive
+    >>> light_sensitive(DetectorGeometry(64, 64, 4, ref_border=4))
+    (slice(4, 60, None), slice(4, 60, None))
+    """
+    rows = np.asarray(geometry.active_rows)
+    cols = np.flatnonzero(~geometry.reference_column_mask())
+    if rows.size == 0 or cols.size == 0:
+        raise SpherexReduceError("the geometry has no light-sensitive pixel (its reference "
+                                 "border covers the array)")
+    return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
+
+
+def sky_field(geometry, rms, index, seed):
+    """A Gaussian random field with ``P(k) ∝ k^index`` and this rms, on the light-sensitive pixels.
+
+    The field is drawn on the rectangle of `light_sensitive` pixels: white
+    noise, its FFT multiplied by ``k^(index/2)`` (``k = |k|`` in rad/pixel;
+    the ``k = 0`` mode set to zero, so its mean is zero), transformed back
+    (periodic on the rectangle) and scaled so that its rms over those pixels
+    is exactly ``rms``.  Reference pixels are zero.
+
+    Parameters
+    ----------
+    geometry : `~spherex_reduce.DetectorGeometry`
+    rms : float
+        e/s over the light-sensitive pixels (> 0).
+    index : float
+        Spectral index of the power spectrum (``-2``: more power on large scales).
+    seed : int, sequence of int or `numpy.random.SeedSequence`
+        For `numpy.random.default_rng`.
+
+    Returns
+    -------
+    `~numpy.ndarray`
+        ``(nrows, ncols)`` in e/s, physical row order, float64.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce import DetectorGeometry
+    >>> from spherex_reduce.analysis import light_sensitive, sky_field
+    >>> g = DetectorGeometry(64, 64, 4, ref_border=4)
+    >>> sky = sky_field(g, 0.05, -2.0, seed=11)
+    >>> light = light_sensitive(g)
+    >>> round(float(np.sqrt(np.mean(sky[light] ** 2))), 6), float(abs(sky[:4]).max())
+    (0.05, 0.0)
+    """
+    rms, index = float(rms), float(index)
+    if not (np.isfinite(rms) and rms > 0) or not np.isfinite(index):
+        raise SpherexReduceError(f"sky: rms must be finite and > 0 and index finite, got "
+                                 f"rms={rms}, index={index}")
+    rows, cols = light_sensitive(geometry)
+    ny, nx = rows.stop - rows.start, cols.stop - cols.start
+    white = np.random.default_rng(seed).standard_normal((ny, nx))
+    ky = 2 * np.pi * np.fft.fftfreq(ny)[:, None]
+    kx = 2 * np.pi * np.fft.rfftfreq(nx)[None, :]
+    k = np.hypot(ky, kx)
+    amplitude = np.zeros_like(k)
+    amplitude[k > 0] = k[k > 0] ** (index / 2)
+    field = scipy.fft.irfft2(scipy.fft.rfft2(white) * amplitude, s=(ny, nx))
+    field -= field.mean()  # zero already, up to round-off
+    norm = np.sqrt(np.mean(field**2))
+    if not norm > 0:  # a 1-pixel rectangle has no mode but k = 0
+        raise SpherexReduceError(f"sky: the {ny} x {nx} light-sensitive area is too small "
+                                 "for a field")
+    out = np.zeros((geometry.nrows, geometry.ncols))
+    out[rows, cols] = field * (rms / norm)
+    return out
+
+
+def inject_sky(exposure, sky):
+    """A new exposure: ``exposure`` plus a sky of ``sky`` e/s on every pixel's reads.
+
+    The exposure's arrays are not changed (a new one is made and returned).
+
+    Parameters
+    ----------
+    exposure : `~spherex_reduce.Exposure`
+        A slope image (unit convertible to e/s) or ramps (convertible to e),
+        in readout order (each read's pixels get the sky of the physical row
+        it reads, ``schedule.rows``) or physical order.
+    sky : array-like
+        ``(nrows, ncols)`` in e/s, physical row order (e.g. `sky_field`).
+
+    Returns
+    -------
+    `~spherex_reduce.Exposure`
+        Slopes: ``data + sky``.  Ramps: frame ``j`` gets the charge collected
+        by the time each pixel is read, ``sky × (frame_starts[j] + t)`` with
+        ``t`` the time of the pixel's read within the frame
+        (``schedule.pixel_times()``), so that the fitted slope gains exactly
+        ``sky``.  Same dtype, unit, flags and phantom values.
+
+    Raises
+    ------
+    SpherexReduceError
+        A sky of another shape than the array, or a unit that is not a rate
+        (slopes) or a charge (ramps).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule
+    >>> from spherex_reduce.analysis import inject_sky
+    >>> s = ReadoutSchedule(DetectorGeometry(8, 8, 2, ref_border=2), skip=2, ref_reads=0,
+    ...                     ref_mode="none", phantom_reads=0, nframes=3)
+    >>> e = Exposure.from_arrays(np.zeros((3, s.n_reads, 8)), s)
+    >>> out = inject_sky(e, np.full((8, 8), 2.0))
+    >>> t = s.frame_starts.value[:, None, None] + s.pixel_times().value[None]
+    >>> bool(np.allclose(out.data.data, 2.0 * t)), bool(np.all(e.data.data == 0))
+    (True, True)
+    """
+    s = exposure.schedule
+    g = s.geometry
+    sky = np.asarray(sky, dtype=float)
+    if sky.shape != (g.nrows, g.ncols):
+        raise SpherexReduceError(f"sky of shape {sky.shape} on a {g.nrows} x {g.ncols} array")
+    ramp = exposure.is_ramp
+    target = u.electron if ramp else _RATE
+    try:
+        factor = (1.0 * (target)).to_value(exposure.unit)
+    except u.UnitConversionError:
+        what = "ramps" if ramp else "a slope image"
+        raise SpherexReduceError(f"cannot add a sky in e/s to {what} in {exposure.unit} "
+                                 f"(expected a unit of {target})") from None
+    times = s.pixel_times().to_value(u.s)  # (n_reads, ncols)
+    if exposure.order == "readout":
+        rate = sky[s.rows]
+    else:
+        rate = sky
+        read = s.read_of_row()
+        times = np.where((read >= 0)[:, None], times[np.maximum(read, 0)], 0.0)
+    data = np.asarray(exposure.data.data)
+    if not ramp:
+        new = (data + rate * factor).astype(data.dtype, copy=False)
+    else:
+        new = np.empty_like(data)
+        starts = s.frame_starts.to_value(u.s)
+        for j in range(data.shape[0]):  # one frame at a time: no cube-sized temporary
+            new[j] = data[j] + rate * ((starts[j] + times) * factor)
+    return exposure.replace(data=new)
+
+
+def measure_against_sky(image, sky, measure=None, light=None):
+    """The noise left in a reduced image and the fraction of the injected sky it kept.
+
+    On the light-sensitive pixels (`light_sensitive`; pixels masked in the
+    image's ``mask`` or not finite are left out, as `power_spectrum` does):
+
+    - ``noise_band_power`` (and ``_err``): `band_power` of ``image − sky``,
+      with ``k`` and ``power`` its binned P(k) (`SpectrumMeasure`);
+    - ``transfer``: per ``k`` bin, ``P_cross(image, sky) / P_sky`` (the same
+      bins; 1 = sky kept, 0 = removed; NaN for an empty bin);
+    - ``sky_transfer``: over the band, ``Σ P_cross / Σ P_sky`` over its
+      Fourier modes (power-weighted).
+
+    Parameters
+    ----------
+    image : `~astropy.nddata.CCDData`
+        A reduced slope image, physical row order, unit convertible to e/s.
+    sky : array
+        The injected sky (`sky_field`), e/s, the image's shape.
+    measure : `SpectrumMeasure` or dict, optional
+        Band and bins (default: the paper's 5–20′ band, 30 bins).
+    light : tuple of slice, optional
+        The light-sensitive pixels (`light_sensitive` of the image's
+        geometry); default the whole image.
+
+    Returns
+    -------
+    dict
+        The keys above (plain floats and arrays in the image's unit squared ×
+        pixel²), ``unit`` and ``masked_fraction``.
+
+    Examples
+    --------
+    An image that is the sky and a little white noise keeps the whole sky:
+
+    >>> import numpy as np
+    >>> from astropy.nddata import CCDData
+    >>> from spherex_reduce import DetectorGeometry
+    >>> from spherex_reduce.analysis import sky_field
+    >>> from spherex_reduce.analysis import measure_against_sky
+    >>> sky = sky_field(DetectorGeometry(128, 128, 4, ref_border=4), 0.05, -2.0, 1)
+    >>> noise = np.random.default_rng(2).normal(0, 0.01, sky.shape)
+    >>> m = measure_against_sky(CCDData(sky + noise, unit="electron/s"), sky, {"bins": 6},
+    ...                         light=(slice(4, 124), slice(4, 124)))
+    >>> err = 3 * m["noise_band_power_err"]
+    >>> round(m["sky_transfer"], 2), bool(abs(m["noise_band_power"] - 1e-4) < err)
+    (1.0, True)
+    """
+    measure = SpectrumMeasure(**(measure or {})) if not isinstance(
+        measure, SpectrumMeasure) else measure
+    if image.data.shape != np.shape(sky):
+        raise SpherexReduceError(f"the reduced image {image.data.shape} and the sky "
+                                 f"{np.shape(sky)} differ in shape")
+    light = (slice(None), slice(None)) if light is None else tuple(light)
+    cut = image[light]
+    try:
+        factor = (1.0 * u.electron / u.s).to_value(cut.unit)
+    except u.UnitConversionError:
+        raise SpherexReduceError(f"a reduced image in {cut.unit} cannot be compared with a "
+                                 "sky in e/s") from None
+    sky_cut = np.asarray(sky, dtype=float)[light] * factor
+    residual = CCDData(np.asarray(cut.data, dtype=float) - sky_cut, unit=cut.unit,
+                       mask=cut.mask)
+    m = measure(residual)
+    kw = {"exclude_horizontal": bool(measure.exclude_horizontal)}
+    bad = ~np.isfinite(cut.data) | (np.zeros(cut.shape, bool) if cut.mask is None
+                                    else np.asarray(cut.mask) != 0)
+    edges = measure.edges(cut.shape)
+    cross = cross_spectrum(cut, sky_cut, bins=edges, **kw)
+    auto = power_spectrum(sky_cut, mask=bad, bins=edges, **kw)
+    transfer = np.full(edges.size - 1, np.nan)
+    pos = np.searchsorted(edges, np.asarray(cross["k_lo"]) * (1 + 1e-12)) - 1
+    with np.errstate(divide="ignore", invalid="ignore"):
+        transfer[pos] = np.asarray(cross["power"]) / np.asarray(auto["power"])
+    band = [measure.kmin, measure.kmax]
+    bc = cross_spectrum(cut, sky_cut, bins=band, **kw)
+    ba = power_spectrum(sky_cut, mask=bad, bins=band, **kw)
+    sky_transfer = float(bc["power"][0] / ba["power"][0]) if len(ba) else np.nan
+    return {"noise_band_power": float(m["band_power"].value),
+            "noise_band_power_err": float(m["band_power_err"].value),
+            "unit": str(m["band_power"].unit), "k": m["k"], "power": m["power"],
+            "transfer": transfer, "sky_transfer": sky_transfer,
+            "masked_fraction": m["masked_fraction"]}

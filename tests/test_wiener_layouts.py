@@ -201,6 +201,29 @@ def test_domain_auto_is_frames_for_ramps_and_slopes_for_an_image():
         np.testing.assert_allclose(out.data.data, 0.0, atol=1e-9)
 
 
+@pytest.mark.xfail(strict=True, reason="BUG: domain slopes (auto for a 2-D image) with a "
+                   "one-frame schedule: the least-squares slope weights of one frame are 0/0, "
+                   "every offset NaN, every channel flagged NO_REFERENCE with a 'no usable "
+                   "reference pixels' warning, the image left uncorrected")
+def test_a_one_frame_image_is_corrected_in_the_frames_domain():
+    s = sched(nframes=1)
+    image = Exposure.from_arrays(np.zeros((s.n_reads, NCOLS)) + channel_values(s, CONSTS), s)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out = correct_reference(image, "wiener")
+    assert out.tables["REFDRIFT"].meta["domain"] == "frames"
+    np.testing.assert_allclose(out.data.data, 0.0, atol=1e-9)
+
+
+@pytest.mark.xfail(strict=True, reason="BUG: domain: slopes with a one-frame schedule is not "
+                   "refused: NaN offsets and NO_REFERENCE flags instead of a one-line error")
+def test_domain_slopes_with_one_frame_is_a_config_error():
+    s = sched(nframes=1)
+    ramps = Exposure.from_arrays(np.zeros((1, s.n_reads, NCOLS)), s)
+    with pytest.raises(ConfigError, match="slopes"):
+        correct_reference(ramps, "wiener", domain="slopes")
+
+
 @pytest.mark.parametrize("common", ["auto", "none", ["roic"], ["bias_correlated", "video8"]])
 def test_common_components_are_recorded_and_constants_still_removed(common):
     table = Table.read(spherex_table2_path(), format="ascii.ecsv")

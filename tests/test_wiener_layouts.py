@@ -279,8 +279,10 @@ def test_acn_even_odd_constants_are_removed_on_both_parities(scan):
     s = sched(scan=scan, phantom=2)
     even, odd = np.array([0.5, -1.0, 2.0, 0.0]), np.array([-0.7, 3.0, 0.0, 1.5])
     col = channel_values(s, CONSTS, (even, odd))
-    e = unchop(Exposure.from_arrays(np.zeros((3, s.n_reads, NCOLS)) + col, s))
+    ph = np.zeros((3, s.n_reads, NCH)) + np.array([3.0, -1.0, 0.0, 8.0])  # per channel
+    e = unchop(Exposure.from_arrays(np.zeros((3, s.n_reads, NCOLS)) + col, s, phantom=ph))
     out = correct_reference(e, "wiener", acn=True)
+    assert out.header["REFPHANT"] is True
     np.testing.assert_allclose(out.data.data, 0.0, atol=1e-9)
     np.testing.assert_allclose(out.reference.data, 0.0, atol=1e-9)
     t = out.tables["REFOFFS"]

@@ -201,10 +201,6 @@ def test_domain_auto_is_frames_for_ramps_and_slopes_for_an_image():
         np.testing.assert_allclose(out.data.data, 0.0, atol=1e-9)
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: domain slopes (auto for a 2-D image) with a "
-                   "one-frame schedule: the least-squares slope weights of one frame are 0/0, "
-                   "every offset NaN, every channel flagged NO_REFERENCE with a 'no usable "
-                   "reference pixels' warning, the image left uncorrected")
 def test_a_one_frame_image_is_corrected_in_the_frames_domain():
     s = sched(nframes=1)
     image = Exposure.from_arrays(np.zeros((s.n_reads, NCOLS)) + channel_values(s, CONSTS), s)
@@ -215,8 +211,6 @@ def test_a_one_frame_image_is_corrected_in_the_frames_domain():
     np.testing.assert_allclose(out.data.data, 0.0, atol=1e-9)
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: domain: slopes with a one-frame schedule is not "
-                   "refused: NaN offsets and NO_REFERENCE flags instead of a one-line error")
 def test_domain_slopes_with_one_frame_is_a_config_error():
     s = sched(nframes=1)
     ramps = Exposure.from_arrays(np.zeros((1, s.n_reads, NCOLS)), s)
@@ -399,10 +393,6 @@ def test_a_channel_without_usable_reference_pixels_is_flagged_and_left(white):
     assert np.isnan(np.asarray(out.tables["REFDRIFT"]["drift"]).reshape(3, NCH, -1)[:, 1]).all()
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: a channel without usable reference pixels makes "
-                   "wiener's estimate call np.nanmean on an all-NaN slice (RuntimeWarning "
-                   "'Mean of empty slice', an error under filterwarnings=error) besides the "
-                   "NoReferenceWarning")
 def test_a_channel_without_reference_pixels_warns_only_no_reference(white):
     s, data, mask = _all_flagged_channel()
     with warnings.catch_warnings(record=True) as caught:
@@ -526,10 +516,6 @@ def test_reduced_file_has_the_refdrift_table_of_the_in_memory_run(tmp_path, caps
                                .mean(axis=1), rtol=1e-5, atol=1e-5)
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: REFDRIFT's meta keys phantom_used, "
-                   "predicted_rms_error, mean_predicted_rms_error are longer than 8 "
-                   "characters: writing the table warns VerifyWarning (HIERARCH card); the CLI "
-                   "prints three warnings, and under warnings-as-errors reduce fails (exit 1)")
 def test_writing_a_wiener_result_warns_nothing(tmp_path):
     s, data, ph = _with_phantom()
     out = correct_reference(Exposure.from_arrays(data, s, phantom=ph), "wiener")
@@ -559,10 +545,6 @@ def _fit_noise_result(tmp_path):
     return str(out)
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: a fit-noise result whose fit put a coefficient "
-                   "below zero (within its error; every small file tried) is refused by "
-                   "correct_reference.noise ('gamma must be >= 0'): the fitted model of the "
-                   "issue cannot be used as written")
 def test_a_fit_noise_result_as_written_gives_finite_estimates(tmp_path):
     raw = simulate_to_fits(SCENE, tmp_path / "fitraw.fits", mode="ramps", seed=3)
     fit = tmp_path / "fit.ecsv"

@@ -12,12 +12,14 @@ import collections
 import datetime
 import io
 import tempfile
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 from astropy import units as u
 from astropy.io import fits
+from astropy.io.fits.verify import VerifyWarning
 from astropy.nddata import StdDevUncertainty
 from astropy.table import Table
 
@@ -52,7 +54,9 @@ def _primary(schedule, header, order, unit, nextend):
 def _table_hdu(table, name):
     t = Table(table, copy=False)
     t.meta = {k: v for k, v in t.meta.items() if k != "comments"}
-    hdu = fits.table_to_hdu(t)
+    with warnings.catch_warnings():  # a longer meta key is a HIERARCH card, read back as given
+        warnings.filterwarnings("ignore", "Keyword name .* HIERARCH card", VerifyWarning)
+        hdu = fits.table_to_hdu(t)
     hdu.name = name
     return hdu
 

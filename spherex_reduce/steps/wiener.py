@@ -108,9 +108,11 @@ def _table_components(source, where):
             for row in head:
                 if str(row["stream"]) in visibility:
                     try:
+                        # a fitted coefficient below zero is zero within its error
                         comps.append(NoiseComponent(
-                            str(row["stream"]), alpha=float(row["alpha"]),
-                            beta=float(row["beta"]), gamma=float(row["gamma"]),
+                            str(row["stream"]), alpha=max(float(row["alpha"]), 0.0),
+                            beta=max(float(row["beta"]), 0.0),
+                            gamma=max(float(row["gamma"]), 0.0),
                             exponent=float(row["exponent"]),
                             visibility=visibility[str(row["stream"])]))
                     except (KeyError, ValueError) as exc:
@@ -252,7 +254,10 @@ class WienerReference(Strategy):
         values = reference_pixels(side, s)  # (L, k, ncols), NaN: unusable
         reads = _reads_of(side, s)
         domain = self.domain if self.domain != "auto" else (
-            "frames" if context.ramp else "slopes")
+            "frames" if context.ramp or s.nframes < 2 else "slopes")
+        if domain == "slopes" and s.nframes < 2:
+            raise ConfigError("correct_reference.domain: slopes needs a schedule of at least "
+                              f"2 frames (NFRAMES={s.nframes}); use domain: frames")
         phantom = None
         if self.uses_phantom(context) and side.read_phantom is not None:
             phantom = np.asarray(side.read_phantom, dtype=np.float64)
@@ -279,7 +284,9 @@ class WienerReference(Strategy):
                 if f == 0:
                     predicted[p], mean_predicted[p] = var, mvar
         active = s.active_read_indices
-        offsets = np.nanmean(rows[:, active], axis=1) if active.size else np.nanmean(rows, 1)
+        with warnings.catch_warnings():  # a group without usable pixels: NaN, flagged later
+            warnings.simplefilter("ignore", RuntimeWarning)
+            offsets = np.nanmean(rows[:, active] if active.size else rows, axis=1)
         parity = [EVEN, ODD] if self.acn else [ALL]
         drift = self._drift_table(rows, parity, context, domain, predicted, mean_predicted,
                                   active, phantom is not None)

@@ -335,8 +335,11 @@ def test_flagged_and_nan_reference_pixels_are_not_used():
         mask[f, read_, col] = dq.DO_NOT_USE
         bad[f, read_, col] += value
     bad[1, refs[2], 12] = np.nan  # not flagged, but unusable
+    # the values of unusable pixels must not matter: the same flags on the clean values
+    same = clean.copy()
+    same[1, refs[2], 12] = np.nan
     a = correct_reference(Exposure.from_arrays(bad, s, mask=mask), "wiener")
-    b = correct_reference(Exposure.from_arrays(clean, s), "wiener")
+    b = correct_reference(Exposure.from_arrays(same, s, mask=mask), "wiener")
     ta, tb = a.tables["REFOFFS"], b.tables["REFOFFS"]
     assert (ta["n_clipped"] == 0).all() and (tb["n_clipped"] == 0).all()
     np.testing.assert_allclose(per_channel(ta), per_channel(tb), rtol=1e-12)
@@ -348,6 +351,24 @@ def test_flagged_and_nan_reference_pixels_are_not_used():
     usable = (mask == 0) & np.isfinite(bad)
     n_used = usable[:, s.is_reference].reshape(3, -1, NCH, WIDTH).sum(axis=(1, 3))
     np.testing.assert_array_equal(np.asarray(ta["n_used"]).reshape(3, NCH), n_used)
+
+
+def test_masked_pixels_weigh_as_pixels_under_white_noise(white):
+    """With white noise only, a read's weight follows its usable pixels: the estimate is the
+    mean of all usable reference pixels of the channel (numpy), as for ``mean``."""
+    s = sched(ref_reads=8)
+    rng = np.random.default_rng(8)
+    data = rng.normal(0, 1, (3, s.n_reads, NCOLS)) + rng.normal(0, 20, (3, 1, NCOLS))
+    mask = np.zeros(data.shape, np.uint16)
+    refs = np.flatnonzero(s.is_reference)
+    mask[0, refs[1], 1:WIDTH] = dq.DO_NOT_USE      # channel 0 keeps 1 pixel of that read
+    mask[2, refs[4], WIDTH + 2] = dq.DO_NOT_USE    # channel 1 loses one pixel
+    out = correct_reference(Exposure.from_arrays(data, s, mask=mask), "wiener", noise=white,
+                            sigma=1e9)
+    vals = np.where(mask == 0, data, np.nan)[:, refs].reshape(3, -1, NCH, WIDTH)
+    expected = np.nanmean(vals, axis=(1, 3))  # (frames, channels)
+    np.testing.assert_allclose(np.asarray(out.tables["REFOFFS"]["offset"]).reshape(3, NCH),
+                               expected, rtol=0, atol=1e-9)
 
 
 def test_a_read_without_usable_pixels_in_one_channel_drops_out(white):

@@ -23,7 +23,7 @@ import numpy as np
 from .components import _cin, _d_inv_f, _d_power, _g_power
 from .variance import ls_weights
 
-__all__ = ["DOMAINS", "KINDS", "ReadCovariance", "kriging_weights"]
+__all__ = ["DOMAINS", "KINDS", "Kriging", "ReadCovariance", "kriging_weights"]
 
 #: ``frames``: the stream of each frame; ``slopes``: the ramp-fitted slope image.
 DOMAINS = ("frames", "slopes")
@@ -146,9 +146,11 @@ class ReadCovariance:
     def white(self, kind, npixels, scope):
         """White variance of a value of ``kind`` averaging ``npixels`` pixels (array_like)."""
         c = max(self.schedule.phantom_reads, 1)
-        pix = self._white["pixels"][scope] / np.asarray(npixels, dtype=float)
         ph = self._white["phantom"][scope] / c
-        return {"pixels": pix, "subtracted": pix + ph, "phantom": ph + 0 * pix}[kind]
+        if kind == "phantom":
+            return np.full(np.shape(npixels), ph)
+        pix = self._white["pixels"][scope] / np.asarray(npixels, dtype=float)
+        return pix if kind == "pixels" else pix + ph
 
     def _pairs(self, kind_a, kind_b):
         key = (kind_a, kind_b)
@@ -288,6 +290,67 @@ class ReadCovariance:
         return out
 
 
+class Kriging:
+    """A solved kriging system whose observations may later get more white variance.
+
+    Solves ``[[K, F], [F^T, 0]] [L; nu] = [k; f]`` once (`kriging_weights`
+    describes the problem) and keeps ``A^-1`` applied to the first ``nupdate``
+    observations' unit vectors, so that adding white variance ``e_i`` to
+    some of them (fewer pixels averaged; ``inf``: the observation is dropped)
+    is a Woodbury update of rank ``len(e)``, not a new solve.
+
+    Parameters
+    ----------
+    c_oo, c_ot, c_tt, regularization, constants
+        As `kriging_weights`.
+    nupdate : int
+        How many of the first observations `weights` may change.
+    """
+
+    def __init__(self, c_oo, c_ot, c_tt, regularization=0.0, constants=None, nupdate=0):
+        c_oo = np.asarray(c_oo, dtype=np.float64)
+        self.c_ot = np.asarray(c_ot, dtype=np.float64)
+        self.c_tt = np.asarray(c_tt, dtype=np.float64)
+        n, ntargets = self.c_ot.shape
+        groups = np.zeros(n, int) if constants is None else np.asarray(constants, int)
+        q = int(groups.max()) + 1
+        a = np.zeros((n + q, n + q))
+        a[:n, :n] = c_oo
+        if regularization:
+            a[np.arange(n), np.arange(n)] += regularization * np.mean(np.abs(np.diag(c_oo)))
+        a[np.arange(n), n + groups] = a[n + groups, np.arange(n)] = 1.0
+        rhs = np.zeros((n + q, ntargets + nupdate))
+        rhs[:n, :ntargets] = self.c_ot
+        rhs[n, :ntargets] = 1.0
+        rhs[np.arange(nupdate), ntargets + np.arange(nupdate)] = 1.0
+        sol = np.linalg.solve(a, rhs)  # LU: several times faster than scipy's "sym" here
+        self.n = n
+        self.x, self.z = sol[:, :ntargets], sol[:, ntargets:]
+
+    def weights(self, extra=None):
+        """Weights ``(T, n)`` and predicted error variances ``(T,)``.
+
+        Parameters
+        ----------
+        extra : array_like, shape (nupdate,), optional
+            White variance added to each of the first observations (0: none,
+            ``inf``: the observation is not used).
+        """
+        x = self.x
+        if extra is not None:
+            extra = np.asarray(extra, dtype=float)
+            m = np.flatnonzero(extra != 0)
+            if m.size:
+                with np.errstate(divide="ignore"):
+                    inv = np.where(np.isinf(extra[m]), 0.0, 1.0 / extra[m])
+                s = np.diag(inv) + self.z[m][:, m]
+                x = x - self.z[:, m] @ np.linalg.solve(s, x[m])
+        lam = x[:self.n]
+        # [K F; F^T 0][L; nu] = [k; f]  =>  L^T K L = L^T k - f^T nu
+        var = self.c_tt - np.sum(lam * self.c_ot, axis=0) - x[self.n]
+        return lam.T, var
+
+
 def kriging_weights(c_oo, c_ot, c_tt, regularization=0.0, constants=None):
     """Best linear unbiased weights under unknown constants (universal kriging).
 
@@ -325,20 +388,4 @@ def kriging_weights(c_oo, c_ot, c_tt, regularization=0.0, constants=None):
     >>> w.tolist(), v.tolist()
     ([[0.25, 0.25, 0.25, 0.25], [0.25, 0.25, 0.25, 0.25]], [1.25, 1.25])
     """
-    c_oo = np.asarray(c_oo, dtype=np.float64)
-    c_ot = np.asarray(c_ot, dtype=np.float64)
-    n, ntargets = c_ot.shape
-    groups = np.zeros(n, int) if constants is None else np.asarray(constants, int)
-    q = int(groups.max()) + 1
-    a = np.zeros((n + q, n + q))
-    a[:n, :n] = c_oo
-    if regularization:
-        a[np.arange(n), np.arange(n)] += regularization * np.mean(np.abs(np.diag(c_oo)))
-    a[np.arange(n), n + groups] = a[n + groups, np.arange(n)] = 1.0
-    rhs = np.zeros((n + q, ntargets))
-    rhs[:n] = c_ot
-    rhs[n] = 1.0
-    lam = np.linalg.solve(a, rhs)[:n]  # LU: several times faster than scipy's "sym" here
-    var = np.asarray(c_tt, float) - 2 * np.sum(lam * c_ot, axis=0) + np.sum(lam * (c_oo @ lam),
-                                                                          axis=0)
-    return lam.T, var
+    return Kriging(c_oo, c_ot, c_tt, regularization, constants).weights()

@@ -88,9 +88,14 @@ class ReferenceKernel(Kernel):
         out = block.writable(dtype)
         col = c["col"]
         rows = _row_table(c, block.order)
+        nch = self.context.geometry.nchannels
         for f in range(out.shape[0]):
             if rows is None:
                 np.subtract(out[f], col[f].astype(dtype), out=out[f])
+            elif c["contiguous"]:  # one group per channel: its columns side by side
+                per_channel = out[f].reshape(out.shape[1], nch, -1)
+                np.subtract(per_channel, rows[f][block.index][:, :, None], out=per_channel,
+                            casting="unsafe")
             else:  # an offset per read: the row's own
                 np.subtract(out[f], rows[f][block.index][:, c["colgroup"]], out=out[f],
                             casting="unsafe")
@@ -152,14 +157,18 @@ def _row_plan(context, est):
             colgroup[cols] = ch * groups.shape[1] + p
     rows = np.asarray(est.rows, dtype=np.float64)
     rows = np.where(np.isfinite(rows), rows, 0.0).reshape(rows.shape[0], rows.shape[1], -1)
-    plan = {"rows_readout": rows, "colgroup": colgroup, "rows_physical": None}
+    width = s.geometry.channel_width
+    contiguous = groups.shape[1] == 1 and np.array_equal(
+        colgroup, np.repeat(np.arange(groups.shape[0]), width))
+    plan = {"rows_readout": rows, "colgroup": colgroup, "rows_physical": None,
+            "contiguous": contiguous}
     if context.order == "physical":
         nrows = s.geometry.nrows
-        counts = np.bincount(s.rows, minlength=nrows).astype(float)
+        counts = np.bincount(s.rows, minlength=nrows)
         phys = np.zeros((rows.shape[0], nrows, rows.shape[2]))
-        for f in range(rows.shape[0]):
-            np.add.at(phys[f], s.rows, rows[f])
-        phys /= np.maximum(counts, 1)[None, :, None]
+        phys[:, s.rows] = rows  # a row read once: its read's offset
+        for row in np.flatnonzero(counts > 1):  # a row read more: the mean of its reads'
+            phys[:, row] = rows[:, s.rows == row].mean(axis=1)
         plan["rows_physical"] = phys
     return plan
 

@@ -23,7 +23,7 @@ from astropy.table import Table
 from ..config import load_yaml
 from ..errors import ConfigError
 from ..noise import BUILTIN_TABLES, NoiseComponent, noise_components
-from ..noise.read_covariance import DOMAINS, ReadCovariance, kriging_weights
+from ..noise.read_covariance import DOMAINS, Kriging, ReadCovariance
 from ..noise.section import section_components
 from ..parameters import Parameter
 from ..step import Strategy
@@ -44,7 +44,7 @@ _MAD_TO_SIGMA = 1.4826
 _MAX_MODELS = 4
 _MODELS = {}
 _MODELS_LOCK = threading.Lock()
-#: Sets of weights a model keeps (one per pattern of reads without usable pixels).
+#: Solved systems a model keeps (per kind of observation, channel count and system).
 _MAX_WEIGHTS = 8
 
 
@@ -243,8 +243,8 @@ class WienerReference(Strategy):
         use = self.uses_phantom(context)
         kind = "pixels" if use or not (s.phantom_reads and not context.phantom) else "subtracted"
         model = self._model(s, domain, s.geometry.column_offsets()[cols])
-        _, _, var, mvar = model.weights(self, kind, reads, np.full(reads.size, float(cols.size)),
-                                        cols.size, s.geometry.nchannels, True, use)
+        *_, var, mvar = model.weights(self, kind, reads, np.full(reads.size, float(cols.size)),
+                                      cols.size, s.geometry.nchannels, True, use)
         return var, mvar
 
     # -- the estimate -------------------------------------------------------------------
@@ -277,12 +277,10 @@ class WienerReference(Strategy):
         for p in range(npar):
             cols = groups[0, p][groups[0, p] >= 0]
             model = self._model(s, domain, g.column_offsets()[cols])
-            for f in range(L):
-                ph = None if phantom is None else phantom[f]
-                var, mvar = model.frame(self, kind, reads, obs[f, :, :, p], n[f, :, :, p],
-                                        cols.size, ph, rows[f, :, :, p])
-                if f == 0:
-                    predicted[p], mean_predicted[p] = var, mvar
+            out = np.full((L, n_reads, nch), np.nan)
+            predicted[p], mean_predicted[p] = model.estimate(
+                self, kind, reads, obs[..., p], n[..., p], cols.size, phantom, out)
+            rows[..., p] = out
         active = s.active_read_indices
         with warnings.catch_warnings():  # a group without usable pixels: NaN, flagged later
             warnings.simplefilter("ignore", RuntimeWarning)
@@ -346,7 +344,7 @@ class _Model:
     def __init__(self, cov):
         self.cov = cov
         self.n_reads = cov.schedule.n_reads
-        self._lags, self._weights = {}, {}
+        self._lags, self._bases = {}, {}
 
     def lags(self, kind_a, kind_b, scope):
         """Covariance of values ``m`` reads apart, indexed by ``m + n_reads - 1``."""
@@ -374,60 +372,95 @@ class _Model:
         ht = self.lags("phantom", kind, scope)[t[None, :] - t[:, None] + off]
         return np.block([[k_oo, rh], [rh.T, hh]]), np.vstack([k_ot, ht]), k_tt
 
-    def weights(self, strategy, kind, reads, n_used, n_group, nch, joint, phantom):
-        """Weights ``(T, k [+ n_reads])`` for channel deviations and for the channel mean
-        (equal without ``joint``), the predicted error variance of one channel's estimate
-        and that of the pixel mean (the ``mean`` strategy) under the same model."""
-        key = (kind, reads.tobytes(), n_used.tobytes(), nch, joint, phantom)
-        if key in self._weights:
-            return self._weights[key]
-        ch = self._system(kind, reads, n_used, n_group, "channel", phantom)
-        com = self._system(kind, reads, n_used, n_group, "common", phantom)
-        constants = np.r_[np.zeros(reads.size, int), np.ones(self.n_reads * phantom, int)]
-        reg = strategy.regularization
-        total = [a + b for a, b in zip(ch, com, strict=True)]
-        if joint and nch > 1:
-            w1, v1 = kriging_weights(*ch, reg, constants)
-            w0, v0 = kriging_weights(*(a + nch * b for a, b in zip(ch, com, strict=True)), reg,
-                                     constants)
-            out = (w1, w0, v0 / nch + (1 - 1 / nch) * v1)
-        else:
-            w, v = kriging_weights(*total, reg, constants)
-            out = (w, w, v)
-        mean_kind = "subtracted" if phantom else kind
-        m_oo, m_ot, m_tt = [a + b for a, b in zip(
-            self._system(mean_kind, reads, n_used, n_group, "channel", False),
-            self._system(mean_kind, reads, n_used, n_group, "common", False), strict=True)]
-        mean = n_used / n_used.sum()
-        mean_var = m_tt - 2 * mean @ m_ot + mean @ m_oo @ mean
-        if len(self._weights) >= _MAX_WEIGHTS:
-            self._weights.pop(next(iter(self._weights)))
-        self._weights[key] = (*out, mean_var)
-        return self._weights[key]
+    def _base(self, strategy, kind, reads, n_group, nch, system, phantom):
+        """The solved system of full reads (see `Kriging`): ``system`` is ``'channel'``
+        (the deviations from the channel mean), ``'mean'`` (the channel mean) or
+        ``'total'`` (one channel alone)."""
+        key = (kind, reads.tobytes(), n_group, nch, system, phantom)
+        if key not in self._bases:
+            full = np.full(reads.size, float(n_group))
+            ch = self._system(kind, reads, full, n_group, "channel", phantom)
+            com = self._system(kind, reads, full, n_group, "common", phantom)
+            scale = {"channel": 0, "mean": nch, "total": 1}[system]
+            parts = [a + scale * b for a, b in zip(ch, com, strict=True)]
+            constants = np.r_[np.zeros(reads.size, int), np.ones(self.n_reads * phantom, int)]
+            if len(self._bases) >= _MAX_WEIGHTS:
+                self._bases.pop(next(iter(self._bases)))
+            self._bases[key] = (Kriging(*parts, strategy.regularization, constants,
+                                        nupdate=reads.size), scale)
+        return self._bases[key]
 
-    def frame(self, strategy, kind, reads, y, n, n_group, phantom, out):
-        """Estimates ``out (n_reads, nch)`` of one frame from the reference reads' values
-        ``y (k, nch)`` averaging ``n (k, nch)`` pixels, and the phantom values
-        ``(n_reads, nch)`` (or None); returns the predicted error variances."""
-        nch = y.shape[1]
-        valid = n > 0
+    def weights(self, strategy, kind, reads, n_used, n_group, nch, joint, phantom):
+        """Weights ``(T, k [+ n_reads])`` of the channel deviations and the change for the
+        channel mean (zero without ``joint``), the predicted error variance of one
+        channel's estimate and that of the pixel mean (the ``mean`` strategy) under the
+        same model.  ``n_used`` (per reference read; 0: not usable) only adds white
+        variance to the full-read system (a rank-``k`` update)."""
+        cov = self.cov
+        extra = {}
+        for scope in ("channel", "common"):
+            with np.errstate(divide="ignore", invalid="ignore"):  # n = 0: dropped (inf)
+                extra[scope] = np.where(
+                    n_used > 0, cov.white("pixels", n_used, scope) - cov.white(
+                        "pixels", n_group, scope), np.inf)
+        if joint and nch > 1:
+            (b1, _), (b0, s0) = (self._base(strategy, kind, reads, n_group, nch, name, phantom)
+                                 for name in ("channel", "mean"))
+            w1, v1 = b1.weights(extra["channel"])
+            w0, v0 = b0.weights(extra["channel"] + s0 * extra["common"])
+            out = (w1, w0 - w1, v0 / nch + (1 - 1 / nch) * v1)
+        else:
+            base, _ = self._base(strategy, kind, reads, n_group, nch, "total", phantom)
+            w, v = base.weights(extra["channel"] + extra["common"])
+            out = (w, None, v)
+        mean_kind = "subtracted" if phantom else kind
+        ok = n_used > 0
+        m_oo, m_ot, m_tt = [a + b for a, b in zip(
+            self._system(mean_kind, reads[ok], n_used[ok], n_group, "channel", False),
+            self._system(mean_kind, reads[ok], n_used[ok], n_group, "common", False),
+            strict=True)]
+        mean = n_used[ok] / n_used[ok].sum()
+        mean_var = m_tt - 2 * mean @ m_ot + np.einsum("i,ij,j->", mean, m_oo, mean)
+        return (*out, mean_var)
+
+    def estimate(self, strategy, kind, reads, obs, n, n_group, phantom, out):
+        """Estimates ``out (L, n_reads, nch)`` from the reference reads' values
+        ``obs (L, k, nch)`` averaging ``n (L, k, nch)`` pixels and the phantom values
+        ``(L, n_reads, nch)`` (or None); returns the predicted error variances of the
+        first frame (this strategy's and the mean's).  Frames with the same pixel counts
+        share their weights and one matrix product."""
+        nch = obs.shape[2]
         use = phantom is not None
-        if valid.all():  # every read has pixels in every channel: the weights of full reads
-            w1, w0, var, mvar = self.weights(strategy, kind, reads,
-                                             np.full(reads.size, float(n_group)), n_group, nch,
-                                             True, use)
-            obs = y if phantom is None else np.vstack([y, phantom])
-            mean = obs.mean(axis=1, keepdims=True)
-            out[:] = w1 @ (obs - mean) + w0 @ mean
-            return var, mvar
-        var = mvar = np.full(self.n_reads, np.nan)
-        for c in range(nch):  # channels differ: each from its own reads
-            ok = valid[:, c]
-            if not ok.any():
-                continue  # no usable reference pixel: NaN, flagged by the kernel
-            w, _, var, mvar = self.weights(strategy, kind, reads[ok],
-                                           np.full(int(ok.sum()), float(n_group)), n_group, nch,
-                                           False, use)
-            obs = y[ok, c] if phantom is None else np.r_[y[ok, c], phantom[:, c]]
-            out[:, c] = w @ obs
-        return var, mvar
+        patterns = {}
+        for f in range(obs.shape[0]):
+            patterns.setdefault(n[f].tobytes(), []).append(f)
+        first = None
+        for frames in patterns.values():
+            nf = n[frames[0]]
+            y = obs[frames] if phantom is None else np.concatenate([obs[frames],
+                                                                     phantom[frames]], axis=1)
+            y = np.where(np.isfinite(y), y, 0.0)  # reads without pixels: weight 0
+            if (nf == nf[:, :1]).all() and nf[:, 0].any():
+                w, wd, var, mvar = self.weights(strategy, kind, reads, nf[:, 0].astype(float),
+                                                n_group, nch, True, use)
+                flat = np.moveaxis(y, 1, 0).reshape(y.shape[1], -1)  # (k [+ n], F * nch)
+                est = (w @ flat).reshape(-1, len(frames), nch)
+                if wd is not None:
+                    est += (wd @ y.mean(axis=2).T)[:, :, None]
+                out[frames] = np.moveaxis(est, 1, 0)
+            else:  # channels differ: each with its own pixel counts
+                var = mvar = np.full(self.n_reads, np.nan)
+                solved = {}
+                for c in range(nch):
+                    if not nf[:, c].any():
+                        continue  # no usable reference pixel: NaN, flagged by the kernel
+                    key = nf[:, c].tobytes()  # channels with the same counts: same weights
+                    if key not in solved:
+                        solved[key] = self.weights(strategy, kind, reads,
+                                                   nf[:, c].astype(float), n_group, nch,
+                                                   False, use)
+                    w, _, var, mvar = solved[key]
+                    out[frames, :, c] = y[:, :, c] @ w.T
+            if first is None or 0 in frames:
+                first = (var, mvar)
+        return first

@@ -309,9 +309,8 @@ class Kriging:
 
     def __init__(self, c_oo, c_ot, c_tt, regularization=0.0, constants=None, nupdate=0):
         c_oo = np.asarray(c_oo, dtype=np.float64)
-        self.c_ot = np.asarray(c_ot, dtype=np.float64)
-        self.c_tt = np.asarray(c_tt, dtype=np.float64)
-        n, ntargets = self.c_ot.shape
+        c_ot = np.asarray(c_ot, dtype=np.float64)
+        n, ntargets = c_ot.shape
         groups = np.zeros(n, int) if constants is None else np.asarray(constants, int)
         q = int(groups.max()) + 1
         a = np.zeros((n + q, n + q))
@@ -320,12 +319,17 @@ class Kriging:
             a[np.arange(n), np.arange(n)] += regularization * np.mean(np.abs(np.diag(c_oo)))
         a[np.arange(n), n + groups] = a[n + groups, np.arange(n)] = 1.0
         rhs = np.zeros((n + q, ntargets + nupdate))
-        rhs[:n, :ntargets] = self.c_ot
+        rhs[:n, :ntargets] = c_ot
         rhs[n, :ntargets] = 1.0
         rhs[np.arange(nupdate), ntargets + np.arange(nupdate)] = 1.0
         sol = np.linalg.solve(a, rhs)  # LU: several times faster than scipy's "sym" here
         self.n = n
         self.x, self.z = sol[:, :ntargets], sol[:, ntargets:]
+        # [K F; F^T 0][L; nu] = [k; f]  =>  L^T K L = L^T k - f^T nu, so the error variance
+        # is c_tt - sum L k - nu_0; an update's change needs only z^T k (nupdate x T)
+        self.variance = (np.asarray(c_tt, dtype=np.float64)
+                         - np.sum(self.x[:n] * c_ot, axis=0) - self.x[n])
+        self._zk = self.z[:n].T @ c_ot
 
     def weights(self, extra=None):
         """Weights ``(T, n)`` and predicted error variances ``(T,)``.
@@ -336,7 +340,7 @@ class Kriging:
             White variance added to each of the first observations (0: none,
             ``inf``: the observation is not used).
         """
-        x = self.x
+        x, var = self.x, self.variance
         if extra is not None:
             extra = np.asarray(extra, dtype=float)
             m = np.flatnonzero(extra != 0)
@@ -344,11 +348,10 @@ class Kriging:
                 with np.errstate(divide="ignore"):
                     inv = np.where(np.isinf(extra[m]), 0.0, 1.0 / extra[m])
                 s = np.diag(inv) + self.z[m][:, m]
-                x = x - self.z[:, m] @ np.linalg.solve(s, x[m])
-        lam = x[:self.n]
-        # [K F; F^T 0][L; nu] = [k; f]  =>  L^T K L = L^T k - f^T nu
-        var = self.c_tt - np.sum(lam * self.c_ot, axis=0) - x[self.n]
-        return lam.T, var
+                y = np.linalg.solve(s, x[m])
+                x = x - self.z[:, m] @ y
+                var = var + np.sum(y * self._zk[m], axis=0) + self.z[self.n, m] @ y
+        return x[:self.n].T, var
 
 
 def kriging_weights(c_oo, c_ot, c_tt, regularization=0.0, constants=None):

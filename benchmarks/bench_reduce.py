@@ -209,7 +209,9 @@ def bench_file(s, rng, row):
         cmds = {"read": read_once}
         variants = {"spherex-default": ("spherex-default", []),
                     "spherex-default --threads 1": ("spherex-default", ["--threads", "1"]),
-                    "spherex-slopes": ("spherex-slopes", [])}
+                    "spherex-slopes": ("spherex-slopes", []),
+                    # solves its weights in every new process (the CLI's case)
+                    "wiener": ("wiener", [])}
         out = Path(tmp) / "out.fits"
         for key, (config, extra) in variants.items():
             cmds[key] = [*exe, "-q", "reduce", str(path), "-c", config, "-o", str(out),

@@ -302,3 +302,34 @@ def all_or_nothing(paths, overwrite):
     with contextlib.ExitStack() as stack:
         yield [None if p is None else stack.enter_context(atomic_output(p, overwrite))
                for p in paths]
+
+
+def add_dask_options(parser):
+    """``--scheduler`` and ``--workers`` of a command that runs tasks on dask."""
+    from ..limits import MAX_WORKERS
+
+    parser.add_argument("--scheduler", metavar="ADDRESS",
+                        help="dask scheduler address (tcp://host:8786); 'serial' runs "
+                        "in-process")
+    parser.add_argument("--workers", type=count(MAX_WORKERS), default=2,
+                        help="worker processes of the embedded LocalCluster (default 2)")
+
+
+def dask_run_inputs(args, what):
+    """Checks shared by the commands that run a YAML file of tasks on dask (``sweep``,
+    ``compare-strategies``), before any work: dask's INFO lines silenced unless ``-v``,
+    the input file and the scene and pipeline files it names against the outputs, the
+    scheduler reachable.  Returns the plot's path (``--plot`` alone: OUTPUT with .png)."""
+    from ..analysis.scheduler import check_scheduler, quiet_dask_logs
+    from ..config import load_yaml
+
+    if not args.verbose:  # dask's INFO lines about workers and connections
+        quiet_dask_logs()
+    plot = args.plot
+    if plot is True:
+        plot = str(Path(args.output).with_suffix(".png"))
+    named = load_yaml(args.input, what)[0]
+    check_paths([args.input, *named_files(named, Path(args.input).parent)],
+                [args.output, plot])
+    check_scheduler(args.scheduler, name="--scheduler")
+    return plot

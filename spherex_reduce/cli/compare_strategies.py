@@ -1,10 +1,7 @@
 """``spherex-reduce compare-strategies``: judge correction strategies on one noise and sky."""
 
-from pathlib import Path
-
 from ..io import atomic_output
-from ..limits import MAX_WORKERS
-from ._common import check_paths, count, named_files
+from ._common import add_dask_options, dask_run_inputs
 
 
 def add_parser(sub):
@@ -23,33 +20,19 @@ def add_parser(sub):
     p.add_argument("--plot", nargs="?", const=True, metavar="PNG",
                    help="residual P(k) and sky transfer T(k) per pipeline (default: OUTPUT "
                    "with .png)")
-    p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="dask scheduler address (tcp://host:8786); 'serial' runs in-process")
-    p.add_argument("--workers", type=count(MAX_WORKERS), default=2,
-                   help="worker processes of the embedded LocalCluster (default 2)")
+    add_dask_options(p)
     p.add_argument("--overwrite", action="store_true", help="replace OUTPUT (and the plot)")
     p.set_defaults(func=run)
 
 
 def run(args):
     from ..analysis.compare import compare_strategies, format_summary, load_comparison
-    from ..analysis.scheduler import check_scheduler, quiet_dask_logs
-    from ..config import load_yaml
 
-    if not args.verbose:  # dask's INFO lines about workers and connections
-        quiet_dask_logs()
     comparison = load_comparison(args.input)
-    plot = args.plot
-    if plot is True:
-        plot = str(Path(args.output).with_suffix(".png"))
-    # the comparison file, and the scene and pipeline files it names
-    named = load_yaml(args.input, "comparison")[0]
-    check_paths([args.input, *named_files(named, Path(args.input).parent)],
-                [args.output, plot])
+    plot = dask_run_inputs(args, "comparison")
     for path in (args.output, plot):
         if path:
             atomic_output(path, args.overwrite)  # refuse an existing output before any work
-    check_scheduler(args.scheduler, name="--scheduler")
     res = compare_strategies(comparison, args.output, plot=plot, scheduler=args.scheduler,
                              workers=args.workers, overwrite=args.overwrite,
                              progress=not args.quiet)

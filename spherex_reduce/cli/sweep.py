@@ -1,12 +1,10 @@
 """``spherex-reduce sweep``: a parameter sweep on dask.distributed."""
 
 import sys
-from pathlib import Path
 
 from .._text import plural
 from ..io import atomic_output
-from ..limits import MAX_WORKERS
-from ._common import check_paths, count, named_files
+from ._common import add_dask_options, dask_run_inputs
 
 
 def add_parser(sub):
@@ -19,10 +17,7 @@ def add_parser(sub):
         "sweep resumes; failed cells are reported and retried on the next run.")
     p.add_argument("input", metavar="SWEEP.yaml")
     p.add_argument("-o", "--output", required=True, metavar="RESULTS.ecsv")
-    p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="dask scheduler address (tcp://host:8786); 'serial' runs in-process")
-    p.add_argument("--workers", type=count(MAX_WORKERS), default=2,
-                   help="worker processes of the embedded LocalCluster (default 2)")
+    add_dask_options(p)
     p.add_argument("--plot", nargs="?", const=True, metavar="PNG",
                    help="band power against the first grid key (default: OUTPUT with .png)")
     p.add_argument("--overwrite", action="store_true",
@@ -32,26 +27,12 @@ def add_parser(sub):
 
 def run(args):
     from ..analysis.sweep import load_sweep, plot_sweep, run_sweep
-    from ..config import load_yaml
 
-    if not args.verbose:  # dask's INFO lines about workers and connections
-        from ..analysis.scheduler import quiet_dask_logs
-
-        quiet_dask_logs()
     sweep = load_sweep(args.input)
-    plot = args.plot
-    if plot is True:
-        plot = str(Path(args.output).with_suffix(".png"))
-    # the sweep file, and the scene and pipeline files it names
-    named = load_yaml(args.input, "sweep")[0]
-    check_paths([args.input, *named_files(named, Path(args.input).parent)],
-                [args.output, plot])
+    plot = dask_run_inputs(args, "sweep")
     atomic_output(args.output, True)  # checks the name and directory
     if plot:
         atomic_output(plot, True)  # checks the directory; the plot follows the results
-    from ..analysis.scheduler import check_scheduler
-
-    check_scheduler(args.scheduler, name="--scheduler")  # before any work
     res = run_sweep(sweep, args.output, scheduler=args.scheduler, workers=args.workers,
                     overwrite=args.overwrite, progress=not args.quiet)
     print(f"{plural(len(sweep.cells()), 'cell')}: {res.computed} computed, {res.skipped} "

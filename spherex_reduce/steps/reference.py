@@ -155,8 +155,9 @@ def _row_plan(context, est):
         for p in range(groups.shape[1]):
             cols = groups[ch, p][groups[ch, p] >= 0]
             colgroup[cols] = ch * groups.shape[1] + p
-    rows = np.asarray(est.rows, dtype=np.float64)
-    rows = np.where(np.isfinite(rows), rows, 0.0).reshape(rows.shape[0], rows.shape[1], -1)
+    rows = np.asarray(est.rows, dtype=np.float64)  # the estimate's own array when float64:
+    rows = np.nan_to_num(rows, copy=False, nan=0.0, posinf=0.0, neginf=0.0)  # no copy held
+    rows = rows.reshape(rows.shape[0], rows.shape[1], -1)
     width = s.geometry.channel_width
     contiguous = groups.shape[1] == 1 and np.array_equal(
         colgroup, np.repeat(np.arange(groups.shape[0]), width))
@@ -289,13 +290,17 @@ def correct_reference(exposure, strategy="mean", *, registry=None, **params):
     strategy : str
         ``'mean'`` (paper's default: one σ-clipped mean of the reference
         pixels per channel), ``'acn'`` (even/odd samples), ``'median'``
-        (median of all pixels per channel, §5.4), or any strategy of kind
-        ``'reference'`` a plugin registers.
+        (median of all pixels per channel, §5.4), ``'wiener'`` (each
+        channel's drift at every row read, the kriging estimate from its
+        reference reads and phantom values,
+        `~spherex_reduce.steps.wiener.WienerReference`), or any strategy of
+        kind ``'reference'`` a plugin registers.
     registry : `~spherex_reduce.plugins.Registry`, optional
         Where to look strategies up (default: built-ins and installed plugins).
     **params
         The strategy's parameters (``sigma``, ``maxiters``, ``side_columns``
-        for ``mean``/``acn``; ``mask_sources`` ... for ``median``).
+        for ``mean``/``acn``; ``mask_sources`` ... for ``median``; ``noise``,
+        ``domain`` ... for ``wiener``).
 
     Returns
     -------

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 from astropy.table import Table
+from scipy import linalg
 
 from ..config import load_yaml
 from ..errors import ConfigError
@@ -346,31 +347,45 @@ class _Model:
         self.n_reads = cov.schedule.n_reads
         self._lags, self._bases = {}, {}
 
-    def lags(self, kind_a, kind_b, scope):
-        """Covariance of values ``m`` reads apart, indexed by ``m + n_reads - 1``."""
+    def lags(self, kind_a, kind_b, scale):
+        """Covariance of values ``m`` reads apart, indexed by ``m + n_reads - 1``: the
+        channel's terms plus ``scale`` times the common ones."""
         key = (kind_a, kind_b)
         if key not in self._lags:
             m = np.arange(-(self.n_reads - 1), self.n_reads)
             self._lags[key] = self.cov.colored(m, kind_a, kind_b)
-        return self._lags[key][scope]
+        lag = self._lags[key]
+        return lag["channel"] + scale * lag["common"]
 
-    def _system(self, kind, reads, n_used, n_group, scope, phantom):
-        """Covariances (observations, observations-targets, targets) for one scope."""
-        cov, off = self.cov, self.n_reads - 1
-        t = np.arange(self.n_reads)
-        white_t = cov.white(kind, n_group, scope)
-        lag = self.lags(kind, kind, scope)
+    def _white(self, kind, npixels, scale):
+        cov = self.cov
+        return cov.white(kind, npixels, "channel") + scale * cov.white(kind, npixels, "common")
+
+    def _system(self, kind, reads, n_used, n_group, scale, phantom):
+        """Covariances (observations, observations-targets, targets) of the channel's terms
+        plus ``scale`` times the common ones."""
+        off, n = self.n_reads - 1, self.n_reads
+        t = np.arange(n)
+        white_t = self._white(kind, n_group, scale)
+        lag = self.lags(kind, kind, scale)
         k_oo = lag[reads[None, :] - reads[:, None] + off] + np.diag(
-            cov.white(kind, n_used, scope))
+            self._white(kind, n_used, scale))
         k_ot = lag[t[None, :] - reads[:, None] + off] + (t[None, :] == reads[:, None]) * white_t
-        k_tt = np.full(self.n_reads, lag[off] + white_t)
+        k_tt = np.full(n, lag[off] + white_t)
         if not phantom:
             return k_oo, k_ot, k_tt
-        hh = self.lags("phantom", "phantom", scope)[t[None, :] - t[:, None] + off]
-        hh[t, t] += cov.white("phantom", n_group, scope)
-        rh = self.lags(kind, "phantom", scope)[t[None, :] - reads[:, None] + off]
-        ht = self.lags("phantom", kind, scope)[t[None, :] - t[:, None] + off]
-        return np.block([[k_oo, rh], [rh.T, hh]]), np.vstack([k_ot, ht]), k_tt
+        # phantom values at every read: Toeplitz blocks (entry [i, j] is the lag j - i)
+        hh = self.lags("phantom", "phantom", scale)
+        ht = self.lags("phantom", kind, scale)
+        rh = self.lags(kind, "phantom", scale)[t[None, :] - reads[:, None] + off]
+        k = reads.size
+        c_oo = np.empty((k + n, k + n))
+        c_oo[:k, :k], c_oo[:k, k:], c_oo[k:, :k] = k_oo, rh, rh.T
+        c_oo[k:, k:] = linalg.toeplitz(hh[off::-1], hh[off:])
+        c_oo[k + t, k + t] += self._white("phantom", n_group, scale)
+        c_ot = np.empty((k + n, n))
+        c_ot[:k], c_ot[k:] = k_ot, linalg.toeplitz(ht[off::-1], ht[off:])
+        return c_oo, c_ot, k_tt
 
     def _base(self, strategy, kind, reads, n_group, nch, system, phantom):
         """The solved system of full reads (see `Kriging`): ``system`` is ``'channel'``
@@ -379,15 +394,14 @@ class _Model:
         key = (kind, reads.tobytes(), n_group, nch, system, phantom)
         if key not in self._bases:
             full = np.full(reads.size, float(n_group))
-            ch = self._system(kind, reads, full, n_group, "channel", phantom)
-            com = self._system(kind, reads, full, n_group, "common", phantom)
             scale = {"channel": 0, "mean": nch, "total": 1}[system]
-            parts = [a + scale * b for a, b in zip(ch, com, strict=True)]
+            parts = self._system(kind, reads, full, n_group, scale, phantom)
             constants = np.r_[np.zeros(reads.size, int), np.ones(self.n_reads * phantom, int)]
             if len(self._bases) >= _MAX_WEIGHTS:
                 self._bases.pop(next(iter(self._bases)))
             self._bases[key] = (Kriging(*parts, strategy.regularization, constants,
                                         nupdate=reads.size), scale)
+            del parts
         return self._bases[key]
 
     def weights(self, strategy, kind, reads, n_used, n_group, nch, joint, phantom):
@@ -415,10 +429,7 @@ class _Model:
             out = (w, None, v)
         mean_kind = "subtracted" if phantom else kind
         ok = n_used > 0
-        m_oo, m_ot, m_tt = [a + b for a, b in zip(
-            self._system(mean_kind, reads[ok], n_used[ok], n_group, "channel", False),
-            self._system(mean_kind, reads[ok], n_used[ok], n_group, "common", False),
-            strict=True)]
+        m_oo, m_ot, m_tt = self._system(mean_kind, reads[ok], n_used[ok], n_group, 1, False)
         mean = n_used[ok] / n_used[ok].sum()
         mean_var = m_tt - 2 * mean @ m_ot + np.einsum("i,ij,j->", mean, m_oo, mean)
         return (*out, mean_var)

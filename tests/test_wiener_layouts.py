@@ -19,6 +19,7 @@ from _one_by_one import one_by_one
 from astropy.io import fits
 from astropy.io.fits.verify import VerifyWarning
 from astropy.table import Table
+from astropy.utils.exceptions import AstropyUserWarning
 
 from spherex_reduce import (
     DetectorGeometry,
@@ -633,3 +634,58 @@ def test_a_fits_or_missing_noise_file_is_a_one_line_config_error(tmp_path, capsy
     capsys.readouterr()
     assert run("reduce", raw, "-c", cfg, "-o", tmp_path / "out.fits") == 2
     one_line_error(capsys, "correct_reference.noise", name)
+
+
+def test_a_frame_with_a_non_finite_phantom_value_uses_its_reference_reads_alone():
+    """One NaN phantom value: that frame is estimated as with ``phantom: ignore`` (a
+    warning says so), the other frames with their phantom values; nothing is NaN."""
+    s = sched(ref_reads=8, phantom=2)
+    rng = np.random.default_rng(11)
+    data = rng.normal(0, 1, (3, s.n_reads, NCOLS)) + 5.0
+    ph = rng.normal(0, 1, (3, s.n_reads, NCH))
+    ph_bad = ph.copy()
+    ph_bad[1, 10, 2] = np.nan
+    with pytest.warns(AstropyUserWarning, match="1 frame"):
+        out = correct_reference(Exposure.from_arrays(data, s, phantom=ph_bad), "wiener")
+    used = correct_reference(Exposure.from_arrays(data, s, phantom=ph), "wiener")
+    ignored = correct_reference(Exposure.from_arrays(data, s, phantom=ph), "wiener",
+                                phantom="ignore")
+    assert np.isfinite(out.data.data).all()
+    np.testing.assert_allclose(out.data.data[[0, 2]], used.data.data[[0, 2]], rtol=0,
+                               atol=1e-12)
+    np.testing.assert_allclose(out.data.data[1], ignored.data.data[1], rtol=0, atol=1e-12)
+
+
+def test_threads_asking_for_one_model_solve_it_once(monkeypatch):
+    """Bands or dask threads asking at once: each system is solved once."""
+    import threading
+
+    from spherex_reduce.steps import wiener as wmod
+
+    solved = []
+    real = wmod.Kriging
+
+    class Counting(real):
+        def __init__(self, *args, **kwargs):
+            solved.append(1)
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(wmod, "Kriging", Counting)
+    wmod._MODELS.clear()
+    s = sched(ref_reads=8, phantom=2)
+    e = Exposure.from_arrays(np.random.default_rng(2).normal(0, 1, (3, s.n_reads, NCOLS)), s,
+                             phantom=np.zeros((3, s.n_reads, NCH)))
+    outs = [None] * 4
+
+    def run(i):
+        outs[i] = correct_reference(e, "wiener").data.data
+
+    threads = [threading.Thread(target=run, args=(i,)) for i in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(solved) == 2  # the channel deviations and the channel mean, once each
+    for o in outs[1:]:
+        np.testing.assert_array_equal(o, outs[0])
+    wmod._MODELS.clear()

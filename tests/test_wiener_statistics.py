@@ -245,10 +245,13 @@ def test_read_covariance_matches_the_brute_force_sums():
         pix = np.where(kind == "pixel")[0].reshape(s.n_reads, w)
         ph = np.where(kind == "phantom")[0].reshape(s.n_reads, c)
         for a, b, ia, ib in (("pixels", "pixels", pix, pix), ("phantom", "phantom", ph, ph),
-                             ("pixels", "phantom", pix, ph)):
-            brute = np.array([k[np.ix_(ia[0], ib[m])].mean() for m in range(s.n_reads)])
+                             ("pixels", "phantom", pix, ph), ("phantom", "pixels", ph, pix)):
+            # the second read m reads after the first, m of either sign
+            m = np.arange(-(s.n_reads - 1), s.n_reads)
+            first = np.maximum(-m, 0)
+            brute = np.array([k[np.ix_(ia[i], ib[i + d])].mean() for i, d in zip(first, m, strict=True)])
             white = rc.white(a, w, scope) if a == b else 0.0
-            model = rc.colored(np.arange(s.n_reads), a, b)[scope]
-            model[0] += white
+            model = rc.colored(m, a, b)[scope]
+            model[m == 0] += white
             assert np.allclose(model, brute, rtol=1e-6, atol=1e-9 * np.abs(brute).max()), (
                 scope, a, b)

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 from astropy.table import Table
+from astropy.utils.exceptions import AstropyUserWarning
 from scipy import linalg
 
 from ..config import load_yaml
@@ -32,7 +33,6 @@ from .reference_strategies import (
     ALL,
     EVEN,
     ODD,
-    NoReferenceError,
     ReferenceOffsets,
     _group_columns,
     reference_pixels,
@@ -262,10 +262,14 @@ class WienerReference(Strategy):
         phantom = None
         if self.uses_phantom(context) and side.read_phantom is not None:
             phantom = np.asarray(side.read_phantom, dtype=np.float64)
-            if not np.isfinite(phantom).all():
-                raise NoReferenceError("correct_reference (wiener): the phantom values are "
-                                       "not all finite; subtract_phantom first, or phantom: "
-                                       "ignore")
+        # a frame with a non-finite phantom value: estimated from its reference reads alone
+        # (its phantom values are consumed all the same: nothing subtracts them later)
+        bad = np.zeros(values.shape[0], bool) if phantom is None else ~np.isfinite(
+            phantom).all(axis=(1, 2))
+        if bad.any():
+            warnings.warn(f"correct_reference (wiener): {int(bad.sum())} frame(s) with "
+                          "non-finite phantom values estimated from the reference reads alone",
+                          AstropyUserWarning, stacklevel=2)
         subtracted = bool(s.phantom_reads) and not context.phantom
         kind = "subtracted" if subtracted and phantom is None else "pixels"
         groups = _group_columns(g, self.acn)  # (nch, P, w), -1 pads
@@ -279,8 +283,20 @@ class WienerReference(Strategy):
             cols = groups[0, p][groups[0, p] >= 0]
             model = self._model(s, domain, g.column_offsets()[cols])
             out = np.full((L, n_reads, nch), np.nan)
-            predicted[p], mean_predicted[p] = model.estimate(
-                self, kind, reads, obs[..., p], n[..., p], cols.size, phantom, out)
+            good = ~bad
+            if good.any():
+                part = out[good]
+                predicted[p], mean_predicted[p] = model.estimate(
+                    self, kind, reads, obs[good][..., p], n[good][..., p], cols.size,
+                    None if phantom is None else phantom[good], part)
+                out[good] = part
+            if bad.any():  # without phantom values: the pixels' own drift
+                rest = out[bad]
+                var = model.estimate(self, "pixels", reads, obs[bad][..., p], n[bad][..., p],
+                                     cols.size, None, rest)
+                out[bad] = rest
+                if not good.any():
+                    predicted[p], mean_predicted[p] = var
             rows[..., p] = out
         active = s.active_read_indices
         with warnings.catch_warnings():  # a group without usable pixels: NaN, flagged later
@@ -346,15 +362,17 @@ class _Model:
         self.cov = cov
         self.n_reads = cov.schedule.n_reads
         self._lags, self._bases = {}, {}
+        self._lock = threading.RLock()  # one solve per key, whatever thread asks first
 
     def lags(self, kind_a, kind_b, scale):
         """Covariance of values ``m`` reads apart, indexed by ``m + n_reads - 1``: the
         channel's terms plus ``scale`` times the common ones."""
         key = (kind_a, kind_b)
-        if key not in self._lags:
-            m = np.arange(-(self.n_reads - 1), self.n_reads)
-            self._lags[key] = self.cov.colored(m, kind_a, kind_b)
-        lag = self._lags[key]
+        with self._lock:
+            if key not in self._lags:
+                m = np.arange(-(self.n_reads - 1), self.n_reads)
+                self._lags[key] = self.cov.colored(m, kind_a, kind_b)
+            lag = self._lags[key]
         return lag["channel"] + scale * lag["common"]
 
     def _white(self, kind, npixels, scale):
@@ -392,6 +410,10 @@ class _Model:
         (the deviations from the channel mean), ``'mean'`` (the channel mean) or
         ``'total'`` (one channel alone)."""
         key = (kind, reads.tobytes(), n_group, nch, system, phantom)
+        with self._lock:
+            return self._build(key, strategy, kind, reads, n_group, nch, system, phantom)
+
+    def _build(self, key, strategy, kind, reads, n_group, nch, system, phantom):
         if key not in self._bases:
             full = np.full(reads.size, float(n_group))
             scale = {"channel": 0, "mean": nch, "total": 1}[system]

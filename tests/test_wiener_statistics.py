@@ -249,7 +249,8 @@ def test_read_covariance_matches_the_brute_force_sums():
             # the second read m reads after the first, m of either sign
             m = np.arange(-(s.n_reads - 1), s.n_reads)
             first = np.maximum(-m, 0)
-            brute = np.array([k[np.ix_(ia[i], ib[i + d])].mean() for i, d in zip(first, m, strict=True)])
+            brute = np.array([k[np.ix_(ia[i], ib[i + d])].mean()
+                              for i, d in zip(first, m, strict=True)])
             white = rc.white(a, w, scope) if a == b else 0.0
             model = rc.colored(m, a, b)[scope]
             model[m == 0] += white

@@ -221,7 +221,8 @@ class WienerReference(Strategy):
         Returns
         -------
         wiener, mean : `numpy.ndarray`, shape ``(n_reads,)``
-            In the data unit squared (the slope unit for ``domain: slopes``).
+            In the noise model's unit squared: e² for ``domain: frames``, (e/s)²
+            for ``slopes`` (compare them with data in electrons).
 
         Examples
         --------
@@ -348,7 +349,9 @@ class WienerReference(Strategy):
             "noise": str(self.noise), "common": sorted(self.common),
             "phantom_used": bool(used_phantom),
             "predicted_rms_error": rms(predicted),
-            "mean_predicted_rms_error": rms(mean_predicted)})
+            "mean_predicted_rms_error": rms(mean_predicted),
+            # the noise model's unit, whatever the data's (BUNIT) is
+            "predicted_unit": "electron / s" if domain == "slopes" else "electron"})
         table["drift"].description = (f"drift subtracted from each read of the frame, in read "
                                       f"order ({unit or 'data unit'})")
         return table

@@ -26,7 +26,18 @@ from .layout import _RESERVED
 __all__ = ["FrameReader"]
 
 
-class FrameReader:
+class _Closing:
+    """``with reader:`` closes the reader's files at the end of the block."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+
+class FrameReader(_Closing):
     """Read a raw ramp file by reads of every frame (or by frames), never all of it at once.
 
     The executor (`spherex_reduce.executor.FileSource`) reads bands of rows of
@@ -100,13 +111,6 @@ class FrameReader:
         """``values`` (reads ``(..., columns)`` as `reads` gives them) multiplied in place
         by the gain of ``input:`` (nothing if none), as `~spherex_reduce.io.read` does."""
         return apply_gain(values, self._gain, self.schedule.geometry)
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-        return False
 
     def close(self):
         """Close the file."""

@@ -30,7 +30,7 @@ from .fits_read import (
     _scaling,
     _to_physical,
 )
-from .frames import _map_frames, _pread
+from .frames import _Closing, _map_frames, _pread
 from .input import InputOptions, apply_gain, apply_input
 from .layout import _RESERVED
 
@@ -159,7 +159,7 @@ class _ReadFile:
         self.hdul.close()
 
 
-class ReadFiles:
+class ReadFiles(_Closing):
     """A ramp stored as one FITS file per read, read a band of rows of every frame at a time.
 
     It offers what `~spherex_reduce.executor.FileSource` asks of a
@@ -263,13 +263,6 @@ class ReadFiles:
             if got != want:
                 raise FormatError(f"{f.path}: {what} is {got}, but {first.path} has {want}: the "
                                   "files of one ramp must agree")
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-        return False
 
     def close(self):
         """Close every file."""

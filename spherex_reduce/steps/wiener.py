@@ -240,14 +240,30 @@ class WienerReference(Strategy):
         reads = s.reference_read_indices if reads is None else np.asarray(reads, dtype=int)
         groups = _group_columns(s.geometry, self.acn)
         cols = groups[0, parity][groups[0, parity] >= 0]
-        domain = self.domain if self.domain != "auto" else (
-            "frames" if context.ramp else "slopes")
+        domain = self._domain(context)
         use = self.uses_phantom(context)
-        kind = "pixels" if use or not (s.phantom_reads and not context.phantom) else "subtracted"
+        kind = self._kind(context, use)
         model = self._model(s, domain, s.geometry.column_offsets()[cols])
         *_, var, mvar = model.weights(self, kind, reads, np.full(reads.size, float(cols.size)),
                                       cols.size, s.geometry.nchannels, True, use)
         return var, mvar
+
+    def _domain(self, context):
+        """``frames`` or ``slopes``: ``auto`` is frames for ramps (or a single frame)."""
+        nframes = context.schedule.nframes
+        if self.domain == "auto":
+            return "frames" if context.ramp or nframes < 2 else "slopes"
+        if self.domain == "slopes" and nframes < 2:
+            raise ConfigError("correct_reference.domain: slopes needs a schedule of at least "
+                              f"2 frames (NFRAMES={nframes}); use domain: frames")
+        return self.domain
+
+    @staticmethod
+    def _kind(context, with_phantom):
+        """What a read's value is: its pixels' mean, minus its phantom value once
+        ``subtract_phantom`` has run (`~spherex_reduce.noise.read_covariance.KINDS`)."""
+        subtracted = bool(context.schedule.phantom_reads) and not context.phantom
+        return "subtracted" if subtracted and not with_phantom else "pixels"
 
     # -- the estimate -------------------------------------------------------------------
     def estimate(self, side, context, exposure=None):
@@ -255,11 +271,7 @@ class WienerReference(Strategy):
         g = s.geometry
         values = reference_pixels(side, s)  # (L, k, ncols), NaN: unusable
         reads = _reads_of(side, s)
-        domain = self.domain if self.domain != "auto" else (
-            "frames" if context.ramp or s.nframes < 2 else "slopes")
-        if domain == "slopes" and s.nframes < 2:
-            raise ConfigError("correct_reference.domain: slopes needs a schedule of at least "
-                              f"2 frames (NFRAMES={s.nframes}); use domain: frames")
+        domain = self._domain(context)
         phantom = None
         if self.uses_phantom(context) and side.read_phantom is not None:
             phantom = np.asarray(side.read_phantom, dtype=np.float64)
@@ -271,8 +283,7 @@ class WienerReference(Strategy):
             warnings.warn(f"correct_reference (wiener): {int(bad.sum())} frame(s) with "
                           "non-finite phantom values estimated from the reference reads alone",
                           AstropyUserWarning, stacklevel=2)
-        subtracted = bool(s.phantom_reads) and not context.phantom
-        kind = "subtracted" if subtracted and phantom is None else "pixels"
+        kind = self._kind(context, phantom is not None)
         groups = _group_columns(g, self.acn)  # (nch, P, w), -1 pads
         nch, npar = groups.shape[:2]
         obs, n, clipped = self._reference_values(values, groups)
@@ -284,19 +295,15 @@ class WienerReference(Strategy):
             cols = groups[0, p][groups[0, p] >= 0]
             model = self._model(s, domain, g.column_offsets()[cols])
             out = np.full((L, n_reads, nch), np.nan)
-            good = ~bad
-            if good.any():
-                part = out[good]
-                predicted[p], mean_predicted[p] = model.estimate(
-                    self, kind, reads, obs[good][..., p], n[good][..., p], cols.size,
-                    None if phantom is None else phantom[good], part)
-                out[good] = part
-            if bad.any():  # without phantom values: the pixels' own drift
-                rest = out[bad]
-                var = model.estimate(self, "pixels", reads, obs[bad][..., p], n[bad][..., p],
-                                     cols.size, None, rest)
-                out[bad] = rest
-                if not good.any():
+            # frames with their phantom values, then those without (the pixels' own drift)
+            for frames, k, ph in ((~bad, kind, phantom), (bad, "pixels", None)):
+                if not frames.any():
+                    continue
+                part = out[frames]
+                var = model.estimate(self, k, reads, obs[frames][..., p], n[frames][..., p],
+                                     cols.size, None if ph is None else ph[frames], part)
+                out[frames] = part
+                if np.isnan(predicted[p]).all():  # the first frames' prediction
                     predicted[p], mean_predicted[p] = var
             rows[..., p] = out
         active = s.active_read_indices

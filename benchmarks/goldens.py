@@ -1,0 +1,193 @@
+"""Goldens for a restructuring: the reductions and the public names, as hashes.
+
+Reduces fixed-seed raw files with every shipped pipeline config, through every
+route a user has (a path streamed by the executor, the exposure in memory, the
+command line, one file per read, a 4-D file of integrations), and writes the
+SHA-256 of every extension of every output (data, and header cards other than
+checksums and dates; ``PROVENANCE`` without its ``elapsed`` column), with the
+``__all__`` of every public module.  Run it before a change and after: the two
+JSON files must be identical.
+
+    python benchmarks/goldens.py -o before.json
+    ... change ...
+    python benchmarks/goldens.py -o after.json --check before.json
+
+The hashes depend on numpy, astropy and the platform: compare runs made in one
+environment, not with another machine's file.
+"""
+
+import argparse
+import hashlib
+import importlib
+import json
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import yaml
+from astropy.io import fits
+
+VOLATILE = {"CHECKSUM", "DATASUM", "DATE", "DATE-OBS", "DATE-END"}
+PUBLIC_MODULES = [
+    "spherex_reduce", "spherex_reduce.io", "spherex_reduce.steps", "spherex_reduce.noise",
+    "spherex_reduce.simulation", "spherex_reduce.analysis", "spherex_reduce.plugin",
+]
+SCENE = {
+    "geometry": {"nrows": 64, "ncols": 64, "nchannels": 4, "ref_border": 4},
+    "readout": {"skip": 4, "ref_reads": 8, "ref_mode": "distributed", "phantom_reads": 2,
+                "nframes": 6, "frame_overhead": 100},
+    "noise": {"table": "spherex-table2"},
+    "output": {"mode": "ramps"},
+}
+
+
+def _hash_hdu(hdu):
+    h = hashlib.sha256()
+    history = []
+    for card in hdu.header.cards:
+        if card.keyword in VOLATILE:
+            continue
+        if card.keyword == "HISTORY":  # long texts wrap over cards: join them first
+            history.append(str(card.value))
+            continue
+        h.update(f"{card.keyword}={card.value}\n".encode())
+    # step timings ("unchop complete in 0.0003 s") are not results
+    # (a card's trailing blank is lost where a wrap falls on it: compare without blanks)
+    text = "".join("".join(history).split())
+    h.update(re.sub(r"in[0-9.e+-]+s:", "in?s:", text).encode())
+    if hdu.data is not None:
+        data = hdu.data
+        if isinstance(hdu, (fits.BinTableHDU, fits.TableHDU)):
+            for name in data.columns.names:
+                if name == "elapsed":
+                    continue
+                h.update(name.encode())
+                h.update(np.ascontiguousarray(np.asarray(data[name])).tobytes())
+        else:
+            h.update(np.ascontiguousarray(data).tobytes())
+    return h.hexdigest()
+
+
+def hash_file(path):
+    """``{extension name: sha256}`` of a FITS file."""
+    out = {}
+    with fits.open(path) as hdul:
+        for i, hdu in enumerate(hdul):
+            out[f"{i}:{hdu.name}"] = _hash_hdu(hdu)
+    return out
+
+
+def public_names():
+    names = {}
+    for module in PUBLIC_MODULES:
+        try:
+            mod = importlib.import_module(module)
+        except ImportError:
+            continue
+        names[module] = sorted(getattr(mod, "__all__", []))
+    return names
+
+
+def make_inputs(work):
+    from spherex_reduce.simulation import simulate_to_fits
+
+    raw = work / "raw.fits"
+    other = work / "other.fits"
+    simulate_to_fits(SCENE, raw, seed=11)
+    simulate_to_fits(SCENE, other, seed=12)
+    # one file per read: a 2-D image each, the readout from the pipeline config
+    reads = work / "reads"
+    reads.mkdir()
+    with fits.open(raw) as hdul:
+        cube = hdul["SCI"].data
+        for k in range(cube.shape[0]):
+            fits.PrimaryHDU(cube[k]).writeto(reads / f"read_{k + 1:02d}.fits")
+    readout = {**SCENE["readout"], "phantom_reads": 0}
+    config = {"geometry": {**SCENE["geometry"], "pixel_rate": 1e5}, "readout": readout,
+              "steps": ["unchop", "correct_reference", "fit_ramp", "sigma_clip"]}
+    (work / "reads.yaml").write_text(yaml.safe_dump(config))
+    # a 4-D file of two integrations
+    four = work / "four.fits"
+    with fits.open(raw) as hdul:
+        copies = fits.HDUList([h.copy() for h in hdul])
+        copies["SCI"].data = np.stack([hdul["SCI"].data, hdul["SCI"].data * 0.5 + 1])
+        copies["PHANTOM"].data = np.stack([hdul["PHANTOM"].data, hdul["PHANTOM"].data])
+        copies.writeto(four, checksum=True)
+    return raw, other, reads, four
+
+
+def run(work):
+    import spherex_reduce as sr
+    from spherex_reduce.io import write
+
+    raw, other, reads, four = make_inputs(work)
+    results = {"public_names": public_names()}
+    configs = sorted(p.stem for p in
+                     (Path(sr.__file__).parent / "data" / "configs").glob("*.yaml"))
+    for name in configs:
+        pipe = sr.Pipeline.from_yaml(name)
+        config = pipe.config
+        if name == "measured-dark-pair":
+            for step in config["steps"]:
+                if "pair_difference" in step:
+                    step["pair_difference"]["other"] = str(other)
+            pipe = sr.Pipeline(config, source=name)
+        for route, source in (("path", str(raw)), ("memory", sr.read(raw))):
+            out = work / f"{name}-{route}.fits"
+            write(pipe.run(source, threads=2), out)
+            results[f"{name}/{route}"] = hash_file(out)
+    # the command line, streaming and whole
+    for name in ("spherex-default", "wiener", "spherex-slopes"):
+        out = work / f"{name}-cli.fits"
+        subprocess.run([sys.executable, "-m", "spherex_reduce.cli", "-q", "reduce", str(raw),
+                        "-c", name, "-o", str(out)], check=True)
+        results[f"{name}/cli"] = hash_file(out)
+    out = work / "reads-cli.fits"
+    subprocess.run([sys.executable, "-m", "spherex_reduce.cli", "-q", "reduce", "--reads",
+                    str(reads / "read_*.fits"), "-c", str(work / "reads.yaml"), "-o", str(out)],
+                   check=True)
+    results["spherex-default/reads-cli"] = hash_file(out)
+    out = work / "four-cli.fits"
+    subprocess.run([sys.executable, "-m", "spherex_reduce.cli", "-q", "reduce", str(four),
+                    "-c", "spherex-default", "-o", str(out)], check=True)
+    results["spherex-default/4d-cli"] = hash_file(out)
+    return results
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("-o", "--output", required=True, help="JSON file to write")
+    parser.add_argument("--check", help="an earlier JSON file that must be identical")
+    args = parser.parse_args(argv)
+    # one fixed folder: input paths are recorded in the outputs' headers
+    work = Path(tempfile.gettempdir()) / "spherex-reduce-goldens"
+    shutil.rmtree(work, ignore_errors=True)
+    work.mkdir()
+    try:
+        results = run(work)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    Path(args.output).write_text(json.dumps(results, indent=1, sort_keys=True))
+    print(f"{len(results) - 1} reductions hashed into {args.output}")
+    if args.check:
+        before = json.loads(Path(args.check).read_text())
+        differ = [key for key in sorted(set(before) | set(results))
+                  if before.get(key) != results.get(key)]
+        for key in differ:
+            print(f"DIFFERS: {key}")
+            b, a = before.get(key), results.get(key)
+            if isinstance(b, dict) and isinstance(a, dict):
+                for k in sorted(set(b) | set(a)):
+                    if b.get(k) != a.get(k):
+                        print(f"    {k}: {b.get(k)} -> {a.get(k)}")
+        print("identical" if not differ else f"{len(differ)} differ")
+        return 1 if differ else 0
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -29,7 +29,7 @@ from pathlib import Path
 
 from spherex_reduce import Pipeline
 from spherex_reduce.analysis.compare import compare_strategies, format_summary
-from spherex_reduce.errors import SpherexReduceError
+from spherex_reduce.core.errors import SpherexReduceError
 
 #: The paper's reduction with the ``fourier`` strategy of plugins/fourier_filter:
 #: slopes first, then the image's horizontal Fourier axis filtered.

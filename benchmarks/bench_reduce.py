@@ -33,8 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from spherex_reduce import Exposure, ReadoutSchedule, correct_reference, fit_ramp, unchop, write
-from spherex_reduce.executor import default_threads
-from spherex_reduce.steps.fit_ramp import FitRampStep
+from spherex_reduce.reduce.executor import default_threads
+from spherex_reduce.reduce.steps.fit_ramp import FitRampStep
 
 READ_NOISE = 10.0
 
@@ -242,7 +242,7 @@ def bench_plugin_strategy(path, row):
     import importlib.util
 
     from spherex_reduce import Pipeline
-    from spherex_reduce.plugins import Registry, get_plugin_manager
+    from spherex_reduce.reduce.plugins import Registry, get_plugin_manager
 
     example = Path(__file__).parents[1] / "docs" / "examples" / "reference_median.py"
     spec = importlib.util.spec_from_file_location("reference_median", example)

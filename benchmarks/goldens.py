@@ -33,7 +33,7 @@ from astropy.io import fits
 
 VOLATILE = {"CHECKSUM", "DATASUM", "DATE", "DATE-OBS", "DATE-END"}
 PUBLIC_MODULES = [
-    "spherex_reduce", "spherex_reduce.io", "spherex_reduce.steps", "spherex_reduce.noise",
+    "spherex_reduce", "spherex_reduce.io", "spherex_reduce.reduce.steps", "spherex_reduce.noise",
     "spherex_reduce.simulation", "spherex_reduce.analysis", "spherex_reduce.plugin",
 ]
 SCENE = {

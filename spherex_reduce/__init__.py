@@ -8,17 +8,17 @@ spatial power-spectrum analysis.
 
 import logging
 
-from . import dq
 from ._version import __version__
-from .errors import ConfigError, FormatError, PluginError, SpherexReduceError, StepSkipped
-from .exposure import Exposure, ReferenceReads
-from .geometry import DetectorGeometry, RefBorder
-from .integrations import reduce_integrations
+from .core import dq
+from .core.errors import ConfigError, FormatError, PluginError, SpherexReduceError, StepSkipped
+from .core.exposure import Exposure, ReferenceReads
+from .core.geometry import DetectorGeometry, RefBorder
+from .core.schedule import ReadoutSchedule
 from .io import read, write
-from .pipeline import Pipeline
-from .schedule import ReadoutSchedule
-from .step import Simulator, Step, Strategy
-from .steps import (
+from .reduce.integrations import reduce_integrations
+from .reduce.pipeline import Pipeline
+from .reduce.step import Simulator, Step, Strategy
+from .reduce.steps import (
     combine_darks,
     correct_reference,
     fit_ramp,

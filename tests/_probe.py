@@ -41,7 +41,7 @@ import importlib
 import numpy, yaml, astropy.io.fits, astropy.table, astropy.units
 import spherex_reduce.cli
 spherex_reduce.cli.build_parser()  # imports every command's module
-for name in ("spherex_reduce.simulation", "spherex_reduce.analysis", "spherex_reduce.demo",
+for name in ("spherex_reduce.simulation", "spherex_reduce.analysis", "spherex_reduce.analysis.demo",
              "spherex_reduce.analysis.sweep", "spherex_reduce.analysis.figures",
              "spherex_reduce.analysis.plots", "matplotlib.pyplot", "ccdproc", "scipy.signal",
              "scipy.optimize"):

@@ -11,7 +11,7 @@ from spherex_reduce.analysis import (
     run_case,
 )
 from spherex_reduce.analysis.sweep import load_sweep, run_cell
-from spherex_reduce.errors import SpherexReduceError
+from spherex_reduce.core.errors import SpherexReduceError
 from spherex_reduce.simulation import simulate
 
 SCENE = {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 2, "ref_border": 4},

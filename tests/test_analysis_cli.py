@@ -82,7 +82,7 @@ def test_fit_noise_cli(tmp_path, capsys):
 def _strip_schedule(src, dst):
     """Copy FITS ``src`` to ``dst`` without its schedule: no geometry or readout keyword, no
     ``READOUT`` table (as a file from other electronics comes)."""
-    from spherex_reduce.fields import FIELDS
+    from spherex_reduce.core.fields import FIELDS
 
     with fits.open(src) as hdul:
         hdus = fits.HDUList([h.copy() for h in hdul if h.name != "READOUT"])

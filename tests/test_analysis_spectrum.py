@@ -16,7 +16,7 @@ from spherex_reduce.analysis import (
     source_mask,
     theta_from_k,
 )
-from spherex_reduce.errors import SpherexReduceError
+from spherex_reduce.core.errors import SpherexReduceError
 
 
 def white(shape, sigma, seed=0):

@@ -6,7 +6,7 @@ from astropy.table import Table
 
 from spherex_reduce.analysis.sweep import load_sweep, plot_sweep, run_sweep
 from spherex_reduce.cli import main
-from spherex_reduce.errors import ConfigError
+from spherex_reduce.core.errors import ConfigError
 
 SWEEP = {
     "scene": {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 4, "ref_border": 4},
@@ -136,7 +136,7 @@ def test_scheduler_that_is_not_dask_is_an_input_error_named_fast():
 
 @pytest.mark.parametrize("workers", [0, -1, 2.5])
 def test_workers_outside_one_to_many_are_refused(workers):
-    from spherex_reduce.errors import ResourceError
+    from spherex_reduce.core.errors import ResourceError
 
     with pytest.raises(ResourceError, match="workers must be a whole number"):
         run_sweep(SWEEP, workers=workers)

@@ -20,7 +20,7 @@ from spherex_reduce.analysis import (
     reference_timestream,
     temporal_psd,
 )
-from spherex_reduce.errors import SpherexReduceError
+from spherex_reduce.core.errors import SpherexReduceError
 
 FS = 1e5
 #: the paper's Table 2: alpha (e²/Hz), beta (e²), gamma (e² Hz^0.3)

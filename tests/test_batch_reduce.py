@@ -8,8 +8,8 @@ from astropy.stats import mad_std
 from astropy.table import Table
 
 from spherex_reduce import read, write
-from spherex_reduce.analysis import batch
-from spherex_reduce.examples import example_raw_exposure
+from spherex_reduce.io.examples import example_raw_exposure
+from spherex_reduce.reduce import batch
 
 
 @pytest.fixture

@@ -10,7 +10,7 @@ from astropy.table import Table
 
 import spherex_reduce
 from spherex_reduce import read, write
-from spherex_reduce.examples import example_raw_exposure
+from spherex_reduce.io.examples import example_raw_exposure
 
 
 def test_version_and_help(capsys):
@@ -86,7 +86,7 @@ def test_reduce_and_show_config(tmp_path, capsys, small_schedule):
 @pytest.mark.parametrize("threads", ["1", "3"])
 def test_reduce_threads_give_the_same_numbers(tmp_path, capsys, small_schedule, threads,
                                               monkeypatch):
-    from spherex_reduce import executor
+    from spherex_reduce.reduce import executor
 
     monkeypatch.setattr(executor, "BAND_PIXELS", 4 * 16)  # several bands of 4 rows
     raw = example_raw_exposure(small_schedule, seed=7)
@@ -115,7 +115,7 @@ def test_plugins_lists_providers(capsys):
 
 
 def test_demo_runs_and_refuses_to_overwrite(tmp_path, capsys):
-    from spherex_reduce.demo import PRODUCTS
+    from spherex_reduce.analysis.demo import PRODUCTS
 
     assert run("-q", "demo", "-o", tmp_path / "d", "--size", 128, "--nframes", 6) == 0
     out = capsys.readouterr().out

@@ -329,8 +329,8 @@ def test_warnings_are_one_line_each_and_shown_once(tmp_path):
 
 PLUGIN = """\
 import sys
-from spherex_reduce.hookspecs import hookimpl
-from spherex_reduce.step import Simulator, Step
+from spherex_reduce.reduce.hookspecs import hookimpl
+from spherex_reduce.reduce.step import Simulator, Step
 
 {at_import}
 

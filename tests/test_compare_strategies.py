@@ -21,7 +21,7 @@ from spherex_reduce.analysis import (
     sky_field,
     white_floor,
 )
-from spherex_reduce.errors import ConfigError
+from spherex_reduce.core.errors import ConfigError
 
 GEOMETRY = {"nrows": 64, "ncols": 64, "nchannels": 4, "ref_border": 4}
 READOUT = {"skip": 4, "ref_reads": 8, "nframes": 4, "phantom_reads": 2}
@@ -100,7 +100,7 @@ def test_injection_puts_the_field_on_light_sensitive_pixels_only(mode):
     assert np.all(slope[~light[s.rows]] == 0) and np.all(slope[:, g.reference_column_mask()] == 0)
     assert np.count_nonzero(slope) == (g.nrows - 8) * (g.ncols - 8)
     # an exposure already in physical order gets the same sky on the same reads
-    from spherex_reduce.steps import unchop
+    from spherex_reduce.reduce.steps import unchop
 
     assert np.array_equal(unchop(out).data.data, inject_sky(unchop(raw), sky).data.data,
                           equal_nan=True)

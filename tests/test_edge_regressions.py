@@ -18,7 +18,7 @@ from spherex_reduce import (
     write,
 )
 from spherex_reduce.cli import main
-from spherex_reduce.examples import example_raw_exposure, tiny_schedule
+from spherex_reduce.io.examples import example_raw_exposure, tiny_schedule
 
 
 def test_rereads_average_only_usable_reads():
@@ -138,7 +138,7 @@ def test_pair_difference_reads_a_foreign_second_file_with_the_config_sections(tm
         subtract_phantom,
         unchop,
     )
-    from spherex_reduce.examples import example_raw_exposure
+    from spherex_reduce.io.examples import example_raw_exposure
 
     s = ReadoutSchedule(DetectorGeometry(32, 16, 2, ref_border=2), skip=5, ref_reads=6,
                         ref_mode="distributed", phantom_reads=3, row_overhead=2,

@@ -1,6 +1,6 @@
 """The field table against everything derived from it: dataclasses, FITS, YAML, CLI and docs.
 
-Each test starts from `spherex_reduce.fields.FIELDS` and checks a derived description
+Each test starts from `spherex_reduce.core.fields.FIELDS` and checks a derived description
 through its public behaviour (a header read by keyword, a YAML file, a command line), so
 a field added to one description but not to another fails here.
 """
@@ -17,15 +17,15 @@ from astropy import units as u
 from spherex_reduce import DetectorGeometry, ReadoutSchedule
 from spherex_reduce.cli import main
 from spherex_reduce.cli import readout as readout_cli
-from spherex_reduce.config import (
+from spherex_reduce.core.errors import ConfigError, FormatError
+from spherex_reduce.core.fields import FIELD, FIELDS, SIDES, section_fields
+from spherex_reduce.core.parameters import validate_parameters
+from spherex_reduce.io.config import (
     GEOMETRY_PARAMETERS,
     READOUT_PARAMETERS,
     load_yaml,
     schedule_from_config,
 )
-from spherex_reduce.errors import ConfigError, FormatError
-from spherex_reduce.fields import FIELD, FIELDS, SIDES, section_fields
-from spherex_reduce.parameters import validate_parameters
 
 DOCS = Path(__file__).resolve().parent.parent / "docs"
 

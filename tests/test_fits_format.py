@@ -9,7 +9,7 @@ from astropy import units as u
 from astropy.io import fits
 
 from spherex_reduce import Exposure, FormatError, Pipeline, read, unchop, write
-from spherex_reduce.examples import example_raw_exposure
+from spherex_reduce.io.examples import example_raw_exposure
 
 
 @pytest.fixture

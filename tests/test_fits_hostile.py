@@ -26,9 +26,9 @@ from spherex_reduce import (
 )
 from spherex_reduce.analysis.io import read_image
 from spherex_reduce.cli import main
-from spherex_reduce.errors import ResourceError
-from spherex_reduce.examples import example_raw_exposure
+from spherex_reduce.core.errors import ResourceError
 from spherex_reduce.io import FrameReader, checksum_policy
+from spherex_reduce.io.examples import example_raw_exposure
 
 STEPS = {"steps": ["unchop", "subtract_phantom", {"correct_reference": {"strategy": "mean"}},
                    "fit_ramp"]}

@@ -16,7 +16,7 @@ from astropy.io import fits
 import spherex_reduce as sr
 from spherex_reduce import dq
 from spherex_reduce.cli import main
-from spherex_reduce.errors import ConfigError, FormatError
+from spherex_reduce.core.errors import ConfigError, FormatError
 from spherex_reduce.io import foreign_dq_bits
 
 GEOMETRY = {"nrows": 16, "ncols": 8, "nchannels": 2, "ref_border": 2, "pixel_rate": 1e5}

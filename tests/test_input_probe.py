@@ -748,7 +748,7 @@ def _stripped(name, bare="bare.fits"):
     """Setup: ``bare`` = ``name`` without any geometry or readout keyword or READOUT table,
     and ``lab.yaml`` = `LAB`."""
     def setup(d):
-        from spherex_reduce.fields import FIELDS
+        from spherex_reduce.core.fields import FIELDS
 
         def strip(hdul):
             del hdul["READOUT"]

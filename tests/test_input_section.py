@@ -15,7 +15,7 @@ from astropy.io import fits
 
 from spherex_reduce import DetectorGeometry, Pipeline, ReadoutSchedule, read
 from spherex_reduce.cli import main
-from spherex_reduce.errors import ConfigError, FormatError
+from spherex_reduce.core.errors import ConfigError, FormatError
 
 NFRAMES = 6
 SCHEDULE = ReadoutSchedule(DetectorGeometry(8, 8, 2, ref_border=0), ref_mode="none",

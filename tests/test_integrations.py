@@ -14,8 +14,8 @@ from astropy.io import fits
 
 import spherex_reduce as sr
 from spherex_reduce import dq
-from spherex_reduce.errors import FormatError
-from spherex_reduce.integrations import INTEGRATION_IMAGES, combine_integrations
+from spherex_reduce.core.errors import FormatError
+from spherex_reduce.reduce.integrations import INTEGRATION_IMAGES, combine_integrations
 
 NINT, NGROUPS, NROWS, NCOLS = 3, 5, 16, 16
 TFRAME = 2.0

@@ -40,19 +40,31 @@ def test_imports_follow_the_layers():
     assert re.search(r"Contracts: [1-9]\d* kept, 0 broken", result.stdout), result.stdout
 
 
-def test_an_upward_import_breaks_the_contract(tmp_path):
-    # The check can fail: a copy of the package where a core module imports a
-    # step inside a function (where it would dodge an import cycle) is refused,
-    # and so is a new top-level module that no layer names.
+def _copy(tmp_path):
     shutil.copy(ROOT / "pyproject.toml", tmp_path)
     pkg = tmp_path / "spherex_reduce"
     shutil.copytree(PACKAGE, pkg, ignore=shutil.ignore_patterns("__pycache__"))
-    with open(pkg / "geometry.py", "a") as f:
-        f.write("\n\ndef _upward():\n    from .steps import unchop\n\n    return unchop\n")
+    return pkg
+
+
+def test_an_upward_import_breaks_the_contract(tmp_path):
+    # The check can fail: a copy of the package where a core module imports a
+    # step inside a function (where it would dodge an import cycle) is refused.
+    pkg = _copy(tmp_path)
+    with open(pkg / "core" / "geometry.py", "a") as f:
+        f.write("\n\ndef _upward():\n    from ..reduce.steps import unchop\n\n    return unchop\n")
+    result = _lint(tmp_path)
+    assert result.returncode != 0
+    assert "spherex_reduce.core is not allowed to import spherex_reduce.reduce" in result.stdout
+    assert "spherex_reduce.core.geometry -> spherex_reduce.reduce.steps.unchop" in result.stdout
+
+
+def test_a_module_outside_the_layers_breaks_the_contract(tmp_path):
+    # and so is a new top-level module that no layer names
+    pkg = _copy(tmp_path)
     (pkg / "unplaced.py").write_text("X = 1\n")
     result = _lint(tmp_path)
     assert result.returncode != 0
-    assert "spherex_reduce.geometry is not allowed to import spherex_reduce.steps" in result.stdout
     assert "- spherex_reduce.unplaced" in result.stdout
 
 

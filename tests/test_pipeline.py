@@ -11,11 +11,11 @@ from astropy.table import Table
 
 import spherex_reduce
 from spherex_reduce import ConfigError, Exposure, Pipeline, PluginError, Step, StepSkipped, unchop
-from spherex_reduce.examples import example_raw_exposure
-from spherex_reduce.hookspecs import hookimpl
-from spherex_reduce.parameters import Parameter
-from spherex_reduce.plugins import Registry, get_plugin_manager
-from spherex_reduce.step import Consumer, Kernel, Record
+from spherex_reduce.core.parameters import Parameter
+from spherex_reduce.io.examples import example_raw_exposure
+from spherex_reduce.reduce.hookspecs import hookimpl
+from spherex_reduce.reduce.plugins import Registry, get_plugin_manager
+from spherex_reduce.reduce.step import Consumer, Kernel, Record
 
 
 @pytest.fixture
@@ -344,8 +344,8 @@ def test_a_plugin_kernel_and_consumer_stream_like_the_steps_called_one_by_one(tm
 
 
 def test_a_file_is_read_once_in_bands_of_reads_never_whole_frames(tmp_path, raw, monkeypatch):
-    from spherex_reduce.executor import FileSource
     from spherex_reduce.io import FrameReader
+    from spherex_reduce.reduce.executor import FileSource
 
     path = write_raw(tmp_path, raw)
     asked, frames = [], []
@@ -365,7 +365,7 @@ class patch_band_rows:
     """Bands of ``rows`` rows in the executor (small files would otherwise be one band)."""
 
     def __init__(self, monkeypatch, rows):
-        from spherex_reduce import executor
+        from spherex_reduce.reduce import executor
 
         self.monkeypatch, self.executor, self.rows = monkeypatch, executor, rows
 

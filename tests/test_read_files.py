@@ -16,11 +16,11 @@ from _configs import write_config
 from astropy.io import fits
 
 import spherex_reduce as sr
-from spherex_reduce import executor
 from spherex_reduce.cli import main
-from spherex_reduce.errors import FormatError
-from spherex_reduce.executor import FileSource
+from spherex_reduce.core.errors import FormatError
 from spherex_reduce.io.read_files import ReadFiles, read_file_paths
+from spherex_reduce.reduce import executor
+from spherex_reduce.reduce.executor import FileSource
 
 GEOMETRY = {"nrows": 32, "ncols": 16, "nchannels": 2, "ref_border": 2, "pixel_rate": 1e5}
 #: chopped, with re-read reference rows: reads in a mixed order

@@ -20,7 +20,7 @@ from spherex_reduce import (
     write,
 )
 from spherex_reduce.cli import main
-from spherex_reduce.errors import SpherexReduceError
+from spherex_reduce.core.errors import SpherexReduceError
 
 
 def sched(nframes=4, skip=3):

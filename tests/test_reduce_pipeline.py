@@ -21,10 +21,10 @@ from spherex_reduce import (
     write,
 )
 from spherex_reduce.cli import main
-from spherex_reduce.config import shipped_configs
-from spherex_reduce.errors import ConfigError
-from spherex_reduce.examples import example_raw_exposure, tiny_schedule
-from spherex_reduce.steps.reference import NoReferenceError
+from spherex_reduce.core.errors import ConfigError
+from spherex_reduce.io.config import shipped_configs
+from spherex_reduce.io.examples import example_raw_exposure, tiny_schedule
+from spherex_reduce.reduce.steps.reference import NoReferenceError
 
 CONFIGS = ["spherex-default", "spherex-slopes", "measured-dark-pair", "acn", "median"]
 
@@ -157,7 +157,7 @@ def _fourier_installed():
 
 
 def test_fourier_filter_plugin_through_the_entry_point():
-    from spherex_reduce.plugins import Registry
+    from spherex_reduce.reduce.plugins import Registry
 
     # the test command installs it; a missing plugin is a failure, not a skip
     assert _fourier_installed(), "install the plugin: pip install ./plugins/fourier_filter"

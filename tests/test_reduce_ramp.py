@@ -5,11 +5,11 @@ import pytest
 from astropy import units as u
 
 from spherex_reduce import DetectorGeometry, Exposure, Pipeline, ReadoutSchedule, dq, fit_ramp
-from spherex_reduce.block import Block
-from spherex_reduce.errors import SpherexReduceError, StepSkipped
-from spherex_reduce.examples import example_raw_exposure, tiny_schedule
-from spherex_reduce.executor import MemorySource, execute
-from spherex_reduce.steps.fit_ramp import FitRampStep, RampFit
+from spherex_reduce.core.block import Block
+from spherex_reduce.core.errors import SpherexReduceError, StepSkipped
+from spherex_reduce.io.examples import example_raw_exposure, tiny_schedule
+from spherex_reduce.reduce.executor import MemorySource, execute
+from spherex_reduce.reduce.steps.fit_ramp import FitRampStep, RampFit
 
 
 def schedule(nframes=10, nrows=16, ncols=16, nch=2, frame_time=1.5):
@@ -459,7 +459,7 @@ def test_threads_are_the_steps_option_not_fixed_at_import():
     step = FitRampStep()
     step.threads = 3
     calls = []
-    import spherex_reduce.executor as executor_module
+    import spherex_reduce.reduce.executor as executor_module
 
     real = executor_module.ThreadPoolExecutor
 
@@ -499,7 +499,7 @@ def test_optimal_weighting_of_bright_float32_ramps_is_gls_not_uniform():
 
 
 def test_least_squares_refuses_an_output_it_could_not_write_through():
-    from spherex_reduce.steps.ramp_least_squares import LeastSquares, RampSolution
+    from spherex_reduce.reduce.steps.ramp_least_squares import LeastSquares, RampSolution
 
     ls = LeastSquares(np.arange(4.0))
     whole = RampSolution((3, 8))

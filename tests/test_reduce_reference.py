@@ -14,10 +14,10 @@ from spherex_reduce import (
     subtract_phantom,
     unchop,
 )
-from spherex_reduce.errors import ConfigError, StepSkipped
-from spherex_reduce.source_mask import source_mask
-from spherex_reduce.steps.phantom import SubtractPhantomStep
-from spherex_reduce.steps.reference import (
+from spherex_reduce.core.errors import ConfigError, StepSkipped
+from spherex_reduce.core.source_mask import source_mask
+from spherex_reduce.reduce.steps.phantom import SubtractPhantomStep
+from spherex_reduce.reduce.steps.reference import (
     NoReferenceError,
     NoReferenceWarning,
     clipped_mean,

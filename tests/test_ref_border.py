@@ -28,8 +28,8 @@ from spherex_reduce import (
 )
 from spherex_reduce.analysis.timestreams import reference_timestream
 from spherex_reduce.cli import main
-from spherex_reduce.config import load_yaml, schedule_from_config
-from spherex_reduce.errors import ConfigError, FormatError
+from spherex_reduce.core.errors import ConfigError, FormatError
+from spherex_reduce.io.config import load_yaml, schedule_from_config
 
 CORNER = {"top": 4, "left": 4}
 SIDE_KEYWORDS = ("REFBTOP", "REFBBOT", "REFBLEFT", "REFBRIGH")

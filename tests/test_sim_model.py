@@ -15,8 +15,8 @@ from astropy import units as u
 from scipy import integrate
 
 from spherex_reduce import ConfigError, expected_slope_variance
-from spherex_reduce.config import schedule_from_config
-from spherex_reduce.plugins import Registry, get_plugin_manager
+from spherex_reduce.io.config import schedule_from_config
+from spherex_reduce.reduce.plugins import Registry, get_plugin_manager
 from spherex_reduce.simulation import (
     NoiseComponent,
     NoiseEngine,

@@ -13,8 +13,9 @@ import time
 import numpy as np
 import pytest
 
-from spherex_reduce import expected_slope_variance, limits, simulate
-from spherex_reduce.errors import ResourceError
+from spherex_reduce import expected_slope_variance, simulate
+from spherex_reduce.core import limits
+from spherex_reduce.core.errors import ResourceError
 from spherex_reduce.simulation import NoiseComponent, NoiseEngine, load_scene, slope_covariance
 from spherex_reduce.simulation import slope_routes as engine_module
 

@@ -16,8 +16,8 @@ import pytest
 import scipy.fft as sfft
 
 from spherex_reduce import ReadoutSchedule, expected_slope_variance, simulate
-from spherex_reduce.config import schedule_from_config
-from spherex_reduce.geometry import DetectorGeometry
+from spherex_reduce.core.geometry import DetectorGeometry
+from spherex_reduce.io.config import schedule_from_config
 from spherex_reduce.simulation import (
     NoiseComponent,
     NoiseEngine,

@@ -19,8 +19,8 @@ from photutils.background import (
 )
 from photutils.segmentation import detect_sources
 
-from spherex_reduce.errors import SpherexReduceError
-from spherex_reduce.source_mask import source_mask
+from spherex_reduce.core.errors import SpherexReduceError
+from spherex_reduce.core.source_mask import source_mask
 
 #: the median reference strategy's call (nsigma, npixels, box_size are its parameters)
 MEDIAN_STRATEGY = {"nsigma": 3.0, "npixels": 5, "box_size": 64, "dilate": 5,

@@ -9,8 +9,8 @@ import pytest
 from _one_by_one import one_by_one
 
 from spherex_reduce import Pipeline, unchop, write
-from spherex_reduce.examples import example_raw_exposure
-from spherex_reduce.plugins import Registry, get_plugin_manager
+from spherex_reduce.io.examples import example_raw_exposure
+from spherex_reduce.reduce.plugins import Registry, get_plugin_manager
 
 EXAMPLE = Path(__file__).parents[1] / "docs" / "examples" / "reference_median.py"
 

@@ -12,7 +12,7 @@ from spherex_reduce import (
     rechop,
     unchop,
 )
-from spherex_reduce.steps.unchop import UnchopStep
+from spherex_reduce.reduce.steps.unchop import UnchopStep
 
 
 def encoded(schedule, nframes=2):

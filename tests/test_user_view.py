@@ -36,7 +36,7 @@ def test_sweep_plot_in_memory_equals_plot_of_the_file(tmp_path, monkeypatch):
     """The in-memory results carry the grid, so ``--plot`` draws against the first key."""
     import yaml
 
-    import spherex_reduce.plotting as plotting
+    import spherex_reduce.io.plotting as plotting
     from spherex_reduce.analysis.sweep import plot_sweep
 
     drawn = []
@@ -63,7 +63,7 @@ def test_sweep_plot_in_memory_equals_plot_of_the_file(tmp_path, monkeypatch):
 @pytest.fixture(scope="module")
 def demo_dir(tmp_path_factory):
     """A small demo run: its directory and its figures by file name."""
-    import spherex_reduce.demo as demo
+    import spherex_reduce.analysis.demo as demo
 
     out = tmp_path_factory.mktemp("demo")
     figs = {}
@@ -95,7 +95,7 @@ def test_demo_and_spectrum_give_one_band_power(demo_dir, tmp_path):
 def test_band_power_of_a_table_is_the_band_power_of_the_image():
     """A table only gives the band power if its bins tile the band (else it is refused)."""
     from spherex_reduce.analysis import band_power, power_spectrum
-    from spherex_reduce.errors import SpherexReduceError
+    from spherex_reduce.core.errors import SpherexReduceError
 
     img = np.random.default_rng(5).normal(0, 1, (128, 128)) * np.linspace(1, 3, 128)
     exact = band_power(img)
@@ -108,7 +108,7 @@ def test_band_power_of_a_table_is_the_band_power_of_the_image():
 # -- help texts and listings -------------------------------------------------------------
 def test_readout_help_describes_every_option_with_its_default(capsys):
     from spherex_reduce.cli.readout import OPTIONS
-    from spherex_reduce.config import GEOMETRY_PARAMETERS, READOUT_PARAMETERS
+    from spherex_reduce.io.config import GEOMETRY_PARAMETERS, READOUT_PARAMETERS
 
     with pytest.raises(SystemExit):
         main(["readout", "--help"])
@@ -231,7 +231,7 @@ def images_2048():
 
     Small values: colour-bar labels like "−0.008" are as wide as those of real slopes.
     """
-    from spherex_reduce.demo import _images
+    from spherex_reduce.analysis.demo import _images
 
     rng = np.random.default_rng(7)
     data = [rng.normal(0, s, (2048, 2048)).astype(np.float32) for s in (0.003, 0.03)]
@@ -275,7 +275,7 @@ def test_images_labels_clear_of_the_other_panel(images_2048):
 
 
 def test_large_image_binned_in_plot_image():
-    from spherex_reduce.plotting import plot_image
+    from spherex_reduce.io.plotting import plot_image
 
     img = np.arange(1200 * 30, dtype=float).reshape(1200, 30)
     shown = np.asarray(plot_image(img).axes[0].images[0].get_array())
@@ -286,7 +286,7 @@ def test_large_image_binned_in_plot_image():
 
 def test_read_order_labels_readable_and_legend_off_the_points():
     from spherex_reduce import ReadoutSchedule
-    from spherex_reduce.plotting import plot_read_order
+    from spherex_reduce.io.plotting import plot_read_order
 
     fig = plot_read_order(ReadoutSchedule())  # the paper's case: 4 reference rows read 4 times
     renderer = _drawn(fig)
@@ -389,7 +389,7 @@ def test_demo_spectra_legend_and_unit(demo_dir):
 
 
 def test_fit_noise_plot_names_streams_and_unit(demo_dir, tmp_path, monkeypatch):
-    import spherex_reduce.plotting as plotting
+    import spherex_reduce.io.plotting as plotting
     from spherex_reduce.io import read
 
     out, _ = demo_dir
@@ -412,7 +412,7 @@ def test_fit_noise_plot_names_streams_and_unit(demo_dir, tmp_path, monkeypatch):
 @pytest.fixture(scope="module")
 def quick_figures(tmp_path_factory):
     """One ``figures --quick`` run: its directory and its figures by file name."""
-    import spherex_reduce.plotting as plotting
+    import spherex_reduce.io.plotting as plotting
 
     out = tmp_path_factory.mktemp("figures")
     figs = {}

@@ -28,14 +28,14 @@ from spherex_reduce import (
     ReadoutSchedule,
     correct_reference,
     dq,
-    executor,
     read,
     unchop,
     write,
 )
-from spherex_reduce.errors import ConfigError
+from spherex_reduce.core.errors import ConfigError
+from spherex_reduce.reduce import executor
+from spherex_reduce.reduce.steps.reference import NoReferenceError, NoReferenceWarning
 from spherex_reduce.simulation import simulate_to_fits
-from spherex_reduce.steps.reference import NoReferenceError, NoReferenceWarning
 
 NCH, NCOLS = 4, 32
 WIDTH = NCOLS // NCH
@@ -660,7 +660,7 @@ def test_threads_asking_for_one_model_solve_it_once(monkeypatch):
     """Bands or dask threads asking at once: each system is solved once."""
     import threading
 
-    from spherex_reduce.steps import wiener as wmod
+    from spherex_reduce.reduce.steps import wiener as wmod
 
     solved = []
     real = wmod.Kriging

@@ -14,10 +14,10 @@ import pytest
 from astropy.table import Table
 
 from spherex_reduce import DetectorGeometry, ReadoutSchedule
-from spherex_reduce.block import Block, Context
+from spherex_reduce.core.block import Block, Context
 from spherex_reduce.noise import NoiseComponent, slope_covariance
-from spherex_reduce.steps.reference import MeanReference
-from spherex_reduce.steps.wiener import _MODELS, WienerReference
+from spherex_reduce.reduce.steps.reference import MeanReference
+from spherex_reduce.reduce.steps.wiener import _MODELS, WienerReference
 
 NDRAWS = 3000
 

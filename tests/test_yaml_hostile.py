@@ -18,8 +18,8 @@ import pytest
 
 from spherex_reduce import DetectorGeometry, ReadoutSchedule
 from spherex_reduce.cli import main
-from spherex_reduce.config import MAX_YAML_BYTES, MAX_YAML_DEPTH, load_yaml, parse_yaml
-from spherex_reduce.errors import ConfigError, ResourceError
+from spherex_reduce.core.errors import ConfigError, ResourceError
+from spherex_reduce.io.config import MAX_YAML_BYTES, MAX_YAML_DEPTH, load_yaml, parse_yaml
 from spherex_reduce.simulation import load_scene
 
 SMALL_SCENE = {"geometry": {"nrows": 16, "ncols": 16, "nchannels": 2, "ref_border": 2},

@@ -10,7 +10,7 @@
 ``.. spherex-reduce-configs::``
     The text of every pipeline configuration shipped with the package.
 ``.. spherex-reduce-dq::``
-    The data-quality bits of `spherex_reduce.dq` with their ``#:`` comments.
+    The data-quality bits of `spherex_reduce.core.dq` with their ``#:`` comments.
 
 Only the package's own plugins are listed (no entry points), so the pages do
 not depend on which third-party plugins happen to be installed.
@@ -64,7 +64,7 @@ def _table(header, rows, widths):
 
 
 def _registry():
-    from spherex_reduce.plugins import Registry, get_plugin_manager
+    from spherex_reduce.reduce.plugins import Registry, get_plugin_manager
 
     return Registry(get_plugin_manager(entry_points=False))
 
@@ -159,7 +159,7 @@ class StrategyTable(Directive):
 
 class ShippedConfigs(Directive):
     def run(self):
-        from spherex_reduce.config import resolve_config, shipped_configs
+        from spherex_reduce.io.config import resolve_config, shipped_configs
 
         out = []
         for name in shipped_configs():
@@ -175,7 +175,7 @@ class DQTable(Directive):
 
         from spherex_reduce import dq
 
-        docs = ModuleAnalyzer.for_module("spherex_reduce.dq").find_attr_docs()
+        docs = ModuleAnalyzer.for_module("spherex_reduce.core.dq").find_attr_docs()
         rows = []
         for name in dq.__all__:
             value = getattr(dq, name)

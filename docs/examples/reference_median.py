@@ -13,10 +13,10 @@ import warnings
 
 import numpy as np
 
-from spherex_reduce.hookspecs import hookimpl
-from spherex_reduce.parameters import Parameter
-from spherex_reduce.step import Strategy
-from spherex_reduce.steps.reference_strategies import ALL, ReferenceOffsets, reference_pixels
+from spherex_reduce.core.parameters import Parameter
+from spherex_reduce.reduce.hookspecs import hookimpl
+from spherex_reduce.reduce.step import Strategy
+from spherex_reduce.reduce.steps.reference_strategies import ALL, ReferenceOffsets, reference_pixels
 
 __all__ = ["ReferenceMedian"]
 

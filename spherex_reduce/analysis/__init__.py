@@ -3,7 +3,7 @@
 Spatial (`spherex_reduce.analysis.spectrum`): `power_spectrum` (P(k), k in
 rad/pixel, k = 2π · pixel scale / θ), `band_power` (θ = 5–20′ by default; `band_label`),
 `fft_magnitude` (paper Fig. 7); `source_mask` (photutils segmentation,
-`spherex_reduce.source_mask`).  Photon noise (`spherex_reduce.analysis.photon_noise`):
+`spherex_reduce.core.source_mask`).  Photon noise (`spherex_reduce.analysis.photon_noise`):
 `photon_noise_power` (the Zodiacal-light line of Fig. 13).
 
 Temporal (`spherex_reduce.analysis.temporal`): `temporal_psd` (Welch),
@@ -19,8 +19,9 @@ the same noise and an injected sky (`sky_field`, `inject_sky`):
 of the noise model (`white_floor`) and the cross-spectrum (`cross_spectrum`).
 """
 
-from ..source_mask import source_mask
-from .case import CaseResult, SpectrumMeasure, as_pipeline, run_case
+from ..core.source_mask import source_mask
+from ..reduce.pipeline import as_pipeline
+from .case import CaseResult, SpectrumMeasure, run_case
 from .compare import (
     CompareResult,
     Comparison,

@@ -13,30 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import SpherexReduceError
-from ..pipeline import Pipeline
+from ..core.errors import SpherexReduceError
+from ..reduce.pipeline import as_pipeline
 from ..simulation import simulate, simulate_to_fits
 from .spectrum import BAND_KMAX, BAND_KMIN, band_power, power_spectrum
 
-__all__ = ["CaseResult", "SpectrumMeasure", "as_pipeline", "run_case"]
-
-
-def as_pipeline(pipeline):
-    """A `~spherex_reduce.pipeline.Pipeline` from a pipeline, a shipped name, a path or a config.
-
-    An inline config (dict) is named by its ``name`` (``"pipeline"`` if it has none).
-
-    Examples
-    --------
-    >>> from spherex_reduce.analysis.case import as_pipeline
-    >>> as_pipeline({"name": "raw", "steps": [{"unchop": {}}]}).source
-    'raw'
-    """
-    if isinstance(pipeline, Pipeline):
-        return pipeline
-    if isinstance(pipeline, dict):
-        return Pipeline(pipeline, source=str(pipeline.get("name", "pipeline")))
-    return Pipeline.from_yaml(pipeline)
+__all__ = ["CaseResult", "SpectrumMeasure", "run_case"]
 
 
 @dataclass(frozen=True)
@@ -144,10 +126,10 @@ def run_case(scene, pipelines, measure=None, *, seed=None, mode=None, raw_path=N
     scene : dict, str, path or `~spherex_reduce.simulation.Scene`
         As `~spherex_reduce.simulation.simulate`.
     pipelines : pipeline, or a mapping of label -> pipeline
-        Each a `~spherex_reduce.pipeline.Pipeline`, a shipped name, a path or an
+        Each a `~spherex_reduce.reduce.pipeline.Pipeline`, a shipped name, a path or an
         inline config (`as_pipeline`).  A single one is labelled as given (a
         name or path), by its ``name`` (a config) or its ``source`` (a
-        `~spherex_reduce.pipeline.Pipeline`).  Every pipeline reduces the same
+        `~spherex_reduce.reduce.pipeline.Pipeline`).  Every pipeline reduces the same
         simulated exposure.
     measure : callable, dict or None
         Called with each reduced image (`~astropy.nddata.CCDData`); a dict

@@ -38,17 +38,18 @@ from astropy import units as u
 from astropy.table import Table
 from tqdm import tqdm
 
-from ..config import load_yaml
-from ..errors import ConfigError, SpherexReduceError
+from ..core.errors import ConfigError, SpherexReduceError
+from ..core.limits import check_count
 from ..io import atomic_output
-from ..limits import check_count
+from ..io.config import load_yaml
+from ..io.plotting import save_figure
 from ..noise import expected_slope_variance
-from ..plotting import save_figure
+from ..reduce.pipeline import as_pipeline
+from ..reduce.scheduler import map_on_dask
 from ..simulation import load_scene
-from .case import SpectrumMeasure, as_pipeline, run_case
+from .case import SpectrumMeasure, run_case
 from .photon_noise import photon_noise_label, photon_noise_power
 from .plots import plot_comparison
-from .scheduler import map_on_dask
 from .sections import (
     measure_section,
     pipeline_section,
@@ -164,7 +165,7 @@ def load_comparison(source):
     >>> load_comparison({"sky": {"rms": -1}})
     Traceback (most recent call last):
     ...
-    spherex_reduce.errors.ConfigError: comparison: sky.rms: must be > 0, got -1.0
+    spherex_reduce.core.errors.ConfigError: comparison: sky.rms: must be > 0, got -1.0
     """
     config, label = load_yaml(source, "comparison")
     for key in config:

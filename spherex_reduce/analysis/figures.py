@@ -17,13 +17,13 @@ import numpy as np
 from astropy import units as u
 from astropy.table import Table
 
-from .._text import plural
-from ..errors import SpherexReduceError
+from ..core._text import plural
+from ..core.errors import SpherexReduceError
 from ..io import atomic_output
+from ..reduce.scheduler import _client
 from ..simulation import expected_slope_variance, load_scene
 from .case import SpectrumMeasure, run_case
 from .photon_noise import photon_noise_label, photon_noise_power
-from .scheduler import _client
 from .spectrum import band_label, fft_magnitude
 from .sweep import run_sweep
 
@@ -137,7 +137,7 @@ class _Report:
         self.claims = []
 
     def save(self, fig, name):
-        from ..plotting import save_figure
+        from ..io.plotting import save_figure
 
         save_figure(fig, self.outdir / name, overwrite=self.overwrite)
         return name
@@ -319,7 +319,7 @@ def _make_figures(outdir, quick, s, scheduler, workers, overwrite, progress, log
                    t6["band_power"].unit)
     from matplotlib.figure import Figure
 
-    from ..plotting import unit_label
+    from ..io.plotting import unit_label
 
     fig = Figure(figsize=(7, 5))
     ax = fig.subplots()
@@ -427,7 +427,7 @@ def _make_figures(outdir, quick, s, scheduler, workers, overwrite, progress, log
 
     # -- Fig. 9: an N = 74 image before reference correction -------------------------------
     img9 = _measure(_scene(s), "phantom", 900)
-    from ..plotting import plot_image
+    from ..io.plotting import plot_image
 
     rep.save(plot_image(img9, "Fig. 9a: S = 24, phantom-corrected, before reference correction",
                         str(img9.unit)), "fig9_image.png")
@@ -557,7 +557,7 @@ def _sigma_figure(n_values, sig, pred, unit, title):
     from matplotlib.figure import Figure
     from matplotlib.ticker import NullFormatter
 
-    from ..plotting import unit_label
+    from ..io.plotting import unit_label
 
     fig = Figure(figsize=(7, 5), layout="constrained")
     ax = fig.subplots()

@@ -7,10 +7,10 @@ from astropy import units as u
 from astropy.io import fits
 from astropy.nddata import CCDData
 
-from ..errors import FormatError, SpherexReduceError
+from ..core.errors import FormatError, SpherexReduceError
+from ..core.limits import check_size
 from ..io import open_checked
-from ..limits import check_size
-from ..steps import unchop
+from ..reduce.steps import unchop
 
 __all__ = ["read_image"]
 

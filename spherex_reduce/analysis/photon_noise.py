@@ -7,7 +7,7 @@ up-the-ramp slopes (`slope_variance_factor` for a least-squares fit),
 
 from astropy import units as u
 
-from ..errors import SpherexReduceError
+from ..core.errors import SpherexReduceError
 
 __all__ = ["photon_noise_label", "photon_noise_power", "slope_variance_factor"]
 

@@ -1,7 +1,7 @@
 """Figures of the analysis: P(k) (paper Figs. 9, 10, 13), 2-D FFT (Fig. 7), PSD fits.
 
 Built on `matplotlib.figure.Figure` (no pyplot state); save them with
-`spherex_reduce.plotting.save_figure`.
+`spherex_reduce.io.plotting.save_figure`.
 """
 
 import numpy as np
@@ -55,7 +55,7 @@ def plot_spectra(spectra, band=(BAND_KMIN, BAND_KMAX), photon=None, title="",
     >>> fig.axes[0].get_xscale()
     'log'
     """
-    from ..plotting import unit_label
+    from ..io.plotting import unit_label
 
     if ax is None:
         fig = Figure(figsize=(7, 5.2), layout="constrained")
@@ -157,7 +157,7 @@ def plot_noise_fit(fits, title="", unit=None):
     -------
     `matplotlib.figure.Figure`
     """
-    from ..plotting import unit_label
+    from ..io.plotting import unit_label
 
     fig = Figure(figsize=(7, 5.2), layout="constrained")
     ax = fig.subplots()

@@ -1,16 +1,16 @@
 """Sections a sweep file and a comparison file share: scene, pipelines, realisations, seed, measure.
 
 Each function validates one section as read from YAML and raises a
-`~spherex_reduce.errors.ConfigError` whose message names the file (``label``)
+`~spherex_reduce.core.errors.ConfigError` whose message names the file (``label``)
 and the entry.
 """
 
 from dataclasses import fields
 from pathlib import Path
 
-from ..config import load_yaml
-from ..errors import ConfigError
-from ..limits import check_count
+from ..core.errors import ConfigError
+from ..core.limits import check_count
+from ..io.config import load_yaml
 from .case import SpectrumMeasure
 
 __all__ = ["MAX_REALIZATIONS", "measure_section", "pipeline_section", "realizations_section",
@@ -49,7 +49,7 @@ def scene_section(scene, label):
     >>> scene_section("no-such-scene.yaml", "cmp.yaml")
     Traceback (most recent call last):
     ...
-    spherex_reduce.errors.ConfigError: cmp.yaml: scene: scene file not found: no-such-scene.yaml
+    spherex_reduce.core.errors.ConfigError: cmp.yaml: scene: scene file not found: ...
     """
     scene = scene or {}
     if isinstance(scene, str):
@@ -123,7 +123,7 @@ def seed_section(seed, label, key="seed"):
     >>> seed_section(-1, "sweep")
     Traceback (most recent call last):
     ...
-    spherex_reduce.errors.ConfigError: sweep: seed: expected a non-negative integer, got -1
+    spherex_reduce.core.errors.ConfigError: sweep: seed: expected a non-negative integer, got -1
     """
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ConfigError(f"{label}: {key}: expected a non-negative integer, got {seed!r}")

@@ -13,7 +13,7 @@ import scipy.fft
 from astropy import units as u
 from astropy.nddata import CCDData
 
-from ..errors import SpherexReduceError
+from ..core.errors import SpherexReduceError
 from .case import SpectrumMeasure
 from .spectrum import cross_spectrum, power_spectrum
 

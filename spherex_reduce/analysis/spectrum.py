@@ -28,8 +28,8 @@ import scipy.fft
 from astropy import units as u
 from astropy.table import Table
 
-from ..errors import SpherexReduceError
-from ..source_mask import image_and_mask, source_mask
+from ..core.errors import SpherexReduceError
+from ..core.source_mask import image_and_mask, source_mask
 
 __all__ = [
     "BAND_KMAX",
@@ -135,7 +135,7 @@ def _k_value(k):
 # -- input handling -------------------------------------------------------------
 def _as_image(image, mask=None):
     """``(data, bad-pixel mask, unit)`` of a 2-D image (see
-    `~spherex_reduce.source_mask.image_and_mask`), with the power spectrum's
+    `~spherex_reduce.core.source_mask.image_and_mask`), with the power spectrum's
     message for ramps."""
     return image_and_mask(image, mask, "a power spectrum needs a 2-D image",
                           "; fit the ramps first (fit_ramp) or pass one frame")

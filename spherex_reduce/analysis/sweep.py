@@ -38,13 +38,13 @@ import numpy as np
 from astropy import units as u
 from astropy.table import Table
 
-from ..config import READOUT_PARAMETERS, load_yaml
-from ..errors import ConfigError
+from ..core.errors import ConfigError
+from ..core.limits import check_count
 from ..io import atomic_output
-from ..limits import check_count
+from ..io.config import READOUT_PARAMETERS, load_yaml
+from ..reduce.scheduler import check_scheduler, map_on_dask, quiet_dask_logs
 from ..simulation import load_scene
 from .case import SpectrumMeasure, run_case
-from .scheduler import check_scheduler, map_on_dask, quiet_dask_logs
 from .sections import (  # MAX_REALIZATIONS: the sweep's limit, named here too
     MAX_REALIZATIONS,  # noqa: F401
     measure_section,
@@ -303,7 +303,8 @@ def run_sweep(sweep, output=None, *, scheduler=None, workers=None, overwrite=Fal
         existing dask scheduler; a ``Client``: used as it is (not closed);
         ``"serial"``: in this process, no dask.
     workers : int, optional
-        Worker processes of the LocalCluster (default 2; 1 to `spherex_reduce.limits.MAX_WORKERS`).
+        Worker processes of the LocalCluster (default 2; at most
+        `spherex_reduce.core.limits.MAX_WORKERS`).
     overwrite : bool
         Ignore and replace an existing ``output``.
     progress : bool
@@ -434,7 +435,7 @@ def plot_sweep(table, x=None, title=""):
     """
     from matplotlib.figure import Figure
 
-    from ..plotting import unit_label
+    from ..io.plotting import unit_label
 
     # grid keys in column order: the sweep's order (a mapping read back from ECSV is sorted)
     grid = [c for c in table.colnames if c in table.meta.get("grid", {})]

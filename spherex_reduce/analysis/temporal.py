@@ -20,7 +20,7 @@ import scipy.signal
 from astropy import units as u
 from astropy.table import Table
 
-from ..errors import SpherexReduceError
+from ..core.errors import SpherexReduceError
 
 __all__ = [
     "NoiseModelFit",

@@ -19,7 +19,7 @@ import numpy as np
 from astropy import units as u
 from astropy.table import Table
 
-from ..errors import SpherexReduceError
+from ..core.errors import SpherexReduceError
 from .temporal import PARAMS, aliased_basis, fit_noise_model, temporal_psd
 
 __all__ = ["Timestream", "fit_raw_noise", "phantom_timestream", "reference_timestream"]

@@ -17,7 +17,7 @@ import sys
 import warnings
 
 from .._version import __version__
-from ..errors import SpherexReduceError
+from ..core.errors import SpherexReduceError
 from ..io import checksum_policy, foreign_dq_bits
 from ..io.flags import DEFAULT_DQ_BITS, check_dq_bits
 
@@ -209,7 +209,7 @@ def _unexpected(args, exc):
 
 def _blame_plugin(exc):
     """The `PluginError` for an installed plugin's code on the traceback of ``exc``, or None."""
-    from ..plugins import Registry, blame_plugin
+    from ..reduce.plugins import Registry, blame_plugin
 
     try:
         return blame_plugin(exc, Registry())

@@ -14,10 +14,10 @@ import math
 import os
 from pathlib import Path
 
-from ..errors import ResourceError, SpherexReduceError
+from ..core.errors import ResourceError, SpherexReduceError
+from ..core.limits import check_count
 from ..io import atomic_output
-from ..limits import check_count
-from ..pipeline import Pipeline
+from ..reduce.pipeline import Pipeline
 
 __all__ = ["add_config_option", "all_or_nothing", "check_paths", "count", "finite_float",
            "input_config", "named_files", "nonnegative_float", "positive_float"]
@@ -88,7 +88,7 @@ def count(maximum, minimum=1):
 
     ``3e8`` is accepted as a whole number (and then refused if too large), so
     the message says what is wrong with it.  The check is
-    `spherex_reduce.limits.check_count`.
+    `spherex_reduce.core.limits.check_count`.
 
     Examples
     --------
@@ -252,7 +252,7 @@ def check_paths(inputs, outputs):
     >>> check_paths([d / "raw.fits"], [d / "." / "raw.fits"])
     Traceback (most recent call last):
     ...
-    spherex_reduce.errors.SpherexReduceError: output .../raw.fits is the input .../raw.fits; ...
+    spherex_reduce.core.errors.SpherexReduceError: output .../raw.fits is the input ...
     """
     inputs = [os.fspath(p) for p in inputs if p is not None]
     outputs = [os.fspath(p) for p in outputs if p is not None]
@@ -306,7 +306,7 @@ def all_or_nothing(paths, overwrite):
 
 def add_dask_options(parser):
     """``--scheduler`` and ``--workers`` of a command that runs tasks on dask."""
-    from ..limits import MAX_WORKERS
+    from ..core.limits import MAX_WORKERS
 
     parser.add_argument("--scheduler", metavar="ADDRESS",
                         help="dask scheduler address (tcp://host:8786); 'serial' runs "
@@ -320,8 +320,8 @@ def dask_run_inputs(args, what):
     ``compare-strategies``), before any work: dask's INFO lines silenced unless ``-v``,
     the input file and the scene and pipeline files it names against the outputs, the
     scheduler reachable.  Returns the plot's path (``--plot`` alone: OUTPUT with .png)."""
-    from ..analysis.scheduler import check_scheduler, quiet_dask_logs
-    from ..config import load_yaml
+    from ..io.config import load_yaml
+    from ..reduce.scheduler import check_scheduler, quiet_dask_logs
 
     if not args.verbose:  # dask's INFO lines about workers and connections
         quiet_dask_logs()

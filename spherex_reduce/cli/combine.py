@@ -1,7 +1,7 @@
 """``spherex-reduce combine``: a master dark from reduced exposures (ccdproc.combine)."""
 
 from ..io import atomic_output, read, write
-from ..steps.dark import COMBINE_METHODS, combine_darks
+from ..reduce.steps.dark import COMBINE_METHODS, combine_darks
 from ._common import check_paths, nonnegative_float
 
 

@@ -23,9 +23,9 @@ def add_parser(sub):
 
 
 def run(args):
-    from ..demo import run_demo
-    from ..errors import SpherexReduceError
-    from ..limits import check_size
+    from ..analysis.demo import run_demo
+    from ..core.errors import SpherexReduceError
+    from ..core.limits import check_size
 
     if args.size < 64 or args.size % 64:
         raise SpherexReduceError(f"--size must be a multiple of 64, >= 64; got {args.size}")

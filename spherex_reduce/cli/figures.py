@@ -1,6 +1,6 @@
 """``spherex-reduce figures``: reproduce the paper's simulated figures with a report."""
 
-from ..limits import MAX_WORKERS
+from ..core.limits import MAX_WORKERS
 from ._common import count
 
 
@@ -25,11 +25,11 @@ def add_parser(sub):
 
 def run(args):
     from ..analysis.figures import make_figures
-    from ..analysis.scheduler import check_scheduler
+    from ..reduce.scheduler import check_scheduler
 
     check_scheduler(args.scheduler, name="--scheduler")  # before any work
     if not args.verbose:  # dask's INFO lines about workers and connections
-        from ..analysis.scheduler import quiet_dask_logs
+        from ..reduce.scheduler import quiet_dask_logs
 
         quiet_dask_logs()
     report = make_figures(args.output, quick=args.quick, realizations=args.realizations,

@@ -57,7 +57,7 @@ def run(args):
     for path in (args.output, plot):
         if path:
             atomic_output(path, args.overwrite)
-    from ..errors import SpherexReduceError
+    from ..core.errors import SpherexReduceError
 
     if args.nperseg is not None and args.nperseg < 4:
         raise SpherexReduceError(f"--nperseg must be >= 4 row reads, got {args.nperseg}")
@@ -75,7 +75,7 @@ def run(args):
         table.write(tmp, format="ascii.ecsv")
         if plot:
             from ..analysis.plots import plot_noise_fit
-            from ..plotting import save_figure
+            from ..io.plotting import save_figure
 
             label = "fitted" if exponent is None else exponent
             save_figure(plot_noise_fit(fits_, title=f"{Path(args.input).name}: stream PSDs "

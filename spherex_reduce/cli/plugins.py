@@ -1,6 +1,6 @@
 """``spherex-reduce plugins``: what each plugin provides."""
 
-from ..plugins import BLOCK_ENV, Registry, blocked_plugins, plugin_distributions
+from ..reduce.plugins import BLOCK_ENV, Registry, blocked_plugins, plugin_distributions
 
 
 def add_parser(sub):

@@ -2,9 +2,9 @@
 
 import argparse
 
-from ..config import load_yaml, schedule_from_config
-from ..fields import FIELDS, SIDES
+from ..core.fields import FIELDS, SIDES
 from ..io import atomic_output
+from ..io.config import load_yaml, schedule_from_config
 from ._common import all_or_nothing, check_paths, count, finite_float, positive_float
 
 
@@ -114,7 +114,7 @@ def run(args):
         if args.output:
             schedule.to_table().write(tmp, format="ascii.ecsv")
         if args.plot:
-            from ..plotting import plot_read_order, save_figure
+            from ..io.plotting import plot_read_order, save_figure
 
             save_figure(plot_read_order(schedule), tmp_plot)
     for path in (args.output, args.plot):

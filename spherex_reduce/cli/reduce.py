@@ -3,12 +3,12 @@
 import sys
 from pathlib import Path
 
-from .._text import plural
-from ..errors import ConfigError
-from ..integrations import reduce_input
+from ..core._text import plural
+from ..core.errors import ConfigError
+from ..core.limits import MAX_WORKERS
 from ..io import atomic_output, write
 from ..io.read_files import ReadFiles, read_file_paths
-from ..limits import MAX_WORKERS
+from ..reduce.integrations import reduce_input
 from ._common import check_paths, count, input_config
 
 
@@ -95,8 +95,8 @@ def _reads(args):
 
 def _batch(args):
     """Several inputs: one output each in the directory ``-o``, reduced on dask."""
-    from ..analysis.batch import SUMMARY_NAME, output_paths, run_batch
-    from ..analysis.scheduler import check_scheduler, quiet_dask_logs
+    from ..reduce.batch import SUMMARY_NAME, output_paths, run_batch
+    from ..reduce.scheduler import check_scheduler, quiet_dask_logs
 
     if not args.verbose:  # dask's INFO lines about workers and connections
         quiet_dask_logs()

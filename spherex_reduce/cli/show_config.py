@@ -1,7 +1,7 @@
 """``spherex-reduce show-config``: the effective, validated pipeline config."""
 
-from ..config import shipped_configs
-from ..pipeline import Pipeline
+from ..io.config import shipped_configs
+from ..reduce.pipeline import Pipeline
 
 
 def add_parser(sub):

@@ -7,7 +7,7 @@ import numpy as np
 from astropy import units as u
 from astropy.table import join
 
-from ..errors import SpherexReduceError
+from ..core.errors import SpherexReduceError
 from ..io import atomic_output
 from ._common import (
     add_config_option,
@@ -168,7 +168,7 @@ def run(args):
         table.write(tmp, format="ascii.ecsv")
         if plot:
             from ..analysis.plots import plot_spectra
-            from ..plotting import save_figure, unit_label
+            from ..io.plotting import save_figure, unit_label
 
             title = "P(k), band power missing" if band is None else \
                 f"P(k), band power {band.value:.3g} {unit_label(band.unit)}"

@@ -2,7 +2,7 @@
 
 import sys
 
-from .._text import plural
+from ..core._text import plural
 from ..io import atomic_output
 from ._common import add_dask_options, dask_run_inputs
 
@@ -41,7 +41,7 @@ def run(args):
         print(f"failed cell {f['cell']}: {f['error']}", file=sys.stderr)
     print(f"wrote {args.output}")
     if plot and len(res.table):
-        from ..plotting import save_figure
+        from ..io.plotting import save_figure
 
         save_figure(plot_sweep(res.table), plot, overwrite=True)
         print(f"wrote {plot}")

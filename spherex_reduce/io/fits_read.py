@@ -19,10 +19,10 @@ import numpy as np
 from astropy.io import fits
 from astropy.table import Table
 
-from ..errors import FormatError
-from ..exposure import Exposure, ReferenceReads, expected_shape
-from ..limits import check_size
-from ..schedule import ReadoutSchedule, _card_text, header_keyword
+from ..core.errors import FormatError
+from ..core.exposure import Exposure, ReferenceReads, expected_shape
+from ..core.limits import check_size
+from ..core.schedule import ReadoutSchedule, _card_text, header_keyword
 from .fits_structure import _scan, _verify
 from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq
 from .input import InputOptions, apply_input
@@ -315,7 +315,7 @@ def read(path, verify_checksum=None, dq_bits=None, input=None, integration=None,
     dq_bits : int, optional
         Which bits of a ``DQ`` written by other software (a file without a
         ``READOUT`` table) mask a pixel, as a sum of ``2**bit``; such pixels
-        get `~spherex_reduce.dq.DO_NOT_USE` and other bits are dropped.
+        get `~spherex_reduce.core.dq.DO_NOT_USE` and other bits are dropped.
         Default: `~spherex_reduce.io.foreign_dq_bits` (1: bit 0, "do not
         use").  A file written by this package keeps all its flags.  A 2-D
         ``DQ`` with ramps applies to every frame (a pixel mask ``(nrows,

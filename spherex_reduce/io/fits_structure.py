@@ -12,7 +12,7 @@ import re
 
 import numpy as np
 
-from ..errors import FormatError
+from ..core.errors import FormatError
 
 _BLOCK = 2880
 _MAX_HEADER_BLOCKS = 10_000  # 28.8 MB of header cards: far beyond any real file

@@ -1,11 +1,11 @@
 """The ``DQ`` extension of a file: whose bits they are, and how a 2-D ``DQ`` covers ramps.
 
 A file written by this package (it has a ``READOUT`` table: both writers put
-one in every file) holds `spherex_reduce.dq` bits, kept as they are.  In any
+one in every file) holds `spherex_reduce.core.dq` bits, kept as they are.  In any
 other file the bits follow the convention of the system that wrote it
 (JWST, a lab's electronics), whose meanings are not ours: by default only
 bit 0 (value 1, "do not use" in the JWST and most other conventions) masks a
-pixel, and a masked pixel gets `~spherex_reduce.dq.DO_NOT_USE`; the other
+pixel, and a masked pixel gets `~spherex_reduce.core.dq.DO_NOT_USE`; the other
 bits are dropped.  `foreign_dq_bits` (``--dq-bits`` on the command line) or
 the ``dq_bits`` argument of `~spherex_reduce.io.read` choose other bits.
 
@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..dq import DO_NOT_USE
-from ..errors import ConfigError, FormatError
-from ..limits import check_size
+from ..core.dq import DO_NOT_USE
+from ..core.errors import ConfigError, FormatError
+from ..core.limits import check_size
 
 __all__ = ["DEFAULT_DQ_BITS", "check_dq_bits", "current_dq_bits", "foreign_dq_bits",
            "is_own_file"]
@@ -52,7 +52,7 @@ def check_dq_bits(bits, what="dq_bits"):
     >>> check_dq_bits(-1)
     Traceback (most recent call last):
     ...
-    spherex_reduce.errors.ConfigError: dq_bits: must be an integer from 0 to 4294967295 ... got -1
+    spherex_reduce.core.errors.ConfigError: dq_bits: must be an integer from 0 to ... got -1
     """
     if isinstance(bits, bool) or not isinstance(bits, (int, np.integer)) \
             or not 0 <= bits <= _MAX_BITS:

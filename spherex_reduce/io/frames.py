@@ -8,8 +8,8 @@ import numpy as np
 from astropy.io import fits
 from astropy.table import Table
 
-from ..errors import FormatError
-from ..exposure import Exposure
+from ..core.errors import FormatError
+from ..core.exposure import Exposure
 from .fits_read import (
     _FITS_DTYPES,
     _FLOAT_FOR,
@@ -40,7 +40,7 @@ class _Closing:
 class FrameReader(_Closing):
     """Read a raw ramp file by reads of every frame (or by frames), never all of it at once.
 
-    The executor (`spherex_reduce.executor.FileSource`) reads bands of rows of
+    The executor (`spherex_reduce.reduce.executor.FileSource`) reads bands of rows of
     every frame with `reads` (``pread``), so a `~spherex_reduce.Pipeline`
     reduces a file in memory near the output plus a few bands.  Use as a
     context manager.

@@ -20,9 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 from astropy import units as u
 
-from ..errors import ConfigError, FormatError
-from ..fields import FIELD, check_sides, field_cards, read_field
-from ..parameters import Parameter, validate_parameters
+from ..core.errors import ConfigError, FormatError
+from ..core.fields import FIELD, check_sides, field_cards, read_field
+from ..core.parameters import Parameter, validate_parameters
 from .flags import check_dq_bits
 
 __all__ = ["INPUT_PARAMETERS", "InputOptions", "apply_gain", "parse_unit"]
@@ -94,7 +94,7 @@ class InputOptions:
         >>> InputOptions.from_config({"gain": 0})
         Traceback (most recent call last):
         ...
-        spherex_reduce.errors.ConfigError: input.gain: must be > 0, got 0.0
+        spherex_reduce.core.errors.ConfigError: input.gain: must be > 0, got 0.0
         """
         if isinstance(section, cls):
             return section

@@ -9,7 +9,7 @@ Extension names:
     Pixels: ramps ``(frames, reads, columns)`` or a 2-D image, in the order
     ``ORDER`` says.
 ``ERR``, ``DQ``
-    Standard deviation and data-quality flags (`spherex_reduce.dq`), if any.
+    Standard deviation and data-quality flags (`spherex_reduce.core.dq`), if any.
 ``PHANTOM``
     Phantom values, ``(frames, reads, channels)`` or ``(reads, channels)``.
 ``READOUT``
@@ -28,7 +28,7 @@ skipped by `read`.
 import numpy as np
 from astropy import units as u
 
-from ..errors import FormatError
+from ..core.errors import FormatError
 
 _RESERVED = {"PRIMARY", "SCI", "ERR", "DQ", "PHANTOM", "READOUT", "REFPIX", "REFPHANT", "REFDQ",
              "REFREADS"}

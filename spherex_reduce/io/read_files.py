@@ -19,9 +19,9 @@ import numpy as np
 from astropy.io import fits
 from astropy.table import Table
 
-from ..errors import FormatError
-from ..exposure import Exposure
-from ..limits import check_count, check_size
+from ..core.errors import FormatError
+from ..core.exposure import Exposure
+from ..core.limits import check_count, check_size
 from .fits_read import (
     _FLOAT_FOR,
     _describe,
@@ -162,7 +162,7 @@ class _ReadFile:
 class ReadFiles(_Closing):
     """A ramp stored as one FITS file per read, read a band of rows of every frame at a time.
 
-    It offers what `~spherex_reduce.executor.FileSource` asks of a
+    It offers what `~spherex_reduce.reduce.executor.FileSource` asks of a
     `~spherex_reduce.io.FrameReader` (``schedule``, ``header``, ``unit``,
     ``tables``, ``phantom``, ``stored_dtype``, `reads`), so a
     `~spherex_reduce.Pipeline` streams the ramp from the files: memory stays
@@ -203,7 +203,7 @@ class ReadFiles(_Closing):
     >>> import tempfile, pathlib, numpy as np
     >>> from astropy.io import fits
     >>> from spherex_reduce.io.read_files import ReadFiles
-    >>> from spherex_reduce.examples import tiny_schedule
+    >>> from spherex_reduce.io.examples import tiny_schedule
     >>> d = pathlib.Path(tempfile.mkdtemp())
     >>> header = tiny_schedule(phantom_reads=0).to_header()
     >>> header["ORDER"] = "PHYSICAL"

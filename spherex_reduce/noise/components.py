@@ -22,7 +22,7 @@ from astropy import units as u
 from astropy.table import Table
 from scipy import integrate, special
 
-from ..errors import ConfigError
+from ..core.errors import ConfigError
 
 __all__ = [
     "BUILTIN_TABLES",

@@ -6,7 +6,7 @@ model (the ``wiener`` reference strategy).
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..core.errors import ConfigError
 from .components import NoiseComponent, noise_components
 
 __all__ = ["COMPONENT_KEYS", "DEFAULT_COMPONENTS", "NOISE_KEYS", "section_components"]

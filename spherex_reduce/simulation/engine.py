@@ -101,13 +101,13 @@ class NoiseEngine(SlopeRoutes):
         samples read (small scenes), ``'tiered'`` from the synthesised tiers.
         By default the cheaper one that fits in memory (see `slope_route`;
         ``'exact'`` given for a scene whose factors do not fit raises
-        `~spherex_reduce.errors.ResourceError`); ``'exact'`` is only
+        `~spherex_reduce.core.errors.ResourceError`); ``'exact'`` is only
         chosen by default for Gaussian amplitudes with at least the default
         padding, since it is aperiodic whatever the padding.
 
     Examples
     --------
-    >>> from spherex_reduce.examples import tiny_schedule
+    >>> from spherex_reduce.io.examples import tiny_schedule
     >>> from spherex_reduce.simulation import NoiseComponent
     >>> from spherex_reduce.simulation.engine import NoiseEngine
     >>> eng = NoiseEngine(tiny_schedule(), [NoiseComponent("w", alpha=2e-3)], seed=1)

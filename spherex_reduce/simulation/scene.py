@@ -2,11 +2,11 @@
 
 from dataclasses import dataclass, field
 
-from ..config import GEOMETRY_PARAMETERS, READOUT_PARAMETERS, load_yaml, schedule_from_config
-from ..errors import ConfigError
-from ..limits import check_size
+from ..core.errors import ConfigError
+from ..core.limits import check_size
+from ..core.parameters import Parameter, validate_parameters
+from ..io.config import GEOMETRY_PARAMETERS, READOUT_PARAMETERS, load_yaml, schedule_from_config
 from ..noise.section import COMPONENT_KEYS, DEFAULT_COMPONENTS, NOISE_KEYS, section_components
-from ..parameters import Parameter, validate_parameters
 from .synthesis import METHODS
 
 __all__ = ["MODES", "Scene", "load_scene"]
@@ -131,7 +131,7 @@ def load_scene(source=None):
     >>> load_scene({"noise": {"components": [{"name": "x", "beta": -1}]}})
     Traceback (most recent call last):
     ...
-    spherex_reduce.errors.ConfigError: noise.components[0].beta: must be >= 0, got -1.0
+    spherex_reduce.core.errors.ConfigError: noise.components[0].beta: must be >= 0, got -1.0
     """
     config, label = load_yaml({} if source is None else source, "scene")
     for key in config:

@@ -7,11 +7,11 @@ import numpy as np
 from astropy import units as u
 from astropy.io import fits
 
-from ..errors import ConfigError
-from ..exposure import Exposure
+from ..core.errors import ConfigError
+from ..core.exposure import Exposure
 from ..io import atomic_output, write, write_frames
-from ..plugins import get_registry
-from ..step import Simulator
+from ..reduce.plugins import get_registry
+from ..reduce.step import Simulator
 from .engine import NoiseEngine
 from .scene import load_scene
 from .synthesis import rng_for
@@ -86,7 +86,7 @@ def simulate(scene=None, *, mode=None, seed=None, registry=None):
         Overrides ``output.mode``.
     seed : int or `numpy.random.SeedSequence`, optional
         Overrides ``seed``; the same scene and seed give the same result.
-    registry : `~spherex_reduce.plugins.Registry`, optional
+    registry : `~spherex_reduce.reduce.plugins.Registry`, optional
         Where to look up the simulator (plugins included by default).
 
     Returns

@@ -22,7 +22,7 @@ import threading
 import numpy as np
 import scipy.fft as sfft
 
-from .. import limits
+from ..core import limits
 from ..noise.variance import slope_covariance
 from .streams import _SCOPE, TIER_EXACT
 from .synthesis import rng_for
@@ -82,7 +82,7 @@ class SlopeRoutes:
         arrays (its cost grows with the samples of a frame, overheads included),
         but never the exact route if its memory (``_exact_memory``, mostly its
         predictors: ``(reads × (width + 1))² / 2`` float64 values per scope)
-        exceeds `~spherex_reduce.limits.memory_budget`.  The
+        exceeds `~spherex_reduce.core.limits.memory_budget`.  The
         random-phase method and paddings below the default keep the tiered
         synthesis, whose periodicity they are there to reproduce.
         """

@@ -4,8 +4,7 @@ import numpy as np
 from astropy.stats import sigma_clipped_stats
 
 from spherex_reduce import SpherexReduceError, Step
-from spherex_reduce.hookspecs import hookimpl
-from spherex_reduce.parameters import Parameter
+from spherex_reduce.plugin import Parameter, hookimpl
 
 __all__ = ["DestripeStep", "destripe"]
 

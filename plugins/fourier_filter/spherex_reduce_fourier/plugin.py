@@ -11,9 +11,7 @@ import numpy as np
 from astropy.table import Table
 
 from spherex_reduce import dq
-from spherex_reduce.hookspecs import hookimpl
-from spherex_reduce.parameters import Parameter
-from spherex_reduce.step import Strategy
+from spherex_reduce.plugin import Parameter, Strategy, hookimpl
 
 __all__ = ["FourierReference", "fourier_filter"]
 

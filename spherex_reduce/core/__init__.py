@@ -1,0 +1,1 @@
+"""The data model below everything: geometry, schedule, exposure, flags, errors."""

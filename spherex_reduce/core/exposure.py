@@ -1,0 +1,232 @@
+"""The one data object passed between steps."""
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+from astropy import units as u
+from astropy.io import fits
+from astropy.nddata import CCDData, NDData, StdDevUncertainty
+
+from .dq import DO_NOT_USE
+from .schedule import ReadoutSchedule
+
+__all__ = ["ORDERS", "Exposure", "ReferenceReads", "as_dq"]
+
+#: Row orders of an exposure: as read (``readout``) or as on the array (``physical``).
+ORDERS = ("readout", "physical")
+_KEEP = object()
+
+
+def expected_shape(schedule, order, ramp):
+    """Pixel-array shape for ``schedule`` in ``order``: ramps ``(N, n, ncols)`` or ``(n, ncols)``.
+
+    ``n`` is the reads per frame in readout order, the rows in physical order.
+    """
+    n = schedule.n_reads if order == "readout" else schedule.geometry.nrows
+    shape = (n, schedule.geometry.ncols)
+    return (schedule.nframes, *shape) if ramp else shape
+
+
+def as_dq(mask):
+    """Flags from a mask: booleans become `~spherex_reduce.core.dq.DO_NOT_USE`; integers kept."""
+    mask = np.asarray(mask)
+    if mask.dtype == bool:
+        return mask.astype(np.uint16) * np.uint16(DO_NOT_USE)
+    return mask.astype(np.uint16)
+
+
+def _nddata(values, unit, uncertainty, flags):
+    """CCDData for 2-D, NDData for 3-D; the mask is ``flags != 0``."""
+    if uncertainty is not None and not hasattr(uncertainty, "uncertainty_type"):
+        # shared, like the values: steps never write into their inputs' arrays
+        uncertainty = StdDevUncertainty(np.asarray(uncertainty), copy=False)
+    mask = None if flags is None else flags != 0
+    cls = CCDData if values.ndim == 2 else NDData
+    return cls(values, unit=unit, uncertainty=uncertainty, mask=mask)
+
+
+@dataclass(frozen=True, eq=False)
+class ReferenceReads:
+    """Reference-row reads kept aside by `~spherex_reduce.unchop`, with their times.
+
+    Parameters
+    ----------
+    data : `numpy.ndarray`
+        Pixel values, shape ``(..., n, ncols)`` (frames first for ramps).
+    rows : `numpy.ndarray`
+        Physical row of each of the ``n`` reads.
+    reads : `numpy.ndarray`
+        Read index within the frame of each read (its time is
+        ``schedule.start_times[reads]``).
+    phantom : `numpy.ndarray` or None
+        Phantom values of these reads, shape ``(..., n, nchannels)``.
+    dq : `numpy.ndarray` or None
+        Data-quality flags of these reads (same shape as ``data``).
+    """
+
+    data: np.ndarray
+    rows: np.ndarray
+    reads: np.ndarray
+    phantom: np.ndarray | None = None
+    dq: np.ndarray | None = None
+
+    def replace(self, **changes):
+        """A copy with some fields changed."""
+        return dataclasses.replace(self, **changes)
+
+
+@dataclass(frozen=True, eq=False)
+class Exposure:
+    """Pixels of one exposure with everything needed to reduce them.
+
+    Steps take an Exposure and return a new one; they never change the
+    arrays of their input (ccdproc style).
+
+    Parameters
+    ----------
+    data : `~astropy.nddata.NDData` or `~astropy.nddata.CCDData`
+        Ramps ``(nframes, n, ncols)`` as NDData, or a 2-D image ``(n, ncols)``
+        (slopes, reduced images) as CCDData, with unit, optional uncertainty
+        and mask.  ``n`` is the number of reads per frame in readout order
+        and the number of rows in physical order.
+    schedule : `ReadoutSchedule`
+        How the pixels were read.
+    header : `astropy.io.fits.Header`
+        Provenance: step status keywords, parameters, history.
+    phantom : `numpy.ndarray`, optional
+        Phantom values (mean of the ``c`` samples) per read and channel,
+        shape ``(nframes, n, nchannels)`` or ``(n, nchannels)``.
+    order : {'readout', 'physical'}
+        Whether rows are in the order read or in physical order.
+    reference : `ReferenceReads`, optional
+        The reference reads, kept aside once the exposure is un-chopped.
+    tables : dict of `~astropy.table.Table`
+        Tables recorded by steps (e.g. ``REFOFFS``); written as extensions.
+    dq : `numpy.ndarray` of uint16, optional
+        Data-quality flags (`spherex_reduce.core.dq` bits), same shape as the
+        pixels.  ``data.mask`` is always ``dq != 0``; when only a mask is
+        given, masked pixels get `~spherex_reduce.core.dq.DO_NOT_USE`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astropy import units as u
+    >>> from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule
+    >>> s = ReadoutSchedule(DetectorGeometry(16, 16, 2, ref_border=2), skip=4, ref_reads=4,
+    ...                     nframes=3)
+    >>> e = Exposure.from_arrays(np.zeros((3, s.n_reads, 16)), s, unit=u.electron)
+    >>> e.is_ramp, e.shape, e.unit
+    (True, (3, 16, 16), Unit("electron"))
+    """
+
+    data: NDData
+    schedule: ReadoutSchedule
+    header: fits.Header = field(default_factory=fits.Header)
+    phantom: np.ndarray | None = None
+    order: str = "readout"
+    reference: ReferenceReads | None = None
+    tables: dict = field(default_factory=dict)
+    dq: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.order not in ORDERS:
+            raise ValueError(f"order must be one of {ORDERS}, got {self.order!r}")
+        if not isinstance(self.data, NDData):
+            raise TypeError("data must be an astropy NDData or CCDData; use Exposure.from_arrays")
+        if self.data.data.ndim not in (2, 3):
+            raise ValueError(f"data must be 2-D or 3-D, got shape {self.data.data.shape}")
+        expected = self.expected_shape(self.data.data.ndim == 3)
+        if self.data.data.shape != expected:
+            raise ValueError(
+                f"data shape {self.data.data.shape} disagrees with the schedule, which gives "
+                f"{expected} in {self.order} order"
+            )
+        if self.dq is None and self.data.mask is not None:
+            object.__setattr__(self, "dq", as_dq(self.data.mask))
+        if self.dq is not None and self.dq.shape != self.data.data.shape:
+            raise ValueError(f"dq shape {self.dq.shape} differs from data {self.data.data.shape}")
+        if self.phantom is not None:
+            pexp = (*expected[:-1], self.schedule.geometry.nchannels)
+            if self.phantom.shape != pexp:
+                raise ValueError(
+                    f"phantom shape {self.phantom.shape} disagrees with the schedule, which "
+                    f"gives {pexp}"
+                )
+
+    def expected_shape(self, ramp):
+        """Shape of ``data`` that the schedule and ``order`` call for."""
+        return expected_shape(self.schedule, self.order, ramp)
+
+    @classmethod
+    def from_arrays(cls, data, schedule, *, unit=u.electron, uncertainty=None, mask=None,
+                    phantom=None, header=None, order="readout", **kwargs):
+        """Wrap plain arrays: 3-D becomes `NDData` (ramps), 2-D `CCDData`.
+
+        ``uncertainty`` is a standard deviation array in ``unit``.
+        """
+        flags = None if mask is None else as_dq(mask)
+        nd = _nddata(np.asarray(data), unit, uncertainty, flags)
+        return cls(nd, schedule, header=fits.Header() if header is None else header.copy(),
+                   phantom=phantom, order=order, dq=flags, **kwargs)
+
+    # -- convenience -------------------------------------------------------
+    @property
+    def is_ramp(self):
+        """True for frames up the ramp (3-D data)."""
+        return self.data.data.ndim == 3
+
+    @property
+    def shape(self):
+        """Shape of the pixel array."""
+        return self.data.data.shape
+
+    @property
+    def unit(self):
+        """Unit of the pixel values."""
+        return self.data.unit
+
+    @property
+    def geometry(self):
+        """The detector geometry of the schedule."""
+        return self.schedule.geometry
+
+    def replace(self, **changes):
+        """A new Exposure with some fields changed (the input is left as it was).
+
+        ``data`` may be given as an array, which keeps the unit, uncertainty
+        and flags unless ``unit``, ``uncertainty`` (std-dev array or None),
+        ``dq`` (flags) or ``mask`` (bool or flags) are also given.  The header
+        is copied.
+        """
+        arrays = {k: changes.pop(k) for k in ("unit", "uncertainty", "mask") if k in changes}
+        if "mask" in arrays:
+            if "dq" in changes:
+                raise ValueError("give mask or dq, not both")
+            changes["dq"] = None if arrays["mask"] is None else as_dq(arrays["mask"])
+        data = changes.pop("data", None)
+        if data is None and not arrays and "dq" not in changes:
+            nd = self.data
+        elif isinstance(data, NDData):
+            nd = data
+            changes.setdefault("dq", None if nd.mask is None else as_dq(nd.mask))
+        else:
+            base = self.data
+            values = np.asarray(base.data if data is None else data)
+            unc = arrays.get("uncertainty", _KEEP)
+            if unc is _KEEP:
+                unc = None if base.uncertainty is None else base.uncertainty.array
+            flags = changes.get("dq", self.dq)
+            changes["dq"] = flags
+            nd = _nddata(values, arrays.get("unit", base.unit), unc, flags)
+        header = changes.pop("header", self.header).copy()
+        tables = changes.pop("tables", self.tables)
+        return dataclasses.replace(self, data=nd, header=header, tables=dict(tables), **changes)
+
+    def to_ccddata(self):
+        """The 2-D image as `~astropy.nddata.CCDData` with the header as ``meta``."""
+        if self.is_ramp:
+            raise ValueError("to_ccddata needs a 2-D image; fit the ramps first (fit_ramp)")
+        d = self.data
+        return CCDData(d.data, unit=d.unit, uncertainty=d.uncertainty, mask=d.mask,
+                       meta=self.header.copy())

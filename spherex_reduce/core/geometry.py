@@ -1,0 +1,274 @@
+"""Detector layout: rows, columns, readout channels and the reference border."""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .fields import FIELD, SIDES, check_field, check_sides, section_fields, table_dataclass
+from .limits import check_size
+
+__all__ = ["DetectorGeometry", "RefBorder"]
+
+
+@dataclass(frozen=True)
+class RefBorder:
+    """Widths in pixels of the reference border on each side of the array.
+
+    ``top`` is the reference rows from row 0 (the first rows of the array,
+    read first); ``bottom`` the last rows; ``left`` the columns from column 0
+    (left of the first channel); ``right`` the last columns (right of the
+    last channel).  In an image shown with row 0 at the bottom
+    (``imshow(origin="lower")``, ds9), ``top`` appears at the bottom.
+
+    Examples
+    --------
+    >>> from spherex_reduce import RefBorder
+    >>> b = RefBorder.of({"top": 4, "left": 4})
+    >>> b, b.uniform, b.rows
+    (RefBorder(top=4, bottom=0, left=4, right=0), None, 4)
+    >>> RefBorder.of(4).to_value(), str(b)
+    (4, '{top: 4, bottom: 0, left: 4, right: 0}')
+    """
+
+    top: int = 0
+    bottom: int = 0
+    left: int = 0
+    right: int = 0
+
+    def __post_init__(self):
+        for side, value in check_sides(FIELD["ref_border"], self.sides()).items():
+            object.__setattr__(self, side, value)
+
+    @classmethod
+    def of(cls, value):
+        """A `RefBorder` from one width (every side), a mapping of sides, or a `RefBorder`."""
+        if isinstance(value, RefBorder):
+            return value
+        return cls(**check_sides(FIELD["ref_border"], value))
+
+    def sides(self):
+        """The widths as a dict of ``top bottom left right``."""
+        return {side: getattr(self, side) for side in SIDES}
+
+    @property
+    def uniform(self):
+        """The width if every side has it, else None."""
+        return self.top if len(set(self.sides().values())) == 1 else None
+
+    @property
+    def rows(self):
+        """Reference rows: ``top + bottom``."""
+        return self.top + self.bottom
+
+    @property
+    def columns(self):
+        """Side reference columns: ``left + right``."""
+        return self.left + self.right
+
+    def to_value(self):
+        """The YAML value: one number if every side is equal, else a dict of sides."""
+        return self.sides() if self.uniform is None else self.uniform
+
+    def __str__(self):
+        value = self.to_value()
+        if isinstance(value, int):
+            return str(value)
+        return "{" + ", ".join(f"{k}: {v}" for k, v in value.items()) + "}"
+
+_SCAN_MODES = ("same", "alternate")
+
+
+@table_dataclass("geometry")
+class DetectorGeometry:
+    """Layout of an HxRG array read by parallel output channels.
+
+    Channels are vertical stripes of ``ncols // nchannels`` columns, all read
+    at once, row by row.  A border of reference pixels (not sensitive to
+    light) surrounds the array: ``ref_border.top`` rows at the start of the
+    array (from row 0), ``bottom`` rows at its end, ``left`` columns at the
+    left of the first channel (from column 0) and ``right`` columns at the
+    right of the last (see `RefBorder`).  The defaults are the SPHEREx H2RG
+    (2048 x 2048, 32 channels of 64 columns, 4-pixel border on every side,
+    100 kHz).
+
+    Parameters
+    ----------
+    nrows, ncols : int
+        Array size in pixels (rows are read in time; columns across channels).
+    nchannels : int
+        Number of output channels; must divide ``ncols``.
+    ref_border : int, dict or `RefBorder`
+        Width in pixels of the reference border: one number for every side (0
+        for a subarray without one), or per side, e.g. ``{"top": 4, "left":
+        4}`` (sides left out are 0).  Stored as an int when every side is
+        equal, else as a `RefBorder`; :attr:`border` is always a `RefBorder`.
+    scan : {'same', 'alternate'} or sequence of {+1, -1}
+        Fast-scan direction of each channel: ``'same'`` reads every channel
+        left to right, ``'alternate'`` reverses every second channel (as JWST
+        and Roman do), or give one direction per channel.
+    pixel_rate : float
+        Pixel sample rate of each channel in Hz.
+
+    Examples
+    --------
+    >>> from spherex_reduce import DetectorGeometry
+    >>> g = DetectorGeometry()              # SPHEREx
+    >>> g.channel_width, g.n_active_rows
+    (64, 2040)
+    >>> jwst = DetectorGeometry(nchannels=4, scan="alternate")
+    >>> jwst.channel_width, jwst.scan_directions.tolist()
+    (512, [1, -1, 1, -1])
+    >>> corner = DetectorGeometry(40, 40, 1, ref_border={"top": 4, "left": 4})
+    >>> corner.reference_rows.tolist(), corner.n_active_rows
+    ([0, 1, 2, 3], 36)
+    """
+
+    # The fields, their defaults and checks: `spherex_reduce.core.fields.FIELDS` ("geometry").
+
+    def __post_init__(self):
+        maxima = {"nchannels": lambda: self.ncols,  # bounds that depend on checked fields
+                  "ref_border": lambda: max((min(self.nrows, self.ncols) - 1) // 2, 0)}
+        for f in section_fields("geometry"):
+            value = getattr(self, f.name)
+            if f.side_keywords:
+                value = RefBorder.of(value)
+                value = value if value.uniform is None else value.uniform
+            if not isinstance(value, RefBorder):
+                maximum = maxima[f.name]() if f.name in maxima else None
+                value = check_field(f, value, maximum)
+            object.__setattr__(self, f.name, value)
+        border = RefBorder.of(self.ref_border)
+        if border.rows >= self.nrows or border.columns >= self.ncols:
+            raise ValueError(f"ref_border {border} leaves no active row or column of the "
+                             f"{self.nrows} x {self.ncols} array: top + bottom must be < nrows "
+                             "and left + right < ncols")
+        object.__setattr__(self, "_border", border)
+        if self.ncols % self.nchannels:
+            raise ValueError(
+                f"nchannels x channel width must equal ncols: ncols={self.ncols} is not a "
+                f"multiple of nchannels={self.nchannels}"
+            )
+        check_size(self.nchannels * 16.0, f"{self.nchannels} readout channels")
+        object.__setattr__(self, "_directions", self._parse_scan(self.scan))
+
+    def _parse_scan(self, scan):
+        if isinstance(scan, str):
+            if scan not in _SCAN_MODES:
+                raise ValueError(
+                    f"scan must be one of {_SCAN_MODES} or a list of +1/-1 per channel, "
+                    f"got {scan!r}"
+                )
+            if scan == "same":
+                return (1,) * self.nchannels
+            return tuple(1 if i % 2 == 0 else -1 for i in range(self.nchannels))
+        directions = tuple(int(d) for d in scan)
+        if len(directions) != self.nchannels or set(directions) - {1, -1}:
+            raise ValueError(
+                f"scan as a list needs one +1 or -1 for each of the {self.nchannels} channels, "
+                f"got {list(scan)!r}"
+            )
+        object.__setattr__(self, "scan", directions)
+        return directions
+
+    # -- derived quantities -------------------------------------------------
+    @property
+    def channel_width(self):
+        """Columns per channel."""
+        return self.ncols // self.nchannels
+
+    @property
+    def border(self):
+        """The reference border per side, a `RefBorder` (whatever form ``ref_border`` has)."""
+        return self._border
+
+    @property
+    def n_active_rows(self):
+        """Rows that are not reference rows."""
+        return self.nrows - self._border.rows
+
+    @property
+    def top_rows(self):
+        """Physical reference rows at the top: the first ``top`` rows, from row 0."""
+        return np.arange(self._border.top)
+
+    @property
+    def bottom_rows(self):
+        """Physical reference rows at the bottom: the last ``bottom`` rows."""
+        return np.arange(self.nrows - self._border.bottom, self.nrows)
+
+    @property
+    def reference_rows(self):
+        """Physical reference rows: the top ones, then the bottom ones (declared sides only)."""
+        return np.concatenate([self.top_rows, self.bottom_rows]).astype(int)
+
+    @property
+    def active_rows(self):
+        """Physical rows that see light, in physical order."""
+        return np.arange(self._border.top, self.nrows - self._border.bottom)
+
+    @property
+    def scan_directions(self):
+        """Fast-scan direction of each channel (+1 left to right, -1 right to left)."""
+        return np.array(self._directions, dtype=int)
+
+    @property
+    def scan_label(self):
+        """The ``SCANDIR`` FITS value: 'same', 'alternate' or a string of + and -."""
+        if isinstance(self.scan, str):
+            return self.scan
+        return "".join("+" if d > 0 else "-" for d in self._directions)
+
+    def channel_of_column(self):
+        """Channel index (0-based) of each column, shape ``(ncols,)``."""
+        return np.arange(self.ncols) // self.channel_width
+
+    def column_offsets(self):
+        """Sample offset of each column within its channel's row read, shape ``(ncols,)``.
+
+        Column ``j`` of a channel read left to right is sampled ``j`` samples
+        after the channel's first pixel; read right to left,
+        ``width - 1 - j`` samples after.
+        """
+        width = self.channel_width
+        j = np.tile(np.arange(width), self.nchannels)
+        reverse = np.repeat(self.scan_directions < 0, width)
+        return np.where(reverse, width - 1 - j, j)
+
+    def reference_column_mask(self):
+        """True for the side reference columns: ``left`` from column 0, ``right`` at the end."""
+        mask = np.zeros(self.ncols, dtype=bool)
+        mask[:self._border.left] = True
+        mask[self.ncols - self._border.right:] = True
+        return mask
+
+    def to_dict(self):
+        """The constructor arguments, as plain Python values."""
+        values = {f.name: getattr(self, f.name) for f in section_fields("geometry")}
+        values["ref_border"] = self._border.to_value()
+        if not isinstance(self.scan, str):
+            values["scan"] = list(self.scan)
+        return values
+
+    @classmethod
+    def from_scan_label(cls, label, **kwargs):
+        """Build from a ``SCANDIR`` value (the inverse of :attr:`scan_label`).
+
+        Raises
+        ------
+        ValueError
+            ``label`` is neither a scan mode nor a string of ``+`` and ``-``
+            (any other character used to be read as ``-``).
+
+        Examples
+        --------
+        >>> from spherex_reduce import DetectorGeometry
+        >>> g = DetectorGeometry.from_scan_label("+-", nrows=8, ncols=8, nchannels=2, ref_border=0)
+        >>> g.scan_directions.tolist()
+        [1, -1]
+        """
+        if label in _SCAN_MODES:
+            return cls(scan=label, **kwargs)
+        if not isinstance(label, str) or not label or set(label) - {"+", "-"}:
+            raise ValueError(f"SCANDIR must be 'same', 'alternate' or one '+' or '-' per "
+                             f"channel, got {label!r}")
+        return cls(scan=[1 if ch == "+" else -1 for ch in label], **kwargs)

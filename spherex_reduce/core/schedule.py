@@ -1,0 +1,543 @@
+"""When every sample of a frame is taken: row chopping, reference and phantom reads.
+
+:class:`ReadoutSchedule` is the single source of truth for read order and
+timing.  The simulator places noise with it, the reduction steps un-chop and
+find reference reads with it, and it round-trips through FITS (header keywords
+plus a ``READOUT`` table, cross-checked on read); its parameters are the
+``readout`` fields of the one table `spherex_reduce.core.fields.FIELDS`.
+
+Timing model (all in samples of one channel at ``pixel_rate``): every row read
+takes ``phantom_reads + channel_width + row_overhead`` samples, the ``c``
+phantom samples of the Video8 reference first, then the row's pixels in the
+channel's fast-scan direction, then the row overhead.  After the last row read
+of a frame come ``frame_overhead`` samples (reset, idle).  A frame therefore
+lasts ``n_reads * row_samples + frame_overhead`` samples.
+"""
+
+import dataclasses
+import logging
+import math
+from collections.abc import Mapping
+
+import numpy as np
+from astropy import units as u
+from astropy.io import fits
+from astropy.table import Table
+
+from ._text import plural
+from .errors import FormatError
+from .fields import (  # header_keyword, _card_text: importable from here as before
+    DEFAULT_FRAME_OVERHEAD,
+    FIELD,
+    FIELDS,
+    REF_MODES,
+    _card_text,  # noqa: F401
+    check_field,
+    field_cards,
+    header_keyword,
+    read_field,
+    section_fields,
+    table_dataclass,
+)
+from .geometry import DetectorGeometry, RefBorder
+from .limits import check_size
+
+__all__ = ["REF_MODES", "ReadoutSchedule", "chopped_order"]
+
+log = logging.getLogger(__name__)
+
+ACTIVE, REFERENCE = "active", "reference"
+
+#: Samples of one channel an exposure may have (2**53: sample times stay exact in
+#: float64; at 100 kHz, 2850 years).
+MAX_SAMPLES = 2**53
+
+# Memory a schedule holds per read of a frame and per column (all its arrays,
+# with room to spare): the one estimate `_check_schedule_size` uses.
+_BYTES_PER_READ = 100
+_BYTES_PER_COLUMN = 40
+
+
+def chopped_order(n, skip):
+    """Order in which ``n`` rows are read with row-chopping skip ``skip``.
+
+    Rows ``k, k+S, k+2S, ...`` are read for ``k = 0 ... S-1``: after the
+    bottom of the array the read returns to the first unread row (paper §2.3,
+    Fig. 3).  ``skip = 1`` is physical order; ``skip >= n`` is too.
+
+    Parameters
+    ----------
+    n : int
+        Number of rows.
+    skip : int
+        Skip parameter ``S`` (>= 1).
+
+    Returns
+    -------
+    order : `numpy.ndarray` of int
+        Row indices (0-based) in read order; a permutation of ``range(n)``.
+
+    Examples
+    --------
+    >>> from spherex_reduce.core.schedule import chopped_order
+    >>> chopped_order(16, 4).tolist()
+    [0, 4, 8, 12, 1, 5, 9, 13, 2, 6, 10, 14, 3, 7, 11, 15]
+    """
+    skip = check_field(FIELD["skip"], skip)
+    return np.concatenate([np.arange(k, n, skip) for k in range(min(skip, n))] or [[]]).astype(
+        int
+    )
+
+
+@table_dataclass("readout", eq=False)
+class ReadoutSchedule:
+    """Read order and sample times of every frame of an exposure.
+
+    Parameters
+    ----------
+    geometry : `DetectorGeometry`, optional
+        Array layout; the SPHEREx H2RG by default.
+    skip : int
+        Row-chopping skip ``S`` (>= 1; 1 is physical order).  It need not
+        divide the number of rows.
+    ref_reads : int
+        Number ``r`` of reference-row reads per frame for ``ref_mode``
+        ``'repeated'`` and ``'distributed'`` (>= 0).  Ignored for ``'none'``.
+    ref_mode : {'none', 'repeated', 'distributed'}
+        ``'none'``: the physical reference rows are read once each, the top
+        ones (``top`` of ``ref_border``, from row 0) before the active rows and the
+        bottom ones after.
+        ``'repeated'``: the top reference rows are re-read in place at the
+        start of the frame (``ceil(r/2)`` reads) and the bottom ones at the end
+        (``floor(r/2)``), cycling through the rows; all ``r`` at the one end
+        that has reference rows if the other has none.
+        ``'distributed'``: ``r`` reference reads evenly spaced through the
+        frame (gaps differ by at most one read), cycling through all the
+        declared physical reference rows, top then bottom (paper §4.3).
+    phantom_reads : int
+        ``c``, samples of the Video8 reference voltage before every row read
+        (averaged into one phantom value per read and channel); 0 for none.
+    row_overhead, frame_overhead : int, optional
+        Idle samples after each row read and after each frame.
+        ``frame_overhead`` defaults to the value giving 1.51 s for the paper's
+        parameters, unless ``frame_time`` is given.
+    nframes : int
+        Frames up the ramp, ``N``.
+    frame_time : `~astropy.units.Quantity` or float, optional
+        State the frame time (s) directly instead of ``frame_overhead``; the
+        overhead is derived from it and must not be negative.
+
+    Examples
+    --------
+    >>> from spherex_reduce import ReadoutSchedule
+    >>> s = ReadoutSchedule()             # the paper's Table 3 case
+    >>> s.n_reads, s.frame_time
+    (2072, <Quantity 1.51 s>)
+    >>> s.integration_time.round(2)
+    <Quantity 111.74 s>
+    """
+
+    geometry: DetectorGeometry = dataclasses.field(default_factory=DetectorGeometry)
+    # Then the fields of `spherex_reduce.core.fields.FIELDS` (section "readout"), in its order.
+
+    def __post_init__(self):
+        set_ = object.__setattr__
+        if not isinstance(self.geometry, DetectorGeometry):
+            raise ValueError(
+                f"geometry must be a DetectorGeometry, got {type(self.geometry).__name__}"
+            )
+        for f in section_fields("readout"):
+            if not f.nullable:  # frame_overhead, frame_time: see _set_frame_timing
+                set_(self, f.name, check_field(f, getattr(self, f.name)))
+        g = self.geometry
+        if self.ref_mode != "none" and self.ref_reads > 0 and g.border.rows == 0:
+            raise ValueError(
+                f"ref_reads={self.ref_reads} with ref_mode={self.ref_mode!r} needs reference "
+                f"rows, but ref_border is {g.border}: set ref_reads to 0 or ref_mode to 'none'"
+            )
+        _check_schedule_size(g.nrows, g.ncols, g.nchannels,
+                             self.ref_reads if self.ref_mode != "none" else 0, g.border)
+        rows, kinds = self._build_order()
+        set_(self, "_rows", rows)
+        set_(self, "_is_ref", kinds)
+        self._set_frame_timing()
+        for arr in (rows, kinds):
+            arr.setflags(write=False)
+
+    # -- construction -------------------------------------------------------
+    def _set_frame_timing(self):
+        set_ = object.__setattr__
+        rate = self.geometry.pixel_rate
+        read_samples = self.n_reads * self.row_samples
+        if self.frame_time is None:
+            overhead = self.frame_overhead
+            overhead = DEFAULT_FRAME_OVERHEAD if overhead is None else overhead
+            limit = MAX_SAMPLES - 1 - read_samples
+            overhead = check_field(FIELD["frame_overhead"], overhead, limit)
+            set_(self, "frame_overhead", overhead)
+            set_(self, "frame_time", ((read_samples + overhead) / rate) * u.s)
+            self._check_exposure()
+            return
+        tframe = check_field(FIELD["frame_time"], self.frame_time) * u.s
+        samples = tframe.to_value(u.s) * rate
+        if samples >= MAX_SAMPLES:
+            raise ValueError(f"frame_time={tframe} is {samples:.3g} samples at {rate:g} Hz, "
+                             f"more than the {MAX_SAMPLES:.3g} a schedule can count")
+        overhead = round(samples) - read_samples
+        if overhead < 0:
+            raise ValueError(
+                f"frame_time must be >= {read_samples / rate:.6g} s, the time to read "
+                f"{self.n_reads} rows of {self.row_samples} samples; got {tframe}"
+            )
+        if self.frame_overhead is not None and check_field(
+                FIELD["frame_overhead"], self.frame_overhead) != overhead:
+            raise ValueError(
+                f"frame_time={tframe} implies frame_overhead={overhead} samples, but "
+                f"frame_overhead={self.frame_overhead} was also given: give only one"
+            )
+        set_(self, "frame_overhead", overhead)
+        set_(self, "frame_time", tframe)
+        self._check_exposure()
+
+    def _check_exposure(self):
+        total = self.nframes * self.frame_samples
+        if total >= MAX_SAMPLES or not np.isfinite(self.frame_time.value):
+            raise ValueError(
+                f"nframes={self.nframes} frames of {self.frame_samples} samples make "
+                f"{total:.3g} samples, more than the {MAX_SAMPLES:.3g} a schedule can count"
+            )
+
+    def _build_order(self):
+        g = self.geometry
+        active = g.active_rows[chopped_order(g.n_active_rows, self.skip)]
+        top, bottom = g.top_rows, g.bottom_rows
+        r = self.ref_reads
+        if self.ref_mode == "none":
+            rows = np.concatenate([top, active, bottom])
+            is_ref = np.concatenate([np.ones(top.size, bool), np.zeros(active.size, bool),
+                                     np.ones(bottom.size, bool)])
+        elif self.ref_mode == "repeated":
+            n_top = (r + 1) // 2 if top.size and bottom.size else r if top.size else 0
+            n_bottom = r - n_top
+            head = top[np.arange(n_top) % top.size] if n_top else top[:0]
+            tail = bottom[np.arange(n_bottom) % bottom.size] if n_bottom else bottom[:0]
+            rows = np.concatenate([head, active, tail])
+            is_ref = np.concatenate([np.ones(n_top, bool), np.zeros(active.size, bool),
+                                     np.ones(n_bottom, bool)])
+        else:  # distributed
+            refs = g.reference_rows
+            n = active.size + r
+            rows = np.empty(n, dtype=int)
+            is_ref = np.zeros(n, dtype=bool)
+            if r:
+                # reference read j goes before active read floor(j * n_active / r)
+                before = (np.arange(r) * active.size) // r
+                pos = before + np.arange(r)
+                is_ref[pos] = True
+                rows[pos] = refs[np.arange(r) % refs.size]
+            rows[~is_ref] = active
+        return rows.astype(int), is_ref
+
+    # -- read order -----------------------------------------------------------
+    @property
+    def n_reads(self):
+        """Row reads per frame (active plus reference)."""
+        return int(self._rows.size)
+
+    @property
+    def rows(self):
+        """Physical row of every read of a frame, shape ``(n_reads,)``."""
+        return self._rows
+
+    @property
+    def is_reference(self):
+        """True for reads of a reference row, shape ``(n_reads,)``."""
+        return self._is_ref
+
+    @property
+    def kinds(self):
+        """``'active'`` or ``'reference'`` for every read."""
+        return np.where(self._is_ref, REFERENCE, ACTIVE)
+
+    @property
+    def row_samples(self):
+        """Samples taken per row read: phantom + pixels + overhead."""
+        return self.phantom_reads + self.geometry.channel_width + self.row_overhead
+
+    @property
+    def starts(self):
+        """Sample index (within the frame) of the first pixel of every read."""
+        return np.arange(self.n_reads, dtype=np.int64) * self.row_samples + self.phantom_reads
+
+    @property
+    def start_times(self):
+        """Time (s, within the frame) of the first pixel of every read."""
+        return (self.starts / self.geometry.pixel_rate) * u.s
+
+    @property
+    def frame_samples(self):
+        """Samples per frame (the frame time times the pixel rate)."""
+        return self.n_reads * self.row_samples + self.frame_overhead
+
+    @property
+    def integration_time(self):
+        """``nframes`` times the frame time."""
+        return self.nframes * self.frame_time
+
+    @property
+    def frame_starts(self):
+        """Start time of every frame, shape ``(nframes,)``, in s."""
+        return np.arange(self.nframes) * self.frame_time
+
+    def pixel_samples(self):
+        """Sample index (within the frame) of every pixel read, shape ``(n_reads, ncols)``."""
+        return self.starts[:, None] + self.geometry.column_offsets()[None, :]
+
+    def pixel_times(self):
+        """Time (s, within the frame) of every pixel read, shape ``(n_reads, ncols)``."""
+        return (self.pixel_samples() / self.geometry.pixel_rate) * u.s
+
+    def phantom_samples(self):
+        """Sample index of every phantom sample, shape ``(n_reads, phantom_reads)``."""
+        c = self.phantom_reads
+        return self.starts[:, None] - c + np.arange(c)[None, :]
+
+    def phantom_times(self):
+        """Time (s, within the frame) of every phantom sample, shape ``(n_reads, c)``."""
+        return (self.phantom_samples() / self.geometry.pixel_rate) * u.s
+
+    def read_of_row(self):
+        """Read index of every physical row's *first* read; -1 where a row is never read."""
+        first = np.full(self.geometry.nrows, -1, dtype=int)
+        order = np.arange(self.n_reads)[::-1]
+        first[self._rows[::-1]] = order  # later writes win: the first read stays
+        return first
+
+    @property
+    def reference_read_indices(self):
+        """Indices of the reference reads within a frame."""
+        return np.flatnonzero(self._is_ref)
+
+    @property
+    def active_read_indices(self):
+        """Indices of the active reads within a frame."""
+        return np.flatnonzero(~self._is_ref)
+
+    # -- parameters, tables, FITS ---------------------------------------------
+    def to_dict(self):
+        """Readout parameters as plain values (the ``readout:`` YAML section).
+
+        ``frame_time`` is left out: ``frame_overhead`` states it in samples.
+        """
+        return {f.name: getattr(self, f.name) for f in section_fields("readout")
+                if f.instead_of is None}
+
+    def replace(self, **changes):
+        """A copy with some parameters changed (``geometry`` too).
+
+        The frame overhead is kept as samples unless ``frame_time`` is changed.
+        """
+        params = {"geometry": self.geometry, **self.to_dict()}
+        params.update(changes)
+        if "frame_time" in changes:
+            params.pop("frame_overhead", None) if "frame_overhead" not in changes else None
+        return ReadoutSchedule(**params)
+
+    def __eq__(self, other):
+        if not isinstance(other, ReadoutSchedule):
+            return NotImplemented
+        return bool(
+            self.geometry == other.geometry
+            and self.to_dict() == other.to_dict()
+            and np.isclose(self.frame_time.to_value(u.s), other.frame_time.to_value(u.s))
+        )
+
+    __hash__ = None
+
+    def to_table(self):
+        """One row per read: ``read row kind start time`` (time in s, within a frame).
+
+        Examples
+        --------
+        >>> from spherex_reduce import ReadoutSchedule
+        >>> t = ReadoutSchedule().to_table()
+        >>> t.colnames
+        ['read', 'row', 'kind', 'start', 'time']
+        >>> t["kind"][0], int(t["row"][0])
+        (np.str_('reference'), 0)
+        """
+        return Table(
+            {
+                "read": np.arange(self.n_reads),
+                "row": self._rows,
+                "kind": self.kinds,
+                "start": self.starts,
+                "time": self.start_times,
+            },
+            meta={"comments": [self.summary()]},
+        )
+
+    def summary(self):
+        """One line describing the schedule."""
+        g = self.geometry
+        refs = ("reference rows once" if self.ref_mode == "none"
+                else f"r={self.ref_reads} ({self.ref_mode})")
+        return (
+            f"{g.nrows}x{g.ncols} array, {plural(g.nchannels, 'channel')} of "
+            f"{plural(g.channel_width, 'column')}, "
+            f"S={self.skip}, {refs}, c={self.phantom_reads}: "
+            f"{self.n_reads} reads/frame ({int(self._is_ref.sum())} reference), frame time "
+            f"{self.frame_time.to_value(u.s):.6g} s, N={self.nframes}, "
+            f"{self.integration_time.to_value(u.s):.6g} s"
+        )
+
+    def to_header(self, header=None):
+        """Write the readout keywords into ``header`` (a copy; a new one if None)."""
+        h = fits.Header() if header is None else header.copy()
+        g = self.geometry
+        for f in FIELDS:
+            value = getattr(g if f.section == "geometry" else self, f.name)
+            if f.name == "scan":
+                value = g.scan_label
+            elif isinstance(value, u.Quantity):
+                value = value.to_value(f.unit)
+            cards = field_cards(f, g.border.to_value() if f.side_keywords else value)
+            for key in {f.keyword, *(f.side_keywords or ())} - {c[0] for c in cards}:
+                h.remove(key, ignore_missing=True)  # a per-side field: only one form
+            for key, card_value, comment in cards:
+                h[key] = (card_value, comment)
+            if f.name == "nchannels":  # derived, checked on read
+                h["CHANW"] = (g.channel_width, "columns per channel")
+        return h
+
+    @classmethod
+    def from_header(cls, header, table=None, **supplied):
+        """Rebuild a schedule from FITS keywords, checked against a ``READOUT`` table.
+
+        Parameters
+        ----------
+        header : `astropy.io.fits.Header`
+            Primary header with the readout keywords.
+        table : `astropy.table.Table`, optional
+            The ``READOUT`` table (``row kind start``); when given, every read
+            must agree with the schedule the keywords describe.
+        **supplied
+            Geometry or readout parameters (the YAML names, e.g. ``skip=24``)
+            used where the header lacks the keyword, for files from other
+            electronics.
+
+        Raises
+        ------
+        FormatError
+            A keyword is missing and not supplied, invalid, or disagrees with
+            the table; the message names it.
+        """
+        unknown = set(supplied) - set(FIELD)
+        if unknown:
+            raise FormatError(
+                f"unknown readout parameter(s) {sorted(unknown)}; valid: {sorted(FIELD)}"
+            )
+        values = {}
+        for f in FIELDS:
+            value = read_field(header, f)
+            if value is not None:
+                values[f.name] = value
+            elif supplied.get(f.name) is not None:
+                values[f.name] = supplied[f.name]
+        # Everything that decides read order and timing is required: guessing the
+        # SPHEREx defaults for a foreign file would un-chop it wrongly and silently.
+        required = [f for f in FIELDS if f.required is True]
+        if values.get("ref_mode", "none") != "none":
+            required.append(FIELD["ref_reads"])
+        missing = [f.keyword for f in required if f.name not in values]
+        missing += [f"{f.keyword} (or {FIELD[f.instead_of].keyword})" for f in FIELDS
+                    if f.instead_of and f.name not in values and f.instead_of not in values]
+        if missing:
+            raise FormatError(
+                f"missing readout keyword(s) {', '.join(missing)}: the file does not say how it "
+                "was read; supply them in the pipeline config's geometry:/readout: sections"
+            )
+        _check_schedule_size(*(values.get(n, 0) for n in ("nrows", "ncols", "nchannels",
+                                                          "ref_reads", "ref_border")))
+        gkw = {f.name: values[f.name] for f in section_fields("geometry")
+               if f.name in values and f.name != "scan"}
+        rkw = {f.name: values[f.name] for f in section_fields("readout")
+               if f.name in values and not f.instead_of}
+        if "frame_overhead" not in values:
+            rkw["frame_time"] = values["frame_time"]
+        try:
+            geometry = DetectorGeometry.from_scan_label(values.get("scan", "same"), **gkw)
+            sched = cls(geometry, **rkw)
+        except ValueError as exc:
+            raise FormatError(f"readout keywords describe an invalid schedule: {exc}") from exc
+        if "ref_border" not in values:
+            log.warning("the file has no reference border keyword (REFBORD, or REFBTOP REFBBOT "
+                        "REFBLEFT REFBRIGH) and none was supplied: assuming the default "
+                        "ref_border=%s on every side; state geometry.ref_border in the config "
+                        "if that is not the file's layout", geometry.ref_border)
+        if table is not None:  # first: it names the read-order keyword at fault
+            sched.check_table(table)
+        if "frame_time" in values and "frame_overhead" in values and not np.isclose(
+                values["frame_time"], sched.frame_time.to_value(u.s), rtol=1e-9,
+                atol=0.5 / geometry.pixel_rate):
+            raise FormatError(
+                f"keyword TFRAME={values['frame_time']} disagrees with the frame time "
+                f"{sched.frame_time.to_value(u.s)} s implied by FRMOVH and the read order"
+            )
+        if ("CHANW" in header
+                and header_keyword(header, "CHANW", int, 1) != geometry.channel_width):
+            raise FormatError(
+                f"keyword CHANW={header['CHANW']} disagrees with NCOLS/NCHAN="
+                f"{geometry.channel_width}"
+            )
+        return sched
+
+    def check_table(self, table):
+        """Raise `FormatError` naming the first column where ``table`` disagrees."""
+        if len(table) != self.n_reads:
+            raise FormatError(
+                f"READOUT table has {len(table)} reads but the header keywords give "
+                f"{self.n_reads} reads per frame (check ROWSKIP, NREFRD, REFMODE, NROWS, REFBORD)"
+            )
+        for col, expected, hint in [
+            ("row", self._rows, "ROWSKIP/NREFRD/REFMODE"),
+            ("kind", self.kinds, "NREFRD/REFMODE/REFBORD"),
+            ("start", self.starts, "NPHANT/ROWOVH/NCHAN"),
+        ]:
+            if col not in table.colnames:
+                raise FormatError(f"READOUT table lacks column {col!r}")
+            got = np.asarray(table[col])
+            if col == "kind":
+                got = np.char.strip(got.astype(str))
+            bad = np.flatnonzero(got != expected)
+            if bad.size:
+                i = bad[0]
+                raise FormatError(
+                    f"READOUT column {col!r} disagrees with the header keywords ({hint}) at read "
+                    f"{i}: table has {got[i].item()!r}, keywords give {expected[i].item()!r}"
+                )
+
+
+def _check_schedule_size(nrows, ncols, nchannels, ref_reads, ref_border):
+    """Refuse sizes whose schedule tables would not fit in memory, before building them.
+
+    A schedule holds a few arrays of one entry per read of a frame (at most
+    ``nrows + ref_reads`` reads, plus index arrays of the reference rows,
+    ``top + bottom`` of ``ref_border``; `_BYTES_PER_READ` each) and per column
+    and channel (`_BYTES_PER_COLUMN` each).  The values may come straight from
+    a header or a config: any that is not a finite number counts as 0 here
+    (the constructor names it).
+    """
+    def count(value):
+        ok = isinstance(value, (int, float, np.integer, np.floating)) and math.isfinite(value)
+        return max(float(value), 0.0) if ok else 0.0
+
+    if isinstance(ref_border, RefBorder):
+        ref_border = ref_border.sides()
+    border_rows = (count(ref_border.get("top")) + count(ref_border.get("bottom"))
+                   if isinstance(ref_border, Mapping) else 2 * count(ref_border))
+    reads = count(nrows) + count(ref_reads)
+    nbytes = (_BYTES_PER_READ * (reads + border_rows)
+              + _BYTES_PER_COLUMN * (count(ncols) + count(nchannels)))
+    check_size(nbytes, f"a readout schedule of {reads:.6g} row reads (nrows={nrows}, "
+               f"ref_reads={ref_reads}, ncols={ncols}, nchannels={nchannels})")

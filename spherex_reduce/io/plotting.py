@@ -1,0 +1,275 @@
+"""Figures people would rather look at than read.
+
+Figures are built with `matplotlib.figure.Figure` (no pyplot state, no display
+needed) and saved atomically with :func:`save_figure`.
+"""
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from . import atomic_output
+
+__all__ = ["bin_image", "plot_image", "plot_images", "plot_read_order", "save_figure",
+           "unit_label"]
+
+
+def save_figure(fig, path, overwrite=False, dpi=120):
+    """Save ``fig`` as PNG atomically; keep an existing file unless ``overwrite``."""
+    with atomic_output(path, overwrite) as tmp:
+        fig.savefig(tmp, format="png", dpi=dpi, bbox_inches="tight")
+    return path
+
+
+def plot_read_order(schedule, max_rows=48):
+    """Draw the order in which rows are read, as in the paper's Fig. 3.
+
+    Left: each physical row (down the page) with its read number and arrows
+    from read to read, for the first ``max_rows`` rows (all of a small array).
+    Right: physical row against read number for the whole frame, reference
+    reads in red.
+
+    Parameters
+    ----------
+    schedule : `~spherex_reduce.ReadoutSchedule`
+    max_rows : int
+        Rows shown in the left panel.
+
+    Returns
+    -------
+    `matplotlib.figure.Figure`
+
+    Examples
+    --------
+    >>> from spherex_reduce import DetectorGeometry, ReadoutSchedule
+    >>> from spherex_reduce.io.plotting import plot_read_order
+    >>> fig = plot_read_order(ReadoutSchedule(DetectorGeometry(24, 8, 1, ref_border=2),
+    ...                                       skip=4, ref_reads=4))
+    >>> len(fig.axes)
+    2
+    """
+    rows, is_ref = schedule.rows, schedule.is_reference
+    nrows = schedule.geometry.nrows
+    shown = min(nrows, max_rows)
+    fig = Figure(figsize=(11, 6.4), layout="constrained")
+    ax, ax2 = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1, 1.4]})
+    # left: Fig. 3 style. One column per chopping pass (pass k reads active rows
+    # k, k+S, ...), reference reads in the first column; arrows join consecutive reads.
+    g = schedule.geometry
+    sel = np.flatnonzero(rows < shown)
+    npass = min(schedule.skip, max(g.n_active_rows, 1))
+    x = np.where(is_ref[sel], 0, 1 + (rows[sel] - g.border.top) % npass)
+    y = rows[sel]
+    for r in range(shown):
+        if r < g.border.top or r >= nrows - g.border.bottom:
+            ax.axhspan(r - 0.5, r + 0.5, color="0.88", lw=0)
+    for k in range(len(sel) - 1):
+        if sel[k + 1] != sel[k] + 1:  # a jump over rows outside the panel
+            continue
+        same = x[k + 1] == x[k]
+        ax.annotate("", xy=(x[k + 1], y[k + 1]), xytext=(x[k], y[k]),
+                    arrowprops={"arrowstyle": "->", "lw": 0.9 if same else 0.6,
+                                "color": "black" if same else "tab:red",
+                                "linestyle": "-" if same else "--", "shrinkA": 4, "shrinkB": 4})
+    ax.scatter(x, y, s=12, c=np.where(is_ref[sel], "tab:red", "black"), zorder=3)
+    if len(sel) <= 200:
+        # active rows are read once: the index beside the point; a reference row is read
+        # many times at the same place, so its indices go on one line across its grey band
+        for xi, yi, i in zip(x[~is_ref[sel]], y[~is_ref[sel]], sel[~is_ref[sel]], strict=True):
+            ax.text(xi + 0.15, yi, str(i), va="center", fontsize=6, color="0.3",
+                    bbox={"boxstyle": "square,pad=0.05", "fc": "white", "ec": "none",
+                          "alpha": 0.8}, zorder=4)
+        for r in np.unique(y[is_ref[sel]]):
+            reads = sel[is_ref[sel] & (y == r)]
+            listed = ", ".join(map(str, reads[:12])) + (", …" if reads.size > 12 else "")
+            ax.text(0.4, r, f"reads {listed} ({reads.size}×)", va="center", fontsize=6,
+                    color="tab:red", bbox={"boxstyle": "square,pad=0.1", "fc": "0.88",
+                                           "ec": "none"}, zorder=4)
+    ax.set_xlim(-0.6, npass + 0.8)
+    ax.set_ylim(shown - 0.5, -0.5)
+    ax.set_xticks(range(npass + 1), ["ref"] + [str(k) for k in range(npass)],
+                  fontsize=7 if npass < 16 else 5)
+    ax.set_xlabel("pass (dashed red: return to the first unread row)")
+    ax.set_ylabel("physical row")
+    ax.set_title(f"read order, first {shown} rows (grey: reference rows)\n"
+                 "numbers: read index within the frame", fontsize=9)
+    # right: the whole frame
+    idx = np.arange(rows.size)
+    ax2.plot(idx[~is_ref], rows[~is_ref], ".", ms=2, color="black", label="active read")
+    ax2.plot(idx[is_ref], rows[is_ref], "o", ms=4, color="tab:red", label="reference read")
+    ax2.set_xlabel(f"read index (each {schedule.row_samples} samples = "
+                   f"{schedule.row_samples / schedule.geometry.pixel_rate * 1e6:.0f} µs)")
+    ax2.set_ylabel("physical row")
+    ax2.invert_yaxis()
+    # outside the axes: inside it would cover reads, which fill the whole frame
+    ax2.legend(loc="lower center", bbox_to_anchor=(0.5, 1.08), ncol=2, fontsize=8,
+               frameon=False)
+    ax2.set_title(f"S={schedule.skip}, r={schedule.ref_reads} ({schedule.ref_mode}), "
+                  f"c={schedule.phantom_reads}: {schedule.n_reads} reads, frame "
+                  f"{schedule.frame_time.value:.4g} s", fontsize=9)
+    return fig
+
+
+def unit_label(unit):
+    """A unit as LaTeX for an axis label (``""`` for none or dimensionless).
+
+    Examples
+    --------
+    >>> from astropy import units as u
+    >>> from spherex_reduce.io.plotting import unit_label
+    >>> print(unit_label(u.electron**2 * u.pix**2 / u.s**2))
+    $\\mathrm{electron^{2}\\,pix^{2}\\,s^{-2}}$
+    """
+    from astropy import units as u
+
+    if unit is None or unit == "":
+        return ""
+    unit = u.Unit(unit)
+    return "" if unit == u.one else unit.to_string("latex_inline")
+
+
+def bin_image(data, max_pixels=400):
+    """Block means of ``data`` so that neither side exceeds ``max_pixels``.
+
+    Drawing a large image on a few hundred screen pixels picks every n-th
+    pixel, which turns noise into moiré; block means show what is there.
+    NaN pixels are left out of their block's mean (a block of NaN only is NaN).
+
+    Parameters
+    ----------
+    data : 2-D array
+    max_pixels : int
+        Largest number of blocks along a side.
+
+    Returns
+    -------
+    binned : `numpy.ndarray`
+        The block means (``data`` itself, as float, when it is small enough).
+    factor : int
+        Pixels per block along each side; the last block of a side may hold fewer.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.io.plotting import bin_image
+    >>> b, f = bin_image(np.arange(16.0).reshape(4, 4), max_pixels=2)
+    >>> f, b.tolist()
+    (2, [[2.5, 4.5], [10.5, 12.5]])
+    """
+    data = np.asarray(data, dtype=float)
+    factor = max(1, -(-max(data.shape) // int(max_pixels)))
+    if factor == 1:
+        return data, 1
+    ny, nx = (-(-n // factor) for n in data.shape)
+    padded = np.full((ny * factor, nx * factor), np.nan)
+    padded[: data.shape[0], : data.shape[1]] = data
+    blocks = padded.reshape(ny, factor, nx, factor)
+    good = np.isfinite(blocks)
+    count = good.sum(axis=(1, 3))
+    total = np.where(good, blocks, 0.0).sum(axis=(1, 3))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, total / np.maximum(count, 1), np.nan), factor
+
+
+def _masked(image):
+    data = np.asarray(getattr(image, "data", image), dtype=float)
+    mask = getattr(image, "mask", None)
+    if mask is not None:
+        data = np.where(np.asarray(mask) != 0, np.nan, data)
+    return data
+
+
+def plot_images(images, title="", unit="", percentile=(1, 99), max_pixels=400):
+    """Images side by side, on one grey scale, each with a colour bar.
+
+    One stretch (the ``percentile`` range of all the panels' pixels together)
+    so that the panels can be compared by eye.  Images larger than
+    ``max_pixels`` are shown as block means (`bin_image`), never decimated.
+
+    Parameters
+    ----------
+    images : dict of label -> array-like or `~astropy.nddata.CCDData`
+        Masked pixels (``mask`` True) and NaN are shown blank.
+    title : str
+        Title of the figure.
+    unit : str or `~astropy.units.Unit`
+        Unit of the colour bars (taken from the first image that has one if
+        not given).
+    percentile : (float, float)
+        Percentiles of the shown pixels at the ends of the grey scale.
+    max_pixels : int
+        Largest number of shown pixels along a side.
+
+    Returns
+    -------
+    `matplotlib.figure.Figure`
+        One axes and one colour bar per image, all with the same ``norm``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.io.plotting import plot_images
+    >>> rng = np.random.default_rng(0)
+    >>> fig = plot_images({"a": rng.normal(size=(64, 64)), "b": rng.normal(size=(64, 64))})
+    >>> a, b = fig.axes[0].images[0], fig.axes[1].images[0]
+    >>> a.norm is b.norm
+    True
+    """
+    from matplotlib.colors import Normalize
+
+    if not unit:
+        unit = next((getattr(im, "unit", None) for im in images.values()
+                     if getattr(im, "unit", None) is not None), "")
+    shown = {}
+    for label, image in images.items():
+        data = _masked(image)
+        binned, factor = bin_image(data, max_pixels)
+        shown[label] = (binned, factor, data.shape)
+    finite = np.concatenate([b[np.isfinite(b)] for b, _, _ in shown.values()])
+    lo, hi = np.percentile(finite, percentile) if finite.size else (0.0, 1.0)
+    norm = Normalize(vmin=lo, vmax=hi if hi > lo else lo + 1)
+    n = len(shown)
+    fig = Figure(figsize=(5.6 * n + 0.4, 5.2), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(1, n))
+    label = unit_label(unit)
+    for ax, (name, (binned, factor, (ny, nx))) in zip(axes, shown.items(), strict=True):
+        extent = (-0.5, binned.shape[1] * factor - 0.5, binned.shape[0] * factor - 0.5, -0.5)
+        im = ax.imshow(binned, norm=norm, cmap="gray", interpolation="nearest", extent=extent)
+        ax.set_xlim(-0.5, nx - 0.5)
+        ax.set_ylim(ny - 0.5, -0.5)
+        fig.colorbar(im, ax=ax, label=label, shrink=0.9)
+        ax.set_xlabel("column")
+        ax.set_ylabel("row")
+        note = f"({factor}×{factor}-pixel means)" if factor > 1 else ""
+        ax.set_title("\n".join(t for t in (name, note) if t), fontsize=9)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    return fig
+
+
+def plot_image(image, title="", unit="", percentile=(1, 99), max_pixels=400):
+    """Show a 2-D image with a colour bar, stretched between two percentiles.
+
+    Parameters
+    ----------
+    image : array-like or `~astropy.nddata.CCDData`
+        Masked pixels (``mask`` True) are shown blank.
+    title : str
+    unit : str or `~astropy.units.Unit`
+    percentile : (float, float)
+    max_pixels : int
+        Larger images are shown as block means (`bin_image`).
+
+    Returns
+    -------
+    `matplotlib.figure.Figure`
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.io.plotting import plot_image
+    >>> fig = plot_image(np.ones((1000, 10)), "flat")
+    >>> fig.axes[0].images[0].get_array().shape   # 3 x 3 means: 334 x 4 shown
+    (334, 4)
+    """
+    return plot_images({"": image}, title=title, unit=unit, percentile=percentile,
+                       max_pixels=max_pixels)

@@ -1,0 +1,1 @@
+"""Reduction: the Step protocol, the executor, the pipeline, plugins and the steps."""

@@ -1,0 +1,143 @@
+"""Where sweep cells run: dask scheduler addresses checked, clients and local clusters.
+
+`check_scheduler` refuses, within seconds, an address where no dask scheduler
+answers; `quiet_dask_logs` keeps dask.distributed's connection logs out of
+the output.
+"""
+
+import asyncio
+import concurrent.futures
+import logging
+
+from ..core.errors import ConfigError
+from ..core.limits import MAX_WORKERS, check_count
+
+__all__ = ["check_scheduler", "map_on_dask", "quiet_dask_logs"]
+
+
+def quiet_dask_logs(level=logging.WARNING):
+    """Raise the level of dask.distributed's loggers (they log every connection at INFO)."""
+    import distributed  # noqa: F401  (creates its loggers)
+
+    for name in list(logging.root.manager.loggerDict):
+        if name.split(".")[0] == "distributed":
+            logging.getLogger(name).setLevel(level)
+
+
+def check_scheduler(address, timeout=5.0, name="scheduler"):
+    """Refuse, within ``timeout`` seconds, a dask scheduler address that is not reachable.
+
+    ``None`` (an embedded cluster) and ``"serial"`` pass.  Otherwise the address
+    must parse as a dask address, and a dask scheduler must answer there: dask's
+    own client waits 30 s, or for ever on a server that accepts and stays silent.
+
+    Parameters
+    ----------
+    address : str or None
+        E.g. ``"tcp://host:8786"``.
+    timeout : float
+        Seconds to wait for the connection.
+    name : str
+        How the message names the setting (the CLI passes ``"--scheduler"``).
+
+    Raises
+    ------
+    ConfigError
+        Naming the address and the reason.
+
+    Examples
+    --------
+    >>> from spherex_reduce.reduce.scheduler import check_scheduler
+    >>> check_scheduler("serial")
+    >>> check_scheduler("not a url")
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.core.errors.ConfigError: scheduler 'not a url': not a dask ...
+    """
+    if address is None or address == "serial":
+        return
+    from distributed.comm import parse_address, parse_host_port
+
+    try:
+        scheme, loc = parse_address(address)
+        port = parse_host_port(loc)[1] if scheme in ("tcp", "tls") else None
+        if any(c.isspace() for c in address) or (scheme in ("tcp", "tls") and not port):
+            raise ValueError("no host:port")
+    except (ValueError, TypeError):
+        raise ConfigError(f"{name} {address!r}: not a dask scheduler address (e.g. "
+                          "tcp://host:8786, or 'serial')") from None
+    try:
+        with concurrent.futures.ThreadPoolExecutor(1) as pool:  # also under a running loop
+            reply = pool.submit(asyncio.run, _identity(address, timeout)).result()
+    except Exception as exc:
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise ConfigError(f"{name} {address}: no dask scheduler answered within {timeout:g} s "
+                          f"({reason})") from None
+    if not (isinstance(reply, dict) and reply.get("type") == "Scheduler"):
+        raise ConfigError(f"{name} {address}: answered, but is not a dask scheduler")
+
+
+async def _identity(address, timeout):
+    """The ``identity`` reply of the dask server at ``address``, within ``timeout`` seconds."""
+    from distributed.comm import connect
+
+    async def ask():
+        comm = await connect(address, timeout=timeout)
+        try:
+            await comm.write({"op": "identity"})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    return await asyncio.wait_for(ask(), timeout)
+
+
+def _client(scheduler, workers):
+    """``(client, cluster, owned)``: a client for ``scheduler`` (None: a new LocalCluster)."""
+    from distributed import Client, LocalCluster
+
+    if isinstance(scheduler, Client):
+        return scheduler, None, False
+    if scheduler:
+        check_scheduler(scheduler)
+        try:
+            return Client(scheduler, timeout=10), None, True
+        except (OSError, TimeoutError, ValueError, TypeError, MemoryError) as exc:
+            # a closed port, a server that does not speak dask, an address that does not parse
+            raise ConfigError(f"scheduler {scheduler}: cannot connect as a dask client "
+                              f"({type(exc).__name__}: {exc})") from None
+    workers = 2 if workers is None else check_count(workers, "workers", MAX_WORKERS)
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                           dashboard_address=":0")
+    return Client(cluster), cluster, True
+
+
+def map_on_dask(function, tasks, scheduler, workers, collect, failed):
+    """Run ``function`` on every task on dask, handing each result over as it comes.
+
+    ``scheduler`` and ``workers`` are as for the sweep: None and a number of
+    worker processes for a new `~distributed.LocalCluster` (closed at the
+    end), or a scheduler's address.  ``collect(task, result)`` is called in
+    this process as each task finishes; a task whose worker died (e.g. out of
+    memory) gets ``failed(task, exception)`` as its result instead, and the
+    others go on.
+    """
+    from distributed import as_completed
+
+    client, cluster, owned = _client(scheduler, workers)
+    try:
+        futures = client.map(function, tasks, pure=False)
+        task_of = {fut.key: task for fut, task in zip(futures, tasks, strict=True)}
+        for fut in as_completed(futures):
+            task = task_of[fut.key]
+            try:
+                result = fut.result()
+            except Exception as exc:  # the worker died: report this task, go on
+                result = failed(task, exc)
+            collect(task, result)
+            fut.release()
+    finally:
+        if owned:
+            client.close()
+        if cluster is not None:
+            cluster.close()

@@ -1,0 +1,231 @@
+"""``fit_ramp``: least-squares slopes of ramps, a consumer of bands of rows.
+
+The step's one implementation is `RampFit`, a `~spherex_reduce.reduce.step.Consumer`:
+the executor (`spherex_reduce.reduce.executor`) hands it bands of rows of every frame,
+from several threads at once, and it fits each band where it lies in the
+output (`~spherex_reduce.reduce.steps.ramp_least_squares.LeastSquares`).  Each
+pixel's slope depends on its own reads only, so a ramp fitted in one band or
+in many, on any number of threads, gives the same numbers bit for bit.
+`fit_ramp` on an exposure in memory is `FitRampStep.run`: the executor on the
+whole exposure, cut into bands fitted on ``threads`` threads.
+"""
+
+import threading
+
+import numpy as np
+from astropy import units as u
+from astropy.table import Table
+
+from ...core import dq
+from ...core.errors import SpherexReduceError, StepSkipped
+from ...core.exposure import Exposure, ReferenceReads
+from ...core.parameters import OPTIONAL_NUMBER, Parameter
+from ..hookspecs import hookimpl
+from ..step import Consumer, Step
+from .ramp_least_squares import LeastSquares, RampSolution, ramp_weights
+
+__all__ = ["WEIGHTINGS", "FitRampStep", "RampFit", "fit_ramp", "ramp_weights"]
+
+#: values of the ``weighting`` parameter
+WEIGHTINGS = ("uniform", "optimal")
+
+
+def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, saturation=None):
+    """Least-squares slope of every pixel's ramp (paper: uniform weights).
+
+    Parameters
+    ----------
+    exposure : `~spherex_reduce.Exposure`
+        Ramps ``(frames, rows or reads, columns)`` in readout or physical
+        order, in any unit (typically electrons).
+    weighting : {'uniform', 'optimal'}
+        ``'uniform'``: ordinary least squares (the paper).  ``'optimal'``:
+        generalised least squares for white read noise ``read_noise`` plus the
+        shot noise of the pixel's signal (estimated by a first uniform fit;
+        pixels with equal signal to 0.02 dex share weights).  Ramps with
+        masked reads are fitted with uniform weights on their usable reads.
+    read_noise : float, optional
+        Read noise per read, in the data unit.  Given, the uncertainty is the
+        model ``read_noise**2 sum(w**2)`` plus the slope's shot noise (data
+        unit = electrons / ``gain``); not given, it comes from the fit
+        residuals, ``chi2 / (n - 2) * sum(w**2)`` (NaN for two reads).
+    gain : float
+        Electrons per data unit, for the shot-noise term (1 for electrons).
+    saturation : float, optional
+        Reads above this level (data unit) are not used.
+
+    Returns
+    -------
+    `~spherex_reduce.Exposure`
+        A 2-D exposure: slope (float64) as `~astropy.nddata.CCDData` in
+        ``unit / s`` with the fit uncertainty; DQ flags (``exposure.dq``):
+        `~spherex_reduce.core.dq.FEW_READS` (slope NaN) for fewer than two usable
+        reads, with `~spherex_reduce.core.dq.SATURATED` if saturation caused it,
+        and the flags set on every read of a pixel; the table ``RAMPFIT``
+        (one row per image row, vector column ``nreads``: the reads used).
+        Phantom values and reference reads are fitted the same way, so that
+        `subtract_phantom` and `correct_reference` work on the slopes.
+
+    Raises
+    ------
+    SpherexReduceError
+        ``weighting='optimal'`` without a positive ``read_noise``.
+
+    Notes
+    -----
+    If the input is already a 2-D image the step is skipped, stpipe style:
+    the input comes back with ``S_RAMPFT = 'SKIPPED'`` and the reason recorded.
+
+    Read times come from the schedule; within a frame each pixel's time is a
+    fixed offset, which cancels from the slope, so the frame start times set
+    the weights.  Reads are masked when not finite, above ``saturation``, or
+    flagged in the input mask.  The input is never modified.  Bands of rows
+    are fitted on `~spherex_reduce.reduce.executor.default_threads` threads; the
+    numbers do not depend on the bands or the threads.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule, fit_ramp
+    >>> s = ReadoutSchedule(DetectorGeometry(8, 4, 1, ref_border=1), skip=1, ref_reads=0,
+    ...                     ref_mode="none", phantom_reads=0, nframes=5, frame_time=2.0)
+    >>> ramps = 6e4 + 3.0 * (2.0 * np.arange(5))[:, None, None] * np.ones((5, 8, 4), "f4")
+    >>> out = fit_ramp(Exposure.from_arrays(ramps.astype("f4"), s))
+    >>> float(out.data.data[0, 0]), out.unit
+    (3.0, Unit("electron / s"))
+    """
+    return FitRampStep()(exposure, weighting=weighting, read_noise=read_noise, gain=gain,
+                         saturation=saturation)
+
+
+def check_params(weighting, read_noise):
+    """Raise `~spherex_reduce.core.errors.SpherexReduceError` for parameters that cannot fit."""
+    if weighting not in WEIGHTINGS:
+        raise SpherexReduceError(f"weighting must be one of {WEIGHTINGS}, got {weighting!r}")
+    if weighting == "optimal" and (read_noise is None or not read_noise > 0):
+        raise SpherexReduceError("weighting='optimal' needs read_noise > 0 (in the data unit), "
+                                 f"got {read_noise!r}")
+
+
+def _rows(index):
+    """``index`` as a slice when it is a run of consecutive rows (outputs are then views)."""
+    index = np.asarray(index)
+    if index.size and index[-1] - index[0] == index.size - 1 and (
+            index.size == 1 or (np.diff(index) == 1).all()):
+        return slice(int(index[0]), int(index[-1]) + 1)
+    return index
+
+
+class RampFit(Consumer):
+    """The slopes of the bands of a ramp (the consumer of `FitRampStep`).
+
+    `band` fits a band in the calling thread and writes it at its rows of the
+    output; bands may come from several threads at once (they never share
+    rows).  `finish` fits the reference reads and returns the 2-D exposure.
+
+    Parameters
+    ----------
+    context : `~spherex_reduce.core.block.Context`
+        The bands' schedule, row order, unit and whether they carry phantom values.
+    weighting, read_noise, gain, saturation
+        As `fit_ramp`.
+    """
+
+    def __init__(self, context, *, weighting="uniform", read_noise=None, gain=1.0,
+                 saturation=None):
+        check_params(weighting, read_noise)
+        self.context = context
+        self.weighting = weighting
+        s = context.schedule
+        times = s.frame_starts.to_value(u.s)
+        self.solver = LeastSquares(times, weighting=weighting, read_noise=read_noise, gain=gain,
+                                   saturation=saturation)
+        self.phantom_solver = LeastSquares(times, want_var=False)
+        self.reference_solver = LeastSquares(times, saturation=saturation, want_var=False)
+        nrows = s.n_reads if context.order == "readout" else s.geometry.nrows
+        # every row comes in exactly one band (the executor's bands cover the input);
+        # ``var`` holds the standard deviations once a band is fitted
+        self.fit = RampSolution((nrows, s.geometry.ncols))
+        self.phantom = np.full((nrows, s.geometry.nchannels), np.nan) if context.phantom else None
+        self._local = threading.local()  # a work buffer per thread
+        self._lock = threading.Lock()
+        self._few = 0  # pixels with fewer than 2 usable reads so far
+
+    def _buffer(self, data):
+        """The calling thread's work buffer for blocks like ``data``."""
+        buf = getattr(self._local, "buf", None)
+        solver = self.solver
+        if buf is None or buf.dtype != solver.work_type(data.dtype):
+            buf = self._local.buf = solver.buffer(data.shape[-1], data.dtype)
+        return buf
+
+    def band(self, block):
+        """Fit the ramps of ``block`` (a `~spherex_reduce.core.block.Block`) into the output."""
+        if block.nframes != self.solver.nf:
+            raise ValueError(f"a band of {block.nframes} frames for a fit of "
+                             f"{self.solver.nf}")
+        rows = _rows(block.index)
+        buf = self._buffer(block.data)
+        part = self.fit.rows(rows) if isinstance(rows, slice) else None
+        part = self.solver.fit(block.data, block.dq, out=part, buf=buf)
+        # uncertainties and the count of unfitted pixels here, in the band's thread
+        np.sqrt(part.var, out=part.var)
+        few = int(np.count_nonzero(part.flags & dq.FEW_READS))
+        if not isinstance(rows, slice):
+            self.fit.put(rows, part)
+        with self._lock:
+            self._few += few
+        if self.phantom is not None and block.phantom is not None:
+            self.phantom[rows] = self.phantom_solver.fit(block.phantom).slope
+
+    def finish(self, reference, header, tables):
+        """The 2-D exposure of slopes (once every band was fitted).
+
+        ``reference`` (the input's `~spherex_reduce.ReferenceReads` after the
+        kernels before this step, or None) is fitted too when it holds ramps.
+        """
+        fit = self.fit
+        if reference is not None and np.ndim(reference.data) == 3:
+            rfit = self.reference_solver.fit(reference.data, reference.dq)
+            rphant = (None if reference.phantom is None
+                      else self.phantom_solver.fit(reference.phantom).slope)
+            reference = ReferenceReads(data=rfit.slope, rows=reference.rows,
+                                       reads=reference.reads, phantom=rphant, dq=rfit.flags)
+        tables = dict(tables)
+        tables["RAMPFIT"] = Table({"nreads": fit.nreads},
+                                  meta={"comments": ["reads used, one row per image row"]})
+        header = header.copy()
+        header["NFEWRDS"] = (self._few, "pixels with fewer than 2 usable reads")
+        header["RAMPWGT"] = (self.weighting, "ramp-fit weighting")
+        return Exposure.from_arrays(fit.slope, self.context.schedule,
+                                    unit=(self.context.unit or u.one) / u.s, uncertainty=fit.var,
+                                    mask=fit.flags, phantom=self.phantom,
+                                    order=self.context.order, header=header, tables=tables,
+                                    reference=reference)
+
+
+class FitRampStep(Step):
+    """Least-squares slopes (`~spherex_reduce.fit_ramp`)."""
+
+    name, keyword = "fit_ramp", "S_RAMPFT"
+    parameters = (
+        Parameter("weighting", "uniform", (str,), "uniform (paper) or optimal",
+                  choices=WEIGHTINGS),
+        Parameter("read_noise", None, OPTIONAL_NUMBER, "read noise per read (data unit); null: "
+                  "uncertainty from the fit residuals", minimum=0),
+        Parameter("gain", 1.0, (float,), "electrons per data unit (shot noise)", minimum=0,
+                  exclusive_minimum=True),
+        Parameter("saturation", None, OPTIONAL_NUMBER, "reads above this level are not used "
+                  "(data unit)"),
+    )
+
+    def consumer(self, context, **params):
+        check_params(params.get("weighting", "uniform"), params.get("read_noise"))
+        if not context.ramp:
+            raise StepSkipped("the input is already a 2-D image (slopes)")
+        return RampFit(context, **params)
+
+
+@hookimpl
+def register_steps():
+    return [FitRampStep]

@@ -1,0 +1,369 @@
+"""Reference correction: remove each channel's offset (paper §2.4, §4.3, §5.4).
+
+The ``correct_reference`` step's kernel (`ReferenceKernel`) subtracts the
+offsets a strategy (`spherex_reduce.reduce.steps.reference_strategies`) estimates,
+flags channels without any, and records what it subtracted in the table
+``REFOFFS`` (one row per frame, channel and parity), for every strategy
+alike, a plugin's too.
+"""
+
+import warnings
+
+import numpy as np
+from astropy.table import Table
+
+from ...core import dq
+from ..executor import MemorySource, execute
+from ..hookspecs import hookimpl
+from ..step import Kernel, Record, Step, Strategy
+from .reference_strategies import (
+    _CLIP_PARAMETERS,
+    ALL,
+    BUILTIN_STRATEGIES,
+    EVEN,
+    ODD,
+    AcnReference,
+    MeanReference,
+    MedianReference,
+    NoReferenceError,
+    NoReferenceWarning,
+    ReferenceOffsets,
+    _group_columns,
+    clipped_mean,
+    reference_offsets,
+)
+from .wiener import WienerReference
+
+#: The built-in strategies of ``correct_reference``, by name.
+STRATEGIES = {**BUILTIN_STRATEGIES, WienerReference.name: WienerReference}
+
+__all__ = [
+    "ALL",
+    "EVEN",
+    "ODD",
+    "CorrectReferenceStep",
+    "NoReferenceError",
+    "NoReferenceWarning",
+    "ReferenceKernel",
+    "apply_offsets",
+    "clipped_mean",
+    "correct_reference",
+    "missing_columns",
+    "offsets_table",
+    "reference_offsets",
+]
+
+_ = (_CLIP_PARAMETERS, AcnReference, MeanReference, MedianReference)  # re-exported names
+
+
+class ReferenceKernel(Kernel):
+    """`correct_reference` on a block: minus each (frame, channel, parity) offset.
+
+    Parameters
+    ----------
+    context : `~spherex_reduce.core.block.Context`
+    strategy : `~spherex_reduce.Strategy`
+        A configured strategy with an ``estimate`` method.
+    """
+
+    def __init__(self, context, strategy):
+        super().__init__(context)
+        self.strategy = strategy
+        self.needs_exposure = bool(getattr(strategy, "needs_exposure", False))
+        #: the strategy estimates from the phantom values, which it then consumes (a later
+        #: ``subtract_phantom`` is skipped, as after that step)
+        uses = getattr(strategy, "uses_phantom", None)
+        self.consumes_phantom = bool(uses(context)) if uses is not None else False
+
+    @property
+    def output(self):
+        return self.context.replace(phantom=False) if self.consumes_phantom else self.context
+
+    def prepare(self, side, exposure=None):
+        est = self.strategy.estimate(side, self.context, exposure)
+        return _plan(self.context, est, self.strategy.name)
+
+    def apply(self, c, block):
+        dtype = np.result_type(block.data.dtype, np.float32)
+        out = block.writable(dtype)
+        col = c["col"]
+        rows = _row_table(c, block.order)
+        nch = self.context.geometry.nchannels
+        for f in range(out.shape[0]):
+            if rows is None:
+                np.subtract(out[f], col[f].astype(dtype), out=out[f])
+            elif c["contiguous"]:  # one group per channel: its columns side by side
+                per_channel = out[f].reshape(out.shape[1], nch, -1)
+                np.subtract(per_channel, rows[f][block.index][:, :, None], out=per_channel,
+                            casting="unsafe")
+            else:  # an offset per read: the row's own
+                np.subtract(out[f], rows[f][block.index][:, c["colgroup"]], out=out[f],
+                            casting="unsafe")
+        block = block.replace(data=out, owned=block.owned | {"data"})
+        if c["columns_missing"] is not None:
+            flags = np.where(c["columns_missing"][:, None, :], np.uint16(dq.NO_REFERENCE),
+                             np.uint16(0))
+            block = block.with_flags(flags)
+        if self.consumes_phantom:
+            block = block.replace(phantom=None, read_phantom=None)
+        return block
+
+    def apply_side(self, c, side):
+        if not (self.context.order == "physical" and side.order == "readout"):
+            return self.apply(c, side)  # the side block is part of the pixels
+        # the reference reads kept aside: minus the offsets in float64
+        rd = side.data
+        rows = _row_table(c, "readout")
+        sub = c["col"][:, None, :] if rows is None else rows[:, side.index][..., c["colgroup"]]
+        data = (rd - sub).astype(np.result_type(rd, np.float32))
+        side = side.replace(data=data, owned=side.owned | {"data"})
+        if self.consumes_phantom:
+            side = side.replace(phantom=None, read_phantom=None)
+        return side
+
+    def record(self, c):
+        est = c["estimate"]
+        table = offsets_table(c["offsets"], c["missing"], est.parity, est.n_used,
+                              est.n_clipped, self.strategy.name, self.context.unit,
+                              ramp=self.context.ramp)
+        return Record({"REFOFFS": table, **est.tables}, [
+            ("REFSTRAT", self.strategy.name, "reference correction strategy"),
+            ("NNOREF", int(c["missing"].sum()), "offsets without usable reference pixels"),
+            *([("REFPHANT", True, "the strategy estimated from the phantom values")]
+              if self.consumes_phantom else [])])
+
+
+def _plan(context, est, name):
+    geometry = context.geometry
+    offsets, missing, col = _column_plan(geometry, est.offsets, name, est.acn)
+    colmiss = missing_columns(geometry, missing, est.acn) if missing.any() else None
+    plan = {"estimate": est, "offsets": offsets, "missing": missing, "col": col,
+            "columns_missing": colmiss}
+    if est.rows is not None:
+        plan.update(_row_plan(context, est))
+    return plan
+
+
+def _row_plan(context, est):
+    """Per-read offsets ``(L, n_reads, groups)`` (0 where missing), the group of every
+    column, and the same per physical row (the mean over the row's reads) when the
+    blocks are in physical order."""
+    s = context.schedule
+    groups = _group_columns(s.geometry, est.acn)  # (nch, P, k)
+    colgroup = np.zeros(s.geometry.ncols, dtype=np.intp)
+    for ch in range(groups.shape[0]):
+        for p in range(groups.shape[1]):
+            cols = groups[ch, p][groups[ch, p] >= 0]
+            colgroup[cols] = ch * groups.shape[1] + p
+    rows = np.asarray(est.rows, dtype=np.float64)  # the estimate's own array when float64:
+    rows = np.nan_to_num(rows, copy=False, nan=0.0, posinf=0.0, neginf=0.0)  # no copy held
+    rows = rows.reshape(rows.shape[0], rows.shape[1], -1)
+    width = s.geometry.channel_width
+    contiguous = groups.shape[1] == 1 and np.array_equal(
+        colgroup, np.repeat(np.arange(groups.shape[0]), width))
+    plan = {"rows_readout": rows, "colgroup": colgroup, "rows_physical": None,
+            "contiguous": contiguous}
+    if context.order == "physical":
+        nrows = s.geometry.nrows
+        counts = np.bincount(s.rows, minlength=nrows)
+        phys = np.zeros((rows.shape[0], nrows, rows.shape[2]))
+        phys[:, s.rows] = rows  # a row read once: its read's offset
+        for row in np.flatnonzero(counts > 1):  # a row read more: the mean of its reads'
+            phys[:, row] = rows[:, s.rows == row].mean(axis=1)
+        plan["rows_physical"] = phys
+    return plan
+
+
+def _row_table(c, order):
+    """The per-row offsets for blocks in ``order``, or None (one offset per group)."""
+    if c.get("colgroup") is None:
+        return None
+    return c["rows_physical"] if order == "physical" else c["rows_readout"]
+
+
+class _Given:
+    """A strategy whose offsets are given (`apply_offsets`)."""
+
+    def __init__(self, estimate, name):
+        self.estimate_, self.name = estimate, name
+
+    def estimate(self, side, context, exposure=None):
+        return self.estimate_
+
+
+def apply_offsets(exposure, offsets, parity, n_used, n_clipped, strategy, acn=False):
+    """Subtract per-(frame, channel, parity) offsets and record them in ``REFOFFS``.
+
+    Groups whose offset is NaN are left uncorrected, flagged in the table and
+    the mask (`~spherex_reduce.core.dq.NO_REFERENCE`), and reported with a
+    `NoReferenceWarning`.  This is the ``correct_reference`` kernel applied
+    with offsets given instead of estimated: for a whole-exposure strategy
+    (``__call__``) that computes its offsets itself.
+
+    Parameters
+    ----------
+    exposure : `~spherex_reduce.Exposure`
+    offsets, n_used, n_clipped : array_like
+        Shape ``(L, nchannels, P)`` (``L`` frames, or 1 for an image).
+    parity : sequence of int
+        Parity label of each of the ``P`` groups: ``-1`` all columns, ``0``
+        even samples, ``1`` odd samples.
+    strategy : str
+        Name recorded in the header (``REFSTRAT``).
+    acn : bool
+        Ignored: the groups are even/odd samples when ``parity`` has two
+        entries (kept for callers that pass it).
+
+    Returns
+    -------
+    `~spherex_reduce.Exposure`
+    """
+    off = np.asarray(offsets, dtype=np.float64)
+    est = ReferenceOffsets(off, np.asarray(n_used), np.asarray(n_clipped), list(parity))
+    source = MemorySource(exposure)
+    kernel = ReferenceKernel(source.context, _Given(est, strategy))
+    return execute(source, [kernel])
+
+
+def _column_plan(geometry, offsets, strategy, acn):
+    """Offsets (float64), the groups without one (warned about), and per-column offsets.
+
+    Returns ``offsets, missing, col``; ``col`` ``(L, ncols)`` has 0 where the
+    offset is missing (those channels are left uncorrected).
+    """
+    offsets = np.asarray(offsets, dtype=np.float64)
+    missing = ~np.isfinite(offsets)
+    if missing.any():
+        chans = sorted({int(c) for c in np.nonzero(missing)[1]})
+        warnings.warn(
+            f"correct_reference ({strategy}): no usable reference pixels for channel(s) "
+            f"{chans}; offset NaN, flagged NO_REFERENCE, those channels left uncorrected",
+            NoReferenceWarning, stacklevel=4)
+    groups = _group_columns(geometry, acn)
+    return offsets, missing, _column_offsets(np.where(missing, 0.0, offsets), groups,
+                                             geometry.ncols)
+
+
+def _column_offsets(offsets, groups, ncols):
+    """Per-column offsets ``(L, ncols)`` from per-group offsets ``(L, nch, P)``."""
+    col = np.zeros((offsets.shape[0], ncols))
+    for ch in range(groups.shape[0]):
+        for p in range(groups.shape[1]):
+            cols = groups[ch, p][groups[ch, p] >= 0]
+            col[:, cols] = offsets[:, ch, p][:, None]
+    return col
+
+
+def missing_columns(geometry, missing, acn):
+    """Columns ``(L, ncols)`` of the (frame, channel, parity) groups flagged ``missing``."""
+    groups = _group_columns(geometry, acn)
+    return _column_offsets(missing.astype(float), groups, geometry.ncols) > 0
+
+
+def offsets_table(offsets, missing, parity, n_used, n_clipped, strategy, unit, ramp):
+    """The ``REFOFFS`` table of offsets ``(L, nchannels, P)`` (see `correct_reference`)."""
+    L, nch, P = offsets.shape
+    fr, ch, pa = np.meshgrid(np.arange(L), np.arange(nch), np.arange(P), indexing="ij")
+    cols = {}
+    if ramp:
+        cols["frame"] = fr.ravel()
+    cols["channel"] = ch.ravel()
+    cols["parity"] = np.asarray(parity)[pa.ravel()]
+    cols["offset"] = offsets.ravel()
+    cols["n_used"] = np.asarray(n_used).ravel()
+    cols["n_clipped"] = np.asarray(n_clipped).ravel()
+    cols["flag"] = np.where(missing.ravel(), dq.NO_REFERENCE, 0).astype(np.uint16)
+    # the unit goes in the description: 'electron' is not a FITS unit
+    table = Table(cols, meta={"strategy": strategy, "bunit": str(unit or "")})
+    table["offset"].description = f"offset subtracted ({unit or 'data unit'})"
+    return table
+
+
+def correct_reference(exposure, strategy="mean", *, registry=None, **params):
+    """Remove each channel's offset with a reference-correction strategy.
+
+    Parameters
+    ----------
+    exposure : `~spherex_reduce.Exposure`
+        Ramps (offsets per frame) or a 2-D image (e.g. slopes from
+        `fit_ramp`), in readout or physical order.
+    strategy : str
+        ``'mean'`` (paper's default: one σ-clipped mean of the reference
+        pixels per channel), ``'acn'`` (even/odd samples), ``'median'``
+        (median of all pixels per channel, §5.4), ``'wiener'`` (each
+        channel's drift at every row read, the kriging estimate from its
+        reference reads and phantom values,
+        `~spherex_reduce.reduce.steps.wiener.WienerReference`), or any strategy of
+        kind ``'reference'`` a plugin registers.
+    registry : `~spherex_reduce.reduce.plugins.Registry`, optional
+        Where to look strategies up (default: built-ins and installed plugins).
+    **params
+        The strategy's parameters (``sigma``, ``maxiters``, ``side_columns``
+        for ``mean``/``acn``; ``mask_sources`` ... for ``median``; ``noise``,
+        ``domain`` ... for ``wiener``).
+
+    Returns
+    -------
+    `~spherex_reduce.Exposure`
+        Corrected copy with the table ``REFOFFS``: ``frame`` (ramps only),
+        ``channel``, ``parity`` (-1 all, 0 even, 1 odd samples), ``offset``
+        (in the data unit, named in the table's ``BUNIT``), ``n_used``,
+        ``n_clipped`` and ``flag``
+        (`~spherex_reduce.core.dq.NO_REFERENCE` when the channel had no usable
+        reference pixel: offset NaN, channel left uncorrected, a
+        `NoReferenceWarning`).
+
+    Raises
+    ------
+    NoReferenceError
+        The exposure has no reference rows (``mean``, ``acn``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule
+    >>> from spherex_reduce import correct_reference
+    >>> s = ReadoutSchedule(DetectorGeometry(8, 8, 2, ref_border=1), skip=1, ref_mode="none",
+    ...                     phantom_reads=0, nframes=1)
+    >>> img = np.ones((8, 8)) * np.repeat([10.0, -3.0], 4)   # channel offsets
+    >>> out = correct_reference(Exposure.from_arrays(img, s), "mean")
+    >>> np.abs(out.data.data).max(), out.tables["REFOFFS"]["offset"].tolist()
+    (np.float64(0.0), [10.0, -3.0])
+    """
+    return CorrectReferenceStep(registry)(exposure, strategy=strategy, **params)
+
+
+def _streams(cls):
+    """Whether a strategy class estimates (a kernel applies its offsets), or is an older
+    whole-exposure strategy (``__call__(exposure, **params)`` only)."""
+    return getattr(cls, "estimate", Strategy.estimate) is not Strategy.estimate
+
+
+class CorrectReferenceStep(Step):
+    """Remove channel offsets with a reference strategy (`~spherex_reduce.correct_reference`)."""
+
+    name, keyword = "correct_reference", "S_REFCOR"
+    strategy_kind, default_strategy = "reference", "mean"
+    builtin_strategies = STRATEGIES
+
+    def kernel(self, context, strategy="mean", **params):
+        cls = self.strategy(strategy)
+        if not _streams(cls):
+            return None
+        return ReferenceKernel(context, cls(**params))
+
+    def run(self, exposure, strategy="mean", **params):
+        cls = self.strategy(strategy)
+        if not _streams(cls):  # a strategy written before kernels: on the whole exposure
+            return cls()(exposure, **params)
+        return super().run(exposure, strategy=strategy, **params)
+
+
+@hookimpl
+def register_steps():
+    return [CorrectReferenceStep]
+
+
+@hookimpl
+def register_strategies():
+    return list(STRATEGIES.values())

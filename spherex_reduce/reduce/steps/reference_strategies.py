@@ -1,0 +1,418 @@
+"""Reference strategies: how each channel's offset is estimated (paper §2.4, §4.3, §5.4).
+
+A strategy is configured with its parameters when it is made and *estimates*
+offsets (`Strategy.estimate`); the ``correct_reference`` step's kernel
+*applies* them (`spherex_reduce.reduce.steps.reference`), for every strategy alike.
+The built-in ones are ``mean`` (one σ-clipped mean of the reference pixels per
+channel), ``acn`` (two, for even and odd samples) and ``median`` (median of
+all pixels of the channel, optionally excluding sources found with
+`photutils`).
+"""
+
+import warnings
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+from astropy.utils.exceptions import AstropyUserWarning
+
+from ...core.errors import SpherexReduceError
+from ...core.parameters import Parameter
+from ...core.source_mask import source_mask
+from ..executor import context_of, default_threads, side_block
+from ..step import Strategy
+
+__all__ = [
+    "ALL",
+    "EVEN",
+    "ODD",
+    "AcnReference",
+    "MeanReference",
+    "MedianReference",
+    "NoReferenceError",
+    "NoReferenceWarning",
+    "ReferenceOffsets",
+    "clipped_mean",
+    "reference_offsets",
+    "reference_pixels",
+]
+
+#: Parity values of the ``REFOFFS`` table: all columns, even samples, odd samples.
+ALL, EVEN, ODD = -1, 0, 1
+
+#: frames σ-clipped together (their temporaries stay in cache)
+_FRAMES_PER_CLIP = 4
+
+
+class NoReferenceError(SpherexReduceError):
+    """The exposure has no reference rows to correct with."""
+
+
+class NoReferenceWarning(AstropyUserWarning):
+    """A channel had no usable reference pixels and was left uncorrected."""
+
+
+@dataclass
+class ReferenceOffsets:
+    """What a strategy estimates: offsets per (frame, channel, parity group).
+
+    Attributes
+    ----------
+    offsets, n_used, n_clipped : `numpy.ndarray`
+        Shape ``(L, nchannels, P)``: ``L`` frames (1 for an image), ``P``
+        groups of columns per channel; an offset is NaN where the group had
+        no usable pixel (the channel is then left uncorrected and flagged).
+    parity : list of int
+        The parity of each of the ``P`` groups: `ALL`, or `EVEN` and `ODD`.
+    """
+
+    offsets: np.ndarray
+    n_used: np.ndarray
+    n_clipped: np.ndarray
+    parity: list
+    #: Optional ``(L, n_reads, nchannels, P)``: an offset for every read of a frame (the
+    #: ``wiener`` strategy's drift estimate), subtracted row by row instead of ``offsets``;
+    #: NaN where the group has none.
+    rows: np.ndarray | None = None
+    #: More tables for the output (name -> `~astropy.table.Table`), e.g. ``REFDRIFT``.
+    tables: dict = field(default_factory=dict)
+
+    @property
+    def acn(self):
+        return len(self.parity) == 2
+
+
+def clipped_mean(values, sigma=3.0, maxiters=5):
+    """σ-clipped mean along the last axis, NaNs ignored (astropy ``sigma_clip`` rules).
+
+    Each iteration keeps the values within ``median ± sigma * std`` of the
+    values kept so far, until nothing changes or ``maxiters`` is reached;
+    values are sorted once so an iteration costs one comparison per value.
+
+    Parameters
+    ----------
+    values : array_like
+        Shape ``(..., m)``; NaN marks values not to use.
+    sigma : float
+        Clip threshold in standard deviations (both sides).
+    maxiters : int or None
+        Iteration limit; None iterates until nothing changes.
+
+    Returns
+    -------
+    mean, n_used, n_clipped : `numpy.ndarray`
+        Shape ``(...)``.  ``mean`` is NaN (``n_used == 0``) where no value
+        is usable.  Identical values (zero spread) are all kept.
+
+    Examples
+    --------
+    >>> from spherex_reduce.reduce.steps.reference import clipped_mean
+    >>> mean, used, clipped = clipped_mean([1.0, 1.1, 0.9, 1.0, 50.0, float("nan")], sigma=2)
+    >>> float(mean), int(used), int(clipped)
+    (1.0, 4, 1)
+    """
+    v = np.asarray(values, dtype=np.float64)
+    s = np.sort(np.where(np.isfinite(v), v, np.nan), axis=-1)  # unusable (NaN) sort last
+    nvalid = np.isfinite(s).sum(axis=-1)
+    lead = s.shape[:-1]
+    lo = np.zeros(lead, dtype=np.int64)
+    hi = nvalid.astype(np.int64)
+    # shift by a typical value before the prefix sums: keeps float64 sums exact
+    mid = np.take_along_axis(s, np.maximum((hi - 1) // 2, 0)[..., None], axis=-1)
+    mid = np.where(np.isfinite(mid), mid, 0.0)
+    sh = np.where(np.isfinite(s), s - mid, 0.0)
+    c1 = np.concatenate([np.zeros((*lead, 1)), np.cumsum(sh, axis=-1)], axis=-1)
+    c2 = np.concatenate([np.zeros((*lead, 1)), np.cumsum(sh * sh, axis=-1)], axis=-1)
+
+    def take(a, i):
+        return np.take_along_axis(a, i[..., None], axis=-1)[..., 0]
+
+    last = max(s.shape[-1] - 1, 0)
+    fin = np.isfinite(s)
+    it = 0
+    while maxiters is None or it < maxiters:
+        it += 1
+        n = hi - lo
+        ok = n > 0
+        safe_n = np.maximum(n, 1)
+        med = 0.5 * (take(sh, np.clip(lo + (n - 1) // 2, 0, last))
+                     + take(sh, np.clip(lo + n // 2, 0, last)))
+        s1 = take(c1, hi) - take(c1, lo)
+        s2 = take(c2, hi) - take(c2, lo)
+        var = np.maximum(s2 / safe_n - (s1 / safe_n) ** 2, 0.0)
+        std = np.sqrt(var)
+        lower = (med - sigma * std)[..., None]
+        upper = (med + sigma * std)[..., None]
+        new_lo = np.maximum(lo, ((sh < lower) & fin).sum(axis=-1))
+        new_hi = np.minimum(hi, ((sh <= upper) & fin).sum(axis=-1))
+        new_hi = np.where(ok, np.maximum(new_hi, new_lo), hi)
+        new_lo = np.where(ok, new_lo, lo)
+        if np.array_equal(new_lo, lo) and np.array_equal(new_hi, hi):
+            break
+        lo, hi = new_lo, new_hi
+    n = hi - lo
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = (take(c1, hi) - take(c1, lo)) / n + mid[..., 0]
+    mean = np.where(n > 0, mean, np.nan)
+    return mean, n, nvalid - n
+
+
+def _usable(values, mask):
+    """Values as float64 with NaN where masked (`clipped_mean` ignores NaN and inf)."""
+    out = np.array(values, dtype=np.float64)
+    if mask is not None:
+        out[np.asarray(mask) != 0] = np.nan
+    return out
+
+
+def reference_pixels(side, schedule):
+    """Reference pixels ``(L, k, ncols)`` of a side block (NaN where unusable); L = frames.
+
+    Raises
+    ------
+    NoReferenceError
+        The block holds no reference rows.
+    """
+    g = schedule.geometry
+    if side.order == "readout":
+        keep = schedule.is_reference[side.index]
+        vals = side.data[:, keep] if not keep.all() else side.data
+        m = None if side.dq is None else (side.dq[:, keep] if not keep.all() else side.dq)
+    else:
+        vals, m = side.data, side.dq
+    if vals.shape[-2] == 0:
+        raise NoReferenceError(
+            "correct_reference: the exposure has no reference rows "
+            f"(ref_border={g.border}, {schedule.ref_reads} reference reads in mode "
+            f"{schedule.ref_mode!r}); use the 'median' strategy, or a schedule with reference reads"
+        )
+    return _usable(vals, m)
+
+
+def _side_columns(exposure):
+    """Side reference columns of the active rows ``(L, rows, ncols)``, NaN elsewhere.
+
+    Only the declared side columns: ``left`` of ``ref_border`` from column 0,
+    ``right`` at the end (`~spherex_reduce.DetectorGeometry.reference_column_mask`).
+    """
+    s = exposure.schedule
+    g = s.geometry
+    nd = exposure.data
+    idx = s.active_read_indices if exposure.order == "readout" else g.active_rows
+    vals = np.take(nd.data, idx, axis=-2)
+    m = None if exposure.dq is None else np.take(exposure.dq, idx, axis=-2)
+    vals = _usable(vals, m)
+    vals[..., ~g.reference_column_mask()] = np.nan
+    return vals.reshape(-1, *vals.shape[-2:])
+
+
+def _group_columns(geometry, acn):
+    """Column indices of every (channel, parity) group, shape ``(nch, P, k)`` (-1 pads)."""
+    width = geometry.channel_width
+    offsets = geometry.column_offsets()
+    groups = []
+    for ch in range(geometry.nchannels):
+        cols = np.arange(ch * width, (ch + 1) * width)
+        if acn:
+            groups.append([cols[offsets[cols] % 2 == p] for p in (EVEN, ODD)])
+        else:
+            groups.append([cols])
+    k = max(len(c) for gr in groups for c in gr)
+    out = np.full((geometry.nchannels, len(groups[0]), k), -1, dtype=int)
+    for ch, gr in enumerate(groups):
+        for p, cols in enumerate(gr):
+            out[ch, p, : len(cols)] = cols
+    return out
+
+
+def _gather(values, groups):
+    """``values (L, r, ncols)`` -> ``(L, nch, P, r * k)`` by column group, NaN for pads."""
+    idx = np.maximum(groups, 0)
+    out = values[:, :, idx]  # (L, r, nch, P, k)
+    out[:, :, groups < 0] = np.nan
+    out = np.moveaxis(out, 1, -2)  # (L, nch, P, r, k)
+    return out.reshape(*out.shape[:3], -1)
+
+
+def reference_offsets(exposure, *, acn=False, sigma=3.0, maxiters=5, side_columns=False):
+    """σ-clipped mean of the reference pixels of every channel (and parity).
+
+    Parameters
+    ----------
+    exposure : `~spherex_reduce.Exposure`
+        Ramps (an offset per frame) or a 2-D image; readout order (reference
+        reads taken from the data) or physical order (the reads kept aside by
+        `unchop`, else the physical reference rows).
+    acn : bool
+        Two offsets per channel, for even and odd samples of the row read
+        (alternating column noise); else one.
+    sigma, maxiters
+        σ-clipping of the reference pixels (see `clipped_mean`).
+    side_columns : bool
+        Also use the side reference columns of the first and last channel
+        (those of the sides ``ref_border`` declares).
+
+    Returns
+    -------
+    offsets, n_used, n_clipped : `numpy.ndarray`
+        Shape ``(L, nchannels, P)``, ``L`` the number of frames (1 for an
+        image), ``P`` 2 with ``acn`` else 1; ``offsets`` NaN where a group
+        has no usable pixel.
+
+    Raises
+    ------
+    NoReferenceError
+        The exposure has no reference rows at all.
+    """
+    strategy = (AcnReference if acn else MeanReference)(sigma, maxiters, side_columns)
+    est = strategy.estimate(side_block(exposure), context_of(exposure), exposure)
+    return est.offsets, est.n_used, est.n_clipped
+
+
+def _offsets_of(geometry, reference, side=None, *, acn=False, sigma=3.0, maxiters=5,
+                threads=None):
+    """`reference_offsets` of reference-row pixels ``(L, k, ncols)`` (NaN: unusable)
+    and optionally side-column pixels ``(L, rows, ncols)`` (NaN outside the side columns).
+
+    Frames are clipped a few at a time (temporaries stay in cache) on
+    ``threads`` threads; each group's numbers do not depend on the others.
+    """
+    groups = _group_columns(geometry, acn)
+    keep = None
+    if side is not None:
+        # channels without side columns get only NaN there; drop the padding cost
+        keep = np.isfinite(_gather(side, groups)).any(axis=(0, 1, 2))
+
+    def clip(lo):
+        vals = _gather(reference[lo:lo + _FRAMES_PER_CLIP], groups)
+        if side is not None:
+            more = _gather(side[lo:lo + _FRAMES_PER_CLIP], groups)
+            vals = np.concatenate([vals, more[..., keep]], axis=-1)
+        return clipped_mean(vals, sigma=sigma, maxiters=maxiters)
+
+    starts = range(0, reference.shape[0], _FRAMES_PER_CLIP)
+    nthreads = min(len(starts), default_threads() if threads is None else max(1, threads))
+    if nthreads > 1:
+        with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-clip") as pool:
+            parts = list(pool.map(clip, starts))
+    else:
+        parts = [clip(lo) for lo in starts]
+    return tuple(np.concatenate([p[i] for p in parts]) for i in range(3))
+
+
+# -- strategies ------------------------------------------------------------------------------
+_CLIP_PARAMETERS = (
+    Parameter("sigma", 3.0, (float,), "clip threshold for reference pixels (standard "
+              "deviations)", minimum=0, exclusive_minimum=True),
+    Parameter("maxiters", 5, (int, type(None)), "clipping iterations (null: until converged)",
+              minimum=1, maximum=1000),
+    Parameter("side_columns", False, (bool,), "also use the side reference columns of the "
+              "first and last channel"),
+)
+
+
+class MeanReference(Strategy):
+    """One σ-clipped mean of the reference pixels per channel (paper §4.3 default).
+
+    Estimates from the reference reads alone, so it streams: with
+    ``side_columns`` it also needs the side reference columns of every row
+    (the whole exposure).
+    """
+
+    kind, name = "reference", "mean"
+    parameters = _CLIP_PARAMETERS
+    acn = False
+
+    def __init__(self, sigma=3.0, maxiters=5, side_columns=False):
+        self.sigma, self.maxiters, self.side_columns = sigma, maxiters, side_columns
+
+    @property
+    def needs_exposure(self):
+        return bool(self.side_columns)
+
+    def estimate(self, side, context, exposure=None):
+        g = context.geometry
+        columns = _side_columns(exposure) if self.side_columns and g.border.columns else None
+        off, used, clipped = _offsets_of(g, reference_pixels(side, context.schedule), columns,
+                                         acn=self.acn, sigma=self.sigma,
+                                         maxiters=self.maxiters, threads=context.threads)
+        return ReferenceOffsets(off, used, clipped, [EVEN, ODD] if self.acn else [ALL])
+
+
+class AcnReference(MeanReference):
+    """Two σ-clipped means per channel, for even and odd samples (ACN, paper §2.4)."""
+
+    name = "acn"
+    acn = True
+
+
+class MedianReference(Strategy):
+    """Median of all pixels (optical and reference) per channel (paper §5.4).
+
+    Removes the channel offsets better than the reference pixels on measured
+    darks, but on sky images every channel holds sky: the median removes the
+    sky's large-scale structure along with the offsets (astrophysical
+    information is lost).  ``mask_sources`` excludes sources and hot pixels
+    found by `source_mask` first, which limits, but does not remove, the loss.
+    """
+
+    kind, name = "reference", "median"
+    parameters = (
+        Parameter("mask_sources", False, (bool,), "exclude photutils-segmented sources "
+                  "and hot pixels before the median"),
+        Parameter("source_sigma", 3.0, (float,), "source detection threshold (background "
+                  "rms)", minimum=0, exclusive_minimum=True),
+        Parameter("source_npixels", 5, (int,), "minimum source size (pixels)", minimum=1),
+        Parameter("box_size", 64, (int,), "background box size (pixels)", minimum=2),
+    )
+
+    #: the median is over every pixel of a channel: the whole exposure
+    needs_exposure = True
+
+    def __init__(self, mask_sources=False, source_sigma=3.0, source_npixels=5, box_size=64):
+        self.mask_sources, self.source_sigma = mask_sources, source_sigma
+        self.source_npixels, self.box_size = source_npixels, box_size
+
+    def estimate(self, side, context, exposure=None):
+        mask_sources, source_sigma = self.mask_sources, self.source_sigma
+        source_npixels, box_size = self.source_npixels, self.box_size
+        g = exposure.geometry
+        nd = exposure.data
+        data = np.asarray(nd.data)
+        frames = data.reshape(-1, *data.shape[-2:])
+        bad = None if exposure.dq is None else (exposure.dq != 0).reshape(frames.shape)
+        excluded = np.zeros(data.shape[-2:], bool)
+        if mask_sources:
+            image = frames[-1] - frames[0] if data.ndim == 3 else frames[0]
+            pix_bad = None if bad is None else bad.any(axis=0)
+            excluded = source_mask(np.asarray(image, dtype=np.float64), pix_bad,
+                                   nsigma=source_sigma, npixels=source_npixels,
+                                   box_size=box_size, dilate=5, background="sextractor",
+                                   two_sided=False, min_boxes=1)
+        nch, width = g.nchannels, g.channel_width
+        L = frames.shape[0]
+        off = np.full((L, nch, 1), np.nan)
+        used = np.zeros((L, nch, 1), int)
+        clipped = np.zeros((L, nch, 1), int)
+        for f in range(L):
+            vals = np.array(frames[f], dtype=np.float64)
+            drop = excluded.copy()
+            if bad is not None:
+                drop |= bad[f]
+            vals[drop] = np.nan
+            v = vals.reshape(vals.shape[0], nch, width).transpose(1, 0, 2).reshape(nch, -1)
+            fin = np.isfinite(v)
+            n = fin.sum(axis=1)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                med = np.median(v, axis=1) if fin.all() else np.nanmedian(v, axis=1)
+            off[f, :, 0] = np.where(n > 0, med, np.nan)
+            used[f, :, 0] = n
+            ex = excluded.reshape(excluded.shape[0], nch, width).sum(axis=(0, 2))
+            clipped[f, :, 0] = ex
+        return ReferenceOffsets(off, used, clipped, [ALL])
+
+
+
+
+BUILTIN_STRATEGIES = {c.name: c for c in (MeanReference, AcnReference, MedianReference)}

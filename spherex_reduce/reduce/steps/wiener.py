@@ -1,0 +1,509 @@
+"""The ``wiener`` reference strategy: each channel's drift at the time of every row read.
+
+The paper's reference correction subtracts one constant per channel (and
+frame).  Distributed reference reads sample the channel's readout drift all
+through the frame, and the schedule knows the time of every read, so the
+drift at the time of each row read can be estimated: the best linear unbiased
+estimate from that channel's reference reads given the noise model's PSDs
+(universal kriging, `~spherex_reduce.noise.read_covariance`).  Each frame's
+and channel's offset is an unknown constant (a flat prior), the rest of the
+drift has the PSDs' covariance.  With white noise only, the estimate is the
+mean of the reference pixels: the ``mean`` strategy.  The ``correct_reference``
+kernel subtracts the estimate row by row.
+"""
+
+import json
+import threading
+import warnings
+from pathlib import Path
+
+import numpy as np
+from astropy.table import Table
+from astropy.utils.exceptions import AstropyUserWarning
+from scipy import linalg
+
+from ...core.errors import ConfigError
+from ...core.parameters import Parameter
+from ...io.config import load_yaml
+from ...noise import BUILTIN_TABLES, NoiseComponent, noise_components
+from ...noise.read_covariance import DOMAINS, Kriging, ReadCovariance
+from ...noise.section import section_components
+from ..step import Strategy
+from .reference_strategies import (
+    ALL,
+    EVEN,
+    ODD,
+    ReferenceOffsets,
+    _group_columns,
+    reference_pixels,
+)
+
+__all__ = ["WienerReference", "load_noise_model"]
+
+_MAD_TO_SIGMA = 1.4826
+#: Models kept for reuse (each holds its solved weights: tens of MB at full size).
+_MAX_MODELS = 4
+_MODELS = {}
+_MODELS_LOCK = threading.Lock()
+#: Solved systems a model keeps (per kind of observation, channel count and system).
+_MAX_WEIGHTS = 8
+
+
+def load_noise_model(source, where="correct_reference.noise"):
+    """Noise components from a table name, a noise table or ``fit-noise`` result, or a scene.
+
+    Parameters
+    ----------
+    source : str or path
+        A built-in table (``'spherex-table2'``), an ECSV noise table (columns
+        ``name alpha beta gamma ...``), an ECSV written by ``spherex-reduce
+        fit-noise`` (its ``reference`` stream becomes a channel component seen
+        by the pixels, its ``phantom`` stream one seen by the phantom reads),
+        or a scene file (YAML; its ``noise:`` section).
+    where : str
+        Where the value came from, for error messages.
+
+    Returns
+    -------
+    list of `~spherex_reduce.noise.NoiseComponent`
+
+    Raises
+    ------
+    ConfigError
+        The source cannot be read or describes no noise.
+
+    Examples
+    --------
+    >>> from spherex_reduce.reduce.steps.wiener import load_noise_model
+    >>> [c.name for c in load_noise_model("spherex-table2")][:2]
+    ['video8', 'roic']
+    """
+    text = str(source)
+    if text.lower().endswith((".yaml", ".yml")):
+        config, _ = load_yaml(Path(text), "noise model")
+        comps = section_components(config.get("noise"))
+    elif text in BUILTIN_TABLES or not text.lower().endswith(".fits"):
+        comps = _table_components(text, where)
+    else:
+        raise ConfigError(f"{where}: expected a noise table name, an ECSV table or a scene "
+                          f"YAML file, got {text!r}")
+    if not comps or all(c.is_zero for c in comps):
+        raise ConfigError(f"{where}: {text} describes no noise (every coefficient is zero)")
+    return comps
+
+
+def _table_components(source, where):
+    if source not in BUILTIN_TABLES:
+        path = Path(source)
+        if not path.is_file():
+            raise ConfigError(f"{where}: {source!r} is neither a built-in table "
+                              f"({', '.join(BUILTIN_TABLES)}) nor an existing file")
+        try:
+            head = Table.read(path, format="ascii.ecsv")
+        except Exception as exc:  # many kinds for a file that is not ECSV
+            raise ConfigError(f"{where}: {source} is not a readable ECSV table "
+                              f"({type(exc).__name__})") from None
+        if "stream" in head.colnames:  # a fit-noise result
+            visibility = {"reference": "pixels", "phantom": "phantom"}
+            comps = []
+            for row in head:
+                if str(row["stream"]) in visibility:
+                    try:
+                        # a fitted coefficient below zero is zero within its error
+                        comps.append(NoiseComponent(
+                            str(row["stream"]), alpha=max(float(row["alpha"]), 0.0),
+                            beta=max(float(row["beta"]), 0.0),
+                            gamma=max(float(row["gamma"]), 0.0),
+                            exponent=float(row["exponent"]),
+                            visibility=visibility[str(row["stream"])]))
+                    except (KeyError, ValueError) as exc:
+                        raise ConfigError(f"{where}: {source}: {exc}") from None
+            return comps
+    return list(noise_components(source).values())
+
+
+def _reads_of(side, schedule):
+    """Read index (within a frame) of every reference read of a side block."""
+    if side.order == "readout":
+        return np.asarray(side.index)[schedule.is_reference[side.index]]
+    return schedule.read_of_row()[np.asarray(side.index)]
+
+
+class WienerReference(Strategy):
+    """Each channel's drift at every row read, from its reference reads and the noise PSDs.
+
+    The optimal linear (kriging) estimate under an unknown constant per frame,
+    channel and parity group; subtracted row by row.  Streams like ``mean``.
+    """
+
+    kind, name = "reference", "wiener"
+    parameters = (
+        Parameter("noise", "spherex-table2", (str,), "noise model: a table name or ECSV "
+                  "path, a fit-noise result (ECSV) or a scene file (YAML, its noise: section)"),
+        Parameter("common", "auto", (str, list), "components one stream of which every "
+                  "channel sees: auto (scope common), none, or a list of names"),
+        Parameter("acn", False, (bool,), "estimate even and odd samples separately "
+                  "(alternating column noise)"),
+        Parameter("domain", "auto", (str,), "auto (frames for ramps, slopes for an image), "
+                  "frames or slopes (weights for the ramp-fitted slope, applied to each frame)",
+                  choices=("auto", *DOMAINS)),
+        Parameter("regularization", 1e-9, (float,), "added to the diagonal of the reference "
+                  "reads' covariance, relative to its mean", minimum=0, maximum=1),
+        Parameter("phantom", "auto", (str,), "auto: when the phantom values are not yet "
+                  "subtracted, estimate from them too (and consume them); ignore: never",
+                  choices=("auto", "ignore")),
+        Parameter("sigma", 5.0, (float,), "reference pixels beyond this many robust (MAD) "
+                  "standard deviations from the channel's median are not used",
+                  minimum=0, exclusive_minimum=True),
+    )
+
+    def __init__(self, noise="spherex-table2", common="auto", acn=False, domain="auto",
+                 regularization=1e-9, phantom="auto", sigma=5.0):
+        self.noise, self.acn, self.domain, self.phantom = noise, bool(acn), domain, phantom
+        self.regularization, self.sigma = float(regularization), float(sigma)
+        self.components = load_noise_model(noise)
+        names = [c.name for c in self.components]
+        if common == "auto":
+            self.common = frozenset(c.name for c in self.components if c.scope == "common")
+        elif common == "none":
+            self.common = frozenset()
+        elif isinstance(common, list) and all(isinstance(n, str) for n in common):
+            unknown = sorted(set(common) - set(names))
+            if unknown:
+                raise ConfigError(f"correct_reference.common: {unknown} not in the noise model "
+                                  f"({', '.join(names)})")
+            self.common = frozenset(common)
+        else:
+            raise ConfigError("correct_reference.common: expected auto, none or a list of "
+                              f"component names, got {common!r}")
+
+    def uses_phantom(self, context):
+        """Whether the phantom values of every read are observations (and get consumed)."""
+        return (self.phantom == "auto" and bool(context.phantom)
+                and context.schedule.phantom_reads > 0)
+
+    # -- the model ----------------------------------------------------------------------
+    def _model(self, schedule, domain, offsets):
+        """The model of one parity group; shared by every strategy of this process with the
+        same noise model and schedule (its weights are solved once)."""
+        key = (repr([c.to_dict() for c in self.components]), tuple(sorted(self.common)),
+               json.dumps([schedule.geometry.to_dict(), schedule.to_dict()], sort_keys=True,
+                          default=str), domain, offsets.tobytes(), self.regularization)
+        with _MODELS_LOCK:
+            model = _MODELS.pop(key, None)
+            if model is None:
+                model = _Model(ReadCovariance(schedule, self.components, offsets, domain,
+                                              common=self.common))
+            _MODELS[key] = model  # most recently used last
+            while len(_MODELS) > _MAX_MODELS:
+                _MODELS.pop(next(iter(_MODELS)))
+        return model
+
+    def predicted_variance(self, context, reads=None, parity=0):
+        """Predicted error variance of each read's estimate, and of the ``mean`` strategy's.
+
+        For full reference reads (no pixel left out) in every channel, under
+        the strategy's noise model: what the estimate of one channel's value
+        at each read misses, ``E[(t̂ - t)^2]``, where ``t`` is the mean of
+        the group's pixels of that read (minus its phantom value when the
+        phantom is subtracted).
+
+        Parameters
+        ----------
+        context : `~spherex_reduce.core.block.Context`
+            The schedule, whether the input is ramps (``domain: auto``) and
+            whether it carries phantom values (used with ``phantom: auto``).
+        reads : array_like of int, optional
+            The reference reads (default: the schedule's).
+        parity : int
+            The group (0, or 1 for odd samples with ``acn``).
+
+        Returns
+        -------
+        wiener, mean : `numpy.ndarray`, shape ``(n_reads,)``
+            In the noise model's unit squared: e² for ``domain: frames``, (e/s)²
+            for ``slopes`` (compare them with data in electrons).
+
+        Examples
+        --------
+        >>> from spherex_reduce import ReadoutSchedule
+        >>> from spherex_reduce.core.block import Context
+        >>> from spherex_reduce.reduce.steps.wiener import WienerReference
+        >>> s = ReadoutSchedule()   # the paper's case, slopes with phantom values
+        >>> w, m = WienerReference().predicted_variance(Context(s, "readout", False,
+        ...                                                     phantom=True))
+        >>> a = s.active_read_indices
+        >>> bool(w[a].mean() < 0.8 * m[a].mean())
+        True
+        """
+        s = context.schedule
+        reads = s.reference_read_indices if reads is None else np.asarray(reads, dtype=int)
+        groups = _group_columns(s.geometry, self.acn)
+        cols = groups[0, parity][groups[0, parity] >= 0]
+        domain = self._domain(context)
+        use = self.uses_phantom(context)
+        kind = self._kind(context, use)
+        model = self._model(s, domain, s.geometry.column_offsets()[cols])
+        *_, var, mvar = model.weights(self, kind, reads, np.full(reads.size, float(cols.size)),
+                                      cols.size, s.geometry.nchannels, True, use)
+        return var, mvar
+
+    def _domain(self, context):
+        """``frames`` or ``slopes``: ``auto`` is frames for ramps (or a single frame)."""
+        nframes = context.schedule.nframes
+        if self.domain == "auto":
+            return "frames" if context.ramp or nframes < 2 else "slopes"
+        if self.domain == "slopes" and nframes < 2:
+            raise ConfigError("correct_reference.domain: slopes needs a schedule of at least "
+                              f"2 frames (NFRAMES={nframes}); use domain: frames")
+        return self.domain
+
+    @staticmethod
+    def _kind(context, with_phantom):
+        """What a read's value is: its pixels' mean, minus its phantom value once
+        ``subtract_phantom`` has run (`~spherex_reduce.noise.read_covariance.KINDS`)."""
+        subtracted = bool(context.schedule.phantom_reads) and not context.phantom
+        return "subtracted" if subtracted and not with_phantom else "pixels"
+
+    # -- the estimate -------------------------------------------------------------------
+    def estimate(self, side, context, exposure=None):
+        s = context.schedule
+        g = s.geometry
+        values = reference_pixels(side, s)  # (L, k, ncols), NaN: unusable
+        reads = _reads_of(side, s)
+        domain = self._domain(context)
+        phantom = None
+        if self.uses_phantom(context) and side.read_phantom is not None:
+            phantom = np.asarray(side.read_phantom, dtype=np.float64)
+        # a frame with a non-finite phantom value: estimated from its reference reads alone
+        # (its phantom values are consumed all the same: nothing subtracts them later)
+        bad = np.zeros(values.shape[0], bool) if phantom is None else ~np.isfinite(
+            phantom).all(axis=(1, 2))
+        if bad.any():
+            warnings.warn(f"correct_reference (wiener): {int(bad.sum())} frame(s) with "
+                          "non-finite phantom values estimated from the reference reads alone",
+                          AstropyUserWarning, stacklevel=2)
+        kind = self._kind(context, phantom is not None)
+        groups = _group_columns(g, self.acn)  # (nch, P, w), -1 pads
+        nch, npar = groups.shape[:2]
+        obs, n, clipped = self._reference_values(values, groups)
+        L, n_reads = values.shape[0], s.n_reads
+        rows = np.full((L, n_reads, nch, npar), np.nan)
+        predicted = np.full((npar, n_reads), np.nan)
+        mean_predicted = np.full((npar, n_reads), np.nan)
+        for p in range(npar):
+            cols = groups[0, p][groups[0, p] >= 0]
+            model = self._model(s, domain, g.column_offsets()[cols])
+            out = np.full((L, n_reads, nch), np.nan)
+            # frames with their phantom values, then those without (the pixels' own drift)
+            for frames, k, ph in ((~bad, kind, phantom), (bad, "pixels", None)):
+                if not frames.any():
+                    continue
+                part = out[frames]
+                var = model.estimate(self, k, reads, obs[frames][..., p], n[frames][..., p],
+                                     cols.size, None if ph is None else ph[frames], part)
+                out[frames] = part
+                if np.isnan(predicted[p]).all():  # the first frames' prediction
+                    predicted[p], mean_predicted[p] = var
+            rows[..., p] = out
+        active = s.active_read_indices
+        with warnings.catch_warnings():  # a group without usable pixels: NaN, flagged later
+            warnings.simplefilter("ignore", RuntimeWarning)
+            offsets = np.nanmean(rows[:, active] if active.size else rows, axis=1)
+        parity = [EVEN, ODD] if self.acn else [ALL]
+        drift = self._drift_table(rows, parity, context, domain, predicted, mean_predicted,
+                                  active, phantom is not None)
+        return ReferenceOffsets(offsets, n.sum(axis=1), clipped, parity, rows=rows,
+                                tables={"REFDRIFT": drift})
+
+    def _reference_values(self, values, groups):
+        """Each reference read's value per channel and group ``(L, k, nch, P)`` (the mean of
+        its usable pixels, outliers beyond ``sigma`` robust deviations left out), the
+        pixels averaged, and the pixels left out per ``(L, nch, P)``."""
+        v = values[:, :, np.maximum(groups, 0)]  # (L, k, nch, P, w)
+        v[:, :, groups < 0] = np.nan
+        usable = np.isfinite(v)
+        with warnings.catch_warnings():  # a group without usable pixels: NaN, flagged later
+            warnings.simplefilter("ignore", RuntimeWarning)
+            med = np.nanmedian(v, axis=(1, 4), keepdims=True)
+            mad = np.nanmedian(np.abs(v - med), axis=(1, 4), keepdims=True)
+        with np.errstate(invalid="ignore"):
+            clipped = usable & (np.abs(v - med) > self.sigma * _MAD_TO_SIGMA * mad) & (mad > 0)
+        v[clipped] = np.nan
+        n = np.isfinite(v).sum(axis=-1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            obs = np.where(n > 0, np.nansum(v, axis=-1) / np.maximum(n, 1), np.nan)
+        return obs, n, clipped.sum(axis=(1, 4))
+
+    def _drift_table(self, rows, parity, context, domain, predicted, mean_predicted, active,
+                     used_phantom):
+        L, n_reads, nch, npar = rows.shape
+        fr, ch, pa = np.meshgrid(np.arange(L), np.arange(nch), np.arange(npar), indexing="ij")
+        cols = {}
+        if context.ramp:
+            cols["frame"] = fr.ravel()
+        cols["channel"] = ch.ravel()
+        cols["parity"] = np.asarray(parity)[pa.ravel()]
+        cols["drift"] = rows.transpose(0, 2, 3, 1).reshape(-1, n_reads).astype(np.float32)
+
+        def rms(v):
+            v = v[:, active] if active.size else v
+            return float(np.sqrt(np.nanmean(v))) if np.isfinite(v).any() else float("nan")
+
+        unit = str(context.unit or "")
+        table = Table(cols, meta={
+            "strategy": self.name, "bunit": unit, "domain": domain,
+            "noise": str(self.noise), "common": sorted(self.common),
+            "phantom_used": bool(used_phantom),
+            "predicted_rms_error": rms(predicted),
+            "mean_predicted_rms_error": rms(mean_predicted),
+            # the noise model's unit, whatever the data's (BUNIT) is
+            "predicted_unit": "electron / s" if domain == "slopes" else "electron"})
+        table["drift"].description = (f"drift subtracted from each read of the frame, in read "
+                                      f"order ({unit or 'data unit'})")
+        return table
+
+
+class _Model:
+    """The covariance of one parity group's read values, its lag tables and the weights
+    already solved (per set of reference reads and pixel counts)."""
+
+    def __init__(self, cov):
+        self.cov = cov
+        self.n_reads = cov.schedule.n_reads
+        self._lags, self._bases = {}, {}
+        self._lock = threading.RLock()  # one solve per key, whatever thread asks first
+
+    def lags(self, kind_a, kind_b, scale):
+        """Covariance of values ``m`` reads apart, indexed by ``m + n_reads - 1``: the
+        channel's terms plus ``scale`` times the common ones."""
+        key = (kind_a, kind_b)
+        with self._lock:
+            if key not in self._lags:
+                m = np.arange(-(self.n_reads - 1), self.n_reads)
+                self._lags[key] = self.cov.colored(m, kind_a, kind_b)
+            lag = self._lags[key]
+        return lag["channel"] + scale * lag["common"]
+
+    def _white(self, kind, npixels, scale):
+        cov = self.cov
+        return cov.white(kind, npixels, "channel") + scale * cov.white(kind, npixels, "common")
+
+    def _system(self, kind, reads, n_used, n_group, scale, phantom):
+        """Covariances (observations, observations-targets, targets) of the channel's terms
+        plus ``scale`` times the common ones."""
+        off, n = self.n_reads - 1, self.n_reads
+        t = np.arange(n)
+        white_t = self._white(kind, n_group, scale)
+        lag = self.lags(kind, kind, scale)
+        k_oo = lag[reads[None, :] - reads[:, None] + off] + np.diag(
+            self._white(kind, n_used, scale))
+        k_ot = lag[t[None, :] - reads[:, None] + off] + (t[None, :] == reads[:, None]) * white_t
+        k_tt = np.full(n, lag[off] + white_t)
+        if not phantom:
+            return k_oo, k_ot, k_tt
+        # phantom values at every read: Toeplitz blocks (entry [i, j] is the lag j - i)
+        hh = self.lags("phantom", "phantom", scale)
+        ht = self.lags("phantom", kind, scale)
+        rh = self.lags(kind, "phantom", scale)[t[None, :] - reads[:, None] + off]
+        k = reads.size
+        c_oo = np.empty((k + n, k + n))
+        c_oo[:k, :k], c_oo[:k, k:], c_oo[k:, :k] = k_oo, rh, rh.T
+        c_oo[k:, k:] = linalg.toeplitz(hh[off::-1], hh[off:])
+        c_oo[k + t, k + t] += self._white("phantom", n_group, scale)
+        c_ot = np.empty((k + n, n))
+        c_ot[:k], c_ot[k:] = k_ot, linalg.toeplitz(ht[off::-1], ht[off:])
+        return c_oo, c_ot, k_tt
+
+    def _base(self, strategy, kind, reads, n_group, nch, system, phantom):
+        """The solved system of full reads (see `Kriging`): ``system`` is ``'channel'``
+        (the deviations from the channel mean), ``'mean'`` (the channel mean) or
+        ``'total'`` (one channel alone)."""
+        key = (kind, reads.tobytes(), n_group, nch, system, phantom)
+        with self._lock:
+            return self._build(key, strategy, kind, reads, n_group, nch, system, phantom)
+
+    def _build(self, key, strategy, kind, reads, n_group, nch, system, phantom):
+        if key not in self._bases:
+            full = np.full(reads.size, float(n_group))
+            scale = {"channel": 0, "mean": nch, "total": 1}[system]
+            parts = self._system(kind, reads, full, n_group, scale, phantom)
+            constants = np.r_[np.zeros(reads.size, int), np.ones(self.n_reads * phantom, int)]
+            if len(self._bases) >= _MAX_WEIGHTS:
+                self._bases.pop(next(iter(self._bases)))
+            self._bases[key] = (Kriging(*parts, strategy.regularization, constants,
+                                        nupdate=reads.size), scale)
+            del parts
+        return self._bases[key]
+
+    def weights(self, strategy, kind, reads, n_used, n_group, nch, joint, phantom):
+        """Weights ``(T, k [+ n_reads])`` of the channel deviations and the change for the
+        channel mean (zero without ``joint``), the predicted error variance of one
+        channel's estimate and that of the pixel mean (the ``mean`` strategy) under the
+        same model.  ``n_used`` (per reference read; 0: not usable) only adds white
+        variance to the full-read system (a rank-``k`` update)."""
+        cov = self.cov
+        extra = {}
+        for scope in ("channel", "common"):
+            with np.errstate(divide="ignore", invalid="ignore"):  # n = 0: dropped (inf)
+                extra[scope] = np.where(
+                    n_used > 0, cov.white("pixels", n_used, scope) - cov.white(
+                        "pixels", n_group, scope), np.inf)
+        if joint and nch > 1:
+            (b1, _), (b0, s0) = (self._base(strategy, kind, reads, n_group, nch, name, phantom)
+                                 for name in ("channel", "mean"))
+            w1, v1 = b1.weights(extra["channel"])
+            w0, v0 = b0.weights(extra["channel"] + s0 * extra["common"])
+            out = (w1, w0 - w1, v0 / nch + (1 - 1 / nch) * v1)
+        else:
+            base, _ = self._base(strategy, kind, reads, n_group, nch, "total", phantom)
+            w, v = base.weights(extra["channel"] + extra["common"])
+            out = (w, None, v)
+        mean_kind = "subtracted" if phantom else kind
+        ok = n_used > 0
+        m_oo, m_ot, m_tt = self._system(mean_kind, reads[ok], n_used[ok], n_group, 1, False)
+        mean = n_used[ok] / n_used[ok].sum()
+        mean_var = m_tt - 2 * mean @ m_ot + np.einsum("i,ij,j->", mean, m_oo, mean)
+        return (*out, mean_var)
+
+    def estimate(self, strategy, kind, reads, obs, n, n_group, phantom, out):
+        """Estimates ``out (L, n_reads, nch)`` from the reference reads' values
+        ``obs (L, k, nch)`` averaging ``n (L, k, nch)`` pixels and the phantom values
+        ``(L, n_reads, nch)`` (or None); returns the predicted error variances of the
+        first frame (this strategy's and the mean's).  Frames with the same pixel counts
+        share their weights and one matrix product."""
+        nch = obs.shape[2]
+        use = phantom is not None
+        patterns = {}
+        for f in range(obs.shape[0]):
+            patterns.setdefault(n[f].tobytes(), []).append(f)
+        first = None
+        for frames in patterns.values():
+            nf = n[frames[0]]
+            y = obs[frames] if phantom is None else np.concatenate([obs[frames],
+                                                                     phantom[frames]], axis=1)
+            y = np.where(np.isfinite(y), y, 0.0)  # reads without pixels: weight 0
+            if (nf == nf[:, :1]).all() and nf[:, 0].any():
+                w, wd, var, mvar = self.weights(strategy, kind, reads, nf[:, 0].astype(float),
+                                                n_group, nch, True, use)
+                flat = np.moveaxis(y, 1, 0).reshape(y.shape[1], -1)  # (k [+ n], F * nch)
+                est = (w @ flat).reshape(-1, len(frames), nch)
+                if wd is not None:
+                    est += (wd @ y.mean(axis=2).T)[:, :, None]
+                out[frames] = np.moveaxis(est, 1, 0)
+            else:  # channels differ: each with its own pixel counts
+                var = mvar = np.full(self.n_reads, np.nan)
+                solved = {}
+                for c in range(nch):
+                    if not nf[:, c].any():
+                        continue  # no usable reference pixel: NaN, flagged by the kernel
+                    key = nf[:, c].tobytes()  # channels with the same counts: same weights
+                    if key not in solved:
+                        solved[key] = self.weights(strategy, kind, reads,
+                                                   nf[:, c].astype(float), n_group, nch,
+                                                   False, use)
+                    w, _, var, mvar = solved[key]
+                    out[frames, :, c] = y[:, :, c] @ w.T
+            if first is None or 0 in frames:
+                first = (var, mvar)
+        return first

@@ -21,7 +21,6 @@ import hashlib
 import importlib
 import json
 import re
-import shutil
 import subprocess
 import sys
 import tempfile
@@ -31,7 +30,8 @@ import numpy as np
 import yaml
 from astropy.io import fits
 
-VOLATILE = {"CHECKSUM", "DATASUM", "DATE", "DATE-OBS", "DATE-END"}
+#: not results: checksums, dates, and the config's hash (the config names temporary paths)
+VOLATILE = {"CHECKSUM", "DATASUM", "DATE", "DATE-OBS", "DATE-END", "SXRCONF"}
 PUBLIC_MODULES = [
     "spherex_reduce", "spherex_reduce.io", "spherex_reduce.reduce.steps", "spherex_reduce.noise",
     "spherex_reduce.simulation", "spherex_reduce.analysis", "spherex_reduce.plugin",
@@ -45,19 +45,20 @@ SCENE = {
 }
 
 
-def _hash_hdu(hdu):
+def _hash_hdu(hdu, work):
     h = hashlib.sha256()
     history = []
     for card in hdu.header.cards:
         if card.keyword in VOLATILE:
             continue
+        value = str(card.value).replace(work, "WORK")  # input paths are recorded
         if card.keyword == "HISTORY":  # long texts wrap over cards: join them first
-            history.append(str(card.value))
+            history.append(value)
             continue
-        h.update(f"{card.keyword}={card.value}\n".encode())
+        h.update(f"{card.keyword}={value}\n".encode())
     # step timings ("unchop complete in 0.0003 s") are not results
     # (a card's trailing blank is lost where a wrap falls on it: compare without blanks)
-    text = "".join("".join(history).split())
+    text = "".join("".join(history).split()).replace("".join(work.split()), "WORK")
     h.update(re.sub(r"in[0-9.e+-]+s:", "in?s:", text).encode())
     if hdu.data is not None:
         data = hdu.data
@@ -66,18 +67,21 @@ def _hash_hdu(hdu):
                 if name == "elapsed":
                     continue
                 h.update(name.encode())
-                h.update(np.ascontiguousarray(np.asarray(data[name])).tobytes())
+                column = np.asarray(data[name])
+                if column.dtype.kind in "SU":  # paths of inputs (e.g. PROVENANCE's inputs)
+                    column = np.char.replace(column.astype(str), work, "WORK")
+                h.update(np.ascontiguousarray(column).tobytes())
         else:
             h.update(np.ascontiguousarray(data).tobytes())
     return h.hexdigest()
 
 
 def hash_file(path):
-    """``{extension name: sha256}`` of a FITS file."""
+    """``{extension name: sha256}`` of a FITS file (the folder it is in named ``WORK``)."""
     out = {}
     with fits.open(path) as hdul:
         for i, hdu in enumerate(hdul):
-            out[f"{i}:{hdu.name}"] = _hash_hdu(hdu)
+            out[f"{i}:{hdu.name}"] = _hash_hdu(hdu, str(Path(path).parent))
     return out
 
 
@@ -163,14 +167,8 @@ def main(argv=None):
     parser.add_argument("-o", "--output", required=True, help="JSON file to write")
     parser.add_argument("--check", help="an earlier JSON file that must be identical")
     args = parser.parse_args(argv)
-    # one fixed folder: input paths are recorded in the outputs' headers
-    work = Path(tempfile.gettempdir()) / "spherex-reduce-goldens"
-    shutil.rmtree(work, ignore_errors=True)
-    work.mkdir()
-    try:
-        results = run(work)
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        results = run(Path(tmp))
     Path(args.output).write_text(json.dumps(results, indent=1, sort_keys=True))
     print(f"{len(results) - 1} reductions hashed into {args.output}")
     if args.check:

@@ -11,22 +11,22 @@ and the steps run whole after it.  To look at it without building the docs::
 import matplotlib.pyplot as plt
 from matplotlib.patches import FancyArrowPatch, FancyBboxPatch
 
-LAYERS = [  # (name, what it holds), top to bottom: each imports only from those below
-    ("cli", "spherex-reduce subcommands"),
-    ("demo", "demo.py"),
-    ("analysis", "run_case, P(k), sweeps, figures"),
-    ("simulation", "noise engine, scenes, simulation_plugin"),
-    ("pipeline", "pipeline.py (passes), plugins.py (registry),\n"
-                 "integrations.py (4-D SCI)"),
-    ("steps", "steps/* (one module per step), step.py,\n"
-              "provenance.py, hookspecs.py, executor.py"),
-    ("io", "io/ (FITS read, write, FrameReader), config.py,\n"
-           "plotting.py, examples.py"),
-    ("core", "exposure, block, schedule, geometry, fields,\n"
-             "dq, errors, limits, parameters, source_mask"),
+LAYERS = [  # (folder, what it holds), top to bottom: each imports only from those below
+    ("cli/", "spherex-reduce subcommands"),
+    ("analysis/", "run_case, P(k), sweeps, figures, compare-strategies,\n"
+                  "the demo"),
+    ("simulation/", "noise engine, scenes, slope routes,\n"
+                    "the simulator's plugin"),
+    ("reduce/", "pipeline (runs), passes (plans), executor, Step,\n"
+                "plugins, provenance, integrations, batch, steps/"),
+    ("io/", "open_input and the sources, FITS readers/writers,\n"
+            "config, plotting, examples"),
+    ("noise/", "noise components, PSDs, analytic slope\n"
+               "statistics, read covariances"),
+    ("core/", "exposure, block, schedule, geometry, fields,\n"
+              "dq, errors, limits, parameters, source_mask"),
 ]
-LAYER_COLOURS = ["#d9d9d9", "#fde0c5", "#fde0c5", "#fde0c5", "#cfe2f3", "#d9ead3",
-                 "#fff2cc", "#ead1dc"]
+LAYER_COLOURS = ["#d9d9d9", "#fde0c5", "#fde0c5", "#d9ead3", "#fff2cc", "#cfe2f3", "#ead1dc"]
 
 
 def box(ax, x, y, w, h, text, colour, size=9, weight="normal"):
@@ -45,14 +45,14 @@ def arrow(ax, start, end, text=None, offset=(0.08, 0), style="-|>", colour="0.2"
 
 
 def layers_panel(ax):
-    ax.set_title("Layers: a module imports only from the layers below it",
+    ax.set_title("Layers (folders of spherex_reduce/): imports only go down",
                  fontsize=11, loc="left")
     h, gap, w = 0.78, 0.32, 4.6
     top = len(LAYERS) * (h + gap)
     for i, ((name, what), colour) in enumerate(zip(LAYERS, LAYER_COLOURS, strict=True)):
         y = top - (i + 1) * (h + gap)
-        box(ax, 0, y, 1.25, h, name, colour, size=10, weight="bold")
-        box(ax, 1.35, y, w - 1.35, h, what, colour, size=8)
+        box(ax, 0, y, 1.45, h, name, colour, size=10, weight="bold")
+        box(ax, 1.55, y, w - 1.55, h, what, colour, size=8)
         if i:
             arrow(ax, (0.62, y + h + gap - 0.02), (0.62, y + h + 0.02))
     ax.text(0.72, top - h - 1.5 * gap, "imports", fontsize=8, va="center", color="0.2")
@@ -64,11 +64,12 @@ def flow_panel(ax):
     ax.set_title("Data flow of a reduction", fontsize=11, loc="left")
     file_c, exe_c, step_c, out_c = "#fff2cc", "#f3f3f3", "#d9ead3", "#ead1dc"
     # sources
-    box(ax, 0.0, 7.75, 2.35, 0.85, "raw FITS file\nSCI, PHANTOM, READOUT", file_c, size=8)
+    box(ax, 0.0, 7.75, 2.35, 0.85, "raw FITS file, read files,\n4-D file, reader", file_c,
+        size=8)
     box(ax, 2.65, 7.75, 2.35, 0.85, "Exposure in memory\n(readout order)", file_c, size=8)
     box(ax, 0.0, 6.35, 5.0, 0.85,
-        "FileSource: pread of rows of every frame\nMemorySource: views of the Exposure",
-        exe_c, size=8)
+        "open_input → a source: FileSource (pread of rows of every frame)\n"
+        "or MemorySource (views of the Exposure)", exe_c, size=8)
     arrow(ax, (1.17, 7.75), (1.17, 7.2))
     arrow(ax, (3.82, 7.75), (3.82, 7.2))
     # side block and bands
@@ -98,10 +99,10 @@ def flow_panel(ax):
         "→ FITS file with S_* keywords and the PROVENANCE table", out_c, size=8)
     arrow(ax, (3.67, 1.45), (3.67, 0.85))
     arrow(ax, (0.95, 1.45), (0.95, 0.85))
-    ax.text(5.12, 4.3, "one pass of\nthe executor\n(grey: executor.py,\n"
+    ax.text(5.12, 4.3, "one pass of\nthe executor\n(grey: io/sources.py\nand executor.py,\n"
             "green: the steps'\nkernels and\nconsumer)", fontsize=8, va="center", color="0.2")
     ax.plot([5.06, 5.06], [1.45, 7.2], color="0.4", linewidth=1)
-    ax.set_xlim(-0.1, 6.3)
+    ax.set_xlim(-0.1, 6.6)
     ax.set_ylim(-0.1, 8.7)
 
 

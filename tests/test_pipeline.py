@@ -345,7 +345,7 @@ def test_a_plugin_kernel_and_consumer_stream_like_the_steps_called_one_by_one(tm
 
 def test_a_file_is_read_once_in_bands_of_reads_never_whole_frames(tmp_path, raw, monkeypatch):
     from spherex_reduce.io import FrameReader
-    from spherex_reduce.reduce.executor import FileSource
+    from spherex_reduce.io.sources import FileSource
 
     path = write_raw(tmp_path, raw)
     asked, frames = [], []

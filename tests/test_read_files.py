@@ -19,8 +19,8 @@ import spherex_reduce as sr
 from spherex_reduce.cli import main
 from spherex_reduce.core.errors import FormatError
 from spherex_reduce.io.read_files import ReadFiles, read_file_paths
+from spherex_reduce.io.sources import FileSource
 from spherex_reduce.reduce import executor
-from spherex_reduce.reduce.executor import FileSource
 
 GEOMETRY = {"nrows": 32, "ncols": 16, "nchannels": 2, "ref_border": 2, "pixel_rate": 1e5}
 #: chopped, with re-read reference rows: reads in a mixed order

@@ -8,7 +8,8 @@ from spherex_reduce import DetectorGeometry, Exposure, Pipeline, ReadoutSchedule
 from spherex_reduce.core.block import Block
 from spherex_reduce.core.errors import SpherexReduceError, StepSkipped
 from spherex_reduce.io.examples import example_raw_exposure, tiny_schedule
-from spherex_reduce.reduce.executor import MemorySource, execute
+from spherex_reduce.io.sources import MemorySource
+from spherex_reduce.reduce.executor import execute
 from spherex_reduce.reduce.steps.fit_ramp import FitRampStep, RampFit
 
 

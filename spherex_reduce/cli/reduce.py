@@ -7,7 +7,7 @@ from ..core._text import plural
 from ..core.errors import ConfigError
 from ..core.limits import MAX_WORKERS
 from ..io import atomic_output, write
-from ..io.read_files import ReadFiles, read_file_paths
+from ..io.read_files import read_file_paths
 from ..reduce.integrations import reduce_input
 from ._common import check_paths, count, input_config
 
@@ -62,7 +62,7 @@ def run(args):
     check_paths([source, *config_files], [args.output])
     atomic_output(args.output, args.overwrite)  # refuse before reducing
     # a 4-D SCI: each integration fitted; their mean, with INTSLOPE/INTERR/INTDQ
-    result, images = reduce_input(pipeline, source, progress=not args.quiet,
+    result, images = reduce_input(source, pipeline, progress=not args.quiet,
                                   threads=args.threads)
     return _written(pipeline, result, args, images)
 
@@ -87,10 +87,9 @@ def _reads(args):
     paths = read_file_paths(args.reads)
     check_paths([*paths, *config_files], [args.output])
     atomic_output(args.output, args.overwrite)  # refuse before reducing
-    with ReadFiles(paths, input=pipeline.input_options, **pipeline.supplied()) as reader:
-        # streamed in bands where the steps allow
-        result = pipeline.run(reader, progress=not args.quiet, threads=args.threads)
-    return _written(pipeline, result, args)
+    result, images = reduce_input(paths, pipeline, progress=not args.quiet,
+                                  threads=args.threads)  # streamed where the steps allow
+    return _written(pipeline, result, args, images)
 
 
 def _batch(args):

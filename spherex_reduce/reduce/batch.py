@@ -232,7 +232,7 @@ def reduce_file(task):
                 foreign_dq_bits(task.get("dq_bits", current_dq_bits())):
             row["notes"] = notes
             pipeline = Pipeline(task["config"], source=task["source"])
-            result, images = reduce_input(pipeline, task["input"], threads=task.get("threads"))
+            result, images = reduce_input(task["input"], pipeline, threads=task.get("threads"))
             write(result, task["output"], overwrite=task.get("overwrite", False), images=images)
             median, sigma = image_statistics(result)
         row.update(status="done", median=median.value, robust_std=sigma.value,

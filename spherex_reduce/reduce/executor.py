@@ -5,24 +5,23 @@ Every correction of the paper that works row by row (``unchop``,
 of its step, and ``fit_ramp`` is a `~spherex_reduce.reduce.step.Consumer` of bands.
 `execute` runs a chain of kernels:
 
-1. the *side block* (`side_block`: the reads of the reference rows of every
-   frame, with their phantom values, a small part of the ramp) goes through
-   the kernels' ``prepare`` (e.g. each frame's reference offsets) and
-   ``apply_side``;
-2. the input is cut into bands of rows of every frame (read from a file with
-   ``pread`` by `~spherex_reduce.io.FrameReader`, or views of an in-memory
-   exposure); each band goes through every kernel's ``apply`` in YAML order
-   and then to the consumer, or into the output arrays; bands run on
-   ``threads`` threads;
+1. the *side block* (`~spherex_reduce.io.sources.side_block`: the reads of the
+   reference rows of every frame, with their phantom values, a small part of
+   the ramp) goes through the kernels' ``prepare`` (e.g. each frame's
+   reference offsets) and ``apply_side``;
+2. the input (a source of `spherex_reduce.io.sources`) is cut into bands of
+   rows of every frame (read from a file with ``pread`` by
+   `~spherex_reduce.io.FrameReader`, or views of an in-memory exposure); each
+   band goes through every kernel's ``apply`` in YAML order and then to the
+   consumer, or into the output arrays; bands run on ``threads`` threads;
 3. the kernels' ``record`` gives the tables and header cards.
 
 A step run alone (``Step.run``) is `execute` on the exposure in memory
-(`MemorySource`), so the numbers of a streamed reduction and of the steps run
-one by one agree bit for bit: each pixel's arithmetic does not depend on the
-band that holds it.
+(`~spherex_reduce.io.sources.MemorySource`), so the numbers of a streamed
+reduction and of the steps run one by one agree bit for bit: each pixel's
+arithmetic does not depend on the band that holds it.
 
-It sits at the bottom of the steps layer (it imports no step) so that the
-steps can run themselves through it.
+It imports no step, so that the steps can run themselves through it.
 """
 
 import os
@@ -32,10 +31,9 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from ..core.block import Block, Context
 from ..core.exposure import Exposure, ReferenceReads, expected_shape
 
-__all__ = ["FileSource", "MemorySource", "default_threads", "execute", "side_block", "side_indices"]
+__all__ = ["default_threads", "execute", "first_in_memory"]
 
 #: pixels per band of a file (all frames together): 74 frames x 2**17 x 4 B = 39 MB per
 #: band and thread, so memory stays near the output
@@ -53,160 +51,12 @@ def default_threads():
     return max(1, min(4, n))
 
 
-def side_indices(schedule):
-    """Reads of a frame the kernels prepare from: those of reference rows and of rows read
-    more than once (their mean is the row's value)."""
-    counts = np.bincount(schedule.rows, minlength=schedule.geometry.nrows)
-    return np.flatnonzero(schedule.is_reference | (counts[schedule.rows] > 1))
-
-
-def _frames(values, ramp):
-    """``values`` with a leading frame axis (a 2-D image is one frame); None stays None."""
-    if values is None:
-        return None
-    values = np.asarray(values)
-    return values if ramp else values[None]
-
-
-def side_block(exposure):
-    """The side block of an exposure (see the module's description).
-
-    In readout order: the reads of `side_indices` taken from the pixels.
-    In physical order: the reference reads kept aside by ``unchop`` if there
-    are any, else the physical reference rows that were read.
-    """
-    s = exposure.schedule
-    ramp = exposure.is_ramp
-    unc = exposure.data.uncertainty
-    unc = None if unc is None else unc.array
-
-    def take(values, idx):
-        return None if values is None else np.take(_frames(values, ramp), idx, axis=-2)
-
-    every = read_phantom(exposure)
-    if exposure.order == "readout":
-        idx = side_indices(s)
-        return Block(take(exposure.data.data, idx), idx, "readout",
-                     phantom=take(exposure.phantom, idx), dq=take(exposure.dq, idx),
-                     uncertainty=take(unc, idx), read_phantom=every)
-    ref = exposure.reference
-    if ref is not None and np.shape(ref.data)[-2] > 0:
-        return Block(_frames(ref.data, ramp), np.asarray(ref.reads), "readout",
-                     phantom=_frames(ref.phantom, ramp), dq=_frames(ref.dq, ramp),
-                     read_phantom=every)
-    rows = s.geometry.reference_rows
-    rows = rows[s.read_of_row()[rows] >= 0] if rows.size else rows
-    return Block(take(exposure.data.data, rows), rows, "physical",
-                 phantom=take(exposure.phantom, rows), dq=take(exposure.dq, rows),
-                 uncertainty=take(unc, rows), read_phantom=every)
-
-
-def read_phantom(exposure):
-    """The phantom values of every read of every frame ``(frames, n_reads, nchannels)``, in
-    readout order (None without phantom values).
-
-    In physical order a read takes its row's phantom value (the mean over the
-    row's reads for a row read more than once), and the reference reads kept
-    aside by ``unchop`` their own.
-    """
-    if exposure.phantom is None:
-        return None
-    ph = _frames(exposure.phantom, exposure.is_ramp)
-    if exposure.order == "readout":
-        return ph
-    s = exposure.schedule
-    out = np.take(ph, s.rows, axis=1)
-    ref = exposure.reference
-    if ref is not None and ref.phantom is not None and np.shape(ref.data)[-2] > 0:
-        out[:, np.asarray(ref.reads)] = _frames(ref.phantom, exposure.is_ramp)
-    return out
-
-
-class MemorySource:
-    """Bands of an in-memory `~spherex_reduce.Exposure` (views: never written).
-
-    Parameters
-    ----------
-    exposure : `~spherex_reduce.Exposure`
-    """
-
-    def __init__(self, exposure):
-        self.exposure = exposure
-        self.context = context_of(exposure)
-        self.header, self.tables = exposure.header, exposure.tables
-        self.reference = exposure.reference
-        self.nrows = exposure.data.data.shape[-2]
-        ramp = exposure.is_ramp
-        unc = exposure.data.uncertainty
-        self._arrays = (_frames(exposure.data.data, ramp), _frames(exposure.phantom, ramp),
-                        _frames(exposure.dq, ramp), None if unc is None else _frames(unc.array,
-                                                                                    ramp))
-
-    def side(self):
-        return side_block(self.exposure)
-
-    def read(self, lo, hi):
-        data, phantom, flags, unc = (None if a is None else a[:, lo:hi] for a in self._arrays)
-        return Block(data, np.arange(lo, hi), self.context.order, phantom=phantom, dq=flags,
-                     uncertainty=unc)
-
-
-class FileSource:
-    """Bands of a raw ramp file, read with ``pread`` (no page of the file is mapped).
-
-    Parameters
-    ----------
-    reader : `~spherex_reduce.io.FrameReader` or `~spherex_reduce.io.read_files.ReadFiles`
-        An open reader of a file whose pixels are stored as they are
-        (floating point, not scaled, not compressed: ``reader.readable_in_bands()``),
-        or of a ramp stored as one file per read, in readout order.
-    """
-
-    def __init__(self, reader):
-        self.reader = reader
-        s = reader.schedule
-        self.context = Context(s, "readout", True, reader.unit, reader.header,
-                               phantom=reader.has_phantom)
-        self.header, self.tables = reader.header, reader.tables
-        self.reference = None
-        self.nrows = s.n_reads
-        self._dtype = reader.stored_dtype.newbyteorder("=")
-        self._phantom = reader.phantom
-
-    @staticmethod
-    def usable(reader):
-        """Whether a reader's file can be read in bands (else: read it whole)."""
-        return reader.readable_in_bands()
-
-    def _reads(self, idx):
-        """Reads ``idx`` (sorted) of every frame ``(frames, len(idx), ncols)``, native order."""
-        s = self.context.schedule
-        out = np.empty((s.nframes, idx.size, s.geometry.ncols), self._dtype)
-        if idx.size == 0:
-            return out
-        runs = np.split(np.arange(idx.size), np.flatnonzero(np.diff(idx) != 1) + 1)
-        for k in range(s.nframes):
-            for run in runs:
-                out[k, run[0]:run[-1] + 1] = self.reader.reads(k, int(idx[run[0]]),
-                                                              int(idx[run[-1]]) + 1)
-        return self.reader.scale(out)  # the gain of input:, as a whole read applies it
-
-    def side(self):
-        idx = side_indices(self.context.schedule)
-        phantom = None if self._phantom is None else self._phantom[:, idx]
-        return Block(self._reads(idx), idx, "readout", phantom=phantom, owned={"data"},
-                     read_phantom=self._phantom)
-
-    def read(self, lo, hi):
-        idx = np.arange(lo, hi)
-        phantom = None if self._phantom is None else self._phantom[:, lo:hi]
-        return Block(self._reads(idx), idx, "readout", phantom=phantom, owned={"data"})
-
-
-def context_of(exposure):
-    """The `~spherex_reduce.core.block.Context` of an exposure."""
-    return Context(exposure.schedule, exposure.order, exposure.is_ramp, exposure.unit,
-                   exposure.header, phantom=exposure.phantom is not None)
+def first_in_memory(kernel, position, source):
+    """Whether ``kernel`` can run at ``position`` of a pass over ``source``: a kernel whose
+    estimate needs the whole exposure (``needs_exposure``) must be the first of a pass
+    over an exposure in memory, or its estimate would see the pixels before the kernels
+    ahead of it."""
+    return not kernel.needs_exposure or (position == 0 and source.in_memory)
 
 
 def bands(nrows, rows_per_band):
@@ -252,7 +102,7 @@ def execute(source, kernels, consumer=None, *, threads=None, rows_per_band=None,
 
     Parameters
     ----------
-    source : `MemorySource` or `FileSource`
+    source : `~spherex_reduce.io.sources.Source`
         Where bands come from (``side()``, ``read(lo, hi)``, ``context``,
         ``header``, ``tables``, ``reference``, ``nrows``).
     kernels : list of `~spherex_reduce.reduce.step.Kernel`
@@ -291,12 +141,11 @@ def execute(source, kernels, consumer=None, *, threads=None, rows_per_band=None,
     t = spent(-1, t)
     coefficients = []
     for i, kernel in enumerate(kernels):
+        if not first_in_memory(kernel, i, source):
+            raise ValueError(f"{type(kernel).__name__} needs the whole exposure in memory, "
+                             "as the first kernel of a pass")
         if kernel.needs_exposure:
-            if i > 0 or getattr(source, "exposure", None) is None:
-                # its estimate would see the pixels before the kernels ahead of it
-                raise ValueError(f"{type(kernel).__name__} needs the whole exposure in memory, "
-                                 "as the first kernel of a pass")
-            c = kernel.prepare(side, source.exposure)
+            c = kernel.prepare(side, source.exposure())
         else:
             c = kernel.prepare(side)
         side = kernel.apply_side(c, side)
@@ -322,7 +171,7 @@ def execute(source, kernels, consumer=None, *, threads=None, rows_per_band=None,
 
     if rows_per_band is None:
         ncols = context.geometry.ncols
-        pixels = BAND_PIXELS * (MEMORY_BAND_FACTOR if isinstance(source, MemorySource) else 1)
+        pixels = BAND_PIXELS * (MEMORY_BAND_FACTOR if source.in_memory else 1)
         rows_per_band = max(1, pixels // ncols)
     cuts = bands(source.nrows, rows_per_band)
     nthreads = default_threads() if threads is None else max(1, int(threads))

@@ -27,7 +27,7 @@ from ..core import dq
 from ..core.errors import ConfigError
 from ..core.exposure import Exposure
 from ..core.limits import check_size
-from ..io import CheckedFITS, integration_count, write
+from ..io import write
 
 __all__ = [
     "INTEGRATION_IMAGES",
@@ -236,33 +236,41 @@ def reduce_integrations(path, pipeline, *, progress=False, threads=None):
     >>> r.slopes.shape, float(r.slopes[1, 0, 0].value), float(r.exposure.data.data[0, 0])
     ((2, 8, 8), 4.0, 3.0)
     """
-    with CheckedFITS(path) as f:
-        nint = integration_count(path)
-        if nint is None:  # let the reader say what the file is
-            f.exposure(integration=0, input=pipeline.input_options, **pipeline.supplied())
-        results = []
-        for k in range(nint):
-            ramps = f.exposure(integration=k, input=pipeline.input_options,
-                               **pipeline.supplied())
-            if k == 0:  # the per-integration images (and the mean), before fitting them all
-                check_size(nint * ramps.shape[-2] * ramps.shape[-1] * 40,
-                           f"the images of {nint} integrations of {path}")
-            results.append(pipeline.run(ramps, progress=progress, threads=threads))
-            _parts(results[-1], k)  # refuse ramps before fitting every integration
+    with pipeline.open(path) as inp:
+        if inp.integrations is None:  # let the reader say what the file is
+            inp.source(integration=0)
+        return _reduced(inp, pipeline, progress, threads)
+
+
+def _reduced(inp, pipeline, progress, threads):
+    """Each integration of an opened 4-D input through ``pipeline``, then combined."""
+    results = []
+    for k in range(inp.integrations):
+        ramps = inp.source(integration=k)
+        if k == 0:  # the per-integration images (and the mean), before fitting them all
+            nrows, ncols = ramps.exposure().shape[-2:]
+            check_size(inp.integrations * nrows * ncols * 40,
+                       f"the images of {inp.integrations} integrations of {inp.label}")
+        results.append(pipeline.run(ramps, progress=progress, threads=threads))
+        _parts(results[-1], k)  # refuse ramps before fitting every integration
     return combine_integrations(results)
 
 
-def reduce_input(pipeline, path, *, progress=False, threads=None):
-    """Reduce one file, as ``spherex-reduce reduce`` does, whatever its layout.
+def reduce_input(what, pipeline, *, progress=False, threads=None):
+    """Reduce one input, as ``spherex-reduce reduce`` does, whatever its layout.
 
-    A file with a 4-D ``SCI`` is reduced by `reduce_integrations`; any other
-    by `Pipeline.run <spherex_reduce.Pipeline.run>`, streamed from the file.
+    The input is opened once by `~spherex_reduce.io.sources.open_input`: a
+    file with a 4-D ``SCI`` has each integration reduced and combined (as
+    `reduce_integrations`); any other input (a raw or reduced file, the files
+    of a ramp stored one per read, an exposure) goes through
+    `Pipeline.run <spherex_reduce.Pipeline.run>`, streamed where it can be.
 
     Parameters
     ----------
+    what : path, sequence of paths, `~spherex_reduce.Exposure` ...
+        The input (anything `~spherex_reduce.io.sources.open_input` takes);
+        never changed.
     pipeline : `~spherex_reduce.Pipeline`
-    path : str or `pathlib.Path`
-        The input; never changed.
     progress : bool
         Show progress bars.
     threads : int, optional
@@ -274,10 +282,11 @@ def reduce_input(pipeline, path, *, progress=False, threads=None):
         The result (for several integrations, their mean).
     images : dict
         The extra image extensions to write with it (`Integrations.images`:
-        ``INTSLOPE``, ``INTERR``, ``INTDQ``), empty for a file of one ramp:
+        ``INTSLOPE``, ``INTERR``, ``INTDQ``), empty for one ramp:
         ``write(exposure, output, images=images)``.
     """
-    if integration_count(path) is not None:
-        result = reduce_integrations(path, pipeline, progress=progress, threads=threads)
-        return result.exposure, result.images()
-    return pipeline.run(path, progress=progress, threads=threads), {}
+    with pipeline.open(what) as inp:
+        if inp.integrations is None:
+            return pipeline.run(inp.source(), progress=progress, threads=threads), {}
+        result = _reduced(inp, pipeline, progress, threads)
+    return result.exposure, result.images()

@@ -10,9 +10,8 @@ from astropy.io import fits
 from tqdm.auto import tqdm
 
 from .._version import __version__
-from ..core.errors import ConfigError, SpherexReduceError, StepSkipped
-from ..core.exposure import Exposure
-from ..io import FrameReader, is_raw_ramp_file, read
+from ..core.errors import ConfigError, SpherexReduceError
+from ..io import read
 from ..io.config import (
     GEOMETRY_PARAMETERS,
     READOUT_PARAMETERS,
@@ -22,9 +21,9 @@ from ..io.config import (
     section_values,
 )
 from ..io.input import InputOptions
-from .executor import FileSource, MemorySource, execute
+from ..io.sources import MemorySource, open_input
+from .passes import PlannedStep, Whole, plan_pass, run_pass
 from .plugins import Registry, blame_plugin
-from .step import Step
 
 __all__ = ["Pipeline", "as_pipeline"]
 
@@ -174,20 +173,25 @@ class Pipeline:
 
         Consecutive steps that have kernels (``unchop``, ``subtract_phantom``,
         ``correct_reference`` with a streaming strategy, a plugin's) run in one
-        pass of the executor (`spherex_reduce.reduce.executor`), ending in a step that
-        consumes bands (``fit_ramp``) if one follows: a raw file is then read
-        once, a band of rows of every frame at a time, and memory stays near
-        the output plus a few bands.  Other steps run on the whole exposure.
-        The numbers are those of the steps run one by one, bit for bit.
+        pass of the executor (`spherex_reduce.reduce.passes`), ending in a step
+        that consumes bands (``fit_ramp``) if one follows: a raw file is then
+        read once, a band of rows of every frame at a time, and memory stays
+        near the output plus a few bands.  Other steps run on the whole
+        exposure.  The numbers are those of the steps run one by one, bit for bit.
 
         Parameters
         ----------
-        exposure : `Exposure`, path, or an open reader
-            The input, never modified: a path is read as :meth:`read` does; an
-            open reader of raw ramps (`~spherex_reduce.io.FrameReader`, or
-            `~spherex_reduce.io.read_files.ReadFiles` for one file per read) is
-            read in bands, or whole when a pass cannot stream it (the caller
-            closes it).
+        exposure : `Exposure`, path, sequence of paths, or an open reader or source
+            The input, never modified, opened by
+            `~spherex_reduce.io.sources.open_input` with this config's
+            ``input:``, ``geometry:`` and ``readout:`` sections: a path is read
+            as :meth:`read` does (streamed when it can be); a sequence of paths
+            (or a glob) is one ramp stored as one file per read; an open reader
+            of raw ramps (`~spherex_reduce.io.FrameReader`, or
+            `~spherex_reduce.io.read_files.ReadFiles`) is read in bands, or
+            whole when a pass cannot stream it (the caller closes it).  A file
+            of several integrations is reduced by
+            `~spherex_reduce.reduce_integrations`.
         progress : bool
             Show progress bars (steps, and rows of a pass).
         threads : int, optional
@@ -204,11 +208,12 @@ class Pipeline:
         ------
         PluginError
             An installed plugin's code failed (other than with a
-            `~spherex_reduce.core.errors.SpherexReduceError`); the message names the
+            `~spherex_reduce.errors.SpherexReduceError`); the message names the
             plugin, its distribution and the step.
         """
         try:
-            return self._run(exposure, progress, threads)
+            with self.open(exposure) as inp:
+                result = _Run(self, self._planned(threads), progress, threads).on(inp.source())
         except SpherexReduceError:
             raise
         except (Exception, SystemExit) as exc:
@@ -216,204 +221,107 @@ class Pipeline:
             if blame is None:
                 raise
             raise blame from exc
+        return self._stamped(result)
 
-    def _steps(self, threads):
-        sections = {key: dict(self._config[key]) for key in ("geometry", "readout")
-                    if self._config.get(key)}
-        steps = []
-        for name, params in self.steps:
-            step = self.registry.step(name)(self.registry, threads=threads)
-            step.file_sections = sections
-            steps.append((name, params, step))
-        return steps
+    def open(self, what):
+        """Open an input with this config's sections (`~spherex_reduce.io.sources.open_input`)."""
+        return open_input(what, input=self.input_options, **self.supplied())
 
-    def _run(self, exposure, progress, threads):
-        steps = self._steps(threads)
-        current = self._run_steps(exposure, steps, progress, threads)
-        header = current.header.copy()
+    def _planned(self, threads):
+        supplied = self.supplied()
+        return [PlannedStep(i, name, params,
+                            self.registry.step(name)(self.registry, threads=threads,
+                                                     supplied=supplied))
+                for i, (name, params) in enumerate(self.steps)]
+
+    def _stamped(self, result):
+        header = result.header.copy()
         header["SXRVERS"] = (__version__, "spherex_reduce version")
         header["SXRCONF"] = (self.config_hash, "SHA-256 of the effective pipeline config")
         header.add_history(f"pipeline {self.source}: "
                            + json.dumps(self._config, sort_keys=True, default=str))
-        return current.replace(header=header)
+        return result.replace(header=header)
 
-    def _run_steps(self, exposure, steps, progress, threads):
-        """Run ``steps`` (``(name, params, step)``) on an exposure or a file, pass by pass."""
-        current, i = exposure, 0
-        status = {}  # step index -> 'COMPLETE' or 'SKIPPED'
+
+class _Run:
+    """One run of a list of steps: what each step did (``status``), progress, threads.
+
+    `on` loops over what `~spherex_reduce.reduce.passes.plan_pass` plans:
+    passes through the executor and steps run whole; every step's hooks and
+    provenance go through `_started` and `_recorded`.
+    """
+
+    def __init__(self, pipeline, steps, progress, threads):
+        self.pipeline, self.steps = pipeline, steps
+        self.progress, self.threads = progress, threads
+        self.status = {}  # step index -> 'COMPLETE' or 'SKIPPED'
+
+    def on(self, source):
+        """Run the steps on ``source`` (a `~spherex_reduce.io.sources.Source`); the result."""
+        i = 0
         # shown after a second: a bad input is refused before any bar is drawn
-        bar = tqdm(total=len(steps), desc="reduce", unit="step", disable=not progress,
-                   leave=False, delay=1.0)
+        bar = tqdm(total=len(self.steps), desc="reduce", unit="step",
+                   disable=not self.progress, leave=False, delay=1.0)
         with bar:
-            while i < len(steps):
-                done, current = self._pass(current, steps, i, status, progress, threads)
-                if done == i:  # no kernel: the step on the whole exposure
-                    current = self._whole(current, steps, i, status, progress, threads)
-                    done = i + 1
-                bar.update(done - i)
-                i = done
-        return self._loaded(current)
+            while i < len(self.steps):
+                plan = plan_pass(self.steps, i, source, self.threads)
+                if isinstance(plan, Whole):
+                    result, end = self._whole(source.exposure(), plan.planned), i + 1
+                else:
+                    result, end = self._pass(source, plan), plan.end
+                bar.update(end - i)
+                i = end
+                source = MemorySource(result)
+        return source.exposure()
 
-    @staticmethod
-    def _is_reader(current):
-        """An open reader of raw ramps (`~spherex_reduce.io.FrameReader`, ``ReadFiles``)."""
-        return hasattr(current, "reads") and hasattr(current, "exposure")
-
-    def _loaded(self, current):
-        """``current`` (an exposure, an open reader or a path) as an exposure in memory."""
-        if isinstance(current, Exposure):
-            return current
-        return current.exposure() if self._is_reader(current) else self.read(current)
-
-    def _source(self, current):
-        """Where a pass reads from: ``(source, reader, opened)``.
-
-        The source is the file in bands if it can be, else the exposure in memory;
-        the reader is what the bands come from (the whole file comes from it too if
-        the pass cannot stream); ``opened`` says the pipeline opened it (and closes it).
-        """
-        if isinstance(current, Exposure):
-            return MemorySource(current), None, False
-        if self._is_reader(current):
-            reader, opened = current, False
-        elif is_raw_ramp_file(current):
-            reader = FrameReader(current, input=self.input_options, **self.supplied())
-            opened = True
+    def _pass(self, source, plan):
+        before = source.exposure() if source.in_memory or not plan.runs else None
+        for planned in plan.members:
+            planned.step.started(before, planned.params)
+        if not plan.runs:  # only skipped steps (e.g. subtract_phantom without phantom values)
+            result, busy, route = before, {}, ""
         else:
-            return MemorySource(self.read(current)), None, False
-        if FileSource.usable(reader):
-            return FileSource(reader), reader, opened
-        try:  # read whole from the file already open and checked
-            return MemorySource(reader.exposure()), None, False
-        finally:
-            if opened:
-                reader.close()
-
-    def _pass(self, current, steps, i, status, progress, threads):
-        """Steps ``i, i+1, ...`` that have kernels (and a consumer after them) in one pass.
-
-        Returns the index of the first step not run and the result (``current``
-        itself if no step could run in a pass).
-        """
-        first = steps[i][2]
-        if first.inputs or (type(first).kernel is Step.kernel
-                            and type(first).consumer is Step.consumer):
-            return i, current
-        source, reader, opened = self._source(current)
-        try:
-            done, result = self._pass_on(source, current, steps, i, status, progress, threads)
-            if done == i and reader is not None:  # the step runs whole: on the file open here
-                result = reader.exposure()
-            return done, result
-        finally:
-            if opened:
-                reader.close()
-
-    def _plan(self, source, steps, i, threads=None):
-        """The kernels and consumer of the pass from step ``i``: ``(kernels, consumer,
-        members, skipped, end)``."""
-        context = source.context.replace(threads=threads)
-        kernels, consumer, members, skipped = [], None, [], {}
-        j = i
-        while j < len(steps):
-            _, params, step = steps[j]
-            if step.inputs:
-                break
-            try:
-                kernel = step.kernel(context, **params)
-                consumer = None if kernel is not None else step.consumer(context, **params)
-            except StepSkipped as skip:
-                skipped[j] = skip.reason
-                members.append(j)
-                j += 1
-                continue
-            if kernel is not None:
-                if kernel.needs_exposure and (kernels or not isinstance(source, MemorySource)):
-                    break  # its prepare needs the exposure as it comes to it, in memory
-                kernels.append(kernel)
-                context = kernel.output
-                members.append(j)
-                j += 1
-                continue
-            if consumer is not None:
-                members.append(j)
-                j += 1
-            break
-        return kernels, consumer, members, skipped, j
-
-    def _pass_on(self, source, current, steps, i, status, progress, threads):
-        kernels, consumer, members, skipped, j = self._plan(source, steps, i, threads)
-        if not kernels and consumer is None:
-            if not members:  # the step runs whole: on what was read, if it was
-                return i, (source.exposure if isinstance(source, MemorySource) else current)
-            # only skipped steps (e.g. subtract_phantom without phantom values)
-            if not isinstance(current, Exposure):
-                current = (source.exposure if isinstance(source, MemorySource)
-                           else self._loaded(current))
-            for k in members:
-                self.registry.pm.hook.before_step(step=steps[k][2], exposure=current,
-                                                  params=steps[k][1])
-            return j, self._record_pass(current, steps, members, skipped, {}, status, "",
-                                        current)
-        hook = self.registry.pm.hook
-        before = source.exposure if isinstance(source, MemorySource) else None
-        for k in members:
-            hook.before_step(step=steps[k][2], exposure=before, params=steps[k][1])
-        timings = {}
-        rows = tqdm(total=source.nrows, desc="reduce rows", unit="row", disable=not progress,
-                    leave=False, delay=1.0)
-        with rows:
-            result = execute(source, kernels, consumer, threads=threads, progress=rows.update,
-                             timings=timings)
-        ran = [k for k in members if k not in skipped]
-        where = "a file" if isinstance(source, FileSource) else "memory"
-        route = (f"executor pass of {len(ran)} step(s): {timings['bands']} band(s) of rows "
-                 f"from {where} on {timings['threads']} thread(s)")
-        # each step's busy seconds (over threads); reading counts for the first
-        busy = dict(zip(ran, [*timings["kernels"], timings["consumer"]], strict=False))
-        busy[ran[0]] += timings["read"]
-        return j, self._record_pass(result, steps, members, skipped, busy, status, route,
-                                    before)
-
-    def _record_pass(self, result, steps, members, skipped, busy, status, route, before=None):
-        for k in members:
-            _, params, step = steps[k]
-            if k in skipped:
-                result = step.record(before, result, params, "SKIPPED", skipped[k], 0.0,
-                                     route="skipped")
-                status[k] = "SKIPPED"
+            rows = tqdm(total=source.nrows, desc="reduce rows", unit="row",
+                        disable=not self.progress, leave=False, delay=1.0)
+            with rows:
+                result, busy, route = run_pass(source, plan, threads=self.threads,
+                                               progress=rows.update)
+        for planned in plan.members:
+            reason = plan.skipped.get(planned.index)
+            if reason is not None:
+                result = planned.step.record(before, result, planned.params, "SKIPPED", reason,
+                                             0.0, route="skipped")
             else:
-                result = step.record(before, result, params, "COMPLETE", None,
-                                     busy.get(k, 0.0), route=route)
-                status[k] = "COMPLETE"
+                result = planned.step.record(before, result, planned.params, "COMPLETE", None,
+                                             busy.get(planned.index, 0.0), route=route)
+            self.status[planned.index] = "SKIPPED" if reason is not None else "COMPLETE"
         return result
 
-    def _whole(self, current, steps, i, status, progress, threads):
-        """Step ``i`` on the whole exposure, its declared inputs prepared by the pipeline."""
-        _, params, step = steps[i]
-        current = self._loaded(current)
+    def _whole(self, exposure, planned):
+        """A step on the whole exposure, its declared inputs prepared here."""
+        step, params = planned.step, planned.params
         inputs = {}
         for key in step.inputs:
             path = params.get(key)
-            reduces = getattr(step, "reduces_input", None)
-            if isinstance(path, str) and reduces is not None and reduces(key, params):
-                inputs[key] = self._same_stage(path, key, steps, i, status, progress,
-                                               threads, step)
-        result = step.apply_to(current, params, inputs=inputs)
-        status[i] = result.header.get(step.keyword, "COMPLETE")
+            if isinstance(path, str) and step.reduces_input(key, params):
+                inputs[key] = self._same_stage(path, key, planned)
+        result = step.apply_to(exposure, params, inputs=inputs)
+        self.status[planned.index] = result.header.get(step.keyword, "COMPLETE")
         return result
 
-    def _same_stage(self, path, key, steps, i, status, progress, threads, step):
-        """The file ``path`` with the steps before ``i`` that completed here and not there
-        (None: nothing to do, the step reads it as it is)."""
+    def _same_stage(self, path, key, planned):
+        """The file ``path`` with the steps before ``planned`` that completed here and not
+        there (None: nothing to do, the step reads it as it is)."""
         if not Path(path).is_file():
-            raise FileNotFoundError(f"{step.name}.{key}: no such file: {path}")
+            raise FileNotFoundError(f"{planned.step.name}.{key}: no such file: {path}")
         there = fits.getheader(path)
-        todo = [steps[k] for k in range(i) if status.get(k) == "COMPLETE"
-                and there.get(steps[k][2].keyword) != "COMPLETE"]
+        todo = [p for p in self.steps[:planned.index] if self.status.get(p.index) == "COMPLETE"
+                and there.get(p.step.keyword) != "COMPLETE"]
         if not todo:
             return None
-        return self._run_steps(path, todo, progress, threads)
+        todo = [PlannedStep(k, p.name, p.params, p.step) for k, p in enumerate(todo)]
+        with self.pipeline.open(path) as inp:
+            return _Run(self.pipeline, todo, self.progress, self.threads).on(inp.source())
 
 
 def as_pipeline(pipeline):

@@ -11,7 +11,8 @@ from typing import ClassVar
 from ..core.errors import StepSkipped, UnknownNameError
 from ..core.parameters import Parameter, validate_parameters
 from ..io import read
-from .executor import MemorySource, execute
+from ..io.sources import MemorySource
+from .passes import PlannedStep, Whole, plan_pass, run_pass
 from .provenance import record_step
 
 __all__ = ["Consumer", "Kernel", "Record", "Simulator", "Step", "Strategy"]
@@ -155,11 +156,17 @@ class Step:
         the step has no registry).
     inputs : tuple of str
         Parameters naming another exposure's FITS file (see :meth:`apply_to`).
-    file_sections : dict
-        The pipeline config's ``geometry:`` and ``readout:`` sections, set by
-        the `~spherex_reduce.Pipeline` on the steps it runs: supplied for
-        keywords that a file of :attr:`inputs` lacks, as the pipeline does for
-        its input.
+
+    Parameters
+    ----------
+    registry : `~spherex_reduce.reduce.plugins.Registry`, optional
+        Where strategies are looked up and whose hooks the step calls.
+    threads : int, optional
+        Bands corrected at once when the step runs through the executor.
+    supplied : dict, optional
+        The pipeline config's ``geometry:`` and ``readout:`` values, for
+        keywords that a file of :attr:`inputs` lacks (as the pipeline does for
+        its input).
 
     Examples
     --------
@@ -177,7 +184,6 @@ class Step:
     parameters: ClassVar[tuple] = ()
     strategy_kind: ClassVar[str | None] = None
     default_strategy: ClassVar[str | None] = None
-    file_sections: ClassVar[Mapping] = MappingProxyType({})
 
     #: parameters that name another exposure's FITS file (``pair_difference``'s
     #: ``other``, ``subtract_dark``'s ``dark``): read before :meth:`run`, which
@@ -187,9 +193,10 @@ class Step:
     #: strategies of :attr:`strategy_kind` the package provides (used without a registry)
     builtin_strategies: ClassVar[Mapping] = MappingProxyType({})
 
-    def __init__(self, registry=None, threads=None):
+    def __init__(self, registry=None, threads=None, supplied=None):
         self.registry = registry
         self.threads = threads
+        self.supplied = dict(supplied or {})
 
     def __call__(self, exposure, **params):
         """Run the step: validate ``params``, call the plugins' hooks, run, record provenance.
@@ -227,9 +234,7 @@ class Step:
                     given[name] = self.read_input(name, path)
             elif given.get(name) is not None:
                 labels[name] = "exposure given in memory"
-        hook = None if self.registry is None else self.registry.pm.hook
-        if hook is not None:
-            hook.before_step(step=self, exposure=exposure, params=params)
+        self.started(exposure, params)
         t0 = time.perf_counter()
         try:
             result = self.run(exposure, **{**params, **given})
@@ -242,13 +247,18 @@ class Step:
                            time.perf_counter() - t0, route="whole exposure",
                            inputs=labels)
 
+    def reduces_input(self, name, params):
+        """Whether the pipeline brings the file of input ``name`` to this step's stage first
+        (runs on it the steps before this one that completed here and not there); False
+        by default: the step reads the file as it is."""
+        return False
+
     def read_input(self, name, path):
         """Read the FITS file a parameter of :attr:`inputs` names (with the pipeline
         config's ``geometry:``/``readout:`` sections for keywords it lacks)."""
         if not Path(path).is_file():
             raise FileNotFoundError(f"{self.name}.{name}: no such file: {path}")
-        supplied = {k: v for section in self.file_sections.values() for k, v in section.items()}
-        return read(path, **supplied)
+        return read(path, **self.supplied)
 
     def input_card(self, name, label):
         """A header card ``(keyword, value, comment)`` naming the file of input ``name``,
@@ -264,6 +274,12 @@ class Step:
         for key, value, comment in cards:
             header[key] = (value, comment)
         return result.replace(header=header)
+
+    def started(self, exposure, params):
+        """Call the plugins' ``before_step`` hooks: the step is about to run on ``exposure``
+        (None when it runs inside a streamed pass over a file)."""
+        if self.registry is not None:
+            self.registry.pm.hook.before_step(step=self, exposure=exposure, params=params)
 
     def record(self, before, result, params, status, reason, elapsed, route, inputs=None):
         """``result`` with this step's provenance: status keyword, parameters, HISTORY, the
@@ -321,9 +337,6 @@ class Step:
         """``params`` checked against :meth:`declared`, defaults filled in (a new dict)."""
         return validate_parameters(params, self.declared(params, path), path or self.name)
 
-    #: bands corrected at once when the step runs through the executor (None: its default)
-    threads = None
-
     def kernel(self, context, **params):
         """The step's `Kernel` for blocks of ``context`` (a `~spherex_reduce.core.block.Context`),
         or None if it has none (then :meth:`run` works on whole exposures).
@@ -344,16 +357,17 @@ class Step:
         """Return a new exposure; never modify ``exposure``.
 
         The default runs the step's kernel or consumer on the whole exposure,
-        through the executor (one implementation for both routes).
+        through the executor, as a pipeline's pass of this one step (one
+        implementation for both routes).
         """
         source = MemorySource(exposure)
-        context = source.context.replace(threads=self.threads)
-        kernel = self.kernel(context, **params)
-        consumer = self.consumer(context, **params)
-        if kernel is None and consumer is None:
+        plan = plan_pass([PlannedStep(0, self.name, params, self)], 0, source, self.threads)
+        if isinstance(plan, Whole):
             raise NotImplementedError(f"step {self.name!r} has neither run, kernel nor consumer")
-        return execute(source, [] if kernel is None else [kernel], consumer,
-                       threads=self.threads)
+        if plan.skipped:
+            raise StepSkipped(plan.skipped[0])
+        return run_pass(source, plan, threads=self.threads)[0]
+
 
 class Strategy:
     """A variant of a step (e.g. the ``mean`` reference correction).

@@ -13,7 +13,8 @@ import numpy as np
 from astropy.table import Table
 
 from ...core import dq
-from ..executor import MemorySource, execute
+from ...io.sources import MemorySource
+from ..executor import execute
 from ..hookspecs import hookimpl
 from ..step import Kernel, Record, Step, Strategy
 from .reference_strategies import (

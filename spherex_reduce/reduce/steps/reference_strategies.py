@@ -19,7 +19,8 @@ from astropy.utils.exceptions import AstropyUserWarning
 from ...core.errors import SpherexReduceError
 from ...core.parameters import Parameter
 from ...core.source_mask import source_mask
-from ..executor import context_of, default_threads, side_block
+from ...io.sources import context_of, side_block
+from ..executor import default_threads
 from ..step import Strategy
 
 __all__ = [

@@ -20,13 +20,14 @@ from astropy.io import fits
 from astropy.table import Table
 
 from ..core.errors import FormatError
-from ..core.exposure import Exposure, ReferenceReads, expected_shape
-from ..core.limits import check_size
-from ..core.schedule import ReadoutSchedule, _card_text, header_keyword
+from ..core.exposure import Exposure, ReferenceReads
+from ..core.schedule import _card_text
+from .description import describe, image_shape, note_bad_checksums, sci_hdu
 from .fits_structure import _scan, _verify
 from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq
 from .input import InputOptions, apply_input
-from .layout import _RESERVED, _integration_shape
+from .layout import RESERVED
+from .pixels import physical
 
 __all__ = ["CheckedFITS", "checksum_policy", "integration_count", "is_raw_ramp_file",
            "open_checked", "read"]
@@ -66,7 +67,7 @@ def checksum_policy(verify=True):
         _VERIFY.reset(token)
 
 
-def _open(path, memmap, verify=None):
+def open_fits(path, memmap, verify=None):
     """Open a FITS file read-only after checking its structure and checksums.
 
     Returns ``(hdul, bad, plain)``: the astropy HDU list, the names of HDUs
@@ -117,85 +118,6 @@ def _check_cards(hdu, path):
                                   f"{card.keyword} = {value}, not a finite number")
 
 
-def _note_bad_checksums(header, bad, path):
-    """Record in ``header`` (in place) that HDUs ``bad`` of ``path`` failed their checksum."""
-    if not bad:
-        return
-    previous = str(header.get("SXRCKBAD", "")).strip()
-    header["SXRCKBAD"] = (",".join(filter(None, [previous, *bad]))[:68],
-                          "input HDUs whose checksum failed, read anyway")
-    header.add_history(f"checksum of {', '.join(bad)} in {Path(path).name} did not match; "
-                       "read anyway (checksum verification off)")
-
-
-def _sci(hdul, path):
-    """The HDU holding the pixels: ``SCI``, else the primary HDU if it has data."""
-    if "SCI" in [h.name for h in hdul]:
-        return hdul["SCI"]
-    if hdul[0].header.get("NAXIS", 0) > 0:
-        return hdul[0]
-    raise FormatError(f"{path} has no SCI extension and no primary data")
-
-
-def _shape(hdu):
-    """The shape of an image HDU from its header (numpy order; no data read)."""
-    return tuple(hdu.header[f"NAXIS{i}"] for i in range(hdu.header.get("NAXIS", 0), 0, -1))
-
-
-def _describe(hdul, path, supplied, bad=(), options=None, decided=(), integration=None):
-    """Validate an open file; return what every reader needs (no pixel data loaded).
-
-    ``options`` (`InputOptions`, the ``input:`` section) is applied: config
-    keywords fill or override the file's, the unit, the frames dropped
-    (``schedule`` is then that of the kept frames, ``drop`` their number)
-    and the gain per channel (``gain``, or None).  ``decided``: supplied keys
-    the caller sets whatever the file says (not compared with its keywords).
-    With ``integration``, ``SCI`` must be 4-D (integrations, groups, rows,
-    columns) and what is described is that integration's ramps.
-    """
-    options = InputOptions() if options is None else options
-    names = [h.name for h in hdul]
-    header = hdul[0].header.copy()
-    derived = options.reconcile(header, {k: v for k, v in supplied.items()
-                                         if k not in decided}, path)
-    sci = _sci(hdul, path)
-    shape = _integration_shape(_shape(sci), integration, path)
-    table = Table.read(hdul["READOUT"]) if "READOUT" in names else None
-    schedule = ReadoutSchedule.from_header(
-        header, table, **{k: v for k, v in supplied.items() if k not in derived})
-    options.check_derived(schedule, derived, supplied, path)
-    order = header_keyword(header, "ORDER", str, default="READOUT").strip().lower()
-    if order not in ("readout", "physical"):
-        raise FormatError(f"keyword ORDER must be READOUT or PHYSICAL, got {order!r}")
-    _check_shape(shape, schedule, order, "SCI")
-    if "PHANTOM" in names:
-        pshape = tuple(hdul["PHANTOM"].shape)
-        if integration is not None and len(pshape) == 4:  # one integration's, as SCI's
-            pshape = pshape[1:]
-        frames_reads = expected_shape(schedule, order, len(shape) == 3)[:-1]
-        expected = (*frames_reads, schedule.geometry.nchannels)
-        if pshape != expected:
-            raise FormatError(
-                f"PHANTOM has shape {pshape}, the schedule gives {expected} "
-                "(frames, reads, channels): check NFRAMES, NCHAN and the read order keywords"
-            )
-    elif schedule.phantom_reads and order == "readout":
-        raise FormatError(f"NPHANT={schedule.phantom_reads} but the file has no PHANTOM extension")
-    bunit = header_keyword(header if "BUNIT" in header else sci.header, "BUNIT", str,
-                           default=None)
-    unit = options.unit_of(bunit, header, path)
-    drop, kept = options.frames(header, schedule, len(shape) == 3, path)
-    gain, unit = options.gains(unit, header, schedule.geometry.nchannels, path)
-    for key in ("CHECKSUM", "DATASUM", "ORDER", "NEXTEND"):
-        header.remove(key, ignore_missing=True)
-    _note_bad_checksums(header, bad, path)
-    if integration is not None:
-        header["SXRINT"] = (integration, "integration of the input's 4-D SCI (from 0)")
-    return {"names": names, "header": header, "sci": sci, "shape": shape,
-            "schedule": schedule, "order": order, "unit": unit, "kept": kept, "drop": drop,
-            "gain": gain}
-
-
 def _readonly(*arrays):
     for array in arrays:
         if array is not None:  # the file's own pages: a step must never write into them
@@ -219,7 +141,7 @@ class CheckedFITS:
 
     def __init__(self, path, verify_checksum=None, memmap=True):
         self.path, self._name = Path(path), path  # messages name the path as given
-        self.hdul, self.bad, self._plain = _open(path, memmap, verify_checksum)
+        self.hdul, self.bad, self._plain = open_fits(path, memmap, verify_checksum)
 
     def __enter__(self):
         return self
@@ -237,18 +159,18 @@ class CheckedFITS:
         ``dq_bits``, ``input``, ``integration`` and ``supplied`` (the readout
         parameters) are as for `read`.
         """
-        return _exposure(self.hdul, self._name, self.bad, self._plain, supplied, dq_bits,
+        return exposure_from_hdul(self.hdul, self._name, self.bad, self._plain, supplied, dq_bits,
                          input, integration)
 
     def physical(self, hdu):
         """The data of image HDU ``hdu`` in physical values (``BSCALE``/``BZERO``
         applied, ``BLANK`` as NaN; as stored if unscaled), or None if it has none."""
-        return _physical(hdu, self._name, self._plain)
+        return physical(hdu, self._name, self._plain)
 
     def note_bad_checksums(self, header):
         """Record in ``header`` (changed in place) which HDUs failed their checksum:
         ``SXRCKBAD`` and a ``HISTORY`` card, as `read` does; nothing if none did."""
-        _note_bad_checksums(header, self.bad, self._name)
+        note_bad_checksums(header, self.bad, self._name)
 
 
 def open_checked(path, verify_checksum=None):
@@ -375,11 +297,12 @@ def read(path, verify_checksum=None, dq_bits=None, input=None, integration=None,
         return f.exposure(dq_bits=dq_bits, input=input, integration=integration, **supplied)
 
 
-def _exposure(hdul, path, bad, plain, supplied, dq_bits=None, options=None, integration=None):
-    """The `Exposure` in an HDU list opened by `_open` (which the caller closes)."""
+def exposure_from_hdul(hdul, path, bad, plain, supplied, dq_bits=None, options=None,
+                       integration=None):
+    """The `Exposure` in an HDU list opened by `open_fits` (which the caller closes)."""
     options = InputOptions.from_config(options)
-    d = _describe(hdul, path, supplied, bad, options, integration=integration)
-    names = d["names"]
+    d = describe(hdul, path, supplied, bad, options, integration=integration)
+    names = d.names
     if dq_bits is None:
         dq_bits = options.dq_bits
 
@@ -387,17 +310,17 @@ def _exposure(hdul, path, bad, plain, supplied, dq_bits=None, options=None, inte
         if name not in names:
             return None
         hdu = hdul[name]
-        index = integration if integration is not None and len(_shape(hdu)) == 4 else None
-        return _physical(hdu, path, plain, flags, index)
+        index = integration if integration is not None and len(image_shape(hdu)) == 4 else None
+        return physical(hdu, path, plain, flags, index)
 
-    data = _physical(d["sci"], path, plain, index=integration)
+    data = physical(d.sci, path, plain, index=integration)
     err, mask, phantom = image("ERR"), image("DQ", flags=True), image("PHANTOM")
     bits = foreign_bits(dq_bits)  # checked even if unused
     if mask is not None:  # a DQ from other software: its bits are not ours
         bits = None if is_own_file(names) else bits
-        mask = file_flags(mask, d["shape"], d["schedule"], d["order"], bits, path)
+        mask = file_flags(mask, d.shape, d.schedule, d.order, bits, path)
         if bits is not None:
-            note_foreign_dq(d["header"], bits, path)
+            note_foreign_dq(d.header, bits, path)
     reference = None
     if "REFPIX" in names:
         rt = Table.read(hdul["REFREADS"])
@@ -411,89 +334,13 @@ def _exposure(hdul, path, bad, plain, supplied, dq_bits=None, options=None, inte
     tables = {
         h.name: Table.read(h)
         for h in hdul
-        if isinstance(h, fits.BinTableHDU) and h.name not in _RESERVED
+        if isinstance(h, fits.BinTableHDU) and h.name not in RESERVED
     }
     data, err, mask, phantom = apply_input(d, data, err, mask, phantom)
     _readonly(data, err, mask, phantom)
-    return Exposure.from_arrays(data, d["kept"], unit=d["unit"], uncertainty=err, mask=mask,
-                                phantom=phantom, header=d["header"], order=d["order"],
+    return Exposure.from_arrays(data, d.kept, unit=d.unit, uncertainty=err, mask=mask,
+                                phantom=phantom, header=d.header, order=d.order,
                                 reference=reference, tables=tables)
-
-
-_FLOAT_FOR = {8: "f4", 16: "f4", 32: "f8", 64: "f8", -32: "f4", -64: "f8"}
-_FITS_DTYPES = {8: "u1", 16: ">i2", 32: ">i4", 64: ">i8", -32: ">f4", -64: ">f8"}  # as stored
-
-
-def _scaling(hdu, path):
-    """``(bscale, bzero, blank)`` of an image HDU, checked, or None if its values are stored
-    as they are."""
-    h = hdu.header
-    if not any(key in h for key in ("BSCALE", "BZERO", "BLANK")):
-        return None
-    try:
-        bscale = header_keyword(h, "BSCALE", float, default=1.0)
-        bzero = header_keyword(h, "BZERO", float, default=0.0)
-        blank = header_keyword(h, "BLANK", int, default=None) if h["BITPIX"] > 0 else None
-    except FormatError as exc:
-        raise FormatError(f"{path}: HDU {hdu.name!r}: {exc}") from exc
-    if bscale == 0:
-        raise FormatError(f"{path}: HDU {hdu.name!r} has BSCALE = 0")
-    if bscale == 1 and bzero == 0 and blank is None:
-        return None
-    return bscale, bzero, blank
-
-
-def _to_physical(stored, scale, dtype):
-    """``BZERO + BSCALE * stored`` (``BLANK`` -> NaN) as a new array of ``dtype``."""
-    bscale, bzero, blank = scale
-    out = stored.astype(dtype)
-    if out.dtype.kind in "iu":  # flags: integer offsets only (checked by the caller)
-        out += int(bzero)
-        return out
-    if bscale != 1:
-        out *= bscale
-    if bzero:
-        out += bzero
-    if blank is not None:
-        out[stored == blank] = np.nan
-    return out
-
-
-def _physical(hdu, path, plain, flags=False, index=None):
-    """The data of an image HDU in physical values (``data[index]`` if ``index`` is given).
-
-    Unscaled data come as astropy gives them (memory-mapped if the file is).
-    Scaled data are converted here from the stored values (astropy refuses
-    to scale a memory-mapped image): floating point, or 64-bit integers for
-    flags (``DQ``), whose ``BSCALE`` must be 1 and ``BZERO`` whole.
-    """
-    if hdu.header.get("NAXIS", 0) == 0:
-        return None
-    scale = _scaling(hdu, path)
-    if scale is None:
-        return hdu.data if index is None else hdu.data[index]
-    bitpix = hdu.header["BITPIX"]
-    if flags:
-        if bitpix < 0 or scale[0] != 1 or scale[1] != int(scale[1]):
-            raise FormatError(f"{path}: HDU {hdu.name!r} holds flags, which must be integers; "
-                              f"it has BITPIX = {bitpix}, BSCALE = {scale[0]}, "
-                              f"BZERO = {scale[1]}")
-        dtype = np.dtype("i8")
-    else:
-        dtype = np.dtype(_FLOAT_FOR[bitpix])
-    shape = tuple(hdu.shape)
-    part = shape if index is None else shape[1:]
-    check_size(int(np.prod(part, dtype=float)) * dtype.itemsize,
-               f"HDU {hdu.name!r} of {path} {part} scaled to {dtype}")
-    if not plain or isinstance(hdu, fits.CompImageHDU):  # astropy unpacks and scales
-        data = np.asarray(hdu.data)
-        return (data if index is None else data[index]).astype(dtype)
-    stored = np.memmap(path, dtype=_FITS_DTYPES[bitpix], mode="r",
-                       offset=hdu.fileinfo()["datLoc"], shape=shape)
-    try:
-        return _to_physical(stored if index is None else stored[index], scale, dtype)
-    finally:
-        del stored
 
 
 def is_raw_ramp_file(path):
@@ -549,25 +396,7 @@ def integration_count(path):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             with fits.open(path, memmap=False, lazy_load_hdus=True) as hdul:
-                shape = _shape(_sci(hdul, path))
+                shape = image_shape(sci_hdu(hdul, path))
         return shape[0] if len(shape) == 4 else None
     except (OSError, KeyError, IndexError, ValueError):  # FormatError is a ValueError
         return None
-
-
-def _check_shape(shape, schedule, order, name):
-    if len(shape) not in (2, 3):
-        raise FormatError(f"{name} must be 2-D (an image), 3-D (groups, rows, columns) or 4-D "
-                          f"(integrations, groups, rows, columns), got shape {shape}")
-    expected = expected_shape(schedule, order, len(shape) == 3)
-    if shape == expected:
-        return
-    labels = ["frames (NFRAMES)"] if len(shape) == 3 else []
-    labels += ["reads (NROWS, REFBORD, NREFRD, REFMODE)" if order == "readout" else
-               "rows (NROWS)", "columns (NCOLS)"]
-    for axis, (got, want, label) in enumerate(zip(shape, expected, labels, strict=True)):
-        if got != want:
-            raise FormatError(
-                f"{name} has shape {shape} but the header keywords give {expected}: axis {axis}, "
-                f"{label}, is {got}, expected {want}"
-            )

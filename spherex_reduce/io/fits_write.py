@@ -25,7 +25,7 @@ from astropy.table import Table
 
 from .atomic import atomic_output
 from .fits_structure import _BLOCK, _checksum_text, _DataSum
-from .layout import _RESERVED, _unit_str
+from .layout import RESERVED, _unit_str
 
 __all__ = ["write", "write_frames"]
 
@@ -126,7 +126,7 @@ def write(exposure, path, overwrite=False, images=None):
         times = exposure.schedule.start_times[ref.reads]
         hdus.append(_table_hdu(Table({"read": ref.reads, "row": ref.rows, "time": times}),
                                "REFREADS"))
-    taken = set(_RESERVED)
+    taken = set(RESERVED)
     for name, array in (images or {}).items():
         values, extra_unit = _value_unit(array)
         hdus.append(_image(values, _extra(name, taken, "image"), extra_unit))

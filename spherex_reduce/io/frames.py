@@ -10,23 +10,16 @@ from astropy.table import Table
 
 from ..core.errors import FormatError
 from ..core.exposure import Exposure
-from .fits_read import (
-    _FITS_DTYPES,
-    _FLOAT_FOR,
-    _describe,
-    _exposure,
-    _open,
-    _physical,
-    _scaling,
-    _to_physical,
-)
+from .description import describe
+from .fits_read import exposure_from_hdul, open_fits
 from .input import InputOptions, apply_gain, apply_input
-from .layout import _RESERVED
+from .layout import RESERVED
+from .pixels import FITS_DTYPES, FLOAT_FOR, physical, scaling, to_physical
 
 __all__ = ["FrameReader"]
 
 
-class _Closing:
+class Closing:
     """``with reader:`` closes the reader's files at the end of the block."""
 
     def __enter__(self):
@@ -37,7 +30,7 @@ class _Closing:
         return False
 
 
-class FrameReader(_Closing):
+class FrameReader(Closing):
     """Read a raw ramp file by reads of every frame (or by frames), never all of it at once.
 
     The executor (`spherex_reduce.reduce.executor.FileSource`) reads bands of rows of
@@ -76,22 +69,22 @@ class FrameReader(_Closing):
         self.path = Path(path)
         self._map = None
         options = InputOptions.from_config(input)
-        self._hdul, bad, plain = _open(path, memmap=False, verify=verify_checksum)
+        self._hdul, bad, plain = open_fits(path, memmap=False, verify=verify_checksum)
         try:
-            d = _describe(self._hdul, path, supplied, bad, options)
-            if len(d["shape"]) != 3 or d["order"] != "readout" or "DQ" in d["names"] \
-                    or "ERR" in d["names"]:
+            d = describe(self._hdul, path, supplied, bad, options)
+            if len(d.shape) != 3 or d.order != "readout" or "DQ" in d.names \
+                    or "ERR" in d.names:
                 raise FormatError(f"{path} is not a raw ramp file in readout order")
             self._d = d
-            self.schedule, self.header, self.unit = d["kept"], d["header"], d["unit"]
-            self._drop, self._gain = d["drop"], d["gain"]
-            phantom = (np.asarray(_physical(self._hdul["PHANTOM"], path, plain))
-                       if "PHANTOM" in d["names"] else None)
+            self.schedule, self.header, self.unit = d.kept, d.header, d.unit
+            self._drop, self._gain = d.drop, d.gain
+            phantom = (np.asarray(physical(self._hdul["PHANTOM"], path, plain))
+                       if "PHANTOM" in d.names else None)
             self._phantom = apply_input(d, None, None, None, phantom)[3]
-            self._scale = _scaling(d["sci"], path)
+            self._scale = scaling(d.sci, path)
             self._tables = {h.name: Table.read(h) for h in self._hdul
-                            if isinstance(h, fits.BinTableHDU) and h.name not in _RESERVED}
-            self._map = _map_frames(d["sci"], path) if plain else None
+                            if isinstance(h, fits.BinTableHDU) and h.name not in RESERVED}
+            self._map = map_frames(d.sci, path) if plain else None
         except Exception:
             self._hdul.close()
             raise
@@ -105,7 +98,7 @@ class FrameReader(_Closing):
         """The whole file as the `Exposure` `~spherex_reduce.io.read` gives, from the file
         already open and checked (not opened or verified again)."""
         bad, plain, supplied, options = self._opened
-        return _exposure(self._hdul, self.path, bad, plain, supplied, options=options)
+        return exposure_from_hdul(self._hdul, self.path, bad, plain, supplied, options=options)
 
     def scale(self, values):
         """``values`` (reads ``(..., columns)`` as `reads` gives them) multiplied in place
@@ -133,9 +126,9 @@ class FrameReader(_Closing):
         """Frame ``k`` as a one-frame `Exposure` (schedule with ``nframes=1``)."""
         k += self._drop
         if self._map is None:  # compressed: astropy unpacks (and scales) the section
-            data = np.asarray(self._d["sci"].section[k : k + 1])
+            data = np.asarray(self._d.sci.section[k : k + 1])
             if data.dtype.kind in "iu":
-                data = data.astype(_FLOAT_FOR[self._d["sci"].header["BITPIX"]])
+                data = data.astype(FLOAT_FOR[self._d.sci.header["BITPIX"]])
         else:
             data = self._mapped_frame(k)
         data = self.scale(data)
@@ -169,7 +162,7 @@ class FrameReader(_Closing):
             ``(stop - first, columns)``, possibly big-endian.
         """
         mm, offset, dtype, fd = self._map
-        nreads, ncols = self._d["shape"][1:]
+        nreads, ncols = self._d.shape[1:]
         k += self._drop
         pos = offset + (k * nreads + first) * ncols * dtype.itemsize
         if not hasattr(os, "preadv"):  # (Windows) from the map, then release its pages
@@ -177,7 +170,7 @@ class FrameReader(_Closing):
             buf = np.frombuffer(mm, dtype, count=count, offset=pos).reshape(-1, ncols).copy()
             self._release(pos, count * dtype.itemsize)
             return buf
-        return _pread(fd, np.empty((stop - first, ncols), dtype), pos,
+        return pread_into(fd, np.empty((stop - first, ncols), dtype), pos,
                       f"{self.path}: the file ends inside frame {k}")
 
     def _release(self, start, nbytes):
@@ -196,20 +189,20 @@ class FrameReader(_Closing):
         they stay in the page cache, but the resident memory stays near one frame.
         """
         mm, offset, dtype, _ = self._map
-        shape = self._d["shape"][1:]
+        shape = self._d.shape[1:]
         count = int(np.prod(shape))
         start = offset + k * count * dtype.itemsize
         view = np.frombuffer(mm, dtype=dtype, count=count, offset=start).reshape(shape)
         if self._scale is None:
             data = view.astype(view.dtype.newbyteorder("="))
         else:  # BZERO + BSCALE * stored, in floating point
-            data = _to_physical(view, self._scale, _FLOAT_FOR[self._d["sci"].header["BITPIX"]])
+            data = to_physical(view, self._scale, FLOAT_FOR[self._d.sci.header["BITPIX"]])
         del view
         self._release(start, count * dtype.itemsize)
         return data[None]
 
 
-def _pread(fd, buf, pos, short):
+def pread_into(fd, buf, pos, short):
     """Fill ``buf`` with the bytes of file ``fd`` from ``pos`` (``pread``: no file position
     moves, several threads may read at once); ``short`` is the error if the file ends first."""
     view = memoryview(buf).cast("B")
@@ -222,10 +215,10 @@ def _pread(fd, buf, pos, short):
     return buf
 
 
-def _map_frames(hdu, path):
+def map_frames(hdu, path):
     """``(mmap, data offset, dtype, file descriptor)`` of an image HDU stored as it is on
     disk, or None (tile-compressed: read by sections).  ``dtype`` is the stored type:
-    scaling (`_scaling`) is the caller's.  The descriptor (kept open, the map's own
+    scaling (`scaling`) is the caller's.  The descriptor (kept open, the map's own
     file) serves `pread`.
 
     Reading frames from a memory map and converting them to native byte order
@@ -233,7 +226,7 @@ def _map_frames(hdu, path):
     arithmetic on big-endian arrays.
     """
     h = hdu.header
-    dtype = _FITS_DTYPES.get(h.get("BITPIX"))
+    dtype = FITS_DTYPES.get(h.get("BITPIX"))
     if dtype is None or isinstance(hdu, fits.CompImageHDU):  # astropy decompresses those
         return None
     dtype = np.dtype(dtype)

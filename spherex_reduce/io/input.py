@@ -319,15 +319,15 @@ def apply_gain(values, per_channel, geometry):
 
 
 def apply_input(d, data, err, mask, phantom):
-    """The arrays of a file described by `_describe` with its first frames dropped and its
+    """The arrays of a file described by `describe` with its first frames dropped and its
     gain applied (``input:``); the readers of bands (`FrameReader`) do the same."""
-    drop = d["drop"]
+    drop = d.drop
     if drop:
         data, err, mask, phantom = (None if a is None else a[drop:]
                                     for a in (data, err, mask, phantom))
-    gain = d["gain"]
+    gain = d.gain
     if gain is not None:
-        geometry = d["kept"].geometry
+        geometry = d.kept.geometry
         if data is not None:
             data = data * scale_columns(gain, geometry, data.dtype)
         if err is not None:

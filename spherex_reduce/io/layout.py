@@ -30,7 +30,7 @@ from astropy import units as u
 
 from ..core.errors import FormatError
 
-_RESERVED = {"PRIMARY", "SCI", "ERR", "DQ", "PHANTOM", "READOUT", "REFPIX", "REFPHANT", "REFDQ",
+RESERVED = {"PRIMARY", "SCI", "ERR", "DQ", "PHANTOM", "READOUT", "REFPIX", "REFPHANT", "REFDQ",
              "REFREADS"}
 
 
@@ -39,7 +39,7 @@ def _unit_str(unit):
     return "" if unit == u.one else unit.to_string()
 
 
-def _integration_shape(shape, integration, path):
+def integration_shape(shape, integration, path):
     """The shape of the ramps read: ``shape`` itself, or one integration's of a 4-D SCI."""
     if len(shape) == 4 and integration is None:
         raise FormatError(

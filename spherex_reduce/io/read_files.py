@@ -22,17 +22,12 @@ from astropy.table import Table
 from ..core.errors import FormatError
 from ..core.exposure import Exposure
 from ..core.limits import check_count, check_size
-from .fits_read import (
-    _FLOAT_FOR,
-    _describe,
-    _open,
-    _physical,
-    _scaling,
-    _to_physical,
-)
-from .frames import _Closing, _map_frames, _pread
+from .description import describe
+from .fits_read import open_fits
+from .frames import Closing, map_frames, pread_into
 from .input import InputOptions, apply_gain, apply_input
-from .layout import _RESERVED
+from .layout import RESERVED
+from .pixels import FLOAT_FOR, physical, scaling, to_physical
 
 __all__ = ["MAX_READ_FILES", "ReadFiles", "natural_key", "read_file_paths"]
 
@@ -95,7 +90,7 @@ class _ReadFile:
 
     def __init__(self, path, verify, supplied, tables=False, options=None):
         self.path = path
-        self.hdul, bad, self.plain = _open(path, memmap=False, verify=verify)
+        self.hdul, bad, self.plain = open_fits(path, memmap=False, verify=verify)
         self.map = None
         try:
             names = [h.name for h in self.hdul]
@@ -105,30 +100,30 @@ class _ReadFile:
                                   f"columns), its {'SCI' if 'SCI' in names else 'primary HDU'} "
                                   f"has {naxis} axes")
             try:
-                self.d = _describe(self.hdul, path, supplied, bad, options,
+                self.d = describe(self.hdul, path, supplied, bad, options,
                                    decided=("nframes",))
             except FormatError as exc:  # name the file: there are many
                 if str(path) in str(exc):
                     raise
                 raise FormatError(f"{path}: {exc}") from exc
-            if "DQ" in self.d["names"] or "ERR" in self.d["names"]:
+            if "DQ" in self.d.names or "ERR" in self.d.names:
                 raise FormatError(f"{path}: a file per read holds the pixels only (and "
                                   "optionally PHANTOM), not DQ or ERR")
-            sci = self.d["sci"]
-            self.scale = _scaling(sci, path)
+            sci = self.d.sci
+            self.scale = scaling(sci, path)
             self.bitpix = sci.header["BITPIX"]
             self.phantom = None
-            if "PHANTOM" in self.d["names"]:  # as a 3-D file's (FrameReader), in floats
+            if "PHANTOM" in self.d.names:  # as a 3-D file's (FrameReader), in floats
                 hdu = self.hdul["PHANTOM"]
-                self.phantom = np.array(_physical(hdu, path, self.plain))
+                self.phantom = np.array(physical(hdu, path, self.plain))
                 if self.phantom.dtype.kind != "f":
-                    self.phantom = self.phantom.astype(_FLOAT_FOR[hdu.header["BITPIX"]])
+                    self.phantom = self.phantom.astype(FLOAT_FOR[hdu.header["BITPIX"]])
             #: the file's tables (only if asked: the first file's are the exposure's)
             self.tables = ({h.name: Table.read(h) for h in self.hdul
-                            if isinstance(h, fits.BinTableHDU) and h.name not in _RESERVED}
+                            if isinstance(h, fits.BinTableHDU) and h.name not in RESERVED}
                            if tables else {})
             if self.plain and hasattr(os, "preadv"):
-                self.map = _map_frames(sci, path)
+                self.map = map_frames(sci, path)
             if self.map is not None:  # read with pread from one descriptor per file
                 mm, offset, stored, fd = self.map
                 mm.close()
@@ -140,16 +135,16 @@ class _ReadFile:
 
     def rows(self, first, stop, dtype):
         """Rows ``first:stop`` of the image as ``dtype`` (physical values, native order)."""
-        ncols = self.d["shape"][1]
+        ncols = self.d.shape[1]
         if self.map is None:  # compressed: astropy unpacks (and scales) the section
             # (the file is kept open; also without pread, e.g. on Windows)
-            return np.asarray(self.d["sci"].section[first:stop]).astype(dtype)
+            return np.asarray(self.d.sci.section[first:stop]).astype(dtype)
         _, offset, stored, fd = self.map
-        buf = _pread(fd, np.empty((stop - first, ncols), stored),
+        buf = pread_into(fd, np.empty((stop - first, ncols), stored),
                      offset + first * ncols * stored.itemsize,
                      f"{self.path}: the file ends inside the image")
         if self.scale is not None:
-            return _to_physical(buf, self.scale, dtype)
+            return to_physical(buf, self.scale, dtype)
         return buf.astype(dtype)
 
     def close(self):
@@ -159,7 +154,7 @@ class _ReadFile:
         self.hdul.close()
 
 
-class ReadFiles(_Closing):
+class ReadFiles(Closing):
     """A ramp stored as one FITS file per read, read a band of rows of every frame at a time.
 
     It offers what `~spherex_reduce.reduce.executor.FileSource` asks of a
@@ -231,19 +226,19 @@ class ReadFiles(_Closing):
                                              tables=not self._files, options=each))
                 self._check_like_first(self._files[-1])
             first = self._files[0]
-            self.schedule = first.d["schedule"].replace(nframes=len(paths))
-            self.order, self.unit = first.d["order"], first.d["unit"]
-            self.header = first.d["header"].copy()
+            self.schedule = first.d.schedule.replace(nframes=len(paths))
+            self.order, self.unit = first.d.order, first.d.unit
+            self.header = first.d.header.copy()
             self.header["NFRAMES"] = (len(paths), "frames up the ramp: one file per read")
             self.header.add_history(f"ramp of {len(paths)} files, one per read: "
                                     f"{paths[0].name} ... {paths[-1].name}")
-            self._gain = first.d["gain"]
+            self._gain = first.d.gain
             drop, self.schedule = options.frames(self.header, self.schedule, True, paths[0])
             for f in self._files[:drop]:  # the reads left out (input.drop_first_reads)
                 f.close()
             self._files, self.paths = self._files[drop:], paths[drop:]
             self.tables = first.tables
-            self._dtype = np.dtype(_FLOAT_FOR[first.bitpix])
+            self._dtype = np.dtype(FLOAT_FOR[first.bitpix])
             phantoms = [f.phantom for f in self._files]
             self.phantom = (None if phantoms[0] is None else  # the gain as a 3-D file's
                             apply_input(first.d, None, None, None, np.stack(phantoms))[3])
@@ -255,10 +250,10 @@ class ReadFiles(_Closing):
 
     def _check_like_first(self, f):
         first = self._files[0]
-        for what, got, want in (("shape", f.d["shape"], first.d["shape"]),
+        for what, got, want in (("shape", f.d.shape, first.d.shape),
                                 ("BITPIX", f.bitpix, first.bitpix),
-                                ("unit (BUNIT)", f.d["unit"], first.d["unit"]),
-                                ("ORDER", f.d["order"], first.d["order"]),
+                                ("unit (BUNIT)", f.d.unit, first.d.unit),
+                                ("ORDER", f.d.order, first.d.order),
                                 ("PHANTOM", f.phantom is not None, first.phantom is not None)):
             if got != want:
                 raise FormatError(f"{f.path}: {what} is {got}, but {first.path} has {want}: the "
@@ -302,7 +297,7 @@ class ReadFiles(_Closing):
 
     def exposure(self):
         """The whole ramp in memory as an `~spherex_reduce.Exposure` (checked to fit)."""
-        nrows, ncols = self._files[0].d["shape"]
+        nrows, ncols = self._files[0].d.shape
         shape = (self.nframes, nrows, ncols)
         check_size(float(np.prod(shape)) * self._dtype.itemsize,
                    f"a ramp of {self.nframes} files of {nrows} x {ncols}")

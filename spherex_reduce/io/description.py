@@ -1,0 +1,159 @@
+"""What a reader needs to know of a FITS file before reading pixels: `describe`.
+
+`describe` validates an open file against this package's layout
+(`spherex_reduce.io.layout`) and the ``input:`` section, and returns a
+`FileDescription`; every reader (`~spherex_reduce.io.read`,
+`~spherex_reduce.io.FrameReader`, ``ReadFiles``) starts from it.
+"""
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from astropy.io import fits
+from astropy.table import Table
+
+from ..core.errors import FormatError
+from ..core.exposure import expected_shape
+from ..core.fields import header_keyword
+from ..core.schedule import ReadoutSchedule
+from .input import InputOptions
+from .layout import integration_shape
+
+__all__ = ["FileDescription", "check_shape", "describe", "image_shape", "note_bad_checksums",
+           "sci_hdu"]
+
+
+@dataclass(frozen=True, eq=False)
+class FileDescription:
+    """A FITS file as `describe` found it (no pixel data loaded).
+
+    Attributes
+    ----------
+    names : list of str
+        The names of its HDUs.
+    header : `astropy.io.fits.Header`
+        The exposure's header (the primary header, reconciled with the config).
+    sci : HDU
+        The HDU holding the pixels.
+    shape : tuple of int
+        The pixels' shape (of one integration for a 4-D ``SCI``).
+    schedule : `~spherex_reduce.ReadoutSchedule`
+        The file's schedule.
+    order : str
+        ``'readout'`` or ``'physical'``.
+    unit : `astropy.units.Unit`
+        The unit after the ``input:`` section (electrons if a gain applies).
+    kept : `~spherex_reduce.ReadoutSchedule`
+        The schedule of the frames kept (``input: drop_first_reads``).
+    drop : int
+        Frames dropped at the start of the ramp.
+    gain : `numpy.ndarray` or None
+        Gain per channel to apply, or None.
+    """
+
+    names: list
+    header: fits.Header
+    sci: object
+    shape: tuple
+    schedule: ReadoutSchedule
+    order: str
+    unit: object
+    kept: ReadoutSchedule
+    drop: int
+    gain: object
+
+
+def note_bad_checksums(header, bad, path):
+    """Record in ``header`` (in place) that HDUs ``bad`` of ``path`` failed their checksum."""
+    if not bad:
+        return
+    previous = str(header.get("SXRCKBAD", "")).strip()
+    header["SXRCKBAD"] = (",".join(filter(None, [previous, *bad]))[:68],
+                          "input HDUs whose checksum failed, read anyway")
+    header.add_history(f"checksum of {', '.join(bad)} in {Path(path).name} did not match; "
+                       "read anyway (checksum verification off)")
+
+
+def sci_hdu(hdul, path):
+    """The HDU holding the pixels: ``SCI``, else the primary HDU if it has data."""
+    if "SCI" in [h.name for h in hdul]:
+        return hdul["SCI"]
+    if hdul[0].header.get("NAXIS", 0) > 0:
+        return hdul[0]
+    raise FormatError(f"{path} has no SCI extension and no primary data")
+
+
+def image_shape(hdu):
+    """The shape of an image HDU from its header (numpy order; no data read)."""
+    return tuple(hdu.header[f"NAXIS{i}"] for i in range(hdu.header.get("NAXIS", 0), 0, -1))
+
+
+def describe(hdul, path, supplied, bad=(), options=None, decided=(), integration=None):
+    """Validate an open file; return what every reader needs (`FileDescription`; no pixel
+    data loaded).
+
+    ``options`` (`InputOptions`, the ``input:`` section) is applied: config
+    keywords fill or override the file's, the unit, the frames dropped
+    (``schedule`` is then that of the kept frames, ``drop`` their number)
+    and the gain per channel (``gain``, or None).  ``decided``: supplied keys
+    the caller sets whatever the file says (not compared with its keywords).
+    With ``integration``, ``SCI`` must be 4-D (integrations, groups, rows,
+    columns) and what is described is that integration's ramps.
+    """
+    options = InputOptions() if options is None else options
+    names = [h.name for h in hdul]
+    header = hdul[0].header.copy()
+    derived = options.reconcile(header, {k: v for k, v in supplied.items()
+                                         if k not in decided}, path)
+    sci = sci_hdu(hdul, path)
+    shape = integration_shape(image_shape(sci), integration, path)
+    table = Table.read(hdul["READOUT"]) if "READOUT" in names else None
+    schedule = ReadoutSchedule.from_header(
+        header, table, **{k: v for k, v in supplied.items() if k not in derived})
+    options.check_derived(schedule, derived, supplied, path)
+    order = header_keyword(header, "ORDER", str, default="READOUT").strip().lower()
+    if order not in ("readout", "physical"):
+        raise FormatError(f"keyword ORDER must be READOUT or PHYSICAL, got {order!r}")
+    check_shape(shape, schedule, order, "SCI")
+    if "PHANTOM" in names:
+        pshape = tuple(hdul["PHANTOM"].shape)
+        if integration is not None and len(pshape) == 4:  # one integration's, as SCI's
+            pshape = pshape[1:]
+        frames_reads = expected_shape(schedule, order, len(shape) == 3)[:-1]
+        expected = (*frames_reads, schedule.geometry.nchannels)
+        if pshape != expected:
+            raise FormatError(
+                f"PHANTOM has shape {pshape}, the schedule gives {expected} "
+                "(frames, reads, channels): check NFRAMES, NCHAN and the read order keywords"
+            )
+    elif schedule.phantom_reads and order == "readout":
+        raise FormatError(f"NPHANT={schedule.phantom_reads} but the file has no PHANTOM extension")
+    bunit = header_keyword(header if "BUNIT" in header else sci.header, "BUNIT", str,
+                           default=None)
+    unit = options.unit_of(bunit, header, path)
+    drop, kept = options.frames(header, schedule, len(shape) == 3, path)
+    gain, unit = options.gains(unit, header, schedule.geometry.nchannels, path)
+    for key in ("CHECKSUM", "DATASUM", "ORDER", "NEXTEND"):
+        header.remove(key, ignore_missing=True)
+    note_bad_checksums(header, bad, path)
+    if integration is not None:
+        header["SXRINT"] = (integration, "integration of the input's 4-D SCI (from 0)")
+    return FileDescription(names, header, sci, shape, schedule, order, unit, kept, drop, gain)
+
+
+def check_shape(shape, schedule, order, name):
+    if len(shape) not in (2, 3):
+        raise FormatError(f"{name} must be 2-D (an image), 3-D (groups, rows, columns) or 4-D "
+                          f"(integrations, groups, rows, columns), got shape {shape}")
+    expected = expected_shape(schedule, order, len(shape) == 3)
+    if shape == expected:
+        return
+    labels = ["frames (NFRAMES)"] if len(shape) == 3 else []
+    labels += ["reads (NROWS, REFBORD, NREFRD, REFMODE)" if order == "readout" else
+               "rows (NROWS)", "columns (NCOLS)"]
+    for axis, (got, want, label) in enumerate(zip(shape, expected, labels, strict=True)):
+        if got != want:
+            raise FormatError(
+                f"{name} has shape {shape} but the header keywords give {expected}: axis {axis}, "
+                f"{label}, is {got}, expected {want}"
+            )

@@ -1,0 +1,92 @@
+"""Pixel values of FITS image HDUs: stored integers scaled to physical values.
+
+Integer data with ``BSCALE``/``BZERO``/``BLANK`` are converted here from the
+stored values (astropy refuses to scale a memory-mapped image); the readers of
+whole files (`spherex_reduce.io.fits_read`) and of bands
+(`spherex_reduce.io.frames`, `spherex_reduce.io.read_files`) share it.
+"""
+
+import numpy as np
+from astropy.io import fits
+
+from ..core.errors import FormatError
+from ..core.fields import header_keyword
+from ..core.limits import check_size
+
+__all__ = ["FITS_DTYPES", "FLOAT_FOR", "physical", "scaling", "to_physical"]
+
+#: the floating-point type each BITPIX is read as, and the type it is stored as
+FLOAT_FOR = {8: "f4", 16: "f4", 32: "f8", 64: "f8", -32: "f4", -64: "f8"}
+FITS_DTYPES = {8: "u1", 16: ">i2", 32: ">i4", 64: ">i8", -32: ">f4", -64: ">f8"}  # as stored
+
+
+def scaling(hdu, path):
+    """``(bscale, bzero, blank)`` of an image HDU, checked, or None if its values are stored
+    as they are."""
+    h = hdu.header
+    if not any(key in h for key in ("BSCALE", "BZERO", "BLANK")):
+        return None
+    try:
+        bscale = header_keyword(h, "BSCALE", float, default=1.0)
+        bzero = header_keyword(h, "BZERO", float, default=0.0)
+        blank = header_keyword(h, "BLANK", int, default=None) if h["BITPIX"] > 0 else None
+    except FormatError as exc:
+        raise FormatError(f"{path}: HDU {hdu.name!r}: {exc}") from exc
+    if bscale == 0:
+        raise FormatError(f"{path}: HDU {hdu.name!r} has BSCALE = 0")
+    if bscale == 1 and bzero == 0 and blank is None:
+        return None
+    return bscale, bzero, blank
+
+
+def to_physical(stored, scale, dtype):
+    """``BZERO + BSCALE * stored`` (``BLANK`` -> NaN) as a new array of ``dtype``."""
+    bscale, bzero, blank = scale
+    out = stored.astype(dtype)
+    if out.dtype.kind in "iu":  # flags: integer offsets only (checked by the caller)
+        out += int(bzero)
+        return out
+    if bscale != 1:
+        out *= bscale
+    if bzero:
+        out += bzero
+    if blank is not None:
+        out[stored == blank] = np.nan
+    return out
+
+
+def physical(hdu, path, plain, flags=False, index=None):
+    """The data of an image HDU in physical values (``data[index]`` if ``index`` is given).
+
+    Unscaled data come as astropy gives them (memory-mapped if the file is).
+    Scaled data are converted here from the stored values (astropy refuses
+    to scale a memory-mapped image): floating point, or 64-bit integers for
+    flags (``DQ``), whose ``BSCALE`` must be 1 and ``BZERO`` whole.
+    """
+    if hdu.header.get("NAXIS", 0) == 0:
+        return None
+    scale = scaling(hdu, path)
+    if scale is None:
+        return hdu.data if index is None else hdu.data[index]
+    bitpix = hdu.header["BITPIX"]
+    if flags:
+        if bitpix < 0 or scale[0] != 1 or scale[1] != int(scale[1]):
+            raise FormatError(f"{path}: HDU {hdu.name!r} holds flags, which must be integers; "
+                              f"it has BITPIX = {bitpix}, BSCALE = {scale[0]}, "
+                              f"BZERO = {scale[1]}")
+        dtype = np.dtype("i8")
+    else:
+        dtype = np.dtype(FLOAT_FOR[bitpix])
+    shape = tuple(hdu.shape)
+    part = shape if index is None else shape[1:]
+    check_size(int(np.prod(part, dtype=float)) * dtype.itemsize,
+               f"HDU {hdu.name!r} of {path} {part} scaled to {dtype}")
+    if not plain or isinstance(hdu, fits.CompImageHDU):  # astropy unpacks and scales
+        data = np.asarray(hdu.data)
+        return (data if index is None else data[index]).astype(dtype)
+    stored = np.memmap(path, dtype=FITS_DTYPES[bitpix], mode="r",
+                       offset=hdu.fileinfo()["datLoc"], shape=shape)
+    try:
+        return to_physical(stored if index is None else stored[index], scale, dtype)
+    finally:
+        del stored

@@ -1,0 +1,132 @@
+"""open_input, the one entry point for inputs: every layout gives the pixels astropy reads.
+
+Each input is built here from small arrays and written with astropy; the bands
+and side blocks a source serves are compared with numpy slices of what
+``astropy.io.fits`` reads from the same file (or of the array given).
+"""
+
+import hashlib
+
+import numpy as np
+import pytest
+from astropy.io import fits
+
+from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule, write
+from spherex_reduce.core.errors import FormatError
+from spherex_reduce.io import FrameReader
+from spherex_reduce.io.sources import FileSource, MemorySource, Source, open_input
+
+GEOMETRY = DetectorGeometry(16, 8, 2, ref_border=2, pixel_rate=1e5)
+
+
+def _schedule(nframes=4, **readout):
+    return ReadoutSchedule(GEOMETRY, **{"skip": 3, "ref_reads": 4, "ref_mode": "repeated",
+                                        "phantom_reads": 0, "nframes": nframes, **readout})
+
+
+def _ramps(schedule, seed=3):
+    rng = np.random.default_rng(seed)
+    return rng.normal(100, 5, (schedule.nframes, schedule.n_reads, 8)).astype(np.float32)
+
+
+def _digest(path):
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+@pytest.fixture
+def raw(tmp_path):
+    s = _schedule()
+    path = tmp_path / "raw.fits"
+    write(Exposure.from_arrays(_ramps(s), s), path)
+    return path
+
+
+def test_an_exposure_is_served_as_views_of_its_arrays():
+    s = _schedule()
+    ramps = _ramps(s)
+    with open_input(Exposure.from_arrays(ramps, s)) as inp:
+        source = inp.source()
+        assert isinstance(source, MemorySource) and inp.integrations is None
+        band = source.read(2, 7)
+        np.testing.assert_array_equal(band.data, ramps[:, 2:7])
+        assert np.shares_memory(band.data, source.exposure().data.data)
+        side = source.side()
+        expected = np.flatnonzero(s.is_reference)
+        assert set(expected) <= set(side.index)
+        np.testing.assert_array_equal(side.data, ramps[:, side.index])
+
+
+def test_a_raw_file_is_read_in_bands_equal_to_astropys_pixels(raw):
+    before = _digest(raw)
+    stored = fits.getdata(raw, "SCI")
+    with open_input(raw) as inp:
+        source = inp.source()
+        assert isinstance(source, FileSource) and source.where == "a file"
+        for lo, hi in [(0, 1), (3, 9), (0, source.nrows)]:
+            np.testing.assert_array_equal(source.read(lo, hi).data, stored[:, lo:hi])
+        np.testing.assert_array_equal(source.exposure().data.data, stored)
+    assert _digest(raw) == before
+
+
+def test_a_scaled_integer_file_is_read_whole_in_physical_values(tmp_path):
+    s = _schedule()
+    ramps = np.round(_ramps(s)).astype(np.int16)
+    path = tmp_path / "int.fits"
+    header = s.to_header()
+    hdu = fits.ImageHDU(ramps, name="SCI")
+    hdu.header["BZERO"], hdu.header["BSCALE"] = 10.0, 2.0
+    fits.HDUList([fits.PrimaryHDU(header=header), hdu]).writeto(path)
+    stored = fits.getdata(path, "SCI")  # astropy applies BSCALE/BZERO
+    with open_input(path) as inp:
+        source = inp.source()
+        assert isinstance(source, MemorySource)  # scaled: not readable in bands
+        np.testing.assert_allclose(source.read(0, source.nrows).data, stored)
+
+
+def test_files_one_per_read_as_a_list_and_as_a_glob(tmp_path):
+    s = _schedule(nframes=3, skip=1, ref_mode="none")
+    ramps = _ramps(s)
+    header = s.to_header()
+    header["ORDER"] = "READOUT"
+    for k in range(3):
+        fits.PrimaryHDU(ramps[k], header).writeto(tmp_path / f"read_{k + 1}.fits")
+    paths = [tmp_path / f"read_{k + 1}.fits" for k in range(3)]
+    for given in (paths, str(tmp_path / "read_*.fits")):
+        with open_input(given) as inp:
+            source = inp.source()
+            assert source.nrows == s.n_reads
+            np.testing.assert_array_equal(source.read(0, source.nrows).data, ramps)
+
+
+def test_a_4d_file_gives_one_source_per_integration(tmp_path, raw):
+    stored = fits.getdata(raw, "SCI")
+    cube = np.stack([stored, stored * 2 + 1])
+    path = tmp_path / "uncal.fits"
+    with fits.open(raw) as hdul:
+        copies = fits.HDUList([h.copy() for h in hdul])
+        copies["SCI"].data = cube
+        copies.writeto(path, checksum=True)
+    with open_input(path) as inp:
+        assert inp.integrations == 2
+        for k in range(2):
+            np.testing.assert_array_equal(inp.source(k).read(0, stored.shape[1]).data, cube[k])
+        with pytest.raises(FormatError, match="4-D"):
+            inp.source()
+
+
+def test_an_open_reader_or_source_is_used_and_left_open(raw):
+    with FrameReader(raw) as reader:
+        with open_input(reader) as inp:
+            inp.source().read(0, 2)
+        assert reader.reads(0, 0, 1).shape == (1, 8)  # still open
+        source = FileSource(reader)
+        with open_input(source) as inp:
+            assert inp.source() is source
+        assert isinstance(source, Source)
+
+
+def test_a_missing_file_and_an_empty_glob_are_named(tmp_path):
+    with pytest.raises(FileNotFoundError, match=r"nope\.fits"):
+        open_input(tmp_path / "nope.fits")
+    with pytest.raises((FileNotFoundError, FormatError), match="read_"):
+        open_input(str(tmp_path / "read_*.fits"))

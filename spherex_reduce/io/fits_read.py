@@ -21,8 +21,9 @@ from astropy.table import Table
 
 from ..core.errors import FormatError
 from ..core.exposure import Exposure, ReferenceReads, expected_shape
+from ..core.fields import _card_text, header_keyword
 from ..core.limits import check_size
-from ..core.schedule import ReadoutSchedule, _card_text, header_keyword
+from ..core.schedule import ReadoutSchedule
 from .fits_structure import _scan, _verify
 from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq
 from .input import InputOptions, apply_input

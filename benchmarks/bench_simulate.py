@@ -40,8 +40,13 @@ import numpy as np
 from spherex_reduce import expected_slope_variance, simulate
 from spherex_reduce.analysis.spectrum import band_power
 from spherex_reduce.noise.variance import ls_weights
-from spherex_reduce.simulation import NoiseComponent, NoiseEngine, load_scene, simulate_to_fits
-from spherex_reduce.simulation import slope_routes as engine_module
+from spherex_reduce.simulation import (
+    NoiseComponent,
+    NoiseEngine,
+    exact_slopes,
+    load_scene,
+    simulate_to_fits,
+)
 
 HERE = Path(__file__).resolve().parent
 
@@ -230,7 +235,7 @@ def bench_small(nframes_list, lines, nimages=200, tiered=True, runs=5):
         route = NoiseEngine(sc.schedule, sc.components, 0).slope_route
         cold = []
         for k in range(runs):
-            engine_module._EXACT_FACTORS.clear()
+            exact_slopes._EXACT_FACTORS.clear()
             t = time.perf_counter()
             simulate(small_scene(n), seed=1000 + k, mode="slopes")
             cold.append(time.perf_counter() - t)

@@ -147,7 +147,7 @@ def test_scheduler_that_accepts_and_stays_silent_is_refused_within_the_timeout()
     import socket
     import time
 
-    from spherex_reduce.analysis.sweep import check_scheduler
+    from spherex_reduce.reduce.scheduler import check_scheduler
 
     with socket.socket() as server:
         server.bind(("127.0.0.1", 0))

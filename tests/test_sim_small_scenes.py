@@ -16,8 +16,14 @@ import pytest
 from spherex_reduce import expected_slope_variance, simulate
 from spherex_reduce.core import limits
 from spherex_reduce.core.errors import ResourceError
-from spherex_reduce.simulation import NoiseComponent, NoiseEngine, load_scene, slope_covariance
-from spherex_reduce.simulation import slope_routes as engine_module
+from spherex_reduce.simulation import (
+    NoiseComponent,
+    NoiseEngine,
+    exact_slopes,
+    load_scene,
+    slope_covariance,
+)
+from spherex_reduce.simulation.exact_slopes import ExactSlopes
 
 
 def _scene(n, **readout):
@@ -75,7 +81,7 @@ def test_small_scene_slopes_are_fast():
     benchmarks/bench_simulate.py."""
     times = []
     for seed in range(2):
-        engine_module._EXACT_FACTORS.clear()
+        exact_slopes._EXACT_FACTORS.clear()
         t = time.perf_counter()
         simulate(_scene(74), seed=seed, mode="slopes")
         times.append(time.perf_counter() - t)
@@ -92,7 +98,7 @@ def test_exact_route_covariance_is_the_analytic_one(n):
     nr, w = eng.n_reads, eng.width
     var_pix = np.zeros((nr, w))
     var_ph = np.zeros(nr)
-    for plan, pix, phq in eng._exact_factors().values():
+    for plan, pix, phq in eng.exact.factors().values():
         m = nr * plan.k  # the draw is linear: unit vectors give the factor L, L L^T = Sigma
         factor = plan.draw(np.eye(m).reshape(nr, plan.k, m)).reshape(m, m)
         d = np.sum(factor**2, axis=1).reshape(nr, -1)
@@ -112,7 +118,7 @@ def test_block_levinson_draws_have_the_covariance_asked_for():
     gam = np.array([sum(a[i + h] @ a[i].T for i in range(30 - h)) for h in range(nr)])
     full = np.block([[gam[r - c] if r >= c else gam[c - r].T for c in range(nr)]
                      for r in range(nr)])
-    plan = engine_module._BlockLevinson(gam)
+    plan = exact_slopes._BlockLevinson(gam)
     factor = plan.draw(np.eye(nr * k).reshape(nr, k, nr * k)).reshape(nr * k, nr * k)
     np.testing.assert_allclose(factor @ factor.T, full, atol=1e-12 * np.abs(full).max())
 
@@ -183,7 +189,7 @@ def _held(factors):
 
 
 def _cached_bytes():
-    entries = engine_module._EXACT_FACTORS.values()
+    entries = exact_slopes._EXACT_FACTORS.values()
     return sum(_held(v[0] if isinstance(v, tuple) else v) for v in entries)
 
 
@@ -191,26 +197,26 @@ def test_exact_factor_cache_is_bounded_by_bytes(monkeypatch):
     """Several distinct scenes (a sweep over N) keep at most the byte bound alive (it was 8
     scenes whatever their size: up to 2.4 GB); an entry larger than the bound is used, not
     kept."""
-    monkeypatch.setattr(engine_module, "_EXACT_FACTORS", collections.OrderedDict())
+    monkeypatch.setattr(exact_slopes, "_EXACT_FACTORS", collections.OrderedDict())
     scenes = [load_scene(_tiny(n)) for n in range(2, 8)]
     engines = [NoiseEngine(sc.schedule, sc.components, 0) for sc in scenes]
     assert {e.slope_route for e in engines} == {"exact"}
-    size = _held(engines[0]._exact_factors())  # the same reads and widths: the same size
+    size = _held(engines[0].exact.factors())  # the same reads and widths: the same size
     assert size > 0
-    engine_module._EXACT_FACTORS.clear()
+    exact_slopes._EXACT_FACTORS.clear()
     bound = int(2.5 * size)
-    monkeypatch.setattr(NoiseEngine, "EXACT_CACHE_BYTES", bound, raising=False)
+    monkeypatch.setattr(ExactSlopes, "CACHE_BYTES", bound)
     for sc in scenes:
         img = simulate(sc, seed=1, mode="slopes")
         assert img.header["SIMROUTE"] == "exact"
         assert 0 < _cached_bytes() <= bound
-    assert len(engine_module._EXACT_FACTORS) == 2  # the two most recent scenes
+    assert len(exact_slopes._EXACT_FACTORS) == 2  # the two most recent scenes
     # an entry larger than the bound: drawn, not kept, and the others left alone
-    monkeypatch.setattr(NoiseEngine, "EXACT_CACHE_BYTES", size // 2, raising=False)
-    engine_module._EXACT_FACTORS.clear()
+    monkeypatch.setattr(ExactSlopes, "CACHE_BYTES", size // 2)
+    exact_slopes._EXACT_FACTORS.clear()
     img, ph = engines[0].slopes()
     assert np.std(img) > 0 and np.std(ph) > 0
-    assert len(engine_module._EXACT_FACTORS) == 0
+    assert len(exact_slopes._EXACT_FACTORS) == 0
 
 
 def test_exact_route_is_not_chosen_beyond_the_memory_budget(monkeypatch):
@@ -231,7 +237,7 @@ def test_exact_route_is_not_chosen_beyond_the_memory_budget(monkeypatch):
     # the estimate bounds what a small scene really keeps
     small = load_scene(_tiny(3))
     eng = NoiseEngine(small.schedule, small.components, 0)
-    held = _held(eng._exact_factors())
-    assert eng._exact_memory() >= held
+    held = _held(eng.exact.factors())
+    assert eng.exact.memory() >= held
     monkeypatch.setattr(limits, "memory_budget", lambda: held // 2)
     assert eng.slope_route == "tiered"

@@ -47,16 +47,17 @@ from ..noise import expected_slope_variance
 from ..reduce.pipeline import as_pipeline
 from ..reduce.scheduler import map_on_dask
 from ..simulation import load_scene
-from .case import SpectrumMeasure, run_case
-from .photon_noise import photon_noise_label, photon_noise_power
-from .plots import plot_comparison
-from .sections import (
+from .case import (
+    SpectrumMeasure,
     measure_section,
     pipeline_section,
     realizations_section,
+    run_case,
     scene_section,
     seed_section,
 )
+from .photon_noise import photon_noise_label, photon_noise_power
+from .plots import plot_comparison
 from .sky import inject_sky, light_sensitive, measure_against_sky, sky_field
 from .spectrum import EmptyBandError, band_power
 

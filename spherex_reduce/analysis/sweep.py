@@ -42,26 +42,25 @@ from ..core.errors import ConfigError
 from ..core.limits import check_count
 from ..io import atomic_output
 from ..io.config import READOUT_PARAMETERS, load_yaml
-from ..reduce.scheduler import check_scheduler, map_on_dask, quiet_dask_logs
+from ..reduce.scheduler import map_on_dask
 from ..simulation import load_scene
-from .case import SpectrumMeasure, run_case
-from .sections import (  # MAX_REALIZATIONS: the sweep's limit, named here too
-    MAX_REALIZATIONS,  # noqa: F401
+from .case import (
+    SpectrumMeasure,
     measure_section,
     pipeline_section,
     realizations_section,
+    run_case,
     scene_section,
     seed_section,
 )
 
-__all__ = ["Sweep", "SweepResult", "check_scheduler", "load_sweep", "plot_sweep",
-           "quiet_dask_logs", "run_cell", "run_sweep"]
+__all__ = ["Sweep", "SweepResult", "load_sweep", "plot_sweep", "run_cell", "run_sweep"]
 
 log = logging.getLogger(__name__)
 
 _TOP = ("scene", "pipeline", "grid", "realizations", "seed", "mode", "measure")
 _READOUT_KEYS = tuple(p.name for p in READOUT_PARAMETERS)
-#: Most cells a sweep file may ask for (and realisations per cell: `MAX_REALIZATIONS`).
+#: Most cells a sweep file may ask for (realisations per cell: `.case.MAX_REALIZATIONS`).
 MAX_CELLS = 100_000
 
 
@@ -138,8 +137,9 @@ def load_sweep(source):
         an invalid scene (the values the grid varies are checked by each
         cell); the message names the entry.
     ResourceError
-        More than `MAX_REALIZATIONS` realisations or `MAX_CELLS` cells, or a
-        scene that needs more memory than this machine has.
+        More than `~spherex_reduce.analysis.case.MAX_REALIZATIONS`
+        realisations or `MAX_CELLS` cells, or a scene that needs more memory
+        than this machine has.
 
     Examples
     --------
@@ -319,45 +319,118 @@ def run_sweep(sweep, output=None, *, scheduler=None, workers=None, overwrite=Fal
         re-run tries them again.
     """
     sw = sweep if isinstance(sweep, Sweep) else load_sweep(sweep)
-    keys = sw.keys
-    existing = None
-    if output is not None:
-        output = Path(output)
-        if output.exists() and not overwrite:
-            try:
-                existing = Table.read(output, format="ascii.ecsv")
-            except (ValueError, KeyError, IndexError, TypeError) as exc:  # damaged or not ECSV
-                reason = " ".join(str(exc).split())[:200]
-                raise ConfigError(
-                    f"{output} is not a sweep's results table ({type(exc).__name__}: {reason}); "
-                    "choose another output or pass overwrite") from None
-            missing = [c for c in (*keys, "pipeline", "realization", "band_power")
-                       if c not in existing.colnames]
-            if missing:
-                raise ConfigError(
-                    f"{output} has no column(s) {missing}: it holds another sweep; choose "
-                    "another output or pass overwrite"
-                )
-            old = existing.meta.get("fingerprint")
-            if old is not None and old != sw.fingerprint:
-                raise ConfigError(
-                    f"{output} was made with a different scene, seed, mode, measure or "
-                    "pipeline config; its rows would not match this sweep: choose another "
-                    "output or pass overwrite"
-                )
-        elif not output.parent.is_dir():
-            raise FileNotFoundError(f"output directory {output.parent} does not exist")
-    done = set() if existing is None else {_key(r, keys) for r in existing}
-    todo = [c for c in sw.cells() if _key(c, keys) not in done]
-    result = SweepResult(existing if existing is not None else _rows_to_table([], sw, None),
-                         skipped=len(sw.cells()) - len(todo))
+    output = None if output is None else Path(output)
+    existing = _read_results(output, sw, overwrite)
+    todo = _cells_to_run(sw, existing)
+    results = _Results(sw, existing, output, checkpoint_seconds)
     t0 = time.perf_counter()
-    rows, unit = [], None
-    last_write = time.perf_counter()
+    _run_cells(sw, todo, scheduler, workers, progress, results.add)
+    table = results.table()  # the same table and metadata as the file: plot_sweep needs both
+    results.write()
+    return SweepResult(table, computed=len(results.rows), skipped=len(sw.cells()) - len(todo),
+                       failed=results.failed, seconds=time.perf_counter() - t0)
 
-    def merged():
+
+def _read_results(output, sweep, overwrite):
+    """The rows an earlier run of ``sweep`` left in ``output`` (None: none to extend).
+
+    Raises
+    ------
+    ConfigError
+        ``output`` is not a results table, or holds another sweep's.
+    FileNotFoundError
+        The directory of ``output`` does not exist.
+    """
+    if output is None:
+        return None
+    if overwrite or not output.exists():
+        if not output.parent.is_dir():
+            raise FileNotFoundError(f"output directory {output.parent} does not exist")
+        return None
+    try:
+        existing = Table.read(output, format="ascii.ecsv")
+    except (ValueError, KeyError, IndexError, TypeError) as exc:  # damaged or not ECSV
+        reason = " ".join(str(exc).split())[:200]
+        raise ConfigError(
+            f"{output} is not a sweep's results table ({type(exc).__name__}: {reason}); "
+            "choose another output or pass overwrite") from None
+    missing = [c for c in (*sweep.keys, "pipeline", "realization", "band_power")
+               if c not in existing.colnames]
+    if missing:
+        raise ConfigError(
+            f"{output} has no column(s) {missing}: it holds another sweep; choose "
+            "another output or pass overwrite"
+        )
+    old = existing.meta.get("fingerprint")
+    if old is not None and old != sweep.fingerprint:
+        raise ConfigError(
+            f"{output} was made with a different scene, seed, mode, measure or "
+            "pipeline config; its rows would not match this sweep: choose another "
+            "output or pass overwrite"
+        )
+    return existing
+
+
+def _cells_to_run(sweep, existing):
+    """The cells of ``sweep`` whose rows are not in ``existing``, in the sweep's order."""
+    done = set() if existing is None else {_key(r, sweep.keys) for r in existing}
+    return [c for c in sweep.cells() if _key(c, sweep.keys) not in done]
+
+
+def _run_cells(sweep, cells, scheduler, workers, progress, collect):
+    """Run ``cells`` (in this process, or on dask) and pass each result row to ``collect``."""
+    bar = _bar(len(cells), progress)
+    tasks = [sweep.task(c) for c in cells]
+    if cells and scheduler == "serial":
+        for task in tasks:
+            collect(run_cell(task))
+            bar.update(1)
+    elif cells:
+        def cell_done(task, res):
+            collect(res)
+            bar.update(1)
+
+        def cell_failed(task, exc):  # a worker died: report the cell, go on
+            cell = next(c for c, t in zip(cells, tasks, strict=True) if t is task)
+            return {"cell": cell, "error": f"{type(exc).__name__}: {exc}"}
+
+        map_on_dask(run_cell, tasks, scheduler, workers, cell_done, cell_failed)
+    bar.close()
+
+
+class _Results:
+    """The rows of a running sweep: the earlier ones, the new ones and the failures.
+
+    `add` takes each cell's result row; the table (`table`) is written to
+    ``output`` (`write`) at most every ``checkpoint_seconds`` while cells come
+    in, and once more at the end.
+    """
+
+    def __init__(self, sweep, existing, output, checkpoint_seconds):
+        self.sweep = sweep
+        self.existing = existing
+        self.output = output
+        self.checkpoint_seconds = checkpoint_seconds
+        self.rows = []
+        self.failed = []
+        self.unit = None
+        self.last_write = time.perf_counter()
+
+    def add(self, res):
+        """Keep a cell's result row (or its failure); write a checkpoint when one is due."""
+        if "error" in res:
+            self.failed.append(res)
+            log.warning("sweep cell %s failed: %s", res["cell"], res["error"])
+            return
+        self.unit = self.unit or res["unit"]
+        self.rows.append(res)
+        if time.perf_counter() - self.last_write > self.checkpoint_seconds:
+            self.write()
+
+    def table(self):
         """Every row so far, with the sweep's metadata (grid, measure, ...) in ``meta``."""
-        table = _merge(existing, _rows_to_table(rows, sw, unit), keys)
+        sw = self.sweep
+        table = _merge(self.existing, _rows_to_table(self.rows, sw, self.unit), sw.keys)
         table.meta.update({"sweep": sw.source, "grid": {k: [_plain(v) for v in vals]
                                                          for k, vals in sw.grid.items()},
                            "pipelines": list(sw.pipelines), "realizations": sw.realizations,
@@ -365,53 +438,19 @@ def run_sweep(sweep, output=None, *, scheduler=None, workers=None, overwrite=Fal
                            "fingerprint": sw.fingerprint})
         return table
 
-    def write(final=False):
-        nonlocal last_write
-        if output is None:
+    def write(self):
+        """Write the table, with the failures so far in ``meta``, atomically to ``output``."""
+        if self.output is None:
             return
-        table = merged()
-        if result.failed:
+        table = self.table()
+        if self.failed:
             table.meta["failed"] = [{"cell": f["cell"], "error": f["error"]}
-                                    for f in result.failed]
+                                    for f in self.failed]
         else:
             table.meta.pop("failed", None)
-        with atomic_output(output, overwrite=True) as tmp:
+        with atomic_output(self.output, overwrite=True) as tmp:
             table.write(tmp, format="ascii.ecsv")
-        last_write = time.perf_counter()
-
-    def collect(res):
-        nonlocal unit
-        if "error" in res:
-            result.failed.append(res)
-            log.warning("sweep cell %s failed: %s", res["cell"], res["error"])
-            return
-        unit = unit or res["unit"]
-        rows.append(res)
-        result.computed += 1
-        if time.perf_counter() - last_write > checkpoint_seconds:
-            write()
-
-    bar = _bar(len(todo), progress)
-    tasks = [sw.task(c) for c in todo]
-    if todo and scheduler == "serial":
-        for task in tasks:
-            collect(run_cell(task))
-            bar.update(1)
-    elif todo:
-        def cell_done(task, res):
-            collect(res)
-            bar.update(1)
-
-        def cell_failed(task, exc):  # a worker died: report the cell, go on
-            cell = next(c for c, t in zip(todo, tasks, strict=True) if t is task)
-            return {"cell": cell, "error": f"{type(exc).__name__}: {exc}"}
-
-        map_on_dask(run_cell, tasks, scheduler, workers, cell_done, cell_failed)
-    bar.close()
-    result.table = merged()  # the same table and metadata as the file: plot_sweep needs both
-    write(final=True)
-    result.seconds = time.perf_counter() - t0
-    return result
+        self.last_write = time.perf_counter()
 
 
 def _jsonable(d):

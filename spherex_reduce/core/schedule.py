@@ -26,12 +26,11 @@ from astropy.table import Table
 
 from ._text import plural
 from .errors import FormatError
-from .fields import (  # header_keyword, _card_text: importable from here as before
+from .fields import (
     DEFAULT_FRAME_OVERHEAD,
     FIELD,
     FIELDS,
     REF_MODES,
-    _card_text,  # noqa: F401
     check_field,
     field_cards,
     header_keyword,

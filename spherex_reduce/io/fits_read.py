@@ -21,7 +21,7 @@ from astropy.table import Table
 
 from ..core.errors import FormatError
 from ..core.exposure import Exposure, ReferenceReads
-from ..core.schedule import _card_text
+from ..core.fields import _card_text
 from .description import describe, image_shape, note_bad_checksums, sci_hdu
 from .fits_structure import _scan, _verify
 from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq

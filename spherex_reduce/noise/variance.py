@@ -18,7 +18,6 @@ from .components import (
     _d_inv_f,
     _d_power,
     _d_white,
-    load_noise_table,
     noise_components,
 )
 
@@ -203,6 +202,3 @@ def slope_covariance(noise, schedule, lags):
             out[i] += coef * basis[key]
     return out
 
-
-def _table_names():  # pragma: no cover - convenience for the docs
-    return list(load_noise_table()["name"])

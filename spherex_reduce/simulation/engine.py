@@ -39,9 +39,11 @@ one frame (full size) the frames' fast tiers are independent, so the fast
 part of the slope image is one frame-length stream with the fast PSD times
 ``sum w_k²``; with shorter frames the fast blocks of the ramps are fitted.
 
-The choice of slope route and the exact route of small scenes are in
-`spherex_reduce.simulation.slope_routes`;
-the building blocks of the tiers (band PSDs, kernel streams, stream groups) are in
+Small scenes take another route in slope mode (`NoiseEngine.slope_route`,
+chosen by cost): the slopes drawn exactly at the samples read
+(`spherex_reduce.simulation.exact_slopes`).  The phantom means' fast tier is
+in `spherex_reduce.simulation.phantom_tier`; the building blocks of the tiers
+(band PSDs, kernel streams, stream groups) are in
 `spherex_reduce.simulation.streams`.
 """
 
@@ -51,16 +53,19 @@ import numpy as np
 import scipy.fft as sfft
 from scipy import sparse
 
+from ..core import limits
 from ..noise.variance import ls_weights
-from .slope_routes import SlopeRoutes
+from .exact_slopes import ExactSlopes
+from .phantom_tier import PhantomTier
 from .streams import (
     _PSD,
     _SCOPE,
     TIER_A,
     TIER_B,
     TIER_FAST,
-    TIER_PHANTOM,
     TIER_SLOPE_FAST,
+    _chunks,
+    _fast_psds,
     _fft_len,
     _functional_variance,
     _Group,
@@ -72,7 +77,7 @@ from .synthesis import covariance_from_weights, psd_weights, synthesize
 __all__ = ["NoiseEngine"]
 
 
-class NoiseEngine(SlopeRoutes):
+class NoiseEngine:
     """The noise of a schedule's samples for a set of components.
 
     Parameters
@@ -152,11 +157,11 @@ class NoiseEngine(SlopeRoutes):
         self.block = max(1, math.ceil(self.l_corr / self.F))
         self._column_maps()
         self._slow = None
-        self._phantom = None
         self._lam_cache = {}
         self._bcache = {}
-        self._pcache = {}
         self._streaming = streaming
+        self.phantom_tier = PhantomTier(self)
+        self.exact = ExactSlopes(s, comps, self.entropy, self.dtype)
         if slope_route not in (None, "auto", *self.SLOPE_ROUTES):
             raise ValueError(f"slope_route must be one of {self.SLOPE_ROUTES} or None, "
                              f"got {slope_route!r}")
@@ -268,12 +273,6 @@ class NoiseEngine(SlopeRoutes):
 
     CHUNK = 16  # frames per window of the streamed slow-B tier and phantom sequences
 
-    def _chunks(self, ks, weights):
-        ks = list(ks)
-        wts = np.ones(len(ks)) if weights is None else np.asarray(weights, dtype=float)
-        for i in range(0, len(ks), self.CHUNK):
-            yield ks[i:i + self.CHUNK], wts[i:i + self.CHUNK]
-
     def _b_range(self, ks):
         """Grid points of the slow-B tier that the knots of frames ``ks`` use."""
         first = (min(ks) * self.F) // self.d_b
@@ -296,7 +295,7 @@ class NoiseEngine(SlopeRoutes):
         for gid, (xa, xb) in slow.items():
             mat_a = self._interp_matrix(ks, weights, self.d_a, xa.shape[0])
             v = np.asarray(mat_a @ xa, dtype=np.float64)
-            for kc, wc in self._chunks(ks, weights):
+            for kc, wc in _chunks(ks, weights, self.CHUNK):
                 cache_ks = kc
                 if len(kc) == 1:  # ramps: one window serves a chunk of frames
                     q = kc[0] // self.CHUNK
@@ -345,14 +344,7 @@ class NoiseEngine(SlopeRoutes):
     # -- fast tier (pixels) ----------------------------------------------------------
     def _fast_psds(self, kind):
         """Fast-tier PSDs ``{'channel': psd, 'common': psd}`` seen by ``kind``."""
-        res = {}
-        for scope in ("channel", "common"):
-            comps = [c for c in self.components if c.scope == scope and
-                     (c.seen_by_pixels if kind == "pixels" else c.seen_by_phantom)]
-            psd = _PSD(comps, "fast", self.f_a, self.f_b, white=True)
-            if comps and not psd.empty:
-                res[scope] = psd
-        return res
+        return _fast_psds(self.components, kind, self.f_a, self.f_b)
 
     def _block_fft_len(self):
         if self.block == 1:
@@ -407,88 +399,6 @@ class NoiseEngine(SlopeRoutes):
                 o3[:, fwd] += part[:, None, :]
                 o3[:, ~fwd] += part[:, None, ::-1]
 
-    # -- phantom fast tier -------------------------------------------------------
-    def _fast_covariance(self, psd, max_lag):
-        """Autocovariance of a fast-tier stream at lags 0 ... max_lag (samples)."""
-        m = sfft.next_fast_len(max(4 * max_lag, 8 * self.l_corr, 1024))
-        lam = psd_weights(psd, m, self.fs)
-        return covariance_from_weights(lam, m)[: max_lag + 1]
-
-    def phantom_sequences(self):
-        """Fast part of the phantom means on a grid of reads: ``{scope: stream}``.
-
-        Each stream is an array ``(ns, J)`` or, when streaming, a ``_KernelStream``.
-        """
-        if self._phantom is not None:
-            return self._phantom
-        res = {}
-        if self.c:
-            g_lag = math.ceil(2 * self.l_corr / self.rs) + 2
-            jp = self.exposure // self.rs + 2
-            mp = sfft.next_fast_len(max(jp + g_lag, 2 * g_lag + 2))
-            if self.streaming:
-                mp = sfft.next_fast_len(8 * g_lag + 2)
-            i = np.arange(self.c)
-            dd = (i[:, None] - i[None, :]).ravel()
-            same = (((i - self.c) % 2)[:, None] == ((i - self.c) % 2)[None, :]).ravel()
-            lags = np.abs(np.arange(g_lag + 1)[:, None] * self.rs + dd[None, :])
-            for scope in self._fast_psds("phantom"):
-                # covariance of the mean of the c samples; with ACN only samples of the
-                # same parity (the same realisation) are correlated
-                r = np.zeros(g_lag + 1)
-                for acn in (False, True):
-                    comps = [c for c in self.components if c.scope == scope and
-                             c.seen_by_phantom and c.acn == acn]
-                    psd = _PSD(comps, "fast", self.f_a, self.f_b, white=True)
-                    if not comps or psd.empty:
-                        continue
-                    cf = self._fast_covariance(psd, g_lag * self.rs + self.c)
-                    pairs = cf[lags] * (same if acn else 1.0)
-                    r += pairs.sum(axis=1) / self.c**2
-                emb = np.zeros(mp)
-                emb[: g_lag + 1] = r
-                emb[mp - g_lag:] = r[1:][::-1]
-                lam = sfft.rfft(emb).real
-                ns = self.nch if scope == "channel" else 1
-                if self.streaming:
-                    res[scope] = _KernelStream(lam, mp, ns, self.entropy,
-                                               (TIER_PHANTOM, _SCOPE[scope]), np.float32,
-                                               total=jp, window=self.CHUNK * self.F // self.rs)
-                    continue
-                rngs = _rngs(self.entropy, ns, mp // 2 + 1, TIER_PHANTOM, _SCOPE[scope])
-                res[scope] = synthesize(lam, mp, jp, rngs, method=self.method,
-                                        dtype=np.float32, nstreams=ns)
-        self._phantom = res
-        return res
-
-    def _phantom_index(self, k):
-        return (k * self.F) // self.rs + np.arange(self.n_reads)
-
-    def _phantom_fast(self, ks, weights=None):
-        seqs = self.phantom_sequences()
-        out = np.zeros((self.n_reads, self.nch))
-        for scope, x in seqs.items():
-            acc = np.zeros((self.n_reads, self.nch if scope == "channel" else 1))
-            for kc, wc in self._chunks(ks, weights):
-                if isinstance(x, _KernelStream):
-                    cache_ks = kc
-                    if len(kc) == 1:
-                        q = kc[0] // self.CHUNK
-                        cache_ks = range(q * self.CHUNK, min(self.N, (q + 1) * self.CHUNK))
-                    j0 = self._phantom_index(min(cache_ks))[0]
-                    j1 = self._phantom_index(max(cache_ks))[-1] + 1
-                    cached = self._pcache.get(scope)
-                    if cached is None or cached[0] != (j0, j1):
-                        cached = self._pcache[scope] = ((j0, j1), x.window(j0, j1))
-                    win = cached[1]
-                    for k, wk in zip(kc, wc, strict=True):
-                        acc += wk * win[self._phantom_index(k) - j0]
-                else:
-                    for k, wk in zip(kc, wc, strict=True):
-                        acc += wk * x[:, self._phantom_index(k)].T
-            out += acc  # (n_reads, ns) broadcasts for common
-        return out
-
     # -- ramps -------------------------------------------------------------------------
     def frames(self):
         """Yield ``(pixels, phantom)`` of each frame: ``(n_reads, ncols)``, ``(n_reads, nch)``.
@@ -498,7 +408,7 @@ class NoiseEngine(SlopeRoutes):
         grids (about 1.2 MB per frame at full size).
         """
         self.slow_streams()
-        self.phantom_sequences()
+        self.phantom_tier.sequences()
         for b0 in range(0, self.N, self.block):
             nb = min(self.block, self.N - b0)
             fast = self._fast_block(b0 // self.block, nb)
@@ -510,10 +420,70 @@ class NoiseEngine(SlopeRoutes):
                 self._pixels_from_stream(fast.get("channel"), fast.get("common"), j, out)
                 phantom = None
                 if self.c:
-                    phantom = ph + self._phantom_fast([k])
+                    phantom = ph + self.phantom_tier.values([k])
                 yield out, phantom
 
     # -- slopes --------------------------------------------------------------------------
+    SLOPE_ROUTES = ("exact", "tiered")
+
+    @property
+    def slope_route(self):
+        """``'exact'`` or ``'tiered'``: how `slopes` draws the image.
+
+        By default the route with the smaller operation count (`exact`'s
+        ``cost`` against ``_tiered_cost``): the exact route for few pixels per
+        channel (its cost grows as ``reads² × (width + 1)³``), the tiered one
+        for large arrays (its cost grows with the samples of a frame, overheads
+        included), but never the exact route if its memory (`exact`'s
+        ``memory``, mostly its predictors: ``(reads × (width + 1))² / 2``
+        float64 values per scope) exceeds
+        `~spherex_reduce.core.limits.memory_budget`.  The random-phase method
+        and paddings below the default keep the tiered synthesis, whose
+        periodicity they are there to reproduce.
+        """
+        if self._slope_route is not None:
+            return self._slope_route
+        if self.method != "gaussian" or self.padding < 16 or self.N < 2:
+            return "tiered"
+        cost, biggest = self.exact.cost()
+        if biggest > self.exact.MAX_VALUES or cost >= self._tiered_cost():
+            return "tiered"
+        # never a route this process cannot hold (a dask worker's memory limit, say)
+        return "exact" if self.exact.memory() <= limits.memory_budget() else "tiered"
+
+    def slopes(self):
+        """Slope image ``(n_reads, ncols)`` (e/s) and phantom slopes ``(n_reads, nch)``.
+
+        Drawn by the route `slope_route` names: ``'exact'`` by `exact` (an
+        `~spherex_reduce.simulation.exact_slopes.ExactSlopes`), ``'tiered'``
+        from the synthesised tiers.  Both have the statistics of the
+        least-squares fit of the frames (the exact route exactly, the tiered
+        one up to the approximations `expected_slope_variance` measures).
+        """
+        if self.slope_route == "exact":
+            return self.exact.draw()
+        return self._tiered_slopes()
+
+    def _tiered_cost(self):
+        """Rough operation count of the tiered route in slope mode (FFT synthesis)."""
+        def fft(m, ns=1):
+            return ns * m * (5 * math.log2(max(m, 2)) + 30)
+
+        _, ma, _, mb = self._slow_sizes()
+        ops = sum(fft(ma, gr.nstreams) + fft(mb, gr.nstreams) for gr in self.slow_groups)
+        nfast = sum(self.nch if scope == "channel" else 1 for scope in self._fast_psds("pixels"))
+        if self.block == 1:  # one frame-length stream (the frames' fast tiers are independent)
+            ops += fft(self._block_fft_len(), nfast)
+        else:  # the ramps' blocks, fitted
+            ops += math.ceil(self.N / self.block) * fft(self._block_fft_len(), nfast)
+            ops += 4.0 * self.N * self.n_reads * self.ncols
+        if self.c:
+            g_lag = math.ceil(2 * self.l_corr / self.rs) + 2
+            m = sfft.next_fast_len(max(4 * (g_lag * self.rs + self.c), 8 * self.l_corr, 1024))
+            ops += 2 * len(self._fast_psds("phantom")) * fft(m)
+            ops += fft(self.exposure // self.rs + 2 * g_lag, self.nch + 1)
+        return ops
+
     def expected_slope_variance(self, read=0, column=0):
         """Exact variance (e²/s²) of this engine's simulated slope of one pixel.
 
@@ -588,5 +558,5 @@ class NoiseEngine(SlopeRoutes):
         self._pixels_from_knots(pix, out)
         phantom = None
         if self.c:
-            phantom = ph + self._phantom_fast(ks, w)
+            phantom = ph + self.phantom_tier.values(ks, w)
         return out, phantom

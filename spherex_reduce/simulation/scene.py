@@ -6,11 +6,10 @@ from ..core.errors import ConfigError
 from ..core.limits import check_size
 from ..core.parameters import Parameter, validate_parameters
 from ..io.config import GEOMETRY_PARAMETERS, READOUT_PARAMETERS, load_yaml, schedule_from_config
-from ..noise.section import COMPONENT_KEYS, DEFAULT_COMPONENTS, NOISE_KEYS, section_components
+from ..noise.section import section_components
 from .synthesis import METHODS
 
 __all__ = ["MODES", "Scene", "load_scene"]
-_ = (COMPONENT_KEYS, DEFAULT_COMPONENTS, NOISE_KEYS)  # importable from here as before
 
 MODES = ("slopes", "ramps")
 _NUM = (int, float)

@@ -1,7 +1,8 @@
 """Building blocks of the noise tiers: band-limited PSDs, kernel streams, stream groups.
 
 `~spherex_reduce.simulation.NoiseEngine` splits each PSD into the
-slow-A, slow-B and fast tiers with `_PSD` windows, makes long slow-B tiers
+slow-A, slow-B and fast tiers with `_PSD` windows (`_fast_psds`: the fast tier
+of the pixels or of the phantom means), makes long slow-B tiers
 and phantom sequences window by window with `_KernelStream`, and draws one set
 of slow streams per `_Group` of components.  The tier numbers seed the
 generators (`~spherex_reduce.simulation.synthesis.rng_for`), so they must not
@@ -71,6 +72,30 @@ class _PSD:
         if self.white and self.dc > 0:
             return False
         return not any(c.beta or c.gamma for c in self.comps)
+
+
+def _fast_psds(components, kind, f_a, f_b):
+    """Fast-tier PSDs ``{'channel': psd, 'common': psd}`` of the components ``kind`` sees.
+
+    ``kind`` is ``'pixels'`` or ``'phantom'``; a scope with no such component, or
+    only silent ones, is left out.
+    """
+    res = {}
+    for scope in ("channel", "common"):
+        comps = [c for c in components if c.scope == scope and
+                 (c.seen_by_pixels if kind == "pixels" else c.seen_by_phantom)]
+        psd = _PSD(comps, "fast", f_a, f_b, white=True)
+        if comps and not psd.empty:
+            res[scope] = psd
+    return res
+
+
+def _chunks(ks, weights, size):
+    """``(frames, weights)`` of ``ks`` in chunks of ``size`` frames (weights 1 if None)."""
+    ks = list(ks)
+    wts = np.ones(len(ks)) if weights is None else np.asarray(weights, dtype=float)
+    for i in range(0, len(ks), size):
+        yield ks[i:i + size], wts[i:i + size]
 
 
 def _functional_variance(a, lam, m):

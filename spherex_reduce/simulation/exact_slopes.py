@@ -1,120 +1,87 @@
-"""How the noise engine draws a slope image: the choice of route, and the exact route.
+"""The exact slope route: slopes drawn at the samples read, from their exact covariance.
 
-`SlopeRoutes.slopes` draws the image by the route `SlopeRoutes.slope_route`
-names: ``'tiered'`` (the synthesised tiers of `spherex_reduce.simulation.engine`)
-or ``'exact'``.
-
-Small scenes take another route in slope mode (``slope_route='exact'``, chosen
-by cost): the slopes of a stream at the samples a frame reads form a Gaussian
-vector whose covariance is known exactly from the structure function
+The slopes of a stream at the samples a frame reads form a Gaussian vector
+whose covariance is known exactly from the structure function
 (`~spherex_reduce.simulation.slope_covariance`), so only the pixels and
 phantom means asked for are drawn, exactly, by a block Durbin-Levinson
 recursion over the reads (one per scope, shared by every channel's stream).
 Its cost follows the pixels per channel read, not the samples of the frame
 with its overheads, and its statistics are the analytic, aperiodic ones (no
-tiers, no padding).
+tiers, no padding).  `~spherex_reduce.simulation.NoiseEngine` takes this
+route for small scenes (see its ``slope_route``).
 """
 
 import collections
-import math
 import threading
 
 import numpy as np
-import scipy.fft as sfft
 
 from ..core import limits
 from ..noise.variance import slope_covariance
 from .streams import _SCOPE, TIER_EXACT
 from .synthesis import rng_for
 
-__all__ = ["SlopeRoutes"]
+__all__ = ["ExactSlopes"]
 
 #: Factors of the exact slope route, by scene timing and components (least recent first):
-#: ``key -> (factors, nbytes)``, at most `SlopeRoutes.EXACT_CACHE_BYTES` in all.
+#: ``key -> (factors, nbytes)``, at most `ExactSlopes.CACHE_BYTES` in all.
 _EXACT_FACTORS = collections.OrderedDict()
 _EXACT_LOCK = threading.Lock()
 
 
-class SlopeRoutes:
-    """The slope routes of `~spherex_reduce.simulation.NoiseEngine`.
+class ExactSlopes:
+    """The slope image of a schedule's noise, drawn exactly at the samples read.
 
-    A mixin: it uses the engine's layout and tiers.
+    Parameters
+    ----------
+    schedule : `~spherex_reduce.ReadoutSchedule`
+    components : sequence of `~spherex_reduce.simulation.NoiseComponent`
+        The non-zero components (phantom-only ones dropped when ``c = 0``).
+    entropy : tuple
+        ``(entropy, spawn_key)`` of the simulation's seed.
+    dtype : numpy dtype
+        dtype of the slope image.
 
-    `slope_route` chooses between the routes by their costs (``_exact_cost``,
-    ``_tiered_cost``) and the exact route's memory (``_exact_memory``);
-    `slopes` draws by the route chosen: ``_exact_slopes`` here, or the
-    engine's ``_tiered_slopes``.
+    `cost` and `memory` say what `draw` would take; `factors` are the
+    predictors of each scope, cached for further realisations.
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.examples import tiny_schedule
+    >>> from spherex_reduce.simulation import NoiseComponent
+    >>> from spherex_reduce.simulation.exact_slopes import ExactSlopes
+    >>> exact = ExactSlopes(tiny_schedule(), [NoiseComponent("w", alpha=2e-3)], (1, ()),
+    ...                     "float32")
+    >>> image, phantom = exact.draw()
+    >>> image.shape, phantom.shape
+    ((64, 64), (64, 4))
     """
 
-    #: The exact route draws at most this many values per stream jointly (its predictors
-    #: hold half this number squared float64 values).
-    EXACT_MAX = 6144
+    #: At most this many values per stream are drawn jointly (the predictors hold half this
+    #: number squared float64 values).
+    MAX_VALUES = 6144
 
-    SLOPE_ROUTES = ("exact", "tiered")
+    #: Bytes of factors kept for further realisations, all scenes together.  A scene's
+    #: predictors hold about ``(reads × k)² / 2`` float64 values per scope (two scopes):
+    #: 1.6 MB for 64 × 64 pixels in 16 channels, 79 MB for 1024 rows of 2 columns per
+    #: channel, up to 151 MB per scope at `MAX_VALUES`.  A scene needing more is drawn but
+    #: not kept.
+    CACHE_BYTES = 256 * 2**20
 
-    def _tiered_cost(self):
-        """Rough operation count of the tiered route in slope mode (FFT synthesis)."""
-        def fft(m, ns=1):
-            return ns * m * (5 * math.log2(max(m, 2)) + 30)
+    def __init__(self, schedule, components, entropy, dtype):
+        self.schedule = s = schedule
+        g = s.geometry
+        self.components = tuple(components)
+        self.entropy = entropy
+        self.dtype = np.dtype(dtype)
+        self.fs, self.nch, self.ncols = g.pixel_rate, g.nchannels, g.ncols
+        self.width = g.channel_width
+        self.c, self.rs, self.n_reads = s.phantom_reads, s.row_samples, s.n_reads
+        self.F, self.N = s.frame_samples, s.nframes
+        self.col_off = g.column_offsets()
+        self.col_chan = g.channel_of_column()
 
-        _, ma, _, mb = self._slow_sizes()
-        ops = sum(fft(ma, gr.nstreams) + fft(mb, gr.nstreams) for gr in self.slow_groups)
-        nfast = sum(self.nch if scope == "channel" else 1 for scope in self._fast_psds("pixels"))
-        if self.block == 1:  # one frame-length stream (the frames' fast tiers are independent)
-            ops += fft(self._block_fft_len(), nfast)
-        else:  # the ramps' blocks, fitted
-            ops += math.ceil(self.N / self.block) * fft(self._block_fft_len(), nfast)
-            ops += 4.0 * self.N * self.n_reads * self.ncols
-        if self.c:
-            g_lag = math.ceil(2 * self.l_corr / self.rs) + 2
-            m = sfft.next_fast_len(max(4 * (g_lag * self.rs + self.c), 8 * self.l_corr, 1024))
-            ops += 2 * len(self._fast_psds("phantom")) * fft(m)
-            ops += fft(self.exposure // self.rs + 2 * g_lag, self.nch + 1)
-        return ops
-
-    @property
-    def slope_route(self):
-        """``'exact'`` or ``'tiered'``: how `slopes` draws the image.
-
-        By default the route with the smaller operation count (``_exact_cost``
-        against ``_tiered_cost``): the exact route for few pixels per channel
-        (its cost grows as ``reads² × (width + 1)³``), the tiered one for large
-        arrays (its cost grows with the samples of a frame, overheads included),
-        but never the exact route if its memory (``_exact_memory``, mostly its
-        predictors: ``(reads × (width + 1))² / 2`` float64 values per scope)
-        exceeds `~spherex_reduce.core.limits.memory_budget`.  The
-        random-phase method and paddings below the default keep the tiered
-        synthesis, whose periodicity they are there to reproduce.
-        """
-        if self._slope_route is not None:
-            return self._slope_route
-        if self.method != "gaussian" or self.padding < 16 or self.N < 2:
-            return "tiered"
-        cost, biggest = self._exact_cost()
-        if biggest > self.EXACT_MAX or cost >= self._tiered_cost():
-            return "tiered"
-        # never a route this process cannot hold (a dask worker's memory limit, say)
-        return "exact" if self._exact_memory() <= limits.memory_budget() else "tiered"
-
-    # -- slopes ----------------------------------------------------------------------------
-    def slopes(self):
-        """Slope image ``(n_reads, ncols)`` (e/s) and phantom slopes ``(n_reads, nch)``.
-
-        Drawn by the route `slope_route` names; both have the statistics of
-        the least-squares fit of the frames (the exact route exactly, the
-        tiered one up to the approximations `expected_slope_variance` measures).
-        """
-        route = self.slope_route
-        if route == "exact":
-            biggest = self._exact_cost()[1]
-            if biggest > self.EXACT_MAX:
-                raise ValueError(f"slope_route='exact' would draw {biggest} samples per stream "
-                                 f"jointly (at most {self.EXACT_MAX}); use the tiered route")
-            limits.check_size(self._exact_memory(), "the exact slope route's factors")
-            return self._exact_slopes()
-        return self._tiered_slopes()
-
-    def _exact_points(self, scope):
+    def points(self, scope):
         """Positions (samples after a read's first pixel) that the streams of ``scope`` must
         give: ``(pixel positions, phantom positions)``, each empty if no component of that
         scope is seen there.
@@ -127,7 +94,7 @@ class SlopeRoutes:
         ph = np.arange(-self.c if any(c.seen_by_phantom for c in comps) else 0, 0)
         return pix, ph
 
-    def _exact_cost(self):
+    def cost(self):
         """Rough operation count of the exact route, and its largest joint draw."""
         nr, span = self.n_reads, self.c + self.width
         nbasis = len({key for c in self.components for key, coef in
@@ -135,7 +102,7 @@ class SlopeRoutes:
         ops = 100.0 * nbasis * nr * (2 * span - 1) * (2 * self.N - 1)
         biggest = 0
         for scope in ("channel", "common"):
-            pix, ph = self._exact_points(scope)
+            pix, ph = self.points(scope)
             ns = self.nch if scope == "channel" else 1
             k = pix.size + (1 if ph.size else 0)
             biggest = max(biggest, nr * k)
@@ -145,12 +112,12 @@ class SlopeRoutes:
                     + 2.0 * nr * (pix.size + ph.size) ** 2 * len(self.components))
         return ops, biggest
 
-    def _exact_memory(self):
+    def memory(self):
         """Bytes the exact route allocates at its peak (an upper estimate).
 
         Its predictors hold ``k² R (R + 1) / 2`` float64 values per scope
         (``R`` reads of ``k`` values: about ``(R k)² / 2``, 151 MB at
-        `EXACT_MAX`), kept while the scene is cached; making them takes the
+        `MAX_VALUES`), kept while the scene is cached; making them takes the
         covariance tables of every lag (the structure functions of ``2 N - 1``
         frame lags at ``R (2 span - 1)`` sample lags, with their temporaries)
         and the ``R`` blocks of covariance of each scope's samples.
@@ -159,16 +126,15 @@ class SlopeRoutes:
         tables = 20 * (2 * self.N - 1) * nr * (2 * span - 1)
         total = (len(self.components) + 1) * nr * (2 * span - 1)
         for scope in ("channel", "common"):
-            pix, ph = self._exact_points(scope)
+            pix, ph = self.points(scope)
             q = pix.size + ph.size
             k = pix.size + (1 if ph.size else 0)
             ns = self.nch if scope == "channel" else 1
             total += k * k * (nr * (nr + 1) // 2 + 4 * nr) + 3 * nr * q * q + 3 * nr * k * ns
         return 8 * (total + tables)
 
-    # -- slopes: exact route ---------------------------------------------------------------
-    def _exact_factors(self):
-        """``{scope: (_BlockLevinson, pixel positions, phantom positions)}`` of the exact route.
+    def factors(self):
+        """``{scope: (_BlockLevinson, pixel positions, phantom positions)}``.
 
         Every stream of a scope (one per channel, or the common one) is drawn
         as one Gaussian vector: the slopes at its pixel positions of every
@@ -179,7 +145,7 @@ class SlopeRoutes:
         parity (independent even and odd realisations: column parity, and
         ``(i - c) % 2`` for phantom sample ``i``, as in the tiers).  Cached
         by the schedule's timing and the components (at most
-        `EXACT_CACHE_BYTES` in all, least recently used dropped first), so
+        `CACHE_BYTES` in all, least recently used dropped first), so
         further realisations of a scene only draw.
         """
         key = (self.N, self.F, self.fs, self.rs, self.n_reads, self.c, self.width,
@@ -188,6 +154,19 @@ class SlopeRoutes:
             if key in _EXACT_FACTORS:
                 _EXACT_FACTORS.move_to_end(key)
                 return _EXACT_FACTORS[key][0]
+        factors = self._make_factors()
+        nbytes = sum(plan.nbytes + pix.nbytes + phq.nbytes
+                     for plan, pix, phq in factors.values())
+        bound = self.CACHE_BYTES
+        with _EXACT_LOCK:
+            _EXACT_FACTORS.pop(key, None)
+            if nbytes <= bound:  # a larger entry is used, not kept
+                _EXACT_FACTORS[key] = (factors, nbytes)
+                while sum(n for _, n in _EXACT_FACTORS.values()) > bound:
+                    _EXACT_FACTORS.popitem(last=False)
+        return factors
+
+    def _make_factors(self):
         nr, c, w = self.n_reads, self.c, self.width
         span = c + w
         # slope covariance of one stream at lags dr * row_samples + dq (dr >= 0)
@@ -195,7 +174,7 @@ class SlopeRoutes:
         cov = slope_covariance(self.components, self.schedule, lags)
         factors = {}
         for scope in ("channel", "common"):
-            pix, phq = self._exact_points(scope)
+            pix, phq = self.points(scope)
             q = np.concatenate([pix, phq])
             if q.size == 0:
                 continue
@@ -218,30 +197,27 @@ class SlopeRoutes:
             if phq.size:
                 wmat = np.vstack([wmat, np.r_[np.zeros(pix.size), np.full(phq.size, 1 / c)]])
             factors[scope] = (_BlockLevinson(wmat @ t @ wmat.T), pix, phq)
-        nbytes = sum(plan.nbytes + pix.nbytes + phq.nbytes
-                     for plan, pix, phq in factors.values())
-        bound = self.EXACT_CACHE_BYTES
-        with _EXACT_LOCK:
-            _EXACT_FACTORS.pop(key, None)
-            if nbytes <= bound:  # a larger entry is used, not kept
-                _EXACT_FACTORS[key] = (factors, nbytes)
-                while sum(n for _, n in _EXACT_FACTORS.values()) > bound:
-                    _EXACT_FACTORS.popitem(last=False)
         return factors
 
-    #: Bytes of exact-route factors kept for further realisations, all scenes together.  A
-    #: scene's predictors hold about ``(reads × k)² / 2`` float64 values per scope (two
-    #: scopes): 1.6 MB for 64 × 64 pixels in 16 channels, 79 MB for 1024 rows of 2 columns
-    #: per channel, up to 151 MB per scope at `EXACT_MAX`.  A scene needing more is drawn but
-    #: not kept.
-    EXACT_CACHE_BYTES = 256 * 2**20
+    def draw(self):
+        """Slope image ``(n_reads, ncols)`` (e/s) and phantom slopes ``(n_reads, nch)``.
 
-    def _exact_slopes(self):
-        """Slopes of every stream drawn at the samples read, from their exact covariance."""
+        Raises
+        ------
+        ValueError
+            More than `MAX_VALUES` values per stream would be drawn jointly.
+        ResourceError
+            The factors (`memory`) do not fit in this process.
+        """
+        biggest = self.cost()[1]
+        if biggest > self.MAX_VALUES:
+            raise ValueError(f"slope_route='exact' would draw {biggest} samples per stream "
+                             f"jointly (at most {self.MAX_VALUES}); use the tiered route")
+        limits.check_size(self.memory(), "the exact slope route's factors")
         nr, nch = self.n_reads, self.nch
         out = np.zeros((nr, self.ncols), dtype=self.dtype)
         ph = np.zeros((nr, nch)) if self.c else None
-        for scope, (plan, pix, phq) in self._exact_factors().items():
+        for scope, (plan, pix, phq) in self.factors().items():
             ns = nch if scope == "channel" else 1
             rng = rng_for(self.entropy, TIER_EXACT, _SCOPE[scope])
             v = plan.draw(rng.standard_normal((nr, plan.k, ns)))

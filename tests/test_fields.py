@@ -8,10 +8,10 @@ a field added to one description but not to another fails here.
 import argparse
 import dataclasses
 import inspect
-from pathlib import Path
 
 import pytest
 import yaml
+from _paths import ROOT
 from astropy import units as u
 
 from spherex_reduce import DetectorGeometry, ReadoutSchedule
@@ -27,7 +27,7 @@ from spherex_reduce.io.config import (
     schedule_from_config,
 )
 
-DOCS = Path(__file__).resolve().parent.parent / "docs"
+DOCS = ROOT / "docs"
 
 #: Today's public names, FITS keywords and defaults, written out by hand: a rename or a
 #: changed default must be deliberate.  New fields need no entry here.

@@ -11,6 +11,7 @@ import itertools
 
 import numpy as np
 import pytest
+from _paths import ROOT
 from astropy import units as u
 from scipy import integrate
 
@@ -60,10 +61,8 @@ def test_table2_values_and_provenance():
 
 
 def test_repository_copy_matches_package_table():
-    from pathlib import Path
-
-    repo = Path(__file__).resolve().parents[1] / "data" / "spherex-table2.ecsv"
-    pkg = Path(__file__).resolve().parents[1] / "spherex_reduce" / "data" / "spherex-table2.ecsv"
+    repo = ROOT / "data" / "spherex-table2.ecsv"
+    pkg = ROOT / "spherex_reduce" / "data" / "spherex-table2.ecsv"
     assert repo.read_text() == pkg.read_text()
 
 
@@ -216,9 +215,7 @@ def test_simulator_registered_as_plugin():
 
 
 def test_example_scene_is_the_default_case():
-    from pathlib import Path
-
-    f = Path(__file__).resolve().parents[1] / "data" / "examples" / "simulate-paper.yaml"
+    f = ROOT / "data" / "examples" / "simulate-paper.yaml"
     sc, default = load_scene(f), load_scene()
     assert sc.schedule == default.schedule and sc.components == default.components
     assert sc.seed == 1234 and sc.mode == "slopes"

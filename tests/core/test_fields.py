@@ -362,11 +362,12 @@ def yaml_section_table(section):
 
 def test_docs_fits_lists_every_keyword_as_the_table_says():
     text = (DOCS / "fits.rst").read_text(encoding="utf-8")
-    assert fits_keyword_table() in text, "regenerate with tests/test_fields.py:fits_keyword_table"
+    assert fits_keyword_table() in text, (
+        "regenerate with tests/core/test_fields.py:fits_keyword_table")
 
 
 @pytest.mark.parametrize("section", ["geometry", "readout"])
 def test_docs_yaml_lists_every_key_as_the_table_says(section):
     text = (DOCS / "yaml.rst").read_text(encoding="utf-8")
     assert yaml_section_table(section) in text, \
-        "regenerate with tests/test_fields.py:yaml_section_table"
+        "regenerate with tests/core/test_fields.py:yaml_section_table"

@@ -260,8 +260,8 @@ def bench_small(nframes_list, lines, nimages=200, tiered=True, runs=5):
     lines.append("")
     lines.append("Times are in process (`simulate(scene, mode='slopes')`, scene terms and "
                  "Exposure included); the exact route's covariance matches the analytic one "
-                 "to rounding (tests/test_sim_small_scenes.py), so the error column is Monte "
-                 "Carlo scatter.")
+                 "to rounding (tests/simulation/test_slope_routes.py), so the error column is "
+                 "Monte Carlo scatter.")
 
 
 def speed_error_table(nframes_list, lines):

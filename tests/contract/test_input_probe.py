@@ -41,7 +41,7 @@ Append to the list of the right section below:
 
 Give ids as ``command-what-is-wrong``.  Keep inputs small: the whole module
 should run in well under a minute once every case holds.  Run one case with
-``pytest tests/test_input_probe.py -k ID``; set ``SPHEREX_PROBE_SPAWN=1`` to run
+``pytest tests/contract/test_input_probe.py -k ID``; set ``SPHEREX_PROBE_SPAWN=1`` to run
 each case as ``python -m spherex_reduce.cli`` instead of through the fork
 server.
 

@@ -6,7 +6,7 @@ makes ``4 sigma <= 2 %`` the tests use the 2 % tolerance of the issue;
 elsewhere (long exposures, whose slow noise makes every pixel of a channel
 share one value) the tolerance is ``4 sigma`` of the estimator, stated per
 test.  The bias of the simulator itself is tested without Monte Carlo noise in
-``test_sim_model.py::test_simulator_expectation_matches_analytic`` (2 %).
+``test_engine_expectation.py::test_simulator_expectation_matches_analytic`` (2 %).
 """
 
 import itertools
@@ -130,7 +130,7 @@ def test_slope_variance_other_n_both_modes(n, nreal):
     The common bias terms are run with channel scope here (same synthesis,
     but one stream per channel gives an ensemble).  Tolerance: 4 standard
     errors of the estimator, ``4 sqrt(2 / n_streams)``; the bias itself is
-    tested to 2 % in ``test_sim_model.py``.
+    tested to 2 % in ``test_engine_expectation.py``.
     """
     s = _many_channels(n, nchannels=256 if n < 386 else 64)
     nch = s.geometry.nchannels

@@ -263,3 +263,18 @@ def test_flags_never_go_into_the_callers_dq_array(steps):
     assert (out.dq[:, :, 8:16] & dq.NO_REFERENCE).all()
     np.testing.assert_array_equal(e.dq, before)
     np.testing.assert_array_equal(e.data.mask, before != 0)
+
+
+def test_flagged_reference_pixels_stay_unused_after_unchop():
+    g = DetectorGeometry(16, 8, 2, ref_border=2)
+    s = ReadoutSchedule(g, skip=3, ref_reads=4, phantom_reads=0, nframes=1)
+    data = np.zeros((s.n_reads, 8))
+    flags = np.zeros(data.shape, np.uint16)
+    bad = s.reference_read_indices[0]
+    data[bad, 1] = 50.0
+    flags[bad, 1] = dq.DO_NOT_USE
+    e = Exposure.from_arrays(data, s, mask=flags)
+    readout = correct_reference(e, "mean", sigma=100.0)
+    physical = correct_reference(unchop(e), "mean", sigma=100.0)
+    np.testing.assert_allclose(readout.tables["REFOFFS"]["offset"], 0.0)
+    np.testing.assert_allclose(physical.tables["REFOFFS"]["offset"], 0.0)

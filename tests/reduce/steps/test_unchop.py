@@ -122,3 +122,23 @@ def test_already_physical_is_skipped(small_schedule):
     np.testing.assert_array_equal(again.data.data, out.data.data)
     with pytest.raises(StepSkipped, match="already in physical order"):
         UnchopStep().run(out)  # the step's own run says why
+
+
+def test_rereads_average_only_usable_reads():
+    g = DetectorGeometry(8, 4, 1, ref_border=1)
+    s = ReadoutSchedule(g, skip=1, ref_reads=4, ref_mode="repeated", phantom_reads=0,
+                        nframes=1)
+    data = np.ones((s.n_reads, 4))
+    flags = np.zeros(data.shape, np.uint16)
+    reads_of_row0 = np.flatnonzero(s.rows == 0)
+    assert reads_of_row0.size == 2
+    data[reads_of_row0[0]] = [np.nan, 1e4, 3.0, 3.0]
+    flags[reads_of_row0[0], 1] = dq.SATURATED
+    flags[reads_of_row0, 2:] = dq.DO_NOT_USE  # both reads flagged: the row is flagged there
+    out = unchop(Exposure.from_arrays(data, s, mask=flags))
+    # column 0: the NaN read is not usable, column 1: the flagged read is not
+    np.testing.assert_array_equal(out.data.data[0, :2], [1.0, 1.0])
+    assert np.isnan(out.data.data[0, 2:]).all()
+    assert out.dq[0].tolist() == [0, 0, dq.DO_NOT_USE, dq.DO_NOT_USE]
+    pos = out.reference.reads.tolist().index(reads_of_row0[0])
+    np.testing.assert_array_equal(out.reference.dq[pos], flags[reads_of_row0[0]])

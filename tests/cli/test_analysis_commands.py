@@ -65,7 +65,7 @@ def test_spectrum_of_ramps_is_a_clear_error(tmp_path, capsys):
 
 
 def test_fit_noise_cli(tmp_path, capsys):
-    from test_analysis_temporal import raw_exposure
+    from _noise_streams import raw_exposure
 
     raw = write(raw_exposure(5, nframes=6), tmp_path / "raw.fits")
     out = tmp_path / "fit.ecsv"
@@ -108,7 +108,7 @@ def _assert_same_table(a, b):
 
 
 def test_fit_noise_config_supplies_what_the_file_lacks(tmp_path, capsys):
-    from test_analysis_temporal import raw_exposure
+    from _noise_streams import raw_exposure
 
     full = write(raw_exposure(5, nframes=6), tmp_path / "raw.fits")  # 512 x 64, 4 channels
     bare = _strip_schedule(full, tmp_path / "bare.fits")

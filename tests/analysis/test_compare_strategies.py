@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import yaml
 from _cli_helpers import one_line_error, run
+from _paths import ROOT
 from astropy.nddata import CCDData
 from astropy.table import Table
 
@@ -306,9 +307,8 @@ def test_load_comparison_defaults_and_scene_mode():
 def test_benchmark_quick_smoke(tmp_path, capsys):
     """benchmarks/bench_compare.py --quick: every available pipeline, table and figure."""
     import importlib.util
-    from pathlib import Path
 
-    path = Path(__file__).parents[1] / "benchmarks" / "bench_compare.py"
+    path = ROOT / "benchmarks" / "bench_compare.py"
     spec = importlib.util.spec_from_file_location("bench_compare", path)
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)

@@ -11,8 +11,17 @@ import sysconfig
 from pathlib import Path
 
 import pytest
+from _paths import ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
+
+def _sources(tmp_path):
+    """A copy of the checkout without build outputs: builds write ``build/`` and
+    ``*.egg-info`` beside the sources, which must not change under tests running in
+    parallel (the checkout's egg-info is the installed package's metadata)."""
+    src = tmp_path / "src"
+    shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(
+        ".git", ".venv*", "build", "dist", "*.egg-info", "__pycache__", "_build", ".*_cache"))
+    return src
 
 
 def _quick_start():
@@ -59,7 +68,7 @@ def test_readme_test_command_resolves_with_the_pip_a_stock_venv_ships(tmp_path):
     # nothing of this environment may satisfy a requirement (a PYTHONPATH would)
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
     r = subprocess.run([py, "-m", "pip", "install", "--dry-run", "--quiet", *install[4:]],
-                       cwd=ROOT, env=env, capture_output=True, text=True)
+                       cwd=_sources(tmp_path), env=env, capture_output=True, text=True)
     out = r.stdout + r.stderr
     if r.returncode != 0 and re.search(r"No matching distribution found for (?!spherex)", out):
         pytest.skip("no package index reachable to resolve the dependencies")
@@ -76,7 +85,7 @@ def test_wheel_in_fresh_venv_runs_from_another_directory(tmp_path):
     pytest.importorskip("build")
     dist = tmp_path / "dist"
     r = subprocess.run([sys.executable, "-m", "build", "--wheel", "--outdir", str(dist),
-                        str(ROOT)], capture_output=True, text=True)
+                        str(_sources(tmp_path))], capture_output=True, text=True)
     if r.returncode != 0 and "Could not find a version" in r.stderr + r.stdout:
         pytest.skip("no package index for the isolated build")
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]

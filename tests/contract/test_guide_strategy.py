@@ -2,17 +2,17 @@
 
 import importlib.util
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest
 from _one_by_one import one_by_one
+from _paths import ROOT
 
 from spherex_reduce import Pipeline, unchop, write
 from spherex_reduce.io.examples import example_raw_exposure
 from spherex_reduce.reduce.plugins import Registry, get_plugin_manager
 
-EXAMPLE = Path(__file__).parents[1] / "docs" / "examples" / "reference_median.py"
+EXAMPLE = ROOT / "docs" / "examples" / "reference_median.py"
 
 
 @pytest.fixture(scope="module")

@@ -180,6 +180,46 @@ def test_fft_magnitude_sine_and_white_level():
     assert np.mean(g.magnitude.value**2) == pytest.approx(4.0, rel=0.02)
 
 
+def test_source_mask_finds_sources_and_hot_pixels():
+    img = white((256, 256), 1.0, seed=15)
+    y, x = np.mgrid[0:256, 0:256]
+    img += 200 * np.exp(-((x - 100) ** 2 + (y - 60) ** 2) / (2 * 3.0**2))  # a source
+    hot = [(20, 30), (200, 220), (128, 5)]
+    for r, c in hot:
+        img[r, c] = 1000.0
+    img[150, 150] = -1000.0  # a negative hot pixel of a pair difference
+    m = source_mask(img)
+    assert m[60, 100] and all(m[r, c] for r, c in hot) and m[150, 150]
+    assert m.mean() < 0.01
+    t = power_spectrum(img, mask_sources=True, bins=10)
+    assert within(t, 1.0).all()
+    assert not within(power_spectrum(img, bins=10), 1.0).all()
+
+
+def test_bad_inputs():
+    with pytest.raises(SpherexReduceError, match="2-D"):
+        power_spectrum(np.zeros((3, 8, 8)))
+    with pytest.raises(SpherexReduceError, match="mask shape"):
+        power_spectrum(np.zeros((8, 8)), mask=np.zeros((4, 4), bool))
+    with pytest.raises(SpherexReduceError, match="unmasked"):
+        power_spectrum(np.zeros((8, 8)), mask=np.ones((8, 8), bool))
+    with pytest.raises(SpherexReduceError, match="bin"):
+        power_spectrum(np.zeros((8, 8)), bins=[0.5, 0.1])
+
+
+def test_band_power_of_a_table_is_the_band_power_of_the_image():
+    """A table only gives the band power if its bins tile the band (else it is refused)."""
+    from spherex_reduce.analysis import band_power, power_spectrum
+    from spherex_reduce.core.errors import SpherexReduceError
+
+    img = np.random.default_rng(5).normal(0, 1, (128, 128)) * np.linspace(1, 3, 128)
+    exact = band_power(img)
+    tiled = power_spectrum(img, bins=[0.01, 0.03, 0.07, 0.13, 1.0])
+    assert band_power(tiled).value == pytest.approx(exact.value, rel=1e-9)
+    with pytest.raises(SpherexReduceError, match="tile"):
+        band_power(power_spectrum(img, bins=30))  # bins straddle the band edges
+
+
 def poisson_ramp_slopes(rate, nframes, tframe, shape, seed):
     """Least-squares slopes of Poisson ramps, fitted with numpy.polyfit (independent of us)."""
     rng = np.random.default_rng(seed)
@@ -213,30 +253,3 @@ def test_photon_noise_simple_and_from_schedule():
     assert slope_variance_factor(2) == 1.0
     with pytest.raises(SpherexReduceError):
         photon_noise_power(1.0)
-
-
-def test_source_mask_finds_sources_and_hot_pixels():
-    img = white((256, 256), 1.0, seed=15)
-    y, x = np.mgrid[0:256, 0:256]
-    img += 200 * np.exp(-((x - 100) ** 2 + (y - 60) ** 2) / (2 * 3.0**2))  # a source
-    hot = [(20, 30), (200, 220), (128, 5)]
-    for r, c in hot:
-        img[r, c] = 1000.0
-    img[150, 150] = -1000.0  # a negative hot pixel of a pair difference
-    m = source_mask(img)
-    assert m[60, 100] and all(m[r, c] for r, c in hot) and m[150, 150]
-    assert m.mean() < 0.01
-    t = power_spectrum(img, mask_sources=True, bins=10)
-    assert within(t, 1.0).all()
-    assert not within(power_spectrum(img, bins=10), 1.0).all()
-
-
-def test_bad_inputs():
-    with pytest.raises(SpherexReduceError, match="2-D"):
-        power_spectrum(np.zeros((3, 8, 8)))
-    with pytest.raises(SpherexReduceError, match="mask shape"):
-        power_spectrum(np.zeros((8, 8)), mask=np.zeros((4, 4), bool))
-    with pytest.raises(SpherexReduceError, match="unmasked"):
-        power_spectrum(np.zeros((8, 8)), mask=np.ones((8, 8), bool))
-    with pytest.raises(SpherexReduceError, match="bin"):
-        power_spectrum(np.zeros((8, 8)), bins=[0.5, 0.1])

@@ -13,6 +13,7 @@ import warnings
 import pytest
 from _cli_helpers import digest, one_line_error, run
 
+from spherex_reduce.cli import main
 from spherex_reduce.io import atomic_output
 
 SCENE = """\
@@ -20,10 +21,6 @@ geometry: {nrows: 64, ncols: 64, nchannels: 4, ref_border: 4}
 readout: {skip: 4, ref_reads: 4, phantom_reads: 2, nframes: 4}
 seed: 1
 """
-
-
-
-
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
@@ -451,3 +448,27 @@ def test_plugins_listing_survives_a_plugin_with_damaged_metadata(monkeypatch, ca
     assert run("plugins") == 0, capsys.readouterr().err
     out = capsys.readouterr().out
     assert "correct_reference" in out and "damaged-plugin" not in out
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["simulate", "{scene}", "--seed", "-1", "-o", "a.fits"], "non-negative"),
+        (["demo", "-o", "d", "--size", "64", "--nframes", "1"], "--nframes must be >= 2"),
+        (["spectrum", "{image}", "-o", "s.ecsv", "--pixel-scale", "0"], "--pixel-scale"),
+        (["spectrum", "{image}", "-o", "s.ecsv", "--integration-time", "0"],
+         "--integration-time"),
+        (["spectrum", "{image}", "-o", "s.ecsv", "--photocurrent", "-1"], "--photocurrent"),
+    ],
+)
+def test_cli_rejects_bad_numbers(tmp_path, monkeypatch, capsys, args, message):
+    monkeypatch.chdir(tmp_path)
+    scene = tmp_path / "scene.txt"  # not .yaml: read as a file all the same
+    scene.write_text("geometry: {nrows: 64, ncols: 64, nchannels: 1}\nreadout: {nframes: 3}\n")
+    image = tmp_path / "img.fits"
+    if "{image}" in args:
+        assert main(["-q", "simulate", str(scene), "-o", str(image)]) == 0
+    argv = [a.format(scene=scene, image=image) for a in args]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err

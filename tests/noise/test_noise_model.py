@@ -1,28 +1,24 @@
-"""Noise table, components, scene validation, plugin registration, analytic variance.
+"""Noise table, components and the analytic slope variance.
 
 The analytic slope variance (closed-form structure functions) is checked
 against an independent numerical quadrature of ``integral p(f) |H(f)|^2 df``
-that resolves the comb of ``|H|^2``; the simulator's own exact expectation
-(its tiers, padding and interpolation) is checked against the analytic value
-for every Table 2 component and N = 2, 10, 74, 386, at full size and small.
+that resolves the comb of ``|H|^2``; the simulator's own exact expectation is
+checked against it in ``tests/simulation/test_engine_expectation.py``.
 """
 
 import itertools
 
 import numpy as np
 import pytest
+from _paths import ROOT
 from astropy import units as u
 from scipy import integrate
 
-from spherex_reduce import ConfigError, expected_slope_variance
+from spherex_reduce import expected_slope_variance
 from spherex_reduce.io.config import schedule_from_config
-from spherex_reduce.reduce.plugins import Registry, get_plugin_manager
 from spherex_reduce.simulation import (
     NoiseComponent,
-    NoiseEngine,
-    SpherexSimulator,
     load_noise_table,
-    load_scene,
     ls_weights,
     noise_components,
 )
@@ -60,10 +56,8 @@ def test_table2_values_and_provenance():
 
 
 def test_repository_copy_matches_package_table():
-    from pathlib import Path
-
-    repo = Path(__file__).resolve().parents[1] / "data" / "spherex-table2.ecsv"
-    pkg = Path(__file__).resolve().parents[1] / "spherex_reduce" / "data" / "spherex-table2.ecsv"
+    repo = ROOT / "data" / "spherex-table2.ecsv"
+    pkg = ROOT / "spherex_reduce" / "data" / "spherex-table2.ecsv"
     assert repo.read_text() == pkg.read_text()
 
 
@@ -135,90 +129,3 @@ def test_white_closed_form_and_table_sum():
     assert expected_slope_variance(noise_components()["bias_phantom_only"], s).value == 0
     ph = expected_slope_variance(noise_components()["bias_phantom_only"], s, kind="phantom")
     assert ph.value > 0
-
-
-@pytest.mark.parametrize("geo", ["full", "small"])
-@pytest.mark.parametrize("n", [2, 10, 74, 386])
-def test_simulator_expectation_matches_analytic(geo, n):
-    """The engine's exact ensemble variance (both modes) is within 2 % of the aperiodic value."""
-    g, r = ({}, {}) if geo == "full" else SMALL
-    s = schedule_from_config(g, {**r, "nframes": n})
-    comps = [c for c in noise_components().values() if c.seen_by_pixels] + SINGLE
-    for comp in comps:
-        eng = NoiseEngine(s, [comp.replace(acn=False) if comp.scope == "channel" else comp], 0)
-        sim = eng.expected_slope_variance(read=3, column=5)
-        ana = expected_slope_variance(comp, s).value
-        assert sim == pytest.approx(ana, rel=0.02), comp.name
-
-
-@pytest.mark.parametrize("streaming", [False, True])
-def test_expectation_streamed_and_in_memory_slow_tier(streaming):
-    g, r = SMALL
-    s = schedule_from_config(g, {**r, "nframes": 74})
-    for comp in SINGLE[1:]:
-        eng = NoiseEngine(s, [comp], 0, streaming=streaming)
-        assert eng.streaming is streaming
-        ana = expected_slope_variance(comp, s).value
-        assert eng.expected_slope_variance(2, 7) == pytest.approx(ana, rel=0.02)
-
-
-def test_random_phase_without_padding_reproduces_the_low_bias():
-    """The paper's method (period = exposure) is ~50 % low for gamma/f^1.3 at N = 10."""
-    s = schedule_from_config({}, {"nframes": 10})
-    comp = NoiseComponent("g", gamma=0.1)
-    ana = expected_slope_variance(comp, s).value
-    biased = NoiseEngine(s, [comp], 0, method="random_phase", padding=1).expected_slope_variance()
-    padded = NoiseEngine(s, [comp], 0, padding=16).expected_slope_variance()
-    assert biased / ana < 0.6
-    assert padded / ana == pytest.approx(1, abs=0.01)
-
-
-# -- scene validation ----------------------------------------------------------------
-@pytest.mark.parametrize("scene, path", [
-    ({"noise": {"components": ["video8", "nope"]}}, "noise.components[1]"),
-    ({"noise": {"components": [{"name": "x", "beta": -1.0}]}}, "noise.components[0].beta"),
-    ({"noise": {"components": ["roic", {"name": "y", "gamma": "big"}]}},
-     "noise.components[1].gamma"),
-    ({"noise": {"components": [{"name": "z", "scope": "common", "acn": True}]}},
-     "noise.components[0]"),
-    ({"noise": {"colour": 1}}, "noise.colour"),
-    ({"scene": {"dark_current": -1}}, "scene.dark_current"),
-    ({"scene": {"rtn": {"fraction": 0.1, "amp": 1}}}, "scene.rtn.amp"),
-    ({"output": {"mode": "cube"}}, "output.mode"),
-    ({"readout": {"skip": 0}}, "readout.skip"),
-    ({"geometry": {"ncols": "x"}}, "geometry.ncols"),
-    ({"synthesis": {"method": "pink"}}, "synthesis.method"),
-    ({"seed": -3}, "seed"),
-    ({"scnee": {}}, "scnee"),
-])
-def test_scene_errors_name_the_yaml_path(scene, path):
-    with pytest.raises(ConfigError, match=path.replace("[", r"\[").replace("]", r"\]")):
-        load_scene(scene)
-
-
-def test_scene_defaults_are_the_paper_case(tmp_path):
-    sc = load_scene()
-    assert [c.name for c in sc.components] == list(TABLE2)
-    assert sc.schedule.nframes == 74 and sc.schedule.skip == 24
-    assert sc.mode == "slopes"
-    f = tmp_path / "scene.yaml"
-    f.write_text("readout: {nframes: 3}\nnoise:\n  components: [roic, {name: extra, beta: 1e-3,"
-                 " scope: channel, visibility: both}]\n  acn: false\nseed: 5\n")
-    sc = load_scene(f)
-    assert [c.name for c in sc.components] == ["roic", "extra"]
-    assert not sc.components[0].acn and sc.seed == 5
-
-
-def test_simulator_registered_as_plugin():
-    reg = Registry(get_plugin_manager(entry_points=False))
-    assert reg.simulator("spherex") is SpherexSimulator
-    assert reg.providers["simulator"]["spherex"] == "simulation"
-
-
-def test_example_scene_is_the_default_case():
-    from pathlib import Path
-
-    f = Path(__file__).resolve().parents[1] / "data" / "examples" / "simulate-paper.yaml"
-    sc, default = load_scene(f), load_scene()
-    assert sc.schedule == default.schedule and sc.components == default.components
-    assert sc.seed == 1234 and sc.mode == "slopes"

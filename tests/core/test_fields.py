@@ -8,10 +8,10 @@ a field added to one description but not to another fails here.
 import argparse
 import dataclasses
 import inspect
-from pathlib import Path
 
 import pytest
 import yaml
+from _paths import ROOT
 from astropy import units as u
 
 from spherex_reduce import DetectorGeometry, ReadoutSchedule
@@ -27,7 +27,7 @@ from spherex_reduce.io.config import (
     schedule_from_config,
 )
 
-DOCS = Path(__file__).resolve().parent.parent / "docs"
+DOCS = ROOT / "docs"
 
 #: Today's public names, FITS keywords and defaults, written out by hand: a rename or a
 #: changed default must be deliberate.  New fields need no entry here.
@@ -362,11 +362,12 @@ def yaml_section_table(section):
 
 def test_docs_fits_lists_every_keyword_as_the_table_says():
     text = (DOCS / "fits.rst").read_text(encoding="utf-8")
-    assert fits_keyword_table() in text, "regenerate with tests/test_fields.py:fits_keyword_table"
+    assert fits_keyword_table() in text, (
+        "regenerate with tests/core/test_fields.py:fits_keyword_table")
 
 
 @pytest.mark.parametrize("section", ["geometry", "readout"])
 def test_docs_yaml_lists_every_key_as_the_table_says(section):
     text = (DOCS / "yaml.rst").read_text(encoding="utf-8")
     assert yaml_section_table(section) in text, \
-        "regenerate with tests/test_fields.py:yaml_section_table"
+        "regenerate with tests/core/test_fields.py:yaml_section_table"

@@ -1,0 +1,132 @@
+"""demo's image panels and the power-spectrum plot, checked without looking.
+
+Texts must not overlap (their window extents after a draw), error bars are
+drawn where the legend shows them, no bar end sits at or below zero on a log
+axis, panels meant to be compared share one colour stretch, and large images
+are binned (block means), not decimated.
+"""
+
+import numpy as np
+import pytest
+from _figure_checks import drawn, errorbar_ends, overlaps
+from astropy import units as u
+from astropy.table import Table
+
+
+class _Reduced:
+    """What demo's image panel needs of a reduced exposure."""
+
+    def __init__(self, data):
+        from astropy.nddata import CCDData
+
+        self.data = np.ma.MaskedArray(data, mask=np.zeros(data.shape, bool))
+        self.unit = u.electron / u.s
+        self._ccd = CCDData(data, unit=self.unit, mask=self.data.mask)
+
+    def to_ccddata(self):
+        return self._ccd
+
+
+@pytest.fixture(scope="module")
+def images_2048():
+    """demo's images.png for two 2048² images, one with 10 times the noise of the other.
+
+    Small values: colour-bar labels like "−0.008" are as wide as those of real slopes.
+    """
+    from spherex_reduce.analysis.demo import _images
+
+    rng = np.random.default_rng(7)
+    data = [rng.normal(0, s, (2048, 2048)).astype(np.float32) for s in (0.003, 0.03)]
+    fig = _images({"a": _Reduced(data[0]), "b": _Reduced(data[1])}, {"a": "A", "b": "B"})
+    return fig, data
+
+
+def test_images_panels_share_one_stretch(images_2048):
+    fig, _ = images_2048
+    shown = [ax.images[0] for ax in fig.axes if ax.images]
+    assert len(shown) == 2
+    assert shown[0].norm is shown[1].norm or (
+        (shown[0].norm.vmin, shown[0].norm.vmax) == (shown[1].norm.vmin, shown[1].norm.vmax))
+
+
+def test_images_are_block_means_not_decimated(images_2048):
+    fig, data = images_2048
+    rng = np.random.default_rng(0)
+    for ax, d in zip([ax for ax in fig.axes if ax.images], data, strict=True):
+        shown = np.asarray(ax.images[0].get_array())
+        assert 256 <= max(shown.shape) <= 512
+        f = -(-2048 // shown.shape[0])  # pixels per block; the last block may hold fewer
+        assert shown.shape == (-(-2048 // f),) * 2
+        picks = [(0, 0), (shown.shape[0] - 1, shown.shape[1] - 1),
+                 *rng.integers(0, shown.shape[0], (50, 2))]
+        for i, j in picks:
+            block = d[i * f:(i + 1) * f, j * f:(j + 1) * f].astype(float)
+            assert shown[i, j] == pytest.approx(block.mean(), rel=1e-5, abs=1e-6), (i, j)
+        # the axes still count pixels of the full image
+        assert ax.get_xlim() == (-0.5, 2047.5)
+
+
+def test_images_labels_clear_of_the_other_panel(images_2048):
+    fig, _ = images_2048
+    renderer = drawn(fig)
+    image_axes = [ax for ax in fig.axes if ax.images]
+    colorbars = [ax for ax in fig.axes if not ax.images]
+    right_label = image_axes[1].yaxis.label.get_window_extent(renderer)
+    for cb in colorbars:
+        assert not overlaps(right_label, cb.get_tightbbox(renderer))
+
+
+def _spectrum(power, err):
+    k = np.geomspace(0.01, 1.0, len(power))
+    punit = u.electron**2 * u.pix**2 / u.s**2
+    return Table({"k": k * u.rad / u.pix, "power": np.asarray(power, float) * punit,
+                  "power_err": np.asarray(err, float) * punit})
+
+
+def test_spectra_log_axis_has_no_points_or_bars_at_or_below_zero():
+    from spherex_reduce.analysis.plots import plot_spectra
+
+    fig = plot_spectra({"a": _spectrum([4.0, 0.0, 2.0, 1.0, 0.0, 3.0],
+                                       [5.0, 0.0, 0.5, 2.0, 0.0, 0.1])})
+    ax = fig.axes[0]
+    for line in ax.get_lines():
+        y = np.asarray(line.get_ydata(), float)
+        if line.get_label() == "a" or line in ax.containers[0].lines[:1]:
+            assert np.all(y[np.isfinite(y)] > 0)
+    ends = errorbar_ends(ax)
+    assert len(ends) and np.all(ends[:, 0] > 0)
+
+
+def test_spectra_legend_shows_error_bars_only_where_drawn():
+    from matplotlib.container import ErrorbarContainer
+
+    from spherex_reduce.analysis.plots import plot_spectra
+
+    fig = plot_spectra({"one realisation": _spectrum([3.0, 2.0, 1.0], [0.0, 0.0, 0.0]),
+                        "with errors": _spectrum([3.0, 2.0, 1.0], [0.3, 0.2, 0.1])})
+    ax = fig.axes[0]
+    handles, labels = ax.get_legend_handles_labels()
+    kinds = dict(zip(labels, handles, strict=True))
+    assert isinstance(kinds["with errors"], ErrorbarContainer)
+    assert not isinstance(kinds["one realisation"], ErrorbarContainer)
+    for h in handles:  # every error-bar symbol in the legend has bars of some length
+        if isinstance(h, ErrorbarContainer):
+            lengths = [np.ptp(np.asarray(seg, float).reshape(-1, 2)[:, 1])
+                       for col in h.lines[2] for seg in col.get_segments() if len(seg)]
+            assert max(lengths) > 0
+
+
+@pytest.mark.parametrize("scale", [6.2, 0.5, 60.0])
+def test_spectra_band_labelled_by_k_and_the_theta_it_gives(scale):
+    from spherex_reduce.analysis.plots import plot_spectra
+
+    fig = plot_spectra({"a": _spectrum([1.0, 2.0], [0.1, 0.1])}, band=(0.03, 0.13),
+                       pixel_scale=scale * u.arcsec)
+    (band,) = [t.get_text() for t in fig.axes[0].get_legend().get_texts()
+               if t.get_text().startswith("band")]
+    # θ = 2π · pixel scale / k, independently of the package
+    short, long_ = (2 * np.pi * scale / k for k in (0.13, 0.03))  # arcsec
+    unit, mark = (60.0, "′") if long_ >= 60 else (1.0, "″")
+    assert band == (f"band 0.03 ≤ k ≤ 0.13 rad/pixel "
+                    f"(θ = {short / unit:.3g}–{long_ / unit:.3g}{mark})")
+    assert "0–0" not in band

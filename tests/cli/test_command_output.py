@@ -1,0 +1,199 @@
+"""What a user sees of the commands: their output, help texts, listings and the plots they save.
+
+Labels carry the real unit, the sweep plot drawn in memory is the plot of the
+written table, and demo and spectrum give one band power for one file.
+"""
+
+import pytest
+from astropy import units as u
+from astropy.table import Table
+
+from spherex_reduce.cli import main
+
+SWEEP = {
+    "scene": {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 4, "ref_border": 4},
+              "readout": {"nframes": 4, "phantom_reads": 2, "ref_reads": 8}},
+    "grid": {"skip": [1, 4], "ref_mode": ["repeated", "distributed"]},
+    "realizations": 1,
+    "seed": 3,
+    "measure": {"kmin": 0.1, "kmax": 1.0, "bins": 6},
+}
+
+
+def _lines(fig):
+    """``(label, x, y)`` of every error-bar series of the first axes."""
+    ax = fig.axes[0]
+    return sorted((c.get_label(), tuple(c.lines[0].get_xdata()), tuple(c.lines[0].get_ydata()))
+                  for c in ax.containers)
+
+
+# -- sweep --plot -------------------------------------------------------------------------
+def test_sweep_plot_in_memory_equals_plot_of_the_file(tmp_path, monkeypatch):
+    """The in-memory results carry the grid, so ``--plot`` draws against the first key."""
+    import yaml
+
+    import spherex_reduce.io.plotting as plotting
+    from spherex_reduce.analysis.sweep import plot_sweep
+
+    drawn = []
+    real_save = plotting.save_figure
+    monkeypatch.setattr(plotting, "save_figure",
+                        lambda fig, *a, **k: (drawn.append(fig), real_save(fig, *a, **k))[1])
+    path = tmp_path / "sweep.yaml"
+    path.write_text(yaml.safe_dump(SWEEP, sort_keys=False))
+    out = tmp_path / "res.ecsv"
+    assert main(["-q", "sweep", str(path), "-o", str(out), "--scheduler", "serial",
+                 "--plot"]) == 0
+    (fig,) = drawn
+    assert fig.axes[0].get_xlabel() == "skip"
+    from_file = plot_sweep(Table.read(out))
+    assert _lines(fig) == _lines(from_file)
+    unit = Table.read(out)["band_power"].unit
+    assert fig.axes[0].get_ylabel() == f"band power ({unit.to_string('latex_inline')})"
+    # one line per ref_mode, two points (skip 1, 4) each
+    assert [(lab, x) for lab, x, _ in _lines(fig)] == [
+        ("ref_mode=distributed", (1, 4)), ("ref_mode=repeated", (1, 4))]
+
+
+# -- one band power -----------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def demo_dir(tmp_path_factory):
+    """A small demo run: its directory and its figures by file name."""
+    import spherex_reduce.analysis.demo as demo
+
+    out = tmp_path_factory.mktemp("demo")
+    figs = {}
+    real_save = demo.save_figure
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(demo, "save_figure",
+                   lambda fig, path, *a: (figs.setdefault(path.name, fig),
+                                          real_save(fig, path, *a))[1])
+        assert main(["-q", "demo", "--size", "256", "--nframes", "3", "-o", str(out)]) == 0
+    return out, figs
+
+
+def test_demo_and_spectrum_give_one_band_power(demo_dir, tmp_path):
+    """The same file, the same band: the same number from ``demo`` and ``spectrum``.
+
+    256² is the smallest size at which the binned P(k) that demo used straddles the band.
+    """
+    demo_dir, _ = demo_dir
+    demo_meta = Table.read(demo_dir / "spectra.ecsv").meta
+    for label in ("chopped", "unchopped"):
+        out = tmp_path / f"{label}.ecsv"
+        assert main(["spectrum", str(demo_dir / f"reduced_{label}.fits"), "-o", str(out)]) == 0
+        spec = Table.read(out).meta
+        demo = u.Quantity(demo_meta[f"band_power_{label}"])
+        assert demo.unit == u.Unit(spec["band_power_unit"])
+        assert demo.value == pytest.approx(spec["band_power"], rel=1e-12)
+
+
+# -- help texts and listings -------------------------------------------------------------
+def test_readout_help_describes_every_option_with_its_default(capsys):
+    from spherex_reduce.cli.readout import OPTIONS
+    from spherex_reduce.io.config import GEOMETRY_PARAMETERS, READOUT_PARAMETERS
+
+    with pytest.raises(SystemExit):
+        main(["readout", "--help"])
+    text = " ".join(capsys.readouterr().out.split())  # unwrap argparse's lines
+    declared = {p.name: p for p in (*GEOMETRY_PARAMETERS, *READOUT_PARAMETERS)}
+    assert len(OPTIONS) == 14
+    for flag, _, key, _ in OPTIONS:
+        p = declared[key]
+        after = text.split(f"{flag} {key.upper()} ", 1)[1]
+        assert after.startswith(p.doc), flag
+        if p.default is not None:
+            default = f"{p.default:g}" if isinstance(p.default, float) else str(p.default)
+            assert after.split("(default: ", 1)[1].startswith(default + ")"), flag
+        else:
+            assert "(default: " in after.split(" --", 1)[0], flag
+    assert "(default: 1816, the paper's 1.51 s frame" in text
+
+
+def test_show_config_list_gives_each_shipped_config_its_description(capsys):
+    import importlib.resources
+
+    import yaml
+
+    assert main(["show-config", "--list"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    configs = importlib.resources.files("spherex_reduce") / "data" / "configs"
+    shipped = sorted(p.name[:-5] for p in configs.iterdir() if p.name.endswith(".yaml"))
+    assert [line.split()[0] for line in lines] == shipped
+    for name, line in zip(shipped, lines, strict=True):
+        description = yaml.safe_load((configs / f"{name}.yaml").read_text())["description"]
+        assert 10 < len(description) < 62 and "\n" not in description
+        assert line.split(None, 1)[1] == description
+        assert line.index(description) == lines[0].index(lines[0].split(None, 1)[1])
+
+
+def test_plugins_names_distribution_and_version_in_aligned_columns(capsys):
+    import importlib.metadata
+
+    import spherex_reduce
+
+    assert main(["plugins"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    header = lines[0]
+    assert header.split() == ["kind", "name", "keyword", "strategies", "plugin", "distribution"]
+    starts = [header.index(w) for w in header.split()]
+    rows = [line for line in lines[1:] if not line.startswith("blocked")]
+    for line in rows:
+        for s in starts[1:]:  # every column starts where its heading does
+            assert line[s - 2:s] == "  " or len(line) <= s, line
+        assert line[starts[4]] != " " and line[starts[5]] != " ", line
+    by_name = {line.split()[1]: line for line in rows}
+    own = f"spherex-reduce {spherex_reduce.__version__}"
+    assert by_name["correct_reference"].endswith(own)
+    assert "S_REFCOR" in by_name["correct_reference"]
+    assert by_name["unchop"][starts[4]:].split()[0] == "builtin.unchop"
+    for ep in importlib.metadata.entry_points(group="spherex_reduce"):
+        installed = f"{ep.dist.name} {ep.dist.version}"  # e.g. spherex-reduce-destripe 0.1.0
+        assert any(line.endswith(installed) and f" {ep.name} " in line for line in rows)
+
+
+def test_counts_of_one_are_singular(capsys):
+    from spherex_reduce import DetectorGeometry, ReadoutSchedule
+
+    summary = ReadoutSchedule(DetectorGeometry(64, 64, 1, ref_border=4)).summary()
+    assert "1 channel of 64 columns" in summary
+    assert "2 channels of 32 columns" in ReadoutSchedule(DetectorGeometry(64, 64, 2,
+                                                                          ref_border=4)).summary()
+    assert main(["readout", "--nrows", "64", "--ncols", "64", "--nchannels", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "1 channel of" in out and "channels" not in out
+
+
+def test_demo_spectra_legend_and_unit(demo_dir):
+    """The photon line says its flux and time; the P(k) unit is LaTeX, not 'electron2'."""
+    from spherex_reduce.io import read
+
+    out, figs = demo_dir
+    ax = figs["spectra.png"].axes[0]
+    assert ax.get_ylabel() == "P(k) ($\\mathrm{electron^{2}\\,pix^{2}\\,s^{-2}}$)"
+    schedule = read(out / "raw_chopped.fits").schedule
+    legend = [t.get_text() for t in ax.get_legend().get_texts()]
+    (photon,) = [t for t in legend if t.startswith("photon noise")]
+    assert "1 e/s" in photon
+    assert f"{schedule.integration_time.to_value(u.s):.3g} s" in photon
+    assert f"N = {schedule.nframes}" in photon
+
+
+def test_fit_noise_plot_names_streams_and_unit(demo_dir, tmp_path, monkeypatch):
+    import spherex_reduce.io.plotting as plotting
+    from spherex_reduce.io import read
+
+    out, _ = demo_dir
+    figs = []
+    real_save = plotting.save_figure  # still written: the outputs are renamed together
+    monkeypatch.setattr(plotting, "save_figure",
+                        lambda fig, *a, **k: (figs.append(fig), real_save(fig, *a, **k))[1])
+    raw = out / "raw_chopped.fits"
+    assert main(["-q", "fit-noise", str(raw), "-o", str(tmp_path / "fit.ecsv"), "--plot",
+                 str(tmp_path / "fit.png")]) == 0
+    (ax,) = figs[0].axes
+    unit = read(raw).unit**2 / u.Hz
+    assert ax.get_ylabel() == f"one-sided PSD ({unit.to_string('latex_inline')})"
+    legend = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert not any("spectrum" in t for t in legend)
+    assert {"reference: border columns", "reference: re-read rows", "phantom"} <= set(legend)

@@ -1,0 +1,36 @@
+"""plot_image bins large images; plot_read_order labels are readable, its legend off the points."""
+
+import numpy as np
+import pytest
+from _figure_checks import drawn, overlaps
+
+
+def test_large_image_binned_in_plot_image():
+    from spherex_reduce.io.plotting import plot_image
+
+    img = np.arange(1200 * 30, dtype=float).reshape(1200, 30)
+    shown = np.asarray(plot_image(img).axes[0].images[0].get_array())
+    assert shown.shape == (400, 10)  # 3 x 3 blocks
+    assert shown[0, 0] == pytest.approx(img[:3, :3].mean())
+    assert shown[-1, -1] == pytest.approx(img[-3:, -3:].mean())
+
+
+def test_read_order_labels_readable_and_legend_off_the_points():
+    from spherex_reduce import ReadoutSchedule
+    from spherex_reduce.io.plotting import plot_read_order
+
+    fig = plot_read_order(ReadoutSchedule())  # the paper's case: 4 reference rows read 4 times
+    renderer = drawn(fig)
+    left, right = fig.axes[:2]
+    boxes = [(t.get_text(), t.get_window_extent(renderer)) for t in left.texts
+             if t.get_text()]  # (arrows are annotations without text)
+    assert len(boxes) > 40
+    for i, (ta, a) in enumerate(boxes):
+        for tb, b in boxes[i + 1:]:
+            assert not overlaps(a, b), (ta, tb)
+    legend = right.get_legend().get_window_extent(renderer)
+    for line in right.get_lines():
+        xy = right.transData.transform(np.c_[line.get_xdata(), line.get_ydata()])
+        inside = ((xy[:, 0] > legend.x0) & (xy[:, 0] < legend.x1)
+                  & (xy[:, 1] > legend.y0) & (xy[:, 1] < legend.y1))
+        assert not inside.any(), line.get_label()

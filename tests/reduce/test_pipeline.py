@@ -1,0 +1,157 @@
+"""Pipeline from YAML: step order, hooks, skipped steps, config errors, passes and provenance."""
+
+import json
+
+import numpy as np
+import pytest
+from _toy_steps import OffsetPlugin, registry_with
+
+import spherex_reduce
+from spherex_reduce import (
+    ConfigError,
+    Exposure,
+    Pipeline,
+    read,
+    unchop,
+    write,
+)
+from spherex_reduce.io.examples import example_raw_exposure, tiny_schedule
+
+
+@pytest.fixture
+def raw(small_schedule):
+    return example_raw_exposure(small_schedule, seed=5)
+
+
+def test_steps_run_in_yaml_order_with_provenance(tmp_path, raw):
+    plugin = OffsetPlugin()
+    config = tmp_path / "p.yaml"
+    config.write_text("steps:\n  - offset: {value: 2}\n  - unchop: {}\n  - offset: {value: 3}\n")
+    pipe = Pipeline.from_yaml(config, registry=registry_with(plugin))
+    out = pipe.run(raw)
+    expected = unchop(raw).data.data + 5.0
+    np.testing.assert_allclose(out.data.data, expected, rtol=1e-6)
+    assert [c[:2] for c in plugin.calls] == [("before", "offset"), ("after", "offset"),
+                                               ("before", "unchop"), ("after", "unchop"),
+                                               ("before", "offset"), ("after", "offset")]
+    h = out.header
+    assert h["S_UNCHOP"] == "COMPLETE" and h["S_OFFSET"] == "COMPLETE"
+    assert h["SXR OFFSET VALUE"] == 3.0  # the last run's parameters
+    assert h["SXRVERS"] == spherex_reduce.__version__
+    assert h["SXRCONF"] == pipe.config_hash and len(pipe.config_hash) == 16
+    assert h["QA_OFFSE"] == 1.0
+    history = "\n".join(str(v) for v in h["HISTORY"])
+    assert '"value": 2.0' in history and '"value": 3.0' in history
+    assert raw.header.get("S_UNCHOP") is None  # input untouched
+
+
+def test_skipped_step_is_recorded(raw):
+    pipe = Pipeline({"steps": [{"offset": {"mode": "skip"}}]}, registry=registry_with(
+        OffsetPlugin()))
+    out = pipe.run(raw)
+    assert out.header["S_OFFSET"] == "SKIPPED"
+    assert any("asked to skip" in str(v) for v in out.header["HISTORY"])
+    np.testing.assert_array_equal(out.data.data, raw.data.data)
+
+
+def test_effective_config_fills_defaults():
+    pipe = Pipeline({"steps": ["unchop", {"offset": {"value": 1}}]},
+                    registry=registry_with(OffsetPlugin()))
+    assert pipe.config == {"steps": [{"unchop": {}},
+                                     {"offset": {"value": 1.0, "mode": "add"}}]}
+    assert "value: 1.0" in pipe.to_yaml()
+    same = Pipeline({"steps": ["unchop", {"offset": {"value": 1.0, "mode": "add"}}]},
+                    registry=registry_with(OffsetPlugin()))
+    assert same.config_hash == pipe.config_hash
+
+
+@pytest.mark.parametrize(
+    ("config", "message"),
+    [
+        ({"steps": [{"unchop": {}}, {"unchopp": {}}]},
+         "steps[1].unchopp: unknown step 'unchopp'; valid: "),
+        ({"steps": [{"offset": {"valu": 1}}]},
+         "steps[0].offset.valu: unknown parameter; valid: value, mode"),
+        ({"steps": [{"offset": {"value": "big"}}]}, "steps[0].offset.value: expected number"),
+        ({"steps": [{"offset": {"mode": "sub"}}]}, "steps[0].offset.mode: 'sub' is not one of"),
+        ({"steps": [{"unchop": {"x": 1}}]}, "steps[0].unchop.x: unknown parameter; valid: (none"),
+        ({"steps": []}, "steps: a non-empty list"),
+        ({"stepz": []}, "stepz: unknown top-level key"),
+        ({"steps": ["unchop"], "readout": {"skip": "many"}}, "readout.skip: expected integer"),
+        ({"steps": ["unchop"], "geometry": {"nrow": 5}}, "geometry.nrow: unknown parameter"),
+    ],
+)
+def test_config_errors_name_the_yaml_path(config, message):
+    with pytest.raises(ConfigError) as info:
+        Pipeline(config, registry=registry_with(OffsetPlugin()))
+    assert message in str(info.value)
+
+
+def test_bad_yaml_file(tmp_path):
+    p = tmp_path / "bad.yaml"
+    p.write_text("steps: [unchop\n")
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        Pipeline.from_yaml(p)
+    with pytest.raises(FileNotFoundError, match="shipped: "):
+        Pipeline.from_yaml(tmp_path / "missing.yaml")
+
+
+def test_shipped_config_by_name(raw):
+    out = Pipeline.from_yaml("unchop").run(raw)
+    assert out.order == "physical"
+
+
+def test_input_exposure_is_not_mutated(raw):
+    data = raw.data.data.copy()
+    header = raw.header.copy()
+    Pipeline({"steps": ["unchop"]}).run(raw)
+    np.testing.assert_array_equal(raw.data.data, data)
+    assert raw.header == header and isinstance(raw, Exposure)
+
+
+def test_provenance_rows_survive_a_file_and_grow_with_the_next_reduction(tmp_path, raw):
+    from spherex_reduce import fit_ramp, read, write
+
+    first = Pipeline({"steps": ["unchop", "subtract_phantom"]}).run(raw)
+    path = write(first, tmp_path / "stage1.fits")
+    again = read(path)
+    second = Pipeline({"steps": ["correct_reference"]}).run(again)
+    rows = second.tables["PROVENANCE"]
+    assert rows["step"].tolist() == ["unchop", "subtract_phantom", "correct_reference"]
+    assert json.loads(rows["parameters"][2])["strategy"] == "mean"
+    assert json.loads(rows["versions"][0]) == {"spherex-reduce": spherex_reduce.__version__}
+    assert rows["elapsed"].unit == "s" and (rows["elapsed"] >= 0).all()
+    # a function called alone records its step too (stpipe style)
+    alone = fit_ramp(second)
+    assert alone.header["S_RAMPFT"] == "COMPLETE"
+    assert alone.tables["PROVENANCE"]["step"].tolist()[-1] == "fit_ramp"
+    assert alone.tables["PROVENANCE"]["route"][-1] == "whole exposure"
+
+
+def test_source_masking_runs_on_the_whole_exposure(tmp_path):
+    """The median strategy estimates from every pixel (and masks sources on the last minus
+    the first frame): it cannot run in a streamed pass; the reference strategies can."""
+    raw = example_raw_exposure(tiny_schedule(nframes=3), seed=2)
+    path = write(raw, tmp_path / "raw.fits")
+
+    def routes(steps):
+        out = Pipeline({"steps": steps}).run(path)
+        return [(row["step"], row["route"]) for row in out.tables["PROVENANCE"]]
+
+    masked = routes(["unchop", {"correct_reference": {"strategy": "median",
+                                                      "mask_sources": True}}, "fit_ramp"])
+    assert "from a file" in masked[0][1] and "1 step" in masked[0][1]
+    assert all("from memory" in route for _, route in masked[1:])
+    mean = routes(["unchop", {"correct_reference": {"strategy": "mean"}}, "fit_ramp"])
+    assert all("pass of 3 step(s)" in route and "from a file" in route for _, route in mean)
+
+
+def test_streamed_file_keeps_its_tables(tmp_path):
+    from astropy.table import Table
+
+    s = tiny_schedule(nframes=3)
+    raw = example_raw_exposure(s, seed=1).replace(tables={"NOTES": Table({"x": [1, 2]})})
+    path = write(raw, tmp_path / "raw.fits")
+    out = Pipeline({"steps": ["unchop", "fit_ramp"]}).run(path)
+    assert "NOTES" in out.tables and out.tables["NOTES"]["x"].tolist() == [1, 2]
+    assert read(path).tables["NOTES"]["x"].tolist() == [1, 2]

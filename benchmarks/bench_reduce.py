@@ -21,9 +21,10 @@
 
 The ``fit_ramp`` rows run ``cube.sum()`` and each fit in turn, ``--repeat`` times (default
 9), and print medians (min) and the ratio to ``cube.sum()`` pair by pair: median (range),
-which holds when the machine's speed drifts.  The other timings are the best of a few
-repeats (the reduce rows: 5 interleaved subprocess repeats, min and median).  ``--quick``
-uses N = 10 frames (for a smoke test of the script).
+which holds when the machine's speed drifts; and the CPU seconds of all threads (medians,
+and the median of the ratios pair by pair), which a busy machine changes much less.  The
+other timings are the best of a few repeats (the reduce rows: 5 interleaved subprocess
+repeats, min and median).  ``--quick`` uses N = 10 frames (for a smoke test of the script).
 """
 
 import argparse
@@ -164,21 +165,24 @@ def main(argv=None):
             f"`python benchmarks/bench_reduce.py` on {os.cpu_count()} cores "
             f"(numpy {np.__version__}), {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}."
             "\nfit_ramp rows: medians (min) of runs interleaved with cube.sum(), ratio pair "
-            "by pair, median (range); other timings: the best of a few repeats; the reduce "
-            "rows: 5 interleaved subprocess repeats, min and median.\n\n"
+            "by pair, median (range); CPU seconds of all threads, medians; other timings: the "
+            "best of a few repeats; the reduce rows: 5 interleaved subprocess repeats, min and "
+            "median.\n\n"
             + table + "\n")
     return 0
 
 
 def paired(fns, repeat):
-    """Times of each of ``fns`` (a dict), run in turn ``repeat`` times (interleaved)."""
-    times = {k: [] for k in fns}
+    """Wall and CPU (all threads) seconds of each of ``fns`` (a dict), run in turn ``repeat``
+    times (interleaved)."""
+    times = {k: ([], []) for k in fns}
     for _ in range(repeat):
         for key, fn in fns.items():
-            t0 = time.perf_counter()
+            c0, t0 = time.process_time(), time.perf_counter()
             fn()
-            times[key].append(time.perf_counter() - t0)
-    return {k: np.array(v) for k, v in times.items()}
+            times[key][0].append(time.perf_counter() - t0)
+            times[key][1].append(time.process_time() - c0)
+    return {k: (np.array(w), np.array(c)) for k, (w, c) in times.items()}
 
 
 def bench_fit(s, nframes, rng, row, no_stcal, repeat):
@@ -191,17 +195,18 @@ def bench_fit(s, nframes, rng, row, no_stcal, repeat):
     times = paired({"sum": cube.sum, "fit": lambda: fit_ramp(e),
                     "nov": lambda: fit_ramp(e, read_noise=READ_NOISE),
                     "one": lambda: one.run(e)}, repeat)
-    t_sum = times["sum"]
+    t_sum, c_sum = times["sum"]
     ref, sigma = float64_reference(cube, s.frame_starts.value)
     err = np.abs(out.data.data - ref).max() / sigma
     nthreads = default_threads()
-    peer = f"{np.median(t_sum):.3f} s (min {t_sum.min():.3f})"
+    peer = f"{np.median(t_sum):.3f} s (min {t_sum.min():.3f}; CPU {np.median(c_sum):.3f})"
 
     def timed(key):
-        t = times[key]
+        t, c = times[key]
         ratio = t / t_sum
-        return (f"{np.median(t):.3f} s (min {t.min():.3f})",
-                f"{np.median(ratio):.2f}x ({ratio.min():.2f}-{ratio.max():.2f}x)")
+        return (f"{np.median(t):.3f} s (min {t.min():.3f}; CPU {np.median(c):.3f})",
+                f"{np.median(ratio):.2f}x ({ratio.min():.2f}-{ratio.max():.2f}x); "
+                f"CPU {np.median(c / c_sum):.2f}x")
 
     row(f"fit_ramp ({nframes}, 2048, 2048) f32, {nthreads} threads", *timed("fit")[:1],
         "cube.sum()", peer, timed("fit")[1], f"{err:.1e} sigma", "<= 3x, <= 1e-3 sigma")
@@ -211,7 +216,7 @@ def bench_fit(s, nframes, rng, row, no_stcal, repeat):
     row("fit_ramp on 1 thread", timed("one")[0], "cube.sum()", peer, timed("one")[1],
         f"{same} as {nthreads} threads", "")
     if not no_stcal:
-        t_fit = float(np.median(times["fit"]))
+        t_fit = float(np.median(times["fit"][0]))
         t_st, st = best(lambda: stcal_fit(cube, s.frame_time.value), 1)
         err_st = np.nanmax(np.abs(st - ref)) / sigma
         row("fit_ramp vs stcal OLS_C (same cube)", f"{t_fit:.3f} s", "stcal OLS_C",

@@ -1,6 +1,8 @@
 """Benchmark of the reduction steps at full size (one process; prints a table).
 
     python benchmarks/bench_reduce.py [--quick] [--no-stcal] [--no-file] [--out FILE.md]
+                                      [--only {fit_ramp,correct_reference,reduce}]
+                                      [--repeat N]
 
 * ``fit_ramp`` on a (74, 2048, 2048) float32 cube on a 6e4 pedestal (bands of rows on
   the executor's default threads, and on one thread): time against ``cube.sum()`` on the
@@ -17,7 +19,11 @@
 * the plugin guide's streaming strategy (``docs/examples/reference_median.py``)
   against ``mean`` on the same file, in-process, interleaved (target <= 1.10x).
 
-Each timing is the best of a few repeats (the reduce rows: 5 interleaved subprocess
+The ``fit_ramp`` rows run ``cube.sum()`` and each fit in turn, ``--repeat`` times (default
+9), and print medians (min) and the ratio to ``cube.sum()`` pair by pair: median (range),
+which holds when the machine's speed drifts; and the CPU seconds of all threads (medians,
+and the median of the ratios pair by pair), which a busy machine changes much less.  The
+other timings are the best of a few repeats (the reduce rows: 5 interleaved subprocess
 repeats, min and median).  ``--quick`` uses N = 10 frames (for a smoke test of the script).
 """
 
@@ -40,6 +46,7 @@ READ_NOISE = 10.0
 
 
 REPEATS = 5  # interleaved repeats of each subprocess command
+PARTS = ("fit_ramp", "correct_reference", "reduce")  # the parts --only can choose
 
 
 def best(fn, repeat=3):
@@ -126,6 +133,9 @@ def main(argv=None):
     p.add_argument("--quick", action="store_true", help="N = 10 frames")
     p.add_argument("--no-stcal", action="store_true")
     p.add_argument("--no-file", action="store_true", help="skip the FITS reduce benchmark")
+    p.add_argument("--only", choices=PARTS, help="run one part of the benchmark")
+    p.add_argument("--repeat", type=int, default=9,
+                   help="fit_ramp rows: runs of each, interleaved with cube.sum() (default 9)")
     p.add_argument("--out", help="also write the table (markdown) here")
     args = p.parse_args(argv)
     nframes = 10 if args.quick else 74
@@ -137,9 +147,12 @@ def main(argv=None):
         print(" | ".join(str(c) for c in rows[-1]), flush=True)
 
     s = ReadoutSchedule(nframes=nframes)
-    bench_fit(s, nframes, rng, row, args.no_stcal)
-    bench_reference(s, nframes, rng, row)
-    if not args.no_file:
+    parts = [args.only] if args.only else [p for p in PARTS if p != "reduce" or not args.no_file]
+    if "fit_ramp" in parts:
+        bench_fit(s, nframes, rng, row, args.no_stcal, args.repeat)
+    if "correct_reference" in parts:
+        bench_reference(s, nframes, rng, row)
+    if "reduce" in parts:
         bench_file(s, rng, row)
     header = ("| work | ours | peer / limit | peer time | ratio | error / memory | target |\n"
               "|---|---|---|---|---|---|---|")
@@ -151,33 +164,59 @@ def main(argv=None):
             "# Reduction benchmark\n\n"
             f"`python benchmarks/bench_reduce.py` on {os.cpu_count()} cores "
             f"(numpy {np.__version__}), {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}."
-            "\nTimings are the best of a few repeats; the reduce rows: 5 interleaved "
-            "subprocess repeats, min and median.\n\n"
+            "\nfit_ramp rows: medians (min) of runs interleaved with cube.sum(), ratio pair "
+            "by pair, median (range); CPU seconds of all threads, medians; other timings: the "
+            "best of a few repeats; the reduce rows: 5 interleaved subprocess repeats, min and "
+            "median.\n\n"
             + table + "\n")
     return 0
 
 
-def bench_fit(s, nframes, rng, row, no_stcal):
+def paired(fns, repeat):
+    """Wall and CPU (all threads) seconds of each of ``fns`` (a dict), run in turn ``repeat``
+    times (interleaved)."""
+    times = {k: ([], []) for k in fns}
+    for _ in range(repeat):
+        for key, fn in fns.items():
+            c0, t0 = time.process_time(), time.perf_counter()
+            fn()
+            times[key][0].append(time.perf_counter() - t0)
+            times[key][1].append(time.process_time() - c0)
+    return {k: (np.array(w), np.array(c)) for k, (w, c) in times.items()}
+
+
+def bench_fit(s, nframes, rng, row, no_stcal, repeat):
+    """fit_ramp and cube.sum() in turn, ``repeat`` times: medians, ratios pair by pair."""
     cube = make_cube(nframes, s, rng, 2048)
     e = Exposure.from_arrays(cube, s, order="physical")
-    t_sum, _ = best(cube.sum, 5)
-    t_fit, out = best(lambda: fit_ramp(e), 3)
+    one = FitRampStep()
+    one.threads = 1
+    out, out_one = fit_ramp(e), one.run(e)  # warm-up, and the slopes compared below
+    times = paired({"sum": cube.sum, "fit": lambda: fit_ramp(e),
+                    "nov": lambda: fit_ramp(e, read_noise=READ_NOISE),
+                    "one": lambda: one.run(e)}, repeat)
+    t_sum, c_sum = times["sum"]
     ref, sigma = float64_reference(cube, s.frame_starts.value)
     err = np.abs(out.data.data - ref).max() / sigma
     nthreads = default_threads()
-    row(f"fit_ramp ({nframes}, 2048, 2048) f32, {nthreads} threads", f"{t_fit:.3f} s",
-        "cube.sum()", f"{t_sum:.3f} s", f"{t_fit / t_sum:.2f}x", f"{err:.1e} sigma",
-        "<= 3x, <= 1e-3 sigma")
-    t_nov, _ = best(lambda: fit_ramp(e, read_noise=READ_NOISE), 3)
-    row("fit_ramp, uncertainty from read_noise", f"{t_nov:.3f} s", "cube.sum()",
-        f"{t_sum:.3f} s", f"{t_nov / t_sum:.2f}x", "", "<= 3x")
-    one = FitRampStep()
-    one.threads = 1
-    t_one, out_one = best(lambda: one.run(e), 3)
+    peer = f"{np.median(t_sum):.3f} s (min {t_sum.min():.3f}; CPU {np.median(c_sum):.3f})"
+
+    def timed(key):
+        t, c = times[key]
+        ratio = t / t_sum
+        return (f"{np.median(t):.3f} s (min {t.min():.3f}; CPU {np.median(c):.3f})",
+                f"{np.median(ratio):.2f}x ({ratio.min():.2f}-{ratio.max():.2f}x); "
+                f"CPU {np.median(c / c_sum):.2f}x")
+
+    row(f"fit_ramp ({nframes}, 2048, 2048) f32, {nthreads} threads", *timed("fit")[:1],
+        "cube.sum()", peer, timed("fit")[1], f"{err:.1e} sigma", "<= 3x, <= 1e-3 sigma")
+    row("fit_ramp, uncertainty from read_noise", timed("nov")[0], "cube.sum()", peer,
+        timed("nov")[1], "", "<= 3x")
     same = "bit for bit" if np.array_equal(out_one.data.data, out.data.data) else "DIFFERENT"
-    row("fit_ramp on 1 thread", f"{t_one:.3f} s", "cube.sum()", f"{t_sum:.3f} s",
-        f"{t_one / t_sum:.2f}x", f"{same} as {nthreads} threads", "")
+    row("fit_ramp on 1 thread", timed("one")[0], "cube.sum()", peer, timed("one")[1],
+        f"{same} as {nthreads} threads", "")
     if not no_stcal:
+        t_fit = float(np.median(times["fit"][0]))
         t_st, st = best(lambda: stcal_fit(cube, s.frame_time.value), 1)
         err_st = np.nanmax(np.abs(st - ref)) / sigma
         row("fit_ramp vs stcal OLS_C (same cube)", f"{t_fit:.3f} s", "stcal OLS_C",

@@ -19,8 +19,9 @@ are refitted on a float64 path that uses only their usable reads
 (`fit_usable_reads`).
 
 Every pixel's numbers depend on its own reads only, never on the other pixels
-of the block or on where the block starts: numpy's ``einsum`` adds the frames
-of each column one after another (a product, then a sum, each rounded), and
+of the block or on where the block starts: numpy's ``einsum``, and its
+reduction over the first axis of a C-ordered array, add the frames of each
+column one after another (a product, then a sum, each rounded), and
 the float64 paths fit each column alone.  So a ramp cut into bands of rows and
 fitted band by band, on any number of threads, gives the fit of the whole cube
 bit for bit.
@@ -192,6 +193,14 @@ def fit_usable_reads(y, good, times, read_noise, poisson_scale):
     return slope[:m], var[:m], n[:m].astype(np.int16)
 
 
+def _accumulate(total, part, i):
+    """``total = 0 + part`` for the first group (``i == 0``), else ``total += part``."""
+    if i:
+        total += part
+    else:
+        total[:] = part
+
+
 class LeastSquares:
     """The least-squares fit of ramps read at ``times``, for blocks of any rows.
 
@@ -231,6 +240,7 @@ class LeastSquares:
         self.pscale = None if read_noise is None else 1.0 / gain
         self.pfactor = poisson_factor(t, self.w) if nf >= 2 else 0.0
         self.groups = [slice(g, min(g + GROUP, nf)) for g in range(0, nf, GROUP)]
+        self._wwork = {work: self.w.astype(work) for work in (np.float32, np.float64)}
         self.resid = want_var and read_noise is None
         self._gls = {}  # quantised rate -> (weights, variance); the same for every block
 
@@ -244,8 +254,11 @@ class LeastSquares:
         return max(1, BLOCK_PIXELS // max(ncols, 1))
 
     def buffer(self, ncols, dtype):
-        """A work buffer for blocks of ``ncols`` columns of pixels of ``dtype``."""
-        return np.empty((self.nf, self.rows_per_block(ncols) * ncols), self.work_type(dtype))
+        """A work buffer for blocks of ``ncols`` columns of pixels of ``dtype``.
+
+        One row per frame (the reads minus the first read) and one for partial sums.
+        """
+        return np.empty((self.nf + 1, self.rows_per_block(ncols) * ncols), self.work_type(dtype))
 
     def _kcrit(self, work):
         # refit in float64 where chi2 < kcrit * sum(d^2): (a) float32 sums of squares lose
@@ -284,10 +297,10 @@ class LeastSquares:
         elif not all(getattr(out, k).flags.c_contiguous for k in ("slope", "var", "nreads",
                                                                    "flags")):
             raise ValueError("out must hold C-ordered arrays (they are written through views)")
-        if (buf is None or buf.dtype != self.work_type(cube.dtype) or buf.shape[0] != nf
+        if (buf is None or buf.dtype != self.work_type(cube.dtype) or buf.shape[0] != nf + 1
                 or buf.shape[1] < m):
             rows = min(self.rows_per_block(m), max(n, 1))
-            buf = np.empty((nf, rows * m), self.work_type(cube.dtype))
+            buf = np.empty((nf + 1, rows * m), self.work_type(cube.dtype))
         per = max(1, min(buf.shape[1] // max(m, 1), n))
         for r0 in range(0, n, per):
             r1 = min(n, r0 + per)
@@ -301,7 +314,7 @@ class LeastSquares:
         nf, nr, m = block.shape
         npx = nr * m
         work = buf.dtype.type
-        x = buf[:, :npx]
+        x = buf[:nf, :npx]
         slope = fit.slope.reshape(npx)
         var = fit.var.reshape(npx)
         nreads = fit.nreads.reshape(npx)
@@ -319,25 +332,29 @@ class LeastSquares:
             else:
                 np.copyto(x.reshape(nf, nr, m), block, casting="unsafe")
                 x -= x[0].copy()
-            # float32 partial sums over groups of frames, accumulated in float64
-            wwork = self.w.astype(work)
-            ones = np.ones(nf, work)
-            sumd = np.zeros(npx) if self.resid else None
-            slope[:] = 0
-            for g in self.groups:
-                slope += np.einsum("f,fp->p", wwork[g], x[g])
+            # float32 partial sums over groups of frames, accumulated in float64; each
+            # adds the frames in order (einsum, and a reduction over the first axis)
+            part = buf[nf, :npx]
+            sumd = np.empty(npx) if self.resid else None
+            for i, g in enumerate(self.groups):
+                np.einsum("f,fp->p", self._wwork[work][g], x[g], out=part)
+                _accumulate(slope, part, i)
                 if self.resid:
-                    sumd += np.einsum("f,fp->p", ones[g], x[g])
+                    _accumulate(sumd, np.add.reduce(x[g], axis=0, out=part), i)
             bad = ~np.isfinite(slope)  # pixels with an unusable read, then imprecise ones
             if saturation is not None:
                 with np.errstate(invalid="ignore"):
                     bad |= np.max(x, axis=0) + np.asarray(block[0]).reshape(npx) > saturation
             if self.resid:
-                ss = np.einsum("fp,fp->p", x, x).astype(np.float64)
-                chi2 = ss - sumd * sumd / nf
-                chi2 -= slope * slope * self.stt
+                ss = np.einsum("fp,fp->p", x, x, out=part).astype(np.float64)
+                chi2 = np.multiply(sumd, sumd, out=sumd)
+                chi2 /= nf
+                np.subtract(ss, chi2, out=chi2)
+                sq = np.multiply(slope, slope)
+                sq *= self.stt
+                chi2 -= sq
                 with np.errstate(invalid="ignore"):
-                    bad |= chi2 <= kcrit * ss
+                    bad |= chi2 <= np.multiply(ss, kcrit, out=ss)
                 if nf > 2:
                     np.multiply(chi2, self.sumw2 / (nf - 2), out=var)
                 else:

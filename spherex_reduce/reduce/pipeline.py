@@ -395,7 +395,7 @@ class Pipeline:
         inputs = {}
         for key in step.inputs:
             path = params.get(key)
-            reduces = getattr(step, "reduces_input", None)
+            reduces = step.reduces_input
             if isinstance(path, str) and reduces is not None and reduces(key, params):
                 inputs[key] = self._same_stage(path, key, steps, i, status, progress,
                                                threads, step)

@@ -3,8 +3,10 @@
 Plugins are found through the entry-point group ``spherex_reduce``.  Set the
 environment variable ``SPHEREX_REDUCE_BLOCK_PLUGINS`` to a comma-separated
 list of entry-point names to keep those plugins from loading (e.g. a broken
-one).  There is no global state: every call of :func:`get_plugin_manager`
-builds a new manager.
+one).  Every call of :func:`get_plugin_manager` builds a new manager;
+:func:`default_registry` keeps one `Registry` per process (rebuilt when the
+installed or blocked plugins change), where a step run without a registry
+looks up its strategies.
 """
 
 import functools
@@ -13,6 +15,7 @@ import importlib.metadata
 import inspect
 import logging
 import os
+import threading
 from dataclasses import dataclass
 
 import pluggy
@@ -22,8 +25,8 @@ from ..core.errors import PluginError, UnknownNameError
 from . import hookspecs
 from .step import Simulator, Step, Strategy
 
-__all__ = ["BLOCK_ENV", "ENTRY_POINT_GROUP", "Registry", "blame_plugin", "describe_plugin",
-           "get_plugin_manager", "get_registry", "plugin_distributions"]
+__all__ = ["BLOCK_ENV", "ENTRY_POINT_GROUP", "Registry", "blame_plugin", "default_registry",
+           "describe_plugin", "get_plugin_manager", "get_registry", "plugin_distributions"]
 
 ENTRY_POINT_GROUP = "spherex_reduce"
 #: Modules of the package that are plugins themselves, registered under their
@@ -313,6 +316,50 @@ def _kind_name(cls):
 def get_registry(**kwargs):
     """Shortcut: ``Registry(get_plugin_manager(**kwargs))``."""
     return Registry(get_plugin_manager(**kwargs))
+
+
+_DEFAULT = {}  # {(blocked names, installed entry points): Registry}: at most one entry
+_DEFAULT_LOCK = threading.Lock()
+
+
+def default_registry():
+    """The `Registry` of the built-in and installed plugins, made once per process.
+
+    What a step run without a registry (`~spherex_reduce.correct_reference`
+    called alone) looks its strategies up in, so that an installed plugin's
+    strategy works there as in a `~spherex_reduce.Pipeline`.  It is made
+    again when the plugins that would load differ from those it was made
+    with: another set of installed entry points, or of names blocked by
+    ``SPHEREX_REDUCE_BLOCK_PLUGINS``.
+
+    Returns
+    -------
+    `Registry`
+
+    Raises
+    ------
+    PluginError
+        An installed plugin fails to load or to register (see `get_plugin_manager`).
+
+    Examples
+    --------
+    >>> from spherex_reduce.reduce.plugins import default_registry
+    >>> default_registry() is default_registry()
+    True
+    >>> default_registry().providers["strategy"]["reference/mean"]
+    'builtin.reference'
+    """
+    blocked = blocked_plugins()
+    key = (frozenset(blocked), tuple(sorted(
+        (ep.name, ep.value) for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)
+        if ep.name not in blocked)))
+    with _DEFAULT_LOCK:
+        registry = _DEFAULT.get(key)
+        if registry is None:
+            registry = Registry(get_plugin_manager())
+            _DEFAULT.clear()
+            _DEFAULT[key] = registry
+    return registry
 
 
 def blame_plugin(exc, registry):

@@ -1,5 +1,6 @@
 """Base classes for what plugins register: steps, strategies, simulators."""
 
+import functools
 import os
 import time
 from collections.abc import Mapping
@@ -8,7 +9,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import ClassVar
 
-from ..core.errors import StepSkipped, UnknownNameError
+from ..core.errors import StepSkipped
 from ..core.parameters import Parameter, validate_parameters
 from ..io import read
 from .executor import MemorySource, execute
@@ -150,9 +151,6 @@ class Step:
         step's.
     default_strategy : str or None
         Strategy used when the YAML file names none.
-    builtin_strategies : mapping
-        Strategies of this kind the package provides, by name (looked up when
-        the step has no registry).
     inputs : tuple of str
         Parameters naming another exposure's FITS file (see :meth:`apply_to`).
     file_sections : dict
@@ -184,10 +182,11 @@ class Step:
     #: receives the `~spherex_reduce.Exposure`
     inputs: ClassVar[tuple] = ()
 
-    #: strategies of :attr:`strategy_kind` the package provides (used without a registry)
-    builtin_strategies: ClassVar[Mapping] = MappingProxyType({})
-
     def __init__(self, registry=None, threads=None):
+        #: the `~spherex_reduce.reduce.plugins.Registry` whose ``before_step`` and
+        #: ``after_step`` hooks run around the step, and where it looks up its
+        #: strategies; None: no hooks, strategies from
+        #: `~spherex_reduce.reduce.plugins.default_registry`
         self.registry = registry
         self.threads = threads
 
@@ -255,6 +254,15 @@ class Step:
         or None (the default)."""
         return None
 
+    def reduces_input(self, name, params):
+        """Whether a `~spherex_reduce.Pipeline` first brings the exposure of input ``name``
+        (one of :attr:`inputs`) to this step's stage, running on it the steps it has
+        completed so far; ``params`` are the step's validated parameters.
+
+        The default, False, has the step read that file as it is.
+        """
+        return False
+
     def _input_cards(self, result, labels):
         cards = [c for name, label in labels.items()
                  if label and (c := self.input_card(name, label)) is not None]
@@ -282,11 +290,24 @@ class Step:
                            inputs=inputs, extra_cards=[c for r in replies for c in (r or ())])
 
     # -- parameters ------------------------------------------------------------
+    def strategy_registry(self):
+        """The `~spherex_reduce.reduce.plugins.Registry` this step looks its strategies up
+        in: its :attr:`registry`, else the process's
+        (`~spherex_reduce.reduce.plugins.default_registry`: the built-in and installed
+        plugins)."""
+        return self.registry if self.registry is not None else self._default_registry
+
+    @functools.cached_property
+    def _default_registry(self):
+        """`~spherex_reduce.reduce.plugins.default_registry`, asked once per step (each
+        asking lists the installed plugins)."""
+        from .plugins import default_registry  # plugins.py imports this module
+
+        return default_registry()
+
     def strategy_names(self):
         """Names of the strategies this step may use."""
-        if self.registry is not None:
-            return sorted(self.registry.strategies.get(self.strategy_kind, {}))
-        return sorted(self.builtin_strategies)
+        return sorted(self.strategy_registry().strategies.get(self.strategy_kind, {}))
 
     def strategy(self, name):
         """The strategy class ``name`` of this step's kind.
@@ -294,15 +315,7 @@ class Step:
         Raises `~spherex_reduce.core.errors.UnknownNameError` (a `KeyError`) listing
         the valid names.
         """
-        if self.registry is not None:
-            return self.registry.strategy(self.strategy_kind, name)
-        try:
-            return self.builtin_strategies[name]
-        except KeyError:
-            raise UnknownNameError(
-                f"unknown {self.strategy_kind} strategy {name!r}; valid: "
-                f"{', '.join(self.strategy_names()) or 'none'} (a plugin's strategy: give "
-                "registry=spherex_reduce.reduce.plugins.Registry())") from None
+        return self.strategy_registry().strategy(self.strategy_kind, name)
 
     def declared(self, params, path=None):
         """The `~spherex_reduce.core.parameters.Parameter` list for ``params`` (with the chosen
@@ -372,7 +385,8 @@ class Strategy:
     name: ClassVar[str] = ""
     parameters: ClassVar[tuple] = ()
 
-    #: True if `estimate` needs the whole exposure, not only the side block
+    #: True if `estimate` needs the whole exposure, not only the side block: the step
+    #: then runs on the exposure in memory (False, the default, streams)
     needs_exposure = False
 
     def __init__(self, **params):
@@ -390,6 +404,16 @@ class Strategy:
         like the built-in ones.
         """
         raise NotImplementedError
+
+    def uses_phantom(self, context):
+        """Whether `estimate` uses the phantom values of the blocks of ``context`` (a
+        `~spherex_reduce.core.block.Context`).
+
+        When True the step's kernel consumes them, as ``subtract_phantom`` does,
+        so that a later ``subtract_phantom`` is skipped instead of correcting
+        twice.  The default is False.
+        """
+        return False
 
     def __call__(self, exposure, **params):
         """Correct a whole exposure (strategies written before `estimate`)."""

@@ -17,43 +17,23 @@ from ..executor import MemorySource, execute
 from ..hookspecs import hookimpl
 from ..step import Kernel, Record, Step, Strategy
 from .reference_strategies import (
-    _CLIP_PARAMETERS,
-    ALL,
-    BUILTIN_STRATEGIES,
-    EVEN,
-    ODD,
     AcnReference,
     MeanReference,
     MedianReference,
-    NoReferenceError,
     NoReferenceWarning,
     ReferenceOffsets,
     _group_columns,
-    clipped_mean,
-    reference_offsets,
 )
 from .wiener import WienerReference
 
-#: The built-in strategies of ``correct_reference``, by name.
-STRATEGIES = {**BUILTIN_STRATEGIES, WienerReference.name: WienerReference}
-
 __all__ = [
-    "ALL",
-    "EVEN",
-    "ODD",
     "CorrectReferenceStep",
-    "NoReferenceError",
-    "NoReferenceWarning",
     "ReferenceKernel",
     "apply_offsets",
-    "clipped_mean",
     "correct_reference",
     "missing_columns",
     "offsets_table",
-    "reference_offsets",
 ]
-
-_ = (_CLIP_PARAMETERS, AcnReference, MeanReference, MedianReference)  # re-exported names
 
 
 class ReferenceKernel(Kernel):
@@ -69,11 +49,10 @@ class ReferenceKernel(Kernel):
     def __init__(self, context, strategy):
         super().__init__(context)
         self.strategy = strategy
-        self.needs_exposure = bool(getattr(strategy, "needs_exposure", False))
+        self.needs_exposure = bool(strategy.needs_exposure)
         #: the strategy estimates from the phantom values, which it then consumes (a later
         #: ``subtract_phantom`` is skipped, as after that step)
-        uses = getattr(strategy, "uses_phantom", None)
-        self.consumes_phantom = bool(uses(context)) if uses is not None else False
+        self.consumes_phantom = bool(strategy.uses_phantom(context))
 
     @property
     def output(self):
@@ -181,24 +160,26 @@ def _row_table(c, order):
     return c["rows_physical"] if order == "physical" else c["rows_readout"]
 
 
-class _Given:
+class _Given(Strategy):
     """A strategy whose offsets are given (`apply_offsets`)."""
 
     def __init__(self, estimate, name):
+        super().__init__()
         self.estimate_, self.name = estimate, name
 
     def estimate(self, side, context, exposure=None):
         return self.estimate_
 
 
-def apply_offsets(exposure, offsets, parity, n_used, n_clipped, strategy, acn=False):
+def apply_offsets(exposure, offsets, parity, n_used, n_clipped, strategy):
     """Subtract per-(frame, channel, parity) offsets and record them in ``REFOFFS``.
 
     Groups whose offset is NaN are left uncorrected, flagged in the table and
     the mask (`~spherex_reduce.core.dq.NO_REFERENCE`), and reported with a
-    `NoReferenceWarning`.  This is the ``correct_reference`` kernel applied
-    with offsets given instead of estimated: for a whole-exposure strategy
-    (``__call__``) that computes its offsets itself.
+    `~spherex_reduce.reduce.steps.reference_strategies.NoReferenceWarning`.
+    This is the ``correct_reference`` kernel applied with offsets given
+    instead of estimated: for a whole-exposure strategy (``__call__``) that
+    computes its offsets itself.
 
     Parameters
     ----------
@@ -209,10 +190,8 @@ def apply_offsets(exposure, offsets, parity, n_used, n_clipped, strategy, acn=Fa
         Parity label of each of the ``P`` groups: ``-1`` all columns, ``0``
         even samples, ``1`` odd samples.
     strategy : str
-        Name recorded in the header (``REFSTRAT``).
-    acn : bool
-        Ignored: the groups are even/odd samples when ``parity`` has two
-        entries (kept for callers that pass it).
+        Name recorded in the header (``REFSTRAT``); the groups are even and odd
+        samples when ``parity`` has two entries.
 
     Returns
     -------
@@ -311,11 +290,11 @@ def correct_reference(exposure, strategy="mean", *, registry=None, **params):
         ``n_clipped`` and ``flag``
         (`~spherex_reduce.core.dq.NO_REFERENCE` when the channel had no usable
         reference pixel: offset NaN, channel left uncorrected, a
-        `NoReferenceWarning`).
+        `~spherex_reduce.reduce.steps.reference_strategies.NoReferenceWarning`).
 
     Raises
     ------
-    NoReferenceError
+    `~spherex_reduce.reduce.steps.reference_strategies.NoReferenceError`
         The exposure has no reference rows (``mean``, ``acn``).
 
     Examples
@@ -344,7 +323,6 @@ class CorrectReferenceStep(Step):
 
     name, keyword = "correct_reference", "S_REFCOR"
     strategy_kind, default_strategy = "reference", "mean"
-    builtin_strategies = STRATEGIES
 
     def kernel(self, context, strategy="mean", **params):
         cls = self.strategy(strategy)
@@ -366,4 +344,4 @@ def register_steps():
 
 @hookimpl
 def register_strategies():
-    return list(STRATEGIES.values())
+    return [MeanReference, AcnReference, MedianReference, WienerReference]

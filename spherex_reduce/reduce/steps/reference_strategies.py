@@ -106,7 +106,7 @@ def clipped_mean(values, sigma=3.0, maxiters=5):
 
     Examples
     --------
-    >>> from spherex_reduce.reduce.steps.reference import clipped_mean
+    >>> from spherex_reduce.reduce.steps.reference_strategies import clipped_mean
     >>> mean, used, clipped = clipped_mean([1.0, 1.1, 0.9, 1.0, 50.0, float("nan")], sigma=2)
     >>> float(mean), int(used), int(clipped)
     (1.0, 4, 1)
@@ -411,8 +411,3 @@ class MedianReference(Strategy):
             ex = excluded.reshape(excluded.shape[0], nch, width).sum(axis=(0, 2))
             clipped[f, :, 0] = ex
         return ReferenceOffsets(off, used, clipped, [ALL])
-
-
-
-
-BUILTIN_STRATEGIES = {c.name: c for c in (MeanReference, AcnReference, MedianReference)}

@@ -1,4 +1,4 @@
-"""Outlier clipping and pair differencing of measured darks (paper §5.3)."""
+"""``sigma_clip``: hot (and cold) pixels of an image clipped into its mask (paper §5.3)."""
 
 import warnings
 
@@ -101,8 +101,6 @@ def _sigma_clip(exposure, *, sigma=5.0, sigma_lower=None, sigma_upper=None, maxi
     header["NHOTPIX"] = (int(hot.sum()), "pixels clipped by sigma_clip")
     return exposure.replace(dq=flags | np.where(hot, np.uint16(dq.HOT), np.uint16(0)),
                             tables=tables, header=header)
-
-
 
 
 class SigmaClipStep(Step):

@@ -22,9 +22,9 @@ from ...core.exposure import Exposure, ReferenceReads
 from ...core.parameters import OPTIONAL_NUMBER, Parameter
 from ..hookspecs import hookimpl
 from ..step import Consumer, Step
-from .ramp_least_squares import LeastSquares, RampSolution, ramp_weights
+from .ramp_least_squares import LeastSquares, RampSolution
 
-__all__ = ["WEIGHTINGS", "FitRampStep", "RampFit", "fit_ramp", "ramp_weights"]
+__all__ = ["WEIGHTINGS", "FitRampStep", "RampFit", "fit_ramp"]
 
 #: values of the ``weighting`` parameter
 WEIGHTINGS = ("uniform", "optimal")

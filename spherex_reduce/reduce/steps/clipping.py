@@ -66,8 +66,7 @@ def sigma_clip(exposure, *, sigma=5.0, sigma_lower=None, sigma_upper=None, maxit
                            stdfunc=stdfunc)
 
 
-def _sigma_clip(exposure, *, sigma=5.0, sigma_lower=None, sigma_upper=None, maxiters=None,
-               cenfunc="median", stdfunc="std"):
+def _sigma_clip(exposure, *, sigma, sigma_lower, sigma_upper, maxiters, cenfunc, stdfunc):
     """`sigma_clip` itself (its step's run)."""
     if exposure.is_ramp:
         raise SpherexReduceError("sigma_clip works on 2-D images: fit the ramps first (fit_ramp)")

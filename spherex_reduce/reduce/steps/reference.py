@@ -377,13 +377,13 @@ class CorrectReferenceStep(Step):
     name, keyword = "correct_reference", "S_REFCOR"
     strategy_kind, default_strategy = "reference", "mean"
 
-    def kernel(self, context, strategy="mean", **params):
+    def kernel(self, context, strategy, **params):
         cls = self.strategy(strategy)
         if not _streams(cls):
             return None
         return ReferenceKernel(context, cls(**params))
 
-    def run(self, exposure, strategy="mean", **params):
+    def run(self, exposure, strategy, **params):
         cls = self.strategy(strategy)
         if not _streams(cls):  # a strategy written before kernels: on the whole exposure
             return cls()(exposure, **params)

@@ -328,7 +328,10 @@ def correct_reference(exposure, strategy="mean", *, registry=None, **params):
         `~spherex_reduce.reduce.steps.wiener.WienerReference`), or any strategy of
         kind ``'reference'`` a plugin registers.
     registry : `~spherex_reduce.reduce.plugins.Registry`, optional
-        Where to look strategies up (default: built-ins and installed plugins).
+        Where to look strategies up, and whose ``before_step`` and
+        ``after_step`` hooks to call (default: no hooks, the strategies of
+        the built-in and installed plugins,
+        `~spherex_reduce.reduce.plugins.default_registry`).
     **params
         The strategy's parameters (``sigma``, ``maxiters``, ``side_columns``
         for ``mean``/``acn``; ``mask_sources`` ... for ``median``; ``noise``,
@@ -368,7 +371,7 @@ def correct_reference(exposure, strategy="mean", *, registry=None, **params):
 def _streams(cls):
     """Whether a strategy class estimates (a kernel applies its offsets), or is an older
     whole-exposure strategy (``__call__(exposure, **params)`` only)."""
-    return getattr(cls, "estimate", Strategy.estimate) is not Strategy.estimate
+    return cls.estimate is not Strategy.estimate
 
 
 class CorrectReferenceStep(Step):

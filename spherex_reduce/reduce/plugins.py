@@ -15,6 +15,7 @@ import importlib.metadata
 import inspect
 import logging
 import os
+import sys
 import threading
 from dataclasses import dataclass
 
@@ -318,8 +319,20 @@ def get_registry(**kwargs):
     return Registry(get_plugin_manager(**kwargs))
 
 
-_DEFAULT = {}  # {(blocked names, installed entry points): Registry}: at most one entry
+_DEFAULT = {}  # {(blocked names, what is installed): Registry}: at most one entry
 _DEFAULT_LOCK = threading.Lock()
+
+
+def _installed():
+    """The folders of ``sys.path`` with their modification times: installing or removing a
+    distribution adds or removes a folder (``*.dist-info``) in one of them."""
+    folders = []
+    for entry in sys.path:
+        try:
+            folders.append((entry, os.stat(entry or ".").st_mtime_ns))
+        except OSError:
+            folders.append((entry, None))
+    return tuple(folders)
 
 
 def default_registry():
@@ -328,9 +341,10 @@ def default_registry():
     What a step run without a registry (`~spherex_reduce.correct_reference`
     called alone) looks its strategies up in, so that an installed plugin's
     strategy works there as in a `~spherex_reduce.Pipeline`.  It is made
-    again when the plugins that would load differ from those it was made
-    with: another set of installed entry points, or of names blocked by
-    ``SPHEREX_REDUCE_BLOCK_PLUGINS``.
+    again when the plugins that would load may differ from those it was made
+    with: when the names blocked by ``SPHEREX_REDUCE_BLOCK_PLUGINS`` change,
+    or a distribution is installed or removed (a folder of ``sys.path`` or its
+    contents change).  Asking costs a few file-system ``stat`` calls.
 
     Returns
     -------
@@ -349,10 +363,7 @@ def default_registry():
     >>> default_registry().providers["strategy"]["reference/mean"]
     'builtin.reference'
     """
-    blocked = blocked_plugins()
-    key = (frozenset(blocked), tuple(sorted(
-        (ep.name, ep.value) for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)
-        if ep.name not in blocked)))
+    key = (frozenset(blocked_plugins()), _installed())
     with _DEFAULT_LOCK:
         registry = _DEFAULT.get(key)
         if registry is None:

@@ -1,6 +1,5 @@
 """Base classes for what plugins register: steps, strategies, simulators."""
 
-import functools
 import os
 import time
 from collections.abc import Mapping
@@ -295,12 +294,8 @@ class Step:
         in: its :attr:`registry`, else the process's
         (`~spherex_reduce.reduce.plugins.default_registry`: the built-in and installed
         plugins)."""
-        return self.registry if self.registry is not None else self._default_registry
-
-    @functools.cached_property
-    def _default_registry(self):
-        """`~spherex_reduce.reduce.plugins.default_registry`, asked once per step (each
-        asking lists the installed plugins)."""
+        if self.registry is not None:
+            return self.registry
         from .plugins import default_registry  # plugins.py imports this module
 
         return default_registry()

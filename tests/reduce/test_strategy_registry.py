@@ -1,6 +1,7 @@
 """One registry of strategies: the plugins' own, for the plain functions as for a pipeline."""
 
 import importlib.metadata
+import sys
 
 import numpy as np
 import pytest
@@ -93,3 +94,39 @@ def test_default_registry_is_made_again_when_the_blocked_plugins_change(
     monkeypatch.delenv(BLOCK_ENV)
     assert "fourier" in default_registry().strategies["reference"]
     assert correct_reference(offsets_exposure, "fourier").header["REFSTRAT"] == "fourier"
+
+
+HALVE = """
+from spherex_reduce.plugin import Strategy, hookimpl
+
+
+class Halve(Strategy):
+    kind, name = "reference", "halve"
+
+    def __call__(self, exposure):
+        return exposure.replace(data=exposure.data.data / 2)
+
+
+@hookimpl
+def register_strategies():
+    return [Halve]
+"""
+
+
+def test_a_plugin_installed_while_the_process_runs_is_found(
+        offsets_exposure, tmp_path, monkeypatch):
+    site = tmp_path / "site"
+    site.mkdir()
+    monkeypatch.syspath_prepend(str(site))
+    assert "halve" not in default_registry().strategies["reference"]
+    # installing adds a distribution's folder to a folder of sys.path already listed
+    (site / "halve_plugin.py").write_text(HALVE)
+    info = site / "spherex_reduce_halve-0.1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: spherex-reduce-halve\n"
+                                   "Version: 0.1.0\n")
+    (info / "entry_points.txt").write_text("[spherex_reduce]\nhalve = halve_plugin\n")
+    monkeypatch.delitem(sys.modules, "halve_plugin", raising=False)
+    out = correct_reference(offsets_exposure, "halve")
+    np.testing.assert_array_equal(out.data.data, offsets_exposure.data.data / 2)
+    assert default_registry().providers["strategy"]["reference/halve"] == "halve"

@@ -3,8 +3,10 @@
 Plugins are found through the entry-point group ``spherex_reduce``.  Set the
 environment variable ``SPHEREX_REDUCE_BLOCK_PLUGINS`` to a comma-separated
 list of entry-point names to keep those plugins from loading (e.g. a broken
-one).  There is no global state: every call of :func:`get_plugin_manager`
-builds a new manager.
+one).  Every call of :func:`get_plugin_manager` builds a new manager;
+:func:`default_registry` keeps one `Registry` per process (rebuilt when the
+installed or blocked plugins change), where a step run without a registry
+looks up its strategies.
 """
 
 import functools
@@ -13,6 +15,8 @@ import importlib.metadata
 import inspect
 import logging
 import os
+import sys
+import threading
 from dataclasses import dataclass
 
 import pluggy
@@ -22,8 +26,8 @@ from ..core.errors import PluginError, UnknownNameError
 from . import hookspecs
 from .step import Simulator, Step, Strategy
 
-__all__ = ["BLOCK_ENV", "ENTRY_POINT_GROUP", "Registry", "blame_plugin", "describe_plugin",
-           "get_plugin_manager", "get_registry", "plugin_distributions"]
+__all__ = ["BLOCK_ENV", "ENTRY_POINT_GROUP", "Registry", "blame_plugin", "default_registry",
+           "describe_plugin", "get_plugin_manager", "get_registry", "plugin_distributions"]
 
 ENTRY_POINT_GROUP = "spherex_reduce"
 #: Modules of the package that are plugins themselves, registered under their
@@ -313,6 +317,60 @@ def _kind_name(cls):
 def get_registry(**kwargs):
     """Shortcut: ``Registry(get_plugin_manager(**kwargs))``."""
     return Registry(get_plugin_manager(**kwargs))
+
+
+_DEFAULT = {}  # {(blocked names, what is installed): Registry}: at most one entry
+_DEFAULT_LOCK = threading.Lock()
+
+
+def _installed():
+    """The folders of ``sys.path`` with their modification times: installing or removing a
+    distribution adds or removes a folder (``*.dist-info``) in one of them."""
+    folders = []
+    for entry in sys.path:
+        try:
+            folders.append((entry, os.stat(entry or ".").st_mtime_ns))
+        except OSError:
+            folders.append((entry, None))
+    return tuple(folders)
+
+
+def default_registry():
+    """The `Registry` of the built-in and installed plugins, made once per process.
+
+    What a step run without a registry (`~spherex_reduce.correct_reference`
+    called alone) looks its strategies up in, so that an installed plugin's
+    strategy works there as in a `~spherex_reduce.Pipeline`.  It is made
+    again when the plugins that would load may differ from those it was made
+    with: when the names blocked by ``SPHEREX_REDUCE_BLOCK_PLUGINS`` change,
+    or a distribution is installed or removed (a folder of ``sys.path`` or its
+    contents change).  Asking costs a few file-system ``stat`` calls.
+
+    Returns
+    -------
+    `Registry`
+
+    Raises
+    ------
+    PluginError
+        An installed plugin fails to load or to register (see `get_plugin_manager`).
+
+    Examples
+    --------
+    >>> from spherex_reduce.reduce.plugins import default_registry
+    >>> default_registry() is default_registry()
+    True
+    >>> default_registry().providers["strategy"]["reference/mean"]
+    'builtin.reference'
+    """
+    key = (frozenset(blocked_plugins()), _installed())
+    with _DEFAULT_LOCK:
+        registry = _DEFAULT.get(key)
+        if registry is None:
+            registry = Registry(get_plugin_manager())
+            _DEFAULT.clear()
+            _DEFAULT[key] = registry
+    return registry
 
 
 def blame_plugin(exc, registry):

@@ -2,13 +2,11 @@
 
 import os
 import time
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import MappingProxyType
 from typing import ClassVar
 
-from ..core.errors import StepSkipped, UnknownNameError
+from ..core.errors import StepSkipped
 from ..core.parameters import Parameter, validate_parameters
 from ..io import read
 from ..io.sources import MemorySource
@@ -151,9 +149,6 @@ class Step:
         step's.
     default_strategy : str or None
         Strategy used when the YAML file names none.
-    builtin_strategies : mapping
-        Strategies of this kind the package provides, by name (looked up when
-        the step has no registry).
     inputs : tuple of str
         Parameters naming another exposure's FITS file (see :meth:`apply_to`).
 
@@ -190,10 +185,11 @@ class Step:
     #: receives the `~spherex_reduce.Exposure`
     inputs: ClassVar[tuple] = ()
 
-    #: strategies of :attr:`strategy_kind` the package provides (used without a registry)
-    builtin_strategies: ClassVar[Mapping] = MappingProxyType({})
-
     def __init__(self, registry=None, threads=None, supplied=None):
+        #: the `~spherex_reduce.reduce.plugins.Registry` whose ``before_step`` and
+        #: ``after_step`` hooks run around the step, and where it looks up its
+        #: strategies; None: no hooks, strategies from
+        #: `~spherex_reduce.reduce.plugins.default_registry`
         self.registry = registry
         self.threads = threads
         self.supplied = dict(supplied or {})
@@ -247,12 +243,6 @@ class Step:
                            time.perf_counter() - t0, route="whole exposure",
                            inputs=labels)
 
-    def reduces_input(self, name, params):
-        """Whether the pipeline brings the file of input ``name`` to this step's stage first
-        (runs on it the steps before this one that completed here and not there); False
-        by default: the step reads the file as it is."""
-        return False
-
     def read_input(self, name, path):
         """Read the FITS file a parameter of :attr:`inputs` names (with the pipeline
         config's ``geometry:``/``readout:`` sections for keywords it lacks)."""
@@ -264,6 +254,15 @@ class Step:
         """A header card ``(keyword, value, comment)`` naming the file of input ``name``,
         or None (the default)."""
         return None
+
+    def reduces_input(self, name, params):
+        """Whether a `~spherex_reduce.Pipeline` first brings the exposure of input ``name``
+        (one of :attr:`inputs`) to this step's stage, running on it the steps it has
+        completed so far; ``params`` are the step's validated parameters.
+
+        The default, False, has the step read that file as it is.
+        """
+        return False
 
     def _input_cards(self, result, labels):
         cards = [c for name, label in labels.items()
@@ -298,11 +297,20 @@ class Step:
                            inputs=inputs, extra_cards=[c for r in replies for c in (r or ())])
 
     # -- parameters ------------------------------------------------------------
+    def strategy_registry(self):
+        """The `~spherex_reduce.reduce.plugins.Registry` this step looks its strategies up
+        in: its :attr:`registry`, else the process's
+        (`~spherex_reduce.reduce.plugins.default_registry`: the built-in and installed
+        plugins)."""
+        if self.registry is not None:
+            return self.registry
+        from .plugins import default_registry  # plugins.py imports this module
+
+        return default_registry()
+
     def strategy_names(self):
         """Names of the strategies this step may use."""
-        if self.registry is not None:
-            return sorted(self.registry.strategies.get(self.strategy_kind, {}))
-        return sorted(self.builtin_strategies)
+        return sorted(self.strategy_registry().strategies.get(self.strategy_kind, {}))
 
     def strategy(self, name):
         """The strategy class ``name`` of this step's kind.
@@ -310,15 +318,7 @@ class Step:
         Raises `~spherex_reduce.core.errors.UnknownNameError` (a `KeyError`) listing
         the valid names.
         """
-        if self.registry is not None:
-            return self.registry.strategy(self.strategy_kind, name)
-        try:
-            return self.builtin_strategies[name]
-        except KeyError:
-            raise UnknownNameError(
-                f"unknown {self.strategy_kind} strategy {name!r}; valid: "
-                f"{', '.join(self.strategy_names()) or 'none'} (a plugin's strategy: give "
-                "registry=spherex_reduce.reduce.plugins.Registry())") from None
+        return self.strategy_registry().strategy(self.strategy_kind, name)
 
     def declared(self, params, path=None):
         """The `~spherex_reduce.core.parameters.Parameter` list for ``params`` (with the chosen
@@ -386,7 +386,8 @@ class Strategy:
     name: ClassVar[str] = ""
     parameters: ClassVar[tuple] = ()
 
-    #: True if `estimate` needs the whole exposure, not only the side block
+    #: True if `estimate` needs the whole exposure, not only the side block: the step
+    #: then runs on the exposure in memory (False, the default, streams)
     needs_exposure = False
 
     def __init__(self, **params):
@@ -404,6 +405,16 @@ class Strategy:
         like the built-in ones.
         """
         raise NotImplementedError
+
+    def uses_phantom(self, context):
+        """Whether `estimate` uses the phantom values of the blocks of ``context`` (a
+        `~spherex_reduce.core.block.Context`).
+
+        When True the step's kernel consumes them, as ``subtract_phantom`` does,
+        so that a later ``subtract_phantom`` is skipped instead of correcting
+        twice.  The default is False.
+        """
+        return False
 
     def __call__(self, exposure, **params):
         """Correct a whole exposure (strategies written before `estimate`)."""

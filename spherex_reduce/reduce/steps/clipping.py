@@ -1,4 +1,4 @@
-"""Outlier clipping and pair differencing of measured darks (paper §5.3)."""
+"""``sigma_clip``: hot (and cold) pixels of an image clipped into its mask (paper §5.3)."""
 
 import warnings
 
@@ -66,8 +66,7 @@ def sigma_clip(exposure, *, sigma=5.0, sigma_lower=None, sigma_upper=None, maxit
                            stdfunc=stdfunc)
 
 
-def _sigma_clip(exposure, *, sigma=5.0, sigma_lower=None, sigma_upper=None, maxiters=None,
-               cenfunc="median", stdfunc="std"):
+def _sigma_clip(exposure, *, sigma, sigma_lower, sigma_upper, maxiters, cenfunc, stdfunc):
     """`sigma_clip` itself (its step's run)."""
     if exposure.is_ramp:
         raise SpherexReduceError("sigma_clip works on 2-D images: fit the ramps first (fit_ramp)")
@@ -101,8 +100,6 @@ def _sigma_clip(exposure, *, sigma=5.0, sigma_lower=None, sigma_upper=None, maxi
     header["NHOTPIX"] = (int(hot.sum()), "pixels clipped by sigma_clip")
     return exposure.replace(dq=flags | np.where(hot, np.uint16(dq.HOT), np.uint16(0)),
                             tables=tables, header=header)
-
-
 
 
 class SigmaClipStep(Step):

@@ -8,7 +8,7 @@ from astropy.nddata import CCDData, StdDevUncertainty
 
 from ...core.errors import ConfigError, SpherexReduceError
 from ...core.exposure import Exposure, as_dq
-from ...core.parameters import Parameter
+from ...core.parameters import Parameter, validate_parameters
 from ...io import read
 from ..hookspecs import hookimpl
 from ..step import Step
@@ -16,6 +16,12 @@ from ..step import Step
 __all__ = ["combine_darks", "subtract_dark"]
 
 COMBINE_METHODS = ("average", "median", "sum")
+#: The parameters of `combine_darks` (and of the ``combine`` command), with their defaults.
+COMBINE_PARAMETERS = (
+    Parameter("method", "average", (str,), "ccdproc.combine method", choices=COMBINE_METHODS),
+    Parameter("sigma", 3.0, (float,), "clip each pixel at this many standard deviations "
+              "across the inputs (0: no clipping)", minimum=0),
+)
 
 
 def _as_exposure(item, what):
@@ -58,7 +64,9 @@ def combine_darks(exposures, *, method="average", sigma=3.0):
     Raises
     ------
     SpherexReduceError
-        Fewer than two inputs, ramps, or inputs that disagree.
+        Fewer than two inputs, ramps, or inputs that disagree; a
+        `~spherex_reduce.core.errors.ConfigError` for a ``method`` or
+        ``sigma`` that `COMBINE_PARAMETERS` does not allow.
 
     Examples
     --------
@@ -73,8 +81,9 @@ def combine_darks(exposures, *, method="average", sigma=3.0):
     import ccdproc
     from astropy.stats import mad_std
 
-    if method not in COMBINE_METHODS:
-        raise SpherexReduceError(f"method must be one of {COMBINE_METHODS}, got {method!r}")
+    params = validate_parameters({"method": method, "sigma": sigma}, COMBINE_PARAMETERS,
+                                 "combine_darks")
+    method, sigma = params["method"], params["sigma"]
     items = [_as_exposure(e, f"input {i + 1}") for i, e in enumerate(exposures)]
     if len(items) < 2:
         raise SpherexReduceError(f"combine needs at least two exposures, got {len(items)}")
@@ -206,7 +215,7 @@ class SubtractDarkStep(Step):
                   "spherex-reduce combine)"),
     )
 
-    def run(self, exposure, dark=None):
+    def run(self, exposure, dark):
         if dark is None:
             raise ConfigError("subtract_dark.dark: give the master dark's FITS file")
         return _subtract_dark(exposure, dark)

@@ -19,12 +19,12 @@ from astropy.table import Table
 from ...core import dq
 from ...core.errors import SpherexReduceError, StepSkipped
 from ...core.exposure import Exposure, ReferenceReads
-from ...core.parameters import OPTIONAL_NUMBER, Parameter
+from ...core.parameters import OPTIONAL_NUMBER, Parameter, validate_parameters
 from ..hookspecs import hookimpl
 from ..step import Consumer, Step
-from .ramp_least_squares import LeastSquares, RampSolution, ramp_weights
+from .ramp_least_squares import LeastSquares, RampSolution
 
-__all__ = ["WEIGHTINGS", "FitRampStep", "RampFit", "fit_ramp", "ramp_weights"]
+__all__ = ["WEIGHTINGS", "FitRampStep", "RampFit", "fit_ramp"]
 
 #: values of the ``weighting`` parameter
 WEIGHTINGS = ("uniform", "optimal")
@@ -98,13 +98,19 @@ def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, satura
                          saturation=saturation)
 
 
-def check_params(weighting, read_noise):
-    """Raise `~spherex_reduce.core.errors.SpherexReduceError` for parameters that cannot fit."""
-    if weighting not in WEIGHTINGS:
-        raise SpherexReduceError(f"weighting must be one of {WEIGHTINGS}, got {weighting!r}")
-    if weighting == "optimal" and (read_noise is None or not read_noise > 0):
+def _validated(params):
+    """``params`` checked against `FitRampStep.parameters`, defaults filled in (a new dict).
+
+    Raises `~spherex_reduce.core.errors.ConfigError` for an unknown name or a
+    wrong value, `~spherex_reduce.core.errors.SpherexReduceError` for
+    ``weighting='optimal'`` without a positive ``read_noise``.
+    """
+    params = validate_parameters(params, FitRampStep.parameters, FitRampStep.name)
+    read_noise = params["read_noise"]
+    if params["weighting"] == "optimal" and (read_noise is None or not read_noise > 0):
         raise SpherexReduceError("weighting='optimal' needs read_noise > 0 (in the data unit), "
                                  f"got {read_noise!r}")
+    return params
 
 
 def _rows(index):
@@ -127,21 +133,21 @@ class RampFit(Consumer):
     ----------
     context : `~spherex_reduce.core.block.Context`
         The bands' schedule, row order, unit and whether they carry phantom values.
-    weighting, read_noise, gain, saturation
-        As `fit_ramp`.
+    **params
+        ``weighting``, ``read_noise``, ``gain``, ``saturation``: as `fit_ramp`
+        (declared, with their defaults, by `FitRampStep.parameters`).
     """
 
-    def __init__(self, context, *, weighting="uniform", read_noise=None, gain=1.0,
-                 saturation=None):
-        check_params(weighting, read_noise)
+    def __init__(self, context, **params):
+        params = _validated(params)
         self.context = context
-        self.weighting = weighting
+        self.weighting = params["weighting"]
         s = context.schedule
         times = s.frame_starts.to_value(u.s)
-        self.solver = LeastSquares(times, weighting=weighting, read_noise=read_noise, gain=gain,
-                                   saturation=saturation)
+        self.solver = LeastSquares(times, **params)
         self.phantom_solver = LeastSquares(times, want_var=False)
-        self.reference_solver = LeastSquares(times, saturation=saturation, want_var=False)
+        self.reference_solver = LeastSquares(times, saturation=params["saturation"],
+                                             want_var=False)
         nrows = s.n_reads if context.order == "readout" else s.geometry.nrows
         # every row comes in exactly one band (the executor's bands cover the input);
         # ``var`` holds the standard deviations once a band is fitted
@@ -220,7 +226,7 @@ class FitRampStep(Step):
     )
 
     def consumer(self, context, **params):
-        check_params(params.get("weighting", "uniform"), params.get("read_noise"))
+        params = _validated(params)  # wrong parameters are an error even for an image
         if not context.ramp:
             raise StepSkipped("the input is already a 2-D image (slopes)")
         return RampFit(context, **params)

@@ -129,7 +129,7 @@ class PairDifferenceStep(Step):
         Parameter("reduce_other", True, (bool,), "run the preceding steps on it first"),
     )
 
-    def run(self, exposure, other=None, reduce_other=True):
+    def run(self, exposure, other, reduce_other):
         if other is None:
             raise ConfigError(
                 "pair_difference.other: give the second exposure's FITS file (copy the "
@@ -138,7 +138,7 @@ class PairDifferenceStep(Step):
 
     def reduces_input(self, name, params):
         """Whether a pipeline brings input ``name`` to this step's stage first."""
-        return bool(params.get("reduce_other", True))
+        return bool(params["reduce_other"])
 
     def input_card(self, name, label):
         return ("PAIROTHR", label[-68:], "second exposure of the pair")

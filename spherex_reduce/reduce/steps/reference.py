@@ -7,6 +7,7 @@ flags channels without any, and records what it subtracted in the table
 alike, a plugin's too.
 """
 
+import dataclasses
 import warnings
 
 import numpy as np
@@ -18,43 +19,82 @@ from ..executor import execute
 from ..hookspecs import hookimpl
 from ..step import Kernel, Record, Step, Strategy
 from .reference_strategies import (
-    _CLIP_PARAMETERS,
-    ALL,
-    BUILTIN_STRATEGIES,
-    EVEN,
-    ODD,
     AcnReference,
     MeanReference,
     MedianReference,
-    NoReferenceError,
     NoReferenceWarning,
     ReferenceOffsets,
     _group_columns,
-    clipped_mean,
-    reference_offsets,
 )
 from .wiener import WienerReference
 
-#: The built-in strategies of ``correct_reference``, by name.
-STRATEGIES = {**BUILTIN_STRATEGIES, WienerReference.name: WienerReference}
-
 __all__ = [
-    "ALL",
-    "EVEN",
-    "ODD",
     "CorrectReferenceStep",
-    "NoReferenceError",
-    "NoReferenceWarning",
     "ReferenceKernel",
+    "ReferencePlan",
     "apply_offsets",
-    "clipped_mean",
     "correct_reference",
     "missing_columns",
     "offsets_table",
-    "reference_offsets",
 ]
 
-_ = (_CLIP_PARAMETERS, AcnReference, MeanReference, MedianReference)  # re-exported names
+
+@dataclasses.dataclass(frozen=True)
+class ReferencePlan:
+    """How `ReferenceKernel` subtracts a strategy's estimate from any block: its coefficients.
+
+    `ReferenceKernel.prepare` makes it from the side block; ``apply``,
+    ``apply_side`` and ``record`` read it, from several threads at once.
+    ``L`` is the number of frames (1 for an image), ``P`` that of parity
+    groups per channel (1, or 2 for even and odd samples).
+
+    Attributes
+    ----------
+    estimate : `~spherex_reduce.reduce.steps.reference_strategies.ReferenceOffsets`
+        The strategy's estimate (its parities, pixel counts and tables are
+        recorded).
+    offsets : `numpy.ndarray`
+        ``(L, nchannels, P)`` float64 offsets; NaN where a group has none.
+    missing : `numpy.ndarray`
+        ``(L, nchannels, P)`` bool: the groups without an offset (left
+        uncorrected, flagged).
+    columns : `numpy.ndarray`
+        ``(L, ncols)`` float64: the offset of every column (0 where missing).
+    columns_missing : `numpy.ndarray` or None
+        ``(L, ncols)`` bool: the columns of the missing groups, flagged
+        `~spherex_reduce.core.dq.NO_REFERENCE`; None when no group is missing.
+    rows_readout : `numpy.ndarray` or None
+        ``(L, n_reads, nchannels * P)`` float64: an offset for every read (0
+        where missing), subtracted instead of ``columns``, when the strategy
+        estimates one (``ReferenceOffsets.rows``); else None.
+    rows_physical : `numpy.ndarray` or None
+        ``(L, nrows, nchannels * P)``: ``rows_readout`` per physical row (the
+        mean over the row's reads) when the blocks are in physical order;
+        else None.
+    column_group : `numpy.ndarray` or None
+        ``(ncols,)``: the group (``channel * P + parity``) of every column,
+        given with ``rows_readout``.
+    contiguous : bool
+        One group per channel, its columns side by side: per-read offsets are
+        subtracted channel by channel, without ``column_group``.
+    """
+
+    estimate: ReferenceOffsets
+    offsets: np.ndarray
+    missing: np.ndarray
+    columns: np.ndarray
+    columns_missing: np.ndarray | None = None
+    rows_readout: np.ndarray | None = None
+    rows_physical: np.ndarray | None = None
+    column_group: np.ndarray | None = None
+    contiguous: bool = False
+
+    def rows(self, order):
+        """The per-read offsets for blocks in ``order`` (``'readout'`` or ``'physical'``),
+        or None (one offset per group: ``columns``)."""
+        if self.rows_readout is None:
+            return None
+        return self.rows_physical if order == "physical" else self.rows_readout
 
 
 class ReferenceKernel(Kernel):
@@ -70,85 +110,85 @@ class ReferenceKernel(Kernel):
     def __init__(self, context, strategy):
         super().__init__(context)
         self.strategy = strategy
-        self.needs_exposure = bool(getattr(strategy, "needs_exposure", False))
+        self.needs_exposure = bool(strategy.needs_exposure)
         #: the strategy estimates from the phantom values, which it then consumes (a later
         #: ``subtract_phantom`` is skipped, as after that step)
-        uses = getattr(strategy, "uses_phantom", None)
-        self.consumes_phantom = bool(uses(context)) if uses is not None else False
+        self.consumes_phantom = bool(strategy.uses_phantom(context))
 
     @property
     def output(self):
         return self.context.replace(phantom=False) if self.consumes_phantom else self.context
 
     def prepare(self, side, exposure=None):
+        """The strategy's estimate from ``side`` (or ``exposure``), as a `ReferencePlan`."""
         est = self.strategy.estimate(side, self.context, exposure)
         return _plan(self.context, est, self.strategy.name)
 
-    def apply(self, c, block):
+    def apply(self, plan, block):
         dtype = np.result_type(block.data.dtype, np.float32)
         out = block.writable(dtype)
-        col = c["col"]
-        rows = _row_table(c, block.order)
+        rows = plan.rows(block.order)
         nch = self.context.geometry.nchannels
         for f in range(out.shape[0]):
             if rows is None:
-                np.subtract(out[f], col[f].astype(dtype), out=out[f])
-            elif c["contiguous"]:  # one group per channel: its columns side by side
+                np.subtract(out[f], plan.columns[f].astype(dtype), out=out[f])
+            elif plan.contiguous:  # one group per channel: its columns side by side
                 per_channel = out[f].reshape(out.shape[1], nch, -1)
                 np.subtract(per_channel, rows[f][block.index][:, :, None], out=per_channel,
                             casting="unsafe")
             else:  # an offset per read: the row's own
-                np.subtract(out[f], rows[f][block.index][:, c["colgroup"]], out=out[f],
+                np.subtract(out[f], rows[f][block.index][:, plan.column_group], out=out[f],
                             casting="unsafe")
         block = block.replace(data=out, owned=block.owned | {"data"})
-        if c["columns_missing"] is not None:
-            flags = np.where(c["columns_missing"][:, None, :], np.uint16(dq.NO_REFERENCE),
+        if plan.columns_missing is not None:
+            flags = np.where(plan.columns_missing[:, None, :], np.uint16(dq.NO_REFERENCE),
                              np.uint16(0))
             block = block.with_flags(flags)
         if self.consumes_phantom:
             block = block.replace(phantom=None, read_phantom=None)
         return block
 
-    def apply_side(self, c, side):
+    def apply_side(self, plan, side):
         if not (self.context.order == "physical" and side.order == "readout"):
-            return self.apply(c, side)  # the side block is part of the pixels
+            return self.apply(plan, side)  # the side block is part of the pixels
         # the reference reads kept aside: minus the offsets in float64
         rd = side.data
-        rows = _row_table(c, "readout")
-        sub = c["col"][:, None, :] if rows is None else rows[:, side.index][..., c["colgroup"]]
+        rows = plan.rows("readout")
+        sub = (plan.columns[:, None, :] if rows is None
+               else rows[:, side.index][..., plan.column_group])
         data = (rd - sub).astype(np.result_type(rd, np.float32))
         side = side.replace(data=data, owned=side.owned | {"data"})
         if self.consumes_phantom:
             side = side.replace(phantom=None, read_phantom=None)
         return side
 
-    def record(self, c):
-        est = c["estimate"]
-        table = offsets_table(c["offsets"], c["missing"], est.parity, est.n_used,
+    def record(self, plan):
+        est = plan.estimate
+        table = offsets_table(plan.offsets, plan.missing, est.parity, est.n_used,
                               est.n_clipped, self.strategy.name, self.context.unit,
                               ramp=self.context.ramp)
         return Record({"REFOFFS": table, **est.tables}, [
             ("REFSTRAT", self.strategy.name, "reference correction strategy"),
-            ("NNOREF", int(c["missing"].sum()), "offsets without usable reference pixels"),
+            ("NNOREF", int(plan.missing.sum()), "offsets without usable reference pixels"),
             *([("REFPHANT", True, "the strategy estimated from the phantom values")]
               if self.consumes_phantom else [])])
 
 
 def _plan(context, est, name):
+    """The `ReferencePlan` of estimate ``est`` for blocks of ``context``."""
     geometry = context.geometry
-    offsets, missing, col = _column_plan(geometry, est.offsets, name, est.acn)
-    colmiss = missing_columns(geometry, missing, est.acn) if missing.any() else None
-    plan = {"estimate": est, "offsets": offsets, "missing": missing, "col": col,
-            "columns_missing": colmiss}
+    offsets, missing, columns = _column_plan(geometry, est.offsets, name, est.acn)
+    columns_missing = missing_columns(geometry, missing, est.acn) if missing.any() else None
+    plan = ReferencePlan(est, offsets, missing, columns, columns_missing)
     if est.rows is not None:
-        plan.update(_row_plan(context, est))
+        plan = _row_plan(context, est, plan)
     return plan
 
 
-def _row_plan(context, est):
-    """Per-read offsets ``(L, n_reads, groups)`` (0 where missing), the group of every
-    column, and the same per physical row (the mean over the row's reads) when the
-    blocks are in physical order."""
+def _row_plan(context, est, plan):
+    """``plan`` with the per-read offsets ``(L, n_reads, groups)`` (0 where missing), the
+    group of every column, and the same per physical row (the mean over the row's reads)
+    when the blocks are in physical order."""
     s = context.schedule
     groups = _group_columns(s.geometry, est.acn)  # (nch, P, k)
     colgroup = np.zeros(s.geometry.ncols, dtype=np.intp)
@@ -162,8 +202,7 @@ def _row_plan(context, est):
     width = s.geometry.channel_width
     contiguous = groups.shape[1] == 1 and np.array_equal(
         colgroup, np.repeat(np.arange(groups.shape[0]), width))
-    plan = {"rows_readout": rows, "colgroup": colgroup, "rows_physical": None,
-            "contiguous": contiguous}
+    phys = None
     if context.order == "physical":
         nrows = s.geometry.nrows
         counts = np.bincount(s.rows, minlength=nrows)
@@ -171,35 +210,30 @@ def _row_plan(context, est):
         phys[:, s.rows] = rows  # a row read once: its read's offset
         for row in np.flatnonzero(counts > 1):  # a row read more: the mean of its reads'
             phys[:, row] = rows[:, s.rows == row].mean(axis=1)
-        plan["rows_physical"] = phys
-    return plan
+    return dataclasses.replace(plan, rows_readout=rows, rows_physical=phys,
+                               column_group=colgroup, contiguous=contiguous)
 
 
-def _row_table(c, order):
-    """The per-row offsets for blocks in ``order``, or None (one offset per group)."""
-    if c.get("colgroup") is None:
-        return None
-    return c["rows_physical"] if order == "physical" else c["rows_readout"]
-
-
-class _Given:
+class _Given(Strategy):
     """A strategy whose offsets are given (`apply_offsets`)."""
 
     def __init__(self, estimate, name):
+        super().__init__()
         self.estimate_, self.name = estimate, name
 
     def estimate(self, side, context, exposure=None):
         return self.estimate_
 
 
-def apply_offsets(exposure, offsets, parity, n_used, n_clipped, strategy, acn=False):
+def apply_offsets(exposure, offsets, parity, n_used, n_clipped, strategy):
     """Subtract per-(frame, channel, parity) offsets and record them in ``REFOFFS``.
 
     Groups whose offset is NaN are left uncorrected, flagged in the table and
     the mask (`~spherex_reduce.core.dq.NO_REFERENCE`), and reported with a
-    `NoReferenceWarning`.  This is the ``correct_reference`` kernel applied
-    with offsets given instead of estimated: for a whole-exposure strategy
-    (``__call__``) that computes its offsets itself.
+    `~spherex_reduce.reduce.steps.reference_strategies.NoReferenceWarning`.
+    This is the ``correct_reference`` kernel applied with offsets given
+    instead of estimated: for a whole-exposure strategy (``__call__``) that
+    computes its offsets itself.
 
     Parameters
     ----------
@@ -210,10 +244,8 @@ def apply_offsets(exposure, offsets, parity, n_used, n_clipped, strategy, acn=Fa
         Parity label of each of the ``P`` groups: ``-1`` all columns, ``0``
         even samples, ``1`` odd samples.
     strategy : str
-        Name recorded in the header (``REFSTRAT``).
-    acn : bool
-        Ignored: the groups are even/odd samples when ``parity`` has two
-        entries (kept for callers that pass it).
+        Name recorded in the header (``REFSTRAT``); the groups are even and odd
+        samples when ``parity`` has two entries.
 
     Returns
     -------
@@ -297,7 +329,10 @@ def correct_reference(exposure, strategy="mean", *, registry=None, **params):
         `~spherex_reduce.reduce.steps.wiener.WienerReference`), or any strategy of
         kind ``'reference'`` a plugin registers.
     registry : `~spherex_reduce.reduce.plugins.Registry`, optional
-        Where to look strategies up (default: built-ins and installed plugins).
+        Where to look strategies up, and whose ``before_step`` and
+        ``after_step`` hooks to call (default: no hooks, the strategies of
+        the built-in and installed plugins,
+        `~spherex_reduce.reduce.plugins.default_registry`).
     **params
         The strategy's parameters (``sigma``, ``maxiters``, ``side_columns``
         for ``mean``/``acn``; ``mask_sources`` ... for ``median``; ``noise``,
@@ -312,11 +347,11 @@ def correct_reference(exposure, strategy="mean", *, registry=None, **params):
         ``n_clipped`` and ``flag``
         (`~spherex_reduce.core.dq.NO_REFERENCE` when the channel had no usable
         reference pixel: offset NaN, channel left uncorrected, a
-        `NoReferenceWarning`).
+        `~spherex_reduce.reduce.steps.reference_strategies.NoReferenceWarning`).
 
     Raises
     ------
-    NoReferenceError
+    `~spherex_reduce.reduce.steps.reference_strategies.NoReferenceError`
         The exposure has no reference rows (``mean``, ``acn``).
 
     Examples
@@ -337,7 +372,7 @@ def correct_reference(exposure, strategy="mean", *, registry=None, **params):
 def _streams(cls):
     """Whether a strategy class estimates (a kernel applies its offsets), or is an older
     whole-exposure strategy (``__call__(exposure, **params)`` only)."""
-    return getattr(cls, "estimate", Strategy.estimate) is not Strategy.estimate
+    return cls.estimate is not Strategy.estimate
 
 
 class CorrectReferenceStep(Step):
@@ -345,15 +380,14 @@ class CorrectReferenceStep(Step):
 
     name, keyword = "correct_reference", "S_REFCOR"
     strategy_kind, default_strategy = "reference", "mean"
-    builtin_strategies = STRATEGIES
 
-    def kernel(self, context, strategy="mean", **params):
+    def kernel(self, context, strategy, **params):
         cls = self.strategy(strategy)
         if not _streams(cls):
             return None
         return ReferenceKernel(context, cls(**params))
 
-    def run(self, exposure, strategy="mean", **params):
+    def run(self, exposure, strategy, **params):
         cls = self.strategy(strategy)
         if not _streams(cls):  # a strategy written before kernels: on the whole exposure
             return cls()(exposure, **params)
@@ -367,4 +401,4 @@ def register_steps():
 
 @hookimpl
 def register_strategies():
-    return list(STRATEGIES.values())
+    return [MeanReference, AcnReference, MedianReference, WienerReference]

@@ -17,7 +17,7 @@ import numpy as np
 from astropy.utils.exceptions import AstropyUserWarning
 
 from ...core.errors import SpherexReduceError
-from ...core.parameters import Parameter
+from ...core.parameters import Parameter, validate_parameters
 from ...core.source_mask import source_mask
 from ...io.sources import context_of, side_block
 from ..executor import default_threads
@@ -107,7 +107,7 @@ def clipped_mean(values, sigma=3.0, maxiters=5):
 
     Examples
     --------
-    >>> from spherex_reduce.reduce.steps.reference import clipped_mean
+    >>> from spherex_reduce.reduce.steps.reference_strategies import clipped_mean
     >>> mean, used, clipped = clipped_mean([1.0, 1.1, 0.9, 1.0, 50.0, float("nan")], sigma=2)
     >>> float(mean), int(used), int(clipped)
     (1.0, 4, 1)
@@ -265,13 +265,13 @@ def reference_offsets(exposure, *, acn=False, sigma=3.0, maxiters=5, side_column
     NoReferenceError
         The exposure has no reference rows at all.
     """
-    strategy = (AcnReference if acn else MeanReference)(sigma, maxiters, side_columns)
+    strategy = (AcnReference if acn else MeanReference)(sigma=sigma, maxiters=maxiters,
+                                                         side_columns=side_columns)
     est = strategy.estimate(side_block(exposure), context_of(exposure), exposure)
     return est.offsets, est.n_used, est.n_clipped
 
 
-def _offsets_of(geometry, reference, side=None, *, acn=False, sigma=3.0, maxiters=5,
-                threads=None):
+def _offsets_of(geometry, reference, side, *, acn, sigma, maxiters, threads):
     """`reference_offsets` of reference-row pixels ``(L, k, ncols)`` (NaN: unusable)
     and optionally side-column pixels ``(L, rows, ncols)`` (NaN outside the side columns).
 
@@ -302,30 +302,36 @@ def _offsets_of(geometry, reference, side=None, *, acn=False, sigma=3.0, maxiter
 
 
 # -- strategies ------------------------------------------------------------------------------
-_CLIP_PARAMETERS = (
-    Parameter("sigma", 3.0, (float,), "clip threshold for reference pixels (standard "
-              "deviations)", minimum=0, exclusive_minimum=True),
-    Parameter("maxiters", 5, (int, type(None)), "clipping iterations (null: until converged)",
-              minimum=1, maximum=1000),
-    Parameter("side_columns", False, (bool,), "also use the side reference columns of the "
-              "first and last channel"),
-)
-
-
 class MeanReference(Strategy):
     """One σ-clipped mean of the reference pixels per channel (paper §4.3 default).
 
     Estimates from the reference reads alone, so it streams: with
     ``side_columns`` it also needs the side reference columns of every row
     (the whole exposure).
+
+    Parameters
+    ----------
+    **params
+        ``sigma``, ``maxiters``, ``side_columns``, as `reference_offsets`
+        (declared, with their defaults, by :attr:`parameters`).
     """
 
     kind, name = "reference", "mean"
-    parameters = _CLIP_PARAMETERS
+    parameters = (
+        Parameter("sigma", 3.0, (float,), "clip threshold for reference pixels (standard "
+                  "deviations)", minimum=0, exclusive_minimum=True),
+        Parameter("maxiters", 5, (int, type(None)), "clipping iterations (null: until converged)",
+                  minimum=1, maximum=1000),
+        Parameter("side_columns", False, (bool,), "also use the side reference columns of the "
+                  "first and last channel"),
+    )
     acn = False
 
-    def __init__(self, sigma=3.0, maxiters=5, side_columns=False):
-        self.sigma, self.maxiters, self.side_columns = sigma, maxiters, side_columns
+    def __init__(self, **params):
+        params = validate_parameters(params, self.parameters, type(self).__name__)
+        super().__init__(**params)
+        self.sigma, self.maxiters = params["sigma"], params["maxiters"]
+        self.side_columns = params["side_columns"]
 
     @property
     def needs_exposure(self):
@@ -355,6 +361,12 @@ class MedianReference(Strategy):
     sky's large-scale structure along with the offsets (astrophysical
     information is lost).  ``mask_sources`` excludes sources and hot pixels
     found by `source_mask` first, which limits, but does not remove, the loss.
+
+    Parameters
+    ----------
+    **params
+        ``mask_sources``, ``source_sigma``, ``source_npixels``, ``box_size``
+        (declared, with their defaults and meaning, by :attr:`parameters`).
     """
 
     kind, name = "reference", "median"
@@ -370,9 +382,11 @@ class MedianReference(Strategy):
     #: the median is over every pixel of a channel: the whole exposure
     needs_exposure = True
 
-    def __init__(self, mask_sources=False, source_sigma=3.0, source_npixels=5, box_size=64):
-        self.mask_sources, self.source_sigma = mask_sources, source_sigma
-        self.source_npixels, self.box_size = source_npixels, box_size
+    def __init__(self, **params):
+        params = validate_parameters(params, self.parameters, type(self).__name__)
+        super().__init__(**params)
+        self.mask_sources, self.source_sigma = params["mask_sources"], params["source_sigma"]
+        self.source_npixels, self.box_size = params["source_npixels"], params["box_size"]
 
     def estimate(self, side, context, exposure=None):
         mask_sources, source_sigma = self.mask_sources, self.source_sigma
@@ -412,8 +426,3 @@ class MedianReference(Strategy):
             ex = excluded.reshape(excluded.shape[0], nch, width).sum(axis=(0, 2))
             clipped[f, :, 0] = ex
         return ReferenceOffsets(off, used, clipped, [ALL])
-
-
-
-
-BUILTIN_STRATEGIES = {c.name: c for c in (MeanReference, AcnReference, MedianReference)}

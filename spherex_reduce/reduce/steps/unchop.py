@@ -1,5 +1,7 @@
 """Readout order to physical order, and back."""
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ...core import dq
@@ -71,6 +73,59 @@ def unchop(exposure):
     return UnchopStep()(exposure)
 
 
+@dataclass(frozen=True)
+class RowMean:
+    """A physical row read more than once: the mean of its usable reads, per frame.
+
+    Attributes
+    ----------
+    data : `numpy.ndarray`
+        ``(frames, ncols)`` float64 mean of the usable reads (finite, not
+        flagged); NaN where none is.
+    phantom : `numpy.ndarray` or None
+        ``(frames, nchannels)`` mean of the reads' phantom values, or None.
+    uncertainty : `numpy.ndarray` or None
+        ``(frames, ncols)`` standard deviation of ``data``, or None.
+    flags : `numpy.ndarray` or None
+        ``(frames, ncols)`` uint16: 0 where a read is usable, else the flags
+        of all its reads; or None.
+    """
+
+    data: np.ndarray
+    phantom: np.ndarray | None
+    uncertainty: np.ndarray | None
+    flags: np.ndarray | None
+
+
+@dataclass(frozen=True)
+class UnchopPlan:
+    """What `UnchopKernel.prepare` takes from the side block: its coefficients.
+
+    Attributes
+    ----------
+    means : dict
+        `RowMean` of every physical row read more than once, by row.
+    dtype : `numpy.dtype`
+        Type of the un-chopped pixels (the input's if floating point, else
+        float64).
+    phantom_dtype : `numpy.dtype` or None
+        Type of the phantom values; None when the input has none.
+    nframes : int
+        Frames of the input.
+    ncols : int
+        Columns of the input.
+    uncertainty : bool
+        Whether the input has uncertainties.
+    """
+
+    means: dict
+    dtype: np.dtype
+    phantom_dtype: np.dtype | None
+    nframes: int
+    ncols: int
+    uncertainty: bool
+
+
 class UnchopKernel(Kernel):
     """`unchop` on bands of reads: each read goes to its physical row.
 
@@ -97,7 +152,8 @@ class UnchopKernel(Kernel):
         return self.context.replace(order="physical")
 
     def prepare(self, side):
-        """Mean of the usable reads of every row read more than once (and its error)."""
+        """Mean of the usable reads of every row read more than once (and its error), as an
+        `UnchopPlan`."""
         s = self.context.schedule
         pos = np.full(s.n_reads, -1)
         pos[side.index] = np.arange(side.index.size)
@@ -110,20 +166,20 @@ class UnchopKernel(Kernel):
             if side.uncertainty is not None:
                 unc = _sigma_of_mean(side.data, side.uncertainty, idx, side.dq)
             flags = None if side.dq is None else _usable_flags(side.dq, idx)
-            means[int(row)] = (data, phantom, unc, flags)
-        return {"means": means, "dtype": _float_type(side.data.dtype),
-                "phantom_dtype": None if side.phantom is None else side.phantom.dtype,
-                "nframes": side.data.shape[0], "unc": side.uncertainty is not None,
-                "dq": side.dq is not None, "ncols": side.data.shape[-1]}
+            means[int(row)] = RowMean(data, phantom, unc, flags)
+        return UnchopPlan(means, _float_type(side.data.dtype),
+                          None if side.phantom is None else side.phantom.dtype,
+                          nframes=side.data.shape[0], ncols=side.data.shape[-1],
+                          uncertainty=side.uncertainty is not None)
 
-    def apply_side(self, coefficients, side):
+    def apply_side(self, plan, side):
         return side  # the reads stay reads: they are kept aside as the reference reads
 
-    def apply(self, coefficients, block):
+    def apply(self, plan, block):
         rows = self.row_of_read[block.index]
         src = np.flatnonzero(rows >= 0)
         rows = rows[src]
-        dtype = coefficients["dtype"]
+        dtype = plan.dtype
 
         def gather(values, kind):
             if values is None:
@@ -138,31 +194,31 @@ class UnchopKernel(Kernel):
         unc = gather(block.uncertainty, "unc")
         flags = gather(block.dq, "dq")
         for i in np.flatnonzero(np.isin(rows, self.repeated)):
-            mean, ph, sig, fl = coefficients["means"][int(rows[i])]
-            data[:, i] = mean
+            mean = plan.means[int(rows[i])]
+            data[:, i] = mean.data
             if phantom is not None:
-                phantom[:, i] = ph
+                phantom[:, i] = mean.phantom
             if unc is not None:
-                unc[:, i] = sig
+                unc[:, i] = mean.uncertainty
             if flags is not None:
-                flags[:, i] = fl
+                flags[:, i] = mean.flags
         return Block(data, rows, "physical", phantom=phantom, dq=flags, uncertainty=unc,
                      owned=True)
 
-    def extra_rows(self, coefficients):
+    def extra_rows(self, plan):
         """The rows the schedule never reads: NaN, flagged `~spherex_reduce.core.dq.NOT_READ`."""
         unread = np.flatnonzero(self.first < 0)
         if unread.size == 0:
             return None
-        c = coefficients
-        shape = (c["nframes"], unread.size, c["ncols"])
+        shape = (plan.nframes, unread.size, plan.ncols)
         g = self.context.geometry
         phantom = None
-        if c["phantom_dtype"] is not None:
-            phantom = np.full((*shape[:2], g.nchannels), np.nan, c["phantom_dtype"])
-        return Block(np.full(shape, np.nan, c["dtype"]), unread, "physical", phantom=phantom,
+        if plan.phantom_dtype is not None:
+            phantom = np.full((*shape[:2], g.nchannels), np.nan, plan.phantom_dtype)
+        return Block(np.full(shape, np.nan, plan.dtype), unread, "physical", phantom=phantom,
                      dq=np.full(shape, dq.NOT_READ, np.uint16),
-                     uncertainty=np.full(shape, np.nan) if c["unc"] else None, owned=True)
+                     uncertainty=np.full(shape, np.nan) if plan.uncertainty else None,
+                     owned=True)
 
 
 def _float_type(dtype):

@@ -23,7 +23,7 @@ from astropy.utils.exceptions import AstropyUserWarning
 from scipy import linalg
 
 from ...core.errors import ConfigError
-from ...core.parameters import Parameter
+from ...core.parameters import Parameter, validate_parameters
 from ...io.config import load_yaml
 from ...noise import BUILTIN_TABLES, NoiseComponent, noise_components
 from ...noise.read_covariance import DOMAINS, Kriging, ReadCovariance
@@ -134,6 +134,13 @@ class WienerReference(Strategy):
 
     The optimal linear (kriging) estimate under an unknown constant per frame,
     channel and parity group; subtracted row by row.  Streams like ``mean``.
+
+    Parameters
+    ----------
+    **params
+        ``noise``, ``common``, ``acn``, ``domain``, ``regularization``,
+        ``phantom``, ``sigma`` (declared, with their defaults and meaning, by
+        :attr:`parameters`).
     """
 
     kind, name = "reference", "wiener"
@@ -157,10 +164,13 @@ class WienerReference(Strategy):
                   minimum=0, exclusive_minimum=True),
     )
 
-    def __init__(self, noise="spherex-table2", common="auto", acn=False, domain="auto",
-                 regularization=1e-9, phantom="auto", sigma=5.0):
-        self.noise, self.acn, self.domain, self.phantom = noise, bool(acn), domain, phantom
-        self.regularization, self.sigma = float(regularization), float(sigma)
+    def __init__(self, **params):
+        params = validate_parameters(params, self.parameters, type(self).__name__)
+        super().__init__(**params)
+        noise, common = params["noise"], params["common"]
+        self.noise, self.acn, self.domain = noise, params["acn"], params["domain"]
+        self.phantom = params["phantom"]
+        self.regularization, self.sigma = params["regularization"], params["sigma"]
         self.components = load_noise_model(noise)
         names = [c.name for c in self.components]
         if common == "auto":

@@ -34,7 +34,7 @@ from spherex_reduce import (
 )
 from spherex_reduce.core.errors import ConfigError
 from spherex_reduce.reduce import executor
-from spherex_reduce.reduce.steps.reference import NoReferenceError, NoReferenceWarning
+from spherex_reduce.reduce.steps.reference_strategies import NoReferenceError, NoReferenceWarning
 from spherex_reduce.simulation import simulate_to_fits
 
 NCH, NCOLS = 4, 32

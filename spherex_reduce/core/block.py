@@ -109,8 +109,8 @@ class Context:
         Unit of the pixels.
     header : `astropy.io.fits.Header`
         The input's header (read only).
-    phantom : bool
-        Whether the blocks carry phantom values.
+    has_phantom : bool
+        Whether the blocks carry phantom values (`Block.phantom`).
     threads : int or None
         Threads a kernel's ``prepare`` may use (None: the executor's default).
     """
@@ -120,7 +120,7 @@ class Context:
     ramp: bool
     unit: object = None
     header: object = None
-    phantom: bool = False
+    has_phantom: bool = False
     threads: int | None = None
 
     def replace(self, **changes):

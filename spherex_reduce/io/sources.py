@@ -55,7 +55,7 @@ def _frames(values, ramp):
 def context_of(exposure):
     """The `~spherex_reduce.core.block.Context` of an exposure."""
     return Context(exposure.schedule, exposure.order, exposure.is_ramp, exposure.unit,
-                   exposure.header, phantom=exposure.phantom is not None)
+                   exposure.header, has_phantom=exposure.phantom is not None)
 
 
 def side_block(exposure):
@@ -221,7 +221,7 @@ class FileSource(Source):
         self.reader, self._owned = reader, owned
         s = reader.schedule
         self.context = Context(s, "readout", True, reader.unit, reader.header,
-                               phantom=reader.has_phantom)
+                               has_phantom=reader.has_phantom)
         self.header, self.tables = reader.header, reader.tables
         self.reference = None
         self.nrows = s.n_reads

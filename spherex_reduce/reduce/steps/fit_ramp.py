@@ -152,7 +152,8 @@ class RampFit(Consumer):
         # every row comes in exactly one band (the executor's bands cover the input);
         # ``var`` holds the standard deviations once a band is fitted
         self.fit = RampSolution((nrows, s.geometry.ncols))
-        self.phantom = np.full((nrows, s.geometry.nchannels), np.nan) if context.phantom else None
+        self.phantom = (np.full((nrows, s.geometry.nchannels), np.nan) if context.has_phantom
+                        else None)
         self._local = threading.local()  # a work buffer per thread
         self._lock = threading.Lock()
         self._few = 0  # pixels with fewer than 2 usable reads so far

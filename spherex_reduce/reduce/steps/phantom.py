@@ -59,13 +59,13 @@ class PhantomKernel(Kernel):
     """
 
     def __init__(self, context):
-        if not context.phantom:
+        if not context.has_phantom:
             raise StepSkipped("the input has no phantom values (c = 0, or already subtracted)")
         super().__init__(context)
 
     @property
     def output(self):
-        return self.context.replace(phantom=False)
+        return self.context.replace(has_phantom=False)
 
     def apply(self, coefficients, block):
         if block.phantom is None:

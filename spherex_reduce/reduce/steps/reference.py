@@ -117,7 +117,7 @@ class ReferenceKernel(Kernel):
 
     @property
     def output(self):
-        return self.context.replace(phantom=False) if self.consumes_phantom else self.context
+        return self.context.replace(has_phantom=False) if self.consumes_phantom else self.context
 
     def prepare(self, side, exposure=None):
         """The strategy's estimate from ``side`` (or ``exposure``), as a `ReferencePlan`."""

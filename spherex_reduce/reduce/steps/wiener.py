@@ -189,7 +189,7 @@ class WienerReference(Strategy):
 
     def uses_phantom(self, context):
         """Whether the phantom values of every read are observations (and get consumed)."""
-        return (self.phantom == "auto" and bool(context.phantom)
+        return (self.phantom == "auto" and context.has_phantom
                 and context.schedule.phantom_reads > 0)
 
     # -- the model ----------------------------------------------------------------------
@@ -241,7 +241,7 @@ class WienerReference(Strategy):
         >>> from spherex_reduce.reduce.steps.wiener import WienerReference
         >>> s = ReadoutSchedule()   # the paper's case, slopes with phantom values
         >>> w, m = WienerReference().predicted_variance(Context(s, "readout", False,
-        ...                                                     phantom=True))
+        ...                                                     has_phantom=True))
         >>> a = s.active_read_indices
         >>> bool(w[a].mean() < 0.8 * m[a].mean())
         True
@@ -272,7 +272,7 @@ class WienerReference(Strategy):
     def _kind(context, with_phantom):
         """What a read's value is: its pixels' mean, minus its phantom value once
         ``subtract_phantom`` has run (`~spherex_reduce.noise.read_covariance.KINDS`)."""
-        subtracted = bool(context.schedule.phantom_reads) and not context.phantom
+        subtracted = bool(context.schedule.phantom_reads) and not context.has_phantom
         return "subtracted" if subtracted and not with_phantom else "pixels"
 
     # -- the estimate -------------------------------------------------------------------

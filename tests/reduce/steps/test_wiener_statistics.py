@@ -175,7 +175,7 @@ def test_slopes_error_variance_is_the_predicted_one(use_phantom, tmp_path):
     rng = np.random.default_rng(5)
     x = _draw(COMPONENTS, s, "slopes", rng)
     frame, phantom, truth = _exposure_parts(s, x, rng, subtract=not use_phantom)
-    ctx = Context(s, "readout", True, phantom=use_phantom)
+    ctx = Context(s, "readout", True, has_phantom=use_phantom)
     strat = _strategy(COMPONENTS, tmp_path, domain="slopes")  # the model the draws follow
     assert strat.common == {"bias"}
     est = strat.estimate(_side(s, frame, phantom if use_phantom else None), ctx)
@@ -202,7 +202,7 @@ def test_frames_error_variance_is_the_predicted_one(tmp_path):
     rng = np.random.default_rng(7)
     x = _draw(comps, s, "frames", rng)
     frame, phantom, truth = _exposure_parts(s, x, rng, subtract=False)
-    ctx = Context(s, "readout", True, phantom=True)
+    ctx = Context(s, "readout", True, has_phantom=True)
     strat = _strategy(comps, tmp_path, domain="frames")
     est = strat.estimate(_side(s, frame, phantom), ctx)
     wiener, _ = strat.predicted_variance(ctx)
@@ -214,7 +214,7 @@ def test_white_noise_gives_the_mean_of_the_reference_pixels(tmp_path):
     s = _schedule(phantom_reads=0)
     rng = np.random.default_rng(1)
     frame = rng.normal(0, 3, (5, s.n_reads, s.geometry.ncols)) + rng.normal(0, 50, (5, 1, 8))
-    ctx = Context(s, "readout", True, phantom=False)
+    ctx = Context(s, "readout", True, has_phantom=False)
     strat = _strategy([NoiseComponent("white", alpha=2e-3)], tmp_path, domain="frames")
     est = strat.estimate(_side(s, frame, None), ctx)
     ref = frame[:, s.reference_read_indices].reshape(5, -1, 2, 4)

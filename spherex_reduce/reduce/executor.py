@@ -126,95 +126,117 @@ def execute(source, kernels, consumer=None, *, threads=None, rows_per_band=None,
     -------
     `~spherex_reduce.Exposure`
     """
-    context = source.context
-    busy = [0.0] * (len(kernels) + 2)  # seconds in each kernel, the consumer, reading
-    lock = threading.Lock()
-
-    def spent(i, t0):
-        t1 = time.perf_counter()
-        with lock:
-            busy[i] += t1 - t0
-        return t1
-
-    t = time.perf_counter()
-    side = source.side()
-    t = spent(-1, t)
-    coefficients = []
-    for i, kernel in enumerate(kernels):
-        if not first_in_memory(kernel, i, source):
-            raise ValueError(f"{type(kernel).__name__} needs the whole exposure in memory, "
-                             "as the first kernel of a pass")
-        if kernel.needs_exposure:
-            c = kernel.prepare(side, source.exposure())
-        else:
-            c = kernel.prepare(side)
-        side = kernel.apply_side(c, side)
-        coefficients.append(c)
-        t = spent(i, t)
-    out_context = kernels[-1].output if kernels else context
-    sink = consumer if consumer is not None else _Assembly(out_context)
-
-    def run(block, start=0):
-        t = time.perf_counter()
-        for i in range(start, len(kernels)):
-            block = kernels[i].apply(coefficients[i], block)
-            t = spent(i, t)
-        sink.band(block)
-        spent(len(kernels), t)
-        return block.data.shape[1]
-
-    def read(lo, hi):
-        t = time.perf_counter()
-        block = source.read(lo, hi)
-        spent(-1, t)
-        return block
-
+    chain = _Chain(kernels, consumer)
+    side = chain.prepare(source)
     if rows_per_band is None:
-        ncols = context.geometry.ncols
         pixels = BAND_PIXELS * (MEMORY_BAND_FACTOR if source.in_memory else 1)
-        rows_per_band = max(1, pixels // ncols)
+        rows_per_band = max(1, pixels // source.context.geometry.ncols)
     cuts = bands(source.nrows, rows_per_band)
     nthreads = default_threads() if threads is None else max(1, int(threads))
-    if nthreads == 1 or len(cuts) == 1:
-        for lo, hi in cuts:
-            run(read(lo, hi))
-            if progress is not None:
-                progress(hi - lo)
-    else:
-        with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-band") as pool:
-            futures = [pool.submit(lambda lo=lo, hi=hi: run(read(lo, hi)))
-                       for lo, hi in cuts]
-            try:
-                for (lo, hi), future in zip(cuts, futures, strict=True):
-                    future.result()
-                    if progress is not None:
-                        progress(hi - lo)
-            except BaseException:  # a band failed (or Ctrl-C): the others are not started
-                for future in futures:
-                    future.cancel()
-                raise
-    for i, (kernel, c) in enumerate(zip(kernels, coefficients, strict=True)):
+    _run_bands(cuts, lambda lo, hi: chain.run(chain.read(source, lo, hi)), nthreads, progress)
+    for i, (kernel, c) in enumerate(zip(kernels, chain.coefficients, strict=True)):
         extra = kernel.extra_rows(c)
         if extra is not None:
-            run(extra, i + 1)
-    header = source.header.copy()
-    tables = dict(source.tables)
-    for kernel, c in zip(kernels, coefficients, strict=True):
-        record = kernel.record(c)
-        tables.update(record.tables)
-        for key, value, comment in record.cards:
-            header[key] = (value, comment)
-    reference = reference_after(source.reference, side, context, out_context)
-    t = time.perf_counter()
-    if consumer is not None:
-        result = consumer.finish(reference, header, tables)
-    else:
-        result = _exposure(source, sink, reference, header, tables, out_context)
-    spent(len(kernels), t)
+            chain.run(extra, i + 1)
+    result = chain.finish(source, side)
     if timings is not None:
-        timings.update(kernels=busy[:len(kernels)], consumer=busy[len(kernels)],
-                       read=busy[-1], bands=len(cuts), threads=nthreads)
+        timings.update(kernels=chain.busy[:len(kernels)], consumer=chain.busy[len(kernels)],
+                       read=chain.busy[-1], bands=len(cuts), threads=nthreads)
     return result
+
+
+def _run_bands(cuts, run, nthreads, progress):
+    """``run(lo, hi)`` for every band, on ``nthreads`` threads; ``progress`` after each."""
+    if nthreads == 1 or len(cuts) == 1:
+        for lo, hi in cuts:
+            run(lo, hi)
+            if progress is not None:
+                progress(hi - lo)
+        return
+    with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-band") as pool:
+        futures = [pool.submit(run, lo, hi) for lo, hi in cuts]
+        try:
+            for (lo, hi), future in zip(cuts, futures, strict=True):
+                future.result()
+                if progress is not None:
+                    progress(hi - lo)
+        except BaseException:  # a band failed (or Ctrl-C): the others are not started
+            for future in futures:
+                future.cancel()
+            raise
+
+
+class _Chain:
+    """The kernels of a pass with their coefficients, where bands end (the consumer or the
+    output arrays), and the seconds spent in each (``busy``: kernels, the consumer or the
+    assembly, reading; summed over threads)."""
+
+    def __init__(self, kernels, consumer):
+        self.kernels, self.consumer = kernels, consumer
+        self.coefficients = []
+        self.busy = [0.0] * (len(kernels) + 2)
+        self._lock = threading.Lock()
+        self.sink = None
+
+    def _spent(self, i, t0):
+        t1 = time.perf_counter()
+        with self._lock:
+            self.busy[i] += t1 - t0
+        return t1
+
+    def prepare(self, source):
+        """Each kernel's coefficients from the side block; the side block they leave."""
+        t = time.perf_counter()
+        side = source.side()
+        t = self._spent(-1, t)
+        for i, kernel in enumerate(self.kernels):
+            if not first_in_memory(kernel, i, source):
+                raise ValueError(f"{type(kernel).__name__} needs the whole exposure in "
+                                 "memory, as the first kernel of a pass")
+            if kernel.needs_exposure:
+                c = kernel.prepare(side, source.exposure())
+            else:
+                c = kernel.prepare(side)
+            side = kernel.apply_side(c, side)
+            self.coefficients.append(c)
+            t = self._spent(i, t)
+        self.output = self.kernels[-1].output if self.kernels else source.context
+        self.sink = self.consumer if self.consumer is not None else _Assembly(self.output)
+        return side
+
+    def read(self, source, lo, hi):
+        t = time.perf_counter()
+        block = source.read(lo, hi)
+        self._spent(-1, t)
+        return block
+
+    def run(self, block, start=0):
+        """A block through the kernels from ``start`` on, into the sink."""
+        t = time.perf_counter()
+        for i in range(start, len(self.kernels)):
+            block = self.kernels[i].apply(self.coefficients[i], block)
+            t = self._spent(i, t)
+        self.sink.band(block)
+        self._spent(len(self.kernels), t)
+
+    def finish(self, source, side):
+        """The result: the kernels' records in the header and tables, then the consumer's
+        image or the assembled exposure."""
+        header = source.header.copy()
+        tables = dict(source.tables)
+        for kernel, c in zip(self.kernels, self.coefficients, strict=True):
+            record = kernel.record(c)
+            tables.update(record.tables)
+            for key, value, comment in record.cards:
+                header[key] = (value, comment)
+        reference = reference_after(source.reference, side, source.context, self.output)
+        t = time.perf_counter()
+        if self.consumer is not None:
+            result = self.consumer.finish(reference, header, tables)
+        else:
+            result = _exposure(source, self.sink, reference, header, tables, self.output)
+        self._spent(len(self.kernels), t)
+        return result
 
 
 def reference_after(reference, side, before, after):

@@ -79,8 +79,12 @@ def _one_line_warnings(command):
     Replaces the default display (file, line and source of the warning) and
     astropy's, which is also logged, so each warning would appear twice.
     """
+    # astropy's own logger, which has a handler of its own: not the root's too.  Imported,
+    # not looked up: logging.getLogger("astropy") before astropy is imported (a command
+    # imports it when it runs) would make a plain logger that astropy's import then fails on.
+    from astropy import log as astropy_log
+
     seen = set()
-    astropy_log = logging.getLogger("astropy")  # has a handler of its own: not the root's too
     propagate, astropy_log.propagate = astropy_log.propagate, False
 
     def show(message, category, filename, lineno, file=None, line=None):

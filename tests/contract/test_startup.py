@@ -118,3 +118,17 @@ def test_reduce_loads_no_plotting_dask_simulator_or_analysis(tmp_path, quiet):
     with fits.open(tmp_path / "out.fits") as hdul:  # the reduction ran: 3 ADU/s x 2 e/ADU
         assert np.nanmedian(hdul["SCI"].data[4:, 4:]) == pytest.approx(6.0, abs=0.1)
     assert sorted(loaded.intersection(NOT_FOR_REDUCE)) == []
+
+
+def test_a_command_that_imports_astropy_as_it_runs_works(tmp_path):
+    # main() sets astropy's logger aside while a command runs: looked up by name before
+    # astropy was imported (simulate imports it in its run), that made a plain logger
+    # which astropy's import then failed on
+    (tmp_path / "scene.yaml").write_text(
+        "geometry: {nrows: 64, ncols: 64, nchannels: 4, ref_border: 4}\nreadout: {nframes: 3}\n")
+    done = subprocess.run([sys.executable, "-m", "spherex_reduce.cli", "-q", "simulate",
+                           "scene.yaml", "-o", "sim.fits", "--mode", "slopes"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    with fits.open(tmp_path / "sim.fits") as hdul:  # 64 rows of 64 columns + 24 reference reads
+        assert hdul["SCI"].data.shape == (88, 64)

@@ -1,7 +1,7 @@
 """The data model below everything: geometry, schedule, exposure, flags, errors.
 
-Each module is imported when first used (``spherex_reduce.core.dq`` after
-``import spherex_reduce.core``), as in every package of `spherex_reduce`.
+Its modules are attached lazily (``lazy_loader``): ``spherex_reduce.core.dq``
+works after ``import spherex_reduce.core`` and imports the module then.
 """
 
 import lazy_loader as lazy

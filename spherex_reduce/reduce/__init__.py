@@ -1,7 +1,7 @@
 """Reduction: the Step protocol, the executor, the pipeline, plugins and the steps.
 
-Each module is imported when first used (``spherex_reduce.reduce.pipeline``
-after ``import spherex_reduce.reduce``), as in every package of `spherex_reduce`.
+Its modules are attached lazily (``lazy_loader``): ``spherex_reduce.reduce.pipeline``
+works after ``import spherex_reduce.reduce`` and imports the module then.
 """
 
 import lazy_loader as lazy

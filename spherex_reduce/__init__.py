@@ -8,69 +8,34 @@ spatial power-spectrum analysis.
 
 import logging
 
-from ._version import __version__
-from .core import dq
-from .core.errors import ConfigError, FormatError, PluginError, SpherexReduceError, StepSkipped
-from .core.exposure import Exposure, ReferenceReads
-from .core.geometry import DetectorGeometry, RefBorder
-from .core.schedule import ReadoutSchedule
-from .io import read, write
-from .reduce.integrations import reduce_integrations
-from .reduce.pipeline import Pipeline
-from .reduce.step import Simulator, Step, Strategy
-from .reduce.steps import (
-    combine_darks,
-    correct_reference,
-    fit_ramp,
-    pair_difference,
-    rechop,
-    sigma_clip,
-    subtract_dark,
-    subtract_phantom,
-    unchop,
-)
+import lazy_loader as lazy
+
+#: The public names and the module of each, imported when first used (SPEC 1,
+#: `lazy_loader`): ``import spherex_reduce`` loads none of them, so a command pays
+#: only for the modules it uses.
+_EXPORTS = {
+    "_version": ["__version__"],
+    "core": ["dq"],
+    "core.errors": ["ConfigError", "FormatError", "PluginError", "SpherexReduceError",
+                    "StepSkipped"],
+    "core.exposure": ["Exposure", "ReferenceReads"],
+    "core.geometry": ["DetectorGeometry", "RefBorder"],
+    "core.schedule": ["ReadoutSchedule"],
+    "io": ["read", "write"],
+    "noise": ["expected_slope_variance"],
+    "reduce.integrations": ["reduce_integrations"],
+    "reduce.pipeline": ["Pipeline"],
+    "reduce.step": ["Simulator", "Step", "Strategy"],
+    "reduce.steps": ["combine_darks", "correct_reference", "fit_ramp", "pair_difference",
+                     "rechop", "sigma_clip", "subtract_dark", "subtract_phantom", "unchop"],
+    "simulation": ["simulate"],
+}
+
+__getattr__, __dir__ = lazy.attach(
+    __name__,
+    submodules=["analysis", "cli", "core", "io", "noise", "plugin", "reduce", "simulation"],
+    submod_attrs=_EXPORTS,
+)[:2]
+__all__ = sorted(name for names in _EXPORTS.values() for name in names)
 
 logging.getLogger("spherex_reduce").addHandler(logging.NullHandler())
-
-__all__ = [
-    "ConfigError",
-    "DetectorGeometry",
-    "Exposure",
-    "FormatError",
-    "Pipeline",
-    "PluginError",
-    "ReadoutSchedule",
-    "RefBorder",
-    "ReferenceReads",
-    "Simulator",
-    "SpherexReduceError",
-    "Step",
-    "StepSkipped",
-    "Strategy",
-    "__version__",
-    "combine_darks",
-    "correct_reference",
-    "dq",
-    "expected_slope_variance",
-    "fit_ramp",
-    "pair_difference",
-    "read",
-    "rechop",
-    "reduce_integrations",
-    "sigma_clip",
-    "simulate",
-    "subtract_dark",
-    "subtract_phantom",
-    "unchop",
-    "write",
-]
-
-
-def __getattr__(name):
-    # The simulator (scipy.signal, its engine) costs ~0.4 s to import; load it only
-    # when asked for, so that reducing a file does not pay for it.
-    if name in ("simulate", "expected_slope_variance"):
-        from . import simulation
-
-        return getattr(simulation, name)
-    raise AttributeError(f"module 'spherex_reduce' has no attribute {name!r}")

@@ -19,73 +19,36 @@ the same noise and an injected sky (`sky_field`, `inject_sky`):
 of the noise model (`white_floor`) and the cross-spectrum (`cross_spectrum`).
 """
 
-from ..core.source_mask import source_mask
-from ..reduce.pipeline import as_pipeline
-from .case import CaseResult, SpectrumMeasure, run_case
-from .compare import (
-    CompareResult,
-    Comparison,
-    compare_strategies,
-    load_comparison,
-    measure_against_sky,
-    white_floor,
-)
-from .photon_noise import photon_noise_label, photon_noise_power, slope_variance_factor
-from .sky import inject_sky, light_sensitive, sky_field
-from .spectrum import (
-    BAND_KMAX,
-    BAND_KMIN,
-    SPHEREX_PIXEL_SCALE,
-    EmptyBandError,
-    FFTImage,
-    band_label,
-    band_power,
-    cross_spectrum,
-    fft_magnitude,
-    k_from_theta,
-    power_spectrum,
-    theta_from_k,
-)
-from .temporal import NoiseModelFit, aliased_basis, fit_noise_model, model_basis, temporal_psd
-from .timestreams import Timestream, fit_raw_noise, phantom_timestream, reference_timestream
+import importlib
 
-__all__ = [
-    "BAND_KMAX",
-    "BAND_KMIN",
-    "SPHEREX_PIXEL_SCALE",
-    "CaseResult",
-    "CompareResult",
-    "Comparison",
-    "EmptyBandError",
-    "FFTImage",
-    "NoiseModelFit",
-    "SpectrumMeasure",
-    "Timestream",
-    "aliased_basis",
-    "as_pipeline",
-    "band_label",
-    "band_power",
-    "compare_strategies",
-    "cross_spectrum",
-    "fft_magnitude",
-    "fit_noise_model",
-    "fit_raw_noise",
-    "inject_sky",
-    "k_from_theta",
-    "light_sensitive",
-    "load_comparison",
-    "measure_against_sky",
-    "model_basis",
-    "phantom_timestream",
-    "photon_noise_label",
-    "photon_noise_power",
-    "power_spectrum",
-    "reference_timestream",
-    "run_case",
-    "sky_field",
-    "slope_variance_factor",
-    "source_mask",
-    "temporal_psd",
-    "theta_from_k",
-    "white_floor",
-]
+import lazy_loader as lazy
+
+_own_getattr, _, _own_all = lazy.attach(__name__, submod_attrs={
+    "case": ["CaseResult", "SpectrumMeasure", "run_case"],
+    "compare": ["CompareResult", "Comparison", "compare_strategies", "load_comparison",
+                "measure_against_sky", "white_floor"],
+    "photon_noise": ["photon_noise_label", "photon_noise_power", "slope_variance_factor"],
+    "sky": ["inject_sky", "light_sensitive", "sky_field"],
+    "spectrum": ["BAND_KMAX", "BAND_KMIN", "SPHEREX_PIXEL_SCALE", "EmptyBandError", "FFTImage",
+                 "band_label", "band_power", "cross_spectrum", "fft_magnitude", "k_from_theta",
+                 "power_spectrum", "theta_from_k"],
+    "temporal": ["NoiseModelFit", "aliased_basis", "fit_noise_model", "model_basis",
+                 "temporal_psd"],
+    "timestreams": ["Timestream", "fit_raw_noise", "phantom_timestream",
+                    "reference_timestream"],
+})
+#: Names shown here from the layers below (`lazy_loader.attach` attaches this
+#: package's own modules only), each with its module, imported when first used.
+_BELOW = {"source_mask": "spherex_reduce.core.source_mask",
+          "as_pipeline": "spherex_reduce.reduce.pipeline"}
+__all__ = sorted([*_own_all, *_BELOW])
+
+
+def __getattr__(name):
+    if name in _BELOW:
+        return getattr(importlib.import_module(_BELOW[name]), name)
+    return _own_getattr(name)
+
+
+def __dir__():
+    return __all__.copy()

@@ -1,10 +1,12 @@
 """The ``spherex-reduce`` command line.
 
 Each subcommand lives in its own module exposing ``add_parser(subparsers)``;
-:data:`COMMANDS` lists them in the order ``--help`` shows.  Exit codes: 0 ok,
-2 usage, input or environment error (one line on stderr, no traceback: bad
-input, a failing plugin, a full disk or read-only file system), 1 unexpected
-failure (a bug), 130 interrupted, 143 terminated (SIGTERM).
+:data:`COMMANDS` lists them in the order ``--help`` shows, with the line it shows
+for each, so that ``--help``, ``--version`` and finding the chosen command import
+no command's module: only the chosen command's module is imported, with what it
+uses.  Exit codes: 0 ok, 2 usage, input or environment error (one line on stderr,
+no traceback: bad input, a failing plugin, a full disk or read-only file system),
+1 unexpected failure (a bug), 130 interrupted, 143 terminated (SIGTERM).
 """
 
 import argparse
@@ -18,13 +20,28 @@ import warnings
 
 from .._version import __version__
 from ..core.errors import SpherexReduceError
-from ..io import checksum_policy, foreign_dq_bits
-from ..io.flags import DEFAULT_DQ_BITS, check_dq_bits
 
 __all__ = ["COMMANDS", "main"]
 
-COMMANDS = ["demo", "readout", "reduce", "show_config", "plugins", "simulate", "combine",
-            "spectrum", "fit_noise", "sweep", "compare_strategies", "figures"]
+#: The subcommands in the order ``--help`` lists them, each with its line there (the
+#: ``help`` its module's ``add_parser`` gives).  The module of ``NAME`` is
+#: ``spherex_reduce.cli.NAME`` with ``_`` for ``-``.
+COMMANDS = {
+    "demo": "simulate, reduce and measure the paper's case on built-in defaults",
+    "readout": "build a readout schedule; print, save or draw it",
+    "reduce": "run a pipeline on raw FITS files",
+    "show-config": "print a pipeline config with every default filled in",
+    "plugins": "list steps, strategies and simulators and their plugins",
+    "simulate": "simulate raw ramps or a slope image from a scene",
+    "combine": "combine reduced exposures into a master dark",
+    "spectrum": "azimuthally averaged power spectrum P(k) of an image",
+    "fit-noise": "fit the noise model of paper eq. 1 to a raw file's reference and phantom "
+                 "streams",
+    "sweep": "simulate, reduce and measure a grid of readout parameters on dask",
+    "compare-strategies": "reduce the same simulated noise and injected sky with several "
+                          "pipelines; residual noise, white floor, sky transfer",
+    "figures": "reproduce the paper's simulated figures (PNG + Markdown report)",
+}
 
 #: Commands that read FITS files: they take ``--ignore-checksum`` and ``--dq-bits``.
 READS_FITS = ("reduce", "combine", "spectrum", "fit-noise")
@@ -62,8 +79,12 @@ def _one_line_warnings(command):
     Replaces the default display (file, line and source of the warning) and
     astropy's, which is also logged, so each warning would appear twice.
     """
+    # astropy's own logger, which has a handler of its own: not the root's too.  Imported,
+    # not looked up: logging.getLogger("astropy") before astropy is imported (a command
+    # imports it when it runs) would make a plain logger that astropy's import then fails on.
+    from astropy import log as astropy_log
+
     seen = set()
-    astropy_log = logging.getLogger("astropy")  # has a handler of its own: not the root's too
     propagate, astropy_log.propagate = astropy_log.propagate, False
 
     def show(message, category, filename, lineno, file=None, line=None):
@@ -114,7 +135,26 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-def build_parser():
+def build_parser(commands=None):
+    """The parser of the command line.
+
+    Parameters
+    ----------
+    commands : collection of str, optional
+        The subcommands whose options are added, each by importing its module
+        (default: all).  The others are listed by name and help only: enough for
+        ``--help`` and ``--version`` and to find the chosen command.
+
+    Returns
+    -------
+    argparse.ArgumentParser
+
+    Examples
+    --------
+    >>> from spherex_reduce.cli import build_parser
+    >>> build_parser(["readout"]).parse_args(["readout", "--skip", "8"]).skip
+    8
+    """
     parser = _Parser(
         prog="spherex-reduce",
         description="Simulate, reduce and measure the readout noise of H2RG detector arrays.",
@@ -124,23 +164,47 @@ def build_parser():
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     parser.add_argument("--debug", action="store_true", help="show tracebacks of errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in COMMANDS:
-        importlib.import_module(f".{name}", __name__).add_parser(sub)
-    for name in READS_FITS:
-        sub.choices[name].add_argument(
-            "--ignore-checksum", action="store_true",
-            help="read FITS files whose CHECKSUM/DATASUM do not match (damaged or edited): "
-            "warn, and record it in the output (HISTORY, SXRCKBAD) instead of stopping")
-        sub.choices[name].add_argument(
-            "--dq-bits", type=_dq_bits, default=DEFAULT_DQ_BITS, metavar="N",
-            help="bits of a DQ written by other software (a file without a READOUT table) "
-            "that mask a pixel, as a sum of 2**bit, e.g. 0x5 for bits 0 and 2; 0: none "
-            f"(default {DEFAULT_DQ_BITS}: bit 0, do-not-use); our own files keep all their flags")
+    for name, text in COMMANDS.items():
+        if commands is not None and name not in commands:
+            sub.add_parser(name, help=text, add_help=False)
+            continue
+        importlib.import_module(f".{name.replace('-', '_')}", __name__).add_parser(sub)
+        if name in READS_FITS:
+            _add_fits_options(sub.choices[name])
     return parser
+
+
+def _add_fits_options(parser):
+    """``--ignore-checksum`` and ``--dq-bits`` of a command that reads FITS files."""
+    from ..io.flags import DEFAULT_DQ_BITS
+
+    parser.add_argument(
+        "--ignore-checksum", action="store_true",
+        help="read FITS files whose CHECKSUM/DATASUM do not match (damaged or edited): "
+        "warn, and record it in the output (HISTORY, SXRCKBAD) instead of stopping")
+    parser.add_argument(
+        "--dq-bits", type=_dq_bits, default=DEFAULT_DQ_BITS, metavar="N",
+        help="bits of a DQ written by other software (a file without a READOUT table) "
+        "that mask a pixel, as a sum of 2**bit, e.g. 0x5 for bits 0 and 2; 0: none "
+        f"(default {DEFAULT_DQ_BITS}: bit 0, do-not-use); our own files keep all their flags")
+
+
+@contextlib.contextmanager
+def _fits_options(args):
+    """While a command that reads FITS files runs: its ``--ignore-checksum`` and ``--dq-bits``."""
+    if args.command not in READS_FITS:
+        yield
+        return
+    from ..io import checksum_policy, foreign_dq_bits
+
+    with checksum_policy(verify=not args.ignore_checksum), foreign_dq_bits(args.dq_bits):
+        yield
 
 
 def _dq_bits(text):
     """``--dq-bits``: an integer (decimal, 0x hex or 0b binary) that `check_dq_bits` accepts."""
+    from ..io.flags import check_dq_bits
+
     try:
         value = int(text, 0)
     except ValueError:
@@ -153,8 +217,9 @@ def _dq_bits(text):
 
 def main(argv=None):
     """Run the command line; returns the exit code."""
-    parser = build_parser()
-    try:
+    try:  # the chosen command first: only its module is imported
+        chosen = build_parser(commands=()).parse_known_args(argv)[0].command
+        parser = build_parser(commands=[chosen] if chosen else ())
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help and --version exit 0 as argparse does
         if exc.code == 2:
@@ -169,9 +234,7 @@ def main(argv=None):
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         handlers=[handler])
     try:
-        with _sigterm_raises(), _one_line_warnings(args.command), \
-                checksum_policy(verify=not getattr(args, "ignore_checksum", False)), \
-                foreign_dq_bits(getattr(args, "dq_bits", DEFAULT_DQ_BITS)):
+        with _sigterm_raises(), _one_line_warnings(args.command), _fits_options(args):
             return args.func(args) or 0
     except INPUT_ERRORS as exc:
         if args.debug:

@@ -17,7 +17,6 @@ from pathlib import Path
 from ..core.errors import ResourceError, SpherexReduceError
 from ..core.limits import check_count
 from ..io import atomic_output
-from ..reduce.pipeline import Pipeline
 
 __all__ = ["add_config_option", "all_or_nothing", "check_paths", "count", "finite_float",
            "input_config", "named_files", "nonnegative_float", "positive_float"]
@@ -210,6 +209,8 @@ def input_config(config):
     >>> input_config(None)
     (None, [])
     """
+    from ..reduce.pipeline import Pipeline
+
     if config is None:
         return None, []
     pipeline = Pipeline.from_yaml(config)

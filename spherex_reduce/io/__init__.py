@@ -1,6 +1,8 @@
 """Reading and writing files: FITS exposures and atomic outputs.
 
-`read` and `write` handle a whole exposure in the layout of
+`open_input` is the one entry point for inputs of every layout (a raw file
+read in bands, a 4-D file of integrations, one file per read, an exposure in
+memory): it gives the sources the executor reads.  `read` and `write` handle a whole exposure in the layout of
 `spherex_reduce.io.layout`; `write_frames` writes raw ramps as they are made
 and `FrameReader` reads them a frame at a time; `open_checked` opens any FITS
 file after the checks `read` makes (structure, checksums, header cards),
@@ -8,19 +10,14 @@ file after the checks `read` makes (structure, checksums, header cards),
 mask a pixel, and `atomic_output` is how every output of the package is written.
 """
 
-from .atomic import atomic_output
-from .fits_read import (
-    CheckedFITS,
-    checksum_policy,
-    integration_count,
-    is_raw_ramp_file,
-    open_checked,
-    read,
-)
-from .fits_write import write, write_frames
-from .flags import current_dq_bits, foreign_dq_bits
-from .frames import FrameReader
+import lazy_loader as lazy
 
-__all__ = ["CheckedFITS", "FrameReader", "atomic_output", "checksum_policy", "current_dq_bits",
-           "foreign_dq_bits", "integration_count", "is_raw_ramp_file", "open_checked", "read",
-           "write", "write_frames"]
+__getattr__, __dir__, __all__ = lazy.attach(__name__, submod_attrs={
+    "atomic": ["atomic_output"],
+    "fits_read": ["CheckedFITS", "checksum_policy", "integration_count", "is_raw_ramp_file",
+                  "open_checked", "read"],
+    "fits_write": ["write", "write_frames"],
+    "flags": ["current_dq_bits", "foreign_dq_bits"],
+    "frames": ["FrameReader"],
+    "sources": ["open_input"],
+})

@@ -5,15 +5,9 @@ these PSDs, and reduction strategies that need the noise model (the
 ``wiener`` reference strategy) read them from here.
 """
 
-from .components import BUILTIN_TABLES, NoiseComponent, load_noise_table, noise_components
-from .variance import expected_slope_variance, ls_weights, slope_covariance
+import lazy_loader as lazy
 
-__all__ = [
-    "BUILTIN_TABLES",
-    "NoiseComponent",
-    "expected_slope_variance",
-    "load_noise_table",
-    "ls_weights",
-    "noise_components",
-    "slope_covariance",
-]
+__getattr__, __dir__, __all__ = lazy.attach(__name__, submod_attrs={
+    "components": ["BUILTIN_TABLES", "NoiseComponent", "load_noise_table", "noise_components"],
+    "variance": ["expected_slope_variance", "ls_weights", "slope_covariance"],
+})

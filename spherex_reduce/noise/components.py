@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from astropy import units as u
 from astropy.table import Table
-from scipy import integrate, special
+from scipy import special
 
 from ..core.errors import ConfigError
 
@@ -268,6 +268,8 @@ def _g_power(z, e, cos_z=None, z_e1=None):
 @functools.lru_cache(maxsize=4096)
 def _g_power_quad(z, e):
     """``G_e(z)`` for ``z < 40`` by quadrature (cached: the same small lags recur)."""
+    from scipy import integrate  # its import (scipy.optimize) is slow: only when needed
+
     if z < 1e-6:
         return z ** (3 - e) / (2 * (3 - e))
     val, _ = integrate.quad(lambda t: (1 - np.cos(t)) * t ** (-e), 0, z, limit=200,

@@ -5,22 +5,14 @@ see `spherex_reduce.reduce.plugins.BUILTIN_PLUGINS`); the functions here run the
 alone, with its provenance recorded.
 """
 
-from .clipping import sigma_clip
-from .dark import combine_darks, subtract_dark
-from .fit_ramp import fit_ramp
-from .pairs import pair_difference
-from .phantom import subtract_phantom
-from .reference import correct_reference
-from .unchop import rechop, unchop
+import lazy_loader as lazy
 
-__all__ = [
-    "combine_darks",
-    "correct_reference",
-    "fit_ramp",
-    "pair_difference",
-    "rechop",
-    "sigma_clip",
-    "subtract_dark",
-    "subtract_phantom",
-    "unchop",
-]
+__getattr__, __dir__, __all__ = lazy.attach(__name__, submod_attrs={
+    "clipping": ["sigma_clip"],
+    "dark": ["combine_darks", "subtract_dark"],
+    "fit_ramp": ["fit_ramp"],
+    "pairs": ["pair_difference"],
+    "phantom": ["subtract_phantom"],
+    "reference": ["correct_reference"],
+    "unchop": ["rechop", "unchop"],
+})

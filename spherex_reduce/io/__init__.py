@@ -2,12 +2,13 @@
 
 `open_input` is the one entry point for inputs of every layout (a raw file
 read in bands, a 4-D file of integrations, one file per read, an exposure in
-memory): it gives the sources the executor reads.  `read` and `write` handle a whole exposure in the layout of
-`spherex_reduce.io.layout`; `write_frames` writes raw ramps as they are made
-and `FrameReader` reads them a frame at a time; `open_checked` opens any FITS
-file after the checks `read` makes (structure, checksums, header cards),
-`foreign_dq_bits` chooses which bits of a ``DQ`` written by other software
-mask a pixel, and `atomic_output` is how every output of the package is written.
+memory): it gives the sources the executor reads.  `read` and `write` handle
+a whole exposure in the layout of `spherex_reduce.io.layout`; `write_frames`
+writes raw ramps as they are made and `FrameReader` reads them a frame at a
+time; `open_checked` opens any FITS file after the checks `read` makes
+(structure, checksums, header cards), `foreign_dq_bits` chooses which bits of
+a ``DQ`` written by other software mask a pixel, and `atomic_output` is how
+every output of the package is written.
 """
 
 import lazy_loader as lazy

@@ -20,7 +20,6 @@ from pathlib import Path
 import numpy as np
 from astropy import units as u
 from astropy.table import Table
-from scipy import special
 
 from ..core.errors import ConfigError
 
@@ -229,6 +228,8 @@ def _cin(x, cos_x=None):
         out[fast] = np.euler_gamma + np.log(x[fast]) + g * cos_x[fast]
     rest = ~small & ~fast
     xs = x[rest]
+    from scipy import special  # here: a reduction that never integrates a PSD skips it
+
     out[rest] = np.euler_gamma + np.log(xs) - special.sici(xs)[1]
     return out
 
@@ -240,6 +241,8 @@ def _g_power(z, e, cos_z=None, z_e1=None):
     which spares the trigonometric functions of the asymptotic series;
     ``z_e1``, if given, is ``z**(e - 1)`` (spares a power).
     """
+    from scipy import special  # here: a reduction that never integrates a PSD skips it
+
     z = np.atleast_1d(np.asarray(z, dtype=float))
     k_e = np.pi / (2 * special.gamma(e) * np.sin(np.pi * (e - 1) / 2))
     out = np.empty_like(z)

@@ -7,7 +7,6 @@ from pathlib import Path
 
 import yaml
 from astropy.io import fits
-from tqdm.auto import tqdm
 
 from .._version import __version__
 from ..core.errors import ConfigError, SpherexReduceError
@@ -243,6 +242,29 @@ class Pipeline:
         return result.replace(header=header)
 
 
+class _NoBar:
+    """What a progress bar offers, doing nothing (no tqdm import when there is no bar)."""
+
+    def update(self, n=1):
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
+def _bar(progress, **kwargs):
+    """A tqdm bar shown after a second (a bad input is refused before any bar is drawn),
+    or a `_NoBar` without ``progress``."""
+    if not progress:
+        return _NoBar()
+    from tqdm.auto import tqdm
+
+    return tqdm(leave=False, delay=1.0, **kwargs)
+
+
 class _Run:
     """One run of a list of steps: what each step did (``status``), progress, threads.
 
@@ -259,9 +281,7 @@ class _Run:
     def on(self, source):
         """Run the steps on ``source`` (a `~spherex_reduce.io.sources.Source`); the result."""
         i = 0
-        # shown after a second: a bad input is refused before any bar is drawn
-        bar = tqdm(total=len(self.steps), desc="reduce", unit="step",
-                   disable=not self.progress, leave=False, delay=1.0)
+        bar = _bar(self.progress, total=len(self.steps), desc="reduce", unit="step")
         with bar:
             while i < len(self.steps):
                 plan = plan_pass(self.steps, i, source, self.threads)
@@ -281,8 +301,7 @@ class _Run:
         if not plan.runs:  # only skipped steps (e.g. subtract_phantom without phantom values)
             result, busy, route = before, {}, ""
         else:
-            rows = tqdm(total=source.nrows, desc="reduce rows", unit="row",
-                        disable=not self.progress, leave=False, delay=1.0)
+            rows = _bar(self.progress, total=source.nrows, desc="reduce rows", unit="row")
             with rows:
                 result, busy, route = run_pass(source, plan, threads=self.threads,
                                                progress=rows.update)

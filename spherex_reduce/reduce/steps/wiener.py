@@ -20,7 +20,6 @@ from pathlib import Path
 import numpy as np
 from astropy.table import Table
 from astropy.utils.exceptions import AstropyUserWarning
-from scipy import linalg
 
 from ...core.errors import ConfigError
 from ...core.parameters import Parameter, validate_parameters
@@ -413,6 +412,8 @@ class _Model:
         if not phantom:
             return k_oo, k_ot, k_tt
         # phantom values at every read: Toeplitz blocks (entry [i, j] is the lag j - i)
+        from scipy import linalg  # imported here: a reduction that never solves skips it
+
         hh = self.lags("phantom", "phantom", scale)
         ht = self.lags("phantom", kind, scale)
         rh = self.lags(kind, "phantom", scale)[t[None, :] - reads[:, None] + off]

@@ -13,10 +13,8 @@ import warnings
 
 import numpy as np
 
-from spherex_reduce.core.parameters import Parameter
-from spherex_reduce.reduce.hookspecs import hookimpl
-from spherex_reduce.reduce.step import Strategy
-from spherex_reduce.reduce.steps.reference_strategies import ALL, ReferenceOffsets, reference_pixels
+from spherex_reduce.plugin import Parameter, ReferenceOffsets, Strategy, hookimpl
+from spherex_reduce.reduce.steps.reference_strategies import ALL, reference_pixels
 
 __all__ = ["ReferenceMedian"]
 

@@ -19,11 +19,9 @@ the same noise and an injected sky (`sky_field`, `inject_sky`):
 of the noise model (`white_floor`) and the cross-spectrum (`cross_spectrum`).
 """
 
-import importlib
+from ..core.lazy_names import attach
 
-import lazy_loader as lazy
-
-_own_getattr, _, _own_all = lazy.attach(__name__, submod_attrs={
+_OWN = {
     "case": ["CaseResult", "SpectrumMeasure", "run_case"],
     "compare": ["CompareResult", "Comparison", "compare_strategies", "load_comparison",
                 "measure_against_sky", "white_floor"],
@@ -36,19 +34,9 @@ _own_getattr, _, _own_all = lazy.attach(__name__, submod_attrs={
                  "temporal_psd"],
     "timestreams": ["Timestream", "fit_raw_noise", "phantom_timestream",
                     "reference_timestream"],
-})
+}
 #: Names shown here from the layers below (`lazy_loader.attach` attaches this
 #: package's own modules only), each with its module, imported when first used.
 _BELOW = {"source_mask": "spherex_reduce.core.source_mask",
           "as_pipeline": "spherex_reduce.reduce.pipeline"}
-__all__ = sorted([*_own_all, *_BELOW])
-
-
-def __getattr__(name):
-    if name in _BELOW:
-        return getattr(importlib.import_module(_BELOW[name]), name)
-    return _own_getattr(name)
-
-
-def __dir__():
-    return __all__.copy()
+__getattr__, __dir__, __all__ = attach(__name__, _OWN, _BELOW)

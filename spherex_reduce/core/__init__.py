@@ -7,5 +7,5 @@ works after ``import spherex_reduce.core`` and imports the module then.
 import lazy_loader as lazy
 
 __getattr__, __dir__, __all__ = lazy.attach(__name__, submodules=[
-    "block", "dq", "errors", "exposure", "fields", "geometry", "limits", "parameters",
-    "schedule", "source_mask"])
+    "block", "dq", "errors", "exposure", "fields", "geometry", "lazy_names", "limits",
+    "parameters", "schedule", "source_mask"])

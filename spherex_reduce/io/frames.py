@@ -20,7 +20,7 @@ __all__ = ["FrameReader"]
 
 
 class Closing:
-    """``with reader:`` closes the reader's files at the end of the block."""
+    """``with x:`` calls ``x.close()`` at the end of the block (readers, sources, inputs)."""
 
     def __enter__(self):
         return self

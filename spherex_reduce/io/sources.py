@@ -29,7 +29,7 @@ from ..core.block import Block, Context
 from ..core.errors import FormatError
 from ..core.exposure import Exposure
 from .fits_read import CheckedFITS, integration_count, is_raw_ramp_file, read
-from .frames import FrameReader
+from .frames import Closing, FrameReader
 from .input import InputOptions
 from .read_files import ReadFiles, read_file_paths
 
@@ -113,7 +113,7 @@ def read_phantom(exposure):
     return out
 
 
-class Source:
+class Source(Closing):
     """What the executor reads: the side block and bands of rows of every frame.
 
     Attributes
@@ -150,13 +150,6 @@ class Source:
 
     def close(self):
         """Release what the source opened (nothing by default)."""
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-        return False
 
 
 class MemorySource(Source):
@@ -272,7 +265,7 @@ def _from_reader(reader, owned):
             reader.close()
 
 
-class Input:
+class Input(Closing):
     """An opened input: one ramp or image, or the integrations of a 4-D file.
 
     Made by `open_input`; use as a context manager (what it opened is closed
@@ -317,13 +310,6 @@ class Input:
             self._source.close()
         if self._checked is not None:
             self._checked.close()
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-        return False
 
 
 def _is_reader(obj):

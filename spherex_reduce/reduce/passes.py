@@ -74,14 +74,6 @@ class Whole:
     planned: PlannedStep
 
 
-def _streams(step):
-    """Whether a step may run in a pass: it has a kernel or a consumer, and no file inputs."""
-    from .step import Step
-
-    return not step.inputs and (type(step).kernel is not Step.kernel
-                                or type(step).consumer is not Step.consumer)
-
-
 def plan_pass(steps, start, source, threads=None):
     """What runs next, from ``steps[start]`` on ``source``: a `Pass` or a `Whole` step.
 
@@ -99,7 +91,7 @@ def plan_pass(steps, start, source, threads=None):
     `Pass` or `Whole`
         A pass holds at least one step (it may have only skipped ones).
     """
-    if not _streams(steps[start].step):
+    if not steps[start].step.streams():
         return Whole(steps[start])
     context = source.context.replace(threads=threads)
     plan = Pass()

@@ -255,6 +255,14 @@ class Step:
         or None (the default)."""
         return None
 
+    def streams(self):
+        """Whether the step may run in a pass of the executor: it has a kernel or a
+        consumer (its class overrides :meth:`kernel` or :meth:`consumer`) and no
+        :attr:`inputs` of its own."""
+        cls = type(self)
+        return not self.inputs and (cls.kernel is not Step.kernel
+                                    or cls.consumer is not Step.consumer)
+
     def reduces_input(self, name, params):
         """Whether a `~spherex_reduce.Pipeline` first brings the exposure of input ``name``
         (one of :attr:`inputs`) to this step's stage, running on it the steps it has

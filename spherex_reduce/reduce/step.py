@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import ClassVar
 
-from ..core.errors import StepSkipped
+from ..core.errors import StepSkipped, UnknownNameError
 from ..core.parameters import Parameter, validate_parameters
 from ..io import read
 from ..io.sources import MemorySource
@@ -162,6 +162,10 @@ class Step:
         The pipeline config's ``geometry:`` and ``readout:`` values, for
         keywords that a file of :attr:`inputs` lacks (as the pipeline does for
         its input).
+    strategies : `~spherex_reduce.reduce.plugins.Registry`, optional
+        Where strategies are looked up when there is no ``registry`` (its hooks
+        are not called): the step functions (`~spherex_reduce.correct_reference`)
+        give the built-in and installed plugins'.
 
     Examples
     --------
@@ -185,14 +189,16 @@ class Step:
     #: receives the `~spherex_reduce.Exposure`
     inputs: ClassVar[tuple] = ()
 
-    def __init__(self, registry=None, threads=None, supplied=None):
+    def __init__(self, registry=None, threads=None, supplied=None, strategies=None):
         #: the `~spherex_reduce.reduce.plugins.Registry` whose ``before_step`` and
         #: ``after_step`` hooks run around the step, and where it looks up its
-        #: strategies; None: no hooks, strategies from
-        #: `~spherex_reduce.reduce.plugins.default_registry`
+        #: strategies; None: no hooks
         self.registry = registry
         self.threads = threads
         self.supplied = dict(supplied or {})
+        #: where strategies are looked up when the step has no :attr:`registry` (a
+        #: `~spherex_reduce.reduce.plugins.Registry` whose hooks are not called)
+        self.strategies = strategies
 
     def __call__(self, exposure, **params):
         """Run the step: validate ``params``, call the plugins' hooks, run, record provenance.
@@ -307,18 +313,13 @@ class Step:
     # -- parameters ------------------------------------------------------------
     def strategy_registry(self):
         """The `~spherex_reduce.reduce.plugins.Registry` this step looks its strategies up
-        in: its :attr:`registry`, else the process's
-        (`~spherex_reduce.reduce.plugins.default_registry`: the built-in and installed
-        plugins)."""
-        if self.registry is not None:
-            return self.registry
-        from .plugins import default_registry  # plugins.py imports this module
-
-        return default_registry()
+        in: its :attr:`registry`, else its :attr:`strategies` (None if it has neither)."""
+        return self.registry if self.registry is not None else self.strategies
 
     def strategy_names(self):
         """Names of the strategies this step may use."""
-        return sorted(self.strategy_registry().strategies.get(self.strategy_kind, {}))
+        found = self.strategy_registry()
+        return [] if found is None else sorted(found.strategies.get(self.strategy_kind, {}))
 
     def strategy(self, name):
         """The strategy class ``name`` of this step's kind.
@@ -326,7 +327,12 @@ class Step:
         Raises `~spherex_reduce.core.errors.UnknownNameError` (a `KeyError`) listing
         the valid names.
         """
-        return self.strategy_registry().strategy(self.strategy_kind, name)
+        found = self.strategy_registry()
+        if found is None:
+            raise UnknownNameError(
+                f"unknown {self.strategy_kind} strategy {name!r}: the step was made without "
+                "a registry (give registry=spherex_reduce.reduce.plugins.Registry())")
+        return found.strategy(self.strategy_kind, name)
 
     def declared(self, params, path=None):
         """The `~spherex_reduce.core.parameters.Parameter` list for ``params`` (with the chosen

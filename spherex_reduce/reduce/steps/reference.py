@@ -17,6 +17,7 @@ from ...core import dq
 from ...io.sources import MemorySource
 from ..executor import execute
 from ..hookspecs import hookimpl
+from ..plugins import default_registry
 from ..step import Kernel, Record, Step, Strategy
 from .reference_strategies import (
     AcnReference,
@@ -366,7 +367,9 @@ def correct_reference(exposure, strategy="mean", *, registry=None, **params):
     >>> np.abs(out.data.data).max(), out.tables["REFOFFS"]["offset"].tolist()
     (np.float64(0.0), [10.0, -3.0])
     """
-    return CorrectReferenceStep(registry)(exposure, strategy=strategy, **params)
+    strategies = default_registry() if registry is None else None
+    return CorrectReferenceStep(registry, strategies=strategies)(exposure, strategy=strategy,
+                                                                 **params)
 
 
 def _streams(cls):

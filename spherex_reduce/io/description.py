@@ -17,10 +17,10 @@ from ..core.exposure import expected_shape
 from ..core.fields import header_keyword
 from ..core.schedule import ReadoutSchedule
 from .input import InputOptions
-from .layout import integration_shape
+from .layout import RESERVED, integration_shape
 
-__all__ = ["FileDescription", "check_shape", "describe", "image_shape", "note_bad_checksums",
-           "sci_hdu"]
+__all__ = ["FileDescription", "check_shape", "describe", "file_tables", "image_shape",
+           "note_bad_checksums", "sci_hdu"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -157,3 +157,10 @@ def check_shape(shape, schedule, order, name):
                 f"{name} has shape {shape} but the header keywords give {expected}: axis {axis}, "
                 f"{label}, is {got}, expected {want}"
             )
+
+
+def file_tables(hdul):
+    """The binary tables of an open file that are not part of the layout (``PROVENANCE``,
+    a step's table ...), by extension name: what an exposure read from it carries."""
+    return {h.name: Table.read(h) for h in hdul
+            if isinstance(h, fits.BinTableHDU) and h.name not in RESERVED}

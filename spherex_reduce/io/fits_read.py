@@ -22,11 +22,10 @@ from astropy.table import Table
 from ..core.errors import FormatError
 from ..core.exposure import Exposure, ReferenceReads
 from ..core.fields import _card_text
-from .description import describe, image_shape, note_bad_checksums, sci_hdu
+from .description import describe, file_tables, image_shape, note_bad_checksums, sci_hdu
 from .fits_structure import _scan, _verify
 from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq
 from .input import InputOptions, apply_input
-from .layout import RESERVED
 from .pixels import physical
 
 __all__ = ["CheckedFITS", "checksum_policy", "integration_count", "is_raw_ramp_file",
@@ -331,11 +330,7 @@ def exposure_from_hdul(hdul, path, bad, plain, supplied, dq_bits=None, options=N
             dq=None if refdq is None else refdq.astype(np.uint16),
         )
         _readonly(reference.data, reference.phantom)
-    tables = {
-        h.name: Table.read(h)
-        for h in hdul
-        if isinstance(h, fits.BinTableHDU) and h.name not in RESERVED
-    }
+    tables = file_tables(hdul)
     data, err, mask, phantom = apply_input(d, data, err, mask, phantom)
     _readonly(data, err, mask, phantom)
     return Exposure.from_arrays(data, d.kept, unit=d.unit, uncertainty=err, mask=mask,

@@ -6,14 +6,12 @@ from pathlib import Path
 
 import numpy as np
 from astropy.io import fits
-from astropy.table import Table
 
 from ..core.errors import FormatError
 from ..core.exposure import Exposure
-from .description import describe
+from .description import describe, file_tables
 from .fits_read import exposure_from_hdul, open_fits
 from .input import InputOptions, apply_gain, apply_input
-from .layout import RESERVED
 from .pixels import FITS_DTYPES, FLOAT_FOR, physical, scaling, to_physical
 
 __all__ = ["FrameReader"]
@@ -33,7 +31,7 @@ class Closing:
 class FrameReader(Closing):
     """Read a raw ramp file by reads of every frame (or by frames), never all of it at once.
 
-    The executor (`spherex_reduce.reduce.executor.FileSource`) reads bands of rows of
+    The executor (`spherex_reduce.io.sources.FileSource`) reads bands of rows of
     every frame with `reads` (``pread``), so a `~spherex_reduce.Pipeline`
     reduces a file in memory near the output plus a few bands.  Use as a
     context manager.
@@ -82,8 +80,7 @@ class FrameReader(Closing):
                        if "PHANTOM" in d.names else None)
             self._phantom = apply_input(d, None, None, None, phantom)[3]
             self._scale = scaling(d.sci, path)
-            self._tables = {h.name: Table.read(h) for h in self._hdul
-                            if isinstance(h, fits.BinTableHDU) and h.name not in RESERVED}
+            self._tables = file_tables(self._hdul)
             self._map = map_frames(d.sci, path) if plain else None
         except Exception:
             self._hdul.close()
@@ -135,7 +132,6 @@ class FrameReader(Closing):
         phantom = None if self._phantom is None else self._phantom[k - self._drop:][:1]
         return Exposure.from_arrays(data, self.schedule.replace(nframes=1), unit=self.unit,
                                     phantom=phantom, header=self.header, tables=self._tables)
-
 
     @property
     def has_phantom(self):

@@ -5,8 +5,8 @@ Many test sets (e.g. ASIC-driven labs) store a ramp as files ``read_1.fits``,
 `ReadFiles` opens them all, checks each as `~spherex_reduce.io.read` checks a
 file (structure, checksums, header cards, shape against the schedule) and that
 they agree (shape, ``BITPIX``, unit, ``ORDER``), and serves rows of every frame
-like `~spherex_reduce.io.FrameReader` does for one 3-D file, so the executor's
-``FileSource`` streams them.  The files are never modified.
+like `~spherex_reduce.io.FrameReader` does for one 3-D file, so a
+`~spherex_reduce.io.sources.FileSource` streams them.  The files are never modified.
 """
 
 import dataclasses
@@ -16,17 +16,14 @@ import re
 from pathlib import Path
 
 import numpy as np
-from astropy.io import fits
-from astropy.table import Table
 
 from ..core.errors import FormatError
 from ..core.exposure import Exposure
 from ..core.limits import check_count, check_size
-from .description import describe
+from .description import describe, file_tables
 from .fits_read import open_fits
 from .frames import Closing, map_frames, pread_into
 from .input import InputOptions, apply_gain, apply_input
-from .layout import RESERVED
 from .pixels import FLOAT_FOR, physical, scaling, to_physical
 
 __all__ = ["MAX_READ_FILES", "ReadFiles", "natural_key", "read_file_paths"]
@@ -119,9 +116,7 @@ class _ReadFile:
                 if self.phantom.dtype.kind != "f":
                     self.phantom = self.phantom.astype(FLOAT_FOR[hdu.header["BITPIX"]])
             #: the file's tables (only if asked: the first file's are the exposure's)
-            self.tables = ({h.name: Table.read(h) for h in self.hdul
-                            if isinstance(h, fits.BinTableHDU) and h.name not in RESERVED}
-                           if tables else {})
+            self.tables = file_tables(self.hdul) if tables else {}
             if self.plain and hasattr(os, "preadv"):
                 self.map = map_frames(sci, path)
             if self.map is not None:  # read with pread from one descriptor per file
@@ -157,7 +152,7 @@ class _ReadFile:
 class ReadFiles(Closing):
     """A ramp stored as one FITS file per read, read a band of rows of every frame at a time.
 
-    It offers what `~spherex_reduce.reduce.executor.FileSource` asks of a
+    It offers what `~spherex_reduce.io.sources.FileSource` asks of a
     `~spherex_reduce.io.FrameReader` (``schedule``, ``header``, ``unit``,
     ``tables``, ``phantom``, ``stored_dtype``, `reads`), so a
     `~spherex_reduce.Pipeline` streams the ramp from the files: memory stays

@@ -19,7 +19,6 @@ A new input layout is one reader class (offering what `FileSource` asks of
 branch in `open_input`.
 """
 
-import glob
 import os
 from pathlib import Path
 
@@ -31,7 +30,7 @@ from ..core.exposure import Exposure
 from .fits_read import CheckedFITS, integration_count, is_raw_ramp_file, read
 from .frames import Closing, FrameReader
 from .input import InputOptions
-from .read_files import ReadFiles, read_file_paths
+from .read_files import ReadFiles
 
 __all__ = ["FileSource", "Input", "MemorySource", "Source", "context_of", "open_input",
            "read_phantom", "side_block", "side_indices"]
@@ -281,28 +280,25 @@ class Input(Closing):
     """
 
     def __init__(self, label, integrations=None, *, source=None, owned=True, checked=None,
-                 path=None, options=None, supplied=None):
+                 options=None, supplied=None):
         self.label, self.integrations = label, integrations
-        self._source, self._owned = source, owned
-        self._checked, self._path = checked, path
+        self._source, self._owned, self._checked = source, owned, checked
         self._options, self._supplied = options, dict(supplied or {})
 
     def source(self, integration=None):
         """The `Source` of the input, or of integration ``integration`` of a 4-D file.
 
         Raises `~spherex_reduce.core.errors.FormatError` as the reader does for
-        a 4-D file without ``integration``, or ``integration`` of a file that
-        has none.
+        a 4-D file without ``integration``, and for ``integration`` of an input
+        that has none.
         """
-        if self._source is not None and integration is None:
-            return self._source
         if self._checked is not None:  # a 4-D file, opened and checked once
             return MemorySource(self._checked.exposure(integration=integration,
                                                        input=self._options, **self._supplied))
-        if self._path is not None:  # let the reader say what the file is
-            return MemorySource(read(self._path, input=self._options, integration=integration,
-                                     **self._supplied))
-        raise FormatError(f"{self.label}: has no integrations (it is one ramp or image)")
+        if integration is not None:
+            raise FormatError(f"{self.label}: integration={integration} given, but the input "
+                              "is one ramp or image, not a 4-D file of integrations")
+        return self._source
 
     def close(self):
         """Close what `open_input` opened."""
@@ -330,9 +326,9 @@ def open_input(what, *, input=None, **supplied):
           bands; a 4-D ``SCI`` (integrations, groups, rows, columns) gives an
           `Input` with ``integrations``; anything else is read whole
           (`~spherex_reduce.io.read`);
-        - a sequence of paths, or a glob pattern (``'DIR/read_*.fits'``,
-          matched in natural order) that is not itself a file: one ramp stored
-          as one file per read.
+        - a sequence of paths: one ramp stored as one file per read, in that
+          order (`~spherex_reduce.io.read_files.read_file_paths` expands a glob
+          such as ``'DIR/read_*.fits'`` in natural order, as ``--reads`` does).
     input : dict or `~spherex_reduce.io.input.InputOptions`, optional
         The pipeline config's ``input:`` section.
     **supplied
@@ -365,18 +361,13 @@ def open_input(what, *, input=None, **supplied):
     if isinstance(what, (list, tuple)):  # one file per read
         return _read_files(what, options, supplied)
     path = os.fspath(what)
-    if glob.has_magic(path) and not Path(path).exists():
-        return _read_files(read_file_paths(path), options, supplied)
     nint = integration_count(path)
     if nint is not None:
-        checked = CheckedFITS(path)
-        return Input(path, nint, checked=checked, options=options, supplied=supplied)
+        return Input(path, nint, checked=CheckedFITS(path), options=options, supplied=supplied)
     if is_raw_ramp_file(path):
         reader = FrameReader(path, input=options, **supplied)
-        return Input(path, source=_from_reader(reader, True), path=path, options=options,
-                     supplied=supplied)
-    return Input(path, source=MemorySource(read(path, input=options, **supplied)), path=path,
-                 options=options, supplied=supplied)
+        return Input(path, source=_from_reader(reader, True))
+    return Input(path, source=MemorySource(read(path, input=options, **supplied)))
 
 
 def _read_files(paths, options, supplied):

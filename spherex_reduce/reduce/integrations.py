@@ -27,7 +27,7 @@ from ..core import dq
 from ..core.errors import ConfigError
 from ..core.exposure import Exposure
 from ..core.limits import check_size
-from ..io import write
+from ..io import integration_count, read, write
 
 __all__ = [
     "INTEGRATION_IMAGES",
@@ -236,9 +236,9 @@ def reduce_integrations(path, pipeline, *, progress=False, threads=None):
     >>> r.slopes.shape, float(r.slopes[1, 0, 0].value), float(r.exposure.data.data[0, 0])
     ((2, 8, 8), 4.0, 3.0)
     """
+    if integration_count(path) is None:  # let the reader say what the file is
+        read(path, input=pipeline.input_options, integration=0, **pipeline.supplied())
     with pipeline.open(path) as inp:
-        if inp.integrations is None:  # let the reader say what the file is
-            inp.source(integration=0)
         return _reduced(inp, pipeline, progress, threads)
 
 
@@ -285,6 +285,9 @@ def reduce_input(what, pipeline, *, progress=False, threads=None):
         ``INTSLOPE``, ``INTERR``, ``INTDQ``), empty for one ramp:
         ``write(exposure, output, images=images)``.
     """
+    if not hasattr(pipeline, "open"):
+        raise TypeError(f"reduce_input(input, pipeline): the second argument must be a "
+                        f"Pipeline, got {type(pipeline).__name__}")
     with pipeline.open(what) as inp:
         if inp.integrations is None:
             return pipeline.run(inp.source(), progress=progress, threads=threads), {}

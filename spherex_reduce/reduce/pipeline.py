@@ -207,7 +207,7 @@ class Pipeline:
         ------
         PluginError
             An installed plugin's code failed (other than with a
-            `~spherex_reduce.errors.SpherexReduceError`); the message names the
+            `~spherex_reduce.core.errors.SpherexReduceError`); the message names the
             plugin, its distribution and the step.
         """
         try:
@@ -228,10 +228,14 @@ class Pipeline:
 
     def _planned(self, threads):
         supplied = self.supplied()
-        return [PlannedStep(i, name, params,
-                            self.registry.step(name)(self.registry, threads=threads,
-                                                     supplied=supplied))
-                for i, (name, params) in enumerate(self.steps)]
+        planned = []
+        for i, (name, params) in enumerate(self.steps):
+            # made as a plugin's step class expects (registry, threads); then given the
+            # config's geometry/readout values for files of its inputs
+            step = self.registry.step(name)(self.registry, threads=threads)
+            step.supplied = dict(supplied)
+            planned.append(PlannedStep(i, name, params, step))
+        return planned
 
     def _stamped(self, result):
         header = result.header.copy()

@@ -41,7 +41,7 @@ class Kernel:
 
     1. ``coefficients = kernel.prepare(side)``: from the side block (the
        reference reads of every frame, with their phantom values; see
-       `~spherex_reduce.reduce.executor.side_block`), e.g. one offset per frame and
+       `~spherex_reduce.io.sources.side_block`), e.g. one offset per frame and
        channel;
     2. ``side = kernel.apply_side(coefficients, side)``: the side block as this
        step leaves it, for the next kernel's ``prepare``;
@@ -164,8 +164,8 @@ class Step:
         its input).
     strategies : `~spherex_reduce.reduce.plugins.Registry`, optional
         Where strategies are looked up when there is no ``registry`` (its hooks
-        are not called): the step functions (`~spherex_reduce.correct_reference`)
-        give the built-in and installed plugins'.
+        are not called).  ``correct_reference`` made without either uses the
+        built-in and installed plugins' (`~spherex_reduce.reduce.plugins.default_registry`).
 
     Examples
     --------

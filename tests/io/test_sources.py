@@ -14,6 +14,7 @@ from astropy.io import fits
 from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule, write
 from spherex_reduce.core.errors import FormatError
 from spherex_reduce.io import FrameReader
+from spherex_reduce.io.read_files import read_file_paths
 from spherex_reduce.io.sources import FileSource, MemorySource, Source, open_input
 
 GEOMETRY = DetectorGeometry(16, 8, 2, ref_border=2, pixel_rate=1e5)
@@ -83,7 +84,7 @@ def test_a_scaled_integer_file_is_read_whole_in_physical_values(tmp_path):
         np.testing.assert_allclose(source.read(0, source.nrows).data, stored)
 
 
-def test_files_one_per_read_as_a_list_and_as_a_glob(tmp_path):
+def test_files_one_per_read_as_a_list_and_a_glob_only_when_expanded(tmp_path):
     s = _schedule(nframes=3, skip=1, ref_mode="none")
     ramps = _ramps(s)
     header = s.to_header()
@@ -91,11 +92,15 @@ def test_files_one_per_read_as_a_list_and_as_a_glob(tmp_path):
     for k in range(3):
         fits.PrimaryHDU(ramps[k], header).writeto(tmp_path / f"read_{k + 1}.fits")
     paths = [tmp_path / f"read_{k + 1}.fits" for k in range(3)]
-    for given in (paths, str(tmp_path / "read_*.fits")):
+    pattern = str(tmp_path / "read_*.fits")
+    for given in (paths, read_file_paths(pattern)):
         with open_input(given) as inp:
             source = inp.source()
             assert source.nrows == s.n_reads
             np.testing.assert_array_equal(source.read(0, source.nrows).data, ramps)
+    # a pattern given as a path is a path: no file of that name (never a silent expansion)
+    with pytest.raises(FileNotFoundError, match="no such file"):
+        open_input(pattern)
 
 
 def test_a_4d_file_gives_one_source_per_integration(tmp_path, raw):
@@ -125,8 +130,12 @@ def test_an_open_reader_or_source_is_used_and_left_open(raw):
         assert isinstance(source, Source)
 
 
-def test_a_missing_file_and_an_empty_glob_are_named(tmp_path):
+def test_a_missing_file_is_named(tmp_path):
     with pytest.raises(FileNotFoundError, match=r"nope\.fits"):
         open_input(tmp_path / "nope.fits")
-    with pytest.raises((FileNotFoundError, FormatError), match="read_"):
-        open_input(str(tmp_path / "read_*.fits"))
+
+
+def test_an_integration_of_an_input_without_integrations_is_refused():
+    with open_input(Exposure.from_arrays(_ramps(_schedule()), _schedule())) as inp:
+        with pytest.raises(FormatError, match="integration=1 given"):
+            inp.source(integration=1)

@@ -367,9 +367,7 @@ def correct_reference(exposure, strategy="mean", *, registry=None, **params):
     >>> np.abs(out.data.data).max(), out.tables["REFOFFS"]["offset"].tolist()
     (np.float64(0.0), [10.0, -3.0])
     """
-    strategies = default_registry() if registry is None else None
-    return CorrectReferenceStep(registry, strategies=strategies)(exposure, strategy=strategy,
-                                                                 **params)
+    return CorrectReferenceStep(registry)(exposure, strategy=strategy, **params)
 
 
 def _streams(cls):
@@ -383,6 +381,13 @@ class CorrectReferenceStep(Step):
 
     name, keyword = "correct_reference", "S_REFCOR"
     strategy_kind, default_strategy = "reference", "mean"
+
+    def strategy_registry(self):
+        """Its registry or its strategies, else the built-in and installed plugins'
+        (`~spherex_reduce.reduce.plugins.default_registry`): the step made alone knows
+        every reference strategy."""
+        found = super().strategy_registry()
+        return default_registry() if found is None else found
 
     def kernel(self, context, strategy, **params):
         cls = self.strategy(strategy)

@@ -241,3 +241,31 @@ def test_write_extra_images_named_once(tmp_path):
         sr.write(e.replace(tables={"EXTRA": None}), tmp_path / "y.fits",
                  images={"extra": np.zeros(2)})
     assert not (tmp_path / "y.fits").exists()
+
+
+def test_a_file_that_is_not_4d_is_named_by_the_reader(tmp_path):
+    path = tmp_path / "plain.fits"
+    fits.PrimaryHDU(np.zeros((5, 7), np.float32)).writeto(path)
+    pipe = sr.Pipeline({"steps": ["fit_ramp"]})
+    with pytest.raises(FormatError, match="integration=0 given but SCI has shape"):
+        sr.reduce_integrations(path, pipe)
+
+
+def test_reduce_input_names_a_wrong_argument_order(tmp_path):
+    from spherex_reduce.reduce.integrations import reduce_input
+
+    pipe = sr.Pipeline({"steps": ["fit_ramp"]})
+    with pytest.raises(TypeError, match=r"reduce_input\(input, pipeline\)"):
+        reduce_input(pipe, str(tmp_path / "raw.fits"))
+
+
+def test_a_quoted_glob_given_as_the_input_is_a_missing_file(tmp_path, capsys):
+    # only --reads expands a glob: as IN.fits it names no file (and can never pick an
+    # output that is one of the files it would match)
+    for k in (1, 2):
+        fits.PrimaryHDU(np.zeros((4, 4), np.float32)).writeto(tmp_path / f"read_{k}.fits")
+    before = digest(tmp_path / "read_1.fits")
+    assert run("reduce", tmp_path / "read_*.fits", "-c", "unchop",
+               "-o", tmp_path / "read_1.fits", "--overwrite") == 2
+    one_line_error(capsys, "no such file")
+    assert digest(tmp_path / "read_1.fits") == before

@@ -136,3 +136,29 @@ def test_example_plugin_docstring_examples_run():
     module = pytest.importorskip("spherex_reduce_destripe.plugin")
     result = doctest.testmod(module, optionflags=doctest.NORMALIZE_WHITESPACE)
     assert result.attempted > 0 and result.failed == 0
+
+
+def test_a_plugin_step_with_its_own_constructor_runs_in_a_pipeline(tmp_path):
+    # made as plugin authors wrote steps before: __init__(registry, threads); a step
+    # with file inputs still reads them with the config's geometry/readout values
+    class Scaled(Step):
+        name, keyword = "scaled", "S_SCALED"
+
+        def __init__(self, registry=None, threads=None):
+            super().__init__(registry, threads)
+            self.factor = 2.0
+
+        def run(self, exposure):
+            return exposure.replace(data=exposure.data.data * self.factor)
+
+    class ScaledPlugin:
+        @hookimpl
+        def register_steps(self):
+            return [Scaled]
+
+    raw = example_raw_exposure()
+    pipe = Pipeline({"readout": {"nframes": raw.schedule.nframes}, "steps": ["scaled"]},
+                    registry=registry_with(ScaledPlugin()))
+    out = pipe.run(raw)
+    np.testing.assert_array_equal(out.data.data, raw.data.data * 2.0)
+    assert out.header["S_SCALED"] == "COMPLETE"

@@ -130,3 +130,14 @@ def test_a_plugin_installed_while_the_process_runs_is_found(
     out = correct_reference(offsets_exposure, "halve")
     np.testing.assert_array_equal(out.data.data, offsets_exposure.data.data / 2)
     assert default_registry().providers["strategy"]["reference/halve"] == "halve"
+
+
+def test_the_step_made_alone_knows_the_reference_strategies():
+    from spherex_reduce.io.examples import example_raw_exposure
+    from spherex_reduce.reduce.steps.reference import CorrectReferenceStep
+
+    raw = example_raw_exposure()
+    alone = CorrectReferenceStep()(raw, strategy="acn")
+    by_function = correct_reference(raw, "acn")
+    assert alone.header["S_REFCOR"] == "COMPLETE"
+    np.testing.assert_array_equal(alone.data.data, by_function.data.data)

@@ -3,6 +3,7 @@
 import copy
 import hashlib
 import json
+import os
 from pathlib import Path
 
 import yaml
@@ -227,15 +228,9 @@ class Pipeline:
         return open_input(what, input=self.input_options, **self.supplied())
 
     def _planned(self, threads):
-        supplied = self.supplied()
-        planned = []
-        for i, (name, params) in enumerate(self.steps):
-            # made as a plugin's step class expects (registry, threads); then given the
-            # config's geometry/readout values for files of its inputs
-            step = self.registry.step(name)(self.registry, threads=threads)
-            step.supplied = dict(supplied)
-            planned.append(PlannedStep(i, name, params, step))
-        return planned
+        return [PlannedStep(i, name, params, self.registry.step(name)(self.registry,
+                                                                       threads=threads))
+                for i, (name, params) in enumerate(self.steps)]
 
     def _stamped(self, result):
         header = result.header.copy()
@@ -321,13 +316,18 @@ class _Run:
         return result
 
     def _whole(self, exposure, planned):
-        """A step on the whole exposure, its declared inputs prepared here."""
+        """A step on the whole exposure, its declared inputs prepared here: read with the
+        config's ``geometry:``/``readout:`` values, or first brought to this stage."""
         step, params = planned.step, planned.params
         inputs = {}
         for key in step.inputs:
             path = params.get(key)
-            if isinstance(path, str) and step.reduces_input(key, params):
-                inputs[key] = self._same_stage(path, key, planned)
+            if not isinstance(path, (str, os.PathLike)):
+                continue
+            done = self._same_stage(path, key, planned) if step.reduces_input(key, params) \
+                else None
+            inputs[key] = (done if done is not None
+                           else step.read_input(key, path, self.pipeline.supplied()))
         result = step.apply_to(exposure, params, inputs=inputs)
         self.status[planned.index] = result.header.get(step.keyword, "COMPLETE")
         return result

@@ -158,10 +158,6 @@ class Step:
         Where strategies are looked up and whose hooks the step calls.
     threads : int, optional
         Bands corrected at once when the step runs through the executor.
-    supplied : dict, optional
-        The pipeline config's ``geometry:`` and ``readout:`` values, for
-        keywords that a file of :attr:`inputs` lacks (as the pipeline does for
-        its input).
     strategies : `~spherex_reduce.reduce.plugins.Registry`, optional
         Where strategies are looked up when there is no ``registry`` (its hooks
         are not called).  ``correct_reference`` made without either uses the
@@ -189,13 +185,12 @@ class Step:
     #: receives the `~spherex_reduce.Exposure`
     inputs: ClassVar[tuple] = ()
 
-    def __init__(self, registry=None, threads=None, supplied=None, strategies=None):
+    def __init__(self, registry=None, threads=None, strategies=None):
         #: the `~spherex_reduce.reduce.plugins.Registry` whose ``before_step`` and
         #: ``after_step`` hooks run around the step, and where it looks up its
         #: strategies; None: no hooks
         self.registry = registry
         self.threads = threads
-        self.supplied = dict(supplied or {})
         #: where strategies are looked up when the step has no :attr:`registry` (a
         #: `~spherex_reduce.reduce.plugins.Registry` whose hooks are not called)
         self.strategies = strategies
@@ -249,12 +244,13 @@ class Step:
                            time.perf_counter() - t0, route="whole exposure",
                            inputs=labels)
 
-    def read_input(self, name, path):
-        """Read the FITS file a parameter of :attr:`inputs` names (with the pipeline
-        config's ``geometry:``/``readout:`` sections for keywords it lacks)."""
+    def read_input(self, name, path, supplied=None):
+        """Read the FITS file a parameter of :attr:`inputs` names, with ``supplied``
+        geometry/readout values for keywords it lacks (a pipeline gives its config's
+        ``geometry:`` and ``readout:`` sections; a step run alone reads the file as it is)."""
         if not Path(path).is_file():
             raise FileNotFoundError(f"{self.name}.{name}: no such file: {path}")
-        return read(path, **self.supplied)
+        return read(path, **(supplied or {}))
 
     def input_card(self, name, label):
         """A header card ``(keyword, value, comment)`` naming the file of input ``name``,

@@ -44,8 +44,7 @@ FUNCTIONS = {
     "subtract_dark": subtract_dark,
 }
 #: keyword defaults that are not parameters of a table
-NOT_PARAMETERS = {"registry": None, "threads": None, "supplied": None, "strategies": None,
-                  "exposure": None}
+NOT_PARAMETERS = {"registry": None, "threads": None, "strategies": None, "exposure": None}
 #: the methods of steps and strategies that receive parameters
 METHODS = ("__init__", "run", "kernel", "consumer", "estimate", "__call__")
 

@@ -13,6 +13,7 @@ import contextvars
 import logging
 import math
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -338,6 +339,60 @@ def exposure_from_hdul(hdul, path, bad, plain, supplied, dq_bits=None, options=N
                                 reference=reference, tables=tables)
 
 
+@dataclass(frozen=True)
+class FileLayout:
+    """What the headers of a file say of its layout (`probe`).
+
+    Attributes
+    ----------
+    names : tuple of str
+        The names of its HDUs.
+    shape : tuple of int
+        The shape of the HDU holding the pixels (``SCI``, else the primary HDU).
+    order : str
+        ``'READOUT'`` or ``'PHYSICAL'`` as keyword ``ORDER`` says (default ``READOUT``).
+    """
+
+    names: tuple
+    shape: tuple
+    order: str
+
+    @property
+    def raw_ramps(self):
+        """3-D ramps in readout order with no ``DQ`` or ``ERR``: a raw ramp file."""
+        return (len(self.shape) == 3 and self.order == "READOUT"
+                and "DQ" not in self.names and "ERR" not in self.names)
+
+    @property
+    def integrations(self):
+        """The integrations of a 4-D ``SCI``, else None."""
+        return self.shape[0] if len(self.shape) == 4 else None
+
+
+def probe(path):
+    """The layout of a file from its headers (no pixel data read), or None if it cannot be
+    read: the ordinary reader, `read`, then gives the proper error.
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.fits_read import probe
+    >>> probe("no-such-file.fits") is None
+    True
+    """
+    try:
+        if not Path(path).is_file():
+            return None
+        _scan(path)  # truncated or damaged: not astropy's guess, read's error
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with fits.open(path, memmap=False, lazy_load_hdus=True) as hdul:
+                sci = sci_hdu(hdul, path)
+                order = str(hdul[0].header.get("ORDER", "READOUT")).strip().upper()
+                return FileLayout(tuple(h.name for h in hdul), image_shape(sci), order)
+    except (OSError, KeyError, IndexError, ValueError):  # FormatError is a ValueError
+        return None
+
+
 def is_raw_ramp_file(path):
     """True for a file whose SCI is 3-D ramps in readout order (headers only are read).
 
@@ -350,20 +405,8 @@ def is_raw_ramp_file(path):
     >>> is_raw_ramp_file("no-such-file.fits")
     False
     """
-    try:
-        if not Path(path).is_file():
-            return False
-        _scan(path)  # truncated or damaged: not astropy's guess, read's error
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            with fits.open(path, memmap=False) as hdul:
-                names = [h.name for h in hdul]
-                sci = hdul["SCI"] if "SCI" in names else hdul[0]
-                order = str(hdul[0].header.get("ORDER", "READOUT")).strip().upper()
-                return (sci.header.get("NAXIS") == 3 and order == "READOUT"
-                        and "DQ" not in names and "ERR" not in names)
-    except (OSError, KeyError, IndexError, ValueError):  # FormatError is a ValueError
-        return False
+    layout = probe(path)
+    return layout is not None and layout.raw_ramps
 
 
 def integration_count(path):
@@ -384,14 +427,5 @@ def integration_count(path):
     >>> integration_count(path), integration_count("no-such-file.fits")
     (3, None)
     """
-    try:
-        if not Path(path).is_file():
-            return None
-        _scan(path)  # truncated or damaged: not astropy's guess, read's error
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            with fits.open(path, memmap=False, lazy_load_hdus=True) as hdul:
-                shape = image_shape(sci_hdu(hdul, path))
-        return shape[0] if len(shape) == 4 else None
-    except (OSError, KeyError, IndexError, ValueError):  # FormatError is a ValueError
-        return None
+    layout = probe(path)
+    return None if layout is None else layout.integrations

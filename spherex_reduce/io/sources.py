@@ -27,7 +27,7 @@ import numpy as np
 from ..core.block import Block, Context
 from ..core.errors import FormatError
 from ..core.exposure import Exposure
-from .fits_read import CheckedFITS, integration_count, is_raw_ramp_file, read
+from .fits_read import CheckedFITS, probe, read
 from .frames import Closing, FrameReader
 from .input import InputOptions
 from .read_files import ReadFiles
@@ -361,10 +361,11 @@ def open_input(what, *, input=None, **supplied):
     if isinstance(what, (list, tuple)):  # one file per read
         return _read_files(what, options, supplied)
     path = os.fspath(what)
-    nint = integration_count(path)
-    if nint is not None:
-        return Input(path, nint, checked=CheckedFITS(path), options=options, supplied=supplied)
-    if is_raw_ramp_file(path):
+    layout = probe(path)  # None: read() below says what is wrong
+    if layout is not None and layout.integrations is not None:
+        return Input(path, layout.integrations, checked=CheckedFITS(path), options=options,
+                     supplied=supplied)
+    if layout is not None and layout.raw_ramps:
         reader = FrameReader(path, input=options, **supplied)
         return Input(path, source=_from_reader(reader, True))
     return Input(path, source=MemorySource(read(path, input=options, **supplied)))

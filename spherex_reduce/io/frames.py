@@ -14,7 +14,7 @@ from .fits_read import exposure_from_hdul, open_fits
 from .input import InputOptions, apply_gain, apply_input
 from .pixels import FITS_DTYPES, FLOAT_FOR, physical, scaling, to_physical
 
-__all__ = ["FrameReader"]
+__all__ = ["FrameReader", "RampReader"]
 
 
 class Closing:
@@ -28,7 +28,19 @@ class Closing:
         return False
 
 
-class FrameReader(Closing):
+class RampReader(Closing):
+    """A reader of raw ramps that a `~spherex_reduce.io.sources.FileSource` reads bands from.
+
+    It offers ``schedule``, ``header``, ``unit``, ``tables``, ``phantom``
+    (``(frames, reads, channels)`` or None), ``has_phantom``, ``stored_dtype``,
+    ``readable_in_bands()``, ``reads(k, first, stop)`` (reads of frame ``k``),
+    ``scale(values)`` (the gain of ``input:``, in place), ``exposure()`` (the
+    whole ramp) and ``close()``.  A reader of a new layout subclasses it, and
+    `~spherex_reduce.io.sources.open_input` then takes it as an open reader.
+    """
+
+
+class FrameReader(RampReader):
     """Read a raw ramp file by reads of every frame (or by frames), never all of it at once.
 
     The executor (`spherex_reduce.io.sources.FileSource`) reads bands of rows of

@@ -22,7 +22,7 @@ from ..core.exposure import Exposure
 from ..core.limits import check_count, check_size
 from .description import describe, file_tables
 from .fits_read import open_fits
-from .frames import Closing, map_frames, pread_into
+from .frames import RampReader, map_frames, pread_into
 from .input import InputOptions, apply_gain, apply_input
 from .pixels import FLOAT_FOR, physical, scaling, to_physical
 
@@ -149,7 +149,7 @@ class _ReadFile:
         self.hdul.close()
 
 
-class ReadFiles(Closing):
+class ReadFiles(RampReader):
     """A ramp stored as one FITS file per read, read a band of rows of every frame at a time.
 
     It offers what `~spherex_reduce.io.sources.FileSource` asks of a

@@ -14,8 +14,8 @@ reads of the reference rows of every frame, with their phantom values) and
 bands of rows of every frame, and either can be loaded whole (`Source.exposure`)
 for a step that needs the whole exposure.
 
-A new input layout is one reader class (offering what `FileSource` asks of
-`~spherex_reduce.io.FrameReader`, or an `~spherex_reduce.Exposure`) and one
+A new input layout is one reader class (a `~spherex_reduce.io.frames.RampReader`
+read in bands, or one that returns an `~spherex_reduce.Exposure`) and one
 branch in `open_input`.
 """
 
@@ -28,7 +28,7 @@ from ..core.block import Block, Context
 from ..core.errors import FormatError
 from ..core.exposure import Exposure
 from .fits_read import CheckedFITS, probe, read
-from .frames import Closing, FrameReader
+from .frames import Closing, FrameReader, RampReader
 from .input import InputOptions
 from .read_files import ReadFiles
 
@@ -308,11 +308,6 @@ class Input(Closing):
             self._checked.close()
 
 
-def _is_reader(obj):
-    """An open reader of raw ramps (`~spherex_reduce.io.FrameReader`, ``ReadFiles``)."""
-    return isinstance(obj, (FrameReader, ReadFiles))
-
-
 def open_input(what, *, input=None, **supplied):
     """Open an input, whatever its layout: the one entry point for inputs.
 
@@ -356,7 +351,7 @@ def open_input(what, *, input=None, **supplied):
         return Input("exposure in memory", source=MemorySource(what))
     if isinstance(what, Source):
         return Input("source", source=what, owned=False)
-    if _is_reader(what):
+    if isinstance(what, RampReader):  # FrameReader, ReadFiles
         return Input(str(getattr(what, "path", "reader")), source=_from_reader(what, False))
     if isinstance(what, (list, tuple)):  # one file per read
         return _read_files(what, options, supplied)

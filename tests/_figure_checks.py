@@ -42,3 +42,19 @@ def errorbar_ends(ax):
                 if len(seg):  # points left out have no bar
                     ends.append((seg[:, 1].min(), seg[:, 1].max()))
     return np.array(ends).reshape(-1, 2)
+
+
+def saved_figures(module, argv):
+    """Run ``spherex-reduce ARGV`` and return the figures ``module.save_figure`` saved, by
+    file name (each also written as usual)."""
+    import pytest
+
+    from spherex_reduce.cli import main
+
+    figs = {}
+    real_save = module.save_figure
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(module, "save_figure", lambda fig, path, *a, **k: (
+            figs.setdefault(path.name, fig), real_save(fig, path, *a, **k))[1])
+        assert main(argv) == 0
+    return figs

@@ -51,18 +51,20 @@ def add_parser(sub):
 
 def run(args):
     if args.reads is not None:
-        return _reads(args)
-    if not args.input:
+        _check_reads_alone(args)
+    elif not args.input:
         raise ConfigError("give the input: IN.fits (one or more), or --reads GLOB")
-    if len(args.input) > 1 or args.workers is not None or args.scheduler is not None:
+    elif len(args.input) > 1 or args.workers is not None or args.scheduler is not None:
         return _batch(args)
-    (source,) = args.input
     pipeline, config_files = input_config(args.config)
-    # the raw file, the config file and any file the config names (e.g. a dark)
-    check_paths([source, *config_files], [args.output])
+    # one input: a file (a 4-D SCI: each integration fitted, their mean with INTSLOPE/INTERR/
+    # INTDQ), or the files of one ramp stored one per read; streamed where the steps allow
+    what = read_file_paths(args.reads) if args.reads is not None else args.input[0]
+    inputs = what if args.reads is not None else [what]
+    # the input files, the config file and any file the config names (e.g. a dark)
+    check_paths([*inputs, *config_files], [args.output])
     atomic_output(args.output, args.overwrite)  # refuse before reducing
-    # a 4-D SCI: each integration fitted; their mean, with INTSLOPE/INTERR/INTDQ
-    result, images = reduce_input(source, pipeline, progress=not args.quiet,
+    result, images = reduce_input(what, pipeline, progress=not args.quiet,
                                   threads=args.threads)
     return _written(pipeline, result, args, images)
 
@@ -75,21 +77,14 @@ def _written(pipeline, result, args, images=None):
     return 0
 
 
-def _reads(args):
-    """``--reads GLOB``: one ramp stored as one file per read, streamed from the files."""
+def _check_reads_alone(args):
+    """``--reads GLOB`` reduces one ramp from its read files: nothing else to reduce."""
     if args.input:
         raise ConfigError(f"--reads reduces one ramp from its read files: give no IN.fits "
                           f"as well (got {args.input[0]})")
     if args.workers is not None or args.scheduler is not None:
         raise ConfigError("--reads reduces one ramp: --workers and --scheduler are for "
                           "several input files")
-    pipeline, config_files = input_config(args.config)
-    paths = read_file_paths(args.reads)
-    check_paths([*paths, *config_files], [args.output])
-    atomic_output(args.output, args.overwrite)  # refuse before reducing
-    result, images = reduce_input(paths, pipeline, progress=not args.quiet,
-                                  threads=args.threads)  # streamed where the steps allow
-    return _written(pipeline, result, args, images)
 
 
 def _batch(args):

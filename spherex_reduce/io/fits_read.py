@@ -124,7 +124,18 @@ def _readonly(*arrays):
             array.setflags(write=False)
 
 
-class CheckedFITS:
+class Closing:
+    """``with x:`` calls ``x.close()`` at the end of the block (readers, sources, inputs)."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+
+class CheckedFITS(Closing):
     """A FITS file opened read-only by `open_checked`, after the checks `read` makes.
 
     Use it as a context manager (the file is closed on exit).
@@ -142,12 +153,6 @@ class CheckedFITS:
     def __init__(self, path, verify_checksum=None, memmap=True):
         self.path, self._name = Path(path), path  # messages name the path as given
         self.hdul, self.bad, self._plain = open_fits(path, memmap, verify_checksum)
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
 
     def close(self):
         """Close the file (arrays already returned stay valid)."""

@@ -10,22 +10,11 @@ from astropy.io import fits
 from ..core.errors import FormatError
 from ..core.exposure import Exposure
 from .description import describe, file_tables
-from .fits_read import exposure_from_hdul, open_fits
+from .fits_read import Closing, exposure_from_hdul, open_fits
 from .input import InputOptions, apply_gain, apply_input
 from .pixels import FITS_DTYPES, FLOAT_FOR, physical, scaling, to_physical
 
 __all__ = ["FrameReader", "RampReader"]
-
-
-class Closing:
-    """``with x:`` calls ``x.close()`` at the end of the block (readers, sources, inputs)."""
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-        return False
 
 
 class RampReader(Closing):

@@ -27,8 +27,8 @@ import numpy as np
 from ..core.block import Block, Context
 from ..core.errors import FormatError
 from ..core.exposure import Exposure
-from .fits_read import CheckedFITS, probe, read
-from .frames import Closing, FrameReader, RampReader
+from .fits_read import CheckedFITS, Closing, probe, read
+from .frames import FrameReader, RampReader
 from .input import InputOptions
 from .read_files import ReadFiles
 

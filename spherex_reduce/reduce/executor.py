@@ -229,17 +229,17 @@ class _Chain:
             tables.update(record.tables)
             for key, value, comment in record.cards:
                 header[key] = (value, comment)
-        reference = reference_after(source.reference, side, source.context, self.output)
+        reference = reference_after(source.reference, side, self.output)
         t = time.perf_counter()
         if self.consumer is not None:
             result = self.consumer.finish(reference, header, tables)
         else:
-            result = _exposure(source, self.sink, reference, header, tables, self.output)
+            result = _exposure(self.sink, reference, header, tables, self.output)
         self._spent(len(self.kernels), t)
         return result
 
 
-def reference_after(reference, side, before, after):
+def reference_after(reference, side, after):
     """The reference reads kept aside after the kernels: the side block once the rows are in
     physical order (un-chopped here, or before), else the input's."""
     if after.order != "physical" or side.order != "readout":
@@ -259,7 +259,7 @@ def reference_after(reference, side, before, after):
                           reads=side.index[keep], phantom=sel(side.phantom), dq=sel(side.dq))
 
 
-def _exposure(source, sink, reference, header, tables, context):
+def _exposure(sink, reference, header, tables, context):
     """The assembled output as an `~spherex_reduce.Exposure`."""
     ramp = context.ramp
     return Exposure.from_arrays(sink.get("data", ramp), context.schedule, unit=context.unit,

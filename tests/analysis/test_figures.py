@@ -4,7 +4,7 @@ import re
 
 import numpy as np
 import pytest
-from _figure_checks import drawn, errorbar_ends, overlaps, tick_labels
+from _figure_checks import drawn, errorbar_ends, overlaps, saved_figures, tick_labels
 from astropy.table import Table
 
 from spherex_reduce.cli import main
@@ -42,12 +42,7 @@ def quick_figures(tmp_path_factory):
     import spherex_reduce.io.plotting as plotting
 
     out = tmp_path_factory.mktemp("figures")
-    figs = {}
-    real_save = plotting.save_figure
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(plotting, "save_figure", lambda fig, path, *a, **k: (
-            figs.setdefault(path.name, fig), real_save(fig, path, *a, **k))[1])
-        assert main(["-q", "figures", "--quick", "-o", str(out)]) == 0
+    figs = saved_figures(plotting, ["-q", "figures", "--quick", "-o", str(out)])
     return out, figs
 
 

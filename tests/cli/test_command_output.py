@@ -5,6 +5,7 @@ written table, and demo and spectrum give one band power for one file.
 """
 
 import pytest
+from _figure_checks import saved_figures
 from astropy import units as u
 from astropy.table import Table
 
@@ -62,13 +63,7 @@ def demo_dir(tmp_path_factory):
     import spherex_reduce.analysis.demo as demo
 
     out = tmp_path_factory.mktemp("demo")
-    figs = {}
-    real_save = demo.save_figure
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(demo, "save_figure",
-                   lambda fig, path, *a: (figs.setdefault(path.name, fig),
-                                          real_save(fig, path, *a))[1])
-        assert main(["-q", "demo", "--size", "256", "--nframes", "3", "-o", str(out)]) == 0
+    figs = saved_figures(demo, ["-q", "demo", "--size", "256", "--nframes", "3", "-o", str(out)])
     return out, figs
 
 

@@ -10,6 +10,7 @@ import itertools
 
 import numpy as np
 import pytest
+from _paper import TABLE2
 from _paths import ROOT
 from astropy import units as u
 from scipy import integrate
@@ -23,13 +24,6 @@ from spherex_reduce.simulation import (
     noise_components,
 )
 
-TABLE2 = {  # paper Table 2: alpha e^2/Hz, beta e^2, gamma e^2 Hz^0.3
-    "video8": (3.71e-5, 8.40e-3, 0.0),
-    "roic": (1.97e-3, 0.0, 1e-1),
-    "bias_correlated": (0.0, 8.80e-5, 0.0),
-    "bias_phantom_only": (0.0, 3.64e-6, 0.0),
-    "bias_pixels_only": (2.91e-6, 3.07e-7, 0.0),
-}
 SINGLE = [NoiseComponent("alpha_only", alpha=2e-3), NoiseComponent("beta_only", beta=8.4e-3),
           NoiseComponent("gamma_only", gamma=0.1)]
 SMALL = ({"nrows": 16, "ncols": 64, "nchannels": 32, "ref_border": 0},

@@ -1,19 +1,12 @@
 """Scenes: errors name the YAML path; the paper's defaults, the example, the simulator plugin."""
 
 import pytest
+from _paper import TABLE2
 from _paths import ROOT
 
 from spherex_reduce import ConfigError
 from spherex_reduce.reduce.plugins import Registry, get_plugin_manager
 from spherex_reduce.simulation import SpherexSimulator, load_scene
-
-TABLE2 = {  # paper Table 2: alpha e^2/Hz, beta e^2, gamma e^2 Hz^0.3
-    "video8": (3.71e-5, 8.40e-3, 0.0),
-    "roic": (1.97e-3, 0.0, 1e-1),
-    "bias_correlated": (0.0, 8.80e-5, 0.0),
-    "bias_phantom_only": (0.0, 3.64e-6, 0.0),
-    "bias_pixels_only": (2.91e-6, 3.07e-7, 0.0),
-}
 
 
 @pytest.mark.parametrize("scene, path", [

@@ -10,6 +10,7 @@ package's simulator.
 import numpy as np
 import pytest
 from _noise_streams import FS, PHANTOM, PIXELS, raw_exposure, synth
+from _paper import TABLE2
 
 from spherex_reduce.analysis import (
     aliased_basis,
@@ -21,15 +22,6 @@ from spherex_reduce.analysis import (
     temporal_psd,
 )
 from spherex_reduce.core.errors import SpherexReduceError
-
-#: the paper's Table 2: alpha (e²/Hz), beta (e²), gamma (e² Hz^0.3)
-TABLE2 = {
-    "video8": (3.71e-5, 8.40e-3, 0.0),
-    "roic": (1.97e-3, 0.0, 1e-1),
-    "bias_correlated": (0.0, 8.80e-5, 0.0),
-    "bias_phantom_only": (0.0, 3.64e-6, 0.0),
-    "bias_pixels_only": (2.91e-6, 3.07e-7, 0.0),
-}
 
 
 def pulls(result, truth, names=("alpha", "beta", "gamma")):

@@ -179,13 +179,17 @@ class DQTable(Directive):
         rows = []
         for name in dq.__all__:
             value = getattr(dq, name)
-            if isinstance(value, int):
+            if isinstance(value, int) and value & (value - 1) == 0:  # one bit each
                 doc = " ".join(docs.get(("", name), [])).strip()
                 meaning = nodes.paragraph()
                 meaning += self.state.inline_text(doc, self.lineno)[0]
-                rows.append([_para(str(value)), [_para((name,))], meaning])
+                image = "informs" if value & dq.INFORMATIONAL else "do not use"
+                read = "usable" if value & dq.READ_INFORMATIONAL else "not used"
+                rows.append([_para(str(value)), [_para((name,))], meaning, _para(read),
+                             _para(image)])
         rows.sort(key=lambda r: int(r[0].astext()))
-        return [_table(["Bit", "Name", "Meaning"], rows, [8, 22, 70])]
+        return [_table(["Value", "Name", "Meaning", "A read", "A pixel of an image"], rows,
+                       [8, 18, 50, 10, 14])]
 
 
 def setup(app):

@@ -33,7 +33,7 @@ class Block:
     order : {'readout', 'physical'}
     phantom : `numpy.ndarray` or None
         Phantom values ``(frames, n, nchannels)`` (same unit as ``data``).
-    dq : `numpy.ndarray` of uint16 or None
+    dq : `numpy.ndarray` of uint32 or None
         Flags, same shape as ``data``.
     uncertainty : `numpy.ndarray` or None
         Standard deviations, same shape as ``data``.
@@ -85,7 +85,7 @@ class Block:
     def with_flags(self, flags):
         """A copy whose ``dq`` has ``flags`` (broadcast to the data's shape) or-ed in."""
         if self.dq is None:
-            dq = np.zeros(self.data.shape, np.uint16)
+            dq = np.zeros(self.data.shape, np.uint32)
         elif "dq" in self.owned and self.dq.flags.writeable:
             dq = self.dq
         else:

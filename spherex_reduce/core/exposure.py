@@ -8,7 +8,7 @@ from astropy import units as u
 from astropy.io import fits
 from astropy.nddata import CCDData, NDData, StdDevUncertainty
 
-from .dq import DO_NOT_USE
+from .dq import DO_NOT_USE, DQ_TYPE, image_usable, read_usable
 from .schedule import ReadoutSchedule
 
 __all__ = ["ORDERS", "Exposure", "ReferenceReads", "as_dq"]
@@ -29,19 +29,25 @@ def expected_shape(schedule, order, ramp):
 
 
 def as_dq(mask):
-    """Flags from a mask: booleans become `~spherex_reduce.core.dq.DO_NOT_USE`; integers kept."""
+    """Flags (uint32) from a mask: booleans become `~spherex_reduce.core.dq.DO_NOT_USE`;
+    integers keep their 32 low bits (negative int32 values, as FITS stores bit 31, too)."""
     mask = np.asarray(mask)
     if mask.dtype == bool:
-        return mask.astype(np.uint16) * np.uint16(DO_NOT_USE)
-    return mask.astype(np.uint16)
+        return mask.astype(DQ_TYPE) * DQ_TYPE(DO_NOT_USE)
+    if mask.dtype.kind not in "iu":
+        raise TypeError(f"flags must be booleans or integers, got {mask.dtype.name}")
+    return mask.astype(DQ_TYPE)
 
 
 def _nddata(values, unit, uncertainty, flags):
-    """CCDData for 2-D, NDData for 3-D; the mask is ``flags != 0``."""
+    """CCDData for 2-D, NDData for 3-D; the mask: pixels (2-D) or reads (3-D) not usable."""
     if uncertainty is not None and not hasattr(uncertainty, "uncertainty_type"):
         # shared, like the values: steps never write into their inputs' arrays
         uncertainty = StdDevUncertainty(np.asarray(uncertainty), copy=False)
-    mask = None if flags is None else flags != 0
+    if flags is None:
+        mask = None
+    else:
+        mask = ~(image_usable(flags) if values.ndim == 2 else read_usable(flags))
     cls = CCDData if values.ndim == 2 else NDData
     return cls(values, unit=unit, uncertainty=uncertainty, mask=mask)
 
@@ -103,10 +109,13 @@ class Exposure:
         The reference reads, kept aside once the exposure is un-chopped.
     tables : dict of `~astropy.table.Table`
         Tables recorded by steps (e.g. ``REFOFFS``); written as extensions.
-    dq : `numpy.ndarray` of uint16, optional
+    dq : `numpy.ndarray` of uint32, optional
         Data-quality flags (`spherex_reduce.core.dq` bits), same shape as the
-        pixels.  ``data.mask`` is always ``dq != 0``; when only a mask is
-        given, masked pixels get `~spherex_reduce.core.dq.DO_NOT_USE`.
+        pixels.  ``data.mask`` is always the pixels (images) or reads (ramps)
+        that must not be used: flags other than the informational ones
+        (`~spherex_reduce.core.dq.image_usable`,
+        `~spherex_reduce.core.dq.read_usable`); when only a mask is given,
+        masked pixels get `~spherex_reduce.core.dq.DO_NOT_USE`.
 
     Examples
     --------

@@ -333,7 +333,7 @@ def exposure_from_hdul(hdul, path, bad, plain, supplied, dq_bits=None, options=N
         reference = ReferenceReads(
             data=image("REFPIX"), rows=np.asarray(rt["row"]), reads=np.asarray(rt["read"]),
             phantom=image("REFPHANT"),
-            dq=None if refdq is None else refdq.astype(np.uint16),
+            dq=None if refdq is None else refdq.astype(np.uint32),
         )
         _readonly(reference.data, reference.phantom)
     tables = file_tables(hdul)

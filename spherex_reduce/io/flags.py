@@ -3,11 +3,11 @@
 A file written by this package (it has a ``READOUT`` table: both writers put
 one in every file) holds `spherex_reduce.core.dq` bits, kept as they are.  In any
 other file the bits follow the convention of the system that wrote it
-(JWST, a lab's electronics), whose meanings are not ours: by default only
-bit 0 (value 1, "do not use" in the JWST and most other conventions) masks a
-pixel, and a masked pixel gets `~spherex_reduce.core.dq.DO_NOT_USE`; the other
-bits are dropped.  `foreign_dq_bits` (``--dq-bits`` on the command line) or
-the ``dq_bits`` argument of `~spherex_reduce.io.read` choose other bits.
+(JWST, a lab's electronics), whose meanings are not ours: by default every
+non-zero bit masks a pixel (a flag we cannot read is never fitted as good),
+and a masked pixel gets `~spherex_reduce.core.dq.DO_NOT_USE`.  `foreign_dq_bits`
+(``--dq-bits`` on the command line), ``input: dq_bits`` or the ``dq_bits``
+argument of `~spherex_reduce.io.read` choose other bits.
 
 A ``DQ`` has the shape of ``SCI``, or, over ramps (3-D ``SCI``), the shape of
 one frame: a pixel mask of the array ``(nrows, ncols)`` (the JWST layout),
@@ -22,16 +22,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.dq import DO_NOT_USE
 from ..core.errors import ConfigError, FormatError
 from ..core.limits import check_size
 
 __all__ = ["DEFAULT_DQ_BITS", "check_dq_bits", "current_dq_bits", "foreign_dq_bits",
            "is_own_file"]
 
-#: Bits of a foreign ``DQ`` that mask a pixel unless told otherwise: bit 0 (do not use).
-DEFAULT_DQ_BITS = DO_NOT_USE
 _MAX_BITS = 2**32 - 1
+#: Bits of a foreign ``DQ`` that mask a pixel unless told otherwise: all 32.
+DEFAULT_DQ_BITS = _MAX_BITS
 
 _BITS = contextvars.ContextVar("spherex_reduce_dq_bits", default=DEFAULT_DQ_BITS)
 
@@ -126,7 +125,7 @@ def foreign_bits(bits=None):
     --------
     >>> from spherex_reduce.io.flags import foreign_bits
     >>> foreign_bits(), foreign_bits(6)
-    (1, 6)
+    (4294967295, 6)
     """
     return _BITS.get() if bits is None else check_dq_bits(bits)
 
@@ -173,8 +172,8 @@ def file_flags(stored, sci_shape, schedule, order, bits, path):
         raise FormatError(f"{path}: HDU 'DQ' holds flags, which must be integers; it holds "
                           f"{stored.dtype.name} values")
     rows = _rows_of(shape, sci_shape, schedule, order, path)
-    # the exposure's uint16 flags (twice while made from booleans) and boolean mask
-    check_size(5 * int(np.prod(sci_shape, dtype=float)), f"the flags of {path} {sci_shape}")
+    # the exposure's uint32 flags (twice while made from booleans) and boolean mask
+    check_size(9 * int(np.prod(sci_shape, dtype=float)), f"the flags of {path} {sci_shape}")
     if bits is None:
         flags = stored
     else:

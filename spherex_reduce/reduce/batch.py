@@ -33,6 +33,7 @@ from astropy.stats import mad_std
 from astropy.table import Table
 
 from .._version import __version__
+from ..core import dq
 from ..core.errors import ConfigError, SpherexReduceError
 from ..io import (
     atomic_output,
@@ -156,7 +157,7 @@ def image_statistics(exposure):
     data = np.asarray(exposure.data.data)
     good = np.isfinite(data)
     if exposure.dq is not None:
-        good &= exposure.dq == 0
+        good &= dq.image_usable(exposure.dq)
     unit = exposure.unit or u.dimensionless_unscaled
     if not good.any():
         return np.nan * unit, np.nan * unit

@@ -52,7 +52,7 @@ class Integrations:
     slopes, errors : `~astropy.units.Quantity`
         Each integration's image and its standard deviation, shape
         (integrations, rows, columns).
-    flags : `numpy.ndarray` of uint16
+    flags : `numpy.ndarray` of uint32
         Each integration's `spherex_reduce.core.dq` flags, same shape.
     """
 
@@ -82,7 +82,7 @@ def _parts(result, k):
         sigma = np.full(result.shape, np.nan)
     else:
         sigma = unc.represent_as(StdDevUncertainty).array
-    flags = np.zeros(result.shape, np.uint16) if result.dq is None else result.dq
+    flags = np.zeros(result.shape, np.uint32) if result.dq is None else result.dq
     return result.data.data, sigma, flags
 
 
@@ -160,7 +160,7 @@ def combine_integrations(results):
 def _weighted_mean(slopes, sigma, flags):
     """Mean, standard deviation and flags over axis 0 (see `combine_integrations`)."""
     with np.errstate(invalid="ignore", divide="ignore"):
-        usable = np.isfinite(slopes) & (flags == 0)
+        usable = np.isfinite(slopes) & dq.image_usable(flags)
         weighed = usable & np.isfinite(sigma) & (sigma > 0)
         weighted = (usable == weighed).all(axis=0)  # every used slope has a weight
         w = np.where(weighted, np.where(weighed, 1.0 / sigma**2, 0.0), usable.astype(float))
@@ -171,7 +171,7 @@ def _weighted_mean(slopes, sigma, flags):
     mean[none] = np.nan
     err[none] = np.nan
     mflags = np.where(none, np.bitwise_or.reduce(flags, axis=0) | dq.DO_NOT_USE, 0)
-    return mean, err, mflags.astype(np.uint16)
+    return mean, err, mflags.astype(np.uint32)
 
 
 def _stacked_tables(tables):

@@ -82,7 +82,7 @@ def _masked_reads(schedule, cells):
     return {(int(i), c) for r, c in cells for i in np.flatnonzero(schedule.rows == r)}
 
 
-@pytest.mark.parametrize("option", [[], ["--dq-bits", "0x80000005"]])
+@pytest.mark.parametrize("option", [[], ["--dq-bits", "0x9"]])
 def test_pixel_mask_masks_every_read_of_its_rows(tmp_path, option):
     """A 2-D (nrows, ncols) DQ over readout-order ramps: every read of a flagged row of every
     frame is masked (slope NaN, FEW_READS); the other slopes are numpy's least squares."""
@@ -95,12 +95,12 @@ def test_pixel_mask_masks_every_read_of_its_rows(tmp_path, option):
     out = tmp_path / "out.fits"
     assert main(["-q", "reduce", str(raw), "-c", str(cfg), "-o", str(out), *option]) == 0
     assert _digest(raw) == before
-    cells = FLAGGED + ([OTHER_BIT, HIGH_BIT] if option else [])
+    cells = FLAGGED + ([] if option else [OTHER_BIT, HIGH_BIT])  # by default: every bit
     masked = _masked_reads(s, cells)
     assert len(masked) > len(cells)  # re-read rows: more than one read per flagged row
     with fits.open(out) as hdul:
         slopes, flags = hdul["SCI"].data, hdul["DQ"].data
-        assert hdul[0].header["SXRDQBIT"] == (0x80000005 if option else 1)
+        assert hdul[0].header["SXRDQBIT"] == (0x9 if option else 2**32 - 1)
     expected = _lstsq(sci, 2.0)
     for i in range(s.n_reads):
         for c in range(8):
@@ -127,7 +127,7 @@ def test_pixel_mask_through_unchop(tmp_path):
     physical[:, rows] = sci
     expected = _lstsq(physical, 2.0)
     bad = np.zeros((16, 8), bool)
-    bad[tuple(np.transpose(FLAGGED))] = True
+    bad[tuple(np.transpose([*FLAGGED, OTHER_BIT, HIGH_BIT]))] = True  # every bit masks
     assert np.isnan(out.data.data[bad]).all()
     assert (out.dq[bad] == dq.FEW_READS | dq.DO_NOT_USE).all()
     assert (out.dq[~bad] == 0).all()
@@ -135,7 +135,8 @@ def test_pixel_mask_through_unchop(tmp_path):
 
 
 def test_foreign_bits(tmp_path):
-    """Only bit 0 masks by default; ``dq_bits`` (argument or context) chooses other bits;
+    """Every bit masks by default (a flag we cannot read is never fitted as good);
+    ``dq_bits`` (argument or context) chooses other bits;
     every masked pixel is DO_NOT_USE, whatever the file's bit."""
     s = _schedule(ref_mode="none")
     raw = _foreign(tmp_path / "lab.fits", _ramps(s), _pixel_mask())
@@ -147,14 +148,15 @@ def test_foreign_bits(tmp_path):
         assert all((e.dq[k] == e.dq[0]).all() for k in range(s.nframes))  # every frame
         return {(int(s.rows[i]), int(c)) for i, c in np.argwhere(e.dq[0])}
 
-    assert masked() == set(FLAGGED)
+    assert masked() == {*FLAGGED, OTHER_BIT, HIGH_BIT}
+    assert masked(dq_bits=1) == set(FLAGGED)
     assert masked(dq_bits=4) == {OTHER_BIT}
     assert masked(dq_bits=1 | 4 | 2**31) == {*FLAGGED, OTHER_BIT, HIGH_BIT}
     assert masked(dq_bits=8) == set(FLAGGED)
     with foreign_dq_bits(2**31):
         assert masked() == {HIGH_BIT}
         assert masked(dq_bits=1) == set(FLAGGED)  # the argument wins
-    assert masked() == set(FLAGGED)
+    assert masked() == {*FLAGGED, OTHER_BIT, HIGH_BIT}
     e = sr.read(raw, **NONE, dq_bits=0)
     assert e.dq is not None and not e.dq.any()
     e = sr.read(raw, **NONE, dq_bits=5)
@@ -192,7 +194,7 @@ def test_other_layouts_of_a_2d_dq(tmp_path):
     physical = np.ones((s.nframes, 16, 8), np.float32)
     primary = fits.Header({"ORDER": "PHYSICAL"})
     e = sr.read(_foreign(tmp_path / "phys.fits", physical, _pixel_mask(), primary), **SUPPLIED)
-    expected = np.broadcast_to((_pixel_mask() & 1) != 0, physical.shape)
+    expected = np.broadcast_to(_pixel_mask() != 0, physical.shape)
     np.testing.assert_array_equal(e.dq != 0, expected)
 
 

@@ -226,12 +226,13 @@ def test_dq_bits_from_the_input_section(tmp_path):
     path = tmp_path / "dq.fits"
     header = SCHEDULE.to_header(fits.Header())
     dq = np.zeros((8, 8), np.int32)
-    dq[1, 1] = 4  # bit 2: masks only when dq_bits has it
+    dq[1, 1] = 4  # bit 2: masks by default (every bit), not when dq_bits lacks it
     fits.HDUList([fits.PrimaryHDU(header=header),
                   fits.ImageHDU(values.astype(np.float32), name="SCI"),
                   fits.ImageHDU(dq, name="DQ")]).writeto(path)
-    assert not read(path).dq.any()
+    assert not read(path, input={"dq_bits": 1}).dq.any()
     assert read(path, input={"dq_bits": 4}).dq[:, 1, 1].all()
+    assert read(path).dq[:, 1, 1].all()
 
 
 def test_gain_scales_phantom_values_and_uncertainties(tmp_path):

@@ -72,7 +72,7 @@ def _sigma_clip(exposure, *, sigma, sigma_lower, sigma_upper, maxiters, cenfunc,
         raise SpherexReduceError("sigma_clip works on 2-D images: fit the ramps first (fit_ramp)")
     nd = exposure.data
     data = np.asarray(nd.data)
-    flags = np.zeros(data.shape, np.uint16) if exposure.dq is None else exposure.dq
+    flags = np.zeros(data.shape, np.uint32) if exposure.dq is None else exposure.dq
     old = flags != 0
     usable = ~old & np.isfinite(data)
     clipper = SigmaClip(sigma=sigma, sigma_lower=sigma_lower, sigma_upper=sigma_upper,
@@ -98,7 +98,7 @@ def _sigma_clip(exposure, *, sigma, sigma_lower, sigma_upper, maxiters, cenfunc,
     tables["HOTPIX"] = Table({"row": rows, "column": cols, "value": data[rows, cols]})
     header = exposure.header.copy()
     header["NHOTPIX"] = (int(hot.sum()), "pixels clipped by sigma_clip")
-    return exposure.replace(dq=flags | np.where(hot, np.uint16(dq.HOT), np.uint16(0)),
+    return exposure.replace(dq=flags | np.where(hot, np.uint32(dq.HOT), np.uint32(0)),
                             tables=tables, header=header)
 
 

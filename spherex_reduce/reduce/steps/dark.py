@@ -197,7 +197,7 @@ def _subtract_dark(exposure, dark):
         unc = np.sqrt(ve + vd) * np.ones(out.shape)
     flags = exposure.dq
     if d_flags is not None:
-        flags = (np.zeros(out.shape, np.uint16) if flags is None else flags) | d_flags
+        flags = (np.zeros(out.shape, np.uint32) if flags is None else flags) | d_flags
     return exposure.replace(data=out, uncertainty=unc, dq=flags)
 
 

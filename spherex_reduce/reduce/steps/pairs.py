@@ -88,8 +88,8 @@ def _pair_difference(a, b):
     if a.dq is None and b.dq is None:
         flags = None
     else:
-        flags = (np.zeros(data.shape, np.uint16) if a.dq is None else a.dq) | (
-            np.zeros(data.shape, np.uint16) if b.dq is None else b.dq)
+        flags = (np.zeros(data.shape, np.uint32) if a.dq is None else a.dq) | (
+            np.zeros(data.shape, np.uint32) if b.dq is None else b.dq)
     phantom = None
     if a.phantom is not None and b.phantom is not None:
         phantom = (a.phantom - b.phantom) / root2

@@ -107,7 +107,7 @@ class RampSolution:
         Their variances (NaN where undefined or not asked for).
     nreads : `numpy.ndarray` of int16
         Reads used.
-    flags : `numpy.ndarray` of uint16
+    flags : `numpy.ndarray` of uint32
         `~spherex_reduce.core.dq.FEW_READS`, `~spherex_reduce.core.dq.SATURATED` and the
         flags set on every read of the pixel.
     """
@@ -116,7 +116,7 @@ class RampSolution:
         self.slope = np.empty(shape, np.float64)
         self.var = np.empty(shape, np.float64)
         self.nreads = np.empty(shape, np.int16)
-        self.flags = np.empty(shape, np.uint16)
+        self.flags = np.empty(shape, np.uint32)
 
     def rows(self, rows):
         """A solution viewing rows ``rows`` (a slice) of this one."""
@@ -423,7 +423,7 @@ class LeastSquares:
             with np.errstate(invalid="ignore"):
                 sat = y > self.saturation
             good &= ~sat
-        pix_flags = np.zeros(bidx.size, np.uint16)
+        pix_flags = np.zeros(bidx.size, np.uint32)
         if rmask is not None:
             rm = as_dq(rmask[:, bidx])
             good &= rm == 0

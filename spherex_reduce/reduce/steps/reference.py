@@ -142,8 +142,8 @@ class ReferenceKernel(Kernel):
                             casting="unsafe")
         block = block.replace(data=out, owned=block.owned | {"data"})
         if plan.columns_missing is not None:
-            flags = np.where(plan.columns_missing[:, None, :], np.uint16(dq.NO_REFERENCE),
-                             np.uint16(0))
+            flags = np.where(plan.columns_missing[:, None, :], np.uint32(dq.NO_REFERENCE),
+                             np.uint32(0))
             block = block.with_flags(flags)
         if self.consumes_phantom:
             block = block.replace(phantom=None, read_phantom=None)
@@ -306,7 +306,7 @@ def offsets_table(offsets, missing, parity, n_used, n_clipped, strategy, unit, r
     cols["offset"] = offsets.ravel()
     cols["n_used"] = np.asarray(n_used).ravel()
     cols["n_clipped"] = np.asarray(n_clipped).ravel()
-    cols["flag"] = np.where(missing.ravel(), dq.NO_REFERENCE, 0).astype(np.uint16)
+    cols["flag"] = np.where(missing.ravel(), dq.NO_REFERENCE, 0).astype(np.uint32)
     # the unit goes in the description: 'electron' is not a FITS unit
     table = Table(cols, meta={"strategy": strategy, "bunit": str(unit or "")})
     table["offset"].description = f"offset subtracted ({unit or 'data unit'})"

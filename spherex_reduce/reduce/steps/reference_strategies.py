@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from astropy.utils.exceptions import AstropyUserWarning
 
+from ...core import dq
 from ...core.errors import SpherexReduceError
 from ...core.parameters import Parameter, validate_parameters
 from ...core.source_mask import source_mask
@@ -395,7 +396,7 @@ class MedianReference(Strategy):
         nd = exposure.data
         data = np.asarray(nd.data)
         frames = data.reshape(-1, *data.shape[-2:])
-        bad = None if exposure.dq is None else (exposure.dq != 0).reshape(frames.shape)
+        bad = None if exposure.dq is None else (~dq.read_usable(exposure.dq)).reshape(frames.shape)
         excluded = np.zeros(data.shape[-2:], bool)
         if mask_sources:
             image = frames[-1] - frames[0] if data.ndim == 3 else frames[0]

@@ -87,7 +87,7 @@ class RowMean:
     uncertainty : `numpy.ndarray` or None
         ``(frames, ncols)`` standard deviation of ``data``, or None.
     flags : `numpy.ndarray` or None
-        ``(frames, ncols)`` uint16: 0 where a read is usable, else the flags
+        ``(frames, ncols)`` uint32: 0 where a read is usable, else the flags
         of all its reads; or None.
     """
 
@@ -216,7 +216,7 @@ class UnchopKernel(Kernel):
         if plan.phantom_dtype is not None:
             phantom = np.full((*shape[:2], g.nchannels), np.nan, plan.phantom_dtype)
         return Block(np.full(shape, np.nan, plan.dtype), unread, "physical", phantom=phantom,
-                     dq=np.full(shape, dq.NOT_READ, np.uint16),
+                     dq=np.full(shape, dq.NOT_READ, np.uint32),
                      uncertainty=np.full(shape, np.nan) if plan.uncertainty else None,
                      owned=True)
 
@@ -242,7 +242,7 @@ def _usable_flags(flags, idx):
     """Flags of a row read several times: 0 where any read is usable, else all its flags."""
     reads = np.take(flags, idx, axis=-2)
     usable = (reads == 0).any(axis=-2)
-    return np.where(usable, 0, np.bitwise_or.reduce(reads, axis=-2)).astype(np.uint16)
+    return np.where(usable, 0, np.bitwise_or.reduce(reads, axis=-2)).astype(np.uint32)
 
 
 class UnchopStep(Step):

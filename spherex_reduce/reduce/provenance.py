@@ -26,10 +26,17 @@ log = logging.getLogger("spherex_reduce")
 PROVENANCE_COLUMNS = ("step", "status", "parameters", "inputs", "versions", "elapsed", "route")
 
 
+def _described(value):
+    """How a parameter value that JSON cannot hold is recorded (an array: its shape)."""
+    if hasattr(value, "shape") and hasattr(value, "dtype"):
+        return f"array {'x'.join(map(str, value.shape))} of {value.dtype}"
+    return str(value)
+
+
 def _short_value(value):
     if isinstance(value, (bool, int, float, str)):
         return value
-    return json.dumps(value, default=str)
+    return json.dumps(value, default=_described)
 
 
 @functools.lru_cache(maxsize=64)
@@ -100,7 +107,7 @@ def record_step(step, result, params, status, reason, elapsed, route, inputs=Non
         card = f"HIERARCH SXR {step.name.upper()} {key.upper()}"
         if len(card) + len(repr(value)) + 3 <= 80:  # fits one card; HISTORY and table have all
             cards.append((card, value, None))
-    text = json.dumps(params, default=str, sort_keys=True)
+    text = json.dumps(params, default=_described, sort_keys=True)
     cards.append(("HISTORY", f"{step.name} {status.lower()} in {elapsed:.3g} s: {text}", None))
     if reason:
         cards.append(("HISTORY", f"{step.name} skipped: {reason}", None))

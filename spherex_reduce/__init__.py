@@ -26,8 +26,9 @@ _EXPORTS = {
     "reduce.integrations": ["reduce_integrations"],
     "reduce.pipeline": ["Pipeline"],
     "reduce.step": ["Simulator", "Step", "Strategy"],
-    "reduce.steps": ["combine_darks", "correct_reference", "fit_ramp", "pair_difference",
-                     "rechop", "sigma_clip", "subtract_dark", "subtract_phantom", "unchop"],
+    "reduce.steps": ["combine_darks", "correct_reference", "detect_jumps", "fit_ramp",
+                     "pair_difference", "rechop", "sigma_clip", "subtract_dark",
+                     "subtract_phantom", "unchop"],
     "simulation": ["simulate"],
 }
 

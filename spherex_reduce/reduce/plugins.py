@@ -36,6 +36,7 @@ BUILTIN_PLUGINS = {
     "builtin.unchop": "spherex_reduce.reduce.steps.unchop",
     "builtin.phantom": "spherex_reduce.reduce.steps.phantom",
     "builtin.reference": "spherex_reduce.reduce.steps.reference",
+    "builtin.jumps": "spherex_reduce.reduce.steps.jumps",
     "builtin.fit_ramp": "spherex_reduce.reduce.steps.fit_ramp",
     "builtin.clipping": "spherex_reduce.reduce.steps.clipping",
     "builtin.pairs": "spherex_reduce.reduce.steps.pairs",

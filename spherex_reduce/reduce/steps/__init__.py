@@ -11,6 +11,7 @@ __getattr__, __dir__, __all__ = lazy.attach(__name__, submod_attrs={
     "clipping": ["sigma_clip"],
     "dark": ["combine_darks", "subtract_dark"],
     "fit_ramp": ["fit_ramp"],
+    "jumps": ["detect_jumps"],
     "pairs": ["pair_difference"],
     "phantom": ["subtract_phantom"],
     "reference": ["correct_reference"],

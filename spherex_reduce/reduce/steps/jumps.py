@@ -1,0 +1,380 @@
+"""``detect_jumps``: flag the read at which a pixel's charge stepped (cosmic rays).
+
+The step's kernel (`JumpKernel`) searches each pixel's ramp for steps
+(`~spherex_reduce.reduce.steps.jump_search.StepSearch`: a matched filter for a
+step at every read, against the ramp's read and shot noise) and sets
+`~spherex_reduce.core.dq.JUMP` on the first read after each step, band of rows
+by band of rows, before ``fit_ramp``.  Flagging the neighbours of a jump, or a
+radius around a very large one, needs the rows above and below, which may lie
+in another band: with ``neighbours`` or ``radius`` the kernel searches the
+whole exposure first (in memory) and each band takes its flags from that.
+"""
+
+import threading
+
+import numpy as np
+from astropy import units as u
+
+from ...core import dq
+from ...core.errors import StepSkipped
+from ...core.parameters import OPTIONAL_NUMBER, Parameter, validate_parameters
+from ...io.sources import MemorySource
+from ..hookspecs import hookimpl
+from ..step import Kernel, Record, Step
+from .jump_search import StepSearch
+from .pixel_maps import MAP_TYPES, PixelMap
+
+__all__ = ["DetectJumpsStep", "JumpKernel", "detect_jumps"]
+
+#: rows of every frame searched at once when the whole exposure is searched first
+SEARCH_PIXELS = 1 << 17
+_BAD = np.uint32(0xFFFFFFFF & ~dq.READ_INFORMATIONAL)  # bits that make a read unusable
+
+
+def detect_jumps(exposure, *, threshold=4.5, read_noise=None, gain=1.0, saturation=None,
+                 max_jumps=10, neighbours=False, neighbours_above=10.0, radius=0.0,
+                 radius_above=1e4):
+    """Flag `~spherex_reduce.core.dq.JUMP` on the read at which each pixel's charge stepped.
+
+    Every pixel's usable reads are fitted with a line plus a step at each read
+    in turn; the step's least-squares amplitude over its standard deviation
+    under the ramp's noise (read noise, and the shot noise of the pixel's own
+    slope) is ``z``.  When ``max |z|`` over the reads exceeds ``threshold``
+    the read after the step is flagged, the step is subtracted and the search
+    repeated (up to ``max_jumps`` times).  With read noise alone (dark ramps)
+    this is the likelihood-ratio test for a step at an unknown read.
+
+    Parameters
+    ----------
+    exposure : `~spherex_reduce.Exposure`
+        Ramps ``(frames, rows or reads, columns)`` in readout or physical
+        order, at least 4 frames (5 without ``read_noise``).  Not modified.
+    threshold : float
+        ``max |z|`` (sigma) above which a ramp has a jump.  Jump-free ramps of
+        74 evenly spaced reads are flagged at 4.5 sigma with probability
+        2.9e-4 each (read noise given) or 8.4e-4 (read noise estimated); the
+        reduction guide tabulates other thresholds.
+    read_noise : float, `numpy.ndarray` or str, optional
+        Read noise of one read (data unit): one number, a map ``(rows,
+        columns)`` in physical order, or a FITS image.  None: each pixel's
+        from its own residuals about a line with one step.
+    gain : float, `numpy.ndarray` or str
+        Electrons per data unit (the shot noise of the pixel's slope); a map
+        like ``read_noise``.
+    saturation : float, optional
+        Reads above this level (data unit) are saturated: they and every
+        later read of the ramp are not searched (as reads flagged
+        `~spherex_reduce.core.dq.SATURATED`).
+    max_jumps : int
+        Jumps searched for in each ramp.
+    neighbours : bool
+        Also flag the 4 neighbours (physical rows and columns) of every jump of
+        at least ``neighbours_above`` sigma, at the read of the jump and at
+        the one before or after it, by when the neighbour is read in the frame.
+    neighbours_above : float
+        Smallest ``|z|`` (sigma) of a jump whose neighbours are flagged.
+    radius : float
+        Flag every pixel within this distance (pixels, physical rows and
+        columns) of a jump of at least ``radius_above``, like the neighbours
+        (snowballs and showers); 0: none.
+    radius_above : float
+        Smallest amplitude (data unit) of a jump flagged with ``radius``.
+
+    Returns
+    -------
+    `~spherex_reduce.Exposure`
+        The input's pixels with `~spherex_reduce.core.dq.JUMP` or-ed into the
+        DQ of the reads flagged; the header's ``NJUMPS`` counts the jumps
+        found (reads flagged by the search) and ``NJUMPNB`` the reads flagged
+        around them.
+
+    Notes
+    -----
+    Reads that are masked (`~spherex_reduce.core.dq.read_usable` false), not
+    finite, or saturated (flag or ``saturation``; every read after the first
+    saturated one too) are not used: the search runs on the usable reads, and
+    a step between two of them flags the later one.  A jump before the first
+    usable read is not seen (it is part of the pedestal).
+
+    Bands of rows are searched on several threads; each pixel's result
+    depends on its own reads only.  With ``neighbours`` or ``radius`` the
+    whole exposure is searched before its bands are flagged (it is held in
+    memory).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule, detect_jumps, dq
+    >>> s = ReadoutSchedule(DetectorGeometry(8, 4, 1, ref_border=1), skip=1, ref_reads=0,
+    ...                     ref_mode="none", phantom_reads=0, nframes=20, frame_time=1.5)
+    >>> rng = np.random.default_rng(0)
+    >>> ramps = (1000 + rng.normal(0, 10, (20, 8, 4))).astype("f4")
+    >>> ramps[7:, 2, 3] += 150  # a cosmic ray between reads 6 and 7
+    >>> out = detect_jumps(Exposure.from_arrays(ramps, s), read_noise=10)
+    >>> np.argwhere(out.dq & dq.JUMP).tolist(), out.header["NJUMPS"]
+    ([[7, 2, 3]], 1)
+    """
+    return DetectJumpsStep()(
+        exposure, threshold=threshold, read_noise=read_noise, gain=gain, saturation=saturation,
+        max_jumps=max_jumps, neighbours=neighbours, neighbours_above=neighbours_above,
+        radius=radius, radius_above=radius_above)
+
+
+class JumpKernel(Kernel):
+    """`detect_jumps` on bands of rows (the kernel of `DetectJumpsStep`).
+
+    Parameters
+    ----------
+    context : `~spherex_reduce.core.block.Context`
+    **params
+        As `detect_jumps` (declared by `DetectJumpsStep.parameters`).
+    """
+
+    def __init__(self, context, **params):
+        params = validate_parameters(params, DetectJumpsStep.parameters, DetectJumpsStep.name)
+        if not context.ramp:
+            raise StepSkipped("the input is already a 2-D image (slopes)")
+        super().__init__(context)
+        s = context.schedule
+        self.estimate = params["read_noise"] is None
+        if s.nframes < (5 if self.estimate else 4):
+            raise StepSkipped(f"{s.nframes} reads: too few to search for jumps")
+        self.params = params
+        g = s.geometry
+        self.read_noise = (None if self.estimate else
+                           PixelMap.of(params["read_noise"], "detect_jumps.read_noise", g,
+                                       positive=True))
+        self.gain = PixelMap.of(params["gain"], "detect_jumps.gain", g, positive=True)
+        self.times = s.frame_starts.to_value(u.s)
+        # read-noise variance of each read relative to one frame's: 1 for frames; groups
+        # of averaged frames give theirs here (schedule.read_noise_factors)
+        self.factors = np.ones(s.nframes)
+        self.needs_exposure = bool(params["neighbours"] or params["radius"] > 0)
+        self._searches = {}  # usable reads (bytes of the mask) -> StepSearch
+        self._lock = threading.Lock()
+        self._found = 0  # reads flagged by the search, over the bands (streamed route)
+
+    # -- the search of one band -------------------------------------------------------
+    def _search(self, usable):
+        """The `StepSearch` of the reads ``usable`` (bool per frame), made once."""
+        key = usable.tobytes()
+        with self._lock:
+            found = self._searches.get(key)
+        if found is None:
+            idx = np.flatnonzero(usable)
+            found = StepSearch(self.times[idx], self.factors[idx])
+            with self._lock:
+                self._searches[key] = found
+        return found
+
+    def _maps(self, block, pixels):
+        """Read noise (or None) and gain of the band's ``pixels`` (flat indices)."""
+        out = []
+        for m in (self.read_noise, self.gain):
+            v = None if m is None else m.rows(block.index, self.context.order,
+                                                self.context.schedule)
+            out.append(v if v is None or np.ndim(v) == 0 else np.ravel(v)[pixels])
+        return out
+
+    def find(self, block):
+        """The jumps of a band: ``(frames, flat pixel indices, amplitudes, z)``."""
+        p = self.params
+        nf = block.nframes
+        y = block.data.reshape(nf, -1)
+        bad_reads = over = None
+        bad = np.zeros(y.shape[1], bool)
+        if block.dq is not None:
+            bad_reads = (block.dq.reshape(nf, -1) & _BAD) != 0
+            bad |= bad_reads.any(axis=0)
+        if p["saturation"] is not None:
+            over = y > p["saturation"]
+            bad |= over.any(axis=0)
+        good = np.flatnonzero(~bad) if bad.any() else slice(None)
+        pixels = np.arange(y.shape[1])[good]
+        parts = []
+        whole = np.ones(nf, bool)
+        found = self._run(self._search(whole), y[:, good], block, pixels)
+        parts.append((found.read, pixels[found.pixel], found.amplitude, found.z))
+        rest = np.union1d(np.flatnonzero(bad), pixels[found.unsearched])
+        if rest.size:
+            parts.extend(self._masked(y, block, rest, bad_reads, over))
+        frames, pix, amp, z = (np.concatenate(a) for a in zip(*parts, strict=True))
+        return frames, pix, amp, z
+
+    def _run(self, search, y, block, pixels):
+        sigma, gain = self._maps(block, pixels)
+        return search.find(y, threshold=self.params["threshold"], sigma=sigma, gain=gain,
+                           max_jumps=self.params["max_jumps"])
+
+    def _masked(self, y, block, pixels, bad_reads, over):
+        """The jumps of ``pixels`` with unusable reads, searched on their usable reads."""
+        sub = y[:, pixels]
+        usable = np.isfinite(sub)
+        saturated = np.zeros(sub.shape, bool)
+        if bad_reads is not None:
+            usable &= ~bad_reads[:, pixels]
+            saturated |= (block.dq.reshape(sub.shape[0], -1)[:, pixels] & dq.SATURATED) != 0
+        if over is not None:
+            saturated |= over[:, pixels]
+        usable &= ~np.logical_or.accumulate(saturated, axis=0)
+        least = 5 if self.estimate else 4
+        keys = np.packbits(usable, axis=0).T.copy()
+        _, first, inverse = np.unique(keys.view(f"V{keys.shape[1]}").ravel(),
+                                      return_index=True, return_inverse=True)
+        out = []
+        for g, col in enumerate(first):
+            mask = usable[:, col]
+            idx = np.flatnonzero(mask)
+            if idx.size < least:
+                continue
+            members = np.flatnonzero(inverse == g)
+            found = self._run(self._search(mask), sub[idx][:, members], block,
+                              pixels[members])
+            out.append((idx[found.read], pixels[members][found.pixel], found.amplitude,
+                        found.z))
+        return out
+
+    # -- the kernel ----------------------------------------------------------------------
+    def prepare(self, side, exposure=None):
+        """With ``neighbours`` or ``radius``: every flag of the exposure (searched whole)."""
+        if not self.needs_exposure:
+            return None
+        source = MemorySource(exposure)
+        rows = max(1, SEARCH_PIXELS // self.context.geometry.ncols)
+        parts = []
+        for lo in range(0, source.nrows, rows):
+            block = source.read(lo, min(source.nrows, lo + rows))
+            frames, pix, amp, z = self.find(block)
+            ncols = block.data.shape[-1]
+            parts.append((frames, block.index[pix // ncols], pix % ncols, amp, z))
+        frames, index, cols, amp, z = (np.concatenate(a) for a in zip(*parts, strict=True))
+        around = _around(self.context, self.params, frames, index, cols, amp, z)
+        flags = [np.concatenate(a) for a in zip((frames, index, cols), around, strict=True)]
+        return _Flags(*flags, found=frames.size, around=around[0].size)
+
+    def apply(self, coefficients, block):
+        if coefficients is None:
+            frames, pix, _, _ = self.find(block)
+            ncols = block.data.shape[-1]
+            rows, cols = pix // ncols, pix % ncols
+            with self._lock:
+                self._found += frames.size
+        else:
+            frames, rows, cols = coefficients.within(block.index)
+        if not frames.size:
+            return block
+        out = block.with_flags(np.uint32(0))
+        out.dq[frames, rows, cols] |= np.uint32(dq.JUMP)
+        return out
+
+    def apply_side(self, coefficients, side):
+        """The reference reads are left as they are (they collect no charge)."""
+        return side
+
+    def record(self, coefficients):
+        found = self._found if coefficients is None else coefficients.found
+        cards = [("NJUMPS", found, "jumps flagged (reads where the charge stepped)")]
+        if coefficients is not None:
+            cards.append(("NJUMPNB", coefficients.around, "reads flagged around jumps"))
+        return Record(cards=cards)
+
+
+class _Flags:
+    """Every JUMP flag of an exposure: ``frame``, ``index`` (row axis), ``col``."""
+
+    def __init__(self, frame, index, col, found, around):
+        self.frame, self.index, self.col = frame, index, col
+        self.found, self.around = found, around
+
+    def within(self, index):
+        """``(frames, rows, cols)`` of the flags on the rows ``index`` of a band."""
+        index = np.asarray(index)
+        order = np.argsort(index, kind="stable")
+        pos = np.searchsorted(index[order], self.index)
+        pos = np.minimum(pos, index.size - 1)
+        inside = index[order][pos] == self.index
+        return self.frame[inside], order[pos[inside]], self.col[inside]
+
+
+def _offsets(params):
+    """``(dr, dc, which)``: the offsets flagged around a jump; ``which`` 0 for neighbours,
+    1 for the radius."""
+    out = []
+    if params["neighbours"]:
+        out += [(-1, 0, 0), (1, 0, 0), (0, -1, 0), (0, 1, 0)]
+    r = params["radius"]
+    if r > 0:
+        n = int(np.floor(r))
+        out += [(i, j, 1) for i in range(-n, n + 1) for j in range(-n, n + 1)
+                if 0 < i * i + j * j <= r * r]
+    return np.array(out, np.int64).reshape(-1, 3)
+
+
+def _around(context, params, frames, index, cols, amp, z):
+    """``(frames, index, cols)`` of the reads flagged around the jumps (physical rows and
+    columns; a neighbour read earlier in the frame than the jump's row also at the next
+    frame, one read later also at the frame before)."""
+    s = context.schedule
+    g = s.geometry
+    readout = context.order == "readout"
+    rows = s.rows[index] if readout else index
+    big = np.stack([np.abs(z) >= params["neighbours_above"], amp >= params["radius_above"]])
+    offsets = _offsets(params)
+    # when each physical row is first read within a frame, and the reads of each row
+    first = np.full(g.nrows, np.iinfo(np.int64).max)
+    np.minimum.at(first, s.rows, np.arange(s.n_reads))
+    parts = []
+    for dr, dc, which in offsets:
+        sel = np.flatnonzero(big[which])
+        r, c, f = rows[sel] + dr, cols[sel] + dc, frames[sel]
+        ok = (r >= 0) & (r < g.nrows) & (c >= 0) & (c < g.ncols)
+        r, c, f, r0 = r[ok], c[ok], f[ok], rows[sel][ok]
+        read = first[r] < np.iinfo(np.int64).max
+        r, c, f, r0 = r[read], c[read], f[read], r0[read]
+        other = np.clip(f + np.where(first[r] < first[r0], 1, -1), 0, s.nframes - 1)
+        parts += [(f, r, c), (other, r, c)]
+    if not parts:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
+    f, r, c = (np.concatenate(a) for a in zip(*parts, strict=True))
+    if not readout:
+        return f, r, c
+    # every read of those physical rows
+    order = np.argsort(s.rows, kind="stable")
+    lo = np.searchsorted(s.rows[order], r, "left")
+    hi = np.searchsorted(s.rows[order], r, "right")
+    count = hi - lo
+    take = np.repeat(lo, count) + (np.arange(count.sum()) - np.repeat(np.cumsum(count) - count,
+                                                                        count))
+    return np.repeat(f, count), order[take], np.repeat(c, count)
+
+
+class DetectJumpsStep(Step):
+    """Flag the reads where a pixel's charge stepped (`~spherex_reduce.detect_jumps`)."""
+
+    name, keyword = "detect_jumps", "S_JUMP"
+    parameters = (
+        Parameter("threshold", 4.5, (float,), "max |z| of a step (sigma) that is a jump",
+                  minimum=0, exclusive_minimum=True),
+        Parameter("read_noise", None, (*MAP_TYPES, type(None)), "read noise per read (data "
+                  "unit): a number, a FITS image or an array; null: from each ramp"),
+        Parameter("gain", 1.0, MAP_TYPES, "electrons per data unit (shot noise): a number, "
+                  "a FITS image or an array"),
+        Parameter("saturation", None, OPTIONAL_NUMBER, "reads above this level (data unit) "
+                  "and every later read are not searched"),
+        Parameter("max_jumps", 10, (int,), "jumps searched for in each ramp", minimum=1),
+        Parameter("neighbours", False, (bool,), "also flag the 4 neighbours of large jumps"),
+        Parameter("neighbours_above", 10.0, (float,), "smallest |z| (sigma) of a jump whose "
+                  "neighbours are flagged", minimum=0),
+        Parameter("radius", 0.0, (float,), "flag pixels within this distance (pixels) of "
+                  "very large jumps; 0: none", minimum=0),
+        Parameter("radius_above", 1e4, (float,), "smallest amplitude (data unit) of a jump "
+                  "flagged with radius", minimum=0),
+    )
+
+    def kernel(self, context, **params):
+        return JumpKernel(context, **params)
+
+
+@hookimpl
+def register_steps():
+    return [DetectJumpsStep]

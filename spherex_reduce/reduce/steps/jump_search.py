@@ -88,6 +88,8 @@ class StepSearch:
         walk = np.minimum.outer(tau, tau)
         self.s = np.einsum("ki,ij,kj->k", g, walk, g)  # shot-noise variance / lambda
         self.slope_of_step = (coef @ h.T)[1]  # change of the line's slope per unit step
+        self.qq = g @ h.T  # Q[k, l] = h_k' W M h_l: q is its diagonal
+        self.ss = g @ walk @ g.T  # the random walk's covariance of R: s is its diagonal
         self.uniform_w = bool(np.all(w == w[0]))
         d = np.diff(tau)
         self.dtau = d
@@ -203,44 +205,94 @@ class StepSearch:
         return (np.finfo(np.float32).eps * top) ** 2
 
     def _search(self, y, pixels, threshold, sigma, gain, floor, max_jumps):
-        """The float64 search of the screened pixels, step after step."""
+        """The float64 search of the screened pixels: one step more at each round, fitted
+        jointly with the steps already found (generalised least squares of a line plus
+        steps, from the line's ``R_k`` and the matrices ``Q`` and ``S``)."""
         n = self.n
+        ab = np.einsum("ci,im->cm", self.coef, y)
+        r = y - ab[0] - ab[1] * self.tau[:, None]
+        wr = r * self.w[:, None]
+        big_r = np.cumsum(wr[:0:-1], axis=0)[::-1]  # (n - 1, m): R_k, tail sums
+        rss = np.einsum("im,im->m", wr, r)
+        slope = ab[1]
+        steps = np.zeros((pixels.size, 0), np.int64)  # rows of R of the steps found
         out = []
-        found = 0
-        rows = np.arange(n)[:, None]
-        while pixels.size and found < max_jumps:
-            ab = np.einsum("ci,im->cm", self.coef, y)
-            r = y - ab[0] - ab[1] * self.tau[:, None]
-            wr = r * self.w[:, None]
-            big_r = np.cumsum(wr[:0:-1], axis=0)[::-1]  # (n - 1, m): tail sums
-            rq = big_r ** 2 * self._invq[:, None]
+        while pixels.size and steps.shape[1] < max_jumps:
+            j = steps.shape[1]
+            if sigma is None and n - 4 - j < 0:
+                break
             cols = np.arange(pixels.size)
+            fit = _Given(self, big_r, steps)
+            rk, qk, sk = fit.r, fit.q, fit.s
+            valid = qk > 1e-9 * self.q[:, None]
+            rq = np.where(valid, rk ** 2 / np.where(valid, qk, 1.0), 0.0)
             kb = np.argmax(rq, axis=0)
             if sigma is None:
-                dof = n - 3 - found
-                if dof < 1:
-                    break
-                rss = np.einsum("im,im->m", wr, r)
-                var = np.maximum((rss - rq[kb, cols]) / dof, floor)
+                var = np.maximum((rss - fit.explained - rq[kb, cols]) / (n - 3 - j), floor)
             else:
                 var = np.maximum(sigma ** 2, floor)
-            slope = ab[1] - big_r[kb, cols] * self._invq[kb] * self.slope_of_step[kb]
-            lam = np.maximum(slope, 0.0) / gain
-            total = var * self.q[:, None] + lam * self.s[:, None]
-            z2 = big_r ** 2 / total
+            best = rk[kb, cols] / np.where(valid[kb, cols], qk[kb, cols], 1.0)
+            lam = np.maximum(slope - fit.slope_change(kb, best), 0.0) / gain
+            total = var * qk + lam * sk
+            z2 = np.where(valid, rk ** 2 / np.where(valid, total, 1.0), 0.0)
             k = np.argmax(z2, axis=0)
             peak = z2[k, cols]
             hit = peak > threshold ** 2
             if not hit.any():
                 break
             k, cols = k[hit], cols[hit]
-            amp = big_r[k, cols] * self._invq[k]
+            amp = rk[k, cols] / qk[k, cols]
             out.append((pixels[hit], k + 1, amp, np.sign(amp) * np.sqrt(peak[hit])))
-            y = y[:, hit] - amp * (rows >= (k + 1))
+            steps = np.column_stack([steps[hit], k])
+            big_r, rss, slope = big_r[:, hit], rss[hit], slope[hit]
             pixels, gain, floor = pixels[hit], _take(gain, hit), floor[hit]
             sigma = None if sigma is None else _take(sigma, hit)
-            found += 1
         return Found.of(out)
+
+
+class _Given:
+    """``R_k``, ``q_k`` and ``s_k`` of a step at every read given the steps already found
+    in each ramp (``steps``: ``(m, j)`` rows of R), by Frisch-Waugh: the line's ``R``
+    less its projection on the found steps.
+
+    Attributes ``r``, ``q``, ``s`` (``(n - 1, m)``) and ``explained`` (``(m,)``: the
+    weighted sum of squares the found steps explain).
+    """
+
+    def __init__(self, search, big_r, steps):
+        m, j = steps.shape
+        if j == 0:
+            self.r = big_r
+            self.q = np.broadcast_to(search.q[:, None], big_r.shape)
+            self.s = np.broadcast_to(search.s[:, None], big_r.shape)
+            self.explained = 0.0
+            self.found = self.a = self.steps = None
+            self.sos = search.slope_of_step
+            return
+        cols = np.arange(m)[:, None]
+        qf = search.qq[steps[:, :, None], steps[:, None, :]]  # (m, j, j)
+        qk = search.qq[steps]  # (m, j, n - 1)
+        rf = big_r[steps, cols]  # (m, j)
+        a = np.linalg.solve(qf, qk)  # (m, j, n - 1)
+        found = np.linalg.solve(qf, rf[..., None])[..., 0]  # joint amplitudes, (m, j)
+        sk = search.ss[steps]
+        sff = search.ss[steps[:, :, None], steps[:, None, :]]
+        self.r = big_r - np.einsum("mjk,mj->km", qk, found)
+        self.q = search.q[:, None] - np.einsum("mjk,mjk->km", qk, a)
+        self.s = (search.s[:, None] - 2 * np.einsum("mjk,mjk->km", a, sk)
+                  + np.einsum("mjk,mji,mik->km", a, sff, a))
+        self.explained = np.einsum("mj,mj->m", rf, found)
+        self.found, self.a, self.steps = found, a, steps
+        self.sos = search.slope_of_step
+
+    def slope_change(self, k, amp):
+        """How much the found steps and a step ``amp`` at ``k`` change each line's slope."""
+        change = amp * self.sos[k]
+        if self.found is not None:
+            m = np.arange(k.size)
+            joint = self.found - self.a[m, :, k] * amp[:, None]
+            change = change + np.einsum("mj,mj->m", joint, self.sos[self.steps])
+        return change
 
 
 def _take(values, index):

@@ -31,7 +31,7 @@ SEARCH_PIXELS = 1 << 17
 _BAD = np.uint32(0xFFFFFFFF & ~dq.READ_INFORMATIONAL)  # bits that make a read unusable
 
 
-def detect_jumps(exposure, *, threshold=4.5, read_noise=None, gain=1.0, saturation=None,
+def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturation=None,
                  max_jumps=10, neighbours=False, neighbours_above=10.0, radius=0.0,
                  radius_above=1e4):
     """Flag `~spherex_reduce.core.dq.JUMP` on the read at which each pixel's charge stepped.
@@ -50,10 +50,10 @@ def detect_jumps(exposure, *, threshold=4.5, read_noise=None, gain=1.0, saturati
         Ramps ``(frames, rows or reads, columns)`` in readout or physical
         order, at least 4 frames (5 without ``read_noise``).  Not modified.
     threshold : float
-        ``max |z|`` (sigma) above which a ramp has a jump.  Jump-free ramps of
-        74 evenly spaced reads are flagged at 4.5 sigma with probability
-        2.9e-4 each (read noise given) or 8.4e-4 (read noise estimated); the
-        reduction guide tabulates other thresholds.
+        ``max |z|`` (sigma) above which a ramp has a jump.  A jump-free ramp of
+        74 evenly spaced reads is flagged at 4 sigma with probability 1.9e-3
+        (``read_noise`` given) or 4.9e-3 (estimated); the reduction guide
+        tabulates other thresholds and numbers of reads.
     read_noise : float, `numpy.ndarray` or str, optional
         Read noise of one read (data unit): one number, a map ``(rows,
         columns)`` in physical order, or a FITS image.  None: each pixel's
@@ -312,8 +312,9 @@ def _offsets(params):
 
 def _around(context, params, frames, index, cols, amp, z):
     """``(frames, index, cols)`` of the reads flagged around the jumps (physical rows and
-    columns; a neighbour read earlier in the frame than the jump's row also at the next
-    frame, one read later also at the frame before)."""
+    columns), at the jump's frame and, for a pixel read earlier in the frame than the
+    jump's pixel, the next frame (the charge may have come after its read), for one read
+    later the frame before."""
     s = context.schedule
     g = s.geometry
     readout = context.order == "readout"
@@ -323,6 +324,7 @@ def _around(context, params, frames, index, cols, amp, z):
     # when each physical row is first read within a frame, and the reads of each row
     first = np.full(g.nrows, np.iinfo(np.int64).max)
     np.minimum.at(first, s.rows, np.arange(s.n_reads))
+    samples = s.pixel_samples()  # when each pixel is read within the frame
     parts = []
     for dr, dc, which in offsets:
         sel = np.flatnonzero(big[which])
@@ -331,7 +333,9 @@ def _around(context, params, frames, index, cols, amp, z):
         r, c, f, r0 = r[ok], c[ok], f[ok], rows[sel][ok]
         read = first[r] < np.iinfo(np.int64).max
         r, c, f, r0 = r[read], c[read], f[read], r0[read]
-        other = np.clip(f + np.where(first[r] < first[r0], 1, -1), 0, s.nframes - 1)
+        c0 = cols[sel][ok][read]
+        earlier = samples[first[r], c] < samples[first[r0], c0]
+        other = np.clip(f + np.where(earlier, 1, -1), 0, s.nframes - 1)
         parts += [(f, r, c), (other, r, c)]
     if not parts:
         return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
@@ -353,7 +357,7 @@ class DetectJumpsStep(Step):
 
     name, keyword = "detect_jumps", "S_JUMP"
     parameters = (
-        Parameter("threshold", 4.5, (float,), "max |z| of a step (sigma) that is a jump",
+        Parameter("threshold", 4.0, (float,), "max |z| of a step (sigma) that is a jump",
                   minimum=0, exclusive_minimum=True),
         Parameter("read_noise", None, (*MAP_TYPES, type(None)), "read noise per read (data "
                   "unit): a number, a FITS image or an array; null: from each ramp"),

@@ -1,0 +1,288 @@
+"""detect_jumps against brute-force least squares, its false-alarm rate, and the hard cases."""
+
+import numpy as np
+import pytest
+from scipy.stats import norm
+
+from spherex_reduce import (
+    DetectorGeometry,
+    Exposure,
+    Pipeline,
+    ReadoutSchedule,
+    detect_jumps,
+    dq,
+    fit_ramp,
+)
+from spherex_reduce.io.sources import MemorySource
+from spherex_reduce.reduce.executor import execute
+from spherex_reduce.reduce.steps.jump_search import StepSearch
+from spherex_reduce.reduce.steps.jumps import DetectJumpsStep
+
+NF, DT, RN = 74, 1.5, 10.0
+#: false-alarm probability per jump-free ramp of 74 evenly spaced reads at threshold 4
+#: (Monte Carlo of the test itself, 2e6 ramps; docs/reduction.rst tabulates them)
+FALSE_ALARM = {"given": 1.9e-3, "estimated": 4.9e-3}
+
+
+def schedule(nrows=16, ncols=16, nframes=NF, skip=1):
+    return ReadoutSchedule(DetectorGeometry(nrows, ncols, 1, ref_border=0), skip=skip,
+                           ref_reads=0, ref_mode="none", phantom_reads=0, nframes=nframes,
+                           frame_time=DT)
+
+
+def dark(s, rng, rate=0.01, read_noise=RN):
+    """Dark ramps: Poisson charge at ``rate`` e/s plus white read noise, on a pedestal."""
+    nf, g = s.nframes, s.geometry
+    shape = (nf, g.nrows, g.ncols)
+    charge = np.cumsum(rng.poisson(rate * DT, shape), axis=0)
+    return (6e4 + charge + rng.normal(0, 1, shape) * read_noise).astype(np.float32)
+
+
+def frozen(a):
+    a = np.array(a)
+    a.setflags(write=False)
+    return a
+
+
+def jumps_of(out):
+    return np.argwhere(out.dq & dq.JUMP)
+
+
+def brute_force_z(y, times, sigma):
+    """max |z| and its read for each ramp (columns of ``y``): numpy lstsq of a line plus a
+    step at every read in turn, the step's standard error from (X'X)^-1."""
+    n = len(times)
+    best = np.zeros(y.shape[1])
+    where = np.zeros(y.shape[1], int)
+    for k in range(1, n):
+        x = np.stack([np.ones(n), times, (np.arange(n) >= k).astype(float)], axis=1)
+        coef = np.linalg.lstsq(x, y, rcond=None)[0]
+        se = sigma * np.sqrt(np.linalg.inv(x.T @ x)[2, 2])
+        z = np.abs(coef[2]) / se
+        better = z > best
+        best[better], where[better] = z[better], k
+    return best, where
+
+
+def step_sigma(times, k, sigma=RN):
+    n = len(times)
+    x = np.stack([np.ones(n), times, (np.arange(n) >= k).astype(float)], axis=1)
+    return sigma * np.sqrt(np.linalg.inv(x.T @ x)[2, 2])
+
+
+def test_the_statistic_is_least_squares_of_a_step_at_every_read():
+    rng = np.random.default_rng(1)
+    times = np.arange(20) * DT
+    y = 100 + rng.normal(0, RN, (20, 3000))
+    y[12:, :300] += np.linspace(20, 80, 300)  # steps of 2-8 sigma at read 12
+    z, where = brute_force_z(y, times, RN)
+    found = StepSearch(times).find(y, threshold=4.0, sigma=RN, gain=1e9, max_jumps=1)
+    expect = np.flatnonzero(z > 4.0)
+    np.testing.assert_array_equal(np.sort(found.pixel), expect)
+    order = np.argsort(found.pixel)
+    np.testing.assert_array_equal(found.read[order], where[expect])
+    np.testing.assert_allclose(np.abs(found.z[order]), z[expect], rtol=1e-9)
+
+
+@pytest.mark.parametrize("mode", ["given", "estimated"])
+def test_false_alarm_rate_on_jump_free_ramps_is_the_documented_one(mode):
+    s = schedule(128, 256)
+    e = Exposure.from_arrays(dark(s, np.random.default_rng(7)), s)
+    out = detect_jumps(e, threshold=4.0, read_noise=RN if mode == "given" else None)
+    flagged = np.unique(jumps_of(out)[:, 1:], axis=0).shape[0]
+    n, p = 128 * 256, FALSE_ALARM[mode]
+    assert abs(flagged - n * p) < 4.5 * np.sqrt(n * p), (flagged, n * p)
+    assert out.header["NJUMPS"] == len(jumps_of(out))
+
+
+def test_false_alarm_rate_agrees_with_brute_force_monte_carlo():
+    # the documented rate at 3.5 sigma, where there are enough alarms to compare
+    rng = np.random.default_rng(3)
+    times = np.arange(NF) * DT
+    y = rng.normal(0, RN, (NF, 20000))
+    z, _ = brute_force_z(y, times, RN)
+    found = StepSearch(times).find(y + 6e4, threshold=3.5, sigma=RN, gain=1e9, max_jumps=1)
+    assert np.unique(found.pixel).size == np.count_nonzero(z > 3.5)
+
+
+@pytest.mark.parametrize("size", [20.0, 30.0, 50.0, 100.0])
+def test_detection_rate_against_the_step_sigma(size):
+    s = schedule(40, 100)
+    rng = np.random.default_rng(int(size))
+    cube = dark(s, rng)
+    k = 37
+    cube[k:] += np.float32(size)
+    out = detect_jumps(Exposure.from_arrays(cube, s), threshold=4.0, read_noise=RN)
+    at_k = np.zeros((40, 100), bool)
+    j = jumps_of(out)
+    at_k[j[j[:, 0] == k][:, 1], j[j[:, 0] == k][:, 2]] = True
+    near_k = np.zeros((40, 100), bool)
+    close = np.abs(j[:, 0] - k) <= 2
+    near_k[j[close][:, 1], j[close][:, 2]] = True
+    found = (out.dq & dq.JUMP).any(axis=0)
+    expected = norm.sf(4.0 - size / step_sigma(s.frame_starts.value, k))
+    # found anywhere: at least the chance that z_k alone is above the threshold
+    assert found.mean() >= expected - 4 * np.sqrt(expected * (1 - expected) / 4000) - 1e-3
+    # and not much more often: the other reads add few alarms
+    assert found.mean() <= expected + 0.1
+    # well above the threshold the step is found at its read, or (when one read's noise
+    # is near half the step) at a read next to it
+    if size >= 30:
+        assert near_k.mean() >= expected - 0.03
+    if size >= 100:
+        assert at_k.all()
+
+
+def test_two_jumps_in_one_ramp_and_jumps_at_the_first_and_last_reads():
+    s = schedule(8, 8)
+    cube = dark(s, np.random.default_rng(2))
+    cube[20:, 1, 1] += 80
+    cube[50:, 1, 1] += 60
+    cube[1:, 2, 2] += 200  # between the first and the second read
+    cube[NF - 1:, 3, 3] += 200  # before the last read
+    out = detect_jumps(Exposure.from_arrays(cube, s), read_noise=RN)
+    j = jumps_of(out).tolist()
+    assert [f for f in j if f[1:] in ([1, 1], [2, 2], [3, 3])] == [
+        [1, 2, 2], [20, 1, 1], [50, 1, 1], [73, 3, 3]]
+    assert out.header["NJUMPS"] == len(j)
+
+
+def test_masked_and_saturated_reads_are_not_searched():
+    s = schedule(8, 8)
+    cube = dark(s, np.random.default_rng(4))
+    flags = np.zeros(cube.shape, np.uint32)
+    cube[30, 1, 1] += 5000  # a bad read, flagged: no jump
+    flags[30, 1, 1] = dq.DO_NOT_USE
+    cube[40:, 2, 2] += 300  # a jump at a masked read: flagged at the next usable one
+    flags[40, 2, 2] = 2 ** 19
+    cube[10, 3, 3] = np.nan  # not finite: not used
+    cube[60:, 3, 3] += 300
+    cube[50:, 4, 4] += 300  # after saturation (flagged at read 45): not searched
+    flags[45, 4, 4] = dq.SATURATED
+    cube[20:, 5, 5] += 300  # before it: found
+    flags[45, 5, 5] = dq.SATURATED
+    out = detect_jumps(Exposure.from_arrays(cube, s, mask=flags), read_noise=RN)
+    assert jumps_of(out).tolist() == [[20, 5, 5], [41, 2, 2], [60, 3, 3]]
+    # the input's flags are kept
+    assert out.dq[30, 1, 1] == dq.DO_NOT_USE and out.dq[45, 4, 4] == dq.SATURATED
+
+
+def test_saturation_level_ends_the_searched_ramp():
+    s = schedule(4, 4)
+    cube = dark(s, np.random.default_rng(5))
+    cube[30:, 1, 1] += 300
+    cube[50:, 2, 2] += 300
+    cube[40:, 2, 2] = 7e4  # saturated from read 40 on
+    out = detect_jumps(Exposure.from_arrays(cube, s), read_noise=RN, saturation=6.5e4)
+    assert jumps_of(out).tolist() == [[30, 1, 1]]
+
+
+def test_a_read_noise_map_sets_each_pixels_threshold():
+    s = schedule(64, 64)
+    rng = np.random.default_rng(6)
+    noise = np.full((64, 64), RN)
+    noise[:, 32:] = 4 * RN
+    cube = dark(s, rng, read_noise=noise[None])
+    cube[37:] += np.float32(40)  # 8.6 sigma of the step for 10 e, 2.2 sigma for 40 e
+    out = detect_jumps(Exposure.from_arrays(cube, s), threshold=4.0, read_noise=noise)
+    found = (out.dq & dq.JUMP).any(axis=0)
+    assert found[:, :32].mean() > 0.9
+    assert found[:, 32:].mean() < 0.1
+    scalar = detect_jumps(Exposure.from_arrays(cube, s), threshold=4.0, read_noise=RN)
+    assert (scalar.dq & dq.JUMP)[:, :, 32:].any(axis=0).mean() > 0.5  # wrong noise: alarms
+
+
+def test_bright_pixels_shot_noise_gives_no_extra_alarms():
+    s = schedule(128, 128)
+    rng = np.random.default_rng(8)
+    cube = dark(s, rng, rate=50.0)  # 5500 e per ramp: shot noise dominates
+    for read_noise in (RN, None):
+        out = detect_jumps(Exposure.from_arrays(cube, s), threshold=4.0,
+                           read_noise=read_noise)
+        alarms = (out.dq & dq.JUMP).any(axis=0).mean()
+        assert alarms < 2 * FALSE_ALARM["estimated"], (read_noise, alarms)
+
+
+def test_bands_and_threads_give_the_whole_exposures_flags():
+    s = schedule(32, 16, skip=4)
+    cube = dark(s, np.random.default_rng(9))
+    cube[25:, 5, 3] += 40
+    cube[33:, 17, 9] += 25
+    e = Exposure.from_arrays(cube, s)
+    step = DetectJumpsStep()
+    params = step.validate({"threshold": 3.0})
+    whole = step(e, threshold=3.0).dq
+    assert whole.any()
+    for rows, threads in ((1, 1), (3, 2), (7, 4)):
+        for p in (params, {**params, "neighbours": True, "neighbours_above": 3.0}):
+            kernel = step.kernel(MemorySource(e).context, **p)
+            out = execute(MemorySource(e), [kernel], threads=threads, rows_per_band=rows)
+            expect = whole if not p["neighbours"] else step(e, **{**p}).dq
+            np.testing.assert_array_equal(out.dq, expect)
+
+
+def test_the_input_is_never_modified():
+    s = schedule(8, 8)
+    cube = dark(s, np.random.default_rng(10))
+    cube[30:, 2, 2] += 500
+    flags = np.zeros(cube.shape, np.uint32)
+    flags[3, 4, 4] = dq.DO_NOT_USE
+    e = Exposure.from_arrays(frozen(cube), s, mask=frozen(flags))
+    before = e.dq.copy()
+    out = detect_jumps(e, read_noise=RN, neighbours=True)
+    assert out.dq[30, 2, 2] & dq.JUMP and not e.dq[30, 2, 2] & dq.JUMP
+    np.testing.assert_array_equal(e.dq, before)
+    np.testing.assert_array_equal(e.data.data, cube)
+
+
+def test_neighbours_and_radius_are_physical_rows_and_columns():
+    # readout order with row chopping: physical neighbours are other reads of the frame
+    s = schedule(16, 16, skip=4)
+    e0 = Exposure.from_arrays(dark(s, np.random.default_rng(11)), s)
+    row = 6
+    read = int(np.flatnonzero(s.rows == row)[0])
+    cube = e0.data.data.copy()
+    cube[40:, read, 7] += 3e4
+    e = Exposure.from_arrays(cube, s)
+    near = detect_jumps(e, read_noise=RN, threshold=5.0, neighbours=True)
+    ring = detect_jumps(e, read_noise=RN, threshold=5.0, radius=2.0, radius_above=1e4)
+    assert near.header["NJUMPS"] == 1
+    for out, reach in ((near, 1.0), (ring, 2.0)):
+        j = jumps_of(out)
+        rows, cols = s.rows[j[:, 1]], j[:, 2]
+        dist = np.hypot(rows - row, cols - 7)
+        assert dist.max() <= reach
+        want = {(r, c) for r in range(16) for c in range(16)
+                if 0 < np.hypot(r - row, c - 7) <= reach}
+        assert {(int(r), int(c)) for r, c in zip(rows, cols, strict=True)} - {(row, 7)} == want
+        # a neighbour is flagged at the jump's frame and at the one where it may see it
+        samples = s.pixel_samples()  # when each pixel is read in the frame
+        for r, c in want:
+            frames = j[(rows == r) & (cols == c), 0]
+            later = samples[np.flatnonzero(s.rows == r)[0], c] > samples[read, 7]
+            assert set(frames.tolist()) == {40, 39 if later else 41}
+
+
+def test_a_pipeline_detects_jumps_then_fits():
+    s = schedule(16, 16)
+    cube = dark(s, np.random.default_rng(12))
+    cube[37:, 3, 4] += 2000
+    e = Exposure.from_arrays(cube, s)
+    out = Pipeline({"steps": ["detect_jumps", "fit_ramp"]}).run(e)
+    plain = fit_ramp(e)
+    assert out.header["S_JUMP"] == "COMPLETE" and out.header["NJUMPS"] >= 1
+    assert out.dq[3, 4] & dq.JUMP
+    assert abs(plain.data.data[3, 4] - 0.01) > 10  # the jump, unflagged, biases the slope
+
+
+def test_images_are_skipped_and_bad_parameters_refused():
+    s = schedule(8, 8)
+    img = fit_ramp(Exposure.from_arrays(dark(s, np.random.default_rng(0)), s))
+    assert detect_jumps(img).header["S_JUMP"] == "SKIPPED"
+    from spherex_reduce import ConfigError
+
+    with pytest.raises(ConfigError, match=r"detect_jumps\.threshold"):
+        detect_jumps(img, threshold=0)
+    with pytest.raises(ConfigError, match=r"detect_jumps\.read_noise"):
+        e = Exposure.from_arrays(dark(s, np.random.default_rng(0)), s)
+        detect_jumps(e, read_noise=np.ones((3, 3)))

@@ -14,7 +14,7 @@ import threading
 
 import numpy as np
 from astropy import units as u
-from astropy.table import Table
+from astropy.table import Column, Table
 
 from ...core import dq
 from ...core.errors import SpherexReduceError, StepSkipped
@@ -253,8 +253,14 @@ class RampFit(Consumer):
             reference = ReferenceReads(data=rfit.slope, rows=reference.rows,
                                        reads=reference.reads, phantom=rphant, dq=rfit.flags)
         tables = dict(tables)
-        tables["RAMPFIT"] = Table({"nreads": fit.nreads, "njumps": fit.njumps,
-                                   "nsegments": fit.nsegments},
+        columns = {"nreads": fit.nreads, "njumps": fit.njumps, "nsegments": fit.nsegments}
+        if self.read_noise is not None:  # the variance's parts: integrations combine on them
+            rate = (self.context.unit or u.one) / u.s
+            columns["var_rnoise"] = Column(fit.var_rnoise, unit=rate**2, description=(
+                "slope variance at zero rate: read noise and dark-current shot noise"))
+            columns["var_per_rate"] = Column(fit.var_per_rate, unit=rate, description=(
+                "slope variance per unit of rate (shot noise)"))
+        tables["RAMPFIT"] = Table(columns,
                                   meta={"comments": ["reads used, jumps and segments fitted, "
                                                      "one row per image row"]})
         header = header.copy()

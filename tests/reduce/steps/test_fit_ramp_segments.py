@@ -177,7 +177,7 @@ def test_read_noise_gain_and_dark_maps(tmp_path):
 def test_bad_maps_are_refused_in_one_line(bad):
     from spherex_reduce.core.errors import ConfigError
     s = schedule()
-    with pytest.raises(ConfigError, match="fit_ramp.read_noise") as err:
+    with pytest.raises(ConfigError, match=r"fit_ramp\.read_noise") as err:
         fit_ramp(Exposure.from_arrays(ramps(s), s), read_noise=bad)
     assert "\n" not in str(err.value)
 

@@ -172,10 +172,34 @@ class Exposure:
                     phantom=None, header=None, order="readout", **kwargs):
         """Wrap plain arrays: 3-D becomes `NDData` (ramps), 2-D `CCDData`.
 
-        ``uncertainty`` is a standard deviation array in ``unit``.
+        ``uncertainty`` is a standard deviation array in ``unit``.  ``mask``
+        (booleans or `~spherex_reduce.core.dq` flags) has the data's shape or,
+        over ramps, one frame's: a pixel mask of the array ``(nrows, ncols)``
+        (in readout order, each read takes its row's flags, also when there are
+        as many reads as rows) or one row per read;
+        it then applies to every frame, as a 2-D ``DQ`` in a file does.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule
+        >>> s = ReadoutSchedule(DetectorGeometry(4, 2, 1, ref_border=0), skip=2,
+        ...                     ref_mode="none", phantom_reads=0, nframes=3)
+        >>> bad = np.zeros((4, 2), bool)
+        >>> bad[1, 0] = True  # physical row 1: the third read (skip 2 reads rows 0, 2, 1, 3)
+        >>> e = Exposure.from_arrays(np.zeros((3, 4, 2)), s, mask=bad)
+        >>> e.dq.shape, e.dq[:, 2, 0].tolist()
+        ((3, 4, 2), [1, 1, 1])
         """
+        data = np.asarray(data)
         flags = None if mask is None else as_dq(mask)
-        nd = _nddata(np.asarray(data), unit, uncertainty, flags)
+        if flags is not None and data.ndim == 3 and flags.ndim == 2:
+            geometry = schedule.geometry
+            if order == "readout" and flags.shape == (geometry.nrows, geometry.ncols):
+                flags = flags[schedule.rows]  # a pixel mask, also when n_reads == nrows
+            if flags.shape == data.shape[1:]:
+                flags = np.broadcast_to(flags, data.shape)
+        nd = _nddata(data, unit, uncertainty, flags)
         return cls(nd, schedule, header=fits.Header() if header is None else header.copy(),
                    phantom=phantom, order=order, dq=flags, **kwargs)
 

@@ -86,14 +86,33 @@ def _parts(result, k):
     return result.data.data, sigma, flags
 
 
+def _variance_parts(result):
+    """``(var_rnoise, var_per_rate)`` images of a fit with a read-noise model (``RAMPFIT``'s
+    columns, see `~spherex_reduce.fit_ramp`), or None."""
+    table = result.tables.get("RAMPFIT")
+    if table is None or not {"var_rnoise", "var_per_rate"} <= set(table.colnames):
+        return None
+    parts = tuple(np.asarray(table[name], np.float64) for name in ("var_rnoise", "var_per_rate"))
+    return parts if parts[0].shape == result.shape else None
+
+
 def combine_integrations(results):
     """The inverse-variance weighted mean of the images of several integrations.
 
-    A slope is used if it is finite and unflagged.  Its weight is
-    ``1 / sigma**2``; a pixel where a used slope has no finite, positive
-    uncertainty is the plain mean of its used slopes, with uncertainty NaN.
-    A pixel with no usable slope is NaN, flagged
-    `~spherex_reduce.core.dq.DO_NOT_USE` and the flags of its integrations.
+    A slope is used if it is finite and its flags are only informational
+    (`~spherex_reduce.core.dq.image_usable`).  When every integration was
+    fitted with a read-noise model (``fit_ramp``'s ``read_noise``: its
+    ``RAMPFIT`` table has ``var_rnoise`` and ``var_per_rate``), a slope's
+    weight is ``1 / (var_rnoise + rate * var_per_rate)`` with the rate
+    *pooled over the integrations* (first the read-noise-weighted mean, then
+    the result once more), as stcal does: a weight from an integration's own
+    measured slope would favour the integrations that fluctuated low, biasing
+    the mean low (-3.6 % for 4 integrations of 6 groups of 1.5 s at 3 e/s and 5 e read
+    noise).  Otherwise the weight is ``1 / sigma**2``; a pixel where a used
+    slope has no finite, positive uncertainty is the plain mean of its used
+    slopes, with uncertainty NaN.  A pixel with no usable slope is NaN,
+    flagged `~spherex_reduce.core.dq.DO_NOT_USE` and the flags of its
+    integrations.
 
     Parameters
     ----------
@@ -145,7 +164,13 @@ def combine_integrations(results):
     slopes, sigma, flags = (np.stack(a) for a in zip(*(_parts(r, k)
                                                        for k, r in enumerate(results)),
                                                      strict=True))
-    mean, err, mflags = _weighted_mean(slopes, sigma, flags)
+    parts = [_variance_parts(r) for r in results]
+    if all(p is not None for p in parts):
+        rnoise, per_rate = (np.stack(a) for a in zip(*parts, strict=True))
+        sigma_used = _pooled_sigma(slopes, flags, rnoise, per_rate)
+    else:
+        sigma_used = sigma
+    mean, err, mflags = _weighted_mean(slopes, sigma_used, flags)
     unit = first.unit or u.one
     header = first.header.copy()
     header.remove("SXRINT", ignore_missing=True)
@@ -155,6 +180,18 @@ def combine_integrations(results):
     exposure = first.replace(data=mean, uncertainty=err, dq=mflags, header=header,
                              tables=_stacked_tables([r.tables for r in results]))
     return Integrations(exposure, slopes * unit, sigma * unit, flags)
+
+
+def _pooled_sigma(slopes, flags, rnoise, per_rate):
+    """Each integration's standard deviation for the rate pooled over the integrations:
+    ``sqrt(var_rnoise + max(rate, 0) * var_per_rate)``, the rate first the mean weighted by
+    ``1 / var_rnoise``, then the mean weighted by the result."""
+    sigma = np.sqrt(rnoise)
+    for _ in range(2):
+        rate, _, _ = _weighted_mean(slopes, sigma, flags)
+        with np.errstate(invalid="ignore"):
+            sigma = np.sqrt(rnoise + np.maximum(np.nan_to_num(rate), 0.0) * per_rate)
+    return sigma
 
 
 def _weighted_mean(slopes, sigma, flags):

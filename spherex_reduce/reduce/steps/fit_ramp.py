@@ -14,7 +14,7 @@ import threading
 
 import numpy as np
 from astropy import units as u
-from astropy.table import Table
+from astropy.table import Column, Table
 
 from ...core import dq
 from ...core.errors import SpherexReduceError, StepSkipped
@@ -22,7 +22,8 @@ from ...core.exposure import Exposure, ReferenceReads
 from ...core.parameters import OPTIONAL_NUMBER, Parameter, validate_parameters
 from ..hookspecs import hookimpl
 from ..step import Consumer, Step
-from .ramp_least_squares import LeastSquares, RampSolution
+from .pixel_maps import MAP_TYPES, PixelMap
+from .ramp_least_squares import LeastSquares, RampMaps, RampSolution
 
 __all__ = ["WEIGHTINGS", "FitRampStep", "RampFit", "fit_ramp"]
 
@@ -30,8 +31,9 @@ __all__ = ["WEIGHTINGS", "FitRampStep", "RampFit", "fit_ramp"]
 WEIGHTINGS = ("uniform", "optimal")
 
 
-def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, saturation=None):
-    """Least-squares slope of every pixel's ramp (paper: uniform weights).
+def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, dark_current=0.0,
+             saturation=None):
+    """Least-squares slope of every pixel's ramp, segment by segment around jumps.
 
     Parameters
     ----------
@@ -42,27 +44,41 @@ def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, satura
         ``'uniform'``: ordinary least squares (the paper).  ``'optimal'``:
         generalised least squares for white read noise ``read_noise`` plus the
         shot noise of the pixel's signal (estimated by a first uniform fit;
-        pixels with equal signal to 0.02 dex share weights).  Ramps with
-        masked reads are fitted with uniform weights on their usable reads.
-    read_noise : float, optional
-        Read noise per read, in the data unit.  Given, the uncertainty is the
-        model ``read_noise**2 sum(w**2)`` plus the slope's shot noise (data
-        unit = electrons / ``gain``); not given, it comes from the fit
-        residuals, ``chi2 / (n - 2) * sum(w**2)`` (NaN for two reads).
-    gain : float
-        Electrons per data unit, for the shot-noise term (1 for electrons).
+        pixels with equal ``rate / read_noise**2`` to 0.02 dex share weights),
+        on each pixel's own usable reads.
+    read_noise : float, array or str, optional
+        Read noise per read, in the data unit: one number, a 2-D map
+        ``(nrows, ncols)`` in physical order, or (YAML) the path of a FITS
+        image (``path[EXT]`` for an extension).  Given, the uncertainty is the
+        model ``read_noise**2 sum(w**2)`` plus the shot noise of the pixel's
+        rate (data unit = electrons / ``gain``); not given, it comes from the
+        fit residuals, ``chi2 / (n - 2) * sum(w**2)`` (NaN for two reads).
+    gain : float, array or str
+        Electrons per data unit, for the shot-noise term (1 for electrons);
+        a number or a map, as ``read_noise``.
+    dark_current : float, array or str
+        Dark current already subtracted from the ramps (e.g. by
+        ``subtract_dark``), in data unit / s; its shot noise is added to the
+        variance.  A number or a map, as ``read_noise``.
     saturation : float, optional
-        Reads above this level (data unit) are not used.
+        Reads above this level (data unit) end the usable ramp, like a read
+        flagged `~spherex_reduce.core.dq.SATURATED` in the input.
 
     Returns
     -------
     `~spherex_reduce.Exposure`
         A 2-D exposure: slope (float64) as `~astropy.nddata.CCDData` in
         ``unit / s`` with the fit uncertainty; DQ flags (``exposure.dq``):
-        `~spherex_reduce.core.dq.FEW_READS` (slope NaN) for fewer than two usable
-        reads, with `~spherex_reduce.core.dq.SATURATED` if saturation caused it,
-        and the flags set on every read of a pixel; the table ``RAMPFIT``
-        (one row per image row, vector column ``nreads``: the reads used).
+        `~spherex_reduce.core.dq.FEW_READS` (slope NaN, do not use) when no
+        segment has two usable reads; `~spherex_reduce.core.dq.SATURATED`
+        (informs) whenever saturation cut the ramp;
+        `~spherex_reduce.core.dq.JUMP` (informs) when the slope was fitted
+        around jumps; and the flags set on every read of a pixel.  The table
+        ``RAMPFIT`` has one row per image row and vector columns ``nreads``
+        (reads used), ``njumps`` and ``nsegments`` (segments fitted); with
+        ``read_noise`` also ``var_rnoise`` (the slope's read-noise variance,
+        (unit / s)**2) and ``var_per_rate`` (its shot-noise variance per unit
+        of rate, unit / s), from which integrations are combined without bias.
         Phantom values and reference reads are fitted the same way, so that
         `subtract_phantom` and `correct_reference` work on the slopes.
 
@@ -78,8 +94,14 @@ def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, satura
 
     Read times come from the schedule; within a frame each pixel's time is a
     fixed offset, which cancels from the slope, so the frame start times set
-    the weights.  Reads are masked when not finite, above ``saturation``, or
-    flagged in the input mask.  The input is never modified.  Bands of rows
+    the weights.  A read is not used when it is not finite or flagged (any
+    bit but the informational ``JUMP`` and ``REFERENCE``); the first read
+    above ``saturation`` or flagged ``SATURATED`` ends the usable ramp.  A
+    read flagged ``JUMP`` (by `~spherex_reduce.detect_jumps`) starts a new
+    segment: each segment of two or more usable reads is fitted, and the
+    segments' slopes are averaged with inverse-variance weights whose shot
+    noise comes from the rate pooled over the segments (as stcal does; see
+    `spherex_reduce.reduce.steps.ramp_segments`).  The input is never modified.  Bands of rows
     are fitted on `~spherex_reduce.reduce.executor.default_threads` threads; the
     numbers do not depend on the bands or the threads.
 
@@ -95,7 +117,7 @@ def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, satura
     (3.0, Unit("electron / s"))
     """
     return FitRampStep()(exposure, weighting=weighting, read_noise=read_noise, gain=gain,
-                         saturation=saturation)
+                         dark_current=dark_current, saturation=saturation)
 
 
 def _validated(params):
@@ -103,14 +125,27 @@ def _validated(params):
 
     Raises `~spherex_reduce.core.errors.ConfigError` for an unknown name or a
     wrong value, `~spherex_reduce.core.errors.SpherexReduceError` for
-    ``weighting='optimal'`` without a positive ``read_noise``.
+    ``weighting='optimal'`` without a positive ``read_noise``.  Maps are
+    checked once the array's geometry is known (`RampFit`).
     """
     params = validate_parameters(params, FitRampStep.parameters, FitRampStep.name)
     read_noise = params["read_noise"]
-    if params["weighting"] == "optimal" and (read_noise is None or not read_noise > 0):
+    if params["weighting"] == "optimal" and (
+            read_noise is None or (isinstance(read_noise, (int, float)) and not read_noise > 0)):
         raise SpherexReduceError("weighting='optimal' needs read_noise > 0 (in the data unit), "
                                  f"got {read_noise!r}")
     return params
+
+
+def _maps(params, geometry):
+    """The calibration parameters as `PixelMap` objects (checked against ``geometry``)."""
+    name = FitRampStep.name
+    optimal = params["weighting"] == "optimal"
+    rn = params["read_noise"]
+    return (None if rn is None else PixelMap.of(rn, f"{name}.read_noise", geometry, minimum=0,
+                                                 positive=optimal),
+            PixelMap.of(params["gain"], f"{name}.gain", geometry, positive=True),
+            PixelMap.of(params["dark_current"], f"{name}.dark_current", geometry))
 
 
 def _rows(index):
@@ -134,8 +169,9 @@ class RampFit(Consumer):
     context : `~spherex_reduce.core.block.Context`
         The bands' schedule, row order, unit and whether they carry phantom values.
     **params
-        ``weighting``, ``read_noise``, ``gain``, ``saturation``: as `fit_ramp`
-        (declared, with their defaults, by `FitRampStep.parameters`).
+        ``weighting``, ``read_noise``, ``gain``, ``dark_current``,
+        ``saturation``: as `fit_ramp` (declared, with their defaults, by
+        `FitRampStep.parameters`).
     """
 
     def __init__(self, context, **params):
@@ -144,7 +180,16 @@ class RampFit(Consumer):
         self.weighting = params["weighting"]
         s = context.schedule
         times = s.frame_starts.to_value(u.s)
-        self.solver = LeastSquares(times, **params)
+        self.read_noise, self.gain, self.dark = _maps(params, s.geometry)
+        scalar = not any(m is not None and m.per_pixel for m in (self.read_noise, self.gain,
+                                                                 self.dark))
+        self.solver = LeastSquares(
+            times, weighting=params["weighting"], saturation=params["saturation"],
+            read_noise=None if self.read_noise is None else
+            (self.read_noise.values if scalar else 1.0),
+            gain=self.gain.values if scalar else 1.0,
+            dark_current=self.dark.values if scalar else 0.0)
+        self.scalar = scalar
         self.phantom_solver = LeastSquares(times, want_var=False)
         self.reference_solver = LeastSquares(times, saturation=params["saturation"],
                                              want_var=False)
@@ -174,7 +219,8 @@ class RampFit(Consumer):
         rows = _rows(block.index)
         buf = self._buffer(block.data)
         part = self.fit.rows(rows) if isinstance(rows, slice) else None
-        part = self.solver.fit(block.data, block.dq, out=part, buf=buf)
+        part = self.solver.fit(block.data, block.dq, out=part, buf=buf,
+                               maps=None if self.scalar else self._band_maps(block))
         # uncertainties and the count of unfitted pixels here, in the band's thread
         np.sqrt(part.var, out=part.var)
         few = int(np.count_nonzero(part.flags & dq.FEW_READS))
@@ -184,6 +230,14 @@ class RampFit(Consumer):
             self._few += few
         if self.phantom is not None and block.phantom is not None:
             self.phantom[rows] = self.phantom_solver.fit(block.phantom).slope
+
+    def _band_maps(self, block):
+        """The calibration of the pixels of ``block`` (`RampMaps` of numbers or arrays)."""
+        s, order = self.context.schedule, self.context.order
+        rn = None if self.read_noise is None else self.read_noise.rows(block.index, order, s)
+        return RampMaps(read_noise=rn,
+                        pscale=None if rn is None else 1.0 / self.gain.rows(block.index, order, s),
+                        dark=self.dark.rows(block.index, order, s))
 
     def finish(self, reference, header, tables):
         """The 2-D exposure of slopes (once every band was fitted).
@@ -199,10 +253,21 @@ class RampFit(Consumer):
             reference = ReferenceReads(data=rfit.slope, rows=reference.rows,
                                        reads=reference.reads, phantom=rphant, dq=rfit.flags)
         tables = dict(tables)
-        tables["RAMPFIT"] = Table({"nreads": fit.nreads},
-                                  meta={"comments": ["reads used, one row per image row"]})
+        columns = {"nreads": fit.nreads, "njumps": fit.njumps, "nsegments": fit.nsegments}
+        if self.read_noise is not None:  # the variance's parts: integrations combine on them
+            rate = (self.context.unit or u.one) / u.s
+            columns["var_rnoise"] = Column(fit.var_rnoise, unit=rate**2, description=(
+                "slope variance at zero rate: read noise and dark-current shot noise"))
+            columns["var_per_rate"] = Column(fit.var_per_rate, unit=rate, description=(
+                "slope variance per unit of rate (shot noise)"))
+        tables["RAMPFIT"] = Table(columns,
+                                  meta={"comments": ["reads used, jumps and segments fitted, "
+                                                     "one row per image row"]})
         header = header.copy()
         header["NFEWRDS"] = (self._few, "pixels with fewer than 2 usable reads")
+        header["NJUMPPX"] = (int(np.count_nonzero(fit.njumps)), "pixels fitted around jumps")
+        header["NSATPX"] = (int(np.count_nonzero(fit.flags & dq.SATURATED)),
+                            "pixels whose ramp saturation cut")
         header["RAMPWGT"] = (self.weighting, "ramp-fit weighting")
         return Exposure.from_arrays(fit.slope, self.context.schedule,
                                     unit=(self.context.unit or u.one) / u.s, uncertainty=fit.var,
@@ -218,10 +283,14 @@ class FitRampStep(Step):
     parameters = (
         Parameter("weighting", "uniform", (str,), "uniform (paper) or optimal",
                   choices=WEIGHTINGS),
-        Parameter("read_noise", None, OPTIONAL_NUMBER, "read noise per read (data unit); null: "
+        Parameter("read_noise", None, (*MAP_TYPES, type(None)), "read noise per read (data "
+                  "unit; a number or a FITS image of the array); null: "
                   "uncertainty from the fit residuals", minimum=0),
-        Parameter("gain", 1.0, (float,), "electrons per data unit (shot noise)", minimum=0,
-                  exclusive_minimum=True),
+        Parameter("gain", 1.0, MAP_TYPES, "electrons per data unit (shot noise; a number or a "
+                  "FITS image)", minimum=0, exclusive_minimum=True),
+        Parameter("dark_current", 0.0, MAP_TYPES, "dark current already subtracted (data unit "
+                  "/ s; a number or a FITS image): its shot noise is in the variance",
+                  minimum=0),
         Parameter("saturation", None, OPTIONAL_NUMBER, "reads above this level are not used "
                   "(data unit)"),
     )

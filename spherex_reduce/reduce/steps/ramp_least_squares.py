@@ -14,9 +14,12 @@ first read is subtracted (exact in float32 for values within a factor two of
 each other, e.g. a 6e4 pedestal), and the sums ``sum w d``, ``sum d`` and
 ``sum d**2`` are formed in float32 over groups of `GROUP` frames whose partial
 sums are accumulated in float64.  Pixels with a NaN, saturated or flagged read
-(and the few whose residuals are too small to be computed from float32 sums)
-are refitted on a float64 path that uses only their usable reads
-(`fit_usable_reads`).
+(a masked read, a jump), and the few whose residuals are too small to be
+computed from float32 sums, are refitted in float64 on their usable reads,
+segment by segment (`~spherex_reduce.reduce.steps.ramp_segments.fit_segments`).
+
+Read noise, gain and dark current may differ from pixel to pixel: `RampMaps`
+holds a band's values, numbers or arrays of the band's shape.
 
 Every pixel's numbers depend on its own reads only, never on the other pixels
 of the block or on where the block starts: numpy's ``einsum``, and its
@@ -27,13 +30,14 @@ fitted band by band, on any number of threads, gives the fit of the whole cube
 bit for bit.
 """
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from ...core import dq
 from ...core.exposure import as_dq
+from .ramp_segments import RampNoise, fit_segments
 
-__all__ = ["GROUP", "LeastSquares", "RampSolution", "fit_usable_reads", "gls_weights",
-           "poisson_factor", "ramp_weights"]
+__all__ = ["GROUP", "LeastSquares", "RampMaps", "RampSolution", "ramp_weights"]
 
 GROUP = 32  #: frames per float32 partial sum; the groups are summed in float64
 BLOCK_PIXELS = 1 << 14  #: pixels per block of the work buffer (74 frames: 4.8 MB in float32)
@@ -68,32 +72,35 @@ def ramp_weights(times):
     return tc / (tc @ tc)
 
 
-def gls_weights(times, read_noise, rate):
-    """Generalised least-squares slope weights and variance for read noise + shot noise.
+@dataclass(frozen=True)
+class RampMaps:
+    """Calibration of a band's pixels: each a number or an array ``(rows, columns)``.
 
-    Covariance of reads ``i, j``: ``read_noise**2 delta_ij + rate * min(t_i, t_j)``
-    (all in the data unit; ``rate`` is the expected accumulation per second).
-
-    Returns
-    -------
-    w : `numpy.ndarray`
-        Weights (1/s): the slope is ``w @ y``.
-    variance : float
-        The slope's variance (data unit / s)**2.
+    Attributes
+    ----------
+    read_noise : float or `numpy.ndarray` or None
+        Read noise per read (data unit); None: variance from the residuals.
+    pscale : float or `numpy.ndarray` or None
+        1 / gain (data unit per electron) for the shot noise; None: no shot noise.
+    dark : float or `numpy.ndarray`
+        Dark current already subtracted from the reads (data unit / s).
     """
-    t = np.asarray(times, dtype=np.float64) - times[0]
-    cov = read_noise**2 * np.eye(t.size) + max(rate, 0.0) * np.minimum.outer(t, t)
-    design = np.stack([np.ones_like(t), t], axis=1)
-    cinv_x = np.linalg.solve(cov, design)
-    fisher_inv = np.linalg.inv(design.T @ cinv_x)
-    w = (cinv_x @ fisher_inv)[:, 1]
-    return w, fisher_inv[1, 1]
 
+    read_noise: object = None
+    pscale: object = None
+    dark: object = 0.0
 
-def poisson_factor(times, w):
-    """``w^T min(t_i, t_j) w``: slope variance per unit of accumulation rate."""
-    t = np.asarray(times, dtype=np.float64) - times[0]
-    return float(w @ np.minimum.outer(t, t) @ w)
+    def rows(self, rows):
+        """The maps of rows ``rows`` (a slice) of the band, flattened to pixels."""
+        def cut(v):
+            return np.ravel(v[rows]) if isinstance(v, np.ndarray) else v
+        return RampMaps(cut(self.read_noise), cut(self.pscale), cut(self.dark))
+
+    def pixels(self, index):
+        """The maps of the (flattened) pixels ``index``."""
+        def cut(v):
+            return v[index] if isinstance(v, np.ndarray) else v
+        return RampMaps(cut(self.read_noise), cut(self.pscale), cut(self.dark))
 
 
 class RampSolution:
@@ -107,90 +114,42 @@ class RampSolution:
         Their variances (NaN where undefined or not asked for).
     nreads : `numpy.ndarray` of int16
         Reads used.
+    njumps, nsegments : `numpy.ndarray` of int16
+        Jumps flagged within the usable ramp, and segments fitted.
+    var_rnoise, var_per_rate : `numpy.ndarray` of float32
+        With a read-noise model: the slope's variance at zero rate (read noise
+        and the dark current's shot noise) and its shot-noise variance per unit
+        of rate (data unit / s); ``var`` is ``var_rnoise + rate * var_per_rate``
+        for the pixel's rate.  NaN without a model.
     flags : `numpy.ndarray` of uint32
-        `~spherex_reduce.core.dq.FEW_READS`, `~spherex_reduce.core.dq.SATURATED` and the
-        flags set on every read of the pixel.
+        `~spherex_reduce.core.dq.FEW_READS`, `~spherex_reduce.core.dq.SATURATED`,
+        `~spherex_reduce.core.dq.JUMP` and the flags set on every read of the pixel.
     """
+
+    ARRAYS = ("slope", "var", "nreads", "njumps", "nsegments", "flags", "var_rnoise",
+              "var_per_rate")
 
     def __init__(self, shape):
         self.slope = np.empty(shape, np.float64)
         self.var = np.empty(shape, np.float64)
         self.nreads = np.empty(shape, np.int16)
+        self.njumps = np.empty(shape, np.int16)
+        self.nsegments = np.empty(shape, np.int16)
         self.flags = np.empty(shape, np.uint32)
+        self.var_rnoise = np.empty(shape, np.float32)
+        self.var_per_rate = np.empty(shape, np.float32)
 
     def rows(self, rows):
         """A solution viewing rows ``rows`` (a slice) of this one."""
         view = RampSolution.__new__(RampSolution)
-        for name in ("slope", "var", "nreads", "flags"):
+        for name in self.ARRAYS:
             setattr(view, name, getattr(self, name)[rows])
         return view
 
     def put(self, rows, part):
         """Write ``part`` (a `RampSolution`) at rows ``rows`` (indices or a slice)."""
-        for name in ("slope", "var", "nreads", "flags"):
+        for name in self.ARRAYS:
             getattr(self, name)[rows] = getattr(part, name)
-
-
-def fit_usable_reads(y, good, times, read_noise, poisson_scale):
-    """Float64 least squares on the usable reads of some pixels (each column alone).
-
-    Parameters
-    ----------
-    y, good : `numpy.ndarray`
-        Reads (float64) and whether they are usable, shape ``(nframes, m)``.
-    times : `numpy.ndarray`
-        Read times (s), ``(nframes,)``.
-    read_noise : float or None
-        None: variance from the residuals; else the read-noise model (plus the
-        shot noise if ``poisson_scale``, 1 / gain, is given).
-    poisson_scale : float or None
-
-    Returns
-    -------
-    slope, var : `numpy.ndarray`
-        ``(m,)``, NaN where undefined.
-    nreads : `numpy.ndarray` of int16
-        Reads used.
-
-    Notes
-    -----
-    A pixel's numbers do not depend on the other pixels fitted with it: numpy
-    sums a lone (contiguous) column pairwise but the columns of a C-ordered
-    array one frame after another, so the arrays are made C-ordered with at
-    least two columns.
-    """
-    m = y.shape[1]
-    y, good = np.ascontiguousarray(y), np.ascontiguousarray(good)
-    if m == 1:
-        y, good = np.repeat(y, 2, axis=1), np.repeat(good, 2, axis=1)
-    g = good.astype(np.float64)
-    n = g.sum(axis=0)
-    t = (times - times.mean())[:, None]
-    # subtract the first usable read: keeps float32 pedestals exact
-    first = np.argmax(good, axis=0)
-    y0 = np.take_along_axis(y, first[None], axis=0)[0]
-    d = np.where(good, y - y0, 0.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        tbar = (g * t).sum(axis=0) / n
-        tc = (t - tbar) * g
-        stt = (tc * tc).sum(axis=0)
-        dbar = d.sum(axis=0) / n
-        slope = (tc * d).sum(axis=0) / stt
-        if read_noise is None:
-            resid = (d - dbar - slope * tc) * g
-            var = (resid * resid).sum(axis=0) / (n - 2) / stt
-            var[n <= 2] = np.nan
-        else:
-            var = read_noise**2 / stt
-            if poisson_scale:
-                w = tc / stt
-                mt = np.minimum.outer(times, times) - times[0]
-                pf = np.einsum("im,ij,jm->m", w, mt, w)
-                var = var + np.maximum(slope, 0) * poisson_scale * pf
-    few = n < 2
-    slope[few] = np.nan
-    var[few] = np.nan
-    return slope[:m], var[:m], n[:m].astype(np.int16)
 
 
 def _accumulate(total, part, i):
@@ -212,37 +171,45 @@ class LeastSquares:
     Parameters
     ----------
     times : array_like
-        Frame start times (s), ``(nframes,)``.
+        Frame (or group mean) times (s), ``(nframes,)``.
     weighting : {'uniform', 'optimal'}
         ``'optimal'`` needs ``read_noise > 0``.
     read_noise : float, optional
         Read noise per read (data unit): the variance follows the read-noise
-        and shot-noise model; None: from the fit residuals.
+        and shot-noise model; None: from the fit residuals.  `fit` may be
+        given per-pixel values instead (`RampMaps`).
     gain : float
         Electrons per data unit (shot noise).
+    dark_current : float
+        Dark current already subtracted from the reads (data unit / s): its
+        shot noise is in the variance.
     saturation : float, optional
-        Reads above this level are not used.
+        Reads above this level end the usable ramp.
     want_var : bool
         False: no variances (NaN), e.g. for phantom values.
+    noise : `~spherex_reduce.reduce.steps.ramp_segments.RampNoise`, optional
+        Read-noise factors and shot-noise covariance of the reads (groups of
+        averaged frames); those of single reads at ``times`` if None.
     """
 
     def __init__(self, times, *, weighting="uniform", read_noise=None, gain=1.0,
-                 saturation=None, want_var=True):
+                 dark_current=0.0, saturation=None, want_var=True, noise=None):
         self.times = t = np.asarray(times, dtype=np.float64)
         self.nf = nf = t.size
-        self.weighting, self.read_noise, self.saturation = weighting, read_noise, saturation
+        self.noise = RampNoise(t) if noise is None else noise
+        self.weighting, self.saturation = weighting, saturation
         self.want_var = want_var
+        self.maps = RampMaps(read_noise, None if read_noise is None else 1.0 / gain,
+                             dark_current)
         self.w = ramp_weights(t) if nf >= 2 else np.zeros(nf)
         tc = t - t.mean()
         self.stt = float(tc @ tc)
         self.sumw2 = float(self.w @ self.w)
+        self.sumw2f = float(self.w @ (self.w * self.noise.read_factors))  # read-noise factor
         self.wmax = float(np.abs(self.w).max()) if nf else 0.0
-        self.pscale = None if read_noise is None else 1.0 / gain
-        self.pfactor = poisson_factor(t, self.w) if nf >= 2 else 0.0
+        self.pfactor = float(self.w @ self.noise.shot @ self.w) if nf >= 2 else 0.0
         self.groups = [slice(g, min(g + GROUP, nf)) for g in range(0, nf, GROUP)]
         self._wwork = {work: self.w.astype(work) for work in (np.float32, np.float64)}
-        self.resid = want_var and read_noise is None
-        self._gls = {}  # quantised rate -> (weights, variance); the same for every block
 
     def work_type(self, dtype):
         """The type sums are formed in for pixels of ``dtype``: float64 or float32."""
@@ -273,7 +240,7 @@ class LeastSquares:
                         (eps * np.sqrt(GROUP) * self.wmax / 3e-4) ** 2 * (nf - 2) / self.sumw2)
         return kcrit
 
-    def fit(self, cube, mask=None, out=None, buf=None):
+    def fit(self, cube, mask=None, out=None, buf=None, maps=None):
         """Fit every ramp of ``cube``.
 
         Parameters
@@ -281,21 +248,26 @@ class LeastSquares:
         cube : `numpy.ndarray`
             Reads ``(nframes, n, m)`` (any real type; never written).
         mask : array_like, optional
-            Flags of every read, shape of ``cube`` (non-zero: not used).
+            Flags of every read, shape of ``cube`` (`~spherex_reduce.core.dq`
+            bits: ``JUMP`` starts a segment, ``SATURATED`` ends the ramp, the
+            others mask the read).
         out : `RampSolution`, optional
             Where to write (C-ordered ``(n, m)`` arrays); a new one if None.
         buf : `numpy.ndarray`, optional
             A work buffer from `buffer` (one per thread).
+        maps : `RampMaps`, optional
+            Read noise, 1 / gain and dark current of these pixels (numbers or
+            ``(n, m)`` arrays); those given to the constructor if None.
 
         Returns
         -------
         `RampSolution`
         """
         nf, n, m = cube.shape
+        maps = self.maps if maps is None else maps
         if out is None:
             out = RampSolution((n, m))
-        elif not all(getattr(out, k).flags.c_contiguous for k in ("slope", "var", "nreads",
-                                                                   "flags")):
+        elif not all(getattr(out, k).flags.c_contiguous for k in RampSolution.ARRAYS):
             raise ValueError("out must hold C-ordered arrays (they are written through views)")
         if (buf is None or buf.dtype != self.work_type(cube.dtype) or buf.shape[0] != nf + 1
                 or buf.shape[1] < m):
@@ -306,22 +278,26 @@ class LeastSquares:
             r1 = min(n, r0 + per)
             rows = slice(r0, r1)
             self._block(cube[:, rows], None if mask is None else mask[:, rows], out.rows(rows),
-                        buf)
+                        buf, maps.rows(rows))
         return out
 
-    def _block(self, block, rmask, fit, buf):
-        """Fit ``block`` (nframes, rows, m) into ``fit`` (views of the output rows)."""
+    def _block(self, block, rmask, fit, buf, maps):
+        """Fit ``block`` (nframes, rows, m) into ``fit`` (views of the output rows); ``maps``
+        are the block's pixels' calibration, flattened."""
         nf, nr, m = block.shape
         npx = nr * m
         work = buf.dtype.type
         x = buf[:nf, :npx]
         slope = fit.slope.reshape(npx)
         var = fit.var.reshape(npx)
-        nreads = fit.nreads.reshape(npx)
-        flags = fit.flags.reshape(npx)
-        nreads[:] = nf
-        flags[:] = 0
-        saturation, read_noise = self.saturation, self.read_noise
+        fit.nreads[:] = nf
+        fit.njumps[:] = 0
+        fit.nsegments[:] = 1 if nf >= 2 else 0
+        fit.flags[:] = 0
+        fit.var_rnoise[:] = np.nan
+        fit.var_per_rate[:] = np.nan
+        saturation = self.saturation
+        resid = self.want_var and maps.read_noise is None
         kcrit = self._kcrit(work)
         imprecise = None  # pixels whose float32 sums are too coarse for a uniform slope
         if nf >= 2:
@@ -335,17 +311,17 @@ class LeastSquares:
             # float32 partial sums over groups of frames, accumulated in float64; each
             # adds the frames in order (einsum, and a reduction over the first axis)
             part = buf[nf, :npx]
-            sumd = np.empty(npx) if self.resid else None
+            sumd = np.empty(npx) if resid else None
             for i, g in enumerate(self.groups):
                 np.einsum("f,fp->p", self._wwork[work][g], x[g], out=part)
                 _accumulate(slope, part, i)
-                if self.resid:
+                if resid:
                     _accumulate(sumd, np.add.reduce(x[g], axis=0, out=part), i)
             bad = ~np.isfinite(slope)  # pixels with an unusable read, then imprecise ones
             if saturation is not None:
                 with np.errstate(invalid="ignore"):
                     bad |= np.max(x, axis=0) + np.asarray(block[0]).reshape(npx) > saturation
-            if self.resid:
+            if resid:
                 ss = np.einsum("fp,fp->p", x, x, out=part).astype(np.float64)
                 chi2 = np.multiply(sumd, sumd, out=sumd)
                 chi2 /= nf
@@ -360,9 +336,7 @@ class LeastSquares:
                 else:
                     var[:] = np.nan
             elif self.want_var:
-                np.maximum(slope, 0, out=var)
-                var *= self.pscale * self.pfactor
-                var += read_noise**2 * self.sumw2
+                self._model_variance(slope, var, maps, fit)
                 if work is np.float32 and nf > 2:
                     amp = nf * (slope * (self.times[-1] - self.times[0])) ** 2
                     with np.errstate(invalid="ignore"):
@@ -377,64 +351,69 @@ class LeastSquares:
             rmask = np.asarray(rmask).reshape(nf, npx)
             bad |= np.any(rmask != 0, axis=0)
         if self.weighting == "optimal" and nf >= 2:
-            fitted = self._optimal(x, slope, var, bad)
+            fitted = self._optimal(x, slope, var, bad, maps, fit)
             if imprecise is not None:  # their slopes are float64 sums now
                 imprecise[fitted] = False
         if imprecise is not None:
             bad |= imprecise
         bidx = np.flatnonzero(bad)
         if bidx.size:
-            self._refit(block, rmask, bidx, slope, var, nreads, flags)
+            self._refit(block, rmask, bidx, fit, maps)
 
-    def _optimal(self, x, slope, var, bad):
+    def _model_variance(self, slope, var, maps, fit):
+        """``var`` = read noise + shot noise of ``slope`` plus the dark current (uniform
+        weights, every read usable), and its two parts in ``fit``."""
+        np.add(slope, maps.dark, out=var)
+        np.maximum(var, 0, out=var)
+        var *= maps.pscale * self.pfactor
+        rnoise = np.square(maps.read_noise) * self.sumw2f
+        var += rnoise
+        per_rate = np.broadcast_to(maps.pscale * self.pfactor, slope.shape)
+        fit.var_per_rate.reshape(-1)[:] = per_rate
+        fit.var_rnoise.reshape(-1)[:] = rnoise + np.multiply(maps.dark, per_rate)
+
+    def _optimal(self, x, slope, var, bad, maps, fit):
         """Generalised least squares for the pixels with every read usable (not ``bad``);
         returns their flat indices."""
-        rate = np.maximum(np.where(bad, 0, slope), 0) * self.pscale
-        # quantise the expected rate (0.02 dex): pixels in a bin share weights
+        rn2 = np.square(maps.read_noise)
+        rate = np.maximum(np.where(bad, 0, slope) + maps.dark, 0) * maps.pscale
+        # quantise rate / read_noise**2 (0.02 dex): pixels in a bin share weights
         with np.errstate(divide="ignore"):
-            q = np.where(rate > 1e-6 * self.read_noise**2, np.round(np.log10(rate) * 50),
-                         -np.inf)
+            ratio = rate / rn2
+            q = np.where(ratio > 1e-6, np.round(np.log10(ratio) * 50), -np.inf)
         idx = np.flatnonzero(~bad & np.isfinite(q))
         if not idx.size:
             return idx
         keys, inv = np.unique(q[idx], return_inverse=True)
+        rn2 = np.broadcast_to(rn2, slope.shape)
+        pscale = np.broadcast_to(maps.pscale, slope.shape)
+        dark = np.broadcast_to(maps.dark, slope.shape)
+        rnoise, per_rate = fit.var_rnoise.reshape(-1), fit.var_per_rate.reshape(-1)
         for k, key in enumerate(keys):
-            weights = self._gls.get(key)
-            if weights is None:
-                weights = self._gls.setdefault(
-                    key, gls_weights(self.times, self.read_noise, 10 ** (key / 50)))
-            wk, vk = weights
+            wk, vk = self.noise.gls_weights(10 ** (key / 50))
             cols = idx[inv == k]
             # frames added one by one in float64 (a BLAS product's order depends on
             # the other columns)
             slope[cols] = np.einsum("f,fp->p", wk, x[:, cols].astype(np.float64))
             if self.want_var:
-                var[cols] = vk
+                var[cols] = rn2[cols] * vk
+                pf = float(wk @ self.noise.shot @ wk)
+                per_rate[cols] = pscale[cols] * pf
+                rnoise[cols] = (rn2[cols] * float(wk @ (wk * self.noise.read_factors))
+                                + dark[cols] * pscale[cols] * pf)
         return idx
 
-    def _refit(self, block, rmask, bidx, slope, var, nreads, flags):
-        """Least squares on the usable reads of pixels ``bidx`` (flat indices of the block)."""
+    def _refit(self, block, rmask, bidx, fit, maps):
+        """Pixels ``bidx`` (flat indices of the block) fitted segment by segment on their
+        usable reads (`~spherex_reduce.reduce.steps.ramp_segments.fit_segments`)."""
         m = block.shape[2]
         rr, cc = np.divmod(bidx, m)
         y = np.asarray(block[:, rr, cc], dtype=np.float64)
-        good = np.isfinite(y)
-        sat = np.zeros_like(good)
-        if self.saturation is not None:
-            with np.errstate(invalid="ignore"):
-                sat = y > self.saturation
-            good &= ~sat
-        pix_flags = np.zeros(bidx.size, np.uint32)
-        if rmask is not None:
-            rm = as_dq(rmask[:, bidx])
-            good &= rm == 0
-            # bits set on every read (e.g. NOT_READ rows) belong to the pixel
-            pix_flags |= np.bitwise_and.reduce(rm, axis=0)
-        s, v, k = fit_usable_reads(y, good, self.times,
-                                   self.read_noise if self.want_var else 0.0, self.pscale)
-        slope[bidx] = s
-        var[bidx] = v if self.want_var else np.nan
-        few = k < 2
-        pix_flags[few] |= dq.FEW_READS
-        pix_flags[few & sat.any(axis=0)] |= dq.SATURATED
-        nreads[bidx] = k
-        flags[bidx] = pix_flags
+        flags = None if rmask is None else as_dq(rmask[:, bidx])
+        px = maps.pixels(bidx)
+        seg = fit_segments(y, flags, self.noise, saturation=self.saturation,
+                           read_noise=px.read_noise if self.want_var else None,
+                           pscale=px.pscale, dark=px.dark, weighting=self.weighting,
+                           want_var=self.want_var)
+        for name in RampSolution.ARRAYS:
+            getattr(fit, name).reshape(-1)[bidx] = getattr(seg, name)

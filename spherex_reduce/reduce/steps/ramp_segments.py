@@ -1,0 +1,353 @@
+"""Ramps that are not whole: masked reads, saturation, jumps (the float64 path of ``fit_ramp``).
+
+Most pixels of an exposure have every read usable and are fitted by one
+weight vector shared by all (`~spherex_reduce.reduce.steps.ramp_least_squares`).
+The others come here, each fitted on its own reads, in float64:
+
+1. **Usable reads**: finite, no flag but the informational ``JUMP`` and
+   ``REFERENCE`` (`~spherex_reduce.core.dq.read_usable`), and before the
+   first saturated read: a read above ``saturation`` or flagged ``SATURATED``
+   ends the usable ramp (as in the JWST pipeline), since every later read of
+   that pixel is saturated too.
+2. **Segments**: a read flagged ``JUMP`` starts a new segment (the charge
+   stepped between it and the read before).  Each segment with at least two
+   usable reads is fitted by least squares (uniform weights, or generalised
+   least squares for ``weighting='optimal'``); a one-read segment carries no
+   slope.
+3. **Combination**: the segments' slopes are averaged with inverse-variance
+   weights, as stcal does.  A segment's variance is its read noise,
+   ``read_noise**2 sum_f w_f**2 a_f`` (``a_f``: the read-noise variance of
+   read ``f`` in units of one read's, 1/n for a group of n averaged frames),
+   plus the shot noise of the pixel's rate pooled over its segments,
+   ``rate / gain * w^T M w`` (``M``: the covariance of the accumulated charge
+   per unit rate, `RampNoise.shot`); the rate is first the read-noise-weighted
+   mean of the segments, then the result of the first combination.  Without
+   ``read_noise`` the variance comes from the residuals of all the pixel's
+   segments pooled: ``chi2 / (n - 2 n_segments)``.
+
+The rate that sets the shot noise is never a segment's own measured slope
+(that would weigh low slopes up: the bias stcal avoids the same way).
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ...core import dq
+
+__all__ = ["RampNoise", "SegmentFit", "fit_segments"]
+
+#: Most jumps (segments - 1) a pixel's fit handles; more, and its reads after are not used.
+MAX_SEGMENTS = 64
+
+
+@dataclass(frozen=True, eq=False)
+class RampNoise:
+    """The noise of a ramp's reads: read times, read-noise factors, shot-noise covariance.
+
+    Parameters
+    ----------
+    times : `numpy.ndarray`
+        Read (or group mean) times (s), ``(nframes,)``.
+    read_factors : `numpy.ndarray`, optional
+        Variance of each read's read noise in units of one read's (1/n for a
+        group of n averaged frames); ones if None.
+    shot : `numpy.ndarray`, optional
+        Covariance of the accumulated charge of reads ``i, j`` per unit rate
+        (s), ``(nframes, nframes)``; ``min(t_i, t_j) - t_0`` if None.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.reduce.steps.ramp_segments import RampNoise
+    >>> n = RampNoise(np.array([0.0, 1.0, 2.0]))
+    >>> n.shot.tolist()
+    [[0.0, 0.0, 0.0], [0.0, 1.0, 1.0], [0.0, 1.0, 2.0]]
+    >>> w, var = n.gls_weights(0.0)  # white read noise: ordinary least squares
+    >>> np.round(w, 12).tolist(), round(var, 12)
+    ([-0.5, 0.0, 0.5], 0.5)
+    """
+
+    times: np.ndarray
+    read_factors: np.ndarray | None = None
+    shot: np.ndarray | None = None
+    _gls: dict = field(default_factory=dict, repr=False)
+
+    def __post_init__(self):
+        t = np.asarray(self.times, dtype=np.float64)
+        object.__setattr__(self, "times", t)
+        if self.read_factors is None:
+            object.__setattr__(self, "read_factors", np.ones(t.size))
+        if self.shot is None:
+            rel = t - (t[0] if t.size else 0.0)
+            object.__setattr__(self, "shot", np.minimum.outer(rel, rel))
+
+    @property
+    def uniform_read_noise(self):
+        """Whether every read has the same read noise (no groups of unequal sizes)."""
+        return bool((self.read_factors == self.read_factors[0]).all())
+
+    def gls_weights(self, ratio, reads=None):
+        """Generalised least-squares slope weights for ``rate / read_noise**2 == ratio``.
+
+        Covariance (in units of one read's read-noise variance):
+        ``diag(read_factors) + ratio * shot``, over ``reads`` (indices; all if None).
+
+        Returns
+        -------
+        w : `numpy.ndarray`
+            Weights (1/s) over ``reads``: the slope is ``w @ y[reads]``.
+        variance : float
+            The slope's variance in units of ``read_noise**2`` (1/s**2).
+        """
+        key = (ratio, None if reads is None else tuple(reads))
+        found = self._gls.get(key)
+        if found is not None:
+            return found
+        idx = slice(None) if reads is None else np.asarray(reads)
+        t = self.times[idx]
+        cov = np.diag(self.read_factors[idx]) + max(ratio, 0.0) * self.shot[np.ix_(
+            np.arange(self.times.size)[idx], np.arange(self.times.size)[idx])]
+        design = np.stack([np.ones_like(t), t - t[0]], axis=1)
+        cinv_x = np.linalg.solve(cov, design)
+        fisher_inv = np.linalg.inv(design.T @ cinv_x)
+        found = ((cinv_x @ fisher_inv)[:, 1], float(fisher_inv[1, 1]))
+        if len(self._gls) < 100_000:  # bounded: ratios are quantised, patterns are few
+            self._gls[key] = found
+        return found
+
+
+@dataclass
+class SegmentFit:
+    """The fits of some pixels' ramps, each ``(m,)``.
+
+    Attributes
+    ----------
+    slope, var : `numpy.ndarray` of float64
+        Combined slope (data unit / s) and its variance (NaN: fewer than two
+        usable reads in every segment, or not asked for).
+    nreads, njumps, nsegments : `numpy.ndarray` of int16
+        Usable reads, jumps flagged before the end of the usable ramp, and
+        segments fitted.
+    flags : `numpy.ndarray` of uint32
+        ``FEW_READS``, ``SATURATED`` (saturation cut the ramp), ``JUMP``
+        (fitted around jumps), and the flags set on every read.
+    var_rnoise, var_per_rate : `numpy.ndarray` of float64
+        With ``read_noise``: the variance at zero rate (read noise and the dark
+        current's shot noise) and the shot-noise variance per unit of rate, of
+        the combination with the final weights (segments' shot noises are
+        independent: they come from disjoint intervals).  NaN otherwise.
+    """
+
+    slope: np.ndarray
+    var: np.ndarray
+    nreads: np.ndarray
+    njumps: np.ndarray
+    nsegments: np.ndarray
+    flags: np.ndarray
+    var_rnoise: np.ndarray
+    var_per_rate: np.ndarray
+
+
+def _usable(y, flags, saturation):
+    """``(usable, saturated_pixel)``: reads to fit, and pixels whose ramp saturation cut."""
+    finite = np.isfinite(y)
+    sat = np.zeros(y.shape, bool)
+    if saturation is not None:
+        with np.errstate(invalid="ignore"):
+            sat = y > saturation
+    if flags is not None:
+        sat |= (flags & dq.SATURATED) != 0
+    cut = np.logical_or.accumulate(sat, axis=0)  # the first saturated read and every later one
+    usable = finite & ~cut
+    if flags is not None:
+        usable &= dq.read_usable(flags)
+    return usable, sat.any(axis=0)
+
+
+def _segment_sums(y, good, t):
+    """Per pixel least squares on the reads ``good``: ``(n, stt, tc, slope, chi2)``."""
+    g = good.astype(np.float64)
+    n = g.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tbar = (g * t).sum(axis=0) / n
+        tc = (t - tbar) * g
+        stt = (tc * tc).sum(axis=0)
+        # reads minus the pixel's first usable read of the segment: float32 pedestals stay exact
+        first = np.argmax(good, axis=0)
+        y0 = np.take_along_axis(y, first[None], axis=0)[0]
+        d = np.where(good, y - y0, 0.0)
+        dbar = d.sum(axis=0) / n
+        slope = (tc * d).sum(axis=0) / stt
+        resid = (d - dbar - slope * tc) * g
+        chi2 = (resid * resid).sum(axis=0)
+    return n, stt, tc, slope, chi2
+
+
+def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=None, dark=0.0,
+                 weighting="uniform", want_var=True, ratio_bins=50):
+    """Fit the usable segments of some pixels' ramps and combine them (see the module).
+
+    Parameters
+    ----------
+    y : `numpy.ndarray`
+        Reads ``(nframes, m)``, float64.
+    flags : `numpy.ndarray` or None
+        uint32 flags of every read, ``(nframes, m)``.
+    noise : `RampNoise`
+    saturation : float, optional
+        Reads above this level (data unit) end the usable ramp.
+    read_noise : float or `numpy.ndarray` or None
+        Read noise per read (data unit), one or ``(m,)``; None: variance from
+        the residuals.
+    pscale : float or `numpy.ndarray` or None
+        1 / gain (shot noise; None: none).
+    dark : float or `numpy.ndarray`
+        Dark current already subtracted from the reads (data unit / s), whose
+        shot noise the variance includes.
+    weighting : {'uniform', 'optimal'}
+    want_var : bool
+    ratio_bins : int
+        Bins per decade of ``rate / read_noise**2`` sharing GLS weights.
+
+    Returns
+    -------
+    `SegmentFit`
+    """
+    nf, m = y.shape
+    if m == 1:  # numpy sums a lone column pairwise, C-ordered columns frame after frame:
+        # two columns keep a pixel's numbers those of the same pixel among many
+        fit = fit_segments(np.repeat(y, 2, axis=1),
+                           None if flags is None else np.repeat(flags, 2, axis=1), noise,
+                           saturation=saturation, read_noise=_two(read_noise),
+                           pscale=_two(pscale), dark=_two(dark), weighting=weighting,
+                           want_var=want_var, ratio_bins=ratio_bins)
+        return SegmentFit(*(getattr(fit, k)[:1] for k in SegmentFit.__dataclass_fields__))
+    y = np.ascontiguousarray(y)
+    usable, saturated = _usable(y, flags, saturation)
+    jumps = np.zeros(y.shape, bool) if flags is None else (flags & dq.JUMP) != 0
+    seg = np.minimum(np.cumsum(jumps, axis=0), MAX_SEGMENTS)
+    usable &= np.cumsum(jumps, axis=0) <= MAX_SEGMENTS
+    last = np.where(usable.any(axis=0), nf - 1 - np.argmax(usable[::-1], axis=0), -1)
+    njumps = (jumps & (np.arange(nf)[:, None] <= last)).sum(axis=0)
+    t = (noise.times - noise.times.mean())[:, None]  # centred times
+    rn2 = None if read_noise is None else np.broadcast_to(np.asarray(read_noise) ** 2, (m,))
+    nseg_max = int(seg.max(initial=0)) + 1
+
+    slopes, rvars, pfs, stts, chi2s, ns = [], [], [], [], [], []
+    for s in range(nseg_max):
+        good = usable & (seg == s)
+        n, stt, tc, slope, chi2 = _segment_sums(y, good, t)
+        ok = n >= 2
+        with np.errstate(invalid="ignore", divide="ignore"):
+            w = tc / stt
+        w[:, ~ok] = 0.0
+        slopes.append(np.where(ok, slope, np.nan))
+        rvars.append(np.where(ok, (w * w * noise.read_factors[:, None]).sum(axis=0), np.nan))
+        pfs.append(np.where(ok, _quadratic(w, noise.shot), np.nan))
+        stts.append(np.where(ok, stt, np.nan))
+        chi2s.append(np.where(ok, chi2, 0.0))
+        ns.append(np.where(ok, n, 0))
+    slopes, rvars, pfs, stts = (np.array(a) for a in (slopes, rvars, pfs, stts))
+    nseg = np.array(ns).astype(bool).sum(axis=0)
+    nreads = usable.sum(axis=0)
+    fitted = np.isfinite(slopes)
+
+    rate_used = None  # the rate of the GLS weights (optimal): it sets the shot noise too
+    if weighting == "optimal" and rn2 is not None:
+        slopes, rvars, pfs, rate_used = _optimal_segments(y, usable, seg, noise, slopes, rvars,
+                                                          pfs, fitted, rn2, pscale, dark,
+                                                          ratio_bins)
+
+    rnoise = per_rate = np.full(m, np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        if rn2 is None:  # pooled residual variance of all segments
+            dof = nreads - 2 * nseg
+            s2 = np.where(dof > 0, np.sum(chi2s, axis=0) / dof, np.nan)
+            # one variance s2 for every read: the segments' weights are their sum(tc**2)
+            slope, var = _combine(slopes, 1.0 / stts, fitted)
+            var = var * s2
+        else:
+            seg_var = rn2 * rvars  # read noise alone first
+            slope, var = _combine(slopes, seg_var, fitted)
+            if pscale is not None and rate_used is not None:
+                seg_var = rn2 * rvars + rate_used * pscale * pfs
+                slope, var = _combine(slopes, seg_var, fitted)
+            elif pscale is not None:
+                for _ in range(2):  # pooled rate -> shot noise of every segment -> again
+                    rate = np.maximum(np.where(np.isfinite(slope), slope, 0.0) + dark, 0.0)
+                    seg_var = rn2 * rvars + rate * pscale * pfs
+                    slope, var = _combine(slopes, seg_var, fitted)
+            a = np.where(fitted, (1.0 / seg_var) * var, 0.0)  # the final weights
+            shot = 0.0 if pscale is None else pscale * np.where(fitted, pfs, 0.0)
+            per_rate = (a * a * shot).sum(axis=0)
+            rnoise = (a * a * np.where(fitted, rn2 * rvars, 0.0)).sum(axis=0) + dark * per_rate
+    few = nseg == 0
+    slope[few] = np.nan
+    var[few] = np.nan
+    if not want_var:
+        var[:] = np.nan
+    pix = np.zeros(m, dq.DQ_TYPE)
+    if flags is not None:
+        pix |= np.bitwise_and.reduce(flags, axis=0) & ~dq.DQ_TYPE(dq.JUMP)
+    pix[few] |= dq.FEW_READS
+    pix[saturated] |= dq.SATURATED
+    pix[njumps > 0] |= dq.JUMP
+    return SegmentFit(slope, var, nreads.astype(np.int16), njumps.astype(np.int16),
+                      nseg.astype(np.int16), pix, rnoise, per_rate)
+
+
+def _quadratic(w, matrix):
+    """``w[:, p] @ matrix @ w[:, p]`` for every column ``p``, each summed in the same order
+    whatever the other columns (no BLAS, whose order depends on the shape)."""
+    mw = np.zeros_like(w)
+    for j in range(w.shape[0]):
+        mw += matrix[:, j:j + 1] * w[j]
+    return (w * mw).sum(axis=0)
+
+
+def _two(value):
+    """A per-pixel value of one pixel repeated for two (a number as it is)."""
+    return np.repeat(value, 2) if isinstance(value, np.ndarray) and value.ndim else value
+
+
+def _combine(slopes, variances, fitted):
+    """Inverse-variance mean over segments (axis 0) of the fitted ones, and its variance."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        w = np.where(fitted, 1.0 / variances, 0.0)
+        total = w.sum(axis=0)
+        mean = (w * np.where(fitted, slopes, 0.0)).sum(axis=0) / total
+        return mean, 1.0 / total
+
+
+def _optimal_segments(y, usable, seg, noise, slopes, rvars, pfs, fitted, rn2, pscale, dark,
+                      bins):
+    """GLS slopes of the fitted segments, weights shared by pixels with the same usable reads
+    and the same ``rate / read_noise**2`` (quantised); ``(slopes, rvars, pfs)`` replaced, and
+    the quantised rate (dark included) of each pixel's weights."""
+    slopes, rvars, pfs = slopes.copy(), rvars.copy(), pfs.copy()
+    with np.errstate(invalid="ignore", divide="ignore"):
+        pooled, _ = _combine(slopes, rvars, fitted)
+        rate = np.maximum(np.where(np.isfinite(pooled), pooled, 0.0) + dark, 0.0)
+        ratio = rate * (1.0 if pscale is None else pscale) / rn2
+        key = np.where(ratio > 1e-6, np.round(np.log10(ratio) * bins), -np.inf)
+    for s in range(slopes.shape[0]):
+        good = usable & (seg == s)
+        cols = np.flatnonzero(fitted[s])
+        if not cols.size:
+            continue
+        patterns = np.packbits(good[:, cols], axis=0).T
+        codes = np.concatenate([patterns.view(np.uint8).reshape(cols.size, -1),
+                                key[cols, None].view(np.uint8).reshape(cols.size, -1)], axis=1)
+        _, first, inverse = np.unique(codes, axis=0, return_index=True, return_inverse=True)
+        for k, i in enumerate(first):
+            members = cols[inverse.ravel() == k]
+            reads = np.flatnonzero(good[:, cols[i]])
+            q = key[cols[i]]
+            w, _ = noise.gls_weights(10 ** (q / bins) if np.isfinite(q) else 0.0, tuple(reads))
+            slopes[s, members] = np.einsum("f,fp->p", w, y[reads][:, members])
+            rvars[s, members] = float((w * w * noise.read_factors[reads]).sum())
+            pfs[s, members] = float(w @ noise.shot[np.ix_(reads, reads)] @ w)
+    with np.errstate(invalid="ignore"):
+        used = np.where(np.isfinite(key), 10 ** (key / bins), 0.0) * rn2
+    return slopes, rvars, pfs, used / (1.0 if pscale is None else pscale)

@@ -40,8 +40,8 @@ __all__ = ["SCREEN_MARGIN", "Found", "StepSearch"]
 #: the float32 screen keeps pixels down to this fraction of the threshold, so that its
 #: rounding never drops a pixel the float64 search would flag
 SCREEN_MARGIN = 0.98
-#: pixels screened at once (74 float32 reads: 0.6 MB, in cache)
-SCREEN_PIXELS = 2048
+#: bytes of reads screened at once (in cache: larger work areas run several times slower)
+SCREEN_BYTES = 3 << 18
 
 
 class StepSearch:
@@ -94,14 +94,23 @@ class StepSearch:
         d = np.diff(tau)
         self.dtau = d
         self.uniform_dt = bool(np.all(d == d[0]))
-        self._coef32 = coef.astype(np.float32)
+        self._types = {}  # dtype -> (w, 1 / q, coef) in it
         self._invq = 1.0 / self.q
 
     # -- screen ------------------------------------------------------------------
+    def _typed(self, dtype):
+        """Weights and ``1 / q`` in ``dtype`` (made once per type)."""
+        typed = self._types.get(dtype)
+        if typed is None:
+            typed = self._types[dtype] = (self.w.astype(dtype), self._invq.astype(dtype),
+                                          self.coef.astype(dtype))
+        return typed
+
     def _screen(self, y, estimate):
         """``max_k R_k**2 / q_k`` and the weighted RSS of the line (or None), in ``y``'s type."""
         n, m = y.shape
-        ab = self._coef32 @ y
+        w, invq, coef = self._typed(y.dtype)
+        ab = coef @ y
         a, b = ab[0], ab[1]
         c = a.copy()
         acc = np.zeros(m, y.dtype)
@@ -110,7 +119,6 @@ class StepSearch:
         r = np.empty(m, y.dtype)
         tmp = np.empty(m, y.dtype)
         step = b * y.dtype.type(self.dtau[0]) if self.uniform_dt else None
-        w, invq = self.w.astype(y.dtype), self._invq.astype(y.dtype)
         for i in range(n):
             if i:
                 if step is not None:
@@ -168,12 +176,15 @@ class StepSearch:
             return Found.empty()
         limit = (SCREEN_MARGIN * threshold) ** 2
         picked, floors, reads, unsearched = [], [], [], []
-        for lo in range(0, m, SCREEN_PIXELS):
-            part = slice(lo, min(m, lo + SCREEN_PIXELS))
+        width = max(256, SCREEN_BYTES // (n * np.dtype(work).itemsize))
+        buf = np.empty((n, min(m, width)), work)  # reused: no page faults
+        for lo in range(0, m, width):
+            part = slice(lo, min(m, lo + width))
             y0 = np.asarray(y[0, part], work)
-            rel = np.subtract(y[:, part], y0, dtype=work)  # contiguous, in cache
+            rel = buf[:, :y0.size]
+            np.subtract(y[:, part], y0, out=rel, casting="unsafe")  # exact for a pedestal
             best, rss = self._screen(rel, estimate)
-            floor = self._floor(y0, rel)
+            floor = _floor(y0, rel)
             if estimate:
                 var = np.maximum((rss - best) / (n - 3), floor)
             else:
@@ -197,12 +208,6 @@ class StepSearch:
                              _take(gain, pixels), np.concatenate(floors), max_jumps)
         found.unsearched = skipped
         return found
-
-    @staticmethod
-    def _floor(y0, rel):
-        """Smallest read-noise variance: the float32 resolution of the pixel's values."""
-        top = np.abs(y0).astype(np.float64) + np.abs(rel).max(axis=0)
-        return (np.finfo(np.float32).eps * top) ** 2
 
     def _search(self, y, pixels, threshold, sigma, gain, floor, max_jumps):
         """The float64 search of the screened pixels: one step more at each round, fitted
@@ -293,6 +298,13 @@ class _Given:
             joint = self.found - self.a[m, :, k] * amp[:, None]
             change = change + np.einsum("mj,mj->m", joint, self.sos[self.steps])
         return change
+
+
+def _floor(y0, rel):
+    """Smallest read-noise variance of ramps with first reads ``y0`` and the others ``rel``
+    above them: the float32 resolution of their values."""
+    top = np.abs(y0).astype(np.float64) + np.abs(rel[-1])
+    return (np.finfo(np.float32).eps * top) ** 2
 
 
 def _take(values, index):

@@ -229,17 +229,22 @@ class StepSearch:
             cols = np.arange(pixels.size)
             fit = _Given(self, big_r, steps)
             rk, qk, sk = fit.r, fit.q, fit.s
-            valid = qk > 1e-9 * self.q[:, None]
-            rq = np.where(valid, rk ** 2 / np.where(valid, qk, 1.0), 0.0)
+            r2 = rk ** 2
+            if j:  # the reads of the steps found are no candidates (q = 0 there)
+                valid = qk > 1e-9 * self.q[:, None]
+                qk = np.where(valid, qk, np.inf)
+                r2[~valid] = 0.0
+            rq = r2 / qk
             kb = np.argmax(rq, axis=0)
             if sigma is None:
                 var = np.maximum((rss - fit.explained - rq[kb, cols]) / (n - 3 - j), floor)
             else:
                 var = np.maximum(sigma ** 2, floor)
-            best = rk[kb, cols] / np.where(valid[kb, cols], qk[kb, cols], 1.0)
+            best = rk[kb, cols] / qk[kb, cols]
             lam = np.maximum(slope - fit.slope_change(kb, best), 0.0) / gain
-            total = var * qk + lam * sk
-            z2 = np.where(valid, rk ** 2 / np.where(valid, total, 1.0), 0.0)
+            total = var * qk
+            total += lam * sk
+            z2 = np.divide(r2, total, out=total)
             k = np.argmax(z2, axis=0)
             peak = z2[k, cols]
             hit = peak > threshold ** 2
@@ -278,8 +283,12 @@ class _Given:
         qf = search.qq[steps[:, :, None], steps[:, None, :]]  # (m, j, j)
         qk = search.qq[steps]  # (m, j, n - 1)
         rf = big_r[steps, cols]  # (m, j)
-        a = np.linalg.solve(qf, qk)  # (m, j, n - 1)
-        found = np.linalg.solve(qf, rf[..., None])[..., 0]  # joint amplitudes, (m, j)
+        if j == 1:  # most ramps with a jump have one: no batched solve
+            a = qk / qf
+            found = rf / qf[:, :, 0]
+        else:
+            a = np.linalg.solve(qf, qk)  # (m, j, n - 1)
+            found = np.linalg.solve(qf, rf[..., None])[..., 0]  # joint amplitudes, (m, j)
         sk = search.ss[steps]
         sff = search.ss[steps[:, :, None], steps[:, None, :]]
         self.r = big_r - np.einsum("mjk,mj->km", qk, found)

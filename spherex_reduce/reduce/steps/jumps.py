@@ -10,6 +10,7 @@ in another band: with ``neighbours`` or ``radius`` the kernel searches the
 whole exposure first (in memory) and each band takes its flags from that.
 """
 
+import functools
 import threading
 
 import numpy as np
@@ -151,22 +152,14 @@ class JumpKernel(Kernel):
         # of averaged frames give theirs here (schedule.read_noise_factors)
         self.factors = np.ones(s.nframes)
         self.needs_exposure = bool(params["neighbours"] or params["radius"] > 0)
-        self._searches = {}  # usable reads (bytes of the mask) -> StepSearch
         self._lock = threading.Lock()
         self._found = 0  # reads flagged by the search, over the bands (streamed route)
 
     # -- the search of one band -------------------------------------------------------
     def _search(self, usable):
-        """The `StepSearch` of the reads ``usable`` (bool per frame), made once."""
-        key = usable.tobytes()
-        with self._lock:
-            found = self._searches.get(key)
-        if found is None:
-            idx = np.flatnonzero(usable)
-            found = StepSearch(self.times[idx], self.factors[idx])
-            with self._lock:
-                self._searches[key] = found
-        return found
+        """The `StepSearch` of the reads ``usable`` (bool per frame)."""
+        idx = np.flatnonzero(usable)
+        return _step_search(self.times[idx].tobytes(), self.factors[idx].tobytes())
 
     def _maps(self, block, pixels):
         """Read noise (or None) and gain of the band's ``pixels`` (flat indices)."""
@@ -278,6 +271,13 @@ class JumpKernel(Kernel):
         if coefficients is not None:
             cards.append(("NJUMPNB", coefficients.around, "reads flagged around jumps"))
         return Record(cards=cards)
+
+
+@functools.lru_cache(maxsize=256)
+def _step_search(times, factors):
+    """The `StepSearch` of reads at ``times`` with read-noise ``factors`` (float64 bytes),
+    made once per process: its matrices depend on nothing else."""
+    return StepSearch(np.frombuffer(times), np.frombuffer(factors))
 
 
 class _Flags:

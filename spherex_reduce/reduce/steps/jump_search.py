@@ -291,10 +291,16 @@ class _Given:
             found = np.linalg.solve(qf, rf[..., None])[..., 0]  # joint amplitudes, (m, j)
         sk = search.ss[steps]
         sff = search.ss[steps[:, :, None], steps[:, None, :]]
-        self.r = big_r - np.einsum("mjk,mj->km", qk, found)
-        self.q = search.q[:, None] - np.einsum("mjk,mjk->km", qk, a)
-        self.s = (search.s[:, None] - 2 * np.einsum("mjk,mjk->km", a, sk)
-                  + np.einsum("mjk,mji,mik->km", a, sff, a))
+        if j == 1:
+            a1 = a[:, 0].T  # (n - 1, m)
+            self.r = big_r - qk[:, 0].T * found[:, 0]
+            self.q = search.q[:, None] - qk[:, 0].T * a1
+            self.s = search.s[:, None] - a1 * (2 * sk[:, 0].T - a1 * sff[:, 0, 0])
+        else:
+            self.r = big_r - np.einsum("mjk,mj->km", qk, found)
+            self.q = search.q[:, None] - np.einsum("mjk,mjk->km", qk, a)
+            self.s = (search.s[:, None] - 2 * np.einsum("mjk,mjk->km", a, sk)
+                      + np.einsum("mjk,mji,mik->km", a, sff, a))
         self.explained = np.einsum("mj,mj->m", rf, found)
         self.found, self.a, self.steps = found, a, steps
         self.sos = search.slope_of_step

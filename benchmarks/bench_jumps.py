@@ -3,6 +3,7 @@
     python benchmarks/bench_jumps.py [--rows 128] [--cols 2048] [--seed 1] [--no-stcal]
                                      [--no-sky] [--full] [--repeat 3]
 
+stcal comes with the ``benchmark`` extra (``pip install -e ".[benchmark]"``).
 The dark-strip recipe of issue 20: 74 reads of 1.5 s, read noise 10 e, 0.01 e/s
 Poisson dark current, a ``rows x cols`` strip (128 x 2048), 1 % of pixels with
 one jump of 10, 20, 30, 50, 100, 300, 1000 or 10000 e (equally often) at a

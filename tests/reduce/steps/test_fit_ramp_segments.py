@@ -138,7 +138,7 @@ def test_a_pixel_mask_covers_every_read_of_its_row():
 
 def test_read_noise_gain_and_dark_maps(tmp_path):
     """Per-pixel maps (arrays in Python, FITS images in YAML) set each pixel's variance:
-    rn^2 sum(w^2) + (rate + dark) / gain * w^T min(t_i, t_j) w; in readout order each read
+    rn^2 sum(w^2) + (max(rate, 0) + dark) / gain * w^T min(t_i, t_j) w; in readout order each read
     takes its physical row's value."""
     s = schedule(nframes=8, skip=2)
     t = s.frame_starts.value
@@ -155,7 +155,7 @@ def test_read_noise_gain_and_dark_maps(tmp_path):
     rows = s.rows  # physical row of each read
     slope = out.data.data
     expected = (rn_map[rows] ** 2 * (w @ w)
-                + np.maximum(slope + dark_map[rows], 0) / gain_map[rows] * pf)
+                + (np.maximum(slope, 0) + dark_map[rows]) / gain_map[rows] * pf)
     np.testing.assert_allclose(out.data.uncertainty.array ** 2, expected, rtol=1e-6)
     # the same maps from FITS files named in a pipeline's YAML, streamed in bands
     paths = {}

@@ -112,8 +112,8 @@ def combine_integrations(results):
     slope has no finite, positive uncertainty is the plain mean of its used
     slopes, with uncertainty NaN.  A pixel with no usable slope is NaN,
     flagged `~spherex_reduce.core.dq.DO_NOT_USE` and the flags of its
-    integrations; a pixel with usable slopes carries their informational
-    flags (``JUMP``, ``SATURATED``, ``REFERENCE``).
+    integrations; a pixel with usable slopes carries the informational
+    flags (``JUMP``, ``SATURATED``, ``REFERENCE``) of all its integrations.
 
     Parameters
     ----------
@@ -208,9 +208,10 @@ def _weighted_mean(slopes, sigma, flags):
     none = ~usable.any(axis=0)
     mean[none] = np.nan
     err[none] = np.nan
-    # the informational flags of the slopes used (JUMP, SATURATED ...) carry over
-    used_info = np.bitwise_or.reduce(np.where(usable, flags & dq.INFORMATIONAL, 0), axis=0)
-    mflags = np.where(none, np.bitwise_or.reduce(flags, axis=0) | dq.DO_NOT_USE, used_info)
+    # the informational flags of every integration (JUMP, SATURATED ...) carry over, as in
+    # stcal: a pixel saturated in one integration says SATURATED
+    anyflag = np.bitwise_or.reduce(flags, axis=0)
+    mflags = np.where(none, anyflag | dq.DO_NOT_USE, anyflag & dq.INFORMATIONAL)
     return mean, err, mflags.astype(np.uint32)
 
 

@@ -315,12 +315,18 @@ def _two(value):
 
 
 def _combine(slopes, variances, fitted):
-    """Inverse-variance mean over segments (axis 0) of the fitted ones, and its variance."""
+    """Inverse-variance mean over segments (axis 0) of the fitted ones, and its variance.
+
+    Segments of zero variance (no read noise, no signal) outweigh the others: a pixel
+    that has some is the plain mean of those, with variance 0.
+    """
     with np.errstate(invalid="ignore", divide="ignore"):
-        w = np.where(fitted, 1.0 / variances, 0.0)
+        exact = fitted & ~(variances > 0)
+        w = np.where(exact.any(axis=0), exact.astype(float), np.where(fitted, 1.0 / variances,
+                                                                        0.0))
         total = w.sum(axis=0)
         mean = (w * np.where(fitted, slopes, 0.0)).sum(axis=0) / total
-        return mean, 1.0 / total
+        return mean, np.where(exact.any(axis=0), 0.0, 1.0 / total)
 
 
 def _optimal_segments(y, usable, seg, noise, slopes, rvars, pfs, fitted, rn2, pscale, dark,

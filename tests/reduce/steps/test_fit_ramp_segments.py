@@ -207,3 +207,22 @@ def test_optimal_weighting_honours_each_pixels_masked_reads():
         gls = np.linalg.solve(x.T @ ci @ x, x.T @ ci @ y)[1]
         assert out.data.data[r, c] == pytest.approx(gls, rel=1e-9)
         assert abs(gls - ols) > 1e-4 * abs(ols)  # not the uniform fit
+
+
+def test_zero_read_noise_gives_numbers_with_and_without_jumps():
+    """read_noise 0 on noise-free ramps: the variance model is 0 (constant ramps) or shot
+    noise alone; segment weights never divide by zero."""
+    s = schedule(nframes=6)
+    t = s.frame_starts.value
+    cube = np.empty((6, 8, 8))
+    cube[:, :, :4] = 500.0
+    cube[:, :, 4:] = 500.0 + 5.0 * t[:, None, None]
+    flags = np.zeros(cube.shape, np.uint32)
+    cube[3:, 0, 0] += 100.0
+    cube[3:, 6, 6] += 100.0
+    flags[3, 0, 0] = flags[3, 6, 6] = dq.JUMP
+    out = fit_ramp(Exposure.from_arrays(cube, s, mask=flags), read_noise=0.0)
+    np.testing.assert_allclose(out.data.data[:, :4], 0.0, atol=1e-12)
+    np.testing.assert_allclose(out.data.data[:, 4:], 5.0, rtol=1e-12)
+    assert np.isfinite(out.data.uncertainty.array).all()
+    assert out.data.uncertainty.array[0, 0] == 0.0 and out.dq[0, 0] == dq.JUMP

@@ -79,6 +79,8 @@ def _option_help(field):
         text += f", e.g. top=4,left=4 (sides {', '.join(SIDES)}; others 0)"
     if field.choices:
         text += f": {', '.join(field.choices)}"
+    if field.from_text:
+        text += ", as text: 0;1-2;3-6 (';' between groups, a-b a run of reads)"
     if field.default is None:
         default = field.none_means.format(**{f.name: _flag(f) for f in FIELDS})
     else:

@@ -217,7 +217,7 @@ FIELDS = (
     Field("groups", "readout", "GRPREADS", (list, type(None)), None,
           "reads (0-based frames) averaged into each group, instead of frames_per_group",
           comment="reads of each group: ';' between groups", required=False,
-          none_means="{frames_per_group} frames per group, {group_gap} apart",
+          none_means="groups of {frames_per_group} frames, {group_gap} apart",
           written_if_set=True, to_text=format_groups, from_text=parse_groups),
 )
 

@@ -31,6 +31,9 @@ from .limits import check_size
 __all__ = ["check_groups", "describe_groups", "format_groups", "group_covariance", "group_means",
            "parse_groups", "pattern_groups", "resolve_groups"]
 
+#: Reads a schedule can count (its sample times stay exact in float64).
+_MAX_READ = 2**53
+
 
 def resolve_groups(ngroups, frames_per_group=1, group_gap=0, groups=None):
     """A schedule's grouping checked: ``(groups, reads)``.
@@ -120,6 +123,9 @@ def check_groups(groups, ngroups):
             if isinstance(r, (bool, np.bool_)) or not isinstance(r, (int, np.integer)) or r < 0:
                 raise ValueError(f"groups[{g}][{k}] must be a read index, an integer >= 0, "
                                  f"got {r!r}")
+            if r >= _MAX_READ:
+                raise ValueError(f"groups[{g}][{k}] = {r} is out of range: an exposure has "
+                                 "fewer than 2**53 frames")
         reads = tuple(int(r) for r in reads)
         if any(b <= a for a, b in itertools.pairwise(reads)):
             raise ValueError(f"groups[{g}] must list strictly increasing reads, "

@@ -52,7 +52,20 @@ def _option_type(field):
         return count(field.cli_max, minimum=field.minimum)
     if field.kind is float:  # the YAML check that follows applies any other bound
         return positive_float if field.exclusive_minimum and field.minimum == 0 else finite_float
+    if field.from_text is not None:  # a structure given as its FITS text (``--groups``)
+        return _from_text(field.from_text)
     return str
+
+
+def _from_text(parse):
+    def from_text(text):
+        try:
+            return parse(text)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    from_text.__name__ = parse.__name__
+    return from_text
 
 
 #: One option per field of the table: (flag, YAML section, key, type).
@@ -66,6 +79,8 @@ def _option_help(field):
         text += f", e.g. top=4,left=4 (sides {', '.join(SIDES)}; others 0)"
     if field.choices:
         text += f": {', '.join(field.choices)}"
+    if field.from_text:
+        text += ", as text: 0;1-2;3-6 (';' between groups, a-b a run of reads)"
     if field.default is None:
         default = field.none_means.format(**{f.name: _flag(f) for f in FIELDS})
     else:

@@ -40,6 +40,7 @@ import numpy as np
 from astropy import units as u
 
 from .errors import FormatError
+from .groups import format_groups, parse_groups
 from .parameters import Parameter
 
 __all__ = ["DEFAULT_FRAME_OVERHEAD", "FIELD", "FIELDS", "REF_MODES", "SIDES", "Field",
@@ -113,6 +114,13 @@ class Field:
         them when the sides differ and ``keyword`` alone when all are equal;
         ``from_header`` reads either form.  The YAML value is then one number
         (every side) or a mapping of sides (missing sides 0).
+    written_if_set : bool
+        ``to_header`` writes the card only when the value is not the default
+        (fields added later: a schedule that does not use them keeps the
+        header it always had).
+    to_text, from_text : callable, optional
+        For a value that is a structure (``groups``): its text in a FITS card
+        and on the command line, and back (``from_text`` raises ValueError).
     """
 
     name: str
@@ -131,6 +139,9 @@ class Field:
     none_means: str | None = None
     instead_of: str | None = None
     side_keywords: tuple | None = None
+    written_if_set: bool = False
+    to_text: object = None
+    from_text: object = None
 
     @property
     def kind(self):
@@ -197,6 +208,17 @@ FIELDS = (
           "frame time (s), instead of frame_overhead", unit="s", minimum=0,
           exclusive_minimum=True, comment="[s] frame time", required="unless FRMOVH is given",
           none_means="from {frame_overhead}", instead_of="frame_overhead"),
+    Field("frames_per_group", "readout", "NFRGRP", (int,), 1,
+          "frames averaged into each stored frame (group)", minimum=1, cli_max=2**16,
+          required=False, written_if_set=True),
+    Field("group_gap", "readout", "NFRGAP", (int,), 0,
+          "frames read and discarded between groups", minimum=0, cli_max=2**16,
+          required=False, written_if_set=True),
+    Field("groups", "readout", "GRPREADS", (list, type(None)), None,
+          "reads (0-based frames) averaged into each group, instead of frames_per_group",
+          comment="reads of each group: ';' between groups", required=False,
+          none_means="groups of {frames_per_group} frames, {group_gap} apart",
+          written_if_set=True, to_text=format_groups, from_text=parse_groups),
 )
 
 #: The fields by name.
@@ -312,7 +334,8 @@ def field_cards(field, value):
     [('REFBTOP', 4), ('REFBBOT', 0), ('REFBLEFT', 4), ('REFBRIGH', 0)]
     """
     if field.side_keywords is None:
-        return [(field.keyword, value, field.card_comment)]
+        text = value if field.to_text is None else field.to_text(value)
+        return [(field.keyword, text, field.card_comment)]
     sides = check_sides(field, value)
     if len(set(sides.values())) == 1:
         return [(field.keyword, sides["top"], field.card_comment)]
@@ -350,6 +373,11 @@ def read_field(header, field):
                               minimum=None if field.exclusive_minimum else field.minimum)
 
     one = read(field.keyword) if field.keyword in header else None
+    if field.from_text is not None and one is not None:
+        try:
+            return field.from_text(one)
+        except ValueError as exc:
+            raise FormatError(f"keyword {field.keyword}: {exc}") from None
     if field.side_keywords is None:
         return one
     given = {side: (key, read(key)) for side, key in zip(SIDES, field.side_keywords,

@@ -12,6 +12,9 @@ phantom samples of the Video8 reference first, then the row's pixels in the
 channel's fast-scan direction, then the row overhead.  After the last row read
 of a frame come ``frame_overhead`` samples (reset, idle).  A frame therefore
 lasts ``n_reads * row_samples + frame_overhead`` samples.
+A stored frame is one read of the array or the mean of a group of reads
+(`spherex_reduce.core.groups`); a ramp fit takes `frame_starts`,
+`read_noise_factors` and `shot_covariance`.
 """
 
 import dataclasses
@@ -39,6 +42,7 @@ from .fields import (
     table_dataclass,
 )
 from .geometry import DetectorGeometry, RefBorder
+from .groups import describe_groups, group_covariance, group_means, resolve_groups
 from .limits import check_size
 
 __all__ = ["REF_MODES", "ReadoutSchedule", "chopped_order"]
@@ -124,7 +128,17 @@ class ReadoutSchedule:
         Frames up the ramp, ``N``.
     frame_time : `~astropy.units.Quantity` or float, optional
         State the frame time (s) directly instead of ``frame_overhead``; the
-        overhead is derived from it and must not be negative.
+        overhead is derived from it and must not be negative.  It is the time
+        of one read of the array, whether or not reads are grouped.
+    frames_per_group, group_gap : int
+        Each of the ``nframes`` stored frames is the mean of
+        ``frames_per_group`` consecutive reads, and ``group_gap`` reads are
+        discarded between groups (JWST's ``NFRAMES`` and ``GROUPGAP``);
+        1 and 0 (every read stored) by default.
+    groups : list of list of int, optional
+        Instead: the reads (0-based frames of the exposure, strictly increasing,
+        groups in time order without overlap) averaged into each stored frame,
+        ``nframes`` lists, e.g. Roman's ``[[0], [1, 2], [3, 4, 5, 6]]``.
 
     Examples
     --------
@@ -134,6 +148,9 @@ class ReadoutSchedule:
     (2072, <Quantity 1.51 s>)
     >>> s.integration_time.round(2)
     <Quantity 111.74 s>
+    >>> g = s.replace(nframes=3, groups=[[0], [1, 2], [4, 5, 6]])
+    >>> g.frame_starts, g.read_noise_factors.round(3).tolist()
+    (<Quantity [0.  , 2.265, 7.55 ] s>, [1.0, 0.5, 0.333])
     """
 
     geometry: DetectorGeometry = dataclasses.field(default_factory=DetectorGeometry)
@@ -148,6 +165,10 @@ class ReadoutSchedule:
         for f in section_fields("readout"):
             if not f.nullable:  # frame_overhead, frame_time: see _set_frame_timing
                 set_(self, f.name, check_field(f, getattr(self, f.name)))
+        groups, reads = resolve_groups(self.nframes, self.frames_per_group, self.group_gap,
+                                       self.groups)
+        set_(self, "groups", groups)
+        set_(self, "_reads", reads)  # None: one read per stored frame
         g = self.geometry
         if self.ref_mode != "none" and self.ref_reads > 0 and g.border.rows == 0:
             raise ValueError(
@@ -199,10 +220,11 @@ class ReadoutSchedule:
         self._check_exposure()
 
     def _check_exposure(self):
-        total = self.nframes * self.frame_samples
+        total = self.frames_read * self.frame_samples
         if total >= MAX_SAMPLES or not np.isfinite(self.frame_time.value):
             raise ValueError(
-                f"nframes={self.nframes} frames of {self.frame_samples} samples make "
+                f"nframes={self.nframes} frames ({self.frames_read} read) of "
+                f"{self.frame_samples} samples make "
                 f"{total:.3g} samples, more than the {MAX_SAMPLES:.3g} a schedule can count"
             )
 
@@ -280,13 +302,42 @@ class ReadoutSchedule:
 
     @property
     def integration_time(self):
-        """``nframes`` times the frame time."""
-        return self.nframes * self.frame_time
+        """`frames_read` times the frame time (``nframes`` times it without groups)."""
+        return self.frames_read * self.frame_time
+
+    @property
+    def group_reads(self):
+        """The reads (0-based frames of the exposure) of each stored frame: ``nframes``
+        int arrays, ``[[0], [1], ...]`` without groups."""
+        return list(np.arange(self.nframes)[:, None] if self._reads is None else self._reads)
+
+    @property
+    def frames_read(self):
+        """Frames read over the exposure, discarded ones included: the last read + 1."""
+        return self.nframes if self._reads is None else int(self._reads[-1][-1]) + 1
 
     @property
     def frame_starts(self):
-        """Start time of every frame, shape ``(nframes,)``, in s."""
-        return np.arange(self.nframes) * self.frame_time
+        """Start time of every stored frame (a group's mean read), ``(nframes,)``, in s."""
+        if self._reads is None:
+            return np.arange(self.nframes) * self.frame_time
+        return group_means(self._reads) * self.frame_time
+
+    @property
+    def read_noise_factors(self):
+        """Read-noise variance of every stored frame in units of one read's, ``(nframes,)``:
+        1 / the reads of its group."""
+        return (np.ones(self.nframes) if self._reads is None
+                else 1.0 / np.array([r.size for r in self._reads], dtype=np.float64))
+
+    def shot_covariance(self):
+        """Covariance (s) of the charge of stored frames ``g`` and ``h`` per unit rate,
+        ``(nframes, nframes)``: the mean over their reads of ``min(t_a, t_b) - t_first``
+        (`~spherex_reduce.core.groups.group_covariance`)."""
+        if self._reads is None:
+            t = self.frame_starts.to_value(u.s)
+            return np.minimum.outer(t, t) - t[0]
+        return group_covariance(self._reads) * self.frame_time.to_value(u.s)
 
     def pixel_samples(self):
         """Sample index (within the frame) of every pixel read, shape ``(n_reads, ncols)``."""
@@ -328,8 +379,11 @@ class ReadoutSchedule:
 
         ``frame_time`` is left out: ``frame_overhead`` states it in samples.
         """
-        return {f.name: getattr(self, f.name) for f in section_fields("readout")
-                if f.instead_of is None}
+        out = {f.name: getattr(self, f.name) for f in section_fields("readout")
+               if f.instead_of is None}
+        if out["groups"] is not None:
+            out["groups"] = [list(reads) for reads in out["groups"]]
+        return out
 
     def replace(self, **changes):
         """A copy with some parameters changed (``geometry`` too).
@@ -388,6 +442,7 @@ class ReadoutSchedule:
             f"{self.n_reads} reads/frame ({int(self._is_ref.sum())} reference), frame time "
             f"{self.frame_time.to_value(u.s):.6g} s, N={self.nframes}, "
             f"{self.integration_time.to_value(u.s):.6g} s"
+            f"{describe_groups(self.frames_per_group, self.group_gap, self.groups)}"
         )
 
     def to_header(self, header=None):
@@ -400,6 +455,9 @@ class ReadoutSchedule:
                 value = g.scan_label
             elif isinstance(value, u.Quantity):
                 value = value.to_value(f.unit)
+            if f.written_if_set and value == f.default:
+                h.remove(f.keyword, ignore_missing=True)
+                continue
             cards = field_cards(f, g.border.to_value() if f.side_keywords else value)
             for key in {f.keyword, *(f.side_keywords or ())} - {c[0] for c in cards}:
                 h.remove(key, ignore_missing=True)  # a per-side field: only one form

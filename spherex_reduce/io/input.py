@@ -145,7 +145,7 @@ class InputOptions:
                 continue
             have = read_field(header, field)
             dropped = 0  # a file this package wrote after dropping reads: the ramp had more
-            if key == "nframes" and have is not None and "NDROPRD" in header:
+            if key in ("nframes", "groups") and have is not None and "NDROPRD" in header:
                 dropped = int(header["NDROPRD"])
             partners = [f.keyword for f in _partners(field) if f.keyword in header]
             if have is None and partners:
@@ -156,7 +156,7 @@ class InputOptions:
             if self.header == "override":
                 for kw in partners:  # the config's value alone states it
                     header.remove(kw, ignore_missing=True)
-            if have is None or _same(field, have + dropped if dropped else have, value):
+            if have is None or _same(field, have, _before_drop(key, value, dropped)):
                 continue
             shown = field.keyword if field.side_keywords is None else \
                 "/".join((field.keyword, *field.side_keywords))
@@ -238,9 +238,13 @@ class InputOptions:
         if schedule.nframes - n < 2:
             raise FormatError(f"{name}: input.drop_first_reads is {n} but the file has "
                               f"NFRAMES={schedule.nframes}: at least 2 frames must remain")
-        kept = schedule.replace(nframes=schedule.nframes - n)
-        for key, value, comment in field_cards(FIELD["nframes"], kept.nframes):
-            header[key] = (value, comment)
+        changes = {"nframes": schedule.nframes - n}
+        if schedule.groups is not None:  # the groups kept, at the reads they were
+            changes["groups"] = schedule.groups[n:]
+        kept = schedule.replace(**changes)
+        for name in changes:
+            for key, value, comment in field_cards(FIELD[name], getattr(kept, name)):
+                header[key] = (value, comment)
         header["NDROPRD"] = (n, "frames dropped at the start of every ramp")
         header.add_history(f"input: the first {n} frame(s) of every ramp dropped (not fitted)")
         return n, kept
@@ -284,7 +288,20 @@ def _partners(field):
     return [f for f in FIELD.values() if f.instead_of == field.name]
 
 
+def _before_drop(key, value, dropped):
+    """The config's ``value`` of ``key`` for a file whose first ``dropped`` frames were
+    dropped when it was written (``NDROPRD``)."""
+    if not dropped:
+        return value
+    return value - dropped if key == "nframes" else value[dropped:]
+
+
 def _same(field, have, value):
+    if field.to_text is not None:  # groups: lists of reads (tuples from Python)
+        try:
+            return [list(g) for g in have] == [list(g) for g in value]
+        except TypeError:
+            return False
     if field.side_keywords is not None:
         return check_sides(field, have) == check_sides(field, value)
     if isinstance(have, float) or isinstance(value, float):

@@ -112,7 +112,8 @@ def combine_integrations(results):
     slope has no finite, positive uncertainty is the plain mean of its used
     slopes, with uncertainty NaN.  A pixel with no usable slope is NaN,
     flagged `~spherex_reduce.core.dq.DO_NOT_USE` and the flags of its
-    integrations.
+    integrations; a pixel with usable slopes carries the informational
+    flags (``JUMP``, ``SATURATED``, ``REFERENCE``) of all its integrations.
 
     Parameters
     ----------
@@ -207,7 +208,10 @@ def _weighted_mean(slopes, sigma, flags):
     none = ~usable.any(axis=0)
     mean[none] = np.nan
     err[none] = np.nan
-    mflags = np.where(none, np.bitwise_or.reduce(flags, axis=0) | dq.DO_NOT_USE, 0)
+    # the informational flags of every integration (JUMP, SATURATED ...) carry over, as in
+    # stcal: a pixel saturated in one integration says SATURATED
+    anyflag = np.bitwise_or.reduce(flags, axis=0)
+    mflags = np.where(none, anyflag | dq.DO_NOT_USE, anyflag & dq.INFORMATIONAL)
     return mean, err, mflags.astype(np.uint32)
 
 

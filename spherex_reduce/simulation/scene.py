@@ -87,7 +87,9 @@ class Scene:
         Raises
         ------
         ConfigError
-            ``mode`` unknown, or ``slopes`` with fewer than 2 frames.
+            ``mode`` unknown, or ``slopes`` with fewer than 2 frames or with
+            groups of reads (simulated in ``ramps`` mode only: each group's
+            simulated reads averaged, the reads between groups discarded).
         ResourceError
             The estimate exceeds what this machine can hold.
         """
@@ -98,10 +100,13 @@ class Scene:
         if mode == "slopes" and s.nframes < 2:
             raise ConfigError(f"readout.nframes: a slope needs at least 2 frames, got "
                               f"{s.nframes} (use output.mode: ramps for one frame)")
+        if mode == "slopes" and s.frames_read != s.nframes:
+            raise ConfigError("output.mode: slopes are simulated for one read per frame; a "
+                              "readout with groups or gaps needs output.mode: ramps")
         item = 8 if self.synthesis.get("dtype") == "float64" else 4
         padding = self.synthesis.get("padding")
         padding = 16.0 if padding is None else float(padding)
-        exposure = float(s.nframes) * float(s.frame_samples)  # samples per channel
+        exposure = float(s.frames_read) * float(s.frame_samples)  # samples per channel
         nbytes = padding * exposure / (32 * s.row_samples) * (g.nchannels + 1) * 16
         nbytes += float(s.n_reads) * g.ncols * (item if mode == "ramps" else 8)
         if mode == "ramps":

@@ -13,6 +13,7 @@ from ..io import atomic_output, write, write_frames
 from ..reduce.plugins import get_registry
 from ..reduce.step import Simulator
 from .engine import NoiseEngine
+from .grouping import average_groups, read_schedule
 from .scene import load_scene
 from .synthesis import rng_for
 
@@ -50,7 +51,7 @@ def _prepare(scene, mode, seed):
     padding = synth.get("padding")
     if padding is None:
         padding = 1.0 if synth.get("method") == "random_phase" else 16.0
-    engine = NoiseEngine(sc.schedule, sc.components, seed, method=synth.get("method",
+    engine = NoiseEngine(read_schedule(sc.schedule), sc.components, seed, method=synth.get("method",
                          "gaussian"), padding=padding, dtype=synth.get("dtype", "float32"))
     return sc, mode, seed, engine
 
@@ -131,7 +132,7 @@ def _simulate(scene, *, mode=None, seed=None):
     cube = np.empty((s.nframes, s.n_reads, s.geometry.ncols), dtype=engine.dtype)
     ph = np.empty((s.nframes, s.n_reads, s.geometry.nchannels), dtype=engine.dtype) \
         if s.phantom_reads else None
-    for k, (frame, phantom) in enumerate(_frames(sc, engine)):
+    for k, (frame, phantom) in enumerate(average_groups(_frames(sc, engine), s)):
         cube[k] = frame
         if ph is not None:
             ph[k] = phantom
@@ -242,7 +243,7 @@ def simulate_to_fits(scene, path, *, mode=None, seed=None, overwrite=False, prog
     if mode == "slopes":
         return write(_simulate(sc, mode=mode, seed=seed), path, overwrite=overwrite)
     s = sc.schedule
-    frames = _frames(sc, engine)
+    frames = average_groups(_frames(sc, engine), s)
     if progress:
         from tqdm.auto import tqdm
 

@@ -92,7 +92,7 @@ def test_readout_help_describes_every_option_with_its_default(capsys):
         main(["readout", "--help"])
     text = " ".join(capsys.readouterr().out.split())  # unwrap argparse's lines
     declared = {p.name: p for p in (*GEOMETRY_PARAMETERS, *READOUT_PARAMETERS)}
-    assert len(OPTIONS) == 14
+    assert len(OPTIONS) == 17
     for flag, _, key, _ in OPTIONS:
         p = declared[key]
         after = text.split(f"{flag} {key.upper()} ", 1)[1]
@@ -103,6 +103,8 @@ def test_readout_help_describes_every_option_with_its_default(capsys):
         else:
             assert "(default: " in after.split(" --", 1)[0], flag
     assert "(default: 1816, the paper's 1.51 s frame" in text
+    assert "--groups GROUPS reads (0-based frames) averaged into each group, instead of " \
+        "frames_per_group, as text: 0;1-2;3-6 (';' between groups, a-b a run of reads)" in text
 
 
 def test_show_config_list_gives_each_shipped_config_its_description(capsys):

@@ -38,6 +38,7 @@ KNOWN = {
     "ref_mode": ("REFMODE", "distributed"), "phantom_reads": ("NPHANT", 4),
     "row_overhead": ("ROWOVH", 4), "frame_overhead": ("FRMOVH", None),
     "nframes": ("NFRAMES", 74), "frame_time": ("TFRAME", None),
+    "frames_per_group": ("NFRGRP", 1), "group_gap": ("NFRGAP", 0), "groups": ("GRPREADS", None),
 }
 
 #: A small array every field's test starts from (fast to build).
@@ -46,7 +47,8 @@ BASE_GEOMETRY = {"nrows": 32, "ncols": 16, "nchannels": 2, "ref_border": 2}
 #: A valid value other than the default (and than BASE_GEOMETRY) where the generic rule
 #: of `other_value` would not give one.
 OTHER = {"nrows": 40, "ncols": 32, "nchannels": 4, "ref_border": 3, "scan": "alternate",
-         "ref_mode": "repeated", "frame_overhead": 123, "frame_time": 0.05}
+         "ref_mode": "repeated", "frame_overhead": 123, "frame_time": 0.05,
+         "groups": [[0, 1], *([k] for k in range(3, 75)), [76, 77, 78]]}  # 74 groups
 
 
 def other_value(field):
@@ -81,7 +83,9 @@ def stored(value):
 
 
 def same(field, a, b):
-    """Equal values of ``field`` (reals to rounding)."""
+    """Equal values of ``field`` (reals to rounding; a structure as its FITS text)."""
+    if field.to_text is not None:
+        a, b = (x if isinstance(x, str) else field.to_text(x) for x in (a, b))
     a, b = stored(a), stored(b)
     return a == pytest.approx(b, rel=1e-12) if field.kind is float else a == b
 
@@ -179,9 +183,10 @@ def test_per_side_field_round_trips_through_header_yaml_and_command_line(field):
 
 
 def test_header_has_one_card_per_field_and_the_channel_width():
-    h = build().to_header()
-    assert list(h) == [*(k for f in FIELDS for k in ((f.keyword, "CHANW")
-                                                      if f.name == "nchannels" else (f.keyword,)))]
+    h = build().to_header()  # fields written only when set are not, at their defaults
+    assert list(h) == [*(k for f in FIELDS if not f.written_if_set
+                         for k in ((f.keyword, "CHANW") if f.name == "nchannels"
+                                   else (f.keyword,)))]
 
 
 @pytest.mark.parametrize("field", FIELDS, ids=lambda f: f.name)
@@ -297,7 +302,8 @@ def test_readout_option_sets_the_field(field):
     value = other_value(field)
     args = [x for k, v in BASE_GEOMETRY.items() if k != field.name
             for x in ("--" + k.replace("_", "-"), v)]
-    s = readout_cli.schedule_from_args(_parse("--" + field.name.replace("_", "-"), value, *args))
+    text = value if field.to_text is None else field.to_text(value)
+    s = readout_cli.schedule_from_args(_parse("--" + field.name.replace("_", "-"), text, *args))
     assert s == build(field.name, value)
 
 

@@ -24,6 +24,7 @@ from ..hookspecs import hookimpl
 from ..step import Consumer, Step
 from .pixel_maps import MAP_TYPES, PixelMap
 from .ramp_least_squares import LeastSquares, RampMaps, RampSolution
+from .ramp_segments import RampNoise
 
 __all__ = ["WEIGHTINGS", "FitRampStep", "RampFit", "fit_ramp"]
 
@@ -94,15 +95,22 @@ def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, dark_c
 
     Read times come from the schedule; within a frame each pixel's time is a
     fixed offset, which cancels from the slope, so the frame start times set
-    the weights.  A read is not used when it is not finite or flagged (any
-    bit but the informational ``JUMP`` and ``REFERENCE``); the first read
-    above ``saturation`` or flagged ``SATURATED`` ends the usable ramp.  A
-    read flagged ``JUMP`` (by `~spherex_reduce.detect_jumps`) starts a new
-    segment: each segment of two or more usable reads is fitted, and the
-    segments' slopes are averaged with inverse-variance weights whose shot
-    noise comes from the rate pooled over the segments (as stcal does; see
-    `spherex_reduce.reduce.steps.ramp_segments`).  The input is never modified.  Bands of rows
-    are fitted on `~spherex_reduce.reduce.executor.default_threads` threads; the
+    the weights.  For groups of averaged frames (``readout:``
+    ``frames_per_group``/``group_gap`` or ``groups``) each group's time is its
+    reads' mean, its read-noise variance ``read_noise**2 / n`` and the shot
+    noise the covariance of the groups' mean charges
+    (`spherex_reduce.ReadoutSchedule.shot_covariance`).
+
+    A read is not used when it is not finite or flagged (any bit but the
+    informational ``JUMP`` and ``REFERENCE``); the first read above
+    ``saturation`` or flagged ``SATURATED`` ends the usable ramp.  A read
+    flagged ``JUMP`` (by `~spherex_reduce.detect_jumps`) starts a new segment:
+    each segment of two or more usable reads is fitted, and the segments'
+    slopes are averaged with inverse-variance weights whose shot noise comes
+    from the rate pooled over the segments (as stcal does; see
+    `spherex_reduce.reduce.steps.ramp_segments`).  The input is never
+    modified.  Bands of rows are fitted on
+    `~spherex_reduce.reduce.executor.default_threads` threads; the
     numbers do not depend on the bands or the threads.
 
     Examples
@@ -183,16 +191,17 @@ class RampFit(Consumer):
         self.read_noise, self.gain, self.dark = _maps(params, s.geometry)
         scalar = not any(m is not None and m.per_pixel for m in (self.read_noise, self.gain,
                                                                  self.dark))
+        noise = RampNoise(times, s.read_noise_factors, s.shot_covariance())
         self.solver = LeastSquares(
-            times, weighting=params["weighting"], saturation=params["saturation"],
+            times, weighting=params["weighting"], saturation=params["saturation"], noise=noise,
             read_noise=None if self.read_noise is None else
             (self.read_noise.values if scalar else 1.0),
             gain=self.gain.values if scalar else 1.0,
             dark_current=self.dark.values if scalar else 0.0)
         self.scalar = scalar
-        self.phantom_solver = LeastSquares(times, want_var=False)
+        self.phantom_solver = LeastSquares(times, want_var=False, noise=noise)
         self.reference_solver = LeastSquares(times, saturation=params["saturation"],
-                                             want_var=False)
+                                             want_var=False, noise=noise)
         nrows = s.n_reads if context.order == "readout" else s.geometry.nrows
         # every row comes in exactly one band (the executor's bands cover the input);
         # ``var`` holds the standard deviations once a band is fitted

@@ -115,7 +115,8 @@ class RampSolution:
     nreads : `numpy.ndarray` of int16
         Reads used.
     njumps, nsegments : `numpy.ndarray` of int16
-        Jumps flagged within the usable ramp, and segments fitted.
+        Jumps that split usable reads (a JUMP flag on a usable read after another), and
+        segments fitted.
     var_rnoise, var_per_rate : `numpy.ndarray` of float32
         With a read-noise model: the slope's variance at zero rate (read noise
         and the dark current's shot noise) and its shot-noise variance per unit
@@ -361,10 +362,10 @@ class LeastSquares:
             self._refit(block, rmask, bidx, fit, maps)
 
     def _model_variance(self, slope, var, maps, fit):
-        """``var`` = read noise + shot noise of ``slope`` plus the dark current (uniform
+        """``var`` = read noise + shot noise of ``max(slope, 0)`` and of the dark current (uniform
         weights, every read usable), and its two parts in ``fit``."""
-        np.add(slope, maps.dark, out=var)
-        np.maximum(var, 0, out=var)
+        np.maximum(slope, 0, out=var)
+        var += maps.dark
         var *= maps.pscale * self.pfactor
         rnoise = np.square(maps.read_noise) * self.sumw2f
         var += rnoise
@@ -376,7 +377,7 @@ class LeastSquares:
         """Generalised least squares for the pixels with every read usable (not ``bad``);
         returns their flat indices."""
         rn2 = np.square(maps.read_noise)
-        rate = np.maximum(np.where(bad, 0, slope) + maps.dark, 0) * maps.pscale
+        rate = (np.maximum(np.where(bad, 0, slope), 0) + maps.dark) * maps.pscale
         # quantise rate / read_noise**2 (0.02 dex): pixels in a bin share weights
         with np.errstate(divide="ignore"):
             ratio = rate / rn2

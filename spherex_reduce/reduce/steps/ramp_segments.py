@@ -127,8 +127,8 @@ class SegmentFit:
         Combined slope (data unit / s) and its variance (NaN: fewer than two
         usable reads in every segment, or not asked for).
     nreads, njumps, nsegments : `numpy.ndarray` of int16
-        Usable reads, jumps flagged before the end of the usable ramp, and
-        segments fitted.
+        Usable reads, jumps that split usable reads (flagged on a usable read
+        after another), and segments fitted.
     flags : `numpy.ndarray` of uint32
         ``FEW_READS``, ``SATURATED`` (saturation cut the ramp), ``JUMP``
         (fitted around jumps), and the flags set on every read.
@@ -214,7 +214,7 @@ def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=No
     -------
     `SegmentFit`
     """
-    nf, m = y.shape
+    m = y.shape[1]
     if m == 1:  # numpy sums a lone column pairwise, C-ordered columns frame after frame:
         # two columns keep a pixel's numbers those of the same pixel among many
         fit = fit_segments(np.repeat(y, 2, axis=1),
@@ -228,8 +228,11 @@ def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=No
     jumps = np.zeros(y.shape, bool) if flags is None else (flags & dq.JUMP) != 0
     seg = np.minimum(np.cumsum(jumps, axis=0), MAX_SEGMENTS)
     usable &= np.cumsum(jumps, axis=0) <= MAX_SEGMENTS
-    last = np.where(usable.any(axis=0), nf - 1 - np.argmax(usable[::-1], axis=0), -1)
-    njumps = (jumps & (np.arange(nf)[:, None] <= last)).sum(axis=0)
+    # a jump counts (njumps, the JUMP flag) where it splits usable reads: on a usable read
+    # with usable reads before it (a JUMP on a read that is not used, or on the first
+    # usable read, changes nothing in the fit)
+    before = np.cumsum(usable, axis=0) - usable
+    njumps = (jumps & usable & (before > 0)).sum(axis=0)
     t = (noise.times - noise.times.mean())[:, None]  # centred times
     rn2 = None if read_noise is None else np.broadcast_to(np.asarray(read_noise) ** 2, (m,))
     nseg_max = int(seg.max(initial=0)) + 1
@@ -275,7 +278,7 @@ def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=No
                 slope, var = _combine(slopes, seg_var, fitted)
             elif pscale is not None:
                 for _ in range(2):  # pooled rate -> shot noise of every segment -> again
-                    rate = np.maximum(np.where(np.isfinite(slope), slope, 0.0) + dark, 0.0)
+                    rate = np.maximum(np.where(np.isfinite(slope), slope, 0.0), 0.0) + dark
                     seg_var = rn2 * rvars + rate * pscale * pfs
                     slope, var = _combine(slopes, seg_var, fitted)
             a = np.where(fitted, (1.0 / seg_var) * var, 0.0)  # the final weights
@@ -312,12 +315,18 @@ def _two(value):
 
 
 def _combine(slopes, variances, fitted):
-    """Inverse-variance mean over segments (axis 0) of the fitted ones, and its variance."""
+    """Inverse-variance mean over segments (axis 0) of the fitted ones, and its variance.
+
+    Segments of zero variance (no read noise, no signal) outweigh the others: a pixel
+    that has some is the plain mean of those, with variance 0.
+    """
     with np.errstate(invalid="ignore", divide="ignore"):
-        w = np.where(fitted, 1.0 / variances, 0.0)
+        exact = fitted & ~(variances > 0)
+        w = np.where(exact.any(axis=0), exact.astype(float), np.where(fitted, 1.0 / variances,
+                                                                        0.0))
         total = w.sum(axis=0)
         mean = (w * np.where(fitted, slopes, 0.0)).sum(axis=0) / total
-        return mean, 1.0 / total
+        return mean, np.where(exact.any(axis=0), 0.0, 1.0 / total)
 
 
 def _optimal_segments(y, usable, seg, noise, slopes, rvars, pfs, fitted, rn2, pscale, dark,
@@ -328,7 +337,7 @@ def _optimal_segments(y, usable, seg, noise, slopes, rvars, pfs, fitted, rn2, ps
     slopes, rvars, pfs = slopes.copy(), rvars.copy(), pfs.copy()
     with np.errstate(invalid="ignore", divide="ignore"):
         pooled, _ = _combine(slopes, rvars, fitted)
-        rate = np.maximum(np.where(np.isfinite(pooled), pooled, 0.0) + dark, 0.0)
+        rate = np.maximum(np.where(np.isfinite(pooled), pooled, 0.0), 0.0) + dark
         ratio = rate * (1.0 if pscale is None else pscale) / rn2
         key = np.where(ratio > 1e-6, np.round(np.log10(ratio) * bins), -np.inf)
     for s in range(slopes.shape[0]):

@@ -138,7 +138,7 @@ def test_a_pixel_mask_covers_every_read_of_its_row():
 
 def test_read_noise_gain_and_dark_maps(tmp_path):
     """Per-pixel maps (arrays in Python, FITS images in YAML) set each pixel's variance:
-    rn^2 sum(w^2) + (rate + dark) / gain * w^T min(t_i, t_j) w; in readout order each read
+    rn^2 sum(w^2) + (max(rate, 0) + dark) / gain * w^T min(t_i, t_j) w; in readout order each read
     takes its physical row's value."""
     s = schedule(nframes=8, skip=2)
     t = s.frame_starts.value
@@ -155,7 +155,7 @@ def test_read_noise_gain_and_dark_maps(tmp_path):
     rows = s.rows  # physical row of each read
     slope = out.data.data
     expected = (rn_map[rows] ** 2 * (w @ w)
-                + np.maximum(slope + dark_map[rows], 0) / gain_map[rows] * pf)
+                + (np.maximum(slope, 0) + dark_map[rows]) / gain_map[rows] * pf)
     np.testing.assert_allclose(out.data.uncertainty.array ** 2, expected, rtol=1e-6)
     # the same maps from FITS files named in a pipeline's YAML, streamed in bands
     paths = {}
@@ -207,3 +207,53 @@ def test_optimal_weighting_honours_each_pixels_masked_reads():
         gls = np.linalg.solve(x.T @ ci @ x, x.T @ ci @ y)[1]
         assert out.data.data[r, c] == pytest.approx(gls, rel=1e-9)
         assert abs(gls - ols) > 1e-4 * abs(ols)  # not the uniform fit
+
+
+def test_zero_read_noise_gives_numbers_with_and_without_jumps():
+    """read_noise 0 on noise-free ramps: the variance model is 0 (constant ramps) or shot
+    noise alone; segment weights never divide by zero."""
+    s = schedule(nframes=6)
+    t = s.frame_starts.value
+    cube = np.empty((6, 8, 8))
+    cube[:, :, :4] = 500.0
+    cube[:, :, 4:] = 500.0 + 5.0 * t[:, None, None]
+    flags = np.zeros(cube.shape, np.uint32)
+    cube[3:, 0, 0] += 100.0
+    cube[3:, 6, 6] += 100.0
+    flags[3, 0, 0] = flags[3, 6, 6] = dq.JUMP
+    out = fit_ramp(Exposure.from_arrays(cube, s, mask=flags), read_noise=0.0)
+    np.testing.assert_allclose(out.data.data[:, :4], 0.0, atol=1e-12)
+    np.testing.assert_allclose(out.data.data[:, 4:], 5.0, rtol=1e-12)
+    assert np.isfinite(out.data.uncertainty.array).all()
+    assert out.data.uncertainty.array[0, 0] == 0.0 and out.dq[0, 0] == dq.JUMP
+
+
+@pytest.mark.parametrize("groups", [{"frames_per_group": 4, "group_gap": 1},
+                                    {"groups": [[0], [1, 2], [3, 4, 5, 6], [7, 8, 9, 10, 11],
+                                                [12, 13, 14, 15, 16, 17]]}])
+def test_groups_of_averaged_frames(groups):
+    """Reads simulated one by one (Poisson + read noise) and averaged into groups: the fit
+    is unbiased and its uncertainty is the Monte Carlo scatter; the variance is w^T C w for
+    C built read by read (read noise / n per group, mean of min(t_a, t_b) for the charge)."""
+    nframes = 5
+    s = ReadoutSchedule(DetectorGeometry(64, 64, 1, ref_border=0), skip=1, ref_reads=0,
+                        ref_mode="none", phantom_reads=0, nframes=nframes, frame_time=2.0,
+                        **groups)
+    reads = [np.asarray(g) for g in s.group_reads]
+    nreads = reads[-1][-1] + 1
+    rate, rn = 30.0, 6.0
+    rng = np.random.default_rng(4)
+    charge = rng.poisson(rate * 2.0, (nreads, 64, 64)).cumsum(axis=0)
+    frames = charge + rng.normal(0, rn, charge.shape)
+    cube = np.stack([frames[r].mean(axis=0) for r in reads])
+    out = fit_ramp(Exposure.from_arrays(cube, s), read_noise=rn)
+    # brute force: read times t_a = 2 a (+ a constant), group means and covariance
+    ta = 2.0 * np.arange(nreads)
+    tg = np.array([ta[r].mean() for r in reads])
+    cov = np.array([[rate * np.minimum.outer(ta[a], ta[b]).mean() for b in reads]
+                    for a in reads]) + np.diag([rn**2 / len(r) for r in reads])
+    w = (tg - tg.mean()) / ((tg - tg.mean()) ** 2).sum()
+    sigma = np.sqrt(w @ cov @ w)
+    np.testing.assert_allclose(np.median(out.data.uncertainty.array), sigma, rtol=0.01)
+    assert abs(np.mean(out.data.data) - rate) < 4 * sigma / 64
+    np.testing.assert_allclose(np.std(out.data.data), sigma, rtol=0.05)

@@ -33,13 +33,21 @@ float64 with the full noise model.  Each pixel's result depends on its own
 reads only.
 """
 
+import threading
+from dataclasses import dataclass, replace
+
 import numpy as np
+from scipy.special import log_ndtr
 
 __all__ = ["SCREEN_MARGIN", "Found", "StepSearch"]
 
 #: the float32 screen keeps pixels down to this fraction of the threshold, so that its
 #: rounding never drops a pixel the float64 search would flag
 SCREEN_MARGIN = 0.98
+#: shot noise (lambda / sigma**2 times the longest charge variance per unit rate) above
+#: which a ramp is searched with weights for its shot noise, in bins of RHO_BIN dex
+SHOT_WEIGHTED = 0.1
+RHO_BIN = 0.05
 #: bytes of reads screened at once (in cache: larger work areas run several times slower)
 SCREEN_BYTES = 3 << 18
 
@@ -54,6 +62,10 @@ class StepSearch:
     factors : array_like, optional
         Read-noise variance of each read relative to one frame's (default 1 for
         every read; a group that averages ``n`` frames has ``1/n``).
+    walk : array_like, optional
+        Covariance of the reads' charge per unit rate (s), ``(n, n)`` (default
+        ``min(t_i, t_j)``, single frames; a group's is the mean over its frames,
+        `~spherex_reduce.ReadoutSchedule.shot_covariance`).
 
     Examples
     --------
@@ -68,34 +80,59 @@ class StepSearch:
     ([12], [0], 7.5)
     """
 
-    def __init__(self, times, factors=None):
+    def __init__(self, times, factors=None, walk=None, rho=0.0):
         t = np.asarray(times, np.float64)
         n = t.size
         if n < 4:
             raise ValueError(f"a step search needs at least 4 reads, got {n}")
         tau = t - t[0]
         f = np.ones(n) if factors is None else np.asarray(factors, np.float64)
+        walk = np.minimum.outer(tau, tau) if walk is None else np.asarray(walk, np.float64)
         w = 1.0 / f
+        # weights: the inverse covariance in units of one read's read-noise variance,
+        # read noise alone (rho = 0), or with the shot noise of rho = lambda / sigma**2
+        v = np.diag(w) if rho == 0 else np.linalg.inv(np.diag(f) + rho * walk)
         x = np.column_stack([np.ones(n), tau])
-        xtw = x.T * w
-        coef = np.linalg.solve(xtw @ x, xtw)  # (2, n): intercept and slope of y
-        wm = np.diag(w) - xtw.T @ coef  # W M, symmetric
+        xtv = x.T @ v
+        coef = np.linalg.solve(xtv @ x, xtv)  # (2, n): intercept and slope of y
+        wm = v - xtv.T @ coef  # V M, symmetric
         h = (np.arange(n)[None, :] >= np.arange(1, n)[:, None]).astype(np.float64)
         g = h @ wm  # R_k = g[k - 1] @ y for a step at read k
-        self.n, self.tau, self.w = n, tau, w
+        self.n, self.tau, self.w, self.rho = n, tau, w, rho
         self.coef = coef
-        self.q = np.einsum("ki,ki->k", g, h)  # read-noise variance of R_k / sigma**2
-        walk = np.minimum.outer(tau, tau)
-        self.s = np.einsum("ki,ij,kj->k", g, walk, g)  # shot-noise variance / lambda
+        self.g = g if rho else None  # R = g @ y (with rho = 0: tail sums of weighted residuals)
+        self.wm = wm
+        self.q = np.einsum("ki,ki->k", g, h)  # variance of R_k / sigma**2
+        shot = np.zeros_like(walk) if rho else walk  # with rho, the shot noise is in q
+        self.s = np.einsum("ki,ij,kj->k", g, shot, g)  # shot-noise variance / lambda
         self.slope_of_step = (coef @ h.T)[1]  # change of the line's slope per unit step
-        self.qq = g @ h.T  # Q[k, l] = h_k' W M h_l: q is its diagonal
-        self.ss = g @ walk @ g.T  # the random walk's covariance of R: s is its diagonal
+        self.qq = g @ h.T  # Q[k, l] = h_k' V M h_l: q is its diagonal
+        self.ss = g @ shot @ g.T  # the random walk's covariance of R: s is its diagonal
+        self.walk_top = float(np.max(np.diagonal(walk)))
+        self.factors, self.walk = f, walk
         self.uniform_w = bool(np.all(w == w[0]))
+        # reads averaging several frames: a jump may fall between their frames, a step
+        # into the read and another out of it (searched as a pair)
+        self.partial = f < 1
         d = np.diff(tau)
         self.dtau = d
         self.uniform_dt = bool(np.all(d == d[0]))
         self._types = {}  # dtype -> (w, 1 / q, coef) in it
         self._invq = 1.0 / self.q
+        self._shot = {}  # rho bin -> StepSearch with that shot noise in its weights
+        self._lock = threading.Lock()
+
+    def with_shot(self, rho):
+        """The search of these reads weighted for shot noise ``rho`` (lambda / sigma**2,
+        1/s), made once per bin of `RHO_BIN` dex."""
+        key = int(np.round(np.log10(rho) / RHO_BIN))
+        with self._lock:
+            found = self._shot.get(key)
+        if found is None:
+            found = StepSearch(self.tau, self.factors, self.walk, 10.0 ** (key * RHO_BIN))
+            with self._lock:
+                self._shot[key] = found
+        return found
 
     # -- screen ------------------------------------------------------------------
     def _typed(self, dtype):
@@ -213,51 +250,121 @@ class StepSearch:
         """The float64 search of the screened pixels: one step more at each round, fitted
         jointly with the steps already found (generalised least squares of a line plus
         steps, from the line's ``R_k`` and the matrices ``Q`` and ``S``)."""
-        n = self.n
         ab = np.einsum("ci,im->cm", self.coef, y)
         r = y - ab[0] - ab[1] * self.tau[:, None]
-        wr = r * self.w[:, None]
-        big_r = np.cumsum(wr[:0:-1], axis=0)[::-1]  # (n - 1, m): R_k, tail sums
-        rss = np.einsum("im,im->m", wr, r)
-        slope = ab[1]
-        steps = np.zeros((pixels.size, 0), np.int64)  # rows of R of the steps found
+        if self.g is None:
+            wr = r * self.w[:, None]
+            big_r = np.cumsum(wr[:0:-1], axis=0)[::-1]  # (n - 1, m): R_k, tail sums
+            rss = np.einsum("im,im->m", wr, r)
+        else:
+            big_r = np.einsum("ki,im->km", self.g, y)
+            rss = np.einsum("im,ij,jm->m", r, self.wm, r)
+        state = _State(big_r, rss, ab[1], np.zeros((pixels.size, 0), np.int64), pixels,
+                       sigma, gain, floor)
         out = []
-        while pixels.size and steps.shape[1] < max_jumps:
-            j = steps.shape[1]
-            if sigma is None and n - 4 - j < 0:
-                break
-            cols = np.arange(pixels.size)
-            fit = _Given(self, big_r, steps)
-            rk, qk, sk = fit.r, fit.q, fit.s
-            r2 = rk ** 2
-            if j:  # the reads of the steps found are no candidates (q = 0 there)
-                valid = qk > 1e-9 * self.q[:, None]
-                qk = np.where(valid, qk, np.inf)
-                r2[~valid] = 0.0
-            rq = r2 / qk
-            kb = np.argmax(rq, axis=0)
-            if sigma is None:
-                var = np.maximum((rss - fit.explained - rq[kb, cols]) / (n - 3 - j), floor)
-            else:
-                var = np.maximum(sigma ** 2, floor)
-            best = rk[kb, cols] / qk[kb, cols]
-            lam = np.maximum(slope - fit.slope_change(kb, best), 0.0) / gain
-            total = var * qk
-            total += lam * sk
-            z2 = np.divide(r2, total, out=total)
-            k = np.argmax(z2, axis=0)
-            peak = z2[k, cols]
-            hit = peak > threshold ** 2
-            if not hit.any():
-                break
-            k, cols = k[hit], cols[hit]
-            amp = rk[k, cols] / qk[k, cols]
-            out.append((pixels[hit], k + 1, amp, np.sign(amp) * np.sqrt(peak[hit])))
-            steps = np.column_stack([steps[hit], k])
-            big_r, rss, slope = big_r[:, hit], rss[hit], slope[hit]
-            pixels, gain, floor = pixels[hit], _take(gain, hit), floor[hit]
-            sigma = None if sigma is None else _take(sigma, hit)
+        if self.rho == 0:
+            var, lam = self._noise(state)
+            rho = lam / var
+            shot = rho * self.walk_top > SHOT_WEIGHTED
+            if shot.any():
+                keep = ~shot
+                bins = np.round(np.log10(rho[shot]) / RHO_BIN).astype(np.int64)
+                where = np.flatnonzero(shot)
+                for b in np.unique(bins):
+                    sel = where[bins == b]
+                    other = self.with_shot(10.0 ** (b * RHO_BIN))
+                    found = other._search(y[:, sel], pixels[sel], threshold, np.sqrt(var[sel]),
+                                          np.inf, floor[sel], max_jumps)
+                    out.append((found.pixel, found.read, found.amplitude, found.z))
+                state = state.take(keep, state.steps[keep])
+        self._round(state, threshold, max_jumps, out)
         return Found.of(out)
+
+    def _noise(self, st):
+        """Read-noise variance and shot noise (lambda) of each ramp of ``st``, from the
+        line with its best step (the first round's)."""
+        cols = np.arange(st.pixels.size)
+        fit = _Given(self, st.big_r, st.steps)
+        rq = fit.r ** 2 * self._invq[:, None]
+        kb = np.argmax(rq, axis=0)
+        if st.sigma is None:
+            var = np.maximum((st.rss - rq[kb, cols]) / (self.n - 3), st.floor)
+        else:
+            var = np.maximum(st.sigma ** 2, st.floor)
+        best = fit.r[kb, cols] * self._invq[kb]
+        lam = np.maximum(st.slope - fit.slope_change(kb, best), 0.0) / st.gain
+        return var, lam
+
+    def _round(self, st, threshold, max_jumps, out):
+        """One more step in each ramp of ``st`` (a `_State`), then the next round for the
+        ramps where one was found; ``out`` collects them."""
+        n, j = self.n, st.steps.shape[1]
+        if not st.pixels.size or j >= max_jumps or (st.sigma is None and n - 4 - j < 0):
+            return
+        cols = np.arange(st.pixels.size)
+        fit = _Given(self, st.big_r, st.steps)
+        rk, qk, sk = fit.r, fit.q, fit.s
+        r2 = rk ** 2
+        if j:  # the reads of the steps found are no candidates (q = 0 there)
+            valid = qk > 1e-9 * self.q[:, None]
+            qk = np.where(valid, qk, np.inf)
+            r2[~valid] = 0.0
+        rq = r2 / qk
+        kb = np.argmax(rq, axis=0)
+        if st.sigma is None:
+            var = np.maximum((st.rss - fit.explained - rq[kb, cols]) / (n - 3 - j), st.floor)
+        else:
+            var = np.maximum(st.sigma ** 2, st.floor)
+        best = rk[kb, cols] / qk[kb, cols]
+        lam = np.maximum(st.slope - fit.slope_change(kb, best), 0.0) / st.gain
+        total = var * qk
+        total += lam * sk
+        z2 = np.divide(r2, total, out=total)
+        k = np.argmax(z2, axis=0)
+        peak = z2[k, cols]
+        # log p-value of the best step (two-sided normal) against the threshold's
+        logp = np.log(2.0) + log_ndtr(-np.sqrt(peak))
+        limit = np.log(2.0) + log_ndtr(-threshold)
+        pair = np.zeros(cols.size, bool)
+        if self.partial.any() and n - 1 >= 2:
+            pk, pchi = self._pairs(fit, rk, qk, sk, var, lam)
+            pair = (-0.5 * pchi < logp) & (-0.5 * pchi <= limit)
+        single = ~pair & (logp <= limit)
+        for hit, is_pair in ((single, False), (pair, True)):
+            if not hit.any():
+                continue
+            c = cols[hit]
+            if is_pair:
+                i = pk[hit]
+                amp1, amp2 = _pair_amplitudes(rk[i, c], rk[i + 1, c], qk[i, c],
+                                              qk[i + 1, c], fit.cross_q(i, c))
+                z = np.sqrt(pchi[hit])
+                out.append((st.pixels[hit], i + 1, amp1, np.sign(amp1) * z))
+                out.append((st.pixels[hit], i + 2, amp2, np.sign(amp2) * z))
+                new = np.column_stack([st.steps[hit], i, i + 1])
+            else:
+                kk = k[hit]
+                amp = rk[kk, c] / qk[kk, c]
+                out.append((st.pixels[hit], kk + 1, amp, np.sign(amp) * np.sqrt(peak[hit])))
+                new = np.column_stack([st.steps[hit], kk])
+            self._round(st.take(hit, new), threshold, max_jumps, out)
+
+    def _pairs(self, fit, rk, qk, sk, var, lam):
+        """The best pair of steps at reads ``i + 1`` and ``i + 2`` (a jump within the group
+        of frames read ``i + 1`` averages) of each ramp: ``(i, chi2 with 2 dof)``."""
+        cq, cs = fit.cross()
+        with np.errstate(invalid="ignore", over="ignore"):  # a found step's q is inf
+            d11 = var * qk[:-1] + lam * sk[:-1]
+            d22 = var * qk[1:] + lam * sk[1:]
+            d12 = var * cq + lam * cs
+            det = d11 * d22 - d12 ** 2
+            r1, r2 = rk[:-1], rk[1:]
+            ok = (np.isfinite(d11) & np.isfinite(d22) & np.isfinite(det)
+                  & (det > 1e-9 * d11 * d22) & self.partial[1:-1, None])
+            det = np.where(ok, det, 1.0)
+            chi = np.where(ok, (r1 ** 2 * d22 - 2 * r1 * r2 * d12 + r2 ** 2 * d11) / det, 0.0)
+        i = np.argmax(chi, axis=0)
+        return i, chi[i, np.arange(chi.shape[1])]
 
 
 class _Given:
@@ -277,7 +384,7 @@ class _Given:
             self.s = np.broadcast_to(search.s[:, None], big_r.shape)
             self.explained = 0.0
             self.found = self.a = self.steps = None
-            self.sos = search.slope_of_step
+            self.sos, self.search = search.slope_of_step, search
             return
         cols = np.arange(m)[:, None]
         qf = search.qq[steps[:, :, None], steps[:, None, :]]  # (m, j, j)
@@ -303,7 +410,27 @@ class _Given:
                       + np.einsum("mjk,mji,mik->km", a, sff, a))
         self.explained = np.einsum("mj,mj->m", rf, found)
         self.found, self.a, self.steps = found, a, steps
-        self.sos = search.slope_of_step
+        self.qk, self.sk, self.sff = qk, sk, sff
+        self.sos, self.search = search.slope_of_step, search
+
+    def cross(self):
+        """``Q`` and ``S`` of adjacent steps (``k``, ``k + 1``) given the steps found,
+        ``(n - 2, m)`` each."""
+        qq, ss = self.search.qq, self.search.ss
+        cq0, cs0 = np.diagonal(qq, 1)[:, None], np.diagonal(ss, 1)[:, None]
+        if self.found is None:
+            m = self.r.shape[1]
+            return np.broadcast_to(cq0, (cq0.shape[0], m)), np.broadcast_to(cs0, (cs0.shape[0], m))
+        a, qk, sk = self.a, self.qk, self.sk
+        cq = cq0 - np.einsum("mjk,mjk->km", qk[:, :, :-1], a[:, :, 1:])
+        cs = (cs0 - np.einsum("mjk,mjk->km", a[:, :, :-1], sk[:, :, 1:])
+              - np.einsum("mjk,mjk->km", a[:, :, 1:], sk[:, :, :-1])
+              + np.einsum("mjk,mji,mik->km", a[:, :, :-1], self.sff, a[:, :, 1:]))
+        return cq, cs
+
+    def cross_q(self, i, cols):
+        """``Q`` of the steps at rows ``i`` and ``i + 1`` of the ramps ``cols``."""
+        return self.cross()[0][i, cols]
 
     def slope_change(self, k, amp):
         """How much the found steps and a step ``amp`` at ``k`` change each line's slope."""
@@ -313,6 +440,35 @@ class _Given:
             joint = self.found - self.a[m, :, k] * amp[:, None]
             change = change + np.einsum("mj,mj->m", joint, self.sos[self.steps])
         return change
+
+
+@dataclass(frozen=True)
+class _State:
+    """The ramps of a round of the float64 search: their line's ``R`` (``(n - 1, m)``),
+    weighted RSS and slope, the rows of R of their steps found ``(m, j)``, their pixels
+    (indices of the caller's columns), read noise (or None), gain and variance floor."""
+
+    big_r: np.ndarray
+    rss: np.ndarray
+    slope: np.ndarray
+    steps: np.ndarray
+    pixels: np.ndarray
+    sigma: object
+    gain: object
+    floor: np.ndarray
+
+    def take(self, hit, steps):
+        """The ramps ``hit``, with ``steps``."""
+        return replace(self, big_r=self.big_r[:, hit], rss=self.rss[hit],
+                       slope=self.slope[hit], steps=steps, pixels=self.pixels[hit],
+                       sigma=None if self.sigma is None else _take(self.sigma, hit),
+                       gain=_take(self.gain, hit), floor=self.floor[hit])
+
+
+def _pair_amplitudes(r1, r2, q11, q22, q12):
+    """Joint amplitudes of two steps from their ``R`` and ``Q`` (read-noise metric)."""
+    det = q11 * q22 - q12 ** 2
+    return (r1 * q22 - r2 * q12) / det, (r2 * q11 - r1 * q12) / det
 
 
 def _floor(y0, rel):

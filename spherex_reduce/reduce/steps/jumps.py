@@ -147,10 +147,11 @@ class JumpKernel(Kernel):
                            PixelMap.of(params["read_noise"], "detect_jumps.read_noise", g,
                                        positive=True))
         self.gain = PixelMap.of(params["gain"], "detect_jumps.gain", g, positive=True)
+        # each stored read's time (a group's mean), read-noise variance relative to one
+        # frame's (1 / frames averaged) and charge covariance per unit rate
         self.times = s.frame_starts.to_value(u.s)
-        # read-noise variance of each read relative to one frame's: 1 for frames; groups
-        # of averaged frames give theirs here (schedule.read_noise_factors)
-        self.factors = np.ones(s.nframes)
+        self.factors = s.read_noise_factors
+        self.walk = s.shot_covariance()
         self.needs_exposure = bool(params["neighbours"] or params["radius"] > 0)
         self._lock = threading.Lock()
         self._found = 0  # reads flagged by the search, over the bands (streamed route)
@@ -159,7 +160,8 @@ class JumpKernel(Kernel):
     def _search(self, usable):
         """The `StepSearch` of the reads ``usable`` (bool per frame)."""
         idx = np.flatnonzero(usable)
-        return _step_search(self.times[idx].tobytes(), self.factors[idx].tobytes())
+        return _step_search(self.times[idx].tobytes(), self.factors[idx].tobytes(),
+                            np.ascontiguousarray(self.walk[np.ix_(idx, idx)]).tobytes())
 
     def _maps(self, block, pixels):
         """Read noise (or None) and gain of the band's ``pixels`` (flat indices)."""
@@ -274,10 +276,13 @@ class JumpKernel(Kernel):
 
 
 @functools.lru_cache(maxsize=256)
-def _step_search(times, factors):
-    """The `StepSearch` of reads at ``times`` with read-noise ``factors`` (float64 bytes),
-    made once per process: its matrices depend on nothing else."""
-    return StepSearch(np.frombuffer(times), np.frombuffer(factors))
+def _step_search(times, factors, walk):
+    """The `StepSearch` of reads at ``times`` with read-noise ``factors`` and charge
+    covariance ``walk`` (float64 bytes), made once per process: its matrices depend on
+    nothing else."""
+    n = len(times) // 8
+    return StepSearch(np.frombuffer(times), np.frombuffer(factors),
+                      np.frombuffer(walk).reshape(n, n))
 
 
 class _Flags:

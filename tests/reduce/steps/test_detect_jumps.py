@@ -317,3 +317,23 @@ def test_dark_strip_targets_of_the_benchmark_in_small():
     found = (detect_jumps(e, read_noise=RN).dq & dq.JUMP).reshape(NF, -1)[reads, hit]
     assert found[sizes >= 100].all()
     assert found[sizes == 50].mean() >= 0.9
+
+
+def test_a_jump_within_a_group_of_averaged_frames_isolates_that_group():
+    # 12 groups of 4 frames read one by one and averaged (read noise / 2 per group); a
+    # jump of 300 e between frames 9 and 10, inside group 2 (frames 8-11): that group
+    # holds half the step, the next ones all of it
+    geometry = DetectorGeometry(8, 8, 1, ref_border=0)
+    groups = [list(range(4 * g, 4 * g + 4)) for g in range(12)]
+    s = ReadoutSchedule(geometry, skip=1, ref_reads=0, ref_mode="none", phantom_reads=0,
+                        nframes=12, frame_time=DT, groups=groups)
+    rng = np.random.default_rng(14)
+    frames = 6e4 + rng.normal(0, RN, (48, 8, 8))
+    frames[10:, 4, 5] += 300.0
+    cube = frames.reshape(12, 4, 8, 8).mean(axis=1).astype(np.float32)
+    out = detect_jumps(Exposure.from_arrays(cube, s), read_noise=RN, threshold=5.0)
+    assert jumps_of(out).tolist() == [[2, 4, 5], [3, 4, 5]]
+    fit = fit_ramp(out, read_noise=RN)
+    # group 2 alone carries no slope, so no part of the step is left (with JUMP on group 2
+    # or 3 alone the slope is off by 0.7 or 1.3 e/s, 4.7 or 7.1 of its sigma)
+    assert abs(fit.data.data[4, 5]) < 3 * fit.data.uncertainty.array[4, 5]

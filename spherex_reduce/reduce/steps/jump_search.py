@@ -48,6 +48,9 @@ SCREEN_MARGIN = 0.98
 #: which a ramp is searched with weights for its shot noise, in bins of RHO_BIN dex
 SHOT_WEIGHTED = 0.1
 RHO_BIN = 0.05
+#: a pair of steps whose chi2 is within this of the best one's is flagged too (shot noise
+#: can make the groups on either side of a jump almost equally likely to hold it)
+PAIR_MARGIN = 9.0
 #: bytes of reads screened at once (in cache: larger work areas run several times slower)
 SCREEN_BYTES = 3 << 18
 
@@ -327,7 +330,7 @@ class StepSearch:
         limit = np.log(2.0) + log_ndtr(-threshold)
         pair = np.zeros(cols.size, bool)
         if self.partial.any() and n - 1 >= 2:
-            pk, pchi = self._pairs(fit, rk, qk, sk, var, lam)
+            pk, pchi, chis = self._pairs(fit, rk, qk, sk, var, lam)
             pair = (-0.5 * pchi < logp) & (-0.5 * pchi <= limit)
         single = ~pair & (logp <= limit)
         for hit, is_pair in ((single, False), (pair, True)):
@@ -341,6 +344,15 @@ class StepSearch:
                 z = np.sqrt(pchi[hit])
                 out.append((st.pixels[hit], i + 1, amp1, np.sign(amp1) * z))
                 out.append((st.pixels[hit], i + 2, amp2, np.sign(amp2) * z))
+                # a neighbouring pair that explains the ramp almost as well (the group
+                # before or after may be the mixed one): isolate it too
+                for side, read in ((i + 1, i + 3), (i - 1, i)):
+                    inside = (side >= 0) & (side < chis.shape[0])
+                    near = inside & (chis[np.clip(side, 0, chis.shape[0] - 1), c]
+                                     >= pchi[hit] - PAIR_MARGIN)
+                    if near.any():
+                        out.append((st.pixels[hit][near], read[near] + 0, np.zeros(near.sum()),
+                                    z[near]))
                 new = np.column_stack([st.steps[hit], i, i + 1])
             else:
                 kk = k[hit]
@@ -351,7 +363,8 @@ class StepSearch:
 
     def _pairs(self, fit, rk, qk, sk, var, lam):
         """The best pair of steps at reads ``i + 1`` and ``i + 2`` (a jump within the group
-        of frames read ``i + 1`` averages) of each ramp: ``(i, chi2 with 2 dof)``."""
+        of frames read ``i + 1`` averages) of each ramp: ``(i, its chi2 with 2 dof, the
+        chi2 of every pair)``."""
         cq, cs = fit.cross()
         with np.errstate(invalid="ignore", over="ignore"):  # a found step's q is inf
             d11 = var * qk[:-1] + lam * sk[:-1]
@@ -364,7 +377,7 @@ class StepSearch:
             det = np.where(ok, det, 1.0)
             chi = np.where(ok, (r1 ** 2 * d22 - 2 * r1 * r2 * d12 + r2 ** 2 * d11) / det, 0.0)
         i = np.argmax(chi, axis=0)
-        return i, chi[i, np.arange(chi.shape[1])]
+        return i, chi[i, np.arange(chi.shape[1])], chi
 
 
 class _Given:

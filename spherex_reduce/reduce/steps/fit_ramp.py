@@ -191,7 +191,7 @@ class RampFit(Consumer):
         self.read_noise, self.gain, self.dark = _maps(params, s.geometry)
         scalar = not any(m is not None and m.per_pixel for m in (self.read_noise, self.gain,
                                                                  self.dark))
-        noise = RampNoise(times, s.read_noise_factors, s.shot_covariance())
+        noise = RampNoise.from_schedule(s)
         self.solver = LeastSquares(
             times, weighting=params["weighting"], saturation=params["saturation"], noise=noise,
             read_noise=None if self.read_noise is None else

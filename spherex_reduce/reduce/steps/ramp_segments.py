@@ -72,20 +72,65 @@ class RampNoise:
     read_factors: np.ndarray | None = None
     shot: np.ndarray | None = None
     _gls: dict = field(default_factory=dict, repr=False)
+    _steps: object = field(default=None, repr=False)
+    _charge: object = field(default=None, repr=False)
 
     def __post_init__(self):
         t = np.asarray(self.times, dtype=np.float64)
         object.__setattr__(self, "times", t)
         if self.read_factors is None:
             object.__setattr__(self, "read_factors", np.ones(t.size))
+        # single reads: min(t_i, t_j) - t_0 is a sum of the steps dt_k up to min(i, j), so
+        # w^T M w = sum_k dt_k (sum_{i >= k} w_i)**2 (`shot_variance`: no nframes**2 work)
+        steps = None
         if self.shot is None:
             rel = t - (t[0] if t.size else 0.0)
             object.__setattr__(self, "shot", np.minimum.outer(rel, rel))
+            if t.size and (np.diff(t) >= 0).all():
+                steps = np.diff(rel, prepend=0.0)[:, None]
+        object.__setattr__(self, "_steps", steps)
 
-    @property
-    def uniform_read_noise(self):
-        """Whether every read has the same read noise (no groups of unequal sizes)."""
-        return bool((self.read_factors == self.read_factors[0]).all())
+    @classmethod
+    def from_schedule(cls, schedule):
+        """The noise of a schedule's reads or groups of averaged reads.
+
+        The charge of group ``g`` is the mean over its reads ``a`` of the charge
+        at ``t_a``, a sum of increments ``dt_k`` (between consecutive frames
+        read) with weight ``F[g, k]``, the fraction of the group's reads at or
+        after frame ``k``: so ``shot = F diag(dt) F^T``, and `shot_variance` is
+        ``sum_k dt_k (F^T w)_k**2``.
+        """
+        times = schedule.frame_starts.to_value("s")
+        reads = [np.asarray(r) for r in schedule.group_reads]
+        if all(r.size == 1 and r[0] == g for g, r in enumerate(reads)):
+            return cls(times)  # one read per frame: the steps between frames
+        nread = int(max(r.max() for r in reads)) + 1
+        grid = np.arange(nread)
+        frac = np.array([(r[:, None] >= grid).mean(axis=0) for r in reads])
+        dt = np.full(nread, schedule.frame_time.to_value("s"))
+        dt[0] = 0.0
+        noise = cls(times, np.asarray(schedule.read_noise_factors, np.float64),
+                    schedule.shot_covariance())
+        object.__setattr__(noise, "_charge", (frac, dt[:, None]))
+        return noise
+
+    def shot_variance(self, w):
+        """``w[:, p] @ shot @ w[:, p]`` for every column ``p`` of ``w`` (nframes, m): the
+        shot-noise variance of weighted sums per unit rate, each column summed in an order
+        that does not depend on the other columns (no BLAS)."""
+        if self._steps is not None:
+            tail = np.cumsum(w[::-1], axis=0)[::-1]  # sum_{i >= k} w_i
+            return (self._steps * tail * tail).sum(axis=0)
+        if self._charge is not None:
+            frac, dt = self._charge
+            ftw = np.zeros((frac.shape[1], w.shape[1]))
+            for g in range(w.shape[0]):  # groups one after another, whatever the columns
+                ftw += frac[g][:, None] * w[g]
+            return (dt * ftw * ftw).sum(axis=0)
+        mw = np.zeros_like(w)
+        for j in range(w.shape[0]):
+            mw += self.shot[:, j:j + 1] * w[j]
+        return (w * mw).sum(axis=0)
 
     def gls_weights(self, ratio, reads=None):
         """Generalised least-squares slope weights for ``rate / read_noise**2 == ratio``.
@@ -247,7 +292,8 @@ def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=No
         w[:, ~ok] = 0.0
         slopes.append(np.where(ok, slope, np.nan))
         rvars.append(np.where(ok, (w * w * noise.read_factors[:, None]).sum(axis=0), np.nan))
-        pfs.append(np.where(ok, _quadratic(w, noise.shot), np.nan))
+        pfs.append(np.where(ok, noise.shot_variance(w), np.nan) if pscale is not None
+                   else np.full(m, np.nan))
         stts.append(np.where(ok, stt, np.nan))
         chi2s.append(np.where(ok, chi2, 0.0))
         ns.append(np.where(ok, n, 0))
@@ -298,15 +344,6 @@ def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=No
     pix[njumps > 0] |= dq.JUMP
     return SegmentFit(slope, var, nreads.astype(np.int16), njumps.astype(np.int16),
                       nseg.astype(np.int16), pix, rnoise, per_rate)
-
-
-def _quadratic(w, matrix):
-    """``w[:, p] @ matrix @ w[:, p]`` for every column ``p``, each summed in the same order
-    whatever the other columns (no BLAS, whose order depends on the shape)."""
-    mw = np.zeros_like(w)
-    for j in range(w.shape[0]):
-        mw += matrix[:, j:j + 1] * w[j]
-    return (w * mw).sum(axis=0)
 
 
 def _two(value):

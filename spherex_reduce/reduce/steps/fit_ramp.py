@@ -205,12 +205,13 @@ class RampFit(Consumer):
         nrows = s.n_reads if context.order == "readout" else s.geometry.nrows
         # every row comes in exactly one band (the executor's bands cover the input);
         # ``var`` holds the standard deviations once a band is fitted
-        self.fit = RampSolution((nrows, s.geometry.ncols))
+        self.fit = RampSolution((nrows, s.geometry.ncols), parts=self.read_noise is not None)
         self.phantom = (np.full((nrows, s.geometry.nchannels), np.nan) if context.has_phantom
                         else None)
         self._local = threading.local()  # a work buffer per thread
         self._lock = threading.Lock()
-        self._few = 0  # pixels with fewer than 2 usable reads so far
+        # pixels with fewer than 2 usable reads, with jumps, cut by saturation, so far
+        self._few = self._jumped = self._saturated = 0
 
     def _buffer(self, data):
         """The calling thread's work buffer for blocks like ``data``."""
@@ -233,10 +234,14 @@ class RampFit(Consumer):
         # uncertainties and the count of unfitted pixels here, in the band's thread
         np.sqrt(part.var, out=part.var)
         few = int(np.count_nonzero(part.flags & dq.FEW_READS))
+        jumped = int(np.count_nonzero(part.njumps))
+        saturated = int(np.count_nonzero(part.flags & dq.SATURATED))
         if not isinstance(rows, slice):
             self.fit.put(rows, part)
         with self._lock:
             self._few += few
+            self._jumped += jumped
+            self._saturated += saturated
         if self.phantom is not None and block.phantom is not None:
             self.phantom[rows] = self.phantom_solver.fit(block.phantom).slope
 
@@ -269,13 +274,13 @@ class RampFit(Consumer):
                 "slope variance at zero rate: read noise and dark-current shot noise"))
             columns["var_per_rate"] = Column(fit.var_per_rate, unit=rate, description=(
                 "slope variance per unit of rate (shot noise)"))
-        tables["RAMPFIT"] = Table(columns,
+        tables["RAMPFIT"] = Table(columns, copy=False,
                                   meta={"comments": ["reads used, jumps and segments fitted, "
                                                      "one row per image row"]})
         header = header.copy()
         header["NFEWRDS"] = (self._few, "pixels with fewer than 2 usable reads")
-        header["NJUMPPX"] = (int(np.count_nonzero(fit.njumps)), "pixels fitted around jumps")
-        header["NSATPX"] = (int(np.count_nonzero(fit.flags & dq.SATURATED)),
+        header["NJUMPPX"] = (self._jumped, "pixels fitted around jumps")
+        header["NSATPX"] = (self._saturated,
                             "pixels whose ramp saturation cut")
         header["RAMPWGT"] = (self.weighting, "ramp-fit weighting")
         return Exposure.from_arrays(fit.slope, self.context.schedule,

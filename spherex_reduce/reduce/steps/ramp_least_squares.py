@@ -114,14 +114,14 @@ class RampSolution:
         Their variances (NaN where undefined or not asked for).
     nreads : `numpy.ndarray` of int16
         Reads used.
-    njumps, nsegments : `numpy.ndarray` of int16
+    njumps, nsegments : `numpy.ndarray` of int8
         Jumps that split usable reads (a JUMP flag on a usable read after another), and
         segments fitted.
-    var_rnoise, var_per_rate : `numpy.ndarray` of float32
-        With a read-noise model: the slope's variance at zero rate (read noise
-        and the dark current's shot noise) and its shot-noise variance per unit
-        of rate (data unit / s); ``var`` is ``var_rnoise + rate * var_per_rate``
-        for the pixel's rate.  NaN without a model.
+    var_rnoise, var_per_rate : `numpy.ndarray` of float32, or None
+        With ``parts`` (a read-noise model): the slope's variance at zero rate
+        (read noise and the dark current's shot noise) and its shot-noise
+        variance per unit of rate (data unit / s); ``var`` is ``var_rnoise +
+        rate * var_per_rate`` for the pixel's rate.  None without ``parts``.
     flags : `numpy.ndarray` of uint32
         `~spherex_reduce.core.dq.FEW_READS`, `~spherex_reduce.core.dq.SATURATED`,
         `~spherex_reduce.core.dq.JUMP` and the flags set on every read of the pixel.
@@ -130,26 +130,33 @@ class RampSolution:
     ARRAYS = ("slope", "var", "nreads", "njumps", "nsegments", "flags", "var_rnoise",
               "var_per_rate")
 
-    def __init__(self, shape):
+    def __init__(self, shape, parts=False):
         self.slope = np.empty(shape, np.float64)
         self.var = np.empty(shape, np.float64)
         self.nreads = np.empty(shape, np.int16)
-        self.njumps = np.empty(shape, np.int16)
-        self.nsegments = np.empty(shape, np.int16)
+        # zero pages until a pixel with a jump or a masked read is written
+        self.njumps = np.zeros(shape, np.int8)
+        self.nsegments = np.empty(shape, np.int8)
         self.flags = np.empty(shape, np.uint32)
-        self.var_rnoise = np.empty(shape, np.float32)
-        self.var_per_rate = np.empty(shape, np.float32)
+        self.var_rnoise = np.full(shape, np.nan, np.float32) if parts else None
+        self.var_per_rate = np.full(shape, np.nan, np.float32) if parts else None
+
+    @property
+    def arrays(self):
+        """Names of the arrays this solution holds."""
+        return [name for name in self.ARRAYS if getattr(self, name) is not None]
 
     def rows(self, rows):
         """A solution viewing rows ``rows`` (a slice) of this one."""
         view = RampSolution.__new__(RampSolution)
         for name in self.ARRAYS:
-            setattr(view, name, getattr(self, name)[rows])
+            a = getattr(self, name)
+            setattr(view, name, None if a is None else a[rows])
         return view
 
     def put(self, rows, part):
         """Write ``part`` (a `RampSolution`) at rows ``rows`` (indices or a slice)."""
-        for name in self.ARRAYS:
+        for name in self.arrays:
             getattr(self, name)[rows] = getattr(part, name)
 
 
@@ -267,8 +274,8 @@ class LeastSquares:
         nf, n, m = cube.shape
         maps = self.maps if maps is None else maps
         if out is None:
-            out = RampSolution((n, m))
-        elif not all(getattr(out, k).flags.c_contiguous for k in RampSolution.ARRAYS):
+            out = RampSolution((n, m), parts=maps.read_noise is not None)
+        elif not all(getattr(out, k).flags.c_contiguous for k in out.arrays):
             raise ValueError("out must hold C-ordered arrays (they are written through views)")
         if (buf is None or buf.dtype != self.work_type(cube.dtype) or buf.shape[0] != nf + 1
                 or buf.shape[1] < m):
@@ -292,11 +299,8 @@ class LeastSquares:
         slope = fit.slope.reshape(npx)
         var = fit.var.reshape(npx)
         fit.nreads[:] = nf
-        fit.njumps[:] = 0
         fit.nsegments[:] = 1 if nf >= 2 else 0
         fit.flags[:] = 0
-        fit.var_rnoise[:] = np.nan
-        fit.var_per_rate[:] = np.nan
         saturation = self.saturation
         resid = self.want_var and maps.read_noise is None
         kcrit = self._kcrit(work)
@@ -369,9 +373,10 @@ class LeastSquares:
         var *= maps.pscale * self.pfactor
         rnoise = np.square(maps.read_noise) * self.sumw2f
         var += rnoise
-        per_rate = np.broadcast_to(maps.pscale * self.pfactor, slope.shape)
-        fit.var_per_rate.reshape(-1)[:] = per_rate
-        fit.var_rnoise.reshape(-1)[:] = rnoise + np.multiply(maps.dark, per_rate)
+        if fit.var_rnoise is not None:
+            per_rate = np.broadcast_to(maps.pscale * self.pfactor, slope.shape)
+            fit.var_per_rate.reshape(-1)[:] = per_rate
+            fit.var_rnoise.reshape(-1)[:] = rnoise + np.multiply(maps.dark, per_rate)
 
     def _optimal(self, x, slope, var, bad, maps, fit):
         """Generalised least squares for the pixels with every read usable (not ``bad``);
@@ -389,7 +394,9 @@ class LeastSquares:
         rn2 = np.broadcast_to(rn2, slope.shape)
         pscale = np.broadcast_to(maps.pscale, slope.shape)
         dark = np.broadcast_to(maps.dark, slope.shape)
-        rnoise, per_rate = fit.var_rnoise.reshape(-1), fit.var_per_rate.reshape(-1)
+        parts = fit.var_rnoise is not None
+        if parts:
+            rnoise, per_rate = fit.var_rnoise.reshape(-1), fit.var_per_rate.reshape(-1)
         for k, key in enumerate(keys):
             wk, vk = self.noise.gls_weights(10 ** (key / 50))
             cols = idx[inv == k]
@@ -398,6 +405,7 @@ class LeastSquares:
             slope[cols] = np.einsum("f,fp->p", wk, x[:, cols].astype(np.float64))
             if self.want_var:
                 var[cols] = rn2[cols] * vk
+            if parts:
                 pf = float(wk @ self.noise.shot @ wk)
                 per_rate[cols] = pscale[cols] * pf
                 rnoise[cols] = (rn2[cols] * float(wk @ (wk * self.noise.read_factors))
@@ -416,5 +424,5 @@ class LeastSquares:
                            read_noise=px.read_noise if self.want_var else None,
                            pscale=px.pscale, dark=px.dark, weighting=self.weighting,
                            want_var=self.want_var)
-        for name in RampSolution.ARRAYS:
+        for name in fit.arrays:
             getattr(fit, name).reshape(-1)[bidx] = getattr(seg, name)

@@ -171,7 +171,8 @@ class SegmentFit:
     slope, var : `numpy.ndarray` of float64
         Combined slope (data unit / s) and its variance (NaN: fewer than two
         usable reads in every segment, or not asked for).
-    nreads, njumps, nsegments : `numpy.ndarray` of int16
+    nreads : `numpy.ndarray` of int16
+    njumps, nsegments : `numpy.ndarray` of int8
         Usable reads, jumps that split usable reads (flagged on a usable read
         after another), and segments fitted.
     flags : `numpy.ndarray` of uint32
@@ -342,8 +343,8 @@ def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=No
     pix[few] |= dq.FEW_READS
     pix[saturated] |= dq.SATURATED
     pix[njumps > 0] |= dq.JUMP
-    return SegmentFit(slope, var, nreads.astype(np.int16), njumps.astype(np.int16),
-                      nseg.astype(np.int16), pix, rnoise, per_rate)
+    return SegmentFit(slope, var, nreads.astype(np.int16), njumps.astype(np.int8),
+                      nseg.astype(np.int8), pix, rnoise, per_rate)
 
 
 def _two(value):

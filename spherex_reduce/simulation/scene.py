@@ -31,15 +31,19 @@ SCENE_PARAMETERS = (
               minimum=-MAX_RATE, maximum=MAX_RATE),
     Parameter("poisson", True, (bool,), "Poisson noise on dark current and photocurrent"),
     Parameter("rtn", None, (dict, type(None)), "random telegraph noise: fraction, amplitude "
-              "(e), rate (Hz)"),
+              "(e), rate (Hz), pixels (active, reference or all)"),
 )
+#: Which pixels ``scene.rtn`` puts telegraph noise in.
+RTN_PIXELS = ("active", "reference", "all")
 RTN_PARAMETERS = (
-    Parameter("fraction", 0.0, _NUM, "fraction of active pixels with telegraph noise",
+    Parameter("fraction", 0.0, _NUM, "fraction of the chosen pixels with telegraph noise",
               minimum=0, maximum=1),
     Parameter("amplitude", 0.0, _NUM, "step between the two states (e)", minimum=0,
               maximum=MAX_RATE),
     Parameter("rate", 0.1, _NUM, "switching rate of each state (Hz)", minimum=0,
               maximum=MAX_RATE),
+    Parameter("pixels", "active", (str,), "active pixels, reference pixels (reference rows "
+              "and side columns, seen at every read) or all", choices=RTN_PIXELS),
 )
 OUTPUT_PARAMETERS = (
     Parameter("mode", "slopes", (str,), "slopes or ramps", choices=MODES),

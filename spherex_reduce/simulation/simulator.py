@@ -16,11 +16,12 @@ from .engine import NoiseEngine
 from .grouping import average_groups, read_schedule
 from .scene import load_scene
 from .synthesis import rng_for
+from .telegraph import ReferenceTelegraph
 
 __all__ = ["SpherexSimulator", "simulate", "simulate_to_fits"]
 
 log = logging.getLogger("spherex_reduce")
-TIER_SIGNAL, TIER_HOT, TIER_RTN = 100, 101, 102
+TIER_SIGNAL, TIER_HOT, TIER_RTN, TIER_RTN_REFERENCE = 100, 101, 102, 103
 
 
 class SpherexSimulator(Simulator):
@@ -164,13 +165,21 @@ class _Terms:
             rate = rate + hot * self.t["hot_pixel_current"]
         self.rate = rate if np.any(rate) else None
         self.charge = None
-        self.rtn = None
+        self.rtn = self.rtn_reference = None
         r = self.t.get("rtn")
         if r and r["fraction"] > 0 and r["amplitude"] > 0:
-            rng = rng_for(engine.entropy, TIER_RTN)
-            idx = np.flatnonzero((rng.random(rate.size) < r["fraction"]) & self.active.ravel())
-            self.rtn = (idx, rng, r["amplitude"], (1 - np.exp(-2 * r["rate"] * self.tframe)) / 2)
-            self.rtn_state = rng.random(idx.size) < 0.5
+            where = r.get("pixels", "active")
+            if where in ("active", "all"):  # read once per frame: switched frame to frame
+                rng = rng_for(engine.entropy, TIER_RTN)
+                idx = np.flatnonzero((rng.random(rate.size) < r["fraction"])
+                                     & self.active.ravel())
+                self.rtn = (idx, rng, r["amplitude"],
+                            (1 - np.exp(-2 * r["rate"] * self.tframe)) / 2)
+                self.rtn_state = rng.random(idx.size) < 0.5
+            if where in ("reference", "all"):  # seen at each of their reads
+                self.rtn_reference = ReferenceTelegraph(
+                    s, r["fraction"], r["amplitude"], r["rate"],
+                    rng_for(engine.entropy, TIER_RTN_REFERENCE))
         s_ph = s.phantom_samples()
         self.tau_ph = (s_ph.mean(axis=1) / g.pixel_rate) if s.phantom_reads else None
         self.sig_rng = rng_for(engine.entropy, TIER_SIGNAL)
@@ -197,6 +206,9 @@ class _Terms:
         if self.rtn is not None:
             idx, val = self._rtn_step(k)
             frame.reshape(-1)[idx] += val.astype(frame.dtype)
+        if self.rtn_reference is not None:
+            idx, val = self.rtn_reference.frame(k)
+            frame.reshape(-1)[idx] += val.astype(frame.dtype)
 
     def add_slopes(self, data, phantom):
         w = self.e.frame_weights()
@@ -218,6 +230,12 @@ class _Terms:
             acc = 0.0
             for k in range(n):
                 idx, val = self._rtn_step(k)
+                acc = acc + w[k] * val
+            data.reshape(-1)[idx] += np.asarray(acc, dtype=data.dtype)
+        if self.rtn_reference is not None:
+            acc = 0.0
+            for k in range(n):
+                idx, val = self.rtn_reference.frame(k)
                 acc = acc + w[k] * val
             data.reshape(-1)[idx] += np.asarray(acc, dtype=data.dtype)
 

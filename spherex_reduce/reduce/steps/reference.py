@@ -165,14 +165,21 @@ class ReferenceKernel(Kernel):
 
     def record(self, plan):
         est = plan.estimate
+        found = est.telegraph
         table = offsets_table(plan.offsets, plan.missing, est.parity, est.n_used,
                               est.n_clipped, self.strategy.name, self.context.unit,
-                              ramp=self.context.ramp)
-        return Record({"REFOFFS": table, **est.tables}, [
-            ("REFSTRAT", self.strategy.name, "reference correction strategy"),
-            ("NNOREF", int(plan.missing.sum()), "offsets without usable reference pixels"),
-            *([("REFPHANT", True, "the strategy estimated from the phantom values")]
-              if self.consumes_phantom else [])])
+                              ramp=self.context.ramp,
+                              n_telegraph=None if found is None else found.count)
+        tables = {"REFOFFS": table, **est.tables}
+        cards = [("REFSTRAT", self.strategy.name, "reference correction strategy"),
+                 ("NNOREF", int(plan.missing.sum()), "offsets without usable reference pixels")]
+        if found is not None:
+            tables["REFTELEG"] = found.table()
+            cards.append(("NTELEG", int(found.count.sum()),
+                          "telegraph reference pixels left out"))
+        if self.consumes_phantom:
+            cards.append(("REFPHANT", True, "the strategy estimated from the phantom values"))
+        return Record(tables, cards)
 
 
 def _plan(context, est, name):
@@ -294,8 +301,11 @@ def missing_columns(geometry, missing, acn):
     return _column_offsets(missing.astype(float), groups, geometry.ncols) > 0
 
 
-def offsets_table(offsets, missing, parity, n_used, n_clipped, strategy, unit, ramp):
-    """The ``REFOFFS`` table of offsets ``(L, nchannels, P)`` (see `correct_reference`)."""
+def offsets_table(offsets, missing, parity, n_used, n_clipped, strategy, unit, ramp,
+                  n_telegraph=None):
+    """The ``REFOFFS`` table of offsets ``(L, nchannels, P)`` (see `correct_reference`);
+    ``n_telegraph`` ``(nchannels,)``: the telegraph reference pixels left out per channel
+    (a column when given)."""
     L, nch, P = offsets.shape
     fr, ch, pa = np.meshgrid(np.arange(L), np.arange(nch), np.arange(P), indexing="ij")
     cols = {}
@@ -307,6 +317,8 @@ def offsets_table(offsets, missing, parity, n_used, n_clipped, strategy, unit, r
     cols["n_used"] = np.asarray(n_used).ravel()
     cols["n_clipped"] = np.asarray(n_clipped).ravel()
     cols["flag"] = np.where(missing.ravel(), dq.NO_REFERENCE, 0).astype(np.uint32)
+    if n_telegraph is not None:
+        cols["n_telegraph"] = np.asarray(n_telegraph, dtype=np.int64)[ch.ravel()]
     # the unit goes in the description: 'electron' is not a FITS unit
     table = Table(cols, meta={"strategy": strategy, "bunit": str(unit or "")})
     table["offset"].description = f"offset subtracted ({unit or 'data unit'})"
@@ -348,7 +360,11 @@ def correct_reference(exposure, strategy="mean", *, registry=None, **params):
         ``n_clipped`` and ``flag``
         (`~spherex_reduce.core.dq.NO_REFERENCE` when the channel had no usable
         reference pixel: offset NaN, channel left uncorrected, a
-        `~spherex_reduce.reduce.steps.reference_strategies.NoReferenceWarning`).
+        `~spherex_reduce.reduce.steps.reference_strategies.NoReferenceWarning`),
+        and with ``telegraph: auto`` (``mean``, ``acn``, ``wiener``)
+        ``n_telegraph``, the channel's telegraph reference pixels left out (also
+        the keyword ``NTELEG``, the total, and the table ``REFTELEG`` listing
+        them; `~spherex_reduce.reduce.steps.telegraph`).
 
     Raises
     ------

@@ -23,6 +23,7 @@ from ...core.source_mask import source_mask
 from ...io.sources import context_of, side_block
 from ..executor import default_threads
 from ..step import Strategy
+from .telegraph import TELEGRAPH_PARAMETERS, drop_telegraph
 
 __all__ = [
     "ALL",
@@ -37,6 +38,7 @@ __all__ = [
     "clipped_mean",
     "reference_offsets",
     "reference_pixels",
+    "reference_rows",
 ]
 
 #: Parity values of the ``REFOFFS`` table: all columns, even samples, odd samples.
@@ -78,6 +80,9 @@ class ReferenceOffsets:
     rows: np.ndarray | None = None
     #: More tables for the output (name -> `~astropy.table.Table`), e.g. ``REFDRIFT``.
     tables: dict = field(default_factory=dict)
+    #: The telegraph reference pixels left out
+    #: (a `~spherex_reduce.reduce.steps.telegraph.TelegraphSearch`), or None: not looked for.
+    telegraph: object = None
 
     @property
     def acn(self):
@@ -191,8 +196,37 @@ def reference_pixels(side, schedule):
     return _usable(vals, m)
 
 
+def reference_rows(side, schedule):
+    """Physical row of every reference read of a side block (the ``k`` of `reference_pixels`)."""
+    if side.order == "readout":
+        reads = np.asarray(side.index)
+        return schedule.rows[reads[schedule.is_reference[reads]]]
+    return np.asarray(side.index)
+
+
+def without_telegraph(strategy, reference, side, schedule, columns=None):
+    """Reference pixels ``(L, k, ncols)`` and side columns (None, or ``(values, rows)`` as
+    `_side_columns` gives them) with the reads of telegraph pixels NaN when
+    ``strategy.telegraph`` is ``'auto'``, and what was found (a
+    `~spherex_reduce.reduce.steps.telegraph.TelegraphSearch`, or None with ``'keep'``).
+
+    The side columns are tested on their own (a row read once per frame has fewer
+    samples than a reference row read several times)."""
+    side_values = None if columns is None else columns[0]
+    if strategy.telegraph != "auto":
+        return reference, side_values, None
+    g = schedule.geometry
+    reference, found = drop_telegraph(reference, reference_rows(side, schedule), g,
+                                      strategy.telegraph_sigma)
+    if columns is not None:
+        side_values, more = drop_telegraph(*columns, g, strategy.telegraph_sigma)
+        found = found.combine(more)
+    return reference, side_values, found
+
+
 def _side_columns(exposure):
-    """Side reference columns of the active rows ``(L, rows, ncols)``, NaN elsewhere.
+    """Side reference columns of the active rows ``(L, rows, ncols)``, NaN elsewhere, and the
+    physical row of each of those rows.
 
     Only the declared side columns: ``left`` of ``ref_border`` from column 0,
     ``right`` at the end (`~spherex_reduce.DetectorGeometry.reference_column_mask`).
@@ -205,7 +239,8 @@ def _side_columns(exposure):
     m = None if exposure.dq is None else np.take(exposure.dq, idx, axis=-2)
     vals = _usable(vals, m)
     vals[..., ~g.reference_column_mask()] = np.nan
-    return vals.reshape(-1, *vals.shape[-2:])
+    rows = s.rows[idx] if exposure.order == "readout" else idx
+    return vals.reshape(-1, *vals.shape[-2:]), rows
 
 
 def _group_columns(geometry, acn):
@@ -236,7 +271,8 @@ def _gather(values, groups):
     return out.reshape(*out.shape[:3], -1)
 
 
-def reference_offsets(exposure, *, acn=False, sigma=3.0, maxiters=5, side_columns=False):
+def reference_offsets(exposure, *, acn=False, sigma=3.0, maxiters=5, side_columns=False,
+                      telegraph="auto", telegraph_sigma=5.0):
     """σ-clipped mean of the reference pixels of every channel (and parity).
 
     Parameters
@@ -253,6 +289,12 @@ def reference_offsets(exposure, *, acn=False, sigma=3.0, maxiters=5, side_column
     side_columns : bool
         Also use the side reference columns of the first and last channel
         (those of the sides ``ref_border`` declares).
+    telegraph : {'auto', 'keep'}
+        ``auto`` leaves out the telegraph reference pixels (found by
+        `~spherex_reduce.reduce.steps.telegraph.find_telegraph` with threshold
+        ``telegraph_sigma``); ``keep`` uses every reference pixel.
+    telegraph_sigma : float
+        Threshold of the telegraph test (robust standard deviations).
 
     Returns
     -------
@@ -266,8 +308,9 @@ def reference_offsets(exposure, *, acn=False, sigma=3.0, maxiters=5, side_column
     NoReferenceError
         The exposure has no reference rows at all.
     """
-    strategy = (AcnReference if acn else MeanReference)(sigma=sigma, maxiters=maxiters,
-                                                         side_columns=side_columns)
+    strategy = (AcnReference if acn else MeanReference)(
+        sigma=sigma, maxiters=maxiters, side_columns=side_columns, telegraph=telegraph,
+        telegraph_sigma=telegraph_sigma)
     est = strategy.estimate(side_block(exposure), context_of(exposure), exposure)
     return est.offsets, est.n_used, est.n_clipped
 
@@ -313,7 +356,10 @@ class MeanReference(Strategy):
     Parameters
     ----------
     **params
-        ``sigma``, ``maxiters``, ``side_columns``, as `reference_offsets`
+        ``sigma``, ``maxiters``, ``side_columns``, as `reference_offsets`;
+        ``telegraph`` (``auto``: leave out the telegraph reference pixels
+        `~spherex_reduce.reduce.steps.telegraph.find_telegraph` finds in the
+        reads of the exposure; ``keep``) and ``telegraph_sigma``, its threshold
         (declared, with their defaults, by :attr:`parameters`).
     """
 
@@ -325,6 +371,7 @@ class MeanReference(Strategy):
                   minimum=1, maximum=1000),
         Parameter("side_columns", False, (bool,), "also use the side reference columns of the "
                   "first and last channel"),
+        *TELEGRAPH_PARAMETERS,
     )
     acn = False
 
@@ -333,6 +380,7 @@ class MeanReference(Strategy):
         super().__init__(**params)
         self.sigma, self.maxiters = params["sigma"], params["maxiters"]
         self.side_columns = params["side_columns"]
+        self.telegraph, self.telegraph_sigma = params["telegraph"], params["telegraph_sigma"]
 
     @property
     def needs_exposure(self):
@@ -341,10 +389,12 @@ class MeanReference(Strategy):
     def estimate(self, side, context, exposure=None):
         g = context.geometry
         columns = _side_columns(exposure) if self.side_columns and g.border.columns else None
-        off, used, clipped = _offsets_of(g, reference_pixels(side, context.schedule), columns,
-                                         acn=self.acn, sigma=self.sigma,
+        reference, columns, found = without_telegraph(
+            self, reference_pixels(side, context.schedule), side, context.schedule, columns)
+        off, used, clipped = _offsets_of(g, reference, columns, acn=self.acn, sigma=self.sigma,
                                          maxiters=self.maxiters, threads=context.threads)
-        return ReferenceOffsets(off, used, clipped, [EVEN, ODD] if self.acn else [ALL])
+        return ReferenceOffsets(off, used, clipped, [EVEN, ODD] if self.acn else [ALL],
+                                telegraph=found)
 
 
 class AcnReference(MeanReference):

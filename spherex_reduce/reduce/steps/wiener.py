@@ -35,7 +35,9 @@ from .reference_strategies import (
     ReferenceOffsets,
     _group_columns,
     reference_pixels,
+    without_telegraph,
 )
+from .telegraph import TELEGRAPH_PARAMETERS
 
 __all__ = ["WienerReference", "load_noise_model"]
 
@@ -138,8 +140,9 @@ class WienerReference(Strategy):
     ----------
     **params
         ``noise``, ``common``, ``acn``, ``domain``, ``regularization``,
-        ``phantom``, ``sigma`` (declared, with their defaults and meaning, by
-        :attr:`parameters`).
+        ``phantom``, ``sigma``, ``telegraph``, ``telegraph_sigma`` (declared,
+        with their defaults and meaning, by :attr:`parameters`; the telegraph
+        reference pixels are left out as by ``mean``).
     """
 
     kind, name = "reference", "wiener"
@@ -161,6 +164,7 @@ class WienerReference(Strategy):
         Parameter("sigma", 5.0, (float,), "reference pixels beyond this many robust (MAD) "
                   "standard deviations from the channel's median are not used",
                   minimum=0, exclusive_minimum=True),
+        *TELEGRAPH_PARAMETERS,
     )
 
     def __init__(self, **params):
@@ -170,6 +174,7 @@ class WienerReference(Strategy):
         self.noise, self.acn, self.domain = noise, params["acn"], params["domain"]
         self.phantom = params["phantom"]
         self.regularization, self.sigma = params["regularization"], params["sigma"]
+        self.telegraph, self.telegraph_sigma = params["telegraph"], params["telegraph_sigma"]
         self.components = load_noise_model(noise)
         names = [c.name for c in self.components]
         if common == "auto":
@@ -279,6 +284,7 @@ class WienerReference(Strategy):
         s = context.schedule
         g = s.geometry
         values = reference_pixels(side, s)  # (L, k, ncols), NaN: unusable
+        values, _, found = without_telegraph(self, values, side, s)
         reads = _reads_of(side, s)
         domain = self._domain(context)
         phantom = None
@@ -323,7 +329,7 @@ class WienerReference(Strategy):
         drift = self._drift_table(rows, parity, context, domain, predicted, mean_predicted,
                                   active, phantom is not None)
         return ReferenceOffsets(offsets, n.sum(axis=1), clipped, parity, rows=rows,
-                                tables={"REFDRIFT": drift})
+                                tables={"REFDRIFT": drift}, telegraph=found)
 
     def _reference_values(self, values, groups):
         """Each reference read's value per channel and group ``(L, k, nch, P)`` (the mean of

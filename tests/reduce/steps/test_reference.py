@@ -113,7 +113,8 @@ def test_mean_removes_channel_offsets_exactly(mode, skip):
         np.testing.assert_allclose(out.data.data, 0.0, atol=1e-9)
         t = out.tables["REFOFFS"]
         assert t.colnames == ["frame", "channel", "parity", "offset", "n_used", "n_clipped",
-                              "flag"]
+                              "flag", "n_telegraph"]
+        assert (t["n_telegraph"] == 0).all() and out.header["NTELEG"] == 0
         np.testing.assert_allclose(t["offset"].value, np.tile(offs, 3))
         assert (t["parity"] == -1).all() and (t["flag"] == 0).all()
         if e.order == "physical" and e.reference is not None:

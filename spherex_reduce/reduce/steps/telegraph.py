@@ -171,15 +171,27 @@ def find_telegraph(values, rows, geometry, sigma=5.0):
 
 def _residuals(values, geometry):
     """Each read minus the median of its channel's pixels of the same sample parity."""
+    width = geometry.channel_width
+    if width % 2 == 0:  # the sample parities are the even and odd columns of a channel
+        v = values.reshape(*values.shape[:2], geometry.nchannels, width // 2, 2)
+        med = _median_last(np.moveaxis(v, 3, -1))[:, :, :, None, :]
+        return (v - med).reshape(values.shape)
     group = geometry.channel_of_column() * 2 + geometry.column_offsets() % 2
     out = np.empty_like(values)
-    with warnings.catch_warnings():  # a group without usable pixels: NaN
-        warnings.simplefilter("ignore", RuntimeWarning)
-        for gid in np.unique(group):
-            cols = np.flatnonzero(group == gid)
-            part = values[:, :, cols]
-            out[:, :, cols] = part - np.nanmedian(part, axis=-1, keepdims=True)
+    for gid in np.unique(group):
+        cols = np.flatnonzero(group == gid)
+        out[:, :, cols] = values[:, :, cols] - _median_last(values[:, :, cols])[..., None]
     return out
+
+
+def _median_last(a):
+    """Median along the last axis, NaN ignored (NaN where all are): sorting a few tens of
+    values is several times faster than `numpy.nanmedian`."""
+    s = np.sort(a, axis=-1)  # NaN last
+    n = np.isfinite(s).sum(axis=-1, keepdims=True)
+    lo = np.take_along_axis(s, np.maximum((n - 1) // 2, 0), axis=-1)[..., 0]
+    hi = np.take_along_axis(s, np.maximum(n // 2, 0).clip(max=s.shape[-1] - 1), axis=-1)[..., 0]
+    return np.where(n[..., 0] > 0, 0.5 * (lo + hi), np.nan)
 
 
 def drop_telegraph(values, rows, geometry, sigma=5.0):

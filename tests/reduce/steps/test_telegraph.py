@@ -1,0 +1,173 @@
+"""Telegraph reference pixels: the search (`find_telegraph`) and ``telegraph: auto | keep``."""
+
+import numpy as np
+import pytest
+from astropy.stats import sigma_clip
+from scipy import stats
+
+from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule, correct_reference
+from spherex_reduce.core import dq
+from spherex_reduce.reduce.steps.telegraph import find_telegraph
+
+SIGMA = 10.0  # e, white noise of a reference pixel read
+
+
+def _schedule(nframes=60):
+    g = DetectorGeometry(32, 256, 4, ref_border=4)
+    return ReadoutSchedule(g, skip=4, ref_reads=32, ref_mode="distributed", phantom_reads=0,
+                           nframes=nframes)
+
+
+def _telegraph(rng, times, rate):
+    """Two-state telegraph sampled at increasing ``times`` (numpy, from the definition)."""
+    p = (1 - np.exp(-2 * rate * np.diff(times))) / 2
+    flips = np.r_[rng.random() < 0.5, rng.random(p.size) < p]
+    return np.cumsum(flips) % 2
+
+
+def _ramps(seed, pixels=(), amplitude=40.0, rate=3.0, nframes=60):
+    """Noise ramps: white noise, offsets shared by each read of a channel and parity, and a
+    telegraph in each of ``pixels`` (physical row, column) of the reference rows."""
+    s = _schedule(nframes)
+    g = s.geometry
+    rng = np.random.default_rng(seed)
+    shape = (s.nframes, s.n_reads, g.ncols)
+    group = g.channel_of_column() * 2 + g.column_offsets() % 2
+    common = rng.normal(0, 30, (s.nframes, s.n_reads, 8))[..., group]
+    cube = rng.normal(0, SIGMA, shape) + common + rng.normal(0, 50, g.ncols)
+    t = (np.arange(s.nframes)[:, None, None] * s.frame_time.value
+         + s.pixel_times().value[None]).reshape(s.nframes * s.n_reads, g.ncols)
+    for row, col in pixels:
+        reads = np.flatnonzero(np.tile(s.rows == row, s.nframes))
+        flat = cube.reshape(-1, g.ncols)
+        flat[reads, col] += amplitude * _telegraph(rng, t[reads, col], rate)
+    return Exposure.from_arrays(cube, s)
+
+
+def _pixels(seed, n):
+    g = _schedule().geometry
+    rng = np.random.default_rng(seed)
+    ref = [(r, c) for r in g.reference_rows for c in range(g.ncols)]
+    return sorted(ref[i] for i in rng.choice(len(ref), n, replace=False))
+
+
+def test_false_alarms_follow_the_tail_of_the_log_variance():
+    """Telegraph-free noise: at a 3-sigma threshold the fraction flagged is the upper tail of
+    the log of a chi-square variance of 200 values (199 degrees of freedom) beyond its median
+    plus 3 x 1.4826 median absolute deviations (scipy), within 3 Poisson sigma; at the default
+    5 sigma nothing of 65 536 pixels is flagged."""
+    g = DetectorGeometry(64, 2048, 32, ref_border=4)
+    rows = np.repeat(g.reference_rows, 4)  # 8 reference rows read 4 times per frame
+    flagged = {3.0: 0, 5.0: 0}
+    tested = 0
+    for seed in range(4):
+        rng = np.random.default_rng(seed)
+        values = rng.normal(0, 1, (50, rows.size, g.ncols)) + rng.normal(0, 5, (50, rows.size, 1))
+        for sigma in flagged:
+            found = find_telegraph(values, rows, g, sigma=sigma)
+            flagged[sigma] += int(found.count.sum())
+        tested += int(found.tested.sum())
+    assert tested == 4 * 8 * 2048
+    nu = 50 * 4 - 1
+    logs = np.log(stats.chi2(nu).ppf(np.linspace(0.5, 2e5 - 0.5, 200000) / 2e5) / nu)
+    med = np.median(logs)
+    threshold = med + 3.0 * 1.4826 * np.median(np.abs(logs - med))
+    expected = stats.chi2(nu).sf(nu * np.exp(threshold)) * tested
+    assert abs(flagged[3.0] - expected) < 3 * np.sqrt(expected), (flagged, expected)
+    assert flagged[5.0] == 0
+
+
+def test_telegraph_pixels_are_found_and_nothing_else():
+    """Telegraph steps of 4 sigma at 3 Hz (~10 switches in 60 frames): every one found,
+    no other pixel; their reads are the ones masked."""
+    pixels = _pixels(1, 12)
+    e = _ramps(2, pixels)
+    s = e.schedule
+    ref = s.reference_read_indices
+    found = find_telegraph(e.data.data[:, ref], s.rows[ref], s.geometry)
+    assert sorted(zip(found.rows.tolist(), found.columns.tolist(), strict=True)) == pixels
+    assert (found.score > 5).all()
+    expected = np.zeros((ref.size, s.geometry.ncols), bool)
+    for row, col in pixels:
+        expected[s.rows[ref] == row, col] = True
+    np.testing.assert_array_equal(found.reads, expected)
+    np.testing.assert_array_equal(found.count, np.bincount(
+        [c // s.geometry.channel_width for _, c in pixels], minlength=4))
+
+
+def _clipped_offsets(e, leave_out=()):
+    """Brute force: astropy sigma_clip mean (3 sigma, 5 iterations) of each frame's and
+    channel's reference pixels, the ``leave_out`` pixels excluded."""
+    s = e.schedule
+    g = s.geometry
+    ref = s.reference_read_indices
+    keep = np.ones((ref.size, g.ncols), bool)
+    for row, col in leave_out:
+        keep[s.rows[ref] == row, col] = False
+    out = np.empty((s.nframes, g.nchannels))
+    for f in range(s.nframes):
+        for ch in range(g.nchannels):
+            cols = slice(ch * g.channel_width, (ch + 1) * g.channel_width)
+            v = e.data.data[f, ref][:, cols][keep[:, cols]]
+            out[f, ch] = sigma_clip(v, sigma=3, maxiters=5).mean()
+    return out
+
+
+@pytest.mark.parametrize("order", ["readout", "physical"])
+def test_auto_leaves_them_out_and_keep_uses_them(order):
+    """``mean`` with ``telegraph: auto`` (the default) gives the clipped mean without the
+    telegraph pixels, ``keep`` the clipped mean of all; recorded in REFOFFS, NTELEG and
+    REFTELEG.  Also after ``unchop`` (the reference reads kept aside)."""
+    from spherex_reduce import unchop
+
+    pixels = _pixels(3, 10)
+    raw = _ramps(4, pixels)
+    e = unchop(raw) if order == "physical" else raw
+    auto = correct_reference(e, "mean")
+    keep = correct_reference(e, "mean", telegraph="keep")
+    t = auto.tables["REFOFFS"]
+    np.testing.assert_allclose(t["offset"].value.reshape(e.schedule.nframes, 4),
+                               _clipped_offsets(raw, pixels), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(keep.tables["REFOFFS"]["offset"].value.reshape(-1, 4),
+                               _clipped_offsets(raw), rtol=0, atol=1e-9)
+    counts = np.bincount([c // 64 for _, c in pixels], minlength=4)
+    np.testing.assert_array_equal(t["n_telegraph"].reshape(-1, 4), np.tile(counts, (60, 1)))
+    assert auto.header["NTELEG"] == len(pixels)
+    listed = auto.tables["REFTELEG"]
+    assert sorted(zip(listed["row"].tolist(), listed["column"].tolist(), strict=True)) == pixels
+    assert "NTELEG" not in keep.header and "n_telegraph" not in keep.tables["REFOFFS"].colnames
+    assert "REFTELEG" not in keep.tables
+
+
+def test_telegraph_free_data_are_corrected_as_before():
+    """No telegraph: ``auto`` finds nothing, and the offsets are exactly ``keep``'s."""
+    e = _ramps(5)
+    auto, keep = correct_reference(e, "acn"), correct_reference(e, "acn", telegraph="keep")
+    assert auto.header["NTELEG"] == 0
+    np.testing.assert_array_equal(auto.data.data, keep.data.data)
+
+
+def test_wiener_leaves_them_out_like_masked_pixels():
+    """``wiener`` with ``auto`` on telegraph data gives the estimate of ``keep`` with the
+    telegraph pixels' reads flagged DO_NOT_USE."""
+    pixels = _pixels(6, 8)
+    e = _ramps(7, pixels, rate=6.0, nframes=30)
+    s = e.schedule
+    flags = np.zeros(e.data.data.shape, np.uint32)
+    for row, col in pixels:
+        flags[:, s.rows == row, col] = dq.DO_NOT_USE
+    masked = e.replace(dq=flags)
+    params = {"noise": "spherex-table2", "domain": "frames"}
+    auto = correct_reference(e, "wiener", **params)
+    keep = correct_reference(masked, "wiener", telegraph="keep", **params)
+    assert auto.header["NTELEG"] == len(pixels)
+    np.testing.assert_allclose(auto.tables["REFDRIFT"]["drift"],
+                               keep.tables["REFDRIFT"]["drift"], rtol=1e-6, atol=1e-4)
+
+
+def test_a_slope_image_is_not_searched():
+    """One frame: each reference pixel has a few samples only, fewer than a test needs."""
+    e = _ramps(8, _pixels(8, 5), nframes=2)
+    img = Exposure.from_arrays(e.data.data[1] - e.data.data[0], e.schedule)
+    out = correct_reference(img, "mean")
+    assert out.header["NTELEG"] == 0 and out.tables["REFTELEG"].meta["tested"] == 0

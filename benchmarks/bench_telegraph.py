@@ -1,4 +1,4 @@
-"""Telegraph reference pixels on the paper's case: what they cost, and what ``telegraph: auto`` saves.
+"""Telegraph reference pixels on the paper's case: their cost, and what ``telegraph: auto`` saves.
 
 Run: ``python benchmarks/bench_telegraph.py [--size 2048] [--nframes 74] [--realizations 5]
 [--fraction 0.05] [--amplitude 25] [--rate 0.05] [--seed 1]``.

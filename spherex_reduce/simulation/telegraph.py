@@ -34,7 +34,7 @@ def switch_probability(rate, dt):
     --------
     >>> from spherex_reduce.simulation.telegraph import switch_probability
     >>> switch_probability(0.5, [0.0, 1.0, 100.0]).round(4).tolist()
-    [0.0, 0.4323, 0.5]
+    [0.0, 0.3161, 0.5]
     """
     return -np.expm1(-2.0 * float(rate) * np.asarray(dt, dtype=np.float64)) / 2.0
 

@@ -21,12 +21,12 @@ noise model.
 
 False alarms: on telegraph-free noise the logarithm of a sample variance of
 ``n`` values is near normal with a short upper tail (standard deviation
-``sqrt(2 / (n - 1))``), so the default ``sigma = 5`` flags at most the
+``sqrt(2 / (n - 1))``), so the default ``sigma = 5`` flags fewer than the
 Gaussian ``3e-7`` of a channel's pixels; measured on the paper's case
-(``benchmarks/bench_telegraph.py``), none of 32 704 reference pixels in 20
-exposures.  Pixels with fewer than `MIN_SAMPLES` usable samples (a slope
-image has one frame) and channels with fewer than `MIN_PIXELS` testable
-pixels are not tested.
+(``benchmarks/bench_telegraph.py``), none of the 16 384 reference-row pixels
+of 5 telegraph-free full-size exposures.  Pixels with fewer than
+`MIN_SAMPLES` usable samples (a slope image has one frame) and channels with
+fewer than `MIN_PIXELS` testable pixels are not tested.
 """
 
 import warnings

@@ -95,6 +95,22 @@ def test_telegraph_pixels_are_found_and_nothing_else():
         [c // s.geometry.channel_width for _, c in pixels], minlength=4))
 
 
+def test_channels_of_odd_width_group_their_sample_parities():
+    """A channel of 33 columns read right to left: the common mode of each read is removed
+    per channel and sample parity (a large even/odd offset would otherwise make every pixel
+    noisy); the one telegraph pixel is found."""
+    g = DetectorGeometry(16, 66, 2, ref_border=2, scan="alternate")
+    rng = np.random.default_rng(9)
+    rows = np.array([0, 1, 14, 15, 0, 1, 14, 15])
+    values = rng.normal(0, 1, (40, rows.size, g.ncols))
+    parity = g.column_offsets() % 2
+    values += rng.normal(0, 20, (40, rows.size, 1)) * parity  # alternating column noise
+    values[:, rows == 14, 40] += 4.0 * (rng.random((40, 1)) < 0.5)
+    found = find_telegraph(values, rows, g)
+    assert (found.rows.tolist(), found.columns.tolist()) == ([14], [40])
+    assert found.tested.tolist() == [4 * 33, 4 * 33]
+
+
 def _clipped_offsets(e, leave_out=()):
     """Brute force: astropy sigma_clip mean (3 sigma, 5 iterations) of each frame's and
     channel's reference pixels, the ``leave_out`` pixels excluded."""

@@ -1,7 +1,7 @@
 """Telegraph reference pixels on the paper's case: their cost, and what ``telegraph: auto`` saves.
 
 Run: ``python benchmarks/bench_telegraph.py [--size 2048] [--nframes 74] [--realizations 5]
-[--fraction 0.05] [--amplitude 25] [--rate 0.05] [--seed 1]``.
+[--fraction 0.05] [--amplitude 22] [--rate 0.03] [--seed 1]``.
 
 The paper's case (as ``spherex-reduce demo`` builds it: 2048², 32 channels,
 S = 24, r = 32 distributed reference reads, c = 4, N = 74, every Table 2 term,
@@ -104,8 +104,8 @@ def main(argv=None):
     ap.add_argument("--nframes", type=int, default=74)
     ap.add_argument("--realizations", type=int, default=5)
     ap.add_argument("--fraction", type=float, default=0.05)
-    ap.add_argument("--amplitude", type=float, default=25.0, help="telegraph step (e)")
-    ap.add_argument("--rate", type=float, default=0.05, help="switching rate (Hz)")
+    ap.add_argument("--amplitude", type=float, default=22.0, help="telegraph step (e)")
+    ap.add_argument("--rate", type=float, default=0.03, help="switching rate (Hz)")
     ap.add_argument("--seed", type=int, default=1)
     args = ap.parse_args(argv)
     rtn = {"fraction": args.fraction, "amplitude": args.amplitude, "rate": args.rate,

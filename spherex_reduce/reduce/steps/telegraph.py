@@ -10,23 +10,28 @@ such a pixel shows in its own history.
 The test (`find_telegraph`): from every reference read, remove what all
 pixels of that read share, the median of its channel's pixels of the same
 sample parity (offsets, drift, alternating column noise); the variance of each
-pixel's residuals over the exposure (its samples: frames times the reads of its
-row) is then its own noise plus ``A² q (1 - q)`` from a telegraph of step
-``A`` spending a fraction ``q`` of the time in its upper state.  A pixel is
-telegraph when the logarithm of that variance lies more than ``sigma`` robust
-standard deviations (1.4826 median absolute deviations) above the median of
-its channel's reference pixels.  The population sets the scale, so pixels
-with more reads, a noisier channel or real pixel-to-pixel differences need no
-noise model.
+pixel's residuals over the exposure is then its own noise plus
+``A² q (1 - q)`` from a telegraph of step ``A`` spending a fraction ``q`` of
+the time in its upper state.  The variance is taken at several time scales:
+over every read (a telegraph switching within frames), and over the means of
+blocks of 1, 2, 4 ... frames while a pixel keeps at least `MIN_SAMPLES` blocks
+(averaging lowers the noise, not a slow telegraph's levels: a telegraph that
+switched once or twice shows there).  At each scale a pixel's score is the
+logarithm of its variance above the median of its channel's reference
+pixels, in robust standard deviations (1.4826 median absolute deviations);
+a pixel is telegraph when its highest score exceeds ``sigma``.  The
+population sets the scale, so pixels with more reads, a noisier channel or
+real pixel-to-pixel differences need no noise model.
 
 False alarms: on telegraph-free noise the logarithm of a sample variance of
 ``n`` values is near normal with a short upper tail (standard deviation
 ``sqrt(2 / (n - 1))``), so the default ``sigma = 5`` flags fewer than the
-Gaussian ``3e-7`` of a channel's pixels; measured on the paper's case
-(``benchmarks/bench_telegraph.py``), none of the 16 384 reference-row pixels
-of 5 telegraph-free full-size exposures.  Pixels with fewer than
-`MIN_SAMPLES` usable samples (a slope image has one frame) and channels with
-fewer than `MIN_PIXELS` testable pixels are not tested.
+Gaussian ``3e-7`` of a channel's pixels at each of the (at most a handful of)
+scales; measured on the paper's case (``benchmarks/bench_telegraph.py``),
+none of the 16 384 reference-row pixels of 5 telegraph-free full-size
+exposures.  Pixels with fewer than `MIN_SAMPLES` usable values at every scale
+(a slope image has one frame) and channels with fewer than `MIN_PIXELS`
+testable pixels are not tested.
 """
 
 import warnings
@@ -70,7 +75,7 @@ class TelegraphSearch:
         Physical row, column and channel of every telegraph pixel.
     score : `numpy.ndarray`
         Its log-variance above the channel's median, in robust standard
-        deviations.
+        deviations (the highest over the time scales tested).
     count, tested : `numpy.ndarray`
         ``(nchannels,)``: telegraph pixels found, and pixels tested, per channel.
     sigma : float
@@ -109,8 +114,8 @@ def find_telegraph(values, rows, geometry, sigma=5.0):
     ----------
     values : `numpy.ndarray`
         ``(L, k, ncols)`` float: ``k`` reads of reference pixels in each of
-        ``L`` frames (any unit); NaN where unusable.  Columns never to be
-        tested may be NaN throughout.
+        ``L`` frames, in time order (any unit); NaN where unusable.  Columns
+        never to be tested may be NaN throughout.
     rows : array_like of int
         ``(k,)``: the physical row of each read; a pixel's samples are those of
         every read of its row in every frame.
@@ -140,33 +145,60 @@ def find_telegraph(values, rows, geometry, sigma=5.0):
     nch, ncols = geometry.nchannels, geometry.ncols
     resid = _residuals(values, geometry)
     uniq, inverse = np.unique(rows, return_inverse=True)
-    var = np.full((uniq.size, ncols), np.nan)
-    with warnings.catch_warnings():  # pixels without usable samples: NaN
-        warnings.simplefilter("ignore", RuntimeWarning)
-        for i in range(uniq.size):
-            x = resid[:, inverse == i].reshape(-1, ncols)
-            n = np.isfinite(x).sum(axis=0)
-            v = np.nanvar(x, axis=0, ddof=1)
-            var[i] = np.where(n >= MIN_SAMPLES, v, np.nan)
-        logv = np.where(var > 0, np.log(np.where(var > 0, var, 1.0)), np.nan)
     channel = geometry.channel_of_column()
-    score = np.full(logv.shape, np.nan)
-    tested = np.zeros(nch, dtype=np.int64)
-    for ch in range(nch):
-        own = logv[:, channel == ch]
-        ok = np.isfinite(own)
-        if ok.sum() < MIN_PIXELS:
-            continue
-        med = np.median(own[ok])
-        spread = _MAD_TO_SIGMA * np.median(np.abs(own[ok] - med))
-        if spread > 0:
-            score[:, channel == ch] = (own - med) / spread
-            tested[ch] = ok.sum()
-    with np.errstate(invalid="ignore"):
-        found = score > sigma
+    score = np.full((uniq.size, ncols), -np.inf)
+    tested = np.zeros((uniq.size, ncols), bool)
+    for scale in _scales(values.shape[0], np.bincount(inverse)):
+        logv = np.full((uniq.size, ncols), np.nan)
+        for i in range(uniq.size):
+            logv[i] = _log_variance(resid[:, inverse == i], scale)
+        for ch in range(nch):
+            own = logv[:, channel == ch]
+            ok = np.isfinite(own)
+            if ok.sum() < MIN_PIXELS:
+                continue
+            med = np.median(own[ok])
+            spread = _MAD_TO_SIGMA * np.median(np.abs(own[ok] - med))
+            if spread > 0:
+                z = np.where(ok, (own - med) / spread, -np.inf)
+                score[:, channel == ch] = np.maximum(score[:, channel == ch], z)
+                tested[:, channel == ch] |= ok
+    found = score > sigma
     r, c = np.nonzero(found)
     return TelegraphSearch(found[inverse], uniq[r], c, channel[c], score[r, c],
-                           np.bincount(channel[c], minlength=nch), tested, float(sigma))
+                           np.bincount(channel[c], minlength=nch),
+                           np.bincount(channel, weights=tested.sum(axis=0),
+                                       minlength=nch).astype(np.int64), float(sigma))
+
+
+def _scales(nframes, reads_per_row):
+    """The time scales tested: ``None`` (every read), then blocks of 1, 2, 4 ... frames while
+    a pixel keeps `MIN_SAMPLES` blocks (frames of one read each: from 2 frames)."""
+    scales = [None]
+    b = 1 if reads_per_row.max(initial=1) > 1 else 2
+    while nframes // b >= MIN_SAMPLES:
+        scales.append(b)
+        b *= 2
+    return scales
+
+
+def _log_variance(x, frames):
+    """Log of the variance of each column's values ``x (L, m, ncols)`` (NaN: unusable), over
+    every value (``frames`` None) or over the means of blocks of ``frames`` frames; NaN with
+    fewer than `MIN_SAMPLES` values or a zero variance."""
+    finite = np.isfinite(x).all()
+    mean, variance = (np.mean, np.var) if finite else (np.nanmean, np.nanvar)
+    with warnings.catch_warnings():  # columns without usable values: NaN
+        warnings.simplefilter("ignore", RuntimeWarning)
+        if frames is None:
+            x = x.reshape(-1, x.shape[-1])
+        else:
+            nb = x.shape[0] // frames
+            x = mean(x[:nb * frames].reshape(nb, -1, x.shape[-1]), axis=1)
+        n = np.full(x.shape[-1], x.shape[0]) if finite else np.isfinite(x).sum(axis=0)
+        var = variance(x, axis=0, ddof=1)
+    ok = (n >= MIN_SAMPLES) & (var > 0)
+    return np.where(ok, np.log(np.where(ok, var, 1.0)), np.nan)
 
 
 def _residuals(values, geometry):

@@ -1,7 +1,7 @@
 """Telegraph reference pixels on the paper's case: their cost, and what ``telegraph: auto`` saves.
 
-Run: ``python benchmarks/bench_telegraph.py [--size 2048] [--nframes 74] [--realizations 5]
-[--fraction 0.05] [--amplitude 22] [--rate 0.03] [--seed 1]``.
+Run: ``python benchmarks/bench_telegraph.py [--size 2048] [--nframes 74] [--realizations 10]
+[--fraction 0.05] [--amplitude 25] [--rate 0.015] [--seed 1]``.
 
 The paper's case (as ``spherex-reduce demo`` builds it: 2048², 32 channels,
 S = 24, r = 32 distributed reference reads, c = 4, N = 74, every Table 2 term,
@@ -102,10 +102,10 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=2048)
     ap.add_argument("--nframes", type=int, default=74)
-    ap.add_argument("--realizations", type=int, default=5)
+    ap.add_argument("--realizations", type=int, default=10)
     ap.add_argument("--fraction", type=float, default=0.05)
-    ap.add_argument("--amplitude", type=float, default=22.0, help="telegraph step (e)")
-    ap.add_argument("--rate", type=float, default=0.03, help="switching rate (Hz)")
+    ap.add_argument("--amplitude", type=float, default=25.0, help="telegraph step (e)")
+    ap.add_argument("--rate", type=float, default=0.015, help="switching rate (Hz)")
     ap.add_argument("--seed", type=int, default=1)
     args = ap.parse_args(argv)
     rtn = {"fraction": args.fraction, "amplitude": args.amplitude, "rate": args.rate,

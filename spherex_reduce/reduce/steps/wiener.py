@@ -283,8 +283,11 @@ class WienerReference(Strategy):
     def estimate(self, side, context, exposure=None):
         s = context.schedule
         g = s.geometry
-        values = reference_pixels(side, s)  # (L, k, ncols), NaN: unusable
-        values, _, found = without_telegraph(self, values, side, s)
+        usable = reference_pixels(side, s)  # (L, k, ncols), NaN: unusable
+        values, _, found = without_telegraph(self, usable, side, s)
+        # the telegraph pixels' usable reads
+        left_out = None if found is None else found.reads & np.isfinite(usable)
+        del usable
         reads = _reads_of(side, s)
         domain = self._domain(context)
         phantom = None
@@ -302,6 +305,7 @@ class WienerReference(Strategy):
         groups = _group_columns(g, self.acn)  # (nch, P, w), -1 pads
         nch, npar = groups.shape[:2]
         obs, n, clipped = self._reference_values(values, groups)
+        weights_n = n if left_out is None else self._counts_with(n, left_out, groups)
         L, n_reads = values.shape[0], s.n_reads
         rows = np.full((L, n_reads, nch, npar), np.nan)
         predicted = np.full((npar, n_reads), np.nan)
@@ -315,7 +319,8 @@ class WienerReference(Strategy):
                 if not frames.any():
                     continue
                 part = out[frames]
-                var = model.estimate(self, k, reads, obs[frames][..., p], n[frames][..., p],
+                var = model.estimate(self, k, reads, obs[frames][..., p],
+                                     weights_n[frames][..., p],
                                      cols.size, None if ph is None else ph[frames], part)
                 out[frames] = part
                 if np.isnan(predicted[p]).all():  # the first frames' prediction
@@ -330,6 +335,16 @@ class WienerReference(Strategy):
                                   active, phantom is not None)
         return ReferenceOffsets(offsets, n.sum(axis=1), clipped, parity, rows=rows,
                                 tables={"REFDRIFT": drift}, telegraph=found)
+
+    @staticmethod
+    def _counts_with(n, left_out, groups):
+        """Pixel counts ``n (L, k, nch, P)`` with the telegraph pixels' reads added back
+        (``left_out (L, k, ncols)``), for the weights alone: the estimate then shares its
+        weights across channels as without telegraph pixels (one solve instead of one per
+        channel, 5x faster at full size), at the price of a white noise understated by a
+        few percent for reads that lost pixels.  A read with no pixel left stays at 0."""
+        extra = left_out[:, :, np.maximum(groups, 0)] & (groups >= 0)
+        return np.where(n > 0, n + extra.sum(axis=-1), 0)
 
     def _reference_values(self, values, groups):
         """Each reference read's value per channel and group ``(L, k, nch, P)`` (the mean of

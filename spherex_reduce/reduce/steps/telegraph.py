@@ -28,7 +28,7 @@ False alarms: on telegraph-free noise the logarithm of a sample variance of
 ``sqrt(2 / (n - 1))``), so the default ``sigma = 5`` flags fewer than the
 Gaussian ``3e-7`` of a channel's pixels at each of the (at most a handful of)
 scales; measured on the paper's case (``benchmarks/bench_telegraph.py``),
-none of the 16 384 reference-row pixels of 5 telegraph-free full-size
+none of the 16 384 reference-row pixels of 10 telegraph-free full-size
 exposures.  Pixels with fewer than `MIN_SAMPLES` usable values at every scale
 (a slope image has one frame) and channels with fewer than `MIN_PIXELS`
 testable pixels are not tested.

@@ -65,8 +65,8 @@ def test_keep_raises_the_band_power_and_auto_removes_it():
         # what the reduction gives, this realisation: within 5 % of the telegraph-free
         assert abs(_power(tele["auto"]) / reference - 1) < 0.05, seed
         assert tele["auto"].header["NTELEG"] > 0
-    # the telegraph adds 4-34 % (mean 17 %) when kept at this size (27 % at full size, the
-    # benchmark), at most 2 % once left out
+    # the telegraph adds 4-34 % (mean 17.5 %) when kept at this size (28 % at full size and
+    # 0.015 Hz: benchmarks/bench_telegraph.py), at most 2 % once left out
     assert np.mean(keep_excess) > 0.15, keep_excess
     assert max(auto_excess) < 0.025 and np.mean(auto_excess) < np.mean(keep_excess) / 8, \
         auto_excess

@@ -186,7 +186,8 @@ def _add_fits_options(parser):
         "--dq-bits", type=_dq_bits, default=DEFAULT_DQ_BITS, metavar="N",
         help="bits of a DQ written by other software (a file without a READOUT table) "
         "that mask a pixel, as a sum of 2**bit, e.g. 0x5 for bits 0 and 2; 0: none "
-        f"(default {DEFAULT_DQ_BITS}: bit 0, do-not-use); our own files keep all their flags")
+        f"(default {DEFAULT_DQ_BITS:#x}: every bit; 1 for bit 0 alone, JWST's do-not-use); "
+        "our own files keep all their flags")
 
 
 @contextlib.contextmanager

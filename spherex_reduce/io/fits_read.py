@@ -243,10 +243,11 @@ def read(path, verify_checksum=None, dq_bits=None, input=None, integration=None,
         Which bits of a ``DQ`` written by other software (a file without a
         ``READOUT`` table) mask a pixel, as a sum of ``2**bit``; such pixels
         get `~spherex_reduce.core.dq.DO_NOT_USE` and other bits are dropped.
-        Default: `~spherex_reduce.io.foreign_dq_bits` (1: bit 0, "do not
-        use").  A file written by this package keeps all its flags.  A 2-D
-        ``DQ`` with ramps applies to every frame (a pixel mask ``(nrows,
-        ncols)`` to every read of each row).  When not given: ``input``'s
+        Default: `~spherex_reduce.io.foreign_dq_bits` (every bit: a flag
+        that cannot be read is never fitted as good).  A file written by
+        this package keeps all its flags.  A 2-D ``DQ`` with ramps applies
+        to every frame (a pixel mask ``(nrows, ncols)`` to every read of
+        each row).  When not given: ``input``'s
         ``dq_bits`` if it has one.
     input : dict or `~spherex_reduce.io.input.InputOptions`, optional
         What the file needs before the steps, as the ``input:`` section of a

@@ -86,7 +86,8 @@ def foreign_dq_bits(bits=DEFAULT_DQ_BITS):
     ----------
     bits : int
         Sum of ``2**bit`` of the bits that mask, 0 to 2**32 - 1 (bits 0 to
-        31); default 1 (bit 0 only).  0: a foreign ``DQ`` masks nothing.
+        31); default every bit.  1: bit 0 only; 0: a foreign ``DQ`` masks
+        nothing.
 
     Raises
     ------

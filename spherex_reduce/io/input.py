@@ -42,7 +42,7 @@ INPUT_PARAMETERS = (
               "fill: config keys supply what the file lacks; override: they replace the file's",
               choices=("fill", "override")),
     Parameter("dq_bits", None, (int, type(None)),
-              "bits of a foreign DQ that mask (default: bit 0, do-not-use)"),
+              "bits of a foreign DQ that mask (default: every bit)"),
 )
 _GAIN = Parameter("gain", None, (float,), "", minimum=0, exclusive_minimum=True)
 #: spellings of ADU in files from other software (case-insensitive, whole words)

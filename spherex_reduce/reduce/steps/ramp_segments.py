@@ -259,6 +259,22 @@ def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=No
     Returns
     -------
     `SegmentFit`
+
+    Examples
+    --------
+    A ramp of slope 2 with a jump of 50 before read 3: one slope from its two
+    segments, fitted around the jump.
+
+    >>> import numpy as np
+    >>> from spherex_reduce import dq
+    >>> from spherex_reduce.reduce.steps.ramp_segments import RampNoise, fit_segments
+    >>> t = np.arange(6.0)
+    >>> y = (2.0 * t + 50.0 * (t >= 3))[:, None].repeat(2, axis=1)
+    >>> flags = np.zeros(y.shape, np.uint32)
+    >>> flags[3, 0] = dq.JUMP  # the second pixel's jump is not flagged
+    >>> fit = fit_segments(y, flags, RampNoise(t), read_noise=1.0)
+    >>> fit.slope.round(6).tolist(), fit.nsegments.tolist(), dq.describe(fit.flags[0])
+    ([2.0, 14.857143], [2, 1], ['JUMP'])
     """
     m = y.shape[1]
     if m == 1:  # numpy sums a lone column pairwise, C-ordered columns frame after frame:

@@ -82,15 +82,19 @@ class Block:
             return d
         return np.array(d, dtype=dtype, order="C")
 
-    def with_flags(self, flags):
-        """A copy whose ``dq`` has ``flags`` (broadcast to the data's shape) or-ed in."""
+    def with_flags(self, flags, at=None):
+        """A copy whose ``dq`` has ``flags`` or-ed in: broadcast to the data's shape, or
+        only at the elements ``at`` (an index, e.g. ``(frames, rows, columns)`` arrays)."""
         if self.dq is None:
             dq = np.zeros(self.data.shape, np.uint32)
         elif "dq" in self.owned and self.dq.flags.writeable:
             dq = self.dq
         else:
             dq = self.dq.copy()
-        dq |= flags
+        if at is None:
+            dq |= flags
+        else:
+            dq[at] |= flags
         return self.replace(dq=dq, owned=self.owned | {"dq"})
 
 

@@ -259,9 +259,7 @@ class JumpKernel(Kernel):
             frames, rows, cols = coefficients.within(block.index)
         if not frames.size:
             return block
-        out = block.with_flags(np.uint32(0))
-        out.dq[frames, rows, cols] |= np.uint32(dq.JUMP)
-        return out
+        return block.with_flags(np.uint32(dq.JUMP), at=(frames, rows, cols))
 
     def apply_side(self, coefficients, side):
         """The reference reads are left as they are (they collect no charge)."""

@@ -354,7 +354,7 @@ class LeastSquares:
             bad = np.ones(npx, bool)
         if rmask is not None:
             rmask = np.asarray(rmask).reshape(nf, npx)
-            bad |= np.any(rmask != 0, axis=0)
+            bad |= np.bitwise_or.reduce(rmask, axis=0) != 0  # one pass, no temporary
         if self.weighting == "optimal" and nf >= 2:
             fitted = self._optimal(x, slope, var, bad, maps, fit)
             if imprecise is not None:  # their slopes are float64 sums now

@@ -122,7 +122,8 @@ def output_paths(inputs, outdir):
 def image_statistics(exposure):
     """Median and robust standard deviation of an exposure's good pixels.
 
-    Good pixels are finite with no `spherex_reduce.core.dq` flag set.  The robust
+    Good pixels are finite with no `spherex_reduce.core.dq` flag but the
+    informational ones (`~spherex_reduce.core.dq.image_usable`).  The robust
     standard deviation is `astropy.stats.mad_std` (1.4826 × the median
     absolute deviation).
 

@@ -51,3 +51,26 @@ def test_weights_from_each_integrations_own_slope_are_biased(fitted):
              for r in fitted]
     bias = np.mean(combine_integrations(plain).exposure.data.data) / RATE - 1
     assert bias < -0.02, bias
+
+
+def test_variance_parts_follow_the_rows_after_unchop():
+    """Slopes fitted in readout order and un-chopped (spherex-slopes): RAMPFIT stays in
+    readout order, and each physical row must take its own read's variance parts."""
+    from spherex_reduce import unchop
+
+    s = ReadoutSchedule(DetectorGeometry(8, 4, 1, ref_border=0), skip=2, ref_reads=0,
+                        ref_mode="none", phantom_reads=0, nframes=6, frame_time=1.0)
+    assert s.rows.tolist() == [0, 2, 4, 6, 1, 3, 5, 7]
+    rng = np.random.default_rng(0)
+    rn = np.where(np.arange(8) < 4, 1.0, 50.0)[:, None] * np.ones((8, 4))  # physical rows
+    images = []
+    for _ in range(2):
+        cube = (100 + 2.0 * np.arange(6)[:, None, None]
+                + rng.normal(0, 1, (6, 8, 4)) * rn[s.rows][None])
+        images.append(unchop(fit_ramp(Exposure.from_arrays(cube, s), read_noise=rn)))
+    err = combine_integrations(images).exposure.data.uncertainty.array
+    t = np.arange(6.0)
+    w = (t - t.mean()) / ((t - t.mean()) ** 2).sum()
+    noisy = 50.0 * np.sqrt(w @ w) / np.sqrt(2)  # read noise of two integrations
+    assert (err[:4] < 0.1 * noisy).all()
+    np.testing.assert_allclose(err[4:], noisy, rtol=0.02)

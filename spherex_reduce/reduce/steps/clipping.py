@@ -73,7 +73,7 @@ def _sigma_clip(exposure, *, sigma, sigma_lower, sigma_upper, maxiters, cenfunc,
     nd = exposure.data
     data = np.asarray(nd.data)
     flags = np.zeros(data.shape, np.uint32) if exposure.dq is None else exposure.dq
-    old = flags != 0
+    old = ~dq.image_usable(flags)  # JUMP or SATURATED alone: a valid slope, clipped too
     usable = ~old & np.isfinite(data)
     clipper = SigmaClip(sigma=sigma, sigma_lower=sigma_lower, sigma_upper=sigma_upper,
                         maxiters=maxiters, cenfunc=cenfunc, stdfunc=stdfunc)

@@ -275,7 +275,8 @@ class RampFit(Consumer):
             columns["var_per_rate"] = Column(fit.var_per_rate, unit=rate, description=(
                 "slope variance per unit of rate (shot noise)"))
         tables["RAMPFIT"] = Table(columns, copy=False,
-                                  meta={"comments": ["reads used, jumps and segments fitted, "
+                                  meta={"order": self.context.order,
+                                        "comments": ["reads used, jumps and segments fitted, "
                                                      "one row per image row"]})
         header = header.copy()
         header["NFEWRDS"] = (self._few, "pixels with fewer than 2 usable reads")

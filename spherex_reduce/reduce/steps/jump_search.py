@@ -225,7 +225,8 @@ class StepSearch:
             y0 = np.asarray(y[0, part], work)
             rel = buf[:, :y0.size]
             np.subtract(y[:, part], y0, out=rel, casting="unsafe")  # exact for a pedestal
-            best, rss = self._screen(rel, estimate)
+            with np.errstate(invalid="ignore", over="ignore"):  # non-finite ramps: set aside
+                best, rss = self._screen(rel, estimate)
             floor = _floor(y0, rel)
             if estimate:
                 var = np.maximum((rss - best) / (n - 3), floor)

@@ -43,8 +43,9 @@ MAP_TYPES = (int, float, str, np.ndarray)
 _EXT = re.compile(r"^(?P<path>.*)\[(?P<ext>[^\[\]]+)\]$")
 
 
-def _read_image(text, name):
-    """The 2-D image of the FITS file ``text`` (``path`` or ``path[EXT]``), as float64."""
+def _read_image(text, name, shape):
+    """The 2-D image of the FITS file ``text`` (``path`` or ``path[EXT]``), as float64;
+    its shape is checked against ``shape`` from the header, before its data are read."""
     from astropy.io import fits
 
     match = _EXT.match(text)
@@ -56,12 +57,17 @@ def _read_image(text, name):
             if ext is not None:
                 hdu = hdul[int(ext) if ext.isdigit() else ext]
             else:
-                hdu = next((h for h in hdul if h.is_image and h.data is not None), None)
-            if hdu is None or not hdu.is_image or hdu.data is None:
-                raise ConfigError(f"{name}: {text} holds no image")
-            return np.array(hdu.data, dtype=np.float64)
+                hdu = next((h for h in hdul if h.is_image and h.header.get("NAXIS", 0)),
+                           None)
+            found = None if hdu is None or not hdu.is_image else tuple(hdu.shape)
+            if found == shape:
+                return np.array(hdu.data, dtype=np.float64)
     except (OSError, KeyError, IndexError, ValueError) as err:
         raise ConfigError(f"{name}: cannot read {text}: {err}") from None
+    if not found:
+        raise ConfigError(f"{name}: {text} holds no image")
+    raise ConfigError(f"{name}: a map of shape {found}; the array is {shape} "
+                      "(rows, columns, physical order)")
 
 
 @dataclass(frozen=True, eq=False)
@@ -109,7 +115,7 @@ class PixelMap:
         label = "array"
         if isinstance(value, (str, Path)):
             label = str(value)
-            arr = _read_image(str(value), name)
+            arr = _read_image(str(value), name, (geometry.nrows, geometry.ncols))
         else:
             arr = np.asarray(getattr(value, "value", value), dtype=np.float64)
             if arr.ndim == 0:

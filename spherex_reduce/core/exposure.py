@@ -46,8 +46,12 @@ def _nddata(values, unit, uncertainty, flags):
         uncertainty = StdDevUncertainty(np.asarray(uncertainty), copy=False)
     if flags is None:
         mask = None
-    else:
-        mask = ~(image_usable(flags) if values.ndim == 2 else read_usable(flags))
+    elif values.ndim == 2:
+        mask = ~image_usable(flags)
+    else:  # frame by frame: no temporary of the flags' size
+        mask = np.empty(np.shape(flags), bool)
+        for i in range(mask.shape[0]):
+            np.logical_not(read_usable(flags[i]), out=mask[i])
     cls = CCDData if values.ndim == 2 else NDData
     return cls(values, unit=unit, uncertainty=uncertainty, mask=mask)
 

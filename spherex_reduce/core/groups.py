@@ -33,6 +33,8 @@ __all__ = ["check_groups", "describe_groups", "format_groups", "group_covariance
 
 #: Reads a schedule can count (its sample times stay exact in float64).
 _MAX_READ = 2**53
+#: Most reads a ``groups`` text may list (ranges expanded): 2**24, 128 MB of indices.
+MAX_LISTED_READS = 1 << 24
 
 
 def resolve_groups(ngroups, frames_per_group=1, group_gap=0, groups=None):
@@ -187,7 +189,7 @@ def parse_groups(text):
     ValueError
         Text that is not groups of integers and ranges ``a-b`` (``a <= b``).
     """
-    groups = []
+    groups, total = [], 0
     for part in str(text).split(";"):
         reads = []
         for item in part.split(","):
@@ -200,9 +202,19 @@ def parse_groups(text):
                                  f"';', ranges a-b), got {text!r}") from None
             if b < a:
                 raise ValueError(f"groups: the range {item.strip()!r} in {text!r} runs backwards")
+            total += b - a + 1
+            if total > MAX_LISTED_READS:  # before a list of them is made
+                raise ValueError(f"groups: more than {MAX_LISTED_READS} reads listed in "
+                                 f"{_short(text)}")
             reads.extend(range(a, b + 1))
         groups.append(reads)
     return groups
+
+
+def _short(text, limit=60):
+    """``text`` quoted, cut to ``limit`` characters for a message."""
+    text = str(text)
+    return repr(text if len(text) <= limit else text[:limit] + "...")
 
 
 def _flat(groups):

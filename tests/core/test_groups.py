@@ -161,6 +161,7 @@ def test_bad_groups_are_refused_in_one_line(readout, message):
     ("0;3-1", "keyword GRPREADS: groups: the range '3-1' in '0;3-1' runs backwards"),
     ("0;;3", "keyword GRPREADS: groups: expected reads like"),
     ("0;0-2", "groups[1] starts at read 0, not after read 0"),
+    ("0;1-100000000000", "groups: more than 16777216 reads listed in '0;1-100000000000'"),
 ])
 def test_a_bad_header_list_is_refused(text, message):
     h = schedule(nframes=2, groups=[[0], [1, 2]]).to_header()

@@ -73,7 +73,6 @@ class RampNoise:
     shot: np.ndarray | None = None
     _gls: dict = field(default_factory=dict, repr=False)
     _steps: object = field(default=None, repr=False)
-    _charge: object = field(default=None, repr=False)
 
     def __post_init__(self):
         t = np.asarray(self.times, dtype=np.float64)
@@ -92,27 +91,14 @@ class RampNoise:
 
     @classmethod
     def from_schedule(cls, schedule):
-        """The noise of a schedule's reads or groups of averaged reads.
-
-        The charge of group ``g`` is the mean over its reads ``a`` of the charge
-        at ``t_a``, a sum of increments ``dt_k`` (between consecutive frames
-        read) with weight ``F[g, k]``, the fraction of the group's reads at or
-        after frame ``k``: so ``shot = F diag(dt) F^T``, and `shot_variance` is
-        ``sum_k dt_k (F^T w)_k**2``.
-        """
+        """The noise of a schedule's reads or groups of averaged reads (its
+        ``read_noise_factors`` and ``shot_covariance``)."""
         times = schedule.frame_starts.to_value("s")
-        reads = [np.asarray(r) for r in schedule.group_reads]
-        if all(r.size == 1 and r[0] == g for g, r in enumerate(reads)):
-            return cls(times)  # one read per frame: the steps between frames
-        nread = int(max(r.max() for r in reads)) + 1
-        grid = np.arange(nread)
-        frac = np.array([(r[:, None] >= grid).mean(axis=0) for r in reads])
-        dt = np.full(nread, schedule.frame_time.to_value("s"))
-        dt[0] = 0.0
-        noise = cls(times, np.asarray(schedule.read_noise_factors, np.float64),
-                    schedule.shot_covariance())
-        object.__setattr__(noise, "_charge", (frac, dt[:, None]))
-        return noise
+        reads = schedule.group_reads
+        if all(len(r) == 1 and r[0] == g for g, r in enumerate(reads)):
+            return cls(times)  # one read per frame: `shot_variance` from tail sums
+        return cls(times, np.asarray(schedule.read_noise_factors, np.float64),
+                   schedule.shot_covariance())
 
     def shot_variance(self, w):
         """``w[:, p] @ shot @ w[:, p]`` for every column ``p`` of ``w`` (nframes, m): the
@@ -121,13 +107,7 @@ class RampNoise:
         if self._steps is not None:
             tail = np.cumsum(w[::-1], axis=0)[::-1]  # sum_{i >= k} w_i
             return (self._steps * tail * tail).sum(axis=0)
-        if self._charge is not None:
-            frac, dt = self._charge
-            ftw = np.zeros((frac.shape[1], w.shape[1]))
-            for g in range(w.shape[0]):  # groups one after another, whatever the columns
-                ftw += frac[g][:, None] * w[g]
-            return (dt * ftw * ftw).sum(axis=0)
-        mw = np.zeros_like(w)
+        mw = np.zeros_like(w)  # groups: nframes**2 work per pixel, no larger temporary
         for j in range(w.shape[0]):
             mw += self.shot[:, j:j + 1] * w[j]
         return (w * mw).sum(axis=0)

@@ -97,3 +97,20 @@ def test_sigma_clip_refuses_ramps():
     s = sched()
     with pytest.raises(SpherexReduceError, match="fit the ramps first"):
         sigma_clip(Exposure.from_arrays(np.zeros((4, s.n_reads, 32)), s))
+
+
+def test_informational_flags_are_clipped_like_clean_pixels():
+    """A slope flagged only JUMP or SATURATED is valid: it enters the statistics and is
+    clipped as astropy clips it; a DO_NOT_USE pixel stays out."""
+    s = sched()
+    rng = np.random.default_rng(3)
+    values = rng.normal(0, 1, (32, 32))
+    values[[3, 4, 5], [3, 4, 5]] = 1e4
+    flags = np.zeros((32, 32), np.uint32)
+    flags[3, 3], flags[4, 4], flags[5, 5] = dq.JUMP, dq.SATURATED, dq.DO_NOT_USE
+    out = sigma_clip(image(s, values, mask=flags), sigma=5.0)
+    expected = astropy_sigma_clip(np.ma.masked_array(values, flags == dq.DO_NOT_USE),
+                                  sigma=5.0, maxiters=None).mask & (flags != dq.DO_NOT_USE)
+    np.testing.assert_array_equal((out.dq & dq.HOT) != 0, expected)
+    assert out.dq[3, 3] == dq.JUMP | dq.HOT and out.dq[4, 4] == dq.SATURATED | dq.HOT
+    assert out.dq[5, 5] == dq.DO_NOT_USE

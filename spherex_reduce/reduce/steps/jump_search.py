@@ -44,6 +44,11 @@ __all__ = ["SCREEN_MARGIN", "Found", "StepSearch"]
 #: the float32 screen keeps pixels down to this fraction of the threshold, so that its
 #: rounding never drops a pixel the float64 search would flag
 SCREEN_MARGIN = 0.98
+#: shot-weighted searches kept per set of reads (bins of rho; ~5 n x n matrices each)
+SHOT_CACHE = 32
+#: E[x**2 | x**2 below its 90 % quantile] for a unit Gaussian x (1 - 2 z phi(z) / 0.9 at
+#: z = 1.6449)
+_TRIMMED_90 = 0.62302
 #: shot noise (lambda / sigma**2 times the longest charge variance per unit rate) above
 #: which a ramp is searched with weights for its shot noise, in bins of RHO_BIN dex
 SHOT_WEIGHTED = 0.1
@@ -136,6 +141,8 @@ class StepSearch:
         if found is None:
             found = StepSearch(self.tau, self.factors, self.walk, 10.0 ** (key * RHO_BIN))
             with self._lock:
+                if len(self._shot) >= SHOT_CACHE:  # bounded: the oldest bin goes
+                    self._shot.pop(next(iter(self._shot)))
                 self._shot[key] = found
         return found
 
@@ -276,6 +283,12 @@ class StepSearch:
                 keep = ~shot
                 bins = np.round(np.log10(rho[shot]) / RHO_BIN).astype(np.int64)
                 where = np.flatnonzero(shot)
+                if sigma is None:  # the RSS of a bright ramp holds its shot noise: not sigma
+                    var[where] = np.maximum(self._differences_variance(y[:, where],
+                                                                       lam[where]),
+                                            floor[where])
+                    rho[where] = lam[where] / var[where]
+                    bins = np.round(np.log10(rho[shot]) / RHO_BIN).astype(np.int64)
                 for b in np.unique(bins):
                     sel = where[bins == b]
                     other = self.with_shot(10.0 ** (b * RHO_BIN))
@@ -285,6 +298,23 @@ class StepSearch:
                 state = state.take(keep, state.steps[keep])
         self._round(state, threshold, max_jumps, out)
         return Found.of(out)
+
+    def _differences_variance(self, y, lam):
+        """Read-noise variance of ramps ``y`` with shot noise ``lam`` from their first
+        differences: ``Var(dy_i) = sigma**2 (f_i + f_(i-1)) + lam (W_ii + W_(i-1)(i-1) -
+        2 W_i(i-1))``, the differences' spread taken robustly (the mean of the smallest
+        90 % of their squares about their median, / 0.6230 for a Gaussian), so that a
+        jump or two do not inflate it."""
+        d = np.diff(y, axis=0)
+        d -= np.median(d, axis=0)
+        d *= d
+        keep = max(1, int(0.9 * d.shape[0]))
+        spread = np.partition(d, keep - 1, axis=0)[:keep].mean(axis=0) / _TRIMMED_90
+        f, walk = self.factors, self.walk
+        a = float(np.mean(f[1:] + f[:-1]))
+        b = float(np.mean(np.diagonal(walk)[1:] + np.diagonal(walk)[:-1]
+                          - 2 * np.diagonal(walk, 1)))
+        return (spread - lam * b) / a
 
     def _noise(self, st):
         """Read-noise variance and shot noise (lambda) of each ramp of ``st``, from the

@@ -42,13 +42,15 @@ from astropy.table import Table
 
 from ...core.parameters import Parameter
 
-__all__ = ["MIN_PIXELS", "MIN_SAMPLES", "TELEGRAPH_PARAMETERS", "TelegraphSearch",
+__all__ = ["MIN_COMMON", "MIN_PIXELS", "MIN_SAMPLES", "TELEGRAPH_PARAMETERS", "TelegraphSearch",
            "drop_telegraph", "find_telegraph"]
 
 #: Fewest usable samples (frames x reads of its row) a pixel needs to be tested.
 MIN_SAMPLES = 16
 #: Fewest testable reference pixels a channel needs for its population statistics.
 MIN_PIXELS = 16
+#: fewest pixels of a read, channel and parity whose median is taken as their common signal
+MIN_COMMON = 8
 _MAD_TO_SIGMA = 1.4826
 
 #: The reference strategies' parameters of the search (``mean``, ``acn``, ``wiener``).
@@ -202,17 +204,28 @@ def _log_variance(x, frames):
 
 
 def _residuals(values, geometry):
-    """Each read minus the median of its channel's pixels of the same sample parity."""
+    """Each read minus the median of its channel's pixels of the same sample parity.
+
+    Where fewer than `MIN_COMMON` pixels share a read, channel and parity (the side
+    reference columns: 2 per parity), the read is left as it is: the median of so few
+    would carry a telegraph pixel's steps into its partners (with 2, both residuals are
+    +-(a - b) / 2), and the test against the channel's other pixels tolerates the
+    common drift they all share.
+    """
     width = geometry.channel_width
     if width % 2 == 0:  # the sample parities are the even and odd columns of a channel
         v = values.reshape(*values.shape[:2], geometry.nchannels, width // 2, 2)
-        med = _median_last(np.moveaxis(v, 3, -1))[:, :, :, None, :]
-        return (v - med).reshape(values.shape)
+        grouped = np.moveaxis(v, 3, -1)
+        med = _median_last(grouped)
+        med[np.isfinite(grouped).sum(axis=-1) < MIN_COMMON] = 0.0
+        return (v - med[:, :, :, None, :]).reshape(values.shape)
     group = geometry.channel_of_column() * 2 + geometry.column_offsets() % 2
     out = np.empty_like(values)
     for gid in np.unique(group):
         cols = np.flatnonzero(group == gid)
-        out[:, :, cols] = values[:, :, cols] - _median_last(values[:, :, cols])[..., None]
+        med = _median_last(values[:, :, cols])
+        med[np.isfinite(values[:, :, cols]).sum(axis=-1) < MIN_COMMON] = 0.0
+        out[:, :, cols] = values[:, :, cols] - med[..., None]
     return out
 
 

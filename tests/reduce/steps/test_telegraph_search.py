@@ -199,3 +199,16 @@ def test_a_slope_image_is_not_searched():
     img = Exposure.from_arrays(e.data.data[1] - e.data.data[0], e.schedule)
     out = correct_reference(img, "mean")
     assert out.header["NTELEG"] == 0 and out.tables["REFTELEG"].meta["tested"] == 0
+
+
+def test_a_side_column_telegraph_does_not_drag_its_partner_out():
+    """Side reference columns hold 2 pixels per channel and parity in a read: their median
+    is their mean, so a telegraph showed in both residuals and both were dropped."""
+    g = DetectorGeometry(64, 64, 2, ref_border=4)
+    rng = np.random.default_rng(0)
+    reads, rows = 40, np.arange(4, 60)
+    values = rng.normal(0, 1, (reads, rows.size, 64))
+    values[..., ~g.reference_column_mask()] = np.nan
+    values[:, 10, 0] += 6 * (rng.random(reads) < 0.5)  # row 14, column 0 only
+    found = find_telegraph(values, rows, g)
+    assert list(zip(found.rows.tolist(), found.columns.tolist(), strict=True)) == [(14, 0)]

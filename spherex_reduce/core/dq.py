@@ -14,9 +14,13 @@ Most bits say why a pixel (or a read) must not be used.  Three only inform:
   the reads before it is valid unless `FEW_READS` is also set;
 - `REFERENCE` marks a reference pixel: its value is valid but it is not sky.
 
-So a read is usable when its flags have no bit but `JUMP` and `REFERENCE`
-(`read_usable`), and a pixel of an image when it has no bit but the
-`INFORMATIONAL` ones (`image_usable`); ``data.mask`` of an
+And `NO_REFERENCE` on a read says its channel had no reference pixels to
+correct it with: the read is used (the channel is left uncorrected, never
+NaN), and the slope carries the flag, which masks it on the image.
+
+So a read is usable when its flags have no bit but `JUMP`, `REFERENCE` and
+`NO_REFERENCE` (`read_usable`), and a pixel of an image when it has no bit but
+the `INFORMATIONAL` ones (`image_usable`); ``data.mask`` of an
 `~spherex_reduce.Exposure` follows that rule.
 
 The table of bits, with what each means on an image, is in the docs' FITS page.
@@ -40,8 +44,9 @@ REFERENCE = 128  #: a reference pixel (valid, but not sky)
 
 #: Bits that inform without masking a pixel of an image.
 INFORMATIONAL = JUMP | SATURATED | REFERENCE
-#: Bits that do not stop a read from being used (the others, SATURATED included, do).
-READ_INFORMATIONAL = JUMP | REFERENCE
+#: Bits that do not stop a read from being used (the others, SATURATED included, do):
+#: NO_REFERENCE leaves the read uncorrected, not unusable.
+READ_INFORMATIONAL = JUMP | REFERENCE | NO_REFERENCE
 
 _NAMES = {
     DO_NOT_USE: "DO_NOT_USE",
@@ -85,7 +90,8 @@ def image_usable(flags):
 
 
 def read_usable(flags):
-    """Whether reads with ``flags`` may be fitted (no bit but `JUMP` and `REFERENCE`).
+    """Whether reads with ``flags`` may be fitted (no bit but `JUMP`, `REFERENCE` and
+    `NO_REFERENCE`).
 
     Examples
     --------

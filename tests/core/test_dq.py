@@ -21,7 +21,7 @@ def test_every_bit_is_one_distinct_bit_and_named():
 def test_which_bits_mask():
     flags = np.array([0, *BITS, 2**19, 2**31], np.uint32)
     informs_image = {0, dq.JUMP, dq.SATURATED, dq.REFERENCE}
-    informs_read = {0, dq.JUMP, dq.REFERENCE}
+    informs_read = {0, dq.JUMP, dq.REFERENCE, dq.NO_REFERENCE}  # uncorrected, not unusable
     assert dq.image_usable(flags).tolist() == [int(f) in informs_image for f in flags]
     assert dq.read_usable(flags).tolist() == [int(f) in informs_read for f in flags]
 

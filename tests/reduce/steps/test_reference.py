@@ -11,6 +11,7 @@ from spherex_reduce import (
     ReadoutSchedule,
     correct_reference,
     dq,
+    fit_ramp,
     subtract_phantom,
     unchop,
 )
@@ -279,3 +280,24 @@ def test_flagged_reference_pixels_stay_unused_after_unchop():
     physical = correct_reference(unchop(e), "mean", sigma=100.0)
     np.testing.assert_allclose(readout.tables["REFOFFS"]["offset"], 0.0)
     np.testing.assert_allclose(physical.tables["REFOFFS"]["offset"], 0.0)
+
+
+def test_a_channel_without_reference_is_fitted_uncorrected_not_nan():
+    """The docs promise "left uncorrected (never NaN)": fit_ramp used to drop every read
+    flagged NO_REFERENCE, leaving the channel's slopes NaN with FEW_READS."""
+    s = sched(nframes=6)
+    rng = np.random.default_rng(4)
+    t = np.arange(s.nframes)[:, None, None] * s.frame_time.value
+    data = offsets_image(s, np.array([1.0, 2.0, 3.0, 4.0]), nframes=6) + 0.5 * t
+    data += rng.normal(0, 0.01, data.shape)
+    data[:, s.reference_read_indices, 8:16] = np.nan  # channel 1 has no reference pixels
+    with pytest.warns(NoReferenceWarning):
+        corrected = correct_reference(Exposure.from_arrays(data, s), "mean")
+    out = fit_ramp(corrected)
+    active = s.active_read_indices
+    slopes = out.data.data[active][:, 8:16]
+    tt = t[:, 0, 0]
+    expected = np.polyfit(tt, data[:, active][:, :, 8:16].reshape(6, -1), 1)[0]
+    np.testing.assert_allclose(slopes.ravel(), expected, rtol=1e-9)
+    assert (out.dq[active][:, 8:16] == dq.NO_REFERENCE).all()  # flagged: masked on the image
+    assert out.data.mask[active][:, 8:16].all() and not out.data.mask[active][:, :8].any()

@@ -101,8 +101,8 @@ def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, dark_c
     noise the covariance of the groups' mean charges
     (`spherex_reduce.ReadoutSchedule.shot_covariance`).
 
-    A read is not used when it is not finite or flagged (any bit but the
-    informational ``JUMP`` and ``REFERENCE``); the first read above
+    A read is not used when it is not finite or flagged (any bit but
+    ``JUMP``, ``REFERENCE`` and ``NO_REFERENCE``); the first read above
     ``saturation`` or flagged ``SATURATED`` ends the usable ramp.  A read
     flagged ``JUMP`` (by `~spherex_reduce.detect_jumps`) starts a new segment:
     each segment of two or more usable reads is fitted, and the segments'

@@ -4,8 +4,8 @@ Most pixels of an exposure have every read usable and are fitted by one
 weight vector shared by all (`~spherex_reduce.reduce.steps.ramp_least_squares`).
 The others come here, each fitted on its own reads, in float64:
 
-1. **Usable reads**: finite, no flag but the informational ``JUMP`` and
-   ``REFERENCE`` (`~spherex_reduce.core.dq.read_usable`), and before the
+1. **Usable reads**: finite, no flag but ``JUMP``, ``REFERENCE`` and
+   ``NO_REFERENCE`` (`~spherex_reduce.core.dq.read_usable`), and before the
    first saturated read: a read above ``saturation`` or flagged ``SATURATED``
    ends the usable ramp (as in the JWST pipeline), since every later read of
    that pixel is saturated too.

@@ -168,7 +168,7 @@ def _usable(values, mask):
     """Values as float64 with NaN where masked (`clipped_mean` ignores NaN and inf)."""
     out = np.array(values, dtype=np.float64)
     if mask is not None:
-        out[~dq.read_usable(mask)] = np.nan  # JUMP and REFERENCE alone: still usable
+        out[~dq.read_usable(mask)] = np.nan  # JUMP, REFERENCE alone: still usable
     return out
 
 

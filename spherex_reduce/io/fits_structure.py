@@ -199,7 +199,8 @@ def _scan_stream(fh, path, size):
                               f"{pos + padded} bytes, {where} after {pos + max(there, 0)}")
         hdus.append({"name": cards.get("EXTNAME") or ("PRIMARY" if index == 0 else
                                                       f"HDU {index}"),
-                     "header": start, "data": pos, "nbytes": nbytes, "cards": cards})
+                     "header": start, "data": pos, "nbytes": nbytes, "padded": padded,
+                     "cards": cards})
         pos += padded
     if hdus:
         nextend = hdus[0]["cards"].get("NEXTEND")
@@ -272,7 +273,9 @@ def _verify(path, hdus):
     bad = []
     with open(path, "rb", buffering=0) as fh:
         for h in wanted:
-            datasum = _word_sum(fh, h["data"], h["nbytes"])
+            # over the data records with their fill, as written: zeros after binary data,
+            # blanks after an ASCII table (the fill counts in its DATASUM)
+            datasum = _word_sum(fh, h["data"], h["padded"])
             declared = h["cards"].get("DATASUM")
             ok = declared is None or (declared.strip().isdigit() and int(declared) == datasum)
             if ok and "CHECKSUM" in h["cards"]:

@@ -461,6 +461,21 @@ def test_files_without_checksums_are_read(tmp_path, raw):
     np.testing.assert_array_equal(read(tmp_path / "plain.fits").data.data, raw.data.data)
 
 
+def test_an_ascii_table_written_with_checksums_is_not_damaged(tmp_path, raw):
+    """An ASCII-table extension's fill is blanks, and its DATASUM counts them: summing the
+    data with zeros after the last word refused a valid file as damaged."""
+    path = write(raw, tmp_path / "raw.fits")
+    notes = fits.TableHDU.from_columns(
+        [fits.Column(name="note", format="A7", array=np.array(["a", "bc", "def"]))],
+        name="NOTES")
+    with fits.open(path) as hdul:
+        fits.HDUList([h.copy() for h in hdul] + [notes]).writeto(tmp_path / "ascii.fits",
+                                                                 checksum=True)
+    with fits.open(tmp_path / "ascii.fits", checksum=True) as hdul:  # astropy: valid
+        assert hdul["NOTES"].verify_datasum() == 1 and len(hdul["NOTES"].data) == 3
+    np.testing.assert_array_equal(read(tmp_path / "ascii.fits").data.data, raw.data.data)
+
+
 @pytest.mark.parametrize("module", ["gzip", "bz2", "lzma"])
 def test_truncated_compressed_files(tmp_path, raw, module, capsys):
     import importlib

@@ -314,6 +314,11 @@ class FitRampStep(Step):
         params = _validated(params)  # wrong parameters are an error even for an image
         if not context.ramp:
             raise StepSkipped("the input is already a 2-D image (slopes)")
+        if context.schedule.nframes < 2:  # every slope would be NaN
+            raise SpherexReduceError(
+                f"fit_ramp needs ramps of at least 2 frames; this one has "
+                f"{context.schedule.nframes} (a single image: store it 2-D, or leave fit_ramp "
+                f"out)")
         return RampFit(context, **params)
 
 

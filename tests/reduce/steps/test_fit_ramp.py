@@ -526,3 +526,25 @@ def test_big_endian_float64_ramps_are_fitted_in_float64(tmp_path):
     np.testing.assert_array_equal(swapped.data.data, native.data.data)
     np.testing.assert_array_equal(swapped.data.uncertainty.array,
                                   native.data.uncertainty.array)
+
+
+@pytest.mark.parametrize("shape", [(1, 8, 8), (2, 1, 8, 8)], ids=["3-D", "4-D"])
+def test_one_frame_ramps_are_refused_in_one_line(tmp_path, capsys, shape):
+    """A ramp of one frame has no slope: it gave an all-NaN image with exit 0."""
+    from astropy.io import fits
+
+    from spherex_reduce.cli import main
+
+    path = tmp_path / "one.fits"
+    fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(np.ones(shape, np.float32), name="SCI")]
+                 ).writeto(path)
+    config = tmp_path / "fit.yaml"
+    config.write_text("geometry: {nrows: 8, ncols: 8, nchannels: 1, ref_border: 0, "
+                      "pixel_rate: 1.0e+5}\n"
+                      "readout: {skip: 1, ref_reads: 0, ref_mode: none, phantom_reads: 0, "
+                      "nframes: 1, frame_time: 1.0}\nsteps: [fit_ramp]\n")
+    assert main(["-q", "reduce", str(path), "-c", str(config), "-o",
+                 str(tmp_path / "out.fits")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "at least 2 frames; this one has 1" in err[0]
+    assert not (tmp_path / "out.fits").exists()

@@ -50,13 +50,14 @@ def _card_int(cards, key, default, path, index, minimum=0):
 
 
 def _scan(path):
-    """The HDUs of a plain FITS file from its bytes: ``[{name, header, data, nbytes, cards}]``.
+    """The HDUs of a plain FITS file from its bytes: ``[{name, header, data, padded, cards}]``.
 
-    ``header`` and ``data`` are byte offsets, ``nbytes`` the data size without
-    padding.  Only headers are read.  A gzip-, bzip2- or xz-compressed file is
-    checked the same way while it is decompressed (one pass, nothing kept), and
-    then None is returned, as for a file that is not FITS at all (astropy
-    unpacks the first, and names the problem of the second).
+    ``header`` and ``data`` are byte offsets, ``padded`` the data size with its
+    fill to whole 2880-byte records.  Only headers are read.  A gzip-, bzip2-
+    or xz-compressed file is checked the same way while it is decompressed
+    (one pass, nothing kept), and then None is returned, as for a file that is
+    not FITS at all (astropy unpacks the first, and names the problem of the
+    second).
 
     Raises
     ------
@@ -199,7 +200,7 @@ def _scan_stream(fh, path, size):
                               f"{pos + padded} bytes, {where} after {pos + max(there, 0)}")
         hdus.append({"name": cards.get("EXTNAME") or ("PRIMARY" if index == 0 else
                                                       f"HDU {index}"),
-                     "header": start, "data": pos, "nbytes": nbytes, "padded": padded,
+                     "header": start, "data": pos, "padded": padded,
                      "cards": cards})
         pos += padded
     if hdus:

@@ -188,17 +188,11 @@ class RampFit(Consumer):
         self.weighting = params["weighting"]
         s = context.schedule
         times = s.frame_starts.to_value(u.s)
+        # calibration: each band's values (`_band_maps`, numbers or arrays) go to `fit`
         self.read_noise, self.gain, self.dark = _maps(params, s.geometry)
-        scalar = not any(m is not None and m.per_pixel for m in (self.read_noise, self.gain,
-                                                                 self.dark))
         noise = RampNoise.from_schedule(s)
-        self.solver = LeastSquares(
-            times, weighting=params["weighting"], saturation=params["saturation"], noise=noise,
-            read_noise=None if self.read_noise is None else
-            (self.read_noise.values if scalar else 1.0),
-            gain=self.gain.values if scalar else 1.0,
-            dark_current=self.dark.values if scalar else 0.0)
-        self.scalar = scalar
+        self.solver = LeastSquares(times, weighting=params["weighting"],
+                                   saturation=params["saturation"], noise=noise)
         self.phantom_solver = LeastSquares(times, want_var=False, noise=noise)
         self.reference_solver = LeastSquares(times, saturation=params["saturation"],
                                              want_var=False, noise=noise)
@@ -230,7 +224,7 @@ class RampFit(Consumer):
         buf = self._buffer(block.data)
         part = self.fit.rows(rows) if isinstance(rows, slice) else None
         part = self.solver.fit(block.data, block.dq, out=part, buf=buf,
-                               maps=None if self.scalar else self._band_maps(block))
+                               maps=self._band_maps(block))
         # uncertainties and the count of unfitted pixels here, in the band's thread
         np.sqrt(part.var, out=part.var)
         few = int(np.count_nonzero(part.flags & dq.FEW_READS))

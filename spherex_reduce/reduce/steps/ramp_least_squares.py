@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...core.exposure import as_dq
-from .ramp_segments import RampNoise, fit_segments
+from .ramp_segments import RATIO_BINS, RampNoise, fit_segments
 
 __all__ = ["GROUP", "LeastSquares", "RampMaps", "RampSolution", "ramp_weights"]
 
@@ -92,15 +92,16 @@ class RampMaps:
 
     def rows(self, rows):
         """The maps of rows ``rows`` (a slice) of the band, flattened to pixels."""
-        def cut(v):
-            return np.ravel(v[rows]) if isinstance(v, np.ndarray) else v
-        return RampMaps(cut(self.read_noise), cut(self.pscale), cut(self.dark))
+        return self._cut(lambda v: np.ravel(v[rows]))
 
     def pixels(self, index):
         """The maps of the (flattened) pixels ``index``."""
-        def cut(v):
-            return v[index] if isinstance(v, np.ndarray) else v
-        return RampMaps(cut(self.read_noise), cut(self.pscale), cut(self.dark))
+        return self._cut(lambda v: v[index])
+
+    def _cut(self, cut):
+        """``cut`` applied to the arrays (numbers stay as they are)."""
+        return RampMaps(*(cut(v) if isinstance(v, np.ndarray) else v
+                          for v in (self.read_noise, self.pscale, self.dark)))
 
 
 class RampSolution:
@@ -386,7 +387,7 @@ class LeastSquares:
         # quantise rate / read_noise**2 (0.02 dex): pixels in a bin share weights
         with np.errstate(divide="ignore"):
             ratio = rate / rn2
-            q = np.where(ratio > 1e-6, np.round(np.log10(ratio) * 50), -np.inf)
+            q = np.where(ratio > 1e-6, np.round(np.log10(ratio) * RATIO_BINS), -np.inf)
         idx = np.flatnonzero(~bad & np.isfinite(q))
         if not idx.size:
             return idx
@@ -398,7 +399,7 @@ class LeastSquares:
         if parts:
             rnoise, per_rate = fit.var_rnoise.reshape(-1), fit.var_per_rate.reshape(-1)
         for k, key in enumerate(keys):
-            wk, vk = self.noise.gls_weights(10 ** (key / 50))
+            wk, vk = self.noise.gls_weights(10 ** (key / RATIO_BINS))
             cols = idx[inv == k]
             # frames added one by one in float64 (a BLAS product's order depends on
             # the other columns)

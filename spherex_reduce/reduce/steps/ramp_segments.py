@@ -35,8 +35,10 @@ import numpy as np
 
 from ...core import dq
 
-__all__ = ["RampNoise", "SegmentFit", "fit_segments"]
+__all__ = ["RATIO_BINS", "RampNoise", "SegmentFit", "fit_segments"]
 
+#: Bins per decade of ``rate / read_noise**2`` whose pixels share GLS weights (0.02 dex).
+RATIO_BINS = 50
 #: Most jumps (segments - 1) a pixel's fit handles; more, and its reads after are not used.
 MAX_SEGMENTS = 64
 
@@ -211,7 +213,7 @@ def _segment_sums(y, good, t):
 
 
 def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=None, dark=0.0,
-                 weighting="uniform", want_var=True, ratio_bins=50):
+                 weighting="uniform", want_var=True, ratio_bins=RATIO_BINS):
     """Fit the usable segments of some pixels' ramps and combine them (see the module).
 
     Parameters

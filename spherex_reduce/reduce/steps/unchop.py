@@ -24,7 +24,7 @@ def _mean_of_reads(values, idx, flags=None):
     """Mean (float64) of the usable reads ``idx`` of ``values (..., reads, m)``."""
     reads = np.take(values, idx, axis=-2).astype(np.float64)
     if flags is not None:
-        reads[~_usable(np.take(flags, idx, axis=-2))] = np.nan
+        reads[~dq.read_usable(np.take(flags, idx, axis=-2))] = np.nan
     with np.errstate(invalid="ignore", divide="ignore"):
         count = np.isfinite(reads).sum(axis=-2)
         return np.where(count > 0, np.nansum(reads, axis=-2) / count, np.nan)
@@ -230,7 +230,7 @@ def _sigma_of_mean(values, sigma, idx, flags=None):
     """Standard deviation of `_mean_of_reads`: ``sqrt(sum sigma_i^2) / n`` over usable reads."""
     good = np.isfinite(np.take(values, idx, axis=-2))
     if flags is not None:
-        good &= _usable(np.take(flags, idx, axis=-2))
+        good &= dq.read_usable(np.take(flags, idx, axis=-2))
     sig = np.take(sigma, idx, axis=-2).astype(np.float64)
     n = good.sum(axis=-2)
     var = np.where(good, sig * sig, 0.0).sum(axis=-2)
@@ -241,14 +241,8 @@ def _sigma_of_mean(values, sigma, idx, flags=None):
 def _usable_flags(flags, idx):
     """Flags of a row read several times: 0 where any read is usable, else all its flags."""
     reads = np.take(flags, idx, axis=-2)
-    usable = _usable(reads).any(axis=-2)
+    usable = dq.read_usable(reads).any(axis=-2)
     return np.where(usable, 0, np.bitwise_or.reduce(reads, axis=-2)).astype(np.uint32)
-
-
-def _usable(flags):
-    """Whether reads (or slopes) with ``flags`` may enter a row's mean: no bit but the
-    informational ones of a read (`~spherex_reduce.core.dq.read_usable`)."""
-    return dq.read_usable(flags)
 
 
 class UnchopStep(Step):

@@ -887,6 +887,34 @@ MESSAGES = [
 ]
 
 
+# == round two: the features added since the first probe (issue "Faults and hostile input, round
+# two").  Each list holds the cases of one part; each case failed on the code before its fix.
+
+# -- round two: reads given as files, and names that cannot go into a FITS card -------------------
+
+ROUND2_READS_AND_NAMES = []
+
+
+# -- round two: integrations (4-D), PROVENANCE of an input, files changed under us ----------------
+
+ROUND2_INTEGRATIONS = []
+
+
+# -- round two: wiener, compare-strategies, plugin strategies, long runs --------------------------
+
+ROUND2_STRATEGIES = []
+
+
+# -- round two: batches (exactly once, resumable, one line on stderr) -----------------------------
+
+ROUND2_BATCH = []
+
+
+# -- round two: found by the probe and fixed with the ramps issue ---------------------------------
+
+ROUND2_FIXED_EARLIER = []
+
+
 # -- what held when the probe ran: keep it so -----------------------------------------------------
 
 HELD = [
@@ -909,7 +937,8 @@ HELD = [
 
 CASES = [*FITS_DAMAGE, *CHECKSUM_OPT_OUT, *INTEGER_DATA, *FOREIGN_DQ, *READ_FILES, *YAML,
          *CLI_NUMBERS, *OUTPUT_IS_INPUT, *INPUT_CONFIG, *INPUT_SECTION, *OUTPUT_PLACES,
-         *MESSAGES, *HELD]
+         *MESSAGES, *HELD, *ROUND2_READS_AND_NAMES, *ROUND2_INTEGRATIONS, *ROUND2_STRATEGIES,
+         *ROUND2_BATCH, *ROUND2_FIXED_EARLIER]
 
 
 @pytest.mark.parametrize("case", CASES)

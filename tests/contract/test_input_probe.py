@@ -912,7 +912,75 @@ ROUND2_BATCH = []
 
 # -- round two: found by the probe and fixed with the ramps issue ---------------------------------
 
-ROUND2_FIXED_EARLIER = []
+def _no_reference_in_channel_1(d):
+    """Setup: the reference reads of channel 1 (columns 32-63) of ``raw.fits`` are NaN."""
+    def change(hdul):
+        kind = np.char.strip(hdul["READOUT"].data.field(2).astype(str))
+        sci = hdul["SCI"].data.copy()
+        sci[:, kind == "reference", 32:] = np.nan
+        hdul["SCI"].data = sci
+
+    rewrite_hdus(d / "raw.fits", d / "raw.fits", change)
+    (d / "uncorrected.yaml").write_text(
+        "steps:\n  - unchop: {}\n  - subtract_phantom: {}\n  - fit_ramp: {weighting: uniform}\n")
+
+
+def _check_channel_left_uncorrected(d, result, run):
+    """Channel 1 is fitted as if no reference correction ran (the docs: "left uncorrected,
+    never NaN"), flagged NO_REFERENCE; channel 0 is corrected."""
+    again = run(["reduce", "raw.fits", "-c", "uncorrected.yaml", "-o", "bare.fits"])
+    assert again.rc == 0, again.describe()
+    with fits.open(d / "out.fits") as out, fits.open(d / "bare.fits") as bare:
+        sci, dq, plain = out["SCI"].data, out["DQ"].data, bare["SCI"].data
+        active = slice(4, 60)  # the reference border is 4 rows and columns
+        assert np.isfinite(sci[active, 32:60]).all(), "channel 1 slopes are NaN"
+        np.testing.assert_allclose(sci[active, 32:60], plain[active, 32:60], rtol=1e-6)
+        assert (dq[active, 32:60] & 8).all()  # NO_REFERENCE
+        assert not np.allclose(sci[active, 4:32], plain[active, 4:32], rtol=1e-6)
+
+
+def _ascii_table_extension(d):
+    """Setup: ``raw.fits`` with an ASCII-table extension, written with checksums by astropy."""
+    notes = fits.TableHDU.from_columns(
+        [fits.Column(name="note", format="A7", array=np.array(["a", "bc", "def"]))],
+        name="NOTES")
+    rewrite_hdus(d / "raw.fits", d / "raw.fits", lambda hdul: hdul.append(notes))
+
+
+def _check_same_as_red(d, result, run):
+    with fits.open(d / "out.fits") as out, fits.open(d / "red.fits") as red:
+        np.testing.assert_array_equal(out["SCI"].data, red["SCI"].data)
+
+
+def _one_frame(d):
+    """Setup: ``raw.fits`` cut to its first frame (NFRAMES = 1)."""
+    def change(hdul):
+        for name in ("SCI", "PHANTOM"):
+            hdul[name].data = hdul[name].data[:1].copy()
+        hdul[0].header["NFRAMES"] = 1
+
+    rewrite_hdus(d / "raw.fits", d / "raw.fits", change)
+
+
+def _one_frame_integrations(d):
+    """Setup: ``raw.fits`` as 2 integrations of 1 frame (4-D SCI and PHANTOM)."""
+    def change(hdul):
+        for name in ("SCI", "PHANTOM"):
+            hdul[name].data = np.stack([hdul[name].data[:1]] * 2)
+        hdul[0].header["NFRAMES"] = 1
+
+    rewrite_hdus(d / "raw.fits", d / "raw.fits", change)
+
+
+ROUND2_FIXED_EARLIER = [
+    works("fixed-channel-without-reference-not-nan", REDUCE, _no_reference_in_channel_1,
+          _check_channel_left_uncorrected),
+    works("fixed-ascii-table-with-checksums-read", REDUCE, _ascii_table_extension,
+          _check_same_as_red),
+    refused("fixed-one-frame-ramps", REDUCE, _one_frame, mentions="at least 2 frames"),
+    refused("fixed-one-frame-ramps-4d", REDUCE, _one_frame_integrations,
+            mentions="at least 2 frames"),
+]
 
 
 # -- what held when the probe ran: keep it so -----------------------------------------------------

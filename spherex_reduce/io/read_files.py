@@ -11,6 +11,7 @@ like `~spherex_reduce.io.FrameReader` does for one 3-D file, so a
 
 import dataclasses
 import glob
+import itertools
 import os
 import re
 from pathlib import Path
@@ -22,18 +23,26 @@ from ..core.exposure import Exposure
 from ..core.limits import check_count, check_size
 from .description import describe, file_tables
 from .fits_read import open_fits
-from .frames import RampReader, map_frames, pread_into
+from .frames import RampReader, map_frames
+from .header_text import header_text
 from .input import InputOptions, apply_gain, apply_input
 from .pixels import FLOAT_FOR, physical, scaling, to_physical
+from .stable_file import pread_into
 
 __all__ = ["MAX_READ_FILES", "ReadFiles", "natural_key", "read_file_paths"]
 
 #: most files one ramp may be read from (each stays open while it is read)
 MAX_READ_FILES = 400
 
+DIGITS = "0123456789"
+
 
 def natural_key(path):
     """Sort key of a path in natural order: the numbers in its name compare as numbers.
+
+    Only the ASCII digits ``0``-``9`` make numbers (`read_file_paths` refuses a
+    file name holding any other character Unicode counts as a digit, such as
+    ``²`` or a full-width ``１``).
 
     Examples
     --------
@@ -41,8 +50,23 @@ def natural_key(path):
     >>> sorted(["read_10.fits", "read_2.fits", "read_1.fits"], key=natural_key)
     ['read_1.fits', 'read_2.fits', 'read_10.fits']
     """
-    parts = re.split(r"(\d+)", str(path))
-    return [(0, int(p), "") if p.isdigit() else (1, 0, p) for p in parts]
+    parts = re.split(r"([0-9]+)", str(path))
+    return [(0, int(p), "") if i % 2 else (1, 0, p) for i, p in enumerate(parts)]
+
+
+def _check_read_names(paths, pattern):
+    """Refuse names whose read numbers are not plain (a digit other than ASCII ``0``-``9``)
+    or that give two files the same place in the ramp (``read_2`` and ``read_02``)."""
+    for path in paths:
+        odd = [c for c in Path(path).name if (c.isdigit() or c.isnumeric()) and c not in DIGITS]
+        if odd:
+            raise FormatError(f"--reads {pattern!r}: {path}: the name holds {odd[0]!r}, a digit "
+                              "other than ASCII 0-9; read numbers are read from ASCII digits "
+                              "only: rename the file")
+    for a, b in itertools.pairwise(paths):  # sorted: equal keys are neighbours
+        if natural_key(a) == natural_key(b):
+            raise FormatError(f"--reads {pattern!r}: {a} and {b} have the same read number: "
+                              "which comes first is not defined; keep one of them")
 
 
 def read_file_paths(pattern):
@@ -60,7 +84,9 @@ def read_file_paths(pattern):
     Raises
     ------
     FormatError
-        The pattern matches no file, or only one (a ramp needs two reads at least).
+        The pattern matches no file, or only one (a ramp needs two reads at
+        least); a file name holds a digit other than ASCII ``0``-``9``; two
+        names have the same numbers (``read_2`` and ``read_02``).
 
     Examples
     --------
@@ -79,6 +105,7 @@ def read_file_paths(pattern):
         raise FormatError(f"--reads {pattern!r} matches one file ({paths[0]}); a ramp needs "
                           "two reads at least, one file each")
     check_count(len(paths), f"the number of files --reads {pattern!r} matches", MAX_READ_FILES)
+    _check_read_names(paths, pattern)
     return paths
 
 
@@ -116,7 +143,7 @@ class _ReadFile:
                 if self.phantom.dtype.kind != "f":
                     self.phantom = self.phantom.astype(FLOAT_FOR[hdu.header["BITPIX"]])
             #: the file's tables (only if asked: the first file's are the exposure's)
-            self.tables = file_tables(self.hdul) if tables else {}
+            self.tables = file_tables(self.hdul, path) if tables else {}
             if self.plain and hasattr(os, "preadv"):
                 self.map = map_frames(sci, path)
             if self.map is not None:  # read with pread from one descriptor per file
@@ -226,7 +253,8 @@ class ReadFiles(RampReader):
             self.header = first.d.header.copy()
             self.header["NFRAMES"] = (len(paths), "frames up the ramp: one file per read")
             self.header.add_history(f"ramp of {len(paths)} files, one per read: "
-                                    f"{paths[0].name} ... {paths[-1].name}")
+                                    f"{header_text(paths[0].name)} ... "
+                                    f"{header_text(paths[-1].name)}")
             self._gain = first.d.gain
             drop, self.schedule = options.frames(self.header, self.schedule, True, paths[0])
             for f in self._files[:drop]:  # the reads left out (input.drop_first_reads)
@@ -253,6 +281,15 @@ class ReadFiles(RampReader):
             if got != want:
                 raise FormatError(f"{f.path}: {what} is {got}, but {first.path} has {want}: the "
                                   "files of one ramp must agree")
+        if f.d.schedule != first.d.schedule:  # every file is read in the first one's order
+            mine, theirs = f.d.schedule.to_header(), first.d.schedule.to_header()
+            keys = [k for k in dict.fromkeys([*theirs, *mine]) if mine.get(k) != theirs.get(k)]
+            what = (f"keyword {keys[0]} is {mine.get(keys[0])!r}, but {first.path} has "
+                    f"{theirs.get(keys[0])!r}" if keys else
+                    f"the readout schedule ({mine.get('TFRAME')} s frames) differs from "
+                    f"{first.path}'s")
+            raise FormatError(f"{f.path}: {what}: the files of one ramp must have one readout "
+                              "(keywords and READOUT table)")
 
     def close(self):
         """Close every file."""

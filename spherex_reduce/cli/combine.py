@@ -1,6 +1,7 @@
 """``spherex-reduce combine``: a master dark from reduced exposures (ccdproc.combine)."""
 
 from ..io import atomic_output, read, write
+from ..io.header_text import header_text
 from ..reduce.steps.dark import COMBINE_METHODS, combine_darks
 from ._common import check_paths, nonnegative_float
 
@@ -28,6 +29,6 @@ def run(args):
     master = combine_darks(exposures, method=args.method, sigma=args.sigma)
     header = master.header.copy()
     for path in args.inputs:
-        header.add_history(f"combine input: {path}")
+        header.add_history(f"combine input: {header_text(path)}")
     write(master.replace(header=header), args.output, overwrite=args.overwrite)
     print(f"wrote {args.output} ({args.method} of {len(exposures)} exposures)")

@@ -25,6 +25,7 @@ from astropy.table import Table
 
 from .atomic import atomic_output
 from .fits_structure import _BLOCK, _checksum_text, _DataSum
+from .header_text import header_text
 from .layout import RESERVED, _unit_str
 
 __all__ = ["write", "write_frames"]
@@ -53,7 +54,9 @@ def _primary(schedule, header, order, unit, nextend):
 
 def _table_hdu(table, name):
     t = Table(table, copy=False)
-    t.meta = {k: v for k, v in t.meta.items() if k != "comments"}
+    # text (e.g. a noise file's name) as a header card can hold it
+    t.meta = {k: header_text(v) if isinstance(v, str) else v for k, v in t.meta.items()
+              if k != "comments"}
     with warnings.catch_warnings():  # a longer meta key is a HIERARCH card, read back as given
         warnings.filterwarnings("ignore", "Keyword name .* HIERARCH card", VerifyWarning)
         hdu = fits.table_to_hdu(t)

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..core.errors import ConfigError, FormatError
 from ..core.limits import check_size
+from .header_text import header_text
 
 __all__ = ["DEFAULT_DQ_BITS", "check_dq_bits", "current_dq_bits", "foreign_dq_bits",
            "is_own_file"]
@@ -135,8 +136,9 @@ def note_foreign_dq(header, bits, path):
     """Record in ``header`` (in place) which bits of the foreign ``DQ`` of ``path`` masked:
     ``SXRDQBIT`` and a ``HISTORY`` line (the setting is not in the pipeline config)."""
     header["SXRDQBIT"] = (bits, "bits of the input's foreign DQ that masked")
-    header.add_history(f"DQ of {Path(path).name} not written by spherex_reduce: pixels with "
-                       f"any of bits {bits:#x} set masked as DO_NOT_USE, other bits ignored")
+    header.add_history(f"DQ of {header_text(Path(path).name)} not written by spherex_reduce: "
+                       f"pixels with any of bits {bits:#x} set masked as DO_NOT_USE, other bits "
+                       "ignored")
 
 
 def file_flags(stored, sci_shape, schedule, order, bits, path):

@@ -19,6 +19,10 @@ Extension names:
     Reference reads kept aside by ``unchop`` (pixels, phantoms, flags, and a
     table ``read row time``).
 
+``PROVENANCE``
+    One row per step run (``PROVENANCE_COLUMNS``), carried from an input to
+    what is made of it; checked when an input is read.
+
 Any other table extension holds a table recorded by a step (e.g. ``REFOFFS``).
 Any other image extension is written from `write`'s ``images`` (e.g. the
 per-integration slopes ``INTSLOPE``, ``INTERR``, ``INTDQ`` of a 4-D input) and
@@ -32,6 +36,10 @@ from ..core.errors import FormatError
 
 RESERVED = {"PRIMARY", "SCI", "ERR", "DQ", "PHANTOM", "READOUT", "REFPIX", "REFPHANT", "REFDQ",
              "REFREADS"}
+
+#: Columns of the ``PROVENANCE`` table, in order: one value per row each, ``elapsed`` a
+#: number (seconds), the others text.
+PROVENANCE_COLUMNS = ("step", "status", "parameters", "inputs", "versions", "elapsed", "route")
 
 
 def _unit_str(unit):

@@ -20,6 +20,7 @@ from ..io.config import (
     schedule_from_config,
     section_values,
 )
+from ..io.header_text import header_text
 from ..io.input import InputOptions
 from ..io.sources import MemorySource, open_input
 from .passes import PlannedStep, Whole, plan_pass, run_pass
@@ -236,7 +237,7 @@ class Pipeline:
         header = result.header.copy()
         header["SXRVERS"] = (__version__, "spherex_reduce version")
         header["SXRCONF"] = (self.config_hash, "SHA-256 of the effective pipeline config")
-        header.add_history(f"pipeline {self.source}: "
+        header.add_history(f"pipeline {header_text(self.source)}: "
                            + json.dumps(self._config, sort_keys=True, default=str))
         return result.replace(header=header)
 

@@ -6,7 +6,7 @@ pipeline, or streamed with others over a file.  The header keeps what a person
 reads (the status keyword ``S_*``, short ``HIERARCH SXR STEP PARAM`` cards and
 a HISTORY line); the ``PROVENANCE`` table keeps the structured record, one row
 per step run: step, status, parameters (JSON), inputs (JSON), versions (JSON),
-elapsed seconds and route.
+elapsed seconds and route (``spherex_reduce.io.layout.PROVENANCE_COLUMNS``).
 """
 
 import functools
@@ -17,13 +17,12 @@ import logging
 from astropy.table import Table
 
 from .._version import __version__
+from ..io.header_text import header_text
+from ..io.layout import PROVENANCE_COLUMNS
 
-__all__ = ["PROVENANCE_COLUMNS", "provenance_rows", "record_step"]
+__all__ = ["provenance_rows", "record_step"]
 
 log = logging.getLogger("spherex_reduce")
-
-#: Columns of the ``PROVENANCE`` table, in order.
-PROVENANCE_COLUMNS = ("step", "status", "parameters", "inputs", "versions", "elapsed", "route")
 
 
 def _described(value):
@@ -34,7 +33,9 @@ def _described(value):
 
 
 def _short_value(value):
-    if isinstance(value, (bool, int, float, str)):
+    if isinstance(value, str):  # e.g. a file name: any text a user gave
+        return header_text(value)
+    if isinstance(value, (bool, int, float)):
         return value
     return json.dumps(value, default=_described)
 

@@ -9,6 +9,7 @@ from typing import ClassVar
 from ..core.errors import StepSkipped, UnknownNameError
 from ..core.parameters import Parameter, validate_parameters
 from ..io import read
+from ..io.header_text import header_text
 from ..io.sources import MemorySource
 from .passes import PlannedStep, Whole, plan_pass, run_pass
 from .provenance import record_step
@@ -254,7 +255,8 @@ class Step:
 
     def input_card(self, name, label):
         """A header card ``(keyword, value, comment)`` naming the file of input ``name``,
-        or None (the default)."""
+        or None (the default).  ``label`` is the file's path as a card can hold it
+        (`~spherex_reduce.io.header_text.header_text`)."""
         return None
 
     def streams(self):
@@ -275,8 +277,8 @@ class Step:
         return False
 
     def _input_cards(self, result, labels):
-        cards = [c for name, label in labels.items()
-                 if label and (c := self.input_card(name, label)) is not None]
+        cards = [c for name, label in labels.items()  # the name as a card can hold it
+                 if label and (c := self.input_card(name, header_text(label))) is not None]
         if not cards:
             return result
         header = result.header.copy()

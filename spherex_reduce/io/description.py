@@ -9,6 +9,7 @@
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 from astropy.io import fits
 from astropy.table import Table
 
@@ -16,11 +17,12 @@ from ..core.errors import FormatError
 from ..core.exposure import expected_shape
 from ..core.fields import header_keyword
 from ..core.schedule import ReadoutSchedule
+from .header_text import header_text
 from .input import InputOptions
-from .layout import RESERVED, integration_shape
+from .layout import PROVENANCE_COLUMNS, RESERVED, integration_shape
 
-__all__ = ["FileDescription", "check_shape", "describe", "file_tables", "image_shape",
-           "note_bad_checksums", "sci_hdu"]
+__all__ = ["FileDescription", "check_integrations", "check_provenance", "check_shape", "describe",
+           "file_tables", "image_shape", "note_bad_checksums", "sci_hdu"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,8 +72,8 @@ def note_bad_checksums(header, bad, path):
     previous = str(header.get("SXRCKBAD", "")).strip()
     header["SXRCKBAD"] = (",".join(filter(None, [previous, *bad]))[:68],
                           "input HDUs whose checksum failed, read anyway")
-    header.add_history(f"checksum of {', '.join(bad)} in {Path(path).name} did not match; "
-                       "read anyway (checksum verification off)")
+    header.add_history(f"checksum of {', '.join(bad)} in {header_text(Path(path).name)} did "
+                       "not match; read anyway (checksum verification off)")
 
 
 def sci_hdu(hdul, path):
@@ -106,6 +108,8 @@ def describe(hdul, path, supplied, bad=(), options=None, decided=(), integration
     derived = options.reconcile(header, {k: v for k, v in supplied.items()
                                          if k not in decided}, path)
     sci = sci_hdu(hdul, path)
+    if integration is not None and len(image_shape(sci)) == 4:
+        check_integrations(hdul, path)
     shape = integration_shape(image_shape(sci), integration, path)
     table = Table.read(hdul["READOUT"]) if "READOUT" in names else None
     schedule = ReadoutSchedule.from_header(
@@ -141,6 +145,40 @@ def describe(hdul, path, supplied, bad=(), options=None, decided=(), integration
     return FileDescription(names, header, sci, shape, schedule, order, unit, kept, drop, gain)
 
 
+def check_integrations(hdul, path):
+    """The number of integrations of a file whose ``SCI`` is 4-D, checked with its ``ERR``,
+    ``DQ`` and ``PHANTOM`` (headers only).
+
+    Each of those must be 4-D with as many integrations as ``SCI`` (the rest
+    of its shape is checked with each integration), except a ``DQ`` of fewer
+    dimensions, which applies to every integration.
+
+    Raises
+    ------
+    FormatError
+        ``SCI`` has no integration, or an extension has another number of
+        integrations, or is not 4-D (``ERR``, ``PHANTOM``); the message names
+        the extension and both shapes.
+    """
+    shape = image_shape(sci_hdu(hdul, path))
+    count = shape[0]
+    if count < 1:
+        raise FormatError(f"{path}: SCI is 4-D {shape} (integrations, groups, rows, columns) "
+                          "with no integration")
+    names = [h.name for h in hdul]
+    for name in ("ERR", "DQ", "PHANTOM"):
+        other = image_shape(hdul[name]) if name in names else None
+        if other is None or (len(other) == 4 and other[0] == count) or (
+                name == "DQ" and len(other) < 4):
+            continue
+        why = (f"a 4-D {name} must have SCI's {count} integrations, it has {other[0]}"
+               if len(other) == 4 else
+               "it must be 4-D too, one per integration (only a DQ may apply to every "
+               "integration)")
+        raise FormatError(f"{path}: {name} has shape {other}, SCI has shape {shape}: {why}")
+    return count
+
+
 def check_shape(shape, schedule, order, name):
     if len(shape) not in (2, 3):
         raise FormatError(f"{name} must be 2-D (an image), 3-D (groups, rows, columns) or 4-D "
@@ -159,8 +197,55 @@ def check_shape(shape, schedule, order, name):
             )
 
 
-def file_tables(hdul):
+def file_tables(hdul, path):
     """The binary tables of an open file that are not part of the layout (``PROVENANCE``,
-    a step's table ...), by extension name: what an exposure read from it carries."""
-    return {h.name: Table.read(h) for h in hdul
-            if isinstance(h, fits.BinTableHDU) and h.name not in RESERVED}
+    a step's table ...), by extension name: what an exposure read from it carries.
+
+    A table astropy cannot read, or a ``PROVENANCE`` that is not one value per
+    cell of the type of its column (`check_provenance`), is a `FormatError`.
+    """
+    tables = {}
+    for h in hdul:
+        if not isinstance(h, fits.BinTableHDU) or h.name in RESERVED:
+            continue
+        try:
+            tables[h.name] = Table.read(h)
+        except (ValueError, TypeError, KeyError, IndexError) as exc:
+            raise FormatError(f"{path}: table {h.name} cannot be read: {exc}") from exc
+    if "PROVENANCE" in tables:
+        check_provenance(tables["PROVENANCE"], path)
+    return tables
+
+
+def check_provenance(table, path):
+    """Refuse a ``PROVENANCE`` table whose columns (those of
+    ``spherex_reduce.io.layout.PROVENANCE_COLUMNS`` it has) do not hold one value per row,
+    a number for ``elapsed`` and text for the others.
+
+    Examples
+    --------
+    >>> from astropy.table import Table
+    >>> from spherex_reduce.io.description import check_provenance
+    >>> check_provenance(Table({"step": ["unchop"], "elapsed": [0.5]}), "a.fits")
+    >>> try:
+    ...     check_provenance(Table({"step": ["unchop"], "elapsed": ["slow"]}), "a.fits")
+    ... except ValueError as exc:
+    ...     print(exc)
+    a.fits: table PROVENANCE is damaged: column 'elapsed' must hold one number per row (a step
+    run), it holds text
+    """
+    for name in PROVENANCE_COLUMNS:
+        if name not in table.colnames:
+            continue  # an older file's table: the columns it has are carried
+        column = table[name]
+        kinds, what = ("iuf", "number") if name == "elapsed" else ("U", "text")
+        masked = bool(np.any(getattr(column, "mask", False)))
+        if column.ndim == 1 and column.dtype.kind in kinds and not masked:
+            continue
+        held = {"U": "text", "S": "bytes", "O": "variable-length arrays",
+                "b": "booleans"}.get(column.dtype.kind, "numbers")
+        if column.ndim > 1:
+            held = f"{held} in arrays of shape {column.shape[1:]}"
+        raise FormatError(f"{path}: table PROVENANCE is damaged: column {name!r} must hold one "
+                          f"{what} per row (a step run), it holds {held}"
+                          + (" with missing values" if masked else ""))

@@ -28,6 +28,7 @@ from .fits_structure import _scan, _verify
 from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq
 from .input import InputOptions, apply_input
 from .pixels import physical
+from .stable_file import StableFile
 
 __all__ = ["CheckedFITS", "checksum_policy", "integration_count", "is_raw_ramp_file",
            "open_checked", "read"]
@@ -140,11 +141,18 @@ class CheckedFITS(Closing):
 
     Use it as a context manager (the file is closed on exit).
 
+    With ``memmap=False`` nothing of the file is mapped: pixels are read
+    into arrays of their own when asked for, each read after checking that
+    the file is still the one opened and checked
+    (`~spherex_reduce.io.stable_file.StableFile`), so a file truncated or
+    rewritten meanwhile is a `FormatError`, never a ``SIGBUS``.
+
     Attributes
     ----------
     path : `pathlib.Path`
     hdul : `astropy.io.fits.HDUList`
-        The file's HDUs, read-only (memory-mapped for plain FITS on disk).
+        The file's HDUs, read-only (memory-mapped for plain FITS on disk
+        unless ``memmap=False``).
     bad : list of str
         Names of the HDUs whose checksum failed; only ever non-empty when the
         file was opened with checksum verification off.
@@ -153,9 +161,16 @@ class CheckedFITS(Closing):
     def __init__(self, path, verify_checksum=None, memmap=True):
         self.path, self._name = Path(path), path  # messages name the path as given
         self.hdul, self.bad, self._plain = open_fits(path, memmap, verify_checksum)
+        try:
+            self._stable = None if memmap or not self._plain else StableFile(path)
+        except BaseException:
+            self.hdul.close()
+            raise
 
     def close(self):
         """Close the file (arrays already returned stay valid)."""
+        if self._stable is not None:
+            self._stable.close()
         self.hdul.close()
 
     def exposure(self, dq_bits=None, input=None, integration=None, **supplied):
@@ -165,12 +180,12 @@ class CheckedFITS(Closing):
         parameters) are as for `read`.
         """
         return exposure_from_hdul(self.hdul, self._name, self.bad, self._plain, supplied, dq_bits,
-                         input, integration)
+                                  input, integration, self._stable)
 
     def physical(self, hdu):
         """The data of image HDU ``hdu`` in physical values (``BSCALE``/``BZERO``
         applied, ``BLANK`` as NaN; as stored if unscaled), or None if it has none."""
-        return physical(hdu, self._name, self._plain)
+        return physical(hdu, self._name, self._plain, stable=self._stable)
 
     def note_bad_checksums(self, header):
         """Record in ``header`` (changed in place) which HDUs failed their checksum:
@@ -304,9 +319,13 @@ def read(path, verify_checksum=None, dq_bits=None, input=None, integration=None,
 
 
 def exposure_from_hdul(hdul, path, bad, plain, supplied, dq_bits=None, options=None,
-                       integration=None):
-    """The `Exposure` in an HDU list opened by `open_fits` (which the caller closes)."""
+                       integration=None, stable=None):
+    """The `Exposure` in an HDU list opened by `open_fits` (which the caller closes); with
+    ``stable`` (the file's `~spherex_reduce.io.stable_file.StableFile`) its pixels are read
+    from it, not mapped."""
     options = InputOptions.from_config(options)
+    if stable is not None:  # the headers and tables below are still those checked
+        stable.check()
     d = describe(hdul, path, supplied, bad, options, integration=integration)
     names = d.names
     if dq_bits is None:
@@ -317,9 +336,9 @@ def exposure_from_hdul(hdul, path, bad, plain, supplied, dq_bits=None, options=N
             return None
         hdu = hdul[name]
         index = integration if integration is not None and len(image_shape(hdu)) == 4 else None
-        return physical(hdu, path, plain, flags, index)
+        return physical(hdu, path, plain, flags, index, stable)
 
-    data = physical(d.sci, path, plain, index=integration)
+    data = physical(d.sci, path, plain, index=integration, stable=stable)
     err, mask, phantom = image("ERR"), image("DQ", flags=True), image("PHANTOM")
     bits = foreign_bits(dq_bits)  # checked even if unused
     if mask is not None:  # a DQ from other software: its bits are not ours
@@ -337,7 +356,7 @@ def exposure_from_hdul(hdul, path, bad, plain, supplied, dq_bits=None, options=N
             dq=None if refdq is None else refdq.astype(np.uint32),
         )
         _readonly(reference.data, reference.phantom)
-    tables = file_tables(hdul)
+    tables = file_tables(hdul, path)
     data, err, mask, phantom = apply_input(d, data, err, mask, phantom)
     _readonly(data, err, mask, phantom)
     return Exposure.from_arrays(data, d.kept, unit=d.unit, uncertainty=err, mask=mask,

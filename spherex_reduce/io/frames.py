@@ -13,6 +13,7 @@ from .description import describe, file_tables
 from .fits_read import Closing, exposure_from_hdul, open_fits
 from .input import InputOptions, apply_gain, apply_input
 from .pixels import FITS_DTYPES, FLOAT_FOR, physical, scaling, to_physical
+from .stable_file import pread_into
 
 __all__ = ["FrameReader", "RampReader"]
 
@@ -81,7 +82,7 @@ class FrameReader(RampReader):
                        if "PHANTOM" in d.names else None)
             self._phantom = apply_input(d, None, None, None, phantom)[3]
             self._scale = scaling(d.sci, path)
-            self._tables = file_tables(self._hdul)
+            self._tables = file_tables(self._hdul, path)
             self._map = map_frames(d.sci, path) if plain else None
         except Exception:
             self._hdul.close()
@@ -197,19 +198,6 @@ class FrameReader(RampReader):
         del view
         self._release(start, count * dtype.itemsize)
         return data[None]
-
-
-def pread_into(fd, buf, pos, short):
-    """Fill ``buf`` with the bytes of file ``fd`` from ``pos`` (``pread``: no file position
-    moves, several threads may read at once); ``short`` is the error if the file ends first."""
-    view = memoryview(buf).cast("B")
-    done = 0
-    while done < view.nbytes:
-        got = os.preadv(fd, [view[done:]], pos + done)
-        if got <= 0:
-            raise FormatError(short)
-        done += got
-    return buf
 
 
 def map_frames(hdu, path):

@@ -55,10 +55,12 @@ def to_physical(stored, scale, dtype):
     return out
 
 
-def physical(hdu, path, plain, flags=False, index=None):
+def physical(hdu, path, plain, flags=False, index=None, stable=None):
     """The data of an image HDU in physical values (``data[index]`` if ``index`` is given).
 
-    Unscaled data come as astropy gives them (memory-mapped if the file is).
+    Unscaled data come as astropy gives them (memory-mapped if the file is),
+    or, given ``stable`` (the file's `~spherex_reduce.io.stable_file.StableFile`),
+    read from it into a new array in native byte order: nothing is mapped.
     Scaled data are converted here from the stored values (astropy refuses
     to scale a memory-mapped image): floating point, or 64-bit integers for
     flags (``DQ``), whose ``BSCALE`` must be 1 and ``BZERO`` whole.
@@ -66,6 +68,10 @@ def physical(hdu, path, plain, flags=False, index=None):
     if hdu.header.get("NAXIS", 0) == 0:
         return None
     scale = scaling(hdu, path)
+    explicit = stable is not None and plain and not isinstance(hdu, fits.CompImageHDU)
+    if scale is None and explicit:
+        stored = _stored(hdu, path, index, stable)
+        return stored.astype(stored.dtype.newbyteorder("="), copy=False)
     if scale is None:
         return hdu.data if index is None else hdu.data[index]
     bitpix = hdu.header["BITPIX"]
@@ -84,9 +90,24 @@ def physical(hdu, path, plain, flags=False, index=None):
     if not plain or isinstance(hdu, fits.CompImageHDU):  # astropy unpacks and scales
         data = np.asarray(hdu.data)
         return (data if index is None else data[index]).astype(dtype)
+    if explicit:
+        return to_physical(_stored(hdu, path, index, stable), scale, dtype)
     stored = np.memmap(path, dtype=FITS_DTYPES[bitpix], mode="r",
                        offset=hdu.fileinfo()["datLoc"], shape=shape)
     try:
         return to_physical(stored if index is None else stored[index], scale, dtype)
     finally:
         del stored
+
+
+def _stored(hdu, path, index, stable):
+    """The stored values of an image HDU (``[index]`` of its first axis if given), read from
+    the `~spherex_reduce.io.stable_file.StableFile` ``stable`` into a new array."""
+    dtype = np.dtype(FITS_DTYPES[hdu.header["BITPIX"]])
+    shape = tuple(hdu.shape)
+    part = shape if index is None else shape[1:]
+    nbytes = int(np.prod(part, dtype=float)) * dtype.itemsize
+    check_size(nbytes, f"HDU {hdu.name!r} of {path} {part}")
+    offset = hdu.fileinfo()["datLoc"] + (0 if index is None else index * nbytes)
+    what = f"HDU {hdu.name!r}" if index is None else f"integration {index} of HDU {hdu.name!r}"
+    return stable.read(offset, dtype, part, what)

@@ -27,6 +27,7 @@ import numpy as np
 from ..core.block import Block, Context
 from ..core.errors import FormatError
 from ..core.exposure import Exposure
+from .description import check_integrations
 from .fits_read import CheckedFITS, Closing, probe, read
 from .frames import FrameReader, RampReader
 from .input import InputOptions
@@ -358,12 +359,24 @@ def open_input(what, *, input=None, **supplied):
     path = os.fspath(what)
     layout = probe(path)  # None: read() below says what is wrong
     if layout is not None and layout.integrations is not None:
-        return Input(path, layout.integrations, checked=CheckedFITS(path), options=options,
-                     supplied=supplied)
+        return _integrations(path, options, supplied)
     if layout is not None and layout.raw_ramps:
         reader = FrameReader(path, input=options, **supplied)
         return Input(path, source=_from_reader(reader, True))
     return Input(path, source=MemorySource(read(path, input=options, **supplied)))
+
+
+def _integrations(path, options, supplied):
+    """A 4-D file: opened and checked once, each integration read when asked for, with
+    explicit reads (`~spherex_reduce.io.stable_file.StableFile`: nothing mapped, so a file
+    changed meanwhile is an error, never a signal)."""
+    checked = CheckedFITS(path, memmap=False)
+    try:
+        count = check_integrations(checked.hdul, path)
+    except BaseException:
+        checked.close()
+        raise
+    return Input(path, count, checked=checked, options=options, supplied=supplied)
 
 
 def _read_files(paths, options, supplied):

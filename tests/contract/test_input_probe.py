@@ -892,12 +892,273 @@ MESSAGES = [
 
 # -- round two: reads given as files, and names that cannot go into a FITS card -------------------
 
-ROUND2_READS_AND_NAMES = []
+def _rowskip_in_second(k, hdul):
+    """ROWSKIP 8 in read_2.fits, with the READOUT table of that readout (a file that agrees
+    with itself, not with read_1.fits)."""
+    from spherex_reduce.core.schedule import ReadoutSchedule
+
+    if k == 1:
+        hdul[0].header["ROWSKIP"] = 8
+        table = fits.table_to_hdu(ReadoutSchedule.from_header(hdul[0].header).to_table())
+        table.name = "READOUT"
+        hdul[3] = table
+
+
+def _frame_overhead_in_third(k, hdul):
+    """FRMOVH 12 (and no TFRAME, no READOUT table) in read_10.fits."""
+    if k == 2:
+        hdul[0].header["FRMOVH"] = 12
+        del hdul[0].header["TFRAME"]
+        del hdul[3]
+
+
+def _copy(src, dst):
+    def setup(d):
+        shutil.copyfile(d / src, d / dst)
+    return setup
+
+
+def _check_names(out, history=(), cards=()):
+    """``out`` written, with each name recorded so that it decodes back exactly: in a
+    ``HISTORY`` line (``(pattern, name)``: the pattern's group is the recorded name) or a card
+    (``(keyword, name)``)."""
+    def check(d, result, run):
+        from spherex_reduce.io.header_text import name_from_header
+
+        with fits.open(d / out) as hdul:
+            header = hdul[0].header
+            assert hdul["SCI"].data.ndim == 2  # slopes (in readout order after fit_ramp alone)
+        lines = [str(line) for line in header.get("HISTORY", [])]
+        for pattern, name in history:
+            found = [name_from_header(m.group(1)) for line in lines
+                     if (m := re.match(pattern, line))]
+            assert name in found, (name, found, lines)
+        for keyword, name in cards:
+            assert name_from_header(header[keyword]) == name, (keyword, header[keyword])
+    return check
+
+
+def _check_reads_named(d, result, run):
+    from spherex_reduce.io.header_text import name_from_header
+
+    with fits.open(d / "out.fits") as hdul:
+        lines = [str(h) for h in hdul[0].header["HISTORY"] if str(h).startswith("ramp of 3")]
+    assert len(lines) == 1, lines
+    first, last = lines[0].split(": ", 1)[1].split(" ... ")
+    assert (name_from_header(first), name_from_header(last)) == ("réad_1.fits", "réad_10.fits")
+
+
+def _non_ascii_reads(d):
+    _split_reads()(d)
+    for n in (1, 2, 10):
+        (d / f"read_{n}.fits").rename(d / f"réad_{n}.fits")
+
+
+def _noise_table(name):
+    def setup(d):
+        import importlib.resources
+
+        source = importlib.resources.files("spherex_reduce") / "data" / "spherex-table2.ecsv"
+        (d / name).write_bytes(source.read_bytes())
+        (d / "w.yaml").write_text("steps:\n  - unchop: {}\n  - correct_reference: {strategy: "
+                                  f"wiener, noise: {name}, domain: slopes}}\n"
+                                  "  - fit_ramp: {weighting: uniform}\n")
+    return setup
+
+
+NEWLINE_YAML = "fit\nramp.yaml"
+PIPELINE = r"pipeline (\S+?): \{"
+
+ROUND2_READS_AND_NAMES = [
+    refused("reduce-reads-superscript-digit", READS, _split_reads((1, "1²1", 3)),
+            mentions=r"read_1²1\.fits.*ASCII"),
+    refused("reduce-reads-full-width-digit", READS, _split_reads((1, "１", 3)),
+            mentions=r"read_１\.fits.*ASCII"),
+    refused("reduce-reads-duplicate-read-number", READS, _split_reads((1, 2, "02")),
+            mentions=r"read_2\.fits and read_02\.fits"),
+    refused("reduce-reads-rowskip-differs", READS, _split_reads(change=_rowskip_in_second),
+            mentions=r"read_2\.fits: keyword ROWSKIP is 8, but read_1\.fits has 4"),
+    refused("reduce-reads-frame-overhead-differs", READS,
+            _split_reads(change=_frame_overhead_in_third),
+            mentions=r"read_10\.fits: keyword FRMOVH is 12, but read_1\.fits has 10"),
+    works("reduce-reads-names-non-ascii", [*READS[:2], "réad_*.fits", *READS[3:]],
+          _non_ascii_reads, _check_reads_named),
+    works("reduce-config-name-non-ascii", ["reduce", "raw.fits", "-c", "é.yaml", "-o", "out.fits"],
+          _copy("fit.yaml", "é.yaml"), _check_names("out.fits", [(PIPELINE, "é.yaml")])),
+    works("reduce-config-name-newline", ["reduce", "raw.fits", "-c", NEWLINE_YAML, "-o",
+                                         "out.fits"],
+          _copy("fit.yaml", NEWLINE_YAML),
+          _check_names("out.fits", [(PIPELINE, NEWLINE_YAML)])),
+    works("reduce-dark-name-non-ascii", ["reduce", "raw.fits", "-c", "dark.yaml", "-o",
+                                         "out.fits"],
+          chain(_copy("red2.fits", "dàrk.fits"),
+                write("dark.yaml", DEFAULT_STEPS + "  - subtract_dark: {dark: dàrk.fits}\n")),
+          _check_names("out.fits", cards=[("DARKFILE", "dàrk.fits"),
+                                          ("HIERARCH SXR SUBTRACT_DARK DARK", "dàrk.fits")])),
+    works("reduce-noise-file-name-non-ascii", ["reduce", "raw.fits", "-c", "w.yaml", "-o",
+                                               "out.fits"],
+          _noise_table("brüit.ecsv"),
+          _check_names("out.fits", cards=[("HIERARCH SXR CORRECT_REFERENCE NOISE",
+                                           "brüit.ecsv")])),
+    works("reduce-foreign-dq-name-non-ascii", ["reduce", "lâb.fits", "-c", "fit.yaml", "-o",
+                                               "out.fits"],
+          chain(_dq_setup((64, 64)), _copy("lab.fits", "lâb.fits")),
+          _check_names("out.fits", [(r"DQ of (\S+) not written", "lâb.fits")])),
+    works("reduce-checksum-ignored-name-non-ascii", ["reduce", "rãw.fits", "-c", "fit.yaml",
+                                                     "-o", "out.fits", "--ignore-checksum"],
+          chain(flip_sci("raw.fits"), _copy("raw.fits", "rãw.fits")),
+          _check_names("out.fits", [(r"checksum of SCI in (\S+) did not", "rãw.fits")])),
+    works("combine-input-name-non-ascii", ["combine", "rèd.fits", "red2.fits", "-o", "m.fits"],
+          _copy("red.fits", "rèd.fits"),
+          _check_names("m.fits", [(r"combine input: (\S+)$", "rèd.fits")])),
+]
 
 
 # -- round two: integrations (4-D), PROVENANCE of an input, files changed under us ----------------
 
-ROUND2_INTEGRATIONS = []
+def _four_d(integrations=2, extensions=None, phantom_4d=True):
+    """Setup: uncal.fits, raw.fits as ``integrations`` integrations (a 4-D SCI, integration
+    ``k`` the ramps times ``k + 1``) with a 4-D PHANTOM (or raw.fits' 3-D one); then
+    ``extensions`` ``{name: integrations}``: a 4-D DQ (zeros), ERR (ones) or PHANTOM with that
+    many."""
+    def setup(d):
+        def change(hdul):
+            sci, phantom = hdul["SCI"].data, hdul["PHANTOM"].data
+            some = max(integrations, 1)  # (0 integrations: a stack of one, cut to none)
+            hdul["SCI"].data = np.stack([sci * (k + 1) for k in range(some)])[:integrations]
+            if phantom_4d:
+                hdul["PHANTOM"].data = np.stack([phantom] * some)[:integrations]
+            for name, n in (extensions or {}).items():
+                if name == "PHANTOM":
+                    hdul["PHANTOM"].data = np.stack([phantom] * n)
+                else:
+                    fill = np.zeros if name == "DQ" else np.ones
+                    hdul.insert(2, fits.ImageHDU(fill((n, *sci.shape),
+                                                      np.uint32 if name == "DQ" else np.float32),
+                                                 name=name))
+            hdul[0].header.remove("NEXTEND", ignore_missing=True)
+        rewrite_hdus(d / "raw.fits", d / "uncal.fits", change)
+    return setup
+
+
+def _damaged_provenance(name, kind):
+    """Setup: add to ``name`` a PROVENANCE table (red.fits') whose ``elapsed`` is ``kind``:
+    text, two numbers per row or variable-length arrays."""
+    def setup(d):
+        rows = Table.read(d / "red.fits", hdu="PROVENANCE")
+        n = len(rows)
+        elapsed = {"string": fits.Column("elapsed", "8A", array=np.array(["slow"] * n)),
+                   "2d": fits.Column("elapsed", "2D", dim="(2)", array=np.ones((n, 2))),
+                   "varlen": fits.Column("elapsed", "PD()", array=np.array(
+                       [np.ones(k + 1) for k in range(n)], dtype=object))}[kind]
+        cols = [fits.Column(c, f"{max(len(str(v)) for v in rows[c]) or 1}A",
+                            array=np.array([str(v) for v in rows[c]]))
+                for c in rows.colnames if c != "elapsed"]
+        table = fits.BinTableHDU.from_columns([*cols[:5], elapsed, *cols[5:]], name="PROVENANCE")
+
+        def change(hdul):
+            hdul.append(table)
+            hdul[0].header.remove("NEXTEND", ignore_missing=True)
+        rewrite_hdus(d / name, d / name, change)
+    return setup
+
+
+UNCAL = ["reduce", "uncal.fits", "-c", "spherex-default", "-o", "out.fits"]
+WHOLE = ["reduce", "lab.fits", "-c", "fit.yaml", "-o", "out.fits"]  # a DQ: read whole
+PROVENANCE_DAMAGE = ("string", "2d", "varlen")
+
+ROUND2_INTEGRATIONS = [
+    refused("reduce-4d-zero-integrations", UNCAL, _four_d(0), mentions="no integration"),
+    *[refused(f"reduce-4d-{name.lower()}-{which}-integrations", UNCAL,
+              _four_d(sci, {name: other}),
+              mentions=rf"{name} has shape \({other}, 3, 60, \d+\), SCI has shape "
+                       rf"\({sci}, 3, 60, 64\)")
+      for name in ("DQ", "ERR", "PHANTOM")
+      for which, sci, other in (("fewer", 3, 2), ("more", 2, 3))],
+    refused("reduce-4d-3d-phantom", UNCAL, _four_d(2, phantom_4d=False),
+            mentions=r"PHANTOM has shape \(3, 60, 2\), SCI has shape \(2, 3, 60, 64\)"),
+    *[refused(f"reduce-streamed-provenance-{kind}", REDUCE, _damaged_provenance("raw.fits", kind),
+              mentions="raw.fits: table PROVENANCE.*elapsed") for kind in PROVENANCE_DAMAGE],
+    *[refused(f"reduce-whole-provenance-{kind}", WHOLE,
+              chain(_dq_setup((64, 64)), _damaged_provenance("lab.fits", kind)),
+              mentions="lab.fits: table PROVENANCE.*elapsed") for kind in PROVENANCE_DAMAGE],
+    *[refused(f"reduce-4d-provenance-{kind}", UNCAL,
+              chain(_four_d(2), _damaged_provenance("uncal.fits", kind)),
+              mentions="uncal.fits: table PROVENANCE.*elapsed") for kind in PROVENANCE_DAMAGE],
+]
+
+
+@pytest.mark.parametrize("kind", PROVENANCE_DAMAGE)
+def test_batch_input_with_damaged_provenance(kind, inputs, runner, tmp_path):
+    """In a batch, the input with a damaged PROVENANCE fails alone with one line naming it
+    (exit 2, as for that file alone); the other input is reduced."""
+    d = tmp_path / "case"
+    shutil.copytree(inputs, d, symlinks=True)
+    shutil.copyfile(d / "raw.fits", d / "good.fits")
+    _damaged_provenance("raw.fits", kind)(d)
+    result = runner.run(["-q", "reduce", "raw.fits", "good.fits", "-c", "spherex-default", "-o",
+                         "outdir", *SERIAL], d)
+    assert result.rc == 2 and "Traceback" not in result.stderr, result.describe()
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and ERROR_LINE.match(lines[0]), result.describe()
+    assert re.search(r"raw\.fits: table PROVENANCE is damaged: column 'elapsed'", lines[0])
+    assert (d / "outdir" / "good_reduced.fits").is_file()
+    assert not (d / "outdir" / "raw_reduced.fits").exists()
+
+
+#: Run in a child: reduce the 4-D file argv[1] and, once integration 0 is reduced (from
+#: inside Pipeline.run, so the moment is always the same), truncate it to argv[2] bytes or
+#: rewrite its bytes in place (argv[2] == "rewrite").
+_CHANGED_UNDER_US = """\
+import os, sys
+from spherex_reduce import cli
+from spherex_reduce.reduce.pipeline import Pipeline
+path, how = sys.argv[1], sys.argv[2]
+run = Pipeline.run
+
+def changing(self, *args, **kwargs):
+    out = run(self, *args, **kwargs)
+    if how == "rewrite":  # same size, other bytes: what a writer still at work does
+        data = open(path, "rb").read()
+        with open(path, "r+b") as f:
+            f.write(data[:-8] + bytes(8))
+        os.utime(path, ns=(0, os.stat(path).st_mtime_ns + 10**9))
+    else:
+        os.truncate(path, int(how))
+    return out
+
+Pipeline.run = changing
+sys.exit(cli.main(["-q", "reduce", path, "-c", "spherex-default", "-o", "out.fits"]))
+"""
+
+
+@pytest.mark.parametrize("how", ["truncate", "rewrite"])
+def test_4d_input_changed_while_reduced(how, inputs, tmp_path):
+    """A 4-D input truncated (or rewritten) between two integrations ends in one line, exit
+    2, no output; before, its pixels were memory-mapped and the truncation killed the process
+    with SIGBUS.  The change is made from inside the run (after integration 0's pipeline), so
+    it always falls at the same point."""
+    import resource
+    import subprocess
+    import sys
+
+    d = tmp_path / "case"
+    shutil.copytree(inputs, d, symlinks=True)
+    _four_d(4)(d)
+    _, _, start, size = _probe.span(d / "uncal.fits", "SCI")
+    cut = "rewrite" if how == "rewrite" else str(start + size // 4 + 100)  # in integration 1
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_AS, (_probe.MEMORY_LIMIT, _probe.MEMORY_LIMIT))
+
+    done = subprocess.run([sys.executable, "-c", _CHANGED_UNDER_US, "uncal.fits", cut], cwd=d,
+                          env=_probe.child_env(), capture_output=True, text=True,
+                          timeout=_probe.TIMEOUT, preexec_fn=limit)
+    assert done.returncode == 2, (done.returncode, done.stderr[-2000:])
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and ERROR_LINE.match(lines[0]), done.stderr
+    assert "uncal.fits changed while it was read" in lines[0], lines[0]
+    assert not (d / "out.fits").exists()
 
 
 # -- round two: wiener, compare-strategies, plugin strategies, long runs --------------------------

@@ -2,11 +2,12 @@
 
 A header card holds printable ASCII only; a file may be called ``dàrk.fits``,
 ``brüit.ecsv`` or have a newline in its name.  Every place that records such a
-name in a header (``HISTORY``, a ``PROVENANCE``-related card, ``DARKFILE``
-...) passes it through `header_text`, which escapes what a card cannot hold as
-Python's ``unicode_escape`` codec does (``\\xe0``, ``\\n``, ``\\u2075``, and
-a backslash as ``\\\\``): printable ASCII without a backslash is kept as it
-is, and `name_from_header` gives the name back exactly.
+name in a header (``HISTORY`` lines, a step's parameter cards, ``DARKFILE``,
+the text metadata of a table ...) passes it through `header_text`, which
+escapes what a card cannot hold as Python's ``unicode_escape`` codec does
+(``\\xe0``, ``\\n``, ``\\u2075``, and a backslash as ``\\\\``): printable
+ASCII without a backslash is kept as it is, and `name_from_header` gives the
+name back exactly.
 """
 
 import codecs

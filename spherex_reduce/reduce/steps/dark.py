@@ -221,7 +221,7 @@ class SubtractDarkStep(Step):
         return _subtract_dark(exposure, dark)
 
     def input_card(self, name, label):
-        return ("DARKFILE", Path(label).name, "master dark subtracted")
+        return ("DARKFILE", Path(label).name[:68], "master dark subtracted")
 
 
 @hookimpl

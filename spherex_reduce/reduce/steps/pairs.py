@@ -141,7 +141,7 @@ class PairDifferenceStep(Step):
         return bool(params["reduce_other"])
 
     def input_card(self, name, label):
-        return ("PAIROTHR", label, "second exposure of the pair")
+        return ("PAIROTHR", label[-68:], "second exposure of the pair")
 
 
 @hookimpl

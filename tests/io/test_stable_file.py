@@ -1,0 +1,52 @@
+"""Explicit reads of a file that must not change while it is read."""
+
+import os
+
+import numpy as np
+import pytest
+
+from spherex_reduce.core.errors import FormatError
+from spherex_reduce.io.stable_file import StableFile, pread_into
+
+
+def _file(tmp_path, n=1000):
+    path = tmp_path / "f.bin"
+    values = (np.arange(n) * 0.5).astype(">f4")
+    path.write_bytes(values.tobytes())
+    return path, values
+
+
+def test_reads_the_bytes_at_an_offset(tmp_path):
+    path, values = _file(tmp_path)
+    with StableFile(path) as f:
+        got = f.read(4 * 100, ">f4", (3, 50))
+    np.testing.assert_array_equal(got, values[100:250].reshape(3, 50))
+
+
+def test_a_truncated_file_is_named(tmp_path):
+    path, _ = _file(tmp_path)
+    with StableFile(path) as f:
+        os.truncate(path, 400)
+        with pytest.raises(FormatError, match=r"f\.bin changed while it was read \(4000 bytes "
+                                              r"when opened, now 400\)"):
+            f.read(0, ">f4", (10,))
+
+
+def test_a_file_rewritten_in_place_is_named(tmp_path):
+    path, values = _file(tmp_path)
+    with StableFile(path) as f:
+        mtime = os.stat(path).st_mtime_ns
+        path.write_bytes(values[::-1].tobytes())  # same size, other bytes
+        os.utime(path, ns=(mtime, mtime + 10**9))
+        with pytest.raises(FormatError, match="modified since it was opened"):
+            f.read(0, ">f4", (10,))
+
+
+def test_a_read_past_the_end_is_named(tmp_path):
+    path, _ = _file(tmp_path, 10)
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        with pytest.raises(FormatError, match="ends inside frame 3"):
+            pread_into(fd, np.empty(20, ">f4"), 0, "f.bin: the file ends inside frame 3")
+    finally:
+        os.close(fd)

@@ -68,14 +68,14 @@ def checksum_policy(verify=True):
         _VERIFY.reset(token)
 
 
-def open_fits(path, memmap, verify=None):
+def open_fits(path, verify=None):
     """Open a FITS file read-only after checking its structure and checksums.
 
-    Returns ``(hdul, bad, plain)``: the astropy HDU list, the names of HDUs
-    whose checksum failed (only when ``verify`` is False: else that is an
-    error), and whether the file is plain FITS on disk (not gzip etc., which
-    astropy unpacks: those are never memory-mapped).  ``verify=None`` follows
-    `checksum_policy`.
+    Returns ``(hdul, bad, plain)``: the astropy HDU list (not memory-mapped:
+    the readers read pixels with explicit reads), the names of HDUs whose
+    checksum failed (only when ``verify`` is False: else that is an error),
+    and whether the file is plain FITS on disk (not gzip etc., which astropy
+    unpacks).  ``verify=None`` follows `checksum_policy`.
     """
     path = Path(path)
     if not path.is_file():
@@ -92,7 +92,7 @@ def open_fits(path, memmap, verify=None):
         log.warning("%s; read anyway (checksum verification off)", msg)
     plain = hdus is not None
     try:
-        hdul = fits.open(path, memmap=memmap and plain, mode="readonly")
+        hdul = fits.open(path, memmap=False, mode="readonly")
     except OSError as exc:
         raise FormatError(f"{path} is not a readable FITS file: {exc}") from exc
     try:
@@ -141,28 +141,27 @@ class CheckedFITS(Closing):
 
     Use it as a context manager (the file is closed on exit).
 
-    With ``memmap=False`` nothing of the file is mapped: pixels are read
-    into arrays of their own when asked for, each read after checking that
-    the file is still the one opened and checked
-    (`~spherex_reduce.io.stable_file.StableFile`), so a file truncated or
-    rewritten meanwhile is a `FormatError`, never a ``SIGBUS``.
+    Nothing of the file is memory-mapped: pixels are read into arrays of
+    their own when asked for, each read after checking that the file is
+    still the one opened and checked (`~spherex_reduce.io.stable_file.StableFile`),
+    so a file truncated or rewritten meanwhile is a `FormatError`, never a
+    ``SIGBUS``.
 
     Attributes
     ----------
     path : `pathlib.Path`
     hdul : `astropy.io.fits.HDUList`
-        The file's HDUs, read-only (memory-mapped for plain FITS on disk
-        unless ``memmap=False``).
+        The file's HDUs, read-only.
     bad : list of str
         Names of the HDUs whose checksum failed; only ever non-empty when the
         file was opened with checksum verification off.
     """
 
-    def __init__(self, path, verify_checksum=None, memmap=True):
+    def __init__(self, path, verify_checksum=None):
         self.path, self._name = Path(path), path  # messages name the path as given
-        self.hdul, self.bad, self._plain = open_fits(path, memmap, verify_checksum)
+        self.hdul, self.bad, plain = open_fits(path, verify_checksum)
         try:
-            self._stable = None if memmap or not self._plain else StableFile(path)
+            self._stable = StableFile(path) if plain else None
         except BaseException:
             self.hdul.close()
             raise
@@ -179,13 +178,13 @@ class CheckedFITS(Closing):
         ``dq_bits``, ``input``, ``integration`` and ``supplied`` (the readout
         parameters) are as for `read`.
         """
-        return exposure_from_hdul(self.hdul, self._name, self.bad, self._plain, supplied, dq_bits,
-                                  input, integration, self._stable)
+        return exposure_from_hdul(self.hdul, self._name, self.bad, self._stable, supplied,
+                                  dq_bits, input, integration)
 
     def physical(self, hdu):
         """The data of image HDU ``hdu`` in physical values (``BSCALE``/``BZERO``
         applied, ``BLANK`` as NaN; as stored if unscaled), or None if it has none."""
-        return physical(hdu, self._name, self._plain, stable=self._stable)
+        return physical(hdu, self._name, self._stable)
 
     def note_bad_checksums(self, header):
         """Record in ``header`` (changed in place) which HDUs failed their checksum:
@@ -245,7 +244,9 @@ def read(path, verify_checksum=None, dq_bits=None, input=None, integration=None,
     Parameters
     ----------
     path : str or `pathlib.Path`
-        FITS file.  It is opened read-only (memory-mapped) and never changed;
+        FITS file.  It is opened read-only and never changed; its pixels are
+        read with explicit reads (nothing memory-mapped: a file truncated or
+        rewritten while it is read is a `FormatError`, never a ``SIGBUS``);
         the arrays of the returned exposure are read-only.  Integer data with
         ``BSCALE``/``BZERO``/``BLANK`` are scaled to floating point
         (``float32`` for 8- and 16-bit data, else ``float64``; ``BLANK`` is
@@ -318,11 +319,11 @@ def read(path, verify_checksum=None, dq_bits=None, input=None, integration=None,
         return f.exposure(dq_bits=dq_bits, input=input, integration=integration, **supplied)
 
 
-def exposure_from_hdul(hdul, path, bad, plain, supplied, dq_bits=None, options=None,
-                       integration=None, stable=None):
-    """The `Exposure` in an HDU list opened by `open_fits` (which the caller closes); with
-    ``stable`` (the file's `~spherex_reduce.io.stable_file.StableFile`) its pixels are read
-    from it, not mapped."""
+def exposure_from_hdul(hdul, path, bad, stable, supplied, dq_bits=None, options=None,
+                       integration=None):
+    """The `Exposure` in an HDU list opened by `open_fits` (which the caller closes), its
+    pixels read from ``stable`` (the file's `~spherex_reduce.io.stable_file.StableFile`;
+    None for a file astropy unpacks)."""
     options = InputOptions.from_config(options)
     if stable is not None:  # the headers and tables below are still those checked
         stable.check()
@@ -336,9 +337,9 @@ def exposure_from_hdul(hdul, path, bad, plain, supplied, dq_bits=None, options=N
             return None
         hdu = hdul[name]
         index = integration if integration is not None and len(image_shape(hdu)) == 4 else None
-        return physical(hdu, path, plain, flags, index, stable)
+        return physical(hdu, path, stable, flags, index)
 
-    data = physical(d.sci, path, plain, index=integration, stable=stable)
+    data = physical(d.sci, path, stable, index=integration)
     err, mask, phantom = image("ERR"), image("DQ", flags=True), image("PHANTOM")
     bits = foreign_bits(dq_bits)  # checked even if unused
     if mask is not None:  # a DQ from other software: its bits are not ours

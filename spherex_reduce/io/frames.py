@@ -13,7 +13,7 @@ from .description import describe, file_tables
 from .fits_read import Closing, exposure_from_hdul, open_fits
 from .input import InputOptions, apply_gain, apply_input
 from .pixels import FITS_DTYPES, FLOAT_FOR, physical, scaling, to_physical
-from .stable_file import pread_into
+from .stable_file import StableFile, pread_into
 
 __all__ = ["FrameReader", "RampReader"]
 
@@ -67,10 +67,11 @@ class FrameReader(RampReader):
 
     def __init__(self, path, verify_checksum=None, dq_bits=None, input=None, **supplied):
         self.path = Path(path)
-        self._map = None
+        self._map = self._stable = None
         options = InputOptions.from_config(input)
-        self._hdul, bad, plain = open_fits(path, memmap=False, verify=verify_checksum)
+        self._hdul, bad, plain = open_fits(path, verify=verify_checksum)
         try:
+            self._stable = StableFile(path) if plain else None  # whole reads (`exposure`)
             d = describe(self._hdul, path, supplied, bad, options)
             if len(d.shape) != 3 or d.order != "readout" or "DQ" in d.names \
                     or "ERR" in d.names:
@@ -78,26 +79,27 @@ class FrameReader(RampReader):
             self._d = d
             self.schedule, self.header, self.unit = d.kept, d.header, d.unit
             self._drop, self._gain = d.drop, d.gain
-            phantom = (np.asarray(physical(self._hdul["PHANTOM"], path, plain))
+            phantom = (np.asarray(physical(self._hdul["PHANTOM"], path, self._stable))
                        if "PHANTOM" in d.names else None)
             self._phantom = apply_input(d, None, None, None, phantom)[3]
             self._scale = scaling(d.sci, path)
             self._tables = file_tables(self._hdul, path)
             self._map = map_frames(d.sci, path) if plain else None
         except Exception:
-            self._hdul.close()
+            self.close()
             raise
         #: tables of the file (e.g. ``PROVENANCE``), phantom values ``(frames, reads,
         #: channels)`` or None, and the type the pixels are stored as
         self.tables, self.phantom = self._tables, self._phantom
         self.stored_dtype = None if self._map is None else self._map[2]
-        self._opened = (bad, plain, supplied, options)
+        self._opened = (bad, supplied, options)
 
     def exposure(self):
         """The whole file as the `Exposure` `~spherex_reduce.io.read` gives, from the file
         already open and checked (not opened or verified again)."""
-        bad, plain, supplied, options = self._opened
-        return exposure_from_hdul(self._hdul, self.path, bad, plain, supplied, options=options)
+        bad, supplied, options = self._opened
+        return exposure_from_hdul(self._hdul, self.path, bad, self._stable, supplied,
+                                  options=options)
 
     def scale(self, values):
         """``values`` (reads ``(..., columns)`` as `reads` gives them) multiplied in place
@@ -114,6 +116,9 @@ class FrameReader(RampReader):
             except BufferError:  # a frame view is still alive (e.g. in a traceback):
                 pass  # the map closes when it is collected
             self._map = None
+        if self._stable is not None:
+            self._stable.close()
+            self._stable = None
         self._hdul.close()
 
     @property

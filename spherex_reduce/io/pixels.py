@@ -1,9 +1,10 @@
 """Pixel values of FITS image HDUs: stored integers scaled to physical values.
 
-Integer data with ``BSCALE``/``BZERO``/``BLANK`` are converted here from the
-stored values (astropy refuses to scale a memory-mapped image); the readers of
-whole files (`spherex_reduce.io.fits_read`) and of bands
-(`spherex_reduce.io.frames`, `spherex_reduce.io.read_files`) share it.
+Pixels are read from the file with explicit reads
+(`~spherex_reduce.io.stable_file.StableFile`, nothing memory-mapped) and
+integer data with ``BSCALE``/``BZERO``/``BLANK`` are converted here from the
+stored values; the readers of whole files (`spherex_reduce.io.fits_read`) and
+of bands (`spherex_reduce.io.frames`, `spherex_reduce.io.read_files`) share it.
 """
 
 import numpy as np
@@ -55,25 +56,26 @@ def to_physical(stored, scale, dtype):
     return out
 
 
-def physical(hdu, path, plain, flags=False, index=None, stable=None):
+def physical(hdu, path, stable, flags=False, index=None):
     """The data of an image HDU in physical values (``data[index]`` if ``index`` is given).
 
-    Unscaled data come as astropy gives them (memory-mapped if the file is),
-    or, given ``stable`` (the file's `~spherex_reduce.io.stable_file.StableFile`),
-    read from it into a new array in native byte order: nothing is mapped.
-    Scaled data are converted here from the stored values (astropy refuses
-    to scale a memory-mapped image): floating point, or 64-bit integers for
-    flags (``DQ``), whose ``BSCALE`` must be 1 and ``BZERO`` whole.
+    ``stable`` is the file's `~spherex_reduce.io.stable_file.StableFile`: the
+    stored values of a plain FITS file are read from it into a new array
+    (nothing is memory-mapped, so a file changed meanwhile is an error, not a
+    signal), in native byte order; None for a file astropy unpacks (gzip,
+    tile-compressed), whose data come as astropy gives them.  Scaled data are
+    converted here from the stored values: floating point, or 64-bit integers
+    for flags (``DQ``), whose ``BSCALE`` must be 1 and ``BZERO`` whole.
     """
     if hdu.header.get("NAXIS", 0) == 0:
         return None
     scale = scaling(hdu, path)
-    explicit = stable is not None and plain and not isinstance(hdu, fits.CompImageHDU)
-    if scale is None and explicit:
+    unpacked = stable is None or isinstance(hdu, fits.CompImageHDU)  # by astropy
+    if scale is None and unpacked:
+        return hdu.data if index is None else hdu.data[index]
+    if scale is None:
         stored = _stored(hdu, path, index, stable)
         return stored.astype(stored.dtype.newbyteorder("="), copy=False)
-    if scale is None:
-        return hdu.data if index is None else hdu.data[index]
     bitpix = hdu.header["BITPIX"]
     if flags:
         if bitpix < 0 or scale[0] != 1 or scale[1] != int(scale[1]):
@@ -87,17 +89,10 @@ def physical(hdu, path, plain, flags=False, index=None, stable=None):
     part = shape if index is None else shape[1:]
     check_size(int(np.prod(part, dtype=float)) * dtype.itemsize,
                f"HDU {hdu.name!r} of {path} {part} scaled to {dtype}")
-    if not plain or isinstance(hdu, fits.CompImageHDU):  # astropy unpacks and scales
+    if unpacked:  # astropy unpacks and scales
         data = np.asarray(hdu.data)
         return (data if index is None else data[index]).astype(dtype)
-    if explicit:
-        return to_physical(_stored(hdu, path, index, stable), scale, dtype)
-    stored = np.memmap(path, dtype=FITS_DTYPES[bitpix], mode="r",
-                       offset=hdu.fileinfo()["datLoc"], shape=shape)
-    try:
-        return to_physical(stored if index is None else stored[index], scale, dtype)
-    finally:
-        del stored
+    return to_physical(_stored(hdu, path, index, stable), scale, dtype)
 
 
 def _stored(hdu, path, index, stable):

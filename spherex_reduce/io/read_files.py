@@ -9,6 +9,7 @@ like `~spherex_reduce.io.FrameReader` does for one 3-D file, so a
 `~spherex_reduce.io.sources.FileSource` streams them.  The files are never modified.
 """
 
+import contextlib
 import dataclasses
 import glob
 import itertools
@@ -27,7 +28,7 @@ from .frames import RampReader, map_frames
 from .header_text import header_text
 from .input import InputOptions, apply_gain, apply_input
 from .pixels import FLOAT_FOR, physical, scaling, to_physical
-from .stable_file import pread_into
+from .stable_file import StableFile, pread_into
 
 __all__ = ["MAX_READ_FILES", "ReadFiles", "natural_key", "read_file_paths"]
 
@@ -114,7 +115,7 @@ class _ReadFile:
 
     def __init__(self, path, verify, supplied, tables=False, options=None):
         self.path = path
-        self.hdul, bad, self.plain = open_fits(path, memmap=False, verify=verify)
+        self.hdul, bad, self.plain = open_fits(path, verify=verify)
         self.map = None
         try:
             names = [h.name for h in self.hdul]
@@ -139,7 +140,8 @@ class _ReadFile:
             self.phantom = None
             if "PHANTOM" in self.d.names:  # as a 3-D file's (FrameReader), in floats
                 hdu = self.hdul["PHANTOM"]
-                self.phantom = np.array(physical(hdu, path, self.plain))
+                with StableFile(path) if self.plain else contextlib.nullcontext() as stable:
+                    self.phantom = np.array(physical(hdu, path, stable))
                 if self.phantom.dtype.kind != "f":
                     self.phantom = self.phantom.astype(FLOAT_FOR[hdu.header["BITPIX"]])
             #: the file's tables (only if asked: the first file's are the exposure's)

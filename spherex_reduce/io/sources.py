@@ -370,7 +370,7 @@ def _integrations(path, options, supplied):
     """A 4-D file: opened and checked once, each integration read when asked for, with
     explicit reads (`~spherex_reduce.io.stable_file.StableFile`: nothing mapped, so a file
     changed meanwhile is an error, never a signal)."""
-    checked = CheckedFITS(path, memmap=False)
+    checked = CheckedFITS(path)
     try:
         count = check_integrations(checked.hdul, path)
     except BaseException:

@@ -1106,18 +1106,18 @@ def test_batch_input_with_damaged_provenance(kind, inputs, runner, tmp_path):
     assert not (d / "outdir" / "raw_reduced.fits").exists()
 
 
-#: Run in a child: reduce the 4-D file argv[1] and, once integration 0 is reduced (from
-#: inside Pipeline.run, so the moment is always the same), truncate it to argv[2] bytes or
-#: rewrite its bytes in place (argv[2] == "rewrite").
+#: Run in a child: reduce argv[1] with config argv[2] and change the file at a fixed point of
+#: the run: once integration 0 of a 4-D file is reduced (from inside Pipeline.run), or once
+#: the input of a file read whole is in memory (argv[3] "integration" or "source"): truncate
+#: it to argv[4] bytes, or rewrite its bytes in place (argv[4] == "rewrite").
 _CHANGED_UNDER_US = """\
 import os, sys
 from spherex_reduce import cli
+from spherex_reduce.io import sources
 from spherex_reduce.reduce.pipeline import Pipeline
-path, how = sys.argv[1], sys.argv[2]
-run = Pipeline.run
+path, config, when, how = sys.argv[1:5]
 
-def changing(self, *args, **kwargs):
-    out = run(self, *args, **kwargs)
+def change():
     if how == "rewrite":  # same size, other bytes: what a writer still at work does
         data = open(path, "rb").read()
         with open(path, "r+b") as f:
@@ -1125,11 +1125,33 @@ def changing(self, *args, **kwargs):
         os.utime(path, ns=(0, os.stat(path).st_mtime_ns + 10**9))
     else:
         os.truncate(path, int(how))
-    return out
 
-Pipeline.run = changing
-sys.exit(cli.main(["-q", "reduce", path, "-c", "spherex-default", "-o", "out.fits"]))
+def after(method):
+    def changing(self, *args, **kwargs):
+        out = method(self, *args, **kwargs)
+        change()
+        return out
+    return changing
+
+if when == "integration":
+    Pipeline.run = after(Pipeline.run)
+else:
+    sources.MemorySource.__init__ = after(sources.MemorySource.__init__)
+sys.exit(cli.main(["-q", "reduce", path, "-c", config, "-o", "out.fits"]))
 """
+
+
+def _run_changing(d, path, config, when, how):
+    import resource
+    import subprocess
+    import sys
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_AS, (_probe.MEMORY_LIMIT, _probe.MEMORY_LIMIT))
+
+    return subprocess.run([sys.executable, "-c", _CHANGED_UNDER_US, path, config, when, how],
+                          cwd=d, env=_probe.child_env(), capture_output=True, text=True,
+                          timeout=_probe.TIMEOUT, preexec_fn=limit)
 
 
 @pytest.mark.parametrize("how", ["truncate", "rewrite"])
@@ -1138,27 +1160,39 @@ def test_4d_input_changed_while_reduced(how, inputs, tmp_path):
     2, no output; before, its pixels were memory-mapped and the truncation killed the process
     with SIGBUS.  The change is made from inside the run (after integration 0's pipeline), so
     it always falls at the same point."""
-    import resource
-    import subprocess
-    import sys
-
     d = tmp_path / "case"
     shutil.copytree(inputs, d, symlinks=True)
     _four_d(4)(d)
     _, _, start, size = _probe.span(d / "uncal.fits", "SCI")
     cut = "rewrite" if how == "rewrite" else str(start + size // 4 + 100)  # in integration 1
-
-    def limit():
-        resource.setrlimit(resource.RLIMIT_AS, (_probe.MEMORY_LIMIT, _probe.MEMORY_LIMIT))
-
-    done = subprocess.run([sys.executable, "-c", _CHANGED_UNDER_US, "uncal.fits", cut], cwd=d,
-                          env=_probe.child_env(), capture_output=True, text=True,
-                          timeout=_probe.TIMEOUT, preexec_fn=limit)
+    done = _run_changing(d, "uncal.fits", "spherex-default", "integration", cut)
     assert done.returncode == 2, (done.returncode, done.stderr[-2000:])
     lines = [line for line in done.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and ERROR_LINE.match(lines[0]), done.stderr
     assert "uncal.fits changed while it was read" in lines[0], lines[0]
     assert not (d / "out.fits").exists()
+
+
+def test_whole_input_truncated_after_it_is_read(inputs, tmp_path):
+    """A file read whole (a raw file with a DQ) is in memory once read: truncating it then
+    changes nothing, the output is that of the untouched file; before, its pixels were
+    memory-mapped views and the truncation killed the process with SIGBUS."""
+    d = tmp_path / "case"
+    shutil.copytree(inputs, d, symlinks=True)
+    _dq_setup((64, 64))(d)
+    _, _, start, _ = _probe.span(d / "lab.fits", "SCI")
+    done = _run_changing(d, "lab.fits", "fit.yaml", "source", str(start + 100))
+    assert done.returncode == 0 and not done.stderr.strip(), (done.returncode, done.stderr)
+    expected, scale = _lstsq_slopes(d / "lab-copy.fits")
+    with fits.open(d / "out.fits") as hdul:
+        got = hdul["SCI"].data
+    with fits.open(d / "raw.fits") as hdul:
+        rows = np.asarray(hdul["READOUT"].data["row"])
+    masked = np.zeros(got.shape, bool)
+    for r, c in [(10, 5), (40, 33), (21, 7)]:  # the DQ's pixels (every bit masks)
+        masked[rows == r, c] = True
+    assert np.array_equal(np.isnan(got), masked)
+    np.testing.assert_allclose(got[~masked], expected[~masked], rtol=0, atol=1e-5 * scale)
 
 
 # -- round two: wiener, compare-strategies, plugin strategies, long runs --------------------------

@@ -73,9 +73,11 @@ def physical(hdu, path, stable, flags=False, index=None):
     unpacked = stable is None or isinstance(hdu, fits.CompImageHDU)  # by astropy
     if scale is None and unpacked:
         return hdu.data if index is None else hdu.data[index]
-    if scale is None:
+    if scale is None:  # in native byte order in place: no second copy
         stored = _stored(hdu, path, index, stable)
-        return stored.astype(stored.dtype.newbyteorder("="), copy=False)
+        if stored.dtype.isnative:
+            return stored
+        return stored.byteswap(inplace=True).view(stored.dtype.newbyteorder("="))
     bitpix = hdu.header["BITPIX"]
     if flags:
         if bitpix < 0 or scale[0] != 1 or scale[1] != int(scale[1]):

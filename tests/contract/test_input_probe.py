@@ -1040,6 +1040,16 @@ def test_long_runs_print_their_expected_duration(command, runner, tmp_path, inpu
     assert quiet.rc == 0 and quiet.stderr == "", quiet.describe()
 
 
+def _many_frames(d):
+    """Setup: ``many.fits``, 30000 frames of an 8 x 8 array (7.7 MB)."""
+    from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule, write
+
+    s = ReadoutSchedule(DetectorGeometry(8, 8, 1, ref_border=1), skip=1, ref_mode="none",
+                        ref_reads=0, phantom_reads=0, nframes=30000)
+    data = np.random.default_rng(1).normal(0, 1, (30000, s.n_reads, 8)).astype(np.float32)
+    write(Exposure.from_arrays(data, s), d / "many.fits")
+
+
 ROUND2_STRATEGIES = [
     # a plugin's strategy returning what the kernel cannot use: named, exit 2 (not a bug of ours)
     refused("plugin-reduce-estimate-none", REDUCE_BAD, _toy_pipeline("toy", "none"),
@@ -1081,6 +1091,12 @@ ROUND2_STRATEGIES = [
                                 "measure: {kmin: 0.2, kmax: 1.0, bins: 6}\n"),
               mentions=r"sky\.rms: must be in \[1e-20, 1e\+20\] e/s")
       for rms in ("1e-300", "1e300")],  # the transfer was inf, NaN (exit 0)
+    # solves over the reads of long ramps (30000 frames of 8 x 8, 7.7 MB): checked first
+    *[refused(f"long-ramp-{step.replace('_', '-')}-memory",
+              ["reduce", "many.fits", "-c", "bad.yaml", "-o", "out.fits"],
+              chain(_many_frames, write("bad.yaml", f"steps:\n  - {step}: {{}}\n")),
+              mentions=rf"{step}: the .* 30000 reads needs .* of memory")
+      for step in ("fit_ramp", "detect_jumps")],
     # a config overriding a keyword, then refused: the override's warning is not printed
     refused("override-refused-one-line", REDUCE_BAD,
             write("bad.yaml", "input: {header: override}\ngeometry: {nrows: 128}\n"

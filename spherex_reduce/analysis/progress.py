@@ -113,11 +113,17 @@ class Progress:
     @staticmethod
     def parallel_of(scheduler, workers):
         """Tasks run at once on ``scheduler`` (as `~spherex_reduce.analysis.sweep.run_sweep`
-        takes it): 1 for ``'serial'``, the workers of a new LocalCluster (default 2),
-        None (unknown) for an existing scheduler."""
+        takes it): 1 for ``'serial'``, the workers of a new LocalCluster (default 2) or
+        of a `distributed.Client`'s cluster, None (unknown) for a scheduler's address."""
         if scheduler == "serial":
             return 1
-        return (workers or 2) if scheduler is None else None
+        if scheduler is None:
+            return workers or 2
+        try:  # a Client: its workers' threads now
+            threads = sum(scheduler.nthreads().values())
+        except Exception:  # an address, or a cluster that does not answer: unknown
+            return None
+        return threads or None
 
     def _announce(self, elapsed, each):
         rounds = self.total if not self.parallel else math.ceil(self.total / self.parallel)

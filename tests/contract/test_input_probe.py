@@ -1013,7 +1013,7 @@ def _seconds(text):
 
 
 @pytest.mark.parametrize("command", ["compare", "sweep"])
-def test_long_runs_print_their_expected_duration(command, runner, tmp_path, inputs):
+def test_long_runs_print_their_expected_duration(command, runner, tmp_path):
     """Without -q a long run prints its expected duration, timed on its first task, before
     the rest runs; within a factor of 3 of the run's own duration (here 12 small tasks).
     No progress bar off a terminal, nothing with -q."""

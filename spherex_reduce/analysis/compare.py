@@ -31,12 +31,12 @@ import json
 import math
 import time
 import traceback
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 from astropy import units as u
 from astropy.table import Table
-from tqdm import tqdm
 
 from ..core.errors import ConfigError, SpherexReduceError
 from ..core.limits import check_count
@@ -45,7 +45,6 @@ from ..io.config import load_yaml
 from ..io.plotting import save_figure
 from ..noise import expected_slope_variance
 from ..reduce.pipeline import as_pipeline
-from ..reduce.scheduler import map_on_dask
 from ..simulation import load_scene
 from .case import (
     SpectrumMeasure,
@@ -58,7 +57,8 @@ from .case import (
 )
 from .photon_noise import photon_noise_label, photon_noise_power
 from .plots import plot_comparison
-from .sky import inject_sky, light_sensitive, measure_against_sky, sky_field
+from .progress import run_tasks
+from .sky import RMS_RANGE, inject_sky, light_sensitive, measure_against_sky, sky_field
 from .spectrum import EmptyBandError, band_power
 
 __all__ = [
@@ -149,7 +149,8 @@ def load_comparison(source):
     Raises
     ------
     ConfigError
-        Unknown keys; ``sky.rms`` not finite and > 0, ``sky.index`` outside
+        Unknown keys; ``sky.rms`` outside `~spherex_reduce.analysis.sky.RMS_RANGE`
+        (1e-20 to 1e20 e/s), ``sky.index`` outside
         `INDEX_RANGE`; a pipeline that is not a shipped name, a file or a valid
         config; an unreadable or invalid scene.  The message names the file and
         the entry (``cmp.yaml: sky.rms: ...``).
@@ -187,6 +188,9 @@ def load_comparison(source):
     sky["rms"] = _number(sky_in.get("rms", _SKY["rms"]), f"{label}: sky.rms")
     if not sky["rms"] > 0:
         raise ConfigError(f"{label}: sky.rms: must be > 0, got {sky['rms']}")
+    if not RMS_RANGE[0] <= sky["rms"] <= RMS_RANGE[1]:
+        raise ConfigError(f"{label}: sky.rms: must be in [{RMS_RANGE[0]:g}, {RMS_RANGE[1]:g}] "
+                          f"e/s (its power must be a normal float64), got {sky['rms']:g}")
     sky["index"] = _number(sky_in.get("index", _SKY["index"]), f"{label}: sky.index")
     lo, hi = INDEX_RANGE
     if not lo <= sky["index"] <= hi:
@@ -271,8 +275,20 @@ def run_realization(task):
 
     Returns ``{"realization": r, "rows": [...]}`` (one row per pipeline:
     `measure_against_sky`'s values, ``pipeline``, ``seconds`` of the
-    reduction alone), or ``{"realization": r, "error": message}``; never raises.
+    reduction alone, and ``warnings``: the ``(category, message)`` of the
+    warnings raised, for `compare_strategies` to show once every realisation
+    has succeeded), or ``{"realization": r, "error": message}``; never raises.
     """
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = _realization(task)
+    if "error" not in res:
+        res["warnings"] = [(w.category, str(w.message)) for w in caught]
+    return res
+
+
+def _realization(task):
+    """`run_realization` without its warnings."""
     r = task["realization"]
     try:
         sc = load_scene(task["scene"])
@@ -418,7 +434,10 @@ def compare_strategies(comparison, output=None, *, plot=None, scheduler=None, wo
     scheduler, workers
         As `~spherex_reduce.analysis.sweep.run_sweep` (``"serial"``: in this
         process).
-    overwrite, progress : bool
+    overwrite : bool
+    progress : bool
+        Print the expected duration on stderr, timed on the first realisation, and
+        show a progress bar on a terminal (`~spherex_reduce.analysis.progress.run_tasks`).
 
     Returns
     -------
@@ -433,8 +452,12 @@ def compare_strategies(comparison, output=None, *, plot=None, scheduler=None, wo
     Raises
     ------
     SpherexReduceError
-        A realisation failed (a pipeline that leaves ramps, a plugin error):
-        one line naming the realisation; nothing is written.
+        A realisation failed (a pipeline that leaves ramps, a plugin error, a
+        plugin strategy's result that fails
+        `~spherex_reduce.reduce.steps.strategy_checks.check_estimate`): one line
+        naming the realisation; nothing is written.  The warnings of the
+        realisations are issued (each once) only when all succeeded: none is
+        shown before the error.
 
     Examples
     --------
@@ -458,23 +481,21 @@ def compare_strategies(comparison, output=None, *, plot=None, scheduler=None, wo
     photon = photon_noise_power(1 * u.electron / u.s, schedule=sc.schedule)
     tasks = [cmp.task(r) for r in range(cmp.realizations)]
     results = []
-    with tqdm(total=len(tasks), disable=not progress, desc="realizations") as bar:
-        def collect(task, res):
-            results.append(res)
-            bar.update(1)
-
-        if scheduler == "serial":
-            for task in tasks:
-                collect(task, run_realization(task))
-        else:
-            map_on_dask(run_realization, tasks, scheduler, workers, collect,
-                        lambda task, exc: {"realization": task["realization"],
-                                           "error": f"{type(exc).__name__}: {exc}"})
+    run_tasks(run_realization, tasks, scheduler, workers, lambda task, res: results.append(res),
+              lambda task, exc: {"realization": task["realization"],
+                                 "error": f"{type(exc).__name__}: {exc}"},
+              noun="realisation", progress=progress)
     failed = sorted((r for r in results if "error" in r), key=lambda r: r["realization"])
     if failed:
         more = f" (and {len(failed) - 1} more)" if len(failed) > 1 else ""
         raise SpherexReduceError(f"{cmp.source}: realisation {failed[0]['realization']} "
                                  f"failed: {failed[0]['error']}{more}")
+    shown = set()
+    for res in sorted(results, key=lambda r: r["realization"]):  # each once, all succeeded
+        for category, text in res.get("warnings", ()):
+            if (category, text) not in shown:
+                shown.add((category, text))
+                warnings.warn(text, category, stacklevel=2)
     label = photon_noise_label(1 * u.electron / u.s, schedule=sc.schedule)
     table = _table(results, cmp, floor, photon, label)
     with contextlib.ExitStack() as stack:  # the table and the plot: both or neither

@@ -17,9 +17,13 @@ from ..core.errors import SpherexReduceError
 from .case import SpectrumMeasure
 from .spectrum import cross_spectrum, power_spectrum
 
-__all__ = ["inject_sky", "light_sensitive", "measure_against_sky", "sky_field"]
+__all__ = ["RMS_RANGE", "inject_sky", "light_sensitive", "measure_against_sky", "sky_field"]
 
 _RATE = u.electron / u.s
+#: The sky's rms (e/s) must lie in this range: far beyond any real sky on either side, and
+#: its power (rms² summed over up to 2048² pixels, twice) stays a normal float64, so the
+#: transfer is never 0/0 or x/0 from an underflow (rms 1e-300: power 0, transfer inf).
+RMS_RANGE = (1e-20, 1e20)
 
 
 def light_sensitive(geometry):
@@ -65,7 +69,7 @@ def sky_field(geometry, rms, index, seed):
     ----------
     geometry : `~spherex_reduce.DetectorGeometry`
     rms : float
-        e/s over the light-sensitive pixels (> 0).
+        e/s over the light-sensitive pixels, in `RMS_RANGE`.
     index : float
         Spectral index of the power spectrum (``-2``: more power on large scales).
     seed : int, sequence of int or `numpy.random.SeedSequence`
@@ -88,9 +92,10 @@ def sky_field(geometry, rms, index, seed):
     (0.05, 0.0)
     """
     rms, index = float(rms), float(index)
-    if not (np.isfinite(rms) and rms > 0) or not np.isfinite(index):
-        raise SpherexReduceError(f"sky: rms must be finite and > 0 and index finite, got "
-                                 f"rms={rms}, index={index}")
+    lo, hi = RMS_RANGE
+    if not lo <= rms <= hi or not np.isfinite(index):
+        raise SpherexReduceError(f"sky: rms must be in [{lo:g}, {hi:g}] e/s and index finite, "
+                                 f"got rms={rms}, index={index}")
     rows, cols = light_sensitive(geometry)
     ny, nx = rows.stop - rows.start, cols.stop - cols.start
     white = np.random.default_rng(seed).standard_normal((ny, nx))
@@ -260,7 +265,11 @@ def measure_against_sky(image, sky, measure=None, light=None):
     band = [measure.kmin, measure.kmax]
     bc = cross_spectrum(cut, sky_cut, bins=band, **kw)
     ba = power_spectrum(sky_cut, mask=bad, bins=band, **kw)
-    sky_transfer = float(bc["power"][0] / ba["power"][0]) if len(ba) else np.nan
+    sky_power = float(ba["power"][0]) if len(ba) else np.nan
+    if len(ba) and not (np.isfinite(sky_power) and sky_power > 0):
+        raise SpherexReduceError(f"the injected sky's band power is {sky_power:g}: the sky is "
+                                 "too faint or too bright for float64 (see sky.rms)")
+    sky_transfer = float(bc["power"][0]) / sky_power if len(ba) else np.nan
     return {"noise_band_power": float(m["band_power"].value),
             "noise_band_power_err": float(m["band_power_err"].value),
             "unit": str(m["band_power"].unit), "k": m["k"], "power": m["power"],

@@ -42,7 +42,6 @@ from ..core.errors import ConfigError
 from ..core.limits import check_count
 from ..io import atomic_output
 from ..io.config import READOUT_PARAMETERS, load_yaml
-from ..reduce.scheduler import map_on_dask
 from ..simulation import load_scene
 from .case import (
     SpectrumMeasure,
@@ -53,6 +52,7 @@ from .case import (
     scene_section,
     seed_section,
 )
+from .progress import run_tasks
 
 __all__ = ["Sweep", "SweepResult", "load_sweep", "plot_sweep", "run_cell", "run_sweep"]
 
@@ -308,7 +308,8 @@ def run_sweep(sweep, output=None, *, scheduler=None, workers=None, overwrite=Fal
     overwrite : bool
         Ignore and replace an existing ``output``.
     progress : bool
-        Show a tqdm progress bar.
+        Print the expected duration on stderr, timed on the first cell, and show a
+        progress bar on a terminal (`~spherex_reduce.analysis.progress.run_tasks`).
 
     Returns
     -------
@@ -379,23 +380,14 @@ def _cells_to_run(sweep, existing):
 
 def _run_cells(sweep, cells, scheduler, workers, progress, collect):
     """Run ``cells`` (in this process, or on dask) and pass each result row to ``collect``."""
-    bar = _bar(len(cells), progress)
     tasks = [sweep.task(c) for c in cells]
-    if cells and scheduler == "serial":
-        for task in tasks:
-            collect(run_cell(task))
-            bar.update(1)
-    elif cells:
-        def cell_done(task, res):
-            collect(res)
-            bar.update(1)
 
-        def cell_failed(task, exc):  # a worker died: report the cell, go on
-            cell = next(c for c, t in zip(cells, tasks, strict=True) if t is task)
-            return {"cell": cell, "error": f"{type(exc).__name__}: {exc}"}
+    def cell_failed(task, exc):  # a worker died: report the cell, go on
+        cell = next(c for c, t in zip(cells, tasks, strict=True) if t is task)
+        return {"cell": cell, "error": f"{type(exc).__name__}: {exc}"}
 
-        map_on_dask(run_cell, tasks, scheduler, workers, cell_done, cell_failed)
-    bar.close()
+    run_tasks(run_cell, tasks, scheduler, workers, lambda task, res: collect(res), cell_failed,
+              noun="cell", progress=progress)
 
 
 class _Results:
@@ -455,12 +447,6 @@ class _Results:
 
 def _jsonable(d):
     return {k: (list(v) if isinstance(v, (list, tuple, np.ndarray)) else v) for k, v in d.items()}
-
-
-def _bar(total, progress):
-    from tqdm import tqdm
-
-    return tqdm(total=total, disable=not progress, desc="sweep cells", unit="cell")
 
 
 def plot_sweep(table, x=None, title=""):

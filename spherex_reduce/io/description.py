@@ -6,6 +6,7 @@
 `~spherex_reduce.io.FrameReader`, ``ReadFiles``) starts from it.
 """
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,6 +21,8 @@ from ..core.schedule import ReadoutSchedule
 from .header_text import header_text
 from .input import InputOptions
 from .layout import PROVENANCE_COLUMNS, RESERVED, integration_shape
+
+log = logging.getLogger(__name__)
 
 __all__ = ["FileDescription", "check_integrations", "check_provenance", "check_shape", "describe",
            "file_tables", "image_shape", "note_bad_checksums", "sci_hdu"]
@@ -95,9 +98,10 @@ def describe(hdul, path, supplied, bad=(), options=None, decided=(), integration
     data loaded).
 
     ``options`` (`InputOptions`, the ``input:`` section) is applied: config
-    keywords fill or override the file's, the unit, the frames dropped
-    (``schedule`` is then that of the kept frames, ``drop`` their number)
-    and the gain per channel (``gain``, or None).  ``decided``: supplied keys
+    keywords fill or override the file's (each override logged as a warning
+    once the file is accepted: a refused file gets its error alone), the
+    unit, the frames dropped (``schedule`` is then that of the kept frames,
+    ``drop`` their number) and the gain per channel (``gain``, or None).  ``decided``: supplied keys
     the caller sets whatever the file says (not compared with its keywords).
     With ``integration``, ``SCI`` must be 4-D (integrations, groups, rows,
     columns) and what is described is that integration's ramps.
@@ -105,8 +109,9 @@ def describe(hdul, path, supplied, bad=(), options=None, decided=(), integration
     options = InputOptions() if options is None else options
     names = [h.name for h in hdul]
     header = hdul[0].header.copy()
+    notes = []  # overrides: warned about once the file is accepted, not before an error
     derived = options.reconcile(header, {k: v for k, v in supplied.items()
-                                         if k not in decided}, path)
+                                         if k not in decided}, path, notes)
     sci = sci_hdu(hdul, path)
     if integration is not None and len(image_shape(sci)) == 4:
         check_integrations(hdul, path)
@@ -134,14 +139,16 @@ def describe(hdul, path, supplied, bad=(), options=None, decided=(), integration
         raise FormatError(f"NPHANT={schedule.phantom_reads} but the file has no PHANTOM extension")
     bunit = header_keyword(header if "BUNIT" in header else sci.header, "BUNIT", str,
                            default=None)
-    unit = options.unit_of(bunit, header, path)
+    unit = options.unit_of(bunit, header, path, notes)
     drop, kept = options.frames(header, schedule, len(shape) == 3, path)
-    gain, unit = options.gains(unit, header, schedule.geometry.nchannels, path)
+    gain, unit = options.gains(unit, header, schedule.geometry.nchannels, path, notes)
     for key in ("CHECKSUM", "DATASUM", "ORDER", "NEXTEND"):
         header.remove(key, ignore_missing=True)
     note_bad_checksums(header, bad, path)
     if integration is not None:
         header["SXRINT"] = (integration, "integration of the input's 4-D SCI (from 0)")
+    for note in notes:
+        log.warning("%s", note)
     return FileDescription(names, header, sci, shape, schedule, order, unit, kept, drop, gain)
 
 

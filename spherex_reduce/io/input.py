@@ -12,7 +12,6 @@ read first and reduced in memory give the same numbers bit for bit.  An
 exposure already in memory is never changed by it: it was read with it.
 """
 
-import logging
 import math
 import re
 from dataclasses import dataclass
@@ -26,8 +25,6 @@ from ..core.parameters import Parameter, validate_parameters
 from .flags import check_dq_bits
 
 __all__ = ["INPUT_PARAMETERS", "InputOptions", "apply_gain", "parse_unit"]
-
-log = logging.getLogger(__name__)
 
 #: the ``input:`` section's keys (``gain`` may also be a list, one number per channel)
 INPUT_PARAMETERS = (
@@ -129,14 +126,16 @@ class InputOptions:
                               "channels; give one number or one per channel")
 
     # -- applied by the readers ----------------------------------------------------
-    def reconcile(self, header, supplied, name):
+    def reconcile(self, header, supplied, name, notes):
         """The header to read the schedule from, given the config's ``supplied`` values.
 
         ``fill``: a keyword the file has and the config gives differently is
         refused (`FormatError` naming both).  ``override``: the file's keyword
-        is replaced in ``header`` (changed in place) by the config's, logged as
-        a warning and recorded in ``HISTORY``.  Returns the keys that the file
-        states by another keyword only, for `check_derived`.
+        is replaced in ``header`` (changed in place) by the config's, recorded
+        in ``HISTORY`` and appended to ``notes`` (a list: the warnings the
+        reader logs once the file is accepted, so that a file refused later
+        gets its error alone).  Returns the keys that the file states by
+        another keyword only, for `check_derived`.
         """
         derived = []  # keys the file states only by another keyword (TFRAME / FRMOVH)
         for key, value in supplied.items():
@@ -152,7 +151,7 @@ class InputOptions:
                 if self.header == "fill":
                     derived.append(key)
                     continue
-                self._override(header, "/".join(partners), "given", value, name)
+                self._override(header, "/".join(partners), "given", value, name, notes)
             if self.header == "override":
                 for kw in partners:  # the config's value alone states it
                     header.remove(kw, ignore_missing=True)
@@ -166,7 +165,7 @@ class InputOptions:
                 raise FormatError(
                     f"{name}: keyword {shown} is {have} in the file but {key} is {value} in the "
                     "config; fix the config, or set input.header: override to use the config's")
-            self._override(header, shown, have, value, name)
+            self._override(header, shown, have, value, name, notes)
             for kw in (field.keyword, *(field.side_keywords or ())):
                 header.remove(kw, ignore_missing=True)
             for kw, v, comment in field_cards(field, value):
@@ -186,13 +185,15 @@ class InputOptions:
                     f"is {supplied[key]} in the config; fix the config, or set input.header: "
                     "override to use the config's")
 
-    def _override(self, header, keyword, have, value, name):
-        log.warning("%s: keyword %s = %s replaced by the config's %s (input.header: override)",
-                    name, keyword, have, value)
+    @staticmethod
+    def _override(header, keyword, have, value, name, notes):
+        notes.append(f"{name}: keyword {keyword} = {have} replaced by the config's {value} "
+                     "(input.header: override)")
         header.add_history(f"input.header override: {keyword} {have} -> {value} (config)")
 
-    def unit_of(self, text, header, name):
-        """The data's unit from the file's ``BUNIT`` text (None: absent) and ``unit``.
+    def unit_of(self, text, header, name, notes):
+        """The data's unit from the file's ``BUNIT`` text (None: absent) and ``unit``
+        (an override is appended to ``notes``, as by `reconcile`).
 
         ``unit`` is that of raw data: a file written by a pipeline (``SXRCONF``)
         keeps its own.
@@ -214,7 +215,7 @@ class InputOptions:
             raise FormatError(f"{name}: keyword BUNIT is {text!r} in the file but unit is "
                               f"{self.unit!r} in the config; fix the config, or set "
                               "input.header: override to use the config's")
-        self._override(header, "BUNIT", repr(text), repr(self.unit), name)
+        self._override(header, "BUNIT", repr(text), repr(self.unit), name, notes)
         return mine
 
     def frames(self, header, schedule, ramp, name):
@@ -249,8 +250,9 @@ class InputOptions:
         header.add_history(f"input: the first {n} frame(s) of every ramp dropped (not fitted)")
         return n, kept
 
-    def gains(self, unit, header, nchannels, name):
-        """The gain per channel ``(nchannels,)`` to apply (None: none) and the new unit.
+    def gains(self, unit, header, nchannels, name, notes):
+        """The gain per channel ``(nchannels,)`` to apply (None: none) and the new unit
+        (an override is appended to ``notes``, as by `reconcile`).
 
         A file in electrons whose header records the same gain (``GAIN`` or
         ``GAIN1 ...``: written after it was applied) is left as it is.
@@ -273,7 +275,7 @@ class InputOptions:
                         f"{name}: keyword {key} is {have} in the file but gain is {value} in "
                         "the config; fix the config, or set input.header: override to use "
                         "the config's")
-                self._override(header, key, have, value, name)
+                self._override(header, key, have, value, name, notes)
         for key, value, comment in cards:
             header[key] = (value, comment)
         header.add_history(f"input: data multiplied by the gain {list(per)} e-/ADU "

@@ -20,6 +20,7 @@ the noise is white, the weights are equal: the estimate is the mean.
 
 import numpy as np
 
+from ..core.limits import check_size
 from .components import _cin, _d_inv_f, _d_power, _g_power
 from .variance import ls_weights
 
@@ -313,6 +314,8 @@ class Kriging:
         n, ntargets = c_ot.shape
         groups = np.zeros(n, int) if constants is None else np.asarray(constants, int)
         q = int(groups.max()) + 1
+        check_size(self.nbytes(n, ntargets, nupdate, q),
+                   f"a kriging solve of {n} observations for {ntargets} targets")
         a = np.zeros((n + q, n + q))
         a[:n, :n] = c_oo
         if regularization:
@@ -330,6 +333,21 @@ class Kriging:
         self.variance = (np.asarray(c_tt, dtype=np.float64)
                          - np.sum(self.x[:n] * c_ot, axis=0) - self.x[n])
         self._zk = self.z[:n].T @ c_ot
+
+    @staticmethod
+    def nbytes(nobs, ntargets, nupdate=0, nconstants=1):
+        """Bytes a `Kriging` of ``nobs`` observations and ``ntargets`` targets allocates at
+        its peak: the bordered system and its right-hand sides, the copies
+        `numpy.linalg.solve` factorises, and the solution it keeps.
+
+        Examples
+        --------
+        >>> from spherex_reduce.noise.read_covariance import Kriging
+        >>> Kriging.nbytes(2104, 2072, 32, 2) / 1e6  # the paper's case with phantom values
+        177.3...
+        """
+        size = float(nobs) + nconstants
+        return 8.0 * (2 * size * size + 3 * size * (float(ntargets) + nupdate))
 
     def weights(self, extra=None):
         """Weights ``(T, n)`` and predicted error variances ``(T,)``.

@@ -1197,7 +1197,206 @@ def test_whole_input_truncated_after_it_is_read(inputs, tmp_path):
 
 # -- round two: wiener, compare-strategies, plugin strategies, long runs --------------------------
 
-ROUND2_STRATEGIES = []
+# A third-party reference strategy, installed in the case's directory (the first folder of the
+# command's sys.path): ``toy`` estimates offsets, ``oldtoy`` corrects the whole exposure; its
+# ``mode`` says what they return.
+TOY_PLUGIN = """\
+import numpy as np
+from spherex_reduce.plugin import Parameter, ReferenceOffsets, Strategy, hookimpl
+
+MODE = (Parameter("mode", "ok", (str,), "what to return"),)
+
+
+class Toy(Strategy):
+    kind, name, parameters = "reference", "toy", MODE
+
+    def estimate(self, side, context, exposure=None):
+        mode, nframes = self.params["mode"], side.data.shape[0]
+        if mode == "none":
+            return None
+        nch = context.geometry.nchannels
+        shape = {"short": (1, 1, 1), "frames": (nframes + 2, nch, 1)}.get(mode,
+                                                                        (nframes, nch, 1))
+        offsets = np.full(shape, np.nan if mode == "nan" else 1.0)
+        used = np.ones(shape, int)
+        if mode == "missing":  # channel 0 without reference pixels: uncorrected, a warning
+            offsets[:, 0], used[:, 0] = np.nan, 0
+        return ReferenceOffsets(offsets, used, np.zeros(shape, int), [-1])
+
+
+class OldToy(Strategy):
+    kind, name, parameters = "reference", "oldtoy", MODE
+
+    def __call__(self, exposure, mode):
+        if mode == "array":
+            return exposure.data.data
+        return exposure.replace(data=exposure.data.data * np.nan)
+
+
+@hookimpl
+def register_strategies():
+    return [Toy, OldToy]
+"""
+SMALL_SCENE = ("{geometry: {nrows: 64, ncols: 64, nchannels: 2, ref_border: 4}, readout: "
+               "{skip: 4, ref_reads: 4, phantom_reads: 2, nframes: 3, frame_overhead: 10}}")
+COMPARE = ["compare-strategies", "cmp.yaml", "-o", "cmp.ecsv", *SERIAL]
+
+
+def _toy_plugin(d):
+    """Setup: install `TOY_PLUGIN` (distribution ``spherex-reduce-toy 0.1.0``) in ``d``,
+    compiled now so that importing it writes nothing."""
+    import py_compile
+
+    (d / "toy_strategy.py").write_text(TOY_PLUGIN)
+    py_compile.compile(str(d / "toy_strategy.py"), doraise=True)
+    info = d / "spherex_reduce_toy-0.1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: spherex-reduce-toy\n"
+                                   "Version: 0.1.0\n")
+    (info / "entry_points.txt").write_text("[spherex_reduce]\ntoy = toy_strategy\n")
+
+
+def _toy_pipeline(strategy, mode):
+    """Setup: the plugin, and ``bad.yaml`` reducing with its strategy in ``mode``."""
+    return chain(_toy_plugin, write("bad.yaml", f"steps:\n  - unchop: {{}}\n  - correct_reference: "
+                                                f"{{strategy: {strategy}, mode: {mode}}}\n"
+                                                "  - fit_ramp: {}\n"))
+
+
+def _toy_comparison(*modes, extra=""):
+    """Setup: the plugin, and ``cmp.yaml`` comparing pipelines of ``(strategy, mode)``."""
+    pipes = "".join(f"  - {{name: {s}-{m}, steps: [{{unchop: {{}}}}, {{correct_reference: "
+                    f"{{strategy: {s}, mode: {m}}}}}]}}\n" for s, m in modes)
+    return chain(_toy_plugin, write("cmp.yaml", f"scene: {SMALL_SCENE}\npipelines:\n{pipes}"
+                                                "measure: {kmin: 0.2, kmax: 1.0, bins: 6}\n"
+                                                + extra))
+
+
+def _wiener(noise):
+    return write("bad.yaml", "steps:\n  - unchop: {}\n  - correct_reference: {strategy: wiener, "
+                             f"noise: {noise}}}\n  - fit_ramp: {{}}\n")
+
+
+def _fit_noise_table(gamma, gamma_err):
+    """Setup: ``noise.ecsv``, a fit-noise result whose reference stream has this gamma."""
+    def setup(d):
+        t = Table({"stream": ["reference", "phantom"], "alpha": [2e-3, 1e-4],
+                   "alpha_err": [4e-4, 1e-4], "beta": [3.0, 1.0], "beta_err": [8.0, 1.0],
+                   "gamma": [gamma, 5.0], "gamma_err": [gamma_err, 6.0],
+                   "exponent": [1.3, 1.3], "exponent_err": [0.0, 0.0]})
+        t.write(d / "noise.ecsv", format="ascii.ecsv")
+    return setup
+
+
+def _tall_raw(d):
+    """Setup: ``tall.fits``, raw ramps of a 16384 x 4 array read by one channel (0.5 MB)."""
+    from spherex_reduce.simulation import simulate_to_fits
+
+    scene = {"geometry": {"nrows": 16384, "ncols": 4, "nchannels": 1, "ref_border": 1},
+             "readout": {"skip": 1, "ref_reads": 4, "phantom_reads": 1, "nframes": 2},
+             "seed": 1}
+    simulate_to_fits(scene, d / "tall.fits")
+
+
+_UNITS = {"d": 86400, "h": 3600, "min": 60, "s": 1}
+
+
+def _seconds(text):
+    """``'8 h 10 min'`` -> 29400.0: a duration as the long runs print it."""
+    parts = text.split()
+    return sum(float(n) * _UNITS[unit] for n, unit in zip(parts[::2], parts[1::2], strict=True))
+
+
+@pytest.mark.parametrize("command", ["compare", "sweep"])
+def test_long_runs_print_their_expected_duration(command, runner, tmp_path):
+    """Without -q a long run prints its expected duration, timed on its first task, before
+    the rest runs; within a factor of 3 of the run's own duration (here 12 small tasks).
+    No progress bar off a terminal, nothing with -q."""
+    d = tmp_path / "case"
+    d.mkdir()
+    if command == "compare":
+        (d / "run.yaml").write_text(f"scene: {SMALL_SCENE}\nrealizations: 12\n"
+                                    "measure: {kmin: 0.2, kmax: 1.0, bins: 6}\n")
+        argv, noun = ["compare-strategies", "run.yaml", "-o", "out.ecsv", *SERIAL], "realisations"
+        took = re.compile(r"wrote out\.ecsv \(([\d.]+) s\)")
+    else:
+        (d / "run.yaml").write_text(SWEEP.replace("realizations: 1", "realizations: 6"))
+        argv, noun = ["sweep", "run.yaml", "-o", "out.ecsv", *SERIAL], "cells"
+        took = re.compile(r"failed \(([\d.]+) s\)")
+    result = runner.run(argv, d)
+    assert result.rc == 0, result.describe()
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1, result.describe()
+    found = re.fullmatch(rf"about (.+) for 12 {noun} \((.+) each\)", lines[0])
+    assert found, result.describe()
+    expected, actual = _seconds(found[1]), float(took.search(result.stdout)[1])
+    assert actual / 3 <= expected <= 3 * actual + 0.3, (expected, actual)
+    quiet = runner.run(["-q", *argv, "--overwrite"], d)
+    assert quiet.rc == 0 and quiet.stderr == "", quiet.describe()
+
+
+def _many_frames(d):
+    """Setup: ``many.fits``, 30000 frames of an 8 x 8 array (7.7 MB)."""
+    from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule, write
+
+    s = ReadoutSchedule(DetectorGeometry(8, 8, 1, ref_border=1), skip=1, ref_mode="none",
+                        ref_reads=0, phantom_reads=0, nframes=30000)
+    data = np.random.default_rng(1).normal(0, 1, (30000, s.n_reads, 8)).astype(np.float32)
+    write(Exposure.from_arrays(data, s), d / "many.fits")
+
+
+ROUND2_STRATEGIES = [
+    # a plugin's strategy returning what the kernel cannot use: named, exit 2 (not a bug of ours)
+    refused("plugin-reduce-estimate-none", REDUCE_BAD, _toy_pipeline("toy", "none"),
+            mentions=r"strategy 'toy' of plugin 'toy' \(spherex-reduce-toy 0.1.0\) returned "
+                     r"None"),
+    refused("plugin-reduce-estimate-wrong-shape", REDUCE_BAD, _toy_pipeline("toy", "short"),
+            mentions=r"plugin 'toy'.*offsets of shape \(1, 1, 1\); expected \(3, 2, 1\)"),
+    refused("plugin-reduce-estimate-more-frames", REDUCE_BAD, _toy_pipeline("toy", "frames"),
+            mentions=r"plugin 'toy'.*offsets of shape \(5, 2, 1\)"),
+    refused("plugin-reduce-not-an-exposure", REDUCE_BAD, _toy_pipeline("oldtoy", "array"),
+            mentions=r"strategy 'oldtoy' of plugin 'toy'.*not an Exposure"),
+    # compare-strategies on slope images: offsets for 3 frames were broadcast over the one
+    refused("compare-plugin-offsets-broadcast", COMPARE, _toy_comparison(("toy", "frames")),
+            mentions=r"plugin 'toy'.*offsets of shape \(3, 2, 1\); expected \(1, 2, 1\)"),
+    refused("compare-plugin-all-nan-exposure", COMPARE, _toy_comparison(("oldtoy", "nan")),
+            mentions=r"strategy 'oldtoy' of plugin 'toy'.*without a finite pixel"),
+    refused("compare-plugin-all-nan-offsets", COMPARE, _toy_comparison(("toy", "nan")),
+            mentions=r"strategy 'toy' of plugin 'toy'.*NaN offsets for every channel"),
+    # a warning of an earlier pipeline (channels without reference pixels) is not printed
+    # before the error of a later one
+    refused("compare-warning-before-error", COMPARE,
+            _toy_comparison(("toy", "missing"), ("toy", "short")), mentions="plugin 'toy'"),
+    # wiener's noise model
+    refused("wiener-noise-pipeline-yaml", REDUCE_BAD, _wiener("fit.yaml"),
+            mentions=r"correct_reference\.noise: fit\.yaml has no noise: section"),
+    refused("wiener-noise-unrelated-yaml", REDUCE_BAD,
+            chain(write("other.yaml", "colour: blue\n"), _wiener("other.yaml")),
+            mentions=r"correct_reference\.noise"),
+    refused("wiener-noise-negative-coefficient", REDUCE_BAD,
+            chain(_fit_noise_table(-5000.0, 1.0), _wiener("noise.ecsv")),
+            mentions=r"reference gamma = -5000 ± 1.*below zero"),
+    # the kriging solve of a tall array: its memory, checked before it starts
+    refused("wiener-tall-file-memory",
+            ["reduce", "tall.fits", "-c", "bad.yaml", "-o", "out.fits"],
+            chain(_tall_raw, _wiener("spherex-table2")),
+            mentions=r"needs .* of memory; this machine can hold"),
+    *[refused(f"sky-rms-{rms}", COMPARE,
+              write("cmp.yaml", f"scene: {SMALL_SCENE}\nsky: {{rms: {rms}}}\n"
+                                "measure: {kmin: 0.2, kmax: 1.0, bins: 6}\n"),
+              mentions=r"sky\.rms: must be in \[1e-20, 1e\+20\] e/s")
+      for rms in ("1e-300", "1e300")],  # the transfer was inf, NaN (exit 0)
+    # solves over the reads of long ramps (30000 frames of 8 x 8, 7.7 MB): checked first
+    *[refused(f"long-ramp-{step.replace('_', '-')}-memory",
+              ["reduce", "many.fits", "-c", "bad.yaml", "-o", "out.fits"],
+              chain(_many_frames, write("bad.yaml", f"steps:\n  - {step}: {{}}\n")),
+              mentions=rf"{step}: the .* 30000 reads needs .* of memory")
+      for step in ("fit_ramp", "detect_jumps")],
+    # a config overriding a keyword, then refused: the override's warning is not printed
+    refused("override-refused-one-line", REDUCE_BAD,
+            write("bad.yaml", "input: {header: override}\ngeometry: {nrows: 128}\n"
+                              "steps:\n  - fit_ramp: {}\n"), mentions="READOUT table has 60 reads"),
+]
 
 
 # -- round two: batches (exactly once, resumable, one line on stderr) -----------------------------

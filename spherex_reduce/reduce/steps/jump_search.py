@@ -39,6 +39,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.special import log_ndtr
 
+from ...core.limits import check_size
+
 __all__ = ["SCREEN_MARGIN", "Found", "StepSearch"]
 
 #: the float32 screen keeps pixels down to this fraction of the threshold, so that its
@@ -95,6 +97,7 @@ class StepSearch:
         n = t.size
         if n < 4:
             raise ValueError(f"a step search needs at least 4 reads, got {n}")
+        check_size(self.nbytes(n), f"detect_jumps: the step search over {n} reads")
         tau = t - t[0]
         f = np.ones(n) if factors is None else np.asarray(factors, np.float64)
         walk = np.minimum.outer(tau, tau) if walk is None else np.asarray(walk, np.float64)
@@ -192,6 +195,12 @@ class StepSearch:
         return best, rss
 
     # -- search ------------------------------------------------------------------
+    @staticmethod
+    def nbytes(n):
+        """Bytes the search of ``n`` reads allocates: about ten ``n x n`` float64 matrices
+        (the random walk, the weights and their products), checked before any is made."""
+        return 8.0 * 10 * float(n) * n
+
     def find(self, y, *, threshold, sigma=None, gain=1.0, max_jumps=10):
         """The jumps of ramps ``y`` (usable reads only), at most ``max_jumps`` each.
 

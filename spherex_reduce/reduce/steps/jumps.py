@@ -18,6 +18,7 @@ from astropy import units as u
 
 from ...core import dq
 from ...core.errors import StepSkipped
+from ...core.limits import check_size
 from ...core.parameters import OPTIONAL_NUMBER, Parameter, validate_parameters
 from ...io.sources import MemorySource
 from ..hookspecs import hookimpl
@@ -149,6 +150,8 @@ class JumpKernel(Kernel):
         self.gain = PixelMap.of(params["gain"], "detect_jumps.gain", g, positive=True)
         # each stored read's time (a group's mean), read-noise variance relative to one
         # frame's (1 / frames averaged) and charge covariance per unit rate
+        check_size(StepSearch.nbytes(s.nframes),  # before the first nframes**2 matrix
+                   f"detect_jumps: the step search over {s.nframes} reads")
         self.times = s.frame_starts.to_value(u.s)
         self.factors = s.read_noise_factors
         self.walk = s.shot_covariance()

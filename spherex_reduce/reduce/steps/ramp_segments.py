@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...core import dq
+from ...core.limits import check_size
 
 __all__ = ["RATIO_BINS", "RampNoise", "SegmentFit", "fit_segments"]
 
@@ -78,6 +79,7 @@ class RampNoise:
 
     def __post_init__(self):
         t = np.asarray(self.times, dtype=np.float64)
+        check_size(self.nbytes(t.size), f"fit_ramp: the covariance of {t.size} reads")
         object.__setattr__(self, "times", t)
         if self.read_factors is None:
             object.__setattr__(self, "read_factors", np.ones(t.size))
@@ -91,10 +93,19 @@ class RampNoise:
                 steps = np.diff(rel, prepend=0.0)[:, None]
         object.__setattr__(self, "_steps", steps)
 
+    @staticmethod
+    def nbytes(n):
+        """Bytes the noise of ``n`` reads needs at once: the ``n x n`` shot covariance and,
+        for a generalised least-squares fit, the covariance, its copy and the copy
+        `numpy.linalg.solve` factorises (checked before any is made)."""
+        return 8.0 * 4 * float(n) * n
+
     @classmethod
     def from_schedule(cls, schedule):
         """The noise of a schedule's reads or groups of averaged reads (its
         ``read_noise_factors`` and ``shot_covariance``)."""
+        check_size(cls.nbytes(schedule.nframes),
+                   f"fit_ramp: the covariance of {schedule.nframes} reads")
         times = schedule.frame_starts.to_value("s")
         reads = schedule.group_reads
         if all(len(r) == 1 and r[0] == g for g, r in enumerate(reads)):

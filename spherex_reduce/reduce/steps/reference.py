@@ -27,6 +27,7 @@ from .reference_strategies import (
     ReferenceOffsets,
     _group_columns,
 )
+from .strategy_checks import StrategyOrigin, check_corrected, check_estimate
 from .wiener import WienerReference
 
 __all__ = [
@@ -106,11 +107,16 @@ class ReferenceKernel(Kernel):
     context : `~spherex_reduce.core.block.Context`
     strategy : `~spherex_reduce.Strategy`
         A configured strategy with an ``estimate`` method.
+    origin : `~spherex_reduce.reduce.steps.strategy_checks.StrategyOrigin`, optional
+        The strategy and its plugin, named when its estimate fails the checks
+        (`~spherex_reduce.reduce.steps.strategy_checks.check_estimate`); default:
+        this package's.
     """
 
-    def __init__(self, context, strategy):
+    def __init__(self, context, strategy, origin=None):
         super().__init__(context)
         self.strategy = strategy
+        self.origin = origin or StrategyOrigin(strategy.kind, strategy.name)
         self.needs_exposure = bool(strategy.needs_exposure)
         #: the strategy estimates from the phantom values, which it then consumes (a later
         #: ``subtract_phantom`` is skipped, as after that step)
@@ -123,7 +129,9 @@ class ReferenceKernel(Kernel):
     def prepare(self, side, exposure=None):
         """The strategy's estimate from ``side`` (or ``exposure``), as a `ReferencePlan`."""
         est = self.strategy.estimate(side, self.context, exposure)
-        return _plan(self.context, est, self.strategy.name)
+        est = check_estimate(est, self.context, side.data.shape[0], self.origin)
+        return _plan(self.context, est,
+                     self.strategy.name)
 
     def apply(self, plan, block):
         dtype = np.result_type(block.data.dtype, np.float32)
@@ -405,16 +413,22 @@ class CorrectReferenceStep(Step):
         found = super().strategy_registry()
         return default_registry() if found is None else found
 
+    def origin(self, strategy):
+        """The `~spherex_reduce.reduce.steps.strategy_checks.StrategyOrigin` of strategy
+        ``strategy``: its name and the plugin that registers it."""
+        found = self.strategy_registry().strategies[self.strategy_kind][strategy]
+        return StrategyOrigin(self.strategy_kind, strategy, found.plugin)
+
     def kernel(self, context, strategy, **params):
         cls = self.strategy(strategy)
         if not _streams(cls):
             return None
-        return ReferenceKernel(context, cls(**params))
+        return ReferenceKernel(context, cls(**params), self.origin(strategy))
 
     def run(self, exposure, strategy, **params):
         cls = self.strategy(strategy)
         if not _streams(cls):  # a strategy written before kernels: on the whole exposure
-            return cls()(exposure, **params)
+            return check_corrected(cls()(exposure, **params), exposure, self.origin(strategy))
         return super().run(exposure, strategy=strategy, **params)
 
 

@@ -13,6 +13,7 @@ kernel subtracts the estimate row by row.
 """
 
 import json
+import math
 import threading
 import warnings
 from pathlib import Path
@@ -22,6 +23,7 @@ from astropy.table import Table
 from astropy.utils.exceptions import AstropyUserWarning
 
 from ...core.errors import ConfigError
+from ...core.limits import check_size
 from ...core.parameters import Parameter, validate_parameters
 from ...io.config import load_yaml
 from ...noise import BUILTIN_TABLES, NoiseComponent, noise_components
@@ -42,6 +44,9 @@ from .telegraph import TELEGRAPH_PARAMETERS
 __all__ = ["WienerReference", "load_noise_model"]
 
 _MAD_TO_SIGMA = 1.4826
+#: A fit-noise coefficient below zero by at most this many standard errors is zero within
+#: its error (used as 0); further below it is refused.
+NEGATIVE_SIGMAS = 3.0
 #: Models kept for reuse (each holds its solved weights: tens of MB at full size).
 _MAX_MODELS = 4
 _MODELS = {}
@@ -82,7 +87,10 @@ def load_noise_model(source, where="correct_reference.noise"):
     text = str(source)
     if text.lower().endswith((".yaml", ".yml")):
         config, _ = load_yaml(Path(text), "noise model")
-        comps = section_components(config.get("noise"))
+        if "noise" not in config:  # a pipeline or other file: not the paper's table silently
+            raise ConfigError(f"{where}: {text} has no noise: section (a scene file's noise "
+                              "model); name spherex-table2 for the paper's Table 2")
+        comps = section_components(config["noise"])
     elif text in BUILTIN_TABLES or not text.lower().endswith(".fits"):
         comps = _table_components(text, where)
     else:
@@ -108,19 +116,34 @@ def _table_components(source, where):
             visibility = {"reference": "pixels", "phantom": "phantom"}
             comps = []
             for row in head:
-                if str(row["stream"]) in visibility:
+                stream = str(row["stream"])
+                if stream in visibility:
                     try:
-                        # a fitted coefficient below zero is zero within its error
-                        comps.append(NoiseComponent(
-                            str(row["stream"]), alpha=max(float(row["alpha"]), 0.0),
-                            beta=max(float(row["beta"]), 0.0),
-                            gamma=max(float(row["gamma"]), 0.0),
-                            exponent=float(row["exponent"]),
-                            visibility=visibility[str(row["stream"])]))
+                        coefficients = {name: _fitted(row, stream, name, f"{where}: {source}")
+                                        for name in ("alpha", "beta", "gamma")}
+                        comps.append(NoiseComponent(stream, **coefficients,
+                                                    exponent=float(row["exponent"]),
+                                                    visibility=visibility[stream]))
+                    except ConfigError:
+                        raise
                     except (KeyError, ValueError) as exc:
                         raise ConfigError(f"{where}: {source}: {exc}") from None
             return comps
     return list(noise_components(source).values())
+
+
+def _fitted(row, stream, name, where):
+    """A fit-noise coefficient: below zero by at most `NEGATIVE_SIGMAS` standard errors
+    (column ``NAME_err``; 0 without one) it is zero within its error and becomes 0; further
+    below, or not finite, the fit describes no noise (`ConfigError`)."""
+    value = float(row[name])
+    err = float(row[f"{name}_err"]) if f"{name}_err" in row.colnames else 0.0
+    if math.isfinite(value) and (value >= 0 or (math.isfinite(err) and
+                                                  value >= -NEGATIVE_SIGMAS * err)):
+        return max(value, 0.0)
+    raise ConfigError(f"{where}: the fitted {stream} {name} = {value:g} ± {err:g} is below "
+                      f"zero by more than {NEGATIVE_SIGMAS:g} standard errors (or not finite): "
+                      "not a noise model; fit again (more frames, another band) or give a table")
 
 
 def _reads_of(side, schedule):
@@ -455,8 +478,20 @@ class _Model:
         with self._lock:
             return self._build(key, strategy, kind, reads, n_group, nch, system, phantom)
 
+    def nbytes(self, nreference, phantom):
+        """Bytes the solve of one system allocates at its peak: its covariances (with the
+        phantom values at every read: ``(k + n_reads)²``) and the `Kriging` of them."""
+        n = float(self.n_reads)
+        m = nreference + n * phantom
+        parts = 8.0 * (m * m + m * n + (n * n if phantom else 0.0))
+        return parts + Kriging.nbytes(m, n, nreference, 1 + int(phantom))
+
     def _build(self, key, strategy, kind, reads, n_group, nch, system, phantom):
         if key not in self._bases:
+            with_phantom = f" and {self.n_reads} phantom values" if phantom else ""
+            check_size(self.nbytes(reads.size, phantom),  # before anything is allocated
+                       f"correct_reference (wiener): the kriging solve of {self.n_reads} reads "
+                       f"from {reads.size} reference reads{with_phantom}")
             full = np.full(reads.size, float(n_group))
             scale = {"channel": 0, "mean": nch, "total": 1}[system]
             parts = self._system(kind, reads, full, n_group, scale, phantom)

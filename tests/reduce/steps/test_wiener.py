@@ -621,6 +621,78 @@ def test_white_scene_and_white_fit_noise_models_give_the_mean(tmp_path):
                                    atol=1e-9)
 
 
+@pytest.mark.parametrize(("gamma", "err", "used"), [(-2.0, 1.0, 0.0), (-3.5, 1.0, None),
+                                                    (-1e-9, 0.0, None), (2.5, 0.0, 2.5)])
+def test_a_fitted_coefficient_below_zero_is_zero_within_three_sigma(tmp_path, gamma, err,
+                                                                     used):
+    """A fit-noise coefficient below zero by at most 3 standard errors is used as 0 (the
+    estimate is that of the table with 0); further below it is refused, naming it."""
+    def table(path, value, error):
+        Table({"stream": ["reference", "phantom"], "alpha": [1e-3, 1e-4], "beta": [1e-2, 0.0],
+               "gamma": [value, 0.0], "gamma_err": [error, 0.0], "exponent": [1.3, 1.3]}
+              ).write(path, format="ascii.ecsv")
+        return str(path)
+
+    s, data, ph = _with_phantom()
+    e = Exposure.from_arrays(data, s, phantom=ph)
+    source = table(tmp_path / "fit.ecsv", gamma, err)
+    if used is None:
+        with pytest.raises(ConfigError, match=rf"reference gamma = {gamma:g} ± {err:g} is "
+                                              r"below zero by more than 3 standard errors"):
+            correct_reference(e, "wiener", noise=source)
+        return
+    same = table(tmp_path / "same.ecsv", used, 0.0)
+    np.testing.assert_array_equal(correct_reference(e, "wiener", noise=source).data.data,
+                                  correct_reference(e, "wiener", noise=same).data.data)
+
+
+@pytest.mark.parametrize("text", ["steps:\n  - unchop: {}\n", "colour: blue\n"])
+def test_a_yaml_without_a_noise_section_is_refused(tmp_path, text):
+    """A pipeline (or any other) YAML is not a noise model: not the paper's Table 2."""
+    (tmp_path / "p.yaml").write_text(text)
+    s, data, ph = _with_phantom()
+    with pytest.raises(ConfigError, match=r"correct_reference\.noise: .*p\.yaml has no noise: "
+                                          "section"):
+        correct_reference(Exposure.from_arrays(data, s, phantom=ph), "wiener",
+                          noise=str(tmp_path / "p.yaml"))
+
+
+def test_the_memory_of_the_solve_is_checked_before_it_starts(monkeypatch):
+    """The estimate the memory check uses is at least what the solve allocates (traced by
+    tracemalloc, which sees numpy's arrays), and at most twice; a budget below it is
+    refused before anything is allocated."""
+    import tracemalloc
+
+    from spherex_reduce.core import limits
+    from spherex_reduce.core.errors import ResourceError
+    from spherex_reduce.reduce.steps import wiener
+
+    def tall(nrows):  # one channel read by a tall array: the solve dominates
+        s = ReadoutSchedule(DetectorGeometry(nrows, 8, 1, ref_border=1), skip=1, ref_reads=4,
+                            phantom_reads=1, nframes=2)
+        rng = np.random.default_rng(1)
+        return s, Exposure.from_arrays(rng.normal(0, 1, (2, s.n_reads, 8)), s,
+                                       phantom=rng.normal(0, 1, (2, s.n_reads, 1)))
+
+    correct_reference(tall(64)[1], "wiener")  # the caches of the first call: not the solve's
+    s, e = tall(512)
+    wiener._MODELS.clear()
+    tracemalloc.start()
+    try:
+        correct_reference(e, "wiener")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    need = next(iter(wiener._MODELS.values())).nbytes(s.reference_read_indices.size, True)
+    assert peak <= need <= 2 * peak, (need, peak)
+    wiener._MODELS.clear()
+    monkeypatch.setattr(limits, "memory_budget", lambda: int(need / 2))
+    with pytest.raises(ResourceError, match=r"correct_reference \(wiener\): the kriging solve "
+                                            r"of 514 reads .* needs 17.2 MB of memory"):
+        correct_reference(e, "wiener")
+    wiener._MODELS.clear()
+
+
 @pytest.mark.parametrize("name", ["raw.fits", "missing.ecsv"])
 def test_a_fits_or_missing_noise_file_is_a_one_line_config_error(tmp_path, capsys, name):
     s = sched()

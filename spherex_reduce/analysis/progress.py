@@ -1,0 +1,203 @@
+"""Long runs (a comparison's realisations, a sweep's cells): expected duration and progress.
+
+`run_tasks` runs them (in this process, or on dask) with a `Progress`, which
+counts the tasks as they finish.  When the first one is done it prints the
+expected duration of the whole run on stderr (``about 8 h 10 min for 10000
+realisations (2.9 s each)``): the time until then (starting a cluster
+included) plus the remaining rounds of tasks at the first task's own
+duration; a progress bar (tqdm) is shown only when stderr is a terminal.
+Both are off with ``enabled=False`` (the command line's ``-q``).
+"""
+
+import math
+import sys
+import time
+
+from tqdm import tqdm
+
+from ..core._text import plural
+from ..reduce.scheduler import map_on_dask
+
+__all__ = ["Progress", "format_duration", "run_tasks"]
+
+
+def format_duration(seconds):
+    """A duration for people: ``'8 h 10 min'``, ``'3 min 5 s'``, ``'12 s'``, ``'0.4 s'``.
+
+    Parameters
+    ----------
+    seconds : float
+        The duration (s).
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.progress import format_duration
+    >>> format_duration(29400), format_duration(185), format_duration(12.3), format_duration(0.42)
+    ('8 h 10 min', '3 min 5 s', '12 s', '0.4 s')
+    >>> format_duration(3 * 86400 + 7200)
+    '3 d 2 h'
+    """
+    if not math.isfinite(seconds):
+        return "forever"
+    if seconds < 10:
+        return f"{seconds:.1f} s"
+    s = round(seconds)
+    for big, small, name_big, name_small in ((86400, 3600, "d", "h"), (3600, 60, "h", "min"),
+                                             (60, 1, "min", "s")):
+        if s >= big:
+            whole, rest = divmod(s, big)
+            part = rest // small
+            return f"{whole} {name_big}" + (f" {part} {name_small}" if part else "")
+    return f"{s} s"
+
+
+class Progress:
+    """The expected duration of a run of ``total`` tasks, and a progress bar.
+
+    Parameters
+    ----------
+    total : int
+        Tasks in the run.
+    noun : str
+        What a task is, singular (``'realisation'``, ``'cell'``).
+    enabled : bool
+        Print the expected duration and show the bar (on a terminal).
+    parallel : int or None
+        Tasks run at once (workers); None: unknown (the duration is then that
+        of running them one at a time, an upper bound).
+    stream : file, optional
+        Where to print (default `sys.stderr`).
+
+    Examples
+    --------
+    >>> import io
+    >>> from spherex_reduce.analysis.progress import Progress
+    >>> out = io.StringIO()
+    >>> with Progress(10, "realisation", True, parallel=1, stream=out) as p:
+    ...     p.done()
+    >>> out.getvalue().startswith("about ") and "for 10 realisations (" in out.getvalue()
+    True
+    """
+
+    def __init__(self, total, noun, enabled, parallel=1, stream=None):
+        self.total, self.noun, self.enabled = int(total), noun, bool(enabled)
+        self.parallel = parallel
+        self.stream = sys.stderr if stream is None else stream
+        self.start = time.perf_counter()
+        self.count = 0
+        #: the expected duration of the whole run (s), once the first task is done
+        self.expected = None
+        terminal = getattr(self.stream, "isatty", lambda: False)()
+        self._bar = tqdm(total=self.total, disable=not (self.enabled and terminal),
+                         desc=f"{noun}s", file=self.stream)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self._bar.close()
+
+    def done(self, seconds=None):
+        """One task finished, in ``seconds`` of its own (None: unknown); the first one
+        times the run (printed when enabled)."""
+        self.count += 1
+        if self.count == 1:
+            elapsed = time.perf_counter() - self.start
+            self._announce(elapsed, elapsed if seconds is None else seconds)
+        self._bar.update(1)
+
+    @staticmethod
+    def parallel_of(scheduler, workers):
+        """Tasks run at once on ``scheduler`` (as `~spherex_reduce.analysis.sweep.run_sweep`
+        takes it): 1 for ``'serial'``, the workers of a new LocalCluster (default 2) or
+        of a `distributed.Client`'s cluster, None (unknown) for a scheduler's address."""
+        if scheduler == "serial":
+            return 1
+        if scheduler is None:
+            return workers or 2
+        try:  # a Client: its workers' threads now
+            threads = sum(scheduler.nthreads().values())
+        except Exception:  # an address, or a cluster that does not answer: unknown
+            return None
+        return threads or None
+
+    def _announce(self, elapsed, each):
+        rounds = self.total if not self.parallel else math.ceil(self.total / self.parallel)
+        self.expected = elapsed + each * (rounds - 1)
+        if not self.enabled or self.total < 2:
+            return
+        how = f"{format_duration(each)} each"
+        if self.parallel is None:
+            how += ", one at a time"
+        elif self.parallel > 1:
+            how += f", {self.parallel} at a time"
+        print(f"about {format_duration(self.expected)} for {plural(self.total, self.noun)} "
+              f"({how})", file=self.stream, flush=True)
+
+
+class _Timed:
+    """``function`` returning ``(seconds, result)``: a task that times itself (picklable)."""
+
+    def __init__(self, function):
+        self.function = function
+
+    def __call__(self, task):
+        t0 = time.perf_counter()
+        result = self.function(task)
+        return time.perf_counter() - t0, result
+
+
+def run_tasks(function, tasks, scheduler, workers, collect, failed, *, noun, progress):
+    """Run ``function`` on every task, in this process or on dask, with a `Progress`.
+
+    Parameters
+    ----------
+    function : callable
+        ``function(task) -> result``, picklable for dask.
+    tasks : list
+    scheduler, workers
+        ``'serial'`` (in this process, in order), or as
+        `~spherex_reduce.reduce.scheduler.map_on_dask`.
+    collect : callable
+        ``collect(task, result)``, in this process, as each task finishes.
+    failed : callable
+        ``failed(task, exception) -> result`` for a task whose dask worker died.
+    noun : str
+        What a task is (``'realisation'``), for the expected duration.
+    progress : bool
+        Print the expected duration and show a bar on a terminal.
+
+    Returns
+    -------
+    `Progress`
+        Its ``expected`` duration (s) and ``count`` of tasks done.
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.progress import run_tasks
+    >>> out = []
+    >>> p = run_tasks(abs, [-1, -2], "serial", None, lambda t, r: out.append(r), None,
+    ...               noun="number", progress=False)
+    >>> out, p.count
+    ([1, 2], 2)
+    """
+    timed = _Timed(function)
+    with Progress(len(tasks), noun, progress, Progress.parallel_of(scheduler, workers)) as bar:
+        if scheduler == "serial":
+            for task in tasks:
+                seconds, result = timed(task)
+                collect(task, result)
+                bar.done(seconds)
+        elif tasks:
+            def done(task, out):
+                seconds, result = out
+                collect(task, result)
+                bar.done(seconds)
+
+            map_on_dask(timed, tasks, scheduler, workers, done,
+                        lambda task, exc: (None, failed(task, exc)))
+    return bar

@@ -15,8 +15,13 @@ from ..core.limits import MAX_WORKERS, check_count
 __all__ = ["check_scheduler", "map_on_dask", "quiet_dask_logs"]
 
 
-def quiet_dask_logs(level=logging.WARNING):
-    """Raise the level of dask.distributed's loggers (they log every connection at INFO)."""
+def quiet_dask_logs(level=logging.CRITICAL):
+    """Raise the level of dask.distributed's loggers (by default, silence them).
+
+    They log every connection at INFO and, when a worker dies or a run is
+    interrupted, warnings and errors of their own (a task rescheduled, a worker
+    restarted); what matters reaches the command as a task's result or error.
+    """
     import distributed  # noqa: F401  (creates its loggers)
 
     for name in list(logging.root.manager.loggerDict):
@@ -108,7 +113,7 @@ def _client(scheduler, workers):
                               f"({type(exc).__name__}: {exc})") from None
     workers = 2 if workers is None else check_count(workers, "workers", MAX_WORKERS)
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                           dashboard_address=":0")
+                           dashboard_address=":0", preload=[f"{__package__}.dask_worker"])
     return Client(cluster), cluster, True
 
 

@@ -168,7 +168,7 @@ class SummaryFile:
     ...        "median": 1.5, "robust_std": 0.25, "unit": "electron / s", "seconds": 2.0,
     ...        "error": ""}
     >>> summary = SummaryFile(out / "summary.ecsv", as_pipeline("spherex-default"))
-    >>> list(summary.record([row])["status"])
+    >>> [str(s) for s in summary.record([row])["status"]]
     ['done']
     """
 

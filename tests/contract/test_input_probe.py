@@ -1098,7 +1098,7 @@ def test_two_batches_into_one_folder_report_no_valid_output_as_failed(inputs, tm
 @pytest.mark.parametrize(("name", "to"), [("SIGTERM", "process"), ("SIGINT", "group")])
 def test_batch_on_dask_interrupted_prints_one_line(name, to, inputs, tmp_path):
     pytest.importorskip("distributed")
-    d, names = _batch_case(inputs, tmp_path, 24)
+    d, names = _batch_case(inputs, tmp_path, 16)
     out = d / "out"
     proc = _spawn(["reduce", *names, "-c", "spherex-default", "-o", "out", "--workers", "2"], d)
     assert _wait_for(lambda: _reduced(out)), "no output appeared"

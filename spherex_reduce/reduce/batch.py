@@ -51,8 +51,8 @@ from .integrations import reduce_input
 from .pipeline import Pipeline, as_pipeline
 from .scheduler import map_on_dask
 
-__all__ = ["OUTPUT_SUFFIX", "SUMMARY_NAME", "BatchResult", "image_statistics",
-           "output_paths", "reduce_file", "run_batch"]
+__all__ = ["OUTPUT_SUFFIX", "SUMMARY_NAME", "BatchResult", "finished_row", "image_statistics",
+           "input_digest", "output_paths", "reduce_file", "run_batch"]
 
 log = logging.getLogger(__name__)
 
@@ -259,6 +259,19 @@ def finished_row(path, digest, config_hash, run=None):
         The output exists but is not a reduced file, or was made with another
         config or from another input (or by a version that did not record its
         input): it is not this batch's to take as done.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> from spherex_reduce.reduce.batch import finished_row
+    >>> out = pathlib.Path(tempfile.mkdtemp()) / "a_reduced.fits"
+    >>> finished_row(out, "0" * 64, "config hash") is None  # not made yet
+    True
+    >>> _ = out.write_text("not FITS")
+    >>> finished_row(out, "0" * 64, "config hash")
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.core.errors.ConfigError: .../a_reduced.fits exists and is not a reduced file ...
     """
     if not path.exists():
         return None

@@ -22,8 +22,9 @@ def add_parser(sub):
         "several inputs (or "
         "--workers/--scheduler), -o names a directory: each file is reduced on dask (an "
         "embedded LocalCluster, or an existing scheduler) into OUTDIR/<stem>_reduced.fits, "
-        "with a summary table OUTDIR/summary.ecsv; outputs already done with this config are "
-        "skipped, a file that fails is reported and the others finish. With --reads "
+        "with a summary table OUTDIR/summary.ecsv written after each file; an output already "
+        "made from the same input with this config is done (never made again, so a batch "
+        "resumes), a file that fails is reported and the others finish. With --reads "
         "'DIR/read_*.fits' instead of IN.fits, the files are the reads of one ramp.")
     p.add_argument("input", metavar="IN.fits", nargs="*")
     p.add_argument("--reads", metavar="GLOB",
@@ -34,7 +35,7 @@ def add_parser(sub):
     p.add_argument("-o", "--output", required=True, metavar="OUT.fits|OUTDIR")
     p.add_argument("--overwrite", action="store_true",
                    help="replace OUT.fits if it exists (several inputs: reduce every file "
-                   "again, replacing outputs already done)")
+                   "again, replacing existing outputs)")
     p.add_argument("--threads", type=count(MAX_WORKERS), default=None, metavar="N",
                    help="bands of rows corrected at once (default: the cores available, "
                    "at most 4); the numbers do not depend on it")
@@ -92,7 +93,7 @@ def _batch(args):
     from ..reduce.batch import SUMMARY_NAME, output_paths, run_batch
     from ..reduce.scheduler import check_scheduler, quiet_dask_logs
 
-    if not args.verbose:  # dask's INFO lines about workers and connections
+    if not args.verbose:  # dask's lines about connections, workers restarted or stopped
         quiet_dask_logs()
     pipeline, config_files = input_config(args.config)
     outputs = output_paths(args.input, args.output)  # refuses two inputs of one output name

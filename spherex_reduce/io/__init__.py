@@ -7,8 +7,9 @@ a whole exposure in the layout of `spherex_reduce.io.layout`; `write_frames`
 writes raw ramps as they are made and `FrameReader` reads them a frame at a
 time; `open_checked` opens any FITS file after the checks `read` makes
 (structure, checksums, header cards), `foreign_dq_bits` chooses which bits of
-a ``DQ`` written by other software mask a pixel, and `atomic_output` is how
-every output of the package is written.
+a ``DQ`` written by other software mask a pixel, `atomic_output` is how
+every output of the package is written, and `locked_directory` makes the
+updates of a file that several processes share one at a time.
 """
 
 import lazy_loader as lazy
@@ -20,5 +21,6 @@ __getattr__, __dir__, __all__ = lazy.attach(__name__, submod_attrs={
     "fits_write": ["write", "write_frames"],
     "flags": ["current_dq_bits", "foreign_dq_bits"],
     "frames": ["FrameReader"],
+    "lock": ["locked_directory"],
     "sources": ["open_input"],
 })

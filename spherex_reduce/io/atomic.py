@@ -6,6 +6,7 @@ existing file that was not meant to be replaced.
 """
 
 import contextlib
+import errno
 import glob
 import hashlib
 import os
@@ -15,6 +16,10 @@ from pathlib import Path
 
 __all__ = ["atomic_output"]
 
+#: What ``link`` fails with on a file system without hard links (e.g. FAT, some FUSE mounts).
+_NO_LINKS = frozenset(getattr(errno, n) for n in ("EPERM", "EOPNOTSUPP", "ENOTSUP", "EMLINK",
+                                                   "ENOSYS", "EXDEV") if hasattr(errno, n))
+
 
 class atomic_output:
     """Context manager giving a temporary path that is renamed to ``path`` on success.
@@ -22,7 +27,9 @@ class atomic_output:
     Refuses to start if ``path`` exists and ``overwrite`` is False, or names a
     directory, so nothing is computed only to be thrown away.  On error
     (including an interrupt) the temporary file is removed and an existing
-    ``path`` is left untouched.  The temporary file, ``.NAME.HOST-PID.XXXX.tmp``
+    ``path`` is left untouched.  Without ``overwrite``, a file that takes the
+    name while the output is written (another process's) is never replaced:
+    the write ends in `FileExistsError`.  The temporary file, ``.NAME.HOST-PID.XXXX.tmp``
     in the target directory, carries a tag of the writer's host and its process
     id: temporary files for ``path`` left by a process of this host that no
     longer runs (killed outright) are removed when the next write of ``path``
@@ -84,13 +91,33 @@ class atomic_output:
     def __exit__(self, exc_type, exc, tb):
         try:
             if exc_type is None:
-                if self.path.exists() and not self.overwrite:
-                    raise FileExistsError(
-                        f"{self.path} appeared while writing; not overwriting it")
-                os.replace(self.tmp, self.path)
+                if self.overwrite:
+                    os.replace(self.tmp, self.path)
+                else:
+                    self._rename_no_clobber()
         finally:
             self.tmp.unlink(missing_ok=True)
         if isinstance(exc, OSError) and exc.errno is not None and (
                 exc.filename is None or os.fspath(exc.filename) == str(self.tmp)):
             exc.filename = str(self.path)  # e.g. a full disk: say which output
         return False
+
+    def _rename_no_clobber(self):
+        """Give the temporary file its name unless a file took the name meanwhile.
+
+        A hard link is made and fails if the name exists (atomic even between
+        processes: two writers of one output never replace each other's file);
+        the temporary name is removed by `__exit__`.  Where the file system has
+        no hard links, the name is checked and the file renamed.
+        """
+        appeared = f"{self.path} appeared while writing; not overwriting it"
+        try:
+            os.link(self.tmp, self.path)
+        except FileExistsError:
+            raise FileExistsError(appeared) from None
+        except OSError as exc:
+            if exc.errno not in _NO_LINKS:
+                raise
+            if self.path.exists():
+                raise FileExistsError(appeared) from None
+            os.replace(self.tmp, self.path)

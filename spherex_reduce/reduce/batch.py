@@ -6,23 +6,34 @@ of a `dask.distributed` cluster (the sweep's: an embedded
 scheduler by address, or ``"serial"`` in this process), and writes
 
 - one output per input, ``OUTDIR/<input stem>_reduced.fits`` (`output_paths`),
-  each written atomically as ``spherex-reduce reduce`` writes a single file;
-- a summary table ``OUTDIR/summary.ecsv`` (`SUMMARY_NAME`): one row per input
-  with its output, status (``done``, ``skipped`` or ``failed``), the median
-  and robust standard deviation of the output's good pixels
-  (`image_statistics`), the seconds it took and, for a failed file, the error.
+  each written atomically as ``spherex-reduce reduce`` writes a single file,
+  with two header cards saying what made it: ``SXRINPUT``, the SHA-256 of the
+  input file's bytes, and ``SXRBATCH``, the id of the batch run;
+- a summary table ``OUTDIR/summary.ecsv`` (`SUMMARY_NAME`,
+  `spherex_reduce.reduce.batch_summary`): one row per output with its input,
+  status (``done``, ``skipped`` or ``failed``), the median and robust standard
+  deviation of the output's good pixels (`image_statistics`), the seconds it
+  took and, for a failed file, the error.  It is written before any file is
+  reduced (so an output directory that cannot be written is found before any
+  work) and again, atomically, as each file finishes.
 
-A file that fails is reported and the others finish.  An output that already
-holds this pipeline's reduction (it reads, and its ``SXRCONF`` is this
-config's hash) is skipped, so an interrupted batch resumes; any other existing
-output is refused before any work unless ``overwrite`` is given.  Each file is
-reduced by `Pipeline.run <spherex_reduce.Pipeline.run>` exactly as a single
-``reduce`` does: the numbers do not depend on the number of workers.
+A file that fails is reported and the others finish.  Each output is made
+exactly once: an output that already holds this pipeline's reduction of this
+input (``SXRCONF`` is the config hash and ``SXRINPUT`` the input's digest) is
+never rewritten and counts as done (``skipped``), whether an earlier run, a
+concurrent batch or, after a worker died, this run made it; so a batch
+resumes where it stopped.  Any other existing output is refused before any
+work unless ``overwrite`` is given.  Each file is reduced by `Pipeline.run
+<spherex_reduce.Pipeline.run>` exactly as a single ``reduce`` does: the
+numbers do not depend on the number of workers.
 """
 
 import contextlib
+import errno
+import hashlib
 import logging
 import time
+import uuid
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,23 +43,16 @@ from astropy import units as u
 from astropy.stats import mad_std
 from astropy.table import Table
 
-from .._version import __version__
 from ..core import dq
 from ..core.errors import ConfigError, SpherexReduceError
-from ..io import (
-    atomic_output,
-    checksum_policy,
-    current_dq_bits,
-    foreign_dq_bits,
-    read,
-    write,
-)
+from ..io import checksum_policy, current_dq_bits, foreign_dq_bits, read, write
+from .batch_summary import SummaryFile, summary_table
 from .integrations import reduce_input
 from .pipeline import Pipeline, as_pipeline
 from .scheduler import map_on_dask
 
-__all__ = ["OUTPUT_SUFFIX", "STATUSES", "SUMMARY_NAME", "BatchResult", "image_statistics",
-           "output_paths", "reduce_file", "run_batch"]
+__all__ = ["OUTPUT_SUFFIX", "SUMMARY_NAME", "BatchResult", "finished_row", "image_statistics",
+           "input_digest", "output_paths", "reduce_file", "run_batch"]
 
 log = logging.getLogger(__name__)
 
@@ -56,8 +60,6 @@ log = logging.getLogger(__name__)
 OUTPUT_SUFFIX = "_reduced.fits"
 #: The summary table written in the output directory.
 SUMMARY_NAME = "summary.ecsv"
-#: What the summary's ``status`` column may say.
-STATUSES = ("done", "skipped", "failed")
 #: Compression suffixes and FITS extensions taken off an input's name (case-insensitive).
 _COMPRESSED = (".gz", ".bz2", ".fz", ".z")
 _FITS = (".fits", ".fit", ".fts")
@@ -203,27 +205,151 @@ def _one_line(exc):
     return " ".join(str(exc).split()) or type(exc).__name__
 
 
+def input_digest(path):
+    """The SHA-256 of a file's bytes, as hexadecimal: what ``SXRINPUT`` records.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> from spherex_reduce.reduce.batch import input_digest
+    >>> p = pathlib.Path(tempfile.mkdtemp()) / "a.fits"
+    >>> _ = p.write_bytes(b"abc")
+    >>> input_digest(p)[:16]
+    'ba7816bf8f01cfea'
+    """
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(1 << 20):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _stamped(result, digest, run):
+    header = result.header.copy()
+    header["SXRINPUT"] = digest  # 64 hexadecimal digits: no room for a comment
+    if run is not None:
+        header["SXRBATCH"] = (run, "batch run that wrote this file")
+    return result.replace(header=header)
+
+
+def finished_row(path, digest, config_hash, run=None):
+    """The summary row of an output that holds this reduction of this input, or None.
+
+    Parameters
+    ----------
+    path : `pathlib.Path`
+        The output; None is returned if it does not exist.
+    digest : str
+        The input's `input_digest`.
+    config_hash : str
+        The pipeline's config hash.
+    run : str, optional
+        This batch run's id: an output it wrote itself (a task run again after
+        its worker died) is ``done``; one of another run, ``skipped``.
+
+    Returns
+    -------
+    dict or None
+        ``status``, ``median``, ``robust_std``, ``unit`` (of the output's pixels,
+        `image_statistics`), ``seconds``, ``error``, ``kind``, ``notes``.
+
+    Raises
+    ------
+    ConfigError
+        The output exists but is not a reduced file, or was made with another
+        config or from another input (or by a version that did not record its
+        input): it is not this batch's to take as done.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> from spherex_reduce.reduce.batch import finished_row
+    >>> out = pathlib.Path(tempfile.mkdtemp()) / "a_reduced.fits"
+    >>> finished_row(out, "0" * 64, "config hash") is None  # not made yet
+    True
+    >>> _ = out.write_text("not FITS")
+    >>> finished_row(out, "0" * 64, "config hash")
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.core.errors.ConfigError: .../a_reduced.fits exists and is not a reduced file ...
+    """
+    if not path.exists():
+        return None
+    try:
+        existing = read(path, verify_checksum=True)
+    except (SpherexReduceError, OSError) as exc:
+        raise ConfigError(f"{path} exists and is not a reduced file ({_one_line(exc)}): pass "
+                          "--overwrite to replace it, or choose another directory") from None
+    made, source = existing.header.get("SXRCONF"), existing.header.get("SXRINPUT")
+    if made != config_hash:
+        raise ConfigError(f"{path} exists and was made with another pipeline config (SXRCONF "
+                          f"{made}, this config's is {config_hash}): pass --overwrite to replace "
+                          "it, or choose another directory")
+    if source != digest:
+        why = ("does not record its input (no SXRINPUT)" if source is None else
+               "was made from another input (its SXRINPUT is not this input's SHA-256)")
+        raise ConfigError(f"{path} exists and {why}: pass --overwrite to replace it, or choose "
+                          "another directory")
+    median, sigma = image_statistics(existing)
+    status = "done" if run is not None and existing.header.get("SXRBATCH") == run else "skipped"
+    return {"status": status, "median": median.value, "robust_std": sigma.value,
+            "unit": median.unit.to_string(), "seconds": 0.0, "error": "", "kind": "",
+            "notes": []}
+
+
+def _reduced(task, digest, pipeline):
+    """Reduce the task's input and write its output; the row of what was done."""
+    out, overwrite = Path(task["output"]), task.get("overwrite", False)
+    try:  # this run made it before its worker died, or (no overwrite) another batch did
+        done = finished_row(out, digest, pipeline.config_hash, task.get("run"))
+    except ConfigError:
+        if not overwrite:
+            raise
+        done = None
+    if done is not None and (done["status"] == "done" or not overwrite):
+        return done
+    result, images = reduce_input(task["input"], pipeline, threads=task.get("threads"))
+    result = _stamped(result, digest, task.get("run"))
+    try:
+        write(result, out, overwrite=overwrite, images=images)
+    except FileExistsError:  # a concurrent batch wrote it meanwhile: done if it is this
+        done = finished_row(out, digest, pipeline.config_hash, task.get("run"))
+        if done is None:
+            raise
+        return done
+    median, sigma = image_statistics(result)
+    return {"status": "done", "median": median.value, "robust_std": sigma.value,
+            "unit": median.unit.to_string()}
+
+
 def reduce_file(task):
-    """Reduce one file as ``spherex-reduce reduce`` does; never raises.
+    """Reduce one file as ``spherex-reduce reduce`` does, exactly once; never raises.
+
+    An output that already holds this reduction of this input (`finished_row`)
+    is not made again: one this run wrote (``run``: the task ran again after
+    its worker died) is ``done``, one of another run ``skipped`` (without
+    ``overwrite``).  An output that appears while the file is reduced is
+    likewise taken as done if it is this reduction, and refused otherwise.
 
     Parameters
     ----------
     task : dict
         ``input`` and ``output`` (paths), ``config`` and ``source`` (the
-        pipeline's effective configuration and label), ``overwrite``,
-        ``threads`` (None: the executor's default), ``verify_checksum`` and ``dq_bits``
-        (the policies of the command, which a worker process does not share).
+        pipeline's effective configuration and label), ``run`` (the batch
+        run's id, optional), ``overwrite``, ``threads`` (None: the executor's default),
+        ``verify_checksum`` and ``dq_bits`` (the policies of the command,
+        which a worker process does not share).
 
     Returns
     -------
     dict
-        ``input``, ``output``, ``status`` (``done`` or ``failed``),
-        ``median`` and ``robust_std`` (floats, in ``unit``; `image_statistics`
-        of the output), ``seconds``, ``notes`` (warnings, one line each) and,
-        for a failed file, ``error`` (one line) and ``kind``: ``input`` for a
-        `~spherex_reduce.SpherexReduceError` or an `OSError` (bad input or
-        environment, exit status 2 on the command line), ``unexpected``
-        otherwise (a bug, status 1).
+        ``input``, ``output``, ``status`` (``done``, ``skipped`` or
+        ``failed``), ``median`` and ``robust_std`` (floats, in ``unit``;
+        `image_statistics` of the output), ``seconds``, ``notes`` (warnings, one
+        line each) and, for a failed file, ``error`` (one line) and ``kind``:
+        ``input`` for a `~spherex_reduce.SpherexReduceError` or an `OSError`
+        (bad input or environment, exit status 2 on the command line),
+        ``unexpected`` otherwise (a bug, status 1).
     """
     t0 = time.perf_counter()
     row = {"input": task["input"], "output": task["output"], "status": "failed",
@@ -234,11 +360,8 @@ def reduce_file(task):
                 foreign_dq_bits(task.get("dq_bits", current_dq_bits())):
             row["notes"] = notes
             pipeline = Pipeline(task["config"], source=task["source"])
-            result, images = reduce_input(task["input"], pipeline, threads=task.get("threads"))
-            write(result, task["output"], overwrite=task.get("overwrite", False), images=images)
-            median, sigma = image_statistics(result)
-        row.update(status="done", median=median.value, robust_std=sigma.value,
-                   unit=median.unit.to_string())
+            done = _reduced(task, input_digest(task["input"]), pipeline)
+        row.update(done, notes=notes)
     except Exception as exc:  # reported with the file's name; the batch goes on
         expected = isinstance(exc, (SpherexReduceError, OSError))
         row["error"] = _one_line(exc) if expected else f"{type(exc).__name__}: {_one_line(exc)}"
@@ -247,28 +370,14 @@ def reduce_file(task):
     return row
 
 
-def _done_output(path, config_hash):
-    """The summary row of an existing output that holds this config's reduction; else raise."""
-    try:
-        existing = read(path, verify_checksum=True)
-    except (SpherexReduceError, OSError) as exc:
-        raise ConfigError(f"{path} exists and is not a reduced file ({_one_line(exc)}): pass "
-                          "--overwrite to replace it, or choose another directory") from None
-    made = existing.header.get("SXRCONF")
-    if made != config_hash:
-        raise ConfigError(f"{path} exists and was made with another pipeline config (SXRCONF "
-                          f"{made}, this config's is {config_hash}): pass --overwrite to replace "
-                          "it, or choose another directory")
-    median, sigma = image_statistics(existing)
-    return {"status": "skipped", "median": median.value, "robust_std": sigma.value,
-            "unit": median.unit.to_string(), "seconds": 0.0, "error": "", "kind": "",
-            "notes": []}
-
-
 # -- the batch ----------------------------------------------------------------------------
 @dataclass
 class BatchResult:
-    """What `run_batch` did: the summary table and the rows of failed files."""
+    """What `run_batch` did: this run's summary table and the rows of failed files.
+
+    ``table`` has one row per input of this run, in the order given; the
+    summary file (``summary``) may also list other batches' outputs.
+    """
 
     table: Table
     summary: Path | None = None
@@ -278,30 +387,6 @@ class BatchResult:
     def count(self, status):
         """How many inputs have ``status`` (``done``, ``skipped`` or ``failed``)."""
         return int(np.sum(self.table["status"] == status)) if len(self.table) else 0
-
-
-def _summary(rows, pipeline):
-    units = {r["unit"] for r in rows if r["status"] != "failed"}
-    t = Table({
-        "input": [str(r["input"]) for r in rows],
-        "output": [str(r["output"]) for r in rows],
-        "status": [r["status"] for r in rows],
-        "median": np.array([r["median"] for r in rows], dtype=float),
-        "robust_std": np.array([r["robust_std"] for r in rows], dtype=float),
-        "seconds": np.array([r["seconds"] for r in rows], dtype=float),
-        "error": [r["error"] for r in rows],
-    })
-    if len(units) == 1:
-        unit = u.Unit(units.pop())
-        t["median"].unit = t["robust_std"].unit = unit
-    elif units:  # outputs in different units (e.g. ADU and electrons): one per row
-        t.add_column([r["unit"] for r in rows], name="unit", index=5)
-    t["seconds"].unit = u.s
-    t["median"].description = "median of the output's finite pixels with DQ 0"
-    t["robust_std"].description = "astropy.stats.mad_std of the same pixels"
-    t.meta.update({"pipeline": pipeline.source, "config_hash": pipeline.config_hash,
-                   "version": __version__})
-    return t
 
 
 def run_batch(pipeline, inputs, outdir, *, scheduler=None, workers=None, threads=None,
@@ -320,7 +405,8 @@ def run_batch(pipeline, inputs, outdir, *, scheduler=None, workers=None, threads
     outdir : str or path-like
         The output directory; created (not its parents) if missing.  Outputs
         are named by `output_paths`; the summary is ``outdir/summary.ecsv``,
-        rewritten on every run.
+        written before any file is reduced and updated as each finishes
+        (`spherex_reduce.reduce.batch_summary`).
     scheduler : str or `distributed.Client`, optional
         As for `~spherex_reduce.analysis.sweep.run_sweep`: None, an embedded
         `~distributed.LocalCluster` of ``workers`` processes (one thread
@@ -334,8 +420,8 @@ def run_batch(pipeline, inputs, outdir, *, scheduler=None, workers=None, threads
         Bands each reduction corrects at once (default: the executor's).
     overwrite : bool
         Reduce every input again, replacing existing outputs.  Without it, an
-        output that holds this pipeline's reduction (its ``SXRCONF`` is the
-        config hash) is skipped, and any other existing output is refused.
+        output that holds this pipeline's reduction of its input (`finished_row`)
+        is skipped, and any other existing output is refused.
     progress : bool
         A tqdm progress bar over the files.
     verify_checksum : bool
@@ -351,9 +437,14 @@ def run_batch(pipeline, inputs, outdir, *, scheduler=None, workers=None, threads
     ------
     ConfigError
         Two inputs with the same output name, an output directory that is a
-        file, an existing output that is not this pipeline's reduction.
+        file, an existing output that is not this pipeline's reduction of its
+        input.
     FileNotFoundError
         An input, or the output directory's parent, does not exist.
+    OSError
+        The output directory cannot be written (read-only, full): found by
+        writing the summary before any file is reduced, and named as the
+        output directory.
     """
     pipeline = as_pipeline(pipeline)
     inputs = [Path(p) for p in inputs]
@@ -375,21 +466,24 @@ def run_batch(pipeline, inputs, outdir, *, scheduler=None, workers=None, threads
     summary = outdir / SUMMARY_NAME
     if summary.is_dir():
         raise IsADirectoryError(f"{summary} names a directory; the summary table goes there")
+    run = uuid.uuid4().hex
     rows, tasks = [], []
     for src, out in zip(inputs, outputs, strict=True):
         if out.is_dir():
             raise IsADirectoryError(f"{out} names a directory; it is the output of {src}")
+        done = None
         if out.exists() and not overwrite:
-            rows.append({"input": str(src), "output": str(out),
-                         **_done_output(out, pipeline.config_hash)})
-            continue
-        rows.append(None)
-        tasks.append({"input": str(src.absolute()), "output": str(out.absolute()),
-                      "config": pipeline.config, "source": pipeline.source,
-                      "overwrite": overwrite, "threads": threads,
-                      "verify_checksum": verify_checksum, "dq_bits": current_dq_bits(),
-                      "index": len(rows) - 1})
+            done = finished_row(out, input_digest(src), pipeline.config_hash)
+        rows.append(None if done is None else {"input": str(src), "output": str(out), **done})
+        if done is None:
+            tasks.append({"input": str(src.absolute()), "output": str(out.absolute()),
+                          "config": pipeline.config, "source": pipeline.source, "run": run,
+                          "overwrite": overwrite, "threads": threads,
+                          "verify_checksum": verify_checksum, "dq_bits": current_dq_bits(),
+                          "index": len(rows) - 1})
     outdir.mkdir(exist_ok=True)
+    table = SummaryFile(summary, pipeline)
+    _writable(outdir, table, rows)  # before any work
     t0 = time.perf_counter()
     bar = _bar(len(inputs), progress)
     bar.update(len(inputs) - len(tasks))
@@ -402,6 +496,7 @@ def run_batch(pipeline, inputs, outdir, *, scheduler=None, workers=None, threads
         for given, sent in ((res["input"], task["input"]), (res["output"], task["output"])):
             res["error"] = res.get("error", "").replace(sent, given)
         rows[i] = res
+        table.record([r for r in rows if r is not None], final=False)
         bar.update(1)
 
     try:
@@ -410,13 +505,23 @@ def run_batch(pipeline, inputs, outdir, *, scheduler=None, workers=None, threads
                 collect(task, reduce_file(task))
         elif tasks:
             _on_dask(tasks, scheduler, workers, collect)
-    finally:
+    finally:  # also when interrupted: what finished
         bar.close()
-    table = _summary(rows, pipeline)
-    with atomic_output(summary, overwrite=True) as tmp:
-        table.write(tmp, format="ascii.ecsv")
+        table.record([r for r in rows if r is not None])
     failed = [r for r in rows if r["status"] == "failed"]
-    return BatchResult(table, summary, failed, time.perf_counter() - t0)
+    return BatchResult(summary_table(rows, pipeline), summary, failed, time.perf_counter() - t0)
+
+
+def _writable(outdir, summary, rows):
+    """Write the summary of what is already done; an output directory that cannot be
+    written (read-only, full) is refused now, in one line naming it, before any work."""
+    try:
+        summary.record([r for r in rows if r is not None])
+    except OSError as exc:
+        if exc.errno is None or exc.errno in (errno.ENOENT, errno.ENOTDIR, errno.EISDIR):
+            raise
+        raise OSError(exc.errno, f"{exc.strerror or exc}; nothing was reduced",
+                      f"output directory {outdir}") from None
 
 
 def _on_dask(tasks, scheduler, workers, collect):

@@ -1,22 +1,32 @@
 """Where sweep cells run: dask scheduler addresses checked, clients and local clusters.
 
 `check_scheduler` refuses, within seconds, an address where no dask scheduler
-answers; `quiet_dask_logs` keeps dask.distributed's connection logs out of
-the output.
+answers; `quiet_dask_logs` keeps dask.distributed's logs out of the output;
+`signals_held` keeps an interrupt from cutting a cluster's start or stop
+short.
 """
 
 import asyncio
 import concurrent.futures
+import contextlib
 import logging
+import signal
+import sys
+import threading
 
 from ..core.errors import ConfigError
 from ..core.limits import MAX_WORKERS, check_count
 
-__all__ = ["check_scheduler", "map_on_dask", "quiet_dask_logs"]
+__all__ = ["HELD_SIGNALS", "check_scheduler", "map_on_dask", "quiet_dask_logs", "signals_held"]
 
 
-def quiet_dask_logs(level=logging.WARNING):
-    """Raise the level of dask.distributed's loggers (they log every connection at INFO)."""
+def quiet_dask_logs(level=logging.CRITICAL):
+    """Raise the level of dask.distributed's loggers (by default, silence them).
+
+    They log every connection at INFO and, when a worker dies or a run is
+    interrupted, warnings and errors of their own (a task rescheduled, a worker
+    restarted); what matters reaches the command as a task's result or error.
+    """
     import distributed  # noqa: F401  (creates its loggers)
 
     for name in list(logging.root.manager.loggerDict):
@@ -108,7 +118,7 @@ def _client(scheduler, workers):
                               f"({type(exc).__name__}: {exc})") from None
     workers = 2 if workers is None else check_count(workers, "workers", MAX_WORKERS)
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                           dashboard_address=":0")
+                           dashboard_address=":0", preload=[f"{__package__}.dask_worker"])
     return Client(cluster), cluster, True
 
 
@@ -124,8 +134,12 @@ def map_on_dask(function, tasks, scheduler, workers, collect, failed):
     """
     from distributed import as_completed
 
-    client, cluster, owned = _client(scheduler, workers)
+    client, cluster, owned = None, None, False
+    if scheduler is None:
+        _start_resource_tracker()
     try:
+        with signals_held():  # dask interrupted half-way through starting prints tracebacks
+            client, cluster, owned = _client(scheduler, workers)
         futures = client.map(function, tasks, pure=False)
         task_of = {fut.key: task for fut, task in zip(futures, tasks, strict=True)}
         for fut in as_completed(futures):
@@ -137,7 +151,64 @@ def map_on_dask(function, tasks, scheduler, workers, collect, failed):
             collect(task, result)
             fut.release()
     finally:
-        if owned:
-            client.close()
-        if cluster is not None:
-            cluster.close()
+        with signals_held():  # and half-way through stopping
+            if owned:
+                client.close()
+            if cluster is not None:
+                cluster.close()
+
+
+def _start_resource_tracker():
+    """Start multiprocessing's resource tracker, quietly, before a LocalCluster starts.
+
+    The tracker (one process, started with the first worker process) removes
+    what a worker killed outright leaves (semaphores); it then warns about them
+    on stderr, which the one-line contract does not allow: it is started here
+    with its warnings off.  Started by the cluster instead, it would also
+    unblock the signals `signals_held` holds in the thread starting the
+    workers.  Nothing is done if it already runs.
+    """
+    from multiprocessing import resource_tracker
+
+    quiet = "ignore::UserWarning"  # the tracker's only warnings are about what it cleans up
+    added = quiet not in sys.warnoptions
+    if added:  # passed on to the tracker's command line (-W), as the interpreter's own
+        sys.warnoptions.append(quiet)
+    try:
+        resource_tracker.ensure_running()
+    finally:
+        if added:
+            sys.warnoptions.remove(quiet)
+
+
+#: The signals `signals_held` holds back: an interrupt (Ctrl-C) and ``kill``'s default.
+HELD_SIGNALS = frozenset({signal.SIGINT, signal.SIGTERM})
+
+
+@contextlib.contextmanager
+def signals_held():
+    """Hold SIGINT and SIGTERM back for a ``with`` block (of the main thread); act on them after.
+
+    A signal that arrives in the block is delivered when it ends (e.g. a
+    `KeyboardInterrupt` then).  Threads started in the block, and the processes
+    they start (a LocalCluster's event loop and its worker processes), keep the
+    signals blocked: in this process they are handled by the main thread only;
+    a worker process unblocks them when it is set up
+    (`spherex_reduce.reduce.dask_worker`).  Elsewhere than on the main thread,
+    or where signals cannot be blocked, the block runs as it is.
+
+    Examples
+    --------
+    >>> from spherex_reduce.reduce.scheduler import signals_held
+    >>> with signals_held():
+    ...     pass  # start a cluster: Ctrl-C now waits until it has started
+    """
+    if threading.current_thread() is not threading.main_thread() or \
+            not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, HELD_SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)

@@ -187,6 +187,7 @@ def test_atomic_output_removes_its_temporary_file_when_the_rename_fails(tmp_path
         raise OSError(errno.EXDEV, "Invalid cross-device link")
 
     monkeypatch.setattr(os, "replace", fail)
+    monkeypatch.setattr(os, "link", fail)  # how an output that must not replace is renamed
     with pytest.raises(OSError), atomic_output(out) as tmp:
         tmp.write_text("x")
     assert list(tmp_path.iterdir()) == []

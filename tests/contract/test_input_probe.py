@@ -50,9 +50,17 @@ of the subcommand) to read a file whose checksum fails, recorded in the
 output header.
 """
 
+import contextlib
+import os
 import re
+import resource
 import shutil
+import signal
+import subprocess
+import sys
+import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import _probe
 import numpy as np
@@ -1401,7 +1409,210 @@ ROUND2_STRATEGIES = [
 
 # -- round two: batches (exactly once, resumable, one line on stderr) -----------------------------
 
-ROUND2_BATCH = []
+def _batch_case(inputs, tmp_path, n):
+    """The case directory with ``n`` copies of ``raw.fits`` (``r00.fits``, ...) to reduce."""
+    d = tmp_path / "case"
+    shutil.copytree(inputs, d, symlinks=True)
+    names = [f"r{i:02d}.fits" for i in range(n)]
+    for name in names:
+        shutil.copy(d / "raw.fits", d / name)
+    return d, names
+
+
+def _spawn(argv, cwd, wrap=()):
+    """``spherex-reduce -q ARGV`` in a new session, capped as the probe caps its cases."""
+    def limit():
+        resource.setrlimit(resource.RLIMIT_AS, (_probe.MEMORY_LIMIT, _probe.MEMORY_LIMIT))
+
+    return subprocess.Popen([*wrap, sys.executable, "-m", "spherex_reduce.cli", "-q", *argv],
+                            cwd=cwd, env=_probe.child_env(), stdin=subprocess.DEVNULL,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=limit, start_new_session=True)
+
+
+def _finish(proc, timeout=60):
+    """``(exit code, stdout, stderr lines)``; whatever the command left running is killed."""
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        out, err = "", "TIMED OUT"
+    finally:
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    return proc.returncode, out, [line for line in err.splitlines() if line.strip()]
+
+
+def _wait_for(test, seconds=30.0):
+    """Poll ``test()`` every 2 ms until it is true (False after ``seconds``)."""
+    end = time.monotonic() + seconds
+    while not test():
+        if time.monotonic() > end:
+            return False
+        time.sleep(0.002)
+    return True
+
+
+def _reduced(out):
+    return sorted(p.name for p in out.glob("*_reduced.fits"))
+
+
+def _summary_rows(out):
+    """``{output name: status}`` of ``summary.ecsv``, each output listed once."""
+    if not (out / "summary.ecsv").exists():
+        return {}
+    table = Table.read(out / "summary.ecsv", format="ascii.ecsv")
+    names = [Path(p).name for p in table["output"]]
+    assert len(names) == len(set(names)), f"an output listed twice: {names}"
+    return dict(zip(names, table["status"], strict=True))
+
+
+def _check_outputs(d, out, names):
+    """Every output is there, holds the single ``reduce`` of raw.fits, and no temporary is left."""
+    assert _reduced(out) == sorted(n.replace(".fits", "_reduced.fits") for n in names)
+    ref = fits.getdata(d / "red.fits", "SCI")
+    for name in _reduced(out):
+        assert np.array_equal(fits.getdata(out / name, "SCI"), ref, equal_nan=True), name
+    assert not [p.name for p in out.iterdir() if p.name.endswith(".tmp")]
+
+
+#: A temporary output: ``.NAME.HOST-PID.XXXX.tmp`` (NAME and the writer's PID).
+_TMP = re.compile(r"^\.(.+)\.[0-9a-f]{8}-(\d+)\.[^.]+\.tmp$")
+
+
+def _worker_pids(pid):
+    """The dask worker processes started by the command ``pid``."""
+    psutil = pytest.importorskip("psutil")
+    return [p.pid for p in psutil.Process(pid).children(recursive=True)
+            if "spawn_main" in " ".join(p.cmdline())]
+
+
+def _not_writable(kind, out):
+    """A command prefix that runs with ``out`` read-only or full, or skips the test."""
+    if os.geteuid() != 0:  # chmod bites
+        if kind == "full":
+            pytest.skip("a full folder needs a tmpfs, mounted as root")
+        out.chmod(0o555)
+        return ()
+    # root ignores permissions: a private mount namespace, gone with the command
+    mount = {"read-only": 'mount --bind "$0" "$0" && mount -o remount,bind,ro "$0" "$0"',
+             "full": 'mount -t tmpfs -o size=64k tmpfs "$0" && '
+                     '(dd if=/dev/zero of="$0/fill" bs=4k 2>/dev/null; true)'}[kind]
+    wrap = ("unshare", "-m", "--propagation", "private", "sh", "-c",
+            f'{mount} && exec "$@"', str(out))
+    if subprocess.run([*wrap, "true"], capture_output=True).returncode != 0:
+        pytest.skip("no private mount namespace here")
+    return wrap
+
+
+@pytest.mark.parametrize("kind", ["read-only", "full"])
+def test_batch_output_folder_not_writable_is_refused_before_any_work(kind, inputs, tmp_path):
+    d, names = _batch_case(inputs, tmp_path, 3)
+    out = d / "out"
+    out.mkdir()
+    wrap = _not_writable(kind, out)
+    try:
+        rc, _, err = _finish(_spawn(["reduce", *names, "-c", "spherex-default", "-o", "out",
+                                     *SERIAL], d, wrap))
+    finally:
+        out.chmod(0o755)
+    assert rc == 2 and len(err) == 1 and ERROR_LINE.match(err[0]), err
+    # named as the folder, before any file was reduced (not the summary after every file)
+    assert re.search(r"output directory out\b.*(read-only|permission|no space)", err[0], re.I), err
+    assert list(out.iterdir()) == []
+
+
+def test_batch_killed_midway_keeps_its_summary_and_a_rerun_finishes(inputs, tmp_path):
+    d, names = _batch_case(inputs, tmp_path, 30)
+    out = d / "out"
+    argv = ["reduce", *names, "-c", "spherex-default", "-o", "out", *SERIAL]
+    proc = _spawn(argv, d)
+    assert _wait_for(lambda: _reduced(out)), "no output appeared"
+    _wait_for(lambda: _summary_rows(out), 0.5)
+    os.killpg(proc.pid, signal.SIGKILL)
+    _finish(proc)
+    finished = _reduced(out)
+    assert 1 <= len(finished) < len(names), "not killed mid-batch"
+    rows = _summary_rows(out)
+    assert set(rows.values()) == {"done"} and set(rows) <= set(finished), rows
+    assert len(finished) - len(rows) <= 1  # at most the file finished as the kill came
+    before = {n: (out / n).read_bytes() for n in finished}
+
+    rc, stdout, err = _finish(_spawn(argv, d))
+    assert rc == 0 and err == [], (stdout, err)
+    assert f"{len(names) - len(finished)} reduced, {len(finished)} already done, 0 failed" in stdout
+    _check_outputs(d, out, names)
+    assert {n: (out / n).read_bytes() for n in finished} == before  # never rewritten
+    rows = _summary_rows(out)
+    assert sorted(rows) == _reduced(out)
+    assert {n: rows[n] for n in finished} == dict.fromkeys(finished, "skipped")
+    assert set(rows.values()) == {"done", "skipped"}
+
+
+def test_batch_survives_a_killed_dask_worker(inputs, tmp_path):
+    pytest.importorskip("distributed")
+    d, names = _batch_case(inputs, tmp_path, 24)
+    out = d / "out"
+    proc = _spawn(["reduce", *names, "-c", "spherex-default", "-o", "out", "--workers", "2"], d)
+    assert _wait_for(lambda: len(_reduced(out)) >= 4), "no output appeared"
+    # kill the worker that has just renamed an output into place (its temporary file names
+    # its process) before it hands the result over: dask runs that task again elsewhere
+    workers, writing, victim = _worker_pids(proc.pid), {}, None
+    end = time.monotonic() + 30
+    while victim is None and time.monotonic() < end:
+        now = {p.name: _TMP.match(p.name) for p in out.glob(".*.tmp")}
+        victim = next((pid for tmp, (name, pid) in writing.items()
+                       if tmp not in now and pid in workers and (out / name).exists()), None)
+        writing = {tmp: (m[1], int(m[2])) for tmp, m in now.items() if m}
+    assert victim is not None, "no worker seen writing"
+    os.kill(victim, signal.SIGKILL)
+    rc, stdout, err = _finish(proc)
+    assert rc == 0 and err == [], (stdout, err)
+    _check_outputs(d, out, names)
+    rows = _summary_rows(out)
+    assert sorted(rows) == _reduced(out) and set(rows.values()) == {"done"}, rows
+
+
+def test_two_batches_into_one_folder_report_no_valid_output_as_failed(inputs, tmp_path):
+    d, names = _batch_case(inputs, tmp_path, 30)
+    out = d / "out"
+    argv = ["reduce", *names, "-c", "spherex-default", "-o", "out", *SERIAL]
+    first = _spawn(argv, d)
+    assert _wait_for(lambda: _reduced(out)), "no output appeared"
+    second = _spawn(argv, d)  # starts while the first is under way
+    results = [_finish(first), _finish(second)]
+    for rc, stdout, err in results:  # each finishes, or is refused in one line
+        assert (rc == 0 and err == []) or (rc == 2 and len(err) == 1), (stdout, err)
+    assert any(rc == 0 for rc, _, _ in results)
+    _check_outputs(d, out, names)
+    rows = _summary_rows(out)
+    assert sorted(rows) == _reduced(out) and "failed" not in rows.values(), rows
+
+
+@pytest.mark.parametrize(("name", "to"), [("SIGTERM", "process"), ("SIGINT", "group")])
+def test_batch_on_dask_interrupted_prints_one_line(name, to, inputs, tmp_path):
+    pytest.importorskip("distributed")
+    d, names = _batch_case(inputs, tmp_path, 16)
+    out = d / "out"
+    proc = _spawn(["reduce", *names, "-c", "spherex-default", "-o", "out", "--workers", "2"], d)
+    assert _wait_for(lambda: _reduced(out)), "no output appeared"
+    _wait_for(lambda: _summary_rows(out), 0.5)
+    (os.kill if to == "process" else os.killpg)(proc.pid, getattr(signal, name))
+    rc, _, err = _finish(proc)
+    assert rc == 128 + getattr(signal, name) or (name == "SIGINT" and rc == 130), rc
+    assert len(err) <= 1, err
+    rows = _summary_rows(out)  # what finished before the signal
+    assert rows and set(rows) <= set(_reduced(out)) and set(rows.values()) == {"done"}
+    assert not [p.name for p in out.iterdir() if p.name.endswith(".tmp")]
+
+
+ROUND2_BATCH = [
+    refused("batch-output-made-from-another-input",
+            ["reduce", "raw.fits", "copy.fits", "-c", "spherex-default", "-o", "out", *SERIAL],
+            chain(mkdir("out"), lambda d: shutil.copy(d / "raw.fits", d / "copy.fits"),
+                  lambda d: shutil.copy(d / "red2.fits", d / "out" / "raw_reduced.fits")),
+            mentions="raw_reduced.fits.*--overwrite"),
+]
 
 
 # -- round two: found by the probe and fixed with the ramps issue ---------------------------------

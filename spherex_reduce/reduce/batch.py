@@ -35,6 +35,7 @@ import logging
 import time
 import uuid
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -298,22 +299,28 @@ def finished_row(path, digest, config_hash, run=None):
 
 
 def _reduced(task, digest, pipeline):
-    """Reduce the task's input and write its output; the row of what was done."""
+    """Reduce the task's input and write its output; the row of what was done.
+
+    ``digest`` is a `concurrent.futures.Future` of the input's `input_digest`,
+    computed while the file is reduced: it is waited for only when an output
+    exists already, and to stamp the result.
+    """
     out, overwrite = Path(task["output"]), task.get("overwrite", False)
     try:  # this run made it before its worker died, or (no overwrite) another batch did
-        done = finished_row(out, digest, pipeline.config_hash, task.get("run"))
+        done = out.exists() and finished_row(out, digest.result(), pipeline.config_hash,
+                                             task.get("run"))
     except ConfigError:
         if not overwrite:
             raise
         done = None
-    if done is not None and (done["status"] == "done" or not overwrite):
+    if done and (done["status"] == "done" or not overwrite):
         return done
     result, images = reduce_input(task["input"], pipeline, threads=task.get("threads"))
-    result = _stamped(result, digest, task.get("run"))
+    result = _stamped(result, digest.result(), task.get("run"))
     try:
         write(result, out, overwrite=overwrite, images=images)
     except FileExistsError:  # a concurrent batch wrote it meanwhile: done if it is this
-        done = finished_row(out, digest, pipeline.config_hash, task.get("run"))
+        done = finished_row(out, digest.result(), pipeline.config_hash, task.get("run"))
         if done is None:
             raise
         return done
@@ -360,7 +367,11 @@ def reduce_file(task):
                 foreign_dq_bits(task.get("dq_bits", current_dq_bits())):
             row["notes"] = notes
             pipeline = Pipeline(task["config"], source=task["source"])
-            done = _reduced(task, input_digest(task["input"]), pipeline)
+            # the SHA-256 (0.7 s for a 1.28 GB file) is computed beside the reduction,
+            # which leaves part of a core idle: a serial batch of three such files took
+            # 1.38x the time of one without digests when it came first, 1.06x beside
+            with ThreadPoolExecutor(1) as hashing:
+                done = _reduced(task, hashing.submit(input_digest, task["input"]), pipeline)
         row.update(done, notes=notes)
     except Exception as exc:  # reported with the file's name; the batch goes on
         expected = isinstance(exc, (SpherexReduceError, OSError))

@@ -54,6 +54,9 @@ class FileDescription:
         Frames dropped at the start of the ramp.
     gain : `numpy.ndarray` or None
         Gain per channel to apply, or None.
+    notes : tuple of str
+        What the ``input:`` section overrode, for `warn` to log once the reader
+        has accepted the whole file (a refused file gets its error alone).
     """
 
     names: list
@@ -66,6 +69,12 @@ class FileDescription:
     kept: ReadoutSchedule
     drop: int
     gain: object
+    notes: tuple = ()
+
+    def warn(self):
+        """Log the ``input:`` section's overrides, one warning each."""
+        for note in self.notes:
+            log.warning("%s", note)
 
 
 def note_bad_checksums(header, bad, path):
@@ -98,8 +107,9 @@ def describe(hdul, path, supplied, bad=(), options=None, decided=(), integration
     data loaded).
 
     ``options`` (`InputOptions`, the ``input:`` section) is applied: config
-    keywords fill or override the file's (each override logged as a warning
-    once the file is accepted: a refused file gets its error alone), the
+    keywords fill or override the file's (each override a note, which the
+    reader logs with `FileDescription.warn` once it has accepted the whole
+    file: a refused file gets its error alone), the
     unit, the frames dropped (``schedule`` is then that of the kept frames,
     ``drop`` their number) and the gain per channel (``gain``, or None).  ``decided``: supplied keys
     the caller sets whatever the file says (not compared with its keywords).
@@ -147,9 +157,8 @@ def describe(hdul, path, supplied, bad=(), options=None, decided=(), integration
     note_bad_checksums(header, bad, path)
     if integration is not None:
         header["SXRINT"] = (integration, "integration of the input's 4-D SCI (from 0)")
-    for note in notes:
-        log.warning("%s", note)
-    return FileDescription(names, header, sci, shape, schedule, order, unit, kept, drop, gain)
+    return FileDescription(names, header, sci, shape, schedule, order, unit, kept, drop, gain,
+                           tuple(notes))
 
 
 def check_integrations(hdul, path):

@@ -360,9 +360,11 @@ def exposure_from_hdul(hdul, path, bad, stable, supplied, dq_bits=None, options=
     tables = file_tables(hdul, path)
     data, err, mask, phantom = apply_input(d, data, err, mask, phantom)
     _readonly(data, err, mask, phantom)
-    return Exposure.from_arrays(data, d.kept, unit=d.unit, uncertainty=err, mask=mask,
-                                phantom=phantom, header=d.header, order=d.order,
-                                reference=reference, tables=tables)
+    exposure = Exposure.from_arrays(data, d.kept, unit=d.unit, uncertainty=err, mask=mask,
+                                    phantom=phantom, header=d.header, order=d.order,
+                                    reference=reference, tables=tables)
+    d.warn()
+    return exposure
 
 
 @dataclass(frozen=True)

@@ -88,6 +88,7 @@ class FrameReader(RampReader):
         except Exception:
             self.close()
             raise
+        d.warn()
         #: tables of the file (e.g. ``PROVENANCE``), phantom values ``(frames, reads,
         #: channels)`` or None, and the type the pixels are stored as
         self.tables, self.phantom = self._tables, self._phantom

@@ -270,6 +270,7 @@ class ReadFiles(RampReader):
         except BaseException:
             self.close()
             raise
+        first.d.warn()  # every file accepted: the overrides, once (they are the same in each)
         #: the type `reads` returns (floating point, native order)
         self.stored_dtype = self._dtype
 

@@ -1404,6 +1404,12 @@ ROUND2_STRATEGIES = [
     refused("override-refused-one-line", REDUCE_BAD,
             write("bad.yaml", "input: {header: override}\ngeometry: {nrows: 128}\n"
                               "steps:\n  - fit_ramp: {}\n"), mentions="READOUT table has 60 reads"),
+    # ... or refused after the header was read (a damaged table): still the error alone
+    refused("override-then-damaged-table-one-line", REDUCE_BAD,
+            chain(_damaged_provenance("raw.fits", "string"),
+                  write("bad.yaml", "input: {header: override}\nreadout: {frame_overhead: 12}\n"
+                                    "steps:\n  - unchop: {}\n  - fit_ramp: {}\n")),
+            mentions="PROVENANCE"),
 ]
 
 

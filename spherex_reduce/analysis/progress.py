@@ -2,10 +2,12 @@
 
 `run_tasks` runs them (in this process, or on dask) with a `Progress`, which
 counts the tasks as they finish.  When the first one is done it prints the
-expected duration of the whole run on stderr (``about 8 h 10 min for 10000
-realisations (2.9 s each)``): the time until then (starting a cluster
-included) plus the remaining rounds of tasks at the first task's own
-duration; a progress bar (tqdm) is shown only when stderr is a terminal.
+expected duration of the whole run on stdout, as the command's other
+messages (``about 8 h 10 min for 10000 realisations (2.9 s each)``): the time
+until then (starting a cluster included) plus the remaining rounds of tasks at
+the first task's own duration.  A progress bar (tqdm) is shown on stderr only
+when stderr is a terminal.  So stderr holds only warnings and, for a run that
+fails (even after its estimate), the one error line.
 Both are off with ``enabled=False`` (the command line's ``-q``).
 """
 
@@ -70,7 +72,9 @@ class Progress:
         Tasks run at once (workers); None: unknown (the duration is then that
         of running them one at a time, an upper bound).
     stream : file, optional
-        Where to print (default `sys.stderr`).
+        Where to print the expected duration (default `sys.stdout`).
+    bar_stream : file, optional
+        Where the bar goes if it is a terminal (default `sys.stderr`).
 
     Examples
     --------
@@ -83,17 +87,18 @@ class Progress:
     True
     """
 
-    def __init__(self, total, noun, enabled, parallel=1, stream=None):
+    def __init__(self, total, noun, enabled, parallel=1, stream=None, bar_stream=None):
         self.total, self.noun, self.enabled = int(total), noun, bool(enabled)
         self.parallel = parallel
-        self.stream = sys.stderr if stream is None else stream
+        self.stream = sys.stdout if stream is None else stream
+        bar_stream = sys.stderr if bar_stream is None else bar_stream
         self.start = time.perf_counter()
         self.count = 0
         #: the expected duration of the whole run (s), once the first task is done
         self.expected = None
-        terminal = getattr(self.stream, "isatty", lambda: False)()
+        terminal = getattr(bar_stream, "isatty", lambda: False)()
         self._bar = tqdm(total=self.total, disable=not (self.enabled and terminal),
-                         desc=f"{noun}s", file=self.stream)
+                         desc=f"{noun}s", file=bar_stream)
 
     def __enter__(self):
         return self

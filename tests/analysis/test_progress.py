@@ -37,7 +37,7 @@ def test_a_terminal_gets_a_bar():
             return True
 
     out = Terminal()
-    with Progress(3, "realisation", True, stream=out) as p:
+    with Progress(3, "realisation", True, stream=io.StringIO(), bar_stream=out) as p:
         for _ in range(3):
             p.done(0.01)
     assert "realisations: 100%" in out.getvalue()

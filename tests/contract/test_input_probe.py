@@ -1333,14 +1333,29 @@ def test_long_runs_print_their_expected_duration(command, runner, tmp_path):
         took = re.compile(r"failed \(([\d.]+) s\)")
     result = runner.run(argv, d)
     assert result.rc == 0, result.describe()
-    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert result.stderr == "", result.describe()  # stderr: warnings and errors only
+    lines = [line for line in result.stdout.splitlines() if line.startswith("about ")]
     assert len(lines) == 1, result.describe()
     found = re.fullmatch(rf"about (.+) for 12 {noun} \((.+) each\)", lines[0])
     assert found, result.describe()
     expected, actual = _seconds(found[1]), float(took.search(result.stdout)[1])
     assert actual / 3 <= expected <= 3 * actual + 0.3, (expected, actual)
     quiet = runner.run(["-q", *argv, "--overwrite"], d)
-    assert quiet.rc == 0 and quiet.stderr == "", quiet.describe()
+    assert quiet.rc == 0 and quiet.stderr == "" and "about" not in quiet.stdout, \
+        quiet.describe()
+
+
+def test_a_long_run_that_fails_prints_its_error_alone(runner, tmp_path):
+    """Without -q too: the expected duration (printed after the first realisation, which a
+    plugin's fault does not stop) is not on stderr, so the error is its only line."""
+    d = tmp_path / "case"
+    d.mkdir()
+    _toy_comparison(("toy", "short"), extra="realizations: 3\n")(d)
+    result = runner.run(COMPARE, d)
+    assert result.rc == 2, result.describe()
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and ERROR_LINE.match(lines[0]) and "plugin 'toy'" in lines[0], \
+        result.describe()
 
 
 def _many_frames(d):

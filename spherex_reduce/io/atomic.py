@@ -18,7 +18,8 @@ __all__ = ["atomic_output"]
 
 #: What ``link`` fails with on a file system without hard links (e.g. FAT, some FUSE mounts).
 _NO_LINKS = frozenset(getattr(errno, n) for n in ("EPERM", "EOPNOTSUPP", "ENOTSUP", "EMLINK",
-                                                   "ENOSYS", "EXDEV") if hasattr(errno, n))
+                                                   "ENOSYS", "EXDEV", "EINVAL")  # EINVAL: FAT
+                      if hasattr(errno, n))
 
 
 class atomic_output:
@@ -67,6 +68,8 @@ class atomic_output:
             parts = old.name[len(prefix):-len(".tmp")].split(".")
             if len(parts) != 2 or not parts[0].isdigit() or int(parts[0]) == os.getpid():
                 continue  # not ours (e.g. of an output "NAME.1"), or this process's
+            if os.name == "nt":  # os.kill(pid, 0) would end that process there
+                continue
             try:
                 os.kill(int(parts[0]), 0)
             except ProcessLookupError:  # its writer is gone

@@ -7,14 +7,20 @@ no file behind and is released by the kernel when its holder dies (even by
 ``SIGKILL``): a killed batch never leaves a stale lock.  Where a file system
 refuses locks on directories (e.g. some network file systems), a lock file
 ``.lock`` in the directory is locked instead (`fcntl.lockf`, which network
-file systems pass on to the server) and left there.
+file systems pass on to the server) and left there; so it is on Windows,
+which has no ``fcntl`` (`msvcrt.locking`).
 """
 
 import contextlib
 import errno
-import fcntl
 import os
+import time
 from pathlib import Path
+
+try:
+    import fcntl
+except ImportError:  # Windows
+    fcntl = None
 
 __all__ = ["LOCK_FILE", "locked_directory"]
 
@@ -42,6 +48,10 @@ def locked_directory(path):
     >>> with locked_directory(d):
     ...     pass  # read, merge and rewrite a file of d, one process at a time
     """
+    if fcntl is None:
+        with _locked_file(Path(path) / LOCK_FILE):
+            yield
+        return
     fd = os.open(path, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
     try:
         try:
@@ -61,7 +71,28 @@ def locked_directory(path):
 def _locked_file(path):
     fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
     try:
-        fcntl.lockf(fd, fcntl.LOCK_EX)
-        yield
+        if fcntl is not None:
+            fcntl.lockf(fd, fcntl.LOCK_EX)
+            yield
+        else:
+            import msvcrt
+
+            _lock_windows(fd, msvcrt)
+            try:
+                yield
+            finally:
+                os.lseek(fd, 0, os.SEEK_SET)
+                msvcrt.locking(fd, msvcrt.LK_UNLCK, 1)
     finally:
-        os.close(fd)
+        os.close(fd)  # releases the lock
+
+
+def _lock_windows(fd, msvcrt):
+    while True:  # LK_LOCK tries for 10 s, then raises: wait as flock does
+        try:
+            msvcrt.locking(fd, msvcrt.LK_LOCK, 1)
+            return
+        except OSError as exc:
+            if exc.errno != errno.EDEADLOCK:
+                raise
+            time.sleep(0.1)

@@ -45,6 +45,7 @@ from ..io.config import load_yaml
 from ..io.plotting import save_figure
 from ..noise import expected_slope_variance
 from ..reduce.pipeline import as_pipeline
+from ..reduce.progress import run_tasks
 from ..simulation import load_scene
 from .case import (
     SpectrumMeasure,
@@ -57,7 +58,6 @@ from .case import (
 )
 from .photon_noise import photon_noise_label, photon_noise_power
 from .plots import plot_comparison
-from .progress import run_tasks
 from .sky import RMS_RANGE, inject_sky, light_sensitive, measure_against_sky, sky_field
 from .spectrum import EmptyBandError, band_power
 
@@ -437,7 +437,7 @@ def compare_strategies(comparison, output=None, *, plot=None, scheduler=None, wo
     overwrite : bool
     progress : bool
         Print the expected duration on stderr, timed on the first realisation, and
-        show a progress bar on a terminal (`~spherex_reduce.analysis.progress.run_tasks`).
+        show a progress bar on a terminal (`~spherex_reduce.reduce.progress.run_tasks`).
 
     Returns
     -------

@@ -42,6 +42,7 @@ from ..core.errors import ConfigError
 from ..core.limits import check_count
 from ..io import atomic_output
 from ..io.config import READOUT_PARAMETERS, load_yaml
+from ..reduce.progress import run_tasks
 from ..simulation import load_scene
 from .case import (
     SpectrumMeasure,
@@ -52,7 +53,6 @@ from .case import (
     scene_section,
     seed_section,
 )
-from .progress import run_tasks
 
 __all__ = ["Sweep", "SweepResult", "load_sweep", "plot_sweep", "run_cell", "run_sweep"]
 
@@ -309,7 +309,7 @@ def run_sweep(sweep, output=None, *, scheduler=None, workers=None, overwrite=Fal
         Ignore and replace an existing ``output``.
     progress : bool
         Print the expected duration on stderr, timed on the first cell, and show a
-        progress bar on a terminal (`~spherex_reduce.analysis.progress.run_tasks`).
+        progress bar on a terminal (`~spherex_reduce.reduce.progress.run_tasks`).
 
     Returns
     -------

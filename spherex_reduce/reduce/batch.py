@@ -50,7 +50,7 @@ from ..io import checksum_policy, current_dq_bits, foreign_dq_bits, read, write
 from .batch_summary import SummaryFile, summary_table
 from .integrations import reduce_input
 from .pipeline import Pipeline, as_pipeline
-from .scheduler import map_on_dask
+from .progress import run_tasks
 
 __all__ = ["OUTPUT_SUFFIX", "SUMMARY_NAME", "BatchResult", "finished_row", "image_statistics",
            "input_digest", "output_paths", "reduce_file", "run_batch"]
@@ -434,7 +434,8 @@ def run_batch(pipeline, inputs, outdir, *, scheduler=None, workers=None, threads
         output that holds this pipeline's reduction of its input (`finished_row`)
         is skipped, and any other existing output is refused.
     progress : bool
-        A tqdm progress bar over the files.
+        Print the expected duration once the first file is reduced, and show a
+        progress bar on a terminal (`~spherex_reduce.reduce.progress.run_tasks`).
     verify_checksum : bool
         False reads inputs whose checksums do not match (``--ignore-checksum``).
 
@@ -496,8 +497,6 @@ def run_batch(pipeline, inputs, outdir, *, scheduler=None, workers=None, threads
     table = SummaryFile(summary, pipeline)
     _writable(outdir, table, rows)  # before any work
     t0 = time.perf_counter()
-    bar = _bar(len(inputs), progress)
-    bar.update(len(inputs) - len(tasks))
 
     def collect(task, res):
         i = task["index"]
@@ -508,16 +507,18 @@ def run_batch(pipeline, inputs, outdir, *, scheduler=None, workers=None, threads
             res["error"] = res.get("error", "").replace(sent, given)
         rows[i] = res
         table.record([r for r in rows if r is not None], final=False)
-        bar.update(1)
 
+    def died(task, exc):  # the worker died (e.g. out of memory): report, go on
+        return {"status": "failed", "median": np.nan, "robust_std": np.nan, "unit": "",
+                "seconds": np.nan, "kind": "unexpected",
+                "error": f"{type(exc).__name__}: {_one_line(exc)}"}
+
+    if scheduler is None:
+        workers = min(2 if workers is None else workers, max(1, len(tasks)))
     try:
-        if tasks and scheduler == "serial":
-            for task in tasks:
-                collect(task, reduce_file(task))
-        elif tasks:
-            _on_dask(tasks, scheduler, workers, collect)
+        run_tasks(reduce_file, tasks, scheduler, workers, collect, died, noun="file",
+                  progress=progress)
     finally:  # also when interrupted: what finished
-        bar.close()
         table.record([r for r in rows if r is not None])
     failed = [r for r in rows if r["status"] == "failed"]
     return BatchResult(summary_table(rows, pipeline), summary, failed, time.perf_counter() - t0)
@@ -533,23 +534,4 @@ def _writable(outdir, summary, rows):
             raise
         raise OSError(exc.errno, f"{exc.strerror or exc}; nothing was reduced",
                       f"output directory {outdir}") from None
-
-
-def _on_dask(tasks, scheduler, workers, collect):
-    """Run `reduce_file` on every task on dask; ``collect(task, row)`` as each finishes."""
-    if scheduler is None:
-        workers = min(2 if workers is None else workers, len(tasks))
-
-    def died(task, exc):  # the worker died (e.g. out of memory): report, go on
-        return {"status": "failed", "median": np.nan, "robust_std": np.nan, "unit": "",
-                "seconds": np.nan, "kind": "unexpected",
-                "error": f"{type(exc).__name__}: {_one_line(exc)}"}
-
-    map_on_dask(reduce_file, tasks, scheduler, workers, collect, died)
-
-
-def _bar(total, progress):
-    from tqdm import tqdm
-
-    return tqdm(total=total, disable=not progress, desc="reduce", unit="file")
 

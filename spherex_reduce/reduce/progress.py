@@ -18,7 +18,7 @@ import time
 from tqdm import tqdm
 
 from ..core._text import plural
-from ..reduce.scheduler import map_on_dask
+from .scheduler import map_on_dask
 
 __all__ = ["Progress", "format_duration", "run_tasks"]
 
@@ -37,7 +37,7 @@ def format_duration(seconds):
 
     Examples
     --------
-    >>> from spherex_reduce.analysis.progress import format_duration
+    >>> from spherex_reduce.reduce.progress import format_duration
     >>> format_duration(29400), format_duration(185), format_duration(12.3), format_duration(0.42)
     ('8 h 10 min', '3 min 5 s', '12 s', '0.4 s')
     >>> format_duration(3 * 86400 + 7200)
@@ -79,7 +79,7 @@ class Progress:
     Examples
     --------
     >>> import io
-    >>> from spherex_reduce.analysis.progress import Progress
+    >>> from spherex_reduce.reduce.progress import Progress
     >>> out = io.StringIO()
     >>> with Progress(10, "realisation", True, parallel=1, stream=out) as p:
     ...     p.done()
@@ -183,7 +183,7 @@ def run_tasks(function, tasks, scheduler, workers, collect, failed, *, noun, pro
 
     Examples
     --------
-    >>> from spherex_reduce.analysis.progress import run_tasks
+    >>> from spherex_reduce.reduce.progress import run_tasks
     >>> out = []
     >>> p = run_tasks(abs, [-1, -2], "serial", None, lambda t, r: out.append(r), None,
     ...               noun="number", progress=False)

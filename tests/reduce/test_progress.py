@@ -5,7 +5,7 @@ import time
 
 import pytest
 
-from spherex_reduce.analysis.progress import Progress, format_duration, run_tasks
+from spherex_reduce.reduce.progress import Progress, format_duration, run_tasks
 
 
 @pytest.mark.parametrize(("parallel", "expected"), [

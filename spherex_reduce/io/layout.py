@@ -29,10 +29,43 @@ per-integration slopes ``INTSLOPE``, ``INTERR``, ``INTDQ`` of a 4-D input) and
 skipped by `read`.
 """
 
+from pathlib import Path
+
 import numpy as np
 from astropy import units as u
 
 from ..core.errors import FormatError
+
+#: Compression suffixes and FITS extensions a file name may end with (case-insensitive).
+COMPRESSED_SUFFIXES = (".gz", ".bz2", ".fz", ".z")
+FITS_SUFFIXES = (".fits", ".fit", ".fts")
+
+
+def fits_stem(path):
+    """A FITS file's name without its compression suffix and FITS extension.
+
+    Parameters
+    ----------
+    path : str or path-like
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.layout import fits_stem
+    >>> fits_stem("darks/dark_01.fits.gz"), fits_stem("read_2.FITS"), fits_stem("notes.txt")
+    ('dark_01', 'read_2', 'notes.txt')
+    """
+    name = Path(path).name
+    for suffixes in (COMPRESSED_SUFFIXES, FITS_SUFFIXES):
+        for suffix in suffixes:
+            if name.lower().endswith(suffix) and len(name) > len(suffix):
+                name = name[:-len(suffix)]
+                break
+    return name
+
 
 RESERVED = {"PRIMARY", "SCI", "ERR", "DQ", "PHANTOM", "READOUT", "REFPIX", "REFPHANT", "REFDQ",
              "REFREADS"}

@@ -12,7 +12,6 @@ like `~spherex_reduce.io.FrameReader` does for one 3-D file, so a
 import contextlib
 import dataclasses
 import glob
-import itertools
 import os
 import re
 from pathlib import Path
@@ -27,6 +26,7 @@ from .fits_read import open_fits
 from .frames import RampReader, map_frames
 from .header_text import header_text
 from .input import InputOptions, apply_gain, apply_input
+from .layout import fits_stem
 from .pixels import FLOAT_FOR, physical, scaling, to_physical
 from .stable_file import StableFile, pread_into
 
@@ -64,10 +64,13 @@ def _check_read_names(paths, pattern):
             raise FormatError(f"--reads {pattern!r}: {path}: the name holds {odd[0]!r}, a digit "
                               "other than ASCII 0-9; read numbers are read from ASCII digits "
                               "only: rename the file")
-    for a, b in itertools.pairwise(paths):  # sorted: equal keys are neighbours
-        if natural_key(a) == natural_key(b):
-            raise FormatError(f"--reads {pattern!r}: {a} and {b} have the same read number: "
-                              "which comes first is not defined; keep one of them")
+    seen = {}  # the name without FITS and compression suffixes, its numbers as numbers
+    for path in paths:
+        key = tuple(natural_key(Path(path).parent / fits_stem(path).lower()))
+        if key in seen:
+            raise FormatError(f"--reads {pattern!r}: {seen[key]} and {path} have the same read "
+                              "number: which comes first is not defined; keep one of them")
+        seen[key] = path
 
 
 def read_file_paths(pattern):

@@ -47,6 +47,7 @@ from astropy.table import Table
 from ..core import dq
 from ..core.errors import ConfigError, SpherexReduceError
 from ..io import checksum_policy, current_dq_bits, foreign_dq_bits, read, write
+from ..io.layout import fits_stem
 from .batch_summary import SummaryFile, summary_table
 from .integrations import reduce_input
 from .pipeline import Pipeline, as_pipeline
@@ -61,21 +62,6 @@ log = logging.getLogger(__name__)
 OUTPUT_SUFFIX = "_reduced.fits"
 #: The summary table written in the output directory.
 SUMMARY_NAME = "summary.ecsv"
-#: Compression suffixes and FITS extensions taken off an input's name (case-insensitive).
-_COMPRESSED = (".gz", ".bz2", ".fz", ".z")
-_FITS = (".fits", ".fit", ".fts")
-
-
-def _stem(path):
-    name = Path(path).name
-    for suffixes in (_COMPRESSED, _FITS):
-        for suffix in suffixes:
-            if name.lower().endswith(suffix) and len(name) > len(suffix):
-                name = name[:-len(suffix)]
-                break
-    return name
-
-
 def output_paths(inputs, outdir):
     """The output of each input: ``outdir/<stem>_reduced.fits``.
 
@@ -112,7 +98,7 @@ def output_paths(inputs, outdir):
     seen = {}
     out = []
     for src in inputs:
-        path = Path(outdir) / f"{_stem(src)}{OUTPUT_SUFFIX}"
+        path = Path(outdir) / f"{fits_stem(src)}{OUTPUT_SUFFIX}"
         if path.name in seen:
             raise ConfigError(f"inputs {seen[path.name]} and {src} would both be reduced to "
                               f"{path}: give each input once, or reduce files of the same name "

@@ -27,7 +27,7 @@ from .description import describe, file_tables, image_shape, note_bad_checksums,
 from .fits_structure import _scan, _verify
 from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq
 from .input import InputOptions, apply_input
-from .pixels import physical
+from .pixels import physical, unpacking
 from .stable_file import StableFile
 
 __all__ = ["CheckedFITS", "checksum_policy", "integration_count", "is_raw_ramp_file",
@@ -324,6 +324,11 @@ def exposure_from_hdul(hdul, path, bad, stable, supplied, dq_bits=None, options=
     """The `Exposure` in an HDU list opened by `open_fits` (which the caller closes), its
     pixels read from ``stable`` (the file's `~spherex_reduce.io.stable_file.StableFile`;
     None for a file astropy unpacks)."""
+    with unpacking(path):  # astropy unpacks a compressed file's tables and pixels lazily
+        return _exposure(hdul, path, bad, stable, supplied, dq_bits, options, integration)
+
+
+def _exposure(hdul, path, bad, stable, supplied, dq_bits, options, integration):
     options = InputOptions.from_config(options)
     if stable is not None:  # the headers and tables below are still those checked
         stable.check()

@@ -12,7 +12,7 @@ from ..core.exposure import Exposure
 from .description import describe, file_tables
 from .fits_read import Closing, exposure_from_hdul, open_fits
 from .input import InputOptions, apply_gain, apply_input
-from .pixels import FITS_DTYPES, FLOAT_FOR, physical, scaling, to_physical
+from .pixels import FITS_DTYPES, FLOAT_FOR, physical, scaling, to_physical, unpacking
 from .stable_file import StableFile, pread_into
 
 __all__ = ["FrameReader", "RampReader"]
@@ -71,20 +71,21 @@ class FrameReader(RampReader):
         options = InputOptions.from_config(input)
         self._hdul, bad, plain = open_fits(path, verify=verify_checksum)
         try:
-            self._stable = StableFile(path) if plain else None  # whole reads (`exposure`)
-            d = describe(self._hdul, path, supplied, bad, options)
-            if len(d.shape) != 3 or d.order != "readout" or "DQ" in d.names \
-                    or "ERR" in d.names:
-                raise FormatError(f"{path} is not a raw ramp file in readout order")
-            self._d = d
-            self.schedule, self.header, self.unit = d.kept, d.header, d.unit
-            self._drop, self._gain = d.drop, d.gain
-            phantom = (np.asarray(physical(self._hdul["PHANTOM"], path, self._stable))
-                       if "PHANTOM" in d.names else None)
-            self._phantom = apply_input(d, None, None, None, phantom)[3]
-            self._scale = scaling(d.sci, path)
-            self._tables = file_tables(self._hdul, path)
-            self._map = map_frames(d.sci, path) if plain else None
+            with unpacking(path):  # astropy unpacks a compressed file lazily
+                self._stable = StableFile(path) if plain else None  # whole reads (`exposure`)
+                d = describe(self._hdul, path, supplied, bad, options)
+                if len(d.shape) != 3 or d.order != "readout" or "DQ" in d.names \
+                        or "ERR" in d.names:
+                    raise FormatError(f"{path} is not a raw ramp file in readout order")
+                self._d = d
+                self.schedule, self.header, self.unit = d.kept, d.header, d.unit
+                self._drop, self._gain = d.drop, d.gain
+                phantom = (np.asarray(physical(self._hdul["PHANTOM"], path, self._stable))
+                           if "PHANTOM" in d.names else None)
+                self._phantom = apply_input(d, None, None, None, phantom)[3]
+                self._scale = scaling(d.sci, path)
+                self._tables = file_tables(self._hdul, path)
+                self._map = map_frames(d.sci, path) if plain else None
         except Exception:
             self.close()
             raise
@@ -131,7 +132,8 @@ class FrameReader(RampReader):
         """Frame ``k`` as a one-frame `Exposure` (schedule with ``nframes=1``)."""
         k += self._drop
         if self._map is None:  # compressed: astropy unpacks (and scales) the section
-            data = np.asarray(self._d.sci.section[k : k + 1])
+            with unpacking(self.path):
+                data = np.asarray(self._d.sci.section[k : k + 1])
             if data.dtype.kind in "iu":
                 data = data.astype(FLOAT_FOR[self._d.sci.header["BITPIX"]])
         else:

@@ -7,6 +7,10 @@ stored values; the readers of whole files (`spherex_reduce.io.fits_read`) and
 of bands (`spherex_reduce.io.frames`, `spherex_reduce.io.read_files`) share it.
 """
 
+import contextlib
+import lzma
+import zlib
+
 import numpy as np
 from astropy.io import fits
 
@@ -14,11 +18,35 @@ from ..core.errors import FormatError
 from ..core.fields import header_keyword
 from ..core.limits import check_size
 
-__all__ = ["FITS_DTYPES", "FLOAT_FOR", "physical", "scaling", "to_physical"]
+__all__ = ["FITS_DTYPES", "FLOAT_FOR", "physical", "scaling", "to_physical", "unpacking"]
 
 #: the floating-point type each BITPIX is read as, and the type it is stored as
 FLOAT_FOR = {8: "f4", 16: "f4", 32: "f8", 64: "f8", -32: "f4", -64: "f8"}
 FITS_DTYPES = {8: "u1", 16: ">i2", 32: ">i4", 64: ">i8", -32: ">f4", -64: ">f8"}  # as stored
+
+
+@contextlib.contextmanager
+def unpacking(path):
+    """A ``with`` block in which astropy unpacks a compressed file's pixels: a stream that
+    ends early or is damaged (e.g. the file changed while it is read) is one
+    `~spherex_reduce.core.errors.FormatError` naming the file, not the decompressor's
+    `EOFError` or `zlib.error`.
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.pixels import unpacking
+    >>> try:
+    ...     with unpacking("a.fits.gz"):
+    ...         raise EOFError("Compressed file ended before the end-of-stream marker")
+    ... except ValueError as exc:
+    ...     print(str(exc).split(":")[0])
+    a.fits.gz
+    """
+    try:
+        yield
+    except (EOFError, zlib.error, lzma.LZMAError) as exc:
+        raise FormatError(f"{path}: the compressed data end early or are damaged ({exc}); "
+                          "was the file changed while it was read?") from None
 
 
 def scaling(hdu, path):
@@ -72,7 +100,8 @@ def physical(hdu, path, stable, flags=False, index=None):
     scale = scaling(hdu, path)
     unpacked = stable is None or isinstance(hdu, fits.CompImageHDU)  # by astropy
     if scale is None and unpacked:
-        return hdu.data if index is None else hdu.data[index]
+        with unpacking(path):
+            return hdu.data if index is None else hdu.data[index]
     if scale is None:  # in native byte order in place: no second copy
         stored = _stored(hdu, path, index, stable)
         if stored.dtype.isnative:
@@ -92,7 +121,8 @@ def physical(hdu, path, stable, flags=False, index=None):
     check_size(int(np.prod(part, dtype=float)) * dtype.itemsize,
                f"HDU {hdu.name!r} of {path} {part} scaled to {dtype}")
     if unpacked:  # astropy unpacks and scales
-        data = np.asarray(hdu.data)
+        with unpacking(path):
+            data = np.asarray(hdu.data)
         return (data if index is None else data[index]).astype(dtype)
     return to_physical(_stored(hdu, path, index, stable), scale, dtype)
 

@@ -27,7 +27,7 @@ from .frames import RampReader, map_frames
 from .header_text import header_text
 from .input import InputOptions, apply_gain, apply_input
 from .layout import fits_stem
-from .pixels import FLOAT_FOR, physical, scaling, to_physical
+from .pixels import FLOAT_FOR, physical, scaling, to_physical, unpacking
 from .stable_file import StableFile, pread_into
 
 __all__ = ["MAX_READ_FILES", "ReadFiles", "natural_key", "read_file_paths"]
@@ -121,41 +121,42 @@ class _ReadFile:
         self.hdul, bad, self.plain = open_fits(path, verify=verify)
         self.map = None
         try:
-            names = [h.name for h in self.hdul]
-            naxis = self.hdul["SCI" if "SCI" in names else 0].header.get("NAXIS", 0)
-            if naxis != 2:
-                raise FormatError(f"{path}: a file per read holds one 2-D image (rows x "
-                                  f"columns), its {'SCI' if 'SCI' in names else 'primary HDU'} "
-                                  f"has {naxis} axes")
-            try:
-                self.d = describe(self.hdul, path, supplied, bad, options,
-                                   decided=("nframes",))
-            except FormatError as exc:  # name the file: there are many
-                if str(path) in str(exc):
-                    raise
-                raise FormatError(f"{path}: {exc}") from exc
-            if "DQ" in self.d.names or "ERR" in self.d.names:
-                raise FormatError(f"{path}: a file per read holds the pixels only (and "
-                                  "optionally PHANTOM), not DQ or ERR")
-            sci = self.d.sci
-            self.scale = scaling(sci, path)
-            self.bitpix = sci.header["BITPIX"]
-            self.phantom = None
-            if "PHANTOM" in self.d.names:  # as a 3-D file's (FrameReader), in floats
-                hdu = self.hdul["PHANTOM"]
-                with StableFile(path) if self.plain else contextlib.nullcontext() as stable:
-                    self.phantom = np.array(physical(hdu, path, stable))
-                if self.phantom.dtype.kind != "f":
-                    self.phantom = self.phantom.astype(FLOAT_FOR[hdu.header["BITPIX"]])
-            #: the file's tables (only if asked: the first file's are the exposure's)
-            self.tables = file_tables(self.hdul, path) if tables else {}
-            if self.plain and hasattr(os, "preadv"):
-                self.map = map_frames(sci, path)
-            if self.map is not None:  # read with pread from one descriptor per file
-                mm, offset, stored, fd = self.map
-                mm.close()
-                self.map = (None, offset, stored, fd)
-                self.hdul.close()
+            with unpacking(path):  # astropy unpacks a compressed file lazily
+                names = [h.name for h in self.hdul]
+                naxis = self.hdul["SCI" if "SCI" in names else 0].header.get("NAXIS", 0)
+                if naxis != 2:
+                    raise FormatError(f"{path}: a file per read holds one 2-D image (rows x "
+                                      f"columns), its {'SCI' if 'SCI' in names else 'primary HDU'} "
+                                      f"has {naxis} axes")
+                try:
+                    self.d = describe(self.hdul, path, supplied, bad, options,
+                                       decided=("nframes",))
+                except FormatError as exc:  # name the file: there are many
+                    if str(path) in str(exc):
+                        raise
+                    raise FormatError(f"{path}: {exc}") from exc
+                if "DQ" in self.d.names or "ERR" in self.d.names:
+                    raise FormatError(f"{path}: a file per read holds the pixels only (and "
+                                      "optionally PHANTOM), not DQ or ERR")
+                sci = self.d.sci
+                self.scale = scaling(sci, path)
+                self.bitpix = sci.header["BITPIX"]
+                self.phantom = None
+                if "PHANTOM" in self.d.names:  # as a 3-D file's (FrameReader), in floats
+                    hdu = self.hdul["PHANTOM"]
+                    with StableFile(path) if self.plain else contextlib.nullcontext() as stable:
+                        self.phantom = np.array(physical(hdu, path, stable))
+                    if self.phantom.dtype.kind != "f":
+                        self.phantom = self.phantom.astype(FLOAT_FOR[hdu.header["BITPIX"]])
+                #: the file's tables (only if asked: the first file's are the exposure's)
+                self.tables = file_tables(self.hdul, path) if tables else {}
+                if self.plain and hasattr(os, "preadv"):
+                    self.map = map_frames(sci, path)
+                if self.map is not None:  # read with pread from one descriptor per file
+                    mm, offset, stored, fd = self.map
+                    mm.close()
+                    self.map = (None, offset, stored, fd)
+                    self.hdul.close()
         except Exception:
             self.close()
             raise
@@ -165,7 +166,8 @@ class _ReadFile:
         ncols = self.d.shape[1]
         if self.map is None:  # compressed: astropy unpacks (and scales) the section
             # (the file is kept open; also without pread, e.g. on Windows)
-            return np.asarray(self.d.sci.section[first:stop]).astype(dtype)
+            with unpacking(self.path):
+                return np.asarray(self.d.sci.section[first:stop]).astype(dtype)
         _, offset, stored, fd = self.map
         buf = pread_into(fd, np.empty((stop - first, ncols), stored),
                      offset + first * ncols * stored.itemsize,

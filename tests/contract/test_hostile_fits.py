@@ -537,3 +537,26 @@ def test_combine_records_every_input_read_despite_its_checksum(tmp_path, small_s
     with fits.open(master) as hdul:
         assert hdul[0].header["SXRCKBAD"] == "SCI"
         assert any("damaged.fits did not match" in h for h in hdul[0].header["HISTORY"])
+
+
+@pytest.mark.parametrize("module", ["gzip", "bz2", "lzma"])
+def test_a_compressed_file_cut_while_it_is_read_is_named(tmp_path, raw, module):
+    """The file is opened and checked whole, then cut before its pixels are unpacked (it
+    changed under the reader): one FormatError naming it, not the decompressor's EOFError
+    (exit 1 on the command line)."""
+    import importlib
+    import os
+
+    from spherex_reduce.io.fits_read import CheckedFITS
+
+    path = write(raw, tmp_path / "raw.fits")
+    packed = tmp_path / "raw.fits.z"
+    with importlib.import_module(module).open(packed, "wb") as fh:
+        fh.write(path.read_bytes())
+    reader = CheckedFITS(packed)
+    try:
+        os.truncate(packed, packed.stat().st_size // 2)
+        with pytest.raises(FormatError, match=r"raw\.fits\.z: the compressed data end early"):
+            reader.exposure()
+    finally:
+        reader.close()

@@ -71,16 +71,32 @@ def checksum_policy(verify=True):
 def open_fits(path, verify=None):
     """Open a FITS file read-only after checking its structure and checksums.
 
-    Returns ``(hdul, bad, plain)``: the astropy HDU list (not memory-mapped:
+    Returns ``(hdul, bad, stable)``: the astropy HDU list (not memory-mapped:
     the readers read pixels with explicit reads), the names of HDUs whose
     checksum failed (only when ``verify`` is False: else that is an error),
-    and whether the file is plain FITS on disk (not gzip etc., which astropy
-    unpacks).  ``verify=None`` follows `checksum_policy`.
+    and, for a plain FITS file on disk (not gzip etc., which astropy unpacks),
+    a `~spherex_reduce.io.stable_file.StableFile` opened before anything was
+    checked, so that a change made while the file is checked or read is seen
+    (None for a compressed file).  The caller closes both.  ``verify=None``
+    follows `checksum_policy`.
     """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}")
     verify = _VERIFY.get() if verify is None else verify
+    stable = StableFile(path)
+    try:
+        hdul, bad, plain = _open_checked(path, verify)
+    except BaseException:
+        stable.close()
+        raise
+    if not plain:
+        stable.close()
+        stable = None
+    return hdul, bad, stable
+
+
+def _open_checked(path, verify):
     hdus = _scan(path)
     bad = _verify(path, hdus) if hdus else []
     if bad:
@@ -90,7 +106,6 @@ def open_fits(path, verify=None):
             raise FormatError(f"{msg}; to read it anyway, pass --ignore-checksum "
                               "(verify_checksum=False)")
         log.warning("%s; read anyway (checksum verification off)", msg)
-    plain = hdus is not None
     try:
         hdul = fits.open(path, memmap=False, mode="readonly")
     except OSError as exc:
@@ -101,7 +116,7 @@ def open_fits(path, verify=None):
     except BaseException:
         hdul.close()
         raise
-    return hdul, bad, plain
+    return hdul, bad, hdus is not None
 
 
 def _check_cards(hdu, path):
@@ -159,12 +174,7 @@ class CheckedFITS(Closing):
 
     def __init__(self, path, verify_checksum=None):
         self.path, self._name = Path(path), path  # messages name the path as given
-        self.hdul, self.bad, plain = open_fits(path, verify_checksum)
-        try:
-            self._stable = StableFile(path) if plain else None
-        except BaseException:
-            self.hdul.close()
-            raise
+        self.hdul, self.bad, self._stable = open_fits(path, verify_checksum)
 
     def close(self):
         """Close the file (arrays already returned stay valid)."""

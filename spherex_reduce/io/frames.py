@@ -13,7 +13,7 @@ from .description import describe, file_tables
 from .fits_read import Closing, exposure_from_hdul, open_fits
 from .input import InputOptions, apply_gain, apply_input
 from .pixels import FITS_DTYPES, FLOAT_FOR, physical, scaling, to_physical, unpacking
-from .stable_file import StableFile, pread_into
+from .stable_file import pread_into
 
 __all__ = ["FrameReader", "RampReader"]
 
@@ -69,10 +69,10 @@ class FrameReader(RampReader):
         self.path = Path(path)
         self._map = self._stable = None
         options = InputOptions.from_config(input)
-        self._hdul, bad, plain = open_fits(path, verify=verify_checksum)
+        self._hdul, bad, self._stable = open_fits(path, verify=verify_checksum)
+        plain = self._stable is not None
         try:
             with unpacking(path):  # astropy unpacks a compressed file lazily
-                self._stable = StableFile(path) if plain else None  # whole reads (`exposure`)
                 d = describe(self._hdul, path, supplied, bad, options)
                 if len(d.shape) != 3 or d.order != "readout" or "DQ" in d.names \
                         or "ERR" in d.names:

@@ -9,7 +9,6 @@ like `~spherex_reduce.io.FrameReader` does for one 3-D file, so a
 `~spherex_reduce.io.sources.FileSource` streams them.  The files are never modified.
 """
 
-import contextlib
 import dataclasses
 import glob
 import os
@@ -28,7 +27,7 @@ from .header_text import header_text
 from .input import InputOptions, apply_gain, apply_input
 from .layout import fits_stem
 from .pixels import FLOAT_FOR, physical, scaling, to_physical, unpacking
-from .stable_file import StableFile, pread_into
+from .stable_file import pread_into
 
 __all__ = ["MAX_READ_FILES", "ReadFiles", "natural_key", "read_file_paths"]
 
@@ -118,7 +117,8 @@ class _ReadFile:
 
     def __init__(self, path, verify, supplied, tables=False, options=None):
         self.path = path
-        self.hdul, bad, self.plain = open_fits(path, verify=verify)
+        self.hdul, bad, stable = open_fits(path, verify=verify)
+        self.plain = stable is not None
         self.map = None
         try:
             with unpacking(path):  # astropy unpacks a compressed file lazily
@@ -144,8 +144,7 @@ class _ReadFile:
                 self.phantom = None
                 if "PHANTOM" in self.d.names:  # as a 3-D file's (FrameReader), in floats
                     hdu = self.hdul["PHANTOM"]
-                    with StableFile(path) if self.plain else contextlib.nullcontext() as stable:
-                        self.phantom = np.array(physical(hdu, path, stable))
+                    self.phantom = np.array(physical(hdu, path, stable))
                     if self.phantom.dtype.kind != "f":
                         self.phantom = self.phantom.astype(FLOAT_FOR[hdu.header["BITPIX"]])
                 #: the file's tables (only if asked: the first file's are the exposure's)
@@ -160,6 +159,9 @@ class _ReadFile:
         except Exception:
             self.close()
             raise
+        finally:  # what is read later is read through the map's own descriptor
+            if stable is not None:
+                stable.close()
 
     def rows(self, first, stop, dtype):
         """Rows ``first:stop`` of the image as ``dtype`` (physical values, native order)."""

@@ -50,3 +50,33 @@ def test_a_read_past_the_end_is_named(tmp_path):
             pread_into(fd, np.empty(20, ">f4"), 0, "f.bin: the file ends inside frame 3")
     finally:
         os.close(fd)
+
+
+def test_a_file_changed_while_its_checksums_are_verified_is_named(tmp_path, monkeypatch):
+    """The reader's stamp is taken before the checks: a file rewritten while its checksums
+    are verified (then read) is refused, not read as bytes nobody checked."""
+    import time
+
+    from spherex_reduce import write
+    from spherex_reduce.io import fits_read
+    from spherex_reduce.io.examples import example_raw_exposure
+    from spherex_reduce.io.fits_read import CheckedFITS
+
+    path = write(example_raw_exposure(seed=1), tmp_path / "raw.fits")
+    verify = fits_read._verify
+
+    def verify_then_change(p, hdus):
+        bad = verify(p, hdus)
+        time.sleep(0.01)  # a new modification time
+        with open(p, "r+b") as f:  # the same size, other bytes (the last data block)
+            f.seek(-8, os.SEEK_END)
+            f.write(b"\x7f" * 8)
+        return bad
+
+    monkeypatch.setattr(fits_read, "_verify", verify_then_change)
+    reader = CheckedFITS(path)
+    try:
+        with pytest.raises(FormatError, match=r"raw\.fits changed while it was read"):
+            reader.exposure()
+    finally:
+        reader.close()

@@ -136,8 +136,11 @@ class FrameReader(RampReader):
                 data = np.asarray(self._d.sci.section[k : k + 1])
             if data.dtype.kind in "iu":
                 data = data.astype(FLOAT_FOR[self._d.sci.header["BITPIX"]])
-        else:
-            data = self._mapped_frame(k)
+        else:  # explicit reads (`reads`), converted to native order or scaled
+            stored = self.reads(k - self._drop, 0, self._d.shape[1])
+            data = (stored.astype(stored.dtype.newbyteorder("=")) if self._scale is None else
+                    to_physical(stored, self._scale, FLOAT_FOR[self._d.sci.header["BITPIX"]]))
+            data = data[None]
         data = self.scale(data)
         phantom = None if self._phantom is None else self._phantom[k - self._drop:][:1]
         return Exposure.from_arrays(data, self.schedule.replace(nframes=1), unit=self.unit,
@@ -159,8 +162,10 @@ class FrameReader(RampReader):
         """Reads ``first:stop`` of frame ``k`` (after the dropped frames) as they are in the
         file (a copy): `scale` applies the gain.
 
-        Read with ``pread``: no page of the memory map is touched, and several
-        threads may read at once.  Only for files `readable_in_bands`.
+        Read with ``pread``: no page of the memory map is touched (a file cut
+        while it is read is an error naming it, never ``SIGBUS``), and several
+        threads may read at once.  The executor's bands use it for files
+        `readable_in_bands`; `frame` for any file stored as it is on disk.
 
         Returns
         -------
@@ -187,25 +192,6 @@ class FrameReader(RampReader):
         length = (start + nbytes - page) // mmap.PAGESIZE * mmap.PAGESIZE
         if length:
             mm.madvise(mmap.MADV_DONTNEED, page, length)
-
-    def _mapped_frame(self, k):
-        """Frame ``k`` copied from the mapped file into a native-endian array.
-
-        The file's pages are then released from this process (``MADV_DONTNEED``):
-        they stay in the page cache, but the resident memory stays near one frame.
-        """
-        mm, offset, dtype, _ = self._map
-        shape = self._d.shape[1:]
-        count = int(np.prod(shape))
-        start = offset + k * count * dtype.itemsize
-        view = np.frombuffer(mm, dtype=dtype, count=count, offset=start).reshape(shape)
-        if self._scale is None:
-            data = view.astype(view.dtype.newbyteorder("="))
-        else:  # BZERO + BSCALE * stored, in floating point
-            data = to_physical(view, self._scale, FLOAT_FOR[self._d.sci.header["BITPIX"]])
-        del view
-        self._release(start, count * dtype.itemsize)
-        return data[None]
 
 
 def map_frames(hdu, path):

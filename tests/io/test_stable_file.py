@@ -80,3 +80,19 @@ def test_a_file_changed_while_its_checksums_are_verified_is_named(tmp_path, monk
             reader.exposure()
     finally:
         reader.close()
+
+
+def test_a_frame_of_a_file_cut_while_it_is_open_is_an_error_not_a_signal(tmp_path):
+    """FrameReader.frame read from a memory map: a frame past the new end killed the
+    process with SIGBUS.  It reads with pread now."""
+    from spherex_reduce import write
+    from spherex_reduce.io import FrameReader
+    from spherex_reduce.io.examples import example_raw_exposure
+
+    path = write(example_raw_exposure(seed=1), tmp_path / "raw.fits")
+    with FrameReader(path) as frames:
+        first = frames.frame(0).data.data
+        os.truncate(path, path.stat().st_size // 2)
+        with pytest.raises(FormatError, match=r"raw\.fits: the file ends inside frame"):
+            frames.frame(frames.nframes - 1)
+    assert np.isfinite(first).all()

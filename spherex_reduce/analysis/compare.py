@@ -28,10 +28,10 @@ import contextlib
 import functools
 import hashlib
 import json
+import logging
 import math
 import time
 import traceback
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,7 +45,7 @@ from ..io.config import load_yaml
 from ..io.plotting import save_figure
 from ..noise import expected_slope_variance
 from ..reduce.pipeline import as_pipeline
-from ..reduce.progress import run_tasks
+from ..reduce.progress import run_tasks, task_notes
 from ..simulation import load_scene
 from .case import (
     SpectrumMeasure,
@@ -71,6 +71,8 @@ __all__ = [
     "summarize",
     "white_floor",
 ]
+
+log = logging.getLogger(__name__)
 
 _TOP = ("scene", "sky", "pipelines", "realizations", "seed", "measure")
 _SKY = {"rms": 0.05, "index": -2.0, "seed": 0}
@@ -275,15 +277,15 @@ def run_realization(task):
 
     Returns ``{"realization": r, "rows": [...]}`` (one row per pipeline:
     `measure_against_sky`'s values, ``pipeline``, ``seconds`` of the
-    reduction alone, and ``warnings``: the ``(category, message)`` of the
-    warnings raised, for `compare_strategies` to show once every realisation
-    has succeeded), or ``{"realization": r, "error": message}``; never raises.
+    reduction alone, and ``warnings``: the warnings raised and logged, one
+    line each (`~spherex_reduce.reduce.progress.task_notes`), for
+    `compare_strategies` to show once every realisation has succeeded), or
+    ``{"realization": r, "error": message}``; never raises.
     """
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
+    with task_notes() as notes:
         res = _realization(task)
     if "error" not in res:
-        res["warnings"] = [(w.category, str(w.message)) for w in caught]
+        res["warnings"] = notes
     return res
 
 
@@ -492,10 +494,10 @@ def compare_strategies(comparison, output=None, *, plot=None, scheduler=None, wo
                                  f"failed: {failed[0]['error']}{more}")
     shown = set()
     for res in sorted(results, key=lambda r: r["realization"]):  # each once, all succeeded
-        for category, text in res.get("warnings", ()):
-            if (category, text) not in shown:
-                shown.add((category, text))
-                warnings.warn(text, category, stacklevel=2)
+        for text in res.get("warnings", ()):
+            if text not in shown:
+                shown.add(text)
+                log.warning("%s", text)
     label = photon_noise_label(1 * u.electron / u.s, schedule=sc.schedule)
     table = _table(results, cmp, floor, photon, label)
     with contextlib.ExitStack() as stack:  # the table and the plot: both or neither

@@ -28,13 +28,11 @@ work unless ``overwrite`` is given.  Each file is reduced by `Pipeline.run
 numbers do not depend on the number of workers.
 """
 
-import contextlib
 import errno
 import hashlib
 import logging
 import time
 import uuid
-import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,7 +49,7 @@ from ..io.layout import fits_stem
 from .batch_summary import SummaryFile, summary_table
 from .integrations import reduce_input
 from .pipeline import Pipeline, as_pipeline
-from .progress import run_tasks
+from .progress import run_tasks, task_notes
 
 __all__ = ["OUTPUT_SUFFIX", "SUMMARY_NAME", "BatchResult", "finished_row", "image_statistics",
            "input_digest", "output_paths", "reduce_file", "run_batch"]
@@ -156,36 +154,6 @@ def image_statistics(exposure):
 
 
 # -- one file, on a worker ----------------------------------------------------------------
-@contextlib.contextmanager
-def _notes():
-    """Collect the warnings issued and logged (at WARNING or above) while reducing a file.
-
-    On a worker they would go to the worker's stderr, unlabelled; they are
-    returned with the file's result and logged by `run_batch`, naming the file.
-    """
-    notes = []
-
-    class Collect(logging.Handler):
-        def emit(self, record):
-            notes.append(" ".join(record.getMessage().split()))
-
-    logger = logging.getLogger("spherex_reduce")
-    handler = Collect(logging.WARNING)
-    propagate, logger.propagate = logger.propagate, False
-    logger.addHandler(handler)
-    try:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            yield notes
-    finally:
-        logger.removeHandler(handler)
-        logger.propagate = propagate
-        for w in caught:
-            text = " ".join(str(w.message).split())
-            if text not in notes:
-                notes.append(text)
-
-
 def _one_line(exc):
     if isinstance(exc, OSError) and exc.strerror and exc.filename is not None:
         return f"{exc.filename}: {exc.strerror}"
@@ -349,7 +317,7 @@ def reduce_file(task):
            "median": np.nan, "robust_std": np.nan, "unit": "", "error": "", "kind": "",
            "notes": []}
     try:
-        with _notes() as notes, checksum_policy(verify=task.get("verify_checksum", True)), \
+        with task_notes() as notes, checksum_policy(verify=task.get("verify_checksum", True)), \
                 foreign_dq_bits(task.get("dq_bits", current_dq_bits())):
             row["notes"] = notes
             pipeline = Pipeline(task["config"], source=task["source"])

@@ -11,16 +11,19 @@ fails (even after its estimate), the one error line.
 Both are off with ``enabled=False`` (the command line's ``-q``).
 """
 
+import contextlib
+import logging
 import math
 import sys
 import time
+import warnings
 
 from tqdm import tqdm
 
 from ..core._text import plural
 from .scheduler import map_on_dask
 
-__all__ = ["Progress", "format_duration", "run_tasks"]
+__all__ = ["Progress", "format_duration", "run_tasks", "task_notes"]
 
 
 def format_duration(seconds):
@@ -206,3 +209,45 @@ def run_tasks(function, tasks, scheduler, workers, collect, failed, *, noun, pro
             map_on_dask(timed, tasks, scheduler, workers, done,
                         lambda task, exc: (None, failed(task, exc)))
     return bar
+
+
+@contextlib.contextmanager
+def task_notes():
+    """Collect, as one-line texts, the warnings issued and logged (at WARNING or above) by
+    the package while one task runs (a batch's file, a comparison's realisation).
+
+    On a dask worker they would go to the worker's stderr, unlabelled and
+    before any error; the task returns them with its result, and the command
+    shows them once, naming what they came from, when it knows the run
+    succeeded.
+
+    Examples
+    --------
+    >>> import warnings
+    >>> from spherex_reduce.reduce.progress import task_notes
+    >>> with task_notes() as notes:
+    ...     warnings.warn("channel 3 has no reference pixels")
+    >>> notes
+    ['channel 3 has no reference pixels']
+    """
+    notes = []
+
+    class Collect(logging.Handler):
+        def emit(self, record):
+            notes.append(" ".join(record.getMessage().split()))
+
+    logger = logging.getLogger("spherex_reduce")
+    handler = Collect(logging.WARNING)
+    propagate, logger.propagate = logger.propagate, False
+    logger.addHandler(handler)
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            yield notes
+    finally:
+        logger.removeHandler(handler)
+        logger.propagate = propagate
+        for w in caught:
+            text = " ".join(str(w.message).split())
+            if text not in notes:
+                notes.append(text)

@@ -256,8 +256,10 @@ def read(path, verify_checksum=None, dq_bits=None, input=None, integration=None,
     path : str or `pathlib.Path`
         FITS file.  It is opened read-only and never changed; its pixels are
         read with explicit reads (nothing memory-mapped: a file truncated or
-        rewritten while it is read is a `FormatError`, never a ``SIGBUS``);
-        the arrays of the returned exposure are read-only.  Integer data with
+        rewritten while it is read is a `FormatError`, never a ``SIGBUS``),
+        so the whole file is in memory when this returns (to reduce a
+        full-size raw file, give `~spherex_reduce.Pipeline.run` its path: it
+        streams it in bands); the arrays of the returned exposure are read-only.  Integer data with
         ``BSCALE``/``BZERO``/``BLANK`` are scaled to floating point
         (``float32`` for 8- and 16-bit data, else ``float64``; ``BLANK`` is
         NaN) in memory.

@@ -25,6 +25,7 @@ from ..io.input import InputOptions
 from ..io.sources import MemorySource, open_input
 from .passes import PlannedStep, Whole, plan_pass, run_pass
 from .plugins import Registry, blame_plugin
+from .progress import terminal_bar
 
 __all__ = ["Pipeline", "as_pipeline"]
 
@@ -242,27 +243,10 @@ class Pipeline:
         return result.replace(header=header)
 
 
-class _NoBar:
-    """What a progress bar offers, doing nothing (no tqdm import when there is no bar)."""
-
-    def update(self, n=1):
-        pass
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        return False
-
-
 def _bar(progress, **kwargs):
-    """A tqdm bar shown after a second (a bad input is refused before any bar is drawn),
-    or a `_NoBar` without ``progress``."""
-    if not progress:
-        return _NoBar()
-    from tqdm.auto import tqdm
-
-    return tqdm(leave=False, delay=1.0, **kwargs)
+    """A tqdm bar shown after a second (a bad input is refused before any bar is drawn) on
+    a terminal (`~spherex_reduce.reduce.progress.terminal_bar`)."""
+    return terminal_bar(progress, leave=False, delay=1.0, **kwargs)
 
 
 class _Run:

@@ -18,12 +18,63 @@ import sys
 import time
 import warnings
 
-from tqdm import tqdm
-
 from ..core._text import plural
-from .scheduler import map_on_dask
 
-__all__ = ["Progress", "format_duration", "run_tasks", "task_notes"]
+__all__ = ["Progress", "format_duration", "run_tasks", "task_notes", "terminal_bar"]
+
+
+class _NoBar:
+    """What a progress bar offers, doing nothing (tqdm is not even imported)."""
+
+    def update(self, n=1):
+        pass
+
+    def close(self):
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
+def terminal_bar(enabled=True, stream=None, **kwargs):
+    """A tqdm progress bar, shown only when ``enabled`` and ``stream`` is a terminal.
+
+    Every bar of the package is made here, so none writes its cursor codes
+    into a log or a file that stderr was redirected to.
+
+    Parameters
+    ----------
+    enabled : bool
+        False (the command line's ``-q``): no bar.
+    stream : file, optional
+        Where the bar goes (default `sys.stderr`).
+    **kwargs
+        For `tqdm.tqdm` (``total``, ``desc``, ``iterable`` ...).
+
+    Returns
+    -------
+    `tqdm.tqdm`, or an object with its ``update``, ``close`` and ``with``
+    that does nothing; given an ``iterable`` and no bar, the iterable itself.
+
+    Examples
+    --------
+    >>> import io
+    >>> from spherex_reduce.reduce.progress import terminal_bar
+    >>> log = io.StringIO()  # not a terminal: no bar, nothing written
+    >>> with terminal_bar(True, log, total=3) as bar:
+    ...     bar.update(3)
+    >>> log.getvalue(), list(terminal_bar(True, log, iterable=[1, 2]))
+    ('', [1, 2])
+    """
+    stream = sys.stderr if stream is None else stream
+    if not (enabled and getattr(stream, "isatty", lambda: False)()):
+        return kwargs["iterable"] if "iterable" in kwargs else _NoBar()
+    from tqdm import tqdm
+
+    return tqdm(file=stream, **kwargs)
 
 
 def format_duration(seconds):
@@ -94,14 +145,11 @@ class Progress:
         self.total, self.noun, self.enabled = int(total), noun, bool(enabled)
         self.parallel = parallel
         self.stream = sys.stdout if stream is None else stream
-        bar_stream = sys.stderr if bar_stream is None else bar_stream
         self.start = time.perf_counter()
         self.count = 0
         #: the expected duration of the whole run (s), once the first task is done
         self.expected = None
-        terminal = getattr(bar_stream, "isatty", lambda: False)()
-        self._bar = tqdm(total=self.total, disable=not (self.enabled and terminal),
-                         desc=f"{noun}s", file=bar_stream)
+        self._bar = terminal_bar(self.enabled, bar_stream, total=self.total, desc=f"{noun}s")
 
     def __enter__(self):
         return self
@@ -205,6 +253,8 @@ def run_tasks(function, tasks, scheduler, workers, collect, failed, *, noun, pro
                 seconds, result = out
                 collect(task, result)
                 bar.done(seconds)
+
+            from .scheduler import map_on_dask
 
             map_on_dask(timed, tasks, scheduler, workers, done,
                         lambda task, exc: (None, failed(task, exc)))

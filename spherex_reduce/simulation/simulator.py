@@ -11,6 +11,7 @@ from ..core.errors import ConfigError
 from ..core.exposure import Exposure
 from ..io import atomic_output, write, write_frames
 from ..reduce.plugins import get_registry
+from ..reduce.progress import terminal_bar
 from ..reduce.step import Simulator
 from .engine import NoiseEngine
 from .grouping import average_groups, read_schedule
@@ -262,9 +263,7 @@ def simulate_to_fits(scene, path, *, mode=None, seed=None, overwrite=False, prog
         return write(_simulate(sc, mode=mode, seed=seed), path, overwrite=overwrite)
     s = sc.schedule
     frames = average_groups(_frames(sc, engine), s)
-    if progress:
-        from tqdm.auto import tqdm
-
-        frames = tqdm(frames, total=s.nframes, unit="frame", desc="simulate ramps")
+    frames = terminal_bar(progress, iterable=frames, total=s.nframes, unit="frame",
+                          desc="simulate ramps")
     return write_frames(frames, path, s, header=_header(sc, mode, seed, engine), unit=u.electron,
                         dtype=engine.dtype, overwrite=overwrite)

@@ -63,3 +63,12 @@ def test_simulate_to_fits_slopes_and_nothing_left_on_error(scene_file, tmp_path)
     with pytest.raises(ValueError):
         simulate_to_fits(str(scene_file), tmp_path / "b.fits", mode="cube")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.fits", "scene.yaml"]
+
+
+def test_no_progress_bar_is_written_to_a_stderr_that_is_not_a_terminal(scene_file, tmp_path,
+                                                                        capsys):
+    """Without -q the frames' bar is shown on a terminal only: redirected, stderr stays
+    empty (tqdm wrote its cursor codes into logs)."""
+    assert main(["simulate", str(scene_file), "-o", str(tmp_path / "raw.fits")]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == "" and "wrote" in captured.out

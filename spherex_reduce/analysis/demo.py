@@ -1,5 +1,6 @@
 """The demonstration run behind ``spherex-reduce demo``: the paper's case end to end."""
 
+import os
 from pathlib import Path
 
 from astropy import units as u
@@ -17,13 +18,16 @@ from . import (
 )
 from .plots import plot_spectra
 
-__all__ = ["PRODUCTS", "run_demo"]
+__all__ = ["PRODUCTS", "RAW_PRODUCTS", "run_demo"]
 
 #: Files the demo writes into its output directory.
 PRODUCTS = (
-    "raw_chopped.fits", "raw_unchopped.fits", "reduced_chopped.fits", "reduced_unchopped.fits",
-    "spectra.ecsv", "spectra.png", "images.png", "read_order.png",
+    "reduced_chopped.fits", "reduced_unchopped.fits", "spectra.ecsv", "spectra.png",
+    "images.png", "read_order.png",
 )
+#: The raw files it simulates and reduces from, kept only when asked (``keep_raw``:
+#: 1.28 GB each at full size).
+RAW_PRODUCTS = ("raw_chopped.fits", "raw_unchopped.fits")
 
 #: The comparison case: rows read in physical order, no reference correction.
 UNCORRECTED_PIPELINE = {
@@ -44,7 +48,8 @@ def _scene(size, nframes, skip, seed):
     }
 
 
-def run_demo(outdir, overwrite=False, progress=True, size=2048, nframes=74, seed=2024):
+def run_demo(outdir, overwrite=False, progress=True, size=2048, nframes=74, seed=2024,
+             keep_raw=False):
     """Simulate, reduce and measure the paper's case; yields lines of a summary.
 
     Two exposures with every noise term of the paper's Table 2 are simulated
@@ -70,19 +75,29 @@ def run_demo(outdir, overwrite=False, progress=True, size=2048, nframes=74, seed
         Frames up the ramp (74 in the paper).
     seed : int
         Seed of both simulations.
+    keep_raw : bool
+        Keep the simulated raw files (:data:`RAW_PRODUCTS`) in ``outdir``;
+        otherwise each is simulated into a temporary file there, reduced and
+        removed.
     """
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
-    for name in PRODUCTS:  # refuse before doing any work
+    products = (*RAW_PRODUCTS, *PRODUCTS) if keep_raw else PRODUCTS
+    for name in products:  # refuse before doing any work
         atomic_output(outdir / name, overwrite)
     cases = {"chopped": (24, as_pipeline("spherex-default")),
              "unchopped": (1, as_pipeline(UNCORRECTED_PIPELINE))}
     spectra, reduced, summary = {}, {}, {}
     for label, (skip, pipeline) in cases.items():
         # simulated into a file and reduced from it, frame by frame: full size fits in memory
-        case = run_case(_scene(size, nframes, skip, seed), {label: pipeline}, SpectrumMeasure(),
-                        seed=seed, raw_path=outdir / f"raw_{label}.fits", overwrite=overwrite,
-                        progress=progress, keep=True)
+        raw = outdir / (f"raw_{label}.fits" if keep_raw else f".raw_{label}.{os.getpid()}.fits")
+        try:
+            case = run_case(_scene(size, nframes, skip, seed), {label: pipeline},
+                            SpectrumMeasure(), seed=seed, raw_path=raw,
+                            overwrite=overwrite or not keep_raw, progress=progress, keep=True)
+        finally:
+            if not keep_raw:
+                raw.unlink(missing_ok=True)
         result, measured = case.reduced[label], case.measured[label]
         write(result, outdir / f"reduced_{label}.fits", overwrite=overwrite)
         reduced[label] = result
@@ -121,7 +136,7 @@ def run_demo(outdir, overwrite=False, progress=True, size=2048, nframes=74, seed
     yield (f"band power {band_label()}: {summary['unchopped']:.4g} uncorrected -> "
            f"{summary['chopped']:.4g} with chopping and reference correction "
            f"({ratio:.1f}x lower); photon noise of 1 e/s: {photon:.4g}")
-    for name in PRODUCTS:
+    for name in products:
         yield f"wrote {outdir / name}"
 
 

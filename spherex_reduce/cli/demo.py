@@ -9,8 +9,10 @@ def add_parser(sub):
     p = sub.add_parser(
         "demo", help="simulate, reduce and measure the paper's case on built-in defaults",
         description="Simulate raw ramps of the paper's readout (S=24, r=32, c=4, N=74) and of "
-        "the same array read without chopping, reduce both, and write FITS files, the spatial "
-        "power spectra (ECSV) and plots to a directory. Full size writes about 2.5 GB.")
+        "the same array read without chopping, reduce both, and write the reduced images "
+        "(FITS), the spatial power spectra (ECSV) and plots to a directory (about 35 MB at "
+        "full size). The raw files are simulated into the directory and removed once reduced "
+        "unless --keep-raw (2 x 1.28 GB at full size).")
     p.add_argument("-o", "--output", default="spherex-demo", metavar="DIR",
                    help="output directory (default: %(default)s)")
     p.add_argument("--size", type=count(2**16), default=2048,
@@ -19,6 +21,8 @@ def add_parser(sub):
                    help="frames up the ramp (default: 74)")
     p.add_argument("--seed", type=int, default=2024, help="simulation seed")
     p.add_argument("--overwrite", action="store_true", help="replace files in DIR")
+    p.add_argument("--keep-raw", action="store_true",
+                   help="keep the simulated raw files raw_chopped.fits and raw_unchopped.fits")
     p.set_defaults(func=run)
 
 
@@ -34,5 +38,6 @@ def run(args):
     # a few float64 images of the array at once (the ramps are streamed frame by frame)
     check_size(8 * 8 * args.size**2, f"--size {args.size} (a {args.size} x {args.size} array)")
     for line in run_demo(Path(args.output), overwrite=args.overwrite, progress=not args.quiet,
-                         size=args.size, nframes=args.nframes, seed=args.seed):
+                         size=args.size, nframes=args.nframes, seed=args.seed,
+                         keep_raw=args.keep_raw):
         print(line, flush=True)

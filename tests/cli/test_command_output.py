@@ -63,7 +63,8 @@ def demo_dir(tmp_path_factory):
     import spherex_reduce.analysis.demo as demo
 
     out = tmp_path_factory.mktemp("demo")
-    figs = saved_figures(demo, ["-q", "demo", "--size", "256", "--nframes", "3", "-o", str(out)])
+    figs = saved_figures(demo, ["-q", "demo", "--size", "256", "--nframes", "3", "-o", str(out),
+                                        "--keep-raw"])
     return out, figs
 
 

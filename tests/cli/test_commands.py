@@ -115,13 +115,14 @@ def test_plugins_lists_providers(capsys):
 
 
 def test_demo_runs_and_refuses_to_overwrite(tmp_path, capsys):
-    from spherex_reduce.analysis.demo import PRODUCTS
+    from spherex_reduce.analysis.demo import PRODUCTS, RAW_PRODUCTS
 
-    assert run("-q", "demo", "-o", tmp_path / "d", "--size", 128, "--nframes", 6) == 0
+    assert run("-q", "demo", "-o", tmp_path / "d", "--size", 128, "--nframes", 6,
+               "--keep-raw") == 0
     out = capsys.readouterr().out
     assert "band power 0.03 ≤ k ≤ 0.13 rad/pixel (θ = 4.99–21.6′)" in out
     assert "photon noise of 1 e/s" in out
-    assert {p.name for p in (tmp_path / "d").iterdir()} == set(PRODUCTS)
+    assert {p.name for p in (tmp_path / "d").iterdir()} == {*PRODUCTS, *RAW_PRODUCTS}
     raw = read(tmp_path / "d" / "raw_chopped.fits")
     assert raw.schedule.skip == 24 and raw.is_ramp and raw.schedule.nframes == 6
     reduced = read(tmp_path / "d" / "reduced_chopped.fits")
@@ -142,3 +143,13 @@ def test_console_script_unexpected_and_usage(tmp_path):
     r = subprocess.run([*exe, "reduce", str(tmp_path / "none.fits"), "-c", "unchop", "-o",
                         str(tmp_path / "o.fits")], capture_output=True, text=True)
     assert r.returncode == 2 and "Traceback" not in r.stderr
+
+
+def test_demo_removes_its_raw_files_unless_asked(tmp_path, capsys):
+    """The README promises FITS images, a table and plots: the raw ramps (2 x 1.28 GB at
+    full size) are simulated into the directory and removed once reduced."""
+    from spherex_reduce.analysis.demo import PRODUCTS
+
+    assert run("-q", "demo", "-o", tmp_path / "d", "--size", 64, "--nframes", 3) == 0
+    assert sorted(p.name for p in (tmp_path / "d").iterdir()) == sorted(PRODUCTS)
+    assert "raw_chopped.fits" not in capsys.readouterr().out

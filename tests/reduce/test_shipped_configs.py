@@ -26,7 +26,8 @@ from spherex_reduce.io.config import shipped_configs
 from spherex_reduce.io.examples import example_raw_exposure, tiny_schedule
 from spherex_reduce.reduce.steps.reference_strategies import NoReferenceError
 
-CONFIGS = ["spherex-default", "spherex-slopes", "measured-dark-pair", "acn", "median"]
+CONFIGS = ["spherex-default", "spherex-slopes", "measured-dark-pair", "acn", "median",
+           "phantom-only"]
 
 
 def by_hand(raw, strategy="mean", **params):
@@ -180,3 +181,12 @@ def test_fourier_filter_plugin_through_the_entry_point():
     streamed_frames = correct_reference(unchop(raw), "fourier", registry=reg)
     np.testing.assert_allclose(streamed_frames.data.data, expected, atol=1e-9)
     assert len(out.tables["REFOFFS"]) == 3 * 4
+
+
+def test_phantom_only_is_the_corrections_without_the_reference_step():
+    """The demo's comparison pipeline, shipped: slopes, unchop, phantom, 5 sigma clip."""
+    raw = example_raw_exposure(tiny_schedule(nframes=5))
+    out = Pipeline.from_yaml("phantom-only").run(raw)
+    ref = sigma_clip(subtract_phantom(unchop(fit_ramp(raw))), sigma=5.0)
+    np.testing.assert_allclose(out.data.data, ref.data.data, rtol=1e-6, atol=1e-6)
+    assert "S_REFCOR" not in out.header

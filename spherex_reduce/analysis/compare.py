@@ -319,6 +319,24 @@ class CompareResult:
     seconds: float = 0.0
 
 
+#: What each column of a comparison's results holds.
+COMPARE_COLUMNS = {
+    "pipeline": "pipeline compared (its label in the comparison file)",
+    "realization": "realisation (the same simulated noise and sky for every pipeline)",
+    "seed": "seed of the realisation's simulated noise",
+    "sky_seed": "seed of the realisation's injected sky",
+    "noise_band_power": "band power of the reduced image minus the injected sky",
+    "noise_band_power_err": "standard error of noise_band_power over the band's modes",
+    "sky_transfer": "sum of P_cross(image, sky) / sum of P_sky over the band's modes",
+    "seconds": "time of the pipeline's reduction alone",
+    "masked_fraction": "fraction of the image's pixels masked",
+    "excess": "noise_band_power minus the noise model's white floor (meta: floor)",
+    "k": "mean |k| of each bin",
+    "power": "P(k) of the reduced image minus the injected sky, in each bin",
+    "transfer": "P_cross(image, sky) / P_sky in each bin (1: sky kept, 0: removed)",
+}
+
+
 def _table(results, comparison, floor, photon, photon_label):
     rows = [dict(row, seed=res["seed"], sky_seed=res["sky_seed"])
             for res in sorted(results, key=lambda x: x["realization"]) for row in res["rows"]]
@@ -339,6 +357,8 @@ def _table(results, comparison, floor, photon, photon_label):
         t[c].unit = unit
     t["k"].unit = u.rad / u.pix
     t["seconds"].unit = u.s
+    for name, text in COMPARE_COLUMNS.items():
+        t[name].description = text
     t.meta.update({
         "comparison": comparison.source, "config": comparison.to_dict(),
         "fingerprint": comparison.fingerprint, "mode": comparison.mode,

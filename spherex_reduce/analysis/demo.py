@@ -17,6 +17,7 @@ from . import (
     run_case,
 )
 from .plots import plot_spectra
+from .spectrum import SPECTRUM_COLUMNS
 
 __all__ = ["PRODUCTS", "RAW_PRODUCTS", "run_demo"]
 
@@ -104,9 +105,13 @@ def run_demo(outdir, overwrite=False, progress=True, size=2048, nframes=74, seed
     photon = photon_noise_power(1 * u.electron / u.s, schedule=schedule)
     table = Table({"k": spectra["chopped"]["k"], "theta": spectra["chopped"]["theta"]})
     for label, t in spectra.items():
-        table[f"power_{label}"] = t["power"]
-        table[f"power_err_{label}"] = t["power_err"]
+        for name in ("power", "power_err"):
+            table[f"{name}_{label}"] = t[name]
+            table[f"{name}_{label}"].description = (f"{SPECTRUM_COLUMNS[name]}; the {label} "
+                                                    "case")
     table["nmodes"] = spectra["chopped"]["nmodes"]
+    for name in ("k", "theta", "nmodes"):
+        table[name].description = SPECTRUM_COLUMNS[name]
     table.meta.update({
         "band": band_label(),
         "band_power_chopped": str(summary["chopped"]),

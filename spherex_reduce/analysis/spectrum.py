@@ -210,6 +210,18 @@ def _edges(bins, ny, nx):
     return edges
 
 
+#: What each column of a `power_spectrum` table holds (written into ECSV files).
+SPECTRUM_COLUMNS = {
+    "k": "mean |k| of the bin's Fourier modes (k = 2 pi pixel scale / theta)",
+    "theta": "angular scale of k for the pixel scale (theta = 2 pi pixel scale / k)",
+    "power": "P(k): mean of |FFT|^2 over the bin's modes, normalised (pixel variance x pix^2)",
+    "power_err": "standard error of power: its scatter over the bin's independent modes",
+    "nmodes": "independent Fourier modes in the bin (a mode and its conjugate count once)",
+    "k_lo": "lower edge of the bin",
+    "k_hi": "upper edge of the bin",
+}
+
+
 def power_spectrum(image, pixel_scale=SPHEREX_PIXEL_SCALE, mask=None, bins=30,
                    mask_sources=False, exclude_horizontal=False):
     """Azimuthally averaged spatial power spectrum ``P(k)`` of a 2-D image.
@@ -378,6 +390,8 @@ def _binned_spectrum(data, data_b, bad, unit, unit_b, bins, pixel_scale, exclude
             "exclude_horizontal": bool(exclude_horizontal),
         },
     )
+    for name, text in SPECTRUM_COLUMNS.items():
+        table[name].description = text
     return table
 
 

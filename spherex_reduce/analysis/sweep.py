@@ -268,7 +268,24 @@ def _rows_to_table(rows, sweep, unit):
         t["std"].unit = u.Unit(unit) ** 0.5 / u.pix
         t["k"].unit = u.rad / u.pix
     t["seconds"].unit = u.s
+    for name, text in SWEEP_COLUMNS.items():
+        t[name].description = text
     return t
+
+
+#: What each column of a sweep's results holds (besides the grid's own keys).
+SWEEP_COLUMNS = {
+    "pipeline": "pipeline of the cell (shipped name, file or label)",
+    "realization": "realisation of the cell (0, 1, ...)",
+    "seed": "seed of the realisation's simulation",
+    "band_power": "mean P(k) over the band (band_kmin <= k <= band_kmax in meta)",
+    "band_power_err": "standard error of band_power over the band's independent modes",
+    "std": "standard deviation of the reduced image's unmasked pixels",
+    "masked_fraction": "fraction of the image's pixels masked",
+    "seconds": "time of the cell: simulation, reduction and measure",
+    "k": "mean |k| of each bin of the cell's P(k)",
+    "power": "P(k) of the cell in each bin (as the spectrum command's power column)",
+}
 
 
 def _merge(existing, new, keys):

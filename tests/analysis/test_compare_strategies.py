@@ -288,6 +288,7 @@ def test_cli_writes_table_plot_and_summary_and_refuses_to_overwrite(tmp_path, ca
     assert len(t) == 2 and (tmp_path / "r.png").stat().st_size > 0
     assert set(t.meta["summary"]) == {"spherex-default", "median"}
     assert t.meta["photon_noise"] > 0 and t["noise_band_power"].unit == t["excess"].unit
+    assert all(t[c].description for c in t.colnames)  # each column says what it holds
     before = out.read_bytes()
     assert run("compare-strategies", path, "-o", out, "--scheduler", "serial") == 2
     one_line_error(capsys, str(out), "exists")

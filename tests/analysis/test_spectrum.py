@@ -253,3 +253,15 @@ def test_photon_noise_simple_and_from_schedule():
     assert slope_variance_factor(2) == 1.0
     with pytest.raises(SpherexReduceError):
         photon_noise_power(1.0)
+
+
+def test_every_column_is_described_and_read_back_with_its_unit(tmp_path):
+    """An ECSV spectrum says what each column is and in which unit (astropy reads both)."""
+    rng = np.random.default_rng(5)
+    image = rng.normal(0, 2, (64, 64)) * u.electron / u.s
+    power_spectrum(image, bins=6).write(tmp_path / "p.ecsv")
+    t = Table.read(tmp_path / "p.ecsv")
+    assert all(t[c].description for c in t.colnames)
+    assert "standard error" in t["power_err"].description
+    assert t["power_err"].unit == u.electron**2 * u.pix**2 / u.s**2
+    assert t["theta"].unit == u.arcmin and t["k"].unit == u.rad / u.pix

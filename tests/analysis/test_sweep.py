@@ -69,6 +69,9 @@ def test_rerun_skips_cells_already_in_results(tmp_path):
     assert second.skipped == 2 and second.computed == 2
     t = Table.read(out)
     assert len(t) == 4
+    # every column says what it holds, also in a table merged from two runs
+    assert all(t[c].description for c in t.colnames if c != "skip"), \
+        [c for c in t.colnames if not t[c].description]
     # the resumed rows equal a fresh run's
     fresh = run_sweep(bigger, scheduler="serial").table
     assert np.array_equal(np.asarray(t["band_power"]), np.asarray(fresh["band_power"]))

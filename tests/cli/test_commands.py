@@ -128,6 +128,8 @@ def test_demo_runs_and_refuses_to_overwrite(tmp_path, capsys):
     reduced = read(tmp_path / "d" / "reduced_chopped.fits")
     assert reduced.header["S_REFCOR"] == "COMPLETE" and reduced.order == "physical"
     spectra = Table.read(tmp_path / "d" / "spectra.ecsv")
+    assert all(spectra[c].description for c in spectra.colnames)  # "what is power_err?"
+    assert "standard error" in spectra["power_err_chopped"].description
     assert {"k", "theta", "power_chopped", "power_unchopped"} <= set(spectra.colnames)
     assert run("demo", "-o", tmp_path / "d", "--size", 128) == 2
     assert "exists" in capsys.readouterr().err

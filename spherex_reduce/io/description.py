@@ -6,11 +6,14 @@
 `~spherex_reduce.io.FrameReader`, ``ReadFiles``) starts from it.
 """
 
+import contextlib
 import logging
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from astropy import units as u
 from astropy.io import fits
 from astropy.table import Table
 
@@ -225,9 +228,16 @@ def file_tables(hdul, path):
         if not isinstance(h, fits.BinTableHDU) or h.name in RESERVED:
             continue
         try:
-            tables[h.name] = Table.read(h)
+            with warnings.catch_warnings():  # a TUNIT outside the FITS standard: see below
+                warnings.simplefilter("ignore", u.UnitsWarning)
+                table = Table.read(h)
         except (ValueError, TypeError, KeyError, IndexError) as exc:
             raise FormatError(f"{path}: table {h.name} cannot be read: {exc}") from exc
+        for col in table.itercols():  # e.g. 'electron2 / s2', as the writer puts it
+            if isinstance(col.unit, u.UnrecognizedUnit):
+                with contextlib.suppress(ValueError):
+                    col.unit = u.Unit(str(col.unit))
+        tables[h.name] = table
     if "PROVENANCE" in tables:
         check_provenance(tables["PROVENANCE"], path)
     return tables

@@ -53,15 +53,31 @@ def _primary(schedule, header, order, unit, nextend):
 
 
 def _table_hdu(table, name):
-    t = Table(table, copy=False)
+    t = table.copy(copy_data=False)
+    generic = {}  # e.g. electron, which FITS lacks: TUNIT in astropy's generic form
+    for i, col in enumerate(t.itercols(), start=1):
+        if col.unit is not None and not _fits_unit(col.unit):
+            generic[i] = col.unit.to_string()
+            col.unit = None
     # text (e.g. a noise file's name) as a header card can hold it
     t.meta = {k: header_text(v) if isinstance(v, str) else v for k, v in t.meta.items()
               if k != "comments"}
     with warnings.catch_warnings():  # a longer meta key is a HIERARCH card, read back as given
         warnings.filterwarnings("ignore", "Keyword name .* HIERARCH card", VerifyWarning)
         hdu = fits.table_to_hdu(t)
+    for i, text in generic.items():  # read back by file_tables (astropy: a UnitsWarning)
+        hdu.header[f"TUNIT{i}"] = text
     hdu.name = name
     return hdu
+
+
+def _fits_unit(unit):
+    """Whether ``unit`` has a FITS form (``electron`` has none: the FITS standard lacks it)."""
+    try:
+        unit.to_string("fits")
+    except ValueError:
+        return False
+    return True
 
 
 def write(exposure, path, overwrite=False, images=None):

@@ -309,3 +309,24 @@ def test_checksum_text_is_the_fits_checksum(tmp_path):
         want = header["CHECKSUM"]
         header["CHECKSUM"] = "0" * 16
         assert _checksum_text(header.tostring().encode("ascii"), words.value) == want
+
+
+def test_a_table_column_in_electrons_is_written_without_warning_its_unit_described(tmp_path):
+    """FITS has no 'electron' (astropy warned and dropped the unit of RAMPFIT's variances):
+    such a unit is written as TUNIT in astropy's generic form and read back by `read`."""
+    from astropy import units as u
+    from astropy.table import Table
+
+    from spherex_reduce import read, write
+    from spherex_reduce.io.examples import example_raw_exposure
+
+    raw = example_raw_exposure(seed=1)
+    table = Table({"var": [1.0, 2.0], "rate": [3.0, 4.0]})
+    table["var"].unit = u.electron**2 / u.s**2
+    table["rate"].unit = u.adu / u.s
+    path = write(raw.replace(tables={"VARS": table}), tmp_path / "t.fits")  # no warning
+    header = fits.getheader(path, "VARS")
+    assert header["TUNIT1"] == "electron2 / s2" and header["TUNIT2"] == "adu s-1"
+    back = read(path).tables["VARS"]
+    assert back["var"].unit == u.electron**2 / u.s**2 and back["rate"].unit == u.adu / u.s
+    assert table["var"].unit == u.electron**2 / u.s**2  # the caller's table is unchanged

@@ -327,9 +327,9 @@ def offsets_table(offsets, missing, parity, n_used, n_clipped, strategy, unit, r
     cols["flag"] = np.where(missing.ravel(), dq.NO_REFERENCE, 0).astype(np.uint32)
     if n_telegraph is not None:
         cols["n_telegraph"] = np.asarray(n_telegraph, dtype=np.int64)[ch.ravel()]
-    # the unit goes in the description: 'electron' is not a FITS unit
-    table = Table(cols, meta={"strategy": strategy, "bunit": str(unit or "")})
-    table["offset"].description = f"offset subtracted ({unit or 'data unit'})"
+    table = Table(cols, meta={"strategy": strategy})
+    table["offset"].unit = unit  # (the writer puts a unit FITS lacks in TUNIT as text)
+    table["offset"].description = "offset subtracted"
     return table
 
 
@@ -364,7 +364,7 @@ def correct_reference(exposure, strategy="mean", *, registry=None, **params):
     `~spherex_reduce.Exposure`
         Corrected copy with the table ``REFOFFS``: ``frame`` (ramps only),
         ``channel``, ``parity`` (-1 all, 0 even, 1 odd samples), ``offset``
-        (in the data unit, named in the table's ``BUNIT``), ``n_used``,
+        (in the data unit, the column's unit), ``n_used``,
         ``n_clipped`` and ``flag``
         (`~spherex_reduce.core.dq.NO_REFERENCE` when the channel had no usable
         reference pixel: offset NaN, channel left uncorrected, a

@@ -301,3 +301,20 @@ def test_a_channel_without_reference_is_fitted_uncorrected_not_nan():
     np.testing.assert_allclose(slopes.ravel(), expected, rtol=1e-9)
     assert (out.dq[active][:, 8:16] == dq.NO_REFERENCE).all()  # flagged: masked on the image
     assert out.data.mask[active][:, 8:16].all() and not out.data.mask[active][:, :8].any()
+
+
+def test_the_offsets_table_carries_the_data_unit_into_the_file(tmp_path):
+    """REFOFFS' offset had its unit only as a table-level BUNIT that astropy reads as no
+    unit; it is the column's unit now, read back with the file."""
+    from astropy import units as u
+    from astropy.io import fits
+
+    from spherex_reduce import read, write
+    from spherex_reduce.io.examples import example_raw_exposure
+
+    raw = example_raw_exposure(seed=2)  # electrons
+    path = write(correct_reference(raw, "mean"), tmp_path / "c.fits")
+    header = fits.getheader(path, "REFOFFS")
+    column = next(k for k in header if header[k] == "offset").replace("TTYPE", "TUNIT")
+    assert header[column] == "electron" and "BUNIT" not in header
+    assert read(path).tables["REFOFFS"]["offset"].unit == u.electron

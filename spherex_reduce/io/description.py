@@ -92,9 +92,25 @@ def note_bad_checksums(header, bad, path):
 
 
 def sci_hdu(hdul, path):
-    """The HDU holding the pixels: ``SCI``, else the primary HDU if it has data."""
-    if "SCI" in [h.name for h in hdul]:
-        return hdul["SCI"]
+    """The HDU holding the pixels: ``SCI``, else the primary HDU if it has data.
+
+    A file with several ``SCI`` extensions (``SCI,1`` ... ``SCI,n``: HST's
+    ``_ima`` and ``_raw`` files store a ramp so, one read each, latest first)
+    is refused, naming what was found: taking ``SCI,1`` as the image would
+    reduce one read as if it were the ramp.
+    """
+    sci = [h for h in hdul if h.name == "SCI"]
+    if len(sci) > 1:
+        versions = [h.header.get("EXTVER", 1) for h in sci]
+        times = [h.header.get("SAMPTIME") for h in sci]
+        when = (f", SAMPTIME {times[0]} ... {times[-1]} s" if None not in times else "")
+        raise FormatError(
+            f"{path} holds {len(sci)} SCI extensions (EXTVER {versions[0]} ... "
+            f"{versions[-1]}{when}): one image per read, as HST's _ima and _raw files store "
+            "a ramp; this layout is not read: give the reads as one 3-D SCI, or one file "
+            "per read (--reads)")
+    if sci:
+        return sci[0]
     if hdul[0].header.get("NAXIS", 0) > 0:
         return hdul[0]
     raise FormatError(f"{path} has no SCI extension and no primary data")

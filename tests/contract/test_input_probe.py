@@ -1717,6 +1717,31 @@ ROUND2_FIXED_EARLIER = [
 ]
 
 
+# -- layouts other systems write ---------------------------------------------------------------
+
+def _hst_ima(d):
+    """Setup: ``ima.fits``, a ramp as HST writes it (SCI,1 ... SCI,3 with DQ,k and
+    SAMPTIME, latest read first), and ``one.yaml``, a pipeline of fit_ramp for it."""
+    hdus = [fits.PrimaryHDU()]
+    for k in range(1, 4):
+        sci = fits.ImageHDU(np.full((16, 16), 100.0 * (4 - k), np.float32), name="SCI", ver=k)
+        sci.header["SAMPTIME"] = 2.9 * (3 - k)
+        hdus += [sci, fits.ImageHDU(np.zeros((16, 16), np.int16), name="DQ", ver=k)]
+    fits.HDUList(hdus).writeto(d / "ima.fits")
+    (d / "one.yaml").write_text(
+        "geometry: {nrows: 16, ncols: 16, nchannels: 1, ref_border: 0, pixel_rate: 1.0e+5}\n"
+        "readout: {skip: 1, ref_reads: 0, ref_mode: none, phantom_reads: 0, nframes: 3, "
+        "frame_time: 2.9}\nsteps: [fit_ramp]\n")
+
+
+LAYOUTS = [
+    # SCI,1 was reduced as if it were the ramp (fit_ramp skipped, exit 0)
+    refused("reduce-reads-as-image-extensions", ["reduce", "ima.fits", "-c", "one.yaml", "-o",
+                                                 "out.fits"], _hst_ima,
+            mentions=r"3 SCI extensions"),
+]
+
+
 # -- what held when the probe ran: keep it so -----------------------------------------------------
 
 HELD = [
@@ -1740,7 +1765,7 @@ HELD = [
 CASES = [*FITS_DAMAGE, *CHECKSUM_OPT_OUT, *INTEGER_DATA, *FOREIGN_DQ, *READ_FILES, *YAML,
          *CLI_NUMBERS, *OUTPUT_IS_INPUT, *INPUT_CONFIG, *INPUT_SECTION, *OUTPUT_PLACES,
          *MESSAGES, *HELD, *ROUND2_READS_AND_NAMES, *ROUND2_INTEGRATIONS, *ROUND2_STRATEGIES,
-         *ROUND2_BATCH, *ROUND2_FIXED_EARLIER]
+         *ROUND2_BATCH, *ROUND2_FIXED_EARLIER, *LAYOUTS]
 
 
 @pytest.mark.parametrize("case", CASES)

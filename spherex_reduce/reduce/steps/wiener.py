@@ -13,23 +13,25 @@ kernel subtracts the estimate row by row.
 """
 
 import json
-import math
 import threading
 import warnings
-from pathlib import Path
 
 import numpy as np
+from astropy import units as u
 from astropy.table import Table
 from astropy.utils.exceptions import AstropyUserWarning
 
 from ...core.errors import ConfigError
 from ...core.limits import check_size
 from ...core.parameters import Parameter, validate_parameters
-from ...io.config import load_yaml
-from ...noise import BUILTIN_TABLES, NoiseComponent, noise_components
 from ...noise.read_covariance import DOMAINS, Kriging, ReadCovariance
-from ...noise.section import section_components
 from ..step import Strategy
+from .noise_models import (
+    DEFAULT_NOISE,
+    PAPER_PIXEL_RATE,
+    load_noise_model,
+    noise_model_unit,
+)
 from .reference_strategies import (
     ALL,
     EVEN,
@@ -44,106 +46,12 @@ from .telegraph import TELEGRAPH_PARAMETERS
 __all__ = ["WienerReference", "load_noise_model"]
 
 _MAD_TO_SIGMA = 1.4826
-#: A fit-noise coefficient below zero by at most this many standard errors is zero within
-#: its error (used as 0); further below it is refused.
-NEGATIVE_SIGMAS = 3.0
 #: Models kept for reuse (each holds its solved weights: tens of MB at full size).
 _MAX_MODELS = 4
 _MODELS = {}
 _MODELS_LOCK = threading.Lock()
 #: Solved systems a model keeps (per kind of observation, channel count and system).
 _MAX_WEIGHTS = 8
-
-
-def load_noise_model(source, where="correct_reference.noise"):
-    """Noise components from a table name, a noise table or ``fit-noise`` result, or a scene.
-
-    Parameters
-    ----------
-    source : str or path
-        A built-in table (``'spherex-table2'``), an ECSV noise table (columns
-        ``name alpha beta gamma ...``), an ECSV written by ``spherex-reduce
-        fit-noise`` (its ``reference`` stream becomes a channel component seen
-        by the pixels, its ``phantom`` stream one seen by the phantom reads),
-        or a scene file (YAML; its ``noise:`` section).
-    where : str
-        Where the value came from, for error messages.
-
-    Returns
-    -------
-    list of `~spherex_reduce.noise.NoiseComponent`
-
-    Raises
-    ------
-    ConfigError
-        The source cannot be read or describes no noise.
-
-    Examples
-    --------
-    >>> from spherex_reduce.reduce.steps.wiener import load_noise_model
-    >>> [c.name for c in load_noise_model("spherex-table2")][:2]
-    ['video8', 'roic']
-    """
-    text = str(source)
-    if text.lower().endswith((".yaml", ".yml")):
-        config, _ = load_yaml(Path(text), "noise model")
-        if "noise" not in config:  # a pipeline or other file: not the paper's table silently
-            raise ConfigError(f"{where}: {text} has no noise: section (a scene file's noise "
-                              "model); name spherex-table2 for the paper's Table 2")
-        comps = section_components(config["noise"])
-    elif text in BUILTIN_TABLES or not text.lower().endswith(".fits"):
-        comps = _table_components(text, where)
-    else:
-        raise ConfigError(f"{where}: expected a noise table name, an ECSV table or a scene "
-                          f"YAML file, got {text!r}")
-    if not comps or all(c.is_zero for c in comps):
-        raise ConfigError(f"{where}: {text} describes no noise (every coefficient is zero)")
-    return comps
-
-
-def _table_components(source, where):
-    if source not in BUILTIN_TABLES:
-        path = Path(source)
-        if not path.is_file():
-            raise ConfigError(f"{where}: {source!r} is neither a built-in table "
-                              f"({', '.join(BUILTIN_TABLES)}) nor an existing file")
-        try:
-            head = Table.read(path, format="ascii.ecsv")
-        except Exception as exc:  # many kinds for a file that is not ECSV
-            raise ConfigError(f"{where}: {source} is not a readable ECSV table "
-                              f"({type(exc).__name__})") from None
-        if "stream" in head.colnames:  # a fit-noise result
-            visibility = {"reference": "pixels", "phantom": "phantom"}
-            comps = []
-            for row in head:
-                stream = str(row["stream"])
-                if stream in visibility:
-                    try:
-                        coefficients = {name: _fitted(row, stream, name, f"{where}: {source}")
-                                        for name in ("alpha", "beta", "gamma")}
-                        comps.append(NoiseComponent(stream, **coefficients,
-                                                    exponent=float(row["exponent"]),
-                                                    visibility=visibility[stream]))
-                    except ConfigError:
-                        raise
-                    except (KeyError, ValueError) as exc:
-                        raise ConfigError(f"{where}: {source}: {exc}") from None
-            return comps
-    return list(noise_components(source).values())
-
-
-def _fitted(row, stream, name, where):
-    """A fit-noise coefficient: below zero by at most `NEGATIVE_SIGMAS` standard errors
-    (column ``NAME_err``; 0 without one) it is zero within its error and becomes 0; further
-    below, or not finite, the fit describes no noise (`ConfigError`)."""
-    value = float(row[name])
-    err = float(row[f"{name}_err"]) if f"{name}_err" in row.colnames else 0.0
-    if math.isfinite(value) and (value >= 0 or (math.isfinite(err) and
-                                                  value >= -NEGATIVE_SIGMAS * err)):
-        return max(value, 0.0)
-    raise ConfigError(f"{where}: the fitted {stream} {name} = {value:g} ± {err:g} is below "
-                      f"zero by more than {NEGATIVE_SIGMAS:g} standard errors (or not finite): "
-                      "not a noise model; fit again (more frames, another band) or give a table")
 
 
 def _reads_of(side, schedule):
@@ -170,8 +78,10 @@ class WienerReference(Strategy):
 
     kind, name = "reference", "wiener"
     parameters = (
-        Parameter("noise", "spherex-table2", (str,), "noise model: a table name or ECSV "
-                  "path, a fit-noise result (ECSV) or a scene file (YAML, its noise: section)"),
+        Parameter("noise", None, (str, type(None)), "noise model: a table name or ECSV "
+                  "path, a fit-noise result (ECSV) or a scene file (YAML, its noise: section); "
+                  "none: spherex-table2, the paper's electronics, for data in electrons at "
+                  "100 kHz only"),
         Parameter("common", "auto", (str, list), "components one stream of which every "
                   "channel sees: auto (scope common), none, or a list of names"),
         Parameter("acn", False, (bool,), "estimate even and odd samples separately "
@@ -194,11 +104,16 @@ class WienerReference(Strategy):
         params = validate_parameters(params, self.parameters, type(self).__name__)
         super().__init__(**params)
         noise, common = params["noise"], params["common"]
+        #: whether the config named the noise model (the default is the paper's electronics,
+        #: refused for data of another unit or pixel rate: `check_data`)
+        self.noise_given = noise is not None
+        noise = DEFAULT_NOISE if noise is None else noise
         self.noise, self.acn, self.domain = noise, params["acn"], params["domain"]
         self.phantom = params["phantom"]
         self.regularization, self.sigma = params["regularization"], params["sigma"]
         self.telegraph, self.telegraph_sigma = params["telegraph"], params["telegraph_sigma"]
         self.components = load_noise_model(noise)
+        self.model_unit = noise_model_unit(noise)
         names = [c.name for c in self.components]
         if common == "auto":
             self.common = frozenset(c.name for c in self.components if c.scope == "common")
@@ -303,7 +218,29 @@ class WienerReference(Strategy):
         return "subtracted" if subtracted and not with_phantom else "pixels"
 
     # -- the estimate -------------------------------------------------------------------
+    def check_data(self, context):
+        """Refuse data the noise model does not describe: another unit than the model's
+        (``input: gain`` converts ADU to electrons first), or, with the default model (the
+        paper's electronics: electrons, 100 kHz), data from another readout."""
+        unit = None if context.unit is None else u.Unit(context.unit)
+        # frames in the model's unit, slopes in it per second
+        charge = None if unit is None else unit * u.s if unit == self.model_unit / u.s else unit
+        rate = float(u.Quantity(context.schedule.geometry.pixel_rate, u.Hz).value)
+        if not self.noise_given and (rate != PAPER_PIXEL_RATE or charge not in (None,
+                                                                            u.electron)):
+            raise ConfigError(
+                f"correct_reference.noise: the default noise model ({DEFAULT_NOISE}, the "
+                f"paper's electronics: electrons at {PAPER_PIXEL_RATE:g} Hz) does not describe "
+                f"these data ({rate:g} Hz, {unit or 'no unit'}): name a noise model, e.g. a "
+                "fit-noise result of your darks")
+        if charge is not None and charge != self.model_unit:
+            raise ConfigError(
+                f"correct_reference.noise: the noise model {self.noise} is in "
+                f"{self.model_unit}, the data in {unit}: give a model in the data's unit (a "
+                "fit-noise result of these darks), or convert the data (input: gain)")
+
     def estimate(self, side, context, exposure=None):
+        self.check_data(context)
         s = context.schedule
         g = s.geometry
         usable = reference_pixels(side, s)  # (L, k, ncols), NaN: unusable
@@ -410,8 +347,9 @@ class WienerReference(Strategy):
             "phantom_used": bool(used_phantom),
             "predicted_rms_error": rms(predicted),
             "mean_predicted_rms_error": rms(mean_predicted),
-            # the noise model's unit, whatever the data's (BUNIT) is
-            "predicted_unit": "electron / s" if domain == "slopes" else "electron"})
+            # the noise model's unit (the data's: `check_data`)
+            "predicted_unit": str(self.model_unit / u.s if domain == "slopes"
+                                  else self.model_unit)})
         table["drift"].description = (f"drift subtracted from each read of the frame, in read "
                                       f"order ({unit or 'data unit'})")
         return table

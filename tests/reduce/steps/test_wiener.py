@@ -761,3 +761,55 @@ def test_threads_asking_for_one_model_solve_it_once(monkeypatch):
     for o in outs[1:]:
         np.testing.assert_array_equal(o, outs[0])
     wmod._MODELS.clear()
+
+
+def _fit_noise_table(path, unit):
+    """A fit-noise result (ECSV) of data in ``unit``: a white reference stream."""
+    from astropy import units as u
+
+    t = Table({"stream": ["reference"], "alpha": [2e-3], "alpha_err": [1e-5], "beta": [0.0],
+               "beta_err": [1e-5], "gamma": [0.0], "gamma_err": [1e-5], "exponent": [1.3]})
+    for name in ("alpha", "alpha_err"):
+        t[name].unit = unit**2 / u.Hz
+    t.write(path, format="ascii.ecsv")
+    return str(path)
+
+
+def test_a_noise_model_in_another_unit_than_the_data_is_refused(tmp_path):
+    """A fit-noise result in electrons on ADU data (no gain): the predictions were labelled
+    electrons; now refused.  The same model on data in its unit is used."""
+    from astropy import units as u
+
+    s = sched()
+    data = np.zeros((3, s.n_reads, NCOLS)) + channel_values(s, CONSTS)
+    adu = Exposure.from_arrays(data, s, unit=u.adu)
+    in_electrons = _fit_noise_table(tmp_path / "e.ecsv", u.electron)
+    with pytest.raises(ConfigError, match=r"noise model .*e\.ecsv is in electron, the data "
+                                          r"in adu"):
+        correct_reference(adu, "wiener", noise=in_electrons)
+    in_adu = _fit_noise_table(tmp_path / "a.ecsv", u.adu)
+    out = correct_reference(adu, "wiener", noise=in_adu)
+    np.testing.assert_allclose(out.data.data, 0.0, atol=1e-9)  # channel constants removed
+
+
+@pytest.mark.parametrize("what", ["adu", "200 kHz"])
+def test_the_paper_model_is_used_on_other_data_only_when_named(what):
+    """With no noise: given, wiener applied Table 2 (electrons at 100 kHz) to any data."""
+    from astropy import units as u
+
+    s = sched()
+    unit = u.electron
+    if what == "adu":
+        unit = u.adu
+    else:
+        g = s.geometry
+        s = ReadoutSchedule(DetectorGeometry(g.nrows, g.ncols, g.nchannels, ref_border=4,
+                                             pixel_rate=2e5), skip=4, ref_reads=8,
+                            ref_mode="distributed", phantom_reads=0, nframes=3)
+    data = np.zeros((3, s.n_reads, NCOLS)) + channel_values(s, CONSTS)
+    e = Exposure.from_arrays(data, s, unit=unit)
+    with pytest.raises(ConfigError, match=r"the default noise model .* does not describe"):
+        correct_reference(e, "wiener")
+    if what == "200 kHz":  # named: the user's choice
+        out = correct_reference(e, "wiener", noise="spherex-table2")
+        np.testing.assert_allclose(out.data.data, 0.0, atol=1e-9)

@@ -13,11 +13,13 @@ by the ``c``-sample box and aliased into the row rate;
 returns the coefficients of the underlying 100 kHz process directly.
 """
 
+import warnings
 from typing import NamedTuple
 
 import numpy as np
 from astropy import units as u
 from astropy.table import Table
+from astropy.utils.exceptions import AstropyUserWarning
 
 from ..core.errors import SpherexReduceError
 from .temporal import PARAMS, aliased_basis, fit_noise_model, temporal_psd
@@ -46,7 +48,8 @@ def _raw(exposure):
         raise SpherexReduceError(
             "noise streams come from a raw exposure: ramps (frames × reads × columns) in "
             f"readout order; got {'ramps' if exposure.is_ramp else 'an image'} in "
-            f"{exposure.order} order"
+            f"{exposure.order} order: give the raw file (the one that was reduced), whose "
+            "reference pixels and phantom values are read over time"
         )
     if exposure.schedule.nframes < 3:
         raise SpherexReduceError("noise streams need at least 3 frames (a line is removed "
@@ -189,6 +192,52 @@ def _parity_psd(exposure, source, rate, nperseg, acn):
     return pe, even
 
 
+#: Limits of a plausible noise fit (`implausible_fits`).
+NEGATIVE_SIGMAS, MAX_CHI2_PER_DOF, MIN_RELATIVE_ERROR = 3.0, 10.0, 1e-12
+
+
+def implausible_fits(table):
+    """What makes each stream's fit of a `fit_raw_noise` table implausible, if anything.
+
+    A coefficient (``alpha``, ``beta``, ``gamma``) below zero by more than 3 of
+    its standard errors (the model power would go negative), ``chi2/dof`` above
+    10 (the model does not describe the spectrum), or an error bar smaller
+    than floating-point noise (``< 1e-12`` of the value: a degenerate fit).
+
+    Returns
+    -------
+    dict
+        ``{stream: [reason, ...]}`` for the streams with a reason only.
+
+    Examples
+    --------
+    >>> from astropy.table import Table
+    >>> from spherex_reduce.analysis.timestreams import implausible_fits
+    >>> t = Table({"stream": ["reference"], "alpha": [0.01], "alpha_err": [1e-3],
+    ...            "beta": [-350.0], "beta_err": [9.8], "gamma": [2.6e3], "gamma_err": [1.3],
+    ...            "chi2": [0.5], "dof": [2]})
+    >>> implausible_fits(t)
+    {'reference': ['beta = -350 is 36 sigma below zero']}
+    """
+    out = {}
+    for row in table:
+        why = []
+        for name in ("alpha", "beta", "gamma"):
+            value, err = float(row[name]), float(row[f"{name}_err"])
+            if value < -NEGATIVE_SIGMAS * err:
+                why.append(f"{name} = {value:.3g} is "
+                           + (f"{-value / err:.0f} sigma below zero" if err > 0
+                              else "below zero"))
+            elif value != 0 and 0 < err < MIN_RELATIVE_ERROR * abs(value):
+                why.append(f"{name} = {value:.3g} ± {err:.2g}, an error below floating-point "
+                           "noise")
+        if row["dof"] > 0 and row["chi2"] / row["dof"] > MAX_CHI2_PER_DOF:
+            why.append(f"chi2/dof = {row['chi2']:.3g}/{row['dof']}")
+        if why:
+            out[str(row["stream"])] = why
+    return out
+
+
 def fit_raw_noise(exposure, exponent=1.3, nperseg=None, nbins=30, fit=PARAMS, acn=True):
     """Fit eq. 1 to the reference-pixel and phantom streams of a raw exposure.
 
@@ -276,6 +325,13 @@ def fit_raw_noise(exposure, exponent=1.3, nperseg=None, nbins=30, fit=PARAMS, ac
         t[p].unit = unit_p
         t[f"{p}_err"].unit = unit_p
     t["fmin"].unit = t["fmax"].unit = u.Hz
+    flags = implausible_fits(t)
+    if flags:
+        t.meta["implausible"] = flags
+        warnings.warn("implausible noise fit: " + "; ".join(
+            f"{stream}: {', '.join(why)}" for stream, why in flags.items())
+            + " (more frames, another band or a fixed exponent may help)",
+            AstropyUserWarning, stacklevel=2)
     t.meta["fits"] = fits_
     label = "exponent" if exponent is None else exponent
     t.meta["comments"] = [f"p(f) = alpha + beta/f + gamma/f^{label}, one-sided, "

@@ -170,3 +170,22 @@ def test_raw_stream_errors():
         temporal_psd([1.0, 2.0], 10.0)
     with pytest.raises(SpherexReduceError, match="NaN"):
         temporal_psd([1.0, np.nan, 2.0, 3.0, 4.0], 10.0)
+
+
+def test_a_good_fit_is_not_flagged_and_bad_ones_are():
+    """Implausible fits are flagged (meta and one warning), a fit of the model's own noise
+    is not."""
+    from astropy.table import Table
+
+    from spherex_reduce.analysis.timestreams import implausible_fits
+
+    good = fit_raw_noise(raw_exposure(2))  # a warning would fail the test here
+    assert "implausible" not in good.meta and implausible_fits(good) == {}
+    bad = Table({"stream": ["reference", "phantom"], "alpha": [1e-3, -1e-3],
+                 "alpha_err": [1e-4, 1e-4], "beta": [0.0, 0.0], "beta_err": [0.0, 0.0],
+                 "gamma": [2.0, 1.0], "gamma_err": [1e-15, 0.1], "chi2": [30.0, 6.3e14],
+                 "dof": [2, 47]})
+    assert implausible_fits(bad) == {
+        "reference": ["gamma = 2 ± 1e-15, an error below floating-point noise",
+                      "chi2/dof = 30/2"],
+        "phantom": ["alpha = -0.001 is 10 sigma below zero", "chi2/dof = 6.3e+14/47"]}

@@ -1739,6 +1739,9 @@ LAYOUTS = [
     refused("reduce-reads-as-image-extensions", ["reduce", "ima.fits", "-c", "one.yaml", "-o",
                                                  "out.fits"], _hst_ima,
             mentions=r"3 SCI extensions"),
+    # a reduced image given to fit-noise: the message says what to give instead
+    refused("fit-noise-reduced-image", ["fit-noise", "red.fits", "-o", "fit.ecsv"],
+            mentions=r"give the raw file"),
 ]
 
 

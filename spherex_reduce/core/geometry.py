@@ -241,6 +241,22 @@ class DetectorGeometry:
         mask[self.ncols - self._border.right:] = True
         return mask
 
+    def reference_pixel_mask(self):
+        """True for the reference pixels of a physical-order image ``(nrows, ncols)``: the
+        reference rows and the side reference columns (statistics leave them out).
+
+        Examples
+        --------
+        >>> from spherex_reduce import DetectorGeometry
+        >>> m = DetectorGeometry(8, 8, 1, ref_border={"top": 2, "left": 1}).reference_pixel_mask()
+        >>> int(m.sum()), bool(m[0, 5]), bool(m[5, 0]), bool(m[5, 5])
+        (22, True, True, False)
+        """
+        mask = np.zeros((self.nrows, self.ncols), dtype=bool)
+        mask[self.reference_rows] = True
+        mask[:, self.reference_column_mask()] = True
+        return mask
+
     def to_dict(self):
         """The constructor arguments, as plain Python values."""
         values = {f.name: getattr(self, f.name) for f in section_fields("geometry")}

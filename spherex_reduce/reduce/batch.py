@@ -109,8 +109,10 @@ def output_paths(inputs, outdir):
 def image_statistics(exposure):
     """Median and robust standard deviation of an exposure's good pixels.
 
-    Good pixels are finite with no `spherex_reduce.core.dq` flag but the
-    informational ones (`~spherex_reduce.core.dq.image_usable`).  The robust
+    Good pixels are the light-sensitive ones (not the reference rows and
+    columns of a physical-order image, whose values are not sky) that are
+    finite with no `spherex_reduce.core.dq` flag but the informational ones
+    (`~spherex_reduce.core.dq.image_usable`).  The robust
     standard deviation is `astropy.stats.mad_std` (1.4826 × the median
     absolute deviation).
 
@@ -146,6 +148,8 @@ def image_statistics(exposure):
     good = np.isfinite(data)
     if exposure.dq is not None:
         good &= dq.image_usable(exposure.dq)
+    if data.ndim == 2 and exposure.order == "physical":  # no reference pixel: not sky
+        good &= ~exposure.schedule.geometry.reference_pixel_mask()
     unit = exposure.unit or u.dimensionless_unscaled
     if not good.any():
         return np.nan * unit, np.nan * unit

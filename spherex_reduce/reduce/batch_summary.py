@@ -87,7 +87,8 @@ def summary_table(rows, pipeline):
     elif units:  # outputs in different units (e.g. ADU and electrons): one per row
         t.add_column([r["unit"] for r in rows], name="unit", index=5)
     t["seconds"].unit = u.s
-    t["median"].description = "median of the output's finite pixels with DQ 0"
+    t["median"].description = ("median of the output's light-sensitive pixels, finite and "
+                               "not masked by DQ (reference pixels left out)")
     t["robust_std"].description = "astropy.stats.mad_std of the same pixels"
     t.meta.update({"pipeline": pipeline.source, "config_hash": pipeline.config_hash,
                    "version": __version__})

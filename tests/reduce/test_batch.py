@@ -25,8 +25,12 @@ def raws(tmp_path, small_schedule):
 
 
 def good_pixels(exposure):
-    values = exposure.data.data
-    return values[np.isfinite(values) & (exposure.dq == 0)]
+    """Finite, unflagged light-sensitive pixels: the reference border cut off by hand."""
+    b = exposure.geometry.border
+    rows, cols = exposure.data.data.shape
+    values = exposure.data.data[b.top:rows - b.bottom, b.left:cols - b.right]
+    flags = exposure.dq[b.top:rows - b.bottom, b.left:cols - b.right]
+    return values[np.isfinite(values) & (flags == 0)]
 
 
 @pytest.mark.slow
@@ -211,3 +215,24 @@ def test_a_worker_follows_the_dq_bits_it_is_given(tmp_path, small_schedule):
     assert plain["status"] == masked["status"] == "done", (plain["error"], masked["error"])
     assert np.isfinite(read(tmp_path / "a.fits").data.data[10, 3])
     assert np.isnan(read(tmp_path / "b.fits").data.data[10, 3])
+
+
+def test_the_summary_leaves_reference_pixels_out(tmp_path, small_schedule):
+    """Reference pixels are not sky: with extreme values there, the summary's median and
+    robust sigma are those of the light-sensitive pixels alone (they included the border)."""
+    from astropy import units as u
+
+    from spherex_reduce import Exposure
+
+    g = small_schedule.geometry
+    rng = np.random.default_rng(3)
+    image = rng.normal(5.0, 1.0, (g.nrows, g.ncols))
+    b = g.border
+    light = np.zeros(image.shape, bool)
+    light[b.top:g.nrows - b.bottom, b.left:g.ncols - b.right] = True
+    image[~light] = 1e6  # extreme reference pixels
+    reduced = Exposure.from_arrays(image, small_schedule, unit=u.electron / u.s,
+                                   order="physical")
+    median, sigma = batch.image_statistics(reduced)
+    assert median.value == pytest.approx(np.median(image[light]), rel=1e-12)
+    assert sigma.value == pytest.approx(mad_std(image[light]), rel=1e-12)

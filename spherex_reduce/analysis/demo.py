@@ -30,6 +30,7 @@ PRODUCTS = (
 #: 1.28 GB each at full size).
 RAW_PRODUCTS = ("raw_chopped.fits", "raw_unchopped.fits")
 
+
 def _scene(size, nframes, skip, seed):
     nch = max(1, min(32, size // 64))
     return {

@@ -22,6 +22,7 @@ from ..core.exposure import Exposure
 from ..core.limits import check_count, check_size
 from .description import describe, file_tables
 from .fits_read import open_fits
+from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq
 from .frames import RampReader, map_frames
 from .header_text import header_text
 from .input import InputOptions, apply_gain, apply_input
@@ -135,10 +136,19 @@ class _ReadFile:
                     if str(path) in str(exc):
                         raise
                     raise FormatError(f"{path}: {exc}") from exc
-                if "DQ" in self.d.names or "ERR" in self.d.names:
-                    raise FormatError(f"{path}: a file per read holds the pixels only (and "
-                                      "optionally PHANTOM), not DQ or ERR")
+                if "ERR" in self.d.names:
+                    raise FormatError(f"{path}: a file per read holds the pixels (and "
+                                      "optionally PHANTOM and DQ), not ERR")
                 sci = self.d.sci
+                #: the read's flags as stored (2-D, of the image's shape), or None
+                self.dq = None
+                if "DQ" in self.d.names:
+                    self.dq = np.array(physical(self.hdul["DQ"], path, stable, flags=True))
+                    if self.dq.shape != tuple(self.d.shape):
+                        raise FormatError(f"{path}: DQ has shape {self.dq.shape}, SCI "
+                                          f"{tuple(self.d.shape)}: a read's flags are one "
+                                          "value per pixel of its image")
+                self.own = is_own_file(self.d.names)
                 self.scale = scaling(sci, path)
                 self.bitpix = sci.header["BITPIX"]
                 self.phantom = None
@@ -250,6 +260,7 @@ class ReadFiles(RampReader):
         check_count(len(paths), "the number of read files", MAX_READ_FILES)
         supplied = {**supplied, "nframes": len(paths)}  # whatever the config says
         self.paths = paths
+        self._dq_bits = foreign_bits(options.dq_bits)  # checked even if unused
         self._files = []
         try:
             for path in paths:
@@ -270,6 +281,8 @@ class ReadFiles(RampReader):
                 f.close()
             self._files, self.paths = self._files[drop:], paths[drop:]
             self.tables = first.tables
+            if first.own:  # flags written by this package: kept as they are
+                self._dq_bits = None
             self._dtype = np.dtype(FLOAT_FOR[first.bitpix])
             phantoms = [f.phantom for f in self._files]
             self.phantom = (None if phantoms[0] is None else  # the gain as a 3-D file's
@@ -318,9 +331,9 @@ class ReadFiles(RampReader):
         return self.phantom is not None
 
     def readable_in_bands(self):
-        """Whether the rows are in readout order, as the executor streams them (else use
-        `exposure`)."""
-        return self.order == "readout"
+        """Whether the rows are in readout order, as the executor streams them, with no
+        read's flags (else use `exposure`)."""
+        return self.order == "readout" and not any(f.dq is not None for f in self._files)
 
     def frame_rows(self, k, first, stop):
         """Rows ``first:stop`` of frame ``k`` (file ``k``), floating point (a new array),
@@ -347,5 +360,20 @@ class ReadFiles(RampReader):
         for k in range(self.nframes):
             data[k] = self.frame_rows(k, 0, nrows)
         self.scale(data)
+        mask, header = self._flags(shape), self.header.copy()
+        if mask is not None and self._dq_bits is not None:
+            note_foreign_dq(header, self._dq_bits, self.paths[0])
         return Exposure.from_arrays(data, self.schedule, unit=self.unit, phantom=self.phantom,
-                                    header=self.header, order=self.order, tables=self.tables)
+                                    header=header, order=self.order, tables=self.tables,
+                                    mask=mask)
+
+    def _flags(self, shape):
+        """The reads' DQ stacked (a read without one: no flag), as `file_flags` takes a
+        3-D file's: foreign bits (``input: dq_bits``) unless the files are this package's."""
+        if all(f.dq is None for f in self._files):
+            return None
+        stored = np.zeros(shape, np.int64)
+        for k, f in enumerate(self._files):
+            if f.dq is not None:
+                stored[k] = f.dq
+        return file_flags(stored, shape, self.schedule, self.order, self._dq_bits, self.paths[0])

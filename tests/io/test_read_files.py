@@ -235,3 +235,35 @@ def test_one_descriptor_per_plain_file_while_open(tmp_path):
     with ReadFiles(paths, **GEOMETRY, **READOUT):
         assert len(os.listdir("/proc/self/fd")) - before == len(paths)
     assert len(os.listdir("/proc/self/fd")) == before
+
+
+@pytest.mark.parametrize("bits", [None, 4])
+def test_a_read_file_carries_its_own_dq(tmp_path, bits):
+    """A DQ extension in a read file flags that read's pixels: the flagged read is left out
+    of each pixel's fit (numpy least squares over the other reads), by default for any
+    bit; with ``dq_bits`` only for those bits.  The files are not changed."""
+    s = _schedule()
+    sci = _ramps(s)
+    paths = _write_reads(tmp_path / "r", sci)
+    flags = np.zeros(sci.shape[1:], np.uint32)
+    flags[5, 3] = 4  # read 2 of pixel (5, 3): a bit the default and dq_bits 4 both mask
+    flags[7, 9] = 2  # masked by default only
+    with fits.open(paths[2]) as hdul:
+        fits.HDUList([hdul[0].copy(), fits.ImageHDU(flags, name="DQ")]).writeto(
+            paths[2], overwrite=True, checksum=True)
+    before = _digests(paths)
+    cfg = _config(tmp_path / "fit.yaml", FIT)
+    out = tmp_path / "out.fits"
+    dq_bits = [] if bits is None else ["--dq-bits", str(bits)]
+    assert main(["-q", "reduce", "--reads", str(tmp_path / "r" / "read_*.fits"), "-c",
+                 str(cfg), "-o", str(out), *dq_bits]) == 0
+    assert _digests(paths) == before
+    slopes = fits.getdata(out, "SCI")
+    expected = _lstsq(sci)
+    others = np.delete(np.arange(len(NUMBERS)), 2)
+    design = np.vstack([others * 2.0, np.ones(others.size)]).T
+    for r, c in ((5, 3), (7, 9)):
+        without = np.linalg.lstsq(design, sci[others, r, c].astype(np.float64), rcond=None)[0][0]
+        expected[r, c] = without if (bits is None or flags[r, c] & bits) else expected[r, c]
+    np.testing.assert_allclose(slopes, expected, rtol=1e-6, atol=1e-6)
+    assert fits.getheader(out)["SXRDQBIT"] == (2**32 - 1 if bits is None else bits)

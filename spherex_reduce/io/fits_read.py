@@ -194,7 +194,8 @@ class CheckedFITS(Closing):
     def physical(self, hdu):
         """The data of image HDU ``hdu`` in physical values (``BSCALE``/``BZERO``
         applied, ``BLANK`` as NaN; as stored if unscaled), or None if it has none."""
-        return physical(hdu, self._name, self._stable)
+        with unpacking(self._name):  # astropy unpacks a compressed file lazily
+            return physical(hdu, self._name, self._stable)
 
     def note_bad_checksums(self, header):
         """Record in ``header`` (changed in place) which HDUs failed their checksum:

@@ -91,7 +91,8 @@ def physical(hdu, path, stable, flags=False, index=None):
     stored values of a plain FITS file are read from it into a new array
     (nothing is memory-mapped, so a file changed meanwhile is an error, not a
     signal), in native byte order; None for a file astropy unpacks (gzip,
-    tile-compressed), whose data come as astropy gives them.  Scaled data are
+    tile-compressed), whose data come as astropy gives them (callers read such a
+    file within `unpacking`).  Scaled data are
     converted here from the stored values: floating point, or 64-bit integers
     for flags (``DQ``), whose ``BSCALE`` must be 1 and ``BZERO`` whole.
     """
@@ -100,8 +101,7 @@ def physical(hdu, path, stable, flags=False, index=None):
     scale = scaling(hdu, path)
     unpacked = stable is None or isinstance(hdu, fits.CompImageHDU)  # by astropy
     if scale is None and unpacked:
-        with unpacking(path):
-            return hdu.data if index is None else hdu.data[index]
+        return hdu.data if index is None else hdu.data[index]
     if scale is None:  # in native byte order in place: no second copy
         stored = _stored(hdu, path, index, stable)
         if stored.dtype.isnative:
@@ -121,8 +121,7 @@ def physical(hdu, path, stable, flags=False, index=None):
     check_size(int(np.prod(part, dtype=float)) * dtype.itemsize,
                f"HDU {hdu.name!r} of {path} {part} scaled to {dtype}")
     if unpacked:  # astropy unpacks and scales
-        with unpacking(path):
-            data = np.asarray(hdu.data)
+        data = np.asarray(hdu.data)
         return (data if index is None else data[index]).astype(dtype)
     return to_physical(_stored(hdu, path, index, stable), scale, dtype)
 

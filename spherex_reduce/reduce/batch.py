@@ -249,11 +249,16 @@ def finished_row(path, digest, config_hash, run=None):
                "was made from another input (its SXRINPUT is not this input's SHA-256)")
         raise ConfigError(f"{path} exists and {why}: pass --overwrite to replace it, or choose "
                           "another directory")
-    median, sigma = image_statistics(existing)
     status = "done" if run is not None and existing.header.get("SXRBATCH") == run else "skipped"
-    return {"status": status, "median": median.value, "robust_std": sigma.value,
-            "unit": median.unit.to_string(), "seconds": 0.0, "error": "", "kind": "",
+    return {**_statistics_row(existing, status), "seconds": 0.0, "error": "", "kind": "",
             "notes": []}
+
+
+def _statistics_row(exposure, status):
+    """``status`` and the `image_statistics` of an output, as a summary row holds them."""
+    median, sigma = image_statistics(exposure)
+    return {"status": status, "median": median.value, "robust_std": sigma.value,
+            "unit": median.unit.to_string()}
 
 
 def _reduced(task, digest, pipeline):
@@ -282,9 +287,7 @@ def _reduced(task, digest, pipeline):
         if done is None:
             raise
         return done
-    median, sigma = image_statistics(result)
-    return {"status": "done", "median": median.value, "robust_std": sigma.value,
-            "unit": median.unit.to_string()}
+    return _statistics_row(result, "done")
 
 
 def reduce_file(task):

@@ -103,9 +103,7 @@ def read_rows(path, config_hash):
     """
     try:
         t = Table.read(path, format="ascii.ecsv")
-    except FileNotFoundError:
-        return []
-    except Exception:  # damaged (e.g. cut by a full disk before this version wrote it)
+    except Exception:  # missing, or damaged (e.g. cut by a full disk before this version)
         return []
     if t.meta.get("config_hash") != config_hash or not set(COLUMNS[:5]) <= set(t.colnames):
         return []

@@ -290,14 +290,13 @@ class StepSearch:
             shot = rho * self.walk_top > SHOT_WEIGHTED
             if shot.any():
                 keep = ~shot
-                bins = np.round(np.log10(rho[shot]) / RHO_BIN).astype(np.int64)
                 where = np.flatnonzero(shot)
                 if sigma is None:  # the RSS of a bright ramp holds its shot noise: not sigma
                     var[where] = np.maximum(self._differences_variance(y[:, where],
                                                                        lam[where]),
                                             floor[where])
                     rho[where] = lam[where] / var[where]
-                    bins = np.round(np.log10(rho[shot]) / RHO_BIN).astype(np.int64)
+                bins = np.round(np.log10(rho[shot]) / RHO_BIN).astype(np.int64)
                 for b in np.unique(bins):
                     sel = where[bins == b]
                     other = self.with_shot(10.0 ** (b * RHO_BIN))

@@ -30,7 +30,6 @@ __all__ = ["DetectJumpsStep", "JumpKernel", "detect_jumps"]
 
 #: rows of every frame searched at once when the whole exposure is searched first
 SEARCH_PIXELS = 1 << 17
-_BAD = np.uint32(0xFFFFFFFF & ~dq.READ_INFORMATIONAL)  # bits that make a read unusable
 
 
 def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturation=None,
@@ -183,7 +182,7 @@ class JumpKernel(Kernel):
         bad_reads = over = None
         bad = np.zeros(y.shape[1], bool)
         if block.dq is not None:
-            bad_reads = (block.dq.reshape(nf, -1) & _BAD) != 0
+            bad_reads = ~dq.read_usable(block.dq.reshape(nf, -1))
             bad |= bad_reads.any(axis=0)
         if p["saturation"] is not None:
             over = y > p["saturation"]

@@ -9,7 +9,6 @@ the unit of the data it was fitted to), or a scene file's ``noise:`` section.
 
 import contextlib
 import math
-import warnings
 from pathlib import Path
 
 from astropy import units as u
@@ -22,7 +21,7 @@ from ...noise import BUILTIN_TABLES, NoiseComponent, noise_components
 from ...noise.section import section_components
 
 __all__ = ["DEFAULT_NOISE", "NEGATIVE_SIGMAS", "PAPER_PIXEL_RATE", "load_noise_model",
-           "noise_model_unit"]
+           "noise_model"]
 
 #: A fit-noise coefficient below zero by at most this many standard errors is zero within
 #: its error (used as 0); further below it is refused.
@@ -62,7 +61,23 @@ def load_noise_model(source, where="correct_reference.noise"):
     >>> [c.name for c in load_noise_model("spherex-table2")][:2]
     ['video8', 'roic']
     """
+    return noise_model(source, where)[0]
+
+
+def noise_model(source, where="correct_reference.noise"):
+    """The components of a noise model (`load_noise_model`) and the unit of the charge they
+    describe: electrons, except for a ``fit-noise`` result of data in another unit (the
+    square root of its ``alpha``'s unit times Hz).
+
+    Examples
+    --------
+    >>> from spherex_reduce.reduce.steps.noise_models import noise_model
+    >>> components, unit = noise_model("spherex-table2")
+    >>> unit
+    Unit("electron")
+    """
     text = str(source)
+    unit = u.electron
     if text.lower().endswith((".yaml", ".yml")):
         config, _ = load_yaml(Path(text), "noise model")
         if "noise" not in config:  # a pipeline or other file: not the paper's table silently
@@ -70,36 +85,13 @@ def load_noise_model(source, where="correct_reference.noise"):
                               "model); name spherex-table2 for the paper's Table 2")
         comps = section_components(config["noise"])
     elif text in BUILTIN_TABLES or not text.lower().endswith(".fits"):
-        comps = _table_components(text, where)
+        comps, unit = _table_components(text, where)
     else:
         raise ConfigError(f"{where}: expected a noise table name, an ECSV table or a scene "
                           f"YAML file, got {text!r}")
     if not comps or all(c.is_zero for c in comps):
         raise ConfigError(f"{where}: {text} describes no noise (every coefficient is zero)")
-    return comps
-
-
-def noise_model_unit(source):
-    """The unit of the charge a noise model describes: electrons, except for a
-    ``fit-noise`` result of data in another unit (the square root of its ``alpha``'s unit
-    times Hz).
-
-    Examples
-    --------
-    >>> from spherex_reduce.reduce.steps.wiener import noise_model_unit
-    >>> noise_model_unit("spherex-table2")
-    Unit("electron")
-    """
-    text = str(source)
-    if text.endswith(".ecsv") and Path(text).is_file():
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", u.UnitsWarning)
-            head = Table.read(text, format="ascii.ecsv")
-        alpha = head["alpha"].unit if "alpha" in head.colnames else None
-        if "stream" in head.colnames and alpha is not None:
-            with contextlib.suppress(ValueError, TypeError):
-                return u.Unit((alpha * u.Hz) ** 0.5)
-    return u.electron
+    return comps, unit
 
 
 def _table_components(source, where):
@@ -113,7 +105,12 @@ def _table_components(source, where):
         except Exception as exc:  # many kinds for a file that is not ECSV
             raise ConfigError(f"{where}: {source} is not a readable ECSV table "
                               f"({type(exc).__name__})") from None
-        if "stream" in head.colnames:  # a fit-noise result
+        if "stream" in head.colnames:  # a fit-noise result, in the unit of its data
+            unit = u.electron
+            alpha = head["alpha"].unit if "alpha" in head.colnames else None
+            if alpha is not None:
+                with contextlib.suppress(ValueError, TypeError):
+                    unit = u.Unit((alpha * u.Hz) ** 0.5)
             visibility = {"reference": "pixels", "phantom": "phantom"}
             comps = []
             for row in head:
@@ -129,8 +126,8 @@ def _table_components(source, where):
                         raise
                     except (KeyError, ValueError) as exc:
                         raise ConfigError(f"{where}: {source}: {exc}") from None
-            return comps
-    return list(noise_components(source).values())
+            return comps, unit
+    return list(noise_components(source).values()), u.electron
 
 
 def _fitted(row, stream, name, where):

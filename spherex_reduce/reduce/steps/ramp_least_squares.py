@@ -182,16 +182,7 @@ class LeastSquares:
     times : array_like
         Frame (or group mean) times (s), ``(nframes,)``.
     weighting : {'uniform', 'optimal'}
-        ``'optimal'`` needs ``read_noise > 0``.
-    read_noise : float, optional
-        Read noise per read (data unit): the variance follows the read-noise
-        and shot-noise model; None: from the fit residuals.  `fit` may be
-        given per-pixel values instead (`RampMaps`).
-    gain : float
-        Electrons per data unit (shot noise).
-    dark_current : float
-        Dark current already subtracted from the reads (data unit / s): its
-        shot noise is in the variance.
+        ``'optimal'`` needs a read noise (the `RampMaps` given to `fit`).
     saturation : float, optional
         Reads above this level end the usable ramp.
     want_var : bool
@@ -201,15 +192,14 @@ class LeastSquares:
         averaged frames); those of single reads at ``times`` if None.
     """
 
-    def __init__(self, times, *, weighting="uniform", read_noise=None, gain=1.0,
-                 dark_current=0.0, saturation=None, want_var=True, noise=None):
+    def __init__(self, times, *, weighting="uniform", saturation=None, want_var=True,
+                 noise=None):
         self.times = t = np.asarray(times, dtype=np.float64)
         self.nf = nf = t.size
         self.noise = RampNoise(t) if noise is None else noise
         self.weighting, self.saturation = weighting, saturation
         self.want_var = want_var
-        self.maps = RampMaps(read_noise, None if read_noise is None else 1.0 / gain,
-                             dark_current)
+        self.maps = RampMaps()  # no calibration unless `fit` is given the band's
         self.w = ramp_weights(t) if nf >= 2 else np.zeros(nf)
         tc = t - t.mean()
         self.stt = float(tc @ tc)

@@ -224,7 +224,7 @@ def _segment_sums(y, good, t):
 
 
 def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=None, dark=0.0,
-                 weighting="uniform", want_var=True, ratio_bins=RATIO_BINS):
+                 weighting="uniform", want_var=True):
     """Fit the usable segments of some pixels' ramps and combine them (see the module).
 
     Parameters
@@ -246,8 +246,6 @@ def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=No
         shot noise the variance includes.
     weighting : {'uniform', 'optimal'}
     want_var : bool
-    ratio_bins : int
-        Bins per decade of ``rate / read_noise**2`` sharing GLS weights.
 
     Returns
     -------
@@ -276,7 +274,7 @@ def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=No
                            None if flags is None else np.repeat(flags, 2, axis=1), noise,
                            saturation=saturation, read_noise=_two(read_noise),
                            pscale=_two(pscale), dark=_two(dark), weighting=weighting,
-                           want_var=want_var, ratio_bins=ratio_bins)
+                           want_var=want_var)
         return SegmentFit(*(getattr(fit, k)[:1] for k in SegmentFit.__dataclass_fields__))
     y = np.ascontiguousarray(y)
     usable, saturated = _usable(y, flags, saturation)
@@ -315,8 +313,7 @@ def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=No
     rate_used = None  # the rate of the GLS weights (optimal): it sets the shot noise too
     if weighting == "optimal" and rn2 is not None:
         slopes, rvars, pfs, rate_used = _optimal_segments(y, usable, seg, noise, slopes, rvars,
-                                                          pfs, fitted, rn2, pscale, dark,
-                                                          ratio_bins)
+                                                          pfs, fitted, rn2, pscale, dark)
 
     rnoise = per_rate = np.full(m, np.nan)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -376,8 +373,7 @@ def _combine(slopes, variances, fitted):
         return mean, np.where(exact.any(axis=0), 0.0, 1.0 / total)
 
 
-def _optimal_segments(y, usable, seg, noise, slopes, rvars, pfs, fitted, rn2, pscale, dark,
-                      bins):
+def _optimal_segments(y, usable, seg, noise, slopes, rvars, pfs, fitted, rn2, pscale, dark):
     """GLS slopes of the fitted segments, weights shared by pixels with the same usable reads
     and the same ``rate / read_noise**2`` (quantised); ``(slopes, rvars, pfs)`` replaced, and
     the quantised rate (dark included) of each pixel's weights."""
@@ -386,7 +382,7 @@ def _optimal_segments(y, usable, seg, noise, slopes, rvars, pfs, fitted, rn2, ps
         pooled, _ = _combine(slopes, rvars, fitted)
         rate = np.maximum(np.where(np.isfinite(pooled), pooled, 0.0), 0.0) + dark
         ratio = rate * (1.0 if pscale is None else pscale) / rn2
-        key = np.where(ratio > 1e-6, np.round(np.log10(ratio) * bins), -np.inf)
+        key = np.where(ratio > 1e-6, np.round(np.log10(ratio) * RATIO_BINS), -np.inf)
     for s in range(slopes.shape[0]):
         good = usable & (seg == s)
         cols = np.flatnonzero(fitted[s])
@@ -400,10 +396,11 @@ def _optimal_segments(y, usable, seg, noise, slopes, rvars, pfs, fitted, rn2, ps
             members = cols[inverse.ravel() == k]
             reads = np.flatnonzero(good[:, cols[i]])
             q = key[cols[i]]
-            w, _ = noise.gls_weights(10 ** (q / bins) if np.isfinite(q) else 0.0, tuple(reads))
+            at = 10 ** (q / RATIO_BINS) if np.isfinite(q) else 0.0
+            w, _ = noise.gls_weights(at, tuple(reads))
             slopes[s, members] = np.einsum("f,fp->p", w, y[reads][:, members])
             rvars[s, members] = float((w * w * noise.read_factors[reads]).sum())
             pfs[s, members] = float(w @ noise.shot[np.ix_(reads, reads)] @ w)
     with np.errstate(invalid="ignore"):
-        used = np.where(np.isfinite(key), 10 ** (key / bins), 0.0) * rn2
+        used = np.where(np.isfinite(key), 10 ** (key / RATIO_BINS), 0.0) * rn2
     return slopes, rvars, pfs, used / (1.0 if pscale is None else pscale)

@@ -150,10 +150,11 @@ def find_telegraph(values, rows, geometry, sigma=5.0):
     channel = geometry.channel_of_column()
     score = np.full((uniq.size, ncols), -np.inf)
     tested = np.zeros((uniq.size, ncols), bool)
+    by_row = [resid[:, inverse == i] for i in range(uniq.size)]
     for scale in _scales(values.shape[0], np.bincount(inverse)):
         logv = np.full((uniq.size, ncols), np.nan)
-        for i in range(uniq.size):
-            logv[i] = _log_variance(resid[:, inverse == i], scale)
+        for i, part in enumerate(by_row):
+            logv[i] = _log_variance(part, scale)
         for ch in range(nch):
             own = logv[:, channel == ch]
             ok = np.isfinite(own)

@@ -30,7 +30,7 @@ from .noise_models import (
     DEFAULT_NOISE,
     PAPER_PIXEL_RATE,
     load_noise_model,
-    noise_model_unit,
+    noise_model,
 )
 from .reference_strategies import (
     ALL,
@@ -112,8 +112,7 @@ class WienerReference(Strategy):
         self.phantom = params["phantom"]
         self.regularization, self.sigma = params["regularization"], params["sigma"]
         self.telegraph, self.telegraph_sigma = params["telegraph"], params["telegraph_sigma"]
-        self.components = load_noise_model(noise)
-        self.model_unit = noise_model_unit(noise)
+        self.components, self.model_unit = noise_model(noise)
         names = [c.name for c in self.components]
         if common == "auto":
             self.common = frozenset(c.name for c in self.components if c.scope == "common")

@@ -371,7 +371,7 @@ class StepSearch:
         limit = np.log(2.0) + log_ndtr(-threshold)
         pair = np.zeros(cols.size, bool)
         if self.partial.any() and n - 1 >= 2:
-            pk, pchi, chis = self._pairs(fit, rk, qk, sk, var, lam)
+            pk, pchi, chis, cq = self._pairs(fit, rk, qk, sk, var, lam)
             pair = (-0.5 * pchi < logp) & (-0.5 * pchi <= limit)
         single = ~pair & (logp <= limit)
         for hit, is_pair in ((single, False), (pair, True)):
@@ -381,7 +381,7 @@ class StepSearch:
             if is_pair:
                 i = pk[hit]
                 amp1, amp2 = _pair_amplitudes(rk[i, c], rk[i + 1, c], qk[i, c],
-                                              qk[i + 1, c], fit.cross_q(i, c))
+                                              qk[i + 1, c], cq[i, c])
                 z = np.sqrt(pchi[hit])
                 out.append((st.pixels[hit], i + 1, amp1, np.sign(amp1) * z))
                 out.append((st.pixels[hit], i + 2, amp2, np.sign(amp2) * z))
@@ -405,7 +405,7 @@ class StepSearch:
     def _pairs(self, fit, rk, qk, sk, var, lam):
         """The best pair of steps at reads ``i + 1`` and ``i + 2`` (a jump within the group
         of frames read ``i + 1`` averages) of each ramp: ``(i, its chi2 with 2 dof, the
-        chi2 of every pair)``."""
+        chi2 of every pair, Q of every pair)``."""
         cq, cs = fit.cross()
         with np.errstate(invalid="ignore", over="ignore"):  # a found step's q is inf
             d11 = var * qk[:-1] + lam * sk[:-1]
@@ -418,7 +418,7 @@ class StepSearch:
             det = np.where(ok, det, 1.0)
             chi = np.where(ok, (r1 ** 2 * d22 - 2 * r1 * r2 * d12 + r2 ** 2 * d11) / det, 0.0)
         i = np.argmax(chi, axis=0)
-        return i, chi[i, np.arange(chi.shape[1])], chi
+        return i, chi[i, np.arange(chi.shape[1])], chi, cq
 
 
 class _Given:
@@ -481,10 +481,6 @@ class _Given:
               - np.einsum("mjk,mjk->km", a[:, :, 1:], sk[:, :, :-1])
               + np.einsum("mjk,mji,mik->km", a[:, :, :-1], self.sff, a[:, :, 1:]))
         return cq, cs
-
-    def cross_q(self, i, cols):
-        """``Q`` of the steps at rows ``i`` and ``i + 1`` of the ramps ``cols``."""
-        return self.cross()[0][i, cols]
 
     def slope_change(self, k, amp):
         """How much the found steps and a step ``amp`` at ``k`` change each line's slope."""

@@ -154,6 +154,7 @@ class JumpKernel(Kernel):
         self.times = s.frame_starts.to_value(u.s)
         self.factors = s.read_noise_factors
         self.walk = s.shot_covariance()
+        self._whole = self._search(np.ones(s.nframes, bool))  # every read usable
         self.needs_exposure = bool(params["neighbours"] or params["radius"] > 0)
         self._lock = threading.Lock()
         self._found = 0  # reads flagged by the search, over the bands (streamed route)
@@ -165,13 +166,13 @@ class JumpKernel(Kernel):
         return _step_search(self.times[idx].tobytes(), self.factors[idx].tobytes(),
                             np.ascontiguousarray(self.walk[np.ix_(idx, idx)]).tobytes())
 
-    def _maps(self, block, pixels):
-        """Read noise (or None) and gain of the band's ``pixels`` (flat indices)."""
+    def _maps(self, block):
+        """Read noise (or None) and gain of the band: numbers, or flat arrays of its pixels."""
         out = []
         for m in (self.read_noise, self.gain):
             v = None if m is None else m.rows(block.index, self.context.order,
                                                 self.context.schedule)
-            out.append(v if v is None or np.ndim(v) == 0 else np.ravel(v)[pixels])
+            out.append(v if v is None or np.ndim(v) == 0 else np.ravel(v))
         return out
 
     def find(self, block):
@@ -190,21 +191,21 @@ class JumpKernel(Kernel):
         good = np.flatnonzero(~bad) if bad.any() else slice(None)
         pixels = np.arange(y.shape[1])[good]
         parts = []
-        whole = np.ones(nf, bool)
-        found = self._run(self._search(whole), y[:, good], block, pixels)
+        maps = self._maps(block)
+        found = self._run(self._whole, y[:, good], maps, pixels)
         parts.append((found.read, pixels[found.pixel], found.amplitude, found.z))
         rest = np.union1d(np.flatnonzero(bad), pixels[found.unsearched])
         if rest.size:
-            parts.extend(self._masked(y, block, rest, bad_reads, over))
+            parts.extend(self._masked(y, block, maps, rest, bad_reads, over))
         frames, pix, amp, z = (np.concatenate(a) for a in zip(*parts, strict=True))
         return frames, pix, amp, z
 
-    def _run(self, search, y, block, pixels):
-        sigma, gain = self._maps(block, pixels)
+    def _run(self, search, y, maps, pixels):
+        sigma, gain = (v if v is None or np.ndim(v) == 0 else v[pixels] for v in maps)
         return search.find(y, threshold=self.params["threshold"], sigma=sigma, gain=gain,
                            max_jumps=self.params["max_jumps"])
 
-    def _masked(self, y, block, pixels, bad_reads, over):
+    def _masked(self, y, block, maps, pixels, bad_reads, over):
         """The jumps of ``pixels`` with unusable reads, searched on their usable reads."""
         sub = y[:, pixels]
         usable = np.isfinite(sub)
@@ -226,7 +227,7 @@ class JumpKernel(Kernel):
             if idx.size < least:
                 continue
             members = np.flatnonzero(inverse == g)
-            found = self._run(self._search(mask), sub[idx][:, members], block,
+            found = self._run(self._search(mask), sub[idx][:, members], maps,
                               pixels[members])
             out.append((idx[found.read], pixels[members][found.pixel], found.amplitude,
                         found.z))

@@ -25,6 +25,7 @@ from ..hookspecs import hookimpl
 from ..step import Kernel, Record, Step
 from .jump_search import StepSearch
 from .pixel_maps import MAP_TYPES, PixelMap
+from .ramp_segments import usable_reads
 
 __all__ = ["DetectJumpsStep", "JumpKernel", "detect_jumps"]
 
@@ -180,14 +181,11 @@ class JumpKernel(Kernel):
         p = self.params
         nf = block.nframes
         y = block.data.reshape(nf, -1)
-        bad_reads = over = None
-        bad = np.zeros(y.shape[1], bool)
+        bad = np.zeros(y.shape[1], bool)  # pixels with a read flagged or above saturation
         if block.dq is not None:
-            bad_reads = ~dq.read_usable(block.dq.reshape(nf, -1))
-            bad |= bad_reads.any(axis=0)
+            bad |= (~dq.read_usable(block.dq.reshape(nf, -1))).any(axis=0)
         if p["saturation"] is not None:
-            over = y > p["saturation"]
-            bad |= over.any(axis=0)
+            bad |= (y > p["saturation"]).any(axis=0)
         good = np.flatnonzero(~bad) if bad.any() else slice(None)
         pixels = np.arange(y.shape[1])[good]
         parts = []
@@ -196,7 +194,7 @@ class JumpKernel(Kernel):
         parts.append((found.read, pixels[found.pixel], found.amplitude, found.z))
         rest = np.union1d(np.flatnonzero(bad), pixels[found.unsearched])
         if rest.size:
-            parts.extend(self._masked(y, block, maps, rest, bad_reads, over))
+            parts.extend(self._masked(y, block, maps, rest))
         frames, pix, amp, z = (np.concatenate(a) for a in zip(*parts, strict=True))
         return frames, pix, amp, z
 
@@ -205,17 +203,12 @@ class JumpKernel(Kernel):
         return search.find(y, threshold=self.params["threshold"], sigma=sigma, gain=gain,
                            max_jumps=self.params["max_jumps"])
 
-    def _masked(self, y, block, maps, pixels, bad_reads, over):
-        """The jumps of ``pixels`` with unusable reads, searched on their usable reads."""
+    def _masked(self, y, block, maps, pixels):
+        """The jumps of ``pixels`` with unusable reads, searched on their usable reads (those
+        `fit_ramp` would fit)."""
         sub = y[:, pixels]
-        usable = np.isfinite(sub)
-        saturated = np.zeros(sub.shape, bool)
-        if bad_reads is not None:
-            usable &= ~bad_reads[:, pixels]
-            saturated |= (block.dq.reshape(sub.shape[0], -1)[:, pixels] & dq.SATURATED) != 0
-        if over is not None:
-            saturated |= over[:, pixels]
-        usable &= ~np.logical_or.accumulate(saturated, axis=0)
+        flags = None if block.dq is None else block.dq.reshape(sub.shape[0], -1)[:, pixels]
+        usable, _ = usable_reads(sub, flags, self.params["saturation"])
         least = 5 if self.estimate else 4
         keys = np.packbits(usable, axis=0).T.copy()
         _, first, inverse = np.unique(keys.view(f"V{keys.shape[1]}").ravel(),

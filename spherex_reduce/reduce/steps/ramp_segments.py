@@ -36,7 +36,7 @@ import numpy as np
 from ...core import dq
 from ...core.limits import check_size
 
-__all__ = ["RATIO_BINS", "RampNoise", "SegmentFit", "fit_segments"]
+__all__ = ["RATIO_BINS", "RampNoise", "SegmentFit", "fit_segments", "usable_reads"]
 
 #: Bins per decade of ``rate / read_noise**2`` whose pixels share GLS weights (0.02 dex).
 RATIO_BINS = 50
@@ -188,8 +188,20 @@ class SegmentFit:
     var_per_rate: np.ndarray
 
 
-def _usable(y, flags, saturation):
-    """``(usable, saturated_pixel)``: reads to fit, and pixels whose ramp saturation cut."""
+def usable_reads(y, flags, saturation):
+    """``(usable, saturated_pixel)``: reads to fit (finite, not flagged, before the first
+    read flagged ``SATURATED`` or above ``saturation``), and pixels whose ramp saturation
+    cut.  ``y`` and ``flags`` (or None) are ``(reads, pixels)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.reduce.steps.ramp_segments import usable_reads
+    >>> y = np.array([[1.0, 1.0], [2.0, np.nan], [9.0, 3.0], [4.0, 4.0]])
+    >>> usable, saturated = usable_reads(y, None, saturation=5.0)
+    >>> usable.T.astype(int).tolist(), saturated.tolist()
+    ([[1, 1, 0, 0], [1, 0, 1, 1]], [True, False])
+    """
     finite = np.isfinite(y)
     sat = np.zeros(y.shape, bool)
     if saturation is not None:
@@ -277,7 +289,7 @@ def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=No
                            want_var=want_var)
         return SegmentFit(*(getattr(fit, k)[:1] for k in SegmentFit.__dataclass_fields__))
     y = np.ascontiguousarray(y)
-    usable, saturated = _usable(y, flags, saturation)
+    usable, saturated = usable_reads(y, flags, saturation)
     jumps = np.zeros(y.shape, bool) if flags is None else (flags & dq.JUMP) != 0
     seg = np.minimum(np.cumsum(jumps, axis=0), MAX_SEGMENTS)
     usable &= np.cumsum(jumps, axis=0) <= MAX_SEGMENTS

@@ -38,7 +38,7 @@ import numpy as np
 from astropy import units as u
 
 __all__ = ["CHANNEL_LAYOUTS", "FAST_AXES", "FIRST_CORNERS", "ChannelLayout",
-           "stored_pixel_times"]
+           "check_stored_order", "stored_pixel_times"]
 
 #: The arrangements of the channels on the stored image (``channels``).
 CHANNEL_LAYOUTS = ("columns", "rows", "quadrants")
@@ -164,7 +164,7 @@ class ChannelLayout:
         self._check(frame.shape[-2:], self.frame_shape, "readout frame")
         if self.channels == "rows":
             return np.swapaxes(frame, -1, -2)
-        out = np.empty(frame.shape[:-2] + (self.nrows, self.ncols), frame.dtype)
+        out = np.empty((*frame.shape[:-2], self.nrows, self.ncols), frame.dtype)
         width = self.frame_shape[1] // 4
         for q, view in enumerate(self._quadrant_views(out)):
             view[...] = frame[..., q * width:(q + 1) * width]
@@ -306,3 +306,35 @@ def stored_pixel_times(schedule, frame=0):
     samples = schedule.pixel_samples()[schedule.read_of_row()]
     times = schedule.frame_starts[frame] + (samples / g.pixel_rate) * u.s
     return g.layout.to_stored(times.to_value(u.s)) * u.s
+
+
+def check_stored_order(schedule, order):
+    """Refuse ramps in readout order of a layout that is not ``columns`` unless every row
+    is read once, in order (``skip: 1``, ``ref_mode: none``): only then is a read of
+    the readout frame a row of the stored image.
+
+    Raises
+    ------
+    ValueError
+        Naming the layout and what the schedule reads.
+
+    Examples
+    --------
+    >>> from spherex_reduce import DetectorGeometry, ReadoutSchedule
+    >>> from spherex_reduce.core.channel_layout import check_stored_order
+    >>> g = DetectorGeometry(8, 8, 2, ref_border=0, channels="rows")
+    >>> try:
+    ...     check_stored_order(ReadoutSchedule(g, skip=2, ref_mode="none"), "readout")
+    ... except ValueError as exc:
+    ...     print(str(exc).split(";")[-1])
+     this schedule reads rows [0, 2, 4, 6, 1, 3, 5, 7]
+    """
+    g = schedule.geometry
+    if g.layout.identity or order != "readout":
+        return
+    rows = np.asarray(schedule.rows)
+    if not np.array_equal(rows, np.arange(g.nrows)):
+        shown = rows[:8].tolist() if rows.size > 8 else rows.tolist()
+        raise ValueError(f"channels: {g.layout.channels} stores images: its ramps in readout "
+                         "order must read every row once, in order (skip: 1, ref_mode: "
+                         f"none); this schedule reads rows {shown}")

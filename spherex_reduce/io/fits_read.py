@@ -357,8 +357,10 @@ def _exposure(hdul, path, bad, stable, supplied, dq_bits, options, integration):
         index = integration if integration is not None and len(image_shape(hdu)) == 4 else None
         return physical(hdu, path, stable, flags, index)
 
-    data = physical(d.sci, path, stable, index=integration)
-    err, mask, phantom = image("ERR"), image("DQ", flags=True), image("PHANTOM")
+    layout = d.schedule.geometry.layout  # the stored image to the readout frame
+    data = layout.to_readout(physical(d.sci, path, stable, index=integration))
+    err, mask = layout.to_readout(image("ERR")), layout.to_readout(image("DQ", flags=True))
+    phantom = image("PHANTOM")
     bits = foreign_bits(dq_bits)  # checked even if unused
     if mask is not None:  # a DQ from other software: its bits are not ours
         bits = None if is_own_file(names) else bits

@@ -9,7 +9,7 @@ from astropy.io import fits
 
 from ..core.errors import FormatError
 from ..core.exposure import Exposure
-from .description import describe, file_tables
+from .description import describe, file_tables, image_shape
 from .fits_read import Closing, exposure_from_hdul, open_fits
 from .input import InputOptions, apply_gain, apply_input
 from .pixels import FITS_DTYPES, FLOAT_FOR, physical, scaling, to_physical, unpacking
@@ -78,6 +78,8 @@ class FrameReader(RampReader):
                         or "ERR" in d.names:
                     raise FormatError(f"{path} is not a raw ramp file in readout order")
                 self._d = d
+                self._layout = d.schedule.geometry.layout
+                self._stored_shape = image_shape(d.sci)[1:]  # rows, columns as stored
                 self.schedule, self.header, self.unit = d.kept, d.header, d.unit
                 self._drop, self._gain = d.drop, d.gain
                 phantom = (np.asarray(physical(self._hdul["PHANTOM"], path, self._stable))
@@ -133,7 +135,7 @@ class FrameReader(RampReader):
         k += self._drop
         if self._map is None:  # compressed: astropy unpacks (and scales) the section
             with unpacking(self.path):
-                data = np.asarray(self._d.sci.section[k : k + 1])
+                data = self._layout.to_readout(np.asarray(self._d.sci.section[k : k + 1]))
             if data.dtype.kind in "iu":
                 data = data.astype(FLOAT_FOR[self._d.sci.header["BITPIX"]])
         else:  # explicit reads (`reads`), converted to native order or scaled
@@ -167,13 +169,26 @@ class FrameReader(RampReader):
         threads may read at once.  The executor's bands use it for files
         `readable_in_bands`; `frame` for any file stored as it is on disk.
 
+        A layout whose channels are not columns reads the stored rows that hold
+        the band (`~spherex_reduce.core.channel_layout.ChannelLayout.stored_rows_of`):
+        for quadrants read along rows, two runs of ``stop - first`` rows; for
+        ``rows`` (and quadrants read along columns) every row of the frame.
+
         Returns
         -------
         `numpy.ndarray`
-            ``(stop - first, columns)``, possibly big-endian.
+            ``(stop - first, columns)`` of the readout frame, possibly big-endian.
         """
+        if self._layout.identity:
+            return self._stored_rows(k, first, stop)
+        rows, take = self._layout.stored_rows_of(first, stop)
+        runs = np.split(rows, np.flatnonzero(np.diff(rows) != 1) + 1)
+        return np.concatenate([self._stored_rows(k, r[0], r[-1] + 1) for r in runs])[take]
+
+    def _stored_rows(self, k, first, stop):
+        """Rows ``first:stop`` of the stored image of frame ``k`` (a copy, as in the file)."""
         mm, offset, dtype, fd = self._map
-        nreads, ncols = self._d.shape[1:]
+        nreads, ncols = self._stored_shape
         k += self._drop
         pos = offset + (k * nreads + first) * ncols * dtype.itemsize
         if not hasattr(os, "preadv"):  # (Windows) from the map, then release its pages

@@ -20,7 +20,7 @@ import numpy as np
 from ..core.errors import FormatError
 from ..core.exposure import Exposure
 from ..core.limits import check_count, check_size
-from .description import describe, file_tables
+from .description import describe, file_tables, image_shape
 from .fits_read import open_fits
 from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq
 from .frames import RampReader, map_frames
@@ -142,12 +142,15 @@ class _ReadFile:
                 sci = self.d.sci
                 #: the read's flags as stored (2-D, of the image's shape), or None
                 self.dq = None
+                self.layout = self.d.schedule.geometry.layout
+                self.stored_shape = image_shape(sci)  # the image as stored: rows, columns
                 if "DQ" in self.d.names:
                     self.dq = np.array(physical(self.hdul["DQ"], path, stable, flags=True))
-                    if self.dq.shape != tuple(self.d.shape):
+                    if self.dq.shape != self.stored_shape:
                         raise FormatError(f"{path}: DQ has shape {self.dq.shape}, SCI "
-                                          f"{tuple(self.d.shape)}: a read's flags are one "
+                                          f"{self.stored_shape}: a read's flags are one "
                                           "value per pixel of its image")
+                    self.dq = self.layout.to_readout(self.dq)
                 self.own = is_own_file(self.d.names)
                 self.scale = scaling(sci, path)
                 self.bitpix = sci.header["BITPIX"]
@@ -174,8 +177,18 @@ class _ReadFile:
                 stable.close()
 
     def rows(self, first, stop, dtype):
-        """Rows ``first:stop`` of the image as ``dtype`` (physical values, native order)."""
-        ncols = self.d.shape[1]
+        """Rows ``first:stop`` of the readout frame as ``dtype`` (physical values, native
+        order): of the image itself for ``channels: columns``, else gathered from the
+        stored rows that hold them (as `~spherex_reduce.io.FrameReader.reads`)."""
+        if self.layout.identity:
+            return self._stored_rows(first, stop, dtype)
+        rows, take = self.layout.stored_rows_of(first, stop)
+        runs = np.split(rows, np.flatnonzero(np.diff(rows) != 1) + 1)
+        return np.concatenate([self._stored_rows(r[0], r[-1] + 1, dtype) for r in runs])[take]
+
+    def _stored_rows(self, first, stop, dtype):
+        """Rows ``first:stop`` of the image as stored, as ``dtype``."""
+        ncols = self.stored_shape[1]
         if self.map is None:  # compressed: astropy unpacks (and scales) the section
             # (the file is kept open; also without pread, e.g. on Windows)
             with unpacking(self.path):

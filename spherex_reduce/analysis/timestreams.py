@@ -110,11 +110,14 @@ def reference_timestream(exposure, source="columns", parity=None):
     exposure : `~spherex_reduce.Exposure`
         Raw ramps in readout order.
     source : {'columns', 'rows'}
-        ``'columns'``: the side border columns (left of the first channel,
-        right of the last: the sides ``ref_border`` declares, the same
-        number from each, the narrower width), averaged per read: one value
-        per row read, ``values`` ``(sides, nframes, n_reads)``.  ``'rows'``: every reference-row
-        read of every channel at the pixel rate, in each channel's scan order,
+        ``'columns'``: the reference columns (left of the first channel,
+        right of the last: the sides ``ref_border`` declares; in the readout
+        frame of quadrants, those at the start or end of every channel:
+        `~spherex_reduce.DetectorGeometry.reference_column_groups`), the
+        same number from each edge, the narrowest width, averaged per read:
+        one value per row read, ``values`` ``(runs, nframes, n_reads)``.
+        ``'rows'``: every reference-row read of every channel at the pixel
+        rate, in each channel's scan order,
         ``values`` ``(nchannels, nframes, n_ref_reads, width)``.
     parity : {None, 'even', 'odd'}
         Keep only the pixels sampled at even or odd offsets of a channel's
@@ -136,13 +139,12 @@ def reference_timestream(exposure, source="columns", parity=None):
     data = np.asarray(exposure.data.data)
     offs = g.column_offsets()
     if source == "columns":
-        b = g.border
-        if b.columns == 0:
-            raise SpherexReduceError("the array has no side reference columns "
-                                     f"(ref_border = {b})")
-        width = min(w for w in (b.left, b.right) if w)  # the same number from each side
-        sides = [c for w, c in ((b.left, np.arange(width)),
-                                (b.right, np.arange(g.ncols - width, g.ncols))) if w]
+        runs = g.reference_column_groups()
+        if not runs:
+            raise SpherexReduceError("the array has no reference columns "
+                                     f"(ref_border = {g.border})")
+        width = min(run.size for run in runs)  # the same number from each edge
+        sides = [np.sort(run[:width]) for run in runs]
         if parity is not None:
             sides = [c[offs[c] % 2 == first_off] for c in sides]
             if any(c.size == 0 for c in sides):
@@ -286,8 +288,9 @@ def fit_raw_noise(exposure, exponent=1.3, nperseg=None, nbins=30, fit=PARAMS, ac
     rows, fits_ = [], {}
     frate = fs / m
     spectra, bases, names = [], [], []
-    if g.border.columns:
-        split = acn and min(w for w in (g.border.left, g.border.right) if w) >= 2
+    runs = g.reference_column_groups()
+    if runs:
+        split = acn and min(run.size for run in runs) >= 2
         spec, ts = _parity_psd(exposure, "columns", frate, nper, split)
         spectra.append(spec)
         names.append("border columns")

@@ -170,6 +170,22 @@ class ChannelLayout:
             view[...] = frame[..., q * width:(q + 1) * width]
         return out
 
+    def summary(self):
+        """One line: the stored image, how its channels lie, and the readout frame.
+
+        Examples
+        --------
+        >>> from spherex_reduce.core.channel_layout import ChannelLayout
+        >>> print(ChannelLayout(1024, 1024, "quadrants").summary().replace("; ", "\n"))
+        stored image 1024 x 1024, channels: quadrants read from the outer corner along rows
+        readout frame 512 x 2048
+        """
+        how = {"columns": "columns", "rows": "rows, read along the columns",
+               "quadrants": f"quadrants read from the {self.first_corner} corner along "
+                            f"{self.fast_axis}"}[self.channels]
+        return (f"stored image {self.nrows} x {self.ncols}, channels: {how}; readout frame "
+                f"{self.frame_shape[0]} x {self.frame_shape[1]}")
+
     @staticmethod
     def _check(got, expected, what):
         if tuple(got) != tuple(expected):

@@ -322,6 +322,25 @@ class DetectorGeometry:
         mask |= (within < start) | (within >= self.ncols // self.nchannels - end)
         return mask
 
+    def reference_column_groups(self):
+        """The runs of reference columns, each listed from its edge inward: ``left`` (from
+        column 0), ``right`` (from the last column), then the `channel_border` columns at
+        the start and at the end of every channel; empty runs left out.
+
+        Examples
+        --------
+        >>> from spherex_reduce import DetectorGeometry
+        >>> g = DetectorGeometry(8, 8, 4, ref_border=1, channels="quadrants")
+        >>> [run.tolist() for run in g.frame.reference_column_groups()]
+        [[0], [4], [8], [12]]
+        """
+        b, width = self._border, self.ncols // self.nchannels
+        start, end = self.channel_border
+        runs = [np.arange(b.left), self.ncols - 1 - np.arange(b.right)]
+        for ch in range(self.nchannels):
+            runs += [ch * width + np.arange(start), (ch + 1) * width - 1 - np.arange(end)]
+        return [run for run in runs if run.size]
+
     def reference_pixel_mask(self):
         """True for the reference pixels of a physical-order image ``(nrows, ncols)``: the
         reference rows and the side reference columns (statistics leave them out).

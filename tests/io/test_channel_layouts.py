@@ -182,3 +182,21 @@ def test_chopped_readout_of_a_stored_layout_is_refused(tmp_path):
     supplied = {**_config("rows")["geometry"], **READOUT, "skip": 2}
     with pytest.raises(ValueError, match="read every row once, in order"):
         sr.read(raw, **supplied)
+
+
+def test_quadrant_side_columns_join_their_own_channels_offsets(tmp_path):
+    """Outer-corner quadrants start every channel with reference columns: with
+    ``side_columns`` each channel's mean takes its quadrant's border columns too."""
+    raw = tmp_path / "raw.fits"
+    data, _ = _lab_file(raw, "quadrants")
+    config = _config("quadrants")
+    config["steps"][1] = {"correct_reference": {"strategy": "mean", "side_columns": True}}
+    table = sr.Pipeline(config).run(raw).tables["REFOFFS"]
+    rows_by_hand = BORDER * (N // 2)  # the quadrant's outer rows
+    columns_by_hand = BORDER * (N // 2 - BORDER)  # its outer columns, active rows only
+    assert set(table["n_used"]) == {rows_by_hand + columns_by_hand}
+    chan, _ = _channels_by_hand("quadrants")
+    for row in table:  # every reference pixel holds 1000 + its read's channel offset
+        k, c = int(row["frame"]), int(row["channel"])
+        truth = data[k][(chan == c) & (np.abs(np.arange(N) - 7.5) > 7.5 - BORDER)[:, None]]
+        assert row["offset"] == pytest.approx(truth.mean(), abs=1e-9)

@@ -169,10 +169,12 @@ class FrameReader(RampReader):
         threads may read at once.  The executor's bands use it for files
         `readable_in_bands`; `frame` for any file stored as it is on disk.
 
-        A layout whose channels are not columns reads the stored rows that hold
-        the band (`~spherex_reduce.core.channel_layout.ChannelLayout.stored_rows_of`):
+        A layout whose channels are not columns reads what holds the band
+        (`~spherex_reduce.core.channel_layout.ChannelLayout.stored_rows_of`):
         for quadrants read along rows, two runs of ``stop - first`` rows; for
-        ``rows`` (and quadrants read along columns) every row of the frame.
+        ``rows`` (quadrants read along columns), columns ``first:stop`` (two
+        runs of ``stop - first`` columns) of every stored row, one ``pread``
+        a row and run: the file's bytes once, in many small reads.
 
         Returns
         -------
@@ -181,9 +183,29 @@ class FrameReader(RampReader):
         """
         if self._layout.identity:
             return self._stored_rows(k, first, stop)
-        rows, take = self._layout.stored_rows_of(first, stop)
-        runs = np.split(rows, np.flatnonzero(np.diff(rows) != 1) + 1)
-        return np.concatenate([self._stored_rows(k, r[0], r[-1] + 1) for r in runs])[take]
+        rows, (at, column) = self._layout.stored_rows_of(first, stop)
+        columns = np.unique(column)
+        if columns.size <= self._stored_shape[1] // 4 and hasattr(os, "preadv"):
+            part = self._stored_columns(k, rows, _runs(columns))  # a few columns of each row
+            return part[at, np.searchsorted(columns, column)]
+        return np.concatenate([self._stored_rows(k, r[0], r[-1] + 1) for r in _runs(rows)])[
+            at, column]
+
+    def _stored_columns(self, k, rows, runs):
+        """The columns of ``runs`` (runs of consecutive columns) of stored rows ``rows`` of
+        frame ``k``, side by side: one ``pread`` a row and run."""
+        _, offset, dtype, fd = self._map
+        nrows, ncols = self._stored_shape
+        base = offset + (k + self._drop) * nrows * ncols * dtype.itemsize
+        buf = np.empty((rows.size, sum(run.size for run in runs)), dtype)
+        for i, r in enumerate(rows):
+            at = 0
+            for run in runs:
+                pread_into(fd, buf[i, at:at + run.size],
+                           base + (int(r) * ncols + int(run[0])) * dtype.itemsize,
+                           f"{self.path}: the file ends inside frame {k}")
+                at += run.size
+        return buf
 
     def _stored_rows(self, k, first, stop):
         """Rows ``first:stop`` of the stored image of frame ``k`` (a copy, as in the file)."""
@@ -207,6 +229,11 @@ class FrameReader(RampReader):
         length = (start + nbytes - page) // mmap.PAGESIZE * mmap.PAGESIZE
         if length:
             mm.madvise(mmap.MADV_DONTNEED, page, length)
+
+
+def _runs(values):
+    """Sorted unique integers split into runs of consecutive values."""
+    return np.split(values, np.flatnonzero(np.diff(values) != 1) + 1)
 
 
 def map_frames(hdu, path):

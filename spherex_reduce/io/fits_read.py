@@ -358,8 +358,16 @@ def _exposure(hdul, path, bad, stable, supplied, dq_bits, options, integration):
         return physical(hdu, path, stable, flags, index)
 
     layout = d.schedule.geometry.layout  # the stored image to the readout frame
-    data = layout.to_readout(physical(d.sci, path, stable, index=integration))
-    err, mask = layout.to_readout(image("ERR")), layout.to_readout(image("DQ", flags=True))
+
+    def frame(values, name):
+        try:
+            return layout.to_readout(values)
+        except ValueError as exc:
+            raise FormatError(f"{path}: {name}: {exc} (NROWS, NCOLS; CHANLAY "
+                              f"{layout.channels})") from None
+
+    data = frame(physical(d.sci, path, stable, index=integration), "SCI")
+    err, mask = frame(image("ERR"), "ERR"), frame(image("DQ", flags=True), "DQ")
     phantom = image("PHANTOM")
     bits = foreign_bits(dq_bits)  # checked even if unused
     if mask is not None:  # a DQ from other software: its bits are not ours

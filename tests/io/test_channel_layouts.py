@@ -200,3 +200,23 @@ def test_quadrant_side_columns_join_their_own_channels_offsets(tmp_path):
         k, c = int(row["frame"]), int(row["channel"])
         truth = data[k][(chan == c) & (np.abs(np.arange(N) - 7.5) > 7.5 - BORDER)[:, None]]
         assert row["offset"] == pytest.approx(truth.mean(), abs=1e-9)
+
+
+def test_quadrants_read_along_columns_stream_by_columns_of_the_stored_rows(tmp_path):
+    raw = tmp_path / "raw.fits"
+    _lab_file(raw, "quadrants")
+    supplied = {**_config("quadrants")["geometry"], **READOUT, "fast_axis": "columns"}
+    whole = sr.read(raw, **supplied)
+    with FrameReader(raw, **supplied) as reader:
+        for first, stop in [(0, 2), (5, 8)]:
+            assert np.array_equal(reader.reads(1, first, stop), whole.data.data[1, first:stop])
+
+
+def test_a_dq_of_another_shape_is_one_format_error(tmp_path):
+    raw = tmp_path / "raw.fits"
+    data, _ = _lab_file(raw, "rows")
+    with fits.open(raw) as hdul:
+        hdul.append(fits.ImageHDU(np.zeros((N, N + 2), np.int32), name="DQ"))
+        hdul.writeto(tmp_path / "dq.fits")
+    with pytest.raises(sr.FormatError, match="DQ: the stored image must be 16 x 16"):
+        sr.read(tmp_path / "dq.fits", **{**_config("rows")["geometry"], **READOUT})

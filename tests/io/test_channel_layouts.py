@@ -214,7 +214,7 @@ def test_quadrants_read_along_columns_stream_by_columns_of_the_stored_rows(tmp_p
 
 def test_a_dq_of_another_shape_is_one_format_error(tmp_path):
     raw = tmp_path / "raw.fits"
-    data, _ = _lab_file(raw, "rows")
+    _lab_file(raw, "rows")
     with fits.open(raw) as hdul:
         hdul.append(fits.ImageHDU(np.zeros((N, N + 2), np.int32), name="DQ"))
         hdul.writeto(tmp_path / "dq.fits")

@@ -176,9 +176,9 @@ class ChannelLayout:
         Examples
         --------
         >>> from spherex_reduce.core.channel_layout import ChannelLayout
-        >>> print(ChannelLayout(1024, 1024, "quadrants").summary().replace("; ", "\n"))
-        stored image 1024 x 1024, channels: quadrants read from the outer corner along rows
-        readout frame 512 x 2048
+        >>> text = ChannelLayout(1024, 1024, "quadrants").summary()
+        >>> text.split(", channels: ")[1].split("; ")
+        ['quadrants read from the outer corner along rows', 'readout frame 512 x 2048']
         """
         how = {"columns": "columns", "rows": "rows, read along the columns",
                "quadrants": f"quadrants read from the {self.first_corner} corner along "

@@ -220,3 +220,16 @@ def test_a_dq_of_another_shape_is_one_format_error(tmp_path):
         hdul.writeto(tmp_path / "dq.fits")
     with pytest.raises(sr.FormatError, match="DQ: the stored image must be 16 x 16"):
         sr.read(tmp_path / "dq.fits", **{**_config("rows")["geometry"], **READOUT})
+
+
+@pytest.mark.parametrize(("example", "line"), [
+    ("wfc3-ir.yaml", "stored image 1024 x 1024, channels: quadrants read from the outer "
+                     "corner along rows; readout frame 512 x 2048"),
+    ("nirspec-science.yaml", "stored image 2048 x 2048, channels: rows, read along the "
+                             "columns; readout frame 2048 x 2048"),
+])
+def test_shipped_layout_examples_describe_their_readout(capsys, example, line):
+    from _paths import ROOT
+
+    assert main(["readout", "--config", str(ROOT / "data" / "examples" / example)]) == 0
+    assert capsys.readouterr().out.splitlines()[1] == line

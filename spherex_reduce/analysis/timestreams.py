@@ -22,6 +22,7 @@ from astropy.table import Table
 from astropy.utils.exceptions import AstropyUserWarning
 
 from ..core.errors import SpherexReduceError
+from ..core.exposure import Exposure
 from .temporal import PARAMS, aliased_basis, fit_noise_model, temporal_psd
 
 __all__ = ["Timestream", "fit_raw_noise", "phantom_timestream", "reference_timestream"]
@@ -75,6 +76,50 @@ def _frame_samples(schedule, within):
     within = np.asarray(within, dtype=np.int64)
     frames = np.arange(schedule.nframes, dtype=np.int64) * schedule.frame_samples
     return frames.reshape((-1,) + (1,) * within.ndim) + within[None, ...]
+
+
+def _side_columns(geometry):
+    """The side reference columns averaged into the ``'columns'`` stream, one array per side.
+
+    A side is a run of adjacent reference columns of one channel
+    (`~spherex_reduce.DetectorGeometry.reference_column_mask`, the one source
+    of which columns are reference columns).  Every side gives the same number
+    of columns, the narrowest side's: those farthest from the light-sensitive
+    columns (the first ones of a side left of them, the last ones of a side
+    right of them).
+    """
+    mask = geometry.reference_column_mask()
+    cols = np.flatnonzero(mask)
+    if cols.size == 0:
+        return []
+    channel = geometry.channel_of_column()
+    breaks = np.flatnonzero((np.diff(cols) != 1) | (np.diff(channel[cols]) != 0)) + 1
+    runs = np.split(cols, breaks)
+    width = min(r.size for r in runs)
+    right_of_light = [r[0] > 0 and channel[r[0] - 1] == channel[r[0]] and not mask[r[0] - 1]
+                      for r in runs]
+    return [r[-width:] if right else r[:width] for r, right in zip(runs, right_of_light,
+                                                                   strict=True)]
+
+
+def reference_row_reads(schedule):
+    """Indices of the reads of a frame whose row is reference pixels only.
+
+    Which pixels are reference pixels comes from
+    `~spherex_reduce.DetectorGeometry.reference_pixel_mask` (a row all of
+    whose pixels are reference pixels: the top and bottom border).
+
+    Examples
+    --------
+    >>> from spherex_reduce import DetectorGeometry, ReadoutSchedule
+    >>> from spherex_reduce.analysis.timestreams import reference_row_reads
+    >>> g = DetectorGeometry(8, 8, 1, ref_border={"top": 2, "left": 1})
+    >>> reference_row_reads(ReadoutSchedule(g, skip=1, ref_mode="none", ref_reads=0,
+    ...                                     phantom_reads=0, nframes=3)).tolist()
+    [0, 1]
+    """
+    g = schedule.geometry
+    return np.flatnonzero(g.reference_pixel_mask().all(axis=1)[schedule.rows])
 
 
 def phantom_timestream(exposure):
@@ -136,13 +181,10 @@ def reference_timestream(exposure, source="columns", parity=None):
     data = np.asarray(exposure.data.data)
     offs = g.column_offsets()
     if source == "columns":
-        b = g.border
-        if b.columns == 0:
+        sides = _side_columns(g)
+        if not sides:
             raise SpherexReduceError("the array has no side reference columns "
-                                     f"(ref_border = {b})")
-        width = min(w for w in (b.left, b.right) if w)  # the same number from each side
-        sides = [c for w, c in ((b.left, np.arange(width)),
-                                (b.right, np.arange(g.ncols - width, g.ncols))) if w]
+                                     f"(ref_border = {g.border})")
         if parity is not None:
             sides = [c[offs[c] % 2 == first_off] for c in sides]
             if any(c.size == 0 for c in sides):
@@ -153,7 +195,7 @@ def reference_timestream(exposure, source="columns", parity=None):
         return Timestream(_detrend_frames(vals), _frame_samples(s, first), nbox,
                           g.pixel_rate, stride)
     if source == "rows":
-        reads = s.reference_read_indices
+        reads = reference_row_reads(exposure.schedule)
         if reads.size == 0:
             raise SpherexReduceError("the schedule has no reference-row reads")
         w = g.channel_width
@@ -174,22 +216,64 @@ def _burst_length(g, split):
     return g.channel_width // 2 if split else g.channel_width
 
 
-def _parity_psd(exposure, source, rate, nperseg, acn):
-    """Welch PSD of a reference stream, split by column parity when ``acn``.
+def _joined(streams):
+    """One `Timestream` of the streams of several exposures of one schedule: their values
+    side by side on the first axis (independent realisations of the same process)."""
+    first = streams[0]
+    return first._replace(values=np.concatenate([t.values for t in streams], axis=0))
+
+
+def _parities(exposure, source, split):
+    """The reference streams of ``source``, one per column parity when ``split``."""
+    return [reference_timestream(exposure, source, p)
+            for p in (("even", "odd") if split else (None,))]
+
+
+def _streams(exposures, acn):
+    """The streams `fit_raw_noise` fits, of every exposure joined: ``{name: [Timestream]}``
+    (one per column parity for the reference streams split by ``acn``)."""
+    first = None
+    parts = {}
+    for k, e in enumerate(exposures):
+        _raw(e)
+        if first is None:
+            first = e
+        elif e.schedule != first.schedule or e.unit != first.unit:
+            raise SpherexReduceError(
+                f"exposure {k} has another schedule or unit ({e.unit}) than exposure 0 "
+                f"({first.unit}): the streams of one fit come from one readout")
+        s, g = e.schedule, e.geometry
+        got = {}
+        sides = _side_columns(g)
+        if sides:
+            got["border columns"] = _parities(e, "columns", acn and sides[0].size >= 2)
+        if reference_row_reads(s).size:
+            got["re-read rows"] = _parities(e, "rows", acn and g.channel_width >= 8)
+        if e.phantom is not None and s.phantom_reads:
+            got["phantom"] = [phantom_timestream(e)]
+        for name, streams in got.items():
+            parts.setdefault(name, []).append(streams)
+    if first is None:
+        raise SpherexReduceError("no exposure to fit")
+    joined = {name: [_joined(list(p)) for p in zip(*per, strict=True)]
+              for name, per in parts.items()}
+    return first, joined
+
+
+def _parity_psd(streams, rate, nperseg):
+    """Welch PSD of a reference stream, the mean over its column parities.
 
     The even and odd PSDs are averaged but the uncertainty counts the streams
     of one parity only: right when the parities are correlated (no ACN),
     conservative by up to √2 when they are independent.
     """
-    if not acn:
-        ts = reference_timestream(exposure, source)
-        return temporal_psd(ts.values, rate, nperseg=nperseg), ts
-    even = reference_timestream(exposure, source, "even")
-    odd = reference_timestream(exposure, source, "odd")
-    pe = temporal_psd(even.values, rate, nperseg=nperseg)
-    po = temporal_psd(odd.values, rate, nperseg=nperseg)
-    pe["psd"] = (pe["psd"] + po["psd"]) / 2
-    return pe, even
+    spectra = [temporal_psd(t.values, rate, nperseg=nperseg) for t in streams]
+    spec = spectra[0]
+    total = spec["psd"]
+    for other in spectra[1:]:
+        total = total + other["psd"]
+    spec["psd"] = total / len(spectra)
+    return spec
 
 
 #: Limits of a plausible noise fit (`implausible_fits`).
@@ -277,8 +361,8 @@ def fit_raw_noise(exposure, exponent=1.3, nperseg=None, nbins=30, fit=PARAMS, ac
         per Hz etc., for the pixel-rate process).  ``meta['fits']`` holds the
         `NoiseModelFit` objects (not written to files).
     """
-    _raw(exposure)
-    s, g = exposure.schedule, exposure.geometry
+    first, streams = _streams([exposure] if isinstance(exposure, Exposure) else exposure, acn)
+    s, g = first.schedule, first.geometry
     fs, m = g.pixel_rate, s.row_samples
     nreads = s.n_reads
     nper = nperseg or 2 ** int(np.floor(np.log2(nreads)))
@@ -286,27 +370,24 @@ def fit_raw_noise(exposure, exponent=1.3, nperseg=None, nbins=30, fit=PARAMS, ac
     rows, fits_ = [], {}
     frate = fs / m
     spectra, bases, names = [], [], []
-    if g.border.columns:
-        split = acn and min(w for w in (g.border.left, g.border.right) if w) >= 2
-        spec, ts = _parity_psd(exposure, "columns", frate, nper, split)
-        spectra.append(spec)
+    if "border columns" in streams:
+        ts = streams["border columns"]
+        spectra.append(_parity_psd(ts, frate, nper))
         names.append("border columns")
-        bases.append(lambda f, e, b=ts.nbox, st=ts.stride: aliased_basis(f, fs, m, b, e,
-                                                                         stride=st))
-    if s.reference_read_indices.size:
-        split = acn and g.channel_width >= 8
-        rate = fs / 2 if split else fs
-        spec, tr = _parity_psd(exposure, "rows", rate, _burst_length(g, split), split)
-        spectra.append(spec)
+        bases.append(lambda f, e, b=ts[0].nbox, st=ts[0].stride: aliased_basis(f, fs, m, b, e,
+                                                                               stride=st))
+    if "re-read rows" in streams:
+        tr = streams["re-read rows"]
+        split = len(tr) == 2
+        spectra.append(_parity_psd(tr, fs / 2 if split else fs, _burst_length(g, split)))
         names.append("re-read rows")
-        bases.append(lambda f, e, d=tr.stride: aliased_basis(f, fs, d, 1, e))
-    unit = exposure.unit or u.one
+        bases.append(lambda f, e, d=tr[0].stride: aliased_basis(f, fs, d, 1, e))
+    unit = first.unit or u.one
     if spectra:
         fits_["reference"] = fit_noise_model(spectra, exponent, nbins=nbins, fit=fit,
                                              basis=bases)
-    if exposure.phantom is not None and s.phantom_reads:
-        tp = phantom_timestream(exposure)
-        spec = temporal_psd(tp.values, frate, nperseg=nper)
+    if "phantom" in streams:
+        spec = temporal_psd(streams["phantom"][0].values, frate, nperseg=nper)
         fits_["phantom"] = fit_noise_model(
             spec, exponent, nbins=nbins, fit=fit,
             basis=lambda f, e: aliased_basis(f, fs, m, s.phantom_reads, e))

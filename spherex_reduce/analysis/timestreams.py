@@ -4,10 +4,23 @@
 the phantom values of a raw exposure in time order; `fit_raw_noise` fits the
 noise model of `spherex_reduce.analysis.temporal` to their PSDs.
 
+The streams, and the pixels each one holds (which pixels are reference pixels
+comes from the geometry alone: `~spherex_reduce.DetectorGeometry.reference_column_mask`
+and `~spherex_reduce.DetectorGeometry.reference_pixel_mask`):
+
+- ``border columns``: per row read, the mean of the side reference columns of
+  each side (every read, reference rows included: all reference pixels);
+- ``re-read rows``: every pixel of the reads of reference rows (rows whose
+  pixels are all reference pixels), at the pixel rate;
+- ``phantom``: the phantom values (samples of no pixel) of each channel.
+
+No stream holds a light-sensitive pixel: their values (a bright star, a hot
+pixel, the dark current) never enter a noise fit.
+
 Streams read out of a raw exposure are not sampled at the pixel rate: a
 phantom value is the mean of ``c`` consecutive samples, taken once per row read
 (every ``row_samples`` samples), and a reference-column value likewise the mean
-of the ``ref_border`` border columns.  Their PSD is the pixel-rate PSD filtered
+of a side's reference columns.  Their PSD is the pixel-rate PSD filtered
 by the ``c``-sample box and aliased into the row rate;
 `aliased_basis` gives the three model terms of such a stream, so the fit
 returns the coefficients of the underlying 100 kHz process directly.
@@ -230,34 +243,35 @@ def _parities(exposure, source, split):
 
 
 def _streams(exposures, acn):
-    """The streams `fit_raw_noise` fits, of every exposure joined: ``{name: [Timestream]}``
-    (one per column parity for the reference streams split by ``acn``)."""
-    first = None
+    """The streams `fit_raw_noise` fits, of every exposure joined, and their schedule and
+    unit: ``schedule, unit, {name: [Timestream]}`` (one `Timestream` per column parity for
+    the reference streams split by ``acn``).  Only the streams are kept, not the exposures."""
+    schedule = unit = None
     parts = {}
     for k, e in enumerate(exposures):
         _raw(e)
-        if first is None:
-            first = e
-        elif e.schedule != first.schedule or e.unit != first.unit:
+        if schedule is None:
+            schedule, unit = e.schedule, e.unit
+        elif e.schedule != schedule or e.unit != unit:
             raise SpherexReduceError(
                 f"exposure {k} has another schedule or unit ({e.unit}) than exposure 0 "
-                f"({first.unit}): the streams of one fit come from one readout")
-        s, g = e.schedule, e.geometry
+                f"({unit}): the streams of one fit come from one readout")
+        g = e.geometry
         got = {}
         sides = _side_columns(g)
         if sides:
             got["border columns"] = _parities(e, "columns", acn and sides[0].size >= 2)
-        if reference_row_reads(s).size:
+        if reference_row_reads(schedule).size:
             got["re-read rows"] = _parities(e, "rows", acn and g.channel_width >= 8)
-        if e.phantom is not None and s.phantom_reads:
+        if e.phantom is not None and schedule.phantom_reads:
             got["phantom"] = [phantom_timestream(e)]
         for name, streams in got.items():
             parts.setdefault(name, []).append(streams)
-    if first is None:
+    if schedule is None:
         raise SpherexReduceError("no exposure to fit")
     joined = {name: [_joined(list(p)) for p in zip(*per, strict=True)]
               for name, per in parts.items()}
-    return first, joined
+    return schedule, unit, joined
 
 
 def _parity_psd(streams, rate, nperseg):
@@ -323,17 +337,23 @@ def implausible_fits(table):
 
 
 def fit_raw_noise(exposure, exponent=1.3, nperseg=None, nbins=30, fit=PARAMS, acn=True):
-    """Fit eq. 1 to the reference-pixel and phantom streams of a raw exposure.
+    """Fit eq. 1 to the reference-pixel and phantom streams of raw exposures.
 
     Welch spectra are computed within frames (segments never span the
     frame overhead).  Reference columns and phantom values are modelled as
     box-averaged, decimated streams (`aliased_basis`); reference rows are
     bursts at the pixel rate.  The reference fit joins columns and rows.
+    Several exposures of one readout (the integrations of a 4-D file) give
+    independent realisations of each stream: each is detrended across its own
+    frames, and their periodograms are averaged (the uncertainties count
+    them all).
 
     Parameters
     ----------
-    exposure : `~spherex_reduce.Exposure`
-        Raw ramps in readout order.
+    exposure : `~spherex_reduce.Exposure` or iterable of them
+        Raw ramps in readout order; several (read one at a time from an
+        iterator, so only their streams are held) must have one schedule
+        and unit.
     exponent : float or None
         Exponent of the third term; ``None`` fits it per stream.
     nperseg : int, optional
@@ -361,8 +381,9 @@ def fit_raw_noise(exposure, exponent=1.3, nperseg=None, nbins=30, fit=PARAMS, ac
         per Hz etc., for the pixel-rate process).  ``meta['fits']`` holds the
         `NoiseModelFit` objects (not written to files).
     """
-    first, streams = _streams([exposure] if isinstance(exposure, Exposure) else exposure, acn)
-    s, g = first.schedule, first.geometry
+    s, unit, streams = _streams([exposure] if isinstance(exposure, Exposure) else exposure,
+                                acn)
+    g = s.geometry
     fs, m = g.pixel_rate, s.row_samples
     nreads = s.n_reads
     nper = nperseg or 2 ** int(np.floor(np.log2(nreads)))
@@ -382,7 +403,7 @@ def fit_raw_noise(exposure, exponent=1.3, nperseg=None, nbins=30, fit=PARAMS, ac
         spectra.append(_parity_psd(tr, fs / 2 if split else fs, _burst_length(g, split)))
         names.append("re-read rows")
         bases.append(lambda f, e, d=tr[0].stride: aliased_basis(f, fs, d, 1, e))
-    unit = first.unit or u.one
+    unit = unit or u.one
     if spectra:
         fits_["reference"] = fit_noise_model(spectra, exponent, nbins=nbins, fit=fit,
                                              basis=bases)

@@ -168,12 +168,16 @@ def reference_timestream(exposure, source="columns", parity=None):
     exposure : `~spherex_reduce.Exposure`
         Raw ramps in readout order.
     source : {'columns', 'rows'}
-        ``'columns'``: the side border columns (left of the first channel,
-        right of the last: the sides ``ref_border`` declares, the same
-        number from each, the narrower width), averaged per read: one value
-        per row read, ``values`` ``(sides, nframes, n_reads)``.  ``'rows'``: every reference-row
-        read of every channel at the pixel rate, in each channel's scan order,
-        ``values`` ``(nchannels, nframes, n_ref_reads, width)``.
+        ``'columns'``: the side reference columns
+        (`~spherex_reduce.DetectorGeometry.reference_column_mask`: left of
+        the first channel, right of the last, the sides ``ref_border``
+        declares), the same number from each side (the narrower side's,
+        farthest from the light-sensitive columns), averaged per read: one
+        value per row read, ``values`` ``(sides, nframes, n_reads)``.
+        ``'rows'``: every pixel of every read of a reference row (a row all
+        of whose pixels are reference pixels, `reference_row_reads`) of every
+        channel at the pixel rate, in each channel's scan order, ``values``
+        ``(nchannels, nframes, n_ref_reads, width)``.
     parity : {None, 'even', 'odd'}
         Keep only the pixels sampled at even or odd offsets of a channel's
         row read (the column parities that alternating column noise, ACN,

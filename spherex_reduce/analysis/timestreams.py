@@ -384,6 +384,22 @@ def fit_raw_noise(exposure, exponent=1.3, nperseg=None, nbins=30, fit=PARAMS, ac
         exponent chi2 dof fmin fmax`` (coefficients in the exposure's unit²
         per Hz etc., for the pixel-rate process).  ``meta['fits']`` holds the
         `NoiseModelFit` objects (not written to files).
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.examples import example_raw_exposure
+    >>> from spherex_reduce.analysis import fit_raw_noise
+    >>> e = example_raw_exposure()
+    >>> one = fit_raw_noise(e, fit=("alpha",))
+    >>> one["stream"].tolist(), str(one["alpha"].unit)
+    (['reference', 'phantom'], 'electron2 / Hz')
+
+    Two integrations (here the same one twice) average two periodograms per
+    stream: the errors shrink by √2.
+
+    >>> two = fit_raw_noise([e, e], fit=("alpha",))
+    >>> round(float(one["alpha_err"][0] / two["alpha_err"][0]), 3)
+    1.414
     """
     s, unit, streams = _streams([exposure] if isinstance(exposure, Exposure) else exposure,
                                 acn)

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from _paths import ROOT
 from astropy.io import fits
+from astropy.table import Table
 from astropy.utils.exceptions import AstropyUserWarning
 
 from spherex_reduce.cli import main
@@ -104,6 +105,10 @@ def test_every_command_of_the_guide_runs_as_written(tmp_path, monkeypatch, capsy
     keep = np.ones(one.shape, bool)
     keep[9, 9] = False
     np.testing.assert_allclose(reads[keep], one[keep], rtol=1e-6)
+    # the noise fit of the reads is the 3-D file's, bit for bit
+    noise, noise07 = Table.read("noise.ecsv"), Table.read("noise07.ecsv")
+    for name in ("alpha", "alpha_err", "beta", "beta_err", "gamma", "gamma_err", "chi2"):
+        np.testing.assert_array_equal(noise07[name], noise[name], name)
     # the 4-D file: in electrons (gain 2), the light-sensitive slopes are the rate
     jw = fits.getdata("dark.fits", "SCI")
     np.testing.assert_allclose(jw[4:, 4:], 2.0 * RATE, rtol=0.02)

@@ -97,7 +97,7 @@ def test_frame_time_is_taken_as_given_and_checked_against_the_last_window_read()
     with pytest.raises(ValueError, match=r"frame_time must be >= 0.00256 s"):
         window_schedule(0, 0, 16, 16, full, skip=1, phantom_reads=0, row_overhead=0,
                         frame_time=255e-5)
-    with pytest.raises(ValueError, match="a window needs readout.frame_time"):
+    with pytest.raises(ValueError, match=r"a window needs readout\.frame_time"):
         window_schedule(0, 0, 16, 16, full, skip=1)
 
 
@@ -159,7 +159,7 @@ def test_yaml_window_section_and_the_readout_command(tmp_path, capsys):
     assert main(["readout", "--config", str(path)]) == 0
     assert ("window 16x16 at row 0, column 16 of a 64x64 array (4 channels of 16 columns, "
             "scan alternate, reference border 4): inside full channel 1") in capsys.readouterr().out
-    with pytest.raises(ConfigError, match="without a frame|a window needs readout.frame_time"):
+    with pytest.raises(ConfigError, match=r"a window needs readout\.frame_time"):
         schedule_from_config(config["geometry"], {}, config["window"])
     config["window"]["first_column"] = 8
     path.write_text(yaml.safe_dump(config))

@@ -41,6 +41,7 @@ __all__ = ["Window", "default_overhead", "fill_window_geometry", "window_reads"]
 #: The fields of a window: ``first_row first_column full_nrows full_ncols full_nchannels
 #: full_scan full_ref_border``.
 WINDOW_FIELDS = tuple(f.name for f in section_fields("window"))
+_REQUIRED = ("first_row", "first_column", "full_nrows", "full_ncols", "full_nchannels")
 _DERIVED = ("nchannels", "scan", "ref_border")  # geometry fields a window decides
 
 
@@ -106,7 +107,7 @@ class Window:
         >>> w.full.channel_width, w.first_column
         (128, 128)
         """
-        missing = [n for n in WINDOW_FIELDS[:5] if values.get(n) is None]
+        missing = [n for n in _REQUIRED if values.get(n) is None]
         if missing:
             raise ValueError(f"a window needs {', '.join(missing)} (keywords "
                              f"{' '.join(FIELD[n].keyword for n in missing)})")
@@ -158,14 +159,10 @@ class Window:
         """The part of the full array's reference border inside the window, a `RefBorder`."""
         f, b = self.full, self.full.border
         r0, c0 = self.first_row, self.first_column
-
-        def inside(start, stop):  # pixels of [start, stop) of the full array in the window
-            return lambda lo, n: int(np.clip(min(stop, lo + n) - max(start, lo), 0, None))
-
-        return RefBorder(top=inside(0, b.top)(r0, nrows),
-                         bottom=inside(f.nrows - b.bottom, f.nrows)(r0, nrows),
-                         left=inside(0, b.left)(c0, ncols),
-                         right=inside(f.ncols - b.right, f.ncols)(c0, ncols))
+        return RefBorder(top=_overlap(0, b.top, r0, nrows),
+                         bottom=_overlap(f.nrows - b.bottom, f.nrows, r0, nrows),
+                         left=_overlap(0, b.left, c0, ncols),
+                         right=_overlap(f.ncols - b.right, f.ncols, c0, ncols))
 
     def derived(self, nrows, ncols):
         """The geometry fields the window decides: ``nchannels``, ``scan`` (a list of
@@ -211,6 +208,20 @@ class Window:
                 f"{self.first_column} of a {f.nrows}x{f.ncols} array ("
                 f"{plural(f.nchannels, 'channel')} of {plural(f.channel_width, 'column')}, "
                 f"scan {f.scan_label}, reference border {f.border}): {chans}")
+
+
+def _overlap(start, stop, first, n):
+    """Pixels of ``[start, stop)`` within ``[first, first + n)``."""
+    return max(0, min(stop, first + n) - max(start, first))
+
+
+def _scan_label(scan, n):
+    """A scan (mode, list of +1/-1 or SCANDIR string) of ``n`` channels as ``+``/``-``."""
+    if scan == "same":
+        return "+" * n
+    if scan == "alternate":
+        return "".join("+-"[i % 2] for i in range(n))
+    return scan if isinstance(scan, str) else "".join("+" if d > 0 else "-" for d in scan)
 
 
 def window_reads(geometry, rows, is_ref):
@@ -275,26 +286,21 @@ def fill_window_geometry(values):
         derived = window.derived(values["nrows"], values["ncols"])
     except ValueError as exc:
         raise FormatError(f"window: {exc}") from None
-    out = dict(values, window=window)
+    derived["scan"] = _scan_label(derived["scan"], derived["nchannels"])  # as SCANDIR
+    out = dict(values, window=window, **derived)
     for name in _DERIVED:
-        have, value = values.get(name), derived[name]
+        have = values.get(name)
+        if have is None:
+            continue
         try:
-            if name == "scan" and have is not None:
-                have = DetectorGeometry.from_scan_label(
-                    have if isinstance(have, str) else "".join("+" if d > 0 else "-"
-                                                               for d in have),
-                    nrows=1, ncols=len(value), nchannels=len(value),
-                    ref_border=0).scan_directions.tolist()
-            if name == "ref_border" and have is not None:
-                have = RefBorder.of(have).to_value()
-        except ValueError:
+            have = (_scan_label(have, derived["nchannels"]) if name == "scan"
+                    else RefBorder.of(have).to_value() if name == "ref_border" else have)
+        except (TypeError, ValueError):
             pass  # unreadable: reported as disagreeing below
-        if have is not None and have != value:
+        if have != derived[name]:
             raise FormatError(
-                f"{FIELD[name].keyword}/{name} is {values[name]} but the window gives {value}: "
-                "with a window, the channels, scan and reference border come from the full "
-                "array's (window: section)")
-        out[name] = ("".join("+" if d > 0 else "-" for d in value) if name == "scan"
-                     else value)  # scan: as SCANDIR
+                f"{FIELD[name].keyword}/{name} is {values[name]} but the window gives "
+                f"{derived[name]}: with a window, the channels, scan and reference border "
+                "come from the full array's (window: section)")
     return out
 

@@ -116,8 +116,11 @@ class Window:
                 "nchannels": values["full_nchannels"], "pixel_rate": pixel_rate,
                 "ref_border": 4 if values.get("full_ref_border") is None
                 else values["full_ref_border"]}
-        full = (DetectorGeometry.from_scan_label(scan, **size) if isinstance(scan, str)
-                else DetectorGeometry(scan=scan, **size))
+        try:
+            full = (DetectorGeometry.from_scan_label(scan, **size) if isinstance(scan, str)
+                    else DetectorGeometry(scan=scan, **size))
+        except ValueError as exc:
+            raise ValueError(f"the full array (full_nrows ... full_ref_border): {exc}") from None
         return cls(values["first_row"], values["first_column"], full)
 
     def fields(self):

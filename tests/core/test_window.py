@@ -167,3 +167,13 @@ def test_yaml_window_section_and_the_readout_command(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("spherex-reduce readout: error: ") and err.count("\n") == 1
     assert "cuts a readout channel" in err
+
+
+def test_a_bad_full_array_is_named_as_such():
+    values = {"first_row": 0, "first_column": 0, "full_nrows": 64, "full_ncols": 64,
+              "full_nchannels": 5}
+    with pytest.raises(ValueError, match=r"^the full array \(full_nrows ... full_ref_border\): "
+                       "nchannels x channel width must equal ncols"):
+        Window.from_fields(values, 1e5)
+    with pytest.raises(ValueError, match="a window needs full_ncols"):
+        Window.from_fields({k: v for k, v in values.items() if k != "full_ncols"}, 1e5)

@@ -177,3 +177,14 @@ def test_a_bad_full_array_is_named_as_such():
         Window.from_fields(values, 1e5)
     with pytest.raises(ValueError, match="a window needs full_ncols"):
         Window.from_fields({k: v for k, v in values.items() if k != "full_ncols"}, 1e5)
+
+
+def test_the_window_transcript_of_the_readout_docs(capsys):
+    from _paths import ROOT
+
+    lines = (ROOT / "docs" / "cli.rst").read_text(encoding="utf-8").splitlines()
+    (at,) = [i for i, line in enumerate(lines) if "$ spherex-reduce readout" in line
+             and "--first-row" in line]
+    argv = lines[at].split("$ spherex-reduce ", 1)[1].split()
+    assert main(argv) == 0
+    assert capsys.readouterr().out.splitlines() == [x.strip() for x in lines[at + 1:at + 3]]

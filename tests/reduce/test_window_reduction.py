@@ -30,7 +30,9 @@ def full_order(skip=SKIP, nrows=64, border=4):
     (0, 16, (64, 16), {"rows": [0, 1, 2, 3, 60, 61, 62, 63], "left": 0}),  # output 1
     (2, 16, (32, 32), {"rows": [0, 1], "left": 0}),  # channels 1 and 2 from full row 2
 ], ids=["corner", "output", "two-channels"])
-def test_window_reduces_to_the_numpy_slopes(tmp_path, first_row, first_column, shape, refs):
+@pytest.mark.parametrize("strategy", ["mean", "acn"])
+def test_window_reduces_to_the_numpy_slopes(tmp_path, first_row, first_column, shape, refs,
+                                            strategy):
     rng = np.random.default_rng(7)
     nrows, ncols = shape
     width = 16
@@ -56,7 +58,7 @@ def test_window_reduces_to_the_numpy_slopes(tmp_path, first_row, first_column, s
               "window": {"first_row": first_row, "first_column": first_column, **FULL},
               "readout": {"skip": SKIP, "ref_mode": "none", "phantom_reads": 0,
                           "nframes": NREADS, "frame_time": TFRAME},
-              "steps": ["unchop", {"correct_reference": {"strategy": "mean"}}, "fit_ramp"]}
+              "steps": ["unchop", {"correct_reference": {"strategy": strategy}}, "fit_ramp"]}
     pipeline = sr.Pipeline(config)
     assert pipeline.read(path).schedule.rows.tolist() == rows
     got = pipeline.run(path).data.data
@@ -71,3 +73,17 @@ def test_window_reduces_to_the_numpy_slopes(tmp_path, first_row, first_column, s
     np.testing.assert_allclose(got[~ref], slope[~ref], rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(got[~ref], rate[~ref], rtol=1e-9)
     assert hashlib.sha256(path.read_bytes()).hexdigest() == digest
+
+
+def test_wiener_refuses_a_window_in_one_line(tmp_path):
+    path = tmp_path / "corner.fits"
+    fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(np.zeros((3, 16, 16)), name="SCI")]
+                 ).writeto(path)
+    config = {"geometry": {"nrows": 16, "ncols": 16, "pixel_rate": 1e5},
+              "window": {"first_row": 0, "first_column": 0, **FULL},
+              "readout": {"skip": 1, "ref_mode": "none", "phantom_reads": 0, "nframes": 3,
+                          "frame_time": TFRAME},
+              "steps": [{"correct_reference": {"strategy": "wiener", "noise": "spherex-table2"}}]}
+    with pytest.raises(sr.ConfigError, match="wiener does not model a window") as info:
+        sr.Pipeline(config).run(path)
+    assert "\n" not in str(info.value)

@@ -206,7 +206,7 @@ class ReadoutSchedule:
         if overhead < 0:
             raise ValueError(f"frame_time must be >= {read_samples / rate:.6g} s, the time to read "
                              f"{read_samples // self.row_samples} rows of {self.row_samples} "
-                             f"samples; got {tframe}")
+                             f"samples (phantom_reads + pixels + row_overhead); got {tframe}")
         if self.frame_overhead is not None and check_field(
                 FIELD["frame_overhead"], self.frame_overhead) != overhead:
             raise ValueError(

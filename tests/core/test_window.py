@@ -94,7 +94,8 @@ def test_frame_time_is_taken_as_given_and_checked_against_the_last_window_read()
     s = window_schedule(0, 0, 16, 16, full, skip=1, phantom_reads=0, row_overhead=0,
                         frame_time=256e-5)
     assert s.frame_samples == 256 and s.frame_overhead == 0
-    with pytest.raises(ValueError, match=r"frame_time must be >= 0.00256 s"):
+    with pytest.raises(ValueError, match=r"frame_time must be >= 0.00256 s, the time to read 16 "
+                       r"rows of 16 samples \(phantom_reads \+ pixels \+ row_overhead\)"):
         window_schedule(0, 0, 16, 16, full, skip=1, phantom_reads=0, row_overhead=0,
                         frame_time=255e-5)
     with pytest.raises(ValueError, match=r"a window needs readout\.frame_time"):

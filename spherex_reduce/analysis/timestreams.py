@@ -218,11 +218,12 @@ def reference_timestream(exposure, source="columns", parity=None):
         w = g.channel_width
         order = np.argsort(offs.reshape(g.nchannels, w), axis=1)
         cols = order + (np.arange(g.nchannels) * w)[:, None]  # (nchannels, w) in scan order
-        cols = cols[:, first_off::stride]
+        if parity is not None:  # by the offset in the row read (a window's: the full one's)
+            cols = cols[:, offs[cols[0]] % 2 == first_off]
         vals = data[:, reads][:, :, cols]  # frames, nref, nchannels, w'
         vals = np.moveaxis(vals, 2, 0)  # channels, frames, nref, w'
         flat = _detrend_frames(vals.reshape(g.nchannels, s.nframes, -1))
-        samples = s.starts[reads][:, None] + np.arange(first_off, w, stride)[None, :]
+        samples = s.starts[reads][:, None] + offs[cols[0]][None, :]
         return Timestream(flat.reshape(vals.shape), _frame_samples(s, samples), 1, g.pixel_rate,
                           stride)
     raise SpherexReduceError(f"source must be 'columns' or 'rows', got {source!r}")

@@ -1,5 +1,6 @@
 """Detector layout: rows, columns, readout channels and the reference border."""
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -108,6 +109,11 @@ class DetectorGeometry:
         and Roman do), or give one direction per channel.
     pixel_rate : float
         Pixel sample rate of each channel in Hz.
+    window : `~spherex_reduce.core.window.Window`, optional (keyword only)
+        The array is a window of a larger one, whose readout gives its pixel
+        times; ``nchannels``, ``scan`` and ``ref_border`` must then be the
+        window's (`Window.geometry <spherex_reduce.core.window.Window.geometry>`
+        builds it).
 
     Examples
     --------
@@ -123,7 +129,9 @@ class DetectorGeometry:
     ([0, 1, 2, 3], 36)
     """
 
-    # The fields, their defaults and checks: `spherex_reduce.core.fields.FIELDS` ("geometry").
+    window: object = dataclasses.field(default=None, kw_only=True, repr=False)
+    # Then the fields, their defaults and checks: `spherex_reduce.core.fields.FIELDS`
+    # ("geometry").
 
     def __post_init__(self):
         maxima = {"nchannels": lambda: self.ncols,  # bounds that depend on checked fields
@@ -150,6 +158,8 @@ class DetectorGeometry:
             )
         check_size(self.nchannels * 16.0, f"{self.nchannels} readout channels")
         object.__setattr__(self, "_directions", self._parse_scan(self.scan))
+        if self.window is not None:
+            self.window.check(self)
 
     def _parse_scan(self, scan):
         if isinstance(scan, str):
@@ -218,6 +228,12 @@ class DetectorGeometry:
             return self.scan
         return "".join("+" if d > 0 else "-" for d in self._directions)
 
+    @property
+    def read_width(self):
+        """Pixels of a row read in each channel: the channel width, or for a window the
+        full array's."""
+        return self.channel_width if self.window is None else self.window.full.channel_width
+
     def channel_of_column(self):
         """Channel index (0-based) of each column, shape ``(ncols,)``."""
         return np.arange(self.ncols) // self.channel_width
@@ -227,8 +243,11 @@ class DetectorGeometry:
 
         Column ``j`` of a channel read left to right is sampled ``j`` samples
         after the channel's first pixel; read right to left,
-        ``width - 1 - j`` samples after.
+        ``width - 1 - j`` samples after.  A window's columns have the offsets of
+        the full array's columns they are.
         """
+        if self.window is not None:
+            return self.window.column_offsets(self.ncols)
         width = self.channel_width
         j = np.tile(np.arange(width), self.nchannels)
         reverse = np.repeat(self.scan_directions < 0, width)

@@ -1,10 +1,11 @@
 """Measure noise: spatial power spectra, band power, temporal PSD fits.
 
 Spatial (`spherex_reduce.analysis.spectrum`): `power_spectrum` (P(k), k in
-rad/pixel, k = 2π · pixel scale / θ), `band_power` (θ = 5–20′ by default; `band_label`),
-`fft_magnitude` (paper Fig. 7); `source_mask` (photutils segmentation,
-`spherex_reduce.core.source_mask`).  Photon noise (`spherex_reduce.analysis.photon_noise`):
-`photon_noise_power` (the Zodiacal-light line of Fig. 13).
+rad/pixel, k = 2π · pixel scale / θ), `band_power` (θ = 5–20′ by default;
+named by `band_label`, its exact θ by `band_theta`), `fft_magnitude` (paper
+Fig. 7); `source_mask` (photutils segmentation, `spherex_reduce.core.source_mask`).
+Photon noise (`spherex_reduce.analysis.photon_noise`): `photon_noise_power`
+(the Zodiacal-light line of Fig. 13).
 
 Temporal (`spherex_reduce.analysis.temporal`): `temporal_psd` (Welch),
 `fit_noise_model` (α + β/f + γ/f^1.3 with uncertainties, paper eq. 1 and
@@ -28,8 +29,8 @@ _OWN = {
     "photon_noise": ["photon_noise_label", "photon_noise_power", "slope_variance_factor"],
     "sky": ["inject_sky", "light_sensitive", "sky_field"],
     "spectrum": ["BAND_KMAX", "BAND_KMIN", "SPHEREX_PIXEL_SCALE", "EmptyBandError", "FFTImage",
-                 "band_label", "band_power", "cross_spectrum", "fft_magnitude", "k_from_theta",
-                 "power_spectrum", "theta_from_k"],
+                 "band_label", "band_power", "band_theta", "cross_spectrum", "fft_magnitude",
+                 "k_from_theta", "power_spectrum", "theta_from_k"],
     "temporal": ["NoiseModelFit", "aliased_basis", "fit_noise_model", "model_basis",
                  "temporal_psd"],
     "timestreams": ["Timestream", "fit_raw_noise", "phantom_timestream",

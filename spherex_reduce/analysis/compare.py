@@ -59,7 +59,7 @@ from .case import (
 from .photon_noise import photon_noise_label, photon_noise_power
 from .plots import plot_comparison
 from .sky import RMS_RANGE, inject_sky, light_sensitive, measure_against_sky, sky_field
-from .spectrum import EmptyBandError, band_power
+from .spectrum import EmptyBandError, band_label, band_power, band_theta
 
 __all__ = [
     "CompareResult",
@@ -364,7 +364,9 @@ def _table(results, comparison, floor, photon, photon_label):
         "fingerprint": comparison.fingerprint, "mode": comparison.mode,
         "floor": float(floor.to_value(unit)), "photon_noise": float(photon.to_value(unit)),
         "photon_noise_label": photon_label, "unit": unit.to_string(),
-        "band": [float(comparison.measure["kmin"]), float(comparison.measure["kmax"])]})
+        "band": [float(comparison.measure["kmin"]), float(comparison.measure["kmax"])],
+        "band_label": band_label(comparison.measure["kmin"], comparison.measure["kmax"]),
+        "band_theta_exact": band_theta(comparison.measure["kmin"], comparison.measure["kmax"])})
     t.meta["summary"] = summarize(t)
     return t
 

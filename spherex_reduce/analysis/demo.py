@@ -12,6 +12,7 @@ from . import (
     SpectrumMeasure,
     as_pipeline,
     band_label,
+    band_theta,
     photon_noise_label,
     photon_noise_power,
     run_case,
@@ -115,6 +116,7 @@ def run_demo(outdir, overwrite=False, progress=True, size=2048, nframes=74, seed
         table[name].description = SPECTRUM_COLUMNS[name]
     table.meta.update({
         "band": band_label(),
+        "band_theta_exact": band_theta(),
         "band_power_chopped": str(summary["chopped"]),
         "band_power_unchopped": str(summary["unchopped"]),
         "photon_noise_power": str(photon),

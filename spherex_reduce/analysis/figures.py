@@ -139,7 +139,7 @@ def _introduction(s, quick):
         f"Array {g['nrows']} × {g['ncols']}, {plural(g['nchannels'], 'channel')}, "
         f"N = {s.nframes} frames, {plural(s.realizations, 'realisation')} per point, slopes "
         f"mode, {'quick' if quick else 'full'} settings. Band power: the mean power of every "
-        f"Fourier mode with {band_label()}, the paper's 5–20′ band. Every number is in "
+        f"Fourier mode in the paper's band, {band_label()}. Every number is in "
         "`figures.ecsv`.",
         "",
     ]

@@ -8,7 +8,7 @@ import numpy as np
 from astropy import units as u
 from matplotlib.figure import Figure
 
-from .spectrum import BAND_KMAX, BAND_KMIN, SPHEREX_PIXEL_SCALE, band_label
+from .spectrum import BAND_KMAX, BAND_KMIN, SPHEREX_PIXEL_SCALE, band_label, band_theta
 
 __all__ = ["plot_comparison", "plot_fft_magnitude", "plot_noise_fit", "plot_spectra"]
 
@@ -29,7 +29,8 @@ def plot_spectra(spectra, band=(BAND_KMIN, BAND_KMAX), photon=None, title="",
         Tables from `~spherex_reduce.analysis.power_spectrum` (``k``,
         ``power`` and optionally ``power_err``).
     band : (float, float) or None
-        Band to shade, in rad/pixel; labelled by `band_label`.
+        Band to shade, in rad/pixel; labelled by `band_label` (the nominal
+        band), the θ it really gives (`band_theta`) in the figure's caption.
     photon : `~astropy.units.Quantity`, optional
         Photon-noise power, drawn as a horizontal line.
     title : str
@@ -60,6 +61,8 @@ def plot_spectra(spectra, band=(BAND_KMIN, BAND_KMAX), photon=None, title="",
     if ax is None:
         fig = Figure(figsize=(7, 5.2), layout="constrained")
         ax = fig.subplots()
+        if band is not None:
+            _band_caption(fig, band, pixel_scale)
     fig = ax.figure
     unit = None
     for label, t in spectra.items():
@@ -95,6 +98,13 @@ def plot_spectra(spectra, band=(BAND_KMIN, BAND_KMAX), photon=None, title="",
     if title:
         ax.set_title(title, fontsize=10)
     return fig
+
+
+def _band_caption(fig, band, pixel_scale):
+    """The θ range the shaded band really gives, as the figure's caption (its legend
+    names the nominal band)."""
+    fig.supxlabel(f"shaded band: {band_theta(band[0], band[1], pixel_scale)}", fontsize=8,
+                  color="0.3")
 
 
 def _theta_axis(ax, pixel_scale):
@@ -232,6 +242,7 @@ def plot_comparison(table, title="", pixel_scale=SPHEREX_PIXEL_SCALE):
     band = tuple(meta.get("band", (BAND_KMIN, BAND_KMAX)))
     fig = Figure(figsize=(13, 5.6), layout="constrained")
     left, right = fig.subplots(1, 2)
+    _band_caption(fig, band, pixel_scale)
     names = list(dict.fromkeys(str(p) for p in table["pipeline"]))
     unit = u.Unit(table["power"].unit or "")
     spectra, transfers = {}, {}

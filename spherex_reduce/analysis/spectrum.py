@@ -3,7 +3,7 @@
 Conventions (paper §1): the wave number of an angular period ``θ`` is
 ``k = 2π · pixel_scale / θ`` in rad/pixel, so a pattern repeating every ``p``
 pixels has ``k = 2π / p``.  SPHEREx pixels are 6.2″, so the paper's band
-θ = 5–20′ is ``0.03 < k < 0.13`` (exactly θ = 4.99–21.6′; `band_label`).
+θ = 5–20′ is ``0.03 < k < 0.13`` (`band_label`; exactly θ = 4.99–21.6′: `band_theta`).
 
 Normalisation: ``P(k) = |FFT(image)|² / (ny · nx)`` (in image unit² · pixel²),
 averaged over the Fourier modes in each annulus of ``|k|``.  White noise of
@@ -39,6 +39,7 @@ __all__ = [
     "FFTImage",
     "band_label",
     "band_power",
+    "band_theta",
     "cross_spectrum",
     "fft_magnitude",
     "k_from_theta",
@@ -50,6 +51,8 @@ __all__ = [
 SPHEREX_PIXEL_SCALE = 6.2 * u.arcsec
 #: The paper's band θ = 5–20′ in rad/pixel (Figs. 6, 8, 13, 14).
 BAND_KMIN, BAND_KMAX = 0.03, 0.13
+#: The paper's name of that band (exactly θ = 4.99–21.6′ on 6.2″ pixels: `band_theta`).
+BAND_NOMINAL = "5–20′"
 _K_UNIT = u.rad / u.pix
 
 
@@ -90,8 +93,18 @@ def theta_from_k(k, pixel_scale=SPHEREX_PIXEL_SCALE):
         return (2 * np.pi / k * u.Quantity(pixel_scale, u.arcsec)).to(u.arcmin)
 
 
+def _is_paper_band(kmin, kmax, pixel_scale):
+    return (float(_k_value(kmin)), float(_k_value(kmax))) == (BAND_KMIN, BAND_KMAX) and \
+        u.isclose(u.Quantity(pixel_scale, u.arcsec), SPHEREX_PIXEL_SCALE)
+
+
 def band_label(kmin=BAND_KMIN, kmax=BAND_KMAX, pixel_scale=SPHEREX_PIXEL_SCALE):
-    """The band by its ``k`` limits and the angular periods they really give.
+    """The band as plots, tables and messages name it: the nominal band and its ``k``.
+
+    The paper's band (``0.03 ≤ k ≤ 0.13`` rad/pixel on 6.2″ pixels) is named
+    by the paper's nominal θ = 5–20′; any other band, or another pixel
+    scale, by its ``k`` range alone.  The θ range the ``k`` limits really
+    give is `band_theta` (a plot's caption, a table's ``band_theta_exact``).
 
     Parameters
     ----------
@@ -103,16 +116,45 @@ def band_label(kmin=BAND_KMIN, kmax=BAND_KMAX, pixel_scale=SPHEREX_PIXEL_SCALE):
     Returns
     -------
     str
-        ``θ`` in arcmin (′), or arcsec (″) when the longest period is under 1′.
 
     Examples
     --------
     >>> from astropy import units as u
     >>> from spherex_reduce.analysis import band_label
     >>> band_label()
-    '0.03 ≤ k ≤ 0.13 rad/pixel (θ = 4.99–21.6′)'
+    '5–20′ (0.03 ≤ k ≤ 0.13 rad/pixel)'
     >>> band_label(0.03, 0.13, 0.1 * u.arcsec)
-    '0.03 ≤ k ≤ 0.13 rad/pixel (θ = 4.83–20.9″)'
+    '0.03 ≤ k ≤ 0.13 rad/pixel'
+    """
+    lo, hi = float(_k_value(kmin)), float(_k_value(kmax))
+    k = f"{lo:g} ≤ k ≤ {hi:g} rad/pixel"
+    return f"{BAND_NOMINAL} ({k})" if _is_paper_band(lo, hi, pixel_scale) else k
+
+
+def band_theta(kmin=BAND_KMIN, kmax=BAND_KMAX, pixel_scale=SPHEREX_PIXEL_SCALE):
+    """The angular periods a ``k`` band really gives for a pixel scale.
+
+    Parameters
+    ----------
+    kmin, kmax : float or `~astropy.units.Quantity`
+        Band edges in rad/pixel.
+    pixel_scale : `~astropy.units.Quantity`
+        Angle per pixel.
+
+    Returns
+    -------
+    str
+        ``θ`` in arcmin (′), or arcsec (″) when the longest period is under
+        1′, with the pixel scale.
+
+    Examples
+    --------
+    >>> from astropy import units as u
+    >>> from spherex_reduce.analysis import band_theta
+    >>> band_theta()
+    'θ = 4.99–21.6′ for 6.2″ pixels'
+    >>> band_theta(0.03, 0.13, 0.1 * u.arcsec)
+    'θ = 4.83–20.9″ for 0.1″ pixels'
     """
     lo, hi = float(_k_value(kmin)), float(_k_value(kmax))
     short, long_ = theta_from_k(hi, pixel_scale), theta_from_k(lo, pixel_scale)
@@ -121,7 +163,7 @@ def band_label(kmin=BAND_KMIN, kmax=BAND_KMAX, pixel_scale=SPHEREX_PIXEL_SCALE):
     short = short.to_value(unit)
     theta = f"θ ≥ {short:.3g}{mark}" if lo == 0 else \
         f"θ = {short:.3g}–{long_.to_value(unit):.3g}{mark}"
-    return f"{lo:g} ≤ k ≤ {hi:g} rad/pixel ({theta})"
+    return f"{theta} for {u.Quantity(pixel_scale, u.arcsec).value:g}″ pixels"
 
 
 def _k_value(k):

@@ -53,6 +53,7 @@ from .case import (
     scene_section,
     seed_section,
 )
+from .spectrum import BAND_KMAX, BAND_KMIN, band_label
 
 __all__ = ["Sweep", "SweepResult", "load_sweep", "plot_sweep", "run_cell", "run_sweep"]
 
@@ -508,6 +509,6 @@ def plot_sweep(table, x=None, title=""):
         ax.legend(fontsize=8)
     ax.grid(True, alpha=0.3)
     m = table.meta.get("measure", {})
-    ax.set_title(title or f"band power {m.get('kmin', 0.03)} < k < {m.get('kmax', 0.13)} "
-                 "rad/pixel (mean ± s.e. over realisations)", fontsize=10)
+    band = band_label(m.get("kmin", BAND_KMIN), m.get("kmax", BAND_KMAX))
+    ax.set_title(title or f"band power {band} (mean ± s.e. over realisations)", fontsize=10)
     return fig

@@ -4,10 +4,23 @@
 the phantom values of a raw exposure in time order; `fit_raw_noise` fits the
 noise model of `spherex_reduce.analysis.temporal` to their PSDs.
 
+The streams, and the pixels each one holds (which pixels are reference pixels
+comes from the geometry alone: `~spherex_reduce.DetectorGeometry.reference_column_mask`
+and `~spherex_reduce.DetectorGeometry.reference_pixel_mask`):
+
+- ``border columns``: per row read, the mean of the side reference columns of
+  each side (every read, reference rows included: all reference pixels);
+- ``re-read rows``: every pixel of the reads of reference rows (rows whose
+  pixels are all reference pixels), at the pixel rate;
+- ``phantom``: the phantom values (samples of no pixel) of each channel.
+
+No stream holds a light-sensitive pixel: their values (a bright star, a hot
+pixel, the dark current) never enter a noise fit.
+
 Streams read out of a raw exposure are not sampled at the pixel rate: a
 phantom value is the mean of ``c`` consecutive samples, taken once per row read
 (every ``row_samples`` samples), and a reference-column value likewise the mean
-of the ``ref_border`` border columns.  Their PSD is the pixel-rate PSD filtered
+of a side's reference columns.  Their PSD is the pixel-rate PSD filtered
 by the ``c``-sample box and aliased into the row rate;
 `aliased_basis` gives the three model terms of such a stream, so the fit
 returns the coefficients of the underlying 100 kHz process directly.
@@ -22,6 +35,7 @@ from astropy.table import Table
 from astropy.utils.exceptions import AstropyUserWarning
 
 from ..core.errors import SpherexReduceError
+from ..core.exposure import Exposure
 from .temporal import PARAMS, aliased_basis, fit_noise_model, temporal_psd
 
 __all__ = ["Timestream", "fit_raw_noise", "phantom_timestream", "reference_timestream"]
@@ -77,6 +91,50 @@ def _frame_samples(schedule, within):
     return frames.reshape((-1,) + (1,) * within.ndim) + within[None, ...]
 
 
+def _side_columns(geometry):
+    """The side reference columns averaged into the ``'columns'`` stream, one array per side.
+
+    A side is a run of adjacent reference columns of one channel
+    (`~spherex_reduce.DetectorGeometry.reference_column_mask`, the one source
+    of which columns are reference columns).  Every side gives the same number
+    of columns, the narrowest side's: those farthest from the light-sensitive
+    columns (the first ones of a side left of them, the last ones of a side
+    right of them).
+    """
+    mask = geometry.reference_column_mask()
+    cols = np.flatnonzero(mask)
+    if cols.size == 0:
+        return []
+    channel = geometry.channel_of_column()
+    breaks = np.flatnonzero((np.diff(cols) != 1) | (np.diff(channel[cols]) != 0)) + 1
+    runs = np.split(cols, breaks)
+    width = min(r.size for r in runs)
+    right_of_light = [r[0] > 0 and channel[r[0] - 1] == channel[r[0]] and not mask[r[0] - 1]
+                      for r in runs]
+    return [r[-width:] if right else r[:width] for r, right in zip(runs, right_of_light,
+                                                                   strict=True)]
+
+
+def reference_row_reads(schedule):
+    """Indices of the reads of a frame whose row is reference pixels only.
+
+    Which pixels are reference pixels comes from
+    `~spherex_reduce.DetectorGeometry.reference_pixel_mask` (a row all of
+    whose pixels are reference pixels: the top and bottom border).
+
+    Examples
+    --------
+    >>> from spherex_reduce import DetectorGeometry, ReadoutSchedule
+    >>> from spherex_reduce.analysis.timestreams import reference_row_reads
+    >>> g = DetectorGeometry(8, 8, 1, ref_border={"top": 2, "left": 1})
+    >>> reference_row_reads(ReadoutSchedule(g, skip=1, ref_mode="none", ref_reads=0,
+    ...                                     phantom_reads=0, nframes=3)).tolist()
+    [0, 1]
+    """
+    g = schedule.geometry
+    return np.flatnonzero(g.reference_pixel_mask().all(axis=1)[schedule.rows])
+
+
 def phantom_timestream(exposure):
     """Phantom values of every channel in time order, detrended across frames.
 
@@ -110,15 +168,16 @@ def reference_timestream(exposure, source="columns", parity=None):
     exposure : `~spherex_reduce.Exposure`
         Raw ramps in readout order.
     source : {'columns', 'rows'}
-        ``'columns'``: the reference columns (left of the first channel,
-        right of the last: the sides ``ref_border`` declares; in the readout
-        frame of quadrants, those at the start or end of every channel:
-        `~spherex_reduce.DetectorGeometry.reference_column_groups`), the
-        same number from each edge, the narrowest width, averaged per read:
-        one value per row read, ``values`` ``(runs, nframes, n_reads)``.
-        ``'rows'``: every reference-row read of every channel at the pixel
-        rate, in each channel's scan order,
-        ``values`` ``(nchannels, nframes, n_ref_reads, width)``.
+        ``'columns'``: the side reference columns
+        (`~spherex_reduce.DetectorGeometry.reference_column_mask`: left of
+        the first channel, right of the last, the sides ``ref_border``
+        declares), the same number from each side (the narrower side's,
+        farthest from the light-sensitive columns), averaged per read: one
+        value per row read, ``values`` ``(sides, nframes, n_reads)``.
+        ``'rows'``: every pixel of every read of a reference row (a row all
+        of whose pixels are reference pixels, `reference_row_reads`) of every
+        channel at the pixel rate, in each channel's scan order, ``values``
+        ``(nchannels, nframes, n_ref_reads, width)``.
     parity : {None, 'even', 'odd'}
         Keep only the pixels sampled at even or odd offsets of a channel's
         row read (the column parities that alternating column noise, ACN,
@@ -139,12 +198,10 @@ def reference_timestream(exposure, source="columns", parity=None):
     data = np.asarray(exposure.data.data)
     offs = g.column_offsets()
     if source == "columns":
-        runs = g.reference_column_groups()
-        if not runs:
-            raise SpherexReduceError("the array has no reference columns "
+        sides = _side_columns(g)
+        if not sides:
+            raise SpherexReduceError("the array has no side reference columns "
                                      f"(ref_border = {g.border})")
-        width = min(run.size for run in runs)  # the same number from each edge
-        sides = [np.sort(run[:width]) for run in runs]
         if parity is not None:
             sides = [c[offs[c] % 2 == first_off] for c in sides]
             if any(c.size == 0 for c in sides):
@@ -155,17 +212,18 @@ def reference_timestream(exposure, source="columns", parity=None):
         return Timestream(_detrend_frames(vals), _frame_samples(s, first), nbox,
                           g.pixel_rate, stride)
     if source == "rows":
-        reads = s.reference_read_indices
+        reads = reference_row_reads(exposure.schedule)
         if reads.size == 0:
             raise SpherexReduceError("the schedule has no reference-row reads")
         w = g.channel_width
         order = np.argsort(offs.reshape(g.nchannels, w), axis=1)
         cols = order + (np.arange(g.nchannels) * w)[:, None]  # (nchannels, w) in scan order
-        cols = cols[:, first_off::stride]
+        if parity is not None:  # by the offset in the row read (a window's: the full one's)
+            cols = cols[:, offs[cols[0]] % 2 == first_off]
         vals = data[:, reads][:, :, cols]  # frames, nref, nchannels, w'
         vals = np.moveaxis(vals, 2, 0)  # channels, frames, nref, w'
         flat = _detrend_frames(vals.reshape(g.nchannels, s.nframes, -1))
-        samples = s.starts[reads][:, None] + np.arange(first_off, w, stride)[None, :]
+        samples = s.starts[reads][:, None] + offs[cols[0]][None, :]
         return Timestream(flat.reshape(vals.shape), _frame_samples(s, samples), 1, g.pixel_rate,
                           stride)
     raise SpherexReduceError(f"source must be 'columns' or 'rows', got {source!r}")
@@ -176,22 +234,65 @@ def _burst_length(g, split):
     return g.channel_width // 2 if split else g.channel_width
 
 
-def _parity_psd(exposure, source, rate, nperseg, acn):
-    """Welch PSD of a reference stream, split by column parity when ``acn``.
+def _joined(streams):
+    """One `Timestream` of the streams of several exposures of one schedule: their values
+    side by side on the first axis (independent realisations of the same process)."""
+    first = streams[0]
+    return first._replace(values=np.concatenate([t.values for t in streams], axis=0))
+
+
+def _parities(exposure, source, split):
+    """The reference streams of ``source``, one per column parity when ``split``."""
+    return [reference_timestream(exposure, source, p)
+            for p in (("even", "odd") if split else (None,))]
+
+
+def _streams(exposures, acn):
+    """The streams `fit_raw_noise` fits, of every exposure joined, and their schedule and
+    unit: ``schedule, unit, {name: [Timestream]}`` (one `Timestream` per column parity for
+    the reference streams split by ``acn``).  Only the streams are kept, not the exposures."""
+    schedule = unit = None
+    parts = {}
+    for k, e in enumerate(exposures):
+        _raw(e)
+        if schedule is None:
+            schedule, unit = e.schedule, e.unit
+        elif e.schedule != schedule or e.unit != unit:
+            raise SpherexReduceError(
+                f"exposure {k} has another schedule or unit ({e.unit}) than exposure 0 "
+                f"({unit}): the streams of one fit come from one readout")
+        g = e.geometry
+        got = {}
+        sides = _side_columns(g)
+        if sides:
+            got["border columns"] = _parities(e, "columns", acn and sides[0].size >= 2)
+        if reference_row_reads(schedule).size:
+            got["re-read rows"] = _parities(e, "rows", acn and g.channel_width >= 8)
+        if e.phantom is not None and schedule.phantom_reads:
+            got["phantom"] = [phantom_timestream(e)]
+        for name, streams in got.items():
+            parts.setdefault(name, []).append(streams)
+    if schedule is None:
+        raise SpherexReduceError("no exposure to fit")
+    joined = {name: [_joined(list(p)) for p in zip(*per, strict=True)]
+              for name, per in parts.items()}
+    return schedule, unit, joined
+
+
+def _parity_psd(streams, rate, nperseg):
+    """Welch PSD of a reference stream, the mean over its column parities.
 
     The even and odd PSDs are averaged but the uncertainty counts the streams
     of one parity only: right when the parities are correlated (no ACN),
     conservative by up to √2 when they are independent.
     """
-    if not acn:
-        ts = reference_timestream(exposure, source)
-        return temporal_psd(ts.values, rate, nperseg=nperseg), ts
-    even = reference_timestream(exposure, source, "even")
-    odd = reference_timestream(exposure, source, "odd")
-    pe = temporal_psd(even.values, rate, nperseg=nperseg)
-    po = temporal_psd(odd.values, rate, nperseg=nperseg)
-    pe["psd"] = (pe["psd"] + po["psd"]) / 2
-    return pe, even
+    spectra = [temporal_psd(t.values, rate, nperseg=nperseg) for t in streams]
+    spec = spectra[0]
+    total = spec["psd"]
+    for other in spectra[1:]:
+        total = total + other["psd"]
+    spec["psd"] = total / len(spectra)
+    return spec
 
 
 #: Limits of a plausible noise fit (`implausible_fits`).
@@ -241,17 +342,23 @@ def implausible_fits(table):
 
 
 def fit_raw_noise(exposure, exponent=1.3, nperseg=None, nbins=30, fit=PARAMS, acn=True):
-    """Fit eq. 1 to the reference-pixel and phantom streams of a raw exposure.
+    """Fit eq. 1 to the reference-pixel and phantom streams of raw exposures.
 
     Welch spectra are computed within frames (segments never span the
     frame overhead).  Reference columns and phantom values are modelled as
     box-averaged, decimated streams (`aliased_basis`); reference rows are
     bursts at the pixel rate.  The reference fit joins columns and rows.
+    Several exposures of one readout (the integrations of a 4-D file) give
+    independent realisations of each stream: each is detrended across its own
+    frames, and their periodograms are averaged (the uncertainties count
+    them all).
 
     Parameters
     ----------
-    exposure : `~spherex_reduce.Exposure`
-        Raw ramps in readout order.
+    exposure : `~spherex_reduce.Exposure` or iterable of them
+        Raw ramps in readout order; several (read one at a time from an
+        iterator, so only their streams are held) must have one schedule
+        and unit.
     exponent : float or None
         Exponent of the third term; ``None`` fits it per stream.
     nperseg : int, optional
@@ -278,9 +385,26 @@ def fit_raw_noise(exposure, exponent=1.3, nperseg=None, nbins=30, fit=PARAMS, ac
         exponent chi2 dof fmin fmax`` (coefficients in the exposure's unit²
         per Hz etc., for the pixel-rate process).  ``meta['fits']`` holds the
         `NoiseModelFit` objects (not written to files).
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.examples import example_raw_exposure
+    >>> from spherex_reduce.analysis import fit_raw_noise
+    >>> e = example_raw_exposure()
+    >>> one = fit_raw_noise(e, fit=("alpha",))
+    >>> one["stream"].tolist(), str(one["alpha"].unit)
+    (['reference', 'phantom'], 'electron2 / Hz')
+
+    Two integrations (here the same one twice) average two periodograms per
+    stream: the errors shrink by √2.
+
+    >>> two = fit_raw_noise([e, e], fit=("alpha",))
+    >>> round(float(one["alpha_err"][0] / two["alpha_err"][0]), 3)
+    1.414
     """
-    _raw(exposure)
-    s, g = exposure.schedule, exposure.geometry
+    s, unit, streams = _streams([exposure] if isinstance(exposure, Exposure) else exposure,
+                                acn)
+    g = s.geometry
     fs, m = g.pixel_rate, s.row_samples
     nreads = s.n_reads
     nper = nperseg or 2 ** int(np.floor(np.log2(nreads)))
@@ -288,28 +412,24 @@ def fit_raw_noise(exposure, exponent=1.3, nperseg=None, nbins=30, fit=PARAMS, ac
     rows, fits_ = [], {}
     frate = fs / m
     spectra, bases, names = [], [], []
-    runs = g.reference_column_groups()
-    if runs:
-        split = acn and min(run.size for run in runs) >= 2
-        spec, ts = _parity_psd(exposure, "columns", frate, nper, split)
-        spectra.append(spec)
+    if "border columns" in streams:
+        ts = streams["border columns"]
+        spectra.append(_parity_psd(ts, frate, nper))
         names.append("border columns")
-        bases.append(lambda f, e, b=ts.nbox, st=ts.stride: aliased_basis(f, fs, m, b, e,
-                                                                         stride=st))
-    if s.reference_read_indices.size:
-        split = acn and g.channel_width >= 8
-        rate = fs / 2 if split else fs
-        spec, tr = _parity_psd(exposure, "rows", rate, _burst_length(g, split), split)
-        spectra.append(spec)
+        bases.append(lambda f, e, b=ts[0].nbox, st=ts[0].stride: aliased_basis(f, fs, m, b, e,
+                                                                               stride=st))
+    if "re-read rows" in streams:
+        tr = streams["re-read rows"]
+        split = len(tr) == 2
+        spectra.append(_parity_psd(tr, fs / 2 if split else fs, _burst_length(g, split)))
         names.append("re-read rows")
-        bases.append(lambda f, e, d=tr.stride: aliased_basis(f, fs, d, 1, e))
-    unit = exposure.unit or u.one
+        bases.append(lambda f, e, d=tr[0].stride: aliased_basis(f, fs, d, 1, e))
+    unit = unit or u.one
     if spectra:
         fits_["reference"] = fit_noise_model(spectra, exponent, nbins=nbins, fit=fit,
                                              basis=bases)
-    if exposure.phantom is not None and s.phantom_reads:
-        tp = phantom_timestream(exposure)
-        spec = temporal_psd(tp.values, frate, nperseg=nper)
+    if "phantom" in streams:
+        spec = temporal_psd(streams["phantom"][0].values, frate, nperseg=nper)
         fits_["phantom"] = fit_noise_model(
             spec, exponent, nbins=nbins, fit=fit,
             basis=lambda f, e: aliased_basis(f, fs, m, s.phantom_reads, e))

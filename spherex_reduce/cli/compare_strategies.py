@@ -12,7 +12,7 @@ def add_parser(sub):
         description="Run COMPARE.yaml (scene:, sky:, pipelines:, realizations:, seed:, "
         "measure:): each realisation's scene is simulated once, a Gaussian random sky is "
         "added to its light-sensitive pixels, and every pipeline reduces that same exposure. "
-        "Per pipeline and realisation: the 5-20' band power of reduced - sky, its excess over "
+        "Per pipeline and realisation: the 5–20′ band power of reduced - sky, its excess over "
         "the noise model's white floor, and the fraction of the sky kept (cross-spectrum). "
         "Runs on an embedded dask LocalCluster, or an existing scheduler with --scheduler.")
     p.add_argument("input", metavar="COMPARE.yaml")

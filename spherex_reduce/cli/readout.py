@@ -95,8 +95,8 @@ def add_parser(sub):
                        "options override the file. Print its summary, save it as a table or "
                        "draw its read order.")
     p.add_argument("--config", metavar="YAML",
-                   help="scene or pipeline YAML file whose geometry: and readout: sections "
-                   "give the starting values")
+                   help="scene or pipeline YAML file whose geometry:, readout: and window: "
+                   "sections give the starting values")
     for field, (flag, _, key, typ) in zip(FIELDS, OPTIONS, strict=True):
         p.add_argument(flag, dest=key, type=typ, default=None, help=_option_help(field))
     p.add_argument("-o", "--output", metavar="SCHEDULE.ecsv",
@@ -110,13 +110,12 @@ def add_parser(sub):
 def schedule_from_args(args):
     """The schedule from ``--config`` overridden by explicit options."""
     config = load_yaml(args.config, "config")[0] if args.config else {}
-    sections = {"geometry": dict(config.get("geometry") or {}),
-                "readout": dict(config.get("readout") or {})}
+    sections = {name: dict(config.get(name) or {}) for name in ("geometry", "readout", "window")}
     for _, section, key, _ in OPTIONS:
         value = getattr(args, key)
         if value is not None:
             sections[section][key] = value
-    return schedule_from_config(sections["geometry"], sections["readout"])
+    return schedule_from_config(sections["geometry"], sections["readout"], sections["window"])
 
 
 def run(args):
@@ -126,8 +125,11 @@ def run(args):
         if path:
             atomic_output(path, args.overwrite)
     print(schedule.summary())
-    if not schedule.geometry.layout.identity:  # the summary is of the readout frame
-        print(schedule.geometry.layout.summary())
+    g = schedule.geometry
+    if g.window is not None:
+        print(g.window.summary(g.nrows, g.ncols))
+    if not g.layout.identity:  # the summary is of the readout frame
+        print(g.layout.summary())
     with all_or_nothing([args.output, args.plot], args.overwrite) as (tmp, tmp_plot):
         if args.output:
             schedule.to_table().write(tmp, format="ascii.ecsv")

@@ -29,8 +29,9 @@ def add_parser(sub):
     p = sub.add_parser(
         "spectrum", help="azimuthally averaged power spectrum P(k) of an image",
         description="Measure P(k) of IMAGE.fits (k in rad/pixel, k = 2π·pixel scale/θ), write "
-        "it as ECSV (columns k theta power power_err nmodes; the 5–20′ band power in the meta, "
-        "null with a warning when no Fourier mode of the image falls in the band) and "
+        "it as ECSV (columns k theta power power_err nmodes; in the meta the 5–20′ band power, "
+        "null with a warning when no Fourier mode of the image falls in the band, and "
+        "band_theta_exact, the θ range the band's k limits give on the pixel scale) and "
         "optionally plot it with the band shaded and the photon-noise line. Images in "
         "readout order are un-chopped first.")
     p.add_argument("input", metavar="IMAGE.fits")
@@ -103,7 +104,7 @@ def _photon(image, args):
 
 
 def run(args):
-    from ..analysis import band_label
+    from ..analysis import band_label, band_theta
     from ..analysis.io import read_image
 
     if args.kmin >= args.kmax:
@@ -118,8 +119,11 @@ def run(args):
             atomic_output(path, args.overwrite)
     image = read_image(args.input, pipeline=pipeline)
     table, band, err, missing = _measure(image, args, args.input)
+    scale = args.pixel_scale * u.arcsec
+    band_text = band_label(args.kmin, args.kmax, scale)
     table.meta.update({
-        "source": str(args.input), "band_kmin": args.kmin, "band_kmax": args.kmax,
+        "source": str(args.input), "band": band_text, "band_kmin": args.kmin,
+        "band_kmax": args.kmax, "band_theta_exact": band_theta(args.kmin, args.kmax, scale),
         "band_power": _value(band), "band_power_err": _value(err),
         "band_power_unit": u.Quantity(table["power"]).unit.to_string(),
     })
@@ -133,7 +137,6 @@ def run(args):
     if photon is not None:
         table.meta["photon_noise_power"] = float(photon.value)
         table.meta["photocurrent_e_per_s"] = args.photocurrent
-    band_text = band_label(args.kmin, args.kmax, args.pixel_scale * u.arcsec)
     lines = [f"{args.input}: band power {band_text} = {_text(band, err)}"]
     spectra = {Path(args.input).name: table}
     if args.compare:

@@ -74,9 +74,10 @@ class Field:
     ----------
     name : str
         Python argument, attribute and YAML key.
-    section : {'geometry', 'readout'}
+    section : {'geometry', 'readout', 'window'}
         `~spherex_reduce.DetectorGeometry` and the ``geometry:`` YAML section,
-        or `~spherex_reduce.ReadoutSchedule` and ``readout:``.
+        `~spherex_reduce.ReadoutSchedule` and ``readout:``, or the
+        `~spherex_reduce.core.window.Window` of a larger array and ``window:``.
     keyword : str
         FITS keyword of the primary header.
     types : tuple of type
@@ -236,6 +237,33 @@ FIELDS = (
           comment="reads of each group: ';' between groups", required=False,
           none_means="groups of {frames_per_group} frames, {group_gap} apart",
           written_if_set=True, to_text=format_groups, from_text=parse_groups),
+    # A window of a larger array (`spherex_reduce.core.window`): the ``window:`` YAML
+    # section; geometry.nrows/ncols are then the window's size, its channels, scan and
+    # reference border are derived from the full array's.
+    Field("first_row", "window", "WINROW", (int, type(None)), None,
+          "window: its first row in the full array", minimum=0, cli_max=2**16,
+          required=False, none_means="no window", written_if_set=True),
+    Field("first_column", "window", "WINCOL", (int, type(None)), None,
+          "window: its first column in the full array", minimum=0, cli_max=2**16,
+          required=False, none_means="no window", written_if_set=True),
+    Field("full_nrows", "window", "FULLROWS", (int, type(None)), None,
+          "window: rows of the full array", minimum=1, cli_max=2**16, required=False,
+          none_means="no window", written_if_set=True),
+    Field("full_ncols", "window", "FULLCOLS", (int, type(None)), None,
+          "window: columns of the full array", minimum=1, cli_max=2**16, required=False,
+          none_means="no window", written_if_set=True),
+    Field("full_nchannels", "window", "FULLCHAN", (int, type(None)), None,
+          "window: readout channels of the full array", minimum=1, cli_max=2**12,
+          required=False, none_means="no window", written_if_set=True),
+    Field("full_scan", "window", "FULLSCAN", (str, list, type(None)), None,
+          "window: fast-scan direction of the full array's channels",
+          comment="full array's fast-scan direction", required=False,
+          none_means="same", written_if_set=True),
+    Field("full_ref_border", "window", "FULLBORD", (int, dict, type(None)), None,
+          "window: reference border of the full array (pixels)", unit="pix", minimum=0,
+          cli_max=2**10, comment="full array's reference border width (pixels)",
+          required=False, none_means="4 on every side", written_if_set=True,
+          side_keywords=("FULLBTOP", "FULLBBOT", "FULLBLFT", "FULLBRGT")),
 )
 
 #: The fields by name.

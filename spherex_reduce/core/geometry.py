@@ -1,6 +1,7 @@
 """Detector layout: rows, columns, readout channels and the reference border."""
 
-from dataclasses import dataclass, field
+import dataclasses
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -132,6 +133,11 @@ class DetectorGeometry:
         (set on `frame` for quadrants read from a corner; 0 otherwise).
     stored : DetectorGeometry, keyword-only
         On a readout `frame`: the geometry of the stored image it maps to.
+    window : `~spherex_reduce.core.window.Window`, optional (keyword only)
+        The array is a window of a larger one, whose readout gives its pixel
+        times; ``nchannels``, ``scan`` and ``ref_border`` must then be the
+        window's (`Window.geometry <spherex_reduce.core.window.Window.geometry>`
+        builds it).
 
     Examples
     --------
@@ -147,9 +153,11 @@ class DetectorGeometry:
     ([0, 1, 2, 3], 36)
     """
 
-    # The fields, their defaults and checks: `spherex_reduce.core.fields.FIELDS` ("geometry").
-    channel_border: tuple = field(default=(0, 0), kw_only=True)
-    stored: object = field(default=None, kw_only=True, repr=False)
+    window: object = dataclasses.field(default=None, kw_only=True, repr=False)
+    channel_border: tuple = dataclasses.field(default=(0, 0), kw_only=True)
+    stored: object = dataclasses.field(default=None, kw_only=True, repr=False)
+    # Then the fields, their defaults and checks: `spherex_reduce.core.fields.FIELDS`
+    # ("geometry").
 
     def __post_init__(self):
         maxima = {"nchannels": lambda: self.ncols,  # bounds that depend on checked fields
@@ -192,10 +200,15 @@ class DetectorGeometry:
                              f"in channels of {self.channel_width} columns")
         object.__setattr__(self, "channel_border", (start, end))
         object.__setattr__(self, "_directions", self._parse_scan(self.scan))
+        if self.window is not None:
+            self.window.check(self)
 
     def _readout_frame(self):
         """The readout-frame geometry of a stored image whose channels are not columns."""
         lay = self._layout
+        if self.window is not None:
+            raise ValueError(f"a window of a larger array is read as stripes of columns: "
+                             f"channels: {lay.channels} is not supported with a window")
         if lay.channels == "quadrants" and (self.nchannels != 4 or self.scan != "same"):
             raise ValueError(f"channels: quadrants reads 4 channels, each in the direction its "
                              f"first_corner gives: nchannels must be 4 (got {self.nchannels}) "
@@ -295,6 +308,12 @@ class DetectorGeometry:
             return self.scan
         return "".join("+" if d > 0 else "-" for d in self._directions)
 
+    @property
+    def read_width(self):
+        """Pixels of a row read in each channel: the channel width, or for a window the
+        full array's."""
+        return self.channel_width if self.window is None else self.window.full.channel_width
+
     def channel_of_column(self):
         """Channel index (0-based) of each column, shape ``(ncols,)``."""
         return np.arange(self.ncols) // self.channel_width
@@ -304,8 +323,11 @@ class DetectorGeometry:
 
         Column ``j`` of a channel read left to right is sampled ``j`` samples
         after the channel's first pixel; read right to left,
-        ``width - 1 - j`` samples after.
+        ``width - 1 - j`` samples after.  A window's columns have the offsets of
+        the full array's columns they are.
         """
+        if self.window is not None:
+            return self.window.column_offsets(self.ncols)
         width = self.channel_width
         j = np.tile(np.arange(width), self.nchannels)
         reverse = np.repeat(self.scan_directions < 0, width)
@@ -321,25 +343,6 @@ class DetectorGeometry:
         within = np.arange(self.ncols) % (self.ncols // self.nchannels)
         mask |= (within < start) | (within >= self.ncols // self.nchannels - end)
         return mask
-
-    def reference_column_groups(self):
-        """The runs of reference columns, each listed from its edge inward: ``left`` (from
-        column 0), ``right`` (from the last column), then the `channel_border` columns at
-        the start and at the end of every channel; empty runs left out.
-
-        Examples
-        --------
-        >>> from spherex_reduce import DetectorGeometry
-        >>> g = DetectorGeometry(8, 8, 4, ref_border=1, channels="quadrants")
-        >>> [run.tolist() for run in g.frame.reference_column_groups()]
-        [[0], [4], [8], [12]]
-        """
-        b, width = self._border, self.ncols // self.nchannels
-        start, end = self.channel_border
-        runs = [np.arange(b.left), self.ncols - 1 - np.arange(b.right)]
-        for ch in range(self.nchannels):
-            runs += [ch * width + np.arange(start), (ch + 1) * width - 1 - np.arange(end)]
-        return [run for run in runs if run.size]
 
     def reference_pixel_mask(self):
         """True for the reference pixels of a physical-order image ``(nrows, ncols)``: the

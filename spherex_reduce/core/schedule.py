@@ -44,6 +44,7 @@ from .fields import (
 from .geometry import DetectorGeometry, RefBorder
 from .groups import describe_groups, group_covariance, group_means, resolve_groups
 from .limits import check_size
+from .window import default_overhead, fill_window_geometry, window_reads
 
 __all__ = ["REF_MODES", "ReadoutSchedule", "chopped_order"]
 
@@ -87,9 +88,8 @@ def chopped_order(n, skip):
     [0, 4, 8, 12, 1, 5, 9, 13, 2, 6, 10, 14, 3, 7, 11, 15]
     """
     skip = check_field(FIELD["skip"], skip)
-    return np.concatenate([np.arange(k, n, skip) for k in range(min(skip, n))] or [[]]).astype(
-        int
-    )
+    return np.concatenate([np.arange(k, n, skip)
+                           for k in range(min(skip, n))] or [[]]).astype(int)
 
 
 @table_dataclass("readout", eq=False)
@@ -159,8 +159,8 @@ class ReadoutSchedule:
     def __post_init__(self):
         set_ = object.__setattr__
         if not isinstance(self.geometry, DetectorGeometry):
-            raise ValueError(
-                f"geometry must be a DetectorGeometry, got {type(self.geometry).__name__}")
+            raise ValueError(f"geometry must be a DetectorGeometry, got "
+                             f"{type(self.geometry).__name__}")
         set_(self, "geometry", self.geometry.frame)  # the readout frame (channel_layout)
         for f in section_fields("readout"):
             if not f.nullable:  # frame_overhead, frame_time: see _set_frame_timing
@@ -170,14 +170,15 @@ class ReadoutSchedule:
         set_(self, "groups", groups)
         set_(self, "_reads", reads)  # None: one read per stored frame
         g = self.geometry
-        if self.ref_mode != "none" and self.ref_reads > 0 and g.border.rows == 0:
+        full = g if g.window is None else g.window.full  # a window follows its full readout
+        if self.ref_mode != "none" and self.ref_reads > 0 and full.border.rows == 0:
             raise ValueError(
                 f"ref_reads={self.ref_reads} with ref_mode={self.ref_mode!r} needs reference "
-                f"rows, but ref_border is {g.border}: set ref_reads to 0 or ref_mode to 'none'"
-            )
-        _check_schedule_size(g.nrows, g.ncols, g.nchannels,
-                             self.ref_reads if self.ref_mode != "none" else 0, g.border)
-        rows, kinds = self._build_order()
+                f"rows, but ref_border is {full.border}: set ref_reads to 0 or ref_mode to 'none'")
+        _check_schedule_size(full.nrows, full.ncols, full.nchannels,
+                             self.ref_reads if self.ref_mode != "none" else 0, full.border)
+        rows, kinds, index = window_reads(g, *self._build_order(full))
+        set_(self, "_index", index)  # each read's index in the (full) readout
         set_(self, "_rows", rows)
         set_(self, "_is_ref", kinds)
         self._set_frame_timing()
@@ -188,10 +189,9 @@ class ReadoutSchedule:
     def _set_frame_timing(self):
         set_ = object.__setattr__
         rate = self.geometry.pixel_rate
-        read_samples = self.n_reads * self.row_samples
+        read_samples = self.read_samples
         if self.frame_time is None:
-            overhead = self.frame_overhead
-            overhead = DEFAULT_FRAME_OVERHEAD if overhead is None else overhead
+            overhead = default_overhead(self.geometry, self.frame_overhead, DEFAULT_FRAME_OVERHEAD)
             limit = MAX_SAMPLES - 1 - read_samples
             overhead = check_field(FIELD["frame_overhead"], overhead, limit)
             set_(self, "frame_overhead", overhead)
@@ -205,16 +205,14 @@ class ReadoutSchedule:
                              f"more than the {MAX_SAMPLES:.3g} a schedule can count")
         overhead = round(samples) - read_samples
         if overhead < 0:
-            raise ValueError(
-                f"frame_time must be >= {read_samples / rate:.6g} s, the time to read "
-                f"{self.n_reads} rows of {self.row_samples} samples; got {tframe}"
-            )
+            raise ValueError(f"frame_time must be >= {read_samples / rate:.6g} s, the time to read "
+                             f"{read_samples // self.row_samples} rows of {self.row_samples} "
+                             f"samples (phantom_reads + pixels + row_overhead); got {tframe}")
         if self.frame_overhead is not None and check_field(
                 FIELD["frame_overhead"], self.frame_overhead) != overhead:
             raise ValueError(
                 f"frame_time={tframe} implies frame_overhead={overhead} samples, but "
-                f"frame_overhead={self.frame_overhead} was also given: give only one"
-            )
+                f"frame_overhead={self.frame_overhead} was also given: give only one")
         set_(self, "frame_overhead", overhead)
         set_(self, "frame_time", tframe)
         self._check_exposure()
@@ -225,11 +223,9 @@ class ReadoutSchedule:
             raise ValueError(
                 f"nframes={self.nframes} frames ({self.frames_read} read) of "
                 f"{self.frame_samples} samples make "
-                f"{total:.3g} samples, more than the {MAX_SAMPLES:.3g} a schedule can count"
-            )
+                f"{total:.3g} samples, more than the {MAX_SAMPLES:.3g} a schedule can count")
 
-    def _build_order(self):
-        g = self.geometry
+    def _build_order(self, g):
         active = g.active_rows[chopped_order(g.n_active_rows, self.skip)]
         top, bottom = g.top_rows, g.bottom_rows
         r = self.ref_reads
@@ -282,13 +278,13 @@ class ReadoutSchedule:
 
     @property
     def row_samples(self):
-        """Samples taken per row read: phantom + pixels + overhead."""
-        return self.phantom_reads + self.geometry.channel_width + self.row_overhead
+        """Samples per row read: phantom + pixels (a window: its full channel's) + overhead."""
+        return self.phantom_reads + self.geometry.read_width + self.row_overhead
 
     @property
     def starts(self):
         """Sample index (within the frame) of the first pixel of every read."""
-        return np.arange(self.n_reads, dtype=np.int64) * self.row_samples + self.phantom_reads
+        return self._index.astype(np.int64) * self.row_samples + self.phantom_reads
 
     @property
     def start_times(self):
@@ -296,9 +292,15 @@ class ReadoutSchedule:
         return (self.starts / self.geometry.pixel_rate) * u.s
 
     @property
+    def read_samples(self):
+        """Samples from the frame's start to the end of its last read (a window's: in the full
+        readout)."""
+        return (int(self._index[-1]) + 1) * self.row_samples
+
+    @property
     def frame_samples(self):
         """Samples per frame (the frame time times the pixel rate)."""
-        return self.n_reads * self.row_samples + self.frame_overhead
+        return self.read_samples + self.frame_overhead
 
     @property
     def integration_time(self):
@@ -442,15 +444,16 @@ class ReadoutSchedule:
             f"{self.n_reads} reads/frame ({int(self._is_ref.sum())} reference), frame time "
             f"{self.frame_time.to_value(u.s):.6g} s, N={self.nframes}, "
             f"{self.integration_time.to_value(u.s):.6g} s"
-            f"{describe_groups(self.frames_per_group, self.group_gap, self.groups)}"
-        )
+            f"{describe_groups(self.frames_per_group, self.group_gap, self.groups)}")
 
     def to_header(self, header=None):
         """Write the readout keywords into ``header`` (a copy; a new one if None)."""
         h = fits.Header() if header is None else header.copy()
         g = self.geometry.stored_geometry  # the stored image's fields
+        window = {} if g.window is None else g.window.fields()
         for f in FIELDS:
-            value = getattr(g if f.section == "geometry" else self, f.name)
+            value = (window.get(f.name) if f.section == "window"
+                     else getattr(g if f.section == "geometry" else self, f.name))
             if f.name == "scan":
                 value = g.scan_label
             elif isinstance(value, u.Quantity):
@@ -458,7 +461,7 @@ class ReadoutSchedule:
             if f.written_if_set and value == f.default:
                 h.remove(f.keyword, ignore_missing=True)
                 continue
-            cards = field_cards(f, g.border.to_value() if f.side_keywords else value)
+            cards = field_cards(f, g.border.to_value() if f.name == "ref_border" else value)
             for key in {f.keyword, *(f.side_keywords or ())} - {c[0] for c in cards}:
                 h.remove(key, ignore_missing=True)  # a per-side field: only one form
             for key, card_value, comment in cards:
@@ -492,8 +495,7 @@ class ReadoutSchedule:
         unknown = set(supplied) - set(FIELD)
         if unknown:
             raise FormatError(
-                f"unknown readout parameter(s) {sorted(unknown)}; valid: {sorted(FIELD)}"
-            )
+                f"unknown readout parameter(s) {sorted(unknown)}; valid: {sorted(FIELD)}")
         values = {}
         for f in FIELDS:
             value = read_field(header, f)
@@ -501,6 +503,7 @@ class ReadoutSchedule:
                 values[f.name] = value
             elif supplied.get(f.name) is not None:
                 values[f.name] = supplied[f.name]
+        values = fill_window_geometry(values)  # a window decides NCHAN SCANDIR REFBORD
         # Everything that decides read order and timing is required: guessing the
         # SPHEREx defaults for a foreign file would un-chop it wrongly and silently.
         required = [f for f in FIELDS if f.required is True]
@@ -512,8 +515,7 @@ class ReadoutSchedule:
         if missing:
             raise FormatError(
                 f"missing readout keyword(s) {', '.join(missing)}: the file does not say how it "
-                "was read; supply them in the pipeline config's geometry:/readout: sections"
-            )
+                "was read; supply them in the pipeline config's geometry:/readout: sections")
         _check_schedule_size(*(values.get(n, 0) for n in ("nrows", "ncols", "nchannels",
                                                           "ref_reads", "ref_border")))
         gkw = {f.name: values[f.name] for f in section_fields("geometry")
@@ -523,7 +525,8 @@ class ReadoutSchedule:
         if "frame_overhead" not in values:
             rkw["frame_time"] = values["frame_time"]
         try:
-            geometry = DetectorGeometry.from_scan_label(values.get("scan", "same"), **gkw)
+            geometry = DetectorGeometry.from_scan_label(values.get("scan", "same"),
+                                                        window=values.get("window"), **gkw)
             sched = cls(geometry, **rkw)
         except ValueError as exc:
             raise FormatError(f"readout keywords describe an invalid schedule: {exc}") from exc
@@ -539,14 +542,12 @@ class ReadoutSchedule:
                 atol=0.5 / geometry.pixel_rate):
             raise FormatError(
                 f"keyword TFRAME={values['frame_time']} disagrees with the frame time "
-                f"{sched.frame_time.to_value(u.s)} s implied by FRMOVH and the read order"
-            )
+                f"{sched.frame_time.to_value(u.s)} s implied by FRMOVH and the read order")
         if ("CHANW" in header
                 and header_keyword(header, "CHANW", int, 1) != sched.geometry.channel_width):
             raise FormatError(
                 f"keyword CHANW={header['CHANW']} disagrees with NCOLS/NCHAN="
-                f"{sched.geometry.channel_width}"
-            )
+                f"{sched.geometry.channel_width}")
         return sched
 
     def check_table(self, table):
@@ -554,8 +555,7 @@ class ReadoutSchedule:
         if len(table) != self.n_reads:
             raise FormatError(
                 f"READOUT table has {len(table)} reads but the header keywords give "
-                f"{self.n_reads} reads per frame (check ROWSKIP, NREFRD, REFMODE, NROWS, REFBORD)"
-            )
+                f"{self.n_reads} reads per frame (check ROWSKIP, NREFRD, REFMODE, NROWS, REFBORD)")
         for col, expected, hint in [
             ("row", self._rows, "ROWSKIP/NREFRD/REFMODE"),
             ("kind", self.kinds, "NREFRD/REFMODE/REFBORD"),
@@ -571,8 +571,7 @@ class ReadoutSchedule:
                 i = bad[0]
                 raise FormatError(
                     f"READOUT column {col!r} disagrees with the header keywords ({hint}) at read "
-                    f"{i}: table has {got[i].item()!r}, keywords give {expected[i].item()!r}"
-                )
+                    f"{i}: table has {got[i].item()!r}, keywords give {expected[i].item()!r}")
 
 
 def _check_schedule_size(nrows, ncols, nchannels, ref_reads, ref_border):

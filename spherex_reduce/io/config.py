@@ -1,6 +1,6 @@
 """YAML configuration shared by pipelines, scenes and sweeps.
 
-The ``geometry:`` and ``readout:`` sections use the same keys everywhere.
+The ``geometry:``, ``readout:`` and ``window:`` sections use the same keys everywhere.
 Errors name the YAML path of the offending entry.
 """
 
@@ -16,6 +16,7 @@ from ..core.geometry import DetectorGeometry
 from ..core.parameters import validate_parameters
 from ..core.presets import apply_preset
 from ..core.schedule import ReadoutSchedule
+from ..core.window import fill_window_geometry
 
 __all__ = [
     "GEOMETRY_PARAMETERS",
@@ -23,6 +24,7 @@ __all__ = [
     "MAX_YAML_DEPTH",
     "MAX_YAML_EXPANDED",
     "READOUT_PARAMETERS",
+    "WINDOW_PARAMETERS",
     "load_yaml",
     "parse_yaml",
     "read_yaml_text",
@@ -34,6 +36,8 @@ __all__ = [
 GEOMETRY_PARAMETERS = tuple(f.parameter() for f in section_fields("geometry"))
 #: Keys of the ``readout:`` section, with defaults (the paper's Table 3); from the field table.
 READOUT_PARAMETERS = tuple(f.parameter() for f in section_fields("readout"))
+#: Keys of the ``window:`` section (a window of a larger array; none by default).
+WINDOW_PARAMETERS = tuple(f.parameter() for f in section_fields("window"))
 
 
 #: Largest YAML file (or text) accepted, in bytes.
@@ -300,10 +304,13 @@ def geometry_section(section):
         raise ConfigError(str(exc)) from None
 
 
-def schedule_from_config(geometry=None, readout=None):
-    """Build a `ReadoutSchedule` from ``geometry:`` and ``readout:`` mappings.
+def schedule_from_config(geometry=None, readout=None, window=None):
+    """Build a `ReadoutSchedule` from ``geometry:``, ``readout:`` and ``window:`` mappings.
 
-    Missing keys take the SPHEREx / Table 3 defaults.
+    Missing keys take the SPHEREx / Table 3 defaults.  With a ``window:``
+    (`spherex_reduce.core.window`), the geometry's ``nrows`` and ``ncols``
+    are the window's and its channels, scan and reference border are derived
+    from the full array's.
 
     Examples
     --------
@@ -316,7 +323,16 @@ def schedule_from_config(geometry=None, readout=None):
     g = validate_parameters(geometry_section(geometry), GEOMETRY_PARAMETERS, "geometry")
     r = validate_parameters(readout, READOUT_PARAMETERS, "readout")
     try:
-        geo = DetectorGeometry(**g)
+        if window:
+            w = validate_parameters(window, WINDOW_PARAMETERS, "window")
+            values = fill_window_geometry({**{k: g[k] for k in ("nrows", "ncols", "pixel_rate")},
+                                           **(geometry or {}), **w})
+            geo = DetectorGeometry.from_scan_label(
+                values["scan"], window=values["window"],
+                **{k: values[k] for k in ("nrows", "ncols", "nchannels", "ref_border",
+                                          "pixel_rate")})
+        else:
+            geo = DetectorGeometry(**g)
         return ReadoutSchedule(geo, **r)
     except ResourceError:
         raise

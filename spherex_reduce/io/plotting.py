@@ -111,6 +111,8 @@ def plot_read_order(schedule, max_rows=48):
     if not g.layout.identity:
         for a in (ax, ax2):
             a.set_ylabel("row of the readout frame")
+    if g.window is not None:
+        _draw_window(ax2, g)
     _draw_channels(ax3, g.stored_geometry)
     return fig
 
@@ -200,6 +202,26 @@ def _draw_channels(ax, g):
                                                                if exaggerated else ""))]
     ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=2,
               fontsize=8, frameon=False)
+
+
+def _draw_window(ax, geometry):
+    """An inset in the empty lower left of ``ax``: the full array with its channel
+    boundaries, and the window (``geometry``) as a filled rectangle in it."""
+    from matplotlib.patches import Rectangle
+
+    w = geometry.window
+    f = w.full
+    inset = ax.inset_axes([0.03, 0.03, 0.3, 0.3])
+    inset.add_patch(Rectangle((0, 0), f.ncols, f.nrows, fill=False, lw=0.8))
+    for col in range(f.channel_width, f.ncols, f.channel_width):
+        inset.axvline(col, lw=0.3, color="0.7")
+    inset.add_patch(Rectangle((w.first_column, w.first_row), geometry.ncols, geometry.nrows,
+                              color="tab:blue", alpha=0.7, label="window"))
+    inset.set_xlim(0, f.ncols)
+    inset.set_ylim(f.nrows, 0)
+    inset.set_xticks([])
+    inset.set_yticks([])
+    inset.set_title(f"window in the {f.nrows}x{f.ncols} array", fontsize=7)
 
 
 def unit_label(unit):

@@ -15,6 +15,7 @@ from ..io import read
 from ..io.config import (
     GEOMETRY_PARAMETERS,
     READOUT_PARAMETERS,
+    WINDOW_PARAMETERS,
     load_yaml,
     resolve_config,
     schedule_from_config,
@@ -29,7 +30,7 @@ from .progress import terminal_bar
 
 __all__ = ["Pipeline", "as_pipeline"]
 
-_TOP_KEYS = ("steps", "input", "geometry", "readout", "name", "description")
+_TOP_KEYS = ("steps", "input", "geometry", "readout", "window", "name", "description")
 
 
 class Pipeline:
@@ -94,6 +95,7 @@ class Pipeline:
             raise ConfigError("steps: a non-empty list of {step_name: {parameters}} is required")
         geometry = section_values(config, "geometry", GEOMETRY_PARAMETERS)
         readout = section_values(config, "readout", READOUT_PARAMETERS)
+        window = section_values(config, "window", WINDOW_PARAMETERS)
         options = InputOptions.from_config(config.get("input"))
         if "nchannels" in geometry:
             options.check_channels(geometry["nchannels"])
@@ -117,6 +119,8 @@ class Pipeline:
             out["geometry"] = geometry
         if readout:
             out["readout"] = readout
+        if window:
+            out["window"] = window
         out["steps"] = effective
         return out
 
@@ -146,7 +150,8 @@ class Pipeline:
 
     def schedule(self):
         """The schedule the ``geometry:``/``readout:`` sections describe (defaults filled)."""
-        return schedule_from_config(self._config.get("geometry"), self._config.get("readout"))
+        return schedule_from_config(self._config.get("geometry"), self._config.get("readout"),
+                                    self._config.get("window"))
 
     # -- running ------------------------------------------------------------------
     @property
@@ -166,9 +171,10 @@ class Pipeline:
         return read(path, input=self.input_options, **self.supplied())
 
     def supplied(self):
-        """The ``geometry:`` and ``readout:`` values, one mapping: what a reader takes for
-        keywords a file lacks (with `input_options` for the ``input:`` section)."""
-        return {**self._config.get("geometry", {}), **self._config.get("readout", {})}
+        """The ``geometry:``, ``readout:`` and ``window:`` values, one mapping: what a reader
+        takes for keywords a file lacks (with `input_options` for the ``input:`` section)."""
+        return {**self._config.get("geometry", {}), **self._config.get("readout", {}),
+                **self._config.get("window", {})}
 
     def run(self, exposure, progress=False, threads=None):
         """Run every step in order and return the reduced exposure.

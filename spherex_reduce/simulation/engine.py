@@ -126,6 +126,9 @@ class NoiseEngine:
                  slope_route=None):
         self.schedule = s = schedule
         g = s.geometry
+        if g.window is not None:  # its reads are not every row_samples: not modelled
+            raise ValueError("the simulator does not simulate a window of a larger array; "
+                             "simulate the full array and cut the window from it")
         self.fs = g.pixel_rate
         self.nch, self.width, self.ncols = g.nchannels, g.channel_width, g.ncols
         self.c, self.rs, self.n_reads = s.phantom_reads, s.row_samples, s.n_reads

@@ -287,6 +287,10 @@ def test_cli_writes_table_plot_and_summary_and_refuses_to_overwrite(tmp_path, ca
     t = Table.read(out)
     assert len(t) == 2 and (tmp_path / "r.png").stat().st_size > 0
     assert set(t.meta["summary"]) == {"spherex-default", "median"}
+    # a band of the comparison's own: named by its k range, the θ it gives on 6.2″ pixels
+    # (2π · 6.2″ / k) in the meta only
+    assert t.meta["band_label"] == "0.15 ≤ k ≤ 1.5 rad/pixel"
+    assert t.meta["band_theta_exact"] == "θ = 0.433–4.33′ for 6.2″ pixels"  # 26–260″
     assert t.meta["photon_noise"] > 0 and t["noise_band_power"].unit == t["excess"].unit
     assert all(t[c].description for c in t.colnames)  # each column says what it holds
     before = out.read_bytes()

@@ -117,16 +117,21 @@ def test_spectra_legend_shows_error_bars_only_where_drawn():
 
 
 @pytest.mark.parametrize("scale", [6.2, 0.5, 60.0])
-def test_spectra_band_labelled_by_k_and_the_theta_it_gives(scale):
+def test_spectra_band_labelled_nominally_and_the_theta_it_gives_in_the_caption(scale):
     from spherex_reduce.analysis.plots import plot_spectra
 
     fig = plot_spectra({"a": _spectrum([1.0, 2.0], [0.1, 0.1])}, band=(0.03, 0.13),
                        pixel_scale=scale * u.arcsec)
     (band,) = [t.get_text() for t in fig.axes[0].get_legend().get_texts()
                if t.get_text().startswith("band")]
-    # θ = 2π · pixel scale / k, independently of the package
+    # the paper's name of the band on SPHEREx pixels only; its k range always
+    assert band == ("band 5–20′ (0.03 ≤ k ≤ 0.13 rad/pixel)" if scale == 6.2
+                    else "band 0.03 ≤ k ≤ 0.13 rad/pixel")
+    # θ = 2π · pixel scale / k, independently of the package, in the caption
     short, long_ = (2 * np.pi * scale / k for k in (0.13, 0.03))  # arcsec
     unit, mark = (60.0, "′") if long_ >= 60 else (1.0, "″")
-    assert band == (f"band 0.03 ≤ k ≤ 0.13 rad/pixel "
-                    f"(θ = {short / unit:.3g}–{long_ / unit:.3g}{mark})")
-    assert "0–0" not in band
+    caption = fig.get_supxlabel()
+    assert caption == (f"shaded band: θ = {short / unit:.3g}–{long_ / unit:.3g}{mark} "
+                       f"for {scale:g}″ pixels")
+    assert "0–0" not in caption
+    assert not any("θ =" in t.get_text() for t in fig.axes[0].get_legend().get_texts())

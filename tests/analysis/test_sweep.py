@@ -77,6 +77,9 @@ def test_rerun_skips_cells_already_in_results(tmp_path):
     assert np.array_equal(np.asarray(t["band_power"]), np.asarray(fresh["band_power"]))
     fig = plot_sweep(t)
     assert fig.axes[0].get_xlabel() == "skip"
+    # the sweep's own band (not the paper's) is named by its k range
+    assert fig.axes[0].get_title() == ("band power 0.1 ≤ k ≤ 1 rad/pixel "
+                                       "(mean ± s.e. over realisations)")
     # a different scene would not match the rows already there
     other = dict(bigger, seed=99)
     with pytest.raises(ConfigError, match="different scene, seed"):

@@ -189,3 +189,21 @@ def test_a_good_fit_is_not_flagged_and_bad_ones_are():
         "reference": ["gamma = 2 ± 1e-15, an error below floating-point noise",
                       "chi2/dof = 30/2"],
         "phantom": ["alpha = -0.001 is 10 sigma below zero", "chi2/dof = 6.3e+14/47"]}
+
+
+def test_reference_rows_of_a_window_are_timed_by_the_full_readout():
+    """A window of 4 columns inside the reversed channel 1 (columns 8-15) of a 16 x 16
+    array: its columns 9-12 are sampled 6, 5, 4, 3 samples into each row read."""
+    from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule
+    from spherex_reduce.core.window import Window
+
+    full = DetectorGeometry(16, 16, 2, ref_border={"top": 2, "bottom": 2}, scan="alternate")
+    s = ReadoutSchedule(Window(0, 9, full).geometry(16, 4), skip=1, ref_mode="none",
+                        phantom_reads=1, row_overhead=2, nframes=3, frame_time=0.01)
+    e = Exposure.from_arrays(np.zeros((3, 16, 4)), s)
+    row_read = 1 + 8 + 2  # phantom, full channel width, overhead
+    starts = np.array([0, 1, 14, 15]) * row_read + 1  # the reference rows' reads
+    tr = reference_timestream(e, "rows")
+    assert tr.samples[0].tolist() == (starts[:, None] + [3, 4, 5, 6]).tolist()
+    even = reference_timestream(e, "rows", parity="even")
+    assert even.samples[0].tolist() == (starts[:, None] + [4, 6]).tolist()

@@ -29,7 +29,10 @@ def test_spectrum_writes_table_with_band_power_and_plot(image_file, tmp_path, ca
     assert abs(t.meta["band_power"] - 0.25) < 4 * t.meta["band_power_err"]
     assert t.meta["photon_noise_power"] == pytest.approx(1 / 111.74)  # 1 e/s, no NFRAMES
     assert (tmp_path / "spec.png").stat().st_size > 1000
-    assert "band power" in capsys.readouterr().out
+    # the band by its nominal name; the θ its k limits give on 6.2″ pixels in the meta
+    assert "band power 5–20′ (0.03 ≤ k ≤ 0.13 rad/pixel) = " in capsys.readouterr().out
+    assert t.meta["band"] == "5–20′ (0.03 ≤ k ≤ 0.13 rad/pixel)"
+    assert t.meta["band_theta_exact"] == "θ = 4.99–21.6′ for 6.2″ pixels"
     # an existing output is kept
     assert main(["spectrum", str(image_file), "-o", str(out)]) == 2
     assert "exists" in capsys.readouterr().err

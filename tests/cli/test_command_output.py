@@ -87,13 +87,18 @@ def test_demo_and_spectrum_give_one_band_power(demo_dir, tmp_path):
 # -- help texts and listings -------------------------------------------------------------
 def test_readout_help_describes_every_option_with_its_default(capsys):
     from spherex_reduce.cli.readout import OPTIONS
-    from spherex_reduce.io.config import GEOMETRY_PARAMETERS, READOUT_PARAMETERS
+    from spherex_reduce.io.config import (
+        GEOMETRY_PARAMETERS,
+        READOUT_PARAMETERS,
+        WINDOW_PARAMETERS,
+    )
 
     with pytest.raises(SystemExit):
         main(["readout", "--help"])
     text = " ".join(capsys.readouterr().out.split())  # unwrap argparse's lines
-    declared = {p.name: p for p in (*GEOMETRY_PARAMETERS, *READOUT_PARAMETERS)}
-    assert len(OPTIONS) == 21  # one per field (4 of them the channel layout and preset)
+    declared = {p.name: p for p in (*GEOMETRY_PARAMETERS, *READOUT_PARAMETERS,
+                                    *WINDOW_PARAMETERS)}
+    assert len(OPTIONS) == 28  # one per field (4 of them the channel layout and preset)
     for flag, _, key, _ in OPTIONS:
         p = declared[key]
         after = text.split(f"{flag} {key.upper()} ", 1)[1]
@@ -104,6 +109,8 @@ def test_readout_help_describes_every_option_with_its_default(capsys):
         else:
             assert "(default: " in after.split(" --", 1)[0], flag
     assert "(default: 1816, the paper's 1.51 s frame" in text
+    assert "--first-row FIRST_ROW window: its first row in the full array (default: no " \
+        "window)" in text
     assert "--groups GROUPS reads (0-based frames) averaged into each group, instead of " \
         "frames_per_group, as text: 0;1-2;3-6 (';' between groups, a-b a run of reads)" in text
 

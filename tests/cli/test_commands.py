@@ -120,7 +120,8 @@ def test_demo_runs_and_refuses_to_overwrite(tmp_path, capsys):
     assert run("-q", "demo", "-o", tmp_path / "d", "--size", 128, "--nframes", 6,
                "--keep-raw") == 0
     out = capsys.readouterr().out
-    assert "band power 0.03 ≤ k ≤ 0.13 rad/pixel (θ = 4.99–21.6′)" in out
+    # the nominal band; the θ the k limits give on 6.2″ pixels only in the table's meta
+    assert "band power 5–20′ (0.03 ≤ k ≤ 0.13 rad/pixel)" in out and "4.99" not in out
     assert "photon noise of 1 e/s" in out
     assert {p.name for p in (tmp_path / "d").iterdir()} == {*PRODUCTS, *RAW_PRODUCTS}
     raw = read(tmp_path / "d" / "raw_chopped.fits")
@@ -131,6 +132,8 @@ def test_demo_runs_and_refuses_to_overwrite(tmp_path, capsys):
     assert all(spectra[c].description for c in spectra.colnames)  # "what is power_err?"
     assert "standard error" in spectra["power_err_chopped"].description
     assert {"k", "theta", "power_chopped", "power_unchopped"} <= set(spectra.colnames)
+    assert spectra.meta["band"] == "5–20′ (0.03 ≤ k ≤ 0.13 rad/pixel)"
+    assert spectra.meta["band_theta_exact"] == "θ = 4.99–21.6′ for 6.2″ pixels"
     assert run("demo", "-o", tmp_path / "d", "--size", 128) == 2
     assert "exists" in capsys.readouterr().err
     assert run("demo", "-o", tmp_path / "e", "--size", 100) == 2

@@ -1,12 +1,14 @@
 """The Measured darks guide as written: every command it shows runs on the files it describes.
 
 The guide's first example (its doctest) writes ``lab.fits``; its YAML blocks are
-``lab.yaml`` and ``nirspec.yaml``.  The test builds the other inputs the commands
+``lab.yaml``, ``nirspec.yaml``, ``corner.yaml`` and ``output.yaml`` (windows of a
+larger array, tested on their own).  The test builds the other inputs the commands
 name from small arrays (the lab ramps one file per read, a JWST-like 4-D file,
 a folder of darks), runs every ``spherex-reduce`` command of the page (a new
 one must be given its inputs here) and checks the slopes against numpy.
 """
 
+import hashlib
 import re
 import shlex
 import shutil
@@ -16,6 +18,7 @@ import numpy as np
 import pytest
 from _paths import ROOT
 from astropy.io import fits
+from astropy.table import Table
 from astropy.utils.exceptions import AstropyUserWarning
 
 from spherex_reduce.cli import main
@@ -82,7 +85,8 @@ def test_every_command_of_the_guide_runs_as_written(tmp_path, monkeypatch, capsy
     (tmp_path / "darks").mkdir()
     for name in ("dark01.fits", "dark02.fits"):
         shutil.copy(tmp_path / "lab.fits", tmp_path / "darks" / name)
-    commands = _commands(_without(text, LAYOUTS))  # that section: its own test below
+    commands = [c for c in _commands(_without(text, LAYOUTS))  # those two: their own tests
+                if not _window_command(c)]
     commands.sort(key=lambda c: "-o lab_slopes.fits" not in c)  # read by a later one
     assert len(commands) >= 6, commands
     for command in commands:
@@ -104,6 +108,10 @@ def test_every_command_of_the_guide_runs_as_written(tmp_path, monkeypatch, capsy
     keep = np.ones(one.shape, bool)
     keep[9, 9] = False
     np.testing.assert_allclose(reads[keep], one[keep], rtol=1e-6)
+    # the noise fit of the reads is the 3-D file's, bit for bit
+    noise, noise07 = Table.read("noise.ecsv"), Table.read("noise07.ecsv")
+    for name in ("alpha", "alpha_err", "beta", "beta_err", "gamma", "gamma_err", "chi2"):
+        np.testing.assert_array_equal(noise07[name], noise[name], name)
     # the 4-D file: in electrons (gain 2), the light-sensitive slopes are the rate
     jw = fits.getdata("dark.fits", "SCI")
     np.testing.assert_allclose(jw[4:, 4:], 2.0 * RATE, rtol=0.02)
@@ -181,3 +189,62 @@ def _expand(command, where):
         out.extend(sorted(str(p.relative_to(where)) for p in where.glob(a)) if "*" in a
                    else [a])
     return out
+
+
+WINDOWS = {"corner": ((5, 64, 64), 3.04, (4, 0), 4),   # reads x rows x columns, frame time,
+           "output": ((3, 4096, 128), 2.7, (4, 4), 0)}  # top/bottom ref rows, left columns
+
+
+def _window_command(command):
+    return any(name in command for name in WINDOWS)
+
+
+def _window_file(path, shape, top_bottom, left, rng):
+    """Ramps in ADU: a slope per light-sensitive pixel and an offset per read (the one
+    channel's) in every pixel, the reference pixels holding the offset alone."""
+    n, nrows, ncols = shape
+    rate = rng.uniform(0.5, 2.0, (nrows, ncols))
+    ref = np.zeros((nrows, ncols), bool)
+    top, bottom = top_bottom
+    ref[:top] = ref[nrows - bottom:] = True
+    ref[:, :left] = True
+    rate[ref] = 0.0
+    offset = 1000.0 + rng.normal(0, 30.0, n)
+    return rate, offset, ref
+
+
+def test_every_window_command_of_the_guide(tmp_path, monkeypatch, capsys):
+    text = GUIDE.read_text()
+    monkeypatch.chdir(tmp_path)
+    rng = np.random.default_rng(21)
+    commands = [c for c in _commands(text) if _window_command(c)]
+    assert len(commands) == 3, commands
+    made = {}
+    for name, (shape, tframe, top_bottom, left) in WINDOWS.items():
+        (tmp_path / f"{name}.yaml").write_text(_yaml_block(text, f"As YAML (``{name}.yaml``)"))
+        rate, offset, ref = _window_file(tmp_path / f"{name}.fits", shape, top_bottom, left,
+                                         rng)
+        t = tframe * np.arange(shape[0])
+        ramps = (offset[:, None, None] + rate * t[:, None, None]).astype(np.float32)
+        sci = fits.ImageHDU(ramps, name="SCI")
+        sci.header["BUNIT"] = "ADU"
+        fits.HDUList([fits.PrimaryHDU(), sci]).writeto(f"{name}.fits")
+        # independent: the mean of the reference rows of each read subtracted, then a
+        # least-squares line through the reads at the frame time given
+        rows = np.r_[0:top_bottom[0], shape[1] - top_bottom[1]:shape[1]]
+        corrected = ramps.astype(np.float64) - ramps[:, rows].mean(axis=(1, 2))[:, None, None]
+        slope = np.polyfit(t, corrected.reshape(shape[0], -1), 1)[0].reshape(shape[1:])
+        made[name] = (hashlib.sha256((tmp_path / f"{name}.fits").read_bytes()).hexdigest(),
+                      slope, ref, rate)
+    for command in commands:
+        assert main(["-q", *shlex.split(command)[1:]]) == 0, command
+    out = capsys.readouterr().out
+    assert "window 64x64 at row 0, column 0 of a 4096x4096 array" in out
+    for name, (digest, slope, ref, rate) in made.items():
+        assert hashlib.sha256((tmp_path / f"{name}.fits").read_bytes()).hexdigest() == digest
+        with fits.open(f"{name}_slopes.fits") as hdul:
+            got = hdul["SCI"].data
+            assert hdul[0].header["FULLCOLS"] == 4096
+            assert hdul[0].header["WINCOL"] == (0 if name == "corner" else 384)
+        np.testing.assert_allclose(got[~ref], slope[~ref], rtol=1e-5, atol=1e-4)
+        np.testing.assert_allclose(got[~ref], rate[~ref], rtol=1e-4)

@@ -23,6 +23,7 @@ from spherex_reduce.core.parameters import validate_parameters
 from spherex_reduce.io.config import (
     GEOMETRY_PARAMETERS,
     READOUT_PARAMETERS,
+    WINDOW_PARAMETERS,
     load_yaml,
     schedule_from_config,
 )
@@ -50,6 +51,10 @@ OTHER = {"nrows": 40, "ncols": 32, "nchannels": 4, "ref_border": 3, "scan": "alt
          "ref_mode": "repeated", "frame_overhead": 123, "frame_time": 0.05,
          "groups": [[0, 1], *([k] for k in range(3, 75)), [76, 77, 78]],  # 74 groups
          "preset": "H2RG"}
+
+
+#: The fields of a constructor (the window's: tests/core/test_window.py).
+CONSTRUCTED = [f for f in FIELDS if f.section != "window"]
 
 
 def other_value(field):
@@ -112,7 +117,7 @@ def test_known_names_keywords_and_defaults_are_kept():
     assert len(set(keywords)) == len(keywords)
     assert all(len(k) <= 8 and k.isupper() for k in keywords)
     assert all(len(f.side_keywords) == len(SIDES) for f in FIELDS if f.side_keywords)
-    assert {f.section for f in FIELDS} == {"geometry", "readout"}
+    assert {f.section for f in FIELDS} == {"geometry", "readout", "window"}
 
 
 def test_every_default_passes_its_own_checks():
@@ -122,9 +127,9 @@ def test_every_default_passes_its_own_checks():
 
 # -- the dataclasses -----------------------------------------------------------------------
 def test_dataclass_fields_are_the_table():
-    fields = dataclasses.fields(DetectorGeometry)  # plus a readout frame's keyword-only two
+    fields = dataclasses.fields(DetectorGeometry)  # plus three keyword-only ones
     assert [f.name for f in fields if not f.kw_only] == names("geometry")
-    assert [f.name for f in fields if f.kw_only] == ["channel_border", "stored"]
+    assert [f.name for f in fields if f.kw_only] == ["window", "channel_border", "stored"]
     assert [f.name for f in dataclasses.fields(ReadoutSchedule)] == ["geometry",
                                                                       *names("readout")]
     for cls, section in ((DetectorGeometry, "geometry"), (ReadoutSchedule, "readout")):
@@ -133,7 +138,7 @@ def test_dataclass_fields_are_the_table():
             assert params[f.name].default == f.default, f.name
 
 
-@pytest.mark.parametrize("field", [f for f in FIELDS if f.minimum is not None],
+@pytest.mark.parametrize("field", [f for f in CONSTRUCTED if f.minimum is not None],
                          ids=lambda f: f.name)
 def test_constructor_refuses_just_below_the_minimum(field):
     value = field.minimum if field.exclusive_minimum else field.minimum - 1
@@ -153,7 +158,7 @@ def test_constructor_accepts_exactly_the_choices(field):
 
 
 # -- FITS ----------------------------------------------------------------------------------
-@pytest.mark.parametrize("field", FIELDS, ids=lambda f: f.name)
+@pytest.mark.parametrize("field", CONSTRUCTED, ids=lambda f: f.name)
 def test_header_round_trip_of_a_non_default_value(field):
     value = other_value(field)
     s = build(field.name, value)
@@ -171,7 +176,8 @@ def test_header_round_trip_of_a_non_default_value(field):
     assert same(field, getattr(holder(again, field), field.name), got)
 
 
-@pytest.mark.parametrize("field", [f for f in FIELDS if f.side_keywords], ids=lambda f: f.name)
+@pytest.mark.parametrize("field", [f for f in CONSTRUCTED if f.side_keywords],
+                         ids=lambda f: f.name)
 def test_per_side_field_round_trips_through_header_yaml_and_command_line(field):
     value = {"top": 3, "left": 2}
     s = build(field.name, value)
@@ -199,7 +205,7 @@ def test_header_has_one_card_per_field_and_the_channel_width():
                                    else (f.keyword,)))]
 
 
-@pytest.mark.parametrize("field", FIELDS, ids=lambda f: f.name)
+@pytest.mark.parametrize("field", CONSTRUCTED, ids=lambda f: f.name)
 def test_missing_keyword_is_required_or_supplied_or_defaulted(field):
     s = build(field.name, other_value(field))
     h = s.to_header()
@@ -253,13 +259,14 @@ def test_unknown_supplied_parameter_lists_the_table():
 def test_yaml_sections_are_the_table():
     assert [p.name for p in GEOMETRY_PARAMETERS] == names("geometry")
     assert [p.name for p in READOUT_PARAMETERS] == names("readout")
-    for p in (*GEOMETRY_PARAMETERS, *READOUT_PARAMETERS):
+    assert [p.name for p in WINDOW_PARAMETERS] == names("window")
+    for p in (*GEOMETRY_PARAMETERS, *READOUT_PARAMETERS, *WINDOW_PARAMETERS):
         f = FIELD[p.name]
         assert (p.default, p.types, p.doc, p.choices, p.minimum, p.exclusive_minimum) == (
             f.default, f.types, f.doc, f.choices, f.minimum, f.exclusive_minimum)
 
 
-@pytest.mark.parametrize("field", FIELDS, ids=lambda f: f.name)
+@pytest.mark.parametrize("field", CONSTRUCTED, ids=lambda f: f.name)
 def test_yaml_text_round_trip_of_a_non_default_value(field):
     s = build(field.name, other_value(field))
     sections = {"geometry": s.geometry.to_dict(), "readout": s.to_dict()}
@@ -309,7 +316,7 @@ def test_readout_accepts_exactly_the_bounds(field, capsys):
         assert f"argument {flag}: {message}" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("field", FIELDS, ids=lambda f: f.name)
+@pytest.mark.parametrize("field", CONSTRUCTED, ids=lambda f: f.name)
 def test_readout_option_sets_the_field(field):
     value = other_value(field)
     args = [x for k, v in base_geometry(field.name, value).items() if k != field.name
@@ -384,7 +391,7 @@ def test_docs_fits_lists_every_keyword_as_the_table_says():
         "regenerate with tests/core/test_fields.py:fits_keyword_table")
 
 
-@pytest.mark.parametrize("section", ["geometry", "readout"])
+@pytest.mark.parametrize("section", ["geometry", "readout", "window"])
 def test_docs_yaml_lists_every_key_as_the_table_says(section):
     text = (DOCS / "yaml.rst").read_text(encoding="utf-8")
     assert yaml_section_table(section) in text, \

@@ -1,4 +1,5 @@
-"""plot_image bins large images; plot_read_order labels are readable, its legend off the points."""
+"""plot_image bins large images; plot_read_order labels are readable, its legend off the points,
+a window shown inside its full array."""
 
 import numpy as np
 import pytest
@@ -66,3 +67,20 @@ def test_channel_layout_panel_marks_each_channels_first_read_pixel(geometry, fir
     for i, a in enumerate(boxes):
         for b in boxes[i + 1:]:
             assert not overlaps(a, b)
+
+
+def test_read_order_shows_a_window_inside_its_full_array():
+    from matplotlib.patches import Rectangle
+
+    from spherex_reduce import DetectorGeometry, ReadoutSchedule
+    from spherex_reduce.core.window import Window
+    from spherex_reduce.io.plotting import plot_read_order
+
+    full = DetectorGeometry(64, 64, 4, ref_border=4)
+    s = ReadoutSchedule(Window(8, 16, full).geometry(24, 16), skip=1, ref_mode="none",
+                        nframes=2, frame_time=0.05)
+    inset = plot_read_order(s).axes[1].child_axes[0]
+    boxes = [(p.get_x(), p.get_y(), p.get_width(), p.get_height())
+             for p in inset.patches if isinstance(p, Rectangle)]
+    assert boxes == [(0, 0, 64, 64), (16, 8, 16, 24)]
+    assert [line.get_xdata()[0] for line in inset.lines] == [16, 32, 48]

@@ -220,7 +220,13 @@ class WienerReference(Strategy):
     def check_data(self, context):
         """Refuse data the noise model does not describe: another unit than the model's
         (``input: gain`` converts ADU to electrons first), or, with the default model (the
-        paper's electronics: electrons, 100 kHz), data from another readout."""
+        paper's electronics: electrons, 100 kHz), data from another readout, or a window
+        of a larger array (its reads are not evenly spaced: the model's lags assume they
+        are)."""
+        if context.schedule.geometry.window is not None:
+            raise ConfigError("correct_reference.strategy: wiener does not model a window of "
+                              "a larger array (its reads are spread over the full readout); "
+                              "use strategy: mean or acn")
         unit = None if context.unit is None else u.Unit(context.unit)
         # frames in the model's unit, slopes in it per second
         charge = None if unit is None else unit * u.s if unit == self.model_unit / u.s else unit

@@ -40,6 +40,7 @@ import numpy as np
 from astropy import units as u
 
 from .errors import FormatError
+from .frame_times import format_read_times, parse_read_times
 from .groups import format_groups, parse_groups
 from .parameters import Parameter
 
@@ -219,6 +220,11 @@ FIELDS = (
           comment="reads of each group: ';' between groups", required=False,
           none_means="groups of {frames_per_group} frames, {group_gap} apart",
           written_if_set=True, to_text=format_groups, from_text=parse_groups),
+    Field("read_times", "readout", "RDTIMES", (list, type(None)), None,
+          "time (s) of every stored frame's read, for reads at uneven times",
+          unit="s", comment="[s] time of each read: ',' between reads", required=False,
+          none_means="every frame_time (or the groups' mean reads)",
+          written_if_set=True, to_text=format_read_times, from_text=parse_read_times),
 )
 
 #: The fields by name.

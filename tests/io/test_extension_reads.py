@@ -186,7 +186,7 @@ def test_several_sci_without_input_reads_are_refused(tmp_path, capsys):
     assert "\n" not in err
     assert ("holds 6 SCI extensions (EXTVER 1 ... 6, SAMPTIME 35.867 ... 0.0 s): one image "
             "per read") in err and "set input.reads: extensions" in err
-    with pytest.raises(FormatError, match="set input.reads: extensions"):
+    with pytest.raises(FormatError, match=r"set input\.reads: extensions"):
         sr.read(raw, **GEOMETRY, **READOUT)
 
 

@@ -199,3 +199,36 @@ def test_drop_first_reads_drops_the_earliest(tmp_path):
                        **GEOMETRY, **READOUT)
     assert exposure.schedule.read_times == tuple(TIMES[1:])
     np.testing.assert_array_equal(exposure.data.data, ramps[1:])
+
+
+def _null_dq(hdul):
+    """DQ,i without data, as _raw files store them: PIXVALUE 0, but 8 (every pixel) in DQ,2."""
+    for h in [h for h in hdul if h.name == "DQ"]:
+        h.data = None
+        h.header["PIXVALUE"] = 8 if h.ver == 2 else 0
+
+
+def test_a_dq_without_data_flags_every_pixel_with_its_pixvalue(tmp_path):
+    """DQ,2 (the read at 25.866 s) flags every pixel: that read is left out of every fit;
+    the DQ,i of PIXVALUE 0 flag none."""
+    ramps = _ramps()
+    raw = _write(tmp_path / "x_raw.fits", ramps, change=_null_dq)
+    with fits.open(raw) as hdul:
+        assert hdul["DQ", 2].header["NAXIS"] == 0
+    pipeline = sr.Pipeline.from_yaml(_config(tmp_path / "wfc3.yaml"))
+    slopes = pipeline.run(raw).data.data
+    others = [k for k in range(len(TIMES)) if k != 4]
+    np.testing.assert_allclose(slopes, _lstsq(ramps[others], [TIMES[k] for k in others]),
+                               rtol=1e-9, atol=1e-9)
+
+
+def test_one_sci_with_input_reads_is_refused(tmp_path):
+    path = tmp_path / "one.fits"
+    sci = fits.ImageHDU(np.zeros((16, 16), np.float32), name="SCI")
+    sci.header["SAMPTIME"] = 0.0
+    fits.HDUList([fits.PrimaryHDU(), sci]).writeto(path)
+    with pytest.raises(FormatError, match=r"input\.reads is extensions, but the file holds 1 "
+                                          r"SCI extension"):
+        sr.read(path, input={"reads": "extensions"}, **GEOMETRY, **READOUT)
+    with pytest.raises(FormatError, match="FrameReader reads one 3-D SCI"):
+        sr.io.FrameReader(path, input={"reads": "extensions"}, **GEOMETRY, **READOUT)

@@ -39,13 +39,14 @@ from astropy import units as u
 
 from ..core.errors import FormatError
 from ..core.fields import header_keyword
+from ..core.limits import check_count
 from .description import describe, file_tables, image_shape
 from .fits_read import open_fits
 from .flags import foreign_bits
 from .header_text import header_text
 from .input import InputOptions, parse_unit
 from .pixels import FLOAT_FOR, physical, unpacking
-from .read_files import FrameImage, ImageRamp
+from .read_files import MAX_READ_FILES, FrameImage, ImageRamp
 
 __all__ = ["ExtensionReads", "extension_reads"]
 
@@ -60,6 +61,8 @@ def extension_reads(hdul, path):
         ``SAMPTIME`` or with a bad one; two reads at one ``SAMPTIME``;
         extensions of different shapes (or not 2-D) or units; reads in a rate
         unit.  One line naming the extensions.
+    ResourceError
+        More ``SCI`` than ``MAX_READ_FILES`` (each read keeps a descriptor open).
 
     Examples
     --------
@@ -77,6 +80,8 @@ def extension_reads(hdul, path):
         raise FormatError(f"{path}: input.reads is extensions, but the file holds {len(sci)} "
                           "SCI extension(s): a ramp stored as extensions has one SCI per read, "
                           "two at least")
+    check_count(len(sci), f"the SCI extensions of {path} (one open descriptor each)",
+                MAX_READ_FILES)
     reads, seen = [], {}
     for h in sci:
         version = h.header.get("EXTVER", 1)

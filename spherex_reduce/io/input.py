@@ -120,10 +120,12 @@ class InputOptions:
         return cls(**values)
 
     def to_config(self):
-        """The section as plain YAML values (every key)."""
+        """The section as plain YAML values: every key, ``reads`` only when set (a config
+        without it keeps the hash, ``SXRCONF``, it had before the key existed)."""
         gain = list(self.gain) if isinstance(self.gain, tuple) else self.gain
-        return {"unit": self.unit, "gain": gain, "drop_first_reads": self.drop_first_reads,
-                "header": self.header, "dq_bits": self.dq_bits, "reads": self.reads}
+        out = {"unit": self.unit, "gain": gain, "drop_first_reads": self.drop_first_reads,
+               "header": self.header, "dq_bits": self.dq_bits}
+        return out if self.reads is None else {**out, "reads": self.reads}
 
     def check_channels(self, nchannels, path="input"):
         """A gain per channel must give one number for each of ``nchannels``."""

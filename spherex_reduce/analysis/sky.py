@@ -1,9 +1,9 @@
 """An injected sky: a Gaussian random field on the light-sensitive pixels, added to raw data.
 
-`sky_field` draws the field (in e/s, physical row order, zero on reference
-pixels), `inject_sky` adds it to a simulated exposure (slopes or ramps, in
-readout or physical order), `light_sensitive` is the rectangle of
-light-sensitive pixels they work on, and `measure_against_sky` measures a
+`sky_field` draws the field (in e/s, physical row order) on the rectangle of
+light-sensitive pixels (`~spherex_reduce.analysis.light.light_sensitive`), zero
+on reference pixels, `inject_sky` adds it to a simulated exposure (slopes or
+ramps, in readout or physical order), and `measure_against_sky` measures a
 reduced image against the sky it was given: the noise left and the sky kept.
 ``compare-strategies`` is built on them.
 """
@@ -15,45 +15,16 @@ from astropy.nddata import CCDData
 
 from ..core.errors import SpherexReduceError
 from .case import SpectrumMeasure
+from .light import light_sensitive
 from .spectrum import cross_spectrum, power_spectrum
 
-__all__ = ["RMS_RANGE", "inject_sky", "light_sensitive", "measure_against_sky", "sky_field"]
+__all__ = ["RMS_RANGE", "inject_sky", "measure_against_sky", "sky_field"]
 
 _RATE = u.electron / u.s
 #: The sky's rms (e/s) must lie in this range: far beyond any real sky on either side, and
 #: its power (rms² summed over up to 2048² pixels, twice) stays a normal float64, so the
 #: transfer is never 0/0 or x/0 from an underflow (rms 1e-300: power 0, transfer inf).
 RMS_RANGE = (1e-20, 1e20)
-
-
-def light_sensitive(geometry):
-    """The light-sensitive pixels: active rows × non-reference columns, as two slices.
-
-    The reference rows are a border at the top and bottom and the reference
-    columns one at each side, so the light-sensitive pixels are a rectangle.
-
-    Parameters
-    ----------
-    geometry : `~spherex_reduce.DetectorGeometry`
-
-    Returns
-    -------
-    tuple of slice
-        ``(rows, columns)``, to index a physical-order image.
-
-    Examples
-    --------
-    >>> from spherex_reduce import DetectorGeometry
-    >>> from spherex_reduce.analysis import light_sensitive
-    >>> light_sensitive(DetectorGeometry(64, 64, 4, ref_border=4))
-    (slice(4, 60, None), slice(4, 60, None))
-    """
-    rows = np.asarray(geometry.active_rows)
-    cols = np.flatnonzero(~geometry.reference_column_mask())
-    if rows.size == 0 or cols.size == 0:
-        raise SpherexReduceError("the geometry has no light-sensitive pixel (its reference "
-                                 "border covers the array)")
-    return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
 
 
 def sky_field(geometry, rms, index, seed):

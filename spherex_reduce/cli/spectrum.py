@@ -32,7 +32,8 @@ def add_parser(sub):
         "it as ECSV (columns k theta power power_err nmodes; the 5–20′ band power in the meta, "
         "null with a warning when no Fourier mode of the image falls in the band) and "
         "optionally plot it with the band shaded and the photon-noise line. Images in "
-        "readout order are un-chopped first.")
+        "readout order are un-chopped first; an image in this package's format is measured "
+        "on its light-sensitive pixels (the reference pixels left out).")
     p.add_argument("input", metavar="IMAGE.fits")
     p.add_argument("-o", "--output", required=True, metavar="SPECTRUM.ecsv")
     add_config_option(p)
@@ -116,7 +117,7 @@ def run(args):
     for path in (args.output, plot):
         if path:
             atomic_output(path, args.overwrite)
-    image = read_image(args.input, pipeline=pipeline)
+    image = read_image(args.input, pipeline=pipeline, light=True)
     table, band, err, missing = _measure(image, args, args.input)
     table.meta.update({
         "source": str(args.input), "band_kmin": args.kmin, "band_kmax": args.kmax,
@@ -137,7 +138,7 @@ def run(args):
     lines = [f"{args.input}: band power {band_text} = {_text(band, err)}"]
     spectra = {Path(args.input).name: table}
     if args.compare:
-        other = read_image(args.compare, pipeline=pipeline)
+        other = read_image(args.compare, pipeline=pipeline, light=True)
         if not (other.unit or u.one).is_equivalent(image.unit or u.one):
             raise SpherexReduceError(
                 f"--compare: {args.compare} is in {other.unit or 'no unit'}, but {args.input} "

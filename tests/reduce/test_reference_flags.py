@@ -17,6 +17,7 @@ from spherex_reduce import (
     reduce_integrations,
     write,
 )
+from spherex_reduce.cli import main
 from spherex_reduce.io.config import schedule_from_config
 from spherex_reduce.io.examples import example_raw_exposure
 
@@ -109,3 +110,10 @@ def test_combine_writes_the_reference_pixels_flagged_and_keeps_them_out_of_the_o
     np.testing.assert_allclose(master.data.data, stack.mean(axis=0), rtol=1e-12)
     np.testing.assert_array_equal(master.dq, np.where(ref, dq.REFERENCE, 0))
     assert not np.asarray(master.data.mask).any()
+    # the command writes the same
+    paths = [str(write(d, tmp_path / f"dark{i}.fits")) for i, d in enumerate(darks)]
+    out = tmp_path / "master.fits"
+    assert main(["-q", "combine", *paths, "-o", str(out), "--sigma", "0"]) == 0
+    written = read(out)
+    np.testing.assert_allclose(written.data.data, stack.mean(axis=0), rtol=1e-6)
+    np.testing.assert_array_equal(written.dq, np.where(ref, dq.REFERENCE, 0))

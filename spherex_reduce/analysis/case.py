@@ -24,6 +24,7 @@ from ..core.limits import check_count
 from ..io.config import load_yaml
 from ..reduce.pipeline import as_pipeline
 from ..simulation import simulate, simulate_to_fits
+from .light import light_sensitive_image
 from .spectrum import BAND_KMAX, BAND_KMIN, band_power, power_spectrum
 
 __all__ = ["MAX_REALIZATIONS", "CaseResult", "SpectrumMeasure", "measure_section",
@@ -142,8 +143,11 @@ def run_case(scene, pipelines, measure=None, *, seed=None, mode=None, raw_path=N
         `~spherex_reduce.reduce.pipeline.Pipeline`).  Every pipeline reduces the same
         simulated exposure.
     measure : callable, dict or None
-        Called with each reduced image (`~astropy.nddata.CCDData`); a dict
-        gives the options of a `SpectrumMeasure`.  None: no measurement.
+        Called with the light-sensitive pixels of each reduced image
+        (`~spherex_reduce.analysis.light_sensitive_image`, a
+        `~astropy.nddata.CCDData`: the reference pixels are no statistic of
+        the image); a dict gives the options of a `SpectrumMeasure`.  None: no
+        measurement.
     seed : int or `numpy.random.SeedSequence`, optional
         Overrides the scene's seed.
     mode : {'slopes', 'ramps'}, optional
@@ -219,7 +223,7 @@ def run_case(scene, pipelines, measure=None, *, seed=None, mode=None, raw_path=N
             if reduced.is_ramp:
                 raise SpherexReduceError(f"pipeline {label} left ramps; it must end with an "
                                          "image (fit_ramp) to be measured")
-            result.measured[label] = measure(reduced.to_ccddata())
+            result.measured[label] = measure(light_sensitive_image(reduced))
         result.seconds[label] = time.perf_counter() - t0
     return result
 

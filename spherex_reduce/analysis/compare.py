@@ -56,9 +56,10 @@ from .case import (
     scene_section,
     seed_section,
 )
+from .light import light_sensitive
 from .photon_noise import photon_noise_label, photon_noise_power
 from .plots import plot_comparison
-from .sky import RMS_RANGE, inject_sky, light_sensitive, measure_against_sky, sky_field
+from .sky import RMS_RANGE, inject_sky, measure_against_sky, sky_field
 from .spectrum import EmptyBandError, band_label, band_power, band_theta
 
 __all__ = [

@@ -11,11 +11,12 @@ from ..core.errors import FormatError, SpherexReduceError
 from ..core.limits import check_size
 from ..io import open_checked
 from ..reduce.steps import unchop
+from .light import light_sensitive_image
 
 __all__ = ["read_image"]
 
 
-def read_image(path, ext=None, pipeline=None):
+def read_image(path, ext=None, pipeline=None, light=False):
     """A 2-D image from a FITS file as `~astropy.nddata.CCDData` in physical row order.
 
     Files in this package's format (readout keywords present) are read with
@@ -37,6 +38,12 @@ def read_image(path, ext=None, pipeline=None):
     pipeline : `~spherex_reduce.Pipeline`, optional
         Read the file as this pipeline reads its input, e.g. the one
         ``spherex-reduce spectrum -c`` names.
+    light : bool
+        Only the light-sensitive pixels of an image in this package's format
+        (`~spherex_reduce.analysis.light.light_sensitive_image`: the rectangle
+        inside the reference pixels, any reference pixel in it masked), for
+        statistics of the image.  A file in no known format has no reference
+        pixels we know of: it is read whole.
 
     Returns
     -------
@@ -92,7 +99,7 @@ def read_image(path, ext=None, pipeline=None):
         )
     if exposure.order == "readout":
         exposure = unchop(exposure)
-    ccd = exposure.to_ccddata()
+    ccd = light_sensitive_image(exposure) if light else exposure.to_ccddata()
     ccd.meta["SCHEDULE"] = exposure.schedule.summary()[:68]
     ccd.meta["INTTIME"] = exposure.schedule.integration_time.to_value(u.s)
     ccd.meta["NFRAMES"] = exposure.schedule.nframes

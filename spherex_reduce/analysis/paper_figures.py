@@ -9,6 +9,7 @@ verdict, to the report (`~spherex_reduce.analysis.figure_report.FigureReport`).
 `~spherex_reduce.analysis.figures.make_figures` walks the table.
 """
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -54,11 +55,16 @@ def _measure(scene, pipeline, seed, measure=None):
 
 
 def _mean_spectrum(rows):
-    """Mean P(k) over the rows (realisations) of a sweep, with the standard error."""
-    k = np.nanmean(np.asarray(rows["k"], float), axis=0)
-    p = np.asarray(rows["power"], float)
-    mean = np.nanmean(p, axis=0)
-    err = np.nanstd(p, axis=0, ddof=1) / np.sqrt(len(p)) if len(p) > 1 else np.zeros_like(mean)
+    """Mean P(k) over the rows (realisations) of a sweep, with the standard error; a bin
+    empty in every row (NaN: the light-sensitive area has no mode in it) is left out."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "Mean of empty slice|Degrees of freedom",
+                                RuntimeWarning)  # the bins dropped below
+        k = np.nanmean(np.asarray(rows["k"], float), axis=0)
+        p = np.asarray(rows["power"], float)
+        mean = np.nanmean(p, axis=0)
+        err = (np.nanstd(p, axis=0, ddof=1) / np.sqrt(len(p)) if len(p) > 1
+               else np.zeros_like(mean))
     keep = np.isfinite(k) & np.isfinite(mean)
     unit = rows["power"].unit or u.one
     return Table({"k": k[keep] * u.rad / u.pix, "power": mean[keep] * unit,

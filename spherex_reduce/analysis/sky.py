@@ -1,9 +1,9 @@
 """An injected sky: a Gaussian random field on the light-sensitive pixels, added to raw data.
 
-`sky_field` draws the field (in e/s, physical row order, zero on reference
-pixels), `inject_sky` adds it to a simulated exposure (slopes or ramps, in
-readout or physical order), `light_sensitive` is the rectangle of
-light-sensitive pixels they work on, and `measure_against_sky` measures a
+`sky_field` draws the field (in e/s, physical row order) on the rectangle of
+light-sensitive pixels (`~spherex_reduce.analysis.light.light_sensitive`), zero
+on reference pixels, `inject_sky` adds it to a simulated exposure (slopes or
+ramps, in readout or physical order), and `measure_against_sky` measures a
 reduced image against the sky it was given: the noise left and the sky kept.
 ``compare-strategies`` is built on them.
 """
@@ -15,45 +15,16 @@ from astropy.nddata import CCDData
 
 from ..core.errors import SpherexReduceError
 from .case import SpectrumMeasure
+from .light import light_sensitive
 from .spectrum import cross_spectrum, power_spectrum
 
-__all__ = ["RMS_RANGE", "inject_sky", "light_sensitive", "measure_against_sky", "sky_field"]
+__all__ = ["RMS_RANGE", "inject_sky", "measure_against_sky", "sky_field"]
 
 _RATE = u.electron / u.s
 #: The sky's rms (e/s) must lie in this range: far beyond any real sky on either side, and
 #: its power (rms² summed over up to 2048² pixels, twice) stays a normal float64, so the
 #: transfer is never 0/0 or x/0 from an underflow (rms 1e-300: power 0, transfer inf).
 RMS_RANGE = (1e-20, 1e20)
-
-
-def light_sensitive(geometry):
-    """The light-sensitive pixels: active rows × non-reference columns, as two slices.
-
-    The reference rows are a border at the top and bottom and the reference
-    columns one at each side, so the light-sensitive pixels are a rectangle.
-
-    Parameters
-    ----------
-    geometry : `~spherex_reduce.DetectorGeometry`
-
-    Returns
-    -------
-    tuple of slice
-        ``(rows, columns)``, to index a physical-order image.
-
-    Examples
-    --------
-    >>> from spherex_reduce import DetectorGeometry
-    >>> from spherex_reduce.analysis import light_sensitive
-    >>> light_sensitive(DetectorGeometry(64, 64, 4, ref_border=4))
-    (slice(4, 60, None), slice(4, 60, None))
-    """
-    rows = np.asarray(geometry.active_rows)
-    cols = np.flatnonzero(~geometry.reference_column_mask())
-    if rows.size == 0 or cols.size == 0:
-        raise SpherexReduceError("the geometry has no light-sensitive pixel (its reference "
-                                 "border covers the array)")
-    return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
 
 
 def sky_field(geometry, rms, index, seed):
@@ -204,14 +175,16 @@ def measure_against_sky(image, sky, measure=None, light=None):
     Parameters
     ----------
     image : `~astropy.nddata.CCDData`
-        A reduced slope image, physical row order, unit convertible to e/s.
+        The light-sensitive pixels of a reduced slope image
+        (`~spherex_reduce.analysis.light_sensitive_image`, as `run_case`
+        gives them to its measure), unit convertible to e/s.
     sky : array
-        The injected sky (`sky_field`), e/s, the image's shape.
+        The injected sky (`sky_field`), e/s, on the whole array.
     measure : `SpectrumMeasure` or dict, optional
         Band and bins (default: the paper's 5–20′ band, 30 bins).
     light : tuple of slice, optional
-        The light-sensitive pixels (`light_sensitive` of the image's
-        geometry); default the whole image.
+        Where ``image`` lies on the array (`light_sensitive` of its
+        geometry); default the whole array.
 
     Returns
     -------
@@ -230,40 +203,41 @@ def measure_against_sky(image, sky, measure=None, light=None):
     >>> from spherex_reduce.analysis import measure_against_sky
     >>> sky = sky_field(DetectorGeometry(128, 128, 4, ref_border=4), 0.05, -2.0, 1)
     >>> noise = np.random.default_rng(2).normal(0, 0.01, sky.shape)
-    >>> m = measure_against_sky(CCDData(sky + noise, unit="electron/s"), sky, {"bins": 6},
-    ...                         light=(slice(4, 124), slice(4, 124)))
+    >>> light = (slice(4, 124), slice(4, 124))
+    >>> m = measure_against_sky(CCDData((sky + noise)[light], unit="electron/s"), sky,
+    ...                         {"bins": 6}, light=light)
     >>> err = 3 * m["noise_band_power_err"]
     >>> round(m["sky_transfer"], 2), bool(abs(m["noise_band_power"] - 1e-4) < err)
     (1.0, True)
     """
     measure = SpectrumMeasure(**(measure or {})) if not isinstance(
         measure, SpectrumMeasure) else measure
-    if image.data.shape != np.shape(sky):
-        raise SpherexReduceError(f"the reduced image {image.data.shape} and the sky "
-                                 f"{np.shape(sky)} differ in shape")
     light = (slice(None), slice(None)) if light is None else tuple(light)
-    cut = image[light]
+    sky = np.asarray(sky, dtype=float)[light]
+    if image.data.shape != sky.shape:
+        raise SpherexReduceError(f"the reduced image {image.data.shape} and the sky "
+                                 f"{sky.shape} differ in shape")
     try:
-        factor = (1.0 * u.electron / u.s).to_value(cut.unit)
+        factor = (1.0 * u.electron / u.s).to_value(image.unit)
     except u.UnitConversionError:
-        raise SpherexReduceError(f"a reduced image in {cut.unit} cannot be compared with a "
+        raise SpherexReduceError(f"a reduced image in {image.unit} cannot be compared with a "
                                  "sky in e/s") from None
-    sky_cut = np.asarray(sky, dtype=float)[light] * factor
-    residual = CCDData(np.asarray(cut.data, dtype=float) - sky_cut, unit=cut.unit,
-                       mask=cut.mask)
+    sky_cut = sky * factor
+    residual = CCDData(np.asarray(image.data, dtype=float) - sky_cut, unit=image.unit,
+                       mask=image.mask)
     m = measure(residual)
     kw = {"exclude_horizontal": bool(measure.exclude_horizontal)}
-    bad = ~np.isfinite(cut.data) | (np.zeros(cut.shape, bool) if cut.mask is None
-                                    else np.asarray(cut.mask) != 0)
-    edges = measure.edges(cut.shape)
-    cross = cross_spectrum(cut, sky_cut, bins=edges, **kw)
+    bad = ~np.isfinite(image.data) | (np.zeros(image.shape, bool) if image.mask is None
+                                    else np.asarray(image.mask) != 0)
+    edges = measure.edges(image.shape)
+    cross = cross_spectrum(image, sky_cut, bins=edges, **kw)
     auto = power_spectrum(sky_cut, mask=bad, bins=edges, **kw)
     transfer = np.full(edges.size - 1, np.nan)
     pos = np.searchsorted(edges, np.asarray(cross["k_lo"]) * (1 + 1e-12)) - 1
     with np.errstate(divide="ignore", invalid="ignore"):
         transfer[pos] = np.asarray(cross["power"]) / np.asarray(auto["power"])
     band = [measure.kmin, measure.kmax]
-    bc = cross_spectrum(cut, sky_cut, bins=band, **kw)
+    bc = cross_spectrum(image, sky_cut, bins=band, **kw)
     ba = power_spectrum(sky_cut, mask=bad, bins=band, **kw)
     sky_power = float(ba["power"][0]) if len(ba) else np.nan
     if len(ba) and not (np.isfinite(sky_power) and sky_power > 0):

@@ -72,6 +72,11 @@ def _from_text(parse):
 OPTIONS = [(_flag(f), f.section, f.name, _option_type(f)) for f in FIELDS]
 
 
+#: How a structure field is written on the command line (its FITS text).
+TEXT_FORMS = {"groups": "0;1-2;3-6 (';' between groups, a-b a run of reads)",
+              "read_times": "0,2.93,12.93 (s, ',' between reads)"}
+
+
 def _option_help(field):
     """Help of one option from its field: meaning, choices, default."""
     text = field.doc
@@ -80,7 +85,7 @@ def _option_help(field):
     if field.choices:
         text += f": {', '.join(field.choices)}"
     if field.from_text:
-        text += ", as text: 0;1-2;3-6 (';' between groups, a-b a run of reads)"
+        text += f", as text: {TEXT_FORMS[field.name]}"
     if field.default is None:
         default = field.none_means.format(**{f.name: _flag(f) for f in FIELDS})
     else:

@@ -7,7 +7,7 @@ from ..core._text import plural
 from ..core.errors import ConfigError
 from ..core.limits import MAX_WORKERS
 from ..io import atomic_output, write
-from ..io.read_files import read_file_paths
+from ..io.read_files import ReadFiles, read_file_paths
 from ..reduce.integrations import reduce_input
 from ._common import check_paths, count, input_config
 
@@ -25,12 +25,18 @@ def add_parser(sub):
         "with a summary table OUTDIR/summary.ecsv written after each file; an output already "
         "made from the same input with this config is done (never made again, so a batch "
         "resumes), a file that fails is reported and the others finish. With --reads "
-        "'DIR/read_*.fits' instead of IN.fits, the files are the reads of one ramp.")
+        "'DIR/read_*.fits' instead of IN.fits, the files are the reads of one ramp "
+        "(--reads-dq MASK.fits: their flags).")
     p.add_argument("input", metavar="IN.fits", nargs="*")
     p.add_argument("--reads", metavar="GLOB",
                    help="reduce one ramp stored as one file per read: the files the glob "
                    "matches (quote it), in natural order (read_2 before read_10), each one 2-D "
                    "frame; the first file's header is the exposure's")
+    p.add_argument("--reads-dq", metavar="MASK.fits",
+                   help="with --reads: one file of flags for every read, its DQ extension or "
+                   "primary HDU (integers): 2-D (rows x columns of a read) for every read, or "
+                   "3-D with one plane per read file; flagged pixels are not fitted (any bit, "
+                   "or --dq-bits / input.dq_bits), with each read file's own DQ")
     p.add_argument("-c", "--config", required=True, metavar="PIPELINE.yaml")
     p.add_argument("-o", "--output", required=True, metavar="OUT.fits|OUTDIR")
     p.add_argument("--overwrite", action="store_true",
@@ -51,6 +57,9 @@ def add_parser(sub):
 
 
 def run(args):
+    if args.reads_dq is not None and args.reads is None:
+        raise ConfigError("--reads-dq gives the flags of the read files of --reads GLOB: give "
+                          "--reads too (a file's own flags are its DQ extension)")
     if args.reads is not None:
         _check_reads_alone(args)
     elif not args.input:
@@ -63,10 +72,16 @@ def run(args):
     what = read_file_paths(args.reads) if args.reads is not None else args.input[0]
     inputs = what if args.reads is not None else [what]
     # the input files, the config file and any file the config names (e.g. a dark)
-    check_paths([*inputs, *config_files], [args.output])
+    check_paths([*inputs, args.reads_dq, *config_files], [args.output])
     atomic_output(args.output, args.overwrite)  # refuse before reducing
-    result, images = reduce_input(what, pipeline, progress=not args.quiet,
-                                  threads=args.threads)
+    if args.reads_dq is not None:  # the read files with one mask file: a reader of them
+        with ReadFiles(what, input=pipeline.input_options, dq=args.reads_dq,
+                       **pipeline.supplied()) as reader:
+            result, images = reduce_input(reader, pipeline, progress=not args.quiet,
+                                          threads=args.threads)
+    else:
+        result, images = reduce_input(what, pipeline, progress=not args.quiet,
+                                      threads=args.threads)
     return _written(pipeline, result, args, images)
 
 

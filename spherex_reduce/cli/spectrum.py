@@ -33,7 +33,8 @@ def add_parser(sub):
         "null with a warning when no Fourier mode of the image falls in the band, and "
         "band_theta_exact, the θ range the band's k limits give on the pixel scale) and "
         "optionally plot it with the band shaded and the photon-noise line. Images in "
-        "readout order are un-chopped first.")
+        "readout order are un-chopped first; an image in this package's format is measured "
+        "on its light-sensitive pixels (the reference pixels left out).")
     p.add_argument("input", metavar="IMAGE.fits")
     p.add_argument("-o", "--output", required=True, metavar="SPECTRUM.ecsv")
     add_config_option(p)
@@ -117,7 +118,7 @@ def run(args):
     for path in (args.output, plot):
         if path:
             atomic_output(path, args.overwrite)
-    image = read_image(args.input, pipeline=pipeline)
+    image = read_image(args.input, pipeline=pipeline, light=True)
     table, band, err, missing = _measure(image, args, args.input)
     scale = args.pixel_scale * u.arcsec
     band_text = band_label(args.kmin, args.kmax, scale)
@@ -140,7 +141,7 @@ def run(args):
     lines = [f"{args.input}: band power {band_text} = {_text(band, err)}"]
     spectra = {Path(args.input).name: table}
     if args.compare:
-        other = read_image(args.compare, pipeline=pipeline)
+        other = read_image(args.compare, pipeline=pipeline, light=True)
         if not (other.unit or u.one).is_equivalent(image.unit or u.one):
             raise SpherexReduceError(
                 f"--compare: {args.compare} is in {other.unit or 'no unit'}, but {args.input} "

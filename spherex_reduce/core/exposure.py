@@ -8,7 +8,7 @@ from astropy import units as u
 from astropy.io import fits
 from astropy.nddata import CCDData, NDData, StdDevUncertainty
 
-from .dq import DO_NOT_USE, DQ_TYPE, image_usable, read_usable
+from .dq import DO_NOT_USE, DQ_TYPE, REFERENCE, image_usable, read_usable
 from .schedule import ReadoutSchedule
 
 __all__ = ["ORDERS", "Exposure", "ReferenceReads", "as_dq"]
@@ -227,6 +227,61 @@ class Exposure:
     def geometry(self):
         """The detector geometry of the schedule."""
         return self.schedule.geometry
+
+    def reference_pixel_mask(self):
+        """True for the reference pixels of one frame or image, in this exposure's row order.
+
+        `DetectorGeometry.reference_pixel_mask
+        <spherex_reduce.DetectorGeometry.reference_pixel_mask>` in physical
+        order; in readout order each read takes the row it reads
+        (``schedule.rows``), so a reference row read several times is a
+        reference row at each read.  Statistics of an image leave these pixels
+        out.
+
+        Returns
+        -------
+        `numpy.ndarray` of bool
+            ``(n, ncols)``: ``n`` the rows (physical order) or the reads of a
+            frame (readout order).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule
+        >>> s = ReadoutSchedule(DetectorGeometry(8, 4, 1, ref_border={"top": 1, "left": 1}),
+        ...                     skip=3, ref_reads=2, phantom_reads=0, nframes=1)
+        >>> s.rows.tolist()  # row 0, the reference row, is read twice
+        [0, 1, 4, 7, 0, 2, 5, 3, 6]
+        >>> e = Exposure.from_arrays(np.zeros((s.n_reads, 4)), s)
+        >>> e.reference_pixel_mask().sum(axis=1).tolist()  # 4 in a reference row, else 1
+        [4, 1, 1, 1, 4, 1, 1, 1, 1]
+        """
+        mask = self.geometry.reference_pixel_mask()
+        return mask if self.order == "physical" else mask[self.schedule.rows]
+
+    def with_reference_flags(self):
+        """A new exposure whose image flags its reference pixels
+        `~spherex_reduce.core.dq.REFERENCE` (informational: it masks nothing).
+
+        What a reduction's output carries (`Pipeline.run
+        <spherex_reduce.Pipeline.run>`, `~spherex_reduce.combine_darks`).  Ramps
+        come back as they are: the flag is a property of a reduced image.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule, dq
+        >>> s = ReadoutSchedule(DetectorGeometry(4, 4, 1, ref_border={"left": 1}),
+        ...                     ref_mode="none", phantom_reads=0, nframes=2)
+        >>> e = Exposure.from_arrays(np.zeros((4, 4)), s, order="physical").with_reference_flags()
+        >>> (e.dq[0] == dq.REFERENCE).tolist(), bool(e.data.mask.any())
+        ([True, False, False, False], False)
+        """
+        if self.is_ramp:
+            return self
+        flags = np.zeros(self.shape, DQ_TYPE) if self.dq is None else self.dq
+        marked = flags | np.where(self.reference_pixel_mask(), DQ_TYPE(REFERENCE), DQ_TYPE(0))
+        return self.replace(dq=marked.astype(DQ_TYPE, copy=False))
 
     def replace(self, **changes):
         """A new Exposure with some fields changed (the input is left as it was).

@@ -41,6 +41,7 @@ from astropy import units as u
 
 from .channel_layout import CHANNEL_LAYOUTS, FAST_AXES, FIRST_CORNERS
 from .errors import FormatError
+from .frame_times import format_read_times, parse_read_times
 from .groups import format_groups, parse_groups
 from .parameters import Parameter
 
@@ -237,6 +238,11 @@ FIELDS = (
           comment="reads of each group: ';' between groups", required=False,
           none_means="groups of {frames_per_group} frames, {group_gap} apart",
           written_if_set=True, to_text=format_groups, from_text=parse_groups),
+    Field("read_times", "readout", "RDTIMES", (list, type(None)), None,
+          "time (s) of every stored frame's read, for reads at uneven times",
+          unit="s", comment="[s] time of each read: ',' between reads", required=False,
+          none_means="every frame_time (or the groups' mean reads)",
+          written_if_set=True, to_text=format_read_times, from_text=parse_read_times),
     # A window of a larger array (`spherex_reduce.core.window`): the ``window:`` YAML
     # section; geometry.nrows/ncols are then the window's size, its channels, scan and
     # reference border are derived from the full array's.
@@ -379,13 +385,25 @@ def field_cards(field, value):
     [('REFBTOP', 4), ('REFBBOT', 0), ('REFBLEFT', 4), ('REFBRIGH', 0)]
     """
     if field.side_keywords is None:
-        text = value if field.to_text is None else field.to_text(value)
-        return [(field.keyword, text, field.card_comment)]
+        if field.to_text is None:
+            return [(field.keyword, value, field.card_comment)]
+        text = field.to_text(value)
+        return [(field.keyword, text, _fitting_comment(text, field.card_comment))]
     sides = check_sides(field, value)
     if len(set(sides.values())) == 1:
         return [(field.keyword, sides["top"], field.card_comment)]
     return [(key, sides[side], f"{field.card_comment.removesuffix(' (pixels)')}, {side} "
              "side (pixels)") for side, key in zip(SIDES, field.side_keywords, strict=True)]
+
+
+def _fitting_comment(text, comment):
+    """``comment`` cut to fit on the card of string ``text`` when the text fits on one card
+    (a text longer than 68 characters goes on CONTINUE cards, the comment on the last one):
+    a card is 80 characters, the keyword and ``= `` take 10, the quoted text at least 10,
+    `` / `` 3."""
+    if len(text) > 68:
+        return comment
+    return comment[:max(0, 80 - 10 - (max(len(text), 8) + 2) - 3)]
 
 
 def read_field(header, field):

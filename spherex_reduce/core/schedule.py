@@ -41,8 +41,9 @@ from .fields import (
     section_fields,
     table_dataclass,
 )
+from .frame_times import StoredFrameTimes, check_read_times, describe_read_times
 from .geometry import DetectorGeometry, RefBorder
-from .groups import describe_groups, group_covariance, group_means, resolve_groups
+from .groups import describe_groups, resolve_groups
 from .limits import check_size
 from .window import default_overhead, fill_window_geometry, window_reads
 
@@ -93,7 +94,7 @@ def chopped_order(n, skip):
 
 
 @table_dataclass("readout", eq=False)
-class ReadoutSchedule:
+class ReadoutSchedule(StoredFrameTimes):
     """Read order and sample times of every frame of an exposure.
 
     Parameters
@@ -139,6 +140,10 @@ class ReadoutSchedule:
         Instead: the reads (0-based frames of the exposure, strictly increasing,
         groups in time order without overlap) averaged into each stored frame,
         ``nframes`` lists, e.g. Roman's ``[[0], [1, 2], [3, 4, 5, 6]]``.
+    read_times : list of float, optional
+        Instead of even spacing: the time (s) of every stored frame's read,
+        ``nframes`` times at least one read of the array apart, e.g. HST's
+        ``SAMPTIME`` (`spherex_reduce.core.frame_times`).
 
     Examples
     --------
@@ -182,6 +187,8 @@ class ReadoutSchedule:
         set_(self, "_rows", rows)
         set_(self, "_is_ref", kinds)
         self._set_frame_timing()
+        set_(self, "read_times", check_read_times(self.read_times, self.nframes, reads is not None,
+                                                  self.n_reads * self.row_samples / g.pixel_rate))
         for arr in (rows, kinds):
             arr.setflags(write=False)
 
@@ -302,45 +309,6 @@ class ReadoutSchedule:
         """Samples per frame (the frame time times the pixel rate)."""
         return self.read_samples + self.frame_overhead
 
-    @property
-    def integration_time(self):
-        """`frames_read` times the frame time (``nframes`` times it without groups)."""
-        return self.frames_read * self.frame_time
-
-    @property
-    def group_reads(self):
-        """The reads (0-based frames of the exposure) of each stored frame: ``nframes``
-        int arrays, ``[[0], [1], ...]`` without groups."""
-        return list(np.arange(self.nframes)[:, None] if self._reads is None else self._reads)
-
-    @property
-    def frames_read(self):
-        """Frames read over the exposure, discarded ones included: the last read + 1."""
-        return self.nframes if self._reads is None else int(self._reads[-1][-1]) + 1
-
-    @property
-    def frame_starts(self):
-        """Start time of every stored frame (a group's mean read), ``(nframes,)``, in s."""
-        if self._reads is None:
-            return np.arange(self.nframes) * self.frame_time
-        return group_means(self._reads) * self.frame_time
-
-    @property
-    def read_noise_factors(self):
-        """Read-noise variance of every stored frame in units of one read's, ``(nframes,)``:
-        1 / the reads of its group."""
-        return (np.ones(self.nframes) if self._reads is None
-                else 1.0 / np.array([r.size for r in self._reads], dtype=np.float64))
-
-    def shot_covariance(self):
-        """Covariance (s) of the charge of stored frames ``g`` and ``h`` per unit rate,
-        ``(nframes, nframes)``: the mean over their reads of ``min(t_a, t_b) - t_first``
-        (`~spherex_reduce.core.groups.group_covariance`)."""
-        if self._reads is None:
-            t = self.frame_starts.to_value(u.s)
-            return np.minimum.outer(t, t) - t[0]
-        return group_covariance(self._reads) * self.frame_time.to_value(u.s)
-
     def pixel_samples(self):
         """Sample index (within the frame) of every pixel read, shape ``(n_reads, ncols)``."""
         return self.starts[:, None] + self.geometry.column_offsets()[None, :]
@@ -385,6 +353,7 @@ class ReadoutSchedule:
                if f.instead_of is None}
         if out["groups"] is not None:
             out["groups"] = [list(reads) for reads in out["groups"]]
+        out["read_times"] = None if self.read_times is None else list(self.read_times)
         return out
 
     def replace(self, **changes):
@@ -444,7 +413,9 @@ class ReadoutSchedule:
             f"{self.n_reads} reads/frame ({int(self._is_ref.sum())} reference), frame time "
             f"{self.frame_time.to_value(u.s):.6g} s, N={self.nframes}, "
             f"{self.integration_time.to_value(u.s):.6g} s"
-            f"{describe_groups(self.frames_per_group, self.group_gap, self.groups)}")
+            f"{describe_groups(self.frames_per_group, self.group_gap, self.groups)}"
+            f"{describe_read_times(self.read_times)}"
+        )
 
     def to_header(self, header=None):
         """Write the readout keywords into ``header`` (a copy; a new one if None)."""

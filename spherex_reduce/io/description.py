@@ -108,19 +108,22 @@ def sci_hdu(hdul, path):
 
     A file with several ``SCI`` extensions (``SCI,1`` ... ``SCI,n``: HST's
     ``_ima`` and ``_raw`` files store a ramp so, one read each, latest first)
-    is refused, naming what was found: taking ``SCI,1`` as the image would
-    reduce one read as if it were the ramp.
+    is refused here, naming what was found: taking ``SCI,1`` as the image would
+    reduce one read as if it were the ramp.  ``input: reads: extensions``
+    reads such a file as a ramp
+    (`~spherex_reduce.io.extension_reads.ExtensionReads`).
     """
     sci = [h for h in hdul if h.name == "SCI"]
     if len(sci) > 1:
         versions = [h.header.get("EXTVER", 1) for h in sci]
         times = [h.header.get("SAMPTIME") for h in sci]
-        when = (f", SAMPTIME {times[0]} ... {times[-1]} s" if None not in times else "")
+        when = (f", SAMPTIME {times[0]} ... {times[-1]} s" if None not in times else
+                ", no SAMPTIME" if all(t is None for t in times) else ", SAMPTIME in some")
         raise FormatError(
             f"{path} holds {len(sci)} SCI extensions (EXTVER {versions[0]} ... "
             f"{versions[-1]}{when}): one image per read, as HST's _ima and _raw files store "
-            "a ramp; this layout is not read: give the reads as one 3-D SCI, or one file "
-            "per read (--reads)")
+            "a ramp; to read them as one ramp in SAMPTIME order set input.reads: extensions "
+            "in the config, or give the reads as one 3-D SCI, or one file per read (--reads)")
     if sci:
         return sci[0]
     if hdul[0].header.get("NAXIS", 0) > 0:
@@ -133,7 +136,8 @@ def image_shape(hdu):
     return tuple(hdu.header[f"NAXIS{i}"] for i in range(hdu.header.get("NAXIS", 0), 0, -1))
 
 
-def describe(hdul, path, supplied, bad=(), options=None, decided=(), integration=None):
+def describe(hdul, path, supplied, bad=(), options=None, decided=(), integration=None,
+             sci=None):
     """Validate an open file; return what every reader needs (`FileDescription`; no pixel
     data loaded).
 
@@ -145,7 +149,9 @@ def describe(hdul, path, supplied, bad=(), options=None, decided=(), integration
     ``drop`` their number) and the gain per channel (``gain``, or None).  ``decided``: supplied keys
     the caller sets whatever the file says (not compared with its keywords).
     With ``integration``, ``SCI`` must be 4-D (integrations, groups, rows,
-    columns) and what is described is that integration's ramps.
+    columns) and what is described is that integration's ramps.  ``sci``: the
+    HDU holding the pixels when the caller chose it (one read of a ramp stored
+    as extensions), else `sci_hdu`.
     """
     options = InputOptions() if options is None else options
     names = [h.name for h in hdul]
@@ -153,7 +159,7 @@ def describe(hdul, path, supplied, bad=(), options=None, decided=(), integration
     notes = []  # overrides: warned about once the file is accepted, not before an error
     derived = options.reconcile(header, {k: v for k, v in supplied.items()
                                          if k not in decided}, path, notes)
-    sci = sci_hdu(hdul, path)
+    sci = sci_hdu(hdul, path) if sci is None else sci
     if integration is not None and len(image_shape(sci)) == 4:
         check_integrations(hdul, path)
     shape = integration_shape(image_shape(sci), integration, path)

@@ -13,7 +13,7 @@ import contextvars
 import logging
 import math
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -287,7 +287,10 @@ def read(path, verify_checksum=None, dq_bits=None, input=None, integration=None,
         ``drop_first_reads`` (frames left out at the start of every ramp;
         recorded as ``NDROPRD``), ``header`` (``fill``: a ``supplied`` value
         that disagrees with the file's keyword is an error; ``override``: it
-        replaces it, with a warning and a ``HISTORY`` card) and ``dq_bits``.
+        replaces it, with a warning and a ``HISTORY`` card), ``dq_bits`` and
+        ``reads`` (``extensions``: the file's ``SCI`` extensions are the reads
+        of one ramp, in ``SAMPTIME`` order, as HST's ``_raw`` files store it:
+        `~spherex_reduce.io.extension_reads.ExtensionReads`).
     integration : int, optional
         For a 4-D ``SCI`` (integrations, groups, rows, columns: the JWST
         "uncal" layout), which integration to read (from 0): its ramps, with
@@ -328,8 +331,16 @@ def read(path, verify_checksum=None, dq_bits=None, input=None, integration=None,
     >>> e.data.data.dtype, float(e.data.data.max())
     (dtype('float32'), 60127.0)
     """
+    options = InputOptions.from_config(input)
+    if options.reads == "extensions":  # one read per SCI extension: a reader of its own
+        from .extension_reads import ExtensionReads  # (it reads files with this module)
+
+        if dq_bits is not None:
+            options = replace(options, dq_bits=dq_bits)
+        with ExtensionReads(path, verify_checksum, input=options, **supplied) as reads:
+            return reads.exposure()
     with CheckedFITS(path, verify_checksum) as f:
-        return f.exposure(dq_bits=dq_bits, input=input, integration=integration, **supplied)
+        return f.exposure(dq_bits=dq_bits, input=options, integration=integration, **supplied)
 
 
 def exposure_from_hdul(hdul, path, bad, stable, supplied, dq_bits=None, options=None,

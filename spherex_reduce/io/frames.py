@@ -69,6 +69,9 @@ class FrameReader(RampReader):
         self.path = Path(path)
         self._map = self._stable = None
         options = InputOptions.from_config(input)
+        if options.reads is not None:
+            raise FormatError(f"{path}: input.reads is {options.reads}: FrameReader reads one "
+                              "3-D SCI; open the file with open_input (or ExtensionReads)")
         self._hdul, bad, self._stable = open_fits(path, verify=verify_checksum)
         plain = self._stable is not None
         try:

@@ -3,7 +3,8 @@
 `InputOptions` holds the section, validated: the unit of files that lack
 ``BUNIT`` or spell ADU another way, the gain (e⁻ per ADU) that turns ADU into
 electrons, how many frames to drop at the start of every ramp, whether config
-keywords fill or override the file's, and which bits of a foreign ``DQ`` mask.
+keywords fill or override the file's, which bits of a foreign ``DQ`` mask, and
+whether a file's reads are its ``SCI`` extensions (``reads: extensions``).
 
 The readers (`~spherex_reduce.io.read` and `~spherex_reduce.io.FrameReader`,
 hence a `~spherex_reduce.Pipeline` streaming a file) apply it as the data are
@@ -40,6 +41,10 @@ INPUT_PARAMETERS = (
               choices=("fill", "override")),
     Parameter("dq_bits", None, (int, type(None)),
               "bits of a foreign DQ that mask (default: every bit)"),
+    Parameter("reads", None, (str, type(None)),
+              "extensions: a file's reads are its SCI extensions (HST _raw), read in the "
+              "order of their SAMPTIME (default: one SCI, or the primary HDU)",
+              choices=(None, "extensions")),
 )
 _GAIN = Parameter("gain", None, (float,), "", minimum=0, exclusive_minimum=True)
 #: spellings of ADU in files from other software (case-insensitive, whole words)
@@ -73,6 +78,7 @@ class InputOptions:
     drop_first_reads: int = 0
     header: str = "fill"
     dq_bits: int | None = None
+    reads: str | None = None
 
     @classmethod
     def from_config(cls, section, path="input"):
@@ -114,10 +120,12 @@ class InputOptions:
         return cls(**values)
 
     def to_config(self):
-        """The section as plain YAML values (every key)."""
+        """The section as plain YAML values: every key, ``reads`` only when set (a config
+        without it keeps the hash, ``SXRCONF``, it had before the key existed)."""
         gain = list(self.gain) if isinstance(self.gain, tuple) else self.gain
-        return {"unit": self.unit, "gain": gain, "drop_first_reads": self.drop_first_reads,
-                "header": self.header, "dq_bits": self.dq_bits}
+        out = {"unit": self.unit, "gain": gain, "drop_first_reads": self.drop_first_reads,
+               "header": self.header, "dq_bits": self.dq_bits}
+        return out if self.reads is None else {**out, "reads": self.reads}
 
     def check_channels(self, nchannels, path="input"):
         """A gain per channel must give one number for each of ``nchannels``."""
@@ -242,6 +250,8 @@ class InputOptions:
         changes = {"nframes": schedule.nframes - n}
         if schedule.groups is not None:  # the groups kept, at the reads they were
             changes["groups"] = schedule.groups[n:]
+        if schedule.read_times is not None:  # the reads kept, at their times
+            changes["read_times"] = schedule.read_times[n:]
         kept = schedule.replace(**changes)
         for name in changes:
             for key, value, comment in field_cards(FIELD[name], getattr(kept, name)):

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.channel_layout import ChannelLayout
 from ..core.errors import FormatError
 from ..core.exposure import Exposure
 from ..core.limits import check_count, check_size
@@ -30,7 +31,8 @@ from .layout import fits_stem
 from .pixels import FLOAT_FOR, physical, scaling, to_physical, unpacking
 from .stable_file import pread_into
 
-__all__ = ["MAX_READ_FILES", "ReadFiles", "natural_key", "read_file_paths"]
+__all__ = ["MAX_READ_FILES", "FrameImage", "ImageRamp", "ReadFiles", "natural_key",
+           "read_file_paths", "read_mask"]
 
 #: most files one ramp may be read from (each stays open while it is read)
 MAX_READ_FILES = 400
@@ -113,6 +115,58 @@ def read_file_paths(pattern):
     return paths
 
 
+def read_mask(path, nreads, shape, verify_checksum=None):
+    """The flags of every read from one mask file: ``nreads`` arrays of ``shape`` (int64).
+
+    The file's ``DQ`` extension, else its primary HDU, holds integers: a 2-D
+    image of ``shape`` applies to every read, a 3-D one ``(nreads, *shape)``
+    holds one plane per read.  Checked as `~spherex_reduce.io.read` checks a
+    file (structure, checksums); never modified.
+
+    Raises
+    ------
+    FormatError
+        No image, one of floating-point numbers, or one of another shape; the
+        message names both shapes.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib, numpy as np
+    >>> from astropy.io import fits
+    >>> from spherex_reduce.io.read_files import read_mask
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "mask.fits"
+    >>> fits.PrimaryHDU(np.array([[0, 4], [0, 0]], np.int16)).writeto(path)
+    >>> [plane.tolist() for plane in read_mask(path, 2, (2, 2))]
+    [[[0, 4], [0, 0]], [[0, 4], [0, 0]]]
+    >>> read_mask(path, 2, (3, 2))
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.core.errors.FormatError: ...mask.fits: the mask has shape (2, 2); ...
+    """
+    hdul, _, stable = open_fits(path, verify=verify_checksum)
+    try:
+        with unpacking(path):
+            names = [h.name for h in hdul]
+            hdu = hdul["DQ"] if "DQ" in names else hdul[0]
+            if hdu.header.get("NAXIS", 0) == 0:
+                raise FormatError(f"{path}: a mask file holds the flags as a DQ extension or "
+                                  "in its primary HDU; this one has neither")
+            if hdu.header["BITPIX"] < 0:
+                raise FormatError(f"{path}: the mask holds floating-point numbers (BITPIX = "
+                                  f"{hdu.header['BITPIX']}); flags are integers")
+            flags = np.asarray(physical(hdu, path, stable, flags=True), np.int64)
+    finally:
+        if stable is not None:
+            stable.close()
+        hdul.close()
+    if flags.shape == tuple(shape):
+        return [flags] * nreads
+    if flags.shape == (nreads, *shape):
+        return list(flags)
+    raise FormatError(f"{path}: the mask has shape {flags.shape}; expected {tuple(shape)} (one "
+                      f"mask for every read) or {(nreads, *shape)} (one plane per read file)")
+
+
 class _ReadFile:
     """One open file of a read: its checked description, and how its rows are read."""
 
@@ -120,7 +174,7 @@ class _ReadFile:
         self.path = path
         self.hdul, bad, stable = open_fits(path, verify=verify)
         self.plain = stable is not None
-        self.map = None
+        self.image = None
         try:
             with unpacking(path):  # astropy unpacks a compressed file lazily
                 names = [h.name for h in self.hdul]
@@ -152,7 +206,6 @@ class _ReadFile:
                                           "value per pixel of its image")
                     self.dq = self.layout.to_readout(self.dq)
                 self.own = is_own_file(self.d.names)
-                self.scale = scaling(sci, path)
                 self.bitpix = sci.header["BITPIX"]
                 self.phantom = None
                 if "PHANTOM" in self.d.names:  # as a 3-D file's (FrameReader), in floats
@@ -162,12 +215,8 @@ class _ReadFile:
                         self.phantom = self.phantom.astype(FLOAT_FOR[hdu.header["BITPIX"]])
                 #: the file's tables (only if asked: the first file's are the exposure's)
                 self.tables = file_tables(self.hdul, path) if tables else {}
-                if self.plain and hasattr(os, "preadv"):
-                    self.map = map_frames(sci, path)
-                if self.map is not None:  # read with pread from one descriptor per file
-                    mm, offset, stored, fd = self.map
-                    mm.close()
-                    self.map = (None, offset, stored, fd)
+                self.image = FrameImage(sci, path, self.plain, self.dq, self.layout)
+                if self.image.mapped:  # its rows are read from the image's own descriptor
                     self.hdul.close()
         except Exception:
             self.close()
@@ -175,6 +224,47 @@ class _ReadFile:
         finally:  # what is read later is read through the map's own descriptor
             if stable is not None:
                 stable.close()
+
+    def close(self):
+        if self.image is not None:
+            self.image.close()
+        self.hdul.close()
+
+
+class FrameImage:
+    """One frame of a ramp stored as a 2-D image HDU: its rows, and its flags.
+
+    Parameters
+    ----------
+    hdu : image HDU
+        The frame's pixels, in an open file (kept open while rows are read
+        from it unless the image is `mapped`).
+    path : str or `pathlib.Path`
+        Its file (messages name it).
+    plain : bool
+        The file is plain FITS on disk: rows are read with ``pread`` from a
+        descriptor of the image's own (else astropy unpacks them).
+    dq : `numpy.ndarray` or None
+        The frame's flags in the readout frame (2-D), or None.
+    layout : `~spherex_reduce.core.channel_layout.ChannelLayout`, optional
+        How the image's channels lie (`rows` gives the readout frame's rows);
+        None: stripes of columns, the image is the readout frame.
+    """
+
+    def __init__(self, hdu, path, plain, dq=None, layout=None):
+        self.hdu, self.path, self.dq = hdu, path, dq
+        self.layout = ChannelLayout(*image_shape(hdu)) if layout is None else layout
+        self.scale = scaling(hdu, path)
+        self._map = map_frames(hdu, path) if plain and hasattr(os, "preadv") else None
+        if self._map is not None:  # read with pread from one descriptor per image
+            mm, offset, stored, fd = self._map
+            mm.close()
+            self._map = (None, offset, stored, fd)
+
+    @property
+    def mapped(self):
+        """Whether rows are read with ``pread`` (else from the open HDU)."""
+        return self._map is not None
 
     def rows(self, first, stop, dtype):
         """Rows ``first:stop`` of the readout frame as ``dtype`` (physical values, native
@@ -188,12 +278,12 @@ class _ReadFile:
 
     def _stored_rows(self, first, stop, dtype):
         """Rows ``first:stop`` of the image as stored, as ``dtype``."""
-        ncols = self.stored_shape[1]
-        if self.map is None:  # compressed: astropy unpacks (and scales) the section
+        ncols = self.hdu.header["NAXIS1"]
+        if self._map is None:  # compressed: astropy unpacks (and scales) the section
             # (the file is kept open; also without pread, e.g. on Windows)
             with unpacking(self.path):
-                return np.asarray(self.d.sci.section[first:stop]).astype(dtype)
-        _, offset, stored, fd = self.map
+                return np.asarray(self.hdu.section[first:stop]).astype(dtype)
+        _, offset, stored, fd = self._map
         buf = pread_into(fd, np.empty((stop - first, ncols), stored),
                      offset + first * ncols * stored.itemsize,
                      f"{self.path}: the file ends inside the image")
@@ -202,13 +292,90 @@ class _ReadFile:
         return buf.astype(dtype)
 
     def close(self):
-        if self.map is not None:
-            os.close(self.map[3])
-            self.map = None
-        self.hdul.close()
+        """Close the image's descriptor (its file is the caller's)."""
+        if self._map is not None:
+            os.close(self._map[3])
+            self._map = None
 
 
-class ReadFiles(RampReader):
+class ImageRamp(RampReader):
+    """A ramp whose frames are separate 2-D images (`FrameImage`), read a band of rows of
+    every frame at a time: what `ReadFiles` and
+    `~spherex_reduce.io.extension_reads.ExtensionReads` share.
+
+    A subclass sets ``schedule``, ``order``, ``unit``, ``header``, ``tables``,
+    ``phantom``, ``label`` (the input as messages name it) and ``_images``
+    (the frames kept, in time order), ``_shape`` (of one image), ``_gain``, ``_dtype`` and
+    ``_dq_bits``
+    (foreign bits that mask, or None for this package's flags).
+    """
+
+    @property
+    def nframes(self):
+        """Number of frames."""
+        return self.schedule.nframes
+
+    @property
+    def has_phantom(self):
+        """Whether the frames have phantom values."""
+        return self.phantom is not None
+
+    def readable_in_bands(self):
+        """Whether the rows are in readout order, as the executor streams them, with no
+        read's flags (else use `exposure`)."""
+        return self.order == "readout" and not any(f.dq is not None for f in self._images)
+
+    def frame_rows(self, k, first, stop):
+        """Rows ``first:stop`` of frame ``k``, floating point (a new array), as stored:
+        `scale` applies the gain."""
+        return self._images[k].rows(first, stop, self._dtype)
+
+    def scale(self, values):
+        """``values`` (``(..., columns)``) multiplied in place by the gain of ``input:``,
+        as `~spherex_reduce.io.FrameReader.scale`."""
+        return apply_gain(values, self._gain, self.schedule.geometry)
+
+    def reads(self, k, first, stop):
+        """Reads ``first:stop`` of frame ``k``, as `~spherex_reduce.io.FrameReader.reads`
+        gives them (here always floating point, scaled, native byte order)."""
+        return self.frame_rows(k, first, stop)
+
+    def exposure(self):
+        """The whole ramp in memory as an `~spherex_reduce.Exposure` (checked to fit)."""
+        nrows, ncols = self._shape
+        shape = (self.nframes, nrows, ncols)
+        check_size(float(np.prod(shape)) * self._dtype.itemsize,
+                   f"a ramp of {self.nframes} frames of {nrows} x {ncols}")
+        data = np.empty(shape, self._dtype)
+        for k in range(self.nframes):
+            data[k] = self.frame_rows(k, 0, nrows)
+        self.scale(data)
+        mask, header = self._flags(shape), self.header.copy()
+        if mask is not None and self._dq_bits is not None:
+            note_foreign_dq(header, self._dq_bits, self.label)
+        return Exposure.from_arrays(data, self.schedule, unit=self.unit, phantom=self.phantom,
+                                    header=header, order=self.order, tables=self.tables,
+                                    mask=mask)
+
+    def _flags(self, shape):
+        """The frames' flags stacked (a frame without any: no flag), as `file_flags` takes a
+        3-D file's: foreign bits (``input: dq_bits``) unless they are this package's."""
+        if all(f.dq is None for f in self._images):
+            return None
+        stored = np.zeros(shape, np.int64)
+        for k, f in enumerate(self._images):
+            if f.dq is not None:
+                stored[k] = f.dq
+        return file_flags(stored, shape, self.schedule, self.order, self._dq_bits, self.label)
+
+    def close(self):
+        """Close every frame's image."""
+        for f in getattr(self, "_images", ()):
+            f.close()
+        self._images = []
+
+
+class ReadFiles(ImageRamp):
     """A ramp stored as one FITS file per read, read a band of rows of every frame at a time.
 
     It offers what `~spherex_reduce.io.sources.FileSource` asks of a
@@ -231,6 +398,12 @@ class ReadFiles(RampReader):
         As for `~spherex_reduce.io.read` (the ``input:`` section): the unit,
         the gain (`reads` and `exposure` give the values multiplied by it) and
         the first files (reads) left out.
+    dq : str or `pathlib.Path`, optional
+        One mask file for every read (``--reads-dq``): a 2-D integer image of
+        flags (the shape of a read's image) applies to every read, a 3-D one
+        holds one plane per file, in the files' order (`read_mask`).  Its
+        flags join each read file's own ``DQ`` (bitwise or) and mask as they
+        do: any bit, or ``input: dq_bits``.
     **supplied
         Geometry and readout values for keywords the first file lacks (as for
         `~spherex_reduce.io.read`); ``nframes`` is always the number of files
@@ -264,8 +437,12 @@ class ReadFiles(RampReader):
     3 physical [2.0, 2.0, 2.0]
     """
 
-    def __init__(self, paths, verify_checksum=None, input=None, **supplied):
+    def __init__(self, paths, verify_checksum=None, input=None, dq=None, **supplied):
         options = InputOptions.from_config(input)
+        if options.reads is not None:
+            raise FormatError(f"input.reads is {options.reads} (the reads of a ramp are the SCI "
+                              "extensions of one file) but the reads are given as files, one "
+                              "per read: leave input.reads out")
         each = dataclasses.replace(options, drop_first_reads=0)  # a file holds one read
         paths = [Path(p) for p in paths]
         if len(paths) < 2:
@@ -274,13 +451,18 @@ class ReadFiles(RampReader):
         supplied = {**supplied, "nframes": len(paths)}  # whatever the config says
         self.paths = paths
         self._dq_bits = foreign_bits(options.dq_bits)  # checked even if unused
-        self._files = []
+        self._files, self._images = [], []
         try:
             for path in paths:
                 self._files.append(_ReadFile(path, verify_checksum, supplied,
                                              tables=not self._files, options=each))
                 self._check_like_first(self._files[-1])
             first = self._files[0]
+            if dq is not None:  # one mask file: its plane of each read joins the read's DQ
+                planes = read_mask(dq, len(paths), first.stored_shape, verify_checksum)
+                for f, stored in zip(self._files, planes, strict=True):
+                    plane = first.layout.to_readout(stored)
+                    f.image.dq = plane if f.image.dq is None else f.image.dq | plane
             self.schedule = first.d.schedule.replace(nframes=len(paths))
             self.order, self.unit = first.d.order, first.d.unit
             self.header = first.d.header.copy()
@@ -288,11 +470,15 @@ class ReadFiles(RampReader):
             self.header.add_history(f"ramp of {len(paths)} files, one per read: "
                                     f"{header_text(paths[0].name)} ... "
                                     f"{header_text(paths[-1].name)}")
+            if dq is not None:
+                self.header.add_history(f"flags of every read from {header_text(Path(dq).name)}")
             self._gain = first.d.gain
             drop, self.schedule = options.frames(self.header, self.schedule, True, paths[0])
             for f in self._files[:drop]:  # the reads left out (input.drop_first_reads)
                 f.close()
             self._files, self.paths = self._files[drop:], paths[drop:]
+            self._images, self._shape = [f.image for f in self._files], tuple(first.d.shape)
+            self.label = self.paths[0]
             self.tables = first.tables
             if first.own:  # flags written by this package: kept as they are
                 self._dq_bits = None
@@ -331,62 +517,4 @@ class ReadFiles(RampReader):
         """Close every file."""
         for f in self._files:
             f.close()
-        self._files = []
-
-    @property
-    def nframes(self):
-        """Number of frames: the files."""
-        return self.schedule.nframes
-
-    @property
-    def has_phantom(self):
-        """Whether the files have phantom values."""
-        return self.phantom is not None
-
-    def readable_in_bands(self):
-        """Whether the rows are in readout order, as the executor streams them, with no
-        read's flags (else use `exposure`)."""
-        return self.order == "readout" and not any(f.dq is not None for f in self._files)
-
-    def frame_rows(self, k, first, stop):
-        """Rows ``first:stop`` of frame ``k`` (file ``k``), floating point (a new array),
-        as stored: `scale` applies the gain."""
-        return self._files[k].rows(first, stop, self._dtype)
-
-    def scale(self, values):
-        """``values`` (``(..., columns)``) multiplied in place by the gain of ``input:``,
-        as `~spherex_reduce.io.FrameReader.scale`."""
-        return apply_gain(values, self._gain, self.schedule.geometry)
-
-    def reads(self, k, first, stop):
-        """Reads ``first:stop`` of frame ``k``, as `~spherex_reduce.io.FrameReader.reads`
-        gives them (here always floating point, scaled, native byte order)."""
-        return self.frame_rows(k, first, stop)
-
-    def exposure(self):
-        """The whole ramp in memory as an `~spherex_reduce.Exposure` (checked to fit)."""
-        nrows, ncols = self._files[0].d.shape
-        shape = (self.nframes, nrows, ncols)
-        check_size(float(np.prod(shape)) * self._dtype.itemsize,
-                   f"a ramp of {self.nframes} files of {nrows} x {ncols}")
-        data = np.empty(shape, self._dtype)
-        for k in range(self.nframes):
-            data[k] = self.frame_rows(k, 0, nrows)
-        self.scale(data)
-        mask, header = self._flags(shape), self.header.copy()
-        if mask is not None and self._dq_bits is not None:
-            note_foreign_dq(header, self._dq_bits, self.paths[0])
-        return Exposure.from_arrays(data, self.schedule, unit=self.unit, phantom=self.phantom,
-                                    header=header, order=self.order, tables=self.tables,
-                                    mask=mask)
-
-    def _flags(self, shape):
-        """The reads' DQ stacked (a read without one: no flag), as `file_flags` takes a
-        3-D file's: foreign bits (``input: dq_bits``) unless the files are this package's."""
-        if all(f.dq is None for f in self._files):
-            return None
-        stored = np.zeros(shape, np.int64)
-        for k, f in enumerate(self._files):
-            if f.dq is not None:
-                stored[k] = f.dq
-        return file_flags(stored, shape, self.schedule, self.order, self._dq_bits, self.paths[0])
+        self._files, self._images = [], []

@@ -28,6 +28,7 @@ from ..core.block import Block, Context
 from ..core.errors import FormatError
 from ..core.exposure import Exposure
 from .description import check_integrations
+from .extension_reads import ExtensionReads
 from .fits_read import CheckedFITS, Closing, probe, read
 from .frames import FrameReader, RampReader
 from .input import InputOptions
@@ -319,8 +320,11 @@ def open_input(what, *, input=None, **supplied):
         - a `Source`, or an open `~spherex_reduce.io.FrameReader` or
           `~spherex_reduce.io.read_files.ReadFiles` (not closed here);
         - the path of a FITS file: a raw ramp file in readout order is read in
-          bands; a 4-D ``SCI`` (integrations, groups, rows, columns) gives an
-          `Input` with ``integrations``; anything else is read whole
+          bands, and so is a ramp stored as ``SCI`` extensions, one per read,
+          when ``input`` says ``reads: extensions``
+          (`~spherex_reduce.io.extension_reads.ExtensionReads`); a 4-D ``SCI``
+          (integrations, groups, rows, columns) gives an `Input` with
+          ``integrations``; anything else is read whole
           (`~spherex_reduce.io.read`);
         - a sequence of paths: one ramp stored as one file per read, in that
           order (`~spherex_reduce.io.read_files.read_file_paths` expands a glob
@@ -352,11 +356,14 @@ def open_input(what, *, input=None, **supplied):
         return Input("exposure in memory", source=MemorySource(what))
     if isinstance(what, Source):
         return Input("source", source=what, owned=False)
-    if isinstance(what, RampReader):  # FrameReader, ReadFiles
+    if isinstance(what, RampReader):  # FrameReader, ReadFiles, ExtensionReads
         return Input(str(getattr(what, "path", "reader")), source=_from_reader(what, False))
     if isinstance(what, (list, tuple)):  # one file per read
         return _read_files(what, options, supplied)
     path = os.fspath(what)
+    if options.reads == "extensions":  # one read per SCI extension (HST _raw)
+        reader = ExtensionReads(path, input=options, **supplied)
+        return Input(path, source=_from_reader(reader, True))
     layout = probe(path)  # None: read() below says what is wrong
     if layout is not None and layout.integrations is not None:
         return _integrations(path, options, supplied)

@@ -109,8 +109,9 @@ def output_paths(inputs, outdir):
 def image_statistics(exposure):
     """Median and robust standard deviation of an exposure's good pixels.
 
-    Good pixels are the light-sensitive ones (not the reference rows and
-    columns of a physical-order image, whose values are not sky) that are
+    Good pixels are the light-sensitive ones (not the reference pixels,
+    `Exposure.reference_pixel_mask <spherex_reduce.Exposure.reference_pixel_mask>`
+    in the exposure's row order, whose values are not sky) that are
     finite with no `spherex_reduce.core.dq` flag but the informational ones
     (`~spherex_reduce.core.dq.image_usable`).  The robust
     standard deviation is `astropy.stats.mad_std` (1.4826 × the median
@@ -148,8 +149,7 @@ def image_statistics(exposure):
     good = np.isfinite(data)
     if exposure.dq is not None:
         good &= dq.image_usable(exposure.dq)
-    if data.ndim == 2 and exposure.order == "physical":  # no reference pixel: not sky
-        good &= ~exposure.schedule.geometry.reference_pixel_mask()
+    good &= ~exposure.reference_pixel_mask()  # not sky (each frame of ramps)
     unit = exposure.unit or u.dimensionless_unscaled
     if not good.any():
         return np.nan * unit, np.nan * unit

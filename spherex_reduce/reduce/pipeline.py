@@ -210,7 +210,9 @@ class Pipeline:
         `Exposure`
             With each step's status keyword, parameters, a row of the
             ``PROVENANCE`` table, the package version (``SXRVERS``) and the
-            config hash (``SXRCONF``) in its header.
+            config hash (``SXRCONF``) in its header.  An image has its
+            reference pixels flagged `~spherex_reduce.core.dq.REFERENCE`
+            (`Exposure.with_reference_flags`; informational, it masks nothing).
 
         Raises
         ------
@@ -241,6 +243,9 @@ class Pipeline:
                 for i, (name, params) in enumerate(self.steps)]
 
     def _stamped(self, result):
+        """The output: reference pixels flagged (an image's), version and config in its
+        header."""
+        result = result.with_reference_flags()
         header = result.header.copy()
         header["SXRVERS"] = (__version__, "spherex_reduce version")
         header["SXRCONF"] = (self.config_hash, "SHA-256 of the effective pipeline config")

@@ -8,11 +8,16 @@ group's mean, as the electronics do, and discards the reads between groups.
 
 import numpy as np
 
+from ..core.errors import ConfigError
+
 __all__ = ["average_groups", "read_schedule"]
 
 
 def read_schedule(schedule):
     """The schedule of every read of ``schedule``'s exposure (itself without groups).
+
+    A schedule with ``read_times`` (reads at uneven times) is refused
+    (`~spherex_reduce.core.errors.ConfigError`).
 
     Examples
     --------
@@ -22,6 +27,10 @@ def read_schedule(schedule):
     >>> read_schedule(s).nframes, read_schedule(s).frame_time == s.frame_time
     (6, np.True_)
     """
+    if schedule.read_times is not None:  # never simulated as if even
+        raise ConfigError("readout.read_times: the simulator reads the array every "
+                          "frame_time; reads at given times are not simulated: leave "
+                          "read_times out")
     if schedule.frames_read == schedule.nframes:  # one read per stored frame, none skipped
         return schedule
     return schedule.replace(nframes=schedule.frames_read, frames_per_group=1, group_gap=0,

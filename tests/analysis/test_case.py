@@ -20,15 +20,17 @@ RAW = {"name": "raw", "steps": [{"unchop": {}}]}
 
 
 def test_one_case_is_simulate_then_reduce_then_measure():
-    """Each step done by hand, with the public functions, gives the same numbers."""
+    """Each step done by hand, with the public functions, gives the same numbers: the
+    measure sees the light-sensitive pixels, the 56 x 56 inside the 4-pixel border."""
     res = run_case(SCENE, {"raw": RAW, "corrected": "spherex-default"},
                    {"bins": 6, "exclude_horizontal": True}, seed=4, keep=True)
     raw = simulate(SCENE, seed=4)
     for label, pipe in (("raw", RAW), ("corrected", "spherex-default")):
-        image = as_pipeline(pipe).run(raw).to_ccddata()
-        np.testing.assert_array_equal(res.reduced[label].to_ccddata().data, image.data)
+        whole = as_pipeline(pipe).run(raw).to_ccddata()
+        np.testing.assert_array_equal(res.reduced[label].to_ccddata().data, whole.data)
+        image = whole[4:60, 4:60]
         m = res.measured[label]
-        edges = np.geomspace(2 * np.pi / 64, np.pi, 7)
+        edges = np.geomspace(2 * np.pi / 56, np.pi, 7)
         spec = power_spectrum(image, bins=edges, exclude_horizontal=True)
         np.testing.assert_array_equal(np.asarray(m["spectrum"]["power"]),
                                       np.asarray(spec["power"]))
@@ -72,3 +74,34 @@ def test_a_sweep_cell_is_a_case():
                  mode="slopes").measurement
     assert row["band_power"] == m["band_power"].value
     np.testing.assert_array_equal(row["power"], m["power"])
+
+
+def test_the_measure_never_sees_the_reference_pixels():
+    """Reference pixels at 1e6 (injected into the raw slopes; ``unchop`` passes them
+    through): the std and band power measured are numpy's and `power_spectrum`'s of the
+    inner 20 x 20 pixels of a border {top: 4, left: 4} (the border in, the std was 460641
+    against 144)."""
+    scene = {"geometry": {"nrows": 24, "ncols": 24, "nchannels": 2,
+                          "ref_border": {"top": 4, "left": 4}},
+             "readout": {"skip": 4, "ref_reads": 4, "nframes": 5, "phantom_reads": 0}}
+
+    def extreme(raw):
+        ref = np.zeros((24, 24), bool)
+        ref[:4] = True
+        ref[:, :4] = True
+        values = np.where(ref[raw.schedule.rows], 1e6, raw.data.data)
+        return raw.replace(data=values)
+
+    res = run_case(scene, RAW, {"bins": 4, "kmin": 0.3, "kmax": 1.0}, seed=2, keep=True,
+                   inject=extreme)
+    whole = res.reduced["raw"].to_ccddata()
+    assert whole.data[:4].min() == 1e6 and whole.data[:, :4].min() == 1e6
+    light = np.asarray(whole.data[4:, 4:], float)
+    m = res.measured["raw"]
+    assert m["std"] == pytest.approx(float(np.std(light)), rel=1e-12)
+    edges = np.geomspace(2 * np.pi / 20, np.pi, 5)
+    np.testing.assert_allclose(np.asarray(m["spectrum"]["power"]),
+                               np.asarray(power_spectrum(light, bins=edges)["power"]),
+                               rtol=1e-12)
+    assert m["band_power"].value == pytest.approx(band_power(light, 0.3, 1.0).value,
+                                                  rel=1e-12)

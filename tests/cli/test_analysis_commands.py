@@ -190,3 +190,40 @@ def test_spectrum_of_an_image_too_small_for_the_band(tmp_path, caplog):
     assert abs(mean - 0.25) < 0.05
     assert (tmp_path / "small.png").stat().st_size > 1000
     assert path.read_bytes() == before
+
+
+def _numpy_spectrum(light, k_lo, k_hi):
+    """P(k) of an image with no masked pixel, by brute force on the full Fourier plane:
+    mean-subtracted, |FFT|^2 / (ny nx) averaged over the cells with k_lo <= |k| < k_hi
+    (the last bin's upper edge included, k = 0 left out)."""
+    ny, nx = light.shape
+    p = np.abs(np.fft.fft2(light - light.mean())) ** 2 / (ny * nx)
+    k = np.hypot(2 * np.pi * np.fft.fftfreq(ny)[:, None], 2 * np.pi * np.fft.fftfreq(nx)[None])
+    out = []
+    for i, (lo, hi) in enumerate(zip(k_lo, k_hi, strict=True)):
+        cells = (k >= lo) & ((k <= hi) if i == len(k_lo) - 1 else (k < hi)) & (k > 0)
+        out.append(p[cells].mean())
+    return np.array(out)
+
+
+@pytest.mark.parametrize("widths", [{"top": 4, "bottom": 4, "left": 4, "right": 4},
+                                    {"top": 4, "left": 4}])
+def test_spectrum_leaves_the_reference_pixels_out(tmp_path, widths):
+    """A 24 x 24 image whose reference pixels hold 1e6: its P(k) is numpy's of the
+    light-sensitive pixels alone (with the border in, P(k) was ~3e12 times larger)."""
+    s = ReadoutSchedule(DetectorGeometry(24, 24, 2, ref_border=widths), skip=4, ref_reads=4,
+                        phantom_reads=0, nframes=4)
+    rows = slice(4, 20 if "bottom" in widths else 24)
+    cols = slice(4, 20 if "right" in widths else 24)
+    img = np.full((24, 24), 1e6)
+    img[rows, cols] = np.random.default_rng(6).normal(0, 2.0, img[rows, cols].shape)
+    path = write(Exposure.from_arrays(img, s, order="physical", unit=u.electron / u.s),
+                 tmp_path / "image.fits")
+    before = path.read_bytes()
+    out = tmp_path / "spec.ecsv"
+    assert main(["spectrum", str(path), "-o", str(out), "--bins", "5"]) == 0
+    t = Table.read(out)
+    expected = _numpy_spectrum(img[rows, cols], np.asarray(t["k_lo"]), np.asarray(t["k_hi"]))
+    np.testing.assert_allclose(t["power"], expected, rtol=1e-10)
+    assert t.meta["shape"] == list(img[rows, cols].shape) and t.meta["masked_fraction"] == 0
+    assert path.read_bytes() == before

@@ -98,7 +98,7 @@ def test_readout_help_describes_every_option_with_its_default(capsys):
     text = " ".join(capsys.readouterr().out.split())  # unwrap argparse's lines
     declared = {p.name: p for p in (*GEOMETRY_PARAMETERS, *READOUT_PARAMETERS,
                                     *WINDOW_PARAMETERS)}
-    assert len(OPTIONS) == 28  # one per field (4 of them the channel layout and preset)
+    assert len(OPTIONS) == 29  # one per field (4 of them the channel layout and preset)
     for flag, _, key, _ in OPTIONS:
         p = declared[key]
         after = text.split(f"{flag} {key.upper()} ", 1)[1]
@@ -113,6 +113,8 @@ def test_readout_help_describes_every_option_with_its_default(capsys):
         "window)" in text
     assert "--groups GROUPS reads (0-based frames) averaged into each group, instead of " \
         "frames_per_group, as text: 0;1-2;3-6 (';' between groups, a-b a run of reads)" in text
+    assert "--read-times READ_TIMES time (s) of every stored frame's read, for reads at " \
+        "uneven times, as text: 0,2.93,12.93 (s, ',' between reads)" in text
 
 
 def test_show_config_list_gives_each_shipped_config_its_description(capsys):

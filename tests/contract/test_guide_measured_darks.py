@@ -1,11 +1,12 @@
 """The Measured darks guide as written: every command it shows runs on the files it describes.
 
 The guide's first example (its doctest) writes ``lab.fits``; its YAML blocks are
-``lab.yaml``, ``nirspec.yaml``, ``corner.yaml`` and ``output.yaml`` (windows of a
-larger array, tested on their own).  The test builds the other inputs the commands
-name from small arrays (the lab ramps one file per read, a JWST-like 4-D file,
-a folder of darks), runs every ``spherex-reduce`` command of the page (a new
-one must be given its inputs here) and checks the slopes against numpy.
+``lab.yaml``, ``nirspec.yaml``, ``wfc3.yaml``, ``corner.yaml`` and ``output.yaml``
+(the windows of a larger array and the HST-like file are tested on their own).  The tests
+build the other inputs the commands name from small arrays (the lab ramps one file per read
+and a mask file for them, a JWST-like 4-D file, a folder of darks, an HST-like file of SCI
+extensions), run every ``spherex-reduce`` command of the page (a new one must be given its
+inputs here) and check the slopes against numpy.
 """
 
 import hashlib
@@ -25,6 +26,11 @@ from spherex_reduce.cli import main
 
 GUIDE = ROOT / "docs" / "measured_darks.rst"
 RATE = 12.0  # ADU/s of the JWST-like file's light-sensitive pixels
+#: commands of the sections on SCI extensions and on one mask file for the read files: run
+#: by their own test, on their own inputs
+OWN_TEST = ("wfc3.yaml", "--reads-dq")
+#: SAMPTIME of the HST-like file's reads, in time order: RAPID, then SPARS10-like gaps (s)
+SAMPTIMES = [0.0, 2.932, 12.933, 22.934, 32.935, 42.936]
 
 
 def _yaml_block(text, intro):
@@ -85,8 +91,8 @@ def test_every_command_of_the_guide_runs_as_written(tmp_path, monkeypatch, capsy
     (tmp_path / "darks").mkdir()
     for name in ("dark01.fits", "dark02.fits"):
         shutil.copy(tmp_path / "lab.fits", tmp_path / "darks" / name)
-    commands = [c for c in _commands(_without(text, LAYOUTS))  # those two: their own tests
-                if not _window_command(c)]
+    commands = [c for c in _commands(_without(text, LAYOUTS))  # those below: their own tests
+                if not _window_command(c) and not any(own in c for own in OWN_TEST)]
     commands.sort(key=lambda c: "-o lab_slopes.fits" not in c)  # read by a later one
     assert len(commands) >= 6, commands
     for command in commands:
@@ -147,7 +153,7 @@ def _layout_files():
     wfc3 = (quadrant, edge, T_WFC3)
     r, c = np.indices((128, 128))
     h4rg = (c // 4, r < 4, T_H4RG)  # 32 stripes; reference rows on top (left: channel 0)
-    return {"nirspec_science": nirspec, "wfc3": wfc3, "h4rg": h4rg}
+    return {"nirspec_science": nirspec, "wfc3_quadrants": wfc3, "h4rg": h4rg}
 
 
 @pytest.mark.slow
@@ -180,7 +186,7 @@ def test_other_readout_layouts_run_as_written(tmp_path, monkeypatch):
         assert got.shape == fitted.shape  # the stored orientation
         np.testing.assert_allclose(got[~ref], fitted[~ref], rtol=0, atol=1e-9)
         assert (tmp_path / f"{name}_dark.fits").read_bytes() == raw
-    assert (tmp_path / "wfc3_layout.png").stat().st_size > 0
+    assert (tmp_path / "wfc3_quadrants.png").stat().st_size > 0
 
 
 def _expand(command, where):
@@ -248,3 +254,62 @@ def test_every_window_command_of_the_guide(tmp_path, monkeypatch, capsys):
             assert hdul[0].header["WINCOL"] == (0 if name == "corner" else 384)
         np.testing.assert_allclose(got[~ref], slope[~ref], rtol=1e-5, atol=1e-4)
         np.testing.assert_allclose(got[~ref], rate[~ref], rtol=1e-4)
+
+
+def _wfc3_raw(path):
+    """A WFC3/IR-like ``_raw`` file: 6 reads of 1024 x 1024 uint16 counts as SCI,1 ... SCI,6,
+    the latest first, at uneven SAMPTIMEs, with DQ,i; the 5-pixel reference border holds no
+    signal, each light-sensitive pixel its own rate; DQ,3 flags pixel (300, 700) in the read
+    at 32.935 s.  Returns the counts in time order."""
+    rng = np.random.default_rng(5)
+    rate = rng.uniform(0.5, 3.0, (1024, 1024))
+    rate[:5], rate[-5:], rate[:, :5], rate[:, -5:] = 0, 0, 0, 0
+    t = np.array(SAMPTIMES)[:, None, None]
+    counts = np.round(1000 + rate * t + rng.normal(0, 2, (6, 1024, 1024)) * (rate > 0))
+    hdus = [fits.PrimaryHDU()]
+    for version in range(1, 7):
+        k = 6 - version
+        sci = fits.ImageHDU(counts[k].astype(np.uint16), name="SCI", ver=version)
+        sci.header.update(SAMPTIME=SAMPTIMES[k], BUNIT="COUNTS")
+        dq = np.zeros((1024, 1024), np.int16)
+        if k == 4:
+            dq[300, 700] = 256  # WFC3: full-well saturation
+        hdus += [sci, fits.ImageHDU(dq, name="DQ", ver=version)]
+    fits.HDUList(hdus).writeto(path)
+    return counts
+
+
+def test_extensions_and_mask_file_commands_run_as_written(tmp_path, monkeypatch):
+    """``wfc3.yaml`` on an HST-like file: each slope is numpy's least squares on the
+    SAMPTIMEs (without the flagged read where DQ flags one); ``--reads-dq``: the read files
+    with one 2-D mask give what the 3-D file with that mask as DQ gives."""
+    text = GUIDE.read_text()
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "wfc3.yaml").write_text(_yaml_block(text, "As YAML (``wfc3.yaml``)"))
+    counts = _wfc3_raw(tmp_path / "ib_raw.fits")
+    _lab_file(text)
+    (tmp_path / "lab.yaml").write_text(_yaml_block(text, "As YAML (``lab.yaml``)"))
+    _reads_of(tmp_path / "lab.fits", tmp_path / "dark07")
+    fits.PrimaryHDU(fits.getdata("lab.fits", "DQ").astype(np.int32)).writeto(
+        "dark07_mask.fits")  # the 3-D file's own mask, as one file for the reads
+    before = {p: p.read_bytes() for p in (tmp_path / "ib_raw.fits", tmp_path / "dark07_mask.fits")}
+    commands = [c for c in _commands(text) if any(own in c for own in OWN_TEST)]
+    assert len(commands) == 2, commands
+    for command in commands:
+        assert main(["-q", *shlex.split(command)[1:]]) == 0, command
+    assert all(p.read_bytes() == b for p, b in before.items())
+
+    slopes = fits.getdata("ib_slopes.fits", "SCI")
+    design = np.vstack([SAMPTIMES, np.ones(6)]).T
+    expected = np.linalg.lstsq(design, counts.reshape(6, -1), rcond=None)[0][0]
+    expected = expected.reshape(1024, 1024)
+    keep = [0, 1, 2, 3, 5]  # pixel (300, 700) without its flagged read
+    expected[300, 700] = np.linalg.lstsq(design[keep], counts[keep, 300, 700], rcond=None)[0][0]
+    np.testing.assert_allclose(slopes[5:-5, 5:-5], expected[5:-5, 5:-5], rtol=0, atol=1e-6)
+    assert fits.getheader("ib_slopes.fits")["NFRAMES"] == 6
+
+    assert main(["-q", "reduce", "lab.fits", "-c", "lab.yaml", "-o", "lab_slopes.fits"]) == 0
+    one = fits.getdata("lab_slopes.fits", "SCI")
+    masked = fits.getdata("dark07_masked.fits", "SCI")
+    assert np.isnan(masked[9, 9]) and np.isfinite(np.delete(masked.ravel(), 9 * 16 + 9)).all()
+    np.testing.assert_allclose(masked, one, rtol=1e-6)

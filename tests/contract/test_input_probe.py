@@ -1732,13 +1732,25 @@ def _hst_ima(d):
         "geometry: {nrows: 16, ncols: 16, nchannels: 1, ref_border: 0, pixel_rate: 1.0e+5}\n"
         "readout: {skip: 1, ref_reads: 0, ref_mode: none, phantom_reads: 0, nframes: 3, "
         "frame_time: 2.9}\nsteps: [fit_ramp]\n")
+    (d / "ext.yaml").write_text((d / "one.yaml").read_text()
+                                + "input: {reads: extensions}\n")
+
+
+def _check_extension_slopes(d, result, run):
+    """The reads 100, 200, 300 at SAMPTIME 0, 2.9, 5.8 s: 100 / 2.9 per second everywhere."""
+    with fits.open(d / "out.fits") as hdul:
+        np.testing.assert_allclose(hdul["SCI"].data, 100 / 2.9, rtol=1e-6)
 
 
 LAYOUTS = [
-    # SCI,1 was reduced as if it were the ramp (fit_ramp skipped, exit 0)
-    refused("reduce-reads-as-image-extensions", ["reduce", "ima.fits", "-c", "one.yaml", "-o",
-                                                 "out.fits"], _hst_ima,
-            mentions=r"3 SCI extensions"),
+    # SCI,1 was reduced as if it were the ramp (fit_ramp skipped, exit 0); with the config's
+    # input.reads: extensions the SCI are the ramp's reads in SAMPTIME order
+    works("reduce-reads-as-image-extensions", ["reduce", "ima.fits", "-c", "ext.yaml", "-o",
+                                               "out.fits"], _hst_ima, _check_extension_slopes),
+    # without it the file is still refused, naming what was found and what to set
+    refused("reduce-image-extensions-not-asked-for", ["reduce", "ima.fits", "-c", "one.yaml",
+                                                      "-o", "out.fits"], _hst_ima,
+            mentions=r"3 SCI extensions .*set input.reads: extensions"),
     # a reduced image given to fit-noise: the message says what to give instead
     refused("fit-noise-reduced-image", ["fit-noise", "red.fits", "-o", "fit.ecsv"],
             mentions=r"give the raw file"),

@@ -50,6 +50,7 @@ BASE_GEOMETRY = {"nrows": 32, "ncols": 16, "nchannels": 2, "ref_border": 2}
 OTHER = {"nrows": 40, "ncols": 32, "nchannels": 4, "ref_border": 3, "scan": "alternate",
          "ref_mode": "repeated", "frame_overhead": 123, "frame_time": 0.05,
          "groups": [[0, 1], *([k] for k in range(3, 75)), [76, 77, 78]],  # 74 groups
+         "read_times": [3.0 * k + 0.25 * (k % 3) for k in range(74)],  # uneven
          "preset": "H2RG"}
 
 

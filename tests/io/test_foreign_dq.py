@@ -77,6 +77,14 @@ def _digest(path):
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
+def _reference_pixels():
+    """The reference pixels of the 16 x 8 array (border 2): the output flags them
+    REFERENCE, which masks nothing."""
+    ref = np.ones((16, 8), bool)
+    ref[2:14, 2:6] = False
+    return ref
+
+
 def _masked_reads(schedule, cells):
     """(read, column) of every read of the rows of ``cells``."""
     return {(int(i), c) for r, c in cells for i in np.flatnonzero(schedule.rows == r)}
@@ -102,13 +110,14 @@ def test_pixel_mask_masks_every_read_of_its_rows(tmp_path, option):
         slopes, flags = hdul["SCI"].data, hdul["DQ"].data
         assert hdul[0].header["SXRDQBIT"] == (0x9 if option else 2**32 - 1)
     expected = _lstsq(sci, 2.0)
+    reference = np.where(_reference_pixels()[s.rows], dq.REFERENCE, 0)  # per read
     for i in range(s.n_reads):
         for c in range(8):
             if (i, c) in masked:
                 assert np.isnan(slopes[i, c]), (i, c)
-                assert flags[i, c] == dq.FEW_READS | dq.DO_NOT_USE, (i, c)
+                assert flags[i, c] == dq.FEW_READS | dq.DO_NOT_USE | reference[i, c], (i, c)
             else:
-                assert flags[i, c] == 0, (i, c)
+                assert flags[i, c] == reference[i, c], (i, c)
                 np.testing.assert_allclose(slopes[i, c], expected[i, c], rtol=1e-6, atol=1e-6)
 
 
@@ -129,8 +138,9 @@ def test_pixel_mask_through_unchop(tmp_path):
     bad = np.zeros((16, 8), bool)
     bad[tuple(np.transpose([*FLAGGED, OTHER_BIT, HIGH_BIT]))] = True  # every bit masks
     assert np.isnan(out.data.data[bad]).all()
-    assert (out.dq[bad] == dq.FEW_READS | dq.DO_NOT_USE).all()
-    assert (out.dq[~bad] == 0).all()
+    reference = np.where(_reference_pixels(), dq.REFERENCE, 0)
+    assert (out.dq[bad] == (dq.FEW_READS | dq.DO_NOT_USE | reference)[bad]).all()
+    assert (out.dq[~bad] == reference[~bad]).all()
     np.testing.assert_allclose(out.data.data[~bad], expected[~bad], rtol=1e-6, atol=1e-6)
 
 

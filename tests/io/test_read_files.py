@@ -267,3 +267,61 @@ def test_a_read_file_carries_its_own_dq(tmp_path, bits):
         expected[r, c] = without if (bits is None or flags[r, c] & bits) else expected[r, c]
     np.testing.assert_allclose(slopes, expected, rtol=1e-6, atol=1e-6)
     assert fits.getheader(out)["SXRDQBIT"] == (2**32 - 1 if bits is None else bits)
+
+
+@pytest.mark.parametrize("planes", [2, 3])
+def test_one_mask_file_flags_the_reads(tmp_path, planes):
+    """``--reads-dq MASK.fits``: a 2-D mask leaves its pixels out of every read (their slope
+    NaN: no read to fit), a 3-D one flags pixel (r, c) of read k where plane k does: that
+    read is left out of the pixel's fit (numpy least squares over the others).  The files
+    and the mask are not changed."""
+    s = _schedule()
+    sci = _ramps(s)
+    paths = _write_reads(tmp_path / "r", sci)
+    flags = np.zeros((len(NUMBERS), *sci.shape[1:]), np.int16)
+    flags[2, 5, 3] = 1  # read 2 of pixel (5, 3)
+    flags[:, 7, 9] = 8  # every read of pixel (7, 9)
+    mask = tmp_path / "mask.fits"
+    fits.PrimaryHDU(flags if planes == 3 else flags[2]).writeto(mask, checksum=True)
+    before = _digests([*paths, mask])
+    cfg = _config(tmp_path / "fit.yaml", FIT)
+    out = tmp_path / "out.fits"
+    assert main(["-q", "reduce", "--reads", str(tmp_path / "r" / "read_*.fits"), "--reads-dq",
+                 str(mask), "-c", str(cfg), "-o", str(out)]) == 0
+    assert _digests([*paths, mask]) == before
+    slopes = fits.getdata(out, "SCI")
+    expected = _lstsq(sci)
+    if planes == 3:
+        others = np.delete(np.arange(len(NUMBERS)), 2)
+        design = np.vstack([others * 2.0, np.ones(others.size)]).T
+        expected[5, 3] = np.linalg.lstsq(design, sci[others, 5, 3].astype(np.float64),
+                                         rcond=None)[0][0]
+    else:  # the 2-D mask flags (5, 3) and (7, 9) in every read
+        expected[5, 3] = np.nan
+    expected[7, 9] = np.nan
+    np.testing.assert_allclose(slopes, expected, rtol=1e-6, atol=1e-6)
+    assert "mask.fits" in str(fits.getheader(out)["HISTORY"])
+
+
+def test_a_mask_file_of_another_shape_is_refused(tmp_path, capsys):
+    sci = _ramps(_schedule())
+    paths = _write_reads(tmp_path / "r", sci)
+    mask = tmp_path / "mask.fits"
+    fits.PrimaryHDU(np.zeros((len(NUMBERS) - 1, *sci.shape[1:]), np.int16)).writeto(mask)
+    cfg = _config(tmp_path / "fit.yaml", FIT)
+    out = tmp_path / "out.fits"
+    args = ["reduce", "--reads", str(tmp_path / "r" / "read_*.fits"), "-c", str(cfg), "-o",
+            str(out)]
+    assert main([*args, "--reads-dq", str(mask)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and err.startswith("spherex-reduce reduce: error: ")
+    image = sci.shape[1:]  # a read's image: its reads (rows read) x columns
+    assert (f"the mask has shape {(len(NUMBERS) - 1, *image)}; expected {image} (one mask for "
+            f"every read) or {(len(NUMBERS), *image)}") in err
+    assert not out.exists() and len(paths) == len(NUMBERS)
+    fits.PrimaryHDU(np.zeros(image, np.float32)).writeto(mask, overwrite=True)
+    assert main([*args, "--reads-dq", str(mask)]) == 2  # flags are integers
+    assert "the mask holds floating-point numbers (BITPIX = -32)" in capsys.readouterr().err
+    assert main(["reduce", str(paths[0]), "--reads-dq", str(mask), "-c", str(cfg), "-o",
+                 str(out)]) == 2
+    assert "give --reads too" in capsys.readouterr().err

@@ -236,3 +236,9 @@ def test_the_summary_leaves_reference_pixels_out(tmp_path, small_schedule):
     median, sigma = batch.image_statistics(reduced)
     assert median.value == pytest.approx(np.median(image[light]), rel=1e-12)
     assert sigma.value == pytest.approx(mad_std(image[light]), rel=1e-12)
+    # an image left in readout order (a pipeline without unchop): each read is its row's
+    rows = small_schedule.rows
+    readout = Exposure.from_arrays(image[rows], small_schedule, unit=u.electron / u.s)
+    median, sigma = batch.image_statistics(readout)
+    assert median.value == pytest.approx(np.median(image[rows][light[rows]]), rel=1e-12)
+    assert sigma.value == pytest.approx(mad_std(image[rows][light[rows]]), rel=1e-12)

@@ -55,3 +55,14 @@ def test_slopes_of_groups_are_refused_in_one_line():
         simulate(_with(output={"mode": "slopes"}), seed=1)
     assert str(info.value) == ("output.mode: slopes are simulated for one read per frame; a "
                                "readout with groups or gaps needs output.mode: ramps")
+
+
+def test_reads_at_given_times_are_refused_in_one_line():
+    """A readout with ``read_times`` (reads at uneven times) is never simulated as if the
+    reads were every frame time."""
+    times = [0.0, 0.5, 2.0]
+    scene = {**SCENE, "readout": {**{k: v for k, v in SCENE["readout"].items() if k != "groups"},
+                                  "read_times": times}}
+    with pytest.raises(ConfigError, match=r"^readout\.read_times: the simulator reads the array "
+                                          "every frame_time"):
+        simulate(scene, seed=1)

@@ -21,7 +21,11 @@ def sigma_clip(exposure, *, sigma=5.0, sigma_lower=None, sigma_upper=None, maxit
 
     Exactly the pixels `astropy.stats.sigma_clip` masks with the same
     settings (the clipping is done by `astropy.stats.SigmaClip`) over the
-    unmasked, finite pixels of the image.
+    unmasked, finite, light-sensitive pixels of the image.  Reference pixels
+    (`Exposure.reference_pixel_mask <spherex_reduce.Exposure.reference_pixel_mask>`)
+    are left out: they neither enter the centre and spread nor are clipped,
+    since they see no light and their level and noise are not those of the
+    light-sensitive pixels.
 
     Parameters
     ----------
@@ -57,9 +61,10 @@ def sigma_clip(exposure, *, sigma=5.0, sigma_lower=None, sigma_upper=None, maxit
     ...                     ref_mode="none", phantom_reads=0, nframes=1)
     >>> img = np.random.default_rng(0).normal(0, 1, (16, 16))
     >>> img[5, 7] = 100.0
+    >>> img[0, 3] = -100.0  # a reference pixel: not clipped
     >>> out = sigma_clip(Exposure.from_arrays(img, s))
-    >>> bool(out.data.mask[5, 7]), out.header["NHOTPIX"]
-    (True, 1)
+    >>> bool(out.data.mask[5, 7]), bool(out.data.mask[0, 3]), out.header["NHOTPIX"]
+    (True, False, 1)
     """
     return SigmaClipStep()(exposure, sigma=sigma, sigma_lower=sigma_lower,
                            sigma_upper=sigma_upper, maxiters=maxiters, cenfunc=cenfunc,
@@ -74,7 +79,7 @@ def _sigma_clip(exposure, *, sigma, sigma_lower, sigma_upper, maxiters, cenfunc,
     data = np.asarray(nd.data)
     flags = np.zeros(data.shape, np.uint32) if exposure.dq is None else exposure.dq
     old = ~dq.image_usable(flags)  # JUMP or SATURATED alone: a valid slope, clipped too
-    usable = ~old & np.isfinite(data)
+    usable = ~old & np.isfinite(data) & ~exposure.reference_pixel_mask()
     clipper = SigmaClip(sigma=sigma, sigma_lower=sigma_lower, sigma_upper=sigma_upper,
                         maxiters=maxiters, cenfunc=cenfunc, stdfunc=stdfunc)
     hot = np.zeros(data.shape, bool)

@@ -59,7 +59,17 @@ def combine_darks(exposures, *, method="average", sigma=3.0):
     `~spherex_reduce.Exposure`
         The master dark in the first input's unit, with the uncertainty
         ccdproc propagates (std of the inputs over ``sqrt(n)`` for average),
-        the first input's schedule and header, and ``NCOMBINE``.
+        the first input's schedule and header, and ``NCOMBINE``.  Its flags:
+        `~spherex_reduce.core.dq.DO_NOT_USE` where ccdproc masked the pixel
+        (every input masked or clipped), and
+        `~spherex_reduce.core.dq.REFERENCE` on the reference pixels, which are
+        combined like the others.
+
+    Notes
+    -----
+    Every statistic is per pixel, across the inputs (the clipping's median
+    and spread included): no pixel's value enters another's, so reference
+    pixels never weigh on the light-sensitive ones.
 
     Raises
     ------
@@ -125,7 +135,7 @@ def combine_darks(exposures, *, method="average", sigma=3.0):
                                      uncertainty=None if unc is None else StdDevUncertainty(unc),
                                      mask=mask),
                         header=header, tables={}, phantom=None, reference=None)
-    return out
+    return out.with_reference_flags()
 
 
 def subtract_dark(exposure, dark):

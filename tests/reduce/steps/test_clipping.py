@@ -1,4 +1,7 @@
-"""sigma_clip against astropy: the same pixels masked, hard cases, refusals."""
+"""sigma_clip against astropy: the same pixels masked, hard cases, refusals.
+
+astropy is given the light-sensitive pixels only: reference pixels (a border whose
+widths each test writes out with numpy) neither enter the statistics nor are clipped."""
 
 import numpy as np
 import pytest
@@ -24,6 +27,20 @@ def image(s, values, **kw):
     return Exposure.from_arrays(values, s, order="physical", unit=u.electron / u.s, **kw)
 
 
+def border(shape, top=0, bottom=0, left=0, right=0):
+    """The reference pixels of a physical-order image: rows ``top`` from row 0 and
+    ``bottom`` from the last, columns ``left`` from column 0 and ``right`` from the last."""
+    ny, nx = shape
+    ref = np.zeros(shape, bool)
+    ref[:top] = ref[ny - bottom:] = True
+    ref[:, :left] = ref[:, nx - right:] = True
+    return ref
+
+
+#: the reference pixels of `sched` (ref_border=2)
+REF32 = border((32, 32), 2, 2, 2, 2)
+
+
 @pytest.mark.parametrize("kw", [{}, {"sigma": 3.0, "maxiters": 2},
                                 {"sigma": 2.5, "cenfunc": "mean", "stdfunc": "mad_std"},
                                 {"sigma_lower": 2.0, "sigma_upper": 4.0}])
@@ -38,8 +55,9 @@ def test_sigma_clip_masks_exactly_what_astropy_masks(kw):
     akw = dict(kw)
     akw.setdefault("sigma", 5.0)
     akw.setdefault("maxiters", None)
-    ref = astropy_sigma_clip(np.ma.MaskedArray(data, mask=mask | np.isnan(data)), **akw)
-    expected = np.ma.getmaskarray(ref)
+    ref = astropy_sigma_clip(np.ma.MaskedArray(data, mask=mask | np.isnan(data) | REF32),
+                             **akw)
+    expected = np.ma.getmaskarray(ref) & ~REF32
     assert np.array_equal(out.data.mask | np.isnan(data), expected)
     hot = expected & ~mask & np.isfinite(data)
     assert out.header["NHOTPIX"] == hot.sum() > 0
@@ -58,9 +76,10 @@ def test_sigma_clip_matches_astropy_on_a_large_heavy_tailed_image(kw):
     data = rng.standard_t(4, (1024, 1024))
     data[rng.random((1024, 1024)) < 1e-3] = np.nan
     out = sigma_clip(image(s, data), **kw)
-    ref = astropy_sigma_clip(np.ma.MaskedArray(data, mask=np.isnan(data)),
+    ref_pixels = border((1024, 1024), 4, 4, 4, 4)
+    ref = astropy_sigma_clip(np.ma.MaskedArray(data, mask=np.isnan(data) | ref_pixels),
                              **{"sigma": 5.0, "maxiters": None, **kw})
-    expected = np.ma.getmaskarray(ref) & np.isfinite(data)
+    expected = np.ma.getmaskarray(ref) & np.isfinite(data) & ~ref_pixels
     assert expected.sum() > 100
     assert np.array_equal(out.dq & dq.HOT != 0, expected)
 
@@ -72,8 +91,9 @@ def test_sigma_clip_below_one_sigma_matches_astropy(kw):
     # compiled path but nothing on its axis=None path: the step must follow the latter
     data = np.random.default_rng(2).normal(0, 1, (32, 32))
     out = sigma_clip(image(sched(), data), **kw)
-    ref = astropy_sigma_clip(data, **{"sigma": 5.0, "maxiters": None, **kw})
-    assert np.array_equal(out.dq & dq.HOT != 0, np.ma.getmaskarray(ref))
+    ref = astropy_sigma_clip(np.ma.MaskedArray(data, mask=REF32),
+                             **{"sigma": 5.0, "maxiters": None, **kw})
+    assert np.array_equal(out.dq & dq.HOT != 0, np.ma.getmaskarray(ref) & ~REF32)
 
 
 def test_sigma_clip_of_an_image_without_usable_pixels():
@@ -85,9 +105,10 @@ def test_sigma_clip_of_an_image_without_usable_pixels():
 def test_sigma_clip_finds_injected_hot_pixels_only():
     rng = np.random.default_rng(1)
     data = rng.normal(0, 1, (32, 32))
-    hot = [(1, 2), (20, 30), (31, 0)]
+    hot = [(2, 2), (20, 29), (29, 2)]
     for r, c in hot:
         data[r, c] = 50.0
+    data[[1, 31, 10], [2, 0, 30]] = 50.0  # reference pixels: not clipped
     out = sigma_clip(image(sched(), data))
     assert sorted(zip(out.tables["HOTPIX"]["row"], out.tables["HOTPIX"]["column"],
                       strict=True)) == hot
@@ -109,8 +130,33 @@ def test_informational_flags_are_clipped_like_clean_pixels():
     flags = np.zeros((32, 32), np.uint32)
     flags[3, 3], flags[4, 4], flags[5, 5] = dq.JUMP, dq.SATURATED, dq.DO_NOT_USE
     out = sigma_clip(image(s, values, mask=flags), sigma=5.0)
-    expected = astropy_sigma_clip(np.ma.masked_array(values, flags == dq.DO_NOT_USE),
-                                  sigma=5.0, maxiters=None).mask & (flags != dq.DO_NOT_USE)
+    expected = astropy_sigma_clip(np.ma.masked_array(values, (flags == dq.DO_NOT_USE) | REF32),
+                                  sigma=5.0, maxiters=None).mask & (flags != dq.DO_NOT_USE) & ~REF32
     np.testing.assert_array_equal((out.dq & dq.HOT) != 0, expected)
     assert out.dq[3, 3] == dq.JUMP | dq.HOT and out.dq[4, 4] == dq.SATURATED | dq.HOT
     assert out.dq[5, 5] == dq.DO_NOT_USE
+
+
+@pytest.mark.parametrize("widths", [{"top": 4, "bottom": 4, "left": 4, "right": 4},
+                                    {"top": 4, "left": 4}])
+def test_reference_pixels_stay_out_of_the_statistics_and_are_never_clipped(widths):
+    """Reference pixels at 1e6 (and one at -1e6): astropy on the light-sensitive pixels
+    alone gives the clipped pixels, and no reference pixel is flagged.  Mixed in, they
+    made the spread ~1e5 and nothing was clipped; in readout order too."""
+    ref_pixels = border((24, 24), **widths)
+    s = ReadoutSchedule(DetectorGeometry(24, 24, 2, ref_border=widths), skip=5, ref_reads=3,
+                        phantom_reads=0, nframes=4)
+    rng = np.random.default_rng(5)
+    values = rng.normal(10.0, 1.0, (24, 24))
+    values[ref_pixels] = 1e6
+    values[0, 0] = -1e6
+    values[[9, 15, 19], [12, 7, 18]] = [30.0, -20.0, 17.0]
+    expected = astropy_sigma_clip(np.ma.MaskedArray(values, ref_pixels), sigma=5.0,
+                                  maxiters=None).mask & ~ref_pixels
+    assert expected.sum() == 3
+    out = sigma_clip(image(s, values))
+    np.testing.assert_array_equal((out.dq & dq.HOT) != 0, expected)
+    assert out.header["NHOTPIX"] == 3
+    # the same image in readout order: each read holds its physical row
+    readout = sigma_clip(Exposure.from_arrays(values[s.rows], s, unit=u.electron / u.s))
+    np.testing.assert_array_equal((readout.dq & dq.HOT) != 0, expected[s.rows])

@@ -233,3 +233,36 @@ def test_shipped_layout_examples_describe_their_readout(capsys, example, line):
 
     assert main(["readout", "--config", str(ROOT / "data" / "examples" / example)]) == 0
     assert capsys.readouterr().out.splitlines()[1] == line
+
+
+def test_hst_style_extensions_in_quadrants_reduce_to_numpy_slopes(tmp_path):
+    """SCI,i / DQ,i per read, latest first (HST _raw), four quadrants read from their outer
+    corners: each quadrant's outer reference rows carry its offsets; a DQ flags one read of
+    one pixel, which the fit leaves out."""
+    rng = np.random.default_rng(5)
+    t = TFRAME * np.arange(NREADS)
+    chan, rows_of = _channels_by_hand("quadrants")
+    r, _ = np.indices((N, N))
+    ref = (r < BORDER) | (r >= N - BORDER)
+    offset = rng.normal(0, 40, (NREADS, 4))[:, chan]
+    data = np.where(ref, 1000.0, 1000 + rng.uniform(1, 5, (N, N)) * t[:, None, None]
+                    + rng.normal(0, 1, (NREADS, N, N))) + offset
+    hdus = [fits.PrimaryHDU()]
+    for version, k in enumerate(range(NREADS - 1, -1, -1), start=1):
+        sci = fits.ImageHDU(data[k], name="SCI", ver=version)
+        sci.header["SAMPTIME"] = t[k]
+        flags = np.zeros((N, N), np.int16)
+        flags[5, 6] = 4 if k == 3 else 0
+        hdus += [sci, fits.ImageHDU(flags, name="DQ", ver=version)]
+    fits.HDUList(hdus).writeto(tmp_path / "raw.fits")
+    config = _config("quadrants")
+    config["input"] = {"reads": "extensions"}
+    config["readout"] = {k: v for k, v in READOUT.items() if k != "nframes"}
+    got = fits.getdata(sr.write(sr.Pipeline(config).run(tmp_path / "raw.fits"),
+                                tmp_path / "slopes.fits"), "SCI")
+    expected = _expected_slopes(data, "quadrants")
+    kept = np.arange(NREADS) != 3
+    corrected = data[:, 5, 6] - np.array([data[k][tuple(np.array(rows_of[chan[5, 6]]).T)].mean()
+                                          for k in range(NREADS)])
+    expected[5, 6] = np.polyfit(t[kept], corrected[kept], 1)[0]
+    assert np.allclose(got[~ref], expected[~ref], rtol=0, atol=1e-9)

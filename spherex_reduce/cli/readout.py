@@ -106,7 +106,8 @@ def add_parser(sub):
         p.add_argument(flag, dest=key, type=typ, default=None, help=_option_help(field))
     p.add_argument("-o", "--output", metavar="SCHEDULE.ecsv",
                    help="write the schedule table (ECSV: read row kind start time)")
-    p.add_argument("--plot", metavar="PNG", help="draw the read order to this PNG")
+    p.add_argument("--plot", metavar="PNG", help="draw the read order and the channels on "
+                   "the stored image to this PNG")
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     p.set_defaults(func=run)
 
@@ -132,6 +133,8 @@ def run(args):
     g = schedule.geometry
     if g.window is not None:
         print(g.window.summary(g.nrows, g.ncols))
+    if not g.layout.identity:  # the summary is of the readout frame
+        print(g.layout.summary())
     with all_or_nothing([args.output, args.plot], args.overwrite) as (tmp, tmp_plot):
         if args.output:
             schedule.to_table().write(tmp, format="ascii.ecsv")

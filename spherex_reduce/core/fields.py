@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 from astropy import units as u
 
+from .channel_layout import CHANNEL_LAYOUTS, FAST_AXES, FIRST_CORNERS
 from .errors import FormatError
 from .frame_times import format_read_times, parse_read_times
 from .groups import format_groups, parse_groups
@@ -188,6 +189,22 @@ FIELDS = (
           comment="fast-scan direction per channel", required=False),
     Field("pixel_rate", "geometry", "PIXRATE", _NUM, 100_000.0, "pixel rate per channel (Hz)",
           unit="Hz", minimum=0, exclusive_minimum=True, comment="[Hz] pixel rate per channel"),
+    Field("channels", "geometry", "CHANLAY", (str,), "columns",
+          "how the channels lie on the stored image: columns, rows or quadrants",
+          choices=CHANNEL_LAYOUTS, comment="channels: columns, rows or quadrants",
+          required=False, written_if_set=True),
+    Field("first_corner", "geometry", "FIRSTCRN", (str,), "outer",
+          "quadrants: the corner each quadrant is read from, outer or inner",
+          choices=FIRST_CORNERS, comment="quadrants read from the outer or inner corner",
+          required=False, written_if_set=True),
+    Field("fast_axis", "geometry", "FASTAXIS", (str,), "rows",
+          "quadrants: the fast scan runs along rows or columns", choices=FAST_AXES,
+          comment="quadrants: fast scan along rows or columns", required=False,
+          written_if_set=True),
+    Field("preset", "geometry", "GEOPRSET", (str, type(None)), None,
+          "named detector layout the other geometry keys start from",
+          comment="geometry preset the fields start from", required=False,
+          none_means="no preset", written_if_set=True),
     Field("skip", "readout", "ROWSKIP", (int,), 24, "row-chopping skip S", minimum=1,
           cli_max=2**16),
     Field("ref_reads", "readout", "NREFRD", (int,), 32, "reference row reads per frame r",
@@ -265,7 +282,7 @@ def section_fields(section):
     Examples
     --------
     >>> from spherex_reduce.core.fields import section_fields
-    >>> [f.name for f in section_fields("geometry")]
+    >>> [f.name for f in section_fields("geometry")][:6]
     ['nrows', 'ncols', 'nchannels', 'ref_border', 'scan', 'pixel_rate']
     """
     return tuple(f for f in FIELDS if f.section == section)

@@ -5,8 +5,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .channel_layout import ChannelLayout
 from .fields import FIELD, SIDES, check_field, check_sides, section_fields, table_dataclass
 from .limits import check_size
+from .presets import PRESETS, apply_preset
 
 __all__ = ["DetectorGeometry", "RefBorder"]
 
@@ -109,6 +111,28 @@ class DetectorGeometry:
         and Roman do), or give one direction per channel.
     pixel_rate : float
         Pixel sample rate of each channel in Hz.
+    channels : {'columns', 'rows', 'quadrants'}
+        How the channels lie on the stored image (the file's pixels, as the
+        lab or mission writes them; `~spherex_reduce.core.channel_layout`):
+        vertical stripes (the default), horizontal bands read along the
+        columns, or 2 x 2 quadrants (``nchannels`` 4).  The sizes and the
+        border above are those of the stored image; every readout quantity
+        (`channel_width`, `column_offsets`, reference rows and columns ...) is
+        that of the readout frame, `frame`, which the schedule works in.
+    first_corner : {'outer', 'inner'}
+        Quadrants: each is read from the array's corner toward the centre
+        (``outer``, as WFC3/IR) or from the centre.
+    fast_axis : {'rows', 'columns'}
+        Quadrants: the fast scan runs along a row or along a column.
+    preset : str, optional
+        The name of the `~spherex_reduce.core.presets.PRESETS` entry the other
+        values were taken from (recorded in the FITS header as ``GEOPRSET``);
+        `from_preset` fills them in.
+    channel_border : tuple of int, keyword-only
+        A readout frame's reference columns ``(start, end)`` of every channel
+        (set on `frame` for quadrants read from a corner; 0 otherwise).
+    stored : DetectorGeometry, keyword-only
+        On a readout `frame`: the geometry of the stored image it maps to.
     window : `~spherex_reduce.core.window.Window`, optional (keyword only)
         The array is a window of a larger one, whose readout gives its pixel
         times; ``nchannels``, ``scan`` and ``ref_border`` must then be the
@@ -130,12 +154,16 @@ class DetectorGeometry:
     """
 
     window: object = dataclasses.field(default=None, kw_only=True, repr=False)
+    channel_border: tuple = dataclasses.field(default=(0, 0), kw_only=True)
+    stored: object = dataclasses.field(default=None, kw_only=True, repr=False)
     # Then the fields, their defaults and checks: `spherex_reduce.core.fields.FIELDS`
     # ("geometry").
 
     def __post_init__(self):
         maxima = {"nchannels": lambda: self.ncols,  # bounds that depend on checked fields
                   "ref_border": lambda: max((min(self.nrows, self.ncols) - 1) // 2, 0)}
+        if self.stored is not None:  # a readout frame: its border was checked as stored
+            maxima.pop("ref_border")
         for f in section_fields("geometry"):
             value = getattr(self, f.name)
             if f.side_keywords:
@@ -151,15 +179,49 @@ class DetectorGeometry:
                              f"{self.nrows} x {self.ncols} array: top + bottom must be < nrows "
                              "and left + right < ncols")
         object.__setattr__(self, "_border", border)
-        if self.ncols % self.nchannels:
+        if self.preset is not None and self.preset not in PRESETS:
+            raise ValueError(f"preset {self.preset!r} is not a known preset; known: "
+                             f"{', '.join(PRESETS)}")
+        check_size(self.nchannels * 16.0, f"{self.nchannels} readout channels")
+        if self.stored is None:  # a stored image: its layout gives its readout frame
+            layout = ChannelLayout(self.nrows, self.ncols, self.channels, self.first_corner,
+                                   self.fast_axis)
+            object.__setattr__(self, "_layout", layout)
+        frame = self.stored is not None or self._layout.identity
+        object.__setattr__(self, "_frame", self if frame else self._readout_frame())
+        if self._frame is self and self.ncols % self.nchannels:
             raise ValueError(
                 f"nchannels x channel width must equal ncols: ncols={self.ncols} is not a "
                 f"multiple of nchannels={self.nchannels}"
             )
-        check_size(self.nchannels * 16.0, f"{self.nchannels} readout channels")
+        start, end = (int(v) for v in self.channel_border)
+        if min(start, end) < 0 or start + end >= self.channel_width:
+            raise ValueError(f"channel_border {self.channel_border} leaves no active column "
+                             f"in channels of {self.channel_width} columns")
+        object.__setattr__(self, "channel_border", (start, end))
         object.__setattr__(self, "_directions", self._parse_scan(self.scan))
         if self.window is not None:
             self.window.check(self)
+
+    def _readout_frame(self):
+        """The readout-frame geometry of a stored image whose channels are not columns."""
+        lay = self._layout
+        if self.window is not None:
+            raise ValueError(f"a window of a larger array is read as stripes of columns: "
+                             f"channels: {lay.channels} is not supported with a window")
+        if lay.channels == "quadrants" and (self.nchannels != 4 or self.scan != "same"):
+            raise ValueError(f"channels: quadrants reads 4 channels, each in the direction its "
+                             f"first_corner gives: nchannels must be 4 (got {self.nchannels}) "
+                             f"and scan 'same' (got {self.scan!r})")
+        if lay.channels == "rows" and self.nrows % self.nchannels:
+            raise ValueError(f"channels: rows needs nrows a multiple of nchannels: "
+                             f"nrows={self.nrows}, nchannels={self.nchannels}")
+        sides, per_channel = lay.frame_border(self._border)
+        nrows, ncols = lay.frame_shape
+        return DetectorGeometry(nrows, ncols, self.nchannels, RefBorder(**sides), self.scan,
+                                self.pixel_rate, self.channels, self.first_corner,
+                                self.fast_axis, self.preset, channel_border=per_channel,
+                                stored=self)
 
     def _parse_scan(self, scan):
         if isinstance(scan, str):
@@ -182,9 +244,27 @@ class DetectorGeometry:
 
     # -- derived quantities -------------------------------------------------
     @property
+    def frame(self):
+        """The readout frame's geometry: ``self`` when channels are columns (or ``self``
+        is a frame), else the frame's geometry, whose `stored` is ``self`` (its layout
+        fields say which layout it is the frame of)."""
+        return self._frame
+
+    @property
+    def stored_geometry(self):
+        """The geometry of the stored image: `stored` for a readout frame, else ``self``."""
+        return self if self.stored is None else self.stored
+
+    @property
+    def layout(self):
+        """The `~spherex_reduce.core.channel_layout.ChannelLayout` between the stored
+        image and the readout frame."""
+        return self.stored_geometry._layout
+
+    @property
     def channel_width(self):
-        """Columns per channel."""
-        return self.ncols // self.nchannels
+        """Columns per channel of the readout frame."""
+        return self._frame.ncols // self.nchannels
 
     @property
     def border(self):
@@ -254,10 +334,14 @@ class DetectorGeometry:
         return np.where(reverse, width - 1 - j, j)
 
     def reference_column_mask(self):
-        """True for the side reference columns: ``left`` from column 0, ``right`` at the end."""
+        """True for the reference columns: ``left`` from column 0, ``right`` at the end, and
+        `channel_border` at the start and end of every channel."""
         mask = np.zeros(self.ncols, dtype=bool)
         mask[:self._border.left] = True
         mask[self.ncols - self._border.right:] = True
+        start, end = self.channel_border
+        within = np.arange(self.ncols) % (self.ncols // self.nchannels)
+        mask |= (within < start) | (within >= self.ncols // self.nchannels - end)
         return mask
 
     def reference_pixel_mask(self):
@@ -271,18 +355,42 @@ class DetectorGeometry:
         >>> int(m.sum()), bool(m[0, 5]), bool(m[5, 0]), bool(m[5, 5])
         (22, True, True, False)
         """
+        if self._frame is not self:  # the frame's mask, in the stored orientation
+            return self._layout.to_stored(self._frame.reference_pixel_mask())
         mask = np.zeros((self.nrows, self.ncols), dtype=bool)
         mask[self.reference_rows] = True
         mask[:, self.reference_column_mask()] = True
         return mask
 
     def to_dict(self):
-        """The constructor arguments, as plain Python values."""
+        """The constructor arguments of the stored image's geometry, as plain Python values
+        (a readout `frame` gives those of its `stored`)."""
+        if self.stored is not None:
+            return self.stored.to_dict()
         values = {f.name: getattr(self, f.name) for f in section_fields("geometry")}
         values["ref_border"] = self._border.to_value()
         if not isinstance(self.scan, str):
             values["scan"] = list(self.scan)
         return values
+
+    @classmethod
+    def from_preset(cls, preset, **overrides):
+        """The geometry of a named layout (`~spherex_reduce.core.presets.PRESETS`), some of
+        its values overridden.
+
+        Raises
+        ------
+        ValueError
+            An unknown preset (naming the known ones) or an invalid value.
+
+        Examples
+        --------
+        >>> from spherex_reduce import DetectorGeometry
+        >>> g = DetectorGeometry.from_preset("WFC3-IR")
+        >>> g.channels, g.frame.nrows, g.frame.ncols, g.frame.channel_border
+        ('quadrants', 512, 2048, (5, 0))
+        """
+        return cls(**apply_preset({**overrides, "preset": preset}))
 
     @classmethod
     def from_scan_label(cls, label, **kwargs):

@@ -166,6 +166,7 @@ class ReadoutSchedule(StoredFrameTimes):
         if not isinstance(self.geometry, DetectorGeometry):
             raise ValueError(f"geometry must be a DetectorGeometry, got "
                              f"{type(self.geometry).__name__}")
+        set_(self, "geometry", self.geometry.frame)  # the readout frame (channel_layout)
         for f in section_fields("readout"):
             if not f.nullable:  # frame_overhead, frame_time: see _set_frame_timing
                 set_(self, f.name, check_field(f, getattr(self, f.name)))
@@ -419,7 +420,7 @@ class ReadoutSchedule(StoredFrameTimes):
     def to_header(self, header=None):
         """Write the readout keywords into ``header`` (a copy; a new one if None)."""
         h = fits.Header() if header is None else header.copy()
-        g = self.geometry
+        g = self.geometry.stored_geometry  # the stored image's fields
         window = {} if g.window is None else g.window.fields()
         for f in FIELDS:
             value = (window.get(f.name) if f.section == "window"
@@ -514,10 +515,10 @@ class ReadoutSchedule(StoredFrameTimes):
                 f"keyword TFRAME={values['frame_time']} disagrees with the frame time "
                 f"{sched.frame_time.to_value(u.s)} s implied by FRMOVH and the read order")
         if ("CHANW" in header
-                and header_keyword(header, "CHANW", int, 1) != geometry.channel_width):
+                and header_keyword(header, "CHANW", int, 1) != sched.geometry.channel_width):
             raise FormatError(
                 f"keyword CHANW={header['CHANW']} disagrees with NCOLS/NCHAN="
-                f"{geometry.channel_width}")
+                f"{sched.geometry.channel_width}")
         return sched
 
     def check_table(self, table):

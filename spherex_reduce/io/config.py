@@ -5,6 +5,7 @@ Errors name the YAML path of the offending entry.
 """
 
 import importlib.resources
+from collections.abc import Mapping
 from pathlib import Path
 
 import yaml
@@ -13,6 +14,7 @@ from ..core.errors import ConfigError, ResourceError
 from ..core.fields import section_fields
 from ..core.geometry import DetectorGeometry
 from ..core.parameters import validate_parameters
+from ..core.presets import apply_preset
 from ..core.schedule import ReadoutSchedule
 from ..core.window import fill_window_geometry
 
@@ -268,12 +270,38 @@ def load_yaml(source, what="config"):
 
 
 def section_values(config, name, declared):
-    """Validated values of section ``name`` (only the keys present, no defaults)."""
+    """Validated values of section ``name`` (only the keys present, no defaults); for
+    ``geometry``, with those of its ``preset`` (`geometry_section`)."""
     section = config.get(name)
     if section is None:
         return {}
+    if name == "geometry":
+        section = geometry_section(section)
     full = validate_parameters(section, declared, name)
     return {k: v for k, v in full.items() if k in section}
+
+
+def geometry_section(section):
+    """A ``geometry:`` mapping with the values of its ``preset`` filled in (keys given
+    win; `~spherex_reduce.core.presets.apply_preset`).
+
+    Raises
+    ------
+    ConfigError
+        An unknown preset, naming the known ones.
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.config import geometry_section
+    >>> geometry_section({"preset": "SIDECAR-science"})["channels"]
+    'rows'
+    """
+    if not isinstance(section, Mapping) or "preset" not in section:
+        return section
+    try:
+        return apply_preset(section)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
 
 
 def schedule_from_config(geometry=None, readout=None, window=None):
@@ -292,7 +320,7 @@ def schedule_from_config(geometry=None, readout=None, window=None):
     >>> s.n_reads, s.skip
     (64, 8)
     """
-    g = validate_parameters(geometry, GEOMETRY_PARAMETERS, "geometry")
+    g = validate_parameters(geometry_section(geometry), GEOMETRY_PARAMETERS, "geometry")
     r = validate_parameters(readout, READOUT_PARAMETERS, "readout")
     try:
         if window:

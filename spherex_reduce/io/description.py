@@ -17,6 +17,7 @@ from astropy import units as u
 from astropy.io import fits
 from astropy.table import Table
 
+from ..core.channel_layout import check_stored_order
 from ..core.errors import FormatError
 from ..core.exposure import expected_shape
 from ..core.fields import header_keyword
@@ -27,8 +28,18 @@ from .layout import PROVENANCE_COLUMNS, RESERVED, integration_shape
 
 log = logging.getLogger(__name__)
 
-__all__ = ["FileDescription", "check_integrations", "check_provenance", "check_shape", "describe",
-           "file_tables", "image_shape", "note_bad_checksums", "sci_hdu"]
+__all__ = [
+    "FileDescription",
+    "check_integrations",
+    "check_provenance",
+    "check_shape",
+    "describe",
+    "file_tables",
+    "image_shape",
+    "note_bad_checksums",
+    "readout_shape",
+    "sci_hdu",
+]
 
 
 @dataclass(frozen=True, eq=False)
@@ -44,7 +55,8 @@ class FileDescription:
     sci : HDU
         The HDU holding the pixels.
     shape : tuple of int
-        The pixels' shape (of one integration for a 4-D ``SCI``).
+        The pixels' shape (of one integration for a 4-D ``SCI``) in the readout
+        frame (`readout_shape`: the file's own for ``channels: columns``).
     schedule : `~spherex_reduce.ReadoutSchedule`
         The file's schedule.
     order : str
@@ -158,6 +170,7 @@ def describe(hdul, path, supplied, bad=(), options=None, decided=(), integration
     order = header_keyword(header, "ORDER", str, default="READOUT").strip().lower()
     if order not in ("readout", "physical"):
         raise FormatError(f"keyword ORDER must be READOUT or PHYSICAL, got {order!r}")
+    shape = readout_shape(shape, schedule, order, path)
     check_shape(shape, schedule, order, "SCI")
     if "PHANTOM" in names:
         pshape = tuple(hdul["PHANTOM"].shape)
@@ -184,6 +197,33 @@ def describe(hdul, path, supplied, bad=(), options=None, decided=(), integration
         header["SXRINT"] = (integration, "integration of the input's 4-D SCI (from 0)")
     return FileDescription(names, header, sci, shape, schedule, order, unit, kept, drop, gain,
                            tuple(notes))
+
+
+def readout_shape(shape, schedule, order, path):
+    """The shape, in the readout frame, of pixels stored as ``shape`` (the file's ``SCI``).
+
+    For ``channels: columns`` the two are the same.  Otherwise the last two
+    axes must be the stored image's ``(NROWS, NCOLS)`` and become the readout
+    frame's (`~spherex_reduce.core.channel_layout.ChannelLayout`); ramps in
+    readout order must then read every row once, in order.
+
+    Raises
+    ------
+    FormatError
+        Naming the layout and the shapes, or what the schedule reads.
+    """
+    layout = schedule.geometry.layout
+    if layout.identity or len(shape) < 2:
+        return shape
+    try:
+        check_stored_order(schedule, order)
+    except ValueError as exc:
+        raise FormatError(f"{path}: {exc}") from None
+    if tuple(shape[-2:]) != (layout.nrows, layout.ncols):
+        raise FormatError(
+            f"{path}: SCI has shape {shape} but the header keywords give a stored image of "
+            f"{layout.nrows} x {layout.ncols} (NROWS, NCOLS; CHANLAY {layout.channels})")
+    return (*shape[:-2], *layout.frame_shape)
 
 
 def check_integrations(hdul, path):

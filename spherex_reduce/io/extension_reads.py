@@ -246,8 +246,9 @@ class ExtensionReads(ImageRamp):
         drop, self.schedule = options.frames(self.header, self.schedule, True, path)
         self._shape, plain = tuple(d.shape), stable is not None
         self._dq_bits = foreign_bits(options.dq_bits)
-        self._images = [FrameImage(h, path, plain, _read_flags(hdul, v, d.shape, path, stable))
-                        for _, v, h in reads[drop:]]
+        layout = d.schedule.geometry.layout  # flags and rows: to the readout frame
+        self._images = [FrameImage(h, path, plain, layout.to_readout(_read_flags(
+            hdul, v, image_shape(h), path, stable)), layout) for _, v, h in reads[drop:]]
         self._dtype = np.result_type(*(FLOAT_FOR[h.header["BITPIX"]] for _, _, h in reads))
         self.tables, self.phantom = file_tables(hdul, path), None
         if all(f.mapped for f in self._images):  # rows come from each image's descriptor

@@ -368,8 +368,18 @@ def _exposure(hdul, path, bad, stable, supplied, dq_bits, options, integration):
         index = integration if integration is not None and len(image_shape(hdu)) == 4 else None
         return physical(hdu, path, stable, flags, index)
 
-    data = physical(d.sci, path, stable, index=integration)
-    err, mask, phantom = image("ERR"), image("DQ", flags=True), image("PHANTOM")
+    layout = d.schedule.geometry.layout  # the stored image to the readout frame
+
+    def frame(values, name):
+        try:
+            return layout.to_readout(values)
+        except ValueError as exc:
+            raise FormatError(f"{path}: {name}: {exc} (NROWS, NCOLS; CHANLAY "
+                              f"{layout.channels})") from None
+
+    data = frame(physical(d.sci, path, stable, index=integration), "SCI")
+    err, mask = frame(image("ERR"), "ERR"), frame(image("DQ", flags=True), "DQ")
+    phantom = image("PHANTOM")
     bits = foreign_bits(dq_bits)  # checked even if unused
     if mask is not None:  # a DQ from other software: its bits are not ours
         bits = None if is_own_file(names) else bits

@@ -23,6 +23,7 @@ from astropy.io.fits.verify import VerifyWarning
 from astropy.nddata import StdDevUncertainty
 from astropy.table import Table
 
+from ..core.channel_layout import check_stored_order
 from .atomic import atomic_output
 from .fits_structure import _BLOCK, _checksum_text, _DataSum
 from .header_text import header_text
@@ -123,15 +124,16 @@ def write(exposure, path, overwrite=False, images=None):
     """
     path = Path(path)
     unit = exposure.unit or u.dimensionless_unscaled
-    hdus = [_image(exposure.data.data, "SCI", unit)]
+    layout = _stored_layout(exposure.schedule, exposure.order)
+    hdus = [_image(layout.to_stored(exposure.data.data), "SCI", unit)]
     unc = exposure.data.uncertainty
     if unc is not None:
         if not isinstance(unc, StdDevUncertainty):  # (converting costs two passes)
             unc = unc.represent_as(StdDevUncertainty)
-        hdus.append(_image(unc.array, "ERR", unit))
+        hdus.append(_image(layout.to_stored(unc.array), "ERR", unit))
     dq = exposure.dq
-    if dq is not None:
-        hdus.append(_image(dq.astype(np.int32), "DQ"))  # unsigned would need BZERO: no memmap
+    if dq is not None:  # int32: unsigned would need BZERO, no memmap
+        hdus.append(_image(layout.to_stored(dq.astype(np.int32)), "DQ"))
     if exposure.phantom is not None:
         hdus.append(_image(exposure.phantom, "PHANTOM", unit))
     hdus.append(_table_hdu(exposure.schedule.to_table(), "READOUT"))
@@ -148,6 +150,8 @@ def write(exposure, path, overwrite=False, images=None):
     taken = set(RESERVED)
     for name, array in (images or {}).items():
         values, extra_unit = _value_unit(array)
+        if np.shape(values)[-2:] == layout.frame_shape:  # an image of the array: stored
+            values = layout.to_stored(values)
         hdus.append(_image(values, _extra(name, taken, "image"), extra_unit))
     for name, table in exposure.tables.items():
         hdus.append(_table_hdu(table, _extra(name, taken, "table")))
@@ -155,6 +159,14 @@ def write(exposure, path, overwrite=False, images=None):
     with atomic_output(path, overwrite) as tmp:
         fits.HDUList(hdus).writeto(tmp, checksum=True)
     return path
+
+
+def _stored_layout(schedule, order):
+    """The `~spherex_reduce.core.channel_layout.ChannelLayout` pixels of ``schedule`` in
+    ``order`` are written with (checked: readout-order ramps of a layout that is not
+    ``columns`` must read each row once, in order)."""
+    check_stored_order(schedule, order)
+    return schedule.geometry.layout
 
 
 def _extra(name, taken, what):
@@ -232,16 +244,18 @@ def write_frames(frames, path, schedule, *, header=None, unit=u.electron, dtype=
         raise ValueError(f"dtype must be float32 or float64, got {dtype!r}")
     nframes, nreads = schedule.nframes, schedule.n_reads
     ncols, nchannels = schedule.geometry.ncols, schedule.geometry.nchannels
+    layout = _stored_layout(schedule, "readout")
+    image = (nreads, ncols) if layout.identity else (layout.nrows, layout.ncols)
     primary = _primary(schedule, header, "readout", unit, 2 + bool(schedule.phantom_reads))
     with out as tmp, open(tmp, "wb") as f, tempfile.TemporaryFile(dir=tmp.parent) as spill:
         f.write(_hdu_bytes(primary))
-        sci = _StreamedImage(f, "SCI", stored, (nframes, nreads, ncols), unit)
+        sci = _StreamedImage(f, "SCI", stored, (nframes, *image), unit)
         count = 0
         try:
             for count, (pixels, phantom) in enumerate(frames, 1):
                 if count > nframes:
                     raise ValueError(f"more frames than the schedule's {nframes}")
-                sci.write(_checked(pixels, (nreads, ncols), "pixels"))
+                sci.write(layout.to_stored(_checked(pixels, (nreads, ncols), "pixels")))
                 if schedule.phantom_reads:
                     raw = np.ascontiguousarray(_checked(phantom, (nreads, nchannels), "phantom"),
                                                dtype=stored)

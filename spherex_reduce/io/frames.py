@@ -9,7 +9,7 @@ from astropy.io import fits
 
 from ..core.errors import FormatError
 from ..core.exposure import Exposure
-from .description import describe, file_tables
+from .description import describe, file_tables, image_shape
 from .fits_read import Closing, exposure_from_hdul, open_fits
 from .input import InputOptions, apply_gain, apply_input
 from .pixels import FITS_DTYPES, FLOAT_FOR, physical, scaling, to_physical, unpacking
@@ -81,6 +81,8 @@ class FrameReader(RampReader):
                         or "ERR" in d.names:
                     raise FormatError(f"{path} is not a raw ramp file in readout order")
                 self._d = d
+                self._layout = d.schedule.geometry.layout
+                self._stored_shape = image_shape(d.sci)[1:]  # rows, columns as stored
                 self.schedule, self.header, self.unit = d.kept, d.header, d.unit
                 self._drop, self._gain = d.drop, d.gain
                 phantom = (np.asarray(physical(self._hdul["PHANTOM"], path, self._stable))
@@ -136,7 +138,7 @@ class FrameReader(RampReader):
         k += self._drop
         if self._map is None:  # compressed: astropy unpacks (and scales) the section
             with unpacking(self.path):
-                data = np.asarray(self._d.sci.section[k : k + 1])
+                data = self._layout.to_readout(np.asarray(self._d.sci.section[k : k + 1]))
             if data.dtype.kind in "iu":
                 data = data.astype(FLOAT_FOR[self._d.sci.header["BITPIX"]])
         else:  # explicit reads (`reads`), converted to native order or scaled
@@ -170,13 +172,48 @@ class FrameReader(RampReader):
         threads may read at once.  The executor's bands use it for files
         `readable_in_bands`; `frame` for any file stored as it is on disk.
 
+        A layout whose channels are not columns reads what holds the band
+        (`~spherex_reduce.core.channel_layout.ChannelLayout.stored_rows_of`):
+        for quadrants read along rows, two runs of ``stop - first`` rows; for
+        ``rows`` (quadrants read along columns), columns ``first:stop`` (two
+        runs of ``stop - first`` columns) of every stored row, one ``pread``
+        a row and run: the file's bytes once, in many small reads.
+
         Returns
         -------
         `numpy.ndarray`
-            ``(stop - first, columns)``, possibly big-endian.
+            ``(stop - first, columns)`` of the readout frame, possibly big-endian.
         """
+        if self._layout.identity:
+            return self._stored_rows(k, first, stop)
+        rows, (at, column) = self._layout.stored_rows_of(first, stop)
+        columns = np.unique(column)
+        if columns.size <= self._stored_shape[1] // 4 and hasattr(os, "preadv"):
+            part = self._stored_columns(k, rows, _runs(columns))  # a few columns of each row
+            return part[at, np.searchsorted(columns, column)]
+        return np.concatenate([self._stored_rows(k, r[0], r[-1] + 1) for r in _runs(rows)])[
+            at, column]
+
+    def _stored_columns(self, k, rows, runs):
+        """The columns of ``runs`` (runs of consecutive columns) of stored rows ``rows`` of
+        frame ``k``, side by side: one ``pread`` a row and run."""
+        _, offset, dtype, fd = self._map
+        nrows, ncols = self._stored_shape
+        base = offset + (k + self._drop) * nrows * ncols * dtype.itemsize
+        buf = np.empty((rows.size, sum(run.size for run in runs)), dtype)
+        for i, r in enumerate(rows):
+            at = 0
+            for run in runs:
+                pread_into(fd, buf[i, at:at + run.size],
+                           base + (int(r) * ncols + int(run[0])) * dtype.itemsize,
+                           f"{self.path}: the file ends inside frame {k}")
+                at += run.size
+        return buf
+
+    def _stored_rows(self, k, first, stop):
+        """Rows ``first:stop`` of the stored image of frame ``k`` (a copy, as in the file)."""
         mm, offset, dtype, fd = self._map
-        nreads, ncols = self._d.shape[1:]
+        nreads, ncols = self._stored_shape
         k += self._drop
         pos = offset + (k * nreads + first) * ncols * dtype.itemsize
         if not hasattr(os, "preadv"):  # (Windows) from the map, then release its pages
@@ -195,6 +232,11 @@ class FrameReader(RampReader):
         length = (start + nbytes - page) // mmap.PAGESIZE * mmap.PAGESIZE
         if length:
             mm.madvise(mmap.MADV_DONTNEED, page, length)
+
+
+def _runs(values):
+    """Sorted unique integers split into runs of consecutive values."""
+    return np.split(values, np.flatnonzero(np.diff(values) != 1) + 1)
 
 
 def map_frames(hdu, path):

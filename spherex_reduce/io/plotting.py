@@ -9,8 +9,8 @@ from matplotlib.figure import Figure
 
 from . import atomic_output
 
-__all__ = ["bin_image", "plot_image", "plot_images", "plot_read_order", "save_figure",
-           "unit_label"]
+__all__ = ["bin_image", "plot_channel_layout", "plot_image", "plot_images", "plot_read_order",
+           "save_figure", "unit_label"]
 
 
 def save_figure(fig, path, overwrite=False, dpi=120):
@@ -25,8 +25,10 @@ def plot_read_order(schedule, max_rows=48):
 
     Left: each physical row (down the page) with its read number and arrows
     from read to read, for the first ``max_rows`` rows (all of a small array).
-    Right: physical row against read number for the whole frame, reference
-    reads in red.
+    Middle: physical row against read number for the whole frame, reference
+    reads in red.  Right: the stored image's channels (`plot_channel_layout`).
+    Rows are those of the readout frame (the stored image's own when the
+    channels are columns).
 
     Parameters
     ----------
@@ -45,13 +47,13 @@ def plot_read_order(schedule, max_rows=48):
     >>> fig = plot_read_order(ReadoutSchedule(DetectorGeometry(24, 8, 1, ref_border=2),
     ...                                       skip=4, ref_reads=4))
     >>> len(fig.axes)
-    2
+    3
     """
     rows, is_ref = schedule.rows, schedule.is_reference
     nrows = schedule.geometry.nrows
     shown = min(nrows, max_rows)
-    fig = Figure(figsize=(11, 6.4), layout="constrained")
-    ax, ax2 = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1, 1.4]})
+    fig = Figure(figsize=(16, 6.4), layout="constrained")
+    ax, ax2, ax3 = fig.subplots(1, 3, gridspec_kw={"width_ratios": [1, 1.4, 1.3]})
     # left: Fig. 3 style. One column per chopping pass (pass k reads active rows
     # k, k+S, ...), reference reads in the first column; arrows join consecutive reads.
     g = schedule.geometry
@@ -106,9 +108,100 @@ def plot_read_order(schedule, max_rows=48):
     ax2.set_title(f"S={schedule.skip}, r={schedule.ref_reads} ({schedule.ref_mode}), "
                   f"c={schedule.phantom_reads}: {schedule.n_reads} reads, frame "
                   f"{schedule.frame_time.value:.4g} s", fontsize=9)
+    if not g.layout.identity:
+        for a in (ax, ax2):
+            a.set_ylabel("row of the readout frame")
     if g.window is not None:
         _draw_window(ax2, g)
+    _draw_channels(ax3, g.stored_geometry)
     return fig
+
+
+def plot_channel_layout(geometry):
+    """Draw where each output channel lies on the stored image.
+
+    Each channel's rectangle (numbered), its fast-scan direction (an arrow
+    along the first row it reads) and its first-read pixel (a dot); the
+    reference border shaded.  Row 0 is at the top, as in the read-order
+    panels; axes in pixels of the stored image.
+
+    Parameters
+    ----------
+    geometry : `~spherex_reduce.DetectorGeometry`
+        The stored image's geometry (a readout frame draws its `stored`).
+
+    Returns
+    -------
+    `matplotlib.figure.Figure`
+
+    Examples
+    --------
+    >>> from spherex_reduce import DetectorGeometry
+    >>> from spherex_reduce.io.plotting import plot_channel_layout
+    >>> fig = plot_channel_layout(DetectorGeometry.from_preset("WFC3-IR"))
+    >>> len(fig.axes[0].patches)  # 4 reference strips, 4 channels
+    8
+    """
+    fig = Figure(figsize=(6, 6.6), layout="constrained")
+    _draw_channels(fig.subplots(), geometry.stored_geometry)
+    return fig
+
+
+def _draw_channels(ax, g):
+    """The channel-layout panel of `plot_read_order` and `plot_channel_layout` on ``ax``."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch, Rectangle
+
+    frame, lay = g.frame, g.layout
+    size = max(g.nrows, g.ncols)
+    seen = 0.012 * size  # narrower strips are drawn this wide, to be seen
+    top, bottom, left, right = (0 if w == 0 else max(w, seen) for w in g.border.sides().values())
+    for x, y, w, h in ((0, 0, g.ncols, top), (0, g.nrows - bottom, g.ncols, bottom),
+                       (0, 0, left, g.nrows), (g.ncols - right, 0, right, g.nrows)):
+        if w and h:
+            ax.add_patch(Rectangle((x - 0.5, y - 0.5), w, h, color="0.8", lw=0, zorder=1))
+    exaggerated = any(0 < w < seen for w in g.border.sides().values())
+    width, last = frame.channel_width, frame.nrows - 1
+    numbered = g.nchannels <= 8  # more would crowd: the channels count from the left
+    head = 0.35 * min(g.nrows, g.ncols) / max(np.sqrt(g.nchannels), 1) / 4
+    for ch, direction in enumerate(frame.scan_directions):
+        lo, hi = ch * width, (ch + 1) * width - 1
+        rows, cols = lay.stored_coordinates(np.array([0, 0, last, last]),
+                                            np.array([lo, hi, lo, hi]))
+        ax.add_patch(Rectangle((cols.min() - 0.5, rows.min() - 0.5), np.ptp(cols) + 1,
+                               np.ptp(rows) + 1, fill=False, ec="tab:blue", lw=1.2,
+                               zorder=2))
+        start, end = (lo, hi) if direction > 0 else (hi, lo)
+        (r0, r1), (c0, c1) = lay.stored_coordinates(np.array([0, 0]), np.array([start, end]))
+        ax.annotate("", xy=(c1, r1), xytext=(c0, r0), zorder=4,
+                    arrowprops={"arrowstyle": f"-|>,head_length={min(head, 0.6):.2f},"
+                                              f"head_width={min(head, 0.6) / 2:.2f}",
+                                "color": "tab:orange", "lw": 1.4})
+        ax.plot([c0], [r0], "o", color="tab:red", ms=5 if numbered else 3, zorder=5,
+                clip_on=False)
+        if numbered:
+            ax.text(cols.mean(), rows.mean(), str(ch), ha="center", va="center",
+                    fontsize=11, color="tab:blue", zorder=3)
+    pad = 0.04 * size
+    ax.set_xlim(-0.5 - pad, g.ncols - 0.5 + pad)
+    ax.set_ylim(g.nrows - 0.5 + pad, -0.5 - pad)
+    ax.set_aspect("equal")
+    ax.set_xlabel("column (pixel)")
+    ax.set_ylabel("row (pixel)")
+    named = f"{g.preset}: " if g.preset else ""
+    how = {"columns": "stripes of columns", "rows": "bands of rows, read along the columns",
+           "quadrants": f"quadrants from the {g.first_corner} corner, along {g.fast_axis}"}
+    ax.set_title(f"{named}stored image {g.nrows} x {g.ncols}, {g.nchannels} channels\n"
+                 f"{how[g.channels]}", fontsize=9)
+    handles = [Patch(fc="none", ec="tab:blue", label="channel (number)" if numbered
+                     else "channel"),
+               Line2D([], [], color="tab:orange", marker=">", label="fast-scan direction"),
+               Line2D([], [], color="tab:red", marker="o", ls="none",
+                      label="first pixel read"),
+               Patch(color="0.8", label="reference border" + (" (drawn wider)"
+                                                               if exaggerated else ""))]
+    ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=2,
+              fontsize=8, frameon=False)
 
 
 def _draw_window(ax, geometry):

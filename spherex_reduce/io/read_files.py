@@ -17,10 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.channel_layout import ChannelLayout
 from ..core.errors import FormatError
 from ..core.exposure import Exposure
 from ..core.limits import check_count, check_size
-from .description import describe, file_tables
+from .description import describe, file_tables, image_shape
 from .fits_read import open_fits
 from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq
 from .frames import RampReader, map_frames
@@ -195,12 +196,15 @@ class _ReadFile:
                 sci = self.d.sci
                 #: the read's flags as stored (2-D, of the image's shape), or None
                 self.dq = None
+                self.layout = self.d.schedule.geometry.layout
+                self.stored_shape = image_shape(sci)  # the image as stored: rows, columns
                 if "DQ" in self.d.names:
                     self.dq = np.array(physical(self.hdul["DQ"], path, stable, flags=True))
-                    if self.dq.shape != tuple(self.d.shape):
+                    if self.dq.shape != self.stored_shape:
                         raise FormatError(f"{path}: DQ has shape {self.dq.shape}, SCI "
-                                          f"{tuple(self.d.shape)}: a read's flags are one "
+                                          f"{self.stored_shape}: a read's flags are one "
                                           "value per pixel of its image")
+                    self.dq = self.layout.to_readout(self.dq)
                 self.own = is_own_file(self.d.names)
                 self.bitpix = sci.header["BITPIX"]
                 self.phantom = None
@@ -211,7 +215,7 @@ class _ReadFile:
                         self.phantom = self.phantom.astype(FLOAT_FOR[hdu.header["BITPIX"]])
                 #: the file's tables (only if asked: the first file's are the exposure's)
                 self.tables = file_tables(self.hdul, path) if tables else {}
-                self.image = FrameImage(sci, path, self.plain, self.dq)
+                self.image = FrameImage(sci, path, self.plain, self.dq, self.layout)
                 if self.image.mapped:  # its rows are read from the image's own descriptor
                     self.hdul.close()
         except Exception:
@@ -241,11 +245,15 @@ class FrameImage:
         The file is plain FITS on disk: rows are read with ``pread`` from a
         descriptor of the image's own (else astropy unpacks them).
     dq : `numpy.ndarray` or None
-        The frame's flags as stored (2-D, of the image's shape), or None.
+        The frame's flags in the readout frame (2-D), or None.
+    layout : `~spherex_reduce.core.channel_layout.ChannelLayout`, optional
+        How the image's channels lie (`rows` gives the readout frame's rows);
+        None: stripes of columns, the image is the readout frame.
     """
 
-    def __init__(self, hdu, path, plain, dq=None):
+    def __init__(self, hdu, path, plain, dq=None, layout=None):
         self.hdu, self.path, self.dq = hdu, path, dq
+        self.layout = ChannelLayout(*image_shape(hdu)) if layout is None else layout
         self.scale = scaling(hdu, path)
         self._map = map_frames(hdu, path) if plain and hasattr(os, "preadv") else None
         if self._map is not None:  # read with pread from one descriptor per image
@@ -259,7 +267,17 @@ class FrameImage:
         return self._map is not None
 
     def rows(self, first, stop, dtype):
-        """Rows ``first:stop`` of the image as ``dtype`` (physical values, native order)."""
+        """Rows ``first:stop`` of the readout frame as ``dtype`` (physical values, native
+        order): of the image itself for ``channels: columns``, else gathered from the
+        stored rows that hold them (as `~spherex_reduce.io.FrameReader.reads`)."""
+        if self.layout.identity:
+            return self._stored_rows(first, stop, dtype)
+        rows, take = self.layout.stored_rows_of(first, stop)
+        runs = np.split(rows, np.flatnonzero(np.diff(rows) != 1) + 1)
+        return np.concatenate([self._stored_rows(r[0], r[-1] + 1, dtype) for r in runs])[take]
+
+    def _stored_rows(self, first, stop, dtype):
+        """Rows ``first:stop`` of the image as stored, as ``dtype``."""
         ncols = self.hdu.header["NAXIS1"]
         if self._map is None:  # compressed: astropy unpacks (and scales) the section
             # (the file is kept open; also without pread, e.g. on Windows)
@@ -441,8 +459,9 @@ class ReadFiles(ImageRamp):
                 self._check_like_first(self._files[-1])
             first = self._files[0]
             if dq is not None:  # one mask file: its plane of each read joins the read's DQ
-                planes = read_mask(dq, len(paths), first.d.shape, verify_checksum)
-                for f, plane in zip(self._files, planes, strict=True):
+                planes = read_mask(dq, len(paths), first.stored_shape, verify_checksum)
+                for f, stored in zip(self._files, planes, strict=True):
+                    plane = first.layout.to_readout(stored)
                     f.image.dq = plane if f.image.dq is None else f.image.dq | plane
             self.schedule = first.d.schedule.replace(nframes=len(paths))
             self.order, self.unit = first.d.order, first.d.unit

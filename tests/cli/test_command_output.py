@@ -98,7 +98,7 @@ def test_readout_help_describes_every_option_with_its_default(capsys):
     text = " ".join(capsys.readouterr().out.split())  # unwrap argparse's lines
     declared = {p.name: p for p in (*GEOMETRY_PARAMETERS, *READOUT_PARAMETERS,
                                     *WINDOW_PARAMETERS)}
-    assert len(OPTIONS) == 25
+    assert len(OPTIONS) == 29  # one per field (4 of them the channel layout and preset)
     for flag, _, key, _ in OPTIONS:
         p = declared[key]
         after = text.split(f"{flag} {key.upper()} ", 1)[1]

@@ -91,7 +91,7 @@ def test_every_command_of_the_guide_runs_as_written(tmp_path, monkeypatch, capsy
     (tmp_path / "darks").mkdir()
     for name in ("dark01.fits", "dark02.fits"):
         shutil.copy(tmp_path / "lab.fits", tmp_path / "darks" / name)
-    commands = [c for c in _commands(text)  # those below have their own tests
+    commands = [c for c in _commands(_without(text, LAYOUTS))  # those below: their own tests
                 if not _window_command(c) and not any(own in c for own in OWN_TEST)]
     commands.sort(key=lambda c: "-o lab_slopes.fits" not in c)  # read by a later one
     assert len(commands) >= 6, commands
@@ -124,6 +124,69 @@ def test_every_command_of_the_guide_runs_as_written(tmp_path, monkeypatch, capsy
     # the folder: one output each and the summary
     assert sorted(p.name for p in (tmp_path / "reduced").iterdir()) == [
         "dark01_reduced.fits", "dark02_reduced.fits", "summary.ecsv"]
+
+
+LAYOUTS = "Other readout layouts"
+#: Each layout's file of the section: (YAML, input, stored shape, channel of each pixel,
+#: reference pixels), written from the section's own words.
+N_READS, T_NIRSPEC, T_WFC3, T_H4RG = 5, 10.737, 2.93, 3.04
+
+
+def _section(text, title):
+    start = text.index(f"{title}\n{'=' * len(title)}")
+    following = re.search(r"\n\n([^\n]+)\n=+\n", text[start + 2 * len(title) + 2:])
+    return text[start:start + 2 * len(title) + 2 + following.start()]
+
+
+def _without(text, title):
+    return text.replace(_section(text, title), "")
+
+
+def _layout_files():
+    """The section's three darks by hand: channel of each stored pixel and the stored
+    reference pixels (each channel's mean of those is its offset in every read)."""
+    r, c = np.indices((64, 64))
+    nirspec = (r // 16, (c < 4) | (c >= 60), T_NIRSPEC)  # bands of rows; border left, right
+    r, c = np.indices((32, 32))
+    quadrant = (r // 16) * 2 + c // 16
+    edge = (r < 5) | (r >= 27) | (c < 5) | (c >= 27)  # 5 all round; side_columns: all used
+    wfc3 = (quadrant, edge, T_WFC3)
+    r, c = np.indices((128, 128))
+    h4rg = (c // 4, r < 4, T_H4RG)  # 32 stripes; reference rows on top (left: channel 0)
+    return {"nirspec_science": nirspec, "wfc3_quadrants": wfc3, "h4rg": h4rg}
+
+
+@pytest.mark.slow
+def test_other_readout_layouts_run_as_written(tmp_path, monkeypatch):
+    text = _section(GUIDE.read_text(), LAYOUTS)
+    monkeypatch.chdir(tmp_path)
+    rng = np.random.default_rng(7)
+    darks = {}
+    for name, (chan, ref, tframe) in _layout_files().items():
+        (tmp_path / f"{name}.yaml").write_text(_yaml_block(text, f"As YAML (``{name}.yaml``)"))
+        t = tframe * np.arange(N_READS)
+        offset = rng.normal(0, 30, (N_READS, chan.max() + 1))[:, chan]
+        slope = rng.uniform(0.5, 2.0, chan.shape)
+        data = 1000 + slope * t[:, None, None] + rng.normal(0, 1, (N_READS, *chan.shape))
+        data = np.where(ref, 1000.0, data) + offset  # reference pixels: the offsets alone
+        sci = fits.ImageHDU(data.astype("f8"), name="SCI")
+        sci.header["BUNIT"] = "ADU"
+        fits.HDUList([fits.PrimaryHDU(), sci]).writeto(f"{name}_dark.fits")
+        corrected = data.copy()
+        for ch in range(chan.max() + 1):  # the offset: the mean of its reference pixels
+            corrected[:, chan == ch] -= data[:, (chan == ch) & ref].mean(axis=1)[:, None]
+        fitted = np.polyfit(t, corrected.reshape(N_READS, -1), 1)[0].reshape(chan.shape)
+        darks[name] = (fitted, ref, (tmp_path / f"{name}_dark.fits").read_bytes())
+    commands = _commands(text)
+    assert len(commands) == 4, commands
+    for command in commands:
+        assert main(["-q", *shlex.split(command)[1:]]) == 0, command
+    for name, (fitted, ref, raw) in darks.items():
+        got = fits.getdata(f"{name}_slopes.fits", "SCI")
+        assert got.shape == fitted.shape  # the stored orientation
+        np.testing.assert_allclose(got[~ref], fitted[~ref], rtol=0, atol=1e-9)
+        assert (tmp_path / f"{name}_dark.fits").read_bytes() == raw
+    assert (tmp_path / "wfc3_quadrants.png").stat().st_size > 0
 
 
 def _expand(command, where):

@@ -50,7 +50,8 @@ BASE_GEOMETRY = {"nrows": 32, "ncols": 16, "nchannels": 2, "ref_border": 2}
 OTHER = {"nrows": 40, "ncols": 32, "nchannels": 4, "ref_border": 3, "scan": "alternate",
          "ref_mode": "repeated", "frame_overhead": 123, "frame_time": 0.05,
          "groups": [[0, 1], *([k] for k in range(3, 75)), [76, 77, 78]],  # 74 groups
-         "read_times": [3.0 * k + 0.25 * (k % 3) for k in range(74)]}  # uneven
+         "read_times": [3.0 * k + 0.25 * (k % 3) for k in range(74)],  # uneven
+         "preset": "H2RG"}
 
 
 #: The fields of a constructor (the window's: tests/core/test_window.py).
@@ -70,9 +71,16 @@ def other_value(field):
     raise AssertionError(f"add a non-default value of the new field {field.name!r} to OTHER")
 
 
+def base_geometry(name=None, value=None):
+    """The base geometry, on 4 quadrants when ``name`` is a field of quadrants only."""
+    if name in ("first_corner", "fast_axis") or (name, value) == ("channels", "quadrants"):
+        return {**BASE_GEOMETRY, "channels": "quadrants", "nchannels": 4}
+    return dict(BASE_GEOMETRY)
+
+
 def build(name=None, value=None):
     """A schedule on the base geometry with field ``name`` set to ``value``."""
-    geometry = dict(BASE_GEOMETRY)
+    geometry = base_geometry(name, value)
     readout = {}
     if name is not None:
         (geometry if FIELD[name].section == "geometry" else readout)[name] = value
@@ -120,8 +128,9 @@ def test_every_default_passes_its_own_checks():
 
 # -- the dataclasses -----------------------------------------------------------------------
 def test_dataclass_fields_are_the_table():
-    assert [f.name for f in dataclasses.fields(DetectorGeometry)] == ["window",
-                                                                       *names("geometry")]
+    fields = dataclasses.fields(DetectorGeometry)  # plus three keyword-only ones
+    assert [f.name for f in fields if not f.kw_only] == names("geometry")
+    assert [f.name for f in fields if f.kw_only] == ["window", "channel_border", "stored"]
     assert [f.name for f in dataclasses.fields(ReadoutSchedule)] == ["geometry",
                                                                       *names("readout")]
     for cls, section in ((DetectorGeometry, "geometry"), (ReadoutSchedule, "readout")):
@@ -202,6 +211,8 @@ def test_missing_keyword_is_required_or_supplied_or_defaulted(field):
     s = build(field.name, other_value(field))
     h = s.to_header()
     del h[field.keyword]
+    if field.name in ("channels", "first_corner", "fast_axis"):
+        del h["CHANW"]  # the channel width of that layout's readout frame, checked on read
     value = stored(getattr(holder(s, field), field.name))
     if field.name == "scan":
         value = s.geometry.scan_label if isinstance(s.geometry.scan, str) else list(value)
@@ -309,7 +320,7 @@ def test_readout_accepts_exactly_the_bounds(field, capsys):
 @pytest.mark.parametrize("field", CONSTRUCTED, ids=lambda f: f.name)
 def test_readout_option_sets_the_field(field):
     value = other_value(field)
-    args = [x for k, v in BASE_GEOMETRY.items() if k != field.name
+    args = [x for k, v in base_geometry(field.name, value).items() if k != field.name
             for x in ("--" + k.replace("_", "-"), v)]
     text = value if field.to_text is None else field.to_text(value)
     s = readout_cli.schedule_from_args(_parse("--" + field.name.replace("_", "-"), text, *args))

@@ -37,6 +37,38 @@ def test_read_order_labels_readable_and_legend_off_the_points():
         assert not inside.any(), line.get_label()
 
 
+@pytest.mark.parametrize(("geometry", "first_reads"), [
+    ({"nrows": 16, "ncols": 16, "nchannels": 2, "scan": "alternate"}, [(0, 0), (0, 15)]),
+    ({"nrows": 16, "ncols": 8, "nchannels": 2, "channels": "rows"}, [(0, 0), (8, 0)]),
+    ({"preset": "WFC3-IR"}, [(0, 0), (0, 1023), (1023, 0), (1023, 1023)]),
+    ({"nrows": 16, "ncols": 24, "nchannels": 4, "channels": "quadrants",
+      "first_corner": "inner", "fast_axis": "columns"}, [(7, 11), (7, 12), (8, 11), (8, 12)]),
+])
+def test_channel_layout_panel_marks_each_channels_first_read_pixel(geometry, first_reads):
+    from spherex_reduce import DetectorGeometry
+    from spherex_reduce.io.plotting import plot_channel_layout
+
+    g = (DetectorGeometry.from_preset(geometry["preset"]) if "preset" in geometry
+         else DetectorGeometry(ref_border=2, **geometry))
+    fig = plot_channel_layout(g)
+    ax = fig.axes[0]
+    dots = sorted((int(line.get_ydata()[0]), int(line.get_xdata()[0])) for line in ax.lines)
+    assert dots == sorted(first_reads)  # (row, column) written from each layout's definition
+    arrows = [t for t in ax.texts if getattr(t, "arrow_patch", None) is not None]
+    assert len(arrows) == g.nchannels
+    assert "pixel" in ax.get_xlabel() and "pixel" in ax.get_ylabel()
+    legend = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert any("fast-scan" in t for t in legend) and any("first pixel" in t for t in legend)
+    assert any("reference border" in t for t in legend)
+    renderer = drawn(fig)
+    labels = [t for t in ax.texts if t.get_text()] + [ax.title]
+    boxes = [t.get_window_extent(renderer) for t in labels]
+    boxes.append(ax.get_legend().get_window_extent(renderer))
+    for i, a in enumerate(boxes):
+        for b in boxes[i + 1:]:
+            assert not overlaps(a, b)
+
+
 def test_read_order_shows_a_window_inside_its_full_array():
     from matplotlib.patches import Rectangle
 

@@ -228,8 +228,9 @@ def _side_columns(exposure):
     """Side reference columns of the active rows ``(L, rows, ncols)``, NaN elsewhere, and the
     physical row of each of those rows.
 
-    Only the declared side columns: ``left`` of ``ref_border`` from column 0,
-    ``right`` at the end (`~spherex_reduce.DetectorGeometry.reference_column_mask`).
+    Only the declared reference columns: ``left`` of ``ref_border`` from column 0,
+    ``right`` at the end, and in a readout frame of quadrants those at the start or end
+    of every channel (`~spherex_reduce.DetectorGeometry.reference_column_mask`).
     """
     s = exposure.schedule
     g = s.geometry
@@ -388,7 +389,8 @@ class MeanReference(Strategy):
 
     def estimate(self, side, context, exposure=None):
         g = context.geometry
-        columns = _side_columns(exposure) if self.side_columns and g.border.columns else None
+        columns = (_side_columns(exposure)
+                   if self.side_columns and g.reference_column_mask().any() else None)
         reference, columns, found = without_telegraph(
             self, reference_pixels(side, context.schedule), side, context.schedule, columns)
         off, used, clipped = _offsets_of(g, reference, columns, acn=self.acn, sigma=self.sigma,

@@ -35,7 +35,7 @@ preset (the field keeps its default) and said so here and in the docs:
     (``channels: rows``).
 """
 
-__all__ = ["PRESETS", "apply_preset"]
+__all__ = ["FULL_ARRAY", "PRESETS", "apply_preset", "apply_window_preset"]
 
 _SIDECAR = {"nrows": 2048, "ncols": 2048, "nchannels": 4, "ref_border": 4,
             "scan": "alternate", "pixel_rate": 100_000.0}
@@ -86,3 +86,46 @@ def apply_preset(values):
         raise ValueError(f"geometry.preset {name!r} is not a known preset; known: "
                          f"{', '.join(PRESETS)}")
     return {**PRESETS[name], **values}
+
+
+#: With a ``window:``, a preset describes the full array the window lies in: these of
+#: its values fill the window's fields (keys given win), the others the geometry's.
+FULL_ARRAY = {"nrows": "full_nrows", "ncols": "full_ncols", "nchannels": "full_nchannels",
+              "scan": "full_scan", "ref_border": "full_ref_border"}
+
+
+def apply_window_preset(geometry, window):
+    """The ``geometry:`` and ``window:`` values of a window whose full array is a preset.
+
+    The preset's size, channels, scan and reference border are the full
+    array's (`FULL_ARRAY`: the window's ``full_*`` fields, unless given); its
+    other values (``pixel_rate``, ``channels``...) fill the geometry's, whose
+    ``nrows`` and ``ncols`` stay the window's.
+
+    Parameters
+    ----------
+    geometry, window : mapping
+        The sections as given; ``geometry['preset']`` names one of `PRESETS`.
+
+    Returns
+    -------
+    geometry, window : dict
+
+    Raises
+    ------
+    ValueError
+        An unknown preset, naming the known ones.
+
+    Examples
+    --------
+    >>> from spherex_reduce.core.presets import apply_window_preset
+    >>> g, w = apply_window_preset({"preset": "H4RG-10", "nrows": 64, "ncols": 64},
+    ...                            {"first_row": 0, "first_column": 0})
+    >>> g["nrows"], "nchannels" in g, w["full_nrows"], w["full_nchannels"], w["full_scan"]
+    (64, False, 4096, 32, 'alternate')
+    """
+    filled = apply_preset({"preset": geometry["preset"]})
+    window = {**{full: filled[key] for key, full in FULL_ARRAY.items() if key in filled},
+              **window}
+    geometry = {**{k: v for k, v in filled.items() if k not in FULL_ARRAY}, **geometry}
+    return geometry, window

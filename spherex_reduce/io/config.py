@@ -14,7 +14,7 @@ from ..core.errors import ConfigError, ResourceError
 from ..core.fields import section_fields
 from ..core.geometry import DetectorGeometry
 from ..core.parameters import validate_parameters
-from ..core.presets import apply_preset
+from ..core.presets import apply_preset, apply_window_preset
 from ..core.schedule import ReadoutSchedule
 from ..core.window import fill_window_geometry
 
@@ -271,19 +271,24 @@ def load_yaml(source, what="config"):
 
 def section_values(config, name, declared):
     """Validated values of section ``name`` (only the keys present, no defaults); for
-    ``geometry``, with those of its ``preset`` (`geometry_section`)."""
+    ``geometry`` and ``window``, with the values of the geometry's ``preset``
+    (`preset_sections`)."""
     section = config.get(name)
     if section is None:
         return {}
-    if name == "geometry":
-        section = geometry_section(section)
+    if name in ("geometry", "window"):
+        geometry, window = preset_sections(config.get("geometry"), config.get("window"))
+        section = geometry if name == "geometry" else window
     full = validate_parameters(section, declared, name)
     return {k: v for k, v in full.items() if k in section}
 
 
-def geometry_section(section):
-    """A ``geometry:`` mapping with the values of its ``preset`` filled in (keys given
-    win; `~spherex_reduce.core.presets.apply_preset`).
+def preset_sections(geometry, window=None):
+    """The ``geometry:`` and ``window:`` mappings with the values of the geometry's
+    ``preset`` filled in (keys given win): into the geometry
+    (`~spherex_reduce.core.presets.apply_preset`), or, with a window, the preset's
+    array into the window's ``full_*`` fields and the rest into the geometry
+    (`~spherex_reduce.core.presets.apply_window_preset`).
 
     Raises
     ------
@@ -292,14 +297,20 @@ def geometry_section(section):
 
     Examples
     --------
-    >>> from spherex_reduce.io.config import geometry_section
-    >>> geometry_section({"preset": "SIDECAR-science"})["channels"]
+    >>> from spherex_reduce.io.config import preset_sections
+    >>> preset_sections({"preset": "SIDECAR-science"})[0]["channels"]
     'rows'
+    >>> g, w = preset_sections({"preset": "H4RG-10", "nrows": 64, "ncols": 64},
+    ...                        {"first_row": 0, "first_column": 0})
+    >>> g["nrows"], w["full_ncols"]
+    (64, 4096)
     """
-    if not isinstance(section, Mapping) or "preset" not in section:
-        return section
+    if not isinstance(geometry, Mapping) or "preset" not in geometry:
+        return geometry, window
     try:
-        return apply_preset(section)
+        if isinstance(window, Mapping) and window:
+            return apply_window_preset(geometry, window)
+        return apply_preset(geometry), window
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
 
@@ -320,7 +331,8 @@ def schedule_from_config(geometry=None, readout=None, window=None):
     >>> s.n_reads, s.skip
     (64, 8)
     """
-    g = validate_parameters(geometry_section(geometry), GEOMETRY_PARAMETERS, "geometry")
+    geometry, window = preset_sections(geometry, window)
+    g = validate_parameters(geometry, GEOMETRY_PARAMETERS, "geometry")
     r = validate_parameters(readout, READOUT_PARAMETERS, "readout")
     try:
         if window:

@@ -189,3 +189,23 @@ def test_the_window_transcript_of_the_readout_docs(capsys):
     argv = lines[at].split("$ spherex-reduce ", 1)[1].split()
     assert main(argv) == 0
     assert capsys.readouterr().out.splitlines() == [x.strip() for x in lines[at + 1:at + 3]]
+
+
+def test_a_preset_names_the_full_array_a_window_lies_in(tmp_path):
+    """``geometry: {preset: H4RG-10}`` with a ``window:``: the preset is the 4096² array of
+    32 alternate-scan outputs the window lies in (it used to be ignored by the schedule
+    and, in a pipeline, refused as disagreeing with the window's one channel)."""
+    geometry = {"preset": "H4RG-10", "nrows": 16, "ncols": 16, "pixel_rate": 2e5}
+    window = {"first_row": 0, "first_column": 128 + 100}  # inside output 1, read leftward
+    readout = {"frame_time": 3.04, "skip": 1, "ref_mode": "none", "phantom_reads": 0,
+               "row_overhead": 0, "nframes": 3}
+    s = schedule_from_config(geometry, readout, window)
+    check_times(s, 0, 228, hand_schedule(4096, 4096, 32, "alternate", (4, 4), 1, 0, 0))
+    assert s.geometry.border.sides() == {"top": 4, "bottom": 0, "left": 0, "right": 0}
+    config = {"geometry": geometry, "window": window, "readout": readout,
+              "steps": [{"unchop": {}}, {"fit_ramp": {}}]}
+    from spherex_reduce import Pipeline
+    p = Pipeline(config)
+    assert p.supplied()["full_nchannels"] == 32 and "nchannels" not in p.supplied()
+    with pytest.raises(ConfigError, match="not a known preset"):
+        schedule_from_config({**geometry, "preset": "H5RG"}, readout, window)

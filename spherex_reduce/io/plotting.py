@@ -7,6 +7,7 @@ needed) and saved atomically with :func:`save_figure`.
 import numpy as np
 from matplotlib.figure import Figure
 
+from ..core._text import plural
 from . import atomic_output
 
 __all__ = ["bin_image", "plot_channel_layout", "plot_image", "plot_images", "plot_read_order",
@@ -105,7 +106,9 @@ def plot_read_order(schedule, max_rows=48):
     # outside the axes: inside it would cover reads, which fill the whole frame
     ax2.legend(loc="lower center", bbox_to_anchor=(0.5, 1.08), ncol=2, fontsize=8,
                frameon=False)
-    ax2.set_title(f"S={schedule.skip}, r={schedule.ref_reads} ({schedule.ref_mode}), "
+    refs = ("reference rows once" if schedule.ref_mode == "none"
+            else f"r={schedule.ref_reads} ({schedule.ref_mode})")
+    ax2.set_title(f"S={schedule.skip}, {refs}, "
                   f"c={schedule.phantom_reads}: {schedule.n_reads} reads, frame "
                   f"{schedule.frame_time.value:.4g} s", fontsize=9)
     if not g.layout.identity:
@@ -191,7 +194,7 @@ def _draw_channels(ax, g):
     named = f"{g.preset}: " if g.preset else ""
     how = {"columns": "stripes of columns", "rows": "bands of rows, read along the columns",
            "quadrants": f"quadrants from the {g.first_corner} corner, along {g.fast_axis}"}
-    ax.set_title(f"{named}stored image {g.nrows} x {g.ncols}, {g.nchannels} channels\n"
+    ax.set_title(f"{named}stored image {g.nrows} x {g.ncols}, {plural(g.nchannels, 'channel')}\n"
                  f"{how[g.channels]}", fontsize=9)
     handles = [Patch(fc="none", ec="tab:blue", label="channel (number)" if numbered
                      else "channel"),
@@ -217,6 +220,9 @@ def _draw_window(ax, geometry):
         inset.axvline(col, lw=0.3, color="0.7")
     inset.add_patch(Rectangle((w.first_column, w.first_row), geometry.ncols, geometry.nrows,
                               color="tab:blue", alpha=0.7, label="window"))
+    # a marker too: a corner cutout is a few pixels of a 4096-pixel-wide inset
+    inset.plot(w.first_column + geometry.ncols / 2, w.first_row + geometry.nrows / 2, "o",
+               color="tab:blue", ms=4, clip_on=False)
     inset.set_xlim(0, f.ncols)
     inset.set_ylim(f.nrows, 0)
     inset.set_xticks([])

@@ -83,4 +83,5 @@ def test_read_order_shows_a_window_inside_its_full_array():
     boxes = [(p.get_x(), p.get_y(), p.get_width(), p.get_height())
              for p in inset.patches if isinstance(p, Rectangle)]
     assert boxes == [(0, 0, 64, 64), (16, 8, 16, 24)]
-    assert [line.get_xdata()[0] for line in inset.lines] == [16, 32, 48]
+    assert [line.get_xdata()[0] for line in inset.lines] == [16, 32, 48, 16 + 16 / 2]
+    assert inset.lines[-1].get_ydata()[0] == 8 + 24 / 2  # a marker at the window's centre

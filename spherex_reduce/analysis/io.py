@@ -11,7 +11,7 @@ from ..core.errors import FormatError, SpherexReduceError
 from ..core.limits import check_size
 from ..io import open_checked
 from ..reduce.steps import unchop
-from .light import light_sensitive_image
+from .light import light_sensitive_image, stored_image
 
 __all__ = ["read_image"]
 
@@ -99,7 +99,7 @@ def read_image(path, ext=None, pipeline=None, light=False):
         )
     if exposure.order == "readout":
         exposure = unchop(exposure)
-    ccd = light_sensitive_image(exposure) if light else exposure.to_ccddata()
+    ccd = light_sensitive_image(exposure) if light else stored_image(exposure)
     ccd.meta["SCHEDULE"] = exposure.schedule.summary()[:68]
     ccd.meta["INTTIME"] = exposure.schedule.integration_time.to_value(u.s)
     ccd.meta["NFRAMES"] = exposure.schedule.nframes

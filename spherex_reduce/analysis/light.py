@@ -10,11 +10,12 @@ injected sky of ``compare-strategies`` work on them.
 """
 
 import numpy as np
+from astropy.nddata import CCDData
 
 from ..core.errors import SpherexReduceError
 from ..reduce.steps import unchop
 
-__all__ = ["light_sensitive", "light_sensitive_image"]
+__all__ = ["light_sensitive", "light_sensitive_image", "stored_image"]
 
 
 def light_sensitive(geometry):
@@ -60,8 +61,9 @@ def light_sensitive(geometry):
 def light_sensitive_image(exposure):
     """The light-sensitive pixels of a reduced image, as `~astropy.nddata.CCDData`.
 
-    The image in physical row order (un-chopped first if in readout order),
-    cut to `light_sensitive`; its mask is the image's (pixels that must not be
+    The image in physical row order (un-chopped first if in readout order)
+    and in the stored orientation (`stored_image`), cut to `light_sensitive`
+    of the stored image's geometry; its mask is the image's (pixels that must not be
     used) and any reference pixel inside the rectangle.  A statistic of the
     result never sees a reference pixel.
 
@@ -99,8 +101,51 @@ def light_sensitive_image(exposure):
                                  f"{exposure.shape}; fit them first (fit_ramp)")
     if exposure.order == "readout":
         exposure = unchop(exposure)
-    box = light_sensitive(exposure.geometry)
-    ccd = exposure.to_ccddata()[box]
-    reference = exposure.reference_pixel_mask()[box]
+    geometry = exposure.geometry.stored_geometry
+    box = light_sensitive(geometry)
+    ccd = stored_image(exposure)[box]
+    reference = geometry.reference_pixel_mask()[box]
     ccd.mask = reference if ccd.mask is None else np.asarray(ccd.mask, bool) | reference
     return ccd
+
+
+def stored_image(exposure):
+    """A reduced image as `~astropy.nddata.CCDData` in the stored orientation: as its file
+    holds it, whatever the channel layout (`~spherex_reduce.core.channel_layout`).
+
+    An exposure in memory is in the readout frame, where every computation
+    runs; for channels as rows or quadrants that is not the image users see
+    (quadrants side by side, bands transposed).  Spatial statistics are taken
+    on the stored image.
+
+    Parameters
+    ----------
+    exposure : `~spherex_reduce.Exposure`
+        A 2-D image in physical row order; not changed.
+
+    Returns
+    -------
+    `~astropy.nddata.CCDData`
+        Values, unit, uncertainty and mask mapped to the stored orientation;
+        the header as ``meta``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule
+    >>> from spherex_reduce.analysis.light import stored_image
+    >>> g = DetectorGeometry(4, 6, 4, ref_border=0, channels="quadrants")
+    >>> s = ReadoutSchedule(g, skip=1, ref_mode="none", phantom_reads=0, nframes=2)
+    >>> stored = np.arange(24.0).reshape(4, 6)
+    >>> e = Exposure.from_arrays(g.layout.to_readout(stored), s, order="physical")
+    >>> e.shape, stored_image(e).shape, bool((stored_image(e).data == stored).all())
+    ((2, 12), (4, 6), True)
+    """
+    ccd = exposure.to_ccddata()
+    layout = exposure.geometry.layout
+    if layout.identity:
+        return ccd
+    unc = ccd.uncertainty
+    return CCDData(layout.to_stored(ccd.data), unit=ccd.unit, meta=ccd.meta,
+                   uncertainty=None if unc is None else type(unc)(layout.to_stored(unc.array)),
+                   mask=None if ccd.mask is None else layout.to_stored(np.asarray(ccd.mask)))

@@ -21,6 +21,8 @@ __all__ = ["StableFile", "pread_into"]
 def pread_into(fd, buf, pos, short):
     """Fill ``buf`` with the bytes of file ``fd`` from ``pos`` (``pread``: no file position
     moves, several threads may read at once); ``short`` is the error if the file ends first."""
+    if buf.size == 0:  # nothing to read (e.g. REFPIX of a window without reference rows)
+        return buf
     view = memoryview(buf).cast("B")
     done = 0
     while done < view.nbytes:

@@ -31,6 +31,10 @@ from astropy import units as u
 
 from .groups import group_covariance, group_means
 
+#: The latest read time accepted (s, ~32 years): a fit squares the times, which
+#: must stay far from float64 overflow (1e300 s gave every slope 0).
+MAX_READ_TIME = 1e9
+
 __all__ = ["StoredFrameTimes", "check_read_times", "describe_read_times", "format_read_times",
            "parse_read_times"]
 
@@ -129,8 +133,9 @@ def check_read_times(times, nframes, grouped, read_duration):
     for k, t in enumerate(times):
         number = isinstance(t, (int, float, np.integer, np.floating)) and not isinstance(
             t, (bool, np.bool_))
-        if not number or not math.isfinite(t) or t < 0:
-            raise ValueError(f"read_times[{k}] must be a finite time >= 0 (s), got {t!r}")
+        if not number or not math.isfinite(t) or not 0 <= t <= MAX_READ_TIME:
+            raise ValueError(f"read_times[{k}] must be a time from 0 to {MAX_READ_TIME:g} s, "
+                             f"got {t!r}")
         out.append(float(t))
     if len(out) != nframes:
         raise ValueError(f"read_times lists {len(out)} times but nframes is {nframes}: one time "

@@ -82,7 +82,7 @@ def apply_preset(values):
     name = values.get("preset")
     if name is None:
         return values
-    if name not in PRESETS:
+    if not isinstance(name, str) or name not in PRESETS:
         raise ValueError(f"geometry.preset {name!r} is not a known preset; known: "
                          f"{', '.join(PRESETS)}")
     return {**PRESETS[name], **values}

@@ -148,7 +148,7 @@ def read_mask(path, nreads, shape, verify_checksum=None):
         with unpacking(path):
             names = [h.name for h in hdul]
             hdu = hdul["DQ"] if "DQ" in names else hdul[0]
-            if hdu.header.get("NAXIS", 0) == 0:
+            if not hdu.is_image or hdu.header.get("NAXIS", 0) == 0:
                 raise FormatError(f"{path}: a mask file holds the flags as a DQ extension or "
                                   "in its primary HDU; this one has neither")
             if hdu.header["BITPIX"] < 0:

@@ -157,6 +157,7 @@ def test_preset_in_a_config_overridden_by_the_keys_given(tmp_path):
 
 @pytest.mark.parametrize(("geometry", "message"), [
     ({"preset": "H5RG"}, "not a known preset"),
+    ({"preset": ["H2RG"]}, "not a known preset"),  # was a TypeError, exit 1
     ({"nrows": 15, "ncols": 16, "nchannels": 4, "channels": "quadrants"},
      "even number of rows"),
 ])

@@ -325,3 +325,7 @@ def test_a_mask_file_of_another_shape_is_refused(tmp_path, capsys):
     assert main(["reduce", str(paths[0]), "--reads-dq", str(mask), "-c", str(cfg), "-o",
                  str(out)]) == 2
     assert "give --reads too" in capsys.readouterr().err
+    table = fits.BinTableHDU.from_columns([fits.Column("dq", "J", array=[0])], name="DQ")
+    fits.HDUList([fits.PrimaryHDU(), table]).writeto(mask, overwrite=True)
+    assert main([*args, "--reads-dq", str(mask)]) == 2  # a table named DQ: not a mask
+    assert "holds the flags as a DQ extension or in its primary HDU" in capsys.readouterr().err

@@ -45,7 +45,7 @@ from .frame_times import StoredFrameTimes, check_read_times, describe_read_times
 from .geometry import DetectorGeometry, RefBorder
 from .groups import describe_groups, resolve_groups
 from .limits import check_size
-from .window import default_overhead, fill_window_geometry, window_reads
+from .window import default_overhead, fill_window_geometry, geometry_of, window_reads
 
 __all__ = ["REF_MODES", "ReadoutSchedule", "chopped_order"]
 
@@ -489,15 +489,12 @@ class ReadoutSchedule(StoredFrameTimes):
                 "was read; supply them in the pipeline config's geometry:/readout: sections")
         _check_schedule_size(*(values.get(n, 0) for n in ("nrows", "ncols", "nchannels",
                                                           "ref_reads", "ref_border")))
-        gkw = {f.name: values[f.name] for f in section_fields("geometry")
-               if f.name in values and f.name != "scan"}
         rkw = {f.name: values[f.name] for f in section_fields("readout")
                if f.name in values and not f.instead_of}
         if "frame_overhead" not in values:
             rkw["frame_time"] = values["frame_time"]
         try:
-            geometry = DetectorGeometry.from_scan_label(values.get("scan", "same"),
-                                                        window=values.get("window"), **gkw)
+            geometry = geometry_of(values)
             sched = cls(geometry, **rkw)
         except ValueError as exc:
             raise FormatError(f"readout keywords describe an invalid schedule: {exc}") from exc

@@ -36,7 +36,7 @@ from .errors import FormatError
 from .fields import FIELD, check_field, section_fields
 from .geometry import DetectorGeometry, RefBorder
 
-__all__ = ["Window", "default_overhead", "fill_window_geometry", "window_reads"]
+__all__ = ["Window", "default_overhead", "fill_window_geometry", "geometry_of", "window_reads"]
 
 #: The fields of a window: ``first_row first_column full_nrows full_ncols full_nchannels
 #: full_scan full_ref_border``.
@@ -307,3 +307,25 @@ def fill_window_geometry(values):
                 "come from the full array's (window: section)")
     return out
 
+
+
+def geometry_of(values):
+    """The `DetectorGeometry` of geometry field values (from a header, a config or both),
+    after `fill_window_geometry`: every geometry field present is passed on (the channel
+    layout and preset too), ``scan`` as its ``SCANDIR`` text, the window if any.
+
+    Raises
+    ------
+    ValueError
+        An invalid value or combination (e.g. a layout other than columns with a window).
+
+    Examples
+    --------
+    >>> from spherex_reduce.core.window import geometry_of
+    >>> geometry_of({"nrows": 8, "ncols": 8, "nchannels": 2, "scan": "+-"}).scan_label
+    '+-'
+    """
+    kwargs = {f.name: values[f.name] for f in section_fields("geometry")
+              if f.name in values and f.name != "scan"}
+    return DetectorGeometry.from_scan_label(values.get("scan", "same"),
+                                            window=values.get("window"), **kwargs)

@@ -16,7 +16,7 @@ from ..core.geometry import DetectorGeometry
 from ..core.parameters import validate_parameters
 from ..core.presets import apply_preset, apply_window_preset
 from ..core.schedule import ReadoutSchedule
-from ..core.window import fill_window_geometry
+from ..core.window import fill_window_geometry, geometry_of
 
 __all__ = [
     "GEOMETRY_PARAMETERS",
@@ -337,12 +337,9 @@ def schedule_from_config(geometry=None, readout=None, window=None):
     try:
         if window:
             w = validate_parameters(window, WINDOW_PARAMETERS, "window")
-            values = fill_window_geometry({**{k: g[k] for k in ("nrows", "ncols", "pixel_rate")},
-                                           **(geometry or {}), **w})
-            geo = DetectorGeometry.from_scan_label(
-                values["scan"], window=values["window"],
-                **{k: values[k] for k in ("nrows", "ncols", "nchannels", "ref_border",
-                                          "pixel_rate")})
+            given = {k: g[k] for k in (geometry or {}) if k in g}  # validated
+            geo = geometry_of(fill_window_geometry(
+                {**{k: g[k] for k in ("nrows", "ncols", "pixel_rate")}, **given, **w}))
         else:
             geo = DetectorGeometry(**g)
         return ReadoutSchedule(geo, **r)

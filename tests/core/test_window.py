@@ -209,3 +209,22 @@ def test_a_preset_names_the_full_array_a_window_lies_in(tmp_path):
     assert p.supplied()["full_nchannels"] == 32 and "nchannels" not in p.supplied()
     with pytest.raises(ConfigError, match="not a known preset"):
         schedule_from_config({**geometry, "preset": "H5RG"}, readout, window)
+
+
+def test_a_window_with_another_layout_is_refused_by_every_command(capsys):
+    """``readout`` built a window's geometry from five fields and dropped ``channels``
+    (and a preset's layout), printing a schedule ``reduce`` refuses; one builder now."""
+    readout = {"frame_time": 3.04, "skip": 1, "ref_mode": "none", "nframes": 3}
+    window = {"first_row": 0, "first_column": 0, "full_nrows": 64, "full_ncols": 64,
+              "full_nchannels": 4}
+    for geometry in ({"nrows": 8, "ncols": 8, "pixel_rate": 1e5, "channels": "quadrants"},
+                     {"preset": "SIDECAR-science", "nrows": 8, "ncols": 8}):
+        with pytest.raises(ConfigError, match="with a window"):
+            schedule_from_config(geometry, readout, window)
+    argv = ["readout", "--nrows", "8", "--ncols", "8", "--pixel-rate", "1e5", "--skip", "1",
+            "--ref-mode", "none", "--nframes", "3", "--frame-time", "3.04", "--first-row", "0",
+            "--first-column", "0", "--full-nrows", "64", "--full-ncols", "64",
+            "--full-nchannels", "4", "--channels", "quadrants"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "with a window" in err

@@ -322,7 +322,7 @@ def geometry_of(values):
     Examples
     --------
     >>> from spherex_reduce.core.window import geometry_of
-    >>> geometry_of({"nrows": 8, "ncols": 8, "nchannels": 2, "scan": "+-"}).scan_label
+    >>> geometry_of({"nrows": 16, "ncols": 16, "nchannels": 2, "scan": "+-"}).scan_label
     '+-'
     """
     kwargs = {f.name: values[f.name] for f in section_fields("geometry")

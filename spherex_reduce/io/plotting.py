@@ -59,8 +59,15 @@ def plot_read_order(schedule, max_rows=48):
     # k, k+S, ...), reference reads in the first column; arrows join consecutive reads.
     g = schedule.geometry
     sel = np.flatnonzero(rows < shown)
-    npass = min(schedule.skip, max(g.n_active_rows, 1))
-    x = np.where(is_ref[sel], 0, 1 + (rows[sel] - g.border.top) % npass)
+    if schedule.order is None:
+        npass = min(schedule.skip, max(g.n_active_rows, 1))
+        passes = (rows - g.border.top) % npass
+    else:  # a pass: a run of active reads going down the array
+        active = rows[~is_ref]
+        passes = np.zeros(rows.size, dtype=int)
+        passes[~is_ref] = np.concatenate([[0], np.cumsum(np.diff(active) < 0)])
+        npass = int(passes.max()) + 1
+    x = np.where(is_ref[sel], 0, 1 + passes[sel])
     y = rows[sel]
     for r in range(shown):
         if r < g.border.top or r >= nrows - g.border.bottom:
@@ -106,9 +113,7 @@ def plot_read_order(schedule, max_rows=48):
     # outside the axes: inside it would cover reads, which fill the whole frame
     ax2.legend(loc="lower center", bbox_to_anchor=(0.5, 1.08), ncol=2, fontsize=8,
                frameon=False)
-    refs = ("reference rows once" if schedule.ref_mode == "none"
-            else f"r={schedule.ref_reads} ({schedule.ref_mode})")
-    ax2.set_title(f"S={schedule.skip}, {refs}, "
+    ax2.set_title(f"{schedule.describe_order()}, "
                   f"c={schedule.phantom_reads}: {schedule.n_reads} reads, frame "
                   f"{schedule.frame_time.value:.4g} s", fontsize=9)
     if not g.layout.identity:

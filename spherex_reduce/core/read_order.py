@@ -182,21 +182,14 @@ def check_order(order, geometry):
     return rows.astype(int), is_ref
 
 
-def order_from_table(table, also_given=()):
+def order_from_table(table):
     """The explicit order of a file whose header says ``ROWORDER = 'explicit'``: its
     ``READOUT`` table's ``row`` column (a list of int; checked by the schedule).
-
-    Parameters
-    ----------
-    table : `astropy.table.Table` or None
-        The ``READOUT`` table.
-    also_given : sequence of str
-        Keywords of the fields an explicit order replaces found in the header.
 
     Raises
     ------
     FormatError
-        No table or no integer ``row`` column, or ``also_given`` is not empty.
+        No table (None), or no integer ``row`` column.
 
     Examples
     --------
@@ -204,14 +197,11 @@ def order_from_table(table, also_given=()):
     >>> from spherex_reduce.core.read_order import order_from_table
     >>> order_from_table(Table({"row": [0, 2, 1, 3]}))
     [0, 2, 1, 3]
-    >>> order_from_table(Table({"row": [0, 2, 1, 3]}), ["ROWSKIP"])
+    >>> order_from_table(None)
     Traceback (most recent call last):
     ...
-    spherex_reduce.core.errors.FormatError: keywords ROWORDER = 'explicit' and ROWSKIP are both ...
+    spherex_reduce.core.errors.FormatError: keyword ROWORDER = 'explicit' needs the READOUT ...
     """
-    if also_given:
-        raise FormatError(f"keywords ROWORDER = {EXPLICIT!r} and {', '.join(also_given)} are "
-                          "both given: an explicit order replaces them")
     if table is None or "row" not in table.colnames:
         raise FormatError(f"keyword ROWORDER = {EXPLICIT!r} needs the READOUT table's 'row' "
                           "column, which lists the rows in read order")

@@ -502,8 +502,11 @@ class ReadoutSchedule(StoredFrameTimes):
         # Everything that decides read order and timing is required: guessing the
         # SPHEREx defaults for a foreign file would un-chop it wrongly and silently.
         if values.get("order") == EXPLICIT:  # ROWORDER: the READOUT table lists the rows
-            values["order"] = order_from_table(
-                table, [FIELD[n].keyword for n in ORDER_REPLACES if n in values])
+            values["order"] = order_from_table(table)
+        both = [FIELD[n].keyword for n in ORDER_REPLACES if "order" in values and n in values]
+        if both:
+            raise FormatError(f"an explicit order (ROWORDER, or readout.order) and "
+                              f"{', '.join(both)} are both given: the order replaces them")
         needed = set() if "order" in values else {"skip", "ref_mode"} | (
             {"ref_reads"} if values.get("ref_mode", "none") != "none" else set())
         required = [f for f in FIELDS if f.required is True or f.name in needed]

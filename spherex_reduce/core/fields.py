@@ -46,8 +46,8 @@ from .groups import format_groups, parse_groups
 from .parameters import Parameter
 from .read_order import order_text, parse_order_text
 
-__all__ = ["DEFAULT_FRAME_OVERHEAD", "FIELD", "FIELDS", "ORDER_REPLACES", "REF_MODES", "SIDES",
-           "Field", "check_field", "check_sides", "field_cards", "header_keyword", "read_field",
+__all__ = ["DEFAULT_FRAME_OVERHEAD", "FIELD", "FIELDS", "REF_MODES", "SIDES", "Field",
+           "check_field", "check_sides", "field_cards", "header_keyword", "read_field",
            "section_fields", "table_dataclass"]
 
 #: The sides of the array a per-side field (``ref_border``) has a value for: ``top`` is
@@ -282,9 +282,6 @@ FIELDS = (
 
 #: The fields by name.
 FIELD = {f.name: f for f in FIELDS}
-
-#: The readout fields an explicit ``order`` replaces (given together with it: refused).
-ORDER_REPLACES = ("skip", "ref_reads", "ref_mode")
 
 
 def section_fields(section):

@@ -32,11 +32,14 @@ import numpy as np
 from .errors import FormatError
 from .limits import check_size
 
-__all__ = ["EXPLICIT", "check_order", "order_from_table", "order_text", "parse_order_text",
-           "read_order_file"]
+__all__ = ["EXPLICIT", "ORDER_REPLACES", "check_order", "order_conflict", "order_from_table",
+           "order_text", "parse_order_text", "read_order_file"]
 
 #: The value of the ``ROWORDER`` keyword of a file read in an explicit order.
 EXPLICIT = "explicit"
+
+#: The readout fields an explicit order replaces (given together with it: refused).
+ORDER_REPLACES = ("skip", "ref_reads", "ref_mode")
 
 # Bytes a checked order costs per entry (the list, its int64 and bool arrays and the
 # schedule's arrays built from it), and per byte of an ECSV file while it is parsed.
@@ -120,7 +123,20 @@ def read_order_file(path):
     return column.astype(np.int64).tolist()
 
 
-def check_order(order, geometry):
+def order_conflict(given):
+    """The refusal of an explicit order given with fields it replaces (`ORDER_REPLACES`).
+
+    Examples
+    --------
+    >>> from spherex_reduce.core.read_order import order_conflict
+    >>> order_conflict(["skip"])
+    'order gives the read order, so skip cannot be given with it: leave out skip, ...'
+    """
+    return (f"order gives the read order, so {', '.join(given)} cannot be given with it: "
+            f"leave out {', '.join(ORDER_REPLACES)}")
+
+
+def check_order(order, geometry, given=()):
     """An explicit read order checked against a geometry: ``(rows, is_ref)``.
 
     Parameters
@@ -129,7 +145,9 @@ def check_order(order, geometry):
         Physical row (0-based) of every read of a frame, in read order, or the
         path of an ECSV file of one integer column (:func:`read_order_file`).
     geometry : `~spherex_reduce.DetectorGeometry`
-        The array read (for a window: the full array).
+        The array read (not a window of a larger one).
+    given : sequence of str
+        The fields of `ORDER_REPLACES` given with the order (refused).
 
     Returns
     -------
@@ -142,11 +160,16 @@ def check_order(order, geometry):
     ------
     ValueError
         An empty order, an entry that is not an integer or is out of
-        ``[0, nrows)``, an active row missing or read twice; the message names
-        the first such entry.
+        ``[0, nrows)``, an active row missing or read twice (the message names
+        the first such entry); ``given`` not empty; a window.
     ResourceError
         An order too long for the memory available.
     """
+    if given:
+        raise ValueError(order_conflict(given))
+    if geometry.window is not None:
+        raise ValueError("an explicit order cannot be given for a window (yet): give skip, "
+                         "ref_reads and ref_mode")
     if isinstance(order, (str, os.PathLike)):
         order = read_order_file(order)
     if isinstance(order, np.ndarray):

@@ -33,7 +33,6 @@ from .fields import (
     DEFAULT_FRAME_OVERHEAD,
     FIELD,
     FIELDS,
-    ORDER_REPLACES,
     REF_MODES,
     check_field,
     field_cards,
@@ -46,7 +45,7 @@ from .frame_times import StoredFrameTimes, check_read_times, describe_read_times
 from .geometry import DetectorGeometry, RefBorder
 from .groups import describe_groups, resolve_groups
 from .limits import check_size
-from .read_order import EXPLICIT, check_order, order_from_table
+from .read_order import EXPLICIT, ORDER_REPLACES, check_order, order_from_table
 from .window import default_overhead, fill_window_geometry, geometry_of, window_reads
 
 __all__ = ["REF_MODES", "ReadoutSchedule", "chopped_order"]
@@ -146,6 +145,9 @@ class ReadoutSchedule(StoredFrameTimes):
         Instead of even spacing: the time (s) of every stored frame's read,
         ``nframes`` times at least one read of the array apart, e.g. HST's
         ``SAMPTIME`` (`spherex_reduce.core.frame_times`).
+    order : list of int or str, optional
+        Instead of ``skip``, ``ref_reads`` and ``ref_mode``: the physical row
+        of every read, or an ECSV file of them (`spherex_reduce.core.read_order`).
 
     Examples
     --------
@@ -181,13 +183,7 @@ class ReadoutSchedule(StoredFrameTimes):
         if self.order is not None:
             given = [f"{n}={getattr(self, n)!r}" for n in ORDER_REPLACES
                      if getattr(self, n) != FIELD[n].default]
-            if given:
-                raise ValueError(f"order gives the read order, so {', '.join(given)} cannot be "
-                                 f"given with it: leave out {', '.join(ORDER_REPLACES)}")
-            if g.window is not None:
-                raise ValueError("an explicit order cannot be given for a window (yet): give "
-                                 "skip, ref_reads and ref_mode")
-            order = check_order(self.order, full)
+            order = check_order(self.order, g, given)
             set_(self, "order", order[0].tolist())
         elif self.ref_mode != "none" and self.ref_reads > 0 and full.border.rows == 0:
             raise ValueError(

@@ -11,10 +11,11 @@ from pathlib import Path
 import yaml
 
 from ..core.errors import ConfigError, ResourceError
-from ..core.fields import ORDER_REPLACES, section_fields
+from ..core.fields import section_fields
 from ..core.geometry import DetectorGeometry
 from ..core.parameters import validate_parameters
 from ..core.presets import apply_preset, apply_window_preset
+from ..core.read_order import ORDER_REPLACES, order_conflict
 from ..core.schedule import ReadoutSchedule
 from ..core.window import fill_window_geometry, geometry_of
 
@@ -336,8 +337,7 @@ def schedule_from_config(geometry=None, readout=None, window=None):
     r = validate_parameters(readout, READOUT_PARAMETERS, "readout")
     both = [k for k in ORDER_REPLACES if r["order"] is not None and k in (readout or {})]
     if both:
-        raise ConfigError(f"readout: order gives the read order, so {', '.join(both)} cannot "
-                          f"be given with it: leave out {', '.join(ORDER_REPLACES)}")
+        raise ConfigError(f"readout: {order_conflict(both)}")
     try:
         if window:
             w = validate_parameters(window, WINDOW_PARAMETERS, "window")

@@ -98,7 +98,8 @@ def plot_read_order(schedule, max_rows=48):
     ax.set_ylim(shown - 0.5, -0.5)
     ax.set_xticks(range(npass + 1), ["ref"] + [str(k) for k in range(npass)],
                   fontsize=7 if npass < 16 else 5)
-    ax.set_xlabel("pass (dashed red: return to the first unread row)")
+    ax.set_xlabel("pass (dashed red: return to the first unread row)" if schedule.order is None
+                  else "pass: a run of reads down the array (dashed red: a jump back up)")
     ax.set_ylabel("physical row")
     ax.set_title(f"read order, first {shown} rows (grey: reference rows)\n"
                  "numbers: read index within the frame", fontsize=9)

@@ -52,7 +52,8 @@ def _option_type(field):
         return count(field.cli_max, minimum=field.minimum)
     if field.kind is float:  # the YAML check that follows applies any other bound
         return positive_float if field.exclusive_minimum and field.minimum == 0 else finite_float
-    if field.from_text is not None:  # a structure given as its FITS text (``--groups``)
+    if field.from_text is not None and str not in field.types:  # a structure as its FITS
+        # text (``--groups``); a field that may be a string (``--order``) takes a path
         return _from_text(field.from_text)
     return str
 
@@ -74,7 +75,8 @@ OPTIONS = [(_flag(f), f.section, f.name, _option_type(f)) for f in FIELDS]
 
 #: How a structure field is written on the command line (its FITS text).
 TEXT_FORMS = {"groups": "0;1-2;3-6 (';' between groups, a-b a run of reads)",
-              "read_times": "0,2.93,12.93 (s, ',' between reads)"}
+              "read_times": "0,2.93,12.93 (s, ',' between reads)",
+              "order": "the path of an ECSV file of one integer column, in read order"}
 
 
 def _option_help(field):

@@ -44,6 +44,7 @@ from .errors import FormatError
 from .frame_times import format_read_times, parse_read_times
 from .groups import format_groups, parse_groups
 from .parameters import Parameter
+from .read_order import order_text, parse_order_text
 
 __all__ = ["DEFAULT_FRAME_OVERHEAD", "FIELD", "FIELDS", "REF_MODES", "SIDES", "Field",
            "check_field", "check_sides", "field_cards", "header_keyword", "read_field",
@@ -206,11 +207,11 @@ FIELDS = (
           comment="geometry preset the fields start from", required=False,
           none_means="no preset", written_if_set=True),
     Field("skip", "readout", "ROWSKIP", (int,), 24, "row-chopping skip S", minimum=1,
-          cli_max=2**16),
+          cli_max=2**16, required="unless ROWORDER is given"),
     Field("ref_reads", "readout", "NREFRD", (int,), 32, "reference row reads per frame r",
-          minimum=0, cli_max=2**16, required="unless REFMODE is none"),
+          minimum=0, cli_max=2**16, required="unless REFMODE is none or ROWORDER is given"),
     Field("ref_mode", "readout", "REFMODE", (str,), "distributed", "reference read mode",
-          choices=REF_MODES),
+          choices=REF_MODES, required="unless ROWORDER is given"),
     Field("phantom_reads", "readout", "NPHANT", (int,), 4, "phantom samples per row read c",
           minimum=0, cli_max=2**12),
     Field("row_overhead", "readout", "ROWOVH", (int,), 4, "samples of overhead per row read",
@@ -243,6 +244,13 @@ FIELDS = (
           unit="s", comment="[s] time of each read: ',' between reads", required=False,
           none_means="every frame_time (or the groups' mean reads)",
           written_if_set=True, to_text=format_read_times, from_text=parse_read_times),
+    Field("order", "readout", "ROWORDER", (list, str, type(None)), None,
+          "explicit read order: the physical row of every read (reference rows any number of "
+          "times), or an ECSV file of them; instead of skip, ref_reads and ref_mode",
+          comment="READOUT table gives the read order",
+          required="unless ROWSKIP and REFMODE are given",
+          none_means="from {skip}, {ref_reads} and {ref_mode}", written_if_set=True,
+          to_text=order_text, from_text=parse_order_text),
     # A window of a larger array (`spherex_reduce.core.window`): the ``window:`` YAML
     # section; geometry.nrows/ncols are then the window's size, its channels, scan and
     # reference border are derived from the full array's.

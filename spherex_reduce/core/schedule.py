@@ -45,6 +45,7 @@ from .frame_times import StoredFrameTimes, check_read_times, describe_read_times
 from .geometry import DetectorGeometry, RefBorder
 from .groups import describe_groups, resolve_groups
 from .limits import check_size
+from .read_order import EXPLICIT, ORDER_REPLACES, check_order, order_from_table
 from .window import default_overhead, fill_window_geometry, geometry_of, window_reads
 
 __all__ = ["REF_MODES", "ReadoutSchedule", "chopped_order"]
@@ -144,6 +145,9 @@ class ReadoutSchedule(StoredFrameTimes):
         Instead of even spacing: the time (s) of every stored frame's read,
         ``nframes`` times at least one read of the array apart, e.g. HST's
         ``SAMPTIME`` (`spherex_reduce.core.frame_times`).
+    order : list of int or str, optional
+        Instead of ``skip``, ``ref_reads`` and ``ref_mode``: the physical row
+        of every read, or an ECSV file of them (`spherex_reduce.core.read_order`).
 
     Examples
     --------
@@ -176,13 +180,19 @@ class ReadoutSchedule(StoredFrameTimes):
         set_(self, "_reads", reads)  # None: one read per stored frame
         g = self.geometry
         full = g if g.window is None else g.window.full  # a window follows its full readout
-        if self.ref_mode != "none" and self.ref_reads > 0 and full.border.rows == 0:
+        if self.order is not None:
+            given = [f"{n}={getattr(self, n)!r}" for n in ORDER_REPLACES
+                     if getattr(self, n) != FIELD[n].default]
+            order = check_order(self.order, g, given)
+            set_(self, "order", order[0].tolist())
+        elif self.ref_mode != "none" and self.ref_reads > 0 and full.border.rows == 0:
             raise ValueError(
                 f"ref_reads={self.ref_reads} with ref_mode={self.ref_mode!r} needs reference "
                 f"rows, but ref_border is {full.border}: set ref_reads to 0 or ref_mode to 'none'")
         _check_schedule_size(full.nrows, full.ncols, full.nchannels,
                              self.ref_reads if self.ref_mode != "none" else 0, full.border)
-        rows, kinds, index = window_reads(g, *self._build_order(full))
+        rows, kinds, index = window_reads(
+            g, *(self._build_order(full) if self.order is None else order))
         set_(self, "_index", index)  # each read's index in the (full) readout
         set_(self, "_rows", rows)
         set_(self, "_is_ref", kinds)
@@ -347,10 +357,12 @@ class ReadoutSchedule(StoredFrameTimes):
     def to_dict(self):
         """Readout parameters as plain values (the ``readout:`` YAML section).
 
-        ``frame_time`` is left out: ``frame_overhead`` states it in samples.
+        ``frame_time`` is left out: ``frame_overhead`` states it in samples; with an
+        explicit ``order``, so are the fields it replaces (``skip``, ``ref_reads``,
+        ``ref_mode``).
         """
         out = {f.name: getattr(self, f.name) for f in section_fields("readout")
-               if f.instead_of is None}
+               if f.instead_of is None and not (self.order and f.name in ORDER_REPLACES)}
         if out["groups"] is not None:
             out["groups"] = [list(reads) for reads in out["groups"]]
         out["read_times"] = None if self.read_times is None else list(self.read_times)
@@ -401,15 +413,22 @@ class ReadoutSchedule(StoredFrameTimes):
             meta={"comments": [self.summary()]},
         )
 
+    def describe_order(self):
+        """How the read order is made, as text: ``'S=24, r=32 (distributed)'`` or
+        ``'explicit order'``."""
+        if self.order is not None:
+            return "explicit order"
+        refs = ("reference rows once" if self.ref_mode == "none"
+                else f"r={self.ref_reads} ({self.ref_mode})")
+        return f"S={self.skip}, {refs}"
+
     def summary(self):
         """One line describing the schedule."""
         g = self.geometry
-        refs = ("reference rows once" if self.ref_mode == "none"
-                else f"r={self.ref_reads} ({self.ref_mode})")
         return (
             f"{g.nrows}x{g.ncols} array, {plural(g.nchannels, 'channel')} of "
             f"{plural(g.channel_width, 'column')}, "
-            f"S={self.skip}, {refs}, c={self.phantom_reads}: "
+            f"{self.describe_order()}, c={self.phantom_reads}: "
             f"{self.n_reads} reads/frame ({int(self._is_ref.sum())} reference), frame time "
             f"{self.frame_time.to_value(u.s):.6g} s, N={self.nframes}, "
             f"{self.integration_time.to_value(u.s):.6g} s"
@@ -429,7 +448,8 @@ class ReadoutSchedule(StoredFrameTimes):
                 value = g.scan_label
             elif isinstance(value, u.Quantity):
                 value = value.to_value(f.unit)
-            if f.written_if_set and value == f.default:
+            if ((f.written_if_set and value == f.default)
+                    or (self.order is not None and f.name in ORDER_REPLACES)):
                 h.remove(f.keyword, ignore_missing=True)
                 continue
             cards = field_cards(f, g.border.to_value() if f.name == "ref_border" else value)
@@ -477,10 +497,17 @@ class ReadoutSchedule(StoredFrameTimes):
         values = fill_window_geometry(values)  # a window decides NCHAN SCANDIR REFBORD
         # Everything that decides read order and timing is required: guessing the
         # SPHEREx defaults for a foreign file would un-chop it wrongly and silently.
-        required = [f for f in FIELDS if f.required is True]
-        if values.get("ref_mode", "none") != "none":
-            required.append(FIELD["ref_reads"])
-        missing = [f.keyword for f in required if f.name not in values]
+        if values.get("order") == EXPLICIT:  # ROWORDER: the READOUT table lists the rows
+            values["order"] = order_from_table(table)
+        both = [FIELD[n].keyword for n in ORDER_REPLACES if "order" in values and n in values]
+        if both:
+            raise FormatError(f"an explicit order (ROWORDER, or readout.order) and "
+                              f"{', '.join(both)} are both given: the order replaces them")
+        needed = set() if "order" in values else {"skip", "ref_mode"} | (
+            {"ref_reads"} if values.get("ref_mode", "none") != "none" else set())
+        required = [f for f in FIELDS if f.required is True or f.name in needed]
+        missing = [f.keyword + (" (or ROWORDER)" if f.name in ORDER_REPLACES else "")
+                   for f in required if f.name not in values]
         missing += [f"{f.keyword} (or {FIELD[f.instead_of].keyword})" for f in FIELDS
                     if f.instead_of and f.name not in values and f.instead_of not in values]
         if missing:

@@ -15,6 +15,7 @@ from ..core.fields import section_fields
 from ..core.geometry import DetectorGeometry
 from ..core.parameters import validate_parameters
 from ..core.presets import apply_preset, apply_window_preset
+from ..core.read_order import ORDER_REPLACES, order_conflict
 from ..core.schedule import ReadoutSchedule
 from ..core.window import fill_window_geometry, geometry_of
 
@@ -334,6 +335,9 @@ def schedule_from_config(geometry=None, readout=None, window=None):
     geometry, window = preset_sections(geometry, window)
     g = validate_parameters(geometry, GEOMETRY_PARAMETERS, "geometry")
     r = validate_parameters(readout, READOUT_PARAMETERS, "readout")
+    both = [k for k in ORDER_REPLACES if r["order"] is not None and k in (readout or {})]
+    if both:
+        raise ConfigError(f"readout: {order_conflict(both)}")
     try:
         if window:
             w = validate_parameters(window, WINDOW_PARAMETERS, "window")

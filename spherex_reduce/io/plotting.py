@@ -59,8 +59,15 @@ def plot_read_order(schedule, max_rows=48):
     # k, k+S, ...), reference reads in the first column; arrows join consecutive reads.
     g = schedule.geometry
     sel = np.flatnonzero(rows < shown)
-    npass = min(schedule.skip, max(g.n_active_rows, 1))
-    x = np.where(is_ref[sel], 0, 1 + (rows[sel] - g.border.top) % npass)
+    if schedule.order is None:
+        npass = min(schedule.skip, max(g.n_active_rows, 1))
+        passes = (rows - g.border.top) % npass
+    else:  # a pass: a run of active reads going down the array
+        active = rows[~is_ref]
+        passes = np.zeros(rows.size, dtype=int)
+        passes[~is_ref] = np.concatenate([[0], np.cumsum(np.diff(active) < 0)])
+        npass = int(passes.max()) + 1
+    x = np.where(is_ref[sel], 0, 1 + passes[sel])
     y = rows[sel]
     for r in range(shown):
         if r < g.border.top or r >= nrows - g.border.bottom:
@@ -91,7 +98,8 @@ def plot_read_order(schedule, max_rows=48):
     ax.set_ylim(shown - 0.5, -0.5)
     ax.set_xticks(range(npass + 1), ["ref"] + [str(k) for k in range(npass)],
                   fontsize=7 if npass < 16 else 5)
-    ax.set_xlabel("pass (dashed red: return to the first unread row)")
+    ax.set_xlabel("pass (dashed red: return to the first unread row)" if schedule.order is None
+                  else "pass: a run of reads down the array (dashed red: a jump back up)")
     ax.set_ylabel("physical row")
     ax.set_title(f"read order, first {shown} rows (grey: reference rows)\n"
                  "numbers: read index within the frame", fontsize=9)
@@ -106,9 +114,7 @@ def plot_read_order(schedule, max_rows=48):
     # outside the axes: inside it would cover reads, which fill the whole frame
     ax2.legend(loc="lower center", bbox_to_anchor=(0.5, 1.08), ncol=2, fontsize=8,
                frameon=False)
-    refs = ("reference rows once" if schedule.ref_mode == "none"
-            else f"r={schedule.ref_reads} ({schedule.ref_mode})")
-    ax2.set_title(f"S={schedule.skip}, {refs}, "
+    ax2.set_title(f"{schedule.describe_order()}, "
                   f"c={schedule.phantom_reads}: {schedule.n_reads} reads, frame "
                   f"{schedule.frame_time.value:.4g} s", fontsize=9)
     if not g.layout.identity:

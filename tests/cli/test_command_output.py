@@ -98,7 +98,7 @@ def test_readout_help_describes_every_option_with_its_default(capsys):
     text = " ".join(capsys.readouterr().out.split())  # unwrap argparse's lines
     declared = {p.name: p for p in (*GEOMETRY_PARAMETERS, *READOUT_PARAMETERS,
                                     *WINDOW_PARAMETERS)}
-    assert len(OPTIONS) == 29  # one per field (4 of them the channel layout and preset)
+    assert len(OPTIONS) == 30  # one per field (4 of them the channel layout and preset)
     for flag, _, key, _ in OPTIONS:
         p = declared[key]
         after = text.split(f"{flag} {key.upper()} ", 1)[1]
@@ -109,6 +109,8 @@ def test_readout_help_describes_every_option_with_its_default(capsys):
         else:
             assert "(default: " in after.split(" --", 1)[0], flag
     assert "(default: 1816, the paper's 1.51 s frame" in text
+    assert "as text: the path of an ECSV file of one integer column, in read order (default: " \
+        "from --skip, --ref-reads and --ref-mode)" in text
     assert "--first-row FIRST_ROW window: its first row in the full array (default: no " \
         "window)" in text
     assert "--groups GROUPS reads (0-based frames) averaged into each group, instead of " \

@@ -9,7 +9,8 @@ A full-rate FFT of every stream over the whole exposure is far too slow for a
             row reads) spanning the exposure plus a gap of ``4 / f_A``;
 ``fast``    f > f_B/2 plus all white noise, at the full sample rate, per block of
             frames (one frame at full size) — for pixels one stream per channel
-            (and one common stream) with all pixel-visible components summed.
+            (and one common stream) with all pixel-visible components summed,
+            and with ACN two per channel, one per column parity (``_acn_stream``).
 
 with ``f_B = fs / (16 d_B)`` (43 Hz at full size) and ``f_A = f_B / 16``
 (2.7 Hz), so each slow grid oversamples its band 8 to 16 times.  The slow
@@ -27,9 +28,6 @@ What is approximated (measured in ``benchmarks/README_simulate.md``):
   the pixels and for the phantom means (their covariance above ``f_B/2`` is
   dropped: the per-sample residual after phantom subtraction is 1.6 % too
   large for Video8 alone, 0.04 % with all Table 2 terms);
-* the fast tier of the pixels is not split into even/odd realisations (ACN
-  acts on the slow tiers, which carry the even/odd offsets; the phantom means
-  do use the split covariance);
 * fast-tier blocks are independent (their correlation time is < 1/32 of a
   block) and periodic within a block.
 
@@ -347,7 +345,8 @@ class NoiseEngine:
     # -- fast tier (pixels) ----------------------------------------------------------
     def _fast_psds(self, kind):
         """Fast-tier PSDs ``{'channel': psd, 'common': psd}`` seen by ``kind``."""
-        return _fast_psds(self.components, kind, self.f_a, self.f_b)
+        return _fast_psds(self.components, kind, self.f_a, self.f_b,
+                          split_acn=kind == "pixels")
 
     def _block_fft_len(self):
         if self.block == 1:
@@ -361,17 +360,59 @@ class NoiseEngine:
         return self._lam_cache[key]
 
     def _fast_block(self, b, nframes):
-        """Full-rate fast streams of frame block ``b``: channel (nch, n) and common (n,)."""
-        n = nframes * self.F
-        m = self._block_fft_len()
+        """Full-rate fast streams of frame block ``b``: channel (nch, n) and common (1, n)."""
+        return self._fast_streams(nframes * self.F, self._block_fft_len(), 1.0, TIER_FAST, b)
+
+    def _fast_streams(self, n, m, scale, tier, *key):
+        """Fast streams of the pixels, ``n`` samples of period ``m``, PSD times ``scale``.
+
+        ``{'channel': (nch, n), 'common': (1, n)}``, keys left out when silent;
+        the ACN components' part of the channel stream comes from `_acn_stream`.
+        """
         res = {}
         for scope, psd in self._fast_psds("pixels").items():
-            lam = self._fast_lam(scope, psd, m)
-            ns = self.nch if scope == "channel" else 1
-            rngs = _rngs(self.entropy, ns, m // 2 + 1, TIER_FAST, _SCOPE[scope], b)
-            res[scope] = synthesize(lam, m, n, rngs, method=self.method, dtype=self.dtype,
-                                    nstreams=ns)
+            lam = self._fast_lam(scope, psd, m) * scale
+            keys = (tier, _SCOPE[scope], *key)
+            if scope == "acn":
+                x, scope = self._acn_stream(lam, m, n, keys), "channel"
+            else:
+                ns = self.nch if scope == "channel" else 1
+                x = synthesize(lam, m, n, _rngs(self.entropy, ns, m // 2 + 1, *keys),
+                               method=self.method, dtype=self.dtype, nstreams=ns)
+            res[scope] = x if scope not in res else res[scope] + x
         return res
+
+    def _acn_stream(self, lam, m, n, keys):
+        """Channel streams ``(nch, n)`` of the ACN components: at sample ``c + o`` of a
+        read, the realisation of column parity ``o % 2`` (two independent
+        realisations of period ``m`` with spectral weights ``lam``).
+
+        When all pixel samples of a parity have one parity of sample index
+        (even ``m``, ``row_samples`` and frames), each realisation is drawn
+        only there: at half rate with the weights folded about ``m / 4``
+        (``x[2j + a]`` of a period-``m`` stream is a period-``m / 2`` stream
+        with covariance ``c(2d)``), as cheap as one full-rate stream.
+        Otherwise both are drawn at full rate and each sample takes its own.
+        """
+        nch, c = self.nch, self.c
+        if m % 2 == 0 and self.rs % 2 == 0 and (self.F % 2 == 0 or n <= self.F):
+            mh = m // 2
+            k = np.arange(mh // 2 + 1)
+            lam_h = (lam[k] + lam[mh - k]) / 2
+            nh = (n + 1) // 2
+            y = synthesize(lam_h, mh, nh, _rngs(self.entropy, 2 * nch, mh // 2 + 1, *keys),
+                           method=self.method, dtype=self.dtype, nstreams=2 * nch)
+            y = y.reshape(nch, 2, nh)
+            out = np.empty((nch, n), dtype=self.dtype)
+            for p in (0, 1):  # parity p sits at sample indices of parity (c + p) % 2
+                a = (c + p) % 2
+                out[:, a::2] = y[:, p, :(n - a + 1) // 2]
+            return out
+        x = synthesize(lam, m, n, _rngs(self.entropy, 2 * nch, m // 2 + 1, *keys),
+                       method=self.method, dtype=self.dtype, nstreams=2 * nch)
+        x = x.reshape(nch, 2, n)
+        odd = ((np.arange(n) % self.F) % self.rs - c) % 2 == 1
+        return np.where(odd, x[:, 1], x[:, 0])
 
     def _pixels_from_stream(self, ch_stream, common_stream, k_in_block, out, assign=False):
         """Add (or assign) the samples of frame ``k_in_block`` of the fast streams to ``out``."""
@@ -474,7 +515,7 @@ class NoiseEngine:
 
         _, ma, _, mb = self._slow_sizes()
         ops = sum(fft(ma, gr.nstreams) + fft(mb, gr.nstreams) for gr in self.slow_groups)
-        nfast = sum(self.nch if scope == "channel" else 1 for scope in self._fast_psds("pixels"))
+        nfast = sum(1 if scope == "common" else self.nch for scope in self._fast_psds("pixels"))
         if self.block == 1:  # one frame-length stream (the frames' fast tiers are independent)
             ops += fft(self._block_fft_len(), nfast)
         else:  # the ramps' blocks, fitted
@@ -537,15 +578,8 @@ class NoiseEngine:
         if self.block == 1:
             # frames' fast tiers are independent: the slope is sqrt(sum w^2) times one
             # frame-length stream with the fast PSD
-            m = self._block_fft_len()
             scale = float(np.sum(w * w))
-            fast = {}
-            for scope, psd in self._fast_psds("pixels").items():
-                lam = psd_weights(psd, m, self.fs) * scale
-                ns = self.nch if scope == "channel" else 1
-                rngs = _rngs(self.entropy, ns, m // 2 + 1, TIER_SLOPE_FAST, _SCOPE[scope])
-                fast[scope] = synthesize(lam, m, self.F, rngs, method=self.method,
-                                         dtype=self.dtype, nstreams=ns)
+            fast = self._fast_streams(self.F, self._block_fft_len(), scale, TIER_SLOPE_FAST)
             self._pixels_from_stream(fast.get("channel"), fast.get("common"), 0, out)
         else:
             # short frames: the fast tier is correlated across frames; fit the same

@@ -10,7 +10,7 @@ A full-rate FFT of every stream over the whole exposure is far too slow for a
 ``fast``    f > f_B/2 plus all white noise, at the full sample rate, per block of
             frames (one frame at full size) — for pixels one stream per channel
             (and one common stream) with all pixel-visible components summed,
-            and with ACN two per channel, one per column parity (``_acn_stream``).
+            and with ACN two per channel, one per column parity.
 
 with ``f_B = fs / (16 d_B)`` (43 Hz at full size) and ``f_A = f_B / 16``
 (2.7 Hz), so each slow grid oversamples its band 8 to 16 times.  The slow
@@ -39,8 +39,9 @@ part of the slope image is one frame-length stream with the fast PSD times
 
 Small scenes take another route in slope mode (`NoiseEngine.slope_route`,
 chosen by cost): the slopes drawn exactly at the samples read
-(`spherex_reduce.simulation.exact_slopes`).  The phantom means' fast tier is
-in `spherex_reduce.simulation.phantom_tier`; the building blocks of the tiers
+(`spherex_reduce.simulation.exact_slopes`).  The pixels' fast tier is in
+`spherex_reduce.simulation.pixel_fast_tier`, the phantom means' in
+`spherex_reduce.simulation.phantom_tier`; the building blocks of the tiers
 (band PSDs, kernel streams, stream groups) are in
 `spherex_reduce.simulation.streams`.
 """
@@ -55,9 +56,9 @@ from ..core import limits
 from ..noise.variance import ls_weights
 from .exact_slopes import ExactSlopes
 from .phantom_tier import PhantomTier
+from .pixel_fast_tier import PixelFastTier
 from .streams import (
     _PSD,
-    _SCOPE,
     TIER_A,
     TIER_B,
     TIER_FAST,
@@ -158,10 +159,10 @@ class NoiseEngine:
         self.block = max(1, math.ceil(self.l_corr / self.F))
         self._column_maps()
         self._slow = None
-        self._lam_cache = {}
         self._bcache = {}
         self._streaming = streaming
         self.phantom_tier = PhantomTier(self)
+        self.fast_tier = PixelFastTier(self)
         self.exact = ExactSlopes(s, comps, self.entropy, self.dtype)
         if slope_route not in (None, "auto", *self.SLOPE_ROUTES):
             raise ValueError(f"slope_route must be one of {self.SLOPE_ROUTES} or None, "
@@ -353,66 +354,10 @@ class NoiseEngine:
             return _fft_len(self.F)
         return _fft_len(self.block * self.F + self.l_corr)
 
-    def _fast_lam(self, scope, psd, m):
-        key = (scope, m)
-        if key not in self._lam_cache:
-            self._lam_cache[key] = psd_weights(psd, m, self.fs)
-        return self._lam_cache[key]
-
     def _fast_block(self, b, nframes):
         """Full-rate fast streams of frame block ``b``: channel (nch, n) and common (1, n)."""
-        return self._fast_streams(nframes * self.F, self._block_fft_len(), 1.0, TIER_FAST, b)
-
-    def _fast_streams(self, n, m, scale, tier, *key):
-        """Fast streams of the pixels, ``n`` samples of period ``m``, PSD times ``scale``.
-
-        ``{'channel': (nch, n), 'common': (1, n)}``, keys left out when silent;
-        the ACN components' part of the channel stream comes from `_acn_stream`.
-        """
-        res = {}
-        for scope, psd in self._fast_psds("pixels").items():
-            lam = self._fast_lam(scope, psd, m) * scale
-            keys = (tier, _SCOPE[scope], *key)
-            if scope == "acn":
-                x, scope = self._acn_stream(lam, m, n, keys), "channel"
-            else:
-                ns = self.nch if scope == "channel" else 1
-                x = synthesize(lam, m, n, _rngs(self.entropy, ns, m // 2 + 1, *keys),
-                               method=self.method, dtype=self.dtype, nstreams=ns)
-            res[scope] = x if scope not in res else res[scope] + x
-        return res
-
-    def _acn_stream(self, lam, m, n, keys):
-        """Channel streams ``(nch, n)`` of the ACN components: at sample ``c + o`` of a
-        read, the realisation of column parity ``o % 2`` (two independent
-        realisations of period ``m`` with spectral weights ``lam``).
-
-        When all pixel samples of a parity have one parity of sample index
-        (even ``m``, ``row_samples`` and frames), each realisation is drawn
-        only there: at half rate with the weights folded about ``m / 4``
-        (``x[2j + a]`` of a period-``m`` stream is a period-``m / 2`` stream
-        with covariance ``c(2d)``), as cheap as one full-rate stream.
-        Otherwise both are drawn at full rate and each sample takes its own.
-        """
-        nch, c = self.nch, self.c
-        if m % 2 == 0 and self.rs % 2 == 0 and (self.F % 2 == 0 or n <= self.F):
-            mh = m // 2
-            k = np.arange(mh // 2 + 1)
-            lam_h = (lam[k] + lam[mh - k]) / 2
-            nh = (n + 1) // 2
-            y = synthesize(lam_h, mh, nh, _rngs(self.entropy, 2 * nch, mh // 2 + 1, *keys),
-                           method=self.method, dtype=self.dtype, nstreams=2 * nch)
-            y = y.reshape(nch, 2, nh)
-            out = np.empty((nch, n), dtype=self.dtype)
-            for p in (0, 1):  # parity p sits at sample indices of parity (c + p) % 2
-                a = (c + p) % 2
-                out[:, a::2] = y[:, p, :(n - a + 1) // 2]
-            return out
-        x = synthesize(lam, m, n, _rngs(self.entropy, 2 * nch, m // 2 + 1, *keys),
-                       method=self.method, dtype=self.dtype, nstreams=2 * nch)
-        x = x.reshape(nch, 2, n)
-        odd = ((np.arange(n) % self.F) % self.rs - c) % 2 == 1
-        return np.where(odd, x[:, 1], x[:, 0])
+        return self.fast_tier.streams(nframes * self.F, self._block_fft_len(), 1.0,
+                                      TIER_FAST, b)
 
     def _pixels_from_stream(self, ch_stream, common_stream, k_in_block, out, assign=False):
         """Add (or assign) the samples of frame ``k_in_block`` of the fast streams to ``out``."""
@@ -557,8 +502,8 @@ class NoiseEngine:
                                            ).functional_variance(a)
                 else:
                     total += _functional_variance(a, lam, m)
-        for _scope, psd in self._fast_psds("pixels").items():
-            m = self._block_fft_len()
+        for scope, psd in self._fast_psds("pixels").items():
+            m = self.fast_tier.period(scope, self._block_fft_len())
             cov = covariance_from_weights(psd_weights(psd, m, self.fs), m)
             for b0 in range(0, self.N, self.block):
                 ks = np.arange(b0, min(self.N, b0 + self.block))
@@ -579,7 +524,8 @@ class NoiseEngine:
             # frames' fast tiers are independent: the slope is sqrt(sum w^2) times one
             # frame-length stream with the fast PSD
             scale = float(np.sum(w * w))
-            fast = self._fast_streams(self.F, self._block_fft_len(), scale, TIER_SLOPE_FAST)
+            fast = self.fast_tier.streams(self.F, self._block_fft_len(), scale,
+                                          TIER_SLOPE_FAST)
             self._pixels_from_stream(fast.get("channel"), fast.get("common"), 0, out)
         else:
             # short frames: the fast tier is correlated across frames; fit the same

@@ -9,7 +9,8 @@ A full-rate FFT of every stream over the whole exposure is far too slow for a
             row reads) spanning the exposure plus a gap of ``4 / f_A``;
 ``fast``    f > f_B/2 plus all white noise, at the full sample rate, per block of
             frames (one frame at full size) — for pixels one stream per channel
-            (and one common stream) with all pixel-visible components summed.
+            (and one common stream) with all pixel-visible components summed,
+            and with ACN two per channel, one per column parity.
 
 with ``f_B = fs / (16 d_B)`` (43 Hz at full size) and ``f_A = f_B / 16``
 (2.7 Hz), so each slow grid oversamples its band 8 to 16 times.  The slow
@@ -27,9 +28,6 @@ What is approximated (measured in ``benchmarks/README_simulate.md``):
   the pixels and for the phantom means (their covariance above ``f_B/2`` is
   dropped: the per-sample residual after phantom subtraction is 1.6 % too
   large for Video8 alone, 0.04 % with all Table 2 terms);
-* the fast tier of the pixels is not split into even/odd realisations (ACN
-  acts on the slow tiers, which carry the even/odd offsets; the phantom means
-  do use the split covariance);
 * fast-tier blocks are independent (their correlation time is < 1/32 of a
   block) and periodic within a block.
 
@@ -41,8 +39,9 @@ part of the slope image is one frame-length stream with the fast PSD times
 
 Small scenes take another route in slope mode (`NoiseEngine.slope_route`,
 chosen by cost): the slopes drawn exactly at the samples read
-(`spherex_reduce.simulation.exact_slopes`).  The phantom means' fast tier is
-in `spherex_reduce.simulation.phantom_tier`; the building blocks of the tiers
+(`spherex_reduce.simulation.exact_slopes`).  The pixels' fast tier is in
+`spherex_reduce.simulation.pixel_fast_tier`, the phantom means' in
+`spherex_reduce.simulation.phantom_tier`; the building blocks of the tiers
 (band PSDs, kernel streams, stream groups) are in
 `spherex_reduce.simulation.streams`.
 """
@@ -57,9 +56,9 @@ from ..core import limits
 from ..noise.variance import ls_weights
 from .exact_slopes import ExactSlopes
 from .phantom_tier import PhantomTier
+from .pixel_fast_tier import PixelFastTier
 from .streams import (
     _PSD,
-    _SCOPE,
     TIER_A,
     TIER_B,
     TIER_FAST,
@@ -160,10 +159,10 @@ class NoiseEngine:
         self.block = max(1, math.ceil(self.l_corr / self.F))
         self._column_maps()
         self._slow = None
-        self._lam_cache = {}
         self._bcache = {}
         self._streaming = streaming
         self.phantom_tier = PhantomTier(self)
+        self.fast_tier = PixelFastTier(self)
         self.exact = ExactSlopes(s, comps, self.entropy, self.dtype)
         if slope_route not in (None, "auto", *self.SLOPE_ROUTES):
             raise ValueError(f"slope_route must be one of {self.SLOPE_ROUTES} or None, "
@@ -347,31 +346,18 @@ class NoiseEngine:
     # -- fast tier (pixels) ----------------------------------------------------------
     def _fast_psds(self, kind):
         """Fast-tier PSDs ``{'channel': psd, 'common': psd}`` seen by ``kind``."""
-        return _fast_psds(self.components, kind, self.f_a, self.f_b)
+        return _fast_psds(self.components, kind, self.f_a, self.f_b,
+                          split_acn=kind == "pixels")
 
     def _block_fft_len(self):
         if self.block == 1:
             return _fft_len(self.F)
         return _fft_len(self.block * self.F + self.l_corr)
 
-    def _fast_lam(self, scope, psd, m):
-        key = (scope, m)
-        if key not in self._lam_cache:
-            self._lam_cache[key] = psd_weights(psd, m, self.fs)
-        return self._lam_cache[key]
-
     def _fast_block(self, b, nframes):
-        """Full-rate fast streams of frame block ``b``: channel (nch, n) and common (n,)."""
-        n = nframes * self.F
-        m = self._block_fft_len()
-        res = {}
-        for scope, psd in self._fast_psds("pixels").items():
-            lam = self._fast_lam(scope, psd, m)
-            ns = self.nch if scope == "channel" else 1
-            rngs = _rngs(self.entropy, ns, m // 2 + 1, TIER_FAST, _SCOPE[scope], b)
-            res[scope] = synthesize(lam, m, n, rngs, method=self.method, dtype=self.dtype,
-                                    nstreams=ns)
-        return res
+        """Full-rate fast streams of frame block ``b``: channel (nch, n) and common (1, n)."""
+        return self.fast_tier.streams(nframes * self.F, self._block_fft_len(), 1.0,
+                                      TIER_FAST, b)
 
     def _pixels_from_stream(self, ch_stream, common_stream, k_in_block, out, assign=False):
         """Add (or assign) the samples of frame ``k_in_block`` of the fast streams to ``out``."""
@@ -474,7 +460,7 @@ class NoiseEngine:
 
         _, ma, _, mb = self._slow_sizes()
         ops = sum(fft(ma, gr.nstreams) + fft(mb, gr.nstreams) for gr in self.slow_groups)
-        nfast = sum(self.nch if scope == "channel" else 1 for scope in self._fast_psds("pixels"))
+        nfast = sum(1 if scope == "common" else self.nch for scope in self._fast_psds("pixels"))
         if self.block == 1:  # one frame-length stream (the frames' fast tiers are independent)
             ops += fft(self._block_fft_len(), nfast)
         else:  # the ramps' blocks, fitted
@@ -516,8 +502,8 @@ class NoiseEngine:
                                            ).functional_variance(a)
                 else:
                     total += _functional_variance(a, lam, m)
-        for _scope, psd in self._fast_psds("pixels").items():
-            m = self._block_fft_len()
+        for scope, psd in self._fast_psds("pixels").items():
+            m = self.fast_tier.period(scope, self._block_fft_len())
             cov = covariance_from_weights(psd_weights(psd, m, self.fs), m)
             for b0 in range(0, self.N, self.block):
                 ks = np.arange(b0, min(self.N, b0 + self.block))
@@ -537,15 +523,9 @@ class NoiseEngine:
         if self.block == 1:
             # frames' fast tiers are independent: the slope is sqrt(sum w^2) times one
             # frame-length stream with the fast PSD
-            m = self._block_fft_len()
             scale = float(np.sum(w * w))
-            fast = {}
-            for scope, psd in self._fast_psds("pixels").items():
-                lam = psd_weights(psd, m, self.fs) * scale
-                ns = self.nch if scope == "channel" else 1
-                rngs = _rngs(self.entropy, ns, m // 2 + 1, TIER_SLOPE_FAST, _SCOPE[scope])
-                fast[scope] = synthesize(lam, m, self.F, rngs, method=self.method,
-                                         dtype=self.dtype, nstreams=ns)
+            fast = self.fast_tier.streams(self.F, self._block_fft_len(), scale,
+                                          TIER_SLOPE_FAST)
             self._pixels_from_stream(fast.get("channel"), fast.get("common"), 0, out)
         else:
             # short frames: the fast tier is correlated across frames; fit the same

@@ -17,7 +17,9 @@ from scipy import signal
 
 from .synthesis import rng_for
 
-_SCOPE = {"channel": 0, "common": 1}
+#: Stream keys: the scopes, and ``acn`` for the pixels' fast tier of channel components with
+#: ACN (two realisations per channel, one per column parity)
+_SCOPE = {"channel": 0, "common": 1, "acn": 2}
 _VIS = {"pixels": 0, "phantom": 1, "both": 2}
 TIER_A, TIER_B, TIER_FAST, TIER_PHANTOM, TIER_SLOPE_FAST, TIER_EXACT = range(6)
 
@@ -74,19 +76,23 @@ class _PSD:
         return not any(c.beta or c.gamma for c in self.comps)
 
 
-def _fast_psds(components, kind, f_a, f_b):
+def _fast_psds(components, kind, f_a, f_b, split_acn=False):
     """Fast-tier PSDs ``{'channel': psd, 'common': psd}`` of the components ``kind`` sees.
 
     ``kind`` is ``'pixels'`` or ``'phantom'``; a scope with no such component, or
-    only silent ones, is left out.
+    only silent ones, is left out.  ``split_acn`` puts the channel components
+    with ACN apart, under ``'acn'`` (their streams are drawn per column parity).
     """
     res = {}
-    for scope in ("channel", "common"):
-        comps = [c for c in components if c.scope == scope and
+    groups = {"channel": lambda c: c.scope == "channel" and not (split_acn and c.acn),
+              "acn": lambda c: split_acn and c.scope == "channel" and c.acn,
+              "common": lambda c: c.scope == "common"}
+    for key, member in groups.items():
+        comps = [c for c in components if member(c) and
                  (c.seen_by_pixels if kind == "pixels" else c.seen_by_phantom)]
         psd = _PSD(comps, "fast", f_a, f_b, white=True)
         if comps and not psd.empty:
-            res[scope] = psd
+            res[key] = psd
     return res
 
 

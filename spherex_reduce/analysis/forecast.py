@@ -120,37 +120,11 @@ def forecast(scene, *, bins=30, pixel_scale=SPHEREX_PIXEL_SCALE, exclude_horizon
         raise SpherexReduceError("forecast: reference pixels inside the light-sensitive "
                                  "rectangle (channel_border) are not forecast so far")
     ny, nx = rows.stop - rows.start, cols.stop - cols.start
-    comps = [c for c in sc.components if not c.is_zero]
-    rs, width, frame = s.row_samples, g.channel_width, s.frame_samples
-    a = _row_pairs(s, rows)  # (ny, 2 * slots)
-    slots = a.shape[1] // 2
-    m = np.arange(-(slots - 1), slots)
-    dist = np.min(np.abs(m[:, None] * rs - np.array([-frame, 0, frame])[None, :]), axis=1)
-    near = dist < NEAR_READS * rs
-    a_near, a_far = a[:, m[near] % a.shape[1]], a[:, m[~near] % a.shape[1]]
-    del a
-    d = np.arange(-(width - 1), width)
-    interp, dnodes = _chebyshev_rule(width - 1, nodes)
-    pairs = _column_pairs(g, cols, nx)  # {"channel": B, "common": B}, (nkx, 2 width - 1)
-    cov = slope_covariance(comps, s, np.concatenate(
-        [(m[near][:, None] * rs + d[None, :]).ravel(),
-         (m[~near][:, None] * rs + dnodes[None, :]).ravel()])) if comps else None
-    nnear = near.sum() * d.size
+    parts = _component_planes(s, rows, cols, [c for c in sc.components if c.seen_by_pixels
+                                              and not c.is_zero], nodes)
     unit = _SLOPE_UNIT**2
     shape = (ny, nx)
     edges = _edges(bins, ny, nx)
-    parts = {}
-    for i, comp in enumerate(comps):
-        if not comp.seen_by_pixels:
-            continue
-        b = pairs[comp.scope].copy()
-        if comp.acn:
-            b[:, d % 2 != 0] = 0.0
-        s_near = cov[i, :nnear].reshape(near.sum(), d.size)
-        s_far = cov[i, nnear:].reshape((~near).sum(), dnodes.size)
-        p = (a_near @ (s_near @ b.T)).real
-        p += ((a_far @ s_far) @ (b @ interp).T).real
-        parts[comp.name] = p
     total = sum(parts.values()) if parts else np.zeros((ny, nx // 2 + 1))
     table = spectrum_table(total, shape, edges, unit, 1.0, pixel_scale, exclude_horizontal)
     for comp in sc.components:
@@ -172,6 +146,48 @@ def forecast(scene, *, bins=30, pixel_scale=SPHEREX_PIXEL_SCALE, exclude_horizon
     return table
 
 
+def _component_planes(s, rows, cols, comps, nodes):
+    """``{name: E|FFT|²}`` on the rfft2 grid of the light-sensitive image for each component.
+
+    Only the ``k_y >= 0`` half of ``A`` is computed: ``A(-k_y, m)`` is its conjugate, so
+    with ``Q = sum_d B S`` the two halves are ``Re A Re Q -/+ Im A Im Q``.
+    """
+    g = s.geometry
+    ny, nx = rows.stop - rows.start, cols.stop - cols.start
+    rs, width, frame = s.row_samples, g.channel_width, s.frame_samples
+    a = _row_pairs(s, rows)  # (ny // 2 + 1, 2 * slots)
+    slots = a.shape[1] // 2
+    m = np.arange(-(slots - 1), slots)
+    dist = np.min(np.abs(m[:, None] * rs - np.array([-frame, 0, frame])[None, :]), axis=1)
+    near = dist < NEAR_READS * rs
+    a_near, a_far = a[:, m[near] % a.shape[1]], a[:, m[~near] % a.shape[1]]
+    del a
+    d = np.arange(-(width - 1), width)
+    interp, dnodes = _chebyshev_rule(width - 1, nodes)
+    pairs = _column_pairs(g, cols, nx)  # {"channel": B, "common": B}, (nkx, 2 width - 1)
+    lags = np.concatenate([(m[near][:, None] * rs + d[None, :]).ravel(),
+                           (m[~near][:, None] * rs + dnodes[None, :]).ravel()])
+    lags, inverse = np.unique(np.abs(lags), return_inverse=True)  # S is even
+    cov = slope_covariance(comps, s, lags)[:, inverse.ravel()] if comps else None
+    nnear = near.sum() * d.size
+    neg = np.arange(1, (ny - 1) // 2 + 1)  # k_y index i < 0 is the mirror of ny - i
+    parts = {}
+    for i, comp in enumerate(comps):
+        b = pairs[comp.scope].copy()
+        if comp.acn:
+            b[:, d % 2 != 0] = 0.0
+        s_near = cov[i, :nnear].reshape(near.sum(), d.size)
+        s_far = cov[i, nnear:].reshape((~near).sum(), dnodes.size)
+        half = [(a_near, s_near @ b.T), (a_far @ s_far, (b @ interp).T)]
+        re = sum(x.real @ q.real for x, q in half)
+        im = sum(x.imag @ q.imag for x, q in half)
+        p = np.empty((ny, re.shape[1]))
+        p[:re.shape[0]] = re - im
+        p[ny - neg] = re[neg] + im[neg]
+        parts[comp.name] = p
+    return parts
+
+
 def _check_terms(terms):
     """Refuse the scene terms that add noise other than the readout's Gaussian noise."""
     rate = terms["dark_current"] + terms["photocurrent"]
@@ -187,7 +203,7 @@ def _check_terms(terms):
 
 
 def _row_pairs(schedule, rows):
-    """``A(k_y, m)`` for every ``k_y`` of the rfft2 grid and read-slot lag ``m`` (index
+    """``A(k_y, m)`` for ``k_y = 2 pi i / ny``, ``i = 0 ... ny // 2``, and read-slot lag ``m`` (index
     ``m mod 2 slots``): the autocorrelation over read slots of ``exp(-i k_y p)``."""
     s = schedule
     slot = (s.starts - s.phantom_reads) // s.row_samples
@@ -196,8 +212,8 @@ def _row_pairs(schedule, rows):
     if np.any(first < 0) or np.any(s.is_reference[first]):
         raise SpherexReduceError("forecast: a light-sensitive row is not read as an active row")
     ny = rows.stop - rows.start
-    ky = 2 * np.pi * np.fft.fftfreq(ny)
-    g = np.zeros((ny, 2 * slots), dtype=complex)
+    ky = 2 * np.pi * np.arange(ny // 2 + 1) / ny
+    g = np.zeros((ky.size, 2 * slots), dtype=complex)
     g[:, slot[first]] = np.exp(-1j * ky[:, None] * np.arange(ny)[None, :])
     f = scipy.fft.fft(g, axis=1, workers=-1)
     f = f.real**2 + f.imag**2

@@ -101,7 +101,7 @@ def forecast(scene, *, bins=30, pixel_scale=SPHEREX_PIXEL_SCALE, exclude_horizon
 
     Examples
     --------
-    >>> from spherex_reduce.analysis.forecast import forecast
+    >>> from spherex_reduce.analysis import forecast
     >>> scene = {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 4, "ref_border": 4},
     ...          "readout": {"nframes": 8, "phantom_reads": 0},
     ...          "noise": {"components": [{"name": "w", "alpha": 2e-3}]}}

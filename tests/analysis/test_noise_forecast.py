@@ -7,8 +7,7 @@ import pytest
 from astropy import units as u
 
 from spherex_reduce import expected_slope_variance
-from spherex_reduce.analysis import power_spectrum
-from spherex_reduce.analysis.forecast import forecast
+from spherex_reduce.analysis import forecast, power_spectrum
 from spherex_reduce.analysis.light import light_sensitive_image
 from spherex_reduce.core.errors import SpherexReduceError
 from spherex_reduce.noise.variance import slope_covariance

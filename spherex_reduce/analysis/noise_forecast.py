@@ -41,6 +41,7 @@ from ..core.errors import SpherexReduceError
 from ..noise.variance import slope_covariance
 from ..simulation.scene import Scene, load_scene
 from .light import light_sensitive
+from .photon_noise import slope_variance_factor
 from .spectrum import (
     BAND_KMAX,
     BAND_KMIN,
@@ -57,6 +58,8 @@ NEAR_READS = 4
 NODES = 8
 
 _SLOPE_UNIT = u.electron / u.s
+#: Name of the Poisson noise of the dark current and photocurrent in the table's columns.
+_POISSON = "poisson"
 
 
 def forecast(scene, *, bins=30, pixel_scale=SPHEREX_PIXEL_SCALE, exclude_horizontal=False,
@@ -84,7 +87,9 @@ def forecast(scene, *, bins=30, pixel_scale=SPHEREX_PIXEL_SCALE, exclude_horizon
         The columns of `~spherex_reduce.analysis.power_spectrum`: ``power`` is
         the expected ``P(k)`` in (e/s)² pix², ``power_err`` the standard error
         one realisation's bin would have; then ``power_<name>`` for every noise
-        component (zero for one the pixels do not see).  ``meta`` as
+        component (zero for one the pixels do not see) and ``power_poisson``
+        for the Poisson noise of the scene's dark current and photocurrent
+        (white, `~spherex_reduce.analysis.slope_variance_factor`), if any.  ``meta`` as
         `~spherex_reduce.analysis.power_spectrum`'s, with ``band_power`` (the
         paper's band, e/s squared), ``variance`` (the mean of ``P`` over the
         whole plane: the pixel variance) and ``forecast`` (what was forecast).
@@ -92,8 +97,8 @@ def forecast(scene, *, bins=30, pixel_scale=SPHEREX_PIXEL_SCALE, exclude_horizon
     Raises
     ------
     SpherexReduceError
-        A scene term that is not Gaussian noise of the readout (Poisson
-        noise of a current, hot pixels, telegraph noise), channels not as
+        A scene term that is neither Gaussian noise of the readout nor the
+        Poisson noise of a current (hot pixels, telegraph noise), channels not as
         columns, a window, or reference pixels inside the light-sensitive
         rectangle.
     ConfigError
@@ -126,19 +131,23 @@ def forecast(scene, *, bins=30, pixel_scale=SPHEREX_PIXEL_SCALE, exclude_horizon
     ny, nx = rows.stop - rows.start, cols.stop - cols.start
     parts = _component_planes(s, rows, cols, [c for c in sc.components if c.seen_by_pixels
                                               and not c.is_zero], nodes)
+    shot = _poisson_variance(sc)
+    if shot:  # white: the same in every cell
+        parts[_POISSON] = np.full((ny, nx // 2 + 1), shot * ny * nx)
     unit = _SLOPE_UNIT**2
     shape = (ny, nx)
     edges = _edges(bins, ny, nx)
     total = sum(parts.values()) if parts else np.zeros((ny, nx // 2 + 1))
     table = spectrum_table(total, shape, edges, unit, 1.0, pixel_scale, exclude_horizontal)
-    for comp in sc.components:
-        if comp.name in parts:
-            power = spectrum_table(parts[comp.name], shape, edges, unit, 1.0, pixel_scale,
+    names = [c.name for c in sc.components] + ([_POISSON] if shot else [])
+    for name in names:
+        if name in parts:
+            power = spectrum_table(parts[name], shape, edges, unit, 1.0, pixel_scale,
                                    exclude_horizontal)["power"]
         else:
             power = np.zeros(len(table)) * table["power"].unit
-        table[f"power_{comp.name}"] = u.Quantity(power)
-        table[f"power_{comp.name}"].description = f"expected P(k) of component {comp.name}"
+        table[f"power_{name}"] = u.Quantity(power)
+        table[f"power_{name}"].description = f"expected P(k) of {name}"
     band = spectrum_table(total, shape, np.array([BAND_KMIN, BAND_KMAX]), unit, 1.0,
                           pixel_scale, exclude_horizontal)
     full = _full_plane_weights(ny, nx)
@@ -192,18 +201,27 @@ def _component_planes(s, rows, cols, comps, nodes):
     return parts
 
 
+def _poisson_variance(scene):
+    """Slope variance (e/s)² of the Poisson noise of the dark current and photocurrent, the
+    same in every light-sensitive pixel (0 without it)."""
+    t = scene.terms
+    rate = t["dark_current"] + t["photocurrent"]
+    if not (t["poisson"] and rate > 0):
+        return 0.0
+    s = scene.schedule
+    return rate * slope_variance_factor(s.nframes) * s.geometry.pixel_rate / s.frame_samples
+
+
 def _check_terms(terms):
-    """Refuse the scene terms that add noise other than the readout's Gaussian noise."""
-    rate = terms["dark_current"] + terms["photocurrent"]
+    """Refuse the scene terms that add noise other than Gaussian readout and Poisson noise."""
     rtn = terms.get("rtn") or {}
     named = [name for name, on in (
-        ("Poisson noise of the dark current and photocurrent", terms["poisson"] and rate > 0),
         ("hot pixels", terms["hot_pixel_fraction"] > 0),
         ("telegraph noise", rtn.get("fraction", 0) > 0 and rtn.get("amplitude", 0) > 0),
     ) if on]
     if named:
         raise SpherexReduceError(f"forecast: the scene has {', '.join(named)}; only the "
-                                 "readout's noise components are forecast so far")
+                                 "readout's noise and Poisson noise are forecast so far")
 
 
 def _row_pairs(schedule, rows):

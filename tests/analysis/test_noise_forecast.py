@@ -14,6 +14,7 @@ from spherex_reduce.noise.variance import slope_covariance
 from spherex_reduce.simulation import load_scene, simulate
 
 BINS = 5
+OVH = 20000
 PINK = {"name": "pink", "beta": 8e-3}
 PINK_ACN = {**PINK, "name": "pink_acn", "acn": True}
 ROIC = {"name": "roic", "alpha": 2e-3, "gamma": 0.1, "exponent": 1.3, "acn": True}
@@ -21,13 +22,15 @@ COMMON = {"name": "common", "alpha": 3e-6, "beta": 9e-5, "scope": "common"}
 PHANTOM = {"name": "phantom_only", "beta": 4e-6, "scope": "common", "visibility": "phantom"}
 
 
-def tiny(components, scan="same"):
+def tiny(components, scan="same", terms=None):
     """20 x 20 pixels in 2 channels of 10 columns, a reference border of 2 (16 x 16 light
-    pixels, each channel's light columns cut on one side), skip 3, 4 reference reads."""
+    pixels, each channel's light columns cut on one side), skip 3, 4 reference reads; a
+    long frame overhead makes the frame time ~60 times the reads' span."""
     return load_scene({
         "geometry": {"nrows": 20, "ncols": 20, "nchannels": 2, "ref_border": 2, "scan": scan},
-        "readout": {"skip": 3, "ref_reads": 4, "phantom_reads": 2, "nframes": 4},
+        "readout": {"skip": 3, "ref_reads": 4, "phantom_reads": 2, "nframes": 4, "frame_overhead": OVH},
         "noise": {"components": components},
+        "scene": terms or {},
     })
 
 
@@ -106,7 +109,7 @@ def test_parseval_against_expected_slope_variance():
 def test_monte_carlo_within_three_standard_errors():
     """300 slope images of the package's simulator (its exact slopes route), measured as
     `spherex-reduce spectrum` measures them, against the forecast in every bin."""
-    scene = tiny([ROIC, PINK_ACN, COMMON], scan="alternate")
+    scene = tiny([ROIC, PINK_ACN, COMMON], scan="alternate", terms={"dark_current": 20.0})
     runs = np.array([power_spectrum(light_sensitive_image(simulate(scene, seed=i)),
                                     bins=BINS)["power"].value for i in range(300)])
     mean, se = runs.mean(axis=0), runs.std(axis=0, ddof=1) / np.sqrt(len(runs))
@@ -114,8 +117,21 @@ def test_monte_carlo_within_three_standard_errors():
     assert np.all(np.abs(mean - expect) < 3 * se), (mean - expect) / se
 
 
+def test_poisson_noise_is_white_at_the_analytic_slope_variance():
+    """Least-squares slope of N reads T apart of a Poisson charge at i e/s: variance
+    6 (N^2 + 1) / (5 N (N^2 - 1)) i / T, written out here."""
+    scene = tiny([PINK], terms={"dark_current": 3.0, "photocurrent": 1.0})
+    got = forecast(scene, bins=BINS)
+    n, t = 4, scene.schedule.frame_samples / scene.schedule.geometry.pixel_rate
+    expect = 6 * (n**2 + 1) / (5 * n * (n**2 - 1)) * 4.0 / t
+    np.testing.assert_allclose(u.Quantity(got["power_poisson"]).value, expect, rtol=1e-12)
+    without = forecast(tiny([PINK]), bins=BINS)
+    np.testing.assert_allclose(u.Quantity(got["power"]).value,
+                               u.Quantity(without["power"]).value + expect, rtol=1e-12)
+
+
 def test_refuses_what_it_does_not_forecast():
     scene = load_scene({"geometry": {"nrows": 20, "ncols": 20, "nchannels": 2},
-                        "scene": {"dark_current": 1.0}})
-    with pytest.raises(SpherexReduceError, match="Poisson noise"):
+                        "scene": {"hot_pixel_fraction": 0.01}})
+    with pytest.raises(SpherexReduceError, match="hot pixels"):
         forecast(scene)

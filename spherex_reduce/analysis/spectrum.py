@@ -400,6 +400,17 @@ def _binned_spectrum(data, data_b, bad, unit, unit_b, bins, pixel_scale, exclude
         var = (np.abs(f) ** 2 * np.abs(g) ** 2 + p * p) / 2
         del g
     del f
+    return spectrum_table(p, (ny, nx), edges, unit * unit_b, fgood, pixel_scale,
+                          exclude_horizontal, var)
+
+
+def spectrum_table(p, shape, edges, unit, fgood=1.0, pixel_scale=SPHEREX_PIXEL_SCALE,
+                   exclude_horizontal=False, var=None):
+    """The table of `power_spectrum` from ``p``, the ``|FFT|²`` (or its expectation) of every
+    cell of the ``rfft2`` grid of an image of ``shape``, not normalised; ``unit`` is the
+    image's squared, ``fgood`` its unmasked fraction, ``var`` each cell's Gaussian variance
+    (None: ``p²``).  The one binning of measured and forecast spectra."""
+    ny, nx = shape
     idx, w, nfull, ksum, nself = _grid(ny, nx, tuple(edges), bool(exclude_horizontal))
     nb = edges.size - 1
     pw = p.ravel() * w
@@ -413,7 +424,7 @@ def _binned_spectrum(data, data_b, bad, unit, unit_b, bins, pixel_scale, exclude
     power = psum[keep] / n * scale
     err = np.sqrt(p2sum[keep]) / n * scale
     nmodes = np.rint((n + nself[keep]) / 2).astype(np.int64)
-    punit = unit * unit_b * u.pix**2
+    punit = unit * u.pix**2
     table = Table(
         {
             "k": k * _K_UNIT,

@@ -1,0 +1,137 @@
+"""The forecast of an uncorrected slope image against independent computations: Parseval
+against the analytic pixel variance, a brute-force covariance of every pixel pair pushed
+through `power_spectrum`, and the package's Monte Carlo."""
+
+import numpy as np
+import pytest
+from astropy import units as u
+
+from spherex_reduce import expected_slope_variance
+from spherex_reduce.analysis import forecast, power_spectrum
+from spherex_reduce.analysis.light import light_sensitive_image
+from spherex_reduce.core.errors import SpherexReduceError
+from spherex_reduce.noise.variance import slope_covariance
+from spherex_reduce.simulation import load_scene, simulate
+
+BINS = 5
+OVH = 20000
+PINK = {"name": "pink", "beta": 8e-3}
+PINK_ACN = {**PINK, "name": "pink_acn", "acn": True}
+ROIC = {"name": "roic", "alpha": 2e-3, "gamma": 0.1, "exponent": 1.3, "acn": True}
+COMMON = {"name": "common", "alpha": 3e-6, "beta": 9e-5, "scope": "common"}
+PHANTOM = {"name": "phantom_only", "beta": 4e-6, "scope": "common", "visibility": "phantom"}
+
+
+def tiny(components, scan="same", terms=None):
+    """20 x 20 pixels in 2 channels of 10 columns, a reference border of 2 (16 x 16 light
+    pixels, each channel's light columns cut on one side), skip 3, 4 reference reads; a
+    long frame overhead makes the frame time ~60 times the reads' span."""
+    return load_scene({
+        "geometry": {"nrows": 20, "ncols": 20, "nchannels": 2, "ref_border": 2, "scan": scan},
+        "readout": {"skip": 3, "ref_reads": 4, "phantom_reads": 2, "nframes": 4, "frame_overhead": OVH},
+        "noise": {"components": components},
+        "scene": terms or {},
+    })
+
+
+def brute_force(scene, bins):
+    """E[power_spectrum] from the covariance of every pair of light pixels: their slope
+    covariance at their sampling lag (zero across channels for a channel-scope component,
+    across column parities with ACN), then E[y^T Q y] = sum_i lambda_i (v_i^T Q v_i) over
+    the covariance's eigenvectors, each pushed through power_spectrum itself."""
+    s = scene.schedule
+    g = s.geometry
+    rows = np.arange(2, 18)
+    cols = np.arange(2, 18)
+    read = np.array([np.flatnonzero((s.rows == p) & ~s.is_reference)[0] for p in rows])
+    t = (s.starts[read][:, None] + g.column_offsets()[cols][None, :]).ravel()
+    chan = np.broadcast_to(g.channel_of_column()[cols], (16, 16)).ravel()
+    parity = np.broadcast_to(g.column_offsets()[cols] % 2, (16, 16)).ravel()
+    cov = np.zeros((t.size, t.size))
+    for comp in scene.components:
+        if not comp.seen_by_pixels:
+            continue
+        c = slope_covariance(comp, s, t[:, None] - t[None, :])[0]
+        if comp.scope == "channel":
+            c = c * (chan[:, None] == chan[None, :])
+        if comp.acn:
+            c = c * (parity[:, None] == parity[None, :])
+        cov += c
+    lam, vec = np.linalg.eigh(cov)
+    keep = lam > 1e-12 * lam.max()
+    total = 0.0
+    for lv, v in zip(lam[keep], vec[:, keep].T, strict=True):
+        total = total + lv * power_spectrum(v.reshape(16, 16), bins=bins)["power"].value
+    return total, cov
+
+
+CASES = {
+    "pink": [PINK],
+    "pink_acn": [PINK_ACN],
+    "common": [PINK_ACN, COMMON, PHANTOM],
+    "table2_like": [ROIC, PINK_ACN, COMMON],
+}
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_equals_brute_force(name):
+    scene = tiny(CASES[name], scan="alternate" if name == "common" else "same")
+    expect, _ = brute_force(scene, BINS)
+    got = forecast(scene, bins=BINS)
+    p = u.Quantity(got["power"]).value
+    assert p.size == expect.size
+    np.testing.assert_allclose(p, expect, rtol=1e-3)
+    # band power over every bin, weighted by modes (the image is too small for 5-20')
+    n = np.asarray(got["nmodes"], float)
+    assert abs(np.sum(p * n) / np.sum(expect * n) - 1) < 1e-4
+
+
+def test_components_add_up_and_phantom_only_is_invisible():
+    got = forecast(tiny(CASES["common"]), bins=BINS)
+    parts = sum(u.Quantity(got[f"power_{n}"]).value for n in ("pink_acn", "common"))
+    np.testing.assert_allclose(u.Quantity(got["power"]).value, parts, rtol=1e-12)
+    assert np.all(u.Quantity(got["power_phantom_only"]).value == 0)
+    # ACN halves the column pairs that correlate: the pixel variance is the same
+    var = [forecast(tiny([c]), bins=BINS).meta["variance"] for c in (PINK, PINK_ACN)]
+    assert var[0] == pytest.approx(var[1], rel=1e-9)
+
+
+def test_parseval_against_expected_slope_variance():
+    """The mean of P over the whole plane is the pixel variance, analytic (Table 2 timing,
+    a 128 x 128 array of 4 channels with distributed reference reads)."""
+    scene = load_scene({"geometry": {"nrows": 128, "ncols": 128, "nchannels": 4},
+                        "readout": {"skip": 8, "ref_reads": 8, "nframes": 20}})
+    got = forecast(scene)
+    expect = expected_slope_variance(list(scene.components), scene.schedule).value
+    assert got.meta["variance"] == pytest.approx(expect, rel=1e-6)
+
+
+def test_monte_carlo_within_three_standard_errors():
+    """300 slope images of the package's simulator (its exact slopes route), measured as
+    `spherex-reduce spectrum` measures them, against the forecast in every bin."""
+    scene = tiny([ROIC, PINK_ACN, COMMON], scan="alternate", terms={"dark_current": 20.0})
+    runs = np.array([power_spectrum(light_sensitive_image(simulate(scene, seed=i)),
+                                    bins=BINS)["power"].value for i in range(300)])
+    mean, se = runs.mean(axis=0), runs.std(axis=0, ddof=1) / np.sqrt(len(runs))
+    expect = u.Quantity(forecast(scene, bins=BINS)["power"]).value
+    assert np.all(np.abs(mean - expect) < 3 * se), (mean - expect) / se
+
+
+def test_poisson_noise_is_white_at_the_analytic_slope_variance():
+    """Least-squares slope of N reads T apart of a Poisson charge at i e/s: variance
+    6 (N^2 + 1) / (5 N (N^2 - 1)) i / T, written out here."""
+    scene = tiny([PINK], terms={"dark_current": 3.0, "photocurrent": 1.0})
+    got = forecast(scene, bins=BINS)
+    n, t = 4, scene.schedule.frame_samples / scene.schedule.geometry.pixel_rate
+    expect = 6 * (n**2 + 1) / (5 * n * (n**2 - 1)) * 4.0 / t
+    np.testing.assert_allclose(u.Quantity(got["power_poisson"]).value, expect, rtol=1e-12)
+    without = forecast(tiny([PINK]), bins=BINS)
+    np.testing.assert_allclose(u.Quantity(got["power"]).value,
+                               u.Quantity(without["power"]).value + expect, rtol=1e-12)
+
+
+def test_refuses_what_it_does_not_forecast():
+    scene = load_scene({"geometry": {"nrows": 20, "ncols": 20, "nchannels": 2},
+                        "scene": {"hot_pixel_fraction": 0.01}})
+    with pytest.raises(SpherexReduceError, match="hot pixels"):
+        forecast(scene)

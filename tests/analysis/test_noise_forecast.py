@@ -28,7 +28,8 @@ def tiny(components, scan="same", terms=None):
     long frame overhead makes the frame time ~60 times the reads' span."""
     return load_scene({
         "geometry": {"nrows": 20, "ncols": 20, "nchannels": 2, "ref_border": 2, "scan": scan},
-        "readout": {"skip": 3, "ref_reads": 4, "phantom_reads": 2, "nframes": 4, "frame_overhead": OVH},
+        "readout": {"skip": 3, "ref_reads": 4, "phantom_reads": 2, "nframes": 4,
+                    "frame_overhead": OVH},
         "noise": {"components": components},
         "scene": terms or {},
     })

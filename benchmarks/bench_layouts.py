@@ -23,7 +23,6 @@ file (``--reads-dq``).
 
 import argparse
 import contextlib
-import hashlib
 import io
 import tempfile
 import time
@@ -33,6 +32,7 @@ import numpy as np
 from astropy.io import fits
 
 from spherex_reduce.cli import main
+from spherex_reduce.reduce.batch import input_digest
 
 RNG = np.random.default_rng(2026)
 STEPS = """steps:
@@ -50,10 +50,7 @@ READOUT = """readout:
 
 
 def _digest(paths):
-    h = hashlib.sha256()
-    for p in paths:
-        h.update(Path(p).read_bytes())
-    return h.hexdigest()
+    return [input_digest(p) for p in paths]
 
 
 def _ramps(t, nrows, ncols, reference, channel, sigma=3.0):
@@ -194,10 +191,8 @@ def case_reads(where, n, reads):
     folder.mkdir()
     files = []
     for k in range(reads):
-        sci = fits.ImageHDU(counts[k], name="SCI")
-        sci.header["BUNIT"] = "ADU"
         files.append(folder / f"read_{k + 1}.fits")
-        fits.HDUList([fits.PrimaryHDU(), sci]).writeto(files[-1])
+        _write_cube(files[-1], counts[k])
     fits.PrimaryHDU(mask).writeto(where / "mask.fits")
     del counts
 

@@ -47,6 +47,7 @@ from .spectrum import (
     BAND_KMIN,
     SPHEREX_PIXEL_SCALE,
     _edges,
+    rfft_weights,
     spectrum_table,
 )
 
@@ -150,7 +151,7 @@ def forecast(scene, *, bins=30, pixel_scale=SPHEREX_PIXEL_SCALE, exclude_horizon
         table[f"power_{name}"].description = f"expected P(k) of {name}"
     band = spectrum_table(total, shape, np.array([BAND_KMIN, BAND_KMAX]), unit, 1.0,
                           pixel_scale, exclude_horizontal)
-    full = _full_plane_weights(ny, nx)
+    full = np.broadcast_to(rfft_weights(nx), (ny, nx // 2 + 1))
     table.meta.update({
         "forecast": "expected P(k) of the slope image, no reduction",
         "band_power": float(u.Quantity(band["power"])[0].value) if len(band) else None,
@@ -274,12 +275,3 @@ def _chebyshev_rule(half, n):
     rule = np.linalg.solve(cheb(nodes / half, nodes.size - 1).T,
                            cheb(d / half, nodes.size - 1).T).T
     return rule, nodes
-
-
-def _full_plane_weights(ny, nx):
-    """Weight of each rfft2 cell in the full Fourier plane (interior columns count twice)."""
-    w = np.full(nx // 2 + 1, 2.0)
-    w[0] = 1.0
-    if nx % 2 == 0:
-        w[-1] = 1.0
-    return np.broadcast_to(w, (ny, w.size))

@@ -203,6 +203,17 @@ def _prepared(data, bad):
 
 # -- the Fourier grid -------------------------------------------------------------
 @functools.lru_cache(maxsize=8)
+def rfft_weights(nx):
+    """Weight of each rfft column ``(nx // 2 + 1,)`` in the full Fourier plane: interior
+    columns stand for +kx and -kx (2), column 0 and an even ``nx``'s Nyquist column for
+    themselves (1)."""
+    w = np.full(nx // 2 + 1, 2.0)
+    w[0] = 1.0
+    if nx % 2 == 0:
+        w[-1] = 1.0
+    return w
+
+
 def _grid(ny, nx, edges, exclude_horizontal):
     """Bin index, weight and |k| of every cell of the ``rfft2`` grid (cached per shape)."""
     ky = 2 * np.pi * np.fft.fftfreq(ny)
@@ -216,12 +227,7 @@ def _grid(ny, nx, edges, exclude_horizontal):
     idx[0, 0] = nb  # the mean (k = 0) never counts
     if exclude_horizontal:
         idx[0, :] = nb
-    # full-plane weight: interior rfft columns stand for +kx and -kx
-    w = np.full(kx.size, 2.0)
-    w[0] = 1.0
-    if nx % 2 == 0:
-        w[-1] = 1.0
-    wgrid = np.broadcast_to(w, kk.shape)
+    wgrid = np.broadcast_to(rfft_weights(nx), kk.shape)
     idx = idx.ravel()
     nfull = np.bincount(idx, weights=wgrid.ravel(), minlength=nb + 1)[:nb]
     ksum = np.bincount(idx, weights=(wgrid * kk).ravel(), minlength=nb + 1)[:nb]

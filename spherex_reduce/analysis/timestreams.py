@@ -36,6 +36,7 @@ from astropy.utils.exceptions import AstropyUserWarning
 
 from ..core.errors import SpherexReduceError
 from ..core.exposure import Exposure
+from ..reduce.steps.noise_models import NEGATIVE_SIGMAS
 from .temporal import PARAMS, aliased_basis, fit_noise_model, temporal_psd
 
 __all__ = ["Timestream", "fit_raw_noise", "phantom_timestream", "reference_timestream"]
@@ -296,7 +297,7 @@ def _parity_psd(streams, rate, nperseg):
 
 
 #: Limits of a plausible noise fit (`implausible_fits`).
-NEGATIVE_SIGMAS, MAX_CHI2_PER_DOF, MIN_RELATIVE_ERROR = 3.0, 10.0, 1e-12
+MAX_CHI2_PER_DOF, MIN_RELATIVE_ERROR = 10.0, 1e-12  # NEGATIVE_SIGMAS: the rule wiener applies
 
 
 def implausible_fits(table):

@@ -1,5 +1,6 @@
 """``spherex-reduce reduce``: run a pipeline config on one FITS file, or on many on dask."""
 
+import contextlib
 import sys
 from pathlib import Path
 
@@ -74,13 +75,12 @@ def run(args):
     # the input files, the config file and any file the config names (e.g. a dark)
     check_paths([*inputs, args.reads_dq, *config_files], [args.output])
     atomic_output(args.output, args.overwrite)  # refuse before reducing
-    if args.reads_dq is not None:  # the read files with one mask file: a reader of them
-        with ReadFiles(what, input=pipeline.input_options, dq=args.reads_dq,
-                       **pipeline.supplied()) as reader:
-            result, images = reduce_input(reader, pipeline, progress=not args.quiet,
-                                          threads=args.threads)
-    else:
-        result, images = reduce_input(what, pipeline, progress=not args.quiet,
+    # the read files with one mask file: a reader of them
+    source = (ReadFiles(what, input=pipeline.input_options, dq=args.reads_dq,
+                        **pipeline.supplied()) if args.reads_dq is not None
+              else contextlib.nullcontext(what))
+    with source as inp:
+        result, images = reduce_input(inp, pipeline, progress=not args.quiet,
                                       threads=args.threads)
     return _written(pipeline, result, args, images)
 

@@ -32,6 +32,7 @@ reference rows and, for each channel, its reference columns at the start and
 the end of the channel.
 """
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -251,6 +252,9 @@ class ChannelLayout:
             Index ``(i, j)`` into the array ``stored[rows]`` giving the frame
             band ``(stop - first, frame columns)``.
 
+        The arrays are read-only and cached: a reader reads the same band of
+        every frame.
+
         Examples
         --------
         >>> from spherex_reduce.core.channel_layout import ChannelLayout
@@ -258,11 +262,7 @@ class ChannelLayout:
         >>> rows.tolist()
         [0, 7]
         """
-        i, j = np.meshgrid(np.arange(first, stop), np.arange(self.frame_shape[1]),
-                           indexing="ij")
-        stored_row, column = self.stored_coordinates(i, j)
-        rows, position = np.unique(stored_row, return_inverse=True)
-        return rows, (position.reshape(i.shape), column)
+        return _band_index(self, first, stop)
 
     def stored_coordinates(self, i, j):
         """Stored ``(row, column)`` of readout-frame pixels ``(i, j)`` (integer arrays).
@@ -354,3 +354,16 @@ def check_stored_order(schedule, order):
         raise ValueError(f"channels: {g.layout.channels} stores images: its ramps in readout "
                          "order must read every row once, in order (skip: 1, ref_mode: "
                          f"none); this schedule reads rows {shown}")
+
+
+@functools.lru_cache(maxsize=32)  # a reader asks for each band once per frame
+def _band_index(layout, first, stop):
+    """`ChannelLayout.stored_rows_of`, computed once per layout and band (read-only arrays,
+    shared between calls)."""
+    i, j = np.meshgrid(np.arange(first, stop), np.arange(layout.frame_shape[1]), indexing="ij")
+    stored_row, column = layout.stored_coordinates(i, j)
+    rows, position = np.unique(stored_row, return_inverse=True)
+    out = rows, (position.reshape(i.shape), column)
+    for a in (rows, *out[1]):
+        a.setflags(write=False)
+    return out

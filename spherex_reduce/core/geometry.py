@@ -8,7 +8,7 @@ import numpy as np
 from .channel_layout import ChannelLayout
 from .fields import FIELD, SIDES, check_field, check_sides, section_fields, table_dataclass
 from .limits import check_size
-from .presets import PRESETS, apply_preset
+from .presets import apply_preset, check_preset
 
 __all__ = ["DetectorGeometry", "RefBorder"]
 
@@ -179,9 +179,8 @@ class DetectorGeometry:
                              f"{self.nrows} x {self.ncols} array: top + bottom must be < nrows "
                              "and left + right < ncols")
         object.__setattr__(self, "_border", border)
-        if self.preset is not None and self.preset not in PRESETS:
-            raise ValueError(f"preset {self.preset!r} is not a known preset; known: "
-                             f"{', '.join(PRESETS)}")
+        if self.preset is not None:
+            check_preset(self.preset)
         check_size(self.nchannels * 16.0, f"{self.nchannels} readout channels")
         if self.stored is None:  # a stored image: its layout gives its readout frame
             layout = ChannelLayout(self.nrows, self.ncols, self.channels, self.first_corner,

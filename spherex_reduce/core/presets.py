@@ -35,7 +35,7 @@ preset (the field keeps its default) and said so here and in the docs:
     (``channels: rows``).
 """
 
-__all__ = ["FULL_ARRAY", "PRESETS", "apply_preset", "apply_window_preset"]
+__all__ = ["FULL_ARRAY", "PRESETS", "apply_preset", "apply_window_preset", "check_preset"]
 
 _SIDECAR = {"nrows": 2048, "ncols": 2048, "nchannels": 4, "ref_border": 4,
             "scan": "alternate", "pixel_rate": 100_000.0}
@@ -51,6 +51,19 @@ PRESETS = {
     "SIDECAR": _SIDECAR,
     "SIDECAR-science": {**_SIDECAR, "channels": "rows"},
 }
+
+
+
+def check_preset(name, what="preset"):
+    """Refuse a ``name`` that is not one of `PRESETS` (``what`` names it in the message).
+
+    Raises
+    ------
+    ValueError
+        Naming the known presets.
+    """
+    if not isinstance(name, str) or name not in PRESETS:
+        raise ValueError(f"{what} {name!r} is not a known preset; known: {', '.join(PRESETS)}")
 
 
 def apply_preset(values):
@@ -82,9 +95,7 @@ def apply_preset(values):
     name = values.get("preset")
     if name is None:
         return values
-    if not isinstance(name, str) or name not in PRESETS:
-        raise ValueError(f"geometry.preset {name!r} is not a known preset; known: "
-                         f"{', '.join(PRESETS)}")
+    check_preset(name, "geometry.preset")
     return {**PRESETS[name], **values}
 
 

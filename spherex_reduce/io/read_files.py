@@ -17,14 +17,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.channel_layout import ChannelLayout
 from ..core.errors import FormatError
 from ..core.exposure import Exposure
 from ..core.limits import check_count, check_size
 from .description import describe, file_tables, image_shape
 from .fits_read import open_fits
 from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq
-from .frames import RampReader, map_frames
+from .frames import RampReader, _runs, map_frames
 from .header_text import header_text
 from .input import InputOptions, apply_gain, apply_input
 from .layout import fits_stem
@@ -246,14 +245,12 @@ class FrameImage:
         descriptor of the image's own (else astropy unpacks them).
     dq : `numpy.ndarray` or None
         The frame's flags in the readout frame (2-D), or None.
-    layout : `~spherex_reduce.core.channel_layout.ChannelLayout`, optional
-        How the image's channels lie (`rows` gives the readout frame's rows);
-        None: stripes of columns, the image is the readout frame.
+    layout : `~spherex_reduce.core.channel_layout.ChannelLayout`
+        How the image's channels lie (`rows` gives the readout frame's rows).
     """
 
-    def __init__(self, hdu, path, plain, dq=None, layout=None):
-        self.hdu, self.path, self.dq = hdu, path, dq
-        self.layout = ChannelLayout(*image_shape(hdu)) if layout is None else layout
+    def __init__(self, hdu, path, plain, dq, layout):
+        self.hdu, self.path, self.dq, self.layout = hdu, path, dq, layout
         self.scale = scaling(hdu, path)
         self._map = map_frames(hdu, path) if plain and hasattr(os, "preadv") else None
         if self._map is not None:  # read with pread from one descriptor per image
@@ -273,8 +270,8 @@ class FrameImage:
         if self.layout.identity:
             return self._stored_rows(first, stop, dtype)
         rows, take = self.layout.stored_rows_of(first, stop)
-        runs = np.split(rows, np.flatnonzero(np.diff(rows) != 1) + 1)
-        return np.concatenate([self._stored_rows(r[0], r[-1] + 1, dtype) for r in runs])[take]
+        return np.concatenate([self._stored_rows(r[0], r[-1] + 1, dtype)
+                               for r in _runs(rows)])[take]
 
     def _stored_rows(self, first, stop, dtype):
         """Rows ``first:stop`` of the image as stored, as ``dtype``."""

@@ -504,7 +504,7 @@ class NoiseEngine:
                     total += _functional_variance(a, lam, m)
         for scope, psd in self._fast_psds("pixels").items():
             m = self.fast_tier.period(scope, self._block_fft_len())
-            cov = covariance_from_weights(psd_weights(psd, m, self.fs), m)
+            cov = covariance_from_weights(self.fast_tier.weights(scope, psd, m), m)
             for b0 in range(0, self.N, self.block):
                 ks = np.arange(b0, min(self.N, b0 + self.block))
                 lag = np.abs(ks[:, None] - ks[None, :]) * self.F

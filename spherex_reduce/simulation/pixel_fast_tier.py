@@ -45,7 +45,8 @@ class PixelFastTier:
             return 2 * _fft_len((m + 1) // 2)
         return m
 
-    def _lam(self, scope, psd, m):
+    def weights(self, scope, psd, m):
+        """Spectral weights of a stream of ``scope``, period ``m`` (cached per scope and period)."""
         key = (scope, m)
         if key not in self._lam_cache:
             self._lam_cache[key] = psd_weights(psd, m, self.engine.fs)
@@ -62,7 +63,7 @@ class PixelFastTier:
         res = {}
         for scope, psd in e._fast_psds("pixels").items():
             ms = self.period(scope, m)
-            lam = self._lam(scope, psd, ms) * scale
+            lam = self.weights(scope, psd, ms) * scale
             keys = (tier, _SCOPE[scope], *key)
             if scope == "acn":
                 x, scope = self._acn(lam, ms, n, keys), "channel"

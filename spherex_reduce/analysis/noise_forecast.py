@@ -37,47 +37,59 @@ import numpy as np
 import scipy.fft
 from astropy import units as u
 
-from ..core.errors import SpherexReduceError
+from ..core.errors import ConfigError, SpherexReduceError
 from ..noise.variance import slope_covariance
+from ..reduce.pipeline import as_pipeline
 from ..simulation.scene import Scene, load_scene
+from .case import SpectrumMeasure, measure_section
 from .light import light_sensitive
 from .photon_noise import slope_variance_factor
 from .spectrum import (
-    BAND_KMAX,
-    BAND_KMIN,
     SPHEREX_PIXEL_SCALE,
     _edges,
     rfft_weights,
     spectrum_table,
 )
 
-__all__ = ["NEAR_READS", "NODES", "forecast"]
+__all__ = ["FORECAST_STEPS", "NEAR_READS", "NODES", "forecast", "linear_steps"]
 
 #: Row reads from a multiple of the frame time within which the sum over offsets is exact.
 NEAR_READS = 4
 #: Chebyshev nodes over the offsets beyond (the rule is exact for polynomials of lower degree).
 NODES = 8
 
+#: Steps the forecast propagates, with the parameter values it propagates them for.
+FORECAST_STEPS = {"unchop": {}, "fit_ramp": {"weighting": "uniform"}}
+
 _SLOPE_UNIT = u.electron / u.s
 #: Name of the Poisson noise of the dark current and photocurrent in the table's columns.
 _POISSON = "poisson"
 
 
-def forecast(scene, *, bins=30, pixel_scale=SPHEREX_PIXEL_SCALE, exclude_horizontal=False,
+def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SCALE,
              nodes=NODES):
-    """Expected power spectrum ``P(k)`` of a scene's slope image, with no reduction.
+    """Expected power spectrum ``P(k)`` of a scene's reduced slope image.
 
-    What ``power_spectrum`` measures on average, over realisations of
-    ``simulate(scene, mode="slopes")``, on the light-sensitive pixels of the
-    image in physical row order (no correction: no phantom subtraction, no
-    reference correction).  No random numbers.
+    What ``SpectrumMeasure(**measure)`` measures on average, over realisations
+    of ``simulate(scene, mode="slopes")`` reduced by ``pipeline``, on the
+    light-sensitive pixels of the image in physical row order.  No random
+    numbers.
 
     Parameters
     ----------
     scene : `~spherex_reduce.simulation.Scene`, dict, YAML text or path
         The scene (`~spherex_reduce.simulation.load_scene`); its channels as
         columns of the array, without windows.
-    bins, pixel_scale, exclude_horizontal
+    pipeline : `~spherex_reduce.Pipeline`, shipped name, path or dict, optional
+        The reduction (`~spherex_reduce.reduce.pipeline.as_pipeline`); None:
+        the slope image as simulated.  Every step must be one the forecast
+        knows as linear (`FORECAST_STEPS`): so far ``unchop`` and ``fit_ramp``
+        with uniform weights.
+    measure : `~spherex_reduce.analysis.case.SpectrumMeasure` or dict, optional
+        ``kmin``, ``kmax`` (the band of ``band_power``, rad/pixel), ``bins`` and
+        ``exclude_horizontal``, as a sweep's ``measure:`` (default: the
+        paper's band, 30 bins); ``mask_sources`` is refused (not linear).
+    pixel_scale : `~astropy.units.Quantity`
         As `~spherex_reduce.analysis.power_spectrum`.
     nodes : int
         Chebyshev nodes of the rule over column offsets (see the module notes).
@@ -103,7 +115,9 @@ def forecast(scene, *, bins=30, pixel_scale=SPHEREX_PIXEL_SCALE, exclude_horizon
         columns, a window, or reference pixels inside the light-sensitive
         rectangle.
     ConfigError
-        A scene that has no slope image (fewer than 2 frames, or groups).
+        A scene that has no slope image (fewer than 2 frames, or groups); a
+        pipeline step the forecast does not know (the message names it) or a
+        measure that is not linear (``mask_sources``).
 
     Examples
     --------
@@ -111,13 +125,15 @@ def forecast(scene, *, bins=30, pixel_scale=SPHEREX_PIXEL_SCALE, exclude_horizon
     >>> scene = {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 4, "ref_border": 4},
     ...          "readout": {"nframes": 8, "phantom_reads": 0},
     ...          "noise": {"components": [{"name": "w", "alpha": 2e-3}]}}
-    >>> t = forecast(scene, bins=4)
+    >>> t = forecast(scene, measure={"bins": 4})
     >>> [round(float(p), 1) for p in t["power"].value]   # white: flat, the pixel variance
     [1861.9, 1861.9, 1861.9, 1861.9]
     >>> round(t.meta["variance"], 1)
     1861.9
     """
     sc = scene if isinstance(scene, Scene) else load_scene(scene)
+    steps = linear_steps(pipeline)
+    m = _measure(measure)
     sc.check_mode("slopes")
     _check_terms(sc.terms)
     s = sc.schedule
@@ -137,7 +153,8 @@ def forecast(scene, *, bins=30, pixel_scale=SPHEREX_PIXEL_SCALE, exclude_horizon
         parts[_POISSON] = np.full((ny, nx // 2 + 1), shot * ny * nx)
     unit = _SLOPE_UNIT**2
     shape = (ny, nx)
-    edges = _edges(bins, ny, nx)
+    edges = _edges(m.bins, ny, nx)
+    exclude_horizontal = bool(m.exclude_horizontal)
     total = sum(parts.values()) if parts else np.zeros((ny, nx // 2 + 1))
     table = spectrum_table(total, shape, edges, unit, 1.0, pixel_scale, exclude_horizontal)
     names = [c.name for c in sc.components] + ([_POISSON] if shot else [])
@@ -149,15 +166,68 @@ def forecast(scene, *, bins=30, pixel_scale=SPHEREX_PIXEL_SCALE, exclude_horizon
             power = np.zeros(len(table)) * table["power"].unit
         table[f"power_{name}"] = u.Quantity(power)
         table[f"power_{name}"].description = f"expected P(k) of {name}"
-    band = spectrum_table(total, shape, np.array([BAND_KMIN, BAND_KMAX]), unit, 1.0,
+    band = spectrum_table(total, shape, np.array([m.kmin, m.kmax]), unit, 1.0,
                           pixel_scale, exclude_horizontal)
     full = np.broadcast_to(rfft_weights(nx), (ny, nx // 2 + 1))
     table.meta.update({
         "forecast": "expected P(k) of the slope image, no reduction",
+        "pipeline": " > ".join(steps) if steps else "none",
+        "band_kmin": float(m.kmin), "band_kmax": float(m.kmax),
         "band_power": float(u.Quantity(band["power"])[0].value) if len(band) else None,
         "variance": float(np.sum(total * full) / (ny * nx) ** 2),
     })
     return table
+
+
+def linear_steps(pipeline):
+    """The names of a pipeline's steps, refused in one line if the forecast does not know one.
+
+    Parameters
+    ----------
+    pipeline : `~spherex_reduce.Pipeline`, shipped name, path, dict or None
+
+    Returns
+    -------
+    list of str
+
+    Raises
+    ------
+    ConfigError
+        A step not in `FORECAST_STEPS`, or one with parameter values the
+        forecast does not propagate (the message names the step and value).
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.noise_forecast import linear_steps
+    >>> linear_steps({"steps": [{"unchop": {}}, {"fit_ramp": {}}]})
+    ['unchop', 'fit_ramp']
+    """
+    if pipeline is None:
+        return []
+    p = as_pipeline(pipeline)
+    names = []
+    for i, item in enumerate(p.config["steps"]):
+        (name, params), = item.items()
+        if name not in FORECAST_STEPS:
+            raise ConfigError(f"forecast: steps[{i}].{name} ({p.source}) is not forecast so "
+                              f"far; forecast steps: {', '.join(FORECAST_STEPS)}")
+        for key, value in FORECAST_STEPS[name].items():
+            if params.get(key, value) != value:
+                raise ConfigError(f"forecast: steps[{i}].{name}.{key}: {params[key]!r} is "
+                                  f"not forecast; only {value!r}")
+        names.append(name)
+    return names
+
+
+def _measure(measure):
+    """A `SpectrumMeasure` from a measure, a ``measure:`` mapping or None (refusing the
+    non-linear ``mask_sources``)."""
+    if not isinstance(measure, SpectrumMeasure):
+        measure = SpectrumMeasure(**measure_section(measure, "forecast"))
+    if measure.mask_sources:
+        raise ConfigError("forecast: measure.mask_sources: masking sources is not linear "
+                          "and cannot be forecast")
+    return measure
 
 
 def _component_planes(s, rows, cols, comps, nodes):

@@ -9,7 +9,7 @@ from astropy import units as u
 from spherex_reduce import expected_slope_variance
 from spherex_reduce.analysis import forecast, power_spectrum
 from spherex_reduce.analysis.light import light_sensitive_image
-from spherex_reduce.core.errors import SpherexReduceError
+from spherex_reduce.core.errors import ConfigError, SpherexReduceError
 from spherex_reduce.noise.variance import slope_covariance
 from spherex_reduce.simulation import load_scene, simulate
 
@@ -78,7 +78,7 @@ CASES = {
 def test_equals_brute_force(name):
     scene = tiny(CASES[name], scan="alternate" if name == "common" else "same")
     expect, _ = brute_force(scene, BINS)
-    got = forecast(scene, bins=BINS)
+    got = forecast(scene, measure={"bins": BINS})
     p = u.Quantity(got["power"]).value
     assert p.size == expect.size
     np.testing.assert_allclose(p, expect, rtol=1e-3)
@@ -88,12 +88,12 @@ def test_equals_brute_force(name):
 
 
 def test_components_add_up_and_phantom_only_is_invisible():
-    got = forecast(tiny(CASES["common"]), bins=BINS)
+    got = forecast(tiny(CASES["common"]), measure={"bins": BINS})
     parts = sum(u.Quantity(got[f"power_{n}"]).value for n in ("pink_acn", "common"))
     np.testing.assert_allclose(u.Quantity(got["power"]).value, parts, rtol=1e-12)
     assert np.all(u.Quantity(got["power_phantom_only"]).value == 0)
     # ACN halves the column pairs that correlate: the pixel variance is the same
-    var = [forecast(tiny([c]), bins=BINS).meta["variance"] for c in (PINK, PINK_ACN)]
+    var = [forecast(tiny([c]), measure={"bins": BINS}).meta["variance"] for c in (PINK, PINK_ACN)]
     assert var[0] == pytest.approx(var[1], rel=1e-9)
 
 
@@ -114,7 +114,7 @@ def test_monte_carlo_within_three_standard_errors():
     runs = np.array([power_spectrum(light_sensitive_image(simulate(scene, seed=i)),
                                     bins=BINS)["power"].value for i in range(300)])
     mean, se = runs.mean(axis=0), runs.std(axis=0, ddof=1) / np.sqrt(len(runs))
-    expect = u.Quantity(forecast(scene, bins=BINS)["power"]).value
+    expect = u.Quantity(forecast(scene, measure={"bins": BINS})["power"]).value
     assert np.all(np.abs(mean - expect) < 3 * se), (mean - expect) / se
 
 
@@ -122,11 +122,11 @@ def test_poisson_noise_is_white_at_the_analytic_slope_variance():
     """Least-squares slope of N reads T apart of a Poisson charge at i e/s: variance
     6 (N^2 + 1) / (5 N (N^2 - 1)) i / T, written out here."""
     scene = tiny([PINK], terms={"dark_current": 3.0, "photocurrent": 1.0})
-    got = forecast(scene, bins=BINS)
+    got = forecast(scene, measure={"bins": BINS})
     n, t = 4, scene.schedule.frame_samples / scene.schedule.geometry.pixel_rate
     expect = 6 * (n**2 + 1) / (5 * n * (n**2 - 1)) * 4.0 / t
     np.testing.assert_allclose(u.Quantity(got["power_poisson"]).value, expect, rtol=1e-12)
-    without = forecast(tiny([PINK]), bins=BINS)
+    without = forecast(tiny([PINK]), measure={"bins": BINS})
     np.testing.assert_allclose(u.Quantity(got["power"]).value,
                                u.Quantity(without["power"]).value + expect, rtol=1e-12)
 
@@ -136,3 +136,24 @@ def test_refuses_what_it_does_not_forecast():
                         "scene": {"hot_pixel_fraction": 0.01}})
     with pytest.raises(SpherexReduceError, match="hot pixels"):
         forecast(scene)
+
+
+def test_refuses_a_measure_that_is_not_linear_and_unknown_steps():
+    scene = tiny([PINK])
+    with pytest.raises(ConfigError, match="mask_sources"):
+        forecast(scene, measure={"mask_sources": True})
+    with pytest.raises(ConfigError, match=r"steps\[1\]\.fit_ramp\.weighting: 'optimal'"):
+        forecast(scene, {"steps": [{"unchop": {}},
+                                   {"fit_ramp": {"weighting": "optimal", "read_noise": 5.0}}]})
+
+
+def test_band_follows_the_measure():
+    """The band power is the bin of the measure's band, by the spectrum's own estimator."""
+    scene = tiny([PINK_ACN])
+    got = forecast(scene, measure={"kmin": 0.5, "kmax": 2.0, "bins": BINS})
+    _, cov = brute_force(scene, BINS)
+    lam, vec = np.linalg.eigh(cov)
+    keep = lam > 1e-12 * lam.max()
+    expect = sum(lv * power_spectrum(v.reshape(16, 16), bins=[0.5, 2.0])["power"].value[0]
+                 for lv, v in zip(lam[keep], vec[:, keep].T, strict=True))
+    assert got.meta["band_power"] == pytest.approx(expect, rel=1e-4)

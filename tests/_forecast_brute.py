@@ -67,12 +67,13 @@ class Samples:
 
 
 def reduction_matrix(samples, phantom=False, reference=None, reference_phantom=False,
-                     pairs=None):
+                     side_columns=False):
     """``L``: the light-sensitive pixels (physical order, rows then columns) as combinations
     of the samples.  ``phantom``: minus the mean of the read's phantom samples of the
     pixel's channel; ``reference`` ``'mean'``: minus the mean over the channel's pixels of
     every reference read (each minus its read's phantom mean when ``reference_phantom``),
-    ``'acn'`` the same per column-offset parity."""
+    ``'acn'`` the same per column-offset parity; ``side_columns``: the side reference
+    columns of every active read are averaged too."""
     s, g = samples.schedule, samples.geometry
     rows, cols = light_sensitive(g)
     c = s.phantom_reads
@@ -90,12 +91,16 @@ def reduction_matrix(samples, phantom=False, reference=None, reference_phantom=F
         if reference is not None:
             group = [k for k in range(g.ncols) if chan[k] == ch
                      and (reference == "mean" or off[k] % 2 == off[j] % 2)]
-            w = 1.0 / (len(refs) * len(group))
-            for q in refs:
-                for k in group:
-                    out[n, samples.pixel(q, k)] -= w
-                    if reference_phantom and c:
-                        out[n, samples.phantom(q, ch)] += w / c
+            used = [(q, k) for q in refs for k in group]
+            if side_columns:
+                side = g.reference_column_mask()
+                used += [(q, k) for q in np.flatnonzero(~s.is_reference) for k in group
+                         if side[k]]
+            w = 1.0 / len(used)
+            for q, k in used:
+                out[n, samples.pixel(q, k)] -= w
+                if reference_phantom and c:
+                    out[n, samples.phantom(q, ch)] += w / c
     return out
 
 

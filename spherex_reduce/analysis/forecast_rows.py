@@ -100,7 +100,8 @@ def component_planes(schedule, rows, cols, comps, reduction, nodes=NODES, cells=
     ref = _reference_functionals(schedule, cols, cells.kx, c, reduction, ny)
     has_zero = cells.ky.size and cells.ky[0] == 0
     if ref is not None and has_zero:
-        h_lr, h_rr = _reference_pairs(schedule, rows, a.shape[1] // 2)
+        light_reads = np.zeros(a.shape[1])
+        light_reads[_slots(schedule)[_light_reads(schedule, rows)]] = 1.0
     half = np.minimum(cells.ky, ny - cells.ky)
     first = np.searchsorted(np.unique(half), half)  # row of a for every cell row
     negative = cells.ky > ny // 2
@@ -112,10 +113,13 @@ def component_planes(schedule, rows, cols, comps, reduction, nodes=NODES, cells=
         parts[comp.name] = np.where(negative[:, None], re[first] + im[first],
                                     re[first] - im[first])
         if ref is not None and has_zero:
-            f_r = _pick(ref, comp, reduction.reference_phantom)
-            cross = table.products(i, h_lr, _correlate(f_l, f_r, comp))
-            auto = table.products(i, h_rr, _correlate(f_r, f_r, comp))
-            parts[comp.name][0] += 2 * cross.real + auto.real
+            f_r = [(ind, _pick(f, comp, True)) for ind, f in ref]
+            for ind, f in f_r:
+                cross = table.products(i, _slot_pairs(light_reads, ind), _correlate(f_l, f, comp))
+                parts[comp.name][0] += 2 * cross.real
+                for ind2, f2 in f_r:
+                    auto = table.products(i, _slot_pairs(ind, ind2), _correlate(f, f2, comp))
+                    parts[comp.name][0] += auto.real
     return parts
 
 
@@ -195,21 +199,6 @@ def _light_reads(s, rows):
     return first
 
 
-def _reference_pairs(schedule, rows, slots):
-    """``H_LR(m)``, the pairs (light row, reference read) whose slots differ by ``m``, and
-    ``H_RR(m)``, the pairs of reference reads (index ``m mod 2 slots``)."""
-    s = schedule
-    slot = _slots(s)
-    light = np.zeros(2 * slots)
-    light[slot[_light_reads(s, rows)]] = 1.0
-    ref = np.zeros(2 * slots)
-    np.add.at(ref, slot[s.is_reference], 1.0)
-    fl, fr = scipy.fft.rfft(light), scipy.fft.rfft(ref)
-    n = 2 * slots
-    return (np.rint(scipy.fft.irfft(fl * fr.conj(), n)),
-            np.rint(scipy.fft.irfft(fr * fr.conj(), n)))
-
-
 def _functionals(schedule, rows, cols, kx, c, reduction):
     """The light rows' functional of each channel, ``(nch, nkx, c + width)`` complex, as its
     pixel part and its phantom part (None without phantom subtraction): the pixels' phases
@@ -232,10 +221,15 @@ def _functionals(schedule, rows, cols, kx, c, reduction):
 
 
 def _reference_functionals(schedule, cols, kx, c, reduction, ny):
-    """The reference reads' functional of each channel at ``k_y = 0`` (pixel part, phantom
-    part or None), as `_functionals`: minus ``ny`` times the channel's phase sum over its
-    light columns times the mean over the reference pixels (each minus its read's phantom
-    value when ``reduction.reference_phantom``); None without a reference correction."""
+    """The reads the reference offsets average, at ``k_y = 0``: a list of (slot
+    indicator ``(2 slots,)``, functional of each channel as `_functionals` gives it), one
+    for the reference reads and, with side columns, one for the active reads.
+
+    A pixel of group ``g`` (the channel's columns, or those of one offset parity with
+    ``acn``) gets the offset ``mu_g``, the mean over the ``N_g`` reference pixels of the
+    group (each minus its read's phantom value when ``reduction.reference_phantom``); so
+    the image's ``k_y = 0`` row loses ``ny E_g(k_x) mu_g``, ``E_g`` the phases of the
+    group's light columns.  None without a reference correction."""
     if reduction.reference is None:
         return None
     s = schedule
@@ -248,19 +242,43 @@ def _reference_functionals(schedule, cols, kx, c, reduction, ny):
     nx = cols.stop - cols.start
     j = np.arange(cols.start, cols.stop)
     k = 2 * np.pi * kx / nx
-    box = np.zeros((nch, k.size), dtype=complex)  # the channel's light phases
-    np.add.at(box, g.channel_of_column()[j], np.exp(-1j * np.outer(j - cols.start, k)))
-    scale = -ny * box / nref  # (nch, nkx)
-    offsets = g.column_offsets()
-    pix = np.zeros((nch, k.size, c + width), dtype=complex)
-    for ch in range(nch):
-        o = offsets[ch * width:(ch + 1) * width]
-        pix[ch][:, c + o] = scale[ch][:, None] / o.size
-    phantom = None
-    if reduction.reference_phantom and c:
-        phantom = np.zeros_like(pix)
-        phantom[:, :, :c] = -scale[:, :, None] / c
-    return pix, phantom
+    offsets, chan = g.column_offsets(), g.channel_of_column()
+    parity = offsets % 2 if reduction.reference == "acn" else np.zeros(g.ncols, int)
+    side = g.reference_column_mask() if reduction.side_columns else np.zeros(g.ncols, bool)
+    nact = int((~s.is_reference).sum())
+    slot = _slots(s)
+    slots = int(slot.max()) + 1
+    kinds = [(s.is_reference, np.ones(g.ncols, bool))]
+    if side.any():
+        kinds.append((~s.is_reference, side))
+    pix = np.zeros((len(kinds), nch, k.size, c + width), dtype=complex)
+    phantom = np.zeros_like(pix)
+    for group in np.unique(parity):
+        box = np.zeros((nch, k.size), dtype=complex)  # the group's light phases
+        light = parity[j] == group
+        np.add.at(box, chan[j][light], np.exp(-1j * np.outer(j[light] - cols.start, k)))
+        for ch in range(nch):
+            used = (chan == ch) & (parity == group)
+            total = nref * used.sum() + nact * (used & side).sum()  # N_g
+            for n, (_, columns) in enumerate(kinds):
+                o = offsets[used & columns]
+                pix[n, ch][:, c + o] -= ny * box[ch][:, None] / total
+                if c:
+                    phantom[n, ch][:, :c] += ny * box[ch][:, None] * o.size / (total * c)
+    out = []
+    for n, (reads, _) in enumerate(kinds):
+        indicator = np.zeros(2 * slots)
+        np.add.at(indicator, slot[reads], 1.0)
+        out.append((indicator, (pix[n], phantom[n] if reduction.reference_phantom and c
+                                else None)))
+    return out
+
+
+def _slot_pairs(a, b):
+    """``H(m)``: the pairs of reads (one of indicator ``a``, one of ``b``) whose slots differ
+    by ``m`` (index ``m mod 2 slots``)."""
+    n = a.size
+    return np.rint(scipy.fft.irfft(scipy.fft.rfft(a) * scipy.fft.rfft(b).conj(), n))
 
 
 def _pick(functional, comp, phantom):

@@ -31,7 +31,7 @@ __all__ = ["FORECAST_STEPS", "Reduction", "linear_steps", "reduction"]
 FORECAST_STEPS = {
     "unchop": {},
     "subtract_phantom": {},
-    "correct_reference": {"strategy": ("mean",)},
+    "correct_reference": {"strategy": ("mean", "acn")},
     "fit_ramp": {"weighting": ("uniform",)},
     "sigma_clip": {},
 }
@@ -50,16 +50,21 @@ class Reduction:
         subtracted.
     reference : str or None
         The reference correction (``'mean'``: one mean of the reference pixels
-        per channel), or None.
+        per channel; ``'acn'``: one per channel and column-offset parity), or
+        None.
     reference_phantom : bool
         The reference pixels had their phantom values subtracted before they
         were averaged (``subtract_phantom`` ran first).
+    side_columns : bool
+        The reference offsets also average the side reference columns of the
+        active rows.
     """
 
     steps: tuple = ()
     phantom: bool = False
     reference: str | None = None
     reference_phantom: bool = False
+    side_columns: bool = False
 
     def describe(self):
         """The pipeline's steps as ``'a > b'`` (``'none'`` without steps)."""
@@ -93,7 +98,7 @@ def reduction(pipeline):
     if pipeline is None:
         return Reduction()
     p = as_pipeline(pipeline)
-    names, phantom, reference, reference_phantom = [], False, None, False
+    names, phantom, reference, reference_phantom, side = [], False, None, False, False
     for i, item in enumerate(p.config["steps"]):
         (name, params), = item.items()
         if name not in FORECAST_STEPS:
@@ -109,8 +114,9 @@ def reduction(pipeline):
             phantom = True
         elif name == "correct_reference":
             reference, reference_phantom = params.get("strategy", "mean"), phantom
+            side = bool(params.get("side_columns", False))
         names.append(name)
-    return Reduction(tuple(names), phantom, reference, reference_phantom)
+    return Reduction(tuple(names), phantom, reference, reference_phantom, side)
 
 
 def linear_steps(pipeline):

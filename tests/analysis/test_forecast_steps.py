@@ -33,6 +33,15 @@ PIPELINES = {
                         {"steps": [{"unchop": {}}, {"correct_reference": {}},
                                    {"subtract_phantom": {}}]}),
     "reference-only": (dict(reference="mean"), {"steps": [{"correct_reference": {}}]}),
+    "acn": (dict(phantom=True, reference="acn", reference_phantom=True), "acn"),
+    "side-columns": (dict(phantom=True, reference="mean", reference_phantom=True,
+                          side_columns=True),
+                     {"steps": [{"subtract_phantom": {}},
+                                {"correct_reference": {"side_columns": True}}]}),
+    "acn-side-columns": (dict(phantom=True, reference="acn", reference_phantom=True,
+                              side_columns=True),
+                         {"steps": [{"subtract_phantom": {}}, {"correct_reference": {
+                             "strategy": "acn", "side_columns": True}}]}),
 }
 
 
@@ -103,13 +112,14 @@ def test_fit_ramp_first_is_the_same_reduction():
     np.testing.assert_array_equal(u.Quantity(a["power"]).value, u.Quantity(b["power"]).value)
 
 
-@pytest.mark.parametrize("pipe", ["spherex-default", "phantom-only"])
+@pytest.mark.parametrize("pipe", ["spherex-default", "phantom-only", "acn-side-columns"])
 def test_monte_carlo_of_the_real_steps_within_three_standard_errors(pipe):
     """300 slope images of the simulator reduced by the shipped pipeline itself (its
     reference mean σ-clipped, its 5σ clip of hot pixels: forecast unclipped), measured as
     `spherex-reduce spectrum` measures them, against the forecast in every bin."""
     scene = tiny([ROIC, PINK_ACN, COMMON, BOTH, PHANTOM], scan="alternate",
                  terms={"dark_current": 20.0})
+    pipe = PIPELINES[pipe][1]
     p = as_pipeline(pipe)
     runs = np.array([power_spectrum(light_sensitive_image(p.run(simulate(scene, seed=i))),
                                     bins=BINS)["power"].value for i in range(300)])

@@ -96,7 +96,7 @@ def component_planes(schedule, rows, cols, comps, reduction, nodes=NODES, cells=
     c = schedule.phantom_reads if (reduction.phantom or reduction.reference_phantom) else 0
     table = _LagTable(schedule, comps, g.channel_width - 1 + c, nodes)
     a = _row_pairs(schedule, rows, cells.ky)  # (n_half, 2 slots), n_half rows of k_y >= 0
-    light = _functionals(schedule, rows, cols, cells.kx, c, reduction)
+    light = _functionals(schedule, rows, cols, cells.kx, c, reduction)  # (pixels, phantom)
     ref = _reference_functionals(schedule, cols, cells.kx, c, reduction, ny)
     has_zero = cells.ky.size and cells.ky[0] == 0
     if ref is not None and has_zero:
@@ -105,20 +105,21 @@ def component_planes(schedule, rows, cols, comps, reduction, nodes=NODES, cells=
     half = np.minimum(cells.ky, ny - cells.ky)
     first = np.searchsorted(np.unique(half), half)  # row of a for every cell row
     negative = cells.ky > ny // 2
+    spectra = _Spectra()
     parts = {}
     for i, comp in enumerate(comps):
-        f_l = _pick(light, comp, reduction.phantom)
-        x = _correlate(f_l, f_l, comp)
+        x = spectra.correlate(("light", light), ("light", light), comp)
         re, im = table.real_products(i, a, x)
         parts[comp.name] = np.where(negative[:, None], re[first] + im[first],
                                     re[first] - im[first])
         if ref is not None and has_zero:
-            f_r = [(ind, _pick(f, comp, True)) for ind, f in ref]
-            for ind, f in f_r:
-                cross = table.products(i, _slot_pairs(light_reads, ind), _correlate(f_l, f, comp))
+            for n, (ind, f) in enumerate(ref):
+                x = spectra.correlate(("light", light), (n, f), comp)
+                cross = table.products(i, _slot_pairs(light_reads, ind), x)
                 parts[comp.name][0] += 2 * cross.real
-                for ind2, f2 in f_r:
-                    auto = table.products(i, _slot_pairs(ind, ind2), _correlate(f, f2, comp))
+                for n2, (ind2, f2) in enumerate(ref):
+                    x = spectra.correlate((n, f), (n2, f2), comp)
+                    auto = table.products(i, _slot_pairs(ind, ind2), x)
                     parts[comp.name][0] += auto.real
     return parts
 
@@ -281,29 +282,53 @@ def _slot_pairs(a, b):
     return np.rint(scipy.fft.irfft(scipy.fft.rfft(a) * scipy.fft.rfft(b).conj(), n))
 
 
-def _pick(functional, comp, phantom):
-    """One component's part of a functional: what its pixels and phantom samples see."""
-    pix, ph = functional
-    out = pix if comp.seen_by_pixels else np.zeros_like(pix)
-    if phantom and ph is not None and comp.seen_by_phantom:
-        out = out + ph
-    return out
+class _Spectra:
+    """The FFTs over offsets of the functionals' pixel and phantom parts, taken once, and
+    the correlations ``X`` of every pair the components ask for (one per scope and
+    visibility)."""
 
+    def __init__(self):
+        self._ffts, self._x = {}, {}
 
-def _correlate(a, b, comp):
-    """``X(k_x, d) = sum_s a(k_x, s + d) conj b(k_x, s)``, ``d = -(n - 1) ... n - 1``,
-    summed over channels (channel scope) or of the sums over channels (common scope); with
-    ACN only offsets of one parity correlate."""
-    if comp.scope == "common":
-        a, b = a.sum(axis=0, keepdims=True), b.sum(axis=0, keepdims=True)
-    n = a.shape[-1]
-    fa = scipy.fft.fft(a, 2 * n, axis=-1)
-    fb = fa if b is a else scipy.fft.fft(b, 2 * n, axis=-1)
-    x = scipy.fft.ifft(fa * fb.conj(), axis=-1).sum(axis=0)
-    x = x[:, np.arange(-(n - 1), n) % (2 * n)]
-    if comp.acn:
-        x[:, np.arange(-(n - 1), n) % 2 != 0] = 0.0
-    return x
+    def _fft(self, key, functional):
+        if key not in self._ffts:
+            n = functional[0].shape[-1]
+            self._ffts[key] = [None if f is None else scipy.fft.fft(f, 2 * n, axis=-1)
+                               for f in functional]
+        return self._ffts[key]
+
+    def _part(self, key, functional, comp):
+        """One component's part (what its pixels and phantom samples see), over
+        channels (summed over them for common noise)."""
+        pix, ph = self._fft(key, functional)
+        out = pix if comp.seen_by_pixels else 0
+        if ph is not None and comp.seen_by_phantom:
+            out = out + ph
+        if comp.scope == "common" and not np.isscalar(out):
+            out = out.sum(axis=0, keepdims=True)
+        return out
+
+    def correlate(self, a, b, comp):
+        """``X(k_x, d) = sum_s f_a(k_x, s + d) conj f_b(k_x, s)``, ``d = -(n - 1) ...
+        n - 1``, for the functionals ``a`` and ``b`` (``(key, functional)``), summed over
+        channels (channel scope) or of the sums over channels (common scope); with ACN
+        only offsets of one parity correlate."""
+        key = (a[0], b[0], comp.seen_by_pixels, comp.seen_by_phantom, comp.scope)
+        if key not in self._x:
+            fa = self._part(*a, comp)
+            fb = fa if a[0] == b[0] else self._part(*b, comp)
+            n = a[1][0].shape[-1]
+            if np.isscalar(fa) or np.isscalar(fb):
+                x = np.zeros((a[1][0].shape[1], 2 * n - 1), dtype=complex)
+            else:
+                x = scipy.fft.ifft((fa * fb.conj()).sum(axis=0), axis=-1, workers=-1)
+                x = x[:, np.arange(-(n - 1), n) % (2 * n)]
+            self._x[key] = x
+        x = self._x[key]
+        if comp.acn:
+            n = (x.shape[1] + 1) // 2
+            x = np.where(np.arange(-(n - 1), n) % 2 == 0, x, 0.0)
+        return x
 
 
 def _chebyshev_rule(half, n):

@@ -12,6 +12,11 @@ order), least-squares slopes with uniform weights commute with every
 frame-wise linear correction (a slope of ``x - c`` is the slope of ``x``
 minus that of ``c``), so the order of ``fit_ramp`` among the other steps does
 not matter; the order of phantom subtraction and reference correction does.
+A pair difference ``(a - b) / sqrt(2)`` of two exposures taken and reduced the
+same way has, for noise independent between the two exposures, the expected
+spectrum of one exposure (``(E|A|² + E|B|²) / 2``; the dark current and any
+fixed pattern cancel, the Poisson noise of both adds up to one's): it is
+forecast as the identity.
 σ-clipping (the clipped mean of the reference pixels, the ``sigma_clip``
 step's hot pixels) is forecast as no clipping: on Gaussian noise it changes
 the spectrum by less than the Monte Carlo resolves (measured: see
@@ -34,6 +39,7 @@ FORECAST_STEPS = {
     "correct_reference": {"strategy": ("mean", "acn")},
     "fit_ramp": {"weighting": ("uniform",)},
     "sigma_clip": {},
+    "pair_difference": {},
 }
 
 

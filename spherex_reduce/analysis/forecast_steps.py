@@ -23,7 +23,7 @@ the spectrum by less than the Monte Carlo resolves (measured: see
 docs/forecast.rst).
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from ..core.errors import ConfigError
 from ..reduce.pipeline import as_pipeline
@@ -36,7 +36,7 @@ __all__ = ["FORECAST_STEPS", "Reduction", "linear_steps", "reduction"]
 FORECAST_STEPS = {
     "unchop": {},
     "subtract_phantom": {},
-    "correct_reference": {"strategy": ("mean", "acn")},
+    "correct_reference": {"strategy": ("mean", "acn", "wiener")},
     "fit_ramp": {"weighting": ("uniform",)},
     "sigma_clip": {},
     "pair_difference": {},
@@ -56,14 +56,19 @@ class Reduction:
         subtracted.
     reference : str or None
         The reference correction (``'mean'``: one mean of the reference pixels
-        per channel; ``'acn'``: one per channel and column-offset parity), or
-        None.
+        per channel; ``'acn'``: one per channel and column-offset parity;
+        ``'wiener'``: a drift estimate at every read), or None.
     reference_phantom : bool
         The reference pixels had their phantom values subtracted before they
         were averaged (``subtract_phantom`` ran first).
     side_columns : bool
         The reference offsets also average the side reference columns of the
         active rows.
+    reference_params : dict
+        The reference step's parameters (the ``wiener`` strategy's weights
+        depend on them).
+    reference_ramps : bool
+        The reference step works on ramps (``fit_ramp`` comes after it).
     """
 
     steps: tuple = ()
@@ -71,6 +76,8 @@ class Reduction:
     reference: str | None = None
     reference_phantom: bool = False
     side_columns: bool = False
+    reference_params: dict = field(default_factory=dict)
+    reference_ramps: bool = True
 
     def describe(self):
         """The pipeline's steps as ``'a > b'`` (``'none'`` without steps)."""
@@ -104,7 +111,7 @@ def reduction(pipeline):
     if pipeline is None:
         return Reduction()
     p = as_pipeline(pipeline)
-    names, phantom, reference, reference_phantom, side = [], False, None, False, False
+    names, phantom, fitted, ref = [], False, False, {}
     for i, item in enumerate(p.config["steps"]):
         (name, params), = item.items()
         if name not in FORECAST_STEPS:
@@ -116,13 +123,21 @@ def reduction(pipeline):
                 raise ConfigError(f"forecast: steps[{i}].{name}.{key}: {value!r} is not "
                                   f"forecast (not linear, or not yet); only "
                                   f"{', '.join(map(repr, allowed))}")
-        if name == "subtract_phantom":
-            phantom = True
+        if name == "subtract_phantom" and not ref.get("consumed"):
+            phantom = True  # (skipped when a wiener estimate consumed the phantom values)
+        elif name == "fit_ramp":
+            fitted = True
         elif name == "correct_reference":
-            reference, reference_phantom = params.get("strategy", "mean"), phantom
-            side = bool(params.get("side_columns", False))
+            strategy = params.get("strategy", "mean")
+            rest = {k: v for k, v in params.items() if k != "strategy"}
+            ref = {"reference": strategy, "reference_phantom": phantom,
+                   "side_columns": bool(params.get("side_columns", False)),
+                   "reference_params": rest, "reference_ramps": not fitted,
+                   "consumed": strategy == "wiener" and not phantom
+                   and params.get("phantom", "auto") == "auto"}
         names.append(name)
-    return Reduction(tuple(names), phantom, reference, reference_phantom, side)
+    ref.pop("consumed", None)
+    return Reduction(tuple(names), phantom, **ref)
 
 
 def linear_steps(pipeline):

@@ -146,6 +146,14 @@ def test_reduction_follows_the_order_of_the_steps():
                              {"subtract_phantom": {}}]})
     assert (r.phantom, r.reference, r.reference_phantom) == (True, "mean", False)
     assert reduction("phantom-only").reference is None
+    # a wiener estimate from the phantom values consumes them: a later subtraction is skipped
+    steps = [{"correct_reference": {"strategy": "wiener"}}, {"subtract_phantom": {}}]
+    assert not reduction({"steps": steps}).phantom
+    steps[0]["correct_reference"]["phantom"] = "ignore"
+    assert reduction({"steps": steps}).phantom
+    r = reduction({"steps": [{"fit_ramp": {}}, {"correct_reference": {"strategy": "acn",
+                                                                      "side_columns": True}}]})
+    assert (r.reference, r.side_columns, r.reference_ramps) == ("acn", True, False)
 
 
 @pytest.mark.parametrize("step, match", [

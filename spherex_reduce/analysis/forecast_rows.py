@@ -22,7 +22,9 @@ the ``k_y = 0`` row of the plane (the light rows' phases sum to zero at any
 other ``k_y``); there the reference reads enter as a second kind of read with
 their own functional, and the cross and reference-reference terms are sums of
 the same form over the slot lags between a light row and a reference read
-(``H_LR``) and between two reference reads (``H_RR``).
+(``H_LR``) and between two reference reads (``H_RR``).  A ``wiener`` estimate
+differs from read to read and changes every ``k_y``
+(`spherex_reduce.analysis.forecast_wiener`).
 
 The sum over ``d`` is exact for the ``m`` near a singularity of ``S`` (``m R``
 within `NEAR_READS` row reads of a multiple of the frame time); for the others

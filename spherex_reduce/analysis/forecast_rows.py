@@ -41,6 +41,7 @@ import scipy.fft
 
 from ..core.errors import SpherexReduceError
 from ..noise.variance import slope_covariance
+from .forecast_parts import Correlations, Part
 from .forecast_wiener import WienerTerms
 
 __all__ = ["NEAR_READS", "NODES", "Cells", "component_planes"]
@@ -114,7 +115,7 @@ def component_planes(schedule, rows, cols, comps, reduction, nodes=NODES, cells=
     half = np.minimum(cells.ky, ny - cells.ky)
     first = np.searchsorted(np.unique(half), half)  # row of a for every cell row
     negative = cells.ky > ny // 2
-    spectra = _Spectra()
+    spectra = Correlations()
     parts = {}
     for i, comp in enumerate(comps):
         x = spectra.correlate(("light", light), ("light", light), comp)
@@ -226,10 +227,10 @@ def _light_reads(s, rows):
 
 
 def _functionals(schedule, rows, cols, kx, c, reduction):
-    """The light rows' functional of each channel, ``(nch, nkx, c + width)`` complex, as its
-    pixel part and its phantom part (None without phantom subtraction): the pixels' phases
-    ``sum_{o_j = o} exp(-i k_x j)`` at offset ``o`` (index ``c + o``) and minus the channel's
-    phase sum over ``c`` at each phantom sample."""
+    """The light rows' functional (a list of `Part`, each ``(nch, nkx, c + width)``): the
+    pixels' phases ``sum_{o_j = o} exp(-i k_x j)`` at offset ``o`` (index ``c + o``) and,
+    with phantom subtraction, minus the channel's phase sum over ``c`` at each phantom
+    sample."""
     g = schedule.geometry
     nx = cols.stop - cols.start
     width, nch = g.channel_width, g.nchannels
@@ -239,11 +240,12 @@ def _functionals(schedule, rows, cols, kx, c, reduction):
     phase = np.exp(-1j * np.outer(j - cols.start, k))  # (nx, nkx)
     pix = np.zeros((nch, k.size, c + width), dtype=complex)
     np.add.at(pix, (chan, slice(None), c + off), phase)
-    phantom = None
+    parts = [Part(False, dense=pix)]
     if reduction.phantom and c:
-        phantom = np.zeros_like(pix)
-        phantom[:, :, :c] = -pix.sum(axis=2, keepdims=True) / c
-    return pix, phantom
+        profile = np.zeros(c + width)
+        profile[:c] = 1.0
+        parts.append(Part(True, amp=-pix.sum(axis=2) / c, profile=profile))
+    return parts
 
 
 def _reference_functionals(schedule, cols, kx, c, reduction, ny):
@@ -277,8 +279,8 @@ def _reference_functionals(schedule, cols, kx, c, reduction, ny):
     kinds = [(s.is_reference, np.ones(g.ncols, bool))]
     if side.any():
         kinds.append((~s.is_reference, side))
-    pix = np.zeros((len(kinds), nch, k.size, c + width), dtype=complex)
-    phantom = np.zeros_like(pix)
+    pix = [{} for _ in kinds]  # per kind: {offsets used: amp (nch, nkx)}
+    phantom = [np.zeros((nch, k.size), dtype=complex) for _ in kinds]
     for group in np.unique(parity):
         box = np.zeros((nch, k.size), dtype=complex)  # the group's light phases
         light = parity[j] == group
@@ -287,16 +289,25 @@ def _reference_functionals(schedule, cols, kx, c, reduction, ny):
             used = (chan == ch) & (parity == group)
             total = nref * used.sum() + nact * (used & side).sum()  # N_g
             for n, (_, columns) in enumerate(kinds):
-                o = offsets[used & columns]
-                pix[n, ch][:, c + o] -= ny * box[ch][:, None] / total
-                if c:
-                    phantom[n, ch][:, :c] += ny * box[ch][:, None] * o.size / (total * c)
+                o = np.sort(offsets[used & columns])
+                if o.size:
+                    amp = pix[n].setdefault(o.tobytes(), np.zeros((nch, k.size), complex))
+                    amp[ch] -= ny * box[ch] / total
+                    phantom[n][ch] += ny * box[ch] * o.size / total
     out = []
     for n, (reads, _) in enumerate(kinds):
         indicator = np.zeros(2 * slots)
         np.add.at(indicator, slot[reads], 1.0)
-        out.append((indicator, (pix[n], phantom[n] if reduction.reference_phantom and c
-                                else None)))
+        parts = []
+        for used, amp in pix[n].items():
+            profile = np.zeros(c + width)
+            profile[c + np.frombuffer(used, dtype=offsets.dtype)] = 1.0
+            parts.append(Part(False, amp=amp, profile=profile))
+        if reduction.reference_phantom and c:
+            profile = np.zeros(c + width)
+            profile[:c] = 1.0 / c
+            parts.append(Part(True, amp=phantom[n], profile=profile))
+        out.append((indicator, parts))
     return out
 
 
@@ -305,55 +316,6 @@ def _slot_pairs(a, b):
     by ``m`` (index ``m mod 2 slots``)."""
     n = a.size
     return np.rint(scipy.fft.irfft(scipy.fft.rfft(a) * scipy.fft.rfft(b).conj(), n))
-
-
-class _Spectra:
-    """The FFTs over offsets of the functionals' pixel and phantom parts, taken once, and
-    the correlations ``X`` of every pair the components ask for (one per scope and
-    visibility)."""
-
-    def __init__(self):
-        self._ffts, self._x = {}, {}
-
-    def _fft(self, key, functional):
-        if key not in self._ffts:
-            n = functional[0].shape[-1]
-            self._ffts[key] = [None if f is None else scipy.fft.fft(f, 2 * n, axis=-1)
-                               for f in functional]
-        return self._ffts[key]
-
-    def _part(self, key, functional, comp):
-        """One component's part (what its pixels and phantom samples see), over
-        channels (summed over them for common noise)."""
-        pix, ph = self._fft(key, functional)
-        out = pix if comp.seen_by_pixels else 0
-        if ph is not None and comp.seen_by_phantom:
-            out = out + ph
-        if comp.scope == "common" and not np.isscalar(out):
-            out = out.sum(axis=0, keepdims=True)
-        return out
-
-    def correlate(self, a, b, comp):
-        """``X(k_x, d) = sum_s f_a(k_x, s + d) conj f_b(k_x, s)``, ``d = -(n - 1) ...
-        n - 1``, for the functionals ``a`` and ``b`` (``(key, functional)``), summed over
-        channels (channel scope) or of the sums over channels (common scope); with ACN
-        only offsets of one parity correlate."""
-        key = (a[0], b[0], comp.seen_by_pixels, comp.seen_by_phantom, comp.scope)
-        if key not in self._x:
-            fa = self._part(*a, comp)
-            fb = fa if a[0] == b[0] else self._part(*b, comp)
-            n = a[1][0].shape[-1]
-            if np.isscalar(fa) or np.isscalar(fb):
-                x = np.zeros((a[1][0].shape[1], 2 * n - 1), dtype=complex)
-            else:
-                x = scipy.fft.ifft((fa * fb.conj()).sum(axis=0), axis=-1, workers=-1)
-                x = x[:, np.arange(-(n - 1), n) % (2 * n)]
-            self._x[key] = x
-        x = self._x[key]
-        if comp.acn:
-            n = (x.shape[1] + 1) // 2
-            x = np.where(np.arange(-(n - 1), n) % 2 == 0, x, 0.0)
-        return x
 
 
 def _chebyshev_rule(half, n):

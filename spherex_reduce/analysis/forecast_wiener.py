@@ -34,6 +34,7 @@ import scipy.fft
 from ..core.block import Context
 from ..reduce.steps.reference_strategies import _group_columns
 from ..reduce.steps.wiener import WienerReference
+from .forecast_parts import Part
 
 __all__ = ["WienerTerms"]
 
@@ -123,9 +124,9 @@ class WienerTerms:
 
     def functional(self, term):
         """The term's observations as a functional of each channel at each ``k_x``
-        (``beta`` times ``psi``), for `~spherex_reduce.analysis.forecast_rows`' correlations."""
-        return tuple(None if part is None else term.beta[:, :, None] * part[None, None, :]
-                     for part in term.psi)
+        (``beta`` times ``psi``: `~spherex_reduce.analysis.forecast_rows.Part`)."""
+        return [Part(n == 1, amp=term.beta, profile=part)
+                for n, part in enumerate(term.psi) if part is not None]
 
     def plane(self, table, spectra, i, comp, light):
         """``-2 Re E[U C*] + E[C C*]`` of component ``i`` on the cells, ``(nky, nkx)``."""
@@ -134,7 +135,8 @@ class WienerTerms:
             x = spectra.correlate(("light", light), (("wiener", *t.key), self.functional(t)),
                                   comp)
             out = out - 2 * table.products(i, t.g, x).real
-        one = {t.key: tuple(None if part is None else part[None, None, :] for part in t.psi)
+        one = {t.key: [Part(n == 1, amp=np.ones((1, 1)), profile=part)
+                       for n, part in enumerate(t.psi) if part is not None]
                for t in self.terms}
         for t in self.terms:
             for u in self.terms:

@@ -131,14 +131,15 @@ def component_planes(schedule, rows, cols, comps, reduction, nodes=NODES, cells=
                     x = spectra.correlate((n, f), (n2, f2), comp)
                     auto = table.products(i, _slot_pairs(ind, ind2), x)
                     parts[comp.name][0] += auto.real
-    if wiener:  # k_y rows a chunk at a time: a term holds two (rows, 2 slots) arrays
+    if wiener:  # k_y rows a chunk at a time: a term holds (rows, 2 slots) arrays
+        lags = {}  # the observations' covariance at every slot lag, for every chunk
         for lo in range(0, cells.ky.size, WIENER_ROWS):
             ky = cells.ky[lo:lo + WIENER_ROWS]
             terms = WienerTerms(schedule, rows, cols, ky, cells.kx, c, reduction,
-                                _slots(schedule), _light_reads(schedule, rows))
+                                _slots(schedule), _light_reads(schedule, rows), table)
             for i, comp in enumerate(comps):
                 parts[comp.name][lo:lo + ky.size] += terms.plane(table, spectra, i, comp,
-                                                                 light)
+                                                                 light, lags)
     return parts
 
 
@@ -165,6 +166,19 @@ class _LagTable:
         self.s_near = [cov[i, :nnear].reshape(near.sum(), d.size) for i in range(len(comps))]
         self.s_far = [cov[i, nnear:].reshape((~near).sum(), dnodes.size)
                       for i in range(len(comps))]
+
+    def far_weights(self, w):
+        """``w(m)`` ``(n, 2 slots)`` on the exact lags ``(n, n_near)`` and, for every
+        component, summed against ``S`` on the nodes of the far lags ``(n, ncomp, nodes)``:
+        what `split_products` takes."""
+        far = w[:, self.far]
+        stacked = np.concatenate(self.s_far, axis=1) if self.s_far else np.zeros((0, 0))
+        return w[:, self.near], (far @ stacked).reshape(w.shape[0], len(self.s_far), -1)
+
+    def split_products(self, i, w_near, w_far, x):
+        """`products` of weights given by `far_weights`."""
+        q_near, _, nodes = self._q(i, x)
+        return w_near @ q_near + w_far[:, i] @ nodes
 
     def _q(self, i, x):
         """``sum_d X(k_x, d) S(m R + d)`` as (near ``(n_near, nkx)``, far-on-nodes

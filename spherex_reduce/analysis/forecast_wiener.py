@@ -42,14 +42,16 @@ __all__ = ["WienerTerms"]
 @dataclass
 class _Term:
     """One term of the correction: its column factor ``(nch, nkx)``, the functional of
-    its observations (pixel part, phantom part or None, each ``(c + width,)``), and the
-    FFTs over slots of ``M_t`` and of ``G_t`` (``(nky, 2 slots)``)."""
+    its observations (pixel part, phantom part or None, each ``(c + width,)``), the FFT
+    over slots of ``M_t`` (``(nky, 2 slots)``) and ``G_t`` as the lag table's
+    ``far_weights``."""
 
     key: tuple
     beta: np.ndarray
     psi: tuple
     fm: np.ndarray
-    g: np.ndarray
+    g_near: np.ndarray
+    g_far: np.ndarray
 
 
 class WienerTerms:
@@ -69,9 +71,12 @@ class WienerTerms:
         The slot of every read.
     light_reads : `numpy.ndarray`
         The read of every light-sensitive row.
+    table
+        The forecast's table of slope covariances at every slot lag.
     """
 
-    def __init__(self, schedule, rows, cols, ky, kx, c, reduction, slots, light_reads):
+    def __init__(self, schedule, rows, cols, ky, kx, c, reduction, slots, light_reads,
+                 table):
         s = schedule
         g = s.geometry
         ny, nx = rows.stop - rows.start, cols.stop - cols.start
@@ -91,7 +96,7 @@ class WienerTerms:
         light = np.zeros((len(ky), n), dtype=complex)
         light[:, slots[light_reads]] = row_phase
         f_light = scipy.fft.fft(light, axis=1, workers=-1)
-        self.n, self.terms = n, []
+        self.n, self.terms, self._pairs = n, [], {}
         for p in range(groups.shape[1]):
             w, wd, kind, phantom = strategy.read_weights(context, p)
             group_cols = groups[0, p][groups[0, p] >= 0]
@@ -120,7 +125,8 @@ class WienerTerms:
                     m[:, slots[reads]] = v[:, cols_of]
                     fm = scipy.fft.fft(m, axis=1, workers=-1)
                     gt = scipy.fft.ifft(f_light * fm.conj(), axis=1, workers=-1)
-                    self.terms.append(_Term((p, fam, name), beta, psi, fm, gt))
+                    self.terms.append(_Term((p, fam, name), beta, psi, fm,
+                                            *table.far_weights(gt)))
 
     def functional(self, term):
         """The term's observations as a functional of each channel at each ``k_x``
@@ -128,25 +134,30 @@ class WienerTerms:
         return [Part(n == 1, amp=term.beta, profile=part)
                 for n, part in enumerate(term.psi) if part is not None]
 
-    def plane(self, table, spectra, i, comp, light):
-        """``-2 Re E[U C*] + E[C C*]`` of component ``i`` on the cells, ``(nky, nkx)``."""
+    def plane(self, table, spectra, i, comp, light, lags):
+        """``-2 Re E[U C*] + E[C C*]`` of component ``i`` on the cells, ``(nky, nkx)``;
+        ``lags`` keeps the spectra of the observations' covariances for other chunks."""
         out = 0.0
         for t in self.terms:
             x = spectra.correlate(("light", light), (("wiener", *t.key), self.functional(t)),
                                   comp)
-            out = out - 2 * table.products(i, t.g, x).real
+            out = out - 2 * table.split_products(i, t.g_near, t.g_far, x).real
         one = {t.key: [Part(n == 1, amp=np.ones((1, 1)), profile=part)
                        for n, part in enumerate(t.psi) if part is not None]
                for t in self.terms}
-        for t in self.terms:
-            for u in self.terms:
+        for n, t in enumerate(self.terms):
+            for u in self.terms[n:]:  # the pair (u, t) is the conjugate of (t, u)
                 if comp.scope == "common":
                     b = t.beta.sum(axis=0) * u.beta.sum(axis=0).conj()
                 else:
                     b = np.sum(t.beta * u.beta.conj(), axis=0)
-                x = spectra.correlate((("psi", *t.key), one[t.key]),
-                                      (("psi", *u.key), one[u.key]), comp)
-                fk = scipy.fft.fft(table.lag_values(i, x[0], self.n))
-                d = np.sum(t.fm * fk.conj() * u.fm.conj(), axis=1) / self.n
-                out = out + (d[:, None] * b[None, :]).real
+                if (i, t.key, u.key) not in lags:
+                    x = spectra.correlate((("psi", *t.key), one[t.key]),
+                                          (("psi", *u.key), one[u.key]), comp)
+                    lags[i, t.key, u.key] = scipy.fft.fft(table.lag_values(i, x[0], self.n))
+                fk = lags[i, t.key, u.key]
+                if (t.key, u.key) not in self._pairs:  # the same for every component
+                    self._pairs[t.key, u.key] = t.fm * u.fm.conj()
+                d = self._pairs[t.key, u.key] @ fk.conj() / self.n
+                out = out + (1 if u is t else 2) * (d[:, None] * b[None, :]).real
         return out

@@ -148,7 +148,8 @@ def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SC
                           pixel_scale, exclude_horizontal)
     full = np.broadcast_to(rfft_weights(nx), (ny, nx // 2 + 1))
     table.meta.update({
-        "forecast": f"expected P(k) of the slope image reduced by {red.describe()}",
+        "forecast": ("expected P(k) of the slope image, "
+                     + (f"reduced by {red.describe()}" if red.steps else "no reduction")),
         "pipeline": red.describe(),
         "band_kmin": float(m.kmin), "band_kmax": float(m.kmax),
         "band_power": float(u.Quantity(band["power"])[0].value) if len(band) else None,

@@ -25,6 +25,7 @@ DOCTEST_PAGES = [
     "cli.rst",
     "plugins.rst",
     "judging.rst",
+    "forecast.rst",
 ]
 
 _BUILD_MODULES = ["sphinx", "sphinx_automodapi", "numpydoc", "matplotlib"]

@@ -82,14 +82,10 @@ def run(args):
         scale = args.pixel_scale * u.arcsec
         with _ticking(not args.quiet):
             table = forecast(scene, pipeline, measure, pixel_scale=scale)
-            # the band as one bin: its standard error for one realisation
-            one = forecast(scene, pipeline, SpectrumMeasure(
-                measure.kmin, measure.kmax, [measure.kmin, measure.kmax],
-                measure.exclude_horizontal), pixel_scale=scale)
         unit = u.Quantity(table["power"]).unit
         band = err = None
-        if len(one):
-            band, err = u.Quantity(one["power"])[0], u.Quantity(one["power_err"])[0]
+        if table.meta["band_power"] is not None:
+            band, err = table.meta["band_power"] * unit, table.meta["band_power_err"] * unit
         table.meta.update({
             "source": PAPER_CASE if args.scene is None else str(args.scene),
             **band_meta(measure.kmin, measure.kmax, args.pixel_scale, band, err, unit),

@@ -162,10 +162,13 @@ def _ticking(enabled):
     stop = threading.Event()
     refresh = getattr(bar, "refresh", None)  # None: no bar (not a terminal, or -q)
 
+    shown = []
+
     def tick():
         if not stop.wait(1.0):
             while not stop.wait(0.5):
                 refresh()
+                shown.append(True)
 
     thread = threading.Thread(target=tick, daemon=True)
     if refresh is not None:
@@ -176,4 +179,6 @@ def _ticking(enabled):
         stop.set()
         if refresh is not None:
             thread.join()
+        if shown:  # a bar drawn by refresh alone is not erased by close
+            bar.clear()
         bar.close()

@@ -152,3 +152,25 @@ def test_bad_compare_table_and_existing_output_kept(white, tmp_path, capsys, con
     assert out.read_text() == "keep me" and bad.read_text() == content
     assert _run(white, "-c", "unchop", "-o", out) == 2  # no --overwrite: kept
     assert "exists" in capsys.readouterr().err and out.read_text() == "keep me"
+
+
+def test_progress_shows_the_time_on_a_terminal_only(monkeypatch):
+    import io
+    import sys
+    import time
+
+    from spherex_reduce.cli.forecast import _ticking
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    for stream, enabled, expect in ((Terminal(), True, True), (Terminal(), False, False),
+                                    (io.StringIO(), True, False)):
+        monkeypatch.setattr(sys, "stderr", stream)
+        with _ticking(enabled):
+            time.sleep(1.7 if isinstance(stream, Terminal) else 0.1)
+        text = stream.getvalue()
+        assert ("forecast: 00:01" in text) is expect
+        if expect:  # erased when done: the command's lines start on a clean line
+            assert text.endswith("\r") and text.rstrip("\r ").count("forecast") >= 1

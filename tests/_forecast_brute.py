@@ -116,3 +116,50 @@ def expected_spectrum(samples, lmat, cov, bins):
     for lv, v in zip(lam[keep], vec[:, keep].T, strict=True):
         total = total + lv * power_spectrum(v.reshape(shape), bins=bins)["power"].value
     return total
+
+
+def wiener_matrix(samples, weights, acn, phantom=False):
+    """``L`` of a ``wiener`` correction: each light pixel minus (with ``phantom``, after its
+    read's phantom mean) the estimate ``w @ y_ch + wd @ mean_ch(y)`` of its channel and
+    group at its read; ``weights[g]`` is ``(w, wd, kind, uses_phantom)`` of group ``g`` and
+    ``y`` the reference reads' group means (minus their phantom means for kind
+    ``'subtracted'``) then, when used, every read's phantom mean."""
+    s, g = samples.schedule, samples.geometry
+    rows, cols = light_sensitive(g)
+    c, nch = s.phantom_reads, g.nchannels
+    off, chan = g.column_offsets(), g.channel_of_column()
+    refs = np.flatnonzero(s.is_reference)
+
+    def observations(ch, grp, kind, use):
+        members = [k for k in range(g.ncols) if chan[k] == ch
+                   and (not acn or off[k] % 2 == grp)]
+        out = []
+        for q in refs:
+            v = np.zeros(samples.t.size)
+            for k in members:
+                v[samples.pixel(q, k)] += 1.0 / len(members)
+            if kind == "subtracted":
+                v[samples.phantom(q, ch)] -= 1.0 / c
+            out.append(v)
+        if use:
+            for r in range(s.n_reads):
+                v = np.zeros(samples.t.size)
+                v[samples.phantom(r, ch)] = 1.0 / c
+                out.append(v)
+        return np.array(out)
+
+    obs = {(ch, grp): observations(ch, grp, *weights[grp][2:])
+           for ch in range(nch) for grp in range(len(weights))}
+    light = [(p, j) for p in range(rows.start, rows.stop) for j in range(cols.start, cols.stop)]
+    out = np.zeros((len(light), samples.t.size))
+    for n, (p, j) in enumerate(light):
+        r = np.flatnonzero((s.rows == p) & ~s.is_reference)[0]
+        ch, grp = chan[j], (off[j] % 2 if acn else 0)
+        w, wd = weights[grp][:2]
+        out[n, samples.pixel(r, j)] += 1.0
+        if phantom and c:
+            out[n, samples.phantom(r, ch)] -= 1.0 / c
+        out[n] -= w[r] @ obs[ch, grp]
+        if wd is not None:
+            out[n] -= wd[r] @ (sum(obs[k, grp] for k in range(nch)) / nch)
+    return out

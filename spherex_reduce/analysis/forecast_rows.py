@@ -22,7 +22,9 @@ the ``k_y = 0`` row of the plane (the light rows' phases sum to zero at any
 other ``k_y``); there the reference reads enter as a second kind of read with
 their own functional, and the cross and reference-reference terms are sums of
 the same form over the slot lags between a light row and a reference read
-(``H_LR``) and between two reference reads (``H_RR``).
+(``H_LR``) and between two reference reads (``H_RR``).  A ``wiener`` estimate
+differs from read to read and changes every ``k_y``
+(`spherex_reduce.analysis.forecast_wiener`).
 
 The sum over ``d`` is exact for the ``m`` near a singularity of ``S`` (``m R``
 within `NEAR_READS` row reads of a multiple of the frame time); for the others
@@ -39,6 +41,7 @@ import scipy.fft
 
 from ..core.errors import SpherexReduceError
 from ..noise.variance import slope_covariance
+from .forecast_wiener import WienerTerms
 
 __all__ = ["NEAR_READS", "NODES", "Cells", "component_planes"]
 
@@ -46,6 +49,9 @@ __all__ = ["NEAR_READS", "NODES", "Cells", "component_planes"]
 NEAR_READS = 4
 #: Chebyshev nodes over the offsets beyond (the rule is exact for polynomials of lower degree).
 NODES = 8
+#: k_y rows of the ``wiener`` correction computed at a time (bounds its memory: ~0.3 GB at
+#: the paper's full size).
+WIENER_ROWS = 256
 
 
 @dataclass(frozen=True)
@@ -93,11 +99,14 @@ def component_planes(schedule, rows, cols, comps, reduction, nodes=NODES, cells=
     g = schedule.geometry
     ny, nx = rows.stop - rows.start, cols.stop - cols.start
     cells = Cells.full(ny, nx) if cells is None else cells
-    c = schedule.phantom_reads if (reduction.phantom or reduction.reference_phantom) else 0
+    wiener = reduction.reference == "wiener"
+    c = schedule.phantom_reads if (reduction.phantom or reduction.reference_phantom
+                                   or wiener) else 0
     table = _LagTable(schedule, comps, g.channel_width - 1 + c, nodes)
     a = _row_pairs(schedule, rows, cells.ky)  # (n_half, 2 slots), n_half rows of k_y >= 0
     light = _functionals(schedule, rows, cols, cells.kx, c, reduction)  # (pixels, phantom)
-    ref = _reference_functionals(schedule, cols, cells.kx, c, reduction, ny)
+    ref = None if wiener else _reference_functionals(schedule, cols, cells.kx, c, reduction,
+                                                     ny)
     has_zero = cells.ky.size and cells.ky[0] == 0
     if ref is not None and has_zero:
         light_reads = np.zeros(a.shape[1])
@@ -121,6 +130,14 @@ def component_planes(schedule, rows, cols, comps, reduction, nodes=NODES, cells=
                     x = spectra.correlate((n, f), (n2, f2), comp)
                     auto = table.products(i, _slot_pairs(ind, ind2), x)
                     parts[comp.name][0] += auto.real
+    if wiener:  # k_y rows a chunk at a time: a term holds two (rows, 2 slots) arrays
+        for lo in range(0, cells.ky.size, WIENER_ROWS):
+            ky = cells.ky[lo:lo + WIENER_ROWS]
+            terms = WienerTerms(schedule, rows, cols, ky, cells.kx, c, reduction,
+                                _slots(schedule), _light_reads(schedule, rows))
+            for i, comp in enumerate(comps):
+                parts[comp.name][lo:lo + ky.size] += terms.plane(table, spectra, i, comp,
+                                                                 light)
     return parts
 
 
@@ -165,10 +182,18 @@ class _LagTable:
         return re, im
 
     def products(self, i, w, x):
-        """``sum_m w(m) sum_d X(k_x, d) S(m R + d)`` for a weight vector ``w`` ``(2 slots,)``
-        (complex result, ``(nkx,)``)."""
+        """``sum_m w(m) sum_d X(k_x, d) S(m R + d)`` for weights ``w`` ``(..., 2 slots)``
+        (complex result, ``(..., nkx)``)."""
         q_near, s_far, nodes = self._q(i, x)
-        return w[self.near] @ q_near + (w[self.far] @ s_far) @ nodes
+        return w[..., self.near] @ q_near + (w[..., self.far] @ s_far) @ nodes
+
+    def lag_values(self, i, x, n):
+        """``K(m) = sum_d X(d) S(m R + d)`` at every slot lag ``m`` (index ``m mod n``) for
+        one correlation ``X`` ``(2 half + 1,)``."""
+        out = np.zeros(n)
+        out[self.near] = (self.s_near[i] @ x).real
+        out[self.far] = (self.s_far[i] @ (x @ self.interp)).real
+        return out
 
 
 def _slots(s):

@@ -12,13 +12,18 @@ order), least-squares slopes with uniform weights commute with every
 frame-wise linear correction (a slope of ``x - c`` is the slope of ``x``
 minus that of ``c``), so the order of ``fit_ramp`` among the other steps does
 not matter; the order of phantom subtraction and reference correction does.
+A pair difference ``(a - b) / sqrt(2)`` of two exposures taken and reduced the
+same way has, for noise independent between the two exposures, the expected
+spectrum of one exposure (``(E|A|² + E|B|²) / 2``; the dark current and any
+fixed pattern cancel, the Poisson noise of both adds up to one's): it is
+forecast as the identity.
 σ-clipping (the clipped mean of the reference pixels, the ``sigma_clip``
 step's hot pixels) is forecast as no clipping: on Gaussian noise it changes
 the spectrum by less than the Monte Carlo resolves (measured: see
 docs/forecast.rst).
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from ..core.errors import ConfigError
 from ..reduce.pipeline import as_pipeline
@@ -31,9 +36,10 @@ __all__ = ["FORECAST_STEPS", "Reduction", "linear_steps", "reduction"]
 FORECAST_STEPS = {
     "unchop": {},
     "subtract_phantom": {},
-    "correct_reference": {"strategy": ("mean", "acn")},
+    "correct_reference": {"strategy": ("mean", "acn", "wiener")},
     "fit_ramp": {"weighting": ("uniform",)},
     "sigma_clip": {},
+    "pair_difference": {},
 }
 
 
@@ -50,14 +56,19 @@ class Reduction:
         subtracted.
     reference : str or None
         The reference correction (``'mean'``: one mean of the reference pixels
-        per channel; ``'acn'``: one per channel and column-offset parity), or
-        None.
+        per channel; ``'acn'``: one per channel and column-offset parity;
+        ``'wiener'``: a drift estimate at every read), or None.
     reference_phantom : bool
         The reference pixels had their phantom values subtracted before they
         were averaged (``subtract_phantom`` ran first).
     side_columns : bool
         The reference offsets also average the side reference columns of the
         active rows.
+    reference_params : dict
+        The reference step's parameters (the ``wiener`` strategy's weights
+        depend on them).
+    reference_ramps : bool
+        The reference step works on ramps (``fit_ramp`` comes after it).
     """
 
     steps: tuple = ()
@@ -65,6 +76,8 @@ class Reduction:
     reference: str | None = None
     reference_phantom: bool = False
     side_columns: bool = False
+    reference_params: dict = field(default_factory=dict)
+    reference_ramps: bool = True
 
     def describe(self):
         """The pipeline's steps as ``'a > b'`` (``'none'`` without steps)."""
@@ -98,7 +111,7 @@ def reduction(pipeline):
     if pipeline is None:
         return Reduction()
     p = as_pipeline(pipeline)
-    names, phantom, reference, reference_phantom, side = [], False, None, False, False
+    names, phantom, fitted, ref = [], False, False, {}
     for i, item in enumerate(p.config["steps"]):
         (name, params), = item.items()
         if name not in FORECAST_STEPS:
@@ -110,13 +123,21 @@ def reduction(pipeline):
                 raise ConfigError(f"forecast: steps[{i}].{name}.{key}: {value!r} is not "
                                   f"forecast (not linear, or not yet); only "
                                   f"{', '.join(map(repr, allowed))}")
-        if name == "subtract_phantom":
-            phantom = True
+        if name == "subtract_phantom" and not ref.get("consumed"):
+            phantom = True  # (skipped when a wiener estimate consumed the phantom values)
+        elif name == "fit_ramp":
+            fitted = True
         elif name == "correct_reference":
-            reference, reference_phantom = params.get("strategy", "mean"), phantom
-            side = bool(params.get("side_columns", False))
+            strategy = params.get("strategy", "mean")
+            rest = {k: v for k, v in params.items() if k != "strategy"}
+            ref = {"reference": strategy, "reference_phantom": phantom,
+                   "side_columns": bool(params.get("side_columns", False)),
+                   "reference_params": rest, "reference_ramps": not fitted,
+                   "consumed": strategy == "wiener" and not phantom
+                   and params.get("phantom", "auto") == "auto"}
         names.append(name)
-    return Reduction(tuple(names), phantom, reference, reference_phantom, side)
+    ref.pop("consumed", None)
+    return Reduction(tuple(names), phantom, **ref)
 
 
 def linear_steps(pipeline):

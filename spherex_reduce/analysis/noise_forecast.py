@@ -6,8 +6,9 @@ of the stream ``x`` of each noise component, so two samples taken ``L``
 samples apart within a frame have the slope covariance ``S(L)``
 (`~spherex_reduce.noise.variance.slope_covariance`).  Every reduction the
 forecast propagates (`~spherex_reduce.analysis.forecast_steps.FORECAST_STEPS`:
-un-chopping, phantom subtraction, the mean of the reference pixels, uniform
-least-squares slopes) is linear and subtracts from a pixel combinations of
+un-chopping, phantom subtraction, reference correction by the mean of the
+reference pixels or a ``wiener`` drift estimate, uniform least-squares slopes,
+pair differences) is linear and subtracts from a pixel combinations of
 samples of the same streams, so ``E|FFT|²`` of the reduced image is a sum over
 pairs of reads of ``S`` at their lags, weighted by the phases of the pixels
 and samples involved: `spherex_reduce.analysis.forecast_rows` computes it with
@@ -68,10 +69,11 @@ def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SC
         the slope image as simulated.  Every step must be one the forecast
         knows as linear
         (`~spherex_reduce.analysis.forecast_steps.FORECAST_STEPS`): ``unchop``,
-        ``subtract_phantom``, ``correct_reference`` with the ``mean`` strategy
-        (forecast unclipped), ``fit_ramp`` with uniform weights, ``sigma_clip``
-        (forecast as no clipping); the shipped ``spherex-default``,
-        ``spherex-slopes`` and ``phantom-only`` are.
+        ``subtract_phantom``, ``correct_reference`` with the ``mean``, ``acn``
+        (forecast unclipped, with or without side columns) or ``wiener``
+        strategy, ``fit_ramp`` with uniform weights, ``sigma_clip`` (forecast
+        as no clipping) and ``pair_difference`` (the identity); the shipped
+        pipelines but ``median`` are.
     measure : `~spherex_reduce.analysis.case.SpectrumMeasure` or dict, optional
         ``kmin``, ``kmax`` (the band of ``band_power``, rad/pixel), ``bins`` and
         ``exclude_horizontal``, as a sweep's ``measure:`` (default: the

@@ -4,15 +4,18 @@ matrices (tests/_forecast_brute.py) and against the package's own simulator and 
 
 import numpy as np
 import pytest
-from _forecast_brute import Samples, expected_spectrum, reduction_matrix
+from _forecast_brute import Samples, expected_spectrum, reduction_matrix, wiener_matrix
 from astropy import units as u
 
+from spherex_reduce import correct_reference, pair_difference
 from spherex_reduce.analysis import forecast, power_spectrum
 from spherex_reduce.analysis.forecast_steps import reduction
 from spherex_reduce.analysis.light import light_sensitive_image
 from spherex_reduce.analysis.noise_forecast import band_power_forecast
+from spherex_reduce.core.block import Context
 from spherex_reduce.core.errors import ConfigError
 from spherex_reduce.reduce.pipeline import as_pipeline
+from spherex_reduce.reduce.steps.wiener import WienerReference
 from spherex_reduce.simulation import load_scene, simulate
 
 BINS = 5
@@ -143,6 +146,14 @@ def test_reduction_follows_the_order_of_the_steps():
                              {"subtract_phantom": {}}]})
     assert (r.phantom, r.reference, r.reference_phantom) == (True, "mean", False)
     assert reduction("phantom-only").reference is None
+    # a wiener estimate from the phantom values consumes them: a later subtraction is skipped
+    steps = [{"correct_reference": {"strategy": "wiener"}}, {"subtract_phantom": {}}]
+    assert not reduction({"steps": steps}).phantom
+    steps[0]["correct_reference"]["phantom"] = "ignore"
+    assert reduction({"steps": steps}).phantom
+    r = reduction({"steps": [{"fit_ramp": {}}, {"correct_reference": {"strategy": "acn",
+                                                                      "side_columns": True}}]})
+    assert (r.reference, r.side_columns, r.reference_ramps) == ("acn", True, False)
 
 
 @pytest.mark.parametrize("step, match", [
@@ -158,3 +169,82 @@ def test_refuses_what_is_not_linear_in_one_line(step, match):
     with pytest.raises(ConfigError, match=match) as err:
         forecast(tiny([PINK]), {"steps": [{"unchop": {}}, step]})
     assert "\n" not in str(err.value)
+
+
+def test_pair_difference_of_independent_exposures_keeps_the_spectrum_of_one():
+    """(a - b) / sqrt(2) of two realisations reduced the same way (the measured-dark-pair
+    reduction through the real steps: its dark current cancels, its Poisson noise stays)
+    against the forecast of one exposure, 300 pairs."""
+    scene = tiny([ROIC, PINK_ACN, BOTH, PHANTOM], terms={"dark_current": 20.0})
+    pre = as_pipeline({"steps": [{"unchop": {}}, {"subtract_phantom": {}}]})
+    runs = []
+    for i in range(300):
+        a, b = (pre.run(simulate(scene, seed=s)) for s in (i, 100_000 + i))
+        d = correct_reference(pair_difference(a, b), "mean")
+        runs.append(power_spectrum(light_sensitive_image(d), bins=BINS)["power"].value)
+    runs = np.array(runs)
+    mean, se = runs.mean(axis=0), runs.std(axis=0, ddof=1) / np.sqrt(len(runs))
+    expect = u.Quantity(forecast(scene, "measured-dark-pair", {"bins": BINS})["power"]).value
+    assert np.all(np.abs(mean - expect) < 3 * se), (mean - expect) / se
+    one = u.Quantity(forecast(scene, "spherex-default", {"bins": BINS})["power"]).value
+    np.testing.assert_array_equal(expect, one)
+
+
+def test_ramps_fitted_last_equal_ramps_fitted_first():
+    """The ramps route: uniform least squares commute with the frame-wise linear steps, so
+    ramps reduced frame by frame and then fitted (spherex-default) give the slopes of the
+    ramps fitted first and then reduced (the slopes route's order), unclipped."""
+    scene = tiny([ROIC, BOTH, BOTH_COMMON, PHANTOM])
+    raw = simulate(scene, seed=5, mode="ramps")
+    steps = [{"unchop": {}}, {"subtract_phantom": {}},
+             {"correct_reference": {"strategy": "acn", "sigma": 1e6, "maxiters": 1}}]
+    fit = {"fit_ramp": {"weighting": "uniform"}}
+    last = as_pipeline({"steps": [*steps, fit]}).run(raw)
+    first = as_pipeline({"steps": [fit, *steps]}).run(raw)
+    a, b = (np.asarray(light_sensitive_image(e).data, float) for e in (last, first))
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-5 * np.std(a))
+
+
+WIENER_CASES = {
+    # (strategy parameters, subtract_phantom first, on ramps)
+    "phantom-observed": ({}, False, True),
+    "phantom-subtracted": ({}, True, True),
+    "acn-slopes": ({"acn": True}, False, False),
+    "phantom-ignored": ({"phantom": "ignore"}, False, True),
+}
+
+
+@pytest.mark.parametrize("case", WIENER_CASES)
+def test_wiener_equals_brute_force(case):
+    """The strategy's own weights (the same code) applied as an explicit matrix to every
+    sample, under the scene's noise."""
+    params, first, ramps = WIENER_CASES[case]
+    scene = tiny([PINK_ACN, BOTH, COMMON, PHANTOM], scan="alternate")
+    strategy = WienerReference(noise="spherex-table2", **params)
+    context = Context(scene.schedule, "readout", ramps, has_phantom=not first)
+    weights = [strategy.read_weights(context, p) for p in range(2 if strategy.acn else 1)]
+    samples = Samples(scene)
+    cov = sum(samples.covariance(scene.components).values())
+    lmat = wiener_matrix(samples, weights, strategy.acn, phantom=first)
+    expect = expected_spectrum(samples, lmat, cov, BINS)
+    steps = [{"unchop": {}}, *([{"subtract_phantom": {}}] if first else []),
+             *([] if ramps else [{"fit_ramp": {}}]),
+             {"correct_reference": {"strategy": "wiener", "noise": "spherex-table2", **params}}]
+    got = forecast(scene, {"steps": steps}, {"bins": BINS})
+    p = u.Quantity(got["power"]).value
+    np.testing.assert_allclose(p, expect, rtol=1e-3)
+    n = np.asarray(got["nmodes"], float)
+    assert abs(np.sum(p * n) / np.sum(expect * n) - 1) < 1e-4
+
+
+def test_wiener_monte_carlo_of_the_shipped_pipeline():
+    """300 slope images reduced by the shipped ``wiener`` pipeline (its drift estimate from
+    the reference reads and phantom values) against the forecast in every bin."""
+    scene = tiny([ROIC, PINK_ACN, COMMON, BOTH, PHANTOM], scan="alternate",
+                 terms={"dark_current": 20.0})
+    p = as_pipeline("wiener")
+    runs = np.array([power_spectrum(light_sensitive_image(p.run(simulate(scene, seed=i))),
+                                    bins=BINS)["power"].value for i in range(300)])
+    mean, se = runs.mean(axis=0), runs.std(axis=0, ddof=1) / np.sqrt(len(runs))
+    expect = u.Quantity(forecast(scene, "wiener", measure={"bins": BINS})["power"]).value
+    assert np.all(np.abs(mean - expect) < 3 * se), (mean - expect) / se

@@ -187,6 +187,58 @@ class WienerReference(Strategy):
         >>> bool(w[a].mean() < 0.8 * m[a].mean())
         True
         """
+        *_, var, mvar = self._full_weights(context, reads, parity)
+        return var, mvar
+
+    def read_weights(self, context, parity=0):
+        """The weights the estimate applies when every reference pixel is usable.
+
+        The estimate of channel ``ch`` (group ``parity``) at every read is
+        ``w @ y_ch + wd @ mean_ch(y)``: ``y_ch`` the channel's observations, the
+        value of each reference read (the mean of the group's pixels, minus the
+        read's phantom value once it is subtracted) and, when the strategy
+        estimates from them, the phantom value of every read, in read order;
+        ``mean_ch`` their mean over channels.  Linear: the noise forecast
+        propagates them.
+
+        Parameters
+        ----------
+        context : `~spherex_reduce.core.block.Context`
+            As `predicted_variance`.
+        parity : int
+            The group (0, or 1 for odd samples with ``acn``).
+
+        Returns
+        -------
+        w : `numpy.ndarray`, shape ``(n_reads, k [+ n_reads])``
+        wd : `numpy.ndarray` or None
+            Same shape; None with one channel.
+        kind : str
+            What a reference read's value is (`~spherex_reduce.noise.read_covariance.KINDS`:
+            ``'pixels'``, or ``'subtracted'`` once the phantom values are subtracted).
+        phantom : bool
+            Whether the phantom values of every read are observations.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from spherex_reduce import ReadoutSchedule
+        >>> from spherex_reduce.core.block import Context
+        >>> from spherex_reduce.reduce.steps.wiener import WienerReference
+        >>> s = ReadoutSchedule(nframes=4)
+        >>> w, wd, kind, phantom = WienerReference().read_weights(
+        ...     Context(s, "readout", False, has_phantom=True))
+        >>> w.shape == (s.n_reads, s.ref_reads + s.n_reads), kind, phantom
+        (True, 'pixels', True)
+        >>> bool(np.allclose((w + wd)[:, :s.ref_reads].sum(axis=1), 1))  # unbiased
+        True
+        """
+        w, wd, *_ = self._full_weights(context, None, parity)
+        use = self.uses_phantom(context)
+        return w, wd, self._kind(context, use), use
+
+    def _full_weights(self, context, reads, parity):
+        """`_Model.weights` of full reference reads: ``(w, wd, variance, mean variance)``."""
         s = context.schedule
         reads = s.reference_read_indices if reads is None else np.asarray(reads, dtype=int)
         groups = _group_columns(s.geometry, self.acn)
@@ -195,9 +247,8 @@ class WienerReference(Strategy):
         use = self.uses_phantom(context)
         kind = self._kind(context, use)
         model = self._model(s, domain, s.geometry.column_offsets()[cols])
-        *_, var, mvar = model.weights(self, kind, reads, np.full(reads.size, float(cols.size)),
-                                      cols.size, s.geometry.nchannels, True, use)
-        return var, mvar
+        return model.weights(self, kind, reads, np.full(reads.size, float(cols.size)),
+                             cols.size, s.geometry.nchannels, True, use)
 
     def _domain(self, context):
         """``frames`` or ``slopes``: ``auto`` is frames for ramps (or a single frame)."""

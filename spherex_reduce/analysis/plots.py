@@ -123,13 +123,16 @@ def plot_forecast(table, measured=None, measured_label="measured", title="",
     measured_label : str
         What the measured points are, for the legend.
     title : str
-        Default: the pipeline and the forecast band power.
+        Default: the pipeline (the meta's ``config``, else its ``pipeline``)
+        and the forecast band power.
     pixel_scale : `~astropy.units.Quantity`
         For the θ axis and the band label.
 
     Returns
     -------
     `matplotlib.figure.Figure`
+        The P axis goes down to 10⁻⁴ of the total's lowest bin at most: a
+        component below that is cut off.
 
     Examples
     --------
@@ -163,10 +166,17 @@ def plot_forecast(table, measured=None, measured_label="measured", title="",
         unit = u.Quantity(table["power"]).unit
         value = meta.get("band_power")
         shown = "missing" if value is None else f"{value:.3g} {unit_label(unit)}"
-        title = (f"forecast P(k) through {meta.get('pipeline', 'no reduction')}; "
-                 f"band power {shown}")
-    return plot_spectra(spectra, band=band, title=title, pixel_scale=pixel_scale,
-                        styles=styles)
+        title = (f"forecast P(k) through {meta.get('config') or meta.get('pipeline', 'none')}"
+                 f"; band power {shown}")
+    fig = plot_spectra(spectra, band=band, title=title, pixel_scale=pixel_scale,
+                       styles=styles)
+    total = u.Quantity(table["power"]).value
+    if np.any(total > 0):  # a component cancelled to rounding would stretch the axis
+        ax = fig.axes[0]
+        top = max(np.nanmax(np.asarray(line.get_ydata(), float), initial=0.0)
+                  for line in ax.get_lines())
+        ax.set_ylim(max(ax.get_ylim()[0], 1e-4 * float(np.min(total[total > 0]))), 3 * top)
+    return fig
 
 
 def _band_caption(fig, band, pixel_scale):

@@ -94,7 +94,10 @@ def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SC
         for the Poisson noise of the scene's dark current and photocurrent
         (white, `~spherex_reduce.analysis.slope_variance_factor`), if any.  ``meta`` as
         `~spherex_reduce.analysis.power_spectrum`'s, with ``band_power`` (the
-        paper's band, e/s squared), ``variance`` (the mean of ``P`` over the
+        paper's band, e/s squared), ``band_power_err`` (the standard error of
+        one realisation's band power as `~spherex_reduce.analysis.band_power`
+        computes it, from the expected ``P`` instead of the measured
+        ``|FFT|²``), ``variance`` (the mean of ``P`` over the
         whole plane: the pixel variance) and ``forecast`` (what was forecast).
 
     Raises
@@ -153,6 +156,8 @@ def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SC
         "pipeline": red.describe(),
         "band_kmin": float(m.kmin), "band_kmax": float(m.kmax),
         "band_power": float(u.Quantity(band["power"])[0].value) if len(band) else None,
+        "band_power_err": (float(u.Quantity(band["power_err"])[0].value) if len(band)
+                           else None),
         "variance": float(np.sum(total * full) / (ny * nx) ** 2),
     })
     return table

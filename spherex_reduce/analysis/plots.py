@@ -10,11 +10,13 @@ from matplotlib.figure import Figure
 
 from .spectrum import BAND_KMAX, BAND_KMIN, SPHEREX_PIXEL_SCALE, band_label, band_theta
 
-__all__ = ["plot_comparison", "plot_fft_magnitude", "plot_noise_fit", "plot_spectra"]
+__all__ = ["plot_comparison", "plot_fft_magnitude", "plot_forecast", "plot_noise_fit",
+           "plot_spectra"]
 
 
 def plot_spectra(spectra, band=(BAND_KMIN, BAND_KMAX), photon=None, title="",
-                 pixel_scale=SPHEREX_PIXEL_SCALE, photon_label="photon noise", ax=None):
+                 pixel_scale=SPHEREX_PIXEL_SCALE, photon_label="photon noise", ax=None,
+                 styles=None):
     """Log-log P(k) of one or more spectra with the band shaded.
 
     Bins with no power (P ≤ 0, e.g. a component that feeds only some modes)
@@ -41,6 +43,9 @@ def plot_spectra(spectra, band=(BAND_KMIN, BAND_KMAX), photon=None, title="",
         ``"photon noise, 1 e/s for 112 s"`` (`photon_noise_label`).
     ax : `matplotlib.axes.Axes`, optional
         Draw into this axes (a panel of a larger figure) instead of a new figure.
+    styles : dict of label -> dict, optional
+        Matplotlib keywords overriding the style of a spectrum's line (default:
+        points joined by a thin line).
 
     Returns
     -------
@@ -65,7 +70,9 @@ def plot_spectra(spectra, band=(BAND_KMIN, BAND_KMAX), photon=None, title="",
             _band_caption(fig, band, pixel_scale)
     fig = ax.figure
     unit = None
+    styles = styles or {}
     for label, t in spectra.items():
+        style = {"marker": "o", "ls": "-", "ms": 3, "lw": 1, **styles.get(label, {})}
         p = u.Quantity(t["power"])
         unit = unit or p.unit
         k = np.asarray(u.Quantity(t["k"]).value, dtype=float)
@@ -77,9 +84,9 @@ def plot_spectra(spectra, band=(BAND_KMIN, BAND_KMAX), photon=None, title="",
         err = np.where(drawn & np.isfinite(err) & (err > 0), err, 0.0)
         if np.any(err > 0):
             lower = np.minimum(err, 0.9 * np.nan_to_num(pv))  # stop a decade below at most
-            ax.errorbar(k, pv, yerr=[lower, err], fmt="o-", ms=3, lw=1, capsize=2, label=label)
+            ax.errorbar(k, pv, yerr=[lower, err], capsize=2, label=label, **style)
         else:
-            ax.plot(k, pv, "o-", ms=3, lw=1, label=label)
+            ax.plot(k, pv, label=label, **style)
     if band is not None:
         ax.axvspan(band[0], band[1], color="tab:red", alpha=0.15,
                    label="band " + band_label(band[0], band[1], pixel_scale))
@@ -97,6 +104,78 @@ def plot_spectra(spectra, band=(BAND_KMIN, BAND_KMAX), photon=None, title="",
     ax.grid(True, which="both", alpha=0.2)
     if title:
         ax.set_title(title, fontsize=10)
+    return fig
+
+
+def plot_forecast(table, measured=None, measured_label="measured", title="",
+                  pixel_scale=SPHEREX_PIXEL_SCALE):
+    """A forecast P(k), total and per noise component, with measured points over it.
+
+    Parameters
+    ----------
+    table : `~astropy.table.Table`
+        From `~spherex_reduce.analysis.forecast`: ``k``, ``power`` and a
+        ``power_<name>`` column per noise component; its meta's ``band_kmin``
+        and ``band_kmax`` are the band shaded.
+    measured : `~astropy.table.Table`, optional
+        A measured spectrum (`~spherex_reduce.analysis.power_spectrum`, the
+        ``spectrum`` command's ECSV): drawn as points with their error bars.
+    measured_label : str
+        What the measured points are, for the legend.
+    title : str
+        Default: the pipeline (the meta's ``config``, else its ``pipeline``)
+        and the forecast band power.
+    pixel_scale : `~astropy.units.Quantity`
+        For the θ axis and the band label.
+
+    Returns
+    -------
+    `matplotlib.figure.Figure`
+        The P axis goes down to 10⁻⁴ of the total's lowest bin at most: a
+        component below that is cut off.
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis import forecast
+    >>> from spherex_reduce.analysis.plots import plot_forecast
+    >>> scene = {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 4, "ref_border": 4},
+    ...          "readout": {"nframes": 8, "phantom_reads": 0}}
+    >>> fig = plot_forecast(forecast(scene, measure={"bins": 6}))
+    >>> [t.get_text() for t in fig.axes[0].get_legend().get_texts()][:2]
+    ['forecast: total', 'forecast: video8']
+    """
+    from astropy.table import Table
+
+    from ..io.plotting import unit_label
+
+    meta = table.meta
+    k = u.Quantity(table["k"])
+    spectra = {"forecast: total": Table({"k": k, "power": u.Quantity(table["power"])})}
+    styles = {"forecast: total": {"marker": "", "lw": 2.2, "color": "k"}}
+    for name in table.colnames:
+        if name.startswith("power_") and name != "power_err" and np.any(table[name] > 0):
+            label = f"forecast: {name.removeprefix('power_')}"
+            spectra[label] = Table({"k": k, "power": u.Quantity(table[name])})
+            styles[label] = {"marker": "", "ls": "--"}
+    if measured is not None:
+        label = f"measured: {measured_label}"
+        spectra[label] = measured
+        styles[label] = {"marker": "o", "ls": "", "ms": 4, "color": "tab:red", "zorder": 3}
+    band = (meta.get("band_kmin", BAND_KMIN), meta.get("band_kmax", BAND_KMAX))
+    if not title:
+        unit = u.Quantity(table["power"]).unit
+        value = meta.get("band_power")
+        shown = "missing" if value is None else f"{value:.3g} {unit_label(unit)}"
+        title = (f"forecast P(k) through {meta.get('config') or meta.get('pipeline', 'none')}"
+                 f"; band power {shown}")
+    fig = plot_spectra(spectra, band=band, title=title, pixel_scale=pixel_scale,
+                       styles=styles)
+    total = u.Quantity(table["power"]).value
+    if np.any(total > 0):  # a component cancelled to rounding would stretch the axis
+        ax = fig.axes[0]
+        top = max(np.nanmax(np.asarray(line.get_ydata(), float), initial=0.0)
+                  for line in ax.get_lines())
+        ax.set_ylim(max(ax.get_ylim()[0], 1e-4 * float(np.min(total[total > 0]))), 3 * top)
     return fig
 
 

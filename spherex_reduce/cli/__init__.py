@@ -35,6 +35,7 @@ COMMANDS = {
     "simulate": "simulate raw ramps or a slope image from a scene",
     "combine": "combine reduced exposures into a master dark",
     "spectrum": "azimuthally averaged power spectrum P(k) of an image",
+    "forecast": "expected P(k) of a scene reduced by a pipeline, exact, no simulation",
     "fit-noise": "fit the noise model of paper eq. 1 to a raw file's reference and phantom "
                  "streams",
     "sweep": "simulate, reduce and measure a grid of readout parameters on dask",

@@ -78,6 +78,44 @@ def _measure(image, args, path, bins=None):
     return table, band, err, None
 
 
+def band_meta(kmin, kmax, pixel_scale, band, err, unit):
+    """The band's entries of a P(k) table's meta, as ``spectrum`` and ``forecast`` write them.
+
+    Parameters
+    ----------
+    kmin, kmax : float
+        The band, rad/pixel.
+    pixel_scale : float
+        Arcsec per pixel.
+    band, err : `~astropy.units.Quantity` or None
+        The band power and its standard error (None: missing, written as null).
+    unit : `~astropy.units.Unit`
+        The unit of ``power``.
+
+    Returns
+    -------
+    dict
+        ``band`` (the nominal band), ``band_kmin``, ``band_kmax``,
+        ``band_theta_exact`` (the θ the k limits give), ``band_power``,
+        ``band_power_err``, ``band_power_unit``.
+
+    Examples
+    --------
+    >>> from astropy import units as u
+    >>> from spherex_reduce.cli.spectrum import band_meta
+    >>> unit = u.electron**2 / u.s**2 * u.pix**2
+    >>> m = band_meta(0.03, 0.13, 6.2, 2.5e-3 * unit, 1e-4 * unit, unit)
+    >>> m["band"], m["band_power"], m["band_power_unit"]
+    ('5–20′ (0.03 ≤ k ≤ 0.13 rad/pixel)', 0.0025, 'electron2 pix2 / s2')
+    """
+    from ..analysis import band_label, band_theta
+
+    scale = pixel_scale * u.arcsec
+    return {"band": band_label(kmin, kmax, scale), "band_kmin": kmin, "band_kmax": kmax,
+            "band_theta_exact": band_theta(kmin, kmax, scale), "band_power": _value(band),
+            "band_power_err": _value(err), "band_power_unit": u.Unit(unit).to_string()}
+
+
 def _value(quantity):
     """A band power for the table's meta: its value, or None (YAML null) when missing."""
     return None if quantity is None else float(quantity.value)
@@ -105,7 +143,6 @@ def _photon(image, args):
 
 
 def run(args):
-    from ..analysis import band_label, band_theta
     from ..analysis.io import read_image
 
     if args.kmin >= args.kmax:
@@ -120,14 +157,10 @@ def run(args):
             atomic_output(path, args.overwrite)
     image = read_image(args.input, pipeline=pipeline, light=True)
     table, band, err, missing = _measure(image, args, args.input)
-    scale = args.pixel_scale * u.arcsec
-    band_text = band_label(args.kmin, args.kmax, scale)
-    table.meta.update({
-        "source": str(args.input), "band": band_text, "band_kmin": args.kmin,
-        "band_kmax": args.kmax, "band_theta_exact": band_theta(args.kmin, args.kmax, scale),
-        "band_power": _value(band), "band_power_err": _value(err),
-        "band_power_unit": u.Quantity(table["power"]).unit.to_string(),
-    })
+    table.meta.update({"source": str(args.input),
+                       **band_meta(args.kmin, args.kmax, args.pixel_scale, band, err,
+                                   u.Quantity(table["power"]).unit)})
+    band_text = table.meta["band"]
     if missing:
         table.meta["band_power_missing"] = missing
     if pipeline is not None:

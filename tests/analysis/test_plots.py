@@ -135,3 +135,27 @@ def test_spectra_band_labelled_nominally_and_the_theta_it_gives_in_the_caption(s
                        f"for {scale:g}″ pixels")
     assert "0–0" not in caption
     assert not any("θ =" in t.get_text() for t in fig.axes[0].get_legend().get_texts())
+
+
+def test_plot_forecast_curves_measured_points_and_axis():
+    from spherex_reduce.analysis.plots import plot_forecast
+
+    unit = u.electron**2 / u.s**2 * u.pix**2
+    k = np.geomspace(0.01, 3, 8)
+    big, tiny = np.full(8, 2e-3), np.full(8, 1e-36)  # a component cancelled to rounding
+    fc = Table({"k": k * u.rad / u.pix, "power": (big + tiny) * unit,
+                "power_err": big * 0.1 * unit, "power_roic": big * unit,
+                "power_phantom": tiny * unit, "power_none": np.zeros(8) * unit},
+               meta={"band_kmin": 0.03, "band_kmax": 0.13, "band_power": 2e-3,
+                     "config": "spherex-default (shipped)"})
+    measured = Table({"k": k * u.rad / u.pix, "power": big * 1.1 * unit,
+                      "power_err": big * 0.05 * unit})
+    fig = plot_forecast(fc, measured, measured_label="m.ecsv")
+    ax = fig.axes[0]
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    # every component with power is drawn, one with none is not; the measured points
+    assert labels[:3] == ["forecast: total", "forecast: roic", "forecast: phantom"]
+    assert "forecast: none" not in labels and "measured: m.ecsv" in labels
+    low, high = ax.get_ylim()
+    assert low == pytest.approx(2e-7) and 2.2e-3 < high <= 3 * 2.2e-3 * 1.06
+    assert "spherex-default" in ax.get_title() and ax.get_yscale() == "log"

@@ -51,6 +51,9 @@ CASES = [  # (command line with IN/OUT placeholders, the input that OUT names)
     ("simulate {scene} -o {out}", "scene.yaml"),
     ("spectrum {red} -o {out}", "red.fits"),
     ("spectrum {red} -o {d}/s.ecsv --plot {out}", "red.fits"),
+    ("forecast {scene} -c unchop -o {out}", "scene.yaml"),
+    ("forecast {scene} -c {pipe} -o {out}", "pipe.yaml"),
+    ("forecast {scene} -c unchop -o {d}/f.ecsv --plot {out}", "scene.yaml"),
     ("combine {red} {red} -o {out}", "red.fits"),
     ("fit-noise {raw} -o {out}", "raw.fits"),
     ("readout --config {scene} -o {out}", "scene.yaml"),
@@ -92,6 +95,9 @@ def test_two_outputs_that_are_one_file_are_refused(files, tmp_path, capsys):
     "spectrum {red} -o {out} --kmin nan",
     "spectrum {red} -o {out} --bins 1e8",
     "spectrum {red} -o {out} --bins 0",
+    "forecast -c unchop -o {out} --kmax nan",
+    "forecast -c unchop -o {out} --pixel-scale 0",
+    "forecast -c unchop -o {out} --bins 1e8",
     "combine {red} {red} -o {out} --sigma -1",
     "combine {red} {red} -o {out} --sigma nan",
     "fit-noise {raw} -o {out} --exponent nan",
@@ -266,8 +272,10 @@ def test_read_only_file_system_is_an_environment_error(files, tmp_path, monkeypa
     one_line_error(capsys, f"{tmp_path / 's.ecsv'}: Read-only file system")
 
 
+@pytest.mark.parametrize("command", ["spectrum", "forecast"])
 @pytest.mark.parametrize("fail", ["table", "plot"])
-def test_spectrum_outputs_are_all_or_nothing(files, tmp_path, monkeypatch, fail, capsys):
+def test_spectrum_outputs_are_all_or_nothing(files, tmp_path, monkeypatch, fail, command,
+                                             capsys):
     import matplotlib.figure
     from astropy.table import Table
 
@@ -276,7 +284,9 @@ def test_spectrum_outputs_are_all_or_nothing(files, tmp_path, monkeypatch, fail,
     else:
         monkeypatch.setattr(Table, "write", _no_space)
     out, png = tmp_path / "s.ecsv", tmp_path / "s.png"
-    assert run("-q", "spectrum", files / "red.fits", "-o", out, "--plot", png) == 2
+    what = [files / "red.fits"] if command == "spectrum" else [files / "scene.yaml", "-c",
+                                                                "unchop"]
+    assert run("-q", command, *what, "-o", out, "--plot", png) == 2
     one_line_error(capsys, "No space left on device")
     assert list(tmp_path.iterdir()) == []  # neither output, no temporary file
 

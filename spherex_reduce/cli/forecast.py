@@ -1,0 +1,184 @@
+"""``spherex-reduce forecast``: the expected P(k) of a scene's reduced slope image."""
+
+import contextlib
+import threading
+from pathlib import Path
+
+from astropy import units as u
+
+from ..core.errors import FormatError, SpherexReduceError
+from ._common import (
+    all_or_nothing,
+    check_paths,
+    count,
+    finite_float,
+    input_config,
+    positive_float,
+)
+from .spectrum import band_meta
+
+#: What the table's ``source`` says when no scene file is given.
+PAPER_CASE = "the paper's case (every scene key at its default)"
+
+
+def add_parser(sub):
+    p = sub.add_parser(
+        "forecast", help="expected P(k) of a scene reduced by a pipeline, exact, no simulation",
+        description="Compute the expected P(k) of the slope image of SCENE.yaml (as "
+        "simulate takes it; default: the paper's case) reduced by the pipeline -c, total and "
+        "per noise component, without random numbers, and write it as ECSV with the columns "
+        "and meta of spectrum's output (power_<component> columns added; band_power in the "
+        "meta, band_power_err the standard error one realisation's band power would have), "
+        "so the two tables line up bin by bin. Every pipeline step must be linear: a step "
+        "the forecast cannot propagate is refused, naming it.")
+    p.add_argument("scene", metavar="SCENE.yaml", nargs="?", default=None,
+                   help="scene file (default: the paper's case)")
+    p.add_argument("-c", "--config", required=True, metavar="PIPELINE.yaml",
+                   help="the reduction, as reduce -c takes it: a pipeline YAML file or a "
+                   "shipped config name (e.g. spherex-default; unchop for the uncorrected "
+                   "image)")
+    p.add_argument("-o", "--output", required=True, metavar="FORECAST.ecsv")
+    p.add_argument("--plot", nargs="?", const=True, metavar="PNG",
+                   help="draw P(k), total and per component (default name: the output with "
+                   ".png)")
+    p.add_argument("--compare", metavar="MEASURED.ecsv",
+                   help="a spectrum output drawn over the forecast with its error bars, its "
+                   "band power compared on the terminal")
+    p.add_argument("--bins", type=count(10_000), default=None,
+                   help="log-spaced k bins (default: a sweep measure's, 30)")
+    p.add_argument("--kmin", type=finite_float, default=None,
+                   help="band lower edge, rad/pixel (default: the paper's band, 5–20′)")
+    p.add_argument("--kmax", type=finite_float, default=None,
+                   help="band upper edge, rad/pixel (default: the paper's band)")
+    p.add_argument("--exclude-horizontal", action="store_true",
+                   help="leave out the k_y = 0 axis of the Fourier plane (paper Fig. 6)")
+    p.add_argument("--pixel-scale", type=positive_float, default=6.2, metavar="ARCSEC",
+                   help="pixel scale in arcsec, for θ (default 6.2, SPHEREx)")
+    p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
+    p.set_defaults(func=run)
+
+
+def run(args):
+    from ..analysis import forecast
+    from ..analysis.case import SpectrumMeasure, measure_section
+    from ..simulation import load_scene
+
+    plot = args.plot
+    if plot is True:
+        plot = str(Path(args.output).with_suffix(".png"))
+    given = {key: getattr(args, key) for key in ("bins", "kmin", "kmax")
+             if getattr(args, key) is not None}
+    if args.exclude_horizontal:
+        given["exclude_horizontal"] = True
+    measure = SpectrumMeasure(**measure_section(given, "forecast"))
+    if measure.kmin >= measure.kmax:
+        raise SpherexReduceError(f"--kmin ({measure.kmin}) must be below --kmax "
+                                 f"({measure.kmax})")
+    pipeline, config_files = input_config(args.config)
+    check_paths([args.scene, args.compare, *config_files], [args.output, plot])
+    with all_or_nothing([args.output, plot], args.overwrite) as (tmp, tmp_plot):
+        scene = load_scene(args.scene)
+        measured = _read_measured(args.compare) if args.compare else None
+        scale = args.pixel_scale * u.arcsec
+        with _ticking(not args.quiet):
+            table = forecast(scene, pipeline, measure, pixel_scale=scale)
+        unit = u.Quantity(table["power"]).unit
+        band = err = None
+        if table.meta["band_power"] is not None:
+            band, err = table.meta["band_power"] * unit, table.meta["band_power_err"] * unit
+        table.meta.update({
+            "source": PAPER_CASE if args.scene is None else str(args.scene),
+            **band_meta(measure.kmin, measure.kmax, args.pixel_scale, band, err, unit),
+            "config": pipeline.source,
+        })
+        if band is None:
+            table.meta["band_power_missing"] = "no Fourier mode of the image is in the band"
+        lines = [f"{table.meta['source']} reduced by {pipeline.source}: forecast band power "
+                 f"{table.meta['band']} = {_text(band, err)}; pixel variance "
+                 f"{table.meta['variance']:.4g} {(unit / u.pix**2).to_string()}"]
+        if measured is not None:
+            lines.append(_comparison(measured, args.compare, band, unit))
+        table.write(tmp, format="ascii.ecsv")
+        if plot:
+            from ..analysis.plots import plot_forecast
+            from ..io.plotting import save_figure
+
+            fig = plot_forecast(table, measured, measured_label=Path(args.compare).name
+                                if measured is not None else None, pixel_scale=scale)
+            save_figure(fig, tmp_plot)
+    lines.append(f"wrote {args.output}")
+    if plot:
+        lines.append(f"wrote {plot}")
+    print("\n".join(lines))
+
+
+def _text(band, err):
+    if band is None:
+        return "missing (no Fourier mode of the image is in the band)"
+    return f"{band.value:.4g} {band.unit} (one realisation: ± {err.value:.2g})"
+
+
+def _read_measured(path):
+    """A ``spectrum`` output (``k``, ``power``, ``power_err`` with units), or FormatError."""
+    from astropy.table import Table
+
+    try:
+        table = Table.read(path, format="ascii.ecsv")
+    except (ValueError, TypeError, KeyError, IndexError, UnicodeError) as exc:
+        raise FormatError(f"--compare: {path}: not an ECSV table: {exc}") from None
+    missing = [c for c in ("k", "power", "power_err") if c not in table.colnames]
+    if missing:
+        raise FormatError(f"--compare: {path}: no column {', '.join(missing)}; expected "
+                          "the output of spectrum")
+    for name, unit in (("k", u.rad / u.pix), ("power", u.electron**2 / u.s**2 * u.pix**2),
+                       ("power_err", u.electron**2 / u.s**2 * u.pix**2)):
+        if not (table[name].unit or u.one).is_equivalent(unit):
+            raise FormatError(f"--compare: {path}: column {name} is in "
+                              f"{table[name].unit or 'no unit'}, expected {unit}")
+    return table
+
+
+def _comparison(measured, path, band, unit):
+    """The terminal line comparing a measured band power with the forecast."""
+    meta = measured.meta
+    value, err = meta.get("band_power"), meta.get("band_power_err")
+    if band is None or value is None or not err:
+        return f"{path}: no band power to compare"
+    mu = u.Unit(meta.get("band_power_unit") or unit)
+    if not mu.is_equivalent(unit):
+        raise FormatError(f"--compare: {path}: band power in {mu}, expected {unit}")
+    value, err = (value * mu).to_value(unit), (err * mu).to_value(unit)
+    return (f"{path}: measured band power {value:.4g} ± {err:.2g}: {value / band.value:.4g}× "
+            f"the forecast ({(value - band.value) / err:+.1f} standard errors)")
+
+
+@contextlib.contextmanager
+def _ticking(enabled):
+    """The seconds spent so far, on a terminal, once the block has taken a second."""
+    from ..reduce.progress import terminal_bar
+
+    bar = terminal_bar(enabled, desc="forecast", leave=False, delay=1.0,
+                       bar_format="{desc}: {elapsed}")
+    stop = threading.Event()
+    refresh = getattr(bar, "refresh", None)  # None: no bar (not a terminal, or -q)
+
+    shown = []
+
+    def tick():
+        if not stop.wait(1.0):
+            while not stop.wait(0.5):
+                refresh()
+                shown.append(True)
+
+    thread = threading.Thread(target=tick, daemon=True)
+    if refresh is not None:
+        thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        if refresh is not None:
+            thread.join()
+        if shown:  # a bar drawn by refresh alone is not erased by close
+            bar.clear()
+        bar.close()

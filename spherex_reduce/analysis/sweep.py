@@ -12,12 +12,16 @@ realisation number (not the pipeline: pipeline variants reduce the same
 simulated exposure, a paired comparison).  Results therefore do not depend on
 the number of workers, the scheduling or which cells were already done.
 
+With ``forecast`` each point also gets its exact expected band power and
+P(k) (`~spherex_reduce.analysis.sweep_forecast`), drawn by `plot_sweep` as a
+line beside the Monte Carlo points.
+
 Sweep file (YAML or dict)::
 
     scene: {readout: {nframes: 74}}     # a scene as for simulate (or a path); the base case
     pipeline: spherex-default           # shipped name or path; a list runs variants
     grid: {skip: [1, 8, 24], ref_reads: [8, 32], ref_mode: [repeated, distributed]}
-    realizations: 5
+    realizations: 5                     # 0: no Monte Carlo, the forecast alone (forecast=True)
     seed: 2024
     mode: slopes                        # or ramps
     measure: {kmin: 0.03, kmax: 0.13, bins: 30, exclude_horizontal: false, mask_sources: false}

@@ -57,7 +57,7 @@ class SweepForecast:
     ...                  "pipeline": "unchop", "grid": {"skip": [1, 8]}, "realizations": 0,
     ...                  "measure": {"bins": 4}})
     >>> t = SweepForecast(sw).points()
-    >>> list(t["skip"]), t["band_power_forecast"].unit
+    >>> t["skip"].tolist(), t["band_power_forecast"].unit
     ([1, 8], Unit("electron2 pix2 / s2"))
     """
 

@@ -14,7 +14,8 @@ __all__ = ["plot_comparison", "plot_fft_magnitude", "plot_noise_fit", "plot_spec
 
 
 def plot_spectra(spectra, band=(BAND_KMIN, BAND_KMAX), photon=None, title="",
-                 pixel_scale=SPHEREX_PIXEL_SCALE, photon_label="photon noise", ax=None):
+                 pixel_scale=SPHEREX_PIXEL_SCALE, photon_label="photon noise", ax=None,
+                 curves=None):
     """Log-log P(k) of one or more spectra with the band shaded.
 
     Bins with no power (P ≤ 0, e.g. a component that feeds only some modes)
@@ -41,6 +42,9 @@ def plot_spectra(spectra, band=(BAND_KMIN, BAND_KMAX), photon=None, title="",
         ``"photon noise, 1 e/s for 112 s"`` (`photon_noise_label`).
     ax : `matplotlib.axes.Axes`, optional
         Draw into this axes (a panel of a larger figure) instead of a new figure.
+    curves : dict of label -> `~astropy.table.Table`, optional
+        Expected spectra (`~spherex_reduce.analysis.forecast`: ``k``, ``power``)
+        drawn as plain lines, no markers or error bars, under the spectra.
 
     Returns
     -------
@@ -65,6 +69,12 @@ def plot_spectra(spectra, band=(BAND_KMIN, BAND_KMAX), photon=None, title="",
             _band_caption(fig, band, pixel_scale)
     fig = ax.figure
     unit = None
+    for label, t in (curves or {}).items():
+        p = u.Quantity(t["power"])
+        unit = unit or p.unit
+        pv = p.to_value(unit)
+        ax.plot(np.asarray(u.Quantity(t["k"]).value, dtype=float),
+                np.where(np.isfinite(pv) & (pv > 0), pv, np.nan), "-", lw=1.5, label=label)
     for label, t in spectra.items():
         p = u.Quantity(t["power"])
         unit = unit or p.unit

@@ -21,6 +21,7 @@ from ..core.errors import SpherexReduceError
 from ..simulation import expected_slope_variance, load_scene
 from .case import SpectrumMeasure, run_case
 from .figure_report import _margin, _unicode
+from .forecast_figures import FORECAST, TITLES, plot_forecast_figure
 from .noise_forecast import forecast
 from .photon_noise import photon_noise_label, photon_noise_power
 from .spectrum import fft_magnitude
@@ -123,11 +124,10 @@ class FigureRun:
         return res.table
 
 
-def _spectra_fig(spectra, title, photon=None, photon_label="photon noise", curves=None):
+def _spectra_fig(spectra, title, photon=None, photon_label="photon noise"):
     from .plots import plot_spectra
 
-    return plot_spectra(spectra, photon=photon, title=title, photon_label=photon_label,
-                        curves=curves)
+    return plot_spectra(spectra, photon=photon, title=title, photon_label=photon_label)
 
 
 def _photon_line(s):
@@ -234,22 +234,20 @@ def _fig6_skip(run):
         rep.number("6", "reference corrected, ky=0 excluded", "S", skip, "band_power", m, e,
                    unit)
     f6 = _forecasts(t6, "skip", sk)
-    fig = Figure(figsize=(7, 5))
-    ax = fig.subplots()
     if f6 is not None:
-        ax.plot(sk, f6, "-", label="forecast (exact expectation)")
         for skip, f in zip(sk, f6, strict=True):
-            rep.number("6", "forecast, reference corrected, ky=0 excluded", "S", skip,
+            rep.number("6", "reference corrected, ky=0 excluded" + FORECAST, "S", skip,
                        "band_power", f, 0.0, unit)
-    ax.errorbar(sk, m6, yerr=e6, fmt="o" if f6 is not None else "o-", capsize=3,
-                label="Monte Carlo, mean ± s.e." if f6 is not None else None)
-    ax.set_xscale("log")
-    ax.set_xlabel("skip S (rows)")
-    ax.set_ylabel(f"band power ({unit_label(unit)})")
-    ax.set_title("Fig. 6: band power (θ = 5–20′, k_y = 0 excluded) against S", fontsize=10)
-    ax.grid(True, alpha=0.3)
-    if f6 is not None:
-        ax.legend(fontsize=8)
+        fig = plot_forecast_figure(Table(rows=rep.numbers), "6")
+    else:
+        fig = Figure(figsize=(7, 5))
+        ax = fig.subplots()
+        ax.errorbar(sk, m6, yerr=e6, fmt="o-", capsize=3)
+        ax.set_xscale("log")
+        ax.set_xlabel("skip S (rows)")
+        ax.set_ylabel(f"band power ({unit_label(unit)})")
+        ax.set_title(TITLES["6"], fontsize=10)
+        ax.grid(True, alpha=0.3)
     rep.save(fig, "fig6_skip.png")
     rep.md += ["## Fig. 6: band power against S", "", "![](fig6_skip.png)", ""]
     if f6 is None:
@@ -305,34 +303,62 @@ def _claim(run, text, judged, mc, forecast, rule):
 def _fig7_fft2d(run):
     """Fig. 7: the 2-D FFT near the origin at S = 1 and S = 24."""
     s, rep = run.settings, run.report
-    ffts, axis_frac, near_frac, frac_err = {}, {}, {}, {}
+    ffts, fracs, exact = {}, {}, {}
     for skip in (1, 24):
         img = _measure(_scene(s, skip=skip), "phantom", 700)
         # crop to |k| <~ 0.35 rad/pixel: the S = 24 packets sit at k_y = 2π/24 ≈ 0.26
-        f = fft_magnitude(img, size=max(129, 2 * int(np.ceil(0.35 * img.shape[0] / (2 * np.pi)))
-                                        + 1))
-        ffts[f"S = {skip}"] = f
-        axis_frac[skip], near_frac[skip], frac_err[skip] = _axis_power_fractions(f)
-        rep.number("7", f"S={skip}", "S", skip, "ky0_power_fraction", axis_frac[skip])
-        rep.number("7", f"S={skip}", "S", skip, "near_axis_power_fraction", near_frac[skip])
+        size = max(129, 2 * int(np.ceil(0.35 * img.shape[0] / (2 * np.pi))) + 1)
+        f = fft_magnitude(img, size=size)
+        ffts[f"S = {skip}" + (", one Monte Carlo realisation" if run.forecast else "")] = f
+        fracs[skip] = _axis_power_fractions(f)
+        rep.number("7", f"S={skip}", "S", skip, "ky0_power_fraction", fracs[skip][0])
+        rep.number("7", f"S={skip}", "S", skip, "near_axis_power_fraction", fracs[skip][1])
+        if run.forecast:
+            fc = forecast_fft_magnitude(_scene(s, skip=skip), PIPELINES["phantom"], size)
+            ffts[f"S = {skip}, forecast √E|FFT|²"] = fc
+            exact[skip] = (*_axis_power_fractions(fc)[:2], (0.0, 0.0))
+            for name, im, err in ((f"S = {skip}", f, True), (f"S = {skip}" + FORECAST, fc,
+                                                               False)):
+                power = im.magnitude.value ** 2  # each cell's |FFT|², exponential in one image
+                mean = power.mean(axis=1)
+                errs = np.sqrt((power**2).sum(axis=1)) / power.shape[1] if err else 0 * mean
+                for ky, m, e in zip(im.ky.value, mean, errs, strict=True):
+                    rep.number("7", name, "k_y", ky, "power_ky", m, e, im.magnitude.unit**2)
+            rep.number("7", f"S={skip}, forecast", "S", skip, "ky0_power_fraction",
+                       exact[skip][0], 0.0)
+            rep.number("7", f"S={skip}, forecast", "S", skip, "near_axis_power_fraction",
+                       exact[skip][1], 0.0)
     from .plots import plot_fft_magnitude
 
     rep.save(plot_fft_magnitude(ffts, "Fig. 7: |FFT| near the origin, phantom-corrected, "
                                 "no reference correction"), "fig7_fft2d.png")
-    rep.md += ["## Fig. 7: 2-D FFT before/after S = 24", "", "![](fig7_fft2d.png)", "",
+
+    def judged(fr):
+        return ([_margin(fr[24][1], fr[24][2][1], fr[1][1], fr[1][2][1]),
+                 _margin(0.01, 0.0, fr[24][0], fr[24][2][0])],
+                f"near-axis fraction {fr[1][1]:.3f} → {fr[24][1]:.3f}, on-axis "
+                f"{fr[1][0]:.3f} → {fr[24][0]:.3f}")
+
+    if exact:
+        rep.save(plot_forecast_figure(Table(rows=rep.numbers), "7"), "fig7_profile.png")
+    rep.md += ["## Fig. 7: 2-D FFT before/after S = 24", "",
+               "![](fig7_fft2d.png)" + (" ![](fig7_profile.png)" if exact else ""), "",
                "Fraction of the cropped Fourier power on "
                "the horizontal axis k_y = 0, and near it (0 < |k_y| < π/24, between the axis "
-               f"and the first S = 24 packet): S = 1: {axis_frac[1]:.3f} and "
-               f"{near_frac[1]:.3f}; S = 24: {axis_frac[24]:.3f} and {near_frac[24]:.3f}.", ""]
-    rep.claim("Row chopping moves power from near the horizontal axis to packets, but "
-              "significant power remains on the axis (Fig. 7)",
-              [_margin(near_frac[24], frac_err[24][1], near_frac[1], frac_err[1][1]),
-               _margin(0.01, 0.0, axis_frac[24], frac_err[24][0])],
-              f"near-axis fraction {near_frac[1]:.3f} → {near_frac[24]:.3f}, on-axis "
-              f"{axis_frac[1]:.3f} → {axis_frac[24]:.3f}",
-              "the near-axis fraction of the Fourier power is lower at S = 24 than at S = 1, "
-              "and more than 1 % of it stays on the axis at S = 24",
-              "one realisation of each image; standard errors of sums of Fourier cells")
+               f"and the first S = 24 packet): S = 1: {fracs[1][0]:.3f} and "
+               f"{fracs[1][1]:.3f}; S = 24: {fracs[24][0]:.3f} and {fracs[24][1]:.3f}"
+               + (f" (forecast: {exact[1][0]:.3f} and {exact[1][1]:.3f}; {exact[24][0]:.3f} "
+                  f"and {exact[24][1]:.3f})" if exact else "") + ".", ""]
+    text = ("Row chopping moves power from near the horizontal axis to packets, but "
+            "significant power remains on the axis (Fig. 7)")
+    rule = ("the near-axis fraction of the Fourier power is lower at S = 24 than at S = 1, "
+            "and more than 1 % of it stays on the axis at S = 24")
+    count = "one realisation of each image; standard errors of sums of Fourier cells"
+    if exact:
+        rep.claim(text, *judged(exact), rule, "the forecast: expectations, no random numbers",
+                  beside=(*judged(fracs), count))
+    else:
+        rep.claim(text, *judged(fracs), rule, count)
 
 
 def _axis_power_fractions(f):
@@ -362,8 +388,6 @@ def _fig8_reference_reads(run):
                                "ref_mode": ["repeated", "distributed"]},
                    ["reference"], seed=8)
     unit = t8["band_power"].unit
-    fig = Figure(figsize=(7, 5))
-    ax = fig.subplots()
     res8, fc8 = {}, {}
     for mode in ("repeated", "distributed"):
         ms, es = [], []
@@ -375,22 +399,23 @@ def _fig8_reference_reads(run):
             rep.number("8", mode, "r", r, "band_power", m, e, unit)
         res8[mode] = (np.array(ms), np.array(es))
         f = _forecasts(t8, "ref_reads", s.ref_reads, ref_mode=mode)
-        if f is None:
+        if f is not None:
+            fc8[mode] = np.array(f)
+            for r, v in zip(s.ref_reads, f, strict=True):
+                rep.number("8", mode + FORECAST, "r", r, "band_power", v, 0.0, unit)
+    if fc8:
+        fig = plot_forecast_figure(Table(rows=rep.numbers), "8")
+    else:
+        fig = Figure(figsize=(7, 5))
+        ax = fig.subplots()
+        for mode, (ms, es) in res8.items():
             ax.errorbar(s.ref_reads, ms, yerr=es, fmt="o-", capsize=3, label=mode)
-            continue
-        fc8[mode] = np.array(f)
-        for r, v in zip(s.ref_reads, f, strict=True):
-            rep.number("8", f"{mode}, forecast", "r", r, "band_power", v, 0.0, unit)
-        (line,) = ax.plot(s.ref_reads, f, "-", label=f"{mode}, forecast")
-        ax.errorbar(s.ref_reads, ms, yerr=es, fmt="o", capsize=3, color=line.get_color(),
-                    label=f"{mode}, Monte Carlo (mean ± s.e.)")
-    ax.set_xscale("log", base=2)
-    ax.set_xlabel("reference row reads r")
-    ax.set_ylabel(f"band power ({unit_label(unit)})")
-    ax.legend(fontsize=8 if fc8 else None)
-    ax.grid(True, alpha=0.3)
-    ax.set_title("Fig. 8: reference correction with repeated / distributed reads, S = 24",
-                 fontsize=10)
+        ax.set_xscale("log", base=2)
+        ax.set_xlabel("reference row reads r")
+        ax.set_ylabel(f"band power ({unit_label(unit)})")
+        ax.legend()
+        ax.grid(True, alpha=0.3)
+        ax.set_title(TITLES["8"], fontsize=10)
     rep.save(fig, "fig8_reference_reads.png")
     rep.md += ["## Fig. 8: distributed against repeated reference reads", "",
                "![](fig8_reference_reads.png)", ""]
@@ -431,28 +456,38 @@ def _fig9_image(run):
 
     rep.save(plot_image(img9, "Fig. 9a: S = 24, phantom-corrected, before reference correction",
                         str(img9.unit)), "fig9_image.png")
-    m9 = SpectrumMeasure(bins=s.bins)(img9)
+    measure = SpectrumMeasure(bins=s.bins)
+    m9 = measure(img9)
     sp9, bp9 = m9["spectrum"], m9["band_power"]
     photon, photon_label = _photon_line(s)
     label = "before reference correction"
-    f9 = forecast(_scene(s), PIPELINES["phantom"], {"bins": s.bins}) if run.forecast else None
-    rep.save(_spectra_fig({f"{label}, one Monte Carlo realisation" if run.forecast else
-                           label: sp9}, "Fig. 9b", photon, photon_label,
-                          curves=None if f9 is None else {f"{label}, forecast": f9}),
-             "fig9_spectrum.png")
     rep.number("9", label, "k", np.nan, "band_power", bp9.value, unit=bp9.unit)
-    rep.md += ["## Fig. 9: an image and its spectrum before reference correction", "",
-               "![](fig9_image.png) ![](fig9_spectrum.png)", "",
-               f"Band power {bp9.value:.4g} {_unicode(bp9.unit)}; photon noise of 1 e/s: "
-               f"{photon.value:.3g}.", ""]
-    if f9 is not None:
+    text = (f"Band power {bp9.value:.4g} {_unicode(bp9.unit)}; photon noise of 1 e/s: "
+            f"{photon.value:.3g}.")
+    if run.forecast:
+        f9 = forecast(_scene(s), PIPELINES["phantom"], measure)
         fb = f9.meta["band_power"]
-        rep.number("9", f"{label}, forecast", "k", np.nan, "band_power", fb, 0.0, bp9.unit)
-        z = (f9["power"].value - sp9["power"].value) / f9["power_err"].value
-        rep.md[-2:] = [f"Band power {bp9.value:.4g} ± {m9['band_power_err'].value:.2g} in one "
-                       f"realisation, forecast {fb:.4g} {_unicode(bp9.unit)}; the realisation's "
-                       f"bins lie within {np.nanmax(np.abs(z)):.2g} standard errors of the "
-                       f"forecast. Photon noise of 1 e/s: {photon.value:.3g}.", ""]
+        rep.number("9", label + FORECAST, "k", np.nan, "band_power", fb, 0.0, bp9.unit)
+        fk, fp = measure.every_bin(f9)
+        ferr = measure.every_bin(f9, "power_err")[1]
+        mk, mp = m9["k"], m9["power"]
+        merr = measure.every_bin(sp9, "power_err")[1]
+        for i in np.flatnonzero(np.isfinite(mp) & np.isfinite(fp)):
+            rep.number("9", label, "k", mk[i], "power", mp[i], merr[i], sp9["power"].unit)
+            rep.number("9", label + FORECAST, "k", fk[i], "power", fp[i], 0.0, f9["power"].unit)
+        rep.number("9", photon_label, "k", np.nan, "photon_power", photon.value, 0.0,
+                   photon.unit)
+        rep.save(plot_forecast_figure(Table(rows=rep.numbers), "9"), "fig9_spectrum.png")
+        z = np.abs(mp - fp) / ferr
+        text = (f"Band power {bp9.value:.4g} ± {m9['band_power_err'].value:.2g} in one "
+                f"realisation, forecast {fb:.4g} {_unicode(bp9.unit)}; the realisation's bins "
+                f"lie within {np.nanmax(z):.2g} standard errors of the forecast (the error one "
+                f"realisation's bin has). Photon noise of 1 e/s: {photon.value:.3g}.")
+    else:
+        rep.save(_spectra_fig({label: sp9}, "Fig. 9b", photon, photon_label),
+                 "fig9_spectrum.png")
+    rep.md += ["## Fig. 9: an image and its spectrum before reference correction", "",
+               "![](fig9_image.png) ![](fig9_spectrum.png)", "", text, ""]
 
 
 def _fig10_corrected(run):

@@ -86,16 +86,17 @@ def _unit(rows):
     return u.Unit(str(rows["unit"][0])) if len(rows) and str(rows["unit"][0]) else u.one
 
 
-def _draw(ax, mc, fc):
-    """Each series' forecast as a line and its Monte Carlo as points, in one colour."""
+def _draw(ax, mc, fc, **points):
+    """Each series' forecast as a line (on top) and its Monte Carlo as points, in one
+    colour; ``points`` styles the points (`~matplotlib.axes.Axes.errorbar`)."""
     one = len(mc) == 1
     for name, (x, y, e) in mc.items():
         color = None
         if fc[name] is not None:
-            (line,) = ax.plot(fc[name][0], fc[name][1], "-",
+            (line,) = ax.plot(fc[name][0], fc[name][1], "-", lw=1.5, zorder=3,
                               label="forecast" if one else f"{name}, forecast")
             color = line.get_color()
-        ax.errorbar(x, y, yerr=e, fmt="o", capsize=3, color=color,
+        ax.errorbar(x, y, yerr=e, color=color, **({"fmt": "o", "capsize": 3} | points),
                     label="Monte Carlo (mean ± s.e.)" if one else f"{name}, Monte Carlo "
                     "(mean ± s.e.)")
 
@@ -127,7 +128,7 @@ def _profile(rows):
     mc, fc, unit = _series(rows, "power_ky")
     fig = Figure(figsize=(7, 5), layout="constrained")
     ax = fig.subplots()
-    _draw(ax, mc, fc)
+    _draw(ax, mc, fc, ms=2.5, capsize=0, elinewidth=0.6, alpha=0.6)
     for sign in (-1, 1):
         ax.axvline(sign * 2 * np.pi / 24, color="0.5", ls=":", lw=1)
     ax.set_yscale("log")

@@ -21,6 +21,7 @@ from ..core.errors import SpherexReduceError
 from ..simulation import expected_slope_variance, load_scene
 from .case import SpectrumMeasure, run_case
 from .figure_report import _margin, _unicode
+from .forecast_fft import forecast_fft_magnitude
 from .forecast_figures import FORECAST, TITLES, plot_forecast_figure
 from .noise_forecast import forecast
 from .photon_noise import photon_noise_label, photon_noise_power

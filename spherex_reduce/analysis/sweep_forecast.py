@@ -22,7 +22,8 @@ from astropy.table import Table
 
 from ..core.errors import ConfigError, SpherexReduceError
 from .case import SpectrumMeasure
-from .noise_forecast import forecast, linear_steps
+from .forecast_steps import linear_steps
+from .noise_forecast import forecast
 from .sweep import _plain
 
 __all__ = ["FORECAST_COLUMNS", "SweepForecast"]

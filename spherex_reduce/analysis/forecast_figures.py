@@ -29,7 +29,7 @@ TITLES = {
     "7": "Fig. 7: Fourier power near the horizontal axis, phantom-corrected, no reference "
          "correction",
     "8": "Fig. 8: reference correction with repeated / distributed reads, S = 24",
-    "9": "Fig. 9b: before reference correction",
+    "9": "Fig. 9b: S = 24, phantom-corrected, before reference correction",
 }
 _SCANS = {"6": ("skip S (rows)", {"value": "log"}), "8": ("reference row reads r",
                                                          {"value": "log", "base": 2})}

@@ -25,7 +25,7 @@ def add_parser(sub):
     p.add_argument("--forecast", action="store_true",
                    help="add each point's exact expected band power and P(k) (columns "
                    "band_power_forecast, power_forecast; a line in the plot); with "
-                   "realizations: 0 the forecast alone, in seconds")
+                   "realizations: 0 the forecast alone, no simulation")
     p.set_defaults(func=run)
 
 

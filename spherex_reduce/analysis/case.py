@@ -80,17 +80,38 @@ class SpectrumMeasure:
             return np.geomspace(2 * np.pi / max(shape), np.pi, self.bins + 1)
         return np.asarray(self.bins, float)
 
+    def every_bin(self, spectrum, column="power"):
+        """``(k, values)`` of a spectrum's table on every bin of `edges`, empty ones NaN.
+
+        ``spectrum`` is a table of `power_spectrum` or
+        `~spherex_reduce.analysis.forecast` (the image shape in its ``meta``), so
+        that the spectra of images of one shape share one ``k`` grid.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from spherex_reduce.analysis import power_spectrum
+        >>> from spherex_reduce.analysis.case import SpectrumMeasure
+        >>> m = SpectrumMeasure(bins=12)
+        >>> spec = power_spectrum(np.ones((8, 8)), bins=m.edges((8, 8)))
+        >>> k, p = m.every_bin(spec)
+        >>> k.size, int(np.isnan(k).sum()) == 12 - len(spec)
+        (12, True)
+        """
+        bins = self.edges(tuple(spectrum.meta["shape"]))
+        k = np.full(len(bins) - 1, np.nan)
+        values = np.full(len(bins) - 1, np.nan)
+        pos = np.searchsorted(bins, np.asarray(spectrum["k_lo"]) * (1 + 1e-12)) - 1
+        k[pos] = np.asarray(spectrum["k"])
+        values[pos] = np.asarray(spectrum[column])
+        return k, values
+
     def __call__(self, image):
         kw = {"exclude_horizontal": bool(self.exclude_horizontal),
               "mask_sources": bool(self.mask_sources)}
-        bins = self.edges(np.shape(getattr(image, "data", image)))
-        spec = power_spectrum(image, bins=bins, **kw)
-        # every bin, empty ones as NaN
-        k = np.full(len(bins) - 1, np.nan)
-        power = np.full(len(bins) - 1, np.nan)
-        pos = np.searchsorted(bins, np.asarray(spec["k_lo"]) * (1 + 1e-12)) - 1
-        k[pos] = np.asarray(spec["k"])
-        power[pos] = np.asarray(spec["power"])
+        spec = power_spectrum(image, bins=self.edges(np.shape(getattr(image, "data", image))),
+                              **kw)
+        k, power = self.every_bin(spec)
         bp, err = band_power(image, self.kmin, self.kmax, return_error=True, **kw)
         data = np.asarray(getattr(image, "data", image), dtype=float)
         good = np.isfinite(data)

@@ -78,20 +78,35 @@ class FigureReport:
                              "x": float(x), "y_name": y_name, "y": float(y),
                              "y_err": float(y_err), "unit": str(unit)})
 
-    def claim(self, text, margins, evidence, rule, count):
+    def claim(self, text, margins, evidence, rule, count, beside=None):
         """Record a claim's verdict, decided by the smallest of its ``margins``.
 
         Each margin is how far one comparison the claim needs is met, in
         standard errors (negative: it fails).  ``rule`` states the comparison
         with its thresholds, ``count`` what the standard errors come from.
+        Numbers without error (a forecast) give infinite margins: the
+        verdict is exact.  ``beside``, ``(margins, evidence, count)`` of the
+        Monte Carlo when the claim is judged on the forecast, is reported
+        after it with its own verdict.
         """
         verdict = _verdict(margins)
-        worst = float(np.nanmin(margins))
-        self.claims.append(
-            f"- {text}: **{verdict}** in our simulation — {evidence}. *Rule:* {rule}; "
-            f"smallest margin {worst:+.1f} standard errors ({count})."
-        )
+        where = "in the forecast" if beside is not None else "in our simulation"
+        line = (f"- {text}: **{verdict}** {where} — {evidence}. *Rule:* {rule}; "
+                f"{_worst(margins, count)}.")
+        if beside is not None:
+            mc_margins, mc_evidence, mc_count = beside
+            line += (f" The Monte Carlo beside it: {_verdict(mc_margins)} — {mc_evidence}; "
+                     f"{_worst(mc_margins, mc_count)}.")
+        self.claims.append(line)
         return verdict
+
+
+def _worst(margins, count):
+    """The smallest margin, in words (exact when the numbers have no error)."""
+    worst = float(np.nanmin(margins))
+    if np.isfinite(worst):
+        return f"smallest margin {worst:+.1f} standard errors ({count})"
+    return f"decided exactly ({count})"
 
 
 def _unicode(unit):

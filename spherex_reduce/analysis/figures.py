@@ -54,7 +54,7 @@ class FigureSettings:
 
 
 def make_figures(outdir, quick=False, *, realizations=None, scheduler=None, workers=2,
-                 overwrite=False, progress=False, log=print):
+                 overwrite=False, progress=False, log=print, forecast=False):
     """Reproduce the paper's simulated figures into ``outdir``.
 
     Writes ``fig4_components.png``, ``fig5_phantom.png``, ``fig6_skip.png``,
@@ -76,6 +76,11 @@ def make_figures(outdir, quick=False, *, realizations=None, scheduler=None, work
         As `run_sweep`: ``None`` embeds a LocalCluster of ``workers`` processes.
     log : callable
         Called with one line per finished figure.
+    forecast : bool
+        Also forecast Figs. 6-9 (`~spherex_reduce.analysis.forecast`): the
+        exact expectation drawn as curves beside the Monte Carlo points, and
+        the claims of Figs. 6-8 judged on it (the Monte Carlo's verdict
+        beside).
 
     Returns
     -------
@@ -104,21 +109,23 @@ def make_figures(outdir, quick=False, *, realizations=None, scheduler=None, work
             if cluster is not None:
                 cluster.close()
     try:
-        return _make_figures(outdir, quick, s, scheduler, workers, overwrite, progress, log)
+        return _make_figures(outdir, quick, s, scheduler, workers, overwrite, progress, log,
+                             forecast)
     finally:
         if cleanup is not None:
             cleanup()
 
 
-def _make_figures(outdir, quick, s, scheduler, workers, overwrite, progress, log):
+def _make_figures(outdir, quick, s, scheduler, workers, overwrite, progress, log, forecast):
     """Draw every figure of `FIGURES` in turn, then write ``figures.ecsv`` and ``report.md``."""
     t_start = time.perf_counter()
-    run = FigureRun(s, FigureReport(outdir, overwrite), scheduler, workers, progress)
+    run = FigureRun(s, FigureReport(outdir, overwrite), scheduler, workers, progress,
+                    forecast)
     for label, draw in FIGURES:
         draw(run)
         log(f"fig {label} done")
     rep = run.report
-    md = [*_introduction(s, quick), *_claims_section(rep.claims), *rep.md,
+    md = [*_introduction(s, quick, forecast), *_claims_section(rep.claims, forecast), *rep.md,
           *_differences(quick), "", f"Run time {time.perf_counter() - t_start:.0f} s.", ""]
     table = Table(rows=rep.numbers) if rep.numbers else Table()
     table.meta["settings"] = json.loads(json.dumps(s.__dict__, default=list))
@@ -130,9 +137,12 @@ def _make_figures(outdir, quick, s, scheduler, workers, overwrite, progress, log
     return report
 
 
-def _introduction(s, quick):
+def _introduction(s, quick, forecast=False):
     """The report's title and what was run."""
     g = s.geometry
+    what = (["Figs. 6-9 also show the forecast (`spherex_reduce.analysis.forecast`): the "
+             "exact expectation of what the Monte Carlo measures, as curves beside its "
+             "points.", ""] if forecast else [])
     return [
         "# The paper's simulated figures, reproduced",
         "",
@@ -142,11 +152,15 @@ def _introduction(s, quick):
         f"Fourier mode in the paper's band, {band_label()}. Every number is in "
         "`figures.ecsv`.",
         "",
+        *what,
     ]
 
 
-def _claims_section(claims):
+def _claims_section(claims, forecast=False):
     """The section of the paper's claims: how a verdict is decided, then each claim's."""
+    exact = (["A claim with a forecast (Figs. 6-8) is judged on it: its numbers have no "
+              "error, so its verdict is exact; the Monte Carlo's own verdict follows it.", ""]
+             if forecast else [])
     return [
         "## The paper's claims in our simulation", "",
         f"Each claim is put as comparisons of measured numbers (its *rule*, with the "
@@ -154,7 +168,7 @@ def _claims_section(claims):
         f"{NOISE_SIGMAS:g} standard errors, **{FAILS}** when one fails by more than that, "
         f"and is **{NOISE}** otherwise: a verdict that another seed could flip is not "
         "given. The smallest margin, and what its standard errors come from, follow each "
-        "verdict.", "", *claims, ""]
+        "verdict.", "", *exact, *claims, ""]
 
 
 def _differences(quick):

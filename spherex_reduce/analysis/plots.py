@@ -205,13 +205,16 @@ def plot_fft_magnitude(images, title=""):
     Parameters
     ----------
     images : dict of label -> `~spherex_reduce.analysis.FFTImage`
+        Drawn in rows of two, on one colour scale.
 
     Returns
     -------
     `matplotlib.figure.Figure`
     """
-    fig = Figure(figsize=(5.5 * len(images), 4.6), layout="constrained")
-    axes = np.atleast_1d(fig.subplots(1, len(images)))
+    ncols = min(len(images), 2)
+    nrows = -(-len(images) // ncols)
+    fig = Figure(figsize=(5.5 * ncols, 4.6 * nrows), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(nrows, ncols)).ravel()[:len(images)]
     vmax = max(float(np.max(im.magnitude.value)) for im in images.values())
     for ax, (label, im) in zip(axes, images.items(), strict=True):
         kx, ky = im.kx.value, im.ky.value

@@ -551,6 +551,19 @@ class FFTImage(NamedTuple):
     #: wave numbers of the rows (rad/pixel)
     ky: u.Quantity
 
+    @classmethod
+    def around_origin(cls, magnitude, size, unit=u.one):
+        """The ``size × size`` cells around ``k = 0`` of a full ``fft2`` plane of magnitudes
+        (not shifted), in ``unit`` · pixel."""
+        ny, nx = magnitude.shape
+        half = max(int(size), 1) // 2
+        ys = slice(max(ny // 2 - half, 0), min(ny // 2 + half + 1, ny))
+        xs = slice(max(nx // 2 - half, 0), min(nx // 2 + half + 1, nx))
+        ky = 2 * np.pi * np.fft.fftshift(np.fft.fftfreq(ny))[ys]
+        kx = 2 * np.pi * np.fft.fftshift(np.fft.fftfreq(nx))[xs]
+        return cls(np.fft.fftshift(magnitude)[ys, xs] * unit * u.pix, kx * _K_UNIT,
+                   ky * _K_UNIT)
+
 
 def fft_magnitude(image, mask=None, size=129):
     """2-D FFT magnitude of an image, centred and cropped to the origin (Fig. 7).
@@ -583,13 +596,5 @@ def fft_magnitude(image, mask=None, size=129):
     """
     data, bad, unit = _as_image(image, mask)
     x, fgood = _prepared(data, bad)
-    ny, nx = x.shape
-    f = np.fft.fftshift(scipy.fft.fft2(x, workers=-1))
-    mag = np.abs(f) / np.sqrt(ny * nx * fgood)
-    half = max(int(size), 1) // 2
-    cy, cx = ny // 2, nx // 2
-    ys = slice(max(cy - half, 0), min(cy + half + 1, ny))
-    xs = slice(max(cx - half, 0), min(cx + half + 1, nx))
-    ky = 2 * np.pi * np.fft.fftshift(np.fft.fftfreq(ny))[ys]
-    kx = 2 * np.pi * np.fft.fftshift(np.fft.fftfreq(nx))[xs]
-    return FFTImage(mag[ys, xs] * unit * u.pix, kx * _K_UNIT, ky * _K_UNIT)
+    return FFTImage.around_origin(np.abs(scipy.fft.fft2(x, workers=-1)) / np.sqrt(x.size * fgood),
+                                  size, unit)

@@ -12,12 +12,16 @@ realisation number (not the pipeline: pipeline variants reduce the same
 simulated exposure, a paired comparison).  Results therefore do not depend on
 the number of workers, the scheduling or which cells were already done.
 
+With ``forecast`` each point also gets its exact expected band power and
+P(k) (`~spherex_reduce.analysis.sweep_forecast`), drawn by `plot_sweep` as a
+line beside the Monte Carlo points.
+
 Sweep file (YAML or dict)::
 
     scene: {readout: {nframes: 74}}     # a scene as for simulate (or a path); the base case
     pipeline: spherex-default           # shipped name or path; a list runs variants
     grid: {skip: [1, 8, 24], ref_reads: [8, 32], ref_mode: [repeated, distributed]}
-    realizations: 5
+    realizations: 5                     # 0: no Monte Carlo, the forecast alone (forecast=True)
     seed: 2024
     mode: slopes                        # or ramps
     measure: {kmin: 0.03, kmax: 0.13, bins: 30, exclude_horizontal: false, mask_sources: false}
@@ -97,15 +101,15 @@ class Sweep:
         return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[
             :16]
 
+    def points(self):
+        """Every grid point and pipeline: ``{grid values..., 'pipeline'}`` in a fixed order."""
+        return [{**dict(zip(self.keys, values, strict=True)), "pipeline": pipe}
+                for values in itertools.product(*self.grid.values()) for pipe in self.pipelines]
+
     def cells(self):
         """Every cell: ``{grid values..., 'pipeline', 'realization'}`` in a fixed order."""
-        out = []
-        for values in itertools.product(*self.grid.values()):
-            for pipe in self.pipelines:
-                for r in range(self.realizations):
-                    out.append({**dict(zip(self.keys, values, strict=True)), "pipeline": pipe,
-                                "realization": r})
-        return out
+        return [{**point, "realization": r} for point in self.points()
+                for r in range(self.realizations)]
 
     def cell_seed(self, cell):
         """The `~numpy.random.SeedSequence` of a cell (from its readout values and realisation)."""
@@ -167,8 +171,10 @@ def load_sweep(source):
         if not values:
             raise ConfigError(f"{label}: grid.{key}: empty list")
         clean[key] = values
-    nreal = realizations_section(config.get("realizations", 1), label)
-    ncells = math.prod(len(v) for v in clean.values()) * len(configs) * nreal
+    nreal = config.get("realizations", 1)
+    if not (type(nreal) is int and nreal == 0):  # 0: forecast only (run_sweep's forecast)
+        nreal = realizations_section(nreal, label)
+    ncells = math.prod(len(v) for v in clean.values()) * len(configs) * max(nreal, 1)
     check_count(ncells, f"{label}: the number of cells (grid x pipelines x realizations)",
                 MAX_CELLS)
     seed = seed_section(config.get("seed", scene.get("seed") or 0), label, "seed")
@@ -305,7 +311,7 @@ def _merge(existing, new, keys):
 
 
 def run_sweep(sweep, output=None, *, scheduler=None, workers=None, overwrite=False,
-              progress=False, checkpoint_seconds=30.0):
+              progress=False, checkpoint_seconds=30.0, forecast=False):
     """Run every cell of a sweep not yet in ``output``; write and return the results.
 
     Parameters
@@ -328,6 +334,12 @@ def run_sweep(sweep, output=None, *, scheduler=None, workers=None, overwrite=Fal
     progress : bool
         Print the expected duration on stderr, timed on the first cell, and show a
         progress bar on a terminal (`~spherex_reduce.reduce.progress.run_tasks`).
+    forecast : bool
+        Add the forecast of every row's point: the columns
+        ``band_power_forecast`` and ``power_forecast``
+        (`~spherex_reduce.analysis.sweep_forecast.SweepForecast`, in this
+        process).  With ``realizations: 0`` the table is the forecast alone, one
+        row per point (or ``output``'s Monte Carlo rows with the forecast added).
 
     Returns
     -------
@@ -336,18 +348,41 @@ def run_sweep(sweep, output=None, *, scheduler=None, workers=None, overwrite=Fal
         numbers of cells computed and skipped, and the failures
         (``{"cell": ..., "error": ...}``), which are not written as rows, so a
         re-run tries them again.
+
+    Raises
+    ------
+    ConfigError
+        ``realizations: 0`` without ``forecast``; with ``forecast``, a pipeline
+        or measure the forecast refuses (before any cell runs).
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.sweep import run_sweep
+    >>> res = run_sweep({"scene": {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 4},
+    ...                            "readout": {"nframes": 8}}, "pipeline": "unchop",
+    ...                  "grid": {"skip": [1, 8]}, "realizations": 0}, forecast=True)
+    >>> len(res.table), res.computed, "band_power" in res.table.colnames
+    (2, 0, False)
     """
     sw = sweep if isinstance(sweep, Sweep) else load_sweep(sweep)
+    if sw.realizations == 0 and not forecast:
+        raise ConfigError(f"{sw.source}: realizations: 0 runs no Monte Carlo: it needs the "
+                          "forecast (--forecast)")
+    if forecast:
+        from .sweep_forecast import SweepForecast
+
+        forecast = SweepForecast(sw)  # refuses what it cannot forecast before any cell runs
     output = None if output is None else Path(output)
     existing = _read_results(output, sw, overwrite)
     todo = _cells_to_run(sw, existing)
-    results = _Results(sw, existing, output, checkpoint_seconds)
+    results = _Results(sw, existing, output, checkpoint_seconds, forecast or None)
     t0 = time.perf_counter()
     _run_cells(sw, todo, scheduler, workers, progress, results.add)
     table = results.table()  # the same table and metadata as the file: plot_sweep needs both
     results.write()
+    failed = results.failed + (forecast.failed if forecast else [])
     return SweepResult(table, computed=len(results.rows), skipped=len(sw.cells()) - len(todo),
-                       failed=results.failed, seconds=time.perf_counter() - t0)
+                       failed=failed, seconds=time.perf_counter() - t0)
 
 
 def _read_results(output, sweep, overwrite):
@@ -373,6 +408,8 @@ def _read_results(output, sweep, overwrite):
         raise ConfigError(
             f"{output} is not a sweep's results table ({type(exc).__name__}: {reason}); "
             "choose another output or pass overwrite") from None
+    if "realization" not in existing.colnames and "band_power_forecast" in existing.colnames:
+        return None  # a forecast-only table: no Monte Carlo rows to extend
     missing = [c for c in (*sweep.keys, "pipeline", "realization", "band_power")
                if c not in existing.colnames]
     if missing:
@@ -416,8 +453,9 @@ class _Results:
     in, and once more at the end.
     """
 
-    def __init__(self, sweep, existing, output, checkpoint_seconds):
+    def __init__(self, sweep, existing, output, checkpoint_seconds, forecast=None):
         self.sweep = sweep
+        self.forecast = forecast
         self.existing = existing
         self.output = output
         self.checkpoint_seconds = checkpoint_seconds
@@ -441,6 +479,13 @@ class _Results:
         """Every row so far, with the sweep's metadata (grid, measure, ...) in ``meta``."""
         sw = self.sweep
         table = _merge(self.existing, _rows_to_table(self.rows, sw, self.unit), sw.keys)
+        if self.forecast is not None:
+            table = (self.forecast.add_columns(table) if len(table)
+                     else self.forecast.points())
+        else:  # an earlier run's forecast columns would not cover the new rows
+            from .sweep_forecast import FORECAST_COLUMNS
+
+            table.remove_columns([c for c in FORECAST_COLUMNS if c in table.colnames])
         table.meta.update({"sweep": sw.source, "grid": {k: [_plain(v) for v in vals]
                                                          for k, vals in sw.grid.items()},
                            "pipelines": list(sw.pipelines), "realizations": sw.realizations,
@@ -470,7 +515,11 @@ def _jsonable(d):
 def plot_sweep(table, x=None, title=""):
     """Band power against the first grid key, mean ± standard error over realisations.
 
-    One line per combination of the other grid keys and the pipeline.
+    One series per combination of the other grid keys and the pipeline.  A
+    table with the forecast columns (`run_sweep` with ``forecast``) also has
+    the forecast of each series as a line, in the series' colour, the Monte
+    Carlo means as points with error bars beside it; a forecast-only table
+    (``realizations: 0``) has the lines alone.
 
     Returns
     -------
@@ -484,31 +533,47 @@ def plot_sweep(table, x=None, title=""):
     grid = [c for c in table.colnames if c in table.meta.get("grid", {})]
     x = x or (grid[0] if grid else "realization")
     others = [k for k in grid if k != x] + ["pipeline"]
+    mc, fc = "band_power" in table.colnames, "band_power_forecast" in table.colnames
     fig = Figure(figsize=(7, 5))
     ax = fig.subplots()
-    groups = {}
+    groups, lines = {}, {}
     for row in table:
         label = ", ".join(f"{k}={_plain(row[k])}" for k in others
                           if len(set(table[k])) > 1 or k != "pipeline")
-        groups.setdefault(label, {}).setdefault(_plain(row[x]), []).append(row["band_power"])
-    numeric = all(isinstance(v, (int, float)) for g in groups.values() for v in g)
-    for label, points in groups.items():
-        xs = sorted(points) if numeric else list(points)
-        mean = np.array([np.mean(points[v]) for v in xs])
-        err = np.array([np.std(points[v], ddof=1) / np.sqrt(len(points[v]))
-                        if len(points[v]) > 1 else 0.0 for v in xs])
+        if mc:
+            groups.setdefault(label, {}).setdefault(_plain(row[x]), []).append(row["band_power"])
+        if fc:
+            lines.setdefault(label, {})[_plain(row[x])] = float(row["band_power_forecast"])
+    series = groups or lines
+    numeric = all(isinstance(v, (int, float)) for g in series.values() for v in g)
+    for label in series:
+        xs = sorted(series[label]) if numeric else list(series[label])
         pos = xs if numeric else np.arange(len(xs))
-        ax.errorbar(pos, mean, yerr=err, fmt="o-", capsize=3, label=label or None)
+        color = None
+        if fc:
+            (line,) = ax.plot(pos, [lines[label][v] for v in xs], "-",
+                              label=f"{label}{', ' if label else ''}forecast")
+            color = line.get_color()
+        if mc:
+            points = groups[label]
+            mean = np.array([np.mean(points[v]) for v in xs])
+            err = np.array([np.std(points[v], ddof=1) / np.sqrt(len(points[v]))
+                            if len(points[v]) > 1 else 0.0 for v in xs])
+            name = f"{label}{', ' if label else ''}Monte Carlo" if fc else label
+            ax.errorbar(pos, mean, yerr=err, fmt="o" if fc else "o-", capsize=3, color=color,
+                        label=name or None)
         if not numeric:
             ax.set_xticks(pos, [str(v) for v in xs])
-    unit = table["band_power"].unit
+    unit = table["band_power" if mc else "band_power_forecast"].unit
     ax.set_xlabel(x)
     ax.set_ylabel(f"band power ({unit_label(unit)})" if unit_label(unit) else "band power")
     ax.set_yscale("log")
-    if any(groups):
+    if any(series) or fc:
         ax.legend(fontsize=8)
     ax.grid(True, alpha=0.3)
     m = table.meta.get("measure", {})
     band = band_label(m.get("kmin", BAND_KMIN), m.get("kmax", BAND_KMAX))
-    ax.set_title(title or f"band power {band} (mean ± s.e. over realisations)", fontsize=10)
+    what = ("\nlines: forecast; points: Monte Carlo, mean ± s.e. over realisations"
+            if fc and mc else " (forecast)" if fc else " (mean ± s.e. over realisations)")
+    ax.set_title(title or f"band power {band}{what}", fontsize=10)
     return fig

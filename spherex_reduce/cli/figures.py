@@ -20,6 +20,9 @@ def add_parser(sub):
     p.add_argument("--workers", type=count(MAX_WORKERS), default=2,
                    help="LocalCluster worker processes (default 2)")
     p.add_argument("--overwrite", action="store_true", help="replace files in DIR")
+    p.add_argument("--forecast", action="store_true",
+                   help="also draw the exact expectation (forecast) of Figs. 6-9 as curves "
+                   "beside the Monte Carlo points, and judge the claims of Figs. 6-8 on it")
     p.set_defaults(func=run)
 
 
@@ -35,5 +38,6 @@ def run(args):
     report = make_figures(args.output, quick=args.quick, realizations=args.realizations,
                           scheduler=args.scheduler, workers=args.workers,
                           overwrite=args.overwrite, progress=not args.quiet,
-                          log=(lambda line: None) if args.quiet else print)
+                          log=(lambda line: None) if args.quiet else print,
+                          forecast=args.forecast)
     print(f"wrote {report}")

@@ -22,6 +22,10 @@ def add_parser(sub):
                    help="band power against the first grid key (default: OUTPUT with .png)")
     p.add_argument("--overwrite", action="store_true",
                    help="discard OUTPUT's rows and run every cell again")
+    p.add_argument("--forecast", action="store_true",
+                   help="add each point's exact expected band power and P(k) (columns "
+                   "band_power_forecast, power_forecast; a line in the plot); with "
+                   "realizations: 0 the forecast alone, no simulation")
     p.set_defaults(func=run)
 
 
@@ -34,7 +38,10 @@ def run(args):
     if plot:
         atomic_output(plot, True)  # checks the directory; the plot follows the results
     res = run_sweep(sweep, args.output, scheduler=args.scheduler, workers=args.workers,
-                    overwrite=args.overwrite, progress=not args.quiet)
+                    overwrite=args.overwrite, progress=not args.quiet,
+                    forecast=args.forecast)
+    if args.forecast:
+        print(f"{plural(len(sweep.points()), 'point')} forecast")
     print(f"{plural(len(sweep.cells()), 'cell')}: {res.computed} computed, {res.skipped} "
           f"already in {args.output}, {len(res.failed)} failed ({res.seconds:.1f} s)")
     for f in res.failed:

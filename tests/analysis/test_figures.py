@@ -1,4 +1,5 @@
-"""``spherex-reduce figures --quick``: every figure, the numbers and a verdict per claim."""
+"""``spherex-reduce figures --quick`` (and ``--forecast``): every figure, the numbers and a
+verdict per claim."""
 
 import re
 
@@ -7,6 +8,7 @@ import pytest
 from _figure_checks import drawn, errorbar_ends, overlaps, saved_figures, tick_labels
 from astropy.table import Table
 
+from spherex_reduce.analysis import forecast
 from spherex_reduce.cli import main
 
 PNGS = ["fig4_components.png", "fig5_phantom.png", "fig6_skip.png", "fig7_fft2d.png",
@@ -14,23 +16,45 @@ PNGS = ["fig4_components.png", "fig5_phantom.png", "fig6_skip.png", "fig7_fft2d.
         "fig10_corrected.png", "fig12a_sigma_vs_n.png"]
 
 
-def test_figures_quick(tmp_path, capsys):
+def test_figures_quick_with_forecast(tmp_path, capsys):
+    """``figures --quick --forecast``: every figure, the numbers, a verdict per claim; Figs.
+    6-8 judged on the forecast, which equals the forecast of each point computed here."""
     out = tmp_path / "figs"
-    assert main(["-q", "figures", "-o", str(out), "--quick"]) == 0
+    assert main(["-q", "figures", "-o", str(out), "--quick", "--forecast"]) == 0
     assert "report.md" in capsys.readouterr().out
-    for name in PNGS:
+    for name in [*PNGS, "fig7_profile.png"]:
         assert (out / name).stat().st_size > 1000, name
     report = (out / "report.md").read_text()
     for name in PNGS:
         assert f"]({name})" in report
-    verdicts = re.findall(r"\*\*(holds|does not hold|within the noise)\*\* in our", report)
+    verdicts = re.findall(r"\*\*(holds|does not hold|within the noise)\*\* in (our simulation|"
+                          r"the forecast)", report)
     assert len(verdicts) == 7  # one per claim, each with its numbers
+    # the claims of Figs. 6, 7 and 8 on the forecast, exactly, the Monte Carlo beside
+    judged = [line for line in report.splitlines() if "in the forecast" in line]
+    assert [re.search(r"\(Fig\. (\d+)", line)[1] for line in judged] == ["6", "7", "8"]
+    for line in judged:
+        assert "decided exactly" in line and "The Monte Carlo beside it:" in line, line
+        assert re.search(r"\*\*(holds|does not hold)\*\*", line), line  # never "noise"
     assert "Wrap-around bias" in report
     t = Table.read(out / "figures.ecsv")
     assert set(t["figure"]) == {"4", "5", "6", "7", "8", "9", "10", "12a"}
     assert np.all(np.isfinite(t["y"]))
-    # the figures of the paper's scans have one point per grid value
-    assert sorted(t["x"][t["figure"] == "6"]) == [1, 4, 16, 64]
+    # the figures of the paper's scans have one point per grid value, and one forecast each
+    six = t[t["figure"] == "6"]
+    assert sorted(six["x"][~np.char.endswith(six["series"].astype(str), "forecast")]) == \
+        [1, 4, 16, 64]
+    fc = six[np.char.endswith(six["series"].astype(str), ", forecast")]
+    scene = {"geometry": {"nrows": 512, "ncols": 512, "nchannels": 8, "ref_border": 4},
+             "readout": {"skip": 16, "ref_reads": 32, "ref_mode": "distributed",
+                         "phantom_reads": 4, "nframes": 20}}
+    expect = forecast(scene, "spherex-default", {"exclude_horizontal": True, "bins": 20})
+    assert fc["y"][fc["x"] == 16][0] == pytest.approx(expect.meta["band_power"], rel=1e-9)
+    nine = t[(t["figure"] == "9") & (t["y_name"] == "band_power")]
+    phantom = forecast(dict(scene, readout={**scene["readout"], "skip": 24}),
+                       {"steps": [{"unchop": {}}, {"subtract_phantom": {}}]})
+    assert nine["y"][nine["series"] == "before reference correction, forecast"][0] == \
+        pytest.approx(phantom.meta["band_power"], rel=1e-9)
     # an existing report is kept
     assert main(["-q", "figures", "-o", str(out), "--quick"]) == 2
 

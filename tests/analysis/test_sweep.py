@@ -91,7 +91,9 @@ def test_sweep_validation():
     with pytest.raises(ConfigError, match=r"grid\.colour"):
         load_sweep({"grid": {"colour": [1]}})
     with pytest.raises(ConfigError, match="realizations"):
-        load_sweep({"realizations": 0})
+        load_sweep({"realizations": -1})
+    # 0: no Monte Carlo cells, a forecast only (run_sweep refuses it without the forecast)
+    assert load_sweep({"realizations": 0}).cells() == []
     with pytest.raises(ConfigError, match="unknown key"):
         load_sweep({"grids": {}})
 

@@ -1,4 +1,4 @@
-"""``spherex-reduce spectrum`` and ``spherex-reduce fit-noise``."""
+"""``spherex-reduce spectrum``, ``fit-noise`` and ``sweep --forecast``."""
 
 import numpy as np
 import pytest
@@ -227,3 +227,25 @@ def test_spectrum_leaves_the_reference_pixels_out(tmp_path, widths):
     np.testing.assert_allclose(t["power"], expected, rtol=1e-10)
     assert t.meta["shape"] == list(img[rows, cols].shape) and t.meta["masked_fraction"] == 0
     assert path.read_bytes() == before
+
+
+def test_sweep_forecast_only(tmp_path, capsys):
+    """``sweep --forecast`` with ``realizations: 0``: the forecast table and its plot; the
+    same file without ``--forecast`` is one error line, exit 2."""
+    import yaml
+
+    path = tmp_path / "sweep.yaml"
+    path.write_text(yaml.safe_dump({
+        "scene": {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 4},
+                  "readout": {"nframes": 6}},
+        "pipeline": "unchop", "grid": {"skip": [1, 4, 16]}, "realizations": 0}))
+    out = tmp_path / "f.ecsv"
+    assert main(["-q", "sweep", str(path), "-o", str(out), "--forecast", "--plot"]) == 0
+    assert "3 points forecast" in capsys.readouterr().out
+    t = Table.read(out)
+    assert list(t["skip"]) == [1, 4, 16] and np.all(t["band_power_forecast"] > 0)
+    assert (tmp_path / "f.png").stat().st_size > 1000
+    assert main(["-q", "sweep", str(path), "-o", str(tmp_path / "g.ecsv")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "realizations: 0 runs no Monte Carlo" in err[0]
+    assert not (tmp_path / "g.ecsv").exists()

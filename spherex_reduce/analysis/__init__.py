@@ -14,7 +14,8 @@ the reference-pixel and phantom streams in time order (`reference_timestream`,
 `phantom_timestream`, `fit_raw_noise`).
 
 Expected spectra without random numbers (`spherex_reduce.analysis.noise_forecast`):
-`forecast` (P(k) of an uncorrected slope image, total and per noise component).
+`forecast` (P(k) of a slope image reduced by linear steps, total and per noise
+component), `band_power_forecast` (its band power from the band's cells alone).
 
 Simulate, reduce and measure one case: `run_case` (`spherex_reduce.analysis.case`),
 used by the demo, the figures and the sweeps.  Judge correction strategies on
@@ -31,7 +32,7 @@ _OWN = {
                 "measure_against_sky", "white_floor"],
     "photon_noise": ["photon_noise_label", "photon_noise_power", "slope_variance_factor"],
     "light": ["light_sensitive", "light_sensitive_image"],
-    "noise_forecast": ["forecast"],
+    "noise_forecast": ["band_power_forecast", "forecast"],
     "sky": ["inject_sky", "sky_field"],
     "spectrum": ["BAND_KMAX", "BAND_KMIN", "SPHEREX_PIXEL_SCALE", "EmptyBandError", "FFTImage",
                  "band_label", "band_power", "band_theta", "cross_spectrum", "fft_magnitude",

@@ -214,6 +214,7 @@ def rfft_weights(nx):
     return w
 
 
+@functools.lru_cache(maxsize=4)  # a full-size grid holds ~35 MB
 def _grid(ny, nx, edges, exclude_horizontal):
     """Bin index, weight and |k| of every cell of the ``rfft2`` grid (cached per shape)."""
     ky = 2 * np.pi * np.fft.fftfreq(ny)

@@ -1,0 +1,345 @@
+"""The engine of the noise forecast: ``E|FFT|²`` of a reduced slope image, cell by cell.
+
+Every correction the forecast propagates subtracts from a pixel a linear
+combination of samples of the same noise streams: its read's phantom value
+(the mean of the ``c`` samples just before the read) and a reference offset
+(the mean of the reference pixels of the channel, themselves minus their
+reads' phantom values).  A sample is taken at ``slot R + s``: the read's slot
+``slot``, ``R`` samples per row read, and its offset ``s`` within the read
+(``-c ... -1`` phantom, ``0 ... width - 1`` pixels).  So a row of the image
+transforms, for each channel, into a *functional* ``f(k_x, s)`` of the offsets
+of one read (the pixels' phases, minus the channel's phase sum over ``c`` at
+the phantom offsets), the same for every light-sensitive row, and::
+
+    E|Y(k_y, k_x)|² = sum_m A(k_y, m) sum_d X(k_x, d) S(m R + d)
+
+with ``A`` the autocorrelation over read slots of ``exp(-i k_y p)``, ``X`` that
+of ``f`` over offsets (summed over channels for channel-scope noise, of the sum
+over channels for common noise, same-parity offsets only with ACN) and ``S``
+the slope covariance (`~spherex_reduce.noise.variance.slope_covariance`).  A
+reference offset is the same for every row of a channel, so it changes only
+the ``k_y = 0`` row of the plane (the light rows' phases sum to zero at any
+other ``k_y``); there the reference reads enter as a second kind of read with
+their own functional, and the cross and reference-reference terms are sums of
+the same form over the slot lags between a light row and a reference read
+(``H_LR``) and between two reference reads (``H_RR``).
+
+The sum over ``d`` is exact for the ``m`` near a singularity of ``S`` (``m R``
+within `NEAR_READS` row reads of a multiple of the frame time); for the others
+``S(m R + d)`` is smooth in ``d`` over one read and is interpolated on `NODES`
+Chebyshev nodes rounded to whole offsets.  The cells can be restricted to
+some ``k_y`` rows and ``k_x`` columns (`band_cells`): the cost is then that
+of those cells only.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.fft
+
+from ..core.errors import SpherexReduceError
+from ..noise.variance import slope_covariance
+
+__all__ = ["NEAR_READS", "NODES", "Cells", "component_planes"]
+
+#: Row reads from a multiple of the frame time within which the sum over offsets is exact.
+NEAR_READS = 4
+#: Chebyshev nodes over the offsets beyond (the rule is exact for polynomials of lower degree).
+NODES = 8
+
+
+@dataclass(frozen=True)
+class Cells:
+    """Which cells of the rfft2 plane of an ``(ny, nx)`` image to compute.
+
+    Attributes
+    ----------
+    ky : `numpy.ndarray`
+        Row indices ``i`` (``k_y = 2 pi i / ny``, ``0 <= i < ny``), increasing.
+    kx : `numpy.ndarray`
+        Column indices ``i`` of the rfft (``k_x = 2 pi i / nx``, ``0 <= i <= nx // 2``).
+    """
+
+    ky: np.ndarray
+    kx: np.ndarray
+
+    @classmethod
+    def full(cls, ny, nx):
+        """Every cell of the rfft2 plane."""
+        return cls(np.arange(ny), np.arange(nx // 2 + 1))
+
+
+def component_planes(schedule, rows, cols, comps, reduction, nodes=NODES, cells=None):
+    """``{name: E|FFT|²}`` of the reduced light-sensitive image for each component.
+
+    Parameters
+    ----------
+    schedule : `~spherex_reduce.ReadoutSchedule`
+    rows, cols : slice
+        The light-sensitive rectangle (`~spherex_reduce.analysis.light_sensitive`).
+    comps : list of `~spherex_reduce.noise.NoiseComponent`
+    reduction : `~spherex_reduce.analysis.forecast_steps.Reduction`
+    nodes : int
+        Chebyshev nodes of the rule over offsets.
+    cells : `Cells`, optional
+        The cells to compute (default: the whole rfft2 plane).
+
+    Returns
+    -------
+    dict
+        ``{name: ndarray (len(cells.ky), len(cells.kx))}`` in (e/s)² (the
+        rfft2 layout when ``cells`` is the whole plane).
+    """
+    g = schedule.geometry
+    ny, nx = rows.stop - rows.start, cols.stop - cols.start
+    cells = Cells.full(ny, nx) if cells is None else cells
+    c = schedule.phantom_reads if (reduction.phantom or reduction.reference_phantom) else 0
+    table = _LagTable(schedule, comps, g.channel_width - 1 + c, nodes)
+    a = _row_pairs(schedule, rows, cells.ky)  # (n_half, 2 slots), n_half rows of k_y >= 0
+    light = _functionals(schedule, rows, cols, cells.kx, c, reduction)  # (pixels, phantom)
+    ref = _reference_functionals(schedule, cols, cells.kx, c, reduction, ny)
+    has_zero = cells.ky.size and cells.ky[0] == 0
+    if ref is not None and has_zero:
+        light_reads = np.zeros(a.shape[1])
+        light_reads[_slots(schedule)[_light_reads(schedule, rows)]] = 1.0
+    half = np.minimum(cells.ky, ny - cells.ky)
+    first = np.searchsorted(np.unique(half), half)  # row of a for every cell row
+    negative = cells.ky > ny // 2
+    spectra = _Spectra()
+    parts = {}
+    for i, comp in enumerate(comps):
+        x = spectra.correlate(("light", light), ("light", light), comp)
+        re, im = table.real_products(i, a, x)
+        parts[comp.name] = np.where(negative[:, None], re[first] + im[first],
+                                    re[first] - im[first])
+        if ref is not None and has_zero:
+            for n, (ind, f) in enumerate(ref):
+                x = spectra.correlate(("light", light), (n, f), comp)
+                cross = table.products(i, _slot_pairs(light_reads, ind), x)
+                parts[comp.name][0] += 2 * cross.real
+                for n2, (ind2, f2) in enumerate(ref):
+                    x = spectra.correlate((n, f), (n2, f2), comp)
+                    auto = table.products(i, _slot_pairs(ind, ind2), x)
+                    parts[comp.name][0] += auto.real
+    return parts
+
+
+class _LagTable:
+    """``S(m R + d)`` of each component at every read-slot lag ``m`` and offset
+    difference ``d`` (``|d| <= half``): exact near a singularity, on Chebyshev nodes
+    elsewhere."""
+
+    def __init__(self, schedule, comps, half, nodes):
+        s = schedule
+        rs, frame = s.row_samples, s.frame_samples
+        slots = _slots(s).max() + 1
+        m = np.arange(-(slots - 1), slots)
+        dist = np.min(np.abs(m[:, None] * rs - np.array([-frame, 0, frame])[None, :]), axis=1)
+        near = dist < NEAR_READS * rs
+        self.near, self.far = m[near] % (2 * slots), m[~near] % (2 * slots)
+        d = np.arange(-half, half + 1)
+        self.interp, dnodes = _chebyshev_rule(half, nodes)
+        lags = np.concatenate([(m[near][:, None] * rs + d[None, :]).ravel(),
+                               (m[~near][:, None] * rs + dnodes[None, :]).ravel()])
+        lags, inverse = np.unique(np.abs(lags), return_inverse=True)  # S is even
+        cov = slope_covariance(comps, s, lags)[:, inverse.ravel()] if comps else None
+        nnear = near.sum() * d.size
+        self.s_near = [cov[i, :nnear].reshape(near.sum(), d.size) for i in range(len(comps))]
+        self.s_far = [cov[i, nnear:].reshape((~near).sum(), dnodes.size)
+                      for i in range(len(comps))]
+
+    def _q(self, i, x):
+        """``sum_d X(k_x, d) S(m R + d)`` as (near ``(n_near, nkx)``, far-on-nodes
+        ``(n_far, nodes)`` and the nodes' weights ``(nodes, nkx)``)."""
+        return self.s_near[i] @ x.T, self.s_far[i], (x @ self.interp).T
+
+    def real_products(self, i, w, x):
+        """``Re w`` times the real and ``Im w`` times the imaginary part of ``sum_m w(m)
+        sum_d X(k_x, d) S(m R + d)``, for ``w`` ``(n, 2 slots)``: with ``w(-k_y) =
+        conj w(k_y)`` and ``X`` Hermitian in ``d``, ``re - im`` and ``re + im`` are the
+        cells of ``k_y`` and ``-k_y``."""
+        q_near, s_far, nodes = self._q(i, x)
+        w_near, w_far = w[:, self.near], w[:, self.far] @ s_far
+        re = w_near.real @ q_near.real + w_far.real @ nodes.real
+        im = w_near.imag @ q_near.imag + w_far.imag @ nodes.imag
+        return re, im
+
+    def products(self, i, w, x):
+        """``sum_m w(m) sum_d X(k_x, d) S(m R + d)`` for a weight vector ``w`` ``(2 slots,)``
+        (complex result, ``(nkx,)``)."""
+        q_near, s_far, nodes = self._q(i, x)
+        return w[self.near] @ q_near + (w[self.far] @ s_far) @ nodes
+
+
+def _slots(s):
+    """The slot (row-read time over the row time) of every read of a frame."""
+    return (s.starts - s.phantom_reads) // s.row_samples
+
+
+def _row_pairs(schedule, rows, ky):
+    """``A(k_y, m)`` for the distinct ``min(i, ny - i)`` of ``ky`` and read-slot lag ``m``
+    (index ``m mod 2 slots``): the autocorrelation over read slots of ``exp(-i k_y p)``."""
+    s = schedule
+    slot = _slots(s)
+    slots = int(slot.max()) + 1
+    first = _light_reads(s, rows)
+    ny = rows.stop - rows.start
+    k = 2 * np.pi * np.unique(np.minimum(ky, ny - ky)) / ny
+    g = np.zeros((k.size, 2 * slots), dtype=complex)
+    g[:, slot[first]] = np.exp(-1j * k[:, None] * np.arange(ny)[None, :])
+    f = scipy.fft.fft(g, axis=1, workers=-1)
+    f = f.real**2 + f.imag**2
+    return scipy.fft.ifft(f, axis=1, workers=-1)
+
+
+def _light_reads(s, rows):
+    """The read of every light-sensitive row (refused unless read once, as an active row)."""
+    first = s.read_of_row()[rows]
+    if np.any(first < 0) or np.any(s.is_reference[first]):
+        raise SpherexReduceError("forecast: a light-sensitive row is not read as an active row")
+    return first
+
+
+def _functionals(schedule, rows, cols, kx, c, reduction):
+    """The light rows' functional of each channel, ``(nch, nkx, c + width)`` complex, as its
+    pixel part and its phantom part (None without phantom subtraction): the pixels' phases
+    ``sum_{o_j = o} exp(-i k_x j)`` at offset ``o`` (index ``c + o``) and minus the channel's
+    phase sum over ``c`` at each phantom sample."""
+    g = schedule.geometry
+    nx = cols.stop - cols.start
+    width, nch = g.channel_width, g.nchannels
+    j = np.arange(cols.start, cols.stop)
+    off, chan = g.column_offsets()[j], g.channel_of_column()[j]
+    k = 2 * np.pi * kx / nx
+    phase = np.exp(-1j * np.outer(j - cols.start, k))  # (nx, nkx)
+    pix = np.zeros((nch, k.size, c + width), dtype=complex)
+    np.add.at(pix, (chan, slice(None), c + off), phase)
+    phantom = None
+    if reduction.phantom and c:
+        phantom = np.zeros_like(pix)
+        phantom[:, :, :c] = -pix.sum(axis=2, keepdims=True) / c
+    return pix, phantom
+
+
+def _reference_functionals(schedule, cols, kx, c, reduction, ny):
+    """The reads the reference offsets average, at ``k_y = 0``: a list of (slot
+    indicator ``(2 slots,)``, functional of each channel as `_functionals` gives it), one
+    for the reference reads and, with side columns, one for the active reads.
+
+    A pixel of group ``g`` (the channel's columns, or those of one offset parity with
+    ``acn``) gets the offset ``mu_g``, the mean over the ``N_g`` reference pixels of the
+    group (each minus its read's phantom value when ``reduction.reference_phantom``); so
+    the image's ``k_y = 0`` row loses ``ny E_g(k_x) mu_g``, ``E_g`` the phases of the
+    group's light columns.  None without a reference correction."""
+    if reduction.reference is None:
+        return None
+    s = schedule
+    g = s.geometry
+    nref = int(s.is_reference.sum())
+    if nref == 0:
+        raise SpherexReduceError("forecast: correct_reference needs reference reads; the "
+                                 "schedule has none")
+    width, nch = g.channel_width, g.nchannels
+    nx = cols.stop - cols.start
+    j = np.arange(cols.start, cols.stop)
+    k = 2 * np.pi * kx / nx
+    offsets, chan = g.column_offsets(), g.channel_of_column()
+    parity = offsets % 2 if reduction.reference == "acn" else np.zeros(g.ncols, int)
+    side = g.reference_column_mask() if reduction.side_columns else np.zeros(g.ncols, bool)
+    nact = int((~s.is_reference).sum())
+    slot = _slots(s)
+    slots = int(slot.max()) + 1
+    kinds = [(s.is_reference, np.ones(g.ncols, bool))]
+    if side.any():
+        kinds.append((~s.is_reference, side))
+    pix = np.zeros((len(kinds), nch, k.size, c + width), dtype=complex)
+    phantom = np.zeros_like(pix)
+    for group in np.unique(parity):
+        box = np.zeros((nch, k.size), dtype=complex)  # the group's light phases
+        light = parity[j] == group
+        np.add.at(box, chan[j][light], np.exp(-1j * np.outer(j[light] - cols.start, k)))
+        for ch in range(nch):
+            used = (chan == ch) & (parity == group)
+            total = nref * used.sum() + nact * (used & side).sum()  # N_g
+            for n, (_, columns) in enumerate(kinds):
+                o = offsets[used & columns]
+                pix[n, ch][:, c + o] -= ny * box[ch][:, None] / total
+                if c:
+                    phantom[n, ch][:, :c] += ny * box[ch][:, None] * o.size / (total * c)
+    out = []
+    for n, (reads, _) in enumerate(kinds):
+        indicator = np.zeros(2 * slots)
+        np.add.at(indicator, slot[reads], 1.0)
+        out.append((indicator, (pix[n], phantom[n] if reduction.reference_phantom and c
+                                else None)))
+    return out
+
+
+def _slot_pairs(a, b):
+    """``H(m)``: the pairs of reads (one of indicator ``a``, one of ``b``) whose slots differ
+    by ``m`` (index ``m mod 2 slots``)."""
+    n = a.size
+    return np.rint(scipy.fft.irfft(scipy.fft.rfft(a) * scipy.fft.rfft(b).conj(), n))
+
+
+class _Spectra:
+    """The FFTs over offsets of the functionals' pixel and phantom parts, taken once, and
+    the correlations ``X`` of every pair the components ask for (one per scope and
+    visibility)."""
+
+    def __init__(self):
+        self._ffts, self._x = {}, {}
+
+    def _fft(self, key, functional):
+        if key not in self._ffts:
+            n = functional[0].shape[-1]
+            self._ffts[key] = [None if f is None else scipy.fft.fft(f, 2 * n, axis=-1)
+                               for f in functional]
+        return self._ffts[key]
+
+    def _part(self, key, functional, comp):
+        """One component's part (what its pixels and phantom samples see), over
+        channels (summed over them for common noise)."""
+        pix, ph = self._fft(key, functional)
+        out = pix if comp.seen_by_pixels else 0
+        if ph is not None and comp.seen_by_phantom:
+            out = out + ph
+        if comp.scope == "common" and not np.isscalar(out):
+            out = out.sum(axis=0, keepdims=True)
+        return out
+
+    def correlate(self, a, b, comp):
+        """``X(k_x, d) = sum_s f_a(k_x, s + d) conj f_b(k_x, s)``, ``d = -(n - 1) ...
+        n - 1``, for the functionals ``a`` and ``b`` (``(key, functional)``), summed over
+        channels (channel scope) or of the sums over channels (common scope); with ACN
+        only offsets of one parity correlate."""
+        key = (a[0], b[0], comp.seen_by_pixels, comp.seen_by_phantom, comp.scope)
+        if key not in self._x:
+            fa = self._part(*a, comp)
+            fb = fa if a[0] == b[0] else self._part(*b, comp)
+            n = a[1][0].shape[-1]
+            if np.isscalar(fa) or np.isscalar(fb):
+                x = np.zeros((a[1][0].shape[1], 2 * n - 1), dtype=complex)
+            else:
+                x = scipy.fft.ifft((fa * fb.conj()).sum(axis=0), axis=-1, workers=-1)
+                x = x[:, np.arange(-(n - 1), n) % (2 * n)]
+            self._x[key] = x
+        x = self._x[key]
+        if comp.acn:
+            n = (x.shape[1] + 1) // 2
+            x = np.where(np.arange(-(n - 1), n) % 2 == 0, x, 0.0)
+        return x
+
+
+def _chebyshev_rule(half, n):
+    """``(L, nodes)``: ``f(d) ≈ sum_i L[d, i] f(nodes[i])`` for ``d = -half ... half``, the
+    interpolating polynomial on ``n`` Chebyshev nodes of ``[-half, half]`` rounded to whole
+    offsets (a stream is only defined at whole samples: its white part is a spike there)."""
+    d = np.arange(-half, half + 1)
+    if int(n) >= d.size:
+        return np.eye(d.size), d
+    nodes = np.unique(np.rint(half * np.cos(np.pi * (np.arange(n) + 0.5) / n)).astype(int))
+    cheb = np.polynomial.chebyshev.chebvander
+    rule = np.linalg.solve(cheb(nodes / half, nodes.size - 1).T,
+                           cheb(d / half, nodes.size - 1).T).T
+    return rule, nodes

@@ -44,6 +44,7 @@ MAX_ITERATIONS = 10_000
 #: Most values a list of the search (skips, c, r) may hold.
 MAX_CHOICES = 1000
 _REF_MODES = ("distributed", "repeated")
+_REF_READS = (0, 8, 16, 32, 48, 64, 96, 128, 176)
 
 
 @dataclass(frozen=True)
@@ -103,7 +104,8 @@ def load_design(source):
         ``families`` (of `~spherex_reduce.analysis.row_orders.FAMILIES`),
         ``skips`` (the S of the skip and nested families, default 1 ... 64),
         ``phantom_reads`` and ``ref_reads`` (the c and r tried, default
-        0, 2, 4, 8 and 0, 8, 16, 32, 48), ``ref_modes`` (``distributed``,
+        0, 1, 2, 4, 8 and 0, 8, 16, 32, 48, 64, 96, 128, 176; those whose reads do not
+        fit in the frame time are left out), ``ref_modes`` (``distributed``,
         ``repeated``), ``finalists`` (orders whose timing is searched,
         default 2), ``iterations`` (of the local search, default 100) and
         ``seed``.
@@ -160,8 +162,9 @@ def load_design(source):
         bins=_integer(config.get("bins", 30), label, "bins", 1, 1000),
         frame_time=frame_time, baseline=baseline, families=families,
         skips=tuple(_choices(search, "skips", label, range(1, 65), int, 1)),
-        phantom_reads=tuple(_choices(search, "phantom_reads", label, (0, 2, 4, 8), int, 0)),
-        ref_reads=tuple(_choices(search, "ref_reads", label, (0, 8, 16, 32, 48), int, 0)),
+        phantom_reads=tuple(_choices(search, "phantom_reads", label, (0, 1, 2, 4, 8), int,
+                                     0)),
+        ref_reads=tuple(_choices(search, "ref_reads", label, _REF_READS, int, 0)),
         ref_modes=tuple(_choices(search, "ref_modes", label, _REF_MODES, str)),
         finalists=_integer(search.get("finalists", 2), label, "search.finalists", 1, 100),
         iterations=_integer(search.get("iterations", 100), label, "search.iterations", 0,

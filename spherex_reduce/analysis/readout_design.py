@@ -29,7 +29,7 @@ import numpy as np
 from astropy.table import Table
 
 from ..core._text import plural
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, SpherexReduceError
 from ..core.schedule import chopped_order
 from ..reduce.progress import terminal_bar
 from ..simulation import simulate
@@ -37,7 +37,7 @@ from ..simulation.scene import load_scene
 from .case import SpectrumMeasure, run_case
 from .design_file import load_design
 from .light import light_sensitive_image
-from .noise_forecast import forecast
+from .noise_forecast import band_power_forecast, forecast
 from .row_orders import explicit_order, family_orders
 
 __all__ = ["Candidate", "DesignResult", "design_readout", "plot_design"]
@@ -53,8 +53,7 @@ class Candidate:
 
     ``permutation[t]`` is the active row (from the first active row) read in slot ``t``;
     ``skip``: the skip ``S`` whose order it is (written as ``skip``, not as an explicit
-    order), or None; ``band`` maps ``'total'`` and each noise
-    component to its forecast band power, (e/s)² pix².
+    order), or None; ``band_power``: its forecast band power, (e/s)² pix².
     """
 
     stage: str
@@ -65,11 +64,7 @@ class Candidate:
     ref_mode: str
     permutation: object
     skip: object
-    band: dict
-
-    @property
-    def band_power(self):
-        return self.band["total"]
+    band_power: float
 
 
 @dataclass
@@ -145,6 +140,7 @@ def design_readout(design, progress=False):
     baseline = objective("baseline", "skip", f"S={b['skip']}", b["phantom_reads"],
                          b["ref_reads"], b["ref_mode"], chopped_order(n, b["skip"]),
                          b["skip"])
+    objective.refuse = True
     orders = family_orders(n, d.families, d.skips)
     with terminal_bar(progress, total=len(orders), desc="families") as bar:
         for family, label, perm in orders:
@@ -172,7 +168,7 @@ def design_readout(design, progress=False):
             perm = _move(np.asarray(best.permutation), rng)
             cand = objective("local", best.family, f"{best.label.split(' +')[0]} +{i + 1}",
                              best.phantom_reads, best.ref_reads, best.ref_mode, perm)
-            if cand.band_power < best.band_power:
+            if cand is not None and cand.band_power < best.band_power:
                 best = cand
             bar.update()
     seconds["local"] = time.perf_counter() - t0
@@ -187,6 +183,7 @@ def design_readout(design, progress=False):
     seconds["monte_carlo"] = time.perf_counter() - t0
     report.meta["seconds"] = {k: round(v, 3) for k, v in seconds.items()}
     report.meta["evaluations"] = len(objective.tried)
+    report.meta["refused"] = objective.refused
     return DesignResult(best, baseline, best_scene, base_scene, objective.tried, report,
                         seconds)
 
@@ -225,6 +222,8 @@ class _Objective:
         self.d = design
         self.scene_of = scene_of
         self.tried = []
+        self.refused = []  # candidates the pipeline cannot reduce (e.g. r = 0 for a reference
+        self.refuse = False  # correction), skipped once refuse is set
         self._seen = {}
 
     def __call__(self, stage, family, label, c, r, mode, perm, skip=None):
@@ -232,23 +231,20 @@ class _Objective:
         key = (c, r, mode if r else "", perm.tobytes())
         if key in self._seen:
             return self._seen[key]
-        cand = Candidate(stage, family, label, int(c), int(r), mode, perm, skip, {})
-        t = forecast(self.scene_of(cand), self.d.pipeline, _band_measure(self.d))
-        if not len(t):
-            raise ConfigError(f"{self.d.label}: band: no Fourier cell of the image lies in "
-                              f"k = {self.d.kmin:g} ... {self.d.kmax:g} rad/pixel")
-        band = {"total": float(np.asarray(t["power"])[0])}
-        band.update({c[len("power_"):]: float(np.asarray(t[c])[0]) for c in t.colnames
-                     if c.startswith("power_") and c != "power_err"})
-        cand = Candidate(stage, family, label, int(c), int(r), mode, perm, skip, band)
+        cand = Candidate(stage, family, label, int(c), int(r), mode, perm, skip, None)
+        try:
+            power = band_power_forecast(self.scene_of(cand), self.d.pipeline, self.d.kmin,
+                                        self.d.kmax)
+        except SpherexReduceError as exc:
+            if not self.refuse:
+                raise
+            self.refused.append(f"{label}, c={c}, r={r} {mode}: {exc}")
+            self._seen[key] = None
+            return None
+        cand = Candidate(stage, family, label, int(c), int(r), mode, perm, skip, power)
         self._seen[key] = cand
         self.tried.append(cand)
         return cand
-
-
-def _band_measure(d):
-    """The forecast's measure for the band alone: one bin from kmin to kmax."""
-    return {"kmin": d.kmin, "kmax": d.kmax, "bins": [d.kmin, d.kmax]}
 
 
 def _best_orders(tried, count):
@@ -292,6 +288,8 @@ def _report(d, best, baseline, best_scene, base_scene, tried):
     measure = {"kmin": d.kmin, "kmax": d.kmax, "bins": d.bins}
     fb = forecast(best_scene, d.pipeline, measure)
     fa = forecast(base_scene, d.pipeline, measure)
+    band = {"kmin": d.kmin, "kmax": d.kmax, "bins": [d.kmin, d.kmax]}
+    a, b = (_band_parts(forecast(sc, d.pipeline, band)) for sc in (base_scene, best_scene))
     report = Table()
     for name in ("k", "theta", "k_lo", "k_hi"):
         report[name] = fa[name]
@@ -303,7 +301,6 @@ def _report(d, best, baseline, best_scene, base_scene, tried):
     for c in comps:
         report[f"power_baseline_{c}"] = fa[f"power_{c}"]
         report[f"power_best_{c}"] = fb[f"power_{c}"]
-    a, b = baseline.band, best.band
     drop = a["total"] - b["total"]
     report.meta.update({
         "design": d.label,
@@ -322,6 +319,14 @@ def _report(d, best, baseline, best_scene, base_scene, tried):
                         "ref_mode": c.ref_mode, "band_power": c.band_power} for c in tried],
     })
     return report
+
+
+def _band_parts(table):
+    """``{'total': band power, component: its band power}`` of a one-bin forecast."""
+    out = {"total": float(np.asarray(table["power"])[0])}
+    out.update({c[len("power_"):]: float(np.asarray(table[c])[0]) for c in table.colnames
+                if c.startswith("power_") and c != "power_err"})
+    return out
 
 
 def _describe(cand, scene):
@@ -346,8 +351,8 @@ def _confirm(d, report, best_scene, base_scene, progress):
     ratio = b.mean() / a.mean()
     err = np.std(b - ratio * a, ddof=1) / np.sqrt(a.size) / a.mean() if a.size > 1 else np.nan
     unit = report["power_baseline"].unit
-    for name in runs:
-        power = np.nanmean([m["power"] for m in runs[name]], axis=0)
+    for name in runs:  # the measure's spectrum has the forecast's bins (empty ones left out)
+        power = np.mean([np.asarray(m["spectrum"]["power"]) for m in runs[name]], axis=0)
         report[f"power_mc_{name}"] = power * unit
     report.meta["monte_carlo"] = {
         "realizations": d.realizations, "seeds": [d.seed, d.seed + d.realizations - 1],

@@ -151,5 +151,5 @@ def test_bad_designs_are_refused_naming_the_key(design, words):
 
 
 def test_a_budget_too_short_for_the_baseline_is_refused():
-    with pytest.raises(ConfigError, match="budget.frame_time: 0.001 s is too short"):
+    with pytest.raises(ConfigError, match=r"budget\.frame_time: 0\.001 s is too short"):
         design_readout(_design(budget={"frame_time": 0.001}))

@@ -372,8 +372,13 @@ def _measured(scene, pipeline, measure, seed):
     return run_case(scene, pipeline, measure, seed=seed, mode="slopes").measurement
 
 
-def plot_design(result):
+def plot_design(report):
     """Band power of every candidate by stage and family, and P(k) of best and baseline.
+
+    Parameters
+    ----------
+    report : `~astropy.table.Table`
+        The ``report`` of a `DesignResult`, or the ECSV ``--report`` wrote.
 
     Returns
     -------
@@ -383,38 +388,43 @@ def plot_design(result):
 
     from ..io.plotting import unit_label
 
-    rep = result.report
+    rep = report
+    meta = rep.meta
     unit = unit_label(rep["power_baseline"].unit)
     fig = Figure(figsize=(12, 4.8))
     ax, bx = fig.subplots(1, 2)
     groups = {}
-    for i, c in enumerate(result.candidates):
-        key = c.family if c.stage == "families" else c.stage
-        groups.setdefault(key, []).append((i, c.band_power))
+    cands = meta["candidates"]
+    for i, c in enumerate(cands):
+        key = c["family"] if c["stage"] == "families" else c["stage"]
+        groups.setdefault(key, []).append((i, c["band_power"]))
     for key, pts in groups.items():
         x, y = np.array(pts).T
         ax.plot(x, y, "o", ms=3, label=key)
-    ax.axhline(result.baseline.band_power, color="k", ls="--",
-               label=f"baseline {result.baseline.label}, r={result.baseline.ref_reads}")
-    ax.plot([result.candidates.index(result.best)], [result.best.band_power], "r*", ms=14,
-            label=f"best ({result.best.label})")
+    base, best = meta["baseline"], meta["best"]
+    ax.axhline(meta["band_power_baseline"], color="k", ls="--",
+               label=f"paper's: {base['label']}, c={base['phantom_reads']}, "
+                     f"r={base['ref_reads']}")
+    ibest = int(np.argmin([c["band_power"] for c in cands]))
+    ax.plot([ibest], [cands[ibest]["band_power"]], "r*", ms=14,
+            label=f"best: {best['label']}, c={best['phantom_reads']}, r={best['ref_reads']}")
     ax.set_yscale("log")
     ax.set_xlabel("evaluation (families, then timing, then local search)")
     ax.set_ylabel(f"forecast band power [{unit}]")
-    ax.set_title(f"{plural(len(result.candidates), 'schedule')} searched")
+    ax.set_title(f"{plural(len(cands), 'schedule')} searched")
     ax.legend(fontsize=7)
-    k = rep["k"].value if hasattr(rep["k"], "value") else np.asarray(rep["k"])
+    k = np.asarray(rep["k"])
     for name, color in (("baseline", "k"), ("best", "r")):
-        bx.loglog(k, rep[f"power_{name}"].value, color=color, label=f"forecast, {name}")
+        bx.loglog(k, np.asarray(rep[f"power_{name}"]), color=color, label=f"forecast, {name}")
         if f"power_mc_{name}" in rep.colnames:
-            bx.loglog(k, rep[f"power_mc_{name}"].value, "o", ms=3, color=color,
+            bx.loglog(k, np.asarray(rep[f"power_mc_{name}"]), "o", ms=3, color=color,
                       label=f"Monte Carlo, {name}")
     bx.axvspan(rep.meta["band_kmin"], rep.meta["band_kmax"], color="0.9", zorder=0,
                label="band")
     bx.set_xlabel("k [rad/pixel]")
     bx.set_ylabel(f"P(k) [{unit}]")
-    gain = rep.meta["gain"]
-    mc = rep.meta.get("monte_carlo")
+    gain = meta["gain"]
+    mc = meta.get("monte_carlo")
     title = f"gain {100 * gain:.1f} % (forecast)"
     if mc:
         title += f", {100 * mc['gain']:.1f} ± {100 * mc['gain_err']:.1f} % (Monte Carlo)"

@@ -59,7 +59,7 @@ def run(args):
         if png:
             from ..io.plotting import save_figure
 
-            save_figure(plot_design(res), png, overwrite=True)
+            save_figure(plot_design(res.report), png, overwrite=True)
     b, a = meta["best"], meta["baseline"]
     print(f"{meta['evaluations']} schedules forecast in "
           f"{sum(meta['seconds'].values()):.1f} s")

@@ -15,8 +15,8 @@ scene:
   noise: {components: [{name: f, beta: 0.01, alpha: 1.0e-5}]}
 band: {kmin: 0.3, kmax: 1.5}
 bins: 4
-baseline: {skip: 4, ref_reads: 8, phantom_reads: 2}
-search: {families: [skip, golden], skips: [1, 2, 3], phantom_reads: [2], ref_reads: [8],
+baseline: {skip: 1, ref_reads: 8, phantom_reads: 2}
+search: {families: [golden, radical_inverse], phantom_reads: [2], ref_reads: [8],
          ref_modes: [distributed], iterations: 3}
 realizations: 2
 """
@@ -31,6 +31,7 @@ def test_design_writes_a_scene_that_simulate_forecast_and_reduce_accept(tmp_path
     assert "gain" in out and "Monte Carlo (2 paired realisations)" in out
     rep = Table.read(report)
     scene = yaml.safe_load(best.read_text())
+    assert len(scene["readout"]["order"]) == 32  # an explicit order: 24 active + 8 reference
     assert forecast(scene, "spherex-default", {"kmin": 0.3, "kmax": 1.5, "bins": 4}).meta[
         "band_power"] == pytest.approx(rep.meta["band_power_best"], rel=1e-9)
     assert png.read_bytes()[:4] == b"\x89PNG"

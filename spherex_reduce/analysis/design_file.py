@@ -30,7 +30,8 @@ from .case import MAX_REALIZATIONS, pipeline_section, scene_section
 from .row_orders import FAMILIES
 from .spectrum import BAND_KMAX, BAND_KMIN
 
-__all__ = ["BASELINE", "MAX_CHOICES", "MAX_ITERATIONS", "TOP_KEYS", "Design", "load_design"]
+__all__ = ["BASELINE", "MAX_CHOICES", "MAX_ITERATIONS", "MAX_TIMINGS", "TOP_KEYS", "Design",
+           "load_design"]
 
 TOP_KEYS = ("scene", "noise", "band", "bins", "pipeline", "budget", "baseline", "search",
             "realizations", "seed")
@@ -43,6 +44,8 @@ BASELINE = {"skip": 24, "ref_reads": 32, "ref_mode": "distributed", "phantom_rea
 MAX_ITERATIONS = 10_000
 #: Most values a list of the search (skips, c, r) may hold.
 MAX_CHOICES = 1000
+#: Most schedules the timing stage may forecast (finalists x c x r x placements).
+MAX_TIMINGS = 10_000
 _REF_MODES = ("distributed", "repeated")
 _REF_READS = (0, 8, 16, 32, 48, 64, 96, 128, 176)
 
@@ -157,16 +160,22 @@ def load_design(source):
     for f in families:
         if f not in FAMILIES:
             _refuse(label, "search.families", f"valid: {', '.join(FAMILIES)}", f)
+    phantom_reads = tuple(_choices(search, "phantom_reads", label, (0, 1, 2, 4, 8), int, 0))
+    ref_reads = tuple(_choices(search, "ref_reads", label, _REF_READS, int, 0))
+    ref_modes = tuple(_choices(search, "ref_modes", label, _REF_MODES, str))
+    finalists = _integer(search.get("finalists", 2), label, "search.finalists", 1, 100)
+    timings = finalists * len(phantom_reads) * len(ref_reads) * len(ref_modes)
+    if timings > MAX_TIMINGS:
+        raise ConfigError(f"{label}: search: finalists x phantom_reads x ref_reads x "
+                          f"ref_modes is {timings} schedules to forecast; at most "
+                          f"{MAX_TIMINGS}")
     return Design(
         label=label, scene=scene, pipeline=pipeline, kmin=kmin, kmax=kmax,
         bins=_integer(config.get("bins", 30), label, "bins", 1, 1000),
         frame_time=frame_time, baseline=baseline, families=families,
         skips=tuple(_choices(search, "skips", label, range(1, 65), int, 1)),
-        phantom_reads=tuple(_choices(search, "phantom_reads", label, (0, 1, 2, 4, 8), int,
-                                     0)),
-        ref_reads=tuple(_choices(search, "ref_reads", label, _REF_READS, int, 0)),
-        ref_modes=tuple(_choices(search, "ref_modes", label, _REF_MODES, str)),
-        finalists=_integer(search.get("finalists", 2), label, "search.finalists", 1, 100),
+        phantom_reads=phantom_reads, ref_reads=ref_reads, ref_modes=ref_modes,
+        finalists=finalists,
         iterations=_integer(search.get("iterations", 100), label, "search.iterations", 0,
                             MAX_ITERATIONS),
         search_seed=_integer(search.get("seed", 0), label, "search.seed", 0, 2**63 - 1),

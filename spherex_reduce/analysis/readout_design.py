@@ -127,7 +127,7 @@ def design_readout(design, progress=False):
     base = load_scene(d.scene)
     g = base.schedule.geometry
     readout = {k: v for k, v in (d.scene.get("readout") or {}).items() if k not in _DESIGNED}
-    scene_of = _SceneMaker(d, readout, g)
+    scene_of = _SceneMaker(d, readout, g, base.schedule.row_overhead)
     n = g.n_active_rows
     objective = _Objective(d, scene_of)
     seconds = {}
@@ -191,17 +191,17 @@ def design_readout(design, progress=False):
 class _SceneMaker:
     """The scene (a dict) of a candidate: the design's scene with its timing and order."""
 
-    def __init__(self, design, readout, geometry):
+    def __init__(self, design, readout, geometry, row_overhead):
         self.d = design
         self.readout = readout
         self.g = geometry
+        self.row_overhead = row_overhead
 
     def fits(self, g, c, r):
         """Whether ``n_active + r`` row reads of ``c + width + row_overhead`` samples fit in
         the budget's frame time."""
-        overhead = self.readout.get("row_overhead", 4)
         samples = round(self.d.frame_time * g.pixel_rate)
-        return (g.n_active_rows + r) * (c + g.channel_width + overhead) <= samples
+        return (g.n_active_rows + r) * (c + g.channel_width + self.row_overhead) <= samples
 
     def __call__(self, cand):
         ro = {**self.readout, "phantom_reads": int(cand.phantom_reads),

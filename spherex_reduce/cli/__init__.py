@@ -41,6 +41,8 @@ COMMANDS = {
     "sweep": "simulate, reduce and measure a grid of readout parameters on dask",
     "compare-strategies": "reduce the same simulated noise and injected sky with several "
                           "pipelines; residual noise, white floor, sky transfer",
+    "design-readout": "search the readout (row order, c, r) of least forecast 5-20' noise "
+                      "within a frame time",
     "figures": "reproduce the paper's simulated figures (PNG + Markdown report)",
 }
 

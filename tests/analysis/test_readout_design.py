@@ -1,0 +1,157 @@
+"""design_readout: the families of row orders, the search's optimum against a brute force
+over the public forecast, the frame-time budget, the report and the paired Monte Carlo."""
+
+import numpy as np
+import pytest
+from astropy import units as u
+from astropy.table import Table
+
+from spherex_reduce import DetectorGeometry, ReadoutSchedule
+from spherex_reduce.analysis import forecast
+from spherex_reduce.analysis.design_file import load_design
+from spherex_reduce.analysis.readout_design import design_readout
+from spherex_reduce.analysis.row_orders import (
+    explicit_order,
+    family_orders,
+    golden_order,
+    nested_order,
+    radical_inverse_order,
+)
+from spherex_reduce.core.errors import ConfigError
+from spherex_reduce.simulation import load_scene
+
+GEOMETRY = {"nrows": 32, "ncols": 16, "nchannels": 2, "ref_border": 4}
+NOISE = {"components": [{"name": "f", "beta": 1e-2, "alpha": 1e-5},
+                        {"name": "v", "beta": 4e-3, "visibility": "both"}]}
+SCENE = {"geometry": GEOMETRY, "readout": {"nframes": 4}, "noise": NOISE}
+BAND = {"kmin": 0.3, "kmax": 1.5}
+
+
+def _design(**extra):
+    search = {"families": ["skip"], "skips": [1, 2, 3, 4, 6, 8], "phantom_reads": [2],
+              "ref_reads": [8], "ref_modes": ["distributed"], "iterations": 0,
+              **extra.pop("search", {})}
+    return {"scene": SCENE, "band": BAND, "baseline": {"skip": 4, "ref_reads": 8,
+                                                       "phantom_reads": 2},
+            "search": search, "realizations": 0, **extra}
+
+
+def _band(scene, pipeline="spherex-default"):
+    return forecast(scene, pipeline, {**BAND, "bins": 4}).meta["band_power"]
+
+
+def test_orders_are_the_permutations_their_definitions_give():
+    n = 16
+    bits = [int(f"{i:04b}"[::-1], 2) for i in range(n)]  # bit reversal of 4-bit indices
+    assert radical_inverse_order(n, 2).tolist() == bits
+    assert nested_order(n, (2, 2, 2, 2)).tolist() == bits
+    skip = [r for k in range(3) for r in range(k, n, 3)]
+    assert nested_order(n, (3,)).tolist() == skip
+    frac = [(i * (np.sqrt(5) - 1) / 2) % 1 for i in range(n)]
+    assert golden_order(n).tolist() == sorted(range(n), key=frac.__getitem__)
+    for _, _, p in family_orders(n):
+        assert sorted(p.tolist()) == list(range(n))
+    labels = [label for _, label, _ in family_orders(8, ["skip"], skips=[1, 8, 9, 7])]
+    assert labels == ["S=1", "S=7"]  # S >= n is physical order again: dropped
+
+
+def test_an_explicit_skip_order_is_the_schedule_of_that_skip():
+    g = DetectorGeometry(40, 8, 1, ref_border={"top": 2, "bottom": 2})
+    for mode in ("distributed", "repeated"):
+        s = ReadoutSchedule(g, skip=5, ref_reads=7, ref_mode=mode)
+        order = explicit_order(g, nested_order(g.n_active_rows, (5,)), 7, mode)
+        assert order == s.rows.tolist()
+
+
+def test_the_search_finds_the_best_skip_of_a_brute_force_over_every_skip():
+    design = _design(search={"skips": list(range(1, 25))})
+    res = design_readout(design)
+    powers = {}
+    for s in range(1, 25):
+        scene = {**SCENE, "readout": {"nframes": 4, "skip": s, "ref_reads": 8,
+                                      "phantom_reads": 2, "frame_time": res.report.meta[
+                                          "frame_time"]}}
+        powers[s] = _band(scene)
+    best = min(powers, key=powers.get)
+    assert res.best.label == f"S={best}"
+    assert res.best.band_power == pytest.approx(powers[best], rel=1e-9)
+    assert res.baseline.band_power == pytest.approx(powers[4], rel=1e-9)
+    assert res.report.meta["gain"] == pytest.approx(1 - powers[best] / powers[4], rel=1e-9)
+    assert load_scene(res.best_scene).schedule.skip == best  # written as a skip
+
+
+def test_timing_respects_the_budget_and_the_local_search_only_improves():
+    budget = 0.03  # s at 100 kHz: 3000 samples; 24 active rows of (c + 8 + 4) samples
+    design = _design(budget={"frame_time": budget},
+                     search={"phantom_reads": [0, 2, 40, 80], "ref_reads": [4, 8, 40, 100],
+                             "ref_modes": ["distributed", "repeated"], "iterations": 15,
+                             "finalists": 2})
+    res = design_readout(design)
+    for c in res.candidates:
+        assert (24 + c.ref_reads) * (c.phantom_reads + 12) <= 3000
+    tried = {(c.phantom_reads, c.ref_reads) for c in res.candidates}
+    assert tried >= {(80, 4), (80, 8), (0, 100), (2, 100)} and (40, 100) not in tried
+    sched = load_scene(res.best_scene).schedule
+    assert sched.frame_time.to_value(u.s) == pytest.approx(budget)
+    assert res.best.band_power <= min(c.band_power for c in res.candidates)
+    assert res.best.band_power == pytest.approx(_band(res.best_scene), rel=1e-9)
+    assert sum(c.stage == "local" for c in res.candidates) >= 1
+
+
+def test_the_report_splits_the_gain_by_component_and_by_k():
+    res = design_readout(_design(search={"skips": [1, 4]}, bins=4))
+    rep, meta = res.report, res.report.meta
+    base = forecast(res.baseline_scene, "spherex-default", {**BAND, "bins": 4})
+    assert np.allclose(rep["power_baseline"].value, base["power"].value, rtol=1e-12)
+    assert np.allclose(rep["ratio"], rep["power_best"] / rep["power_baseline"])
+    parts = meta["band_power_components"]
+    assert sum(p["baseline"] for p in parts.values()) == pytest.approx(
+        meta["band_power_baseline"], rel=1e-9)
+    if meta["gain"]:
+        assert sum(p["share_of_gain"] for p in parts.values()) == pytest.approx(1.0)
+
+
+def test_the_paired_monte_carlo_uses_the_same_seeds_for_both_schedules():
+    same = design_readout(_design(search={"skips": [4]}, realizations=3, seed=5))
+    mc = same.report.meta["monte_carlo"]
+    assert mc["gain"] == 0.0 and mc["band_power_best"] == mc["band_power_baseline"]
+    assert mc["seeds"] == [5, 7]
+    res = design_readout(_design(search={"skips": [1, 4]}, realizations=3))
+    assert set(res.report.colnames) >= {"power_mc_baseline", "power_mc_best"}
+    assert np.isfinite(res.report.meta["monte_carlo"]["gain_err"])
+
+
+def test_a_noise_table_or_fit_noise_result_replaces_the_scenes_noise(tmp_path):
+    table = tmp_path / "noise.ecsv"
+    Table({"name": ["a"], "alpha": [1e-5], "beta": [3e-3], "gamma": [0.0]}).write(table)
+    d = load_design({**_design(), "noise": str(table)})
+    assert [c["name"] for c in d.scene["noise"]["components"]] == ["a"]
+    fit = tmp_path / "fit.ecsv"
+    Table({"stream": ["reference", "phantom"], "alpha": [1e-5, 2e-5], "beta": [1e-3, 0.0],
+           "gamma": [0.0, 0.0], "exponent": [1.3, 1.3]}).write(fit)
+    d = load_design({**_design(), "noise": str(fit)})
+    assert [(c["name"], c["visibility"]) for c in d.scene["noise"]["components"]] == [
+        ("reference", "pixels"), ("phantom", "phantom")]
+
+
+@pytest.mark.parametrize(("design", "words"), [
+    ({"bogus": 1}, "design: bogus: unknown key"),
+    ({"search": {"iterations": 10**9}}, "design: search.iterations: expected an integer"),
+    ({"search": {"families": ["random"]}}, "search.families: valid: skip"),
+    ({"search": {"skips": []}}, "search.skips: expected a list of 1 to 1000"),
+    ({"band": {"kmin": 1.0, "kmax": 0.5}}, "band: kmin must be below kmax"),
+    ({"budget": {"frame_time": -1}}, "budget.frame_time: expected a number"),
+    ({"realizations": 1.5}, "realizations: expected an integer"),
+    ({"noise": "nosuch.ecsv"}, "noise: 'nosuch.ecsv' is neither"),
+    ({"baseline": {"ref_mode": "none"}}, "baseline.ref_mode: expected one of"),
+    ({"search": {"phantom_reads": list(range(100)), "ref_reads": list(range(100))}},
+     "search: finalists x phantom_reads x ref_reads x ref_modes is 40000 schedules"),
+])
+def test_bad_designs_are_refused_naming_the_key(design, words):
+    with pytest.raises(ConfigError, match=words.replace(".", r"\.").replace("(", r"\(")):
+        load_design(design)
+
+
+def test_a_budget_too_short_for_the_baseline_is_refused():
+    with pytest.raises(ConfigError, match=r"budget\.frame_time: 0\.001 s is too short"):
+        design_readout(_design(budget={"frame_time": 0.001}))

@@ -1,0 +1,56 @@
+"""``spherex-reduce design-readout``: BEST.yaml is a scene simulate, forecast and reduce take;
+the report and plot are written; bad designs exit 2 in one line and write nothing."""
+
+import pytest
+import yaml
+from _cli_helpers import one_line_error, run
+from astropy.table import Table
+
+from spherex_reduce.analysis import forecast
+
+DESIGN = """\
+scene:
+  geometry: {nrows: 32, ncols: 16, nchannels: 2, ref_border: 4}
+  readout: {nframes: 4}
+  noise: {components: [{name: f, beta: 0.01, alpha: 1.0e-5}]}
+band: {kmin: 0.3, kmax: 1.5}
+bins: 4
+baseline: {skip: 1, ref_reads: 8, phantom_reads: 2}
+search: {families: [golden, radical_inverse], phantom_reads: [2], ref_reads: [8],
+         ref_modes: [distributed], iterations: 3}
+realizations: 2
+"""
+
+
+def test_design_writes_a_scene_that_simulate_forecast_and_reduce_accept(tmp_path, capsys):
+    design = tmp_path / "design.yaml"
+    design.write_text(DESIGN)
+    best, report, png = tmp_path / "best.yaml", tmp_path / "report.ecsv", tmp_path / "d.png"
+    assert run("design-readout", design, "-o", best, "--report", report, "--plot", png) == 0
+    out = capsys.readouterr().out
+    assert "gain" in out and "Monte Carlo (2 paired realisations)" in out
+    rep = Table.read(report)
+    scene = yaml.safe_load(best.read_text())
+    assert len(scene["readout"]["order"]) == 32  # an explicit order: 24 active + 8 reference
+    assert forecast(scene, "spherex-default", {"kmin": 0.3, "kmax": 1.5, "bins": 4}).meta[
+        "band_power"] == pytest.approx(rep.meta["band_power_best"], rel=1e-9)
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    raw, red = tmp_path / "raw.fits", tmp_path / "red.fits"
+    assert run("simulate", best, "-o", raw, "--mode", "ramps") == 0
+    assert run("reduce", raw, "-c", "spherex-default", "-o", red) == 0
+    assert red.is_file()
+
+
+@pytest.mark.parametrize(("text", "words"), [
+    ("search: {iterations: -3}\n", ["design.yaml: search.iterations: expected an integer"]),
+    ("pipeline: median\n", ["forecast:", "median"]),
+    ("nonsense: 1\n", ["design.yaml: nonsense: unknown key"]),
+    ("budget: {frame_time: 0.5}\n", ["budget.frame_time: 0.5 s is too short"]),
+])
+def test_bad_designs_exit_2_in_one_line_and_write_nothing(tmp_path, capsys, text, words):
+    design = tmp_path / "design.yaml"
+    design.write_text(text)
+    best = tmp_path / "best.yaml"
+    assert run("design-readout", design, "-o", best) == 2
+    assert one_line_error(capsys, "spherex-reduce design-readout: error:", *words)
+    assert not best.exists()

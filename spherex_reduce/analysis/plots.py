@@ -176,6 +176,10 @@ def plot_forecast(table, measured=None, measured_label="measured", title="",
         top = max(np.nanmax(np.asarray(line.get_ydata(), float), initial=0.0)
                   for line in ax.get_lines())
         ax.set_ylim(max(ax.get_ylim()[0], 1e-4 * float(np.min(total[total > 0]))), 3 * top)
+    # outside the axes: inside, the components' curves leave it no free corner
+    fig.axes[0].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0),
+                       borderaxespad=0.0)
+    fig.set_size_inches(9.5, 5.2)
     return fig
 
 

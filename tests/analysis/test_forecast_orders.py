@@ -1,12 +1,13 @@
 """The forecast of a readout in an explicit read order (``readout.order``) against a brute-force
-covariance of every pixel pair, and against the skip order it spells out."""
+covariance of every sample pushed through the reduction as a matrix, and against the skip order
+it spells out."""
 
 import numpy as np
 import pytest
+from _forecast_brute import Samples, expected_spectrum, reduction_matrix
 from astropy import units as u
 
-from spherex_reduce.analysis import forecast, power_spectrum
-from spherex_reduce.noise.variance import slope_covariance
+from spherex_reduce.analysis import forecast
 from spherex_reduce.simulation import load_scene
 
 BINS = 5
@@ -28,34 +29,21 @@ def scene(order=None, skip=None):
     })
 
 
-def brute_force(sc):
-    """E[power_spectrum] from every light pixel pair's slope covariance at its sampling lag,
-    with the read of each physical row looked up in the order written above."""
-    s, g = sc.schedule, sc.schedule.geometry
-    rows = cols = np.arange(2, 18)
-    read = np.array([ORDER.index(p) for p in rows])
-    t = (s.starts[read][:, None] + g.column_offsets()[cols][None, :]).ravel()
-    chan = np.broadcast_to(g.channel_of_column()[cols], (16, 16)).ravel()
-    parity = np.broadcast_to(g.column_offsets()[cols] % 2, (16, 16)).ravel()
-    cov = np.zeros((t.size, t.size))
-    for comp in sc.components:
-        c = slope_covariance(comp, s, t[:, None] - t[None, :])[0]
-        if comp.scope == "channel":
-            c = c * (chan[:, None] == chan[None, :])
-        if comp.acn:
-            c = c * (parity[:, None] == parity[None, :])
-        cov += c
-    lam, vec = np.linalg.eigh(cov)
-    keep = lam > 1e-12 * lam.max()
-    return sum(lv * power_spectrum(v.reshape(16, 16), bins=BINS)["power"].value
-               for lv, v in zip(lam[keep], vec[:, keep].T, strict=True))
-
-
-def test_an_explicit_order_equals_brute_force():
+@pytest.mark.parametrize("pipeline", [None, "spherex-default"])
+def test_an_explicit_order_equals_brute_force(pipeline):
+    """Every sample's covariance at its lag, the reduction as an explicit matrix (phantom
+    mean, then the mean of the reference reads: row 0 read three times counts three times),
+    pushed through `power_spectrum` (tests/_forecast_brute.py)."""
     sc = scene(ORDER)
     assert sc.schedule.rows.tolist() == ORDER
-    got = u.Quantity(forecast(sc, measure={"bins": BINS})["power"]).value
-    np.testing.assert_allclose(got, brute_force(sc), rtol=1e-3)
+    samples = Samples(sc)
+    reduced = pipeline is not None
+    lmat = reduction_matrix(samples, phantom=reduced, reference="mean" if reduced else None,
+                            reference_phantom=reduced)
+    cov = sum(samples.covariance(sc.components).values())
+    expect = expected_spectrum(samples, lmat, cov, BINS)
+    got = u.Quantity(forecast(sc, pipeline, measure={"bins": BINS})["power"]).value
+    np.testing.assert_allclose(got, expect, rtol=1e-3)
 
 
 @pytest.mark.parametrize("skip", [1, 3])

@@ -154,6 +154,30 @@ def test_bad_compare_table_and_existing_output_kept(white, tmp_path, capsys, con
     assert "exists" in capsys.readouterr().err and out.read_text() == "keep me"
 
 
+@pytest.mark.parametrize("meta, words", [
+    ({"band_power_unit": "furlong"}, "m.ecsv: band_power_unit: 'furlong' is not a unit"),
+    ({"band_power_unit": "m"}, "m.ecsv: band_power_unit: m, expected electron2 pix2 / s2"),
+    ({"band_power": "abc"}, "m.ecsv: band_power: expected a number >= 0 or null, got 'abc'"),
+    ({"band_power_err": [1, 2]}, "m.ecsv: band_power_err: expected a number"),
+    ({"band_power": float("nan")}, "m.ecsv: band_power: expected a number"),
+])
+def test_bad_compare_band_power_meta_one_line_exit_2(white, tmp_path, capsys, meta, words):
+    from astropy import units as u
+
+    unit = u.electron**2 / u.s**2 * u.pix**2
+    measured = Table({"k": [0.05, 0.1] * u.rad / u.pix, "power": [1.0, 2.0] * unit,
+                      "power_err": [0.1, 0.2] * unit},
+                     meta={"band_power": 1.5, "band_power_err": 0.1,
+                           "band_power_unit": unit.to_string(), **meta})
+    path = tmp_path / "m.ecsv"
+    measured.write(path)
+    out = tmp_path / "f.ecsv"
+    assert _run(white, "-c", "unchop", "-o", out, "--compare", path) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("spherex-reduce forecast: error: --compare: ") and words in err
+    assert err.count("\n") == 1 and not out.exists()
+
+
 def test_progress_shows_the_time_on_a_terminal_only(monkeypatch):
     import io
     import sys

@@ -155,3 +155,11 @@ def test_bad_designs_are_refused_naming_the_key(design, words):
 def test_a_budget_too_short_for_the_baseline_is_refused():
     with pytest.raises(ConfigError, match=r"budget\.frame_time: 0\.001 s is too short"):
         design_readout(_design(budget={"frame_time": 0.001}))
+
+
+@pytest.mark.parametrize("noise", [{"components": []},
+                                   {"components": [{"name": "f", "beta": 0.0}]}])
+def test_a_baseline_without_noise_in_the_band_is_refused(noise):
+    with pytest.raises(ConfigError, match=r"design: noise: the baseline's forecast band power "
+                                          r"is 0 \(no noise in the band\): nothing to minimise"):
+        design_readout(_design(scene={**SCENE, "noise": noise}))

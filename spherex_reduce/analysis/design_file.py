@@ -27,7 +27,7 @@ from ..io.config import load_yaml
 from ..reduce.steps.noise_models import noise_model
 from ..simulation.scene import load_scene
 from .case import MAX_REALIZATIONS, pipeline_section, scene_section
-from .row_orders import FAMILIES
+from .row_orders import FAMILIES, max_skip
 from .spectrum import BAND_KMAX, BAND_KMIN
 
 __all__ = ["BASELINE", "MAX_CHOICES", "MAX_ITERATIONS", "MAX_TIMINGS", "TOP_KEYS", "Design",
@@ -102,7 +102,9 @@ def load_design(source):
     ``baseline``
         The readout the best schedule is judged against (``skip``,
         ``ref_reads``, ``ref_mode``, ``phantom_reads``; default the paper's
-        S = 24, r = 32 distributed, c = 4), at the budget's frame time.
+        S = 24, r = 32 distributed, c = 4), at the budget's frame time; ``skip``
+        below the number of active rows (a larger one reads them in physical
+        order, `~spherex_reduce.analysis.row_orders.max_skip`).
     ``search``
         ``families`` (of `~spherex_reduce.analysis.row_orders.FAMILIES`),
         ``skips`` (the S of the skip and nested families, default 1 ... 64),
@@ -150,8 +152,10 @@ def load_design(source):
                          "budget.frame_time", 0, 1e6)
     base = _mapping(config, "baseline", label, tuple(BASELINE))
     baseline = {**BASELINE, **base}
-    for key in ("skip", "ref_reads", "phantom_reads"):
-        _integer(baseline[key], label, f"baseline.{key}", 1 if key == "skip" else 0, 2**20)
+    _integer(baseline["skip"], label, "baseline.skip", 1,
+             max_skip(sc.schedule.geometry.n_active_rows))
+    for key in ("ref_reads", "phantom_reads"):
+        _integer(baseline[key], label, f"baseline.{key}", 0, 2**20)
     if baseline["ref_mode"] not in _REF_MODES:
         _refuse(label, "baseline.ref_mode", f"expected one of {', '.join(_REF_MODES)}",
                 baseline["ref_mode"])

@@ -152,6 +152,15 @@ def test_bad_designs_are_refused_naming_the_key(design, words):
         load_design(design)
 
 
+def test_the_baselines_skip_is_below_the_number_of_active_rows():
+    # 32 rows with a border of 4: 24 active rows; S = 24 would read them in physical order
+    assert load_design(_design(baseline={"skip": 23})).baseline["skip"] == 23
+    for skip in (24, 1_000_000):
+        with pytest.raises(ConfigError, match=r"baseline\.skip: expected an integer from 1 "
+                                              rf"to 23, got {skip}"):
+            load_design(_design(baseline={"skip": skip}))
+
+
 def test_a_budget_too_short_for_the_baseline_is_refused():
     with pytest.raises(ConfigError, match=r"budget\.frame_time: 0\.001 s is too short"):
         design_readout(_design(budget={"frame_time": 0.001}))

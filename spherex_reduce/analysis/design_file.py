@@ -26,7 +26,7 @@ from ..core.errors import ConfigError
 from ..io.config import load_yaml
 from ..reduce.steps.noise_models import noise_model
 from ..simulation.scene import load_scene
-from .case import MAX_REALIZATIONS, pipeline_section, scene_section
+from .case import pipeline_section, realizations_section, scene_section, seed_section
 from .row_orders import FAMILIES, max_skip
 from .spectrum import BAND_KMAX, BAND_KMIN
 
@@ -182,11 +182,16 @@ def load_design(source):
         finalists=finalists,
         iterations=_integer(search.get("iterations", 100), label, "search.iterations", 0,
                             MAX_ITERATIONS),
-        search_seed=_integer(search.get("seed", 0), label, "search.seed", 0, 2**63 - 1),
-        realizations=_integer(config.get("realizations", 20), label, "realizations", 0,
-                              MAX_REALIZATIONS),
-        seed=_integer(config.get("seed", 0), label, "seed", 0, 2**63 - 1),
+        search_seed=seed_section(search.get("seed", 0), label, "search.seed"),
+        realizations=_realizations(config.get("realizations", 20), label),
+        seed=seed_section(config.get("seed", 0), label),
     )
+
+
+def _realizations(value, label):
+    """A sweep's realisations (`~spherex_reduce.analysis.case.realizations_section`), or 0:
+    no Monte Carlo."""
+    return 0 if type(value) is int and value == 0 else realizations_section(value, label)
 
 
 def _noise(source, label):

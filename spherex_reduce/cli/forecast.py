@@ -7,7 +7,7 @@ from pathlib import Path
 
 from astropy import units as u
 
-from ..core.errors import FormatError, SpherexReduceError
+from ..core.errors import FormatError
 from ._common import (
     all_or_nothing,
     check_paths,
@@ -16,7 +16,7 @@ from ._common import (
     input_config,
     positive_float,
 )
-from .spectrum import band_meta
+from .spectrum import band_meta, check_band
 
 #: What the table's ``source`` says when no scene file is given.
 PAPER_CASE = "the paper's case (every scene key at its default)"
@@ -74,9 +74,7 @@ def run(args):
     if args.exclude_horizontal:
         given["exclude_horizontal"] = True
     measure = SpectrumMeasure(**measure_section(given, "forecast"))
-    if measure.kmin >= measure.kmax:
-        raise SpherexReduceError(f"--kmin ({measure.kmin}) must be below --kmax "
-                                 f"({measure.kmax})")
+    check_band(measure.kmin, measure.kmax)
     pipeline, config_files = input_config(args.config)
     check_paths([args.scene, args.compare, *config_files], [args.output, plot])
     with all_or_nothing([args.output, plot], args.overwrite) as (tmp, tmp_plot):

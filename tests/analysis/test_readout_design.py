@@ -161,6 +161,31 @@ def test_the_baselines_skip_is_below_the_number_of_active_rows():
             load_design(_design(baseline={"skip": skip}))
 
 
+@pytest.mark.parametrize(("key", "value"), [
+    ("seed", -1), ("seed", 1.5), ("seed", True), ("realizations", -2), ("realizations", 2.5),
+    ("realizations", 10**9)])
+def test_seeds_and_realizations_are_refused_as_a_sweep_refuses_them(key, value):
+    from spherex_reduce.analysis.sweep import load_sweep
+    from spherex_reduce.core.errors import SpherexReduceError
+
+    errors = []
+    for load, kind in ((load_design, "design"), (load_sweep, "sweep")):
+        with pytest.raises(SpherexReduceError) as info:
+            load({"scene": SCENE, "grid": {"skip": [4]}, key: value} if kind == "sweep"
+                 else {**_design(), key: value})
+        errors.append((type(info.value), str(info.value).replace(f"{kind}: ", "", 1)))
+    assert errors[0] == errors[1]
+    assert errors[0][1].startswith(f"{key}: ") or errors[0][1].startswith(f"{key} must")
+
+
+def test_search_seed_and_zero_realizations():
+    d = load_design({**_design(), "realizations": 0, "search": {"seed": 2**70}})
+    assert (d.realizations, d.search_seed) == (0, 2**70)
+    with pytest.raises(ConfigError, match=r"design: search\.seed: expected a non-negative "
+                                          r"integer, got -1"):
+        load_design({"search": {"seed": -1}})
+
+
 def test_a_budget_too_short_for_the_baseline_is_refused():
     with pytest.raises(ConfigError, match=r"budget\.frame_time: 0\.001 s is too short"):
         design_readout(_design(budget={"frame_time": 0.001}))

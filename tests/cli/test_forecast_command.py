@@ -122,6 +122,16 @@ def test_bad_options_one_line_exit_2(white, tmp_path, capsys, argv, words):
     assert not out.exists()
 
 
+def test_spectrum_and_forecast_refuse_an_inverted_band_alike(white, tmp_path, capsys):
+    errors = []
+    for argv in (["spectrum", tmp_path / "no-such.fits"], ["forecast", white, "-c", "unchop"]):
+        assert main(["-q", *map(str, argv), "-o", str(tmp_path / "o.ecsv"), "--kmin", "0.2",
+                     "--kmax", "0.1"]) == 2
+        errors.append(capsys.readouterr().err.split(": error: ", 1)[1])
+    assert errors == ["--kmin (0.2) must be below --kmax (0.1)\n"] * 2
+    assert list(tmp_path.iterdir()) == [white]
+
+
 @pytest.mark.parametrize("scene, words", [
     ("geometry: [\n", "not valid YAML"),
     ("readout: {nframes: 1}\n", "frame"),

@@ -22,11 +22,12 @@ from dataclasses import dataclass
 
 from astropy import units as u
 
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, SpherexReduceError
 from ..io.config import load_yaml
 from ..reduce.steps.noise_models import noise_model
 from ..simulation.scene import load_scene
 from .case import pipeline_section, realizations_section, scene_section, seed_section
+from .forecast_steps import linear_steps
 from .row_orders import FAMILIES, max_skip
 from .spectrum import BAND_KMAX, BAND_KMIN
 
@@ -94,7 +95,9 @@ def load_design(source):
         Log bins of the report's P(k) (default 30).
     ``pipeline``
         The reduction the forecast follows (default ``spherex-default``;
-        ``none``: the slope image as simulated).
+        ``none``: the slope image as simulated); one whose steps the forecast
+        cannot follow (`~spherex_reduce.analysis.forecast_steps.linear_steps`)
+        is refused here.
     ``budget``
         ``{frame_time: s}``: every schedule takes this frame time (default
         the scene's, the paper's 1.51 s); a schedule whose reads do not fit
@@ -142,6 +145,10 @@ def load_design(source):
         _refuse(label, "pipeline", "expected one pipeline", pipeline)
     else:
         pipeline = next(iter(pipeline_section(pipeline, label).values()))
+        try:
+            linear_steps(pipeline)
+        except (SpherexReduceError, OSError) as exc:
+            raise ConfigError(f"{label}: pipeline: {exc}") from None
     band = _mapping(config, "band", label, ("kmin", "kmax"))
     kmin = _number(band.get("kmin", BAND_KMIN), label, "band.kmin", 0, math.pi)
     kmax = _number(band.get("kmax", BAND_KMAX), label, "band.kmax", 0, math.pi)

@@ -190,6 +190,8 @@ def test_a_noise_table_or_fit_noise_result_replaces_the_scenes_noise(tmp_path):
     ({"realizations": 1.5}, "realizations: expected an integer"),
     ({"noise": "nosuch.ecsv"}, "noise: 'nosuch.ecsv' is neither"),
     ({"baseline": {"ref_mode": "none"}}, "baseline.ref_mode: expected one of"),
+    ({"pipeline": "median"}, "design: pipeline: forecast: steps"),
+    ({"pipeline": {"steps": [{"bogus": {}}]}}, "design: pipeline: steps"),
     ({"search": {"phantom_reads": list(range(100)), "ref_reads": list(range(100))}},
      "search: finalists x phantom_reads x ref_reads x ref_modes is 40000 schedules"),
 ])

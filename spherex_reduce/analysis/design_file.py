@@ -22,12 +22,13 @@ from dataclasses import dataclass
 
 from astropy import units as u
 
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, SpherexReduceError
 from ..io.config import load_yaml
 from ..reduce.steps.noise_models import noise_model
 from ..simulation.scene import load_scene
-from .case import MAX_REALIZATIONS, pipeline_section, scene_section
-from .row_orders import FAMILIES
+from .case import pipeline_section, realizations_section, scene_section, seed_section
+from .forecast_steps import linear_steps
+from .row_orders import FAMILIES, max_skip
 from .spectrum import BAND_KMAX, BAND_KMIN
 
 __all__ = ["BASELINE", "MAX_CHOICES", "MAX_ITERATIONS", "MAX_TIMINGS", "TOP_KEYS", "Design",
@@ -94,7 +95,9 @@ def load_design(source):
         Log bins of the report's P(k) (default 30).
     ``pipeline``
         The reduction the forecast follows (default ``spherex-default``;
-        ``none``: the slope image as simulated).
+        ``none``: the slope image as simulated); one whose steps the forecast
+        cannot follow (`~spherex_reduce.analysis.forecast_steps.linear_steps`)
+        is refused here.
     ``budget``
         ``{frame_time: s}``: every schedule takes this frame time (default
         the scene's, the paper's 1.51 s); a schedule whose reads do not fit
@@ -102,7 +105,9 @@ def load_design(source):
     ``baseline``
         The readout the best schedule is judged against (``skip``,
         ``ref_reads``, ``ref_mode``, ``phantom_reads``; default the paper's
-        S = 24, r = 32 distributed, c = 4), at the budget's frame time.
+        S = 24, r = 32 distributed, c = 4), at the budget's frame time; ``skip``
+        below the number of active rows (a larger one reads them in physical
+        order, `~spherex_reduce.analysis.row_orders.max_skip`).
     ``search``
         ``families`` (of `~spherex_reduce.analysis.row_orders.FAMILIES`),
         ``skips`` (the S of the skip and nested families, default 1 ... 64),
@@ -140,6 +145,10 @@ def load_design(source):
         _refuse(label, "pipeline", "expected one pipeline", pipeline)
     else:
         pipeline = next(iter(pipeline_section(pipeline, label).values()))
+        try:
+            linear_steps(pipeline)
+        except (SpherexReduceError, OSError) as exc:
+            raise ConfigError(f"{label}: pipeline: {exc}") from None
     band = _mapping(config, "band", label, ("kmin", "kmax"))
     kmin = _number(band.get("kmin", BAND_KMIN), label, "band.kmin", 0, math.pi)
     kmax = _number(band.get("kmax", BAND_KMAX), label, "band.kmax", 0, math.pi)
@@ -150,8 +159,10 @@ def load_design(source):
                          "budget.frame_time", 0, 1e6)
     base = _mapping(config, "baseline", label, tuple(BASELINE))
     baseline = {**BASELINE, **base}
-    for key in ("skip", "ref_reads", "phantom_reads"):
-        _integer(baseline[key], label, f"baseline.{key}", 1 if key == "skip" else 0, 2**20)
+    _integer(baseline["skip"], label, "baseline.skip", 1,
+             max_skip(sc.schedule.geometry.n_active_rows))
+    for key in ("ref_reads", "phantom_reads"):
+        _integer(baseline[key], label, f"baseline.{key}", 0, 2**20)
     if baseline["ref_mode"] not in _REF_MODES:
         _refuse(label, "baseline.ref_mode", f"expected one of {', '.join(_REF_MODES)}",
                 baseline["ref_mode"])
@@ -178,11 +189,16 @@ def load_design(source):
         finalists=finalists,
         iterations=_integer(search.get("iterations", 100), label, "search.iterations", 0,
                             MAX_ITERATIONS),
-        search_seed=_integer(search.get("seed", 0), label, "search.seed", 0, 2**63 - 1),
-        realizations=_integer(config.get("realizations", 20), label, "realizations", 0,
-                              MAX_REALIZATIONS),
-        seed=_integer(config.get("seed", 0), label, "seed", 0, 2**63 - 1),
+        search_seed=seed_section(search.get("seed", 0), label, "search.seed"),
+        realizations=_realizations(config.get("realizations", 20), label),
+        seed=seed_section(config.get("seed", 0), label),
     )
+
+
+def _realizations(value, label):
+    """A sweep's realisations (`~spherex_reduce.analysis.case.realizations_section`), or 0:
+    no Monte Carlo."""
+    return 0 if type(value) is int and value == 0 else realizations_section(value, label)
 
 
 def _noise(source, label):

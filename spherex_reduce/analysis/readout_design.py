@@ -104,7 +104,8 @@ def design_readout(design, progress=False):
     Raises
     ------
     ConfigError
-        An invalid design, or a baseline that does not fit the budget.
+        An invalid design, a baseline that does not fit the budget, or one whose
+        forecast band power is 0 (nothing to minimise).
 
     Examples
     --------
@@ -140,6 +141,10 @@ def design_readout(design, progress=False):
     baseline = objective("baseline", "skip", f"S={b['skip']}", b["phantom_reads"],
                          b["ref_reads"], b["ref_mode"], chopped_order(n, b["skip"]),
                          b["skip"])
+    if not baseline.band_power > 0:
+        raise ConfigError(f"{d.label}: noise: the baseline's forecast band power is "
+                          f"{baseline.band_power:g} (no noise in the band): nothing to "
+                          "minimise")
     objective.refuse = True
     orders = family_orders(n, d.families, d.skips)
     with terminal_bar(progress, total=len(orders), desc="families") as bar:

@@ -19,8 +19,8 @@ import numpy as np
 
 from ..core.schedule import ReadoutSchedule, chopped_order
 
-__all__ = ["FAMILIES", "explicit_order", "family_orders", "golden_order", "nested_order",
-           "radical_inverse_order"]
+__all__ = ["FAMILIES", "explicit_order", "family_orders", "golden_order", "max_skip",
+           "nested_order", "radical_inverse_order"]
 
 #: The families `family_orders` builds.
 FAMILIES = ("skip", "nested", "radical_inverse", "golden")
@@ -83,10 +83,23 @@ def golden_order(n, step=_GOLDEN):
     return np.argsort(np.mod(np.arange(n) * step, 1.0), kind="stable")
 
 
+def max_skip(n):
+    """The largest skip ``S`` whose order of ``n`` active rows is its own: ``S >= n`` reads
+    them in physical order, as ``S = 1`` does.
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.row_orders import max_skip
+    >>> max_skip(24), max_skip(1)
+    (23, 1)
+    """
+    return max(n - 1, 1)
+
+
 def family_orders(n, families=FAMILIES, skips=range(1, 65)):
     """``[(family, label, permutation)]``: the orders of ``n`` active rows of each family.
 
-    ``skip``: every ``S`` of ``skips`` below ``n``; ``nested``: ``(S, s2)`` for those ``S``
+    ``skip``: every ``S`` of ``skips`` up to `max_skip`; ``nested``: ``(S, s2)`` for those ``S``
     that are multiples of 4 and ``s2`` of 2, 3, 4, 8; ``radical_inverse``: bases 2, 3, 5;
     ``golden``: the golden ratio and its square.  Duplicate permutations are dropped.
 
@@ -96,7 +109,7 @@ def family_orders(n, families=FAMILIES, skips=range(1, 65)):
     >>> [label for _, label, _ in family_orders(16, ["skip", "golden"], skips=[1, 4])]
     ['S=1', 'S=4', 'golden', 'golden^2']
     """
-    skips = [int(s) for s in skips if 1 <= s < max(n, 2)]
+    skips = [int(s) for s in skips if 1 <= s <= max_skip(n)]
     out = []
     for family in families:
         if family == "skip":

@@ -3,7 +3,8 @@
 from pathlib import Path
 
 from ..io import atomic_output
-from ._common import all_or_nothing, check_paths
+from ..io.config import load_yaml
+from ._common import all_or_nothing, check_paths, named_files
 
 
 def add_parser(sub):
@@ -40,7 +41,8 @@ def run(args):
     if plot is True:
         plot = str(Path(args.output).with_suffix(".png"))
     outputs = [args.output, args.report, plot]
-    check_paths([args.input], outputs)
+    named = load_yaml(Path(args.input), "design")[0]  # the scene, noise, pipeline files too
+    check_paths([args.input, *named_files(named, Path(args.input).parent)], outputs)
     for path in outputs:
         if path:
             atomic_output(path, args.overwrite)

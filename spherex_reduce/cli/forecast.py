@@ -1,12 +1,13 @@
 """``spherex-reduce forecast``: the expected P(k) of a scene's reduced slope image."""
 
 import contextlib
+import math
 import threading
 from pathlib import Path
 
 from astropy import units as u
 
-from ..core.errors import FormatError, SpherexReduceError
+from ..core.errors import FormatError
 from ._common import (
     all_or_nothing,
     check_paths,
@@ -15,10 +16,12 @@ from ._common import (
     input_config,
     positive_float,
 )
-from .spectrum import band_meta
+from .spectrum import band_meta, check_band
 
 #: What the table's ``source`` says when no scene file is given.
 PAPER_CASE = "the paper's case (every scene key at its default)"
+#: The unit of P(k) and the band power of a slope image.
+_POWER = u.electron**2 / u.s**2 * u.pix**2
 
 
 def add_parser(sub):
@@ -71,14 +74,14 @@ def run(args):
     if args.exclude_horizontal:
         given["exclude_horizontal"] = True
     measure = SpectrumMeasure(**measure_section(given, "forecast"))
-    if measure.kmin >= measure.kmax:
-        raise SpherexReduceError(f"--kmin ({measure.kmin}) must be below --kmax "
-                                 f"({measure.kmax})")
+    check_band(measure.kmin, measure.kmax)
     pipeline, config_files = input_config(args.config)
     check_paths([args.scene, args.compare, *config_files], [args.output, plot])
     with all_or_nothing([args.output, plot], args.overwrite) as (tmp, tmp_plot):
         scene = load_scene(args.scene)
-        measured = _read_measured(args.compare) if args.compare else None
+        measured = measured_band = None
+        if args.compare:
+            measured, measured_band = _read_measured(args.compare)
         scale = args.pixel_scale * u.arcsec
         with _ticking(not args.quiet):
             table = forecast(scene, pipeline, measure, pixel_scale=scale)
@@ -97,7 +100,7 @@ def run(args):
                  f"{table.meta['band']} = {_text(band, err)}; pixel variance "
                  f"{table.meta['variance']:.4g} {(unit / u.pix**2).to_string()}"]
         if measured is not None:
-            lines.append(_comparison(measured, args.compare, band, unit))
+            lines.append(_comparison(measured_band, args.compare, band, unit))
         table.write(tmp, format="ascii.ecsv")
         if plot:
             from ..analysis.plots import plot_forecast
@@ -119,7 +122,8 @@ def _text(band, err):
 
 
 def _read_measured(path):
-    """A ``spectrum`` output (``k``, ``power``, ``power_err`` with units), or FormatError."""
+    """A ``spectrum`` output (``k``, ``power``, ``power_err`` with units) and its band power
+    and standard error in `_POWER` (None: missing), or FormatError naming the file and key."""
     from astropy.table import Table
 
     try:
@@ -130,24 +134,42 @@ def _read_measured(path):
     if missing:
         raise FormatError(f"--compare: {path}: no column {', '.join(missing)}; expected "
                           "the output of spectrum")
-    for name, unit in (("k", u.rad / u.pix), ("power", u.electron**2 / u.s**2 * u.pix**2),
-                       ("power_err", u.electron**2 / u.s**2 * u.pix**2)):
+    for name, unit in (("k", u.rad / u.pix), ("power", _POWER), ("power_err", _POWER)):
         if not (table[name].unit or u.one).is_equivalent(unit):
             raise FormatError(f"--compare: {path}: column {name} is in "
                               f"{table[name].unit or 'no unit'}, expected {unit}")
-    return table
+    return table, _measured_band(table.meta, path)
 
 
-def _comparison(measured, path, band, unit):
-    """The terminal line comparing a measured band power with the forecast."""
-    meta = measured.meta
-    value, err = meta.get("band_power"), meta.get("band_power_err")
+def _measured_band(meta, path):
+    """``(band_power, band_power_err)`` of a ``spectrum`` output's meta in `_POWER` (None:
+    missing), or FormatError naming the file and the key."""
+    text = meta.get("band_power_unit")
+    try:
+        unit = _POWER if text is None else u.Unit(text)
+    except (ValueError, TypeError):
+        raise FormatError(f"--compare: {path}: band_power_unit: {text!r} is not a unit; "
+                          f"expected {_POWER}") from None
+    if not unit.is_equivalent(_POWER):
+        raise FormatError(f"--compare: {path}: band_power_unit: {unit}, expected {_POWER}")
+    out = []
+    for key in ("band_power", "band_power_err"):
+        value = meta.get(key)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
+                                  or not math.isfinite(value) or value < 0):
+            raise FormatError(f"--compare: {path}: {key}: expected a number >= 0 or null, "
+                              f"got {value!r}")
+        out.append(None if value is None else (value * unit).to_value(_POWER))
+    return tuple(out)
+
+
+def _comparison(measured_band, path, band, unit):
+    """The terminal line comparing a measured band power and its error (`_POWER`) with the
+    forecast ``band`` (a Quantity in ``unit``, or None)."""
+    value, err = measured_band
     if band is None or value is None or not err:
         return f"{path}: no band power to compare"
-    mu = u.Unit(meta.get("band_power_unit") or unit)
-    if not mu.is_equivalent(unit):
-        raise FormatError(f"--compare: {path}: band power in {mu}, expected {unit}")
-    value, err = (value * mu).to_value(unit), (err * mu).to_value(unit)
+    value, err = (value * _POWER).to_value(unit), (err * _POWER).to_value(unit)
     return (f"{path}: measured band power {value:.4g} ± {err:.2g}: {value / band.value:.4g}× "
             f"the forecast ({(value - band.value) / err:+.1f} standard errors)")
 

@@ -78,6 +78,27 @@ def _measure(image, args, path, bins=None):
     return table, band, err, None
 
 
+def check_band(kmin, kmax):
+    """Refuse a band whose ``--kmin`` is not below its ``--kmax`` (rad/pixel).
+
+    Raises
+    ------
+    SpherexReduceError
+        Naming both options.
+
+    Examples
+    --------
+    >>> from spherex_reduce.cli.spectrum import check_band
+    >>> check_band(0.03, 0.13)
+    >>> check_band(0.2, 0.1)
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.core.errors.SpherexReduceError: --kmin (0.2) must be below --kmax (0.1)
+    """
+    if kmin >= kmax:
+        raise SpherexReduceError(f"--kmin ({kmin}) must be below --kmax ({kmax})")
+
+
 def band_meta(kmin, kmax, pixel_scale, band, err, unit):
     """The band's entries of a P(k) table's meta, as ``spectrum`` and ``forecast`` write them.
 
@@ -145,8 +166,7 @@ def _photon(image, args):
 def run(args):
     from ..analysis.io import read_image
 
-    if args.kmin >= args.kmax:
-        raise SpherexReduceError(f"--kmin ({args.kmin}) must be below --kmax ({args.kmax})")
+    check_band(args.kmin, args.kmax)
     plot = args.plot
     if plot is True:
         plot = str(Path(args.output).with_suffix(".png"))

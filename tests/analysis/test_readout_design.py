@@ -93,32 +93,78 @@ def test_timing_respects_the_budget_and_the_local_search_only_improves():
     assert tried >= {(80, 4), (80, 8), (0, 100), (2, 100)} and (40, 100) not in tried
     sched = load_scene(res.best_scene).schedule
     assert sched.frame_time.to_value(u.s) == pytest.approx(budget)
-    assert res.best.band_power <= min(c.band_power for c in res.candidates)
+    # every skip-order candidate (families and timing stages) forecast here from its S, c, r
+    # and placement: its band power is that forecast, and the best is no worse than any
+    powers = []
+    for c in res.candidates:
+        if c.skip is not None:
+            readout = {"nframes": 4, "skip": c.skip, "ref_reads": c.ref_reads,
+                       "ref_mode": c.ref_mode, "phantom_reads": c.phantom_reads,
+                       "frame_time": budget}
+            powers.append(_band({**SCENE, "readout": readout}))
+            assert c.band_power == pytest.approx(powers[-1], rel=1e-9)
+    assert len(powers) > 10 and res.best.band_power <= min(powers) * (1 + 1e-12)
     assert res.best.band_power == pytest.approx(_band(res.best_scene), rel=1e-9)
     assert sum(c.stage == "local" for c in res.candidates) >= 1
 
 
+def _skip_scene(skip, noise=NOISE, frame_time=None):
+    """SCENE read with skip S, r = 8 distributed, c = 2 (the frame time: the design's)."""
+    readout = {"nframes": 4, "skip": skip, "ref_reads": 8, "phantom_reads": 2,
+               **({} if frame_time is None else {"frame_time": frame_time})}
+    return {**SCENE, "noise": noise, "readout": readout}
+
+
+def _gain_design(**extra):
+    """A search whose best (S = 3) is not its baseline (S = 1)."""
+    return _design(search={"skips": [1, 3]}, baseline={"skip": 1, "ref_reads": 8,
+                                                       "phantom_reads": 2}, **extra)
+
+
 def test_the_report_splits_the_gain_by_component_and_by_k():
-    res = design_readout(_design(search={"skips": [1, 4]}, bins=4))
+    res = design_readout(_gain_design(bins=4))
     rep, meta = res.report, res.report.meta
-    base = forecast(res.baseline_scene, "spherex-default", {**BAND, "bins": 4})
-    assert np.allclose(rep["power_baseline"].value, base["power"].value, rtol=1e-12)
-    assert np.allclose(rep["ratio"], rep["power_best"] / rep["power_baseline"])
+    ft = meta["frame_time"]
+    a, b = _band(_skip_scene(1, frame_time=ft)), _band(_skip_scene(3, frame_time=ft))
+    assert b < a and res.best.label == "S=3"
+    assert meta["gain"] == pytest.approx(1 - b / a, rel=1e-9)
+    assert (meta["band_power_baseline"], meta["band_power_best"]) == pytest.approx((a, b))
+    pa, pb = (forecast(_skip_scene(s, frame_time=ft), "spherex-default", {**BAND, "bins": 4})
+              for s in (1, 3))
+    np.testing.assert_allclose(rep["power_baseline"].value, pa["power"].value, rtol=1e-12)
+    np.testing.assert_allclose(rep["ratio"], pb["power"].value / pa["power"].value,
+                               rtol=1e-12)
+    # each component's band power: the forecast of a scene with that component alone
     parts = meta["band_power_components"]
-    assert sum(p["baseline"] for p in parts.values()) == pytest.approx(
-        meta["band_power_baseline"], rel=1e-9)
-    if meta["gain"]:
-        assert sum(p["share_of_gain"] for p in parts.values()) == pytest.approx(1.0)
+    assert set(parts) == {c["name"] for c in NOISE["components"]}
+    for comp in NOISE["components"]:
+        alone = {"components": [comp]}
+        ca = _band(_skip_scene(1, alone, ft))
+        cb = _band(_skip_scene(3, alone, ft))
+        part = parts[comp["name"]]
+        assert (part["baseline"], part["best"]) == pytest.approx((ca, cb), rel=1e-9)
+        assert part["share_of_gain"] == pytest.approx((ca - cb) / (a - b), rel=1e-9)
+    assert sum(p["share_of_gain"] for p in parts.values()) == pytest.approx(1.0, rel=1e-9)
 
 
 def test_the_paired_monte_carlo_uses_the_same_seeds_for_both_schedules():
-    same = design_readout(_design(search={"skips": [4]}, realizations=3, seed=5))
-    mc = same.report.meta["monte_carlo"]
-    assert mc["gain"] == 0.0 and mc["band_power_best"] == mc["band_power_baseline"]
+    from spherex_reduce.analysis import run_case
+
+    res = design_readout(_gain_design(realizations=3, seed=5))
+    mc = res.report.meta["monte_carlo"]
     assert mc["seeds"] == [5, 7]
-    res = design_readout(_design(search={"skips": [1, 4]}, realizations=3))
+    ft = res.report.meta["frame_time"]
+    a, b = (np.array([run_case(_skip_scene(s, frame_time=ft), "spherex-default", BAND,
+                               seed=seed, mode="slopes").measurement["band_power"].value
+                      for seed in (5, 6, 7)]) for s in (1, 3))
+    assert (mc["band_power_baseline"], mc["band_power_best"]) == pytest.approx(
+        (a.mean(), b.mean()), rel=1e-12)
+    ratio = b.mean() / a.mean()
+    assert mc["gain"] == pytest.approx(1 - ratio, rel=1e-12)
+    # paired: the scatter of b - ratio a over the same seeds, not of b and a apart
+    assert mc["gain_err"] == pytest.approx(
+        np.std(b - ratio * a, ddof=1) / np.sqrt(3) / a.mean(), rel=1e-9)
     assert set(res.report.colnames) >= {"power_mc_baseline", "power_mc_best"}
-    assert np.isfinite(res.report.meta["monte_carlo"]["gain_err"])
 
 
 def test_a_noise_table_or_fit_noise_result_replaces_the_scenes_noise(tmp_path):
@@ -144,6 +190,8 @@ def test_a_noise_table_or_fit_noise_result_replaces_the_scenes_noise(tmp_path):
     ({"realizations": 1.5}, "realizations: expected an integer"),
     ({"noise": "nosuch.ecsv"}, "noise: 'nosuch.ecsv' is neither"),
     ({"baseline": {"ref_mode": "none"}}, "baseline.ref_mode: expected one of"),
+    ({"pipeline": "median"}, "design: pipeline: forecast: steps"),
+    ({"pipeline": {"steps": [{"bogus": {}}]}}, "design: pipeline: steps"),
     ({"search": {"phantom_reads": list(range(100)), "ref_reads": list(range(100))}},
      "search: finalists x phantom_reads x ref_reads x ref_modes is 40000 schedules"),
 ])
@@ -152,6 +200,48 @@ def test_bad_designs_are_refused_naming_the_key(design, words):
         load_design(design)
 
 
+def test_the_baselines_skip_is_below_the_number_of_active_rows():
+    # 32 rows with a border of 4: 24 active rows; S = 24 would read them in physical order
+    assert load_design(_design(baseline={"skip": 23})).baseline["skip"] == 23
+    for skip in (24, 1_000_000):
+        with pytest.raises(ConfigError, match=r"baseline\.skip: expected an integer from 1 "
+                                              rf"to 23, got {skip}"):
+            load_design(_design(baseline={"skip": skip}))
+
+
+@pytest.mark.parametrize(("key", "value"), [
+    ("seed", -1), ("seed", 1.5), ("seed", True), ("realizations", -2), ("realizations", 2.5),
+    ("realizations", 10**9)])
+def test_seeds_and_realizations_are_refused_as_a_sweep_refuses_them(key, value):
+    from spherex_reduce.analysis.sweep import load_sweep
+    from spherex_reduce.core.errors import SpherexReduceError
+
+    errors = []
+    for load, kind in ((load_design, "design"), (load_sweep, "sweep")):
+        with pytest.raises(SpherexReduceError) as info:
+            load({"scene": SCENE, "grid": {"skip": [4]}, key: value} if kind == "sweep"
+                 else {**_design(), key: value})
+        errors.append((type(info.value), str(info.value).replace(f"{kind}: ", "", 1)))
+    assert errors[0] == errors[1]
+    assert errors[0][1].startswith(f"{key}: ") or errors[0][1].startswith(f"{key} must")
+
+
+def test_search_seed_and_zero_realizations():
+    d = load_design({**_design(), "realizations": 0, "search": {"seed": 2**70}})
+    assert (d.realizations, d.search_seed) == (0, 2**70)
+    with pytest.raises(ConfigError, match=r"design: search\.seed: expected a non-negative "
+                                          r"integer, got -1"):
+        load_design({"search": {"seed": -1}})
+
+
 def test_a_budget_too_short_for_the_baseline_is_refused():
     with pytest.raises(ConfigError, match=r"budget\.frame_time: 0\.001 s is too short"):
         design_readout(_design(budget={"frame_time": 0.001}))
+
+
+@pytest.mark.parametrize("noise", [{"components": []},
+                                   {"components": [{"name": "f", "beta": 0.0}]}])
+def test_a_baseline_without_noise_in_the_band_is_refused(noise):
+    with pytest.raises(ConfigError, match=r"design: noise: the baseline's forecast band power "
+                                          r"is 0 \(no noise in the band\): nothing to minimise"):
+        design_readout(_design(scene={**SCENE, "noise": noise}))

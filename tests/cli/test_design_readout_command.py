@@ -43,9 +43,13 @@ def test_design_writes_a_scene_that_simulate_forecast_and_reduce_accept(tmp_path
 
 @pytest.mark.parametrize(("text", "words"), [
     ("search: {iterations: -3}\n", ["design.yaml: search.iterations: expected an integer"]),
-    ("pipeline: median\n", ["forecast:", "median"]),
+    ("pipeline: median\n", ["design.yaml: pipeline: forecast:", "median"]),
+    ("pipeline: no-such\n", ["design.yaml: pipeline: no pipeline config file 'no-such'"]),
     ("nonsense: 1\n", ["design.yaml: nonsense: unknown key"]),
     ("budget: {frame_time: 0.5}\n", ["budget.frame_time: 0.5 s is too short"]),
+    ("scene: {geometry: {nrows: 32, ncols: 16, nchannels: 2, ref_border: 4}, noise: "
+     "{components: []}}\nband: {kmin: 0.3, kmax: 1.5}\nbaseline: {skip: 4, ref_reads: 8}\n",
+     ["design.yaml: noise:", "nothing to minimise"]),
 ])
 def test_bad_designs_exit_2_in_one_line_and_write_nothing(tmp_path, capsys, text, words):
     design = tmp_path / "design.yaml"

@@ -122,6 +122,16 @@ def test_bad_options_one_line_exit_2(white, tmp_path, capsys, argv, words):
     assert not out.exists()
 
 
+def test_spectrum_and_forecast_refuse_an_inverted_band_alike(white, tmp_path, capsys):
+    errors = []
+    for argv in (["spectrum", tmp_path / "no-such.fits"], ["forecast", white, "-c", "unchop"]):
+        assert main(["-q", *map(str, argv), "-o", str(tmp_path / "o.ecsv"), "--kmin", "0.2",
+                     "--kmax", "0.1"]) == 2
+        errors.append(capsys.readouterr().err.split(": error: ", 1)[1])
+    assert errors == ["--kmin (0.2) must be below --kmax (0.1)\n"] * 2
+    assert list(tmp_path.iterdir()) == [white]
+
+
 @pytest.mark.parametrize("scene, words", [
     ("geometry: [\n", "not valid YAML"),
     ("readout: {nframes: 1}\n", "frame"),
@@ -152,6 +162,30 @@ def test_bad_compare_table_and_existing_output_kept(white, tmp_path, capsys, con
     assert out.read_text() == "keep me" and bad.read_text() == content
     assert _run(white, "-c", "unchop", "-o", out) == 2  # no --overwrite: kept
     assert "exists" in capsys.readouterr().err and out.read_text() == "keep me"
+
+
+@pytest.mark.parametrize("meta, words", [
+    ({"band_power_unit": "furlong"}, "m.ecsv: band_power_unit: 'furlong' is not a unit"),
+    ({"band_power_unit": "m"}, "m.ecsv: band_power_unit: m, expected electron2 pix2 / s2"),
+    ({"band_power": "abc"}, "m.ecsv: band_power: expected a number >= 0 or null, got 'abc'"),
+    ({"band_power_err": [1, 2]}, "m.ecsv: band_power_err: expected a number"),
+    ({"band_power": float("nan")}, "m.ecsv: band_power: expected a number"),
+])
+def test_bad_compare_band_power_meta_one_line_exit_2(white, tmp_path, capsys, meta, words):
+    from astropy import units as u
+
+    unit = u.electron**2 / u.s**2 * u.pix**2
+    measured = Table({"k": [0.05, 0.1] * u.rad / u.pix, "power": [1.0, 2.0] * unit,
+                      "power_err": [0.1, 0.2] * unit},
+                     meta={"band_power": 1.5, "band_power_err": 0.1,
+                           "band_power_unit": unit.to_string(), **meta})
+    path = tmp_path / "m.ecsv"
+    measured.write(path)
+    out = tmp_path / "f.ecsv"
+    assert _run(white, "-c", "unchop", "-o", out, "--compare", path) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("spherex-reduce forecast: error: --compare: ") and words in err
+    assert err.count("\n") == 1 and not out.exists()
 
 
 def test_progress_shows_the_time_on_a_terminal_only(monkeypatch):

@@ -32,6 +32,8 @@ def files(tmp_path_factory):
     (d / "pipe.yaml").write_text(f"steps:\n  - unchop: {{}}\n  - fit_ramp: {{}}\n"
                                  f"  - subtract_dark: {{dark: {d / 'red.fits'}}}\n")
     (d / "sweep.yaml").write_text("scene: scene.yaml\ngrid: {skip: [4]}\nrealizations: 1\n")
+    (d / "design.yaml").write_text("scene: scene.yaml\nband: {kmin: 0.3, kmax: 1.5}\n"
+                                   "search: {iterations: 0}\nrealizations: 0\n")
     return d
 
 
@@ -60,6 +62,10 @@ CASES = [  # (command line with IN/OUT placeholders, the input that OUT names)
     ("readout --config {scene} --plot {out}", "scene.yaml"),
     ("sweep {sweep} --scheduler serial -o {out}", "sweep.yaml"),
     ("sweep {sweep} --scheduler serial -o {out}", "scene.yaml"),  # the scene it names
+    ("design-readout {design} -o {out}", "design.yaml"),
+    ("design-readout {design} -o {out}", "scene.yaml"),  # the scene it names
+    ("design-readout {design} -o {d}/best.yaml --report {out}", "design.yaml"),
+    ("design-readout {design} -o {d}/best.yaml --plot {out}", "scene.yaml"),
 ]
 
 
@@ -70,7 +76,8 @@ def test_output_that_is_an_input_is_refused(files, line, victim, spelling, capsy
     out = _spellings(d, victim)[spelling]
     before = {p.name: digest(p) for p in d.iterdir() if p.is_file()}
     args = line.format(raw=d / "raw.fits", red=d / "red.fits", pipe=d / "pipe.yaml",
-                       scene=d / "scene.yaml", sweep=d / "sweep.yaml", d=d, out=out).split()
+                       scene=d / "scene.yaml", sweep=d / "sweep.yaml",
+                       design=d / "design.yaml", d=d, out=out).split()
     assert run("-q", *args, "--overwrite") == 2
     one_line_error(capsys, "is the input")
     after = {p.name: digest(p) for p in d.iterdir() if p.is_file()}
@@ -126,6 +133,42 @@ def test_bad_numbers_are_usage_errors_naming_the_option(files, tmp_path, argv, c
     option = next(a for a in args if a.startswith("--") and a not in ("--overwrite",))
     one_line_error(capsys, f"argument {option}")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(("text", "key"), [
+    ("search: {iterations: .nan}", "search.iterations"),
+    ("search: {iterations: 1e9}", "search.iterations"),  # YAML 1.1: a string
+    ("search: {iterations: 100000000}", "search.iterations"),
+    ("search: {finalists: 0}", "search.finalists"),
+    ("search: {skips: [0]}", "search.skips"),
+    ("search: {ref_reads: [-1]}", "search.ref_reads"),
+    ("search: {phantom_reads: [.inf]}", "search.phantom_reads"),
+    ("search: {seed: -1}", "search.seed"),
+    ("realizations: -1", "realizations"),
+    ("realizations: .inf", "realizations"),
+    ("realizations: 100000000", "realizations"),
+    ("seed: 1.5", "seed"),
+    ("bins: 0", "bins"),
+    ("bins: 100000000", "bins"),
+    ("band: {kmin: .nan}", "band.kmin"),
+    ("band: {kmax: 4.0}", "band.kmax"),
+    ("budget: {frame_time: .nan}", "budget.frame_time"),
+    ("budget: {frame_time: .inf}", "budget.frame_time"),
+    ("budget: {frame_time: 0}", "budget.frame_time"),
+    ("baseline: {skip: 0}", "baseline.skip"),
+    ("baseline: {skip: 100000000}", "baseline.skip"),
+    ("baseline: {ref_reads: -1}", "baseline.ref_reads"),
+])
+def test_bad_numbers_in_a_design_file_are_one_line_naming_the_key(tmp_path, text, key, capsys):
+    design = tmp_path / "design.yaml"
+    design.write_text(text + "\n")
+    t0 = time.perf_counter()
+    assert run("-q", "design-readout", design, "-o", tmp_path / "best.yaml", "--report",
+               tmp_path / "r.ecsv", "--plot") == 2
+    assert time.perf_counter() - t0 < 10
+    one_line_error(capsys, f"{design}: {key}")
+    assert [p.name for p in tmp_path.iterdir()] == ["design.yaml"]
+    assert design.read_text() == text + "\n"
 
 
 def test_demo_size_beyond_memory_is_refused_before_allocating(tmp_path, capsys):

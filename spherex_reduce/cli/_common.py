@@ -316,6 +316,12 @@ def add_dask_options(parser):
                         help="worker processes of the embedded LocalCluster (default 2)")
 
 
+def plot_path(args):
+    """The ``--plot`` of a command whose ``--plot`` may be given alone: its value, or the
+    output's path with ``.png`` (None without ``--plot``)."""
+    return str(Path(args.output).with_suffix(".png")) if args.plot is True else args.plot
+
+
 def dask_run_inputs(args, what):
     """Checks shared by the commands that run a YAML file of tasks on dask (``sweep``,
     ``compare-strategies``), before any work: dask's INFO lines silenced unless ``-v``,
@@ -326,9 +332,7 @@ def dask_run_inputs(args, what):
 
     if not args.verbose:  # dask's INFO lines about workers and connections
         quiet_dask_logs()
-    plot = args.plot
-    if plot is True:
-        plot = str(Path(args.output).with_suffix(".png"))
+    plot = plot_path(args)
     named = load_yaml(args.input, what)[0]
     check_paths([args.input, *named_files(named, Path(args.input).parent)],
                 [args.output, plot])

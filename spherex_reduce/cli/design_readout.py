@@ -4,7 +4,7 @@ from pathlib import Path
 
 from ..io import atomic_output
 from ..io.config import load_yaml
-from ._common import all_or_nothing, check_paths, named_files
+from ._common import all_or_nothing, check_paths, named_files, plot_path
 
 
 def add_parser(sub):
@@ -37,9 +37,7 @@ def run(args):
     from ..analysis.design_file import load_design
     from ..analysis.readout_design import design_readout, plot_design
 
-    plot = args.plot
-    if plot is True:
-        plot = str(Path(args.output).with_suffix(".png"))
+    plot = plot_path(args)
     outputs = [args.output, args.report, plot]
     named = load_yaml(Path(args.input), "design")[0]  # the scene, noise, pipeline files too
     check_paths([args.input, *named_files(named, Path(args.input).parent)], outputs)

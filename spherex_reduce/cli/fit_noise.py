@@ -10,6 +10,7 @@ from ._common import (
     check_paths,
     count,
     input_config,
+    plot_path,
     positive_float,
 )
 
@@ -69,9 +70,7 @@ def run(args):
     if args.reads is not None and args.integration is not None:
         raise ConfigError("--integration picks one integration of a 4-D file; --reads is "
                           "one ramp")
-    plot = args.plot
-    if plot is True:
-        plot = str(Path(args.output).with_suffix(".png"))
+    plot = plot_path(args)
     pipeline, config_files = input_config(args.config)
     what = read_file_paths(args.reads) if args.reads is not None else args.input
     inputs = what if args.reads is not None else [what]

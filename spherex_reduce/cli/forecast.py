@@ -14,6 +14,7 @@ from ._common import (
     count,
     finite_float,
     input_config,
+    plot_path,
     positive_float,
 )
 from .spectrum import band_meta, check_band
@@ -66,9 +67,7 @@ def run(args):
     from ..analysis.case import SpectrumMeasure, measure_section
     from ..simulation import load_scene
 
-    plot = args.plot
-    if plot is True:
-        plot = str(Path(args.output).with_suffix(".png"))
+    plot = plot_path(args)
     given = {key: getattr(args, key) for key in ("bins", "kmin", "kmax")
              if getattr(args, key) is not None}
     if args.exclude_horizontal:

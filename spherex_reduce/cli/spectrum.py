@@ -17,6 +17,7 @@ from ._common import (
     finite_float,
     input_config,
     nonnegative_float,
+    plot_path,
     positive_float,
 )
 
@@ -167,9 +168,7 @@ def run(args):
     from ..analysis.io import read_image
 
     check_band(args.kmin, args.kmax)
-    plot = args.plot
-    if plot is True:
-        plot = str(Path(args.output).with_suffix(".png"))
+    plot = plot_path(args)
     pipeline, config_files = input_config(args.config)
     check_paths([args.input, args.compare, *config_files], [args.output, plot])
     for path in (args.output, plot):

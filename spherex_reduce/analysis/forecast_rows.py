@@ -101,6 +101,9 @@ def component_planes(schedule, rows, cols, comps, reduction, nodes=NODES, cells=
     ny, nx = rows.stop - rows.start, cols.stop - cols.start
     cells = Cells.full(ny, nx) if cells is None else cells
     wiener = reduction.reference == "wiener"
+    if reduction.reference is not None and not schedule.is_reference.any():
+        raise SpherexReduceError("forecast: correct_reference needs reference reads; the "
+                                 "schedule has none")
     c = schedule.phantom_reads if (reduction.phantom or reduction.reference_phantom
                                    or wiener) else 0
     table = _LagTable(schedule, comps, g.channel_width - 1 + c, nodes)
@@ -277,9 +280,6 @@ def _reference_functionals(schedule, cols, kx, c, reduction, ny):
     s = schedule
     g = s.geometry
     nref = int(s.is_reference.sum())
-    if nref == 0:
-        raise SpherexReduceError("forecast: correct_reference needs reference reads; the "
-                                 "schedule has none")
     width, nch = g.channel_width, g.nchannels
     nx = cols.stop - cols.start
     j = np.arange(cols.start, cols.stop)

@@ -13,7 +13,7 @@ from spherex_reduce.analysis.forecast_steps import reduction
 from spherex_reduce.analysis.light import light_sensitive_image
 from spherex_reduce.analysis.noise_forecast import band_power_forecast
 from spherex_reduce.core.block import Context
-from spherex_reduce.core.errors import ConfigError
+from spherex_reduce.core.errors import ConfigError, SpherexReduceError
 from spherex_reduce.reduce.pipeline import as_pipeline
 from spherex_reduce.reduce.steps.wiener import WienerReference
 from spherex_reduce.simulation import load_scene, simulate
@@ -248,3 +248,12 @@ def test_wiener_monte_carlo_of_the_shipped_pipeline():
     mean, se = runs.mean(axis=0), runs.std(axis=0, ddof=1) / np.sqrt(len(runs))
     expect = u.Quantity(forecast(scene, "wiener", measure={"bins": BINS})["power"]).value
     assert np.all(np.abs(mean - expect) < 3 * se), (mean - expect) / se
+
+
+@pytest.mark.parametrize("strategy", ["mean", "wiener"])
+def test_refuses_a_reference_correction_without_reference_reads(strategy):
+    scene = load_scene({"geometry": {"nrows": 20, "ncols": 20, "nchannels": 2, "ref_border": 0},
+                        "readout": {"ref_reads": 0, "nframes": 4},
+                        "noise": {"components": [PINK]}})
+    with pytest.raises(SpherexReduceError, match="needs reference reads; the schedule has none"):
+        forecast(scene, {"steps": [{"correct_reference": {"strategy": strategy}}]})

@@ -9,6 +9,8 @@ from astropy import units as u
 from spherex_reduce import expected_slope_variance
 from spherex_reduce.analysis import forecast, power_spectrum
 from spherex_reduce.analysis.light import light_sensitive_image
+from spherex_reduce.analysis.sweep import load_sweep
+from spherex_reduce.analysis.sweep_forecast import SweepForecast
 from spherex_reduce.core.errors import ConfigError, SpherexReduceError
 from spherex_reduce.noise.variance import slope_covariance
 from spherex_reduce.simulation import load_scene, simulate
@@ -157,3 +159,15 @@ def test_band_follows_the_measure():
     expect = sum(lv * power_spectrum(v.reshape(16, 16), bins=[0.5, 2.0])["power"].value[0]
                  for lv, v in zip(lam[keep], vec[:, keep].T, strict=True))
     assert got.meta["band_power"] == pytest.approx(expect, rel=1e-4)
+
+
+def test_a_sweep_refuses_mask_sources_with_the_forecasts_own_message():
+    """One refusal: the sweep's names the sweep, then says what `forecast` says."""
+    sweep = load_sweep({"scene": {"geometry": {"nrows": 20, "ncols": 20, "nchannels": 2}},
+                        "pipeline": "unchop", "grid": {"skip": [1]}, "realizations": 0,
+                        "measure": {"mask_sources": True}})
+    with pytest.raises(ConfigError) as own:
+        forecast(tiny([PINK]), measure={"mask_sources": True})
+    with pytest.raises(ConfigError) as err:
+        SweepForecast(sweep)
+    assert str(err.value) == f"{sweep.source}: {own.value}"

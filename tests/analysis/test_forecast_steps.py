@@ -164,11 +164,35 @@ def test_reduction_follows_the_order_of_the_steps():
     ({"fit_ramp": {"weighting": "optimal", "read_noise": 5.0}},
      r"steps\[1\]\.fit_ramp\.weighting: 'optimal' is not forecast"),
     ({"detect_jumps": {}}, r"steps\[1\]\.detect_jumps .* is not forecast"),
+    ({"fit_ramp": {"saturation": 6e4}},  # the real fit drops the reads above it
+     r"steps\[1\]\.fit_ramp\.saturation: 60000\.0 is not forecast .*only None"),
+    ({"pair_difference": {"reduce_other": False}},
+     r"steps\[1\]\.pair_difference\.reduce_other: False is not forecast"),
+    ({"sigma_clip": {"sigma": 2.5}},
+     r"steps\[1\]\.sigma_clip\.sigma: 2\.5 is not forecast .*only a number >= 3"),
+    ({"sigma_clip": {"sigma_lower": 2}}, r"steps\[1\]\.sigma_clip\.sigma_lower: 2 is not"),
+    ({"correct_reference": {"strategy": "acn", "sigma": 2.0}},
+     r"steps\[1\]\.correct_reference\.sigma: 2\.0 is not forecast"),
 ])
 def test_refuses_what_is_not_linear_in_one_line(step, match):
     with pytest.raises(ConfigError, match=match) as err:
         forecast(tiny([PINK]), {"steps": [{"unchop": {}}, step]})
     assert "\n" not in str(err.value)
+
+
+def test_refuses_a_second_reference_correction():
+    """Only one reference offset is propagated: a second correction would be dropped."""
+    steps = [{"correct_reference": {"strategy": "mean"}}, {"subtract_phantom": {}},
+             {"correct_reference": {"strategy": "acn"}}]
+    with pytest.raises(ConfigError, match=r"steps\[2\]\.correct_reference: a second "
+                                          "reference correction is not forecast"):
+        reduction({"steps": steps})
+
+
+def test_clips_from_three_sigma_up_are_forecast_as_no_clipping():
+    steps = [{"correct_reference": {"sigma": 3}}, {"sigma_clip": {"sigma": 3.0,
+                                                                  "sigma_upper": None}}]
+    assert reduction({"steps": steps}).reference == "mean"
 
 
 def test_pair_difference_of_independent_exposures_keeps_the_spectrum_of_one():

@@ -111,6 +111,9 @@ def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SC
         A scene that has no slope image (fewer than 2 frames, or groups); a
         pipeline step the forecast does not know (the message names it) or a
         measure that is not linear (``mask_sources``).
+    ResourceError
+        A forecast whose arrays this machine cannot hold (estimated before any
+        is allocated).
 
     Examples
     --------

@@ -8,7 +8,7 @@ from _forecast_brute import Samples, expected_spectrum, reduction_matrix, wiener
 from astropy import units as u
 
 from spherex_reduce import correct_reference, pair_difference
-from spherex_reduce.analysis import forecast, power_spectrum
+from spherex_reduce.analysis import forecast, forecast_rows, power_spectrum
 from spherex_reduce.analysis.forecast_steps import reduction
 from spherex_reduce.analysis.light import light_sensitive_image
 from spherex_reduce.analysis.noise_forecast import band_power_forecast
@@ -77,6 +77,15 @@ def test_steps_equal_brute_force(pipe):
     """Every noise term the phantom and the pixels see, alternating scan directions."""
     scene = tiny([PINK_ACN, BOTH, BOTH_COMMON, PHANTOM], scan="alternate")
     check_against_brute_force(scene, *PIPELINES[pipe])
+
+
+def test_rows_and_lags_a_chunk_at_a_time_equal_brute_force(monkeypatch):
+    """The k_y rows in chunks of 2 (the memory bound of a tall image) and the lags' slope
+    covariance 100 at a time: the same spectrum as the brute force."""
+    monkeypatch.setattr(forecast_rows, "CHUNK_ROWS", 2)
+    monkeypatch.setattr(forecast_rows, "CHUNK_LAGS", 100)
+    scene = tiny([PINK_ACN, BOTH, BOTH_COMMON, PHANTOM], scan="alternate")
+    check_against_brute_force(scene, *PIPELINES["acn-side-columns"])
 
 
 @pytest.mark.parametrize("comp", [PINK, ROIC, COMMON, PHANTOM, BOTH],

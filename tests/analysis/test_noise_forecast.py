@@ -11,7 +11,7 @@ from spherex_reduce.analysis import forecast, power_spectrum
 from spherex_reduce.analysis.light import light_sensitive_image
 from spherex_reduce.analysis.sweep import load_sweep
 from spherex_reduce.analysis.sweep_forecast import SweepForecast
-from spherex_reduce.core.errors import ConfigError, SpherexReduceError
+from spherex_reduce.core.errors import ConfigError, ResourceError, SpherexReduceError
 from spherex_reduce.noise.variance import slope_covariance
 from spherex_reduce.simulation import load_scene, simulate
 
@@ -171,3 +171,14 @@ def test_a_sweep_refuses_mask_sources_with_the_forecasts_own_message():
     with pytest.raises(ConfigError) as err:
         SweepForecast(sweep)
     assert str(err.value) == f"{sweep.source}: {own.value}"
+
+
+def test_refuses_an_image_this_machine_cannot_hold_before_allocating():
+    """A 64 x 2**20 array in one channel: its row functional alone is ~10 TB (the number of
+    columns squared).  Refused in one line (the command line's exit 2), not a MemoryError
+    (or the kernel's kill) once numpy is asked for it."""
+    scene = {"geometry": {"nrows": 64, "ncols": 2**20, "nchannels": 1, "ref_border": 4},
+             "readout": {"nframes": 8}, "noise": {"components": [PINK]}}
+    with pytest.raises(ResourceError, match=r"^forecast: the 56 x 524285 cells of a 56 x "
+                                            r"1048568 image .* needs [0-9.]+ TB of memory"):
+        forecast(scene, "unchop")

@@ -40,19 +40,23 @@ import numpy as np
 import scipy.fft
 
 from ..core.errors import SpherexReduceError
+from ..core.limits import check_size
 from ..noise.variance import slope_covariance
 from .forecast_parts import Correlations, Part
 from .forecast_wiener import WienerTerms
 
-__all__ = ["NEAR_READS", "NODES", "Cells", "component_planes"]
+__all__ = ["CHUNK_LAGS", "CHUNK_ROWS", "NEAR_READS", "NODES", "Cells", "component_planes"]
 
 #: Row reads from a multiple of the frame time within which the sum over offsets is exact.
 NEAR_READS = 4
 #: Chebyshev nodes over the offsets beyond (the rule is exact for polynomials of lower degree).
 NODES = 8
-#: k_y rows of the ``wiener`` correction computed at a time (bounds its memory: ~0.3 GB at
-#: the paper's full size).
-WIENER_ROWS = 256
+#: k_y rows computed at a time (bounds the memory of the rows' read-slot arrays: ~0.1 GB,
+#: ~0.3 GB for the ``wiener`` correction, at the paper's full size).
+CHUNK_ROWS = 256
+#: Lags whose slope covariance is computed at a time (it holds ``(2 frames - 1, lags)``
+#: arrays).
+CHUNK_LAGS = 16384
 
 
 @dataclass(frozen=True)
@@ -101,27 +105,35 @@ def component_planes(schedule, rows, cols, comps, reduction, nodes=NODES, cells=
     ny, nx = rows.stop - rows.start, cols.stop - cols.start
     cells = Cells.full(ny, nx) if cells is None else cells
     wiener = reduction.reference == "wiener"
+    if reduction.reference is not None and not schedule.is_reference.any():
+        raise SpherexReduceError("forecast: correct_reference needs reference reads; the "
+                                 "schedule has none")
     c = schedule.phantom_reads if (reduction.phantom or reduction.reference_phantom
                                    or wiener) else 0
+    half = np.minimum(cells.ky, ny - cells.ky)
+    distinct = np.unique(half)  # the rows of k_y >= 0 the cells need
+    _check_memory(schedule, (ny, nx), distinct.size, cells, len(comps), c, wiener)
     table = _LagTable(schedule, comps, g.channel_width - 1 + c, nodes)
-    a = _row_pairs(schedule, rows, cells.ky)  # (n_half, 2 slots), n_half rows of k_y >= 0
     light = _functionals(schedule, rows, cols, cells.kx, c, reduction)  # (pixels, phantom)
     ref = None if wiener else _reference_functionals(schedule, cols, cells.kx, c, reduction,
                                                      ny)
     has_zero = cells.ky.size and cells.ky[0] == 0
     if ref is not None and has_zero:
-        light_reads = np.zeros(a.shape[1])
+        light_reads = np.zeros(2 * (int(_slots(schedule).max()) + 1))
         light_reads[_slots(schedule)[_light_reads(schedule, rows)]] = 1.0
-    half = np.minimum(cells.ky, ny - cells.ky)
-    first = np.searchsorted(np.unique(half), half)  # row of a for every cell row
+    first = np.searchsorted(distinct, half)  # row of `distinct` for every cell row
     negative = cells.ky > ny // 2
     spectra = Correlations()
+    re, im = (np.zeros((len(comps), distinct.size, cells.kx.size)) for _ in range(2))
+    for lo in range(0, distinct.size, CHUNK_ROWS):  # (rows, 2 slots) arrays a chunk at a time
+        a = _row_pairs(schedule, rows, distinct[lo:lo + CHUNK_ROWS])
+        for i, comp in enumerate(comps):
+            x = spectra.correlate(("light", light), ("light", light), comp)
+            re[i, lo:lo + a.shape[0]], im[i, lo:lo + a.shape[0]] = table.real_products(i, a, x)
     parts = {}
     for i, comp in enumerate(comps):
-        x = spectra.correlate(("light", light), ("light", light), comp)
-        re, im = table.real_products(i, a, x)
-        parts[comp.name] = np.where(negative[:, None], re[first] + im[first],
-                                    re[first] - im[first])
+        parts[comp.name] = np.where(negative[:, None], re[i, first] + im[i, first],
+                                    re[i, first] - im[i, first])
         if ref is not None and has_zero:
             for n, (ind, f) in enumerate(ref):
                 x = spectra.correlate(("light", light), (n, f), comp)
@@ -133,14 +145,38 @@ def component_planes(schedule, rows, cols, comps, reduction, nodes=NODES, cells=
                     parts[comp.name][0] += auto.real
     if wiener:  # k_y rows a chunk at a time: a term holds (rows, 2 slots) arrays
         lags = {}  # the observations' covariance at every slot lag, for every chunk
-        for lo in range(0, cells.ky.size, WIENER_ROWS):
-            ky = cells.ky[lo:lo + WIENER_ROWS]
+        for lo in range(0, cells.ky.size, CHUNK_ROWS):
+            ky = cells.ky[lo:lo + CHUNK_ROWS]
             terms = WienerTerms(schedule, rows, cols, ky, cells.kx, c, reduction,
                                 _slots(schedule), _light_reads(schedule, rows), table)
             for i, comp in enumerate(comps):
                 parts[comp.name][lo:lo + ky.size] += terms.plane(table, spectra, i, comp,
                                                                  light, lags)
     return parts
+
+
+def _check_memory(schedule, shape, nhalf, cells, ncomp, c, wiener):
+    """Refuse (`~spherex_reduce.core.errors.ResourceError`) cells whose arrays this machine
+    cannot hold, before any is allocated.  The bytes, an upper estimate: the light rows'
+    functional ``(nch, nkx, c + width)`` and its FFTs over offsets, a chunk of rows'
+    ``(rows, 2 slots)`` arrays (with ``wiener``, its terms' and their pairs'), the lag table
+    and the planes."""
+    g = schedule.geometry
+    ny, nx = shape
+    nkx, nky = cells.kx.size, cells.ky.size
+    slots = 2 * (int(_slots(schedule).max()) + 1)
+    width = c + g.channel_width
+    functional = 16 * nkx * width * (5 * g.nchannels + 14)
+    chunk = min(nhalf, CHUNK_ROWS)
+    row_arrays = 112 * chunk * slots
+    if wiener:  # up to 8 terms (2 groups, 2 families, 2 kinds) and their 36 pairs
+        row_arrays += 16 * min(nky, CHUNK_ROWS) * (50 * slots + ny)
+    nlags = slots * NODES + 3 * (2 * NEAR_READS + 1) * (2 * width + 1)
+    lag_table = 8 * (3 * ncomp * nlags + 6 * (2 * schedule.nframes - 1) * min(nlags, CHUNK_LAGS))
+    planes = 8 * (ncomp + 1) * (3 * nky + 2 * nhalf) * nkx
+    check_size(functional + row_arrays + lag_table + planes,
+               f"forecast: the {nky} x {nkx} cells of a {ny} x {nx} image read in {slots // 2} "
+               f"slots of {g.nchannels} channel(s)")
 
 
 class _LagTable:
@@ -161,7 +197,9 @@ class _LagTable:
         lags = np.concatenate([(m[near][:, None] * rs + d[None, :]).ravel(),
                                (m[~near][:, None] * rs + dnodes[None, :]).ravel()])
         lags, inverse = np.unique(np.abs(lags), return_inverse=True)  # S is even
-        cov = slope_covariance(comps, s, lags)[:, inverse.ravel()] if comps else None
+        cov = (np.concatenate([slope_covariance(comps, s, lags[lo:lo + CHUNK_LAGS])
+                               for lo in range(0, lags.size, CHUNK_LAGS)], axis=1)
+               [:, inverse.ravel()] if comps else None)
         nnear = near.sum() * d.size
         self.s_near = [cov[i, :nnear].reshape(near.sum(), d.size) for i in range(len(comps))]
         self.s_far = [cov[i, nnear:].reshape((~near).sum(), dnodes.size)
@@ -277,9 +315,6 @@ def _reference_functionals(schedule, cols, kx, c, reduction, ny):
     s = schedule
     g = s.geometry
     nref = int(s.is_reference.sum())
-    if nref == 0:
-        raise SpherexReduceError("forecast: correct_reference needs reference reads; the "
-                                 "schedule has none")
     width, nch = g.channel_width, g.nchannels
     nx = cols.stop - cols.start
     j = np.arange(cols.start, cols.stop)

@@ -19,8 +19,11 @@ fixed pattern cancel, the Poisson noise of both adds up to one's): it is
 forecast as the identity.
 σ-clipping (the clipped mean of the reference pixels, the ``sigma_clip``
 step's hot pixels) is forecast as no clipping: on Gaussian noise it changes
-the spectrum by less than the Monte Carlo resolves (measured: see
-docs/forecast.rst).
+the spectrum by less than the Monte Carlo resolves (measured at 3 σ for the
+reference pixels and 5 σ for the slopes: see docs/forecast.rst), so a clip
+below 3 σ is refused, as are ``fit_ramp``'s ``saturation`` (it drops reads:
+not linear), a pair difference whose other exposure is not reduced the same
+way (``reduce_other: false``) and a second reference correction.
 """
 
 from dataclasses import dataclass, field
@@ -28,18 +31,47 @@ from dataclasses import dataclass, field
 from ..core.errors import ConfigError
 from ..reduce.pipeline import as_pipeline
 
-__all__ = ["FORECAST_STEPS", "Reduction", "linear_steps", "reduction"]
+__all__ = ["FORECAST_STEPS", "MEASURED_SIGMA", "AtLeast", "Reduction", "linear_steps", "reduction"]
+
+
+
+@dataclass(frozen=True)
+class AtLeast:
+    """The values a clipping threshold may take: a number from ``minimum`` up, or None (a
+    threshold that defaults to the step's ``sigma``).
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.forecast_steps import MEASURED_SIGMA
+    >>> 5.0 in MEASURED_SIGMA, 2.5 in MEASURED_SIGMA, MEASURED_SIGMA
+    (True, False, a number >= 3)
+    """
+
+    minimum: float
+
+    def __contains__(self, value):
+        number = isinstance(value, (int, float)) and not isinstance(value, bool)
+        return value is None or (number and value >= self.minimum)
+
+    def __repr__(self):
+        return f"a number >= {self.minimum:g}"
+
+
+#: The clipping thresholds (σ) the forecast may neglect: its effect was measured there.
+MEASURED_SIGMA = AtLeast(3.0)
 
 #: Steps the forecast propagates: for each, the parameters whose value it must check, with
-#: the values it propagates (the first one is the step's default).  ``sigma_clip`` and the
-#: clipping of ``correct_reference`` (``sigma``, ``maxiters``) are forecast as no clipping.
+#: the values it propagates (every step's default is one of them; a parameter not given
+#: takes it).  ``sigma_clip`` and the clipping of ``correct_reference`` (``sigma``,
+#: ``maxiters``) are forecast as no clipping, so only from `MEASURED_SIGMA` up.
 FORECAST_STEPS = {
     "unchop": {},
     "subtract_phantom": {},
-    "correct_reference": {"strategy": ("mean", "acn", "wiener")},
-    "fit_ramp": {"weighting": ("uniform",)},
-    "sigma_clip": {},
-    "pair_difference": {},
+    "correct_reference": {"strategy": ("mean", "acn", "wiener"), "sigma": MEASURED_SIGMA},
+    "fit_ramp": {"weighting": ("uniform",), "saturation": (None,)},
+    "sigma_clip": {"sigma": MEASURED_SIGMA, "sigma_lower": MEASURED_SIGMA,
+                   "sigma_upper": MEASURED_SIGMA},
+    "pair_difference": {"reduce_other": (True,)},
 }
 
 
@@ -118,11 +150,14 @@ def reduction(pipeline):
             raise ConfigError(f"forecast: steps[{i}].{name} ({p.source}) is not forecast so "
                               f"far; forecast steps: {', '.join(FORECAST_STEPS)}")
         for key, allowed in FORECAST_STEPS[name].items():
-            value = params.get(key, allowed[0])
-            if value not in allowed:
-                raise ConfigError(f"forecast: steps[{i}].{name}.{key}: {value!r} is not "
-                                  f"forecast (not linear, or not yet); only "
-                                  f"{', '.join(map(repr, allowed))}")
+            if key in params and params[key] not in allowed:
+                only = repr(allowed) if isinstance(allowed, AtLeast) else ", ".join(
+                    map(repr, allowed))
+                raise ConfigError(f"forecast: steps[{i}].{name}.{key}: {params[key]!r} is "
+                                  f"not forecast (not linear, or not yet); only {only}")
+        if name == "correct_reference" and ref:
+            raise ConfigError(f"forecast: steps[{i}].correct_reference: a second reference "
+                              "correction is not forecast; only one")
         if name == "subtract_phantom" and not ref.get("consumed"):
             phantom = True  # (skipped when a wiener estimate consumed the phantom values)
         elif name == "fit_ramp":

@@ -43,7 +43,7 @@ from .spectrum import (
     spectrum_table,
 )
 
-__all__ = ["band_power_forecast", "forecast"]
+__all__ = ["band_power_forecast", "forecast", "forecast_measure"]
 
 _SLOPE_UNIT = u.electron / u.s
 #: Name of the Poisson noise of the dark current and photocurrent in the table's columns.
@@ -111,6 +111,9 @@ def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SC
         A scene that has no slope image (fewer than 2 frames, or groups); a
         pipeline step the forecast does not know (the message names it) or a
         measure that is not linear (``mask_sources``).
+    ResourceError
+        A forecast whose arrays this machine cannot hold (estimated before any
+        is allocated).
 
     Examples
     --------
@@ -124,7 +127,7 @@ def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SC
     >>> round(t.meta["variance"], 1)
     1861.9
     """
-    m = _measure(measure)
+    m = forecast_measure(measure)
     sc, red, rows, cols, comps = _prepare(scene, pipeline)
     s = sc.schedule
     ny, nx = rows.stop - rows.start, cols.stop - cols.start
@@ -242,9 +245,35 @@ def _prepare(scene, pipeline):
     return sc, red, rows, cols, comps
 
 
-def _measure(measure):
-    """A `SpectrumMeasure` from a measure, a ``measure:`` mapping or None (refusing the
-    non-linear ``mask_sources``)."""
+def forecast_measure(measure):
+    """The `~spherex_reduce.analysis.case.SpectrumMeasure` a forecast measures, refusing in
+    one line what is not linear.
+
+    Parameters
+    ----------
+    measure : `~spherex_reduce.analysis.case.SpectrumMeasure`, dict or None
+        A measure, a ``measure:`` mapping (as a sweep's) or None (the defaults).
+
+    Returns
+    -------
+    `~spherex_reduce.analysis.case.SpectrumMeasure`
+
+    Raises
+    ------
+    ConfigError
+        ``mask_sources`` (a mask found from the image is not linear), or an
+        unknown ``measure:`` key.
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.noise_forecast import forecast_measure
+    >>> forecast_measure({"bins": 8}).bins
+    8
+    >>> forecast_measure({"mask_sources": True})
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.core.errors.ConfigError: forecast: measure.mask_sources: masking ...
+    """
     if not isinstance(measure, SpectrumMeasure):
         measure = SpectrumMeasure(**measure_section(measure, "forecast"))
     if measure.mask_sources:

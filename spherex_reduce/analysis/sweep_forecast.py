@@ -24,7 +24,7 @@ from astropy.table import Table
 from ..core.errors import ConfigError, SpherexReduceError
 from .case import SpectrumMeasure
 from .forecast_steps import linear_steps
-from .noise_forecast import forecast
+from .noise_forecast import forecast, forecast_measure
 from .sweep import _plain
 
 __all__ = ["FORECAST_COLUMNS", "SweepForecast"]
@@ -71,9 +71,10 @@ class SweepForecast:
                 linear_steps(config)
             except ConfigError as exc:
                 raise ConfigError(f"{label}: pipeline {name}: {exc}") from None
-        if sweep.measure.get("mask_sources"):
-            raise ConfigError(f"{label}: measure.mask_sources: masking sources is not linear "
-                              "and cannot be forecast")
+        try:
+            forecast_measure(sweep.measure)
+        except ConfigError as exc:
+            raise ConfigError(f"{label}: {exc}") from None
         self._done = {}
         #: points whose forecast failed: ``{"cell": point, "error": message}``
         self.failed = []

@@ -8,12 +8,12 @@ from _forecast_brute import Samples, expected_spectrum, reduction_matrix, wiener
 from astropy import units as u
 
 from spherex_reduce import correct_reference, pair_difference
-from spherex_reduce.analysis import forecast, power_spectrum
+from spherex_reduce.analysis import forecast, forecast_rows, power_spectrum
 from spherex_reduce.analysis.forecast_steps import reduction
 from spherex_reduce.analysis.light import light_sensitive_image
 from spherex_reduce.analysis.noise_forecast import band_power_forecast
 from spherex_reduce.core.block import Context
-from spherex_reduce.core.errors import ConfigError
+from spherex_reduce.core.errors import ConfigError, SpherexReduceError
 from spherex_reduce.reduce.pipeline import as_pipeline
 from spherex_reduce.reduce.steps.wiener import WienerReference
 from spherex_reduce.simulation import load_scene, simulate
@@ -79,6 +79,15 @@ def test_steps_equal_brute_force(pipe):
     check_against_brute_force(scene, *PIPELINES[pipe])
 
 
+def test_rows_and_lags_a_chunk_at_a_time_equal_brute_force(monkeypatch):
+    """The k_y rows in chunks of 2 (the memory bound of a tall image) and the lags' slope
+    covariance 100 at a time: the same spectrum as the brute force."""
+    monkeypatch.setattr(forecast_rows, "CHUNK_ROWS", 2)
+    monkeypatch.setattr(forecast_rows, "CHUNK_LAGS", 100)
+    scene = tiny([PINK_ACN, BOTH, BOTH_COMMON, PHANTOM], scan="alternate")
+    check_against_brute_force(scene, *PIPELINES["acn-side-columns"])
+
+
 @pytest.mark.parametrize("comp", [PINK, ROIC, COMMON, PHANTOM, BOTH],
                          ids=lambda c: c["name"])
 def test_each_noise_term_through_spherex_default(comp):
@@ -108,11 +117,24 @@ def test_the_reference_offset_changes_only_the_horizontal_row():
 
 
 def test_fit_ramp_first_is_the_same_reduction():
-    """Uniform slopes commute with frame-wise linear corrections: spherex-slopes (the ramps
-    fitted first) forecasts as spherex-default."""
-    scene = tiny([ROIC, BOTH, BOTH_COMMON])
-    a, b = (forecast(scene, p, {"bins": BINS}) for p in ("spherex-default", "spherex-slopes"))
-    np.testing.assert_array_equal(u.Quantity(a["power"]).value, u.Quantity(b["power"]).value)
+    """spherex-slopes (the ramps fitted first) is forecast as spherex-default because the real
+    steps give the same image: one ramp exposure reduced by each shipped pipeline, their
+    reference means unclipped (as forecast), agree to rounding; clipped they do not
+    (the clip sees frames in one, slopes in the other), so the check can fail."""
+    scene = tiny([ROIC, BOTH, BOTH_COMMON, PHANTOM], scan="alternate",
+                 terms={"dark_current": 20.0})
+    raw = simulate(scene, seed=5, mode="ramps")
+
+    def image(name, sigma):
+        steps = [{k: dict(v, sigma=sigma) if k == "correct_reference" else v
+                  for k, v in item.items()} for item in as_pipeline(name).config["steps"]]
+        return np.asarray(light_sensitive_image(as_pipeline({"steps": steps}).run(raw)).data,
+                          float)
+
+    a, b = image("spherex-default", 1e6), image("spherex-slopes", 1e6)
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-5 * np.std(a))
+    clipped = image("spherex-default", 3.0) - image("spherex-slopes", 3.0)
+    assert np.max(np.abs(clipped)) > 1e-3 * np.std(a)
 
 
 @pytest.mark.parametrize("pipe", ["spherex-default", "phantom-only", "acn-side-columns"])
@@ -164,11 +186,35 @@ def test_reduction_follows_the_order_of_the_steps():
     ({"fit_ramp": {"weighting": "optimal", "read_noise": 5.0}},
      r"steps\[1\]\.fit_ramp\.weighting: 'optimal' is not forecast"),
     ({"detect_jumps": {}}, r"steps\[1\]\.detect_jumps .* is not forecast"),
+    ({"fit_ramp": {"saturation": 6e4}},  # the real fit drops the reads above it
+     r"steps\[1\]\.fit_ramp\.saturation: 60000\.0 is not forecast .*only None"),
+    ({"pair_difference": {"reduce_other": False}},
+     r"steps\[1\]\.pair_difference\.reduce_other: False is not forecast"),
+    ({"sigma_clip": {"sigma": 2.5}},
+     r"steps\[1\]\.sigma_clip\.sigma: 2\.5 is not forecast .*only a number >= 3"),
+    ({"sigma_clip": {"sigma_lower": 2}}, r"steps\[1\]\.sigma_clip\.sigma_lower: 2 is not"),
+    ({"correct_reference": {"strategy": "acn", "sigma": 2.0}},
+     r"steps\[1\]\.correct_reference\.sigma: 2\.0 is not forecast"),
 ])
 def test_refuses_what_is_not_linear_in_one_line(step, match):
     with pytest.raises(ConfigError, match=match) as err:
         forecast(tiny([PINK]), {"steps": [{"unchop": {}}, step]})
     assert "\n" not in str(err.value)
+
+
+def test_refuses_a_second_reference_correction():
+    """Only one reference offset is propagated: a second correction would be dropped."""
+    steps = [{"correct_reference": {"strategy": "mean"}}, {"subtract_phantom": {}},
+             {"correct_reference": {"strategy": "acn"}}]
+    with pytest.raises(ConfigError, match=r"steps\[2\]\.correct_reference: a second "
+                                          "reference correction is not forecast"):
+        reduction({"steps": steps})
+
+
+def test_clips_from_three_sigma_up_are_forecast_as_no_clipping():
+    steps = [{"correct_reference": {"sigma": 3}}, {"sigma_clip": {"sigma": 3.0,
+                                                                  "sigma_upper": None}}]
+    assert reduction({"steps": steps}).reference == "mean"
 
 
 def test_pair_difference_of_independent_exposures_keeps_the_spectrum_of_one():
@@ -248,3 +294,12 @@ def test_wiener_monte_carlo_of_the_shipped_pipeline():
     mean, se = runs.mean(axis=0), runs.std(axis=0, ddof=1) / np.sqrt(len(runs))
     expect = u.Quantity(forecast(scene, "wiener", measure={"bins": BINS})["power"]).value
     assert np.all(np.abs(mean - expect) < 3 * se), (mean - expect) / se
+
+
+@pytest.mark.parametrize("strategy", ["mean", "wiener"])
+def test_refuses_a_reference_correction_without_reference_reads(strategy):
+    scene = load_scene({"geometry": {"nrows": 20, "ncols": 20, "nchannels": 2, "ref_border": 0},
+                        "readout": {"ref_reads": 0, "nframes": 4},
+                        "noise": {"components": [PINK]}})
+    with pytest.raises(SpherexReduceError, match="needs reference reads; the schedule has none"):
+        forecast(scene, {"steps": [{"correct_reference": {"strategy": strategy}}]})

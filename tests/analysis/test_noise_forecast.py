@@ -9,7 +9,9 @@ from astropy import units as u
 from spherex_reduce import expected_slope_variance
 from spherex_reduce.analysis import forecast, power_spectrum
 from spherex_reduce.analysis.light import light_sensitive_image
-from spherex_reduce.core.errors import ConfigError, SpherexReduceError
+from spherex_reduce.analysis.sweep import load_sweep
+from spherex_reduce.analysis.sweep_forecast import SweepForecast
+from spherex_reduce.core.errors import ConfigError, ResourceError, SpherexReduceError
 from spherex_reduce.noise.variance import slope_covariance
 from spherex_reduce.simulation import load_scene, simulate
 
@@ -157,3 +159,26 @@ def test_band_follows_the_measure():
     expect = sum(lv * power_spectrum(v.reshape(16, 16), bins=[0.5, 2.0])["power"].value[0]
                  for lv, v in zip(lam[keep], vec[:, keep].T, strict=True))
     assert got.meta["band_power"] == pytest.approx(expect, rel=1e-4)
+
+
+def test_a_sweep_refuses_mask_sources_with_the_forecasts_own_message():
+    """One refusal: the sweep's names the sweep, then says what `forecast` says."""
+    sweep = load_sweep({"scene": {"geometry": {"nrows": 20, "ncols": 20, "nchannels": 2}},
+                        "pipeline": "unchop", "grid": {"skip": [1]}, "realizations": 0,
+                        "measure": {"mask_sources": True}})
+    with pytest.raises(ConfigError) as own:
+        forecast(tiny([PINK]), measure={"mask_sources": True})
+    with pytest.raises(ConfigError) as err:
+        SweepForecast(sweep)
+    assert str(err.value) == f"{sweep.source}: {own.value}"
+
+
+def test_refuses_an_image_this_machine_cannot_hold_before_allocating():
+    """A 64 x 2**20 array in one channel: its row functional alone is ~10 TB (the number of
+    columns squared).  Refused in one line (the command line's exit 2), not a MemoryError
+    (or the kernel's kill) once numpy is asked for it."""
+    scene = {"geometry": {"nrows": 64, "ncols": 2**20, "nchannels": 1, "ref_border": 4},
+             "readout": {"nframes": 8}, "noise": {"components": [PINK]}}
+    with pytest.raises(ResourceError, match=r"^forecast: the 56 x 524285 cells of a 56 x "
+                                            r"1048568 image .* needs [0-9.]+ TB of memory"):
+        forecast(scene, "unchop")

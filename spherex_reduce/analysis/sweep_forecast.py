@@ -2,9 +2,9 @@
 
 A sweep's Monte Carlo estimates, at each grid point and pipeline, the band
 power and P(k) of the reduced slope image; `~spherex_reduce.analysis.forecast`
-gives their expectation with no random numbers (3.4-4.0 s per point at the
-paper's full size through ``spherex-default``, measured on a loaded 2-core
-machine).  `SweepForecast` computes it once per point (the scene of the point,
+gives their expectation with no random numbers (0.7-0.8 s per point warm at
+the paper's full size through ``spherex-default`` on 2 idle cores, 3.4-4.0 s
+with the machine loaded).  `SweepForecast` computes it once per point (the scene of the point,
 its pipeline and the sweep's ``measure``), and adds it to a sweep's
 results as the columns ``band_power_forecast`` and ``power_forecast`` (the
 same bins as ``power``, empty ones NaN) of every row of that point.  A sweep

@@ -29,6 +29,7 @@ from astropy import units as u
 from ..core.errors import ConfigError, SpherexReduceError
 from ..simulation.scene import Scene, load_scene
 from .case import SpectrumMeasure, measure_section
+from .forecast_layout import frame_cells, transposed
 from .forecast_rows import NODES, Cells, component_planes
 from .forecast_steps import reduction
 from .light import light_sensitive
@@ -56,14 +57,17 @@ def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SC
 
     What ``SpectrumMeasure(**measure)`` measures on average, over realisations
     of ``simulate(scene, mode="slopes")`` reduced by ``pipeline``, on the
-    light-sensitive pixels of the image in physical row order.  No random
+    light-sensitive pixels of the stored image in physical row order
+    (`~spherex_reduce.analysis.light.light_sensitive_image`).  No random
     numbers.
 
     Parameters
     ----------
     scene : `~spherex_reduce.simulation.Scene`, dict, YAML text or path
         The scene (`~spherex_reduce.simulation.load_scene`); its channels as
-        columns of the array, without windows.
+        columns or rows of the array (``channels: rows``: the stored image is
+        the readout frame's transpose, and so is its spectrum's plane), without
+        windows.
     pipeline : `~spherex_reduce.Pipeline`, shipped name, path or dict, optional
         The reduction (`~spherex_reduce.reduce.pipeline.as_pipeline`); None:
         the slope image as simulated.  Every step must be one the forecast
@@ -104,8 +108,8 @@ def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SC
     ------
     SpherexReduceError
         A scene term that is neither Gaussian noise of the readout nor the
-        Poisson noise of a current (hot pixels, telegraph noise), channels not as
-        columns, a window, or reference pixels inside the light-sensitive
+        Poisson noise of a current (hot pixels, telegraph noise), channels as
+        quadrants, a window, or reference pixels inside the light-sensitive
         rectangle.
     ConfigError
         A scene that has no slope image (fewer than 2 frames, or groups); a
@@ -129,9 +133,12 @@ def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SC
     """
     m = forecast_measure(measure)
     sc, red, rows, cols, comps = _prepare(scene, pipeline)
-    s = sc.schedule
-    ny, nx = rows.stop - rows.start, cols.stop - cols.start
-    parts = component_planes(s, rows, cols, comps, red, nodes)
+    frame = (rows.stop - rows.start, cols.stop - cols.start)  # in the readout frame
+    flip = transposed(sc.schedule.geometry)
+    ny, nx = frame[::-1] if flip else frame  # the stored image's light-sensitive pixels
+    cells = frame_cells(*np.indices((ny, nx // 2 + 1)), frame, flip)
+    parts = {name: p[cells] for name, p in
+             component_planes(sc.schedule, rows, cols, comps, red, nodes).items()}
     shot = _poisson_variance(sc)
     if shot:  # white: the same in every cell
         parts[_POISSON] = np.full((ny, nx // 2 + 1), shot * ny * nx)
@@ -209,17 +216,20 @@ def band_power_forecast(scene, pipeline=None, kmin=BAND_KMIN, kmax=BAND_KMAX, *,
     True
     """
     sc, red, rows, cols, comps = _prepare(scene, pipeline)
-    ny, nx = rows.stop - rows.start, cols.stop - cols.start
+    frame = (rows.stop - rows.start, cols.stop - cols.start)  # in the readout frame
+    flip = transposed(sc.schedule.geometry)
+    ny, nx = frame[::-1] if flip else frame  # the stored image's light-sensitive pixels
     idx = _grid(ny, nx, (float(kmin), float(kmax)), bool(exclude_horizontal))[0]
-    inside = (idx == 0).reshape(ny, nx // 2 + 1)
-    if not inside.any():
+    sy, sx = np.nonzero((idx == 0).reshape(ny, nx // 2 + 1))  # the band's stored cells
+    if not sy.size:
         raise SpherexReduceError(f"forecast: no Fourier mode of the {ny} x {nx} image has "
                                  f"{kmin} <= |k| <= {kmax}")
-    cells = Cells(np.flatnonzero(inside.any(axis=1)), np.flatnonzero(inside.any(axis=0)))
+    fy, fx = frame_cells(sy, sx, frame, flip)
+    cells = Cells(np.unique(fy), np.unique(fx))
     parts = component_planes(sc.schedule, rows, cols, comps, red, nodes, cells)
-    w = np.broadcast_to(rfft_weights(nx), inside.shape)[np.ix_(cells.ky, cells.kx)]
-    w = w * inside[np.ix_(cells.ky, cells.kx)]
-    power = sum(np.sum(p * w) for p in parts.values()) / np.sum(w) / (ny * nx)
+    pick = np.searchsorted(cells.ky, fy), np.searchsorted(cells.kx, fx)
+    w = rfft_weights(nx)[sx]
+    power = sum(np.sum(p[pick] * w) for p in parts.values()) / np.sum(w) / (ny * nx)
     return float(power + _poisson_variance(sc))
 
 
@@ -231,11 +241,12 @@ def _prepare(scene, pipeline):
     red = reduction(pipeline)
     sc.check_mode("slopes")
     _check_terms(sc.terms)
-    g = sc.schedule.geometry
-    if g.window is not None or not g.layout.identity:
-        raise SpherexReduceError("forecast: only full arrays with channels as columns are "
-                                 "forecast so far")
-    rows, cols = light_sensitive(g)
+    g = sc.schedule.geometry  # the readout frame, where the engine works
+    if g.window is not None or g.layout.channels == "quadrants":
+        raise SpherexReduceError("forecast: only full arrays with channels as columns or rows "
+                                 "are forecast so far, not quadrants (four flipped blocks side "
+                                 "by side) nor windows")
+    rows, cols = light_sensitive(g)  # the frame's rectangle: the stored one transposed
     if g.reference_pixel_mask()[rows, cols].any():
         raise SpherexReduceError("forecast: reference pixels inside the light-sensitive "
                                  "rectangle (channel_border) are not forecast so far")

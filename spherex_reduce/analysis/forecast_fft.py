@@ -11,8 +11,8 @@ cell is zero), as `~spherex_reduce.analysis.fft_magnitude` does.
 import numpy as np
 from astropy import units as u
 
-from .forecast_rows import NODES, component_planes
-from .noise_forecast import _poisson_variance, _prepare
+from .forecast_rows import NODES
+from .noise_forecast import _poisson_variance, _prepare, _stored_planes
 from .spectrum import FFTImage
 
 __all__ = ["forecast_fft_magnitude"]
@@ -56,9 +56,9 @@ def forecast_fft_magnitude(scene, pipeline=None, size=129, *, nodes=NODES):
     array([1861.9, 1861.9,    0. , 1861.9, 1861.9])
     """
     sc, red, rows, cols, comps = _prepare(scene, pipeline)
-    ny, nx = rows.stop - rows.start, cols.stop - cols.start
+    parts, (ny, nx) = _stored_planes(sc, red, rows, cols, comps, nodes)
     half = np.full((ny, nx // 2 + 1), _poisson_variance(sc) * ny * nx)
-    for part in component_planes(sc.schedule, rows, cols, comps, red, nodes).values():
+    for part in parts.values():
         half += part
     plane = np.empty((ny, nx))  # a real image: E|Y(-k)|² = E|Y(k)|²
     plane[:, :nx // 2 + 1] = half

@@ -14,7 +14,22 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft
 
-__all__ = ["Correlations", "Part"]
+__all__ = ["Correlations", "Part", "channel_sums", "column_phases"]
+
+
+def column_phases(geometry, cols, kx):
+    """The light columns ``j`` and their phases ``exp(-i k_x (j - j0))`` ``(nx, nkx)``,
+    ``k_x = 2 pi kx / nx`` for the rfft column indices ``kx`` of the rectangle ``cols``."""
+    j = np.arange(cols.start, cols.stop)
+    k = 2 * np.pi * np.asarray(kx) / j.size
+    return j, np.exp(-1j * np.outer(j - cols.start, k))
+
+
+def channel_sums(geometry, j, phase, used):
+    """Per channel, the sum of the phases of the light columns ``j[used]``: ``(nch, nkx)``."""
+    box = np.zeros((geometry.nchannels, phase.shape[1]), dtype=complex)
+    np.add.at(box, geometry.channel_of_column()[j][used], phase[used])
+    return box
 
 
 @dataclass(frozen=True)
@@ -30,7 +45,6 @@ class Part:
     def seen(self, comp):
         """Whether component ``comp`` is in the samples of this part."""
         return comp.seen_by_phantom if self.phantom else comp.seen_by_pixels
-
 
 
 class Correlations:

@@ -42,7 +42,7 @@ import scipy.fft
 from ..core.errors import SpherexReduceError
 from ..core.limits import check_size
 from ..noise.variance import slope_covariance
-from .forecast_parts import Correlations, Part
+from .forecast_parts import Correlations, Part, channel_sums, column_phases
 from .forecast_wiener import WienerTerms
 
 __all__ = ["CHUNK_LAGS", "CHUNK_ROWS", "NEAR_READS", "NODES", "Cells", "component_planes"]
@@ -284,13 +284,10 @@ def _functionals(schedule, rows, cols, kx, c, reduction):
     with phantom subtraction, minus the channel's phase sum over ``c`` at each phantom
     sample."""
     g = schedule.geometry
-    nx = cols.stop - cols.start
     width, nch = g.channel_width, g.nchannels
-    j = np.arange(cols.start, cols.stop)
+    j, phase = column_phases(g, cols, kx)  # (nx, nkx)
     off, chan = g.column_offsets()[j], g.channel_of_column()[j]
-    k = 2 * np.pi * kx / nx
-    phase = np.exp(-1j * np.outer(j - cols.start, k))  # (nx, nkx)
-    pix = np.zeros((nch, k.size, c + width), dtype=complex)
+    pix = np.zeros((nch, phase.shape[1], c + width), dtype=complex)
     np.add.at(pix, (chan, slice(None), c + off), phase)
     parts = [Part(False, dense=pix)]
     if reduction.phantom and c:
@@ -316,9 +313,8 @@ def _reference_functionals(schedule, cols, kx, c, reduction, ny):
     g = s.geometry
     nref = int(s.is_reference.sum())
     width, nch = g.channel_width, g.nchannels
-    nx = cols.stop - cols.start
-    j = np.arange(cols.start, cols.stop)
-    k = 2 * np.pi * kx / nx
+    j, phase = column_phases(g, cols, kx)
+    nkx = phase.shape[1]
     offsets, chan = g.column_offsets(), g.channel_of_column()
     parity = offsets % 2 if reduction.reference == "acn" else np.zeros(g.ncols, int)
     side = g.reference_column_mask() if reduction.side_columns else np.zeros(g.ncols, bool)
@@ -329,18 +325,16 @@ def _reference_functionals(schedule, cols, kx, c, reduction, ny):
     if side.any():
         kinds.append((~s.is_reference, side))
     pix = [{} for _ in kinds]  # per kind: {offsets used: amp (nch, nkx)}
-    phantom = [np.zeros((nch, k.size), dtype=complex) for _ in kinds]
+    phantom = [np.zeros((nch, nkx), dtype=complex) for _ in kinds]
     for group in np.unique(parity):
-        box = np.zeros((nch, k.size), dtype=complex)  # the group's light phases
-        light = parity[j] == group
-        np.add.at(box, chan[j][light], np.exp(-1j * np.outer(j[light] - cols.start, k)))
+        box = channel_sums(g, j, phase, parity[j] == group)  # the group's light phases
         for ch in range(nch):
             used = (chan == ch) & (parity == group)
             total = nref * used.sum() + nact * (used & side).sum()  # N_g
             for n, (_, columns) in enumerate(kinds):
                 o = np.sort(offsets[used & columns])
                 if o.size:
-                    amp = pix[n].setdefault(o.tobytes(), np.zeros((nch, k.size), complex))
+                    amp = pix[n].setdefault(o.tobytes(), np.zeros((nch, nkx), complex))
                     amp[ch] -= ny * box[ch] / total
                     phantom[n][ch] += ny * box[ch] * o.size / total
     out = []

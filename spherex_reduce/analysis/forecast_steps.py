@@ -34,7 +34,6 @@ from ..reduce.pipeline import as_pipeline
 __all__ = ["FORECAST_STEPS", "MEASURED_SIGMA", "AtLeast", "Reduction", "linear_steps", "reduction"]
 
 
-
 @dataclass(frozen=True)
 class AtLeast:
     """The values a clipping threshold may take: a number from ``minimum`` up, or None (a

@@ -34,7 +34,7 @@ import scipy.fft
 from ..core.block import Context
 from ..reduce.steps.reference_strategies import _group_columns
 from ..reduce.steps.wiener import WienerReference
-from .forecast_parts import Part
+from .forecast_parts import Part, channel_sums, column_phases
 
 __all__ = ["WienerTerms"]
 
@@ -79,7 +79,7 @@ class WienerTerms:
                  table):
         s = schedule
         g = s.geometry
-        ny, nx = rows.stop - rows.start, cols.stop - cols.start
+        ny = rows.stop - rows.start
         strategy = WienerReference(**reduction.reference_params)
         context = Context(s, "readout", reduction.reference_ramps,
                           has_phantom=not reduction.reference_phantom)
@@ -88,10 +88,8 @@ class WienerTerms:
         nch, width = g.nchannels, g.channel_width
         n = 2 * (int(slots.max()) + 1)
         refs = s.reference_read_indices
-        j = np.arange(cols.start, cols.stop)
-        k = 2 * np.pi * np.asarray(kx) / nx
-        phase = np.exp(-1j * np.outer(j - cols.start, k))  # (nx, nkx)
-        offsets, chan = g.column_offsets(), g.channel_of_column()
+        j, phase = column_phases(g, cols, kx)  # (nx, nkx)
+        offsets = g.column_offsets()
         row_phase = np.exp(-2j * np.pi * np.outer(ky, np.arange(ny)) / ny)  # (nky, ny)
         light = np.zeros((len(ky), n), dtype=complex)
         light[:, slots[light_reads]] = row_phase
@@ -101,8 +99,7 @@ class WienerTerms:
             w, wd, kind, phantom = strategy.read_weights(context, p)
             group_cols = groups[0, p][groups[0, p] >= 0]
             in_group = offsets[j] % 2 == p if strategy.acn else np.ones(j.size, bool)
-            box = np.zeros((nch, k.size), dtype=complex)
-            np.add.at(box, chan[j][in_group], phase[in_group])
+            box = channel_sums(g, j, phase, in_group)
             ref_psi = np.zeros(c + width)
             ref_psi[c + offsets[group_cols]] = 1.0 / group_cols.size
             ref_ph = None

@@ -133,12 +133,7 @@ def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SC
     """
     m = forecast_measure(measure)
     sc, red, rows, cols, comps = _prepare(scene, pipeline)
-    frame = (rows.stop - rows.start, cols.stop - cols.start)  # in the readout frame
-    flip = transposed(sc.schedule.geometry)
-    ny, nx = frame[::-1] if flip else frame  # the stored image's light-sensitive pixels
-    cells = frame_cells(*np.indices((ny, nx // 2 + 1)), frame, flip)
-    parts = {name: p[cells] for name, p in
-             component_planes(sc.schedule, rows, cols, comps, red, nodes).items()}
+    parts, (ny, nx) = _stored_planes(sc, red, rows, cols, comps, nodes)
     shot = _poisson_variance(sc)
     if shot:  # white: the same in every cell
         parts[_POISSON] = np.full((ny, nx // 2 + 1), shot * ny * nx)
@@ -216,9 +211,7 @@ def band_power_forecast(scene, pipeline=None, kmin=BAND_KMIN, kmax=BAND_KMAX, *,
     True
     """
     sc, red, rows, cols, comps = _prepare(scene, pipeline)
-    frame = (rows.stop - rows.start, cols.stop - cols.start)  # in the readout frame
-    flip = transposed(sc.schedule.geometry)
-    ny, nx = frame[::-1] if flip else frame  # the stored image's light-sensitive pixels
+    frame, flip, (ny, nx) = _frames(sc.schedule.geometry, rows, cols)
     idx = _grid(ny, nx, (float(kmin), float(kmax)), bool(exclude_horizontal))[0]
     sy, sx = np.nonzero((idx == 0).reshape(ny, nx // 2 + 1))  # the band's stored cells
     if not sy.size:
@@ -231,6 +224,25 @@ def band_power_forecast(scene, pipeline=None, kmin=BAND_KMIN, kmax=BAND_KMAX, *,
     w = rfft_weights(nx)[sx]
     power = sum(np.sum(p[pick] * w) for p in parts.values()) / np.sum(w) / (ny * nx)
     return float(power + _poisson_variance(sc))
+
+
+def _frames(geometry, rows, cols):
+    """The light-sensitive rectangle's shape in the readout frame, whether the stored image
+    is its transpose (`~spherex_reduce.analysis.forecast_layout.transposed`), and the
+    stored image's shape."""
+    frame = (rows.stop - rows.start, cols.stop - cols.start)
+    flip = transposed(geometry)
+    return frame, flip, (frame[::-1] if flip else frame)
+
+
+def _stored_planes(sc, red, rows, cols, comps, nodes=NODES):
+    """``({name: E|FFT|²}, (ny, nx))``: each component's plane on the rfft2 grid of the
+    stored light-sensitive image (the engine's readout-frame plane, transposed for
+    channels as rows), and that image's shape; the arguments as `_prepare` returns them."""
+    frame, flip, (ny, nx) = _frames(sc.schedule.geometry, rows, cols)
+    cells = frame_cells(*np.indices((ny, nx // 2 + 1)), frame, flip)
+    return ({name: p[cells] for name, p in
+             component_planes(sc.schedule, rows, cols, comps, red, nodes).items()}, (ny, nx))
 
 
 def _prepare(scene, pipeline):

@@ -1,12 +1,15 @@
-"""Goldens for a restructuring: the reductions and the public names, as hashes.
+"""Goldens for a restructuring: the reductions, the analysis tables and the public names, as hashes.
 
 Reduces fixed-seed raw files with every shipped pipeline config, through every
 route a user has (a path streamed by the executor, the exposure in memory, the
 command line, one file per read, a 4-D file of integrations), and writes the
 SHA-256 of every extension of every output (data, and header cards other than
 checksums and dates; ``PROVENANCE`` without its ``elapsed`` column), with the
-``__all__`` of every public module.  Run it before a change and after: the two
-JSON files must be identical.
+``__all__`` of every public module.  The analysis tables are hashed too, each
+made by its command: ``forecast`` of a small scene through every pipeline it
+takes, a forecast-only ``sweep --forecast``, ``design-readout`` (report and best
+scene) and ``compare-strategies`` (their columns and meta, timings left out).
+Run it before a change and after: the two JSON files must be identical.
 
     python benchmarks/goldens.py -o before.json
     ... change ...
@@ -159,7 +162,85 @@ def run(work):
     subprocess.run([sys.executable, "-m", "spherex_reduce.cli", "-q", "reduce", str(four),
                     "-c", "spherex-default", "-o", str(out)], check=True)
     results["spherex-default/4d-cli"] = hash_file(out)
+    results.update(analysis_tables(work))
     return results
+
+
+#: a small scene for the forecast, the sweep and the design (seconds, not minutes)
+SMALL = {"geometry": {"nrows": 32, "ncols": 16, "nchannels": 2, "ref_border": 4},
+         "readout": {"skip": 4, "ref_reads": 8, "phantom_reads": 2, "nframes": 4},
+         "noise": {"table": "spherex-table2"}}
+#: meta keys that are timings or paths, not results
+TIMING_META = {"seconds", "elapsed", "time", "timings", "stage_seconds", "created"}
+
+
+def _results_only(value):
+    """``value`` (a table's meta) without its timings, at any depth, mappings sorted."""
+    if isinstance(value, dict):
+        return sorted(((str(k), _results_only(v)) for k, v in value.items()
+                       if k not in TIMING_META and not str(k).endswith("seconds")), key=str)
+    if isinstance(value, (list, tuple)):
+        return [_results_only(v) for v in value]
+    return value
+
+
+def hash_table(path, work):
+    """SHA-256 of an ECSV table's columns and meta (timings left out, ``work`` named ``WORK``)."""
+    from astropy.table import Table
+
+    table = Table.read(path, format="ascii.ecsv")
+    h = hashlib.sha256()
+    for name in table.colnames:
+        if name in TIMING_META or name.endswith("_seconds"):
+            continue
+        h.update(name.encode())
+        h.update(repr(table[name].tolist()).replace(str(work), "WORK").encode())
+    text = repr(_results_only(dict(table.meta))).replace(str(work), "WORK")
+    h.update(re.sub(r"[0-9.]+ s\b", "? s", text).encode())
+    return h.hexdigest()
+
+
+def _cli(*args):
+    subprocess.run([sys.executable, "-m", "spherex_reduce.cli", "-q", *map(str, args)],
+                   check=True)
+
+
+def analysis_tables(work):
+    out = {}
+    scene = work / "small.yaml"
+    scene.write_text(yaml.safe_dump(SMALL))
+    for name in ("spherex-default", "spherex-slopes", "phantom-only", "acn", "wiener",
+                 "unchop", "measured-dark-pair"):
+        table = work / f"forecast-{name}.ecsv"
+        _cli("forecast", scene, "-c", name, "-o", table, "--bins", 8, "--kmin", 0.2,
+             "--kmax", 1.2)
+        out[f"forecast/{name}"] = hash_table(table, work)
+    sweep = work / "sweep.yaml"
+    sweep.write_text(yaml.safe_dump({
+        "scene": SMALL, "pipeline": ["spherex-default", "phantom-only"],
+        "grid": {"skip": [1, 4], "ref_mode": ["repeated", "distributed"]},
+        "realizations": 0, "measure": {"kmin": 0.2, "kmax": 1.2, "bins": 8}}))
+    _cli("sweep", sweep, "-o", work / "sweep.ecsv", "--forecast", "--scheduler", "serial")
+    out["sweep/forecast"] = hash_table(work / "sweep.ecsv", work)
+    design = work / "design.yaml"
+    design.write_text(yaml.safe_dump({
+        "scene": SMALL, "band": {"kmin": 0.3, "kmax": 1.5}, "bins": 8,
+        "baseline": {"skip": 4, "ref_reads": 8, "phantom_reads": 2},
+        "search": {"skips": [1, 2, 3, 4], "phantom_reads": [0, 2], "ref_reads": [8, 12],
+                   "iterations": 5},
+        "realizations": 2}))
+    _cli("design-readout", design, "-o", work / "best.yaml", "--report", work / "report.ecsv")
+    out["design/report"] = hash_table(work / "report.ecsv", work)
+    best = (work / "best.yaml").read_text().replace(str(work), "WORK")
+    out["design/best"] = hashlib.sha256(best.encode()).hexdigest()
+    compare = work / "compare.yaml"
+    compare.write_text(yaml.safe_dump({
+        "scene": {**SMALL, "geometry": {"nrows": 64, "ncols": 64, "nchannels": 4,
+                                        "ref_border": 4}},
+        "pipelines": ["spherex-default", "acn", "wiener"], "realizations": 2, "seed": 3}))
+    _cli("compare-strategies", compare, "-o", work / "compare.ecsv", "--scheduler", "serial")
+    out["compare/table"] = hash_table(work / "compare.ecsv", work)
+    return out
 
 
 def main(argv=None):
@@ -170,7 +251,7 @@ def main(argv=None):
     with tempfile.TemporaryDirectory() as tmp:
         results = run(Path(tmp))
     Path(args.output).write_text(json.dumps(results, indent=1, sort_keys=True))
-    print(f"{len(results) - 1} reductions hashed into {args.output}")
+    print(f"{len(results) - 1} outputs hashed into {args.output}")
     if args.check:
         before = json.loads(Path(args.check).read_text())
         differ = [key for key in sorted(set(before) | set(results))

@@ -96,7 +96,7 @@ def bench_sweep():
     """Fig. 6 at full size on a LocalCluster of 1 and 2 processes; (markdown, ok)."""
     import numpy as np
 
-    from spherex_reduce.analysis.figures import FigureSettings
+    from spherex_reduce.analysis.figures.reproduce import FigureSettings
     from spherex_reduce.analysis.sweep import run_sweep
 
     s = FigureSettings.full()

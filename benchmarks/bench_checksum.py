@@ -23,7 +23,8 @@ import numpy as np
 from astropy.io import fits
 
 from spherex_reduce import DetectorGeometry, Exposure, Pipeline, ReadoutSchedule, write
-from spherex_reduce.io import fits_read, fits_structure
+from spherex_reduce.io import fits_structure
+from spherex_reduce.io.readers import fits_read
 
 
 def timed(fn, repeat):

@@ -15,7 +15,7 @@ import platform
 import time
 from pathlib import Path
 
-from spherex_reduce.analysis.readout_design import design_readout
+from spherex_reduce.analysis.design.search import design_readout
 
 LIMIT = 600.0  # s
 

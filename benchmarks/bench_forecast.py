@@ -30,8 +30,8 @@ import numpy as np
 
 from spherex_reduce.analysis import forecast, run_case
 from spherex_reduce.analysis.case import SpectrumMeasure
-from spherex_reduce.analysis.figures import FigureSettings
-from spherex_reduce.analysis.noise_forecast import band_power_forecast
+from spherex_reduce.analysis.figures.reproduce import FigureSettings
+from spherex_reduce.analysis.forecast.engine import band_power_forecast
 from spherex_reduce.reduce.pipeline import as_pipeline
 
 REPEAT = 3

@@ -40,7 +40,7 @@ import numpy as np
 
 from spherex_reduce import Exposure, ReadoutSchedule, correct_reference, fit_ramp, unchop, write
 from spherex_reduce.reduce.executor import default_threads
-from spherex_reduce.reduce.steps.fit_ramp import FitRampStep
+from spherex_reduce.reduce.steps.fit_ramp.step import FitRampStep
 
 READ_NOISE = 10.0
 

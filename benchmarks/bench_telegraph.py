@@ -30,8 +30,8 @@ import numpy as np
 from spherex_reduce.analysis import run_case
 from spherex_reduce.io.sources import side_block
 from spherex_reduce.reduce.pipeline import as_pipeline
-from spherex_reduce.reduce.steps.reference_strategies import reference_pixels, reference_rows
-from spherex_reduce.reduce.steps.telegraph import find_telegraph
+from spherex_reduce.reduce.steps.reference.strategies import reference_pixels, reference_rows
+from spherex_reduce.reduce.steps.reference.telegraph import find_telegraph
 from spherex_reduce.simulation.scene import load_scene
 from spherex_reduce.simulation.simulator import TIER_RTN_REFERENCE
 from spherex_reduce.simulation.synthesis import rng_for

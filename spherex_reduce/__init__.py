@@ -20,7 +20,7 @@ _EXPORTS = {
                     "StepSkipped"],
     "core.exposure": ["Exposure", "ReferenceReads"],
     "core.geometry": ["DetectorGeometry", "RefBorder"],
-    "core.schedule": ["ReadoutSchedule"],
+    "core.readout.schedule": ["ReadoutSchedule"],
     "io": ["read", "write"],
     "noise": ["expected_slope_variance"],
     "reduce.integrations": ["reduce_integrations"],

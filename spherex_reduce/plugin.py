@@ -28,7 +28,7 @@ from .core.block import Block, Context
 from .core.parameters import Parameter
 from .reduce.hookspecs import hookimpl
 from .reduce.step import Consumer, Kernel, Record, Simulator, Step, Strategy
-from .reduce.steps.reference_strategies import ReferenceOffsets
+from .reduce.steps.reference.strategies import ReferenceOffsets
 
 __all__ = [
     "Block",

@@ -41,10 +41,10 @@ import importlib
 import numpy, yaml, astropy.io.fits, astropy.table, astropy.units
 import spherex_reduce.cli
 spherex_reduce.cli.build_parser()  # imports every command's module
-for name in ("spherex_reduce.simulation", "spherex_reduce.analysis", "spherex_reduce.analysis.demo",
-             "spherex_reduce.analysis.sweep", "spherex_reduce.analysis.figures",
-             "spherex_reduce.analysis.plots", "matplotlib.pyplot", "ccdproc", "scipy.signal",
-             "scipy.optimize"):
+for name in ("spherex_reduce.simulation", "spherex_reduce.analysis",
+             "spherex_reduce.analysis.figures.demo", "spherex_reduce.analysis.sweep",
+             "spherex_reduce.analysis.figures.reproduce", "spherex_reduce.analysis.figures.plots",
+             "matplotlib.pyplot", "ccdproc", "scipy.signal", "scipy.optimize"):
     try:  # only to save time in every case; the cases import what they use anyway
         importlib.import_module(name)
     except ImportError:

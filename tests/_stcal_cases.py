@@ -4,7 +4,7 @@ Each case is the input of one or more stcal tests (``tests/test_ramp_fitting.py`
 ``test_ramp_fitting_cases.py``, ``test_jump_twopoint_difference.py``,
 ``test_jump.py``, ``test_ramp_fitting_cas22.py`` of spacetelescope/stcal) and
 the values those tests assert, written out here as small arrays so that
-``tests/reduce/steps/test_stcal_cases.py`` runs them through our steps without
+``tests/reduce/steps/fit_ramp/test_stcal_cases.py`` runs them through our steps without
 stcal.  The stcal tests a case re-creates are named in its ``stcal`` field.
 
 Conventions (stcal's, translated by the test module):

@@ -13,7 +13,7 @@ Table 2).  Streams of a raw exposure (`spherex_reduce.analysis.timestreams`):
 the reference-pixel and phantom streams in time order (`reference_timestream`,
 `phantom_timestream`, `fit_raw_noise`).
 
-Expected spectra without random numbers (`spherex_reduce.analysis.noise_forecast`):
+Expected spectra without random numbers (`spherex_reduce.analysis.forecast.engine`):
 `forecast` (P(k) of a slope image reduced by linear steps, total and per noise
 component), `band_power_forecast` (its band power from the band's cells alone).
 
@@ -32,7 +32,7 @@ _OWN = {
                 "measure_against_sky", "white_floor"],
     "photon_noise": ["photon_noise_label", "photon_noise_power", "slope_variance_factor"],
     "light": ["light_sensitive", "light_sensitive_image"],
-    "noise_forecast": ["band_power_forecast", "forecast"],
+    "forecast": ["band_power_forecast", "forecast"],
     "sky": ["inject_sky", "sky_field"],
     "spectrum": ["BAND_KMAX", "BAND_KMIN", "SPHEREX_PIXEL_SCALE", "EmptyBandError", "FFTImage",
                  "band_label", "band_power", "band_theta", "cross_spectrum", "fft_magnitude",

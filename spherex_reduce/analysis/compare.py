@@ -56,9 +56,9 @@ from .case import (
     scene_section,
     seed_section,
 )
+from .figures.plots import plot_comparison
 from .light import light_sensitive
 from .photon_noise import photon_noise_label, photon_noise_power
-from .plots import plot_comparison
 from .sky import RMS_RANGE, inject_sky, measure_against_sky, sky_field
 from .spectrum import EmptyBandError, band_label, band_power, band_theta
 
@@ -454,7 +454,7 @@ def compare_strategies(comparison, output=None, *, plot=None, scheduler=None, wo
         ECSV results file, written atomically at the end (refused at once if it
         exists, unless ``overwrite``).
     plot : str or path, optional
-        PNG of `~spherex_reduce.analysis.plots.plot_comparison`, written with
+        PNG of `~spherex_reduce.analysis.figures.plots.plot_comparison`, written with
         the table (both or neither).
     scheduler, workers
         As `~spherex_reduce.analysis.sweep.run_sweep` (``"serial"``: in this
@@ -479,7 +479,7 @@ def compare_strategies(comparison, output=None, *, plot=None, scheduler=None, wo
     SpherexReduceError
         A realisation failed (a pipeline that leaves ramps, a plugin error, a
         plugin strategy's result that fails
-        `~spherex_reduce.reduce.steps.strategy_checks.check_estimate`): one line
+        `~spherex_reduce.reduce.steps.reference.strategy_checks.check_estimate`): one line
         naming the realisation; nothing is written.  The warnings of the
         realisations are issued (each once) only when all succeeded: none is
         shown before the error.

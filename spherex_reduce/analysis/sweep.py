@@ -13,7 +13,7 @@ simulated exposure, a paired comparison).  Results therefore do not depend on
 the number of workers, the scheduling or which cells were already done.
 
 With ``forecast`` each point also gets its exact expected band power and
-P(k) (`~spherex_reduce.analysis.sweep_forecast`), drawn by `plot_sweep` as a
+P(k) (`~spherex_reduce.analysis.forecast.sweep`), drawn by `plot_sweep` as a
 line beside the Monte Carlo points.
 
 Sweep file (YAML or dict)::
@@ -337,7 +337,7 @@ def run_sweep(sweep, output=None, *, scheduler=None, workers=None, overwrite=Fal
     forecast : bool
         Add the forecast of every row's point: the columns
         ``band_power_forecast`` and ``power_forecast``
-        (`~spherex_reduce.analysis.sweep_forecast.SweepForecast`, in this
+        (`~spherex_reduce.analysis.forecast.sweep.SweepForecast`, in this
         process).  With ``realizations: 0`` the table is the forecast alone, one
         row per point (or ``output``'s Monte Carlo rows with the forecast added).
 
@@ -369,7 +369,7 @@ def run_sweep(sweep, output=None, *, scheduler=None, workers=None, overwrite=Fal
         raise ConfigError(f"{sw.source}: realizations: 0 runs no Monte Carlo: it needs the "
                           "forecast (--forecast)")
     if forecast:
-        from .sweep_forecast import SweepForecast
+        from .forecast.sweep import SweepForecast
 
         forecast = SweepForecast(sw)  # refuses what it cannot forecast before any cell runs
     output = None if output is None else Path(output)
@@ -483,7 +483,7 @@ class _Results:
             table = (self.forecast.add_columns(table) if len(table)
                      else self.forecast.points())
         else:  # an earlier run's forecast columns would not cover the new rows
-            from .sweep_forecast import FORECAST_COLUMNS
+            from .forecast.sweep import FORECAST_COLUMNS
 
             table.remove_columns([c for c in FORECAST_COLUMNS if c in table.colnames])
         table.meta.update({"sweep": sw.source, "grid": {k: [_plain(v) for v in vals]

@@ -36,7 +36,7 @@ from astropy.utils.exceptions import AstropyUserWarning
 
 from ..core.errors import SpherexReduceError
 from ..core.exposure import Exposure
-from ..reduce.steps.noise_models import NEGATIVE_SIGMAS
+from ..reduce.steps.reference.noise_models import NEGATIVE_SIGMAS
 from .temporal import PARAMS, aliased_basis, fit_noise_model, temporal_psd
 
 __all__ = ["Timestream", "fit_raw_noise", "phantom_timestream", "reference_timestream"]

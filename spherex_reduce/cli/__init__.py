@@ -179,7 +179,7 @@ def build_parser(commands=None):
 
 def _add_fits_options(parser):
     """``--ignore-checksum`` and ``--dq-bits`` of a command that reads FITS files."""
-    from ..io.flags import DEFAULT_DQ_BITS
+    from ..io.readers.flags import DEFAULT_DQ_BITS
 
     parser.add_argument(
         "--ignore-checksum", action="store_true",
@@ -207,7 +207,7 @@ def _fits_options(args):
 
 def _dq_bits(text):
     """``--dq-bits``: an integer (decimal, 0x hex or 0b binary) that `check_dq_bits` accepts."""
-    from ..io.flags import check_dq_bits
+    from ..io.readers.flags import check_dq_bits
 
     try:
         value = int(text, 0)

@@ -27,7 +27,7 @@ def add_parser(sub):
 
 
 def run(args):
-    from ..analysis.demo import run_demo
+    from ..analysis.figures.demo import run_demo
     from ..core.errors import SpherexReduceError
     from ..core.limits import check_size
 

@@ -34,8 +34,8 @@ def add_parser(sub):
 def run(args):
     import yaml
 
-    from ..analysis.design_file import load_design
-    from ..analysis.readout_design import design_readout, plot_design
+    from ..analysis.design.file import load_design
+    from ..analysis.design.search import design_readout, plot_design
 
     plot = plot_path(args)
     outputs = [args.output, args.report, plot]

@@ -27,7 +27,7 @@ def add_parser(sub):
 
 
 def run(args):
-    from ..analysis.figures import make_figures
+    from ..analysis.figures.reproduce import make_figures
     from ..reduce.scheduler import check_scheduler
 
     check_scheduler(args.scheduler, name="--scheduler")  # before any work

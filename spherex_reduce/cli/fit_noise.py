@@ -3,7 +3,7 @@
 from pathlib import Path
 
 from ..io import atomic_output
-from ..io.read_files import read_file_paths
+from ..io.readers.read_files import read_file_paths
 from ._common import (
     add_config_option,
     all_or_nothing,
@@ -111,7 +111,7 @@ def run(args):
     with all_or_nothing([args.output, plot], args.overwrite) as (tmp, tmp_plot):
         table.write(tmp, format="ascii.ecsv")
         if plot:
-            from ..analysis.plots import plot_noise_fit
+            from ..analysis.figures.plots import plot_noise_fit
             from ..io.plotting import save_figure
 
             label = "fitted" if exponent is None else exponent

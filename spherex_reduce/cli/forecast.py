@@ -102,7 +102,7 @@ def run(args):
             lines.append(_comparison(measured_band, args.compare, band, unit))
         table.write(tmp, format="ascii.ecsv")
         if plot:
-            from ..analysis.plots import plot_forecast
+            from ..analysis.figures.plots import plot_forecast
             from ..io.plotting import save_figure
 
             fig = plot_forecast(table, measured, measured_label=Path(args.compare).name

@@ -8,7 +8,7 @@ from ..core._text import plural
 from ..core.errors import ConfigError
 from ..core.limits import MAX_WORKERS
 from ..io import atomic_output, write
-from ..io.read_files import ReadFiles, read_file_paths
+from ..io.readers.read_files import ReadFiles, read_file_paths
 from ..reduce.integrations import reduce_input
 from ._common import check_paths, count, input_config
 

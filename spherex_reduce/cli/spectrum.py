@@ -223,7 +223,7 @@ def run(args):
     with all_or_nothing([args.output, plot], args.overwrite) as (tmp, tmp_plot):
         table.write(tmp, format="ascii.ecsv")
         if plot:
-            from ..analysis.plots import plot_spectra
+            from ..analysis.figures.plots import plot_spectra
             from ..io.plotting import save_figure, unit_label
 
             title = "P(k), band power missing" if band is None else \

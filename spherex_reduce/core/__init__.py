@@ -8,4 +8,4 @@ import lazy_loader as lazy
 
 __getattr__, __dir__, __all__ = lazy.attach(__name__, submodules=[
     "block", "dq", "errors", "exposure", "fields", "geometry", "lazy_names", "limits",
-    "parameters", "schedule", "source_mask", "window"])
+    "parameters", "readout", "source_mask", "window"])

@@ -9,7 +9,7 @@ from astropy.io import fits
 from astropy.nddata import CCDData, NDData, StdDevUncertainty
 
 from .dq import DO_NOT_USE, DQ_TYPE, REFERENCE, image_usable, read_usable
-from .schedule import ReadoutSchedule
+from .readout.schedule import ReadoutSchedule
 
 __all__ = ["ORDERS", "Exposure", "ReferenceReads", "as_dq"]
 

@@ -41,10 +41,10 @@ from astropy import units as u
 
 from .channel_layout import CHANNEL_LAYOUTS, FAST_AXES, FIRST_CORNERS
 from .errors import FormatError
-from .frame_times import format_read_times, parse_read_times
-from .groups import format_groups, parse_groups
 from .parameters import Parameter
-from .read_order import order_text, parse_order_text
+from .readout.frame_times import format_read_times, parse_read_times
+from .readout.groups import format_groups, parse_groups
+from .readout.read_order import order_text, parse_order_text
 
 __all__ = ["DEFAULT_FRAME_OVERHEAD", "FIELD", "FIELDS", "REF_MODES", "SIDES", "Field",
            "check_field", "check_sides", "field_cards", "header_keyword", "read_field",

@@ -16,11 +16,11 @@ import lazy_loader as lazy
 
 __getattr__, __dir__, __all__ = lazy.attach(__name__, submod_attrs={
     "atomic": ["atomic_output"],
-    "fits_read": ["CheckedFITS", "checksum_policy", "integration_count", "is_raw_ramp_file",
+    "readers.fits_read": ["CheckedFITS", "checksum_policy", "integration_count", "is_raw_ramp_file",
                   "open_checked", "read"],
     "fits_write": ["write", "write_frames"],
-    "flags": ["current_dq_bits", "foreign_dq_bits"],
-    "frames": ["FrameReader"],
+    "readers.flags": ["current_dq_bits", "foreign_dq_bits"],
+    "readers.frames": ["FrameReader"],
     "lock": ["locked_directory"],
     "sources": ["open_input"],
 })

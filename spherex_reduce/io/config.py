@@ -15,8 +15,8 @@ from ..core.fields import section_fields
 from ..core.geometry import DetectorGeometry
 from ..core.parameters import validate_parameters
 from ..core.presets import apply_preset, apply_window_preset
-from ..core.read_order import ORDER_REPLACES, order_conflict
-from ..core.schedule import ReadoutSchedule
+from ..core.readout.read_order import ORDER_REPLACES, order_conflict
+from ..core.readout.schedule import ReadoutSchedule
 from ..core.window import fill_window_geometry, geometry_of
 
 __all__ = [

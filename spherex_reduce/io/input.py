@@ -23,7 +23,7 @@ from astropy import units as u
 from ..core.errors import ConfigError, FormatError
 from ..core.fields import FIELD, check_sides, field_cards, read_field
 from ..core.parameters import Parameter, validate_parameters
-from .flags import check_dq_bits
+from .readers.flags import check_dq_bits
 
 __all__ = ["INPUT_PARAMETERS", "InputOptions", "apply_gain", "parse_unit"]
 

@@ -14,7 +14,7 @@ reads of the reference rows of every frame, with their phantom values) and
 bands of rows of every frame, and either can be loaded whole (`Source.exposure`)
 for a step that needs the whole exposure.
 
-A new input layout is one reader class (a `~spherex_reduce.io.frames.RampReader`
+A new input layout is one reader class (a `~spherex_reduce.io.readers.frames.RampReader`
 read in bands, or one that returns an `~spherex_reduce.Exposure`) and one
 branch in `open_input`.
 """
@@ -27,12 +27,12 @@ import numpy as np
 from ..core.block import Block, Context
 from ..core.errors import FormatError
 from ..core.exposure import Exposure
-from .description import check_integrations
-from .extension_reads import ExtensionReads
-from .fits_read import CheckedFITS, Closing, probe, read
-from .frames import FrameReader, RampReader
 from .input import InputOptions
-from .read_files import ReadFiles
+from .readers.description import check_integrations
+from .readers.extension_reads import ExtensionReads
+from .readers.fits_read import CheckedFITS, Closing, probe, read
+from .readers.frames import FrameReader, RampReader
+from .readers.read_files import ReadFiles
 
 __all__ = ["FileSource", "Input", "MemorySource", "Source", "context_of", "open_input",
            "read_phantom", "side_block", "side_indices"]
@@ -201,7 +201,7 @@ class FileSource(Source):
 
     Parameters
     ----------
-    reader : `~spherex_reduce.io.FrameReader` or `~spherex_reduce.io.read_files.ReadFiles`
+    reader : `~spherex_reduce.io.FrameReader` or `~spherex_reduce.io.readers.read_files.ReadFiles`
         An open reader of a file whose pixels are stored as they are
         (floating point, not scaled, not compressed: ``reader.readable_in_bands()``),
         or of a ramp stored as one file per read, in readout order.
@@ -318,16 +318,16 @@ def open_input(what, *, input=None, **supplied):
     what : `~spherex_reduce.Exposure`, `Source`, reader, path, glob or sequence of paths
         - an `~spherex_reduce.Exposure` (bands are views of it);
         - a `Source`, or an open `~spherex_reduce.io.FrameReader` or
-          `~spherex_reduce.io.read_files.ReadFiles` (not closed here);
+          `~spherex_reduce.io.readers.read_files.ReadFiles` (not closed here);
         - the path of a FITS file: a raw ramp file in readout order is read in
           bands, and so is a ramp stored as ``SCI`` extensions, one per read,
           when ``input`` says ``reads: extensions``
-          (`~spherex_reduce.io.extension_reads.ExtensionReads`); a 4-D ``SCI``
+          (`~spherex_reduce.io.readers.extension_reads.ExtensionReads`); a 4-D ``SCI``
           (integrations, groups, rows, columns) gives an `Input` with
           ``integrations``; anything else is read whole
           (`~spherex_reduce.io.read`);
         - a sequence of paths: one ramp stored as one file per read, in that
-          order (`~spherex_reduce.io.read_files.read_file_paths` expands a glob
+          order (`~spherex_reduce.io.readers.read_files.read_file_paths` expands a glob
           such as ``'DIR/read_*.fits'`` in natural order, as ``--reads`` does).
     input : dict or `~spherex_reduce.io.input.InputOptions`, optional
         The pipeline config's ``input:`` section.
@@ -375,7 +375,7 @@ def open_input(what, *, input=None, **supplied):
 
 def _integrations(path, options, supplied):
     """A 4-D file: opened and checked once, each integration read when asked for, with
-    explicit reads (`~spherex_reduce.io.stable_file.StableFile`: nothing mapped, so a file
+    explicit reads (`~spherex_reduce.io.readers.stable_file.StableFile`: nothing mapped, so a file
     changed meanwhile is an error, never a signal)."""
     checked = CheckedFITS(path)
     try:

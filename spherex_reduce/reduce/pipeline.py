@@ -196,7 +196,7 @@ class Pipeline:
             as :meth:`read` does (streamed when it can be); a sequence of paths
             (or a glob) is one ramp stored as one file per read; an open reader
             of raw ramps (`~spherex_reduce.io.FrameReader`, or
-            `~spherex_reduce.io.read_files.ReadFiles`) is read in bands, or
+            `~spherex_reduce.io.readers.read_files.ReadFiles`) is read in bands, or
             whole when a pass cannot stream it (the caller closes it).  A file
             of several integrations is reduced by
             `~spherex_reduce.reduce_integrations`.

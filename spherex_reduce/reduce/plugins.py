@@ -35,9 +35,9 @@ ENTRY_POINT_GROUP = "spherex_reduce"
 BUILTIN_PLUGINS = {
     "builtin.unchop": "spherex_reduce.reduce.steps.unchop",
     "builtin.phantom": "spherex_reduce.reduce.steps.phantom",
-    "builtin.reference": "spherex_reduce.reduce.steps.reference",
-    "builtin.jumps": "spherex_reduce.reduce.steps.jumps",
-    "builtin.fit_ramp": "spherex_reduce.reduce.steps.fit_ramp",
+    "builtin.reference": "spherex_reduce.reduce.steps.reference.step",
+    "builtin.jumps": "spherex_reduce.reduce.steps.jumps.step",
+    "builtin.fit_ramp": "spherex_reduce.reduce.steps.fit_ramp.step",
     "builtin.clipping": "spherex_reduce.reduce.steps.clipping",
     "builtin.pairs": "spherex_reduce.reduce.steps.pairs",
     "builtin.dark": "spherex_reduce.reduce.steps.dark",

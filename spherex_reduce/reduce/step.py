@@ -412,7 +412,7 @@ class Strategy:
         ``context`` is the `~spherex_reduce.core.block.Context` of the blocks the
         offsets apply to (schedule, unit, row order, the threads it may use).
 
-        Returns a `~spherex_reduce.reduce.steps.reference_strategies.ReferenceOffsets`;
+        Returns a `~spherex_reduce.reduce.steps.reference.strategies.ReferenceOffsets`;
         the step's kernel subtracts them.  A strategy that defines it streams
         like the built-in ones.
         """

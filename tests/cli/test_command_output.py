@@ -60,7 +60,7 @@ def test_sweep_plot_in_memory_equals_plot_of_the_file(tmp_path, monkeypatch):
 @pytest.fixture(scope="module")
 def demo_dir(tmp_path_factory):
     """A small demo run: its directory and its figures by file name."""
-    import spherex_reduce.analysis.demo as demo
+    import spherex_reduce.analysis.figures.demo as demo
 
     out = tmp_path_factory.mktemp("demo")
     figs = saved_figures(demo, ["-q", "demo", "--size", "256", "--nframes", "3", "-o", str(out),

@@ -115,7 +115,7 @@ def test_plugins_lists_providers(capsys):
 
 
 def test_demo_runs_and_refuses_to_overwrite(tmp_path, capsys):
-    from spherex_reduce.analysis.demo import PRODUCTS, RAW_PRODUCTS
+    from spherex_reduce.analysis.figures.demo import PRODUCTS, RAW_PRODUCTS
 
     assert run("-q", "demo", "-o", tmp_path / "d", "--size", 128, "--nframes", 6,
                "--keep-raw") == 0
@@ -153,7 +153,7 @@ def test_console_script_unexpected_and_usage(tmp_path):
 def test_demo_removes_its_raw_files_unless_asked(tmp_path, capsys):
     """The README promises FITS images, a table and plots: the raw ramps (2 x 1.28 GB at
     full size) are simulated into the directory and removed once reduced."""
-    from spherex_reduce.analysis.demo import PRODUCTS
+    from spherex_reduce.analysis.figures.demo import PRODUCTS
 
     assert run("-q", "demo", "-o", tmp_path / "d", "--size", 64, "--nframes", 3) == 0
     assert sorted(p.name for p in (tmp_path / "d").iterdir()) == sorted(PRODUCTS)

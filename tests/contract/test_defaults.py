@@ -26,8 +26,8 @@ from spherex_reduce import (
 from spherex_reduce.cli import build_parser
 from spherex_reduce.reduce.plugins import Registry, get_plugin_manager
 from spherex_reduce.reduce.steps.dark import COMBINE_PARAMETERS
-from spherex_reduce.reduce.steps.fit_ramp import FitRampStep, RampFit
-from spherex_reduce.reduce.steps.reference_strategies import (
+from spherex_reduce.reduce.steps.fit_ramp.step import FitRampStep, RampFit
+from spherex_reduce.reduce.steps.reference.strategies import (
     MeanReference,
     clipped_mean,
     reference_offsets,

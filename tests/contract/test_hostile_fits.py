@@ -552,7 +552,7 @@ def test_a_compressed_file_cut_while_it_is_read_is_named(tmp_path, raw, module):
     import importlib
     import os
 
-    from spherex_reduce.io.fits_read import CheckedFITS
+    from spherex_reduce.io.readers.fits_read import CheckedFITS
 
     path = write(raw, tmp_path / "raw.fits")
     packed = tmp_path / "raw.fits.z"

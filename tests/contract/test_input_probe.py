@@ -903,7 +903,7 @@ MESSAGES = [
 def _rowskip_in_second(k, hdul):
     """ROWSKIP 8 in read_2.fits, with the READOUT table of that readout (a file that agrees
     with itself, not with read_1.fits)."""
-    from spherex_reduce.core.schedule import ReadoutSchedule
+    from spherex_reduce.core.readout.schedule import ReadoutSchedule
 
     if k == 1:
         hdul[0].header["ROWSKIP"] = 8

@@ -49,7 +49,7 @@ def test_every_public_name_resolves_in_a_fresh_interpreter(module):
 def test_functions_named_as_their_module_stay_functions():
     # the registry imports reduce.steps.fit_ramp and .unchop by name: the import system then
     # sets the package's attribute to the module (lazy_loader >= 0.6 keeps the function)
-    code = ("import spherex_reduce.reduce.steps.fit_ramp, spherex_reduce.reduce.steps.unchop\n"
+    code = ("import spherex_reduce.reduce.steps.fit_ramp.step, spherex_reduce.reduce.steps.unchop\n"
             "from spherex_reduce.reduce.steps import fit_ramp, unchop\n"
             "from spherex_reduce import fit_ramp as top\n"
             "print(type(fit_ramp).__name__, type(unchop).__name__, type(top).__name__)")

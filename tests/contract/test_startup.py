@@ -19,8 +19,8 @@ from astropy.io import fits
 #: Never loaded by ``import spherex_reduce``, ``--help`` or ``--version``.
 HEAVY = ("numpy", "astropy", "scipy", "astropy.nddata", "astropy.wcs", "scipy.optimize",
          "scipy.signal", "matplotlib", "dask", "distributed", "tqdm",
-         "spherex_reduce.reduce.steps.wiener", "spherex_reduce.simulation",
-         "spherex_reduce.analysis", "spherex_reduce.io.fits_read")
+         "spherex_reduce.reduce.steps.reference.wiener", "spherex_reduce.simulation",
+         "spherex_reduce.analysis", "spherex_reduce.io.readers.fits_read")
 
 #: Never loaded by ``reduce``: plotting, dask, the simulator and the analysis.
 NOT_FOR_REDUCE = ("matplotlib", "dask", "distributed", "scipy.signal", "scipy.optimize",

@@ -21,7 +21,7 @@ from spherex_reduce.cli import readout as readout_cli
 from spherex_reduce.core.errors import ConfigError, FormatError
 from spherex_reduce.core.fields import FIELD, FIELDS, SIDES, section_fields
 from spherex_reduce.core.parameters import validate_parameters
-from spherex_reduce.core.read_order import ORDER_REPLACES
+from spherex_reduce.core.readout.read_order import ORDER_REPLACES
 from spherex_reduce.io.config import (
     GEOMETRY_PARAMETERS,
     READOUT_PARAMETERS,

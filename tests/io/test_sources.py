@@ -14,7 +14,7 @@ from astropy.io import fits
 from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule, write
 from spherex_reduce.core.errors import FormatError
 from spherex_reduce.io import FrameReader
-from spherex_reduce.io.read_files import read_file_paths
+from spherex_reduce.io.readers.read_files import read_file_paths
 from spherex_reduce.io.sources import FileSource, MemorySource, Source, open_input
 
 GEOMETRY = DetectorGeometry(16, 8, 2, ref_border=2, pixel_rate=1e5)

@@ -25,7 +25,7 @@ from spherex_reduce.cli import main
 from spherex_reduce.core.errors import ConfigError
 from spherex_reduce.io.config import shipped_configs
 from spherex_reduce.io.examples import example_raw_exposure, tiny_schedule
-from spherex_reduce.reduce.steps.reference_strategies import NoReferenceError
+from spherex_reduce.reduce.steps.reference.strategies import NoReferenceError
 
 CONFIGS = ["spherex-default", "spherex-slopes", "measured-dark-pair", "acn", "median",
            "phantom-only"]

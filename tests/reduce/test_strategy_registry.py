@@ -134,7 +134,7 @@ def test_a_plugin_installed_while_the_process_runs_is_found(
 
 def test_the_step_made_alone_knows_the_reference_strategies():
     from spherex_reduce.io.examples import example_raw_exposure
-    from spherex_reduce.reduce.steps.reference import CorrectReferenceStep
+    from spherex_reduce.reduce.steps.reference.step import CorrectReferenceStep
 
     raw = example_raw_exposure()
     alone = CorrectReferenceStep()(raw, strategy="acn")

@@ -7,7 +7,7 @@ for unbounded time or memory.
 
 Examples
 --------
->>> from spherex_reduce.analysis.design_file import load_design
+>>> from spherex_reduce.analysis.design.file import load_design
 >>> d = load_design({"search": {"iterations": 10}, "pipeline": "none"})
 >>> d.iterations, d.pipeline, d.frame_time, d.baseline["skip"]
 (10, None, 1.51, 24)
@@ -22,14 +22,14 @@ from dataclasses import dataclass
 
 from astropy import units as u
 
-from ..core.errors import ConfigError, SpherexReduceError
-from ..io.config import load_yaml
-from ..reduce.steps.noise_models import noise_model
-from ..simulation.scene import load_scene
-from .case import pipeline_section, realizations_section, scene_section, seed_section
-from .forecast_steps import linear_steps
+from ...core.errors import ConfigError, SpherexReduceError
+from ...io.config import load_yaml
+from ...reduce.steps.reference.noise_models import noise_model
+from ...simulation.scene import load_scene
+from ..case import pipeline_section, realizations_section, scene_section, seed_section
+from ..forecast.steps import linear_steps
+from ..spectrum import BAND_KMAX, BAND_KMIN
 from .row_orders import FAMILIES, max_skip
-from .spectrum import BAND_KMAX, BAND_KMIN
 
 __all__ = ["BASELINE", "MAX_CHOICES", "MAX_ITERATIONS", "MAX_TIMINGS", "TOP_KEYS", "Design",
            "load_design"]
@@ -96,7 +96,7 @@ def load_design(source):
     ``pipeline``
         The reduction the forecast follows (default ``spherex-default``;
         ``none``: the slope image as simulated); one whose steps the forecast
-        cannot follow (`~spherex_reduce.analysis.forecast_steps.linear_steps`)
+        cannot follow (`~spherex_reduce.analysis.forecast.steps.linear_steps`)
         is refused here.
     ``budget``
         ``{frame_time: s}``: every schedule takes this frame time (default
@@ -107,9 +107,9 @@ def load_design(source):
         ``ref_reads``, ``ref_mode``, ``phantom_reads``; default the paper's
         S = 24, r = 32 distributed, c = 4), at the budget's frame time; ``skip``
         below the number of active rows (a larger one reads them in physical
-        order, `~spherex_reduce.analysis.row_orders.max_skip`).
+        order, `~spherex_reduce.analysis.design.row_orders.max_skip`).
     ``search``
-        ``families`` (of `~spherex_reduce.analysis.row_orders.FAMILIES`),
+        ``families`` (of `~spherex_reduce.analysis.design.row_orders.FAMILIES`),
         ``skips`` (the S of the skip and nested families, default 1 ... 64),
         ``phantom_reads`` and ``ref_reads`` (the c and r tried, default
         0, 1, 2, 4, 8 and 0, 8, 16, 32, 48, 64, 96, 128, 176; those whose reads do not

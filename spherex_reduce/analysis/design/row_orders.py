@@ -2,13 +2,13 @@
 
 Each function returns a permutation ``p`` of ``0 ... n - 1``: ``p[t]`` is the
 active row (counted from the first active row) read in slot ``t``.  They are
-the starting points of `~spherex_reduce.analysis.readout_design`; an order
+the starting points of `~spherex_reduce.analysis.design.search`; an order
 becomes a schedule through `explicit_order`, which places the reference reads
 as a ``'distributed'`` (or ``'repeated'``) schedule of the same ``r`` does.
 
 Examples
 --------
->>> from spherex_reduce.analysis.row_orders import nested_order, radical_inverse_order
+>>> from spherex_reduce.analysis.design.row_orders import nested_order, radical_inverse_order
 >>> nested_order(8, (2, 2)).tolist()            # bit reversal of 0 ... 7
 [0, 4, 2, 6, 1, 5, 3, 7]
 >>> radical_inverse_order(8, 2).tolist()
@@ -17,7 +17,7 @@ Examples
 
 import numpy as np
 
-from ..core.schedule import ReadoutSchedule, chopped_order
+from ...core.readout.schedule import ReadoutSchedule, chopped_order
 
 __all__ = ["FAMILIES", "explicit_order", "family_orders", "golden_order", "max_skip",
            "nested_order", "radical_inverse_order"]
@@ -31,12 +31,12 @@ _GOLDEN = (np.sqrt(5.0) - 1) / 2
 def nested_order(n, skips):
     """Nested skips: rows sorted by ``i mod s1``, then ``(i // s1) mod s2``, ... then ``i``.
 
-    ``(S,)`` is the paper's skip ``S`` (`~spherex_reduce.core.schedule.chopped_order`); each
+    ``(S,)`` is the paper's skip ``S`` (`~spherex_reduce.core.readout.schedule.chopped_order`); each
     further skip chops the rows of every pass again.
 
     Examples
     --------
-    >>> from spherex_reduce.analysis.row_orders import nested_order
+    >>> from spherex_reduce.analysis.design.row_orders import nested_order
     >>> nested_order(12, (3, 2)).tolist()
     [0, 6, 3, 9, 1, 7, 4, 10, 2, 8, 5, 11]
     """
@@ -55,7 +55,7 @@ def radical_inverse_order(n, base):
 
     Examples
     --------
-    >>> from spherex_reduce.analysis.row_orders import radical_inverse_order
+    >>> from spherex_reduce.analysis.design.row_orders import radical_inverse_order
     >>> radical_inverse_order(9, 3).tolist()
     [0, 3, 6, 1, 4, 7, 2, 5, 8]
     """
@@ -76,7 +76,7 @@ def golden_order(n, step=_GOLDEN):
 
     Examples
     --------
-    >>> from spherex_reduce.analysis.row_orders import golden_order
+    >>> from spherex_reduce.analysis.design.row_orders import golden_order
     >>> golden_order(5).tolist()
     [0, 2, 4, 1, 3]
     """
@@ -89,7 +89,7 @@ def max_skip(n):
 
     Examples
     --------
-    >>> from spherex_reduce.analysis.row_orders import max_skip
+    >>> from spherex_reduce.analysis.design.row_orders import max_skip
     >>> max_skip(24), max_skip(1)
     (23, 1)
     """
@@ -105,7 +105,7 @@ def family_orders(n, families=FAMILIES, skips=range(1, 65)):
 
     Examples
     --------
-    >>> from spherex_reduce.analysis.row_orders import family_orders
+    >>> from spherex_reduce.analysis.design.row_orders import family_orders
     >>> [label for _, label, _ in family_orders(16, ["skip", "golden"], skips=[1, 4])]
     ['S=1', 'S=4', 'golden', 'golden^2']
     """
@@ -143,7 +143,7 @@ def explicit_order(geometry, permutation, ref_reads, ref_mode="distributed"):
     Examples
     --------
     >>> from spherex_reduce import DetectorGeometry
-    >>> from spherex_reduce.analysis.row_orders import explicit_order
+    >>> from spherex_reduce.analysis.design.row_orders import explicit_order
     >>> g = DetectorGeometry(8, 4, 1, ref_border={"top": 1, "bottom": 1})
     >>> explicit_order(g, [0, 2, 4, 1, 3, 5], 2)
     [0, 1, 3, 5, 7, 2, 4, 6]

@@ -1,8 +1,8 @@
 """Design a readout: the schedule of least forecast band power within a frame-time budget.
 
-`design_readout` searches, for a `~spherex_reduce.analysis.design_file.Design`:
+`design_readout` searches, for a `~spherex_reduce.analysis.design.file.Design`:
 
-1. *families*: every order of `~spherex_reduce.analysis.row_orders.family_orders`
+1. *families*: every order of `~spherex_reduce.analysis.design.row_orders.family_orders`
    (skips, nested skips, radical-inverse and golden-ratio orders) at the
    baseline's timing (``c``, ``r`` and reference placement);
 2. *timing*: for the best ``finalists`` orders, every ``c`` (phantom reads),
@@ -28,16 +28,16 @@ from dataclasses import dataclass
 import numpy as np
 from astropy.table import Table
 
-from ..core._text import plural
-from ..core.errors import ConfigError, SpherexReduceError
-from ..core.schedule import chopped_order
-from ..reduce.progress import terminal_bar
-from ..simulation import simulate
-from ..simulation.scene import load_scene
-from .case import SpectrumMeasure, run_case
-from .design_file import load_design
-from .light import light_sensitive_image
-from .noise_forecast import band_power_forecast, forecast
+from ...core._text import plural
+from ...core.errors import ConfigError, SpherexReduceError
+from ...core.readout.schedule import chopped_order
+from ...reduce.progress import terminal_bar
+from ...simulation import simulate
+from ...simulation.scene import load_scene
+from ..case import SpectrumMeasure, run_case
+from ..forecast.engine import band_power_forecast, forecast
+from ..light import light_sensitive_image
+from .file import load_design
 from .row_orders import explicit_order, family_orders
 
 __all__ = ["Candidate", "DesignResult", "design_readout", "plot_design"]
@@ -87,8 +87,8 @@ def design_readout(design, progress=False):
 
     Parameters
     ----------
-    design : `~spherex_reduce.analysis.design_file.Design`, dict, YAML text or path
-        What to search (`~spherex_reduce.analysis.design_file.load_design`).
+    design : `~spherex_reduce.analysis.design.file.Design`, dict, YAML text or path
+        What to search (`~spherex_reduce.analysis.design.file.load_design`).
     progress : bool
         A progress bar per stage on a terminal (stderr).
 
@@ -109,7 +109,7 @@ def design_readout(design, progress=False):
 
     Examples
     --------
-    >>> from spherex_reduce.analysis.readout_design import design_readout
+    >>> from spherex_reduce.analysis.design.search import design_readout
     >>> res = design_readout({
     ...     "scene": {"geometry": {"nrows": 40, "ncols": 16, "nchannels": 2, "ref_border": 4},
     ...               "readout": {"nframes": 4},
@@ -391,7 +391,7 @@ def plot_design(report):
     """
     from matplotlib.figure import Figure
 
-    from ..io.plotting import unit_label
+    from ...io.plotting import unit_label
 
     rep = report
     meta = rep.meta

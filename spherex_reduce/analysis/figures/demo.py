@@ -6,9 +6,9 @@ from pathlib import Path
 from astropy import units as u
 from astropy.table import Table
 
-from ..io import atomic_output, write
-from ..io.plotting import plot_images, plot_read_order, save_figure
-from . import (
+from ...io import atomic_output, write
+from ...io.plotting import plot_images, plot_read_order, save_figure
+from .. import (
     SpectrumMeasure,
     as_pipeline,
     band_label,
@@ -17,8 +17,8 @@ from . import (
     photon_noise_power,
     run_case,
 )
+from ..spectrum import SPECTRUM_COLUMNS
 from .plots import plot_spectra
-from .spectrum import SPECTRUM_COLUMNS
 
 __all__ = ["PRODUCTS", "RAW_PRODUCTS", "run_demo"]
 

@@ -51,7 +51,7 @@ def plot_forecast_figure(numbers, figure):
     Examples
     --------
     >>> from astropy.table import Table
-    >>> from spherex_reduce.analysis.forecast_figures import plot_forecast_figure
+    >>> from spherex_reduce.analysis.figures.forecast import plot_forecast_figure
     >>> rows = [{"figure": "6", "series": s, "x_name": "S", "x": x, "y_name": "band_power",
     ...          "y": y, "y_err": e, "unit": "electron2 pix2 / s2"}
     ...         for s, e in (("corrected", 0.1), ("corrected, forecast", 0.0))
@@ -104,7 +104,7 @@ def _draw(ax, mc, fc, **points):
 def _scan(rows, figure):
     from matplotlib.figure import Figure
 
-    from ..io.plotting import unit_label
+    from ...io.plotting import unit_label
 
     mc, fc, unit = _series(rows, "band_power")
     xlabel, xscale = _SCANS[figure]
@@ -123,7 +123,7 @@ def _scan(rows, figure):
 def _profile(rows):
     from matplotlib.figure import Figure
 
-    from ..io.plotting import unit_label
+    from ...io.plotting import unit_label
 
     mc, fc, unit = _series(rows, "power_ky")
     fig = Figure(figsize=(7, 5), layout="constrained")

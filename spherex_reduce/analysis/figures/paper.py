@@ -5,8 +5,8 @@ Each function of `FIGURES` computes one of the paper's figures for a
 reduces its cases with `~spherex_reduce.analysis.case.run_case` or its
 parameter scan with `~spherex_reduce.analysis.sweep.run_sweep`, saves the
 PNG, records every number plotted and adds its section, and its claim with a
-verdict, to the report (`~spherex_reduce.analysis.figure_report.FigureReport`).
-`~spherex_reduce.analysis.figures.make_figures` walks the table.
+verdict, to the report (`~spherex_reduce.analysis.figures.report.FigureReport`).
+`~spherex_reduce.analysis.figures.reproduce.make_figures` walks the table.
 """
 
 import warnings
@@ -16,17 +16,17 @@ import numpy as np
 from astropy import units as u
 from astropy.table import Table
 
-from ..core._text import plural
-from ..core.errors import SpherexReduceError
-from ..simulation import expected_slope_variance, load_scene
-from .case import SpectrumMeasure, run_case
-from .figure_report import _margin, _unicode
-from .forecast_fft import forecast_fft_magnitude
-from .forecast_figures import FORECAST, TITLES, plot_forecast_figure
-from .noise_forecast import forecast
-from .photon_noise import photon_noise_label, photon_noise_power
-from .spectrum import fft_magnitude
-from .sweep import run_sweep
+from ...core._text import plural
+from ...core.errors import SpherexReduceError
+from ...simulation import expected_slope_variance, load_scene
+from ..case import SpectrumMeasure, run_case
+from ..forecast.engine import forecast
+from ..forecast.fft import forecast_fft_magnitude
+from ..photon_noise import photon_noise_label, photon_noise_power
+from ..spectrum import fft_magnitude
+from ..sweep import run_sweep
+from .forecast import FORECAST, TITLES, plot_forecast_figure
+from .report import _margin, _unicode
 
 __all__ = ["FIGURES", "FigureRun"]
 
@@ -86,8 +86,8 @@ class FigureRun:
 
     Parameters
     ----------
-    settings : `~spherex_reduce.analysis.figures.FigureSettings`
-    report : `~spherex_reduce.analysis.figure_report.FigureReport`
+    settings : `~spherex_reduce.analysis.figures.reproduce.FigureSettings`
+    report : `~spherex_reduce.analysis.figures.report.FigureReport`
     scheduler, workers, progress
         As `~spherex_reduce.analysis.sweep.run_sweep`.
     forecast : bool
@@ -143,7 +143,7 @@ def _sigma_figure(n_values, sig, pred, unit, title):
     from matplotlib.figure import Figure
     from matplotlib.ticker import NullFormatter
 
-    from ..io.plotting import unit_label
+    from ...io.plotting import unit_label
 
     fig = Figure(figsize=(7, 5), layout="constrained")
     ax = fig.subplots()
@@ -224,7 +224,7 @@ def _fig6_skip(run):
     s, rep = run.settings, run.report
     from matplotlib.figure import Figure
 
-    from ..io.plotting import unit_label
+    from ...io.plotting import unit_label
 
     t6 = run.sweep(_scene(s), {"skip": list(s.skips)}, ["reference"],
                    measure={"exclude_horizontal": True}, seed=6)
@@ -382,7 +382,7 @@ def _fig8_reference_reads(run):
     """Fig. 8: band power against r, distributed against repeated reference reads."""
     from matplotlib.figure import Figure
 
-    from ..io.plotting import unit_label
+    from ...io.plotting import unit_label
 
     s, rep = run.settings, run.report
     t8 = run.sweep(_scene(s), {"ref_reads": list(s.ref_reads),
@@ -453,7 +453,7 @@ def _fig9_image(run):
     """Fig. 9: an image and its spectrum before reference correction."""
     s, rep = run.settings, run.report
     img9 = _measure(_scene(s), "phantom", 900)
-    from ..io.plotting import plot_image
+    from ...io.plotting import plot_image
 
     rep.save(plot_image(img9, "Fig. 9a: S = 24, phantom-corrected, before reference correction",
                         str(img9.unit)), "fig9_image.png")

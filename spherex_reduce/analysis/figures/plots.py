@@ -8,7 +8,7 @@ import numpy as np
 from astropy import units as u
 from matplotlib.figure import Figure
 
-from .spectrum import BAND_KMAX, BAND_KMIN, SPHEREX_PIXEL_SCALE, band_label, band_theta
+from ..spectrum import BAND_KMAX, BAND_KMIN, SPHEREX_PIXEL_SCALE, band_label, band_theta
 
 __all__ = ["plot_comparison", "plot_fft_magnitude", "plot_forecast", "plot_noise_fit",
            "plot_spectra"]
@@ -55,13 +55,13 @@ def plot_spectra(spectra, band=(BAND_KMIN, BAND_KMAX), photon=None, title="",
     --------
     >>> import numpy as np
     >>> from spherex_reduce.analysis import power_spectrum
-    >>> from spherex_reduce.analysis.plots import plot_spectra
+    >>> from spherex_reduce.analysis.figures.plots import plot_spectra
     >>> t = power_spectrum(np.random.default_rng(0).normal(size=(64, 64)), bins=6)
     >>> fig = plot_spectra({"white": t}, photon=1.0)
     >>> fig.axes[0].get_xscale()
     'log'
     """
-    from ..io.plotting import unit_label
+    from ...io.plotting import unit_label
 
     if ax is None:
         fig = Figure(figsize=(7, 5.2), layout="constrained")
@@ -137,7 +137,7 @@ def plot_forecast(table, measured=None, measured_label="measured", title="",
     Examples
     --------
     >>> from spherex_reduce.analysis import forecast
-    >>> from spherex_reduce.analysis.plots import plot_forecast
+    >>> from spherex_reduce.analysis.figures.plots import plot_forecast
     >>> scene = {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 4, "ref_border": 4},
     ...          "readout": {"nframes": 8, "phantom_reads": 0}}
     >>> fig = plot_forecast(forecast(scene, measure={"bins": 6}))
@@ -146,7 +146,7 @@ def plot_forecast(table, measured=None, measured_label="measured", title="",
     """
     from astropy.table import Table
 
-    from ..io.plotting import unit_label
+    from ...io.plotting import unit_label
 
     meta = table.meta
     k = u.Quantity(table["k"])
@@ -253,7 +253,7 @@ def plot_noise_fit(fits, title="", unit=None):
     -------
     `matplotlib.figure.Figure`
     """
-    from ..io.plotting import unit_label
+    from ...io.plotting import unit_label
 
     fig = Figure(figsize=(7, 5.2), layout="constrained")
     ax = fig.subplots()

@@ -24,7 +24,7 @@ def _verdict(margins):
 
     Examples
     --------
-    >>> from spherex_reduce.analysis.figure_report import _verdict
+    >>> from spherex_reduce.analysis.figures.report import _verdict
     >>> _verdict([5.0, 2.5]), _verdict([5.0, -3.0]), _verdict([5.0, 1.0])
     ('holds', 'does not hold', 'within the noise')
     """
@@ -49,7 +49,7 @@ class FigureReport:
 
     Examples
     --------
-    >>> from spherex_reduce.analysis.figure_report import FigureReport
+    >>> from spherex_reduce.analysis.figures.report import FigureReport
     >>> rep = FigureReport(".", overwrite=False)
     >>> rep.claim("a < b", [3.5], "a = 1, b = 2", "a is below b", "one realisation")
     'holds'
@@ -67,7 +67,7 @@ class FigureReport:
 
     def save(self, fig, name):
         """Save a matplotlib figure as ``outdir / name``; returns ``name``."""
-        from ..io.plotting import save_figure
+        from ...io.plotting import save_figure
 
         save_figure(fig, self.outdir / name, overwrite=self.overwrite)
         return name

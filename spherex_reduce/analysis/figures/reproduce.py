@@ -1,7 +1,7 @@
 """The paper's simulated figures, reproduced: PNGs, numbers (ECSV) and a Markdown report.
 
 `make_figures` walks the table of figures
-(`~spherex_reduce.analysis.paper_figures.FIGURES`): each simulates, reduces
+(`~spherex_reduce.analysis.figures.paper.FIGURES`): each simulates, reduces
 and measures its cases with `run_case` (`power_spectrum` / `band_power`
 through `SpectrumMeasure`); the parameter scans (Figs. 5, 6, 8, 10) run as
 sweeps (`run_sweep`) on dask, on one cluster for all of them.
@@ -17,12 +17,12 @@ from pathlib import Path
 
 from astropy.table import Table
 
-from ..core._text import plural
-from ..io import atomic_output
-from ..reduce.scheduler import _client
-from .figure_report import FAILS, HOLDS, NOISE, NOISE_SIGMAS, FigureReport
-from .paper_figures import FIGURES, FigureRun
-from .spectrum import band_label
+from ...core._text import plural
+from ...io import atomic_output
+from ...reduce.scheduler import _client
+from ..spectrum import band_label
+from .paper import FIGURES, FigureRun
+from .report import FAILS, HOLDS, NOISE, NOISE_SIGMAS, FigureReport
 
 __all__ = ["FigureSettings", "make_figures"]
 

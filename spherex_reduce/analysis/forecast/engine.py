@@ -5,13 +5,13 @@ covariance is known in closed form: a pixel's slope is ``sum_k w_k x(t + k F)``
 of the stream ``x`` of each noise component, so two samples taken ``L``
 samples apart within a frame have the slope covariance ``S(L)``
 (`~spherex_reduce.noise.variance.slope_covariance`).  Every reduction the
-forecast propagates (`~spherex_reduce.analysis.forecast_steps.FORECAST_STEPS`:
+forecast propagates (`~spherex_reduce.analysis.forecast.steps.FORECAST_STEPS`:
 un-chopping, phantom subtraction, reference correction by the mean of the
 reference pixels or a ``wiener`` drift estimate, uniform least-squares slopes,
 pair differences) is linear and subtracts from a pixel combinations of
 samples of the same streams, so ``E|FFT|²`` of the reduced image is a sum over
 pairs of reads of ``S`` at their lags, weighted by the phases of the pixels
-and samples involved: `spherex_reduce.analysis.forecast_rows` computes it with
+and samples involved: `spherex_reduce.analysis.forecast.rows` computes it with
 FFTs over read slots and offsets, exactly near the singularities of ``S`` and
 with a Chebyshev rule over offsets elsewhere (off by < 1e-7 per bin in the
 paper's full-size case, < 1e-5 in the 16 x 16 scenes of the tests, which hold
@@ -26,15 +26,12 @@ pixels (`~spherex_reduce.analysis.light`).
 import numpy as np
 from astropy import units as u
 
-from ..core.errors import ConfigError, SpherexReduceError
-from ..simulation.scene import Scene, load_scene
-from .case import SpectrumMeasure, measure_section
-from .forecast_layout import frame_cells, transposed
-from .forecast_rows import NODES, Cells, component_planes
-from .forecast_steps import reduction
-from .light import light_sensitive
-from .photon_noise import slope_variance_factor
-from .spectrum import (
+from ...core.errors import ConfigError, SpherexReduceError
+from ...simulation.scene import Scene, load_scene
+from ..case import SpectrumMeasure, measure_section
+from ..light import light_sensitive
+from ..photon_noise import slope_variance_factor
+from ..spectrum import (
     BAND_KMAX,
     BAND_KMIN,
     SPHEREX_PIXEL_SCALE,
@@ -43,6 +40,9 @@ from .spectrum import (
     rfft_weights,
     spectrum_table,
 )
+from .layout import frame_cells, transposed
+from .rows import NODES, Cells, component_planes
+from .steps import reduction
 
 __all__ = ["band_power_forecast", "forecast", "forecast_measure"]
 
@@ -72,7 +72,7 @@ def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SC
         The reduction (`~spherex_reduce.reduce.pipeline.as_pipeline`); None:
         the slope image as simulated.  Every step must be one the forecast
         knows as linear
-        (`~spherex_reduce.analysis.forecast_steps.FORECAST_STEPS`): ``unchop``,
+        (`~spherex_reduce.analysis.forecast.steps.FORECAST_STEPS`): ``unchop``,
         ``subtract_phantom``, ``correct_reference`` with the ``mean``, ``acn``
         (forecast unclipped, with or without side columns) or ``wiener``
         strategy, ``fit_ramp`` with uniform weights, ``sigma_clip`` (forecast
@@ -202,7 +202,7 @@ def band_power_forecast(scene, pipeline=None, kmin=BAND_KMIN, kmax=BAND_KMAX, *,
     Examples
     --------
     >>> from spherex_reduce.analysis import forecast
-    >>> from spherex_reduce.analysis.noise_forecast import band_power_forecast
+    >>> from spherex_reduce.analysis.forecast.engine import band_power_forecast
     >>> scene = {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 4, "ref_border": 4},
     ...          "readout": {"skip": 4, "ref_reads": 8, "nframes": 8, "phantom_reads": 2}}
     >>> band = band_power_forecast(scene, "spherex-default", 0.2, 1.0)
@@ -228,7 +228,7 @@ def band_power_forecast(scene, pipeline=None, kmin=BAND_KMIN, kmax=BAND_KMAX, *,
 
 def _frames(geometry, rows, cols):
     """The light-sensitive rectangle's shape in the readout frame, whether the stored image
-    is its transpose (`~spherex_reduce.analysis.forecast_layout.transposed`), and the
+    is its transpose (`~spherex_reduce.analysis.forecast.layout.transposed`), and the
     stored image's shape."""
     frame = (rows.stop - rows.start, cols.stop - cols.start)
     flip = transposed(geometry)
@@ -246,7 +246,7 @@ def _stored_planes(sc, red, rows, cols, comps, nodes=NODES):
 
 
 def _prepare(scene, pipeline):
-    """The scene, the pipeline's `~spherex_reduce.analysis.forecast_steps.Reduction`, the
+    """The scene, the pipeline's `~spherex_reduce.analysis.forecast.steps.Reduction`, the
     light-sensitive rows and columns and the components the reduced image sees (refusing
     what is not forecast)."""
     sc = scene if isinstance(scene, Scene) else load_scene(scene)
@@ -289,7 +289,7 @@ def forecast_measure(measure):
 
     Examples
     --------
-    >>> from spherex_reduce.analysis.noise_forecast import forecast_measure
+    >>> from spherex_reduce.analysis.forecast.engine import forecast_measure
     >>> forecast_measure({"bins": 8}).bins
     8
     >>> forecast_measure({"mask_sources": True})

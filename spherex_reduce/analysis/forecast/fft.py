@@ -11,9 +11,9 @@ cell is zero), as `~spherex_reduce.analysis.fft_magnitude` does.
 import numpy as np
 from astropy import units as u
 
-from .forecast_rows import NODES
-from .noise_forecast import _poisson_variance, _prepare, _stored_planes
-from .spectrum import FFTImage
+from ..spectrum import FFTImage
+from .engine import _poisson_variance, _prepare, _stored_planes
+from .rows import NODES
 
 __all__ = ["forecast_fft_magnitude"]
 
@@ -47,7 +47,7 @@ def forecast_fft_magnitude(scene, pipeline=None, size=129, *, nodes=NODES):
 
     Examples
     --------
-    >>> from spherex_reduce.analysis.forecast_fft import forecast_fft_magnitude
+    >>> from spherex_reduce.analysis.forecast.fft import forecast_fft_magnitude
     >>> scene = {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 4, "ref_border": 4},
     ...          "readout": {"nframes": 8, "phantom_reads": 0},
     ...          "noise": {"components": [{"name": "w", "alpha": 2e-3}]}}

@@ -6,7 +6,7 @@ pixels' phases) or separable (an amplitude per channel and ``k_x`` times a
 profile over offsets: a phantom value, a mean of reference pixels, a drift
 estimate's observation).  `Correlations` computes ``X(k_x, d) = sum_s f_a(k_x,
 s + d) conj f_b(k_x, s)`` for the noise components of the forecast
-(`spherex_reduce.analysis.forecast_rows`).
+(`spherex_reduce.analysis.forecast.rows`).
 """
 
 from dataclasses import dataclass

@@ -1,6 +1,6 @@
 """Which cell of the readout frame's Fourier plane holds each cell of the stored image's.
 
-The forecast's engine (`spherex_reduce.analysis.forecast_rows`) computes
+The forecast's engine (`spherex_reduce.analysis.forecast.rows`) computes
 ``E|FFT|²`` of the light-sensitive rectangle in the readout frame, where the
 reads run; the spectrum is measured on the stored image
 (`~spherex_reduce.analysis.light.light_sensitive_image`).  With channels as
@@ -27,7 +27,7 @@ def transposed(geometry):
     Examples
     --------
     >>> from spherex_reduce import DetectorGeometry
-    >>> from spherex_reduce.analysis.forecast_layout import transposed
+    >>> from spherex_reduce.analysis.forecast.layout import transposed
     >>> transposed(DetectorGeometry(8, 8, 2, ref_border=0, channels="rows"))
     True
     """
@@ -59,7 +59,7 @@ def frame_cells(ky, kx, frame_shape, is_transposed):
     A 4 x 6 frame is a 6 x 4 stored image: stored ``(5, 1)`` is frame ``(1, 5)``,
     outside the frame's rfft half, so frame ``(-1, -5) = (3, 1)``.
 
-    >>> from spherex_reduce.analysis.forecast_layout import frame_cells
+    >>> from spherex_reduce.analysis.forecast.layout import frame_cells
     >>> [a.tolist() for a in frame_cells([5, 2], [1, 2], (4, 6), True)]
     [[3, 2], [1, 2]]
     """

@@ -24,7 +24,7 @@ their own functional, and the cross and reference-reference terms are sums of
 the same form over the slot lags between a light row and a reference read
 (``H_LR``) and between two reference reads (``H_RR``).  A ``wiener`` estimate
 differs from read to read and changes every ``k_y``
-(`spherex_reduce.analysis.forecast_wiener`).
+(`spherex_reduce.analysis.forecast.wiener`).
 
 The sum over ``d`` is exact for the ``m`` near a singularity of ``S`` (``m R``
 within `NEAR_READS` row reads of a multiple of the frame time); for the others
@@ -39,11 +39,11 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft
 
-from ..core.errors import SpherexReduceError
-from ..core.limits import check_size
-from ..noise.variance import slope_covariance
-from .forecast_parts import Correlations, Part, channel_sums, column_phases
-from .forecast_wiener import WienerTerms
+from ...core.errors import SpherexReduceError
+from ...core.limits import check_size
+from ...noise.variance import slope_covariance
+from .functionals import Correlations, Part, channel_sums, column_phases
+from .wiener import WienerTerms
 
 __all__ = ["CHUNK_LAGS", "CHUNK_ROWS", "NEAR_READS", "NODES", "Cells", "component_planes"]
 
@@ -89,7 +89,7 @@ def component_planes(schedule, rows, cols, comps, reduction, nodes=NODES, cells=
     rows, cols : slice
         The light-sensitive rectangle (`~spherex_reduce.analysis.light_sensitive`).
     comps : list of `~spherex_reduce.noise.NoiseComponent`
-    reduction : `~spherex_reduce.analysis.forecast_steps.Reduction`
+    reduction : `~spherex_reduce.analysis.forecast.steps.Reduction`
     nodes : int
         Chebyshev nodes of the rule over offsets.
     cells : `Cells`, optional

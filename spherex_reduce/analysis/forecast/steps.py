@@ -3,7 +3,7 @@
 `FORECAST_STEPS` is the one declaration of the steps (and parameter values)
 `~spherex_reduce.analysis.forecast` knows to be linear; `reduction` reads a
 pipeline into a `Reduction`, the few facts the forecast's engine
-(`spherex_reduce.analysis.forecast_rows`) needs: whether each read's phantom
+(`spherex_reduce.analysis.forecast.rows`) needs: whether each read's phantom
 value is subtracted, which reference correction follows and whether the
 reference pixels it averages had their phantom values subtracted first.
 
@@ -28,8 +28,8 @@ way (``reduce_other: false``) and a second reference correction.
 
 from dataclasses import dataclass, field
 
-from ..core.errors import ConfigError
-from ..reduce.pipeline import as_pipeline
+from ...core.errors import ConfigError
+from ...reduce.pipeline import as_pipeline
 
 __all__ = ["FORECAST_STEPS", "MEASURED_SIGMA", "AtLeast", "Reduction", "linear_steps", "reduction"]
 
@@ -41,7 +41,7 @@ class AtLeast:
 
     Examples
     --------
-    >>> from spherex_reduce.analysis.forecast_steps import MEASURED_SIGMA
+    >>> from spherex_reduce.analysis.forecast.steps import MEASURED_SIGMA
     >>> 5.0 in MEASURED_SIGMA, 2.5 in MEASURED_SIGMA, MEASURED_SIGMA
     (True, False, a number >= 3)
     """
@@ -134,7 +134,7 @@ def reduction(pipeline):
 
     Examples
     --------
-    >>> from spherex_reduce.analysis.forecast_steps import reduction
+    >>> from spherex_reduce.analysis.forecast.steps import reduction
     >>> r = reduction("spherex-default")
     >>> r.phantom, r.reference, r.reference_phantom
     (True, 'mean', True)
@@ -192,7 +192,7 @@ def linear_steps(pipeline):
 
     Examples
     --------
-    >>> from spherex_reduce.analysis.forecast_steps import linear_steps
+    >>> from spherex_reduce.analysis.forecast.steps import linear_steps
     >>> linear_steps({"steps": [{"unchop": {}}, {"fit_ramp": {}}]})
     ['unchop', 'fit_ramp']
     """

@@ -21,11 +21,11 @@ import numpy as np
 from astropy import units as u
 from astropy.table import Table
 
-from ..core.errors import ConfigError, SpherexReduceError
-from .case import SpectrumMeasure
-from .forecast_steps import linear_steps
-from .noise_forecast import forecast, forecast_measure
-from .sweep import _plain
+from ...core.errors import ConfigError, SpherexReduceError
+from ..case import SpectrumMeasure
+from ..sweep import _plain
+from .engine import forecast, forecast_measure
+from .steps import linear_steps
 
 __all__ = ["FORECAST_COLUMNS", "SweepForecast"]
 
@@ -53,7 +53,7 @@ class SweepForecast:
     Examples
     --------
     >>> from spherex_reduce.analysis.sweep import load_sweep
-    >>> from spherex_reduce.analysis.sweep_forecast import SweepForecast
+    >>> from spherex_reduce.analysis.forecast.sweep import SweepForecast
     >>> sw = load_sweep({"scene": {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 4},
     ...                            "readout": {"nframes": 8}},
     ...                  "pipeline": "unchop", "grid": {"skip": [1, 8]}, "realizations": 0,

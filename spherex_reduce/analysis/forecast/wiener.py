@@ -1,11 +1,11 @@
 """The forecast through the ``wiener`` reference strategy: a drift estimate at every read.
 
-The strategy (`~spherex_reduce.reduce.steps.wiener.WienerReference`) subtracts
+The strategy (`~spherex_reduce.reduce.steps.reference.wiener.WienerReference`) subtracts
 from each read of channel ``ch`` (and parity group ``g``) the estimate
 ``w @ y_ch + wd @ mean_ch(y)`` of the channel's drift, linear in its
 observations ``y``: the value of every reference read and, when it estimates
 from them, the phantom value of every read.  Its weights come from the
-strategy itself (`~spherex_reduce.reduce.steps.wiener.WienerReference.read_weights`:
+strategy itself (`~spherex_reduce.reduce.steps.reference.wiener.WienerReference.read_weights`:
 the same code, for the strategy's own noise model); the forecast propagates
 them under the scene's noise.
 
@@ -31,10 +31,10 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft
 
-from ..core.block import Context
-from ..reduce.steps.reference_strategies import _group_columns
-from ..reduce.steps.wiener import WienerReference
-from .forecast_parts import Part, channel_sums, column_phases
+from ...core.block import Context
+from ...reduce.steps.reference.strategies import _group_columns
+from ...reduce.steps.reference.wiener import WienerReference
+from .functionals import Part, channel_sums, column_phases
 
 __all__ = ["WienerTerms"]
 
@@ -63,10 +63,10 @@ class WienerTerms:
     rows, cols : slice
         The light-sensitive rectangle.
     ky, kx : `numpy.ndarray`
-        The cells' row and column indices (as `~spherex_reduce.analysis.forecast_rows.Cells`).
+        The cells' row and column indices (as `~spherex_reduce.analysis.forecast.rows.Cells`).
     c : int
         Phantom samples per read (the offset of pixel offset 0 in a functional).
-    reduction : `~spherex_reduce.analysis.forecast_steps.Reduction`
+    reduction : `~spherex_reduce.analysis.forecast.steps.Reduction`
     slots : `numpy.ndarray`
         The slot of every read.
     light_reads : `numpy.ndarray`
@@ -127,7 +127,7 @@ class WienerTerms:
 
     def functional(self, term):
         """The term's observations as a functional of each channel at each ``k_x``
-        (``beta`` times ``psi``: `~spherex_reduce.analysis.forecast_rows.Part`)."""
+        (``beta`` times ``psi``: `~spherex_reduce.analysis.forecast.rows.Part`)."""
         return [Part(n == 1, amp=term.beta, profile=part)
                 for n, part in enumerate(term.psi) if part is not None]
 

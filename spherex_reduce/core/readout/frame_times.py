@@ -5,7 +5,7 @@ ramp fit needs (`~StoredFrameTimes.frame_starts`,
 `~StoredFrameTimes.read_noise_factors`, `~StoredFrameTimes.shot_covariance`).
 Most electronics read the array every frame time, so a
 `~spherex_reduce.ReadoutSchedule` places stored frame ``k`` at ``k`` frame
-times (or at its group's mean read, `spherex_reduce.core.groups`).  HST's
+times (or at its group's mean read, `spherex_reduce.core.readout.groups`).  HST's
 WFC3/IR reads at the times of a sample sequence (``RAPID``, ``SPARS10`` ...),
 stored as the ``SAMPTIME`` of each read: ``0, 2.93, 12.93, 22.93 ...`` s, not
 a multiple of one frame time.  The schedule's ``read_times`` carry such times
@@ -16,7 +16,7 @@ even spacing.  This module checks them and writes them as FITS text
 
 Examples
 --------
->>> from spherex_reduce.core.frame_times import format_read_times, parse_read_times
+>>> from spherex_reduce.core.readout.frame_times import format_read_times, parse_read_times
 >>> format_read_times((0.0, 2.932, 12.933))
 '0.0,2.932,12.933'
 >>> parse_read_times("0.0,2.932,12.933")
@@ -84,7 +84,7 @@ class StoredFrameTimes:
     def shot_covariance(self):
         """Covariance (s) of the charge of stored frames ``g`` and ``h`` per unit rate,
         ``(nframes, nframes)``: the mean over their reads of ``min(t_a, t_b) - t_first``
-        (`~spherex_reduce.core.groups.group_covariance`)."""
+        (`~spherex_reduce.core.readout.groups.group_covariance`)."""
         if self._reads is None:
             t = self.frame_starts.to_value(u.s)
             return np.minimum.outer(t, t) - t[0]
@@ -114,7 +114,7 @@ def check_read_times(times, nframes, grouped, read_duration):
 
     Examples
     --------
-    >>> from spherex_reduce.core.frame_times import check_read_times
+    >>> from spherex_reduce.core.readout.frame_times import check_read_times
     >>> check_read_times([0, 2.932, 12.933], 3, False, 2.6)
     (0.0, 2.932, 12.933)
     >>> check_read_times([0, 2.9, 2.9], 3, False, 2.6)
@@ -153,7 +153,7 @@ def describe_read_times(times):
 
     Examples
     --------
-    >>> from spherex_reduce.core.frame_times import describe_read_times
+    >>> from spherex_reduce.core.readout.frame_times import describe_read_times
     >>> describe_read_times((0.0, 2.932, 12.933))
     ', read at 0 ... 12.933 s (3 times given)'
     """

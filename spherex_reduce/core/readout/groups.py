@@ -13,7 +13,7 @@ groups accumulate.
 
 Examples
 --------
->>> from spherex_reduce.core.groups import pattern_groups, format_groups, parse_groups
+>>> from spherex_reduce.core.readout.groups import pattern_groups, format_groups, parse_groups
 >>> [r.tolist() for r in pattern_groups(3, frames_per_group=2, group_gap=1)]
 [[0, 1], [3, 4], [6, 7]]
 >>> format_groups([[0], [1, 2], [3, 4, 5, 6], [8]])
@@ -26,7 +26,7 @@ import itertools
 
 import numpy as np
 
-from .limits import check_size
+from ..limits import check_size
 
 __all__ = ["check_groups", "describe_groups", "format_groups", "group_covariance", "group_means",
            "parse_groups", "pattern_groups", "resolve_groups"]
@@ -104,7 +104,7 @@ def check_groups(groups, ngroups):
 
     Examples
     --------
-    >>> from spherex_reduce.core.groups import check_groups
+    >>> from spherex_reduce.core.readout.groups import check_groups
     >>> check_groups([[0], [1, 2]], 2)
     ((0,), (1, 2))
     >>> check_groups([[0, 1], [1, 2]], 2)
@@ -170,7 +170,7 @@ def describe_groups(frames_per_group, group_gap, groups):
 
     Examples
     --------
-    >>> from spherex_reduce.core.groups import describe_groups
+    >>> from spherex_reduce.core.readout.groups import describe_groups
     >>> describe_groups(4, 2, None), describe_groups(1, 0, [[0], [1, 2]])
     (', 4 frames per group, 2 apart', ', groups 0;1-2')
     """
@@ -229,7 +229,7 @@ def group_means(groups):
 
     Examples
     --------
-    >>> from spherex_reduce.core.groups import group_means
+    >>> from spherex_reduce.core.readout.groups import group_means
     >>> group_means([[0], [1, 2], [3, 4, 5, 6]]).tolist()
     [0.0, 1.5, 4.5]
     """
@@ -255,7 +255,7 @@ def group_covariance(groups):
 
     Examples
     --------
-    >>> from spherex_reduce.core.groups import group_covariance
+    >>> from spherex_reduce.core.readout.groups import group_covariance
     >>> group_covariance([[0], [2, 3]]).tolist()
     [[0.0, 0.0], [0.0, 2.25]]
     """

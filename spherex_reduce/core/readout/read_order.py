@@ -2,7 +2,7 @@
 
 A schedule's read order is normally built from the row-chopping skip ``S`` and
 the reference reads (``skip``, ``ref_reads``, ``ref_mode``,
-`spherex_reduce.core.schedule.chopped_order`).  The ``readout`` field
+`spherex_reduce.core.readout.schedule.chopped_order`).  The ``readout`` field
 ``order`` states it instead, read by read: a list of physical row indices (or
 the path of an ECSV file whose one integer column holds them).  Every active
 row appears exactly once; a reference row (the geometry's top and bottom
@@ -14,7 +14,7 @@ carries the rows (:func:`order_text`, :func:`parse_order_text`).
 Examples
 --------
 >>> from spherex_reduce import DetectorGeometry
->>> from spherex_reduce.core.read_order import check_order
+>>> from spherex_reduce.core.readout.read_order import check_order
 >>> g = DetectorGeometry(6, 4, 1, ref_border={"top": 1})   # row 0 is a reference row
 >>> rows, is_ref = check_order([0, 1, 3, 5, 0, 2, 4], g)
 >>> rows.tolist(), is_ref.astype(int).tolist()
@@ -29,8 +29,8 @@ import os
 
 import numpy as np
 
-from .errors import FormatError
-from .limits import check_size
+from ..errors import FormatError
+from ..limits import check_size
 
 __all__ = ["EXPLICIT", "ORDER_REPLACES", "check_order", "order_conflict", "order_from_table",
            "order_text", "parse_order_text", "read_order_file"]
@@ -53,7 +53,7 @@ def order_text(order):
 
     Examples
     --------
-    >>> from spherex_reduce.core.read_order import order_text
+    >>> from spherex_reduce.core.readout.read_order import order_text
     >>> order_text([0, 2, 1, 3])
     'explicit'
     """
@@ -65,7 +65,7 @@ def parse_order_text(text):
 
     Examples
     --------
-    >>> from spherex_reduce.core.read_order import parse_order_text
+    >>> from spherex_reduce.core.readout.read_order import parse_order_text
     >>> parse_order_text("explicit")
     'explicit'
     """
@@ -94,7 +94,7 @@ def read_order_file(path):
     --------
     >>> import tempfile, pathlib
     >>> from astropy.table import Table
-    >>> from spherex_reduce.core.read_order import read_order_file
+    >>> from spherex_reduce.core.readout.read_order import read_order_file
     >>> path = pathlib.Path(tempfile.mkdtemp()) / "rows.ecsv"
     >>> Table({"row": [0, 2, 1, 3]}).write(path, format="ascii.ecsv")
     >>> read_order_file(path)
@@ -128,7 +128,7 @@ def order_conflict(given):
 
     Examples
     --------
-    >>> from spherex_reduce.core.read_order import order_conflict
+    >>> from spherex_reduce.core.readout.read_order import order_conflict
     >>> order_conflict(["skip"])
     'order gives the read order, so skip cannot be given with it: leave out skip, ...'
     """
@@ -217,7 +217,7 @@ def order_from_table(table):
     Examples
     --------
     >>> from astropy.table import Table
-    >>> from spherex_reduce.core.read_order import order_from_table
+    >>> from spherex_reduce.core.readout.read_order import order_from_table
     >>> order_from_table(Table({"row": [0, 2, 1, 3]}))
     [0, 2, 1, 3]
     >>> order_from_table(None)

@@ -13,7 +13,7 @@ channel's fast-scan direction, then the row overhead.  After the last row read
 of a frame come ``frame_overhead`` samples (reset, idle).  A frame therefore
 lasts ``n_reads * row_samples + frame_overhead`` samples.
 A stored frame is one read of the array or the mean of a group of reads
-(`spherex_reduce.core.groups`); a ramp fit takes `frame_starts`,
+(`spherex_reduce.core.readout.groups`); a ramp fit takes `frame_starts`,
 `read_noise_factors` and `shot_covariance`.
 """
 
@@ -27,9 +27,9 @@ from astropy import units as u
 from astropy.io import fits
 from astropy.table import Table
 
-from ._text import plural
-from .errors import FormatError
-from .fields import (
+from .._text import plural
+from ..errors import FormatError
+from ..fields import (
     DEFAULT_FRAME_OVERHEAD,
     FIELD,
     FIELDS,
@@ -41,12 +41,12 @@ from .fields import (
     section_fields,
     table_dataclass,
 )
+from ..geometry import DetectorGeometry, RefBorder
+from ..limits import check_size
+from ..window import default_overhead, fill_window_geometry, geometry_of, window_reads
 from .frame_times import StoredFrameTimes, check_read_times, describe_read_times
-from .geometry import DetectorGeometry, RefBorder
 from .groups import describe_groups, resolve_groups
-from .limits import check_size
 from .read_order import EXPLICIT, ORDER_REPLACES, check_order, order_from_table
-from .window import default_overhead, fill_window_geometry, geometry_of, window_reads
 
 __all__ = ["REF_MODES", "ReadoutSchedule", "chopped_order"]
 
@@ -85,7 +85,7 @@ def chopped_order(n, skip):
 
     Examples
     --------
-    >>> from spherex_reduce.core.schedule import chopped_order
+    >>> from spherex_reduce.core.readout.schedule import chopped_order
     >>> chopped_order(16, 4).tolist()
     [0, 4, 8, 12, 1, 5, 9, 13, 2, 6, 10, 14, 3, 7, 11, 15]
     """
@@ -144,10 +144,10 @@ class ReadoutSchedule(StoredFrameTimes):
     read_times : list of float, optional
         Instead of even spacing: the time (s) of every stored frame's read,
         ``nframes`` times at least one read of the array apart, e.g. HST's
-        ``SAMPTIME`` (`spherex_reduce.core.frame_times`).
+        ``SAMPTIME`` (`spherex_reduce.core.readout.frame_times`).
     order : list of int or str, optional
         Instead of ``skip``, ``ref_reads`` and ``ref_mode``: the physical row
-        of every read, or an ECSV file of them (`spherex_reduce.core.read_order`).
+        of every read, or an ECSV file of them (`spherex_reduce.core.readout.read_order`).
 
     Examples
     --------

@@ -17,14 +17,14 @@ from astropy import units as u
 from astropy.io import fits
 from astropy.table import Table
 
-from ..core.channel_layout import check_stored_order
-from ..core.errors import FormatError
-from ..core.exposure import expected_shape
-from ..core.fields import header_keyword
-from ..core.schedule import ReadoutSchedule
-from .header_text import header_text
-from .input import InputOptions
-from .layout import PROVENANCE_COLUMNS, RESERVED, integration_shape
+from ...core.channel_layout import check_stored_order
+from ...core.errors import FormatError
+from ...core.exposure import expected_shape
+from ...core.fields import header_keyword
+from ...core.readout.schedule import ReadoutSchedule
+from ..header_text import header_text
+from ..input import InputOptions
+from ..layout import PROVENANCE_COLUMNS, RESERVED, integration_shape
 
 log = logging.getLogger(__name__)
 
@@ -111,7 +111,7 @@ def sci_hdu(hdul, path):
     is refused here, naming what was found: taking ``SCI,1`` as the image would
     reduce one read as if it were the ramp.  ``input: reads: extensions``
     reads such a file as a ramp
-    (`~spherex_reduce.io.extension_reads.ExtensionReads`).
+    (`~spherex_reduce.io.readers.extension_reads.ExtensionReads`).
     """
     sci = [h for h in hdul if h.name == "SCI"]
     if len(sci) > 1:
@@ -313,7 +313,7 @@ def check_provenance(table, path):
     Examples
     --------
     >>> from astropy.table import Table
-    >>> from spherex_reduce.io.description import check_provenance
+    >>> from spherex_reduce.io.readers.description import check_provenance
     >>> check_provenance(Table({"step": ["unchop"], "elapsed": [0.5]}), "a.fits")
     >>> try:
     ...     check_provenance(Table({"step": ["unchop"], "elapsed": ["slow"]}), "a.fits")

@@ -26,7 +26,7 @@ never reduced from ``SCI,1``).  What is read, and what is not:
   uncertainties; ``SAMP`` and ``TIME`` describe the calibrated product).
 
 The rows of every read are served a band at a time like those of one file
-per read (`~spherex_reduce.io.read_files.ImageRamp`); a read with flags makes
+per read (`~spherex_reduce.io.readers.read_files.ImageRamp`); a read with flags makes
 the ramp read whole.  The file is never modified.
 """
 
@@ -37,14 +37,14 @@ from pathlib import Path
 import numpy as np
 from astropy import units as u
 
-from ..core.errors import FormatError
-from ..core.fields import header_keyword
-from ..core.limits import check_count
+from ...core.errors import FormatError
+from ...core.fields import header_keyword
+from ...core.limits import check_count
+from ..header_text import header_text
+from ..input import InputOptions, parse_unit
 from .description import describe, file_tables, image_shape
 from .fits_read import open_fits
 from .flags import foreign_bits
-from .header_text import header_text
-from .input import InputOptions, parse_unit
 from .pixels import FLOAT_FOR, physical, unpacking
 from .read_files import MAX_READ_FILES, FrameImage, ImageRamp
 
@@ -68,7 +68,7 @@ def extension_reads(hdul, path):
     --------
     >>> import numpy as np
     >>> from astropy.io import fits
-    >>> from spherex_reduce.io.extension_reads import extension_reads
+    >>> from spherex_reduce.io.readers.extension_reads import extension_reads
     >>> hdul = fits.HDUList([fits.PrimaryHDU()] + [
     ...     fits.ImageHDU(np.zeros((4, 4), "i2"), fits.Header({"SAMPTIME": t}), "SCI", ver=v)
     ...     for v, t in ((1, 12.9), (2, 2.9), (3, 0.0))])
@@ -157,7 +157,7 @@ class ExtensionReads(ImageRamp):
     """A ramp stored as ``SCI`` extensions of one file, one per read, read in time order.
 
     It offers what `~spherex_reduce.io.sources.FileSource` asks of a reader
-    (as `~spherex_reduce.io.read_files.ReadFiles` does), so a
+    (as `~spherex_reduce.io.readers.read_files.ReadFiles` does), so a
     `~spherex_reduce.Pipeline` streams the ramp a band at a time (read whole
     when a read has flags).  `~spherex_reduce.io.sources.open_input`,
     `~spherex_reduce.io.read` and ``Pipeline.run(path)`` use it for a file
@@ -193,7 +193,7 @@ class ExtensionReads(ImageRamp):
     --------
     >>> import tempfile, pathlib, numpy as np
     >>> from astropy.io import fits
-    >>> from spherex_reduce.io.extension_reads import ExtensionReads
+    >>> from spherex_reduce.io.readers.extension_reads import ExtensionReads
     >>> path = pathlib.Path(tempfile.mkdtemp()) / "ramp_raw.fits"
     >>> hdus = [fits.PrimaryHDU()]
     >>> for v, t in ((1, 12.9), (2, 2.9), (3, 0.0)):  # the latest read first

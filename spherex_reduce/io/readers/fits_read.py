@@ -20,13 +20,13 @@ import numpy as np
 from astropy.io import fits
 from astropy.table import Table
 
-from ..core.errors import FormatError
-from ..core.exposure import Exposure, ReferenceReads
-from ..core.fields import _card_text
+from ...core.errors import FormatError
+from ...core.exposure import Exposure, ReferenceReads
+from ...core.fields import _card_text
+from ..fits_structure import _scan, _verify
+from ..input import InputOptions, apply_input
 from .description import describe, file_tables, image_shape, note_bad_checksums, sci_hdu
-from .fits_structure import _scan, _verify
 from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq
-from .input import InputOptions, apply_input
 from .pixels import physical, unpacking
 from .stable_file import StableFile
 
@@ -75,7 +75,7 @@ def open_fits(path, verify=None):
     the readers read pixels with explicit reads), the names of HDUs whose
     checksum failed (only when ``verify`` is False: else that is an error),
     and, for a plain FITS file on disk (not gzip etc., which astropy unpacks),
-    a `~spherex_reduce.io.stable_file.StableFile` opened before anything was
+    a `~spherex_reduce.io.readers.stable_file.StableFile` opened before anything was
     checked, so that a change made while the file is checked or read is seen
     (None for a compressed file).  The caller closes both.  ``verify=None``
     follows `checksum_policy`.
@@ -158,7 +158,7 @@ class CheckedFITS(Closing):
 
     Nothing of the file is memory-mapped: pixels are read into arrays of
     their own when asked for, each read after checking that the file is
-    still the one opened and checked (`~spherex_reduce.io.stable_file.StableFile`),
+    still the one opened and checked (`~spherex_reduce.io.readers.stable_file.StableFile`),
     so a file truncated or rewritten meanwhile is a `FormatError`, never a
     ``SIGBUS``.
 
@@ -290,7 +290,7 @@ def read(path, verify_checksum=None, dq_bits=None, input=None, integration=None,
         replaces it, with a warning and a ``HISTORY`` card), ``dq_bits`` and
         ``reads`` (``extensions``: the file's ``SCI`` extensions are the reads
         of one ramp, in ``SAMPTIME`` order, as HST's ``_raw`` files store it:
-        `~spherex_reduce.io.extension_reads.ExtensionReads`).
+        `~spherex_reduce.io.readers.extension_reads.ExtensionReads`).
     integration : int, optional
         For a 4-D ``SCI`` (integrations, groups, rows, columns: the JWST
         "uncal" layout), which integration to read (from 0): its ramps, with
@@ -346,7 +346,7 @@ def read(path, verify_checksum=None, dq_bits=None, input=None, integration=None,
 def exposure_from_hdul(hdul, path, bad, stable, supplied, dq_bits=None, options=None,
                        integration=None):
     """The `Exposure` in an HDU list opened by `open_fits` (which the caller closes), its
-    pixels read from ``stable`` (the file's `~spherex_reduce.io.stable_file.StableFile`;
+    pixels read from ``stable`` (the file's `~spherex_reduce.io.readers.stable_file.StableFile`;
     None for a file astropy unpacks)."""
     with unpacking(path):  # astropy unpacks a compressed file's tables and pixels lazily
         return _exposure(hdul, path, bad, stable, supplied, dq_bits, options, integration)
@@ -442,7 +442,7 @@ def probe(path):
 
     Examples
     --------
-    >>> from spherex_reduce.io.fits_read import probe
+    >>> from spherex_reduce.io.readers.fits_read import probe
     >>> probe("no-such-file.fits") is None
     True
     """

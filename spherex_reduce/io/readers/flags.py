@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.errors import ConfigError, FormatError
-from ..core.limits import check_size
-from .header_text import header_text
+from ...core.errors import ConfigError, FormatError
+from ...core.limits import check_size
+from ..header_text import header_text
 
 __all__ = ["DEFAULT_DQ_BITS", "check_dq_bits", "current_dq_bits", "foreign_dq_bits",
            "is_own_file"]
@@ -46,7 +46,7 @@ def check_dq_bits(bits, what="dq_bits"):
 
     Examples
     --------
-    >>> from spherex_reduce.io.flags import check_dq_bits
+    >>> from spherex_reduce.io.readers.flags import check_dq_bits
     >>> check_dq_bits(5)
     5
     >>> check_dq_bits(-1)
@@ -113,7 +113,7 @@ def is_own_file(names):
 
     Examples
     --------
-    >>> from spherex_reduce.io.flags import is_own_file
+    >>> from spherex_reduce.io.readers.flags import is_own_file
     >>> is_own_file(["PRIMARY", "SCI", "DQ", "READOUT"]), is_own_file(["PRIMARY", "SCI", "DQ"])
     (True, False)
     """
@@ -125,7 +125,7 @@ def foreign_bits(bits=None):
 
     Examples
     --------
-    >>> from spherex_reduce.io.flags import foreign_bits
+    >>> from spherex_reduce.io.readers.flags import foreign_bits
     >>> foreign_bits(), foreign_bits(6)
     (4294967295, 6)
     """

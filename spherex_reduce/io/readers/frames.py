@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 from astropy.io import fits
 
-from ..core.errors import FormatError
-from ..core.exposure import Exposure
+from ...core.errors import FormatError
+from ...core.exposure import Exposure
+from ..input import InputOptions, apply_gain, apply_input
 from .description import describe, file_tables, image_shape
 from .fits_read import Closing, exposure_from_hdul, open_fits
-from .input import InputOptions, apply_gain, apply_input
 from .pixels import FITS_DTYPES, FLOAT_FOR, physical, scaling, to_physical, unpacking
 from .stable_file import pread_into
 

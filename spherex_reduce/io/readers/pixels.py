@@ -1,10 +1,10 @@
 """Pixel values of FITS image HDUs: stored integers scaled to physical values.
 
 Pixels are read from the file with explicit reads
-(`~spherex_reduce.io.stable_file.StableFile`, nothing memory-mapped) and
+(`~spherex_reduce.io.readers.stable_file.StableFile`, nothing memory-mapped) and
 integer data with ``BSCALE``/``BZERO``/``BLANK`` are converted here from the
-stored values; the readers of whole files (`spherex_reduce.io.fits_read`) and
-of bands (`spherex_reduce.io.frames`, `spherex_reduce.io.read_files`) share it.
+stored values; the readers of whole files (`spherex_reduce.io.readers.fits_read`) and
+of bands (`spherex_reduce.io.readers.frames`, `spherex_reduce.io.readers.read_files`) share it.
 """
 
 import contextlib
@@ -14,9 +14,9 @@ import zlib
 import numpy as np
 from astropy.io import fits
 
-from ..core.errors import FormatError
-from ..core.fields import header_keyword
-from ..core.limits import check_size
+from ...core.errors import FormatError
+from ...core.fields import header_keyword
+from ...core.limits import check_size
 
 __all__ = ["FITS_DTYPES", "FLOAT_FOR", "physical", "scaling", "to_physical", "unpacking"]
 
@@ -34,7 +34,7 @@ def unpacking(path):
 
     Examples
     --------
-    >>> from spherex_reduce.io.pixels import unpacking
+    >>> from spherex_reduce.io.readers.pixels import unpacking
     >>> try:
     ...     with unpacking("a.fits.gz"):
     ...         raise EOFError("Compressed file ended before the end-of-stream marker")
@@ -87,7 +87,7 @@ def to_physical(stored, scale, dtype):
 def physical(hdu, path, stable, flags=False, index=None):
     """The data of an image HDU in physical values (``data[index]`` if ``index`` is given).
 
-    ``stable`` is the file's `~spherex_reduce.io.stable_file.StableFile`: the
+    ``stable`` is the file's `~spherex_reduce.io.readers.stable_file.StableFile`: the
     stored values of a plain FITS file are read from it into a new array
     (nothing is memory-mapped, so a file changed meanwhile is an error, not a
     signal), in native byte order; None for a file astropy unpacks (gzip,
@@ -128,7 +128,7 @@ def physical(hdu, path, stable, flags=False, index=None):
 
 def _stored(hdu, path, index, stable):
     """The stored values of an image HDU (``[index]`` of its first axis if given), read from
-    the `~spherex_reduce.io.stable_file.StableFile` ``stable`` into a new array."""
+    the `~spherex_reduce.io.readers.stable_file.StableFile` ``stable`` into a new array."""
     dtype = np.dtype(FITS_DTYPES[hdu.header["BITPIX"]])
     shape = tuple(hdu.shape)
     part = shape if index is None else shape[1:]

@@ -17,16 +17,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.errors import FormatError
-from ..core.exposure import Exposure
-from ..core.limits import check_count, check_size
+from ...core.errors import FormatError
+from ...core.exposure import Exposure
+from ...core.limits import check_count, check_size
+from ..header_text import header_text
+from ..input import InputOptions, apply_gain, apply_input
+from ..layout import fits_stem
 from .description import describe, file_tables, image_shape
 from .fits_read import open_fits
 from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq
 from .frames import RampReader, _runs, map_frames
-from .header_text import header_text
-from .input import InputOptions, apply_gain, apply_input
-from .layout import fits_stem
 from .pixels import FLOAT_FOR, physical, scaling, to_physical, unpacking
 from .stable_file import pread_into
 
@@ -48,7 +48,7 @@ def natural_key(path):
 
     Examples
     --------
-    >>> from spherex_reduce.io.read_files import natural_key
+    >>> from spherex_reduce.io.readers.read_files import natural_key
     >>> sorted(["read_10.fits", "read_2.fits", "read_1.fits"], key=natural_key)
     ['read_1.fits', 'read_2.fits', 'read_10.fits']
     """
@@ -96,7 +96,7 @@ def read_file_paths(pattern):
     Examples
     --------
     >>> import tempfile, pathlib
-    >>> from spherex_reduce.io.read_files import read_file_paths
+    >>> from spherex_reduce.io.readers.read_files import read_file_paths
     >>> d = pathlib.Path(tempfile.mkdtemp())
     >>> for n in (10, 2, 1):
     ...     _ = (d / f"read_{n}.fits").write_bytes(b"")
@@ -132,7 +132,7 @@ def read_mask(path, nreads, shape, verify_checksum=None):
     --------
     >>> import tempfile, pathlib, numpy as np
     >>> from astropy.io import fits
-    >>> from spherex_reduce.io.read_files import read_mask
+    >>> from spherex_reduce.io.readers.read_files import read_mask
     >>> path = pathlib.Path(tempfile.mkdtemp()) / "mask.fits"
     >>> fits.PrimaryHDU(np.array([[0, 4], [0, 0]], np.int16)).writeto(path)
     >>> [plane.tolist() for plane in read_mask(path, 2, (2, 2))]
@@ -298,7 +298,7 @@ class FrameImage:
 class ImageRamp(RampReader):
     """A ramp whose frames are separate 2-D images (`FrameImage`), read a band of rows of
     every frame at a time: what `ReadFiles` and
-    `~spherex_reduce.io.extension_reads.ExtensionReads` share.
+    `~spherex_reduce.io.readers.extension_reads.ExtensionReads` share.
 
     A subclass sets ``schedule``, ``order``, ``unit``, ``header``, ``tables``,
     ``phantom``, ``label`` (the input as messages name it) and ``_images``
@@ -421,7 +421,7 @@ class ReadFiles(ImageRamp):
     --------
     >>> import tempfile, pathlib, numpy as np
     >>> from astropy.io import fits
-    >>> from spherex_reduce.io.read_files import ReadFiles
+    >>> from spherex_reduce.io.readers.read_files import ReadFiles
     >>> from spherex_reduce.io.examples import tiny_schedule
     >>> d = pathlib.Path(tempfile.mkdtemp())
     >>> header = tiny_schedule(phantom_reads=0).to_header()

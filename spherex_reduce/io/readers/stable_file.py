@@ -13,7 +13,7 @@ import os
 
 import numpy as np
 
-from ..core.errors import FormatError
+from ...core.errors import FormatError
 
 __all__ = ["StableFile", "pread_into"]
 
@@ -51,7 +51,7 @@ class StableFile:
     Examples
     --------
     >>> import tempfile, pathlib, numpy as np
-    >>> from spherex_reduce.io.stable_file import StableFile
+    >>> from spherex_reduce.io.readers.stable_file import StableFile
     >>> path = pathlib.Path(tempfile.mkdtemp()) / "f.bin"
     >>> _ = path.write_bytes(np.arange(4, dtype=">i2").tobytes())
     >>> with StableFile(path) as f:

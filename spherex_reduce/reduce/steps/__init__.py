@@ -10,10 +10,10 @@ import lazy_loader as lazy
 __getattr__, __dir__, __all__ = lazy.attach(__name__, submod_attrs={
     "clipping": ["sigma_clip"],
     "dark": ["combine_darks", "subtract_dark"],
-    "fit_ramp": ["fit_ramp"],
-    "jumps": ["detect_jumps"],
+    "fit_ramp.step": ["fit_ramp"],
+    "jumps.step": ["detect_jumps"],
     "pairs": ["pair_difference"],
     "phantom": ["subtract_phantom"],
-    "reference": ["correct_reference"],
+    "reference.step": ["correct_reference"],
     "unchop": ["rechop", "unchop"],
 })

@@ -8,15 +8,15 @@ from astropy.table import Table
 
 from spherex_reduce import DetectorGeometry, ReadoutSchedule
 from spherex_reduce.analysis import forecast
-from spherex_reduce.analysis.design_file import load_design
-from spherex_reduce.analysis.readout_design import design_readout
-from spherex_reduce.analysis.row_orders import (
+from spherex_reduce.analysis.design.file import load_design
+from spherex_reduce.analysis.design.row_orders import (
     explicit_order,
     family_orders,
     golden_order,
     nested_order,
     radical_inverse_order,
 )
+from spherex_reduce.analysis.design.search import design_readout
 from spherex_reduce.core.errors import ConfigError
 from spherex_reduce.simulation import load_scene
 

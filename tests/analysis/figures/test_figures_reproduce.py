@@ -121,7 +121,7 @@ def test_fig12a_tick_labels_do_not_overlap(quick_figures):
 def test_figures_report_states_its_verdict_rules(quick_figures):
     import re
 
-    from spherex_reduce.analysis.figure_report import _margin, _verdict
+    from spherex_reduce.analysis.figures.report import _margin, _verdict
 
     out, _ = quick_figures
     report = (out / "report.md").read_text()

@@ -33,7 +33,7 @@ def images_2048():
 
     Small values: colour-bar labels like "−0.008" are as wide as those of real slopes.
     """
-    from spherex_reduce.analysis.demo import _images
+    from spherex_reduce.analysis.figures.demo import _images
 
     rng = np.random.default_rng(7)
     data = [rng.normal(0, s, (2048, 2048)).astype(np.float32) for s in (0.003, 0.03)]
@@ -84,7 +84,7 @@ def _spectrum(power, err):
 
 
 def test_spectra_log_axis_has_no_points_or_bars_at_or_below_zero():
-    from spherex_reduce.analysis.plots import plot_spectra
+    from spherex_reduce.analysis.figures.plots import plot_spectra
 
     fig = plot_spectra({"a": _spectrum([4.0, 0.0, 2.0, 1.0, 0.0, 3.0],
                                        [5.0, 0.0, 0.5, 2.0, 0.0, 0.1])})
@@ -100,7 +100,7 @@ def test_spectra_log_axis_has_no_points_or_bars_at_or_below_zero():
 def test_spectra_legend_shows_error_bars_only_where_drawn():
     from matplotlib.container import ErrorbarContainer
 
-    from spherex_reduce.analysis.plots import plot_spectra
+    from spherex_reduce.analysis.figures.plots import plot_spectra
 
     fig = plot_spectra({"one realisation": _spectrum([3.0, 2.0, 1.0], [0.0, 0.0, 0.0]),
                         "with errors": _spectrum([3.0, 2.0, 1.0], [0.3, 0.2, 0.1])})
@@ -118,7 +118,7 @@ def test_spectra_legend_shows_error_bars_only_where_drawn():
 
 @pytest.mark.parametrize("scale", [6.2, 0.5, 60.0])
 def test_spectra_band_labelled_nominally_and_the_theta_it_gives_in_the_caption(scale):
-    from spherex_reduce.analysis.plots import plot_spectra
+    from spherex_reduce.analysis.figures.plots import plot_spectra
 
     fig = plot_spectra({"a": _spectrum([1.0, 2.0], [0.1, 0.1])}, band=(0.03, 0.13),
                        pixel_scale=scale * u.arcsec)
@@ -138,7 +138,7 @@ def test_spectra_band_labelled_nominally_and_the_theta_it_gives_in_the_caption(s
 
 
 def test_plot_forecast_curves_measured_points_and_axis():
-    from spherex_reduce.analysis.plots import plot_forecast
+    from spherex_reduce.analysis.figures.plots import plot_forecast
 
     unit = u.electron**2 / u.s**2 * u.pix**2
     k = np.geomspace(0.01, 3, 8)

@@ -8,9 +8,9 @@ from astropy import units as u
 
 from spherex_reduce import expected_slope_variance
 from spherex_reduce.analysis import forecast, power_spectrum
+from spherex_reduce.analysis.forecast.sweep import SweepForecast
 from spherex_reduce.analysis.light import light_sensitive_image
 from spherex_reduce.analysis.sweep import load_sweep
-from spherex_reduce.analysis.sweep_forecast import SweepForecast
 from spherex_reduce.core.errors import ConfigError, ResourceError, SpherexReduceError
 from spherex_reduce.noise.variance import slope_covariance
 from spherex_reduce.simulation import load_scene, simulate

@@ -8,7 +8,7 @@ from _forecast_brute import Samples, reduction_matrix
 
 from spherex_reduce.analysis import fft_magnitude
 from spherex_reduce.analysis.case import run_case
-from spherex_reduce.analysis.forecast_fft import forecast_fft_magnitude
+from spherex_reduce.analysis.forecast.fft import forecast_fft_magnitude
 from spherex_reduce.simulation import load_scene
 
 BOTH = {"name": "video8", "alpha": 1e-3, "beta": 5e-3, "visibility": "both", "acn": True}

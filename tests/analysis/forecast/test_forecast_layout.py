@@ -8,8 +8,8 @@ from _forecast_brute import Samples, reduction_matrix
 from astropy import units as u
 
 from spherex_reduce.analysis import forecast, power_spectrum
+from spherex_reduce.analysis.forecast.engine import band_power_forecast
 from spherex_reduce.analysis.light import light_sensitive, light_sensitive_image
-from spherex_reduce.analysis.noise_forecast import band_power_forecast
 from spherex_reduce.core.errors import SpherexReduceError
 from spherex_reduce.reduce.pipeline import as_pipeline
 from spherex_reduce.simulation import load_scene, simulate

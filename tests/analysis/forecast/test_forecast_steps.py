@@ -8,14 +8,15 @@ from _forecast_brute import Samples, expected_spectrum, reduction_matrix, wiener
 from astropy import units as u
 
 from spherex_reduce import correct_reference, pair_difference
-from spherex_reduce.analysis import forecast, forecast_rows, power_spectrum
-from spherex_reduce.analysis.forecast_steps import reduction
+from spherex_reduce.analysis import forecast, power_spectrum
+from spherex_reduce.analysis.forecast import rows as forecast_rows
+from spherex_reduce.analysis.forecast.engine import band_power_forecast
+from spherex_reduce.analysis.forecast.steps import reduction
 from spherex_reduce.analysis.light import light_sensitive_image
-from spherex_reduce.analysis.noise_forecast import band_power_forecast
 from spherex_reduce.core.block import Context
 from spherex_reduce.core.errors import ConfigError, SpherexReduceError
 from spherex_reduce.reduce.pipeline import as_pipeline
-from spherex_reduce.reduce.steps.wiener import WienerReference
+from spherex_reduce.reduce.steps.reference.wiener import WienerReference
 from spherex_reduce.simulation import load_scene, simulate
 
 BINS = 5

@@ -5,7 +5,7 @@ import pytest
 from astropy import units as u
 
 from spherex_reduce import DetectorGeometry, ReadoutSchedule
-from spherex_reduce.core.schedule import chopped_order
+from spherex_reduce.core.readout.schedule import chopped_order
 
 
 def test_paper_example_s4_on_16_rows():

@@ -19,7 +19,7 @@ from astropy.io import fits
 import spherex_reduce as sr
 from spherex_reduce.cli import main
 from spherex_reduce.core.errors import FormatError
-from spherex_reduce.io.extension_reads import ExtensionReads
+from spherex_reduce.io.readers.extension_reads import ExtensionReads
 from spherex_reduce.io.sources import FileSource
 
 GEOMETRY = {"nrows": 16, "ncols": 16, "nchannels": 4, "ref_border": 0, "pixel_rate": 1e5}

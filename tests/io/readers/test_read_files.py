@@ -18,7 +18,7 @@ from astropy.io import fits
 import spherex_reduce as sr
 from spherex_reduce.cli import main
 from spherex_reduce.core.errors import FormatError
-from spherex_reduce.io.read_files import ReadFiles, read_file_paths
+from spherex_reduce.io.readers.read_files import ReadFiles, read_file_paths
 from spherex_reduce.io.sources import FileSource
 from spherex_reduce.reduce import executor
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from spherex_reduce.core.errors import FormatError
-from spherex_reduce.io.stable_file import StableFile, pread_into
+from spherex_reduce.io.readers.stable_file import StableFile, pread_into
 
 
 def _file(tmp_path, n=1000):
@@ -58,9 +58,9 @@ def test_a_file_changed_while_its_checksums_are_verified_is_named(tmp_path, monk
     import time
 
     from spherex_reduce import write
-    from spherex_reduce.io import fits_read
     from spherex_reduce.io.examples import example_raw_exposure
-    from spherex_reduce.io.fits_read import CheckedFITS
+    from spherex_reduce.io.readers import fits_read
+    from spherex_reduce.io.readers.fits_read import CheckedFITS
 
     path = write(example_raw_exposure(seed=1), tmp_path / "raw.fits")
     verify = fits_read._verify

@@ -16,7 +16,7 @@ each other, e.g. a 6e4 pedestal), and the sums ``sum w d``, ``sum d`` and
 sums are accumulated in float64.  Pixels with a NaN, saturated or flagged read
 (a masked read, a jump), and the few whose residuals are too small to be
 computed from float32 sums, are refitted in float64 on their usable reads,
-segment by segment (`~spherex_reduce.reduce.steps.ramp_segments.fit_segments`).
+segment by segment (`~spherex_reduce.reduce.steps.fit_ramp.segments.fit_segments`).
 
 Read noise, gain and dark current may differ from pixel to pixel: `RampMaps`
 holds a band's values, numbers or arrays of the band's shape.
@@ -34,8 +34,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...core.exposure import as_dq
-from .ramp_segments import RATIO_BINS, RampNoise, fit_segments
+from ....core.exposure import as_dq
+from .segments import RATIO_BINS, RampNoise, fit_segments
 
 __all__ = ["GROUP", "LeastSquares", "RampMaps", "RampSolution", "ramp_weights"]
 
@@ -60,7 +60,7 @@ def ramp_weights(times):
 
     Examples
     --------
-    >>> from spherex_reduce.reduce.steps.ramp_least_squares import ramp_weights
+    >>> from spherex_reduce.reduce.steps.fit_ramp.least_squares import ramp_weights
     >>> w = ramp_weights([0.0, 1.0, 2.0])
     >>> w.tolist()
     [-0.5, 0.0, 0.5]
@@ -187,7 +187,7 @@ class LeastSquares:
         Reads above this level end the usable ramp.
     want_var : bool
         False: no variances (NaN), e.g. for phantom values.
-    noise : `~spherex_reduce.reduce.steps.ramp_segments.RampNoise`, optional
+    noise : `~spherex_reduce.reduce.steps.fit_ramp.segments.RampNoise`, optional
         Read-noise factors and shot-noise covariance of the reads (groups of
         averaged frames); those of single reads at ``times`` if None.
     """
@@ -405,7 +405,7 @@ class LeastSquares:
 
     def _refit(self, block, rmask, bidx, fit, maps):
         """Pixels ``bidx`` (flat indices of the block) fitted segment by segment on their
-        usable reads (`~spherex_reduce.reduce.steps.ramp_segments.fit_segments`)."""
+        usable reads (`~spherex_reduce.reduce.steps.fit_ramp.segments.fit_segments`)."""
         m = block.shape[2]
         rr, cc = np.divmod(bidx, m)
         y = np.asarray(block[:, rr, cc], dtype=np.float64)

@@ -1,7 +1,7 @@
 """Ramps that are not whole: masked reads, saturation, jumps (the float64 path of ``fit_ramp``).
 
 Most pixels of an exposure have every read usable and are fitted by one
-weight vector shared by all (`~spherex_reduce.reduce.steps.ramp_least_squares`).
+weight vector shared by all (`~spherex_reduce.reduce.steps.fit_ramp.least_squares`).
 The others come here, each fitted on its own reads, in float64:
 
 1. **Usable reads**: finite, no flag but ``JUMP``, ``REFERENCE`` and
@@ -33,8 +33,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...core import dq
-from ...core.limits import check_size
+from ....core import dq
+from ....core.limits import check_size
 
 __all__ = ["RATIO_BINS", "RampNoise", "SegmentFit", "fit_segments", "usable_reads"]
 
@@ -62,7 +62,7 @@ class RampNoise:
     Examples
     --------
     >>> import numpy as np
-    >>> from spherex_reduce.reduce.steps.ramp_segments import RampNoise
+    >>> from spherex_reduce.reduce.steps.fit_ramp.segments import RampNoise
     >>> n = RampNoise(np.array([0.0, 1.0, 2.0]))
     >>> n.shot.tolist()
     [[0.0, 0.0, 0.0], [0.0, 1.0, 1.0], [0.0, 1.0, 2.0]]
@@ -196,7 +196,7 @@ def usable_reads(y, flags, saturation):
     Examples
     --------
     >>> import numpy as np
-    >>> from spherex_reduce.reduce.steps.ramp_segments import usable_reads
+    >>> from spherex_reduce.reduce.steps.fit_ramp.segments import usable_reads
     >>> y = np.array([[1.0, 1.0], [2.0, np.nan], [9.0, 3.0], [4.0, 4.0]])
     >>> usable, saturated = usable_reads(y, None, saturation=5.0)
     >>> usable.T.astype(int).tolist(), saturated.tolist()
@@ -270,7 +270,7 @@ def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=No
 
     >>> import numpy as np
     >>> from spherex_reduce import dq
-    >>> from spherex_reduce.reduce.steps.ramp_segments import RampNoise, fit_segments
+    >>> from spherex_reduce.reduce.steps.fit_ramp.segments import RampNoise, fit_segments
     >>> t = np.arange(6.0)
     >>> y = (2.0 * t + 50.0 * (t >= 3))[:, None].repeat(2, axis=1)
     >>> flags = np.zeros(y.shape, np.uint32)

@@ -3,7 +3,7 @@
 The step's one implementation is `RampFit`, a `~spherex_reduce.reduce.step.Consumer`:
 the executor (`spherex_reduce.reduce.executor`) hands it bands of rows of every frame,
 from several threads at once, and it fits each band where it lies in the
-output (`~spherex_reduce.reduce.steps.ramp_least_squares.LeastSquares`).  Each
+output (`~spherex_reduce.reduce.steps.fit_ramp.least_squares.LeastSquares`).  Each
 pixel's slope depends on its own reads only, so a ramp fitted in one band or
 in many, on any number of threads, gives the same numbers bit for bit.
 `fit_ramp` on an exposure in memory is `FitRampStep.run`: the executor on the
@@ -16,15 +16,15 @@ import numpy as np
 from astropy import units as u
 from astropy.table import Column, Table
 
-from ...core import dq
-from ...core.errors import SpherexReduceError, StepSkipped
-from ...core.exposure import Exposure, ReferenceReads
-from ...core.parameters import OPTIONAL_NUMBER, Parameter, validate_parameters
-from ..hookspecs import hookimpl
-from ..step import Consumer, Step
-from .pixel_maps import MAP_TYPES, PixelMap
-from .ramp_least_squares import LeastSquares, RampMaps, RampSolution
-from .ramp_segments import RampNoise
+from ....core import dq
+from ....core.errors import SpherexReduceError, StepSkipped
+from ....core.exposure import Exposure, ReferenceReads
+from ....core.parameters import OPTIONAL_NUMBER, Parameter, validate_parameters
+from ...hookspecs import hookimpl
+from ...step import Consumer, Step
+from ..pixel_maps import MAP_TYPES, PixelMap
+from .least_squares import LeastSquares, RampMaps, RampSolution
+from .segments import RampNoise
 
 __all__ = ["WEIGHTINGS", "FitRampStep", "RampFit", "fit_ramp"]
 
@@ -108,7 +108,7 @@ def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, dark_c
     each segment of two or more usable reads is fitted, and the segments'
     slopes are averaged with inverse-variance weights whose shot noise comes
     from the rate pooled over the segments (as stcal does; see
-    `spherex_reduce.reduce.steps.ramp_segments`).  The input is never
+    `spherex_reduce.reduce.steps.fit_ramp.segments`).  The input is never
     modified.  Bands of rows are fitted on
     `~spherex_reduce.reduce.executor.default_threads` threads; the
     numbers do not depend on the bands or the threads.

@@ -39,7 +39,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.special import log_ndtr
 
-from ...core.limits import check_size
+from ....core.limits import check_size
 
 __all__ = ["SCREEN_MARGIN", "Found", "StepSearch"]
 
@@ -84,7 +84,7 @@ class StepSearch:
     A dark ramp of 20 reads (read noise 1, 0.01 per second) with a step of 8 at read 12:
 
     >>> import numpy as np
-    >>> from spherex_reduce.reduce.steps.jump_search import StepSearch
+    >>> from spherex_reduce.reduce.steps.jumps.search import StepSearch
     >>> t = np.arange(20.0)
     >>> y = (100 + 0.01 * t + 8.0 * (t >= 12) + np.random.default_rng(1).normal(0, 1, 20))[:, None]
     >>> found = StepSearch(t).find(y, threshold=5.0, sigma=1.0)

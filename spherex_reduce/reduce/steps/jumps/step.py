@@ -1,7 +1,7 @@
 """``detect_jumps``: flag the read at which a pixel's charge stepped (cosmic rays).
 
 The step's kernel (`JumpKernel`) searches each pixel's ramp for steps
-(`~spherex_reduce.reduce.steps.jump_search.StepSearch`: a matched filter for a
+(`~spherex_reduce.reduce.steps.jumps.search.StepSearch`: a matched filter for a
 step at every read, against the ramp's read and shot noise) and sets
 `~spherex_reduce.core.dq.JUMP` on the first read after each step, band of rows
 by band of rows, before ``fit_ramp``.  Flagging the neighbours of a jump, or a
@@ -16,16 +16,16 @@ import threading
 import numpy as np
 from astropy import units as u
 
-from ...core import dq
-from ...core.errors import StepSkipped
-from ...core.limits import check_size
-from ...core.parameters import OPTIONAL_NUMBER, Parameter, validate_parameters
-from ...io.sources import MemorySource
-from ..hookspecs import hookimpl
-from ..step import Kernel, Record, Step
-from .jump_search import StepSearch
-from .pixel_maps import MAP_TYPES, PixelMap
-from .ramp_segments import usable_reads
+from ....core import dq
+from ....core.errors import StepSkipped
+from ....core.limits import check_size
+from ....core.parameters import OPTIONAL_NUMBER, Parameter, validate_parameters
+from ....io.sources import MemorySource
+from ...hookspecs import hookimpl
+from ...step import Kernel, Record, Step
+from ..fit_ramp.segments import usable_reads
+from ..pixel_maps import MAP_TYPES, PixelMap
+from .search import StepSearch
 
 __all__ = ["DetectJumpsStep", "JumpKernel", "detect_jumps"]
 

@@ -14,11 +14,11 @@ from pathlib import Path
 from astropy import units as u
 from astropy.table import Table
 
-from ...core.errors import ConfigError
-from ...core.fields import FIELD
-from ...io.config import load_yaml
-from ...noise import BUILTIN_TABLES, NoiseComponent, noise_components
-from ...noise.section import section_components
+from ....core.errors import ConfigError
+from ....core.fields import FIELD
+from ....io.config import load_yaml
+from ....noise import BUILTIN_TABLES, NoiseComponent, noise_components
+from ....noise.section import section_components
 
 __all__ = ["DEFAULT_NOISE", "NEGATIVE_SIGMAS", "PAPER_PIXEL_RATE", "load_noise_model",
            "noise_model"]
@@ -57,7 +57,7 @@ def load_noise_model(source, where="correct_reference.noise"):
 
     Examples
     --------
-    >>> from spherex_reduce.reduce.steps.wiener import load_noise_model
+    >>> from spherex_reduce.reduce.steps.reference.wiener import load_noise_model
     >>> [c.name for c in load_noise_model("spherex-table2")][:2]
     ['video8', 'roic']
     """
@@ -71,7 +71,7 @@ def noise_model(source, where="correct_reference.noise"):
 
     Examples
     --------
-    >>> from spherex_reduce.reduce.steps.noise_models import noise_model
+    >>> from spherex_reduce.reduce.steps.reference.noise_models import noise_model
     >>> components, unit = noise_model("spherex-table2")
     >>> unit
     Unit("electron")

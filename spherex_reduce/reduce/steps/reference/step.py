@@ -1,7 +1,7 @@
 """Reference correction: remove each channel's offset (paper §2.4, §4.3, §5.4).
 
 The ``correct_reference`` step's kernel (`ReferenceKernel`) subtracts the
-offsets a strategy (`spherex_reduce.reduce.steps.reference_strategies`) estimates,
+offsets a strategy (`spherex_reduce.reduce.steps.reference.strategies`) estimates,
 flags channels without any, and records what it subtracted in the table
 ``REFOFFS`` (one row per frame, channel and parity), for every strategy
 alike, a plugin's too.
@@ -13,13 +13,13 @@ import warnings
 import numpy as np
 from astropy.table import Table
 
-from ...core import dq
-from ...io.sources import MemorySource
-from ..executor import execute
-from ..hookspecs import hookimpl
-from ..plugins import default_registry
-from ..step import Kernel, Record, Step, Strategy
-from .reference_strategies import (
+from ....core import dq
+from ....io.sources import MemorySource
+from ...executor import execute
+from ...hookspecs import hookimpl
+from ...plugins import default_registry
+from ...step import Kernel, Record, Step, Strategy
+from .strategies import (
     AcnReference,
     MeanReference,
     MedianReference,
@@ -52,7 +52,7 @@ class ReferencePlan:
 
     Attributes
     ----------
-    estimate : `~spherex_reduce.reduce.steps.reference_strategies.ReferenceOffsets`
+    estimate : `~spherex_reduce.reduce.steps.reference.strategies.ReferenceOffsets`
         The strategy's estimate (its parities, pixel counts and tables are
         recorded).
     offsets : `numpy.ndarray`
@@ -107,9 +107,9 @@ class ReferenceKernel(Kernel):
     context : `~spherex_reduce.core.block.Context`
     strategy : `~spherex_reduce.Strategy`
         A configured strategy with an ``estimate`` method.
-    origin : `~spherex_reduce.reduce.steps.strategy_checks.StrategyOrigin`, optional
+    origin : `~spherex_reduce.reduce.steps.reference.strategy_checks.StrategyOrigin`, optional
         The strategy and its plugin, named when its estimate fails the checks
-        (`~spherex_reduce.reduce.steps.strategy_checks.check_estimate`); default:
+        (`~spherex_reduce.reduce.steps.reference.strategy_checks.check_estimate`); default:
         this package's.
     """
 
@@ -246,7 +246,7 @@ def apply_offsets(exposure, offsets, parity, n_used, n_clipped, strategy):
 
     Groups whose offset is NaN are left uncorrected, flagged in the table and
     the mask (`~spherex_reduce.core.dq.NO_REFERENCE`), and reported with a
-    `~spherex_reduce.reduce.steps.reference_strategies.NoReferenceWarning`.
+    `~spherex_reduce.reduce.steps.reference.strategies.NoReferenceWarning`.
     This is the ``correct_reference`` kernel applied with offsets given
     instead of estimated: for a whole-exposure strategy (``__call__``) that
     computes its offsets itself.
@@ -347,7 +347,7 @@ def correct_reference(exposure, strategy="mean", *, registry=None, **params):
         (median of all pixels per channel, §5.4), ``'wiener'`` (each
         channel's drift at every row read, the kriging estimate from its
         reference reads and phantom values,
-        `~spherex_reduce.reduce.steps.wiener.WienerReference`), or any strategy of
+        `~spherex_reduce.reduce.steps.reference.wiener.WienerReference`), or any strategy of
         kind ``'reference'`` a plugin registers.
     registry : `~spherex_reduce.reduce.plugins.Registry`, optional
         Where to look strategies up, and whose ``before_step`` and
@@ -368,15 +368,15 @@ def correct_reference(exposure, strategy="mean", *, registry=None, **params):
         ``n_clipped`` and ``flag``
         (`~spherex_reduce.core.dq.NO_REFERENCE` when the channel had no usable
         reference pixel: offset NaN, channel left uncorrected, a
-        `~spherex_reduce.reduce.steps.reference_strategies.NoReferenceWarning`),
+        `~spherex_reduce.reduce.steps.reference.strategies.NoReferenceWarning`),
         and with ``telegraph: auto`` (``mean``, ``acn``, ``wiener``)
         ``n_telegraph``, the channel's telegraph reference pixels left out (also
         the keyword ``NTELEG``, the total, and the table ``REFTELEG`` listing
-        them; `~spherex_reduce.reduce.steps.telegraph`).
+        them; `~spherex_reduce.reduce.steps.reference.telegraph`).
 
     Raises
     ------
-    `~spherex_reduce.reduce.steps.reference_strategies.NoReferenceError`
+    `~spherex_reduce.reduce.steps.reference.strategies.NoReferenceError`
         The exposure has no reference rows (``mean``, ``acn``).
 
     Examples
@@ -414,7 +414,7 @@ class CorrectReferenceStep(Step):
         return default_registry() if found is None else found
 
     def origin(self, strategy):
-        """The `~spherex_reduce.reduce.steps.strategy_checks.StrategyOrigin` of strategy
+        """The `~spherex_reduce.reduce.steps.reference.strategy_checks.StrategyOrigin` of strategy
         ``strategy``: its name and the plugin that registers it."""
         found = self.strategy_registry().strategies[self.strategy_kind][strategy]
         return StrategyOrigin(self.strategy_kind, strategy, found.plugin)

@@ -2,7 +2,7 @@
 
 A strategy is configured with its parameters when it is made and *estimates*
 offsets (`Strategy.estimate`); the ``correct_reference`` step's kernel
-*applies* them (`spherex_reduce.reduce.steps.reference`), for every strategy alike.
+*applies* them (`spherex_reduce.reduce.steps.reference.step`), for every strategy alike.
 The built-in ones are ``mean`` (one σ-clipped mean of the reference pixels per
 channel), ``acn`` (two, for even and odd samples) and ``median`` (median of
 all pixels of the channel, optionally excluding sources found with
@@ -16,13 +16,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from astropy.utils.exceptions import AstropyUserWarning
 
-from ...core import dq
-from ...core.errors import SpherexReduceError
-from ...core.parameters import Parameter, validate_parameters
-from ...core.source_mask import source_mask
-from ...io.sources import context_of, side_block
-from ..executor import default_threads
-from ..step import Strategy
+from ....core import dq
+from ....core.errors import SpherexReduceError
+from ....core.parameters import Parameter, validate_parameters
+from ....core.source_mask import source_mask
+from ....io.sources import context_of, side_block
+from ...executor import default_threads
+from ...step import Strategy
 from .telegraph import TELEGRAPH_PARAMETERS, drop_telegraph
 
 __all__ = [
@@ -80,8 +80,8 @@ class ReferenceOffsets:
     rows: np.ndarray | None = None
     #: More tables for the output (name -> `~astropy.table.Table`), e.g. ``REFDRIFT``.
     tables: dict = field(default_factory=dict)
-    #: The telegraph reference pixels left out
-    #: (a `~spherex_reduce.reduce.steps.telegraph.TelegraphSearch`), or None: not looked for.
+    #: The telegraph reference pixels left out (a
+    #: `~spherex_reduce.reduce.steps.reference.telegraph.TelegraphSearch`), or None: not looked for.
     telegraph: object = None
 
     @property
@@ -113,7 +113,7 @@ def clipped_mean(values, sigma=3.0, maxiters=5):
 
     Examples
     --------
-    >>> from spherex_reduce.reduce.steps.reference_strategies import clipped_mean
+    >>> from spherex_reduce.reduce.steps.reference.strategies import clipped_mean
     >>> mean, used, clipped = clipped_mean([1.0, 1.1, 0.9, 1.0, 50.0, float("nan")], sigma=2)
     >>> float(mean), int(used), int(clipped)
     (1.0, 4, 1)
@@ -208,7 +208,7 @@ def without_telegraph(strategy, reference, side, schedule, columns=None):
     """Reference pixels ``(L, k, ncols)`` and side columns (None, or ``(values, rows)`` as
     `_side_columns` gives them) with the reads of telegraph pixels NaN when
     ``strategy.telegraph`` is ``'auto'``, and what was found (a
-    `~spherex_reduce.reduce.steps.telegraph.TelegraphSearch`, or None with ``'keep'``).
+    `~spherex_reduce.reduce.steps.reference.telegraph.TelegraphSearch`, or None with ``'keep'``).
 
     The side columns are tested on their own (a row read once per frame has fewer
     samples than a reference row read several times)."""
@@ -292,7 +292,7 @@ def reference_offsets(exposure, *, acn=False, sigma=3.0, maxiters=5, side_column
         (those of the sides ``ref_border`` declares).
     telegraph : {'auto', 'keep'}
         ``auto`` leaves out the telegraph reference pixels (found by
-        `~spherex_reduce.reduce.steps.telegraph.find_telegraph` with threshold
+        `~spherex_reduce.reduce.steps.reference.telegraph.find_telegraph` with threshold
         ``telegraph_sigma``); ``keep`` uses every reference pixel.
     telegraph_sigma : float
         Threshold of the telegraph test (robust standard deviations).
@@ -359,7 +359,7 @@ class MeanReference(Strategy):
     **params
         ``sigma``, ``maxiters``, ``side_columns``, as `reference_offsets`;
         ``telegraph`` (``auto``: leave out the telegraph reference pixels
-        `~spherex_reduce.reduce.steps.telegraph.find_telegraph` finds in the
+        `~spherex_reduce.reduce.steps.reference.telegraph.find_telegraph` finds in the
         reads of the exposure; ``keep``) and ``telegraph_sigma``, its threshold
         (declared, with their defaults, by :attr:`parameters`).
     """

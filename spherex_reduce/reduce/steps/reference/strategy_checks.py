@@ -4,7 +4,7 @@ A strategy may come from a plugin.  Its result is checked here, in one place
 for every route (``spherex-reduce reduce``, ``compare-strategies``, a sweep,
 `~spherex_reduce.correct_reference` called alone): an estimate
 (`check_estimate`) must be a
-`~spherex_reduce.reduce.steps.reference_strategies.ReferenceOffsets` whose
+`~spherex_reduce.reduce.steps.reference.strategies.ReferenceOffsets` whose
 arrays have the shapes of the data it corrects (never broadcast), and a
 whole-exposure strategy's result (`check_corrected`) an
 `~spherex_reduce.Exposure` of its input's shape.  A result that fails is a
@@ -18,10 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...core.errors import PluginError
-from ...core.exposure import Exposure
-from ..plugins import BLOCK_ENV, BUILTIN_PLUGINS, describe_plugin
-from .reference_strategies import ALL, EVEN, ODD, ReferenceOffsets
+from ....core.errors import PluginError
+from ....core.exposure import Exposure
+from ...plugins import BLOCK_ENV, BUILTIN_PLUGINS, describe_plugin
+from .strategies import ALL, EVEN, ODD, ReferenceOffsets
 
 __all__ = ["StrategyOrigin", "check_corrected", "check_estimate"]
 
@@ -39,7 +39,7 @@ class StrategyOrigin:
 
     Examples
     --------
-    >>> from spherex_reduce.reduce.steps.strategy_checks import StrategyOrigin
+    >>> from spherex_reduce.reduce.steps.reference.strategy_checks import StrategyOrigin
     >>> str(StrategyOrigin("reference", "mean", "builtin.reference"))
     "reference strategy 'mean' of plugin 'builtin.reference'"
     """
@@ -104,7 +104,7 @@ def check_estimate(est, context, nframes, origin):
 
     Returns
     -------
-    `~spherex_reduce.reduce.steps.reference_strategies.ReferenceOffsets`
+    `~spherex_reduce.reduce.steps.reference.strategies.ReferenceOffsets`
 
     Raises
     ------
@@ -122,8 +122,9 @@ def check_estimate(est, context, nframes, origin):
     >>> import numpy as np
     >>> from spherex_reduce import ReadoutSchedule
     >>> from spherex_reduce.core.block import Context
-    >>> from spherex_reduce.reduce.steps.reference_strategies import ReferenceOffsets
-    >>> from spherex_reduce.reduce.steps.strategy_checks import StrategyOrigin, check_estimate
+    >>> from spherex_reduce.reduce.steps.reference.strategies import ReferenceOffsets
+    >>> from spherex_reduce.reduce.steps.reference.strategy_checks import (
+    ...     StrategyOrigin, check_estimate)
     >>> context = Context(ReadoutSchedule(), "readout", False)
     >>> wrong = ReferenceOffsets(np.zeros((1, 1, 1)), np.ones((1, 1, 1)), np.zeros((1, 1, 1)),
     ...                          [-1])
@@ -181,7 +182,8 @@ def check_corrected(result, exposure, origin):
     Examples
     --------
     >>> from spherex_reduce.io.examples import example_raw_exposure
-    >>> from spherex_reduce.reduce.steps.strategy_checks import StrategyOrigin, check_corrected
+    >>> from spherex_reduce.reduce.steps.reference.strategy_checks import (
+    ...     StrategyOrigin, check_corrected)
     >>> raw = example_raw_exposure()
     >>> check_corrected(raw.data.data, raw, StrategyOrigin("reference", "toy", "toy"))
     Traceback (most recent call last):

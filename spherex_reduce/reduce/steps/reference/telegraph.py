@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 from astropy.table import Table
 
-from ...core.parameters import Parameter
+from ....core.parameters import Parameter
 
 __all__ = ["MIN_COMMON", "MIN_PIXELS", "MIN_SAMPLES", "TELEGRAPH_PARAMETERS", "TelegraphSearch",
            "drop_telegraph", "find_telegraph"]
@@ -133,7 +133,7 @@ def find_telegraph(values, rows, geometry, sigma=5.0):
     --------
     >>> import numpy as np
     >>> from spherex_reduce import DetectorGeometry
-    >>> from spherex_reduce.reduce.steps.telegraph import find_telegraph
+    >>> from spherex_reduce.reduce.steps.reference.telegraph import find_telegraph
     >>> g = DetectorGeometry(16, 64, 2, ref_border=2)
     >>> rng = np.random.default_rng(0)
     >>> v = rng.normal(0, 1, (40, 4, 64))          # 40 frames, reads of rows 0, 1, 14, 15

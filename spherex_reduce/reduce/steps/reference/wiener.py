@@ -21,18 +21,18 @@ from astropy import units as u
 from astropy.table import Table
 from astropy.utils.exceptions import AstropyUserWarning
 
-from ...core.errors import ConfigError
-from ...core.limits import check_size
-from ...core.parameters import Parameter, validate_parameters
-from ...noise.read_covariance import DOMAINS, Kriging, ReadCovariance
-from ..step import Strategy
+from ....core.errors import ConfigError
+from ....core.limits import check_size
+from ....core.parameters import Parameter, validate_parameters
+from ....noise.read_covariance import DOMAINS, Kriging, ReadCovariance
+from ...step import Strategy
 from .noise_models import (
     DEFAULT_NOISE,
     PAPER_PIXEL_RATE,
     load_noise_model,
     noise_model,
 )
-from .reference_strategies import (
+from .strategies import (
     ALL,
     EVEN,
     ODD,
@@ -179,7 +179,7 @@ class WienerReference(Strategy):
         --------
         >>> from spherex_reduce import ReadoutSchedule
         >>> from spherex_reduce.core.block import Context
-        >>> from spherex_reduce.reduce.steps.wiener import WienerReference
+        >>> from spherex_reduce.reduce.steps.reference.wiener import WienerReference
         >>> s = ReadoutSchedule()   # the paper's case, slopes with phantom values
         >>> w, m = WienerReference().predicted_variance(Context(s, "readout", False,
         ...                                                     has_phantom=True))
@@ -224,7 +224,7 @@ class WienerReference(Strategy):
         >>> import numpy as np
         >>> from spherex_reduce import ReadoutSchedule
         >>> from spherex_reduce.core.block import Context
-        >>> from spherex_reduce.reduce.steps.wiener import WienerReference
+        >>> from spherex_reduce.reduce.steps.reference.wiener import WienerReference
         >>> s = ReadoutSchedule(nframes=4)
         >>> w, wd, kind, phantom = WienerReference().read_weights(
         ...     Context(s, "readout", False, has_phantom=True))

@@ -10,7 +10,7 @@ from spherex_reduce.core.errors import SpherexReduceError, StepSkipped
 from spherex_reduce.io.examples import example_raw_exposure, tiny_schedule
 from spherex_reduce.io.sources import MemorySource
 from spherex_reduce.reduce.executor import execute
-from spherex_reduce.reduce.steps.fit_ramp import FitRampStep, RampFit
+from spherex_reduce.reduce.steps.fit_ramp.step import FitRampStep, RampFit
 
 
 def schedule(nframes=10, nrows=16, ncols=16, nch=2, frame_time=1.5):
@@ -502,7 +502,7 @@ def test_optimal_weighting_of_bright_float32_ramps_is_gls_not_uniform():
 
 
 def test_least_squares_refuses_an_output_it_could_not_write_through():
-    from spherex_reduce.reduce.steps.ramp_least_squares import LeastSquares, RampSolution
+    from spherex_reduce.reduce.steps.fit_ramp.least_squares import LeastSquares, RampSolution
 
     ls = LeastSquares(np.arange(4.0))
     whole = RampSolution((3, 8))

@@ -15,8 +15,8 @@ from spherex_reduce import (
 )
 from spherex_reduce.io.sources import MemorySource
 from spherex_reduce.reduce.executor import execute
-from spherex_reduce.reduce.steps.jump_search import StepSearch
-from spherex_reduce.reduce.steps.jumps import DetectJumpsStep
+from spherex_reduce.reduce.steps.jumps.search import StepSearch
+from spherex_reduce.reduce.steps.jumps.step import DetectJumpsStep
 
 NF, DT, RN = 74, 1.5, 10.0
 #: false-alarm probability per jump-free dark ramp (74 reads of 1.5 s, 10 e read noise,
@@ -343,7 +343,7 @@ def test_bright_ramps_with_estimated_read_noise_keep_their_sensitivity():
     """Without read_noise, a bright ramp's residuals hold its shot noise; the read noise is
     taken from its first differences (less the shot noise) instead, so a step is found about
     as often as with the read noise given (it was 0.15 % against 19 % at 300 e/s)."""
-    from spherex_reduce.reduce.steps.jump_search import StepSearch
+    from spherex_reduce.reduce.steps.jumps.search import StepSearch
 
     rng = np.random.default_rng(5)
     n, dt, rn, m = 74, 1.5, 10.0, 2000

@@ -18,7 +18,7 @@ from spherex_reduce import (
 from spherex_reduce.core.errors import ConfigError, StepSkipped
 from spherex_reduce.core.source_mask import source_mask
 from spherex_reduce.reduce.steps.phantom import SubtractPhantomStep
-from spherex_reduce.reduce.steps.reference_strategies import (
+from spherex_reduce.reduce.steps.reference.strategies import (
     NoReferenceError,
     NoReferenceWarning,
     clipped_mean,

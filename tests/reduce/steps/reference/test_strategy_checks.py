@@ -9,8 +9,8 @@ from spherex_reduce.core.block import Context
 from spherex_reduce.core.errors import PluginError
 from spherex_reduce.io.examples import example_raw_exposure
 from spherex_reduce.reduce.hookspecs import hookimpl
-from spherex_reduce.reduce.steps.reference_strategies import ReferenceOffsets
-from spherex_reduce.reduce.steps.strategy_checks import (
+from spherex_reduce.reduce.steps.reference.strategies import ReferenceOffsets
+from spherex_reduce.reduce.steps.reference.strategy_checks import (
     StrategyOrigin,
     check_corrected,
     check_estimate,

@@ -7,7 +7,7 @@ from scipy import stats
 
 from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule, correct_reference
 from spherex_reduce.core import dq
-from spherex_reduce.reduce.steps.telegraph import find_telegraph
+from spherex_reduce.reduce.steps.reference.telegraph import find_telegraph
 
 SIGMA = 10.0  # e, white noise of a reference pixel read
 

@@ -34,7 +34,7 @@ from spherex_reduce import (
 )
 from spherex_reduce.core.errors import ConfigError
 from spherex_reduce.reduce import executor
-from spherex_reduce.reduce.steps.reference_strategies import NoReferenceError, NoReferenceWarning
+from spherex_reduce.reduce.steps.reference.strategies import NoReferenceError, NoReferenceWarning
 from spherex_reduce.simulation import simulate_to_fits
 
 NCH, NCOLS = 4, 32
@@ -665,7 +665,7 @@ def test_the_memory_of_the_solve_is_checked_before_it_starts(monkeypatch):
 
     from spherex_reduce.core import limits
     from spherex_reduce.core.errors import ResourceError
-    from spherex_reduce.reduce.steps import wiener
+    from spherex_reduce.reduce.steps.reference import wiener
 
     def tall(nrows):  # one channel read by a tall array: the solve dominates
         s = ReadoutSchedule(DetectorGeometry(nrows, 8, 1, ref_border=1), skip=1, ref_reads=4,
@@ -732,7 +732,7 @@ def test_threads_asking_for_one_model_solve_it_once(monkeypatch):
     """Bands or dask threads asking at once: each system is solved once."""
     import threading
 
-    from spherex_reduce.reduce.steps import wiener as wmod
+    from spherex_reduce.reduce.steps.reference import wiener as wmod
 
     solved = []
     real = wmod.Kriging

@@ -16,8 +16,8 @@ from astropy.table import Table
 from spherex_reduce import DetectorGeometry, ReadoutSchedule
 from spherex_reduce.core.block import Block, Context
 from spherex_reduce.noise import NoiseComponent, slope_covariance
-from spherex_reduce.reduce.steps.reference_strategies import MeanReference
-from spherex_reduce.reduce.steps.wiener import _MODELS, WienerReference
+from spherex_reduce.reduce.steps.reference.strategies import MeanReference
+from spherex_reduce.reduce.steps.reference.wiener import _MODELS, WienerReference
 
 NDRAWS = 3000
 

@@ -19,7 +19,7 @@ read and linearly in between (a read lasts ``1/32`` of the shortest slow
 period).  The phantom value of a read (the mean of its ``c`` samples) gets its
 fast part from a sequence over reads with the exact covariance of that mean.
 For long or large exposures the slow-B tier and the phantom sequences are made
-window by window (``_KernelStream``: white noise in seeded blocks convolved with
+window by window (``KernelStream``: white noise in seeded blocks convolved with
 a truncated kernel), so memory does not grow with the exposure.
 
 What is approximated (measured in ``benchmarks/README_simulate.md``):
@@ -41,9 +41,9 @@ Small scenes take another route in slope mode (`NoiseEngine.slope_route`,
 chosen by cost): the slopes drawn exactly at the samples read
 (`spherex_reduce.simulation.exact_slopes`).  The pixels' fast tier is in
 `spherex_reduce.simulation.pixel_fast_tier`, the phantom means' in
-`spherex_reduce.simulation.phantom_tier`; the building blocks of the tiers
-(band PSDs, kernel streams, stream groups) are in
-`spherex_reduce.simulation.streams`.
+`spherex_reduce.simulation.phantom_tier`; the bands of the tiers are in
+`spherex_reduce.simulation.tier_bands`, their streams (kernel streams, stream
+groups, generators) in `spherex_reduce.simulation.streams`.
 """
 
 import math
@@ -58,20 +58,18 @@ from .exact_slopes import ExactSlopes
 from .phantom_tier import PhantomTier
 from .pixel_fast_tier import PixelFastTier
 from .streams import (
-    _PSD,
     TIER_A,
     TIER_B,
     TIER_FAST,
     TIER_SLOPE_FAST,
-    _chunks,
-    _fast_psds,
-    _fft_len,
-    _functional_variance,
-    _Group,
-    _KernelStream,
-    _rngs,
+    KernelStream,
+    StreamGroup,
+    frame_chunks,
+    periodic_functional_variance,
+    stream_rngs,
 )
 from .synthesis import covariance_from_weights, psd_weights, synthesize
+from .tier_bands import BandPSD, fast_psds, fft_len
 
 __all__ = ["NoiseEngine"]
 
@@ -147,7 +145,7 @@ class NoiseEngine:
         keys = {}
         for c in comps:
             keys.setdefault((c.scope, c.visibility, c.acn), []).append(c)
-        self.groups = [_Group(k, v, self.nch) for k, v in keys.items()]
+        self.groups = [StreamGroup(k, v, self.nch) for k, v in keys.items()]
         self.slow_groups = [gr for gr in self.groups if gr.colored]
         # tiers
         self.d_b = self.rs * b_reads
@@ -200,9 +198,9 @@ class NoiseEngine:
         """Samples used and FFT lengths of the slow grids: ``(ja, ma, jb, mb)``."""
         jb = self.exposure // self.d_b + 3
         gap = math.ceil(self.gap_factor * self.fs / self.f_a / self.d_b)
-        mb = _fft_len(jb + gap)
+        mb = fft_len(jb + gap)
         ja = self.exposure // self.d_a + 3
-        ma = _fft_len(max(ja, math.ceil(self.padding * ja)))
+        ma = fft_len(max(ja, math.ceil(self.padding * ja)))
         if self.padding <= 1:
             ma, mb = ja, jb
         return ja, ma, jb, mb
@@ -225,16 +223,16 @@ class NoiseEngine:
     def slow_streams(self):
         """Slow tiers of every group: ``{gid: (A grid (J_A, ns), B)}``.
 
-        B is a grid ``(J_B, ns)``, or a ``_KernelStream`` when streaming.
+        B is a grid ``(J_B, ns)``, or a ``KernelStream`` when streaming.
         """
         if self._slow is not None:
             return self._slow
         out = {}
         ja, ma, jb, mb = self._slow_sizes()
         for gr in self.slow_groups:
-            rng_a = _rngs(self.entropy, gr.nstreams, ma // 2 + 1, TIER_A, gr.gid)
-            psd_b = _PSD(gr.comps, "B", self.f_a, self.f_b)
-            psd_a = _PSD(gr.comps, "A", self.f_a, self.f_b)
+            rng_a = stream_rngs(self.entropy, gr.nstreams, ma // 2 + 1, TIER_A, gr.gid)
+            psd_b = BandPSD(gr.comps, "B", self.f_a, self.f_b)
+            psd_a = BandPSD(gr.comps, "A", self.f_a, self.f_b)
             # stored (samples, streams) so that the sparse interpolation needs no copies
             xa = np.empty((ja, gr.nstreams), dtype=self.slow_dtype)
             synthesize(psd_weights(psd_a, ma, self.fs / self.d_a), ma, ja, rng_a,
@@ -242,11 +240,11 @@ class NoiseEngine:
                        out=xa.T)
             lam_b = psd_weights(psd_b, mb, self.fs / self.d_b)
             if self.streaming:
-                xb = _KernelStream(lam_b, mb, gr.nstreams, self.entropy, (TIER_B, gr.gid),
+                xb = KernelStream(lam_b, mb, gr.nstreams, self.entropy, (TIER_B, gr.gid),
                                    self.slow_dtype, total=jb,
                                    window=self.CHUNK * self.F // self.d_b)
             else:
-                rng_b = _rngs(self.entropy, gr.nstreams, mb // 2 + 1, TIER_B, gr.gid)
+                rng_b = stream_rngs(self.entropy, gr.nstreams, mb // 2 + 1, TIER_B, gr.gid)
                 xb = np.empty((jb, gr.nstreams), dtype=self.slow_dtype)
                 synthesize(lam_b, mb, jb, rng_b, method=self.method, dtype=self.slow_dtype,
                            nstreams=gr.nstreams, out=xb.T)
@@ -282,7 +280,7 @@ class NoiseEngine:
         return first, last
 
     def _b_window(self, gid, xb, ks):
-        if not isinstance(xb, _KernelStream):
+        if not isinstance(xb, KernelStream):
             return 0, xb
         j0, j1 = self._b_range(ks)
         cached = self._bcache.get(gid)
@@ -297,7 +295,7 @@ class NoiseEngine:
         for gid, (xa, xb) in slow.items():
             mat_a = self._interp_matrix(ks, weights, self.d_a, xa.shape[0])
             v = np.asarray(mat_a @ xa, dtype=np.float64)
-            for kc, wc in _chunks(ks, weights, self.CHUNK):
+            for kc, wc in frame_chunks(ks, weights, self.CHUNK):
                 cache_ks = kc
                 if len(kc) == 1:  # ramps: one window serves a chunk of frames
                     q = kc[0] // self.CHUNK
@@ -346,13 +344,13 @@ class NoiseEngine:
     # -- fast tier (pixels) ----------------------------------------------------------
     def _fast_psds(self, kind):
         """Fast-tier PSDs ``{'channel': psd, 'common': psd}`` seen by ``kind``."""
-        return _fast_psds(self.components, kind, self.f_a, self.f_b,
+        return fast_psds(self.components, kind, self.f_a, self.f_b,
                           split_acn=kind == "pixels")
 
     def _block_fft_len(self):
         if self.block == 1:
-            return _fft_len(self.F)
-        return _fft_len(self.block * self.F + self.l_corr)
+            return fft_len(self.F)
+        return fft_len(self.block * self.F + self.l_corr)
 
     def _fast_block(self, b, nframes):
         """Full-rate fast streams of frame block ``b``: channel (nch, n) and common (1, n)."""
@@ -496,12 +494,12 @@ class NoiseEngine:
                 mat = self._interp_matrix(range(self.N), w, step, j).astype(float)
                 a = ((1 - frac) * mat[read].toarray()[0]
                      + frac * mat[self.n_reads + read].toarray()[0])
-                lam = psd_weights(_PSD(gr.comps, band, self.f_a, self.f_b), m, self.fs / step)
+                lam = psd_weights(BandPSD(gr.comps, band, self.f_a, self.f_b), m, self.fs / step)
                 if band == "B" and self.streaming:
-                    total += _KernelStream(lam, m, 1, self.entropy, (), np.float64
+                    total += KernelStream(lam, m, 1, self.entropy, (), np.float64
                                            ).functional_variance(a)
                 else:
-                    total += _functional_variance(a, lam, m)
+                    total += periodic_functional_variance(a, lam, m)
         for scope, psd in self._fast_psds("pixels").items():
             m = self.fast_tier.period(scope, self._block_fft_len())
             cov = covariance_from_weights(self.fast_tier.weights(scope, psd, m), m)

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..core import limits
 from ..noise.variance import slope_covariance
-from .streams import _SCOPE, TIER_EXACT
+from .streams import STREAM_SCOPES, TIER_EXACT
 from .synthesis import rng_for
 
 __all__ = ["ExactSlopes"]
@@ -219,7 +219,7 @@ class ExactSlopes:
         ph = np.zeros((nr, nch)) if self.c else None
         for scope, (plan, pix, phq) in self.factors().items():
             ns = nch if scope == "channel" else 1
-            rng = rng_for(self.entropy, TIER_EXACT, _SCOPE[scope])
+            rng = rng_for(self.entropy, TIER_EXACT, STREAM_SCOPES[scope])
             v = plan.draw(rng.standard_normal((nr, plan.k, ns)))
             if pix.size:
                 st = self.col_chan if ns > 1 else np.zeros(self.ncols, dtype=int)

@@ -5,7 +5,7 @@ The phantom value of a read is the mean of its ``c`` samples.  Its part above
 on a grid of reads, one value per row read, with the exact covariance of that
 mean: the fast-tier autocovariance summed over the pairs of samples of two
 reads, and with ACN only over pairs of the same parity (the same realisation).
-Long or large exposures make the sequence window by window (a `_KernelStream`),
+Long or large exposures make the sequence window by window (a `KernelStream`),
 so memory does not grow with the exposure.
 """
 
@@ -14,8 +14,9 @@ import math
 import numpy as np
 import scipy.fft as sfft
 
-from .streams import _PSD, _SCOPE, TIER_PHANTOM, _chunks, _fast_psds, _KernelStream, _rngs
+from .streams import STREAM_SCOPES, TIER_PHANTOM, KernelStream, frame_chunks, stream_rngs
 from .synthesis import covariance_from_weights, psd_weights, synthesize
+from .tier_bands import BandPSD, fast_psds
 
 __all__ = ["PhantomTier"]
 
@@ -45,7 +46,7 @@ class PhantomTier:
     def sequences(self):
         """The sequences on the grid of reads: ``{scope: stream}``.
 
-        Each stream is an array ``(ns, J)`` or, when streaming, a ``_KernelStream``.
+        Each stream is an array ``(ns, J)`` or, when streaming, a ``KernelStream``.
         """
         if self._sequences is not None:
             return self._sequences
@@ -61,14 +62,14 @@ class PhantomTier:
             dd = (i[:, None] - i[None, :]).ravel()
             same = (((i - e.c) % 2)[:, None] == ((i - e.c) % 2)[None, :]).ravel()
             lags = np.abs(np.arange(g_lag + 1)[:, None] * e.rs + dd[None, :])
-            for scope in _fast_psds(e.components, "phantom", e.f_a, e.f_b):
+            for scope in fast_psds(e.components, "phantom", e.f_a, e.f_b):
                 # covariance of the mean of the c samples; with ACN only samples of the
                 # same parity (the same realisation) are correlated
                 r = np.zeros(g_lag + 1)
                 for acn in (False, True):
                     comps = [c for c in e.components if c.scope == scope and
                              c.seen_by_phantom and c.acn == acn]
-                    psd = _PSD(comps, "fast", e.f_a, e.f_b, white=True)
+                    psd = BandPSD(comps, "fast", e.f_a, e.f_b, white=True)
                     if not comps or psd.empty:
                         continue
                     cf = self._fast_covariance(psd, g_lag * e.rs + e.c)
@@ -80,11 +81,11 @@ class PhantomTier:
                 lam = sfft.rfft(emb).real
                 ns = e.nch if scope == "channel" else 1
                 if e.streaming:
-                    res[scope] = _KernelStream(lam, mp, ns, e.entropy,
-                                               (TIER_PHANTOM, _SCOPE[scope]), np.float32,
+                    res[scope] = KernelStream(lam, mp, ns, e.entropy,
+                                               (TIER_PHANTOM, STREAM_SCOPES[scope]), np.float32,
                                                total=jp, window=e.CHUNK * e.F // e.rs)
                     continue
-                rngs = _rngs(e.entropy, ns, mp // 2 + 1, TIER_PHANTOM, _SCOPE[scope])
+                rngs = stream_rngs(e.entropy, ns, mp // 2 + 1, TIER_PHANTOM, STREAM_SCOPES[scope])
                 res[scope] = synthesize(lam, mp, jp, rngs, method=e.method,
                                         dtype=np.float32, nstreams=ns)
         self._sequences = res
@@ -104,8 +105,8 @@ class PhantomTier:
         out = np.zeros((e.n_reads, e.nch))
         for scope, x in self.sequences().items():
             acc = np.zeros((e.n_reads, e.nch if scope == "channel" else 1))
-            for kc, wc in _chunks(ks, weights, e.CHUNK):
-                if isinstance(x, _KernelStream):
+            for kc, wc in frame_chunks(ks, weights, e.CHUNK):
+                if isinstance(x, KernelStream):
                     cache_ks = kc
                     if len(kc) == 1:
                         q = kc[0] // e.CHUNK

@@ -11,8 +11,9 @@ the phantom means and the exact slopes route have them.
 
 import numpy as np
 
-from .streams import _SCOPE, _fft_len, _rngs
+from .streams import STREAM_SCOPES, stream_rngs
 from .synthesis import psd_weights, synthesize
+from .tier_bands import fft_len
 
 __all__ = ["PixelFastTier"]
 
@@ -42,7 +43,7 @@ class PixelFastTier:
         """Period of the streams of ``scope`` for blocks of period ``m`` (made even for
         ACN drawn at half rate)."""
         if scope == "acn" and self.half_rate:
-            return 2 * _fft_len((m + 1) // 2)
+            return 2 * fft_len((m + 1) // 2)
         return m
 
     def weights(self, scope, psd, m):
@@ -64,12 +65,12 @@ class PixelFastTier:
         for scope, psd in e._fast_psds("pixels").items():
             ms = self.period(scope, m)
             lam = self.weights(scope, psd, ms) * scale
-            keys = (tier, _SCOPE[scope], *key)
+            keys = (tier, STREAM_SCOPES[scope], *key)
             if scope == "acn":
                 x, scope = self._acn(lam, ms, n, keys), "channel"
             else:
                 ns = e.nch if scope == "channel" else 1
-                x = synthesize(lam, ms, n, _rngs(e.entropy, ns, ms // 2 + 1, *keys),
+                x = synthesize(lam, ms, n, stream_rngs(e.entropy, ns, ms // 2 + 1, *keys),
                                method=e.method, dtype=e.dtype, nstreams=ns)
             res[scope] = x if scope not in res else res[scope] + x
         return res
@@ -92,7 +93,7 @@ class PixelFastTier:
             k = np.arange(mh // 2 + 1)
             lam_h = (lam[k] + lam[mh - k]) / 2
             nh = (n + 1) // 2
-            y = synthesize(lam_h, mh, nh, _rngs(e.entropy, 2 * nch, mh // 2 + 1, *keys),
+            y = synthesize(lam_h, mh, nh, stream_rngs(e.entropy, 2 * nch, mh // 2 + 1, *keys),
                            method=e.method, dtype=e.dtype, nstreams=2 * nch)
             y = y.reshape(nch, 2, nh)
             out = np.empty((nch, n), dtype=e.dtype)
@@ -100,7 +101,7 @@ class PixelFastTier:
                 a = (c + p) % 2
                 out[:, a::2] = y[:, p, :(n - a + 1) // 2]
             return out
-        x = synthesize(lam, m, n, _rngs(e.entropy, 2 * nch, m // 2 + 1, *keys),
+        x = synthesize(lam, m, n, stream_rngs(e.entropy, 2 * nch, m // 2 + 1, *keys),
                        method=e.method, dtype=e.dtype, nstreams=2 * nch)
         x = x.reshape(nch, 2, n)
         odd = ((np.arange(n) % e.F) % e.rs - c) % 2 == 1

@@ -1,10 +1,9 @@
-"""Building blocks of the noise tiers: band-limited PSDs, kernel streams, stream groups.
+"""The streams of the noise tiers: kernel streams, stream groups, their generators.
 
-`~spherex_reduce.simulation.NoiseEngine` splits each PSD into the
-slow-A, slow-B and fast tiers with `_PSD` windows (`_fast_psds`: the fast tier
-of the pixels or of the phantom means), makes long slow-B tiers
-and phantom sequences window by window with `_KernelStream`, and draws one set
-of slow streams per `_Group` of components.  The tier numbers seed the
+`~spherex_reduce.simulation.engine.NoiseEngine` makes long slow-B tiers and
+phantom sequences window by window with `KernelStream`, and draws one set of
+slow streams per `StreamGroup` of components, each from generators of
+`stream_rngs`.  The tier numbers (``TIER_*``) and `STREAM_SCOPES` seed the
 generators (`~spherex_reduce.simulation.synthesis.rng_for`), so they must not
 change.
 """
@@ -17,95 +16,72 @@ from scipy import signal
 
 from .synthesis import rng_for
 
+__all__ = ["SHARED_BELOW", "STREAM_SCOPES", "TIER_A", "TIER_B", "TIER_EXACT", "TIER_FAST",
+           "TIER_PHANTOM", "TIER_SLOPE_FAST", "KernelStream", "StreamGroup", "frame_chunks",
+           "periodic_functional_variance", "stream_rngs"]
+
 #: Stream keys: the scopes, and ``acn`` for the pixels' fast tier of channel components with
 #: ACN (two realisations per channel, one per column parity)
-_SCOPE = {"channel": 0, "common": 1, "acn": 2}
+STREAM_SCOPES = {"channel": 0, "common": 1, "acn": 2}
 _VIS = {"pixels": 0, "phantom": 1, "both": 2}
 TIER_A, TIER_B, TIER_FAST, TIER_PHANTOM, TIER_SLOPE_FAST, TIER_EXACT = range(6)
 
 
-def _fft_len(n):
-    """Smallest 2-3-5-smooth integer >= n (faster than lengths with factors 7, 11)."""
-    best = 1 << max(0, math.ceil(math.log2(max(n, 1))))
-    p5 = 1
-    while p5 < best:
-        p35 = p5
-        while p35 < best:
-            m = p35
-            while m < n:
-                m *= 2
-            best = min(best, m)
-            p35 *= 3
-        p5 *= 5
-    return best
+def frame_chunks(ks, weights, size):
+    """The frames ``ks`` and their weights in chunks of ``size`` frames.
 
+    Parameters
+    ----------
+    ks : iterable of int
+        Frame indices.
+    weights : array_like or None
+        One weight per frame (all 1 if None).
+    size : int
+        Frames per chunk.
 
-def _taper(f, f_hi):
-    """1 below f_hi/2, cos² down to 0 at f_hi."""
-    x = np.clip((f - f_hi / 2) / (f_hi / 2), 0, 1)
-    return np.cos(0.5 * np.pi * x) ** 2
+    Yields
+    ------
+    frames : list of int
+    weights : `numpy.ndarray`
 
-
-class _PSD:
-    """Sum of component PSDs times a band window; callable on f > 0."""
-
-    def __init__(self, comps, band, f_a, f_b, white=False):
-        self.comps, self.band, self.f_a, self.f_b = comps, band, f_a, f_b
-        self.white = white
-        self.dc = sum(c.alpha for c in comps) if white else 0.0
-
-    def window(self, f):
-        wa = _taper(f, self.f_a)
-        wb = _taper(f, self.f_b)
-        return {"A": wa, "B": wb - wa, "fast": 1 - wb}[self.band]
-
-    def __call__(self, f):
-        f = np.asarray(f, dtype=float)
-        colored = np.zeros_like(f)
-        for c in self.comps:
-            colored += c.beta / f + c.gamma * f ** (-c.exponent)
-        out = colored * self.window(f)
-        if self.white:
-            out += self.dc
-        return out
-
-    @property
-    def empty(self):
-        if self.white and self.dc > 0:
-            return False
-        return not any(c.beta or c.gamma for c in self.comps)
-
-
-def _fast_psds(components, kind, f_a, f_b, split_acn=False):
-    """Fast-tier PSDs ``{'channel': psd, 'common': psd}`` of the components ``kind`` sees.
-
-    ``kind`` is ``'pixels'`` or ``'phantom'``; a scope with no such component, or
-    only silent ones, is left out.  ``split_acn`` puts the channel components
-    with ACN apart, under ``'acn'`` (their streams are drawn per column parity).
+    Examples
+    --------
+    >>> from spherex_reduce.simulation.streams import frame_chunks
+    >>> [(k, w.tolist()) for k, w in frame_chunks(range(5), None, 2)]
+    [([0, 1], [1.0, 1.0]), ([2, 3], [1.0, 1.0]), ([4], [1.0])]
     """
-    res = {}
-    groups = {"channel": lambda c: c.scope == "channel" and not (split_acn and c.acn),
-              "acn": lambda c: split_acn and c.scope == "channel" and c.acn,
-              "common": lambda c: c.scope == "common"}
-    for key, member in groups.items():
-        comps = [c for c in components if member(c) and
-                 (c.seen_by_pixels if kind == "pixels" else c.seen_by_phantom)]
-        psd = _PSD(comps, "fast", f_a, f_b, white=True)
-        if comps and not psd.empty:
-            res[key] = psd
-    return res
-
-
-def _chunks(ks, weights, size):
-    """``(frames, weights)`` of ``ks`` in chunks of ``size`` frames (weights 1 if None)."""
     ks = list(ks)
     wts = np.ones(len(ks)) if weights is None else np.asarray(weights, dtype=float)
     for i in range(0, len(ks), size):
         yield ks[i:i + size], wts[i:i + size]
 
 
-def _functional_variance(a, lam, m):
-    """Variance of ``sum a_n x_n`` for the period-``m`` stream with spectral weights ``lam``."""
+def periodic_functional_variance(a, lam, m):
+    """Variance of ``sum_n a_n x_n`` for the period-``m`` stream with spectral weights ``lam``.
+
+    Parameters
+    ----------
+    a : array_like
+        Coefficients of the samples (at most ``m``).
+    lam : array_like
+        Spectral weights of the stream, ``m // 2 + 1`` of them (the variance
+        of the stream is ``(lam[0] + 2 lam[1:] ... ) / m``, the Nyquist bin once).
+    m : int
+        Period of the stream.
+
+    Returns
+    -------
+    float
+
+    Examples
+    --------
+    White noise of unit variance (``lam = 1``): the variance is ``sum a_n²``.
+
+    >>> import numpy as np
+    >>> from spherex_reduce.simulation.streams import periodic_functional_variance
+    >>> round(periodic_functional_variance(np.array([1.0, -2.0, 0.5]), np.ones(5), 8), 12)
+    5.25
+    """
     spec = np.abs(sfft.rfft(a, n=m)) ** 2
     wgt = np.full(spec.size, 2.0)
     wgt[0] = 1.0
@@ -114,7 +90,7 @@ def _functional_variance(a, lam, m):
     return float(np.sum(wgt * lam * spec) / m)
 
 
-class _KernelStream:
+class KernelStream:
     """Stationary Gaussian streams ``x = h * xi``, made window by window in bounded memory.
 
     ``h = irfft(sqrt(lam))`` is the kernel whose circular convolution with
@@ -124,6 +100,39 @@ class _KernelStream:
     covariance, computable for any range of samples from white noise drawn in
     fixed blocks (each block its own seed), so memory does not grow with the
     exposure and the numbers do not depend on the windows asked for.
+
+    Parameters
+    ----------
+    lam : array_like
+        Spectral weights, ``m // 2 + 1`` of them.
+    m : int
+        Period of the stream the kernel is cut from.
+    ns : int
+        Number of independent streams.
+    entropy : int
+        Seed entropy of the simulation.
+    key : tuple of int
+        The streams' key (tier and scope numbers) in the seeds.
+    dtype : numpy dtype
+        Of the samples.
+    tol : float
+        Energy of the kernel left out.
+    total : int, optional
+        Samples of the whole stream (bounds the white-noise blocks).
+    window : int
+        Typical length of the windows asked for.
+
+    Examples
+    --------
+    The windows of a stream agree wherever they overlap:
+
+    >>> import numpy as np
+    >>> from spherex_reduce.simulation.streams import KernelStream
+    >>> lam = 1 / (1 + np.arange(33.0))
+    >>> ks = KernelStream(lam, 64, 2, entropy=1, key=(7,), dtype=np.float64)
+    >>> x, y = ks.window(0, 100), ks.window(40, 60)
+    >>> x.shape, bool(np.allclose(x[40:60], y))
+    ((100, 2), True)
     """
 
     OFFSET = 1 << 40  # keeps block indices (which may be negative) non-negative
@@ -166,13 +175,41 @@ class _KernelStream:
         return float(np.sum(signal.fftconvolve(a, self.kernel.astype(float)) ** 2))
 
 
-class _Group:
-    """Components sharing scope, visibility and ACN: one set of slow streams."""
+class StreamGroup:
+    """Components sharing scope, visibility and ACN: one set of slow streams.
+
+    Parameters
+    ----------
+    key : tuple
+        ``(scope, visibility, acn)`` of the components.
+    comps : list of `~spherex_reduce.noise.NoiseComponent`
+    nch : int
+        Readout channels.
+
+    Attributes
+    ----------
+    gid : int
+        The group's number in the seeds.
+    nstreams : int
+        Streams drawn: one per channel (two with ACN) or one common stream.
+    colored : bool
+        Whether any component has a ``1/f`` or power-law term.
+
+    Examples
+    --------
+    >>> from spherex_reduce.noise import NoiseComponent
+    >>> from spherex_reduce.simulation.streams import StreamGroup
+    >>> c = NoiseComponent("x", alpha=1.0, beta=0.5, gamma=0.0, exponent=1.3,
+    ...                    scope="channel", visibility="both", acn=True)
+    >>> g = StreamGroup(("channel", "both", True), [c], nch=4)
+    >>> g.gid, g.nstreams, g.colored
+    (5, 8, True)
+    """
 
     def __init__(self, key, comps, nch):
         self.scope, self.visibility, self.acn = key
         self.comps = comps
-        self.gid = _SCOPE[self.scope] * 6 + _VIS[self.visibility] * 2 + int(self.acn)
+        self.gid = STREAM_SCOPES[self.scope] * 6 + _VIS[self.visibility] * 2 + int(self.acn)
         per = 2 if self.acn else 1
         self.nstreams = nch * per if self.scope == "channel" else 1
         self.colored = any(c.beta or c.gamma for c in comps)
@@ -182,8 +219,32 @@ class _Group:
 SHARED_BELOW = 16384
 
 
-def _rngs(entropy, ns, nbins, *key):
-    """Per-stream generators for long streams, one shared generator for short ones."""
+def stream_rngs(entropy, ns, nbins, *key):
+    """Per-stream generators for long streams, one shared generator for short ones.
+
+    Parameters
+    ----------
+    entropy : int
+        Seed entropy of the simulation.
+    ns : int
+        Number of streams.
+    nbins : int
+        Bins of their spectra: above `SHARED_BELOW`, one generator per stream.
+    *key : int
+        The streams' key (tier and group numbers) in the seeds.
+
+    Returns
+    -------
+    `numpy.random.Generator` or list of them
+
+    Examples
+    --------
+    >>> from spherex_reduce.simulation.streams import stream_rngs
+    >>> type(stream_rngs(0, 3, 100, 1, 2)).__name__
+    'Generator'
+    >>> len(stream_rngs(0, 3, 100_000, 1, 2))
+    3
+    """
     if nbins <= SHARED_BELOW:
         return rng_for(entropy, *key, 1 << 30)
     return [rng_for(entropy, *key, i) for i in range(ns)]

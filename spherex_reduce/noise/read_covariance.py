@@ -21,7 +21,7 @@ the noise is white, the weights are equal: the estimate is the mean.
 import numpy as np
 
 from ..core.limits import check_size
-from .components import _cin, _d_inv_f, _d_power, _g_power
+from .structure_functions import cin, g_power, inv_f_structure, power_structure
 from .variance import ls_weights
 
 __all__ = ["DOMAINS", "KINDS", "Kriging", "ReadCovariance", "kriging_weights"]
@@ -194,13 +194,13 @@ class ReadCovariance:
         def d(lag, sign):
             lag = np.abs(lag)
             if sign is None:
-                return _d_inv_f(lag) if basis == "beta" else _d_power(lag, fs, basis)
+                return inv_f_structure(lag) if basis == "beta" else power_structure(lag, fs, basis)
             z = np.pi * lag
             cos = np.full(lag.shape, float(sign))
             if basis == "beta":
-                return 2 * _cin(z, cos)
+                return 2 * cin(z, cos)
             z_e1 = z ** (basis - 1)
-            return 2 * (2 / fs) ** (basis - 1) * z_e1 * _g_power(z.ravel(), basis, cos.ravel(),
+            return 2 * (2 / fs) ** (basis - 1) * z_e1 * g_power(z.ravel(), basis, cos.ravel(),
                                                                 z_e1.ravel()).reshape(z.shape)
 
         if self._frame_weights is None:

@@ -13,13 +13,8 @@ periodic wrap-around bias of FFT synthesis.
 import numpy as np
 from astropy import units as u
 
-from .components import (
-    NoiseComponent,
-    _d_inv_f,
-    _d_power,
-    _d_white,
-    noise_components,
-)
+from .components import NoiseComponent, noise_components
+from .structure_functions import inv_f_structure, power_structure, white_structure
 
 __all__ = ["expected_slope_variance", "ls_weights", "slope_covariance"]
 
@@ -193,11 +188,11 @@ def slope_covariance(noise, schedule, lags):
                 continue
             if key not in basis:
                 if key == "alpha":
-                    d = _d_white(x, fs)
+                    d = white_structure(x, fs)
                 elif key == "beta":
-                    d = _d_inv_f(x)
+                    d = inv_f_structure(x)
                 else:
-                    d = _d_power(x, fs, key[1])
+                    d = power_structure(x, fs, key[1])
                 basis[key] = combine(d)
             out[i] += coef * basis[key]
     return out

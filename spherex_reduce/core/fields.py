@@ -47,8 +47,8 @@ from .readout.groups import format_groups, parse_groups
 from .readout.read_order import order_text, parse_order_text
 
 __all__ = ["DEFAULT_FRAME_OVERHEAD", "FIELD", "FIELDS", "REF_MODES", "SIDES", "Field",
-           "check_field", "check_sides", "field_cards", "header_keyword", "read_field",
-           "section_fields", "table_dataclass"]
+           "card_text", "check_field", "check_sides", "field_cards", "header_keyword",
+           "read_field", "section_fields", "table_dataclass"]
 
 #: The sides of the array a per-side field (``ref_border``) has a value for: ``top`` is
 #: the rows from row 0 (read first), ``bottom`` the last rows, ``left`` the columns from
@@ -545,7 +545,7 @@ def header_keyword(header, key, kind, minimum=None, default=_MISSING, positive=F
         value = header.cards[key].value
     except Exception as exc:  # VerifyError: a card astropy cannot parse (NAN, 1E999x, ...)
         raise FormatError(f"keyword {key} has an unreadable value "
-                          f"{_card_text(header.cards[key])!r}") from exc
+                          f"{card_text(header.cards[key])!r}") from exc
     if kind is str:
         if not isinstance(value, str):
             raise FormatError(f"keyword {key} must be a string, got {value!r}")
@@ -568,6 +568,24 @@ def header_keyword(header, key, kind, minimum=None, default=_MISSING, positive=F
     return value
 
 
-def _card_text(card):
-    """The value of a header card as written in the file (for a card astropy cannot parse)."""
+def card_text(card):
+    """The value of a header card as written in the file (for a card astropy cannot parse).
+
+    Parameters
+    ----------
+    card : `astropy.io.fits.Card`
+
+    Returns
+    -------
+    str
+        The characters of the value field, comment left out (empty for a card
+        made in memory, which has no image yet).
+
+    Examples
+    --------
+    >>> from astropy.io import fits
+    >>> from spherex_reduce.core.fields import card_text
+    >>> card_text(fits.Card.fromstring("NROWS   = 12x / rows of the array"))
+    '12x'
+    """
     return str(getattr(card, "_image", "") or "")[10:].split("/")[0].strip()

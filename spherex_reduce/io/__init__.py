@@ -17,7 +17,8 @@ import lazy_loader as lazy
 __getattr__, __dir__, __all__ = lazy.attach(__name__, submod_attrs={
     "atomic": ["atomic_output"],
     "readers.fits_read": ["CheckedFITS", "checksum_policy", "integration_count", "is_raw_ramp_file",
-                  "open_checked", "read"],
+                          "open_checked"],
+    "readers.read_exposure": ["read"],
     "fits_write": ["write", "write_frames"],
     "readers.flags": ["current_dq_bits", "foreign_dq_bits"],
     "readers.frames": ["FrameReader"],

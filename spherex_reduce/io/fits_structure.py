@@ -1,10 +1,10 @@
 """The structure and checksums of a FITS file, from its bytes.
 
-`_scan` walks the headers of a file (without trusting astropy to guess at a
+`scan_hdus` walks the headers of a file (without trusting astropy to guess at a
 truncated or damaged one) and gives where every HDU's header and data are;
-`_verify` checks their ``CHECKSUM``/``DATASUM``.  The checksum arithmetic
-(FITS standard 4.0, appendix J) is here once, for reading (`_verify`) and for
-writing (`_DataSum`, `_checksum_text`, used by `spherex_reduce.io.fits_write`).
+`bad_checksums` checks their ``CHECKSUM``/``DATASUM``.  The checksum arithmetic
+(FITS standard 4.0, appendix J) is here once, for reading (`bad_checksums`) and for
+writing (`DataSum`, `checksum_text`, used by `spherex_reduce.io.fits_write`).
 """
 
 import os
@@ -14,7 +14,10 @@ import numpy as np
 
 from ..core.errors import FormatError
 
-_BLOCK = 2880
+__all__ = ["FITS_BLOCK", "DataSum", "bad_checksums", "checksum_text", "scan_hdus"]
+
+#: Bytes of a FITS record: headers and data fill whole records.
+FITS_BLOCK = 2880
 _MAX_HEADER_BLOCKS = 10_000  # 28.8 MB of header cards: far beyond any real file
 _SCAN_KEYS = {b"XTENSION", b"EXTNAME", b"BITPIX", b"NAXIS", b"PCOUNT", b"GCOUNT", b"GROUPS",
               b"NEXTEND", b"CHECKSUM", b"DATASUM"}
@@ -49,7 +52,7 @@ def _card_int(cards, key, default, path, index, minimum=0):
     return int(text)
 
 
-def _scan(path):
+def scan_hdus(path):
     """The HDUs of a plain FITS file from its bytes: ``[{name, header, data, padded, cards}]``.
 
     ``header`` and ``data`` are byte offsets, ``padded`` the data size with its
@@ -59,12 +62,32 @@ def _scan(path):
     not FITS at all (astropy unpacks the first, and names the problem of the
     second).
 
+    Parameters
+    ----------
+    path : str or `pathlib.Path`
+
+    Returns
+    -------
+    list of dict or None
+        One dict per HDU; ``cards`` holds the structural keywords' values as text.
+
     Raises
     ------
     FormatError
         A header has no ``END`` card, a structural keyword is invalid, the
         file (decompressed) ends before a header or data block it announces
         ("truncated"), or a compressed stream is damaged.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib, numpy as np
+    >>> from astropy.io import fits
+    >>> from spherex_reduce.io.fits_structure import scan_hdus
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "two.fits"
+    >>> fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(np.zeros((2, 3), ">f4"), name="SCI")]
+    ...              ).writeto(path)
+    >>> [(h["name"], h["header"], h["data"], h["padded"]) for h in scan_hdus(path)]
+    [('PRIMARY', 0, 2880, 0), ('SCI', 2880, 5760, 2880)]
     """
     with open(path, "rb") as fh:
         magic = fh.read(9)
@@ -130,7 +153,7 @@ def _skip(fh, nbytes):
 
 
 def _scan_stream(fh, path, size):
-    """`_scan` of a stream: seekable with its ``size`` known (a plain file), or read
+    """`scan_hdus` of a stream: seekable with its ``size`` known (a plain file), or read
     forward only (``size`` None: decompressed)."""
     hdus = []
     pos = 0
@@ -139,7 +162,7 @@ def _scan_stream(fh, path, size):
     while True:
         if seekable:
             fh.seek(pos)
-        first = fh.read(_BLOCK)
+        first = fh.read(FITS_BLOCK)
         if not first:
             break
         if len(hdus) and not first.startswith(b"XTENSION"):
@@ -150,17 +173,17 @@ def _scan_stream(fh, path, size):
         cards, start, block, nblocks = {}, pos, first, 0
         while True:
             index = len(hdus)
-            if len(block) < _BLOCK:
+            if len(block) < FITS_BLOCK:
                 named = re.search(rb"EXTNAME = '([^']*)'", block)
                 label = _hdu_label(index, {"EXTNAME": named.group(1).decode(
                     "ascii", "replace").strip()} if named else {})
                 raise FormatError(f"{path} is truncated: {label} needs at least "
-                                  f"{pos + _BLOCK} bytes for its header, {where} after "
+                                  f"{pos + FITS_BLOCK} bytes for its header, {where} after "
                                   f"{pos + len(block)}")
-            pos += _BLOCK
+            pos += FITS_BLOCK
             nblocks += 1
             end = False
-            for i in range(0, _BLOCK, 80):
+            for i in range(0, FITS_BLOCK, 80):
                 key = block[i : i + 8].rstrip()
                 if key == b"END":
                     end = True
@@ -173,8 +196,8 @@ def _scan_stream(fh, path, size):
                 break
             if nblocks >= _MAX_HEADER_BLOCKS:
                 raise FormatError(f"{path}: {_hdu_label(index, cards)} has no END card in "
-                                  f"its first {_MAX_HEADER_BLOCKS * _BLOCK} bytes")
-            block = fh.read(_BLOCK)
+                                  f"its first {_MAX_HEADER_BLOCKS * FITS_BLOCK} bytes")
+            block = fh.read(FITS_BLOCK)
         bitpix = _card_int(cards, "BITPIX", None, path, index, minimum=-64)
         if bitpix not in (8, 16, 32, 64, -32, -64):
             raise FormatError(f"{path}: {_hdu_label(index, cards)} has BITPIX = {bitpix}, "
@@ -193,7 +216,7 @@ def _scan_stream(fh, path, size):
         pcount = _card_int(cards, "PCOUNT", 0, path, index)
         gcount = _card_int(cards, "GCOUNT", 1, path, index)
         nbytes = abs(bitpix) // 8 * gcount * (pcount + count) if naxis else 0
-        padded = -(-nbytes // _BLOCK) * _BLOCK  # the standard's padding is part of it
+        padded = -(-nbytes // FITS_BLOCK) * FITS_BLOCK  # the standard's padding is part of it
         there = (size - pos) if seekable else _skip(fh, padded)
         if there < padded:
             raise FormatError(f"{path} is truncated: {_hdu_label(index, cards)} needs "
@@ -220,13 +243,25 @@ def _fold(total):
     return total
 
 
-class _DataSum:
+class DataSum:
     """Running FITS ones'-complement sum of big-endian 32-bit words (``DATASUM``).
 
     The FITS checksum algorithm (FITS standard 4.0, appendix J).  `add` takes
     whole words as they are on disk: a big-endian array or bytes whose length
     is a multiple of 4.  numpy sums each piece in 64-bit integers (no carry is
     lost below 2**32 words, 16 GB, per piece); `value` folds the total.
+
+    Examples
+    --------
+    The carry out of the top bit comes back at the bottom:
+
+    >>> import numpy as np
+    >>> from spherex_reduce.io.fits_structure import DataSum
+    >>> s = DataSum()
+    >>> s.add(np.array([0xFFFFFFFF, 2], ">u4"))
+    >>> s.add(b"\\x00\\x00\\x00\\x03")
+    >>> s.value
+    5
     """
 
     __slots__ = ("total",)
@@ -235,24 +270,26 @@ class _DataSum:
         self.total = 0
 
     def add(self, raw):
+        """Add the words of ``raw`` (big-endian, a whole number of 4-byte words)."""
         self.total += int(np.add.reduce(np.frombuffer(raw, ">u4"), dtype=np.uint64))
 
     @property
     def value(self):
+        """The 32-bit ones'-complement sum of the words added so far."""
         return _fold(self.total)
 
 
 def _word_sum(fh, start, nbytes, chunk=1 << 20):
     """Ones'-complement sum of the big-endian 32-bit words of bytes ``start:start+nbytes``.
 
-    Summed by `_DataSum` a chunk at a time.  A tail shorter than a word is
+    Summed by `DataSum` a chunk at a time.  A tail shorter than a word is
     padded with zeros, as the file's padding would be.  The chunks are read
     into one reused buffer (``readinto``): memory stays at one chunk, the sum
     runs from the cache, and no page of the file is mapped (faster than a
     memory map by ~30 %, measured).
     """
     raw = memoryview(np.zeros(chunk // 4 + 1, ">u4")).cast("B")  # aligned, room to pad
-    total, left = _DataSum(), nbytes
+    total, left = DataSum(), nbytes
     fh.seek(start)
     while left:
         n = got = min(chunk, left)
@@ -268,8 +305,36 @@ def _word_sum(fh, start, nbytes, chunk=1 << 20):
     return total.value
 
 
-def _verify(path, hdus):
-    """Names of the HDUs whose ``DATASUM`` or ``CHECKSUM`` does not match their bytes."""
+def bad_checksums(path, hdus):
+    """Names of the HDUs whose ``DATASUM`` or ``CHECKSUM`` does not match their bytes.
+
+    Parameters
+    ----------
+    path : str or `pathlib.Path`
+        A plain (not compressed) FITS file.
+    hdus : list of dict
+        Its HDUs, as `scan_hdus` gives them.
+
+    Returns
+    -------
+    list of str
+
+    Examples
+    --------
+    >>> import tempfile, pathlib, numpy as np
+    >>> from astropy.io import fits
+    >>> from spherex_reduce.io.fits_structure import bad_checksums, scan_hdus
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "sum.fits"
+    >>> fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(np.ones(4, ">f4"), name="SCI")]
+    ...              ).writeto(path, checksum=True)
+    >>> bad_checksums(path, scan_hdus(path))
+    []
+    >>> with open(path, "r+b") as f:  # one bit of the data changed
+    ...     _ = f.seek(2 * 2880)
+    ...     _ = f.write(b"\\x40")
+    >>> bad_checksums(path, scan_hdus(path))
+    ['SCI']
+    """
     wanted = [h for h in hdus if "DATASUM" in h["cards"] or "CHECKSUM" in h["cards"]]
     bad = []
     with open(path, "rb", buffering=0) as fh:
@@ -323,10 +388,38 @@ def _encode_checksum(value):
     return bytes(chars[-1:] + chars[:-1]).decode("ascii")
 
 
-def _checksum_text(header, datasum):
-    """The ``CHECKSUM`` value of an HDU: ``header`` is its header's bytes with the card
-    ``CHECKSUM= '0000000000000000'`` (a whole number of 2880-byte blocks), ``datasum``
-    the ``DATASUM`` of its data.  The encoded complement makes the HDU's sum all ones."""
-    total = _DataSum()
+def checksum_text(header, datasum):
+    """The ``CHECKSUM`` value of an HDU: the encoded complement that makes its sum all ones.
+
+    Parameters
+    ----------
+    header : bytes
+        The HDU's header with the card ``CHECKSUM= '0000000000000000'`` (a
+        whole number of 2880-byte records).
+    datasum : int
+        The ``DATASUM`` of its data (`DataSum`).
+
+    Returns
+    -------
+    str
+        16 characters.
+
+    Examples
+    --------
+    The value astropy writes:
+
+    >>> import numpy as np
+    >>> from astropy.io import fits
+    >>> from spherex_reduce.io.fits_structure import DataSum, checksum_text
+    >>> hdu = fits.ImageHDU(np.arange(4, dtype=">f4"), name="SCI")
+    >>> hdu.add_checksum()
+    >>> data = DataSum()
+    >>> data.add(hdu.data.tobytes())
+    >>> want = hdu.header["CHECKSUM"]
+    >>> hdu.header["CHECKSUM"] = "0000000000000000"
+    >>> checksum_text(hdu.header.tostring().encode("ascii"), data.value) == want
+    True
+    """
+    total = DataSum()
     total.add(header)
     return _encode_checksum(~_fold(total.total + datasum) & 0xFFFFFFFF)

@@ -25,9 +25,9 @@ from astropy.table import Table
 
 from ..core.channel_layout import check_stored_order
 from .atomic import atomic_output
-from .fits_structure import _BLOCK, _checksum_text, _DataSum
+from .fits_structure import FITS_BLOCK, DataSum, checksum_text
 from .header_text import header_text
-from .layout import RESERVED, _unit_str
+from .layout import RESERVED, unit_string
 
 __all__ = ["write", "write_frames"]
 
@@ -35,7 +35,7 @@ __all__ = ["write", "write_frames"]
 def _image(data, name, unit=None):
     hdu = fits.ImageHDU(data, name=name)
     if unit is not None:
-        hdu.header["BUNIT"] = _unit_str(unit)
+        hdu.header["BUNIT"] = unit_string(unit)
     return hdu
 
 
@@ -44,7 +44,7 @@ def _primary(schedule, header, order, unit, nextend):
     ``header``'s cards, and ``EXTEND`` where astropy puts it when extensions follow."""
     header = schedule.to_header(header)
     header["ORDER"] = (order.upper(), "row order of SCI: READOUT or PHYSICAL")
-    header["BUNIT"] = (_unit_str(unit), "unit of SCI and ERR")
+    header["BUNIT"] = (unit_string(unit), "unit of SCI and ERR")
     # a file cut at an HDU boundary is still valid FITS: the count tells it is not whole
     header["NEXTEND"] = (nextend, "number of extensions")
     hdu = fits.PrimaryHDU(header=header)
@@ -306,7 +306,7 @@ class _StreamedImage:
         self.pos = f.tell()
         self.hbytes = self.header.tostring().encode("ascii")
         f.write(self.hbytes)
-        self.sum = _DataSum()
+        self.sum = DataSum()
         self.nbytes = 0
         self._io = None
         self._pending = collections.deque()
@@ -343,13 +343,13 @@ class _StreamedImage:
         """Pad the data to a whole block, then fill in the checksums of the header."""
         self.drain()
         f = self.f
-        f.write(b"\0" * ((-self.nbytes) % _BLOCK))
+        f.write(b"\0" * ((-self.nbytes) % FITS_BLOCK))
         end = f.tell()
         when = datetime.datetime.now().isoformat()[:19]  # as astropy stamps its checksums
         datasum = self.sum.value
         self.header["DATASUM"] = (str(datasum), f"data unit checksum updated {when}")
         self.header["CHECKSUM"] = ("0" * 16, f"HDU checksum updated {when}")
-        self.header["CHECKSUM"] = _checksum_text(self.header.tostring().encode("ascii"),
+        self.header["CHECKSUM"] = checksum_text(self.header.tostring().encode("ascii"),
                                                  datasum)
         new = self.header.tostring().encode("ascii")
         if len(new) != len(self.hbytes):  # pragma: no cover - card layout is fixed

@@ -36,6 +36,9 @@ from astropy import units as u
 
 from ..core.errors import FormatError
 
+__all__ = ["COMPRESSED_SUFFIXES", "FITS_SUFFIXES", "PROVENANCE_COLUMNS", "RESERVED", "fits_stem",
+           "integration_shape", "unit_string"]
+
 #: Compression suffixes and FITS extensions a file name may end with (case-insensitive).
 COMPRESSED_SUFFIXES = (".gz", ".bz2", ".fz", ".z")
 FITS_SUFFIXES = (".fits", ".fit", ".fts")
@@ -75,13 +78,55 @@ RESERVED = {"PRIMARY", "SCI", "ERR", "DQ", "PHANTOM", "READOUT", "REFPIX", "REFP
 PROVENANCE_COLUMNS = ("step", "status", "parameters", "inputs", "versions", "elapsed", "route")
 
 
-def _unit_str(unit):
-    """Units in astropy's generic format ('electron / s'): 'electron' is not a FITS unit."""
+def unit_string(unit):
+    """A unit as ``BUNIT`` holds it: astropy's generic format ('electron' is not a FITS unit).
+
+    Parameters
+    ----------
+    unit : `astropy.units.UnitBase`
+
+    Returns
+    -------
+    str
+        Empty for a dimensionless unit.
+
+    Examples
+    --------
+    >>> from astropy import units as u
+    >>> from spherex_reduce.io.layout import unit_string
+    >>> unit_string(u.electron / u.s), unit_string(u.one)
+    ('electron / s', '')
+    """
     return "" if unit == u.one else unit.to_string()
 
 
 def integration_shape(shape, integration, path):
-    """The shape of the ramps read: ``shape`` itself, or one integration's of a 4-D SCI."""
+    """The shape of the ramps read: ``shape`` itself, or one integration's of a 4-D SCI.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        The shape of the file's ``SCI``.
+    integration : int or None
+        The integration read (from 0), which a 4-D ``SCI`` needs and no other allows.
+    path : str or `pathlib.Path`
+        The file, for the messages.
+
+    Returns
+    -------
+    tuple of int
+
+    Raises
+    ------
+    FormatError
+        The integration is missing, not wanted, or not one of the file's.
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.layout import integration_shape
+    >>> integration_shape((3, 5, 8, 8), 1, "f.fits"), integration_shape((5, 8, 8), None, "f.fits")
+    ((5, 8, 8), (5, 8, 8))
+    """
     if len(shape) == 4 and integration is None:
         raise FormatError(
             f"{path}: SCI is 4-D {shape} (integrations, groups, rows, columns): reduce it with "

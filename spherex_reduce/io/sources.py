@@ -30,8 +30,9 @@ from ..core.exposure import Exposure
 from .input import InputOptions
 from .readers.description import check_integrations
 from .readers.extension_reads import ExtensionReads
-from .readers.fits_read import CheckedFITS, Closing, probe, read
+from .readers.fits_read import CheckedFITS, Closing, probe
 from .readers.frames import FrameReader, RampReader
+from .readers.read_exposure import read
 from .readers.read_files import ReadFiles
 
 __all__ = ["FileSource", "Input", "MemorySource", "Source", "context_of", "open_input",

@@ -292,7 +292,7 @@ def test_write_frames_refuses_wrong_frames_and_leaves_nothing(tmp_path, raw):
 
 def test_checksum_text_is_the_fits_checksum(tmp_path):
     """Our encoder gives the CHECKSUM astropy writes (headers and data of many sums)."""
-    from spherex_reduce.io.fits_structure import _checksum_text, _DataSum
+    from spherex_reduce.io.fits_structure import DataSum, checksum_text
 
     rng = np.random.default_rng(2)
     for k in range(60):
@@ -303,12 +303,12 @@ def test_checksum_text_is_the_fits_checksum(tmp_path):
         hdu.writeto(path, checksum=True)
         with fits.open(path) as hdul:
             header = hdul[1].header
-        words = _DataSum()
+        words = DataSum()
         words.add(data.tobytes() + bytes((-data.nbytes) % 4))
         assert int(header["DATASUM"]) == words.value
         want = header["CHECKSUM"]
         header["CHECKSUM"] = "0" * 16
-        assert _checksum_text(header.tostring().encode("ascii"), words.value) == want
+        assert checksum_text(header.tostring().encode("ascii"), words.value) == want
 
 
 def test_a_table_column_in_electrons_is_written_without_warning_its_unit_described(tmp_path):

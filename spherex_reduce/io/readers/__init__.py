@@ -1,5 +1,6 @@
 """The FITS readers behind `spherex_reduce.io.sources.open_input`.
 
+``read_exposure`` (`~spherex_reduce.io.read`: the reader a file's layout needs),
 ``fits_read`` (our layout and any FITS file, checked), ``description`` (what a
 reader needs before the pixels), ``frames`` (a raw ramp a band of reads at a
 time), ``read_files`` (one file per read), ``extension_reads`` (a ramp's reads

@@ -1,4 +1,4 @@
-"""Read FITS files: exposures in this package's layout, and any FITS file checked.
+"""Read FITS files checked: exposures in this package's layout, and any FITS file.
 
 Reads check the file before trusting it: every header must end and every data
 block must fit in the file (a truncated file is named as such), ``NEXTEND``
@@ -13,7 +13,7 @@ import contextvars
 import logging
 import math
 import warnings
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -22,8 +22,8 @@ from astropy.table import Table
 
 from ...core.errors import FormatError
 from ...core.exposure import Exposure, ReferenceReads
-from ...core.fields import _card_text
-from ..fits_structure import _scan, _verify
+from ...core.fields import card_text
+from ..fits_structure import bad_checksums, scan_hdus
 from ..input import InputOptions, apply_input
 from .description import describe, file_tables, image_shape, note_bad_checksums, sci_hdu
 from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq
@@ -31,7 +31,7 @@ from .pixels import physical, unpacking
 from .stable_file import StableFile
 
 __all__ = ["CheckedFITS", "checksum_policy", "integration_count", "is_raw_ramp_file",
-           "open_checked", "read"]
+           "open_checked"]
 
 log = logging.getLogger(__name__)
 
@@ -97,8 +97,8 @@ def open_fits(path, verify=None):
 
 
 def _open_checked(path, verify):
-    hdus = _scan(path)
-    bad = _verify(path, hdus) if hdus else []
+    hdus = scan_hdus(path)
+    bad = bad_checksums(path, hdus) if hdus else []
     if bad:
         msg = (f"{path}: the checksum of HDU(s) {', '.join(bad)} does not match the bytes "
                "(CHECKSUM/DATASUM): the file is damaged or was changed after writing")
@@ -128,7 +128,7 @@ def _check_cards(hdu, path):
                 value = card.value
             except Exception as exc:  # VerifyError: e.g. "X = NAN", "X = 1E9999x"
                 raise FormatError(f"{path}: HDU {hdu.name!r} has the unreadable header card "
-                                  f"{card.keyword} = {_card_text(card)}") from exc
+                                  f"{card.keyword} = {card_text(card)}") from exc
             if isinstance(value, float) and not math.isfinite(value):
                 raise FormatError(f"{path}: HDU {hdu.name!r} has the header card "
                                   f"{card.keyword} = {value}, not a finite number")
@@ -249,100 +249,6 @@ def open_checked(path, verify_checksum=None):
     return CheckedFITS(path, verify_checksum)
 
 
-def read(path, verify_checksum=None, dq_bits=None, input=None, integration=None, **supplied):
-    """Read an exposure written by `write` (or raw data from other electronics).
-
-    Parameters
-    ----------
-    path : str or `pathlib.Path`
-        FITS file.  It is opened read-only and never changed; its pixels are
-        read with explicit reads (nothing memory-mapped: a file truncated or
-        rewritten while it is read is a `FormatError`, never a ``SIGBUS``),
-        so the whole file is in memory when this returns (to reduce a
-        full-size raw file, give `~spherex_reduce.Pipeline.run` its path: it
-        streams it in bands); the arrays of the returned exposure are read-only.  Integer data with
-        ``BSCALE``/``BZERO``/``BLANK`` are scaled to floating point
-        (``float32`` for 8- and 16-bit data, else ``float64``; ``BLANK`` is
-        NaN) in memory.
-    verify_checksum : bool, optional
-        Whether a ``CHECKSUM``/``DATASUM`` mismatch is an error (True), or a
-        logged warning recorded in the returned header (False: ``HISTORY``
-        and ``SXRCKBAD``).  Default: `checksum_policy` (True).
-    dq_bits : int, optional
-        Which bits of a ``DQ`` written by other software (a file without a
-        ``READOUT`` table) mask a pixel, as a sum of ``2**bit``; such pixels
-        get `~spherex_reduce.core.dq.DO_NOT_USE` and other bits are dropped.
-        Default: `~spherex_reduce.io.foreign_dq_bits` (every bit: a flag
-        that cannot be read is never fitted as good).  A file written by
-        this package keeps all its flags.  A 2-D ``DQ`` with ramps applies
-        to every frame (a pixel mask ``(nrows, ncols)`` to every read of
-        each row).  When not given: ``input``'s
-        ``dq_bits`` if it has one.
-    input : dict or `~spherex_reduce.io.input.InputOptions`, optional
-        What the file needs before the steps, as the ``input:`` section of a
-        pipeline config (:ref:`yaml`): ``unit`` (``BUNIT`` when the file lacks
-        it; ADU, DN and counts are read as ``adu``), ``gain`` (e-/ADU, one
-        number or one per channel: the data, uncertainties and phantom values
-        are multiplied by it and become electrons; recorded as ``GAIN``),
-        ``drop_first_reads`` (frames left out at the start of every ramp;
-        recorded as ``NDROPRD``), ``header`` (``fill``: a ``supplied`` value
-        that disagrees with the file's keyword is an error; ``override``: it
-        replaces it, with a warning and a ``HISTORY`` card), ``dq_bits`` and
-        ``reads`` (``extensions``: the file's ``SCI`` extensions are the reads
-        of one ramp, in ``SAMPTIME`` order, as HST's ``_raw`` files store it:
-        `~spherex_reduce.io.readers.extension_reads.ExtensionReads`).
-    integration : int, optional
-        For a 4-D ``SCI`` (integrations, groups, rows, columns: the JWST
-        "uncal" layout), which integration to read (from 0): its ramps, with
-        the file's header (plus ``SXRINT``, the integration) and schedule,
-        and the same integration of a 4-D ``ERR``, ``DQ`` or ``PHANTOM`` (a
-        ``DQ`` of lower dimension applies to every integration).  A 4-D
-        ``SCI`` is refused without it; `~spherex_reduce.reduce_integrations`
-        reduces every integration.
-    **supplied
-        Geometry and readout parameters (``nrows``, ``skip``, ``frame_time``
-        ...) used where the header lacks them, e.g. from a pipeline config's
-        ``geometry:`` and ``readout:`` sections.
-
-    Returns
-    -------
-    exposure : `Exposure`
-
-    Raises
-    ------
-    FormatError
-        The file is truncated or damaged (checksum), lacks ``SCI``, a keyword
-        is missing or invalid, or the header, the ``READOUT`` table and the
-        array shapes disagree; the message names the keyword or dimension.
-    ResourceError
-        Scaled data would not fit in memory once in floating point.
-
-    Examples
-    --------
-    Unsigned 16-bit data (stored with ``BZERO = 32768``) come back as floats:
-
-    >>> import tempfile, pathlib, numpy as np
-    >>> from spherex_reduce import Exposure, ReadoutSchedule, DetectorGeometry, read, write
-    >>> s = ReadoutSchedule(DetectorGeometry(8, 8, 2, ref_border=0), ref_mode="none",
-    ...                     phantom_reads=0, nframes=2)
-    >>> counts = np.arange(2 * 8 * 8, dtype=np.uint16).reshape(2, 8, 8) + 60000
-    >>> out = write(Exposure.from_arrays(counts, s), pathlib.Path(tempfile.mkdtemp()) / "u.fits")
-    >>> e = read(out)
-    >>> e.data.data.dtype, float(e.data.data.max())
-    (dtype('float32'), 60127.0)
-    """
-    options = InputOptions.from_config(input)
-    if options.reads == "extensions":  # one read per SCI extension: a reader of its own
-        from .extension_reads import ExtensionReads  # (it reads files with this module)
-
-        if dq_bits is not None:
-            options = replace(options, dq_bits=dq_bits)
-        with ExtensionReads(path, verify_checksum, input=options, **supplied) as reads:
-            return reads.exposure()
-    with CheckedFITS(path, verify_checksum) as f:
-        return f.exposure(dq_bits=dq_bits, input=options, integration=integration, **supplied)
-
-
 def exposure_from_hdul(hdul, path, bad, stable, supplied, dq_bits=None, options=None,
                        integration=None):
     """The `Exposure` in an HDU list opened by `open_fits` (which the caller closes), its
@@ -449,7 +355,7 @@ def probe(path):
     try:
         if not Path(path).is_file():
             return None
-        _scan(path)  # truncated or damaged: not astropy's guess, read's error
+        scan_hdus(path)  # truncated or damaged: not astropy's guess, read's error
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             with fits.open(path, memmap=False, lazy_load_hdus=True) as hdul:

@@ -15,7 +15,7 @@ from .fits_read import Closing, exposure_from_hdul, open_fits
 from .pixels import FITS_DTYPES, FLOAT_FOR, physical, scaling, to_physical, unpacking
 from .stable_file import pread_into
 
-__all__ = ["FrameReader", "RampReader"]
+__all__ = ["FrameReader", "RampReader", "consecutive_runs"]
 
 
 class RampReader(Closing):
@@ -189,10 +189,11 @@ class FrameReader(RampReader):
         rows, (at, column) = self._layout.stored_rows_of(first, stop)
         columns = np.unique(column)
         if columns.size <= self._stored_shape[1] // 4 and hasattr(os, "preadv"):
-            part = self._stored_columns(k, rows, _runs(columns))  # a few columns of each row
+            # a few columns of each row
+            part = self._stored_columns(k, rows, consecutive_runs(columns))
             return part[at, np.searchsorted(columns, column)]
-        return np.concatenate([self._stored_rows(k, r[0], r[-1] + 1) for r in _runs(rows)])[
-            at, column]
+        return np.concatenate([self._stored_rows(k, r[0], r[-1] + 1)
+                               for r in consecutive_runs(rows)])[at, column]
 
     def _stored_columns(self, k, rows, runs):
         """The columns of ``runs`` (runs of consecutive columns) of stored rows ``rows`` of
@@ -234,8 +235,25 @@ class FrameReader(RampReader):
             mm.madvise(mmap.MADV_DONTNEED, page, length)
 
 
-def _runs(values):
-    """Sorted unique integers split into runs of consecutive values."""
+def consecutive_runs(values):
+    """Sorted unique integers split into runs of consecutive values.
+
+    Parameters
+    ----------
+    values : `numpy.ndarray`
+        Sorted unique integers.
+
+    Returns
+    -------
+    list of `numpy.ndarray`
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.io.readers.frames import consecutive_runs
+    >>> [r.tolist() for r in consecutive_runs(np.array([0, 1, 2, 5, 7, 8]))]
+    [[0, 1, 2], [5], [7, 8]]
+    """
     return np.split(values, np.flatnonzero(np.diff(values) != 1) + 1)
 
 

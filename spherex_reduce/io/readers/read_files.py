@@ -26,7 +26,7 @@ from ..layout import fits_stem
 from .description import describe, file_tables, image_shape
 from .fits_read import open_fits
 from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq
-from .frames import RampReader, _runs, map_frames
+from .frames import RampReader, consecutive_runs, map_frames
 from .pixels import FLOAT_FOR, physical, scaling, to_physical, unpacking
 from .stable_file import pread_into
 
@@ -271,7 +271,7 @@ class FrameImage:
             return self._stored_rows(first, stop, dtype)
         rows, take = self.layout.stored_rows_of(first, stop)
         return np.concatenate([self._stored_rows(r[0], r[-1] + 1, dtype)
-                               for r in _runs(rows)])[take]
+                               for r in consecutive_runs(rows)])[take]
 
     def _stored_rows(self, first, stop, dtype):
         """Rows ``first:stop`` of the image as stored, as ``dtype``."""

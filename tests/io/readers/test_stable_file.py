@@ -63,7 +63,7 @@ def test_a_file_changed_while_its_checksums_are_verified_is_named(tmp_path, monk
     from spherex_reduce.io.readers.fits_read import CheckedFITS
 
     path = write(example_raw_exposure(seed=1), tmp_path / "raw.fits")
-    verify = fits_read._verify
+    verify = fits_read.bad_checksums
 
     def verify_then_change(p, hdus):
         bad = verify(p, hdus)
@@ -73,7 +73,7 @@ def test_a_file_changed_while_its_checksums_are_verified_is_named(tmp_path, monk
             f.write(b"\x7f" * 8)
         return bad
 
-    monkeypatch.setattr(fits_read, "_verify", verify_then_change)
+    monkeypatch.setattr(fits_read, "bad_checksums", verify_then_change)
     reader = CheckedFITS(path)
     try:
         with pytest.raises(FormatError, match=r"raw\.fits changed while it was read"):

@@ -58,6 +58,7 @@ from .case import (
     seed_section,
 )
 from .spectrum import BAND_KMAX, BAND_KMIN, band_label
+from .table_cells import plain_value
 
 __all__ = ["Sweep", "SweepResult", "load_sweep", "plot_sweep", "run_cell", "run_sweep"]
 
@@ -244,22 +245,14 @@ class SweepResult:
 
 
 def _key(row, keys):
-    return tuple(json.dumps(_plain(row[k])) for k in (*keys, "pipeline", "realization"))
-
-
-def _plain(value):
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, bytes):
-        return value.decode()
-    return value
+    return tuple(json.dumps(plain_value(row[k])) for k in (*keys, "pipeline", "realization"))
 
 
 def _rows_to_table(rows, sweep, unit):
     keys = sweep.keys
     cols = {}
     for k in keys:
-        cols[k] = [_plain(r["cell"][k]) for r in rows]
+        cols[k] = [plain_value(r["cell"][k]) for r in rows]
     cols["pipeline"] = [r["cell"]["pipeline"] for r in rows]
     cols["realization"] = np.array([r["cell"]["realization"] for r in rows], dtype=int)
     cols["seed"] = [r["seed"] for r in rows]
@@ -486,7 +479,7 @@ class _Results:
             from .forecast.sweep import FORECAST_COLUMNS
 
             table.remove_columns([c for c in FORECAST_COLUMNS if c in table.colnames])
-        table.meta.update({"sweep": sw.source, "grid": {k: [_plain(v) for v in vals]
+        table.meta.update({"sweep": sw.source, "grid": {k: [plain_value(v) for v in vals]
                                                          for k, vals in sw.grid.items()},
                            "pipelines": list(sw.pipelines), "realizations": sw.realizations,
                            "seed": sw.seed, "mode": sw.mode, "measure": _jsonable(sw.measure),
@@ -538,12 +531,13 @@ def plot_sweep(table, x=None, title=""):
     ax = fig.subplots()
     groups, lines = {}, {}
     for row in table:
-        label = ", ".join(f"{k}={_plain(row[k])}" for k in others
+        label = ", ".join(f"{k}={plain_value(row[k])}" for k in others
                           if len(set(table[k])) > 1 or k != "pipeline")
         if mc:
-            groups.setdefault(label, {}).setdefault(_plain(row[x]), []).append(row["band_power"])
+            groups.setdefault(label, {}).setdefault(plain_value(row[x]), []).append(
+                row["band_power"])
         if fc:
-            lines.setdefault(label, {})[_plain(row[x])] = float(row["band_power_forecast"])
+            lines.setdefault(label, {})[plain_value(row[x])] = float(row["band_power_forecast"])
     series = groups or lines
     numeric = all(isinstance(v, (int, float)) for g in series.values() for v in g)
     for label in series:

@@ -23,7 +23,7 @@ from astropy.table import Table
 
 from ...core.errors import ConfigError, SpherexReduceError
 from ..case import SpectrumMeasure
-from ..sweep import _plain
+from ..table_cells import plain_value
 from .engine import forecast, forecast_measure
 from .steps import linear_steps
 
@@ -81,14 +81,14 @@ class SweepForecast:
 
     def key(self, row):
         """The key of a point: its grid values and pipeline (a result row or a cell)."""
-        return tuple(json.dumps(_plain(row[k])) for k in (*self.sweep.keys, "pipeline"))
+        return tuple(json.dumps(plain_value(row[k])) for k in (*self.sweep.keys, "pipeline"))
 
     def of(self, row):
         """``(band power, P(k) on every bin, k)`` of the point of ``row``: floats and arrays in
         (e/s)² pix² and rad/pixel (NaN if its forecast failed, recorded in `failed`)."""
         key = self.key(row)
         if key not in self._done:
-            point = {k: _plain(row[k]) for k in (*self.sweep.keys, "pipeline")}
+            point = {k: plain_value(row[k]) for k in (*self.sweep.keys, "pipeline")}
             task = self.sweep.task({**point, "realization": 0})
             m = SpectrumMeasure(**task["measure"])
             try:

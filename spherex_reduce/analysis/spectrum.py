@@ -215,8 +215,39 @@ def rfft_weights(nx):
 
 
 @functools.lru_cache(maxsize=4)  # a full-size grid holds ~35 MB
-def _grid(ny, nx, edges, exclude_horizontal):
-    """Bin index, weight and |k| of every cell of the ``rfft2`` grid (cached per shape)."""
+def k_grid(ny, nx, edges, exclude_horizontal):
+    """Bin index and weight of every cell of the ``rfft2`` grid, and each bin's sums.
+
+    Cached per shape (a full-size grid holds ~35 MB); the arrays are read-only.
+
+    Parameters
+    ----------
+    ny, nx : int
+        Shape of the image.
+    edges : tuple of float
+        Bin edges in rad/pixel (the last one inclusive).
+    exclude_horizontal : bool
+        Whether the row ``ky = 0`` is left out.
+
+    Returns
+    -------
+    idx : `numpy.ndarray`
+        Bin of every cell (raveled); ``len(edges) - 1`` for a cell in no bin
+        (outside the edges, the mean, or a left-out row).
+    weights : `numpy.ndarray`
+        Modes of the full grid each cell stands for (`rfft_weights`).
+    nfull, ksum, nself : `numpy.ndarray`
+        Per bin: the modes, the sum of their ``|k|``, and the self-conjugate cells.
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.spectrum import k_grid
+    >>> idx, weights, nfull, ksum, nself = k_grid(4, 4, (0.0, 1.6, 3.2), False)
+    >>> idx.reshape(4, 3).tolist()
+    [[2, 0, 1], [0, 1, 2], [1, 2, 2], [0, 1, 2]]
+    >>> nfull.tolist(), nself.tolist()
+    ([4.0, 6.0], [0.0, 2.0])
+    """
     ky = 2 * np.pi * np.fft.fftfreq(ny)
     kx = 2 * np.pi * np.fft.rfftfreq(nx)
     kk = np.hypot(ky[:, None], kx[None, :])
@@ -244,7 +275,36 @@ def _grid(ny, nx, edges, exclude_horizontal):
     return idx, weights, nfull, ksum, nself
 
 
-def _edges(bins, ny, nx):
+def k_bin_edges(bins, ny, nx):
+    """The bin edges in rad/pixel of a spectrum: ``bins`` log-spaced bins, or the edges given.
+
+    Parameters
+    ----------
+    bins : int or array_like
+        A number of bins, log-spaced from the lowest ``k`` of the image
+        (``2 pi / max(ny, nx)``) to pi, or the edges (rad/pixel, or a
+        `~astropy.units.Quantity` of wavenumbers).
+    ny, nx : int
+        Shape of the image.
+
+    Returns
+    -------
+    `numpy.ndarray`
+
+    Raises
+    ------
+    SpherexReduceError
+        No bins, or edges that do not increase or are negative.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.analysis.spectrum import k_bin_edges
+    >>> bool(np.allclose(k_bin_edges(2, 8, 8), [np.pi / 4, np.pi / 2, np.pi]))
+    True
+    >>> k_bin_edges([0.1, 0.5, 1.0], 8, 8).tolist()
+    [0.1, 0.5, 1.0]
+    """
     if isinstance(bins, (int, np.integer)) and not isinstance(bins, bool):
         if bins < 1:
             raise SpherexReduceError(f"bins must be >= 1, got {bins}")
@@ -392,7 +452,7 @@ def cross_spectrum(image, other, pixel_scale=SPHEREX_PIXEL_SCALE, mask=None, bin
 def _binned_spectrum(data, data_b, bad, unit, unit_b, bins, pixel_scale, exclude_horizontal):
     """The table of `power_spectrum` (``data_b`` None) or `cross_spectrum`: one implementation."""
     ny, nx = data.shape
-    edges = _edges(bins, ny, nx)
+    edges = k_bin_edges(bins, ny, nx)
     x, fgood = _prepared(data, bad)
     f = scipy.fft.rfft2(x, workers=-1)
     del x
@@ -418,7 +478,7 @@ def spectrum_table(p, shape, edges, unit, fgood=1.0, pixel_scale=SPHEREX_PIXEL_S
     image's squared, ``fgood`` its unmasked fraction, ``var`` each cell's Gaussian variance
     (None: ``p²``).  The one binning of measured and forecast spectra."""
     ny, nx = shape
-    idx, w, nfull, ksum, nself = _grid(ny, nx, tuple(edges), bool(exclude_horizontal))
+    idx, w, nfull, ksum, nself = k_grid(ny, nx, tuple(edges), bool(exclude_horizontal))
     nb = edges.size - 1
     pw = p.ravel() * w
     psum = np.bincount(idx, weights=pw, minlength=nb + 1)[:nb]

@@ -17,7 +17,8 @@ import threading
 from ..core.errors import ConfigError
 from ..core.limits import MAX_WORKERS, check_count
 
-__all__ = ["HELD_SIGNALS", "check_scheduler", "map_on_dask", "quiet_dask_logs", "signals_held"]
+__all__ = ["HELD_SIGNALS", "check_scheduler", "dask_client", "map_on_dask", "quiet_dask_logs",
+           "signals_held"]
 
 
 def quiet_dask_logs(level=logging.CRITICAL):
@@ -102,8 +103,41 @@ async def _identity(address, timeout):
     return await asyncio.wait_for(ask(), timeout)
 
 
-def _client(scheduler, workers):
-    """``(client, cluster, owned)``: a client for ``scheduler`` (None: a new LocalCluster)."""
+def dask_client(scheduler, workers):
+    """A dask client for ``scheduler``, or for a new local cluster.
+
+    Parameters
+    ----------
+    scheduler : str, `distributed.Client` or None
+        A scheduler's address (checked first: `check_scheduler`), a client
+        (used as it is), or None: a new ``LocalCluster`` of ``workers``
+        single-threaded processes.
+    workers : int or None
+        Workers of a new local cluster (default 2).
+
+    Returns
+    -------
+    client : `distributed.Client`
+    cluster : `distributed.LocalCluster` or None
+        The cluster made here, if any.
+    owned : bool
+        Whether the caller closes the client (and the cluster).
+
+    Raises
+    ------
+    ConfigError
+        The scheduler cannot be reached as a dask scheduler.
+
+    Examples
+    --------
+    An address where no scheduler answers is refused:
+
+    >>> from spherex_reduce.reduce.scheduler import dask_client
+    >>> dask_client("no-such-host:1", None)
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.core.errors.ConfigError: scheduler no-such-host:1: ...
+    """
     from distributed import Client, LocalCluster
 
     if isinstance(scheduler, Client):
@@ -139,7 +173,7 @@ def map_on_dask(function, tasks, scheduler, workers, collect, failed):
         _start_resource_tracker()
     try:
         with signals_held():  # dask interrupted half-way through starting prints tracebacks
-            client, cluster, owned = _client(scheduler, workers)
+            client, cluster, owned = dask_client(scheduler, workers)
         futures = client.map(function, tasks, pure=False)
         task_of = {fut.key: task for fut, task in zip(futures, tasks, strict=True)}
         for fut in as_completed(futures):

@@ -26,7 +26,7 @@ from ..photon_noise import photon_noise_label, photon_noise_power
 from ..spectrum import fft_magnitude
 from ..sweep import run_sweep
 from .forecast import FORECAST, TITLES, plot_forecast_figure
-from .report import _margin, _unicode
+from .report import sigma_margin, unicode_unit
 
 __all__ = ["FIGURES", "FigureRun"]
 
@@ -183,7 +183,7 @@ def _fig4_components(run):
                "correction. `bias_phantom_only` is invisible to pixels (zero image), so it is "
                "not drawn.", ""]
     roic = spectra["roic"]
-    margins4 = [_margin(np.asarray(t["power"]), np.asarray(t["power_err"]),
+    margins4 = [sigma_margin(np.asarray(t["power"]), np.asarray(t["power_err"]),
                         np.asarray(roic["power"]), np.asarray(roic["power_err"]))
                 for c, t in spectra.items() if c != "roic" and len(t) == len(roic)]
     rep.claim("The ROIC amplifier noise dominates at all spatial frequencies (Fig. 4)",
@@ -211,9 +211,9 @@ def _fig5_phantom(run):
     rep.md += ["## Fig. 5: phantom correction (c = 4), phantom-visible sources", "",
                "![](fig5_phantom.png)", "",
                f"Band power before {before[0]:.3g} ± {before[1]:.2g}, after "
-               f"{after[0]:.3g} ± {after[1]:.2g} ({_unicode(t5['band_power'].unit)}).", ""]
+               f"{after[0]:.3g} ± {after[1]:.2g} ({unicode_unit(t5['band_power'].unit)}).", ""]
     rep.claim("Phantom correction removes phantom-visible 1/f noise (Fig. 5, §4.1)",
-              [_margin(after[0], after[1], 0.5 * before[0], 0.5 * before[1])],
+              [sigma_margin(after[0], after[1], 0.5 * before[0], 0.5 * before[1])],
               f"band power falls by a factor {before[0] / after[0]:.3g}",
               "the band power after phantom correction is below half of that before",
               run.per_point)
@@ -267,7 +267,7 @@ def _fig6_skip(run):
         outside = [i for i in range(len(sk)) if i not in inside]
         lo_in = min(inside, key=lambda i: m[i]) if inside else None
         margins = [-np.inf] if lo_in is None else [
-            _margin(m[lo_in], e[lo_in], m[i], e[i]) for i in outside] or [np.inf]
+            sigma_margin(m[lo_in], e[lo_in], m[i], e[i]) for i in outside] or [np.inf]
         s24 = f", S = 24 gives {m[sk.index(24)]:.3g}" if 24 in sk else ""
         return margins, (f"minimum at S = {best} ({min(m):.3g}); S = 1 gives {m[0]:.3g}"
                          + s24)
@@ -335,8 +335,8 @@ def _fig7_fft2d(run):
                                 "no reference correction"), "fig7_fft2d.png")
 
     def judged(fr):
-        return ([_margin(fr[24][1], fr[24][2][1], fr[1][1], fr[1][2][1]),
-                 _margin(0.01, 0.0, fr[24][0], fr[24][2][0])],
+        return ([sigma_margin(fr[24][1], fr[24][2][1], fr[1][1], fr[1][2][1]),
+                 sigma_margin(0.01, 0.0, fr[24][0], fr[24][2][0])],
                 f"near-axis fraction {fr[1][1]:.3f} → {fr[24][1]:.3f}, on-axis "
                 f"{fr[1][0]:.3f} → {fr[24][0]:.3f}")
 
@@ -438,7 +438,7 @@ def _fig8_reference_reads(run):
         dist, rep_ = (np.asarray(m[:n]), np.asarray(e[:n])), (np.asarray(m[n:]),
                                                              np.asarray(e[n:]))
         wins = [r for r, a, b in zip(s.ref_reads, dist[0], rep_[0], strict=True) if a < b]
-        return (_margin(*dist, *rep_),
+        return (sigma_margin(*dist, *rep_),
                 f"distributed lower at r = {wins} of {list(s.ref_reads)}")
 
     _claim(run, "Distributed reference reads beat repeated ones at every r (Fig. 8, §4.3)",
@@ -463,7 +463,7 @@ def _fig9_image(run):
     photon, photon_label = _photon_line(s)
     label = "before reference correction"
     rep.number("9", label, "k", np.nan, "band_power", bp9.value, unit=bp9.unit)
-    text = (f"Band power {bp9.value:.4g} {_unicode(bp9.unit)}; photon noise of 1 e/s: "
+    text = (f"Band power {bp9.value:.4g} {unicode_unit(bp9.unit)}; photon noise of 1 e/s: "
             f"{photon.value:.3g}.")
     if run.forecast:
         f9 = forecast(_scene(s), PIPELINES["phantom"], measure)
@@ -481,7 +481,7 @@ def _fig9_image(run):
         rep.save(plot_forecast_figure(Table(rows=rep.numbers), "9"), "fig9_spectrum.png")
         z = np.abs(mp - fp) / ferr
         text = (f"Band power {bp9.value:.4g} ± {m9['band_power_err'].value:.2g} in one "
-                f"realisation, forecast {fb:.4g} {_unicode(bp9.unit)}; the realisation's bins "
+                f"realisation, forecast {fb:.4g} {unicode_unit(bp9.unit)}; the realisation's bins "
                 f"lie within {np.nanmax(z):.2g} standard errors of the forecast (the error one "
                 f"realisation's bin has). Photon noise of 1 e/s: {photon.value:.3g}.")
     else:
@@ -511,7 +511,7 @@ def _fig10_corrected(run):
                f"{unc[0]:.4g} ± {unc[1]:.2g}; ratio {corr[0] / unc[0]:.3g}. Photon noise "
                f"(1 e/s): {photon.value:.3g}.", ""]
     rep.claim("Corrections bring large-scale noise well below the uncorrected level "
-              "(Fig. 10, §5.2)", [_margin(corr[0], corr[1], 0.3 * unc[0], 0.3 * unc[1])],
+              "(Fig. 10, §5.2)", [sigma_margin(corr[0], corr[1], 0.3 * unc[0], 0.3 * unc[1])],
               f"corrected / uncorrected band power = {corr[0] / unc[0]:.3g}",
               "the corrected band power is below 0.3 times the uncorrected one", run.per_point)
 
@@ -543,7 +543,7 @@ def _fig12a_sigma_vs_n(run):
                                                                    strict=True)] + [""]
     dev = np.array(sig) / np.array(pred) - 1
     rep.claim("Pixel σ falls with N (Fig. 12a)",
-              _margin(sig[1:], sig_err[1:], sig[:-1], sig_err[:-1]),
+              sigma_margin(sig[1:], sig_err[1:], sig[:-1], sig_err[:-1]),
               f"σ from {sig[0]:.3g} (N = {s.n_values[0]}) to {sig[-1]:.3g} "
               f"(N = {s.n_values[-1]}); against the analytic per-pixel σ before correction "
               f"{dev[0]:+.1%} at N = {s.n_values[0]} and {dev[-1]:+.1%} at N = "

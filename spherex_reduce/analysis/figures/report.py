@@ -1,7 +1,7 @@
 """The report of the paper's figures: numbers, claims and their verdicts.
 
 A claim of the paper is put as comparisons of measured numbers; each
-comparison's margin is how far it is met in standard errors (`_margin`), and
+comparison's margin is how far it is met in standard errors (`sigma_margin`), and
 the claim's verdict follows from the smallest margin (`_verdict`).
 `FigureReport` collects what the figures record: their Markdown sections,
 every number plotted and every claim with its verdict.
@@ -10,7 +10,8 @@ every number plotted and every claim with its verdict.
 import numpy as np
 from astropy import units as u
 
-__all__ = ["FAILS", "HOLDS", "NOISE", "NOISE_SIGMAS", "FigureReport"]
+__all__ = ["FAILS", "HOLDS", "NOISE", "NOISE_SIGMAS", "FigureReport", "sigma_margin",
+           "unicode_unit"]
 
 
 #: A claim is decided only when every comparison it needs is met (or one fails) by more
@@ -32,8 +33,25 @@ def _verdict(margins):
     return HOLDS if worst > NOISE_SIGMAS else FAILS if worst < -NOISE_SIGMAS else NOISE
 
 
-def _margin(a, a_err, b, b_err):
-    """How far ``a < b`` holds, in standard errors of ``b − a`` (negative: it fails)."""
+def sigma_margin(a, a_err, b, b_err):
+    """How far ``a < b`` holds, in standard errors of ``b − a`` (negative: it fails).
+
+    Parameters
+    ----------
+    a, a_err, b, b_err : array_like
+        The values compared and their standard errors.
+
+    Returns
+    -------
+    `numpy.ndarray`
+        ``(b - a) / hypot(a_err, b_err)``; ±inf where both errors are 0.
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.figures.report import sigma_margin
+    >>> sigma_margin(1.0, 0.3, 2.0, 0.4).tolist(), sigma_margin(2.0, 0.0, 1.0, 0.0).tolist()
+    (2.0, -inf)
+    """
     err = np.hypot(a_err, b_err)
     diff = np.asarray(b, float) - np.asarray(a, float)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -109,6 +127,21 @@ def _worst(margins, count):
     return f"decided exactly ({count})"
 
 
-def _unicode(unit):
-    """A unit for the Markdown report: ``electron² pix² s⁻²``, not ``electron2 pix2 / s2``."""
+def unicode_unit(unit):
+    """A unit for the Markdown report: ``electron² pix² s⁻²``, not ``electron2 pix2 / s2``.
+
+    Parameters
+    ----------
+    unit : `astropy.units.UnitBase` or str
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.figures.report import unicode_unit
+    >>> unicode_unit("electron2 / s2")
+    'electron² s⁻²'
+    """
     return u.Unit(unit).to_string("unicode")

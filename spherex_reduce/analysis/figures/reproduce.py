@@ -19,7 +19,7 @@ from astropy.table import Table
 
 from ...core._text import plural
 from ...io import atomic_output
-from ...reduce.scheduler import _client
+from ...reduce.scheduler import dask_client
 from ..spectrum import band_label
 from .paper import FIGURES, FigureRun
 from .report import FAILS, HOLDS, NOISE, NOISE_SIGMAS, FigureReport
@@ -100,7 +100,7 @@ def make_figures(outdir, quick=False, *, realizations=None, scheduler=None, work
         scheduler = "serial"
     cleanup = None
     if scheduler != "serial":  # one cluster for every sweep of the figures
-        client, cluster, owned = _client(scheduler, workers)
+        client, cluster, owned = dask_client(scheduler, workers)
         scheduler = client
 
         def cleanup():

@@ -35,8 +35,8 @@ from ..spectrum import (
     BAND_KMAX,
     BAND_KMIN,
     SPHEREX_PIXEL_SCALE,
-    _edges,
-    _grid,
+    k_bin_edges,
+    k_grid,
     rfft_weights,
     spectrum_table,
 )
@@ -44,7 +44,8 @@ from .layout import frame_cells, transposed
 from .rows import NODES, Cells, component_planes
 from .steps import reduction
 
-__all__ = ["band_power_forecast", "forecast", "forecast_measure"]
+__all__ = ["band_power_forecast", "forecast", "forecast_measure", "poisson_variance",
+           "prepare_forecast", "stored_planes"]
 
 _SLOPE_UNIT = u.electron / u.s
 #: Name of the Poisson noise of the dark current and photocurrent in the table's columns.
@@ -132,14 +133,14 @@ def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SC
     1861.9
     """
     m = forecast_measure(measure)
-    sc, red, rows, cols, comps = _prepare(scene, pipeline)
-    parts, (ny, nx) = _stored_planes(sc, red, rows, cols, comps, nodes)
-    shot = _poisson_variance(sc)
+    sc, red, rows, cols, comps = prepare_forecast(scene, pipeline)
+    parts, (ny, nx) = stored_planes(sc, red, rows, cols, comps, nodes)
+    shot = poisson_variance(sc)
     if shot:  # white: the same in every cell
         parts[_POISSON] = np.full((ny, nx // 2 + 1), shot * ny * nx)
     unit = _SLOPE_UNIT**2
     shape = (ny, nx)
-    edges = _edges(m.bins, ny, nx)
+    edges = k_bin_edges(m.bins, ny, nx)
     exclude_horizontal = bool(m.exclude_horizontal)
     total = sum(parts.values()) if parts else np.zeros((ny, nx // 2 + 1))
     table = spectrum_table(total, shape, edges, unit, 1.0, pixel_scale, exclude_horizontal)
@@ -210,9 +211,9 @@ def band_power_forecast(scene, pipeline=None, kmin=BAND_KMIN, kmax=BAND_KMAX, *,
     >>> abs(band / full - 1) < 1e-12
     True
     """
-    sc, red, rows, cols, comps = _prepare(scene, pipeline)
+    sc, red, rows, cols, comps = prepare_forecast(scene, pipeline)
     frame, flip, (ny, nx) = _frames(sc.schedule.geometry, rows, cols)
-    idx = _grid(ny, nx, (float(kmin), float(kmax)), bool(exclude_horizontal))[0]
+    idx = k_grid(ny, nx, (float(kmin), float(kmax)), bool(exclude_horizontal))[0]
     sy, sx = np.nonzero((idx == 0).reshape(ny, nx // 2 + 1))  # the band's stored cells
     if not sy.size:
         raise SpherexReduceError(f"forecast: no Fourier mode of the {ny} x {nx} image has "
@@ -223,7 +224,7 @@ def band_power_forecast(scene, pipeline=None, kmin=BAND_KMIN, kmax=BAND_KMAX, *,
     pick = np.searchsorted(cells.ky, fy), np.searchsorted(cells.kx, fx)
     w = rfft_weights(nx)[sx]
     power = sum(np.sum(p[pick] * w) for p in parts.values()) / np.sum(w) / (ny * nx)
-    return float(power + _poisson_variance(sc))
+    return float(power + poisson_variance(sc))
 
 
 def _frames(geometry, rows, cols):
@@ -235,20 +236,75 @@ def _frames(geometry, rows, cols):
     return frame, flip, (frame[::-1] if flip else frame)
 
 
-def _stored_planes(sc, red, rows, cols, comps, nodes=NODES):
-    """``({name: E|FFT|²}, (ny, nx))``: each component's plane on the rfft2 grid of the
-    stored light-sensitive image (the engine's readout-frame plane, transposed for
-    channels as rows), and that image's shape; the arguments as `_prepare` returns them."""
+def stored_planes(sc, red, rows, cols, comps, nodes=NODES):
+    """Each component's expected ``|FFT|²`` on the rfft2 grid of the stored light-sensitive image.
+
+    The engine's readout-frame plane, transposed for channels as rows.
+
+    Parameters
+    ----------
+    sc, red, rows, cols, comps
+        As `prepare_forecast` returns them.
+    nodes : int
+        Quadrature nodes of the engine.
+
+    Returns
+    -------
+    planes : dict of `numpy.ndarray`
+        ``E|FFT|²`` by component name, shape ``(ny, nx // 2 + 1)``.
+    shape : tuple of int
+        ``(ny, nx)`` of the stored light-sensitive image.
+
+    Examples
+    --------
+    White noise: the mean of the plane over the grid is the pixel variance.
+
+    >>> from spherex_reduce.analysis.forecast.engine import prepare_forecast, stored_planes
+    >>> scene = {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 4, "ref_border": 4},
+    ...          "readout": {"nframes": 8, "phantom_reads": 0}, "scene": {"photocurrent": 1.0},
+    ...          "noise": {"components": [{"name": "w", "alpha": 2e-3}]}}
+    >>> planes, (ny, nx) = stored_planes(*prepare_forecast(scene, None))
+    >>> (ny, nx), round(float(planes["w"].mean()) / (ny * nx), 1)
+    ((56, 56), 1861.9)
+    """
     frame, flip, (ny, nx) = _frames(sc.schedule.geometry, rows, cols)
     cells = frame_cells(*np.indices((ny, nx // 2 + 1)), frame, flip)
     return ({name: p[cells] for name, p in
              component_planes(sc.schedule, rows, cols, comps, red, nodes).items()}, (ny, nx))
 
 
-def _prepare(scene, pipeline):
-    """The scene, the pipeline's `~spherex_reduce.analysis.forecast.steps.Reduction`, the
-    light-sensitive rows and columns and the components the reduced image sees (refusing
-    what is not forecast)."""
+def prepare_forecast(scene, pipeline):
+    """What a forecast needs of a scene and a pipeline, refusing what is not forecast.
+
+    Parameters
+    ----------
+    scene : `~spherex_reduce.simulation.Scene`, dict, str or `pathlib.Path`
+        The scene (in slopes mode), or what `~spherex_reduce.simulation.load_scene` loads.
+    pipeline : `~spherex_reduce.Pipeline`, str, dict or None
+        The pipeline (its steps linear).
+
+    Returns
+    -------
+    tuple
+        The scene, the pipeline's `~spherex_reduce.analysis.forecast.steps.Reduction`,
+        the light-sensitive rows and columns (slices of the readout frame) and
+        the components the reduced image sees.
+
+    Raises
+    ------
+    SpherexReduceError
+        Quadrants, windows, or reference pixels inside the light-sensitive rectangle.
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.forecast.engine import prepare_forecast
+    >>> scene = {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 4, "ref_border": 4},
+    ...          "readout": {"nframes": 8, "phantom_reads": 0}, "scene": {"photocurrent": 1.0},
+    ...          "noise": {"components": [{"name": "w", "alpha": 2e-3}]}}
+    >>> sc, red, rows, cols, comps = prepare_forecast(scene, None)
+    >>> rows, cols, [c.name for c in comps]
+    (slice(4, 60, None), slice(4, 60, None), ['w'])
+    """
     sc = scene if isinstance(scene, Scene) else load_scene(scene)
     red = reduction(pipeline)
     sc.check_mode("slopes")
@@ -305,9 +361,34 @@ def forecast_measure(measure):
     return measure
 
 
-def _poisson_variance(scene):
-    """Slope variance (e/s)² of the Poisson noise of the dark current and photocurrent, the
-    same in every light-sensitive pixel (0 without it)."""
+def poisson_variance(scene):
+    """Slope variance (e/s)² of the Poisson noise of the dark current and photocurrent.
+
+    The same in every light-sensitive pixel (0 without it).
+
+    Parameters
+    ----------
+    scene : `~spherex_reduce.simulation.Scene`
+
+    Returns
+    -------
+    float
+
+    Examples
+    --------
+    A uniform least-squares slope of ``n`` frames: ``6 (n² + 1) / (5 n (n² - 1))``
+    times the rate over the frame time.
+
+    >>> from spherex_reduce.simulation import load_scene
+    >>> from spherex_reduce.analysis.forecast.engine import poisson_variance
+    >>> scene = {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 4, "ref_border": 4},
+    ...          "readout": {"nframes": 8, "phantom_reads": 0}, "scene": {"photocurrent": 1.0},
+    ...          "noise": {"components": [{"name": "w", "alpha": 2e-3}]}}
+    >>> sc = load_scene(scene)
+    >>> n, t = 8, sc.schedule.frame_time.to_value("s")
+    >>> bool(abs(poisson_variance(sc) / (6 * (n**2 + 1) / (5 * n * (n**2 - 1)) / t) - 1) < 1e-12)
+    True
+    """
     t = scene.terms
     rate = t["dark_current"] + t["photocurrent"]
     if not (t["poisson"] and rate > 0):

@@ -12,7 +12,7 @@ import numpy as np
 from astropy import units as u
 
 from ..spectrum import FFTImage
-from .engine import _poisson_variance, _prepare, _stored_planes
+from .engine import poisson_variance, prepare_forecast, stored_planes
 from .rows import NODES
 
 __all__ = ["forecast_fft_magnitude"]
@@ -55,9 +55,9 @@ def forecast_fft_magnitude(scene, pipeline=None, size=129, *, nodes=NODES):
     >>> (f.magnitude.value**2).round(1)[2]   # white: the pixel variance, 0 at k = 0
     array([1861.9, 1861.9,    0. , 1861.9, 1861.9])
     """
-    sc, red, rows, cols, comps = _prepare(scene, pipeline)
-    parts, (ny, nx) = _stored_planes(sc, red, rows, cols, comps, nodes)
-    half = np.full((ny, nx // 2 + 1), _poisson_variance(sc) * ny * nx)
+    sc, red, rows, cols, comps = prepare_forecast(scene, pipeline)
+    parts, (ny, nx) = stored_planes(sc, red, rows, cols, comps, nodes)
+    half = np.full((ny, nx // 2 + 1), poisson_variance(sc) * ny * nx)
     for part in parts.values():
         half += part
     plane = np.empty((ny, nx))  # a real image: E|Y(-k)|² = E|Y(k)|²

@@ -32,7 +32,7 @@ import numpy as np
 import scipy.fft
 
 from ...core.block import Context
-from ...reduce.steps.reference.strategies import _group_columns
+from ...reduce.steps.reference.strategies import group_columns
 from ...reduce.steps.reference.wiener import WienerReference
 from .functionals import Part, channel_sums, column_phases
 
@@ -84,7 +84,7 @@ class WienerTerms:
         context = Context(s, "readout", reduction.reference_ramps,
                           has_phantom=not reduction.reference_phantom)
         strategy.check_data(context)
-        groups = _group_columns(g, strategy.acn)
+        groups = group_columns(g, strategy.acn)
         nch, width = g.nchannels, g.channel_width
         n = 2 * (int(slots.max()) + 1)
         refs = s.reference_read_indices

@@ -121,7 +121,7 @@ def test_fig12a_tick_labels_do_not_overlap(quick_figures):
 def test_figures_report_states_its_verdict_rules(quick_figures):
     import re
 
-    from spherex_reduce.analysis.figures.report import _margin, _verdict
+    from spherex_reduce.analysis.figures.report import _verdict, sigma_margin
 
     out, _ = quick_figures
     report = (out / "report.md").read_text()
@@ -138,7 +138,7 @@ def test_figures_report_states_its_verdict_rules(quick_figures):
         assert re.search(r"realisation|one image", line), line
     assert "more than 2 standard errors" in report and "1 realisation per point" in report
     # independent numbers: 1.5 ± 0.2 against 1.0 ± 0.1 is 2.24 standard errors apart
-    assert float(_margin(1.0, 0.1, 1.5, 0.2)) == pytest.approx(0.5 / np.sqrt(0.05))
+    assert float(sigma_margin(1.0, 0.1, 1.5, 0.2)) == pytest.approx(0.5 / np.sqrt(0.05))
     assert _verdict([3.0, 2.24]) == "holds" and _verdict([3.0, 1.9]) == "within the noise"
     assert _verdict([3.0, -2.1]) == "does not hold"
 

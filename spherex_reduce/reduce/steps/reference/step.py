@@ -25,7 +25,7 @@ from .strategies import (
     MedianReference,
     NoReferenceWarning,
     ReferenceOffsets,
-    _group_columns,
+    group_columns,
 )
 from .strategy_checks import StrategyOrigin, check_corrected, check_estimate
 from .wiener import WienerReference
@@ -206,7 +206,7 @@ def _row_plan(context, est, plan):
     group of every column, and the same per physical row (the mean over the row's reads)
     when the blocks are in physical order."""
     s = context.schedule
-    groups = _group_columns(s.geometry, est.acn)  # (nch, P, k)
+    groups = group_columns(s.geometry, est.acn)  # (nch, P, k)
     colgroup = np.zeros(s.geometry.ncols, dtype=np.intp)
     for ch in range(groups.shape[0]):
         for p in range(groups.shape[1]):
@@ -288,7 +288,7 @@ def _column_plan(geometry, offsets, strategy, acn):
             f"correct_reference ({strategy}): no usable reference pixels for channel(s) "
             f"{chans}; offset NaN, flagged NO_REFERENCE, those channels left uncorrected",
             NoReferenceWarning, stacklevel=4)
-    groups = _group_columns(geometry, acn)
+    groups = group_columns(geometry, acn)
     return offsets, missing, _column_offsets(np.where(missing, 0.0, offsets), groups,
                                              geometry.ncols)
 
@@ -305,7 +305,7 @@ def _column_offsets(offsets, groups, ncols):
 
 def missing_columns(geometry, missing, acn):
     """Columns ``(L, ncols)`` of the (frame, channel, parity) groups flagged ``missing``."""
-    groups = _group_columns(geometry, acn)
+    groups = group_columns(geometry, acn)
     return _column_offsets(missing.astype(float), groups, geometry.ncols) > 0
 
 

@@ -36,6 +36,7 @@ __all__ = [
     "NoReferenceWarning",
     "ReferenceOffsets",
     "clipped_mean",
+    "group_columns",
     "reference_offsets",
     "reference_pixels",
     "reference_rows",
@@ -244,8 +245,33 @@ def _side_columns(exposure):
     return vals.reshape(-1, *vals.shape[-2:]), rows
 
 
-def _group_columns(geometry, acn):
-    """Column indices of every (channel, parity) group, shape ``(nch, P, k)`` (-1 pads)."""
+def group_columns(geometry, acn):
+    """Column indices of every (channel, parity) group, shape ``(nch, P, k)`` (-1 pads).
+
+    Parameters
+    ----------
+    geometry : `~spherex_reduce.DetectorGeometry`
+    acn : bool
+        Whether each channel's columns are split by the parity of their sample
+        in the channel's scan (``P = 2``: `EVEN`, `ODD`) or kept together (``P = 1``).
+
+    Returns
+    -------
+    `numpy.ndarray` of int
+        ``k`` is the largest group; a smaller group is padded with -1.
+
+    Examples
+    --------
+    Two channels of three columns, the second read right to left:
+
+    >>> from spherex_reduce import DetectorGeometry
+    >>> from spherex_reduce.reduce.steps.reference.strategies import group_columns
+    >>> g = DetectorGeometry(8, 6, 2, ref_border=0, scan="alternate")
+    >>> group_columns(g, acn=False).tolist()
+    [[[0, 1, 2]], [[3, 4, 5]]]
+    >>> group_columns(g, acn=True).tolist()
+    [[[0, 2], [1, -1]], [[3, 5], [4, -1]]]
+    """
     width = geometry.channel_width
     offsets = geometry.column_offsets()
     groups = []
@@ -323,7 +349,7 @@ def _offsets_of(geometry, reference, side, *, acn, sigma, maxiters, threads):
     Frames are clipped a few at a time (temporaries stay in cache) on
     ``threads`` threads; each group's numbers do not depend on the others.
     """
-    groups = _group_columns(geometry, acn)
+    groups = group_columns(geometry, acn)
     keep = None
     if side is not None:
         # channels without side columns get only NaN there; drop the padding cost

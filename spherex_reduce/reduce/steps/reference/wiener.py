@@ -37,7 +37,7 @@ from .strategies import (
     EVEN,
     ODD,
     ReferenceOffsets,
-    _group_columns,
+    group_columns,
     reference_pixels,
     without_telegraph,
 )
@@ -241,7 +241,7 @@ class WienerReference(Strategy):
         """`_Model.weights` of full reference reads: ``(w, wd, variance, mean variance)``."""
         s = context.schedule
         reads = s.reference_read_indices if reads is None else np.asarray(reads, dtype=int)
-        groups = _group_columns(s.geometry, self.acn)
+        groups = group_columns(s.geometry, self.acn)
         cols = groups[0, parity][groups[0, parity] >= 0]
         domain = self._domain(context)
         use = self.uses_phantom(context)
@@ -318,7 +318,7 @@ class WienerReference(Strategy):
                           "non-finite phantom values estimated from the reference reads alone",
                           AstropyUserWarning, stacklevel=2)
         kind = self._kind(context, phantom is not None)
-        groups = _group_columns(g, self.acn)  # (nch, P, w), -1 pads
+        groups = group_columns(g, self.acn)  # (nch, P, w), -1 pads
         nch, npar = groups.shape[:2]
         obs, n, clipped = self._reference_values(values, groups)
         weights_n = n if left_out is None else self._counts_with(n, left_out, groups)

@@ -49,7 +49,7 @@ def test_declarations_name_parameters_the_class_takes_and_allow_their_defaults()
 
 
 def test_a_declaration_is_not_inherited_and_the_base_classes_declare_nothing():
-    class Mine(type(REGISTRY.step("unchop")())):
+    class Mine(REGISTRY.step("unchop")):
         name = "mine"
 
     assert Step.noise_effect is None and declared_effect(Mine) is None
@@ -74,7 +74,7 @@ def test_at_least_holds_none_and_numbers_from_its_minimum():
 
 @pytest.fixture(scope="module")
 def ramps():
-    """Two independent ramps of a tiny scene with phantom values, and a third with a signal."""
+    """Two independent ramps of a tiny scene with dark current and phantom values."""
     scene = tiny([ROIC, PINK_ACN, BOTH, PHANTOM], terms={"dark_current": 20.0})
     return [simulate(scene, seed=s, mode="ramps") for s in (1, 2)]
 

@@ -116,9 +116,11 @@ class Reduction:
         Every read has its phantom value (the mean of its ``c`` phantom samples)
         subtracted.
     reference : str or None
-        The reference correction (``'mean'``: one mean of the reference pixels
-        per channel; ``'acn'``: one per channel and column-offset parity;
-        ``'wiener'``: a drift estimate at every read), or None.
+        The reference correction, as its strategy declares it (the ``kind`` of
+        its `~spherex_reduce.reduce.noise_effect.ReferenceEffect`: ``'mean'``,
+        one mean of the reference pixels per channel; ``'acn'``, one per
+        channel and column-offset parity; ``'wiener'``, a drift estimate at
+        every read), or None.
     reference_phantom : bool
         The reference pixels had their phantom values subtracted before they
         were averaged (``subtract_phantom`` ran first).

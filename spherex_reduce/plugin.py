@@ -4,9 +4,12 @@ A plugin is a module registered under the entry-point group ``spherex_reduce``
 whose functions, marked with `hookimpl`, return the classes it adds: steps
 (`Step` subclasses, optionally with a `Kernel` or a `Consumer` so they stream
 in bands of rows), reference strategies (`Strategy` subclasses, returning
-`ReferenceOffsets`) and simulators (`Simulator`).  Parameters are declared as
-`Parameter` tuples; kernels see `Block` and `Context` objects and report
-`Record` objects.  The plugin guide (``docs/plugins.rst``) shows a whole plugin.
+`ReferenceOffsets`) and simulators (`Simulator`).  A step declares what it does
+to the noise with a `NoiseEffect` (a reference strategy with a
+`ReferenceEffect`; clipping thresholds bounded by `AtLeast`, e.g.
+`MEASURED_SIGMA`), so that the noise forecast can propagate it.  Parameters
+are declared as `Parameter` tuples; kernels see `Block` and `Context` objects
+and report `Record` objects.  The plugin guide (``docs/plugins.rst``) shows a whole plugin.
 
 Examples
 --------
@@ -27,16 +30,21 @@ Examples
 from .core.block import Block, Context
 from .core.parameters import Parameter
 from .reduce.hookspecs import hookimpl
+from .reduce.noise_effect import MEASURED_SIGMA, AtLeast, NoiseEffect, ReferenceEffect
 from .reduce.step import Consumer, Kernel, Record, Simulator, Step, Strategy
 from .reduce.steps.reference.strategies import ReferenceOffsets
 
 __all__ = [
+    "MEASURED_SIGMA",
+    "AtLeast",
     "Block",
     "Consumer",
     "Context",
     "Kernel",
+    "NoiseEffect",
     "Parameter",
     "Record",
+    "ReferenceEffect",
     "ReferenceOffsets",
     "Simulator",
     "Step",

@@ -11,6 +11,7 @@ from ..core.parameters import Parameter, validate_parameters
 from ..io import read
 from ..io.header_text import header_text
 from ..io.sources import MemorySource
+from .noise_effect import NoiseEffect, ReferenceEffect
 from .passes import PlannedStep, Whole, plan_pass, run_pass
 from .provenance import record_step
 
@@ -185,6 +186,11 @@ class Step:
     #: ``other``, ``subtract_dark``'s ``dark``): read before :meth:`run`, which
     #: receives the `~spherex_reduce.Exposure`
     inputs: ClassVar[tuple] = ()
+
+    #: what the step does to the noise, for the noise forecast: a
+    #: `~spherex_reduce.reduce.noise_effect.NoiseEffect` declared on the step's own class
+    #: (not inherited); None, the default: the forecast refuses the step
+    noise_effect: ClassVar[NoiseEffect | None] = None
 
     def __init__(self, registry=None, threads=None, strategies=None):
         #: the `~spherex_reduce.reduce.plugins.Registry` whose ``before_step`` and
@@ -401,6 +407,11 @@ class Strategy:
     #: True if `estimate` needs the whole exposure, not only the side block: the step
     #: then runs on the exposure in memory (False, the default, streams)
     needs_exposure = False
+
+    #: what a reference strategy does to the noise, for the noise forecast: a
+    #: `~spherex_reduce.reduce.noise_effect.ReferenceEffect` declared on the strategy's own
+    #: class (not inherited); None, the default: the forecast refuses the strategy
+    noise_effect: ClassVar[ReferenceEffect | None] = None
 
     def __init__(self, **params):
         self.params = params

@@ -5,10 +5,11 @@ covariance is known in closed form: a pixel's slope is ``sum_k w_k x(t + k F)``
 of the stream ``x`` of each noise component, so two samples taken ``L``
 samples apart within a frame have the slope covariance ``S(L)``
 (`~spherex_reduce.noise.variance.slope_covariance`).  Every reduction the
-forecast propagates (`~spherex_reduce.analysis.forecast.steps.FORECAST_STEPS`:
-un-chopping, phantom subtraction, reference correction by the mean of the
-reference pixels or a ``wiener`` drift estimate, uniform least-squares slopes,
-pair differences) is linear and subtracts from a pixel combinations of
+forecast propagates (the steps whose class declares its noise effect,
+`~spherex_reduce.analysis.forecast.steps.forecast_steps`: un-chopping,
+phantom subtraction, reference correction by the mean of the reference
+pixels or a ``wiener`` drift estimate, uniform least-squares slopes, pair
+differences) is linear and subtracts from a pixel combinations of
 samples of the same streams, so ``E|FFT|²`` of the reduced image is a sum over
 pairs of reads of ``S`` at their lags, weighted by the phases of the pixels
 and samples involved: `spherex_reduce.analysis.forecast.rows` computes it with
@@ -72,8 +73,8 @@ def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SC
     pipeline : `~spherex_reduce.Pipeline`, shipped name, path or dict, optional
         The reduction (`~spherex_reduce.reduce.pipeline.as_pipeline`); None:
         the slope image as simulated.  Every step must be one the forecast
-        knows as linear
-        (`~spherex_reduce.analysis.forecast.steps.FORECAST_STEPS`): ``unchop``,
+        knows as linear (its class declares so:
+        `~spherex_reduce.analysis.forecast.steps.forecast_steps`): ``unchop``,
         ``subtract_phantom``, ``correct_reference`` with the ``mean``, ``acn``
         (forecast unclipped, with or without side columns) or ``wiener``
         strategy, ``fit_ramp`` with uniform weights, ``sigma_clip`` (forecast

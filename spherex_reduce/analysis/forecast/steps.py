@@ -1,8 +1,12 @@
 """Which reductions the noise forecast propagates, and what a pipeline does to the noise.
 
-`FORECAST_STEPS` is the one declaration of the steps (and parameter values)
-`~spherex_reduce.analysis.forecast` knows to be linear; `reduction` reads a
-pipeline into a `Reduction`, the few facts the forecast's engine
+Each step and reference strategy declares what it does to the noise on its
+own class (``noise_effect``: a `~spherex_reduce.reduce.noise_effect.NoiseEffect`
+or `~spherex_reduce.reduce.noise_effect.ReferenceEffect`, which parameter
+values keep it linear and how it acts); `forecast_steps` reads them from a
+plugin registry, so a plugin's step or strategy that declares itself is
+forecast like the package's own.  `reduction` reads a pipeline into a
+`Reduction`, the few facts the forecast's engine
 (`spherex_reduce.analysis.forecast.rows`) needs: whether each read's phantom
 value is subtracted, which reference correction follows and whether the
 reference pixels it averages had their phantom values subtracted first.
@@ -21,57 +25,83 @@ forecast as the identity.
 step's hot pixels) is forecast as no clipping: on Gaussian noise it changes
 the spectrum by less than the Monte Carlo resolves (measured at 3 σ for the
 reference pixels and 5 σ for the slopes: see docs/forecast.rst), so a clip
-below 3 σ is refused, as are ``fit_ramp``'s ``saturation`` (it drops reads:
-not linear), a pair difference whose other exposure is not reduced the same
-way (``reduce_other: false``) and a second reference correction.
+below 3 σ is refused
+(`~spherex_reduce.reduce.noise_effect.MEASURED_SIGMA`), as are ``fit_ramp``'s
+``saturation`` (it drops reads: not linear), a pair difference whose other
+exposure is not reduced the same way (``reduce_other: false``) and a second
+reference correction.
 """
 
 from dataclasses import dataclass, field
 
 from ...core.errors import ConfigError
+from ...reduce.noise_effect import AtLeast, declared_effect
 from ...reduce.pipeline import as_pipeline
+from ...reduce.plugins import default_registry
 
-__all__ = ["FORECAST_STEPS", "MEASURED_SIGMA", "AtLeast", "Reduction", "linear_steps", "reduction"]
+__all__ = ["Reduction", "forecast_steps", "forecast_strategies", "linear_steps", "reduction"]
 
 
-@dataclass(frozen=True)
-class AtLeast:
-    """The values a clipping threshold may take: a number from ``minimum`` up, or None (a
-    threshold that defaults to the step's ``sigma``).
+def forecast_steps(registry=None):
+    """The steps the forecast propagates: those of a registry that declare a noise effect.
+
+    Parameters
+    ----------
+    registry : `~spherex_reduce.reduce.plugins.Registry`, optional
+        Default: the built-in and installed plugins'
+        (`~spherex_reduce.reduce.plugins.default_registry`).
+
+    Returns
+    -------
+    dict
+        ``{step name: NoiseEffect}`` in the registry's order.
 
     Examples
     --------
-    >>> from spherex_reduce.analysis.forecast.steps import MEASURED_SIGMA
-    >>> 5.0 in MEASURED_SIGMA, 2.5 in MEASURED_SIGMA, MEASURED_SIGMA
-    (True, False, a number >= 3)
+    >>> from spherex_reduce.analysis.forecast.steps import forecast_steps
+    >>> effects = forecast_steps()
+    >>> list(effects)
+    ['unchop', 'subtract_phantom', 'correct_reference', 'fit_ramp', 'sigma_clip', 'pair_difference']
+    >>> effects["fit_ramp"].linear["weighting"]
+    ('uniform',)
     """
-
-    minimum: float
-
-    def __contains__(self, value):
-        number = isinstance(value, (int, float)) and not isinstance(value, bool)
-        return value is None or (number and value >= self.minimum)
-
-    def __repr__(self):
-        return f"a number >= {self.minimum:g}"
+    registry = default_registry() if registry is None else registry
+    found = {name: declared_effect(reg.obj) for name, reg in registry.steps.items()}
+    return {name: effect for name, effect in found.items() if effect is not None}
 
 
-#: The clipping thresholds (σ) the forecast may neglect: its effect was measured there.
-MEASURED_SIGMA = AtLeast(3.0)
+def forecast_strategies(kind, registry=None):
+    """The strategies of ``kind`` the forecast propagates: those that declare a noise effect.
 
-#: Steps the forecast propagates: for each, the parameters whose value it must check, with
-#: the values it propagates (every step's default is one of them; a parameter not given
-#: takes it).  ``sigma_clip`` and the clipping of ``correct_reference`` (``sigma``,
-#: ``maxiters``) are forecast as no clipping, so only from `MEASURED_SIGMA` up.
-FORECAST_STEPS = {
-    "unchop": {},
-    "subtract_phantom": {},
-    "correct_reference": {"strategy": ("mean", "acn", "wiener"), "sigma": MEASURED_SIGMA},
-    "fit_ramp": {"weighting": ("uniform",), "saturation": (None,)},
-    "sigma_clip": {"sigma": MEASURED_SIGMA, "sigma_lower": MEASURED_SIGMA,
-                   "sigma_upper": MEASURED_SIGMA},
-    "pair_difference": {"reduce_other": (True,)},
-}
+    Parameters
+    ----------
+    kind : str
+        The strategies' kind (a step's ``strategy_kind``, e.g. ``'reference'``).
+    registry : `~spherex_reduce.reduce.plugins.Registry`, optional
+        As `forecast_steps`.
+
+    Returns
+    -------
+    dict
+        ``{strategy name: ReferenceEffect}`` in the registry's order.
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.forecast.steps import forecast_strategies
+    >>> {name: e.kind for name, e in forecast_strategies("reference").items()}
+    {'mean': 'mean', 'acn': 'acn', 'wiener': 'wiener'}
+    """
+    registry = default_registry() if registry is None else registry
+    found = {name: declared_effect(reg.obj)
+             for name, reg in registry.strategies.get(kind, {}).items()}
+    return {name: effect for name, effect in found.items() if effect is not None}
+
+
+def _refusal(i, name, key, value, allowed):
+    """The error of a parameter value outside the values that keep step ``i`` linear."""
+    only = repr(allowed) if isinstance(allowed, AtLeast) else ", ".join(map(repr, allowed))
+    return ConfigError(f"forecast: steps[{i}].{name}.{key}: {value!r} is "
+                      f"not forecast (not linear, or not yet); only {only}")
 
 
 @dataclass(frozen=True)
@@ -86,9 +116,11 @@ class Reduction:
         Every read has its phantom value (the mean of its ``c`` phantom samples)
         subtracted.
     reference : str or None
-        The reference correction (``'mean'``: one mean of the reference pixels
-        per channel; ``'acn'``: one per channel and column-offset parity;
-        ``'wiener'``: a drift estimate at every read), or None.
+        The reference correction, as its strategy declares it (the ``kind`` of
+        its `~spherex_reduce.reduce.noise_effect.ReferenceEffect`: ``'mean'``,
+        one mean of the reference pixels per channel; ``'acn'``, one per
+        channel and column-offset parity; ``'wiener'``, a drift estimate at
+        every read), or None.
     reference_phantom : bool
         The reference pixels had their phantom values subtracted before they
         were averaged (``subtract_phantom`` ran first).
@@ -129,8 +161,9 @@ def reduction(pipeline):
     Raises
     ------
     ConfigError
-        A step not in `FORECAST_STEPS`, or one with a parameter value the
-        forecast does not propagate (the message names the step and value).
+        A step (or reference strategy) that declares no noise effect
+        (`forecast_steps`), or one with a parameter value its declaration does
+        not keep linear (the message names the step and value).
 
     Examples
     --------
@@ -142,33 +175,38 @@ def reduction(pipeline):
     if pipeline is None:
         return Reduction()
     p = as_pipeline(pipeline)
+    table = forecast_steps(p.registry)
     names, phantom, fitted, ref = [], False, False, {}
     for i, item in enumerate(p.config["steps"]):
         (name, params), = item.items()
-        if name not in FORECAST_STEPS:
+        effect = table.get(name)
+        if effect is None:
             raise ConfigError(f"forecast: steps[{i}].{name} ({p.source}) is not forecast so "
-                              f"far; forecast steps: {', '.join(FORECAST_STEPS)}")
-        for key, allowed in FORECAST_STEPS[name].items():
-            if key in params and params[key] not in allowed:
-                only = repr(allowed) if isinstance(allowed, AtLeast) else ", ".join(
-                    map(repr, allowed))
-                raise ConfigError(f"forecast: steps[{i}].{name}.{key}: {params[key]!r} is "
-                                  f"not forecast (not linear, or not yet); only {only}")
-        if name == "correct_reference" and ref:
-            raise ConfigError(f"forecast: steps[{i}].correct_reference: a second reference "
-                              "correction is not forecast; only one")
-        if name == "subtract_phantom" and not ref.get("consumed"):
-            phantom = True  # (skipped when a wiener estimate consumed the phantom values)
-        elif name == "fit_ramp":
+                              f"far; forecast steps: {', '.join(table)}")
+        if (bad := effect.outside(params)) is not None:
+            raise _refusal(i, name, bad[0], params[bad[0]], bad[1])
+        strategy = None
+        if effect.action == "reference":
+            kind = p.registry.step(name).strategy_kind
+            strategies = forecast_strategies(kind, p.registry)
+            strategy = strategies.get(params.get("strategy"))
+            if strategy is None:
+                raise _refusal(i, name, "strategy", params.get("strategy"), tuple(strategies))
+            if (bad := strategy.outside(params)) is not None:
+                raise _refusal(i, name, bad[0], params[bad[0]], bad[1])
+            if ref:
+                raise ConfigError(f"forecast: steps[{i}].{name}: a second reference "
+                                  "correction is not forecast; only one")
+        if effect.action == "subtract_phantom" and not ref.get("consumed"):
+            phantom = True  # (skipped when a reference estimate consumed the phantom values)
+        elif effect.action == "slope_fit":
             fitted = True
-        elif name == "correct_reference":
-            strategy = params.get("strategy", "mean")
+        elif strategy is not None:
             rest = {k: v for k, v in params.items() if k != "strategy"}
-            ref = {"reference": strategy, "reference_phantom": phantom,
+            ref = {"reference": strategy.kind, "reference_phantom": phantom,
                    "side_columns": bool(params.get("side_columns", False)),
                    "reference_params": rest, "reference_ramps": not fitted,
-                   "consumed": strategy == "wiener" and not phantom
-                   and params.get("phantom", "auto") == "auto"}
+                   "consumed": strategy.consumes_phantom(params, phantom)}
         names.append(name)
     ref.pop("consumed", None)
     return Reduction(tuple(names), phantom, **ref)

@@ -10,6 +10,7 @@ from ...core import dq
 from ...core.errors import SpherexReduceError
 from ...core.parameters import OPTIONAL_NUMBER, Parameter
 from ..hookspecs import hookimpl
+from ..noise_effect import MEASURED_SIGMA, NoiseEffect
 from ..step import Step
 
 __all__ = ["SigmaClipStep", "sigma_clip"]
@@ -123,6 +124,9 @@ class SigmaClipStep(Step):
         Parameter("cenfunc", "median", (str,), "centre", choices=("median", "mean")),
         Parameter("stdfunc", "std", (str,), "spread", choices=("std", "mad_std")),
     )
+    #: forecast as no clipping (its effect on Gaussian noise was measured from 3 σ up)
+    noise_effect = NoiseEffect("identity", linear={
+        "sigma": MEASURED_SIGMA, "sigma_lower": MEASURED_SIGMA, "sigma_upper": MEASURED_SIGMA})
 
     def run(self, exposure, **params):
         return _sigma_clip(exposure, **params)

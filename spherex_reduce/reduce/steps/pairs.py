@@ -6,6 +6,7 @@ from astropy.nddata import StdDevUncertainty
 from ...core.errors import ConfigError, SpherexReduceError
 from ...core.parameters import Parameter
 from ..hookspecs import hookimpl
+from ..noise_effect import NoiseEffect
 from ..step import Step
 
 __all__ = ["PairDifferenceStep", "pair_difference"]
@@ -128,6 +129,9 @@ class PairDifferenceStep(Step):
         Parameter("other", None, (str, type(None)), "FITS file of the second exposure"),
         Parameter("reduce_other", True, (bool,), "run the preceding steps on it first"),
     )
+    #: two exposures reduced alike, independent noise: the spectrum of one (the identity);
+    #: an other exposure not reduced the same way is not
+    noise_effect = NoiseEffect("identity", linear={"reduce_other": (True,)})
 
     def run(self, exposure, other, reduce_other):
         if other is None:

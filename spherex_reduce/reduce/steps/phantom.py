@@ -4,6 +4,7 @@ import numpy as np
 
 from ...core.errors import StepSkipped
 from ..hookspecs import hookimpl
+from ..noise_effect import NoiseEffect
 from ..step import Kernel, Step
 
 __all__ = ["subtract_phantom"]
@@ -84,6 +85,7 @@ class SubtractPhantomStep(Step):
     """Subtract each row read's phantom value (`~spherex_reduce.subtract_phantom`)."""
 
     name, keyword = "subtract_phantom", "S_PHANTM"
+    noise_effect = NoiseEffect("subtract_phantom")
 
     def kernel(self, context):
         return PhantomKernel(context)

@@ -8,6 +8,7 @@ from ...core import dq
 from ...core.block import Block
 from ...core.errors import StepSkipped
 from ..hookspecs import hookimpl
+from ..noise_effect import NoiseEffect
 from ..step import Kernel, Step
 
 __all__ = ["rechop", "unchop"]
@@ -250,6 +251,8 @@ class UnchopStep(Step):
 
     name = "unchop"
     keyword = "S_UNCHOP"
+    #: a permutation of the rows: the forecast is of the image in physical row order
+    noise_effect = NoiseEffect("identity")
 
     def kernel(self, context):
         return UnchopKernel(context)

@@ -1,13 +1,15 @@
 """The forecast of a readout in an explicit read order (``readout.order``) against a brute-force
 covariance of every sample pushed through the reduction as a matrix, and against the skip order
-it spells out."""
+it spells out; the rows and lags computed a chunk at a time against the same brute force."""
 
 import numpy as np
 import pytest
 from _forecast_brute import Samples, expected_spectrum, reduction_matrix
+from _forecast_scenes import BOTH, BOTH_COMMON, PHANTOM, PIPELINES, check_against_brute_force, tiny
 from astropy import units as u
 
 from spherex_reduce.analysis import forecast
+from spherex_reduce.analysis.forecast import rows as forecast_rows
 from spherex_reduce.simulation import load_scene
 
 BINS = 5
@@ -54,3 +56,12 @@ def test_an_explicit_order_spelling_out_a_skip_order_forecasts_the_same(skip):
     np.testing.assert_allclose(fb, fa, rtol=1e-12)
     shuffled = u.Quantity(forecast(scene(ORDER), measure={"bins": BINS})["power"]).value
     assert np.max(np.abs(shuffled / fa - 1)) > 0.01  # the order matters: not a tautology
+
+
+def test_rows_and_lags_a_chunk_at_a_time_equal_brute_force(monkeypatch):
+    """The k_y rows in chunks of 2 (the memory bound of a tall image) and the lags' slope
+    covariance 100 at a time: the same spectrum as the brute force."""
+    monkeypatch.setattr(forecast_rows, "CHUNK_ROWS", 2)
+    monkeypatch.setattr(forecast_rows, "CHUNK_LAGS", 100)
+    scene = tiny([PINK_ACN, BOTH, BOTH_COMMON, PHANTOM], scan="alternate")
+    check_against_brute_force(scene, *PIPELINES["acn-side-columns"])

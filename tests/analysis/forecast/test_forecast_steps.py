@@ -1,76 +1,34 @@
 """The forecast through the linear reduction steps (phantom subtraction, the mean reference
 correction) against a brute-force covariance of every sample propagated by explicit
-matrices (tests/_forecast_brute.py) and against the package's own simulator and steps."""
+matrices (tests/_forecast_brute.py) and against the package's own simulator and steps.  The
+``wiener`` strategy's are in test_forecast_wiener.py, the chunked rows in
+test_forecast_rows.py."""
 
 import numpy as np
 import pytest
-from _forecast_brute import Samples, expected_spectrum, reduction_matrix, wiener_matrix
+from _forecast_scenes import (
+    BINS,
+    BOTH,
+    BOTH_COMMON,
+    COMMON,
+    PHANTOM,
+    PINK,
+    PINK_ACN,
+    PIPELINES,
+    ROIC,
+    check_against_brute_force,
+    tiny,
+)
 from astropy import units as u
 
 from spherex_reduce import correct_reference, pair_difference
 from spherex_reduce.analysis import forecast, power_spectrum
-from spherex_reduce.analysis.forecast import rows as forecast_rows
 from spherex_reduce.analysis.forecast.engine import band_power_forecast
 from spherex_reduce.analysis.forecast.steps import reduction
 from spherex_reduce.analysis.light import light_sensitive_image
-from spherex_reduce.core.block import Context
 from spherex_reduce.core.errors import ConfigError, SpherexReduceError
 from spherex_reduce.reduce.pipeline import as_pipeline
-from spherex_reduce.reduce.steps.reference.wiener import WienerReference
 from spherex_reduce.simulation import load_scene, simulate
-
-BINS = 5
-PINK = {"name": "pink", "beta": 8e-3}
-PINK_ACN = {"name": "pink_acn", "beta": 8e-3, "acn": True}
-ROIC = {"name": "roic", "alpha": 2e-3, "gamma": 0.1, "exponent": 1.3, "acn": True}
-COMMON = {"name": "common", "alpha": 3e-6, "beta": 9e-5, "scope": "common"}
-PHANTOM = {"name": "phantom_only", "beta": 4e-5, "scope": "common", "visibility": "phantom"}
-BOTH = {"name": "video8", "alpha": 1e-3, "beta": 5e-3, "visibility": "both", "acn": True}
-BOTH_COMMON = {"name": "bias", "beta": 2e-4, "scope": "common", "visibility": "both"}
-
-#: name: (what the brute force subtracts, the pipeline)
-PIPELINES = {
-    "phantom-only": (dict(phantom=True), "phantom-only"),
-    "spherex-default": (dict(phantom=True, reference="mean", reference_phantom=True),
-                        "spherex-default"),
-    "reference-first": (dict(phantom=True, reference="mean"),
-                        {"steps": [{"unchop": {}}, {"correct_reference": {}},
-                                   {"subtract_phantom": {}}]}),
-    "reference-only": (dict(reference="mean"), {"steps": [{"correct_reference": {}}]}),
-    "acn": (dict(phantom=True, reference="acn", reference_phantom=True), "acn"),
-    "side-columns": (dict(phantom=True, reference="mean", reference_phantom=True,
-                          side_columns=True),
-                     {"steps": [{"subtract_phantom": {}},
-                                {"correct_reference": {"side_columns": True}}]}),
-    "acn-side-columns": (dict(phantom=True, reference="acn", reference_phantom=True,
-                              side_columns=True),
-                         {"steps": [{"subtract_phantom": {}}, {"correct_reference": {
-                             "strategy": "acn", "side_columns": True}}]}),
-}
-
-
-def tiny(components, scan="same", terms=None):
-    """20 x 20 pixels in 2 channels of 10 columns, a reference border of 2 (16 x 16 light
-    pixels), skip 3, 4 distributed reference reads, 2 phantom samples per read, a frame
-    ~60 times the reads' span."""
-    return load_scene({
-        "geometry": {"nrows": 20, "ncols": 20, "nchannels": 2, "ref_border": 2, "scan": scan},
-        "readout": {"skip": 3, "ref_reads": 4, "phantom_reads": 2, "nframes": 4,
-                    "frame_overhead": 20000},
-        "noise": {"components": components},
-        "scene": terms or {},
-    })
-
-
-def check_against_brute_force(scene, subtract, pipeline):
-    samples = Samples(scene)
-    cov = sum(samples.covariance(scene.components).values())
-    expect = expected_spectrum(samples, reduction_matrix(samples, **subtract), cov, BINS)
-    got = forecast(scene, pipeline, {"bins": BINS})
-    p = u.Quantity(got["power"]).value
-    np.testing.assert_allclose(p, expect, rtol=1e-3)
-    n = np.asarray(got["nmodes"], float)
-    assert abs(np.sum(p * n) / np.sum(expect * n) - 1) < 1e-4
 
 
 @pytest.mark.parametrize("pipe", PIPELINES)
@@ -78,15 +36,6 @@ def test_steps_equal_brute_force(pipe):
     """Every noise term the phantom and the pixels see, alternating scan directions."""
     scene = tiny([PINK_ACN, BOTH, BOTH_COMMON, PHANTOM], scan="alternate")
     check_against_brute_force(scene, *PIPELINES[pipe])
-
-
-def test_rows_and_lags_a_chunk_at_a_time_equal_brute_force(monkeypatch):
-    """The k_y rows in chunks of 2 (the memory bound of a tall image) and the lags' slope
-    covariance 100 at a time: the same spectrum as the brute force."""
-    monkeypatch.setattr(forecast_rows, "CHUNK_ROWS", 2)
-    monkeypatch.setattr(forecast_rows, "CHUNK_LAGS", 100)
-    scene = tiny([PINK_ACN, BOTH, BOTH_COMMON, PHANTOM], scan="alternate")
-    check_against_brute_force(scene, *PIPELINES["acn-side-columns"])
 
 
 @pytest.mark.parametrize("comp", [PINK, ROIC, COMMON, PHANTOM, BOTH],
@@ -250,51 +199,6 @@ def test_ramps_fitted_last_equal_ramps_fitted_first():
     first = as_pipeline({"steps": [fit, *steps]}).run(raw)
     a, b = (np.asarray(light_sensitive_image(e).data, float) for e in (last, first))
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-5 * np.std(a))
-
-
-WIENER_CASES = {
-    # (strategy parameters, subtract_phantom first, on ramps)
-    "phantom-observed": ({}, False, True),
-    "phantom-subtracted": ({}, True, True),
-    "acn-slopes": ({"acn": True}, False, False),
-    "phantom-ignored": ({"phantom": "ignore"}, False, True),
-}
-
-
-@pytest.mark.parametrize("case", WIENER_CASES)
-def test_wiener_equals_brute_force(case):
-    """The strategy's own weights (the same code) applied as an explicit matrix to every
-    sample, under the scene's noise."""
-    params, first, ramps = WIENER_CASES[case]
-    scene = tiny([PINK_ACN, BOTH, COMMON, PHANTOM], scan="alternate")
-    strategy = WienerReference(noise="spherex-table2", **params)
-    context = Context(scene.schedule, "readout", ramps, has_phantom=not first)
-    weights = [strategy.read_weights(context, p) for p in range(2 if strategy.acn else 1)]
-    samples = Samples(scene)
-    cov = sum(samples.covariance(scene.components).values())
-    lmat = wiener_matrix(samples, weights, strategy.acn, phantom=first)
-    expect = expected_spectrum(samples, lmat, cov, BINS)
-    steps = [{"unchop": {}}, *([{"subtract_phantom": {}}] if first else []),
-             *([] if ramps else [{"fit_ramp": {}}]),
-             {"correct_reference": {"strategy": "wiener", "noise": "spherex-table2", **params}}]
-    got = forecast(scene, {"steps": steps}, {"bins": BINS})
-    p = u.Quantity(got["power"]).value
-    np.testing.assert_allclose(p, expect, rtol=1e-3)
-    n = np.asarray(got["nmodes"], float)
-    assert abs(np.sum(p * n) / np.sum(expect * n) - 1) < 1e-4
-
-
-def test_wiener_monte_carlo_of_the_shipped_pipeline():
-    """300 slope images reduced by the shipped ``wiener`` pipeline (its drift estimate from
-    the reference reads and phantom values) against the forecast in every bin."""
-    scene = tiny([ROIC, PINK_ACN, COMMON, BOTH, PHANTOM], scan="alternate",
-                 terms={"dark_current": 20.0})
-    p = as_pipeline("wiener")
-    runs = np.array([power_spectrum(light_sensitive_image(p.run(simulate(scene, seed=i))),
-                                    bins=BINS)["power"].value for i in range(300)])
-    mean, se = runs.mean(axis=0), runs.std(axis=0, ddof=1) / np.sqrt(len(runs))
-    expect = u.Quantity(forecast(scene, "wiener", measure={"bins": BINS})["power"]).value
-    assert np.all(np.abs(mean - expect) < 3 * se), (mean - expect) / se
 
 
 @pytest.mark.parametrize("strategy", ["mean", "wiener"])

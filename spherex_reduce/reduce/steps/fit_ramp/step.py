@@ -21,6 +21,7 @@ from ....core.errors import SpherexReduceError, StepSkipped
 from ....core.exposure import Exposure, ReferenceReads
 from ....core.parameters import OPTIONAL_NUMBER, Parameter, validate_parameters
 from ...hookspecs import hookimpl
+from ...noise_effect import NoiseEffect
 from ...step import Consumer, Step
 from ..pixel_maps import MAP_TYPES, PixelMap
 from .least_squares import LeastSquares, RampMaps, RampSolution
@@ -303,6 +304,10 @@ class FitRampStep(Step):
         Parameter("saturation", None, OPTIONAL_NUMBER, "reads above this level are not used "
                   "(data unit)"),
     )
+    #: linear with uniform weights (optimal weights depend on the signal) and every read
+    #: used (a saturation level drops reads)
+    noise_effect = NoiseEffect("slope_fit", linear={"weighting": ("uniform",),
+                                                    "saturation": (None,)})
 
     def consumer(self, context, **params):
         params = _validated(params)  # wrong parameters are an error even for an image

@@ -17,6 +17,7 @@ from ....core import dq
 from ....io.sources import MemorySource
 from ...executor import execute
 from ...hookspecs import hookimpl
+from ...noise_effect import NoiseEffect
 from ...plugins import default_registry
 from ...step import Kernel, Record, Step, Strategy
 from .strategies import (
@@ -405,6 +406,8 @@ class CorrectReferenceStep(Step):
 
     name, keyword = "correct_reference", "S_REFCOR"
     strategy_kind, default_strategy = "reference", "mean"
+    #: the strategy decides (its own ``noise_effect``; one without is not forecast)
+    noise_effect = NoiseEffect("reference")
 
     def strategy_registry(self):
         """Its registry or its strategies, else the built-in and installed plugins'

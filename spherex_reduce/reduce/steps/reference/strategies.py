@@ -22,6 +22,7 @@ from ....core.parameters import Parameter, validate_parameters
 from ....core.source_mask import source_mask
 from ....io.sources import context_of, side_block
 from ...executor import default_threads
+from ...noise_effect import MEASURED_SIGMA, ReferenceEffect
 from ...step import Strategy
 from .telegraph import TELEGRAPH_PARAMETERS, drop_telegraph
 
@@ -401,6 +402,8 @@ class MeanReference(Strategy):
         *TELEGRAPH_PARAMETERS,
     )
     acn = False
+    #: one mean per channel, forecast unclipped (the clip's effect was measured from 3 σ up)
+    noise_effect = ReferenceEffect("mean", linear={"sigma": MEASURED_SIGMA})
 
     def __init__(self, **params):
         params = validate_parameters(params, self.parameters, type(self).__name__)
@@ -430,6 +433,8 @@ class AcnReference(MeanReference):
 
     name = "acn"
     acn = True
+    #: one mean per channel and column-offset parity, forecast unclipped
+    noise_effect = ReferenceEffect("acn", linear={"sigma": MEASURED_SIGMA})
 
 
 class MedianReference(Strategy):

@@ -25,6 +25,7 @@ from ....core.errors import ConfigError
 from ....core.limits import check_size
 from ....core.parameters import Parameter, validate_parameters
 from ....noise.read_covariance import DOMAINS, Kriging, ReadCovariance
+from ...noise_effect import MEASURED_SIGMA, ReferenceEffect
 from ...step import Strategy
 from .noise_models import (
     DEFAULT_NOISE,
@@ -43,7 +44,7 @@ from .strategies import (
 )
 from .telegraph import TELEGRAPH_PARAMETERS
 
-__all__ = ["WienerReference", "load_noise_model"]
+__all__ = ["WienerReference", "load_noise_model", "phantom_consumed"]
 
 _MAD_TO_SIGMA = 1.4826
 #: Models kept for reuse (each holds its solved weights: tens of MB at full size).
@@ -59,6 +60,22 @@ def _reads_of(side, schedule):
     if side.order == "readout":
         return np.asarray(side.index)[schedule.is_reference[side.index]]
     return schedule.read_of_row()[np.asarray(side.index)]
+
+
+def phantom_consumed(params, phantom_subtracted):
+    """Whether a ``wiener`` correction with the step's ``params`` (a dict) estimates from the
+    phantom values of every read, and so consumes them (a later ``subtract_phantom`` is
+    skipped): when its ``phantom`` is ``auto`` and ``phantom_subtracted`` is False (the
+    values were not subtracted before it).  Declared to the forecast by the strategy's
+    ``noise_effect``; `WienerReference.uses_phantom` applies it to a run.
+
+    Examples
+    --------
+    >>> from spherex_reduce.reduce.steps.reference.wiener import phantom_consumed
+    >>> phantom_consumed({}, False), phantom_consumed({"phantom": "ignore"}, False)
+    (True, False)
+    """
+    return not phantom_subtracted and params.get("phantom", "auto") == "auto"
 
 
 class WienerReference(Strategy):
@@ -99,6 +116,9 @@ class WienerReference(Strategy):
                   minimum=0, exclusive_minimum=True),
         *TELEGRAPH_PARAMETERS,
     )
+    #: a drift estimate at every read, with these weights; its MAD clip forecast as none
+    noise_effect = ReferenceEffect("wiener", linear={"sigma": MEASURED_SIGMA},
+                                   consumes_phantom=phantom_consumed)
 
     def __init__(self, **params):
         params = validate_parameters(params, self.parameters, type(self).__name__)
@@ -130,7 +150,7 @@ class WienerReference(Strategy):
 
     def uses_phantom(self, context):
         """Whether the phantom values of every read are observations (and get consumed)."""
-        return (self.phantom == "auto" and context.has_phantom
+        return (phantom_consumed({"phantom": self.phantom}, not context.has_phantom)
                 and context.schedule.phantom_reads > 0)
 
     # -- the model ----------------------------------------------------------------------

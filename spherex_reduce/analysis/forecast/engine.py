@@ -309,8 +309,8 @@ def _poisson_variance(scene):
     """Slope variance (e/s)² of the Poisson noise of the dark current and photocurrent, the
     same in every light-sensitive pixel (0 without it)."""
     t = scene.terms
-    rate = t["dark_current"] + t["photocurrent"]
-    if not (t["poisson"] and rate > 0):
+    rate = t.dark_current + t.photocurrent
+    if not (t.poisson and rate > 0):
         return 0.0
     s = scene.schedule
     return rate * slope_variance_factor(s.nframes) * s.geometry.pixel_rate / s.frame_samples
@@ -318,10 +318,9 @@ def _poisson_variance(scene):
 
 def _check_terms(terms):
     """Refuse the scene terms that add noise other than Gaussian readout and Poisson noise."""
-    rtn = terms.get("rtn") or {}
     named = [name for name, on in (
-        ("hot pixels", terms["hot_pixel_fraction"] > 0),
-        ("telegraph noise", rtn.get("fraction", 0) > 0 and rtn.get("amplitude", 0) > 0),
+        ("hot pixels", terms.hot_pixel_fraction > 0),
+        ("telegraph noise", terms.rtn is not None and terms.rtn.on),
     ) if on]
     if named:
         raise SpherexReduceError(f"forecast: the scene has {', '.join(named)}; only the "

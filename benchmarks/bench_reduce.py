@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from spherex_reduce import Exposure, ReadoutSchedule, correct_reference, fit_ramp, unchop, write
-from spherex_reduce.reduce.executor import default_threads
+from spherex_reduce.reduce.options import default_threads
 from spherex_reduce.reduce.steps.fit_ramp.step import FitRampStep
 
 READ_NOISE = 10.0
@@ -189,8 +189,7 @@ def bench_fit(s, nframes, rng, row, no_stcal, repeat):
     """fit_ramp and cube.sum() in turn, ``repeat`` times: medians, ratios pair by pair."""
     cube = make_cube(nframes, s, rng, 2048)
     e = Exposure.from_arrays(cube, s, order="physical")
-    one = FitRampStep()
-    one.threads = 1
+    one = FitRampStep(threads=1)
     out, out_one = fit_ramp(e), one.run(e)  # warm-up, and the slopes compared below
     times = paired({"sum": cube.sum, "fit": lambda: fit_ramp(e),
                     "nov": lambda: fit_ramp(e, read_noise=READ_NOISE),

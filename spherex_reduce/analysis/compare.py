@@ -25,6 +25,7 @@ results do not depend on the number of workers.
 """
 
 import contextlib
+import dataclasses
 import functools
 import hashlib
 import json
@@ -61,6 +62,7 @@ from .light import light_sensitive
 from .photon_noise import photon_noise_label, photon_noise_power
 from .sky import RMS_RANGE, inject_sky, measure_against_sky, sky_field
 from .spectrum import EmptyBandError, band_label, band_power, band_theta
+from .tasks import PipelineRow, RealizationFailure, RealizationResult, RealizationTask
 
 __all__ = [
     "CompareResult",
@@ -127,13 +129,15 @@ class Comparison:
         return np.random.SeedSequence([int(self.sky["seed"]), int(r), SKY_TAG])
 
     def task(self, r):
-        """The plain, picklable description of realisation ``r`` (`run_realization`)."""
+        """The `~spherex_reduce.analysis.tasks.RealizationTask` of realisation ``r``
+        (`run_realization`)."""
         scene = dict(self.scene)
         scene.pop("seed", None)
-        return {"realization": int(r), "scene": scene, "pipelines": dict(self.pipelines),
-                "entropy": self.noise_seed(r).entropy, "sky_entropy": self.sky_seed(r).entropy,
-                "rms": float(self.sky["rms"]), "index": float(self.sky["index"]),
-                "measure": dict(self.measure)}
+        return RealizationTask(
+            realization=int(r), scene=scene, pipelines=dict(self.pipelines),
+            entropy=self.noise_seed(r).entropy, sky_entropy=self.sky_seed(r).entropy,
+            rms=float(self.sky["rms"]), index=float(self.sky["index"]),
+            measure=dict(self.measure))
 
 
 def _number(value, where):
@@ -276,40 +280,42 @@ def white_floor(scene):
 def run_realization(task):
     """Simulate one realisation, add its sky, reduce it with every pipeline, measure each.
 
-    Returns ``{"realization": r, "rows": [...]}`` (one row per pipeline:
+    Returns a `~spherex_reduce.analysis.tasks.RealizationResult` (one
+    `~spherex_reduce.analysis.tasks.PipelineRow` per pipeline:
     `measure_against_sky`'s values, ``pipeline``, ``seconds`` of the
-    reduction alone, and ``warnings``: the warnings raised and logged, one
+    reduction alone; and ``warnings``: the warnings raised and logged, one
     line each (`~spherex_reduce.reduce.progress.task_notes`), for
-    `compare_strategies` to show once every realisation has succeeded), or
-    ``{"realization": r, "error": message}``; never raises.
+    `compare_strategies` to show once every realisation has succeeded), or a
+    `~spherex_reduce.analysis.tasks.RealizationFailure`; never raises.
     """
     with task_notes() as notes:
         res = _realization(task)
-    if "error" not in res:
-        res["warnings"] = notes
+    if isinstance(res, RealizationResult):
+        res = dataclasses.replace(res, warnings=tuple(notes))
     return res
 
 
 def _realization(task):
     """`run_realization` without its warnings."""
-    r = task["realization"]
+    r = task.realization
     try:
-        sc = load_scene(task["scene"])
-        sky = sky_field(sc.schedule.geometry, task["rms"], task["index"],
-                        np.random.SeedSequence(task["sky_entropy"]))
-        seed = int(np.random.SeedSequence(task["entropy"]).generate_state(1, np.uint64)[0])
+        sc = load_scene(task.scene)
+        sky = sky_field(sc.schedule.geometry, task.rms, task.index,
+                        np.random.SeedSequence(task.sky_entropy))
+        seed = int(np.random.SeedSequence(task.entropy).generate_state(1, np.uint64)[0])
         measure = functools.partial(measure_against_sky, sky=sky,
-                                    measure=SpectrumMeasure(**task["measure"]),
+                                    measure=SpectrumMeasure(**task.measure),
                                     light=light_sensitive(sc.schedule.geometry))
-        res = run_case(sc, task["pipelines"], measure, seed=seed,
+        res = run_case(sc, task.pipelines, measure, seed=seed,
                        inject=functools.partial(inject_sky, sky=sky))
-        rows = [{"pipeline": label, "realization": r, **res.measured[label],
-                 "seconds": res.reduce_seconds[label]} for label in task["pipelines"]]
-        return {"realization": r, "rows": rows, "seed": json.dumps(task["entropy"]),
-                "sky_seed": json.dumps(task["sky_entropy"])}
+        rows = tuple(PipelineRow(pipeline=label, realization=r, **res.measured[label],
+                                 seconds=res.reduce_seconds[label])
+                     for label in task.pipelines)
+        return RealizationResult(r, rows, seed=json.dumps(task.entropy),
+                                 sky_seed=json.dumps(task.sky_entropy))
     except Exception as exc:  # reported with the realisation; the others go on
         text = " ".join(f"{type(exc).__name__}: {exc}".split())
-        return {"realization": r, "error": text, "traceback": traceback.format_exc(limit=6)}
+        return RealizationFailure(r, text, traceback.format_exc(limit=6))
 
 
 @dataclass
@@ -339,20 +345,20 @@ COMPARE_COLUMNS = {
 
 
 def _table(results, comparison, floor, photon, photon_label):
-    rows = [dict(row, seed=res["seed"], sky_seed=res["sky_seed"])
-            for res in sorted(results, key=lambda x: x["realization"]) for row in res["rows"]]
+    rows = [(row, res) for res in sorted(results, key=lambda x: x.realization)
+            for row in res.rows]
     order = list(comparison.pipelines)
-    rows.sort(key=lambda row: (order.index(row["pipeline"]), row["realization"]))
-    unit = u.Unit(rows[0]["unit"]) * u.one
-    cols = {"pipeline": [row["pipeline"] for row in rows],
-            "realization": np.array([row["realization"] for row in rows], dtype=int),
-            "seed": [row["seed"] for row in rows], "sky_seed": [row["sky_seed"] for row in rows]}
+    rows.sort(key=lambda pair: (order.index(pair[0].pipeline), pair[0].realization))
+    unit = u.Unit(rows[0][0].unit) * u.one
+    cols = {"pipeline": [row.pipeline for row, _ in rows],
+            "realization": np.array([row.realization for row, _ in rows], dtype=int),
+            "seed": [res.seed for _, res in rows], "sky_seed": [res.sky_seed for _, res in rows]}
     for c in ("noise_band_power", "noise_band_power_err", "sky_transfer", "seconds",
               "masked_fraction"):
-        cols[c] = np.array([row[c] for row in rows], dtype=float)
+        cols[c] = np.array([getattr(row, c) for row, _ in rows], dtype=float)
     cols["excess"] = cols["noise_band_power"] - floor.to_value(unit)
     for c in ("k", "power", "transfer"):
-        cols[c] = np.array([row[c] for row in rows], dtype=float)
+        cols[c] = np.array([getattr(row, c) for row, _ in rows], dtype=float)
     t = Table(cols)
     for c in ("noise_band_power", "noise_band_power_err", "excess", "power"):
         t[c].unit = unit
@@ -507,17 +513,18 @@ def compare_strategies(comparison, output=None, *, plot=None, scheduler=None, wo
     tasks = [cmp.task(r) for r in range(cmp.realizations)]
     results = []
     run_tasks(run_realization, tasks, scheduler, workers, lambda task, res: results.append(res),
-              lambda task, exc: {"realization": task["realization"],
-                                 "error": f"{type(exc).__name__}: {exc}"},
+              lambda task, exc: RealizationFailure(task.realization,
+                                                   f"{type(exc).__name__}: {exc}"),
               noun="realisation", progress=progress)
-    failed = sorted((r for r in results if "error" in r), key=lambda r: r["realization"])
+    failed = sorted((r for r in results if isinstance(r, RealizationFailure)),
+                    key=lambda r: r.realization)
     if failed:
         more = f" (and {len(failed) - 1} more)" if len(failed) > 1 else ""
-        raise SpherexReduceError(f"{cmp.source}: realisation {failed[0]['realization']} "
-                                 f"failed: {failed[0]['error']}{more}")
+        raise SpherexReduceError(f"{cmp.source}: realisation {failed[0].realization} "
+                                 f"failed: {failed[0].error}{more}")
     shown = set()
-    for res in sorted(results, key=lambda r: r["realization"]):  # each once, all succeeded
-        for text in res.get("warnings", ()):
+    for res in sorted(results, key=lambda r: r.realization):  # each once, all succeeded
+        for text in res.warnings:
             if text not in shown:
                 shown.add(text)
                 log.warning("%s", text)

@@ -59,6 +59,7 @@ from .case import (
 )
 from .spectrum import BAND_KMAX, BAND_KMIN, band_label
 from .table_cells import plain_value
+from .tasks import CellFailure, CellResult, SweepTask
 
 __all__ = ["Sweep", "SweepResult", "load_sweep", "plot_sweep", "run_cell", "run_sweep"]
 
@@ -121,16 +122,16 @@ class Sweep:
         return np.random.SeedSequence([int(self.seed), *words])
 
     def task(self, cell):
-        """The plain, picklable description of a cell that `run_cell` executes."""
+        """The `~spherex_reduce.analysis.tasks.SweepTask` of a cell, which `run_cell` runs."""
         scene = copy.deepcopy(self.scene)
         readout = dict(scene.get("readout") or {})
         readout.update({k: cell[k] for k in self.keys})
         scene["readout"] = readout
         scene.pop("seed", None)
         pipe = self.pipeline_configs.get(cell["pipeline"], cell["pipeline"])
-        return {"cell": cell, "scene": scene, "pipeline": pipe,
-                "entropy": self.cell_seed(cell).entropy, "mode": self.mode,
-                "measure": dict(self.measure)}
+        return SweepTask(cell=cell, scene=scene, pipeline=pipe,
+                         entropy=self.cell_seed(cell).entropy, mode=self.mode,
+                         measure=dict(self.measure))
 
 
 def load_sweep(source):
@@ -205,31 +206,31 @@ def _check_scene(scene, grid, mode, label):
 
 # -- one cell -----------------------------------------------------------------------
 def run_cell(task):
-    """Simulate, reduce and measure one cell (`run_case`); returns a result row (never raises).
+    """Simulate, reduce and measure one cell (`run_case`) of a
+    `~spherex_reduce.analysis.tasks.SweepTask`; never raises.
 
-    The row has the cell's values, ``seed`` (the entropy, as text),
-    ``band_power``, ``band_power_err``, ``std`` (of the unmasked pixels),
-    ``masked_fraction``, ``k`` and ``power`` (the binned P(k) as arrays) and
-    ``seconds``; a failed cell returns ``{"cell": ..., "error": message}``.
+    Returns a `~spherex_reduce.analysis.tasks.CellResult` (the cell's values,
+    ``seed``: the entropy as text, ``band_power``, ``band_power_err``, ``std``
+    of the unmasked pixels, ``masked_fraction``, ``k`` and ``power``: the
+    binned P(k) as arrays, and ``seconds``), or a
+    `~spherex_reduce.analysis.tasks.CellFailure` for a failed cell.
     """
     t0 = time.perf_counter()
-    cell = task["cell"]
     try:
         # a 64-bit integer drawn from the cell's SeedSequence: plain, printable, exact
-        seed = int(np.random.SeedSequence(task["entropy"]).generate_state(1, np.uint64)[0])
-        m = run_case(task["scene"], task["pipeline"], SpectrumMeasure(**task["measure"]),
-                     seed=seed, mode=task["mode"]).measurement
-        return {
-            "cell": cell, "seed": json.dumps(task["entropy"]),
-            "band_power": float(m["band_power"].value),
-            "band_power_err": float(m["band_power_err"].value),
-            "unit": str(m["band_power"].unit), "std": m["std"],
-            "masked_fraction": m["masked_fraction"],
-            "k": m["k"], "power": m["power"], "seconds": time.perf_counter() - t0,
-        }
+        seed = int(np.random.SeedSequence(task.entropy).generate_state(1, np.uint64)[0])
+        m = run_case(task.scene, task.pipeline, SpectrumMeasure(**task.measure),
+                     seed=seed, mode=task.mode).measurement
+        return CellResult(
+            cell=task.cell, seed=json.dumps(task.entropy),
+            band_power=float(m["band_power"].value),
+            band_power_err=float(m["band_power_err"].value),
+            unit=str(m["band_power"].unit), std=m["std"],
+            masked_fraction=m["masked_fraction"],
+            k=m["k"], power=m["power"], seconds=time.perf_counter() - t0)
     except Exception as exc:  # reported with the cell's parameters; the sweep goes on
-        return {"cell": cell, "error": f"{type(exc).__name__}: {exc}",
-                "traceback": traceback.format_exc(limit=6)}
+        return CellFailure(task.cell, f"{type(exc).__name__}: {exc}",
+                           traceback.format_exc(limit=6))
 
 
 # -- the sweep ----------------------------------------------------------------------------
@@ -252,14 +253,14 @@ def _rows_to_table(rows, sweep, unit):
     keys = sweep.keys
     cols = {}
     for k in keys:
-        cols[k] = [plain_value(r["cell"][k]) for r in rows]
-    cols["pipeline"] = [r["cell"]["pipeline"] for r in rows]
-    cols["realization"] = np.array([r["cell"]["realization"] for r in rows], dtype=int)
-    cols["seed"] = [r["seed"] for r in rows]
+        cols[k] = [plain_value(r.cell[k]) for r in rows]
+    cols["pipeline"] = [r.cell["pipeline"] for r in rows]
+    cols["realization"] = np.array([r.cell["realization"] for r in rows], dtype=int)
+    cols["seed"] = [r.seed for r in rows]
     for c in ("band_power", "band_power_err", "std", "masked_fraction", "seconds"):
-        cols[c] = np.array([r[c] for r in rows], dtype=float)
-    cols["k"] = np.array([r["k"] for r in rows], dtype=float) if rows else np.zeros((0, 0))
-    cols["power"] = np.array([r["power"] for r in rows], dtype=float) if rows else np.zeros(
+        cols[c] = np.array([getattr(r, c) for r in rows], dtype=float)
+    cols["k"] = np.array([r.k for r in rows], dtype=float) if rows else np.zeros((0, 0))
+    cols["power"] = np.array([r.power for r in rows], dtype=float) if rows else np.zeros(
         (0, 0))
     t = Table(cols)
     if unit:
@@ -431,8 +432,7 @@ def _run_cells(sweep, cells, scheduler, workers, progress, collect):
     tasks = [sweep.task(c) for c in cells]
 
     def cell_failed(task, exc):  # a worker died: report the cell, go on
-        cell = next(c for c, t in zip(cells, tasks, strict=True) if t is task)
-        return {"cell": cell, "error": f"{type(exc).__name__}: {exc}"}
+        return CellFailure(task.cell, f"{type(exc).__name__}: {exc}")
 
     run_tasks(run_cell, tasks, scheduler, workers, lambda task, res: collect(res), cell_failed,
               noun="cell", progress=progress)
@@ -458,12 +458,13 @@ class _Results:
         self.last_write = time.perf_counter()
 
     def add(self, res):
-        """Keep a cell's result row (or its failure); write a checkpoint when one is due."""
-        if "error" in res:
-            self.failed.append(res)
-            log.warning("sweep cell %s failed: %s", res["cell"], res["error"])
+        """Keep a cell's `~spherex_reduce.analysis.tasks.CellResult` (or its failure, as
+        `SweepResult` reports it); write a checkpoint when one is due."""
+        if isinstance(res, CellFailure):
+            self.failed.append(res.as_dict())
+            log.warning("sweep cell %s failed: %s", res.cell, res.error)
             return
-        self.unit = self.unit or res["unit"]
+        self.unit = self.unit or res.unit
         self.rows.append(res)
         if time.perf_counter() - self.last_write > self.checkpoint_seconds:
             self.write()

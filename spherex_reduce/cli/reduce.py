@@ -119,12 +119,12 @@ def _batch(args):
                     progress=not args.quiet,
                     verify_checksum=not getattr(args, "ignore_checksum", False))
     for row in res.failed:
-        named = row["error"] if row["input"] in row["error"] else f"{row['input']}: {row['error']}"
+        named = row.error if row.input in row.error else f"{row.input}: {row.error}"
         print(f"spherex-reduce reduce: error: {named}", file=sys.stderr)
     print(f"{plural(len(args.input), 'file')}: {res.count('done')} reduced, "
           f"{res.count('skipped')} already done, {res.count('failed')} failed "
           f"({res.seconds:.1f} s)")
     print(f"wrote {res.summary}")
-    if any(row["kind"] == "unexpected" for row in res.failed):
+    if any(row.kind == "unexpected" for row in res.failed):
         return 1  # as a single file's unexpected failure (a bug)
     return 2 if res.failed else 0

@@ -34,7 +34,7 @@ import logging
 import time
 import uuid
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -46,13 +46,13 @@ from ..core import dq
 from ..core.errors import ConfigError, SpherexReduceError
 from ..io import checksum_policy, current_dq_bits, foreign_dq_bits, read, write
 from ..io.layout import fits_stem
-from .batch_summary import SummaryFile, summary_table
+from .batch_summary import SummaryFile, SummaryRow, summary_table
 from .integrations import reduce_input
 from .pipeline import Pipeline, as_pipeline
 from .progress import run_tasks, task_notes
 
-__all__ = ["OUTPUT_SUFFIX", "SUMMARY_NAME", "BatchResult", "finished_row", "image_statistics",
-           "input_digest", "output_paths", "reduce_file", "run_batch"]
+__all__ = ["OUTPUT_SUFFIX", "SUMMARY_NAME", "BatchResult", "BatchTask", "finished_row",
+           "image_statistics", "input_digest", "output_paths", "reduce_file", "run_batch"]
 
 log = logging.getLogger(__name__)
 
@@ -208,9 +208,10 @@ def finished_row(path, digest, config_hash, run=None):
 
     Returns
     -------
-    dict or None
-        ``status``, ``median``, ``robust_std``, ``unit`` (of the output's pixels,
-        `image_statistics`), ``seconds``, ``error``, ``kind``, ``notes``.
+    `~spherex_reduce.reduce.batch_summary.SummaryRow` or None
+        ``output`` (``path``), ``status``, ``median``, ``robust_std``, ``unit`` (of
+        the output's pixels, `image_statistics`), ``seconds`` 0; its ``input`` is
+        left empty for the caller to name.
 
     Raises
     ------
@@ -250,15 +251,14 @@ def finished_row(path, digest, config_hash, run=None):
         raise ConfigError(f"{path} exists and {why}: pass --overwrite to replace it, or choose "
                           "another directory")
     status = "done" if run is not None and existing.header.get("SXRBATCH") == run else "skipped"
-    return {**_statistics_row(existing, status), "seconds": 0.0, "error": "", "kind": "",
-            "notes": []}
+    return _statistics_row(existing, "", str(path), status, seconds=0.0)
 
 
-def _statistics_row(exposure, status):
-    """``status`` and the `image_statistics` of an output, as a summary row holds them."""
+def _statistics_row(exposure, source, output, status, **more):
+    """The summary row of an output: ``status`` and its `image_statistics`."""
     median, sigma = image_statistics(exposure)
-    return {"status": status, "median": median.value, "robust_std": sigma.value,
-            "unit": median.unit.to_string()}
+    return SummaryRow(source, output, status, median=median.value, robust_std=sigma.value,
+                      unit=median.unit.to_string(), **more)
 
 
 def _reduced(task, digest, pipeline):
@@ -268,26 +268,65 @@ def _reduced(task, digest, pipeline):
     computed while the file is reduced: it is waited for only when an output
     exists already, and to stamp the result.
     """
-    out, overwrite = Path(task["output"]), task.get("overwrite", False)
+    out, overwrite = Path(task.output), task.overwrite
     try:  # this run made it before its worker died, or (no overwrite) another batch did
         done = out.exists() and finished_row(out, digest.result(), pipeline.config_hash,
-                                             task.get("run"))
+                                             task.run)
     except ConfigError:
         if not overwrite:
             raise
         done = None
-    if done and (done["status"] == "done" or not overwrite):
+    if done and (done.status == "done" or not overwrite):
         return done
-    result, images = reduce_input(task["input"], pipeline, threads=task.get("threads"))
-    result = _stamped(result, digest.result(), task.get("run"))
+    result, images = reduce_input(task.input, pipeline, threads=task.threads)
+    result = _stamped(result, digest.result(), task.run)
     try:
         write(result, out, overwrite=overwrite, images=images)
     except FileExistsError:  # a concurrent batch wrote it meanwhile: done if it is this
-        done = finished_row(out, digest.result(), pipeline.config_hash, task.get("run"))
+        done = finished_row(out, digest.result(), pipeline.config_hash, task.run)
         if done is None:
             raise
         return done
-    return _statistics_row(result, "done")
+    return _statistics_row(result, task.input, task.output, "done")
+
+
+@dataclass(frozen=True)
+class BatchTask:
+    """One file of a batch, as `reduce_file` takes it (a worker process shares nothing
+    else with the batch).
+
+    Attributes
+    ----------
+    input, output : str
+        Paths.
+    config : dict
+        The pipeline's effective configuration.
+    source : str
+        The pipeline's label.
+    run : str or None
+        The batch run's id.
+    overwrite : bool
+    threads : int or None
+        Bands corrected at once (None: the executor's default).
+    verify_checksum : bool
+        The command's checksum policy.
+    dq_bits : int or None
+        The command's foreign DQ bits (None: this process's,
+        `~spherex_reduce.io.current_dq_bits`).
+    index : int
+        Its place among the batch's inputs.
+    """
+
+    input: str
+    output: str
+    config: dict
+    source: str
+    run: str | None = None
+    overwrite: bool = False
+    threads: int | None = None
+    verify_checksum: bool = True
+    dq_bits: int | None = None
+    index: int = 0
 
 
 def reduce_file(task):
@@ -301,16 +340,11 @@ def reduce_file(task):
 
     Parameters
     ----------
-    task : dict
-        ``input`` and ``output`` (paths), ``config`` and ``source`` (the
-        pipeline's effective configuration and label), ``run`` (the batch
-        run's id, optional), ``overwrite``, ``threads`` (None: the executor's default),
-        ``verify_checksum`` and ``dq_bits`` (the policies of the command,
-        which a worker process does not share).
+    task : `BatchTask`
 
     Returns
     -------
-    dict
+    `~spherex_reduce.reduce.batch_summary.SummaryRow`
         ``input``, ``output``, ``status`` (``done``, ``skipped`` or
         ``failed``), ``median`` and ``robust_std`` (floats, in ``unit``;
         `image_statistics` of the output), ``seconds``, ``notes`` (warnings, one
@@ -320,26 +354,24 @@ def reduce_file(task):
         ``unexpected`` otherwise (a bug, status 1).
     """
     t0 = time.perf_counter()
-    row = {"input": task["input"], "output": task["output"], "status": "failed",
-           "median": np.nan, "robust_std": np.nan, "unit": "", "error": "", "kind": "",
-           "notes": []}
+    row, notes = SummaryRow(task.input, task.output, "failed"), []
+    dq_bits = current_dq_bits() if task.dq_bits is None else task.dq_bits
     try:
-        with task_notes() as notes, checksum_policy(verify=task.get("verify_checksum", True)), \
-                foreign_dq_bits(task.get("dq_bits", current_dq_bits())):
-            row["notes"] = notes
-            pipeline = Pipeline(task["config"], source=task["source"])
+        with task_notes() as notes, checksum_policy(verify=task.verify_checksum), \
+                foreign_dq_bits(dq_bits):
+            pipeline = Pipeline(task.config, source=task.source)
             # the SHA-256 (0.7 s for a 1.28 GB file) is computed beside the reduction,
             # which leaves part of a core idle: a serial batch of three such files took
             # 1.38x the time of one without digests when it came first, 1.06x beside
             with ThreadPoolExecutor(1) as hashing:
-                done = _reduced(task, hashing.submit(input_digest, task["input"]), pipeline)
-        row.update(done, notes=notes)
+                done = _reduced(task, hashing.submit(input_digest, task.input), pipeline)
+        row = replace(done, input=task.input, output=task.output)
     except Exception as exc:  # reported with the file's name; the batch goes on
         expected = isinstance(exc, (SpherexReduceError, OSError))
-        row["error"] = _one_line(exc) if expected else f"{type(exc).__name__}: {_one_line(exc)}"
-        row["kind"] = "input" if expected else "unexpected"
-    row["seconds"] = time.perf_counter() - t0
-    return row
+        row = replace(row, error=_one_line(exc) if expected
+                      else f"{type(exc).__name__}: {_one_line(exc)}",
+                      kind="input" if expected else "unexpected")
+    return replace(row, notes=tuple(notes), seconds=time.perf_counter() - t0)
 
 
 # -- the batch ----------------------------------------------------------------------------
@@ -348,7 +380,9 @@ class BatchResult:
     """What `run_batch` did: this run's summary table and the rows of failed files.
 
     ``table`` has one row per input of this run, in the order given; the
-    summary file (``summary``) may also list other batches' outputs.
+    summary file (``summary``) may also list other batches' outputs.  ``failed``
+    holds the `~spherex_reduce.reduce.batch_summary.SummaryRow` of each file that
+    failed.
     """
 
     table: Table
@@ -404,7 +438,8 @@ def run_batch(pipeline, inputs, outdir, *, scheduler=None, workers=None, threads
     -------
     `BatchResult`
         The summary table (one row per input, in the order given), its path,
-        and the rows of failed files (with ``error`` and ``kind``).
+        and the rows of failed files (`~spherex_reduce.reduce.batch_summary.SummaryRow`,
+        with ``error`` and ``kind``).
 
     Raises
     ------
@@ -447,32 +482,29 @@ def run_batch(pipeline, inputs, outdir, *, scheduler=None, workers=None, threads
         done = None
         if out.exists() and not overwrite:
             done = finished_row(out, input_digest(src), pipeline.config_hash)
-        rows.append(None if done is None else {"input": str(src), "output": str(out), **done})
+        rows.append(None if done is None else replace(done, input=str(src), output=str(out)))
         if done is None:
-            tasks.append({"input": str(src.absolute()), "output": str(out.absolute()),
-                          "config": pipeline.config, "source": pipeline.source, "run": run,
-                          "overwrite": overwrite, "threads": threads,
-                          "verify_checksum": verify_checksum, "dq_bits": current_dq_bits(),
-                          "index": len(rows) - 1})
+            tasks.append(BatchTask(str(src.absolute()), str(out.absolute()), pipeline.config,
+                                   pipeline.source, run=run, overwrite=overwrite,
+                                   threads=threads, verify_checksum=verify_checksum,
+                                   dq_bits=current_dq_bits(), index=len(rows) - 1))
     outdir.mkdir(exist_ok=True)
     table = SummaryFile(summary, pipeline)
     _writable(outdir, table, rows)  # before any work
     t0 = time.perf_counter()
 
     def collect(task, res):
-        i = task["index"]
-        for note in res.pop("notes", []):
+        i = task.index
+        for note in res.notes:
             log.warning("%s: %s", inputs[i], note)
-        res["input"], res["output"] = str(inputs[i]), str(outputs[i])  # as the user gave them
-        for given, sent in ((res["input"], task["input"]), (res["output"], task["output"])):
-            res["error"] = res.get("error", "").replace(sent, given)
-        rows[i] = res
+        given = str(inputs[i]), str(outputs[i])  # the paths as the user gave them
+        error = res.error.replace(task.input, given[0]).replace(task.output, given[1])
+        rows[i] = replace(res, input=given[0], output=given[1], error=error, notes=())
         table.record([r for r in rows if r is not None], final=False)
 
     def died(task, exc):  # the worker died (e.g. out of memory): report, go on
-        return {"status": "failed", "median": np.nan, "robust_std": np.nan, "unit": "",
-                "seconds": np.nan, "kind": "unexpected",
-                "error": f"{type(exc).__name__}: {_one_line(exc)}"}
+        return SummaryRow(task.input, task.output, "failed", kind="unexpected",
+                          error=f"{type(exc).__name__}: {_one_line(exc)}")
 
     if scheduler is None:
         workers = min(2 if workers is None else workers, max(1, len(tasks)))
@@ -481,7 +513,7 @@ def run_batch(pipeline, inputs, outdir, *, scheduler=None, workers=None, threads
                   progress=progress)
     finally:  # also when interrupted: what finished
         table.record([r for r in rows if r is not None])
-    failed = [r for r in rows if r["status"] == "failed"]
+    failed = [r for r in rows if r.status == "failed"]
     return BatchResult(summary_table(rows, pipeline), summary, failed, time.perf_counter() - t0)
 
 

@@ -26,6 +26,7 @@ their former order.
 
 import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +37,7 @@ from .._version import __version__
 from ..io import atomic_output
 from ..io.lock import locked_directory
 
-__all__ = ["COLUMNS", "STATUSES", "SummaryFile", "read_rows", "summary_table"]
+__all__ = ["COLUMNS", "STATUSES", "SummaryFile", "SummaryRow", "read_rows", "summary_table"]
 
 #: What the summary's ``status`` column may say.
 STATUSES = ("done", "skipped", "failed")
@@ -44,12 +45,49 @@ STATUSES = ("done", "skipped", "failed")
 COLUMNS = ("input", "output", "status", "median", "robust_std", "unit", "seconds", "error")
 
 
+@dataclass(frozen=True)
+class SummaryRow:
+    """One output of a batch: a row of the summary (the `COLUMNS`), with what only the
+    run that made it knows.
+
+    Attributes
+    ----------
+    input, output : str
+        The paths.
+    status : str
+        One of `STATUSES`.
+    median, robust_std : float
+        `~spherex_reduce.reduce.batch.image_statistics` of the output, in ``unit``
+        (NaN for a failed file).
+    unit : str
+    seconds : float
+    error : str
+        Why it failed, one line (empty otherwise).
+    kind : str
+        For a failure: ``input`` (a bad input or environment) or ``unexpected`` (a
+        bug); not written to the summary.
+    notes : tuple of str
+        Warnings raised while the file was reduced, one line each; not written.
+    """
+
+    input: str
+    output: str
+    status: str
+    median: float = math.nan
+    robust_std: float = math.nan
+    unit: str = ""
+    seconds: float = math.nan
+    error: str = ""
+    kind: str = ""
+    notes: tuple = ()
+
+
 def summary_table(rows, pipeline):
-    """The summary of ``rows`` (dicts with the `COLUMNS`) as an astropy table.
+    """The summary of ``rows`` (`SummaryRow`) as an astropy table.
 
     Parameters
     ----------
-    rows : list of dict
+    rows : list of `SummaryRow`
         One per output, in the order the table lists them.
     pipeline : `~spherex_reduce.Pipeline`
         Its source and config hash go into the metadata.
@@ -63,29 +101,28 @@ def summary_table(rows, pipeline):
     Examples
     --------
     >>> from spherex_reduce import Pipeline
-    >>> from spherex_reduce.reduce.batch_summary import summary_table
-    >>> row = {"input": "a.fits", "output": "out/a_reduced.fits", "status": "done",
-    ...        "median": 1.5, "robust_std": 0.25, "unit": "electron / s", "seconds": 2.0,
-    ...        "error": ""}
+    >>> from spherex_reduce.reduce.batch_summary import SummaryRow, summary_table
+    >>> row = SummaryRow("a.fits", "out/a_reduced.fits", "done", median=1.5, robust_std=0.25,
+    ...                  unit="electron / s", seconds=2.0)
     >>> t = summary_table([row], Pipeline({"steps": [{"fit_ramp": {}}]}))
     >>> t["median"].quantity[0]
     <Quantity 1.5 electron / s>
     """
-    units = {r["unit"] for r in rows if r["status"] != "failed"}
+    units = {r.unit for r in rows if r.status != "failed"}
     t = Table({
-        "input": [str(r["input"]) for r in rows],
-        "output": [str(r["output"]) for r in rows],
-        "status": [r["status"] for r in rows],
-        "median": np.array([r["median"] for r in rows], dtype=float),
-        "robust_std": np.array([r["robust_std"] for r in rows], dtype=float),
-        "seconds": np.array([r["seconds"] for r in rows], dtype=float),
-        "error": [r["error"] for r in rows],
+        "input": [str(r.input) for r in rows],
+        "output": [str(r.output) for r in rows],
+        "status": [r.status for r in rows],
+        "median": np.array([r.median for r in rows], dtype=float),
+        "robust_std": np.array([r.robust_std for r in rows], dtype=float),
+        "seconds": np.array([r.seconds for r in rows], dtype=float),
+        "error": [r.error for r in rows],
     }, dtype=[str, str, str, float, float, float, str])
     if len(units) == 1:
         unit = u.Unit(units.pop())
         t["median"].unit = t["robust_std"].unit = unit
     elif units:  # outputs in different units (e.g. ADU and electrons): one per row
-        t.add_column([r["unit"] for r in rows], name="unit", index=5)
+        t.add_column([r.unit for r in rows], name="unit", index=5)
     t["seconds"].unit = u.s
     t["median"].description = ("median of the output's light-sensitive pixels, finite and "
                                "not masked by DQ (reference pixels left out)")
@@ -96,7 +133,8 @@ def summary_table(rows, pipeline):
 
 
 def read_rows(path, config_hash):
-    """The rows of the summary at ``path`` if it was made with ``config_hash``; else ``[]``.
+    """The rows (`SummaryRow`) of the summary at ``path`` if it was made with
+    ``config_hash``; else ``[]``.
 
     A missing, unreadable or damaged summary, or one of another config, gives
     ``[]`` (it is replaced by the next `SummaryFile.record`).
@@ -112,9 +150,7 @@ def read_rows(path, config_hash):
     for r in t:
         row = {name: _plain(r[name]) for name in t.colnames if name in COLUMNS}
         row.setdefault("unit", "" if unit is None else unit.to_string())
-        row.setdefault("seconds", math.nan)
-        row.setdefault("error", "")
-        rows.append(row)
+        rows.append(SummaryRow(**row))
     return rows
 
 
@@ -131,18 +167,18 @@ def _merged(old, mine, outdir):
     was given them, maybe relative to another directory).
     """
     def _valid(row):
-        return row["status"] != "failed" and (outdir / Path(row["output"]).name).exists()
+        return row.status != "failed" and (outdir / Path(row.output).name).exists()
 
-    by_name = {Path(r["output"]).name: r for r in old}
+    by_name = {Path(r.output).name: r for r in old}
     order = []
     for row in mine:
-        name = Path(row["output"]).name
+        name = Path(row.output).name
         order.append(name)
         former = by_name.get(name)
-        if row["status"] == "failed" and former is not None and _valid(former):
+        if row.status == "failed" and former is not None and _valid(former):
             continue  # a valid output, made by another batch: never reported as failed
         by_name[name] = row
-    rest = [Path(r["output"]).name for r in old if Path(r["output"]).name not in order]
+    rest = [Path(r.output).name for r in old if Path(r.output).name not in order]
     return [by_name[n] for n in order] + [by_name[n] for n in rest if _valid(by_name[n])]
 
 
@@ -160,12 +196,11 @@ class SummaryFile:
     --------
     >>> import tempfile, pathlib
     >>> from spherex_reduce.reduce.pipeline import as_pipeline
-    >>> from spherex_reduce.reduce.batch_summary import SummaryFile
+    >>> from spherex_reduce.reduce.batch_summary import SummaryFile, SummaryRow
     >>> out = pathlib.Path(tempfile.mkdtemp())
     >>> _ = (out / "a_reduced.fits").write_bytes(b"")
-    >>> row = {"input": "a.fits", "output": str(out / "a_reduced.fits"), "status": "done",
-    ...        "median": 1.5, "robust_std": 0.25, "unit": "electron / s", "seconds": 2.0,
-    ...        "error": ""}
+    >>> row = SummaryRow("a.fits", str(out / "a_reduced.fits"), "done", median=1.5,
+    ...                  robust_std=0.25, unit="electron / s", seconds=2.0)
     >>> summary = SummaryFile(out / "summary.ecsv", as_pipeline("spherex-default"))
     >>> [str(s) for s in summary.record([row])["status"]]
     ['done']
@@ -188,8 +223,8 @@ class SummaryFile:
 
         Parameters
         ----------
-        rows : list of dict
-            This run's rows so far (the `COLUMNS`), in the order of its inputs.
+        rows : list of `SummaryRow`
+            This run's rows so far, in the order of its inputs.
         final : bool
             False: the record may be left for a later one if records are slow
             (see `SLOW`).

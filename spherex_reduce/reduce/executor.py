@@ -13,8 +13,10 @@ of its step, and ``fit_ramp`` is a `~spherex_reduce.reduce.step.Consumer` of ban
    rows of every frame (read from a file with ``pread`` by
    `~spherex_reduce.io.FrameReader`, or views of an in-memory exposure); each
    band goes through every kernel's ``apply`` in YAML order and then to the
-   consumer, or into the output arrays; bands run on ``threads`` threads;
-3. the kernels' ``record`` gives the tables and header cards.
+   consumer, or into the output arrays; bands run on the threads of the
+   `~spherex_reduce.reduce.options.RunOptions`;
+3. the kernels' ``record`` gives the tables and header cards, and `RunStats`
+   what the pass took.
 
 A step run alone (``Step.run``) is `execute` on the exposure in memory
 (`~spherex_reduce.io.sources.MemorySource`), so the numbers of a streamed
@@ -24,16 +26,17 @@ arithmetic does not depend on the band that holds it.
 It imports no step, so that the steps can run themselves through it.
 """
 
-import os
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..core.exposure import Exposure, ReferenceReads, expected_shape
+from .options import RunOptions
 
-__all__ = ["default_threads", "execute", "first_in_memory"]
+__all__ = ["RunStats", "execute", "first_in_memory"]
 
 #: pixels per band of a file (all frames together): 74 frames x 2**17 x 4 B = 39 MB per
 #: band and thread, so memory stays near the output
@@ -42,13 +45,29 @@ BAND_PIXELS = 1 << 17
 MEMORY_BAND_FACTOR = 2
 
 
-def default_threads():
-    """Threads used when none are asked for: the cores available, at most 4."""
-    try:
-        n = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        n = os.cpu_count() or 1
-    return max(1, min(4, n))
+@dataclass(frozen=True)
+class RunStats:
+    """What a pass of the executor took.
+
+    Attributes
+    ----------
+    kernels : tuple of float
+        Seconds spent in each kernel, in order, summed over threads.
+    consumer : float
+        Seconds in the consumer (or assembling the output).
+    read : float
+        Seconds reading the source.
+    bands : int
+        Bands of rows the input was cut into.
+    threads : int
+        Threads the bands ran on.
+    """
+
+    kernels: tuple
+    consumer: float
+    read: float
+    bands: int
+    threads: int
 
 
 def first_in_memory(kernel, position, source):
@@ -96,8 +115,8 @@ class _Assembly:
         return values[0]
 
 
-def execute(source, kernels, consumer=None, *, threads=None, rows_per_band=None,
-            progress=None, timings=None):
+def execute(source, kernels, consumer=None, *, options=None, rows_per_band=None,
+            progress=None):
     """Run ``kernels`` over bands of ``source``, into ``consumer`` or a new exposure.
 
     Parameters
@@ -110,21 +129,21 @@ def execute(source, kernels, consumer=None, *, threads=None, rows_per_band=None,
     consumer : `~spherex_reduce.reduce.step.Consumer`, optional
         Takes the corrected bands (``fit_ramp``); else they are assembled into
         an exposure like the input.
-    threads : int, optional
-        Bands corrected at once (default `default_threads`).
+    options : `~spherex_reduce.reduce.options.RunOptions`, optional
+        Its ``threads``: bands corrected at once (default
+        `~spherex_reduce.reduce.options.default_threads`).
     rows_per_band : int, optional
         Rows of every frame per band (default: `BAND_PIXELS` pixels of every
         frame from a file, `MEMORY_BAND_FACTOR` times more in memory).
     progress : callable, optional
         Called with the number of rows done after each band.
-    timings : dict, optional
-        Filled with the seconds spent in each kernel (``kernels``), in the
-        consumer (``consumer``) and reading (``read``), summed over threads,
-        and the number of ``bands`` and ``threads``.
 
     Returns
     -------
-    `~spherex_reduce.Exposure`
+    result : `~spherex_reduce.Exposure`
+    stats : `RunStats`
+        The seconds spent in each kernel, the consumer and reading, the bands
+        and threads.
     """
     chain = _Chain(kernels, consumer)
     side = chain.prepare(source)
@@ -132,17 +151,16 @@ def execute(source, kernels, consumer=None, *, threads=None, rows_per_band=None,
         pixels = BAND_PIXELS * (MEMORY_BAND_FACTOR if source.in_memory else 1)
         rows_per_band = max(1, pixels // source.context.geometry.ncols)
     cuts = bands(source.nrows, rows_per_band)
-    nthreads = default_threads() if threads is None else max(1, int(threads))
+    nthreads = (options or RunOptions()).thread_count()
     _run_bands(cuts, lambda lo, hi: chain.run(chain.read(source, lo, hi)), nthreads, progress)
     for i, (kernel, c) in enumerate(zip(kernels, chain.coefficients, strict=True)):
         extra = kernel.extra_rows(c)
         if extra is not None:
             chain.run(extra, i + 1)
     result = chain.finish(source, side)
-    if timings is not None:
-        timings.update(kernels=chain.busy[:len(kernels)], consumer=chain.busy[len(kernels)],
-                       read=chain.busy[-1], bands=len(cuts), threads=nthreads)
-    return result
+    return result, RunStats(kernels=tuple(chain.busy[:len(kernels)]),
+                            consumer=chain.busy[len(kernels)], read=chain.busy[-1],
+                            bands=len(cuts), threads=nthreads)
 
 
 def _run_bands(cuts, run, nthreads, progress):

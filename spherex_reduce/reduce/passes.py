@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 from ..core.errors import StepSkipped
 from .executor import execute, first_in_memory
+from .options import RunOptions
 
 __all__ = ["Pass", "PlannedStep", "Whole", "plan_pass", "run_pass"]
 
@@ -74,7 +75,7 @@ class Whole:
     planned: PlannedStep
 
 
-def plan_pass(steps, start, source, threads=None):
+def plan_pass(steps, start, source, options=None):
     """What runs next, from ``steps[start]`` on ``source``: a `Pass` or a `Whole` step.
 
     Parameters
@@ -83,8 +84,8 @@ def plan_pass(steps, start, source, threads=None):
     start : int
     source : `~spherex_reduce.io.sources.Source`
         What the pass would read (its context and whether it is in memory).
-    threads : int, optional
-        Recorded in the context the kernels are made for.
+    options : `~spherex_reduce.reduce.options.RunOptions`, optional
+        Its ``threads`` are recorded in the context the kernels are made for.
 
     Returns
     -------
@@ -93,7 +94,7 @@ def plan_pass(steps, start, source, threads=None):
     """
     if not steps[start].step.streams():
         return Whole(steps[start])
-    context = source.context.replace(threads=threads)
+    context = source.context.replace(threads=(options or RunOptions()).threads)
     plan = Pass()
     j = start
     while j < len(steps):
@@ -128,8 +129,10 @@ def plan_pass(steps, start, source, threads=None):
     return plan
 
 
-def run_pass(source, plan, *, threads=None, progress=None):
-    """Run a `Pass` through the executor.
+def run_pass(source, plan, *, options=None, progress=None):
+    """Run a `Pass` through the executor, with ``options`` (a
+    `~spherex_reduce.reduce.options.RunOptions`) and ``progress`` (called with
+    the rows done after each band).
 
     Returns
     -------
@@ -140,15 +143,14 @@ def run_pass(source, plan, *, threads=None, progress=None):
     route : str
         How it ran, for provenance.
     """
-    timings = {}
-    result = execute(source, [k for _, k in plan.kernels],
-                     None if plan.consumer is None else plan.consumer[1],
-                     threads=threads, progress=progress, timings=timings)
-    busy = {p.index: t for (p, _), t in zip(plan.kernels, timings["kernels"], strict=True)}
+    result, stats = execute(source, [k for _, k in plan.kernels],
+                            None if plan.consumer is None else plan.consumer[1],
+                            options=options, progress=progress)
+    busy = {p.index: t for (p, _), t in zip(plan.kernels, stats.kernels, strict=True)}
     if plan.consumer is not None:
-        busy[plan.consumer[0].index] = timings["consumer"]
+        busy[plan.consumer[0].index] = stats.consumer
     ran = [p.index for p in plan.members if p.index not in plan.skipped]
-    busy[ran[0]] += timings["read"]
-    route = (f"executor pass of {len(ran)} step(s): {timings['bands']} band(s) of rows "
-             f"from {source.where} on {timings['threads']} thread(s)")
+    busy[ran[0]] += stats.read
+    route = (f"executor pass of {len(ran)} step(s): {stats.bands} band(s) of rows "
+             f"from {source.where} on {stats.threads} thread(s)")
     return result, busy, route

@@ -24,6 +24,7 @@ from ..io.config import (
 from ..io.header_text import header_text
 from ..io.input import InputOptions
 from ..io.sources import MemorySource, open_input
+from .options import RunOptions
 from .passes import PlannedStep, Whole, plan_pass, run_pass
 from .plugins import Registry, blame_plugin
 from .progress import terminal_bar
@@ -221,9 +222,10 @@ class Pipeline:
             `~spherex_reduce.core.errors.SpherexReduceError`); the message names the
             plugin, its distribution and the step.
         """
+        options = RunOptions(threads=threads, progress=progress)
         try:
             with self.open(exposure) as inp:
-                result = _Run(self, self._planned(threads), progress, threads).on(inp.source())
+                result = _Run(self, self._planned(options), options).on(inp.source())
         except SpherexReduceError:
             raise
         except (Exception, SystemExit) as exc:
@@ -237,9 +239,9 @@ class Pipeline:
         """Open an input with this config's sections (`~spherex_reduce.io.sources.open_input`)."""
         return open_input(what, input=self.input_options, **self.supplied())
 
-    def _planned(self, threads):
+    def _planned(self, options):
         return [PlannedStep(i, name, params, self.registry.step(name)(self.registry,
-                                                                       threads=threads))
+                                                                       threads=options.threads))
                 for i, (name, params) in enumerate(self.steps)]
 
     def _stamped(self, result):
@@ -261,25 +263,25 @@ def _bar(progress, **kwargs):
 
 
 class _Run:
-    """One run of a list of steps: what each step did (``status``), progress, threads.
+    """One run of a list of steps: what each step did (``status``), with its
+    `~spherex_reduce.reduce.options.RunOptions`.
 
     `on` loops over what `~spherex_reduce.reduce.passes.plan_pass` plans:
     passes through the executor and steps run whole; every step's hooks and
     provenance go through `_started` and `_recorded`.
     """
 
-    def __init__(self, pipeline, steps, progress, threads):
-        self.pipeline, self.steps = pipeline, steps
-        self.progress, self.threads = progress, threads
+    def __init__(self, pipeline, steps, options):
+        self.pipeline, self.steps, self.options = pipeline, steps, options
         self.status = {}  # step index -> 'COMPLETE' or 'SKIPPED'
 
     def on(self, source):
         """Run the steps on ``source`` (a `~spherex_reduce.io.sources.Source`); the result."""
         i = 0
-        bar = _bar(self.progress, total=len(self.steps), desc="reduce", unit="step")
+        bar = _bar(self.options.progress, total=len(self.steps), desc="reduce", unit="step")
         with bar:
             while i < len(self.steps):
-                plan = plan_pass(self.steps, i, source, self.threads)
+                plan = plan_pass(self.steps, i, source, self.options)
                 if isinstance(plan, Whole):
                     result, end = self._whole(source.exposure(), plan.planned), i + 1
                 else:
@@ -296,9 +298,10 @@ class _Run:
         if not plan.runs:  # only skipped steps (e.g. subtract_phantom without phantom values)
             result, busy, route = before, {}, ""
         else:
-            rows = _bar(self.progress, total=source.nrows, desc="reduce rows", unit="row")
+            rows = _bar(self.options.progress, total=source.nrows, desc="reduce rows",
+                        unit="row")
             with rows:
-                result, busy, route = run_pass(source, plan, threads=self.threads,
+                result, busy, route = run_pass(source, plan, options=self.options,
                                                progress=rows.update)
         for planned in plan.members:
             reason = plan.skipped.get(planned.index)
@@ -340,7 +343,7 @@ class _Run:
             return None
         todo = [PlannedStep(k, p.name, p.params, p.step) for k, p in enumerate(todo)]
         with self.pipeline.open(path) as inp:
-            return _Run(self.pipeline, todo, self.progress, self.threads).on(inp.source())
+            return _Run(self.pipeline, todo, self.options).on(inp.source())
 
 
 def as_pipeline(pipeline):

@@ -12,6 +12,7 @@ from ..io import read
 from ..io.header_text import header_text
 from ..io.sources import MemorySource
 from .noise_effect import NoiseEffect, ReferenceEffect
+from .options import RunOptions
 from .passes import PlannedStep, Whole, plan_pass, run_pass
 from .provenance import record_step
 
@@ -197,7 +198,9 @@ class Step:
         #: ``after_step`` hooks run around the step, and where it looks up its
         #: strategies; None: no hooks
         self.registry = registry
-        self.threads = threads
+        #: how the step runs through the executor when run alone (a
+        #: `~spherex_reduce.reduce.options.RunOptions`; its ``threads`` from the argument)
+        self.options = RunOptions(threads=threads)
         #: where strategies are looked up when the step has no :attr:`registry` (a
         #: `~spherex_reduce.reduce.plugins.Registry` whose hooks are not called)
         self.strategies = strategies
@@ -379,12 +382,12 @@ class Step:
         implementation for both routes).
         """
         source = MemorySource(exposure)
-        plan = plan_pass([PlannedStep(0, self.name, params, self)], 0, source, self.threads)
+        plan = plan_pass([PlannedStep(0, self.name, params, self)], 0, source, self.options)
         if isinstance(plan, Whole):
             raise NotImplementedError(f"step {self.name!r} has neither run, kernel nor consumer")
         if plan.skipped:
             raise StepSkipped(plan.skipped[0])
-        return run_pass(source, plan, threads=self.threads)[0]
+        return run_pass(source, plan, options=self.options)[0]
 
 
 class Strategy:

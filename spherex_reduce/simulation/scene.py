@@ -1,6 +1,6 @@
 """The scene file (YAML or dict): validation with errors that name the YAML path."""
 
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 from ..core.errors import ConfigError
 from ..core.limits import check_size
@@ -9,7 +9,7 @@ from ..io.config import GEOMETRY_PARAMETERS, READOUT_PARAMETERS, load_yaml, sche
 from ..noise.section import section_components
 from .synthesis import METHODS
 
-__all__ = ["MODES", "Scene", "load_scene"]
+__all__ = ["MODES", "Scene", "SceneTerms", "Telegraph", "load_scene"]
 
 MODES = ("slopes", "ramps")
 _NUM = (int, float)
@@ -62,6 +62,69 @@ TOP_KEYS = ("geometry", "readout", "noise", "scene", "output", "synthesis", "see
 
 
 @dataclass(frozen=True)
+class Telegraph:
+    """Random telegraph noise of a scene (``scene.rtn``; see `RTN_PARAMETERS`).
+
+    Attributes
+    ----------
+    fraction : float
+        Fraction of the chosen pixels with telegraph noise.
+    amplitude : float
+        Step between the two states (e).
+    rate : float
+        Switching rate of each state (Hz).
+    pixels : str
+        ``active``, ``reference`` or ``all``.
+    """
+
+    fraction: float
+    amplitude: float
+    rate: float
+    pixels: str
+
+    @property
+    def on(self):
+        """Whether it adds anything (a fraction of pixels and an amplitude above 0)."""
+        return self.fraction > 0 and self.amplitude > 0
+
+
+@dataclass(frozen=True)
+class SceneTerms:
+    """The ``scene:`` section of a scene: what is added to the readout's noise.
+
+    The fields are `SCENE_PARAMETERS` (units there), ``rtn`` a `Telegraph` or None.
+
+    Examples
+    --------
+    >>> from spherex_reduce.simulation import load_scene
+    >>> t = load_scene({"scene": {"dark_current": 0.5, "rtn": {"fraction": 0.1}}}).terms
+    >>> t.dark_current, t.rtn.fraction, t.rtn.pixels, t.rtn.on
+    (0.5, 0.1, 'active', False)
+    """
+
+    dark_current: float
+    hot_pixel_fraction: float
+    hot_pixel_current: float
+    photocurrent: float
+    leakage: float
+    poisson: bool
+    rtn: Telegraph | None
+
+    @classmethod
+    def from_config(cls, section):
+        """Validate a ``scene:`` mapping (None: the defaults); errors name ``scene.KEY``."""
+        values = validate_parameters(section, SCENE_PARAMETERS, "scene")
+        if values["rtn"] is not None:
+            values["rtn"] = Telegraph(**validate_parameters(values["rtn"], RTN_PARAMETERS,
+                                                            "scene.rtn"))
+        return cls(**values)
+
+    def to_dict(self):
+        """The terms as the validated mapping, in `SCENE_PARAMETERS` order."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
 class Scene:
     """A validated scene: schedule, noise components, scene terms and options.
 
@@ -70,7 +133,7 @@ class Scene:
 
     schedule: object
     components: tuple
-    terms: dict
+    terms: SceneTerms
     mode: str = "slopes"
     seed: object = None
     synthesis: dict = field(default_factory=dict)
@@ -149,9 +212,7 @@ def load_scene(source=None):
     validate_parameters(config.get("readout"), READOUT_PARAMETERS, "readout")
     schedule = schedule_from_config(config.get("geometry"), config.get("readout"))
     components = section_components(config.get("noise"))
-    terms = validate_parameters(config.get("scene"), SCENE_PARAMETERS, "scene")
-    if terms["rtn"] is not None:
-        terms["rtn"] = validate_parameters(terms["rtn"], RTN_PARAMETERS, "scene.rtn")
+    terms = SceneTerms.from_config(config.get("scene"))
     output = validate_parameters(config.get("output"), OUTPUT_PARAMETERS, "output")
     synth = validate_parameters(config.get("synthesis"), SYNTHESIS_PARAMETERS, "synthesis")
     seed = config.get("seed")

@@ -73,7 +73,7 @@ def _header(sc, mode, seed, engine):
         h["SIMROUTE"] = (engine.slope_route, "slopes drawn exactly or from synthesised tiers")
     for c in sc.components:
         h.add_history(f"noise {json.dumps(c.to_dict())}")
-    h.add_history(f"scene {json.dumps(sc.terms, default=str)}")
+    h.add_history(f"scene {json.dumps(sc.terms.to_dict(), default=str)}")
     return h
 
 
@@ -159,27 +159,26 @@ class _Terms:
         self.active = (~s.is_reference)[:, None] & (~g.reference_column_mask())[None, :]
         self.tau = s.pixel_samples() / g.pixel_rate  # s within frame
         self.tframe = s.frame_samples / g.pixel_rate
-        rate = np.where(self.active, self.t["dark_current"] + self.t["photocurrent"], 0.0)
-        if self.t["hot_pixel_fraction"] > 0:
+        rate = np.where(self.active, self.t.dark_current + self.t.photocurrent, 0.0)
+        if self.t.hot_pixel_fraction > 0:
             rng = rng_for(engine.entropy, TIER_HOT)
-            hot = (rng.random(rate.shape) < self.t["hot_pixel_fraction"]) & self.active
-            rate = rate + hot * self.t["hot_pixel_current"]
+            hot = (rng.random(rate.shape) < self.t.hot_pixel_fraction) & self.active
+            rate = rate + hot * self.t.hot_pixel_current
         self.rate = rate if np.any(rate) else None
         self.charge = None
         self.rtn = self.rtn_reference = None
-        r = self.t.get("rtn")
-        if r and r["fraction"] > 0 and r["amplitude"] > 0:
-            where = r.get("pixels", "active")
-            if where in ("active", "all"):  # read once per frame: switched frame to frame
+        r = self.t.rtn
+        if r is not None and r.on:
+            if r.pixels in ("active", "all"):  # read once per frame: switched frame to frame
                 rng = rng_for(engine.entropy, TIER_RTN)
-                idx = np.flatnonzero((rng.random(rate.size) < r["fraction"])
+                idx = np.flatnonzero((rng.random(rate.size) < r.fraction)
                                      & self.active.ravel())
-                self.rtn = (idx, rng, r["amplitude"],
-                            (1 - np.exp(-2 * r["rate"] * self.tframe)) / 2)
+                self.rtn = (idx, rng, r.amplitude,
+                            (1 - np.exp(-2 * r.rate * self.tframe)) / 2)
                 self.rtn_state = rng.random(idx.size) < 0.5
-            if where in ("reference", "all"):  # seen at each of their reads
+            if r.pixels in ("reference", "all"):  # seen at each of their reads
                 self.rtn_reference = ReferenceTelegraph(
-                    s, r["fraction"], r["amplitude"], r["rate"],
+                    s, r.fraction, r.amplitude, r.rate,
                     rng_for(engine.entropy, TIER_RTN_REFERENCE))
         s_ph = s.phantom_samples()
         self.tau_ph = (s_ph.mean(axis=1) / g.pixel_rate) if s.phantom_reads else None
@@ -196,10 +195,10 @@ class _Terms:
         if self.rate is not None:
             dt = self.tau if k == 0 else self.tframe
             mean = self.rate * dt
-            inc = self.sig_rng.poisson(mean) if self.t["poisson"] else mean
+            inc = self.sig_rng.poisson(mean) if self.t.poisson else mean
             self.charge = inc if self.charge is None else self.charge + inc
             frame += self.charge.astype(frame.dtype)
-        leak = self.t["leakage"]
+        leak = self.t.leakage
         if leak:
             frame += (leak * (t0 + self.tau)).astype(frame.dtype)
             if phantom is not None:
@@ -216,13 +215,13 @@ class _Terms:
         n = w.size
         if self.rate is not None:
             data += self.rate.astype(data.dtype)
-            if self.t["poisson"]:
+            if self.t.poisson:
                 k = np.arange(n)
                 var_unit = self.tframe * np.sum(w[:, None] * w[None, :] *
                                                 np.minimum(k[:, None], k[None, :]))
                 noise = self.sig_rng.standard_normal(data.shape)
                 data += (noise * np.sqrt(self.rate * var_unit)).astype(data.dtype)
-        leak = self.t["leakage"]
+        leak = self.t.leakage
         if leak:
             data += np.asarray(leak, dtype=data.dtype)
             if phantom is not None:

@@ -69,11 +69,11 @@ def test_a_sweep_cell_is_a_case():
     cell = sw.cells()[0]
     task = sw.task(cell)
     row = run_cell(task)
-    seed = int(np.random.SeedSequence(task["entropy"]).generate_state(1, np.uint64)[0])
-    m = run_case(task["scene"], "spherex-default", {"bins": 5}, seed=seed,
+    seed = int(np.random.SeedSequence(task.entropy).generate_state(1, np.uint64)[0])
+    m = run_case(task.scene, "spherex-default", {"bins": 5}, seed=seed,
                  mode="slopes").measurement
-    assert row["band_power"] == m["band_power"].value
-    np.testing.assert_array_equal(row["power"], m["power"])
+    assert row.band_power == m["band_power"].value and row.cell == cell
+    np.testing.assert_array_equal(row.power, m["power"])
 
 
 def test_the_measure_never_sees_the_reference_pixels():

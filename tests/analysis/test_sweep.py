@@ -165,3 +165,30 @@ def test_scheduler_that_accepts_and_stays_silent_is_refused_within_the_timeout()
         with pytest.raises(ConfigError, match="no dask scheduler answered within 2 s"):
             check_scheduler(address, timeout=2)
         assert time.perf_counter() - t0 < 10
+
+
+def test_every_column_of_a_row_is_its_cells_case_measured_alone(serial):
+    """A row of the table holds what its cell gives when simulated, reduced and measured
+    by hand (`run_case` with the cell's readout values and seed), column by column."""
+    import json
+
+    from spherex_reduce.analysis.case import run_case
+
+    sw = load_sweep(SWEEP)
+    t = serial.table
+    i = 5
+    cell = {"skip": int(t["skip"][i]), "ref_mode": str(t["ref_mode"][i]),
+            "pipeline": str(t["pipeline"][i]), "realization": int(t["realization"][i])}
+    entropy = sw.cell_seed(cell).entropy
+    seed = int(np.random.SeedSequence(entropy).generate_state(1, np.uint64)[0])
+    scene = {**SWEEP["scene"], "readout": {**SWEEP["scene"]["readout"], "skip": cell["skip"],
+                                           "ref_mode": cell["ref_mode"]}}
+    m = run_case(scene, "spherex-default", SWEEP["measure"], seed=seed,
+                 mode="slopes").measurement
+    assert t["seed"][i] == json.dumps(entropy)
+    assert t["band_power"][i] == m["band_power"].value
+    assert t["band_power_err"][i] == m["band_power_err"].value
+    assert t["std"][i] == m["std"] and t["masked_fraction"][i] == m["masked_fraction"]
+    np.testing.assert_array_equal(t["k"][i], m["k"])
+    np.testing.assert_array_equal(t["power"][i], m["power"])
+    assert t["band_power"].unit == m["band_power"].unit and 0 < t["seconds"][i] < 600

@@ -1,6 +1,8 @@
 """``reduce A.fits B.fits ... -o OUTDIR``: each file reduced on dask exactly as alone, a summary."""
 
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from _cli_helpers import digest, one_line_error, run
@@ -167,15 +169,15 @@ def test_a_worker_follows_the_checksum_policy_it_is_given(tmp_path, raws):
         offset = hdul["SCI"]._data_offset
     data[offset:offset + 4] = np.float32(12345.0).tobytes()[::-1]  # big-endian, another value
     damaged.write_bytes(bytes(data))
-    task = {"input": str(damaged), "output": str(tmp_path / "out.fits"),
-            "config": {"steps": [{"unchop": {}}]}, "source": "unchop"}
+    task = batch.BatchTask(str(damaged), str(tmp_path / "out.fits"),
+                           {"steps": [{"unchop": {}}]}, "unchop")
     failed = batch.reduce_file(task)
-    assert failed["status"] == "failed" and "checksum" in failed["error"]
-    assert failed["kind"] == "input" and not (tmp_path / "out.fits").exists()
-    done = batch.reduce_file({**task, "verify_checksum": False})
-    assert done["status"] == "done", done["error"]
+    assert failed.status == "failed" and "checksum" in failed.error
+    assert failed.kind == "input" and not (tmp_path / "out.fits").exists()
+    done = batch.reduce_file(replace(task, verify_checksum=False))
+    assert done.status == "done", done.error
     assert "SCI" in read(tmp_path / "out.fits").header["SXRCKBAD"]
-    assert any("checksum" in note for note in done["notes"])  # the warning, for the log
+    assert any("checksum" in note for note in done.notes)  # the warning, for the log
 
 
 def test_warnings_while_reducing_a_file_are_logged_naming_it(tmp_path, raws, monkeypatch,
@@ -208,11 +210,10 @@ def test_a_worker_follows_the_dq_bits_it_is_given(tmp_path, small_schedule):
         flags[10, 3] = 4  # bit 2 only
         hdus.append(fits.ImageHDU(flags, name="DQ"))
         fits.HDUList(hdus).writeto(foreign)
-    task = {"input": str(foreign), "config": {"steps": ["unchop", "fit_ramp"]},
-            "source": "test"}
-    plain = batch.reduce_file({**task, "output": str(tmp_path / "a.fits"), "dq_bits": 1})
-    masked = batch.reduce_file({**task, "output": str(tmp_path / "b.fits"), "dq_bits": 4})
-    assert plain["status"] == masked["status"] == "done", (plain["error"], masked["error"])
+    task = batch.BatchTask(str(foreign), "", {"steps": ["unchop", "fit_ramp"]}, "test")
+    plain = batch.reduce_file(replace(task, output=str(tmp_path / "a.fits"), dq_bits=1))
+    masked = batch.reduce_file(replace(task, output=str(tmp_path / "b.fits"), dq_bits=4))
+    assert plain.status == masked.status == "done", (plain.error, masked.error)
     assert np.isfinite(read(tmp_path / "a.fits").data.data[10, 3])
     assert np.isnan(read(tmp_path / "b.fits").data.data[10, 3])
 

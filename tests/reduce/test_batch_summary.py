@@ -5,15 +5,15 @@ import math
 import pytest
 from astropy.table import Table
 
-from spherex_reduce.reduce.batch_summary import SummaryFile, read_rows
+from spherex_reduce.reduce.batch_summary import SummaryFile, SummaryRow, read_rows
 from spherex_reduce.reduce.pipeline import as_pipeline
 
 
 def row(out, name, status, median=1.0):
-    return {"input": f"raw/{name}.fits", "output": str(out / f"{name}_reduced.fits"),
-            "status": status, "median": median, "robust_std": 0.5,
-            "unit": "" if status == "failed" else "electron / s", "seconds": 1.0,
-            "error": "broken" if status == "failed" else ""}
+    return SummaryRow(f"raw/{name}.fits", str(out / f"{name}_reduced.fits"), status,
+                      median=median, robust_std=0.5,
+                      unit="" if status == "failed" else "electron / s", seconds=1.0,
+                      error="broken" if status == "failed" else "")
 
 
 @pytest.fixture
@@ -61,9 +61,10 @@ def test_rows_read_back_as_written(out):
     SummaryFile(out / "summary.ecsv", pipeline).record(
         [row(out, "a", "done", 3.25), row(out, "x", "failed")])
     got = read_rows(out / "summary.ecsv", pipeline.config_hash)
-    assert [r["status"] for r in got] == ["done", "failed"]
-    assert got[0]["median"] == 3.25 and got[0]["unit"] == "electron / s"
-    assert got[1]["error"] == "broken" and math.isnan(got[1]["median"]) is False
+    assert [r.status for r in got] == ["done", "failed"]
+    assert got[0].median == 3.25 and got[0].unit == "electron / s"
+    assert got[1].error == "broken" and math.isnan(got[1].median) is False
+    assert got[0] == row(out, "a", "done", 3.25)  # every column as written
     assert read_rows(out / "summary.ecsv", "another hash") == []
     (out / "summary.ecsv").write_text("not a table\n")
     assert read_rows(out / "summary.ecsv", pipeline.config_hash) == []

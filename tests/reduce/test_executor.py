@@ -12,6 +12,7 @@ from spherex_reduce.io.examples import example_raw_exposure
 from spherex_reduce.io.sources import FileSource, MemorySource, context_of
 from spherex_reduce.reduce.executor import bands, execute
 from spherex_reduce.reduce.hookspecs import hookimpl
+from spherex_reduce.reduce.options import RunOptions
 from spherex_reduce.reduce.step import Consumer, Kernel
 
 
@@ -140,8 +141,9 @@ def test_a_per_row_kernel_in_any_bands_and_threads_equals_numpy(raw, rows, threa
     exposure = raw if ramp else Exposure.from_arrays(raw.data.data[0], raw.schedule)
     before = np.array(exposure.data.data)
     done = []
-    out = execute(MemorySource(exposure), [AddRowValue(context_of(exposure))],
-                  threads=threads, rows_per_band=rows, progress=done.append)
+    out, _ = execute(MemorySource(exposure), [AddRowValue(context_of(exposure))],
+                     options=RunOptions(threads=threads), rows_per_band=rows,
+                     progress=done.append)
     nrows = before.shape[-2]
     expected = before + (10.0 * np.arange(nrows) + 0.5)[:, None]
     assert out.data.data.shape == before.shape
@@ -157,17 +159,18 @@ def test_a_per_row_kernel_in_any_bands_and_threads_equals_numpy(raw, rows, threa
 def test_a_consumer_sees_every_row_of_memory_exactly_once(raw, rows, threads):
     source = MemorySource(raw)
     log = RowLog(raw)
-    timings = {}
-    assert execute(source, [], log, threads=threads, rows_per_band=rows,
-                   timings=timings) is raw
+    result, stats = execute(source, [], log, options=RunOptions(threads=threads),
+                            rows_per_band=rows)
+    assert result is raw
     seen = np.concatenate([idx for idx, _ in log.bands])
     assert np.array_equal(np.sort(seen), np.arange(raw.schedule.n_reads))  # once each
     for idx, data in log.bands:
         np.testing.assert_array_equal(data, raw.data.data[:, idx])
         assert len(idx) <= rows
     nbands = -(-raw.schedule.n_reads // rows)
-    assert timings["bands"] == len(log.bands) == nbands
-    assert timings["threads"] == threads
+    assert stats.bands == len(log.bands) == nbands
+    assert stats.threads == threads and stats.kernels == ()
+    assert stats.consumer > 0 and stats.read > 0
     if threads == 1 or nbands == 1:
         assert log.threads == {threading.current_thread().name}
 
@@ -180,7 +183,7 @@ def test_a_consumer_sees_every_row_of_a_file_exactly_once(tmp_path, raw, threads
     with FrameReader(path) as reader:
         source = FileSource(reader)
         log = RowLog(raw)
-        execute(source, [], log, threads=threads, rows_per_band=3)
+        execute(source, [], log, options=RunOptions(threads=threads), rows_per_band=3)
     seen = np.concatenate([idx for idx, _ in log.bands])
     assert np.array_equal(np.sort(seen), np.arange(raw.schedule.n_reads))
     for idx, data in log.bands:
@@ -192,7 +195,8 @@ def test_an_error_in_a_band_reaches_the_caller_and_the_bands_not_started_never_r
                                                                                    threads):
     kernel = BreaksOnFirstRow(context_of(raw))
     with pytest.raises(RuntimeError, match="broke on row 0"):
-        execute(MemorySource(raw), [kernel], threads=threads, rows_per_band=1)
+        execute(MemorySource(raw), [kernel], options=RunOptions(threads=threads),
+                rows_per_band=1)
     if threads == 1:  # in order: nothing after the failing band
         assert kernel.seen == [0]
     # 34 bands of one row: only those already running when band 0 failed ran

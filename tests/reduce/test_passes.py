@@ -10,12 +10,15 @@ import pytest
 from spherex_reduce import Pipeline, write
 from spherex_reduce.io.examples import example_raw_exposure
 from spherex_reduce.io.sources import MemorySource, open_input
+from spherex_reduce.reduce.options import RunOptions
 from spherex_reduce.reduce.passes import Pass, Whole, plan_pass, run_pass
+
+ONE = RunOptions(threads=1)
 
 
 def _plan(steps, source, start=0):
-    planned = Pipeline({"steps": steps})._planned(threads=1)
-    return planned, plan_pass(planned, start, source, threads=1)
+    planned = Pipeline({"steps": steps})._planned(ONE)
+    return planned, plan_pass(planned, start, source, ONE)
 
 
 def _names(items):
@@ -29,11 +32,11 @@ def test_the_papers_reduction_is_one_pass_into_fit_ramp_then_a_whole_clip():
     assert isinstance(plan, Pass) and plan.end == 4 and not plan.skipped
     assert _names(p for p, _ in plan.kernels) == steps[:3]
     assert plan.consumer[0].name == "fit_ramp"
-    image, busy, route = run_pass(source, plan, threads=1)
+    image, busy, route = run_pass(source, plan, options=ONE)
     assert image.data.data.ndim == 2 and set(busy) == {0, 1, 2, 3}
     assert route.startswith("executor pass of 4 step(s)") and route.endswith("from memory "
                                                                             "on 1 thread(s)")
-    rest = plan_pass(planned, 4, MemorySource(image), threads=1)
+    rest = plan_pass(planned, 4, MemorySource(image), ONE)
     assert isinstance(rest, Whole) and rest.planned.name == "sigma_clip"
 
 
@@ -53,7 +56,7 @@ def test_a_strategy_that_needs_the_exposure_is_first_of_a_pass_in_memory_only(tm
     _, plan = _plan(steps, MemorySource(raw))
     assert _names(p for p, _ in plan.kernels) == ["unchop"] and plan.end == 1
     # first of a pass over an exposure in memory: a kernel of the pass
-    unchopped = run_pass(MemorySource(raw), plan, threads=1)[0]
+    unchopped = run_pass(MemorySource(raw), plan, options=ONE)[0]
     _, plan = _plan(steps, MemorySource(unchopped), start=1)
     assert _names(p for p, _ in plan.kernels) == ["correct_reference"]
     # first of a pass over a file: runs whole, on the exposure read from it

@@ -55,3 +55,31 @@ def test_example_scene_is_the_default_case():
     sc, default = load_scene(f), load_scene()
     assert sc.schedule == default.schedule and sc.components == default.components
     assert sc.seed == 1234 and sc.mode == "slopes"
+
+
+def test_scene_terms_are_a_record_and_the_simulation_history_names_them_as_written():
+    """The ``scene:`` section read into `SceneTerms` (defaults from the file's table) and
+    written to the simulated file's HISTORY as the same mapping, keys in table order."""
+    import json
+
+    from spherex_reduce.simulation import simulate
+    from spherex_reduce.simulation.scene import SceneTerms, Telegraph
+
+    given = {"readout": {"nframes": 4}, "geometry": {"nrows": 16, "ncols": 16, "nchannels": 2,
+                                                     "ref_border": 4},
+             "noise": {"components": []},
+             "scene": {"photocurrent": 2, "rtn": {"fraction": 0.5, "amplitude": 3}}}
+    terms = load_scene(given).terms
+    assert terms == SceneTerms(dark_current=0.0, hot_pixel_fraction=0.0,
+                               hot_pixel_current=10.0, photocurrent=2.0, leakage=0.0,
+                               poisson=True, rtn=Telegraph(0.5, 3.0, 0.1, "active"))
+    assert terms.rtn.on and load_scene({}).terms.rtn is None
+    history = "".join(str(h) for h in simulate(given, seed=1).header["HISTORY"])
+    written, _ = json.JSONDecoder().raw_decode(history, history.index("scene {") + 6)
+    assert written == {
+        "dark_current": 0.0, "hot_pixel_fraction": 0.0, "hot_pixel_current": 10.0,
+        "photocurrent": 2.0, "leakage": 0.0, "poisson": True,
+        "rtn": {"fraction": 0.5, "amplitude": 3.0, "rate": 0.1, "pixels": "active"}}
+    assert list(written) == [
+        "dark_current", "hot_pixel_fraction", "hot_pixel_current", "photocurrent", "leakage",
+        "poisson", "rtn"]

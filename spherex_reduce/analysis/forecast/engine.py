@@ -391,8 +391,8 @@ def poisson_variance(scene):
     True
     """
     t = scene.terms
-    rate = t["dark_current"] + t["photocurrent"]
-    if not (t["poisson"] and rate > 0):
+    rate = t.dark_current + t.photocurrent
+    if not (t.poisson and rate > 0):
         return 0.0
     s = scene.schedule
     return rate * slope_variance_factor(s.nframes) * s.geometry.pixel_rate / s.frame_samples
@@ -400,10 +400,9 @@ def poisson_variance(scene):
 
 def _check_terms(terms):
     """Refuse the scene terms that add noise other than Gaussian readout and Poisson noise."""
-    rtn = terms.get("rtn") or {}
     named = [name for name, on in (
-        ("hot pixels", terms["hot_pixel_fraction"] > 0),
-        ("telegraph noise", rtn.get("fraction", 0) > 0 and rtn.get("amplitude", 0) > 0),
+        ("hot pixels", terms.hot_pixel_fraction > 0),
+        ("telegraph noise", terms.rtn is not None and terms.rtn.on),
     ) if on]
     if named:
         raise SpherexReduceError(f"forecast: the scene has {', '.join(named)}; only the "

@@ -90,9 +90,9 @@ class SweepForecast:
         if key not in self._done:
             point = {k: plain_value(row[k]) for k in (*self.sweep.keys, "pipeline")}
             task = self.sweep.task({**point, "realization": 0})
-            m = SpectrumMeasure(**task["measure"])
+            m = SpectrumMeasure(**task.measure)
             try:
-                t = forecast(task["scene"], task["pipeline"], m)
+                t = forecast(task.scene, task.pipeline, m)
             except SpherexReduceError as exc:
                 self.failed.append({"cell": point, "error": f"forecast: {exc}"})
                 nan = np.full(m.edges((2, 2)).size - 1, np.nan)

@@ -111,7 +111,7 @@ def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, dark_c
     from the rate pooled over the segments (as stcal does; see
     `spherex_reduce.reduce.steps.fit_ramp.segments`).  The input is never
     modified.  Bands of rows are fitted on
-    `~spherex_reduce.reduce.executor.default_threads` threads; the
+    `~spherex_reduce.reduce.options.default_threads` threads; the
     numbers do not depend on the bands or the threads.
 
     Examples

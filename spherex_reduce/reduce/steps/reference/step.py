@@ -272,7 +272,7 @@ def apply_offsets(exposure, offsets, parity, n_used, n_clipped, strategy):
     est = ReferenceOffsets(off, np.asarray(n_used), np.asarray(n_clipped), list(parity))
     source = MemorySource(exposure)
     kernel = ReferenceKernel(source.context, _Given(est, strategy))
-    return execute(source, [kernel])
+    return execute(source, [kernel])[0]
 
 
 def _column_plan(geometry, offsets, strategy, acn):

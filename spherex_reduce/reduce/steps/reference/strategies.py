@@ -21,8 +21,8 @@ from ....core.errors import SpherexReduceError
 from ....core.parameters import Parameter, validate_parameters
 from ....core.source_mask import source_mask
 from ....io.sources import context_of, side_block
-from ...executor import default_threads
 from ...noise_effect import MEASURED_SIGMA, ReferenceEffect
+from ...options import default_threads
 from ...step import Strategy
 from .telegraph import TELEGRAPH_PARAMETERS, drop_telegraph
 

@@ -10,6 +10,7 @@ from spherex_reduce.core.errors import SpherexReduceError, StepSkipped
 from spherex_reduce.io.examples import example_raw_exposure, tiny_schedule
 from spherex_reduce.io.sources import MemorySource
 from spherex_reduce.reduce.executor import execute
+from spherex_reduce.reduce.options import RunOptions
 from spherex_reduce.reduce.steps.fit_ramp.step import FitRampStep, RampFit
 
 
@@ -338,7 +339,7 @@ def _case(name):
 def _in_bands(exposure, rows, threads, **params):
     source = MemorySource(exposure)
     return execute(source, [], FitRampStep().consumer(source.context, **params),
-                   threads=threads, rows_per_band=rows)
+                   options=RunOptions(threads=threads), rows_per_band=rows)[0]
 
 
 def _assert_identical(a, b):
@@ -459,8 +460,7 @@ def test_consumer_refuses_images_and_bad_parameters():
 
 def test_threads_are_the_steps_option_not_fixed_at_import():
     exposure, params, *_ = _case("nan")
-    step = FitRampStep()
-    step.threads = 3
+    step = FitRampStep(threads=3)
     calls = []
     import spherex_reduce.reduce.executor as executor_module
 
@@ -474,8 +474,8 @@ def test_threads_are_the_steps_option_not_fixed_at_import():
     try:
         executor_module.ThreadPoolExecutor = Counting
         source = MemorySource(exposure)
-        out = execute(source, [], step.consumer(source.context, **params), threads=step.threads,
-                      rows_per_band=4)
+        out, _ = execute(source, [], step.consumer(source.context, **params),
+                         options=step.options, rows_per_band=4)
     finally:
         executor_module.ThreadPoolExecutor = real
     assert calls == [3]

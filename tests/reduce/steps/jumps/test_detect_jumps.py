@@ -15,6 +15,7 @@ from spherex_reduce import (
 )
 from spherex_reduce.io.sources import MemorySource
 from spherex_reduce.reduce.executor import execute
+from spherex_reduce.reduce.options import RunOptions
 from spherex_reduce.reduce.steps.jumps.search import StepSearch
 from spherex_reduce.reduce.steps.jumps.step import DetectJumpsStep
 
@@ -217,7 +218,8 @@ def test_bands_and_threads_give_the_whole_exposures_flags():
     for rows, threads in ((1, 1), (3, 2), (7, 4)):
         for p in (params, {**params, "neighbours": True, "neighbours_above": 3.0}):
             kernel = step.kernel(MemorySource(e).context, **p)
-            out = execute(MemorySource(e), [kernel], threads=threads, rows_per_band=rows)
+            out, _ = execute(MemorySource(e), [kernel], options=RunOptions(threads=threads),
+                             rows_per_band=rows)
             expect = whole if not p["neighbours"] else step(e, **{**p}).dq
             np.testing.assert_array_equal(out.dq, expect)
 

@@ -6,30 +6,35 @@ paired comparison: every pipeline sees the same simulated exposure) and
 applies a measure to each reduced image.  `SpectrumMeasure` is the standard
 measure: P(k) and the band power, with the options of a sweep's ``measure``.
 
-A file of cases (a sweep, a comparison) names them in sections validated
-here: its scene (`scene_section`), pipelines (`pipeline_section`),
-realisations and seed (`realizations_section`, `seed_section`) and measure
-(`measure_section`); each raises a `~spherex_reduce.core.errors.ConfigError`
-whose message names the file (``label``) and the entry.
+A file of cases (a sweep, a comparison, a design) describes its keys by
+`~spherex_reduce.core.parameters.Parameter` tables; the keys they share are
+here: `SCENE`, `PIPELINES`, `REALIZATIONS`, `SEED` and `MEASURE`.  Their
+values are then read by `scene_section` (a path read relative to the file),
+`pipeline_section` (each pipeline named), `realizations_section` (at most
+`MAX_REALIZATIONS`), `seed_section` and `measure_section`; each raises a
+`~spherex_reduce.core.errors.ConfigError` whose message names the file
+(``label``) and the key.
 """
 
+import itertools
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from ..core.errors import ConfigError, SpherexReduceError
 from ..core.limits import check_count
+from ..core.parameters import Parameter, validate_file
 from ..io.config import load_yaml
 from ..reduce.pipeline import as_pipeline
 from ..simulation import simulate, simulate_to_fits
 from .light import light_sensitive_image
 from .spectrum import BAND_KMAX, BAND_KMIN, band_power, power_spectrum
 
-__all__ = ["MAX_REALIZATIONS", "CaseResult", "SpectrumMeasure", "measure_section",
-           "pipeline_section", "realizations_section", "run_case", "scene_section",
-           "seed_section"]
+__all__ = ["MAX_BINS", "MAX_REALIZATIONS", "MEASURE", "PIPELINES", "REALIZATIONS", "SCENE",
+           "SEED", "CaseResult", "SpectrumMeasure", "measure_section", "pipeline_section",
+           "realizations_section", "run_case", "scene_section", "seed_section"]
 
 
 @dataclass(frozen=True)
@@ -249,16 +254,41 @@ def run_case(scene, pipelines, measure=None, *, seed=None, mode=None, raw_path=N
     return result
 
 
-#: Most realisations a sweep (per cell) or a comparison may ask for.
+#: Most realisations a sweep (per cell), a comparison or a design may ask for.
 MAX_REALIZATIONS = 10_000
-#: the measure's keys and defaults: those of `SpectrumMeasure`
-_MEASURE = {f.name: f.default for f in fields(SpectrumMeasure)}
+#: Most k bins of a measure.
+MAX_BINS = 10_000
 
-# -- the sections of a file of cases (a sweep, a comparison) ----------------------------
+# -- the keys a file of cases shares (a sweep, a comparison, a design) ------------------
+
+#: ``scene:``: a scene (mapping) or the path of one, relative to the file (`scene_section`).
+SCENE = Parameter("scene", None, (dict, str, type(None)),
+                  "a scene (as for simulate) or the path of one")
+#: ``pipeline:``: a shipped name, a path, an inline config or a list of them
+#: (`pipeline_section`).
+PIPELINES = Parameter("pipeline", "spherex-default", (str, dict, list),
+                      "a shipped name, a path, an inline config or a list of them",
+                      items=Parameter("", None, (str, dict), "a pipeline"), length=(1, None))
+#: ``realizations:``: Monte Carlo realisations (the most: `realizations_section`).
+REALIZATIONS = Parameter("realizations", 1, (int,), "Monte Carlo realisations", minimum=1)
+#: ``seed:``: the seed of the random numbers.
+SEED = Parameter("seed", 0, (int,), "seed of the random numbers", minimum=0)
+#: ``measure:``: the options of a `SpectrumMeasure` (`measure_section`).
+MEASURE = Parameter("measure", None, (dict, type(None)), "the measure", fields=(
+    Parameter("kmin", SpectrumMeasure.kmin, (int, float), "band start (rad/pixel)", minimum=0),
+    Parameter("kmax", SpectrumMeasure.kmax, (int, float), "band end (rad/pixel)", minimum=0),
+    Parameter("bins", SpectrumMeasure.bins, (int, list),
+              "number of log bins, or the bin edges (rad/pixel)", minimum=1, maximum=MAX_BINS,
+              items=Parameter("", None, (int, float), "a bin edge (rad/pixel)", minimum=0),
+              length=(2, MAX_BINS + 1)),
+    Parameter("exclude_horizontal", SpectrumMeasure.exclude_horizontal, (bool,),
+              "leave out the k_y = 0 row"),
+    Parameter("mask_sources", SpectrumMeasure.mask_sources, (bool,), "mask sources"),
+))
 
 
 def scene_section(scene, label):
-    """The ``scene:`` of a sweep-like file: a mapping, or a path (relative to the file).
+    """The ``scene:`` of a file of cases: a mapping, or a path (relative to the file).
 
     Parameters
     ----------
@@ -274,7 +304,8 @@ def scene_section(scene, label):
     Raises
     ------
     ConfigError
-        Not a mapping, or a file that cannot be read; the message names ``label``.
+        Not a mapping or a path, or a file that cannot be read; the message
+        names ``label``.
 
     Examples
     --------
@@ -286,7 +317,7 @@ def scene_section(scene, label):
     ...
     spherex_reduce.core.errors.ConfigError: cmp.yaml: scene: scene file not found: ...
     """
-    scene = scene or {}
+    scene = validate_file({"scene": scene}, (SCENE,), label)["scene"] or {}
     if isinstance(scene, str):
         base = Path(label).parent if Path(label).is_file() else Path(".")
         path = Path(scene) if Path(scene).is_absolute() else base / scene
@@ -294,13 +325,11 @@ def scene_section(scene, label):
             scene, _ = load_yaml(path if path.is_file() else Path(scene), "scene")
         except (OSError, ConfigError) as exc:
             raise ConfigError(f"{label}: scene: {exc}") from None
-    if not isinstance(scene, dict):
-        raise ConfigError(f"{label}: scene: expected a mapping or a path")
     return scene
 
 
 def pipeline_section(pipes, label, key="pipeline"):
-    """Name -> pipeline (shipped name, path or inline dict) of a sweep-like file's ``key``.
+    """Name -> pipeline (shipped name, path or inline dict) of a file of cases' ``key``.
 
     A path is taken relative to the file when it names a file there; an
     inline config is named by its ``name`` (``pipeline-<i>`` without one).
@@ -308,19 +337,21 @@ def pipeline_section(pipes, label, key="pipeline"):
     Raises
     ------
     ConfigError
-        Not a name, path, inline config or list of them; a name used twice.
+        Not a name, path, inline config or non-empty list of them (`PIPELINES`);
+        a name used twice.
 
     Examples
     --------
     >>> from spherex_reduce.analysis.case import pipeline_section
     >>> pipeline_section(["spherex-default", {"name": "raw", "steps": []}], "sweep")
     {'spherex-default': 'spherex-default', 'raw': {'name': 'raw', 'steps': []}}
+    >>> pipeline_section([], "sweep", "pipelines")
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.core.errors.ConfigError: sweep: pipelines: expected a list of at least 1 ...
     """
+    pipes = validate_file({key: pipes}, (replace(PIPELINES, name=key),), label)[key]
     pipes = [pipes] if isinstance(pipes, (str, dict)) else pipes
-    if not isinstance(pipes, (list, tuple)) or not pipes or not all(isinstance(p, (str, dict))
-                                                             for p in pipes):
-        raise ConfigError(f"{label}: {key}: expected a shipped name, a path, an inline "
-                          "config or a list of them")
     base = Path(label).parent if Path(label).is_file() else None
     configs = {}
     for i, p in enumerate(pipes):
@@ -336,21 +367,31 @@ def pipeline_section(pipes, label, key="pipeline"):
 
 
 def realizations_section(nreal, label):
-    """The number of realisations: a whole number from 1 to `MAX_REALIZATIONS`.
+    """The number of realisations: `REALIZATIONS`, and at most `MAX_REALIZATIONS`.
+
+    Raises
+    ------
+    ConfigError
+        Not a whole number >= 1; the message names ``label``.
+    ResourceError
+        More than `MAX_REALIZATIONS`.
 
     Examples
     --------
     >>> from spherex_reduce.analysis.case import realizations_section
     >>> realizations_section(5, "sweep")
     5
+    >>> realizations_section(0, "sweep")
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.core.errors.ConfigError: sweep: realizations: must be >= 1, got 0
     """
-    if isinstance(nreal, bool) or not isinstance(nreal, int) or nreal < 1:
-        raise ConfigError(f"{label}: realizations: expected an integer >= 1, got {nreal!r}")
+    nreal = validate_file({"realizations": nreal}, (REALIZATIONS,), label)["realizations"]
     return check_count(nreal, f"{label}: realizations", MAX_REALIZATIONS)
 
 
 def seed_section(seed, label, key="seed"):
-    """A seed: a non-negative integer.
+    """A seed (`SEED`): a whole number >= 0.
 
     Examples
     --------
@@ -358,28 +399,46 @@ def seed_section(seed, label, key="seed"):
     >>> seed_section(-1, "sweep")
     Traceback (most recent call last):
     ...
-    spherex_reduce.core.errors.ConfigError: sweep: seed: expected a non-negative integer, got -1
+    spherex_reduce.core.errors.ConfigError: sweep: seed: must be >= 0, got -1
     """
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ConfigError(f"{label}: {key}: expected a non-negative integer, got {seed!r}")
-    return seed
+    return validate_file({key: seed}, (replace(SEED, name=key),), label)[key]
 
 
 def measure_section(measure, label, allowed=None):
-    """The ``measure:`` options over `SpectrumMeasure`'s defaults (``allowed``: the keys taken).
+    """The ``measure:`` options (`MEASURE`) over `SpectrumMeasure`'s defaults.
+
+    Parameters
+    ----------
+    measure : dict or None
+        The section as read.
+    label : str
+        The file's path or name, for messages.
+    allowed : sequence of str, optional
+        The keys taken (default: every option of `SpectrumMeasure`).
+
+    Returns
+    -------
+    dict
+        Every allowed key; ``kmin`` below ``kmax``, bin edges increasing.
 
     Examples
     --------
     >>> from spherex_reduce.analysis.case import measure_section
     >>> measure_section({"bins": 8}, "sweep")["bins"]
     8
+    >>> measure_section({"kmin": 0.5, "kmax": 0.2}, "sweep")
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.core.errors.ConfigError: sweep: measure: kmin must be below kmax, got ...
     """
-    allowed = tuple(_MEASURE) if allowed is None else tuple(allowed)
-    if measure is not None and not isinstance(measure, dict):
-        raise ConfigError(f"{label}: measure: expected a mapping, got {measure!r}")
-    out = {k: v for k, v in _MEASURE.items() if k in allowed}
-    for key, value in (measure or {}).items():
-        if key not in allowed:
-            raise ConfigError(f"{label}: measure.{key}: unknown; valid: {', '.join(allowed)}")
-        out[key] = value
+    fields = MEASURE.fields if allowed is None else tuple(
+        p for p in MEASURE.fields if p.name in allowed)
+    out = validate_file({"measure": measure}, (replace(MEASURE, fields=fields),),
+                        label)["measure"]
+    if "kmin" in out and "kmax" in out and not out["kmin"] < out["kmax"]:
+        raise ConfigError(f"{label}: measure: kmin must be below kmax, got "
+                          f"{out['kmin']:g} and {out['kmax']:g}")
+    edges = out.get("bins")
+    if isinstance(edges, list) and not all(b > a for a, b in itertools.pairwise(edges)):
+        raise ConfigError(f"{label}: measure.bins: the bin edges must increase, got {edges!r}")
     return out

@@ -33,7 +33,7 @@ import logging
 import math
 import time
 import traceback
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from astropy import units as u
@@ -41,6 +41,7 @@ from astropy.table import Table
 
 from ..core.errors import ConfigError, SpherexReduceError
 from ..core.limits import check_count
+from ..core.parameters import Parameter, validate_file
 from ..io import atomic_output
 from ..io.config import load_yaml
 from ..io.plotting import save_figure
@@ -49,6 +50,11 @@ from ..reduce.pipeline import as_pipeline
 from ..reduce.progress import run_tasks, task_notes
 from ..simulation import load_scene
 from .case import (
+    MEASURE,
+    PIPELINES,
+    REALIZATIONS,
+    SCENE,
+    SEED,
     SpectrumMeasure,
     measure_section,
     pipeline_section,
@@ -65,6 +71,8 @@ from .spectrum import EmptyBandError, band_label, band_power, band_theta
 from .tasks import PipelineRow, RealizationFailure, RealizationResult, RealizationTask
 
 __all__ = [
+    "COMPARISON_PARAMETERS",
+    "SKY_PARAMETERS",
     "CompareResult",
     "Comparison",
     "compare_strategies",
@@ -77,15 +85,29 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-_TOP = ("scene", "sky", "pipelines", "realizations", "seed", "measure")
-_SKY = {"rms": 0.05, "index": -2.0, "seed": 0}
 _MEASURE_KEYS = ("kmin", "kmax", "bins", "exclude_horizontal")
 #: The sky's spectral index must lie in this range (steeper fields are all k = 1).
 INDEX_RANGE = (-6.0, 4.0)
 #: Most pipelines one comparison may name.
 MAX_PIPELINES = 100
-#: Most k bins of the measure.
-MAX_BINS = 10_000
+#: The ``sky:`` of a comparison file: its rms, spectral index and seed.
+SKY_PARAMETERS = (
+    Parameter("rms", 0.05, (float,), "rms of the sky on the light-sensitive pixels (e/s; its "
+              "power must be a normal float64)", minimum=RMS_RANGE[0], maximum=RMS_RANGE[1],
+              unit="e/s"),
+    Parameter("index", -2.0, (float,), "spectral index: P(k) ∝ k^index",
+              minimum=INDEX_RANGE[0], maximum=INDEX_RANGE[1]),
+    replace(SEED, doc="seed of the sky (realisation r: SeedSequence([seed, r, SKY_TAG]))"),
+)
+#: The keys of a comparison file (`load_comparison`).
+COMPARISON_PARAMETERS = (
+    SCENE,
+    Parameter("sky", None, (dict, type(None)), "the sky injected", fields=SKY_PARAMETERS),
+    replace(PIPELINES, name="pipelines"),
+    REALIZATIONS,
+    replace(SEED, default=None, doc="seed of the noise (default: the scene's, or 0)"),
+    replace(MEASURE, fields=tuple(p for p in MEASURE.fields if p.name in _MEASURE_KEYS)),
+)
 #: Third word of the sky's SeedSequence, so that a sky seed equal to the noise seed
 #: still gives a sky independent of the noise.
 SKY_TAG = 0x736B79
@@ -140,18 +162,12 @@ class Comparison:
             measure=dict(self.measure))
 
 
-def _number(value, where):
-    if isinstance(value, str):  # YAML 1.1 reads 5e-2 (no dot) as a string
-        with contextlib.suppress(ValueError):
-            value = float(value)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(
-            value):
-        raise ConfigError(f"{where}: expected a finite number, got {value!r}")
-    return float(value)
-
-
 def load_comparison(source):
     """Validate a comparison file (path, YAML text or dict).
+
+    Its keys are described by `COMPARISON_PARAMETERS` (the ``sky`` by
+    `SKY_PARAMETERS`), each checked as every YAML file is
+    (`~spherex_reduce.core.parameters.validate_file`).
 
     Raises
     ------
@@ -174,37 +190,16 @@ def load_comparison(source):
     >>> load_comparison({"sky": {"rms": -1}})
     Traceback (most recent call last):
     ...
-    spherex_reduce.core.errors.ConfigError: comparison: sky.rms: must be > 0, got -1.0
+    spherex_reduce.core.errors.ConfigError: comparison: sky.rms: must be in [1e-20, 1e+20] e/s, ...
     """
     config, label = load_yaml(source, "comparison")
-    for key in config:
-        if key not in _TOP:
-            raise ConfigError(f"{label}: {key}: unknown key; valid: {', '.join(_TOP)}")
-    scene = scene_section(config.get("scene"), label)
+    values = validate_file(config, COMPARISON_PARAMETERS, label)
+    scene = scene_section(values["scene"], label)
     try:
         sc = load_scene(scene)
     except ConfigError as exc:
         raise ConfigError(f"{label}: scene: {exc}") from None
-    sky_in = config.get("sky") or {}
-    if not isinstance(sky_in, dict):
-        raise ConfigError(f"{label}: sky: expected a mapping (rms, index, seed), got {sky_in!r}")
-    for key in sky_in:
-        if key not in _SKY:
-            raise ConfigError(f"{label}: sky.{key}: unknown key; valid: {', '.join(_SKY)}")
-    sky = dict(_SKY)
-    sky["rms"] = _number(sky_in.get("rms", _SKY["rms"]), f"{label}: sky.rms")
-    if not sky["rms"] > 0:
-        raise ConfigError(f"{label}: sky.rms: must be > 0, got {sky['rms']}")
-    if not RMS_RANGE[0] <= sky["rms"] <= RMS_RANGE[1]:
-        raise ConfigError(f"{label}: sky.rms: must be in [{RMS_RANGE[0]:g}, {RMS_RANGE[1]:g}] "
-                          f"e/s (its power must be a normal float64), got {sky['rms']:g}")
-    sky["index"] = _number(sky_in.get("index", _SKY["index"]), f"{label}: sky.index")
-    lo, hi = INDEX_RANGE
-    if not lo <= sky["index"] <= hi:
-        raise ConfigError(f"{label}: sky.index: must be in [{lo:g}, {hi:g}], got "
-                          f"{sky['index']:g}")
-    sky["seed"] = seed_section(sky_in.get("seed", _SKY["seed"]), label, "sky.seed")
-    configs = pipeline_section(config.get("pipelines", "spherex-default"), label, "pipelines")
+    configs = pipeline_section(values["pipelines"], label, "pipelines")
     check_count(len(configs), f"{label}: pipelines", MAX_PIPELINES)
     for i, (name, pipe) in enumerate(configs.items()):
         try:
@@ -212,37 +207,18 @@ def load_comparison(source):
         except (SpherexReduceError, OSError) as exc:
             text = " ".join(str(exc).split())
             raise ConfigError(f"{label}: pipelines[{i}] ({name}): {text}") from None
-    nreal = realizations_section(config.get("realizations", 1), label)
-    seed = seed_section(config.get("seed", scene.get("seed") or 0), label, "seed")
-    measure = measure_section(config.get("measure"), label, _MEASURE_KEYS)
-    for key in ("kmin", "kmax"):
-        measure[key] = _number(measure[key], f"{label}: measure.{key}")
-    if not 0 <= measure["kmin"] < measure["kmax"]:
-        raise ConfigError(f"{label}: measure: needs 0 <= kmin < kmax, got "
-                          f"{measure['kmin']:g}, {measure['kmax']:g}")
-    _check_bins(measure["bins"], label)
-    if not isinstance(measure["exclude_horizontal"], bool):
-        raise ConfigError(f"{label}: measure.exclude_horizontal: expected true or false, got "
-                          f"{measure['exclude_horizontal']!r}")
+    nreal = realizations_section(values["realizations"], label)
+    seed = values["seed"] if values["seed"] is not None else seed_section(
+        scene.get("seed") or 0, label)
+    measure = measure_section(values["measure"], label, _MEASURE_KEYS)
+    measure.update(kmin=float(measure["kmin"]), kmax=float(measure["kmax"]))
     rows, cols = light_sensitive(sc.schedule.geometry)
     try:  # a band with no Fourier mode on the light-sensitive area: say so now
         band_power(np.ones((rows.stop - rows.start, cols.stop - cols.start)),
                    measure["kmin"], measure["kmax"])
     except EmptyBandError as exc:
         raise ConfigError(f"{label}: measure: {exc}") from None
-    return Comparison(scene, sc.mode, sky, configs, nreal, seed, measure, label)
-
-
-def _check_bins(bins, label):
-    """A number of bins (1 to `MAX_BINS`) or at least two increasing edges >= 0."""
-    if isinstance(bins, int) and not isinstance(bins, bool) and 1 <= bins <= MAX_BINS:
-        return
-    if isinstance(bins, list) and 2 <= len(bins) <= MAX_BINS + 1 and all(
-            isinstance(b, (int, float)) and not isinstance(b, bool) and math.isfinite(b)
-            for b in bins) and bins[0] >= 0 and all(np.diff(bins) > 0):
-        return
-    raise ConfigError(f"{label}: measure.bins: expected a number of bins from 1 to {MAX_BINS} "
-                      f"or at least two increasing bin edges >= 0 (rad/pixel), got {bins!r}")
+    return Comparison(scene, sc.mode, values["sky"], configs, nreal, seed, measure, label)
 
 
 def white_floor(scene):

@@ -35,7 +35,7 @@ import logging
 import math
 import time
 import traceback
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -44,11 +44,17 @@ from astropy.table import Table
 
 from ..core.errors import ConfigError
 from ..core.limits import check_count
+from ..core.parameters import Parameter, validate_file
 from ..io import atomic_output
 from ..io.config import READOUT_PARAMETERS, load_yaml
 from ..reduce.progress import run_tasks
 from ..simulation import load_scene
 from .case import (
+    MEASURE,
+    PIPELINES,
+    REALIZATIONS,
+    SCENE,
+    SEED,
     SpectrumMeasure,
     measure_section,
     pipeline_section,
@@ -61,14 +67,27 @@ from .spectrum import BAND_KMAX, BAND_KMIN, band_label
 from .table_cells import plain_value
 from .tasks import CellFailure, CellResult, SweepTask
 
-__all__ = ["Sweep", "SweepResult", "load_sweep", "plot_sweep", "run_cell", "run_sweep"]
+__all__ = ["SWEEP_PARAMETERS", "Sweep", "SweepResult", "load_sweep", "plot_sweep", "run_cell",
+           "run_sweep"]
 
 log = logging.getLogger(__name__)
 
-_TOP = ("scene", "pipeline", "grid", "realizations", "seed", "mode", "measure")
-_READOUT_KEYS = tuple(p.name for p in READOUT_PARAMETERS)
 #: Most cells a sweep file may ask for (realisations per cell: `.case.MAX_REALIZATIONS`).
 MAX_CELLS = 100_000
+#: The keys of a sweep file (`load_sweep`).  The grid maps readout keys to their values,
+#: each checked by the cells (one that is invalid fails its cell only).
+SWEEP_PARAMETERS = (
+    SCENE,
+    PIPELINES,
+    Parameter("grid", None, (dict, type(None)), "readout key -> its values", fields=tuple(
+        Parameter(p.name, None, (list, bool, int, float, str, dict, type(None)),
+                  f"values of readout.{p.name}", length=(1, None))
+        for p in READOUT_PARAMETERS)),
+    replace(REALIZATIONS, minimum=0, doc="realisations per cell (0: the forecast alone)"),
+    replace(SEED, default=None, doc="seed of the sweep (default: the scene's, or 0)"),
+    Parameter("mode", "slopes", (str,), "the simulated output", choices=("slopes", "ramps")),
+    MEASURE,
+)
 
 
 @dataclass(frozen=True)
@@ -156,35 +175,23 @@ def load_sweep(source):
     (4, ('spherex-default',))
     """
     config, label = load_yaml(source, "sweep")
-    for key in config:
-        if key not in _TOP:
-            raise ConfigError(f"{label}: {key}: unknown key; valid: {', '.join(_TOP)}")
-    scene = scene_section(config.get("scene"), label)
-    configs = pipeline_section(config.get("pipeline", "spherex-default"), label, "pipeline")
+    values = validate_file(config, SWEEP_PARAMETERS, label)
+    scene = scene_section(values["scene"], label)
+    configs = pipeline_section(values["pipeline"], label, "pipeline")
     grid = config.get("grid") or {}
-    if not isinstance(grid, dict):
-        raise ConfigError(f"{label}: grid: expected a mapping of readout key -> list")
-    clean = {}
-    for key, values in grid.items():
-        if key not in _READOUT_KEYS:
-            raise ConfigError(f"{label}: grid.{key}: not a readout parameter; valid: "
-                              f"{', '.join(_READOUT_KEYS)}")
-        values = values if isinstance(values, list) else [values]
-        if not values:
-            raise ConfigError(f"{label}: grid.{key}: empty list")
-        clean[key] = values
-    nreal = config.get("realizations", 1)
-    if not (type(nreal) is int and nreal == 0):  # 0: forecast only (run_sweep's forecast)
+    clean = {key: v if isinstance(v, list) else [v]  # in the file's order
+             for key, v in ((key, values["grid"][key]) for key in grid)}
+    nreal = values["realizations"]
+    if nreal:  # 0: forecast only (run_sweep's forecast)
         nreal = realizations_section(nreal, label)
     ncells = math.prod(len(v) for v in clean.values()) * len(configs) * max(nreal, 1)
     check_count(ncells, f"{label}: the number of cells (grid x pipelines x realizations)",
                 MAX_CELLS)
-    seed = seed_section(config.get("seed", scene.get("seed") or 0), label, "seed")
-    mode = config.get("mode", "slopes")
-    if mode not in ("slopes", "ramps"):
-        raise ConfigError(f"{label}: mode: expected slopes or ramps, got {mode!r}")
+    seed = values["seed"] if values["seed"] is not None else seed_section(
+        scene.get("seed") or 0, label)
+    mode = values["mode"]
     _check_scene(scene, clean, mode, label)
-    measure = measure_section(config.get("measure"), label)
+    measure = measure_section(values["measure"], label)
     return Sweep(scene, tuple(configs), clean, nreal, seed, mode, measure, label, configs)
 
 

@@ -1,11 +1,12 @@
 """Declared parameters of steps, strategies and simulators, and their validation."""
 
+import contextlib
 import math
 from dataclasses import dataclass
 
 from .errors import ConfigError
 
-__all__ = ["OPTIONAL_NUMBER", "Parameter", "validate_parameters"]
+__all__ = ["OPTIONAL_NUMBER", "Parameter", "validate_file", "validate_parameters"]
 
 #: Types of a number parameter that may be null (``None``).
 OPTIONAL_NUMBER = (int, float, type(None))
@@ -37,9 +38,22 @@ class Parameter:
     exclusive_minimum : bool
         If true, ``minimum`` itself is not allowed (``> minimum``: for
         quantities where zero is meaningless, such as a rate or a threshold).
+    unit : str
+        Unit of a number, written after its bounds in messages (``'e/s'``).
+    items : `Parameter`, optional
+        A list's kind of item (its types, bounds and choices; its name is
+        not used): each item is checked as ``path[i]``.
+    length : tuple of (int, int or None), optional
+        Fewest and most items of a list (None: no most).
+    fields : sequence of `Parameter`, optional
+        A mapping's own table: the mapping is checked by
+        `validate_parameters` as ``path.key``, and its result (every field,
+        defaults filled in) is the value; left out, the value is the fields'
+        defaults.
 
     Numbers must be finite (``.nan`` and ``.inf`` are refused) and within the
-    bounds.
+    bounds.  Where a number is expected and text is not, text that reads as a
+    number is taken as it (YAML 1.1 reads ``5e-2``, without a dot, as text).
 
     Examples
     --------
@@ -53,6 +67,25 @@ class Parameter:
     Traceback (most recent call last):
     ...
     spherex_reduce.core.errors.ConfigError: geometry.pixel_rate: must be a finite number > 0, ...
+
+    A list of items of a kind, and a mapping with its own table:
+
+    >>> reads = Parameter("ref_reads", [8], (list,), "reference reads", length=(1, 3),
+    ...                   items=Parameter("", None, (int,), minimum=0))
+    >>> reads.check([0, 8], "search.ref_reads")
+    [0, 8]
+    >>> reads.check([8, -1], "search.ref_reads")
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.core.errors.ConfigError: search.ref_reads[1]: must be >= 0, got -1
+    >>> sky = Parameter("sky", None, (dict, type(None)), "the sky", fields=(
+    ...     Parameter("rms", 0.05, (float,), "rms", minimum=1e-20, maximum=1e20, unit="e/s"),))
+    >>> sky.check(None, "sky"), sky.check({"rms": "1e-2"}, "sky")
+    ({'rms': 0.05}, {'rms': 0.01})
+    >>> sky.check({"rms": 0}, "sky")
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.core.errors.ConfigError: sky.rms: must be in [1e-20, 1e+20] e/s, got 0.0
     """
 
     name: str
@@ -63,6 +96,10 @@ class Parameter:
     minimum: float | None = None
     maximum: float | None = None
     exclusive_minimum: bool = False
+    unit: str = ""
+    items: "Parameter | None" = None
+    length: tuple | None = None
+    fields: tuple | None = None
 
     @property
     def bounds(self):
@@ -79,23 +116,45 @@ class Parameter:
     def check(self, value, path):
         """Return ``value`` converted for use, or raise `ConfigError` naming ``path``."""
         types = self.types
+        if isinstance(value, str) and float in types and str not in types:
+            with contextlib.suppress(ValueError):  # YAML 1.1 reads 5e-2 (no dot) as text
+                value = float(value)
         ok = isinstance(value, types) and not (isinstance(value, bool) and bool not in types)
         if not ok and float in types and isinstance(value, int) and not isinstance(value, bool):
             value, ok = float(value), True
         if not ok:
-            names = " or ".join(_TYPE_NAMES.get(t, t.__name__) for t in types)
+            names = " or ".join(_TYPE_NAMES.get(t, t.__name__) for t in types
+                                if not (t is int and float in types))
             raise ConfigError(f"{path}: expected {names}, got {value!r}")
         if self.choices is not None and value not in self.choices:
             raise ConfigError(f"{path}: {value!r} is not one of {list(self.choices)}")
         if isinstance(value, (int, float)) and not isinstance(value, bool):
-            if not math.isfinite(value):
-                raise ConfigError(f"{path}: must be a finite number {self.bounds}".rstrip()
-                                  + f", got {value!r}")
-            lo, hi = self.minimum, self.maximum
-            if ((lo is not None and (value < lo or (self.exclusive_minimum and value == lo)))
-                    or (hi is not None and value > hi)):
-                raise ConfigError(f"{path}: must be {self.bounds}, got {value!r}")
+            self._check_number(value, path)
+        elif isinstance(value, list) and (self.items is not None or self.length is not None):
+            value = self._check_list(value, path)
+        elif self.fields is not None and isinstance(value, (dict, type(None))):
+            value = validate_parameters(value, self.fields, path)
         return value
+
+    def _check_number(self, value, path):
+        unit = f" {self.unit}" if self.unit else ""
+        if not math.isfinite(value):
+            raise ConfigError(f"{path}: must be a finite number {self.bounds}".rstrip()
+                              + f"{unit}, got {value!r}")
+        lo, hi = self.minimum, self.maximum
+        if ((lo is not None and (value < lo or (self.exclusive_minimum and value == lo)))
+                or (hi is not None and value > hi)):
+            raise ConfigError(f"{path}: must be {self.bounds}{unit}, got {value!r}")
+
+    def _check_list(self, value, path):
+        lo, hi = self.length or (0, None)
+        if len(value) < lo or (hi is not None and len(value) > hi):
+            many = f"at least {lo}" if hi is None else f"{lo} to {hi}"
+            raise ConfigError(f"{path}: expected a list of {many} "
+                              f"{'item' if (hi or lo) == 1 else 'items'}, got {value!r}")
+        if self.items is None:
+            return value
+        return [self.items.check(v, f"{path}[{i}]") for i, v in enumerate(value)]
 
 
 def validate_parameters(params, declared, path):
@@ -138,8 +197,55 @@ def validate_parameters(params, declared, path):
     for key in params:
         if key not in by_name:
             valid = ", ".join(by_name) or "(none: this takes no parameters)"
-            raise ConfigError(f"{path}.{key}: unknown parameter; valid: {valid}")
-    return {
-        name: p.check(params[name], f"{path}.{name}") if name in params else p.default
-        for name, p in by_name.items()
-    }
+            raise ConfigError(f"{_key_path(path, key)}: unknown parameter; valid: {valid}")
+    out = {}
+    for name, p in by_name.items():
+        where = _key_path(path, name)
+        if name in params:
+            out[name] = p.check(params[name], where)
+        elif p.fields is not None:
+            out[name] = validate_parameters(None, p.fields, where)
+        else:
+            out[name] = p.default
+    return out
+
+
+def validate_file(config, declared, label):
+    """Check a whole file's mapping against its table: `validate_parameters` naming the file.
+
+    Parameters
+    ----------
+    config : dict
+        The file as read (`~spherex_reduce.io.config.load_yaml`).
+    declared : sequence of `Parameter`
+        Its top-level keys (mappings and lists described by their own kinds).
+    label : str
+        The file's path or name: every message starts ``label: key.path: ...``.
+
+    Returns
+    -------
+    dict
+        Every declared key, in declaration order, defaults filled in.
+
+    Examples
+    --------
+    >>> from spherex_reduce.core.parameters import Parameter, validate_file
+    >>> table = [Parameter("seed", 0, (int,), "seed", minimum=0),
+    ...          Parameter("search", None, (dict, type(None)), "the search", fields=(
+    ...              Parameter("iterations", 100, (int,), "moves", minimum=0),))]
+    >>> validate_file({"search": {"iterations": 5}}, table, "design.yaml")
+    {'seed': 0, 'search': {'iterations': 5}}
+    >>> validate_file({"search": {"iterations": -5}}, table, "design.yaml")
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.core.errors.ConfigError: design.yaml: search.iterations: must be >= 0, got -5
+    """
+    try:
+        return validate_parameters(config, declared, "")
+    except ConfigError as exc:
+        raise ConfigError(f"{label}: {exc}") from None
+
+
+def _key_path(path, key):
+    """``path.key``, or ``key`` at the top of a file (``path`` empty)."""
+    return f"{path}.{key}" if path else key

@@ -105,3 +105,69 @@ def test_the_measure_never_sees_the_reference_pixels():
                                rtol=1e-12)
     assert m["band_power"].value == pytest.approx(band_power(light, 0.3, 1.0).value,
                                                   rel=1e-12)
+
+
+# -- the keys a design, a sweep and a comparison share: refused in the same words ---------
+SHARED = [
+    ({"seed": -1}, "seed: must be >= 0, got -1"),
+    ({"seed": 1.5}, "seed: expected integer, got 1.5"),
+    ({"seed": True}, "seed: expected integer, got True"),
+    ({"seed": None}, "seed: expected integer, got None"),
+    ({"realizations": 2.5}, "realizations: expected integer, got 2.5"),
+    ({"realizations": "5"}, "realizations: expected integer, got '5'"),
+    ({"realizations": 10**9}, "realizations must be a whole number from 1 to 10000, got "
+                              "1000000000"),
+    ({"scene": 5}, "scene: expected mapping or string or null, got 5"),
+    ({"scene": "no-such-scene.yaml"}, "scene: scene file not found: no-such-scene.yaml"),
+]
+MEASURED = [
+    ({"bins": 0}, "measure.bins: must be in [1, 10000], got 0"),
+    ({"bins": [0.5]}, "measure.bins: expected a list of 2 to 10001 items, got [0.5]"),
+    ({"bins": [0.1, -0.2]}, "measure.bins[1]: must be >= 0, got -0.2"),
+    ({"bins": [0.5, 0.2]}, "measure.bins: the bin edges must increase, got [0.5, 0.2]"),
+    ({"kmin": "low"}, "measure.kmin: expected number, got 'low'"),
+    ({"kmin": -0.1}, "measure.kmin: must be >= 0, got -0.1"),
+    ({"kmin": 0.5, "kmax": 0.2}, "measure: kmin must be below kmax, got 0.5 and 0.2"),
+    ({"exclude_horizontal": "yes"}, "measure.exclude_horizontal: expected boolean, got 'yes'"),
+    ({"colour": 1}, "measure.colour: unknown parameter; valid: kmin, kmax, bins, "
+                    "exclude_horizontal"),
+]
+
+
+def _refusal(load, config):
+    with pytest.raises(SpherexReduceError) as info:
+        load(config)
+    return type(info.value).__name__, str(info.value)
+
+
+def _loaders():
+    from spherex_reduce.analysis.compare import load_comparison
+    from spherex_reduce.analysis.design.file import load_design
+
+    design = {"scene": SCENE, "search": {"iterations": 0}, "realizations": 0}
+    return {"design": (load_design, design),
+            "sweep": (load_sweep, {"scene": SCENE, "grid": {"skip": [4]}}),
+            "comparison": (load_comparison, {"scene": SCENE, "measure": {
+                "kmin": 0.2, "kmax": 1.0, "bins": 6}})}
+
+
+@pytest.mark.parametrize(("change", "words"), SHARED)
+def test_a_design_a_sweep_and_a_comparison_refuse_a_shared_key_in_the_same_words(change,
+                                                                                  words):
+    for name, (load, base) in _loaders().items():
+        kind, text = _refusal(load, {**base, **change})
+        assert text == f"{name}: {words}", name
+        assert kind == ("ResourceError" if change.get("realizations") == 10**9
+                        else "ConfigError")
+
+
+@pytest.mark.parametrize(("change", "words"), MEASURED)
+def test_a_sweep_and_a_comparison_refuse_a_measure_in_the_same_words(change, words):
+    for name in ("sweep", "comparison"):
+        load, base = _loaders()[name]
+        measure = {**base.get("measure", {}), **change}
+        said = words  # a sweep's measure takes mask_sources too
+        if name == "sweep" and "colour" in change:
+            said = words.replace("exclude_horizontal", "exclude_horizontal, mask_sources")
+        assert _refusal(load, {**base, "measure": measure}) == ("ConfigError",
+                                                                 f"{name}: {said}"), name

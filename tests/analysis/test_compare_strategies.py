@@ -234,10 +234,10 @@ def test_floor_equals_the_band_power_of_white_pixel_noise():
 
 # -- validation and the command line ------------------------------------------------------
 @pytest.mark.parametrize("change, words", [
-    ({"colour": 1}, ["colour", "unknown key"]),
-    ({"sky": {"rms": 0}}, ["sky.rms", "> 0"]),
+    ({"colour": 1}, ["colour: unknown parameter; valid: scene, sky"]),
+    ({"sky": {"rms": 0}}, ["sky.rms: must be in [1e-20, 1e+20] e/s, got 0.0"]),
     ({"sky": {"rms": float("nan")}}, ["sky.rms", "finite"]),
-    ({"sky": {"rms": "big"}}, ["sky.rms", "finite number"]),
+    ({"sky": {"rms": "big"}}, ["sky.rms: expected number, got 'big'"]),
     ({"sky": {"index": 10}}, ["sky.index", "[-6, 4]"]),
     ({"sky": {"index": float("inf")}}, ["sky.index"]),
     ({"sky": {"rms": 0.1, "colour": 1}}, ["sky.colour"]),

@@ -94,7 +94,7 @@ def test_sweep_validation():
         load_sweep({"realizations": -1})
     # 0: no Monte Carlo cells, a forecast only (run_sweep refuses it without the forecast)
     assert load_sweep({"realizations": 0}).cells() == []
-    with pytest.raises(ConfigError, match="unknown key"):
+    with pytest.raises(ConfigError, match="sweep: grids: unknown parameter; valid: scene"):
         load_sweep({"grids": {}})
 
 

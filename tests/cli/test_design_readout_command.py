@@ -42,10 +42,11 @@ def test_design_writes_a_scene_that_simulate_forecast_and_reduce_accept(tmp_path
 
 
 @pytest.mark.parametrize(("text", "words"), [
-    ("search: {iterations: -3}\n", ["design.yaml: search.iterations: expected an integer"]),
+    ("search: {iterations: -3}\n",
+     ["design.yaml: search.iterations: must be in [0, 10000], got -3"]),
     ("pipeline: median\n", ["design.yaml: pipeline: forecast:", "median"]),
     ("pipeline: no-such\n", ["design.yaml: pipeline: no pipeline config file 'no-such'"]),
-    ("nonsense: 1\n", ["design.yaml: nonsense: unknown key"]),
+    ("nonsense: 1\n", ["design.yaml: nonsense: unknown parameter; valid: scene"]),
     ("budget: {frame_time: 0.5}\n", ["budget.frame_time: 0.5 s is too short"]),
     ("scene: {geometry: {nrows: 32, ncols: 16, nchannels: 2, ref_border: 4}, noise: "
      "{components: []}}\nband: {kmin: 0.3, kmax: 1.5}\nbaseline: {skip: 4, ref_reads: 8}\n",

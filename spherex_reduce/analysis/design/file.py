@@ -9,38 +9,61 @@ Examples
 --------
 >>> from spherex_reduce.analysis.design.file import load_design
 >>> d = load_design({"search": {"iterations": 10}, "pipeline": "none"})
->>> d.iterations, d.pipeline, d.frame_time, d.baseline["skip"]
+>>> d.iterations, d.pipeline, d.frame_time, d.baseline.skip
 (10, None, 1.51, 24)
 >>> load_design({"search": {"iterations": -1}})
 Traceback (most recent call last):
 ...
-spherex_reduce.core.errors.ConfigError: design: search.iterations: expected an integer from 0 ...
+spherex_reduce.core.errors.ConfigError: design: search.iterations: must be in [0, 10000], got -1
 """
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from astropy import units as u
 
 from ...core.errors import ConfigError, SpherexReduceError
+from ...core.parameters import Parameter, validate_file
 from ...io.config import load_yaml
 from ...reduce.steps.reference.noise_models import noise_model
 from ...simulation.scene import load_scene
-from ..case import pipeline_section, realizations_section, scene_section, seed_section
+from ..case import (
+    PIPELINES,
+    REALIZATIONS,
+    SCENE,
+    SEED,
+    pipeline_section,
+    realizations_section,
+    scene_section,
+)
 from ..forecast.steps import linear_steps
 from ..spectrum import BAND_KMAX, BAND_KMIN
 from .row_orders import FAMILIES, max_skip
 
-__all__ = ["BASELINE", "MAX_CHOICES", "MAX_ITERATIONS", "MAX_TIMINGS", "TOP_KEYS", "Design",
-           "load_design"]
+__all__ = ["BASELINE", "DESIGN_PARAMETERS", "MAX_CHOICES", "MAX_ITERATIONS", "MAX_TIMINGS",
+           "TOP_KEYS", "Baseline", "Design", "load_design"]
 
-TOP_KEYS = ("scene", "noise", "band", "bins", "pipeline", "budget", "baseline", "search",
-            "realizations", "seed")
-SEARCH_KEYS = ("families", "skips", "phantom_reads", "ref_reads", "ref_modes", "finalists",
-               "iterations", "seed")
+
+@dataclass(frozen=True)
+class Baseline:
+    """The readout the best schedule is judged against: skip ``S``, ``r``, placement, ``c``.
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.design.file import BASELINE
+    >>> BASELINE.skip, BASELINE.ref_reads, BASELINE.ref_mode, BASELINE.phantom_reads
+    (24, 32, 'distributed', 4)
+    """
+
+    skip: int
+    ref_reads: int
+    ref_mode: str
+    phantom_reads: int
+
+
 #: The paper's readout (S = 24, r = 32 distributed, c = 4): what the best schedule is judged
 #: against, at the same frame time.
-BASELINE = {"skip": 24, "ref_reads": 32, "ref_mode": "distributed", "phantom_reads": 4}
+BASELINE = Baseline(skip=24, ref_reads=32, ref_mode="distributed", phantom_reads=4)
 #: Most local-search iterations (each one forecast; ~1 s at full size).
 MAX_ITERATIONS = 10_000
 #: Most values a list of the search (skips, c, r) may hold.
@@ -49,6 +72,65 @@ MAX_CHOICES = 1000
 MAX_TIMINGS = 10_000
 _REF_MODES = ("distributed", "repeated")
 _REF_READS = (0, 8, 16, 32, 48, 64, 96, 128, 176)
+#: Most reads of a count of the search or the baseline (``c``, ``r``, ``S``).
+_MAX_READS = 2**20
+
+
+def _reads(name, default, doc, minimum=0):
+    """A count of reads, or a search's list of them (``default`` a list)."""
+    one = Parameter(name, default, (int,), doc, minimum=minimum, maximum=_MAX_READS)
+    if not isinstance(default, list):
+        return one
+    return Parameter(name, default, (list,), f"{doc}: the values tried", items=one,
+                     length=(1, MAX_CHOICES))
+
+
+def _names(name, choices, doc):
+    """A search's list of names (each one of ``choices``; default: all)."""
+    return Parameter(name, list(choices), (list,), doc, length=(1, MAX_CHOICES),
+                     items=Parameter(name, None, (str,), doc, choices=choices))
+
+
+_BASELINE_SKIP = _reads("skip", BASELINE.skip, "skip S (below the number of active rows)",
+                        minimum=1)
+#: The keys of DESIGN.yaml (`load_design`), each with its own table if a mapping.
+DESIGN_PARAMETERS = (
+    SCENE,
+    Parameter("noise", None, (str, type(None)),
+              "the noise: a noise table name, an ECSV file or a scene file"),
+    Parameter("band", None, (dict, type(None)), "the band minimised (rad/pixel)", fields=(
+        Parameter("kmin", BAND_KMIN, (float,), "band start (rad/pixel)", minimum=0,
+                  maximum=math.pi, exclusive_minimum=True),
+        Parameter("kmax", BAND_KMAX, (float,), "band end (rad/pixel)", minimum=0,
+                  maximum=math.pi, exclusive_minimum=True))),
+    Parameter("bins", 30, (int,), "log bins of the report's P(k)", minimum=1, maximum=1000),
+    replace(PIPELINES, types=(str, dict, type(None)), items=None, length=None,
+            doc="the reduction the forecast follows (none: the slope image)"),
+    Parameter("budget", None, (dict, type(None)), "the frame-time budget", fields=(
+        Parameter("frame_time", None, (float,), "frame time (s; default: the scene's)",
+                  minimum=0, maximum=1e6, exclusive_minimum=True),)),
+    Parameter("baseline", None, (dict, type(None)), "the readout judged against", fields=(
+        _BASELINE_SKIP,
+        _reads("ref_reads", BASELINE.ref_reads, "reference reads r"),
+        Parameter("ref_mode", BASELINE.ref_mode, (str,), "reference placement",
+                  choices=_REF_MODES),
+        _reads("phantom_reads", BASELINE.phantom_reads, "phantom reads c"))),
+    Parameter("search", None, (dict, type(None)), "what is searched", fields=(
+        _names("families", FAMILIES, "families of row orders"),
+        _reads("skips", list(range(1, 65)), "S of the skip and nested families", minimum=1),
+        _reads("phantom_reads", [0, 1, 2, 4, 8], "phantom reads c"),
+        _reads("ref_reads", list(_REF_READS), "reference reads r"),
+        _names("ref_modes", _REF_MODES, "reference placements"),
+        Parameter("finalists", 2, (int,), "orders whose timing is searched", minimum=1,
+                  maximum=100),
+        Parameter("iterations", 100, (int,), "moves of the local search", minimum=0,
+                  maximum=MAX_ITERATIONS),
+        replace(SEED, doc="seed of the local search"))),
+    replace(REALIZATIONS, default=20, minimum=0,
+            doc="realisations of the paired Monte Carlo (0: none)"),
+    replace(SEED, doc="seed of the paired Monte Carlo"),
+)
+TOP_KEYS = tuple(p.name for p in DESIGN_PARAMETERS)
 
 
 @dataclass(frozen=True)
@@ -62,7 +144,7 @@ class Design:
     kmax: float
     bins: int
     frame_time: float
-    baseline: dict
+    baseline: Baseline
     families: tuple
     skips: tuple
     phantom_reads: tuple
@@ -128,126 +210,52 @@ def load_design(source):
         names the file and the key.
     """
     config, label = load_yaml(source, "design")
-    for key in config:
-        if key not in TOP_KEYS:
-            raise ConfigError(f"{label}: {key}: unknown key; valid: {', '.join(TOP_KEYS)}")
-    scene = scene_section(config.get("scene"), label)
-    if config.get("noise") is not None:
-        scene = {**scene, "noise": _noise(config["noise"], label)}
+    v = validate_file(config, DESIGN_PARAMETERS, label)
+    scene = scene_section(v["scene"], label)
+    if v["noise"] is not None:
+        comps, _ = noise_model(v["noise"], f"{label}: noise")
+        scene = {**scene, "noise": {"components": [c.to_dict() for c in comps]}}
     try:
         sc = load_scene(scene)
     except ConfigError as exc:
         raise ConfigError(f"{label}: scene: {exc}") from None
-    pipeline = config.get("pipeline", "spherex-default")
+    pipeline = v["pipeline"]
     if pipeline in (None, "none"):
         pipeline = None
-    elif isinstance(pipeline, list):
-        _refuse(label, "pipeline", "expected one pipeline", pipeline)
     else:
         pipeline = next(iter(pipeline_section(pipeline, label).values()))
         try:
             linear_steps(pipeline)
         except (SpherexReduceError, OSError) as exc:
             raise ConfigError(f"{label}: pipeline: {exc}") from None
-    band = _mapping(config, "band", label, ("kmin", "kmax"))
-    kmin = _number(band.get("kmin", BAND_KMIN), label, "band.kmin", 0, math.pi)
-    kmax = _number(band.get("kmax", BAND_KMAX), label, "band.kmax", 0, math.pi)
-    if not kmin < kmax:
-        _refuse(label, "band", "kmin must be below kmax", band)
-    budget = _mapping(config, "budget", label, ("frame_time",))
-    frame_time = _number(budget.get("frame_time", sc.schedule.frame_time.to_value(u.s)), label,
-                         "budget.frame_time", 0, 1e6)
-    base = _mapping(config, "baseline", label, tuple(BASELINE))
-    baseline = {**BASELINE, **base}
-    _integer(baseline["skip"], label, "baseline.skip", 1,
-             max_skip(sc.schedule.geometry.n_active_rows))
-    for key in ("ref_reads", "phantom_reads"):
-        _integer(baseline[key], label, f"baseline.{key}", 0, 2**20)
-    if baseline["ref_mode"] not in _REF_MODES:
-        _refuse(label, "baseline.ref_mode", f"expected one of {', '.join(_REF_MODES)}",
-                baseline["ref_mode"])
-    search = _mapping(config, "search", label, SEARCH_KEYS)
-    families = tuple(_choices(search, "families", label, FAMILIES, str))
-    for f in families:
-        if f not in FAMILIES:
-            _refuse(label, "search.families", f"valid: {', '.join(FAMILIES)}", f)
-    phantom_reads = tuple(_choices(search, "phantom_reads", label, (0, 1, 2, 4, 8), int, 0))
-    ref_reads = tuple(_choices(search, "ref_reads", label, _REF_READS, int, 0))
-    ref_modes = tuple(_choices(search, "ref_modes", label, _REF_MODES, str))
-    finalists = _integer(search.get("finalists", 2), label, "search.finalists", 1, 100)
-    timings = finalists * len(phantom_reads) * len(ref_reads) * len(ref_modes)
+    band = v["band"]
+    if not band["kmin"] < band["kmax"]:
+        raise ConfigError(f"{label}: band: kmin must be below kmax, got {band['kmin']:g} and "
+                          f"{band['kmax']:g}")
+    frame_time = v["budget"]["frame_time"]
+    if frame_time is None:
+        frame_time = float(sc.schedule.frame_time.to_value(u.s))
+    baseline = Baseline(**v["baseline"])
+    rows = sc.schedule.geometry.n_active_rows  # S >= rows: the physical order
+    try:
+        replace(_BASELINE_SKIP, maximum=max_skip(rows)).check(baseline.skip, "baseline.skip")
+    except ConfigError as exc:
+        raise ConfigError(f"{label}: {exc}") from None
+    search = {k: tuple(dict.fromkeys(x)) if isinstance(x, list) else x
+              for k, x in v["search"].items()}
+    timings = (search["finalists"] * len(search["phantom_reads"]) * len(search["ref_reads"])
+               * len(search["ref_modes"]))
     if timings > MAX_TIMINGS:
         raise ConfigError(f"{label}: search: finalists x phantom_reads x ref_reads x "
                           f"ref_modes is {timings} schedules to forecast; at most "
                           f"{MAX_TIMINGS}")
+    realizations = v["realizations"] and realizations_section(v["realizations"], label)
     return Design(
-        label=label, scene=scene, pipeline=pipeline, kmin=kmin, kmax=kmax,
-        bins=_integer(config.get("bins", 30), label, "bins", 1, 1000),
-        frame_time=frame_time, baseline=baseline, families=families,
-        skips=tuple(_choices(search, "skips", label, range(1, 65), int, 1)),
-        phantom_reads=phantom_reads, ref_reads=ref_reads, ref_modes=ref_modes,
-        finalists=finalists,
-        iterations=_integer(search.get("iterations", 100), label, "search.iterations", 0,
-                            MAX_ITERATIONS),
-        search_seed=seed_section(search.get("seed", 0), label, "search.seed"),
-        realizations=_realizations(config.get("realizations", 20), label),
-        seed=seed_section(config.get("seed", 0), label),
+        label=label, scene=scene, pipeline=pipeline, kmin=band["kmin"], kmax=band["kmax"],
+        bins=v["bins"], frame_time=frame_time, baseline=baseline,
+        families=search["families"], skips=search["skips"],
+        phantom_reads=search["phantom_reads"], ref_reads=search["ref_reads"],
+        ref_modes=search["ref_modes"], finalists=search["finalists"],
+        iterations=search["iterations"], search_seed=search["seed"],
+        realizations=realizations, seed=v["seed"],
     )
-
-
-def _realizations(value, label):
-    """A sweep's realisations (`~spherex_reduce.analysis.case.realizations_section`), or 0:
-    no Monte Carlo."""
-    return 0 if type(value) is int and value == 0 else realizations_section(value, label)
-
-
-def _noise(source, label):
-    """The ``noise:`` section of a scene holding the components of a table, a fit-noise
-    result or a scene file, inline (so the best scene needs no other file)."""
-    if not isinstance(source, str):
-        _refuse(label, "noise", "expected a noise table name, an ECSV file or a scene file",
-                source)
-    comps, _ = noise_model(source, f"{label}: noise")
-    return {"components": [c.to_dict() for c in comps]}
-
-
-def _refuse(label, key, why, value):
-    raise ConfigError(f"{label}: {key}: {why}, got {value!r}")
-
-
-def _mapping(config, key, label, keys):
-    value = config.get(key) or {}
-    if not isinstance(value, dict):
-        _refuse(label, key, "expected a mapping", value)
-    for k in value:
-        if k not in keys:
-            raise ConfigError(f"{label}: {key}.{k}: unknown key; valid: {', '.join(keys)}")
-    return value
-
-
-def _number(value, label, key, low, high):
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
-            math.isfinite(value) and low < value <= high):
-        _refuse(label, key, f"expected a number in ({low:g}, {high:g}]", value)
-    return float(value)
-
-
-def _integer(value, label, key, low, high):
-    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-        _refuse(label, key, f"expected an integer from {low} to {high}", value)
-    return int(value)
-
-
-def _choices(search, key, label, default, kind, low=None):
-    """A non-empty list of at most `MAX_CHOICES` distinct values (integers >= ``low``)."""
-    value = search.get(key, list(default))
-    if not isinstance(value, list) or not value or len(value) > MAX_CHOICES:
-        _refuse(label, f"search.{key}", f"expected a list of 1 to {MAX_CHOICES} values", value)
-    for v in value:
-        if kind is int:
-            _integer(v, label, f"search.{key}", low, 2**20)
-        elif not isinstance(v, str):
-            _refuse(label, f"search.{key}", "expected names", v)
-        elif key == "ref_modes" and v not in _REF_MODES:
-            _refuse(label, f"search.{key}", f"expected {' or '.join(_REF_MODES)}", v)
-    return list(dict.fromkeys(value))

@@ -134,13 +134,13 @@ def design_readout(design, progress=False):
     seconds = {}
     t0 = time.perf_counter()
     b = d.baseline
-    if not scene_of.fits(g, b["phantom_reads"], b["ref_reads"]):
+    if not scene_of.fits(g, b.phantom_reads, b.ref_reads):
         raise ConfigError(f"{d.label}: budget.frame_time: {d.frame_time:g} s is too short for "
-                          f"the baseline's reads ({plural(n + b['ref_reads'], 'read')} with "
-                          f"c = {b['phantom_reads']})")
-    baseline = objective("baseline", "skip", f"S={b['skip']}", b["phantom_reads"],
-                         b["ref_reads"], b["ref_mode"], chopped_order(n, b["skip"]),
-                         b["skip"])
+                          f"the baseline's reads ({plural(n + b.ref_reads, 'read')} with "
+                          f"c = {b.phantom_reads})")
+    baseline = objective("baseline", "skip", f"S={b.skip}", b.phantom_reads,
+                         b.ref_reads, b.ref_mode, chopped_order(n, b.skip),
+                         b.skip)
     if not baseline.band_power > 0:
         raise ConfigError(f"{d.label}: noise: the baseline's forecast band power is "
                           f"{baseline.band_power:g} (no noise in the band): nothing to "
@@ -149,8 +149,8 @@ def design_readout(design, progress=False):
     orders = family_orders(n, d.families, d.skips)
     with terminal_bar(progress, total=len(orders), desc="families") as bar:
         for family, label, perm in orders:
-            objective("families", family, label, b["phantom_reads"], b["ref_reads"],
-                      b["ref_mode"], perm, int(label[2:]) if family == "skip" else None)
+            objective("families", family, label, b.phantom_reads, b.ref_reads,
+                      b.ref_mode, perm, int(label[2:]) if family == "skip" else None)
             bar.update()
     seconds["families"] = time.perf_counter() - t0
     t0 = time.perf_counter()

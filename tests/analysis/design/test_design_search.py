@@ -1,6 +1,8 @@
 """design_readout: the families of row orders, the search's optimum against a brute force
 over the public forecast, the frame-time budget, the report and the paired Monte Carlo."""
 
+import re
+
 import numpy as np
 import pytest
 from astropy import units as u
@@ -181,31 +183,33 @@ def test_a_noise_table_or_fit_noise_result_replaces_the_scenes_noise(tmp_path):
 
 
 @pytest.mark.parametrize(("design", "words"), [
-    ({"bogus": 1}, "design: bogus: unknown key"),
-    ({"search": {"iterations": 10**9}}, "design: search.iterations: expected an integer"),
-    ({"search": {"families": ["random"]}}, "search.families: valid: skip"),
+    ({"bogus": 1}, "design: bogus: unknown parameter; valid: scene, noise"),
+    ({"search": {"iterations": 10**9}}, "design: search.iterations: must be in [0, 10000], "
+                                       "got 1000000000"),
+    ({"search": {"families": ["skip", "random"]}},
+     "search.families[1]: 'random' is not one of ['skip', 'nested'"),
     ({"search": {"skips": []}}, "search.skips: expected a list of 1 to 1000"),
     ({"band": {"kmin": 1.0, "kmax": 0.5}}, "band: kmin must be below kmax"),
-    ({"budget": {"frame_time": -1}}, "budget.frame_time: expected a number"),
-    ({"realizations": 1.5}, "realizations: expected an integer"),
+    ({"budget": {"frame_time": -1}}, "budget.frame_time: must be in (0, 1e+06], got -1.0"),
+    ({"realizations": 1.5}, "realizations: expected integer, got 1.5"),
     ({"noise": "nosuch.ecsv"}, "noise: 'nosuch.ecsv' is neither"),
-    ({"baseline": {"ref_mode": "none"}}, "baseline.ref_mode: expected one of"),
+    ({"baseline": {"ref_mode": "none"}},
+     "baseline.ref_mode: 'none' is not one of ['distributed', 'repeated']"),
     ({"pipeline": "median"}, "design: pipeline: forecast: steps"),
     ({"pipeline": {"steps": [{"bogus": {}}]}}, "design: pipeline: steps"),
     ({"search": {"phantom_reads": list(range(100)), "ref_reads": list(range(100))}},
      "search: finalists x phantom_reads x ref_reads x ref_modes is 40000 schedules"),
 ])
 def test_bad_designs_are_refused_naming_the_key(design, words):
-    with pytest.raises(ConfigError, match=words.replace(".", r"\.").replace("(", r"\(")):
+    with pytest.raises(ConfigError, match=re.escape(words)):
         load_design(design)
 
 
 def test_the_baselines_skip_is_below_the_number_of_active_rows():
     # 32 rows with a border of 4: 24 active rows; S = 24 would read them in physical order
-    assert load_design(_design(baseline={"skip": 23})).baseline["skip"] == 23
+    assert load_design(_design(baseline={"skip": 23})).baseline.skip == 23
     for skip in (24, 1_000_000):
-        with pytest.raises(ConfigError, match=r"baseline\.skip: expected an integer from 1 "
-                                              rf"to 23, got {skip}"):
+        with pytest.raises(ConfigError, match=rf"baseline\.skip: must be in \[1, 23\], got {skip}"):
             load_design(_design(baseline={"skip": skip}))
 
 
@@ -229,8 +233,7 @@ def test_seeds_and_realizations_are_refused_as_a_sweep_refuses_them(key, value):
 def test_search_seed_and_zero_realizations():
     d = load_design({**_design(), "realizations": 0, "search": {"seed": 2**70}})
     assert (d.realizations, d.search_seed) == (0, 2**70)
-    with pytest.raises(ConfigError, match=r"design: search\.seed: expected a non-negative "
-                                          r"integer, got -1"):
+    with pytest.raises(ConfigError, match=r"design: search\.seed: must be >= 0, got -1"):
         load_design({"search": {"seed": -1}})
 
 

@@ -1,7 +1,8 @@
 """The architecture picture of docs/architecture.rst, drawn when the docs are built.
 
 Left: the layers of the package (``[tool.importlinter]`` in pyproject.toml),
-imports pointing down.  Right: the data flow of a reduction, one executor pass
+imports pointing down, and the rooms (subpackages) of each layer with their
+public entry.  Right: the data flow of a reduction, one executor pass
 and the steps run whole after it.  To look at it without building the docs::
 
     MPLBACKEND=Agg python -c "exec(open('docs/architecture_figure.py').read());
@@ -13,20 +14,23 @@ from matplotlib.patches import FancyArrowPatch, FancyBboxPatch
 
 LAYERS = [  # (folder, what it holds), top to bottom: each imports only from those below
     ("cli/", "spherex-reduce subcommands"),
-    ("analysis/", "run_case, P(k), sweeps, figures, compare-strategies,\n"
-                  "the demo"),
-    ("simulation/", "noise engine, scenes, slope routes,\n"
-                    "the simulator's plugin"),
-    ("reduce/", "pipeline (runs), passes (plans), executor, Step,\n"
-                "plugins, provenance, integrations, batch, steps/"),
-    ("io/", "open_input and the sources, FITS readers/writers,\n"
-            "config, plotting, examples"),
-    ("noise/", "noise components, PSDs, analytic slope\n"
-               "statistics, read covariances"),
-    ("core/", "exposure, block, schedule, geometry, fields,\n"
-              "dq, errors, limits, parameters, source_mask"),
+    ("analysis/", "run_case, P(k), temporal PSDs,\nsweeps, compare-strategies"),
+    ("simulation/", "noise engine, scenes, slope\nroutes, the simulator's plugin"),
+    ("reduce/", "pipeline, passes, executor,\nStep, plugins, provenance,\n"
+                "batch; steps/: unchop, phantom,\nclipping, dark, pairs, pixel_maps"),
+    ("io/", "open_input and the sources,\nwriter, config, plotting"),
+    ("noise/", "components, PSDs, slope\nstatistics, read covariances"),
+    ("core/", "exposure, block, geometry,\nfields, dq, errors, parameters"),
 ]
 LAYER_COLOURS = ["#d9d9d9", "#fde0c5", "#fde0c5", "#d9ead3", "#fff2cc", "#cfe2f3", "#ead1dc"]
+ROOMS = {  # layer: its rooms (subpackages), each (folder, its public entry)
+    "analysis/": [("forecast/", "forecast()"), ("design/", "design_readout()"),
+                  ("figures/", "make_figures(), demo")],
+    "reduce/": [("steps/reference/", "correct_reference()"),
+                ("steps/fit_ramp/", "fit_ramp()"), ("steps/jumps/", "detect_jumps()")],
+    "io/": [("readers/", "read(), every layout")],
+    "core/": [("readout/", "ReadoutSchedule")],
+}
 
 
 def box(ax, x, y, w, h, text, colour, size=9, weight="normal"):
@@ -45,17 +49,31 @@ def arrow(ax, start, end, text=None, offset=(0.08, 0), style="-|>", colour="0.2"
 
 
 def layers_panel(ax):
-    ax.set_title("Layers (folders of spherex_reduce/): imports only go down",
-                 fontsize=11, loc="left")
-    h, gap, w = 0.78, 0.32, 4.6
-    top = len(LAYERS) * (h + gap)
-    for i, ((name, what), colour) in enumerate(zip(LAYERS, LAYER_COLOURS, strict=True)):
-        y = top - (i + 1) * (h + gap)
-        box(ax, 0, y, 1.45, h, name, colour, size=10, weight="bold")
-        box(ax, 1.55, y, w - 1.55, h, what, colour, size=8)
+    ax.set_title("Layers (folders of spherex_reduce/): imports only go down;\n"
+                 "rooms (subpackages) and their public entry on the right",
+                 fontsize=10.5, loc="left")
+    room_h, gap, w, room_x = 0.36, 0.3, 7.4, 4.25
+    heights = [max(0.78, len(ROOMS.get(name, [])) * (room_h + 0.06) + 0.08,
+                   0.2 * (what.count("\n") + 1) + 0.16) for name, what in LAYERS]
+    top = sum(heights) + gap * len(LAYERS)
+    y = top
+    for i, ((name, what), colour, h) in enumerate(zip(LAYERS, LAYER_COLOURS, heights,
+                                                      strict=True)):
+        y -= h + gap
+        box(ax, 0, y, 1.4, h, name, colour, size=10, weight="bold")
+        box(ax, 1.5, y, room_x - 1.6, h, what, colour, size=8)
+        rooms = ROOMS.get(name, [])
+        for r, (room, entry) in enumerate(rooms):
+            ry = y + h - 0.06 - (r + 1) * (room_h + 0.06) + 0.02
+            box(ax, room_x, ry, w - room_x, room_h, "", colour, size=8)
+            ax.text(room_x + 0.08, ry + room_h / 2, room, fontsize=8, weight="bold",
+                    ha="left", va="center")
+            ax.text(w - 0.08, ry + room_h / 2, entry, fontsize=8, ha="right",
+                    va="center", family="monospace")
         if i:
-            arrow(ax, (0.62, y + h + gap - 0.02), (0.62, y + h + 0.02))
-    ax.text(0.72, top - h - 1.5 * gap, "imports", fontsize=8, va="center", color="0.2")
+            arrow(ax, (0.6, y + h + gap - 0.02), (0.6, y + h + 0.02))
+    ax.text(0.7, top - heights[0] - 1.5 * gap, "imports", fontsize=8, va="center",
+            color="0.2")
     ax.set_xlim(-0.1, w + 0.1)
     ax.set_ylim(-0.1, top + 0.1)
 
@@ -100,7 +118,8 @@ def flow_panel(ax):
     arrow(ax, (3.67, 1.45), (3.67, 0.85))
     arrow(ax, (0.95, 1.45), (0.95, 0.85))
     ax.text(5.12, 4.3, "one pass of\nthe executor\n(grey: io/sources.py\nand executor.py,\n"
-            "green: the steps'\nkernels and\nconsumer)", fontsize=8, va="center", color="0.2")
+            "green: the steps'\nkernels and\nconsumer, in\nreduce/steps/)",
+            fontsize=8, va="center", color="0.2")
     ax.plot([5.06, 5.06], [1.45, 7.2], color="0.4", linewidth=1)
     ax.set_xlim(-0.1, 6.6)
     ax.set_ylim(-0.1, 8.7)
@@ -108,8 +127,8 @@ def flow_panel(ax):
 
 def architecture_figure():
     """The figure (a pyplot figure, for the plot directive)."""
-    fig, (left, right) = plt.subplots(1, 2, figsize=(11.5, 6.2),
-                                      gridspec_kw={"width_ratios": [1.0, 1.2]})
+    fig, (left, right) = plt.subplots(1, 2, figsize=(14.5, 7.4),
+                                      gridspec_kw={"width_ratios": [1.45, 1.0]})
     for ax in (left, right):
         ax.set_axis_off()
     layers_panel(left)

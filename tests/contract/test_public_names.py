@@ -59,6 +59,37 @@ def test_functions_named_as_their_module_stay_functions():
     assert done.stdout.split() == ["function", "function", "function"]
 
 
+#: (package, public function, the subpackage of that name's module that holds it, another
+#: module of the subpackage, imported first): the function stays the package's attribute
+SHADOWED = [
+    ("spherex_reduce.analysis", "forecast", "spherex_reduce.analysis.forecast.engine",
+     "spherex_reduce.analysis.forecast.fft"),
+    ("spherex_reduce.reduce.steps", "fit_ramp", "spherex_reduce.reduce.steps.fit_ramp.step",
+     "spherex_reduce.reduce.steps.fit_ramp.segments"),
+]
+
+SHADOW_CHECK = """\
+import importlib, sys
+package, name, home, first = sys.argv[1:]
+importlib.import_module(first)  # sets the package's attribute to the subpackage
+pkg = sys.modules[package]
+function = getattr(importlib.import_module(home), name)
+print(getattr(pkg, name) is function, callable(getattr(pkg, name)),
+      importlib.import_module(f"{package}.{name}").__name__ == f"{package}.{name}")
+"""
+
+
+@pytest.mark.parametrize("package, name, home, first", SHADOWED, ids=[s[1] for s in SHADOWED])
+def test_a_subpackage_named_as_a_function_does_not_shadow_it(package, name, home, first):
+    # analysis/forecast/ beside analysis.forecast, reduce/steps/fit_ramp/ beside fit_ramp:
+    # importing any module of the subpackage makes the import system set the package's
+    # attribute to the subpackage; lazy_loader (>= 0.6) refuses that for names it attaches
+    done = subprocess.run([sys.executable, "-c", SHADOW_CHECK, package, name, home, first],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["True", "True", "True"]
+
+
 def test_a_name_shown_in_two_layers_is_one_object():
     import spherex_reduce
     from spherex_reduce import analysis, noise, simulation

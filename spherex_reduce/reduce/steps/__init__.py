@@ -1,6 +1,16 @@
-"""Reduction steps: one module per step, with its function, `Step` class and hook.
+"""Reduction steps: each with its function, `Step` class and hook, and their helpers.
 
-Each module registers its step with the plugin system (it is a built-in plugin,
+Steps: ``unchop`` (`unchop`, `rechop`), ``phantom`` (`subtract_phantom`),
+``clipping`` (`sigma_clip`), ``dark`` (`subtract_dark`, and `combine_darks`
+to make the master dark) and ``pairs`` (`pair_difference`) are one module
+each.  A step with helpers of its own is a subpackage whose ``step`` module is
+the step and whose other modules are its helpers: ``reference/``
+(`correct_reference` and its strategies), ``fit_ramp/`` (`fit_ramp`) and
+``jumps/`` (`detect_jumps`).  ``pixel_maps`` is a helper, not a step: the
+per-pixel read noise, gain and dark current shared by ``fit_ramp`` and
+``detect_jumps``.
+
+Each step's module registers it with the plugin system (it is a built-in plugin,
 see `spherex_reduce.reduce.plugins.BUILTIN_PLUGINS`); the functions here run the step
 alone, with its provenance recorded.
 """

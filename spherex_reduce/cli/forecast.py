@@ -72,8 +72,8 @@ def run(args):
              if getattr(args, key) is not None}
     if args.exclude_horizontal:
         given["exclude_horizontal"] = True
+    check_band(given.get("kmin", SpectrumMeasure.kmin), given.get("kmax", SpectrumMeasure.kmax))
     measure = SpectrumMeasure(**measure_section(given, "forecast"))
-    check_band(measure.kmin, measure.kmax)
     pipeline, config_files = input_config(args.config)
     check_paths([args.scene, args.compare, *config_files], [args.output, plot])
     with all_or_nothing([args.output, plot], args.overwrite) as (tmp, tmp_plot):

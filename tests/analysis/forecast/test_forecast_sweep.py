@@ -111,5 +111,5 @@ def test_what_the_forecast_refuses_is_refused_before_any_cell():
         run_sweep(SWEEP | {"pipeline": {"name": "p", "steps": [
             {"unchop": {}}, {"fit_ramp": {"weighting": "optimal"}}]}, "mode": "ramps",
             "realizations": 1}, forecast=True)
-    with pytest.raises(ConfigError, match="realizations: expected an integer"):
+    with pytest.raises(ConfigError, match="realizations: expected integer, got False"):
         run_sweep(SWEEP | {"realizations": False}, forecast=True)

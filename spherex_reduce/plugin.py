@@ -9,7 +9,9 @@ to the noise with a `NoiseEffect` (a reference strategy with a
 `ReferenceEffect`; clipping thresholds bounded by `AtLeast`, e.g.
 `MEASURED_SIGMA`), so that the noise forecast can propagate it.  Parameters
 are declared as `Parameter` tuples; kernels see `Block` and `Context` objects
-and report `Record` objects.  The plugin guide (``docs/plugins.rst``) shows a whole plugin.
+and report `Record` objects; a reference strategy reads the reference pixels of
+a side block with `reference_pixels` (``ALL``: every column parity).  The
+plugin guide (``docs/plugins.rst``) shows a whole plugin.
 
 Examples
 --------
@@ -32,9 +34,10 @@ from .core.parameters import Parameter
 from .reduce.hookspecs import hookimpl
 from .reduce.noise_effect import MEASURED_SIGMA, AtLeast, NoiseEffect, ReferenceEffect
 from .reduce.step import Consumer, Kernel, Record, Simulator, Step, Strategy
-from .reduce.steps.reference.strategies import ReferenceOffsets
+from .reduce.steps.reference.strategies import ALL, ReferenceOffsets, reference_pixels
 
 __all__ = [
+    "ALL",
     "MEASURED_SIGMA",
     "AtLeast",
     "Block",
@@ -50,4 +53,5 @@ __all__ = [
     "Step",
     "Strategy",
     "hookimpl",
+    "reference_pixels",
 ]

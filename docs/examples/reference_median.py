@@ -13,8 +13,14 @@ import warnings
 
 import numpy as np
 
-from spherex_reduce.plugin import Parameter, ReferenceOffsets, Strategy, hookimpl
-from spherex_reduce.reduce.steps.reference.strategies import ALL, reference_pixels
+from spherex_reduce.plugin import (
+    ALL,
+    Parameter,
+    ReferenceOffsets,
+    Strategy,
+    hookimpl,
+    reference_pixels,
+)
 
 __all__ = ["ReferenceMedian"]
 

@@ -12,8 +12,8 @@ from ._common import (
     all_or_nothing,
     check_paths,
     count,
-    finite_float,
     input_config,
+    nonnegative_float,
     plot_path,
     positive_float,
 )
@@ -50,9 +50,9 @@ def add_parser(sub):
                    "band power compared on the terminal")
     p.add_argument("--bins", type=count(10_000), default=None,
                    help="log-spaced k bins (default: a sweep measure's, 30)")
-    p.add_argument("--kmin", type=finite_float, default=None,
+    p.add_argument("--kmin", type=nonnegative_float, default=None,
                    help="band lower edge, rad/pixel (default: the paper's band, 5–20′)")
-    p.add_argument("--kmax", type=finite_float, default=None,
+    p.add_argument("--kmax", type=nonnegative_float, default=None,
                    help="band upper edge, rad/pixel (default: the paper's band)")
     p.add_argument("--exclude-horizontal", action="store_true",
                    help="leave out the k_y = 0 axis of the Fourier plane (paper Fig. 6)")

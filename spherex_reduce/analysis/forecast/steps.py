@@ -34,7 +34,7 @@ reference correction.
 
 from dataclasses import dataclass, field
 
-from ...core.errors import ConfigError
+from ...core.errors import ConfigError, PluginError
 from ...reduce.noise_effect import AtLeast, declared_effect
 from ...reduce.pipeline import as_pipeline
 from ...reduce.plugins import default_registry
@@ -95,6 +95,24 @@ def forecast_strategies(kind, registry=None):
     found = {name: declared_effect(reg.obj)
              for name, reg in registry.strategies.get(kind, {}).items()}
     return {name: effect for name, effect in found.items() if effect is not None}
+
+
+def _checked(effect, reg):
+    """``effect`` (a class's declaration, or None), refused in one line if it names a
+    parameter the class does not declare, or leaves out that parameter's default: a key
+    misspelt would otherwise keep every value of the real parameter "linear"."""
+    if effect is None:
+        return None
+    defaults = {p.name: p.default for p in getattr(reg.obj, "parameters", ())}
+    for key, allowed in effect.linear.items():
+        if key not in defaults:
+            raise PluginError(f"{reg.obj.name} ({reg.plugin}): noise_effect.linear names "
+                              f"{key!r}, which is not one of its parameters "
+                              f"({', '.join(defaults) or 'none'})")
+        if defaults[key] not in allowed:
+            raise PluginError(f"{reg.obj.name} ({reg.plugin}): noise_effect.linear.{key} "
+                              f"leaves out the parameter's default {defaults[key]!r}")
+    return effect
 
 
 def _refusal(i, name, key, value, allowed):
@@ -180,6 +198,8 @@ def reduction(pipeline):
     for i, item in enumerate(p.config["steps"]):
         (name, params), = item.items()
         effect = table.get(name)
+        if effect is not None:
+            _checked(effect, p.registry.steps[name])
         if effect is None:
             raise ConfigError(f"forecast: steps[{i}].{name} ({p.source}) is not forecast so "
                               f"far; forecast steps: {', '.join(table)}")
@@ -192,6 +212,7 @@ def reduction(pipeline):
             strategy = strategies.get(params.get("strategy"))
             if strategy is None:
                 raise _refusal(i, name, "strategy", params.get("strategy"), tuple(strategies))
+            _checked(strategy, p.registry.strategies[kind][params["strategy"]])
             if (bad := strategy.outside(params)) is not None:
                 raise _refusal(i, name, bad[0], params[bad[0]], bad[1])
             if ref:

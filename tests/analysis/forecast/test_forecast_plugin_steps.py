@@ -17,8 +17,8 @@ from _toy_steps import registry_with
 
 from spherex_reduce import Pipeline
 from spherex_reduce.analysis import forecast
-from spherex_reduce.core.errors import ConfigError
-from spherex_reduce.plugin import NoiseEffect, ReferenceEffect, Step, hookimpl
+from spherex_reduce.core.errors import ConfigError, PluginError
+from spherex_reduce.plugin import NoiseEffect, Parameter, ReferenceEffect, Step, hookimpl
 from spherex_reduce.reduce.steps.reference.strategies import MeanReference
 
 
@@ -105,3 +105,40 @@ def test_a_plugin_strategy_is_held_to_its_own_declaration():
                                           r"forecast .*only a number >= 3$"):
         forecast(tiny([PINK]), pipeline(
             {"correct_reference": {"strategy": "declared_mean", "sigma": 2.0}}))
+
+
+class Misspelt(Copy):
+    """A declaration naming a parameter the step does not have ("facter" for "factor")."""
+
+    name, keyword = "misspelt", "S_MISSP"
+    parameters = (Parameter("factor", 1.0, (float,), "multiply by this"),)
+    noise_effect = NoiseEffect("identity", linear={"facter": (1.0,)})
+
+    def run(self, exposure, factor):
+        return exposure.replace(data=exposure.data.data * factor)
+
+
+class WithoutDefault(Misspelt):
+    """A declaration whose allowed values leave out the parameter's default."""
+
+    name, keyword = "without_default", "S_WDEF"
+    noise_effect = NoiseEffect("identity", linear={"factor": (2.0,)})
+
+
+class BadPlugin:
+    @hookimpl
+    def register_steps(self):
+        return [Misspelt, WithoutDefault]
+
+
+@pytest.mark.parametrize(("step", "match"), [
+    ("misspelt", r"^misspelt \(.*\): noise_effect\.linear names 'facter', which is not one of "
+                 r"its parameters \(factor\)$"),
+    ("without_default", r"^without_default \(.*\): noise_effect\.linear\.factor leaves out "
+                        r"the parameter's default 1\.0$")])
+def test_a_declaration_that_cannot_be_right_is_refused_in_one_line(step, match):
+    # A misspelt key would keep every value of the real parameter "linear" (a factor of 7
+    # forecast as the identity); a default left out would refuse the step as written.
+    pipe = Pipeline({"steps": [{step: {"factor": 7.0}}]}, registry=registry_with(BadPlugin()))
+    with pytest.raises(PluginError, match=match):
+        forecast(tiny([PINK]), pipe)

@@ -22,7 +22,7 @@ from ....core.parameters import Parameter, validate_parameters
 from ....core.source_mask import source_mask
 from ....io.sources import context_of, side_block
 from ...noise_effect import MEASURED_SIGMA, ReferenceEffect
-from ...options import default_threads
+from ...options import RunOptions
 from ...step import Strategy
 from .telegraph import TELEGRAPH_PARAMETERS, drop_telegraph
 
@@ -364,7 +364,7 @@ def _offsets_of(geometry, reference, side, *, acn, sigma, maxiters, threads):
         return clipped_mean(vals, sigma=sigma, maxiters=maxiters)
 
     starts = range(0, reference.shape[0], _FRAMES_PER_CLIP)
-    nthreads = min(len(starts), default_threads() if threads is None else max(1, threads))
+    nthreads = min(len(starts), RunOptions(threads=threads).thread_count())
     if nthreads > 1:
         with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-clip") as pool:
             parts = list(pool.map(clip, starts))

@@ -123,8 +123,7 @@ class Parameter:
         if not ok and float in types and isinstance(value, int) and not isinstance(value, bool):
             value, ok = float(value), True
         if not ok:
-            names = " or ".join(_TYPE_NAMES.get(t, t.__name__) for t in types
-                                if not (t is int and float in types))
+            names = " or ".join(_TYPE_NAMES.get(t, t.__name__) for t in types)
             raise ConfigError(f"{path}: expected {names}, got {value!r}")
         if self.choices is not None and value not in self.choices:
             raise ConfigError(f"{path}: {value!r} is not one of {list(self.choices)}")

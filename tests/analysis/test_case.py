@@ -125,7 +125,7 @@ MEASURED = [
     ({"bins": [0.5]}, "measure.bins: expected a list of 2 to 10001 items, got [0.5]"),
     ({"bins": [0.1, -0.2]}, "measure.bins[1]: must be >= 0, got -0.2"),
     ({"bins": [0.5, 0.2]}, "measure.bins: the bin edges must increase, got [0.5, 0.2]"),
-    ({"kmin": "low"}, "measure.kmin: expected number, got 'low'"),
+    ({"kmin": "low"}, "measure.kmin: expected integer or number, got 'low'"),
     ({"kmin": -0.1}, "measure.kmin: must be >= 0, got -0.1"),
     ({"kmin": 0.5, "kmax": 0.2}, "measure: kmin must be below kmax, got 0.5 and 0.2"),
     ({"exclude_horizontal": "yes"}, "measure.exclude_horizontal: expected boolean, got 'yes'"),

@@ -108,9 +108,10 @@ def test_each_bound_choice_type_and_nesting_is_refused_with_its_key_path(config,
     refused(config, message)
 
 
-def test_a_number_type_is_named_once_and_integers_are_not_numbers_converted():
+def test_every_type_is_named_as_before_and_integers_are_not_numbers_converted():
+    # the words of the step and readout tables before the file tables joined them
     either = Parameter("k", 1, (int, float, type(None)), "k")
-    with pytest.raises(ConfigError, match=r"^k: expected number or null, got 'x'$"):
+    with pytest.raises(ConfigError, match=r"^k: expected integer or number or null, got 'x'$"):
         either.check("x", "k")
     assert type(either.check(2, "k")) is int and either.check(None, "k") is None
     assert Parameter("n", 1, (int,), "n").check(5, "n") == 5

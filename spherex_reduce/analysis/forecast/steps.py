@@ -66,8 +66,7 @@ def forecast_steps(registry=None):
     ('uniform',)
     """
     registry = default_registry() if registry is None else registry
-    found = {name: declared_effect(reg.obj) for name, reg in registry.steps.items()}
-    return {name: effect for name, effect in found.items() if effect is not None}
+    return _declared(registry.steps)
 
 
 def forecast_strategies(kind, registry=None):
@@ -92,9 +91,13 @@ def forecast_strategies(kind, registry=None):
     {'mean': 'mean', 'acn': 'acn', 'wiener': 'wiener'}
     """
     registry = default_registry() if registry is None else registry
-    found = {name: declared_effect(reg.obj)
-             for name, reg in registry.strategies.get(kind, {}).items()}
-    return {name: effect for name, effect in found.items() if effect is not None}
+    return _declared(registry.strategies.get(kind, {}))
+
+
+def _declared(registered):
+    """``{name: effect}`` of the registered classes (``{name: Registered}``) that declare one."""
+    effects = ((name, declared_effect(reg.obj)) for name, reg in registered.items())
+    return {name: effect for name, effect in effects if effect is not None}
 
 
 def _checked(effect, reg):

@@ -4,6 +4,7 @@ through `power_spectrum`, and the package's Monte Carlo."""
 
 import numpy as np
 import pytest
+from _forecast_scenes import BINS, COMMON, PINK, PINK_ACN, ROIC, tiny
 from astropy import units as u
 
 from spherex_reduce import expected_slope_variance
@@ -15,26 +16,8 @@ from spherex_reduce.core.errors import ConfigError, ResourceError, SpherexReduce
 from spherex_reduce.noise.variance import slope_covariance
 from spherex_reduce.simulation import load_scene, simulate
 
-BINS = 5
-OVH = 20000
-PINK = {"name": "pink", "beta": 8e-3}
-PINK_ACN = {**PINK, "name": "pink_acn", "acn": True}
-ROIC = {"name": "roic", "alpha": 2e-3, "gamma": 0.1, "exponent": 1.3, "acn": True}
-COMMON = {"name": "common", "alpha": 3e-6, "beta": 9e-5, "scope": "common"}
+#: seen by the phantom reads only; ten times weaker than _forecast_scenes.PHANTOM
 PHANTOM = {"name": "phantom_only", "beta": 4e-6, "scope": "common", "visibility": "phantom"}
-
-
-def tiny(components, scan="same", terms=None):
-    """20 x 20 pixels in 2 channels of 10 columns, a reference border of 2 (16 x 16 light
-    pixels, each channel's light columns cut on one side), skip 3, 4 reference reads; a
-    long frame overhead makes the frame time ~60 times the reads' span."""
-    return load_scene({
-        "geometry": {"nrows": 20, "ncols": 20, "nchannels": 2, "ref_border": 2, "scan": scan},
-        "readout": {"skip": 3, "ref_reads": 4, "phantom_reads": 2, "nframes": 4,
-                    "frame_overhead": OVH},
-        "noise": {"components": components},
-        "scene": terms or {},
-    })
 
 
 def brute_force(scene, bins):

@@ -5,16 +5,23 @@ it spells out; the rows and lags computed a chunk at a time against the same bru
 import numpy as np
 import pytest
 from _forecast_brute import Samples, expected_spectrum, reduction_matrix
-from _forecast_scenes import BOTH, BOTH_COMMON, PHANTOM, PIPELINES, check_against_brute_force, tiny
+from _forecast_scenes import (
+    BINS,
+    BOTH,
+    BOTH_COMMON,
+    COMMON,
+    PHANTOM,
+    PINK_ACN,
+    PIPELINES,
+    check_against_brute_force,
+    tiny,
+)
 from astropy import units as u
 
 from spherex_reduce.analysis import forecast
 from spherex_reduce.analysis.forecast import rows as forecast_rows
 from spherex_reduce.simulation import load_scene
 
-BINS = 5
-PINK_ACN = {"name": "pink_acn", "beta": 8e-3, "acn": True}
-COMMON = {"name": "common", "alpha": 3e-6, "beta": 9e-5, "scope": "common"}
 #: 20 rows: reference rows 0, 1 (top) and 18, 19 (bottom); light rows 2-17 read in a shuffled
 #: order, with reference reads between them (one reference row read three times).
 ORDER = [0, 9, 3, 14, 17, 18, 6, 2, 11, 5, 16, 1, 8, 13, 4, 10, 0, 15, 7, 12, 19, 0]

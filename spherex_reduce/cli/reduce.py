@@ -10,6 +10,7 @@ from ..core.limits import MAX_WORKERS
 from ..io import atomic_output, write
 from ..io.readers.read_files import ReadFiles, read_file_paths
 from ..reduce.integrations import reduce_input
+from ..reduce.provenance import provenance_rows
 from ._common import check_paths, count, input_config
 
 
@@ -87,8 +88,8 @@ def run(args):
 
 def _written(pipeline, result, args, images=None):
     write(result, args.output, overwrite=args.overwrite, images=images)
-    status = ", ".join(f"{n}={result.header.get(pipeline.registry.step(n).keyword, '?')}"
-                       for n, _ in pipeline.steps)
+    runs = provenance_rows(result.tables)[-len(pipeline.steps):]  # this pipeline's, in order
+    status = ", ".join(f"{row['step']}={row['status']}" for row in runs)
     print(f"wrote {args.output} ({status})")
     return 0
 

@@ -256,13 +256,19 @@ def window_reads(geometry, rows, is_ref):
 
 def default_overhead(geometry, frame_overhead, default):
     """The frame overhead (samples) when no frame time is given: ``frame_overhead``,
-    else ``default``; a window needs its frame time (raises ValueError)."""
-    if frame_overhead is not None:
-        return frame_overhead
+    else ``default``.
+
+    A window needs its frame time (raises ValueError), ``frame_overhead`` given
+    or not: the overhead would count from the end of the window's last row read,
+    not the full array's, and time the frame by the window's rows alone.
+    """
     if geometry.window is not None:
+        given = "" if frame_overhead is None else (
+            f"; frame_overhead={frame_overhead} alone would time a frame by the window's own "
+            "rows, not the full array's")
         raise ValueError("a window needs readout.frame_time (TFRAME), the full readout's "
-                         "frame time: it is taken as given, not derived")
-    return default
+                         f"frame time: it is taken as given, not derived{given}")
+    return default if frame_overhead is None else frame_overhead
 
 
 def fill_window_geometry(values):

@@ -289,7 +289,20 @@ class _Run:
                 bar.update(end - i)
                 i = end
                 source = MemorySource(result)
-        return source.exposure()
+        return self._applied(source.exposure())
+
+    def _applied(self, result):
+        """``result`` with the status keyword of a step listed more than once saying whether
+        the data went through it: COMPLETE if any of its runs completed, though a later
+        one was skipped (each run's own status stays in HISTORY and ``PROVENANCE``)."""
+        done = {p.step.keyword for p in self.steps if self.status.get(p.index) == "COMPLETE"}
+        stale = sorted(k for k in done if result.header.get(k) != "COMPLETE")
+        if not stale:
+            return result
+        header = result.header.copy()
+        for key in stale:
+            header[key] = "COMPLETE"  # the comment ("fit_ramp step") stays
+        return result.replace(header=header)
 
     def _pass(self, source, plan):
         before = source.exposure() if source.in_memory or not plan.runs else None

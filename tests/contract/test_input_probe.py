@@ -1841,3 +1841,125 @@ def test_probe_tools(tmp_path):
     assert fits.getdata(flip, "SCI")[0, 0] != 0
     state = _probe.snapshot(tmp_path)
     assert state["x.fits"] != state["y.fits"]
+
+
+# Round three: inputs
+
+#: a 64 x 64 window at the corner of a 512 x 512 array of 8 outputs at 100 kHz
+WINDOW = ("geometry: {nrows: 64, ncols: 64, pixel_rate: 1.0e+5}\n"
+          "window: {first_row: 0, first_column: 0, full_nrows: 512, full_ncols: 512, "
+          "full_nchannels: 8}\n")
+#: the full readout by hand: 512 rows of 64 pixels + 4 overhead samples, then 2000 samples
+#: of reset: the window's frame time (s)
+WINDOW_FRAME = (512 * (64 + 4) + 2000) / 1e5
+WINDOW_RATE = 7.5  # counts per second everywhere
+
+
+def _window(readout):
+    """Setup: ``win.fits``, 3 frames of a ramp of `WINDOW_RATE` read every `WINDOW_FRAME`
+    s (no keywords), and ``win.yaml``, fit_ramp with the `WINDOW` and ``readout``."""
+    def setup(d):
+        t = WINDOW_FRAME * np.arange(3)[:, None, None]
+        sci = fits.ImageHDU((100 + WINDOW_RATE * t + np.zeros((3, 64, 64))).astype(np.float32),
+                            name="SCI")
+        fits.HDUList([fits.PrimaryHDU(), sci]).writeto(d / "win.fits")
+        (d / "win.yaml").write_text(
+            WINDOW + "readout: {skip: 1, ref_mode: none, phantom_reads: 0, row_overhead: 4, "
+            f"nframes: 3, {readout}}}\nsteps: [fit_ramp]\n")
+    return setup
+
+
+def _check_window_rate(d, result, run):
+    """The frame time given: the slopes are the rate the ramp was made with."""
+    with fits.open(d / "out.fits") as hdul:
+        np.testing.assert_allclose(hdul["SCI"].data, WINDOW_RATE, rtol=1e-4)
+        assert hdul[0].header["TFRAME"] == WINDOW_FRAME
+
+
+def _hst_float_dq(d):
+    """Setup: `_hst_ima` with DQ,2 stored as float, 0.5 on one pixel of that read."""
+    _hst_ima(d)
+    with fits.open(d / "ima.fits") as hdul:
+        flags = np.zeros((16, 16), np.float32)
+        flags[3, 4] = 0.5
+        hdul["DQ", 2].data = flags
+        hdul.writeto(d / "ima.fits", overwrite=True)
+
+
+def _dq_int64_bit40(d):
+    """Setup: lab.fits, raw.fits without READOUT and with a 3-D int64 DQ: bit 40 on frame 1
+    of read 7, column 9, and bit 63 on frame 2 of read 20, column 40."""
+    with fits.open(d / "raw.fits") as hdul:
+        shape = hdul["SCI"].shape
+    mask = np.zeros(shape, np.int64)
+    mask[1, 7, 9] = 2**40
+    mask[2, 20, 40] = np.array(2**63, np.uint64).view(np.int64)
+    _with_dq(d / "raw.fits", d / "lab.fits", mask)
+
+
+def _check_high_bits_masked(d, result, run):
+    """The two flagged reads left out of their pixels' fits (numpy least squares over the
+    other two frames), every other slope numpy's over the three."""
+    expected, scale = _lstsq_slopes(d / "lab.fits")
+    with fits.open(d / "lab.fits") as hdul:
+        ramps = hdul["SCI"].data.astype(np.float64)
+        tframe = hdul[0].header["TFRAME"]
+    for frame, i, c in ((1, 7, 9), (2, 20, 40)):
+        kept = np.delete(np.arange(3), frame)
+        expected[i, c] = (ramps[kept[1], i, c] - ramps[kept[0], i, c]) / (
+            (kept[1] - kept[0]) * tframe)
+    with fits.open(d / "out.fits") as hdul:
+        np.testing.assert_allclose(hdul["SCI"].data, expected, rtol=0, atol=1e-5 * scale)
+
+
+def _float_dq_in_read(d):
+    """Setup: `_split_reads`, read_2.fits with a float DQ (0.5 on one pixel), and mask.fits,
+    an integer mask of one read's shape flagging nothing."""
+    _split_reads()(d)
+    with fits.open(d / "read_2.fits") as hdul:
+        flags = np.zeros(hdul["SCI"].shape, np.float32)
+        flags[5, 3] = 0.5
+        hdul.append(fits.ImageHDU(flags, name="DQ"))
+        hdul.writeto(d / "read_2.fits", overwrite=True, checksum=True)
+        fits.PrimaryHDU(np.zeros(hdul["SCI"].shape, np.int16)).writeto(d / "mask.fits")
+
+
+def _check_ran_once_recorded(d, result, run):
+    """fit_ramp listed twice: the first run fitted the slopes (numpy), the second was skipped
+    (slopes already); the file says fit_ramp ran, each run's row its own status."""
+    expected, scale = _lstsq_slopes(d / "raw.fits")
+    with fits.open(d / "out.fits") as hdul:
+        assert hdul[0].header["S_RAMPFT"] == "COMPLETE"
+        assert list(hdul["PROVENANCE"].data["status"]) == ["COMPLETE", "SKIPPED"]
+        np.testing.assert_allclose(hdul["SCI"].data, expected, rtol=0, atol=1e-5 * scale)
+
+
+ROUND3_INPUTS = [
+    # frame_overhead timed the window by its own 64 rows (0.0205 s, slopes 148x too large)
+    refused("reduce-window-without-frame-time",
+            ["reduce", "win.fits", "-c", "win.yaml", "-o", "out.fits"],
+            _window("frame_overhead: 2000"), mentions=r"window needs readout\.frame_time"),
+    works("reduce-window-with-its-frame-time",
+          ["reduce", "win.fits", "-c", "win.yaml", "-o", "out.fits"],
+          _window(f"frame_time: {WINDOW_FRAME!r}"), _check_window_rate),
+    # a float DQ,i (0.5 on a bad read) was cast to 0: the read was fitted
+    refused("reduce-extension-dq-float", ["reduce", "ima.fits", "-c", "ext.yaml", "-o",
+                                          "out.fits"], _hst_float_dq,
+            mentions=r"'DQ',2 holds flags, which must be integers"),
+    # bits 32-63 of an int64 DQ never masked (the mask was 0xffffffff)
+    works("reduce-dq-int64-high-bits", ["reduce", "lab.fits", "-c", "fit.yaml", "-o",
+                                        "out.fits"], _dq_int64_bit40, _check_high_bits_masked),
+    # a float DQ in a read file with --reads-dq: TypeError, exit 1
+    refused("reduce-reads-dq-float-dq-in-a-read-file",
+            [*READS, "--reads-dq", "mask.fits"], _float_dq_in_read,
+            mentions=r"read_2\.fits: HDU 'DQ' holds flags, which must be integers"),
+    # the second, skipped run of a step listed twice made S_RAMPFT say SKIPPED
+    works("reduce-step-listed-twice", ["reduce", "raw.fits", "-c", "twice.yaml", "-o",
+                                       "out.fits"],
+          write("twice.yaml", "steps: [fit_ramp, fit_ramp]\n"), _check_ran_once_recorded),
+]
+
+
+@pytest.mark.parametrize("case", ROUND3_INPUTS)
+def test_round_three_inputs(case, inputs, runner, tmp_path):
+    test_input(case, inputs, runner, tmp_path)

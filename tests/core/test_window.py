@@ -113,6 +113,41 @@ def test_a_prime_like_output_takes_its_real_frame_time():
     assert s.pixel_samples()[1, 0] == 128 + 127  # row 1, column 0 read last in its row
 
 
+def test_frame_overhead_instead_of_frame_time_is_refused_for_a_window():
+    """A 64-row window of a 512-row array given ``frame_overhead`` (not the ``frame_time`` the
+    docs require) was timed by its own 64 rows: 0.0205 s where the full readout takes
+    0.164 s.  Refused, naming frame_time; with ``frame_time`` the frame is the one given,
+    at least the full readout to the window's last row; a window schedule's ``to_dict``,
+    ``replace`` and FITS keywords carry its frame time (so they never rebuild it from an
+    overhead)."""
+    full = DetectorGeometry(512, 512, 8, ref_border=4, pixel_rate=1e5)
+    readout = {"skip": 1, "phantom_reads": 4, "row_overhead": 4}
+    # the full readout by hand: 512 rows of 4 + 64 + 4 samples, then 2000 samples of reset
+    tframe = (512 * (4 + 64 + 4) + 2000) / 1e5
+    assert np.isclose(tframe, 0.38864)
+    message = (r"a window needs readout\.frame_time \(TFRAME\), the full readout's frame time: "
+               r"it is taken as given, not derived; frame_overhead=2000 alone would time a "
+               r"frame by the window's own rows")
+    with pytest.raises(ValueError, match=message):
+        window_schedule(0, 0, 64, 64, full, frame_overhead=2000, **readout)
+    with pytest.raises(ConfigError, match=r"^geometry/readout: " + message):
+        schedule_from_config({"nrows": 64, "ncols": 64, "pixel_rate": 1e5},
+                             {**readout, "ref_mode": "none", "frame_overhead": 2000},
+                             {"first_row": 0, "first_column": 0, "full_nrows": 512,
+                              "full_ncols": 512, "full_nchannels": 8})
+    s = window_schedule(0, 0, 64, 64, full, frame_time=tframe, **readout)
+    assert s.frame_time == tframe * u.s and s.frame_samples == 38864
+    assert s.frame_overhead == 38864 - 64 * 72  # what is left after the window's last row
+    assert s.to_dict()["frame_time"] == tframe and "frame_overhead" not in s.to_dict()
+    longer = s.replace(nframes=5, row_overhead=0)
+    assert longer.frame_time == tframe * u.s and longer.frame_samples == 38864
+    h = s.to_header()
+    assert ReadoutSchedule.from_header(h, s.to_table()) == s
+    del h["TFRAME"]  # FRMOVH alone: the remainder after the window's rows, not a frame time
+    with pytest.raises(FormatError, match=r"a window needs readout\.frame_time \(TFRAME\)"):
+        ReadoutSchedule.from_header(h)
+
+
 @pytest.mark.parametrize(("where", "size", "message"), [
     ((0, 60), (16, 16), r"16 x 16 window at row 0, column 60 of the 64 x 64 full array "
                         r"does not fit in it \(rows 0-15, columns 60-75\)"),

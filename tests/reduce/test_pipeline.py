@@ -54,6 +54,47 @@ def test_skipped_step_is_recorded(raw):
     np.testing.assert_array_equal(out.data.data, raw.data.data)
 
 
+@pytest.mark.parametrize("second", ["skip", "add"])
+def test_a_step_listed_twice_records_that_it_ran(raw, second):
+    """The docs allow a step listed more than once.  When its first run completes and a later
+    one is skipped, the status keyword says the data went through it (COMPLETE; it said
+    SKIPPED); each run's own status is in HISTORY and PROVENANCE, in order."""
+    pipe = Pipeline({"steps": [{"offset": {"value": 2}}, "unchop",
+                               {"offset": {"value": 3, "mode": second}}]},
+                    registry=registry_with(OffsetPlugin()))
+    out = pipe.run(raw)
+    added = 2.0 + (3.0 if second == "add" else 0.0)
+    np.testing.assert_allclose(out.data.data, unchop(raw).data.data + added, rtol=1e-6)
+    assert out.header["S_OFFSET"] == "COMPLETE" and out.header["S_UNCHOP"] == "COMPLETE"
+    last = "COMPLETE" if second == "add" else "SKIPPED"
+    assert out.tables["PROVENANCE"]["status"].tolist() == ["COMPLETE", "COMPLETE", last]
+    history = [str(v) for v in out.header["HISTORY"]]
+    assert [h.split(" in ")[0] for h in history if h.startswith("offset ")] == [
+        "offset complete", f"offset {last.lower()}"] + (
+        ["offset skipped: asked to skip"] if second == "skip" else [])
+    alone = Pipeline({"steps": [{"offset": {"mode": "skip"}}, {"offset": {"mode": "skip"}}]},
+                     registry=registry_with(OffsetPlugin())).run(raw)
+    assert alone.header["S_OFFSET"] == "SKIPPED"  # no run completed
+
+
+def test_a_repeated_step_is_reported_run_by_run(tmp_path, raw, capsys):
+    """``reduce`` prints every run's status in order (it printed the keyword's, SKIPPED, for
+    both runs of fit_ramp), and the file says fit_ramp ran."""
+    from astropy.io import fits
+
+    from spherex_reduce.cli import main
+
+    write(raw, tmp_path / "raw.fits")
+    (tmp_path / "twice.yaml").write_text("steps: [unchop, fit_ramp, unchop, fit_ramp]\n")
+    out = tmp_path / "out.fits"
+    assert main(["reduce", str(tmp_path / "raw.fits"), "-c", str(tmp_path / "twice.yaml"),
+                 "-o", str(out)]) == 0
+    assert capsys.readouterr().out.strip() == (
+        f"wrote {out} (unchop=COMPLETE, fit_ramp=COMPLETE, unchop=SKIPPED, fit_ramp=SKIPPED)")
+    header = fits.getheader(out)
+    assert header["S_RAMPFT"] == "COMPLETE" and header["S_UNCHOP"] == "COMPLETE"
+
+
 def test_effective_config_fills_defaults():
     pipe = Pipeline({"steps": ["unchop", {"offset": {"value": 1}}]},
                     registry=registry_with(OffsetPlugin()))

@@ -43,7 +43,13 @@ from ..fields import (
 )
 from ..geometry import DetectorGeometry, RefBorder
 from ..limits import check_size
-from ..window import default_overhead, fill_window_geometry, geometry_of, window_reads
+from ..window import (
+    WINDOW_FIELDS,
+    default_overhead,
+    fill_window_geometry,
+    geometry_of,
+    window_reads,
+)
 from .frame_times import StoredFrameTimes, check_read_times, describe_read_times
 from .groups import describe_groups, resolve_groups
 from .read_order import EXPLICIT, ORDER_REPLACES, check_order, order_from_table
@@ -357,12 +363,16 @@ class ReadoutSchedule(StoredFrameTimes):
     def to_dict(self):
         """Readout parameters as plain values (the ``readout:`` YAML section).
 
-        ``frame_time`` is left out: ``frame_overhead`` states it in samples; with an
+        ``frame_time`` is left out: ``frame_overhead`` states it in samples (a
+        window's the other way round: its frame time is taken as given); with an
         explicit ``order``, so are the fields it replaces (``skip``, ``ref_reads``,
         ``ref_mode``).
         """
         out = {f.name: getattr(self, f.name) for f in section_fields("readout")
                if f.instead_of is None and not (self.order and f.name in ORDER_REPLACES)}
+        if self.geometry.window is not None:
+            del out["frame_overhead"]
+            out["frame_time"] = float(self.frame_time.to_value(u.s))
         if out["groups"] is not None:
             out["groups"] = [list(reads) for reads in out["groups"]]
         out["read_times"] = None if self.read_times is None else list(self.read_times)
@@ -371,7 +381,8 @@ class ReadoutSchedule(StoredFrameTimes):
     def replace(self, **changes):
         """A copy with some parameters changed (``geometry`` too).
 
-        The frame overhead is kept as samples unless ``frame_time`` is changed.
+        The frame overhead is kept as samples unless ``frame_time`` is changed (a
+        window keeps its frame time: it is taken as given).
         """
         params = {"geometry": self.geometry, **self.to_dict()}
         params.update(changes)
@@ -518,8 +529,8 @@ class ReadoutSchedule(StoredFrameTimes):
                                                           "ref_reads", "ref_border")))
         rkw = {f.name: values[f.name] for f in section_fields("readout")
                if f.name in values and not f.instead_of}
-        if "frame_overhead" not in values:
-            rkw["frame_time"] = values["frame_time"]
+        if "frame_overhead" not in values or any(n in values for n in WINDOW_FIELDS):
+            rkw["frame_time"] = values.get("frame_time")  # a window's: required, as given
         try:
             geometry = geometry_of(values)
             sched = cls(geometry, **rkw)

@@ -26,7 +26,7 @@ from ...core.fields import card_text
 from ..fits_structure import bad_checksums, scan_hdus
 from ..input import InputOptions, apply_input
 from .description import describe, file_tables, image_shape, note_bad_checksums, sci_hdu
-from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq
+from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq, own_flags
 from .pixels import physical, unpacking
 from .stable_file import StableFile
 
@@ -299,7 +299,7 @@ def _exposure(hdul, path, bad, stable, supplied, dq_bits, options, integration):
         reference = ReferenceReads(
             data=image("REFPIX"), rows=np.asarray(rt["row"]), reads=np.asarray(rt["read"]),
             phantom=image("REFPHANT"),
-            dq=None if refdq is None else refdq.astype(np.uint32),
+            dq=None if refdq is None else own_flags(refdq, path).astype(np.uint32),
         )
         _readonly(reference.data, reference.phantom)
     tables = file_tables(hdul, path)

@@ -4,8 +4,9 @@ A file written by this package (it has a ``READOUT`` table: both writers put
 one in every file) holds `spherex_reduce.core.dq` bits, kept as they are.  In any
 other file the bits follow the convention of the system that wrote it
 (JWST, a lab's electronics), whose meanings are not ours: by default every
-non-zero bit masks a pixel (a flag we cannot read is never fitted as good),
-and a masked pixel gets `~spherex_reduce.core.dq.DO_NOT_USE`.  `foreign_dq_bits`
+non-zero bit masks a pixel (a flag we cannot read is never fitted as good;
+bits 32-63 of a 64-bit ``DQ`` too), and a masked pixel gets
+`~spherex_reduce.core.dq.DO_NOT_USE`.  `foreign_dq_bits`
 (``--dq-bits`` on the command line), ``input: dq_bits`` or the ``dq_bits``
 argument of `~spherex_reduce.io.read` choose other bits.
 
@@ -13,7 +14,9 @@ A ``DQ`` has the shape of ``SCI``, or, over ramps (3-D ``SCI``), the shape of
 one frame: a pixel mask of the array ``(nrows, ncols)`` (the JWST layout),
 or, in readout order, one row per read ``(n_reads, ncols)``.  It then applies
 to every frame; a pixel mask applies to every read of each row (the
-schedule's ``rows`` say which row each read is).
+schedule's ``rows`` say which row each read is).  Flags are integers: a
+``DQ`` of floating-point numbers is refused when it is read
+(`~spherex_reduce.io.readers.pixels.physical`).
 """
 
 import contextlib
@@ -136,9 +139,10 @@ def note_foreign_dq(header, bits, path):
     """Record in ``header`` (in place) which bits of the foreign ``DQ`` of ``path`` masked:
     ``SXRDQBIT`` and a ``HISTORY`` line (the setting is not in the pipeline config)."""
     header["SXRDQBIT"] = (bits, "bits of the input's foreign DQ that masked")
+    which = ("any bit set masked as DO_NOT_USE" if bits == _MAX_BITS else
+             f"any of bits {bits:#x} set masked as DO_NOT_USE, other bits ignored")
     header.add_history(f"DQ of {header_text(Path(path).name)} not written by spherex_reduce: "
-                       f"pixels with any of bits {bits:#x} set masked as DO_NOT_USE, other bits "
-                       "ignored")
+                       f"pixels with {which}")
 
 
 def file_flags(stored, sci_shape, schedule, order, bits, path):
@@ -153,8 +157,10 @@ def file_flags(stored, sci_shape, schedule, order, bits, path):
     schedule : `~spherex_reduce.ReadoutSchedule`
     order : {'readout', 'physical'}
     bits : int or None
-        Bits of a foreign ``DQ`` that mask (`foreign_bits`), or None for a
-        file written by this package, whose flags are kept as they are.
+        Bits of a foreign ``DQ`` that mask (`foreign_bits`; all 32, the
+        default, is every bit: any value but 0 masks, bits 32-63 of a 64-bit
+        ``DQ`` too), or None for a file written by this package, whose flags
+        are kept as they are (`own_flags`).
     path : str
         Names the file in messages.
 
@@ -167,26 +173,81 @@ def file_flags(stored, sci_shape, schedule, order, bits, path):
     Raises
     ------
     FormatError
-        The ``DQ`` holds floating-point values or has a shape that fits neither
-        ``SCI`` nor one frame of it.
+        The ``DQ`` holds floating-point values, or (a file of this package) a
+        bit above 31, or has a shape that fits neither ``SCI`` nor one frame
+        of it.
     """
     shape = tuple(stored.shape)
-    if stored.dtype.kind not in "iu":
-        raise FormatError(f"{path}: HDU 'DQ' holds flags, which must be integers; it holds "
-                          f"{stored.dtype.name} values")
+    stored = flag_bits(stored, path)
     rows = _rows_of(shape, sci_shape, schedule, order, path)
     # the exposure's uint32 flags (twice while made from booleans) and boolean mask
     check_size(9 * int(np.prod(sci_shape, dtype=float)), f"the flags of {path} {sci_shape}")
     if bits is None:
-        flags = stored
-    else:
-        mask = np.asarray(bits, np.int64).astype(stored.dtype)  # the same low bits
+        flags = own_flags(stored, path)
+    else:  # every bit (the default): any bit of the stored type, 32-63 of a 64-bit DQ too
+        mask = ~stored.dtype.type(0) if bits == _MAX_BITS else np.asarray(bits).astype(
+            stored.dtype)  # the chosen bits the type has
         flags = np.empty(shape, bool)
         for i in range(shape[0]):  # a frame (or a row) at a time: no temporary of DQ's size
             np.not_equal(np.bitwise_and(stored[i], mask), 0, out=flags[i])
     if rows is not None:
         flags = flags[rows]
     return flags if shape == sci_shape else np.broadcast_to(flags, sci_shape)
+
+
+def flag_bits(stored, path):
+    """The bits of integer flags as stored: a view as unsigned integers of the same size.
+
+    A signed type's negative values are its top bit (``-1`` in an ``int16``
+    ``DQ`` is bits 0-15), never bits of a wider type.
+
+    Raises
+    ------
+    FormatError
+        ``stored`` is not integers (a `~spherex_reduce.io.readers.pixels.physical`
+        read of flags never is).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.io.readers.flags import flag_bits
+    >>> flag_bits(np.array([-1, 4], np.int16), "x.fits").tolist()
+    [65535, 4]
+    """
+    stored = np.asarray(stored)
+    if stored.dtype.kind not in "iu":
+        raise FormatError(f"{path}: DQ holds flags, which must be integers; it holds "
+                          f"{stored.dtype.name} values")
+    native = stored.dtype.newbyteorder("=")
+    return stored.astype(native, copy=False).view(f"u{native.itemsize}")
+
+
+def own_flags(stored, path):
+    """Flags of a file this package wrote (its 32 bits), checked to have no higher bit.
+
+    Raises
+    ------
+    FormatError
+        A value with a bit above 31 (a 64-bit ``DQ``): it would be lost in the
+        exposure's 32-bit flags.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.io.readers.flags import own_flags
+    >>> own_flags(np.array([1, 2**31], np.uint64), "x.fits").tolist()
+    [1, 2147483648]
+    >>> own_flags(np.array([1, 2**40], np.uint64), "x.fits")
+    Traceback (most recent call last):
+    ...
+    spherex_reduce.core.errors.FormatError: x.fits: DQ holds 1099511627776, a flag above bit 31 ...
+    """
+    stored = flag_bits(stored, path)
+    if stored.dtype.itemsize > 4 and stored.size and (top := int(stored.max())) > _MAX_BITS:
+        raise FormatError(f"{path}: DQ holds {top}, a flag above bit 31 (bit "
+                          f"{top.bit_length() - 1}); this package's flags are bits 0-31: the "
+                          "file's flags were changed by other software")
+    return stored
 
 
 def _rows_of(shape, sci_shape, schedule, order, path):

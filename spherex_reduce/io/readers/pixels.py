@@ -94,10 +94,16 @@ def physical(hdu, path, stable, flags=False, index=None):
     tile-compressed), whose data come as astropy gives them (callers read such a
     file within `unpacking`).  Scaled data are
     converted here from the stored values: floating point, or 64-bit integers
-    for flags (``DQ``), whose ``BSCALE`` must be 1 and ``BZERO`` whole.
+    for flags (``DQ``), whose ``BSCALE`` must be 1 and ``BZERO`` whole.  Flags
+    stored as floating-point numbers are refused (`FormatError`), integral or
+    not: a flag of 0.5 cast to an integer would mask nothing.
     """
     if hdu.header.get("NAXIS", 0) == 0:
         return None
+    if flags and hdu.header["BITPIX"] < 0:  # 0.5 on a bad read would mask nothing
+        raise FormatError(f"{path}: HDU {hdu.name!r}{_version(hdu)} holds flags, which must be "
+                          f"integers; it holds floating-point numbers (BITPIX = "
+                          f"{hdu.header['BITPIX']})")
     scale = scaling(hdu, path)
     unpacked = stable is None or isinstance(hdu, fits.CompImageHDU)  # by astropy
     if scale is None and unpacked:
@@ -109,7 +115,7 @@ def physical(hdu, path, stable, flags=False, index=None):
         return stored.byteswap(inplace=True).view(stored.dtype.newbyteorder("="))
     bitpix = hdu.header["BITPIX"]
     if flags:
-        if bitpix < 0 or scale[0] != 1 or scale[1] != int(scale[1]):
+        if scale[0] != 1 or scale[1] != int(scale[1]):
             raise FormatError(f"{path}: HDU {hdu.name!r} holds flags, which must be integers; "
                               f"it has BITPIX = {bitpix}, BSCALE = {scale[0]}, "
                               f"BZERO = {scale[1]}")
@@ -124,6 +130,11 @@ def physical(hdu, path, stable, flags=False, index=None):
         data = np.asarray(hdu.data)
         return (data if index is None else data[index]).astype(dtype)
     return to_physical(_stored(hdu, path, index, stable), scale, dtype)
+
+
+def _version(hdu):
+    """``',2'`` for an extension with ``EXTVER = 2`` (HST's ``DQ,2``), ``''`` without one."""
+    return f",{hdu.header['EXTVER']}" if "EXTVER" in hdu.header else ""
 
 
 def _stored(hdu, path, index, stable):

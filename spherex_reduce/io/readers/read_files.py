@@ -25,7 +25,7 @@ from ..input import InputOptions, apply_gain, apply_input
 from ..layout import fits_stem
 from .description import describe, file_tables, image_shape
 from .fits_read import open_fits
-from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq
+from .flags import file_flags, flag_bits, foreign_bits, is_own_file, note_foreign_dq
 from .frames import RampReader, consecutive_runs, map_frames
 from .pixels import FLOAT_FOR, physical, scaling, to_physical, unpacking
 from .stable_file import pread_into
@@ -115,7 +115,8 @@ def read_file_paths(pattern):
 
 
 def read_mask(path, nreads, shape, verify_checksum=None):
-    """The flags of every read from one mask file: ``nreads`` arrays of ``shape`` (int64).
+    """The flags of every read from one mask file: ``nreads`` arrays of ``shape`` (their bits,
+    unsigned, `~spherex_reduce.io.readers.flags.flag_bits`).
 
     The file's ``DQ`` extension, else its primary HDU, holds integers: a 2-D
     image of ``shape`` applies to every read, a 3-D one ``(nreads, *shape)``
@@ -150,10 +151,7 @@ def read_mask(path, nreads, shape, verify_checksum=None):
             if not hdu.is_image or hdu.header.get("NAXIS", 0) == 0:
                 raise FormatError(f"{path}: a mask file holds the flags as a DQ extension or "
                                   "in its primary HDU; this one has neither")
-            if hdu.header["BITPIX"] < 0:
-                raise FormatError(f"{path}: the mask holds floating-point numbers (BITPIX = "
-                                  f"{hdu.header['BITPIX']}); flags are integers")
-            flags = np.asarray(physical(hdu, path, stable, flags=True), np.int64)
+            flags = flag_bits(physical(hdu, path, stable, flags=True), path)
     finally:
         if stable is not None:
             stable.close()
@@ -359,10 +357,10 @@ class ImageRamp(RampReader):
         3-D file's: foreign bits (``input: dq_bits``) unless they are this package's."""
         if all(f.dq is None for f in self._images):
             return None
-        stored = np.zeros(shape, np.int64)
+        stored = np.zeros(shape, np.uint64)  # every bit of each read's flags, none added
         for k, f in enumerate(self._images):
             if f.dq is not None:
-                stored[k] = f.dq
+                stored[k] = flag_bits(f.dq, f.path)
         return file_flags(stored, shape, self.schedule, self.order, self._dq_bits, self.label)
 
     def close(self):
@@ -459,7 +457,8 @@ class ReadFiles(ImageRamp):
                 planes = read_mask(dq, len(paths), first.stored_shape, verify_checksum)
                 for f, stored in zip(self._files, planes, strict=True):
                     plane = first.layout.to_readout(stored)
-                    f.image.dq = plane if f.image.dq is None else f.image.dq | plane
+                    f.image.dq = plane if f.image.dq is None else (
+                        flag_bits(f.image.dq, f.path) | plane)
             self.schedule = first.d.schedule.replace(nframes=len(paths))
             self.order, self.unit = first.d.order, first.d.unit
             self.header = first.d.header.copy()

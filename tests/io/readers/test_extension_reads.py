@@ -244,3 +244,58 @@ def test_a_config_without_input_reads_keeps_its_hash():
     with_reads = {**config, "input": {**config["input"], "reads": "extensions"}}
     assert sr.Pipeline(with_reads).config["input"]["reads"] == "extensions"
     assert sr.Pipeline(with_reads).config_hash != "2305e54ac6b77912"
+
+
+def _flags_of_read_3(dtype, value):
+    """A change: DQ,3 (the read at 22.934 s, read 3 in time order) as ``dtype``, flagging
+    pixel `FLAGGED` with ``value`` (and no other)."""
+    def change(hdul):
+        flags = np.zeros((16, 16), dtype)
+        flags[FLAGGED] = value
+        hdul["DQ", 3].data = flags
+    return change
+
+
+def test_a_float_dq_of_a_read_is_refused_in_one_line(tmp_path, capsys):
+    """``DQ,3`` stored as float with 0.5 on the bad read: cast to an integer it masked nothing
+    and the read was fitted; refused, integral or not (as a 3-D file's float DQ is)."""
+    for value in (0.5, 256.0):
+        raw = _write(tmp_path / "x_raw.fits", _ramps(),
+                     change=_flags_of_read_3(np.float32, value))
+        before = _digest(raw)
+        out = tmp_path / "out.fits"
+        assert main(["reduce", str(raw), "-c", str(_config(tmp_path / "wfc3.yaml")), "-o",
+                     str(out)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and err.startswith("spherex-reduce reduce: error: ")
+        assert ("x_raw.fits: HDU 'DQ',3 holds flags, which must be integers; it holds "
+                "floating-point numbers (BITPIX = -32)") in err
+        assert not out.exists() and _digest(raw) == before
+        raw.unlink()
+
+
+@pytest.mark.parametrize("bit", [40, 63])
+def test_a_64_bit_dq_of_a_read_masks_on_its_high_bits(tmp_path, bit):
+    """``DQ,3`` as int64 with only bit 40 (or 63, a negative value) set: by default every bit
+    masks, so read 3 of that pixel is left out of its fit (numpy least squares over the
+    other reads); it was fitted (the mask kept bits 0-31 only).  ``dq_bits`` names bits
+    0-31 only: with 256 the high bit does not mask."""
+    ramps = _ramps()
+    value = np.array(2**bit, np.uint64).view(np.int64)
+    raw = _write(tmp_path / "x_raw.fits", ramps, change=_flags_of_read_3(np.int64, value))
+    with fits.open(raw) as hdul:
+        assert hdul["DQ", 3].header["BITPIX"] == 64
+    out = tmp_path / "out.fits"
+    assert main(["-q", "reduce", str(raw), "-c", str(_config(tmp_path / "wfc3.yaml")), "-o",
+                 str(out)]) == 0
+    expected = _lstsq(ramps, TIMES)
+    others = [k for k in range(len(TIMES)) if k != 3]
+    r, c = FLAGGED
+    expected[r, c] = _lstsq(ramps[others], [TIMES[k] for k in others])[r, c]
+    np.testing.assert_allclose(fits.getdata(out, "SCI"), expected, rtol=1e-9, atol=1e-9)
+    assert "pixels with any bit set" in "".join(fits.getheader(out)["HISTORY"])
+    chosen = tmp_path / "chosen.fits"
+    assert main(["-q", "reduce", str(raw), "-c", str(_config(tmp_path / "b.yaml", dq_bits=256)),
+                 "-o", str(chosen)]) == 0
+    np.testing.assert_allclose(fits.getdata(chosen, "SCI"), _lstsq(ramps, TIMES), rtol=1e-9,
+                               atol=1e-9)

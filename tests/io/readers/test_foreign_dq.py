@@ -223,6 +223,52 @@ def test_float_dq_is_refused(tmp_path):
         sr.read(raw, **SUPPLIED)
 
 
+def test_a_64_bit_dq_masks_on_its_high_bits(tmp_path):
+    """A 3-D int64 DQ with bit 40 on one read and bit 63 (a negative value) on another: by
+    default (every bit) both reads are left out of their pixel's fit, the other slopes are
+    numpy's least squares; they were fitted (the mask kept bits 0-31).  ``--dq-bits``
+    names bits 0-31: with 1 neither high bit masks."""
+    s = _schedule()
+    sci = _ramps(s)
+    flags = np.zeros(sci.shape, np.int64)
+    flags[2, 4, 3] = 2**40
+    flags[1, 9, 6] = np.array(2**63, np.uint64).view(np.int64)
+    raw = _foreign(tmp_path / "lab.fits", sci, flags)
+    with fits.open(raw) as hdul:
+        assert hdul["DQ"].header["BITPIX"] == 64
+    cfg = _config(tmp_path / "fit.yaml", ["fit_ramp: {weighting: uniform}"])
+    expected = _lstsq(sci, 2.0)
+    for frame, i, c in ((2, 4, 3), (1, 9, 6)):
+        kept = np.delete(np.arange(s.nframes), frame)
+        design = np.vstack([kept * 2.0, np.ones(kept.size)]).T
+        expected[i, c] = np.linalg.lstsq(design, sci[kept, i, c].astype(np.float64),
+                                         rcond=None)[0][0]
+    for option, want in (([], expected), (["--dq-bits", "1"], _lstsq(sci, 2.0))):
+        out = tmp_path / f"out{len(option)}.fits"
+        assert main(["-q", "reduce", str(raw), "-c", str(cfg), "-o", str(out), *option]) == 0
+        np.testing.assert_allclose(fits.getdata(out, "SCI"), want, rtol=1e-6, atol=1e-6)
+
+
+def test_an_own_file_with_a_bit_above_31_is_refused(tmp_path, capsys):
+    """This package's flags are 32 bits: its file with a 64-bit DQ holding bit 40 (changed by
+    other software) is refused in one line, not read with the bit dropped."""
+    s = _schedule()
+    path = sr.write(sr.Exposure.from_arrays(_ramps(s), s), tmp_path / "own.fits")
+    with fits.open(path) as hdul:
+        flags = np.zeros(hdul["SCI"].shape, np.int64)
+        flags[1, 3, 4] = 2**40 | dq.HOT
+        hdul.append(fits.ImageHDU(flags, name="DQ"))
+        hdul.writeto(tmp_path / "changed.fits", checksum=True)
+    with pytest.raises(FormatError, match=r"changed.fits: DQ holds 1099511627780, a flag above "
+                                          r"bit 31 \(bit 40\)"):
+        sr.read(tmp_path / "changed.fits")
+    cfg = _config(tmp_path / "fit.yaml", ["fit_ramp: {}"])
+    assert main(["reduce", str(tmp_path / "changed.fits"), "-c", str(cfg), "-o",
+                 str(tmp_path / "out.fits")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "bit 40" in err and not (tmp_path / "out.fits").exists()
+
+
 def test_cli_dq_bits_is_checked(tmp_path, capsys):
     """``--dq-bits`` takes 0 to 2**32 - 1 (decimal, hex, binary) on every command reading FITS;
     anything else is a one-line usage error naming the option."""

@@ -321,7 +321,8 @@ def test_a_mask_file_of_another_shape_is_refused(tmp_path, capsys):
     assert not out.exists() and len(paths) == len(NUMBERS)
     fits.PrimaryHDU(np.zeros(image, np.float32)).writeto(mask, overwrite=True)
     assert main([*args, "--reads-dq", str(mask)]) == 2  # flags are integers
-    assert "the mask holds floating-point numbers (BITPIX = -32)" in capsys.readouterr().err
+    assert ("mask.fits: HDU 'PRIMARY' holds flags, which must be integers; it holds "
+            "floating-point numbers (BITPIX = -32)") in capsys.readouterr().err
     assert main(["reduce", str(paths[0]), "--reads-dq", str(mask), "-c", str(cfg), "-o",
                  str(out)]) == 2
     assert "give --reads too" in capsys.readouterr().err
@@ -329,3 +330,60 @@ def test_a_mask_file_of_another_shape_is_refused(tmp_path, capsys):
     fits.HDUList([fits.PrimaryHDU(), table]).writeto(mask, overwrite=True)
     assert main([*args, "--reads-dq", str(mask)]) == 2  # a table named DQ: not a mask
     assert "holds the flags as a DQ extension or in its primary HDU" in capsys.readouterr().err
+
+
+def _read_dq(path, flags):
+    """``path`` rewritten with ``flags`` as its DQ extension."""
+    with fits.open(path) as hdul:
+        fits.HDUList([hdul[0].copy(), fits.ImageHDU(flags, name="DQ")]).writeto(
+            path, overwrite=True, checksum=True)
+
+
+def test_a_float_dq_in_a_read_file_is_refused_in_one_line(tmp_path, capsys):
+    """A read file's DQ stored as float (0.5 on the bad pixel): refused in one line naming the
+    file, with ``--reads-dq`` or without (it was a TypeError, exit 1, with a mask file, and
+    fitted as unflagged without one); the files are not changed."""
+    s = _schedule()
+    sci = _ramps(s)
+    paths = _write_reads(tmp_path / "r", sci)
+    flags = np.zeros(sci.shape[1:], np.float32)
+    flags[5, 3] = 0.5
+    _read_dq(paths[2], flags)
+    mask = tmp_path / "mask.fits"
+    fits.PrimaryHDU(np.zeros(sci.shape[1:], np.int16)).writeto(mask)
+    before = _digests([*paths, mask])
+    cfg = _config(tmp_path / "fit.yaml", FIT)
+    out = tmp_path / "out.fits"
+    args = ["reduce", "--reads", str(tmp_path / "r" / "read_*.fits"), "-c", str(cfg), "-o",
+            str(out)]
+    for more in (["--reads-dq", str(mask)], []):
+        assert main([*args, *more]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and err.startswith("spherex-reduce reduce: error: "), err
+        assert ("read_3.fits: HDU 'DQ' holds flags, which must be integers; it holds "
+                "floating-point numbers (BITPIX = -32)") in err
+    assert not out.exists() and _digests([*paths, mask]) == before
+
+
+def test_read_file_flags_keep_their_own_bits(tmp_path):
+    """An int16 DQ's -32768 is its bit 15 alone: with ``--dq-bits`` 0x10000 (bit 16) it masks
+    nothing (it was sign-extended to bits 15-63, and masked); with 0x8000 it masks that
+    read, whose pixel is then fitted over the others (numpy least squares)."""
+    s = _schedule()
+    sci = _ramps(s)
+    paths = _write_reads(tmp_path / "r", sci)
+    flags = np.zeros(sci.shape[1:], np.int16)
+    flags[5, 3] = -32768
+    _read_dq(paths[2], flags)
+    cfg = _config(tmp_path / "fit.yaml", FIT)
+    expected = _lstsq(sci)
+    for bits in ("0x10000", "0x8000"):
+        out = tmp_path / f"out{bits}.fits"
+        assert main(["-q", "reduce", "--reads", str(tmp_path / "r" / "read_*.fits"), "-c",
+                     str(cfg), "-o", str(out), "--dq-bits", bits]) == 0
+        if bits == "0x8000":
+            others = np.delete(np.arange(len(NUMBERS)), 2)
+            design = np.vstack([others * 2.0, np.ones(others.size)]).T
+            expected[5, 3] = np.linalg.lstsq(design, sci[others, 5, 3].astype(np.float64),
+                                             rcond=None)[0][0]
+        np.testing.assert_allclose(fits.getdata(out, "SCI"), expected, rtol=1e-6, atol=1e-6)

@@ -31,4 +31,6 @@ def run(args):
     for path in args.inputs:
         header.add_history(f"combine input: {header_text(path)}")
     write(master.replace(header=header), args.output, overwrite=args.overwrite)
-    print(f"wrote {args.output} ({args.method} of {len(exposures)} exposures)")
+    print(f"wrote {args.output} ({args.method} of {len(exposures)} exposures; "
+          f"{master.header['NCOMB1']} pixels from one usable input, "
+          f"{master.header['NCOMB0']} with none: NaN, flagged DO_NOT_USE)")

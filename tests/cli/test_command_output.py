@@ -85,6 +85,62 @@ def test_demo_and_spectrum_give_one_band_power(demo_dir, tmp_path):
 
 
 # -- help texts and listings -------------------------------------------------------------
+def _help(command):
+    """``spherex-reduce COMMAND --help`` as printed, and the help of each of its arguments
+    (the text after the option's column, lines joined, up to the next argument)."""
+    import contextlib
+    import io
+    import re
+
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), pytest.raises(SystemExit):
+        main([command, "--help"])
+    text = out.getvalue()
+    entries = re.split(r"\n  (?=[-\w])", text.split("\npositional arguments:", 1)[-1])
+    described = {}
+    for entry in entries[1:]:
+        head, _, rest = entry.partition("  ")
+        described[head.split(",")[0].split()[0]] = " ".join(rest.split())
+    return text, described
+
+
+@pytest.mark.parametrize("command", ["reduce", "combine"])
+def test_every_argument_of_reduce_and_combine_is_described(command):
+    """reduce --help showed IN.fits, -c and -o with no word on what they are."""
+    _, described = _help(command)
+    assert {"-c", "-o", "IN.fits"} & set(described)
+    assert not [name for name, text in described.items() if not text], described
+
+
+def test_reduce_help_names_the_shipped_configs():
+    from pathlib import Path
+
+    import spherex_reduce
+
+    _, described = _help("reduce")
+    shipped = sorted(p.stem for p in (Path(spherex_reduce.__file__).parent / "data"
+                                      / "configs").glob("*.yaml"))
+    assert len(shipped) >= 5
+    assert all(name in described["-c"] for name in shipped), described["-c"]
+    assert "a directory" in described["-o"] and "exists" in described["-o"]
+    assert "raw FITS file" in described["IN.fits"]
+
+
+def test_readout_help_says_each_choice_once_and_lists_the_presets():
+    """--channels said 'columns, rows or quadrants: columns, rows, quadrants'; --preset did
+    not say which presets there are."""
+    _, described = _help("readout")
+    for flag, words in {"--channels": ("columns", "rows", "quadrants"),
+                        "--first-corner": ("outer", "inner"),
+                        "--fast-axis": ("rows", "columns"),
+                        "--ref-mode": ("none", "repeated", "distributed")}.items():
+        text = described[flag].split("(default:")[0]
+        assert all(text.count(word) == 1 for word in words), (flag, text)
+    # the presets of docs/measured_darks.rst
+    presets = ("H2RG", "H4RG-10", "WFC3-IR", "SIDECAR", "SIDECAR-science")
+    assert all(name in described["--preset"] for name in presets), described["--preset"]
+
+
 def test_readout_help_describes_every_option_with_its_default(capsys):
     from spherex_reduce.cli.readout import OPTIONS
     from spherex_reduce.io.config import (

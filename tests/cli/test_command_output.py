@@ -79,9 +79,24 @@ def test_demo_and_spectrum_give_one_band_power(demo_dir, tmp_path):
         out = tmp_path / f"{label}.ecsv"
         assert main(["spectrum", str(demo_dir / f"reduced_{label}.fits"), "-o", str(out)]) == 0
         spec = Table.read(out).meta
-        demo = u.Quantity(demo_meta[f"band_power_{label}"])
-        assert demo.unit == u.Unit(spec["band_power_unit"])
-        assert demo.value == pytest.approx(spec["band_power"], rel=1e-12)
+        assert demo_meta["band_power_unit"] == spec["band_power_unit"]
+        for name in ("band_power", "band_power_err"):
+            assert demo_meta[f"{name}_{label}"] == pytest.approx(spec[name], rel=1e-12)
+
+
+def test_demo_table_stores_numbers_in_the_unit_of_its_columns(demo_dir):
+    """The band powers were strings with units ('16258.87 electron2 pix2 / s2') where
+    spectrum and forecast write a number and band_power_unit."""
+    from astropy.table import QTable
+
+    demo_dir, _ = demo_dir
+    table = QTable.read(demo_dir / "spectra.ecsv")
+    unit = u.Unit(table.meta["band_power_unit"])
+    assert unit == table["power_chopped"].unit == table["power_unchopped"].unit
+    assert unit == u.electron**2 / u.s**2 * u.pix**2
+    for key in ("band_power_chopped", "band_power_err_chopped", "band_power_unchopped",
+                "band_power_err_unchopped", "photon_noise_power"):
+        assert type(table.meta[key]) is float and table.meta[key] > 0, key
 
 
 # -- help texts and listings -------------------------------------------------------------

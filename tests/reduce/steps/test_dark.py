@@ -150,5 +150,17 @@ def test_combine_flagged_values_stay_out_of_the_clip(method, sigma):
     np.testing.assert_array_equal(master.dq & dq.DO_NOT_USE, np.where(n == 0, dq.DO_NOT_USE, 0))
     assert master.dq[3, 3] == dq.DO_NOT_USE | dq.HOT
     assert master.header["NCOMB1"] == (n == 1).sum() and master.header["NCOMB0"] == 2
+    # side by side with ccdproc.combine: the same where every input is usable
+    import ccdproc
+
+    kw = dict(sigma_clip=True, sigma_clip_low_thresh=sigma, sigma_clip_high_thresh=sigma,
+              sigma_clip_func=np.ma.median, sigma_clip_dev_func=mad_std) if sigma else {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ref = ccdproc.combine([CCDData(values[k], unit="electron/s", mask=~usable[k])
+                               for k in range(3)], method=method, dtype=np.float64, **kw)
+    clean = usable.all(axis=0)
+    np.testing.assert_allclose(master.data.data[clean], ref.data[clean], rtol=1e-12)
+    np.testing.assert_allclose(unc[clean], ref.uncertainty.array[clean], rtol=1e-12)
     np.testing.assert_array_equal(values, before)  # inputs untouched
     np.testing.assert_array_equal(darks[0].data.data, before[0])

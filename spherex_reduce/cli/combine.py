@@ -12,9 +12,14 @@ def add_parser(sub):
         description="Combine two or more reduced 2-D exposures (e.g. slopes written by "
         "`spherex-reduce reduce`) into a master dark with ccdproc.combine (sigma-clipped "
         "average by default, uncertainty propagated), for the subtract_dark step.")
-    p.add_argument("inputs", nargs="+", metavar="IN.fits")
-    p.add_argument("-o", "--output", required=True, metavar="MASTER.fits")
-    p.add_argument("--method", choices=COMBINE_METHODS, default="average")
+    p.add_argument("inputs", nargs="+", metavar="IN.fits",
+                   help="two or more reduced 2-D images of one shape (e.g. dark slopes); "
+                   "flagged (DQ) or NaN values are left out")
+    p.add_argument("-o", "--output", required=True, metavar="MASTER.fits",
+                   help="the master dark to write (SCI, ERR, DQ; refused if it exists, see "
+                   "--overwrite)")
+    p.add_argument("--method", choices=COMBINE_METHODS, default="average",
+                   help="how each pixel's values are combined (default: %(default)s)")
     p.add_argument("--sigma", type=nonnegative_float, default=3.0,
                    help="clip each pixel at this many standard deviations across the "
                    "inputs (0: no clipping; default 3)")
@@ -31,4 +36,6 @@ def run(args):
     for path in args.inputs:
         header.add_history(f"combine input: {header_text(path)}")
     write(master.replace(header=header), args.output, overwrite=args.overwrite)
-    print(f"wrote {args.output} ({args.method} of {len(exposures)} exposures)")
+    print(f"wrote {args.output} ({args.method} of {len(exposures)} exposures; "
+          f"{master.header['NCOMB1']} pixels from one usable input, "
+          f"{master.header['NCOMB0']} with none: NaN, flagged DO_NOT_USE)")

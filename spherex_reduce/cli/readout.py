@@ -3,6 +3,7 @@
 import argparse
 
 from ..core.fields import FIELDS, SIDES
+from ..core.presets import PRESETS
 from ..io import atomic_output
 from ..io.config import load_yaml, schedule_from_config
 from ._common import all_or_nothing, check_paths, count, finite_float, positive_float
@@ -78,14 +79,19 @@ TEXT_FORMS = {"groups": "0;1-2;3-6 (';' between groups, a-b a run of reads)",
               "read_times": "0,2.93,12.93 (s, ',' between reads)",
               "order": "the path of an ECSV file of one integer column, in read order"}
 
+#: The names a field without fixed choices takes (``--preset``).
+NAMED = {"preset": tuple(PRESETS)}
+
 
 def _option_help(field):
     """Help of one option from its field: meaning, choices, default."""
     text = field.doc
     if field.side_keywords:
         text += f", e.g. top=4,left=4 (sides {', '.join(SIDES)}; others 0)"
-    if field.choices:
-        text += f": {', '.join(field.choices)}"
+    if field.choices and not all(choice in field.doc for choice in field.choices):
+        text += f": {', '.join(field.choices)}"  # unless the line names them already
+    if field.name in NAMED:
+        text += f": {', '.join(NAMED[field.name])}"
     if field.from_text:
         text += f", as text: {TEXT_FORMS[field.name]}"
     if field.default is None:

@@ -8,6 +8,7 @@ from ..core._text import plural
 from ..core.errors import ConfigError
 from ..core.limits import MAX_WORKERS
 from ..io import atomic_output, write
+from ..io.config import shipped_configs
 from ..io.readers.read_files import ReadFiles, read_file_paths
 from ..reduce.integrations import reduce_input
 from ..reduce.provenance import provenance_rows
@@ -29,7 +30,10 @@ def add_parser(sub):
         "resumes), a file that fails is reported and the others finish. With --reads "
         "'DIR/read_*.fits' instead of IN.fits, the files are the reads of one ramp "
         "(--reads-dq MASK.fits: their flags).")
-    p.add_argument("input", metavar="IN.fits", nargs="*")
+    p.add_argument("input", metavar="IN.fits", nargs="*",
+                   help="the raw FITS file to reduce: ramps in readout order (as simulate "
+                   "writes them), another system's ramps, or a 4-D SCI of integrations; "
+                   "several files: each reduced on dask into the directory -o")
     p.add_argument("--reads", metavar="GLOB",
                    help="reduce one ramp stored as one file per read: the files the glob "
                    "matches (quote it), in natural order (read_2 before read_10), each one 2-D "
@@ -39,8 +43,13 @@ def add_parser(sub):
                    "primary HDU (integers): 2-D (rows x columns of a read) for every read, or "
                    "3-D with one plane per read file; flagged pixels are not fitted (any bit, "
                    "or --dq-bits / input.dq_bits), with each read file's own DQ")
-    p.add_argument("-c", "--config", required=True, metavar="PIPELINE.yaml")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.fits|OUTDIR")
+    p.add_argument("-c", "--config", required=True, metavar="PIPELINE.yaml",
+                   help="the pipeline: a YAML file of steps, or a shipped config "
+                   f"({', '.join(shipped_configs())}; show-config --list says what each "
+                   "does, show-config NAME prints one to edit)")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.fits|OUTDIR",
+                   help="the reduced FITS file to write (SCI, ERR, DQ and the steps' tables; "
+                   "refused if it exists, see --overwrite); with several inputs, a directory")
     p.add_argument("--overwrite", action="store_true",
                    help="replace OUT.fits if it exists (several inputs: reduce every file "
                    "again, replacing existing outputs)")

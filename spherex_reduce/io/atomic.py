@@ -53,9 +53,9 @@ class atomic_output:
         if text.endswith(("/", os.sep)) or self.path.is_dir():
             raise IsADirectoryError(f"{text} names a directory; give a file name to write")
         if self.path.exists() and not overwrite:
-            raise FileExistsError(
-                f"{self.path} exists; not overwriting it (pass overwrite=True / --overwrite)"
-            )
+            raise FileExistsError(  # astropy's words, and the option of the command line
+                f"File {self.path} already exists. If you mean to replace it then use the "
+                'argument "overwrite=True" (on the command line: --overwrite).')
         if not self.path.parent.is_dir():
             raise FileNotFoundError(f"output directory {self.path.parent} does not exist")
 

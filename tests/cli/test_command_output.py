@@ -79,12 +79,83 @@ def test_demo_and_spectrum_give_one_band_power(demo_dir, tmp_path):
         out = tmp_path / f"{label}.ecsv"
         assert main(["spectrum", str(demo_dir / f"reduced_{label}.fits"), "-o", str(out)]) == 0
         spec = Table.read(out).meta
-        demo = u.Quantity(demo_meta[f"band_power_{label}"])
-        assert demo.unit == u.Unit(spec["band_power_unit"])
-        assert demo.value == pytest.approx(spec["band_power"], rel=1e-12)
+        assert demo_meta["band_power_unit"] == spec["band_power_unit"]
+        for name in ("band_power", "band_power_err"):
+            assert demo_meta[f"{name}_{label}"] == pytest.approx(spec[name], rel=1e-12)
+
+
+def test_demo_table_stores_numbers_in_the_unit_of_its_columns(demo_dir):
+    """The band powers were strings with units ('16258.87 electron2 pix2 / s2') where
+    spectrum and forecast write a number and band_power_unit."""
+    from astropy.table import QTable
+
+    demo_dir, _ = demo_dir
+    table = QTable.read(demo_dir / "spectra.ecsv")
+    unit = u.Unit(table.meta["band_power_unit"])
+    assert unit == table["power_chopped"].unit == table["power_unchopped"].unit
+    assert unit == u.electron**2 / u.s**2 * u.pix**2
+    for key in ("band_power_chopped", "band_power_err_chopped", "band_power_unchopped",
+                "band_power_err_unchopped", "photon_noise_power"):
+        assert type(table.meta[key]) is float and table.meta[key] > 0, key
 
 
 # -- help texts and listings -------------------------------------------------------------
+def _help(command):
+    """``spherex-reduce COMMAND --help`` as printed, and the help of each of its arguments
+    (the text after the option's column, lines joined, up to the next argument)."""
+    import contextlib
+    import io
+    import re
+
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), pytest.raises(SystemExit):
+        main([command, "--help"])
+    text = out.getvalue()
+    entries = re.split(r"\n  (?=[-\w])", text.split("\npositional arguments:", 1)[-1])
+    described = {}
+    for entry in entries[1:]:
+        head, _, rest = entry.partition("  ")
+        described[head.split(",")[0].split()[0]] = " ".join(rest.split())
+    return text, described
+
+
+@pytest.mark.parametrize("command", ["reduce", "combine"])
+def test_every_argument_of_reduce_and_combine_is_described(command):
+    """reduce --help showed IN.fits, -c and -o with no word on what they are."""
+    _, described = _help(command)
+    assert {"-c", "-o", "IN.fits"} & set(described)
+    assert not [name for name, text in described.items() if not text], described
+
+
+def test_reduce_help_names_the_shipped_configs():
+    from pathlib import Path
+
+    import spherex_reduce
+
+    _, described = _help("reduce")
+    shipped = sorted(p.stem for p in (Path(spherex_reduce.__file__).parent / "data"
+                                      / "configs").glob("*.yaml"))
+    assert len(shipped) >= 5
+    assert all(name in described["-c"] for name in shipped), described["-c"]
+    assert "a directory" in described["-o"] and "exists" in described["-o"]
+    assert "raw FITS file" in described["IN.fits"]
+
+
+def test_readout_help_says_each_choice_once_and_lists_the_presets():
+    """--channels said 'columns, rows or quadrants: columns, rows, quadrants'; --preset did
+    not say which presets there are."""
+    _, described = _help("readout")
+    for flag, words in {"--channels": ("columns", "rows", "quadrants"),
+                        "--first-corner": ("outer", "inner"),
+                        "--fast-axis": ("rows", "columns"),
+                        "--ref-mode": ("none", "repeated", "distributed")}.items():
+        text = described[flag].split("(default:")[0]
+        assert all(text.count(word) == 1 for word in words), (flag, text)
+    # the presets of docs/measured_darks.rst
+    presets = ("H2RG", "H4RG-10", "WFC3-IR", "SIDECAR", "SIDECAR-science")
+    assert all(name in described["--preset"] for name in presets), described["--preset"]
+
+
 def test_readout_help_describes_every_option_with_its_default(capsys):
     from spherex_reduce.cli.readout import OPTIONS
     from spherex_reduce.io.config import (

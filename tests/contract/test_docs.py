@@ -124,3 +124,58 @@ def test_every_subcommand_is_documented():
         f"docs/cli.rst has no section for {missing}: add a section with "
         "'.. spherex-reduce-help:: NAME' and a sentence on what it does"
     )
+
+
+#: A small stand-in for the README's ``simulate`` of the paper's case (1.3 GB of ramps).
+_SMALL_SCENE = """\
+geometry: {nrows: 64, ncols: 64, nchannels: 2, ref_border: 4}
+readout: {skip: 4, ref_reads: 4, phantom_reads: 2, nframes: 3, frame_overhead: 10}
+seed: 1
+"""
+
+
+def _readme_blocks(language):
+    import re
+
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    return re.findall(rf"```{language}\n(.*?)```", text, re.S)
+
+
+def test_readme_python_snippet_runs_after_its_commands(tmp_path, monkeypatch, capsys):
+    """A newcomer runs the README's commands, then its Python snippet, in one directory: the
+    snippet stopped on a FileExistsError (it wrote the command's reduced.fits again), and it
+    read the whole raw file into memory where ``Pipeline.run(path)`` streams it."""
+    import shlex
+
+    import numpy as np
+
+    import spherex_reduce as sr
+    from spherex_reduce.cli import main
+
+    commands = next(b for b in _readme_blocks("bash") if "spherex-reduce reduce " in b)
+    (reduce_line,) = [line.split("#")[0] for line in commands.splitlines()
+                      if line.startswith("spherex-reduce reduce ")]
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "scene.yaml").write_text(_SMALL_SCENE)
+    assert main(["-q", "simulate", "scene.yaml", "--mode", "ramps", "-o", "raw.fits"]) == 0
+    argv = shlex.split(reduce_line)[1:]
+    assert argv[:2] == ["reduce", "raw.fits"]
+    assert main(["-q", *argv]) == 0
+    command_output = tmp_path / argv[argv.index("-o") + 1]
+    before = command_output.read_bytes()
+    capsys.readouterr()
+
+    def whole_file(*args, **kwargs):
+        raise AssertionError("the README's snippet reads the whole raw file into memory")
+
+    monkeypatch.setattr(sr, "read", whole_file)
+    (snippet,) = _readme_blocks("python")
+    namespace = {}
+    exec(compile(snippet, "README.md", "exec"), namespace)
+    assert "2072 reads/frame" in capsys.readouterr().out  # what its comment says
+    assert command_output.read_bytes() == before  # the command's output is left alone
+    monkeypatch.undo()
+    np.testing.assert_array_equal(namespace["reduced"].data.data,
+                                  sr.read(command_output).data.data)
+    written = sorted(p.name for p in tmp_path.glob("*.fits"))
+    assert len(written) == 3, written  # raw, the command's and the snippet's

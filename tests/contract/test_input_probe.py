@@ -1963,3 +1963,60 @@ ROUND3_INPUTS = [
 @pytest.mark.parametrize("case", ROUND3_INPUTS)
 def test_round_three_inputs(case, inputs, runner, tmp_path):
     test_input(case, inputs, runner, tmp_path)
+
+
+# Round three: newcomer
+
+PIXEL = (20, 20)  # a light-sensitive pixel of the 64 x 64 inputs (border 4)
+
+
+def _one_usable_of_three(d):
+    """Setup: red3.fits, red2.fits with the pixel at 42 +- 3 unflagged; the pixel of red.fits
+    and red2.fits DO_NOT_USE with a value of 0 (what other software writes there)."""
+    def third(hdul):
+        hdul["SCI"].data[PIXEL], hdul["ERR"].data[PIXEL], hdul["DQ"].data[PIXEL] = 42.0, 3.0, 0
+
+    def flagged(hdul):
+        hdul["SCI"].data[PIXEL], hdul["DQ"].data[PIXEL] = 0.0, 1
+
+    rewrite_hdus(d / "red2.fits", d / "red3.fits", third)
+    rewrite_hdus(d / "red.fits", d / "red.fits", flagged)
+    rewrite_hdus(d / "red2.fits", d / "red2.fits", flagged)
+
+
+def _check_one_usable_kept(d, result, run):
+    """No warning line; the pixel is red3's value with red3's error, usable; a pixel no input
+    can give (every input flagged or NaN, counted with numpy) is NaN and DO_NOT_USE."""
+    assert [line for line in result.stderr.splitlines() if line.strip()] == []
+    with fits.open(d / "master.fits") as hdul:
+        sci, err, flags = (hdul[n].data for n in ("SCI", "ERR", "DQ"))
+        counted = hdul[0].header["NCOMB0"]
+    assert (sci[PIXEL], err[PIXEL], flags[PIXEL] & 1) == (42.0, 3.0, 0)
+    unusable = []
+    for name in ("red.fits", "red2.fits", "red3.fits"):
+        with fits.open(d / name) as hdul:
+            informational = 64 | 2 | 128  # JUMP, SATURATED, REFERENCE (docs/fits.rst)
+            unusable.append(~np.isfinite(hdul["SCI"].data)
+                            | ((hdul["DQ"].data & ~informational) != 0))
+    none = np.logical_and.reduce(unusable)
+    assert none.sum() == counted > 0
+    assert np.isnan(sci[none]).all() and (flags[none] & 1 == 1).all()
+    assert np.isfinite(sci[~none]).all() and (flags[~none] & 1 == 0).all()
+
+
+NEWCOMER = [
+    # one usable value of three was clipped by a median and spread of the two flagged zeros
+    # (NaN), with numpy's 'Mean of empty slice' and 'Degrees of freedom <= 0' on stderr
+    works("combine-one-usable-input-of-three",
+          ["combine", "red.fits", "red2.fits", "red3.fits", "-o", "master.fits"],
+          _one_usable_of_three, _check_one_usable_kept),
+    # an existing output: astropy's words, with the command line's option
+    refused("reduce-output-exists-in-astropys-words", [*REDUCE[:-1], "red.fits"],
+            mentions=r"File red\.fits already exists\. If you mean to replace it then use "
+                     r"the argument \"overwrite=True\" \(on the command line: --overwrite\)"),
+]
+
+
+@pytest.mark.parametrize("case", NEWCOMER)
+def test_newcomer_input(case, inputs, runner, tmp_path):
+    test_input(case, inputs, runner, tmp_path)

@@ -32,3 +32,29 @@ def test_without_hard_links_the_output_is_renamed(tmp_path, monkeypatch):
         tmp.write_text("again")
         out.write_text("theirs")
     assert out.read_text() == "theirs"
+
+
+def test_an_existing_output_is_refused_in_astropys_words(tmp_path, monkeypatch):
+    """``sr.write`` onto an existing file (the README's snippet after its commands) stopped
+    on a FileExistsError an astropy user does not expect: the words are astropy's own (an
+    OSError), with the option of the command line."""
+    import numpy as np
+    from astropy.io import fits
+
+    from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule, write
+
+    monkeypatch.chdir(tmp_path)
+    s = ReadoutSchedule(DetectorGeometry(4, 4, 1, ref_border=0), ref_mode="none",
+                        phantom_reads=0, nframes=2)
+    e = Exposure.from_arrays(np.ones((4, 4)), s, order="physical")
+    write(e, "reduced.fits")
+    before = (tmp_path / "reduced.fits").read_bytes()
+    with pytest.raises(OSError) as ours:
+        write(e, "reduced.fits")
+    with pytest.raises(OSError) as astropys:
+        fits.writeto("reduced.fits", np.zeros(2))
+    assert str(ours.value).startswith(str(astropys.value).rstrip(".")), (ours, astropys)
+    assert str(ours.value).endswith("(on the command line: --overwrite).")
+    assert (tmp_path / "reduced.fits").read_bytes() == before
+    write(e.replace(data=np.zeros((4, 4))), "reduced.fits", overwrite=True)
+    assert (tmp_path / "reduced.fits").read_bytes() != before

@@ -83,7 +83,7 @@ def run_demo(outdir, overwrite=False, progress=True, size=2048, nframes=74, seed
         atomic_output(outdir / name, overwrite)
     cases = {"chopped": (24, as_pipeline("spherex-default")),
              "unchopped": (1, as_pipeline("phantom-only"))}
-    spectra, reduced, summary = {}, {}, {}
+    spectra, reduced, summary, measures = {}, {}, {}, {}
     for label, (skip, pipeline) in cases.items():
         # simulated into a file and reduced from it, frame by frame: full size fits in memory
         raw = outdir / (f"raw_{label}.fits" if keep_raw else f".raw_{label}.{os.getpid()}.fits")
@@ -99,6 +99,7 @@ def run_demo(outdir, overwrite=False, progress=True, size=2048, nframes=74, seed
         reduced[label] = result
         spectra[label] = measured["spectrum"]
         summary[label] = measured["band_power"]  # as ``spherex-reduce spectrum`` measures it
+        measures[label] = measured
         if label == "chopped":
             schedule = result.schedule
             yield schedule.summary()
@@ -114,12 +115,16 @@ def run_demo(outdir, overwrite=False, progress=True, size=2048, nframes=74, seed
     table["nmodes"] = spectra["chopped"]["nmodes"]
     for name in ("k", "theta", "nmodes"):
         table[name].description = SPECTRUM_COLUMNS[name]
+    # numbers as ``spectrum`` and ``forecast`` write them: floats, in the unit of the power
+    # columns, named by band_power_unit
+    unit = table["power_chopped"].unit
     table.meta.update({
         "band": band_label(),
         "band_theta_exact": band_theta(),
-        "band_power_chopped": str(summary["chopped"]),
-        "band_power_unchopped": str(summary["unchopped"]),
-        "photon_noise_power": str(photon),
+        **{f"{name}_{label}": _value(measured[name], unit)
+           for label, measured in measures.items() for name in ("band_power", "band_power_err")},
+        "band_power_unit": unit.to_string(),
+        "photon_noise_power": _value(photon, unit),
         "photon_noise": "1 e/s Zodiacal light, least-squares slope over the schedule's reads "
                         f"({schedule.nframes} reads, {schedule.integration_time:.4g})",
     })
@@ -139,6 +144,11 @@ def run_demo(outdir, overwrite=False, progress=True, size=2048, nframes=74, seed
            f"({ratio:.1f}x lower); photon noise of 1 e/s: {photon:.4g}")
     for name in products:
         yield f"wrote {outdir / name}"
+
+
+def _value(quantity, unit):
+    """A band power for the table's meta: its value in ``unit``, or None (YAML null)."""
+    return None if quantity is None else float(u.Quantity(quantity).to_value(unit))
 
 
 def _images(reduced, labels):

@@ -178,8 +178,9 @@ def _differences(quick):
         "- **Wrap-around bias.** The paper draws each timestream with period equal to the "
         "exposure (eq. 2–5), which suppresses the lowest frequencies that drive slopes and "
         "large-scale offsets. Our simulator draws Gaussian Fourier amplitudes on a padded, "
-        "aperiodic grid (design.md: the periodic draw left the slope variance of a γ/f^1.3 "
-        "term ≈ 54 % low at N = 10). Our uncorrected and channel-offset power at low k is "
+        "aperiodic grid (docs/simulation.rst, \"The random-phase bias\": the periodic draw "
+        "leaves the slope variance of a γ/f^1.3 term 49.9 % low at N = 10 and 61.6 % low at "
+        "N = 74). Our uncorrected and channel-offset power at low k is "
         "therefore expected to be higher than the paper's, and the gain from reference "
         "correction larger.",
         "- **Per-pixel telegraph noise** (§3.3) is not in these scenes (it is off by default), "

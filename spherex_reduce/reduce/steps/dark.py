@@ -1,11 +1,13 @@
 """Master darks: combine reduced exposures and subtract them (paper §5.3, Fig. 12a)."""
 
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
 from astropy.nddata import CCDData, StdDevUncertainty
 
+from ...core import dq
 from ...core.errors import ConfigError, SpherexReduceError
 from ...core.exposure import Exposure, as_dq
 from ...core.parameters import Parameter, validate_parameters
@@ -40,36 +42,45 @@ def _check_image(e, what):
 
 
 def combine_darks(exposures, *, method="average", sigma=3.0):
-    """Combine reduced exposures into a master dark with `ccdproc.combine`.
+    """Combine reduced exposures into a master dark with ccdproc's `~ccdproc.Combiner`.
 
     Parameters
     ----------
     exposures : sequence of `~spherex_reduce.Exposure` or paths
         At least two 2-D images (e.g. slope images from `fit_ramp`) of the
-        same geometry, row order, shape and convertible units.
+        same geometry, row order, shape and convertible units; never
+        modified.  A value is usable if it is finite and not masked (its
+        flags only informational, `~spherex_reduce.core.dq.image_usable`).
     method : {'average', 'median', 'sum'}
-        `ccdproc.combine` method.
+        `ccdproc.combine` method, over the usable values of each pixel
+        (``sum`` adds only those, as ccdproc does).
     sigma : float
-        σ-clipping of each pixel across the inputs (median centre, spread
-        from the median absolute deviation, robust with few inputs); 0
-        disables it.
+        σ-clipping of each pixel across its usable values (median centre,
+        spread from the median absolute deviation, robust with few inputs);
+        0 disables it.
 
     Returns
     -------
     `~spherex_reduce.Exposure`
-        The master dark in the first input's unit, with the uncertainty
-        ccdproc propagates (std of the inputs over ``sqrt(n)`` for average),
-        the first input's schedule and header, and ``NCOMBINE``.  Its flags:
-        `~spherex_reduce.core.dq.DO_NOT_USE` where ccdproc masked the pixel
-        (every input masked or clipped), and
-        `~spherex_reduce.core.dq.REFERENCE` on the reference pixels, which are
-        combined like the others.
+        The master dark in the first input's unit, the first input's
+        schedule and header, and ``NCOMBINE``.  Its uncertainty is what
+        ccdproc propagates (std of the values used over ``sqrt(n)`` for
+        average), except where one value is left: the pixel is that value
+        and its uncertainty that input's own (NaN if it has none), where
+        the spread of one value would say 0.  A pixel with no usable value
+        left (every input masked, NaN or clipped) is NaN, flagged
+        `~spherex_reduce.core.dq.DO_NOT_USE` and the flags of its inputs;
+        the header counts both kinds (``NCOMB1``, ``NCOMB0``).  The
+        reference pixels are combined like the others and flagged
+        `~spherex_reduce.core.dq.REFERENCE`.
 
     Notes
     -----
     Every statistic is per pixel, across the inputs (the clipping's median
     and spread included): no pixel's value enters another's, so reference
-    pixels never weigh on the light-sensitive ones.
+    pixels never weigh on the light-sensitive ones.  A masked value enters
+    neither the clip's centre nor its spread (``ccdproc.combine`` reads the
+    values under the mask there: two masked zeros of three clip the third).
 
     Raises
     ------
@@ -88,9 +99,6 @@ def combine_darks(exposures, *, method="average", sigma=3.0):
     >>> float(combine_darks(darks, sigma=0).data.data[0, 0])
     2.0
     """
-    import ccdproc
-    from astropy.stats import mad_std
-
     params = validate_parameters({"method": method, "sigma": sigma}, COMBINE_PARAMETERS,
                                  "combine_darks")
     method, sigma = params["method"], params["sigma"]
@@ -98,7 +106,6 @@ def combine_darks(exposures, *, method="average", sigma=3.0):
     if len(items) < 2:
         raise SpherexReduceError(f"combine needs at least two exposures, got {len(items)}")
     first = items[0]
-    ccds = []
     for i, e in enumerate(items):
         _check_image(e, f"input {i + 1}")
         if e.geometry != first.geometry or e.order != first.order or e.shape != first.shape:
@@ -107,17 +114,19 @@ def combine_darks(exposures, *, method="average", sigma=3.0):
                 f"({e.order} {e.shape} vs {first.order} {first.shape})")
         if not e.unit.is_equivalent(first.unit):
             raise SpherexReduceError(f"input {i + 1} is in {e.unit}, input 1 in {first.unit}")
-        ccd = e.to_ccddata()
-        if e.unit != first.unit:
-            ccd = ccd.convert_unit_to(first.unit)
-        ccd.mask = None if ccd.mask is None else np.asarray(ccd.mask, bool)
-        ccd.meta = {}
-        ccds.append(ccd)
-    kwargs = {}
-    if sigma:
-        kwargs = dict(sigma_clip=True, sigma_clip_low_thresh=sigma, sigma_clip_high_thresh=sigma,
-                      sigma_clip_func=np.ma.median, sigma_clip_dev_func=mad_std)
-    master = ccdproc.combine(ccds, method=method, dtype=np.float64, **kwargs)
+    values, sigmas, flags = (np.stack(a) for a in zip(*(_usable(e, first.unit) for e in items),
+                                                        strict=True))
+    master, used = _ccdproc_combine(values, first.unit, method, sigma)
+    count = used.sum(axis=0)
+    data = np.asarray(master.data, np.float64)
+    unc = master.uncertainty.represent_as(StdDevUncertainty).array
+    # one input left: its value, and its own uncertainty (the spread of one value is no error)
+    one = count == 1
+    unc = np.where(one, np.where(used, sigmas, 0.0).sum(axis=0), unc)
+    none = count == 0
+    data = np.where(none, np.nan, data)
+    unc = np.where(none, np.nan, unc)
+    dqs = np.where(none, np.bitwise_or.reduce(flags, axis=0) | dq.DO_NOT_USE, 0)
     header = first.header.copy()
     for e in items[1:]:  # an input read despite a bad checksum: the master says so too
         if "SXRCKBAD" in e.header:
@@ -128,14 +137,55 @@ def combine_darks(exposures, *, method="average", sigma=3.0):
                     header.add_history(line)
     header["NCOMBINE"] = (len(items), "exposures combined into this master dark")
     header["COMBMETH"] = (method, "ccdproc.combine method")
-    unc = master.uncertainty
-    unc = None if unc is None else unc.represent_as(StdDevUncertainty).array
-    mask = None if master.mask is None else np.asarray(master.mask, bool)
-    out = first.replace(data=CCDData(master.data, unit=first.unit,
-                                     uncertainty=None if unc is None else StdDevUncertainty(unc),
-                                     mask=mask),
+    header["NCOMB1"] = (int(one.sum()), "pixels from one usable input")
+    header["NCOMB0"] = (int(none.sum()), "pixels with no usable input (NaN, DO_NOT_USE)")
+    out = first.replace(data=data, uncertainty=unc, dq=dqs.astype(dq.DQ_TYPE),
                         header=header, tables={}, phantom=None, reference=None)
     return out.with_reference_flags()
+
+
+def _usable(e, unit):
+    """An input's values in ``unit`` (a new array: NaN where flagged or not finite), their
+    standard deviations (NaN without an uncertainty) and its flags."""
+    scale = e.unit.to(unit)
+    values = np.array(e.data.data, np.float64) * scale
+    if e.data.mask is not None:
+        values[np.asarray(e.data.mask, bool)] = np.nan
+    unc = e.data.uncertainty
+    sigma = (np.full(e.shape, np.nan) if unc is None
+             else unc.represent_as(StdDevUncertainty).array * scale)
+    flags = np.zeros(e.shape, dq.DQ_TYPE) if e.dq is None else e.dq
+    return values, sigma, flags
+
+
+def _ccdproc_combine(values, unit, method, sigma):
+    """``ccdproc`` 's combine of ``values`` (inputs, rows, columns; NaN: not usable) and which
+    input values it used (neither NaN nor clipped).
+
+    The flagged values are NaN before the clip, so that they enter neither its centre nor
+    its spread: ccdproc's clip reads the data under the mask (two flagged zeros of three
+    made the median 0 and the spread 0, clipping the one good value).  numpy's warnings
+    about pixels with no value left ("Mean of empty slice" ...) are the counts of
+    `combine_darks` instead.
+    """
+    import ccdproc
+    from astropy.stats import mad_std
+
+    combiner = ccdproc.Combiner([CCDData(v, unit=unit) for v in values], dtype=np.float64)
+    with warnings.catch_warnings():
+        for text in _EMPTY_PIXEL_WARNINGS:
+            warnings.filterwarnings("ignore", message=text)
+        if sigma:
+            combiner.sigma_clipping(low_thresh=sigma, high_thresh=sigma, func=np.ma.median,
+                                    dev_func=mad_std)
+        master = getattr(combiner, f"{method}_combine")()
+    used = ~np.ma.getmaskarray(combiner.data_arr) & np.isfinite(values)
+    return master, used
+
+
+#: The messages of numpy's and astropy's warnings on a pixel left with no value or one.
+_EMPTY_PIXEL_WARNINGS = ("Mean of empty slice", "Degrees of freedom <= 0", "All-NaN slice",
+                         "invalid value encountered", "Input data contains invalid values")
 
 
 def subtract_dark(exposure, dark):

@@ -6,6 +6,7 @@ import re
 import numpy as np
 import pytest
 from _figure_checks import drawn, errorbar_ends, overlaps, saved_figures, tick_labels
+from _paths import ROOT
 from astropy.table import Table
 
 from spherex_reduce.analysis import forecast
@@ -14,6 +15,19 @@ from spherex_reduce.cli import main
 PNGS = ["fig4_components.png", "fig5_phantom.png", "fig6_skip.png", "fig7_fft2d.png",
         "fig8_reference_reads.png", "fig9_image.png", "fig9_spectrum.png",
         "fig10_corrected.png", "fig12a_sigma_vs_n.png"]
+
+
+def _check_citations(report):
+    """Every document the report cites is in the repository (it cited a design.md that is
+    not), and the wrap-around bias it quotes is docs/simulation.rst's table's."""
+    cited = set(re.findall(r"[\w/.-]+\.(?:md|rst)\b", report)) - {"report.md"}
+    assert cited, "the report cites no document"
+    assert all((ROOT / name).is_file() for name in cited), cited
+    row = next(line for line in (ROOT / "docs" / "simulation.rst").read_text().splitlines()
+               if line.startswith("period = exposure"))
+    gamma_10, _, gamma_74, _ = (float(v.replace("\u2212", "-")) for v in
+                                re.findall(r"\u2212?[\d.]+(?= %)", row))
+    assert f"{-gamma_10:g} % low at N = 10 and {-gamma_74:g} % low at N = 74" in report
 
 
 def test_figures_quick_with_forecast(tmp_path, capsys):
@@ -37,6 +51,7 @@ def test_figures_quick_with_forecast(tmp_path, capsys):
         assert "decided exactly" in line and "The Monte Carlo beside it:" in line, line
         assert re.search(r"\*\*(holds|does not hold)\*\*", line), line  # never "noise"
     assert "Wrap-around bias" in report
+    _check_citations(report)
     t = Table.read(out / "figures.ecsv")
     assert set(t["figure"]) == {"4", "5", "6", "7", "8", "9", "10", "12a"}
     assert np.all(np.isfinite(t["y"]))

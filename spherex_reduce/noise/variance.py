@@ -130,8 +130,9 @@ def expected_slope_variance(noise, schedule, *, kind="pixels"):
     Notes
     -----
     Uniform least-squares weights over the frame times (``k * T_frame``, or
-    the schedule's ``read_times``: `slope_frames`); the stream is the aperiodic stationary process with the one-sided PSD ``p(f)``
-    sampled at the pixel rate (no wrap-around).
+    the schedule's ``read_times``: `slope_frames`); the stream is the aperiodic
+    stationary process with the one-sided PSD ``p(f)`` sampled at the pixel rate
+    (no wrap-around).
 
     Examples
     --------

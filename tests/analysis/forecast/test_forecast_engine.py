@@ -4,6 +4,7 @@ through `power_spectrum`, and the package's Monte Carlo."""
 
 import numpy as np
 import pytest
+from _forecast_brute import Samples, expected_spectrum, read_time_covariance, reduction_matrix
 from _forecast_scenes import BINS, COMMON, PINK, PINK_ACN, ROIC, tiny
 from astropy import units as u
 
@@ -200,9 +201,6 @@ def test_uneven_read_times_correlated_noise_equals_brute_force():
     written from the components' structure functions and the read times
     (`read_time_covariance`, not the package's slope covariance) pushed through the
     reduction as a matrix."""
-    from _forecast_brute import Samples, expected_spectrum, read_time_covariance, \
-        reduction_matrix
-
     times = [0.0, 0.3, 1.2, 3.0]
     scene = tiny([ROIC, PINK, COMMON, PHANTOM], readout={"read_times": times})
     samples = Samples(scene)

@@ -66,6 +66,35 @@ class Samples:
         return out
 
 
+def read_time_covariance(samples, components, times):
+    """``{name: C}`` over all samples when frame ``k`` is read at ``times[k]`` (s), from the
+    definitions alone (not `slope_covariance`): each sample's slope is ``sum_k w_k x(t +
+    s_k)``, ``w`` the least-squares weights of ``times``, ``s_k`` the time in whole samples,
+    so two samples' slopes covary by ``-1/2 sum_jk w_j w_k D(t_b - t_a + s_k - s_j)``,
+    ``D`` the component's structure function (the weights sum to zero)."""
+    g = samples.geometry
+    fs = g.pixel_rate
+    times = np.asarray(times, dtype=float)
+    w = (times - times.mean()) / np.sum((times - times.mean()) ** 2)
+    starts = np.rint(times * fs)
+    lag = samples.t[None, :] - samples.t[:, None]
+    out = {}
+    for comp in components:
+        seen = np.where(samples.is_pixel, comp.seen_by_pixels, comp.seen_by_phantom)
+        cov = np.zeros(lag.shape)
+        for j in range(times.size):
+            for k in range(times.size):
+                cov -= 0.5 * w[j] * w[k] * comp.structure_function(lag + starts[k] - starts[j],
+                                                                   fs)
+        cov = cov * np.outer(seen, seen)
+        if comp.scope == "channel":
+            cov = cov * (samples.chan[:, None] == samples.chan[None, :])
+        if comp.acn:
+            cov = cov * (samples.parity[:, None] == samples.parity[None, :])
+        out[comp.name] = cov
+    return out
+
+
 def reduction_matrix(samples, phantom=False, reference=None, reference_phantom=False,
                      side_columns=False):
     """``L``: the light-sensitive pixels (physical order, rows then columns) as combinations

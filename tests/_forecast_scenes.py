@@ -39,14 +39,14 @@ PIPELINES = {
 }
 
 
-def tiny(components, scan="same", terms=None):
+def tiny(components, scan="same", terms=None, readout=None):
     """20 x 20 pixels in 2 channels of 10 columns, a reference border of 2 (16 x 16 light
     pixels), skip 3, 4 distributed reference reads, 2 phantom samples per read, a frame
-    ~60 times the reads' span."""
+    ~60 times the reads' span; ``readout`` replaces readout keys."""
     return load_scene({
         "geometry": {"nrows": 20, "ncols": 20, "nchannels": 2, "ref_border": 2, "scan": scan},
         "readout": {"skip": 3, "ref_reads": 4, "phantom_reads": 2, "nframes": 4,
-                    "frame_overhead": 20000},
+                    "frame_overhead": 20000, **(readout or {})},
         "noise": {"components": components},
         "scene": terms or {},
     })

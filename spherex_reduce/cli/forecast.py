@@ -47,7 +47,9 @@ def add_parser(sub):
                    ".png)")
     p.add_argument("--compare", metavar="MEASURED.ecsv",
                    help="a spectrum output drawn over the forecast with its error bars, its "
-                   "band power compared on the terminal")
+                   "band power compared on the terminal; it must have been measured in the "
+                   "forecast's band, with its --exclude-horizontal and on an image of its "
+                   "shape (refused otherwise)")
     p.add_argument("--bins", type=count(10_000), default=None,
                    help="log-spaced k bins (default: a sweep measure's, 30)")
     p.add_argument("--kmin", type=nonnegative_float, default=None,
@@ -81,9 +83,12 @@ def run(args):
         measured = measured_band = None
         if args.compare:
             measured, measured_band = _read_measured(args.compare)
+            _check_measured_like(measured.meta, args.compare, measure)
         scale = args.pixel_scale * u.arcsec
         with _ticking(not args.quiet):
             table = forecast(scene, pipeline, measure, pixel_scale=scale)
+        if measured is not None:
+            _check_measured_like(measured.meta, args.compare, measure, table.meta["shape"])
         unit = u.Quantity(table["power"]).unit
         band = err = None
         if table.meta["band_power"] is not None:
@@ -160,6 +165,43 @@ def _measured_band(meta, path):
                               f"got {value!r}")
         out.append(None if value is None else (value * unit).to_value(_POWER))
     return tuple(out)
+
+
+def _check_measured_like(meta, path, measure, shape=None):
+    """Refuse (FormatError, one line) a ``spectrum`` output measured in another band, with or
+    without the horizontal axis unlike the forecast's ``measure``, or (``shape`` given: the
+    forecast's light-sensitive image) on an image of another shape: its band power would be
+    compared with a forecast of something else."""
+    keys = ("band_kmin", "band_kmax", "exclude_horizontal", "shape")
+    missing = [k for k in keys if k not in meta]
+    if missing:
+        raise FormatError(f"--compare: {path}: no {', '.join(missing)} in its meta; expected "
+                          "the output of spectrum, which records the band and options it "
+                          "measured with")
+    for key in ("band_kmin", "band_kmax"):
+        value = meta[key]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                or not math.isfinite(value):
+            raise FormatError(f"--compare: {path}: {key}: expected a number, got {value!r}")
+    if not isinstance(meta["exclude_horizontal"], bool):
+        raise FormatError(f"--compare: {path}: exclude_horizontal: expected true or false, got "
+                          f"{meta['exclude_horizontal']!r}")
+    kmin, kmax = meta["band_kmin"], meta["band_kmax"]
+    if not (math.isclose(kmin, measure.kmin, rel_tol=1e-9)
+            and math.isclose(kmax, measure.kmax, rel_tol=1e-9)):
+        raise FormatError(f"--compare: {path} was measured in the band {kmin:g} to {kmax:g} "
+                          f"rad/pixel, the forecast's is {measure.kmin:g} to {measure.kmax:g}: "
+                          f"give the forecast --kmin {kmin:g} --kmax {kmax:g}")
+    if meta["exclude_horizontal"] != bool(measure.exclude_horizontal):
+        measured, forecast = ("with", "without") if meta["exclude_horizontal"] else \
+            ("without", "with")
+        raise FormatError(f"--compare: {path} was measured {measured} --exclude-horizontal, "
+                          f"the forecast {forecast}: give it to both or neither")
+    got = meta["shape"]
+    if shape is not None and (not isinstance(got, list) or list(got) != list(shape)):
+        what = (" x ".join(map(str, got)) if isinstance(got, list) else repr(got))
+        raise FormatError(f"--compare: {path} was measured on a {what} image, the forecast is "
+                          f"of the scene's {shape[0]} x {shape[1]} light-sensitive pixels")
 
 
 def _comparison(measured_band, path, band, unit):

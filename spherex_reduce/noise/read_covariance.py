@@ -22,7 +22,7 @@ import numpy as np
 
 from ..core.limits import check_size
 from .structure_functions import cin, g_power, inv_f_structure, power_structure
-from .variance import ls_weights
+from .variance import slope_frames
 
 __all__ = ["DOMAINS", "KINDS", "Kriging", "ReadCovariance", "kriging_weights"]
 
@@ -127,11 +127,11 @@ class ReadCovariance:
         self.common = frozenset(common)
         fs = schedule.geometry.pixel_rate
         if domain == "slopes":
-            w = ls_weights(np.arange(schedule.nframes) * schedule.frame_samples / fs)
-            self._frame_weights = np.correlate(w, w, mode="full")
+            w, a, shifts = slope_frames(schedule)
+            self._frame_weights, self._frame_shifts = a, shifts
             scale = float(np.sum(w * w))
         else:
-            self._frame_weights = None
+            self._frame_weights = self._frame_shifts = None
             scale = 1.0
         self._white = {"pixels": {"channel": 0.0, "common": 0.0},
                        "phantom": {"channel": 0.0, "common": 0.0}}
@@ -177,10 +177,9 @@ class ReadCovariance:
         return "common" if comp.name in self.common else "channel"
 
     def _shifts(self):
-        """Frame weights ``a_j`` and shifts ``j F`` (samples) of the slopes domain."""
-        a = self._frame_weights
-        n = (a.size + 1) // 2
-        return a, np.arange(-(n - 1), n) * self.schedule.frame_samples
+        """Frame weights ``a_j`` and shifts (samples: ``j F``, or differences of uneven read
+        times) of the slopes domain (`~spherex_reduce.noise.variance.slope_frames`)."""
+        return self._frame_weights, self._frame_shifts
 
     def _k(self, x, basis, parity=None):
         """The (generalised) covariance of the stream, or of its slopes, at lags ``x``.

@@ -16,7 +16,12 @@ from astropy import units as u
 from .components import NoiseComponent, noise_components
 from .structure_functions import inv_f_structure, power_structure, white_structure
 
-__all__ = ["expected_slope_variance", "ls_weights", "slope_covariance"]
+__all__ = ["SHIFT_CELLS", "expected_slope_variance", "ls_weights", "slope_covariance",
+           "slope_frames"]
+
+#: Lags times frame shifts `slope_covariance` evaluates at a time (its arrays of that size
+#: stay below ~0.2 GB; only readouts with many uneven read times need more than one pass).
+SHIFT_CELLS = 2**24
 
 
 def ls_weights(times):
@@ -33,6 +38,53 @@ def ls_weights(times):
     t = np.asarray(times, dtype=float)
     d = t - t.mean()
     return d / np.sum(d * d)
+
+
+def slope_frames(schedule):
+    """The frames of a schedule's least-squares slope: their weights, and their pairs by shift.
+
+    The slope of the sample taken ``t`` samples into every frame is ``sum_k w_k
+    x(t + s_k)``, frame ``k`` starting ``s_k`` samples into the exposure: ``k F``
+    (``F`` samples per frame), or, with ``read_times``, the read's time at the
+    pixel rate rounded to a whole sample (a stream is only sampled there); the
+    weights are the uniform least-squares ones of the frames' times (`ls_weights`
+    of the ``read_times`` themselves, which the ramp fit takes).
+
+    Parameters
+    ----------
+    schedule : `~spherex_reduce.ReadoutSchedule`
+
+    Returns
+    -------
+    w : `numpy.ndarray`
+        The weight of every frame, ``(nframes,)``, 1/s.
+    a : `numpy.ndarray`
+        ``a_i = sum w_j w_k`` over the pairs of frames with ``s_j - s_k`` equal to
+        ``shifts[i]``.
+    shifts : `numpy.ndarray` of int
+        The distinct shifts ``s_j - s_k`` (samples), increasing: ``-(n - 1) F ... (n -
+        1) F`` for evenly spaced frames.
+
+    Examples
+    --------
+    >>> from spherex_reduce import ReadoutSchedule
+    >>> from spherex_reduce.noise.variance import slope_frames
+    >>> s = ReadoutSchedule(nframes=3, read_times=[0.0, 2.0, 6.0])   # s, at 100 kHz
+    >>> w, a, shifts = slope_frames(s)
+    >>> w.round(4).tolist(), (shifts // 100000).tolist()
+    ([-0.1429, -0.0357, 0.1786], [-6, -4, -2, 0, 2, 4, 6])
+    >>> a.round(4).tolist()
+    [-0.0255, -0.0064, 0.0051, 0.0536, 0.0051, -0.0064, -0.0255]
+    """
+    n, big_f, fs = schedule.nframes, schedule.frame_samples, schedule.geometry.pixel_rate
+    if schedule.read_times is None:  # every shift a multiple of the frame
+        w = ls_weights(np.arange(n) * big_f / fs)
+        return w, np.correlate(w, w, mode="full"), np.arange(-(n - 1), n) * big_f
+    times = np.asarray(schedule.read_times, dtype=np.float64)
+    w = ls_weights(times)
+    starts = np.rint(times * fs).astype(np.int64)
+    shifts, pair = np.unique(np.subtract.outer(starts, starts).ravel(), return_inverse=True)
+    return w, np.bincount(pair.ravel(), weights=np.outer(w, w).ravel()), shifts
 
 
 def _as_components(noise):
@@ -77,9 +129,10 @@ def expected_slope_variance(noise, schedule, *, kind="pixels"):
 
     Notes
     -----
-    Uniform least-squares weights over the frame times ``k * T_frame``; the
-    stream is the aperiodic stationary process with the one-sided PSD ``p(f)``
-    sampled at the pixel rate (no wrap-around).
+    Uniform least-squares weights over the frame times (``k * T_frame``, or
+    the schedule's ``read_times``: `slope_frames`); the stream is the aperiodic
+    stationary process with the one-sided PSD ``p(f)`` sampled at the pixel rate
+    (no wrap-around).
 
     Examples
     --------
@@ -130,11 +183,12 @@ def slope_covariance(noise, schedule, lags):
     """Covariance of the ramp-fitted slopes of two samples ``lags`` apart within a frame.
 
     The slope of the sample taken ``t`` samples into every frame is
-    ``y(t) = sum_k w_k x(t + k F)`` (``F`` samples per frame, least-squares
-    weights ``w_k``); for a stationary stream ``x`` it is a stationary process
-    in ``t`` with the covariance::
+    ``y(t) = sum_k w_k x(t + s_k)`` (frame ``k`` starting ``s_k`` samples in: ``k
+    F`` for ``F`` samples per frame, or at its ``read_times`` entry; least-squares
+    weights ``w_k``: `slope_frames`); for a stationary stream ``x`` it is a
+    stationary process in ``t`` with the covariance::
 
-        C(L) = Cov(y(t), y(t + L)) = -1/2 sum_jk w_j w_k D(L + (j - k) F)
+        C(L) = Cov(y(t), y(t + L)) = -1/2 sum_jk w_j w_k D(L + s_j - s_k)
 
     where ``D`` is the structure function of ``x`` (the weights sum to zero,
     so ``1/f`` noise needs no low-frequency cut-off).  Exact and aperiodic:
@@ -146,7 +200,7 @@ def slope_covariance(noise, schedule, lags):
         The components (each gets its own row; scope and visibility are not
         looked at).
     schedule : `~spherex_reduce.ReadoutSchedule`
-        Frames, frame samples and pixel rate.
+        Frames, frame samples (or read times) and pixel rate.
     lags : array_like of int
         Lags in samples.
 
@@ -170,30 +224,26 @@ def slope_covariance(noise, schedule, lags):
     """
     comps = _as_components(noise)
     lags = np.asarray(lags, dtype=float)
-    n, big_f, fs = schedule.nframes, schedule.frame_samples, schedule.geometry.pixel_rate
-    w = ls_weights(np.arange(n) * big_f / fs)
-    # A_d = sum_k w_k w_{k+d} for d = -(n-1) ... n-1
-    a = np.correlate(w, w, mode="full")
-    x = np.abs(lags.reshape(1, -1) + (np.arange(-(n - 1), n) * big_f)[:, None])
-
-    def combine(d):
-        return (-0.5 * (a @ d)).reshape(lags.shape)
-
-    basis = {}
-    out = np.zeros((len(comps), *lags.shape))
-    for i, comp in enumerate(comps):
-        for key, coef in (("alpha", comp.alpha), ("beta", comp.beta),
-                          (("gamma", comp.exponent), comp.gamma)):
-            if not coef:
-                continue
-            if key not in basis:
-                if key == "alpha":
-                    d = white_structure(x, fs)
-                elif key == "beta":
-                    d = inv_f_structure(x)
-                else:
-                    d = power_structure(x, fs, key[1])
-                basis[key] = combine(d)
-            out[i] += coef * basis[key]
-    return out
-
+    fs = schedule.geometry.pixel_rate
+    _, a, shifts = slope_frames(schedule)
+    flat = lags.reshape(1, -1)
+    step = max(1, SHIFT_CELLS // shifts.size)
+    out = np.zeros((len(comps), flat.size))
+    for lo in range(0, flat.size, step):  # one pass unless many uneven read times
+        x = np.abs(flat[:, lo:lo + step] + shifts[:, None])
+        basis = {}
+        for i, comp in enumerate(comps):
+            for key, coef in (("alpha", comp.alpha), ("beta", comp.beta),
+                              (("gamma", comp.exponent), comp.gamma)):
+                if not coef:
+                    continue
+                if key not in basis:
+                    if key == "alpha":
+                        d = white_structure(x, fs)
+                    elif key == "beta":
+                        d = inv_f_structure(x)
+                    else:
+                        d = power_structure(x, fs, key[1])
+                    basis[key] = -0.5 * (a @ d)
+                out[i, lo:lo + step] += coef * basis[key]
+    return out.reshape(len(comps), *lags.shape)

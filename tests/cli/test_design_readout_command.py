@@ -59,3 +59,34 @@ def test_bad_designs_exit_2_in_one_line_and_write_nothing(tmp_path, capsys, text
     assert run("design-readout", design, "-o", best) == 2
     assert one_line_error(capsys, "spherex-reduce design-readout: error:", *words)
     assert not best.exists()
+
+
+def test_best_yaml_keeps_every_component_of_the_fit_noise_model(tmp_path, capsys):
+    """BEST.yaml, read back, holds the model the design was made with: each row of the
+    fit-noise result (its coefficients, the reference stream seen by the pixels, the phantom
+    stream by the phantom reads), none left out."""
+    from astropy import units as u
+
+    fit = tmp_path / "fit.ecsv"
+    rows = Table({"stream": ["reference", "phantom"],
+                  "alpha": [1e-5, 2e-5] * u.electron**2 / u.Hz,
+                  "beta": [1e-3, 4e-3] * u.electron**2,
+                  "gamma": [2e-2, 0.0] * u.electron**2 * u.Hz**0.3, "exponent": [1.3, 1.3]})
+    rows.write(fit)
+    design = tmp_path / "design.yaml"
+    design.write_text(DESIGN.replace("realizations: 2", "realizations: 0")
+                      + "noise: fit.ecsv\n")
+    best = tmp_path / "best.yaml"
+    assert run("design-readout", design, "-o", best) == 0
+    comps = yaml.safe_load(best.read_text())["noise"]["components"]
+    assert [(c["name"], c["visibility"]) for c in comps] == [("reference", "pixels"),
+                                                            ("phantom", "phantom")]
+    for c, row in zip(comps, rows, strict=True):
+        for key in ("alpha", "beta", "gamma", "exponent"):
+            assert c[key] == pytest.approx(float(row[key]), rel=1e-12), (c["name"], key)
+    bad = Table(rows)
+    bad.add_row(["referenc", 3e-5, 1e-3, 0.0, 1.3])
+    bad.write(fit, overwrite=True)
+    assert run("design-readout", design, "-o", best, "--overwrite") == 2
+    assert one_line_error(capsys, "spherex-reduce design-readout: error:",
+                          "row 2: stream 'referenc' is not a stream fit-noise writes")

@@ -208,3 +208,66 @@ def test_progress_shows_the_time_on_a_terminal_only(monkeypatch):
         assert ("forecast: 00:01" in text) is expect
         if expect:  # erased when done: the command's lines start on a clean line
             assert text.endswith("\r") and text.rstrip("\r ").count("forecast") >= 1
+
+
+@pytest.fixture
+def measured_white(white, tmp_path):
+    """A white slope image of the WHITE scene, simulated, for spectrum to measure."""
+    raw = tmp_path / "w.fits"
+    assert main(["-q", "simulate", str(white), "-o", str(raw), "--mode", "slopes"]) == 0
+    return raw
+
+
+@pytest.mark.parametrize("spectrum_argv, forecast_argv, words", [
+    (["--kmin", "0.05", "--kmax", "0.5"], [],
+     "was measured in the band 0.05 to 0.5 rad/pixel, the forecast's is 0.03 to 0.13: give "
+     "the forecast --kmin 0.05 --kmax 0.5"),
+    (["--exclude-horizontal"], [],
+     "was measured with --exclude-horizontal, the forecast without: give it to both or "
+     "neither"),
+    ([], ["--exclude-horizontal"],
+     "was measured without --exclude-horizontal, the forecast with: give it to both or "
+     "neither"),
+])
+def test_compare_refuses_a_measurement_in_another_band_or_options(
+        white, measured_white, tmp_path, capsys, spectrum_argv, forecast_argv, words):
+    """Its band power is not what the forecast forecasts: it was compared all the same
+    ("0.2214x the forecast, -58.2 standard errors")."""
+    m = tmp_path / "m.ecsv"
+    assert main(["-q", "spectrum", str(measured_white), "-o", str(m), *spectrum_argv]) == 0
+    capsys.readouterr()
+    out = tmp_path / "f.ecsv"
+    assert _run(white, "-c", "unchop", "-o", out, "--compare", m, *forecast_argv) == 2
+    err = capsys.readouterr().err
+    assert err == f"spherex-reduce forecast: error: --compare: {m} {words}\n"
+    assert not out.exists()
+    # the forecast with the measurement's options: compared
+    assert _run(white, "-c", "unchop", "-o", out, "--compare", m, *spectrum_argv) == 0
+    assert f"{m}: measured band power" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("meta, words", [
+    ({}, "no band_kmin, band_kmax, exclude_horizontal, shape in its meta"),
+    ({"band_kmin": 0.03, "band_kmax": 0.13, "exclude_horizontal": False, "shape": [40, 88]},
+     "was measured on a 40 x 88 image, the forecast is of the scene's 88 x 88 "
+     "light-sensitive pixels"),
+    ({"band_kmin": "0.03", "band_kmax": 0.13, "exclude_horizontal": False, "shape": [88, 88]},
+     "band_kmin: expected a number, got '0.03'"),
+    ({"band_kmin": 0.03, "band_kmax": 0.13, "exclude_horizontal": "no", "shape": [88, 88]},
+     "exclude_horizontal: expected true or false, got 'no'"),
+])
+def test_compare_refuses_a_table_that_does_not_say_what_it_measured(white, tmp_path, capsys,
+                                                                    meta, words):
+    from astropy import units as u
+
+    unit = u.electron**2 / u.s**2 * u.pix**2
+    measured = Table({"k": [0.05, 0.1] * u.rad / u.pix, "power": [1.0, 2.0] * unit,
+                      "power_err": [0.1, 0.2] * unit},
+                     meta={"band_power": 1.5, "band_power_err": 0.1, **meta})
+    path = tmp_path / "m.ecsv"
+    measured.write(path)
+    out = tmp_path / "f.ecsv"
+    assert _run(white, "-c", "unchop", "-o", out, "--compare", path) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("spherex-reduce forecast: error: --compare: ") and words in err
+    assert err.count("\n") == 1 and not out.exists()

@@ -2020,3 +2020,95 @@ NEWCOMER = [
 @pytest.mark.parametrize("case", NEWCOMER)
 def test_newcomer_input(case, inputs, runner, tmp_path):
     test_input(case, inputs, runner, tmp_path)
+
+
+# Round three: forecast
+
+FORECAST = ["forecast", "scene.yaml", "-c", "unchop", "-o", "f.ecsv"]
+_WHITE_SCENE = ("geometry: {nrows: 16, ncols: 16, nchannels: 2, ref_border: 2}\n"
+                "readout: {skip: 2, ref_reads: 2, phantom_reads: 2, nframes: 6, "
+                "read_times: [0, 1, 2, 5, 10, 20]}\n"
+                "noise: {components: [{name: w, alpha: 2.0e-3}]}\n")
+
+
+def _measured(**meta):
+    """Setup: ``m.ecsv``, a spectrum output of the 56 x 56 light pixels of ``scene.yaml`` in
+    the default band, its meta changed by ``meta``."""
+    def setup(d):
+        from astropy import units as u
+
+        unit = u.electron**2 / u.s**2 * u.pix**2
+        Table({"k": [0.05, 0.1] * u.rad / u.pix, "power": [1.0, 2.0] * unit,
+               "power_err": [0.1, 0.2] * unit},
+              meta={"band_power": 1.5, "band_power_err": 0.1, "band_kmin": 0.03,
+                    "band_kmax": 0.13, "exclude_horizontal": False, "shape": [56, 56],
+                    **meta}).write(d / "m.ecsv", format="ascii.ecsv")
+    return setup
+
+
+def _fit_with_streams(*streams):
+    """Setup: ``noise.ecsv``, a fit-noise result with rows of these streams."""
+    def setup(d):
+        n = len(streams)
+        Table({"stream": list(streams), "alpha": [2e-3] * n, "beta": [3.0] * n,
+               "gamma": [1.0] * n, "exponent": [1.3] * n}).write(d / "noise.ecsv",
+                                                                 format="ascii.ecsv")
+    return setup
+
+
+_DESIGN = ("scene: {geometry: {nrows: 40, ncols: 16, nchannels: 2, ref_border: 4}, "
+           "readout: {nframes: 4}}\nband: {kmin: 0.2, kmax: 1.0}\n"
+           "baseline: {skip: 4, ref_reads: 8}\nsearch: {families: [skip], skips: [1, 4], "
+           "phantom_reads: [4], ref_reads: [8], ref_modes: [distributed], iterations: 0}\n")
+DESIGN = ["design-readout", "design.yaml", "-o", "best.yaml"]
+
+
+def _check_read_times_forecast(d, result, run):
+    """White noise of per-sample variance alpha fs / 2 read at t = 0, 1, 2, 5, 10, 20 s:
+    the least-squares slope's variance sigma^2 / sum (t - tbar)^2, flat (was the variance
+    of evenly read frames, 30x larger)."""
+    t = np.array([0.0, 1.0, 2.0, 5.0, 10.0, 20.0])
+    expect = 2e-3 * 1e5 / 2 / np.sum((t - t.mean()) ** 2)
+    table = Table.read(d / "f.ecsv", format="ascii.ecsv")
+    np.testing.assert_allclose(np.asarray(table["power"]), expect, rtol=1e-9)
+
+
+ROUND3_FORECAST = [
+    # a band below 0: refused by the option, as spectrum's band is (fixed in round two)
+    refused("forecast-kmin-negative", [*FORECAST, "--kmin", "-0.1"], mentions="--kmin"),
+    refused("forecast-kmax-negative", [*FORECAST, "--kmax", "-0.1"], mentions="--kmax"),
+    # uneven read times: forecast at those times (was as if evenly read)
+    works("forecast-read-times-uneven", FORECAST, write("scene.yaml", _WHITE_SCENE),
+          _check_read_times_forecast),
+    # a measurement of another band or axis was compared all the same (0.22x, -58 sigma)
+    refused("forecast-compare-other-band", [*FORECAST, "--compare", "m.ecsv"],
+            _measured(band_kmin=0.05, band_kmax=0.5), mentions=r"band 0\.05 to 0\.5"),
+    refused("forecast-compare-exclude-horizontal", [*FORECAST, "--compare", "m.ecsv"],
+            _measured(exclude_horizontal=True), mentions="--exclude-horizontal"),
+    refused("forecast-compare-other-shape", [*FORECAST, "--compare", "m.ecsv"],
+            _measured(shape=[64, 64]), mentions=r"64 x 64 image"),
+    refused("forecast-compare-no-band", [*FORECAST, "--compare", "m.ecsv"],
+            write("m.ecsv", "# %ECSV 1.0\n# ---\n# datatype:\n# - {name: k, unit: rad / pix, "
+                            "datatype: float64}\n# - {name: power, unit: electron2 pix2 / s2, "
+                            "datatype: float64}\n# - {name: power_err, unit: electron2 pix2 "
+                            "/ s2, datatype: float64}\n# schema: astropy-2.0\nk power "
+                            "power_err\n0.1 1.0 0.1\n"), mentions="band_kmin"),
+    # a fit-noise row of another stream was dropped without a word
+    refused("design-fit-noise-unknown-stream", DESIGN,
+            chain(_fit_with_streams("reference", "phantom", "roic"),
+                  write("design.yaml", _DESIGN + "noise: noise.ecsv\nrealizations: 0\n")),
+            mentions=r"row 2: stream 'roic'"),
+    refused("wiener-fit-noise-unknown-stream", REDUCE_BAD,
+            chain(_fit_with_streams("referenc", "phantom"), _wiener("noise.ecsv")),
+            mentions=r"row 0: stream 'referenc'"),
+    # read times the Monte Carlo cannot simulate: refused before the search, not after it
+    refused("design-read-times-monte-carlo", DESIGN,
+            write("design.yaml", _DESIGN.replace("nframes: 4", "nframes: 3, read_times: "
+                                                 "[0, 1, 3]") + "realizations: 2\n"),
+            mentions=r"realizations: .*read_times"),
+]
+
+
+@pytest.mark.parametrize("case", ROUND3_FORECAST)
+def test_input_round_three_forecast(case, inputs, runner, tmp_path):
+    test_input(case, inputs, runner, tmp_path)

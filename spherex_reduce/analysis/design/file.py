@@ -19,6 +19,7 @@ spherex_reduce.core.errors.ConfigError: design: search.iterations: must be in [0
 
 import math
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 from astropy import units as u
 
@@ -26,6 +27,7 @@ from ...core.errors import ConfigError, SpherexReduceError
 from ...core.parameters import Parameter, validate_file
 from ...io.config import load_yaml
 from ...reduce.steps.reference.noise_models import noise_model
+from ...simulation.grouping import read_schedule
 from ...simulation.scene import load_scene
 from ..case import (
     PIPELINES,
@@ -169,7 +171,8 @@ def load_design(source):
     ``noise``
         The noise model, replacing the scene's: a noise table (a built-in
         name or an ECSV file), a ``fit-noise`` result of your darks (its
-        ``reference`` and ``phantom`` streams) or a scene file.
+        ``reference`` and ``phantom`` streams; a row of another stream is
+        refused) or a scene file; a path relative to the file, as ``scene``.
     ``band``
         ``{kmin, kmax}`` in rad/pixel: the band whose power is minimised
         (default the paper's 5-20').
@@ -201,7 +204,8 @@ def load_design(source):
         ``seed``.
     ``realizations``, ``seed``
         Of the paired Monte Carlo confirmation (default 20 and 0; 0
-        realisations: none).
+        realisations: none).  A scene read at given ``read_times`` is
+        forecast at those times but not simulated: it needs ``realizations: 0``.
 
     Raises
     ------
@@ -213,7 +217,7 @@ def load_design(source):
     v = validate_file(config, DESIGN_PARAMETERS, label)
     scene = scene_section(v["scene"], label)
     if v["noise"] is not None:
-        comps, _ = noise_model(v["noise"], f"{label}: noise")
+        comps, _ = noise_model(_beside(v["noise"], label), f"{label}: noise")
         scene = {**scene, "noise": {"components": [c.to_dict() for c in comps]}}
     try:
         sc = load_scene(scene)
@@ -250,6 +254,13 @@ def load_design(source):
                           f"ref_modes is {timings} schedules to forecast; at most "
                           f"{MAX_TIMINGS}")
     realizations = v["realizations"] and realizations_section(v["realizations"], label)
+    if realizations:
+        try:
+            read_schedule(sc.schedule)  # what the Monte Carlo simulates
+        except ConfigError as exc:
+            raise ConfigError(f"{label}: realizations: the paired Monte Carlo simulates the "
+                              f"scene: {exc}, or set realizations: 0 (the forecast "
+                              "alone)") from None
     return Design(
         label=label, scene=scene, pipeline=pipeline, kmin=band["kmin"], kmax=band["kmax"],
         bins=v["bins"], frame_time=frame_time, baseline=baseline,
@@ -259,3 +270,12 @@ def load_design(source):
         iterations=search["iterations"], search_seed=search["seed"],
         realizations=realizations, seed=v["seed"],
     )
+
+
+def _beside(name, label):
+    """A file ``name`` relative to the design file ``label`` when it names a file there (as
+    ``scene:`` and ``pipeline:`` are read), else ``name`` itself."""
+    base = Path(label).parent if Path(label).is_file() else None
+    if base is None or Path(name).is_absolute() or not (base / name).is_file():
+        return name
+    return str(base / name)

@@ -28,10 +28,10 @@ import numpy as np
 from astropy import units as u
 
 from ...core.errors import ConfigError, SpherexReduceError
+from ...noise.variance import slope_frames
 from ...simulation.scene import Scene, load_scene
 from ..case import SpectrumMeasure, measure_section
 from ..light import light_sensitive
-from ..photon_noise import slope_variance_factor
 from ..spectrum import (
     BAND_KMAX,
     BAND_KMIN,
@@ -98,7 +98,7 @@ def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SC
         component (zero for one the reduced pixels do not see: a component only
         the phantom samples see is seen once phantom values are subtracted) and ``power_poisson``
         for the Poisson noise of the scene's dark current and photocurrent
-        (white, `~spherex_reduce.analysis.slope_variance_factor`), if any.  ``meta`` as
+        (white, `poisson_variance`), if any.  ``meta`` as
         `~spherex_reduce.analysis.power_spectrum`'s, with ``band_power`` (the
         paper's band, e/s squared), ``band_power_err`` (the standard error of
         one realisation's band power as `~spherex_reduce.analysis.band_power`
@@ -365,7 +365,10 @@ def forecast_measure(measure):
 def poisson_variance(scene):
     """Slope variance (e/s)² of the Poisson noise of the dark current and photocurrent.
 
-    The same in every light-sensitive pixel (0 without it).
+    The same in every light-sensitive pixel (0 without it): the uniform
+    least-squares slope's weights ``w`` (at the frame times or the ``read_times``:
+    `~spherex_reduce.noise.variance.slope_frames`) against the covariance of the
+    charge read, ``rate (min(t_j, t_k) - t_0)``.
 
     Parameters
     ----------
@@ -377,8 +380,8 @@ def poisson_variance(scene):
 
     Examples
     --------
-    A uniform least-squares slope of ``n`` frames: ``6 (n² + 1) / (5 n (n² - 1))``
-    times the rate over the frame time.
+    Evenly spaced frames: ``6 (n² + 1) / (5 n (n² - 1))`` times the rate over the frame
+    time (`~spherex_reduce.analysis.slope_variance_factor`).
 
     >>> from spherex_reduce.simulation import load_scene
     >>> from spherex_reduce.analysis.forecast.engine import poisson_variance
@@ -395,7 +398,9 @@ def poisson_variance(scene):
     if not (t.poisson and rate > 0):
         return 0.0
     s = scene.schedule
-    return rate * slope_variance_factor(s.nframes) * s.geometry.pixel_rate / s.frame_samples
+    w, _, _ = slope_frames(s)
+    times = s.frame_starts.to_value(u.s)  # per unit rate, Cov(q_j, q_k) = min(t_j, t_k) - t_0
+    return float(rate * (w @ (np.minimum.outer(times, times) - times[0]) @ w))
 
 
 def _check_terms(terms):

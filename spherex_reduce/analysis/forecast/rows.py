@@ -27,7 +27,8 @@ differs from read to read and changes every ``k_y``
 (`spherex_reduce.analysis.forecast.wiener`).
 
 The sum over ``d`` is exact for the ``m`` near a singularity of ``S`` (``m R``
-within `NEAR_READS` row reads of a multiple of the frame time); for the others
+within `NEAR_READS` row reads of a multiple of the frame time, or with uneven
+``read_times`` of a difference of two of them); for the others
 ``S(m R + d)`` is smooth in ``d`` over one read and is interpolated on `NODES`
 Chebyshev nodes rounded to whole offsets.  The cells can be restricted to
 some ``k_y`` rows and ``k_x`` columns (`band_cells`): the cost is then that
@@ -41,7 +42,7 @@ import scipy.fft
 
 from ...core.errors import SpherexReduceError
 from ...core.limits import check_size
-from ...noise.variance import slope_covariance
+from ...noise.variance import SHIFT_CELLS, slope_covariance, slope_frames
 from .functionals import Correlations, Part, channel_sums, column_phases
 from .wiener import WienerTerms
 
@@ -172,7 +173,8 @@ def _check_memory(schedule, shape, nhalf, cells, ncomp, c, wiener):
     if wiener:  # up to 8 terms (2 groups, 2 families, 2 kinds) and their 36 pairs
         row_arrays += 16 * min(nky, CHUNK_ROWS) * (50 * slots + ny)
     nlags = slots * NODES + 3 * (2 * NEAR_READS + 1) * (2 * width + 1)
-    lag_table = 8 * (3 * ncomp * nlags + 6 * (2 * schedule.nframes - 1) * min(nlags, CHUNK_LAGS))
+    shifts = slope_frames(schedule)[2].size  # the slope covariance's arrays (lags, shifts)
+    lag_table = 8 * (3 * ncomp * nlags + 6 * min(shifts * min(nlags, CHUNK_LAGS), SHIFT_CELLS))
     planes = 8 * (ncomp + 1) * (3 * nky + 2 * nhalf) * nkx
     check_size(functional + row_arrays + lag_table + planes,
                f"forecast: the {nky} x {nkx} cells of a {ny} x {nx} image read in {slots // 2} "
@@ -186,11 +188,10 @@ class _LagTable:
 
     def __init__(self, schedule, comps, half, nodes):
         s = schedule
-        rs, frame = s.row_samples, s.frame_samples
+        rs = s.row_samples
         slots = _slots(s).max() + 1
         m = np.arange(-(slots - 1), slots)
-        dist = np.min(np.abs(m[:, None] * rs - np.array([-frame, 0, frame])[None, :]), axis=1)
-        near = dist < NEAR_READS * rs
+        near = _singular_distance(m * rs, slope_frames(s)[2]) < NEAR_READS * rs
         self.near, self.far = m[near] % (2 * slots), m[~near] % (2 * slots)
         d = np.arange(-half, half + 1)
         self.interp, dnodes = _chebyshev_rule(half, nodes)
@@ -247,6 +248,16 @@ class _LagTable:
         out[self.near] = (self.s_near[i] @ x).real
         out[self.far] = (self.s_far[i] @ (x @ self.interp)).real
         return out
+
+
+def _singular_distance(lags, shifts):
+    """How far (samples) each lag is from the nearest of ``shifts`` (increasing): the
+    slope covariance is singular at lags ``-shift``, the frames' shifts (`slope_frames`:
+    multiples of the frame, or the differences of uneven read times)."""
+    i = np.searchsorted(shifts, lags)
+    below = shifts[np.clip(i - 1, 0, shifts.size - 1)]
+    above = shifts[np.clip(i, 0, shifts.size - 1)]
+    return np.minimum(np.abs(lags - below), np.abs(lags - above))
 
 
 def _slots(s):

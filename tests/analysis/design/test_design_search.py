@@ -248,3 +248,47 @@ def test_a_baseline_without_noise_in_the_band_is_refused(noise):
     with pytest.raises(ConfigError, match=r"design: noise: the baseline's forecast band power "
                                           r"is 0 \(no noise in the band\): nothing to minimise"):
         design_readout(_design(scene={**SCENE, "noise": noise}))
+
+
+def test_a_scene_read_at_uneven_times_is_designed_at_those_times():
+    """White noise of per-sample variance sigma^2 = alpha fs / 2 read at times t_k, no
+    reduction: the band power of every schedule is the least-squares slope variance
+    sigma^2 / sum (t - tbar)^2 (written out here), the one the report's summary says it
+    reads at, not that of evenly read frames."""
+    times = [0.0, 1.0, 2.0, 5.0, 10.0, 20.0]
+    scene = {"geometry": GEOMETRY, "readout": {"nframes": 6, "read_times": times},
+             "noise": {"components": [{"name": "w", "alpha": 2e-3}]}}
+    res = design_readout({**_design(scene=scene), "pipeline": "none"})
+    t = np.array(times)
+    expect = 2e-3 * load_scene(scene).schedule.geometry.pixel_rate / 2 / np.sum(
+        (t - t.mean()) ** 2)
+    meta = res.report.meta
+    assert "read at 0 ... 20 s (6 times given)" in meta["best"]["summary"]
+    assert meta["band_power_baseline"] == pytest.approx(expect, rel=1e-9)
+    assert meta["band_power_best"] == pytest.approx(expect, rel=1e-9)
+    assert [c.band_power for c in res.candidates] == pytest.approx([expect] * 6, rel=1e-9)
+    np.testing.assert_allclose(res.report["power_best"].value, expect, rtol=1e-9)
+    assert res.best_scene["readout"]["read_times"] == times
+
+
+def test_a_scene_read_at_uneven_times_is_not_simulated_by_the_monte_carlo():
+    """The simulator refuses read_times: refused before the search, not after it."""
+    scene = {**SCENE, "readout": {"nframes": 4, "read_times": [0.0, 1.0, 3.0, 7.0]}}
+    with pytest.raises(ConfigError, match=r"^design: realizations: the paired Monte Carlo "
+                                          r"simulates the scene: readout\.read_times: .* or "
+                                          r"set realizations: 0 \(the forecast alone\)$"):
+        load_design({**_design(scene=scene), "realizations": 2})
+
+
+def test_a_fit_noise_result_with_an_unknown_or_repeated_stream_is_refused(tmp_path):
+    """A row fit-noise does not write would be left out of the model without a word."""
+    for streams, words in ((["reference", "phantom", "referense"],
+                            "row 2: stream 'referense' is not a stream fit-noise writes "
+                            "(reference, phantom)"),
+                           (["phantom", "phantom"], "row 1: stream 'phantom' twice")):
+        fit = tmp_path / "fit.ecsv"
+        n = len(streams)
+        Table({"stream": streams, "alpha": [1e-5] * n, "beta": [1e-3] * n,
+               "gamma": [0.0] * n, "exponent": [1.3] * n}).write(fit, overwrite=True)
+        with pytest.raises(ConfigError, match=re.escape(f"design: noise: {fit}: {words}")):
+            load_design({**_design(), "noise": str(fit)})

@@ -4,6 +4,7 @@ through `power_spectrum`, and the package's Monte Carlo."""
 
 import numpy as np
 import pytest
+from _forecast_brute import Samples, expected_spectrum, read_time_covariance, reduction_matrix
 from _forecast_scenes import BINS, COMMON, PINK, PINK_ACN, ROIC, tiny
 from astropy import units as u
 
@@ -165,3 +166,46 @@ def test_refuses_an_image_this_machine_cannot_hold_before_allocating():
     with pytest.raises(ResourceError, match=r"^forecast: the 56 x 524285 cells of a 56 x "
                                             r"1048568 image .* needs [0-9.]+ TB of memory"):
         forecast(scene, "unchop")
+
+
+#: uneven read times (s): the slope's weights are (t - mean t) / sum (t - mean t)^2
+READ_TIMES = [0.0, 1.0, 2.0, 5.0, 10.0, 20.0]
+
+
+def test_uneven_read_times_white_and_poisson_are_the_closed_forms():
+    """White read noise of per-sample variance sigma^2 = alpha fs / 2 read at times t_k:
+    the least-squares slope's variance sigma^2 / sum (t - tbar)^2 (flat in k); Poisson
+    noise of rate i: i w^T min(t_j, t_k) w.  Evenly read frames give other numbers."""
+    white = {"name": "white", "alpha": 2e-3}
+    scene = tiny([white], terms={"photocurrent": 1.5},
+                 readout={"nframes": 6, "read_times": READ_TIMES})
+    t = np.array(READ_TIMES)
+    d = t - t.mean()
+    sigma2 = 2e-3 * scene.schedule.geometry.pixel_rate / 2
+    w = d / np.sum(d * d)
+    shot = 1.5 * w @ np.minimum.outer(t, t) @ w
+    got = forecast(scene, measure={"bins": BINS})
+    np.testing.assert_allclose(u.Quantity(got["power_white"]).value, sigma2 / np.sum(d * d),
+                               rtol=1e-9)
+    np.testing.assert_allclose(u.Quantity(got["power_poisson"]).value, shot, rtol=1e-12)
+    assert got.meta["variance"] == pytest.approx(sigma2 / np.sum(d * d) + shot, rel=1e-9)
+    assert expected_slope_variance(scene.components, scene.schedule).value == pytest.approx(
+        sigma2 / np.sum(d * d), rel=1e-12)
+    even = forecast(tiny([white], readout={"nframes": 6}), measure={"bins": BINS})
+    assert even.meta["variance"] > 10 * got.meta["variance"]
+
+
+def test_uneven_read_times_correlated_noise_equals_brute_force():
+    """1/f, power-law, ACN, common and phantom-only noise read at uneven times through
+    phantom subtraction and the reference correction, against every sample's covariance
+    written from the components' structure functions and the read times
+    (`read_time_covariance`, not the package's slope covariance) pushed through the
+    reduction as a matrix."""
+    times = [0.0, 0.3, 1.2, 3.0]
+    scene = tiny([ROIC, PINK, COMMON, PHANTOM], readout={"read_times": times})
+    samples = Samples(scene)
+    cov = sum(read_time_covariance(samples, scene.components, times).values())
+    lmat = reduction_matrix(samples, phantom=True, reference="mean", reference_phantom=True)
+    expect = expected_spectrum(samples, lmat, cov, BINS)
+    got = u.Quantity(forecast(scene, "spherex-default", {"bins": BINS})["power"]).value
+    np.testing.assert_allclose(got, expect, rtol=1e-6)

@@ -20,12 +20,15 @@ from ....io.config import load_yaml
 from ....noise import BUILTIN_TABLES, NoiseComponent, noise_components
 from ....noise.section import section_components
 
-__all__ = ["DEFAULT_NOISE", "NEGATIVE_SIGMAS", "PAPER_PIXEL_RATE", "load_noise_model",
-           "noise_model"]
+__all__ = ["DEFAULT_NOISE", "FIT_STREAMS", "NEGATIVE_SIGMAS", "PAPER_PIXEL_RATE",
+           "load_noise_model", "noise_model"]
 
 #: A fit-noise coefficient below zero by at most this many standard errors is zero within
 #: its error (used as 0); further below it is refused.
 NEGATIVE_SIGMAS = 3.0
+#: The streams of a ``fit-noise`` result and the samples the component of each is seen by;
+#: a row of another stream, or a stream twice, is refused.
+FIT_STREAMS = {"reference": "pixels", "phantom": "phantom"}
 #: The noise model used when none is named: the paper's Table 2.
 DEFAULT_NOISE = "spherex-table2"
 #: The pixel rate (Hz) of the paper's electronics, which the default noise model describes.
@@ -41,7 +44,8 @@ def load_noise_model(source, where="correct_reference.noise"):
         A built-in table (``'spherex-table2'``), an ECSV noise table (columns
         ``name alpha beta gamma ...``), an ECSV written by ``spherex-reduce
         fit-noise`` (its ``reference`` stream becomes a channel component seen
-        by the pixels, its ``phantom`` stream one seen by the phantom reads),
+        by the pixels, its ``phantom`` stream one seen by the phantom reads; a
+        row of any other stream, or a stream twice, is refused),
         or a scene file (YAML; its ``noise:`` section).
     where : str
         Where the value came from, for error messages.
@@ -53,7 +57,8 @@ def load_noise_model(source, where="correct_reference.noise"):
     Raises
     ------
     ConfigError
-        The source cannot be read or describes no noise.
+        The source cannot be read or describes no noise, or a ``fit-noise`` result has
+        a row of another stream than ``reference`` and ``phantom`` (or one twice).
 
     Examples
     --------
@@ -111,21 +116,25 @@ def _table_components(source, where):
             if alpha is not None:
                 with contextlib.suppress(ValueError, TypeError):
                     unit = u.Unit((alpha * u.Hz) ** 0.5)
-            visibility = {"reference": "pixels", "phantom": "phantom"}
             comps = []
-            for row in head:
+            for i, row in enumerate(head):
                 stream = str(row["stream"])
-                if stream in visibility:
-                    try:
-                        coefficients = {name: _fitted(row, stream, name, f"{where}: {source}")
-                                        for name in ("alpha", "beta", "gamma")}
-                        comps.append(NoiseComponent(stream, **coefficients,
-                                                    exponent=float(row["exponent"]),
-                                                    visibility=visibility[stream]))
-                    except ConfigError:
-                        raise
-                    except (KeyError, ValueError) as exc:
-                        raise ConfigError(f"{where}: {source}: {exc}") from None
+                if stream not in FIT_STREAMS or stream in [c.name for c in comps]:
+                    raise ConfigError(
+                        f"{where}: {source}: row {i}: stream {stream!r} "
+                        + ("twice" if stream in FIT_STREAMS else "is not a stream fit-noise "
+                           f"writes ({', '.join(FIT_STREAMS)})")
+                        + ": the model would leave out or double a component")
+                try:
+                    coefficients = {name: _fitted(row, stream, name, f"{where}: {source}")
+                                    for name in ("alpha", "beta", "gamma")}
+                    comps.append(NoiseComponent(stream, **coefficients,
+                                                exponent=float(row["exponent"]),
+                                                visibility=FIT_STREAMS[stream]))
+                except ConfigError:
+                    raise
+                except (KeyError, ValueError) as exc:
+                    raise ConfigError(f"{where}: {source}: {exc}") from None
             return comps, unit
     return list(noise_components(source).values()), u.electron
 

@@ -10,6 +10,7 @@ nothing when the pixels they replace carry the same value.  The statistical test
 import contextlib
 import importlib.resources
 import io
+import re
 import warnings
 
 import numpy as np
@@ -644,6 +645,23 @@ def test_a_fitted_coefficient_below_zero_is_zero_within_three_sigma(tmp_path, ga
     same = table(tmp_path / "same.ecsv", used, 0.0)
     np.testing.assert_array_equal(correct_reference(e, "wiener", noise=source).data.data,
                                   correct_reference(e, "wiener", noise=same).data.data)
+
+
+@pytest.mark.parametrize(("streams", "words"), [
+    (["reference", "phantom", "roic"], "row 2: stream 'roic' is not a stream fit-noise writes"),
+    (["Reference", "phantom"], "row 0: stream 'Reference' is not a stream fit-noise writes"),
+    (["reference", "reference"], "row 1: stream 'reference' twice"),
+])
+def test_a_fit_noise_row_of_another_stream_is_refused_naming_it(tmp_path, streams, words):
+    """Such a row was left out of the model without a word (a misspelt ``reference`` left
+    the phantom stream alone); a stream twice would count its noise twice."""
+    n = len(streams)
+    path = tmp_path / "fit.ecsv"
+    Table({"stream": streams, "alpha": [1e-3] * n, "beta": [1e-2] * n, "gamma": [0.0] * n,
+           "exponent": [1.3] * n}).write(path, format="ascii.ecsv")
+    s, data, ph = _with_phantom()
+    with pytest.raises(ConfigError, match=re.escape(f"correct_reference.noise: {path}: {words}")):
+        correct_reference(Exposure.from_arrays(data, s, phantom=ph), "wiener", noise=str(path))
 
 
 @pytest.mark.parametrize("text", ["steps:\n  - unchop: {}\n", "colour: blue\n"])

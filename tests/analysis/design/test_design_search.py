@@ -6,7 +6,7 @@ import re
 import numpy as np
 import pytest
 from astropy import units as u
-from astropy.table import Table
+from astropy.table import QTable, Table
 
 from spherex_reduce import DetectorGeometry, ReadoutSchedule
 from spherex_reduce.analysis import forecast
@@ -292,3 +292,18 @@ def test_a_fit_noise_result_with_an_unknown_or_repeated_stream_is_refused(tmp_pa
                "gamma": [0.0] * n, "exponent": [1.3] * n}).write(fit, overwrite=True)
         with pytest.raises(ConfigError, match=re.escape(f"design: noise: {fit}: {words}")):
             load_design({**_design(), "noise": str(fit)})
+
+
+def test_a_fit_noise_result_of_data_in_adu_is_refused(tmp_path):
+    """The scene, its sky and the band powers are in electrons: a model fitted to ADU darks
+    was taken as electrons (its band powers off by the gain squared)."""
+    fit = tmp_path / "fit.ecsv"
+    rows = {"stream": ["reference", "phantom"], "beta": [1e-3, 0.0], "gamma": [0.0, 0.0],
+            "exponent": [1.3, 1.3]}
+    QTable({**rows, "alpha": [1e-5, 2e-5] * u.adu**2 / u.Hz}).write(fit)
+    with pytest.raises(ConfigError, match=re.escape(
+            f"design: noise: {fit} describes charge in adu, not electrons")):
+        load_design({**_design(), "noise": str(fit)})
+    QTable({**rows, "alpha": [1e-5, 2e-5] * u.electron**2 / u.Hz}).write(fit, overwrite=True)
+    d = load_design({**_design(), "noise": str(fit)})
+    assert [c["alpha"] for c in d.scene["noise"]["components"]] == [1e-5, 2e-5]

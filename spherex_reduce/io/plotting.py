@@ -11,7 +11,7 @@ from ..core._text import plural
 from . import atomic_output
 
 __all__ = ["bin_image", "plot_channel_layout", "plot_image", "plot_images", "plot_read_order",
-           "save_figure", "unit_label"]
+           "save_figure", "show_image", "unit_label"]
 
 
 def save_figure(fig, path, overwrite=False, dpi=120):
@@ -384,8 +384,49 @@ def _masked(image):
     return data
 
 
+def show_image(ax, data, colorbar_label="", **imshow):
+    """Draw an image on ``ax`` as ds9 shows it, with a colour bar as tall as the panel.
+
+    Row 0 at the bottom (``origin="lower"``); the colour bar in an inset
+    axes just right of the panel, so it has the panel's height whatever its
+    aspect (a colour bar taking its height from the panel's grid cell is
+    taller than a square image in a wide cell).
+
+    Parameters
+    ----------
+    ax : `matplotlib.axes.Axes`
+    data : 2-D array
+    colorbar_label : str
+        Label of the colour bar (say its unit).
+    **imshow
+        Keywords of `matplotlib.axes.Axes.imshow` (``extent`` as
+        ``(left, right, bottom, top)``); ``origin`` is not one of them.
+
+    Returns
+    -------
+    `matplotlib.image.AxesImage`
+        Its ``colorbar`` is the colour bar.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matplotlib.figure import Figure
+    >>> from spherex_reduce.io.plotting import show_image
+    >>> ax = Figure(layout="constrained").subplots()
+    >>> im = show_image(ax, np.arange(6.0).reshape(2, 3), "e/s")
+    >>> im.origin, im.colorbar.ax.get_ylabel()
+    ('lower', 'e/s')
+    """
+    im = ax.imshow(data, origin="lower", **imshow)
+    cax = ax.inset_axes([1.03, 0.0, 0.05, 1.0])
+    ax.figure.colorbar(im, cax=cax, label=colorbar_label)
+    return im
+
+
 def plot_images(images, title="", unit="", percentile=(1, 99), max_pixels=400):
     """Images side by side, on one grey scale, each with a colour bar.
+
+    Row 0 at the bottom, as ds9 shows an image (`show_image`).
 
     One stretch (the ``percentile`` range of all the panels' pixels together)
     so that the panels can be compared by eye.  Images larger than
@@ -438,11 +479,11 @@ def plot_images(images, title="", unit="", percentile=(1, 99), max_pixels=400):
     axes = np.atleast_1d(fig.subplots(1, n))
     label = unit_label(unit)
     for ax, (name, (binned, factor, (ny, nx))) in zip(axes, shown.items(), strict=True):
-        extent = (-0.5, binned.shape[1] * factor - 0.5, binned.shape[0] * factor - 0.5, -0.5)
-        im = ax.imshow(binned, norm=norm, cmap="gray", interpolation="nearest", extent=extent)
+        extent = (-0.5, binned.shape[1] * factor - 0.5, -0.5, binned.shape[0] * factor - 0.5)
+        show_image(ax, binned, label, norm=norm, cmap="gray", interpolation="nearest",
+                   extent=extent)
         ax.set_xlim(-0.5, nx - 0.5)
-        ax.set_ylim(ny - 0.5, -0.5)
-        fig.colorbar(im, ax=ax, label=label, shrink=0.9)
+        ax.set_ylim(-0.5, ny - 0.5)
         ax.set_xlabel("column")
         ax.set_ylabel("row")
         note = f"({factor}×{factor}-pixel means)" if factor > 1 else ""

@@ -18,6 +18,31 @@ def test_large_image_binned_in_plot_image():
     assert shown[-1, -1] == pytest.approx(img[-3:, -3:].mean())
 
 
+@pytest.mark.parametrize("shape", [(30, 30), (12, 40), (60, 8)])
+def test_plot_image_row_0_at_the_bottom_colour_bar_as_tall_as_the_panel(shape):
+    """As ds9 shows an image: pixel (0, 0) at the lower left, the colour bar beside the
+    panel and of its height whatever the image's aspect (window extents after a draw)."""
+    from spherex_reduce.io.plotting import plot_image
+
+    img = np.zeros(shape)
+    img[0, 0] = 1.0  # one bright pixel at row 0, column 0
+    fig = plot_image(img, "one pixel", unit="adu")
+    renderer = drawn(fig)
+    ax = fig.axes[0]
+    (image,) = ax.images
+    assert image.origin == "lower"
+    # the bright pixel's centre is at the panel's lower left corner on the screen
+    frame = ax.get_window_extent(renderer)
+    px, py = ax.transData.transform((0, 0))
+    assert px - frame.x0 < frame.width / 2 and py - frame.y0 < frame.height / 2
+    assert ax.get_ylim()[0] < ax.get_ylim()[1]
+    bar = image.colorbar.ax.get_window_extent(renderer)
+    assert bar.height == pytest.approx(frame.height, abs=1.0)
+    assert bar.y0 == pytest.approx(frame.y0, abs=1.0)
+    assert frame.x1 <= bar.x0 < frame.x1 + 0.1 * frame.width
+    assert "adu" in image.colorbar.ax.get_ylabel()
+
+
 def test_read_order_labels_readable_and_legend_off_the_points():
     from spherex_reduce import ReadoutSchedule
     from spherex_reduce.io.plotting import plot_read_order

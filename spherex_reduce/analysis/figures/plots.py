@@ -215,6 +215,8 @@ def plot_fft_magnitude(images, title=""):
     -------
     `matplotlib.figure.Figure`
     """
+    from ...io.plotting import show_image
+
     ncols = min(len(images), 2)
     nrows = -(-len(images) // ncols)
     fig = Figure(figsize=(5.5 * ncols, 4.6 * nrows), layout="constrained")
@@ -223,13 +225,12 @@ def plot_fft_magnitude(images, title=""):
     for ax, (label, im) in zip(axes, images.items(), strict=True):
         kx, ky = im.kx.value, im.ky.value
         mag = im.magnitude.value
-        shown = ax.imshow(np.log10(np.maximum(mag, vmax * 1e-6)), origin="lower",
-                          extent=(kx[0], kx[-1], ky[0], ky[-1]), aspect="auto", cmap="viridis",
-                          vmin=np.log10(vmax) - 4, vmax=np.log10(vmax))
+        show_image(ax, np.log10(np.maximum(mag, vmax * 1e-6)), "log10 |FFT|",
+                   extent=(kx[0], kx[-1], ky[0], ky[-1]), aspect="auto", cmap="viridis",
+                   vmin=np.log10(vmax) - 4, vmax=np.log10(vmax))
         ax.set_xlabel("k_x (rad / pixel)")
         ax.set_ylabel("k_y (rad / pixel)")
         ax.set_title(label, fontsize=10)
-        fig.colorbar(shown, ax=ax, label="log10 |FFT|")
     if title:
         fig.suptitle(title, fontsize=10)
     return fig

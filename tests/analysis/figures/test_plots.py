@@ -8,7 +8,12 @@ are binned (block means), not decimated.
 
 import numpy as np
 import pytest
-from _figure_checks import drawn, errorbar_ends, overlaps
+from _figure_checks import (
+    drawn,
+    errorbar_ends,
+    images_and_colorbars,
+    overlaps,
+)
 from astropy import units as u
 from astropy.table import Table
 
@@ -69,11 +74,45 @@ def test_images_are_block_means_not_decimated(images_2048):
 def test_images_labels_clear_of_the_other_panel(images_2048):
     fig, _ = images_2048
     renderer = drawn(fig)
-    image_axes = [ax for ax in fig.axes if ax.images]
-    colorbars = [ax for ax in fig.axes if not ax.images]
-    right_label = image_axes[1].yaxis.label.get_window_extent(renderer)
-    for cb in colorbars:
-        assert not overlaps(right_label, cb.get_tightbbox(renderer))
+    panels = images_and_colorbars(fig)
+    assert len(panels) == 2 and all(cbar is not None for _, _, cbar in panels)
+    right_label = panels[1][0].yaxis.label.get_window_extent(renderer)
+    for _, _, cbar in panels:
+        assert not overlaps(right_label, cbar.get_tightbbox(renderer))
+
+
+def _check_ds9_panels(fig, n):
+    """Each of the ``n`` images of ``fig``: row 0 drawn at the bottom (its first row's
+    centre below its last on the screen), origin 'lower', and a colour bar as tall as the
+    panel and beside it (window extents after a draw)."""
+    renderer = drawn(fig)
+    panels = images_and_colorbars(fig)
+    assert len(panels) == n
+    for ax, image, cbar in panels:
+        assert image.origin == "lower"
+        left, right, bottom, top = image.get_extent()
+        x = (left + right) / 2
+        ny = np.asarray(image.get_array()).shape[0]
+        first, last = (bottom + (top - bottom) * (i + 0.5) / ny for i in (0, ny - 1))
+        assert ax.transData.transform((x, first))[1] < ax.transData.transform((x, last))[1]
+        panel = ax.get_window_extent(renderer)
+        bar = cbar.get_window_extent(renderer)
+        assert bar.height == pytest.approx(panel.height, abs=1.0)
+        assert bar.y0 == pytest.approx(panel.y0, abs=1.0)
+        assert panel.x1 <= bar.x0 < panel.x1 + 0.1 * panel.width
+
+
+def test_images_row_0_at_the_bottom_colour_bars_as_tall_as_the_panels(images_2048):
+    _check_ds9_panels(images_2048[0], 2)
+
+
+def test_fft_panels_row_0_at_the_bottom_colour_bars_as_tall_as_the_panels():
+    from spherex_reduce.analysis import fft_magnitude
+    from spherex_reduce.analysis.figures.plots import plot_fft_magnitude
+
+    rng = np.random.default_rng(3)
+    ffts = {name: fft_magnitude(rng.normal(size=(32, 32)), size=9) for name in "abc"}
+    _check_ds9_panels(plot_fft_magnitude(ffts), 3)
 
 
 def _spectrum(power, err):

@@ -107,11 +107,15 @@ def run(args):
             lines.append(_comparison(measured_band, args.compare, band, unit))
         table.write(tmp, format="ascii.ecsv")
         if plot:
+            from ..analysis import photon_noise_label, photon_noise_power
             from ..analysis.figures.plots import plot_forecast
             from ..io.plotting import save_figure
 
+            zodi = 1 * u.electron / u.s  # the spectrum plot's photon-noise line, over this scene
             fig = plot_forecast(table, measured, measured_label=Path(args.compare).name
-                                if measured is not None else None, pixel_scale=scale)
+                                if measured is not None else None, pixel_scale=scale,
+                                photon=photon_noise_power(zodi, schedule=scene.schedule),
+                                photon_label=photon_noise_label(zodi, schedule=scene.schedule))
             save_figure(fig, tmp_plot)
     lines.append(f"wrote {args.output}")
     if plot:

@@ -11,7 +11,7 @@ from ..core._text import plural
 from . import atomic_output
 
 __all__ = ["bin_image", "plot_channel_layout", "plot_image", "plot_images", "plot_read_order",
-           "save_figure", "unit_label"]
+           "save_figure", "show_image", "unit_label"]
 
 
 def save_figure(fig, path, overwrite=False, dpi=120):
@@ -21,25 +21,39 @@ def save_figure(fig, path, overwrite=False, dpi=120):
     return path
 
 
+#: Font size (pt) of the read numbers of the read-order panel.
+READ_NUMBER_SIZE = 7
+#: Passes drawn at most in the read-order panel (fewer rows are shown to keep to it).
+MAX_PASSES_SHOWN = 32
+_ROW_PITCH = 10.0  # points between rows of the read-order panel: a read number's height and more
+_LABEL_OFFSET = 4.0  # points from a read's dot to its number
+_HEAD_CLEARANCE = 8.0  # points from a number's end to the next pass: an arrowhead and a gap
+_REFERENCE_OFFSET = 12.0  # points from a reference row's dot to its numbers: clear of arrowheads
+
+
 def plot_read_order(schedule, max_rows=48):
     """Draw the order in which rows are read, as in the paper's Fig. 3.
 
     Left: each physical row (down the page) with its read number and arrows
-    from read to read, for the first ``max_rows`` rows (all of a small array).
-    Middle: physical row against read number for the whole frame, reference
-    reads in red.  Right: the stored image's channels (`plot_channel_layout`).
-    Rows are those of the readout frame (the stored image's own when the
-    channels are columns).
+    from read to read, for the first ``max_rows`` rows (all of a small array;
+    fewer when more than `MAX_PASSES_SHOWN` passes would be in them).  The
+    passes are spaced and the figure sized so that every read number fits
+    between its dot and the next pass's arrows (with many passes this panel
+    takes a row of its own, above the other two).  Middle: physical row against
+    read number for the whole frame, reference reads in red.  Right: the
+    stored image's channels (`plot_channel_layout`).  Rows are those of the
+    readout frame (the stored image's own when the channels are columns).
 
     Parameters
     ----------
     schedule : `~spherex_reduce.ReadoutSchedule`
     max_rows : int
-        Rows shown in the left panel.
+        Rows shown in the left panel at most.
 
     Returns
     -------
     `matplotlib.figure.Figure`
+        Its axes: the read order, the whole frame, the channels.
 
     Examples
     --------
@@ -50,59 +64,36 @@ def plot_read_order(schedule, max_rows=48):
     >>> len(fig.axes)
     3
     """
+    from matplotlib.textpath import TextPath
+
     rows, is_ref = schedule.rows, schedule.is_reference
-    nrows = schedule.geometry.nrows
-    shown = min(nrows, max_rows)
-    fig = Figure(figsize=(16, 6.4), layout="constrained")
-    ax, ax2, ax3 = fig.subplots(1, 3, gridspec_kw={"width_ratios": [1, 1.4, 1.3]})
-    # left: Fig. 3 style. One column per chopping pass (pass k reads active rows
-    # k, k+S, ...), reference reads in the first column; arrows join consecutive reads.
     g = schedule.geometry
+    passes = _passes(schedule)
+    shown = min(g.nrows, max_rows)
+    late = rows[(passes >= MAX_PASSES_SHOWN) & (rows < shown)]
+    shown = int(late.min()) if late.size else shown
     sel = np.flatnonzero(rows < shown)
-    if schedule.order is None:
-        npass = min(schedule.skip, max(g.n_active_rows, 1))
-        passes = (rows - g.border.top) % npass
-    else:  # a pass: a run of active reads going down the array
-        active = rows[~is_ref]
-        passes = np.zeros(rows.size, dtype=int)
-        passes[~is_ref] = np.concatenate([[0], np.cumsum(np.diff(active) < 0)])
-        npass = int(passes.max()) + 1
-    x = np.where(is_ref[sel], 0, 1 + passes[sel])
-    y = rows[sel]
-    for r in range(shown):
-        if r < g.border.top or r >= nrows - g.border.bottom:
-            ax.axhspan(r - 0.5, r + 0.5, color="0.88", lw=0)
-    for k in range(len(sel) - 1):
-        if sel[k + 1] != sel[k] + 1:  # a jump over rows outside the panel
-            continue
-        same = x[k + 1] == x[k]
-        ax.annotate("", xy=(x[k + 1], y[k + 1]), xytext=(x[k], y[k]),
-                    arrowprops={"arrowstyle": "->", "lw": 0.9 if same else 0.6,
-                                "color": "black" if same else "tab:red",
-                                "linestyle": "-" if same else "--", "shrinkA": 4, "shrinkB": 4})
-    ax.scatter(x, y, s=12, c=np.where(is_ref[sel], "tab:red", "black"), zorder=3)
-    if len(sel) <= 200:
-        # active rows are read once: the index beside the point; a reference row is read
-        # many times at the same place, so its indices go on one line across its grey band
-        for xi, yi, i in zip(x[~is_ref[sel]], y[~is_ref[sel]], sel[~is_ref[sel]], strict=True):
-            ax.text(xi + 0.15, yi, str(i), va="center", fontsize=6, color="0.3",
-                    bbox={"boxstyle": "square,pad=0.05", "fc": "white", "ec": "none",
-                          "alpha": 0.8}, zorder=4)
-        for r in np.unique(y[is_ref[sel]]):
-            reads = sel[is_ref[sel] & (y == r)]
-            listed = ", ".join(map(str, reads[:12])) + (", …" if reads.size > 12 else "")
-            ax.text(0.4, r, f"reads {listed} ({reads.size}×)", va="center", fontsize=6,
-                    color="tab:red", bbox={"boxstyle": "square,pad=0.1", "fc": "0.88",
-                                           "ec": "none"}, zorder=4)
-    ax.set_xlim(-0.6, npass + 0.8)
-    ax.set_ylim(shown - 0.5, -0.5)
-    ax.set_xticks(range(npass + 1), ["ref"] + [str(k) for k in range(npass)],
-                  fontsize=7 if npass < 16 else 5)
-    ax.set_xlabel("pass (dashed red: return to the first unread row)" if schedule.order is None
-                  else "pass: a run of reads down the array (dashed red: a jump back up)")
-    ax.set_ylabel("physical row")
-    ax.set_title(f"read order, first {shown} rows (grey: reference rows)\n"
-                 "numbers: read index within the frame", fontsize=9)
+    columns = 2 + int(passes[sel][~is_ref[sel]].max(initial=-1))  # ref and the passes in view
+    numbered = len(sel) <= 200
+    refs = _reference_lines(sel, is_ref, rows) if numbered else {}
+    widest = TextPath((0, 0), str(sel.max(initial=0)), size=READ_NUMBER_SIZE).get_extents().x1
+    pitch = _LABEL_OFFSET + widest + _HEAD_CLEARANCE  # points from one pass to the next
+    # the reference rows' lines to the left of their dots, where no arrow goes
+    widest_ref = max((TextPath((0, 0), t, size=READ_NUMBER_SIZE - 0.5).get_extents().x1
+                      for t in refs.values()), default=0.0)
+    room = ((widest_ref + _REFERENCE_OFFSET + 4) if refs else 0.6 * pitch,  # points
+            _LABEL_OFFSET + widest + 4)  # left of the first column, right of the last
+    left = max(4.3, ((columns - 1) * pitch + sum(room)) / 72)  # inches
+    height = max(6.4, shown * _ROW_PITCH / 72 + 1.9)
+    if left <= 7.5:  # one row of three panels
+        fig = Figure(figsize=(left + 11.7, height), layout="constrained")
+        ax, ax2, ax3 = fig.subplots(1, 3, gridspec_kw={"width_ratios": [left, 6.2, 5.6]})
+    else:  # many passes: the read order alone on the first row, to stay readable
+        fig = Figure(figsize=(max(left + 1.2, 13.0), height + 6.4), layout="constrained")
+        panels = fig.subplot_mosaic([["reads", "reads"], ["frame", "channels"]],
+                                    height_ratios=[height, 6.4], width_ratios=[6.2, 5.6])
+        ax, ax2, ax3 = panels["reads"], panels["frame"], panels["channels"]
+    _draw_reads(ax, schedule, passes, sel, (shown, columns), refs, numbered)
     # right: the whole frame
     idx = np.arange(rows.size)
     ax2.plot(idx[~is_ref], rows[~is_ref], ".", ms=2, color="black", label="active read")
@@ -123,7 +114,94 @@ def plot_read_order(schedule, max_rows=48):
     if g.window is not None:
         _draw_window(ax2, g)
     _draw_channels(ax3, g.stored_geometry)
+    _space_passes(ax, columns, pitch, room)
     return fig
+
+
+def _space_passes(ax, columns, pitch, room):
+    """Set the x range of the read-order panel ``ax`` once the layout has sized it: ``room``
+    points left of the first column and right of the last, at least ``pitch`` points between
+    columns (the figure widened if the panel is too narrow for that)."""
+    fig = ax.figure
+    need = (columns - 1) * pitch + sum(room)
+    for _ in range(3):  # the layout gives the panel a share of the added width
+        fig.get_layout_engine().execute(fig)
+        width = ax.get_position().width * fig.get_figwidth() * 72  # points
+        if width >= need - 0.5:
+            break
+        fig.set_figwidth(fig.get_figwidth() + 1.1 * (need - width) / 72)
+    per_column = width / (columns - 1 + sum(room) / pitch)  # points per column, >= pitch
+    ax.set_xlim(-room[0] / per_column, (width - room[0]) / per_column)
+
+
+def _passes(schedule):
+    """The pass of every read (0 for reference reads): pass k of a chopped order reads the
+    active rows k, k + S, ...; of an explicit order, a run of active reads down the array."""
+    rows, is_ref = schedule.rows, schedule.is_reference
+    g = schedule.geometry
+    if schedule.order is None:
+        return np.where(is_ref, 0, (rows - g.border.top) % min(schedule.skip,
+                                                               max(g.n_active_rows, 1)))
+    active = rows[~is_ref]
+    passes = np.zeros(rows.size, dtype=int)
+    passes[~is_ref] = np.concatenate([[0], np.cumsum(np.diff(active) < 0)])
+    return passes
+
+
+def _reference_lines(sel, is_ref, rows):
+    """``{row: "reads i, j, … (n×)"}`` of the reference rows among the reads ``sel``."""
+    lines = {}
+    for r in np.unique(rows[sel][is_ref[sel]]):
+        reads = sel[is_ref[sel] & (rows[sel] == r)]
+        listed = ", ".join(map(str, reads[:4])) + (", …" if reads.size > 4 else "")
+        lines[int(r)] = f"reads {listed} ({reads.size}×)"
+    return lines
+
+
+def _draw_reads(ax, schedule, passes, sel, extent, refs, numbered):
+    """The left panel of `plot_read_order` (Fig. 3 style): one column per pass, reference
+    reads in the first column with their lines ``refs`` to its left, arrows joining
+    consecutive reads, each read's number beside its dot (if ``numbered``); ``extent`` is
+    the rows and columns shown (`_space_passes` sets the x range)."""
+    shown, columns = extent
+    rows, is_ref = schedule.rows, schedule.is_reference
+    g = schedule.geometry
+    nrows = g.nrows
+    x = np.where(is_ref[sel], 0, 1 + passes[sel])
+    y = rows[sel]
+    for r in range(shown):
+        if r < g.border.top or r >= nrows - g.border.bottom:
+            ax.axhspan(r - 0.5, r + 0.5, color="0.88", lw=0)
+    for k in range(len(sel) - 1):
+        if sel[k + 1] != sel[k] + 1:  # a jump over rows outside the panel
+            continue
+        same = x[k + 1] == x[k]
+        ax.annotate("", xy=(x[k + 1], y[k + 1]), xytext=(x[k], y[k]),
+                    arrowprops={"arrowstyle": "->", "lw": 0.9 if same else 0.6,
+                                "color": "black" if same else "tab:red",
+                                "linestyle": "-" if same else "--", "shrinkA": 4, "shrinkB": 4})
+    ax.scatter(x, y, s=12, c=np.where(is_ref[sel], "tab:red", "black"), zorder=3)
+    if numbered:
+        # active rows are read once: the number beside the dot, in the room the passes'
+        # spacing leaves before the next pass's arrows; a reference row is read many times
+        # at the same place, so its numbers go on one line left of its dot
+        for xi, yi, i in zip(x[~is_ref[sel]], y[~is_ref[sel]], sel[~is_ref[sel]], strict=True):
+            ax.annotate(str(i), (xi, yi), xytext=(_LABEL_OFFSET, 0),
+                        textcoords="offset points", va="center",
+                        fontsize=READ_NUMBER_SIZE, color="0.25", zorder=4,
+                        bbox={"boxstyle": "square,pad=0.05", "fc": "white", "ec": "none",
+                              "alpha": 0.8})
+        for r, text in refs.items():
+            ax.annotate(text, (0, r), xytext=(-_REFERENCE_OFFSET, 0),
+                        textcoords="offset points", va="center", ha="right",
+                        fontsize=READ_NUMBER_SIZE - 0.5, color="tab:red", zorder=4)
+    ax.set_ylim(shown - 0.5, -0.5)
+    ax.set_xticks(range(columns), ["ref"] + [str(k) for k in range(columns - 1)], fontsize=9)
+    ax.set_xlabel("pass (dashed red: return to the first unread row)" if schedule.order is None
+                  else "pass: a run of reads down the array (dashed red: a jump back up)")
+    ax.set_ylabel("physical row")
+    ax.set_title(f"read order, first {shown} rows (grey: reference rows)\n"
+                 "numbers: read index within the frame", fontsize=9)
 
 
 def plot_channel_layout(geometry):
@@ -131,8 +209,8 @@ def plot_channel_layout(geometry):
 
     Each channel's rectangle (numbered), its fast-scan direction (an arrow
     along the first row it reads) and its first-read pixel (a dot); the
-    reference border shaded.  Row 0 is at the top, as in the read-order
-    panels; axes in pixels of the stored image.
+    reference border shaded.  Row 0 is at the bottom, as ds9 and
+    `plot_image` show the stored image; axes in pixels of the stored image.
 
     Parameters
     ----------
@@ -193,7 +271,7 @@ def _draw_channels(ax, g):
                     fontsize=11, color="tab:blue", zorder=3)
     pad = 0.04 * size
     ax.set_xlim(-0.5 - pad, g.ncols - 0.5 + pad)
-    ax.set_ylim(g.nrows - 0.5 + pad, -0.5 - pad)
+    ax.set_ylim(-0.5 - pad, g.nrows - 0.5 + pad)  # row 0 at the bottom, as ds9 shows it
     ax.set_aspect("equal")
     ax.set_xlabel("column (pixel)")
     ax.set_ylabel("row (pixel)")
@@ -215,7 +293,8 @@ def _draw_channels(ax, g):
 
 def _draw_window(ax, geometry):
     """An inset in the empty lower left of ``ax``: the full array with its channel
-    boundaries, and the window (``geometry``) as a filled rectangle in it."""
+    boundaries, and the window (``geometry``) as a filled rectangle in it; row 0 at the
+    bottom, as ds9 shows the array."""
     from matplotlib.patches import Rectangle
 
     w = geometry.window
@@ -230,9 +309,9 @@ def _draw_window(ax, geometry):
     inset.plot(w.first_column + geometry.ncols / 2, w.first_row + geometry.nrows / 2, "o",
                color="tab:blue", ms=4, clip_on=False)
     inset.set_xlim(0, f.ncols)
-    inset.set_ylim(f.nrows, 0)
+    inset.set_ylim(0, f.nrows)
     inset.set_xticks([])
-    inset.set_yticks([])
+    inset.set_yticks([0, f.nrows], ["row 0", str(f.nrows)], fontsize=6)
     inset.set_title(f"window in the {f.nrows}x{f.ncols} array", fontsize=7)
 
 
@@ -305,8 +384,49 @@ def _masked(image):
     return data
 
 
+def show_image(ax, data, colorbar_label="", **imshow):
+    """Draw an image on ``ax`` as ds9 shows it, with a colour bar as tall as the panel.
+
+    Row 0 at the bottom (``origin="lower"``); the colour bar in an inset
+    axes just right of the panel, so it has the panel's height whatever its
+    aspect (a colour bar taking its height from the panel's grid cell is
+    taller than a square image in a wide cell).
+
+    Parameters
+    ----------
+    ax : `matplotlib.axes.Axes`
+    data : 2-D array
+    colorbar_label : str
+        Label of the colour bar (say its unit).
+    **imshow
+        Keywords of `matplotlib.axes.Axes.imshow` (``extent`` as
+        ``(left, right, bottom, top)``); ``origin`` is not one of them.
+
+    Returns
+    -------
+    `matplotlib.image.AxesImage`
+        Its ``colorbar`` is the colour bar.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matplotlib.figure import Figure
+    >>> from spherex_reduce.io.plotting import show_image
+    >>> ax = Figure(layout="constrained").subplots()
+    >>> im = show_image(ax, np.arange(6.0).reshape(2, 3), "e/s")
+    >>> im.origin, im.colorbar.ax.get_ylabel()
+    ('lower', 'e/s')
+    """
+    im = ax.imshow(data, origin="lower", **imshow)
+    cax = ax.inset_axes([1.03, 0.0, 0.05, 1.0])
+    ax.figure.colorbar(im, cax=cax, label=colorbar_label)
+    return im
+
+
 def plot_images(images, title="", unit="", percentile=(1, 99), max_pixels=400):
     """Images side by side, on one grey scale, each with a colour bar.
+
+    Row 0 at the bottom, as ds9 shows an image (`show_image`).
 
     One stretch (the ``percentile`` range of all the panels' pixels together)
     so that the panels can be compared by eye.  Images larger than
@@ -359,11 +479,11 @@ def plot_images(images, title="", unit="", percentile=(1, 99), max_pixels=400):
     axes = np.atleast_1d(fig.subplots(1, n))
     label = unit_label(unit)
     for ax, (name, (binned, factor, (ny, nx))) in zip(axes, shown.items(), strict=True):
-        extent = (-0.5, binned.shape[1] * factor - 0.5, binned.shape[0] * factor - 0.5, -0.5)
-        im = ax.imshow(binned, norm=norm, cmap="gray", interpolation="nearest", extent=extent)
+        extent = (-0.5, binned.shape[1] * factor - 0.5, -0.5, binned.shape[0] * factor - 0.5)
+        show_image(ax, binned, label, norm=norm, cmap="gray", interpolation="nearest",
+                   extent=extent)
         ax.set_xlim(-0.5, nx - 0.5)
-        ax.set_ylim(ny - 0.5, -0.5)
-        fig.colorbar(im, ax=ax, label=label, shrink=0.9)
+        ax.set_ylim(-0.5, ny - 0.5)
         ax.set_xlabel("column")
         ax.set_ylabel("row")
         note = f"({factor}×{factor}-pixel means)" if factor > 1 else ""

@@ -271,3 +271,25 @@ def test_compare_refuses_a_table_that_does_not_say_what_it_measured(white, tmp_p
     err = capsys.readouterr().err
     assert err.startswith("spherex-reduce forecast: error: --compare: ") and words in err
     assert err.count("\n") == 1 and not out.exists()
+
+
+def test_plot_draws_the_photon_line_and_holds_every_line(white, tmp_path):
+    """``--plot``: the photon noise of 1 e/s over the scene's reads (the closed form of a
+    least-squares slope, 6 (N² + 1) / (5 N (N² − 1)) · i / t_frame) drawn and named, and the
+    P axis holding every line drawn."""
+    from _figure_checks import line_data_within_limits, saved_figures
+
+    import spherex_reduce.io.plotting as plotting
+
+    out = tmp_path / "f.ecsv"
+    figs = saved_figures(plotting, ["-q", "forecast", str(white), "-c", "unchop", "-o", str(out),
+                                    "--bins", "8", "--plot"])
+    (fig,) = figs.values()  # saved under the output's temporary name
+    ax = fig.axes[0]
+    s = load_scene(str(white)).schedule
+    n, t = s.nframes, s.integration_time.to_value("s")
+    expected = 6 * (n**2 + 1) / (5 * n * (n**2 - 1)) * 1.0 / (t / n)
+    (line,) = [ln for ln in ax.get_lines() if ln.get_label().startswith("photon noise of 1 e/s")]
+    assert np.allclose(line.get_ydata(), expected, rtol=1e-12)
+    assert line.get_label() in [t.get_text() for t in ax.get_legend().get_texts()]
+    assert line_data_within_limits(ax) == []

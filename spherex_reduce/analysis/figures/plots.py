@@ -107,8 +107,13 @@ def plot_spectra(spectra, band=(BAND_KMIN, BAND_KMAX), photon=None, title="",
     return fig
 
 
+#: A component's P below this fraction of the total's largest is its rounding (a component
+#: the reduction cancels): drawn as no power.
+ROUNDING = 1e-12
+
+
 def plot_forecast(table, measured=None, measured_label="measured", title="",
-                  pixel_scale=SPHEREX_PIXEL_SCALE):
+                  pixel_scale=SPHEREX_PIXEL_SCALE, photon=None, photon_label="photon noise"):
     """A forecast P(k), total and per noise component, with measured points over it.
 
     Parameters
@@ -127,12 +132,18 @@ def plot_forecast(table, measured=None, measured_label="measured", title="",
         and the forecast band power.
     pixel_scale : `~astropy.units.Quantity`
         For the θ axis and the band label.
+    photon, photon_label
+        The photon-noise line and its legend, as `plot_spectra` draws them
+        (`~spherex_reduce.analysis.photon_noise_power`,
+        `~spherex_reduce.analysis.photon_noise_label`).
 
     Returns
     -------
     `matplotlib.figure.Figure`
-        The P axis goes down to 10⁻⁴ of the total's lowest bin at most: a
-        component below that is cut off.
+        The P axis holds every drawn line.  A component's bins below
+        `ROUNDING` times the total's largest bin are its rounding (a component
+        the reduction cancels exactly) and drawn as no power; a component with
+        no other bin is left out, like one with none.
 
     Examples
     --------
@@ -150,12 +161,18 @@ def plot_forecast(table, measured=None, measured_label="measured", title="",
 
     meta = table.meta
     k = u.Quantity(table["k"])
-    spectra = {"forecast: total": Table({"k": k, "power": u.Quantity(table["power"])})}
+    total = u.Quantity(table["power"])
+    spectra = {"forecast: total": Table({"k": k, "power": total})}
     styles = {"forecast: total": {"marker": "", "lw": 2.2, "color": "k"}}
+    rounding = ROUNDING * float(np.nanmax(total.value, initial=0.0))
     for name in table.colnames:
-        if name.startswith("power_") and name != "power_err" and np.any(table[name] > 0):
+        if not name.startswith("power_") or name == "power_err":
+            continue
+        power = u.Quantity(table[name])
+        kept = np.where(power.value > rounding, power.value, 0.0)
+        if np.any(kept > 0):
             label = f"forecast: {name.removeprefix('power_')}"
-            spectra[label] = Table({"k": k, "power": u.Quantity(table[name])})
+            spectra[label] = Table({"k": k, "power": kept * power.unit})
             styles[label] = {"marker": "", "ls": "--"}
     if measured is not None:
         label = f"measured: {measured_label}"
@@ -163,24 +180,27 @@ def plot_forecast(table, measured=None, measured_label="measured", title="",
         styles[label] = {"marker": "o", "ls": "", "ms": 4, "color": "tab:red", "zorder": 3}
     band = (meta.get("band_kmin", BAND_KMIN), meta.get("band_kmax", BAND_KMAX))
     if not title:
-        unit = u.Quantity(table["power"]).unit
         value = meta.get("band_power")
-        shown = "missing" if value is None else f"{value:.3g} {unit_label(unit)}"
+        shown = "missing" if value is None else f"{value:.3g} {unit_label(total.unit)}"
         title = (f"forecast P(k) through {meta.get('config') or meta.get('pipeline', 'none')}"
                  f"; band power {shown}")
     fig = plot_spectra(spectra, band=band, title=title, pixel_scale=pixel_scale,
-                       styles=styles)
-    total = u.Quantity(table["power"]).value
-    if np.any(total > 0):  # a component cancelled to rounding would stretch the axis
-        ax = fig.axes[0]
-        top = max(np.nanmax(np.asarray(line.get_ydata(), float), initial=0.0)
-                  for line in ax.get_lines())
-        ax.set_ylim(max(ax.get_ylim()[0], 1e-4 * float(np.min(total[total > 0]))), 3 * top)
+                       styles=styles, photon=photon, photon_label=photon_label)
+    _hold_every_line(fig.axes[0])
     # outside the axes: inside, the components' curves leave it no free corner
     fig.axes[0].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0),
                        borderaxespad=0.0)
     fig.set_size_inches(9.5, 5.2)
     return fig
+
+
+def _hold_every_line(ax):
+    """Set the log P range of ``ax`` to its lines' positive finite values, a fifth of a
+    decade to spare at each end."""
+    values = np.concatenate([np.asarray(line.get_ydata(), float) for line in ax.get_lines()])
+    values = values[np.isfinite(values) & (values > 0)]
+    if values.size:
+        ax.set_ylim(values.min() / 10**0.2, values.max() * 10**0.2)
 
 
 def _band_caption(fig, band, pixel_scale):
@@ -215,6 +235,8 @@ def plot_fft_magnitude(images, title=""):
     -------
     `matplotlib.figure.Figure`
     """
+    from ...io.plotting import show_image
+
     ncols = min(len(images), 2)
     nrows = -(-len(images) // ncols)
     fig = Figure(figsize=(5.5 * ncols, 4.6 * nrows), layout="constrained")
@@ -223,13 +245,12 @@ def plot_fft_magnitude(images, title=""):
     for ax, (label, im) in zip(axes, images.items(), strict=True):
         kx, ky = im.kx.value, im.ky.value
         mag = im.magnitude.value
-        shown = ax.imshow(np.log10(np.maximum(mag, vmax * 1e-6)), origin="lower",
-                          extent=(kx[0], kx[-1], ky[0], ky[-1]), aspect="auto", cmap="viridis",
-                          vmin=np.log10(vmax) - 4, vmax=np.log10(vmax))
+        show_image(ax, np.log10(np.maximum(mag, vmax * 1e-6)), "log10 |FFT|",
+                   extent=(kx[0], kx[-1], ky[0], ky[-1]), aspect="auto", cmap="viridis",
+                   vmin=np.log10(vmax) - 4, vmax=np.log10(vmax))
         ax.set_xlabel("k_x (rad / pixel)")
         ax.set_ylabel("k_y (rad / pixel)")
         ax.set_title(label, fontsize=10)
-        fig.colorbar(shown, ax=ax, label="log10 |FFT|")
     if title:
         fig.suptitle(title, fontsize=10)
     return fig

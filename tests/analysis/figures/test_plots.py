@@ -8,7 +8,13 @@ are binned (block means), not decimated.
 
 import numpy as np
 import pytest
-from _figure_checks import drawn, errorbar_ends, overlaps
+from _figure_checks import (
+    drawn,
+    errorbar_ends,
+    images_and_colorbars,
+    line_data_within_limits,
+    overlaps,
+)
 from astropy import units as u
 from astropy.table import Table
 
@@ -69,11 +75,45 @@ def test_images_are_block_means_not_decimated(images_2048):
 def test_images_labels_clear_of_the_other_panel(images_2048):
     fig, _ = images_2048
     renderer = drawn(fig)
-    image_axes = [ax for ax in fig.axes if ax.images]
-    colorbars = [ax for ax in fig.axes if not ax.images]
-    right_label = image_axes[1].yaxis.label.get_window_extent(renderer)
-    for cb in colorbars:
-        assert not overlaps(right_label, cb.get_tightbbox(renderer))
+    panels = images_and_colorbars(fig)
+    assert len(panels) == 2 and all(cbar is not None for _, _, cbar in panels)
+    right_label = panels[1][0].yaxis.label.get_window_extent(renderer)
+    for _, _, cbar in panels:
+        assert not overlaps(right_label, cbar.get_tightbbox(renderer))
+
+
+def _check_ds9_panels(fig, n):
+    """Each of the ``n`` images of ``fig``: row 0 drawn at the bottom (its first row's
+    centre below its last on the screen), origin 'lower', and a colour bar as tall as the
+    panel and beside it (window extents after a draw)."""
+    renderer = drawn(fig)
+    panels = images_and_colorbars(fig)
+    assert len(panels) == n
+    for ax, image, cbar in panels:
+        assert image.origin == "lower"
+        left, right, bottom, top = image.get_extent()
+        x = (left + right) / 2
+        ny = np.asarray(image.get_array()).shape[0]
+        first, last = (bottom + (top - bottom) * (i + 0.5) / ny for i in (0, ny - 1))
+        assert ax.transData.transform((x, first))[1] < ax.transData.transform((x, last))[1]
+        panel = ax.get_window_extent(renderer)
+        bar = cbar.get_window_extent(renderer)
+        assert bar.height == pytest.approx(panel.height, abs=1.0)
+        assert bar.y0 == pytest.approx(panel.y0, abs=1.0)
+        assert panel.x1 <= bar.x0 < panel.x1 + 0.1 * panel.width
+
+
+def test_images_row_0_at_the_bottom_colour_bars_as_tall_as_the_panels(images_2048):
+    _check_ds9_panels(images_2048[0], 2)
+
+
+def test_fft_panels_row_0_at_the_bottom_colour_bars_as_tall_as_the_panels():
+    from spherex_reduce.analysis import fft_magnitude
+    from spherex_reduce.analysis.figures.plots import plot_fft_magnitude
+
+    rng = np.random.default_rng(3)
+    ffts = {name: fft_magnitude(rng.normal(size=(32, 32)), size=9) for name in "abc"}
+    _check_ds9_panels(plot_fft_magnitude(ffts), 3)
 
 
 def _spectrum(power, err):
@@ -153,9 +193,59 @@ def test_plot_forecast_curves_measured_points_and_axis():
     fig = plot_forecast(fc, measured, measured_label="m.ecsv")
     ax = fig.axes[0]
     labels = [t.get_text() for t in ax.get_legend().get_texts()]
-    # every component with power is drawn, one with none is not; the measured points
-    assert labels[:3] == ["forecast: total", "forecast: roic", "forecast: phantom"]
-    assert "forecast: none" not in labels and "measured: m.ecsv" in labels
+    # every component with power is drawn; one with none, or only its rounding, is not
+    assert labels[:2] == ["forecast: total", "forecast: roic"]
+    assert "forecast: none" not in labels and "forecast: phantom" not in labels
+    assert "measured: m.ecsv" in labels
     low, high = ax.get_ylim()
-    assert low == pytest.approx(2e-7) and 2.2e-3 < high <= 3 * 2.2e-3 * 1.06
+    # the lines span 2e-3 (the total; the lowest error bar end 1.1 * 2e-3 - 1e-4) to 2.31e-3
+    assert 1e-3 < low < 2e-3 and 2.31e-3 < high < 1e-2
     assert "spherex-default" in ax.get_title() and ax.get_yscale() == "log"
+
+
+def _faint_forecast():
+    unit = u.electron**2 / u.s**2 * u.pix**2
+    k = np.geomspace(0.003, 3, 10)
+    parts = {"roic": np.geomspace(5e-2, 1e-3, 10), "faint": np.geomspace(4e-6, 5e-11, 10),
+             "dips": np.array([2e-6, 0, 3e-7, 1e-9, 0, 4e-8, 2e-10, 1e-8, 0, 3e-9])}
+    total = sum(parts.values())
+    return Table({"k": k * u.rad / u.pix, "power": total * unit,
+                  "power_err": total * 0.1 * unit,
+                  **{f"power_{n}": v * unit for n, v in parts.items()}},
+                 meta={"band_kmin": 0.03, "band_kmax": 0.13, "band_power": 2e-3})
+
+
+def test_plot_forecast_range_holds_every_component():
+    """The forecast plot's P range contains every drawn line's finite data: components eight
+    decades under the total (the paper's bias_correlated is 1e-8 of it) too."""
+    from spherex_reduce.analysis.figures.plots import plot_forecast
+
+    ax = plot_forecast(_faint_forecast()).axes[0]
+    low, high = ax.get_ylim()
+    assert low <= 5e-11 and high >= 5e-2  # the faintest and the brightest value, by hand
+    for line in ax.get_lines():
+        y = np.asarray(line.get_ydata(), float)
+        y = y[np.isfinite(y) & (y > 0)]
+        assert np.all((y >= low) & (y <= high)), line.get_label()
+    assert line_data_within_limits(ax) == []
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert {"forecast: roic", "forecast: faint", "forecast: dips"} <= set(labels)
+
+
+def test_plot_forecast_draws_the_photon_line_as_the_spectrum_plot_does():
+    """The photon-noise line, named in the legend, at its value, in the style plot_spectra
+    gives it (one code path), inside the P range."""
+    from spherex_reduce.analysis.figures.plots import plot_forecast, plot_spectra
+
+    photon = 1e-12 * u.electron**2 / u.s**2 * u.pix**2  # below every component
+    ax = plot_forecast(_faint_forecast(), photon=photon,
+                       photon_label="photon noise of 1 e/s over 112 s").axes[0]
+    (line,) = [ln for ln in ax.get_lines() if ln.get_label() == "photon noise of 1 e/s over 112 s"]
+    assert "photon noise of 1 e/s over 112 s" in [t.get_text()
+                                                   for t in ax.get_legend().get_texts()]
+    assert np.allclose(line.get_ydata(), 1e-12)
+    assert ax.get_ylim()[0] <= 1e-12 and line_data_within_limits(ax) == []
+    ref = plot_spectra({"a": _spectrum([1.0, 2.0], [0.1, 0.1])}, photon=photon,
+                       photon_label="p").axes[0]
+    (same,) = [ln for ln in ref.get_lines() if ln.get_label() == "p"]
+    assert (line.get_linestyle(), line.get_color()) == (same.get_linestyle(), same.get_color())

@@ -24,7 +24,7 @@ from ....io.sources import MemorySource
 from ...hookspecs import hookimpl
 from ...step import Kernel, Record, Step
 from ..fit_ramp.segments import usable_reads
-from ..pixel_maps import MAP_TYPES, PixelMap
+from ..pixel_maps import MAP_TYPES, PixelMap, adu_gain
 from .search import StepSearch
 
 __all__ = ["DetectJumpsStep", "JumpKernel", "detect_jumps"]
@@ -58,8 +58,9 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
         4.9e-3 (estimated); the reduction guide tabulates other thresholds and
         numbers of reads.
     read_noise : float, `numpy.ndarray` or str, optional
-        Read noise of one read (data unit): one number, a map ``(rows,
-        columns)`` in physical order, or a FITS image.  None: each pixel's
+        Read noise of one read (data unit): one number, a map ``(nrows,
+        ncols)`` of the stored image (as the files hold the pixels), or a FITS
+        image (its ``BUNIT`` converted as by `fit_ramp`).  None: each pixel's
         from its own residuals about a line with one step.
     gain : float, `numpy.ndarray` or str
         Electrons per data unit (the shot noise of the pixel's slope); a map
@@ -145,10 +146,14 @@ class JumpKernel(Kernel):
             raise StepSkipped(f"{s.nframes} reads: too few to search for jumps")
         self.params = params
         g = s.geometry
+        # maps of the stored image, brought to the readout frame in the data unit
+        unit = context.unit
+        self.gain = PixelMap.of(params["gain"], "detect_jumps.gain", g, positive=True,
+                                unit=None if unit is None else u.electron / unit)
         self.read_noise = (None if self.estimate else
                            PixelMap.of(params["read_noise"], "detect_jumps.read_noise", g,
-                                       positive=True))
-        self.gain = PixelMap.of(params["gain"], "detect_jumps.gain", g, positive=True)
+                                       positive=True, unit=unit,
+                                       gain=adu_gain(unit, context.header, g, self.gain)))
         # each stored read's time (a group's mean), read-noise variance relative to one
         # frame's (1 / frames averaged) and charge covariance per unit rate
         check_size(StepSearch.nbytes(s.nframes),  # before the first nframes**2 matrix

@@ -74,17 +74,18 @@ def _read_image(text, name, shape):
         raise ConfigError(f"{name}: no such FITS file: {path}")
     try:
         scan_hdus(path)  # truncated or damaged: our one line, not astropy's warning
-        with warnings.catch_warnings(), fits.open(path, memmap=False) as hdul:
-            warnings.simplefilter("ignore")
-            if ext is not None:
-                hdu = hdul[int(ext) if ext.isdigit() else ext]
-            else:
-                hdu = next((h for h in hdul if h.is_image and h.header.get("NAXIS", 0)),
-                           None)
-            found = None if hdu is None or not hdu.is_image else tuple(hdu.shape)
-            if found == shape:
-                bunit = str(hdu.header.get("BUNIT", "")).strip() or None
-                return np.array(hdu.data, dtype=np.float64), bunit
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # astropy's guesses: the errors below say it
+            with fits.open(path, memmap=False) as hdul:
+                if ext is not None:
+                    hdu = hdul[int(ext) if ext.isdigit() else ext]
+                else:
+                    hdu = next((h for h in hdul if h.is_image and h.header.get("NAXIS", 0)),
+                               None)
+                found = None if hdu is None or not hdu.is_image else tuple(hdu.shape)
+                if found == shape:
+                    bunit = str(hdu.header.get("BUNIT", "")).strip() or None
+                    return np.array(hdu.data, dtype=np.float64), bunit
     except (OSError, KeyError, IndexError, ValueError, TypeError) as err:
         raise ConfigError(f"{name}: cannot read {text}: {err}") from None
     if not found:
@@ -146,8 +147,8 @@ def _in_unit(arr, given, unit, gain, name, label):
     """``arr`` (a map in ``given``) in ``unit``: the same numbers when it has no unit or the
     parameter's unit is not known, else converted (ADU and electrons with ``gain``, e⁻/ADU).
     """
-    if given is None or unit is None or given == unit:
-        return arr
+    if given is None or unit is None or given == unit or given == u.one:
+        return arr  # no unit (a bare number, a FITS map without BUNIT): the parameter's
     per_adu = u.electron / u.adu
     for factor, g in ((u.one, 1.0), (per_adu, gain),
                       (per_adu ** -1, None if gain is None else 1.0 / np.asarray(gain))):

@@ -287,6 +287,34 @@ class ChannelLayout:
         c = np.where(flips[q, 1], w - 1 - c, c)
         return r + h * (q // 2), c + w * (q % 2)
 
+    def frame_coordinates(self, r, c):
+        """Readout-frame ``(i, j)`` of stored pixels ``(r, c)`` (integer arrays): the
+        inverse of `stored_coordinates`.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from spherex_reduce.core.channel_layout import ChannelLayout
+        >>> lay = ChannelLayout(4, 6, "quadrants", "inner", "columns")
+        >>> i, j = lay.frame_coordinates(*np.indices((4, 6)))
+        >>> r, c = lay.stored_coordinates(i, j)
+        >>> bool((r == np.indices((4, 6))[0]).all() and (c == np.indices((4, 6))[1]).all())
+        True
+        """
+        r, c = np.asarray(r), np.asarray(c)
+        if self.channels == "columns":
+            return r, c
+        if self.channels == "rows":
+            return c, r
+        h, w = self.nrows // 2, self.ncols // 2
+        q = 2 * (r >= h) + (c >= w)
+        r, c = r - h * (q // 2), c - w * (q % 2)
+        flips = np.array(_FLIPS[self.first_corner])
+        r = np.where(flips[q, 0], h - 1 - r, r)
+        c = np.where(flips[q, 1], w - 1 - c, c)
+        i, k = (r, c) if self.fast_axis == "rows" else (c, r)
+        return i, k + q * (self.frame_shape[1] // 4)
+
 
 def stored_pixel_times(schedule, frame=0):
     """When every pixel of the stored image is sampled in stored frame ``frame``.

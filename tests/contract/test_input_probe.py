@@ -2112,3 +2112,130 @@ ROUND3_FORECAST = [
 @pytest.mark.parametrize("case", ROUND3_FORECAST)
 def test_input_round_three_forecast(case, inputs, runner, tmp_path):
     test_input(case, inputs, runner, tmp_path)
+
+
+# Round three: maps and jump neighbours
+
+_MAP_N, _MAP_T = 16, 2.0 * np.arange(6)  # a 16 x 16 stored image, 6 reads of 2 s
+_JUMP = 64  # spherex_reduce.dq.JUMP
+_MAP_LAYOUTS = {"rows": "{nchannels: 2, channels: rows}",
+                "quadrants": "{nchannels: 4, channels: quadrants}"}
+
+
+def _map_case(layout, steps, jumps=(), bunit=None):
+    """Setup: ``lab.fits``, a 16 x 16 ramp of ``layout`` in the stored orientation (1000 e
+    jumps before read 3 at the stored ``jumps``), a read-noise map ``rn.fits`` (3-5 e,
+    ``bunit``) and a dark-current map ``dark.fits`` of the stored image, and ``maps.yaml``
+    running ``steps``."""
+    def setup(d):
+        rng = np.random.default_rng(31)
+        n = _MAP_N
+        data = 1000 + rng.uniform(1, 5, (n, n)) * _MAP_T[:, None, None] \
+            + rng.normal(0, 1, (6, n, n))
+        for r, c in jumps:
+            data[3:, r, c] += 1000.0
+        fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(data, name="SCI")]).writeto(
+            d / "lab.fits")
+        rn = fits.PrimaryHDU(rng.uniform(3, 5, (n, n)))
+        if bunit is not None:
+            rn.header["BUNIT"] = bunit
+        rn.writeto(d / "rn.fits")
+        fits.PrimaryHDU(rng.uniform(0, 2, (n, n))).writeto(d / "dark.fits")
+        (d / "maps.yaml").write_text(
+            f"geometry: {{nrows: {n}, ncols: {n}, ref_border: 0, pixel_rate: 1.0e+5}}\n"
+            .replace("}", f", {_MAP_LAYOUTS[layout][1:-1]}}}")
+            + "readout: {skip: 1, ref_reads: 0, ref_mode: none, phantom_reads: 0, nframes: 6, "
+              "frame_time: 2.0}\n" + f"steps: {steps}\n")
+    return setup
+
+
+def _numpy_slopes_and_errors(d):
+    """np.polyfit slopes of ``lab.fits`` and their model errors from ``rn.fits`` and
+    ``dark.fits``, all on the stored image."""
+    data, rn, dark = (fits.getdata(d / f) for f in ("lab.fits", "rn.fits", "dark.fits"))
+    t = _MAP_T
+    slope = np.polyfit(t, data.reshape(6, -1), 1)[0].reshape(data.shape[1:])
+    w = (t - t.mean()) / ((t - t.mean()) @ (t - t.mean()))
+    pf = w @ np.minimum.outer(t, t) @ w
+    return slope, np.sqrt(rn ** 2 * (w @ w) + (np.maximum(slope, 0) + dark) * pf)
+
+
+def _check_map_errors(d, result, run):
+    """The slopes and errors written (stored orientation) are numpy's, pixel by pixel."""
+    slope, err = _numpy_slopes_and_errors(d)
+    with fits.open(d / "out.fits") as hdul:
+        np.testing.assert_allclose(hdul["SCI"].data, slope, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(hdul["ERR"].data, err, rtol=1e-6)
+
+
+_SEAM_JUMPS = ((3, 7), (7, 12), (8, 8), (0, 0))  # vertical, horizontal seams, two corners
+
+
+def _check_seam_neighbours(d, result, run):
+    """JUMP on the slope of the jumps and of their 4 neighbours on the stored image (across
+    the quadrants' seams), and of no other pixel."""
+    near = {(r + dr, c + dc) for r, c in _SEAM_JUMPS
+            for dr, dc in ((0, 0), (-1, 0), (1, 0), (0, -1), (0, 1))
+            if 0 <= r + dr < _MAP_N and 0 <= c + dc < _MAP_N}
+    with fits.open(d / "out.fits") as hdul:
+        flagged = {tuple(p) for p in np.argwhere(hdul["DQ"].data & _JUMP).tolist()}
+    assert flagged == near
+
+
+def _check_all_jump(d, result, run):
+    with fits.open(d / "out.fits") as hdul:
+        assert (hdul["DQ"].data & _JUMP).all()  # a radius beyond the image: every pixel
+
+
+def _check_no_jump(d, result, run):
+    with fits.open(d / "out.fits") as hdul:
+        assert not (hdul["DQ"].data & _JUMP).any() and hdul[0].header["NJUMPS"] == 0
+
+
+def _truncate(name):
+    def setup(d):
+        with open(d / name, "r+b") as fh:
+            fh.truncate(2880 + 700)  # the header and part of the data
+    return setup
+
+
+_MAPS_FIT = ("[{fit_ramp: {read_noise: rn.fits, dark_current: dark.fits}}]")
+_LAB = ["reduce", "lab.fits", "-c", "maps.yaml", "-o", "out.fits"]
+ROUND3_MAPS = [
+    # a map of the stored image was applied transposed with channels: rows (ERR wrong at
+    # 3528 of 3584 pixels); a quadrant map of the stored shape was refused
+    works("reduce-rows-maps-in-stored-orientation", _LAB, _map_case("rows", _MAPS_FIT),
+          _check_map_errors),
+    works("reduce-quadrant-maps-in-stored-shape", _LAB,
+          _map_case("quadrants", "[{detect_jumps: {read_noise: rn.fits}}, "
+                                 "{fit_ramp: {read_noise: rn.fits, dark_current: dark.fits}}]"),
+          _check_map_errors),
+    # neighbours flagged the array's far edge instead of the pixel across a quadrant seam
+    works("reduce-jump-neighbours-across-quadrant-seams", _LAB,
+          _map_case("quadrants", "[{detect_jumps: {read_noise: 1.0, threshold: 6.0, "
+                                 "neighbours: true}}, fit_ramp]", jumps=_SEAM_JUMPS),
+          _check_seam_neighbours),
+    # radius 1e9 was killed after 180 s (offsets growing as radius**2)
+    works("reduce-jump-radius-1e9", _LAB,
+          _map_case("quadrants", "[{detect_jumps: {read_noise: 1.0, radius: 1.0e+9, "
+                                 "radius_above: 100}}, fit_ramp]", jumps=((5, 5),)),
+          _check_all_jump),
+    # threshold 1e300: OverflowError, exit 1
+    works("reduce-jump-threshold-1e300", _LAB,
+          _map_case("rows", "[{detect_jumps: {threshold: 1.0e+300}}, fit_ramp]",
+                    jumps=((5, 5),)), _check_no_jump),
+    # a map in metres or in ADU (data in electrons, no gain) was used as electrons
+    refused("reduce-read-noise-map-in-metres", _LAB, _map_case("rows", _MAPS_FIT, bunit="m"),
+            mentions=r"fit_ramp\.read_noise.* m\b"),
+    refused("reduce-read-noise-map-in-adu-without-gain", _LAB,
+            _map_case("rows", _MAPS_FIT, bunit="adu"), mentions=r"read_noise.*gain"),
+    # astropy's truncation warning came before our line
+    refused("reduce-truncated-read-noise-map", _LAB,
+            chain(_map_case("rows", _MAPS_FIT), _truncate("rn.fits")),
+            mentions=r"read_noise.*truncated"),
+]
+
+
+@pytest.mark.parametrize("case", ROUND3_MAPS)
+def test_round_three_maps_and_jump_neighbours(case, inputs, runner, tmp_path):
+    test_input(case, inputs, runner, tmp_path)

@@ -73,6 +73,26 @@ def test_quadrant_frame_holds_each_channel_in_read_order(corner, fast):
         assert frame[:, q * width:(q + 1) * width].tolist() == expected
 
 
+
+@pytest.mark.parametrize(("channels", "corner", "fast"), LAYOUTS)
+def test_frame_coordinates_of_each_stored_pixel_are_where_it_is_read(channels, corner, fast):
+    """Read slow-th in its channel, k-th in that row: frame (slow, channel start + k)."""
+    nrows, ncols = 6, 8
+    lay = ChannelLayout(nrows, ncols, channels, corner, fast) if channels == "quadrants" \
+        else ChannelLayout(nrows, ncols, channels)
+    if channels == "columns":
+        expected = {(r, c): (r, c) for r in range(nrows) for c in range(ncols)}
+    elif channels == "rows":  # the fast scan runs down the stored columns
+        expected = {(r, c): (c, r) for r in range(nrows) for c in range(ncols)}
+    else:
+        width = lay.frame_shape[1] // 4
+        expected = {pixel: (slow, q * width + k)
+                    for q, order in enumerate(_quadrant_read_order(nrows, ncols, corner, fast))
+                    for slow, row in enumerate(order) for k, pixel in enumerate(row)}
+    r, c = np.array(sorted(expected)).T
+    i, j = lay.frame_coordinates(r, c)
+    assert list(zip(i.tolist(), j.tolist(), strict=True)) == [expected[p] for p in sorted(expected)]
+
 def test_band_of_frame_rows_comes_from_the_stored_rows_named():
     for lay in (ChannelLayout(8, 6, "quadrants"), ChannelLayout(8, 6, "rows"),
                 ChannelLayout(8, 6, "quadrants", "inner", "columns")):

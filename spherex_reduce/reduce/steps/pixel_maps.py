@@ -2,14 +2,22 @@
 
 A step parameter such as ``fit_ramp``'s ``read_noise`` takes one number for
 every pixel, a 2-D array (in Python), or the path of a FITS image (in YAML),
-of the array's shape ``(nrows, ncols)`` in physical order.  `PixelMap` holds
-the checked values; `PixelMap.rows` gives those of the rows a band of the
-executor holds, in the band's order (readout order: the physical row of each
-read, from the schedule).
+of the stored image's shape ``(nrows, ncols)`` (as the file of the pixels
+holds them: the geometry's ``nrows`` and ``ncols``), in physical row order.
+`PixelMap` holds the checked values, brought into the readout frame that the
+steps work in (`~spherex_reduce.core.channel_layout.ChannelLayout.to_readout`:
+transposed for ``channels: rows``, the quadrants side by side for
+``quadrants``); `PixelMap.rows` gives those of the rows a band of the executor
+holds, in the band's order (readout order: the physical row of each read, from
+the schedule).  Every step that takes a map gets it from `PixelMap.of`, the
+one place where a user's map meets the layout.
 
 Maps are read with astropy (the first image HDU holding data, or the one named
-``path[EXTNAME]``), checked (finite, within the parameter's bounds, the array's
-shape) and held in float64.
+``path[EXTNAME]``), checked (finite, within the parameter's bounds, the stored
+image's shape) and held in float64.  A map's unit (its ``BUNIT``, or a
+`~astropy.units.Quantity`'s unit) must be the parameter's, or convertible to
+it: ADU and electrons with the gain (e⁻/ADU) when one is known (`adu_gain`);
+a map without a unit is taken to be in the parameter's unit.
 
 Examples
 --------
@@ -25,17 +33,28 @@ Examples
 [[0.0, 1.0], [4.0, 5.0]]
 >>> PixelMap.of(5, "read_noise", s.geometry).rows([0, 1], "readout", s)
 5.0
+
+A map of a stored image whose outputs are bands of rows is the transpose of
+the readout frame's:
+
+>>> rows = DetectorGeometry(2, 4, 2, ref_border=0, channels="rows")
+>>> PixelMap.of(np.arange(8.0).reshape(2, 4), "read_noise", rows.frame).values.tolist()
+[[0.0, 4.0], [1.0, 5.0], [2.0, 6.0], [3.0, 7.0]]
 """
 
 import re
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from astropy import units as u
 
 from ...core.errors import ConfigError
+from ...io.fits_structure import scan_hdus
+from ...io.input import parse_unit
 
-__all__ = ["MAP_TYPES", "PixelMap"]
+__all__ = ["MAP_TYPES", "PixelMap", "adu_gain"]
 
 #: Types a per-pixel parameter accepts: a number, a FITS path (YAML) or an array (Python).
 MAP_TYPES = (int, float, str, np.ndarray)
@@ -44,8 +63,9 @@ _EXT = re.compile(r"^(?P<path>.*)\[(?P<ext>[^\[\]]+)\]$")
 
 
 def _read_image(text, name, shape):
-    """The 2-D image of the FITS file ``text`` (``path`` or ``path[EXT]``), as float64;
-    its shape is checked against ``shape`` from the header, before its data are read."""
+    """The 2-D image of the FITS file ``text`` (``path`` or ``path[EXT]``), as float64, and
+    its ``BUNIT`` (None when absent or empty); its shape is checked against ``shape`` from
+    the header, before its data are read."""
     from astropy.io import fits
 
     match = _EXT.match(text)
@@ -53,21 +73,95 @@ def _read_image(text, name, shape):
     if not Path(path).is_file():
         raise ConfigError(f"{name}: no such FITS file: {path}")
     try:
-        with fits.open(path, memmap=False) as hdul:
-            if ext is not None:
-                hdu = hdul[int(ext) if ext.isdigit() else ext]
-            else:
-                hdu = next((h for h in hdul if h.is_image and h.header.get("NAXIS", 0)),
-                           None)
-            found = None if hdu is None or not hdu.is_image else tuple(hdu.shape)
-            if found == shape:
-                return np.array(hdu.data, dtype=np.float64)
-    except (OSError, KeyError, IndexError, ValueError) as err:
+        scan_hdus(path)  # truncated or damaged: our one line, not astropy's warning
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # astropy's guesses: the errors below say it
+            with fits.open(path, memmap=False) as hdul:
+                if ext is not None:
+                    hdu = hdul[int(ext) if ext.isdigit() else ext]
+                else:
+                    hdu = next((h for h in hdul if h.is_image and h.header.get("NAXIS", 0)),
+                               None)
+                found = None if hdu is None or not hdu.is_image else tuple(hdu.shape)
+                if found == shape:
+                    bunit = str(hdu.header.get("BUNIT", "")).strip() or None
+                    return np.array(hdu.data, dtype=np.float64), bunit
+    except (OSError, KeyError, IndexError, ValueError, TypeError) as err:
         raise ConfigError(f"{name}: cannot read {text}: {err}") from None
     if not found:
         raise ConfigError(f"{name}: {text} holds no image")
-    raise ConfigError(f"{name}: a map of shape {found}; the array is {shape} "
-                      "(rows, columns, physical order)")
+    raise ConfigError(f"{name}: a map of shape {found}; the stored image is {shape} "
+                      "(rows, columns)")
+
+
+def adu_gain(unit, header, geometry, gain=None):
+    """The gain (e⁻/ADU) relating a map in ADU to one in electrons for an input, or None.
+
+    Parameters
+    ----------
+    unit : `astropy.units.UnitBase` or None
+        The unit of the input's pixels.
+    header : `astropy.io.fits.Header` or None
+        The input's header: for data in electrons, the ``GAIN`` (or ``GAIN1``
+        ...: one per channel) that ``input: gain`` applied to them.
+    geometry : `~spherex_reduce.DetectorGeometry`
+        The readout frame (its channels are the columns a per-channel gain covers).
+    gain : `PixelMap`, optional
+        For data in ADU: the step's ``gain`` (electrons per data unit).
+
+    Returns
+    -------
+    float, `numpy.ndarray` or None
+        One number, or an array broadcasting against the readout frame
+        ``(nrows, ncols)``; None when no gain is known.
+
+    Examples
+    --------
+    >>> from astropy import units as u
+    >>> from astropy.io import fits
+    >>> from spherex_reduce import DetectorGeometry
+    >>> from spherex_reduce.reduce.steps.pixel_maps import PixelMap, adu_gain
+    >>> g = DetectorGeometry(4, 4, 2, ref_border=0)
+    >>> adu_gain(u.electron, fits.Header({"GAIN": 1.5}), g)
+    1.5
+    >>> adu_gain(u.electron, fits.Header({"GAIN1": 1.5, "GAIN2": 2.0}), g).tolist()
+    [1.5, 1.5, 2.0, 2.0]
+    >>> adu_gain(u.adu, None, g, PixelMap.of(1.8, "gain", g)), adu_gain(u.electron, None, g)
+    (1.8, None)
+    """
+    if unit is None:
+        return None
+    if u.adu in unit.bases:
+        return None if gain is None else gain.values
+    if u.electron not in unit.bases or header is None:
+        return None
+    if isinstance(header.get("GAIN"), (int, float)) and not isinstance(header["GAIN"], bool):
+        return float(header["GAIN"])
+    per = [header.get(f"GAIN{i + 1}") for i in range(geometry.nchannels)]
+    if all(isinstance(g, (int, float)) and not isinstance(g, bool) for g in per):
+        return np.repeat(np.asarray(per, np.float64), geometry.channel_width)
+    return None
+
+
+def _in_unit(arr, given, unit, gain, name, label):
+    """``arr`` (a map in ``given``) in ``unit``: the same numbers when it has no unit or the
+    parameter's unit is not known, else converted (ADU and electrons with ``gain``, e⁻/ADU).
+    """
+    if given is None or unit is None or given == unit or given == u.one:
+        return arr  # no unit (a bare number, a FITS map without BUNIT): the parameter's
+    per_adu = u.electron / u.adu
+    for factor, g in ((u.one, 1.0), (per_adu, gain),
+                      (per_adu ** -1, None if gain is None else 1.0 / np.asarray(gain))):
+        try:
+            scale = (given * factor).to(unit)
+        except u.UnitConversionError:
+            continue
+        if g is None:
+            raise ConfigError(f"{name}: {label} is in {given}, the data in {unit}, and no "
+                              "gain (e-/ADU) is known to convert it: give the map in "
+                              f"{unit}")
+        return arr * scale * g
+    raise ConfigError(f"{name}: {label} is in {given}, not in a unit of the data ({unit})")
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,8 +171,9 @@ class PixelMap:
     Attributes
     ----------
     values : float or `numpy.ndarray`
-        A number, or float64 ``(nrows, ncols)`` in physical order (the data
-        unit of the parameter: e.g. read noise in the unit of the pixels).
+        A number, or float64 ``(rows, columns)`` of the readout frame, in
+        physical row order (the unit of the parameter: e.g. read noise in the
+        unit of the pixels).
     label : str
         How it was given (the number, the file, or ``'array'``), for provenance.
     """
@@ -87,18 +182,26 @@ class PixelMap:
     label: str
 
     @classmethod
-    def of(cls, value, name, geometry, *, minimum=None, positive=False):
+    def of(cls, value, name, geometry, *, unit=None, gain=None, minimum=None, positive=False):
         """The map of a parameter's ``value`` for an array of ``geometry``.
 
         Parameters
         ----------
         value : float, str, `numpy.ndarray` or `~astropy.units.Quantity`
             One number, a FITS image path (``path`` or ``path[EXT]``) or an
-            array ``(nrows, ncols)``.  A Quantity gives its value (the caller
-            states the unit in the parameter's documentation).
+            array ``(nrows, ncols)`` of the stored image (in the orientation
+            the files hold the pixels).
         name : str
             The parameter, for messages (``fit_ramp.read_noise``).
         geometry : `~spherex_reduce.DetectorGeometry`
+            The readout frame (a schedule's geometry) or the stored image; a map
+            has the stored image's shape and is brought to the readout frame.
+        unit : `astropy.units.UnitBase`, optional
+            The parameter's unit.  A map with a unit (a FITS ``BUNIT``, a
+            Quantity's) is converted to it; None: the map's numbers are taken
+            as they are.
+        gain : float or `numpy.ndarray`, optional
+            e⁻/ADU (`adu_gain`), to convert a map between ADU and electrons.
         minimum : float, optional
             Smallest allowed value.
         positive : bool
@@ -107,27 +210,40 @@ class PixelMap:
         Raises
         ------
         ConfigError
-            A file that cannot be read, a wrong shape, a value that is not
-            finite or out of bounds: one line naming ``name``.
+            A file that cannot be read, a wrong shape, a unit that is not the
+            parameter's (nor converted to it), a value that is not finite or
+            out of bounds: one line naming ``name``.
         """
         if isinstance(value, PixelMap):
             return value
-        label = "array"
+        label, given = "array", None
+        stored = (geometry.stored_geometry.nrows, geometry.stored_geometry.ncols)
         if isinstance(value, (str, Path)):
             label = str(value)
-            arr = _read_image(str(value), name, (geometry.nrows, geometry.ncols))
+            arr, bunit = _read_image(str(value), name, stored)
+            if bunit is not None:
+                try:
+                    given = parse_unit(bunit)
+                except ValueError:
+                    raise ConfigError(f"{name}: {label} has BUNIT {bunit!r}, not a unit "
+                                      "astropy understands") from None
         else:
+            given = getattr(value, "unit", None)
             arr = np.asarray(getattr(value, "value", value), dtype=np.float64)
             if arr.ndim == 0:
                 label = f"{float(arr):g}"
         if arr.ndim not in (0, 2):
             raise ConfigError(f"{name}: a number or a 2-D map, got an array of shape {arr.shape}")
-        shape = (geometry.nrows, geometry.ncols)
-        if arr.ndim == 2 and arr.shape != shape:
-            raise ConfigError(f"{name}: a map of shape {arr.shape}; the array is {shape} "
-                              "(rows, columns, physical order)")
+        if arr.ndim == 2 and arr.shape != stored:
+            raise ConfigError(f"{name}: a map of shape {arr.shape}; the stored image is "
+                              f"{stored} (rows, columns)")
         if not np.isfinite(arr).all():
             raise ConfigError(f"{name}: {label} holds values that are not finite")
+        if arr.ndim == 2:
+            arr = np.ascontiguousarray(geometry.layout.to_readout(arr))
+        arr = _in_unit(arr, given, unit, gain, name, label)
+        if arr.ndim == 1:  # a number converted with a gain per column
+            arr = np.broadcast_to(arr, (geometry.frame.nrows, geometry.frame.ncols))
         low = float(arr.min())
         if minimum is not None and low < minimum:
             raise ConfigError(f"{name}: {label} must be >= {minimum:g}, has {low:g}")

@@ -23,7 +23,7 @@ from ....core.parameters import OPTIONAL_NUMBER, Parameter, validate_parameters
 from ...hookspecs import hookimpl
 from ...noise_effect import NoiseEffect
 from ...step import Consumer, Step
-from ..pixel_maps import MAP_TYPES, PixelMap
+from ..pixel_maps import MAP_TYPES, PixelMap, adu_gain
 from .least_squares import LeastSquares, RampMaps, RampSolution
 from .segments import RampNoise
 
@@ -50,11 +50,14 @@ def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, dark_c
         on each pixel's own usable reads.
     read_noise : float, array or str, optional
         Read noise per read, in the data unit: one number, a 2-D map
-        ``(nrows, ncols)`` in physical order, or (YAML) the path of a FITS
-        image (``path[EXT]`` for an extension).  Given, the uncertainty is the
-        model ``read_noise**2 sum(w**2)`` plus the shot noise of the pixel's
-        rate (data unit = electrons / ``gain``); not given, it comes from the
-        fit residuals, ``chi2 / (n - 2) * sum(w**2)`` (NaN for two reads).
+        ``(nrows, ncols)`` of the stored image (as the files hold the pixels,
+        whatever the channel layout), or (YAML) the path of a FITS image
+        (``path[EXT]`` for an extension; its ``BUNIT``, if any, converted to
+        the data unit: ``reduce/steps/pixel_maps.py``).  Given, the
+        uncertainty is the model ``read_noise**2 sum(w**2)`` plus the shot
+        noise of the pixel's rate (data unit = electrons / ``gain``); not
+        given, it comes from the fit residuals, ``chi2 / (n - 2) * sum(w**2)``
+        (NaN for two reads).
     gain : float, array or str
         Electrons per data unit, for the shot-noise term (1 for electrons);
         a number or a map, as ``read_noise``.
@@ -146,15 +149,22 @@ def _validated(params):
     return params
 
 
-def _maps(params, geometry):
-    """The calibration parameters as `PixelMap` objects (checked against ``geometry``)."""
+def _maps(params, context):
+    """The calibration parameters as `PixelMap` objects: maps of the stored image brought to
+    the readout frame, in the data unit (read noise), per second (dark current) and electrons
+    per data unit (gain); see `~spherex_reduce.reduce.steps.pixel_maps`."""
     name = FitRampStep.name
     optimal = params["weighting"] == "optimal"
+    g, unit = context.schedule.geometry, context.unit
+    gain = PixelMap.of(params["gain"], f"{name}.gain", g, positive=True,
+                       unit=None if unit is None else u.electron / unit)
+    known = adu_gain(unit, context.header, g, gain)
     rn = params["read_noise"]
-    return (None if rn is None else PixelMap.of(rn, f"{name}.read_noise", geometry, minimum=0,
-                                                 positive=optimal),
-            PixelMap.of(params["gain"], f"{name}.gain", geometry, positive=True),
-            PixelMap.of(params["dark_current"], f"{name}.dark_current", geometry))
+    return (None if rn is None else PixelMap.of(rn, f"{name}.read_noise", g, minimum=0,
+                                                 positive=optimal, unit=unit, gain=known),
+            gain,
+            PixelMap.of(params["dark_current"], f"{name}.dark_current", g, gain=known,
+                        unit=None if unit is None else unit / u.s))
 
 
 def _rows(index):
@@ -190,7 +200,7 @@ class RampFit(Consumer):
         s = context.schedule
         times = s.frame_starts.to_value(u.s)
         # calibration: each band's values (`_band_maps`, numbers or arrays) go to `fit`
-        self.read_noise, self.gain, self.dark = _maps(params, s.geometry)
+        self.read_noise, self.gain, self.dark = _maps(params, context)
         noise = RampNoise.from_schedule(s)
         self.solver = LeastSquares(times, weighting=params["weighting"],
                                    saturation=params["saturation"], noise=noise)

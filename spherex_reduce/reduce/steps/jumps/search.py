@@ -232,7 +232,8 @@ class StepSearch:
         estimate = sigma is None
         if estimate and n < 5:
             return Found.empty()
-        limit = (SCREEN_MARGIN * threshold) ** 2
+        with np.errstate(over="ignore"):  # a huge threshold squares to inf: no jump
+            limit = np.square(np.float64(SCREEN_MARGIN * threshold))
         picked, floors, reads, unsearched = [], [], [], []
         width = max(256, SCREEN_BYTES // (n * np.dtype(work).itemsize))
         buf = np.empty((n, min(m, width)), work)  # reused: no page faults
@@ -253,7 +254,8 @@ class StepSearch:
                 finite &= np.isfinite(rss)
             if not finite.all():
                 unsearched.append(np.flatnonzero(~finite) + lo)
-            keep = np.flatnonzero(finite & ~(best <= limit * var))
+            with np.errstate(over="ignore"):  # limit * var: inf for a huge threshold
+                keep = np.flatnonzero(finite & ~(best <= limit * var))
             if keep.size:
                 picked.append(keep + lo)
                 floors.append(floor[keep])

@@ -24,7 +24,7 @@ from ....io.sources import MemorySource
 from ...hookspecs import hookimpl
 from ...step import Kernel, Record, Step
 from ..fit_ramp.segments import usable_reads
-from ..pixel_maps import MAP_TYPES, PixelMap
+from ..pixel_maps import MAP_TYPES, PixelMap, adu_gain
 from .search import StepSearch
 
 __all__ = ["DetectJumpsStep", "JumpKernel", "detect_jumps"]
@@ -58,8 +58,9 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
         4.9e-3 (estimated); the reduction guide tabulates other thresholds and
         numbers of reads.
     read_noise : float, `numpy.ndarray` or str, optional
-        Read noise of one read (data unit): one number, a map ``(rows,
-        columns)`` in physical order, or a FITS image.  None: each pixel's
+        Read noise of one read (data unit): one number, a map ``(nrows,
+        ncols)`` of the stored image (as the files hold the pixels), or a FITS
+        image (its ``BUNIT`` converted as by `fit_ramp`).  None: each pixel's
         from its own residuals about a line with one step.
     gain : float, `numpy.ndarray` or str
         Electrons per data unit (the shot noise of the pixel's slope); a map
@@ -71,15 +72,16 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
     max_jumps : int
         Jumps searched for in each ramp.
     neighbours : bool
-        Also flag the 4 neighbours (physical rows and columns) of every jump of
-        at least ``neighbours_above`` sigma, at the read of the jump and at
-        the one before or after it, by when the neighbour is read in the frame.
+        Also flag the 4 neighbours (on the stored image: across the seams of
+        quadrants, whatever the channel layout) of every jump of at least
+        ``neighbours_above`` sigma, at the read of the jump and at the one
+        before or after it, by when the neighbour is read in the frame.
     neighbours_above : float
         Smallest ``|z|`` (sigma) of a jump whose neighbours are flagged.
     radius : float
-        Flag every pixel within this distance (pixels, physical rows and
-        columns) of a jump of at least ``radius_above``, like the neighbours
-        (snowballs and showers); 0: none.
+        Flag every pixel within this distance (pixels, on the stored image) of
+        a jump of at least ``radius_above``, like the neighbours (snowballs and
+        showers); 0: none.  A radius beyond the image flags all of it.
     radius_above : float
         Smallest amplitude (data unit) of a jump flagged with ``radius``.
 
@@ -89,7 +91,7 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
         The input's pixels with `~spherex_reduce.core.dq.JUMP` or-ed into the
         DQ of the reads flagged; the header's ``NJUMPS`` counts the jumps
         found (reads flagged by the search) and ``NJUMPNB`` the reads flagged
-        around them.
+        around them (each read once).
 
     Notes
     -----
@@ -144,10 +146,14 @@ class JumpKernel(Kernel):
             raise StepSkipped(f"{s.nframes} reads: too few to search for jumps")
         self.params = params
         g = s.geometry
+        # maps of the stored image, brought to the readout frame in the data unit
+        unit = context.unit
+        self.gain = PixelMap.of(params["gain"], "detect_jumps.gain", g, positive=True,
+                                unit=None if unit is None else u.electron / unit)
         self.read_noise = (None if self.estimate else
                            PixelMap.of(params["read_noise"], "detect_jumps.read_noise", g,
-                                       positive=True))
-        self.gain = PixelMap.of(params["gain"], "detect_jumps.gain", g, positive=True)
+                                       positive=True, unit=unit,
+                                       gain=adu_gain(unit, context.header, g, self.gain)))
         # each stored read's time (a group's mean), read-noise variance relative to one
         # frame's (1 / frames averaged) and charge covariance per unit rate
         check_size(StepSearch.nbytes(s.nframes),  # before the first nframes**2 matrix
@@ -296,50 +302,70 @@ class _Flags:
         return self.frame[inside], order[pos[inside]], self.col[inside]
 
 
-def _offsets(params):
-    """``(dr, dc, which)``: the offsets flagged around a jump; ``which`` 0 for neighbours,
-    1 for the radius."""
+#: candidate pixels around jumps handled at once (bounds the memory of a large radius)
+AROUND_CHUNK = 1 << 20
+
+
+def _reach(params, nrows, ncols):
+    """``(dr, dcs, which)`` per row offset: the column offsets ``dcs`` flagged at row offset
+    ``dr`` around a jump of the stored image (``nrows x ncols``); ``which`` 0 for the
+    neighbours, 1 for the radius.  A radius beyond the image reaches no further than its
+    far corner: the rows and columns are bounded by its size, whatever the radius."""
     out = []
     if params["neighbours"]:
-        out += [(-1, 0, 0), (1, 0, 0), (0, -1, 0), (0, 1, 0)]
-    r = params["radius"]
+        out += [(-1, np.zeros(1, np.int64), 0), (1, np.zeros(1, np.int64), 0),
+                (0, np.array([-1, 1], np.int64), 0)]
+    r = float(params["radius"])
     if r > 0:
-        n = int(np.floor(r))
-        out += [(i, j, 1) for i in range(-n, n + 1) for j in range(-n, n + 1)
-                if 0 < i * i + j * j <= r * r]
-    return np.array(out, np.int64).reshape(-1, 3)
+        n = int(min(np.floor(r), nrows - 1))
+        for dr in range(-n, n + 1):
+            w = int(min(np.floor(np.sqrt(r * r - dr * dr)), ncols - 1))  # r * r may be inf
+            dcs = np.arange(-w, w + 1, dtype=np.int64)
+            out.append((dr, dcs[dcs != 0] if dr == 0 else dcs, 1))
+    return out
 
 
 def _around(context, params, frames, index, cols, amp, z):
-    """``(frames, index, cols)`` of the reads flagged around the jumps (physical rows and
-    columns), at the jump's frame and, for a pixel read earlier in the frame than the
-    jump's pixel, the next frame (the charge may have come after its read), for one read
-    later the frame before."""
+    """``(frames, index, cols)`` of the reads flagged around the jumps, each once: the
+    neighbours and pixels within the radius on the stored image (physical rows and columns,
+    across the seams of quadrants), at the jump's frame and, for a pixel read earlier in the
+    frame than the jump's pixel, the next frame (the charge may have come after its read),
+    for one read later the frame before."""
     s = context.schedule
     g = s.geometry
+    layout = g.layout
     readout = context.order == "readout"
     rows = s.rows[index] if readout else index
     big = np.stack([np.abs(z) >= params["neighbours_above"], amp >= params["radius_above"]])
-    offsets = _offsets(params)
+    reach = _reach(params, layout.nrows, layout.ncols)
+    empty = np.zeros(0, np.int64)
+    if not reach or not big.any():
+        return empty, empty, empty
+    srow, scol = layout.stored_coordinates(rows, cols)  # the jumps on the stored image
     # when each physical row is first read within a frame, and the reads of each row
-    first = np.full(g.nrows, np.iinfo(np.int64).max)
+    never = np.iinfo(np.int64).max
+    first = np.full(g.nrows, never)
     np.minimum.at(first, s.rows, np.arange(s.n_reads))
     samples = s.pixel_samples()  # when each pixel is read within the frame
-    parts = []
-    for dr, dc, which in offsets:
-        sel = np.flatnonzero(big[which])
-        r, c, f = rows[sel] + dr, cols[sel] + dc, frames[sel]
-        ok = (r >= 0) & (r < g.nrows) & (c >= 0) & (c < g.ncols)
-        r, c, f, r0 = r[ok], c[ok], f[ok], rows[sel][ok]
-        read = first[r] < np.iinfo(np.int64).max
-        r, c, f, r0 = r[read], c[read], f[read], r0[read]
-        c0 = cols[sel][ok][read]
-        earlier = samples[first[r], c] < samples[first[r0], c0]
-        other = np.clip(f + np.where(earlier, 1, -1), 0, s.nframes - 1)
-        parts += [(f, r, c), (other, r, c)]
-    if not parts:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
-    f, r, c = (np.concatenate(a) for a in zip(*parts, strict=True))
+    hit = np.zeros((s.nframes, g.nrows, g.ncols), bool)  # each read flagged once
+    for dr, dcs, which in reach:
+        chosen = np.flatnonzero(big[which])
+        step = max(1, AROUND_CHUNK // dcs.size)
+        for lo in range(0, chosen.size, step):
+            sel = chosen[lo:lo + step]
+            r = np.repeat(srow[sel] + dr, dcs.size)
+            c = (scol[sel][:, None] + dcs).ravel()
+            jump = np.repeat(sel, dcs.size)
+            ok = (r >= 0) & (r < layout.nrows) & (c >= 0) & (c < layout.ncols)
+            fr, fc = layout.frame_coordinates(r[ok], c[ok])
+            jump = jump[ok]
+            read = first[fr] < never
+            fr, fc, jump = fr[read], fc[read], jump[read]
+            earlier = samples[first[fr], fc] < samples[first[rows[jump]], cols[jump]]
+            f = frames[jump]
+            hit[f, fr, fc] = True
+            hit[np.clip(f + np.where(earlier, 1, -1), 0, s.nframes - 1), fr, fc] = True
+    f, r, c = np.nonzero(hit)
     if not readout:
         return f, r, c
     # every read of those physical rows

@@ -360,3 +360,87 @@ def test_bright_ramps_with_estimated_read_noise_keep_their_sensitivity():
         known, estimated = flagged(rate, step, rn), flagged(rate, step, None)
         assert known > 0.1 and estimated > 0.7 * known, (rate, known, estimated)
         assert flagged(rate, 0.0, None) < 0.03  # false alarms stay rare
+
+
+QUADRANTS = [(c, f) for c in ("outer", "inner") for f in ("rows", "columns")]
+#: stored pixels (16 x 16, quadrants of 8 x 8) beside a seam or at a corner: the vertical
+#: seam, the horizontal one, the inner corner of each of two quadrants, two outer corners
+BESIDE_SEAMS = [(3, 7), (12, 8), (7, 12), (8, 3), (7, 7), (8, 8), (0, 0), (15, 15)]
+
+
+def _stored_ramps_with_jumps(corner, fast, pixels, jump_read=3, nframes=6):
+    """A 16 x 16 quadrant exposure built in the stored orientation, 1000 e jumps at
+    ``pixels`` (stored) before read ``jump_read``; and its schedule."""
+    g = DetectorGeometry(16, 16, 4, ref_border=0, channels="quadrants", first_corner=corner,
+                         fast_axis=fast)
+    s = ReadoutSchedule(g, skip=1, ref_reads=0, ref_mode="none", phantom_reads=0,
+                        nframes=nframes, frame_time=DT)
+    rng = np.random.default_rng(21)
+    stored = 1000 + rng.normal(0, 1.0, (nframes, 16, 16))
+    for r, c in pixels:
+        stored[jump_read:, r, c] += 1000.0
+    return Exposure.from_arrays(g.layout.to_readout(stored).astype(np.float32), s), g.layout
+
+
+def _flagged_stored(out, layout):
+    """``{(row, column): frames}`` of the JUMP flags, on the stored image."""
+    flags = layout.to_stored(out.dq & dq.JUMP)
+    found = {}
+    for f, r, c in np.argwhere(flags):
+        found.setdefault((int(r), int(c)), set()).add(int(f))
+    return found
+
+
+@pytest.mark.parametrize(("corner", "fast"), QUADRANTS)
+def test_neighbours_cross_the_seams_of_quadrants(corner, fast):
+    """The 4 neighbours of a jump are its neighbours on the stored image, across the seams
+    between quadrants (they flagged pixels on the array's far edge)."""
+    e, layout = _stored_ramps_with_jumps(corner, fast, BESIDE_SEAMS)
+    out = detect_jumps(e, read_noise=1.0, threshold=6.0, neighbours=True)
+    found = _flagged_stored(out, layout)
+    near = {(r + dr, c + dc) for r, c in BESIDE_SEAMS
+            for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1))
+            if 0 <= r + dr < 16 and 0 <= c + dc < 16}
+    assert set(found) == set(BESIDE_SEAMS) | near
+    for pixel in BESIDE_SEAMS:
+        assert found[pixel] == {3}
+    for pixel in near - set(BESIDE_SEAMS):  # the jump's read and the one before or after
+        assert 3 in found[pixel] and found[pixel] <= {2, 3, 4} and len(found[pixel]) == 2
+
+
+@pytest.mark.parametrize(("corner", "fast"), QUADRANTS)
+def test_radius_is_a_disc_on_the_stored_image(corner, fast):
+    jumps = [(7, 7), (0, 9), (12, 3)]
+    e, layout = _stored_ramps_with_jumps(corner, fast, jumps)
+    out = detect_jumps(e, read_noise=1.0, threshold=6.0, radius=2.5, radius_above=500.0)
+    found = _flagged_stored(out, layout)
+    disc = {(r, c) for r in range(16) for c in range(16)
+            for r0, c0 in jumps if (r - r0) ** 2 + (c - c0) ** 2 <= 2.5 ** 2}
+    assert set(found) == disc
+
+
+def test_a_radius_beyond_the_array_flags_the_whole_array_in_bounded_memory():
+    """radius 1e9 flagged offsets growing as radius**2 (killed after 180 s); any radius
+    larger than the image reaches its far corner and no further."""
+    s = schedule(12, 10, nframes=8)
+    cube = dark(s, np.random.default_rng(22))
+    cube[4:, 2, 3] += 3e4
+    e = Exposure.from_arrays(cube, s)
+    for radius in (1e9, 1e300):
+        out = detect_jumps(e, read_noise=RN, radius=radius)
+        flagged = (out.dq & dq.JUMP).any(axis=0)
+        assert flagged.all()
+        # every other pixel at the jump's read and the one before or after it
+        assert out.header["NJUMPNB"] == 2 * (12 * 10 - 1)
+
+
+def test_a_huge_threshold_finds_no_jump():
+    """threshold 1e300 squared overflowed Python's float (OverflowError); no step reaches it."""
+    s = schedule(8, 8, nframes=10)
+    cube = dark(s, np.random.default_rng(23))
+    cube[5:, 2, 2] += 3e4
+    e = Exposure.from_arrays(cube, s)
+    for read_noise in (RN, None):
+        out = detect_jumps(e, read_noise=read_noise, threshold=1e300)
+        assert out.header["NJUMPS"] == 0 and (out.dq is None or not (out.dq & dq.JUMP).any())
+        assert detect_jumps(e, read_noise=read_noise, threshold=50.0).header["NJUMPS"] == 1

@@ -140,7 +140,8 @@ class CaseResult:
     reduced: dict = field(default_factory=dict)
     #: ``"simulate"`` and, per label, the reduction and measurement, in seconds
     seconds: dict = field(default_factory=dict)
-    #: per label, the reduction alone (``Pipeline.run``), in seconds
+    #: per label, the reduction alone (``Pipeline.run``; paired, the first of its two), in
+    #: seconds
     reduce_seconds: dict = field(default_factory=dict)
     #: the simulated raw exposure (in memory, with ``keep=True``) or its FITS path
     raw: object = None
@@ -155,7 +156,7 @@ class CaseResult:
 
 
 def run_case(scene, pipelines, measure=None, *, seed=None, mode=None, raw_path=None,
-             overwrite=False, progress=False, keep=False, inject=None):
+             overwrite=False, progress=False, keep=False, inject=None, paired=False):
     """Simulate a scene once, reduce it with each pipeline and measure each reduced image.
 
     Parameters
@@ -190,6 +191,14 @@ def run_case(scene, pipelines, measure=None, *, seed=None, mode=None, raw_path=N
         any pipeline sees it (e.g. `~spherex_reduce.analysis.inject_sky`
         adding a sky); it must return a new exposure, not change its input.
         In memory only (not with ``raw_path``).
+    paired : bool
+        With ``inject`` and a measure: every pipeline also reduces the
+        exposure as simulated, before ``inject``, and the measure is called
+        with both images, ``measure(image, without)``: the same noise with and
+        without what was injected, so that their difference is what the
+        pipeline made of it (`~spherex_reduce.analysis.measure_against_sky`).
+        Each pipeline then runs twice, the exposure without first (its time
+        is ``reduce_seconds``: the first exposure's, as without ``paired``).
 
     Returns
     -------
@@ -198,7 +207,8 @@ def run_case(scene, pipelines, measure=None, *, seed=None, mode=None, raw_path=N
     Raises
     ------
     SpherexReduceError
-        A pipeline that leaves ramps when there is a measure.
+        A pipeline that leaves ramps when there is a measure; ``paired``
+        without ``inject`` and a measure.
 
     Examples
     --------
@@ -216,6 +226,15 @@ def run_case(scene, pipelines, measure=None, *, seed=None, mode=None, raw_path=N
     >>> res = run_case(scene, {"raw": raw, "corrected": "spherex-default"}, {"bins": 4}, seed=1)
     >>> sorted(res.measured), sorted(res.seconds)
     (['corrected', 'raw'], ['corrected', 'raw', 'simulate'])
+
+    Paired: the measure sees each pipeline's image with and without what was injected:
+
+    >>> def plus_one(raw):
+    ...     return raw.replace(data=raw.data.data + 1.0)
+    >>> res = run_case(scene, raw, lambda image, without: float((image.data - without.data).mean()),
+    ...                seed=1, inject=plus_one, paired=True)
+    >>> round(res.measurement, 9)
+    1.0
     """
     if isinstance(pipelines, dict) and "steps" not in pipelines:
         pipes = {str(label): as_pipeline(p) for label, p in pipelines.items()}
@@ -227,6 +246,8 @@ def run_case(scene, pipelines, measure=None, *, seed=None, mode=None, raw_path=N
     if inject is not None and raw_path is not None:
         raise SpherexReduceError("run_case: inject works on an exposure in memory, not with "
                                  "raw_path")
+    if paired and (inject is None or measure is None):
+        raise SpherexReduceError("run_case: paired needs inject and a measure")
     result = CaseResult(seed)
     t0 = time.perf_counter()
     if raw_path is not None:
@@ -235,23 +256,37 @@ def run_case(scene, pipelines, measure=None, *, seed=None, mode=None, raw_path=N
                          progress=progress)
     else:
         raw = simulate(scene, mode=mode, seed=seed)
-        if inject is not None:
-            raw = inject(raw)
-    result.raw = raw if raw_path is not None or keep else None
     result.seconds["simulate"] = time.perf_counter() - t0
-    for label, pipeline in pipes.items():
+    without = {}  # paired: each pipeline's image before inject (no second raw is kept)
+    for label, pipeline in (pipes.items() if paired else ()):
         t0 = time.perf_counter()
         reduced = pipeline.run(raw, progress=progress)
         result.reduce_seconds[label] = time.perf_counter() - t0
+        without[label] = _measured_image(reduced, label)
+        result.seconds[label] = time.perf_counter() - t0
+    if inject is not None:
+        raw = inject(raw)
+    result.raw = raw if raw_path is not None or keep else None
+    for label, pipeline in pipes.items():
+        t0 = time.perf_counter()
+        reduced = pipeline.run(raw, progress=progress)
+        result.reduce_seconds.setdefault(label, time.perf_counter() - t0)
         if keep:
             result.reduced[label] = reduced
         if measure is not None:
-            if reduced.is_ramp:
-                raise SpherexReduceError(f"pipeline {label} left ramps; it must end with an "
-                                         "image (fit_ramp) to be measured")
-            result.measured[label] = measure(light_sensitive_image(reduced))
-        result.seconds[label] = time.perf_counter() - t0
+            image = _measured_image(reduced, label)
+            result.measured[label] = measure(image, without.pop(label)) if paired else \
+                measure(image)
+        result.seconds[label] = result.seconds.get(label, 0.0) + time.perf_counter() - t0
     return result
+
+
+def _measured_image(reduced, label):
+    """The light-sensitive pixels of a reduced image, for a measure; ramps refused."""
+    if reduced.is_ramp:
+        raise SpherexReduceError(f"pipeline {label} left ramps; it must end with an "
+                                 "image (fit_ramp) to be measured")
+    return light_sensitive_image(reduced)
 
 
 #: Most realisations a sweep (per cell), a comparison or a design may ask for.

@@ -1,11 +1,13 @@
 """Judge correction strategies: residual noise and sky kept, on common random numbers.
 
 For each realisation a scene is simulated once, a sky (`sky_field`) is added
-to it (`inject_sky`) and every pipeline reduces that same exposure (`run_case`).
-Each reduced image is measured against the sky it was given
-(`measure_against_sky`): the band power of ``reduced − sky`` (the noise left),
-and from the cross-spectrum with the sky the fraction of the sky kept, per
-``k`` bin and power-weighted over the band.  The white floor (`white_floor`)
+to it (`inject_sky`) and every pipeline reduces that same exposure, and the
+exposure without the sky (`run_case`, paired).  Each reduced image is measured
+against the sky it was given (`measure_against_sky`): the band power of
+``reduced − sky`` (the noise left), and from the cross-spectrum of the
+difference of the two reductions with the sky the fraction of the sky kept,
+per ``k`` bin and power-weighted over the band (the noise, the same in both,
+cancels: no chance correlation with a faint sky moves it).  The white floor (`white_floor`)
 is the band power of the noise model's white terms alone, which no correction
 removes; each pipeline's *excess* is its noise band power above it.
 
@@ -254,7 +256,8 @@ def white_floor(scene):
 
 
 def run_realization(task):
-    """Simulate one realisation, add its sky, reduce it with every pipeline, measure each.
+    """Simulate one realisation, reduce it with every pipeline with and without its sky,
+    measure each.
 
     Returns a `~spherex_reduce.analysis.tasks.RealizationResult` (one
     `~spherex_reduce.analysis.tasks.PipelineRow` per pipeline:
@@ -283,7 +286,7 @@ def _realization(task):
                                     measure=SpectrumMeasure(**task.measure),
                                     light=light_sensitive(sc.schedule.geometry))
         res = run_case(sc, task.pipelines, measure, seed=seed,
-                       inject=functools.partial(inject_sky, sky=sky))
+                       inject=functools.partial(inject_sky, sky=sky), paired=True)
         rows = tuple(PipelineRow(pipeline=label, realization=r, **res.measured[label],
                                  seconds=res.reduce_seconds[label])
                      for label in task.pipelines)
@@ -310,13 +313,15 @@ COMPARE_COLUMNS = {
     "sky_seed": "seed of the realisation's injected sky",
     "noise_band_power": "band power of the reduced image minus the injected sky",
     "noise_band_power_err": "standard error of noise_band_power over the band's modes",
-    "sky_transfer": "sum of P_cross(image, sky) / sum of P_sky over the band's modes",
-    "seconds": "time of the pipeline's reduction alone",
+    "sky_transfer": "sum of P_cross(image - image without sky, sky) / sum of P_sky over the "
+                    "band's modes",
+    "seconds": "time of the pipeline's reduction alone (of the exposure without sky)",
     "masked_fraction": "fraction of the image's pixels masked",
     "excess": "noise_band_power minus the noise model's white floor (meta: floor)",
     "k": "mean |k| of each bin",
     "power": "P(k) of the reduced image minus the injected sky, in each bin",
-    "transfer": "P_cross(image, sky) / P_sky in each bin (1: sky kept, 0: removed)",
+    "transfer": "P_cross(image - image without sky, sky) / P_sky in each bin (1: sky kept, "
+                "0: removed)",
 }
 
 

@@ -4,7 +4,8 @@
 light-sensitive pixels (`~spherex_reduce.analysis.light.light_sensitive`), zero
 on reference pixels, `inject_sky` adds it to a simulated exposure (slopes or
 ramps, in readout or physical order), and `measure_against_sky` measures a
-reduced image against the sky it was given: the noise left and the sky kept.
+reduced image against the sky it was given: the noise left, and the sky kept
+(from its difference with the same noise reduced without the sky).
 ``compare-strategies`` is built on them.
 """
 
@@ -159,42 +160,52 @@ def inject_sky(exposure, sky):
     return exposure.replace(data=new)
 
 
-def measure_against_sky(image, sky, measure=None, light=None):
+def measure_against_sky(image, without, sky, measure=None, light=None):
     """The noise left in a reduced image and the fraction of the injected sky it kept.
 
-    On the light-sensitive pixels (`light_sensitive`; pixels masked in the
-    image's ``mask`` or not finite are left out, as `power_spectrum` does):
+    ``image`` is an exposure reduced with the sky injected, ``without`` the
+    same exposure (the same noise) reduced without it.  On the
+    light-sensitive pixels (`light_sensitive`; pixels masked in either
+    image's ``mask`` or not finite are left out of the transfer, as
+    `power_spectrum` does):
 
     - ``noise_band_power`` (and ``_err``): `band_power` of ``image − sky``,
       with ``k`` and ``power`` its binned P(k) (`SpectrumMeasure`);
-    - ``transfer``: per ``k`` bin, ``P_cross(image, sky) / P_sky`` (the same
-      bins; 1 = sky kept, 0 = removed; NaN for an empty bin);
+    - ``transfer``: per ``k`` bin, ``P_cross(image − without, sky) / P_sky``
+      (the same bins; 1 = sky kept, 0 = removed; NaN for an empty bin);
     - ``sky_transfer``: over the band, ``Σ P_cross / Σ P_sky`` over its
-      Fourier modes (power-weighted).
+      Fourier modes (power-weighted), of the same difference.
+
+    The difference is what the pipeline made of the sky: the noise, the same
+    in both, cancels, exactly for a linear pipeline (a reference offset keeps
+    a transfer of 1 whatever the noise) and for a non-linear one (a median)
+    it is its response to the sky on this noise.  Measured against ``image``
+    alone, the noise's chance correlation with a faint sky moved the
+    transfer by tens of per cent.
 
     Parameters
     ----------
-    image : `~astropy.nddata.CCDData`
-        The light-sensitive pixels of a reduced slope image
-        (`~spherex_reduce.analysis.light_sensitive_image`, as `run_case`
-        gives them to its measure), unit convertible to e/s.
+    image, without : `~astropy.nddata.CCDData`
+        The light-sensitive pixels of a reduced slope image with and without
+        the sky (`~spherex_reduce.analysis.light_sensitive_image`, as `run_case`
+        gives them to a paired measure), units convertible to e/s.
     sky : array
         The injected sky (`sky_field`), e/s, on the whole array.
     measure : `SpectrumMeasure` or dict, optional
         Band and bins (default: the paper's 5–20′ band, 30 bins).
     light : tuple of slice, optional
-        Where ``image`` lies on the array (`light_sensitive` of its
+        Where the images lie on the array (`light_sensitive` of its
         geometry); default the whole array.
 
     Returns
     -------
     dict
         The keys above (plain floats and arrays in the image's unit squared ×
-        pixel²), ``unit`` and ``masked_fraction``.
+        pixel²), ``unit`` and ``masked_fraction`` (of ``image``).
 
     Examples
     --------
-    An image that is the sky and a little white noise keeps the whole sky:
+    White noise with and without the sky: the whole sky kept, the noise left:
 
     >>> import numpy as np
     >>> from astropy.nddata import CCDData
@@ -204,40 +215,48 @@ def measure_against_sky(image, sky, measure=None, light=None):
     >>> sky = sky_field(DetectorGeometry(128, 128, 4, ref_border=4), 0.05, -2.0, 1)
     >>> noise = np.random.default_rng(2).normal(0, 0.01, sky.shape)
     >>> light = (slice(4, 124), slice(4, 124))
-    >>> m = measure_against_sky(CCDData((sky + noise)[light], unit="electron/s"), sky,
+    >>> m = measure_against_sky(CCDData((sky + noise)[light], unit="electron/s"),
+    ...                         CCDData(noise[light], unit="electron/s"), sky,
     ...                         {"bins": 6}, light=light)
     >>> err = 3 * m["noise_band_power_err"]
-    >>> round(m["sky_transfer"], 2), bool(abs(m["noise_band_power"] - 1e-4) < err)
+    >>> round(m["sky_transfer"], 12), bool(abs(m["noise_band_power"] - 1e-4) < err)
     (1.0, True)
     """
     measure = SpectrumMeasure(**(measure or {})) if not isinstance(
         measure, SpectrumMeasure) else measure
     light = (slice(None), slice(None)) if light is None else tuple(light)
     sky = np.asarray(sky, dtype=float)[light]
-    if image.data.shape != sky.shape:
-        raise SpherexReduceError(f"the reduced image {image.data.shape} and the sky "
-                                 f"{sky.shape} differ in shape")
+    for name, im in (("reduced image", image), ("image without the sky", without)):
+        if im.data.shape != sky.shape:
+            raise SpherexReduceError(f"the {name} {im.data.shape} and the sky {sky.shape} "
+                                     "differ in shape")
     try:
         factor = (1.0 * u.electron / u.s).to_value(image.unit)
+        same = (1.0 * without.unit).to_value(image.unit)
     except u.UnitConversionError:
-        raise SpherexReduceError(f"a reduced image in {image.unit} cannot be compared with a "
-                                 "sky in e/s") from None
+        raise SpherexReduceError(f"reduced images in {image.unit} and {without.unit} cannot be "
+                                 "compared with a sky in e/s") from None
     sky_cut = sky * factor
     residual = CCDData(np.asarray(image.data, dtype=float) - sky_cut, unit=image.unit,
                        mask=image.mask)
     m = measure(residual)
     kw = {"exclude_horizontal": bool(measure.exclude_horizontal)}
-    bad = ~np.isfinite(image.data) | (np.zeros(image.shape, bool) if image.mask is None
-                                    else np.asarray(image.mask) != 0)
+    bad = np.zeros(image.shape, bool)
+    for im in (image, without):
+        bad |= ~np.isfinite(im.data)
+        if im.mask is not None:
+            bad |= np.asarray(im.mask) != 0
+    with np.errstate(invalid="ignore"):  # inf - inf at a pixel left out anyway
+        diff = np.asarray(image.data, dtype=float) - np.asarray(without.data, dtype=float) * same
     edges = measure.edges(image.shape)
-    cross = cross_spectrum(image, sky_cut, bins=edges, **kw)
+    cross = cross_spectrum(diff, sky_cut, mask=bad, bins=edges, **kw)
     auto = power_spectrum(sky_cut, mask=bad, bins=edges, **kw)
     transfer = np.full(edges.size - 1, np.nan)
     pos = np.searchsorted(edges, np.asarray(cross["k_lo"]) * (1 + 1e-12)) - 1
     with np.errstate(divide="ignore", invalid="ignore"):
         transfer[pos] = np.asarray(cross["power"]) / np.asarray(auto["power"])
     band = [measure.kmin, measure.kmax]
-    bc = cross_spectrum(image, sky_cut, bins=band, **kw)
+    bc = cross_spectrum(diff, sky_cut, mask=bad, bins=band, **kw)
     ba = power_spectrum(sky_cut, mask=bad, bins=band, **kw)
     sky_power = float(ba["power"][0]) if len(ba) else np.nan
     if len(ba) and not (np.isfinite(sky_power) and sky_power > 0):

@@ -11,9 +11,10 @@ def add_parser(sub):
         "residual noise, white floor, sky transfer",
         description="Run COMPARE.yaml (scene:, sky:, pipelines:, realizations:, seed:, "
         "measure:): each realisation's scene is simulated once, a Gaussian random sky is "
-        "added to its light-sensitive pixels, and every pipeline reduces that same exposure. "
-        "Per pipeline and realisation: the 5–20′ band power of reduced - sky, its excess over "
-        "the noise model's white floor, and the fraction of the sky kept (cross-spectrum). "
+        "added to its light-sensitive pixels, and every pipeline reduces that same exposure "
+        "and the exposure without the sky. Per pipeline and realisation: the 5–20′ band power "
+        "of reduced - sky, its excess over the noise model's white floor, and the fraction of "
+        "the sky kept (cross-spectrum of the difference of the two reductions with the sky). "
         "Runs on an embedded dask LocalCluster, or an existing scheduler with --scheduler.")
     p.add_argument("input", metavar="COMPARE.yaml")
     p.add_argument("-o", "--output", required=True, metavar="RESULTS.ecsv")

@@ -107,6 +107,26 @@ def test_the_measure_never_sees_the_reference_pixels():
                                                   rel=1e-12)
 
 
+def test_paired_case_measures_each_pipeline_with_and_without_the_injection():
+    """paired: the measure gets (with, without) of the same noise, the exposure without
+    reduced as simulate gives it (numpy: the same seed, reduced by hand)."""
+    from spherex_reduce.reduce.pipeline import as_pipeline
+
+    def plus(raw):
+        return raw.replace(data=raw.data.data + 3.0)
+
+    seen = []
+    res = run_case(SCENE, RAW, lambda image, without: seen.append((image, without)) or 0.0,
+                   seed=4, inject=plus, paired=True)
+    assert res.measurement == 0.0 and len(seen) == 1
+    image, without = (np.asarray(x.data, float) for x in seen[0])
+    plain = as_pipeline(RAW).run(simulate(SCENE, seed=4)).to_ccddata()
+    np.testing.assert_array_equal(without, np.asarray(plain.data, float)[4:-4, 4:-4])
+    np.testing.assert_allclose(image - without, 3.0, rtol=0, atol=1e-3)
+    with pytest.raises(SpherexReduceError, match="paired needs inject"):
+        run_case(SCENE, RAW, lambda image, without: 0.0, seed=4, paired=True)
+
+
 # -- the keys a design, a sweep and a comparison share: refused in the same words ---------
 SHARED = [
     ({"seed": -1}, "seed: must be >= 0, got -1"),

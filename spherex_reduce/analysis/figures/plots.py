@@ -327,8 +327,10 @@ def plot_comparison(table, title="", pixel_scale=SPHEREX_PIXEL_SCALE):
     Left: the P(k) of ``reduced − injected sky`` per pipeline (mean over
     realisations, error bars their standard error), the band shaded, the
     photon-noise level and the white floor (the noise model's white terms,
-    which no correction removes).  Right: the transfer ``T(k) = P_cross /
-    P_sky`` per pipeline (1: the sky is kept at that scale, 0: removed).
+    which no correction removes).  Right: the transfer ``T(k) = P_cross(Δ,
+    sky) / P_sky`` per pipeline, ``Δ`` the reduced image with the sky minus
+    the same noise reduced without it (1: the sky is kept at that scale, 0:
+    removed).
 
     Parameters
     ----------
@@ -381,11 +383,12 @@ def plot_comparison(table, title="", pixel_scale=SPHEREX_PIXEL_SCALE):
     right.axhline(0.0, color="0.3", ls="-", lw=0.8)
     right.set_xscale("log")
     right.set_xlabel("k (rad / pixel)")
-    right.set_ylabel("sky transfer T(k) = P_cross(reduced, sky) / P_sky")
+    right.set_ylabel("sky transfer T(k) = P_cross(Δ, sky) / P_sky")
     _theta_axis(right, pixel_scale)
     right.grid(True, which="both", alpha=0.2)
     right.legend(fontsize=8, loc="center right")  # T is near 1 or dips: the middle is free
-    right.set_title("sky kept at each scale: 1 = all kept, 0 = all removed", fontsize=10)
+    right.set_title("sky kept at each scale: 1 = all kept, 0 = all removed\n"
+                    "Δ = reduced with the sky − the same noise reduced without it", fontsize=10)
     sky = (meta.get("config") or {}).get("sky") or {}
     n_real = len(table) // max(len(names), 1)
     fig.suptitle(title or f"{len(names)} pipelines, {n_real} realisation(s), sky rms "

@@ -165,11 +165,17 @@ def design_readout(design, progress=False):
                (r > 0 or m == d.ref_modes[0])]
     finalists = _best_orders(objective.tried, d.finalists)
     with Progress(len(finalists) * len(timings), "timing", progress) as bar:
-        for cand in finalists:
+        held = 0  # refused at once (no reference reads): counted with the first forecast,
+        for cand in finalists:  # which times the stage
             for c, r, m in timings:
-                objective("timing", cand.family, cand.label, c, r, m, cand.permutation,
-                          cand.skip)
-                bar.done()
+                held += 1
+                if objective("timing", cand.family, cand.label, c, r, m, cand.permutation,
+                             cand.skip) is not None or bar.count:
+                    for _ in range(held):
+                        bar.done()
+                    held = 0
+        for _ in range(held):
+            bar.done()
     seconds["timing"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     rng = np.random.default_rng(d.search_seed)

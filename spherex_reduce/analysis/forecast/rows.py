@@ -196,12 +196,13 @@ def _lag_table(schedule, comps, half, nodes):
     slot: the schedules of a search over row orders share it.  The tables most recently
     used are kept, up to `LAG_TABLE_BYTES`, keyed by the geometry, every readout parameter
     but those of the row order (``order``, ``skip``, ``ref_reads``, ``ref_mode``), the number
-    of slots, the components, ``half`` and ``nodes``.
+    of slots, the components, ``half``, ``nodes`` and `CHUNK_LAGS` (the covariance is
+    computed that many lags at a time, which can change its last bits).
     """
     timing = {k: v for k, v in schedule.to_dict().items()
               if k not in ("order", *ORDER_REPLACES)}
     key = repr((schedule.geometry, sorted(timing.items()), int(_slots(schedule).max()),
-                list(comps), int(half), int(nodes)))
+                list(comps), int(half), int(nodes), CHUNK_LAGS))
     table = _lag_tables.pop(key, None)
     if table is None:
         table = _LagTable(schedule, comps, half, nodes)

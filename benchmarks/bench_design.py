@@ -4,14 +4,16 @@ Run: ``python benchmarks/bench_design.py [DESIGN.yaml] [--write]``; ``--write``
 writes ``benchmarks/README_design.md``.  Without a file the design is the
 default one (every key at its default: the paper's scene, spherex-default,
 the 5-20' band, the paper's 1.51 s frame time, 20 paired realisations).  Prints a
-table: the time of each stage, the forecast band power of the best schedule and
-of the paper's (S = 24, r = 32 distributed, c = 4, N = 74), the forecast gain,
-and the paired Monte Carlo's band powers and gain with their standard errors.
+table: the time of each stage, the CPU time (user and system, every thread),
+the forecast band power of the best schedule and of the paper's (S = 24, r = 32
+distributed, c = 4, N = 74), the forecast gain, and the paired Monte Carlo's band
+powers and gain with their standard errors.
 """
 
 import argparse
 import os
 import platform
+import resource
 import time
 from pathlib import Path
 
@@ -25,15 +27,19 @@ def main(argv=None):
     parser.add_argument("design", nargs="?", default=None, help="DESIGN.yaml (default: {})")
     parser.add_argument("--write", action="store_true", help="write README_design.md")
     args = parser.parse_args(argv)
-    t0 = time.perf_counter()
+    t0, r0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_SELF)
     res = design_readout(args.design if args.design else {}, progress=True)
     total = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_SELF)
+    user, system = r1.ru_utime - r0.ru_utime, r1.ru_stime - r0.ru_stime
     m = res.report.meta
     mc = m.get("monte_carlo") or {}
     unit = m["band_unit"]
     rows = [("stages (s)", ", ".join(f"{k} {v:.0f}" for k, v in m["seconds"].items())),
             ("total time", f"{total:.0f} s (limit {LIMIT:.0f} s): "
                            f"{'PASS' if total <= LIMIT else 'FAIL'}"),
+            ("CPU time", f"{user + system:.0f} s (user {user:.0f} s, system {system:.0f} s); "
+                         f"load average {os.getloadavg()[0]:.1f} at the end"),
             ("schedules forecast", str(m["evaluations"])),
             ("paper's schedule", m["baseline"]["summary"]),
             ("best schedule", f"{m['best']['summary']} ({m['best']['family']} "

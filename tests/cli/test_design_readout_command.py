@@ -1,6 +1,8 @@
 """``spherex-reduce design-readout``: BEST.yaml is a scene simulate, forecast and reduce take;
 the report and plot are written; bad designs exit 2 in one line and write nothing."""
 
+import re
+
 import pytest
 import yaml
 from _cli_helpers import one_line_error, run
@@ -90,3 +92,23 @@ def test_best_yaml_keeps_every_component_of_the_fit_noise_model(tmp_path, capsys
     assert run("design-readout", design, "-o", best, "--overwrite") == 2
     assert one_line_error(capsys, "spherex-reduce design-readout: error:",
                           "row 2: stream 'referenc' is not a stream fit-noise writes")
+
+
+def test_each_stage_prints_its_expected_duration_before_the_results(tmp_path, capsys):
+    """Without -q, each stage of the search prints ``about T for N <steps> (t each)`` once its
+    first step is done, as sweep and compare-strategies do: 3 skips, 2 finalists x 1 timing,
+    3 moves, 2 paired realisations (counted from the design by hand)."""
+    design = tmp_path / "design.yaml"
+    design.write_text(DESIGN.replace(
+        "search: {families: [golden, radical_inverse], phantom_reads: [2], ref_reads: [8],",
+        "search: {families: [skip], skips: [1, 2, 3], phantom_reads: [2], ref_reads: [8],"))
+    assert run("design-readout", design, "-o", tmp_path / "best.yaml") == 0
+    out = capsys.readouterr().out.splitlines()
+    expected = ["3 row orders", "2 timings", "3 local-search moves", "2 paired realisations"]
+    about = [line for line in out if line.startswith("about ")]
+    assert len(about) == 4, out
+    for line, what in zip(about, expected, strict=True):
+        assert re.fullmatch(rf"about [0-9.]+ (s|min)( [0-9]+ s)? for {what} \([0-9.]+ s each\)",
+                            line), line
+    assert out.index(about[-1]) < next(i for i, line in enumerate(out)
+                                       if "schedules forecast in" in line)

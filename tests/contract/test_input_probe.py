@@ -1618,20 +1618,96 @@ def test_two_batches_into_one_folder_report_no_valid_output_as_failed(inputs, tm
     assert sorted(rows) == _reduced(out) and "failed" not in rows.values(), rows
 
 
+#: A reference strategy ``gate`` that lets the first `GATE_OPEN` reductions through, then
+#: marks each later one as started (``started.N`` next to it) and holds it until a file
+#: ``release`` appears there (60 s at most): a batch reduced with it has, by construction,
+#: work in progress when those marks appear.
+GATE_PLUGIN = """\
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+from spherex_reduce.plugin import ReferenceOffsets, Strategy, hookimpl
+
+HERE = Path(__file__).parent
+GATE_OPEN = {open}
+
+
+def ticket():
+    n = 0
+    while True:
+        try:
+            os.close(os.open(HERE / f"ticket.{{n}}", os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+            return n
+        except FileExistsError:
+            n += 1
+
+
+class Gate(Strategy):
+    kind, name, parameters = "reference", "gate", ()
+
+    def estimate(self, side, context, exposure=None):
+        n = ticket()
+        if n >= GATE_OPEN:
+            (HERE / f"started.{{n}}").touch()
+            end = time.monotonic() + 60
+            while not (HERE / "release").exists() and time.monotonic() < end:
+                time.sleep(0.01)
+        shape = (side.data.shape[0], context.geometry.nchannels, 1)
+        return ReferenceOffsets(np.zeros(shape), np.ones(shape, int), np.zeros(shape, int),
+                                [-1])
+
+
+@hookimpl
+def register_strategies():
+    return [Gate]
+"""
+GATE_OPEN = 2
+
+
+def _gate_plugin(d):
+    """Setup: install `GATE_PLUGIN` (distribution ``spherex-reduce-gate``) in ``d`` and
+    ``gate.yaml``, a pipeline reducing with it."""
+    import py_compile
+
+    (d / "gate_strategy.py").write_text(GATE_PLUGIN.format(open=GATE_OPEN))
+    py_compile.compile(str(d / "gate_strategy.py"), doraise=True)
+    info = d / "spherex_reduce_gate-0.1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: spherex-reduce-gate\n"
+                                   "Version: 0.1.0\n")
+    (info / "entry_points.txt").write_text("[spherex_reduce]\ngate = gate_strategy\n")
+    (d / "gate.yaml").write_text("steps:\n  - unchop: {}\n  - correct_reference: "
+                                 "{strategy: gate}\n  - fit_ramp: {}\n")
+
+
 @pytest.mark.parametrize(("name", "to"), [("SIGTERM", "process"), ("SIGINT", "group")])
 def test_batch_on_dask_interrupted_prints_one_line(name, to, inputs, tmp_path):
+    """A batch interrupted while files are being reduced exits 130 (SIGINT) or 143 (SIGTERM)
+    with one line, its summary listing what was done.  The signal is sent once a file is
+    done and another is held in a worker by the ``gate`` strategy (`GATE_PLUGIN`), so the
+    batch cannot have finished by then, however slow this process is: before, the signal
+    was sent up to a second after the first output appeared, and on a loaded machine the
+    other 15 small files could all be reduced first (exit 0, nothing interrupted)."""
     pytest.importorskip("distributed")
     d, names = _batch_case(inputs, tmp_path, 16)
+    _gate_plugin(d)
     out = d / "out"
-    proc = _spawn(["reduce", *names, "-c", "spherex-default", "-o", "out", "--workers", "2"], d)
-    assert _wait_for(lambda: _reduced(out)), "no output appeared"
-    _wait_for(lambda: _summary_rows(out), 0.5)
-    (os.kill if to == "process" else os.killpg)(proc.pid, getattr(signal, name))
+    proc = _spawn(["reduce", *names, "-c", "gate.yaml", "-o", "out", "--workers", "2"], d)
+    try:
+        assert _wait_for(lambda: _summary_rows(out), 60), "no file was reduced"
+        assert _wait_for(lambda: list(d.glob("started.*")), 60), "no file was held"
+        assert proc.poll() is None, "the batch ended with a file held"
+        (os.kill if to == "process" else os.killpg)(proc.pid, getattr(signal, name))
+    finally:
+        (d / "release").touch()  # the held files go on, if the batch still waits for them
     rc, _, err = _finish(proc)
     assert rc == 128 + getattr(signal, name) or (name == "SIGINT" and rc == 130), rc
     assert len(err) <= 1, err
     rows = _summary_rows(out)  # what finished before the signal
     assert rows and set(rows) <= set(_reduced(out)) and set(rows.values()) == {"done"}
+    assert len(rows) < len(names)
     assert not [p.name for p in out.iterdir() if p.name.endswith(".tmp")]
 
 

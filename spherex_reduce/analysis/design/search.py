@@ -23,7 +23,7 @@ schedules, reduced with the design's pipeline, band power measured by
 """
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from astropy.table import Table
@@ -31,7 +31,8 @@ from astropy.table import Table
 from ...core._text import plural
 from ...core.errors import ConfigError, SpherexReduceError
 from ...core.readout.schedule import chopped_order
-from ...reduce.progress import terminal_bar
+from ...reduce.pipeline import as_pipeline
+from ...reduce.progress import Progress
 from ...simulation import simulate
 from ...simulation.scene import load_scene
 from ..case import SpectrumMeasure, run_case
@@ -90,7 +91,10 @@ def design_readout(design, progress=False):
     design : `~spherex_reduce.analysis.design.file.Design`, dict, YAML text or path
         What to search (`~spherex_reduce.analysis.design.file.load_design`).
     progress : bool
-        A progress bar per stage on a terminal (stderr).
+        Per stage (row orders, timings, local-search moves, paired realisations),
+        its expected duration on stdout once its first step is done and a
+        progress bar on a terminal (stderr), as
+        `~spherex_reduce.reduce.progress.Progress` shows them.
 
     Returns
     -------
@@ -125,6 +129,8 @@ def design_readout(design, progress=False):
     0.0
     """
     d = design if hasattr(design, "families") else load_design(design)
+    if d.pipeline is not None:  # read once, not once per schedule
+        d = replace(d, pipeline=as_pipeline(d.pipeline))
     base = load_scene(d.scene)
     g = base.schedule.geometry
     readout = {k: v for k, v in (d.scene.get("readout") or {}).items() if k not in _DESIGNED}
@@ -147,35 +153,41 @@ def design_readout(design, progress=False):
                           "minimise")
     objective.refuse = True
     orders = family_orders(n, d.families, d.skips)
-    with terminal_bar(progress, total=len(orders), desc="families") as bar:
+    with Progress(len(orders), "row order", progress) as bar:
         for family, label, perm in orders:
             objective("families", family, label, b.phantom_reads, b.ref_reads,
                       b.ref_mode, perm, int(label[2:]) if family == "skip" else None)
-            bar.update()
+            bar.done()
     seconds["families"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     timings = [(c, r, m) for c in d.phantom_reads for r in d.ref_reads for m in d.ref_modes
                if scene_of.fits(g, c, r) and (r == 0 or g.border.rows) and
                (r > 0 or m == d.ref_modes[0])]
     finalists = _best_orders(objective.tried, d.finalists)
-    with terminal_bar(progress, total=len(finalists) * len(timings), desc="timing") as bar:
-        for cand in finalists:
+    with Progress(len(finalists) * len(timings), "timing", progress) as bar:
+        held = 0  # refused at once (no reference reads): counted with the first forecast,
+        for cand in finalists:  # which times the stage
             for c, r, m in timings:
-                objective("timing", cand.family, cand.label, c, r, m, cand.permutation,
-                          cand.skip)
-                bar.update()
+                held += 1
+                if objective("timing", cand.family, cand.label, c, r, m, cand.permutation,
+                             cand.skip) is not None or bar.count:
+                    for _ in range(held):
+                        bar.done()
+                    held = 0
+        for _ in range(held):
+            bar.done()
     seconds["timing"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     rng = np.random.default_rng(d.search_seed)
     best = min(objective.tried, key=lambda c: c.band_power)
-    with terminal_bar(progress, total=d.iterations, desc="local search") as bar:
+    with Progress(d.iterations, "local-search move", progress) as bar:
         for i in range(d.iterations):
             perm = _move(np.asarray(best.permutation), rng)
             cand = objective("local", best.family, f"{best.label.split(' +')[0]} +{i + 1}",
                              best.phantom_reads, best.ref_reads, best.ref_mode, perm)
             if cand is not None and cand.band_power < best.band_power:
                 best = cand
-            bar.update()
+            bar.done()
     seconds["local"] = time.perf_counter() - t0
     best = min(objective.tried, key=lambda c: c.band_power)
     t0 = time.perf_counter()
@@ -346,11 +358,11 @@ def _confirm(d, report, best_scene, base_scene, progress):
     its standard error to its meta."""
     measure = SpectrumMeasure(kmin=d.kmin, kmax=d.kmax, bins=d.bins)
     runs = {"baseline": [], "best": []}
-    with terminal_bar(progress, total=d.realizations, desc="Monte Carlo") as bar:
+    with Progress(d.realizations, "paired realisation", progress) as bar:
         for i in range(d.realizations):
             for name, scene in (("baseline", base_scene), ("best", best_scene)):
                 runs[name].append(_measured(scene, d.pipeline, measure, d.seed + i))
-            bar.update()
+            bar.done()
     a = np.array([m["band_power"].value for m in runs["baseline"]])
     b = np.array([m["band_power"].value for m in runs["best"]])
     ratio = b.mean() / a.mean()

@@ -35,6 +35,7 @@ some ``k_y`` rows and ``k_x`` columns (`band_cells`): the cost is then that
 of those cells only.
 """
 
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,11 +43,13 @@ import scipy.fft
 
 from ...core.errors import SpherexReduceError
 from ...core.limits import check_size
+from ...core.readout.read_order import ORDER_REPLACES
 from ...noise.variance import SHIFT_CELLS, slope_covariance, slope_frames
 from .functionals import Correlations, Part, channel_sums, column_phases
 from .wiener import WienerTerms
 
-__all__ = ["CHUNK_LAGS", "CHUNK_ROWS", "NEAR_READS", "NODES", "Cells", "component_planes"]
+__all__ = ["CHUNK_LAGS", "CHUNK_ROWS", "LAG_TABLE_BYTES", "NEAR_READS", "NODES", "Cells",
+           "component_planes"]
 
 #: Row reads from a multiple of the frame time within which the sum over offsets is exact.
 NEAR_READS = 4
@@ -114,7 +117,7 @@ def component_planes(schedule, rows, cols, comps, reduction, nodes=NODES, cells=
     half = np.minimum(cells.ky, ny - cells.ky)
     distinct = np.unique(half)  # the rows of k_y >= 0 the cells need
     _check_memory(schedule, (ny, nx), distinct.size, cells, len(comps), c, wiener)
-    table = _LagTable(schedule, comps, g.channel_width - 1 + c, nodes)
+    table = _lag_table(schedule, comps, g.channel_width - 1 + c, nodes)
     light = _functionals(schedule, rows, cols, cells.kx, c, reduction)  # (pixels, phantom)
     ref = None if wiener else _reference_functionals(schedule, cols, cells.kx, c, reduction,
                                                      ny)
@@ -181,6 +184,36 @@ def _check_memory(schedule, shape, nhalf, cells, ncomp, c, wiener):
                f"slots of {g.nchannels} channel(s)")
 
 
+#: Bytes of lag tables kept (`_lag_table`): a search over row orders reuses one per timing
+#: (~1.5 MB each in the paper's full-size case).
+LAG_TABLE_BYTES = 256 * 2**20
+_lag_tables = OrderedDict()
+
+
+def _lag_table(schedule, comps, half, nodes):
+    """The `_LagTable` of a schedule's timing, computed once for every order of its rows.
+
+    It depends on the schedule only through its timing (the slope covariance, the samples
+    per row read and per frame, the number of read slots), not on which row is read in which
+    slot: the schedules of a search over row orders share it.  The tables most recently
+    used are kept, up to `LAG_TABLE_BYTES`, keyed by the geometry, every readout parameter
+    but those of the row order (``order``, ``skip``, ``ref_reads``, ``ref_mode``), the number
+    of slots, the components, ``half``, ``nodes`` and `CHUNK_LAGS` (the covariance is
+    computed that many lags at a time, which can change its last bits).
+    """
+    timing = {k: v for k, v in schedule.to_dict().items()
+              if k not in ("order", *ORDER_REPLACES)}
+    key = repr((schedule.geometry, sorted(timing.items()), int(_slots(schedule).max()),
+                list(comps), int(half), int(nodes), CHUNK_LAGS))
+    table = _lag_tables.pop(key, None)
+    if table is None:
+        table = _LagTable(schedule, comps, half, nodes)
+    _lag_tables[key] = table
+    while sum(t.nbytes for t in _lag_tables.values()) > LAG_TABLE_BYTES:
+        _lag_tables.popitem(last=False)
+    return table
+
+
 class _LagTable:
     """``S(m R + d)`` of each component at every read-slot lag ``m`` and offset
     difference ``d`` (``|d| <= half``): exact near a singularity, on Chebyshev nodes
@@ -205,6 +238,7 @@ class _LagTable:
         self.s_near = [cov[i, :nnear].reshape(near.sum(), d.size) for i in range(len(comps))]
         self.s_far = [cov[i, nnear:].reshape((~near).sum(), dnodes.size)
                       for i in range(len(comps))]
+        self.nbytes = sum(a.nbytes for a in (*self.s_near, *self.s_far, self.interp))
 
     def far_weights(self, w):
         """``w(m)`` ``(n, 2 slots)`` on the exact lags ``(n, n_near)`` and, for every

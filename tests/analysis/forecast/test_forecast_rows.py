@@ -72,3 +72,23 @@ def test_rows_and_lags_a_chunk_at_a_time_equal_brute_force(monkeypatch):
     monkeypatch.setattr(forecast_rows, "CHUNK_LAGS", 100)
     scene = tiny([PINK_ACN, BOTH, BOTH_COMMON, PHANTOM], scan="alternate")
     check_against_brute_force(scene, *PIPELINES["acn-side-columns"])
+
+
+def test_a_lag_table_serves_every_row_order_of_its_timing_and_no_other_timing():
+    """A search over readouts reuses a timing's lag table for every order of its rows, never
+    for another timing: forecast one after the other (each timing's table kept), the
+    spectra of c = 2, c = 3, a longer frame and r = 6 still equal the brute force."""
+    def readout(**changes):
+        base = {"skip": 3, "ref_reads": 4, "phantom_reads": 2, "nframes": 4,
+                "frame_overhead": 20000}
+        return load_scene({"geometry": {"nrows": 20, "ncols": 20, "nchannels": 2,
+                                        "ref_border": 2},
+                           "readout": {**base, **changes},
+                           "noise": {"components": [PINK_ACN, COMMON]}})
+
+    first, reordered = readout(), readout(skip=5)
+    comps = first.components
+    assert forecast_rows._lag_table(first.schedule, comps, 11, 8) is \
+        forecast_rows._lag_table(reordered.schedule, comps, 11, 8)
+    for changes in ({}, {"phantom_reads": 3}, {"frame_overhead": 15000}, {"ref_reads": 6}):
+        check_against_brute_force(readout(**changes), *PIPELINES["spherex-default"])

@@ -284,11 +284,10 @@ def read_roman(path, input=None, dq_bits=None, **supplied):
         if data is None or data.ndim != 3 or data.dtype.kind not in "iu":
             raise FormatError(f"{path}: data must be a 3-D integer array of resultants, got "
                               f"{'none' if data is None else f'{data.dtype} {data.shape}'}")
-        exposure = _meta(model, "meta.exposure", path)
-        base = roman_schedule(data.shape, _meta(exposure, "read_pattern", path),
-                              _meta(exposure, "frame_time", path),
+        base = roman_schedule(data.shape, _meta(model, "meta.exposure.read_pattern", path),
+                              _meta(model, "meta.exposure.frame_time", path),
                               _meta(model, "meta.instrument.detector", path), path)
-        nres = _meta(exposure, "nresultants", path)
+        nres = _meta(model, "meta.exposure.nresultants", path)
         if nres != data.shape[0]:
             raise FormatError(f"{path}: meta.exposure.nresultants is {nres!r} but data holds "
                               f"{data.shape[0]} resultants")

@@ -163,9 +163,9 @@ def roman_schedule(shape, read_pattern, frame_time, detector, name="file"):
 def _pattern(read_pattern, name):
     """``read_pattern`` as lists of int (checked by the schedule)."""
     try:
-        groups = [[int(r) if not isinstance(r, bool) and float(r) == int(r) else None
-                   for r in reads] for reads in read_pattern]
-    except (TypeError, ValueError, OverflowError):
+        groups = [[int(r) if isinstance(r, (int, np.integer)) and not isinstance(r, bool)
+                   else None for r in reads] for reads in read_pattern]
+    except TypeError:  # not lists
         groups = None
     if not groups or any(None in g or not g for g in groups):
         raise FormatError(f"{name}: meta.exposure.read_pattern must be a list of lists of "

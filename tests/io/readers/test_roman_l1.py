@@ -178,3 +178,22 @@ def test_without_roman_datamodels_one_line_naming_the_extra(files, monkeypatch, 
     assert main(["reduce", str(path), "-c", str(config), "-o", str(out)]) == 2
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert len(err) == 1 and "spherex_reduce[roman]" in err[0] and not out.exists()
+
+
+@pytest.mark.parametrize("pattern, frame_time, detector, message", [
+    ([["1"], [2]], 3.04, "WFI03", r"read_pattern must be a list of lists of read numbers"),
+    ([[1], [2.0]], 3.04, "WFI03", r"read_pattern must be a list of lists"),
+    ([[True], [2]], 3.04, "WFI03", r"read_pattern must be a list of lists"),
+    (5, 3.04, "WFI03", r"read_pattern must be a list of lists"),
+    ([[1], []], 3.04, "WFI03", r"read_pattern must be a list of lists"),
+    ([[1], [2]], float("nan"), "WFI03", r"frame_time is nan"),
+    ([[1], [2]], "3.04", "WFI03", r"frame_time is '3.04'"),
+    ([[1], [2]], 1e30, "WFI03", r"more than the .* a schedule can count"),
+    ([[1], [2]], 3.04, "WFI19", r"detector is 'WFI19', not one of WFI01 \.\.\. WFI18"),
+    ([[1], [2]], 3.04, None, r"detector is None"),
+])
+def test_metadata_of_the_wrong_kind_refused(pattern, frame_time, detector, message):
+    from spherex_reduce.io.readers.roman_l1 import roman_schedule
+
+    with pytest.raises(FormatError, match=message):
+        roman_schedule((2, 16, 64), pattern, frame_time, detector, "x_uncal.asdf")

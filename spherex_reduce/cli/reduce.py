@@ -32,7 +32,8 @@ def add_parser(sub):
         "(--reads-dq MASK.fits: their flags).")
     p.add_argument("input", metavar="IN.fits", nargs="*",
                    help="the raw FITS file to reduce: ramps in readout order (as simulate "
-                   "writes them), another system's ramps, or a 4-D SCI of integrations; "
+                   "writes them), another system's ramps, a 4-D SCI of integrations, or a "
+                   "Roman level-1 ASDF file (read with its own read pattern); "
                    "several files: each reduced on dask into the directory -o")
     p.add_argument("--reads", metavar="GLOB",
                    help="reduce one ramp stored as one file per read: the files the glob "

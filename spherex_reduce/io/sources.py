@@ -34,6 +34,7 @@ from .readers.fits_read import CheckedFITS, Closing, probe
 from .readers.frames import FrameReader, RampReader
 from .readers.read_exposure import read
 from .readers.read_files import ReadFiles
+from .readers.roman_l1 import is_asdf_file
 
 __all__ = ["FileSource", "Input", "MemorySource", "Source", "context_of", "open_input",
            "read_phantom", "side_block", "side_indices"]
@@ -327,6 +328,10 @@ def open_input(what, *, input=None, **supplied):
           (integrations, groups, rows, columns) gives an `Input` with
           ``integrations``; anything else is read whole
           (`~spherex_reduce.io.read`);
+        - the path of a Roman WFI level-1 ASDF file (``roman_datamodels``'
+          ``ScienceRawModel``): its resultants, read whole with the file's
+          own read pattern, frame time and detector
+          (`~spherex_reduce.io.readers.roman_l1.read_roman`);
         - a sequence of paths: one ramp stored as one file per read, in that
           order (`~spherex_reduce.io.readers.read_files.read_file_paths` expands a glob
           such as ``'DIR/read_*.fits'`` in natural order, as ``--reads`` does).
@@ -362,6 +367,8 @@ def open_input(what, *, input=None, **supplied):
     if isinstance(what, (list, tuple)):  # one file per read
         return _read_files(what, options, supplied)
     path = os.fspath(what)
+    if is_asdf_file(path):  # a Roman level-1 file, read whole with its own metadata
+        return Input(path, source=MemorySource(read(path, input=options, **supplied)))
     if options.reads == "extensions":  # one read per SCI extension (HST _raw)
         reader = ExtensionReads(path, input=options, **supplied)
         return Input(path, source=_from_reader(reader, True))

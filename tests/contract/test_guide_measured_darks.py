@@ -1,12 +1,13 @@
 """The Measured darks guide as written: every command it shows runs on the files it describes.
 
 The guide's first example (its doctest) writes ``lab.fits``; its YAML blocks are
-``lab.yaml``, ``nirspec.yaml``, ``wfc3.yaml``, ``corner.yaml`` and ``output.yaml``
-(the windows of a larger array and the HST-like file are tested on their own).  The tests
-build the other inputs the commands name from small arrays (the lab ramps one file per read
-and a mask file for them, a JWST-like 4-D file, a folder of darks, an HST-like file of SCI
-extensions), run every ``spherex-reduce`` command of the page (a new one must be given its
-inputs here) and check the slopes against numpy.
+``lab.yaml``, ``nirspec.yaml``, ``wfc3.yaml``, ``corner.yaml``, ``output.yaml`` and
+``roman.yaml`` (the windows of a larger array, the HST-like file and the Roman file are
+tested on their own).  The tests build the other inputs the commands name from small
+arrays (the lab ramps one file per read and a mask file for them, a JWST-like 4-D file, a
+folder of darks, an HST-like file of SCI extensions, a Roman level-1 file), run every
+``spherex-reduce`` command of the page (a new one must be given its inputs here) and check
+the slopes against numpy.
 """
 
 import hashlib
@@ -29,6 +30,8 @@ RATE = 12.0  # ADU/s of the JWST-like file's light-sensitive pixels
 #: commands of the sections on SCI extensions and on one mask file for the read files: run
 #: by their own test, on their own inputs
 OWN_TEST = ("wfc3.yaml", "--reads-dq")
+#: the command of the section on Roman level-1 files: run by its own test, on a Roman file
+ROMAN_CONFIG = "roman.yaml"
 #: SAMPTIME of the HST-like file's reads, in time order: RAPID, then SPARS10-like gaps (s)
 SAMPTIMES = [0.0, 2.932, 12.933, 22.934, 32.935, 42.936]
 
@@ -92,7 +95,8 @@ def test_every_command_of_the_guide_runs_as_written(tmp_path, monkeypatch, capsy
     for name in ("dark01.fits", "dark02.fits"):
         shutil.copy(tmp_path / "lab.fits", tmp_path / "darks" / name)
     commands = [c for c in _commands(_without(text, LAYOUTS))  # those below: their own tests
-                if not _window_command(c) and not any(own in c for own in OWN_TEST)]
+                if not _window_command(c) and not any(own in c for own in OWN_TEST)
+                and ROMAN_CONFIG not in c]
     commands.sort(key=lambda c: "-o lab_slopes.fits" not in c)  # read by a later one
     assert len(commands) >= 6, commands
     for command in commands:
@@ -313,3 +317,39 @@ def test_extensions_and_mask_file_commands_run_as_written(tmp_path, monkeypatch)
     masked = fits.getdata("dark07_masked.fits", "SCI")
     assert np.isnan(masked[9, 9]) and np.isfinite(np.delete(masked.ravel(), 9 * 16 + 9)).all()
     np.testing.assert_allclose(masked, one, rtol=1e-6)
+
+
+def test_roman_command_runs_as_written(tmp_path, monkeypatch):
+    """``roman.yaml`` (steps alone) on a Roman level-1 file written by roman_datamodels
+    (WFI01: rows read from the last; a 32 x 64 stand-in for the 4096 x 4096 array): each
+    slope is numpy's least squares of the resultants less their reference level on their
+    times."""
+    rdm = pytest.importorskip("roman_datamodels.datamodels")
+    text = GUIDE.read_text()
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / ROMAN_CONFIG).write_text(_yaml_block(text, f"As YAML (``{ROMAN_CONFIG}``)"))
+    pattern = [[1], [2, 3], [4, 5, 6, 7], [8]]
+    t = 3.04 * np.array([np.mean(r) for r in pattern])
+    rng = np.random.default_rng(7)
+    level = np.round(3000 + rng.normal(0, 20, 4))  # a drift per resultant, whole DN
+    data = level[:, None, None] + np.zeros((4, 32, 64))  # the border: the drift alone
+    active = (slice(None), slice(4, -4), slice(4, -4))
+    data[active] += RATE * t[:, None, None] + rng.normal(0, 2, (4, 24, 56))
+    data = np.round(data).astype(np.uint16)
+    model = rdm.ScienceRawModel.create_fake_data(shape=data.shape)
+    model.data, model.amp33 = data, np.zeros((4, 32, 128), np.uint16)
+    model.meta.exposure.read_pattern, model.meta.exposure.nresultants = pattern, 4
+    model.meta.exposure.frame_time = 3.04
+    model.meta.instrument.detector = "WFI01"
+    commands = [c for c in _commands(text) if ROMAN_CONFIG in c]
+    assert len(commands) == 1, commands
+    argv = shlex.split(commands[0])[1:]
+    model.save(argv[1])
+    assert main(["-q", *argv]) == 0, commands[0]
+    slopes = fits.getdata(argv[argv.index("-o") + 1], "SCI")
+    # numpy: every resultant less its reference level (the border rows are that level,
+    # exactly, in every output), then least squares on the resultant times
+    corrected = data[active] - level[:, None, None]
+    design = np.vstack([t, np.ones(4)]).T
+    expected = np.linalg.lstsq(design, corrected.reshape(4, -1), rcond=None)[0][0]
+    np.testing.assert_allclose(slopes[4:-4, 4:-4], expected.reshape(24, 56), rtol=1e-5)

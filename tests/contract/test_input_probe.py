@@ -2315,3 +2315,87 @@ ROUND3_MAPS = [
 @pytest.mark.parametrize("case", ROUND3_MAPS)
 def test_round_three_maps_and_jump_neighbours(case, inputs, runner, tmp_path):
     test_input(case, inputs, runner, tmp_path)
+
+
+# Issue 31: Roman input
+
+_ROMAN_PATTERN = [[1], [2, 3], [4, 5, 6, 7], [8]]  # reads from 1, uneven resultants
+_ROMAN_TIMES = np.array([np.mean(r) for r in _ROMAN_PATTERN]) * 3.04
+_ROMAN_STEPS = "steps:\n  - fit_ramp: {weighting: uniform}\n"
+
+
+def _roman(name="r_uncal.asdf", **exposure):
+    """Setup: a Roman level-1 file written by roman_datamodels (32 x 64 stand-in, WFI01)."""
+    def setup(d):
+        rdm = pytest.importorskip("roman_datamodels.datamodels")
+        rng = np.random.default_rng(31)
+        rate = rng.uniform(5, 60, (32, 64))
+        data = np.round(2000 + rate * _ROMAN_TIMES[:, None, None]
+                        + rng.normal(0, 4, (4, 32, 64))).astype(np.uint16)
+        model = rdm.ScienceRawModel.create_fake_data(shape=data.shape)
+        model.data = data
+        model.amp33 = np.zeros((4, 32, 128), np.uint16)
+        values = {"read_pattern": _ROMAN_PATTERN, "nresultants": 4, "frame_time": 3.04,
+                  **exposure}
+        for key, value in values.items():
+            model.meta.exposure[key] = value
+        model.meta.instrument.detector = "WFI01"
+        model.save(d / name)
+        np.save(d / "r_data.npy", data)
+        (d / "steps.yaml").write_text(_ROMAN_STEPS)
+    return setup
+
+
+def _check_roman_slopes(d, result, run):
+    data = np.load(d / "r_data.npy").astype(np.float64)
+    design = np.vstack([_ROMAN_TIMES, np.ones(4)]).T
+    expected = np.linalg.lstsq(design, data.reshape(4, -1), rcond=None)[0][0].reshape(32, 64)
+    with fits.open(d / "out.fits") as hdul:
+        np.testing.assert_allclose(hdul["SCI"].data, expected, rtol=1e-6, atol=0)
+        assert hdul[0].header["GRPREADS"] == "1;2-3;4-7;8"
+        assert hdul[0].header["DETECTOR"] == "WFI01"
+
+
+def _asdf_bytes(d):
+    """Setup: a plain ASDF file that is no Roman data model."""
+    import asdf
+
+    asdf.AsdfFile({"data": np.arange(12, dtype=np.uint16).reshape(1, 3, 4)}).write_to(
+        d / "r_uncal.asdf")
+    (d / "steps.yaml").write_text(_ROMAN_STEPS)
+
+
+def _cut_roman(d):
+    """Setup: the Roman file cut inside its data block."""
+    path = d / "r_uncal.asdf"
+    path.write_bytes(path.read_bytes()[:-4000])
+
+
+_ROMAN = ["reduce", "r_uncal.asdf", "-c", "steps.yaml", "-o", "out.fits"]
+ROMAN_INPUT = [
+    # an ASDF file was "not a readable FITS file"; now its read pattern, frame time and
+    # detector are the file's (a config of steps alone)
+    works("reduce-roman-level1-steps-only", _ROMAN, _roman(), _check_roman_slopes,
+          timeout=90),
+    refused("reduce-roman-read-pattern-shorter-than-data", _ROMAN,
+            _roman(read_pattern=[[1], [2, 3], [4]]), mentions=r"read_pattern", timeout=90),
+    refused("reduce-roman-placeholder-frame-time", _ROMAN, _roman(frame_time=-999999.0),
+            mentions=r"frame_time", timeout=90),
+    refused("reduce-roman-config-pixel-rate-disagrees",
+            ["reduce", "r_uncal.asdf", "-c", "rate.yaml", "-o", "out.fits"],
+            chain(_roman(), write("rate.yaml", "geometry: {pixel_rate: 2.0e+5}\n"
+                                               + _ROMAN_STEPS)),
+            mentions=r"PIXRATE", timeout=90),
+    refused("reduce-asdf-not-a-roman-model", _ROMAN, _asdf_bytes, mentions=r"asdf",
+            timeout=90),
+    refused("reduce-asdf-magic-then-garbage", _ROMAN,
+            chain(write("r_uncal.asdf", b"#ASDF 1.0.0\n\x00\xff garbage"),
+                  write("steps.yaml", _ROMAN_STEPS)), mentions=r"asdf", timeout=90),
+    refused("reduce-roman-cut-inside-data", _ROMAN, chain(_roman(), _cut_roman),
+            mentions=r"r_uncal\.asdf", timeout=90),
+]
+
+
+@pytest.mark.parametrize("case", ROMAN_INPUT)
+def test_issue31_roman_input(case, inputs, runner, tmp_path):
+    test_input(case, inputs, runner, tmp_path)

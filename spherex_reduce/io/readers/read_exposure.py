@@ -4,14 +4,17 @@ A file in this package's layout, or any FITS file of ramps or an image, is read
 by `~spherex_reduce.io.readers.fits_read.CheckedFITS`; one whose reads are
 ``SCI`` extensions (``input: {reads: extensions}``) by
 `~spherex_reduce.io.readers.extension_reads.ExtensionReads`, itself made of
-the lower readers.
+the lower readers; an ASDF file (a Roman WFI level-1 file) by
+`~spherex_reduce.io.readers.roman_l1.read_roman`.
 """
 
 from dataclasses import replace
 
+from ...core.errors import FormatError
 from ..input import InputOptions
 from .extension_reads import ExtensionReads
 from .fits_read import CheckedFITS
+from .roman_l1 import is_asdf_file, read_roman
 
 __all__ = ["read"]
 
@@ -22,7 +25,10 @@ def read(path, verify_checksum=None, dq_bits=None, input=None, integration=None,
     Parameters
     ----------
     path : str or `pathlib.Path`
-        FITS file.  It is opened read-only and never changed; its pixels are
+        FITS file, or a Roman WFI level-1 ASDF file (recognised by its first
+        bytes, read with its own metadata:
+        `~spherex_reduce.io.readers.roman_l1.read_roman`).  It is opened
+        read-only and never changed; its pixels are
         read with explicit reads (nothing memory-mapped: a file truncated or
         rewritten while it is read is a `FormatError`, never a ``SIGBUS``),
         so the whole file is in memory when this returns (to reduce a
@@ -99,6 +105,11 @@ def read(path, verify_checksum=None, dq_bits=None, input=None, integration=None,
     (dtype('float32'), 60127.0)
     """
     options = InputOptions.from_config(input)
+    if is_asdf_file(path):  # a Roman level-1 file: its own metadata, in its own meaning
+        if integration is not None:
+            raise FormatError(f"{path}: integration={integration} given, but a Roman level-1 "
+                              "file holds one ramp, not integrations")
+        return read_roman(path, input=options, dq_bits=dq_bits, **supplied)
     if options.reads == "extensions":  # one read per SCI extension: a reader of its own
         if dq_bits is not None:
             options = replace(options, dq_bits=dq_bits)

@@ -45,7 +45,7 @@ FITS_SUFFIXES = (".fits", ".fit", ".fts")
 
 
 def fits_stem(path):
-    """A FITS file's name without its compression suffix and FITS extension.
+    """An input file's name without its compression suffix and FITS (or ASDF) extension.
 
     Parameters
     ----------
@@ -60,9 +60,11 @@ def fits_stem(path):
     >>> from spherex_reduce.io.layout import fits_stem
     >>> fits_stem("darks/dark_01.fits.gz"), fits_stem("read_2.FITS"), fits_stem("notes.txt")
     ('dark_01', 'read_2', 'notes.txt')
+    >>> fits_stem("r0000101001001001001_0001_wfi01_uncal.asdf")  # a Roman level-1 file
+    'r0000101001001001001_0001_wfi01_uncal'
     """
     name = Path(path).name
-    for suffixes in (COMPRESSED_SUFFIXES, FITS_SUFFIXES):
+    for suffixes in (COMPRESSED_SUFFIXES, (*FITS_SUFFIXES, ".asdf")):
         for suffix in suffixes:
             if name.lower().endswith(suffix) and len(name) > len(suffix):
                 name = name[:-len(suffix)]

@@ -55,6 +55,10 @@ def _primary(schedule, header, order, unit, nextend):
 
 def _table_hdu(table, name):
     t = table.copy(copy_data=False)
+    for col in list(t.itercols()):
+        if col.dtype == np.int8:  # FITS has no signed byte (astropy writes it as logical:
+            # a 2 read back True); int16 keeps every value, and astropy reads it as integers
+            t.replace_column(col.info.name, col.astype(np.int16))
     generic = {}  # e.g. electron, which FITS lacks: TUNIT in astropy's generic form
     for i, col in enumerate(t.itercols(), start=1):
         if col.unit is not None and not _fits_unit(col.unit):

@@ -25,8 +25,9 @@ The primary header says which model the file is (``DATAMODL``) and when it
 was written (``DATE``); nothing in it claims a JWST observation.  Only an
 exposure read from a JWST file (its header's ``TELESCOP = 'JWST'``) has its
 header cards carried into the primary header, where the JWST pipeline finds
-the instrument, the exposure type and the subarray it needs; the keywords of
-any other file keep their own meanings in ``SXRMETA`` (a lab's
+the instrument and the exposure type it needs, without our readout keywords
+(a reader puts them there in our meanings: ``NFRAMES`` the groups); the
+keywords of any other file keep their own meanings in ``SXRMETA`` (a lab's
 ``DETECTOR = 5`` or our ``FASTAXIS = 'columns'`` in the primary header would
 be read in JWST's meaning, and refused by the schema).
 """
@@ -40,6 +41,7 @@ from astropy.io import fits
 
 from ..core import dq
 from ..core.errors import ConfigError
+from ..core.fields import FIELDS
 from .atomic import atomic_output
 from .fits_write import table_hdu
 from .layout import unit_string
@@ -300,10 +302,16 @@ def _without_structure(header):
 
 
 def _primary(header, model):
-    """``DATAMODL`` and ``DATE``; a JWST file's header cards, no other file's."""
+    """``DATAMODL`` and ``DATE``; a JWST file's header cards (not our readout keywords, which
+    a reader of it adds in our meanings), no other file's."""
     jwst = header is not None and str(header.get("TELESCOP", "")).strip().upper() == "JWST"
     primary = fits.PrimaryHDU(header=_without_structure(header) if jwst else None)
     h = primary.header
+    for f in FIELDS:  # ours (NFRAMES: groups here, frames per group in JWST's)
+        for key in (f.keyword, *(f.side_keywords or ())):
+            h.remove(key, ignore_missing=True, remove_all=True)
+    h.remove("CHANW", ignore_missing=True)
+    h.remove("ORDER", ignore_missing=True)
     h.set("EXTEND", True, after="NAXIS")
     h["DATAMODL"] = (model, "stdatamodels model of this file")
     h["DATE"] = (datetime.datetime.now(datetime.UTC).isoformat(timespec="milliseconds")

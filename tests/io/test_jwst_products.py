@@ -148,20 +148,30 @@ def _fitted(header=None):
 def test_a_jwst_files_header_is_carried_and_no_other(tmp_path):
     """The primary header of a JWST file (as stdatamodels writes it) goes on, so stage 2
     finds the instrument; another file's keywords (a lab's DETECTOR = 5, which the schema
-    refuses) are kept in SXRMETA only, with the readout keywords."""
+    refuses) are kept in SXRMETA only, with the readout keywords, which a JWST file's
+    primary header does not get either (ours: NFRAMES the groups, FASTAXIS a string)."""
     ramp = dm.RampModel(data=np.zeros((1, 4, 8, 8), np.float32))
     ramp.meta.telescope, ramp.meta.instrument.name = "JWST", "NIRCAM"
     ramp.meta.instrument.detector, ramp.meta.exposure.type = "NRCA1", "NRC_IMAGE"
     ramp.meta.subarray.fastaxis, ramp.meta.subarray.slowaxis = -1, 2
     ramp.save(tmp_path / "jw_uncal.fits")
     jwst_header = fits.getheader(tmp_path / "jw_uncal.fits")
-    out = write_jwst(_fitted(jwst_header), tmp_path / "a_rate.fits")
+    for key in ("FASTAXIS", "SLOWAXIS"):  # a reader keeps the file's keywords of our names
+        del jwst_header[key]  # only in its own (JWST's are integers, ours a string)
+    fitted = _fitted(jwst_header)
+    header = fitted.schedule.to_header(fitted.header)  # and adds ours, as a reader does
+    header["FASTAXIS"] = "columns"
+    assert header["NFRAMES"] == 4 and header["TELESCOP"] == "JWST"
+    out = write_jwst(fitted.replace(header=header), tmp_path / "a_rate.fits")
     with dm.ImageModel(out, strict_validation=True) as model:
         model.validate()
         assert (model.meta.telescope, model.meta.instrument.name,
                 model.meta.instrument.detector) == ("JWST", "NIRCAM", "NRCA1")
-        assert model.meta.subarray.fastaxis == -1 and model.meta.model_type == "ImageModel"
+        assert model.meta.model_type == "ImageModel"
+        # our readout keywords (NFRAMES: groups; JWST's: frames per group) are not carried
+        assert model.meta.exposure.nframes is None and model.meta.subarray.fastaxis is None
         np.testing.assert_allclose(model.data, 5.0, rtol=1e-6)
+    assert fits.getheader(out, "SXRMETA")["NFRAMES"] == 4
     lab = fits.Header({"DETECTOR": 5, "OBSERVER": "lab"})
     out = write_jwst(_fitted(lab), tmp_path / "b_rate.fits")
     with dm.ImageModel(out, strict_validation=True) as model:

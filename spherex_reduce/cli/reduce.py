@@ -9,6 +9,7 @@ from ..core.errors import ConfigError
 from ..core.limits import MAX_WORKERS
 from ..io import atomic_output, write
 from ..io.config import shipped_configs
+from ..io.jwst_products import write_jwst
 from ..io.readers.read_files import ReadFiles, read_file_paths
 from ..reduce.integrations import reduce_input
 from ..reduce.provenance import provenance_rows
@@ -54,6 +55,11 @@ def add_parser(sub):
     p.add_argument("--overwrite", action="store_true",
                    help="replace OUT.fits if it exists (several inputs: reduce every file "
                    "again, replacing existing outputs)")
+    p.add_argument("--format", choices=("native", "jwst"), default="native",
+                   help="native (default): this package's file; jwst: a JWST rate file "
+                   "(rateints for a 4-D SCI) that stdatamodels' ImageModel (CubeModel) and "
+                   "the JWST pipeline's stage 2 open: SCI, ERR, DQ in JWST's bits, "
+                   "VAR_POISSON, VAR_RNOISE (needs fit_ramp with a read_noise); one input")
     p.add_argument("--threads", type=count(MAX_WORKERS), default=None, metavar="N",
                    help="bands of rows corrected at once (default: the cores available, "
                    "at most 4); the numbers do not depend on it")
@@ -77,8 +83,13 @@ def run(args):
     elif not args.input:
         raise ConfigError("give the input: IN.fits (one or more), or --reads GLOB")
     elif len(args.input) > 1 or args.workers is not None or args.scheduler is not None:
+        if args.format != "native":
+            raise ConfigError(f"--format {args.format} writes one input's product: reduce "
+                              "the files one at a time")
         return _batch(args)
     pipeline, config_files = input_config(args.config)
+    if args.format == "jwst":
+        _check_variance_parts(pipeline)
     # one input: a file (a 4-D SCI: each integration fitted, their mean with INTSLOPE/INTERR/
     # INTDQ), or the files of one ramp stored one per read; streamed where the steps allow
     what = read_file_paths(args.reads) if args.reads is not None else args.input[0]
@@ -97,11 +108,25 @@ def run(args):
 
 
 def _written(pipeline, result, args, images=None):
-    write(result, args.output, overwrite=args.overwrite, images=images)
+    if args.format == "jwst":  # rateints of the integrations' images, else rate
+        images = images or {}
+        write_jwst(result, args.output, slopes=images.get("INTSLOPE"),
+                   flags=images.get("INTDQ"), overwrite=args.overwrite)
+    else:
+        write(result, args.output, overwrite=args.overwrite, images=images)
     runs = provenance_rows(result.tables)[-len(pipeline.steps):]  # this pipeline's, in order
     status = ", ".join(f"{row['step']}={row['status']}" for row in runs)
     print(f"wrote {args.output} ({status})")
     return 0
+
+
+def _check_variance_parts(pipeline):
+    """``--format jwst``: a ``fit_ramp`` without ``read_noise`` has no VAR_RNOISE and
+    VAR_POISSON to write; refused before reducing (any other fit is checked after)."""
+    for name, params in pipeline.steps:
+        if name == "fit_ramp" and params.get("read_noise") is None:
+            raise ConfigError("--format jwst writes the slope variance's parts (VAR_RNOISE, "
+                              "VAR_POISSON): give fit_ramp a read_noise (and gain)")
 
 
 def _check_reads_alone(args):

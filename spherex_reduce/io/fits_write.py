@@ -29,7 +29,7 @@ from .fits_structure import FITS_BLOCK, DataSum, checksum_text
 from .header_text import header_text
 from .layout import RESERVED, unit_string
 
-__all__ = ["write", "write_frames"]
+__all__ = ["table_hdu", "write", "write_frames"]
 
 
 def _image(data, name, unit=None):
@@ -53,8 +53,24 @@ def _primary(schedule, header, order, unit, nextend):
     return hdu
 
 
-def _table_hdu(table, name):
+def table_hdu(table, name):
+    """A binary-table HDU named ``name`` of ``table`` (not changed), as every file holds its
+    tables: each column of its own type (``int8``, which FITS lacks, as ``int16``), a unit
+    FITS lacks (``electron``) in astropy's generic form, text metadata as header cards.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astropy.table import Table
+    >>> from spherex_reduce.io.fits_write import table_hdu
+    >>> table_hdu(Table({"n": np.array([2], np.int8)}), "T").header["TFORM1"]
+    'I'
+    """
     t = table.copy(copy_data=False)
+    for col in list(t.itercols()):
+        if col.dtype == np.int8:  # FITS has no signed byte (astropy writes it as logical:
+            # a 2 read back True); int16 keeps every value, and astropy reads it as integers
+            t.replace_column(col.info.name, col.astype(np.int16))
     generic = {}  # e.g. electron, which FITS lacks: TUNIT in astropy's generic form
     for i, col in enumerate(t.itercols(), start=1):
         if col.unit is not None and not _fits_unit(col.unit):
@@ -136,7 +152,7 @@ def write(exposure, path, overwrite=False, images=None):
         hdus.append(_image(layout.to_stored(dq.astype(np.int32)), "DQ"))
     if exposure.phantom is not None:
         hdus.append(_image(exposure.phantom, "PHANTOM", unit))
-    hdus.append(_table_hdu(exposure.schedule.to_table(), "READOUT"))
+    hdus.append(table_hdu(exposure.schedule.to_table(), "READOUT"))
     ref = exposure.reference
     if ref is not None:
         hdus.append(_image(ref.data, "REFPIX", unit))
@@ -145,7 +161,7 @@ def write(exposure, path, overwrite=False, images=None):
         if ref.dq is not None:
             hdus.append(_image(np.asarray(ref.dq).astype(np.int32), "REFDQ"))
         times = exposure.schedule.start_times[ref.reads]
-        hdus.append(_table_hdu(Table({"read": ref.reads, "row": ref.rows, "time": times}),
+        hdus.append(table_hdu(Table({"read": ref.reads, "row": ref.rows, "time": times}),
                                "REFREADS"))
     taken = set(RESERVED)
     for name, array in (images or {}).items():
@@ -154,7 +170,7 @@ def write(exposure, path, overwrite=False, images=None):
             values = layout.to_stored(values)
         hdus.append(_image(values, _extra(name, taken, "image"), extra_unit))
     for name, table in exposure.tables.items():
-        hdus.append(_table_hdu(table, _extra(name, taken, "table")))
+        hdus.append(table_hdu(table, _extra(name, taken, "table")))
     hdus.insert(0, _primary(exposure.schedule, exposure.header, exposure.order, unit, len(hdus)))
     with atomic_output(path, overwrite) as tmp:
         fits.HDUList(hdus).writeto(tmp, checksum=True)
@@ -271,7 +287,7 @@ def write_frames(frames, path, schedule, *, header=None, unit=u.electron, dtype=
             while chunk := spill.read(1 << 24):
                 phantom.write_stored(chunk)
             phantom.close()
-        f.write(_hdu_bytes(_table_hdu(schedule.to_table(), "READOUT")))
+        f.write(_hdu_bytes(table_hdu(schedule.to_table(), "READOUT")))
     return out.path
 
 

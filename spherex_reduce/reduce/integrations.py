@@ -28,6 +28,7 @@ from ..core.errors import ConfigError
 from ..core.exposure import Exposure
 from ..core.limits import check_size
 from ..io import integration_count, read, write
+from ..io.jwst_products import variance_parts
 
 __all__ = [
     "INTEGRATION_IMAGES",
@@ -84,32 +85,6 @@ def _parts(result, k):
         sigma = unc.represent_as(StdDevUncertainty).array
     flags = np.zeros(result.shape, np.uint32) if result.dq is None else result.dq
     return result.data.data, sigma, flags
-
-
-def _variance_parts(result):
-    """``(var_rnoise, var_per_rate)`` images of a fit with a read-noise model (``RAMPFIT``'s
-    columns, see `~spherex_reduce.fit_ramp`), in the image's row order, or None.
-
-    ``RAMPFIT`` keeps the row order of the fit (its meta ``order``): slopes fitted in
-    readout order and un-chopped afterwards take, for each physical row, the parts of
-    its first read (a reference row averaged over several reads has its variance
-    overstated by the number of reads, the same factor in every integration, so its
-    weights are unchanged).
-    """
-    table = result.tables.get("RAMPFIT")
-    if table is None or not {"var_rnoise", "var_per_rate"} <= set(table.colnames):
-        return None
-    parts = tuple(np.asarray(table[name], np.float64) for name in ("var_rnoise", "var_per_rate"))
-    fitted = table.meta.get("order", result.order)
-    if fitted == "readout" and result.order == "physical":
-        first = result.schedule.read_of_row()
-        if parts[0].shape[0] != result.schedule.n_reads:
-            return None
-        parts = tuple(np.where(first[:, None] >= 0, p[np.maximum(first, 0)], np.nan)
-                      for p in parts)
-    elif fitted != result.order:
-        return None  # re-chopped: not ours to re-order
-    return parts if parts[0].shape == result.shape else None
 
 
 def combine_integrations(results):
@@ -181,7 +156,7 @@ def combine_integrations(results):
     slopes, sigma, flags = (np.stack(a) for a in zip(*(_parts(r, k)
                                                        for k, r in enumerate(results)),
                                                      strict=True))
-    parts = [_variance_parts(r) for r in results]
+    parts = [variance_parts(r) for r in results]
     if all(p is not None for p in parts):
         rnoise, per_rate = (np.stack(a) for a in zip(*parts, strict=True))
         sigma_used = _pooled_sigma(slopes, flags, rnoise, per_rate)

@@ -2399,3 +2399,44 @@ ROMAN_INPUT = [
 @pytest.mark.parametrize("case", ROMAN_INPUT)
 def test_issue31_roman_input(case, inputs, runner, tmp_path):
     test_input(case, inputs, runner, tmp_path)
+
+
+# Issue 31: JWST-format output
+_FIT_RN = "steps:\n  - fit_ramp: {read_noise: 10.0}\n"  # readout order: slopes not un-chopped
+_JWST = ["--format", "jwst"]
+
+
+def _check_jwst_rate(d, result, run):
+    """The rate file: SCI the native reduction's slopes, ERR**2 the sum of the variances."""
+    assert run(["reduce", "raw.fits", "-c", "rn.yaml", "-o", "native.fits"]).rc == 0
+    with fits.open(d / "j_rate.fits") as j, fits.open(d / "native.fits") as n:
+        assert j[0].header["DATAMODL"] == "ImageModel" and "TELESCOP" not in j[0].header
+        np.testing.assert_array_equal(j["SCI"].data, n["SCI"].data.astype(np.float32))
+        np.testing.assert_allclose(j["ERR"].data.astype(float) ** 2,
+                                   j["VAR_POISSON"].data.astype(float) + j["VAR_RNOISE"].data,
+                                   rtol=1e-6)
+
+
+_RN_UNCHOPPED = write("rn.yaml", "steps:\n  - unchop: {}\n  - fit_ramp: {read_noise: 10.0}\n")
+ROUND4_JWST = [
+    works("reduce-format-jwst-rate", ["reduce", "raw.fits", "-c", "rn.yaml", "-o",
+                                      "j_rate.fits", *_JWST], _RN_UNCHOPPED, _check_jwst_rate),
+    # no read-noise model: no VAR_RNOISE / VAR_POISSON to write; refused before reducing
+    refused("reduce-format-jwst-without-read-noise", [*REDUCE, *_JWST], mentions=r"read_noise"),
+    # slopes of a chopped readout are not an image of the array
+    refused("reduce-format-jwst-in-readout-order", ["reduce", "raw.fits", "-c", "rn.yaml",
+                                                    "-o", "j.fits", *_JWST],
+            write("rn.yaml", _FIT_RN), mentions=r"unchop"),
+    refused("reduce-format-jwst-over-an-existing-file",
+            ["reduce", "raw.fits", "-c", "rn.yaml", "-o", "red.fits", *_JWST], _RN_UNCHOPPED,
+            mentions=r"overwrite"),
+    refused("reduce-format-jwst-of-several-inputs",
+            ["reduce", "raw.fits", "red.fits", "-c", "rn.yaml", "-o", "outdir", *_JWST],
+            _RN_UNCHOPPED, mentions=r"--format"),
+    refused("reduce-format-unknown", [*REDUCE, "--format", "fits2"], mentions=r"--format"),
+]
+
+
+@pytest.mark.parametrize("case", ROUND4_JWST)
+def test_jwst_format_output(case, inputs, runner, tmp_path):
+    test_input(case, inputs, runner, tmp_path)

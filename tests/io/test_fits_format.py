@@ -330,3 +330,66 @@ def test_a_table_column_in_electrons_is_written_without_warning_its_unit_describ
     back = read(path).tables["VARS"]
     assert back["var"].unit == u.electron**2 / u.s**2 and back["rate"].unit == u.adu / u.s
     assert table["var"].unit == u.electron**2 / u.s**2  # the caller's table is unchanged
+
+
+# Issue 31: every table column keeps its type on disk
+def _every_table_reduction():
+    """A small raw exposure through steps that make every table a reduction writes:
+    ``REFOFFS``, ``REFDRIFT``, ``REFTELEG`` (wiener), ``RAMPFIT`` (with the variance's
+    parts), ``HOTPIX`` (sigma_clip), ``PROVENANCE``; the file adds ``READOUT``."""
+    steps = [{"correct_reference": {"strategy": "wiener", "noise": "spherex-table2"}},
+             {"unchop": {}}, {"detect_jumps": {}}, {"fit_ramp": {"read_noise": 10.0}},
+             {"sigma_clip": {"sigma": 2.0}}]
+    return Pipeline({"steps": steps}).run(example_raw_exposure(seed=1))
+
+
+def _stored_dtype(dtype):
+    """The type a column of ``dtype`` has when read back: FITS has no signed byte, so int8 is
+    stored as int16; every other type is kept (native byte order)."""
+    return np.dtype(np.int16) if dtype == np.int8 else dtype.newbyteorder("=")
+
+
+def _check_column(original, got, where):
+    want = _stored_dtype(original.dtype)
+    if original.dtype.kind == "U":  # astropy reads FITS text as bytes unless told otherwise
+        assert got.dtype.kind in "US", where
+        got = np.char.decode(got) if got.dtype.kind == "S" else got
+    else:
+        assert got.dtype.newbyteorder("=") == want, (where, original.dtype, got.dtype)
+    assert got.shape == original.shape, where
+    np.testing.assert_array_equal(np.asarray(got), np.asarray(original), err_msg=where)
+
+
+@pytest.mark.filterwarnings(
+    "ignore:'electron.*did not parse as fits unit:astropy.units.UnitsWarning")
+def test_every_table_column_keeps_its_type_and_values(tmp_path):
+    """RAMPFIT's njumps and nsegments (int8) were written as FITS logicals (TFORM 64L): 2
+    segments read back True, through `read` too.  Every column of every table a reduction
+    writes, and a table of every numeric type, reads back with the same values, with astropy
+    and with `read`, as integers where they were integers."""
+    from astropy.table import Table
+
+    result = _every_table_reduction()
+    assert {"REFOFFS", "REFDRIFT", "REFTELEG", "RAMPFIT", "HOTPIX", "PROVENANCE"} <= set(
+        result.tables)
+    assert (result.tables["RAMPFIT"]["nsegments"] == 2).any()  # the case that was lost
+    kinds = {t: np.zeros((3, 2), t) + np.array([[-2, 1], [0, 2], [100, 3]]).astype(t)
+             for t in ("i1", "i2", "i4", "i8", "u1", "u2", "u4", "u8", "f4", "f8")}
+    every = Table({f"c_{k}": v for k, v in kinds.items()}
+                  | {"flag": np.array([True, False, True]), "text": ["a", "bc", "def"],
+                     "scalar_i1": np.array([-128, 0, 127], np.int8)})
+    tables = {**result.tables, "EVERY": every}
+    path = write(result.replace(tables=tables), tmp_path / "r.fits")
+    back = read(path).tables
+    for name, table in tables.items():
+        direct = Table.read(path, hdu=name)
+        for col in table.colnames:
+            _check_column(table[col], direct[col], f"{name}.{col} (astropy)")
+            _check_column(table[col], back[name][col], f"{name}.{col} (read)")
+    with fits.open(path) as hdul:  # and the file says integers: no logical but the flags
+        forms = {hdul[n].header[f"TTYPE{i}"]: hdul[n].header[f"TFORM{i}"]
+                 for n in ("RAMPFIT", "EVERY") for i in range(1, hdul[n].header["TFIELDS"] + 1)}
+    assert [c for c, f in forms.items() if f.endswith("L")] == ["flag"]
+    assert forms["njumps"].endswith("I") and forms["nsegments"].endswith("I")
+    readout = Table.read(path, hdu="READOUT")
+    np.testing.assert_array_equal(readout["row"], result.schedule.rows)

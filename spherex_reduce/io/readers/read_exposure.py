@@ -11,7 +11,8 @@ from dataclasses import replace
 
 from ..input import InputOptions
 from .extension_reads import ExtensionReads
-from .fits_read import CheckedFITS
+from .fits_read import CheckedFITS, probe
+from .jwst_level1 import JWSTLevel1
 
 __all__ = ["read"]
 
@@ -65,7 +66,9 @@ def read(path, verify_checksum=None, dq_bits=None, input=None, integration=None,
         and the same integration of a 4-D ``ERR``, ``DQ`` or ``PHANTOM`` (a
         ``DQ`` of lower dimension applies to every integration).  A 4-D
         ``SCI`` is refused without it; `~spherex_reduce.reduce_integrations`
-        reduces every integration.
+        reduces every integration.  A JWST file (``TELESCOP = 'JWST'``) is
+        read in its own keywords' meaning, in the detector orientation
+        (`~spherex_reduce.io.readers.jwst_level1.JWSTLevel1`).
     **supplied
         Geometry and readout parameters (``nrows``, ``skip``, ``frame_time``
         ...) used where the header lacks them, e.g. from a pipeline config's
@@ -104,5 +107,10 @@ def read(path, verify_checksum=None, dq_bits=None, input=None, integration=None,
             options = replace(options, dq_bits=dq_bits)
         with ExtensionReads(path, verify_checksum, input=options, **supplied) as reads:
             return reads.exposure()
+    layout = probe(path)
+    if layout is not None and layout.jwst:  # JWST's keywords, in JWST's meaning
+        with JWSTLevel1(path, verify_checksum) as f:
+            return f.exposure(dq_bits=dq_bits, input=options, integration=integration,
+                              **supplied)
     with CheckedFITS(path, verify_checksum) as f:
         return f.exposure(dq_bits=dq_bits, input=options, integration=integration, **supplied)

@@ -117,7 +117,7 @@ class InputOptions:
                 parse_unit(values["unit"])
             except ValueError:
                 raise ConfigError(f"{path}.unit: {values['unit']!r} is not a unit astropy "
-                                  "understands (or ADU, DN, counts)") from None
+                                  "understands (or ADU, DN, counts, ELECTRONS, e-)") from None
         gain = values["gain"]
         if isinstance(gain, list):
             if not gain:

@@ -66,17 +66,25 @@ def _reads_of(lab, folder):
 
 
 def _jwst_uncal(path):
-    """2 integrations of 8 groups of 512 x 512 uint16 ADU, 1.5 s apart, with JWST's own
-    header meanings (NFRAMES = 1 frame per group); reference pixels top and left carry
-    no signal."""
-    t = 1.5 * np.arange(8)
+    """2 integrations of 8 groups of a 512 x 512 NIRSpec NRS1 subarray at the array's
+    corner, uint16 ADU, written by stdatamodels as the JWST pipeline writes them (JWST's
+    own keywords: NFRAMES = 1 frame per group, FASTAXIS = 2, SLOWAXIS = 1).  The array's
+    reference pixels (the first 4 rows and columns of the corner) carry no signal."""
+    from stdatamodels.jwst.datamodels import Level1bModel
+    tframe = (512 + 12) * (512 + 1) * 1e-5  # JWST's frame time of one output
+    t = tframe * np.arange(8)
     ramps = 1000.0 + RATE * t[:, None, None] * np.ones((512, 512))
     ramps[:, :4, :] = 1000.0
     ramps[:, :, :4] = 1000.0
-    sci = np.round(np.stack([ramps, ramps + 5.0])).astype(np.uint16)
-    primary = fits.PrimaryHDU()
-    primary.header.update(NFRAMES=1, NGROUPS=8, NINTS=2, GROUPGAP=0, TFRAME=1.5)
-    fits.HDUList([primary, fits.ImageHDU(sci, name="SCI")]).writeto(path)
+    model = Level1bModel(data=np.round(np.stack([ramps, ramps + 5.0])).astype(np.uint16))
+    model.meta.telescope = "JWST"
+    model.meta.instrument.name, model.meta.instrument.detector = "NIRSPEC", "NRS1"
+    e = model.meta.exposure
+    e.readpatt, e.nints, e.ngroups, e.nframes, e.groupgap = "NRSRAPID", 2, 8, 1, 0
+    e.frame_time, e.group_time, e.noutputs = tframe, tframe, 1
+    s = model.meta.subarray
+    s.xstart, s.ystart, s.xsize, s.ysize, s.fastaxis, s.slowaxis = 1, 1, 512, 512, 2, 1
+    model.save(path)
 
 
 @pytest.mark.slow

@@ -382,8 +382,8 @@ class JWSTLevel1(Closing):
                 header.remove(key, ignore_missing=True)
         for key in ("CHECKSUM", "DATASUM", "ORDER", "NEXTEND", "CHANW"):
             header.remove(key, ignore_missing=True)
-        header["JWFASTAX"] = (fast, "input's FASTAXIS (JWST); data in detector orientation")
-        header["JWSLOWAX"] = (slow, "input's SLOWAXIS (JWST); data in detector orientation")
+        header["JWFASTAX"] = (fast, "JWST input's FASTAXIS; data: detector's")
+        header["JWSLOWAX"] = (slow, "JWST input's SLOWAXIS; data: detector's")
         header["JWSTRT1"] = (first[1] + 1, "first detector column of the data (from 1)")
         header["JWSTRT2"] = (first[0] + 1, "first detector row of the data (from 1)")
         header.add_history("read as a JWST level-1 file: NGROUPS -> NFRAMES, NFRAMES -> "

@@ -49,7 +49,8 @@ def read(path, verify_checksum=None, dq_bits=None, input=None, integration=None,
     input : dict or `~spherex_reduce.io.input.InputOptions`, optional
         What the file needs before the steps, as the ``input:`` section of a
         pipeline config (:ref:`yaml`): ``unit`` (``BUNIT`` when the file lacks
-        it; ADU, DN and counts are read as ``adu``), ``gain`` (e-/ADU, one
+        it; ADU, DN and counts are read as ``adu``, ELECTRONS and e- as
+        ``electron``, ``/S`` as per second), ``gain`` (e-/ADU, one
         number or one per channel: the data, uncertainties and phantom values
         are multiplied by it and become electrons; recorded as ``GAIN``),
         ``drop_first_reads`` (frames left out at the start of every ramp;

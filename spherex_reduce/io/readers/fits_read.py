@@ -332,8 +332,9 @@ class FileLayout:
     order : str
         ``'READOUT'`` or ``'PHYSICAL'`` as keyword ``ORDER`` says (default ``READOUT``).
     jwst : bool
-        The primary header says ``TELESCOP = 'JWST'``: a JWST file, read in its own
-        meaning (`~spherex_reduce.io.readers.jwst_level1.JWSTLevel1`).
+        The primary header says ``TELESCOP = 'JWST'`` and this package did not write
+        the file (`~spherex_reduce.io.readers.flags.is_own_file`): a JWST file, read in
+        its own meaning (`~spherex_reduce.io.readers.jwst_level1.JWSTLevel1`).
     """
 
     names: tuple
@@ -373,8 +374,9 @@ def probe(path):
             with fits.open(path, memmap=False, lazy_load_hdus=True) as hdul:
                 sci = sci_hdu(hdul, path)
                 order = str(hdul[0].header.get("ORDER", "READOUT")).strip().upper()
-                return FileLayout(tuple(h.name for h in hdul), image_shape(sci), order,
-                                  is_jwst(hdul[0].header))
+                names = tuple(h.name for h in hdul)  # ours keep a JWST input's TELESCOP
+                return FileLayout(names, image_shape(sci), order,
+                                  is_jwst(hdul[0].header) and not is_own_file(names))
     except (OSError, KeyError, IndexError, ValueError):  # FormatError is a ValueError
         return None
 

@@ -194,7 +194,7 @@ def test_reduced_file_is_not_converted_twice(tmp_path):
     ({"header": "merge"}, "input.header: 'merge' is not one of ['fill', 'override']"),
     ({"drop_first_reads": -1}, "input.drop_first_reads: must be >= 0, got -1"),
     ({"unit": "furlongs"}, "input.unit: 'furlongs' is not a unit astropy understands "
-                           "(or ADU, DN, counts)"),
+                           "(or ADU, DN, counts, ELECTRONS, e-)"),
     ({"dq_bits": -1}, "input.dq_bits: must be an integer from 0 to 4294967295"),
 ])
 def test_bad_values_refused_in_one_line(section, message):

@@ -1,12 +1,13 @@
 """The Measured darks guide as written: every command it shows runs on the files it describes.
 
 The guide's first example (its doctest) writes ``lab.fits``; its YAML blocks are
-``lab.yaml``, ``nirspec.yaml``, ``wfc3.yaml``, ``corner.yaml`` and ``output.yaml``
-(the windows of a larger array and the HST-like file are tested on their own).  The tests
-build the other inputs the commands name from small arrays (the lab ramps one file per read
-and a mask file for them, a JWST-like 4-D file, a folder of darks, an HST-like file of SCI
-extensions), run every ``spherex-reduce`` command of the page (a new one must be given its
-inputs here) and check the slopes against numpy.
+``lab.yaml``, ``nirspec.yaml``, ``jwst_dark.yaml``, ``wfc3.yaml``, ``corner.yaml`` and
+``output.yaml`` (the windows of a larger array and the HST-like file are tested on their
+own).  The tests build the other inputs the commands name from small arrays (the lab ramps
+one file per read and a mask file for them, a JWST uncal file and a JWST dark reference
+file written by stdatamodels, a folder of darks, an HST-like file of SCI extensions), run
+every ``spherex-reduce`` command of the page (a new one must be given its inputs here) and
+check the slopes against numpy.
 """
 
 import hashlib
@@ -26,6 +27,7 @@ from spherex_reduce.cli import main
 
 GUIDE = ROOT / "docs" / "measured_darks.rst"
 RATE = 12.0  # ADU/s of the JWST-like file's light-sensitive pixels
+DARK, TFRAME_FULL = 0.02, 10.73677  # ADU/s of the JWST dark reference file; its frame time
 #: commands of the sections on SCI extensions and on one mask file for the read files: run
 #: by their own test, on their own inputs
 OWN_TEST = ("wfc3.yaml", "--reads-dq")
@@ -87,6 +89,24 @@ def _jwst_uncal(path):
     model.save(path)
 
 
+def _jwst_dark(path):
+    """A JWST dark reference file as CRDS holds them, written by stdatamodels (DarkModel):
+    here a 512 x 512 NIRSpec NRS1 corner of 4 groups, 3-D float SCI of the dark signal, 2-D
+    DQ, no TFRAME; the dark is DARK ADU/s."""
+    from stdatamodels.jwst.datamodels import DarkModel
+    t = TFRAME_FULL * np.arange(4)
+    data = (DARK * t)[:, None, None] * np.ones((1, 512, 512), "f4")
+    model = DarkModel(data=data, dq=np.zeros((512, 512), np.uint32),
+                      err=np.ones_like(data))
+    model.meta.telescope, model.meta.reftype = "JWST", "DARK"
+    model.meta.instrument.name, model.meta.instrument.detector = "NIRSPEC", "NRS1"
+    e = model.meta.exposure
+    e.readpatt, e.nframes, e.ngroups, e.groupgap = "NRSRAPID", 1, 4, 0
+    s = model.meta.subarray
+    s.xstart, s.ystart, s.xsize, s.ysize, s.fastaxis, s.slowaxis = 1, 1, 512, 512, 2, 1
+    model.save(path)
+
+
 @pytest.mark.slow
 def test_every_command_of_the_guide_runs_as_written(tmp_path, monkeypatch, capsys):
     text = GUIDE.read_text()
@@ -96,6 +116,8 @@ def test_every_command_of_the_guide_runs_as_written(tmp_path, monkeypatch, capsy
     (tmp_path / "nirspec.yaml").write_text(_yaml_block(text, "``nirspec.yaml`` for such a"))
     _reads_of(tmp_path / "lab.fits", tmp_path / "dark07")
     _jwst_uncal(tmp_path / "jw_uncal.fits")
+    (tmp_path / "jwst_dark.yaml").write_text(_yaml_block(text, "As YAML (``jwst_dark.yaml``)"))
+    _jwst_dark(tmp_path / "jwst_nirspec_dark_0046.fits")
     (tmp_path / "darks").mkdir()
     for name in ("dark01.fits", "dark02.fits"):
         shutil.copy(tmp_path / "lab.fits", tmp_path / "darks" / name)
@@ -129,6 +151,9 @@ def test_every_command_of_the_guide_runs_as_written(tmp_path, monkeypatch, capsy
     # the 4-D file: in electrons (gain 2), the light-sensitive slopes are the rate
     jw = fits.getdata("dark.fits", "SCI")
     np.testing.assert_allclose(jw[4:, 4:], 2.0 * RATE, rtol=0.02)
+    # the dark reference file: its dark current, at the config's frame time
+    np.testing.assert_allclose(fits.getdata("nirspec_dark_slopes.fits", "SCI"), DARK,
+                               rtol=1e-5)
     # the folder: one output each and the summary
     assert sorted(p.name for p in (tmp_path / "reduced").iterdir()) == [
         "dark01_reduced.fits", "dark02_reduced.fits", "summary.ecsv"]

@@ -205,3 +205,31 @@ def test_layout_keys_in_the_config_are_refused(tmp_path):
     _uncal(path, "NRCA1")
     with pytest.raises(FormatError, match=r"geometry\.preset does not apply to a JWST file"):
         sr.read(path, integration=0, preset="SIDECAR")
+
+
+def test_a_dark_reference_file_asks_for_its_frame_time(tmp_path):
+    """A CRDS dark reference file (stdatamodels' DarkModel: 3-D float SCI, 2-D DQ, no
+    TFRAME) reads once the config gives readout.frame_time; its DQ keeps JWST's bits."""
+    from stdatamodels.jwst.datamodels import DarkModel
+    t = 10.73677 * np.arange(5)
+    y, x = np.indices((32, 64))
+    data = (0.01 * (1 + x + y))[None] * t[:, None, None]
+    flags = np.zeros((32, 64), np.uint32)
+    flags[20, 30] = dqflags.pixel["DO_NOT_USE"] | dqflags.pixel["HOT"]
+    m = DarkModel(data=data.astype("f4"), dq=flags, err=np.ones_like(data, "f4"))
+    m.meta.telescope, m.meta.reftype = "JWST", "DARK"
+    m.meta.instrument.name, m.meta.instrument.detector = "NIRSPEC", "NRS1"
+    e = m.meta.exposure
+    e.readpatt, e.nframes, e.ngroups, e.groupgap = "NRSRAPID", 1, 5, 0
+    s = m.meta.subarray
+    s.xstart, s.ystart, s.xsize, s.ysize, s.fastaxis, s.slowaxis = 1, 1, 64, 32, 2, 1
+    path = tmp_path / "jwst_nirspec_dark.fits"
+    m.save(path)
+    with pytest.raises(FormatError, match=r"TFRAME missing .* readout\.frame_time"):
+        sr.read(path)
+    pipe = sr.Pipeline({"readout": {"frame_time": 10.73677}, **FIT})
+    out = pipe.run(path)
+    expected = np.swapaxes(_lstsq_slopes(data, t), 0, 1)  # NRS1: the transpose
+    expected[30, 20] = np.nan
+    np.testing.assert_allclose(out.data.data, expected, rtol=1e-5)
+    assert out.dq[30, 20] & dq.DO_NOT_USE

@@ -319,14 +319,16 @@ class JWSTLevel1(Closing):
         for name in given:
             if name not in found or _value(mine, name) == _value(theirs, name):
                 continue
+            have = _value(mine, name)
+            have = f"{have:.10g}" if isinstance(have, float) else have
             key = _SOURCE.get(name, "the layout (FASTAXIS, SUBSTRT, NOUTPUTS)")
             shown = f"{FIELD[name].section}.{name}"
             if options.header == "fill":
-                raise FormatError(f"{path}: {key} gives {name} = {_value(mine, name)} but "
+                raise FormatError(f"{path}: {key} gives {name} = {have} but "
                                   f"{shown} is {given[name]} in the config; remove it from "
                                   "the config (a JWST file states it), or set input.header: "
                                   "override to use the config's")
-            notes.append(f"{path}: {name} = {_value(mine, name)} from {key} replaced by the "
+            notes.append(f"{path}: {name} = {have} from {key} replaced by the "
                          f"config's {given[name]} (input.header: override)")
         return (theirs if options.header == "override" else mine), (fast, slow), first
 

@@ -32,8 +32,10 @@ keywords give the schedule:
 - **unit**: ``BUNIT``, else ``DN`` (ADU): level-1 data are the ASIC's numbers.
 
 The slopes are in the detector orientation; the output header keeps the
-file's orientation as ``JWFASTAX``/``JWSLOWAX`` and its subarray start as
-``JWSTRT1``/``JWSTRT2``.  ``ERR``, ``ZEROFRAME`` and the tables (``GROUP``,
+file's JWST keywords (not ``DATAMODL`` and ``FILENAME``: it is not that
+file), the file's ``FASTAXIS``/``SLOWAXIS`` as ``JWFASTAX``/``JWSLOWAX`` and
+the data's first detector column and row (from 1) as ``JWSTRT1``/``JWSTRT2``.
+``ERR``, ``ZEROFRAME`` and the tables (``GROUP``,
 ``INT_TIMES``, ``ASDF``) are not read.  NIRSpec's IRS2 readout (reference
 pixels interleaved in the rows) and MIRI are refused in one line; so is a
 keyword the schedule needs that the file lacks and the config does not give.
@@ -382,7 +384,7 @@ class JWSTLevel1(Closing):
         for f in FIELDS:  # the file's keywords are JWST's: never read as ours
             for key in (f.keyword, *(f.side_keywords or ())):
                 header.remove(key, ignore_missing=True)
-        for key in ("CHECKSUM", "DATASUM", "ORDER", "NEXTEND", "CHANW"):
+        for key in ("CHECKSUM", "DATASUM", "ORDER", "NEXTEND", "CHANW", "DATAMODL", "FILENAME"):
             header.remove(key, ignore_missing=True)
         header["JWFASTAX"] = (fast, "JWST input's FASTAXIS; data: detector's")
         header["JWSLOWAX"] = (slow, "JWST input's SLOWAXIS; data: detector's")

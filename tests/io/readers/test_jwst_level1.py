@@ -86,6 +86,7 @@ def test_the_bit_table_is_jwsts():
                        jwst["JUMP_DET"]: dq.JUMP, jwst["REFERENCE_PIXEL"]: dq.REFERENCE}
 
 
+@pytest.mark.slow
 def test_full_frame_nircam_uncal_reduces_with_steps_alone(tmp_path):
     """2048 x 2048 in 4 outputs, uint16 as the archive's uncal files; NRCA1 is flipped
     left to right; the reference border is 4 on every side."""

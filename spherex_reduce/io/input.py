@@ -30,7 +30,7 @@ __all__ = ["INPUT_PARAMETERS", "InputOptions", "apply_gain", "parse_unit"]
 #: the ``input:`` section's keys (``gain`` may also be a list, one number per channel)
 INPUT_PARAMETERS = (
     Parameter("unit", None, (str, type(None)),
-              "BUNIT when the file lacks it or spells ADU another way (ADU, DN, counts)"),
+              "BUNIT when the file lacks it (ADU, DN, counts, electron, e-, any case)"),
     Parameter("gain", None, (float, list, type(None)),
               "e- per ADU, one number or one per channel: the data become electrons",
               minimum=0, exclusive_minimum=True),
@@ -48,12 +48,18 @@ INPUT_PARAMETERS = (
 )
 _GAIN = Parameter("gain", None, (float,), "", minimum=0, exclusive_minimum=True)
 #: spellings of ADU in files from other software (case-insensitive, whole words)
-_ADU = re.compile(r"\b(adu|dn|counts)\b", re.IGNORECASE)
+_ADU = re.compile(r"\b(adu|dn|counts?)\b", re.IGNORECASE)
+#: spellings of the electron: ``ELECTRONS`` (HST), ``e-`` (labs), any case
+_ELECTRON = re.compile(r"\belectrons?\b|(?<![\w.])e-(?![\w.])", re.IGNORECASE)
+#: per second written ``/S`` (``DN/S``, ``ELECTRONS/S``): astropy's ``S`` is the siemens
+_PER_SECOND = re.compile(r"/\s*S\b")
 
 
 def parse_unit(text):
     """An astropy unit from a ``BUNIT`` text; ADU, DN and counts (any case) are ``adu``
-    (astropy's own ``DN`` is a different unit: here it means the same as ADU).
+    (astropy's own ``DN`` is a different unit: here it means the same as ADU), and
+    electrons, ``ELECTRONS`` (HST) and ``e-`` are ``electron``; ``/S`` is per second
+    (not astropy's siemens).
 
     Raises
     ------
@@ -65,8 +71,12 @@ def parse_unit(text):
     >>> from spherex_reduce.io.input import parse_unit
     >>> parse_unit("DN / s"), parse_unit("ADU"), parse_unit("electron")
     (Unit("adu / s"), Unit("adu"), Unit("electron"))
+    >>> parse_unit("ELECTRONS/S"), parse_unit("DN/S"), parse_unit("COUNTS"), parse_unit("e-")
+    (Unit("electron / s"), Unit("adu / s"), Unit("adu"), Unit("electron"))
     """
-    return u.Unit(_ADU.sub("adu", str(text).strip()), parse_strict="raise")
+    text = _ELECTRON.sub("electron", _ADU.sub("adu", str(text).strip()))
+    text = _PER_SECOND.sub("/ s", text)
+    return u.Unit(text, parse_strict="raise")
 
 
 @dataclass(frozen=True)
@@ -107,7 +117,7 @@ class InputOptions:
                 parse_unit(values["unit"])
             except ValueError:
                 raise ConfigError(f"{path}.unit: {values['unit']!r} is not a unit astropy "
-                                  "understands (or ADU, DN, counts)") from None
+                                  "understands (or ADU, DN, counts, ELECTRONS, e-)") from None
         gain = values["gain"]
         if isinstance(gain, list):
             if not gain:

@@ -37,7 +37,7 @@ from astropy import units as u
 from ..core.errors import FormatError
 
 __all__ = ["COMPRESSED_SUFFIXES", "FITS_SUFFIXES", "PROVENANCE_COLUMNS", "RESERVED", "fits_stem",
-           "integration_shape", "unit_string"]
+           "integration_shape", "is_jwst", "unit_string"]
 
 #: Compression suffixes and FITS extensions a file name may end with (case-insensitive).
 COMPRESSED_SUFFIXES = (".gz", ".bz2", ".fz", ".z")
@@ -144,3 +144,19 @@ def integration_shape(shape, integration, path):
         raise FormatError(f"{path}: integration={integration!r} is not one of the file's "
                           f"{shape[0]} integrations (0 to {shape[0] - 1})")
     return shape[1:]
+
+
+def is_jwst(header):
+    """Whether a primary header is a JWST file's (``TELESCOP = 'JWST'``): its keywords
+    have JWST's meanings, never this package's
+    (`~spherex_reduce.io.readers.jwst_level1.JWSTLevel1` reads it).
+
+    Examples
+    --------
+    >>> from astropy.io import fits
+    >>> from spherex_reduce.io.layout import is_jwst
+    >>> is_jwst(fits.Header({"TELESCOP": "JWST "})), is_jwst(fits.Header({"NFRAMES": 8}))
+    (True, False)
+    """
+    value = header.get("TELESCOP")
+    return isinstance(value, str) and value.strip().upper() == "JWST"

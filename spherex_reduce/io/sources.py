@@ -32,6 +32,7 @@ from .readers.description import check_integrations
 from .readers.extension_reads import ExtensionReads
 from .readers.fits_read import CheckedFITS, Closing, probe
 from .readers.frames import FrameReader, RampReader
+from .readers.jwst_level1 import JWSTLevel1
 from .readers.read_exposure import read
 from .readers.read_files import ReadFiles
 from .readers.roman_l1 import is_asdf_file
@@ -326,7 +327,9 @@ def open_input(what, *, input=None, **supplied):
           when ``input`` says ``reads: extensions``
           (`~spherex_reduce.io.readers.extension_reads.ExtensionReads`); a 4-D ``SCI``
           (integrations, groups, rows, columns) gives an `Input` with
-          ``integrations``; anything else is read whole
+          ``integrations``; a JWST file (``TELESCOP = 'JWST'``: an ``uncal``
+          file, a dark reference file) is read in its own keywords' meaning
+          (`~spherex_reduce.io.readers.jwst_level1.JWSTLevel1`); anything else is read whole
           (`~spherex_reduce.io.read`);
         - the path of a Roman WFI level-1 ASDF file (``roman_datamodels``'
           ``ScienceRawModel``): its resultants, read whole with the file's
@@ -373,6 +376,8 @@ def open_input(what, *, input=None, **supplied):
         reader = ExtensionReads(path, input=options, **supplied)
         return Input(path, source=_from_reader(reader, True))
     layout = probe(path)  # None: read() below says what is wrong
+    if layout is not None and layout.jwst:  # JWST's keywords, in JWST's meaning
+        return _jwst(path, options, supplied)
     if layout is not None and layout.integrations is not None:
         return _integrations(path, options, supplied)
     if layout is not None and layout.raw_ramps:
@@ -392,6 +397,17 @@ def _integrations(path, options, supplied):
         checked.close()
         raise
     return Input(path, count, checked=checked, options=options, supplied=supplied)
+
+
+def _jwst(path, options, supplied):
+    """A JWST level-1 file (`~spherex_reduce.io.readers.jwst_level1.JWSTLevel1`): its
+    integrations read when asked for, or its one ramp read now."""
+    reader = JWSTLevel1(path)
+    if reader.integrations is not None:
+        return Input(path, reader.integrations, checked=reader, options=options,
+                     supplied=supplied)
+    with reader:
+        return Input(path, source=MemorySource(reader.exposure(input=options, **supplied)))
 
 
 def _read_files(paths, options, supplied):

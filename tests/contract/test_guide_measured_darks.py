@@ -1,11 +1,12 @@
 """The Measured darks guide as written: every command it shows runs on the files it describes.
 
 The guide's first example (its doctest) writes ``lab.fits``; its YAML blocks are
-``lab.yaml``, ``nirspec.yaml``, ``wfc3.yaml``, ``corner.yaml``, ``output.yaml`` and
-``roman.yaml`` (the windows of a larger array, the HST-like file and the Roman file are
-tested on their own).  The tests build the other inputs the commands name from small
-arrays (the lab ramps one file per read and a mask file for them, a JWST-like 4-D file, a
-folder of darks, an HST-like file of SCI extensions, a Roman level-1 file), run every
+``lab.yaml``, ``nirspec.yaml``, ``jwst_dark.yaml``, ``wfc3.yaml``, ``corner.yaml``,
+``output.yaml`` and ``roman.yaml`` (the windows of a larger array, the HST-like file and the
+Roman file are tested on their own).  The tests build the other inputs the commands name
+from small arrays (the lab ramps one file per read and a mask file for them, a JWST uncal
+file and a JWST dark reference file written by stdatamodels, a folder of darks, an HST-like
+file of SCI extensions, a Roman level-1 file written by roman_datamodels), run every
 ``spherex-reduce`` command of the page (a new one must be given its inputs here) and check
 the slopes against numpy.
 """
@@ -27,6 +28,7 @@ from spherex_reduce.cli import main
 
 GUIDE = ROOT / "docs" / "measured_darks.rst"
 RATE = 12.0  # ADU/s of the JWST-like file's light-sensitive pixels
+DARK, TFRAME_FULL = 0.02, 10.73677  # ADU/s of the JWST dark reference file; its frame time
 #: commands of the sections on SCI extensions and on one mask file for the read files: run
 #: by their own test, on their own inputs
 OWN_TEST = ("wfc3.yaml", "--reads-dq")
@@ -69,17 +71,43 @@ def _reads_of(lab, folder):
 
 
 def _jwst_uncal(path):
-    """2 integrations of 8 groups of 512 x 512 uint16 ADU, 1.5 s apart, with JWST's own
-    header meanings (NFRAMES = 1 frame per group); reference pixels top and left carry
-    no signal."""
-    t = 1.5 * np.arange(8)
+    """2 integrations of 8 groups of a 512 x 512 NIRSpec NRS1 subarray at the array's
+    corner, uint16 ADU, written by stdatamodels as the JWST pipeline writes them (JWST's
+    own keywords: NFRAMES = 1 frame per group, FASTAXIS = 2, SLOWAXIS = 1).  The array's
+    reference pixels (the first 4 rows and columns of the corner) carry no signal."""
+    from stdatamodels.jwst.datamodels import Level1bModel
+    tframe = (512 + 12) * (512 + 1) * 1e-5  # JWST's frame time of one output
+    t = tframe * np.arange(8)
     ramps = 1000.0 + RATE * t[:, None, None] * np.ones((512, 512))
     ramps[:, :4, :] = 1000.0
     ramps[:, :, :4] = 1000.0
-    sci = np.round(np.stack([ramps, ramps + 5.0])).astype(np.uint16)
-    primary = fits.PrimaryHDU()
-    primary.header.update(NFRAMES=1, NGROUPS=8, NINTS=2, GROUPGAP=0, TFRAME=1.5)
-    fits.HDUList([primary, fits.ImageHDU(sci, name="SCI")]).writeto(path)
+    model = Level1bModel(data=np.round(np.stack([ramps, ramps + 5.0])).astype(np.uint16))
+    model.meta.telescope = "JWST"
+    model.meta.instrument.name, model.meta.instrument.detector = "NIRSPEC", "NRS1"
+    e = model.meta.exposure
+    e.readpatt, e.nints, e.ngroups, e.nframes, e.groupgap = "NRSRAPID", 2, 8, 1, 0
+    e.frame_time, e.group_time, e.noutputs = tframe, tframe, 1
+    s = model.meta.subarray
+    s.xstart, s.ystart, s.xsize, s.ysize, s.fastaxis, s.slowaxis = 1, 1, 512, 512, 2, 1
+    model.save(path)
+
+
+def _jwst_dark(path):
+    """A JWST dark reference file as CRDS holds them, written by stdatamodels (DarkModel):
+    here a 512 x 512 NIRSpec NRS1 corner of 4 groups, 3-D float SCI of the dark signal, 2-D
+    DQ, no TFRAME; the dark is DARK ADU/s."""
+    from stdatamodels.jwst.datamodels import DarkModel
+    t = TFRAME_FULL * np.arange(4)
+    data = (DARK * t)[:, None, None] * np.ones((1, 512, 512), "f4")
+    model = DarkModel(data=data, dq=np.zeros((512, 512), np.uint32),
+                      err=np.ones_like(data))
+    model.meta.telescope, model.meta.reftype = "JWST", "DARK"
+    model.meta.instrument.name, model.meta.instrument.detector = "NIRSPEC", "NRS1"
+    e = model.meta.exposure
+    e.readpatt, e.nframes, e.ngroups, e.groupgap = "NRSRAPID", 1, 4, 0
+    s = model.meta.subarray
+    s.xstart, s.ystart, s.xsize, s.ysize, s.fastaxis, s.slowaxis = 1, 1, 512, 512, 2, 1
+    model.save(path)
 
 
 @pytest.mark.slow
@@ -91,6 +119,8 @@ def test_every_command_of_the_guide_runs_as_written(tmp_path, monkeypatch, capsy
     (tmp_path / "nirspec.yaml").write_text(_yaml_block(text, "``nirspec.yaml`` for such a"))
     _reads_of(tmp_path / "lab.fits", tmp_path / "dark07")
     _jwst_uncal(tmp_path / "jw_uncal.fits")
+    (tmp_path / "jwst_dark.yaml").write_text(_yaml_block(text, "As YAML (``jwst_dark.yaml``)"))
+    _jwst_dark(tmp_path / "jwst_nirspec_dark_0046.fits")
     (tmp_path / "darks").mkdir()
     for name in ("dark01.fits", "dark02.fits"):
         shutil.copy(tmp_path / "lab.fits", tmp_path / "darks" / name)
@@ -125,6 +155,9 @@ def test_every_command_of_the_guide_runs_as_written(tmp_path, monkeypatch, capsy
     # the 4-D file: in electrons (gain 2), the light-sensitive slopes are the rate
     jw = fits.getdata("dark.fits", "SCI")
     np.testing.assert_allclose(jw[4:, 4:], 2.0 * RATE, rtol=0.02)
+    # the dark reference file: its dark current, at the config's frame time
+    np.testing.assert_allclose(fits.getdata("nirspec_dark_slopes.fits", "SCI"), DARK,
+                               rtol=1e-5)
     # the folder: one output each and the summary
     assert sorted(p.name for p in (tmp_path / "reduced").iterdir()) == [
         "dark01_reduced.fits", "dark02_reduced.fits", "summary.ecsv"]

@@ -2440,3 +2440,92 @@ ROUND4_JWST = [
 @pytest.mark.parametrize("case", ROUND4_JWST)
 def test_jwst_format_output(case, inputs, runner, tmp_path):
     test_input(case, inputs, runner, tmp_path)
+
+
+# Issue 31: JWST input
+
+_JW_RATE, _JW_T = 30.0, 0.0494 * np.arange(4)  # ADU/s; SUB64P-like frame time, 4 groups
+_JW_LIGHT = np.indices((64, 64)).min(axis=0) >= 4  # DMS: the corner's first 4 rows, columns
+
+
+def _jw_uncal(name="jw_uncal.fits", nints=2, **cards):
+    """Setup: a 64 x 64 NIRCam NRCA1 subarray at the array's corner, ``nints`` integrations
+    of 4 groups of uint16 ADU, written by stdatamodels (JWST's keywords: FASTAXIS = -1, an
+    integer; NFRAMES = 1 frame per group), then ``cards`` set in its primary header."""
+    def setup(d):
+        from stdatamodels.jwst.datamodels import Level1bModel
+        ramps = 1000.0 + _JW_RATE * _JW_T[:, None, None] * np.ones((nints, 1, 64, 64))
+        ramps[..., ~_JW_LIGHT] = 1000.0  # the array's reference pixels: no signal
+        m = Level1bModel(data=np.round(ramps).astype(np.uint16))
+        m.meta.telescope = "JWST"
+        m.meta.instrument.name, m.meta.instrument.detector = "NIRCAM", "NRCA1"
+        e = m.meta.exposure
+        e.readpatt, e.nints, e.ngroups, e.nframes, e.groupgap = "RAPID", nints, 4, 1, 0
+        e.frame_time, e.group_time, e.noutputs = 0.0494, 0.0494, 1
+        s = m.meta.subarray
+        s.xstart, s.ystart, s.xsize, s.ysize, s.fastaxis, s.slowaxis = 1, 1, 64, 64, -1, 2
+        m.save(d / name)
+        if cards:
+            with fits.open(d / name, mode="update") as hdul:
+                for key, value in cards.items():
+                    if value is None:
+                        del hdul[0].header[key]
+                    else:
+                        hdul[0].header[key] = value
+    return setup
+
+
+_STEPS_ONLY = "steps:\n  - correct_reference: {strategy: mean}\n  - fit_ramp: {}\n"
+
+
+def _check_jw_slopes(d, result, run):
+    """The light-sensitive slopes are numpy's least squares of the stored counts, in the
+    detector orientation (NRCA1: the DMS image flipped left to right); the output reads
+    back through our own reader (its header keeps TELESCOP, but the file is ours)."""
+    counts = np.round(1000.0 + _JW_RATE * _JW_T)
+    expected = np.polyfit(_JW_T, counts, 1)[0]
+    light = _JW_LIGHT[:, ::-1]
+    with fits.open(d / "out.fits") as hdul:
+        assert hdul["INTSLOPE"].shape == (2, 64, 64)
+        assert hdul[0].header["JWFASTAX"] == -1 and hdul[0].header["NFRAMES"] == 4
+        np.testing.assert_allclose(hdul["SCI"].data[light], expected, rtol=1e-4)
+    back = run(["spectrum", "out.fits", "-o", "pk.ecsv"])
+    assert back.rc == 0, back.describe()
+
+
+JWST_INPUT = [
+    # every JWST file was refused: "keyword FASTAXIS must be a string, got 2"
+    works("reduce-jwst-uncal-with-steps-alone", ["reduce", "jw_uncal.fits", "-c", "jw.yaml",
+                                                 "-o", "out.fits"],
+          chain(_jw_uncal(), write("jw.yaml", "steps: [fit_ramp]\n")), _check_jw_slopes),
+    works("reduce-jwst-uncal-with-reference-correction",
+          ["reduce", "jw_uncal.fits", "-c", "jw.yaml", "-o", "out.fits"],
+          chain(_jw_uncal(), write("jw.yaml", _STEPS_ONLY)), _check_jw_slopes),
+    refused("reduce-jwst-without-tframe", ["reduce", "jw_uncal.fits", "-c", "jw.yaml", "-o",
+                                           "out.fits"],
+            chain(_jw_uncal(TFRAME=None, TGROUP=None), write("jw.yaml", _STEPS_ONLY)),
+            mentions=r"TFRAME.*readout\.frame_time"),
+    refused("reduce-jwst-irs2", ["reduce", "jw_uncal.fits", "-c", "jw.yaml", "-o", "out.fits"],
+            chain(_jw_uncal(READPATT="NRSIRS2"), write("jw.yaml", _STEPS_ONLY)),
+            mentions=r"IRS2"),
+    refused("reduce-jwst-fastaxis-0", ["reduce", "jw_uncal.fits", "-c", "jw.yaml", "-o",
+                                       "out.fits"],
+            chain(_jw_uncal(FASTAXIS=0), write("jw.yaml", _STEPS_ONLY)), mentions=r"FASTAXIS"),
+    refused("reduce-jwst-config-frame-time-disagrees",
+            ["reduce", "jw_uncal.fits", "-c", "jw.yaml", "-o", "out.fits"],
+            chain(_jw_uncal(), write("jw.yaml", "readout: {frame_time: 2.0}\n" + _STEPS_ONLY)),
+            mentions=r"TFRAME.*frame_time.*override"),
+    refused("reduce-jwst-config-preset", ["reduce", "jw_uncal.fits", "-c", "jw.yaml", "-o",
+                                          "out.fits"],
+            chain(_jw_uncal(), write("jw.yaml", "geometry: {preset: SIDECAR}\n" + _STEPS_ONLY)),
+            mentions=r"preset"),
+    refused("reduce-jwst-subsize-disagrees", ["reduce", "jw_uncal.fits", "-c", "jw.yaml",
+                                              "-o", "out.fits"],
+            chain(_jw_uncal(SUBSIZE1=128), write("jw.yaml", _STEPS_ONLY)),
+            mentions=r"SUBSIZE"),
+]
+
+
+@pytest.mark.parametrize("case", JWST_INPUT)
+def test_issue31_jwst_input(case, inputs, runner, tmp_path):
+    test_input(case, inputs, runner, tmp_path)

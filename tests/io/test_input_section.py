@@ -16,6 +16,7 @@ from astropy.io import fits
 from spherex_reduce import DetectorGeometry, Pipeline, ReadoutSchedule, read
 from spherex_reduce.cli import main
 from spherex_reduce.core.errors import ConfigError, FormatError
+from spherex_reduce.reduce.integrations import reduce_input
 
 NFRAMES = 6
 SCHEDULE = ReadoutSchedule(DetectorGeometry(8, 8, 2, ref_border=0), ref_mode="none",
@@ -193,7 +194,7 @@ def test_reduced_file_is_not_converted_twice(tmp_path):
     ({"header": "merge"}, "input.header: 'merge' is not one of ['fill', 'override']"),
     ({"drop_first_reads": -1}, "input.drop_first_reads: must be >= 0, got -1"),
     ({"unit": "furlongs"}, "input.unit: 'furlongs' is not a unit astropy understands "
-                           "(or ADU, DN, counts)"),
+                           "(or ADU, DN, counts, ELECTRONS, e-)"),
     ({"dq_bits": -1}, "input.dq_bits: must be an integer from 0 to 4294967295"),
 ])
 def test_bad_values_refused_in_one_line(section, message):
@@ -330,3 +331,42 @@ def test_reduced_file_reads_again_with_the_config_that_gives_nframes(tmp_path):
     with pytest.raises(FormatError, match=r"NFRAMES \(\+ NDROPRD 1 reads dropped\) is 5 in "
                                           "the file but nframes is 7"):
         fit({"unit": "adu"}, readout={"nframes": NFRAMES + 1}).read(out)
+
+
+# Issue 31: the unit spellings of other systems, and one override warning per file
+
+
+@pytest.mark.parametrize(("bunit", "unit"), [
+    ("ELECTRONS", u.electron), ("electrons", u.electron), ("e-", u.electron),
+    ("DN", u.adu), ("COUNTS", u.adu), ("counts", u.adu)])
+def test_unit_spellings_of_other_systems(tmp_path, bunit, unit):
+    """HST writes ELECTRONS and COUNTS, JWST DN, labs e-: understood as written, and a
+    config stating the same unit agrees with them (no override needed)."""
+    path = write_file(tmp_path / "u.fits", adu_ramps(), bunit=bunit)
+    assert read(path).unit == unit
+    assert read(path, input={"unit": unit.to_string()}).unit == unit
+
+
+@pytest.mark.parametrize("bunit", ["DN/S", "ELECTRONS/S", "COUNTS/S"])
+def test_per_second_is_seconds_not_siemens(bunit):
+    from spherex_reduce.io.input import parse_unit
+    assert parse_unit(bunit) * u.s in (u.adu, u.electron)
+
+
+def test_override_warned_once_per_file_of_integrations(tmp_path, caplog):
+    """A 4-D file read with header: override: one warning per keyword for the file, not one
+    per integration."""
+    values = np.stack([adu_ramps(1), adu_ramps(2), adu_ramps(3)]).astype(np.float32)
+    header = SCHEDULE.to_header(fits.Header())
+    header.remove("FRMOVH")
+    header["TFRAME"], header["BUNIT"] = 0.0376, "ADU"
+    path = tmp_path / "ints.fits"
+    fits.HDUList([fits.PrimaryHDU(header=header), fits.ImageHDU(values, name="SCI")]
+                 ).writeto(path)
+    pipe = fit({"header": "override"}, readout={"frame_time": 0.0188})
+    with caplog.at_level(logging.WARNING):
+        _, images = reduce_input(path, pipe)
+    notes = [r for r in caplog.records if "replaced by the config's 0.0188" in r.getMessage()]
+    assert len(notes) == 1, [r.getMessage() for r in notes]
+    np.testing.assert_allclose(images["INTSLOPE"][2].value, lstsq_slopes(values[2], TIMES),
+                               rtol=1e-5)

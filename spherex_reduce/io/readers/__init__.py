@@ -4,7 +4,7 @@
 ``fits_read`` (our layout and any FITS file, checked), ``description`` (what a
 reader needs before the pixels), ``frames`` (a raw ramp a band of reads at a
 time), ``read_files`` (one file per read), ``extension_reads`` (a ramp's reads
-as ``SCI`` extensions), ``flags`` (whose ``DQ`` bits), ``pixels`` (stored
-integers to physical values), ``stable_file`` (reads of a file that must not
-change).
+as ``SCI`` extensions), ``jwst_level1`` (a JWST file in its own keywords'
+meaning), ``flags`` (whose ``DQ`` bits), ``pixels`` (stored integers to
+physical values), ``stable_file`` (reads of a file that must not change).
 """

@@ -86,10 +86,15 @@ class FileDescription:
     gain: object
     notes: tuple = ()
 
-    def warn(self):
-        """Log the ``input:`` section's overrides, one warning each."""
+    def warn(self, seen=None):
+        """Log the ``input:`` section's overrides, one warning each; with ``seen`` (a set,
+        updated), only those not in it: one warning per keyword per file, however many
+        integrations of it are read."""
         for note in self.notes:
-            log.warning("%s", note)
+            if seen is None or note not in seen:
+                log.warning("%s", note)
+            if seen is not None:
+                seen.add(note)
 
 
 def note_bad_checksums(header, bad, path):

@@ -25,6 +25,7 @@ from ...core.exposure import Exposure, ReferenceReads
 from ...core.fields import card_text
 from ..fits_structure import bad_checksums, scan_hdus
 from ..input import InputOptions, apply_input
+from ..layout import is_jwst
 from .description import describe, file_tables, image_shape, note_bad_checksums, sci_hdu
 from .flags import file_flags, foreign_bits, is_own_file, note_foreign_dq, own_flags
 from .pixels import physical, unpacking
@@ -175,6 +176,7 @@ class CheckedFITS(Closing):
     def __init__(self, path, verify_checksum=None):
         self.path, self._name = Path(path), path  # messages name the path as given
         self.hdul, self.bad, self._stable = open_fits(path, verify_checksum)
+        self._warned = set()  # the input: section's overrides already logged for this file
 
     def close(self):
         """Close the file (arrays already returned stay valid)."""
@@ -189,13 +191,16 @@ class CheckedFITS(Closing):
         parameters) are as for `read`.
         """
         return exposure_from_hdul(self.hdul, self._name, self.bad, self._stable, supplied,
-                                  dq_bits, input, integration)
+                                  dq_bits, input, integration, self._warned)
 
-    def physical(self, hdu):
+    def physical(self, hdu, flags=False, index=None):
         """The data of image HDU ``hdu`` in physical values (``BSCALE``/``BZERO``
-        applied, ``BLANK`` as NaN; as stored if unscaled), or None if it has none."""
+        applied, ``BLANK`` as NaN; as stored if unscaled), or None if it has none.
+
+        ``flags``: the HDU holds integer flags (kept integers); ``index``: read
+        ``data[index]`` only (one integration of a 4-D HDU)."""
         with unpacking(self._name):  # astropy unpacks a compressed file lazily
-            return physical(hdu, self._name, self._stable)
+            return physical(hdu, self._name, self._stable, flags, index)
 
     def note_bad_checksums(self, header):
         """Record in ``header`` (changed in place) which HDUs failed their checksum:
@@ -250,15 +255,17 @@ def open_checked(path, verify_checksum=None):
 
 
 def exposure_from_hdul(hdul, path, bad, stable, supplied, dq_bits=None, options=None,
-                       integration=None):
+                       integration=None, warned=None):
     """The `Exposure` in an HDU list opened by `open_fits` (which the caller closes), its
     pixels read from ``stable`` (the file's `~spherex_reduce.io.readers.stable_file.StableFile`;
-    None for a file astropy unpacks)."""
+    None for a file astropy unpacks).  ``warned``: the overrides already logged for this
+    file (a set, updated: `FileDescription.warn`)."""
     with unpacking(path):  # astropy unpacks a compressed file's tables and pixels lazily
-        return _exposure(hdul, path, bad, stable, supplied, dq_bits, options, integration)
+        return _exposure(hdul, path, bad, stable, supplied, dq_bits, options, integration,
+                         warned)
 
 
-def _exposure(hdul, path, bad, stable, supplied, dq_bits, options, integration):
+def _exposure(hdul, path, bad, stable, supplied, dq_bits, options, integration, warned):
     options = InputOptions.from_config(options)
     if stable is not None:  # the headers and tables below are still those checked
         stable.check()
@@ -308,7 +315,7 @@ def _exposure(hdul, path, bad, stable, supplied, dq_bits, options, integration):
     exposure = Exposure.from_arrays(data, d.kept, unit=d.unit, uncertainty=err, mask=mask,
                                     phantom=phantom, header=d.header, order=d.order,
                                     reference=reference, tables=tables)
-    d.warn()
+    d.warn(warned)
     return exposure
 
 
@@ -324,16 +331,22 @@ class FileLayout:
         The shape of the HDU holding the pixels (``SCI``, else the primary HDU).
     order : str
         ``'READOUT'`` or ``'PHYSICAL'`` as keyword ``ORDER`` says (default ``READOUT``).
+    jwst : bool
+        The primary header says ``TELESCOP = 'JWST'`` and this package did not write
+        the file (`~spherex_reduce.io.readers.flags.is_own_file`): a JWST file, read in
+        its own meaning (`~spherex_reduce.io.readers.jwst_level1.JWSTLevel1`).
     """
 
     names: tuple
     shape: tuple
     order: str
+    jwst: bool = False
 
     @property
     def raw_ramps(self):
-        """3-D ramps in readout order with no ``DQ`` or ``ERR``: a raw ramp file."""
-        return (len(self.shape) == 3 and self.order == "READOUT"
+        """3-D ramps in readout order with no ``DQ`` or ``ERR``: a raw ramp file (not
+        JWST's, whose keywords are not ours)."""
+        return (len(self.shape) == 3 and self.order == "READOUT" and not self.jwst
                 and "DQ" not in self.names and "ERR" not in self.names)
 
     @property
@@ -361,7 +374,9 @@ def probe(path):
             with fits.open(path, memmap=False, lazy_load_hdus=True) as hdul:
                 sci = sci_hdu(hdul, path)
                 order = str(hdul[0].header.get("ORDER", "READOUT")).strip().upper()
-                return FileLayout(tuple(h.name for h in hdul), image_shape(sci), order)
+                names = tuple(h.name for h in hdul)  # ours keep a JWST input's TELESCOP
+                return FileLayout(names, image_shape(sci), order,
+                                  is_jwst(hdul[0].header) and not is_own_file(names))
     except (OSError, KeyError, IndexError, ValueError):  # FormatError is a ValueError
         return None
 

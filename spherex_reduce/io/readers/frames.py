@@ -94,7 +94,8 @@ class FrameReader(RampReader):
         except Exception:
             self.close()
             raise
-        d.warn()
+        self._warned = set()  # one warning per override, also if read whole later
+        d.warn(self._warned)
         #: tables of the file (e.g. ``PROVENANCE``), phantom values ``(frames, reads,
         #: channels)`` or None, and the type the pixels are stored as
         self.tables, self.phantom = self._tables, self._phantom
@@ -106,7 +107,7 @@ class FrameReader(RampReader):
         already open and checked (not opened or verified again)."""
         bad, supplied, options = self._opened
         return exposure_from_hdul(self._hdul, self.path, bad, self._stable, supplied,
-                                  options=options)
+                                  options=options, warned=self._warned)
 
     def scale(self, values):
         """``values`` (reads ``(..., columns)`` as `reads` gives them) multiplied in place

@@ -13,7 +13,8 @@ from dataclasses import replace
 from ...core.errors import FormatError
 from ..input import InputOptions
 from .extension_reads import ExtensionReads
-from .fits_read import CheckedFITS
+from .fits_read import CheckedFITS, probe
+from .jwst_level1 import JWSTLevel1
 from .roman_l1 import is_asdf_file, read_roman
 
 __all__ = ["read"]
@@ -54,7 +55,8 @@ def read(path, verify_checksum=None, dq_bits=None, input=None, integration=None,
     input : dict or `~spherex_reduce.io.input.InputOptions`, optional
         What the file needs before the steps, as the ``input:`` section of a
         pipeline config (:ref:`yaml`): ``unit`` (``BUNIT`` when the file lacks
-        it; ADU, DN and counts are read as ``adu``), ``gain`` (e-/ADU, one
+        it; ADU, DN and counts are read as ``adu``, ELECTRONS and e- as
+        ``electron``, ``/S`` as per second), ``gain`` (e-/ADU, one
         number or one per channel: the data, uncertainties and phantom values
         are multiplied by it and become electrons; recorded as ``GAIN``),
         ``drop_first_reads`` (frames left out at the start of every ramp;
@@ -71,7 +73,9 @@ def read(path, verify_checksum=None, dq_bits=None, input=None, integration=None,
         and the same integration of a 4-D ``ERR``, ``DQ`` or ``PHANTOM`` (a
         ``DQ`` of lower dimension applies to every integration).  A 4-D
         ``SCI`` is refused without it; `~spherex_reduce.reduce_integrations`
-        reduces every integration.
+        reduces every integration.  A JWST file (``TELESCOP = 'JWST'``) is
+        read in its own keywords' meaning, in the detector orientation
+        (`~spherex_reduce.io.readers.jwst_level1.JWSTLevel1`).
     **supplied
         Geometry and readout parameters (``nrows``, ``skip``, ``frame_time``
         ...) used where the header lacks them, e.g. from a pipeline config's
@@ -115,5 +119,10 @@ def read(path, verify_checksum=None, dq_bits=None, input=None, integration=None,
             options = replace(options, dq_bits=dq_bits)
         with ExtensionReads(path, verify_checksum, input=options, **supplied) as reads:
             return reads.exposure()
+    layout = probe(path)
+    if layout is not None and layout.jwst:  # JWST's keywords, in JWST's meaning
+        with JWSTLevel1(path, verify_checksum) as f:
+            return f.exposure(dq_bits=dq_bits, input=options, integration=integration,
+                              **supplied)
     with CheckedFITS(path, verify_checksum) as f:
         return f.exposure(dq_bits=dq_bits, input=options, integration=integration, **supplied)

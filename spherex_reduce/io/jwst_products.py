@@ -45,6 +45,7 @@ from ..core.fields import FIELDS
 from .atomic import atomic_output
 from .fits_write import table_hdu
 from .layout import unit_string
+from .readers.jwst_level1 import dms_keywords, dms_view
 
 __all__ = ["JWST_PIXEL", "jwst_dq", "variance_parts", "write_jwst"]
 
@@ -257,9 +258,14 @@ def write_jwst(exposure, path, *, slopes=None, flags=None, overwrite=False):
     var_poisson[unusable] = np.nan
     rnoise = np.where(unusable, np.nan, rnoise)
     err = np.sqrt(var_poisson + rnoise)
-    stored = g.layout.to_stored
+    dms = dms_keywords(exposure.header, (g.stored_geometry.nrows, g.stored_geometry.ncols))
+
+    def stored(image):  # the file's orientation: a JWST input's DMS one, as it came
+        image = g.layout.to_stored(image)
+        return dms_view(image, dms["FASTAXIS"], dms["SLOWAXIS"]) if dms else image
+
     name = _bunit(unit)
-    hdus = [_primary(exposure.header, model),
+    hdus = [_primary(exposure.header, model, dms),
             _image(stored(sci), "SCI", name), _image(stored(err), "ERR", name),
             fits.ImageHDU(stored(jwst_dq(flag_images)), name="DQ"),
             _image(stored(var_poisson), "VAR_POISSON", _bunit(unit**2)),
@@ -301,9 +307,11 @@ def _without_structure(header):
     return out
 
 
-def _primary(header, model):
+def _primary(header, model, dms):
     """``DATAMODL`` and ``DATE``; a JWST file's header cards (not our readout keywords, which
-    a reader of it adds in our meanings), no other file's."""
+    a reader of it adds in our meanings, but its orientation, subarray and frames per group
+    in JWST's: ``dms``, `~spherex_reduce.io.readers.jwst_level1.dms_keywords`), no other
+    file's."""
     jwst = header is not None and str(header.get("TELESCOP", "")).strip().upper() == "JWST"
     primary = fits.PrimaryHDU(header=_without_structure(header) if jwst else None)
     h = primary.header
@@ -312,6 +320,12 @@ def _primary(header, model):
             h.remove(key, ignore_missing=True, remove_all=True)
     h.remove("CHANW", ignore_missing=True)
     h.remove("ORDER", ignore_missing=True)
+    if dms:
+        for key in ("JWFASTAX", "JWSLOWAX", "JWSTRT1", "JWSTRT2"):
+            h.remove(key, ignore_missing=True)
+        h.update(dms)
+        # JWST's NFRAMES: frames averaged into a group (ours, NFRGRP, written when not 1)
+        h["NFRAMES"] = (int(header.get("NFRGRP", 1)), "number of frames per group")
     h.set("EXTEND", True, after="NAXIS")
     h["DATAMODL"] = (model, "stdatamodels model of this file")
     h["DATE"] = (datetime.datetime.now(datetime.UTC).isoformat(timespec="milliseconds")

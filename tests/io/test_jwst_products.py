@@ -191,3 +191,42 @@ def test_written_atomically_and_never_over_a_file(tmp_path):
     write_jwst(_fitted(), path, overwrite=True)
     assert fits.getheader(path)["DATAMODL"] == "ImageModel"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["x_rate.fits"]
+
+
+@pytest.mark.parametrize(("detector", "axes"), [("NRS1", (2, 1)), ("NRCA1", (-1, 2)),
+                                               ("NRS2", (-2, -1))])
+@pytest.mark.parametrize("nints", [1, 2])
+def test_a_jwst_input_comes_back_in_its_own_orientation_and_subarray(tmp_path, detector,
+                                                                     axes, nints):
+    """A JWST uncal file (stdatamodels) reduced with --format jwst: the slopes in the file's
+    DMS orientation (the reader works in the detector's), its subarray, axes and frames per
+    group in JWST's keywords, so stage 2 places the image where the uncal file was."""
+    fast, slow = axes
+    ny, nx, ngroups, nframes = 32, 64, 4, 1
+    along, rows = (nx, ny) if abs(fast) == 1 else (ny, nx)  # detector columns, rows
+    tframe = (along + 12) * (rows + 1) * 1e-5
+    t = tframe * np.arange(ngroups)
+    y, x = np.indices((ny, nx))
+    rates = (50.0 + 0.5 * x + 0.25 * y)[None] + 40.0 * np.arange(nints)[:, None, None]
+    ramp = dm.RampModel(data=(1000.0 + rates[:, None] * t[None, :, None, None]).astype("f4"))
+    ramp.meta.telescope, ramp.meta.instrument.name = "JWST", "NIRSPEC" if detector.startswith(
+        "NRS") else "NIRCAM"
+    ramp.meta.instrument.detector = detector
+    e = ramp.meta.exposure
+    e.readpatt, e.nints, e.ngroups, e.nframes, e.groupgap = "RAPID", nints, ngroups, nframes, 0
+    e.frame_time, e.group_time, e.noutputs = tframe, tframe, 1
+    s = ramp.meta.subarray
+    (s.xstart, s.ystart), (s.ysize, s.xsize), (s.fastaxis, s.slowaxis) = (3, 1), (ny, nx), axes
+    ramp.save(tmp_path / "jw_uncal.fits")
+    config = tmp_path / "fit.yaml"
+    config.write_text(f"steps:\n  - fit_ramp: {{read_noise: {READ_NOISE}}}\n")
+    out = tmp_path / "jw_rate.fits"
+    assert run("reduce", tmp_path / "jw_uncal.fits", "-c", config, "-o", out,
+               "--format", "jwst") == 0
+    with dm.CubeModel(out, strict_validation=True) as m:  # rateints: a 4-D SCI
+        m.validate()
+        np.testing.assert_allclose(m.data, rates, rtol=1e-5)
+        sub = m.meta.subarray
+        assert (sub.xstart, sub.ystart, sub.xsize, sub.ysize, sub.fastaxis, sub.slowaxis) == (
+            3, 1, nx, ny, fast, slow)
+        assert m.meta.exposure.nframes == nframes and m.meta.instrument.detector == detector

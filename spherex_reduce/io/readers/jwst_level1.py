@@ -60,7 +60,7 @@ from .description import image_shape
 from .fits_read import CheckedFITS, Closing
 from .flags import DEFAULT_DQ_BITS, current_dq_bits, flag_bits
 
-__all__ = ["JWST_DQ", "JWSTLevel1", "detector_view"]
+__all__ = ["JWST_DQ", "JWSTLevel1", "detector_view", "dms_keywords", "dms_view"]
 
 log = logging.getLogger(__name__)
 
@@ -113,6 +113,53 @@ def detector_view(array, fast, slow):
     if slow < 0:
         out = out[..., ::-1, :]
     return out
+
+
+def dms_view(array, fast, slow):
+    """``array`` in the detector orientation brought back to the DMS one: the inverse of
+    `detector_view` (what a JWST product of a JWST input is written in).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.io.readers.jwst_level1 import detector_view, dms_view
+    >>> a = np.arange(6).reshape(2, 3)
+    >>> all(np.array_equal(dms_view(detector_view(a, f, s), f, s), a)
+    ...     for f, s in ((1, 2), (-1, 2), (1, -2), (2, 1), (-2, -1), (2, -1)))
+    True
+    """
+    out = array[..., ::-1, :] if slow < 0 else array
+    if fast < 0:
+        out = out[..., :, ::-1]
+    return np.swapaxes(out, -1, -2) if abs(fast) == 2 else out
+
+
+def dms_keywords(header, shape):
+    """The JWST keywords of a JWST input that its reader turned into ours, in JWST's
+    meaning again: ``FASTAXIS``, ``SLOWAXIS`` and the subarray (``SUBSTRT1/2``,
+    ``SUBSIZE1/2``, DMS pixels from 1) of data of ``shape`` (rows, columns, detector
+    orientation), or an empty dict for a header without ``JWFASTAX`` (not a JWST input).
+
+    Examples
+    --------
+    >>> from astropy.io import fits
+    >>> from spherex_reduce.io.readers.jwst_level1 import dms_keywords
+    >>> h = fits.Header({"JWFASTAX": 2, "JWSLOWAX": 1, "JWSTRT1": 1, "JWSTRT2": 3})
+    >>> dms_keywords(h, (64, 32))  # NRS1: the transpose
+    {'FASTAXIS': 2, 'SLOWAXIS': 1, 'SUBSTRT1': 3, 'SUBSTRT2': 1, 'SUBSIZE1': 64, 'SUBSIZE2': 32}
+    """
+    if "JWFASTAX" not in header:
+        return {}
+    fast, slow = int(header["JWFASTAX"]), int(header["JWSLOWAX"])
+    (y0, x0), (ny, nx) = (int(header["JWSTRT2"]) - 1, int(header["JWSTRT1"]) - 1), shape
+    if slow < 0:
+        y0 = FULL - y0 - ny
+    if fast < 0:
+        x0 = FULL - x0 - nx
+    if abs(fast) == 2:
+        (x0, nx), (y0, ny) = (y0, ny), (x0, nx)
+    return {"FASTAXIS": fast, "SLOWAXIS": slow, "SUBSTRT1": x0 + 1, "SUBSTRT2": y0 + 1,
+            "SUBSIZE1": nx, "SUBSIZE2": ny}
 
 
 def _detector_window(fast, slow, start, size):

@@ -123,3 +123,28 @@ def test_white_closed_form_and_table_sum():
     assert expected_slope_variance(noise_components()["bias_phantom_only"], s).value == 0
     ph = expected_slope_variance(noise_components()["bias_phantom_only"], s, kind="phantom")
     assert ph.value > 0
+
+
+def test_g_power_at_multiples_of_pi_is_the_series_without_its_sine_terms():
+    """Given ``cos z`` (``z`` a multiple of pi, ``sin z = 0``), the tail series of
+    ``G_e`` drops its sine terms: the same numbers, to the last digit, as the full series
+    written out here with ``sin z = 0``, and within 1e-12 of it with ``sin`` and ``cos``
+    of ``z`` computed; a non-finite ``cos z`` falls back to the trigonometric functions."""
+    from scipy import special
+
+    from spherex_reduce.noise.structure_functions import g_power
+
+    rng = np.random.default_rng(7)
+    n = rng.integers(13, 10**6, 500).astype(float)
+    z = np.pi * n
+    for e in (0.7, 1.3, 2.2):
+        cos_z = 1.0 - 2.0 * (n % 2)
+        k_e = np.pi / (2 * special.gamma(e) * np.sin(np.pi * (e - 1) / 2))
+        s, c, inv, zme = np.zeros_like(z), cos_z, 1 / z, z ** (-e)
+        tail = zme * (-s + inv * (e * c + inv * (e * (e + 1) * s - inv * (
+            e * (e + 1) * (e + 2) * c + inv * e * (e + 1) * (e + 2) * (e + 3) * s))))
+        expect = k_e - z * zme / (e - 1) + tail
+        assert np.array_equal(g_power(z, e, cos_z), expect)
+        np.testing.assert_allclose(g_power(z, e), expect, rtol=1e-12)
+        some = np.where(np.arange(z.size) % 3 == 0, np.nan, cos_z)
+        np.testing.assert_allclose(g_power(z, e, some), expect, rtol=1e-12)

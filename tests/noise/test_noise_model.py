@@ -148,3 +148,20 @@ def test_g_power_at_multiples_of_pi_is_the_series_without_its_sine_terms():
         np.testing.assert_allclose(g_power(z, e), expect, rtol=1e-12)
         some = np.where(np.arange(z.size) % 3 == 0, np.nan, cos_z)
         np.testing.assert_allclose(g_power(z, e, some), expect, rtol=1e-12)
+
+
+def test_a_builtin_table_s_components_are_parsed_once_and_handed_out_as_new_dicts():
+    """A search loads the paper's table for every schedule: its components are parsed once,
+    each call gets its own dict (changing one changes no other), the same components as the
+    table's rows read here."""
+    from spherex_reduce.noise.components import load_noise_table, noise_components
+
+    first = noise_components("spherex-table2")
+    first.pop("roic")
+    again = noise_components("spherex-table2")
+    table = load_noise_table("spherex-table2")
+    assert list(again) == [str(n) for n in table["name"]]
+    for row in table:
+        comp = again[str(row["name"])]
+        assert comp.alpha == float(row["alpha"]) and comp.beta == float(row["beta"])
+        assert comp.gamma == float(row["gamma"]) and comp.scope == str(row["scope"])

@@ -30,7 +30,7 @@ from ..io.config import load_yaml
 from ..reduce.pipeline import as_pipeline
 from ..simulation import simulate, simulate_to_fits
 from .light import light_sensitive_image
-from .spectrum import BAND_KMAX, BAND_KMIN, band_power, power_spectrum
+from .spectrum import BAND_KMAX, BAND_KMIN, band_power, power_spectra
 
 __all__ = ["MAX_BINS", "MAX_REALIZATIONS", "MEASURE", "PIPELINES", "REALIZATIONS", "SCENE",
            "SEED", "CaseResult", "SpectrumMeasure", "measure_section", "pipeline_section",
@@ -114,10 +114,10 @@ class SpectrumMeasure:
     def __call__(self, image):
         kw = {"exclude_horizontal": bool(self.exclude_horizontal),
               "mask_sources": bool(self.mask_sources)}
-        spec = power_spectrum(image, bins=self.edges(np.shape(getattr(image, "data", image))),
-                              **kw)
+        edges = self.edges(np.shape(getattr(image, "data", image)))
+        spec, band = power_spectra(image, [edges, [self.kmin, self.kmax]], **kw)  # one FFT
         k, power = self.every_bin(spec)
-        bp, err = band_power(image, self.kmin, self.kmax, return_error=True, **kw)
+        bp, err = band_power(band, self.kmin, self.kmax, return_error=True)
         data = np.asarray(getattr(image, "data", image), dtype=float)
         good = np.isfinite(data)
         if getattr(image, "mask", None) is not None:

@@ -43,6 +43,7 @@ __all__ = [
     "cross_spectrum",
     "fft_magnitude",
     "k_from_theta",
+    "power_spectra",
     "power_spectrum",
     "theta_from_k",
 ]
@@ -393,10 +394,39 @@ def power_spectrum(image, pixel_scale=SPHEREX_PIXEL_SCALE, mask=None, bins=30,
     >>> bool(np.all(abs(t["power"].value - 4) < 4 * t["power_err"].value)), t["power"].unit
     (True, Unit("electron2 pix2 / s2"))
     """
+    return power_spectra(image, [bins], pixel_scale, mask, mask_sources, exclude_horizontal)[0]
+
+
+def power_spectra(image, binnings, pixel_scale=SPHEREX_PIXEL_SCALE, mask=None,
+                  mask_sources=False, exclude_horizontal=False):
+    """`power_spectrum` of one image in several binnings, from one FFT (and source mask).
+
+    Parameters
+    ----------
+    image, pixel_scale, mask, mask_sources, exclude_horizontal
+        As `power_spectrum`.
+    binnings : sequence
+        Each a ``bins`` of `power_spectrum`.
+
+    Returns
+    -------
+    list of `~astropy.table.Table`
+        ``power_spectrum(image, bins=b, ...)`` for every ``b`` of ``binnings``, in order.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.analysis.spectrum import power_spectra, power_spectrum
+    >>> img = np.random.default_rng(1).normal(0, 2, (64, 64))
+    >>> t8, band = power_spectra(img, [8, [0.2, 1.0]])
+    >>> len(t8), bool(band["power"][0] == power_spectrum(img, bins=[0.2, 1.0])["power"][0])
+    (8, True)
+    """
     data, bad, unit = _as_image(image, mask)
     if mask_sources:
         bad = bad | source_mask(np.where(bad, np.nan, data), mask=bad)
-    return _binned_spectrum(data, None, bad, unit, unit, bins, pixel_scale, exclude_horizontal)
+    return _binned_spectra(data, None, bad, unit, unit, binnings, pixel_scale,
+                           exclude_horizontal)
 
 
 def cross_spectrum(image, other, pixel_scale=SPHEREX_PIXEL_SCALE, mask=None, bins=30,
@@ -445,14 +475,16 @@ def cross_spectrum(image, other, pixel_scale=SPHEREX_PIXEL_SCALE, mask=None, bin
         raise SpherexReduceError(f"cross_spectrum: the images differ in shape, {data.shape} "
                                  f"and {data_b.shape}")
     bad = bad | bad_b
-    return _binned_spectrum(data, data_b, bad, unit, unit_b, bins, pixel_scale,
-                            exclude_horizontal)
+    return _binned_spectra(data, data_b, bad, unit, unit_b, [bins], pixel_scale,
+                           exclude_horizontal)[0]
 
 
-def _binned_spectrum(data, data_b, bad, unit, unit_b, bins, pixel_scale, exclude_horizontal):
-    """The table of `power_spectrum` (``data_b`` None) or `cross_spectrum`: one implementation."""
+def _binned_spectra(data, data_b, bad, unit, unit_b, binnings, pixel_scale,
+                    exclude_horizontal):
+    """The tables of `power_spectrum` (``data_b`` None) or `cross_spectrum`, one per
+    binning: one implementation."""
     ny, nx = data.shape
-    edges = k_bin_edges(bins, ny, nx)
+    edges = [k_bin_edges(bins, ny, nx) for bins in binnings]
     x, fgood = _prepared(data, bad)
     f = scipy.fft.rfft2(x, workers=-1)
     del x
@@ -467,8 +499,8 @@ def _binned_spectrum(data, data_b, bad, unit, unit_b, bins, pixel_scale, exclude
         var = (np.abs(f) ** 2 * np.abs(g) ** 2 + p * p) / 2
         del g
     del f
-    return spectrum_table(p, (ny, nx), edges, unit * unit_b, fgood, pixel_scale,
-                          exclude_horizontal, var)
+    return [spectrum_table(p, (ny, nx), e, unit * unit_b, fgood, pixel_scale,
+                           exclude_horizontal, var) for e in edges]
 
 
 def spectrum_table(p, shape, edges, unit, fgood=1.0, pixel_scale=SPHEREX_PIXEL_SCALE,
@@ -565,6 +597,8 @@ def band_power(spectrum, kmin=BAND_KMIN, kmax=BAND_KMAX, return_error=False, **k
     lo, hi = float(_k_value(kmin)), float(_k_value(kmax))
     if not 0 <= lo < hi:
         raise SpherexReduceError(f"band needs 0 <= kmin < kmax, got kmin={lo}, kmax={hi}")
+    if isinstance(spectrum, Table) and len(spectrum) == 0 and "shape" in spectrum.meta:
+        raise _empty_band(spectrum.meta["shape"], lo, hi)
     if isinstance(spectrum, Table):
         for col in ("k", "power", "power_err", "nmodes", "k_lo", "k_hi"):
             if col not in spectrum.colnames:
@@ -587,18 +621,26 @@ def band_power(spectrum, kmin=BAND_KMIN, kmax=BAND_KMAX, return_error=False, **k
         n = np.asarray(spectrum["nmodes"][sel], dtype=float)
         pw = u.Quantity(spectrum["power"][sel])
         pe = u.Quantity(spectrum["power_err"][sel])
-        power = (pw * n).sum() / n.sum()
-        error = np.sqrt(((pe * n) ** 2).sum()) / n.sum()
+        if n.size == 1:  # the band's own bin: the image's number to the last digit
+            power, error = pw[0], pe[0]
+        else:
+            power = (pw * n).sum() / n.sum()
+            error = np.sqrt(((pe * n) ** 2).sum()) / n.sum()
     else:
         t = power_spectrum(spectrum, bins=[lo, hi], **kwargs)
         if len(t) == 0:
-            ny, nx = t.meta["shape"]
-            side = max(ny, nx)
-            raise EmptyBandError(
-                f"no Fourier mode of the {ny} x {nx} image has {lo:g} <= k <= {hi:g} rad/pixel "
-                f"(its lowest k is 2 pi/{side} = {2 * np.pi / side:.3g} rad/pixel)")
+            raise _empty_band(t.meta["shape"], lo, hi)
         power, error = u.Quantity(t["power"])[0], u.Quantity(t["power_err"])[0]
     return (power, error) if return_error else power
+
+
+def _empty_band(shape, lo, hi):
+    """The `EmptyBandError` of an image of ``shape`` with no mode in ``lo <= k <= hi``."""
+    ny, nx = shape
+    side = max(ny, nx)
+    return EmptyBandError(
+        f"no Fourier mode of the {ny} x {nx} image has {lo:g} <= k <= {hi:g} rad/pixel "
+        f"(its lowest k is 2 pi/{side} = {2 * np.pi / side:.3g} rad/pixel)")
 
 
 class FFTImage(NamedTuple):

@@ -239,7 +239,18 @@ def noise_components(source="spherex-table2"):
     >>> comps["roic"].visibility, comps["bias_correlated"].scope
     ('pixels', 'common')
     """
-    table = load_noise_table(source)
+    if str(source) in BUILTIN_TABLES:  # parsed once per process (components are frozen)
+        return dict(_builtin_components(str(source)))
+    return _components_of(load_noise_table(source))
+
+
+@functools.cache
+def _builtin_components(name):
+    return _components_of(load_noise_table(name))
+
+
+def _components_of(table):
+    """``{name: NoiseComponent}`` of the rows of a noise table."""
     out = {}
     for i, row in enumerate(table):
         kw = {"name": str(row["name"])}

@@ -198,13 +198,17 @@ def g_power(z, e, cos_z=None, z_e1=None):
     inv = 1 / zb
     if cos_z is None:
         s, c = np.sin(zb), np.cos(zb)
-    else:
+        tail = zme * (-s + inv * (e * c + inv * (e * (e + 1) * s - inv * (
+            e * (e + 1) * (e + 2) * c + inv * e * (e + 1) * (e + 2) * (e + 3) * s))))
+    else:  # sin z = 0 where cos z is given: the series without its sine terms
         c = np.asarray(cos_z, dtype=float)[big]
-        s = np.zeros_like(c)
         other = np.flatnonzero(~np.isfinite(c))
-        s[other], c[other] = np.sin(zb[other]), np.cos(zb[other])
-    tail = zme * (-s + inv * (e * c + inv * (e * (e + 1) * s - inv * (
-        e * (e + 1) * (e + 2) * c + inv * e * (e + 1) * (e + 2) * (e + 3) * s))))
+        c[other] = np.cos(zb[other])
+        tail = zme * (inv * (e * c - inv * (inv * (e * (e + 1) * (e + 2) * c))))
+        if other.size:
+            s, c, zo, io = np.sin(zb[other]), c[other], zme[other], inv[other]
+            tail[other] = zo * (-s + io * (e * c + io * (e * (e + 1) * s - io * (
+                e * (e + 1) * (e + 2) * c + io * e * (e + 1) * (e + 2) * (e + 3) * s))))
     out[big] = k_e - zb * zme / (e - 1) + tail
     small = np.flatnonzero(~big)
     if small.size:

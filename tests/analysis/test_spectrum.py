@@ -265,3 +265,24 @@ def test_every_column_is_described_and_read_back_with_its_unit(tmp_path):
     assert "standard error" in t["power_err"].description
     assert t["power_err"].unit == u.electron**2 * u.pix**2 / u.s**2
     assert t["theta"].unit == u.arcmin and t["k"].unit == u.rad / u.pix
+
+
+def test_power_spectra_are_power_spectrum_in_each_binning_and_the_measure_s_band_is_the_image_s():
+    """One FFT for several binnings: each table equals `power_spectrum`'s in that binning
+    to the last digit, and a case's measure gives the image's `band_power` to the last
+    digit (its band from the band's own one-bin table)."""
+    from spherex_reduce.analysis.case import SpectrumMeasure
+    from spherex_reduce.analysis.spectrum import EmptyBandError, power_spectra
+
+    img = np.random.default_rng(4).normal(0, 2, (96, 80))
+    img[3, 5] = np.nan
+    t8, band = power_spectra(img, [8, [0.1, 0.5]], exclude_horizontal=True)
+    for got, bins in ((t8, 8), (band, [0.1, 0.5])):
+        want = power_spectrum(img, bins=bins, exclude_horizontal=True)
+        for col in want.colnames:
+            assert np.array_equal(np.asarray(got[col]), np.asarray(want[col]))
+    m = SpectrumMeasure(kmin=0.1, kmax=0.5, bins=8)(img)
+    p, err = band_power(img, 0.1, 0.5, return_error=True)
+    assert m["band_power"] == p and m["band_power_err"] == err
+    with pytest.raises(EmptyBandError, match="no Fourier mode of the 20 x 20 image"):
+        SpectrumMeasure(bins=4)(img[:20, :20])

@@ -123,3 +123,45 @@ def test_white_closed_form_and_table_sum():
     assert expected_slope_variance(noise_components()["bias_phantom_only"], s).value == 0
     ph = expected_slope_variance(noise_components()["bias_phantom_only"], s, kind="phantom")
     assert ph.value > 0
+
+
+def test_g_power_at_multiples_of_pi_is_the_series_without_its_sine_terms():
+    """Given ``cos z`` (``z`` a multiple of pi, ``sin z = 0``), the tail series of
+    ``G_e`` drops its sine terms: the same numbers, to the last digit, as the full series
+    written out here with ``sin z = 0``, and within 1e-12 of it with ``sin`` and ``cos``
+    of ``z`` computed; a non-finite ``cos z`` falls back to the trigonometric functions."""
+    from scipy import special
+
+    from spherex_reduce.noise.structure_functions import g_power
+
+    rng = np.random.default_rng(7)
+    n = rng.integers(13, 10**6, 500).astype(float)
+    z = np.pi * n
+    for e in (0.7, 1.3, 2.2):
+        cos_z = 1.0 - 2.0 * (n % 2)
+        k_e = np.pi / (2 * special.gamma(e) * np.sin(np.pi * (e - 1) / 2))
+        s, c, inv, zme = np.zeros_like(z), cos_z, 1 / z, z ** (-e)
+        tail = zme * (-s + inv * (e * c + inv * (e * (e + 1) * s - inv * (
+            e * (e + 1) * (e + 2) * c + inv * e * (e + 1) * (e + 2) * (e + 3) * s))))
+        expect = k_e - z * zme / (e - 1) + tail
+        assert np.array_equal(g_power(z, e, cos_z), expect)
+        np.testing.assert_allclose(g_power(z, e), expect, rtol=1e-12)
+        some = np.where(np.arange(z.size) % 3 == 0, np.nan, cos_z)
+        np.testing.assert_allclose(g_power(z, e, some), expect, rtol=1e-12)
+
+
+def test_a_builtin_table_s_components_are_parsed_once_and_handed_out_as_new_dicts():
+    """A search loads the paper's table for every schedule: its components are parsed once,
+    each call gets its own dict (changing one changes no other), the same components as the
+    table's rows read here."""
+    from spherex_reduce.noise.components import load_noise_table, noise_components
+
+    first = noise_components("spherex-table2")
+    first.pop("roic")
+    again = noise_components("spherex-table2")
+    table = load_noise_table("spherex-table2")
+    assert list(again) == [str(n) for n in table["name"]]
+    for row in table:
+        comp = again[str(row["name"])]
+        assert comp.alpha == float(row["alpha"]) and comp.beta == float(row["beta"])
+        assert comp.gamma == float(row["gamma"]) and comp.scope == str(row["scope"])

@@ -36,7 +36,7 @@ from ...reduce.progress import Progress
 from ...simulation import simulate
 from ...simulation.scene import load_scene
 from ..case import SpectrumMeasure, run_case
-from ..forecast.engine import band_power_forecast, forecast
+from ..forecast.engine import band_power_forecast, forecast_tables
 from ..light import light_sensitive_image
 from .file import load_design
 from .row_orders import explicit_order, family_orders
@@ -303,10 +303,10 @@ def _move(perm, rng):
 def _report(d, best, baseline, best_scene, base_scene, tried):
     """Per k bin: the forecast P(k) of both schedules, total and per component."""
     measure = {"kmin": d.kmin, "kmax": d.kmax, "bins": d.bins}
-    fb = forecast(best_scene, d.pipeline, measure)
-    fa = forecast(base_scene, d.pipeline, measure)
     band = {"kmin": d.kmin, "kmax": d.kmax, "bins": [d.kmin, d.kmax]}
-    a, b = (_band_parts(forecast(sc, d.pipeline, band)) for sc in (base_scene, best_scene))
+    fb, b = forecast_tables(best_scene, d.pipeline, [measure, band])
+    fa, a = forecast_tables(base_scene, d.pipeline, [measure, band])
+    a, b = _band_parts(a), _band_parts(b)
     report = Table()
     for name in ("k", "theta", "k_lo", "k_hi"):
         report[name] = fa[name]

@@ -45,8 +45,8 @@ from .layout import frame_cells, transposed
 from .rows import NODES, Cells, component_planes
 from .steps import reduction
 
-__all__ = ["band_power_forecast", "forecast", "forecast_measure", "poisson_variance",
-           "prepare_forecast", "stored_planes"]
+__all__ = ["band_power_forecast", "forecast", "forecast_measure", "forecast_tables",
+           "poisson_variance", "prepare_forecast", "stored_planes"]
 
 _SLOPE_UNIT = u.electron / u.s
 #: Name of the Poisson noise of the dark current and photocurrent in the table's columns.
@@ -133,19 +133,54 @@ def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SC
     >>> round(t.meta["variance"], 1)
     1861.9
     """
-    m = forecast_measure(measure)
+    return forecast_tables(scene, pipeline, [measure], pixel_scale=pixel_scale,
+                           nodes=nodes)[0]
+
+
+def forecast_tables(scene, pipeline, measures, *, pixel_scale=SPHEREX_PIXEL_SCALE,
+                    nodes=NODES):
+    """`forecast` of one scene and pipeline for several measures, its planes computed once.
+
+    Parameters
+    ----------
+    scene, pipeline, pixel_scale, nodes
+        As `forecast`.
+    measures : sequence of `~spherex_reduce.analysis.case.SpectrumMeasure`, dict or None
+        Each as `forecast`'s ``measure``.
+
+    Returns
+    -------
+    list of `~astropy.table.Table`
+        ``forecast(scene, pipeline, m)`` for every ``m`` of ``measures``, in order.
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.forecast.engine import forecast, forecast_tables
+    >>> scene = {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 4, "ref_border": 4},
+    ...          "readout": {"nframes": 8, "phantom_reads": 0}}
+    >>> t4, t1 = forecast_tables(scene, None, [{"bins": 4}, {"bins": 1}])
+    >>> len(t4), len(t1), bool((t1["power"] == forecast(scene, None, {"bins": 1})["power"]).all())
+    (4, 1, True)
+    """
+    ms = [forecast_measure(m) for m in measures]
     sc, red, rows, cols, comps = prepare_forecast(scene, pipeline)
     parts, (ny, nx) = stored_planes(sc, red, rows, cols, comps, nodes)
     shot = poisson_variance(sc)
     if shot:  # white: the same in every cell
         parts[_POISSON] = np.full((ny, nx // 2 + 1), shot * ny * nx)
+    return [_forecast_table(sc, red, parts, (ny, nx), m, pixel_scale) for m in ms]
+
+
+def _forecast_table(sc, red, parts, shape, m, pixel_scale):
+    """The table of `forecast` for measure ``m`` from the stored planes ``parts``."""
+    ny, nx = shape
     unit = _SLOPE_UNIT**2
     shape = (ny, nx)
     edges = k_bin_edges(m.bins, ny, nx)
     exclude_horizontal = bool(m.exclude_horizontal)
     total = sum(parts.values()) if parts else np.zeros((ny, nx // 2 + 1))
     table = spectrum_table(total, shape, edges, unit, 1.0, pixel_scale, exclude_horizontal)
-    names = [c.name for c in sc.components] + ([_POISSON] if shot else [])
+    names = [c.name for c in sc.components] + ([_POISSON] if _POISSON in parts else [])
     for name in names:
         if name in parts:
             power = spectrum_table(parts[name], shape, edges, unit, 1.0, pixel_scale,

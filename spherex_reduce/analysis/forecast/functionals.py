@@ -9,6 +9,7 @@ s + d) conj f_b(k_x, s)`` for the noise components of the forecast
 (`spherex_reduce.analysis.forecast.rows`).
 """
 
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,12 +18,29 @@ import scipy.fft
 __all__ = ["Correlations", "Part", "channel_sums", "column_phases"]
 
 
+#: Phase tables `column_phases` keeps (a search forecasts the same columns and cells for
+#: every readout it tries; a full-size band's table is ~3 MB, a whole plane's ~34 MB).
+PHASE_TABLES = 2
+_phases = OrderedDict()
+
+
 def column_phases(geometry, cols, kx):
     """The light columns ``j`` and their phases ``exp(-i k_x (j - j0))`` ``(nx, nkx)``,
-    ``k_x = 2 pi kx / nx`` for the rfft column indices ``kx`` of the rectangle ``cols``."""
-    j = np.arange(cols.start, cols.stop)
-    k = 2 * np.pi * np.asarray(kx) / j.size
-    return j, np.exp(-1j * np.outer(j - cols.start, k))
+    ``k_x = 2 pi kx / nx`` for the rfft column indices ``kx`` of the rectangle ``cols``
+    (read-only arrays: the last `PHASE_TABLES` are kept and shared)."""
+    kx = np.asarray(kx)
+    key = (cols.start, cols.stop, kx.dtype.str, kx.tobytes())
+    out = _phases.pop(key, None)
+    if out is None:
+        j = np.arange(cols.start, cols.stop)
+        k = 2 * np.pi * kx / j.size
+        out = j, np.exp(-1j * np.outer(j - cols.start, k))
+        for a in out:
+            a.setflags(write=False)
+    _phases[key] = out
+    while len(_phases) > PHASE_TABLES:
+        _phases.popitem(last=False)
+    return out
 
 
 def channel_sums(geometry, j, phase, used):
@@ -54,6 +72,13 @@ class Correlations:
 
     def __init__(self):
         self._ffts, self._products, self._x = {}, {}, {}
+
+    def fork(self):
+        """A `Correlations` that starts with the spectra computed so far and keeps those it
+        computes to itself (functionals of the same key must be the same in both)."""
+        out = Correlations()
+        out._ffts, out._products, out._x = dict(self._ffts), dict(self._products), dict(self._x)
+        return out
 
     def _fft(self, key, i, part, common):
         """``('dense', F)`` or ``('sep', amp, P)`` of part ``i`` of functional ``key``

@@ -118,7 +118,7 @@ def component_planes(schedule, rows, cols, comps, reduction, nodes=NODES, cells=
     distinct = np.unique(half)  # the rows of k_y >= 0 the cells need
     _check_memory(schedule, (ny, nx), distinct.size, cells, len(comps), c, wiener)
     table = _lag_table(schedule, comps, g.channel_width - 1 + c, nodes)
-    light = _functionals(schedule, rows, cols, cells.kx, c, reduction)  # (pixels, phantom)
+    light, light_spectra = _light(schedule, rows, cols, cells.kx, c, reduction)
     ref = None if wiener else _reference_functionals(schedule, cols, cells.kx, c, reduction,
                                                      ny)
     has_zero = cells.ky.size and cells.ky[0] == 0
@@ -127,13 +127,13 @@ def component_planes(schedule, rows, cols, comps, reduction, nodes=NODES, cells=
         light_reads[_slots(schedule)[_light_reads(schedule, rows)]] = 1.0
     first = np.searchsorted(distinct, half)  # row of `distinct` for every cell row
     negative = cells.ky > ny // 2
-    spectra = Correlations()
     re, im = (np.zeros((len(comps), distinct.size, cells.kx.size)) for _ in range(2))
     for lo in range(0, distinct.size, CHUNK_ROWS):  # (rows, 2 slots) arrays a chunk at a time
         a = _row_pairs(schedule, rows, distinct[lo:lo + CHUNK_ROWS])
         for i, comp in enumerate(comps):
-            x = spectra.correlate(("light", light), ("light", light), comp)
+            x = light_spectra.correlate(("light", light), ("light", light), comp)
             re[i, lo:lo + a.shape[0]], im[i, lo:lo + a.shape[0]] = table.real_products(i, a, x)
+    spectra = light_spectra.fork()  # the reference reads' functionals are this schedule's
     parts = {}
     for i, comp in enumerate(comps):
         parts[comp.name] = np.where(negative[:, None], re[i, first] + im[i, first],
@@ -313,6 +313,27 @@ def _row_pairs(schedule, rows, ky):
     f = scipy.fft.fft(g, axis=1, workers=-1)
     f = f.real**2 + f.imag**2
     return scipy.fft.ifft(f, axis=1, workers=-1)
+
+
+#: Light functionals (and their correlations) kept by `_light`.
+LIGHT_FUNCTIONALS = 2
+_lights = OrderedDict()
+
+
+def _light(schedule, rows, cols, kx, c, reduction):
+    """`_functionals` and a `Correlations` of them, shared by the schedules of a search: the
+    light rows' functional depends on the geometry, the rectangle, the cells' ``k_x``, ``c``
+    and the reduction, not on the row order or the timing.  The last `LIGHT_FUNCTIONALS`
+    are kept."""
+    kx = np.asarray(kx)
+    key = repr((schedule.geometry, rows, cols, kx.dtype.str, kx.tobytes(), int(c), reduction))
+    out = _lights.pop(key, None)
+    if out is None:
+        out = (_functionals(schedule, rows, cols, kx, c, reduction), Correlations())
+    _lights[key] = out
+    while len(_lights) > LIGHT_FUNCTIONALS:
+        _lights.popitem(last=False)
+    return out
 
 
 def _light_reads(s, rows):

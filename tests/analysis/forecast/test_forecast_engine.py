@@ -209,3 +209,18 @@ def test_uneven_read_times_correlated_noise_equals_brute_force():
     expect = expected_spectrum(samples, lmat, cov, BINS)
     got = u.Quantity(forecast(scene, "spherex-default", {"bins": BINS})["power"]).value
     np.testing.assert_allclose(got, expect, rtol=1e-6)
+
+
+def test_forecast_tables_are_the_forecasts_of_each_measure():
+    """Several measures of one scene from one set of planes: each table equals `forecast`'s
+    with that measure to the last digit (the design report's binned and one-bin tables)."""
+    from spherex_reduce.analysis.forecast.engine import forecast_tables
+
+    scene = tiny([PINK_ACN, COMMON])
+    measures = [{"bins": BINS}, {"kmin": 0.4, "kmax": 1.2, "bins": [0.4, 1.2]}]
+    for got, m in zip(forecast_tables(scene, "spherex-default", measures), measures,
+                      strict=True):
+        want = forecast(scene, "spherex-default", m)
+        assert got.colnames == want.colnames and got.meta == want.meta
+        for col in want.colnames:
+            assert np.array_equal(np.asarray(got[col]), np.asarray(want[col]))

@@ -92,3 +92,48 @@ def test_a_lag_table_serves_every_row_order_of_its_timing_and_no_other_timing():
         forecast_rows._lag_table(reordered.schedule, comps, 11, 8)
     for changes in ({}, {"phantom_reads": 3}, {"frame_overhead": 15000}, {"ref_reads": 6}):
         check_against_brute_force(readout(**changes), *PIPELINES["spherex-default"])
+
+
+def test_the_light_functionals_are_shared_by_row_orders_and_timings_not_by_c():
+    """A search's forecasts share the light rows' functional and its correlations (they
+    depend on the geometry, the cells, c and the reduction, not on the row order or the
+    timing): forecast one after the other, orders, timings and reference reads sharing one
+    and c = 3 another, every spectrum still equals the brute force."""
+    def readout(**changes):
+        base = {"skip": 3, "ref_reads": 4, "phantom_reads": 2, "nframes": 4,
+                "frame_overhead": 20000}
+        return load_scene({"geometry": {"nrows": 20, "ncols": 20, "nchannels": 2,
+                                        "ref_border": 2},
+                           "readout": {**base, **changes},
+                           "noise": {"components": [PINK_ACN, COMMON]}})
+
+    def light(sc, c):
+        from spherex_reduce.analysis.forecast.steps import reduction
+
+        red = reduction("spherex-default")
+        return forecast_rows._light(sc.schedule, slice(2, 18), slice(2, 18), np.arange(9),
+                                    c, red)
+
+    first, other = readout(), readout(skip=5, frame_overhead=15000, ref_reads=6)
+    assert light(first, 2) is light(other, 2)
+    assert light(first, 2) is not light(readout(phantom_reads=3), 3)
+    for changes in ({}, {"skip": 5}, {"phantom_reads": 3}, {"frame_overhead": 15000},
+                    {"ref_reads": 6}, {}):
+        for name in ("spherex-default", "acn-side-columns"):
+            check_against_brute_force(readout(**changes), *PIPELINES[name])
+
+
+def test_column_phases_are_kept_read_only():
+    """The phase table is shared between forecasts: it cannot be written to, and it is
+    ``exp(-i k_x (j - j0))`` written out."""
+    from spherex_reduce.analysis.forecast.functionals import column_phases
+
+    sc = scene(skip=3)
+    kx = np.array([0, 3, 5])
+    j, phase = column_phases(sc.schedule.geometry, slice(2, 18), kx)
+    expect = np.exp(-2j * np.pi * np.outer(np.arange(16), kx) / 16)
+    np.testing.assert_allclose(phase, expect, rtol=0, atol=1e-14)
+    assert j.tolist() == list(range(2, 18))
+    with pytest.raises(ValueError):
+        phase[0, 0] = 0
+    assert column_phases(sc.schedule.geometry, slice(2, 18), kx.copy())[1] is phase

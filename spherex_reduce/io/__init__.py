@@ -6,8 +6,9 @@ memory): it gives the sources the executor reads.  `read` and `write` handle
 a whole exposure in the layout of `spherex_reduce.io.layout`; `write_frames`
 writes raw ramps as they are made and `FrameReader` reads them a frame at a
 time; `read_ccddata` reads a reduced image as astropy's ``CCDData`` (also
-``CCDData.read(path, format='spherex_reduce')`` once imported); `open_checked` opens any FITS file after the checks `read` makes
-(structure, checksums, header cards), `foreign_dq_bits` chooses which bits of
+``CCDData.read(path, format='spherex_reduce')`` once imported); `open_checked`
+opens any FITS file after the checks `read` makes (structure, checksums,
+header cards), `foreign_dq_bits` chooses which bits of
 a ``DQ`` written by other software mask a pixel, `atomic_output` is how
 every output of the package is written, and `locked_directory` makes the
 updates of a file that several processes share one at a time.

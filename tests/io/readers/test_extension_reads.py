@@ -299,3 +299,36 @@ def test_a_64_bit_dq_of_a_read_masks_on_its_high_bits(tmp_path, bit):
                  "-o", str(chosen)]) == 0
     np.testing.assert_allclose(fits.getdata(chosen, "SCI"), _lstsq(ramps, TIMES), rtol=2**-23,
                                atol=1e-9)
+
+
+def test_one_ramp_as_extensions_and_as_one_file_per_read_gives_one_slope(tmp_path):
+    """Issue 31: one file per read (--reads) rounded the declared frame time to whole
+    samples (0.277815 s, 27781.5 samples at 100 kHz, became 0.27781 s): its slopes were
+    1.8e-5 higher than those of the same ramp read as extensions at their SAMPTIME."""
+    tframe = 0.277815
+    times = [k * tframe for k in range(len(TIMES))]
+    ramps = _ramps()
+
+    def evenly(hdul):
+        for hdu in hdul[1:]:
+            if hdu.name == "SCI":
+                hdu.header["SAMPTIME"] = times[len(times) - hdu.ver]
+
+    raw = _write(tmp_path / "x_raw.fits", ramps, dq=False, change=evenly)
+    cfg = write_config(tmp_path / "ext.yaml", GEOMETRY, {**READOUT, "frame_time": tframe}, FIT)
+    cfg.write_text(cfg.read_text() + "input: {reads: extensions}\n")
+    reads = tmp_path / "r"
+    reads.mkdir()
+    for k, frame in enumerate(ramps):
+        fits.PrimaryHDU(frame.astype(np.float32)).writeto(reads / f"read_{k}.fits")
+    cfg2 = write_config(tmp_path / "reads.yaml", GEOMETRY,
+                        {**READOUT, "frame_time": tframe, "nframes": len(times)}, FIT)
+    assert main(["-q", "reduce", str(raw), "-c", str(cfg), "-o", str(tmp_path / "e.fits")]) == 0
+    assert main(["-q", "reduce", "--reads", str(reads / "read_*.fits"), "-c", str(cfg2), "-o",
+                 str(tmp_path / "r.fits")]) == 0
+    by_extensions = fits.getdata(tmp_path / "e.fits", "SCI")
+    by_files = fits.getdata(tmp_path / "r.fits", "SCI")
+    expected = _lstsq(ramps, times)
+    np.testing.assert_allclose(by_extensions, expected, rtol=2**-23, atol=1e-9)
+    np.testing.assert_allclose(by_files, expected, rtol=2**-23, atol=1e-9)
+    np.testing.assert_allclose(by_files, by_extensions, rtol=2**-23, atol=0)

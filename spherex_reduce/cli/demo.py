@@ -10,9 +10,9 @@ def add_parser(sub):
         "demo", help="simulate, reduce and measure the paper's case on built-in defaults",
         description="Simulate raw ramps of the paper's readout (S=24, r=32, c=4, N=74) and of "
         "the same array read without chopping, reduce both, and write the reduced images "
-        "(FITS), the spatial power spectra (ECSV) and plots to a directory (about 35 MB at "
-        "full size). The raw files are simulated into the directory and removed once reduced "
-        "unless --keep-raw (2 x 1.28 GB at full size).")
+        "(FITS), the spatial power spectra (ECSV) and plots to a directory (137 MB at full "
+        "size: two 68 MB reduced files). The raw files are simulated into the directory "
+        "and removed once reduced unless --keep-raw (2 x 1.28 GB at full size).")
     p.add_argument("-o", "--output", default="spherex-demo", metavar="DIR",
                    help="output directory (default: %(default)s)")
     p.add_argument("--size", type=count(2**16), default=2048,

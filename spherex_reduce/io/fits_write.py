@@ -39,6 +39,29 @@ def _image(data, name, unit=None):
     return hdu
 
 
+def _readout_cards(schedule, order):
+    """The readout keywords and ``ORDER``, as the primary header has them, for ``SCI``'s own
+    header: tools that read one extension (astropy's ``CCDData.read(path, hdu='SCI')``,
+    ccdproc) see how the image was read.  `read` takes them from the primary header."""
+    header = schedule.to_header()
+    header["ORDER"] = (order.upper(), "row order of SCI: READOUT or PHYSICAL")
+    return header
+
+
+def _stored(values, dtype):
+    """``values`` as an image stores them: floating point as ``dtype`` (float32 unless it
+    cannot hold a finite value, which keeps the image float64: never an inf), integers as
+    they are."""
+    values = np.asarray(values)
+    if values.dtype.kind != "f" or values.dtype == dtype:
+        return values
+    with np.errstate(over="ignore"):
+        out = values.astype(dtype)
+    if np.isinf(out).any() and np.any(np.isinf(out) & np.isfinite(values)):
+        return values.astype(np.float64)  # beyond float32's 3.4e38: at full precision
+    return out
+
+
 def _primary(schedule, header, order, unit, nextend):
     """The primary HDU: readout keywords, ``ORDER``, ``BUNIT`` and ``NEXTEND`` after
     ``header``'s cards, and ``EXTEND`` where astropy puts it when extensions follow."""
@@ -97,7 +120,7 @@ def _fits_unit(unit):
     return True
 
 
-def write(exposure, path, overwrite=False, images=None):
+def write(exposure, path, overwrite=False, images=None, dtype="float32"):
     """Write an `Exposure` to a FITS file, atomically and with checksums.
 
     Parameters
@@ -115,6 +138,14 @@ def write(exposure, path, overwrite=False, images=None):
         ``INTSLOPE`` of `~spherex_reduce.reduce_integrations`); a
         `~astropy.units.Quantity` gets its unit as ``BUNIT``.  `read`
         ignores them.
+    dtype : {'float32', 'float64'}
+        Type of the stored floating-point images (``SCI``, ``ERR``,
+        ``PHANTOM``, ``REFPIX``, ``REFPHANT`` and ``images``); integers are
+        stored as they are, flags as 32-bit integers.  float32, as JWST
+        stores its images: a reduction is accumulated in float64, but its
+        values' noise is far above float32's relative spacing (6e-8), and
+        float32 halves the file (a value float32 cannot hold keeps its
+        image float64).
 
     Returns
     -------
@@ -139,25 +170,29 @@ def write(exposure, path, overwrite=False, images=None):
     True
     """
     path = Path(path)
+    dtype = np.dtype(dtype)
+    if dtype not in (np.float32, np.float64):
+        raise ValueError(f"dtype must be float32 or float64, got {dtype!r}")
     unit = exposure.unit or u.dimensionless_unscaled
     layout = _stored_layout(exposure.schedule, exposure.order)
-    hdus = [_image(layout.to_stored(exposure.data.data), "SCI", unit)]
+    hdus = [_image(_stored(layout.to_stored(exposure.data.data), dtype), "SCI", unit)]
+    hdus[0].header.extend(_readout_cards(exposure.schedule, exposure.order))
     unc = exposure.data.uncertainty
     if unc is not None:
         if not isinstance(unc, StdDevUncertainty):  # (converting costs two passes)
             unc = unc.represent_as(StdDevUncertainty)
-        hdus.append(_image(layout.to_stored(unc.array), "ERR", unit))
+        hdus.append(_image(_stored(layout.to_stored(unc.array), dtype), "ERR", unit))
     dq = exposure.dq
-    if dq is not None:  # int32: unsigned would need BZERO, no memmap
+    if dq is not None:  # int32: the same 32 bits as JWST's uint32, read as stored (no BZERO)
         hdus.append(_image(layout.to_stored(dq.astype(np.int32)), "DQ"))
     if exposure.phantom is not None:
-        hdus.append(_image(exposure.phantom, "PHANTOM", unit))
+        hdus.append(_image(_stored(exposure.phantom, dtype), "PHANTOM", unit))
     hdus.append(table_hdu(exposure.schedule.to_table(), "READOUT"))
     ref = exposure.reference
     if ref is not None:
-        hdus.append(_image(ref.data, "REFPIX", unit))
+        hdus.append(_image(_stored(ref.data, dtype), "REFPIX", unit))
         if ref.phantom is not None:
-            hdus.append(_image(ref.phantom, "REFPHANT", unit))
+            hdus.append(_image(_stored(ref.phantom, dtype), "REFPHANT", unit))
         if ref.dq is not None:
             hdus.append(_image(np.asarray(ref.dq).astype(np.int32), "REFDQ"))
         times = exposure.schedule.start_times[ref.reads]
@@ -168,7 +203,7 @@ def write(exposure, path, overwrite=False, images=None):
         values, extra_unit = _value_unit(array)
         if np.shape(values)[-2:] == layout.frame_shape:  # an image of the array: stored
             values = layout.to_stored(values)
-        hdus.append(_image(values, _extra(name, taken, "image"), extra_unit))
+        hdus.append(_image(_stored(values, dtype), _extra(name, taken, "image"), extra_unit))
     for name, table in exposure.tables.items():
         hdus.append(table_hdu(table, _extra(name, taken, "table")))
     hdus.insert(0, _primary(exposure.schedule, exposure.header, exposure.order, unit, len(hdus)))
@@ -265,7 +300,8 @@ def write_frames(frames, path, schedule, *, header=None, unit=u.electron, dtype=
     primary = _primary(schedule, header, "readout", unit, 2 + bool(schedule.phantom_reads))
     with out as tmp, open(tmp, "wb") as f, tempfile.TemporaryFile(dir=tmp.parent) as spill:
         f.write(_hdu_bytes(primary))
-        sci = _StreamedImage(f, "SCI", stored, (nframes, *image), unit)
+        sci = _StreamedImage(f, "SCI", stored, (nframes, *image), unit,
+                             _readout_cards(schedule, "readout"))
         count = 0
         try:
             for count, (pixels, phantom) in enumerate(frames, 1):
@@ -313,9 +349,11 @@ class _StreamedImage:
     """An image extension written in pieces; ``DATASUM`` and ``CHECKSUM`` filled in by
     `close`.  Its header is the one astropy makes for an image of that type and shape."""
 
-    def __init__(self, f, name, dtype, shape, unit):
+    def __init__(self, f, name, dtype, shape, unit, cards=None):
         stand_in = np.broadcast_to(np.zeros((), dtype), shape)  # no memory: the header only
         self.header = _image(stand_in, name, unit).header.copy()
+        if cards is not None:
+            self.header.extend(cards)
         self.header["CHECKSUM"] = ("0" * 16, "HDU checksum updated")
         self.header["DATASUM"] = ("0", "data unit checksum updated")
         self.f, self.dtype = f, dtype

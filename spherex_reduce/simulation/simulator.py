@@ -259,7 +259,8 @@ def simulate_to_fits(scene, path, *, mode=None, seed=None, overwrite=False, prog
         return write(simulate(sc, mode=mode, seed=seed), path, overwrite=overwrite)
     sc, mode, seed, engine = _prepare(sc, mode, seed)
     if mode == "slopes":
-        return write(_simulate(sc, mode=mode, seed=seed), path, overwrite=overwrite)
+        return write(_simulate(sc, mode=mode, seed=seed), path, overwrite=overwrite,
+                     dtype=engine.dtype)
     s = sc.schedule
     frames = average_groups(_frames(sc, engine), s)
     frames = terminal_bar(progress, iterable=frames, total=s.nframes, unit="frame",

@@ -80,8 +80,9 @@ def test_demo_and_spectrum_give_one_band_power(demo_dir, tmp_path):
         assert main(["spectrum", str(demo_dir / f"reduced_{label}.fits"), "-o", str(out)]) == 0
         spec = Table.read(out).meta
         assert demo_meta["band_power_unit"] == spec["band_power_unit"]
-        for name in ("band_power", "band_power_err"):
-            assert demo_meta[f"{name}_{label}"] == pytest.approx(spec[name], rel=1e-12)
+        for name in ("band_power", "band_power_err"):  # demo measures before the file
+            # rounds its image to float32 (3e-9 of the band power at 256^2)
+            assert demo_meta[f"{name}_{label}"] == pytest.approx(spec[name], rel=1e-7)
 
 
 def test_demo_table_stores_numbers_in_the_unit_of_its_columns(demo_dir):

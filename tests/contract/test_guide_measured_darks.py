@@ -221,7 +221,7 @@ def test_other_readout_layouts_run_as_written(tmp_path, monkeypatch):
     for name, (fitted, ref, raw) in darks.items():
         got = fits.getdata(f"{name}_slopes.fits", "SCI")
         assert got.shape == fitted.shape  # the stored orientation
-        np.testing.assert_allclose(got[~ref], fitted[~ref], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(got[~ref], fitted[~ref], rtol=2**-23, atol=1e-9)  # float32
         assert (tmp_path / f"{name}_dark.fits").read_bytes() == raw
     assert (tmp_path / "wfc3_quadrants.png").stat().st_size > 0
 

@@ -8,7 +8,7 @@ from _one_by_one import one_by_one
 from astropy import units as u
 from astropy.io import fits
 
-from spherex_reduce import Exposure, FormatError, Pipeline, read, unchop, write
+from spherex_reduce import Exposure, FormatError, Pipeline, dq, read, unchop, write
 from spherex_reduce.io.examples import example_raw_exposure
 
 
@@ -120,9 +120,10 @@ def test_slopes_and_reduced_round_trip(tmp_path, small_schedule):
     reduced = unchop(slopes)
     again = read(write(reduced, tmp_path / "reduced.fits"))
     assert again.order == "physical" and again.shape == (32, 16)
-    np.testing.assert_array_equal(again.data.data, reduced.data.data)
+    # floating-point images stored as float32 (issue 31)
+    np.testing.assert_array_equal(again.data.data, reduced.data.data.astype(np.float32))
     np.testing.assert_array_equal(again.reference.rows, reduced.reference.rows)
-    np.testing.assert_array_equal(again.reference.data, reduced.reference.data)
+    np.testing.assert_array_equal(again.reference.data, reduced.reference.data.astype(np.float32))
 
 
 def test_existing_output_is_kept(tmp_path, raw):
@@ -264,7 +265,7 @@ def test_simulated_file_streamed_is_the_file_write_gives(tmp_path, phantom_reads
             np.testing.assert_array_equal(hdul["PHANTOM"].data, mem.phantom)
         else:
             assert "PHANTOM" not in hdul
-    whole = write(mem, tmp_path / "whole.fits")
+    whole = write(mem, tmp_path / "whole.fits", dtype=dtype)
     assert _without_checksum_cards(streamed) == _without_checksum_cards(whole)
 
 
@@ -393,3 +394,36 @@ def test_every_table_column_keeps_its_type_and_values(tmp_path):
     assert forms["njumps"].endswith("I") and forms["nsegments"].endswith("I")
     readout = Table.read(path, hdu="READOUT")
     np.testing.assert_array_equal(readout["row"], result.schedule.rows)
+
+
+def test_images_are_stored_at_float32_flags_and_integers_as_they_are(tmp_path, small_schedule):
+    """Issue 31: reduced images were stored float64 (the demo wrote 195 MB, not the 35 MB
+    stated).  SCI, ERR, PHANTOM and extra images are float32, the float64 values rounded
+    to nearest; flags 32-bit integers; an integer image as it is; a value beyond float32's
+    range keeps its image float64 (never an inf); dtype='float64' keeps every bit."""
+    rng = np.random.default_rng(1)
+    shape = (small_schedule.n_reads, 16)
+    values = rng.normal(1e4, 30.0, shape)
+    err = rng.uniform(0.1, 1.0, shape)
+    flags = rng.choice(np.array([0, dq.JUMP, dq.DO_NOT_USE, 2**31], np.uint32), shape)
+    e = Exposure.from_arrays(values, small_schedule, unit=u.electron / u.s, uncertainty=err,
+                             mask=flags, phantom=rng.normal(size=(shape[0], 2)))
+    huge = np.full(shape, 1e300)
+    path = write(e, tmp_path / "img.fits", images={"EXTRA": values, "COUNTS": np.arange(3),
+                                                   "HUGE": huge})
+    with fits.open(path) as hdul:
+        stored = {h.name: h.data for h in hdul if h.is_image and h.data is not None}
+        assert {name: hdul[name].header["BITPIX"] for name in stored} == {
+            "SCI": -32, "ERR": -32, "DQ": 32, "PHANTOM": -32, "EXTRA": -32, "COUNTS": 64,
+            "HUGE": -64}
+    np.testing.assert_array_equal(stored["SCI"], values.astype(np.float32))
+    np.testing.assert_array_equal(stored["ERR"], err.astype(np.float32))
+    np.testing.assert_array_equal(stored["DQ"].astype(np.int32).view(np.uint32), flags)
+    np.testing.assert_array_equal(stored["COUNTS"], np.arange(3))
+    np.testing.assert_array_equal(stored["HUGE"], huge)
+    rel = np.abs(stored["SCI"] / values - 1)
+    assert rel.max() <= 2.0**-24  # float32 rounding to nearest: 6e-8
+    full = read(write(e, tmp_path / "f64.fits", dtype="float64"))
+    np.testing.assert_array_equal(full.data.data, values)
+    with pytest.raises(ValueError, match="float32 or float64"):
+        write(e, tmp_path / "i.fits", dtype="int16")

@@ -382,13 +382,21 @@ class ReadoutSchedule(StoredFrameTimes):
         """A copy with some parameters changed (``geometry`` too).
 
         The frame overhead is kept as samples unless ``frame_time`` is changed (a
-        window keeps its frame time: it is taken as given).
+        window keeps its frame time: it is taken as given); a frame of the same
+        samples at the same pixel rate keeps its frame time exactly, as declared,
+        not rounded to whole samples (e.g. ``nframes`` changed).
         """
         params = {"geometry": self.geometry, **self.to_dict()}
         params.update(changes)
         if "frame_time" in changes:
             params.pop("frame_overhead", None) if "frame_overhead" not in changes else None
-        return ReadoutSchedule(**params)
+        new = ReadoutSchedule(**params)
+        if ("frame_time" in changes or "frame_overhead" in changes
+                or new.frame_time == self.frame_time or new.frame_samples != self.frame_samples
+                or new.geometry.pixel_rate != self.geometry.pixel_rate):
+            return new
+        params.pop("frame_overhead")
+        return ReadoutSchedule(**params, frame_time=self.frame_time)
 
     def __eq__(self, other):
         if not isinstance(other, ReadoutSchedule):

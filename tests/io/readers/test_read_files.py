@@ -124,7 +124,7 @@ def test_same_result_as_the_ramp_in_one_3d_file(tmp_path, stored):
                  str(cfg), "-o", str(out)]) == 0
     assert _digests(paths) == before
     with fits.open(out) as hdul:
-        np.testing.assert_array_equal(hdul["SCI"].data, one.data.data)
+        np.testing.assert_array_equal(hdul["SCI"].data, one.data.data.astype(np.float32))
         assert hdul[0].header["S_REFCOR"] == "COMPLETE"
     assert np.isfinite(one.data.data[GEOMETRY["ref_border"]:-2, 2:-2]).all()
 
@@ -190,7 +190,7 @@ def test_a_first_step_on_the_whole_ramp_reads_it_into_memory(tmp_path):
     assert main(["-q", "reduce", "--reads", str(tmp_path / "r" / "read_*.fits"), "-c",
                  str(cfg), "-o", str(out)]) == 0
     one = sr.Pipeline.from_yaml(cfg).run(_one_file(tmp_path, sci))
-    np.testing.assert_array_equal(fits.getdata(out, "SCI"), one.data.data)
+    np.testing.assert_array_equal(fits.getdata(out, "SCI"), one.data.data.astype(np.float32))
 
 
 def test_files_that_disagree_are_refused(tmp_path):
@@ -387,3 +387,26 @@ def test_read_file_flags_keep_their_own_bits(tmp_path):
             expected[5, 3] = np.linalg.lstsq(design, sci[others, 5, 3].astype(np.float64),
                                              rcond=None)[0][0]
         np.testing.assert_allclose(fits.getdata(out, "SCI"), expected, rtol=1e-6, atol=1e-6)
+
+
+def test_the_declared_frame_time_is_kept_not_rounded_to_whole_samples(tmp_path):
+    """Issue 31: one file per read rounded the frame time to whole samples (0.277815 s,
+    27781.5 samples at 100 kHz, became 0.27781 s): slopes 1.8e-5 too high.  The slopes
+    of the read files equal numpy's with the declared frame time, as the 3-D file's do."""
+    tframe = 0.277815
+    s = _schedule(frame_time=tframe)
+    sci = _ramps(s)
+    paths = _write_reads(tmp_path / "r", sci)
+    fits.PrimaryHDU(sci).writeto(tmp_path / "cube.fits")
+    cfg = _config(tmp_path / "fit.yaml", FIT, frame_time=tframe, nframes=len(paths))
+    out = tmp_path / "out.fits"
+    assert main(["-q", "reduce", "--reads", str(tmp_path / "r" / "read_*.fits"), "-c",
+                 str(cfg), "-o", str(out)]) == 0
+    expected = _lstsq(sci, tframe)
+    one = sr.Pipeline.from_yaml(cfg).run(tmp_path / "cube.fits")
+    np.testing.assert_allclose(one.data.data, expected, rtol=1e-6)  # float32 sums
+    with fits.open(out) as hdul:
+        assert hdul[0].header["TFRAME"] == tframe
+        slopes = hdul["SCI"].data
+        np.testing.assert_allclose(slopes, expected, rtol=1e-6)
+        np.testing.assert_array_equal(slopes, one.data.data.astype(slopes.dtype))

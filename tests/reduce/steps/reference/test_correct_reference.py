@@ -318,3 +318,26 @@ def test_the_offsets_table_carries_the_data_unit_into_the_file(tmp_path):
     column = next(k for k in header if header[k] == "offset").replace("TTYPE", "TUNIT")
     assert header[column] == "electron" and "BUNIT" not in header
     assert read(path).tables["REFOFFS"]["offset"].unit == u.electron
+
+
+def test_offsets_are_subtracted_in_float64_so_slopes_keep_the_fits_precision():
+    """Issue 31: the corrected reads were float32, each rounded to its spacing at the
+    pixel's level (1e-3 ADU at 1e4 ADU) with an offset whose fraction changes frame to
+    frame: the slopes were off by ~1e-5 of themselves.  A float32 raw cube with a 1e4 ADU
+    pedestal, reference reads whose per-channel mean is 1/3 plus a drift: the slopes
+    equal numpy's float64 fit of the reads minus those means."""
+    g = DetectorGeometry(16, 48, 4, ref_border={"top": 4, "bottom": 0, "left": 0, "right": 0})
+    s = ReadoutSchedule(g, skip=1, ref_reads=4, ref_mode="distributed", phantom_reads=0,
+                        nframes=8)  # rows 0-3 read once each, as the reference reads
+    t = np.arange(s.nframes) * s.frame_time.value
+    drift = (0.37 * np.arange(s.nframes) ** 1.5).astype(np.float32)
+    ref = (g.column_offsets() % 3 == 0).astype(np.float32)  # a third of each channel's
+    data = np.empty((s.nframes, s.n_reads, g.ncols), np.float32)
+    data[:] = (1e4 + 3.0 * t + drift)[:, None, None]
+    data[:, s.reference_read_indices] = (drift[:, None] + ref)[:, None, :]
+    out = fit_ramp(correct_reference(Exposure.from_arrays(data, s), "mean"))
+    active = s.active_read_indices
+    offsets = drift.astype(np.float64) + 1 / 3  # the mean of each channel's reference reads
+    reads = data[:, active].astype(np.float64) - offsets[:, None, None]
+    expected = np.polyfit(t, reads.reshape(s.nframes, -1), 1)[0]
+    np.testing.assert_allclose(out.data.data[active].ravel(), expected, rtol=1e-9)

@@ -26,8 +26,11 @@ DETECTORS = {
     "NRCA2": (1, -2, lambda a: a[..., ::-1, :]),
     "NRS1": (2, 1, lambda a: np.swapaxes(a, -1, -2)),
     "NRS2": (-2, -1, lambda a: np.swapaxes(a, -1, -2)[..., ::-1, ::-1]),
+    "NIS": (-2, -1, lambda a: np.swapaxes(a[..., ::-1, ::-1], -1, -2)),
+    "GUIDER1": (-1, -2, lambda a: a[..., ::-1, ::-1]),
+    "GUIDER2": (-1, 2, lambda a: a[..., :, ::-1]),
 }
-INSTRUMENT = {"NRC": "NIRCAM", "NRS": "NIRSPEC"}
+INSTRUMENT = {"NRC": "NIRCAM", "NRS": "NIRSPEC", "NIS": "NIRISS", "GUI": "FGS"}
 
 
 def _group_times(ngroups, nframes, gap, tframe):

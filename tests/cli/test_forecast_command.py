@@ -164,6 +164,24 @@ def test_bad_compare_table_and_existing_output_kept(white, tmp_path, capsys, con
     assert "exists" in capsys.readouterr().err and out.read_text() == "keep me"
 
 
+def _compare_refused(white, tmp_path, capsys, meta, words):
+    """``forecast --compare`` of a measured table with ``meta`` exits 2 in one line with
+    ``words`` and writes nothing."""
+    from astropy import units as u
+
+    unit = u.electron**2 / u.s**2 * u.pix**2
+    measured = Table({"k": [0.05, 0.1] * u.rad / u.pix, "power": [1.0, 2.0] * unit,
+                      "power_err": [0.1, 0.2] * unit},
+                     meta={"band_power": 1.5, "band_power_err": 0.1, **meta})
+    path = tmp_path / "m.ecsv"
+    measured.write(path)
+    out = tmp_path / "f.ecsv"
+    assert _run(white, "-c", "unchop", "-o", out, "--compare", path) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("spherex-reduce forecast: error: --compare: ") and words in err
+    assert err.count("\n") == 1 and not out.exists()
+
+
 @pytest.mark.parametrize("meta, words", [
     ({"band_power_unit": "furlong"}, "m.ecsv: band_power_unit: 'furlong' is not a unit"),
     ({"band_power_unit": "m"}, "m.ecsv: band_power_unit: m, expected electron2 pix2 / s2"),
@@ -175,17 +193,8 @@ def test_bad_compare_band_power_meta_one_line_exit_2(white, tmp_path, capsys, me
     from astropy import units as u
 
     unit = u.electron**2 / u.s**2 * u.pix**2
-    measured = Table({"k": [0.05, 0.1] * u.rad / u.pix, "power": [1.0, 2.0] * unit,
-                      "power_err": [0.1, 0.2] * unit},
-                     meta={"band_power": 1.5, "band_power_err": 0.1,
-                           "band_power_unit": unit.to_string(), **meta})
-    path = tmp_path / "m.ecsv"
-    measured.write(path)
-    out = tmp_path / "f.ecsv"
-    assert _run(white, "-c", "unchop", "-o", out, "--compare", path) == 2
-    err = capsys.readouterr().err
-    assert err.startswith("spherex-reduce forecast: error: --compare: ") and words in err
-    assert err.count("\n") == 1 and not out.exists()
+    _compare_refused(white, tmp_path, capsys,
+                     {"band_power_unit": unit.to_string(), **meta}, words)
 
 
 def test_progress_shows_the_time_on_a_terminal_only(monkeypatch):
@@ -258,19 +267,7 @@ def test_compare_refuses_a_measurement_in_another_band_or_options(
 ])
 def test_compare_refuses_a_table_that_does_not_say_what_it_measured(white, tmp_path, capsys,
                                                                     meta, words):
-    from astropy import units as u
-
-    unit = u.electron**2 / u.s**2 * u.pix**2
-    measured = Table({"k": [0.05, 0.1] * u.rad / u.pix, "power": [1.0, 2.0] * unit,
-                      "power_err": [0.1, 0.2] * unit},
-                     meta={"band_power": 1.5, "band_power_err": 0.1, **meta})
-    path = tmp_path / "m.ecsv"
-    measured.write(path)
-    out = tmp_path / "f.ecsv"
-    assert _run(white, "-c", "unchop", "-o", out, "--compare", path) == 2
-    err = capsys.readouterr().err
-    assert err.startswith("spherex-reduce forecast: error: --compare: ") and words in err
-    assert err.count("\n") == 1 and not out.exists()
+    _compare_refused(white, tmp_path, capsys, meta, words)
 
 
 def test_plot_draws_the_photon_line_and_holds_every_line(white, tmp_path):

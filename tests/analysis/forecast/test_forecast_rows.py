@@ -74,24 +74,24 @@ def test_rows_and_lags_a_chunk_at_a_time_equal_brute_force(monkeypatch):
     check_against_brute_force(scene, *PIPELINES["acn-side-columns"])
 
 
+def _searched(**changes):
+    """A 20 x 20 scene of a search's readouts (pink ACN and common noise), with ``changes``."""
+    base = {"skip": 3, "ref_reads": 4, "phantom_reads": 2, "nframes": 4, "frame_overhead": 20000}
+    return load_scene({"geometry": {"nrows": 20, "ncols": 20, "nchannels": 2, "ref_border": 2},
+                       "readout": {**base, **changes},
+                       "noise": {"components": [PINK_ACN, COMMON]}})
+
+
 def test_a_lag_table_serves_every_row_order_of_its_timing_and_no_other_timing():
     """A search over readouts reuses a timing's lag table for every order of its rows, never
     for another timing: forecast one after the other (each timing's table kept), the
     spectra of c = 2, c = 3, a longer frame and r = 6 still equal the brute force."""
-    def readout(**changes):
-        base = {"skip": 3, "ref_reads": 4, "phantom_reads": 2, "nframes": 4,
-                "frame_overhead": 20000}
-        return load_scene({"geometry": {"nrows": 20, "ncols": 20, "nchannels": 2,
-                                        "ref_border": 2},
-                           "readout": {**base, **changes},
-                           "noise": {"components": [PINK_ACN, COMMON]}})
-
-    first, reordered = readout(), readout(skip=5)
+    first, reordered = _searched(), _searched(skip=5)
     comps = first.components
     assert forecast_rows._lag_table(first.schedule, comps, 11, 8) is \
         forecast_rows._lag_table(reordered.schedule, comps, 11, 8)
     for changes in ({}, {"phantom_reads": 3}, {"frame_overhead": 15000}, {"ref_reads": 6}):
-        check_against_brute_force(readout(**changes), *PIPELINES["spherex-default"])
+        check_against_brute_force(_searched(**changes), *PIPELINES["spherex-default"])
 
 
 def test_the_light_functionals_are_shared_by_row_orders_and_timings_not_by_c():
@@ -99,14 +99,6 @@ def test_the_light_functionals_are_shared_by_row_orders_and_timings_not_by_c():
     depend on the geometry, the cells, c and the reduction, not on the row order or the
     timing): forecast one after the other, orders, timings and reference reads sharing one
     and c = 3 another, every spectrum still equals the brute force."""
-    def readout(**changes):
-        base = {"skip": 3, "ref_reads": 4, "phantom_reads": 2, "nframes": 4,
-                "frame_overhead": 20000}
-        return load_scene({"geometry": {"nrows": 20, "ncols": 20, "nchannels": 2,
-                                        "ref_border": 2},
-                           "readout": {**base, **changes},
-                           "noise": {"components": [PINK_ACN, COMMON]}})
-
     def light(sc, c):
         from spherex_reduce.analysis.forecast.steps import reduction
 
@@ -114,13 +106,13 @@ def test_the_light_functionals_are_shared_by_row_orders_and_timings_not_by_c():
         return forecast_rows._light(sc.schedule, slice(2, 18), slice(2, 18), np.arange(9),
                                     c, red)
 
-    first, other = readout(), readout(skip=5, frame_overhead=15000, ref_reads=6)
+    first, other = _searched(), _searched(skip=5, frame_overhead=15000, ref_reads=6)
     assert light(first, 2) is light(other, 2)
-    assert light(first, 2) is not light(readout(phantom_reads=3), 3)
+    assert light(first, 2) is not light(_searched(phantom_reads=3), 3)
     for changes in ({}, {"skip": 5}, {"phantom_reads": 3}, {"frame_overhead": 15000},
                     {"ref_reads": 6}, {}):
         for name in ("spherex-default", "acn-side-columns"):
-            check_against_brute_force(readout(**changes), *PIPELINES[name])
+            check_against_brute_force(_searched(**changes), *PIPELINES[name])
 
 
 def test_column_phases_are_kept_read_only():

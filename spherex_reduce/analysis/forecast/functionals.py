@@ -9,11 +9,12 @@ s + d) conj f_b(k_x, s)`` for the noise components of the forecast
 (`spherex_reduce.analysis.forecast.rows`).
 """
 
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.fft
+
+from ...core.recently_used import RecentlyUsed
 
 __all__ = ["Correlations", "Part", "channel_sums", "column_phases"]
 
@@ -21,7 +22,7 @@ __all__ = ["Correlations", "Part", "channel_sums", "column_phases"]
 #: Phase tables `column_phases` keeps (a search forecasts the same columns and cells for
 #: every readout it tries; a full-size band's table is ~3 MB, a whole plane's ~34 MB).
 PHASE_TABLES = 2
-_phases = OrderedDict()
+_phases = RecentlyUsed(PHASE_TABLES)
 
 
 def column_phases(geometry, cols, kx):
@@ -30,16 +31,15 @@ def column_phases(geometry, cols, kx):
     (read-only arrays: the last `PHASE_TABLES` are kept and shared)."""
     kx = np.asarray(kx)
     key = (cols.start, cols.stop, kx.dtype.str, kx.tobytes())
-    out = _phases.pop(key, None)
-    if out is None:
-        j = np.arange(cols.start, cols.stop)
-        k = 2 * np.pi * kx / j.size
-        out = j, np.exp(-1j * np.outer(j - cols.start, k))
-        for a in out:
-            a.setflags(write=False)
-    _phases[key] = out
-    while len(_phases) > PHASE_TABLES:
-        _phases.popitem(last=False)
+    return _phases.get(key, lambda: _phases_of(cols, kx))
+
+
+def _phases_of(cols, kx):
+    j = np.arange(cols.start, cols.stop)
+    k = 2 * np.pi * kx / j.size
+    out = j, np.exp(-1j * np.outer(j - cols.start, k))
+    for a in out:
+        a.setflags(write=False)
     return out
 
 

@@ -35,7 +35,7 @@ some ``k_y`` rows and ``k_x`` columns (`band_cells`): the cost is then that
 of those cells only.
 """
 
-from collections import OrderedDict
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,6 +44,7 @@ import scipy.fft
 from ...core.errors import SpherexReduceError
 from ...core.limits import check_size
 from ...core.readout.read_order import ORDER_REPLACES
+from ...core.recently_used import RecentlyUsed
 from ...noise.variance import SHIFT_CELLS, slope_covariance, slope_frames
 from .functionals import Correlations, Part, channel_sums, column_phases
 from .wiener import WienerTerms
@@ -187,7 +188,7 @@ def _check_memory(schedule, shape, nhalf, cells, ncomp, c, wiener):
 #: Bytes of lag tables kept (`_lag_table`): a search over row orders reuses one per timing
 #: (~1.5 MB each in the paper's full-size case).
 LAG_TABLE_BYTES = 256 * 2**20
-_lag_tables = OrderedDict()
+_lag_tables = RecentlyUsed(LAG_TABLE_BYTES, size=lambda table: table.nbytes)
 
 
 def _lag_table(schedule, comps, half, nodes):
@@ -205,13 +206,7 @@ def _lag_table(schedule, comps, half, nodes):
               if k not in ("order", *ORDER_REPLACES)}
     key = repr((schedule.geometry, sorted(timing.items()), int(_slots(schedule).max()),
                 list(comps), int(half), int(nodes), CHUNK_LAGS))
-    table = _lag_tables.pop(key, None)
-    if table is None:
-        table = _LagTable(schedule, comps, half, nodes)
-    _lag_tables[key] = table
-    while sum(t.nbytes for t in _lag_tables.values()) > LAG_TABLE_BYTES:
-        _lag_tables.popitem(last=False)
-    return table
+    return _lag_tables.get(key, lambda: _LagTable(schedule, comps, half, nodes))
 
 
 class _LagTable:
@@ -317,7 +312,7 @@ def _row_pairs(schedule, rows, ky):
 
 #: Light functionals (and their correlations) kept by `_light`.
 LIGHT_FUNCTIONALS = 2
-_lights = OrderedDict()
+_lights = RecentlyUsed(LIGHT_FUNCTIONALS)
 
 
 def _light(schedule, rows, cols, kx, c, reduction):
@@ -327,13 +322,8 @@ def _light(schedule, rows, cols, kx, c, reduction):
     are kept."""
     kx = np.asarray(kx)
     key = repr((schedule.geometry, rows, cols, kx.dtype.str, kx.tobytes(), int(c), reduction))
-    out = _lights.pop(key, None)
-    if out is None:
-        out = (_functionals(schedule, rows, cols, kx, c, reduction), Correlations())
-    _lights[key] = out
-    while len(_lights) > LIGHT_FUNCTIONALS:
-        _lights.popitem(last=False)
-    return out
+    return _lights.get(key, lambda: (_functionals(schedule, rows, cols, kx, c, reduction),
+                                     Correlations()))
 
 
 def _light_reads(s, rows):

@@ -148,6 +148,11 @@ class Field:
     from_text: object = None
 
     @property
+    def keywords(self):
+        """The field's keyword and, for a per-side field, the keyword of each side."""
+        return (self.keyword, *(self.side_keywords or ()))
+
+    @property
     def kind(self):
         """The FITS value type: `int`, `float` or `str`."""
         return float if float in self.types else int if int in self.types else str

@@ -184,7 +184,7 @@ class InputOptions:
                     f"{name}: keyword {shown} is {have} in the file but {key} is {value} in the "
                     "config; fix the config, or set input.header: override to use the config's")
             self._override(header, shown, have, value, name, notes)
-            for kw in (field.keyword, *(field.side_keywords or ())):
+            for kw in field.keywords:
                 header.remove(kw, ignore_missing=True)
             for kw, v, comment in field_cards(field, value):
                 header[kw] = (v, comment)

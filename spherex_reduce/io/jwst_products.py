@@ -41,24 +41,12 @@ from astropy.io import fits
 
 from ..core import dq
 from ..core.errors import ConfigError
-from ..core.fields import FIELDS
 from .atomic import atomic_output
 from .fits_write import table_hdu
 from .layout import unit_string
-from .readers.jwst_level1 import dms_keywords, dms_view
+from .readers.jwst_level1 import JWST_PIXEL, dms_keywords, dms_view, remove_readout_keywords
 
 __all__ = ["JWST_PIXEL", "jwst_dq", "variance_parts", "write_jwst"]
-
-#: The JWST pixel flags we write (``stdatamodels.jwst.datamodels.dqflags.pixel``).
-JWST_PIXEL = {
-    "DO_NOT_USE": 2**0,
-    "SATURATED": 2**1,
-    "JUMP_DET": 2**2,
-    "DROPOUT": 2**3,
-    "OUTLIER": 2**4,
-    "OTHER_BAD_PIXEL": 2**30,
-    "REFERENCE_PIXEL": 2**31,
-}
 
 _J = JWST_PIXEL
 #: Each of our bits (`spherex_reduce.core.dq`) and the JWST bits it becomes: a bit that
@@ -315,11 +303,7 @@ def _primary(header, model, dms):
     jwst = header is not None and str(header.get("TELESCOP", "")).strip().upper() == "JWST"
     primary = fits.PrimaryHDU(header=_without_structure(header) if jwst else None)
     h = primary.header
-    for f in FIELDS:  # ours (NFRAMES: groups here, frames per group in JWST's)
-        for key in (f.keyword, *(f.side_keywords or ())):
-            h.remove(key, ignore_missing=True, remove_all=True)
-    h.remove("CHANW", ignore_missing=True)
-    h.remove("ORDER", ignore_missing=True)
+    remove_readout_keywords(h)  # ours (NFRAMES: groups here, frames per group in JWST's)
     if dms:
         for key in ("JWFASTAX", "JWSLOWAX", "JWSTRT1", "JWSTRT2"):
             h.remove(key, ignore_missing=True)

@@ -472,7 +472,7 @@ class ReadoutSchedule(StoredFrameTimes):
                 h.remove(f.keyword, ignore_missing=True)
                 continue
             cards = field_cards(f, g.border.to_value() if f.name == "ref_border" else value)
-            for key in {f.keyword, *(f.side_keywords or ())} - {c[0] for c in cards}:
+            for key in set(f.keywords) - {c[0] for c in cards}:
                 h.remove(key, ignore_missing=True)  # a per-side field: only one form
             for key, card_value, comment in cards:
                 h[key] = (card_value, comment)

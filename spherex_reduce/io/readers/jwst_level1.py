@@ -60,16 +60,28 @@ from .description import image_shape
 from .fits_read import CheckedFITS, Closing
 from .flags import DEFAULT_DQ_BITS, current_dq_bits, flag_bits
 
-__all__ = ["JWST_DQ", "JWSTLevel1", "detector_view", "dms_keywords", "dms_view"]
+__all__ = ["JWST_DQ", "JWST_PIXEL", "JWSTLevel1", "detector_view", "dms_keywords", "dms_view",
+           "remove_readout_keywords"]
 
 log = logging.getLogger(__name__)
 
-#: JWST's ``DQ`` bits (``stdatamodels.jwst.datamodels.dqflags.pixel``) that have a
-#: meaning here, and the `spherex_reduce.core.dq` bit each becomes.
-JWST_DQ = {1: dq.DO_NOT_USE,   # DO_NOT_USE
-           2: dq.SATURATED,    # SATURATED
-           4: dq.JUMP,         # JUMP_DET
-           2**31: dq.REFERENCE}  # REFERENCE_PIXEL
+#: The JWST pixel flags read and written here (``stdatamodels.jwst.datamodels.dqflags.pixel``).
+JWST_PIXEL = {
+    "DO_NOT_USE": 2**0,
+    "SATURATED": 2**1,
+    "JUMP_DET": 2**2,
+    "DROPOUT": 2**3,
+    "OUTLIER": 2**4,
+    "OTHER_BAD_PIXEL": 2**30,
+    "REFERENCE_PIXEL": 2**31,
+}
+
+#: JWST's ``DQ`` bits that have a meaning here, and the `spherex_reduce.core.dq` bit each
+#: becomes.
+JWST_DQ = {JWST_PIXEL["DO_NOT_USE"]: dq.DO_NOT_USE,
+           JWST_PIXEL["SATURATED"]: dq.SATURATED,
+           JWST_PIXEL["JUMP_DET"]: dq.JUMP,
+           JWST_PIXEL["REFERENCE_PIXEL"]: dq.REFERENCE}
 #: The instruments on SIDECAR-read H2RGs.
 H2RG_INSTRUMENTS = ("NIRCAM", "NIRISS", "NIRSPEC", "FGS")
 #: Pixel times of overhead per row read (the JWST frame time's ``+ 12``).
@@ -113,6 +125,24 @@ def detector_view(array, fast, slow):
     if slow < 0:
         out = out[..., ::-1, :]
     return out
+
+
+def remove_readout_keywords(header):
+    """Remove from ``header`` (in place) every keyword of this package's readout (its
+    `~spherex_reduce.core.fields.FIELDS`, ``CHANW``, ``ORDER``): in a JWST header the same
+    names mean other things (``NFRAMES`` the frames per group, ``FASTAXIS`` an axis).
+
+    Examples
+    --------
+    >>> from astropy.io import fits
+    >>> from spherex_reduce.io.readers.jwst_level1 import remove_readout_keywords
+    >>> h = fits.Header({"NFRAMES": 4, "FASTAXIS": "columns", "TELESCOP": "JWST"})
+    >>> remove_readout_keywords(h)
+    >>> list(h)
+    ['TELESCOP']
+    """
+    for key in (*(k for f in FIELDS for k in f.keywords), "CHANW", "ORDER"):
+        header.remove(key, ignore_missing=True, remove_all=True)
 
 
 def dms_view(array, fast, slow):
@@ -428,10 +458,8 @@ class JWSTLevel1(Closing):
         notes = []
         schedule, (fast, slow), first = self.schedule(supplied, options, notes)
         header = self._file.hdul[0].header.copy()
-        for f in FIELDS:  # the file's keywords are JWST's: never read as ours
-            for key in (f.keyword, *(f.side_keywords or ())):
-                header.remove(key, ignore_missing=True)
-        for key in ("CHECKSUM", "DATASUM", "ORDER", "NEXTEND", "CHANW", "DATAMODL", "FILENAME"):
+        remove_readout_keywords(header)  # the file's keywords are JWST's: never read as ours
+        for key in ("CHECKSUM", "DATASUM", "NEXTEND", "DATAMODL", "FILENAME"):
             header.remove(key, ignore_missing=True)
         header["JWFASTAX"] = (fast, "JWST input's FASTAXIS; data: detector's")
         header["JWSLOWAX"] = (slow, "JWST input's SLOWAXIS; data: detector's")

@@ -129,6 +129,13 @@ class Progress:
         Where to print the expected duration (default `sys.stdout`).
     bar_stream : file, optional
         Where the bar goes if it is a terminal (default `sys.stderr`).
+    until : str, optional
+        When the run may stop before ``total`` (the message then says "up
+        to" and gives this).
+    warmup : int
+        Tasks whose one-off work (a table the later ones reuse) would mislead
+        the estimate: it is made when the next one is done, from that one's
+        duration.
 
     Examples
     --------
@@ -141,12 +148,15 @@ class Progress:
     True
     """
 
-    def __init__(self, total, noun, enabled, parallel=1, stream=None, bar_stream=None):
+    def __init__(self, total, noun, enabled, parallel=1, stream=None, bar_stream=None,
+                 until=None, warmup=0):
         self.total, self.noun, self.enabled = int(total), noun, bool(enabled)
+        self.until, self.warmup = until, int(warmup)
         self.parallel = parallel
         self.stream = sys.stdout if stream is None else stream
         self.start = time.perf_counter()
         self.count = 0
+        self._timed, self._last = 0, self.start
         #: the expected duration of the whole run (s), once the first task is done
         self.expected = None
         self._bar = terminal_bar(self.enabled, bar_stream, total=self.total, desc=f"{noun}s")
@@ -158,12 +168,20 @@ class Progress:
         self._bar.close()
 
     def done(self, seconds=None):
-        """One task finished, in ``seconds`` of its own (None: unknown); the first one
-        times the run (printed when enabled)."""
+        """One task finished, in ``seconds`` of its own (None: since the previous one); the
+        first one after the warm-up times the run (printed when enabled)."""
         self.count += 1
-        if self.count == 1:
-            elapsed = time.perf_counter() - self.start
-            self._announce(elapsed, elapsed if seconds is None else seconds)
+        self._timed += 1
+        now = time.perf_counter()
+        if self._timed == self.warmup + 1:
+            self._announce(now - self.start, now - self._last if seconds is None else seconds)
+        self._last = now
+        self._bar.update(1)
+
+    def skip(self):
+        """One task that did not run (refused at once): counted, never timing the run."""
+        self.count += 1
+        self._last = time.perf_counter()
         self._bar.update(1)
 
     @staticmethod
@@ -182,8 +200,9 @@ class Progress:
         return threads or None
 
     def _announce(self, elapsed, each):
-        rounds = self.total if not self.parallel else math.ceil(self.total / self.parallel)
-        self.expected = elapsed + each * (rounds - 1)
+        at_once = self.parallel or 1
+        left = math.ceil(self.total / at_once) - math.ceil(self.count / at_once)
+        self.expected = elapsed + each * left
         if not self.enabled or self.total < 2:
             return
         how = f"{format_duration(each)} each"
@@ -191,6 +210,11 @@ class Progress:
             how += ", one at a time"
         elif self.parallel > 1:
             how += f", {self.parallel} at a time"
+        if self.until:
+            print(f"up to about {format_duration(self.expected)} for up to "
+                  f"{plural(self.total, self.noun)} ({how}; {self.until})", file=self.stream,
+                  flush=True)
+            return
         print(f"about {format_duration(self.expected)} for {plural(self.total, self.noun)} "
               f"({how})", file=self.stream, flush=True)
 

@@ -55,3 +55,26 @@ def test_serial_tasks_run_in_order_and_are_counted():
                                                (90000, "1 d 1 h"), (float("inf"), "forever")])
 def test_durations_read_as_people_write_them(seconds, text):
     assert format_duration(seconds) == text
+
+
+def test_a_warm_up_task_does_not_time_the_run_and_skipped_tasks_never_do():
+    """warmup=1: the first task (one-off work) is left out; a task skipped at once is
+    counted but never times the run: 3 s so far plus the 7 tasks left at 2 s each."""
+    out = io.StringIO()
+    with Progress(10, "timing", True, stream=out, warmup=1) as p:
+        p.skip()
+        p.done(30.0)  # the warm-up: a table the later tasks reuse
+        assert out.getvalue() == ""
+        p.start = time.perf_counter() - 3.0
+        p.done(2.0)
+    assert out.getvalue() == "about 17 s for 10 timings (2.0 s each)\n"
+    assert p.count == 3
+
+
+def test_a_run_that_may_stop_early_says_up_to():
+    out = io.StringIO()
+    with Progress(20, "pair", True, stream=out, until="stopping once it is known") as p:
+        p.start = time.perf_counter() - 2.0
+        p.done(2.0)
+    assert out.getvalue() == ("up to about 40 s for up to 20 pairs (2.0 s each; "
+                              "stopping once it is known)\n")

@@ -42,8 +42,15 @@ from ..forecast.steps import linear_steps
 from ..spectrum import BAND_KMAX, BAND_KMIN
 from .row_orders import FAMILIES, max_skip
 
-__all__ = ["BASELINE", "DESIGN_PARAMETERS", "MAX_CHOICES", "MAX_ITERATIONS", "MAX_TIMINGS",
-           "TOP_KEYS", "Baseline", "Design", "load_design"]
+__all__ = ["BASELINE", "DESIGN_PARAMETERS", "GAIN_ERROR", "MAX_CHOICES", "MAX_ITERATIONS",
+           "MAX_TIMINGS", "MIN_PAIRS", "TOP_KEYS", "Baseline", "Design", "load_design"]
+
+#: The paired Monte Carlo's default target: the standard error of its gain (1 - best /
+#: baseline band power), 1 percentage point.
+GAIN_ERROR = 0.01
+#: Pairs the Monte Carlo runs before its gain's error may stop it (the error of fewer
+#: pairs' scatter is itself too uncertain to stop on).
+MIN_PAIRS = 8
 
 
 @dataclass(frozen=True)
@@ -129,7 +136,10 @@ DESIGN_PARAMETERS = (
                   maximum=MAX_ITERATIONS),
         replace(SEED, doc="seed of the local search"))),
     replace(REALIZATIONS, default=20, minimum=0,
-            doc="realisations of the paired Monte Carlo (0: none)"),
+            doc="most realisations of the paired Monte Carlo (0: none)"),
+    Parameter("gain_error", GAIN_ERROR, (float,),
+              f"the paired Monte Carlo stops once its gain's standard error is at most this, "
+              f"after {MIN_PAIRS} pairs at least (0: every realisation)", minimum=0, maximum=1),
     replace(SEED, doc="seed of the paired Monte Carlo"),
 )
 TOP_KEYS = tuple(p.name for p in DESIGN_PARAMETERS)
@@ -157,6 +167,7 @@ class Design:
     search_seed: int
     realizations: int
     seed: int
+    gain_error: float
 
 
 def load_design(source):
@@ -202,10 +213,13 @@ def load_design(source):
         ``repeated``), ``finalists`` (orders whose timing is searched,
         default 2), ``iterations`` (of the local search, default 100) and
         ``seed``.
-    ``realizations``, ``seed``
-        Of the paired Monte Carlo confirmation (default 20 and 0; 0
-        realisations: none).  A scene read at given ``read_times`` is
-        forecast at those times but not simulated: it needs ``realizations: 0``.
+    ``realizations``, ``seed``, ``gain_error``
+        Of the paired Monte Carlo confirmation: the most realisations (default
+        20; 0: none), the first seed (default 0) and the standard error of the
+        gain at which it stops (default `GAIN_ERROR`, 1 percentage point, once
+        `MIN_PAIRS` pairs have run; 0: every realisation).  A scene read at
+        given ``read_times`` is forecast at those times but not simulated: it
+        needs ``realizations: 0``.
 
     Raises
     ------
@@ -271,7 +285,7 @@ def load_design(source):
         phantom_reads=search["phantom_reads"], ref_reads=search["ref_reads"],
         ref_modes=search["ref_modes"], finalists=search["finalists"],
         iterations=search["iterations"], search_seed=search["seed"],
-        realizations=realizations, seed=v["seed"],
+        realizations=realizations, seed=v["seed"], gain_error=v["gain_error"],
     )
 
 

@@ -19,7 +19,8 @@ schedule is then compared with the baseline (the paper's S = 24, r = 32
 distributed, c = 4 at the same frame time): forecast P(k) per bin and per
 noise component, and a paired Monte Carlo (the same seeds for both
 schedules, reduced with the design's pipeline, band power measured by
-`~spherex_reduce.analysis.case.SpectrumMeasure`).
+`~spherex_reduce.analysis.case.SpectrumMeasure`), which stops once the
+standard error of its gain is ``gain_error`` (1 percentage point by default).
 """
 
 import time
@@ -38,7 +39,7 @@ from ...simulation.scene import load_scene
 from ..case import SpectrumMeasure, run_case
 from ..forecast.engine import band_power_forecast, forecast_tables
 from ..light import light_sensitive_image
-from .file import load_design
+from .file import MIN_PAIRS, load_design
 from .row_orders import explicit_order, family_orders
 
 __all__ = ["Candidate", "DesignResult", "design_readout", "plot_design"]
@@ -164,18 +165,15 @@ def design_readout(design, progress=False):
                if scene_of.fits(g, c, r) and (r == 0 or g.border.rows) and
                (r > 0 or m == d.ref_modes[0])]
     finalists = _best_orders(objective.tried, d.finalists)
-    with Progress(len(finalists) * len(timings), "timing", progress) as bar:
-        held = 0  # refused at once (no reference reads): counted with the first forecast,
-        for cand in finalists:  # which times the stage
+    # the first forecast computes the slope covariance the later ones share: not the timer
+    with Progress(len(finalists) * len(timings), "timing", progress, warmup=1) as bar:
+        for cand in finalists:
             for c, r, m in timings:
-                held += 1
                 if objective("timing", cand.family, cand.label, c, r, m, cand.permutation,
-                             cand.skip) is not None or bar.count:
-                    for _ in range(held):
-                        bar.done()
-                    held = 0
-        for _ in range(held):
-            bar.done()
+                             cand.skip) is None:
+                    bar.skip()  # refused at once (no reference reads)
+                else:
+                    bar.done()
     seconds["timing"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     rng = np.random.default_rng(d.search_seed)
@@ -353,26 +351,30 @@ def _describe(cand, scene):
 
 
 def _confirm(d, report, best_scene, base_scene, progress):
-    """The paired Monte Carlo: both scenes simulated with seeds ``seed ... seed + R - 1``,
-    reduced and measured; adds the mean P(k) to ``report`` and the band powers, the gain and
-    its standard error to its meta."""
+    """The paired Monte Carlo: both scenes simulated with seeds ``seed, seed + 1, ...``,
+    reduced and measured, up to ``d.realizations`` pairs, stopping once `MIN_PAIRS` have run
+    and the gain's standard error is at most ``d.gain_error``; adds the mean P(k) to
+    ``report`` and the band powers, the gain and its standard error to its meta."""
     measure = SpectrumMeasure(kmin=d.kmin, kmax=d.kmax, bins=d.bins)
     runs = {"baseline": [], "best": []}
-    with Progress(d.realizations, "paired realisation", progress) as bar:
+    until = (f"stopping once the gain's standard error is <= {d.gain_error:g}, after "
+             f"{MIN_PAIRS} at least" if d.gain_error and d.realizations > MIN_PAIRS else None)
+    with Progress(d.realizations, "paired realisation", progress, until=until) as bar:
         for i in range(d.realizations):
             for name, scene in (("baseline", base_scene), ("best", best_scene)):
                 runs[name].append(_measured(scene, d.pipeline, measure, d.seed + i))
             bar.done()
-    a = np.array([m["band_power"].value for m in runs["baseline"]])
-    b = np.array([m["band_power"].value for m in runs["best"]])
-    ratio = b.mean() / a.mean()
-    err = np.std(b - ratio * a, ddof=1) / np.sqrt(a.size) / a.mean() if a.size > 1 else np.nan
+            a, b = (np.array([m["band_power"].value for m in runs[k]]) for k in runs)
+            ratio, err = _paired_gain(a, b)
+            if until and a.size >= MIN_PAIRS and err <= d.gain_error:
+                break
     unit = report["power_baseline"].unit
     for name in runs:  # the measure's spectrum has the forecast's bins (empty ones left out)
         power = np.mean([np.asarray(m["spectrum"]["power"]) for m in runs[name]], axis=0)
         report[f"power_mc_{name}"] = power * unit
     report.meta["monte_carlo"] = {
-        "realizations": d.realizations, "seeds": [d.seed, d.seed + d.realizations - 1],
+        "realizations": int(a.size), "most_realizations": d.realizations,
+        "gain_error_target": d.gain_error, "seeds": [d.seed, d.seed + int(a.size) - 1],
         "band_power_baseline": float(a.mean()),
         "band_power_baseline_err": float(a.std(ddof=1) / np.sqrt(a.size)) if a.size > 1
         else None,
@@ -380,6 +382,15 @@ def _confirm(d, report, best_scene, base_scene, progress):
         "band_power_best_err": float(b.std(ddof=1) / np.sqrt(b.size)) if b.size > 1 else None,
         "gain": float(1 - ratio), "gain_err": float(err),
     }
+
+
+def _paired_gain(a, b):
+    """``(mean b / mean a, standard error of 1 - that ratio)`` of paired band powers (the
+    delta method: the scatter of ``b - ratio a``); the error is NaN for one pair."""
+    ratio = b.mean() / a.mean()
+    if a.size < 2:
+        return ratio, np.nan
+    return ratio, np.std(b - ratio * a, ddof=1) / np.sqrt(a.size) / a.mean()
 
 
 def _measured(scene, pipeline, measure, seed):

@@ -24,6 +24,8 @@ has the bins, normalisation and columns of
 pixels (`~spherex_reduce.analysis.light`).
 """
 
+import functools
+
 import numpy as np
 from astropy import units as u
 
@@ -249,8 +251,7 @@ def band_power_forecast(scene, pipeline=None, kmin=BAND_KMIN, kmax=BAND_KMAX, *,
     """
     sc, red, rows, cols, comps = prepare_forecast(scene, pipeline)
     frame, flip, (ny, nx) = _frames(sc.schedule.geometry, rows, cols)
-    idx = k_grid(ny, nx, (float(kmin), float(kmax)), bool(exclude_horizontal))[0]
-    sy, sx = np.nonzero((idx == 0).reshape(ny, nx // 2 + 1))  # the band's stored cells
+    sy, sx = _band_cells(ny, nx, float(kmin), float(kmax), bool(exclude_horizontal))
     if not sy.size:
         raise SpherexReduceError(f"forecast: no Fourier mode of the {ny} x {nx} image has "
                                  f"{kmin} <= |k| <= {kmax}")
@@ -261,6 +262,17 @@ def band_power_forecast(scene, pipeline=None, kmin=BAND_KMIN, kmax=BAND_KMAX, *,
     w = rfft_weights(nx)[sx]
     power = sum(np.sum(p[pick] * w) for p in parts.values()) / np.sum(w) / (ny * nx)
     return float(power + poisson_variance(sc))
+
+
+@functools.lru_cache(maxsize=8)
+def _band_cells(ny, nx, kmin, kmax, exclude_horizontal):
+    """The stored rfft2 cells ``(rows, columns)`` of an ``(ny, nx)`` image in the band (kept:
+    a search asks for the same band hundreds of times)."""
+    idx = k_grid(ny, nx, (kmin, kmax), exclude_horizontal)[0]
+    cells = np.nonzero((idx == 0).reshape(ny, nx // 2 + 1))
+    for a in cells:
+        a.flags.writeable = False
+    return cells
 
 
 def _frames(geometry, rows, cols):

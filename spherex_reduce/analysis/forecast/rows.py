@@ -36,6 +36,7 @@ of those cells only.
 """
 
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -131,9 +132,10 @@ def component_planes(schedule, rows, cols, comps, reduction, nodes=NODES, cells=
     re, im = (np.zeros((len(comps), distinct.size, cells.kx.size)) for _ in range(2))
     for lo in range(0, distinct.size, CHUNK_ROWS):  # (rows, 2 slots) arrays a chunk at a time
         a = _row_pairs(schedule, rows, distinct[lo:lo + CHUNK_ROWS])
+        w = table.far_weights(a)  # every component's far lags summed on its nodes at once
         for i, comp in enumerate(comps):
             x = light_spectra.correlate(("light", light), ("light", light), comp)
-            re[i, lo:lo + a.shape[0]], im[i, lo:lo + a.shape[0]] = table.real_products(i, a, x)
+            re[i, lo:lo + a.shape[0]], im[i, lo:lo + a.shape[0]] = table.real_products(i, w, x)
     spectra = light_spectra.fork()  # the reference reads' functionals are this schedule's
     parts = {}
     for i, comp in enumerate(comps):
@@ -209,6 +211,55 @@ def _lag_table(schedule, comps, half, nodes):
     return _lag_tables.get(key, lambda: _LagTable(schedule, comps, half, nodes))
 
 
+#: Lags a `_CovarianceLine` keeps (beyond, it starts again): ~50 MB for five components.
+LINE_LAGS = 2**20
+_lines = RecentlyUsed(2)
+
+
+def _covariance_line(schedule, comps):
+    """The `_CovarianceLine` of a schedule's frames and components (the last two kept).
+
+    The slope covariance depends on a schedule only through its frames (`slope_frames`:
+    the number of frames, the samples per frame or the read times, and the pixel rate),
+    so the timings of a search at one frame time (other ``c``, ``r``, placements) share
+    it: each asks for the lags of its own row time and computes only those not yet known.
+    """
+    key = repr((schedule.nframes, schedule.frame_samples, schedule.geometry.pixel_rate,
+                schedule.read_times, list(comps), CHUNK_LAGS))
+    return _lines.get(key, lambda: _CovarianceLine(schedule, comps))
+
+
+class _CovarianceLine:
+    """`slope_covariance` of some components at the lags asked so far (sorted), computed
+    `CHUNK_LAGS` at a time; thread-safe."""
+
+    def __init__(self, schedule, comps):
+        self.schedule, self.comps = schedule, comps
+        self.lags = np.zeros(0, dtype=np.int64)
+        self.values = np.zeros((len(comps), 0))
+        self._lock = threading.Lock()
+
+    def at(self, lags):
+        """The covariance ``(ncomp, lags.size)`` at ``lags`` (whole samples, >= 0,
+        increasing and distinct)."""
+        lags = np.asarray(lags, dtype=np.int64)
+        with self._lock:
+            if self.lags.size + lags.size > LINE_LAGS:
+                self.lags, self.values = self.lags[:0], self.values[:, :0]
+            pos = np.minimum(np.searchsorted(self.lags, lags), max(self.lags.size - 1, 0))
+            known = (self.lags[pos] == lags) if self.lags.size else np.zeros(lags.size, bool)
+            new = lags[~known]
+            if new.size:
+                cov = np.concatenate([slope_covariance(self.comps, self.schedule,
+                                                       new[lo:lo + CHUNK_LAGS])
+                                      for lo in range(0, new.size, CHUNK_LAGS)], axis=1)
+                merged = np.concatenate([self.lags, new])
+                order = np.argsort(merged, kind="stable")
+                self.lags = merged[order]
+                self.values = np.concatenate([self.values, cov], axis=1)[:, order]
+            return self.values[:, np.searchsorted(self.lags, lags)]
+
+
 class _LagTable:
     """``S(m R + d)`` of each component at every read-slot lag ``m`` and offset
     difference ``d`` (``|d| <= half``): exact near a singularity, on Chebyshev nodes
@@ -226,9 +277,7 @@ class _LagTable:
         lags = np.concatenate([(m[near][:, None] * rs + d[None, :]).ravel(),
                                (m[~near][:, None] * rs + dnodes[None, :]).ravel()])
         lags, inverse = np.unique(np.abs(lags), return_inverse=True)  # S is even
-        cov = (np.concatenate([slope_covariance(comps, s, lags[lo:lo + CHUNK_LAGS])
-                               for lo in range(0, lags.size, CHUNK_LAGS)], axis=1)
-               [:, inverse.ravel()] if comps else None)
+        cov = _covariance_line(s, comps).at(lags)[:, inverse.ravel()] if comps else None
         nnear = near.sum() * d.size
         self.s_near = [cov[i, :nnear].reshape(near.sum(), d.size) for i in range(len(comps))]
         self.s_far = [cov[i, nnear:].reshape((~near).sum(), dnodes.size)
@@ -240,7 +289,9 @@ class _LagTable:
         component, summed against ``S`` on the nodes of the far lags ``(n, ncomp, nodes)``:
         what `split_products` takes."""
         far = w[:, self.far]
-        stacked = np.concatenate(self.s_far, axis=1) if self.s_far else np.zeros((0, 0))
+        if not self.s_far:  # no component
+            return w[:, self.near], np.zeros((w.shape[0], 0, 0))
+        stacked = np.concatenate(self.s_far, axis=1)
         return w[:, self.near], (far @ stacked).reshape(w.shape[0], len(self.s_far), -1)
 
     def split_products(self, i, w_near, w_far, x):
@@ -253,13 +304,13 @@ class _LagTable:
         ``(n_far, nodes)`` and the nodes' weights ``(nodes, nkx)``)."""
         return self.s_near[i] @ x.T, self.s_far[i], (x @ self.interp).T
 
-    def real_products(self, i, w, x):
+    def real_products(self, i, weights, x):
         """``Re w`` times the real and ``Im w`` times the imaginary part of ``sum_m w(m)
-        sum_d X(k_x, d) S(m R + d)``, for ``w`` ``(n, 2 slots)``: with ``w(-k_y) =
-        conj w(k_y)`` and ``X`` Hermitian in ``d``, ``re - im`` and ``re + im`` are the
-        cells of ``k_y`` and ``-k_y``."""
-        q_near, s_far, nodes = self._q(i, x)
-        w_near, w_far = w[:, self.near], w[:, self.far] @ s_far
+        sum_d X(k_x, d) S(m R + d)``, for ``w`` ``(n, 2 slots)`` given as `far_weights`
+        gives it: with ``w(-k_y) = conj w(k_y)`` and ``X`` Hermitian in ``d``, ``re - im``
+        and ``re + im`` are the cells of ``k_y`` and ``-k_y``."""
+        q_near, _, nodes = self._q(i, x)
+        w_near, w_far = weights[0], weights[1][:, i]
         re = w_near.real @ q_near.real + w_far.real @ nodes.real
         im = w_near.imag @ q_near.imag + w_far.imag @ nodes.imag
         return re, im
@@ -303,11 +354,16 @@ def _row_pairs(schedule, rows, ky):
     first = _light_reads(s, rows)
     ny = rows.stop - rows.start
     k = 2 * np.pi * np.unique(np.minimum(ky, ny - ky)) / ny
-    g = np.zeros((k.size, 2 * slots), dtype=complex)
+    n = scipy.fft.next_fast_len(2 * slots)  # the lags |m| < slots stay apart at any n >= 2 slots
+    g = np.zeros((k.size, n), dtype=complex)
     g[:, slot[first]] = np.exp(-1j * k[:, None] * np.arange(ny)[None, :])
     f = scipy.fft.fft(g, axis=1, workers=-1)
     f = f.real**2 + f.imag**2
-    return scipy.fft.ifft(f, axis=1, workers=-1)
+    a = scipy.fft.ifft(f, axis=1, workers=-1)
+    m = np.arange(-(slots - 1), slots)
+    out = np.zeros((k.size, 2 * slots), dtype=complex)
+    out[:, m % (2 * slots)] = a[:, m % n]
+    return out
 
 
 #: Light functionals (and their correlations) kept by `_light`.

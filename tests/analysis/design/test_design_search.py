@@ -169,6 +169,28 @@ def test_the_paired_monte_carlo_uses_the_same_seeds_for_both_schedules():
     assert set(res.report.colnames) >= {"power_mc_baseline", "power_mc_best"}
 
 
+@pytest.mark.parametrize("target", [0.13, 0.0])
+def test_the_monte_carlo_stops_once_its_gain_is_known_to_the_error_asked(target):
+    """The pairs run until the paired gain's standard error (numpy, from pairs measured one
+    by one here) is at most ``gain_error``, never before MIN_PAIRS pairs; 0 runs them all."""
+    from spherex_reduce.analysis import run_case
+    from spherex_reduce.analysis.design.file import MIN_PAIRS
+
+    res = design_readout(_gain_design(realizations=12, seed=3, gain_error=target))
+    mc = res.report.meta["monte_carlo"]
+    ft = res.report.meta["frame_time"]
+    a, b = (np.array([run_case(_skip_scene(s, frame_time=ft), "spherex-default", BAND,
+                               seed=seed, mode="slopes").measurement["band_power"].value
+                      for seed in range(3, 15)]) for s in (1, 3))
+    errors = {n: np.std(b[:n] - b[:n].mean() / a[:n].mean() * a[:n], ddof=1) / np.sqrt(n)
+              / a[:n].mean() for n in range(2, 13)}
+    n = next((n for n, e in errors.items() if n >= MIN_PAIRS and e <= target), 12)
+    assert target == 0 or n < 12  # the case stops early: not a tautology
+    assert (mc["realizations"], mc["most_realizations"], mc["seeds"]) == (n, 12, [3, 2 + n])
+    assert mc["gain_err"] == pytest.approx(errors[n], rel=1e-9)
+    assert mc["gain"] == pytest.approx(1 - b[:n].mean() / a[:n].mean(), rel=1e-12)
+
+
 def test_a_noise_table_or_fit_noise_result_replaces_the_scenes_noise(tmp_path):
     table = tmp_path / "noise.ecsv"
     Table({"name": ["a"], "alpha": [1e-5], "beta": [3e-3], "gamma": [0.0]}).write(table)

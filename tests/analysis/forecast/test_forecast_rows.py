@@ -94,6 +94,33 @@ def test_a_lag_table_serves_every_row_order_of_its_timing_and_no_other_timing():
         check_against_brute_force(_searched(**changes), *PIPELINES["spherex-default"])
 
 
+def test_timings_at_one_frame_time_share_one_slope_covariance_line():
+    """c = 2 and c = 3 (other row times, the same frames) ask the same line for their own
+    lags: it computes each lag once and holds the union, each value that of
+    slope_covariance at that lag; a longer frame gets its own line."""
+    from spherex_reduce.noise.variance import slope_covariance
+
+    def timed(**changes):  # a fixed frame time, as a search's budget fixes it
+        sc = _searched(**changes)
+        readout = {k: v for k, v in sc.config["readout"].items() if k != "frame_overhead"}
+        return load_scene({**sc.config, "readout": {**readout, "frame_time": 0.25}})
+
+    first, other_c = timed(), timed(phantom_reads=3)
+    assert first.schedule.row_samples != other_c.schedule.row_samples
+    comps = first.components
+    for sc in (first, other_c):
+        forecast(sc, measure={"bins": BINS})
+    line = forecast_rows._covariance_line(first.schedule, comps)
+    assert forecast_rows._covariance_line(other_c.schedule, comps) is line
+    assert forecast_rows._covariance_line(_searched().schedule, comps) is not line
+    tables = [forecast_rows._lag_table(sc.schedule, comps, 9 + sc.schedule.phantom_reads, 8)
+              for sc in (first, other_c)]
+    assert tables[0] is not tables[1]
+    assert np.all(np.diff(line.lags) > 0) and line.lags.size > 0
+    np.testing.assert_allclose(line.values, slope_covariance(comps, first.schedule, line.lags),
+                               rtol=1e-12, atol=0)
+
+
 def test_the_light_functionals_are_shared_by_row_orders_and_timings_not_by_c():
     """A search's forecasts share the light rows' functional and its correlations (they
     depend on the geometry, the cells, c and the reduction, not on the row order or the

@@ -121,8 +121,10 @@ def component_planes(schedule, rows, cols, comps, reduction, nodes=NODES, cells=
     _check_memory(schedule, (ny, nx), distinct.size, cells, len(comps), c, wiener)
     table = _lag_table(schedule, comps, g.channel_width - 1 + c, nodes)
     light, light_spectra = _light(schedule, rows, cols, cells.kx, c, reduction)
-    ref = None if wiener else _reference_functionals(schedule, cols, cells.kx, c, reduction,
-                                                     ny)
+    ref = ref_spectra = None
+    if not wiener and reduction.reference is not None:
+        ref, ref_spectra = _reference(schedule, rows, cols, cells.kx, c, reduction,
+                                      light_spectra)
     has_zero = cells.ky.size and cells.ky[0] == 0
     if ref is not None and has_zero:
         light_reads = np.zeros(2 * (int(_slots(schedule).max()) + 1))
@@ -136,18 +138,18 @@ def component_planes(schedule, rows, cols, comps, reduction, nodes=NODES, cells=
         for i, comp in enumerate(comps):
             x = light_spectra.correlate(("light", light), ("light", light), comp)
             re[i, lo:lo + a.shape[0]], im[i, lo:lo + a.shape[0]] = table.real_products(i, w, x)
-    spectra = light_spectra.fork()  # the reference reads' functionals are this schedule's
+    spectra = light_spectra.fork() if wiener else None  # its terms are this schedule's
     parts = {}
     for i, comp in enumerate(comps):
         parts[comp.name] = np.where(negative[:, None], re[i, first] + im[i, first],
                                     re[i, first] - im[i, first])
         if ref is not None and has_zero:
             for n, (ind, f) in enumerate(ref):
-                x = spectra.correlate(("light", light), (n, f), comp)
+                x = ref_spectra.correlate(("light", light), (n, f), comp)
                 cross = table.products(i, _slot_pairs(light_reads, ind), x)
                 parts[comp.name][0] += 2 * cross.real
                 for n2, (ind2, f2) in enumerate(ref):
-                    x = spectra.correlate((n, f), (n2, f2), comp)
+                    x = ref_spectra.correlate((n, f), (n2, f2), comp)
                     auto = table.products(i, _slot_pairs(ind, ind2), x)
                     parts[comp.name][0] += auto.real
     if wiener:  # k_y rows a chunk at a time: a term holds (rows, 2 slots) arrays
@@ -409,33 +411,56 @@ def _functionals(schedule, rows, cols, kx, c, reduction):
     return parts
 
 
-def _reference_functionals(schedule, cols, kx, c, reduction, ny):
-    """The reads the reference offsets average, at ``k_y = 0``: a list of (slot
-    indicator ``(2 slots,)``, functional of each channel as `_functionals` gives it), one
-    for the reference reads and, with side columns, one for the active reads.
+#: Reference functionals (and their correlations) kept by `_reference`.
+_references = RecentlyUsed(LIGHT_FUNCTIONALS)
+
+
+def _reference(schedule, rows, cols, kx, c, reduction, light_spectra):
+    """The reads the reference offsets average, at ``k_y = 0``: a list of (slot indicator
+    ``(2 slots,)``, functional of each channel as `_functionals` gives it), one for the
+    reference reads and, with side columns, one for the active reads; and the
+    `Correlations` to take theirs with.
+
+    The functionals depend on the schedule only through how many reads are reference
+    reads, not on which slots they take: the schedules of a search share them and their
+    correlations (the last `LIGHT_FUNCTIONALS` are kept), each with its own indicators.
+    """
+    s = schedule
+    nref = int(s.is_reference.sum())
+    kx = np.asarray(kx)
+    key = repr((s.geometry, rows, cols, kx.dtype.str, kx.tobytes(), int(c), reduction, nref,
+                s.n_reads))
+    kinds, spectra = _references.get(key, lambda: (
+        _reference_functionals(s.geometry, nref, s.n_reads - nref, cols, kx, c, reduction,
+                               rows.stop - rows.start), light_spectra.fork()))
+    slot = _slots(s)
+    out = []
+    for reads, parts in zip((s.is_reference, ~s.is_reference), kinds, strict=False):
+        indicator = np.zeros(2 * (int(slot.max()) + 1))
+        np.add.at(indicator, slot[reads], 1.0)
+        out.append((indicator, parts))
+    return out, spectra
+
+
+def _reference_functionals(g, nref, nact, cols, kx, c, reduction, ny):
+    """The functional of the reference reads and, with side columns, of the active reads
+    (a list of `Part` lists, as `_reference` gives them), of a geometry read with ``nref``
+    reference and ``nact`` active reads.
 
     A pixel of group ``g`` (the channel's columns, or those of one offset parity with
     ``acn``) gets the offset ``mu_g``, the mean over the ``N_g`` reference pixels of the
     group (each minus its read's phantom value when ``reduction.reference_phantom``); so
     the image's ``k_y = 0`` row loses ``ny E_g(k_x) mu_g``, ``E_g`` the phases of the
-    group's light columns.  None without a reference correction."""
-    if reduction.reference is None:
-        return None
-    s = schedule
-    g = s.geometry
-    nref = int(s.is_reference.sum())
+    group's light columns."""
     width, nch = g.channel_width, g.nchannels
     j, phase = column_phases(g, cols, kx)
     nkx = phase.shape[1]
     offsets, chan = g.column_offsets(), g.channel_of_column()
     parity = offsets % 2 if reduction.reference == "acn" else np.zeros(g.ncols, int)
     side = g.reference_column_mask() if reduction.side_columns else np.zeros(g.ncols, bool)
-    nact = int((~s.is_reference).sum())
-    slot = _slots(s)
-    slots = int(slot.max()) + 1
-    kinds = [(s.is_reference, np.ones(g.ncols, bool))]
+    kinds = [np.ones(g.ncols, bool)]  # the columns each kind of read gives
     if side.any():
-        kinds.append((~s.is_reference, side))
+        kinds.append(side)
     pix = [{} for _ in kinds]  # per kind: {offsets used: amp (nch, nkx)}
     phantom = [np.zeros((nch, nkx), dtype=complex) for _ in kinds]
     for group in np.unique(parity):
@@ -443,16 +468,14 @@ def _reference_functionals(schedule, cols, kx, c, reduction, ny):
         for ch in range(nch):
             used = (chan == ch) & (parity == group)
             total = nref * used.sum() + nact * (used & side).sum()  # N_g
-            for n, (_, columns) in enumerate(kinds):
+            for n, columns in enumerate(kinds):
                 o = np.sort(offsets[used & columns])
                 if o.size:
                     amp = pix[n].setdefault(o.tobytes(), np.zeros((nch, nkx), complex))
                     amp[ch] -= ny * box[ch] / total
                     phantom[n][ch] += ny * box[ch] * o.size / total
     out = []
-    for n, (reads, _) in enumerate(kinds):
-        indicator = np.zeros(2 * slots)
-        np.add.at(indicator, slot[reads], 1.0)
+    for n in range(len(kinds)):
         parts = []
         for used, amp in pix[n].items():
             profile = np.zeros(c + width)
@@ -462,7 +485,7 @@ def _reference_functionals(schedule, cols, kx, c, reduction, ny):
             profile = np.zeros(c + width)
             profile[:c] = 1.0 / c
             parts.append(Part(True, amp=phantom[n], profile=profile))
-        out.append((indicator, parts))
+        out.append(parts)
     return out
 
 

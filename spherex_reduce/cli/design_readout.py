@@ -69,8 +69,11 @@ def run(args):
           f"{meta['band_power_best']:.4g}, gain {100 * meta['gain']:.1f} % (forecast)")
     mc = meta.get("monte_carlo")
     if mc:
-        print(f"Monte Carlo ({mc['realizations']} paired realisations): gain "
-              f"{100 * mc['gain']:.1f} ± {100 * mc['gain_err']:.1f} %")
+        ran = f"{mc['realizations']} paired realisations"
+        if mc["realizations"] < mc["most_realizations"]:
+            ran += f" of {mc['most_realizations']}: the gain's error reached gain_error"
+        print(f"Monte Carlo ({ran}): gain {100 * mc['gain']:.1f} ± "
+              f"{100 * mc['gain_err']:.1f} %")
     for path in outputs:
         if path:
             print(f"wrote {path}")

@@ -112,3 +112,17 @@ def test_each_stage_prints_its_expected_duration_before_the_results(tmp_path, ca
                             line), line
     assert out.index(about[-1]) < next(i for i, line in enumerate(out)
                                        if "schedules forecast in" in line)
+
+
+def test_a_monte_carlo_that_stops_early_says_so(tmp_path, capsys):
+    """gain_error far above this case's error (~0.1 at 8 pairs): the Monte Carlo stops at the
+    8 pairs it runs at least, announces up to 12 and says why it ran fewer."""
+    design = tmp_path / "design.yaml"
+    design.write_text(DESIGN.replace("realizations: 2", "realizations: 12\ngain_error: 0.9"))
+    assert run("design-readout", design, "-o", tmp_path / "best.yaml") == 0
+    out = capsys.readouterr().out.splitlines()
+    assert any(re.fullmatch(r"up to about [0-9.]+ (s|min)( [0-9]+ s)? for up to 12 paired "
+                            r"realisations \([0-9.]+ s each; stopping once the gain's standard "
+                            r"error is <= 0.9, after 8 at least\)", line) for line in out), out
+    assert any(line.startswith("Monte Carlo (8 paired realisations of 12: the gain's error "
+                               "reached gain_error): gain ") for line in out), out

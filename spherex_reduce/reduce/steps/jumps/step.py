@@ -28,6 +28,7 @@ from ..fit_ramp.segments import usable_reads
 from ..pixel_maps import MAP_TYPES, PixelMap, adu_gain
 from .events import JumpWarning, event_message, find_read_events
 from .search import StepSearch
+from .telegraph import telegraph_pixels
 
 __all__ = ["DetectJumpsStep", "JumpKernel", "detect_jumps"]
 
@@ -40,7 +41,7 @@ MAX_EVENTS = 4
 
 def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturation=None,
                  max_jumps=10, neighbours=False, neighbours_above=10.0, radius=0.0,
-                 radius_above=1e4, read_events=True):
+                 radius_above=1e4, read_events=True, telegraph=True, positive_only=False):
     """Flag `~spherex_reduce.core.dq.JUMP` on the read at which each pixel's charge stepped.
 
     Every pixel's usable reads are fitted with a line plus a step at each read
@@ -99,6 +100,17 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
         for every pixel), not counted as jumps, and told in one
         `~spherex_reduce.reduce.steps.jumps.events.JumpWarning` naming the read
         and the fix.
+    telegraph : bool
+        Take a pixel whose steps (two or more) alternate in sign, each pair
+        coming back to the same level, as a telegraph pixel
+        (`~spherex_reduce.reduce.steps.jumps.telegraph.telegraph_pixels`): its
+        flips are not jumps (not flagged, not counted), and the reads it
+        spent in its rarer level are flagged `~spherex_reduce.core.dq.DO_NOT_USE`
+        (left out of its fit: its other reads are one line).
+    positive_only : bool
+        Flag only the steps up (charge added, as a cosmic ray adds); a step
+        down is not flagged (the fit goes through it).  The threshold stays
+        the two-sided one: the false alarms halve.
 
     Returns
     -------
@@ -108,7 +120,7 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
         found (reads flagged by the search) and ``NJUMPNB`` the reads flagged
         around them (each read once); ``NRDEVENT`` the read events and
         ``RDEVT1``, ``RDEVT2`` ... each one's read, kind, pixels that stepped
-        there and offset (data unit).
+        there and offset (data unit); ``NTELEGR`` the telegraph pixels.
 
     Notes
     -----
@@ -144,7 +156,8 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
     return DetectJumpsStep()(
         exposure, threshold=threshold, read_noise=read_noise, gain=gain, saturation=saturation,
         max_jumps=max_jumps, neighbours=neighbours, neighbours_above=neighbours_above,
-        radius=radius, radius_above=radius_above, read_events=read_events)
+        radius=radius, radius_above=radius_above, read_events=read_events,
+        telegraph=telegraph, positive_only=positive_only)
 
 
 class JumpKernel(Kernel):
@@ -191,6 +204,7 @@ class JumpKernel(Kernel):
         # whichever bands hold them (a band from a file is one, in memory two)
         self.event_rows = max(1, SEARCH_PIXELS // g.ncols)
         self._events = {}  # (read, kind) -> [jumps, expected, pixels, offset * pixels]
+        self._telegraph = 0  # telegraph pixels, over the bands
 
     # -- the search of one band -------------------------------------------------------
     def _search(self, usable):
@@ -209,6 +223,36 @@ class JumpKernel(Kernel):
         return out
 
     def find(self, block):
+        """The jumps of a band: ``(frames, flat pixel indices, amplitudes, z)``, the flags
+        of its read events (uint32 ``(frames, rows, 1)``, or None: see `_with_events`) and
+        the reads its telegraph pixels are left out at, ``(frames, flat pixel indices)``
+        (their flips are not jumps), with ``positive_only`` only the steps up."""
+        found, flags = self._with_events(block)
+        frames, pix, amp, z = found
+        left_out = None
+        if self.params["telegraph"] and frames.size:
+            nf = block.nframes
+            usable = None
+            if block.dq is not None or flags is not None:
+                usable = np.ones(block.data.shape, bool)
+                if block.dq is not None:
+                    usable &= dq.read_usable(block.dq)
+                if flags is not None:
+                    usable &= (flags & np.uint32(dq.DO_NOT_USE)) == 0
+                usable = usable.reshape(nf, -1)
+            flips, left_out = telegraph_pixels(pix, frames, amp, block.data.reshape(nf, -1),
+                                               self.times, usable)
+            if flips.any():
+                keep = ~flips
+                frames, pix, amp, z = frames[keep], pix[keep], amp[keep], z[keep]
+                with self._lock:
+                    self._telegraph += np.unique(left_out[1]).size
+        if self.params["positive_only"]:
+            keep = amp >= 0  # (0: a mixed group's neighbour, flagged with its pair)
+            frames, pix, amp, z = frames[keep], pix[keep], amp[keep], z[keep]
+        return (frames, pix, amp, z), flags, left_out
+
+    def _with_events(self, block):
         """The jumps of a band and its read events: ``(frames, flat pixel indices,
         amplitudes, z)`` and the flags of the events (uint32 ``(frames, rows, 1)``, or
         None): ``DO_NOT_USE`` on a read that is off, for every pixel of the rows of the
@@ -327,33 +371,43 @@ class JumpKernel(Kernel):
             return None
         source = MemorySource(exposure)
         rows = max(1, SEARCH_PIXELS // self.context.geometry.ncols)
-        parts, events = [], []
+        parts, events, quiet = [], [], []
         for lo in range(0, source.nrows, rows):
             block = source.read(lo, min(source.nrows, lo + rows))
-            (frames, pix, amp, z), flags = self.find(block)
+            (frames, pix, amp, z), flags, left_out = self.find(block)
             ncols = block.data.shape[-1]
             parts.append((frames, block.index[pix // ncols], pix % ncols, amp, z))
             if flags is not None:
                 f, r = np.nonzero(flags[..., 0])
                 events.append((f, block.index[r], flags[f, r, 0]))
+            if left_out is not None and left_out[0].size:
+                f, p = left_out
+                quiet.append((f, block.index[p // ncols], p % ncols))
         frames, index, cols, amp, z = (np.concatenate(a) for a in zip(*parts, strict=True))
         around = _around(self.context, self.params, frames, index, cols, amp, z)
         flags = [np.concatenate(a) for a in zip((frames, index, cols), around, strict=True)]
         events = [np.concatenate(a) for a in zip(*events, strict=True)] if events else None
-        return _Flags(*flags, found=frames.size, around=around[0].size, events=events)
+        quiet = [np.concatenate(a) for a in zip(*quiet, strict=True)] if quiet else None
+        return _Flags(*flags, found=frames.size, around=around[0].size, events=events,
+                      left_out=quiet)
 
     def apply(self, coefficients, block):
         if coefficients is None:
-            (frames, pix, _, _), events = self.find(block)
+            (frames, pix, _, _), events, left_out = self.find(block)
             ncols = block.data.shape[-1]
             rows, cols = pix // ncols, pix % ncols
+            if left_out is not None:
+                left_out = (left_out[0], left_out[1] // ncols, left_out[1] % ncols)
             with self._lock:
                 self._found += frames.size
         else:
             frames, rows, cols = coefficients.within(block.index)
             events = coefficients.events_within(block.index, block.nframes)
+            left_out = coefficients.left_out_within(block.index)
         if events is not None:
             block = block.with_flags(events)
+        if left_out is not None and left_out[0].size:
+            block = block.with_flags(np.uint32(dq.DO_NOT_USE), at=left_out)
         if not frames.size:
             return block
         return block.with_flags(np.uint32(dq.JUMP), at=(frames, rows, cols))
@@ -367,6 +421,8 @@ class JumpKernel(Kernel):
         cards = [("NJUMPS", found, "jumps flagged (reads where the charge stepped)")]
         if coefficients is not None:
             cards.append(("NJUMPNB", coefficients.around, "reads flagged around jumps"))
+        if self.params["telegraph"]:
+            cards.append(("NTELEGR", self._telegraph, "telegraph pixels (flips left out)"))
         events = sorted(self._events.items())
         if events:
             cards.append(("NRDEVENT", len(events), "reads off for most pixels (read events)"))
@@ -447,9 +503,19 @@ class _Flags:
     read events' flags, ``events``: ``(frame, index, flag)`` for every pixel of the row,
     or None."""
 
-    def __init__(self, frame, index, col, found, around, events=None):
+    def __init__(self, frame, index, col, found, around, events=None, left_out=None):
         self.frame, self.index, self.col = frame, index, col
         self.found, self.around, self.events = found, around, events
+        self.left_out = left_out  # (frame, index, col) of the telegraph pixels' reads
+
+    def left_out_within(self, index):
+        """``(frames, rows, cols)`` of the telegraph pixels' reads left out on the rows
+        ``index`` of a band, or None."""
+        if self.left_out is None:
+            return None
+        frame, rows, (col,) = _on_rows(index, self.left_out[1], self.left_out[0],
+                                       self.left_out[2])
+        return frame, rows, col
 
     def within(self, index):
         """``(frames, rows, cols)`` of the flags on the rows ``index`` of a band."""
@@ -580,6 +646,11 @@ class DetectJumpsStep(Step):
                   "flagged with radius", minimum=0),
         Parameter("read_events", True, (bool,), "find reads off for most pixels (a first "
                   "read, a frame glitch): left out of every fit, not counted as jumps"),
+        Parameter("telegraph", True, (bool,), "steps down and back up (or up and back "
+                  "down) are a telegraph pixel's flips, not jumps: its rarer level's reads "
+                  "are left out of its fit"),
+        Parameter("positive_only", False, (bool,), "flag only the steps up (charge "
+                  "added, as by cosmic rays); the steps down are fitted through"),
     )
 
     def kernel(self, context, **params):

@@ -462,6 +462,17 @@ def test_a_huge_threshold_finds_no_jump():
 ROMAN_READS, ROMAN_TIME, ROMAN_RN, FIRST_READ = 56, 3.04, 5.0, -18.0
 
 
+#: the telegraph pixel of the first-read darks
+TELEGRAPH = (10, 20)
+
+
+def _telegraph_reads(nreads):
+    """The reads ``[lo, hi)`` the telegraph pixel spends 40 adu low, twice (two fifths of
+    its reads: it is fitted on the others)."""
+    return [(nreads // 4, nreads // 4 + nreads // 5), (5 * nreads // 8, 5 * nreads // 8
+                                                       + nreads // 5)]
+
+
 def _first_read_dark(rng, shape, nreads, dt, read_noise, rate=0.02, offset=FIRST_READ):
     """Dark ramps (adu) whose read 0 sits ``offset`` from the line in 99.9 % of pixels, with
     three cosmic rays and a telegraph pixel; returns the ramps and ``{pixel: read}`` of the
@@ -472,8 +483,8 @@ def _first_read_dark(rng, shape, nreads, dt, read_noise, rate=0.02, offset=FIRST
     rays = {(3, 7): nreads // 5, (20, 30): nreads // 2, (31, 11): 4 * nreads // 5}
     for (r, c), k in rays.items():
         y[k:, r, c] += 300.0
-    y[nreads // 4:nreads // 2, 10, 20] -= 40.0  # telegraph: down and back up, twice
-    y[5 * nreads // 8:7 * nreads // 8, 10, 20] -= 40.0
+    for lo, hi in _telegraph_reads(nreads):  # telegraph: down and back up, twice
+        y[lo:hi, TELEGRAPH[0], TELEGRAPH[1]] -= 40.0
     return y, rays
 
 
@@ -523,7 +534,17 @@ def test_a_roman_first_read_is_one_event_not_hundreds_of_jumps(tmp_path):
     expected = _numpy_slopes(data, t, np.arange(ROMAN_READS) >= 1)
     for r, c in rays:
         assert flagged[r, c]
+    # the telegraph pixel: not a jump, fitted on the reads of its usual level
+    assert out.header["NTELEGR"] == 1 and not flagged[TELEGRAPH]
+    high = np.ones(ROMAN_READS, bool)
+    high[0] = False
+    for lo, hi in _telegraph_reads(ROMAN_READS):
+        high[lo:hi] = False
+    assert out.data.data[TELEGRAPH] == pytest.approx(
+        _numpy_slopes(data[:, TELEGRAPH[0], TELEGRAPH[1]][:, None, None], t, high)[0, 0],
+        abs=1e-4)
     clean = ~flagged
+    clean[TELEGRAPH] = False
     np.testing.assert_allclose(out.data.data[clean], expected[clean], rtol=0, atol=1e-4)
     assert np.median(out.data.data) == pytest.approx(np.median(expected), abs=2e-3)
 
@@ -558,6 +579,7 @@ def test_a_jwst_first_group_is_one_event(tmp_path):
     for r, c in rays:
         assert flagged[shape[0] - 1 - r, c]
     clean = ~flagged
+    clean[shape[0] - 1 - TELEGRAPH[0], TELEGRAPH[1]] = False  # fitted on its usual level
     np.testing.assert_allclose(out.data.data[clean], expected[clean], rtol=1e-5, atol=1e-3)
 
 
@@ -613,7 +635,8 @@ def test_no_read_event_on_a_dark_with_cosmic_rays_nor_on_a_sky(read_noise):
     for ramps in (cube, sky):
         out = detect_jumps(Exposure.from_arrays(ramps, s), read_noise=read_noise)
         assert "NRDEVENT" not in out.header
-        assert out.dq is None or not (out.dq & dq.DO_NOT_USE).any()
+        left_out = np.zeros(1) if out.dq is None else (out.dq & dq.DO_NOT_USE) != 0
+        assert left_out.mean(axis=(1, 2)).max() < 0.001  # no read left out for the array
 
 
 def test_a_read_event_is_the_same_streamed_from_a_file_and_in_memory(tmp_path):
@@ -666,3 +689,45 @@ def test_too_few_reads_say_so_in_one_line(read_noise):
         cube = dark(s4, np.random.default_rng(43))
         cube[2:, 3, 3] += 500
         assert detect_jumps(Exposure.from_arrays(cube, s4), read_noise=RN).header["NJUMPS"] == 1
+
+
+def test_positive_only_flags_the_steps_up_alone():
+    """A step up (a cosmic ray) and a step down: both jumps by default; with
+    positive_only: true (a parameter of the step's own table) the step up alone, streamed
+    or with the whole exposure searched first."""
+    s = schedule(8, 8, nframes=30)
+    cube = dark(s, np.random.default_rng(44))
+    cube[20:, 2, 2] += 300
+    cube[25:, 5, 5] -= 300
+    e = Exposure.from_arrays(cube, s)
+    assert "positive_only" in {p.name for p in DetectJumpsStep.parameters}
+    both = {tuple(j) for j in jumps_of(detect_jumps(e, read_noise=RN))}
+    assert {(20, 2, 2), (25, 5, 5)} <= both
+    for extra in ({}, {"neighbours": True, "neighbours_above": 1e9}):
+        out = Pipeline({"steps": [{"detect_jumps": {"read_noise": RN, "positive_only": True,
+                                                     **extra}}]}).run(e)
+        found = {tuple(j) for j in jumps_of(out)}
+        assert (20, 2, 2) in found and not any(j[1:] == (5, 5) for j in found)
+    from spherex_reduce import ConfigError
+
+    with pytest.raises(ConfigError, match=r"detect_jumps\.positive_only"):
+        detect_jumps(e, positive_only="yes")
+
+
+def test_a_telegraph_pixel_is_not_a_jump_streamed_or_searched_whole():
+    """Down and back up twice (40 adu, 8 sigma of a read): NTELEGR 1, no JUMP, its low
+    reads DO_NOT_USE, the same with the whole exposure searched first; telegraph: false
+    gives the four jumps back."""
+    s = schedule(8, 8, nframes=40)
+    cube = dark(s, np.random.default_rng(45), read_noise=5.0)
+    cube[10:16, 3, 3] -= 40
+    cube[24:30, 3, 3] -= 40
+    e = Exposure.from_arrays(cube, s)
+    low = [*range(10, 16), *range(24, 30)]
+    for extra in ({}, {"neighbours": True, "neighbours_above": 1e9}):
+        out = detect_jumps(e, read_noise=5.0, **extra)
+        assert out.header["NTELEGR"] == 1 and not (out.dq[:, 3, 3] & dq.JUMP).any()
+        assert np.flatnonzero(out.dq[:, 3, 3] & dq.DO_NOT_USE).tolist() == low
+    plain = detect_jumps(e, read_noise=5.0, telegraph=False)
+    assert np.flatnonzero(plain.dq[:, 3, 3] & dq.JUMP).tolist() == [10, 16, 24, 30]
+    assert "NTELEGR" not in plain.header

@@ -431,7 +431,7 @@ class JumpKernel(Kernel):
         for i, ((read, kind), (jumps, expected, pixels, offset)) in enumerate(events[:99]):
             offset /= pixels
             cards.append((f"RDEVT{i + 1}", f"read {read}: {kind}, {jumps}/{pixels} px, "
-                          f"{offset:+.4g}", "read event: pixels stepped, offset"))
+                          f"{offset:+.4g}", "read event"))
             warnings.warn(event_message(read, kind, jumps, expected, pixels, offset, dropped),
                           JumpWarning, stacklevel=2)
         return Record(cards=cards)

@@ -13,7 +13,7 @@ from spherex_reduce import (
     dq,
     fit_ramp,
 )
-from spherex_reduce.io import write
+from spherex_reduce.io import read, write
 from spherex_reduce.io.sources import MemorySource
 from spherex_reduce.reduce.executor import execute
 from spherex_reduce.reduce.integrations import reduce_input
@@ -660,6 +660,8 @@ def test_a_read_event_is_the_same_streamed_from_a_file_and_in_memory(tmp_path):
     np.testing.assert_array_equal(streamed.dq, memory.dq)
     np.testing.assert_array_equal(whole.dq, memory.dq)
     assert memory.header["NJUMPS"] == streamed.header["NJUMPS"] == whole.header["NJUMPS"]
+    write(streamed, tmp_path / "out.fits")  # its cards fit (no truncated comment warned)
+    assert read(tmp_path / "out.fits").header["RDEVT1"].startswith("read 0: first read, ")
 
 
 def test_without_read_events_the_first_read_makes_jumps():

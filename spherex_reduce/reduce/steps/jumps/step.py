@@ -8,6 +8,13 @@ by band of rows, before ``fit_ramp``.  Flagging the neighbours of a jump, or a
 radius around a very large one, needs the rows above and below, which may lie
 in another band: with ``neighbours`` or ``radius`` the kernel searches the
 whole exposure first (in memory) and each band takes its flags from that.
+
+Before the flags are set, the jumps of each set of rows are looked at together
+(`~spherex_reduce.reduce.steps.jumps.events`): a read that is off for most
+pixels is one read event (``DO_NOT_USE`` on it for every pixel, the search run
+again without it), not thousands of jumps; and each pixel's own
+(`~spherex_reduce.reduce.steps.jumps.telegraph`): a telegraph pixel's flips are
+not jumps.
 """
 
 import functools

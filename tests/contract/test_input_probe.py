@@ -2529,3 +2529,43 @@ JWST_INPUT = [
 @pytest.mark.parametrize("case", JWST_INPUT)
 def test_issue31_jwst_input(case, inputs, runner, tmp_path):
     test_input(case, inputs, runner, tmp_path)
+
+
+# Issue 35: read events and too few reads in detect_jumps
+
+def _four_reads(d):
+    """A 4-read dark ramp (16 x 16, 10 e read noise) written by the package."""
+    import spherex_reduce as sr
+
+    s = sr.ReadoutSchedule(sr.DetectorGeometry(16, 16, 1, ref_border=0), skip=1, ref_reads=0,
+                           ref_mode="none", phantom_reads=0, nframes=4, frame_time=1.5)
+    ramps = 1000 + np.random.default_rng(0).normal(0, 10, (4, 16, 16))
+    sr.write(sr.Exposure.from_arrays(ramps.astype("f4"), s), d / "raw4.fits")
+
+
+def _check_skipped_in_one_line(d, result, run):
+    """4 reads without read_noise: exit 0, S_JUMP SKIPPED, and one warning line saying why
+    and naming the fix (before: the SKIPPED status alone)."""
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1, result.describe()
+    assert re.match(r"spherex-reduce reduce: warning: detect_jumps: 4 reads: too few.*give "
+                    r"detect_jumps\.read_noise", lines[0]), lines[0]
+    assert fits.getheader(d / "out.fits")["S_JUMP"] == "SKIPPED"
+    with_noise = run(["reduce", "raw4.fits", "-c", "jumps_rn.yaml", "-o", "out2.fits"])
+    assert with_noise.rc == 0 and not with_noise.stderr.strip(), with_noise.describe()
+    assert fits.getheader(d / "out2.fits")["S_JUMP"] == "COMPLETE"
+
+
+JUMP_INPUT = [
+    works("reduce-detect-jumps-on-4-reads-without-read-noise",
+          ["reduce", "raw4.fits", "-c", "jumps.yaml", "-o", "out.fits"],
+          chain(_four_reads, write("jumps.yaml", "steps: [detect_jumps, fit_ramp]\n"),
+                write("jumps_rn.yaml", "steps: [{detect_jumps: {read_noise: 10.0}}, "
+                                       "fit_ramp]\n")),
+          _check_skipped_in_one_line),
+]
+
+
+@pytest.mark.parametrize("case", JUMP_INPUT)
+def test_issue35_jump_input(case, inputs, runner, tmp_path):
+    test_input(case, inputs, runner, tmp_path)

@@ -8,10 +8,18 @@ by band of rows, before ``fit_ramp``.  Flagging the neighbours of a jump, or a
 radius around a very large one, needs the rows above and below, which may lie
 in another band: with ``neighbours`` or ``radius`` the kernel searches the
 whole exposure first (in memory) and each band takes its flags from that.
+
+Before the flags are set, the jumps of each set of rows are looked at together
+(`~spherex_reduce.reduce.steps.jumps.events`): a read that is off for most
+pixels is one read event (``DO_NOT_USE`` on it for every pixel, the search run
+again without it), not thousands of jumps; and each pixel's own
+(`~spherex_reduce.reduce.steps.jumps.telegraph`): a telegraph pixel's flips are
+not jumps.
 """
 
 import functools
 import threading
+import warnings
 
 import numpy as np
 from astropy import units as u
@@ -25,17 +33,22 @@ from ...hookspecs import hookimpl
 from ...step import Kernel, Record, Step
 from ..fit_ramp.segments import usable_reads
 from ..pixel_maps import MAP_TYPES, PixelMap, adu_gain
+from .events import JumpWarning, event_message, find_read_events
 from .search import StepSearch
+from .telegraph import telegraph_pixels
 
 __all__ = ["DetectJumpsStep", "JumpKernel", "detect_jumps"]
 
-#: rows of every frame searched at once when the whole exposure is searched first
+#: rows of every frame searched at once when the whole exposure is searched first; the
+#: read events are judged on sets of this many pixels (whole rows)
 SEARCH_PIXELS = 1 << 17
+#: read events looked for in a set of rows (one more in each round of the search)
+MAX_EVENTS = 4
 
 
 def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturation=None,
                  max_jumps=10, neighbours=False, neighbours_above=10.0, radius=0.0,
-                 radius_above=1e4):
+                 radius_above=1e4, read_events=True, telegraph=True, positive_only=False):
     """Flag `~spherex_reduce.core.dq.JUMP` on the read at which each pixel's charge stepped.
 
     Every pixel's usable reads are fitted with a line plus a step at each read
@@ -84,6 +97,27 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
         showers); 0: none.  A radius beyond the image flags all of it.
     radius_above : float
         Smallest amplitude (data unit) of a jump flagged with ``radius``.
+    read_events : bool
+        Find the reads that are off for most pixels (a first read below the
+        line of the others, a frame glitch, a step of the whole array) from
+        how the jumps fall over the reads and over the array
+        (`~spherex_reduce.reduce.steps.jumps.events.find_read_events`): such a
+        read is one event, flagged `~spherex_reduce.core.dq.DO_NOT_USE` for
+        every pixel (left out of every fit; a step: `~spherex_reduce.core.dq.JUMP`
+        for every pixel), not counted as jumps, and told in one
+        `~spherex_reduce.reduce.steps.jumps.events.JumpWarning` naming the read
+        and the fix.
+    telegraph : bool
+        Take a pixel whose steps (two or more) alternate in sign, each pair
+        coming back to the same level, as a telegraph pixel
+        (`~spherex_reduce.reduce.steps.jumps.telegraph.telegraph_pixels`): its
+        flips are not jumps (not flagged, not counted), and the reads it
+        spent in its rarer level are flagged `~spherex_reduce.core.dq.DO_NOT_USE`
+        (left out of its fit: its other reads are one line).
+    positive_only : bool
+        Flag only the steps up (charge added, as a cosmic ray adds); a step
+        down is not flagged (the fit goes through it).  The threshold stays
+        the two-sided one: the false alarms halve.
 
     Returns
     -------
@@ -91,7 +125,9 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
         The input's pixels with `~spherex_reduce.core.dq.JUMP` or-ed into the
         DQ of the reads flagged; the header's ``NJUMPS`` counts the jumps
         found (reads flagged by the search) and ``NJUMPNB`` the reads flagged
-        around them (each read once).
+        around them (each read once); ``NRDEVENT`` the read events and
+        ``RDEVT1``, ``RDEVT2`` ... each one's read, kind, pixels that stepped
+        there and offset (data unit); ``NTELEGR`` the telegraph pixels.
 
     Notes
     -----
@@ -101,10 +137,15 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
     a step between two of them flags the later one.  A jump before the first
     usable read is not seen (it is part of the pedestal).
 
-    Bands of rows are searched on several threads; each pixel's result
-    depends on its own reads only.  With ``neighbours`` or ``radius`` the
-    whole exposure is searched before its bands are flagged (it is held in
-    memory).
+    Bands of rows are searched on several threads; each pixel's jumps
+    depend on its own reads only, and the read events on sets of whole rows
+    of 2**17 pixels (aligned on the row axis, the same sets whichever bands
+    hold them).  With ``neighbours`` or ``radius`` the whole exposure is
+    searched before its bands are flagged (it is held in memory).
+
+    On 4 reads without ``read_noise`` (or fewer than 4 with it) the step is
+    skipped with a `~spherex_reduce.reduce.steps.jumps.events.JumpWarning`
+    saying why and, for 4 reads, to give ``read_noise``.
 
     Examples
     --------
@@ -122,7 +163,8 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
     return DetectJumpsStep()(
         exposure, threshold=threshold, read_noise=read_noise, gain=gain, saturation=saturation,
         max_jumps=max_jumps, neighbours=neighbours, neighbours_above=neighbours_above,
-        radius=radius, radius_above=radius_above)
+        radius=radius, radius_above=radius_above, read_events=read_events,
+        telegraph=telegraph, positive_only=positive_only)
 
 
 class JumpKernel(Kernel):
@@ -143,7 +185,7 @@ class JumpKernel(Kernel):
         s = context.schedule
         self.estimate = params["read_noise"] is None
         if s.nframes < (5 if self.estimate else 4):
-            raise StepSkipped(f"{s.nframes} reads: too few to search for jumps")
+            raise StepSkipped(_too_few(s.nframes, self.estimate))
         self.params = params
         g = s.geometry
         # maps of the stored image, brought to the readout frame in the data unit
@@ -165,6 +207,11 @@ class JumpKernel(Kernel):
         self.needs_exposure = bool(params["neighbours"] or params["radius"] > 0)
         self._lock = threading.Lock()
         self._found = 0  # reads flagged by the search, over the bands (streamed route)
+        # read events are decided on sets of rows aligned on the row axis, the same sets
+        # whichever bands hold them (a band from a file is one, in memory two)
+        self.event_rows = max(1, SEARCH_PIXELS // g.ncols)
+        self._events = {}  # (read, kind) -> [jumps, expected, pixels, offset * pixels]
+        self._telegraph = 0  # telegraph pixels, over the bands
 
     # -- the search of one band -------------------------------------------------------
     def _search(self, usable):
@@ -183,7 +230,99 @@ class JumpKernel(Kernel):
         return out
 
     def find(self, block):
-        """The jumps of a band: ``(frames, flat pixel indices, amplitudes, z)``."""
+        """The jumps of a band: ``(frames, flat pixel indices, amplitudes, z)``, the flags
+        of its read events (uint32 ``(frames, rows, 1)``, or None: see `_with_events`) and
+        the reads its telegraph pixels are left out at, ``(frames, flat pixel indices)``
+        (their flips are not jumps), with ``positive_only`` only the steps up."""
+        found, flags = self._with_events(block)
+        frames, pix, amp, z = found
+        left_out = None
+        if self.params["telegraph"] and frames.size:
+            nf = block.nframes
+            usable = None
+            if block.dq is not None or flags is not None:
+                usable = np.ones(block.data.shape, bool)
+                if block.dq is not None:
+                    usable &= dq.read_usable(block.dq)
+                if flags is not None:
+                    usable &= (flags & np.uint32(dq.DO_NOT_USE)) == 0
+                usable = usable.reshape(nf, -1)
+            flips, left_out = telegraph_pixels(pix, frames, amp, block.data.reshape(nf, -1),
+                                               self.times, usable)
+            if flips.any():
+                keep = ~flips
+                frames, pix, amp, z = frames[keep], pix[keep], amp[keep], z[keep]
+                with self._lock:
+                    self._telegraph += np.unique(left_out[1]).size
+        if self.params["positive_only"]:
+            keep = amp >= 0  # (0: a mixed group's neighbour, flagged with its pair)
+            frames, pix, amp, z = frames[keep], pix[keep], amp[keep], z[keep]
+        return (frames, pix, amp, z), flags, left_out
+
+    def _with_events(self, block):
+        """The jumps of a band and its read events: ``(frames, flat pixel indices,
+        amplitudes, z)`` and the flags of the events (uint32 ``(frames, rows, 1)``, or
+        None): ``DO_NOT_USE`` on a read that is off, for every pixel of the rows of the
+        set where it was found, ``JUMP`` where the whole set stepped.
+
+        Events are found one per set of rows at a time, the strongest first, and the
+        band searched again without the read: the jumps a read that is off leaves at
+        the reads next to it are then gone too."""
+        found = self._jumps(block)
+        if not self.params["read_events"]:
+            return found, None
+        flags, events = None, []
+        for _ in range(MAX_EVENTS):
+            new = self._read_events(block, found, flags)
+            if not new:
+                break
+            if flags is None:
+                flags = np.zeros((block.nframes, block.data.shape[1], 1), np.uint32)
+            for rows, e in new:
+                flags[e.read, rows] |= np.uint32(dq.DO_NOT_USE if e.dropped else dq.JUMP)
+            events += new
+            # search again without the reads that are off and the array's steps
+            found = self._jumps(_without_events(block, flags, self.times))
+        if flags is None:
+            return found, None
+        with self._lock:
+            for rows, e in events:
+                offset = (_read_offset(block, rows, flags, e.read, self.times) if e.dropped
+                          else e.offset)
+                total = self._events.setdefault((e.read, e.kind), [0, 0.0, 0, 0.0])
+                total[0] += e.jumps
+                total[1] += e.expected
+                total[2] += e.pixels
+                total[3] += offset * e.pixels
+        frames, pix, amp, z = found
+        stepped = (flags[frames, pix // block.data.shape[-1], 0] & np.uint32(dq.JUMP)) != 0
+        keep = ~stepped  # the array's step is an event, not the pixels' jumps
+        return (frames[keep], pix[keep], amp[keep], z[keep]), flags
+
+    def _read_events(self, block, found, flags):
+        """The strongest new read event of each set of `event_rows` rows of a band, judged
+        on its own jumps (`find_read_events`): ``[(rows of the band, ReadEvent)]``; the
+        jumps at a read where the set already stepped (``flags``) are not counted."""
+        frames, pix, amp, _ = found
+        nf, ncols = block.nframes, block.data.shape[-1]
+        if flags is not None:
+            keep = (flags[frames, pix // ncols, 0] & np.uint32(dq.JUMP)) == 0
+            frames, pix, amp = frames[keep], pix[keep], amp[keep]
+        sets = np.asarray(block.index) // self.event_rows
+        out = []
+        for one in np.unique(sets):
+            rows = np.flatnonzero(sets == one)
+            at = np.isin(pix // ncols, rows)
+            local = np.searchsorted(rows, pix[at] // ncols)
+            events = find_read_events(frames[at], local, pix[at] % ncols, amp[at], nreads=nf,
+                                      nrows=rows.size, ncols=ncols)
+            if events:
+                out.append((rows, max(events, key=lambda e: e.jumps)))
+        return out
+
+    def _jumps(self, block):
+        """The jumps of a band found by the search: ``(frames, flat pixel indices,
+        amplitudes, z)``."""
         p = self.params
         nf = block.nframes
         y = block.data.reshape(nf, -1)
@@ -239,26 +378,43 @@ class JumpKernel(Kernel):
             return None
         source = MemorySource(exposure)
         rows = max(1, SEARCH_PIXELS // self.context.geometry.ncols)
-        parts = []
+        parts, events, quiet = [], [], []
         for lo in range(0, source.nrows, rows):
             block = source.read(lo, min(source.nrows, lo + rows))
-            frames, pix, amp, z = self.find(block)
+            (frames, pix, amp, z), flags, left_out = self.find(block)
             ncols = block.data.shape[-1]
             parts.append((frames, block.index[pix // ncols], pix % ncols, amp, z))
+            if flags is not None:
+                f, r = np.nonzero(flags[..., 0])
+                events.append((f, block.index[r], flags[f, r, 0]))
+            if left_out is not None and left_out[0].size:
+                f, p = left_out
+                quiet.append((f, block.index[p // ncols], p % ncols))
         frames, index, cols, amp, z = (np.concatenate(a) for a in zip(*parts, strict=True))
         around = _around(self.context, self.params, frames, index, cols, amp, z)
         flags = [np.concatenate(a) for a in zip((frames, index, cols), around, strict=True)]
-        return _Flags(*flags, found=frames.size, around=around[0].size)
+        events = [np.concatenate(a) for a in zip(*events, strict=True)] if events else None
+        quiet = [np.concatenate(a) for a in zip(*quiet, strict=True)] if quiet else None
+        return _Flags(*flags, found=frames.size, around=around[0].size, events=events,
+                      left_out=quiet)
 
     def apply(self, coefficients, block):
         if coefficients is None:
-            frames, pix, _, _ = self.find(block)
+            (frames, pix, _, _), events, left_out = self.find(block)
             ncols = block.data.shape[-1]
             rows, cols = pix // ncols, pix % ncols
+            if left_out is not None:
+                left_out = (left_out[0], left_out[1] // ncols, left_out[1] % ncols)
             with self._lock:
                 self._found += frames.size
         else:
             frames, rows, cols = coefficients.within(block.index)
+            events = coefficients.events_within(block.index, block.nframes)
+            left_out = coefficients.left_out_within(block.index)
+        if events is not None:
+            block = block.with_flags(events)
+        if left_out is not None and left_out[0].size:
+            block = block.with_flags(np.uint32(dq.DO_NOT_USE), at=left_out)
         if not frames.size:
             return block
         return block.with_flags(np.uint32(dq.JUMP), at=(frames, rows, cols))
@@ -272,7 +428,71 @@ class JumpKernel(Kernel):
         cards = [("NJUMPS", found, "jumps flagged (reads where the charge stepped)")]
         if coefficients is not None:
             cards.append(("NJUMPNB", coefficients.around, "reads flagged around jumps"))
+        if self.params["telegraph"]:
+            cards.append(("NTELEGR", self._telegraph, "telegraph pixels (flips left out)"))
+        events = sorted(self._events.items())
+        if events:
+            cards.append(("NRDEVENT", len(events), "reads off for most pixels (read events)"))
+        header = self.context.header
+        dropped = 0 if header is None else int(header.get("NDROPRD", 0) or 0)
+        for i, ((read, kind), (jumps, expected, pixels, offset)) in enumerate(events[:99]):
+            offset /= pixels
+            cards.append((f"RDEVT{i + 1}", f"read {read}: {kind}, {jumps}/{pixels} px, "
+                          f"{offset:+.4g}", "read event"))
+            warnings.warn(event_message(read, kind, jumps, expected, pixels, offset, dropped),
+                          JumpWarning, stacklevel=2)
         return Record(cards=cards)
+
+
+def _without_events(block, flags, times):
+    """A copy of ``block`` as the search sees it after its read events (``flags``, uint32
+    ``(frames, rows, 1)``): ``DO_NOT_USE`` or-ed into its DQ on the reads that are off,
+    and each pixel's own least-squares step (a line plus the steps, on its other reads)
+    taken out of its reads from where the array stepped (``JUMP``), so that the search
+    finds neither again, nor their echoes at the reads next to them."""
+    old = np.zeros(block.data.shape, np.uint32) if block.dq is None else block.dq
+    out = block.replace(dq=old | (flags & np.uint32(dq.DO_NOT_USE)), owned=frozenset({"dq"}))
+    steps = flags[..., 0] & np.uint32(dq.JUMP)
+    rows = np.flatnonzero(steps.any(axis=0))
+    if not rows.size:
+        return out
+    data = np.array(block.data, np.float32)
+    for pattern in np.unique(flags[:, rows, 0], axis=1).T:  # rows with the same events
+        at = rows[(flags[:, rows, 0] == pattern[:, None]).all(axis=0)]
+        use = (pattern & np.uint32(dq.DO_NOT_USE)) == 0
+        cols = [np.ones(times.size), times] + [
+            (np.arange(times.size) >= k).astype(np.float64)
+            for k in np.flatnonzero(pattern & np.uint32(dq.JUMP))]
+        x = np.column_stack(cols)
+        y = data[:, at].reshape(times.size, -1).astype(np.float64)
+        coef = np.linalg.lstsq(x[use], y[use], rcond=None)[0]
+        y -= x[:, 2:] @ coef[2:]
+        data[:, at] = y.reshape(times.size, at.size, -1)
+    return out.replace(data=data, owned=frozenset({"data", "dq"}))
+
+
+def _read_offset(block, rows, flags, read, times):
+    """The median over the pixels of ``rows`` of how far ``read`` sits from the line of
+    their other usable reads (least squares; data unit): the offset of a read that is
+    off, measured on every pixel, not only on those whose step was found."""
+    y = block.data[:, rows].reshape(block.nframes, -1).astype(np.float64)
+    others = (flags[:, rows[0], 0] & np.uint32(dq.DO_NOT_USE)) == 0
+    x = np.column_stack([np.ones(others.sum()), times[others]])
+    coef = np.linalg.lstsq(x, y[others], rcond=None)[0]
+    return float(np.nanmedian(y[read] - coef[0] - coef[1] * times[read]))
+
+
+def _too_few(nframes, estimate):
+    """Why ``nframes`` reads are not searched, said once as a warning too (a skipped step
+    is otherwise only a status keyword): with the read noise estimated, how to search."""
+    if estimate and nframes == 4:
+        text = ("4 reads: too few to estimate each ramp's read noise (5 needed), so no "
+                "jumps are searched; give detect_jumps.read_noise (a number in the data "
+                "unit, or a read-noise map as a FITS image) to search 4 reads")
+    else:
+        text = f"{nframes} reads: too few to search for jumps (4 needed)"
+    warnings.warn(f"detect_jumps: {text}; the step is skipped", JumpWarning, stacklevel=3)
+    return text
 
 
 @functools.lru_cache(maxsize=256)
@@ -286,20 +506,52 @@ def _step_search(times, factors, walk):
 
 
 class _Flags:
-    """Every JUMP flag of an exposure: ``frame``, ``index`` (row axis), ``col``."""
+    """Every JUMP flag of an exposure: ``frame``, ``index`` (row axis), ``col``; and its
+    read events' flags, ``events``: ``(frame, index, flag)`` for every pixel of the row,
+    or None."""
 
-    def __init__(self, frame, index, col, found, around):
+    def __init__(self, frame, index, col, found, around, events=None, left_out=None):
         self.frame, self.index, self.col = frame, index, col
-        self.found, self.around = found, around
+        self.found, self.around, self.events = found, around, events
+        self.left_out = left_out  # (frame, index, col) of the telegraph pixels' reads
+
+    def left_out_within(self, index):
+        """``(frames, rows, cols)`` of the telegraph pixels' reads left out on the rows
+        ``index`` of a band, or None."""
+        if self.left_out is None:
+            return None
+        frame, rows, (col,) = _on_rows(index, self.left_out[1], self.left_out[0],
+                                       self.left_out[2])
+        return frame, rows, col
 
     def within(self, index):
         """``(frames, rows, cols)`` of the flags on the rows ``index`` of a band."""
-        index = np.asarray(index)
-        order = np.argsort(index, kind="stable")
-        pos = np.searchsorted(index[order], self.index)
-        pos = np.minimum(pos, index.size - 1)
-        inside = index[order][pos] == self.index
-        return self.frame[inside], order[pos[inside]], self.col[inside]
+        frame, rows, (col,) = _on_rows(index, self.index, self.frame, self.col)
+        return frame, rows, col
+
+    def events_within(self, index, nframes):
+        """The read events' flags of the rows ``index`` of a band, uint32 ``(nframes,
+        rows, 1)``, or None."""
+        if self.events is None:
+            return None
+        frame, rows, (flag,) = _on_rows(index, self.events[1], self.events[0],
+                                        self.events[2])
+        if not frame.size:
+            return None
+        out = np.zeros((nframes, len(index), 1), np.uint32)
+        np.bitwise_or.at(out, (frame, rows, 0), flag.astype(np.uint32))
+        return out
+
+
+def _on_rows(index, where, frame, *values):
+    """``frame``, the band row and ``values`` of the entries at rows ``where`` that the
+    band of rows ``index`` holds."""
+    index = np.asarray(index)
+    order = np.argsort(index, kind="stable")
+    pos = np.searchsorted(index[order], where)
+    pos = np.minimum(pos, index.size - 1)
+    inside = index[order][pos] == where
+    return frame[inside], order[pos[inside]], [v[inside] for v in values]
 
 
 #: candidate pixels around jumps handled at once (bounds the memory of a large radius)
@@ -399,6 +651,13 @@ class DetectJumpsStep(Step):
                   "very large jumps; 0: none", minimum=0),
         Parameter("radius_above", 1e4, (float,), "smallest amplitude (data unit) of a jump "
                   "flagged with radius", minimum=0),
+        Parameter("read_events", True, (bool,), "find reads off for most pixels (a first "
+                  "read, a frame glitch): left out of every fit, not counted as jumps"),
+        Parameter("telegraph", True, (bool,), "steps down and back up (or up and back "
+                  "down) are a telegraph pixel's flips, not jumps: its rarer level's reads "
+                  "are left out of its fit"),
+        Parameter("positive_only", False, (bool,), "flag only the steps up (charge "
+                  "added, as by cosmic rays); the steps down are fitted through"),
     )
 
     def kernel(self, context, **params):

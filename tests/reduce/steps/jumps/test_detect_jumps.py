@@ -13,9 +13,12 @@ from spherex_reduce import (
     dq,
     fit_ramp,
 )
+from spherex_reduce.io import read, write
 from spherex_reduce.io.sources import MemorySource
 from spherex_reduce.reduce.executor import execute
+from spherex_reduce.reduce.integrations import reduce_input
 from spherex_reduce.reduce.options import RunOptions
+from spherex_reduce.reduce.steps.jumps.events import JumpWarning
 from spherex_reduce.reduce.steps.jumps.search import StepSearch
 from spherex_reduce.reduce.steps.jumps.step import DetectJumpsStep
 
@@ -114,7 +117,10 @@ def test_detection_rate_against_the_step_sigma(size):
     cube = dark(s, rng)
     k = 37
     cube[k:] += np.float32(size)
-    out = detect_jumps(Exposure.from_arrays(cube, s), threshold=4.0, read_noise=RN)
+    # every pixel steps at read 37: the search's sensitivity, without the read events that
+    # tell such a step of the whole array (tested below)
+    out = detect_jumps(Exposure.from_arrays(cube, s), threshold=4.0, read_noise=RN,
+                       read_events=False)
     at_k = np.zeros((40, 100), bool)
     j = jumps_of(out)
     at_k[j[j[:, 0] == k][:, 1], j[j[:, 0] == k][:, 2]] = True
@@ -186,11 +192,14 @@ def test_a_read_noise_map_sets_each_pixels_threshold():
     noise[:, 32:] = 4 * RN
     cube = dark(s, rng, read_noise=noise[None])
     cube[37:] += np.float32(40)  # 8.6 sigma of the step for 10 e, 2.2 sigma for 40 e
-    out = detect_jumps(Exposure.from_arrays(cube, s), threshold=4.0, read_noise=noise)
+    # each pixel's search (the array's step as one event is tested below)
+    out = detect_jumps(Exposure.from_arrays(cube, s), threshold=4.0, read_noise=noise,
+                       read_events=False)
     found = (out.dq & dq.JUMP).any(axis=0)
     assert found[:, :32].mean() > 0.9
     assert found[:, 32:].mean() < 0.1
-    scalar = detect_jumps(Exposure.from_arrays(cube, s), threshold=4.0, read_noise=RN)
+    scalar = detect_jumps(Exposure.from_arrays(cube, s), threshold=4.0, read_noise=RN,
+                          read_events=False)
     assert (scalar.dq & dq.JUMP)[:, :, 32:].any(axis=0).mean() > 0.5  # wrong noise: alarms
 
 
@@ -444,3 +453,283 @@ def test_a_huge_threshold_finds_no_jump():
         out = detect_jumps(e, read_noise=read_noise, threshold=1e300)
         assert out.header["NJUMPS"] == 0 and (out.dq is None or not (out.dq & dq.JUMP).any())
         assert detect_jumps(e, read_noise=read_noise, threshold=50.0).header["NJUMPS"] == 1
+
+
+# -- read events: a read off for most pixels is one event, not thousands of jumps ------------
+
+#: the Roman corner of issue 35: 56 single-read resultants of 3.04 s, 5 adu read noise, the
+#: first read 18 adu below the line of the others in 99.9 % of pixels
+ROMAN_READS, ROMAN_TIME, ROMAN_RN, FIRST_READ = 56, 3.04, 5.0, -18.0
+
+
+#: the telegraph pixel of the first-read darks
+TELEGRAPH = (10, 20)
+
+
+def _telegraph_reads(nreads):
+    """The reads ``[lo, hi)`` the telegraph pixel spends 40 adu low, twice (two fifths of
+    its reads: it is fitted on the others)."""
+    return [(nreads // 4, nreads // 4 + nreads // 5), (5 * nreads // 8, 5 * nreads // 8
+                                                       + nreads // 5)]
+
+
+def _first_read_dark(rng, shape, nreads, dt, read_noise, rate=0.02, offset=FIRST_READ):
+    """Dark ramps (adu) whose read 0 sits ``offset`` from the line in 99.9 % of pixels, with
+    three cosmic rays and a telegraph pixel; returns the ramps and ``{pixel: read}`` of the
+    cosmic rays."""
+    t = np.arange(nreads) * dt
+    y = 1e4 + rate * t[:, None, None] + rng.normal(0, read_noise, (nreads, *shape))
+    y[0][rng.random(shape) < 0.999] += offset
+    rays = {(3, 7): nreads // 5, (20, 30): nreads // 2, (31, 11): 4 * nreads // 5}
+    for (r, c), k in rays.items():
+        y[k:, r, c] += 300.0
+    for lo, hi in _telegraph_reads(nreads):  # telegraph: down and back up, twice
+        y[lo:hi, TELEGRAPH[0], TELEGRAPH[1]] -= 40.0
+    return y, rays
+
+
+def _numpy_slopes(y, t, keep):
+    """Least-squares slope of each pixel on the reads ``keep`` (numpy alone)."""
+    x = np.column_stack([np.ones(keep.sum()), t[keep]])
+    coef = np.linalg.lstsq(x, y[keep].reshape(keep.sum(), -1).astype(np.float64), rcond=None)[0]
+    return coef[1].reshape(y.shape[1:])
+
+
+def _roman_file(path, data):
+    """A Roman WFI level-1 file as roman_datamodels writes it, one read per resultant."""
+    rdm = pytest.importorskip("roman_datamodels.datamodels")
+    model = rdm.ScienceRawModel.create_fake_data(shape=data.shape)
+    model.data = data
+    model.amp33 = np.zeros((data.shape[0], data.shape[1], 128), np.uint16)
+    pattern = [[k + 1] for k in range(data.shape[0])]
+    for key, value in {"read_pattern": pattern, "nresultants": data.shape[0],
+                       "frame_time": ROMAN_TIME}.items():
+        model.meta.exposure[key] = value
+    model.meta.instrument.detector = "WFI03"  # read from row 0; the pixels are not flipped
+    model.save(path)
+
+
+def test_a_roman_first_read_is_one_event_not_hundreds_of_jumps(tmp_path):
+    """The corner of issue 35 built as a Roman level-1 file: with the defaults 540 of 1600
+    pixels were flagged, 498 jumps at read 1, the median dark off by -55 % and no word.
+    Now: <= 2 % of pixels flagged, read 0 left out of every fit and said once with the fix,
+    the cosmic rays still found, and the slopes those of numpy on reads 1 to 55."""
+    rng = np.random.default_rng(35)
+    shape = (40, 64)  # Roman's 32 outputs need a width of 32 columns each
+    y, rays = _first_read_dark(rng, shape, ROMAN_READS, ROMAN_TIME, ROMAN_RN)
+    data = np.round(y).astype(np.uint16)
+    path = tmp_path / "corner_uncal.asdf"
+    _roman_file(path, data)
+    config = {"steps": ["detect_jumps", {"fit_ramp": {"weighting": "uniform"}}]}
+    with pytest.warns(JumpWarning, match=r"read 0 is off in most pixels \(first read.*"
+                      r"drop_first_reads: 1") as caught:
+        out = Pipeline(config).run(path)
+    assert len([w for w in caught if issubclass(w.category, JumpWarning)]) == 1
+    assert out.header["NRDEVENT"] == 1 and out.header["RDEVT1"].startswith("read 0: first read")
+    offset = float(out.header["RDEVT1"].rsplit(",", 1)[1])
+    assert offset == pytest.approx(FIRST_READ, abs=1.0)  # measured on every pixel
+    flagged = (out.dq & dq.JUMP) != 0
+    assert flagged.mean() <= 0.02, flagged.sum()
+    t = np.arange(ROMAN_READS) * ROMAN_TIME
+    expected = _numpy_slopes(data, t, np.arange(ROMAN_READS) >= 1)
+    for r, c in rays:
+        assert flagged[r, c]
+    # the telegraph pixel: not a jump, fitted on the reads of its usual level
+    assert out.header["NTELEGR"] == 1 and not flagged[TELEGRAPH]
+    high = np.ones(ROMAN_READS, bool)
+    high[0] = False
+    for lo, hi in _telegraph_reads(ROMAN_READS):
+        high[lo:hi] = False
+    assert out.data.data[TELEGRAPH] == pytest.approx(
+        _numpy_slopes(data[:, TELEGRAPH[0], TELEGRAPH[1]][:, None, None], t, high)[0, 0],
+        abs=1e-4)
+    clean = ~flagged
+    clean[TELEGRAPH] = False
+    np.testing.assert_allclose(out.data.data[clean], expected[clean], rtol=0, atol=1e-4)
+    assert np.median(out.data.data) == pytest.approx(np.median(expected), abs=2e-3)
+
+
+def test_a_jwst_first_group_is_one_event(tmp_path):
+    """The same first-read offset in a JWST level-1 file (NIRCam, RAPID, 20 groups) written
+    by stdatamodels: one event at group 0, its slopes numpy's on groups 1 to 19."""
+    datamodels = pytest.importorskip("stdatamodels.jwst.datamodels")
+    rng = np.random.default_rng(36)
+    ngroups, shape = 20, (64, 64)
+    tframe = (64 + 12) * 65 * 1e-5  # JWST's frame time of a 64 x 64 subarray, one output
+    y, rays = _first_read_dark(rng, shape, ngroups, tframe, 5.0, rate=50.0)
+    m = datamodels.RampModel(data=y[None].astype("f4"))
+    m.meta.telescope = "JWST"
+    m.meta.instrument.name, m.meta.instrument.detector = "NIRCAM", "NRCA2"
+    e = m.meta.exposure
+    e.readpatt, e.nints, e.ngroups, e.nframes, e.groupgap = "RAPID", 1, ngroups, 1, 0
+    e.frame_time, e.group_time, e.noutputs = tframe, tframe, 1
+    s = m.meta.subarray
+    (s.xstart, s.ystart), (s.ysize, s.xsize) = (1, 1), shape
+    s.fastaxis, s.slowaxis = 1, -2  # NRCA2: the rows flipped (the jwst refpix step's)
+    path = tmp_path / "jw_nrca2_uncal.fits"
+    m.save(path)
+    with pytest.warns(JumpWarning, match=r"read 0 is off.*drop_first_reads: 1"):
+        out, _ = reduce_input(path, Pipeline({"steps": [{"detect_jumps": {"read_noise": 5.0}},
+                                                         {"fit_ramp": {"weighting": "uniform"}}]}))
+    assert out.header["NRDEVENT"] == 1
+    flagged = (out.dq & dq.JUMP) != 0
+    assert flagged.mean() <= 0.02
+    t = np.arange(ngroups) * tframe
+    expected = _numpy_slopes(y, t, np.arange(ngroups) >= 1)[::-1]  # NRCA2: rows flipped
+    for r, c in rays:
+        assert flagged[shape[0] - 1 - r, c]
+    clean = ~flagged
+    clean[shape[0] - 1 - TELEGRAPH[0], TELEGRAPH[1]] = False  # fitted on its usual level
+    np.testing.assert_allclose(out.data.data[clean], expected[clean], rtol=1e-5, atol=1e-3)
+
+
+def test_a_frame_glitch_is_left_out_of_every_fit():
+    """Read 20 of 40 sits 150 adu high in 99.9 % of pixels (a frame glitch), with two
+    cosmic rays: read 20 DO_NOT_USE for every pixel, the rays flagged, the slopes numpy's
+    without read 20."""
+    s = schedule(32, 32, nframes=40)
+    rng = np.random.default_rng(37)
+    cube = dark(s, rng)
+    cube[20][rng.random((32, 32)) < 0.999] += 150
+    cube[8:, 4, 4] += 500
+    cube[31:, 25, 9] += 300
+    with pytest.warns(JumpWarning, match=r"read 20 is off in most pixels \(frame glitch"):
+        out = detect_jumps(Exposure.from_arrays(cube, s), read_noise=RN)
+    assert ((out.dq[20] & dq.DO_NOT_USE) != 0).all()
+    assert not (out.dq[np.arange(40) != 20] & dq.DO_NOT_USE).any()
+    jumped = (out.dq & dq.JUMP).any(axis=0)
+    assert jumped[4, 4] and jumped[25, 9] and jumped.mean() <= 0.02
+    slopes = fit_ramp(out, weighting="uniform")
+    t = s.frame_starts.to_value("s")
+    expected = _numpy_slopes(cube, t, np.arange(40) != 20)
+    clean = ~jumped
+    np.testing.assert_allclose(slopes.data.data[clean], expected[clean], rtol=0, atol=1e-4)
+
+
+def test_a_step_of_the_whole_array_is_fitted_around_for_every_pixel():
+    """Every pixel steps by 30 adu at read 15 (3 sigma of one read): one event, a JUMP at
+    read 15 for every pixel, not a few hundred jumps around it."""
+    s = schedule(32, 32, nframes=40)
+    cube = dark(s, np.random.default_rng(38))
+    cube[15:] += 30
+    with pytest.warns(JumpWarning, match=r"the array stepped at read 15"):
+        out = detect_jumps(Exposure.from_arrays(cube, s), read_noise=RN)
+    assert ((out.dq[15] & dq.JUMP) != 0).all()
+    assert out.header["NJUMPS"] <= 0.02 * 32 * 32
+    assert ((out.dq & dq.JUMP) != 0).sum(axis=0).max() <= 2
+
+
+@pytest.mark.parametrize("read_noise", [RN, None])
+def test_no_read_event_on_a_dark_with_cosmic_rays_nor_on_a_sky(read_noise):
+    """1 % of the pixels of a 48 x 512 dark hit by one ray of 10-10^4 adu at a random read,
+    and a structured sky (log-normal rates of 0.1 to 1000 adu/s): no event, no warning."""
+    rng = np.random.default_rng(39)
+    s = schedule(48, 512, nframes=30)
+    cube = dark(s, rng)
+    hit = np.argwhere(rng.random((48, 512)) < 0.01)
+    for (r, c), k, a in zip(hit, rng.integers(1, 30, len(hit)),
+                            10 ** rng.uniform(1, 4, len(hit)), strict=True):
+        cube[k:, r, c] += a
+    rates = np.exp(rng.normal(1.0, 2.0, (48, 512))).clip(0.1, 1000)
+    sky = dark(s, rng, rate=rates[None])
+    for ramps in (cube, sky):
+        out = detect_jumps(Exposure.from_arrays(ramps, s), read_noise=read_noise)
+        assert "NRDEVENT" not in out.header
+        left_out = np.zeros(1) if out.dq is None else (out.dq & dq.DO_NOT_USE) != 0
+        assert left_out.mean(axis=(1, 2)).max() < 0.001  # no read left out for the array
+
+
+def test_a_read_event_is_the_same_streamed_from_a_file_and_in_memory(tmp_path):
+    """A first read off, reduced from a FITS file (bands read from it), in memory, and with
+    neighbours (the whole exposure searched first): the same flags."""
+    s = schedule(40, 40, nframes=20)
+    rng = np.random.default_rng(40)
+    cube = dark(s, rng)
+    cube[0] -= 40
+    cube[9:, 5, 5] += 400
+    e = Exposure.from_arrays(cube, s)
+    path = tmp_path / "ramps.fits"
+    write(e, path)
+    with pytest.warns(JumpWarning):
+        memory = detect_jumps(e, read_noise=RN)
+    with pytest.warns(JumpWarning):
+        streamed = Pipeline({"steps": [{"detect_jumps": {"read_noise": RN}}]}).run(path)
+    with pytest.warns(JumpWarning):
+        whole = detect_jumps(e, read_noise=RN, neighbours=True, neighbours_above=1e9)
+    assert ((memory.dq[0] & dq.DO_NOT_USE) != 0).all()
+    np.testing.assert_array_equal(streamed.dq, memory.dq)
+    np.testing.assert_array_equal(whole.dq, memory.dq)
+    assert memory.header["NJUMPS"] == streamed.header["NJUMPS"] == whole.header["NJUMPS"]
+    write(streamed, tmp_path / "out.fits")  # its cards fit (no truncated comment warned)
+    assert read(tmp_path / "out.fits").header["RDEVT1"].startswith("read 0: first read, ")
+
+
+def test_without_read_events_the_first_read_makes_jumps():
+    """read_events: false keeps the search alone (issue 35's numbers: a third of the
+    pixels flagged at read 1)."""
+    s = schedule(40, 40, nframes=ROMAN_READS)
+    rng = np.random.default_rng(41)
+    y, _ = _first_read_dark(rng, (40, 40), ROMAN_READS, DT, ROMAN_RN)
+    out = detect_jumps(Exposure.from_arrays(y.astype("f4"), s), read_events=False)
+    assert ((out.dq & dq.JUMP).any(axis=0)).mean() > 0.2
+
+
+@pytest.mark.parametrize("read_noise", [None, RN])
+def test_too_few_reads_say_so_in_one_line(read_noise):
+    """4 reads without read_noise (3 with it) were skipped with exit 0 and a SKIPPED status
+    alone: now a warning says why, and for 4 reads to give read_noise."""
+    n = 4 if read_noise is None else 3
+    s = schedule(8, 8, nframes=n)
+    e = Exposure.from_arrays(dark(s, np.random.default_rng(42)), s)
+    fix = r"give detect_jumps\.read_noise" if read_noise is None else r"4 needed"
+    with pytest.warns(JumpWarning, match=rf"detect_jumps: {n} reads: too few.*{fix}") as w:
+        out = detect_jumps(e, read_noise=read_noise)
+    assert out.header["S_JUMP"] == "SKIPPED"
+    assert all("\n" not in str(x.message) for x in w)
+    if read_noise is None:  # with it, 4 reads are searched
+        s4 = schedule(8, 8, nframes=4)
+        cube = dark(s4, np.random.default_rng(43))
+        cube[2:, 3, 3] += 500
+        assert detect_jumps(Exposure.from_arrays(cube, s4), read_noise=RN).header["NJUMPS"] == 1
+
+
+def test_positive_only_flags_the_steps_up_alone():
+    """A step up (a cosmic ray) and a step down: both jumps by default; with
+    positive_only: true (a parameter of the step's own table) the step up alone, streamed
+    or with the whole exposure searched first."""
+    s = schedule(8, 8, nframes=30)
+    cube = dark(s, np.random.default_rng(44))
+    cube[20:, 2, 2] += 300
+    cube[25:, 5, 5] -= 300
+    e = Exposure.from_arrays(cube, s)
+    assert "positive_only" in {p.name for p in DetectJumpsStep.parameters}
+    both = {tuple(j) for j in jumps_of(detect_jumps(e, read_noise=RN))}
+    assert {(20, 2, 2), (25, 5, 5)} <= both
+    for extra in ({}, {"neighbours": True, "neighbours_above": 1e9}):
+        out = Pipeline({"steps": [{"detect_jumps": {"read_noise": RN, "positive_only": True,
+                                                     **extra}}]}).run(e)
+        found = {tuple(j) for j in jumps_of(out)}
+        assert (20, 2, 2) in found and not any(j[1:] == (5, 5) for j in found)
+    from spherex_reduce import ConfigError
+
+    with pytest.raises(ConfigError, match=r"detect_jumps\.positive_only"):
+        detect_jumps(e, positive_only="yes")
+
+
+def test_a_telegraph_pixel_is_not_a_jump_streamed_or_searched_whole():
+    """Down and back up twice (40 adu, 8 sigma of a read): NTELEGR 1, no JUMP, its low
+    reads DO_NOT_USE, the same with the whole exposure searched first; telegraph: false
+    gives the four jumps back."""
+    s = schedule(8, 8, nframes=40)
+    cube = dark(s, np.random.default_rng(45), read_noise=5.0)
+    cube[10:16, 3, 3] -= 40
+    cube[24:30, 3, 3] -= 40
+    e = Exposure.from_arrays(cube, s)
+    low = [*range(10, 16), *range(24, 30)]
+    for extra in ({}, {"neighbours": True, "neighbours_above": 1e9}):
+        out = detect_jumps(e, read_noise=5.0, **extra)
+        assert out.header["NTELEGR"] == 1 and not (out.dq[:, 3, 3] & dq.JUMP).any()
+        assert np.flatnonzero(out.dq[:, 3, 3] & dq.DO_NOT_USE).tolist() == low
+    plain = detect_jumps(e, read_noise=5.0, telegraph=False)
+    assert np.flatnonzero(plain.dq[:, 3, 3] & dq.JUMP).tolist() == [10, 16, 24, 30]
+    assert "NTELEGR" not in plain.header

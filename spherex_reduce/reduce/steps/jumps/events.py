@@ -1,0 +1,246 @@
+"""Read-level events: a read that is off for most pixels, told from cosmic rays.
+
+A first read that sits below the line of the others (a reset anomaly), or one
+read of the middle offset for the whole array (a frame glitch), makes the step
+search of ``detect_jumps`` find a "jump" in many pixels at the same read.
+Cosmic rays fall on few pixels at every read alike.  `find_read_events` looks
+at how the jumps of a set of pixels fall over the reads and over the array:
+
+1. **Over the reads**: the number of pixels ``c_k`` with a jump flagged at
+   read ``k`` is compared with the binomial tail of ``N`` pixels at a rate
+   ``p_0 = EDGE_FACTOR * (sum of c_j over the other reads + 1) / (N (K - 1))``
+   (``K`` candidate reads, the other reads' rate; reads found to be events
+   are left out of it).  A read is a candidate when ``P(X >= c_k) < ALPHA /
+   K`` and at least ``MIN_FRACTION`` of the pixels jumped there.
+   `EDGE_FACTOR` covers the search's uneven false alarms (its first and last
+   reads false-alarm up to ~2.5 times as often as the middle ones), so with
+   any rates that differ by less than that over the reads a set of pixels
+   holds a false event with probability below `ALPHA` (the tests check the
+   rule on binomial counts).
+2. **Over the array**: the pixels are cut into up to 4 x 4 cells of rows and
+   columns; the jumps at the read must fall in at least half of them (a
+   shower of cosmic rays is local; a read that is off is off everywhere).
+
+Each excess read is then named: a pair of excess reads ``k``, ``k + 1`` with
+steps of opposite signs is one read ``k`` that is off (a *frame glitch*);
+a lone excess at read 1 is the first read off (*first read*); at the last
+read, the last read off (*last read*); elsewhere the whole array stepped at
+``k`` (*step*).  A read that is off is left out of every pixel's fit
+(``DO_NOT_USE``); a step is a ``JUMP`` at ``k`` for every pixel.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+from astropy.utils.exceptions import AstropyUserWarning
+from scipy.stats import binom
+
+__all__ = ["ALPHA", "EDGE_FACTOR", "MIN_FRACTION", "JumpWarning", "ReadEvent",
+           "event_message", "excess_reads", "find_read_events"]
+
+#: false-alarm probability of a read event in one set of pixels (no read off)
+ALPHA = 1e-6
+#: the rate of the other reads is multiplied by this to be the null's: the step search's
+#: first and last reads false-alarm ~2.5 times as often as its middle ones
+EDGE_FACTOR = 3.0
+#: a read event holds jumps in at least this fraction of the pixels
+MIN_FRACTION = 0.01
+#: cells of rows and of columns over which a read event's jumps must spread (half of them)
+CELLS = 4
+
+
+class JumpWarning(AstropyUserWarning):
+    """``detect_jumps`` found a read that is off for most pixels, or could not search."""
+
+
+@dataclass(frozen=True)
+class ReadEvent:
+    """A read that is off for most pixels of a set (or where the whole array stepped).
+
+    Attributes
+    ----------
+    read : int
+        The read that is off (0 the first of the ramp), or the first read after
+        the step (``kind`` ``'step'``).
+    kind : {'first read', 'last read', 'frame glitch', 'step'}
+    jumps : int
+        Pixels whose jump search flagged a jump there.
+    expected : float
+        Pixels expected to, from the other reads (the null's rate, `EDGE_FACTOR` in).
+    pixels : int
+        Pixels of the set.
+    offset : float
+        Median amplitude of their steps at the read (data unit; for a read that is
+        off, how far it sits above the line of the others).
+    """
+
+    read: int
+    kind: str
+    jumps: int
+    expected: float
+    pixels: int
+    offset: float
+
+    @property
+    def dropped(self):
+        """Whether the read is left out of every fit (all but a step)."""
+        return self.kind != "step"
+
+
+def excess_reads(counts, npixels, alpha=ALPHA):
+    """The reads whose count of jumps is above the binomial tail of the other reads' rate.
+
+    Parameters
+    ----------
+    counts : array_like of int
+        Pixels with a jump flagged at each candidate read (``K`` reads).
+    npixels : int
+        Pixels searched.
+    alpha : float
+        False-alarm probability of the set (Bonferroni over the ``K`` reads).
+
+    Returns
+    -------
+    excess : `numpy.ndarray` of bool
+        Per read: the count's tail probability is below ``alpha / K`` and at least
+        `MIN_FRACTION` of the pixels jumped there.
+    expected : `numpy.ndarray` of float
+        Per read: ``N p_0``, the count the null allows for.
+
+    Examples
+    --------
+    >>> from spherex_reduce.reduce.steps.jumps.events import excess_reads
+    >>> excess, expected = excess_reads([498, 3, 1, 0, 2, 1], 1600)
+    >>> excess.tolist(), round(float(expected[0]), 2)
+    ([True, False, False, False, False, False], 4.8)
+    """
+    c = np.asarray(counts, np.int64)
+    k = c.size
+    excess = np.zeros(k, bool)
+    expected = np.zeros(k)
+    if k < 2 or npixels <= 0:
+        return excess, expected
+    for _ in range(k):  # until no new read is found: events are left out of the rate
+        base = np.where(excess, 0, c)
+        others = np.maximum((~excess).sum() - (~excess).astype(np.int64), 1)
+        rate = (base.sum() - base + 1.0) / (npixels * others)
+        p0 = np.minimum(EDGE_FACTOR * rate, 1.0)
+        expected = npixels * p0
+        tail = binom.sf(c - 1, npixels, p0)  # P(X >= c)
+        found = (tail < alpha / k) & (c >= MIN_FRACTION * npixels)
+        if not (found & ~excess).any():
+            break
+        excess |= found
+    return excess, expected
+
+
+def find_read_events(reads, rows, cols, amplitudes, *, nreads, nrows, ncols,
+                     alpha=ALPHA):
+    """The read events of a set of ``nrows x ncols`` pixels from the jumps found in them.
+
+    Parameters
+    ----------
+    reads : array_like of int
+        The read flagged for each jump (the first read after the step).
+    rows, cols : array_like of int
+        Its pixel's row (0 to ``nrows - 1``) and column.
+    amplitudes : array_like of float
+        Its step (data unit).
+    nreads : int
+        Reads of the ramps.
+    nrows, ncols : int
+        Pixels of the set.
+    alpha : float
+        False-alarm probability of the set (see `excess_reads`).
+
+    Returns
+    -------
+    tuple of `ReadEvent`
+        In read order.
+
+    Examples
+    --------
+    Read 0 of a 40 x 40 dark 18 adu low: 500 pixels step up at read 1.
+
+    >>> import numpy as np
+    >>> from spherex_reduce.reduce.steps.jumps.events import find_read_events
+    >>> rng = np.random.default_rng(0)
+    >>> pix = rng.choice(1600, 500, replace=False)
+    >>> reads = np.r_[np.ones(500, int), [7, 30]]
+    >>> rows, cols = np.r_[pix // 40, [3, 9]], np.r_[pix % 40, [5, 5]]
+    >>> amp = np.r_[np.full(500, 18.0), [90.0, 400.0]]
+    >>> [(e.read, e.kind, e.jumps) for e in find_read_events(
+    ...     reads, rows, cols, amp, nreads=56, nrows=40, ncols=40)]
+    [(0, 'first read', 500)]
+    """
+    reads = np.asarray(reads, np.int64)
+    amplitudes = np.asarray(amplitudes, np.float64)
+    npix = int(nrows) * int(ncols)
+    if nreads < 3 or not reads.size:
+        return ()
+    counts = np.zeros(nreads, np.int64)  # pixels with a jump at each read (each once)
+    first = np.unique(reads * npix + np.asarray(rows) * ncols + np.asarray(cols))
+    np.add.at(counts, first // npix, 1)
+    excess, expected = excess_reads(counts[1:], npix, alpha)
+    excess = np.r_[False, excess]
+    expected = np.r_[0.0, expected]
+    if not excess.any():
+        return ()
+    nr, nc = min(CELLS, int(nrows)), min(CELLS, int(ncols))
+    cell = (np.asarray(rows) * nr // nrows) * nc + np.asarray(cols) * nc // ncols
+    offsets = np.zeros(nreads)
+    for k in np.flatnonzero(excess):
+        at = reads == k
+        if np.unique(cell[at]).size * 2 < nr * nc:  # local: a shower, not the read
+            excess[k] = False
+        offsets[k] = np.median(amplitudes[at])
+    events, skip = [], set()
+    for k in np.flatnonzero(excess):
+        if k in skip:
+            continue
+        if k + 1 < nreads and excess[k + 1] and offsets[k] * offsets[k + 1] < 0:
+            read, kind, offset = k, "frame glitch", offsets[k]
+            skip.add(k + 1)
+        elif k == 1:
+            read, kind, offset = 0, "first read", -offsets[k]
+        elif k == nreads - 1:
+            read, kind, offset = k, "last read", offsets[k]
+        else:
+            read, kind, offset = k, "step", offsets[k]
+        events.append(ReadEvent(int(read), kind, int(counts[k]), float(expected[k]), npix,
+                                float(offset)))
+    return tuple(events)
+
+
+def event_message(read, kind, jumps, expected, pixels, offset, dropped_before=0):
+    """The one line that tells the user of a read event (the totals over the array).
+
+    ``dropped_before``: frames the input already left out (``NDROPRD``), so that the
+    fix named for a first read counts from the file's first.
+
+    Examples
+    --------
+    >>> from spherex_reduce.reduce.steps.jumps.events import event_message
+    >>> text = event_message(0, "first read", 498, 0.7, 1600, -17.9)
+    >>> print(text)  # doctest: +NORMALIZE_WHITESPACE
+    detect_jumps: read 0 is off in most pixels (first read: 498 of 1600 pixels step
+    there, 0.7 expected from the other reads; median -17.9 from the line of the
+    others): left out of every fit (DO_NOT_USE on that read), not counted as jumps;
+    to leave it out from the start give input: drop_first_reads: 1
+    """
+    what = (f"the array stepped at read {read}" if kind == "step"
+            else f"read {read} is off in most pixels")
+    how = (f"{kind}: {jumps} of {pixels} pixels step there, {expected:.1f} expected from the "
+           f"other reads; median {offset:+.1f} from the line of the others")
+    if kind == "step":
+        done = "every pixel is fitted in two segments around it (JUMP on that read)"
+    else:
+        done = "left out of every fit (DO_NOT_USE on that read), not counted as jumps"
+    if kind == "first read":
+        fix = f"; to leave it out from the start give input: drop_first_reads: " \
+              f"{dropped_before + 1}"
+    elif kind == "step":
+        fix = ""
+    else:
+        fix = "; if it recurs, flag that read DO_NOT_USE in the input's DQ"
+    return f"detect_jumps: {what} ({how}): {done}{fix}"

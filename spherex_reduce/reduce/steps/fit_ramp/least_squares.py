@@ -161,6 +161,15 @@ class RampSolution:
             getattr(self, name)[rows] = getattr(part, name)
 
 
+def _relative_reads(block, idx):
+    """The reads of the pixels ``idx`` (flat indices of ``block``, ``(frames, rows,
+    columns)``) minus their first read, in float64: exact, where a float32 difference is not
+    once a read is more than twice the first (a bright ramp on a pedestal)."""
+    rr, cc = np.divmod(idx, block.shape[2])
+    y = np.asarray(block[:, rr, cc], dtype=np.float64)
+    return y - y[0]
+
+
 def _accumulate(total, part, i):
     """``total = 0 + part`` for the first group (``i == 0``), else ``total += part``."""
     if i:
@@ -347,29 +356,44 @@ class LeastSquares:
             rmask = np.asarray(rmask).reshape(nf, npx)
             bad |= np.bitwise_or.reduce(rmask, axis=0) != 0  # one pass, no temporary
         if self.weighting == "optimal" and nf >= 2:
-            fitted = self._optimal(x, slope, var, bad, maps, fit)
+            fitted = self._optimal(block, slope, var, bad, maps, fit)
             if imprecise is not None:  # their slopes are float64 sums now
                 imprecise[fitted] = False
         if imprecise is not None:
-            bad |= imprecise
+            if self.weighting == "uniform":  # every read usable: the same sums in float64
+                self._precise(block, np.flatnonzero(imprecise & ~bad), slope, var, maps)
+            else:  # not fitted by `_optimal` (rate <= 0): generalised least squares there
+                bad |= imprecise
         bidx = np.flatnonzero(bad)
         if bidx.size:
             self._refit(block, rmask, bidx, fit, maps)
 
-    def _model_variance(self, slope, var, maps, fit):
+    def _model_variance(self, slope, var, maps, fit=None):
         """``var`` = read noise + shot noise of ``max(slope, 0)`` and of the dark current (uniform
-        weights, every read usable), and its two parts in ``fit``."""
+        weights, every read usable), and its two parts in ``fit`` (if given)."""
         np.maximum(slope, 0, out=var)
         var += maps.dark
         var *= maps.pscale * self.pfactor
         rnoise = np.square(maps.read_noise) * self.sumw2f
         var += rnoise
-        if fit.var_rnoise is not None:
+        if fit is not None and fit.var_rnoise is not None:
             per_rate = np.broadcast_to(maps.pscale * self.pfactor, slope.shape)
             fit.var_per_rate.reshape(-1)[:] = per_rate
             fit.var_rnoise.reshape(-1)[:] = rnoise + np.multiply(maps.dark, per_rate)
 
-    def _optimal(self, x, slope, var, bad, maps, fit):
+    def _precise(self, block, idx, slope, var, maps):
+        """Slopes of the pixels ``idx`` (flat indices of ``block``, every read usable) summed
+        in float64, and their model variance: where float32 sums are too coarse (a bright
+        ramp), the same weights, frames added one by one as in `_optimal`."""
+        if not idx.size:
+            return
+        slope[idx] = np.einsum("f,fp->p", self.w, _relative_reads(block, idx))
+        if self.want_var:
+            v = np.empty(idx.size)
+            self._model_variance(slope[idx], v, maps.pixels(idx))
+            var[idx] = v
+
+    def _optimal(self, block, slope, var, bad, maps, fit):
         """Generalised least squares for the pixels with every read usable (not ``bad``);
         returns their flat indices."""
         rn2 = np.square(maps.read_noise)
@@ -393,7 +417,7 @@ class LeastSquares:
             cols = idx[inv == k]
             # frames added one by one in float64 (a BLAS product's order depends on
             # the other columns)
-            slope[cols] = np.einsum("f,fp->p", wk, x[:, cols].astype(np.float64))
+            slope[cols] = np.einsum("f,fp->p", wk, _relative_reads(block, cols))
             if self.want_var:
                 var[cols] = rn2[cols] * vk
             if parts:

@@ -166,7 +166,9 @@ def _relative_reads(block, idx):
     columns)``) minus their first read, in float64: exact, where a float32 difference is not
     once a read is more than twice the first (a bright ramp on a pedestal)."""
     rr, cc = np.divmod(idx, block.shape[2])
-    y = np.asarray(block[:, rr, cc], dtype=np.float64)
+    # Fortran order: a weighted sum over the reads is then each pixel's own dot product, the
+    # same whichever pixels come with it
+    y = np.asarray(block[:, rr, cc], dtype=np.float64, order="F")
     return y - y[0]
 
 

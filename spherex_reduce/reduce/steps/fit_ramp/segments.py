@@ -216,8 +216,9 @@ def usable_reads(y, flags, saturation):
     return usable, sat.any(axis=0)
 
 
-def _segment_sums(y, good, t):
-    """Per pixel least squares on the reads ``good``: ``(n, stt, tc, slope, chi2)``."""
+def _segment_sums(y, good, t, residuals=True):
+    """Per pixel least squares on the reads ``good``: ``(n, stt, tc, slope, chi2)`` (``chi2``
+    None unless ``residuals``)."""
     g = good.astype(np.float64)
     n = g.sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -228,8 +229,10 @@ def _segment_sums(y, good, t):
         first = np.argmax(good, axis=0)
         y0 = np.take_along_axis(y, first[None], axis=0)[0]
         d = np.where(good, y - y0, 0.0)
-        dbar = d.sum(axis=0) / n
         slope = (tc * d).sum(axis=0) / stt
+        if not residuals:
+            return n, stt, tc, slope, None
+        dbar = d.sum(axis=0) / n
         resid = (d - dbar - slope * tc) * g
         chi2 = (resid * resid).sum(axis=0)
     return n, stt, tc, slope, chi2
@@ -302,22 +305,31 @@ def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=No
     rn2 = None if read_noise is None else np.broadcast_to(np.asarray(read_noise) ** 2, (m,))
     nseg_max = int(seg.max(initial=0)) + 1
 
-    slopes, rvars, pfs, stts, chi2s, ns = [], [], [], [], [], []
+    # each segment fitted on the pixels where it has two usable reads (its reads' numbers do
+    # not depend on the other pixels); elsewhere it carries no slope
+    slopes, rvars, pfs, stts = np.full((4, nseg_max, m), np.nan)
+    chi2s, ns = np.zeros((nseg_max, m)), np.zeros((nseg_max, m))
     for s in range(nseg_max):
         good = usable & (seg == s)
-        n, stt, tc, slope, chi2 = _segment_sums(y, good, t)
-        ok = n >= 2
+        cols = np.flatnonzero(good.sum(axis=0) >= 2)
+        if not cols.size:
+            continue
+        pick = slice(None) if cols.size == m else cols if cols.size > 1 else np.repeat(cols, 2)
+        # C order, as ``y``: each column's sums over reads then add read after read
+        n, stt, tc, slope, chi2 = _segment_sums(np.ascontiguousarray(y[:, pick]),
+                                                np.ascontiguousarray(good[:, pick]), t,
+                                                residuals=rn2 is None)
+        k = cols.size
         with np.errstate(invalid="ignore", divide="ignore"):
             w = tc / stt
-        w[:, ~ok] = 0.0
-        slopes.append(np.where(ok, slope, np.nan))
-        rvars.append(np.where(ok, (w * w * noise.read_factors[:, None]).sum(axis=0), np.nan))
-        pfs.append(np.where(ok, noise.shot_variance(w), np.nan) if pscale is not None
-                   else np.full(m, np.nan))
-        stts.append(np.where(ok, stt, np.nan))
-        chi2s.append(np.where(ok, chi2, 0.0))
-        ns.append(np.where(ok, n, 0))
-    slopes, rvars, pfs, stts = (np.array(a) for a in (slopes, rvars, pfs, stts))
+        slopes[s, cols] = slope[:k]
+        rvars[s, cols] = (w * w * noise.read_factors[:, None]).sum(axis=0)[:k]
+        if pscale is not None:
+            pfs[s, cols] = noise.shot_variance(w)[:k]
+        stts[s, cols] = stt[:k]
+        if chi2 is not None:
+            chi2s[s, cols] = chi2[:k]
+        ns[s, cols] = n[:k]
     nseg = np.array(ns).astype(bool).sum(axis=0)
     nreads = usable.sum(axis=0)
     fitted = np.isfinite(slopes)

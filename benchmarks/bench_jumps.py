@@ -167,15 +167,17 @@ def numpy_slopes(cube):
 
 
 def clock(fn):
-    t0 = time.perf_counter()
+    """Wall and CPU (all threads) seconds of ``fn()``."""
+    t0, c0 = time.perf_counter(), time.process_time()
     fn()
-    return time.perf_counter() - t0
+    return time.perf_counter() - t0, time.process_time() - c0
 
 
 def passes(source, cube, repeat):
     """Medians over ``repeat`` rounds of: ``cube.sum()``, the pass of ``fit_ramp`` alone and
-    the pass with ``detect_jumps`` on ``source`` (an exposure or a path), each in turn; the
-    fit's slopes.  One untimed round first (imports, the searches' matrices)."""
+    the pass with ``detect_jumps`` on ``source`` (an exposure or a path), each in turn, wall
+    then CPU seconds (6 numbers); the fit's slopes.  One untimed round first (imports, the
+    searches' matrices)."""
     fit = Pipeline({"steps": [{"fit_ramp": {"read_noise": RN}}]})
     both = Pipeline({"steps": [{"detect_jumps": {"read_noise": RN}},
                                {"fit_ramp": {"read_noise": RN}}]})
@@ -183,7 +185,7 @@ def passes(source, cube, repeat):
     both.run(source)
     rounds = [(clock(cube.sum), clock(lambda: fit.run(source)), clock(lambda: both.run(source)))
               for _ in range(repeat)]
-    return (*np.median(rounds, axis=0), slopes)
+    return (*np.median(rounds, axis=0).T.ravel(), slopes)
 
 
 def main(argv=None):
@@ -237,10 +239,10 @@ def main(argv=None):
             cube_big, schedule(512, 2048)), t_big))
     s0 = sigma0(DARK)
     print(f"\ntimes: medians of {args.repeat} runs, each pass and cube.sum() in turn, one process "
-          f"({default_threads()} threads)\n")
-    print("| pass | cube | ours (s) | cube.sum() (s) | ours / sum | with / without | stcal (s) "
-          "| stcal / ours | fit error (sigma0) |")
-    print("|---" * 9 + "|")
+          f"({default_threads()} threads); CPU: seconds of CPU over every thread\n")
+    print("| pass | cube | ours (s) | cube.sum() (s) | ours / sum | with / without | CPU: ours "
+          "(s), / sum, with / without | stcal (s) | stcal / ours | fit error (sigma0) |")
+    print("|---" * 10 + "|")
     timing = {}
     for name, c, exposure, st in sizes:
         sources = [("in memory", exposure)]
@@ -250,7 +252,7 @@ def main(argv=None):
             write(exposure, path)
             sources.append(("from FITS", path))
         for where, source in sources:
-            t_sum, t_fit, t_both, slopes = passes(source, c, args.repeat)
+            t_sum, t_fit, t_both, c_sum, c_fit, c_both, slopes = passes(source, c, args.repeat)
             err = np.max(np.abs(slopes - numpy_slopes(c))) / s0
             timing[name, where] = (t_sum, t_fit, t_both)
             st_fit = st_all = "- | -"
@@ -258,9 +260,11 @@ def main(argv=None):
                 st_fit, st_all = (f"{st[1]:.2f} | {st[1] / t_fit:.0f}x",
                                   f"{st[0]:.2f} | {st[0] / t_both:.0f}x")
             print(f"| fit_ramp, {where} | {name} | {t_fit:.3f} | {t_sum:.3f} | "
-                  f"{t_fit / t_sum:.2f}x | | {st_fit} | {err:.1e} |")
+                  f"{t_fit / t_sum:.2f}x | | {c_fit:.3f}, {c_fit / c_sum:.2f}x | {st_fit} | "
+                  f"{err:.1e} |")
             print(f"| detect_jumps + fit_ramp, {where} | {name} | {t_both:.3f} | {t_sum:.3f} | "
-                  f"{t_both / t_sum:.2f}x | {t_both / t_fit:.2f}x | {st_all} | |")
+                  f"{t_both / t_sum:.2f}x | {t_both / t_fit:.2f}x | {c_both:.3f}, "
+                  f"{c_both / c_sum:.2f}x, {c_both / c_fit:.2f}x | {st_all} | |")
         tmp.cleanup()
     print()
     name = sizes[-1][0]

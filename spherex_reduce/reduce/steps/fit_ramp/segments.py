@@ -36,12 +36,41 @@ import numpy as np
 from ....core import dq
 from ....core.limits import check_size
 
-__all__ = ["RATIO_BINS", "RampNoise", "SegmentFit", "fit_segments", "usable_reads"]
+__all__ = ["RATIO_BINS", "RampNoise", "SegmentFit", "accumulate_reads", "fit_segments",
+           "usable_reads"]
 
 #: Bins per decade of ``rate / read_noise**2`` whose pixels share GLS weights (0.02 dex).
 RATIO_BINS = 50
 #: Most jumps (segments - 1) a pixel's fit handles; more, and its reads after are not used.
 MAX_SEGMENTS = 64
+#: pixels from which `accumulate_reads` works row by row
+ROW_BY_ROW = 1024
+
+
+def accumulate_reads(ufunc, x, dtype=None):
+    """``ufunc.accumulate(x, axis=0, dtype=dtype)``: each read combined with the result of
+    the reads before it, in that order, so the same numbers.
+
+    numpy accumulates over the first axis column by column, with strided steps: for
+    more than `ROW_BY_ROW` pixels a read a numpy call per read is several times faster
+    (74 reads of 3000 float64 pixels: 0.3 ms against 1.1 ms; 16384 pixels: 1.3 against
+    12 ms).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.reduce.steps.fit_ramp.segments import accumulate_reads
+    >>> x = np.arange(6.0).reshape(3, 2)
+    >>> accumulate_reads(np.add, x).tolist()
+    [[0.0, 1.0], [2.0, 4.0], [6.0, 9.0]]
+    """
+    if x.ndim < 2 or x[0].size < ROW_BY_ROW or x.shape[0] < 2:
+        return ufunc.accumulate(x, axis=0, dtype=dtype)
+    out = np.empty(x.shape, x.dtype if dtype is None else dtype)
+    out[0] = x[0]
+    for i in range(1, x.shape[0]):
+        ufunc(out[i - 1], x[i], out=out[i])
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -118,7 +147,7 @@ class RampNoise:
         shot-noise variance of weighted sums per unit rate, each column summed in an order
         that does not depend on the other columns (no BLAS)."""
         if self._steps is not None:
-            tail = np.cumsum(w[::-1], axis=0)[::-1]  # sum_{i >= k} w_i
+            tail = accumulate_reads(np.add, w[::-1])[::-1]  # sum_{i >= k} w_i
             return (self._steps * tail * tail).sum(axis=0)
         mw = np.zeros_like(w)  # groups: nframes**2 work per pixel, no larger temporary
         for j in range(w.shape[0]):
@@ -209,7 +238,7 @@ def usable_reads(y, flags, saturation):
             sat = y > saturation
     if flags is not None:
         sat |= (flags & dq.SATURATED) != 0
-    cut = np.logical_or.accumulate(sat, axis=0)  # the first saturated read and every later one
+    cut = accumulate_reads(np.logical_or, sat)  # the first saturated read and every later one
     usable = finite & ~cut
     if flags is not None:
         usable &= dq.read_usable(flags)
@@ -294,12 +323,13 @@ def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=No
     y = np.ascontiguousarray(y)
     usable, saturated = usable_reads(y, flags, saturation)
     jumps = np.zeros(y.shape, bool) if flags is None else (flags & dq.JUMP) != 0
-    seg = np.minimum(np.cumsum(jumps, axis=0), MAX_SEGMENTS)
-    usable &= np.cumsum(jumps, axis=0) <= MAX_SEGMENTS
+    count = accumulate_reads(np.add, jumps, np.intp)
+    seg = np.minimum(count, MAX_SEGMENTS)
+    usable &= count <= MAX_SEGMENTS
     # a jump counts (njumps, the JUMP flag) where it splits usable reads: on a usable read
     # with usable reads before it (a JUMP on a read that is not used, or on the first
     # usable read, changes nothing in the fit)
-    before = np.cumsum(usable, axis=0) - usable
+    before = accumulate_reads(np.add, usable, np.intp) - usable
     njumps = (jumps & usable & (before > 0)).sum(axis=0)
     t = (noise.times - noise.times.mean())[:, None]  # centred times
     rn2 = None if read_noise is None else np.broadcast_to(np.asarray(read_noise) ** 2, (m,))

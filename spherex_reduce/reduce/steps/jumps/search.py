@@ -40,6 +40,7 @@ from scipy.special import log_ndtr
 
 from ....core.limits import check_size
 from ....core.recently_used import RecentlyUsed
+from ..fit_ramp.segments import accumulate_reads
 
 __all__ = ["SCREEN_MARGIN", "Found", "StepSearch"]
 
@@ -276,7 +277,7 @@ class StepSearch:
         r = y - ab[0] - ab[1] * self.tau[:, None]
         if self.g is None:
             wr = r * self.w[:, None]
-            big_r = np.cumsum(wr[:0:-1], axis=0)[::-1]  # (n - 1, m): R_k, tail sums
+            big_r = accumulate_reads(np.add, wr[:0:-1])[::-1]  # (n - 1, m): R_k, tail sums
             rss = np.einsum("im,im->m", wr, r)
         else:
             big_r = np.einsum("ki,im->km", self.g, y)

@@ -48,9 +48,9 @@ __all__ = ["SCREEN_MARGIN", "Found", "StepSearch"]
 #: rounding never drops a pixel the float64 search would flag
 SCREEN_MARGIN = 0.98
 #: bytes of the shot-weighted searches kept per set of reads (bins of rho, the least recently
-#: used let go; `StepSearch.nbytes` each): a dark strip's ramps fall in ~60 bins of rho, and
-#: a cache smaller than that remade a search (~1-2 ms for 74 reads) for most bins of every band
-SHOT_CACHE_BYTES = 64 << 20
+#: used let go; `StepSearch.nbytes` each, 73 of them for 74 reads): the dark strip's ramps
+#: fall in 20 bins, a sky's rates over two decades in ~40, and a search remade costs ~1-2 ms
+SHOT_CACHE_BYTES = 32 << 20
 #: E[x**2 | x**2 below its 90 % quantile] for a unit Gaussian x (1 - 2 z phi(z) / 0.9 at
 #: z = 1.6449)
 _TRIMMED_90 = 0.62302

@@ -13,10 +13,14 @@ works through it a few rows at a time (a work buffer that stays in cache): the
 first read is subtracted (exact in float32 for values within a factor two of
 each other, e.g. a 6e4 pedestal), and the sums ``sum w d``, ``sum d`` and
 ``sum d**2`` are formed in float32 over groups of `GROUP` frames whose partial
-sums are accumulated in float64.  Pixels with a NaN, saturated or flagged read
-(a masked read, a jump), and the few whose residuals are too small to be
-computed from float32 sums, are refitted in float64 on their usable reads,
-segment by segment (`~spherex_reduce.reduce.steps.fit_ramp.segments.fit_segments`).
+sums are accumulated in float64.  Bright ramps whose float32 sums are too
+coarse for the slope (with a read-noise model) are summed again in float64 with
+the same weights, from their reads minus the first in float64.  Pixels with a
+NaN, saturated or flagged read (a masked read, a jump), and the few whose
+residuals are too small to be computed from float32 sums, are refitted in
+float64 on their usable reads, segment by segment
+(`~spherex_reduce.reduce.steps.fit_ramp.segments.fit_segments`), all those of a
+call to `LeastSquares.fit` together.
 
 Read noise, gain and dark current may differ from pixel to pixel: `RampMaps`
 holds a band's values, numbers or arrays of the band's shape.
@@ -24,10 +28,11 @@ holds a band's values, numbers or arrays of the band's shape.
 Every pixel's numbers depend on its own reads only, never on the other pixels
 of the block or on where the block starts: numpy's ``einsum``, and its
 reduction over the first axis of a C-ordered array, add the frames of each
-column one after another (a product, then a sum, each rounded), and
-the float64 paths fit each column alone.  So a ramp cut into bands of rows and
-fitted band by band, on any number of threads, gives the fit of the whole cube
-bit for bit.
+column one after another (a product, then a sum, each rounded), and the
+float64 paths fit each column alone (a weighted sum over the reads of a float64
+copy in Fortran order is each column's own dot product).  So a ramp cut into
+bands of rows and fitted band by band, on any number of threads, gives the fit
+of the whole cube bit for bit.
 """
 
 from dataclasses import dataclass
@@ -41,6 +46,8 @@ __all__ = ["GROUP", "LeastSquares", "RampMaps", "RampSolution", "ramp_weights"]
 
 GROUP = 32  #: frames per float32 partial sum; the groups are summed in float64
 BLOCK_PIXELS = 1 << 14  #: pixels per block of the work buffer (74 frames: 4.8 MB in float32)
+#: pixels fitted segment by segment at once (74 frames: 4.8 MB for each float64 copy)
+REFIT_PIXELS = 1 << 13
 
 
 def ramp_weights(times):
@@ -161,6 +168,17 @@ class RampSolution:
             getattr(self, name)[rows] = getattr(part, name)
 
 
+def _relative_reads(block, idx):
+    """The reads of the pixels ``idx`` (flat indices of ``block``, ``(frames, rows,
+    columns)``) minus their first read, in float64: exact, where a float32 difference is not
+    once a read is more than twice the first (a bright ramp on a pedestal)."""
+    rr, cc = np.divmod(idx, block.shape[2])
+    # Fortran order: a weighted sum over the reads is then each pixel's own dot product, the
+    # same whichever pixels come with it
+    y = np.asarray(block[:, rr, cc], dtype=np.float64, order="F")
+    return y - y[0]
+
+
 def _accumulate(total, part, i):
     """``total = 0 + part`` for the first group (``i == 0``), else ``total += part``."""
     if i:
@@ -273,16 +291,27 @@ class LeastSquares:
             rows = min(self.rows_per_block(m), max(n, 1))
             buf = np.empty((nf + 1, rows * m), self.work_type(cube.dtype))
         per = max(1, min(buf.shape[1] // max(m, 1), n))
+        mask = None if mask is None else np.asarray(mask)
+        refit = []  # flat indices of the pixels fitted segment by segment, block by block
         for r0 in range(0, n, per):
             r1 = min(n, r0 + per)
             rows = slice(r0, r1)
-            self._block(cube[:, rows], None if mask is None else mask[:, rows], out.rows(rows),
-                        buf, maps.rows(rows))
+            refit.append(r0 * m + self._block(cube[:, rows], None if mask is None
+                                              else mask[:, rows], out.rows(rows), buf,
+                                              maps.rows(rows)))
+        # together: a few calls for the whole band (a pixel's fit does not depend on the
+        # others), in parts that bound their float64 copies
+        refit = np.concatenate(refit) if refit else np.zeros(0, np.int64)
+        if refit.size:
+            flat = maps.rows(slice(None))
+            for i in range(0, refit.size, REFIT_PIXELS):
+                self._refit(cube, mask, refit[i:i + REFIT_PIXELS], out, flat)
         return out
 
     def _block(self, block, rmask, fit, buf, maps):
         """Fit ``block`` (nframes, rows, m) into ``fit`` (views of the output rows); ``maps``
-        are the block's pixels' calibration, flattened."""
+        are the block's pixels' calibration, flattened.  Returns the flat indices of the
+        pixels to fit segment by segment (`_refit`)."""
         nf, nr, m = block.shape
         npx = nr * m
         work = buf.dtype.type
@@ -344,32 +373,44 @@ class LeastSquares:
             var[:] = np.nan
             bad = np.ones(npx, bool)
         if rmask is not None:
-            rmask = np.asarray(rmask).reshape(nf, npx)
-            bad |= np.bitwise_or.reduce(rmask, axis=0) != 0  # one pass, no temporary
+            bad |= np.bitwise_or.reduce(rmask.reshape(nf, npx), axis=0) != 0  # no temporary
         if self.weighting == "optimal" and nf >= 2:
-            fitted = self._optimal(x, slope, var, bad, maps, fit)
+            fitted = self._optimal(block, slope, var, bad, maps, fit)
             if imprecise is not None:  # their slopes are float64 sums now
                 imprecise[fitted] = False
         if imprecise is not None:
-            bad |= imprecise
-        bidx = np.flatnonzero(bad)
-        if bidx.size:
-            self._refit(block, rmask, bidx, fit, maps)
+            if self.weighting == "uniform":  # every read usable: the same sums in float64
+                self._precise(block, np.flatnonzero(imprecise & ~bad), slope, var, maps)
+            else:  # not fitted by `_optimal` (rate <= 0): generalised least squares there
+                bad |= imprecise
+        return np.flatnonzero(bad)
 
-    def _model_variance(self, slope, var, maps, fit):
+    def _model_variance(self, slope, var, maps, fit=None):
         """``var`` = read noise + shot noise of ``max(slope, 0)`` and of the dark current (uniform
-        weights, every read usable), and its two parts in ``fit``."""
+        weights, every read usable), and its two parts in ``fit`` (if given)."""
         np.maximum(slope, 0, out=var)
         var += maps.dark
         var *= maps.pscale * self.pfactor
         rnoise = np.square(maps.read_noise) * self.sumw2f
         var += rnoise
-        if fit.var_rnoise is not None:
+        if fit is not None and fit.var_rnoise is not None:
             per_rate = np.broadcast_to(maps.pscale * self.pfactor, slope.shape)
             fit.var_per_rate.reshape(-1)[:] = per_rate
             fit.var_rnoise.reshape(-1)[:] = rnoise + np.multiply(maps.dark, per_rate)
 
-    def _optimal(self, x, slope, var, bad, maps, fit):
+    def _precise(self, block, idx, slope, var, maps):
+        """Slopes of the pixels ``idx`` (flat indices of ``block``, every read usable) summed
+        in float64, and their model variance: where float32 sums are too coarse (a bright
+        ramp), the same weights, frames added one by one as in `_optimal`."""
+        if not idx.size:
+            return
+        slope[idx] = np.einsum("f,fp->p", self.w, _relative_reads(block, idx))
+        if self.want_var:
+            v = np.empty(idx.size)
+            self._model_variance(slope[idx], v, maps.pixels(idx))
+            var[idx] = v
+
+    def _optimal(self, block, slope, var, bad, maps, fit):
         """Generalised least squares for the pixels with every read usable (not ``bad``);
         returns their flat indices."""
         rn2 = np.square(maps.read_noise)
@@ -393,7 +434,7 @@ class LeastSquares:
             cols = idx[inv == k]
             # frames added one by one in float64 (a BLAS product's order depends on
             # the other columns)
-            slope[cols] = np.einsum("f,fp->p", wk, x[:, cols].astype(np.float64))
+            slope[cols] = np.einsum("f,fp->p", wk, _relative_reads(block, cols))
             if self.want_var:
                 var[cols] = rn2[cols] * vk
             if parts:
@@ -404,12 +445,14 @@ class LeastSquares:
         return idx
 
     def _refit(self, block, rmask, bidx, fit, maps):
-        """Pixels ``bidx`` (flat indices of the block) fitted segment by segment on their
-        usable reads (`~spherex_reduce.reduce.steps.fit_ramp.segments.fit_segments`)."""
+        """Pixels ``bidx`` (flat indices of the block, ``(nframes, rows, m)``, and its flags
+        ``rmask``) fitted segment by segment on their usable reads
+        (`~spherex_reduce.reduce.steps.fit_ramp.segments.fit_segments`); ``maps``, ``fit``:
+        the block's, flattened and C-ordered."""
         m = block.shape[2]
         rr, cc = np.divmod(bidx, m)
         y = np.asarray(block[:, rr, cc], dtype=np.float64)
-        flags = None if rmask is None else as_dq(rmask[:, bidx])
+        flags = None if rmask is None else as_dq(rmask[:, rr, cc])
         px = maps.pixels(bidx)
         seg = fit_segments(y, flags, self.noise, saturation=self.saturation,
                            read_noise=px.read_noise if self.want_var else None,

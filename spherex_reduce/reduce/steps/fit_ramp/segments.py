@@ -36,12 +36,41 @@ import numpy as np
 from ....core import dq
 from ....core.limits import check_size
 
-__all__ = ["RATIO_BINS", "RampNoise", "SegmentFit", "fit_segments", "usable_reads"]
+__all__ = ["RATIO_BINS", "RampNoise", "SegmentFit", "accumulate_reads", "fit_segments",
+           "usable_reads"]
 
 #: Bins per decade of ``rate / read_noise**2`` whose pixels share GLS weights (0.02 dex).
 RATIO_BINS = 50
 #: Most jumps (segments - 1) a pixel's fit handles; more, and its reads after are not used.
 MAX_SEGMENTS = 64
+#: pixels from which `accumulate_reads` works row by row
+ROW_BY_ROW = 1024
+
+
+def accumulate_reads(ufunc, x, dtype=None):
+    """``ufunc.accumulate(x, axis=0, dtype=dtype)``: each read combined with the result of
+    the reads before it, in that order, so the same numbers.
+
+    numpy accumulates over the first axis column by column, with strided steps: for
+    more than `ROW_BY_ROW` pixels a read a numpy call per read is several times faster
+    (74 reads of 3000 float64 pixels: 0.3 ms against 1.1 ms; 16384 pixels: 1.3 against
+    12 ms).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.reduce.steps.fit_ramp.segments import accumulate_reads
+    >>> x = np.arange(6.0).reshape(3, 2)
+    >>> accumulate_reads(np.add, x).tolist()
+    [[0.0, 1.0], [2.0, 4.0], [6.0, 9.0]]
+    """
+    if x.ndim < 2 or x[0].size < ROW_BY_ROW or x.shape[0] < 2:
+        return ufunc.accumulate(x, axis=0, dtype=dtype)
+    out = np.empty(x.shape, x.dtype if dtype is None else dtype)
+    out[0] = x[0]
+    for i in range(1, x.shape[0]):
+        ufunc(out[i - 1], x[i], out=out[i])
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -118,7 +147,7 @@ class RampNoise:
         shot-noise variance of weighted sums per unit rate, each column summed in an order
         that does not depend on the other columns (no BLAS)."""
         if self._steps is not None:
-            tail = np.cumsum(w[::-1], axis=0)[::-1]  # sum_{i >= k} w_i
+            tail = accumulate_reads(np.add, w[::-1])[::-1]  # sum_{i >= k} w_i
             return (self._steps * tail * tail).sum(axis=0)
         mw = np.zeros_like(w)  # groups: nframes**2 work per pixel, no larger temporary
         for j in range(w.shape[0]):
@@ -209,15 +238,16 @@ def usable_reads(y, flags, saturation):
             sat = y > saturation
     if flags is not None:
         sat |= (flags & dq.SATURATED) != 0
-    cut = np.logical_or.accumulate(sat, axis=0)  # the first saturated read and every later one
+    cut = accumulate_reads(np.logical_or, sat)  # the first saturated read and every later one
     usable = finite & ~cut
     if flags is not None:
         usable &= dq.read_usable(flags)
     return usable, sat.any(axis=0)
 
 
-def _segment_sums(y, good, t):
-    """Per pixel least squares on the reads ``good``: ``(n, stt, tc, slope, chi2)``."""
+def _segment_sums(y, good, t, residuals=True):
+    """Per pixel least squares on the reads ``good``: ``(n, stt, tc, slope, chi2)`` (``chi2``
+    None unless ``residuals``)."""
     g = good.astype(np.float64)
     n = g.sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -228,8 +258,10 @@ def _segment_sums(y, good, t):
         first = np.argmax(good, axis=0)
         y0 = np.take_along_axis(y, first[None], axis=0)[0]
         d = np.where(good, y - y0, 0.0)
-        dbar = d.sum(axis=0) / n
         slope = (tc * d).sum(axis=0) / stt
+        if not residuals:
+            return n, stt, tc, slope, None
+        dbar = d.sum(axis=0) / n
         resid = (d - dbar - slope * tc) * g
         chi2 = (resid * resid).sum(axis=0)
     return n, stt, tc, slope, chi2
@@ -291,33 +323,43 @@ def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=No
     y = np.ascontiguousarray(y)
     usable, saturated = usable_reads(y, flags, saturation)
     jumps = np.zeros(y.shape, bool) if flags is None else (flags & dq.JUMP) != 0
-    seg = np.minimum(np.cumsum(jumps, axis=0), MAX_SEGMENTS)
-    usable &= np.cumsum(jumps, axis=0) <= MAX_SEGMENTS
+    count = accumulate_reads(np.add, jumps, np.intp)
+    seg = np.minimum(count, MAX_SEGMENTS)
+    usable &= count <= MAX_SEGMENTS
     # a jump counts (njumps, the JUMP flag) where it splits usable reads: on a usable read
     # with usable reads before it (a JUMP on a read that is not used, or on the first
     # usable read, changes nothing in the fit)
-    before = np.cumsum(usable, axis=0) - usable
+    before = accumulate_reads(np.add, usable, np.intp) - usable
     njumps = (jumps & usable & (before > 0)).sum(axis=0)
     t = (noise.times - noise.times.mean())[:, None]  # centred times
     rn2 = None if read_noise is None else np.broadcast_to(np.asarray(read_noise) ** 2, (m,))
     nseg_max = int(seg.max(initial=0)) + 1
 
-    slopes, rvars, pfs, stts, chi2s, ns = [], [], [], [], [], []
+    # each segment fitted on the pixels where it has two usable reads (its reads' numbers do
+    # not depend on the other pixels); elsewhere it carries no slope
+    slopes, rvars, pfs, stts = np.full((4, nseg_max, m), np.nan)
+    chi2s, ns = np.zeros((nseg_max, m)), np.zeros((nseg_max, m))
     for s in range(nseg_max):
         good = usable & (seg == s)
-        n, stt, tc, slope, chi2 = _segment_sums(y, good, t)
-        ok = n >= 2
+        cols = np.flatnonzero(good.sum(axis=0) >= 2)
+        if not cols.size:
+            continue
+        pick = slice(None) if cols.size == m else cols if cols.size > 1 else np.repeat(cols, 2)
+        # C order, as ``y``: each column's sums over reads then add read after read
+        n, stt, tc, slope, chi2 = _segment_sums(np.ascontiguousarray(y[:, pick]),
+                                                np.ascontiguousarray(good[:, pick]), t,
+                                                residuals=rn2 is None)
+        k = cols.size
         with np.errstate(invalid="ignore", divide="ignore"):
             w = tc / stt
-        w[:, ~ok] = 0.0
-        slopes.append(np.where(ok, slope, np.nan))
-        rvars.append(np.where(ok, (w * w * noise.read_factors[:, None]).sum(axis=0), np.nan))
-        pfs.append(np.where(ok, noise.shot_variance(w), np.nan) if pscale is not None
-                   else np.full(m, np.nan))
-        stts.append(np.where(ok, stt, np.nan))
-        chi2s.append(np.where(ok, chi2, 0.0))
-        ns.append(np.where(ok, n, 0))
-    slopes, rvars, pfs, stts = (np.array(a) for a in (slopes, rvars, pfs, stts))
+        slopes[s, cols] = slope[:k]
+        rvars[s, cols] = (w * w * noise.read_factors[:, None]).sum(axis=0)[:k]
+        if pscale is not None:
+            pfs[s, cols] = noise.shot_variance(w)[:k]
+        stts[s, cols] = stt[:k]
+        if chi2 is not None:
+            chi2s[s, cols] = chi2[:k]
+        ns[s, cols] = n[:k]
     nseg = np.array(ns).astype(bool).sum(axis=0)
     nreads = usable.sum(axis=0)
     fitted = np.isfinite(slopes)

@@ -33,21 +33,24 @@ float64 with the full noise model.  Each pixel's result depends on its own
 reads only.
 """
 
-import threading
 from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.special import log_ndtr
 
 from ....core.limits import check_size
+from ....core.recently_used import RecentlyUsed
+from ..fit_ramp.segments import accumulate_reads
 
 __all__ = ["SCREEN_MARGIN", "Found", "StepSearch"]
 
 #: the float32 screen keeps pixels down to this fraction of the threshold, so that its
 #: rounding never drops a pixel the float64 search would flag
 SCREEN_MARGIN = 0.98
-#: shot-weighted searches kept per set of reads (bins of rho; ~5 n x n matrices each)
-SHOT_CACHE = 32
+#: bytes of the shot-weighted searches kept per set of reads (bins of rho, the least recently
+#: used let go; `StepSearch.nbytes` each, 73 of them for 74 reads): the dark strip's ramps
+#: fall in 20 bins, a sky's rates over two decades in ~40, and a search remade costs ~1-2 ms
+SHOT_CACHE_BYTES = 32 << 20
 #: E[x**2 | x**2 below its 90 % quantile] for a unit Gaussian x (1 - 2 z phi(z) / 0.9 at
 #: z = 1.6449)
 _TRIMMED_90 = 0.62302
@@ -59,9 +62,11 @@ RHO_BIN = 0.05
 #: can make the groups on either side of a jump almost equally likely to hold it)
 PAIR_MARGIN = 9.0
 #: bytes of reads screened at once: each numpy call of the screen works on a read of this many
-#: bytes / nframes ramps, long enough that the calls' overhead does not dominate (6 MB: a
-#: band of 128 x 2048 in memory screens in 13 ms where 0.75 MB took 28 ms)
-SCREEN_BYTES = 3 << 21
+#: bytes / nframes ramps, long enough that the calls' overhead does not dominate, and the
+#: reads minus the first stay in a core's 2 MB L2 cache between the line's fit and the loop
+#: over reads (1.5 MB: the 128 x 2048 strip's search in 0.10-0.14 s of CPU where 6 MB took
+#: 0.21-0.29 s, 2 MB 0.34-0.40 s and 1 MB 0.15-0.16 s, on two cores shared with other work)
+SCREEN_BYTES = 3 << 19
 
 
 class StepSearch:
@@ -116,11 +121,12 @@ class StepSearch:
         self.g = g if rho else None  # R = g @ y (with rho = 0: tail sums of weighted residuals)
         self.wm = wm
         self.q = np.einsum("ki,ki->k", g, h)  # variance of R_k / sigma**2
-        shot = np.zeros_like(walk) if rho else walk  # with rho, the shot noise is in q
-        self.s = np.einsum("ki,ij,kj->k", g, shot, g)  # shot-noise variance / lambda
+        # shot-noise variance / lambda (none with rho: the shot noise is in q)
+        self.s = np.zeros(n - 1) if rho else np.einsum("ki,ij,kj->k", g, walk, g)
         self.slope_of_step = (coef @ h.T)[1]  # change of the line's slope per unit step
         self.qq = g @ h.T  # Q[k, l] = h_k' V M h_l: q is its diagonal
-        self.ss = g @ shot @ g.T  # the random walk's covariance of R: s is its diagonal
+        # the random walk's covariance of R: s is its diagonal (none with rho: it is in q)
+        self.ss = np.zeros((n - 1, n - 1)) if rho else g @ walk @ g.T
         self.walk_top = float(np.max(np.diagonal(walk)))
         self.factors, self.walk = f, walk
         self.uniform_w = bool(np.all(w == w[0]))
@@ -132,22 +138,15 @@ class StepSearch:
         self.uniform_dt = bool(np.all(d == d[0]))
         self._types = {}  # dtype -> (w, 1 / q, coef) in it
         self._invq = 1.0 / self.q
-        self._shot = {}  # rho bin -> StepSearch with that shot noise in its weights
-        self._lock = threading.Lock()
+        # rho bin -> StepSearch with that shot noise in its weights
+        self._shot = RecentlyUsed(SHOT_CACHE_BYTES, size=lambda found: self.nbytes(n))
 
     def with_shot(self, rho):
         """The search of these reads weighted for shot noise ``rho`` (lambda / sigma**2,
         1/s), made once per bin of `RHO_BIN` dex."""
         key = int(np.round(np.log10(rho) / RHO_BIN))
-        with self._lock:
-            found = self._shot.get(key)
-        if found is None:
-            found = StepSearch(self.tau, self.factors, self.walk, 10.0 ** (key * RHO_BIN))
-            with self._lock:
-                if len(self._shot) >= SHOT_CACHE:  # bounded: the oldest bin goes
-                    self._shot.pop(next(iter(self._shot)))
-                self._shot[key] = found
-        return found
+        return self._shot.get(key, lambda: StepSearch(self.tau, self.factors, self.walk,
+                                                      10.0 ** (key * RHO_BIN)))
 
     # -- screen ------------------------------------------------------------------
     def _typed(self, dtype):
@@ -278,7 +277,7 @@ class StepSearch:
         r = y - ab[0] - ab[1] * self.tau[:, None]
         if self.g is None:
             wr = r * self.w[:, None]
-            big_r = np.cumsum(wr[:0:-1], axis=0)[::-1]  # (n - 1, m): R_k, tail sums
+            big_r = accumulate_reads(np.add, wr[:0:-1])[::-1]  # (n - 1, m): R_k, tail sums
             rss = np.einsum("im,im->m", wr, r)
         else:
             big_r = np.einsum("ki,im->km", self.g, y)

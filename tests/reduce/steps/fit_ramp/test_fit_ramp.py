@@ -548,3 +548,44 @@ def test_one_frame_ramps_are_refused_in_one_line(tmp_path, capsys, shape):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "at least 2 frames; this one has 1" in err[0]
     assert not (tmp_path / "out.fits").exists()
+
+
+@pytest.mark.parametrize("weighting", ["uniform", "optimal"])
+def test_bright_and_dark_ramps_with_read_noise_match_float64_least_squares(weighting):
+    # float32 ramps on a 6e4 pedestal over 74 reads, 0 to 3000 e/s side by side: the bright
+    # ones' float32 sums are too coarse and are summed again in float64; every slope is the
+    # float64 least-squares (or GLS) slope and every uncertainty the model's
+    s = schedule(nframes=74, nrows=16, ncols=16)
+    t = s.frame_starts.value
+    rng = np.random.default_rng(41)
+    rn = 10.0
+    rate = np.where(rng.random((16, 16)) < 0.3, rng.uniform(50, 3000, (16, 16)),
+                    rng.uniform(0, 1, (16, 16)))
+    rate[0, :4] = -200.0  # negative slopes too
+    cube = (6e4 + rate * t[:, None, None] + rng.normal(0, rn, (74, 16, 16))).astype(np.float32)
+    exposure = Exposure.from_arrays(cube, s)
+    out = fit_ramp(exposure, read_noise=rn, weighting=weighting)
+    for rows in (1, 5):  # the pixels summed again in float64 do not depend on the band
+        _assert_identical(_in_bands(exposure, rows, 2, read_noise=rn, weighting=weighting), out)
+    ref, _ = lstsq_reference(cube, t)
+    tc = t - t.mean()
+    w = tc / (tc @ tc)
+    sigma = rn * np.sqrt(w @ w)
+    shot = w @ np.minimum.outer(t - t[0], t - t[0]) @ w
+    if weighting == "uniform":
+        assert np.abs(out.data.data - ref).max() <= 5e-4 * sigma
+        model = rn**2 * (w @ w) + np.maximum(ref, 0) * shot
+        np.testing.assert_allclose(out.data.uncertainty.array ** 2, model, rtol=1e-6)
+    else:  # GLS at the uniform slope's rate binned to 0.02 dex (rate <= 0: uniform weights)
+        x = np.stack([np.ones(t.size), t], 1)
+        for i, j in [*np.argwhere(rate > 1000)[:3], (0, 0), (0, 1)]:
+            ratio = max(ref[i, j], 0) / rn**2
+            q = 10 ** (np.round(np.log10(ratio) * 50) / 50) if ratio > 1e-6 else 0.0
+            ci = np.linalg.inv(rn**2 * (np.eye(t.size) + q * np.minimum.outer(t - t[0],
+                                                                             t - t[0])))
+            beta = np.linalg.solve(x.T @ ci @ x, x.T @ ci @ cube[:, i, j].astype(float))
+            assert out.data.data[i, j] == pytest.approx(beta[1], rel=1e-9, abs=1e-3 * sigma)
+    parts = out.tables["RAMPFIT"]
+    if weighting == "uniform":
+        np.testing.assert_allclose(np.asarray(parts["var_per_rate"]), shot, rtol=1e-6)
+        np.testing.assert_allclose(np.asarray(parts["var_rnoise"]), rn**2 * (w @ w), rtol=1e-6)

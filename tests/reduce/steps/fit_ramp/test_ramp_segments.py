@@ -257,3 +257,33 @@ def test_groups_of_averaged_frames(groups):
     np.testing.assert_allclose(np.median(out.data.uncertainty.array), sigma, rtol=0.01)
     assert abs(np.mean(out.data.data) - rate) < 4 * sigma / 64
     np.testing.assert_allclose(np.std(out.data.data), sigma, rtol=0.05)
+
+
+@pytest.mark.parametrize("read_noise", [None, 3.0])
+def test_pixels_with_any_number_of_segments_are_fitted_as_alone(read_noise):
+    # a batch whose pixels hold 0 to 4 jumps and masked reads: each pixel's fit is the fit
+    # of that pixel alone (bit for bit; segments are fitted on the pixels that have them)
+    # and its slope the common slope of its segments (numpy lstsq)
+    from spherex_reduce.reduce.steps.fit_ramp.segments import RampNoise, fit_segments
+
+    rng = np.random.default_rng(8)
+    nf, m = 20, 40
+    t = np.arange(nf) * 1.5
+    y = 1000.0 + 2.0 * t[:, None] + rng.normal(0, 3.0, (nf, m))
+    flags = np.zeros((nf, m), np.uint32)
+    for p in range(m):
+        reads = rng.choice(np.arange(1, nf), p % 5, replace=False)
+        flags[reads, p] = dq.JUMP
+        y[np.sort(reads)[0] if reads.size else nf:, p] += 50.0 * reads.size
+    flags[rng.integers(0, nf, 10), rng.integers(0, m, 10)] |= dq.DO_NOT_USE
+    noise = RampNoise(t)
+    batch = fit_segments(y, flags, noise, read_noise=read_noise)
+    for p in range(m):
+        alone = fit_segments(y[:, [p]], flags[:, [p]], noise, read_noise=read_noise)
+        for name in ("slope", "var", "nreads", "njumps", "nsegments", "flags"):
+            assert np.array_equal(getattr(batch, name)[[p]], getattr(alone, name),
+                                  equal_nan=True), (p, name)
+        usable = dq.read_usable(flags[:, p])
+        segment = np.cumsum((flags[:, p] & dq.JUMP) != 0)
+        assert batch.slope[p] == pytest.approx(common_slope(y[:, p], t, segment, usable),
+                                               rel=1e-9)

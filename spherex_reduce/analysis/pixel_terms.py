@@ -12,7 +12,8 @@ rows so that a full array needs one band of float64 work arrays at a time.
 Per pixel, per dark:
 
 - **jumps**: ``|d_k - median(d)| > jump_sigma × 1.4826 × MAD(d)`` (the
-  pixel's own robust scale, so a hot pixel's shot noise is not a jump);
+  pixel's own robust scale, so a hot pixel's shot noise is not a jump, floored at
+  the median scale of the band's pixels);
 - **dark current**: the least-squares slope of the ramp, written on the
   differences (weights ``(k + 1)(m - k)``), with the jumps left out;
 - **read-noise variance**: the sum of squares of the differences about that
@@ -114,7 +115,7 @@ class PixelTerms:
         """The ``scene:`` mapping of these terms, in the darks' unit (per second for currents).
 
         ``dark_current`` is the mean current of the active pixels that are not
-        hot, ``hot_pixel_current`` the median excess of the hot ones, and ``rtn``
+        hot, ``hot_pixel_current`` the mean excess of the hot ones, and ``rtn``
         the telegraph population: ``pixels: all`` when the active and reference
         populations agree within 3 standard deviations in fraction, amplitude and
         rate (their inverse-variance means), else the active one (warning), else
@@ -215,7 +216,7 @@ def dark_ramps(exposure):
 
 
 def fit_pixel_terms(ramps, times, *, reference=None, gain=None, jump_sigma=5.0,
-                    hot_threshold=None, hot_sigma=10.0, groups=16, band_rows=32):
+                    hot_threshold=None, hot_sigma=10.0, groups=32, band_rows=32):
     """Read noise, dark current, hot and telegraph pixels and the reset offset of a detector.
 
     Parameters
@@ -268,7 +269,7 @@ def fit_pixel_terms(ramps, times, *, reference=None, gain=None, jump_sigma=5.0,
     >>> x = rng.normal(0, 5.0, (30, 32, 32))                  # 5 adu read noise, no current
     >>> x[0] -= 18.0                                          # read 0 offset by -18 adu
     >>> res = fit_pixel_terms(x * u.adu, t * u.s, gain=2.0)
-    >>> r = res.row("read_noise_median", "active")
+    >>> r = res.row("read_noise", "active")
     >>> round(r["value"], 1), r["unit"]
     (5.0, 'adu')
     >>> off = res.row("first_read_offset")
@@ -371,6 +372,9 @@ def _band(x, t, des, jump_sigma, skip_first):
     d = np.diff(y, axis=0)
     e = d - np.median(d / dt, axis=0) * dt
     scale = _MAD * np.median(np.abs(e), axis=0)
+    # a pixel's robust scale from a few tens of differences scatters by ~20 %: floored at the
+    # band's typical one, so that a quiet pixel's noise does not pass for jumps
+    scale = np.maximum(scale, np.median(scale))
     jump = np.abs(e) > jump_sigma * scale
     del e
     wk = np.where(jump, 0.0, des["w"][:, None, None])
@@ -394,38 +398,63 @@ def _band(x, t, des, jump_sigma, skip_first):
 
 
 # -- summaries ---------------------------------------------------------------------------
-def _jackknife(stat, sel, gid, k):
-    """``stat(sel)`` and its delete-a-group jackknife error (NaN when a group leaves none)."""
-    full = float(stat(sel))
-    parts = np.array([stat(sel & (gid != j)) for j in range(k)], dtype=np.float64)
+def _jackknife(f, columns, sel, gid, k):
+    """``f`` of the sums of ``columns`` (per-pixel arrays) over the pixels ``sel``, and its
+    delete-a-group jackknife error (NaN when ``f`` is not finite without some group).
+
+    Every summary is a function of sums over pixels, so one pass of `numpy.bincount` gives
+    the groups' sums and each delete-a-group value is ``f(total - group)``.
+    """
+    g = gid[sel]
+    sums = np.array([np.bincount(g, weights=np.broadcast_to(c, sel.shape)[sel].astype(float),
+                                 minlength=k) for c in columns])
+    total = sums.sum(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        full = float(f(total))
+        parts = np.array([f(total - sums[:, j]) for j in range(k)], dtype=np.float64)
     if not np.isfinite(full) or not np.all(np.isfinite(parts)):
         return full, np.nan
     return full, float(np.sqrt((k - 1) / k * np.sum((parts - parts.mean()) ** 2)))
 
 
-def _median(a):
-    return lambda s: np.median(a[s]) if s.any() else np.nan
+def _ratio(total):
+    return total[0] / total[1] if total[1] > 0 else np.nan
 
 
-def _spread(a, noise):
+def _within(a, sel):
+    """The pixels of ``sel`` where ``a`` is finite and within 5 robust standard deviations of
+    its median over them, and ``a - median`` (0 elsewhere)."""
+    ok = sel & np.isfinite(a)
+    if not ok.any():
+        return ok, np.zeros(a.shape)
+    r = np.where(ok, a - np.median(a[ok]), 0.0)
+    return ok & (np.abs(r) <= 5 * _MAD * np.median(np.abs(r[ok]))), r
+
+
+def _typical(a, sel, gid, k):
+    """Mean of ``a`` over the pixels of ``sel`` within 5 robust standard deviations of its
+    median, and its error: a median's delete-a-group jackknife is unreliable with a few
+    pixels per group (a population's median and clipped mean agree when it is symmetric)."""
+    keep, _ = _within(a, sel)
+    return _jackknife(_ratio, (np.where(keep, a, 0.0), 1.0), keep, gid, k)
+
+
+def _spread(a, noise, sel, gid, k):
     """Variance of ``a`` less each pixel's measurement variance ``noise²`` (the mean of
     ``(a - median)² - noise²``, exact for pixels of unequal noise), over the pixels within 5
     robust standard deviations of the median; negative when the scatter is all noise."""
-    def stat(s):
-        v, n = a[s], noise[s]
-        ok = np.isfinite(v) & np.isfinite(n)
-        v, n = v[ok], n[ok]
-        if v.size < 2:
-            return np.nan
-        r = v - np.median(v)
-        keep = np.abs(r) <= 5 * _MAD * np.median(np.abs(r))
-        return np.mean(r[keep] ** 2 - n[keep] ** 2) if keep.any() else np.nan
-    return stat
+    keep, r = _within(a, sel & np.isfinite(noise))
+    if keep.sum() < 2:
+        return np.nan, np.nan
+    return _jackknife(_ratio, (np.where(keep, r ** 2 - noise ** 2, 0.0), 1.0), keep, gid, k)
 
 
-def _flip_probability(counts, m):
-    """Maximum-likelihood flip probability of binomial(m, p) counts known to be >= 2."""
-    mean = counts.mean()
+def _flip_probability(mean, m):
+    """Maximum-likelihood flip probability of binomial(m, p) counts known to be >= 2, whose
+    mean is ``mean``."""
+    if not np.isfinite(mean):
+        return np.nan
+
     def excess(p):
         q0, q1 = (1 - p) ** m, m * p * (1 - p) ** (m - 1)
         return (m * p - q1) / (1 - q0 - q1) - mean
@@ -463,8 +492,6 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
     noise_err = se_var / (2 * np.maximum(noise, np.sqrt(se_var)))
     slope_err = np.sqrt(np.maximum(v0 * acc["vr"] + current * acc["vs"], 0.0)) / np.where(
         wdt > 0, wdt, np.inf)
-    nu = np.median(acc["ar"] ** 2 / np.maximum(acc["trr"], 1e-300))
-    wilson = (1 - 2 / (9 * nu)) ** 3  # median of chi2_nu / nu
 
     m_total = des["m"] * ndarks
     tel_ok = des["m"] >= MIN_TELEGRAPH_INTERVALS
@@ -480,14 +507,14 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
     active = ~ref
     for pixels, sel in zip(_POPULATIONS, (active, ref), strict=True):
         if not sel.any():
-            for term in ("read_noise_median", "read_noise_spread"):
+            for term in ("read_noise", "read_noise_spread"):
                 refuse(term, pixels, unit, f"no {pixels} pixels")
             continue
-        value, err = _jackknife(lambda s: np.median(var[s]) / wilson, sel, gid, k)
-        add("read_noise_median", pixels, np.sqrt(max(value, 0)),
+        value, err = _typical(var, sel, gid, k)
+        add("read_noise", pixels, np.sqrt(max(value, 0)),
             err / (2 * np.sqrt(max(value, 1e-300))), unit,
-            note=f"median over pixels (chi2 median corrected, {nu:.0f} dof)")
-        _add_spread(add, "read_noise_spread", pixels, _spread(noise, noise_err), sel, gid, k,
+            note="root of the pixels' mean read-noise variance (5 robust sd clipped)")
+        _add_spread(add, "read_noise_spread", pixels, _spread(noise, noise_err, sel, gid, k),
                     unit)
 
     if not active.any():
@@ -507,25 +534,23 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
             how = "given"
         hot = active & (slope > threshold)
         cold = active & ~hot
-        dark, dark_err = _jackknife(lambda s: slope[s].mean() if s.any() else np.nan, cold,
-                                    gid, k)
+        dark, dark_err = _jackknife(_ratio, (slope, 1.0), cold, gid, k)
         add("dark_current", "active", dark, dark_err, rate_unit,
             note="mean of the active pixels that are not hot (a low current's slopes are "
             "skewed: their median is low)")
-        _add_spread(add, "dark_current_spread", "active", _spread(slope, slope_err), cold,
-                    gid, k, rate_unit)
+        _add_spread(add, "dark_current_spread", "active",
+                    _spread(slope, slope_err, cold, gid, k), rate_unit)
         add("hot_threshold", "active", threshold, 0.0, rate_unit, note=how)
-        frac, frac_err = _jackknife(lambda s: hot[s].mean() if s.any() else np.nan, active,
-                                    gid, k)
+        frac, frac_err = _jackknife(_ratio, (hot, 1.0), active, gid, k)
         add("hot_pixel_fraction", "active", frac, frac_err, "",
             note=f"active pixels above {threshold:.4g} {rate_unit}")
         if hot.sum() >= 2:
             excess = slope - dark
-            value, err = _jackknife(_median(excess), hot, gid, k)
+            value, err = _typical(excess, hot, gid, k)
             add("hot_pixel_current", "active", value, err, rate_unit,
-                note="median current of the hot pixels above dark_current")
+                note="mean current of the hot pixels above dark_current (5 robust sd clipped)")
             _add_spread(add, "hot_pixel_current_spread", "active",
-                        _spread(excess, slope_err), hot, gid, k, rate_unit)
+                        _spread(excess, slope_err, hot, gid, k), rate_unit)
         else:
             for term in ("hot_pixel_current", "hot_pixel_current_spread"):
                 refuse(term, "active", rate_unit, f"{int(hot.sum())} hot pixel(s) found")
@@ -543,7 +568,7 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
     else:
         usable = ~hot & ~telegraph
         off = acc["offset"] / ndarks
-        value, err = _jackknife(lambda s: off[s].mean() if s.any() else np.nan, usable, gid, k)
+        value, err = _jackknife(_ratio, (off, 1.0), usable, gid, k)
         status = "fitted" if abs(value) > 3 * err else "ruled out"
         add("first_read_offset", "all", value, err, unit, status,
             "mean of read 0 less the line of the later reads (hot and telegraph pixels "
@@ -563,8 +588,8 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
     return PixelTerms(table, maps, unit, g)
 
 
-def _add_spread(add, term, pixels, stat, sel, gid, k, unit):
-    value, err = _jackknife(stat, sel, gid, k)
+def _add_spread(add, term, pixels, spread, unit):
+    value, err = spread
     if not np.isfinite(value):
         add(term, pixels, np.nan, np.nan, unit, "not constrained", "fewer than 2 pixels")
         return
@@ -598,18 +623,17 @@ def _telegraph(add, refuse, pixels, sel, telegraph, amplitude, pix_rate, acc, m_
     found = sel & telegraph
     counts = acc["jumps"]
 
-    def prob(s):
-        c = counts[s & telegraph]
-        return _flip_probability(c, m_total) if c.size else np.nan
+    columns = (found, 1.0, np.where(found, counts, 0))  # summed over the pixels of sel
 
-    def fraction(s):
-        det = (s & telegraph).sum()
-        if det == 0:
+    def prob(total):
+        return _flip_probability(total[2] / total[0], m_total) if total[0] > 0 else np.nan
+
+    def fraction(total):
+        if total[0] == 0:
             return 0.0
-        p = prob(s)
-        mu = m_total * p
-        eff = 1 - (1 - p) ** m_total - mu * (1 - p) ** (m_total - 1)
-        return det / s.sum() / max(eff, 1e-12)
+        p = prob(total)
+        eff = 1 - (1 - p) ** m_total - m_total * p * (1 - p) ** (m_total - 1)
+        return total[0] / total[1] / max(eff, 1e-12)
 
     nfound = int(found.sum())
     if nfound == 0:
@@ -618,18 +642,22 @@ def _telegraph(add, refuse, pixels, sel, telegraph, amplitude, pix_rate, acc, m_
         for name, un in zip(names[1:], units[1:], strict=True):
             refuse(name, pixels, un, f"no telegraph {pixels} pixels found")
         return
-    value, err = _jackknife(fraction, sel, gid, k)
+    value, err = _jackknife(fraction, columns, sel, gid, k)
     add(names[0], pixels, value, err, "", "fitted",
         f"{nfound} found, corrected for those that flipped < 2 times; {limit_note}")
-    value, err = _jackknife(_median(amplitude), found, gid, k)
-    add(names[1], pixels, value, err, unit, note="median of the pixels' mean jump")
+    value, err = _jackknife(_ratio, (acc["jsize"], counts), found, gid, k)
+    # each jump is measured with the noise of a difference: a floor under a jackknife of a few
+    # groups holding telegraph pixels (itself uncertain)
+    floor = np.sqrt(np.sum(2 * noise[found] ** 2 * counts[found])) / counts[found].sum()
+    add(names[1], pixels, value, max(err, floor), unit, note="mean size of the jumps of the "
+        "telegraph pixels (error: the jackknife's, at least the jumps' own noise)")
     step_noise = np.sqrt(2) * noise / np.sqrt(np.maximum(counts, 1))
-    _add_spread(add, names[2], pixels, _spread(amplitude, step_noise), found, gid, k, unit)
+    _add_spread(add, names[2], pixels, _spread(amplitude, step_noise, found, gid, k), unit)
     if reason:
         for name, un in zip(names[3:], units[3:], strict=True):
             refuse(name, pixels, un, reason)
         return
-    p, p_err = _jackknife(prob, sel, gid, k)
+    p, p_err = _jackknife(prob, columns, sel, gid, k)
     if not 0 < p < MAX_FLIP_PROBABILITY:
         why = ("every telegraph pixel flipped exactly twice: the rate is below what the darks "
                "resolve" if p <= 0 else f"flip probability {p:.2f}: switches faster than the "
@@ -641,5 +669,4 @@ def _telegraph(add, refuse, pixels, sel, telegraph, amplitude, pix_rate, acc, m_
     add(names[3], pixels, rate, p_err / ((1 - 2 * p) * dt), u.Hz, note=(
         f"from the flip probability {p:.4f} per {dt:.4g} s (maximum likelihood, >= 2 flips)"))
     rate_noise = np.full(pix_rate.shape, np.sqrt(p * (1 - p) / m_total) / ((1 - 2 * p) * dt))
-    _add_spread(add, names[4], pixels, _spread(pix_rate, rate_noise), found,
-                gid, k, u.Hz)
+    _add_spread(add, names[4], pixels, _spread(pix_rate, rate_noise, found, gid, k), u.Hz)

@@ -29,7 +29,7 @@ def _scene(nframes=40):
                       "hot_pixel_current": HOT_CURRENT, "rtn": dict(RTN)}}
 
 
-TRUTH = [("read_noise_median", "active", SIGMA), ("read_noise_median", "reference", SIGMA),
+TRUTH = [("read_noise", "active", SIGMA), ("read_noise", "reference", SIGMA),
          ("dark_current", "active", DARK), ("hot_pixel_fraction", "active", HOT_FRACTION),
          ("hot_pixel_current", "active", HOT_CURRENT)]
 for _pixels in ("active", "reference"):
@@ -148,7 +148,7 @@ def test_what_the_darks_cannot_constrain_is_refused_with_its_reason():
     assert "read 0" in res.row("first_read_offset")["note"]
     assert "differences per dark" in res.row("telegraph_rate", "active")["note"]
     assert "no reference pixels" in res.row("telegraph_fraction", "reference")["note"]
-    assert res.row("read_noise_median", "active")["status"] == "fitted"
+    assert res.row("read_noise", "active")["status"] == "fitted"
     t = res.table
     nan = ~np.isfinite(t["value"])
     assert np.all(t["status"][nan] == "not constrained")

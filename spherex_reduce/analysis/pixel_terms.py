@@ -55,6 +55,7 @@ import numpy as np
 from astropy import units as u
 from astropy.table import Table
 from scipy.optimize import brentq
+from scipy.stats import binom
 
 from ..core.errors import SpherexReduceError
 
@@ -244,10 +245,10 @@ def fit_pixel_terms(ramps, times, *, reference=None, gain=None, jump_sigma=5.0,
     hot_sigma : float
         See ``hot_threshold``.
     groups : int
-        Groups of pixels of the jackknife.
+        Groups of pixels of the jackknife (2 to 255).
     band_rows : int
-        Rows processed at a time (memory: about 8 float64 arrays of
-        ``nreads x band_rows x nx``, and 16 maps of ``ny x nx``).
+        Rows processed at a time (memory: about 6 float32 arrays of
+        ``nreads x band_rows x nx``, and about 12 float64 maps of ``ny x nx``).
 
     Returns
     -------
@@ -278,11 +279,13 @@ def fit_pixel_terms(ramps, times, *, reference=None, gain=None, jump_sigma=5.0,
     >>> res.row("telegraph_fraction", "reference")["status"]
     'not constrained'
     """
+    if not 2 <= int(groups) <= 255:
+        raise SpherexReduceError(f"fit_pixel_terms: groups must be 2 to 255, got {groups}")
     darks, unit, g, t, ref = _inputs(ramps, times, reference, gain)
     n, ny, nx = darks[0].shape
     acc = _accumulate(darks, t, g, float(jump_sigma), max(int(band_rows), 1))
     rng = np.random.default_rng(0)
-    gid = rng.integers(0, int(groups), (ny, nx))
+    gid = rng.integers(0, int(groups), (ny, nx), dtype=np.uint8)
     return _summarise(acc, ref, gid, int(groups), unit, g, t, n, len(darks),
                       hot_threshold, float(hot_sigma))
 
@@ -322,16 +325,15 @@ def _inputs(ramps, times, reference, gain):
     if ref.shape != shape[1:]:
         raise SpherexReduceError(f"fit_pixel_terms: reference mask {ref.shape} differs from "
                                  f"the pixels {shape[1:]}")
-    return [np.asarray(u.Quantity(d).value) for d in darks], unit, float(g), t, ref
+    return [d.value for d in darks], unit, float(g), t, ref  # views: no copy of the cube
 
 
 # -- per-pixel accumulation ------------------------------------------------------------
-_SUMS = ("wd", "wdt", "vr", "vs", "q", "ar", "as", "trr", "trs", "tss", "jumps", "jsize",
-         "offset")
+_SUMS = ("wd", "wdt", "vr", "vs", "q", "kept", "jumps", "jsize", "offset")
 
 
 def _design(t, skip_first):
-    """Weights and the exact constants of the differences' quadratic forms."""
+    """Weights and the exact constants of the differences' quadratic forms (all kept)."""
     ty = t[1:] if skip_first else t
     dt = np.diff(ty)
     m = dt.size
@@ -342,8 +344,9 @@ def _design(t, skip_first):
     p = np.eye(m) - np.outer(dt, w) / (w @ dt)
     mm = p.T @ p
     mr, ms = mm @ c_r, mm @ c_s
-    return dict(dt=dt, w=w, m=m, t_mean=ty.mean(), ar=np.trace(mr), as_=np.trace(ms),
-                trr=np.trace(mr @ mr), trs=np.trace(mr @ ms), tss=np.trace(ms @ ms))
+    return dict(dt=dt, w=w, m=m, t_mean=ty.mean(), level=(m - k) / (m + 1.0),
+                ar=np.trace(mr), as_=np.trace(ms), trr=np.trace(mr @ mr),
+                trs=np.trace(mr @ ms), tss=np.trace(ms @ ms), vr=w @ c_r @ w, vs=w ** 2 @ dt)
 
 
 def _accumulate(darks, t, g, jump_sigma, band_rows):
@@ -355,7 +358,7 @@ def _accumulate(darks, t, g, jump_sigma, band_rows):
     for r0 in range(0, ny, band_rows):
         sl = slice(r0, min(r0 + band_rows, ny))
         for x in darks:
-            part = _band(np.asarray(x[:, sl], dtype=np.float64), t, des, jump_sigma, skip_first)
+            part = _band(x[:, sl], t, des, jump_sigma, skip_first)
             for key, value in part.items():
                 if key == "alternate":
                     acc[key][sl] &= value
@@ -366,34 +369,65 @@ def _accumulate(darks, t, g, jump_sigma, band_rows):
 
 
 def _band(x, t, des, jump_sigma, skip_first):
-    """One band of one dark ``x (n, rows, nx)``: its per-pixel sums."""
-    y = x[1:] if skip_first else x
-    dt = des["dt"][:, None, None]
+    """One band of one dark ``x (n, rows, nx)``: its per-pixel sums.
+
+    The bulk is float32 (the differences of reads; sums over reads are dot products), and
+    the few jumps are taken out of the all-read sums afterwards.
+    """
+    f32 = np.float32
+    y = np.asarray(x[1:] if skip_first else x, dtype=f32)  # integers never differenced as such
+    shape = y.shape[1:]
     d = np.diff(y, axis=0)
-    e = d - np.median(d / dt, axis=0) * dt
-    scale = _MAD * np.median(np.abs(e), axis=0)
+    dt64 = des["dt"]
+    dt = dt64.astype(f32)[:, None, None]
+    mean = (d.sum(axis=0, dtype=np.float64) / dt64.sum()).astype(f32)
+    e = d - mean * dt
+    a = np.abs(e)
+    scale = _MAD * np.median(a, axis=0, overwrite_input=True)
     # a pixel's robust scale from a few tens of differences scatters by ~20 %: floored at the
     # band's typical one, so that a quiet pixel's noise does not pass for jumps
     scale = np.maximum(scale, np.median(scale))
-    jump = np.abs(e) > jump_sigma * scale
-    del e
-    wk = np.where(jump, 0.0, des["w"][:, None, None])
-    wd, wdt = (wk * d).sum(axis=0), (wk * dt).sum(axis=0)
+    np.abs(e, out=a)
+    kk, ii, jj = np.nonzero(a > jump_sigma * scale)
+    del a
+    pix = ii * shape[1] + jj
+    size = shape[0] * shape[1]
+
+    def per_pixel(weights=None):
+        return np.bincount(pix, weights, minlength=size).reshape(shape)
+
+    w = des["w"]
+    wd = np.tensordot(w.astype(f32), d, 1).astype(np.float64) - per_pixel(
+        w[kk] * d[kk, ii, jj])
+    wdt = w @ dt64 - per_pixel(w[kk] * dt64[kk])
     slope = np.divide(wd, wdt, out=np.zeros_like(wd), where=wdt > 0)
-    res = d - slope * dt
-    del d
-    kept = (~jump).sum(axis=0) / des["m"]
-    sign = np.cumsum(np.where(jump, np.sign(res), 0.0), axis=0)
-    out = {"wd": wd, "wdt": wdt,
-           "vr": 2 * (wk ** 2).sum(axis=0) - 2 * (wk[1:] * wk[:-1]).sum(axis=0),
-           "vs": (wk ** 2 * dt).sum(axis=0),
-           "q": np.where(jump, 0.0, res ** 2).sum(axis=0),
-           "ar": kept * des["ar"], "as": kept * des["as_"], "trr": kept * des["trr"],
-           "trs": kept * des["trs"], "tss": kept * des["tss"],
-           "jumps": jump.sum(axis=0), "jsize": np.where(jump, np.abs(res), 0.0).sum(axis=0),
-           "alternate": (np.maximum(sign.max(axis=0), 0) - np.minimum(sign.min(axis=0), 0)) <= 1}
+    delta = slope - mean  # residuals d - slope dt = e - delta dt
+    ee = np.einsum("kij,kij->ij", e, e, dtype=np.float64)
+    edt = np.tensordot(dt64.astype(f32), e, 1).astype(np.float64)
+    res = e[kk, ii, jj] - delta[ii, jj] * dt64[kk]
+    q = ee - 2 * delta * edt + delta ** 2 * (dt64 @ dt64) - per_pixel(res ** 2)
+    jumps = per_pixel()
+    order = np.argsort(pix, kind="stable")  # each pixel's jumps in time order
+    p_o, s_o = pix[order], np.sign(res[order])
+    # the slope's variance without the jumps' differences: w C w less their terms (the
+    # white reads' C = tridiag(-1, 2, -1): a pair of adjacent jumps shares one)
+    wpad = np.concatenate([[0.0], w, [0.0]])
+    wj = w[kk]
+    k_o = kk[order]
+    pair = (p_o[1:] == p_o[:-1]) & (k_o[1:] == k_o[:-1] + 1)
+    vr = des["vr"] - per_pixel(2 * wj ** 2 - 2 * wj * (wpad[kk] + wpad[kk + 2]))
+    vr -= np.bincount(p_o[1:][pair], 2 * w[k_o[1:][pair]] * w[k_o[:-1][pair]],
+                      minlength=size).reshape(shape)
+    same = (p_o[1:] == p_o[:-1]) & (s_o[1:] == s_o[:-1])
+    alternate = np.ones(size, bool)
+    alternate[p_o[1:][same]] = False
+    out = {"wd": wd, "wdt": wdt, "vr": vr, "vs": des["vs"] - per_pixel(wj ** 2 * dt64[kk]),
+           "q": q, "kept": 1 - jumps / des["m"], "jumps": jumps,
+           "jsize": per_pixel(np.abs(res)), "alternate": alternate.reshape(shape)}
     if skip_first:
-        out["offset"] = x[0] - (y.mean(axis=0) + slope * (t[0] - des["t_mean"]))
+        level = y[0] + np.tensordot(des["level"].astype(f32), d, 1)  # mean of the later reads
+        out["offset"] = (np.asarray(x[0], dtype=np.float64) - level
+                         - slope * (t[0] - des["t_mean"]))
     return out
 
 
@@ -451,14 +485,14 @@ def _spread(a, noise, sel, gid, k):
 
 def _flip_probability(mean, m):
     """Maximum-likelihood flip probability of binomial(m, p) counts known to be >= 2, whose
-    mean is ``mean``."""
+    mean is ``mean``: ``E[c | c >= 2] = (m p - P(c = 1)) / P(c >= 2)`` is ``mean``."""
     if not np.isfinite(mean):
         return np.nan
 
     def excess(p):
-        q0, q1 = (1 - p) ** m, m * p * (1 - p) ** (m - 1)
-        return (m * p - q1) / (1 - q0 - q1) - mean
-    lo, hi = 1e-9, 0.5
+        return (m * p - binom.pmf(1, m, p)) / binom.sf(1, m, p) - mean
+
+    lo, hi = 1e-6 / m, 0.5
     if excess(lo) >= 0:
         return 0.0
     if excess(hi) <= 0:
@@ -480,29 +514,37 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
         add(term, pixels, np.nan, np.nan, unit_, "not constrained", reason)
 
     rate_unit = unit / u.s
-    wdt = acc["wdt"]
-    slope = np.divide(acc["wd"], wdt, out=np.zeros_like(wdt), where=wdt > 0)
+    f32 = np.float32
+    wdt = acc.pop("wdt")
+    slope = np.divide(acc.pop("wd"), wdt, out=np.zeros_like(wdt), where=wdt > 0)
     current = np.maximum(slope, 0.0) / g  # shot noise per unit time, unit^2 / s
-    var = (acc["q"] - current * acc["as"]) / np.where(acc["ar"] > 0, acc["ar"], np.inf)
+    kept = acc.pop("kept")  # reads kept, in darks (each dark's jumps left out)
+    a_r = np.where(kept > 0, kept * des["ar"], np.inf)
+    var = (acc.pop("q") - current * kept * des["as_"]) / a_r
     v0 = np.maximum(var, 0.0)
-    se_var = np.sqrt(2 * (v0 ** 2 * acc["trr"] + 2 * v0 * current * acc["trs"]
-                          + current ** 2 * acc["tss"])) / np.where(acc["ar"] > 0, acc["ar"],
-                                                                   np.inf)
-    noise = np.sqrt(v0)
-    noise_err = se_var / (2 * np.maximum(noise, np.sqrt(se_var)))
-    slope_err = np.sqrt(np.maximum(v0 * acc["vr"] + current * acc["vs"], 0.0)) / np.where(
-        wdt > 0, wdt, np.inf)
+    se_var = np.sqrt(2 * kept * (v0 ** 2 * des["trr"] + 2 * v0 * current * des["trs"]
+                                 + current ** 2 * des["tss"])) / a_r
+    del a_r
+    noise = np.sqrt(v0).astype(f32)
+    noise_err = (se_var / (2 * np.maximum(noise, np.sqrt(se_var)))).astype(f32)
+    del se_var
+    slope_err = (np.sqrt(np.maximum(v0 * acc.pop("vr") + current * acc.pop("vs"), 0.0))
+                 / np.where(wdt > 0, wdt, np.inf)).astype(f32)
+    del kept, wdt
+    dt = float(np.median(des["dt"]))
+    step = np.sqrt(2 * np.median(v0) + np.median(current) * dt)
+    del v0, current
+    var = var.astype(f32)
 
     m_total = des["m"] * ndarks
     tel_ok = des["m"] >= MIN_TELEGRAPH_INTERVALS
     telegraph = tel_ok & (acc["jumps"] >= 2) & acc["alternate"]
-    jumps = np.maximum(acc["jumps"], 1)
-    amplitude = np.where(telegraph, acc["jsize"] / jumps, np.nan)
-    dt = float(np.median(des["dt"]))
+    amplitude = np.where(telegraph, acc["jsize"] / np.maximum(acc["jumps"], 1),
+                         np.nan).astype(f32)
     regular = np.ptp(des["dt"]) <= 1e-6 * dt
     with np.errstate(divide="ignore", invalid="ignore"):
         pix_rate = np.where(telegraph, -np.log1p(-2 * np.minimum(acc["jumps"] / m_total, 0.5))
-                            / (2 * dt), np.nan)
+                            / (2 * dt), np.nan).astype(f32)
 
     active = ~ref
     for pixels, sel in zip(_POPULATIONS, (active, ref), strict=True):
@@ -555,8 +597,6 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
             for term in ("hot_pixel_current", "hot_pixel_current_spread"):
                 refuse(term, "active", rate_unit, f"{int(hot.sum())} hot pixel(s) found")
 
-    both = active | ref
-    step = np.sqrt(2 * np.median(v0[both]) + np.median(current[both]) * dt)
     limit = f"jumps above {acc['jump_sigma']:g} sd of the differences (about {step:.3g} {unit})"
     for pixels, sel in zip(_POPULATIONS, (active, ref), strict=True):
         reason = _telegraph_reason(sel, pixels, des["m"], regular)
@@ -567,7 +607,8 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
         refuse("first_read_offset", "all", unit, f"{n} reads: read 0 is needed for the line")
     else:
         usable = ~hot & ~telegraph
-        off = acc["offset"] / ndarks
+        off = acc["offset"]
+        off /= ndarks
         value, err = _jackknife(_ratio, (off, 1.0), usable, gid, k)
         status = "fitted" if abs(value) > 3 * err else "ruled out"
         add("first_read_offset", "all", value, err, unit, status,
@@ -579,12 +620,15 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
                   dtype=(str, str, float, float, str, str, str),
                   meta={"nreads": n, "ndarks": ndarks, "gain": g, "unit": str(unit),
                         "groups": k})
-    maps = {"read_noise": noise * unit, "read_noise_error": noise_err * unit,
-            "dark_current": slope * rate_unit, "dark_current_error": slope_err * rate_unit,
-            "first_read_offset": (acc["offset"] / ndarks if acc["skip_first"]
-                                  else np.full(ref.shape, np.nan)) * unit,
-            "hot": hot, "telegraph": telegraph, "telegraph_amplitude": amplitude * unit,
-            "telegraph_rate": pix_rate * u.Hz}
+    def q(a, un):
+        return u.Quantity(np.asarray(a, dtype=f32), un, copy=False)
+
+    maps = {"read_noise": q(noise, unit), "read_noise_error": q(noise_err, unit),
+            "dark_current": q(slope, rate_unit), "dark_current_error": q(slope_err, rate_unit),
+            "first_read_offset": q(acc["offset"] if acc["skip_first"]
+                                   else np.full(ref.shape, np.nan), unit),
+            "hot": hot, "telegraph": telegraph, "telegraph_amplitude": q(amplitude, unit),
+            "telegraph_rate": q(pix_rate, u.Hz)}
     return PixelTerms(table, maps, unit, g)
 
 
@@ -632,8 +676,7 @@ def _telegraph(add, refuse, pixels, sel, telegraph, amplitude, pix_rate, acc, m_
         if total[0] == 0:
             return 0.0
         p = prob(total)
-        eff = 1 - (1 - p) ** m_total - m_total * p * (1 - p) ** (m_total - 1)
-        return total[0] / total[1] / max(eff, 1e-12)
+        return total[0] / total[1] / max(binom.sf(1, m_total, p), 1e-12)
 
     nfound = int(found.sum())
     if nfound == 0:

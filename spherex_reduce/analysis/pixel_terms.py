@@ -307,7 +307,11 @@ def _inputs(ramps, times, reference, gain):
     if shape[0] < MIN_READS:
         raise SpherexReduceError(f"fit_pixel_terms: a dark of {shape[0]} reads; at least "
                                  f"{MIN_READS} are needed (two differences)")
-    t = u.Quantity(times).to_value(u.s).astype(np.float64)
+    try:
+        t = np.atleast_1d(u.Quantity(times).to_value(u.s)).astype(np.float64)
+    except (u.UnitsError, TypeError, ValueError) as exc:
+        raise SpherexReduceError(f"fit_pixel_terms: times must be a time Quantity (s): "
+                                 f"{exc}") from None
     if t.shape != (shape[0],) or not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
         raise SpherexReduceError(f"fit_pixel_terms: times must be {shape[0]} increasing finite "
                                  f"values (s), one per read; got shape {t.shape}")

@@ -160,6 +160,9 @@ def test_what_the_darks_cannot_constrain_is_refused_with_its_reason():
     ({"ramps": np.zeros((2, 4, 4)) * u.electron}, "at least 3"),
     ({"ramps": np.zeros((5, 4, 4)) * u.m}, "electron or adu"),
     ({"times": [0, 1, 1, 2, 3] * u.s}, "increasing"),
+    ({"times": np.arange(5.0)}, "time Quantity"),
+    ({"ramps": np.zeros((5, 4, 4))}, "electron or adu"),
+    ({"groups": 1}, "groups"),
     ({"reference": np.zeros((3, 4), bool)}, "reference mask"),
 ])
 def test_bad_inputs_are_refused_in_one_line(kwargs, match):

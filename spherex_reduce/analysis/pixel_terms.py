@@ -7,13 +7,14 @@ read-noise map and the first read's (reset) offset; `PixelTerms.to_scene`
 turns them into the ``scene:`` mapping.  Everything comes from each pixel's
 first differences ``d_k = x_{k+1} - x_k`` over the reads after the first
 (read 0 is kept aside: a reset offset moves it alone), computed over bands of
-rows so that a full array needs one band of float64 work arrays at a time.
+rows so that a full array needs one band of float32 work arrays at a time.
+Pixels with a non-finite read (flagged NaN) are left out of everything.
 
 Per pixel, per dark:
 
-- **jumps**: ``|d_k - median(d)| > jump_sigma × 1.4826 × MAD(d)`` (the
-  pixel's own robust scale, so a hot pixel's shot noise is not a jump, floored at
-  the median scale of the band's pixels);
+- **jumps**: ``|e_k| > jump_sigma × 1.4826 × median(|e|)``, ``e_k = d_k - mean
+  rate × dt_k`` (the pixel's own robust scale, so a hot pixel's shot noise is not
+  a jump, floored at the median scale of the band's pixels);
 - **dark current**: the least-squares slope of the ramp, written on the
   differences (weights ``(k + 1)(m - k)``), with the jumps left out;
 - **read-noise variance**: the sum of squares of the differences about that
@@ -27,9 +28,9 @@ Per pixel, per dark:
   binomial; the rate is the maximum-likelihood ``p`` of the counts given at
   least two (the detection condition) and the fraction is corrected for the
   telegraph pixels that flipped fewer than two times.  The amplitude is the
-  mean size of a pixel's jumps.  A telegraph step below about
+  mean size of the telegraph pixels' jumps.  A telegraph step below about
   ``jump_sigma`` times the differences' noise is not seen: the limit is
-  stated (``telegraph_amplitude_limit``);
+  stated in the note of ``telegraph_fraction``;
 - **first-read offset**: read 0 less the line of the other reads at its time.
 
 The existing reference-pixel search
@@ -39,7 +40,9 @@ suits reference pixels (no current), but an active pixel's levels wander with
 its dark current's shot noise (a hot pixel scores as a telegraph), and it
 gives neither the amplitude nor the rate the scene needs.
 
-Uncertainties of the population terms come from a delete-a-group jackknife
+The population terms are means (clipped at 5 robust standard deviations where
+a tail would be unphysical) and ratios of sums over pixels; their
+uncertainties come from a delete-a-group jackknife
 over ``groups`` fixed pseudo-random groups of pixels, the per-pixel values
 pooled over all darks first: this holds the pixels' own sampling (a fraction
 of 4096 pixels is a binomial draw, which the scatter between darks of the same
@@ -86,7 +89,8 @@ class PixelTerms:
         constrained``: value and error NaN) and ``note`` (the reason, or
         what the value means).
     maps : dict of `~astropy.units.Quantity` or `numpy.ndarray`
-        ``(ny, nx)``: ``read_noise`` and ``read_noise_error`` (unit),
+        ``(ny, nx)``, NaN at pixels with a non-finite read (their count is
+        ``table.meta["unusable_pixels"]``): ``read_noise`` and ``read_noise_error`` (unit),
         ``dark_current`` and ``dark_current_error`` (unit/s), ``first_read_offset``
         (unit; NaN without one), ``hot`` and ``telegraph`` (bool),
         ``telegraph_amplitude`` (unit) and ``telegraph_rate`` (Hz, from the
@@ -292,7 +296,7 @@ def fit_pixel_terms(ramps, times, *, reference=None, gain=None, jump_sigma=5.0,
 
 # -- inputs --------------------------------------------------------------------------
 def _inputs(ramps, times, reference, gain):
-    darks = [ramps] if isinstance(ramps, u.Quantity) or np.ndim(ramps) == 3 else list(ramps)
+    darks = list(ramps) if isinstance(ramps, (list, tuple)) else [ramps]
     if not darks:
         raise SpherexReduceError("fit_pixel_terms: no darks given")
     unit = getattr(darks[0], "unit", None)
@@ -334,6 +338,7 @@ def _inputs(ramps, times, reference, gain):
 
 # -- per-pixel accumulation ------------------------------------------------------------
 _SUMS = ("wd", "wdt", "vr", "vs", "q", "kept", "jumps", "jsize", "offset")
+_FLAGS = {"alternate": True, "bad": False}  # bool maps: and-ed, or-ed over darks
 
 
 def _design(t, skip_first):
@@ -358,7 +363,7 @@ def _accumulate(darks, t, g, jump_sigma, band_rows):
     skip_first = n > MIN_READS
     des = _design(t, skip_first)
     acc = {k: np.zeros((ny, nx)) for k in _SUMS}
-    acc["alternate"] = np.ones((ny, nx), bool)
+    acc.update({key: np.full((ny, nx), value) for key, value in _FLAGS.items()})
     for r0 in range(0, ny, band_rows):
         sl = slice(r0, min(r0 + band_rows, ny))
         for x in darks:
@@ -366,6 +371,8 @@ def _accumulate(darks, t, g, jump_sigma, band_rows):
             for key, value in part.items():
                 if key == "alternate":
                     acc[key][sl] &= value
+                elif key == "bad":
+                    acc[key][sl] |= value
                 else:
                     acc[key][sl] += value
     acc["design"], acc["skip_first"], acc["jump_sigma"] = des, skip_first, jump_sigma
@@ -381,6 +388,11 @@ def _band(x, t, des, jump_sigma, skip_first):
     f32 = np.float32
     y = np.asarray(x[1:] if skip_first else x, dtype=f32)  # integers never differenced as such
     shape = y.shape[1:]
+    bad = ~np.isfinite(y).all(axis=0)
+    if skip_first:
+        bad |= ~np.isfinite(x[0])
+    if bad.any():
+        y = np.where(bad, f32(0), y)  # a copy: the input is never changed
     d = np.diff(y, axis=0)
     dt64 = des["dt"]
     dt = dt64.astype(f32)[:, None, None]
@@ -427,10 +439,10 @@ def _band(x, t, des, jump_sigma, skip_first):
     alternate[p_o[1:][same]] = False
     out = {"wd": wd, "wdt": wdt, "vr": vr, "vs": des["vs"] - per_pixel(wj ** 2 * dt64[kk]),
            "q": q, "kept": 1 - jumps / des["m"], "jumps": jumps,
-           "jsize": per_pixel(np.abs(res)), "alternate": alternate.reshape(shape)}
+           "jsize": per_pixel(np.abs(res)), "alternate": alternate.reshape(shape), "bad": bad}
     if skip_first:
         level = y[0] + np.tensordot(des["level"].astype(f32), d, 1)  # mean of the later reads
-        out["offset"] = (np.asarray(x[0], dtype=np.float64) - level
+        out["offset"] = (np.where(bad, 0.0, np.asarray(x[0], dtype=np.float64)) - level
                          - slope * (t[0] - des["t_mean"]))
     return out
 
@@ -519,6 +531,9 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
 
     rate_unit = unit / u.s
     f32 = np.float32
+    bad = acc.pop("bad")  # a non-finite read: left out of everything
+    good = ~bad
+    ref = ref & good
     wdt = acc.pop("wdt")
     slope = np.divide(acc.pop("wd"), wdt, out=np.zeros_like(wdt), where=wdt > 0)
     current = np.maximum(slope, 0.0) / g  # shot noise per unit time, unit^2 / s
@@ -530,19 +545,21 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
                                  + current ** 2 * des["tss"])) / a_r
     del a_r
     noise = np.sqrt(v0).astype(f32)
-    noise_err = (se_var / (2 * np.maximum(noise, np.sqrt(se_var)))).astype(f32)
+    noise_err = (se_var / (2 * np.maximum(np.maximum(noise, np.sqrt(se_var)), 1e-30))
+                 ).astype(f32)
     del se_var
     slope_err = (np.sqrt(np.maximum(v0 * acc.pop("vr") + current * acc.pop("vs"), 0.0))
                  / np.where(wdt > 0, wdt, np.inf)).astype(f32)
     del kept, wdt
     dt = float(np.median(des["dt"]))
-    step = np.sqrt(2 * np.median(v0) + np.median(current) * dt)
+    step = (np.sqrt(2 * np.median(v0[good]) + np.median(current[good]) * dt) if good.any()
+            else np.nan)
     del v0, current
     var = var.astype(f32)
 
     m_total = des["m"] * ndarks
     tel_ok = des["m"] >= MIN_TELEGRAPH_INTERVALS
-    telegraph = tel_ok & (acc["jumps"] >= 2) & acc["alternate"]
+    telegraph = tel_ok & (acc["jumps"] >= 2) & acc["alternate"] & good
     amplitude = np.where(telegraph, acc["jsize"] / np.maximum(acc["jumps"], 1),
                          np.nan).astype(f32)
     regular = np.ptp(des["dt"]) <= 1e-6 * dt
@@ -550,7 +567,7 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
         pix_rate = np.where(telegraph, -np.log1p(-2 * np.minimum(acc["jumps"] / m_total, 0.5))
                             / (2 * dt), np.nan).astype(f32)
 
-    active = ~ref
+    active = ~ref & good
     for pixels, sel in zip(_POPULATIONS, (active, ref), strict=True):
         if not sel.any():
             for term in ("read_noise", "read_noise_spread"):
@@ -610,7 +627,7 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
     if not acc["skip_first"]:
         refuse("first_read_offset", "all", unit, f"{n} reads: read 0 is needed for the line")
     else:
-        usable = ~hot & ~telegraph
+        usable = ~hot & ~telegraph & good
         off = acc["offset"]
         off /= ndarks
         value, err = _jackknife(_ratio, (off, 1.0), usable, gid, k)
@@ -623,9 +640,11 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
                                     "note"),
                   dtype=(str, str, float, float, str, str, str),
                   meta={"nreads": n, "ndarks": ndarks, "gain": g, "unit": str(unit),
-                        "groups": k})
+                        "groups": k, "unusable_pixels": int(bad.sum())})
     def q(a, un):
-        return u.Quantity(np.asarray(a, dtype=f32), un, copy=False)
+        a = np.asarray(a, dtype=f32)
+        a[bad] = np.nan
+        return u.Quantity(a, un, copy=False)
 
     maps = {"read_noise": q(noise, unit), "read_noise_error": q(noise_err, unit),
             "dark_current": q(slope, rate_unit), "dark_current_error": q(slope_err, rate_unit),

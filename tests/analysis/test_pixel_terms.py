@@ -74,6 +74,37 @@ def test_scene_mapping_is_a_scene_the_simulator_takes():
     assert terms.rtn.on and terms.dark_current == pytest.approx(DARK, rel=0.05)
 
 
+def test_telegraph_in_the_active_pixels_only_maps_to_pixels_active():
+    """``rtn: pixels: active``: no reference telegraph is found (ruled out), and the scene's
+    population is the active one."""
+    sc = _scene()
+    sc["scene"]["rtn"]["pixels"] = "active"
+    ramps, times, ref = dark_ramps(simulate(sc, seed=4))
+    res = fit_pixel_terms(ramps, times, reference=ref)
+    assert res.row("telegraph_fraction", "reference")["status"] == "ruled out"
+    assert res.to_scene()["rtn"]["pixels"] == "active"
+
+
+def test_pixels_with_a_nan_read_are_left_out_and_the_input_is_unchanged():
+    """A NaN read (a flagged pixel) makes that pixel's maps NaN and leaves the terms of the
+    others as they were; the darks given are not modified."""
+    rng = np.random.default_rng(3)
+    t = np.arange(20) * 1.5 * u.s
+    x = (rng.normal(0, 5.0, (20, 32, 32)) + 2.0 * t.value[:, None, None]).astype(np.float32)
+    clean = fit_pixel_terms(x * u.electron, t)
+    flagged = x.copy()
+    flagged[7, 3, 4] = np.nan
+    before = flagged.copy()
+    res = fit_pixel_terms(u.Quantity(flagged, u.electron, copy=False), t)
+    np.testing.assert_array_equal(flagged, before)
+    assert res.table.meta["unusable_pixels"] == 1
+    assert np.isnan(res.maps["read_noise"][3, 4]) and not res.maps["hot"][3, 4]
+    keep = np.ones((32, 32), bool)
+    keep[3, 4] = False
+    expected = clean.maps["dark_current"].value[keep].mean()
+    assert res.row("dark_current", "active")["value"] == pytest.approx(expected, rel=1e-5)
+
+
 def test_several_darks_of_the_same_pixels_are_pooled():
     """A 60-frame dark cut into two 30-frame darks (the same pixels): fitted together, the
     terms agree with the truth as one dark's do (the telegraph detection is corrected

@@ -388,15 +388,18 @@ def _band(x, t, des, jump_sigma, skip_first):
     f32 = np.float32
     y = np.asarray(x[1:] if skip_first else x, dtype=f32)  # integers never differenced as such
     shape = y.shape[1:]
-    bad = ~np.isfinite(y).all(axis=0)
+    d = np.diff(y, axis=0)
+    total = d.sum(axis=0, dtype=np.float64)  # not finite where any read is not
+    bad = ~np.isfinite(total)
     if skip_first:
         bad |= ~np.isfinite(x[0])
     if bad.any():
         y = np.where(bad, f32(0), y)  # a copy: the input is never changed
-    d = np.diff(y, axis=0)
+        d = np.diff(y, axis=0)
+        total = d.sum(axis=0, dtype=np.float64)
     dt64 = des["dt"]
     dt = dt64.astype(f32)[:, None, None]
-    mean = (d.sum(axis=0, dtype=np.float64) / dt64.sum()).astype(f32)
+    mean = (total / dt64.sum()).astype(f32)
     e = d - mean * dt
     a = np.abs(e)
     scale = _MAD * np.median(a, axis=0, overwrite_input=True)

@@ -129,7 +129,8 @@ class PixelTerms:
         Returns
         -------
         dict
-            ``{"dark_current", "hot_pixel_fraction", "hot_pixel_current"[, "rtn"]}``,
+            ``{"dark_current", "hot_pixel_fraction", "hot_pixel_current"[, "rtn"]}``
+            (a term not fitted is left out: the scene's default, none of it),
             plain floats, ready for `~spherex_reduce.simulation.load_scene` (which
             reads them as e and e/s: a scene for ADU darks is in ADU).
 
@@ -142,19 +143,23 @@ class PixelTerms:
         >>> t = np.arange(20) * 1.5
         >>> x = rng.normal(0, 10, (20, 32, 32)) + 2.0 * t[:, None, None]
         >>> scene = fit_pixel_terms(x * u.electron, t * u.s).to_scene()
-        >>> round(scene["dark_current"], 1), scene["hot_pixel_fraction"], "rtn" in scene
-        (2.0, 0.0, False)
+        >>> round(scene["dark_current"], 1), sorted(scene)
+        (2.0, ['dark_current', 'hot_pixel_fraction'])
         """
-        dark = float(self.row("dark_current", "active")["value"])
-        frac = float(self.row("hot_pixel_fraction", "active")["value"])
-        hot = self.row("hot_pixel_current", "active")
-        out = {"dark_current": max(dark, 0.0), "hot_pixel_fraction": frac,
-               "hot_pixel_current": float(hot["value"]) if hot["status"] == "fitted" else 0.0}
+        out = {}
+        for term in ("dark_current", "hot_pixel_fraction", "hot_pixel_current"):
+            row = self.row(term, "active")
+            if row["status"] == "fitted":  # else the scene's default (none of it)
+                out[term] = max(row["value"], 0.0)
         found = {}
         for pixels in _POPULATIONS:
             rows = [self.row(f"telegraph_{k}", pixels) for k in ("fraction", "amplitude", "rate")]
             if all(r["status"] == "fitted" for r in rows):
                 found[pixels] = [(float(r["value"]), float(r["error"])) for r in rows]
+            elif rows[0]["status"] == "fitted":
+                why = next(r["note"] for r in rows if r["status"] != "fitted")
+                warnings.warn(f"telegraph {pixels} pixels found but not all their terms: "
+                              f"{why}; they are left out of the scene", stacklevel=2)
         if len(found) == 2:
             a, r = found["active"], found["reference"]
             if all(abs(x[0] - y[0]) <= 3 * np.hypot(x[1], y[1]) for x, y in zip(a, r, strict=True)):

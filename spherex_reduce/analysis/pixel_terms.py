@@ -1,0 +1,746 @@
+"""Per-pixel terms of a detector learnt from its darks (issue 33's per-pixel slice).
+
+`fit_pixel_terms` measures, from one or several dark ramps of the same array,
+what the simulator's scene adds pixel by pixel (``scene.dark_current``,
+``scene.hot_pixel_fraction``, ``scene.hot_pixel_current``, ``scene.rtn``), a
+read-noise map and the first read's (reset) offset; `PixelTerms.to_scene`
+turns them into the ``scene:`` mapping.  Everything comes from each pixel's
+first differences ``d_k = x_{k+1} - x_k`` over the reads after the first
+(read 0 is kept aside: a reset offset moves it alone), computed over bands of
+rows so that a full array needs one band of float32 work arrays at a time.
+Pixels with a non-finite read (flagged NaN) are left out of everything.
+
+Per pixel, per dark:
+
+- **jumps**: ``|e_k| > jump_sigma × 1.4826 × median(|e|)``, ``e_k = d_k - mean
+  rate × dt_k`` (the pixel's own robust scale, so a hot pixel's shot noise is not
+  a jump, floored at the median scale of the band's pixels);
+- **dark current**: the least-squares slope of the ramp, written on the
+  differences (weights ``(k + 1)(m - k)``), with the jumps left out;
+- **read-noise variance**: the sum of squares of the differences about that
+  slope, less the dark current's shot noise (``I dt / gain``), divided by its
+  exact expectation per unit read-noise variance (white reads: the
+  differences are correlated, so no ``ddof`` guess);
+- **telegraph**: at least two jumps over the darks, alternating in sign within
+  each dark (a cosmic ray jumps once, up).  For a two-state telegraph read at
+  a regular interval the flips of successive intervals are independent with
+  probability ``p = (1 - exp(-2 rate dt)) / 2``, so a pixel's flip count is
+  binomial; the rate is the maximum-likelihood ``p`` of the counts given at
+  least two (the detection condition) and the fraction is corrected for the
+  telegraph pixels that flipped fewer than two times.  The amplitude is the
+  mean size of the telegraph pixels' jumps.  A telegraph step below about
+  ``jump_sigma`` times the differences' noise is not seen: the limit is
+  stated in the note of ``telegraph_fraction``;
+- **first-read offset**: read 0 less the line of the other reads at its time.
+
+The existing reference-pixel search
+(`~spherex_reduce.reduce.steps.reference.telegraph.find_telegraph`) is not
+used: it scores the variance of a pixel's levels against its channel's, which
+suits reference pixels (no current), but an active pixel's levels wander with
+its dark current's shot noise (a hot pixel scores as a telegraph), and it
+gives neither the amplitude nor the rate the scene needs.
+
+The population terms are means (clipped at 5 robust standard deviations where
+a tail would be unphysical) and ratios of sums over pixels; their
+uncertainties come from a delete-a-group jackknife
+over ``groups`` fixed pseudo-random groups of pixels, the per-pixel values
+pooled over all darks first: this holds the pixels' own sampling (a fraction
+of 4096 pixels is a binomial draw, which the scatter between darks of the same
+pixels would leave out, as would two halves of one dark) and their
+measurement noise.  A drift common to all pixels of a dark (the streams' 1/f)
+is the stream model's term and is not removed here.
+"""
+
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+from astropy import units as u
+from astropy.table import Table
+from scipy.optimize import brentq
+from scipy.stats import binom
+
+from ..core.errors import SpherexReduceError
+
+__all__ = ["MIN_READS", "MIN_TELEGRAPH_INTERVALS", "PixelTerms", "dark_ramps",
+           "fit_pixel_terms"]
+
+#: Fewest reads a dark needs (two differences after read 0 is kept aside, or with it).
+MIN_READS = 3
+#: Fewest differences per dark to tell a telegraph's jumps from a pixel's own noise.
+MIN_TELEGRAPH_INTERVALS = 8
+#: A pixel's flip probability above which the rate is not constrained (switches faster
+#: than the reads: every interval is close to a coin toss).
+MAX_FLIP_PROBABILITY = 0.45
+_MAD = 1.4826
+_POPULATIONS = ("active", "reference")
+
+
+@dataclass(frozen=True)
+class PixelTerms:
+    """What `fit_pixel_terms` measured.
+
+    Attributes
+    ----------
+    table : `~astropy.table.Table`
+        One row per term: ``term``, ``pixels`` (active, reference or all),
+        ``value``, ``error`` (one standard deviation), ``unit``, ``status``
+        (``fitted``, ``ruled out``: consistent with none, or ``not
+        constrained``: value and error NaN) and ``note`` (the reason, or
+        what the value means).
+    maps : dict of `~astropy.units.Quantity` or `numpy.ndarray`
+        ``(ny, nx)``, NaN at pixels with a non-finite read (their count is
+        ``table.meta["unusable_pixels"]``): ``read_noise`` and ``read_noise_error`` (unit),
+        ``dark_current`` and ``dark_current_error`` (unit/s), ``first_read_offset``
+        (unit; NaN without one), ``hot`` and ``telegraph`` (bool),
+        ``telegraph_amplitude`` (unit) and ``telegraph_rate`` (Hz, from the
+        pixel's own flips; inf when it flipped at half its intervals or more),
+        NaN off the telegraph pixels.
+    unit : `~astropy.units.Unit`
+        The darks' unit (electron or adu).
+    gain : float
+        Electrons per unit (1 for electrons).
+    """
+
+    table: Table
+    maps: dict = field(repr=False)
+    unit: u.UnitBase = u.electron
+    gain: float = 1.0
+
+    def row(self, term, pixels="all"):
+        """The table row of ``term`` for ``pixels`` as a dict of plain values (KeyError if
+        absent)."""
+        sel = (self.table["term"] == term) & (self.table["pixels"] == pixels)
+        if not sel.any():
+            raise KeyError(f"no term {term!r} for {pixels} pixels")
+        row = self.table[np.flatnonzero(sel)[0]]
+        return {name: row[name].item() for name in self.table.colnames}
+
+    def to_scene(self):
+        """The ``scene:`` mapping of these terms, in the darks' unit (per second for currents).
+
+        ``dark_current`` is the mean current of the active pixels that are not
+        hot, ``hot_pixel_current`` the mean excess of the hot ones, and ``rtn``
+        the telegraph population: ``pixels: all`` when the active and reference
+        populations agree within 3 standard deviations in fraction, amplitude and
+        rate (their inverse-variance means), else the active one (warning), else
+        whichever was found; left out when none was.
+
+        Returns
+        -------
+        dict
+            ``{"dark_current", "hot_pixel_fraction", "hot_pixel_current"[, "rtn"]}``
+            (a term not fitted is left out: the scene's default, none of it),
+            plain floats, ready for `~spherex_reduce.simulation.load_scene` (which
+            reads them as e and e/s: a scene for ADU darks is in ADU).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from astropy import units as u
+        >>> from spherex_reduce.analysis.pixel_terms import fit_pixel_terms
+        >>> rng = np.random.default_rng(1)
+        >>> t = np.arange(20) * 1.5
+        >>> x = rng.normal(0, 10, (20, 32, 32)) + 2.0 * t[:, None, None]
+        >>> scene = fit_pixel_terms(x * u.electron, t * u.s).to_scene()
+        >>> round(scene["dark_current"], 1), sorted(scene)
+        (2.0, ['dark_current', 'hot_pixel_fraction'])
+        """
+        out = {}
+        for term in ("dark_current", "hot_pixel_fraction", "hot_pixel_current"):
+            row = self.row(term, "active")
+            if row["status"] == "fitted":  # else the scene's default (none of it)
+                out[term] = max(row["value"], 0.0)
+        found = {}
+        for pixels in _POPULATIONS:
+            rows = [self.row(f"telegraph_{k}", pixels) for k in ("fraction", "amplitude", "rate")]
+            if all(r["status"] == "fitted" for r in rows):
+                found[pixels] = [(float(r["value"]), float(r["error"])) for r in rows]
+            elif rows[0]["status"] == "fitted":
+                why = next(r["note"] for r in rows if r["status"] != "fitted")
+                warnings.warn(f"telegraph {pixels} pixels found but not all their terms: "
+                              f"{why}; they are left out of the scene", stacklevel=2)
+        if len(found) == 2:
+            a, r = found["active"], found["reference"]
+            if all(abs(x[0] - y[0]) <= 3 * np.hypot(x[1], y[1]) for x, y in zip(a, r, strict=True)):
+                values = [_weighted(x, y) for x, y in zip(a, r, strict=True)]
+                out["rtn"] = dict(zip(("fraction", "amplitude", "rate"), values, strict=True),
+                                  pixels="all")
+                return out
+            warnings.warn("the scene holds one telegraph population and the active and "
+                          "reference ones differ: the active one is kept", stacklevel=2)
+            found.pop("reference")
+        for pixels, values in found.items():
+            out["rtn"] = {**dict(zip(("fraction", "amplitude", "rate"),
+                                     (v for v, _ in values), strict=True)), "pixels": pixels}
+        return out
+
+
+def _weighted(x, y):
+    wx, wy = 1 / max(x[1], 1e-300) ** 2, 1 / max(y[1], 1e-300) ** 2
+    return float((wx * x[0] + wy * y[0]) / (wx + wy))
+
+
+def dark_ramps(exposure):
+    """The ramps, read times and reference mask of an exposure, as `fit_pixel_terms` takes them.
+
+    Parameters
+    ----------
+    exposure : `~spherex_reduce.Exposure`
+        Ramps ``(frames, n, ncols)`` in readout or physical order.  In
+        readout order each row takes its first read of every frame (a reference
+        row read several times per frame: the mean of its reads would blur a
+        telegraph's steps).
+
+    Returns
+    -------
+    ramps : `~astropy.units.Quantity`
+        ``(frames, nrows, ncols)`` in physical order, the exposure's unit.
+    times : `~astropy.units.Quantity`
+        ``(frames,)`` start time of every frame (s).
+    reference : `numpy.ndarray`
+        ``(nrows, ncols)`` bool: the reference pixels.
+
+    Examples
+    --------
+    >>> from spherex_reduce import simulate
+    >>> from spherex_reduce.analysis.pixel_terms import dark_ramps
+    >>> scene = {"geometry": {"nrows": 16, "ncols": 16, "nchannels": 1, "ref_border": 2},
+    ...          "readout": {"skip": 2, "ref_reads": 8, "nframes": 4}}
+    >>> ramps, times, ref = dark_ramps(simulate(scene, seed=1, mode="ramps"))
+    >>> ramps.shape, times.unit, int(ref.sum())
+    ((4, 16, 16), Unit("s"), 112)
+    """
+    if not exposure.is_ramp:
+        raise SpherexReduceError("dark_ramps: the exposure holds an image, not ramps")
+    s = exposure.schedule
+    data = exposure.data.data
+    if exposure.order == "readout":
+        first = s.read_of_row()
+        if (first < 0).any():
+            raise SpherexReduceError(f"dark_ramps: rows {np.flatnonzero(first < 0)[:5].tolist()}"
+                                     " are never read")
+        data = data[:, first, :]
+    return (u.Quantity(data, exposure.unit, copy=False), s.frame_starts.to(u.s),
+            exposure.geometry.reference_pixel_mask())
+
+
+def fit_pixel_terms(ramps, times, *, reference=None, gain=None, jump_sigma=5.0,
+                    hot_threshold=None, hot_sigma=10.0, groups=32, band_rows=32):
+    """Read noise, dark current, hot and telegraph pixels and the reset offset of a detector.
+
+    Parameters
+    ----------
+    ramps : `~astropy.units.Quantity` or sequence of them
+        One dark ``(nreads, ny, nx)`` or several of the same pixels, read
+        at the same times, in electrons or adu, physical order (`dark_ramps`).
+        Bias-subtracted or raw: each pixel's constant level drops out.
+    times : `~astropy.units.Quantity`
+        ``(nreads,)`` time of every read (s); the rate of a telegraph needs them
+        evenly spaced after read 0.
+    reference : array_like of bool, optional
+        ``(ny, nx)``: the reference pixels (no current; telegraph counted
+        apart).  None: all pixels are light-sensitive.
+    gain : float or `~astropy.units.Quantity`, optional
+        Electrons per adu; required for adu darks (it sets the shot noise of
+        the dark current).
+    jump_sigma : float
+        A jump exceeds this many robust standard deviations of the pixel's
+        differences.
+    hot_threshold : `~astropy.units.Quantity`, optional
+        Dark current (unit/s) above which a pixel is hot; default the median
+        current plus ``hot_sigma`` robust standard deviations of the active
+        pixels' currents.
+    hot_sigma : float
+        See ``hot_threshold``.
+    groups : int
+        Groups of pixels of the jackknife (2 to 255).
+    band_rows : int
+        Rows processed at a time (memory: about 6 float32 arrays of
+        ``nreads x band_rows x nx``, and about 12 float64 maps of ``ny x nx``).
+
+    Returns
+    -------
+    `PixelTerms`
+
+    Raises
+    ------
+    SpherexReduceError
+        Fewer than `MIN_READS` reads, shapes or units that disagree, adu
+        without a gain, read times not increasing.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astropy import units as u
+    >>> from spherex_reduce.analysis.pixel_terms import fit_pixel_terms
+    >>> rng = np.random.default_rng(2)
+    >>> t = np.arange(30) * 1.5
+    >>> x = rng.normal(0, 5.0, (30, 32, 32))                  # 5 adu read noise, no current
+    >>> x[0] -= 18.0                                          # read 0 offset by -18 adu
+    >>> res = fit_pixel_terms(x * u.adu, t * u.s, gain=2.0)
+    >>> r = res.row("read_noise", "active")
+    >>> round(r["value"], 1), r["unit"]
+    (5.0, 'adu')
+    >>> off = res.row("first_read_offset")
+    >>> round(off["value"]), off["status"]
+    (-18, 'fitted')
+    >>> res.row("telegraph_fraction", "reference")["status"]
+    'not constrained'
+    """
+    if not 2 <= int(groups) <= 255:
+        raise SpherexReduceError(f"fit_pixel_terms: groups must be 2 to 255, got {groups}")
+    darks, unit, g, t, ref = _inputs(ramps, times, reference, gain)
+    n, ny, nx = darks[0].shape
+    acc = _accumulate(darks, t, g, float(jump_sigma), max(int(band_rows), 1))
+    rng = np.random.default_rng(0)
+    gid = rng.integers(0, int(groups), (ny, nx), dtype=np.uint8)
+    return _summarise(acc, ref, gid, int(groups), unit, g, t, n, len(darks),
+                      hot_threshold, float(hot_sigma))
+
+
+# -- inputs --------------------------------------------------------------------------
+def _inputs(ramps, times, reference, gain):
+    darks = list(ramps) if isinstance(ramps, (list, tuple)) else [ramps]
+    if not darks:
+        raise SpherexReduceError("fit_pixel_terms: no darks given")
+    unit = getattr(darks[0], "unit", None)
+    if unit not in (u.electron, u.adu):
+        raise SpherexReduceError(f"fit_pixel_terms: darks must be in electron or adu, got {unit}")
+    shape = darks[0].shape
+    for k, d in enumerate(darks):
+        if getattr(d, "unit", None) != unit or d.shape != shape or len(shape) != 3:
+            raise SpherexReduceError(f"fit_pixel_terms: dark {k} has shape {d.shape} and unit "
+                                     f"{getattr(d, 'unit', None)}; dark 0 {shape} and {unit} "
+                                     "(each (nreads, ny, nx), one unit)")
+    if shape[0] < MIN_READS:
+        raise SpherexReduceError(f"fit_pixel_terms: a dark of {shape[0]} reads; at least "
+                                 f"{MIN_READS} are needed (two differences)")
+    try:
+        t = np.atleast_1d(u.Quantity(times).to_value(u.s)).astype(np.float64)
+    except (u.UnitsError, TypeError, ValueError) as exc:
+        raise SpherexReduceError(f"fit_pixel_terms: times must be a time Quantity (s): "
+                                 f"{exc}") from None
+    if t.shape != (shape[0],) or not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+        raise SpherexReduceError(f"fit_pixel_terms: times must be {shape[0]} increasing finite "
+                                 f"values (s), one per read; got shape {t.shape}")
+    if unit == u.adu:
+        if gain is None:
+            raise SpherexReduceError("fit_pixel_terms: adu darks need the gain (e/adu): it "
+                                     "separates the dark current's shot noise from read noise")
+        g = u.Quantity(gain, u.electron / u.adu).value
+    else:
+        g = 1.0 if gain is None else u.Quantity(gain, u.electron / unit).value
+    if not (np.isfinite(g) and g > 0):
+        raise SpherexReduceError(f"fit_pixel_terms: gain must be finite and > 0, got {g}")
+    ref = (np.zeros(shape[1:], bool) if reference is None
+           else np.asarray(reference, dtype=bool))
+    if ref.shape != shape[1:]:
+        raise SpherexReduceError(f"fit_pixel_terms: reference mask {ref.shape} differs from "
+                                 f"the pixels {shape[1:]}")
+    return [d.value for d in darks], unit, float(g), t, ref  # views: no copy of the cube
+
+
+# -- per-pixel accumulation ------------------------------------------------------------
+_SUMS = ("wd", "wdt", "vr", "vs", "q", "kept", "jumps", "jsize", "offset")
+_FLAGS = {"alternate": True, "bad": False}  # bool maps: and-ed, or-ed over darks
+
+
+def _design(t, skip_first):
+    """Weights and the exact constants of the differences' quadratic forms (all kept)."""
+    ty = t[1:] if skip_first else t
+    dt = np.diff(ty)
+    m = dt.size
+    k = np.arange(m)
+    w = (k + 1.0) * (m - k)
+    c_r = 2 * np.eye(m) - np.eye(m, k=1) - np.eye(m, k=-1)  # white reads, per unit variance
+    c_s = np.diag(dt)  # shot noise, per unit current / gain
+    p = np.eye(m) - np.outer(dt, w) / (w @ dt)
+    mm = p.T @ p
+    mr, ms = mm @ c_r, mm @ c_s
+    return dict(dt=dt, w=w, m=m, t_mean=ty.mean(), level=(m - k) / (m + 1.0),
+                ar=np.trace(mr), as_=np.trace(ms), trr=np.trace(mr @ mr),
+                trs=np.trace(mr @ ms), tss=np.trace(ms @ ms), vr=w @ c_r @ w, vs=w ** 2 @ dt)
+
+
+def _accumulate(darks, t, g, jump_sigma, band_rows):
+    n, ny, nx = darks[0].shape
+    skip_first = n > MIN_READS
+    des = _design(t, skip_first)
+    acc = {k: np.zeros((ny, nx)) for k in _SUMS}
+    acc.update({key: np.full((ny, nx), value) for key, value in _FLAGS.items()})
+    for r0 in range(0, ny, band_rows):
+        sl = slice(r0, min(r0 + band_rows, ny))
+        for x in darks:
+            part = _band(x[:, sl], t, des, jump_sigma, skip_first)
+            for key, value in part.items():
+                if key == "alternate":
+                    acc[key][sl] &= value
+                elif key == "bad":
+                    acc[key][sl] |= value
+                else:
+                    acc[key][sl] += value
+    acc["design"], acc["skip_first"], acc["jump_sigma"] = des, skip_first, jump_sigma
+    return acc
+
+
+def _band(x, t, des, jump_sigma, skip_first):
+    """One band of one dark ``x (n, rows, nx)``: its per-pixel sums.
+
+    The bulk is float32 (the differences of reads; sums over reads are dot products), and
+    the few jumps are taken out of the all-read sums afterwards.
+    """
+    f32 = np.float32
+    y = np.asarray(x[1:] if skip_first else x, dtype=f32)  # integers never differenced as such
+    shape = y.shape[1:]
+    d = np.diff(y, axis=0)
+    total = d.sum(axis=0, dtype=np.float64)  # not finite where any read is not
+    bad = ~np.isfinite(total)
+    if skip_first:
+        bad |= ~np.isfinite(x[0])
+    if bad.any():
+        y = np.where(bad, f32(0), y)  # a copy: the input is never changed
+        d = np.diff(y, axis=0)
+        total = d.sum(axis=0, dtype=np.float64)
+    dt64 = des["dt"]
+    dt = dt64.astype(f32)[:, None, None]
+    mean = (total / dt64.sum()).astype(f32)
+    e = d - mean * dt
+    a = np.abs(e)
+    scale = _MAD * np.median(a, axis=0, overwrite_input=True)
+    # a pixel's robust scale from a few tens of differences scatters by ~20 %: floored at the
+    # band's typical one, so that a quiet pixel's noise does not pass for jumps
+    scale = np.maximum(scale, np.median(scale))
+    np.abs(e, out=a)
+    kk, ii, jj = np.nonzero(a > jump_sigma * scale)
+    del a
+    pix = ii * shape[1] + jj
+    size = shape[0] * shape[1]
+
+    def per_pixel(weights=None):
+        return np.bincount(pix, weights, minlength=size).reshape(shape)
+
+    w = des["w"]
+    wd = np.tensordot(w.astype(f32), d, 1).astype(np.float64) - per_pixel(
+        w[kk] * d[kk, ii, jj])
+    wdt = w @ dt64 - per_pixel(w[kk] * dt64[kk])
+    slope = np.divide(wd, wdt, out=np.zeros_like(wd), where=wdt > 0)
+    delta = slope - mean  # residuals d - slope dt = e - delta dt
+    ee = np.einsum("kij,kij->ij", e, e, dtype=np.float64)
+    edt = np.tensordot(dt64.astype(f32), e, 1).astype(np.float64)
+    res = e[kk, ii, jj] - delta[ii, jj] * dt64[kk]
+    q = ee - 2 * delta * edt + delta ** 2 * (dt64 @ dt64) - per_pixel(res ** 2)
+    jumps = per_pixel()
+    order = np.argsort(pix, kind="stable")  # each pixel's jumps in time order
+    p_o, s_o = pix[order], np.sign(res[order])
+    # the slope's variance without the jumps' differences: w C w less their terms (the
+    # white reads' C = tridiag(-1, 2, -1): a pair of adjacent jumps shares one)
+    wpad = np.concatenate([[0.0], w, [0.0]])
+    wj = w[kk]
+    k_o = kk[order]
+    pair = (p_o[1:] == p_o[:-1]) & (k_o[1:] == k_o[:-1] + 1)
+    vr = des["vr"] - per_pixel(2 * wj ** 2 - 2 * wj * (wpad[kk] + wpad[kk + 2]))
+    vr -= np.bincount(p_o[1:][pair], 2 * w[k_o[1:][pair]] * w[k_o[:-1][pair]],
+                      minlength=size).reshape(shape)
+    same = (p_o[1:] == p_o[:-1]) & (s_o[1:] == s_o[:-1])
+    alternate = np.ones(size, bool)
+    alternate[p_o[1:][same]] = False
+    out = {"wd": wd, "wdt": wdt, "vr": vr, "vs": des["vs"] - per_pixel(wj ** 2 * dt64[kk]),
+           "q": q, "kept": 1 - jumps / des["m"], "jumps": jumps,
+           "jsize": per_pixel(np.abs(res)), "alternate": alternate.reshape(shape), "bad": bad}
+    if skip_first:
+        level = y[0] + np.tensordot(des["level"].astype(f32), d, 1)  # mean of the later reads
+        out["offset"] = (np.where(bad, 0.0, np.asarray(x[0], dtype=np.float64)) - level
+                         - slope * (t[0] - des["t_mean"]))
+    return out
+
+
+# -- summaries ---------------------------------------------------------------------------
+def _jackknife(f, columns, sel, gid, k):
+    """``f`` of the sums of ``columns`` (per-pixel arrays) over the pixels ``sel``, and its
+    delete-a-group jackknife error (NaN when ``f`` is not finite without some group).
+
+    Every summary is a function of sums over pixels, so one pass of `numpy.bincount` gives
+    the groups' sums and each delete-a-group value is ``f(total - group)``.
+    """
+    g = gid[sel]
+    sums = np.array([np.bincount(g, weights=np.broadcast_to(c, sel.shape)[sel].astype(float),
+                                 minlength=k) for c in columns])
+    total = sums.sum(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        full = float(f(total))
+        parts = np.array([f(total - sums[:, j]) for j in range(k)], dtype=np.float64)
+    if not np.isfinite(full) or not np.all(np.isfinite(parts)):
+        return full, np.nan
+    return full, float(np.sqrt((k - 1) / k * np.sum((parts - parts.mean()) ** 2)))
+
+
+def _ratio(total):
+    return total[0] / total[1] if total[1] > 0 else np.nan
+
+
+def _within(a, sel):
+    """The pixels of ``sel`` where ``a`` is finite and within 5 robust standard deviations of
+    its median over them, and ``a - median`` (0 elsewhere)."""
+    ok = sel & np.isfinite(a)
+    if not ok.any():
+        return ok, np.zeros(a.shape)
+    r = np.where(ok, a - np.median(a[ok]), 0.0)
+    return ok & (np.abs(r) <= 5 * _MAD * np.median(np.abs(r[ok]))), r
+
+
+def _typical(a, sel, gid, k):
+    """Mean of ``a`` over the pixels of ``sel`` within 5 robust standard deviations of its
+    median, and its error: a median's delete-a-group jackknife is unreliable with a few
+    pixels per group (a population's median and clipped mean agree when it is symmetric)."""
+    keep, _ = _within(a, sel)
+    return _jackknife(_ratio, (np.where(keep, a, 0.0), 1.0), keep, gid, k)
+
+
+def _spread(a, noise, sel, gid, k):
+    """Variance of ``a`` less each pixel's measurement variance ``noise²`` (the mean of
+    ``(a - median)² - noise²``, exact for pixels of unequal noise), over the pixels within 5
+    robust standard deviations of the median; negative when the scatter is all noise."""
+    keep, r = _within(a, sel & np.isfinite(noise))
+    if keep.sum() < 2:
+        return np.nan, np.nan
+    return _jackknife(_ratio, (np.where(keep, r ** 2 - noise ** 2, 0.0), 1.0), keep, gid, k)
+
+
+def _flip_probability(mean, m):
+    """Maximum-likelihood flip probability of binomial(m, p) counts known to be >= 2, whose
+    mean is ``mean``: ``E[c | c >= 2] = (m p - P(c = 1)) / P(c >= 2)`` is ``mean``."""
+    if not np.isfinite(mean):
+        return np.nan
+
+    def excess(p):
+        return (m * p - binom.pmf(1, m, p)) / binom.sf(1, m, p) - mean
+
+    lo, hi = 1e-6 / m, 0.5
+    if excess(lo) >= 0:
+        return 0.0
+    if excess(hi) <= 0:
+        return 0.5
+    return brentq(excess, lo, hi, xtol=1e-12)
+
+
+def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma):
+    des = acc["design"]
+    rows = []
+
+    def add(term, pixels, value, error, unit_, status="fitted", note=""):
+        if status != "not constrained" and not (np.isfinite(value) and np.isfinite(error)):
+            value, error, status = np.nan, np.nan, "not constrained"
+            note = f"too few pixels in a jackknife group for an error ({note})"
+        rows.append((term, pixels, float(value), float(error), str(unit_), status, note))
+
+    def refuse(term, pixels, unit_, reason):
+        add(term, pixels, np.nan, np.nan, unit_, "not constrained", reason)
+
+    rate_unit = unit / u.s
+    f32 = np.float32
+    bad = acc.pop("bad")  # a non-finite read: left out of everything
+    good = ~bad
+    ref = ref & good
+    wdt = acc.pop("wdt")
+    slope = np.divide(acc.pop("wd"), wdt, out=np.zeros_like(wdt), where=wdt > 0)
+    current = np.maximum(slope, 0.0) / g  # shot noise per unit time, unit^2 / s
+    kept = acc.pop("kept")  # reads kept, in darks (each dark's jumps left out)
+    a_r = np.where(kept > 0, kept * des["ar"], np.inf)
+    var = (acc.pop("q") - current * kept * des["as_"]) / a_r
+    v0 = np.maximum(var, 0.0)
+    se_var = np.sqrt(2 * kept * (v0 ** 2 * des["trr"] + 2 * v0 * current * des["trs"]
+                                 + current ** 2 * des["tss"])) / a_r
+    del a_r
+    noise = np.sqrt(v0).astype(f32)
+    noise_err = (se_var / (2 * np.maximum(np.maximum(noise, np.sqrt(se_var)), 1e-30))
+                 ).astype(f32)
+    del se_var
+    slope_err = (np.sqrt(np.maximum(v0 * acc.pop("vr") + current * acc.pop("vs"), 0.0))
+                 / np.where(wdt > 0, wdt, np.inf)).astype(f32)
+    del kept, wdt
+    dt = float(np.median(des["dt"]))
+    step = (np.sqrt(2 * np.median(v0[good]) + np.median(current[good]) * dt) if good.any()
+            else np.nan)
+    del v0, current
+    var = var.astype(f32)
+
+    m_total = des["m"] * ndarks
+    tel_ok = des["m"] >= MIN_TELEGRAPH_INTERVALS
+    telegraph = tel_ok & (acc["jumps"] >= 2) & acc["alternate"] & good
+    amplitude = np.where(telegraph, acc["jsize"] / np.maximum(acc["jumps"], 1),
+                         np.nan).astype(f32)
+    regular = np.ptp(des["dt"]) <= 1e-6 * dt
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pix_rate = np.where(telegraph, -np.log1p(-2 * np.minimum(acc["jumps"] / m_total, 0.5))
+                            / (2 * dt), np.nan).astype(f32)
+
+    active = ~ref & good
+    for pixels, sel in zip(_POPULATIONS, (active, ref), strict=True):
+        if not sel.any():
+            for term in ("read_noise", "read_noise_spread"):
+                refuse(term, pixels, unit, f"no {pixels} pixels")
+            continue
+        value, err = _typical(var, sel, gid, k)
+        add("read_noise", pixels, np.sqrt(max(value, 0)),
+            err / (2 * np.sqrt(max(value, 1e-300))), unit,
+            note="root of the pixels' mean read-noise variance (5 robust sd clipped)")
+        _add_spread(add, "read_noise_spread", pixels, _spread(noise, noise_err, sel, gid, k),
+                    unit)
+
+    if not active.any():
+        for term in ("dark_current", "dark_current_spread", "hot_pixel_fraction",
+                     "hot_pixel_current", "hot_pixel_current_spread"):
+            refuse(term, "active", rate_unit if "fraction" not in term else "",
+                   "no light-sensitive pixels")
+        hot = np.zeros_like(active)
+    else:
+        med = np.median(slope[active])
+        if hot_threshold is None:
+            spread = _MAD * np.median(np.abs(slope[active] - med))
+            threshold = med + hot_sigma * spread
+            how = f"median + {hot_sigma:g} robust sd"
+        else:
+            threshold = u.Quantity(hot_threshold, rate_unit).value
+            how = "given"
+        hot = active & (slope > threshold)
+        cold = active & ~hot
+        dark, dark_err = _jackknife(_ratio, (slope, 1.0), cold, gid, k)
+        add("dark_current", "active", dark, dark_err, rate_unit,
+            note="mean of the active pixels that are not hot (a low current's slopes are "
+            "skewed: their median is low)")
+        _add_spread(add, "dark_current_spread", "active",
+                    _spread(slope, slope_err, cold, gid, k), rate_unit)
+        add("hot_threshold", "active", threshold, 0.0, rate_unit, note=how)
+        frac, frac_err = _jackknife(_ratio, (hot, 1.0), active, gid, k)
+        add("hot_pixel_fraction", "active", frac, frac_err, "",
+            note=f"active pixels above {threshold:.4g} {rate_unit}")
+        if hot.sum() >= 2:
+            excess = slope - dark
+            value, err = _typical(excess, hot, gid, k)
+            add("hot_pixel_current", "active", value, err, rate_unit,
+                note="mean current of the hot pixels above dark_current (5 robust sd clipped)")
+            _add_spread(add, "hot_pixel_current_spread", "active",
+                        _spread(excess, slope_err, hot, gid, k), rate_unit)
+        else:
+            for term in ("hot_pixel_current", "hot_pixel_current_spread"):
+                refuse(term, "active", rate_unit, f"{int(hot.sum())} hot pixel(s) found")
+
+    limit = f"jumps above {acc['jump_sigma']:g} sd of the differences (about {step:.3g} {unit})"
+    for pixels, sel in zip(_POPULATIONS, (active, ref), strict=True):
+        reason = _telegraph_reason(sel, pixels, des["m"], regular)
+        _telegraph(add, refuse, pixels, sel, telegraph, amplitude, pix_rate, acc, m_total, dt,
+                   gid, k, unit, reason, limit, noise)
+
+    if not acc["skip_first"]:
+        refuse("first_read_offset", "all", unit, f"{n} reads: read 0 is needed for the line")
+    else:
+        usable = ~hot & ~telegraph & good
+        off = acc["offset"]
+        off /= ndarks
+        value, err = _jackknife(_ratio, (off, 1.0), usable, gid, k)
+        status = "fitted" if abs(value) > 3 * err else "ruled out"
+        add("first_read_offset", "all", value, err, unit, status,
+            "mean of read 0 less the line of the later reads (hot and telegraph pixels "
+            "left out); ruled out within 3 sd of 0")
+
+    table = Table(rows=rows, names=("term", "pixels", "value", "error", "unit", "status",
+                                    "note"),
+                  dtype=(str, str, float, float, str, str, str),
+                  meta={"nreads": n, "ndarks": ndarks, "gain": g, "unit": str(unit),
+                        "groups": k, "unusable_pixels": int(bad.sum())})
+    def q(a, un):
+        a = np.asarray(a, dtype=f32)
+        a[bad] = np.nan
+        return u.Quantity(a, un, copy=False)
+
+    maps = {"read_noise": q(noise, unit), "read_noise_error": q(noise_err, unit),
+            "dark_current": q(slope, rate_unit), "dark_current_error": q(slope_err, rate_unit),
+            "first_read_offset": q(acc["offset"] if acc["skip_first"]
+                                   else np.full(ref.shape, np.nan), unit),
+            "hot": hot, "telegraph": telegraph, "telegraph_amplitude": q(amplitude, unit),
+            "telegraph_rate": q(pix_rate, u.Hz)}
+    return PixelTerms(table, maps, unit, g)
+
+
+def _add_spread(add, term, pixels, spread, unit):
+    value, err = spread
+    if not np.isfinite(value):
+        add(term, pixels, np.nan, np.nan, unit, "not constrained", "fewer than 2 pixels")
+        return
+    root = np.sqrt(max(value, 0.0))
+    status = "fitted" if value > 3 * err else "ruled out"
+    scale = max(root, np.sqrt(err), 1e-300) if np.isfinite(err) else 1.0
+    add(term, pixels, root, err / (2 * scale) if np.isfinite(err) else 0.0,
+        unit, status, "sd of the pixels less their measurement noise; ruled out: "
+        "within 3 sd of none")
+
+
+def _telegraph_reason(sel, pixels, m, regular):
+    if not sel.any():
+        return f"no {pixels} pixels"
+    if m < MIN_TELEGRAPH_INTERVALS:
+        return (f"{m} differences per dark; at least {MIN_TELEGRAPH_INTERVALS} tell a "
+                "telegraph's jumps from the pixel's noise")
+    return "" if regular else "read times not evenly spaced: no rate"
+
+
+def _telegraph(add, refuse, pixels, sel, telegraph, amplitude, pix_rate, acc, m_total, dt,
+               gid, k, unit, reason, limit, noise):
+    names = ("telegraph_fraction", "telegraph_amplitude", "telegraph_amplitude_spread",
+             "telegraph_rate", "telegraph_rate_spread")
+    units = ("", unit, unit, u.Hz, u.Hz)
+    if reason and not reason.startswith("read times"):
+        for name, un in zip(names, units, strict=True):
+            refuse(name, pixels, un, reason)
+        return
+    limit_note = f"{limit} are seen"
+    found = sel & telegraph
+    counts = acc["jumps"]
+
+    columns = (found, 1.0, np.where(found, counts, 0))  # summed over the pixels of sel
+
+    def prob(total):
+        return _flip_probability(total[2] / total[0], m_total) if total[0] > 0 else np.nan
+
+    def fraction(total):
+        if total[0] == 0:
+            return 0.0
+        p = prob(total)
+        return total[0] / total[1] / max(binom.sf(1, m_total, p), 1e-12)
+
+    nfound = int(found.sum())
+    if nfound == 0:
+        add(names[0], pixels, 0.0, 1.0 / sel.sum(), "", "ruled out",
+            f"none found; {limit_note}")
+        for name, un in zip(names[1:], units[1:], strict=True):
+            refuse(name, pixels, un, f"no telegraph {pixels} pixels found")
+        return
+    value, err = _jackknife(fraction, columns, sel, gid, k)
+    add(names[0], pixels, value, err, "", "fitted",
+        f"{nfound} found, corrected for those that flipped < 2 times; {limit_note}")
+    value, err = _jackknife(_ratio, (acc["jsize"], counts), found, gid, k)
+    # each jump is measured with the noise of a difference: a floor under a jackknife of a few
+    # groups holding telegraph pixels (itself uncertain)
+    floor = np.sqrt(np.sum(2 * noise[found] ** 2 * counts[found])) / counts[found].sum()
+    add(names[1], pixels, value, max(err, floor), unit, note="mean size of the jumps of the "
+        "telegraph pixels (error: the jackknife's, at least the jumps' own noise)")
+    step_noise = np.sqrt(2) * noise / np.sqrt(np.maximum(counts, 1))
+    _add_spread(add, names[2], pixels, _spread(amplitude, step_noise, found, gid, k), unit)
+    if reason:
+        for name, un in zip(names[3:], units[3:], strict=True):
+            refuse(name, pixels, un, reason)
+        return
+    p, p_err = _jackknife(prob, columns, sel, gid, k)
+    if not 0 < p < MAX_FLIP_PROBABILITY:
+        why = ("every telegraph pixel flipped exactly twice: the rate is below what the darks "
+               "resolve" if p <= 0 else f"flip probability {p:.2f}: switches faster than the "
+               "reads")
+        for name, un in zip(names[3:], units[3:], strict=True):
+            refuse(name, pixels, un, why)
+        return
+    rate = -np.log1p(-2 * p) / (2 * dt)
+    add(names[3], pixels, rate, p_err / ((1 - 2 * p) * dt), u.Hz, note=(
+        f"from the flip probability {p:.4f} per {dt:.4g} s (maximum likelihood, >= 2 flips)"))
+    rate_noise = np.full(pix_rate.shape, np.sqrt(p * (1 - p) / m_total) / ((1 - 2 * p) * dt))
+    _add_spread(add, names[4], pixels, _spread(pix_rate, rate_noise, found, gid, k), u.Hz)

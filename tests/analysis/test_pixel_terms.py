@@ -1,0 +1,202 @@
+"""Per-pixel terms learnt from darks (`spherex_reduce.analysis.pixel_terms`, issue 33).
+
+Round trip on our simulator (known dark current, hot pixels, telegraph pixels among the
+active and the reference pixels), the read-noise map against numpy on a cube with a known
+sigma per pixel, the first read's offset, and what too few reads cannot constrain.
+"""
+
+import numpy as np
+import pytest
+from astropy import units as u
+
+from spherex_reduce import simulate
+from spherex_reduce.analysis.pixel_terms import dark_ramps, fit_pixel_terms
+from spherex_reduce.core.errors import SpherexReduceError
+from spherex_reduce.simulation import load_scene
+
+SIGMA = 5.0  # e: white noise of alpha 5e-4 e^2/Hz at 100 kHz, sqrt(alpha fs / 2)
+DARK, HOT_FRACTION, HOT_CURRENT = 0.5, 0.02, 20.0
+RTN = {"fraction": 0.03, "amplitude": 80.0, "rate": 0.05, "pixels": "all"}
+
+
+def _scene(nframes=40):
+    return {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 2, "ref_border": 4},
+            "readout": {"skip": 4, "ref_reads": 8, "phantom_reads": 0, "nframes": nframes,
+                        "frame_time": 1.5},
+            "noise": {"components": [{"name": "white", "alpha": 2 * SIGMA ** 2 / 1e5}]},
+            "output": {"mode": "ramps"},
+            "scene": {"dark_current": DARK, "hot_pixel_fraction": HOT_FRACTION,
+                      "hot_pixel_current": HOT_CURRENT, "rtn": dict(RTN)}}
+
+
+TRUTH = [("read_noise", "active", SIGMA), ("read_noise", "reference", SIGMA),
+         ("dark_current", "active", DARK), ("hot_pixel_fraction", "active", HOT_FRACTION),
+         ("hot_pixel_current", "active", HOT_CURRENT)]
+for _pixels in ("active", "reference"):
+    TRUTH += [("telegraph_fraction", _pixels, RTN["fraction"]),
+              ("telegraph_amplitude", _pixels, RTN["amplitude"]),
+              ("telegraph_rate", _pixels, RTN["rate"])]
+
+
+def test_round_trip_on_the_simulator_gives_pulls_like_a_unit_normal():
+    """Ten seeds of a 64 x 64 x 40 dark: every term within 4.5 of its error, and the 130
+    pulls' mean and rms those of N(0, 1) (rms in [0.75, 1.3]: errors half or twice the
+    truth give 2 or 0.5); the spreads of a population without one are ruled out or small."""
+    pulls = []
+    for seed in range(10):
+        ramps, times, ref = dark_ramps(simulate(_scene(), seed=seed))
+        res = fit_pixel_terms(ramps, times, reference=ref)
+        for term, pixels, truth in TRUTH:
+            row = res.row(term, pixels)
+            assert row["status"] == "fitted", (seed, term, pixels, row)
+            pull = (row["value"] - truth) / row["error"]
+            assert abs(pull) < 4.5, (seed, term, pixels, row, truth)
+            pulls.append(pull)
+        for term in ("dark_current_spread", "hot_pixel_current_spread"):
+            row = res.row(term, "active")
+            assert row["status"] == "ruled out" or row["value"] < 4 * row["error"], row
+        assert res.row("first_read_offset")["status"] == "ruled out" or abs(
+            res.row("first_read_offset")["value"]) < 4 * res.row("first_read_offset")["error"]
+    pulls = np.array(pulls)
+    assert abs(pulls.mean()) < 0.35, pulls.round(2)
+    assert 0.75 < np.sqrt(np.mean(pulls ** 2)) < 1.3, pulls.round(2)
+
+
+def test_scene_mapping_is_a_scene_the_simulator_takes():
+    """`PixelTerms.to_scene` gives the scene terms (one telegraph population, ``pixels:
+    all``, as simulated) and `load_scene` validates them."""
+    ramps, times, ref = dark_ramps(simulate(_scene(), seed=3))
+    scene = fit_pixel_terms(ramps, times, reference=ref).to_scene()
+    assert set(scene) == {"dark_current", "hot_pixel_fraction", "hot_pixel_current", "rtn"}
+    assert scene["rtn"]["pixels"] == "all"
+    assert scene["rtn"]["amplitude"] == pytest.approx(RTN["amplitude"], rel=0.05)
+    terms = load_scene({"scene": scene}).terms
+    assert terms.rtn.on and terms.dark_current == pytest.approx(DARK, rel=0.05)
+
+
+def test_telegraph_in_the_active_pixels_only_maps_to_pixels_active():
+    """``rtn: pixels: active``: no reference telegraph is found (ruled out), and the scene's
+    population is the active one."""
+    sc = _scene()
+    sc["scene"]["rtn"]["pixels"] = "active"
+    ramps, times, ref = dark_ramps(simulate(sc, seed=4))
+    res = fit_pixel_terms(ramps, times, reference=ref)
+    assert res.row("telegraph_fraction", "reference")["status"] == "ruled out"
+    assert res.to_scene()["rtn"]["pixels"] == "active"
+
+
+def test_pixels_with_a_nan_read_are_left_out_and_the_input_is_unchanged():
+    """A NaN read (a flagged pixel) makes that pixel's maps NaN and leaves the terms of the
+    others as they were; the darks given are not modified."""
+    rng = np.random.default_rng(3)
+    t = np.arange(20) * 1.5 * u.s
+    x = (rng.normal(0, 5.0, (20, 32, 32)) + 2.0 * t.value[:, None, None]).astype(np.float32)
+    clean = fit_pixel_terms(x * u.electron, t)
+    flagged = x.copy()
+    flagged[7, 3, 4] = np.nan
+    before = flagged.copy()
+    res = fit_pixel_terms(u.Quantity(flagged, u.electron, copy=False), t)
+    np.testing.assert_array_equal(flagged, before)
+    assert res.table.meta["unusable_pixels"] == 1
+    assert np.isnan(res.maps["read_noise"][3, 4]) and not res.maps["hot"][3, 4]
+    keep = np.ones((32, 32), bool)
+    keep[3, 4] = False
+    expected = clean.maps["dark_current"].value[keep].mean()
+    assert res.row("dark_current", "active")["value"] == pytest.approx(expected, rel=1e-5)
+
+
+def test_several_darks_of_the_same_pixels_are_pooled():
+    """A 60-frame dark cut into two 30-frame darks (the same pixels): fitted together, the
+    terms agree with the truth as one dark's do (the telegraph detection is corrected
+    with the intervals of both)."""
+    ramps, times, ref = dark_ramps(simulate(_scene(60), seed=11))
+    res = fit_pixel_terms([ramps[:30], ramps[30:]], times[:30], reference=ref)
+    assert res.table.meta["ndarks"] == 2
+    for term, pixels, truth in TRUTH:
+        row = res.row(term, pixels)
+        assert abs(row["value"] - truth) < 4.5 * row["error"], (term, pixels, row)
+
+
+def _cube(sigma, current, nreads=40, dt=1.5, seed=0):
+    """Reads ``(nreads, ny, nx)`` (e) of pixels with read noise ``sigma`` and Poisson dark
+    current ``current`` (e/s), both ``(ny, nx)``."""
+    rng = np.random.default_rng(seed)
+    charge = np.cumsum(rng.poisson(current * dt, (nreads, *sigma.shape)), axis=0)
+    return charge + rng.normal(0.0, 1.0, charge.shape) * sigma
+
+
+def test_read_noise_map_against_numpy_with_a_known_sigma_per_pixel():
+    """Read noise 3-8 e per pixel, no current: the map agrees with numpy's
+    ``sqrt(var(diff) / 2)`` of each pixel, its square is unbiased and its errors are the
+    scatter about the truth; with 40 e/s of Poisson current on top, the shot noise is removed
+    (numpy's closed form ``(var(diff) - I dt) / 2``)."""
+    rng = np.random.default_rng(5)
+    sigma = rng.uniform(3.0, 8.0, (48, 48))
+    t = np.arange(40) * 1.5
+    x = _cube(sigma, np.zeros_like(sigma))
+    res = fit_pixel_terms(x * u.electron, t * u.s)
+    got = res.maps["read_noise"].to_value(u.electron)
+    err = res.maps["read_noise_error"].to_value(u.electron)
+    numpy_estimate = np.sqrt(np.var(np.diff(x[1:], axis=0), axis=0, ddof=1) / 2)
+    assert np.median(np.abs(got - numpy_estimate)) < 0.1 * np.median(err)
+    excess = got ** 2 - sigma ** 2  # the variance is unbiased, its root a little low
+    assert abs(excess.mean()) < 3 * excess.std() / np.sqrt(excess.size)
+    assert np.std(got - sigma) / np.sqrt(np.mean(err ** 2)) == pytest.approx(1.0, abs=0.1)
+    sigma = sigma + 3.0  # 6-11 e: the variance of a difference is 72-242 e^2 + 60 of shot noise
+    x = _cube(sigma, np.full_like(sigma, 40.0), seed=1)
+    res = fit_pixel_terms(x * u.electron, t * u.s)
+    closed = (np.var(np.diff(x[1:], axis=0), axis=0, ddof=1) - 40.0 * 1.5) / 2
+    got = res.maps["read_noise"].to_value(u.electron) ** 2
+    for variance in (got, closed):
+        excess = variance - sigma ** 2
+        assert abs(excess.mean()) < 3 * excess.std() / np.sqrt(excess.size)
+    assert np.median(np.abs(got - closed)) < 0.1 * np.std(got - sigma ** 2)
+
+
+def test_first_read_offset_found_in_adu_and_ruled_out_without_one():
+    """Read 0 shifted by -18 adu (gain 1.5 e/adu): found, within 3 errors; the same cube
+    without the shift: ruled out."""
+    rng = np.random.default_rng(8)
+    t = np.arange(30) * 1.5
+    x = _cube(np.full((40, 40), 6.0), np.full((40, 40), 2.0), nreads=30) / 1.5
+    shifted = x.copy()
+    shifted[0] -= 18.0
+    res = fit_pixel_terms(shifted * u.adu, t * u.s, gain=1.5 * u.electron / u.adu)
+    row = res.row("first_read_offset")
+    assert row["status"] == "fitted" and row["unit"] == "adu"
+    assert abs(row["value"] + 18.0) < 3 * row["error"] < 1.0
+    row = fit_pixel_terms(x * u.adu, t * u.s, gain=1.5).row("first_read_offset")
+    assert row["status"] == "ruled out" and abs(row["value"]) < 3 * row["error"]
+    del rng
+
+
+def test_what_the_darks_cannot_constrain_is_refused_with_its_reason():
+    """One dark of 3 reads: no first-read offset and no telegraph terms; no reference mask:
+    no reference terms.  Every NaN comes with ``not constrained`` and a reason."""
+    rng = np.random.default_rng(2)
+    x = rng.normal(0, 5.0, (3, 16, 16)) * u.electron
+    res = fit_pixel_terms(x, [0, 1.5, 3.0] * u.s)
+    assert "read 0" in res.row("first_read_offset")["note"]
+    assert "differences per dark" in res.row("telegraph_rate", "active")["note"]
+    assert "no reference pixels" in res.row("telegraph_fraction", "reference")["note"]
+    assert res.row("read_noise", "active")["status"] == "fitted"
+    t = res.table
+    nan = ~np.isfinite(t["value"])
+    assert np.all(t["status"][nan] == "not constrained")
+    assert all(len(note) > 10 for note in t["note"][nan])
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"ramps": np.zeros((5, 4, 4)) * u.adu}, "gain"),
+    ({"ramps": np.zeros((2, 4, 4)) * u.electron}, "at least 3"),
+    ({"ramps": np.zeros((5, 4, 4)) * u.m}, "electron or adu"),
+    ({"times": [0, 1, 1, 2, 3] * u.s}, "increasing"),
+    ({"times": np.arange(5.0)}, "time Quantity"),
+    ({"ramps": np.zeros((5, 4, 4))}, "electron or adu"),
+    ({"groups": 1}, "groups"),
+    ({"reference": np.zeros((3, 4), bool)}, "reference mask"),
+])
+def test_bad_inputs_are_refused_in_one_line(kwargs, match):
+    args = {"ramps": np.zeros((5, 4, 4)) * u.electron, "times": np.arange(5) * u.s, **kwargs}
+    with pytest.raises(SpherexReduceError, match=match):
+        fit_pixel_terms(args.pop("ramps"), args.pop("times"), **args)

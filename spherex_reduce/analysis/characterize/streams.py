@@ -127,12 +127,12 @@ def channel_streams(exposure, frames=None):
     >>> st.sum.shape == st.phantom.shape, st.boxes["phantom"].n
     (True, 2)
     """
-    if frames is not None:
-        exposure = _frames_of(exposure, frames)
-    s, g = exposure.schedule, exposure.geometry
     if not exposure.is_ramp or exposure.order != "readout":
         raise SpherexReduceError("characterize takes raw darks: ramps in readout order (the "
                                  "files reduce reads), not reduced images")
+    if frames is not None:
+        exposure = _frames_of(exposure, frames)
+    s, g = exposure.schedule, exposure.geometry
     if s.nframes < MIN_FRAMES:
         raise SpherexReduceError(f"a dark of {s.nframes} reads: every term needs at least "
                                  f"{MIN_FRAMES} (a straight line is removed across them)")

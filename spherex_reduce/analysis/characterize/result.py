@@ -65,10 +65,12 @@ class Characterization:
     acn_on: bool
     marks: list
     bins: dict = dataclasses.field(repr=False, default_factory=dict)
+    #: the config's ``input: gain`` (e⁻/ADU) the darks were converted with, if any
+    gain: object = None
 
     @classmethod
     def build(cls, full, jack, boxes, schedule, unit, darks, exponent_fitted=False,
-              segmented=False):
+              segmented=False, gain=None):
         """The model from the fits of all darks pooled (``full``) and of the darks pooled
         without each one in turn (``jack``, `combine`); says what is missing."""
         nch = schedule.geometry.nchannels
@@ -79,6 +81,7 @@ class Characterization:
                    got["components"], got["spectra"], got["spreads"], got["acn"],
                    got["acn_on"], [])
         self.bins = {k: v.bins for k, v in full.items() if k != "channels"}
+        self.gain = gain
         self.marks = self._marks(boxes)
         if segmented:
             self.marks.append(
@@ -92,6 +95,10 @@ class Characterization:
     def _marks(self, boxes):
         out = []
         s = self.schedule
+        if self.unit != u.electron and self.unit != u.one:
+            out.append(f"unit: the darks are in {self.unit} and the config gives no input: gain, "
+                       f"so the scene's coefficients are in {self.unit} (simulate, forecast and "
+                       "design-readout take their numbers as electrons)")
         if s.phantom_reads == 0:
             out.append("channel_both, channel_phantom, common_both, common_phantom: not "
                        "constrained: the darks have no phantom reads (the model's components "
@@ -159,8 +166,9 @@ class Characterization:
         import yaml
 
         unit = self.unit.to_string() or "dimensionless"
+        gain = "" if self.gain is None else f", read with input: gain {self.gain} e/ADU"
         head = [f"# noise model fitted by spherex-reduce characterize to {len(self.darks)} "
-                f"dark(s) ({self.ngroups} darks or segments)",
+                f"dark(s) ({self.ngroups} darks or segments{gain})",
                 f"# unit: {unit} (alpha {unit}^2/Hz, beta {unit}^2, gamma "
                 f"{unit}^2 Hz^{self.exponent - 1:.3g}); pixel rate "
                 f"{self.schedule.geometry.pixel_rate:g} Hz",
@@ -199,6 +207,8 @@ class Characterization:
             np.nan if self.exponent_err is None else self.exponent_err, unit=u.one)
         t = Table(rows=rows)
         t.meta.update({"darks": self.darks, "segments": self.ngroups, "unit": str(self.unit),
+                       "gain": (list(self.gain) if isinstance(self.gain, tuple)
+                                else self.gain),
                        "marks": list(self.marks), "spectra": dict(SPECTRA),
                        "acn_test": f"ACN found when the even-odd correlated power is above "
                                    f"zero by > {ACN_SIGMAS:g} standard errors"})

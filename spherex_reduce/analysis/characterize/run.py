@@ -20,15 +20,19 @@ SEGMENT_FRAMES = 5
 TARGET_SEGMENTS = 8
 
 
-def _exposures(inputs, config):
-    """Every raw dark of ``inputs`` (each integration of a 4-D file is one), one at a time."""
+def _pipeline(config):
+    """The `~spherex_reduce.Pipeline` of ``config`` (None: none)."""
     from ...reduce.pipeline import Pipeline
 
+    if config is None or isinstance(config, Pipeline):
+        return config
+    return Pipeline.from_yaml(config)
+
+
+def _exposures(inputs, pipeline):
+    """Every raw dark of ``inputs`` (each integration of a 4-D file is one), one at a time."""
     if isinstance(inputs, (str, Exposure)) or hasattr(inputs, "__fspath__"):
         inputs = [inputs]
-    pipeline = config
-    if config is not None and not isinstance(config, Pipeline):
-        pipeline = Pipeline.from_yaml(config)
     for what in inputs:
         opened = open_input(what) if pipeline is None else pipeline.open(what)
         with opened as inp:
@@ -95,9 +99,11 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
     >>> model.ngroups, [c["name"] for c in model.scene()["noise"]["components"]][:1]
     (2, ['channel'])
     """
+    pipeline = _pipeline(config)
+    gain = None if pipeline is None else pipeline.input_options.gain  # applied as read
     darks, streams = [], []
     schedule = unit = first = None
-    for label, e in _exposures(inputs, config):
+    for label, e in _exposures(inputs, pipeline):
         if schedule is None:
             schedule, unit = e.schedule, e.unit
             if schedule.nframes < MIN_FRAMES:
@@ -136,4 +142,4 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
     jack = [fits([j for j in every if j != i]) for i in every]
     return Characterization.build(full, jack, boxes, schedule, unit or u.one, darks,
                                   exponent_fitted=exponent is None,
-                                  segmented=split or (segments or 1) > 1)
+                                  segmented=split or (segments or 1) > 1, gain=gain)

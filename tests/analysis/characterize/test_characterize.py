@@ -154,3 +154,14 @@ def test_what_the_darks_cannot_constrain():
     assert any(m.startswith("uncertainties: from the scatter of 3") for m in model.marks)
     report = model.report()
     assert isinstance(report, Table) and "marks" in report.meta
+
+
+def test_darks_in_adu_without_a_gain_say_the_unit():
+    from astropy import units as u
+
+    s = schedule(nrows=64, ncols=64, nchannels=2, nframes=4, phantom_reads=0)
+    adu = [dark(s, [{"name": "x", "alpha": 1e-3}], k) for k in range(3)]
+    adu = [d.replace(data=type(d.data)(np.asarray(d.data.data), unit=u.adu)) for d in adu]
+    model = characterize(adu)
+    assert model.unit == u.adu and "unit: adu" in model.to_yaml()
+    assert any(m.startswith("unit: the darks are in adu") for m in model.marks)

@@ -11,7 +11,8 @@ each component of the model compared with the truth Table 2 gives it (see
 ``tests/analysis/characterize/test_characterize.py``).  Prints, per term: the
 truth, the fitted value and its jackknife error of the first seed, and the mean
 and standard deviation of the pulls over ``--seeds`` seeds; then the time and
-the peak memory (``tracemalloc``) of one ``characterize`` call.
+the peak memory of the process (the darks are simulated one at a time and
+passed to ``characterize`` as an iterator, so one dark is in memory at once).
 
 Our simulator draws the part of a both-visible component above ``f_B/2`` (43 Hz
 at full size) independently for the pixels and for the phantom means
@@ -23,8 +24,8 @@ darks drawn sample by sample instead.
 
 import argparse
 import platform
+import resource
 import time
-import tracemalloc
 
 import numpy as np
 
@@ -74,16 +75,20 @@ def main():
     sc = scene(args)
     pulls, first, timing = {}, None, None
     for seed in range(args.seeds):
+        t_sim = [0.0]
+
+        def darks(seed=seed, t_sim=t_sim):  # one at a time: a dark is released once read
+            for k in range(args.darks):
+                t0 = time.perf_counter()
+                dark = simulate(sc, seed=1000 * seed + k)
+                t_sim[0] += time.perf_counter() - t0
+                yield dark
+
         t0 = time.perf_counter()
-        darks = [simulate(sc, seed=1000 * seed + k) for k in range(args.darks)]
-        t_sim = time.perf_counter() - t0
-        tracemalloc.start()
-        t0 = time.perf_counter()
-        model = characterize(darks)
-        t_char = time.perf_counter() - t0
-        peak = tracemalloc.get_traced_memory()[1]
-        tracemalloc.stop()
-        del darks
+        model = characterize(darks())
+        t_char = time.perf_counter() - t0 - t_sim[0]
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # GiB (Linux: KiB)
+        t_sim = t_sim[0]
         if first is None:
             first, timing = model, (t_sim, t_char, peak)
         for name, est in model.components.items():
@@ -106,9 +111,10 @@ def main():
         print(f"| {name}.{term} | {want[name][i]:.3g} | {est.values[i]:.3g} | "
               f"{est.errors[i]:.2g} | {x[0]:+.2f} | {x.mean():+.2f} ± {sd} |")
     t_sim, t_char, peak = timing
-    print(f"\ntime: simulate {args.darks} darks {t_sim:.1f} s; characterize {t_char:.1f} s "
-          f"({t_char / args.darks:.1f} s per dark); characterize peak memory "
-          f"{peak / 2**30:.2f} GiB (tracemalloc, beyond the darks in memory)")
+    print(f"\ntime (seed 0): simulate {args.darks} darks {t_sim:.1f} s; characterize "
+          f"{t_char:.1f} s ({t_char / args.darks:.1f} s per dark, simulation excluded); peak "
+          f"memory of the process {peak:.2f} GiB (the darks are simulated and read one at a "
+          "time)")
 
 
 if __name__ == "__main__":

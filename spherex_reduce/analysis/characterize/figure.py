@@ -27,6 +27,14 @@ def plot_characterization(model):
     Returns
     -------
     `matplotlib.figure.Figure`
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.examples import example_raw_exposure
+    >>> from spherex_reduce.analysis.characterize import characterize
+    >>> from spherex_reduce.analysis.characterize.figure import plot_characterization
+    >>> len(plot_characterization(characterize(example_raw_exposure(), segments=2)).axes)
+    2
     """
     from ...io.plotting import unit_label
 

@@ -47,7 +47,20 @@ class Estimate:
     @classmethod
     def of(cls, full, leave_one_out):
         """The value from all darks and the delete-one jackknife standard error,
-        ``sqrt((K − 1)/K · Σ (θ₍ᵢ₎ − θ̄)²)`` over the ``K`` fits that leave out one dark."""
+        ``sqrt((K − 1)/K · Σ (θ₍ᵢ₎ − θ̄)²)`` over the ``K`` fits that leave out one dark.
+
+        Examples
+        --------
+        The jackknife of a mean is the standard error of the mean:
+
+        >>> import numpy as np
+        >>> from spherex_reduce.analysis.characterize.model import Estimate
+        >>> x = np.array([1.0, 2.0, 4.0, 7.0])
+        >>> loo = [[np.delete(x, i).mean()] for i in range(4)]
+        >>> e = Estimate.of([x.mean()], loo)
+        >>> bool(np.isclose(e.errors[0], x.std(ddof=1) / 2))
+        True
+        """
         x = np.asarray(leave_one_out, dtype=np.float64)  # (darks, 3)
         k = x.shape[0]
         err = np.sqrt((k - 1) / k * np.sum((x - x.mean(axis=0)) ** 2, axis=0))

@@ -50,6 +50,18 @@ class Characterization:
     marks : list of str
         One line per term the darks cannot constrain, or that the model holds
         otherwise than the darks show.
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.examples import example_raw_exposure
+    >>> from spherex_reduce.analysis.characterize import characterize
+    >>> model = characterize(example_raw_exposure(), segments=2)
+    >>> sorted(model.scene())
+    ['geometry', 'noise', 'readout']
+    >>> set(model.report()["kind"]) >= {"component", "spectrum", "channel", "exponent"}
+    True
+    >>> model.to_yaml().startswith("# noise model fitted by spherex-reduce characterize")
+    True
     """
 
     schedule: object

@@ -57,6 +57,15 @@ def dark_spectra(streams, schedule, nperseg=None):
         ``{key: Table}`` (``sum``, ``sum_mean``, ``diff``, ``phantom``,
         ``phantom_mean``, ``sum+phantom``, ``sum+phantom_mean``, ``sum[c]``,
         ``phantom[c]``, ``rows[c]``, ``rows``, ``sides[c]``: those the dark has).
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.examples import example_raw_exposure
+    >>> from spherex_reduce.analysis.characterize.streams import channel_streams
+    >>> from spherex_reduce.analysis.characterize.spectra import dark_spectra
+    >>> e = example_raw_exposure()
+    >>> sorted(dark_spectra(channel_streams(e), e.schedule))[:4]
+    ['diff', 'phantom', 'phantom[0]', 'phantom[1]']
     """
     g = schedule.geometry
     fs = g.pixel_rate
@@ -93,6 +102,19 @@ def pool(spectra):
 
     The Welch metadata count every dark's streams, so the fits' formal
     errors are those of the pooled spectrum.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.analysis import temporal_psd
+    >>> from spherex_reduce.analysis.characterize.spectra import pool
+    >>> rng = np.random.default_rng(0)
+    >>> a, b = ({"x": temporal_psd(rng.normal(size=(2, 256)), 1.0)} for _ in range(2))
+    >>> p = pool([a, b])
+    >>> bool(np.allclose(p["x"]["psd"], (a["x"]["psd"] + b["x"]["psd"]) / 2))
+    True
+    >>> p["x"].meta["nstreams"]
+    4
     """
     out = {}
     for key in spectra[0]:
@@ -154,6 +176,17 @@ def fit_spectra(sp, boxes, schedule, exponent, nbins=30):
         ``{name: NoiseModelFit}`` for the spectra of `SPECTRA` that ``sp`` holds,
         and ``{"channels": {view: [NoiseModelFit or None per channel]}}`` for
         ``pixels``, ``phantom`` and ``reference``.
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.examples import example_raw_exposure
+    >>> from spherex_reduce.analysis.characterize.streams import channel_streams
+    >>> from spherex_reduce.analysis.characterize.spectra import dark_spectra, fit_spectra
+    >>> e = example_raw_exposure()
+    >>> st = channel_streams(e)
+    >>> fits = fit_spectra(dark_spectra(st, e.schedule), st.boxes, e.schedule, 1.3)
+    >>> sorted(k for k in fits if k != "channels")
+    ['acn', 'both', 'both_common', 'phantom', 'phantom_common', 'pixels', 'pixels_common']
     """
     g = schedule.geometry
     fs, m = g.pixel_rate, schedule.row_samples

@@ -57,7 +57,14 @@ class Box(NamedTuple):
     @property
     def acn_factor(self):
         """The fraction of an ACN component's power the average keeps: ``(e² + o²)/n²``
-        for ``e`` even and ``o`` odd samples (1/2 for as many of each)."""
+        for ``e`` even and ``o`` odd samples (1/2 for as many of each).
+
+        Examples
+        --------
+        >>> from spherex_reduce.analysis.characterize.streams import Box
+        >>> Box(4, 1, 1.5, even=2).acn_factor, Box(3, 1, 1.0, even=2).acn_factor
+        (0.5, 0.5555555555555556)
+        """
         odd = self.n - self.even
         return (self.even**2 + odd**2) / self.n**2
 

@@ -102,7 +102,7 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
     pipeline = _pipeline(config)
     gain = None if pipeline is None else pipeline.input_options.gain  # applied as read
     darks, streams = [], []
-    schedule = unit = first = None
+    schedule = unit = alone = None
     for label, e in _exposures(inputs, pipeline):
         if schedule is None:
             schedule, unit = e.schedule, e.unit
@@ -111,21 +111,26 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
                     f"every term: a dark of {schedule.nframes} reads cannot be characterised "
                     f"(a straight line is removed across at least {MIN_FRAMES} reads)")
             cuts = _segments(schedule.nframes, 1 if segments is None else segments)
-            first = e if segments is None else None  # split later if it stays alone
+            if segments is None and schedule.nframes >= 2 * SEGMENT_FRAMES:
+                # the runs it is split into if it stays alone (streams are small; the dark
+                # itself is released)
+                alone = [channel_streams(e, frames=cut)
+                         for cut in _segments(schedule.nframes, None)]
         elif e.schedule != schedule or e.unit != unit:
             raise SpherexReduceError(f"{label}: another readout or unit ({e.unit}) than the "
                                      f"first dark ({unit}): one model is of one readout")
         else:
-            first = None
+            alone = None
         streams.extend(channel_streams(e, frames=cut) for cut in cuts)  # not the exposure
         darks.append(label)
+        del e
     if not darks:
         raise SpherexReduceError("no dark to characterise")
     nframes = schedule.nframes
-    split = first is not None and nframes >= 2 * SEGMENT_FRAMES
-    if split:  # one dark: its segments' scatter
-        streams = [channel_streams(first, frames=cut) for cut in _segments(nframes, None)]
-    del first
+    split = alone is not None
+    if split:  # one dark: the scatter of its runs of frames
+        streams = alone
+    del alone
     if len(streams) < 2:
         raise SpherexReduceError(
             f"uncertainties: one dark of {nframes} reads gives no scatter to estimate them "

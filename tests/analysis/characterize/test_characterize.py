@@ -165,3 +165,13 @@ def test_darks_in_adu_without_a_gain_say_the_unit():
     model = characterize(adu)
     assert model.unit == u.adu and "unit: adu" in model.to_yaml()
     assert any(m.startswith("unit: the darks are in adu") for m in model.marks)
+
+
+def test_one_dark_alone_is_split_into_runs_of_frames_and_says_so():
+    s = schedule(nrows=64, ncols=64, nchannels=2, nframes=20, phantom_reads=0)
+    model = characterize(dark(s, [{"name": "x", "alpha": 1e-3}], 0))
+    assert model.ngroups == 4  # 20 frames: 4 runs of 5
+    assert any(m.startswith("uncertainties: from 4 runs of frames of 1 dark")
+               for m in model.marks)
+    two = characterize([dark(s, [{"name": "x", "alpha": 1e-3}], k) for k in range(2)])
+    assert two.ngroups == 2 and not any("runs of frames" in m for m in two.marks)

@@ -150,13 +150,19 @@ def channel_streams(exposure, frames=None):
     sums, diffs = [], []
     for cols in columns:
         cols = cols[:n]  # every channel averages the same number of columns
-        sums.append(np.mean(data[:, :, cols], axis=-1, dtype=np.float64))
         even = cols[offs[cols] % 2 == 0]
         odd = cols[offs[cols] % 2 == 1]
         k = min(even.size, odd.size)
+        # one pass over the pixels: the sums of each parity's first k columns, then the rest
+        se = np.sum(data[:, :, even[:k]], axis=-1, dtype=np.float64)
+        so = np.sum(data[:, :, odd[:k]], axis=-1, dtype=np.float64)
+        rest = np.concatenate([even[k:], odd[k:]])
+        total = se + so
+        if rest.size:
+            total += np.sum(data[:, :, rest], axis=-1, dtype=np.float64)
+        sums.append(total / n)
         if k:
-            diffs.append(0.5 * (np.mean(data[:, :, even[:k]], axis=-1, dtype=np.float64)
-                                - np.mean(data[:, :, odd[:k]], axis=-1, dtype=np.float64)))
+            diffs.append(0.5 * (se - so) / k)
     first = offs[columns[0][:n]]
     centres = tuple(c + float(np.mean(offs[cols[:n]])) for cols in columns)
     boxes = {"sum": Box(n, 1, float(np.mean(centres)), int(np.sum(first % 2 == 0)), centres)}

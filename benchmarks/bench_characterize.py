@@ -83,6 +83,7 @@ def main():
                 dark = simulate(sc, seed=1000 * seed + k)
                 t_sim[0] += time.perf_counter() - t0
                 yield dark
+                del dark  # before the next is simulated
 
         t0 = time.perf_counter()
         model = characterize(darks())

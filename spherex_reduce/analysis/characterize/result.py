@@ -111,10 +111,12 @@ class Characterization:
             out.append(f"unit: the darks are in {self.unit} and the config gives no input: gain, "
                        f"so the scene's coefficients are in {self.unit} (simulate, forecast and "
                        "design-readout take their numbers as electrons)")
-        if s.phantom_reads == 0:
+        if s.phantom_reads == 0 or "phantom" not in self.spectra:
+            why = ("the darks have no phantom reads" if s.phantom_reads == 0 else
+                   "the darks' phantom reads are constant (no noise)")
             out.append("channel_both, channel_phantom, common_both, common_phantom: not "
-                       "constrained: the darks have no phantom reads (the model's components "
-                       "are seen by the pixels only)")
+                       f"constrained: {why} (the model's components are seen by the pixels "
+                       "only)")
         if s.geometry.nchannels == 1:
             out.append("common: not constrained: one channel, so the part common to all "
                        "channels cannot be told from each channel's (the model holds both as "

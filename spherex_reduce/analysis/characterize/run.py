@@ -40,6 +40,7 @@ def _exposures(inputs, pipeline):
             for k in ks:
                 yield inp.label if k is None else f"{inp.label}[{k}]", \
                     inp.source(integration=k).exposure()
+        del what, opened, inp  # an exposure given in memory is released before the next
 
 
 def _segments(nframes, segments):
@@ -61,9 +62,11 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
 
     Parameters
     ----------
-    inputs : path, `~spherex_reduce.Exposure`, or a list of them
+    inputs : path, `~spherex_reduce.Exposure`, or a list or iterator of them
         Raw darks in any layout ``reduce`` reads (`~spherex_reduce.io.sources.open_input`;
-        every integration of a 4-D file is a dark).  One readout and one unit.
+        every integration of a 4-D file is a dark).  One readout and one unit.  They
+        are read one at a time and released once their streams are taken (an iterator
+        of exposures is held one at a time too).
     config : str, dict or `~spherex_reduce.Pipeline`, optional
         A pipeline config whose ``input:``, ``geometry:`` and ``readout:`` say how to
         read the files (unit, gain, keywords they lack).

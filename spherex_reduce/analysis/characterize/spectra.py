@@ -208,7 +208,7 @@ def fit_spectra(sp, boxes, schedule, exponent, nbins=30):
             basis=b_sum, **fit)
     if "diff" in sp:
         out["acn"] = fit_noise_model(sp["diff"], basis=basis(boxes["diff"], half=True), **fit)
-    if "phantom" in sp:
+    if "phantom" in sp and np.any(np.asarray(sp["phantom"]["psd"]) > 0):  # not constant
         b_ph = basis(boxes["phantom"])
         out["phantom"] = fit_noise_model(sp["phantom"], basis=b_ph, **fit)
         p_w = _expected(out["phantom"], b_ph, sp["phantom"])

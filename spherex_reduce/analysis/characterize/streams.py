@@ -90,9 +90,12 @@ def _active_columns(exposure):
     their offsets in the row read."""
     g = exposure.geometry
     data = np.asarray(exposure.data.data)
-    finite = np.all(np.isfinite(data), axis=(0, 1))
+    finite = np.ones(data.shape[-1], bool)
+    for frame in data:  # a frame at a time: no cube-sized temporary
+        finite &= np.all(np.isfinite(frame), axis=0)
     if exposure.data.mask is not None:
-        finite &= ~np.any(np.asarray(exposure.data.mask), axis=(0, 1))
+        for frame in np.asarray(exposure.data.mask):
+            finite &= ~np.any(frame, axis=0)
     light = ~g.reference_column_mask() & finite
     offs, chan = g.column_offsets(), g.channel_of_column()
     out = []

@@ -175,3 +175,12 @@ def test_one_dark_alone_is_split_into_runs_of_frames_and_says_so():
                for m in model.marks)
     two = characterize([dark(s, [{"name": "x", "alpha": 1e-3}], k) for k in range(2)])
     assert two.ngroups == 2 and not any("runs of frames" in m for m in two.marks)
+
+
+def test_phantom_reads_without_noise_are_marked_not_fitted():
+    """Phantom reads that see no component (every value the same) constrain no phantom or
+    both term: marked, and the pixels' terms are still fitted."""
+    s = schedule(nrows=64, ncols=64, nchannels=2, nframes=4, phantom_reads=2)
+    model = characterize([dark(s, [{"name": "x", "alpha": 1e-3}], k) for k in range(3)])
+    assert "phantom" not in model.spectra and set(model.components) == {"channel", "common"}
+    assert any("phantom reads are constant" in m for m in model.marks)

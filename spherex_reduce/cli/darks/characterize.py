@@ -38,8 +38,9 @@ def add_parser(sub):
     p.add_argument("--fit-exponent", action="store_true",
                    help="fit the exponent on the light-sensitive pixels' spectrum")
     p.add_argument("--segments", type=count(MAX_SEGMENTS), default=None,
-                   help="split each dark into this many runs of frames, each fitted alone "
-                   "(default: 8, of 5 frames each at least)")
+                   help="split each dark into this many runs of frames, each left out in "
+                   "turn for the jackknife errors (default: each dark whole; one dark alone "
+                   "is split into up to 8 runs of 5 frames or more)")
     p.add_argument("--nbins", type=count(MAX_BINS), default=30,
                    help=f"log frequency bins per spectrum (default 30, at most {MAX_BINS})")
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")

@@ -6,7 +6,7 @@ averaged over darks (`pool`).  Cross-spectra come from auto-spectra of sums
 of streams (the Welch estimate is bilinear: ``2 Re X(a, b) = P(a + b) − P(a)
 − P(b)``), and the part common to all ``C`` channels from the spectrum of
 the channel mean: the mean cross-spectrum over the ``C(C−1)`` pairs of
-different channels is ``(C · P(mean) − mean P) · C/(C−1)``.  Each is fitted
+different channels is ``(C · P(mean) − mean P) / (C−1)``.  Each is fitted
 (`fit_spectra`) with `~spherex_reduce.analysis.temporal.fit_noise_model`
 through the exact map of its averaging and decimation
 (`~spherex_reduce.analysis.temporal.aliased_basis`), the derived spectra
@@ -144,8 +144,20 @@ def _with(spec, psd, weight):
 
 
 def _pairs(mean_spec, per_channel, nch):
-    """The mean cross-spectrum over pairs of different channels."""
-    return (nch * np.asarray(mean_spec) - np.asarray(per_channel)) * nch / (nch - 1)
+    """The mean cross-spectrum over the ``C(C−1)`` pairs of different channels, from the
+    spectrum of the channel mean and the mean over channels of each one's:
+    ``Σ_ij X_ij = C² P(mean)`` and ``Σ_i X_ii = C · mean P``, so the mean over ``i ≠ j``
+    is ``(C · P(mean) − mean P) / (C − 1)``.
+
+    Examples
+    --------
+    Noise common to all channels: every pair's cross-spectrum is its spectrum.
+
+    >>> from spherex_reduce.analysis.characterize.spectra import _pairs
+    >>> float(_pairs(2.0, 2.0, 32))
+    2.0
+    """
+    return (nch * np.asarray(mean_spec) - np.asarray(per_channel)) / (nch - 1)
 
 
 def _cross(sp, a, b, key):

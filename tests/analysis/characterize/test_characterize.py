@@ -184,3 +184,20 @@ def test_phantom_reads_without_noise_are_marked_not_fitted():
     model = characterize([dark(s, [{"name": "x", "alpha": 1e-3}], k) for k in range(3)])
     assert "phantom" not in model.spectra and set(model.components) == {"channel", "common"}
     assert any("phantom reads are constant" in m for m in model.marks)
+
+
+def test_a_strong_common_part_comes_back():
+    """Noise common to all 4 channels as strong as each channel's: the common part (the
+    mean cross-spectrum of different channels) and the channel part both come back.  The
+    pairs' mean was 4 times too large (C times, a factor C/(C - 1) instead of 1/(C - 1)),
+    hidden while the truth's common terms were small."""
+    s = schedule(nframes=5, phantom_reads=0)
+    comps = [{"name": "ch", "alpha": 2e-3, "gamma": 5.0, "scope": "channel"},
+             {"name": "co", "alpha": 5e-4, "beta": 0.5, "scope": "common"}]
+    model = characterize([dark(s, comps, 500 + k) for k in range(12)])
+    want = {"channel": [2e-3, 0.0, 5.0], "common": [5e-4, 0.5, 0.0]}
+    for name, est in model.components.items():
+        z = (est.values - want[name]) / est.errors
+        assert np.all(np.abs(z) < 4.5), (name, est, want[name])
+    common = model.components["common"]
+    assert common.values[1] == pytest.approx(0.5, rel=0.3)  # beta: 4x before

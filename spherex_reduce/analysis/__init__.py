@@ -11,7 +11,8 @@ Temporal (`spherex_reduce.analysis.temporal`): `temporal_psd` (Welch),
 `fit_noise_model` (α + β/f + γ/f^1.3 with uncertainties, paper eq. 1 and
 Table 2).  Streams of a raw exposure (`spherex_reduce.analysis.timestreams`):
 the reference-pixel and phantom streams in time order (`reference_timestream`,
-`phantom_timestream`, `fit_raw_noise`).
+`phantom_timestream`, `fit_raw_noise`).  A fitted noise model of a detector
+from its darks, as a scene: `characterize` (`spherex_reduce.analysis.characterize`).
 
 Expected spectra without random numbers (`spherex_reduce.analysis.forecast.engine`):
 `forecast` (P(k) of a slope image reduced by linear steps, total and per noise
@@ -28,6 +29,7 @@ from ..core.lazy_names import attach
 
 _OWN = {
     "case": ["CaseResult", "SpectrumMeasure", "run_case"],
+    "characterize": ["Characterization", "characterize"],
     "compare": ["CompareResult", "Comparison", "compare_strategies", "load_comparison",
                 "measure_against_sky", "white_floor"],
     "photon_noise": ["photon_noise_label", "photon_noise_power", "slope_variance_factor"],
@@ -39,7 +41,7 @@ _OWN = {
                  "k_from_theta", "power_spectrum", "theta_from_k"],
     "temporal": ["NoiseModelFit", "aliased_basis", "fit_noise_model", "model_basis",
                  "temporal_psd"],
-    "timestreams": ["Timestream", "fit_raw_noise", "phantom_timestream",
+    "timestreams": ["Timestream", "detrend_frames", "fit_raw_noise", "phantom_timestream",
                     "reference_timestream"],
 }
 #: Names shown here from the layers below (`lazy_loader.attach` attaches this

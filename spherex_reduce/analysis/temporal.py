@@ -142,7 +142,8 @@ def model_basis(frequency, exponent=1.3):
     return np.stack([np.ones_like(f), 1 / f, f ** (-float(exponent))], axis=-1)
 
 
-def aliased_basis(frequency, sample_rate, decimation, nbox=1, exponent=1.3, stride=1):
+def aliased_basis(frequency, sample_rate, decimation, nbox=1, exponent=1.3, stride=1,
+                  cross=None):
     """Model terms of a stream of ``nbox``-sample means taken every ``decimation`` samples.
 
     A process sampled at ``sample_rate`` with one-sided PSD ``p(f)`` on
@@ -156,6 +157,12 @@ def aliased_basis(frequency, sample_rate, decimation, nbox=1, exponent=1.3, stri
     three terms of eq. 1 through that map, shape ``(n, 3)``; it is linear, so
     ``α, β, γ`` fit directly.
 
+    With ``cross = (nbox2, stride2, lag)`` the terms are those of the real
+    part of the cross-spectrum between this average and a second one of
+    ``nbox2`` samples ``stride2`` apart whose centre is ``lag`` samples
+    later: ``Σ_m p(|g|) B(g) B₂(g) cos(2π g lag / sample_rate)`` (``B``
+    real, the responses about each average's centre).
+
     Examples
     --------
     White noise ``α`` averaged over 4 samples every 72 reads ``α · 72 / 4``:
@@ -163,23 +170,42 @@ def aliased_basis(frequency, sample_rate, decimation, nbox=1, exponent=1.3, stri
     >>> from spherex_reduce.analysis import aliased_basis
     >>> float(aliased_basis([100.0], 1e5, 72, 4)[0, 0])
     18.0
+
+    The cross-spectrum of two averages of different samples has no white term:
+
+    >>> white = aliased_basis([100.0], 1e5, 72, 4, cross=(64, 1, 34))[0, 0]
+    >>> bool(abs(white) < 1e-12)
+    True
     """
     f = np.asarray(u.Quantity(frequency, u.Hz).value, dtype=float)
     fs = float(sample_rate)
-    mdec, nbox, stride = int(decimation), int(nbox), int(stride)
-    if nbox < 1 or stride < 1 or (nbox - 1) * stride >= mdec:
-        raise SpherexReduceError(
-            f"the averaged samples (nbox={nbox}, stride={stride}) must fit within one "
-            f"decimation period ({mdec} samples)"
-        )
+    mdec = int(decimation)
+    boxes = [(int(nbox), int(stride))]
+    if cross is not None:
+        boxes.append((int(cross[0]), int(cross[1])))
+    for n, st in boxes:
+        if n < 1 or st < 1 or (n - 1) * st >= mdec:
+            raise SpherexReduceError(
+                f"the averaged samples (nbox={n}, stride={st}) must fit within one "
+                f"decimation period ({mdec} samples)"
+            )
     fr = fs / mdec
     alias = f[:, None] + np.arange(mdec)[None, :] * fr
     alias = (alias + fs / 2) % fs - fs / 2  # fold into [-fs/2, fs/2)
     af = np.abs(alias)
-    x = np.pi * alias * stride / fs
+
+    def response(n, st):  # real: the box's response about its centre
+        x = np.pi * alias * st / fs
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(np.abs(np.sin(x)) < 1e-12, np.cos(n * x) / np.cos(x),
+                            np.sin(n * x) / (n * np.sin(x)))
+
+    b = response(*boxes[0])
+    if cross is None:
+        b2 = b**2
+    else:
+        b2 = b * response(*boxes[1]) * np.cos(2 * np.pi * alias * float(cross[2]) / fs)
     with np.errstate(invalid="ignore", divide="ignore"):
-        b2 = np.where(np.abs(np.sin(x)) < 1e-12, 1.0,
-                      (np.sin(nbox * x) / (nbox * np.sin(x))) ** 2)
         terms = [np.ones_like(af), 1 / af, af ** (-float(exponent))]
     return np.stack([np.sum(t * b2, axis=1) for t in terms], axis=-1)
 
@@ -237,7 +263,11 @@ def fit_noise_model(spectra, exponent=1.3, fmin=None, fmax=None, nbins=40, fit=P
     spectra : `~astropy.table.Table` or list of them
         From `temporal_psd`.  Several spectra of the same process (e.g. a
         decimated stream and full-rate bursts) are fitted jointly; each needs
-        its own ``basis`` then.
+        its own ``basis`` then.  A spectrum with a ``weight`` column (same unit
+        as ``psd``, > 0) is weighted by it rather than by the model: each bin's
+        variance is ``weight² · v``, fixed, so the fit is linear in the
+        spectrum (a cross-spectrum, or a difference of spectra, whose scatter
+        follows the auto-spectra and not its own mean).
     exponent : float or None
         The exponent of the third term (1.3 in the paper).  ``None`` fits it
         too, by minimising χ² over ``exponent_range`` (the three coefficients
@@ -320,7 +350,7 @@ def _fit_exponent(spectra, bounds, *args):
 
 def _fit_fixed(spectra, exponent, fmin, fmax, nbins, fit, basis, maxiter):
     cols = [PARAMS.index(p) for p in fit]
-    ys, xs, rv, fb, which = [], [], [], [], []
+    ys, xs, rv, fb, which, levels = [], [], [], [], [], []
     lo_all, hi_all = np.inf, 0.0
     for s, (spec, fun) in enumerate(zip(spectra, basis, strict=True)):
         for key in ("nperseg", "noverlap", "nsegments", "nstreams"):
@@ -341,8 +371,10 @@ def _fit_fixed(spectra, exponent, fmin, fmax, nbins, fit, basis, maxiter):
         rel = _relative_variance(meta["nperseg"], meta["noverlap"], meta["nsegments"], m)
         rel = rel / meta["nstreams"]
         terms = fun(f, exponent)[:, cols]
+        level = (np.asarray(spec["weight"])[sel] if "weight" in spec.colnames else None)
         for g, r in zip(groups, rel, strict=True):
             ys.append(p[g].mean())
+            levels.append(np.nan if level is None else level[g].mean())
             xs.append(terms[g].mean(axis=0))
             rv.append(r)
             fb.append(np.exp(np.log(f[g]).mean()))
@@ -358,13 +390,20 @@ def _fit_fixed(spectra, exponent, fmin, fmax, nbins, fit, basis, maxiter):
             "the power spectrum is not finite, or zero at every frequency: no noise to fit "
             "(is the stream constant, e.g. all zero, or not a number?)")
     var = np.maximum(y, np.max(np.abs(y)) * 1e-12) ** 2 * rv
+    fixed = np.isfinite(levels := np.array(levels))
+    if fixed.any():  # a given scatter (a cross-spectrum's follows its auto-spectra)
+        if not (fixed.all() and np.all(levels > 0)):
+            raise SpherexReduceError("a spectrum's weight column must be positive wherever "
+                                     "it is given, and given for every spectrum of a fit")
+        var = levels**2 * rv
     theta = np.zeros(len(fit))
-    for _ in range(maxiter):
+    for _ in range(maxiter if not fixed.any() else 1):
         wsq = 1 / np.sqrt(var)
         theta_new, *_ = np.linalg.lstsq(x * wsq[:, None], y * wsq, rcond=None)
         model = x @ theta_new
         floor = np.max(np.abs(y)) * 1e-6
-        var = np.maximum(model, floor) ** 2 * rv
+        if not fixed.any():
+            var = np.maximum(model, floor) ** 2 * rv
         done = np.allclose(theta_new, theta, rtol=1e-10, atol=0)
         theta = theta_new
         if done:

@@ -39,7 +39,8 @@ from ..core.exposure import Exposure
 from ..reduce.steps.reference.noise_models import NEGATIVE_SIGMAS
 from .temporal import PARAMS, aliased_basis, fit_noise_model, temporal_psd
 
-__all__ = ["Timestream", "fit_raw_noise", "phantom_timestream", "reference_timestream"]
+__all__ = ["Timestream", "detrend_frames", "fit_raw_noise", "phantom_timestream",
+           "reference_timestream"]
 
 
 # -- streams of a raw exposure ----------------------------------------------------------
@@ -71,11 +72,20 @@ def _raw(exposure):
                                  "from every position across frames)")
 
 
-def _detrend_frames(values):
+def detrend_frames(values):
     """Remove a straight line across frames (axis -2) at every position; float64 copy.
 
     Returns the residual scaled by ``sqrt(N / (N - 2))`` so that noise that is
-    independent from frame to frame keeps its variance.
+    independent from frame to frame keeps its variance.  A pixel's bias and
+    dark current (a straight line in time) are removed with it.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.analysis.timestreams import detrend_frames
+    >>> ramp = 100.0 + 5.0 * np.arange(4.0)[:, None] + np.array([[1.0], [-1.0], [-1.0], [1.0]])
+    >>> detrend_frames(ramp).ravel().round(3).tolist()
+    [1.414, -1.414, -1.414, 1.414]
     """
     v = np.asarray(values, dtype=np.float64)
     n = v.shape[-2]
@@ -157,7 +167,7 @@ def phantom_timestream(exposure):
     if exposure.phantom is None or s.phantom_reads == 0:
         raise SpherexReduceError("the exposure has no phantom reads (c = 0 or no PHANTOM)")
     vals = np.moveaxis(np.asarray(exposure.phantom), -1, 0)  # channels, frames, reads
-    return Timestream(_detrend_frames(vals), _frame_samples(s, s.phantom_samples()[:, 0]),
+    return Timestream(detrend_frames(vals), _frame_samples(s, s.phantom_samples()[:, 0]),
                       s.phantom_reads, s.geometry.pixel_rate)
 
 
@@ -210,7 +220,7 @@ def reference_timestream(exposure, source="columns", parity=None):
         nbox = sides[0].size
         vals = np.stack([data[:, :, c].mean(axis=-1) for c in sides])
         first = s.starts + offs[sides[0]].min()
-        return Timestream(_detrend_frames(vals), _frame_samples(s, first), nbox,
+        return Timestream(detrend_frames(vals), _frame_samples(s, first), nbox,
                           g.pixel_rate, stride)
     if source == "rows":
         reads = reference_row_reads(exposure.schedule)
@@ -223,7 +233,7 @@ def reference_timestream(exposure, source="columns", parity=None):
             cols = cols[:, offs[cols[0]] % 2 == first_off]
         vals = data[:, reads][:, :, cols]  # frames, nref, nchannels, w'
         vals = np.moveaxis(vals, 2, 0)  # channels, frames, nref, w'
-        flat = _detrend_frames(vals.reshape(g.nchannels, s.nframes, -1))
+        flat = detrend_frames(vals.reshape(g.nchannels, s.nframes, -1))
         samples = s.starts[reads][:, None] + offs[cols[0]][None, :]
         return Timestream(flat.reshape(vals.shape), _frame_samples(s, samples), 1, g.pixel_rate,
                           stride)

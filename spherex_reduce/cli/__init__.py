@@ -25,7 +25,7 @@ __all__ = ["COMMANDS", "main"]
 
 #: The subcommands in the order ``--help`` lists them, each with its line there (the
 #: ``help`` its module's ``add_parser`` gives).  The module of ``NAME`` is
-#: ``spherex_reduce.cli.NAME`` with ``_`` for ``-``.
+#: ``spherex_reduce.cli.NAME`` with ``_`` for ``-``, or the one `PACKAGED` names.
 COMMANDS = {
     "demo": "simulate, reduce and measure the paper's case on built-in defaults",
     "readout": "build a readout schedule; print, save or draw it",
@@ -38,6 +38,8 @@ COMMANDS = {
     "forecast": "expected P(k) of a scene reduced by a pipeline, exact, no simulation",
     "fit-noise": "fit the noise model of paper eq. 1 to a raw file's reference and phantom "
                  "streams",
+    "characterize": "fit a noise model (a scene) to raw darks: per channel and common, "
+                    "ACN, what the phantom sees",
     "sweep": "simulate, reduce and measure a grid of readout parameters on dask",
     "compare-strategies": "reduce the same simulated noise and injected sky with several "
                           "pipelines; residual noise, white floor, sky transfer",
@@ -46,8 +48,11 @@ COMMANDS = {
     "figures": "reproduce the paper's simulated figures (PNG + Markdown report)",
 }
 
+#: Commands whose module is in a subpackage (the others: ``spherex_reduce.cli.NAME``).
+PACKAGED = {"fit-noise": "darks.fit_noise", "characterize": "darks.characterize"}
+
 #: Commands that read FITS files: they take ``--ignore-checksum`` and ``--dq-bits``.
-READS_FITS = ("reduce", "combine", "spectrum", "fit-noise")
+READS_FITS = ("reduce", "combine", "spectrum", "fit-noise", "characterize")
 
 #: Errors caused by the user's input: exit code 2, one line, no traceback.
 INPUT_ERRORS = (SpherexReduceError, FileNotFoundError, FileExistsError, IsADirectoryError,
@@ -171,7 +176,8 @@ def build_parser(commands=None):
         if commands is not None and name not in commands:
             sub.add_parser(name, help=text, add_help=False)
             continue
-        importlib.import_module(f".{name.replace('-', '_')}", __name__).add_parser(sub)
+        module = PACKAGED.get(name, name.replace("-", "_"))
+        importlib.import_module(f".{module}", __name__).add_parser(sub)
         if name in READS_FITS:
             _add_fits_options(sub.choices[name])
     return parser

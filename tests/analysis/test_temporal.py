@@ -207,3 +207,55 @@ def test_reference_rows_of_a_window_are_timed_by_the_full_readout():
     assert tr.samples[0].tolist() == (starts[:, None] + [3, 4, 5, 6]).tolist()
     even = reference_timestream(e, "rows", parity="even")
     assert even.samples[0].tolist() == (starts[:, None] + [4, 6]).tolist()
+
+
+def test_cross_basis_of_white_noise_is_the_shared_samples():
+    """Two means of white samples (4 at offsets 0-3, 4 at offsets 2-5) share 2 samples:
+    their covariance per read is ``σ² · 2 / 16`` and, decimated once every ``m``
+    samples, the one-sided cross-spectrum ``2 · cov / f_r = α · m · 2 / 16``
+    (``σ² = α fs / 2``); disjoint means have none."""
+    m, fs = 72, 1e5
+    overlap = aliased_basis([10.0, 300.0], fs, m, 4, cross=(4, 1, 2.0))[:, 0]
+    assert overlap == pytest.approx([m * 2 / 16] * 2, rel=1e-9)
+    apart = aliased_basis([10.0, 300.0], fs, m, 4, cross=(4, 1, 4.0))[:, 0]
+    assert np.all(np.abs(apart) < 1e-9)
+
+
+def test_cross_basis_matches_a_measured_cross_spectrum():
+    """The cross-spectrum of a 28-sample mean and a 4-sample mean 20 samples earlier,
+    decimated every 40 samples, of a 1/f stream drawn here, against the basis."""
+    rng = np.random.default_rng(5)
+    m, n1, n2, lag = 40, 28, 4, 20.0
+    x = synth(m * 4096, (0.0, 1.0, 0.0), rng, nstreams=8, pad=4)
+    reads = x.reshape(8, 4096, m)
+    a = reads[:, :, 10:10 + n1].mean(axis=-1)   # centre 23.5
+    b = reads[:, :, 2:2 + n2].mean(axis=-1)     # centre 3.5
+    pa, pb = temporal_psd(a, FS / m, nperseg=512), temporal_psd(b, FS / m, nperseg=512)
+    pab = temporal_psd(a + b, FS / m, nperseg=512)
+    cross = 0.5 * (pab["psd"] - pa["psd"] - pb["psd"])
+    f = np.asarray(pa["frequency"])
+    want = aliased_basis(f, FS, m, n1, cross=(n2, 1, lag))[:, 1]
+    sel = slice(4, None)
+    ratio = np.sum(cross[sel]) / np.sum(want[sel])
+    assert ratio == pytest.approx(1.0, abs=0.05)
+
+
+def test_a_weight_column_makes_the_fit_linear():
+    """With fixed weights the fit of a difference of spectra is the difference of fits."""
+    rng = np.random.default_rng(2)
+    x = synth(16384, (2e-3, 1e-1, 1.0), rng, nstreams=4)
+    y = synth(16384, (1e-3, 5e-2, 0.0), rng, nstreams=4)
+    sx, sy = temporal_psd(x, FS, nperseg=1024), temporal_psd(y, FS, nperseg=1024)
+    w = sx["psd"] + sy["psd"]
+    fits = []
+    for psd in (sx["psd"], sy["psd"], sx["psd"] - sy["psd"]):
+        t = sx.copy()
+        t["psd"], t["weight"] = psd, w
+        fits.append(fit_noise_model(t))
+    for p in ("alpha", "beta", "gamma"):
+        assert fits[2].values[p] == pytest.approx(fits[0].values[p] - fits[1].values[p],
+                                                  rel=1e-9, abs=1e-15)
+    bad = sx.copy()
+    bad["weight"] = -w
+    with pytest.raises(SpherexReduceError, match="weight column must be positive"):
+        fit_noise_model(bad)

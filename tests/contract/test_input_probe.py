@@ -2569,3 +2569,23 @@ JUMP_INPUT = [
 @pytest.mark.parametrize("case", JUMP_INPUT)
 def test_issue35_jump_input(case, inputs, runner, tmp_path):
     test_input(case, inputs, runner, tmp_path)
+
+
+# Issue 33: characterize (darks in, a scene out)
+CHARACTERIZE = ["characterize", "raw.fits", "-c", "unchop", "-o", "model.yaml"]
+CHARACTERIZE_INPUT = [
+    refused("characterize-reduced-image", ["characterize", "red.fits", "-c", "unchop", "-o",
+                                           "model.yaml"], mentions=r"raw darks"),
+    refused("characterize-same-file-twice-as-output", ["characterize", "raw.fits", "-c",
+                                                       "unchop", "-o", "raw.fits"]),
+    refused("characterize-nan-huge-segments", [*CHARACTERIZE, "--segments", "1e9"]),
+    refused("characterize-nbins-zero", [*CHARACTERIZE, "--nbins", "0"]),
+    refused("characterize-exponent-nan", [*CHARACTERIZE, "--exponent", "nan"]),
+    refused("characterize-not-fits", ["characterize", "scene.yaml", "-c", "unchop", "-o",
+                                      "model.yaml"]),
+]
+
+
+@pytest.mark.parametrize("case", CHARACTERIZE_INPUT)
+def test_issue33_characterize_input(case, inputs, runner, tmp_path):
+    test_input(case, inputs, runner, tmp_path)

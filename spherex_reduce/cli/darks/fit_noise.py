@@ -2,9 +2,9 @@
 
 from pathlib import Path
 
-from ..io import atomic_output
-from ..io.readers.read_files import read_file_paths
-from ._common import (
+from ...io import atomic_output
+from ...io.readers.read_files import read_file_paths
+from .._common import (
     add_config_option,
     all_or_nothing,
     check_paths,
@@ -60,9 +60,9 @@ def add_parser(sub):
 
 
 def run(args):
-    from ..analysis import fit_raw_noise
-    from ..core.errors import ConfigError, SpherexReduceError
-    from ..io.sources import open_input
+    from ...analysis import fit_raw_noise
+    from ...core.errors import ConfigError, SpherexReduceError
+    from ...io.sources import open_input
 
     if (args.input is None) == (args.reads is None):
         raise ConfigError("give the input: RAW.fits, or --reads GLOB (one ramp, one file per "
@@ -111,8 +111,8 @@ def run(args):
     with all_or_nothing([args.output, plot], args.overwrite) as (tmp, tmp_plot):
         table.write(tmp, format="ascii.ecsv")
         if plot:
-            from ..analysis.figures.plots import plot_noise_fit
-            from ..io.plotting import save_figure
+            from ...analysis.figures.plots import plot_noise_fit
+            from ...io.plotting import save_figure
 
             label = "fitted" if exponent is None else exponent
             save_figure(plot_noise_fit(fits_, title=f"{name}: stream PSDs "
@@ -131,7 +131,7 @@ def run(args):
 
 def _integrations(inp, k):
     """The integrations to fit: ``[None]`` for one ramp, every one of a 4-D file, or ``[k]``."""
-    from ..core.errors import ConfigError
+    from ...core.errors import ConfigError
 
     if inp.integrations is None:
         if k is not None:

@@ -1,0 +1,187 @@
+"""From the fits of each dark (or segment) to the components of a scene, with uncertainties.
+
+Every number of the model is fitted to the spectra of all darks (or segments
+of darks) pooled (`~spherex_reduce.analysis.characterize.spectra.fit_spectra`),
+and its uncertainty is the delete-one jackknife over the darks: the scatter
+of the numbers fitted with each dark left out in turn, which holds whatever
+the noise's spectrum, its non-Gaussian scatter and the fit's weights.  The
+components follow the simulator's (`~spherex_reduce.simulation.NoiseComponent`):
+for each scope (``channel``, ``common``) a part seen by the light-sensitive
+pixels only, one seen by the phantom reads only and one seen by both (the
+paper's Table 2 split), with alternating column noise (ACN) on the channel
+components when the darks show it.
+
+With ACN an average of ``e`` even and ``o`` odd samples keeps ``(e² + o²)/n²``
+of a component's correlated power (`Box.acn_factor`), and the cross-spectrum
+of the pixels' and the phantom's averages keeps half of it; those factors
+undo it.  White noise is independent from sample to sample, so whether it
+is split by column parity, or seen by both, cannot be told: the white levels
+sit in the pixels-only and phantom-only components.
+"""
+
+import dataclasses
+import warnings
+
+import numpy as np
+
+from .spectra import band_power
+
+__all__ = ["ACN_SIGMAS", "Estimate", "combine"]
+
+PARAMS = ("alpha", "beta", "gamma")
+#: ACN is found when the correlated power of the even-odd difference is above zero by more
+#: than this many standard errors (one-sided; 0.13 % false alarms).
+ACN_SIGMAS = 3.0
+#: A channel-to-channel spread is reported as real when the channels' values scatter about
+#: their mean with chi2 per degree of freedom beyond what this probability allows.
+SPREAD_PROBABILITY = 1e-3
+
+
+@dataclasses.dataclass
+class Estimate:
+    """One term's ``alpha, beta, gamma`` fitted to every dark, and their jackknife errors."""
+
+    values: np.ndarray
+    errors: np.ndarray
+
+    @classmethod
+    def of(cls, full, leave_one_out):
+        """The value from all darks and the delete-one jackknife standard error,
+        ``sqrt((K − 1)/K · Σ (θ₍ᵢ₎ − θ̄)²)`` over the ``K`` fits that leave out one dark.
+
+        Examples
+        --------
+        The jackknife of a mean is the standard error of the mean:
+
+        >>> import numpy as np
+        >>> from spherex_reduce.analysis.characterize.model import Estimate
+        >>> x = np.array([1.0, 2.0, 4.0, 7.0])
+        >>> loo = [[np.delete(x, i).mean()] for i in range(4)]
+        >>> e = Estimate.of([x.mean()], loo)
+        >>> bool(np.isclose(e.errors[0], x.std(ddof=1) / 2))
+        True
+        """
+        x = np.asarray(leave_one_out, dtype=np.float64)  # (darks, 3)
+        k = x.shape[0]
+        err = np.sqrt((k - 1) / k * np.sum((x - x.mean(axis=0)) ** 2, axis=0))
+        return cls(np.asarray(full, dtype=np.float64), err)
+
+
+def _theta(result):
+    return np.array([result.values[p] for p in PARAMS])
+
+
+def _fitted(result):
+    """``alpha, beta, gamma`` of a fit, NaN for the terms it did not fit."""
+    if result is None:
+        return np.full(3, np.nan)
+    return np.array([result.values[p] if p in result.fitted else np.nan for p in PARAMS])
+
+
+def _acn_power(fits, exponent, band):
+    acn = fits["acn"]
+    return band_power(acn.values["beta"], acn.values["gamma"], exponent, band)
+
+
+def _acn_test(full, jack, exponent):
+    """The ACN test: the correlated power (β, γ terms) of the even-odd difference in its
+    fitted band, its jackknife error, and its z."""
+    if "acn" not in full:
+        return None
+    band = full["acn"].frequency_range
+    power = _acn_power(full, exponent, band)
+    err = float(Estimate.of([power], [[_acn_power(j, j["pixels"].exponent, band)]
+                                      for j in jack]).errors[0])
+    z = power / err if err > 0 else float(np.copysign(np.inf, power))
+    return {"band": band, "power": float(power), "error": err, "z": float(z),
+            "found": bool(z > ACN_SIGMAS)}
+
+
+def _classes(g, acn, boxes, nch):
+    """The six components' ``alpha, beta, gamma`` of one dark's fits ``g`` (missing: None)."""
+    zero = np.zeros(3)
+    t = {k: _theta(v) for k, v in g.items() if k != "channels" and v is not None}
+    common = t.get("pixels_common", zero) if nch > 1 else zero
+    k_s = boxes["sum"].acn_factor if acn else 1.0
+    corr = np.array([0.0, 1.0, 1.0])  # the correlated terms, which ACN splits
+    out = {}
+    chan_s = t["pixels"] - common
+    if "phantom" not in t:
+        out["channel"] = chan_s * np.where(corr > 0, 1 / k_s, 1.0)
+        out["common"] = common
+        return out
+    k_p = boxes["phantom"].acn_factor if acn else 1.0
+    k_x = 0.5 if acn else 1.0
+    common_p = t.get("phantom_common", zero) if nch > 1 else zero
+    common_x = t.get("both_common", zero) if nch > 1 else zero
+    chan_x = (t["both"] - common_x) / k_x
+    chan_p = t["phantom"] - common_p
+    out["channel"] = np.where(corr > 0, chan_s / k_s - chan_x, chan_s)
+    out["channel_both"] = chan_x * corr
+    out["channel_phantom"] = np.where(corr > 0, chan_p / k_p - chan_x, chan_p)
+    out["common"] = np.where(corr > 0, common - common_x, common)
+    out["common_both"] = common_x * corr
+    out["common_phantom"] = np.where(corr > 0, common_p - common_x, common_p)
+    return out
+
+
+#: scope and visibility of each component `combine` gives
+LAYOUT = {"channel": ("channel", "pixels"), "channel_both": ("channel", "both"),
+          "channel_phantom": ("channel", "phantom"), "common": ("common", "pixels"),
+          "common_both": ("common", "both"), "common_phantom": ("common", "phantom")}
+
+
+def _spread(full, jack, view):
+    """Per channel: the values and their jackknife errors, the channels' standard
+    deviation, and whether it exceeds what the errors explain (chi2 of the channels
+    about their mean)."""
+    from scipy.stats import chi2
+
+    with warnings.catch_warnings():  # a term no channel fitted is NaN: no warning for it
+        warnings.simplefilter("ignore", RuntimeWarning)
+        mean = np.array([_fitted(r) for r in full["channels"][view]])  # ch, 3
+        per = np.array([[_fitted(r) for r in j["channels"][view]] for j in jack])  # K, ch, 3
+        k, nch = per.shape[:2]
+        err = np.sqrt((k - 1) / k * np.sum((per - per.mean(axis=0)) ** 2, axis=0))
+        spread = np.nanstd(mean, axis=0, ddof=1) if nch > 1 else np.zeros(3)
+        c2 = np.nansum(((mean - np.nanmean(mean, axis=0)) / err) ** 2, axis=0)
+        dof = np.sum(np.isfinite(mean), axis=0) - 1
+        real = (dof > 0) & (chi2.sf(c2, np.maximum(dof, 1)) < SPREAD_PROBABILITY)
+    return {"channels": mean, "errors": err, "spread": spread, "real": real}
+
+
+def combine(full, jack, boxes, nch):
+    """The model's numbers: fitted to every dark, with jackknife errors.
+
+    Parameters
+    ----------
+    full : dict
+        `~spherex_reduce.analysis.characterize.spectra.fit_spectra` of the spectra of
+        every dark pooled.
+    jack : list of dict
+        The same of the spectra pooled without each dark in turn (at least 2).
+    boxes : dict
+        The streams' averages (`~spherex_reduce.analysis.characterize.streams.Box`).
+    nch : int
+        Channels.
+
+    Returns
+    -------
+    dict
+        ``components`` ``{name: Estimate}``, ``spectra`` ``{name: Estimate}`` (the
+        fit of each spectrum), ``acn`` (the test, or None where it cannot be made),
+        ``acn_on``, ``spreads`` ``{view: ...}`` (`_spread`), ``exponent`` (an
+        `Estimate` of one value).
+    """
+    exponent = full["pixels"].exponent
+    acn = _acn_test(full, jack, exponent)
+    found = bool(acn and acn["found"])
+    whole = _classes(full, found, boxes, nch)
+    parts = [_classes(j, found, boxes, nch) for j in jack]
+    components = {n: Estimate.of(whole[n], [p[n] for p in parts]) for n in whole}
+    names = [k for k in full if k != "channels" and full[k] is not None]
+    spectra = {k: Estimate.of(_theta(full[k]), [_theta(j[k]) for j in jack]) for k in names}
+    spreads = {view: _spread(full, jack, view) for view in full["channels"]}
+    return {"components": components, "spectra": spectra, "acn": acn, "spreads": spreads,
+            "acn_on": found,
+            "exponent": Estimate.of([exponent], [[j["pixels"].exponent] for j in jack])}

@@ -1,0 +1,248 @@
+"""`Characterization`: the fitted model of a detector, as a scene, a report and a plot."""
+
+import dataclasses
+
+import numpy as np
+from astropy import units as u
+from astropy.table import Table
+
+from .model import ACN_SIGMAS, LAYOUT, PARAMS, combine
+from .spectra import SPECTRA
+
+__all__ = ["Characterization"]
+
+#: A reference-pixel white level this many standard errors from the light-sensitive
+#: pixels' is reported as different.
+DIFFERENT_SIGMAS = 3.0
+
+
+def _units(unit, exponent):
+    return {"alpha": unit**2 / u.Hz, "beta": unit**2,
+            "gamma": unit**2 * u.Hz ** (exponent - 1)}
+
+
+@dataclasses.dataclass
+class Characterization:
+    """The noise model fitted to a detector's darks (`characterize`).
+
+    Attributes
+    ----------
+    schedule : `~spherex_reduce.ReadoutSchedule`
+        The darks' readout.
+    unit : `~astropy.units.Unit`
+        The darks' unit: the model's coefficients are in ``unit²/Hz`` etc.
+    darks : list of str
+        The darks (files, integrations).
+    ngroups : int
+        Darks or segments, each left out in turn for the jackknife uncertainties.
+    exponent, exponent_err : float
+        The exponent of every component's third term; its error when fitted (else None).
+    components : dict
+        ``{name: Estimate}``: ``alpha beta gamma`` and their standard errors of
+        each component (`LAYOUT` gives scope and visibility).
+    spectra : dict
+        ``{name: Estimate}``: the fit of each spectrum (`SPECTRA`).
+    spreads : dict
+        Per view (``pixels``, ``phantom``, ``reference``): per-channel values and
+        errors, the channels' standard deviation and whether it is real.
+    acn : dict or None
+        The ACN test: ``power``, ``error``, ``z``, ``found``, ``band`` (Hz).
+    marks : list of str
+        One line per term the darks cannot constrain, or that the model holds
+        otherwise than the darks show.
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.examples import example_raw_exposure
+    >>> from spherex_reduce.analysis.characterize import characterize
+    >>> model = characterize(example_raw_exposure(), segments=2)
+    >>> sorted(model.scene())
+    ['geometry', 'noise', 'readout']
+    >>> set(model.report()["kind"]) >= {"component", "spectrum", "channel", "exponent"}
+    True
+    >>> model.to_yaml().startswith("# noise model fitted by spherex-reduce characterize")
+    True
+    """
+
+    schedule: object
+    unit: object
+    darks: list
+    ngroups: int
+    exponent: float
+    exponent_err: object
+    components: dict
+    spectra: dict
+    spreads: dict
+    acn: object
+    acn_on: bool
+    marks: list
+    bins: dict = dataclasses.field(repr=False, default_factory=dict)
+    #: the config's ``input: gain`` (e⁻/ADU) the darks were converted with, if any
+    gain: object = None
+
+    @classmethod
+    def build(cls, full, jack, boxes, schedule, unit, darks, exponent_fitted=False,
+              segmented=False, gain=None):
+        """The model from the fits of all darks pooled (``full``) and of the darks pooled
+        without each one in turn (``jack``, `combine`); says what is missing."""
+        nch = schedule.geometry.nchannels
+        got = combine(full, jack, boxes, nch)
+        exponent = got["exponent"]
+        self = cls(schedule, u.Unit(unit), list(darks), len(jack), float(exponent.values[0]),
+                   float(exponent.errors[0]) if exponent_fitted else None,
+                   got["components"], got["spectra"], got["spreads"], got["acn"],
+                   got["acn_on"], [])
+        self.bins = {k: v.bins for k, v in full.items() if k != "channels"}
+        self.gain = gain
+        self.marks = self._marks(boxes)
+        if segmented:
+            self.marks.append(
+                f"uncertainties: from {self.ngroups} runs of frames of {len(self.darks)} "
+                "dark(s), which are not quite independent (on the round trip their errors "
+                "came out up to 1.9 times too small for the correlated terms): give separate "
+                "darks for trusted errors")
+        return self
+
+    # -- what the darks cannot say --------------------------------------------------------
+    def _marks(self, boxes):
+        out = []
+        s = self.schedule
+        if self.unit != u.electron and self.unit != u.one:
+            out.append(f"unit: the darks are in {self.unit} and the config gives no input: gain, "
+                       f"so the scene's coefficients are in {self.unit} (simulate, forecast and "
+                       "design-readout take their numbers as electrons)")
+        if s.phantom_reads == 0 or "phantom" not in self.spectra:
+            why = ("the darks have no phantom reads" if s.phantom_reads == 0 else
+                   "the darks' phantom reads are constant (no noise)")
+            out.append("channel_both, channel_phantom, common_both, common_phantom: not "
+                       f"constrained: {why} (the model's components are seen by the pixels "
+                       "only)")
+        if s.geometry.nchannels == 1:
+            out.append("common: not constrained: one channel, so the part common to all "
+                       "channels cannot be told from each channel's (the model holds both as "
+                       "channel)")
+        if self.acn is None:
+            out.append("acn: not tested: a channel has no light-sensitive column of one "
+                       "parity")
+        if "reference" not in self.spreads:
+            out.append("reference: not constrained: the darks have no reference-row reads or "
+                       "side reference columns")
+        else:
+            ref, pix = self.spectra.get("reference"), self.spectra["pixels"]
+            if ref is not None:
+                d = ref.values[0] - pix.values[0]
+                err = float(np.hypot(ref.errors[0], pix.errors[0]))
+                if err > 0 and abs(d) > DIFFERENT_SIGMAS * err:
+                    out.append(
+                        f"reference: white level {ref.values[0]:.4g} ± {ref.errors[0]:.2g} "
+                        f"differs from the light-sensitive pixels' {pix.values[0]:.4g} ± "
+                        f"{pix.errors[0]:.2g} ({abs(d) / err:.1f} sigma); the model holds the "
+                        "light-sensitive value (a per-pixel read-noise map would hold both)")
+        for view, sp in self.spreads.items():
+            for i, p in enumerate(PARAMS):
+                if sp["real"][i]:
+                    out.append(f"{view}.{p}: differs between channels (standard deviation "
+                               f"{sp['spread'][i]:.3g}); the model holds the channel mean")
+        for name, est in self.components.items():
+            for i, p in enumerate(PARAMS):
+                v, e = est.values[i], est.errors[i]
+                if v < 0:
+                    sig = f"{-v / e:.1f} sigma" if e > 0 else "no error"
+                    out.append(f"{name}.{p} = {v:.3g} ± {e:.2g} is below zero ({sig}): 0 in "
+                               "the scene")
+        if self.ngroups < 5:
+            out.append(f"uncertainties: from the scatter of {self.ngroups} darks or segments "
+                       f"only (Student t with {self.ngroups - 1} degrees of freedom)")
+        return out
+
+    # -- the scene ------------------------------------------------------------------------
+    def scene(self):
+        """The model as a scene mapping (``geometry``, ``readout``, ``noise``), in the
+        darks' unit: what `~spherex_reduce.simulation.load_scene` takes."""
+        comps = []
+        for name, est in self.components.items():
+            scope, visibility = LAYOUT[name]
+            values = {p: max(float(v), 0.0) for p, v in zip(PARAMS, est.values, strict=True)}
+            if not any(values.values()):
+                continue
+            comp = {"name": name, **values, "exponent": self.exponent, "scope": scope,
+                    "visibility": visibility}
+            if scope == "channel":
+                comp["acn"] = self.acn_on
+            comps.append(comp)
+        if not comps:  # a scene with no components simulates the default table: not this
+            comps.append({"name": "channel", "alpha": 0.0, "exponent": self.exponent})
+        return {"geometry": self.schedule.geometry.to_dict(),
+                "readout": self.schedule.to_dict(), "noise": {"components": comps}}
+
+    def to_yaml(self):
+        """The scene as YAML text, its unit and provenance in comments."""
+        import yaml
+
+        unit = self.unit.to_string() or "dimensionless"
+        gain = "" if self.gain is None else f", read with input: gain {self.gain} e/ADU"
+        head = [f"# noise model fitted by spherex-reduce characterize to {len(self.darks)} "
+                f"dark(s) ({self.ngroups} darks or segments{gain})",
+                f"# unit: {unit} (alpha {unit}^2/Hz, beta {unit}^2, gamma "
+                f"{unit}^2 Hz^{self.exponent - 1:.3g}); pixel rate "
+                f"{self.schedule.geometry.pixel_rate:g} Hz",
+                *(f"# not constrained or held otherwise: {m}" for m in self.marks)]
+        return "\n".join(head) + "\n" + yaml.safe_dump(self.scene(), sort_keys=False)
+
+    # -- the report -----------------------------------------------------------------------
+    def report(self):
+        """Every fitted number with its uncertainty, as a table.
+
+        Rows: each component's terms (``component``), each spectrum's fit
+        (``spectrum``), each view's per-channel values (``channel``), the ACN
+        test and the exponent; columns ``kind name parameter value error
+        spread unit``.  ``meta['marks']`` holds `marks`.
+        """
+        units = _units(self.unit, self.exponent)
+        rows = []
+
+        def add(kind, name, p, value, error, spread=np.nan, unit=None):
+            rows.append({"kind": kind, "name": name, "parameter": p, "value": float(value),
+                         "error": float(error), "spread": float(spread),
+                         "unit": (units[p] if unit is None else unit).to_string()})
+
+        for kind, table in (("component", self.components), ("spectrum", self.spectra)):
+            for name, est in table.items():
+                for i, p in enumerate(PARAMS):
+                    add(kind, name, p, est.values[i], est.errors[i])
+        for view, sp in self.spreads.items():
+            for c, (vals, errs) in enumerate(zip(sp["channels"], sp["errors"], strict=True)):
+                for i, p in enumerate(PARAMS):
+                    add("channel", f"{view}[{c}]", p, vals[i], errs[i], sp["spread"][i])
+        if self.acn is not None:
+            add("acn", "even-odd correlated power", "power", self.acn["power"],
+                self.acn["error"], unit=self.unit**2)
+        add("exponent", "all components", "exponent", self.exponent,
+            np.nan if self.exponent_err is None else self.exponent_err, unit=u.one)
+        t = Table(rows=rows)
+        t.meta.update({"darks": self.darks, "segments": self.ngroups, "unit": str(self.unit),
+                       "gain": (list(self.gain) if isinstance(self.gain, tuple)
+                                else self.gain),
+                       "marks": list(self.marks), "spectra": dict(SPECTRA),
+                       "acn_test": f"ACN found when the even-odd correlated power is above "
+                                   f"zero by > {ACN_SIGMAS:g} standard errors"})
+        if self.acn is not None:
+            t.meta["acn"] = {k: (list(v) if isinstance(v, tuple) else v)
+                             for k, v in self.acn.items()}
+        return t
+
+    def summary(self):
+        """Lines for a terminal: each component, the ACN verdict, the marks."""
+        lines = []
+        for name, est in self.components.items():
+            scope, vis = LAYOUT[name]
+            terms = ", ".join(f"{p} = {v:.3g} ± {e:.2g}" for p, v, e in
+                              zip(PARAMS, est.values, est.errors, strict=True))
+            lines.append(f"{name:>15} ({scope}, {vis}): {terms}")
+        if self.acn is not None:
+            verdict = "found" if self.acn["found"] else "ruled out"
+            lines.append(f"ACN {verdict}: even-odd correlated power {self.acn['power']:.3g} ± "
+                         f"{self.acn['error']:.2g} ({self.acn['z']:.1f} sigma; found above "
+                         f"{ACN_SIGMAS:g})")
+        lines.extend(f"note: {m}" for m in self.marks)
+        return lines

@@ -1,0 +1,301 @@
+"""The spectra of the darks' channel streams, pooled over darks, and their fits.
+
+Every spectrum is a Welch estimate (`~spherex_reduce.analysis.temporal.temporal_psd`)
+within frames, measured on each dark (or segment) alone (`dark_spectra`) and
+averaged over darks (`pool`).  Cross-spectra come from auto-spectra of sums
+of streams (the Welch estimate is bilinear: ``2 Re X(a, b) = P(a + b) − P(a)
+− P(b)``), and the part common to all ``C`` channels from the spectrum of
+the channel mean: the mean cross-spectrum over the ``C(C−1)`` pairs of
+different channels is ``(C · P(mean) − mean P) / (C−1)``.  Each is fitted
+(`fit_spectra`) with `~spherex_reduce.analysis.temporal.fit_noise_model`
+through the exact map of its averaging and decimation
+(`~spherex_reduce.analysis.temporal.aliased_basis`), the derived spectra
+weighted by the fitted auto-spectra they come from (fixed weights: a fit is
+then linear in its spectrum, so coefficients of differences of spectra are
+differences of coefficients).
+"""
+
+import numpy as np
+from astropy.table import Table
+
+from ..temporal import aliased_basis, fit_noise_model, temporal_psd
+
+__all__ = ["SPECTRA", "band_power", "dark_spectra", "fit_spectra", "pool"]
+
+#: The spectra `fit_spectra` fits, and what each holds.
+SPECTRA = {
+    "pixels": "light-sensitive pixels, channel mean of each channel's auto-spectrum",
+    "pixels_common": "light-sensitive pixels, mean cross-spectrum of different channels",
+    "acn": "half the even-odd column difference (alternating column noise only)",
+    "phantom": "phantom reads, channel mean of the auto-spectra",
+    "phantom_common": "phantom reads, mean cross-spectrum of different channels",
+    "both": "pixels x phantom of one channel (what both see)",
+    "both_common": "pixels x phantom of different channels",
+    "reference": "reference pixels: white level of the reference-row bursts",
+}
+
+
+def _nperseg(schedule, nperseg):
+    n = schedule.n_reads
+    return min(nperseg or 2 ** int(np.floor(np.log2(n))), n)
+
+
+def dark_spectra(streams, schedule, nperseg=None):
+    """The Welch spectra of one dark's streams that `fit_spectra` needs.
+
+    Parameters
+    ----------
+    streams : `~spherex_reduce.analysis.characterize.streams.ChannelStreams`
+    schedule : `~spherex_reduce.ReadoutSchedule`
+    nperseg : int, optional
+        Welch segment of the per-read streams (default: the largest power of two
+        not above the reads per frame).
+
+    Returns
+    -------
+    dict
+        ``{key: Table}`` (``sum``, ``sum_mean``, ``diff``, ``phantom``,
+        ``phantom_mean``, ``sum+phantom``, ``sum+phantom_mean``, ``sum[c]``,
+        ``phantom[c]``, ``rows[c]``, ``rows``, ``sides[c]``: those the dark has).
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.examples import example_raw_exposure
+    >>> from spherex_reduce.analysis.characterize.streams import channel_streams
+    >>> from spherex_reduce.analysis.characterize.spectra import dark_spectra
+    >>> e = example_raw_exposure()
+    >>> sorted(dark_spectra(channel_streams(e), e.schedule))[:4]
+    ['diff', 'phantom', 'phantom[0]', 'phantom[1]']
+    """
+    g = schedule.geometry
+    fs = g.pixel_rate
+    rate = fs / schedule.row_samples
+    nper = _nperseg(schedule, nperseg)
+
+    def psd(values, r=rate, n=nper):
+        return temporal_psd(values, r, nperseg=n)
+
+    out = {"sum": psd(streams.sum), "sum_mean": psd(streams.sum.mean(axis=0))}
+    for c, v in enumerate(streams.sum):
+        out[f"sum[{c}]"] = psd(v)
+    if streams.diff is not None:
+        out["diff"] = psd(streams.diff)
+    if streams.phantom is not None:
+        out["phantom"] = psd(streams.phantom)
+        out["phantom_mean"] = psd(streams.phantom.mean(axis=0))
+        out["sum+phantom"] = psd(streams.sum + streams.phantom)
+        out["sum+phantom_mean"] = psd((streams.sum + streams.phantom).mean(axis=0))
+        for c, v in enumerate(streams.phantom):
+            out[f"phantom[{c}]"] = psd(v)
+    rows = streams.reference_rows
+    if rows is not None:  # even and odd apart: each a stream at half the pixel rate
+        out["rows"] = psd(rows, fs / 2, rows.shape[-1])
+        for c, v in enumerate(rows):
+            out[f"rows[{c}]"] = psd(v, fs / 2, rows.shape[-1])
+    for c, v in streams.reference_sides.items():
+        out[f"sides[{c}]"] = psd(v)
+    return out
+
+
+def pool(spectra):
+    """The spectra of several darks averaged (each key the darks share).
+
+    The Welch metadata count every dark's streams, so the fits' formal
+    errors are those of the pooled spectrum.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.analysis import temporal_psd
+    >>> from spherex_reduce.analysis.characterize.spectra import pool
+    >>> rng = np.random.default_rng(0)
+    >>> a, b = ({"x": temporal_psd(rng.normal(size=(2, 256)), 1.0)} for _ in range(2))
+    >>> p = pool([a, b])
+    >>> bool(np.allclose(p["x"]["psd"], (a["x"]["psd"] + b["x"]["psd"]) / 2))
+    True
+    >>> p["x"].meta["nstreams"]
+    4
+    """
+    out = {}
+    for key in spectra[0]:
+        tabs = [s[key] for s in spectra]
+        t = Table(tabs[0], copy=True)
+        t["psd"] = sum(x["psd"] for x in tabs[1:]) + tabs[0]["psd"]
+        t["psd"] /= len(tabs)
+        t.meta["nstreams"] = int(sum(x.meta["nstreams"] for x in tabs))
+        out[key] = t
+    return out
+
+
+def _expected(result, basis, spec):
+    """The spectrum a fit expects at ``spec``'s frequencies (floored above zero): the
+    weights of the spectra derived from the one it fits."""
+    f = np.asarray(spec["frequency"].value)
+    theta = np.array([result.values[p] for p in ("alpha", "beta", "gamma")])
+    model = basis(f, result.exponent) @ theta
+    return np.maximum(model, np.max(np.abs(model)) * 1e-6)
+
+
+def _with(spec, psd, weight):
+    out = Table(spec, copy=True)
+    out["psd"] = np.asarray(psd) * spec["psd"].unit
+    out["weight"] = np.asarray(weight) * spec["psd"].unit
+    return out
+
+
+def _pairs(mean_spec, per_channel, nch):
+    """The mean cross-spectrum over the ``C(C−1)`` pairs of different channels, from the
+    spectrum of the channel mean and the mean over channels of each one's:
+    ``Σ_ij X_ij = C² P(mean)`` and ``Σ_i X_ii = C · mean P``, so the mean over ``i ≠ j``
+    is ``(C · P(mean) − mean P) / (C − 1)``.
+
+    Examples
+    --------
+    Noise common to all channels: every pair's cross-spectrum is its spectrum.
+
+    >>> from spherex_reduce.analysis.characterize.spectra import _pairs
+    >>> float(_pairs(2.0, 2.0, 32))
+    2.0
+    """
+    return (nch * np.asarray(mean_spec) - np.asarray(per_channel)) / (nch - 1)
+
+
+def _cross(sp, a, b, key):
+    """``Re X(a, b)`` from ``P(a + b)``, ``P(a)`` and ``P(b)``."""
+    return 0.5 * (np.asarray(sp[key]["psd"]) - np.asarray(sp[a]["psd"])
+                  - np.asarray(sp[b]["psd"]))
+
+
+def fit_spectra(sp, boxes, schedule, exponent, nbins=30):
+    """Fit every spectrum of `SPECTRA` the (pooled) spectra ``sp`` hold.
+
+    Parameters
+    ----------
+    sp : dict
+        `dark_spectra` of one dark, or `pool` of several.
+    boxes : dict
+        The streams' averages (`~spherex_reduce.analysis.characterize.streams.Box`).
+    schedule : `~spherex_reduce.ReadoutSchedule`
+    exponent : float or None
+        The exponent of the third term; None fits it on the ``pixels`` spectrum,
+        and every other fit takes the value found.
+    nbins : int
+        Logarithmic bins per spectrum.
+
+    Returns
+    -------
+    dict
+        ``{name: NoiseModelFit}`` for the spectra of `SPECTRA` that ``sp`` holds,
+        and ``{"channels": {view: [NoiseModelFit or None per channel]}}`` for
+        ``pixels``, ``phantom`` and ``reference``.
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.examples import example_raw_exposure
+    >>> from spherex_reduce.analysis.characterize.streams import channel_streams
+    >>> from spherex_reduce.analysis.characterize.spectra import dark_spectra, fit_spectra
+    >>> e = example_raw_exposure()
+    >>> st = channel_streams(e)
+    >>> fits = fit_spectra(dark_spectra(st, e.schedule), st.boxes, e.schedule, 1.3)
+    >>> sorted(k for k in fits if k != "channels")
+    ['acn', 'both', 'both_common', 'phantom', 'phantom_common', 'pixels', 'pixels_common']
+    """
+    g = schedule.geometry
+    fs, m = g.pixel_rate, schedule.row_samples
+    nch = g.nchannels
+
+    def basis(box, half=False):
+        scale = 0.5 if half else 1.0
+        return lambda f, e: scale * aliased_basis(f, fs, m, box.n, e, box.stride)
+
+    b_sum = basis(boxes["sum"])
+    out, per = {}, {}
+    out["pixels"] = fit_noise_model(sp["sum"], basis=b_sum, exponent=exponent, nbins=nbins)
+    fit = {"exponent": out["pixels"].exponent, "nbins": nbins}
+    s_w = _expected(out["pixels"], b_sum, sp["sum"])
+    per["pixels"] = [fit_noise_model(sp[f"sum[{c}]"], basis=b_sum, **fit) for c in range(nch)]
+    if nch > 1:
+        out["pixels_common"] = fit_noise_model(
+            _with(sp["sum"], _pairs(sp["sum_mean"]["psd"], sp["sum"]["psd"], nch), s_w),
+            basis=b_sum, **fit)
+    if "diff" in sp:
+        out["acn"] = fit_noise_model(sp["diff"], basis=basis(boxes["diff"], half=True), **fit)
+    if "phantom" in sp and np.any(np.asarray(sp["phantom"]["psd"]) > 0):  # not constant
+        b_ph = basis(boxes["phantom"])
+        out["phantom"] = fit_noise_model(sp["phantom"], basis=b_ph, **fit)
+        p_w = _expected(out["phantom"], b_ph, sp["phantom"])
+        per["phantom"] = [fit_noise_model(sp[f"phantom[{c}]"], basis=b_ph, **fit)
+                          for c in range(nch)]
+        b_x = _cross_basis(boxes, fs, m)
+        w_x = np.sqrt(s_w * p_w)
+        cross_fit = {**fit, "fit": ("beta", "gamma")}  # no white: other samples
+        both = _cross(sp, "sum", "phantom", "sum+phantom")
+        out["both"] = fit_noise_model(_with(sp["sum"], both, w_x), basis=b_x, **cross_fit)
+        if nch > 1:
+            out["phantom_common"] = fit_noise_model(
+                _with(sp["phantom"], _pairs(sp["phantom_mean"]["psd"], sp["phantom"]["psd"],
+                                            nch), p_w), basis=b_ph, **fit)
+            both_mean = _cross(sp, "sum_mean", "phantom_mean", "sum+phantom_mean")
+            out["both_common"] = fit_noise_model(
+                _with(sp["sum"], _pairs(both_mean, both, nch), w_x), basis=b_x, **cross_fit)
+    ref = _reference(sp, boxes, nch, fs, m, fit)
+    if ref:
+        per["reference"] = ref
+    if "rows" in sp:
+        out["reference"] = fit_noise_model(sp["rows"], basis=_burst_basis(fs), **fit,
+                                           fit=("alpha",))
+    out["channels"] = per
+    return out
+
+
+def _cross_basis(boxes, fs, m):
+    """The terms of the pixels x phantom cross-spectrum, the mean over the channels'
+    lags between the centres of their pixels' and their phantom's averages."""
+    sums, ph = boxes["sum"], boxes["phantom"]
+    lags, counts = np.unique(np.array(sums.centres) - ph.centre, return_counts=True)
+    weights = counts / counts.sum()
+
+    def terms(f, e):
+        return sum(w * aliased_basis(f, fs, m, sums.n, e, sums.stride, cross=(ph.n, 1, lag))
+                   for lag, w in zip(lags, weights, strict=True))
+    return terms
+
+
+def _burst_basis(fs):
+    """Reference-row bursts of one column parity: samples 2 apart at the pixel rate."""
+    return lambda f, e: aliased_basis(f, fs, 2, 1, e)
+
+
+def _reference(sp, boxes, nch, fs, m, fit):
+    """Per channel: the fit of its reference pixels.  Reference-row bursts see only
+    frequencies above ``fs / width``, where white noise dominates: they give the white
+    level; the side columns' mean per read, where a channel has side columns, give the
+    correlated terms too."""
+    out = []
+    for c in range(nch):
+        spectra, bases = [], []
+        if f"rows[{c}]" in sp:
+            spectra.append(sp[f"rows[{c}]"])
+            bases.append(_burst_basis(fs))
+        side = f"sides[{c}]" in sp
+        if side:
+            box = boxes["sides"]
+            spectra.append(sp[f"sides[{c}]"])
+            bases.append(lambda f, e, b=box: aliased_basis(f, fs, m, b.n, e, b.stride))
+        terms = {} if side else {"fit": ("alpha",)}
+        out.append(fit_noise_model(spectra, basis=bases, **fit, **terms) if spectra else None)
+    return out if any(r is not None for r in out) else []
+
+
+def band_power(beta, gamma, exponent, band):
+    """``∫ β/f + γ/f^exponent df`` over ``band = (fmin, fmax)`` (Hz): the correlated power.
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.characterize.spectra import band_power
+    >>> round(band_power(1.0, 0.0, 1.3, (1.0, 10.0)), 4)   # ln 10
+    2.3026
+    """
+    lo, hi = band
+    e = float(exponent)
+    return float(beta * np.log(hi / lo) + gamma * (hi ** (1 - e) - lo ** (1 - e)) / (1 - e))

@@ -1,0 +1,203 @@
+"""``characterize``: darks drawn from a known model give every term back within its stated
+uncertainty, and the pulls over seeds are consistent with N(0, 1).
+
+The darks are drawn sample by sample here (``_darks.py``, independently of the
+package's simulator), from the paper's Table 2 components with their 1/f and
+1/f^1.3 coefficients scaled up 100 times: a 256 x 128 array of 4 channels
+sees 29 Hz to 1.2 kHz, where Table 2's white ROIC noise would hide them.
+What each component of the model holds (`LAYOUT`) follows from Table 2 alone:
+white noise is independent from sample to sample, so Video8's white level (seen by
+both) appears in the pixels-only and phantom-only components.
+"""
+
+import numpy as np
+import pytest
+from _darks import dark, schedule
+from astropy.table import Table
+
+from spherex_reduce.analysis.characterize import characterize
+from spherex_reduce.core.errors import SpherexReduceError
+from spherex_reduce.simulation import simulate
+
+SCALE = 100.0
+#: Table 2: alpha, beta, gamma, scope, visibility
+TABLE2 = {"video8": (3.71e-5, 8.4e-3, 0.0, "channel", "both"),
+          "roic": (1.97e-3, 0.0, 0.1, "channel", "pixels"),
+          "bias_correlated": (0.0, 8.8e-5, 0.0, "common", "both"),
+          "bias_phantom_only": (0.0, 3.64e-6, 0.0, "common", "phantom"),
+          "bias_pixels_only": (2.91e-6, 3.07e-7, 0.0, "common", "pixels")}
+
+
+def table2(acn):
+    return [{"name": n, "alpha": a, "beta": b * SCALE, "gamma": g * SCALE, "scope": sc,
+             "visibility": v, "acn": acn and sc == "channel"}
+            for n, (a, b, g, sc, v) in TABLE2.items()]
+
+
+def truth():
+    """Each component of the model, from Table 2 by hand."""
+    t = {k: np.array(v[:3]) * [1, SCALE, SCALE] for k, v in TABLE2.items()}
+    return {"channel": t["roic"] + [t["video8"][0], 0, 0],
+            "channel_both": t["video8"] * [0, 1, 1],
+            "channel_phantom": t["video8"] * [1, 0, 0],
+            "common": t["bias_pixels_only"],
+            "common_both": t["bias_correlated"],
+            "common_phantom": t["bias_phantom_only"]}
+
+
+def pulls(model):
+    want = truth()
+    out = {}
+    for name, est in model.components.items():
+        for i, p in enumerate(("alpha", "beta", "gamma")):
+            if est.errors[i] > 0:  # a structural zero (white in a cross-spectrum) has none
+                out[f"{name}.{p}"] = (est.values[i] - want[name][i]) / est.errors[i]
+    return out
+
+
+def darks(seed, acn, n=12, nframes=5, nrows=256):
+    s = schedule(nrows=nrows, nframes=nframes)
+    return [dark(s, table2(acn), 100 * seed + k) for k in range(n)]
+
+
+@pytest.mark.parametrize("acn", [True, False])
+def test_every_term_comes_back_within_its_uncertainty(acn):
+    """12 darks: the jackknife's pulls follow Student's t with 11 degrees of freedom, which
+    exceeds 4.5 in 16 draws with probability 1.4 %."""
+    model = characterize(darks(1, acn), segments=1)
+    assert model.ngroups == 12 and model.acn["found"] is acn
+    got = pulls(model)
+    assert len(got) == 16  # 6 components x 3 terms, less the white of the two 'both'
+    assert max(abs(v) for v in got.values()) < 4.5, got
+    scene = model.scene()["noise"]["components"]
+    assert all(c["acn"] is acn for c in scene if c["scope"] == "channel")
+
+
+@pytest.mark.slow
+def test_pulls_over_seeds_are_standard_normal():
+    """8 seeds (half with ACN) x 16 terms, on 128 rows: the pulls' mean and spread are
+    those of N(0, 1) within their sampling error (the jackknife over 12 darks has 11
+    degrees of freedom: its pulls follow Student's t, standard deviation 1.1)."""
+    every = []
+    for seed in range(8):
+        model = characterize(darks(10 + seed, seed % 2 == 0, nrows=128), segments=1)
+        every.extend(pulls(model).values())
+    x = np.array(every)
+    assert x.size == 128
+    assert abs(np.mean(x)) < 0.25, np.mean(x)
+    assert 0.8 < np.std(x) < 1.5, np.std(x)
+    assert np.mean(np.abs(x) > 3) < 0.05
+
+
+def test_acn_power_is_the_even_odd_difference():
+    """Without phantom reads and on one channel's worth of terms: the ACN test compares the
+    even-odd difference's correlated power with its error, and the scene says ACN."""
+    s = schedule(nframes=5, phantom_reads=0)
+    comps = [{"name": "x", "alpha": 2e-3, "beta": 1.0, "scope": "channel", "acn": True}]
+    model = characterize([dark(s, comps, k) for k in range(6)], segments=1)
+    assert model.acn["found"] and model.acn["z"] > 10
+    (chan,) = [c for c in model.scene()["noise"]["components"] if c["name"] == "channel"]
+    assert chan["acn"] is True and chan["visibility"] == "pixels"
+    assert any(m.startswith("channel_both, channel_phantom") for m in model.marks)
+
+
+def test_our_simulator_round_trip_without_phantom():
+    """Our simulator's darks (Table 2 scaled, ACN, c = 0): the pixel-visible terms come
+    back.  With phantom reads the simulator draws a both-visible component's noise above
+    f_B/2 independently for pixels and phantom (simulation.engine), so the split into
+    pixels, phantom and both is checked on the darks drawn here instead."""
+    comps = [{"name": n, "alpha": a, "beta": b * SCALE, "gamma": g * SCALE}
+             for n, (a, b, g, _, _) in TABLE2.items()]
+    scene = {"geometry": {"nrows": 256, "ncols": 128, "nchannels": 4, "ref_border": 4},
+             "readout": {"skip": 1, "ref_reads": 8, "phantom_reads": 0, "nframes": 5,
+                         "frame_overhead": 200},
+             "noise": {"components": comps}, "output": {"mode": "ramps"}}
+    model = characterize([simulate(scene, seed=k) for k in range(8)], segments=1)
+    t = {k: np.array(v[:3]) * [1, SCALE, SCALE] for k, v in TABLE2.items()}
+    want = {"channel": t["video8"] + t["roic"],
+            "common": t["bias_correlated"] + t["bias_pixels_only"]}
+    assert set(model.components) == set(want)
+    assert model.acn["found"]
+    for name, est in model.components.items():
+        z = (est.values - want[name]) / est.errors
+        assert np.all(np.abs(z) < 3.5), (name, est, want[name])
+
+
+def test_reference_white_level_differs_and_is_marked():
+    """Reference pixels noisier than the light-sensitive ones: the model holds the
+    light-sensitive level and says the reference one in one line."""
+    s = schedule(nframes=5, phantom_reads=0)
+    comps = [{"name": "x", "alpha": 2e-3, "scope": "channel"}]
+    ds = []
+    for k in range(4):
+        d = dark(s, comps, k)
+        data = np.array(d.data.data)
+        ref = s.geometry.reference_pixel_mask()[s.rows]
+        extra = np.random.default_rng(k).normal(0, 20.0, data.shape)  # 2 * 400 / 1e5 more
+        data[:, ref] += extra[:, ref]
+        ds.append(d.replace(data=type(d.data)(data)))
+    model = characterize(ds, segments=1)
+    pix, ref = model.spectra["pixels"], model.spectra["reference"]
+    assert pix.values[0] == pytest.approx(2e-3, abs=4 * pix.errors[0])
+    assert ref.values[0] == pytest.approx(2e-3 + 2 * 400 / 1e5, abs=4 * ref.errors[0])
+    assert any(m.startswith("reference: white level") for m in model.marks)
+
+
+def test_what_the_darks_cannot_constrain():
+    s = schedule(nrows=64, ncols=64, nchannels=1, nframes=3, phantom_reads=0)
+    one = dark(s, [{"name": "x", "alpha": 1e-3}], 0)
+    with pytest.raises(SpherexReduceError, match="uncertainties: one dark of 3 reads"):
+        characterize(one)
+    s = schedule(nrows=64, ncols=64, nchannels=1, nframes=4, phantom_reads=0)
+    model = characterize([dark(s, [{"name": "x", "alpha": 1e-3}], k) for k in range(3)])
+    assert any(m.startswith("common: not constrained: one channel") for m in model.marks)
+    assert any(m.startswith("uncertainties: from the scatter of 3") for m in model.marks)
+    report = model.report()
+    assert isinstance(report, Table) and "marks" in report.meta
+
+
+def test_darks_in_adu_without_a_gain_say_the_unit():
+    from astropy import units as u
+
+    s = schedule(nrows=64, ncols=64, nchannels=2, nframes=4, phantom_reads=0)
+    adu = [dark(s, [{"name": "x", "alpha": 1e-3}], k) for k in range(3)]
+    adu = [d.replace(data=type(d.data)(np.asarray(d.data.data), unit=u.adu)) for d in adu]
+    model = characterize(adu)
+    assert model.unit == u.adu and "unit: adu" in model.to_yaml()
+    assert any(m.startswith("unit: the darks are in adu") for m in model.marks)
+
+
+def test_one_dark_alone_is_split_into_runs_of_frames_and_says_so():
+    s = schedule(nrows=64, ncols=64, nchannels=2, nframes=20, phantom_reads=0)
+    model = characterize(dark(s, [{"name": "x", "alpha": 1e-3}], 0))
+    assert model.ngroups == 4  # 20 frames: 4 runs of 5
+    assert any(m.startswith("uncertainties: from 4 runs of frames of 1 dark")
+               for m in model.marks)
+    two = characterize([dark(s, [{"name": "x", "alpha": 1e-3}], k) for k in range(2)])
+    assert two.ngroups == 2 and not any("runs of frames" in m for m in two.marks)
+
+
+def test_phantom_reads_without_noise_are_marked_not_fitted():
+    """Phantom reads that see no component (every value the same) constrain no phantom or
+    both term: marked, and the pixels' terms are still fitted."""
+    s = schedule(nrows=64, ncols=64, nchannels=2, nframes=4, phantom_reads=2)
+    model = characterize([dark(s, [{"name": "x", "alpha": 1e-3}], k) for k in range(3)])
+    assert "phantom" not in model.spectra and set(model.components) == {"channel", "common"}
+    assert any("phantom reads are constant" in m for m in model.marks)
+
+
+def test_a_strong_common_part_comes_back():
+    """Noise common to all 4 channels as strong as each channel's: the common part (the
+    mean cross-spectrum of different channels) and the channel part both come back.  The
+    pairs' mean was 4 times too large (C times, a factor C/(C - 1) instead of 1/(C - 1)),
+    hidden while the truth's common terms were small."""
+    s = schedule(nframes=5, phantom_reads=0)
+    comps = [{"name": "ch", "alpha": 2e-3, "gamma": 5.0, "scope": "channel"},
+             {"name": "co", "alpha": 5e-4, "beta": 0.5, "scope": "common"}]
+    model = characterize([dark(s, comps, 500 + k) for k in range(12)])
+    want = {"channel": [2e-3, 0.0, 5.0], "common": [5e-4, 0.5, 0.0]}
+    for name, est in model.components.items():
+        z = (est.values - want[name]) / est.errors
+        assert np.all(np.abs(z) < 4.5), (name, est, want[name])
+    common = model.components["common"]
+    assert common.values[1] == pytest.approx(0.5, rel=0.3)  # beta: 4x before

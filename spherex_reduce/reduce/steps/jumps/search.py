@@ -191,6 +191,10 @@ class StepSearch:
             np.multiply(acc, acc, out=tmp)
             tmp *= invq[i]
             np.maximum(best, tmp, out=best)
+        if self.uniform_w and w[0] != 1:  # equal weights left out of the loop: put them back
+            best *= w[0] * w[0]  # R_k is w times the tail sum of the residuals
+            if estimate:
+                rss *= w[0]
         return best, rss
 
     # -- search ------------------------------------------------------------------

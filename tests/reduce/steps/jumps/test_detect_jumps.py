@@ -733,3 +733,35 @@ def test_a_telegraph_pixel_is_not_a_jump_streamed_or_searched_whole():
     plain = detect_jumps(e, read_noise=5.0, telegraph=False)
     assert np.flatnonzero(plain.dq[:, 3, 3] & dq.JUMP).tolist() == [10, 16, 24, 30]
     assert "NTELEGR" not in plain.header
+
+
+@pytest.mark.parametrize("given", [True, False])
+def test_groups_of_equal_frames_are_searched_at_the_stated_threshold(given):
+    """Groups that each average 4 frames (all reads weighted alike, by 4) were screened with
+    the weights left out, so ``max z**2`` was 16 times too small (8 times with the read noise
+    estimated): no jump-free ramp was ever flagged, nor most jumps below ~16 sigma.  Every
+    ramp whose exact likelihood-ratio ``max |z|`` (numpy least squares of a line and a step
+    at each group) exceeds the threshold must be flagged (the search of mixed groups, pairs
+    of steps, may add more)."""
+    rng = np.random.default_rng(35)
+    n, m, rn, thr = 8, 20000, 10.0, 3.0
+    t = 6.0 * np.arange(n)
+    y = rng.normal(0, rn, (n, 4, m)).mean(axis=1)  # each group the mean of 4 frames
+    z = np.zeros(m)
+    rss = np.full(m, np.inf)
+    cols = []
+    for k in range(1, n):
+        x = np.column_stack([np.ones(n), t, np.arange(n) >= k])
+        coef, res = np.linalg.lstsq(x, y, rcond=None)[:2]
+        cols.append((coef[2], np.linalg.inv(x.T @ x)[2, 2]))
+        rss = np.minimum(rss, res)
+    var = np.full(m, (rn / 2) ** 2) if given else rss / (n - 3)  # one group's read noise
+    for amp, c in cols:
+        z = np.maximum(z, np.abs(amp) / np.sqrt(var * c))
+    found = StepSearch(t, factors=np.full(n, 0.25)).find(
+        y, threshold=thr, sigma=rn if given else None, gain=np.inf)
+    flagged = np.zeros(m, bool)
+    flagged[found.pixel] = True
+    expected = z > thr + 1e-6
+    assert expected.sum() > 100
+    assert flagged[expected].all(), (expected.sum(), (flagged & expected).sum())

@@ -62,7 +62,7 @@ from scipy.stats import binom
 
 from ..core.errors import SpherexReduceError
 
-__all__ = ["MIN_READS", "MIN_TELEGRAPH_INTERVALS", "PixelTerms", "dark_ramps",
+__all__ = ["MIN_READS", "MIN_TELEGRAPH_INTERVALS", "PixelSums", "PixelTerms", "dark_ramps",
            "fit_pixel_terms"]
 
 #: Fewest reads a dark needs (two differences after read 0 is kept aside, or with it).
@@ -290,17 +290,79 @@ def fit_pixel_terms(ramps, times, *, reference=None, gain=None, jump_sigma=5.0,
     """
     if not 2 <= int(groups) <= 255:
         raise SpherexReduceError(f"fit_pixel_terms: groups must be 2 to 255, got {groups}")
-    darks, unit, g, t, ref = _inputs(ramps, times, reference, gain)
-    n, ny, nx = darks[0].shape
-    acc = _accumulate(darks, t, g, float(jump_sigma), max(int(band_rows), 1))
-    rng = np.random.default_rng(0)
-    gid = rng.integers(0, int(groups), (ny, nx), dtype=np.uint8)
-    return _summarise(acc, ref, gid, int(groups), unit, g, t, n, len(darks),
-                      hot_threshold, float(hot_sigma))
+    darks = list(ramps) if isinstance(ramps, (list, tuple)) else [ramps]
+    if not darks:
+        raise SpherexReduceError("fit_pixel_terms: no darks given")
+    sums = PixelSums(times, reference=reference, gain=gain, jump_sigma=jump_sigma,
+                     band_rows=band_rows)
+    for dark in darks:
+        sums.add(dark)
+    return sums.fit(hot_threshold=hot_threshold, hot_sigma=hot_sigma, groups=groups)
+
+
+class PixelSums:
+    """The per-pixel sums of `fit_pixel_terms`, added one dark at a time (so darks read one
+    after the other need not be held together).
+
+    Parameters
+    ----------
+    times, reference, gain, jump_sigma, band_rows
+        As `fit_pixel_terms`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astropy import units as u
+    >>> from spherex_reduce.analysis.pixel_terms import PixelSums
+    >>> rng = np.random.default_rng(3)
+    >>> t = np.arange(20) * 1.5 * u.s
+    >>> sums = PixelSums(t, gain=1.0)
+    >>> for _ in range(2):                            # two darks of the same pixels
+    ...     sums.add(rng.normal(0, 4.0, (20, 16, 16)) * u.electron)
+    >>> round(sums.fit().row("read_noise", "active")["value"])
+    4
+    """
+
+    def __init__(self, times, *, reference=None, gain=None, jump_sigma=5.0, band_rows=32):
+        self._given = (times, reference, gain)
+        self.jump_sigma, self.band_rows = float(jump_sigma), max(int(band_rows), 1)
+        self.ndarks = 0
+        self._acc = None
+
+    def add(self, ramps, rows=None):
+        """Add one dark ``(nreads, ny, nx)`` (a Quantity, as `fit_pixel_terms` takes it):
+        the same pixels, times and unit as the first.  ``rows`` (optional): the stored row
+        of each row of pixels (e.g. a readout-order exposure's first read of each row),
+        taken a band at a time rather than copying the dark."""
+        rows = None if rows is None else np.asarray(rows, dtype=np.intp)
+        darks, unit, g, t, ref = _inputs(ramps, *self._given, rows=rows)
+        x = darks[0]
+        shape = x.shape if rows is None else (x.shape[0], rows.size, x.shape[2])
+        if self._acc is None:
+            self.unit, self.gain, self.t, self.ref, self.shape = unit, g, t, ref, shape
+            self._acc = _new_sums(shape, t, self.jump_sigma)
+        elif unit != self.unit or shape != self.shape:
+            raise SpherexReduceError(f"fit_pixel_terms: dark {self.ndarks} has shape {shape} "
+                                     f"and unit {unit}; dark 0 {self.shape} and {self.unit} "
+                                     "(each (nreads, ny, nx), one unit)")
+        _add_dark(self._acc, x, self.t, self.band_rows, rows)
+        self.ndarks += 1
+
+    def fit(self, *, hot_threshold=None, hot_sigma=10.0, groups=32):
+        """The `PixelTerms` of the darks added (``hot_threshold``, ``hot_sigma``,
+        ``groups``: as `fit_pixel_terms`)."""
+        if self._acc is None:
+            raise SpherexReduceError("fit_pixel_terms: no darks given")
+        if not 2 <= int(groups) <= 255:
+            raise SpherexReduceError(f"fit_pixel_terms: groups must be 2 to 255, got {groups}")
+        n, ny, nx = self.shape
+        gid = np.random.default_rng(0).integers(0, int(groups), (ny, nx), dtype=np.uint8)
+        return _summarise(self._acc, self.ref, gid, int(groups), self.unit, self.gain, self.t,
+                          n, self.ndarks, hot_threshold, float(hot_sigma))
 
 
 # -- inputs --------------------------------------------------------------------------
-def _inputs(ramps, times, reference, gain):
+def _inputs(ramps, times, reference, gain, rows=None):
     darks = list(ramps) if isinstance(ramps, (list, tuple)) else [ramps]
     if not darks:
         raise SpherexReduceError("fit_pixel_terms: no darks given")
@@ -308,8 +370,15 @@ def _inputs(ramps, times, reference, gain):
     if unit not in (u.electron, u.adu):
         raise SpherexReduceError(f"fit_pixel_terms: darks must be in electron or adu, got {unit}")
     shape = darks[0].shape
+    if rows is not None:  # the stored rows of each row of pixels (a view, not a copy)
+        if len(shape) != 3 or rows.ndim != 1 or (rows.size and (
+                rows.min() < 0 or rows.max() >= shape[1])):
+            raise SpherexReduceError(f"fit_pixel_terms: rows must index the {shape[1:2]} "
+                                     "stored rows")
+        shape = (shape[0], rows.size, shape[2])
     for k, d in enumerate(darks):
-        if getattr(d, "unit", None) != unit or d.shape != shape or len(shape) != 3:
+        stored = d.shape if rows is None else (d.shape[0], rows.size, *d.shape[2:])
+        if getattr(d, "unit", None) != unit or stored != shape or len(shape) != 3:
             raise SpherexReduceError(f"fit_pixel_terms: dark {k} has shape {d.shape} and unit "
                                      f"{getattr(d, 'unit', None)}; dark 0 {shape} and {unit} "
                                      "(each (nreads, ny, nx), one unit)")
@@ -363,25 +432,32 @@ def _design(t, skip_first):
                 trs=np.trace(mr @ ms), tss=np.trace(ms @ ms), vr=w @ c_r @ w, vs=w ** 2 @ dt)
 
 
-def _accumulate(darks, t, g, jump_sigma, band_rows):
-    n, ny, nx = darks[0].shape
+def _new_sums(shape, t, jump_sigma):
+    """Empty per-pixel sums of darks of ``shape`` read at ``t``."""
+    n, ny, nx = shape
     skip_first = n > MIN_READS
-    des = _design(t, skip_first)
     acc = {k: np.zeros((ny, nx)) for k in _SUMS}
     acc.update({key: np.full((ny, nx), value) for key, value in _FLAGS.items()})
+    acc["design"], acc["skip_first"], acc["jump_sigma"] = (_design(t, skip_first), skip_first,
+                                                           jump_sigma)
+    return acc
+
+
+def _add_dark(acc, x, t, band_rows, rows=None):
+    """Add one dark ``x (n, ny, nx)`` (or its stored rows ``rows``) to the sums, a band of
+    rows at a time (each pixel's sums take the darks in the order they are added)."""
+    ny = x.shape[1] if rows is None else rows.size
     for r0 in range(0, ny, band_rows):
         sl = slice(r0, min(r0 + band_rows, ny))
-        for x in darks:
-            part = _band(x[:, sl], t, des, jump_sigma, skip_first)
-            for key, value in part.items():
-                if key == "alternate":
-                    acc[key][sl] &= value
-                elif key == "bad":
-                    acc[key][sl] |= value
-                else:
-                    acc[key][sl] += value
-    acc["design"], acc["skip_first"], acc["jump_sigma"] = des, skip_first, jump_sigma
-    return acc
+        xb = x[:, sl] if rows is None else x[:, rows[sl]]
+        part = _band(xb, t, acc["design"], acc["jump_sigma"], acc["skip_first"])
+        for key, value in part.items():
+            if key == "alternate":
+                acc[key][sl] &= value
+            elif key == "bad":
+                acc[key][sl] |= value
+            else:
+                acc[key][sl] += value
 
 
 def _band(x, t, des, jump_sigma, skip_first):

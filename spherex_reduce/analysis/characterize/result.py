@@ -21,6 +21,11 @@ def _units(unit, exponent):
             "gamma": unit**2 * u.Hz ** (exponent - 1)}
 
 
+#: The per-pixel terms `Characterization.summary` prints (the report holds them all).
+PIXEL_SUMMARY = ("read_noise", "dark_current", "hot_pixel_fraction", "telegraph_fraction",
+                 "first_read_offset")
+
+
 @dataclasses.dataclass
 class Characterization:
     """The noise model fitted to a detector's darks (`characterize`).
@@ -79,6 +84,8 @@ class Characterization:
     bins: dict = dataclasses.field(repr=False, default_factory=dict)
     #: the config's ``input: gain`` (e⁻/ADU) the darks were converted with, if any
     gain: object = None
+    #: the per-pixel terms (`~spherex_reduce.analysis.pixel_terms.PixelTerms`), if fitted
+    pixel_terms: object = None
 
     @classmethod
     def build(cls, full, jack, boxes, schedule, unit, darks, exponent_fitted=False,
@@ -172,8 +179,13 @@ class Characterization:
             comps.append(comp)
         if not comps:  # a scene with no components simulates the default table: not this
             comps.append({"name": "channel", "alpha": 0.0, "exponent": self.exponent})
-        return {"geometry": self.schedule.geometry.to_dict(),
-                "readout": self.schedule.to_dict(), "noise": {"components": comps}}
+        out = {"geometry": self.schedule.geometry.to_dict(),
+               "readout": self.schedule.to_dict(), "noise": {"components": comps}}
+        if self.pixel_terms is not None:
+            terms = self.pixel_terms.to_scene()
+            if terms:
+                out["scene"] = terms
+        return out
 
     def to_yaml(self):
         """The scene as YAML text, its unit and provenance in comments."""
@@ -219,6 +231,10 @@ class Characterization:
                 self.acn["error"], unit=self.unit**2)
         add("exponent", "all components", "exponent", self.exponent,
             np.nan if self.exponent_err is None else self.exponent_err, unit=u.one)
+        if self.pixel_terms is not None:  # status and note are in the pixel table itself
+            for r in self.pixel_terms.table:
+                add("pixel", r["pixels"], r["term"], r["value"], r["error"],
+                    unit=u.Unit(r["unit"]) if r["unit"] else u.one)
         t = Table(rows=rows)
         t.meta.update({"darks": self.darks, "segments": self.ngroups, "unit": str(self.unit),
                        "gain": (list(self.gain) if isinstance(self.gain, tuple)
@@ -244,5 +260,10 @@ class Characterization:
             lines.append(f"ACN {verdict}: even-odd correlated power {self.acn['power']:.3g} ± "
                          f"{self.acn['error']:.2g} ({self.acn['z']:.1f} sigma; found above "
                          f"{ACN_SIGMAS:g})")
+        if self.pixel_terms is not None:
+            for r in self.pixel_terms.table:
+                if r["term"] in PIXEL_SUMMARY and r["status"] == "fitted":
+                    lines.append(f"{r['term']} ({r['pixels']}): {r['value']:.4g} ± "
+                                 f"{r['error']:.2g} {r['unit']}")
         lines.extend(f"note: {m}" for m in self.marks)
         return lines

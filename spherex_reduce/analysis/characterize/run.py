@@ -8,6 +8,7 @@ from astropy import units as u
 from ...core.errors import SpherexReduceError
 from ...core.exposure import Exposure
 from ...io.sources import open_input
+from ..pixel_terms import PixelSums
 from .result import Characterization
 from .spectra import dark_spectra, fit_spectra, pool
 from .streams import MIN_FRAMES, channel_streams
@@ -56,7 +57,7 @@ def _segments(nframes, segments):
 
 
 def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
-                 nperseg=None):
+                 nperseg=None, pixels=True):
     """Fit a noise model to raw darks: a scene the simulator, the forecast and the readout
     design take as it is.
 
@@ -83,6 +84,12 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
         Logarithmic frequency bins per spectrum.
     nperseg : int, optional
         Welch segment in row reads (default: a power of two <= reads per frame).
+    pixels : bool
+        Also fit the per-pixel terms (read noise, dark current, hot and telegraph
+        pixels, the first read's offset: `~spherex_reduce.analysis.pixel_terms`),
+        summed dark by dark as they are read; the scene holds those the simulator
+        takes (``scene:``).  Darks it cannot take (ADU without a gain, no unit)
+        are marked in one line, the stream model kept.
 
     Returns
     -------
@@ -106,6 +113,7 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
     gain = None if pipeline is None else pipeline.input_options.gain  # applied as read
     darks, streams = [], []
     schedule = unit = alone = None
+    sums, pixel_mark = None, None
     for label, e in _exposures(inputs, pipeline):
         if schedule is None:
             schedule, unit = e.schedule, e.unit
@@ -125,6 +133,8 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
         else:
             alone = None
         streams.extend(channel_streams(e, frames=cut) for cut in cuts)  # not the exposure
+        if pixels and pixel_mark is None:
+            sums, pixel_mark = _add_pixels(sums, e, gain)
         darks.append(label)
         del e
     if not darks:
@@ -148,6 +158,34 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
     every = range(len(spectra))
     full = fits(every)
     jack = [fits([j for j in every if j != i]) for i in every]
-    return Characterization.build(full, jack, boxes, schedule, unit or u.one, darks,
-                                  exponent_fitted=exponent is None,
-                                  segmented=split or (segments or 1) > 1, gain=gain)
+    model = Characterization.build(full, jack, boxes, schedule, unit or u.one, darks,
+                                   exponent_fitted=exponent is None,
+                                   segmented=split or (segments or 1) > 1, gain=gain)
+    if pixels and pixel_mark is None:
+        try:
+            model.pixel_terms = sums.fit()
+        except SpherexReduceError as exc:
+            pixel_mark = str(exc)
+    if pixel_mark is not None:
+        model.marks.append(f"per-pixel terms: not fitted: {pixel_mark}")
+    return model
+
+
+def _add_pixels(sums, e, gain):
+    """``(sums, mark)``: the per-pixel sums with dark ``e`` added (its rows in physical
+    order, the first read of each, without copying the dark), or the reason they cannot be
+    (then ``sums`` None)."""
+    s = e.schedule
+    try:
+        rows = (np.arange(e.data.shape[1]) if e.order != "readout"
+                else s.read_of_row())
+        if (rows < 0).any():
+            raise SpherexReduceError("a row is never read")
+        if sums is None:
+            sums = PixelSums(s.frame_starts.to(u.s),
+                             reference=e.geometry.reference_pixel_mask(),
+                             gain=None if e.unit != u.adu else gain)
+        sums.add(u.Quantity(e.data.data, e.unit, copy=False), rows=rows)
+    except SpherexReduceError as exc:
+        return None, str(exc)
+    return sums, None

@@ -201,3 +201,56 @@ def test_a_strong_common_part_comes_back():
         assert np.all(np.abs(z) < 4.5), (name, est, want[name])
     common = model.components["common"]
     assert common.values[1] == pytest.approx(0.5, rel=0.3)  # beta: 4x before
+
+
+# -- the per-pixel terms, summed dark by dark -------------------------------------------
+PIXEL_SCENE = {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 2, "ref_border": 4},
+               "readout": {"skip": 4, "ref_reads": 8, "phantom_reads": 0, "nframes": 30,
+                           "frame_time": 1.5},
+               "noise": {"components": [{"name": "white", "alpha": 5e-4}]},
+               "output": {"mode": "ramps"},
+               "scene": {"dark_current": 0.5, "hot_pixel_fraction": 0.02,
+                         "hot_pixel_current": 20.0}}
+
+
+def test_the_per_pixel_terms_of_darks_read_one_by_one_are_those_of_the_darks_together():
+    """Two simulated darks (readout order): characterize sums their per-pixel terms as it
+    reads them, each dark's rows taken in place; the same numbers as fit_pixel_terms on
+    both darks copied to physical order, and within 4.5 errors of the scene's truth; the
+    model's scene holds them."""
+    from astropy import units as u
+
+    from spherex_reduce.analysis.pixel_terms import dark_ramps, fit_pixel_terms
+
+    raws = [simulate(PIXEL_SCENE, seed=seed) for seed in (1, 2)]
+    assert raws[0].order == "readout"
+    together = [dark_ramps(e) for e in raws]
+    for darks in (raws[:1], raws):
+        model = characterize(darks)
+        expect = fit_pixel_terms([r for r, _, _ in together[:len(darks)]], together[0][1],
+                                 reference=together[0][2])
+        np.testing.assert_array_equal(np.asarray(model.pixel_terms.table["value"]),
+                                      np.asarray(expect.table["value"]))
+    # the truth, from one dark (the simulator draws its hot pixels anew for each seed: two
+    # seeds are two detectors' populations, which the sums over darks take as one)
+    model = characterize(raws[0])
+    for term, truth in (("dark_current", 0.5), ("hot_pixel_fraction", 0.02),
+                        ("hot_pixel_current", 20.0)):
+        row = model.pixel_terms.row(term, "active")
+        assert abs(row["value"] - truth) < 4.5 * row["error"], (term, row)
+    scene = model.scene()["scene"]
+    assert scene["dark_current"] == pytest.approx(model.pixel_terms.row(
+        "dark_current", "active")["value"])
+    report = model.report()
+    assert {"read_noise", "dark_current"} <= set(report["parameter"][report["kind"] == "pixel"])
+    assert u.Unit(report["unit"][report["parameter"] == "dark_current"][0]) == u.electron / u.s
+
+
+def test_darks_in_adu_without_a_gain_keep_the_stream_model_and_mark_the_pixels():
+    raws = [simulate(PIXEL_SCENE, seed=seed) for seed in (1, 2)]
+    adu = [e.replace(data=e.data.data, unit="adu") if hasattr(e, "replace") else e
+           for e in raws]
+    model = characterize(adu)
+    assert model.pixel_terms is None and "scene" not in model.scene()
+    assert any(m.startswith("per-pixel terms: not fitted: ") and "gain" in m
+               for m in model.marks), model.marks

@@ -62,7 +62,7 @@ class Characterization:
     >>> from spherex_reduce.analysis.characterize import characterize
     >>> model = characterize(example_raw_exposure(), segments=2)
     >>> sorted(model.scene())
-    ['geometry', 'noise', 'readout']
+    ['geometry', 'noise', 'readout', 'scene']
     >>> set(model.report()["kind"]) >= {"component", "spectrum", "channel", "exponent"}
     True
     >>> model.to_yaml().startswith("# noise model fitted by spherex-reduce characterize")

@@ -63,7 +63,7 @@ from scipy.stats import binom
 from ..core.errors import SpherexReduceError
 
 __all__ = ["MIN_READS", "MIN_TELEGRAPH_INTERVALS", "PixelSums", "PixelTerms", "dark_ramps",
-           "fit_pixel_terms"]
+           "dark_rows", "fit_pixel_terms"]
 
 #: Fewest reads a dark needs (two differences after read 0 is kept aside, or with it).
 MIN_READS = 3
@@ -211,18 +211,44 @@ def dark_ramps(exposure):
     >>> ramps.shape, times.unit, int(ref.sum())
     ((4, 16, 16), Unit("s"), 112)
     """
+    ramps, times, reference, rows = dark_rows(exposure)
+    return (ramps if rows is None else ramps[:, rows]), times, reference
+
+
+def dark_rows(exposure):
+    """`dark_ramps` without the copy: the exposure's stored ramps and, in readout order,
+    the stored row of every row of pixels (what `PixelSums.add` takes as ``rows``).
+
+    Returns
+    -------
+    ramps : `~astropy.units.Quantity`
+        ``(frames, stored rows, ncols)``, a view of the exposure's data.
+    times, reference
+        As `dark_ramps`.
+    rows : `numpy.ndarray` or None
+        ``(nrows,)``: each row's first read of a frame (readout order), else None.
+
+    Examples
+    --------
+    >>> from spherex_reduce import simulate
+    >>> from spherex_reduce.analysis.pixel_terms import dark_rows
+    >>> scene = {"geometry": {"nrows": 16, "ncols": 16, "nchannels": 1, "ref_border": 2},
+    ...          "readout": {"skip": 2, "ref_reads": 8, "nframes": 4}}
+    >>> ramps, times, ref, rows = dark_rows(simulate(scene, seed=1, mode="ramps"))
+    >>> ramps.shape[1] > rows.size == 16            # reference rows read more than once
+    True
+    """
     if not exposure.is_ramp:
         raise SpherexReduceError("dark_ramps: the exposure holds an image, not ramps")
     s = exposure.schedule
-    data = exposure.data.data
+    rows = None
     if exposure.order == "readout":
-        first = s.read_of_row()
-        if (first < 0).any():
-            raise SpherexReduceError(f"dark_ramps: rows {np.flatnonzero(first < 0)[:5].tolist()}"
+        rows = s.read_of_row()
+        if (rows < 0).any():
+            raise SpherexReduceError(f"dark_ramps: rows {np.flatnonzero(rows < 0)[:5].tolist()}"
                                      " are never read")
-        data = data[:, first, :]
-    return (u.Quantity(data, exposure.unit, copy=False), s.frame_starts.to(u.s),
-            exposure.geometry.reference_pixel_mask())
+    return (u.Quantity(exposure.data.data, exposure.unit, copy=False), s.frame_starts.to(u.s),
+            exposure.geometry.reference_pixel_mask(), rows)
 
 
 def fit_pixel_terms(ramps, times, *, reference=None, gain=None, jump_sigma=5.0,
@@ -288,14 +314,11 @@ def fit_pixel_terms(ramps, times, *, reference=None, gain=None, jump_sigma=5.0,
     >>> res.row("telegraph_fraction", "reference")["status"]
     'not constrained'
     """
-    if not 2 <= int(groups) <= 255:
+    if not 2 <= int(groups) <= 255:  # before the darks are summed
         raise SpherexReduceError(f"fit_pixel_terms: groups must be 2 to 255, got {groups}")
-    darks = list(ramps) if isinstance(ramps, (list, tuple)) else [ramps]
-    if not darks:
-        raise SpherexReduceError("fit_pixel_terms: no darks given")
     sums = PixelSums(times, reference=reference, gain=gain, jump_sigma=jump_sigma,
                      band_rows=band_rows)
-    for dark in darks:
+    for dark in ramps if isinstance(ramps, (list, tuple)) else [ramps]:
         sums.add(dark)
     return sums.fit(hot_threshold=hot_threshold, hot_sigma=hot_sigma, groups=groups)
 
@@ -335,12 +358,11 @@ class PixelSums:
         of each row of pixels (e.g. a readout-order exposure's first read of each row),
         taken a band at a time rather than copying the dark."""
         rows = None if rows is None else np.asarray(rows, dtype=np.intp)
-        darks, unit, g, t, ref = _inputs(ramps, *self._given, rows=rows)
-        x = darks[0]
-        shape = x.shape if rows is None else (x.shape[0], rows.size, x.shape[2])
-        if self._acc is None:
-            self.unit, self.gain, self.t, self.ref, self.shape = unit, g, t, ref, shape
-            self._acc = _new_sums(shape, t, self.jump_sigma)
+        x, unit, shape = _dark(ramps, rows)
+        if self._acc is None:  # times, gain and mask checked once, against the first dark
+            self.gain, self.t, self.ref = _settings(*self._given, unit, shape)
+            self.unit, self.shape = unit, shape
+            self._acc = _new_sums(shape, self.t, self.jump_sigma)
         elif unit != self.unit or shape != self.shape:
             raise SpherexReduceError(f"fit_pixel_terms: dark {self.ndarks} has shape {shape} "
                                      f"and unit {unit}; dark 0 {self.shape} and {self.unit} "
@@ -362,29 +384,30 @@ class PixelSums:
 
 
 # -- inputs --------------------------------------------------------------------------
-def _inputs(ramps, times, reference, gain, rows=None):
-    darks = list(ramps) if isinstance(ramps, (list, tuple)) else [ramps]
-    if not darks:
-        raise SpherexReduceError("fit_pixel_terms: no darks given")
-    unit = getattr(darks[0], "unit", None)
+def _dark(ramps, rows=None):
+    """One dark's values (a view), unit and shape ``(nreads, ny, nx)`` (with ``rows``: the
+    stored rows of each row of pixels)."""
+    unit = getattr(ramps, "unit", None)
     if unit not in (u.electron, u.adu):
         raise SpherexReduceError(f"fit_pixel_terms: darks must be in electron or adu, got {unit}")
-    shape = darks[0].shape
+    shape = ramps.shape
+    if len(shape) != 3:
+        raise SpherexReduceError(f"fit_pixel_terms: dark 0 has shape {shape} and unit {unit} "
+                                 "(each (nreads, ny, nx), one unit)")
     if rows is not None:  # the stored rows of each row of pixels (a view, not a copy)
-        if len(shape) != 3 or rows.ndim != 1 or (rows.size and (
-                rows.min() < 0 or rows.max() >= shape[1])):
+        if rows.ndim != 1 or (rows.size and (rows.min() < 0 or rows.max() >= shape[1])):
             raise SpherexReduceError(f"fit_pixel_terms: rows must index the {shape[1:2]} "
                                      "stored rows")
         shape = (shape[0], rows.size, shape[2])
-    for k, d in enumerate(darks):
-        stored = d.shape if rows is None else (d.shape[0], rows.size, *d.shape[2:])
-        if getattr(d, "unit", None) != unit or stored != shape or len(shape) != 3:
-            raise SpherexReduceError(f"fit_pixel_terms: dark {k} has shape {d.shape} and unit "
-                                     f"{getattr(d, 'unit', None)}; dark 0 {shape} and {unit} "
-                                     "(each (nreads, ny, nx), one unit)")
     if shape[0] < MIN_READS:
         raise SpherexReduceError(f"fit_pixel_terms: a dark of {shape[0]} reads; at least "
                                  f"{MIN_READS} are needed (two differences)")
+    return ramps.value, unit, shape  # a view: no copy of the cube
+
+
+def _settings(times, reference, gain, unit, shape):
+    """The gain (e per unit), read times (s) and reference mask of darks of ``unit`` and
+    ``shape``, checked."""
     try:
         t = np.atleast_1d(u.Quantity(times).to_value(u.s)).astype(np.float64)
     except (u.UnitsError, TypeError, ValueError) as exc:
@@ -407,7 +430,7 @@ def _inputs(ramps, times, reference, gain, rows=None):
     if ref.shape != shape[1:]:
         raise SpherexReduceError(f"fit_pixel_terms: reference mask {ref.shape} differs from "
                                  f"the pixels {shape[1:]}")
-    return [d.value for d in darks], unit, float(g), t, ref  # views: no copy of the cube
+    return float(g), t, ref
 
 
 # -- per-pixel accumulation ------------------------------------------------------------

@@ -8,7 +8,7 @@ from astropy import units as u
 from ...core.errors import SpherexReduceError
 from ...core.exposure import Exposure
 from ...io.sources import open_input
-from ..pixel_terms import PixelSums
+from ..pixel_terms import PixelSums, dark_rows
 from .result import Characterization
 from .spectra import dark_spectra, fit_spectra, pool
 from .streams import MIN_FRAMES, channel_streams
@@ -173,19 +173,13 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
 
 def _add_pixels(sums, e, gain):
     """``(sums, mark)``: the per-pixel sums with dark ``e`` added (its rows in physical
-    order, the first read of each, without copying the dark), or the reason they cannot be
-    (then ``sums`` None)."""
-    s = e.schedule
+    order, without copying the dark), or the reason they cannot be (then ``sums`` None)."""
     try:
-        rows = (np.arange(e.data.shape[1]) if e.order != "readout"
-                else s.read_of_row())
-        if (rows < 0).any():
-            raise SpherexReduceError("a row is never read")
+        ramps, times, reference, rows = dark_rows(e)
         if sums is None:
-            sums = PixelSums(s.frame_starts.to(u.s),
-                             reference=e.geometry.reference_pixel_mask(),
+            sums = PixelSums(times, reference=reference,
                              gain=None if e.unit != u.adu else gain)
-        sums.add(u.Quantity(e.data.data, e.unit, copy=False), rows=rows)
+        sums.add(ramps, rows=rows)
     except SpherexReduceError as exc:
         return None, str(exc)
     return sums, None

@@ -4,10 +4,12 @@ The step's kernel (`JumpKernel`) searches each pixel's ramp for steps
 (`~spherex_reduce.reduce.steps.jumps.search.StepSearch`: a matched filter for a
 step at every read, against the ramp's read and shot noise) and sets
 `~spherex_reduce.core.dq.JUMP` on the first read after each step, band of rows
-by band of rows, before ``fit_ramp``.  Flagging the neighbours of a jump, or a
-radius around a very large one, needs the rows above and below, which may lie
-in another band: with ``neighbours`` or ``radius`` the kernel searches the
-whole exposure first (in memory) and each band takes its flags from that.
+by band of rows, before ``fit_ramp``.  Flagging the neighbours of a jump, a
+radius around a very large one, or the halo of a large event
+(`~spherex_reduce.reduce.steps.jumps.showers`), needs the rows above and below,
+which may lie in another band: with ``neighbours``, ``radius`` or
+``large_events`` the kernel searches the whole exposure first (in memory) and
+each band takes its flags from that.
 
 Before the flags are set, the jumps of each set of rows are looked at together
 (`~spherex_reduce.reduce.steps.jumps.events`): a read that is off for most
@@ -35,6 +37,7 @@ from ..fit_ramp.segments import usable_reads
 from ..pixel_maps import MAP_TYPES, PixelMap, adu_gain
 from .events import JumpWarning, event_message, find_read_events
 from .search import StepSearch
+from .showers import large_event_halos
 from .telegraph import telegraph_pixels
 
 __all__ = ["DetectJumpsStep", "JumpKernel", "detect_jumps"]
@@ -48,7 +51,9 @@ MAX_EVENTS = 4
 
 def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturation=None,
                  max_jumps=10, neighbours=False, neighbours_above=10.0, radius=0.0,
-                 radius_above=1e4, read_events=True, telegraph=True, positive_only=False):
+                 radius_above=1e4, large_events=False, large_event_area=5,
+                 large_event_expand=2.0, large_event_reads=1, read_events=True, telegraph=True,
+                 positive_only=False):
     """Flag `~spherex_reduce.core.dq.JUMP` on the read at which each pixel's charge stepped.
 
     Every pixel's usable reads are fitted with a line plus a step at each read
@@ -93,10 +98,24 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
         Smallest ``|z|`` (sigma) of a jump whose neighbours are flagged.
     radius : float
         Flag every pixel within this distance (pixels, on the stored image) of
-        a jump of at least ``radius_above``, like the neighbours (snowballs and
-        showers); 0: none.  A radius beyond the image flags all of it.
+        a jump of at least ``radius_above``, like the neighbours (a disc of one
+        size whatever the event; ``large_events`` sizes it by the event's
+        core); 0: none.  A radius beyond the image flags all of it.
     radius_above : float
         Smallest amplitude (data unit) of a jump flagged with ``radius``.
+    large_events : bool
+        Flag the halos of large events (snowballs, showers:
+        `~spherex_reduce.reduce.steps.jumps.showers.large_event_halos`): at
+        least ``large_event_area`` jumps touching at one read (on the stored
+        image, 8 neighbours) are a core; every pixel within
+        ``large_event_expand`` times its radius is flagged at that read and the
+        ``large_event_reads`` after it, as JWST's ``expand_large_events``.
+    large_event_area : int
+        Fewest touching jumps at one read that are a large event's core.
+    large_event_expand : float
+        The halo's radius over the core's.
+    large_event_reads : int
+        Reads after the core's read also flagged in its halo.
     read_events : bool
         Find the reads that are off for most pixels (a first read below the
         line of the others, a frame glitch, a step of the whole array) from
@@ -141,7 +160,8 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
     depend on its own reads only, and the read events on sets of whole rows
     of 2**17 pixels (aligned on the row axis, the same sets whichever bands
     hold them).  With ``neighbours`` or ``radius`` the whole exposure is
-    searched before its bands are flagged (it is held in memory).
+    searched before its bands are flagged (it is held in memory); so it is
+    with ``large_events``.
 
     On 4 reads without ``read_noise`` (or fewer than 4 with it) the step is
     skipped with a `~spherex_reduce.reduce.steps.jumps.events.JumpWarning`
@@ -163,7 +183,9 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
     return DetectJumpsStep()(
         exposure, threshold=threshold, read_noise=read_noise, gain=gain, saturation=saturation,
         max_jumps=max_jumps, neighbours=neighbours, neighbours_above=neighbours_above,
-        radius=radius, radius_above=radius_above, read_events=read_events,
+        radius=radius, radius_above=radius_above, large_events=large_events,
+        large_event_area=large_event_area, large_event_expand=large_event_expand,
+        large_event_reads=large_event_reads, read_events=read_events,
         telegraph=telegraph, positive_only=positive_only)
 
 
@@ -204,7 +226,8 @@ class JumpKernel(Kernel):
         self.factors = s.read_noise_factors
         self.walk = s.shot_covariance()
         self._whole = self._search(np.ones(s.nframes, bool))  # every read usable
-        self.needs_exposure = bool(params["neighbours"] or params["radius"] > 0)
+        self.needs_exposure = bool(params["neighbours"] or params["radius"] > 0
+                                   or params["large_events"])
         self._lock = threading.Lock()
         self._found = 0  # reads flagged by the search, over the bands (streamed route)
         # read events are decided on sets of rows aligned on the row axis, the same sets
@@ -373,7 +396,8 @@ class JumpKernel(Kernel):
 
     # -- the kernel ----------------------------------------------------------------------
     def prepare(self, side, exposure=None):
-        """With ``neighbours`` or ``radius``: every flag of the exposure (searched whole)."""
+        """With ``neighbours``, ``radius`` or ``large_events``: every flag of the exposure
+        (searched whole)."""
         if not self.needs_exposure:
             return None
         source = MemorySource(exposure)
@@ -391,7 +415,8 @@ class JumpKernel(Kernel):
                 f, p = left_out
                 quiet.append((f, block.index[p // ncols], p % ncols))
         frames, index, cols, amp, z = (np.concatenate(a) for a in zip(*parts, strict=True))
-        around = _around(self.context, self.params, frames, index, cols, amp, z)
+        saturated = _saturating(exposure, self.params) if self.params["large_events"] else None
+        around = _around(self.context, self.params, frames, index, cols, amp, z, saturated)
         flags = [np.concatenate(a) for a in zip((frames, index, cols), around, strict=True)]
         events = [np.concatenate(a) for a in zip(*events, strict=True)] if events else None
         quiet = [np.concatenate(a) for a in zip(*quiet, strict=True)] if quiet else None
@@ -442,6 +467,29 @@ class JumpKernel(Kernel):
             warnings.warn(event_message(read, kind, jumps, expected, pixels, offset, dropped),
                           JumpWarning, stacklevel=2)
         return Record(cards=cards)
+
+
+def _saturating(exposure, params):
+    """``(frames, index, cols)`` of the reads at which pixels saturated (flagged
+    `~spherex_reduce.core.dq.SATURATED`, or above ``saturation``) after a usable read."""
+    level = params["saturation"]
+    data = exposure.data.data
+    before = None
+    out = []
+    for f in range(data.shape[0]):
+        now = np.zeros(data.shape[1:], bool)
+        if exposure.dq is not None:
+            now |= (exposure.dq[f] & np.uint32(dq.SATURATED)) != 0
+        if level is not None:
+            now |= data[f] > level
+        if before is not None:
+            i, c = np.nonzero(now & ~before)
+            out.append((np.full(i.size, f, np.int64), i, c))
+            now |= before
+        before = now
+    if not out:
+        return (np.zeros(0, np.int64),) * 3
+    return tuple(np.concatenate(a) for a in zip(*out, strict=True))
 
 
 def _without_events(block, flags, times):
@@ -577,12 +625,14 @@ def _reach(params, nrows, ncols):
     return out
 
 
-def _around(context, params, frames, index, cols, amp, z):
+def _around(context, params, frames, index, cols, amp, z, saturated=None):
     """``(frames, index, cols)`` of the reads flagged around the jumps, each once: the
     neighbours and pixels within the radius on the stored image (physical rows and columns,
     across the seams of quadrants), at the jump's frame and, for a pixel read earlier in the
     frame than the jump's pixel, the next frame (the charge may have come after its read),
-    for one read later the frame before."""
+    for one read later the frame before.  With ``large_events``, the halos of large
+    events around the jumps and the reads that saturated (``saturated``: ``(frames,
+    index, cols)``), each core a set of them touching at one read."""
     s = context.schedule
     g = s.geometry
     layout = g.layout
@@ -591,7 +641,7 @@ def _around(context, params, frames, index, cols, amp, z):
     big = np.stack([np.abs(z) >= params["neighbours_above"], amp >= params["radius_above"]])
     reach = _reach(params, layout.nrows, layout.ncols)
     empty = np.zeros(0, np.int64)
-    if not reach or not big.any():
+    if (not reach or not big.any()) and not params["large_events"]:
         return empty, empty, empty
     srow, scol = layout.stored_coordinates(rows, cols)  # the jumps on the stored image
     # when each physical row is first read within a frame, and the reads of each row
@@ -600,6 +650,17 @@ def _around(context, params, frames, index, cols, amp, z):
     np.minimum.at(first, s.rows, np.arange(s.n_reads))
     samples = s.pixel_samples()  # when each pixel is read within the frame
     hit = np.zeros((s.nframes, g.nrows, g.ncols), bool)  # each read flagged once
+    if params["large_events"]:
+        sf, si, sc = saturated
+        sr, sc = layout.stored_coordinates(s.rows[si] if readout else si, sc)
+        f, r, c = large_event_halos(np.concatenate([frames, sf]), np.concatenate([srow, sr]),
+                                    np.concatenate([scol, sc]), (layout.nrows, layout.ncols),
+                                    s.nframes, area=params["large_event_area"],
+                                    expand=params["large_event_expand"],
+                                    reads=params["large_event_reads"])
+        fr, fc = layout.frame_coordinates(r, c)
+        read = first[fr] < never
+        hit[f[read], fr[read], fc[read]] = True
     for dr, dcs, which in reach:
         chosen = np.flatnonzero(big[which])
         step = max(1, AROUND_CHUNK // dcs.size)
@@ -651,6 +712,14 @@ class DetectJumpsStep(Step):
                   "very large jumps; 0: none", minimum=0),
         Parameter("radius_above", 1e4, (float,), "smallest amplitude (data unit) of a jump "
                   "flagged with radius", minimum=0),
+        Parameter("large_events", False, (bool,), "flag the halos of large events "
+                  "(snowballs, showers) around cores of touching jumps, over several reads"),
+        Parameter("large_event_area", 5, (int,), "fewest touching jumps at one read that "
+                  "are a large event's core (pixels)", minimum=1),
+        Parameter("large_event_expand", 2.0, (float,), "a large event's halo radius over "
+                  "its core's", minimum=1, maximum=100),
+        Parameter("large_event_reads", 1, (int,), "reads after a large event's also "
+                  "flagged in its halo", minimum=0),
         Parameter("read_events", True, (bool,), "find reads off for most pixels (a first "
                   "read, a frame glitch): left out of every fit, not counted as jumps"),
         Parameter("telegraph", True, (bool,), "steps down and back up (or up and back "

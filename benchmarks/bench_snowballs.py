@@ -15,7 +15,8 @@ clean pixels far from any event: the fraction lost and the rms.
 Runs, in one process: ours without and with ``large_events``; stcal 1.20's
 two-point detection + OLS_C with its defaults and with ``expand_large_events``
 (the JWST snowball flagging: a saturated core and its jump ellipse expanded by
-2, ``sat_required_snowball``).  stcal comes with the ``benchmark`` extra.
+2, ``sat_required_snowball``), given the read noise as stcal takes it: that of
+the difference of two reads (CDS), 10 sqrt(2) e.  stcal comes with the ``benchmark`` extra.
 
 Targets (after the issue "Jumps you can trust"): the halo pixels more than 5
 ERR wrong <= 1 %, their mean error <= 0.1 sigma0, clean pixels lost <= 0.1 %.
@@ -104,7 +105,7 @@ def stcal(cube, flags, large):
              "REFERENCE_PIXEL": 128}
     ny, nx = cube.shape[1:]
     gain = np.ones((ny, nx), np.float32)
-    noise = np.full((ny, nx), RN, np.float32)
+    noise = np.full((ny, nx), RN * np.sqrt(2), np.float32)  # stcal's: a difference's (CDS)
     gdq = np.where(flags & dq.SATURATED, 2, 0).astype(np.uint8)[None]
     t0 = time.perf_counter()
     jd = JumpData(gain2d=gain, rnoise2d=noise, dqflags=names)

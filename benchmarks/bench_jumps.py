@@ -17,7 +17,9 @@ ramps go through
 * stcal 1.20: ``detect_jumps_data`` (two-point differences, JWST defaults:
   rejection threshold 4 sigma, 4 neighbours of 10-1000 sigma jumps flagged)
   then ``ramp_fit_data`` (``OLS_C``, optimal weighting), with the same read
-  noise and gain 1.
+  noise as stcal takes it (that of the difference of two reads, 10 sqrt 2 e;
+  before 2026-11-29 it was given 10 e and saw the noise sqrt 2 too small) and
+  gain 1.
 
 Reported: wrong pixels (a hit pixel more than 5 sigma0 from the true rate and
 not flagged unusable; sigma0 = the slope sigma of a jump-free ramp, read and
@@ -120,7 +122,7 @@ def stcal(cube):
              "REFERENCE_PIXEL": 128}
     ny, nx = cube.shape[1:]
     gain = np.ones((ny, nx), np.float32)
-    noise = np.full((ny, nx), RN, np.float32)
+    noise = np.full((ny, nx), RN * np.sqrt(2), np.float32)  # stcal's: a difference's (CDS)
     jd = JumpData(gain2d=gain, rnoise2d=noise, dqflags=flags)
     jd.init_arrays_from_arrays(cube[None].copy(), np.zeros((1, *cube.shape), np.uint8),
                                np.zeros((ny, nx), np.uint32))

@@ -343,25 +343,73 @@ def reference_offsets(exposure, *, acn=False, sigma=3.0, maxiters=5, side_column
     return est.offsets, est.n_used, est.n_clipped
 
 
+def _levels(values):
+    """Each pixel's own level over the frames of ``values (L, r, ncols)``: the median of
+    its usable reads, NaN for a pixel never usable (and for the columns never usable)."""
+    level = np.full(values.shape[1:], np.nan)
+    cols = np.flatnonzero(np.isfinite(values).any(axis=(0, 1)))
+    if cols.size:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # a pixel never usable: NaN
+            level[:, cols] = np.nanmedian(values[..., cols], axis=0)
+    return level
+
+
 def _offsets_of(geometry, reference, side, *, acn, sigma, maxiters, threads):
     """`reference_offsets` of reference-row pixels ``(L, k, ncols)`` (NaN: unusable)
     and optionally side-column pixels ``(L, rows, ncols)`` (NaN outside the side columns).
 
+    With more than one frame, each pixel is clipped on its departure from its own
+    level (its median over the frames), not on its value: on raw darks the
+    reference pixels' fixed bias pattern spreads their values far more than their
+    noise, and a clip on the values drops a different handful of pixels, by
+    their bias, in each frame (offsets 1.6-1.85x noisier than a plain mean).  A
+    group's offset is then the clipped mean of its departures plus the clipped
+    mean of its pixels' levels (the pixels whose level is clipped, hot ones, are
+    left out of every frame and counted in ``n_clipped``).  One frame (an
+    image): the values are clipped.
+
     Frames are clipped a few at a time (temporaries stay in cache) on
     ``threads`` threads; each group's numbers do not depend on the others.
     """
+    from astropy.stats import sigma_clip
+
     groups = group_columns(geometry, acn)
     keep = None
     if side is not None:
         # channels without side columns get only NaN there; drop the padding cost
         keep = np.isfinite(_gather(side, groups)).any(axis=(0, 1, 2))
 
-    def clip(lo):
-        vals = _gather(reference[lo:lo + _FRAMES_PER_CLIP], groups)
+    def gathered(ref, more):
+        vals = _gather(ref, groups)
+        if more is not None:
+            vals = np.concatenate([vals, _gather(more, groups)[..., keep]], axis=-1)
+        return vals
+
+    base, dropped = 0.0, 0
+    if reference.shape[0] > 1:
+        ref_level = _levels(reference)
+        side_level = None if side is None else _levels(side)
+        levels = gathered(ref_level[None], None if side is None else side_level[None])
+        clipped = sigma_clip(np.ma.masked_invalid(levels), sigma=sigma, maxiters=maxiters,
+                             axis=-1, cenfunc="median", stdfunc="std", copy=True)
+        bad = np.ma.getmaskarray(clipped) & np.isfinite(levels)  # hot: out of every frame
+        dropped = bad.sum(axis=-1)
+        base = np.ma.filled(clipped.mean(axis=-1), np.nan)
+        ref_level = ref_level.copy()
+        nref = _gather(ref_level[None], groups).shape[-1]
+        _scatter_nan(ref_level, groups, bad[..., :nref])
+        reference = reference - ref_level
         if side is not None:
-            more = _gather(side[lo:lo + _FRAMES_PER_CLIP], groups)
-            vals = np.concatenate([vals, more[..., keep]], axis=-1)
-        return clipped_mean(vals, sigma=sigma, maxiters=maxiters)
+            side_level = side_level.copy()
+            _scatter_nan(side_level, groups, bad[..., nref:], keep)
+            side = side - side_level
+
+    def clip(lo):
+        vals = gathered(reference[lo:lo + _FRAMES_PER_CLIP],
+                        None if side is None else side[lo:lo + _FRAMES_PER_CLIP])
+        mean, used, out = clipped_mean(vals, sigma=sigma, maxiters=maxiters)
+        return mean + base, used, out + dropped
 
     starts = range(0, reference.shape[0], _FRAMES_PER_CLIP)
     nthreads = min(len(starts), RunOptions(threads=threads).thread_count())
@@ -371,6 +419,23 @@ def _offsets_of(geometry, reference, side, *, acn, sigma, maxiters, threads):
     else:
         parts = [clip(lo) for lo in starts]
     return tuple(np.concatenate([p[i] for p in parts]) for i in range(3))
+
+
+def _scatter_nan(level, groups, bad, keep=None):
+    """Set NaN in ``level (r, ncols)`` where ``bad (1, nch, P, m)`` marks a gathered pixel
+    (the inverse of `_gather`; ``keep`` the gathered columns kept, as for side columns)."""
+    r = level.shape[0]
+    idx = np.maximum(groups, 0)
+    rows = np.broadcast_to(np.arange(r)[:, None, None, None], (r, *groups.shape))
+    cols = np.broadcast_to(idx[None], (r, *groups.shape))
+    valid = np.broadcast_to((groups >= 0)[None], (r, *groups.shape))
+    # the gathered order of `_gather`: (nch, P, r, k) flattened over (r, k)
+    rows, cols, valid = (np.moveaxis(a, 0, -2).reshape(*groups.shape[:2], -1)
+                         for a in (rows, cols, valid))
+    if keep is not None:
+        rows, cols, valid = rows[..., keep], cols[..., keep], valid[..., keep]
+    hit = bad[0] & valid
+    level[rows[hit], cols[hit]] = np.nan
 
 
 # -- strategies ------------------------------------------------------------------------------

@@ -118,20 +118,26 @@ def test_channels_of_odd_width_group_their_sample_parities():
 
 
 def _clipped_offsets(e, leave_out=()):
-    """Brute force: astropy sigma_clip mean (3 sigma, 5 iterations) of each frame's and
-    channel's reference pixels, the ``leave_out`` pixels excluded."""
+    """Brute force, the reference mean's rule: each reference pixel's level is its median
+    over the frames; per channel, the astropy sigma_clip mean (3 sigma, 5 iterations) of
+    the levels, plus, per frame, that of the kept pixels' departures from their level; the
+    ``leave_out`` pixels excluded."""
     s = e.schedule
     g = s.geometry
     ref = s.reference_read_indices
     keep = np.ones((ref.size, g.ncols), bool)
     for row, col in leave_out:
         keep[s.rows[ref] == row, col] = False
+    values = e.data.data[:, ref].astype(np.float64)
+    level = np.median(values, axis=0)
     out = np.empty((s.nframes, g.nchannels))
-    for f in range(s.nframes):
-        for ch in range(g.nchannels):
-            cols = slice(ch * g.channel_width, (ch + 1) * g.channel_width)
-            v = e.data.data[f, ref][:, cols][keep[:, cols]]
-            out[f, ch] = sigma_clip(v, sigma=3, maxiters=5).mean()
+    for ch in range(g.nchannels):
+        cols = slice(ch * g.channel_width, (ch + 1) * g.channel_width)
+        lev = sigma_clip(level[:, cols][keep[:, cols]], sigma=3, maxiters=5)
+        used = ~np.ma.getmaskarray(lev)
+        for f in range(s.nframes):
+            d = (values[f][:, cols] - level[:, cols])[keep[:, cols]][used]
+            out[f, ch] = lev.mean() + sigma_clip(d, sigma=3, maxiters=5).mean()
     return out
 
 

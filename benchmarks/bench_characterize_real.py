@@ -34,7 +34,9 @@ three files are the reads of one dark) and, to show what a user who gives them a
 darks sees, ``spherex-reduce characterize DIR/DarkN1-0.fit.ref ...``, and prints
 each command's exit status and what it wrote: either the model's lines, or the
 one-line refusal naming the term and the reason.  For context it prints what numpy
-finds in the files (not a result of ``characterize``).
+finds in the files (not a result of ``characterize``), and what
+`~spherex_reduce.analysis.pixel_terms.fit_pixel_terms` gives from this one dark
+alone (its errors come from groups of pixels; it needs ``--gain`` for ADU darks).
 """
 
 import argparse
@@ -118,7 +120,7 @@ def facts(paths):
             ("median of the light-sensitive pixels (ADU)", f"{np.median(light):.1f}"),
             ("robust sd of read 1 - read 0, read 2 - read 1 (ADU)",
              f"{robust_sd(d01):.2f}, {robust_sd(d12):.2f}"),
-            ("robust sd of the differences / sqrt 2 (ADU, a CDS read noise)",
+            ("robust sd of the differences / sqrt 2 (ADU, per read)",
              f"{robust_sd(np.concatenate([d01.ravel(), d12.ravel()])) / np.sqrt(2):.2f}"),
             ("robust sd of x0 - 2 x1 + x2 / sqrt 6 (ADU, after a line per pixel)",
              f"{robust_sd(second) / np.sqrt(6):.2f}")]
@@ -196,6 +198,36 @@ def main():
             print(f"| {what} | `{shown} -c prime.yaml -o model.yaml` | {status} | {text} |")
             if status == 0:
                 print("\n".join(Path(work, "model.yaml").read_text().splitlines()[:40]))
+    pixel_terms(paths, frame_time, args.gain)
+
+
+def pixel_terms(paths, frame_time, gain):
+    """The per-pixel terms of the one dark alone (`fit_pixel_terms`: errors from groups of
+    pixels, not from a scatter between darks), or its one-line refusal."""
+    from astropy import units as u
+
+    from spherex_reduce.analysis.pixel_terms import fit_pixel_terms
+    from spherex_reduce.core.errors import SpherexReduceError
+
+    x = u.Quantity(np.stack([fits.getdata(p).astype(np.float32) for p in paths]), u.adu)
+    ref = np.zeros((NROWS, NCOLS), bool)
+    ref[:BORDER] = ref[-BORDER:] = True
+    ref[:, :BORDER] = True
+    print("\nper-pixel terms of the one dark (spherex_reduce.analysis.pixel_terms."
+          "fit_pixel_terms, errors from 32 groups of pixels):")
+    try:
+        res = fit_pixel_terms(x, np.arange(len(paths)) * frame_time * u.s, reference=ref,
+                              gain=gain)
+    except SpherexReduceError as exc:
+        print(f"    refused: {exc}")
+        return
+    print("\n| term | pixels | value | error | unit | status |\n|---|---|---|---|---|---|")
+    for r in res.table:
+        if r["status"] != "not constrained":
+            print(f"| {r['term']} | {r['pixels']} | {r['value']:.4g} | {r['error']:.2g} | "
+                  f"{r['unit']} | {r['status']} |")
+    nc = sorted({r["term"] for r in res.table if r["status"] == "not constrained"})
+    print(f"\nnot constrained: {', '.join(nc)}")
 
 
 if __name__ == "__main__":

@@ -18,9 +18,10 @@ Per pixel, per dark:
 - **dark current**: the least-squares slope of the ramp, written on the
   differences (weights ``(k + 1)(m - k)``), with the jumps left out;
 - **read-noise variance**: the sum of squares of the differences about that
-  slope, less the dark current's shot noise (``I dt / gain``), divided by its
-  exact expectation per unit read-noise variance (white reads: the
-  differences are correlated, so no ``ddof`` guess);
+  slope, less the dark current's shot noise (``I dt / gain``, ``I`` the pixel's
+  own slope, not clipped at 0: its mean over pixels is then the mean current's),
+  divided by its exact expectation per unit read-noise variance (white reads:
+  the differences are correlated, so no ``ddof`` guess);
 - **telegraph**: at least two jumps over the darks, alternating in sign within
   each dark (a cosmic ray jumps once, up).  For a two-state telegraph read at
   a regular interval the flips of successive intervals are independent with
@@ -41,7 +42,9 @@ its dark current's shot noise (a hot pixel scores as a telegraph), and it
 gives neither the amplitude nor the rate the scene needs.
 
 The population terms are means (clipped at 5 robust standard deviations where
-a tail would be unphysical) and ratios of sums over pixels; their
+a tail would be unphysical; the read-noise variances, skewed when a pixel has few
+degrees of freedom, where a ``χ²`` of theirs is beyond its 10⁻⁶ quantile, the
+mean corrected for that cut) and ratios of sums over pixels; their
 uncertainties come from a delete-a-group jackknife
 over ``groups`` fixed pseudo-random groups of pixels, the per-pixel values
 pooled over all darks first: this holds the pixels' own sampling (a fraction
@@ -58,7 +61,7 @@ import numpy as np
 from astropy import units as u
 from astropy.table import Table
 from scipy.optimize import brentq
-from scipy.stats import binom
+from scipy.stats import binom, chi2
 
 from ..core.errors import SpherexReduceError
 
@@ -73,6 +76,9 @@ MIN_TELEGRAPH_INTERVALS = 8
 #: than the reads: every interval is close to a coin toss).
 MAX_FLIP_PROBABILITY = 0.45
 _MAD = 1.4826
+#: Chance that a white-noise pixel's read-noise variance is clipped from the mean
+#: (`_typical_variance`; the truncation it leaves is corrected exactly).
+_VARIANCE_CLIP = 1e-6
 _POPULATIONS = ("active", "reference")
 
 
@@ -596,6 +602,27 @@ def _typical(a, sel, gid, k):
     return _jackknife(_ratio, (np.where(keep, a, 0.0), 1.0), keep, gid, k)
 
 
+def _typical_variance(var, nu, sel, gid, k):
+    """Mean of per-pixel variances ``var`` over the pixels of ``sel``, and its error.
+
+    A white-noise pixel's variance is ``σ² χ²_ν / ν`` (``ν`` its degrees of freedom,
+    Satterthwaite's for a quadratic form): skewed when ``ν`` is small, so a clip at robust
+    standard deviations about the median would cut its long tail (−27 % at ``ν`` = 1, a
+    dark of 3 reads).  Pixels beyond the ``χ²_ν`` quantile of `_VARIANCE_CLIP` (scaled by
+    the median) are left out, and the mean divided by what that truncation leaves of a
+    ``χ²_ν`` variable's mean, ``P(χ²_{ν+2} ≤ νz) / P(χ²_ν ≤ νz)``.
+    """
+    ok = sel & np.isfinite(var)
+    scale = np.median(var[ok]) / (chi2.median(nu) / nu) if ok.any() else np.nan
+    if not scale > 0:
+        return np.nan, np.nan
+    z = chi2.isf(_VARIANCE_CLIP, nu) / nu
+    keep = ok & (np.abs(var) <= z * scale)
+    kept = chi2.cdf(nu * z, nu + 2) / chi2.cdf(nu * z, nu)
+    value, err = _jackknife(_ratio, (np.where(keep, var, 0.0), 1.0), keep, gid, k)
+    return value / kept, err / kept
+
+
 def _spread(a, noise, sel, gid, k):
     """Variance of ``a`` less each pixel's measurement variance ``noise²`` (the mean of
     ``(a - median)² - noise²``, exact for pixels of unequal noise), over the pixels within 5
@@ -646,7 +673,9 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
     current = np.maximum(slope, 0.0) / g  # shot noise per unit time, unit^2 / s
     kept = acc.pop("kept")  # reads kept, in darks (each dark's jumps left out)
     a_r = np.where(kept > 0, kept * des["ar"], np.inf)
-    var = (acc.pop("q") - current * kept * des["as_"]) / a_r
+    # the expected shot noise of the pixel's own slope, signed: its mean over pixels is the
+    # mean current's (clipped at 0, noise-driven slopes of a low current took variance away)
+    var = (acc.pop("q") - slope / g * kept * des["as_"]) / a_r
     v0 = np.maximum(var, 0.0)
     se_var = np.sqrt(2 * kept * (v0 ** 2 * des["trr"] + 2 * v0 * current * des["trs"]
                                  + current ** 2 * des["tss"])) / a_r
@@ -675,15 +704,20 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
                             / (2 * dt), np.nan).astype(f32)
 
     active = ~ref & good
+    nu = ndarks * des["ar"] ** 2 / des["trr"]  # degrees of freedom of a pixel's variance
     for pixels, sel in zip(_POPULATIONS, (active, ref), strict=True):
         if not sel.any():
             for term in ("read_noise", "read_noise_spread"):
                 refuse(term, pixels, unit, f"no {pixels} pixels")
             continue
-        value, err = _typical(var, sel, gid, k)
+        value, err = _typical_variance(var, nu, sel, gid, k)
         add("read_noise", pixels, np.sqrt(max(value, 0)),
             err / (2 * np.sqrt(max(value, 1e-300))), unit,
-            note="root of the pixels' mean read-noise variance (5 robust sd clipped)")
+            note="root of the pixels' mean read-noise variance (chi2 clipped)")
+        if nu < 2:  # a pixel's noise from one value: its error is as large as itself
+            refuse("read_noise_spread", pixels, unit, f"{nu:.3g} degree of freedom per pixel "
+                   "(one dark of 3 reads): no spread to tell from each pixel's own error")
+            continue
         _add_spread(add, "read_noise_spread", pixels, _spread(noise, noise_err, sel, gid, k),
                     unit)
 

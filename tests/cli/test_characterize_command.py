@@ -93,3 +93,75 @@ def test_untrusted_input_exits_2_in_one_line(tmp_path, capsys):
     assert "--segments" in capsys.readouterr().err
     assert run("characterize", *darks, "-c", "unchop", "-o", model, "--segments", "3") == 2
     one_line_error(capsys, "segments: 3 segments of a dark of 6 reads")
+
+
+# A lab's dark stored one plain 2-D FITS file per read (as PRIME's H4RG-10 test reads are):
+# float32 whole numbers of ADU, a minimal header, one 128-column output of a 4096² array.
+LAB = {"input": {"unit": "adu"},
+       "geometry": {"preset": "H4RG-10", "nrows": 64, "ncols": 128, "pixel_rate": 1.0e5},
+       "window": {"first_row": 0, "first_column": 0},
+       "readout": {"skip": 1, "ref_reads": 0, "ref_mode": "none", "phantom_reads": 0,
+                   "row_overhead": 0, "nframes": 3, "frame_time": 2.0},
+       "steps": [{"fit_ramp": {}}]}
+
+
+def _lab_dark(tmp_path, name, seed):
+    """Three reads of white noise (8 adu) on a bias pattern, one file each; the cube too."""
+    from astropy.io import fits
+
+    rng = np.random.default_rng(seed)
+    bias = rng.normal(-1800.0, 50.0, (64, 128))
+    reads = np.rint(bias + rng.normal(0.0, 8.0, (3, 64, 128))).astype(np.float32)
+    folder = tmp_path / name
+    folder.mkdir()
+    for k, read in enumerate(reads, start=1):
+        fits.PrimaryHDU(read).writeto(folder / f"{name}N{k}-0.fit.ref")
+    fits.PrimaryHDU(reads).writeto(tmp_path / f"{name}.fits")
+    return reads, str(folder / f"{name}N*-0.fit.ref")
+
+
+def _lab_config(tmp_path):
+    path = tmp_path / "lab.yaml"
+    path.write_text(yaml.safe_dump(LAB))
+    return path
+
+
+def test_one_lab_dark_of_three_read_files_is_refused_naming_why(tmp_path, capsys):
+    config, model = _lab_config(tmp_path), tmp_path / "m.yaml"
+    _, pattern = _lab_dark(tmp_path, "dark", 0)
+    files = sorted((tmp_path / "dark").iterdir())
+    # the read files given as darks: each is one read, and the error says how to give them
+    assert run("characterize", *files, "-c", config, "-o", model) == 2
+    one_line_error(capsys, "single reads", "--reads 'DIR/read_*.fits'")
+    # given as one dark: no second dark to see a scatter in, refused in one line naming it
+    assert run("characterize", "--reads", pattern, "-c", config, "-o", model) == 2
+    one_line_error(capsys, "uncertainties: one dark of 3 reads gives no scatter")
+    assert not model.exists()
+    assert run("characterize", "-c", config, "-o", model) == 2
+    one_line_error(capsys, "--reads GLOB")
+
+
+def test_lab_darks_as_read_files_give_the_model_of_their_cubes(tmp_path, capsys):
+    config = _lab_config(tmp_path)
+    darks = [_lab_dark(tmp_path, f"d{k}", k) for k in range(4)]
+    by_reads, by_cube = tmp_path / "reads.yaml", tmp_path / "cube.yaml"
+    args = ["-c", config, "--segments", "1"]
+    globs = [a for _, pattern in darks for a in ("--reads", pattern)]
+    assert run("-q", "characterize", *globs, *args, "-o", by_reads,
+               "--report", tmp_path / "reads.ecsv") == 0
+    cubes = [tmp_path / f"d{k}.fits" for k in range(4)]
+    assert run("-q", "characterize", *cubes, *args, "-o", by_cube,
+               "--report", tmp_path / "cube.ecsv") == 0
+    a, b = Table.read(tmp_path / "reads.ecsv"), Table.read(tmp_path / "cube.ecsv")
+    assert len(a.meta["darks"]) == 4
+    np.testing.assert_array_equal(a["value"], b["value"])
+    np.testing.assert_array_equal(a["error"], b["error"])
+    # the light-sensitive pixels' white level against numpy: each pixel's straight line
+    # across 3 reads leaves x0 - 2 x1 + x2 (variance 6 sigma^2); one-sided 2 sigma^2 / rate
+    x = np.stack([reads for reads, _ in darks]).astype(np.float64)[..., 4:]  # left border 4
+    white = 2 * np.mean((x[:, 0] - 2 * x[:, 1] + x[:, 2]) ** 2) / 6 / LAB["geometry"][
+        "pixel_rate"]
+    (row,) = a[(a["name"] == "pixels[0]") & (a["parameter"] == "alpha")]
+    assert abs(row["value"] - white) < 3 * row["error"]
+    # the per-pixel terms need the gain (ADU darks): marked in one line, not fitted
+    assert any(m.startswith("per-pixel terms: not fitted") for m in a.meta["marks"])

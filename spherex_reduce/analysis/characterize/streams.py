@@ -138,8 +138,10 @@ def channel_streams(exposure, frames=None):
     (True, 2)
     """
     if not exposure.is_ramp or exposure.order != "readout":
-        raise SpherexReduceError("characterize takes raw darks: ramps in readout order (the "
-                                 "files reduce reads), not reduced images")
+        raise SpherexReduceError(
+            "characterize takes raw darks: ramps in readout order (the files reduce reads), "
+            "not reduced images nor single reads (a dark stored one 2-D file per read is one "
+            "input: --reads 'DIR/read_*.fits', in Python the list of its files)")
     if frames is not None:
         exposure = _frames_of(exposure, frames)
     s, g = exposure.schedule, exposure.geometry

@@ -3,6 +3,7 @@
 from pathlib import Path
 
 from ...io import atomic_output
+from ...io.readers.read_files import read_file_paths
 from .._common import all_or_nothing, check_paths, count, input_config, positive_float
 
 #: More log bins than this resolve nothing a Welch PSD holds.
@@ -21,8 +22,13 @@ def add_parser(sub):
         "by the phantom reads and by both, alternating column noise (ACN) found or ruled "
         "out, and the reference pixels' levels, each with an uncertainty from the scatter "
         "between darks (or segments of frames). MODEL.yaml is a scene in the darks' unit "
-        "that simulate, forecast, sweep and design-readout take as it is.")
-    p.add_argument("inputs", metavar="DARK.fits", nargs="+")
+        "that simulate, forecast, sweep and design-readout take as it is. A dark stored "
+        "one file per read is --reads 'DIR/read_*.fits' (once per dark).")
+    p.add_argument("inputs", metavar="DARK.fits", nargs="*")
+    p.add_argument("--reads", metavar="GLOB", action="append", default=[],
+                   help="one dark stored as one file per read: the files the glob matches "
+                   "(quote it), in natural order (read_2 before read_10), as reduce --reads; "
+                   "give it once per dark")
     p.add_argument("-c", "--config", required=True, metavar="CONFIG.yaml",
                    help="pipeline YAML file or shipped config name whose input:, geometry: "
                    "and readout: sections say how to read the darks (unit, gain, keywords "
@@ -49,16 +55,21 @@ def add_parser(sub):
 
 def run(args):
     from ...analysis.characterize import characterize
+    from ...core.errors import ConfigError
 
+    if not args.inputs and not args.reads:
+        raise ConfigError("give the darks: DARK.fits (one or more), or --reads GLOB (a dark "
+                          "stored one file per read, once per dark)")
+    ramps = [read_file_paths(pattern) for pattern in args.reads]
     pipeline, config_files = input_config(args.config)
     outputs = [args.output, args.report, args.plot]
-    check_paths([*args.inputs, *config_files], outputs)
+    check_paths([*args.inputs, *(f for files in ramps for f in files), *config_files], outputs)
     for path in outputs:
         if path:
             atomic_output(path, args.overwrite)
     exponent = None if args.fit_exponent else args.exponent
-    model = characterize(args.inputs, pipeline, exponent=exponent, segments=args.segments,
-                         nbins=args.nbins)
+    model = characterize([*args.inputs, *ramps], pipeline, exponent=exponent,
+                         segments=args.segments, nbins=args.nbins)
     with all_or_nothing(outputs, args.overwrite) as (tmp, tmp_report, tmp_plot):
         Path(tmp).write_text(model.to_yaml())
         if args.report:

@@ -36,6 +36,7 @@ __all__ = [
     "NoReferenceError",
     "NoReferenceWarning",
     "ReferenceOffsets",
+    "UnequalReferenceWarning",
     "clipped_mean",
     "group_columns",
     "reference_offsets",
@@ -56,6 +57,23 @@ class NoReferenceError(SpherexReduceError):
 
 class NoReferenceWarning(AstropyUserWarning):
     """A channel had no usable reference pixels and was left uncorrected."""
+
+
+class UnequalReferenceWarning(AstropyUserWarning):
+    """``side_columns`` adds side reference columns to some channels only."""
+
+
+def _warn_unequal(geometry):
+    """One line when only some channels have side reference columns (``side_columns``)."""
+    has = np.unique(geometry.channel_of_column()[geometry.reference_column_mask()])
+    if 0 < has.size < geometry.nchannels:
+        warnings.warn(
+            f"correct_reference: side_columns: only channel(s) {has.tolist()} of "
+            f"{geometry.nchannels} have side reference columns, so the channels are corrected "
+            "unequally (with them an offset averages the drift over every row of the frame, "
+            "without it only at the reference rows' reads) and the offsets between outputs "
+            "grow; set side_columns: false", UnequalReferenceWarning,
+            stacklevel=2)
 
 
 @dataclass
@@ -485,6 +503,8 @@ class MeanReference(Strategy):
         g = context.geometry
         columns = (_side_columns(exposure)
                    if self.side_columns and g.reference_column_mask().any() else None)
+        if columns is not None:
+            _warn_unequal(g)
         reference, columns, found = without_telegraph(
             self, reference_pixels(side, context.schedule), side, context.schedule, columns)
         off, used, clipped = _offsets_of(g, reference, columns, acn=self.acn, sigma=self.sigma,

@@ -206,7 +206,11 @@ def test_side_columns_are_used_for_the_edge_channels():
     data[:, s.active_read_indices, :4] = 9.0  # the left side reference columns
     e = unchop(Exposure.from_arrays(data, s))
     without = correct_reference(e, "mean", sigma=100.0).tables["REFOFFS"]
-    with_side = correct_reference(e, "mean", sigma=100.0, side_columns=True).tables["REFOFFS"]
+    from spherex_reduce.reduce.steps.reference.strategies import UnequalReferenceWarning
+
+    with pytest.warns(UnequalReferenceWarning):  # the left side's channel only
+        with_side = correct_reference(e, "mean", sigma=100.0,
+                                      side_columns=True).tables["REFOFFS"]
     assert without["offset"].value[0] == 0
     nref = 8 * 8  # reference reads x channel width
     nside = 24 * 4  # active rows x side columns
@@ -365,3 +369,23 @@ def test_raw_darks_with_a_bias_pattern_clip_each_pixel_about_its_own_level(strat
     plain_err = (plain - drift) - (plain - drift).mean(axis=0)
     ratio = ours_err.std() / plain_err.std()
     assert ratio <= 1.1, ratio
+
+
+def test_side_columns_on_some_channels_only_warn_in_one_line():
+    """SIDECAR-like: side reference columns on the left and right edges only, so the two
+    outer of four channels have them and the inner ones do not."""
+    from spherex_reduce.reduce.steps.reference.strategies import UnequalReferenceWarning
+
+    s = ReadoutSchedule(DetectorGeometry(32, 32, 4, ref_border={"top": 4, "bottom": 4,
+                                                                "left": 4, "right": 4}),
+                        skip=1, ref_reads=0, ref_mode="none", phantom_reads=0, nframes=3)
+    e = Exposure.from_arrays(np.zeros((3, s.n_reads, 32)), s)
+    with pytest.warns(UnequalReferenceWarning, match=r"only channel\(s\) \[0, 3\] of 4") as w:
+        correct_reference(e, "mean", side_columns=True)
+    assert len(w) == 1 and "\n" not in str(w[0].message)
+    # one channel, or no side columns asked for: no warning
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UnequalReferenceWarning)
+        correct_reference(e, "mean")

@@ -86,6 +86,9 @@ class Characterization:
     gain: object = None
     #: the per-pixel terms (`~spherex_reduce.analysis.pixel_terms.PixelTerms`), if fitted
     pixel_terms: object = None
+    #: the darks' slope scatter against N and reduced P(k), measured and predicted
+    #: (`~spherex_reduce.analysis.characterize.check.compare`), if measured
+    check: object = None
 
     @classmethod
     def build(cls, full, jack, boxes, schedule, unit, darks, exponent_fitted=False,

@@ -38,7 +38,8 @@ def scene(args):
     comps = [{"name": n, "alpha": a, "beta": b, "gamma": g, "scope": s, "visibility": v}
              for n, (a, b, g, s, v) in TABLE2.items()]
     return {"geometry": {"nrows": args.size, "ncols": args.size,
-                         "nchannels": max(1, args.size // 64), "ref_border": 4},
+                         "nchannels": max(1, args.size // 64), "ref_border": 4,
+                         "pixel_rate": args.pixel_rate},
             "readout": {"skip": 24, "ref_reads": 32, "ref_mode": "distributed",
                         "phantom_reads": 4, "nframes": args.nframes},
             "noise": {"components": comps, "acn": True}, "output": {"mode": "ramps"},
@@ -54,8 +55,9 @@ def main():
     p.add_argument("--darks", type=int, default=16)
     p.add_argument("--fraction", type=float, default=0.03)
     p.add_argument("--amplitude", type=float, default=150.0)
-    p.add_argument("--rate", type=float, default=0.02)
+    p.add_argument("--rate", type=float, default=0.05)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--pixel-rate", type=float, default=100000.0)
     args = p.parse_args()
     sc = scene(args)
     half = args.darks // 2

@@ -69,7 +69,7 @@ def main():
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        model = characterize(darks(range(half)), "spherex-default", scatter=False)
+        model = characterize(darks(range(half)), "spherex-default")
         t_fit = time.perf_counter() - t0
         table = check_model(model, darks(range(half, args.darks)), "spherex-default")
     t_all = time.perf_counter() - t0

@@ -49,8 +49,7 @@ def plot_characterization(model):
     >>> from spherex_reduce.io.examples import example_raw_exposure
     >>> from spherex_reduce.analysis.characterize import characterize
     >>> from spherex_reduce.analysis.characterize.figure import plot_characterization
-    >>> len(plot_characterization(characterize(example_raw_exposure(), segments=2,
-    ...                                        scatter=False)).axes)
+    >>> len(plot_characterization(characterize(example_raw_exposure(), segments=2)).axes)
     2
     """
     check = model.check

@@ -13,10 +13,12 @@ predicts that statistic from a `~spherex_reduce.analysis.characterize.Characteri
   takes out), plus the Poisson noise of the dark current
   (`~spherex_reduce.analysis.forecast.engine.poisson_variance`, darks in
   electrons only).  The white level is the per-pixel read-noise map's mean
-  variance (measured on each pixel's differences with its jumps left out), not
-  the streams': a telegraph pixel's steps stay in a stream once its line over
-  the frames is removed and raise the streams' white level (12 % in variance
-  in ``benchmarks/bench_characterize_heldout.py``), though in a pixel they are
+  variance (measured on each pixel's differences with its jumps left out)
+  less what the fitted correlated terms add to a read's variance there (half
+  their structure function at one frame), not the streams': a telegraph
+  pixel's steps stay in a stream once its line over the frames is removed and
+  raise the streams' white level (12 % in variance in
+  ``benchmarks/bench_characterize_heldout.py``), though in a pixel they are
   not white; the difference goes to the ``channel`` component's white term.
   The map's spread adds nothing to the mean and is not modelled in the clip;
 - **the telegraph pixels** found by the fit (fraction ``f``, mean amplitude
@@ -35,7 +37,9 @@ predicts that statistic from a `~spherex_reduce.analysis.characterize.Characteri
   and the clipped standard deviation is the fixed point of the clip applied
   to that mixture (`clipped_sigma`).  Hot pixels are left out: their fixed
   current puts them far beyond the clip of one dark's image (the pipeline's
-  ``sigma_clip`` step), which is where the measurement leaves them out too.
+  ``sigma_clip`` step), which is where the measurement leaves them out too
+  (a pipeline without that step keeps them in the measurement, where the
+  clip of the difference takes out only the brightest).
   With one dark (no difference) each pixel's dark current is fixed, so the
   fitted spread of the currents is added to the core.
 
@@ -49,6 +53,7 @@ from astropy import units as u
 from scipy.special import ndtr
 
 from ...core.errors import SpherexReduceError
+from ...noise.components import NoiseComponent
 from ...noise.variance import ls_weights
 from ..forecast.engine import forecast, poisson_variance, prepare_forecast, stored_planes
 from ..spectrum import rfft_weights
@@ -71,7 +76,7 @@ def frame_grid(nframes, points=GRID_POINTS):
     --------
     >>> from spherex_reduce.analysis.characterize.predict import frame_grid
     >>> frame_grid(74, 6)
-    [2, 4, 9, 17, 36, 74]
+    [2, 4, 8, 17, 36, 74]
     """
     if nframes < 2:
         raise SpherexReduceError(f"slope scatter: a dark of {nframes} reads has no slope")
@@ -183,11 +188,12 @@ def clipped_sigma(weights, means, variance, sigma=CLIP_SIGMA, tol=1e-10, maxiter
 
     Examples
     --------
-    One Gaussian clipped at 5 σ keeps almost all its width:
+    One Gaussian clipped at 5 σ keeps almost all its width, ``σ (1 − 2 c φ(c))^½``
+    for ``c = 5``:
 
     >>> from spherex_reduce.analysis.characterize.predict import clipped_sigma
-    >>> round(clipped_sigma([1.0], [0.0], 4.0), 5)
-    1.99989
+    >>> round(clipped_sigma([1.0], [0.0], 4.0), 6)
+    1.999985
     """
     wt = np.asarray(weights, dtype=np.float64)
     mu = np.asarray(means, dtype=np.float64)
@@ -226,12 +232,20 @@ def _scene(model, nframes, single):
                                  "(reads averaged in groups)")
     white = _read_noise_white(model)
     if white is not None:
-        fs = model.schedule.geometry.pixel_rate
-        seen = sum(c["alpha"] for c in sc["noise"]["components"]
-                   if c.get("visibility", "pixels") in ("pixels", "both"))
+        g, s = model.schedule.geometry, model.schedule
+        seen = [c for c in sc["noise"]["components"]
+                if c.get("visibility", "pixels") in ("pixels", "both")]
+        # the map's variance of a read holds half the structure function at one frame of
+        # the correlated terms (a pixel's differences are a frame apart)
+        drift = sum(0.5 * float(NoiseComponent(c["name"], beta=c["beta"], gamma=c["gamma"],
+                                               exponent=c["exponent"])
+                                .structure_function(s.frame_samples, g.pixel_rate))
+                    for c in seen)
+        alpha = sum(c["alpha"] for c in seen)
         for c in sc["noise"]["components"]:
             if c["name"] == "channel":
-                c["alpha"] = max(c["alpha"] + 2.0 * white / fs - seen, 0.0)
+                c["alpha"] = max(c["alpha"] + 2.0 * (white - drift) / g.pixel_rate - alpha,
+                                 0.0)
     terms = sc.pop("scene", {}) or {}
     current = float(terms.get("dark_current", 0.0))
     sc.update(readout=readout, output={"mode": "slopes"},
@@ -297,7 +311,7 @@ def predict_scatter(model, pipeline, frames, *, differenced=True, sigma=CLIP_SIG
     >>> from spherex_reduce.io.examples import example_raw_exposure
     >>> from spherex_reduce.analysis.characterize import characterize
     >>> from spherex_reduce.analysis.characterize.predict import predict_scatter
-    >>> model = characterize(example_raw_exposure(), segments=2, scatter=False)
+    >>> model = characterize(example_raw_exposure(), segments=2)
     >>> p = predict_scatter(model, "spherex-default", [2, 6])
     >>> bool((p["sigma"][0] > p["sigma"][1] > 0))
     True
@@ -339,7 +353,7 @@ def predict_spectrum(model, pipeline, measure=None, excess=0.0):
     >>> from spherex_reduce.io.examples import example_raw_exposure
     >>> from spherex_reduce.analysis.characterize import characterize
     >>> from spherex_reduce.analysis.characterize.predict import predict_spectrum
-    >>> model = characterize(example_raw_exposure(), segments=2, scatter=False)
+    >>> model = characterize(example_raw_exposure(), segments=2)
     >>> t = predict_spectrum(model, "spherex-default", {"kmin": 0.2, "kmax": 1.0, "bins": 4})
     >>> bool(t.meta["band_power"] > 0), len(t)
     (True, 4)

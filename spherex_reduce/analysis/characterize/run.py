@@ -24,11 +24,9 @@ TARGET_SEGMENTS = 8
 
 def _pipeline(config):
     """The `~spherex_reduce.Pipeline` of ``config`` (None: none)."""
-    from ...reduce.pipeline import Pipeline
+    from ...reduce.pipeline import as_pipeline
 
-    if config is None or isinstance(config, Pipeline):
-        return config
-    return Pipeline.from_yaml(config)
+    return None if config is None else as_pipeline(config)
 
 
 def dark_exposures(inputs, pipeline):
@@ -59,7 +57,7 @@ def _segments(nframes, segments):
 
 
 def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
-                 nperseg=None, pixels=True, scatter=True):
+                 nperseg=None, pixels=True, scatter=False):
     """Fit a noise model to raw darks: a scene the simulator, the forecast and the readout
     design take as it is.
 
@@ -93,7 +91,8 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
         takes (``scene:``).  Darks it cannot take (ADU without a gain, no unit)
         are marked in one line, the stream model kept.
     scatter : bool
-        Also measure the darks' slope scatter against the frame count and their
+        Also (the command line does; it costs a reduction of each dark per frame
+        count) measure the darks' slope scatter against the frame count and their
         reduced P(k) (`~spherex_reduce.analysis.characterize.check.DarkScatter`: each
         dark reduced by the config's pipeline, ``spherex-default`` without one, at
         each frame count of a grid from 2 reads to all) and set them beside what the
@@ -241,10 +240,10 @@ def check_model(model, darks, config=None, frames=None, measure=None):
     --------
     >>> from spherex_reduce.io.examples import example_raw_exposure
     >>> from spherex_reduce.analysis.characterize import characterize, check_model
-    >>> model = characterize(example_raw_exposure(), segments=2, scatter=False)
+    >>> model = characterize(example_raw_exposure(), segments=2)
     >>> t = check_model(model, [example_raw_exposure(seed=2), example_raw_exposure(seed=3)],
     ...                 measure={"kmin": 0.2, "kmax": 1.0, "bins": 4})
-    >>> t.meta["pairs"], sorted(set(t["quantity"]))
+    >>> t.meta["pairs"], sorted(set(t["quantity"].tolist()))
     (1, ['band_power', 'power_spectrum', 'slope_scatter'])
     """
     reader = _pipeline(config)

@@ -76,13 +76,14 @@ def first_reads(exposure, n):
 
 
 def _image(pipeline, exposure):
-    """The light-sensitive slope image, NaN where masked, float64, and its unit."""
+    """The light-sensitive slope image, NaN where masked (float32, as the pipeline's
+    slopes), and its unit."""
     red = pipeline.run(exposure)
     if red.is_ramp:
         raise SpherexReduceError("slope scatter: the pipeline gives ramps, not a slope image "
                                  "(it has no fit_ramp step)")
     img = light_sensitive_image(red)
-    data = np.array(img.data, dtype=np.float64)
+    data = np.array(img.data, dtype=np.float32)  # held per frame count: half the memory
     if img.mask is not None:
         data[np.asarray(img.mask, dtype=bool)] = np.nan
     return data, img.unit
@@ -141,7 +142,8 @@ class DarkScatter:
         if self._held is None:
             self._held = images
             return
-        diff = [(a - b) / np.sqrt(2.0) for a, b in zip(self._held, images, strict=True)]
+        diff = [(a.astype(np.float64) - b) / np.sqrt(2.0)
+                for a, b in zip(self._held, images, strict=True)]
         self._held = None
         self._stats.append(self._measure(diff))
 
@@ -174,7 +176,8 @@ class DarkScatter:
         ``differenced``, ``unit``."""
         stats, differenced = self._stats, True
         if not stats and self._held is not None:  # one dark: measured as it is
-            stats, differenced = [self._measure(self._held)], False
+            stats = [self._measure([a.astype(np.float64) for a in self._held])]
+            differenced = False
         if not stats:
             raise SpherexReduceError("slope scatter: no dark measured")
         sig = np.array([s["sigma"] for s in stats])

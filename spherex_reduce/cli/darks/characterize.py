@@ -34,6 +34,9 @@ def add_parser(sub):
                    "and channel")
     p.add_argument("--plot", metavar="P.png", help="the measured spectra and their fits, "
                    "the slope scatter against N and the reduced P(k), measured and predicted")
+    p.add_argument("--no-scatter", action="store_true",
+                   help="do not measure the darks' slope scatter and P(k) (each dark is "
+                   "reduced once per frame count for them)")
     p.add_argument("--check", nargs="+", metavar="DARK", default=None,
                    help="held-out darks (not fitted): their slope scatter against N and "
                    "reduced P(k), measured with the config's steps, against what the model "
@@ -64,7 +67,8 @@ def run(args):
             atomic_output(path, args.overwrite)
     exponent = None if args.fit_exponent else args.exponent
     model = characterize(args.inputs, pipeline, exponent=exponent, segments=args.segments,
-                         nbins=args.nbins, scatter=args.check is None)
+                         nbins=args.nbins,
+                         scatter=args.check is None and not args.no_scatter)
     if args.check is not None:
         from ...analysis.characterize import check_model
 

@@ -95,7 +95,6 @@ def _spectra(model, left, right):
     right.set_ylabel("cross-spectrum / pixels' PSD")
     for ax in (left, right):
         ax.xaxis.set_minor_formatter(NullFormatter())  # labelled decades only: no overlap
-        ax.yaxis.set_minor_formatter(NullFormatter())
         ax.set_xlabel("frequency (Hz)")
         ax.grid(True, which="both", alpha=0.2)
         if ax.get_legend_handles_labels()[0]:

@@ -165,3 +165,31 @@ def test_lab_darks_as_read_files_give_the_model_of_their_cubes(tmp_path, capsys)
     assert abs(row["value"] - white) < 3 * row["error"]
     # the per-pixel terms need the gain (ADU darks): marked in one line, not fitted
     assert any(m.startswith("per-pixel terms: not fitted") for m in a.meta["marks"])
+def test_check_on_held_out_darks_prints_writes_and_plots_them(tmp_path, capsys):
+    darks = _darks(tmp_path, n=6, nframes=8)
+    rep, png = tmp_path / "r.ecsv", tmp_path / "p.png"
+    capsys.readouterr()
+    assert run("characterize", *darks[:2], "-c", "spherex-default", "-o",
+               tmp_path / "m.yaml", "--report", rep, "--plot", png, "--check",
+               *darks[2:]) == 0
+    out = capsys.readouterr().out
+    assert "held-out darks: standard deviation over the light-sensitive pixels" in out
+    lines = [ln for ln in out.splitlines() if ln.startswith("slope_scatter N=")]
+    assert [ln.split()[1] for ln in (lines[0], lines[-1])] == ["N=2:", "N=8:"]
+    t = Table.read(rep)
+    assert t.meta["check"]["pairs"] == 2  # four held-out darks: two pairs
+    measured = t[(t["kind"] == "slope_scatter") & (t["parameter"] == "measured")]
+    assert measured["name"][0] == "N=2" and np.all(measured["value"] > 0)
+    assert png.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_check_with_a_config_that_gives_no_slope_image_is_marked(tmp_path, capsys):
+    darks = _darks(tmp_path, n=2)
+    capsys.readouterr()
+    assert run("characterize", *darks, "-c", "unchop", "-o", tmp_path / "m.yaml") == 0
+    assert ("slope scatter and P(k): not compared: slope scatter: the pipeline gives ramps"
+            in capsys.readouterr().out)
+    assert run("characterize", *darks, "-c", "unchop", "-o", tmp_path / "m2.yaml",
+               "--check", tmp_path / "missing.fits") == 2
+    one_line_error(capsys, "missing.fits")
+    assert not (tmp_path / "m2.yaml").exists()

@@ -12,6 +12,6 @@ components with uncertainties from the scatter between darks
 """
 
 from .result import Characterization
-from .run import characterize
+from .run import characterize, check_model
 
-__all__ = ["Characterization", "characterize"]
+__all__ = ["Characterization", "characterize", "check_model"]

@@ -86,6 +86,9 @@ class Characterization:
     gain: object = None
     #: the per-pixel terms (`~spherex_reduce.analysis.pixel_terms.PixelTerms`), if fitted
     pixel_terms: object = None
+    #: the darks' slope scatter against N and reduced P(k), measured and predicted
+    #: (`~spherex_reduce.analysis.characterize.check.compare`), if measured
+    check: object = None
 
     @classmethod
     def build(cls, full, jack, boxes, schedule, unit, darks, exponent_fitted=False,
@@ -207,8 +210,14 @@ class Characterization:
 
         Rows: each component's terms (``component``), each spectrum's fit
         (``spectrum``), each view's per-channel values (``channel``), the ACN
-        test and the exponent; columns ``kind name parameter value error
-        spread unit``.  ``meta['marks']`` holds `marks`.
+        test and the exponent, the per-pixel terms (``pixel``), and where the darks'
+        slope images were measured, the slope scatter at each frame count
+        (``slope_scatter``, name ``N=...``), the 5-20' band power (``band_power``)
+        and P(k) (``power_spectrum``, name ``k=...``): ``measured``, ``predicted``,
+        ``predicted_without_telegraph`` and ``ratio`` (measured / predicted; its
+        ``spread`` is the target); columns ``kind name parameter value error
+        spread unit``.  ``meta['marks']`` holds `marks`, ``meta['check']`` the
+        measured statistic.
         """
         units = _units(self.unit, self.exponent)
         rows = []
@@ -235,6 +244,8 @@ class Characterization:
             for r in self.pixel_terms.table:
                 add("pixel", r["pixels"], r["term"], r["value"], r["error"],
                     unit=u.Unit(r["unit"]) if r["unit"] else u.one)
+        if self.check is not None:
+            self._check_rows(add)
         t = Table(rows=rows)
         t.meta.update({"darks": self.darks, "segments": self.ngroups, "unit": str(self.unit),
                        "gain": (list(self.gain) if isinstance(self.gain, tuple)
@@ -242,10 +253,28 @@ class Characterization:
                        "marks": list(self.marks), "spectra": dict(SPECTRA),
                        "acn_test": f"ACN found when the even-odd correlated power is above "
                                    f"zero by > {ACN_SIGMAS:g} standard errors"})
+        if self.check is not None:
+            t.meta["check"] = {k: v for k, v in self.check.meta.items()}
         if self.acn is not None:
             t.meta["acn"] = {k: (list(v) if isinstance(v, tuple) else v)
                              for k, v in self.acn.items()}
         return t
+
+    def _check_rows(self, add):
+        """Rows ``slope_scatter`` (name ``N=...``), ``band_power`` and ``power_spectrum``
+        (name ``k=...``, rad/pixel): measured, predicted, predicted without the telegraph
+        pixels, and their ratio (`~spherex_reduce.analysis.characterize.check.compare`)."""
+        meta = self.check.meta
+        for r in self.check:
+            q = r["quantity"]
+            unit = u.Unit(meta["power_unit"] if q != "slope_scatter" else meta["unit"])
+            name = f"k={r['k']:.4g}" if q == "power_spectrum" else f"N={r['frames']}"
+            add(q, name, "measured", r["measured"], r["error"], unit=unit)
+            add(q, name, "predicted", r["predicted"], np.nan, unit=unit)
+            add(q, name, "predicted_without_telegraph", r["predicted_streams"], np.nan,
+                unit=unit)
+            add(q, name, "ratio", r["ratio"], r["error"] / r["predicted"], spread=r["target"],
+                unit=u.one)
 
     def summary(self):
         """Lines for a terminal: each component, the ACN verdict, the marks."""
@@ -265,5 +294,13 @@ class Characterization:
                 if r["term"] in PIXEL_SUMMARY and r["status"] == "fitted":
                     lines.append(f"{r['term']} ({r['pixels']}): {r['value']:.4g} ± "
                                  f"{r['error']:.2g} {r['unit']}")
+        if self.check is not None:
+            sc = self.check[self.check["quantity"] == "slope_scatter"]
+            ratios = ", ".join(f"N={r['frames']}: {r['ratio']:.3f}" for r in sc)
+            lines.append(f"slope scatter measured / predicted ({self.check.meta['pairs']} "
+                         f"pair(s) of darks): {ratios}")
+            band = self.check[self.check["quantity"] == "band_power"]
+            if len(band):
+                lines.append(f"band power measured / forecast: {band['ratio'][0]:.3f}")
         lines.extend(f"note: {m}" for m in self.marks)
         return lines

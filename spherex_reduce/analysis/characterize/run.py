@@ -9,11 +9,12 @@ from ...core.errors import SpherexReduceError
 from ...core.exposure import Exposure
 from ...io.sources import open_input
 from ..pixel_terms import PixelSums, dark_rows
+from .check import DarkScatter, compare, reduction_pipeline
 from .result import Characterization
 from .spectra import dark_spectra, fit_spectra, pool
 from .streams import MIN_FRAMES, channel_streams
 
-__all__ = ["characterize"]
+__all__ = ["characterize", "check_model", "dark_exposures"]
 
 #: Frames of a segment when darks are split to see their scatter (`characterize`).
 SEGMENT_FRAMES = 5
@@ -23,15 +24,14 @@ TARGET_SEGMENTS = 8
 
 def _pipeline(config):
     """The `~spherex_reduce.Pipeline` of ``config`` (None: none)."""
-    from ...reduce.pipeline import Pipeline
+    from ...reduce.pipeline import as_pipeline
 
-    if config is None or isinstance(config, Pipeline):
-        return config
-    return Pipeline.from_yaml(config)
+    return None if config is None else as_pipeline(config)
 
 
-def _exposures(inputs, pipeline):
-    """Every raw dark of ``inputs`` (each integration of a 4-D file is one), one at a time."""
+def dark_exposures(inputs, pipeline):
+    """``(label, exposure)`` of every raw dark of ``inputs`` (each integration of a 4-D file
+    is one), one at a time, read with ``pipeline``'s sections (None: as they are)."""
     if isinstance(inputs, (str, Exposure)) or hasattr(inputs, "__fspath__"):
         inputs = [inputs]
     for what in inputs:
@@ -57,7 +57,7 @@ def _segments(nframes, segments):
 
 
 def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
-                 nperseg=None, pixels=True):
+                 nperseg=None, pixels=True, scatter=False):
     """Fit a noise model to raw darks: a scene the simulator, the forecast and the readout
     design take as it is.
 
@@ -90,6 +90,14 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
         summed dark by dark as they are read; the scene holds those the simulator
         takes (``scene:``).  Darks it cannot take (ADU without a gain, no unit)
         are marked in one line, the stream model kept.
+    scatter : bool
+        Also (the command line does; it costs a reduction of each dark per frame
+        count) measure the darks' slope scatter against the frame count and their
+        reduced P(k) (`~spherex_reduce.analysis.characterize.check.DarkScatter`: each
+        dark reduced by the config's pipeline, ``spherex-default`` without one, at
+        each frame count of a grid from 2 reads to all) and set them beside what the
+        fitted model predicts (`~spherex_reduce.analysis.characterize.predict`) in
+        ``check``; what cannot be measured or predicted is marked in one line.
 
     Returns
     -------
@@ -114,7 +122,13 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
     darks, streams = [], []
     schedule = unit = alone = None
     sums, pixel_mark = None, None
-    for label, e in _exposures(inputs, pipeline):
+    reducer, measured, scatter_mark = None, None, None
+    if scatter:
+        try:
+            reducer = reduction_pipeline(pipeline)
+        except SpherexReduceError as exc:
+            scatter_mark = str(exc)
+    for label, e in dark_exposures(inputs, pipeline):
         if schedule is None:
             schedule, unit = e.schedule, e.unit
             if schedule.nframes < MIN_FRAMES:
@@ -135,6 +149,8 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
         streams.extend(channel_streams(e, frames=cut) for cut in cuts)  # not the exposure
         if pixels and pixel_mark is None:
             sums, pixel_mark = _add_pixels(sums, e, gain)
+        if reducer is not None and scatter_mark is None:
+            measured, scatter_mark = _add_scatter(measured, reducer, e)
         darks.append(label)
         del e
     if not darks:
@@ -168,7 +184,81 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
             pixel_mark = str(exc)
     if pixel_mark is not None:
         model.marks.append(f"per-pixel terms: not fitted: {pixel_mark}")
+    if measured is not None and scatter_mark is None:
+        try:
+            model.check = compare(model, measured.result(), reducer)
+        except SpherexReduceError as exc:
+            scatter_mark = str(exc)
+    if scatter_mark is not None:
+        model.marks.append(f"slope scatter and P(k): not compared: {scatter_mark}")
     return model
+
+
+def _add_scatter(measured, reducer, e):
+    """``(measured, mark)``: the slope scatter with dark ``e`` added, or the reason it
+    cannot be (then ``measured`` None)."""
+    try:
+        if measured is None:
+            measured = DarkScatter(reducer, e.schedule.nframes)
+        measured.add(e)
+    except SpherexReduceError as exc:
+        return None, str(exc)
+    return measured, None
+
+
+def check_model(model, darks, config=None, frames=None, measure=None):
+    """A fitted model against held-out darks: measured and predicted, side by side.
+
+    Parameters
+    ----------
+    model : `~spherex_reduce.analysis.characterize.Characterization`
+        Fitted on other darks of the same readout.
+    darks : path, `~spherex_reduce.Exposure`, or a list or iterator of them
+        The held-out raw darks, read as `characterize` reads them (2 or more: the
+        differences of pairs are measured, as the paper does).
+    config : str, dict or `~spherex_reduce.Pipeline`, optional
+        How to read and reduce them (default: ``spherex-default``, the paper's).
+    frames : sequence of int, optional
+        Frame counts (default: 2 to all,
+        `~spherex_reduce.analysis.characterize.predict.frame_grid`).
+    measure : dict, optional
+        ``bins``, ``kmin``, ``kmax`` (rad/pixel) of the P(k) and band power.
+
+    Returns
+    -------
+    `~astropy.table.Table`
+        `~spherex_reduce.analysis.characterize.check.compare`'s: the slope scatter at
+        each frame count, the band power and P(k), measured and predicted.
+
+    Raises
+    ------
+    SpherexReduceError
+        No dark, darks of another readout than the model's, or what the pipeline or
+        the forecast cannot take.
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.examples import example_raw_exposure
+    >>> from spherex_reduce.analysis.characterize import characterize, check_model
+    >>> model = characterize(example_raw_exposure(), segments=2)
+    >>> t = check_model(model, [example_raw_exposure(seed=2), example_raw_exposure(seed=3)],
+    ...                 measure={"kmin": 0.2, "kmax": 1.0, "bins": 4})
+    >>> t.meta["pairs"], sorted(set(t["quantity"].tolist()))
+    (1, ['band_power', 'power_spectrum', 'slope_scatter'])
+    """
+    reader = _pipeline(config)
+    reducer = reduction_pipeline(reader)
+    acc = None
+    for label, e in dark_exposures(darks, reader):
+        if e.schedule != model.schedule:
+            raise SpherexReduceError(f"{label}: another readout than the model's darks")
+        if acc is None:
+            acc = DarkScatter(reducer, e.schedule.nframes, frames, measure)
+        acc.add(e)
+        del e
+    if acc is None:
+        raise SpherexReduceError("check: no dark given")
+    return compare(model, acc.result(), reducer)
 
 
 def _add_pixels(sums, e, gain):

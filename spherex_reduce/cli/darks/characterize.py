@@ -32,12 +32,21 @@ def add_parser(sub):
     p.add_argument("-c", "--config", required=True, metavar="CONFIG.yaml",
                    help="pipeline YAML file or shipped config name whose input:, geometry: "
                    "and readout: sections say how to read the darks (unit, gain, keywords "
-                   "they lack), as for reduce -c (its steps are not run)")
+                   "they lack), as for reduce -c; its steps reduce the darks for the slope "
+                   "scatter and P(k) they are compared on")
     p.add_argument("-o", "--output", required=True, metavar="MODEL.yaml")
     p.add_argument("--report", metavar="R.ecsv",
                    help="every fitted number with its uncertainty, per component, spectrum "
                    "and channel")
-    p.add_argument("--plot", metavar="P.png", help="the measured spectra and their fits")
+    p.add_argument("--plot", metavar="P.png", help="the measured spectra and their fits, "
+                   "the slope scatter against N and the reduced P(k), measured and predicted")
+    p.add_argument("--no-scatter", action="store_true",
+                   help="do not measure the darks' slope scatter and P(k) (each dark is "
+                   "reduced once per frame count for them)")
+    p.add_argument("--check", nargs="+", metavar="DARK", default=None,
+                   help="held-out darks (not fitted): their slope scatter against N and "
+                   "reduced P(k), measured with the config's steps, against what the model "
+                   "predicts (printed; in the report and plot instead of the fitted darks')")
     p.add_argument("--exponent", type=positive_float, default=1.3,
                    help="exponent of the third term of every component (default 1.3, the "
                    "paper's)")
@@ -63,13 +72,19 @@ def run(args):
     ramps = [read_file_paths(pattern) for pattern in args.reads]
     pipeline, config_files = input_config(args.config)
     outputs = [args.output, args.report, args.plot]
-    check_paths([*args.inputs, *(f for files in ramps for f in files), *config_files], outputs)
+    check_paths([*args.inputs, *(f for files in ramps for f in files), *(args.check or []),
+                 *config_files], outputs)
     for path in outputs:
         if path:
             atomic_output(path, args.overwrite)
     exponent = None if args.fit_exponent else args.exponent
     model = characterize([*args.inputs, *ramps], pipeline, exponent=exponent,
-                         segments=args.segments, nbins=args.nbins)
+                         segments=args.segments, nbins=args.nbins,
+                         scatter=args.check is None and not args.no_scatter)
+    if args.check is not None:
+        from ...analysis.characterize import check_model
+
+        model.check = check_model(model, args.check, pipeline)
     with all_or_nothing(outputs, args.overwrite) as (tmp, tmp_report, tmp_plot):
         Path(tmp).write_text(model.to_yaml())
         if args.report:
@@ -81,6 +96,14 @@ def run(args):
             save_figure(plot_characterization(model), tmp_plot)
     for line in model.summary():
         print(line)
+    if model.check is not None:
+        print(f"{'held-out darks' if args.check else 'the darks'}: "
+              f"{model.check.meta['statistic']}")
+        for r in model.check[model.check["quantity"] != "power_spectrum"]:
+            print(f"{r['quantity']} N={r['frames']}: measured {r['measured']:.4g} ± "
+                  f"{r['error']:.2g}, predicted {r['predicted']:.4g} (without telegraph "
+                  f"{r['predicted_streams']:.4g}), ratio {r['ratio']:.3f}, within "
+                  f"{r['target']:.0%}: {'yes' if r['within'] else 'no'}")
     for path in outputs:
         if path:
             print(f"wrote {path}")

@@ -1,0 +1,368 @@
+"""What a fitted model predicts for the darks' slope images: their scatter against N and P(k).
+
+The paper's Fig. 12a shows the standard deviation over pixels of the
+reference-corrected slope image against the frame count ``N``, after an
+iterative 5 σ clip, of the difference of two darks divided by √2 (the
+difference removes each pixel's fixed dark-current offset).  `predict_scatter`
+predicts that statistic from a `~spherex_reduce.analysis.characterize.Characterization`:
+
+- **the streams** (every noise component, through the same pipeline):
+  `~spherex_reduce.analysis.forecast.engine.stored_planes` of the model's
+  scene read with the first ``N`` frames, summed over the Fourier plane less
+  its ``k = 0`` cell (the image mean, which a standard deviation over pixels
+  takes out), plus the Poisson noise of the dark current
+  (`~spherex_reduce.analysis.forecast.engine.poisson_variance`, darks in
+  electrons only).  The white level is the per-pixel read-noise map's mean
+  variance (measured on each pixel's differences with its jumps left out)
+  less what the fitted correlated terms add to a read's variance there (half
+  their structure function at one frame), not the streams': a telegraph
+  pixel's steps stay in a stream once its line over the frames is removed and
+  raise the streams' white level (12 % in variance in
+  ``benchmarks/bench_characterize_heldout.py``), though in a pixel they are
+  not white; the difference goes to the ``channel`` component's white term.
+  The map's spread adds nothing to the mean and is not modelled in the clip;
+- **the telegraph pixels** found by the fit (fraction ``f``, mean amplitude
+  and its spread, rate ``r`` of the light-sensitive population): a pixel
+  switching between 0 and ``A`` at rate ``r`` per state has the
+  autocovariance ``A²/4 exp(-2 r |Δt|)`` (the simulator's definition,
+  `~spherex_reduce.simulation.telegraph`), so its least-squares slope has the
+  exact variance ``E[A²]/4 Σ_jk w_j w_k exp(-2 r |t_j - t_k|)``
+  (`telegraph_slope_variance`);
+- **the clip**: a telegraph pixel that switched during the ramp can lie
+  beyond 5 σ, and its slope is far from Gaussian, so the clipped statistic
+  is predicted from the population itself: the pixels are a mixture of the
+  Gaussian core (the streams) and telegraph pixels whose slope is the core
+  plus a telegraph slope drawn from the two-state chain (a fixed number of
+  chains, drawn with a fixed seed and scaled to the exact variance above),
+  and the clipped standard deviation is the fixed point of the clip applied
+  to that mixture (`clipped_sigma`).  Hot pixels are left out: their fixed
+  current puts them far beyond the clip of one dark's image (the pipeline's
+  ``sigma_clip`` step), which is where the measurement leaves them out too
+  (a pipeline without that step keeps them in the measurement, where the
+  clip of the difference takes out only the brightest).
+  With one dark (no difference) each pixel's dark current is fixed, so the
+  fitted spread of the currents is added to the core.
+
+`predict_spectrum` is `~spherex_reduce.analysis.forecast.forecast` of the same
+scene at the darks' readout, plus the telegraph pixels' clipped variance as
+white power (each pixel switches on its own).
+"""
+
+import numpy as np
+from astropy import units as u
+from scipy.special import ndtr
+
+from ...core.errors import SpherexReduceError
+from ...noise.components import NoiseComponent
+from ...noise.variance import ls_weights
+from ..forecast.engine import forecast, poisson_variance, prepare_forecast, stored_planes
+from ..spectrum import rfft_weights
+
+__all__ = ["CLIP_SIGMA", "clipped_sigma", "frame_grid", "predict_scatter", "predict_spectrum",
+           "telegraph_population", "telegraph_slope_variance"]
+
+#: The clip of the slope scatter, in standard deviations (the paper's 5).
+CLIP_SIGMA = 5.0
+#: Telegraph chains drawn to predict the clip (fixed seed: the prediction is deterministic).
+TELEGRAPH_CHAINS = 20000
+#: Points of the frame-count grid from 2 reads to all (`frame_grid`).
+GRID_POINTS = 10
+
+
+def frame_grid(nframes, points=GRID_POINTS):
+    """Frame counts from 2 to ``nframes``, spaced evenly in log (distinct integers).
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.characterize.predict import frame_grid
+    >>> frame_grid(74, 6)
+    [2, 4, 8, 17, 36, 74]
+    """
+    if nframes < 2:
+        raise SpherexReduceError(f"slope scatter: a dark of {nframes} reads has no slope")
+    grid = np.unique(np.rint(np.geomspace(2, nframes, max(2, int(points)))).astype(int))
+    return [int(n) for n in grid]
+
+
+def telegraph_slope_variance(times, rate):
+    """Variance of the least-squares slope of a two-state telegraph of unit step.
+
+    Parameters
+    ----------
+    times : array_like
+        Read times (s).
+    rate : float
+        Switching rate of each state (Hz); ``inf``: a new coin toss at every read.
+
+    Returns
+    -------
+    float
+        ``1/4 Σ_jk w_j w_k exp(-2 rate |t_j - t_k|)`` in 1/s² (times the step²
+        for a step ``A``): the telegraph's autocovariance is ``A²/4 exp(-2 rate
+        |Δt|)``, and ``w`` the uniform least-squares weights
+        (`~spherex_reduce.noise.variance.ls_weights`).
+
+    Examples
+    --------
+    A telegraph faster than the reads is white noise of variance 1/4:
+
+    >>> import numpy as np
+    >>> from spherex_reduce.analysis.characterize.predict import telegraph_slope_variance
+    >>> t = np.arange(10) * 1.5
+    >>> w = t - t.mean()
+    >>> bool(np.isclose(telegraph_slope_variance(t, np.inf), 0.25 / np.sum(w**2)))
+    True
+    """
+    t = np.asarray(times, dtype=np.float64)
+    w = ls_weights(t)
+    dt = np.abs(np.subtract.outer(t, t))
+    with np.errstate(invalid="ignore"):
+        corr = np.where(dt == 0, 1.0, np.exp(-2.0 * float(rate) * dt))
+    return float(0.25 * w @ corr @ w)
+
+
+def telegraph_population(model):
+    """The light-sensitive telegraph pixels the fit found: ``(fraction, amplitude mean,
+    amplitude spread, rate)`` in the darks' unit and Hz, or None (with the reason) when
+    the model has none it can predict from."""
+    pt = model.pixel_terms
+    if pt is None:
+        return None, "the per-pixel terms were not fitted"
+    try:
+        rows = {k: pt.row(f"telegraph_{k}", "active")
+                for k in ("fraction", "amplitude", "amplitude_spread", "rate")}
+    except KeyError as exc:
+        return None, str(exc)
+    if rows["fraction"]["status"] != "fitted":
+        return None, f"no telegraph light-sensitive pixels ({rows['fraction']['note']})"
+    for k in ("amplitude", "rate"):
+        if rows[k]["status"] != "fitted":
+            return None, f"telegraph {k} not fitted ({rows[k]['note']})"
+    spread = rows["amplitude_spread"]
+    return (rows["fraction"]["value"], rows["amplitude"]["value"],
+            spread["value"] if spread["status"] == "fitted" else 0.0,
+            rows["rate"]["value"]), ""
+
+
+def _chains(times, rate, n, rng):
+    """``(n, nreads)`` states (0 or 1) of a symmetric two-state telegraph read at ``times``."""
+    p = -np.expm1(-2.0 * rate * np.diff(times)) / 2.0
+    flips = rng.random((n, len(times) - 1)) < p
+    start = rng.random((n, 1)) < 0.5
+    return np.concatenate([start, start ^ np.logical_xor.accumulate(flips, axis=1)], axis=1)
+
+
+def _telegraph_slopes(times, population, differenced, n=TELEGRAPH_CHAINS, seed=0):
+    """Draws of a telegraph pixel's slope (of a difference / √2 if ``differenced``),
+    scaled so their mean square is the exact variance (`telegraph_slope_variance`)."""
+    _, mean, spread, rate = population
+    rng = np.random.default_rng(seed)
+    w = ls_weights(times)
+    amp = np.abs(rng.normal(mean, spread, n)) if spread > 0 else np.full(n, mean)
+    y = amp * (_chains(times, rate, n, rng) @ w)
+    if differenced:  # the same pixel in two darks: its amplitude, independent states
+        y = (y - amp * (_chains(times, rate, n, rng) @ w)) / np.sqrt(2.0)
+    exact = (mean**2 + spread**2) * telegraph_slope_variance(times, rate)
+    ms = np.mean(y * y)
+    return y * np.sqrt(exact / ms) if ms > 0 else y
+
+
+def clipped_sigma(weights, means, variance, sigma=CLIP_SIGMA, tol=1e-10, maxiter=200):
+    """Standard deviation, after iterative clipping at ``sigma``, of a Gaussian mixture.
+
+    The large-sample limit of `astropy.stats.sigma_clipped_stats` (centre 0: the
+    mixture is symmetric) for values drawn from ``Σ_i weights_i N(means_i, variance)``.
+
+    Parameters
+    ----------
+    weights, means : array_like
+        Weight and mean of each Gaussian (weights summing to 1).
+    variance : float
+        The Gaussians' common variance (> 0).
+    sigma : float or None
+        The clip; None: no clip.
+
+    Returns
+    -------
+    float
+
+    Examples
+    --------
+    One Gaussian clipped at 5 σ keeps almost all its width, ``σ (1 − 2 c φ(c))^½``
+    for ``c = 5``:
+
+    >>> from spherex_reduce.analysis.characterize.predict import clipped_sigma
+    >>> round(clipped_sigma([1.0], [0.0], 4.0), 6)
+    1.999985
+    """
+    wt = np.asarray(weights, dtype=np.float64)
+    mu = np.asarray(means, dtype=np.float64)
+    s = np.sqrt(float(variance))
+    total = float(np.sum(wt * (mu * mu + variance)))
+    if sigma is None:
+        return float(np.sqrt(total))
+    std = np.sqrt(total)
+    for _ in range(maxiter):
+        c = sigma * std
+        a, b = (-c - mu) / s, (c - mu) / s
+        pa, pb = np.exp(-a * a / 2), np.exp(-b * b / 2)
+        pa, pb = pa / np.sqrt(2 * np.pi), pb / np.sqrt(2 * np.pi)
+        kept = ndtr(b) - ndtr(a)
+        m1 = mu * kept + s * (pa - pb)
+        m2 = (mu * mu + variance) * kept + 2 * mu * s * (pa - pb) + variance * (a * pa - b * pb)
+        frac = float(np.sum(wt * kept))
+        mean = float(np.sum(wt * m1)) / frac
+        new = np.sqrt(max(float(np.sum(wt * m2)) / frac - mean * mean, 0.0))
+        if abs(new - std) <= tol * std:
+            return float(new)
+        std = new
+    return float(std)
+
+
+def _scene(model, nframes, single):
+    """The model's scene read with its first ``nframes`` frames, in slopes mode, with the
+    terms the forecast takes (the dark current and its Poisson noise)."""
+    sc = model.scene()
+    readout = dict(sc["readout"])
+    readout["nframes"] = int(nframes)
+    if readout.get("read_times") is not None:
+        readout["read_times"] = list(readout["read_times"])[:nframes]
+    if readout.get("groups") is not None or readout.get("frames_per_group", 1) != 1:
+        raise SpherexReduceError("slope scatter: grouped readouts are not predicted "
+                                 "(reads averaged in groups)")
+    white = _read_noise_white(model)
+    if white is not None:
+        g, s = model.schedule.geometry, model.schedule
+        seen = [c for c in sc["noise"]["components"]
+                if c.get("visibility", "pixels") in ("pixels", "both")]
+        # the map's variance of a read holds half the structure function at one frame of
+        # the correlated terms (a pixel's differences are a frame apart)
+        drift = sum(0.5 * float(NoiseComponent(c["name"], beta=c["beta"], gamma=c["gamma"],
+                                               exponent=c["exponent"])
+                                .structure_function(s.frame_samples, g.pixel_rate))
+                    for c in seen)
+        alpha = sum(c["alpha"] for c in seen)
+        for c in sc["noise"]["components"]:
+            if c["name"] == "channel":
+                c["alpha"] = max(c["alpha"] + 2.0 * (white - drift) / g.pixel_rate - alpha,
+                                 0.0)
+    terms = sc.pop("scene", {}) or {}
+    current = float(terms.get("dark_current", 0.0))
+    sc.update(readout=readout, output={"mode": "slopes"},
+              scene={"dark_current": current, "poisson": model.unit == u.electron})
+    spread = 0.0
+    if single and model.pixel_terms is not None:
+        row = model.pixel_terms.row("dark_current_spread", "active")
+        spread = row["value"] if row["status"] == "fitted" else 0.0
+    return sc, spread
+
+
+def _read_noise_white(model):
+    """The light-sensitive pixels' mean read-noise variance per read (the darks' unit
+    squared), or None without a fitted read-noise map."""
+    if model.pixel_terms is None:
+        return None
+    try:
+        row = model.pixel_terms.row("read_noise", "active")
+    except KeyError:
+        return None
+    return row["value"] ** 2 if row["status"] == "fitted" else None
+
+
+def _stream_variance(scene, pipeline):
+    """The mean over pixels of the squared deviation from the image mean, of the reduced
+    slope image of ``scene`` (the forecast's plane less its ``k = 0`` cell), plus Poisson."""
+    prepared = prepare_forecast(scene, pipeline)
+    planes, (ny, nx) = stored_planes(*prepared)
+    total = sum(planes.values()) if planes else np.zeros((ny, nx // 2 + 1))
+    w = np.broadcast_to(rfft_weights(nx), total.shape)
+    var = (float(np.sum(total * w)) - float(total[0, 0])) / (ny * nx) ** 2
+    return var + poisson_variance(prepared[0])
+
+
+def predict_scatter(model, pipeline, frames, *, differenced=True, sigma=CLIP_SIGMA):
+    """The slope scatter over pixels against the frame count that ``model`` predicts.
+
+    Parameters
+    ----------
+    model : `~spherex_reduce.analysis.characterize.Characterization`
+    pipeline : `~spherex_reduce.Pipeline`, shipped name or dict
+        The reduction (its steps linear: `~spherex_reduce.analysis.forecast.forecast`).
+    frames : sequence of int
+        Frame counts ``N`` (the first ``N`` reads of the darks' readout).
+    differenced : bool
+        The statistic of the difference of two darks over √2 (True), or of one dark
+        (False: each pixel's fixed dark current stays, its fitted spread is added).
+    sigma : float or None
+        The iterative clip (None: none).
+
+    Returns
+    -------
+    dict
+        ``frames``; ``sigma`` (predicted, with the telegraph pixels), ``sigma_streams``
+        (without them: the streams and the dark current only), ``telegraph_variance``
+        (the exact slope variance of one telegraph pixel, 0 without any) and
+        ``telegraph_excess`` (the clipped variance they add: white over ``k``), each
+        an array in the slope unit (the darks' unit per second); ``telegraph`` the
+        population used or None, ``note`` why none.
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.examples import example_raw_exposure
+    >>> from spherex_reduce.analysis.characterize import characterize
+    >>> from spherex_reduce.analysis.characterize.predict import predict_scatter
+    >>> model = characterize(example_raw_exposure(), segments=2)
+    >>> p = predict_scatter(model, "spherex-default", [2, 6])
+    >>> bool((p["sigma"][0] > p["sigma"][1] > 0))
+    True
+    """
+    population, note = telegraph_population(model)
+    out = {k: [] for k in ("sigma", "sigma_streams", "telegraph_variance",
+                           "telegraph_excess")}
+    for n in frames:
+        sc, spread = _scene(model, n, not differenced)
+        v0 = _stream_variance(sc, pipeline) + spread**2
+        core = clipped_sigma([1.0], [0.0], v0, sigma)
+        out["sigma_streams"].append(core)
+        if population is None or v0 <= 0:
+            out["sigma"].append(core)
+            out["telegraph_variance"].append(0.0)
+            out["telegraph_excess"].append(0.0)
+            continue
+        times = model.schedule.frame_starts.to_value(u.s)[:n]
+        f = min(max(population[0], 0.0), 1.0)
+        y = _telegraph_slopes(times, population, differenced)
+        weights = np.concatenate([[1 - f], np.full(y.size, f / y.size)])
+        full = clipped_sigma(weights, np.concatenate([[0.0], y]), v0, sigma)
+        out["sigma"].append(full)
+        out["telegraph_variance"].append(float(np.mean(y * y)))
+        out["telegraph_excess"].append(full**2 - core**2)
+    result = {k: np.asarray(v) for k, v in out.items()}
+    result.update(frames=np.asarray(frames, dtype=int), telegraph=population, note=note)
+    return result
+
+
+def predict_spectrum(model, pipeline, measure=None, excess=0.0):
+    """`~spherex_reduce.analysis.forecast.forecast` of the model's scene (the dark current
+    and the streams) at the darks' readout, plus ``excess`` (the telegraph pixels' clipped
+    variance: `predict_scatter`'s ``telegraph_excess`` at every frame) as white power,
+    in ``power`` and ``meta['band_power']``; ``power_streams`` keeps the forecast alone.
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.examples import example_raw_exposure
+    >>> from spherex_reduce.analysis.characterize import characterize
+    >>> from spherex_reduce.analysis.characterize.predict import predict_spectrum
+    >>> model = characterize(example_raw_exposure(), segments=2)
+    >>> t = predict_spectrum(model, "spherex-default", {"kmin": 0.2, "kmax": 1.0, "bins": 4})
+    >>> bool(t.meta["band_power"] > 0), len(t)
+    (True, 4)
+    """
+    sc, _ = _scene(model, model.schedule.nframes, False)
+    table = forecast(sc, pipeline, measure)
+    table["power_streams"] = table["power"].copy()
+    extra = float(excess) * table["power"].unit
+    table["power"] = table["power"] + extra
+    table.meta["band_power"] = float(table.meta["band_power"] + excess)
+    table.meta["telegraph_white"] = float(excess)
+    return table

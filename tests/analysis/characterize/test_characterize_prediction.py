@@ -1,0 +1,162 @@
+"""What a fitted model predicts for the darks' slope images, and what is measured on them.
+
+Independent expectations: the telegraph slope variance against a Monte Carlo of
+two-state chains and a least-squares slope written here with numpy; the clipped
+standard deviation of a mixture against astropy's clip of draws from it; the
+slope scatter of white darks against the closed form ``12 σ² / (N (N² - 1)
+T²)``; the measured scatter against numpy's lstsq slopes of the same ramps,
+differenced and clipped here.
+"""
+
+import warnings
+
+import numpy as np
+import pytest
+from astropy.stats import sigma_clip
+
+from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule
+from spherex_reduce.analysis.characterize import characterize, check_model
+from spherex_reduce.analysis.characterize.check import DarkScatter, reduction_pipeline
+from spherex_reduce.analysis.characterize.figure import AUTO, CROSS, plot_characterization
+from spherex_reduce.analysis.characterize.predict import (
+    clipped_sigma,
+    predict_scatter,
+    telegraph_slope_variance,
+)
+from spherex_reduce.simulation import simulate
+
+SLOPES_ONLY = {"name": "slopes", "steps": [{"unchop": {}},
+                                           {"fit_ramp": {"weighting": "uniform"}}]}
+
+
+def _telegraph_ramps(times, amplitude, rate, n, rng):
+    """``(n, reads)`` two-state telegraph values read at ``times``: a coin for the first
+    state, then each interval switches with ``(1 - exp(-2 rate dt)) / 2``."""
+    p = (1 - np.exp(-2 * rate * np.diff(times))) / 2
+    state = np.empty((n, len(times)), dtype=bool)
+    state[:, 0] = rng.random(n) < 0.5
+    for k in range(1, len(times)):
+        state[:, k] = state[:, k - 1] ^ (rng.random(n) < p[k - 1])
+    return amplitude * state
+
+
+@pytest.mark.parametrize("rate", [0.05, 0.5, 3.0])
+def test_telegraph_slope_variance_is_that_of_a_monte_carlo(rate):
+    rng = np.random.default_rng(7)
+    times = np.array([0.0, 1.0, 2.0, 3.5, 5.0, 6.0, 8.0, 9.5, 11.0, 12.0])
+    x = _telegraph_ramps(times, 40.0, rate, 200_000, rng)
+    design = np.vstack([np.ones_like(times), times]).T
+    slopes = np.linalg.lstsq(design, x.T, rcond=None)[0][1]
+    mc = slopes.var()
+    se = mc * np.sqrt(np.var((slopes - slopes.mean()) ** 2) / mc**2 / slopes.size)
+    assert abs(40.0**2 * telegraph_slope_variance(times, rate) - mc) < 4 * se
+
+
+def test_clipped_sigma_is_astropys_clip_of_draws_from_the_mixture():
+    rng = np.random.default_rng(3)
+    n = 400_000
+    outliers = rng.choice([-9.0, -4.0, 4.0, 9.0], n)  # 4: kept by a 5 sigma clip, 9: cut
+    pick = rng.random(n) < 0.06
+    x = rng.normal(0, 1.0, n) + np.where(pick, outliers, 0.0)
+    measured = np.ma.std(sigma_clip(x, sigma=5, maxiters=None))
+    means = np.array([0.0, -9.0, -4.0, 4.0, 9.0])
+    weights = np.array([0.94, 0.015, 0.015, 0.015, 0.015])
+    assert clipped_sigma(weights, means, 1.0) == pytest.approx(measured, rel=4e-3)
+    # unclipped: the mixture's standard deviation
+    assert clipped_sigma(weights, means, 1.0, sigma=None) == pytest.approx(
+        np.sqrt(1 + 0.06 * (81 + 16) / 2), rel=1e-12)
+
+
+def _white_scene(nframes=12, seed_rtn=None):
+    scene = {"geometry": {"nrows": 128, "ncols": 128, "nchannels": 2, "ref_border": 4},
+             "readout": {"skip": 4, "ref_reads": 8, "phantom_reads": 0, "nframes": nframes},
+             "noise": {"components": [{"name": "white", "alpha": 2e-3}]},
+             "output": {"mode": "ramps"}}
+    if seed_rtn is not None:
+        scene["scene"] = {"rtn": seed_rtn}
+    return scene
+
+
+def test_white_darks_scatter_is_the_closed_form():
+    scene = _white_scene()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = characterize([simulate(scene, seed=s) for s in range(4)], SLOPES_ONLY)
+    s = model.schedule
+    frames = [2, 3, 6, 12]
+    got = predict_scatter(model, SLOPES_ONLY, frames, sigma=None)
+    var_read = 2e-3 * s.geometry.pixel_rate / 2  # a white read's variance, e^2
+    t = s.frame_time.to_value("s")
+    n = np.array(frames, dtype=float)
+    want = np.sqrt(12 * var_read / (n * (n**2 - 1) * t**2))
+    # the read-noise map of 4 darks of 128 x 128 pixels: its own error is ~0.3 %
+    np.testing.assert_allclose(got["sigma_streams"], want, rtol=0.02)
+    assert np.all(got["telegraph_variance"] == 0)
+
+
+def _plain_schedule(nframes):
+    g = DetectorGeometry(32, 32, 1, ref_border=0)
+    return ReadoutSchedule(g, skip=1, ref_mode="none", phantom_reads=0, nframes=nframes)
+
+
+def test_measured_scatter_is_numpys_lstsq_of_the_ramps_differenced_and_clipped():
+    s = _plain_schedule(8)
+    rng = np.random.default_rng(11)
+    t = s.frame_starts.to_value("s")
+    ramps = []
+    for _ in range(2):
+        x = rng.normal(0, 5.0, (8, 32, 32)) + 3.0 * t[:, None, None]
+        x[:, 4, 7] += np.where(np.arange(8) >= 3, 500.0, 0.0)  # a jump: clipped
+        ramps.append(x)
+    frames = [2, 4, 8]
+    acc = DarkScatter(reduction_pipeline({"name": "fit", "steps": [
+        {"fit_ramp": {"weighting": "uniform"}}]}), 8, frames=frames,
+        measure={"kmin": 0.3, "kmax": 1.5, "bins": 4})
+    for x in ramps:
+        acc.add(Exposure.from_arrays(x, s))
+    got = acc.result()
+    assert got["differenced"] and got["pairs"] == 1
+    for i, n in enumerate(frames):
+        design = np.vstack([np.ones(n), t[:n]]).T
+        sl = [np.linalg.lstsq(design, x[:n].reshape(n, -1), rcond=None)[0][1] for x in ramps]
+        d = (sl[0] - sl[1]) / np.sqrt(2)
+        keep = np.ones(d.size, bool)
+        while True:  # iterative 5 sigma clip about the median
+            std = d[keep].std()
+            new = np.abs(d - np.median(d[keep])) <= 5 * std
+            if (new == keep).all():
+                break
+            keep = new
+        assert got["sigma"][i] == pytest.approx(d[keep].std(), rel=1e-6)
+
+
+def test_held_out_darks_with_telegraph_pixels_and_the_report_and_plot():
+    rtn = {"fraction": 0.05, "amplitude": 200.0, "rate": 0.5}
+    scene = _white_scene(nframes=16, seed_rtn=rtn)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = characterize([simulate(scene, seed=s) for s in range(4)], SLOPES_ONLY,
+                             scatter=True)
+        table = check_model(model, [simulate(scene, seed=s) for s in range(4, 8)],
+                            SLOPES_ONLY, frames=[2, 4, 8, 16])
+    assert table.meta["pairs"] == 2 and table.meta["telegraph"] is not None
+    sc = table[table["quantity"] == "slope_scatter"]
+    assert list(sc["frames"]) == [2, 4, 8, 16]
+    # white darks and a telegraph population: within 5 % from 2 reads to all
+    np.testing.assert_allclose(sc["ratio"], 1.0, atol=0.05)
+    # the telegraph pixels raise the prediction at the most frames (their step is slow)
+    assert sc["predicted"][-1] > sc["predicted_streams"][-1]
+    # the model's own darks: in the report, summary and plot
+    rep = model.report()
+    kinds = set(rep["kind"])
+    assert {"slope_scatter", "band_power", "power_spectrum"} <= kinds
+    ratio = rep[(rep["kind"] == "slope_scatter") & (rep["parameter"] == "ratio")]
+    assert len(ratio) == len(model.check[model.check["quantity"] == "slope_scatter"])
+    assert any(line.startswith("slope scatter measured / predicted")
+               for line in model.summary())
+    fig = plot_characterization(model)
+    assert len(fig.axes) == 4
+    labels = [t.get_text() for ax in fig.axes if ax.get_legend()
+              for t in ax.get_legend().get_texts()]
+    assert not set(labels) & (set(AUTO) | set(CROSS))  # words, not internal names
+    assert "predicted without the telegraph pixels" in labels

@@ -120,19 +120,24 @@ class PixelTerms:
         """The ``scene:`` mapping of these terms, in the darks' unit (per second for currents).
 
         ``dark_current`` is the mean current of the active pixels that are not
-        hot, ``hot_pixel_current`` the mean excess of the hot ones, and ``rtn``
-        the telegraph population: ``pixels: all`` when the active and reference
-        populations agree within 3 standard deviations in fraction, amplitude and
-        rate (their inverse-variance means), else the active one (warning), else
-        whichever was found; left out when none was.
+        hot, ``hot_pixel_current`` the mean excess of the hot ones, each with its
+        spread (``*_spread``: the pixels' standard deviation less their
+        measurement noise) where one is found, and ``rtn`` the telegraph
+        populations: one with ``pixels: all`` when the active and reference
+        populations agree within 3 standard deviations in fraction, amplitude
+        and rate (their inverse-variance means; the active pixels' spreads),
+        else a list of both (each with its ``amplitude_spread`` and
+        ``rate_spread`` where found), else whichever was found; left out when
+        none was.
 
         Returns
         -------
         dict
             ``{"dark_current", "hot_pixel_fraction", "hot_pixel_current"[, "rtn"]}``
-            (a term not fitted is left out: the scene's default, none of it),
-            plain floats, ready for `~spherex_reduce.simulation.load_scene` (which
-            reads them as e and e/s: a scene for ADU darks is in ADU).
+            and the spreads found (a term not fitted is left out: the scene's
+            default, none of it), plain floats, ready for
+            `~spherex_reduce.simulation.load_scene`, in the darks' unit (the
+            scene's ``unit:``).
 
         Examples
         --------
@@ -151,6 +156,11 @@ class PixelTerms:
             row = self.row(term, "active")
             if row["status"] == "fitted":  # else the scene's default (none of it)
                 out[term] = max(row["value"], 0.0)
+        for term, of in (("dark_current_spread", "dark_current"),
+                         ("hot_pixel_current_spread", "hot_pixel_current")):
+            row = self.row(term, "active")
+            if row["status"] == "fitted" and out.get(of, 0.0) > 0:  # a spread about a mean
+                out[term] = float(row["value"])
         found = {}
         for pixels in _POPULATIONS:
             rows = [self.row(f"telegraph_{k}", pixels) for k in ("fraction", "amplitude", "rate")]
@@ -160,19 +170,31 @@ class PixelTerms:
                 why = next(r["note"] for r in rows if r["status"] != "fitted")
                 warnings.warn(f"telegraph {pixels} pixels found but not all their terms: "
                               f"{why}; they are left out of the scene", stacklevel=2)
+        keys = ("fraction", "amplitude", "rate")
+        pops = {}
         if len(found) == 2:
             a, r = found["active"], found["reference"]
             if all(abs(x[0] - y[0]) <= 3 * np.hypot(x[1], y[1]) for x, y in zip(a, r, strict=True)):
                 values = [_weighted(x, y) for x, y in zip(a, r, strict=True)]
-                out["rtn"] = dict(zip(("fraction", "amplitude", "rate"), values, strict=True),
-                                  pixels="all")
-                return out
-            warnings.warn("the scene holds one telegraph population and the active and "
-                          "reference ones differ: the active one is kept", stacklevel=2)
-            found.pop("reference")
-        for pixels, values in found.items():
-            out["rtn"] = {**dict(zip(("fraction", "amplitude", "rate"),
-                                     (v for v, _ in values), strict=True)), "pixels": pixels}
+                pops["all"] = {**dict(zip(keys, values, strict=True)), "pixels": "all",
+                               **self._spreads("active")}
+        if not pops:  # each population as found (the active and the reference ones differ)
+            for pixels, values in found.items():
+                pops[pixels] = {**dict(zip(keys, (v for v, _ in values), strict=True)),
+                                "pixels": pixels, **self._spreads(pixels)}
+        if len(pops) == 1:
+            out["rtn"] = next(iter(pops.values()))
+        elif pops:
+            out["rtn"] = list(pops.values())
+        return out
+
+    def _spreads(self, pixels):
+        """``amplitude_spread`` and ``rate_spread`` of a telegraph population, where fitted."""
+        out = {}
+        for key in ("amplitude_spread", "rate_spread"):
+            row = self.row(f"telegraph_{key}", pixels)
+            if row["status"] == "fitted":
+                out[key] = float(row["value"])
         return out
 
 

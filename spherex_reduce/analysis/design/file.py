@@ -231,10 +231,12 @@ def load_design(source):
     v = validate_file(config, DESIGN_PARAMETERS, label)
     scene = scene_section(v["scene"], label)
     if v["noise"] is not None:
-        comps, unit = noise_model(_beside(v["noise"], label), f"{label}: noise")
+        comps, unit = noise_model(_beside(v["noise"], label), f"{label}: noise",
+                                  unit=u.electron)  # a scene in adu: with its gain
         if unit != u.electron:  # the scene, the sky and the band powers are in electrons
             raise ConfigError(f"{label}: noise: {v['noise']} describes charge in {unit}, not "
-                              "electrons; fit-noise darks given input.gain (or in electrons)")
+                              "electrons; fit-noise darks given input.gain (or in electrons), "
+                              "or a scene in adu with its gain:")
         scene = {**scene, "noise": {"components": [c.to_dict() for c in comps]}}
     try:
         sc = load_scene(scene)

@@ -43,7 +43,8 @@ from ..spectrum import BAND_KMAX, BAND_KMIN
 from .row_orders import FAMILIES, max_skip
 
 __all__ = ["BASELINE", "DESIGN_PARAMETERS", "GAIN_ERROR", "MAX_CHOICES", "MAX_ITERATIONS",
-           "MAX_TIMINGS", "MIN_PAIRS", "POPULATION_TERMS", "TOP_KEYS", "Baseline", "Design", "load_design"]
+           "MAX_TIMINGS", "MIN_PAIRS", "POPULATION_TERMS", "TOP_KEYS", "Baseline", "Design",
+           "load_design"]
 
 #: The paired Monte Carlo's default target: the standard error of its gain (1 - best /
 #: baseline band power), 1 percentage point.

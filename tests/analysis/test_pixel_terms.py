@@ -235,3 +235,42 @@ def test_a_scene_from_the_fit_simulates_the_fitted_terms_again():
         assert abs(a["value"] - b["value"]) < 4.5 * np.hypot(a["error"], b["error"]), (
             term, pixels, a, b)
         assert abs(a["value"] - value) < 4.5 * a["error"], (term, pixels, a, value)
+
+
+def _sidecar(seed, rate):
+    """A JWST-like SIDECAR detector (4 outputs, no phantom reads): 10 e white, 1/f per
+    output with ACN and common to them, 5 e/s, 2 % telegraph pixels of 150 e; its
+    populations fixed by ``population_seed``; frames of 0.15 s (the simulation's cost)."""
+    return {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 4, "ref_border": 4},
+            "readout": {"skip": 1, "ref_reads": 8, "phantom_reads": 0, "nframes": 10,
+                        "frame_time": 0.15},
+            "noise": {"components": [{"name": "outputs", "alpha": 2e-3, "beta": 2e-2},
+                                     {"name": "common", "beta": 1e-2, "scope": "common"}],
+                      "acn": True},
+            "output": {"mode": "ramps"},
+            "scene": {"dark_current": 5.0, "population_seed": seed,
+                      "rtn": {"fraction": 0.02, "amplitude": 150.0, "rate": rate}}}
+
+
+def test_pulls_over_twenty_sidecar_detectors_are_standard_normal():
+    """20 detectors, each read 4 times (10 reads): the telegraph fraction, step and rate and
+    the dark current against the truth; per term the pulls' mean within 0.75 of 0 (about
+    3 standard errors of a mean of 20) and their standard deviation in [0.6, 1.6], none
+    beyond 5.  The rate came out 17 standard errors low (a fast telegraph's jumps, a third
+    of a dark's ten differences, raised the pixel's own scale above them), and the dark
+    current's error left out the 1/f drift common to a dark's pixels (pulls' sd 1.9)."""
+    truth = {"telegraph_fraction": 0.02, "telegraph_amplitude": 150.0,
+             "telegraph_rate": 2.0, "dark_current": 5.0}
+    pulls = {term: [] for term in truth}
+    for seed in range(20):
+        darks = [dark_ramps(simulate(_sidecar(seed, 2.0), seed=100 * seed + k))
+                 for k in range(4)]
+        res = fit_pixel_terms([d for d, _, _ in darks], darks[0][1], reference=darks[0][2])
+        for term, value in truth.items():
+            row = res.row(term, "active")
+            assert row["status"] == "fitted", (seed, row)
+            pulls[term].append((row["value"] - value) / row["error"])
+    for term, x in pulls.items():
+        x = np.array(x)
+        assert abs(x.mean()) < 0.75 and 0.6 < x.std(ddof=1) < 1.6, (term, x.round(2))
+        assert np.all(np.abs(x) < 5), (term, x.round(2))

@@ -61,8 +61,8 @@ class Characterization:
     >>> from spherex_reduce.io.examples import example_raw_exposure
     >>> from spherex_reduce.analysis.characterize import characterize
     >>> model = characterize(example_raw_exposure(), segments=2)
-    >>> sorted(model.scene())
-    ['geometry', 'noise', 'readout', 'scene']
+    >>> sorted(model.scene()), model.scene()["unit"]
+    (['geometry', 'noise', 'readout', 'scene', 'unit'], 'electron')
     >>> set(model.report()["kind"]) >= {"component", "spectrum", "channel", "exponent"}
     True
     >>> model.to_yaml().startswith("# noise model fitted by spherex-reduce characterize")

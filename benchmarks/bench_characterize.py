@@ -1,7 +1,17 @@
 """``characterize`` on darks of our simulator: every term against the injected truth.
 
-Run: ``python benchmarks/bench_characterize.py [--size 2048] [--nframes 74] [--darks 4]
-[--seeds 20] [--phantom-reads 4] [--scale 1]``.
+Run: ``python benchmarks/bench_characterize.py [--case paper|sidecar] [--pulls] [--size 2048]
+[--nframes 74] [--darks 4] [--seeds 20] [--phantom-reads 4] [--scale 1] [--frame-time T]``.
+
+``--case sidecar`` is a JWST-like SIDECAR detector instead of the paper's: 4 outputs
+(``--size``/4 columns each), no phantom reads, white noise of 10 e per read,
+correlated (common) and uncorrelated (per output) 1/f noise, ACN, a dark current of
+0.5 e/s and 2 % telegraph pixels (steps of 150 e at 0.05 Hz), one detector
+(``scene.population_seed``: the seed) read ``--darks`` times per seed; the per-pixel
+terms (telegraph fraction, step and rate, dark current) are compared too.
+``--pulls`` prints, per parameter, the number of seeds, the mean and the standard
+deviation of the pulls (fit − truth)/error and the fraction beyond 3, instead of the
+table of the first seed.
 
 The paper's readout (S = 24, r = 32 distributed, ``--phantom-reads`` c, N =
 ``--nframes``; ``--size`` rows and columns, 64 columns per channel) with every
@@ -52,7 +62,38 @@ def truth(scale, phantom):
             "common_phantom": t["bias_phantom_only"]}
 
 
+#: The SIDECAR case: white (e²/Hz: 10 e per read at 100 kHz), 1/f of each output with ACN,
+#: 1/f common to the outputs (e²); telegraph pixels and dark current.
+SIDECAR = {"white": 2e-3, "channel_beta": 2e-2, "common_beta": 1e-2}
+SIDECAR_PIXELS = {"dark_current": 0.5, "telegraph_fraction": 0.02,
+                  "telegraph_amplitude": 150.0, "telegraph_rate": 0.05}
+
+
+def sidecar_truth(args):
+    return {"channel": np.array([SIDECAR["white"], SIDECAR["channel_beta"] * args.scale, 0]),
+            "common": np.array([0.0, SIDECAR["common_beta"] * args.scale, 0])}
+
+
+def sidecar_scene(args):
+    p = SIDECAR_PIXELS
+    comps = [{"name": "outputs", "alpha": SIDECAR["white"],
+              "beta": SIDECAR["channel_beta"] * args.scale},
+             {"name": "correlated", "beta": SIDECAR["common_beta"] * args.scale,
+              "scope": "common"}]
+    return {"geometry": {"nrows": args.size, "ncols": args.size, "nchannels": 4,
+                         "ref_border": 4},
+            "readout": {"skip": 1, "ref_reads": 8, "phantom_reads": 0,
+                        "nframes": args.nframes},
+            "noise": {"components": comps, "acn": True}, "output": {"mode": "ramps"},
+            "scene": {"dark_current": p["dark_current"],
+                      "rtn": {"fraction": p["telegraph_fraction"],
+                              "amplitude": p["telegraph_amplitude"],
+                              "rate": p["telegraph_rate"], "pixels": "active"}}}
+
+
 def scene(args):
+    if args.case == "sidecar":
+        return sidecar_scene(args)
     comps = [{"name": n, "alpha": a, "beta": b * args.scale, "gamma": g * args.scale}
              for n, (a, b, g, _, _) in TABLE2.items()]
     return {"geometry": {"nrows": args.size, "ncols": args.size,
@@ -70,12 +111,26 @@ def main():
     p.add_argument("--seeds", type=int, default=20)
     p.add_argument("--phantom-reads", type=int, default=4)
     p.add_argument("--scale", type=float, default=1.0)
+    p.add_argument("--case", choices=("paper", "sidecar"), default="paper")
+    p.add_argument("--frame-time", type=float, default=None,
+                   help="frame time (s; default the readout's own: 10.6 s at 2048² for the "
+                   "SIDECAR case, whose telegraph switches at 0.05 Hz)")
+    p.add_argument("--pulls", action="store_true",
+                   help="print per parameter the mean and sd of the pulls over the seeds")
     args = p.parse_args()
-    want = truth(args.scale, args.phantom_reads > 0)
+    if args.case == "sidecar":
+        args.phantom_reads = 0
+        want = sidecar_truth(args)
+    else:
+        want = truth(args.scale, args.phantom_reads > 0)
     sc = scene(args)
+    if args.frame_time is not None:
+        sc["readout"]["frame_time"] = args.frame_time
     pulls, first, timing = {}, None, None
     for seed in range(args.seeds):
         t_sim = [0.0]
+        if args.case == "sidecar":
+            sc["scene"]["population_seed"] = seed  # one detector per seed, read --darks times
 
         def darks(seed=seed, t_sim=t_sim):  # one at a time: a dark is released once read
             for k in range(args.darks):
@@ -86,7 +141,7 @@ def main():
                 del dark  # before the next is simulated
 
         t0 = time.perf_counter()
-        model = characterize(darks())
+        model = characterize(darks(), pixels=args.case == "sidecar")
         t_char = time.perf_counter() - t0 - t_sim[0]
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # GiB (Linux: KiB)
         t_sim = t_sim[0]
@@ -97,20 +152,39 @@ def main():
                 if est.errors[i] > 0:
                     pulls.setdefault((name, term), []).append(
                         (est.values[i] - want[name][i]) / est.errors[i])
+        if model.pixel_terms is not None:
+            for term, value in SIDECAR_PIXELS.items():
+                row = model.pixel_terms.row(term, "active")
+                if row["status"] == "fitted" and row["error"] > 0:
+                    pulls.setdefault(("pixels", term), []).append(
+                        (row["value"] - value) / row["error"])
         print(f"seed {seed}: simulate {t_sim:.1f} s, characterize {t_char:.1f} s, "
               f"ACN z = {model.acn['z']:.1f}", flush=True)
-    print(f"\n{platform.node()}: {args.size}², {max(1, args.size // 64)} channels, N = "
+    what = (f"Table 2 x {args.scale:g} (beta, gamma), ACN" if args.case == "paper" else
+            f"SIDECAR-like (1/f x {args.scale:g}), ACN, 2 % telegraph pixels")
+    print(f"\n{platform.node()}: {args.size}², {sc['geometry']['nchannels']} channels, N = "
           f"{args.nframes}, c = {args.phantom_reads}, {args.darks} darks per seed, "
-          f"{args.seeds} seeds, Table 2 x {args.scale:g} (beta, gamma), ACN\n")
-    print("| term | truth | fitted (seed 0) | error | pull (seed 0) | pulls: mean ± sd |")
-    print("|---|---|---|---|---|---|")
-    for (name, term), x in pulls.items():
-        i = ("alpha", "beta", "gamma").index(term)
-        est = first.components[name]
-        x = np.array(x)
-        sd = f"{x.std(ddof=1):.2f}" if x.size > 1 else "-"
-        print(f"| {name}.{term} | {want[name][i]:.3g} | {est.values[i]:.3g} | "
-              f"{est.errors[i]:.2g} | {x[0]:+.2f} | {x.mean():+.2f} ± {sd} |")
+          f"{args.seeds} seeds, {what}\n")
+    if args.pulls:
+        print("| parameter | seeds | mean pull | sd of pulls | fraction beyond 3 |")
+        print("|---|---|---|---|---|")
+        for (name, term), x in pulls.items():
+            x = np.array(x)
+            sd = f"{x.std(ddof=1):.2f}" if x.size > 1 else "-"
+            print(f"| {name}.{term} | {x.size} | {x.mean():+.2f} | {sd} | "
+                  f"{np.mean(np.abs(x) > 3):.2f} |")
+    else:
+        print("| term | truth | fitted (seed 0) | error | pull (seed 0) | pulls: mean ± sd |")
+        print("|---|---|---|---|---|---|")
+        for (name, term), x in pulls.items():
+            if name == "pixels":
+                continue
+            i = ("alpha", "beta", "gamma").index(term)
+            est = first.components[name]
+            x = np.array(x)
+            sd = f"{x.std(ddof=1):.2f}" if x.size > 1 else "-"
+            print(f"| {name}.{term} | {want[name][i]:.3g} | {est.values[i]:.3g} | "
+                  f"{est.errors[i]:.2g} | {x[0]:+.2f} | {x.mean():+.2f} ± {sd} |")
     t_sim, t_char, peak = timing
     print(f"\ntime (seed 0): simulate {args.darks} darks {t_sim:.1f} s; characterize "
           f"{t_char:.1f} s ({t_char / args.darks:.1f} s per dark, simulation excluded); peak "

@@ -29,6 +29,7 @@ from ..core.parameters import Parameter, validate_file
 from ..io.config import load_yaml
 from ..reduce.pipeline import as_pipeline
 from ..simulation import simulate, simulate_to_fits
+from ..simulation.scene import scene_in_electrons
 from .light import light_sensitive_image
 from .spectrum import BAND_KMAX, BAND_KMIN, band_power, power_spectra
 
@@ -335,12 +336,15 @@ def scene_section(scene, label):
     Returns
     -------
     dict
+        The scene in electrons: a scene in adu (``unit: adu``) converted with its
+        ``gain`` (`~spherex_reduce.simulation.scene.scene_in_electrons`), since the
+        cases, the forecasts and the band powers compared are in electrons.
 
     Raises
     ------
     ConfigError
-        Not a mapping or a path, or a file that cannot be read; the message
-        names ``label``.
+        Not a mapping or a path, a file that cannot be read, or a scene in adu
+        without a gain; the message names ``label``.
 
     Examples
     --------
@@ -360,7 +364,12 @@ def scene_section(scene, label):
             scene, _ = load_yaml(path if path.is_file() else Path(scene), "scene")
         except (OSError, ConfigError) as exc:
             raise ConfigError(f"{label}: scene: {exc}") from None
-    return scene
+    if not isinstance(scene, dict):
+        return scene  # refused where it is loaded, as before
+    try:
+        return scene_in_electrons(scene, Path(label).name)
+    except ConfigError as exc:
+        raise ConfigError(f"{label}: scene: {exc}") from None
 
 
 def pipeline_section(pipes, label, key="pipeline"):

@@ -126,19 +126,24 @@ class PixelTerms:
         """The ``scene:`` mapping of these terms, in the darks' unit (per second for currents).
 
         ``dark_current`` is the mean current of the active pixels that are not
-        hot, ``hot_pixel_current`` the mean excess of the hot ones, and ``rtn``
-        the telegraph population: ``pixels: all`` when the active and reference
-        populations agree within 3 standard deviations in fraction, amplitude and
-        rate (their inverse-variance means), else the active one (warning), else
-        whichever was found; left out when none was.
+        hot, ``hot_pixel_current`` the mean excess of the hot ones, each with its
+        spread (``*_spread``: the pixels' standard deviation less their
+        measurement noise) where one is found, and ``rtn`` the telegraph
+        populations: one with ``pixels: all`` when the active and reference
+        populations agree within 3 standard deviations in fraction, amplitude
+        and rate (their inverse-variance means; the active pixels' spreads),
+        else a list of both (each with its ``amplitude_spread`` and
+        ``rate_spread`` where found), else whichever was found; left out when
+        none was.
 
         Returns
         -------
         dict
             ``{"dark_current", "hot_pixel_fraction", "hot_pixel_current"[, "rtn"]}``
-            (a term not fitted is left out: the scene's default, none of it),
-            plain floats, ready for `~spherex_reduce.simulation.load_scene` (which
-            reads them as e and e/s: a scene for ADU darks is in ADU).
+            and the spreads found (a term not fitted is left out: the scene's
+            default, none of it), plain floats, ready for
+            `~spherex_reduce.simulation.load_scene`, in the darks' unit (the
+            scene's ``unit:``).
 
         Examples
         --------
@@ -157,6 +162,11 @@ class PixelTerms:
             row = self.row(term, "active")
             if row["status"] == "fitted":  # else the scene's default (none of it)
                 out[term] = max(row["value"], 0.0)
+        for term, of in (("dark_current_spread", "dark_current"),
+                         ("hot_pixel_current_spread", "hot_pixel_current")):
+            row = self.row(term, "active")
+            if row["status"] == "fitted" and out.get(of, 0.0) > 0:  # a spread about a mean
+                out[term] = float(row["value"])
         found = {}
         for pixels in _POPULATIONS:
             rows = [self.row(f"telegraph_{k}", pixels) for k in ("fraction", "amplitude", "rate")]
@@ -166,19 +176,31 @@ class PixelTerms:
                 why = next(r["note"] for r in rows if r["status"] != "fitted")
                 warnings.warn(f"telegraph {pixels} pixels found but not all their terms: "
                               f"{why}; they are left out of the scene", stacklevel=2)
+        keys = ("fraction", "amplitude", "rate")
+        pops = {}
         if len(found) == 2:
             a, r = found["active"], found["reference"]
             if all(abs(x[0] - y[0]) <= 3 * np.hypot(x[1], y[1]) for x, y in zip(a, r, strict=True)):
                 values = [_weighted(x, y) for x, y in zip(a, r, strict=True)]
-                out["rtn"] = dict(zip(("fraction", "amplitude", "rate"), values, strict=True),
-                                  pixels="all")
-                return out
-            warnings.warn("the scene holds one telegraph population and the active and "
-                          "reference ones differ: the active one is kept", stacklevel=2)
-            found.pop("reference")
-        for pixels, values in found.items():
-            out["rtn"] = {**dict(zip(("fraction", "amplitude", "rate"),
-                                     (v for v, _ in values), strict=True)), "pixels": pixels}
+                pops["all"] = {**dict(zip(keys, values, strict=True)), "pixels": "all",
+                               **self._spreads("active")}
+        if not pops:  # each population as found (the active and the reference ones differ)
+            for pixels, values in found.items():
+                pops[pixels] = {**dict(zip(keys, (v for v, _ in values), strict=True)),
+                                "pixels": pixels, **self._spreads(pixels)}
+        if len(pops) == 1:
+            out["rtn"] = next(iter(pops.values()))
+        elif pops:
+            out["rtn"] = list(pops.values())
+        return out
+
+    def _spreads(self, pixels):
+        """``amplitude_spread`` and ``rate_spread`` of a telegraph population, where fitted."""
+        out = {}
+        for key in ("amplitude_spread", "rate_spread"):
+            row = self.row(f"telegraph_{key}", pixels)
+            if row["status"] == "fitted":
+                out[key] = float(row["value"])
         return out
 
 
@@ -368,12 +390,16 @@ class PixelSums:
         if self._acc is None:  # times, gain and mask checked once, against the first dark
             self.gain, self.t, self.ref = _settings(*self._given, unit, shape)
             self.unit, self.shape = unit, shape
-            self._acc = _new_sums(shape, self.t, self.jump_sigma)
+            self._acc = _new_sums(shape, self.t, self.jump_sigma, self.gain)
         elif unit != self.unit or shape != self.shape:
             raise SpherexReduceError(f"fit_pixel_terms: dark {self.ndarks} has shape {shape} "
                                      f"and unit {unit}; dark 0 {self.shape} and {self.unit} "
                                      "(each (nreads, ny, nx), one unit)")
-        _add_dark(self._acc, x, self.t, self.band_rows, rows)
+        slopes = _add_dark(self._acc, x, self.t, self.band_rows, rows)
+        active = ~self.ref & np.isfinite(slopes)
+        # the dark's drift common to its pixels (the streams' 1/f): its median slope
+        self._acc["drifts"].append(float(np.median(slopes[active])) if active.any()
+                                   else np.nan)
         self.ndarks += 1
 
     def fit(self, *, hot_threshold=None, hot_sigma=10.0, groups=32):
@@ -461,25 +487,31 @@ def _design(t, skip_first):
                 trs=np.trace(mr @ ms), tss=np.trace(ms @ ms), vr=w @ c_r @ w, vs=w ** 2 @ dt)
 
 
-def _new_sums(shape, t, jump_sigma):
-    """Empty per-pixel sums of darks of ``shape`` read at ``t``."""
+def _new_sums(shape, t, jump_sigma, gain=1.0):
+    """Empty per-pixel sums of darks of ``shape`` read at ``t`` (``gain``: e per unit)."""
     n, ny, nx = shape
     skip_first = n > MIN_READS
     acc = {k: np.zeros((ny, nx)) for k in _SUMS}
     acc.update({key: np.full((ny, nx), value) for key, value in _FLAGS.items()})
     acc["design"], acc["skip_first"], acc["jump_sigma"] = (_design(t, skip_first), skip_first,
                                                            jump_sigma)
+    acc["gain"], acc["drifts"] = gain, []
     return acc
 
 
 def _add_dark(acc, x, t, band_rows, rows=None):
     """Add one dark ``x (n, ny, nx)`` (or its stored rows ``rows``) to the sums, a band of
-    rows at a time (each pixel's sums take the darks in the order they are added)."""
+    rows at a time (each pixel's sums take the darks in the order they are added).  Returns
+    the dark's slope of every pixel ``(ny, nx)`` (float32, NaN where a read is not finite)."""
     ny = x.shape[1] if rows is None else rows.size
+    slopes = np.empty((ny, x.shape[2]), dtype=np.float32)
     for r0 in range(0, ny, band_rows):
         sl = slice(r0, min(r0 + band_rows, ny))
         xb = x[:, sl] if rows is None else x[:, rows[sl]]
-        part = _band(xb, t, acc["design"], acc["jump_sigma"], acc["skip_first"])
+        part = _band(xb, t, acc["design"], acc["jump_sigma"], acc["skip_first"],
+                     acc["gain"])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            slopes[sl] = np.where(part["bad"], np.nan, part["wd"] / part["wdt"])
         for key, value in part.items():
             if key == "alternate":
                 acc[key][sl] &= value
@@ -487,9 +519,10 @@ def _add_dark(acc, x, t, band_rows, rows=None):
                 acc[key][sl] |= value
             else:
                 acc[key][sl] += value
+    return slopes
 
 
-def _band(x, t, des, jump_sigma, skip_first):
+def _band(x, t, des, jump_sigma, skip_first, gain=1.0):
     """One band of one dark ``x (n, rows, nx)``: its per-pixel sums.
 
     The bulk is float32 (the differences of reads; sums over reads are dot products), and
@@ -514,8 +547,13 @@ def _band(x, t, des, jump_sigma, skip_first):
     a = np.abs(e)
     scale = _MAD * np.median(a, axis=0, overwrite_input=True)
     # a pixel's robust scale from a few tens of differences scatters by ~20 %: floored at the
-    # band's typical one, so that a quiet pixel's noise does not pass for jumps
-    scale = np.maximum(scale, np.median(scale))
+    # band's typical one, so that a quiet pixel's noise does not pass for jumps; and capped at
+    # that plus the pixel's own shot noise (a quarter over), so that a telegraph pixel's jumps,
+    # a third of a dark of ten differences when it switches fast, do not raise its scale
+    # above them (its rate came out 17 standard errors low from 4 darks of 10 reads)
+    floor = np.median(scale)
+    shot = np.maximum(mean, 0) * f32(np.mean(dt64) / gain)  # a difference's, unit^2
+    scale = np.clip(scale, floor, f32(1.25) * np.sqrt(floor * floor + shot))
     np.abs(e, out=a)
     kk, ii, jj = np.nonzero(a > jump_sigma * scale)
     del a
@@ -739,9 +777,21 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
         hot = active & (slope > threshold)
         cold = active & ~hot
         dark, dark_err = _jackknife(_ratio, (slope, 1.0), cold, gid, k)
+        drifts = np.asarray(acc["drifts"], dtype=np.float64)
+        common = ""
+        if ndarks > 1 and np.all(np.isfinite(drifts)):
+            # a drift common to all pixels of a dark (1/f) is in no group apart: the scatter of
+            # the darks' median slopes holds it, less what their pixels' own noise gives a
+            # median of N (pi/2 sigma^2/N; the jackknife holds that)
+            own = np.pi / 2 * ndarks * np.mean(slope_err[cold].astype(np.float64) ** 2) \
+                / max(cold.sum(), 1)
+            excess = max(np.var(drifts, ddof=1) - own, 0.0)
+            dark_err = float(np.hypot(dark_err, np.sqrt(excess / ndarks)))
+            common = ("; error: the jackknife over pixels and the drift common to a dark's "
+                      "pixels (the scatter of the darks' median slopes beyond their noise)")
         add("dark_current", "active", dark, dark_err, rate_unit,
             note="mean of the active pixels that are not hot (a low current's slopes are "
-            "skewed: their median is low)")
+            "skewed: their median is low)" + common)
         _add_spread(add, "dark_current_spread", "active",
                     _spread(slope, slope_err, cold, gid, k), rate_unit)
         add("hot_threshold", "active", threshold, 0.0, rate_unit, note=how)

@@ -45,6 +45,8 @@ def run(args):
         if path:
             atomic_output(path, args.overwrite)
     design = load_design(Path(args.input))
+    for note in design.notes:
+        print(f"note: {note}")
     res = design_readout(design, progress=not args.quiet)
     meta = res.report.meta
     with all_or_nothing(outputs, args.overwrite) as (best, report, png):

@@ -1,15 +1,19 @@
 """The scene file (YAML or dict): validation with errors that name the YAML path."""
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
+
+from astropy import units as u
 
 from ..core.errors import ConfigError
 from ..core.limits import check_size
 from ..core.parameters import Parameter, validate_parameters
+from ..io.charge_unit import UNITS, scene_unit
 from ..io.config import GEOMETRY_PARAMETERS, READOUT_PARAMETERS, load_yaml, schedule_from_config
 from ..noise.section import section_components
 from .synthesis import METHODS
 
-__all__ = ["MODES", "Scene", "SceneTerms", "Telegraph", "load_scene"]
+__all__ = ["MODES", "UNITS", "Scene", "SceneTerms", "Telegraph", "load_scene", "scene_in_electrons",
+           "scene_unit"]
 
 MODES = ("slopes", "ramps")
 _NUM = (int, float)
@@ -18,6 +22,8 @@ _NUM = (int, float)
 MAX_RATE = 1e9
 #: Longest low-frequency synthesis relative to the exposure.
 MAX_PADDING = 1024
+#: Most telegraph populations a scene's ``rtn:`` list may hold.
+MAX_POPULATIONS = 16
 SCENE_PARAMETERS = (
     Parameter("dark_current", 0.0, _NUM, "dark current of every active pixel (e/s)", minimum=0,
               maximum=MAX_RATE),
@@ -30,8 +36,19 @@ SCENE_PARAMETERS = (
     Parameter("leakage", 0.0, _NUM, "Video8 leakage drift, seen by pixels and phantom (e/s)",
               minimum=-MAX_RATE, maximum=MAX_RATE),
     Parameter("poisson", True, (bool,), "Poisson noise on dark current and photocurrent"),
-    Parameter("rtn", None, (dict, type(None)), "random telegraph noise: fraction, amplitude "
-              "(e), rate (Hz), pixels (active, reference or all)"),
+    Parameter("rtn", None, (dict, list, type(None)), "random telegraph noise: fraction, "
+              "amplitude (e), rate (Hz), pixels (active, reference or all), or a list of such "
+              "populations"),
+    Parameter("dark_current_spread", 0.0, _NUM, "standard deviation of the active pixels' "
+              "dark current (e/s; gamma-distributed about dark_current, which must be > 0)",
+              minimum=0, maximum=MAX_RATE),
+    Parameter("hot_pixel_current_spread", 0.0, _NUM, "standard deviation of the hot pixels' "
+              "current (e/s; gamma-distributed about hot_pixel_current)", minimum=0,
+              maximum=MAX_RATE),
+    Parameter("population_seed", None, (int, type(None)), "seed of the detector's pixel "
+              "populations (which pixels are hot or telegraph, their currents, amplitudes and "
+              "rates): the same for every simulation seed; null: drawn from the simulation's "
+              "seed (each seed another detector)", minimum=0),
 )
 #: Which pixels ``scene.rtn`` puts telegraph noise in.
 RTN_PIXELS = ("active", "reference", "all")
@@ -42,6 +59,10 @@ RTN_PARAMETERS = (
               maximum=MAX_RATE),
     Parameter("rate", 0.1, _NUM, "switching rate of each state (Hz)", minimum=0,
               maximum=MAX_RATE),
+    Parameter("amplitude_spread", 0.0, _NUM, "standard deviation of the pixels' steps (e; "
+              "gamma-distributed about amplitude)", minimum=0, maximum=MAX_RATE),
+    Parameter("rate_spread", 0.0, _NUM, "standard deviation of the pixels' rates (Hz; "
+              "gamma-distributed about rate)", minimum=0, maximum=MAX_RATE),
     Parameter("pixels", "active", (str,), "active pixels, reference pixels (reference rows "
               "and side columns, seen at every read) or all", choices=RTN_PIXELS),
 )
@@ -58,7 +79,13 @@ SYNTHESIS_PARAMETERS = (
               choices=("float32", "float64")),
     Parameter("simulator", "spherex", (str,), "registered simulator that runs the scene"),
 )
-TOP_KEYS = ("geometry", "readout", "noise", "scene", "output", "synthesis", "seed")
+TOP_KEYS = ("geometry", "readout", "noise", "scene", "output", "synthesis", "seed", "unit",
+            "gain")
+#: The scene terms in the scene's unit (times the gain in electrons); the others are
+#: fractions, rates in Hz or options.
+CHARGE_TERMS = ("dark_current", "dark_current_spread", "hot_pixel_current",
+                "hot_pixel_current_spread", "photocurrent", "leakage")
+RTN_CHARGE_TERMS = ("amplitude", "amplitude_spread")
 
 
 @dataclass(frozen=True)
@@ -75,12 +102,18 @@ class Telegraph:
         Switching rate of each state (Hz).
     pixels : str
         ``active``, ``reference`` or ``all``.
+    amplitude_spread, rate_spread : float
+        Standard deviations of the pixels' amplitudes (e) and rates (Hz), each
+        pixel's drawn from a gamma distribution of that mean and spread (0: all
+        the same).
     """
 
     fraction: float
     amplitude: float
     rate: float
     pixels: str
+    amplitude_spread: float = 0.0
+    rate_spread: float = 0.0
 
     @property
     def on(self):
@@ -92,14 +125,24 @@ class Telegraph:
 class SceneTerms:
     """The ``scene:`` section of a scene: what is added to the readout's noise.
 
-    The fields are `SCENE_PARAMETERS` (units there), ``rtn`` a `Telegraph` or None.
+    The fields are `SCENE_PARAMETERS` (units there), ``rtn`` a `Telegraph`, a
+    tuple of them (``rtn:`` a list of populations) or None; `telegraphs` is
+    always the tuple.
+
+    The pixel populations (which pixels are hot or telegraph, and each one's
+    current, amplitude and rate) are drawn from ``population_seed`` when it is
+    given, so that simulations with different seeds are darks of one detector
+    (their noise differs); by default from the simulation's seed.
 
     Examples
     --------
     >>> from spherex_reduce.simulation import load_scene
     >>> t = load_scene({"scene": {"dark_current": 0.5, "rtn": {"fraction": 0.1}}}).terms
-    >>> t.dark_current, t.rtn.fraction, t.rtn.pixels, t.rtn.on
-    (0.5, 0.1, 'active', False)
+    >>> t.dark_current, t.rtn.fraction, t.rtn.pixels, t.rtn.on, t.population_seed
+    (0.5, 0.1, 'active', False, None)
+    >>> two = [{"fraction": 0.02, "amplitude": 30}, {"pixels": "reference", "amplitude": 9}]
+    >>> [r.pixels for r in load_scene({"scene": {"rtn": two}}).terms.telegraphs]
+    ['active', 'reference']
     """
 
     dark_current: float
@@ -108,27 +151,64 @@ class SceneTerms:
     photocurrent: float
     leakage: float
     poisson: bool
-    rtn: Telegraph | None
+    rtn: Telegraph | tuple | None
+    dark_current_spread: float = 0.0
+    hot_pixel_current_spread: float = 0.0
+    population_seed: int | None = None
 
     @classmethod
     def from_config(cls, section):
         """Validate a ``scene:`` mapping (None: the defaults); errors name ``scene.KEY``."""
         values = validate_parameters(section, SCENE_PARAMETERS, "scene")
-        if values["rtn"] is not None:
-            values["rtn"] = Telegraph(**validate_parameters(values["rtn"], RTN_PARAMETERS,
-                                                            "scene.rtn"))
+        rtn = values["rtn"]
+        if isinstance(rtn, dict):
+            values["rtn"] = Telegraph(**validate_parameters(rtn, RTN_PARAMETERS, "scene.rtn"))
+        elif isinstance(rtn, list):
+            if not 1 <= len(rtn) <= MAX_POPULATIONS:
+                raise ConfigError(f"scene.rtn: a list of 1 to {MAX_POPULATIONS} telegraph "
+                                  f"populations, got {len(rtn)}")
+            values["rtn"] = tuple(Telegraph(**validate_parameters(r, RTN_PARAMETERS,
+                                                                  f"scene.rtn[{i}]"))
+                                  for i, r in enumerate(rtn))
+        if values["dark_current_spread"] > 0 and values["dark_current"] <= 0:
+            raise ConfigError("scene.dark_current_spread: a spread about a dark_current of 0; "
+                              "give dark_current > 0 or no spread")
         return cls(**values)
+
+    @property
+    def telegraphs(self):
+        """The telegraph populations, a tuple of `Telegraph` (empty without ``rtn``)."""
+        if self.rtn is None:
+            return ()
+        return (self.rtn,) if isinstance(self.rtn, Telegraph) else tuple(self.rtn)
+
+    @property
+    def currents(self):
+        """Whether any pixel collects charge (dark current, photocurrent, hot pixels)."""
+        return (self.dark_current > 0 or self.photocurrent > 0
+                or (self.hot_pixel_fraction > 0 and self.hot_pixel_current > 0))
 
     def to_dict(self):
         """The terms as the validated mapping, in `SCENE_PARAMETERS` order."""
         return asdict(self)
+
+    def scaled(self, gain):
+        """These terms with every charge (currents, steps and their spreads) times ``gain``."""
+        changes = {k: getattr(self, k) * gain for k in CHARGE_TERMS}
+        pops = tuple(replace(r, **{k: getattr(r, k) * gain for k in RTN_CHARGE_TERMS})
+                     for r in self.telegraphs)
+        if pops:
+            changes["rtn"] = pops[0] if isinstance(self.rtn, Telegraph) else pops
+        return replace(self, **changes)
 
 
 @dataclass(frozen=True)
 class Scene:
     """A validated scene: schedule, noise components, scene terms and options.
 
-    Build it with :func:`load_scene`.
+    Build it with :func:`load_scene`.  ``unit`` is the unit of its charges
+    (``unit:``, electrons by default, or adu with ``gain`` e-/adu): the noise
+    coefficients are in ``unit²/Hz`` etc., the currents in ``unit/s``.
     """
 
     schedule: object
@@ -139,6 +219,39 @@ class Scene:
     synthesis: dict = field(default_factory=dict)
     source: str = "scene"
     config: dict = field(default_factory=dict)
+    unit: object = u.electron
+    gain: float | None = None
+
+    def in_electrons(self, what="this"):
+        """This scene with its charges in electrons (itself if they are).
+
+        A scene in adu is converted with its ``gain``: noise coefficients times
+        ``gain²``, currents and telegraph steps times ``gain``.
+
+        Raises
+        ------
+        ConfigError
+            In adu without a gain (``what`` names who needs electrons).
+
+        Examples
+        --------
+        >>> from spherex_reduce.simulation import load_scene
+        >>> sc = load_scene({"unit": "adu", "gain": 2.0, "scene": {"dark_current": 0.5},
+        ...                  "noise": {"components": [{"name": "w", "alpha": 1e-3}]}})
+        >>> e = sc.in_electrons()
+        >>> str(e.unit), e.components[0].alpha, e.terms.dark_current
+        ('electron', 0.004, 1.0)
+        """
+        if self.unit == u.electron:
+            return self
+        if self.gain is None:
+            raise ConfigError(f"gain: {what} works in electrons and the scene ({self.source}) "
+                              "is in adu without a gain: add gain: (e-/adu) to it")
+        g = self.gain
+        comps = tuple(c.replace(alpha=c.alpha * g * g, beta=c.beta * g * g,
+                                gamma=c.gamma * g * g) for c in self.components)
+        return replace(self, components=comps, terms=self.terms.scaled(g), unit=u.electron,
+                       gain=None, config=scene_in_electrons(self.config))
 
     def check_mode(self, mode):
         """Refuse to simulate this scene in ``mode`` if it cannot give a result.
@@ -208,6 +321,7 @@ def load_scene(source=None):
     for key in config:
         if key not in TOP_KEYS:
             raise ConfigError(f"{label}: {key}: unknown section; valid: {', '.join(TOP_KEYS)}")
+    unit, gain = scene_unit(config)
     validate_parameters(config.get("geometry"), GEOMETRY_PARAMETERS, "geometry")
     validate_parameters(config.get("readout"), READOUT_PARAMETERS, "readout")
     schedule = schedule_from_config(config.get("geometry"), config.get("readout"))
@@ -218,7 +332,68 @@ def load_scene(source=None):
     seed = config.get("seed")
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or seed < 0):
         raise ConfigError(f"seed: expected a non-negative integer or null, got {seed!r}")
+    if (unit == u.adu and gain is None and terms.poisson and terms.currents):
+        raise ConfigError("gain: a scene in adu with currents needs its gain (e-/adu) for "
+                          "their shot noise; give gain:, or scene.poisson: false")
     scene = Scene(schedule, tuple(components), terms, output["mode"], seed, synth, label,
-                  config)
+                  config, unit, gain)
     scene.check_mode(scene.mode)
     return scene
+
+
+def scene_in_electrons(config, what="this"):
+    """A scene mapping with its charges in electrons (`Scene.in_electrons`), as a mapping.
+
+    A scene in electrons is returned as it is; one in adu with a gain gets
+    its components (written out whole) ``alpha beta gamma`` times ``gain²`` and its scene
+    terms' charges times ``gain`` (``unit`` and ``gain`` dropped).
+
+    Raises
+    ------
+    ConfigError
+        A bad ``unit`` or ``gain`` (`scene_unit`), or adu without a gain.
+
+    Examples
+    --------
+    >>> from spherex_reduce.simulation.scene import scene_in_electrons
+    >>> e = scene_in_electrons({"unit": "adu", "gain": 3, "scene": {"rtn": {"amplitude": 2}},
+    ...                         "noise": {"components": [{"name": "w", "alpha": 1}]}})
+    >>> e["scene"], e["noise"]["components"][0]["alpha"], "unit" in e
+    ({'rtn': {'amplitude': 6.0}}, 9.0, False)
+    """
+    unit, gain = scene_unit(config)
+    if unit == u.electron:
+        return config
+    if gain is None:
+        raise ConfigError(f"gain: {what} works in electrons and the scene is in adu without a "
+                          "gain: add gain: (e-/adu) to it")
+    out = {k: v for k, v in config.items() if k not in ("unit", "gain")}
+    comps = [c.replace(alpha=c.alpha * gain * gain, beta=c.beta * gain * gain,
+                       gamma=c.gamma * gain * gain).to_dict()
+             for c in section_components(config["noise"])]
+    out["noise"] = {"components": comps}
+    terms = config.get("scene")
+    if isinstance(terms, dict):
+        terms = dict(terms)
+        for key in CHARGE_TERMS:
+            if key in terms:
+                terms[key] = _times(terms[key], gain, f"scene.{key}")
+        rtn = terms.get("rtn")
+        pops = [rtn] if isinstance(rtn, dict) else rtn if isinstance(rtn, list) else []
+        pops = [{k: _times(v, gain, f"scene.rtn.{k}") if k in RTN_CHARGE_TERMS else v
+                 for k, v in r.items()} if isinstance(r, dict) else r for r in pops]
+        if pops:
+            terms["rtn"] = pops[0] if isinstance(rtn, dict) else pops
+        out["scene"] = terms
+    return out
+
+
+def _times(value, factor, path):
+    if isinstance(value, str):
+        try:
+            value = float(value)
+        except ValueError:
+            pass
+    if isinstance(value, bool) or not isinstance(value, _NUM):
+        raise ConfigError(f"{path}: expected a number, got {value!r}")
+    return float(value) * factor

@@ -17,12 +17,14 @@ from .engine import NoiseEngine
 from .grouping import average_groups, read_schedule
 from .scene import load_scene
 from .synthesis import rng_for
-from .telegraph import ReferenceTelegraph
+from .telegraph import ReferenceTelegraph, gamma_values, population_values
 
 __all__ = ["SpherexSimulator", "simulate", "simulate_to_fits"]
 
 log = logging.getLogger("spherex_reduce")
-TIER_SIGNAL, TIER_HOT, TIER_RTN, TIER_RTN_REFERENCE = 100, 101, 102, 103
+TIER_SIGNAL, TIER_HOT, TIER_RTN, TIER_RTN_REFERENCE, TIER_DARK = 100, 101, 102, 103, 104
+#: The first key of every generator drawn from a scene's ``population_seed``.
+TIER_POPULATION = 105
 
 
 class SpherexSimulator(Simulator):
@@ -74,6 +76,8 @@ def _header(sc, mode, seed, engine):
     for c in sc.components:
         h.add_history(f"noise {json.dumps(c.to_dict())}")
     h.add_history(f"scene {json.dumps(sc.terms.to_dict(), default=str)}")
+    if sc.unit != u.electron:
+        h["SIMGAIN"] = (sc.gain, "e-/adu of the scene in adu (its shot noise)")
     return h
 
 
@@ -95,10 +99,12 @@ def simulate(scene=None, *, mode=None, seed=None, registry=None):
     Returns
     -------
     `~spherex_reduce.Exposure`
-        ``ramps``: raw frames ``(N, reads, columns)`` in electrons, readout
+        ``ramps``: raw frames ``(N, reads, columns)`` in the scene's unit
+        (electrons, or adu for a scene with ``unit: adu``: its numbers are taken
+        as they are, the gain sets the shot noise of its currents), readout
         order, with phantom values ``(N, reads, channels)``.  ``slopes``: the
-        least-squares slope image ``(reads, columns)`` in e/s, readout order,
-        with phantom slopes ``(reads, channels)``.
+        least-squares slope image ``(reads, columns)`` in that unit per second,
+        readout order, with phantom slopes ``(reads, channels)``.
 
     Examples
     --------
@@ -128,7 +134,7 @@ def _simulate(scene, *, mode=None, seed=None):
         data, phantom = engine.slopes()
         terms = _Terms(sc, engine)
         terms.add_slopes(data, phantom)
-        return Exposure.from_arrays(data, s, unit=u.electron / u.s,
+        return Exposure.from_arrays(data, s, unit=sc.unit / u.s,
                                     phantom=None if phantom is None else
                                     phantom.astype(engine.dtype), header=header)
     cube = np.empty((s.nframes, s.n_reads, s.geometry.ncols), dtype=engine.dtype)
@@ -138,7 +144,7 @@ def _simulate(scene, *, mode=None, seed=None):
         cube[k] = frame
         if ph is not None:
             ph[k] = phantom
-    return Exposure.from_arrays(cube, s, unit=u.electron, phantom=ph, header=header)
+    return Exposure.from_arrays(cube, s, unit=sc.unit, phantom=ph, header=header)
 
 
 def _frames(sc, engine):
@@ -149,53 +155,98 @@ def _frames(sc, engine):
 
 
 class _Terms:
-    """Scene terms: dark current, hot pixels, photocurrent, leakage, telegraph noise."""
+    """Scene terms: dark current, hot pixels, photocurrent, leakage, telegraph noise.
+
+    The pixel populations (hot and telegraph pixels, per-pixel currents, steps and
+    rates) come from `_population` generators: the scene's ``population_seed`` when it
+    has one, else the simulation's seed; what changes from read to read (shot noise,
+    telegraph states) always from the simulation's seed.
+    """
 
     def __init__(self, sc, engine):
-        self.t = sc.terms
+        self.t = t = sc.terms
         self.e = engine
         s = sc.schedule
         g = s.geometry
+        # shot noise of a charge in the scene's unit: Poisson in electrons, then back
+        self.shot = 1.0 if sc.unit == u.electron else 1.0 / sc.gain if sc.gain else None
         self.active = (~s.is_reference)[:, None] & (~g.reference_column_mask())[None, :]
         self.tau = s.pixel_samples() / g.pixel_rate  # s within frame
         self.tframe = s.frame_samples / g.pixel_rate
-        rate = np.where(self.active, self.t.dark_current + self.t.photocurrent, 0.0)
-        if self.t.hot_pixel_fraction > 0:
-            rng = rng_for(engine.entropy, TIER_HOT)
-            hot = (rng.random(rate.shape) < self.t.hot_pixel_fraction) & self.active
-            rate = rate + hot * self.t.hot_pixel_current
+        rate = np.where(self.active, t.dark_current + t.photocurrent, 0.0)
+        if t.dark_current_spread > 0:
+            rng = self._population(TIER_DARK)
+            dark = gamma_values(rng, t.dark_current, t.dark_current_spread, rate.shape)
+            rate = np.where(self.active, dark + t.photocurrent, 0.0)
+        if t.hot_pixel_fraction > 0:
+            rng = self._population(TIER_HOT)
+            hot = (rng.random(rate.shape) < t.hot_pixel_fraction) & self.active
+            excess = t.hot_pixel_current
+            if t.hot_pixel_current_spread > 0:
+                excess = np.zeros(rate.shape)
+                excess[hot] = gamma_values(rng, t.hot_pixel_current,
+                                           t.hot_pixel_current_spread, int(hot.sum()))
+            rate = rate + hot * excess
         self.rate = rate if np.any(rate) else None
         self.charge = None
-        self.rtn = self.rtn_reference = None
-        r = self.t.rtn
-        if r is not None and r.on:
+        self.rtn, self.rtn_reference = [], []
+        for i, r in enumerate(t.telegraphs):
+            if not r.on:
+                continue
+            key = (TIER_RTN,) if i == 0 else (TIER_RTN, i)
             if r.pixels in ("active", "all"):  # read once per frame: switched frame to frame
-                rng = rng_for(engine.entropy, TIER_RTN)
-                idx = np.flatnonzero((rng.random(rate.size) < r.fraction)
+                pop = self._population(*key)
+                noise = pop if t.population_seed is None else rng_for(engine.entropy, *key)
+                idx = np.flatnonzero((pop.random(rate.size) < r.fraction)
                                      & self.active.ravel())
-                self.rtn = (idx, rng, r.amplitude,
-                            (1 - np.exp(-2 * r.rate * self.tframe)) / 2)
-                self.rtn_state = rng.random(idx.size) < 0.5
+                amp, rates = population_values(pop, r, idx.size)
+                state = noise.random(idx.size) < 0.5
+                self.rtn.append([idx, noise, amp, (1 - np.exp(-2 * rates * self.tframe)) / 2,
+                                 state])
             if r.pixels in ("reference", "all"):  # seen at each of their reads
-                self.rtn_reference = ReferenceTelegraph(
-                    s, r.fraction, r.amplitude, r.rate,
-                    rng_for(engine.entropy, TIER_RTN_REFERENCE))
+                key = (TIER_RTN_REFERENCE,) if i == 0 else (TIER_RTN_REFERENCE, i)
+                noise = rng_for(engine.entropy, *key)
+                pop = None if t.population_seed is None else self._population(*key)
+                self.rtn_reference.append(ReferenceTelegraph(
+                    s, r.fraction, r.amplitude, r.rate, noise, population=pop,
+                    amplitude_spread=r.amplitude_spread, rate_spread=r.rate_spread))
         s_ph = s.phantom_samples()
         self.tau_ph = (s_ph.mean(axis=1) / g.pixel_rate) if s.phantom_reads else None
         self.sig_rng = rng_for(engine.entropy, TIER_SIGNAL)
 
-    def _rtn_step(self, k):
-        idx, rng, amp, p = self.rtn
+    def _population(self, *key):
+        """The generator of a pixel population: from the scene's ``population_seed`` (its
+        own tier, apart from every noise stream) or, without one, the simulation's seed."""
+        if self.t.population_seed is None:
+            return rng_for(self.e.entropy, *key)
+        return rng_for(self.t.population_seed, TIER_POPULATION, *key)
+
+    def _poisson(self, mean):
+        """Shot noise of charges ``mean`` (in the scene's unit)."""
+        if self.shot == 1.0:
+            return self.sig_rng.poisson(mean)
+        return self.sig_rng.poisson(mean / self.shot) * self.shot
+
+    @staticmethod
+    def _rtn_step(pop, k):
+        idx, rng, amp, p, state = pop
         if k > 0:
-            self.rtn_state ^= rng.random(idx.size) < p
-        return idx, amp * self.rtn_state
+            state ^= rng.random(idx.size) < p
+        return idx, amp * state
+
+    def _telegraph_values(self, k):
+        """``(index, values)`` of every telegraph population at frame ``k``."""
+        for pop in self.rtn:
+            yield self._rtn_step(pop, k)
+        for ref in self.rtn_reference:
+            yield ref.frame(k)
 
     def add_frame(self, k, frame, phantom):
         t0 = k * self.tframe
         if self.rate is not None:
             dt = self.tau if k == 0 else self.tframe
             mean = self.rate * dt
-            inc = self.sig_rng.poisson(mean) if self.t.poisson else mean
+            inc = self._poisson(mean) if self.t.poisson else mean
             self.charge = inc if self.charge is None else self.charge + inc
             frame += self.charge.astype(frame.dtype)
         leak = self.t.leakage
@@ -203,11 +254,7 @@ class _Terms:
             frame += (leak * (t0 + self.tau)).astype(frame.dtype)
             if phantom is not None:
                 phantom += (leak * (t0 + self.tau_ph))[:, None]
-        if self.rtn is not None:
-            idx, val = self._rtn_step(k)
-            frame.reshape(-1)[idx] += val.astype(frame.dtype)
-        if self.rtn_reference is not None:
-            idx, val = self.rtn_reference.frame(k)
+        for idx, val in self._telegraph_values(k):
             frame.reshape(-1)[idx] += val.astype(frame.dtype)
 
     def add_slopes(self, data, phantom):
@@ -220,24 +267,21 @@ class _Terms:
                 var_unit = self.tframe * np.sum(w[:, None] * w[None, :] *
                                                 np.minimum(k[:, None], k[None, :]))
                 noise = self.sig_rng.standard_normal(data.shape)
-                data += (noise * np.sqrt(self.rate * var_unit)).astype(data.dtype)
+                data += (noise * np.sqrt(self.rate * var_unit * self.shot)).astype(data.dtype)
         leak = self.t.leakage
         if leak:
             data += np.asarray(leak, dtype=data.dtype)
             if phantom is not None:
                 phantom += leak
-        if self.rtn is not None:
-            acc = 0.0
-            for k in range(n):
-                idx, val = self._rtn_step(k)
-                acc = acc + w[k] * val
-            data.reshape(-1)[idx] += np.asarray(acc, dtype=data.dtype)
-        if self.rtn_reference is not None:
-            acc = 0.0
-            for k in range(n):
-                idx, val = self.rtn_reference.frame(k)
-                acc = acc + w[k] * val
-            data.reshape(-1)[idx] += np.asarray(acc, dtype=data.dtype)
+        npop = len(self.rtn) + len(self.rtn_reference)
+        acc = [0.0] * npop
+        index = [None] * npop
+        for k in range(n):
+            for j, (idx, val) in enumerate(self._telegraph_values(k)):
+                acc[j] = acc[j] + w[k] * val
+                index[j] = idx
+        for idx, a in zip(index, acc, strict=True):
+            data.reshape(-1)[idx] += np.asarray(a, dtype=data.dtype)
 
 
 def simulate_to_fits(scene, path, *, mode=None, seed=None, overwrite=False, progress=False):
@@ -265,5 +309,5 @@ def simulate_to_fits(scene, path, *, mode=None, seed=None, overwrite=False, prog
     frames = average_groups(_frames(sc, engine), s)
     frames = terminal_bar(progress, iterable=frames, total=s.nframes, unit="frame",
                           desc="simulate ramps")
-    return write_frames(frames, path, s, header=_header(sc, mode, seed, engine), unit=u.electron,
+    return write_frames(frames, path, s, header=_header(sc, mode, seed, engine), unit=sc.unit,
                         dtype=engine.dtype, overwrite=overwrite)

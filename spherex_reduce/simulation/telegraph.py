@@ -12,7 +12,7 @@ at each of its reads, frame after frame, touching only those pixels.
 
 import numpy as np
 
-__all__ = ["ReferenceTelegraph", "switch_probability"]
+__all__ = ["ReferenceTelegraph", "gamma_values", "population_values", "switch_probability"]
 
 
 def switch_probability(rate, dt):
@@ -36,7 +36,50 @@ def switch_probability(rate, dt):
     >>> switch_probability(0.5, [0.0, 1.0, 100.0]).round(4).tolist()
     [0.0, 0.3161, 0.5]
     """
-    return -np.expm1(-2.0 * float(rate) * np.asarray(dt, dtype=np.float64)) / 2.0
+    return -np.expm1(-2.0 * np.asarray(rate, dtype=np.float64)
+                     * np.asarray(dt, dtype=np.float64)) / 2.0
+
+
+def gamma_values(rng, mean, spread, size):
+    """Positive values of a population: gamma-distributed with ``mean`` and standard
+    deviation ``spread`` (all ``mean`` when ``spread`` is 0; nothing drawn then).
+
+    Parameters
+    ----------
+    rng : `numpy.random.Generator`
+    mean, spread : float
+        Mean (> 0 when ``spread`` > 0) and standard deviation, in any unit.
+    size : int or tuple of int
+
+    Returns
+    -------
+    `numpy.ndarray` (float64), in the unit of ``mean``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.simulation.telegraph import gamma_values
+    >>> x = gamma_values(np.random.default_rng(1), 2.0, 0.5, 200_000)
+    >>> round(float(x.mean()), 2), round(float(x.std()), 2), bool(x.min() > 0)
+    (2.0, 0.5, True)
+    """
+    if spread <= 0 or mean <= 0:
+        return np.full(size, float(mean))
+    shape = (mean / spread) ** 2
+    return rng.gamma(shape, spread ** 2 / mean, size)
+
+
+def population_values(rng, telegraph, n):
+    """Each of ``n`` telegraph pixels' step (e) and rate (Hz) for a population
+    (`~spherex_reduce.simulation.Telegraph`): its ``amplitude`` and ``rate``,
+    gamma-distributed with its spreads where they are above 0 (scalars, nothing
+    drawn, where they are 0)."""
+    amp, rate = float(telegraph.amplitude), float(telegraph.rate)
+    if telegraph.amplitude_spread > 0:
+        amp = gamma_values(rng, amp, telegraph.amplitude_spread, n)
+    if telegraph.rate_spread > 0:
+        rate = gamma_values(rng, rate, telegraph.rate_spread, n)
+    return amp, rate
 
 
 class ReferenceTelegraph:
@@ -57,7 +100,14 @@ class ReferenceTelegraph:
     rate : float
         Switching rate of each state (Hz).
     rng : `numpy.random.Generator`
-        Chooses the pixels, their first states and every switch.
+        Chooses the pixels' first states and every switch (and the pixels
+        themselves without ``population``).
+    population : `numpy.random.Generator`, optional
+        Chooses the pixels and their amplitudes and rates (a detector's
+        population, fixed whatever ``rng``); default ``rng``.
+    amplitude_spread, rate_spread : float
+        Standard deviations of the pixels' amplitudes (e) and rates (Hz)
+        (`gamma_values`; 0: all the same).
 
     Attributes
     ----------
@@ -83,15 +133,21 @@ class ReferenceTelegraph:
     True
     """
 
-    def __init__(self, schedule, fraction, amplitude, rate, rng):
+    def __init__(self, schedule, fraction, amplitude, rate, rng, *, population=None,
+                 amplitude_spread=0.0, rate_spread=0.0):
         s = schedule
         g = s.geometry
         ref = np.zeros((g.nrows, g.ncols), bool)
         ref[g.reference_rows] = True
         ref |= g.reference_column_mask()[None, :]
-        chosen = (rng.random(ref.shape) < fraction) & ref
+        pop = rng if population is None else population
+        chosen = (pop.random(ref.shape) < fraction) & ref
         self.rows, self.columns = np.nonzero(chosen)  # sorted by row, then column
-        self.amplitude = float(amplitude)
+        amp = gamma_values(pop, float(amplitude), amplitude_spread, self.rows.size)
+        rates = gamma_values(pop, float(rate), rate_spread, self.rows.size)
+        #: each chosen pixel's step (e) and rate (Hz)
+        self.amplitudes, self.rates = amp, rates
+        self.amplitude = float(amplitude)  # their mean
         self._rng = rng
         # every read of every chosen pixel: reads of its row, one slot each
         per_row = np.bincount(self.rows, minlength=g.nrows)
@@ -112,7 +168,8 @@ class ReferenceTelegraph:
         tframe = s.frame_samples / g.pixel_rate
         dt = np.diff(tau, prepend=0.0)
         dt[starts] = tau[starts] + tframe - tau[ends]
-        self._p = switch_probability(rate, dt)
+        self._p = switch_probability(rates[pixel], dt)
+        self._amp = amp[pixel]
         self._starts, self._ends = starts, ends
         self._state = rng.random(starts.size) < 0.5  # the stationary distribution
         self._next = 0
@@ -134,4 +191,4 @@ class ReferenceTelegraph:
         npix = np.diff(np.r_[self._starts, self._p.size])
         state = (np.repeat(self._state, npix) ^ ((count - np.repeat(before, npix)) % 2 == 1))
         self._state = state[self._ends]
-        return self.index, self.amplitude * state
+        return self.index, self._amp * state

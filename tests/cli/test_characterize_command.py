@@ -193,3 +193,62 @@ def test_check_with_a_config_that_gives_no_slope_image_is_marked(tmp_path, capsy
                "--check", tmp_path / "missing.fits") == 2
     one_line_error(capsys, "missing.fits")
     assert not (tmp_path / "m2.yaml").exists()
+
+
+def _design(tmp_path, model):
+    design = tmp_path / "design.yaml"
+    design.write_text(yaml.safe_dump({
+        "scene": model.name, "band": {"kmin": 0.3, "kmax": 1.5}, "bins": 4,
+        "baseline": {"skip": 1, "ref_reads": 8, "phantom_reads": 2},
+        "search": {"families": ["golden"], "phantom_reads": [2], "ref_reads": [8],
+                   "ref_modes": ["distributed"], "iterations": 2},
+        "realizations": 0}))
+    return design
+
+
+def test_design_readout_runs_from_a_model_with_pixel_populations(tmp_path, capsys):
+    """Darks of a detector with hot and telegraph pixels (one population_seed): MODEL.yaml
+    holds them, and design-readout designs the readout from it as it is, saying in one line
+    per term that the pixel populations are left out (the forecast refused them)."""
+    truth = {**SCENE, "readout": {**SCENE["readout"], "nframes": 12},
+             "scene": {"dark_current": 5.0, "hot_pixel_fraction": 0.03,
+                       "hot_pixel_current": 500.0, "population_seed": 4,
+                       "rtn": {"fraction": 0.05, "amplitude": 300.0, "rate": 2.0}}}
+    scene = tmp_path / "truth.yaml"
+    scene.write_text(yaml.safe_dump(truth))
+    darks = [tmp_path / f"dark{k}.fits" for k in range(3)]
+    for k, p in enumerate(darks):
+        assert run("-q", "simulate", scene, "-o", p, "--seed", k) == 0
+    model = tmp_path / "model.yaml"
+    assert run("-q", "characterize", *darks, "-c", "unchop", "-o", model) == 0
+    fitted = yaml.safe_load(model.read_text())
+    assert fitted["unit"] == "electron"
+    assert fitted["scene"]["hot_pixel_fraction"] > 0.01 and "rtn" in fitted["scene"]
+    capsys.readouterr()
+    assert run("design-readout", _design(tmp_path, model), "-o", tmp_path / "best.yaml") == 0
+    out = capsys.readouterr().out
+    assert "note: scene.hot_pixel_fraction: left out" in out
+    assert "note: scene.rtn: left out" in out
+
+
+def test_design_readout_from_a_model_in_adu_needs_its_gain(tmp_path, capsys):
+    """ADU darks (simulated from a scene in adu) without a gain: MODEL.yaml says unit: adu;
+    design-readout, which works in electrons, refuses it in one line naming the gain, and
+    takes it once gain: is added (simulate takes it as it is, in adu)."""
+    truth = {**SCENE, "unit": "adu", "gain": 2.0}
+    scene = tmp_path / "truth.yaml"
+    scene.write_text(yaml.safe_dump(truth))
+    darks = [tmp_path / f"dark{k}.fits" for k in range(3)]
+    for k, p in enumerate(darks):
+        assert run("-q", "simulate", scene, "-o", p, "--seed", k) == 0
+    model = tmp_path / "model.yaml"
+    assert run("-q", "characterize", *darks, "-c", "unchop", "-o", model) == 0
+    fitted = yaml.safe_load(model.read_text())
+    assert fitted["unit"] == "adu" and "gain" not in fitted
+    assert run("-q", "simulate", model, "-o", tmp_path / "sim.fits") == 0
+    capsys.readouterr()
+    design = _design(tmp_path, model)
+    assert run("design-readout", design, "-o", tmp_path / "best.yaml") == 2
+    one_line_error(capsys, "design.yaml: scene:", "gain")
+    model.write_text(model.read_text() + "gain: 2.0\n")
+    assert run("-q", "design-readout", design, "-o", tmp_path / "best.yaml") == 0

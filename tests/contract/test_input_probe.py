@@ -2589,3 +2589,36 @@ CHARACTERIZE_INPUT = [
 @pytest.mark.parametrize("case", CHARACTERIZE_INPUT)
 def test_issue33_characterize_input(case, inputs, runner, tmp_path):
     test_input(case, inputs, runner, tmp_path)
+
+
+# Issue 33: a scene's unit and gain, and its pixel populations
+_ADU_SCENE = SCENE + "noise: {components: [{name: w, alpha: 1.0e-3}]}\n"
+SCENE_UNIT_INPUT = [
+    refused("simulate-scene-unit-furlong", SIMULATE_BAD,
+            write("bad.yaml", SCENE + "unit: furlong\n"), mentions=r"unit: expected electron"),
+    refused("simulate-scene-unit-list", SIMULATE_BAD, write("bad.yaml", SCENE + "unit: [adu]\n"),
+            mentions=r"unit: expected electron"),
+    refused("simulate-scene-gain-nan", SIMULATE_BAD,
+            write("bad.yaml", _ADU_SCENE + "unit: adu\ngain: .nan\n"), mentions=r"gain:"),
+    refused("simulate-scene-gain-negative", SIMULATE_BAD,
+            write("bad.yaml", _ADU_SCENE + "unit: adu\ngain: -2\n"), mentions=r"gain:"),
+    refused("simulate-scene-gain-with-electrons", SIMULATE_BAD,
+            write("bad.yaml", SCENE + "gain: 2\n"), mentions=r"gain: the scene is in electrons"),
+    refused("simulate-scene-adu-current-without-gain", SIMULATE_BAD,
+            write("bad.yaml", _ADU_SCENE + "unit: adu\nscene: {dark_current: 1}\n"),
+            mentions=r"gain"),
+    refused("simulate-scene-population-seed-text", SIMULATE_BAD,
+            write("bad.yaml", SCENE + "scene: {population_seed: seven}\n"),
+            mentions=r"population_seed"),
+    refused("forecast-scene-adu-without-gain", ["forecast", "bad.yaml", "-c", "unchop", "-o",
+                                                "f.ecsv"],
+            write("bad.yaml", _ADU_SCENE + "unit: adu\n"), mentions=r"gain"),
+    works("simulate-scene-in-adu", SIMULATE_BAD,
+          write("bad.yaml", _ADU_SCENE + "unit: adu\ngain: 2\nscene: {dark_current: 1}\n"),
+          check=lambda d, result, run: None),
+]
+
+
+@pytest.mark.parametrize("case", SCENE_UNIT_INPUT)
+def test_issue33_scene_unit_input(case, inputs, runner, tmp_path):
+    test_input(case, inputs, runner, tmp_path)

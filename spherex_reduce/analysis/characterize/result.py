@@ -61,8 +61,8 @@ class Characterization:
     >>> from spherex_reduce.io.examples import example_raw_exposure
     >>> from spherex_reduce.analysis.characterize import characterize
     >>> model = characterize(example_raw_exposure(), segments=2)
-    >>> sorted(model.scene())
-    ['geometry', 'noise', 'readout', 'scene']
+    >>> sorted(model.scene()), model.scene()["unit"]
+    (['geometry', 'noise', 'readout', 'scene', 'unit'], 'electron')
     >>> set(model.report()["kind"]) >= {"component", "spectrum", "channel", "exponent"}
     True
     >>> model.to_yaml().startswith("# noise model fitted by spherex-reduce characterize")
@@ -117,10 +117,15 @@ class Characterization:
     def _marks(self, boxes):
         out = []
         s = self.schedule
-        if self.unit != u.electron and self.unit != u.one:
+        if self.unit not in (u.electron, u.one) and not (
+                self.unit == u.adu and isinstance(self.gain, (int, float))):
             out.append(f"unit: the darks are in {self.unit} and the config gives no input: gain, "
-                       f"so the scene's coefficients are in {self.unit} (simulate, forecast and "
-                       "design-readout take their numbers as electrons)")
+                       f"so the scene's coefficients are in {self.unit}" + (
+                           " (unit: adu; simulate makes darks in adu, forecast, sweep and "
+                           "design-readout need a gain: e-/adu added to the scene)"
+                           if self.unit == u.adu else
+                           " (a unit the scene cannot state: simulate, forecast and "
+                           "design-readout take its numbers as electrons)"))
         if s.phantom_reads == 0 or "phantom" not in self.spectra:
             why = ("the darks have no phantom reads" if s.phantom_reads == 0 else
                    "the darks' phantom reads are constant (no noise)")
@@ -167,8 +172,9 @@ class Characterization:
 
     # -- the scene ------------------------------------------------------------------------
     def scene(self):
-        """The model as a scene mapping (``geometry``, ``readout``, ``noise``), in the
-        darks' unit: what `~spherex_reduce.simulation.load_scene` takes."""
+        """The model as a scene mapping (``unit``, ``gain`` in adu where known,
+        ``geometry``, ``readout``, ``noise``, ``scene``), in the darks' unit: what
+        `~spherex_reduce.simulation.load_scene` takes."""
         comps = []
         for name, est in self.components.items():
             scope, visibility = LAYOUT[name]
@@ -182,8 +188,13 @@ class Characterization:
             comps.append(comp)
         if not comps:  # a scene with no components simulates the default table: not this
             comps.append({"name": "channel", "alpha": 0.0, "exponent": self.exponent})
-        out = {"geometry": self.schedule.geometry.to_dict(),
-               "readout": self.schedule.to_dict(), "noise": {"components": comps}}
+        out = {}
+        if self.unit in (u.electron, u.adu):  # the scene's unit: the darks'
+            out["unit"] = self.unit.to_string()
+            if self.unit == u.adu and isinstance(self.gain, (int, float)):
+                out["gain"] = float(self.gain)
+        out.update({"geometry": self.schedule.geometry.to_dict(),
+                    "readout": self.schedule.to_dict(), "noise": {"components": comps}})
         if self.pixel_terms is not None:
             terms = self.pixel_terms.to_scene()
             if terms:

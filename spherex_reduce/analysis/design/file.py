@@ -43,7 +43,8 @@ from ..spectrum import BAND_KMAX, BAND_KMIN
 from .row_orders import FAMILIES, max_skip
 
 __all__ = ["BASELINE", "DESIGN_PARAMETERS", "GAIN_ERROR", "MAX_CHOICES", "MAX_ITERATIONS",
-           "MAX_TIMINGS", "MIN_PAIRS", "TOP_KEYS", "Baseline", "Design", "load_design"]
+           "MAX_TIMINGS", "MIN_PAIRS", "POPULATION_TERMS", "TOP_KEYS", "Baseline", "Design",
+           "load_design"]
 
 #: The paired Monte Carlo's default target: the standard error of its gain (1 - best /
 #: baseline band power), 1 percentage point.
@@ -168,6 +169,30 @@ class Design:
     realizations: int
     seed: int
     gain_error: float
+    #: one line per scene term the design leaves out (`POPULATION_TERMS`)
+    notes: tuple = ()
+
+
+#: The scene's pixel populations, which the forecast does not model: a design minimises the
+#: readout's noise, so a scene that holds them (characterize's MODEL.yaml of a real detector
+#: does) is designed without them, and says so.
+POPULATION_TERMS = ("hot_pixel_fraction", "hot_pixel_current_spread", "dark_current_spread",
+                    "rtn")
+
+
+def _without_populations(scene):
+    """``(scene, notes)``: the scene without its `POPULATION_TERMS`, one note per term."""
+    terms = scene.get("scene")
+    if not isinstance(terms, dict):
+        return scene, ()
+    gone = [k for k in POPULATION_TERMS if terms.get(k) not in (None, 0, 0.0)]
+    if not gone:
+        return scene, ()
+    kept = {k: v for k, v in terms.items() if k not in gone}
+    return {**scene, "scene": kept}, tuple(
+        f"scene.{k}: left out: the design minimises the readout's noise, which the forecast "
+        "models (hot and telegraph pixels and per-pixel current spreads are not)"
+        for k in gone)
 
 
 def load_design(source):
@@ -176,7 +201,9 @@ def load_design(source):
     Keys, all optional:
 
     ``scene``
-        A scene (mapping or path, relative to the file): the geometry, the
+        A scene (mapping or path, relative to the file; in adu with its
+        ``gain:``, converted to electrons; its pixel populations, `POPULATION_TERMS`,
+        left out with a note): the geometry, the
         readout's other fields (``nframes``, ``row_overhead`` ...) and the
         noise; default: the paper's case.
     ``noise``
@@ -229,12 +256,14 @@ def load_design(source):
     """
     config, label = load_yaml(source, "design")
     v = validate_file(config, DESIGN_PARAMETERS, label)
-    scene = scene_section(v["scene"], label)
+    scene, notes = _without_populations(scene_section(v["scene"], label))
     if v["noise"] is not None:
-        comps, unit = noise_model(_beside(v["noise"], label), f"{label}: noise")
+        comps, unit = noise_model(_beside(v["noise"], label), f"{label}: noise",
+                                  unit=u.electron)  # a scene in adu: with its gain
         if unit != u.electron:  # the scene, the sky and the band powers are in electrons
             raise ConfigError(f"{label}: noise: {v['noise']} describes charge in {unit}, not "
-                              "electrons; fit-noise darks given input.gain (or in electrons)")
+                              "electrons; fit-noise darks given input.gain (or in electrons), "
+                              "or a scene in adu with its gain:")
         scene = {**scene, "noise": {"components": [c.to_dict() for c in comps]}}
     try:
         sc = load_scene(scene)
@@ -285,7 +314,7 @@ def load_design(source):
         phantom_reads=search["phantom_reads"], ref_reads=search["ref_reads"],
         ref_modes=search["ref_modes"], finalists=search["finalists"],
         iterations=search["iterations"], search_seed=search["seed"],
-        realizations=realizations, seed=v["seed"], gain_error=v["gain_error"],
+        realizations=realizations, seed=v["seed"], gain_error=v["gain_error"], notes=notes,
     )
 
 

@@ -354,6 +354,7 @@ def prepare_forecast(scene, pipeline):
     (slice(4, 60, None), slice(4, 60, None), ['w'])
     """
     sc = scene if isinstance(scene, Scene) else load_scene(scene)
+    sc = sc.in_electrons("forecast")  # a scene in adu, with its gain
     red = reduction(pipeline)
     sc.check_mode("slopes")
     _check_terms(sc.terms)
@@ -454,7 +455,8 @@ def _check_terms(terms):
     """Refuse the scene terms that add noise other than Gaussian readout and Poisson noise."""
     named = [name for name, on in (
         ("hot pixels", terms.hot_pixel_fraction > 0),
-        ("telegraph noise", terms.rtn is not None and terms.rtn.on),
+        ("telegraph noise", any(r.on for r in terms.telegraphs)),
+        ("a dark current spread", terms.dark_current_spread > 0),
     ) if on]
     if named:
         raise SpherexReduceError(f"forecast: the scene has {', '.join(named)}; only the "

@@ -165,6 +165,32 @@ def test_darks_in_adu_without_a_gain_say_the_unit():
     model = characterize(adu)
     assert model.unit == u.adu and "unit: adu" in model.to_yaml()
     assert any(m.startswith("unit: the darks are in adu") for m in model.marks)
+    scene = model.scene()
+    assert scene["unit"] == "adu" and "gain" not in scene  # the scene says its unit
+    assert simulate({**scene, "output": {"mode": "ramps"}}, seed=1).unit == u.adu
+
+
+def test_darks_in_adu_with_a_gain_give_a_scene_in_adu_with_its_gain():
+    """ADU darks in memory, the config's gain 2 e-/adu (not applied to an exposure already
+    read): the scene is in adu with that gain, its per-pixel terms in adu; loaded, it is
+    the same scene in electrons with every charge times the gain (numpy: alpha x 4)."""
+    import yaml
+
+    from spherex_reduce.reduce.pipeline import as_pipeline
+    from spherex_reduce.simulation import load_scene
+
+    raws = [simulate(PIXEL_SCENE, seed=seed) for seed in (1, 2)]
+    adu = [e.replace(data=np.asarray(e.data.data) / 2.0, unit="adu") for e in raws]
+    model = characterize(adu, as_pipeline({"input": {"gain": 2.0}, "steps": ["unchop"]}))
+    scene = yaml.safe_load(model.to_yaml())
+    assert scene["unit"] == "adu" and scene["gain"] == 2.0
+    assert not any(m.startswith("unit:") for m in model.marks)
+    assert scene["scene"]["dark_current"] == pytest.approx(0.5 / 2.0, rel=0.1)
+    sc = load_scene(scene)
+    electrons = sc.in_electrons()
+    alpha = [c.alpha for c in sc.components]
+    np.testing.assert_allclose([c.alpha for c in electrons.components], np.multiply(alpha, 4))
+    assert electrons.terms.dark_current == pytest.approx(2.0 * sc.terms.dark_current)
 
 
 def test_one_dark_alone_is_split_into_runs_of_frames_and_says_so():

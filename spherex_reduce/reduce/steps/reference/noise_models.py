@@ -16,6 +16,7 @@ from astropy.table import Table
 
 from ....core.errors import ConfigError
 from ....core.fields import FIELD
+from ....io.charge_unit import UNITS, scene_unit
 from ....io.config import load_yaml
 from ....noise import BUILTIN_TABLES, NoiseComponent, noise_components
 from ....noise.section import section_components
@@ -69,10 +70,15 @@ def load_noise_model(source, where="correct_reference.noise"):
     return noise_model(source, where)[0]
 
 
-def noise_model(source, where="correct_reference.noise"):
+def noise_model(source, where="correct_reference.noise", unit=None):
     """The components of a noise model (`load_noise_model`) and the unit of the charge they
     describe: electrons, except for a ``fit-noise`` result of data in another unit (the
-    square root of its ``alpha``'s unit times Hz).
+    square root of its ``alpha``'s unit times Hz) and a scene with ``unit: adu``.
+
+    ``unit`` (electron or adu), if given, is the unit wanted: a scene in the other
+    one is converted with its ``gain`` (``alpha beta gamma`` times or over
+    ``gain²``); without a gain, or for another kind of model, the components are
+    returned in their own unit (the caller refuses the mismatch).
 
     Examples
     --------
@@ -81,14 +87,24 @@ def noise_model(source, where="correct_reference.noise"):
     >>> unit
     Unit("electron")
     """
-    text = str(source)
+    wanted, text = unit, str(source)
     unit = u.electron
     if text.lower().endswith((".yaml", ".yml")):
         config, _ = load_yaml(Path(text), "noise model")
         if "noise" not in config:  # a pipeline or other file: not the paper's table silently
             raise ConfigError(f"{where}: {text} has no noise: section (a scene file's noise "
                               "model); name spherex-table2 for the paper's Table 2")
+        try:
+            unit, gain = scene_unit(config)
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {text}: {exc}") from None
         comps = section_components(config["noise"])
+        want = None if wanted is None else u.Unit(wanted)
+        if gain is not None and want is not None and want != unit and want in UNITS:
+            factor = gain * gain if want == u.electron else 1 / (gain * gain)
+            comps = [c.replace(alpha=c.alpha * factor, beta=c.beta * factor,
+                               gamma=c.gamma * factor) for c in comps]
+            unit = want
     elif text in BUILTIN_TABLES or not text.lower().endswith(".fits"):
         comps, unit = _table_components(text, where)
     else:

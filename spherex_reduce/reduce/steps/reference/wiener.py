@@ -24,6 +24,7 @@ from astropy.utils.exceptions import AstropyUserWarning
 from ....core.errors import ConfigError
 from ....core.limits import check_size
 from ....core.parameters import Parameter, validate_parameters
+from ....io.charge_unit import UNITS as CHARGE_UNITS
 from ....noise.read_covariance import DOMAINS, Kriging, ReadCovariance
 from ...noise_effect import MEASURED_SIGMA, ReferenceEffect
 from ...step import Strategy
@@ -300,7 +301,8 @@ class WienerReference(Strategy):
                               "use strategy: mean or acn")
         unit = None if context.unit is None else u.Unit(context.unit)
         # frames in the model's unit, slopes in it per second
-        charge = None if unit is None else unit * u.s if unit == self.model_unit / u.s else unit
+        charge = None if unit is None else unit * u.s if (
+            unit == self.model_unit / u.s or unit * u.s in CHARGE_UNITS) else unit
         rate = float(u.Quantity(context.schedule.geometry.pixel_rate, u.Hz).value)
         if not self.noise_given and (rate != PAPER_PIXEL_RATE or charge not in (None,
                                                                             u.electron)):
@@ -309,11 +311,17 @@ class WienerReference(Strategy):
                 f"paper's electronics: electrons at {PAPER_PIXEL_RATE:g} Hz) does not describe "
                 f"these data ({rate:g} Hz, {unit or 'no unit'}): name a noise model, e.g. a "
                 "fit-noise result of your darks")
+        if charge is not None and charge != self.model_unit and self.noise_given:
+            # a scene in adu with its gain describes data in electrons too, and back
+            comps, unit_ = noise_model(self.noise, unit=charge)
+            if unit_ == charge:
+                self.components, self.model_unit = comps, unit_
         if charge is not None and charge != self.model_unit:
             raise ConfigError(
                 f"correct_reference.noise: the noise model {self.noise} is in "
                 f"{self.model_unit}, the data in {unit}: give a model in the data's unit (a "
-                "fit-noise result of these darks), or convert the data (input: gain)")
+                "fit-noise result or characterize model of these darks; a scene in adu with "
+                "its gain: serves both), or convert the data (input: gain)")
 
     def estimate(self, side, context, exposure=None):
         self.check_data(context)

@@ -831,3 +831,34 @@ def test_the_paper_model_is_used_on_other_data_only_when_named(what):
     if what == "200 kHz":  # named: the user's choice
         out = correct_reference(e, "wiener", noise="spherex-table2")
         np.testing.assert_allclose(out.data.data, 0.0, atol=1e-9)
+
+
+def test_a_scene_in_adu_is_a_noise_model_of_adu_data_and_with_its_gain_of_electrons(tmp_path):
+    """A scene (characterize's MODEL.yaml) with ``unit: adu`` describes ADU data (it was
+    taken as electrons and refused); with its gain g it describes data in electrons too,
+    its coefficients times g² (numpy below); without a gain, electrons are refused."""
+    import yaml
+    from astropy import units as u
+
+    from spherex_reduce.reduce.steps.reference.wiener import WienerReference
+
+    s = sched()
+    data = np.zeros((3, s.n_reads, NCOLS)) + channel_values(s, CONSTS)
+    comps = [{"name": "w", "alpha": 2e-3, "beta": 1e-4}]
+    path = tmp_path / "model.yaml"
+    path.write_text(yaml.safe_dump({"unit": "adu", "gain": 2.0,
+                                    "noise": {"components": comps}}))
+    adu = Exposure.from_arrays(data, s, unit=u.adu)
+    out = correct_reference(adu, "wiener", noise=str(path))
+    np.testing.assert_allclose(out.data.data, 0.0, atol=1e-9)  # channel constants removed
+    electrons = Exposure.from_arrays(data * 2.0, s, unit=u.electron)
+    out = correct_reference(electrons, "wiener", noise=str(path))
+    np.testing.assert_allclose(out.data.data, 0.0, atol=1e-9)
+    step = WienerReference(noise=str(path))
+    step.check_data(type("Context", (), {"unit": "electron", "schedule": s})())
+    (c,) = step.components
+    assert (c.alpha, c.beta, step.model_unit) == (2e-3 * 4, 1e-4 * 4, u.electron)
+    path.write_text(yaml.safe_dump({"unit": "adu", "noise": {"components": comps}}))
+    with pytest.raises(ConfigError, match=r"noise model .*model\.yaml is in adu, the data "
+                                          r"in electron"):
+        correct_reference(electrons, "wiener", noise=str(path))

@@ -38,8 +38,9 @@ no jump) lost, for ours and stcal.
 ``--false-alarms`` prints only a table of false alarms at 4 sigma: jump-free ramps flagged,
 against the rate the docs state, for white read noise with ``read_noise`` given, given 20 %
 low or high and estimated; the paper's Table 2 noise (ACN on and off; simulated in ramps
-mode, reduced by unchop, phantom and reference correction first); and 3-5 reads or
-JWST-like groups of 4 frames.
+mode, reduced by unchop, phantom and reference correction first; the read noise given, 20 %
+low or high, or estimated); and 3-5 reads or JWST-like groups of 4 frames (the read noise
+given, and 20 % low or high without the shot term).
 
 A table of ERR pulls, ``(slope - truth) / ERR``: their rms over the clean pixels (all,
 those fitted whole and those falsely flagged ``JUMP``) and the hit pixels more than
@@ -317,10 +318,13 @@ def false_alarms(seed, npix):
              {"detect_jumps": {}}]
     for acn in (True, False):
         e = table2_ramps(512, 8, acn, seed)
-        for jd, stated in ((TABLE2_WHITE, STATED_WHITE_GIVEN), (None, STATED_WHITE_ESTIMATED)):
+        for jd, stated in ((TABLE2_WHITE, STATED_WHITE_GIVEN),
+                           (0.8 * TABLE2_WHITE, STATED_WHITE_GIVEN),
+                           (1.2 * TABLE2_WHITE, STATED_WHITE_GIVEN),
+                           (None, STATED_WHITE_ESTIMATED)):
             steps[-1] = {"detect_jumps": {} if jd is None else {"read_noise": jd}}
             case(f"Table 2, ACN {'on' if acn else 'off'}, 74 reads, 512 x 512, "
-                 f"{'read_noise given (10.03 e)' if jd else 'read_noise from the ramp'}",
+                 f"{f'read_noise given ({jd:.2f} e)' if jd else 'read_noise from the ramp'}",
                  stated, *flagged(e, steps, True))
         del e
     # short ramps: single reads, and JWST-like groups of 4 frames with a gap of 1; the docs
@@ -331,8 +335,11 @@ def false_alarms(seed, npix):
         for fpg, gap in ((1, 0), (4, 1)):
             e = dark_ramps(rng, 4 * npix, n, frames_per_group=fpg, group_gap=gap)
             kind = "reads" if fpg == 1 else f"groups of {fpg} frames (gap {gap})"
-            for jd in ({"read_noise": RN}, {"read_noise": RN, "gain": 1e9}):
-                what = "read_noise given" + (", gain 1e9 (no shot term)" if len(jd) > 1 else "")
+            for jd in ({"read_noise": RN}, {"read_noise": RN, "gain": 1e9},
+                       {"read_noise": 0.8 * RN, "gain": 1e9},
+                       {"read_noise": 1.2 * RN, "gain": 1e9}):
+                what = (f"read_noise given ({jd['read_noise']:g} e)"
+                        + (", gain 1e9 (no shot term)" if len(jd) > 1 else ""))
                 if n < 4:  # the search needs 4 reads (docs): the step is skipped
                     what += " (skipped: fewer than 4 reads)"
                 case(f"dark, {n} {kind}, {what}", (n - 1) * p1 if n >= 4 else 0.0,

@@ -33,6 +33,7 @@ float64 with the full noise model.  Each pixel's result depends on its own
 reads only.
 """
 
+import functools
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -72,13 +73,14 @@ SCREEN_BYTES = 3 << 19
 #: their ramps x degrees of freedom (reads - 2) reach this: the median's relative error is
 #: then below ~1 % in variance (at 4 sigma a read noise 1 % off moves the false alarms ~18 %)
 SCALE_DOF = 1 << 15
-#: ramps x degrees of freedom the scatter is measured on at most (every k-th ramp)
-SCALE_SAMPLE = 1 << 21
+#: ramps x degrees of freedom the scatter is measured on at most (every k-th ramp): the
+#: median's relative error in variance ~1.25 sqrt(2 / SCALE_SAMPLE) = 0.35 %, in ~10 ms
+SCALE_SAMPLE = 1 << 18
 #: ramps with a step of this many sigma (of the read noise given) are left out of the scatter
 SCALE_OUT_Z = 8.0
-#: ramps whose shot noise (lambda / sigma**2 times the longest charge variance per unit
-#: rate, from their own slope) exceeds this are left out of the scatter (read noise only)
-SCALE_SHOT = 0.05
+#: ramps whose shot noise (their own slope's) would hold more than this fraction of their
+#: first differences' expected variance are left out of the scatter (read noise, mostly)
+SCALE_SHOT = 0.1
 
 
 class StepSearch:
@@ -140,6 +142,11 @@ class StepSearch:
         # the random walk's covariance of R: s is its diagonal (none with rho: it is in q)
         self.ss = np.zeros((n - 1, n - 1)) if rho else g @ walk @ g.T
         self.walk_top = float(np.max(np.diagonal(walk)))
+        # each first difference less the line's slope over its interval: its read-noise
+        # variance (in sigma**2) and shot-noise variance (per unit lambda), for `scatter`
+        dd = np.diff(np.eye(n), axis=0) - np.diff(tau)[:, None] * coef[1][None, :]
+        self.diff_read = np.einsum("ij,j,ij->i", dd, f, dd)
+        self.diff_walk = np.einsum("ij,jk,ik->i", dd, walk, dd)
         self.factors, self.walk = f, walk
         self.uniform_w = bool(np.all(w == w[0]))
         # reads averaging several frames: a jump may fall between their frames, a step
@@ -213,14 +220,21 @@ class StepSearch:
         """How much the ramps ``y`` scatter about their lines, in units of the read noise
         ``sigma`` given: the variance ratio, or None when there are too few ramps.
 
-        Each ramp's weighted residual sum of squares about its line, over ``sigma**2``, is
-        chi-squared with ``n - 2`` degrees of freedom for white read noise of that sigma;
-        the median over the ramps against that distribution's median is the ratio of the
-        ramps' read-noise variance to ``sigma**2``.  Ramps with a step of `SCALE_OUT_Z`
-        sigma or more (a jump) and ramps whose own slope gives shot noise above
-        `SCALE_SHOT` are left out (their residuals are not read noise); the median is
-        robust to the jumps left.  At most `SCALE_SAMPLE` ramps x degrees of freedom are
-        used (every k-th ramp); fewer than `SCALE_DOF`: None.
+        Each first difference of a ramp less its line's slope over the interval, ``u_i``,
+        is Gaussian of variance ``sigma**2 a_i`` for white read noise of that sigma
+        (``a_i`` from the read times and weights); ``u_i**2 / (sigma**2 a_i)`` is
+        chi-squared with 1 degree of freedom.  Its median over the ramps, for each
+        interval, against that distribution's median, then the median over the
+        intervals, is the ratio of the ramps' read-noise variance to ``sigma**2``: a
+        read that is off for every ramp (a first read below the line of the others, a
+        frame glitch) or a step of every ramp at the same read moves one or two
+        intervals, which the median over the intervals leaves out.  Each ``u_i**2``
+        first loses the shot noise's expected share, ``lambda b_i`` for the ramp's own
+        slope (not clipped: its noise is independent of ``u``); ramps where that share
+        exceeds `SCALE_SHOT` of the read noise's, and ramps with a step of `SCALE_OUT_Z`
+        sigma or more (a jump, which moves every ``u_i`` of its ramp through its slope),
+        are left out.  At most `SCALE_SAMPLE` ramps x (``n - 2``) are used (every k-th
+        ramp); fewer than `SCALE_DOF`: None.
 
         Parameters
         ----------
@@ -253,14 +267,20 @@ class StepSearch:
         rel = np.asarray(y[:, take], np.float64)
         rel = rel - rel[0]
         with np.errstate(invalid="ignore", over="ignore"):
-            best, rss = self._screen(rel, True)
+            best, _ = self._screen(rel, False)
             s2 = np.broadcast_to(_take(sigma, take) ** 2, take.shape)
-            lam = np.maximum(self.coef[1] @ rel, 0.0) / _take(gain, take)
-            ok = (np.isfinite(rss) & (best < SCALE_OUT_Z ** 2 * s2)
-                  & (lam * self.walk_top < SCALE_SHOT * s2))
-        if np.count_nonzero(ok) * k < SCALE_DOF:
-            return None
-        return float(np.median(rss[ok] / s2[ok]) / chi2.median(k))
+            slope = self.coef[1] @ rel
+            lam = slope / _take(gain, take)
+            shot = np.abs(lam) * self.diff_walk.max()
+            ok = (np.isfinite(best) & np.isfinite(slope) & (best < SCALE_OUT_Z ** 2 * s2)
+                  & (shot < SCALE_SHOT * self.diff_read.min() * s2))
+            if np.count_nonzero(ok) * k < SCALE_DOF:
+                return None
+            u = np.diff(rel[:, ok], axis=0) - self.dtau[:, None] * slope[ok]
+            u *= u
+            u -= self.diff_walk[:, None] * lam[ok]
+            u /= self.diff_read[:, None] * s2[ok]
+        return float(np.median(np.median(u, axis=1)) / _chi2_median(1))
 
     # -- search ------------------------------------------------------------------
     @staticmethod
@@ -583,6 +603,12 @@ class _State:
                        slope=self.slope[hit], steps=steps, pixels=self.pixels[hit],
                        sigma=None if self.sigma is None else _take(self.sigma, hit),
                        gain=_take(self.gain, hit), floor=self.floor[hit])
+
+
+@functools.lru_cache(maxsize=64)
+def _chi2_median(k):
+    """The median of the chi-squared distribution of ``k`` degrees of freedom."""
+    return float(chi2.median(k))
 
 
 def _pair_amplitudes(r1, r2, q11, q22, q12):

@@ -34,7 +34,7 @@ from ...step import Kernel, Record, Step
 from ..fit_ramp.segments import usable_reads
 from ..pixel_maps import MAP_TYPES, PixelMap, adu_gain
 from .events import JumpWarning, event_message, find_read_events
-from .search import SCALE_DOF, StepSearch
+from .search import SCALE_DOF, SCALE_SAMPLE, StepSearch
 from .telegraph import telegraph_pixels
 
 __all__ = ["DetectJumpsStep", "JumpKernel", "detect_jumps"]
@@ -129,7 +129,8 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
         that the false alarms stay as stated when the read noise given is off
         (at 4 sigma a read noise 20 % low would flag 18 times as many
         jump-free ramps).  Sets too small to measure it (fewer than 2**15
-        ramps x (reads - 2)) keep the read noise given.
+        ramps x (reads - 2)), or too bright (the shot noise above 10 % of the
+        residuals), keep the read noise given.
 
     Returns
     -------
@@ -372,29 +373,32 @@ class JumpKernel(Kernel):
         sets = np.asarray(block.index) // self.event_rows
         for one in np.unique(sets):
             rows = np.flatnonzero(sets == one)
-            pix = (rows[:, None] * ncols + np.arange(ncols)).ravel()
+            pix = set_pixels = (rows[:, None] * ncols + np.arange(ncols)).ravel()
             whole = pix[~bad[pix]]
-            search, sub, members = self._whole, None, whole
+            search, members = self._whole, whole
             if whole.size * (nf - 2) < SCALE_DOF and pix.size > whole.size:
+                # every k-th ramp, as `StepSearch.scatter` takes them: no copy of the set
+                pix = pix[::max(1, -(-pix.size * (nf - 2) // SCALE_SAMPLE))]
                 flags = None if block.dq is None else block.dq.reshape(nf, -1)[:, pix]
                 usable, _ = usable_reads(y[:, pix], flags, self.params["saturation"])
                 _, inverse, counts = np.unique(np.packbits(usable, axis=0).T, axis=0,
                                                return_inverse=True, return_counts=True)
-                common = np.argmax(counts)
-                members = pix[inverse.ravel() == common]
-                mask = usable[:, np.flatnonzero(inverse.ravel() == common)[0]]
+                common = inverse.ravel() == np.argmax(counts)
+                members, mask = pix[common], usable[:, np.argmax(common)]
                 if mask.sum() < 4:
                     continue
-                search, sub = self._search(mask), y[mask][:, members]
-            if sub is None:
+                search = self._search(mask)
+                sub = y[:, members][mask]
+            else:
+                members = members[::max(1, -(-members.size * (nf - 2) // SCALE_SAMPLE))]
                 sub = y[:, members]
             ratio = search.scatter(sub, out[members], gain[members])
             if ratio is None or not ratio > 0:
                 continue
             factor = float(np.sqrt(ratio))
-            out[pix] *= factor
+            out[set_pixels] *= factor
             with self._lock:
-                self._scales[int(one)] = (factor, pix.size)
+                self._scales[int(one)] = (factor, set_pixels.size)
         return out
 
     def _run(self, search, y, maps, pixels):

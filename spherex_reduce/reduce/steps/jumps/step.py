@@ -122,9 +122,9 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
         the two-sided one: the false alarms halve.
     scale_read_noise : bool
         With ``read_noise`` given: scale it, on each set of rows of 2**17
-        pixels, by how much the set's ramps scatter about their lines (the
-        median over the ramps of their residuals' chi-squared against its
-        median for the read noise given;
+        pixels, by how much the set's ramps scatter (their first differences
+        less their line's slope, against the read noise given, by medians
+        over the ramps and the intervals;
         `~spherex_reduce.reduce.steps.jumps.search.StepSearch.scatter`), so
         that the false alarms stay as stated when the read noise given is off
         (at 4 sigma a read noise 20 % low would flag 18 times as many

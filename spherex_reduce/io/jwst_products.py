@@ -15,7 +15,10 @@ so that a reference correction and jumps made here go on into JWST's stage 2:
 ``VAR_POISSON``, ``VAR_RNOISE``
     The two parts of the slope's variance (float32), from ``fit_ramp``'s
     ``RAMPFIT`` table (`variance_parts`): read noise with the dark current's
-    shot noise, and the shot noise of ``max(slope, 0)``.
+    shot noise, and the shot noise of the rate: a ``rate`` file's is our
+    ``ERR``'s (``ERR**2 - VAR_RNOISE``: each pixel's expected rate given the
+    exposure's slopes, ``fit_ramp``), a ``rateints`` file's that of
+    ``max(slope, 0)`` of each integration.
 ``SXRMETA``
     An extension without data whose header is the primary header of our own
     output (the readout keywords, the steps' keywords and ``HISTORY``), and
@@ -242,6 +245,10 @@ def write_jwst(exposure, path, *, slopes=None, flags=None, overwrite=False):
                        else np.asarray(flags))
     with np.errstate(invalid="ignore"):
         var_poisson = np.maximum(sci, 0.0) * per_rate
+        unc = None if slopes is not None else exposure.data.uncertainty
+        if unc is not None:  # our ERR's shot noise (fit_ramp's expected rates), where it is
+            total = np.asarray(unc.array, np.float64) ** 2 - rnoise
+            var_poisson = np.where(np.isfinite(total), np.maximum(total, 0.0), var_poisson)
     unusable = ~np.isfinite(sci)
     var_poisson[unusable] = np.nan
     rnoise = np.where(unusable, np.nan, rnoise)

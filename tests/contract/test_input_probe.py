@@ -2233,7 +2233,14 @@ def _numpy_slopes_and_errors(d):
     slope = np.polyfit(t, data.reshape(6, -1), 1)[0].reshape(data.shape[1:])
     w = (t - t.mean()) / ((t - t.mean()) @ (t - t.mean()))
     pf = w @ np.minimum.outer(t, t) @ w
-    return slope, np.sqrt(rn ** 2 * (w @ w) + (np.maximum(slope, 0) + dark) * pf)
+    from spherex_reduce.reduce.steps.fit_ramp.least_squares import expected_rates
+
+    # the shot noise of fit_ramp's expected rates (issue 35; tested against the truth in
+    # tests/reduce/steps/fit_ramp/test_fit_ramp.py), the pixels' own where too few
+    rnoise = rn ** 2 * (w @ w) + dark * pf
+    rate = expected_rates(slope, rnoise, np.full(slope.shape, pf))
+    rate = np.maximum(slope, 0) if rate is None else rate
+    return slope, np.sqrt(rnoise + rate * pf)
 
 
 def _check_map_errors(d, result, run):
@@ -2241,7 +2248,7 @@ def _check_map_errors(d, result, run):
     slope, err = _numpy_slopes_and_errors(d)
     with fits.open(d / "out.fits") as hdul:
         np.testing.assert_allclose(hdul["SCI"].data, slope, rtol=0, atol=1e-6)
-        np.testing.assert_allclose(hdul["ERR"].data, err, rtol=1e-6)
+        np.testing.assert_allclose(hdul["ERR"].data, err, rtol=2e-6)  # float32 parts
 
 
 _SEAM_JUMPS = ((3, 7), (7, 12), (8, 8), (0, 0))  # vertical, horizontal seams, two corners

@@ -43,14 +43,16 @@ def test_pooled_weights_are_unbiased(fitted):
     np.testing.assert_allclose(np.std(mean.data.data), np.sqrt(var / NINT), rtol=0.02)
 
 
-def test_weights_from_each_integrations_own_slope_are_biased(fitted):
+def test_weights_from_each_integrations_uncertainty_are_unbiased_too(fitted):
     """Without the variance's parts (a fit whose RAMPFIT lacks them) the weights come from
-    each integration's uncertainty, which includes its own slope's shot noise: biased low,
-    as the issue measured (-3.5 %)."""
+    each integration's uncertainty.  Its shot noise was its own slope's, which weighs the
+    integrations that fluctuated low up: biased low, as the issue measured (-3.5 %).  It
+    is now the shot noise of each pixel's expected rate given the exposure's slopes
+    (issue 35; one rate for this flat 3 e/s field): unbiased within 0.3 %."""
     plain = [r.replace(tables={k: v for k, v in r.tables.items() if k != "RAMPFIT"})
              for r in fitted]
     bias = np.mean(combine_integrations(plain).exposure.data.data) / RATE - 1
-    assert bias < -0.02, bias
+    assert abs(bias) <= 0.003, bias
 
 
 def test_variance_parts_follow_the_rows_after_unchop():

@@ -24,7 +24,7 @@ from ...hookspecs import hookimpl
 from ...noise_effect import NoiseEffect
 from ...step import Consumer, Step
 from ..pixel_maps import MAP_TYPES, PixelMap, adu_gain
-from .least_squares import LeastSquares, RampMaps, RampSolution
+from .least_squares import LeastSquares, RampMaps, RampSolution, expected_rates
 from .segments import RampNoise
 
 __all__ = ["WEIGHTINGS", "FitRampStep", "RampFit", "fit_ramp"]
@@ -55,7 +55,9 @@ def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, dark_c
         (``path[EXT]`` for an extension; its ``BUNIT``, if any, converted to
         the data unit: ``reduce/steps/pixel_maps.py``).  Given, the
         uncertainty is the model ``read_noise**2 sum(w**2)`` plus the shot
-        noise of the pixel's rate (data unit = electrons / ``gain``); not
+        noise of the pixel's expected rate given the exposure's slopes
+        (`~spherex_reduce.reduce.steps.fit_ramp.least_squares.expected_rates`;
+        data unit = electrons / ``gain``; header ``ERRRATE``); not
         given, it comes from the fit residuals, ``chi2 / (n - 2) * sum(w**2)``
         (NaN for two reads).
     gain : float, array or str
@@ -265,6 +267,21 @@ class RampFit(Consumer):
         kernels before this step, or None) is fitted too when it holds ramps.
         """
         fit = self.fit
+        header = header.copy()
+        if self.read_noise is not None:
+            # the shot noise of each pixel's expected rate, given the exposure's slopes, not
+            # of its own slope clipped at 0 (which overstates a dark's uncertainties)
+            s = self.context.schedule
+            bulk = ~s.geometry.reference_pixel_mask()  # not the reference pixels
+            if self.context.order == "readout":
+                bulk = bulk[s.rows]
+            rate = expected_rates(fit.slope, fit.var_rnoise, fit.var_per_rate, bulk)
+            if rate is not None:  # else too few pixels: each pixel's own slope
+                var = fit.var_rnoise + rate * fit.var_per_rate
+                redo = np.isfinite(fit.var) & np.isfinite(var) & (var >= 0)
+                fit.var[redo] = np.sqrt(var[redo])
+            header["ERRRATE"] = ("own" if rate is None else "expected",
+                                 "rates of ERR's shot noise (fit_ramp)")
         if reference is not None and np.ndim(reference.data) == 3:
             rfit = self.reference_solver.fit(reference.data, reference.dq)
             rphant = (None if reference.phantom is None
@@ -283,7 +300,6 @@ class RampFit(Consumer):
                                   meta={"order": self.context.order,
                                         "comments": ["reads used, jumps and segments fitted, "
                                                      "one row per image row"]})
-        header = header.copy()
         header["NFEWRDS"] = (self._few, "pixels with fewer than 2 usable reads")
         header["NJUMPPX"] = (self._jumped, "pixels fitted around jumps")
         header["NSATPX"] = (self._saturated,

@@ -33,16 +33,18 @@ float64 with the full noise model.  Each pixel's result depends on its own
 reads only.
 """
 
+import functools
 from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.special import log_ndtr
+from scipy.stats import chi2
 
 from ....core.limits import check_size
 from ....core.recently_used import RecentlyUsed
 from ..fit_ramp.segments import accumulate_reads
 
-__all__ = ["SCREEN_MARGIN", "Found", "StepSearch"]
+__all__ = ["SCALE_DOF", "SCREEN_MARGIN", "Found", "StepSearch"]
 
 #: the float32 screen keeps pixels down to this fraction of the threshold, so that its
 #: rounding never drops a pixel the float64 search would flag
@@ -67,6 +69,18 @@ PAIR_MARGIN = 9.0
 #: over reads (1.5 MB: the 128 x 2048 strip's search in 0.10-0.14 s of CPU where 6 MB took
 #: 0.21-0.29 s, 2 MB 0.34-0.40 s and 1 MB 0.15-0.16 s, on two cores shared with other work)
 SCREEN_BYTES = 3 << 19
+#: the read noise given is scaled to the ramps' own scatter (`StepSearch.scatter`) when
+#: their ramps x degrees of freedom (reads - 2) reach this: the median's relative error is
+#: then below ~1 % in variance (at 4 sigma a read noise 1 % off moves the false alarms ~18 %)
+SCALE_DOF = 1 << 15
+#: ramps x degrees of freedom the scatter is measured on at most (every k-th ramp): the
+#: median's relative error in variance ~1.25 sqrt(2 / SCALE_SAMPLE) = 0.35 %, in ~10 ms
+SCALE_SAMPLE = 1 << 18
+#: ramps with a step of this many sigma (of the read noise given) are left out of the scatter
+SCALE_OUT_Z = 8.0
+#: ramps whose shot noise (their own slope's) would hold more than this fraction of their
+#: first differences' expected variance are left out of the scatter (read noise, mostly)
+SCALE_SHOT = 0.1
 
 
 class StepSearch:
@@ -128,6 +142,11 @@ class StepSearch:
         # the random walk's covariance of R: s is its diagonal (none with rho: it is in q)
         self.ss = np.zeros((n - 1, n - 1)) if rho else g @ walk @ g.T
         self.walk_top = float(np.max(np.diagonal(walk)))
+        # each first difference less the line's slope over its interval: its read-noise
+        # variance (in sigma**2) and shot-noise variance (per unit lambda), for `scatter`
+        dd = np.diff(np.eye(n), axis=0) - np.diff(tau)[:, None] * coef[1][None, :]
+        self.diff_read = np.einsum("ij,j,ij->i", dd, f, dd)
+        self.diff_walk = np.einsum("ij,jk,ik->i", dd, walk, dd)
         self.factors, self.walk = f, walk
         self.uniform_w = bool(np.all(w == w[0]))
         # reads averaging several frames: a jump may fall between their frames, a step
@@ -196,6 +215,72 @@ class StepSearch:
             if estimate:
                 rss *= w[0]
         return best, rss
+
+    def scatter(self, y, sigma, gain=1.0):
+        """How much the ramps ``y`` scatter about their lines, in units of the read noise
+        ``sigma`` given: the variance ratio, or None when there are too few ramps.
+
+        Each first difference of a ramp less its line's slope over the interval, ``u_i``,
+        is Gaussian of variance ``sigma**2 a_i`` for white read noise of that sigma
+        (``a_i`` from the read times and weights); ``u_i**2 / (sigma**2 a_i)`` is
+        chi-squared with 1 degree of freedom.  Its median over the ramps, for each
+        interval, against that distribution's median, then the median over the
+        intervals, is the ratio of the ramps' read-noise variance to ``sigma**2``: a
+        read that is off for every ramp (a first read below the line of the others, a
+        frame glitch) or a step of every ramp at the same read moves one or two
+        intervals, which the median over the intervals leaves out.  Each ``u_i**2``
+        first loses the shot noise's expected share, ``lambda b_i`` for the ramp's own
+        slope (not clipped: its noise is independent of ``u``); ramps where that share
+        exceeds `SCALE_SHOT` of the read noise's, and ramps with a step of `SCALE_OUT_Z`
+        sigma or more (a jump, which moves every ``u_i`` of its ramp through its slope),
+        are left out.  At most `SCALE_SAMPLE` ramps x (``n - 2``) are used (every k-th
+        ramp); fewer than `SCALE_DOF`: None.
+
+        Parameters
+        ----------
+        y : `numpy.ndarray`
+            Reads ``(n, m)`` of ``m`` ramps (data unit), every read usable.
+        sigma : float or `numpy.ndarray` of shape ``(m,)``
+            Read noise given (data unit, one frame).
+        gain : float or `numpy.ndarray` of shape ``(m,)``
+            Electrons per data unit.
+
+        Returns
+        -------
+        float or None
+            The ramps' read-noise variance over ``sigma**2`` (dimensionless).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from spherex_reduce.reduce.steps.jumps.search import StepSearch
+        >>> y = np.random.default_rng(2).normal(0.0, 12.0, (20, 4000))
+        >>> round(StepSearch(np.arange(20.0)).scatter(y, 10.0), 1)  # (12 / 10)**2 = 1.44
+        1.4
+        """
+        n, m = y.shape
+        k = n - 2
+        every = max(1, -(-m * k // SCALE_SAMPLE))
+        take = np.arange(0, m, every)
+        if take.size * k < SCALE_DOF:
+            return None
+        rel = np.asarray(y[:, take], np.float64)
+        rel = rel - rel[0]
+        with np.errstate(invalid="ignore", over="ignore"):
+            best, _ = self._screen(rel, False)
+            s2 = np.broadcast_to(_take(sigma, take) ** 2, take.shape)
+            slope = self.coef[1] @ rel
+            lam = slope / _take(gain, take)
+            shot = np.abs(lam) * self.diff_walk.max()
+            ok = (np.isfinite(best) & np.isfinite(slope) & (best < SCALE_OUT_Z ** 2 * s2)
+                  & (shot < SCALE_SHOT * self.diff_read.min() * s2))
+            if np.count_nonzero(ok) * k < SCALE_DOF:
+                return None
+            u = np.diff(rel[:, ok], axis=0) - self.dtau[:, None] * slope[ok]
+            u *= u
+            u -= self.diff_walk[:, None] * lam[ok]
+            u /= self.diff_read[:, None] * s2[ok]
+        return float(np.median(np.median(u, axis=1)) / _chi2_median(1))
 
     # -- search ------------------------------------------------------------------
     @staticmethod
@@ -518,6 +603,12 @@ class _State:
                        slope=self.slope[hit], steps=steps, pixels=self.pixels[hit],
                        sigma=None if self.sigma is None else _take(self.sigma, hit),
                        gain=_take(self.gain, hit), floor=self.floor[hit])
+
+
+@functools.lru_cache(maxsize=64)
+def _chi2_median(k):
+    """The median of the chi-squared distribution of ``k`` degrees of freedom."""
+    return float(chi2.median(k))
 
 
 def _pair_amplitudes(r1, r2, q11, q22, q12):

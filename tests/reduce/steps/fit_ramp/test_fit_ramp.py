@@ -11,6 +11,7 @@ from spherex_reduce.io.examples import example_raw_exposure, tiny_schedule
 from spherex_reduce.io.sources import MemorySource
 from spherex_reduce.reduce.executor import execute
 from spherex_reduce.reduce.options import RunOptions
+from spherex_reduce.reduce.steps.fit_ramp.least_squares import expected_rates
 from spherex_reduce.reduce.steps.fit_ramp.step import FitRampStep, RampFit
 
 
@@ -381,6 +382,13 @@ def test_every_path_matches_float64_least_squares(name):
     assert np.array_equal(out.dq & dq.FEW_READS != 0, n < 2)
     slope = out.data.data
     sigma = 5.0 / np.sqrt(((t - t.mean()) ** 2).sum())
+    if "read_noise" in params:  # the rate of the shot noise in ERR (tested against the truth
+        # in test_a_darks_uncertainty_is_its_scatter and test_a_skys_...)
+        parts = out.tables["RAMPFIT"]
+        rate = expected_rates(slope, np.asarray(parts["var_rnoise"]),
+                              np.asarray(parts["var_per_rate"]),
+                              ~exposure.reference_pixel_mask())
+        assert rate is not None
     if name == "optimal":
         # GLS on each pixel's usable reads, for its uniform-fit rate binned in
         # rate / read_noise**2 to 0.02 dex (the documented bins), masked reads or not
@@ -396,7 +404,10 @@ def test_every_path_matches_float64_least_squares(name):
             beta = np.linalg.solve(x.T @ ci @ x, x.T @ ci @ cube[use, i, j].astype(float))
             assert slope[i, j] == pytest.approx(beta[1], rel=1e-9)
             unc = out.data.uncertainty.array[i, j]
-            assert unc**2 == pytest.approx(np.linalg.inv(x.T @ ci @ x)[1, 1], rel=1e-9)
+            w = (np.linalg.inv(x.T @ ci @ x) @ x.T @ ci)[1]  # the GLS weights, at the rate
+            m = np.minimum.outer(tu - t[0], tu - t[0])
+            assert unc**2 == pytest.approx(rn**2 * (w @ w) + rate[i, j] * (w @ m @ w),
+                                           rel=1e-6)
     else:
         np.testing.assert_allclose(slope, ref, rtol=1e-6, atol=1e-3 * sigma)
     unc2 = out.data.uncertainty.array ** 2
@@ -411,8 +422,8 @@ def test_every_path_matches_float64_least_squares(name):
                 continue
             tc = t[g] - t[g].mean()
             w = tc / (tc @ tc)
-            shot = max(slope[i, j], 0) / gain * (w @ np.minimum.outer(t[g], t[g]) @ w)
-            assert unc2[i, j] == pytest.approx(rn**2 * (w @ w) + shot, rel=1e-9)
+            shot = rate[i, j] / gain * (w @ np.minimum.outer(t[g], t[g]) @ w)
+            assert unc2[i, j] == pytest.approx(rn**2 * (w @ w) + shot, rel=1e-6)
     if exposure.phantom is not None:
         tc = t - t.mean()
         np.testing.assert_allclose(out.phantom, np.einsum("f,fij->ij", tc / (tc @ tc),
@@ -574,7 +585,11 @@ def test_bright_and_dark_ramps_with_read_noise_match_float64_least_squares(weigh
     shot = w @ np.minimum.outer(t - t[0], t - t[0]) @ w
     if weighting == "uniform":
         assert np.abs(out.data.data - ref).max() <= 5e-4 * sigma
-        model = rn**2 * (w @ w) + np.maximum(ref, 0) * shot
+        # the shot noise of the expected rates (which keep each pixel's own where the rates
+        # spread this much; see test_a_skys_uncertainty_keeps_each_pixels_rate)
+        model = rn**2 * (w @ w) + expected_rates(ref, np.full(ref.shape, rn**2 * (w @ w)),
+                                                 np.full(ref.shape, shot),
+                                                 ~exposure.reference_pixel_mask()) * shot
         np.testing.assert_allclose(out.data.uncertainty.array ** 2, model, rtol=1e-6)
     else:  # GLS at the uniform slope's rate binned to 0.02 dex (rate <= 0: uniform weights)
         x = np.stack([np.ones(t.size), t], 1)
@@ -589,3 +604,56 @@ def test_bright_and_dark_ramps_with_read_noise_match_float64_least_squares(weigh
     if weighting == "uniform":
         np.testing.assert_allclose(np.asarray(parts["var_per_rate"]), shot, rtol=1e-6)
         np.testing.assert_allclose(np.asarray(parts["var_rnoise"]), rn**2 * (w @ w), rtol=1e-6)
+
+
+def _dark_ramps(rng, nframes, shape, rate, read_noise, dt):
+    """Poisson charge at ``rate`` e/s plus white read noise, on a pedestal (float32)."""
+    charge = np.cumsum(rng.poisson(rate * dt, (nframes, *shape)), axis=0)
+    charge -= charge[0]
+    return (6e4 + charge + rng.normal(0, read_noise, (nframes, *shape))).astype(np.float32)
+
+
+@pytest.mark.parametrize("rate", [0.01, 0.0])
+def test_a_darks_uncertainty_is_its_scatter(rate):
+    """Issue 35: the shot noise in ERR came from each pixel's own slope clipped at 0; on a
+    dark the slope is mostly read noise, so ERR overstated the slopes' scatter (~6 % on 74
+    reads of 10 e) and most where the slope fluctuated up.  ``(slope - rate) / ERR`` must
+    have rms 1 within 2 % (2**16 pixels: +-0.3 %), and ERR be the true sigma of the
+    least-squares slope for read noise and the rate's shot noise (numpy, in the test)
+    within 1 % for 99 % of the pixels and 5 % for 99.9 % (the others' slopes lie 3.5
+    sigma or more out, where the rate moves to their own: a warm pixel's)."""
+    nf, dt, rn = 74, 1.5, 10.0
+    rows, cols = 128, 512
+    s = ReadoutSchedule(DetectorGeometry(rows, cols, 8, ref_border=0), skip=1, ref_reads=0,
+                        ref_mode="none", phantom_reads=0, nframes=nf, frame_time=dt)
+    cube = _dark_ramps(np.random.default_rng(3521), nf, (rows, cols), rate, rn, dt)
+    out = fit_ramp(Exposure.from_arrays(cube, s), read_noise=rn)
+    t = dt * np.arange(nf)
+    w = (t - t.mean()) / ((t - t.mean()) ** 2).sum()
+    sigma = np.sqrt(rn ** 2 * (w @ w) + rate * (w @ np.minimum.outer(t, t) @ w))
+    err = out.data.uncertainty.array
+    pull = (out.data.data - rate) / err
+    assert abs(np.sqrt(np.mean(pull ** 2)) - 1) < 0.02
+    off = np.abs(err / sigma - 1)
+    assert np.quantile(off, 0.99) < 0.01 and np.quantile(off, 0.999) < 0.05
+
+
+def test_a_skys_uncertainty_keeps_each_pixels_rate():
+    """Rates that spread more than the slopes' noise (a sky) and a hot pixel on it keep
+    their own shot noise: ``(slope - rate) / ERR`` has rms 1 within 3 % over the sky, and
+    the hot pixel's ERR is the sigma at its true rate within 3 % (numpy, in the test)."""
+    nf, dt, rn = 74, 1.5, 10.0
+    rows, cols = 64, 256
+    s = ReadoutSchedule(DetectorGeometry(rows, cols, 4, ref_border=0), skip=1, ref_reads=0,
+                        ref_mode="none", phantom_reads=0, nframes=nf, frame_time=dt)
+    rng = np.random.default_rng(3522)
+    rate = 0.5 * np.exp(rng.standard_normal((rows, cols)))
+    rate[0, 0] = 50.0  # a hot pixel
+    cube = _dark_ramps(rng, nf, (rows, cols), rate, rn, dt)
+    out = fit_ramp(Exposure.from_arrays(cube, s), read_noise=rn)
+    t = dt * np.arange(nf)
+    w = (t - t.mean()) / ((t - t.mean()) ** 2).sum()
+    sigma = np.sqrt(rn ** 2 * (w @ w) + rate * (w @ np.minimum.outer(t, t) @ w))
+    err = out.data.uncertainty.array
+    assert abs(np.sqrt(np.mean(((out.data.data - rate) / err) ** 2)) - 1) < 0.03
+    assert err[0, 0] == pytest.approx(sigma[0, 0], rel=0.03)

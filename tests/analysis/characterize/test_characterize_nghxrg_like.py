@@ -100,3 +100,13 @@ def test_a_line_the_model_lacks_is_called_bad():
         out.append(d.replace(data=type(d.data)(data)))
     model = characterize(out, segments=1, pixels=False)
     assert any(m.startswith("pixels: the fit is visibly bad") for m in model.marks)
+
+
+def test_acn_is_not_found_where_the_darks_scatter_less_than_their_noise():
+    """The jackknife sees only the scatter between darks: the same dark given three times
+    has none, and every power was then 'found' (z infinite).  The error is floored at the
+    fit's own, so the even-odd difference of noise without ACN is not taken for ACN."""
+    (d,) = nghxrg_like([{"name": "u", "beta": U_PINK, "scope": "channel"}], n=1, seed=6)
+    model = characterize([d, d, d], segments=1, pixels=False)
+    assert model.acn["power"] > 0  # this seed: the case the jackknife's zero error hid
+    assert np.isfinite(model.acn["z"]) and not model.acn["found"]

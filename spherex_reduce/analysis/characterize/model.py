@@ -136,8 +136,8 @@ def _classes(g, acn, boxes, nch):
     chan_s = t["pixels"] - common
     if "phantom" not in t:
         if acn:  # the even-odd difference holds ACN alone: the rest of each channel is not
+            out["channel"] = chan_s - k_s * t["acn"] * corr
             out["acn"] = t["acn"] * corr
-            out["channel"] = chan_s - k_s * out["acn"]
         else:
             out["channel"] = chan_s
         out["common"] = common

@@ -8,8 +8,13 @@ the noise's spectrum, its non-Gaussian scatter and the fit's weights.  The
 components follow the simulator's (`~spherex_reduce.simulation.NoiseComponent`):
 for each scope (``channel``, ``common``) a part seen by the light-sensitive
 pixels only, one seen by the phantom reads only and one seen by both (the
-paper's Table 2 split), with alternating column noise (ACN) on the channel
-components when the darks show it.
+paper's Table 2 split), with alternating column noise (ACN) when the darks show it.
+
+Without phantom reads, ACN found is a component of its own, ``acn`` (channel scope,
+``acn: true``): the even-odd difference holds ACN alone, so its correlated terms are
+ACN's, and each channel's own part (``channel``, one stream for both parities: NGHXRG's
+``u_pink``) is what the pixels' mean holds beyond the share of ACN it keeps.  With
+phantom reads every channel component's correlated part is held as ACN.
 
 With ACN an average of ``e`` even and ``o`` odd samples keeps ``(e² + o²)/n²``
 of a component's correlated power (`Box.acn_factor`), and the cross-spectrum
@@ -26,12 +31,15 @@ import numpy as np
 
 from .spectra import band_power
 
-__all__ = ["ACN_SIGMAS", "Estimate", "combine"]
+__all__ = ["ACN_SIGMAS", "BAD_FIT_PROBABILITY", "Estimate", "combine", "goodness"]
 
 PARAMS = ("alpha", "beta", "gamma")
 #: ACN is found when the correlated power of the even-odd difference is above zero by more
-#: than this many standard errors (one-sided; 0.13 % false alarms).
+#: than this many standard errors (one-sided; 0.13 % false alarms).  The error is the
+#: jackknife's over the darks, floored at the fit's own (`_acn_test`).
 ACN_SIGMAS = 3.0
+#: A fit whose chi2 has a probability below this is visibly bad (see ``goodness``).
+BAD_FIT_PROBABILITY = 1e-6
 #: A channel-to-channel spread is reported as real when the channels' values scatter about
 #: their mean with chi2 per degree of freedom beyond what this probability allows.
 SPREAD_PROBABILITY = 1e-3
@@ -43,6 +51,9 @@ class Estimate:
 
     values: np.ndarray
     errors: np.ndarray
+    #: the values fitted with each dark left out in turn, ``(darks, 3)``: the jackknife
+    #: of any function of them (a band power) is theirs
+    leave_one_out: np.ndarray = None
 
     @classmethod
     def of(cls, full, leave_one_out):
@@ -64,7 +75,7 @@ class Estimate:
         x = np.asarray(leave_one_out, dtype=np.float64)  # (darks, 3)
         k = x.shape[0]
         err = np.sqrt((k - 1) / k * np.sum((x - x.mean(axis=0)) ** 2, axis=0))
-        return cls(np.asarray(full, dtype=np.float64), err)
+        return cls(np.asarray(full, dtype=np.float64), err, x)
 
 
 def _theta(result):
@@ -83,15 +94,32 @@ def _acn_power(fits, exponent, band):
     return band_power(acn.values["beta"], acn.values["gamma"], exponent, band)
 
 
+def _formal_band_error(fit, band):
+    """The error of a fit's β, γ band power over ``band`` from the fit's covariance."""
+    lo, hi = band
+    e = fit.exponent
+    grad = {"alpha": 0.0, "beta": np.log(hi / lo), "gamma": (hi ** (1 - e) - lo ** (1 - e))
+            / (1 - e)}
+    g = np.array([grad[p] for p in fit.fitted])
+    return float(np.sqrt(max(g @ fit.covariance @ g, 0.0)))
+
+
 def _acn_test(full, jack, exponent):
     """The ACN test: the correlated power (β, γ terms) of the even-odd difference in its
-    fitted band, its jackknife error, and its z."""
+    fitted band, its error, and its z.
+
+    The error is the jackknife's over the darks, but not below the fit's own (the
+    scatter the Welch spectrum of Gaussian noise has): the difference's β and γ are
+    nearly opposite in shape, and the jackknife of a few darks can miss their scatter
+    (on 4 of NGHXRG's full-size darks without ACN it gave 6.5 times less than the fit,
+    and ACN at 9.6 standard errors)."""
     if "acn" not in full:
         return None
     band = full["acn"].frequency_range
     power = _acn_power(full, exponent, band)
     err = float(Estimate.of([power], [[_acn_power(j, j["pixels"].exponent, band)]
                                       for j in jack]).errors[0])
+    err = max(err, _formal_band_error(full["acn"], band))
     z = power / err if err > 0 else float(np.copysign(np.inf, power))
     return {"band": band, "power": float(power), "error": err, "z": float(z),
             "found": bool(z > ACN_SIGMAS)}
@@ -107,7 +135,11 @@ def _classes(g, acn, boxes, nch):
     out = {}
     chan_s = t["pixels"] - common
     if "phantom" not in t:
-        out["channel"] = chan_s * np.where(corr > 0, 1 / k_s, 1.0)
+        if acn:  # the even-odd difference holds ACN alone: the rest of each channel is not
+            out["channel"] = chan_s - k_s * t["acn"] * corr
+            out["acn"] = t["acn"] * corr
+        else:
+            out["channel"] = chan_s
         out["common"] = common
         return out
     k_p = boxes["phantom"].acn_factor if acn else 1.0
@@ -126,7 +158,8 @@ def _classes(g, acn, boxes, nch):
 
 
 #: scope and visibility of each component `combine` gives
-LAYOUT = {"channel": ("channel", "pixels"), "channel_both": ("channel", "both"),
+LAYOUT = {"channel": ("channel", "pixels"), "acn": ("channel", "pixels"),
+          "channel_both": ("channel", "both"),
           "channel_phantom": ("channel", "phantom"), "common": ("common", "pixels"),
           "common_both": ("common", "both"), "common_phantom": ("common", "phantom")}
 
@@ -185,3 +218,75 @@ def combine(full, jack, boxes, nch):
     return {"components": components, "spectra": spectra, "acn": acn, "spreads": spreads,
             "acn_on": found,
             "exponent": Estimate.of([exponent], [[j["pixels"].exponent] for j in jack])}
+
+
+def _common_mode(rho, nch):
+    """``(κ_mean, κ_pairs)``: the variance of the channels' mean auto-spectrum and of their
+    mean cross-spectrum, relative to that of independent channels, when each pair of the
+    ``C`` channels is correlated by ``ρ`` (the common part's share of a channel's power).
+
+    For Gaussian streams ``Cov(X_ij, X_kl) ∝ (S_ik S_lj + S_il S_kj)/2``: the mean of the
+    ``C`` auto-spectra has ``κ = 1 + (C − 1) ρ²``, and the mean over the ``C(C − 1)``
+    pairs ``κ = T / (C (C − 1)²)``, ``T = A² − 2 Σ r_i² + tr a²`` for ``a = ρ J + (1 − ρ) I``
+    (``A`` its sum, ``r_i`` its row sums): ``C`` at ``ρ = 1``, ``1/(C − 1)`` at ``ρ = 0``.
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.characterize.model import _common_mode
+    >>> [float(k) for k in _common_mode(1.0, 4)], [float(k) for k in _common_mode(0.0, 4)]
+    ([4.0, 4.0], [1.0, 0.3333333333333333])
+    """
+    rho = np.clip(np.asarray(rho, dtype=np.float64), 0.0, 1.0)
+    c = nch
+    k_mean = 1 + (c - 1) * rho**2
+    row = 1 + (c - 1) * rho  # every row sum of a
+    t = (c * row) ** 2 - 2 * c * row**2 + c * (1 + (c - 1) * rho**2)
+    return k_mean, t / (c * (c - 1) ** 2)
+
+
+def goodness(bins, nch):
+    """χ², degrees of freedom and probability of each pooled spectrum's fit.
+
+    Every fit weights its bins as if the ``C`` channels were independent; noise common to
+    them (NGHXRG's ``c_pink``) makes their spectra move together, so the errors of the
+    channels' mean auto-spectrum (``pixels``) and mean cross-spectrum (``pixels_common``)
+    are scaled by ``_common_mode`` at the share the fits give the common part; other
+    spectra are taken as weighted.
+
+    Parameters
+    ----------
+    bins : dict
+        ``{name: Table}`` of binned spectra and models (``psd``, ``psd_err``,
+        ``model``), as ``Characterization.bins`` holds them.
+    nch : int
+        Channels.
+
+    Returns
+    -------
+    dict
+        ``{name: (chi2, dof, probability)}``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from astropy.table import Table
+    >>> from spherex_reduce.analysis.characterize.model import goodness
+    >>> b = Table({"psd": [1.0, 2.0, 1.0, 2.0, 1.0], "psd_err": [1.0] * 5, "model": [1.5] * 5})
+    >>> chi2, dof, p = goodness({"x": b}, 4)["x"]
+    >>> chi2, dof
+    (1.25, 2)
+    """
+    from scipy.stats import chi2 as chi2_dist
+
+    kappa = {}
+    pix, common = bins.get("pixels"), bins.get("pixels_common")
+    if nch > 1 and pix is not None and common is not None and len(pix) == len(common):
+        rho = np.asarray(common["model"]) / np.maximum(np.asarray(pix["model"]), 1e-300)
+        kappa["pixels"], kappa["pixels_common"] = _common_mode(rho, nch)
+    out = {}
+    for name, b in bins.items():
+        r2 = ((np.asarray(b["psd"]) - np.asarray(b["model"])) / np.asarray(b["psd_err"])) ** 2
+        c2 = float(np.sum(r2 / kappa.get(name, 1.0)))
+        dof = max(int(r2.size) - len(PARAMS), 1)
+        out[name] = (c2, dof, float(chi2_dist.sf(c2, dof)))
+    return out

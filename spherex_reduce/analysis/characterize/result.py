@@ -6,7 +6,7 @@ import numpy as np
 from astropy import units as u
 from astropy.table import Table
 
-from .model import ACN_SIGMAS, LAYOUT, PARAMS, combine
+from .model import ACN_SIGMAS, BAD_FIT_PROBABILITY, LAYOUT, PARAMS, combine, goodness
 from .spectra import SPECTRA
 
 __all__ = ["Characterization"]
@@ -165,6 +165,10 @@ class Characterization:
                     sig = f"{-v / e:.1f} sigma" if e > 0 else "no error"
                     out.append(f"{name}.{p} = {v:.3g} ± {e:.2g} is below zero ({sig}): 0 in "
                                "the scene")
+        for name, (c2, dof, prob) in goodness(self.bins, s.geometry.nchannels).items():
+            if prob < BAD_FIT_PROBABILITY:
+                out.append(f"{name}: the fit is visibly bad (chi2/dof = {c2:.0f}/{dof}, "
+                           f"probability {prob:.1g}): the darks hold noise the model lacks")
         if self.ngroups < 5:
             out.append(f"uncertainties: from the scatter of {self.ngroups} darks or segments "
                        f"only (Student t with {self.ngroups - 1} degrees of freedom)")
@@ -183,8 +187,8 @@ class Characterization:
                 continue
             comp = {"name": name, **values, "exponent": self.exponent, "scope": scope,
                     "visibility": visibility}
-            if scope == "channel":
-                comp["acn"] = self.acn_on
+            if scope == "channel":  # ACN: its own component, or every channel one's
+                comp["acn"] = name == "acn" or (self.acn_on and "acn" not in self.components)
             comps.append(comp)
         if not comps:  # a scene with no components simulates the default table: not this
             comps.append({"name": "channel", "alpha": 0.0, "exponent": self.exponent})

@@ -20,7 +20,12 @@ from astropy.table import Table
 
 from ..temporal import aliased_basis, fit_noise_model, temporal_psd
 
-__all__ = ["SPECTRA", "band_power", "dark_spectra", "fit_spectra", "pool"]
+__all__ = ["LONG_BURST", "SPECTRA", "band_power", "dark_spectra", "fit_spectra", "pool"]
+
+#: Samples of one column parity in a reference-row burst from which its fit takes the
+#: correlated terms too, not the white level alone (`_burst_terms`): 128 (channels of 256
+#: columns or more).
+LONG_BURST = 64
 
 #: The spectra `fit_spectra` fits, and what each holds.
 SPECTRA = {
@@ -31,7 +36,8 @@ SPECTRA = {
     "phantom_common": "phantom reads, mean cross-spectrum of different channels",
     "both": "pixels x phantom of one channel (what both see)",
     "both_common": "pixels x phantom of different channels",
-    "reference": "reference pixels: white level of the reference-row bursts",
+    "reference": "reference pixels: white level (and 1/f of long bursts) of the reference-row "
+                 "bursts",
 }
 
 
@@ -243,7 +249,7 @@ def fit_spectra(sp, boxes, schedule, exponent, nbins=30):
         per["reference"] = ref
     if "rows" in sp:
         out["reference"] = fit_noise_model(sp["rows"], basis=_burst_basis(fs), **fit,
-                                           fit=("alpha",))
+                                           **_burst_terms(sp["rows"]))
     out["channels"] = per
     return out
 
@@ -266,11 +272,21 @@ def _burst_basis(fs):
     return lambda f, e: aliased_basis(f, fs, 2, 1, e)
 
 
+def _burst_terms(spec):
+    """The terms a fit of reference-row bursts takes: the white level alone from short
+    bursts, where white noise dominates their frequencies (above ``fs / width``); the
+    white level and a 1/f term from bursts of `LONG_BURST` samples or more, which reach
+    down to where correlated noise is as strong as the white (NGHXRG's 1/f at ~1 kHz)
+    and would otherwise be taken for white.  One correlated term, not two: over the one
+    to two decades a burst spans, 1/f and 1/f^1.3 are nearly the same shape, and a fit of
+    both leaves the white level loose."""
+    return {"fit": ("alpha", "beta") if spec.meta["nperseg"] >= LONG_BURST else ("alpha",)}
+
+
 def _reference(sp, boxes, nch, fs, m, fit):
-    """Per channel: the fit of its reference pixels.  Reference-row bursts see only
-    frequencies above ``fs / width``, where white noise dominates: they give the white
-    level; the side columns' mean per read, where a channel has side columns, give the
-    correlated terms too."""
+    """Per channel: the fit of its reference pixels.  Reference-row bursts give the white
+    level (`_burst_terms`); the side columns' mean per read, where a channel has side
+    columns, give the correlated terms too."""
     out = []
     for c in range(nch):
         spectra, bases = [], []
@@ -282,7 +298,7 @@ def _reference(sp, boxes, nch, fs, m, fit):
             box = boxes["sides"]
             spectra.append(sp[f"sides[{c}]"])
             bases.append(lambda f, e, b=box: aliased_basis(f, fs, m, b.n, e, b.stride))
-        terms = {} if side else {"fit": ("alpha",)}
+        terms = {} if side or not spectra else _burst_terms(spectra[0])
         out.append(fit_noise_model(spectra, basis=bases, **fit, **terms) if spectra else None)
     return out if any(r is not None for r in out) else []
 

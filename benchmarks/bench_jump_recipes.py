@@ -45,6 +45,7 @@ import sys
 import time
 
 import numpy as np
+from stcal_peer import run_stcal
 
 from spherex_reduce import DetectorGeometry, Exposure, Pipeline, ReadoutSchedule, dq
 
@@ -168,40 +169,12 @@ def ours(e, before, sigma):
 
 
 def stcal(cube, groups, dt, algorithm):
-    """stcal 1.20 on equal groups: two-point detection + OLS_C, or LIKELY (its own
-    search); read noise as stcal takes it (a difference of two frames)."""
-    from stcal.jump.jump import detect_jumps_data
-    from stcal.jump.jump_class import JumpData
-    from stcal.ramp_fitting.ramp_fit import ramp_fit_data
-    from stcal.ramp_fitting.ramp_fit_class import RampData
-
-    names = {"GOOD": 0, "DO_NOT_USE": 1, "SATURATED": 2, "JUMP_DET": 4, "NO_GAIN_VALUE": 8,
-             "UNRELIABLE_SLOPE": 16, "PERSISTENCE": 32, "CHARGELOSS": 64,
-             "REFERENCE_PIXEL": 128}
+    """stcal 1.20 on equal groups (`stcal_peer.run_stcal`): two-point detection + OLS_C, or
+    LIKELY (its own search)."""
     nf = len(groups[0])
     gap = groups[1][0] - groups[0][-1] - 1 if len(groups) > 1 else 0
-    ny, nx = cube.shape[1:]
-    gain = np.ones((ny, nx), np.float32)
-    noise = np.full((ny, nx), RN * np.sqrt(2), np.float32)
-    gdq = np.zeros((1, *cube.shape), np.uint8)
-    t0 = time.perf_counter()
-    if algorithm == "OLS_C":
-        jd = JumpData(gain2d=gain, rnoise2d=noise, dqflags=names)
-        jd.init_arrays_from_arrays(cube[None].copy(), gdq, np.zeros((ny, nx), np.uint32))
-        jd.nframes, jd.dt_group = nf, np.ones(1) * (nf + gap) * dt
-        jd.n_reads_groupdiff = np.ones(1) * 2 * nf
-        jd.max_cores = "none"
-        gdq = detect_jumps_data(jd)[0]
-    rd = RampData()
-    rd.set_arrays(cube[None].copy(), gdq, np.zeros((ny, nx), np.uint32),
-                  np.zeros((ny, nx), np.float32))
-    rd.set_meta(name="NIRCAM", frame_time=dt, group_time=(nf + gap) * dt, groupgap=gap,
-                nframes=nf, drop_frames1=None)
-    rd.set_dqflags(names)
-    rd.start_row, rd.num_rows = 0, ny
-    rd.read_pattern = [list(range(1 + g[0], 2 + g[-1])) for g in groups]
-    img = ramp_fit_data(rd, False, noise.copy(), gain, algorithm, "optimal", "none")[0]
-    return img["slope"], img["err"], (img["dq"] & 1) != 0, time.perf_counter() - t0
+    r = run_stcal(cube, RN, dt, nframes=nf, groupgap=gap, algorithm=algorithm)
+    return r["slope"], r["err"], r["unusable"], r["time"]
 
 
 def score(slope, err, lost, rate, s0, hit, active):

@@ -65,6 +65,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from stcal_peer import run_stcal
 
 from spherex_reduce import DetectorGeometry, Exposure, Pipeline, ReadoutSchedule, dq, write
 from spherex_reduce.reduce.options import default_threads
@@ -119,38 +120,10 @@ def ours(e, read_noise=RN):
 
 
 def stcal(cube):
-    """stcal's two-point jump detection and OLS_C ramp fit: slopes, unusable, group jumps."""
-    from stcal.jump.jump import detect_jumps_data
-    from stcal.jump.jump_class import JumpData
-    from stcal.ramp_fitting.ramp_fit import ramp_fit_data
-    from stcal.ramp_fitting.ramp_fit_class import RampData
-
-    flags = {"GOOD": 0, "DO_NOT_USE": 1, "SATURATED": 2, "JUMP_DET": 4, "NO_GAIN_VALUE": 8,
-             "UNRELIABLE_SLOPE": 16, "PERSISTENCE": 32, "CHARGELOSS": 64,
-             "REFERENCE_PIXEL": 128}
-    ny, nx = cube.shape[1:]
-    gain = np.ones((ny, nx), np.float32)
-    noise = np.full((ny, nx), RN * np.sqrt(2), np.float32)  # stcal's: a difference's (CDS)
-    jd = JumpData(gain2d=gain, rnoise2d=noise, dqflags=flags)
-    jd.init_arrays_from_arrays(cube[None].copy(), np.zeros((1, *cube.shape), np.uint8),
-                               np.zeros((ny, nx), np.uint32))
-    jd.nframes, jd.dt_group, jd.n_reads_groupdiff = 1, np.ones(1), np.ones(1) * 2
-    jd.max_cores = "none"  # one process, like ours on the executor's threads
-    t0 = time.perf_counter()
-    gdq = detect_jumps_data(jd)[0]
-    t_detect = time.perf_counter() - t0
-    rd = RampData()
-    rd.set_arrays(cube[None].copy(), gdq, np.zeros((ny, nx), np.uint32),
-                  np.zeros((ny, nx), np.float32))
-    rd.set_meta(name="NIRCAM", frame_time=DT, group_time=DT, groupgap=0, nframes=1,
-                drop_frames1=None)
-    rd.set_dqflags(flags)
-    rd.start_row, rd.num_rows = 0, ny
-    t0 = time.perf_counter()
-    img = ramp_fit_data(rd, False, noise, gain, "OLS_C", "optimal", "none")[0]
-    t_fit = time.perf_counter() - t0
-    return (img["slope"], (img["dq"] & 1) != 0, (gdq[0] & 4) != 0,
-            img["err"].astype(np.float64), t_detect + t_fit, t_fit)
+    """stcal's two-point jump detection and OLS_C ramp fit (`stcal_peer.run_stcal`): slopes,
+    unusable, group jumps, ERR, the time of detect + fit and of the fit."""
+    r = run_stcal(cube, RN, DT)
+    return r["slope"], r["unusable"], r["jumps"], r["err"], r["time"], r["fit_time"]
 
 
 def score(slope, lost, jumps, err_slope, hits, rate):

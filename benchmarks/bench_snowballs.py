@@ -32,6 +32,7 @@ import sys
 import time
 
 import numpy as np
+from stcal_peer import run_stcal
 
 from spherex_reduce import DetectorGeometry, Exposure, Pipeline, ReadoutSchedule, dq
 
@@ -94,35 +95,11 @@ def ours(cube, flags, s, large):
 
 
 def stcal(cube, flags, large):
-    """stcal's two-point detection (snowballs expanded or not) and OLS_C fit."""
-    from stcal.jump.jump import detect_jumps_data
-    from stcal.jump.jump_class import JumpData
-    from stcal.ramp_fitting.ramp_fit import ramp_fit_data
-    from stcal.ramp_fitting.ramp_fit_class import RampData
-
-    names = {"GOOD": 0, "DO_NOT_USE": 1, "SATURATED": 2, "JUMP_DET": 4, "NO_GAIN_VALUE": 8,
-             "UNRELIABLE_SLOPE": 16, "PERSISTENCE": 32, "CHARGELOSS": 64,
-             "REFERENCE_PIXEL": 128}
-    ny, nx = cube.shape[1:]
-    gain = np.ones((ny, nx), np.float32)
-    noise = np.full((ny, nx), RN * np.sqrt(2), np.float32)  # stcal's: a difference's (CDS)
-    gdq = np.where(flags & dq.SATURATED, 2, 0).astype(np.uint8)[None]
-    t0 = time.perf_counter()
-    jd = JumpData(gain2d=gain, rnoise2d=noise, dqflags=names)
-    jd.init_arrays_from_arrays(cube[None].copy(), gdq.copy(), np.zeros((ny, nx), np.uint32))
-    jd.nframes, jd.dt_group, jd.n_reads_groupdiff = 1, np.ones(1), np.ones(1) * 2
-    jd.max_cores = "none"
-    jd.expand_large_events = large
-    gdq = detect_jumps_data(jd)[0]
-    rd = RampData()
-    rd.set_arrays(cube[None].copy(), gdq, np.zeros((ny, nx), np.uint32),
-                  np.zeros((ny, nx), np.float32))
-    rd.set_meta(name="NIRCAM", frame_time=DT, group_time=DT, groupgap=0, nframes=1,
-                drop_frames1=None)
-    rd.set_dqflags(names)
-    rd.start_row, rd.num_rows = 0, ny
-    img = ramp_fit_data(rd, False, noise, gain, "OLS_C", "optimal", "none")[0]
-    return img["slope"], img["err"], (img["dq"] & 1) != 0, time.perf_counter() - t0
+    """stcal's two-point detection (snowballs expanded or not) and OLS_C fit
+    (`stcal_peer.run_stcal`)."""
+    r = run_stcal(cube, RN, DT, saturated=(flags & dq.SATURATED) != 0,
+                  expand_large_events=large)
+    return r["slope"], r["err"], r["unusable"], r["time"]
 
 
 def score(slope, error, lost, role):

@@ -28,15 +28,10 @@ import time
 import warnings
 
 import numpy as np
+from bench_characterize import TABLE2  # the paper's Table 2, as the round trip injects it
 
 from spherex_reduce.analysis.characterize import characterize, check_model
 from spherex_reduce.simulation import simulate
-
-TABLE2 = {"video8": (3.71e-5, 8.4e-3, 0.0, "channel", "both"),
-          "roic": (1.97e-3, 0.0, 0.1, "channel", "pixels"),
-          "bias_correlated": (0.0, 8.8e-5, 0.0, "common", "both"),
-          "bias_phantom_only": (0.0, 3.64e-6, 0.0, "common", "phantom"),
-          "bias_pixels_only": (2.91e-6, 3.07e-7, 0.0, "common", "pixels")}
 
 
 def scene(args):

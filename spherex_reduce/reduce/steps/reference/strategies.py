@@ -364,12 +364,17 @@ def reference_offsets(exposure, *, acn=False, sigma=3.0, maxiters=5, side_column
 def _levels(values):
     """Each pixel's own level over the frames of ``values (L, r, ncols)``: the median of
     its usable reads, NaN for a pixel never usable (and for the columns never usable)."""
-    level = np.full(values.shape[1:], np.nan)
     cols = np.flatnonzero(np.isfinite(values).any(axis=(0, 1)))
-    if cols.size:
+    level = np.full(values.shape[1:], np.nan)
+    if not cols.size:
+        return level
+    level[:, cols] = np.median(values[..., cols], axis=0)  # NaN where a read is unusable
+    gaps = np.argwhere(np.isnan(level[:, cols]))
+    if gaps.size:  # nanmedian, 5x slower, for those pixels only
+        r, c = gaps[:, 0], cols[gaps[:, 1]]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # a pixel never usable: NaN
-            level[:, cols] = np.nanmedian(values[..., cols], axis=0)
+            level[r, c] = np.nanmedian(values[:, r, c], axis=0)
     return level
 
 

@@ -380,7 +380,8 @@ def _levels(values):
 
 def _offsets_of(geometry, reference, side, *, acn, sigma, maxiters, threads):
     """`reference_offsets` of reference-row pixels ``(L, k, ncols)`` (NaN: unusable)
-    and optionally side-column pixels ``(L, rows, ncols)`` (NaN outside the side columns).
+    and optionally side-column pixels ``(L, rows, ncols)`` (NaN outside the side columns;
+    a temporary of the caller's, changed in place).
 
     With more than one frame, each pixel is clipped on its departure from its own
     level (its median over the frames), not on its value: on raw darks the
@@ -423,10 +424,11 @@ def _offsets_of(geometry, reference, side, *, acn, sigma, maxiters, threads):
         nref = _gather(ref_level[None], groups).shape[-1]
         _scatter_nan(ref_level, groups, bad[..., :nref])
         reference = reference - ref_level
-        if side is not None:
+        if side is not None:  # in place, on its side columns only: a full-size array
             side_level = side_level.copy()
             _scatter_nan(side_level, groups, bad[..., nref:], keep)
-            side = side - side_level
+            cols = np.flatnonzero(np.isfinite(side).any(axis=(0, 1)))
+            side[..., cols] -= side_level[:, cols]
 
     def clip(lo):
         vals = gathered(reference[lo:lo + _FRAMES_PER_CLIP],

@@ -306,6 +306,8 @@ def main():
     p.add_argument("--cases", default=",".join(CASES))
     p.add_argument("--out", default="/tmp/nghxrg_cubes", help="where the cubes are written")
     p.add_argument("--exponent", type=float, default=1.3)
+    p.add_argument("--plot", metavar="DIR", help="write each case's characterisation plot "
+                   "(spectra and fits) as DIR/CASE.png")
     args = p.parse_args()
     d = nghxrg_dir(args.nghxrg)
     module = load_nghxrg(d)
@@ -337,6 +339,11 @@ def main():
         text[0] += f" (NGHXRG {t_gen:.0f} s for {args.darks} cubes)"
         print("\n".join(text), flush=True)
         lines.extend(text)
+        if args.plot:
+            from spherex_reduce.analysis.characterize.figure import plot_characterization
+
+            Path(args.plot).mkdir(parents=True, exist_ok=True)
+            plot_characterization(model).savefig(Path(args.plot) / f"{case}.png", dpi=100)
 
 
 if __name__ == "__main__":

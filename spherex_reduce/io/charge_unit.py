@@ -15,12 +15,14 @@ from astropy import units as u
 from ..core.errors import ConfigError
 from .input import parse_unit
 
-__all__ = ["MAX_GAIN", "UNITS", "scene_unit"]
+__all__ = ["MAX_GAIN", "MIN_GAIN", "UNITS", "scene_unit"]
 
 #: The units a scene's charges may be in (``unit:``; ``gain:`` e-/adu with ``adu``).
 UNITS = (u.electron, u.adu)
-#: Largest gain (e-/adu) a scene accepts.
+#: Largest and smallest gain (e-/adu) a scene accepts (far beyond any detector: a gain
+#: of 1e-300 made ramps of inf in adu).
 MAX_GAIN = 1e9
+MIN_GAIN = 1e-9
 _NUM = (int, float)
 
 
@@ -64,9 +66,9 @@ def scene_unit(config):
             except ValueError:
                 pass
         if isinstance(gain, bool) or not isinstance(gain, _NUM) or not (
-                math.isfinite(gain) and 0 < gain <= MAX_GAIN):
-            raise ConfigError(f"gain: expected a number of e- per adu, > 0 and finite, "
-                              f"got {gain!r}")
+                math.isfinite(gain) and MIN_GAIN <= gain <= MAX_GAIN):
+            raise ConfigError(f"gain: expected a number of e- per adu in [{MIN_GAIN:g}, "
+                              f"{MAX_GAIN:g}], got {gain!r}")
         if unit != u.adu:
             raise ConfigError("gain: the scene is in electrons; a gain (e-/adu) is for a "
                               "scene in adu (unit: adu)")

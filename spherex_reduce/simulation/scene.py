@@ -121,6 +121,18 @@ class Telegraph:
         return self.fraction > 0 and self.amplitude > 0
 
 
+#: Largest spread**2 / mean (the scale of the gamma draw of a spread about a mean) a scene
+#: takes: a spread of 1e9 about a mean of 1e-300 made the draws inf (and the ramps NaN).
+MAX_GAMMA_SCALE = 1e30
+
+
+def _check_spread(name, mean, spread):
+    """Refuse a spread whose gamma draw about ``mean`` would not be finite."""
+    if spread > 0 and mean > 0 and not spread * spread / mean <= MAX_GAMMA_SCALE:
+        raise ConfigError(f"{name}: {spread:g} about a mean of {mean:g} is beyond what can "
+                          f"be drawn (spread^2/mean above {MAX_GAMMA_SCALE:g})")
+
+
 @dataclass(frozen=True)
 class SceneTerms:
     """The ``scene:`` section of a scene: what is added to the readout's noise.
@@ -173,6 +185,14 @@ class SceneTerms:
         if values["dark_current_spread"] > 0 and values["dark_current"] <= 0:
             raise ConfigError("scene.dark_current_spread: a spread about a dark_current of 0; "
                               "give dark_current > 0 or no spread")
+        pairs = [("", values, "dark_current"), ("", values, "hot_pixel_current")]
+        for i, t in enumerate(() if values["rtn"] is None else
+                              (values["rtn"],) if isinstance(values["rtn"], Telegraph)
+                              else values["rtn"]):
+            where = "rtn." if isinstance(values["rtn"], Telegraph) else f"rtn[{i}]."
+            pairs += [(where, vars(t), "amplitude"), (where, vars(t), "rate")]
+        for where, v, name in pairs:
+            _check_spread(f"scene.{where}{name}_spread", v[name], v[f"{name}_spread"])
         return cls(**values)
 
     @property
@@ -248,8 +268,12 @@ class Scene:
             raise ConfigError(f"gain: {what} works in electrons and the scene ({self.source}) "
                               "is in adu without a gain: add gain: (e-/adu) to it")
         g = self.gain
-        comps = tuple(c.replace(alpha=c.alpha * g * g, beta=c.beta * g * g,
-                                gamma=c.gamma * g * g) for c in self.components)
+        try:
+            comps = tuple(c.replace(alpha=c.alpha * g * g, beta=c.beta * g * g,
+                                    gamma=c.gamma * g * g) for c in self.components)
+        except ValueError as exc:  # a coefficient times gain**2 beyond what a component takes
+            raise ConfigError(f"gain: {g:g} e-/adu puts the scene's noise in electrons out "
+                              f"of range: {exc}") from None
         return replace(self, components=comps, terms=self.terms.scaled(g), unit=u.electron,
                        gain=None, config=scene_in_electrons(self.config))
 

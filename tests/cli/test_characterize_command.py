@@ -252,3 +252,31 @@ def test_design_readout_from_a_model_in_adu_needs_its_gain(tmp_path, capsys):
     one_line_error(capsys, "design.yaml: scene:", "gain")
     model.write_text(model.read_text() + "gain: 2.0\n")
     assert run("-q", "design-readout", design, "-o", tmp_path / "best.yaml") == 0
+
+
+def test_check_refuses_darks_in_another_unit_or_already_fitted(tmp_path, capsys):
+    """Held-out darks in adu against a model of darks in electrons were compared as they
+    were (slope-scatter ratios exactly half); a dark the model was fitted to was taken as
+    held out.  Both exit 2 in one line."""
+    from astropy.io import fits
+
+    truth = {**SCENE, "readout": {**SCENE["readout"], "nframes": 6}}
+    scene = tmp_path / "truth.yaml"
+    scene.write_text(yaml.safe_dump(truth))
+    darks = [tmp_path / f"dark{k}.fits" for k in range(3)]
+    for k, p in enumerate(darks):
+        assert run("-q", "simulate", scene, "-o", p, "--seed", k) == 0
+    adu = tmp_path / "dark_adu.fits"
+    with fits.open(darks[2]) as hdul:
+        for hdu in hdul:
+            if hdu.header.get("BUNIT") == "electron":
+                hdu.header["BUNIT"] = "adu"
+        hdul.writeto(adu, checksum=True)
+    model = tmp_path / "model.yaml"
+    capsys.readouterr()
+    assert run("-q", "characterize", *darks[:2], "-c", "unchop", "-o", model, "--check",
+               adu, "--no-scatter") == 2
+    one_line_error(capsys, "in adu, the model's darks in electron")
+    assert run("-q", "characterize", *darks[:2], "-c", "unchop", "-o", model, "--check",
+               darks[0], "--no-scatter", "--overwrite") == 2
+    one_line_error(capsys, "a dark the model was fitted to")

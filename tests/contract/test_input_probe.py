@@ -2629,3 +2629,28 @@ SCENE_UNIT_INPUT = [
 @pytest.mark.parametrize("case", SCENE_UNIT_INPUT)
 def test_issue33_scene_unit_input(case, inputs, runner, tmp_path):
     test_input(case, inputs, runner, tmp_path)
+
+
+# Issue 33: overflowing spreads and gains (a probe of the new scene keys)
+SCENE_OVERFLOW_INPUT = [
+    refused("simulate-dark-current-spread-overflows", SIMULATE_BAD,
+            write("bad.yaml", SCENE + "scene: {dark_current: 1.0e-300, "
+                                      "dark_current_spread: 1.0e+9}\n"),
+            mentions=r"scene.dark_current_spread: .* beyond what can be drawn"),
+    refused("simulate-telegraph-spread-overflows", SIMULATE_BAD,
+            write("bad.yaml", SCENE + "scene: {rtn: [{fraction: 0.1, amplitude: 1.0e-300, "
+                                      "amplitude_spread: 1.0e+9}]}\n"),
+            mentions=r"scene.rtn\[0\].amplitude_spread"),
+    refused("simulate-scene-gain-tiny", SIMULATE_BAD,
+            write("bad.yaml", _ADU_SCENE + "unit: adu\ngain: 1.0e-300\n"), mentions=r"gain:"),
+    refused("forecast-scene-gain-overflows-the-noise", ["forecast", "bad.yaml", "-c", "unchop",
+                                                        "-o", "f.ecsv"],
+            write("bad.yaml", SCENE + "unit: adu\ngain: 1.0e+9\nnoise: {components: "
+                                      "[{name: w, alpha: 1.0}]}\n"),
+            mentions=r"gain: .* out of range"),
+]
+
+
+@pytest.mark.parametrize("case", SCENE_OVERFLOW_INPUT)
+def test_issue33_scene_overflow_input(case, inputs, runner, tmp_path):
+    test_input(case, inputs, runner, tmp_path)

@@ -249,9 +249,16 @@ def check_model(model, darks, config=None, frames=None, measure=None):
     reader = _pipeline(config)
     reducer = reduction_pipeline(reader)
     acc = None
+    fitted = {d for d in model.darks if not d.startswith("exposure in memory")}  # files
     for label, e in dark_exposures(darks, reader):
         if e.schedule != model.schedule:
             raise SpherexReduceError(f"{label}: another readout than the model's darks")
+        if (e.unit or u.one) != model.unit:
+            raise SpherexReduceError(f"{label}: in {e.unit}, the model's darks in "
+                                     f"{model.unit}: give both in one unit (input: gain)")
+        if label in fitted:
+            raise SpherexReduceError(f"{label}: a dark the model was fitted to; the check "
+                                     "is on held-out darks")
         if acc is None:
             acc = DarkScatter(reducer, e.schedule.nframes, frames, measure)
         acc.add(e)

@@ -15,9 +15,9 @@ SCENE = {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 2, "ref_border": 4}
          "output": {"mode": "ramps"}}
 
 
-def _darks(tmp_path, n=4, **readout):
+def _darks(tmp_path, n=4, truth=SCENE, **readout):
     scene = tmp_path / "truth.yaml"
-    scene.write_text(yaml.safe_dump({**SCENE, "readout": {**SCENE["readout"], **readout}}))
+    scene.write_text(yaml.safe_dump({**truth, "readout": {**truth["readout"], **readout}}))
     paths = [tmp_path / f"dark{k}.fits" for k in range(n)]
     for k, p in enumerate(paths):
         assert run("-q", "simulate", scene, "-o", p, "--seed", k) == 0
@@ -214,11 +214,7 @@ def test_design_readout_runs_from_a_model_with_pixel_populations(tmp_path, capsy
              "scene": {"dark_current": 5.0, "hot_pixel_fraction": 0.03,
                        "hot_pixel_current": 500.0, "population_seed": 4,
                        "rtn": {"fraction": 0.05, "amplitude": 300.0, "rate": 2.0}}}
-    scene = tmp_path / "truth.yaml"
-    scene.write_text(yaml.safe_dump(truth))
-    darks = [tmp_path / f"dark{k}.fits" for k in range(3)]
-    for k, p in enumerate(darks):
-        assert run("-q", "simulate", scene, "-o", p, "--seed", k) == 0
+    darks = _darks(tmp_path, 3, truth)
     model = tmp_path / "model.yaml"
     assert run("-q", "characterize", *darks, "-c", "unchop", "-o", model) == 0
     fitted = yaml.safe_load(model.read_text())
@@ -236,11 +232,7 @@ def test_design_readout_from_a_model_in_adu_needs_its_gain(tmp_path, capsys):
     design-readout, which works in electrons, refuses it in one line naming the gain, and
     takes it once gain: is added (simulate takes it as it is, in adu)."""
     truth = {**SCENE, "unit": "adu", "gain": 2.0}
-    scene = tmp_path / "truth.yaml"
-    scene.write_text(yaml.safe_dump(truth))
-    darks = [tmp_path / f"dark{k}.fits" for k in range(3)]
-    for k, p in enumerate(darks):
-        assert run("-q", "simulate", scene, "-o", p, "--seed", k) == 0
+    darks = _darks(tmp_path, 3, truth)
     model = tmp_path / "model.yaml"
     assert run("-q", "characterize", *darks, "-c", "unchop", "-o", model) == 0
     fitted = yaml.safe_load(model.read_text())
@@ -261,11 +253,7 @@ def test_check_refuses_darks_in_another_unit_or_already_fitted(tmp_path, capsys)
     from astropy.io import fits
 
     truth = {**SCENE, "readout": {**SCENE["readout"], "nframes": 6}}
-    scene = tmp_path / "truth.yaml"
-    scene.write_text(yaml.safe_dump(truth))
-    darks = [tmp_path / f"dark{k}.fits" for k in range(3)]
-    for k, p in enumerate(darks):
-        assert run("-q", "simulate", scene, "-o", p, "--seed", k) == 0
+    darks = _darks(tmp_path, 3, truth)
     adu = tmp_path / "dark_adu.fits"
     with fits.open(darks[2]) as hdul:
         for hdu in hdul:

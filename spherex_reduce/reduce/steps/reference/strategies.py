@@ -417,22 +417,21 @@ def _offsets_of(geometry, reference, side, *, acn, sigma, maxiters, threads):
         levels = gathered(ref_level[None], None if side is None else side_level[None])
         clipped = sigma_clip(np.ma.masked_invalid(levels), sigma=sigma, maxiters=maxiters,
                              axis=-1, cenfunc="median", stdfunc="std", copy=True)
-        bad = np.ma.getmaskarray(clipped) & np.isfinite(levels)  # hot: out of every frame
-        dropped = bad.sum(axis=-1)
+        hot = np.ma.getmaskarray(clipped) & np.isfinite(levels)  # out of every frame
+        dropped = hot.sum(axis=-1)
         base = np.ma.filled(clipped.mean(axis=-1), np.nan)
-        ref_level = ref_level.copy()
-        nref = _gather(ref_level[None], groups).shape[-1]
-        _scatter_nan(ref_level, groups, bad[..., :nref])
         reference = reference - ref_level
         if side is not None:  # in place, on its side columns only: a full-size array
-            side_level = side_level.copy()
-            _scatter_nan(side_level, groups, bad[..., nref:], keep)
             cols = np.flatnonzero(np.isfinite(side).any(axis=(0, 1)))
             side[..., cols] -= side_level[:, cols]
+    else:
+        hot = None
 
     def clip(lo):
         vals = gathered(reference[lo:lo + _FRAMES_PER_CLIP],
                         None if side is None else side[lo:lo + _FRAMES_PER_CLIP])
+        if hot is not None:
+            vals[np.broadcast_to(hot, vals.shape)] = np.nan
         mean, used, out = clipped_mean(vals, sigma=sigma, maxiters=maxiters)
         return mean + base, used, out + dropped
 
@@ -444,23 +443,6 @@ def _offsets_of(geometry, reference, side, *, acn, sigma, maxiters, threads):
     else:
         parts = [clip(lo) for lo in starts]
     return tuple(np.concatenate([p[i] for p in parts]) for i in range(3))
-
-
-def _scatter_nan(level, groups, bad, keep=None):
-    """Set NaN in ``level (r, ncols)`` where ``bad (1, nch, P, m)`` marks a gathered pixel
-    (the inverse of `_gather`; ``keep`` the gathered columns kept, as for side columns)."""
-    r = level.shape[0]
-    idx = np.maximum(groups, 0)
-    rows = np.broadcast_to(np.arange(r)[:, None, None, None], (r, *groups.shape))
-    cols = np.broadcast_to(idx[None], (r, *groups.shape))
-    valid = np.broadcast_to((groups >= 0)[None], (r, *groups.shape))
-    # the gathered order of `_gather`: (nch, P, r, k) flattened over (r, k)
-    rows, cols, valid = (np.moveaxis(a, 0, -2).reshape(*groups.shape[:2], -1)
-                         for a in (rows, cols, valid))
-    if keep is not None:
-        rows, cols, valid = rows[..., keep], cols[..., keep], valid[..., keep]
-    hit = bad[0] & valid
-    level[rows[hit], cols[hit]] = np.nan
 
 
 # -- strategies ------------------------------------------------------------------------------

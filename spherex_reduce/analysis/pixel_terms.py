@@ -369,7 +369,7 @@ class PixelSums:
     >>> t = np.arange(20) * 1.5 * u.s
     >>> sums = PixelSums(t, gain=1.0)
     >>> for _ in range(2):                            # two darks of the same pixels
-    ...     sums.add(rng.normal(0, 4.0, (20, 16, 16)) * u.electron)
+    ...     moved = sums.add(rng.normal(0, 4.0, (20, 16, 16)) * u.electron)
     >>> round(sums.fit().row("read_noise", "active")["value"])
     4
     """
@@ -384,7 +384,12 @@ class PixelSums:
         """Add one dark ``(nreads, ny, nx)`` (a Quantity, as `fit_pixel_terms` takes it):
         the same pixels, times and unit as the first.  ``rows`` (optional): the stored row
         of each row of pixels (e.g. a readout-order exposure's first read of each row),
-        taken a band at a time rather than copying the dark."""
+        taken a band at a time rather than copying the dark.
+
+        Returns the dark's pixels whose noise these terms hold ``(ny, nx)`` bool: a jump in
+        this dark (a telegraph's step) or hot by this dark's slopes (above the median plus
+        ``hot_sigma`` = 10 robust standard deviations of the light-sensitive pixels', as
+        `fit` flags them), what a stream model of the same darks leaves out."""
         rows = None if rows is None else np.asarray(rows, dtype=np.intp)
         x, unit, shape = _dark(ramps, rows)
         if self._acc is None:  # times, gain and mask checked once, against the first dark
@@ -395,12 +400,15 @@ class PixelSums:
             raise SpherexReduceError(f"fit_pixel_terms: dark {self.ndarks} has shape {shape} "
                                      f"and unit {unit}; dark 0 {self.shape} and {self.unit} "
                                      "(each (nreads, ny, nx), one unit)")
-        slopes = _add_dark(self._acc, x, self.t, self.band_rows, rows)
+        slopes, jumped = _add_dark(self._acc, x, self.t, self.band_rows, rows)
         active = ~self.ref & np.isfinite(slopes)
         # the dark's drift common to its pixels (the streams' 1/f): its median slope
         self._acc["drifts"].append(float(np.median(slopes[active])) if active.any()
                                    else np.nan)
         self.ndarks += 1
+        if active.any():
+            jumped |= active & (slopes > _hot_threshold(slopes, active, 10.0))
+        return jumped
 
     def fit(self, *, hot_threshold=None, hot_sigma=10.0, groups=32):
         """The `PixelTerms` of the darks added (``hot_threshold``, ``hot_sigma``,
@@ -502,9 +510,11 @@ def _new_sums(shape, t, jump_sigma, gain=1.0):
 def _add_dark(acc, x, t, band_rows, rows=None):
     """Add one dark ``x (n, ny, nx)`` (or its stored rows ``rows``) to the sums, a band of
     rows at a time (each pixel's sums take the darks in the order they are added).  Returns
-    the dark's slope of every pixel ``(ny, nx)`` (float32, NaN where a read is not finite)."""
+    the dark's slope of every pixel ``(ny, nx)`` (float32, NaN where a read is not finite)
+    and its pixels with a jump (bool)."""
     ny = x.shape[1] if rows is None else rows.size
     slopes = np.empty((ny, x.shape[2]), dtype=np.float32)
+    jumped = np.zeros((ny, x.shape[2]), dtype=bool)
     for r0 in range(0, ny, band_rows):
         sl = slice(r0, min(r0 + band_rows, ny))
         xb = x[:, sl] if rows is None else x[:, rows[sl]]
@@ -512,6 +522,7 @@ def _add_dark(acc, x, t, band_rows, rows=None):
                      acc["gain"])
         with np.errstate(divide="ignore", invalid="ignore"):
             slopes[sl] = np.where(part["bad"], np.nan, part["wd"] / part["wdt"])
+        jumped[sl] = part["jumps"] > 0
         for key, value in part.items():
             if key == "alternate":
                 acc[key][sl] &= value
@@ -519,7 +530,7 @@ def _add_dark(acc, x, t, band_rows, rows=None):
                 acc[key][sl] |= value
             else:
                 acc[key][sl] += value
-    return slopes
+    return slopes, jumped
 
 
 def _band(x, t, des, jump_sigma, skip_first, gain=1.0):
@@ -688,6 +699,13 @@ def _flip_probability(mean, m):
     return brentq(excess, lo, hi, xtol=1e-12)
 
 
+def _hot_threshold(slope, active, hot_sigma):
+    """The median slope of the ``active`` pixels plus ``hot_sigma`` robust standard
+    deviations: above it a pixel is hot."""
+    med = np.median(slope[active])
+    return med + hot_sigma * _MAD * np.median(np.abs(slope[active] - med))
+
+
 def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma):
     des = acc["design"]
     rows = []
@@ -766,10 +784,8 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
                    "no light-sensitive pixels")
         hot = np.zeros_like(active)
     else:
-        med = np.median(slope[active])
         if hot_threshold is None:
-            spread = _MAD * np.median(np.abs(slope[active] - med))
-            threshold = med + hot_sigma * spread
+            threshold = _hot_threshold(slope, active, hot_sigma)
             how = f"median + {hot_sigma:g} robust sd"
         else:
             threshold = u.Quantity(hot_threshold, rate_unit).value

@@ -57,6 +57,10 @@ class Timestream(NamedTuple):
     sample_rate: float
     #: spacing (samples) of the averaged samples, or of the values of a burst
     stride: int = 1
+    #: per stream (first axis), the mean over its values of ``nbox`` / the samples averaged
+    #: into each, where pixels are left out (``leave_out``): the factor of its white level;
+    #: empty: 1
+    white: tuple = ()
 
 
 def _raw(exposure):
@@ -171,7 +175,7 @@ def phantom_timestream(exposure):
                       s.phantom_reads, s.geometry.pixel_rate)
 
 
-def reference_timestream(exposure, source="columns", parity=None):
+def reference_timestream(exposure, source="columns", parity=None, leave_out=None):
     """Reference-pixel values in time order, detrended across frames.
 
     Parameters
@@ -193,6 +197,12 @@ def reference_timestream(exposure, source="columns", parity=None):
         Keep only the pixels sampled at even or odd offsets of a channel's
         row read (the column parities that alternating column noise, ACN,
         gives independent realisations); ``stride`` becomes 2.
+    leave_out : array_like of bool, optional
+        ``(nrows, ncols)`` in physical order: pixels left out (a telegraph or hot
+        pixel whose noise a per-pixel model holds).  ``'columns'``: each read's
+        mean is over a side's other columns (``white``: the factor this gives
+        the white level; a read none of whose columns is left keeps them all);
+        ``'rows'``: their values are NaN.
 
     Returns
     -------
@@ -218,10 +228,20 @@ def reference_timestream(exposure, source="columns", parity=None):
             if any(c.size == 0 for c in sides):
                 raise SpherexReduceError("the border has no columns of that parity")
         nbox = sides[0].size
-        vals = np.stack([data[:, :, c].mean(axis=-1) for c in sides])
+        drop = _left_out(leave_out, s)
+        vals, white = [], []
+        for c in sides:
+            if drop is None:
+                vals.append(data[:, :, c].mean(axis=-1))
+                continue
+            keep = ~drop[:, c]
+            keep[~keep.any(axis=1)] = True  # a read with every column left out keeps them
+            count = keep.sum(axis=1)
+            vals.append(np.sum(data[:, :, c] * keep, axis=-1, dtype=np.float64) / count)
+            white.append(float(np.mean(nbox / count)))
         first = s.starts + offs[sides[0]].min()
-        return Timestream(detrend_frames(vals), _frame_samples(s, first), nbox,
-                          g.pixel_rate, stride)
+        return Timestream(detrend_frames(np.stack(vals)), _frame_samples(s, first), nbox,
+                          g.pixel_rate, stride, tuple(white))
     if source == "rows":
         reads = reference_row_reads(exposure.schedule)
         if reads.size == 0:
@@ -234,10 +254,27 @@ def reference_timestream(exposure, source="columns", parity=None):
         vals = data[:, reads][:, :, cols]  # frames, nref, nchannels, w'
         vals = np.moveaxis(vals, 2, 0)  # channels, frames, nref, w'
         flat = detrend_frames(vals.reshape(g.nchannels, s.nframes, -1))
+        drop = _left_out(leave_out, s)
+        if drop is not None:
+            gone = np.moveaxis(drop[reads][:, cols], 1, 0)  # channels, nref, w'
+            flat[np.broadcast_to(gone.reshape(g.nchannels, 1, -1), flat.shape)] = np.nan
         samples = s.starts[reads][:, None] + offs[cols[0]][None, :]
         return Timestream(flat.reshape(vals.shape), _frame_samples(s, samples), 1, g.pixel_rate,
                           stride)
     raise SpherexReduceError(f"source must be 'columns' or 'rows', got {source!r}")
+
+
+def _left_out(leave_out, schedule):
+    """``(n_reads, ncols)``: the samples of each read of a frame that ``leave_out``
+    (``(nrows, ncols)``, physical order) leaves out; None without one."""
+    if leave_out is None:
+        return None
+    g = schedule.geometry
+    drop = np.asarray(leave_out, dtype=bool)
+    if drop.shape != (g.nrows, g.ncols):
+        raise SpherexReduceError(f"leave_out must be ({g.nrows}, {g.ncols}), the pixels of "
+                                 f"the geometry; got {drop.shape}")
+    return drop[schedule.rows]
 
 
 def _burst_length(g, split):

@@ -12,7 +12,7 @@ from ..pixel_terms import PixelSums, dark_rows
 from .check import DarkScatter, compare, reduction_pipeline
 from .result import Characterization
 from .spectra import dark_spectra, fit_spectra, pool
-from .streams import MIN_FRAMES, channel_streams
+from .streams import MIN_FRAMES, channel_streams, pooled_boxes
 
 __all__ = ["characterize", "check_model", "dark_exposures"]
 
@@ -128,7 +128,12 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
             reducer = reduction_pipeline(pipeline)
         except SpherexReduceError as exc:
             scatter_mark = str(exc)
+    left_out = 0  # pixels left out of the streams (their noise is the per-pixel terms')
     for label, e in dark_exposures(inputs, pipeline):
+        drop = None
+        if pixels and pixel_mark is None:  # first: the streams leave out what it holds
+            sums, drop, pixel_mark = _add_pixels(sums, e, gain)
+            left_out += 0 if drop is None else int(drop.sum())
         if schedule is None:
             schedule, unit = e.schedule, e.unit
             if schedule.nframes < MIN_FRAMES:
@@ -139,16 +144,15 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
             if segments is None and schedule.nframes >= 2 * SEGMENT_FRAMES:
                 # the runs it is split into if it stays alone (streams are small; the dark
                 # itself is released)
-                alone = [channel_streams(e, frames=cut)
+                alone = [channel_streams(e, frames=cut, leave_out=drop)
                          for cut in _segments(schedule.nframes, None)]
         elif e.schedule != schedule or e.unit != unit:
             raise SpherexReduceError(f"{label}: another readout or unit ({e.unit}) than the "
                                      f"first dark ({unit}): one model is of one readout")
         else:
             alone = None
-        streams.extend(channel_streams(e, frames=cut) for cut in cuts)  # not the exposure
-        if pixels and pixel_mark is None:
-            sums, pixel_mark = _add_pixels(sums, e, gain)
+        streams.extend(channel_streams(e, frames=cut, leave_out=drop)
+                       for cut in cuts)  # not the exposure
         if reducer is not None and scatter_mark is None:
             measured, scatter_mark = _add_scatter(measured, reducer, e)
         darks.append(label)
@@ -165,11 +169,13 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
             f"uncertainties: one dark of {nframes} reads gives no scatter to estimate them "
             f"from; give 2 or more darks, or a dark of >= {2 * SEGMENT_FRAMES} reads")
     spectra = [dark_spectra(st, schedule, nperseg) for st in streams]
-    boxes = streams[0].boxes
+    each = [st.boxes for st in streams]
+    boxes = pooled_boxes(each)
     del streams
 
     def fits(keep):
-        return fit_spectra(pool([spectra[i] for i in keep]), boxes, schedule, exponent, nbins)
+        return fit_spectra(pool([spectra[i] for i in keep]), pooled_boxes([each[i] for i in keep]),
+                           schedule, exponent, nbins)
 
     every = range(len(spectra))
     full = fits(every)
@@ -183,7 +189,9 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
         except SpherexReduceError as exc:
             pixel_mark = str(exc)
     if pixel_mark is not None:
-        model.marks.append(f"per-pixel terms: not fitted: {pixel_mark}")
+        also = (f"; the streams of the darks before left out their {left_out} pixels with "
+                "a jump or hot" if left_out else "")
+        model.marks.append(f"per-pixel terms: not fitted: {pixel_mark}{also}")
     if measured is not None and scatter_mark is None:
         try:
             model.check = compare(model, measured.result(), reducer)
@@ -269,14 +277,16 @@ def check_model(model, darks, config=None, frames=None, measure=None):
 
 
 def _add_pixels(sums, e, gain):
-    """``(sums, mark)``: the per-pixel sums with dark ``e`` added (its rows in physical
-    order, without copying the dark), or the reason they cannot be (then ``sums`` None)."""
+    """``(sums, leave_out, mark)``: the per-pixel sums with dark ``e`` added (its rows in
+    physical order, without copying the dark) and the pixels of ``e`` whose noise they hold
+    (`~spherex_reduce.analysis.pixel_terms.PixelSums.add`), or the reason they cannot be
+    (then ``sums`` and ``leave_out`` None)."""
     try:
         ramps, times, reference, rows = dark_rows(e)
         if sums is None:
             sums = PixelSums(times, reference=reference,
                              gain=None if e.unit != u.adu else gain)
-        sums.add(ramps, rows=rows)
+        drop = sums.add(ramps, rows=rows)
     except SpherexReduceError as exc:
-        return None, str(exc)
-    return sums, None
+        return None, None, str(exc)
+    return sums, drop, None

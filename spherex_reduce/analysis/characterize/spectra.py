@@ -95,9 +95,16 @@ def dark_spectra(streams, schedule, nperseg=None):
             out[f"phantom[{c}]"] = psd(v)
     rows = streams.reference_rows
     if rows is not None:  # even and odd apart: each a stream at half the pixel rate
-        out["rows"] = psd(rows, fs / 2, rows.shape[-1])
-        for c, v in enumerate(rows):
-            out[f"rows[{c}]"] = psd(v, fs / 2, rows.shape[-1])
+        kept = streams.reference_kept
+        if kept is not None:  # the bursts kept, each a stream: (bursts, frames, width / 2)
+            rows = np.moveaxis(rows, 3, 2)
+            out["rows"] = psd(rows[kept], fs / 2, rows.shape[-1])
+            for c, v in enumerate(rows):
+                out[f"rows[{c}]"] = psd(v[kept[c]], fs / 2, rows.shape[-1])
+        else:
+            out["rows"] = psd(rows, fs / 2, rows.shape[-1])
+            for c, v in enumerate(rows):
+                out[f"rows[{c}]"] = psd(v, fs / 2, rows.shape[-1])
     for c, v in streams.reference_sides.items():
         out[f"sides[{c}]"] = psd(v)
     return out
@@ -210,8 +217,11 @@ def fit_spectra(sp, boxes, schedule, exponent, nbins=30):
     fs, m = g.pixel_rate, schedule.row_samples
     nch = g.nchannels
 
-    def basis(box, half=False):
-        scale = 0.5 if half else 1.0
+    def basis(box, half=False, channel=None):
+        # the white level of the average: that of n samples times the box's factor (pixels
+        # left out), so that alpha stays the white level of one sample
+        white = box.white if channel is None or not box.whites else box.whites[channel]
+        scale = (0.5 if half else 1.0) * np.array([white, 1.0, 1.0])
         return lambda f, e: scale * aliased_basis(f, fs, m, box.n, e, box.stride)
 
     b_sum = basis(boxes["sum"])
@@ -219,7 +229,8 @@ def fit_spectra(sp, boxes, schedule, exponent, nbins=30):
     out["pixels"] = fit_noise_model(sp["sum"], basis=b_sum, exponent=exponent, nbins=nbins)
     fit = {"exponent": out["pixels"].exponent, "nbins": nbins}
     s_w = _expected(out["pixels"], b_sum, sp["sum"])
-    per["pixels"] = [fit_noise_model(sp[f"sum[{c}]"], basis=b_sum, **fit) for c in range(nch)]
+    per["pixels"] = [fit_noise_model(sp[f"sum[{c}]"], basis=basis(boxes["sum"], channel=c),
+                                     **fit) for c in range(nch)]
     if nch > 1:
         out["pixels_common"] = fit_noise_model(
             _with(sp["sum"], _pairs(sp["sum_mean"]["psd"], sp["sum"]["psd"], nch), s_w),
@@ -297,7 +308,9 @@ def _reference(sp, boxes, nch, fs, m, fit):
         if side:
             box = boxes["sides"]
             spectra.append(sp[f"sides[{c}]"])
-            bases.append(lambda f, e, b=box: aliased_basis(f, fs, m, b.n, e, b.stride))
+            white = np.array([box.whites[c] if box.whites else 1.0, 1.0, 1.0])
+            bases.append(lambda f, e, b=box, w=white: w * aliased_basis(f, fs, m, b.n, e,
+                                                                        b.stride))
         terms = {} if side or not spectra else _burst_terms(spectra[0])
         out.append(fit_noise_model(spectra, basis=bases, **fit, **terms) if spectra else None)
     return out if any(r is not None for r in out) else []

@@ -18,7 +18,12 @@ the readout noise the simulator's components model.  Per channel and row read:
   read for the channels that have side columns.
 
 Columns holding a value that is not finite in any read of any frame are left
-out of the means.
+out of the means.  Pixels whose noise the per-pixel terms hold (``leave_out``:
+a telegraph's steps, a hot pixel's shot noise) are left out of every stream, so
+that the model holds them once: a row read's mean is over its other pixels (and
+the white level of a mean of fewer pixels is larger: `Box.white` is the factor,
+so the fits report the white level of one sample), and a reference-row burst
+holding one is left out whole.
 """
 
 from typing import NamedTuple
@@ -33,7 +38,7 @@ from ..timestreams import (
     reference_timestream,
 )
 
-__all__ = ["Box", "ChannelStreams", "channel_streams"]
+__all__ = ["Box", "ChannelStreams", "channel_streams", "pooled_boxes"]
 
 #: Fewest frames a dark (or a segment of one) needs: a straight line is removed across them.
 MIN_FRAMES = 3
@@ -53,6 +58,22 @@ class Box(NamedTuple):
     even: int = 0
     #: the centre in each channel, where channels average other offsets
     centres: tuple = ()
+    #: per channel, the mean over reads of the white level of the average relative to one of
+    #: ``n`` samples (pixels left out of some reads average fewer); empty: 1
+    whites: tuple = ()
+
+    @property
+    def white(self):
+        """The factor of the white level of the average, the mean over channels of
+        `whites` (1 without).
+
+        Examples
+        --------
+        >>> from spherex_reduce.analysis.characterize.streams import Box
+        >>> Box(4, 1, 1.5).white, Box(4, 1, 1.5, whites=(1.0, 1.5)).white
+        (1.0, 1.25)
+        """
+        return float(np.mean(self.whites)) if self.whites else 1.0
 
     @property
     def acn_factor(self):
@@ -83,6 +104,9 @@ class ChannelStreams(NamedTuple):
     reference_sides: dict
     #: the averages: ``sum``, ``diff`` (one parity), ``phantom``, ``sides``
     boxes: dict
+    #: ``(nchannels, 2, n_ref_reads)``: the reference-row bursts kept (none left out); None:
+    #: all
+    reference_kept: np.ndarray | None = None
 
 
 def _active_columns(exposure):
@@ -109,7 +133,7 @@ def _active_columns(exposure):
     return out, offs
 
 
-def channel_streams(exposure, frames=None):
+def channel_streams(exposure, frames=None, leave_out=None):
     """The detrended per-channel streams of one raw dark.
 
     Parameters
@@ -118,6 +142,12 @@ def channel_streams(exposure, frames=None):
         Raw ramps in readout order (frames × reads × columns).
     frames : slice, optional
         The frames used (a segment of the dark); default all.
+    leave_out : array_like of bool, optional
+        ``(nrows, ncols)`` in physical order: pixels left out of every stream
+        (`~spherex_reduce.analysis.pixel_terms.PixelSums.add`'s: those whose noise
+        the per-pixel terms hold).  A read's mean is over its other pixels (all
+        of them where every one of a set would be left out); `Box.whites` says
+        by how much that raises the white level.
 
     Returns
     -------
@@ -150,53 +180,110 @@ def channel_streams(exposure, frames=None):
                                  f"{MIN_FRAMES} (a straight line is removed across them)")
     data = np.asarray(exposure.data.data)
     columns, offs = _active_columns(exposure)
+    drop = None
+    if leave_out is not None:
+        drop = np.asarray(leave_out, dtype=bool)
+        if drop.shape != (g.nrows, g.ncols):
+            raise SpherexReduceError(f"leave_out must be ({g.nrows}, {g.ncols}), the pixels "
+                                     f"of the geometry; got {drop.shape}")
+        drop = drop[s.rows]  # (reads, columns): the samples of each read left out
     c = s.phantom_reads
     n = min(cols.size for cols in columns)
-    sums, diffs = [], []
+    sums, diffs, whites, dwhites = [], [], [], []
     for cols in columns:
         cols = cols[:n]  # every channel averages the same number of columns
         even = cols[offs[cols] % 2 == 0]
         odd = cols[offs[cols] % 2 == 1]
         k = min(even.size, odd.size)
         # one pass over the pixels: the sums of each parity's first k columns, then the rest
-        se = np.sum(data[:, :, even[:k]], axis=-1, dtype=np.float64)
-        so = np.sum(data[:, :, odd[:k]], axis=-1, dtype=np.float64)
-        rest = np.concatenate([even[k:], odd[k:]])
-        total = se + so
-        if rest.size:
-            total += np.sum(data[:, :, rest], axis=-1, dtype=np.float64)
-        sums.append(total / n)
+        parts = [even[:k], odd[:k], np.concatenate([even[k:], odd[k:]])]
+        totals, counts = [], []
+        for part in parts:
+            total, count = _kept_sum(data, part, None if drop is None else drop[:, part])
+            totals.append(total)
+            counts.append(count)
+        se, so, rest = totals
+        ne, no, nrest = counts
+        sums.append((se + so + rest) / (ne + no + nrest))
+        whites.append(float(np.mean(n / (ne + no + nrest))))
         if k:
-            diffs.append(0.5 * (se - so) / k)
+            diffs.append(0.5 * (se / ne - so / no))
+            dwhites.append(float(np.mean(0.5 * (k / ne + k / no))))
     first = offs[columns[0][:n]]
     centres = tuple(c + float(np.mean(offs[cols[:n]])) for cols in columns)
-    boxes = {"sum": Box(n, 1, float(np.mean(centres)), int(np.sum(first % 2 == 0)), centres)}
+    kept = drop is not None
+    boxes = {"sum": Box(n, 1, float(np.mean(centres)), int(np.sum(first % 2 == 0)), centres,
+                        tuple(whites) if kept else ())}
     diff = None
     if len(diffs) == g.nchannels:
         half = min(int(np.sum(offs[cols[:n]] % 2 == p)) for cols in columns for p in (0, 1))
         diff = detrend_frames(np.stack(diffs))
-        boxes["diff"] = Box(half, 2, boxes["sum"].centre)
+        boxes["diff"] = Box(half, 2, boxes["sum"].centre, whites=tuple(dwhites) if kept else ())
     phantom = None
     if exposure.phantom is not None and c:
         phantom = phantom_timestream(exposure).values
         # phantom sample i has the parity (i - c) % 2 (the simulator's convention)
         boxes["phantom"] = Box(c, 1, (c - 1) / 2, int(np.sum((np.arange(c) - c) % 2 == 0)))
-    rows = None
+    rows = bursts = None
     if reference_row_reads(s).size and g.channel_width >= MIN_BURST:
-        rows = np.stack([reference_timestream(exposure, "rows", p).values
+        rows = np.stack([reference_timestream(exposure, "rows", p, leave_out).values
                          for p in ("even", "odd")], axis=1)
+        if kept:  # a burst holding a pixel left out is left out whole
+            bursts = ~np.any(np.isnan(rows), axis=(2, 4))
+            bursts[~bursts.any(axis=(1, 2))] = True  # a channel keeps its bursts if none is
+            rows = np.nan_to_num(rows)  # bursts with values left out: kept apart by bursts
     sides = {}
     mask = g.reference_column_mask()
     if mask.any():
-        side = reference_timestream(exposure, "columns")
+        side = reference_timestream(exposure, "columns", leave_out=leave_out)
         cols = np.flatnonzero(mask)
         chan = g.channel_of_column()[cols]
         runs = np.flatnonzero((np.diff(cols) != 1) | (np.diff(chan) != 0)) + 1
         owners = [int(chan[i]) for i in np.concatenate([[0], runs])]
         for owner, values in zip(owners, side.values, strict=True):
             sides[owner] = values
-        boxes["sides"] = Box(side.nbox, side.stride, 0.0)
-    return ChannelStreams(detrend_frames(np.stack(sums)), diff, phantom, rows, sides, boxes)
+        white = dict(zip(owners, side.white, strict=True)) if side.white else {}
+        boxes["sides"] = Box(side.nbox, side.stride, 0.0, whites=tuple(
+            white.get(o, 1.0) for o in range(g.nchannels)) if white else ())
+    return ChannelStreams(detrend_frames(np.stack(sums)), diff, phantom, rows, sides, boxes,
+                          bursts)
+
+
+def pooled_boxes(boxes):
+    """The averages of several darks' streams (`ChannelStreams.boxes`) whose spectra are
+    pooled (`~spherex_reduce.analysis.characterize.spectra.pool`, each dark alike): the
+    first's, with the white factors (`Box.whites`) averaged over the darks.
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.characterize.streams import Box, pooled_boxes
+    >>> a, b = {"sum": Box(4, 1, 1.5, whites=(1.0, 1.5))}, {"sum": Box(4, 1, 1.5)}
+    >>> pooled_boxes([a, b])["sum"].whites
+    (1.0, 1.25)
+    """
+    out = {}
+    for key, box in boxes[0].items():
+        if not any(b[key].whites for b in boxes):
+            out[key] = box
+            continue
+        nch = max(len(b[key].whites) for b in boxes)
+        whites = np.mean([b[key].whites or (1.0,) * nch for b in boxes], axis=0)
+        out[key] = box._replace(whites=tuple(float(w) for w in whites))
+    return out
+
+
+def _kept_sum(data, cols, drop):
+    """Per frame and read, the sum over ``cols`` of the values not dropped (``drop``:
+    ``(reads, cols)``, None: none), and how many were summed per read (all of them
+    where every one would be dropped)."""
+    total = np.sum(data[:, :, cols], axis=-1, dtype=np.float64)
+    if drop is None or cols.size == 0:
+        return total, np.full(data.shape[1], float(cols.size))
+    drop = drop & ~np.all(drop, axis=1, keepdims=True)
+    r, j = np.nonzero(drop)
+    if r.size:  # few: their values taken back out of the sums
+        np.subtract.at(total, (slice(None), r), data[:, r, cols[j]])
+    return total, (cols.size - drop.sum(axis=1)).astype(float)
 
 
 def _frames_of(exposure, frames):

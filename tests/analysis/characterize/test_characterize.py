@@ -285,3 +285,41 @@ def test_darks_in_adu_without_a_gain_keep_the_stream_model_and_mark_the_pixels()
     assert model.pixel_terms is None and "scene" not in model.scene()
     assert any(m.startswith("per-pixel terms: not fitted: ") and "gain" in m
                for m in model.marks), model.marks
+
+
+def _telegraph_darks(s, n, fraction=0.05, amplitude=150.0, flip=0.3):
+    """Darks of white noise alone (2e-3 e^2/Hz: 10 e per sample) whose pixels include a
+    telegraph population, light-sensitive and reference: two states ``amplitude`` apart,
+    flipping at a frame with probability ``flip``, the same pixels in every dark."""
+    from astropy import units as u
+
+    from spherex_reduce import Exposure
+
+    g = s.geometry
+    rng = np.random.default_rng(99)
+    tele = rng.random((g.nrows, g.ncols)) < fraction
+    rows, cols = np.nonzero(tele)
+    out = []
+    for k in range(n):
+        data = np.array(dark(s, [{"name": "x", "alpha": 2e-3}], 500 + k).data.data)
+        flips = rng.random((rows.size, s.nframes)) < flip
+        state = amplitude * (np.cumsum(flips, axis=1) % 2)  # (pixels, frames)
+        for p, (r, c) in enumerate(zip(rows, cols, strict=True)):
+            data[:, s.rows == r, c] += state[p][:, None]  # every read of its row
+        out.append(Exposure.from_arrays(data, s, unit=u.electron))
+    return out
+
+
+def test_telegraph_pixels_stay_out_of_the_stream_white_level():
+    """Issue 33: a telegraph population (5 % of the pixels, steps of 150 e against 10 e of
+    white noise) is the per-pixel terms' (``scene.rtn``); the streams leave those pixels
+    out, so the channel and reference white levels are the injected 2e-3 e^2/Hz of one
+    sample (the row means average fewer pixels: their white level is larger, the fit
+    says it per sample), not raised by the steps (before: about 3 times the truth)."""
+    s = schedule(nrows=128, ncols=128, nframes=12, phantom_reads=0)
+    model = characterize(_telegraph_darks(s, 4), segments=1)
+    assert model.pixel_terms.row("telegraph_fraction", "active")["status"] == "fitted"
+    pix, ref = model.spectra["pixels"], model.spectra["reference"]
+    for est in (pix, ref):
+        assert est.values[0] == pytest.approx(2e-3, abs=max(3 * est.errors[0], 0.03 * 2e-3))
+    assert not [m for m in model.marks if m.startswith(("pixels.alpha", "reference: white"))]

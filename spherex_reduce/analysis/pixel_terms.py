@@ -387,9 +387,11 @@ class PixelSums:
         taken a band at a time rather than copying the dark.
 
         Returns the dark's pixels whose noise these terms hold ``(ny, nx)`` bool: a jump in
-        this dark (a telegraph's step) or hot by this dark's slopes (above the median plus
-        ``hot_sigma`` = 10 robust standard deviations of the light-sensitive pixels', as
-        `fit` flags them), what a stream model of the same darks leaves out."""
+        this dark (a telegraph's step; also between reads 0 and 1: read 0 offset from the
+        pixel's line beyond ``jump_sigma`` robust standard deviations of its band's) or
+        hot by this dark's slopes (above the median plus ``hot_sigma`` = 10 robust
+        standard deviations of the light-sensitive pixels', as `fit` flags them): what a
+        stream model of the same darks leaves out."""
         rows = None if rows is None else np.asarray(rows, dtype=np.intp)
         x, unit, shape = _dark(ramps, rows)
         if self._acc is None:  # times, gain and mask checked once, against the first dark
@@ -511,7 +513,8 @@ def _add_dark(acc, x, t, band_rows, rows=None):
     """Add one dark ``x (n, ny, nx)`` (or its stored rows ``rows``) to the sums, a band of
     rows at a time (each pixel's sums take the darks in the order they are added).  Returns
     the dark's slope of every pixel ``(ny, nx)`` (float32, NaN where a read is not finite)
-    and its pixels with a jump (bool)."""
+    and its pixels with a jump (bool; read 0 apart, also those whose read 0 is offset from
+    their line unlike the band's pixels: a step between reads 0 and 1)."""
     ny = x.shape[1] if rows is None else rows.size
     slopes = np.empty((ny, x.shape[2]), dtype=np.float32)
     jumped = np.zeros((ny, x.shape[2]), dtype=bool)
@@ -523,6 +526,9 @@ def _add_dark(acc, x, t, band_rows, rows=None):
         with np.errstate(divide="ignore", invalid="ignore"):
             slopes[sl] = np.where(part["bad"], np.nan, part["wd"] / part["wdt"])
         jumped[sl] = part["jumps"] > 0
+        if acc["skip_first"]:  # a step between reads 0 and 1: an offset unlike the band's
+            r = np.where(part["bad"], 0.0, part["offset"] - np.median(part["offset"]))
+            jumped[sl] |= np.abs(r) > acc["jump_sigma"] * _MAD * np.median(np.abs(r))
         for key, value in part.items():
             if key == "alternate":
                 acc[key][sl] &= value

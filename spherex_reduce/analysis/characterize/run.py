@@ -12,7 +12,7 @@ from ..pixel_terms import PixelSums, dark_rows
 from .check import DarkScatter, compare, reduction_pipeline
 from .result import Characterization
 from .spectra import dark_spectra, fit_spectra, pool
-from .streams import MIN_FRAMES, channel_streams, pooled_boxes
+from .streams import MIN_FRAMES, channel_streams, pooled_boxes, shot_white
 
 __all__ = ["characterize", "check_model", "dark_exposures"]
 
@@ -172,10 +172,18 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
     each = [st.boxes for st in streams]
     boxes = pooled_boxes(each)
     del streams
+    terms, shot = None, 0.0
+    if pixels and pixel_mark is None:
+        try:
+            terms = sums.fit()
+        except SpherexReduceError as exc:
+            pixel_mark = str(exc)
+        else:  # its dark current's shot noise is the per-pixel terms', not the streams'
+            shot = _shot(terms, schedule, _segments(nframes, None) if split else cuts)
 
     def fits(keep):
         return fit_spectra(pool([spectra[i] for i in keep]), pooled_boxes([each[i] for i in keep]),
-                           schedule, exponent, nbins)
+                           schedule, exponent, nbins, shot=shot)
 
     every = range(len(spectra))
     full = fits(every)
@@ -183,11 +191,7 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
     model = Characterization.build(full, jack, boxes, schedule, unit or u.one, darks,
                                    exponent_fitted=exponent is None,
                                    segmented=split or (segments or 1) > 1, gain=gain)
-    if pixels and pixel_mark is None:
-        try:
-            model.pixel_terms = sums.fit()
-        except SpherexReduceError as exc:
-            pixel_mark = str(exc)
+    model.pixel_terms = terms
     if pixel_mark is not None:
         also = (f"; the streams of the darks before left out their {left_out} pixels with "
                 "a jump or hot" if left_out else "")
@@ -200,6 +204,21 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
     if scatter_mark is not None:
         model.marks.append(f"slope scatter and P(k): not compared: {scatter_mark}")
     return model
+
+
+def _shot(terms, schedule, cuts):
+    """The white level (one sample's, as ``alpha``) that the dark current of the per-pixel
+    ``terms`` gives the light-sensitive streams of the runs of frames ``cuts``, the mean over
+    them (their spectra are pooled alike), in the fraction of the row reads that read
+    light-sensitive pixels."""
+    row = terms.row("dark_current", "active")
+    if row["status"] != "fitted" or not row["value"] > 0:
+        return 0.0
+    rate = row["value"] / terms.gain  # unit^2 / s
+    starts = schedule.frame_starts.to_value(u.s)
+    white = np.mean([shot_white(rate, starts[cut], schedule.geometry.pixel_rate)
+                     for cut in cuts])
+    return float(white * np.mean(~schedule.is_reference))
 
 
 def _add_scatter(measured, reducer, e):

@@ -179,7 +179,7 @@ def _cross(sp, a, b, key):
                   - np.asarray(sp[b]["psd"]))
 
 
-def fit_spectra(sp, boxes, schedule, exponent, nbins=30):
+def fit_spectra(sp, boxes, schedule, exponent, nbins=30, shot=0.0):
     """Fit every spectrum of `SPECTRA` the (pooled) spectra ``sp`` hold.
 
     Parameters
@@ -194,6 +194,12 @@ def fit_spectra(sp, boxes, schedule, exponent, nbins=30):
         and every other fit takes the value found.
     nbins : int
         Logarithmic bins per spectrum.
+    shot : float
+        The white level (of one sample, as ``alpha``) that the light-sensitive
+        pixels' dark current adds to their streams
+        (`~spherex_reduce.analysis.characterize.streams.shot_white`), taken out of
+        the ``pixels`` and ``acn`` spectra before they are fitted: the per-pixel
+        terms hold it.
 
     Returns
     -------
@@ -224,19 +230,32 @@ def fit_spectra(sp, boxes, schedule, exponent, nbins=30):
         scale = (0.5 if half else 1.0) * np.array([white, 1.0, 1.0])
         return lambda f, e: scale * aliased_basis(f, fs, m, box.n, e, box.stride)
 
+    def less_shot(spec, terms):  # the dark current's shot noise: the per-pixel terms'
+        if not shot:
+            return spec
+        out = Table(spec, copy=True)
+        white = terms(np.asarray(spec["frequency"].value), 1.3)[:, 0] * shot
+        out["psd"] = (np.asarray(spec["psd"]) - white) * spec["psd"].unit
+        return out
+
     b_sum = basis(boxes["sum"])
     out, per = {}, {}
-    out["pixels"] = fit_noise_model(sp["sum"], basis=b_sum, exponent=exponent, nbins=nbins)
+    out["pixels"] = fit_noise_model(less_shot(sp["sum"], b_sum), basis=b_sum,
+                                    exponent=exponent, nbins=nbins)
     fit = {"exponent": out["pixels"].exponent, "nbins": nbins}
     s_w = _expected(out["pixels"], b_sum, sp["sum"])
-    per["pixels"] = [fit_noise_model(sp[f"sum[{c}]"], basis=basis(boxes["sum"], channel=c),
-                                     **fit) for c in range(nch)]
+    per["pixels"] = []
+    for c in range(nch):
+        b_c = basis(boxes["sum"], channel=c)
+        per["pixels"].append(fit_noise_model(less_shot(sp[f"sum[{c}]"], b_c), basis=b_c,
+                                             **fit))
     if nch > 1:
         out["pixels_common"] = fit_noise_model(
             _with(sp["sum"], _pairs(sp["sum_mean"]["psd"], sp["sum"]["psd"], nch), s_w),
             basis=b_sum, **fit)
     if "diff" in sp:
-        out["acn"] = fit_noise_model(sp["diff"], basis=basis(boxes["diff"], half=True), **fit)
+        b_d = basis(boxes["diff"], half=True)
+        out["acn"] = fit_noise_model(less_shot(sp["diff"], b_d), basis=b_d, **fit)
     if "phantom" in sp and np.any(np.asarray(sp["phantom"]["psd"]) > 0):  # not constant
         b_ph = basis(boxes["phantom"])
         out["phantom"] = fit_noise_model(sp["phantom"], basis=b_ph, **fit)

@@ -38,7 +38,7 @@ from ..timestreams import (
     reference_timestream,
 )
 
-__all__ = ["Box", "ChannelStreams", "channel_streams", "pooled_boxes"]
+__all__ = ["Box", "ChannelStreams", "channel_streams", "pooled_boxes", "shot_white"]
 
 #: Fewest frames a dark (or a segment of one) needs: a straight line is removed across them.
 MIN_FRAMES = 3
@@ -270,6 +270,48 @@ def pooled_boxes(boxes):
         whites = np.mean([b[key].whites or (1.0,) * nch for b in boxes], axis=0)
         out[key] = box._replace(whites=tuple(float(w) for w in whites))
     return out
+
+
+def shot_white(rate, times, sample_rate):
+    """The white level a shot noise adds to a detrended stream of pixels, as the fits
+    report white levels (``alpha`` of one sample).
+
+    A current's shot noise is a random walk of each pixel across frames: the
+    straight line `~spherex_reduce.analysis.timestreams.detrend_frames` removes
+    leaves a residual of variance ``rate · κ`` per value (``κ`` the mean over
+    frames of the diagonal of ``P W P · N / (N − 2)``, ``W = min(t_i, t_j)``,
+    ``P`` the projector off the line), independent between pixels, so white along
+    a stream: ``alpha = 2 rate κ / sample_rate``.
+
+    Parameters
+    ----------
+    rate : float
+        The shot noise's variance per unit time (unit²/s: a current over the gain).
+    times : array_like
+        The ``N`` frame start times (s) of the stream.
+    sample_rate : float
+        The pixel rate (Hz).
+
+    Returns
+    -------
+    float
+        unit²/Hz.
+
+    Examples
+    --------
+    Four frames 1 s apart: ``κ`` = 0.4 s.
+
+    >>> from spherex_reduce.analysis.characterize.streams import shot_white
+    >>> shot_white(2.0, [0.0, 1.0, 2.0, 3.0], 1e5)
+    1.6e-05
+    """
+    t = np.asarray(times, dtype=np.float64)
+    t = t - t[0]
+    n = t.size
+    x = np.arange(n) - (n - 1) / 2  # detrend_frames' line: in frame index
+    proj = np.eye(n) - 1.0 / n - np.outer(x, x) / np.sum(x * x)
+    kappa = np.mean(np.diag(proj @ np.minimum.outer(t, t) @ proj)) * n / (n - 2)
+    return float(2 * rate * kappa / sample_rate)
 
 
 def _kept_sum(data, cols, drop):

@@ -88,8 +88,12 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
         Also fit the per-pixel terms (read noise, dark current, hot and telegraph
         pixels, the first read's offset: `~spherex_reduce.analysis.pixel_terms`),
         summed dark by dark as they are read; the scene holds those the simulator
-        takes (``scene:``).  Darks it cannot take (ADU without a gain, no unit)
-        are marked in one line, the stream model kept.
+        takes (``scene:``), and the streams leave out what they hold (each dark's
+        pixels with a jump or hot, `~spherex_reduce.analysis.pixel_terms.PixelSums.add`;
+        the dark current's shot noise,
+        `~spherex_reduce.analysis.characterize.streams.shot_white`), so the model
+        holds it once.  Darks it cannot take (ADU without a gain, no unit) are
+        marked in one line, the stream model kept (of every pixel).
     scatter : bool
         Also (the command line does; it costs a reduction of each dark per frame
         count) measure the darks' slope scatter against the frame count and their

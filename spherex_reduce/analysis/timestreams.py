@@ -39,8 +39,8 @@ from ..core.exposure import Exposure
 from ..reduce.steps.reference.noise_models import NEGATIVE_SIGMAS
 from .temporal import PARAMS, aliased_basis, fit_noise_model, temporal_psd
 
-__all__ = ["Timestream", "detrend_frames", "fit_raw_noise", "phantom_timestream",
-           "reference_timestream"]
+__all__ = ["Timestream", "detrend_frames", "fit_raw_noise", "left_out_samples",
+           "phantom_timestream", "reference_timestream"]
 
 
 # -- streams of a raw exposure ----------------------------------------------------------
@@ -228,7 +228,7 @@ def reference_timestream(exposure, source="columns", parity=None, leave_out=None
             if any(c.size == 0 for c in sides):
                 raise SpherexReduceError("the border has no columns of that parity")
         nbox = sides[0].size
-        drop = _left_out(leave_out, s)
+        drop = left_out_samples(leave_out, s)
         vals, white = [], []
         for c in sides:
             if drop is None:
@@ -254,7 +254,7 @@ def reference_timestream(exposure, source="columns", parity=None, leave_out=None
         vals = data[:, reads][:, :, cols]  # frames, nref, nchannels, w'
         vals = np.moveaxis(vals, 2, 0)  # channels, frames, nref, w'
         flat = detrend_frames(vals.reshape(g.nchannels, s.nframes, -1))
-        drop = _left_out(leave_out, s)
+        drop = left_out_samples(leave_out, s)
         if drop is not None:
             gone = np.moveaxis(drop[reads][:, cols], 1, 0)  # channels, nref, w'
             flat[np.broadcast_to(gone.reshape(g.nchannels, 1, -1), flat.shape)] = np.nan
@@ -264,9 +264,24 @@ def reference_timestream(exposure, source="columns", parity=None, leave_out=None
     raise SpherexReduceError(f"source must be 'columns' or 'rows', got {source!r}")
 
 
-def _left_out(leave_out, schedule):
+def left_out_samples(leave_out, schedule):
     """``(n_reads, ncols)``: the samples of each read of a frame that ``leave_out``
-    (``(nrows, ncols)``, physical order) leaves out; None without one."""
+    (``(nrows, ncols)`` bool, physical order) leaves out; None without one.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce import DetectorGeometry, ReadoutSchedule
+    >>> from spherex_reduce.analysis.timestreams import left_out_samples
+    >>> g = DetectorGeometry(8, 8, 1, ref_border={"top": 2})
+    >>> s = ReadoutSchedule(g, skip=1, ref_mode="none", ref_reads=0, phantom_reads=0,
+    ...                     nframes=3)
+    >>> drop = np.zeros((8, 8), bool)
+    >>> drop[5, 3] = True
+    >>> read = int(np.flatnonzero(s.rows == 5)[0])        # the read of row 5
+    >>> np.argwhere(left_out_samples(drop, s)).tolist() == [[read, 3]]
+    True
+    """
     if leave_out is None:
         return None
     g = schedule.geometry

@@ -33,6 +33,7 @@ import numpy as np
 from ...core.errors import SpherexReduceError
 from ..timestreams import (
     detrend_frames,
+    left_out_samples,
     phantom_timestream,
     reference_row_reads,
     reference_timestream,
@@ -180,13 +181,7 @@ def channel_streams(exposure, frames=None, leave_out=None):
                                  f"{MIN_FRAMES} (a straight line is removed across them)")
     data = np.asarray(exposure.data.data)
     columns, offs = _active_columns(exposure)
-    drop = None
-    if leave_out is not None:
-        drop = np.asarray(leave_out, dtype=bool)
-        if drop.shape != (g.nrows, g.ncols):
-            raise SpherexReduceError(f"leave_out must be ({g.nrows}, {g.ncols}), the pixels "
-                                     f"of the geometry; got {drop.shape}")
-        drop = drop[s.rows]  # (reads, columns): the samples of each read left out
+    drop = left_out_samples(leave_out, s)  # (reads, columns), or None
     c = s.phantom_reads
     n = min(cols.size for cols in columns)
     sums, diffs, whites, dwhites = [], [], [], []

@@ -2721,3 +2721,25 @@ DESIGN_TERMS_INPUT = [
 @pytest.mark.parametrize("case", DESIGN_TERMS_INPUT)
 def test_issue33_design_readout_scene_terms(case, inputs, runner, tmp_path):
     test_input(case, inputs, runner, tmp_path)
+
+
+# Issue 33: a window without its pixel rate
+def _window_without_rate(d):
+    """`_window` with its frame time, the config's ``pixel_rate`` taken out."""
+    _window(f"frame_time: {WINDOW_FRAME!r}")(d)
+    text = (d / "win.yaml").read_text()
+    (d / "win.yaml").write_text(text.replace(", pixel_rate: 1.0e+5", ""))
+
+
+WINDOW_RATE_INPUT = [
+    # it asked for NCHAN and PIXRATE: NCHAN comes from the window's full array
+    refused("reduce-window-without-pixel-rate",
+            ["reduce", "win.fits", "-c", "win.yaml", "-o", "out.fits"], _window_without_rate,
+            mentions=r"missing readout keyword\(s\) PIXRATE: .*sections: geometry\.pixel_rate; "
+                     r"the window's NCHAN, SCANDIR and REFBORD come from its full array$"),
+]
+
+
+@pytest.mark.parametrize("case", WINDOW_RATE_INPUT)
+def test_issue33_window_without_pixel_rate(case, inputs, runner, tmp_path):
+    test_input(case, inputs, runner, tmp_path)

@@ -168,14 +168,17 @@ def channel_streams(exposure, frames=None):
         sums.append(total / n)
         if k:
             diffs.append(0.5 * (se - so) / k)
+    sums = np.stack(sums)  # the channels' arrays released
     first = offs[columns[0][:n]]
     centres = tuple(c + float(np.mean(offs[cols[:n]])) for cols in columns)
     boxes = {"sum": Box(n, 1, float(np.mean(centres)), int(np.sum(first % 2 == 0)), centres)}
     diff = None
     if len(diffs) == g.nchannels:
         half = min(int(np.sum(offs[cols[:n]] % 2 == p)) for cols in columns for p in (0, 1))
-        diff = detrend_frames(np.stack(diffs))
+        diffs = np.stack(diffs)
+        diff = detrend_frames(diffs)
         boxes["diff"] = Box(half, 2, boxes["sum"].centre)
+    del diffs
     phantom = None
     if exposure.phantom is not None and c:
         phantom = phantom_timestream(exposure).values
@@ -196,7 +199,7 @@ def channel_streams(exposure, frames=None):
         for owner, values in zip(owners, side.values, strict=True):
             sides[owner] = values
         boxes["sides"] = Box(side.nbox, side.stride, 0.0)
-    return ChannelStreams(detrend_frames(np.stack(sums)), diff, phantom, rows, sides, boxes)
+    return ChannelStreams(detrend_frames(sums), diff, phantom, rows, sides, boxes)
 
 
 def _frames_of(exposure, frames):

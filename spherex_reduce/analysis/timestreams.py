@@ -96,8 +96,10 @@ def detrend_frames(values):
     t = np.arange(n, dtype=float) - (n - 1) / 2
     mean = v.mean(axis=-2, keepdims=True)
     slope = np.tensordot(t, v, axes=([0], [v.ndim - 2])) / np.sum(t**2)
-    res = v - mean - t[:, None] * slope[..., None, :]
-    return res * np.sqrt(n / (n - 2))
+    res = v - mean  # then in place: no third copy of a dark's streams
+    res -= t[:, None] * slope[..., None, :]
+    res *= np.sqrt(n / (n - 2))
+    return res
 
 
 def _frame_samples(schedule, within):

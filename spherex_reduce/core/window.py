@@ -36,13 +36,15 @@ from .errors import FormatError
 from .fields import FIELD, check_field, section_fields
 from .geometry import DetectorGeometry, RefBorder
 
-__all__ = ["Window", "default_overhead", "fill_window_geometry", "geometry_of", "window_reads"]
+__all__ = ["WINDOW_DERIVED", "WINDOW_FIELDS", "Window", "default_overhead", "fill_window_geometry",
+           "geometry_of", "window_reads"]
 
 #: The fields of a window: ``first_row first_column full_nrows full_ncols full_nchannels
 #: full_scan full_ref_border``.
 WINDOW_FIELDS = tuple(f.name for f in section_fields("window"))
 _REQUIRED = ("first_row", "first_column", "full_nrows", "full_ncols", "full_nchannels")
-_DERIVED = ("nchannels", "scan", "ref_border")  # geometry fields a window decides
+#: The geometry fields a window decides (from its full array).
+WINDOW_DERIVED = ("nchannels", "scan", "ref_border")
 
 
 @dataclass(frozen=True)
@@ -297,7 +299,7 @@ def fill_window_geometry(values):
         raise FormatError(f"window: {exc}") from None
     derived["scan"] = _scan_label(derived["scan"], derived["nchannels"])  # as SCANDIR
     out = dict(values, window=window, **derived)
-    for name in _DERIVED:
+    for name in WINDOW_DERIVED:
         have = values.get(name)
         if have is None:
             continue

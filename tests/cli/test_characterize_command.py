@@ -209,7 +209,8 @@ def _design(tmp_path, model):
 def test_design_readout_runs_from_a_model_with_pixel_populations(tmp_path, capsys):
     """Darks of a detector with hot and telegraph pixels (one population_seed): MODEL.yaml
     holds them, and design-readout designs the readout from it as it is, saying in one line
-    per term that the pixel populations are left out (the forecast refused them)."""
+    per term that the pixel populations are left out of the search (the forecast refused
+    them); BEST.yaml carries them."""
     truth = {**SCENE, "readout": {**SCENE["readout"], "nframes": 12},
              "scene": {"dark_current": 5.0, "hot_pixel_fraction": 0.03,
                        "hot_pixel_current": 500.0, "population_seed": 4,
@@ -223,8 +224,10 @@ def test_design_readout_runs_from_a_model_with_pixel_populations(tmp_path, capsy
     capsys.readouterr()
     assert run("design-readout", _design(tmp_path, model), "-o", tmp_path / "best.yaml") == 0
     out = capsys.readouterr().out
-    assert "note: scene.hot_pixel_fraction: left out" in out
-    assert "note: scene.rtn: left out" in out
+    assert "note: scene.hot_pixel_fraction: hot pixels left out of the search" in out
+    assert "note: scene.rtn: telegraph pixels left out of the search" in out
+    best = yaml.safe_load((tmp_path / "best.yaml").read_text())["scene"]
+    assert best == fitted["scene"]  # carried into BEST.yaml as MODEL.yaml has them
 
 
 def test_design_readout_from_a_model_in_adu_needs_its_gain(tmp_path, capsys):

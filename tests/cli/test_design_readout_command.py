@@ -126,3 +126,81 @@ def test_a_monte_carlo_that_stops_early_says_so(tmp_path, capsys):
                             r"error is <= 0.9, after 8 at least\)", line) for line in out), out
     assert any(line.startswith("Monte Carlo (8 paired realisations of 12: the gain's error "
                                "reached gain_error): gain ") for line in out), out
+
+
+#: Every scene term the forecast does not model, as a MODEL.yaml of characterize holds them:
+#: hot pixels with a current spread, a spread of the dark current and two telegraph
+#: populations (one of the reference pixels), one detector (population_seed).
+POPULATIONS = {"dark_current": 1.0, "dark_current_spread": 0.25, "hot_pixel_fraction": 0.2,
+               "hot_pixel_current": 400.0, "hot_pixel_current_spread": 40.0,
+               "population_seed": 7,
+               "rtn": [{"fraction": 0.05, "amplitude": 30.0, "rate": 0.5},
+                       {"fraction": 0.1, "amplitude": 10.0, "rate": 2.0,
+                        "pixels": "reference"}]}
+
+
+def _design_with(tmp_path, terms):
+    design = tmp_path / "design.yaml"
+    text = DESIGN.replace("realizations: 2", "realizations: 0")
+    design.write_text(text.replace("  readout: {nframes: 4}\n",
+                                   "  readout: {nframes: 4}\n  scene: "
+                                   + yaml.safe_dump(terms, default_flow_style=True)))
+    return design
+
+
+def test_terms_the_forecast_does_not_model_are_noted_and_carried_into_best(tmp_path, capsys):
+    """Hot pixels, their spread, the dark-current spread and telegraph populations: the search
+    leaves each out with its own note line and BEST.yaml holds every one as the scene gave it
+    (they were dropped from it), so simulating the designed readout still has the hot pixels:
+    ~20 % of the light-sensitive pixels at ~400 e-/s."""
+    import numpy as np
+    from astropy.io import fits
+
+    best = tmp_path / "best.yaml"
+    assert run("design-readout", _design_with(tmp_path, POPULATIONS), "-o", best) == 0
+    notes = [line for line in capsys.readouterr().out.splitlines() if line.startswith("note:")]
+    assert [n.split(":")[1].strip() for n in notes] == [
+        "scene.hot_pixel_fraction", "scene.hot_pixel_current_spread",
+        "scene.dark_current_spread", "scene.rtn"]
+    for note, what in zip(notes, ["hot pixels", "the hot pixels' current spread",
+                                  "the pixels' dark-current spread",
+                                  "telegraph pixels (2 populations)"], strict=True):
+        assert f": {what} left out of the search" in note, note
+        assert "written unchanged into the best scene" in note, note
+    assert yaml.safe_load(best.read_text())["scene"] == POPULATIONS
+    slopes = tmp_path / "slopes.fits"
+    assert run("-q", "simulate", best, "-o", slopes, "--mode", "slopes") == 0
+    with fits.open(slopes) as hdul:
+        image = np.asarray(hdul["SCI"].data, dtype=float)
+    active = image[4:-4, 4:-4]  # ref_border 4; every other pixel near 1 e-/s
+    hot = np.mean(active > 100.0)
+    assert 0.1 < hot < 0.3, hot
+
+
+@pytest.mark.parametrize(("terms", "message"), [
+    ({"hot_pixel_fraction": 2}, "scene.hot_pixel_fraction: must be in [0, 1], got 2"),
+    ({"hot_pixel_current_spread": -1.0},
+     "scene.hot_pixel_current_spread: must be in [0, 1e+09], got -1.0"),
+    ({"dark_current_spread": 0.5},
+     "scene.dark_current_spread: a spread about a dark_current of 0; give dark_current > 0 "
+     "or no spread"),
+    ({"rtn": [{"fraction": 0.1, "amplitude": 5.0}, {"fraction": -0.1}]},
+     "scene.rtn[1].fraction: must be in [0, 1], got -0.1"),
+    ({"rtn": []}, "scene.rtn: a list of 1 to 16 telegraph populations, got 0"),
+    ({"rtn": {"fraction": 0.1, "pixels": "some"}},
+     "scene.rtn.pixels: 'some' is not one of ['active', 'reference', 'all']"),
+])
+def test_bad_terms_the_forecast_does_not_model_are_refused_as_simulate_refuses_them(
+        tmp_path, capsys, terms, message):
+    """They were dropped before the scene was validated: a design took them, exit 0 and a
+    note.  Now the line simulate prints for the scene, exit 2, nothing written."""
+    design = _design_with(tmp_path, terms)
+    best = tmp_path / "best.yaml"
+    assert run("design-readout", design, "-o", best) == 2
+    one_line_error(capsys, "spherex-reduce design-readout: error:",
+                   "design.yaml: scene: " + message)
+    assert not best.exists()
+    scene = yaml.safe_load(design.read_text())["scene"]
+    (tmp_path / "scene.yaml").write_text(yaml.safe_dump(scene))
+    assert run("simulate", tmp_path / "scene.yaml", "-o", tmp_path / "s.fits") == 2
+    one_line_error(capsys, "spherex-reduce simulate: error: " + message)

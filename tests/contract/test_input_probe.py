@@ -2654,3 +2654,92 @@ SCENE_OVERFLOW_INPUT = [
 @pytest.mark.parametrize("case", SCENE_OVERFLOW_INPUT)
 def test_issue33_scene_overflow_input(case, inputs, runner, tmp_path):
     test_input(case, inputs, runner, tmp_path)
+
+
+# Issue 33: design-readout scene terms
+_DESIGN_TERMS = """\
+scene:
+  geometry: {{nrows: 32, ncols: 16, nchannels: 2, ref_border: 4}}
+  readout: {{nframes: 4}}
+  noise: {{components: [{{name: f, beta: 0.01, alpha: 1.0e-5}}]}}
+  scene: {terms}
+band: {{kmin: 0.3, kmax: 1.5}}
+bins: 4
+baseline: {{skip: 1, ref_reads: 8, phantom_reads: 2}}
+search: {{families: [golden], phantom_reads: [2], ref_reads: [8], ref_modes: [distributed],
+         iterations: 1}}
+realizations: 0
+"""
+DESIGN_TERMS = ["design-readout", "design.yaml", "-o", "best.yaml"]
+
+
+def _design_terms(terms):
+    return write("design.yaml", _DESIGN_TERMS.format(terms=terms))
+
+
+def _carried(d, result, run):
+    """BEST.yaml holds the terms the search left out, as the design's scene gave them, and
+    stdout one note per term (hot pixels, telegraph pixels)."""
+    import yaml
+
+    assert yaml.safe_load((d / "best.yaml").read_text())["scene"] == {
+        "dark_current": 2.0, "hot_pixel_fraction": 0.01, "hot_pixel_current": 300.0,
+        "rtn": [{"fraction": 0.02, "amplitude": 25.0, "pixels": "all"}]}
+    notes = [line for line in result.stdout.splitlines() if line.startswith("note: ")]
+    assert [n.split(":")[1] for n in notes] == [" scene.hot_pixel_fraction", " scene.rtn"]
+
+
+DESIGN_TERMS_INPUT = [
+    refused("design-readout-hot-pixel-fraction-above-one", DESIGN_TERMS,
+            _design_terms("{hot_pixel_fraction: 1.5}"),
+            mentions=r"scene: scene\.hot_pixel_fraction: must be in \[0, 1\], got 1\.5$"),
+    refused("design-readout-hot-pixel-fraction-text", DESIGN_TERMS,
+            _design_terms("{hot_pixel_fraction: lots}"), mentions=r"scene\.hot_pixel_fraction"),
+    refused("design-readout-dark-current-spread-nan", DESIGN_TERMS,
+            _design_terms("{dark_current: 1.0, dark_current_spread: .nan}"),
+            mentions=r"scene\.dark_current_spread"),
+    refused("design-readout-hot-spread-overflows", DESIGN_TERMS,
+            _design_terms("{hot_pixel_fraction: 0.1, hot_pixel_current: 1.0e-300, "
+                          "hot_pixel_current_spread: 1.0e+9}"),
+            mentions=r"scene\.hot_pixel_current_spread: .* beyond what can be drawn"),
+    refused("design-readout-rtn-not-a-population", DESIGN_TERMS, _design_terms("{rtn: [3]}"),
+            mentions=r"scene\.rtn"),
+    refused("design-readout-rtn-seventeen-populations", DESIGN_TERMS,
+            _design_terms("{rtn: [" + ", ".join(["{fraction: 0.01}"] * 17) + "]}"),
+            mentions=r"scene\.rtn: a list of 1 to 16 telegraph populations, got 17"),
+    refused("design-readout-model-file-rtn-rate-negative", DESIGN_TERMS,
+            chain(write("design.yaml", "scene: model.yaml\nrealizations: 0\n"),
+                  write("model.yaml", SCENE + "scene: {rtn: {fraction: 0.1, rate: -2}}\n")),
+            mentions=r"scene: scene\.rtn\.rate: must be in"),
+    works("design-readout-populations-carried-into-best", DESIGN_TERMS,
+          _design_terms("{dark_current: 2.0, hot_pixel_fraction: 0.01, hot_pixel_current: "
+                        "300.0, rtn: [{fraction: 0.02, amplitude: 25.0, pixels: all}]}"),
+          check=_carried),
+]
+
+
+@pytest.mark.parametrize("case", DESIGN_TERMS_INPUT)
+def test_issue33_design_readout_scene_terms(case, inputs, runner, tmp_path):
+    test_input(case, inputs, runner, tmp_path)
+
+
+# Issue 33: a window without its pixel rate
+def _window_without_rate(d):
+    """`_window` with its frame time, the config's ``pixel_rate`` taken out."""
+    _window(f"frame_time: {WINDOW_FRAME!r}")(d)
+    text = (d / "win.yaml").read_text()
+    (d / "win.yaml").write_text(text.replace(", pixel_rate: 1.0e+5", ""))
+
+
+WINDOW_RATE_INPUT = [
+    # it asked for NCHAN and PIXRATE: NCHAN comes from the window's full array
+    refused("reduce-window-without-pixel-rate",
+            ["reduce", "win.fits", "-c", "win.yaml", "-o", "out.fits"], _window_without_rate,
+            mentions=r"missing readout keyword\(s\) PIXRATE: .*sections: geometry\.pixel_rate; "
+                     r"the window's NCHAN, SCANDIR and REFBORD come from its full array$"),
+]
+
+
+@pytest.mark.parametrize("case", WINDOW_RATE_INPUT)
+def test_issue33_window_without_pixel_rate(case, inputs, runner, tmp_path):
+    test_input(case, inputs, runner, tmp_path)

@@ -263,3 +263,35 @@ def test_a_window_with_another_layout_is_refused_by_every_command(capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "with a window" in err
+
+
+def test_a_window_without_its_pixel_rate_names_pixrate_and_how_to_give_it(tmp_path, capsys):
+    """A window's header without PIXRATE (nor NCHAN, SCANDIR, REFBORD, which its full array
+    decides): the error asked for NCHAN and PIXRATE.  Now it names PIXRATE alone and its
+    YAML key; given it (from_header's supplied values), the schedule reads back.  The
+    command line: one line, exit 2."""
+    full = DetectorGeometry(64, 64, 4, scan="alternate", pixel_rate=1e5)
+    s = window_schedule(0, 16, 64, 16, full, skip=4, phantom_reads=1, frame_time=0.02)
+    h = s.to_header()
+    for key in ("PIXRATE", "NCHAN", "SCANDIR", "REFBORD", "REFBTOP", "REFBBOT", "REFBLEFT",
+                "REFBRIGH"):
+        h.remove(key, ignore_missing=True)
+    want = ("missing readout keyword(s) PIXRATE: the file does not say how it was read; "
+            "supply them in the pipeline config's geometry:/readout: sections: "
+            "geometry.pixel_rate; the window's NCHAN, SCANDIR and REFBORD come from its full "
+            "array")
+    with pytest.raises(FormatError) as exc:
+        ReadoutSchedule.from_header(h)
+    assert str(exc.value) == want
+    assert ReadoutSchedule.from_header(h, pixel_rate=1e5) == s
+    from astropy.io import fits
+
+    fits.HDUList([fits.PrimaryHDU(header=h), fits.ImageHDU(
+        np.zeros((3, s.n_reads, 16), np.float32), name="SCI")]).writeto(tmp_path / "w.fits")
+    (tmp_path / "c.yaml").write_text("steps: [fit_ramp]\n")
+    capsys.readouterr()
+    assert main(["reduce", str(tmp_path / "w.fits"), "-c", str(tmp_path / "c.yaml"), "-o",
+                 str(tmp_path / "o.fits")]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"spherex-reduce reduce: error: {want}"]
+    assert not (tmp_path / "o.fits").exists()

@@ -66,7 +66,7 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
     inputs : path, `~spherex_reduce.Exposure`, or a list or iterator of them
         Raw darks in any layout ``reduce`` reads (`~spherex_reduce.io.sources.open_input`;
         every integration of a 4-D file is a dark).  One readout and one unit.  They
-        are read one at a time and released once their streams are taken (an iterator
+        are read one at a time and released once their spectra are taken (an iterator
         of exposures is held one at a time too).
     config : str, dict or `~spherex_reduce.Pipeline`, optional
         A pipeline config whose ``input:``, ``geometry:`` and ``readout:`` say how to
@@ -123,8 +123,13 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
     """
     pipeline = _pipeline(config)
     gain = None if pipeline is None else pipeline.input_options.gain  # applied as read
-    darks, streams = [], []
+    # each dark's streams (a full-size dark's ~160 MB) are reduced to their spectra (a few
+    # MB) once the dark is released: the Welch transforms, several times the streams' size,
+    # are not made beside the dark, and no dark's streams are held beside the next dark
+    darks, spectra, each = [], [], []
     schedule = unit = alone = None
+    # two inputs or more give two darks or more: the runs of the first are not needed
+    several = isinstance(inputs, (list, tuple)) and len(inputs) > 1
     sums, pixel_mark = None, None
     reducer, measured, scatter_mark = None, None, None
     if scatter:
@@ -134,7 +139,7 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
             scatter_mark = str(exc)
     left_out = 0  # pixels left out of the streams (their noise is the per-pixel terms')
     for label, e in dark_exposures(inputs, pipeline):
-        drop = None
+        drop, runs = None, None
         if pixels and pixel_mark is None:  # first: the streams leave out what it holds
             sums, drop, pixel_mark = _add_pixels(sums, e, gain)
             left_out += 0 if drop is None else int(drop.sum())
@@ -145,37 +150,38 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
                     f"every term: a dark of {schedule.nframes} reads cannot be characterised "
                     f"(a straight line is removed across at least {MIN_FRAMES} reads)")
             cuts = _segments(schedule.nframes, 1 if segments is None else segments)
-            if segments is None and schedule.nframes >= 2 * SEGMENT_FRAMES:
-                # the runs it is split into if it stays alone (streams are small; the dark
-                # itself is released)
-                alone = [channel_streams(e, frames=cut, leave_out=drop)
-                         for cut in _segments(schedule.nframes, None)]
+            if segments is None and schedule.nframes >= 2 * SEGMENT_FRAMES and not several:
+                # the runs it is split into if it stays alone
+                runs = [channel_streams(e, frames=cut, leave_out=drop)
+                        for cut in _segments(schedule.nframes, None)]
         elif e.schedule != schedule or e.unit != unit:
             raise SpherexReduceError(f"{label}: another readout or unit ({e.unit}) than the "
                                      f"first dark ({unit}): one model is of one readout")
         else:
             alone = None
-        streams.extend(channel_streams(e, frames=cut, leave_out=drop)
-                       for cut in cuts)  # not the exposure
+        held = [channel_streams(e, frames=cut, leave_out=drop) for cut in cuts]
         if reducer is not None and scatter_mark is None:
             measured, scatter_mark = _add_scatter(measured, reducer, e)
         darks.append(label)
-        del e
+        del e, drop
+        if runs is not None:
+            alone = ([dark_spectra(st, schedule, nperseg) for st in runs],
+                     [st.boxes for st in runs])
+        spectra.extend(dark_spectra(st, schedule, nperseg) for st in held)
+        each.extend(st.boxes for st in held)
+        del runs, held
     if not darks:
         raise SpherexReduceError("no dark to characterise")
     nframes = schedule.nframes
     split = alone is not None
     if split:  # one dark: the scatter of its runs of frames
-        streams = alone
+        spectra, each = alone
     del alone
-    if len(streams) < 2:
+    if len(spectra) < 2:
         raise SpherexReduceError(
             f"uncertainties: one dark of {nframes} reads gives no scatter to estimate them "
             f"from; give 2 or more darks, or a dark of >= {2 * SEGMENT_FRAMES} reads")
-    spectra = [dark_spectra(st, schedule, nperseg) for st in streams]
-    each = [st.boxes for st in streams]
     boxes = pooled_boxes(each)
-    del streams
     terms, shot = None, 0.0
     if pixels and pixel_mark is None:
         try:

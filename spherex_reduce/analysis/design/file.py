@@ -18,7 +18,7 @@ spherex_reduce.core.errors.ConfigError: design: search.iterations: must be in [0
 """
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from astropy import units as u
@@ -169,30 +169,59 @@ class Design:
     realizations: int
     seed: int
     gain_error: float
-    #: one line per scene term the design leaves out (`POPULATION_TERMS`)
+    #: one line per scene term the search leaves out (`POPULATION_TERMS`)
     notes: tuple = ()
+    #: those terms as the scene gave them (in electrons), carried into the best scene
+    left_out: dict = field(default_factory=dict)
+
+    def carried(self, scene):
+        """``scene`` (a candidate's, as forecast) with the terms the search left out
+        (`left_out`) given back, as the design's scene had them.
+
+        Examples
+        --------
+        >>> from spherex_reduce.analysis.design.file import load_design
+        >>> d = load_design({"scene": {"scene": {"dark_current": 1.0,
+        ...                                      "hot_pixel_fraction": 0.01}}})
+        >>> d.scene["scene"], d.carried(d.scene)["scene"]
+        ({'dark_current': 1.0}, {'dark_current': 1.0, 'hot_pixel_fraction': 0.01})
+        """
+        if not self.left_out:
+            return scene
+        return {**scene, "scene": {**(scene.get("scene") or {}), **self.left_out}}
 
 
-#: The scene's pixel populations, which the forecast does not model: a design minimises the
-#: readout's noise, so a scene that holds them (characterize's MODEL.yaml of a real detector
-#: does) is designed without them, and says so.
-POPULATION_TERMS = ("hot_pixel_fraction", "hot_pixel_current_spread", "dark_current_spread",
-                    "rtn")
+#: The scene terms the forecast does not model (it refuses a scene with them), each with
+#: what it is: a design minimises the readout's noise, so a scene that holds them
+#: (characterize's MODEL.yaml of a real detector does) is searched without them, says so
+#: in one line per term, and its best scene carries them unchanged (simulate draws them).
+POPULATION_TERMS = {
+    "hot_pixel_fraction": "hot pixels",
+    "hot_pixel_current_spread": "the hot pixels' current spread",
+    "dark_current_spread": "the pixels' dark-current spread",
+    "rtn": "telegraph pixels",
+}
 
 
 def _without_populations(scene):
-    """``(scene, notes)``: the scene without its `POPULATION_TERMS`, one note per term."""
+    """``(scene, left_out, notes)``: the scene without its `POPULATION_TERMS`, those terms
+    as it had them, one note per term."""
     terms = scene.get("scene")
     if not isinstance(terms, dict):
-        return scene, ()
-    gone = [k for k in POPULATION_TERMS if terms.get(k) not in (None, 0, 0.0)]
+        return scene, {}, ()
+    gone = {k: terms[k] for k in POPULATION_TERMS if terms.get(k) not in (None, 0, 0.0)}
     if not gone:
-        return scene, ()
+        return scene, {}, ()
     kept = {k: v for k, v in terms.items() if k not in gone}
-    return {**scene, "scene": kept}, tuple(
-        f"scene.{k}: left out: the design minimises the readout's noise, which the forecast "
-        "models (hot and telegraph pixels and per-pixel current spreads are not)"
-        for k in gone)
+    notes = []
+    for k, value in gone.items():
+        what = POPULATION_TERMS[k]
+        if k == "rtn" and isinstance(value, list):
+            what = f"{what} ({len(value)} populations)"
+        notes.append(f"scene.{k}: {what} left out of the search and its Monte Carlo (the "
+                     f"forecast models the readout's noise, not {POPULATION_TERMS[k]}); written "
+                     "unchanged into the best scene, for simulate")
+    return {**scene, "scene": kept}, gone, tuple(notes)
 
 
 def load_design(source):
@@ -202,10 +231,13 @@ def load_design(source):
 
     ``scene``
         A scene (mapping or path, relative to the file; in adu with its
-        ``gain:``, converted to electrons; its pixel populations, `POPULATION_TERMS`,
-        left out with a note): the geometry, the
-        readout's other fields (``nframes``, ``row_overhead`` ...) and the
-        noise; default: the paper's case.
+        ``gain:``, converted to electrons): the geometry, the readout's other
+        fields (``nframes``, ``row_overhead`` ...) and the noise; default: the
+        paper's case.  Every term is validated as ``simulate`` validates it; its
+        pixel populations (`POPULATION_TERMS`), which the forecast does not
+        model, are left out of the search with one note per term
+        (`Design.notes`) and carried unchanged into the best scene
+        (`Design.carried`).
     ``noise``
         The noise model, replacing the scene's: a noise table (a built-in
         name or an ECSV file), a ``fit-noise`` result of your darks (its
@@ -256,7 +288,7 @@ def load_design(source):
     """
     config, label = load_yaml(source, "design")
     v = validate_file(config, DESIGN_PARAMETERS, label)
-    scene, notes = _without_populations(scene_section(v["scene"], label))
+    scene = scene_section(v["scene"], label)
     if v["noise"] is not None:
         comps, unit = noise_model(_beside(v["noise"], label), f"{label}: noise",
                                   unit=u.electron)  # a scene in adu: with its gain
@@ -265,10 +297,11 @@ def load_design(source):
                               "electrons; fit-noise darks given input.gain (or in electrons), "
                               "or a scene in adu with its gain:")
         scene = {**scene, "noise": {"components": [c.to_dict() for c in comps]}}
-    try:
+    try:  # every term, those the search leaves out too, validated as simulate does
         sc = load_scene(scene)
     except ConfigError as exc:
         raise ConfigError(f"{label}: scene: {exc}") from None
+    scene, left_out, notes = _without_populations(scene)
     pipeline = v["pipeline"]
     if pipeline in (None, "none"):
         pipeline = None
@@ -315,6 +348,7 @@ def load_design(source):
         ref_modes=search["ref_modes"], finalists=search["finalists"],
         iterations=search["iterations"], search_seed=search["seed"],
         realizations=realizations, seed=v["seed"], gain_error=v["gain_error"], notes=notes,
+        left_out=left_out,
     )
 
 

@@ -73,8 +73,9 @@ class Candidate:
 @dataclass
 class DesignResult:
     """What `design_readout` found: ``best`` and ``baseline`` `Candidate`, their scenes
-    (dicts that `~spherex_reduce.simulation.load_scene` takes), every candidate tried, the
-    report table and the seconds spent per stage."""
+    (dicts that `~spherex_reduce.simulation.load_scene` takes, with the scene terms the
+    search left out given back: `~spherex_reduce.analysis.design.file.Design.carried`),
+    every candidate tried, the report table and the seconds spent per stage."""
 
     best: Candidate
     baseline: Candidate
@@ -209,8 +210,8 @@ def _search(d, progress):
     report.meta["seconds"] = {k: round(v, 3) for k, v in seconds.items()}
     report.meta["evaluations"] = len(objective.tried)
     report.meta["refused"] = objective.refused
-    return DesignResult(best, baseline, best_scene, base_scene, objective.tried, report,
-                        seconds)
+    return DesignResult(best, baseline, d.carried(best_scene), d.carried(base_scene),
+                        objective.tried, report, seconds)
 
 
 class _SceneMaker:

@@ -44,6 +44,7 @@ from ..fields import (
 from ..geometry import DetectorGeometry, RefBorder
 from ..limits import check_size
 from ..window import (
+    WINDOW_DERIVED,
     WINDOW_FIELDS,
     default_overhead,
     fill_window_geometry,
@@ -524,15 +525,27 @@ class ReadoutSchedule(StoredFrameTimes):
                               f"{', '.join(both)} are both given: the order replaces them")
         needed = set() if "order" in values else {"skip", "ref_mode"} | (
             {"ref_reads"} if values.get("ref_mode", "none") != "none" else set())
-        required = [f for f in FIELDS if f.required is True or f.name in needed]
+        # a window not yet filled (its full array's pixel rate or its size missing) decides
+        # NCHAN SCANDIR REFBORD once they are given: not asked for
+        windowed = "window" not in values and any(n in values for n in WINDOW_FIELDS)
+        required = [f for f in FIELDS if (f.required is True or f.name in needed)
+                    and not (windowed and f.name in WINDOW_DERIVED)]
+        absent = [f for f in required if f.name not in values]
         missing = [f.keyword + (" (or ROWORDER)" if f.name in ORDER_REPLACES else "")
-                   for f in required if f.name not in values]
-        missing += [f"{f.keyword} (or {FIELD[f.instead_of].keyword})" for f in FIELDS
-                    if f.instead_of and f.name not in values and f.instead_of not in values]
+                   for f in absent]
+        keys = [f"{f.section}.{f.name}" for f in absent]
+        for f in FIELDS:
+            if f.instead_of and f.name not in values and f.instead_of not in values:
+                missing.append(f"{f.keyword} (or {FIELD[f.instead_of].keyword})")
+                keys.append(f"{f.section}.{f.name} or "
+                            f"{FIELD[f.instead_of].section}.{f.instead_of}")
         if missing:
+            window = ("; the window's NCHAN, SCANDIR and REFBORD come from its full array"
+                      if windowed else "")
             raise FormatError(
                 f"missing readout keyword(s) {', '.join(missing)}: the file does not say how it "
-                "was read; supply them in the pipeline config's geometry:/readout: sections")
+                "was read; supply them in the pipeline config's geometry:/readout: sections: "
+                f"{', '.join(keys)}{window}")
         _check_schedule_size(*(values.get(n, 0) for n in ("nrows", "ncols", "nchannels",
                                                           "ref_reads", "ref_border")))
         rkw = {f.name: values[f.name] for f in section_fields("readout")

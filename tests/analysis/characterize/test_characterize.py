@@ -346,3 +346,69 @@ def test_dark_current_shot_noise_and_hot_pixels_stay_out_of_the_stream_white_lev
     assert model.pixel_terms.row("hot_pixel_fraction", "active")["value"] > 0.003
     pix = model.spectra["pixels"]
     assert pix.values[0] == pytest.approx(2e-3, abs=max(3 * pix.errors[0], 0.03 * 2e-3))
+
+
+# -- memory: one dark's streams at a time ------------------------------------------------
+def _old_path(exposures, cuts):
+    """The model as characterize made it before its streams were reduced dark by dark: every
+    dark's streams (runs ``cuts``) taken first and held, then their spectra, then the fits
+    of all and of all but each (the jackknife), as `Characterization.build` takes them."""
+    from astropy import units as u
+
+    from spherex_reduce.analysis.characterize.result import Characterization
+    from spherex_reduce.analysis.characterize.spectra import dark_spectra, fit_spectra, pool
+    from spherex_reduce.analysis.characterize.streams import channel_streams
+
+    s = exposures[0].schedule
+    streams = [channel_streams(e, frames=cut) for e in exposures for cut in cuts]
+    spectra = [dark_spectra(st, s) for st in streams]
+
+    def fits(keep):
+        return fit_spectra(pool([spectra[i] for i in keep]), streams[0].boxes, s, 1.3, 30)
+
+    every = range(len(spectra))
+    return Characterization.build(fits(every), [fits([j for j in every if j != i])
+                                                for i in every],
+                                  streams[0].boxes, s, u.one, ["d"] * len(exposures))
+
+
+def test_darks_streams_are_held_one_at_a_time_and_the_model_is_unchanged(monkeypatch):
+    """A full-size dark's streams are ~160 MB: characterize held every dark's until the end,
+    and the first dark's runs of frames too (in case it stayed alone), which took two
+    1.28 GB darks to 2.28 GB of peak memory.  Now each dark's streams are reduced to their
+    spectra once the dark is released (none is alive when the next dark's are taken) and a
+    list of several darks takes no runs; the model is the old path's, number for number
+    (built in the test)."""
+    import weakref
+
+    from spherex_reduce.analysis.characterize import run as run_module
+
+    s = schedule(nrows=64, ncols=64, nchannels=2, nframes=20, phantom_reads=2)
+    comps = [{"name": "x", "alpha": 1e-3, "beta": 0.5, "scope": "channel", "visibility": "both"},
+             {"name": "c", "alpha": 2e-4, "scope": "common"}]
+    exposures = [dark(s, comps, 40 + k) for k in range(3)]
+    taken, others = [], []  # (the dark, its streams' largest array); earlier darks' alive
+    original = run_module.channel_streams
+
+    def counted(exposure, frames=None, leave_out=None):
+        others.append(sum(e is not exposure and r() is not None for e, r in taken))
+        st = original(exposure, frames=frames, leave_out=leave_out)
+        taken.append((exposure, weakref.ref(st.sum)))
+        return st
+
+    monkeypatch.setattr(run_module, "channel_streams", counted)
+    whole = [slice(0, 20)]
+    runs = [slice(5 * k, 5 * k + 5) for k in range(4)]  # one dark alone: 4 runs of 5 frames
+    # streams taken: one per dark; an iterator's first dark also its 4 runs; one dark alone
+    # its 4 runs and the whole dark
+    for given, old, calls in ((exposures, _old_path(exposures, whole), 3),
+                              (iter(exposures), _old_path(exposures, whole), 3 + 4),
+                              (exposures[0], _old_path(exposures[:1], runs), 4 + 1)):
+        taken.clear(), others.clear()
+        model = characterize(given, pixels=False)
+        assert len(taken) == calls and others == [0] * calls, (calls, others)
+        assert model.ngroups == old.ngroups and set(model.components) == set(old.components)
+        for name, est in old.components.items():
+            np.testing.assert_array_equal(model.components[name].values, est.values)
+            np.testing.assert_array_equal(model.components[name].errors, est.errors)
+        assert model.acn == old.acn

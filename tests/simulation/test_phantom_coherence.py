@@ -24,7 +24,7 @@ from spherex_reduce.simulation import NoiseComponent, NoiseEngine
 def _structure(comp, lag, fs):
     lag = np.abs(np.asarray(lag, dtype=float))
     x = np.pi * np.maximum(lag, 1e-300)
-    si, ci = special.sici(x)
+    ci = special.sici(x)[1]
     cin = np.euler_gamma + np.log(x) - ci
     return np.where(lag > 0, comp.alpha * fs + 2 * comp.beta * cin, 0.0)
 
@@ -72,7 +72,7 @@ def _expected_cov(comps, qa, qb, s):
 
 def _measured(engine, s, parities):
     """Sample covariances of (U_p, V), (U_p, U_p), (V, V) over reads, channels, frames."""
-    c, w, nch = s.phantom_reads, s.geometry.channel_width, s.geometry.nchannels
+    w, nch = s.geometry.channel_width, s.geometry.nchannels
     off = s.geometry.column_offsets().reshape(nch, w)
     us, vs = {p: [] for p in parities}, []
     for pix, ph in engine.frames():

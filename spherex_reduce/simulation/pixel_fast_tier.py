@@ -118,10 +118,12 @@ class PixelFastTier:
         """Mean over the phantom samples of every read of streams ``x`` ``(ns, n)``:
         ``(frames, n_reads, ns)``, float64."""
         e = self.engine
-        nf = n // e.F
-        seg = x[:, :nf * e.F].reshape(x.shape[0], nf, e.F)[:, :, :e.n_reads * e.rs]
-        seg = seg.reshape(x.shape[0], nf, e.n_reads, e.rs)[..., :e.c]
-        return seg.mean(axis=-1, dtype=np.float64).transpose(1, 2, 0)
+        span = e.n_reads * e.rs
+        out = np.empty((n // e.F, e.n_reads, x.shape[0]))
+        for j in range(out.shape[0]):  # views: no copy of the streams
+            seg = x[:, j * e.F:j * e.F + span].reshape(x.shape[0], e.n_reads, e.rs)
+            out[j] = seg[..., :e.c].mean(axis=-1, dtype=np.float64).T
+        return out
 
     def _acn(self, lam, m, n, keys):
         """Channel streams ``(nch, n)`` of the ACN components: at sample ``c + o`` of a

@@ -29,9 +29,9 @@ def _structure(comp, lag, fs):
     return np.where(lag > 0, comp.alpha * fs + 2 * comp.beta * cin, 0.0)
 
 
-def _schedule(c, nframes):
+def _schedule(c, nframes, scan="same"):
     return schedule_from_config(
-        {"nrows": 32, "ncols": 128, "nchannels": 8, "ref_border": 0},
+        {"nrows": 32, "ncols": 128, "nchannels": 8, "ref_border": 0, "scan": scan},
         {"skip": 1, "ref_reads": 0, "phantom_reads": c, "row_overhead": 0,
          "frame_overhead": 0, "nframes": nframes})
 
@@ -95,21 +95,22 @@ BOTH_ACN = NoiseComponent("both_acn", alpha=2e-7, beta=2e-2, scope="channel",
                           visibility="both", acn=True)
 
 
-@pytest.mark.parametrize("c, comps", [
+@pytest.mark.parametrize("c, scan, comps", [
     # odd row_samples: the ACN realisations drawn at full rate; the one phantom sample is odd
-    (1, [BOTH_ACN]),
-    # even row_samples: ACN at half rate; pixels-only and phantom-only terms drawn apart
-    (2, [BOTH_ACN,
+    (1, "same", [BOTH_ACN]),
+    # even row_samples: ACN at half rate; pixels-only and phantom-only terms drawn apart;
+    # every second channel read right to left (column parity in the read's time order)
+    (2, "alternate", [BOTH_ACN,
          NoiseComponent("pix", alpha=1e-6, beta=1e-2, scope="channel", visibility="pixels",
                         acn=True),
          NoiseComponent("ph", alpha=1e-6, beta=5e-3, scope="channel", visibility="phantom")]),
     # one stream for all channels, without ACN
-    (4, [NoiseComponent("both_common", alpha=1e-7, beta=3e-2, scope="common",
+    (4, "same", [NoiseComponent("both_common", alpha=1e-7, beta=3e-2, scope="common",
                         visibility="both"),
          NoiseComponent("pix_common", alpha=1e-6, beta=1e-3, scope="common",
                         visibility="pixels")]),
 ], ids=["acn-c1", "acn-c2-mixed", "common-c4"])
-def test_pixels_and_phantom_share_the_fast_tier(c, comps):
+def test_pixels_and_phantom_share_the_fast_tier(c, scan, comps):
     """Read-to-read changes of the pixel and phantom means covary as one stream predicts.
 
     Tolerance: 4 standard errors of a sample covariance from ``n`` values
@@ -119,7 +120,8 @@ def test_pixels_and_phantom_share_the_fast_tier(c, comps):
     tier of the phantom means apart from the pixels' (the former simulator)
     leaves ``Cov(U, V)`` near zero, 6 to 15 standard errors below.
     """
-    s = _schedule(c, nframes=64)
+    s = _schedule(c, nframes=64, scan=scan)
+    assert (s.geometry.scan_directions < 0).any() == (scan == "alternate")
     engine = NoiseEngine(s, comps, seed=7)
     parities = (0, 1) if any(cp.acn for cp in comps) else (None,)
     got, n = _measured(engine, s, parities)

@@ -16,20 +16,19 @@ with ``f_B = fs / (16 d_B)`` (43 Hz at full size) and ``f_A = f_B / 16``
 (2.7 Hz), so each slow grid oversamples its band 8 to 16 times.  The slow
 tiers are interpolated linearly to the first and last sample of every row
 read and linearly in between (a read lasts ``1/32`` of the shortest slow
-period).  The phantom value of a read (the mean of its ``c`` samples) gets its
-fast part from a sequence over reads with the exact covariance of that mean.
-For long or large exposures the slow-B tier and the phantom sequences are made
-window by window (``KernelStream``: white noise in seeded blocks convolved with
-a truncated kernel), so memory does not grow with the exposure.
+period).  The phantom value of a read is the mean of its ``c`` samples: a
+component seen by the pixels and the phantom reads (visibility ``both``) is
+one realisation for both in every tier (the slow tiers interpolated at the
+phantom samples, the fast tier's own full-rate streams averaged over them);
+the fast part of the phantom-only components is a sequence over reads with
+the exact covariance of that mean.  For long or large exposures the slow-B
+tier and the phantom sequences are made window by window (``KernelStream``:
+white noise in seeded blocks convolved with a truncated kernel), so memory
+does not grow with the exposure.
 
 What is approximated (measured in ``benchmarks/README_simulate.md``):
-
-* the fast tier of a phantom-visible component is drawn independently for
-  the pixels and for the phantom means (their covariance above ``f_B/2`` is
-  dropped: the per-sample residual after phantom subtraction is 1.6 % too
-  large for Video8 alone, 0.04 % with all Table 2 terms);
-* fast-tier blocks are independent (their correlation time is < 1/32 of a
-  block) and periodic within a block.
+fast-tier blocks are independent (their correlation time is < 1/32 of a
+block) and periodic within a block.
 
 In slope mode the slow tiers and the phantom sequences are the same streams
 (same seeds) weighted with the least-squares weights ``w_k``.  When a block is
@@ -69,7 +68,7 @@ from .streams import (
     stream_rngs,
 )
 from .synthesis import covariance_from_weights, psd_weights, synthesize
-from .tier_bands import BandPSD, fast_psds, fft_len
+from .tier_bands import BandPSD, fft_len
 
 __all__ = ["NoiseEngine"]
 
@@ -342,18 +341,14 @@ class NoiseEngine:
             out += np.matmul(x, self.knot_pattern).reshape(nr, nch * w)
 
     # -- fast tier (pixels) ----------------------------------------------------------
-    def _fast_psds(self, kind):
-        """Fast-tier PSDs ``{'channel': psd, 'common': psd}`` seen by ``kind``."""
-        return fast_psds(self.components, kind, self.f_a, self.f_b,
-                          split_acn=kind == "pixels")
-
     def _block_fft_len(self):
         if self.block == 1:
             return fft_len(self.F)
         return fft_len(self.block * self.F + self.l_corr)
 
     def _fast_block(self, b, nframes):
-        """Full-rate fast streams of frame block ``b``: channel (nch, n) and common (1, n)."""
+        """Full-rate fast streams of frame block ``b`` and their phantom means
+        (`PixelFastTier.streams`)."""
         return self.fast_tier.streams(nframes * self.F, self._block_fft_len(), 1.0,
                                       TIER_FAST, b)
 
@@ -398,7 +393,7 @@ class NoiseEngine:
         self.phantom_tier.sequences()
         for b0 in range(0, self.N, self.block):
             nb = min(self.block, self.N - b0)
-            fast = self._fast_block(b0 // self.block, nb)
+            fast, fast_ph = self._fast_block(b0 // self.block, nb)
             for j in range(nb):
                 k = b0 + j
                 out = np.empty((self.n_reads, self.ncols), dtype=self.dtype)
@@ -408,6 +403,8 @@ class NoiseEngine:
                 phantom = None
                 if self.c:
                     phantom = ph + self.phantom_tier.values([k])
+                    if fast_ph is not None:
+                        phantom += fast_ph[j]
                 yield out, phantom
 
     # -- slopes --------------------------------------------------------------------------
@@ -458,16 +455,16 @@ class NoiseEngine:
 
         _, ma, _, mb = self._slow_sizes()
         ops = sum(fft(ma, gr.nstreams) + fft(mb, gr.nstreams) for gr in self.slow_groups)
-        nfast = sum(1 if scope == "common" else self.nch for scope in self._fast_psds("pixels"))
+        nfast = sum(1 if scope == "common" else self.nch for scope, _ in self.fast_tier.psds())
         if self.block == 1:  # one frame-length stream (the frames' fast tiers are independent)
             ops += fft(self._block_fft_len(), nfast)
         else:  # the ramps' blocks, fitted
             ops += math.ceil(self.N / self.block) * fft(self._block_fft_len(), nfast)
             ops += 4.0 * self.N * self.n_reads * self.ncols
-        if self.c:
+        if self.phantom_tier.psds():
             g_lag = math.ceil(2 * self.l_corr / self.rs) + 2
             m = sfft.next_fast_len(max(4 * (g_lag * self.rs + self.c), 8 * self.l_corr, 1024))
-            ops += 2 * len(self._fast_psds("phantom")) * fft(m)
+            ops += 2 * len(self.phantom_tier.psds()) * fft(m)
             ops += fft(self.exposure // self.rs + 2 * g_lag, self.nch + 1)
         return ops
 
@@ -500,9 +497,9 @@ class NoiseEngine:
                                            ).functional_variance(a)
                 else:
                     total += periodic_functional_variance(a, lam, m)
-        for scope, psd in self._fast_psds("pixels").items():
+        for (scope, shared), psd in self.fast_tier.psds().items():
             m = self.fast_tier.period(scope, self._block_fft_len())
-            cov = covariance_from_weights(self.fast_tier.weights(scope, psd, m), m)
+            cov = covariance_from_weights(self.fast_tier.weights((scope, shared), psd, m), m)
             for b0 in range(0, self.N, self.block):
                 ks = np.arange(b0, min(self.N, b0 + self.block))
                 lag = np.abs(ks[:, None] - ks[None, :]) * self.F
@@ -521,23 +518,31 @@ class NoiseEngine:
         if self.block == 1:
             # frames' fast tiers are independent: the slope is sqrt(sum w^2) times one
             # frame-length stream with the fast PSD
+            # frame-length stream with the fast PSD (its phantom means likewise)
             scale = float(np.sum(w * w))
-            fast = self.fast_tier.streams(self.F, self._block_fft_len(), scale,
-                                          TIER_SLOPE_FAST)
+            fast, fast_ph = self.fast_tier.streams(self.F, self._block_fft_len(), scale,
+                                                   TIER_SLOPE_FAST)
             self._pixels_from_stream(fast.get("channel"), fast.get("common"), 0, out)
+            ph_fast = None if fast_ph is None else fast_ph[0]
         else:
             # short frames: the fast tier is correlated across frames; fit the same
             # blocks the ramps use
+            ph_fast = None
             for b0 in range(0, self.N, self.block):
                 nb = min(self.block, self.N - b0)
-                fast = self._fast_block(b0 // self.block, nb)
+                fast, fast_ph = self._fast_block(b0 // self.block, nb)
                 for j in range(nb):
                     tmp = np.zeros_like(out)
                     self._pixels_from_stream(fast.get("channel"), fast.get("common"), j, tmp)
                     out += w[b0 + j] * tmp
+                    if fast_ph is not None:
+                        part = w[b0 + j] * fast_ph[j]
+                        ph_fast = part if ph_fast is None else ph_fast + part
         pix, ph = self._combine_slow(self._slow_knots(ks, w))
         self._pixels_from_knots(pix, out)
         phantom = None
         if self.c:
             phantom = ph + self.phantom_tier.values(ks, w)
+            if ph_fast is not None:
+                phantom += ph_fast
         return out, phantom

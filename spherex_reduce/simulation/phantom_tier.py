@@ -1,10 +1,15 @@
-"""The fast part of the phantom means: one sequence over reads per scope.
+"""The fast part of the phantom-only noise of the phantom means: one sequence over reads per scope.
 
-The phantom value of a read is the mean of its ``c`` samples.  Its part above
-``f_B/2`` (the fast tier of `~spherex_reduce.simulation.NoiseEngine`) is drawn
-on a grid of reads, one value per row read, with the exact covariance of that
+The phantom value of a read is the mean of its ``c`` samples.  The part above
+``f_B/2`` (the fast tier of `~spherex_reduce.simulation.NoiseEngine`) of the
+components only the phantom reads see (visibility ``phantom``) is drawn on a
+grid of reads, one value per row read, with the exact covariance of that
 mean: the fast-tier autocovariance summed over the pairs of samples of two
 reads, and with ACN only over pairs of the same parity (the same realisation).
+The fast part of the components the pixels see too (``both``) is not here:
+it is the mean of the pixels' own fast streams over the phantom samples
+(`~spherex_reduce.simulation.pixel_fast_tier`), so pixels and phantom reads
+see one realisation.
 Long or large exposures make the sequence window by window (a `KernelStream`),
 so memory does not grow with the exposure.
 """
@@ -22,7 +27,7 @@ __all__ = ["PhantomTier"]
 
 
 class PhantomTier:
-    """The fast part of the phantom means of every read of an engine's frames.
+    """The fast part of the phantom-only noise of the phantom means of an engine's frames.
 
     Parameters
     ----------
@@ -43,6 +48,11 @@ class PhantomTier:
         lam = psd_weights(psd, m, e.fs)
         return covariance_from_weights(lam, m)[: max_lag + 1]
 
+    def psds(self):
+        """Fast-band PSDs of the phantom-only components by scope (none without phantom reads)."""
+        e = self.engine
+        return fast_psds(e.components, ("phantom",), e.f_a, e.f_b) if e.c else {}
+
     def sequences(self):
         """The sequences on the grid of reads: ``{scope: stream}``.
 
@@ -62,13 +72,13 @@ class PhantomTier:
             dd = (i[:, None] - i[None, :]).ravel()
             same = (((i - e.c) % 2)[:, None] == ((i - e.c) % 2)[None, :]).ravel()
             lags = np.abs(np.arange(g_lag + 1)[:, None] * e.rs + dd[None, :])
-            for scope in fast_psds(e.components, "phantom", e.f_a, e.f_b):
+            for scope in self.psds():
                 # covariance of the mean of the c samples; with ACN only samples of the
                 # same parity (the same realisation) are correlated
                 r = np.zeros(g_lag + 1)
                 for acn in (False, True):
                     comps = [c for c in e.components if c.scope == scope and
-                             c.seen_by_phantom and c.acn == acn]
+                             c.visibility == "phantom" and c.acn == acn]
                     psd = BandPSD(comps, "fast", e.f_a, e.f_b, white=True)
                     if not comps or psd.empty:
                         continue

@@ -2,7 +2,7 @@
 
 `~spherex_reduce.simulation.engine.NoiseEngine` splits each PSD with smooth
 (cos²) crossovers at ``f_A`` and ``f_B`` into three bands (`BandPSD`); the
-fast band of the pixels or of the phantom means is `fast_psds`.  The streams
+fast band of the components of given visibilities is `fast_psds`.  The streams
 of each band are drawn on FFT grids of lengths `fft_len`.
 """
 
@@ -115,14 +115,16 @@ class BandPSD:
         return not any(c.beta or c.gamma for c in self.comps)
 
 
-def fast_psds(components, kind, f_a, f_b, split_acn=False):
-    """The fast-band PSDs of the components that the pixels or the phantom means see.
+def fast_psds(components, visibilities, f_a, f_b, split_acn=False):
+    """The fast-band PSDs of the components of the given visibilities.
 
     Parameters
     ----------
     components : list of `~spherex_reduce.noise.NoiseComponent`
-    kind : {'pixels', 'phantom'}
-        Who sees the components.
+    visibilities : tuple of {'pixels', 'phantom', 'both'}
+        The visibilities of the components summed: ``('pixels', 'both')`` for
+        all that the pixels see, ``('both',)`` for those the pixels and the
+        phantom reads share, ``('phantom',)`` for the phantom reads' own.
     f_a, f_b : float
         The crossover frequencies (Hz).
     split_acn : bool
@@ -141,18 +143,19 @@ def fast_psds(components, kind, f_a, f_b, split_acn=False):
     >>> from spherex_reduce.noise import noise_components
     >>> from spherex_reduce.simulation.tier_bands import fast_psds
     >>> comps = list(noise_components().values())  # Table 2: every channel term has ACN
-    >>> sorted(fast_psds(comps, "pixels", 10.0, 100.0))
+    >>> sorted(fast_psds(comps, ("pixels", "both"), 10.0, 100.0))
     ['channel', 'common']
-    >>> sorted(fast_psds(comps, "pixels", 10.0, 100.0, split_acn=True))
+    >>> sorted(fast_psds(comps, ("pixels", "both"), 10.0, 100.0, split_acn=True))
     ['acn', 'common']
+    >>> [c.name for c in fast_psds(comps, ("both",), 10.0, 100.0)["common"].comps]
+    ['bias_correlated']
     """
     res = {}
     groups = {"channel": lambda c: c.scope == "channel" and not (split_acn and c.acn),
               "acn": lambda c: split_acn and c.scope == "channel" and c.acn,
               "common": lambda c: c.scope == "common"}
     for key, member in groups.items():
-        comps = [c for c in components if member(c) and
-                 (c.seen_by_pixels if kind == "pixels" else c.seen_by_phantom)]
+        comps = [c for c in components if member(c) and c.visibility in visibilities]
         psd = BandPSD(comps, "fast", f_a, f_b, white=True)
         if comps and not psd.empty:
             res[key] = psd

@@ -43,6 +43,7 @@ each fitted spectrum's χ²/dof, with a warning when the fit is visibly bad.
 
 import argparse
 import importlib.util
+import os
 import subprocess
 import sys
 import time
@@ -127,8 +128,13 @@ def standin_pca0(path, n=2048):
     matters through each output's row mean, which the truth computes from it)."""
     y, x = np.mgrid[0:n, 0:n] / (n - 1.0)
     frame = np.exp(-np.minimum.reduce([x, y, 1 - x, 1 - y]) / 0.05)
-    img = frame + 0.5 * np.cos(2 * np.pi * 1.5 * x) * np.sin(np.pi * y)
-    fits.PrimaryHDU(img.astype(np.float32)).writeto(path, overwrite=True)
+    img = (frame + 0.5 * np.cos(2 * np.pi * 1.5 * x) * np.sin(np.pi * y)).astype(np.float32)
+    path = Path(path)
+    if path.is_file() and np.array_equal(fits.getdata(path), img):
+        return path  # another run may be reading it
+    tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
+    fits.PrimaryHDU(img).writeto(tmp, overwrite=True)
+    os.replace(tmp, path)  # whole, never half-written under a running NGHXRG
     return path
 
 
@@ -153,16 +159,54 @@ def recorder(module):
     return Recorder
 
 
-def draw(module, pca0, size, nframes, params, seed, path):
-    """One cube written as NGHXRG writes it; returns the draw's rescales and template."""
-    ng = recorder(module)(naxis1=size, naxis2=size, naxis3=nframes, n_out=NOUT, dt=DT,
-                          nroh=NROH, nfoh=NFOH, pca0_file=str(pca0),
-                          reference_pixel_border_width=4, det_size=size)
+def draw(module, pca0, size, nframes, params, seed, path, record=True):
+    """One cube written as NGHXRG writes it; returns the draw's rescales (``record``: else
+    ``{}``, the same cube without the second pass over each pink draw) and template."""
+    kind = recorder(module) if record else module.HXRGNoise
+    ng = kind(naxis1=size, naxis2=size, naxis3=nframes, n_out=NOUT, dt=DT, nroh=NROH,
+              nfoh=NFOH, pca0_file=str(pca0), reference_pixel_border_width=4, det_size=size)
     ng.scales = {}
     np.random.seed(seed)  # noqa: NPY002 (NGHXRG draws from numpy's global generator)
     hdu = ng.mknoise(None, **params)
+    hdu.header["SRSEED"] = (seed, "numpy seed of this draw (spherex_reduce benchmark)")
+    hdu.header["SRPCA0"] = (Path(pca0).name, "PCA-zero template of this draw")
     hdu.writeto(path, overwrite=True)
     return ng.scales, ng.pca0
+
+
+#: NGHXRG's header keyword for each noise amplitude it writes.
+KEYWORDS = {"rd_noise": "RD_NOISE", "c_pink": "C_PINK", "u_pink": "U_PINK", "acn": "ACN",
+            "pca0_amp": "PCA0"}
+
+
+def cube(module, pca0, size, nframes, params, seed, path):
+    """``path`` holding the draw of `draw`: kept from an earlier run when its header says
+    the same size, frames, amplitudes, seed and template, else drawn (and written)."""
+    path = Path(path)
+    if path.is_file():
+        h = fits.getheader(path)
+        same = ((h.get("NAXIS1"), h.get("NAXIS2"), h.get("NAXIS3")) == (size, size, nframes)
+                and h.get("SRSEED") == seed and h.get("SRPCA0") == Path(pca0).name
+                and all(np.isclose(h.get(k, np.nan), params[p]) for p, k in KEYWORDS.items()))
+        if same:
+            return path
+    draw(module, pca0, size, nframes, params, seed, path, record=False)
+    return path
+
+
+def peer(path, out):
+    """``(directory, module, pca0)``: NGHXRG (`nghxrg_dir`, `load_nghxrg`) and its PCA-zero
+    template, or the stand-in (`standin_pca0`) written to ``out`` (said so)."""
+    d = nghxrg_dir(path)
+    module = load_nghxrg(d)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    pca0 = d / "nirspec_pca0.fits"
+    if not pca0.is_file():
+        pca0 = standin_pca0(out / "standin_pca0.fits")
+        print(f"NGHXRG's nirspec_pca0.fits is absent from {d}: a smooth picture-frame "
+              f"stand-in ({pca0}) is used", flush=True)
+    return d, module, pca0
 
 
 # -- the truth --------------------------------------------------------------------------
@@ -309,15 +353,8 @@ def main():
     p.add_argument("--plot", metavar="DIR", help="write each case's characterisation plot "
                    "(spectra and fits) as DIR/CASE.png")
     args = p.parse_args()
-    d = nghxrg_dir(args.nghxrg)
-    module = load_nghxrg(d)
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    pca0 = d / "nirspec_pca0.fits"
-    if not pca0.is_file():
-        pca0 = standin_pca0(out / "standin_pca0.fits")
-        print(f"NGHXRG's nirspec_pca0.fits is absent from {d}: a smooth picture-frame "
-              f"stand-in ({pca0}) is used", flush=True)
+    d, module, pca0 = peer(args.nghxrg, out)
     cfg = config(args.size, args.nframes)
     lines = [f"NGHXRG 2.6 ({d}), {args.size}² × {args.nframes}, {NOUT} outputs, "
              f"{args.darks} darks per case, exponent {args.exponent:g}"]

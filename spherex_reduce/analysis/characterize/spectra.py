@@ -133,8 +133,10 @@ def pool(spectra):
     for key in spectra[0]:
         tabs = [s[key] for s in spectra]
         t = Table(tabs[0], copy=True)
-        t["psd"] = sum(x["psd"] for x in tabs[1:]) + tabs[0]["psd"]
-        t["psd"] /= len(tabs)
+        # summed as plain arrays: Column arithmetic per dark made the jackknife's pools
+        # (one per dark left out) take minutes at a few hundred darks
+        total = np.sum([np.asarray(x["psd"], dtype=np.float64) for x in tabs], axis=0)
+        t["psd"] = total / len(tabs) * tabs[0]["psd"].unit
         t.meta["nstreams"] = int(sum(x.meta["nstreams"] for x in tabs))
         out[key] = t
     return out

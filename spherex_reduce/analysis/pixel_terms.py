@@ -64,6 +64,7 @@ from scipy.optimize import brentq
 from scipy.stats import binom, chi2
 
 from ..core.errors import SpherexReduceError
+from .faint_telegraph import FAINT_TERMS, add_faint_terms, lag_design, lag_sums
 
 __all__ = ["MIN_READS", "MIN_TELEGRAPH_INTERVALS", "PixelSums", "PixelTerms", "dark_ramps",
            "dark_rows", "fit_pixel_terms"]
@@ -76,6 +77,13 @@ MIN_TELEGRAPH_INTERVALS = 8
 #: than the reads: every interval is close to a coin toss).
 MAX_FLIP_PROBABILITY = 0.45
 _MAD = 1.4826
+#: Standard deviations of a difference by which a found telegraph pixel's mean jump clears
+#: the jumps' threshold (else it is fitted with the faint population).
+CLEAR_SIGMA = 3.0
+#: Standard errors (from the scatter of its slope between darks, with 3 or more) by which a
+#: hot pixel's mean current exceeds the threshold: a telegraph pixel's slope crosses it in
+#: one dark and not the next (36 % of 30 e steps at 0.3 Hz were hot before).
+HOT_CONSISTENCY = 5.0
 #: Chance that a white-noise pixel's read-noise variance is clipped from the mean
 #: (`_typical_variance`; the truncation it leaves is corrected exactly).
 _VARIANCE_CLIP = 1e-6
@@ -133,8 +141,8 @@ class PixelTerms:
         populations agree within 3 standard deviations in fraction, amplitude
         and rate (their inverse-variance means; the active pixels' spreads),
         else a list of both (each with its ``amplitude_spread`` and
-        ``rate_spread`` where found), else whichever was found; left out when
-        none was.
+        ``rate_spread`` where found), else whichever was found, and the faint
+        population (``faint_telegraph_*``) where fitted; left out when none was.
 
         Returns
         -------
@@ -188,6 +196,11 @@ class PixelTerms:
             for pixels, values in found.items():
                 pops[pixels] = {**dict(zip(keys, (v for v, _ in values), strict=True)),
                                 "pixels": pixels, **self._spreads(pixels)}
+        rows = [self.row(f"faint_telegraph_{k}", "active")
+                for k in ("fraction", "amplitude", "rate")]
+        if all(r["status"] == "fitted" for r in rows):  # steps below the jumps' threshold
+            pops["faint"] = {**dict(zip(keys, (float(r["value"]) for r in rows), strict=True)),
+                             "pixels": "active"}
         if len(pops) == 1:
             out["rtn"] = next(iter(pops.values()))
         elif pops:
@@ -280,7 +293,7 @@ def dark_rows(exposure):
 
 
 def fit_pixel_terms(ramps, times, *, reference=None, gain=None, jump_sigma=5.0,
-                    hot_threshold=None, hot_sigma=10.0, groups=32, band_rows=32):
+                    hot_threshold=None, hot_sigma=10.0, groups=32, band_rows=32, labels=None):
     """Read noise, dark current, hot and telegraph pixels and the reset offset of a detector.
 
     Parameters
@@ -311,7 +324,13 @@ def fit_pixel_terms(ramps, times, *, reference=None, gain=None, jump_sigma=5.0,
         Groups of pixels of the jackknife (2 to 255).
     band_rows : int
         Rows processed at a time (memory: about 6 float32 arrays of
-        ``nreads x band_rows x nx``, and about 12 float64 maps of ``ny x nx``).
+        ``nreads x band_rows x nx``, and about 14 float64 and 8 float32 maps of
+        ``ny x nx``).
+    labels : array_like of int, optional
+        ``(ny, nx)``: the pixels read together, whose drift common at each read is
+        removed before the faint telegraph's statistics
+        (`~spherex_reduce.analysis.faint_telegraph.common_labels` of the darks'
+        geometry); default each row's even and odd columns.
 
     Returns
     -------
@@ -345,7 +364,7 @@ def fit_pixel_terms(ramps, times, *, reference=None, gain=None, jump_sigma=5.0,
     if not 2 <= int(groups) <= 255:  # before the darks are summed
         raise SpherexReduceError(f"fit_pixel_terms: groups must be 2 to 255, got {groups}")
     sums = PixelSums(times, reference=reference, gain=gain, jump_sigma=jump_sigma,
-                     band_rows=band_rows)
+                     band_rows=band_rows, labels=labels)
     for dark in ramps if isinstance(ramps, (list, tuple)) else [ramps]:
         sums.add(dark)
     return sums.fit(hot_threshold=hot_threshold, hot_sigma=hot_sigma, groups=groups)
@@ -374,8 +393,10 @@ class PixelSums:
     4
     """
 
-    def __init__(self, times, *, reference=None, gain=None, jump_sigma=5.0, band_rows=32):
+    def __init__(self, times, *, reference=None, gain=None, jump_sigma=5.0, band_rows=32,
+                 labels=None):
         self._given = (times, reference, gain)
+        self._labels = labels
         self.jump_sigma, self.band_rows = float(jump_sigma), max(int(band_rows), 1)
         self.ndarks = 0
         self._acc = None
@@ -398,12 +419,16 @@ class PixelSums:
             self.gain, self.t, self.ref = _settings(*self._given, unit, shape)
             self.unit, self.shape = unit, shape
             self._acc = _new_sums(shape, self.t, self.jump_sigma, self.gain)
+            self._acc["labels"] = _labels(self._labels, self.ref)
         elif unit != self.unit or shape != self.shape:
             raise SpherexReduceError(f"fit_pixel_terms: dark {self.ndarks} has shape {shape} "
                                      f"and unit {unit}; dark 0 {self.shape} and {self.unit} "
                                      "(each (nreads, ny, nx), one unit)")
         slopes, jumped = _add_dark(self._acc, x, self.t, self.band_rows, rows)
-        active = ~self.ref & np.isfinite(slopes)
+        ok = np.isfinite(slopes)
+        self._acc["s1"] += np.where(ok, slopes, 0.0)  # the darks' slopes: their scatter
+        self._acc["s2"] += np.where(ok, slopes, 0.0) ** 2
+        active = ~self.ref & ok
         # the dark's drift common to its pixels (the streams' 1/f): its median slope
         self._acc["drifts"].append(float(np.median(slopes[active])) if active.any()
                                    else np.nan)
@@ -476,7 +501,7 @@ def _settings(times, reference, gain, unit, shape):
 
 
 # -- per-pixel accumulation ------------------------------------------------------------
-_SUMS = ("wd", "wdt", "vr", "vs", "q", "kept", "jumps", "jsize", "offset")
+_SUMS = ("wd", "wdt", "vr", "vs", "q", "kept", "jumps", "jsize", "offset", "s1", "s2")
 _FLAGS = {"alternate": True, "bad": False}  # bool maps: and-ed, or-ed over darks
 
 
@@ -492,7 +517,7 @@ def _design(t, skip_first):
     p = np.eye(m) - np.outer(dt, w) / (w @ dt)
     mm = p.T @ p
     mr, ms = mm @ c_r, mm @ c_s
-    return dict(dt=dt, w=w, m=m, t_mean=ty.mean(), level=(m - k) / (m + 1.0),
+    return dict(dt=dt, w=w, m=m, t_mean=ty.mean(), level=(m - k) / (m + 1.0), mm=mm, ty=ty,
                 ar=np.trace(mr), as_=np.trace(ms), trr=np.trace(mr @ mr),
                 trs=np.trace(mr @ ms), tss=np.trace(ms @ ms), vr=w @ c_r @ w, vs=w ** 2 @ dt)
 
@@ -506,7 +531,24 @@ def _new_sums(shape, t, jump_sigma, gain=1.0):
     acc["design"], acc["skip_first"], acc["jump_sigma"] = (_design(t, skip_first), skip_first,
                                                            jump_sigma)
     acc["gain"], acc["drifts"] = gain, []
+    if acc["design"]["m"] >= MIN_TELEGRAPH_INTERVALS:  # the faint telegraph's statistics
+        acc["lags"] = lag_design(t[1:] if skip_first else t)
+        acc["lagq"] = np.zeros((acc["lags"]["lags"].size, ny, nx), np.float32)
+        acc["csq"] = np.zeros((ny, nx))
     return acc
+
+
+def _labels(labels, ref):
+    """The pixels read together (`~spherex_reduce.analysis.faint_telegraph.common_labels`),
+    checked; default each row's even and odd columns; -1 on the reference pixels."""
+    if labels is None:
+        ny, nx = ref.shape
+        labels = np.arange(ny)[:, None] * 2 + np.arange(nx)[None, :] % 2
+    labels = np.asarray(labels)
+    if labels.shape != ref.shape or labels.dtype.kind not in "iu":
+        raise SpherexReduceError(f"fit_pixel_terms: labels must be integers of shape "
+                                 f"{ref.shape}, got {labels.dtype} {labels.shape}")
+    return np.where(ref, -1, labels).astype(np.int64)
 
 
 def _add_dark(acc, x, t, band_rows, rows=None):
@@ -522,7 +564,7 @@ def _add_dark(acc, x, t, band_rows, rows=None):
         sl = slice(r0, min(r0 + band_rows, ny))
         xb = x[:, sl] if rows is None else x[:, rows[sl]]
         part = _band(xb, t, acc["design"], acc["jump_sigma"], acc["skip_first"],
-                     acc["gain"])
+                     acc["gain"], acc.get("lags"), acc["labels"][sl])
         with np.errstate(divide="ignore", invalid="ignore"):
             slopes[sl] = np.where(part["bad"], np.nan, part["wd"] / part["wdt"])
         jumped[sl] = part["jumps"] > 0
@@ -534,12 +576,14 @@ def _add_dark(acc, x, t, band_rows, rows=None):
                 acc[key][sl] &= value
             elif key == "bad":
                 acc[key][sl] |= value
+            elif key == "lagq":
+                acc[key][:, sl] += value
             else:
                 acc[key][sl] += value
     return slopes, jumped
 
 
-def _band(x, t, des, jump_sigma, skip_first, gain=1.0):
+def _band(x, t, des, jump_sigma, skip_first, gain=1.0, lags=None, labels=None):
     """One band of one dark ``x (n, rows, nx)``: its per-pixel sums.
 
     The bulk is float32 (the differences of reads; sums over reads are dot products), and
@@ -608,6 +652,10 @@ def _band(x, t, des, jump_sigma, skip_first, gain=1.0):
     out = {"wd": wd, "wdt": wdt, "vr": vr, "vs": des["vs"] - per_pixel(wj ** 2 * dt64[kk]),
            "q": q, "kept": 1 - jumps / des["m"], "jumps": jumps,
            "jsize": per_pixel(np.abs(res)), "alternate": alternate.reshape(shape), "bad": bad}
+    if lags is not None:  # the faint telegraph's structure functions (jumps kept)
+        out["lagq"] = lag_sums(e, dt64, labels, (jumps > 0) | bad, lags["lags"])
+        a = lags["a"]  # the dark's contrast, squared: its scatter between darks
+        out["csq"] = (out["lagq"][-1] / a[-1] - out["lagq"][0] / a[0]) ** 2
     if skip_first:
         level = y[0] + np.tensordot(des["level"].astype(f32), d, 1)  # mean of the later reads
         out["offset"] = (np.where(bad, 0.0, np.asarray(x[0], dtype=np.float64)) - level
@@ -758,6 +806,13 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
     m_total = des["m"] * ndarks
     tel_ok = des["m"] >= MIN_TELEGRAPH_INTERVALS
     telegraph = tel_ok & (acc["jumps"] >= 2) & acc["alternate"] & good
+    # its steps must be clear of the threshold, or some of its flips were missed (its rate
+    # and step come out wrong: 7.5 % at 0.012 Hz for 10 % at 0.3 Hz): such a pixel is left
+    # to the faint population
+    with np.errstate(invalid="ignore"):
+        clear = (acc["jsize"] / np.maximum(acc["jumps"], 1)
+                 >= (acc["jump_sigma"] + CLEAR_SIGMA) * np.sqrt(2.0) * noise)
+    telegraph &= clear
     amplitude = np.where(telegraph, acc["jsize"] / np.maximum(acc["jumps"], 1),
                          np.nan).astype(f32)
     regular = np.ptp(des["dt"]) <= 1e-6 * dt
@@ -797,6 +852,11 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
             threshold = u.Quantity(hot_threshold, rate_unit).value
             how = "given"
         hot = active & (slope > threshold)
+        if ndarks >= 3:  # a hot pixel's current stays: a telegraph's slope moves dark to dark
+            s1, s2 = acc.pop("s1") / ndarks, acc.pop("s2") / ndarks
+            se = np.sqrt(np.maximum(s2 - s1 * s1, 0.0) / (ndarks - 1))
+            hot &= s1 - threshold > HOT_CONSISTENCY * se
+            how += f", in every dark (mean above it by {HOT_CONSISTENCY:g} standard errors)"
         cold = active & ~hot
         dark, dark_err = _jackknife(_ratio, (slope, 1.0), cold, gid, k)
         drifts = np.asarray(acc["drifts"], dtype=np.float64)
@@ -836,6 +896,17 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
         reason = _telegraph_reason(sel, pixels, des["m"], regular)
         _telegraph(add, refuse, pixels, sel, telegraph, amplitude, pix_rate, acc, m_total, dt,
                    gid, k, unit, reason, limit, noise)
+    # a pixel that jumped once in all the darks, clear of the threshold, is a cosmic ray or
+    # a telegraph of the found population that flipped once (counted there)
+    if acc.get("lags") is None:
+        for name, un in zip(FAINT_TERMS, (unit ** 2, u.Hz, "", unit, unit ** 2, unit),
+                            strict=True):
+            refuse(name, "active", un, f"{des['m']} differences per dark; at least "
+                   f"{MIN_TELEGRAPH_INTERVALS} are needed")
+    else:
+        add_faint_terms(add, refuse, acc, active & ~hot & ~telegraph
+                        & ~((acc["jumps"] == 1) & clear), active, slope / g, ndarks, k, unit,
+                        des, _jackknife)
 
     if not acc["skip_first"]:
         refuse("first_read_offset", "all", unit, f"{n} reads: read 0 is needed for the line")

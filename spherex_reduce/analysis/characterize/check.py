@@ -220,7 +220,10 @@ def compare(model, measured, pipeline):
         population.
     """
     frames = [int(n) for n in measured["frames"]]
-    pred = predict_scatter(model, pipeline, frames, differenced=measured["differenced"])
+    clip = next((float(params.get("sigma", 5.0)) for name, params in pipeline.steps
+                 if name == "sigma_clip"), None)  # the pipeline's clip of each image
+    pred = predict_scatter(model, pipeline, frames, differenced=measured["differenced"],
+                           image_clip=clip)
     measure = {"bins": measured["bins"], **measured["band"]}
     spec = predict_spectrum(model, pipeline, measure, excess=pred["telegraph_excess"][-1])
     unit = measured["unit"]
@@ -257,6 +260,9 @@ def compare(model, measured, pipeline):
         "telegraph": (None if pred["telegraph"] is None else
                       dict(zip(("fraction", "amplitude", "amplitude_spread", "rate"),
                                map(float, pred["telegraph"]), strict=True))),
-        "telegraph_note": pred["note"]})
+        "telegraph_note": pred["note"],
+        "faint_telegraph": (None if pred["faint"] is None else
+                            dict(zip(("power", "rate", "white", "fraction", "amplitude"),
+                                     pred["faint"], strict=True)))})
     return t
 

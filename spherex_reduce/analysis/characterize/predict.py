@@ -12,10 +12,11 @@ predicts that statistic from a `~spherex_reduce.analysis.characterize.Characteri
   its ``k = 0`` cell (the image mean, which a standard deviation over pixels
   takes out), plus the Poisson noise of the dark current
   (`~spherex_reduce.analysis.forecast.engine.poisson_variance`, darks in
-  electrons only).  The white level is the per-pixel read-noise map's mean
+  electrons only).  The white level is the fit's ``white_read_noise`` where
+  it has one (see below), else the per-pixel read-noise map's mean
   variance (measured on each pixel's differences with its jumps left out)
   less what the fitted correlated terms add to a read's variance there (half
-  their structure function at one frame), not the streams': a telegraph
+  their structure function at one frame); not the streams': a telegraph
   pixel's steps stay in a stream once its line over the frames is removed and
   raise the streams' white level (12 % in variance in
   ``benchmarks/bench_characterize_heldout.py``), though in a pixel they are
@@ -28,14 +29,25 @@ predicts that statistic from a `~spherex_reduce.analysis.characterize.Characteri
   `~spherex_reduce.simulation.telegraph`), so its least-squares slope has the
   exact variance ``E[A²]/4 Σ_jk w_j w_k exp(-2 r |t_j - t_k|)``
   (`telegraph_slope_variance`);
+- **the faint telegraph pixels** (steps too close to the jumps' threshold to
+  be found one by one, fitted as a population: `faint_population`): their own
+  chains with their fraction, step and rate (or, without the split, their
+  power times the same variance added to the core as Gaussian).  The white
+  level is then the ``white_read_noise`` of the fit (the pixels' structure
+  function with the drift common to the pixels read together and the faint
+  telegraph taken out), which holds neither the drift nor the telegraph;
 - **the clip**: a telegraph pixel that switched during the ramp can lie
-  beyond 5 σ, and its slope is far from Gaussian, so the clipped statistic
-  is predicted from the population itself: the pixels are a mixture of the
-  Gaussian core (the streams) and telegraph pixels whose slope is the core
-  plus a telegraph slope drawn from the two-state chain (a fixed number of
-  chains, drawn with a fixed seed and scaled to the exact variance above),
-  and the clipped standard deviation is the fixed point of the clip applied
-  to that mixture (`clipped_sigma`).  Hot pixels are left out: their fixed
+  beyond 5 σ of a dark's image (the pipeline's ``sigma_clip`` step masks it
+  in that dark: `predict_scatter`'s ``image_clip``) or of the difference, and
+  its slope is far from Gaussian, so the clipped statistic is predicted from
+  the population itself: the pixels are a mixture of the Gaussian core (the
+  streams) and telegraph pixels whose slope is the core plus a telegraph
+  slope drawn from the two-state chain (a fixed number of chains, drawn with
+  a fixed seed and scaled to the exact variance above), each dark's image is
+  clipped at the fixed point of its own mixture (a telegraph pixel kept with
+  the chance its Gaussian spread leaves it within), and the clipped standard
+  deviation of the difference is the fixed point of the clip applied to what
+  is kept (`clipped_sigma`).  Hot pixels are left out: their fixed
   current puts them far beyond the clip of one dark's image (the pipeline's
   ``sigma_clip`` step), which is where the measurement leaves them out too
   (a pipeline without that step keeps them in the measurement, where the
@@ -58,8 +70,8 @@ from ...noise.variance import ls_weights
 from ..forecast.engine import forecast, poisson_variance, prepare_forecast, stored_planes
 from ..spectrum import rfft_weights
 
-__all__ = ["CLIP_SIGMA", "clipped_sigma", "frame_grid", "predict_scatter", "predict_spectrum",
-           "telegraph_population", "telegraph_slope_variance"]
+__all__ = ["CLIP_SIGMA", "clipped_sigma", "faint_population", "frame_grid", "predict_scatter",
+           "predict_spectrum", "telegraph_population", "telegraph_slope_variance"]
 
 #: The clip of the slope scatter, in standard deviations (the paper's 5).
 CLIP_SIGMA = 5.0
@@ -144,6 +156,22 @@ def telegraph_population(model):
             rows["rate"]["value"]), ""
 
 
+def faint_population(model):
+    """The faint telegraph pixels the fit found as a population
+    (`~spherex_reduce.analysis.faint_telegraph`): ``(power, rate, white, fraction,
+    step)`` (the pixels' mean squared step, Hz, what it adds to the mean read-noise
+    variance, and its split, NaN where not fitted), or None."""
+    pt = model.pixel_terms
+    try:
+        rows = [pt.row(f"faint_telegraph_{k}", "active")
+                for k in ("power", "rate", "white", "fraction", "amplitude")]
+    except (KeyError, AttributeError):
+        return None
+    if any(r["status"] != "fitted" for r in rows[:3]):
+        return None
+    return tuple(float(r["value"]) if r["status"] == "fitted" else np.nan for r in rows)
+
+
 def _chains(times, rate, n, rng):
     """``(n, nreads)`` states (0 or 1) of a symmetric two-state telegraph read at ``times``."""
     p = -np.expm1(-2.0 * rate * np.diff(times)) / 2.0
@@ -152,19 +180,26 @@ def _chains(times, rate, n, rng):
     return np.concatenate([start, start ^ np.logical_xor.accumulate(flips, axis=1)], axis=1)
 
 
-def _telegraph_slopes(times, population, differenced, n=TELEGRAPH_CHAINS, seed=0):
-    """Draws of a telegraph pixel's slope (of a difference / √2 if ``differenced``),
-    scaled so their mean square is the exact variance (`telegraph_slope_variance`)."""
+def _telegraph_slopes(times, population, n=TELEGRAPH_CHAINS, seed=0):
+    """Draws ``(2, n)`` of a telegraph pixel's slope in two darks (its amplitude,
+    independent states), scaled so their mean square is the exact variance
+    (`telegraph_slope_variance`)."""
     _, mean, spread, rate = population
     rng = np.random.default_rng(seed)
     w = ls_weights(times)
     amp = np.abs(rng.normal(mean, spread, n)) if spread > 0 else np.full(n, mean)
-    y = amp * (_chains(times, rate, n, rng) @ w)
-    if differenced:  # the same pixel in two darks: its amplitude, independent states
-        y = (y - amp * (_chains(times, rate, n, rng) @ w)) / np.sqrt(2.0)
+    y = np.array([amp * (_chains(times, rate, n, rng) @ w) for _ in range(2)])
     exact = (mean**2 + spread**2) * telegraph_slope_variance(times, rate)
     ms = np.mean(y * y)
     return y * np.sqrt(exact / ms) if ms > 0 else y
+
+
+def _kept(y, variance, cut):
+    """Chance that a value ``N(y, variance)`` is within ``±cut`` (1 without a cut)."""
+    if cut is None:
+        return np.ones_like(y)
+    s = np.sqrt(variance)
+    return ndtr((cut - y) / s) - ndtr((-cut - y) / s)
 
 
 def clipped_sigma(weights, means, variance, sigma=CLIP_SIGMA, tol=1e-10, maxiter=200):
@@ -231,6 +266,7 @@ def _scene(model, nframes, single):
         raise SpherexReduceError("slope scatter: grouped readouts are not predicted "
                                  "(reads averaged in groups)")
     white = _read_noise_white(model)
+    own = _read_noise_white(model, "white_read_noise")
     if white is not None:
         g, s = model.schedule.geometry, model.schedule
         seen = [c for c in sc["noise"]["components"]
@@ -244,8 +280,8 @@ def _scene(model, nframes, single):
         alpha = sum(c["alpha"] for c in seen)
         for c in sc["noise"]["components"]:
             if c["name"] == "channel":
-                c["alpha"] = max(c["alpha"] + 2.0 * (white - drift) / g.pixel_rate - alpha,
-                                 0.0)
+                target = own if own is not None else white - drift
+                c["alpha"] = max(c["alpha"] + 2.0 * target / g.pixel_rate - alpha, 0.0)
     terms = sc.pop("scene", {}) or {}
     current = float(terms.get("dark_current", 0.0))
     sc.update(readout=readout, output={"mode": "slopes"},
@@ -257,13 +293,14 @@ def _scene(model, nframes, single):
     return sc, spread
 
 
-def _read_noise_white(model):
+def _read_noise_white(model, term="read_noise"):
     """The light-sensitive pixels' mean read-noise variance per read (the darks' unit
-    squared), or None without a fitted read-noise map."""
+    squared; ``term``: that of the read-noise map, or ``white_read_noise``, its white
+    part), or None without it."""
     if model.pixel_terms is None:
         return None
     try:
-        row = model.pixel_terms.row("read_noise", "active")
+        row = model.pixel_terms.row(term, "active")
     except KeyError:
         return None
     return row["value"] ** 2 if row["status"] == "fitted" else None
@@ -280,7 +317,8 @@ def _stream_variance(scene, pipeline):
     return var + poisson_variance(prepared[0])
 
 
-def predict_scatter(model, pipeline, frames, *, differenced=True, sigma=CLIP_SIGMA):
+def predict_scatter(model, pipeline, frames, *, differenced=True, sigma=CLIP_SIGMA,
+                    image_clip=None):
     """The slope scatter over pixels against the frame count that ``model`` predicts.
 
     Parameters
@@ -295,16 +333,22 @@ def predict_scatter(model, pipeline, frames, *, differenced=True, sigma=CLIP_SIG
         (False: each pixel's fixed dark current stays, its fitted spread is added).
     sigma : float or None
         The iterative clip (None: none).
+    image_clip : float or None
+        The pipeline's own iterative clip of each dark's image (its ``sigma_clip``
+        step), before the difference: a telegraph pixel it masks in either dark is
+        not in the statistic.
 
     Returns
     -------
     dict
         ``frames``; ``sigma`` (predicted, with the telegraph pixels), ``sigma_streams``
         (without them: the streams and the dark current only), ``telegraph_variance``
-        (the exact slope variance of one telegraph pixel, 0 without any) and
+        (the telegraph slope variance per pixel: each population's fraction times its
+        exact variance, 0 without any) and
         ``telegraph_excess`` (the clipped variance they add: white over ``k``), each
         an array in the slope unit (the darks' unit per second); ``telegraph`` the
-        population used or None, ``note`` why none.
+        population used or None, ``note`` why none; ``faint`` the faint
+        population's ``(power, rate, white)`` or None (`faint_population`).
 
     Examples
     --------
@@ -317,6 +361,7 @@ def predict_scatter(model, pipeline, frames, *, differenced=True, sigma=CLIP_SIG
     True
     """
     population, note = telegraph_population(model)
+    faint = faint_population(model)
     out = {k: [] for k in ("sigma", "sigma_streams", "telegraph_variance",
                            "telegraph_excess")}
     for n in frames:
@@ -324,21 +369,44 @@ def predict_scatter(model, pipeline, frames, *, differenced=True, sigma=CLIP_SIG
         v0 = _stream_variance(sc, pipeline) + spread**2
         core = clipped_sigma([1.0], [0.0], v0, sigma)
         out["sigma_streams"].append(core)
-        if population is None or v0 <= 0:
+        times = model.schedule.frame_starts.to_value(u.s)[:n]
+        pops = [] if population is None else [population]
+        extra = 0.0
+        if faint is not None and np.isfinite(faint[3]):  # its own population of chains
+            pops.append((faint[3], faint[4], 0.0, faint[1]))
+        elif faint is not None:  # no split: its variance, spread over the core
+            extra = faint[0] * telegraph_slope_variance(times, faint[1])
+        if (not pops and faint is None) or v0 <= 0:
             out["sigma"].append(core)
             out["telegraph_variance"].append(0.0)
             out["telegraph_excess"].append(0.0)
             continue
-        times = model.schedule.frame_starts.to_value(u.s)[:n]
-        f = min(max(population[0], 0.0), 1.0)
-        y = _telegraph_slopes(times, population, differenced)
-        weights = np.concatenate([[1 - f], np.full(y.size, f / y.size)])
-        full = clipped_sigma(weights, np.concatenate([[0.0], y]), v0, sigma)
+        weights, ya, yb, var = [1.0], [0.0], [0.0], 0.0
+        for i, pop in enumerate(pops):
+            f = min(max(pop[0], 0.0), 1.0)
+            y = _telegraph_slopes(times, pop, seed=i)
+            weights = np.concatenate([weights, np.full(y.shape[1], f / y.shape[1])])
+            weights[0] -= f
+            ya, yb = np.concatenate([ya, y[0]]), np.concatenate([yb, y[1]])
+            var += f * float(np.mean(y * y))
+        weights = weights / np.sum(weights)
+        # each dark's image clipped first (its telegraph pixels far out are masked)
+        cut = (None if image_clip is None else
+               image_clip * clipped_sigma(weights, ya, v0 + extra, image_clip))
+        keep = _kept(ya, v0 + extra, cut)
+        if differenced:
+            keep = keep * _kept(yb, v0 + extra, cut)
+            means = (ya - yb) / np.sqrt(2.0)
+        else:
+            means = ya
+        full = clipped_sigma(weights * keep / np.sum(weights * keep), means, v0 + extra,
+                             sigma)
         out["sigma"].append(full)
-        out["telegraph_variance"].append(float(np.mean(y * y)))
+        out["telegraph_variance"].append(var)
         out["telegraph_excess"].append(full**2 - core**2)
     result = {k: np.asarray(v) for k, v in out.items()}
-    result.update(frames=np.asarray(frames, dtype=int), telegraph=population, note=note)
+    result.update(frames=np.asarray(frames, dtype=int), telegraph=population, note=note,
+                  faint=faint)
     return result
 
 

@@ -8,6 +8,7 @@ from astropy import units as u
 from ...core.errors import SpherexReduceError
 from ...core.exposure import Exposure
 from ...io.sources import open_input
+from ..faint_telegraph import common_labels
 from ..pixel_terms import PixelSums, dark_rows
 from .check import DarkScatter, compare, reduction_pipeline
 from .result import Characterization
@@ -314,7 +315,8 @@ def _add_pixels(sums, e, gain):
         ramps, times, reference, rows = dark_rows(e)
         if sums is None:
             sums = PixelSums(times, reference=reference,
-                             gain=None if e.unit != u.adu else gain)
+                             gain=None if e.unit != u.adu else gain,
+                             labels=common_labels(e.geometry))
         drop = sums.add(ramps, rows=rows)
     except SpherexReduceError as exc:
         return None, None, str(exc)

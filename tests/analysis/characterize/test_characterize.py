@@ -249,6 +249,7 @@ def test_the_per_pixel_terms_of_darks_read_one_by_one_are_those_of_the_darks_tog
     model's scene holds them."""
     from astropy import units as u
 
+    from spherex_reduce.analysis.faint_telegraph import common_labels
     from spherex_reduce.analysis.pixel_terms import dark_ramps, fit_pixel_terms
 
     raws = [simulate(PIXEL_SCENE, seed=seed) for seed in (1, 2)]
@@ -257,7 +258,8 @@ def test_the_per_pixel_terms_of_darks_read_one_by_one_are_those_of_the_darks_tog
     for darks in (raws[:1], raws):
         model = characterize(darks)
         expect = fit_pixel_terms([r for r, _, _ in together[:len(darks)]], together[0][1],
-                                 reference=together[0][2])
+                                 reference=together[0][2],
+                                 labels=common_labels(raws[0].geometry))
         np.testing.assert_array_equal(np.asarray(model.pixel_terms.table["value"]),
                                       np.asarray(expect.table["value"]))
     # the truth, from one dark (the simulator draws its hot pixels anew for each seed: two

@@ -1,0 +1,391 @@
+"""Telegraph pixels too faint to be seen jump by jump, fitted as a population.
+
+`~spherex_reduce.analysis.pixel_terms` finds a telegraph pixel by its jumps
+(above ``jump_sigma`` of its differences' noise).  A population of smaller
+steps is not seen that way, yet it is what raises the slope scatter of long
+ramps above the streams' (the paper's ~30 % at N = 74, §5).  This module
+fits it from second- and fourth-order statistics of every pixel's ramp:
+
+- each pixel's residual about its line (the mean of its differences) less the
+  drift common to the pixels read with it (one row of one channel, one column
+  parity: the mean of their residual differences at each read, leaving out the
+  pixels that jumped in that dark), summed to a residual ramp ``X``;
+- its structure function at a few lags ``L``: ``Q_L = Σ_k (X_{k+L} - X_k)²``,
+  less the mean's own variance (``1/n²`` of its ``n`` members' terms, white
+  and telegraph: their mean ``Q_L`` over ``n - 1``), and for a member divided
+  by ``1 - 2/n`` (what the mean takes of its own terms);
+- over the pixels (hot and found telegraph pixels left out), ``E[Q_L] = σ²
+  a_L + I s_L + P/4 t_L(r)``: ``a_L``, ``s_L`` and ``t_L`` exact traces of the
+  quadratic form with white reads, the dark current's shot noise and a
+  two-state telegraph of unit step switching at ``r`` per state
+  (autocovariance ``exp(-2 r |Δt|) / 4``).  ``σ²`` and ``P`` (the pixels' mean
+  ``A²``, telegraph or not: the fraction times the mean squared step) are
+  linear, ``r`` is found by a search in log;
+- the split of ``P`` into a fraction and a step, from the scatter over pixels of
+  each one's contrast ``c = Q_long / a_long - Q_1 / a_1`` (white reads drop
+  out): its mean is ``κ E[A²]`` and its mean square, less each pixel's
+  measurement noise (the scatter of its contrast between darks; with one dark,
+  white reads' ``2 σ⁴ tr(C²)``), ``κ² E[A⁴]``; the step is ``(E[A⁴]/E[A²])^½`` and the
+  fraction ``P`` over its square.
+
+A telegraph faster than the reads is white noise (the read-noise map holds
+it); a slow one's structure function grows linearly with the lag, so only
+``P r`` is seen (the slow ones with large steps are the ones found jump by
+jump).  Every estimate is a function of sums over pixels, so its error is the
+delete-a-group jackknife of `~spherex_reduce.analysis.pixel_terms`.
+"""
+
+import numpy as np
+from astropy import units as u
+from scipy import sparse
+from scipy.optimize import minimize_scalar
+
+__all__ = ["FAINT_TERMS", "add_faint_terms", "common_labels", "lag_design", "lag_sums"]
+
+#: The rows `add_faint_terms` adds (active pixels).
+FAINT_TERMS = ("faint_telegraph_power", "faint_telegraph_rate", "faint_telegraph_fraction",
+               "faint_telegraph_amplitude", "faint_telegraph_white", "white_read_noise")
+#: Fewest pixels of a group whose mean drift is removed (`lag_sums`).
+MIN_GROUP = 4
+#: Lags of the structure function, at most (spaced evenly in log from 1 to half the ramp).
+MAX_LAGS = 8
+#: Search range of the rate, in units of 1/(2 dt): from far slower than the ramp to far
+#: faster than the reads.
+_RATE_RANGE = (1e-4, 20.0)
+_GRID = 240
+
+
+def common_labels(geometry):
+    """Labels ``(nrows, ncols)`` of the pixels read together: one row of one channel and
+    one column parity (ACN's even and odd streams), -1 on the reference pixels; in the
+    stored orientation of ``geometry``.
+
+    Examples
+    --------
+    >>> from spherex_reduce import DetectorGeometry
+    >>> from spherex_reduce.analysis.faint_telegraph import common_labels
+    >>> lab = common_labels(DetectorGeometry(8, 8, 2, ref_border=1))
+    >>> int(lab[0, 3]), int(lab[1, 1]), int(lab[1, 2]), int(lab[1, 5]), int(lab[2, 1])
+    (-1, 5, 4, 7, 9)
+    """
+    frame = geometry.frame
+    nch = frame.nchannels
+    rows = np.arange(frame.nrows)[:, None]
+    cols = np.arange(frame.ncols)[None, :]
+    lab = rows * (2 * nch) + frame.channel_of_column()[None, :] * 2 + cols % 2
+    lab = np.asarray(geometry.layout.to_stored(lab))
+    return np.where(geometry.reference_pixel_mask(), -1, lab).astype(np.int64)
+
+
+def lag_design(times):
+    """The lags and exact traces of `lag_sums`' quadratic forms for reads at ``times`` (s):
+    ``{"lags", "times", "forms", "a", "s"}`` (``forms`` ``(lags, n, n)`` the matrices
+    ``M_L`` on the reads, ``a`` and ``s`` their traces with white reads and shot noise).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.analysis.faint_telegraph import lag_design
+    >>> d = lag_design(np.arange(11) * 1.5)
+    >>> d["lags"].tolist(), round(float(d["a"][0]), 3)
+    ([1, 2, 3, 4, 5], 19.8)
+    """
+    t = np.asarray(times, dtype=np.float64)
+    n = t.size
+    m = n - 1
+    lags = np.unique(np.rint(np.geomspace(1, max(m // 2, 1), MAX_LAGS)).astype(int))
+    # residual about the line through the ends (the mean of the differences), X = B x
+    b = np.eye(n) - np.eye(n)[0]
+    b -= np.outer((t - t[0]) / (t[-1] - t[0]), np.eye(n)[-1] - np.eye(n)[0])
+    forms = []
+    for lag in lags:
+        d = np.zeros((n - lag, n))
+        d[np.arange(n - lag), np.arange(lag, n)] = 1.0
+        d[np.arange(n - lag), np.arange(n - lag)] -= 1.0
+        db = d @ b
+        forms.append(db.T @ db)
+    forms = np.array(forms)
+    shot = np.minimum.outer(t - t[0], t - t[0])  # Poisson charge, per unit current
+    design = {"lags": lags, "times": t, "forms": forms,
+              "a": np.trace(forms, axis1=1, axis2=2),
+              "s": np.einsum("lij,ij->l", forms, shot)}
+    dt = float(np.median(np.diff(t)))
+    lo, hi = (np.log(v / (2 * dt)) for v in _RATE_RANGE)
+    design["grid"] = np.linspace(lo, hi, _GRID)  # the rate's search, its traces once
+    design["tgrid"] = np.array([_telegraph_traces(design, np.exp(v)) for v in design["grid"]])
+    return design
+
+
+def _telegraph_traces(design, rate):
+    """``t_L(rate)``: the traces of the forms with a unit-step telegraph (``/4`` included)."""
+    t = design["times"]
+    corr = np.exp(-2.0 * rate * np.abs(np.subtract.outer(t, t)))
+    return np.einsum("lij,ij->l", design["forms"], corr) / 4.0
+
+
+def lag_sums(e, dt, labels, jumped, lags):
+    """Per-pixel structure functions of one band of one dark.
+
+    Parameters
+    ----------
+    e : `numpy.ndarray`
+        ``(m, rows, nx)`` float32: each pixel's differences less its mean rate times
+        the intervals.
+    dt : `numpy.ndarray`
+        ``(m,)`` intervals (s), for the shape only.
+    labels : `numpy.ndarray`
+        ``(rows, nx)`` int: `common_labels` (-1: not used).
+    jumped : `numpy.ndarray`
+        ``(rows, nx)`` bool: pixels left out of the common drift (they jumped, or a
+        read is not finite).
+    lags : sequence of int
+
+    Returns
+    -------
+    `numpy.ndarray`
+        ``(len(lags), rows, nx)`` float64: ``Q_L`` less the group mean's own variance,
+        over what the removal leaves of the pixel's terms; 0 where ``labels`` is -1.
+
+    Examples
+    --------
+    A drift common to a group is taken out; white reads of unit variance give
+    ``a_L`` (`lag_design`) on average:
+
+    >>> import numpy as np
+    >>> from spherex_reduce.analysis.faint_telegraph import lag_design, lag_sums
+    >>> rng = np.random.default_rng(0)
+    >>> x = rng.normal(0, 1, (11, 64, 64)) + np.cumsum(rng.normal(0, 5, (11, 64, 1)), 0)
+    >>> d = np.diff(x, axis=0)
+    >>> e = (d - d.mean(axis=0)).astype(np.float32)
+    >>> labels = np.repeat(np.arange(64)[:, None], 64, axis=1)      # one group per row
+    >>> des = lag_design(np.arange(11) * 1.5)
+    >>> q = lag_sums(e, None, labels, np.zeros((64, 64), bool), des["lags"])
+    >>> np.round(q.mean(axis=(1, 2)) / des["a"], 1).tolist()
+    [1.0, 1.0, 1.0, 1.0, 1.0]
+    """
+    m = e.shape[0]
+    shape = e.shape[1:]
+    use = (labels >= 0).ravel()
+    uniq, inv = np.unique(np.where(use, labels.ravel(), -1), return_inverse=True)
+    member = use & ~np.asarray(jumped).ravel()
+    who = np.flatnonzero(member)
+    # the sum over each group's members at each read: one sparse product
+    sel = sparse.csr_matrix((np.ones(who.size, np.float32), (inv[who], who)),
+                            shape=(uniq.size, member.size))
+    count = np.bincount(inv[who], minlength=uniq.size).astype(np.float64)
+    small = (count < MIN_GROUP) | (uniq < 0)  # too few to take a drift from: none removed
+    flat = e.reshape(m, -1)
+    cm = np.asarray(sel @ flat.T).T / np.where(small, np.inf, count).astype(np.float32)
+    r = flat - np.take(cm.astype(np.float32), inv, axis=1)
+    x = np.empty((m + 1, r.shape[1]), np.float32)
+    x[0] = 0.0
+    for k in range(m):  # a cumulative sum read by read (numpy's along axis 0 is slower)
+        np.add(x[k], r[k], out=x[k + 1])
+    del r
+    # Q_L = sum_k x_{k+L}^2 + x_k^2 - 2 x_k x_{k+L}: the squares' partial sums it needs
+    need = {m} | {m - lag for lag in lags} | {lag - 1 for lag in lags}
+    sq, acc = {}, np.zeros(x.shape[1])
+    for k in range(m + 1):
+        acc += np.square(x[k], dtype=np.float64)
+        if k in need:
+            sq[k] = acc.copy()
+    n = count[inv]
+    factor = np.where(member & ~small[inv], (n - 2) / np.maximum(n, 1), 1.0)
+    out = np.zeros((len(lags), member.size))
+    for i, lag in enumerate(lags):
+        cross = np.einsum("kp,kp->p", x[:-lag], x[lag:])
+        q = sq[m - lag] + (sq[m] - sq[lag - 1]) - 2.0 * cross
+        # the mean's own variance, 1/n² of its members' terms, is their mean q over n - 1
+        # (each member's q is (1 - 2/n) of its terms plus that): taken out of every pixel
+        own = np.bincount(inv[who], q[who], minlength=uniq.size)
+        own /= np.where(small, np.inf, count * (count - 1.0))
+        out[i] = np.where(small[inv], q, (q - own[inv]) / np.where(factor > 0, factor, 1.0))
+    out[:, ~use] = 0.0
+    return out.reshape(len(lags), *shape)
+
+
+def _solve(design, y, rate):
+    """``(σ², P), χ²``: the linear least squares of ``y`` (per pixel) at ``rate``, each lag
+    relative to its white trace."""
+    a = design["a"]
+    x = np.column_stack([a, _telegraph_traces(design, rate)]) / a[:, None]
+    coef, *_ = np.linalg.lstsq(x, y / a, rcond=None)
+    return coef, float(np.sum((x @ coef - y / a) ** 2))
+
+
+def _best_rate(design, y):
+    grid, a = design["grid"], design["a"]
+    u_ = design["tgrid"] / a  # (grid, lags): the two-column least squares at every rate
+    yy = y / a
+    n, su, suu = a.size, u_.sum(axis=1), (u_ * u_).sum(axis=1)
+    sy, suy = yy.sum(), u_ @ yy
+    det = n * suu - su * su
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c1 = (suu * sy - su * suy) / det
+        c2 = (n * suy - su * sy) / det
+    chi = np.sum((yy[None, :] - c1[:, None] - c2[:, None] * u_) ** 2, axis=1)
+    i = int(np.nanargmin(np.where(np.isfinite(chi), chi, np.nan)))
+    if i in (0, _GRID - 1):
+        return np.exp(grid[i]), True  # at an end: not constrained
+    step = grid[1] - grid[0]
+    res = minimize_scalar(lambda v: _solve(design, y, np.exp(v))[1],
+                          bounds=(grid[i] - step, grid[i] + step), method="bounded",
+                          options={"xatol": 1e-6})
+    return float(np.exp(res.x)), False
+
+
+def _fit_power(design, total, shot):
+    """``(P, rate, σ², edge)`` from column sums ``total``: ``Q_L`` for each lag then the
+    count of pixel-darks; ``shot`` the pixels' mean current over the gain (unit²/s).
+    ``edge``: the rate is at an end of its range (not constrained)."""
+    count = total[-1]
+    if not count > 0:
+        return np.nan, np.nan, np.nan, True
+    y = np.asarray(total[:-1], dtype=np.float64) / count - shot * design["s"]
+    rate, edge = _best_rate(design, y)
+    coef, _ = _solve(design, y, rate)
+    return float(coef[1]), rate, float(coef[0]), edge
+
+
+def _contrast_form(design):
+    """The quadratic form of a pixel's contrast ``Q_long / a_long - Q_1 / a_1`` and the
+    trace of its square (a white pixel's contrast has variance ``2 σ⁴`` times it)."""
+    c = design["forms"][-1] / design["a"][-1] - design["forms"][0] / design["a"][0]
+    return c, float(np.trace(c @ c))
+
+
+def _fit_split(design, rate, c1, c2, noise, count):
+    """``(fraction, step)`` of a population of mean ``A²`` from the pixels' contrasts: sums
+    of ``c`` (``c1``), ``c²`` (``c2``) and of their measurement variance (``noise``) over
+    ``count`` pixels, at the fitted ``rate``."""
+    c, _ = _contrast_form(design)
+    t = design["times"]
+    corr = np.exp(-2.0 * rate * np.abs(np.subtract.outer(t, t)))
+    kappa = float(np.sum(c * corr)) / 4.0
+    if not (count > 0 and kappa > 0):
+        return np.nan, np.nan
+    m1 = c1 / count / kappa  # E[A²]
+    m2 = (c2 - noise) / count / kappa ** 2  # E[A⁴]
+    if not (m1 > 0 and m2 > 0):
+        return np.nan, np.nan
+    return float(m1 * m1 / m2), float(np.sqrt(m2 / m1))
+
+
+def add_faint_terms(add, refuse, acc, quiet, active, current, ndarks, k, unit, des,
+                    jackknife):
+    """Add the faint population's rows (`FAINT_TERMS`) to a
+    `~spherex_reduce.analysis.pixel_terms` table.
+
+    ``add``/``refuse`` add a row; ``acc`` the per-pixel sums (``lags``, ``lagq``,
+    ``csq``, ``labels``); ``quiet`` the active pixels that are not hot nor found
+    telegraph; ``current`` each pixel's slope over the gain (its shot noise,
+    unit²/s); ``des`` the differences' design (``m``, ``dt``, ``ty``, ``mm``,
+    ``ar``); ``jackknife`` the delete-a-group jackknife of ``f`` of column sums
+    over ``k`` groups: ``jackknife(f, columns, sel, gid, k)``.
+
+    Examples
+    --------
+    White reads have no faint telegraph (through
+    `~spherex_reduce.analysis.pixel_terms.fit_pixel_terms`, which calls it):
+
+    >>> import numpy as np
+    >>> from astropy import units as u
+    >>> from spherex_reduce.analysis.pixel_terms import fit_pixel_terms
+    >>> x = np.random.default_rng(4).normal(0, 4.0, (2, 20, 32, 32)) * u.electron
+    >>> res = fit_pixel_terms(list(x), np.arange(20) * 1.5 * u.s)
+    >>> res.row("faint_telegraph_power", "active")["status"]
+    'ruled out'
+    """
+    names = FAINT_TERMS
+    units = (unit ** 2, u.Hz, "", unit, unit ** 2, unit)
+    design = acc["lags"]
+    if not quiet.any():
+        for name, un in zip(names, units, strict=True):
+            refuse(name, "active", un, "no active pixel but hot or telegraph ones")
+        return
+    lagq = acc.pop("lagq")
+    shot = float(np.mean(current[quiet]))
+    # the jackknife's groups hold whole groups of pixels read together: their common mean
+    # (and the telegraph pixels among its members) ties their statistics
+    labels = acc["labels"]
+    _, inv = np.unique(labels, return_inverse=True)
+    gid = np.random.default_rng(0).permutation(inv.max() + 1)[inv.reshape(labels.shape)] % k
+    # the lags' sums, the count of pixel-darks, the active pixels
+    columns = [np.where(quiet, lq, np.float32(0)) for lq in lagq] + [quiet * float(ndarks),
+                                                                      1.0]
+    cache = {}
+
+    def fit(total):
+        key = total.tobytes()
+        if key not in cache:
+            cache[key] = _fit_power(design, total[:-1], shot)
+        return cache[key]
+
+    def power(total):  # the mean over the active pixels (the quiet ones' times their share)
+        return fit(total)[0] * total[-2] / ndarks / total[-1]
+
+    p, p_err = jackknife(power, columns, active, gid, k)
+    _, rate, _, edge = fit(_totals(columns, active))
+    value, err = jackknife(lambda total: fit(total)[2], columns, active, gid, k)
+    add(names[5], "active", np.sqrt(max(value, 0.0)), err / (2 * np.sqrt(max(value, 1e-300))),
+        unit, note="root of the white read variance of the pixels that are not hot nor found "
+        "telegraph, from their structure function (the drift common to the pixels read "
+        "together and the faint telegraph taken out)")
+    if not (np.isfinite(p_err) and p > 3 * p_err):
+        add(names[0], "active", p, p_err, unit ** 2, "ruled out",
+            "mean squared step over the active pixels not found jump by jump; ruled out: "
+            "within 3 sd of none")
+        for name, un in zip(names[1:5], units[1:5], strict=True):
+            refuse(name, "active", un, "no faint telegraph found")
+        return
+    add(names[0], "active", p, p_err, unit ** 2, note="fraction times the mean squared step "
+        "of the telegraph pixels not found jump by jump (their structure function)")
+    if edge:
+        why = ("switches faster than the reads (white noise: in the read-noise map)"
+               if rate > 1 / float(np.median(des["dt"])) else
+               "slower than the ramps resolve (only the power times the rate is seen)")
+        for name, un in zip(names[1:5], units[1:5], strict=True):
+            refuse(name, "active", un, why)
+        return
+    r, r_err = jackknife(lambda total: fit(total)[1], columns, active, gid, k)
+    add(names[1], "active", r, r_err, u.Hz, note="switching rate of each state (the lags' "
+        "structure function)")
+    _, tr2 = _contrast_form(design)
+    a = design["a"]
+    sig2 = lagq[0] / (a[0] * ndarks)
+    c = (lagq[-1] / a[-1] - lagq[0] / a[0]) / ndarks
+    if ndarks > 1:  # the variance of a pixel's mean contrast, from its darks' scatter
+        noise = (acc.pop("csq") - ndarks * c.astype(np.float64) ** 2) / (ndarks * (ndarks - 1))
+    else:  # a white pixel's contrast varies by 2 σ⁴ tr(C²); σ⁴ from its own σ², less the
+        # estimate's own variance
+        inflate = 1 + 2 * float(np.sum(design["forms"][0] ** 2)) / a[0] ** 2
+        noise = 2 * tr2 * sig2.astype(np.float64) ** 2 / inflate
+    split = [np.where(quiet, c, 0.0), np.where(quiet, c.astype(np.float64) ** 2, 0.0),
+             np.where(quiet, noise, 0.0), quiet * 1.0]
+
+    def part(i):
+        return lambda total: _fit_split(design, r, *total)[i]
+
+    f, f_err = jackknife(part(0), split, active, gid, k)
+    share = quiet.sum() / active.sum()
+    add(names[2], "active", f * share, f_err * share, "", note="fraction of the active pixels "
+        "(the power over the step squared)")
+    ncol = len(columns)
+
+    def step(total):  # the step scales as the rate's contrast to the -1/2: refitted too
+        return _fit_split(design, fit(total[:ncol])[1], *total[ncol:])[1]
+
+    amp, amp_err = jackknife(step, columns + split, active, gid, k)
+    add(names[3], "active", amp, amp_err, unit, note="root of the mean fourth power of the "
+        "steps over their mean square (the pixels' contrasts' scatter)")
+    ty = des["ty"]
+    diff = np.diff(np.eye(ty.size), axis=0)
+    tel = diff @ np.exp(-2.0 * r * np.abs(np.subtract.outer(ty, ty))) @ diff.T / 4
+    per = float(np.sum(des["mm"] * tel)) / des["ar"]
+    add(names[4], "active", p * per, p_err * per, unit ** 2, note="what the faint telegraph "
+        "adds to the active pixels' mean read-noise variance")
+
+
+def _totals(columns, sel):
+    return np.array([float(np.sum(np.broadcast_to(c, sel.shape)[sel], dtype=np.float64))
+                     for c in columns])

@@ -1,0 +1,117 @@
+"""Telegraph pixels too faint to be found jump by jump, fitted as a population
+(`spherex_reduce.analysis.faint_telegraph` through `fit_pixel_terms`, issue 33).
+
+The ramps are drawn here with numpy: white reads, a drift common to the pixels of each row
+and column parity (what the common-drift removal must take out), and a two-state
+telegraph of steps near the jumps' threshold in a known fraction of the pixels.
+"""
+
+import numpy as np
+from astropy import units as u
+
+from spherex_reduce import DetectorGeometry
+from spherex_reduce.analysis.pixel_terms import fit_pixel_terms
+
+SIGMA, DT, NREADS, SIZE, NDARKS = 4.0, 1.5, 30, 64, 8  # 4 darks: the step's error 1.4x low
+FRACTION, STEP, RATE = 0.1, 30.0, 0.3  # steps of ~5 sd of a difference: most never found
+
+
+def _darks(seed, hot=(), drift=3.0, nreads=NREADS):
+    """``NDARKS`` darks of one detector (its telegraph pixels fixed by ``seed``) and which
+    pixels are telegraph; ``hot``: pixels given a 5 e/s current; ``drift``: the common
+    drift's step per read (e)."""
+    rng = np.random.default_rng(seed)
+    tel = rng.random((SIZE, SIZE)) < FRACTION
+    p = -np.expm1(-2 * RATE * DT) / 2  # flip chance per interval, rate per state
+    t = np.arange(nreads) * DT
+    darks = []
+    for _ in range(NDARKS):
+        x = rng.normal(0.0, SIGMA, (nreads, SIZE, SIZE))
+        # a random-walk drift common to each row's even and odd columns
+        x += np.cumsum(rng.normal(0.0, drift, (nreads, SIZE, 1, 2)), axis=0).repeat(
+            SIZE // 2, axis=2).reshape(nreads, SIZE, SIZE)
+        state = rng.random((SIZE, SIZE)) < 0.5
+        for k in range(nreads):
+            if k:
+                state ^= rng.random((SIZE, SIZE)) < p
+            x[k] += STEP * (state & tel)
+        for i, j in hot:
+            x[:, i, j] += 5.0 * t
+        darks.append(x * u.electron)
+    return darks, tel, t * u.s
+
+
+def test_faint_telegraph_pulls_over_twenty_detectors_are_standard_normal():
+    """Power (fraction x mean squared step), rate, fraction and step within their stated
+    errors of the injected population over 20 detectors (the pixels' own sampling is in
+    the jackknife, so the truth is the population's, not the draw's)."""
+    truth = {"power": FRACTION * STEP ** 2, "rate": RATE, "fraction": FRACTION,
+             "amplitude": STEP}
+    pulls = {k: [] for k in truth}
+    for seed in range(20):
+        darks, _, t = _darks(seed)
+        res = fit_pixel_terms(darks, t)
+        for key, value in truth.items():
+            row = res.row(f"faint_telegraph_{key}", "active")
+            assert row["status"] == "fitted", (key, row["note"])
+            pulls[key].append((row["value"] - value) / row["error"])
+    for key, z in pulls.items():
+        z = np.asarray(z)
+        # 20 pulls of N(0, 1): mean within 3/sqrt(20), sd within [0.6, 1.5]
+        assert abs(z.mean()) < 3 / np.sqrt(z.size), (key, z)
+        assert 0.6 < z.std(ddof=1) < 1.5, (key, z)
+
+
+def test_white_reads_with_a_common_drift_have_no_faint_telegraph():
+    """Without telegraph pixels the drift common to the pixels read together is not
+    taken for one: the power is ruled out and the white read noise is the reads'."""
+    rng = np.random.default_rng(5)
+    x = rng.normal(0.0, SIGMA, (NDARKS, NREADS, SIZE, SIZE))
+    x += np.cumsum(rng.normal(0.0, 3.0, (NDARKS, NREADS, SIZE, 1)), axis=1)
+    res = fit_pixel_terms([d * u.electron for d in x], np.arange(NREADS) * DT * u.s)
+    assert res.row("faint_telegraph_power", "active")["status"] == "ruled out"
+    white = res.row("white_read_noise", "active")
+    assert abs(white["value"] - SIGMA) < 4 * white["error"] + 0.01 * SIGMA
+
+
+def test_telegraph_pixels_are_not_taken_for_hot_ones():
+    """A telegraph pixel's slope crosses the hot threshold in one dark and not the next: it
+    is not hot; pixels of a steady 5 e/s current are (36 % of these telegraph pixels were
+    hot before)."""
+    hot = [(3, 5), (40, 17), (60, 60)]
+    darks, tel, t = _darks(11, hot=hot, drift=0.0, nreads=74)
+    res = fit_pixel_terms(darks, t)
+    expect = np.zeros((SIZE, SIZE), bool)
+    expect[tuple(np.array(hot).T)] = True
+    assert tel.sum() > 300
+    np.testing.assert_array_equal(res.maps["hot"], expect)
+
+
+def test_common_labels_are_rows_of_a_channel_and_a_column_parity():
+    from spherex_reduce.analysis.faint_telegraph import common_labels
+
+    g = DetectorGeometry(8, 16, 2, ref_border=2)
+    lab = common_labels(g)
+    ref = g.reference_pixel_mask()
+    assert (lab[ref] == -1).all()
+    rows, cols = np.nonzero(~ref)
+    expect = rows * 4 + (cols // 8) * 2 + cols % 2  # 2 channels of 8 columns
+    np.testing.assert_array_equal(lab[rows, cols], expect)
+
+
+def test_lag_design_traces_against_numpy():
+    """The white and shot traces of the structure function's forms, against a brute
+    force: the mean of the forms over many numpy ramps."""
+    from spherex_reduce.analysis.faint_telegraph import lag_design
+
+    t = np.arange(12) * 1.5
+    d = lag_design(t)
+    rng = np.random.default_rng(0)
+    n = 200000
+    for cov, trace in ((np.eye(t.size), d["a"]),
+                       (np.minimum.outer(t - t[0], t - t[0]), d["s"])):
+        x = rng.multivariate_normal(np.zeros(t.size), cov + 1e-12 * np.eye(t.size), n)
+        resid = x - x[:, :1] - np.outer(x[:, -1] - x[:, 0], (t - t[0]) / (t[-1] - t[0]))
+        for lag, expect in zip(d["lags"], trace, strict=True):
+            q = np.sum((resid[:, lag:] - resid[:, :-lag]) ** 2, axis=1)
+            assert abs(q.mean() - expect) < 4 * q.std() / np.sqrt(n), (lag, q.mean(), expect)

@@ -448,12 +448,7 @@ def main():
     if "white" not in cases:
         cases.insert(0, "white")  # the band power's unit
     cases.sort(key=list(ngb.CASES).index)
-    d = ngb.nghxrg_dir(args.nghxrg)
-    module = ngb.load_nghxrg(d)
-    Path(args.cubes).mkdir(parents=True, exist_ok=True)
-    pca0 = d / "nirspec_pca0.fits"
-    if not pca0.is_file():
-        pca0 = ngb.standin_pca0(Path(args.cubes) / "standin_pca0.fits")
+    d, module, pca0 = ngb.peer(args.nghxrg, args.cubes)
     jwst_py = None
     head = [f"NGHXRG 2.6 ({d}), {args.size}² × {args.nframes}, {ngb.NOUT} "
             f"outputs, {args.darks} darks per case (seeds 1000·case + 500 + k), cubes in "

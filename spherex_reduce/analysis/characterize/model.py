@@ -31,7 +31,8 @@ import numpy as np
 
 from .spectra import band_power
 
-__all__ = ["ACN_SIGMAS", "BAD_FIT_PROBABILITY", "Estimate", "combine", "goodness"]
+__all__ = ["ACN_SIGMAS", "BAD_FIT_PROBABILITY", "Estimate", "combine", "goodness",
+           "scene_values"]
 
 PARAMS = ("alpha", "beta", "gamma")
 #: ACN is found when the correlated power of the even-odd difference is above zero by more
@@ -162,6 +163,117 @@ LAYOUT = {"channel": ("channel", "pixels"), "acn": ("channel", "pixels"),
           "channel_both": ("channel", "both"),
           "channel_phantom": ("channel", "phantom"), "common": ("common", "pixels"),
           "common_both": ("common", "both"), "common_phantom": ("common", "phantom")}
+
+
+#: the components of each visibility, channel scope and common scope: their sum, term by
+#: term, is the spectrum that visibility's streams show (``channel + common``: each pixel's)
+PAIRS = (("channel", "common"), ("channel_both", "common_both"),
+         ("channel_phantom", "common_phantom"))
+
+
+def _gamma_factor(exponent, band):
+    """``∫ f^-exponent df`` over ``band`` (Hz): ``ln(hi/lo)`` at exponent 1."""
+    lo, hi = band
+    e = float(exponent)
+    if abs(1 - e) < 1e-9:
+        return float(np.log(hi / lo))
+    return float((hi ** (1 - e) - lo ** (1 - e)) / (1 - e))
+
+
+def scene_values(components, exponent, bands):
+    """The coefficients a scene can hold (none below zero), keeping what the darks constrain.
+
+    A fitted term below zero (within its error of zero, where a term is poorly constrained
+    alone but well in a sum) cannot be simulated; set to 0 alone it would raise the sum it
+    belongs to.  So, in turn:
+
+    1. **Within a component**: a negative ``beta`` (1/f) or ``gamma`` (1/f^exponent)
+       beside a positive other (nearly the same shape over the fitted frequencies) is 0
+       and the other holds the component's band power over ``bands[name]``
+       (`~spherex_reduce.analysis.characterize.spectra.band_power`), where that band
+       power is not below zero.
+    2. **Across scopes** (`PAIRS`), term by term: a negative term of one scope beside a
+       positive same term of the other scope, of the same visibility, moves into it, which
+       then holds their sum: ``channel.alpha + common.alpha`` (each pixel's white level)
+       and every other sum the visibility's auto-spectrum fits are kept.
+    3. Within a component again, as 1: where the band power is below zero both are 0.
+    4. Whatever is still below zero is 0.
+
+    Parameters
+    ----------
+    components : dict
+        ``{name: alpha, beta, gamma}`` (unit²/Hz, unit², unit²·Hz^(exponent−1)), as fitted.
+    exponent : float
+        The exponent of the ``gamma`` terms.
+    bands : dict
+        ``{name: (fmin, fmax)}`` (Hz): the frequencies each component was fitted over; a
+        component missing here has steps 1 and 3 left out.
+
+    Returns
+    -------
+    values : dict
+        ``{name: ndarray (3,)}``, the coefficients for the scene.
+    notes : dict
+        ``{(name, term): str}``: what was done with each term fitted below zero or
+        holding another's, and its value in the scene.
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.characterize.model import scene_values
+    >>> v, notes = scene_values({"channel": [5e-4, 0.0, 0.0], "common": [-1e-4, 0.0, 0.0]},
+    ...                         1.3, {})
+    >>> [float(x) for x in v["channel"]], [float(x) for x in v["common"]]
+    ([0.0004, 0.0, 0.0], [0.0, 0.0, 0.0])
+    >>> notes[("common", "alpha")]
+    'moved into channel.alpha (channel.alpha + common.alpha = 0.0004 kept); 0 in the scene'
+    """
+    vals = {n: np.array(v, dtype=np.float64) for n, v in components.items()}
+    said = {}
+
+    def say(name, p, text):
+        said.setdefault((name, p), []).append(text)
+
+    def within(name, v, band, last):
+        factor = {1: float(np.log(band[1] / band[0])), 2: _gamma_factor(exponent, band)}
+        power = v[1] * factor[1] + v[2] * factor[2]
+        if power < 0 and not last:
+            return
+        neg, pos = (1, 2) if v[1] < 0 else (2, 1)
+        new = max(power, 0.0) / factor[pos]
+        say(name, PARAMS[neg], f"{name}'s band power over {band[0]:.3g}-{band[1]:.3g} Hz "
+                               f"({power:.3g}) " + ("is below zero, so" if power < 0 else
+                                                    "kept by") +
+            f" {name}.{PARAMS[pos]}: {v[pos]:.3g} -> {new:.3g}")
+        v[pos], v[neg] = new, 0.0
+
+    def within_all(last):
+        for name, v in vals.items():
+            if name in bands and min(v[1], v[2]) < 0 < max(v[1], v[2]):
+                within(name, v, bands[name], last)
+
+    within_all(last=False)
+    for pair in PAIRS:
+        if not all(n in vals for n in pair):
+            continue
+        for i, p in enumerate(PARAMS):
+            a, b = (vals[n][i] for n in pair)
+            if min(a, b) >= 0 or max(a, b) <= 0:
+                continue
+            neg, pos = pair if a < 0 else pair[::-1]
+            vals[neg][i], vals[pos][i] = 0.0, a + b
+            say(neg, p, f"moved into {pos}.{p} ({pair[0]}.{p} + {pair[1]}.{p} = {a + b:.3g} "
+                        "kept)")
+            if a + b < 0:
+                say(pos, p, f"holds {pair[0]}.{p} + {pair[1]}.{p} = {a + b:.3g}, below zero")
+    within_all(last=True)
+    for name, v in vals.items():
+        for i, p in enumerate(PARAMS):
+            if v[i] < 0:
+                v[i] = 0.0
+                said.setdefault((name, p), [])
+    notes = {(n, p): "; ".join([*texts, f"{vals[n][PARAMS.index(p)]:.3g} in the scene"])
+             for (n, p), texts in said.items()}
+    return vals, notes
 
 
 def _spread(full, jack, view):

@@ -6,7 +6,7 @@ import numpy as np
 from astropy import units as u
 from astropy.table import Table
 
-from .model import ACN_SIGMAS, BAD_FIT_PROBABILITY, LAYOUT, PARAMS, combine, goodness
+from .model import ACN_SIGMAS, BAD_FIT_PROBABILITY, LAYOUT, PARAMS, combine, goodness, scene_values
 from .spectra import SPECTRA
 
 __all__ = ["Characterization"]
@@ -20,6 +20,11 @@ def _units(unit, exponent):
     return {"alpha": unit**2 / u.Hz, "beta": unit**2,
             "gamma": unit**2 * u.Hz ** (exponent - 1)}
 
+
+#: the spectrum each component is fitted from, whose bins give its frequencies
+SOURCES = {"channel": "pixels", "acn": "acn", "common": "pixels_common",
+           "channel_both": "both", "common_both": "both_common",
+           "channel_phantom": "phantom", "common_phantom": "phantom_common"}
 
 #: The per-pixel terms `Characterization.summary` prints (the report holds them all).
 PIXEL_SUMMARY = ("read_noise", "dark_current", "hot_pixel_fraction", "telegraph_fraction",
@@ -158,13 +163,14 @@ class Characterization:
                 if sp["real"][i]:
                     out.append(f"{view}.{p}: differs between channels (standard deviation "
                                f"{sp['spread'][i]:.3g}); the model holds the channel mean")
+        notes = self._scene_values()[1]
         for name, est in self.components.items():
             for i, p in enumerate(PARAMS):
                 v, e = est.values[i], est.errors[i]
-                if v < 0:
+                if (name, p) in notes:
                     sig = f"{-v / e:.1f} sigma" if e > 0 else "no error"
-                    out.append(f"{name}.{p} = {v:.3g} ± {e:.2g} is below zero ({sig}): 0 in "
-                               "the scene")
+                    out.append(f"{name}.{p} = {v:.3g} ± {e:.2g}" + (
+                        f" is below zero ({sig})" if v < 0 else "") + f": {notes[(name, p)]}")
         for name, (c2, dof, prob) in goodness(self.bins, s.geometry.nchannels).items():
             if prob < BAD_FIT_PROBABILITY:
                 out.append(f"{name}: the fit is visibly bad (chi2/dof = {c2:.0f}/{dof}, "
@@ -175,14 +181,29 @@ class Characterization:
         return out
 
     # -- the scene ------------------------------------------------------------------------
+    def _scene_values(self):
+        """`scene_values` of the components, each over its spectrum's binned frequencies."""
+        bands = {}
+        for name in self.components:
+            b = self.bins.get(SOURCES.get(name), self.bins.get("pixels"))
+            if b is not None and len(b):
+                f = np.asarray(b["frequency"], dtype=np.float64)
+                bands[name] = (float(f.min()), float(f.max()))
+        return scene_values({n: est.values for n, est in self.components.items()},
+                            self.exponent, bands)
+
     def scene(self):
         """The model as a scene mapping (``unit``, ``gain`` in adu where known,
         ``geometry``, ``readout``, ``noise``, ``scene``), in the darks' unit: what
-        `~spherex_reduce.simulation.load_scene` takes."""
+        `~spherex_reduce.simulation.load_scene` takes.
+
+        No coefficient is below zero: one fitted below zero is moved into the term it
+        is constrained with (`~spherex_reduce.analysis.characterize.model.scene_values`),
+        and `marks` says what was moved, one line per term."""
         comps = []
-        for name, est in self.components.items():
+        for name, held in self._scene_values()[0].items():
             scope, visibility = LAYOUT[name]
-            values = {p: max(float(v), 0.0) for p, v in zip(PARAMS, est.values, strict=True)}
+            values = {p: float(v) for p, v in zip(PARAMS, held, strict=True)}
             if not any(values.values()):
                 continue
             comp = {"name": name, **values, "exponent": self.exponent, "scope": scope,

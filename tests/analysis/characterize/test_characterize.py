@@ -232,6 +232,61 @@ def test_a_strong_common_part_comes_back():
     assert common.values[1] == pytest.approx(0.5, rel=0.3)  # beta: 4x before
 
 
+
+def test_a_term_fitted_below_zero_moves_into_the_term_it_is_constrained_with():
+    """Issue 33: no common white noise under a strong common 1/f: the common white level
+    comes out below zero (within its error; seed 0 of a few), and the common 1/f^1.3 and
+    the channel's 1/f below zero beside positive terms of their shape.  The scene set each
+    to 0 and kept the positive terms, raising each pixel's white level (channel.alpha +
+    common.alpha) and its 1/f band power.  Now the scene keeps the fitted sum and the
+    fitted band power of the pixels (numpy, from the model's table), and the marks say
+    what was moved."""
+    s = schedule(nrows=64, ncols=64, nframes=10, phantom_reads=0)
+    comps = [{"name": "w", "alpha": 2e-3, "scope": "channel"},
+             {"name": "c", "beta": 2.0, "scope": "common"}]
+    model = characterize([dark(s, comps, k) for k in range(4)], pixels=False)
+    t = model.report()
+    fitted = {(r["name"], r["parameter"]): r["value"] for r in t if r["kind"] == "component"}
+    assert fitted[("common", "alpha")] < 0 < fitted[("channel", "alpha")]
+    assert fitted[("common", "gamma")] < 0 < fitted[("common", "beta")]
+    scene = {c["name"]: c for c in model.scene()["noise"]["components"]}
+    assert all(v >= 0 for c in scene.values() for v in (c["alpha"], c["beta"], c["gamma"]))
+    assert scene["common"]["alpha"] == 0.0
+    assert scene["channel"]["alpha"] + scene["common"]["alpha"] == pytest.approx(
+        fitted[("channel", "alpha")] + fitted[("common", "alpha")], rel=1e-12)
+    f = np.asarray(model.bins["pixels"]["frequency"])  # the pixels' fitted frequencies
+    lo, hi, e = f.min(), f.max(), model.exponent
+
+    def band(b, g):  # the 1/f and 1/f^e power over the band
+        return b * np.log(hi / lo) + g * (hi ** (1 - e) - lo ** (1 - e)) / (1 - e)
+
+    want = sum(band(fitted[(n, "beta")], fitted[(n, "gamma")]) for n in ("channel", "common"))
+    got = sum(band(scene[n]["beta"], scene[n]["gamma"]) for n in ("channel", "common"))
+    assert want > 0 and got == pytest.approx(want, rel=1e-9)
+    mark = [m for m in model.marks if m.startswith("common.alpha = ")]
+    assert len(mark) == 1 and "moved into channel.alpha" in mark[0], model.marks
+    assert any(m.startswith("common.gamma = ") and "kept by common.beta" in m
+               for m in model.marks), model.marks
+
+
+def test_scene_values_keep_a_visibilitys_sum_and_clip_what_sums_below_zero():
+    """`scene_values` on numbers written here: a negative common term moves into the
+    channel one (their sum kept); a sum below zero is 0 with both terms; a negative beta
+    whose component's band power is below zero takes its gamma to 0."""
+    from spherex_reduce.analysis.characterize.model import scene_values
+
+    fitted = {"channel_phantom": [3e-3, 2.0, 0.0], "common_phantom": [-1e-3, -3.0, 0.0],
+              "acn": [0.0, -1.0, 1.0]}
+    band = (10.0, 1000.0)
+    vals, notes = scene_values(fitted, 1.3, {"acn": band})
+    np.testing.assert_allclose(vals["channel_phantom"], [2e-3, 0.0, 0.0], rtol=1e-12)
+    np.testing.assert_array_equal(vals["common_phantom"], [0.0, 0.0, 0.0])
+    # acn: -ln(100) + (1000^-0.3 - 10^-0.3)/(-0.3) = -4.6 + 1.67 < 0
+    np.testing.assert_array_equal(vals["acn"], [0.0, 0.0, 0.0])
+    assert set(notes) == {("common_phantom", "alpha"), ("common_phantom", "beta"),
+                          ("channel_phantom", "beta"), ("acn", "beta")}
+    assert notes[("channel_phantom", "beta")].endswith("below zero; 0 in the scene")
+
 # -- the per-pixel terms, summed dark by dark -------------------------------------------
 PIXEL_SCENE = {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 2, "ref_border": 4},
                "readout": {"skip": 4, "ref_reads": 8, "phantom_reads": 0, "nframes": 30,

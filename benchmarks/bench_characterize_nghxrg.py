@@ -341,13 +341,19 @@ def report(case, params, model, want, seconds):
     return lines
 
 
-def main():
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def cube_arguments(p):
+    """The options of every benchmark on NGHXRG's cubes, added to parser ``p``: where
+    NGHXRG is, the cubes' size and frames, darks per case and the cases."""
     p.add_argument("--nghxrg", help="a copy of NGHXRG's repository (default: clone it)")
     p.add_argument("--size", type=int, default=2048)
     p.add_argument("--nframes", type=int, default=10)
     p.add_argument("--darks", type=int, default=4)
     p.add_argument("--cases", default=",".join(CASES))
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    cube_arguments(p)
     p.add_argument("--out", default="/tmp/nghxrg_cubes", help="where the cubes are written")
     p.add_argument("--exponent", type=float, default=1.3)
     p.add_argument("--plot", metavar="DIR", help="write each case's characterisation plot "

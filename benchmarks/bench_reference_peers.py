@@ -430,11 +430,7 @@ def verdict(case, results, sky_t, times):
 
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--nghxrg", help="a copy of NGHXRG's repository (default: clone it)")
-    p.add_argument("--size", type=int, default=2048)
-    p.add_argument("--nframes", type=int, default=10)
-    p.add_argument("--darks", type=int, default=4)
-    p.add_argument("--cases", default=",".join(ngb.CASES))
+    ngb.cube_arguments(p)
     p.add_argument("--floor-cases", default=",".join(ngb.CASES),
                    help="cases whose floor is measured (NGHXRG draws each cube twice)")
     p.add_argument("--cubes", default="/tmp/refpeers_cubes", help="where cubes are cached")

@@ -334,6 +334,9 @@ def test_spectrum_outputs_are_all_or_nothing(files, tmp_path, monkeypatch, fail,
     assert list(tmp_path.iterdir()) == []  # neither output, no temporary file
 
 
+# The fixture's 64² dark of 4 frames fits the phantom's 1/f^1.3 term 3 sigma below zero
+# on its seed (about 1 seed in 12): the fit's warning is not what this test is about.
+@pytest.mark.filterwarnings("ignore:implausible noise fit")
 def test_readout_and_fit_noise_outputs_are_all_or_nothing(files, tmp_path, monkeypatch, capsys):
     import matplotlib.figure
 

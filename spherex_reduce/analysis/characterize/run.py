@@ -13,7 +13,7 @@ from ..pixel_terms import PixelSums, dark_rows
 from .check import DarkScatter, compare, reduction_pipeline
 from .result import Characterization
 from .spectra import dark_spectra, fit_spectra, pool
-from .streams import MIN_FRAMES, channel_streams, pooled_boxes, shot_white, telegraph_white
+from .streams import MIN_FRAMES, channel_streams, pooled_boxes, shot_white
 
 __all__ = ["characterize", "check_model", "dark_exposures"]
 
@@ -92,9 +92,7 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
         takes (``scene:``), and the streams leave out what they hold (each dark's
         pixels with a jump or hot, `~spherex_reduce.analysis.pixel_terms.PixelSums.add`;
         the dark current's shot noise,
-        `~spherex_reduce.analysis.characterize.streams.shot_white`, and the white level
-        of the faint telegraph population, whose pixels stay in the streams,
-        `~spherex_reduce.analysis.characterize.streams.telegraph_white`), so the model
+        `~spherex_reduce.analysis.characterize.streams.shot_white`), so the model
         holds it once.  Darks it cannot take (ADU without a gain, no unit) are
         marked in one line, the stream model kept (of every pixel).
     scatter : bool
@@ -221,21 +219,16 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
 
 def _shot(terms, schedule, cuts):
     """The white level (one sample's, as ``alpha``) that the dark current of the per-pixel
-    ``terms`` and their faint telegraph population (whose pixels stay in the streams) give
-    the light-sensitive streams of the runs of frames ``cuts``, the mean over them (their
-    spectra are pooled alike), in the fraction of the row reads that read light-sensitive
-    pixels."""
+    ``terms`` gives the light-sensitive streams of the runs of frames ``cuts``, the mean over
+    them (their spectra are pooled alike), in the fraction of the row reads that read
+    light-sensitive pixels."""
     row = terms.row("dark_current", "active")
-    rate = row["value"] / terms.gain if row["status"] == "fitted" and row["value"] > 0 else 0.0
-    faint = [terms.row(f"faint_telegraph_{k}", "active") for k in ("power", "rate")]
-    power, flips = ((faint[0]["value"], faint[1]["value"])
-                    if all(r["status"] == "fitted" for r in faint) else (0.0, 0.0))
-    if not (rate or power):
+    if row["status"] != "fitted" or not row["value"] > 0:
         return 0.0
+    rate = row["value"] / terms.gain  # unit^2 / s
     starts = schedule.frame_starts.to_value(u.s)
-    fs = schedule.geometry.pixel_rate
-    white = np.mean([shot_white(rate, starts[cut], fs)
-                     + telegraph_white(power, flips, starts[cut], fs) for cut in cuts])
+    white = np.mean([shot_white(rate, starts[cut], schedule.geometry.pixel_rate)
+                     for cut in cuts])
     return float(white * np.mean(~schedule.is_reference))
 
 

@@ -39,8 +39,7 @@ from ..timestreams import (
     reference_timestream,
 )
 
-__all__ = ["Box", "ChannelStreams", "channel_streams", "pooled_boxes", "shot_white",
-           "telegraph_white"]
+__all__ = ["Box", "ChannelStreams", "channel_streams", "pooled_boxes", "shot_white"]
 
 #: Fewest frames a dark (or a segment of one) needs: a straight line is removed across them.
 MIN_FRAMES = 3
@@ -303,56 +302,11 @@ def shot_white(rate, times, sample_rate):
     """
     t = np.asarray(times, dtype=np.float64)
     t = t - t[0]
-    return _detrended_white(rate * np.minimum.outer(t, t), sample_rate)
-
-
-def telegraph_white(power, rate, times, sample_rate):
-    """The white level a population of two-state telegraph pixels adds to a detrended
-    stream of pixels, as the fits report white levels (``alpha`` of one sample).
-
-    Each pixel's states, ``A`` apart and switching at ``rate`` per state, have the
-    covariance ``A²/4 · exp(−2 rate |t_i − t_j|)`` across frames; what the straight
-    line of `~spherex_reduce.analysis.timestreams.detrend_frames` leaves of it is
-    independent between pixels, so white along a stream, as for `shot_white`
-    (the same ``κ``, with this covariance for ``W``).
-
-    Parameters
-    ----------
-    power : float
-        The pixels' mean squared step (unit²: the fraction times the mean ``A²``).
-    rate : float
-        Switching rate of each state (Hz).
-    times : array_like
-        The ``N`` frame start times (s) of the stream.
-    sample_rate : float
-        The pixel rate (Hz).
-
-    Returns
-    -------
-    float
-        unit²/Hz.
-
-    Examples
-    --------
-    A telegraph far faster than the frames is white across them: ``κ = P/4``.
-
-    >>> from spherex_reduce.analysis.characterize.streams import telegraph_white
-    >>> round(telegraph_white(4.0, 1e6, [0.0, 1.0, 2.0, 3.0], 1e5) / 2e-5, 6)
-    1.0
-    """
-    t = np.asarray(times, dtype=np.float64)
-    cov = power / 4.0 * np.exp(-2.0 * rate * np.abs(np.subtract.outer(t, t)))
-    return _detrended_white(cov, sample_rate)
-
-
-def _detrended_white(cov, sample_rate):
-    """``2 κ / sample_rate``: ``κ`` the mean over frames of the diagonal of
-    ``P cov P · N / (N − 2)`` (``P`` the projector off `detrend_frames`' line)."""
-    n = cov.shape[0]
+    n = t.size
     x = np.arange(n) - (n - 1) / 2  # detrend_frames' line: in frame index
     proj = np.eye(n) - 1.0 / n - np.outer(x, x) / np.sum(x * x)
-    kappa = np.mean(np.diag(proj @ cov @ proj)) * n / (n - 2)
-    return float(2 * kappa / sample_rate)
+    kappa = np.mean(np.diag(proj @ np.minimum.outer(t, t) @ proj)) * n / (n - 2)
+    return float(2 * rate * kappa / sample_rate)
 
 
 def _kept_sum(data, cols, drop):

@@ -31,8 +31,12 @@ fits it from second- and fourth-order statistics of every pixel's ramp:
 A telegraph faster than the reads is white noise (the read-noise map holds
 it); a slow one's structure function grows linearly with the lag, so only
 ``P r`` is seen (the slow ones with large steps are the ones found jump by
-jump).  Every estimate is a function of sums over pixels, so its error is the
-delete-a-group jackknife of `~spherex_reduce.analysis.pixel_terms`.
+jump): at either end of the rate's range the population is not constrained.
+``I`` is the pixels' mean slope over the gain: a slope that is not all Poisson
+charge at that gain leaves ``P`` (or ``P r``) below 0 beyond its errors, and
+the population is then not constrained, saying so (never ruled out).  Every
+estimate is a function of sums over pixels, so its error is the delete-a-group
+jackknife of `~spherex_reduce.analysis.pixel_terms`.
 """
 
 import numpy as np
@@ -255,20 +259,20 @@ def _contrast_form(design):
 
 
 def _fit_split(design, rate, c1, c2, noise, count):
-    """``(fraction, step)`` of a population of mean ``A²`` from the pixels' contrasts: sums
-    of ``c`` (``c1``), ``c²`` (``c2``) and of their measurement variance (``noise``) over
-    ``count`` pixels, at the fitted ``rate``."""
+    """The step ``(E[A⁴]/E[A²])^½`` of a population from the pixels' contrasts: sums of
+    ``c`` (``c1``), ``c²`` (``c2``) and of their measurement variance (``noise``) over
+    ``count`` pixels, at the fitted ``rate`` (NaN where not positive)."""
     c, _ = _contrast_form(design)
     t = design["times"]
     corr = np.exp(-2.0 * rate * np.abs(np.subtract.outer(t, t)))
     kappa = float(np.sum(c * corr)) / 4.0
     if not (count > 0 and kappa > 0):
-        return np.nan, np.nan
+        return np.nan
     m1 = c1 / count / kappa  # E[A²]
     m2 = (c2 - noise) / count / kappa ** 2  # E[A⁴]
     if not (m1 > 0 and m2 > 0):
-        return np.nan, np.nan
-    return float(m1 * m1 / m2), float(np.sqrt(m2 / m1))
+        return np.nan
+    return float(np.sqrt(m2 / m1))
 
 
 def add_faint_terms(add, refuse, acc, quiet, active, current, ndarks, k, unit, des,
@@ -331,22 +335,34 @@ def add_faint_terms(add, refuse, acc, quiet, active, current, ndarks, k, unit, d
         unit, note="root of the white read variance of the pixels that are not hot nor found "
         "telegraph, from their structure function (the drift common to the pixels read "
         "together and the faint telegraph taken out)")
-    if not (np.isfinite(p_err) and p > 3 * p_err):
-        add(names[0], "active", p, p_err, unit ** 2, "ruled out",
-            "mean squared step over the active pixels not found jump by jump; ruled out: "
-            "within 3 sd of none")
+    slow = edge and rate < 1 / float(np.median(des["dt"]))
+    z, seen = (p, p_err), ""
+    if slow:  # the structure function grows linearly with the lag: only P r is seen
+        z = jackknife(lambda total: power(total) * fit(total)[1], columns, active, gid, k)
+        seen = f"; P r = {z[0]:.4g} +- {z[1]:.2g} {unit ** 2 / u.s}"
+    if not np.isfinite(z[1]) or abs(z[0]) <= 3 * z[1]:
+        add(names[0], "active", p, p_err, unit ** 2, "ruled out", "mean squared step over "
+            f"the active pixels not found jump by jump; ruled out: within 3 sd of none{seen}")
         for name, un in zip(names[1:5], units[1:5], strict=True):
             refuse(name, "active", un, "no faint telegraph found")
         return
-    add(names[0], "active", p, p_err, unit ** 2, note="fraction times the mean squared step "
-        "of the telegraph pixels not found jump by jump (their structure function)")
-    if edge:
-        why = ("switches faster than the reads (white noise: in the read-noise map)"
-               if rate > 1 / float(np.median(des["dt"])) else
-               "slower than the ramps resolve (only the power times the rate is seen)")
-        for name, un in zip(names[1:5], units[1:5], strict=True):
+    if z[0] < 0:  # less variance than the white reads and the mean current's shot noise
+        why = (f"{'P r' if slow else 'the power'} is {-z[0] / z[1]:.1f} sd below 0: the ramps' "
+               "variance is less than the white reads and the shot noise of the pixels' mean "
+               f"current over the gain ({shot:.4g} {unit ** 2 / u.s}) give; a mean slope that "
+               "is not all Poisson charge at this gain (a wrong gain, a ramp of the bias)?")
+        for name, un in zip(names[:5], units[:5], strict=True):
             refuse(name, "active", un, why)
         return
+    if edge:
+        why = ("slower than the ramps resolve (only the power times the rate is seen"
+               f"{seen})" if slow else
+               "switches faster than the reads (white noise: in the read-noise map)")
+        for name, un in zip(names[:5], units[:5], strict=True):
+            refuse(name, "active", un, why)
+        return
+    add(names[0], "active", p, p_err, unit ** 2, note="fraction times the mean squared step "
+        "of the telegraph pixels not found jump by jump (their structure function)")
     r, r_err = jackknife(lambda total: fit(total)[1], columns, active, gid, k)
     add(names[1], "active", r, r_err, u.Hz, note="switching rate of each state (the lags' "
         "structure function)")
@@ -363,19 +379,18 @@ def add_faint_terms(add, refuse, acc, quiet, active, current, ndarks, k, unit, d
     split = [np.where(quiet, c, 0.0), np.where(quiet, c.astype(np.float64) ** 2, 0.0),
              np.where(quiet, noise, 0.0), quiet * 1.0]
 
-    def part(i):
-        return lambda total: _fit_split(design, r, *total)[i]
-
-    f, f_err = jackknife(part(0), split, active, gid, k)
-    share = quiet.sum() / active.sum()
-    add(names[2], "active", f * share, f_err * share, "", note="fraction of the active pixels "
-        "(the power over the step squared)")
     ncol = len(columns)
 
     def step(total):  # the step scales as the rate's contrast to the -1/2: refitted too
-        return _fit_split(design, fit(total[:ncol])[1], *total[ncol:])[1]
+        return _fit_split(design, fit(total[:ncol])[1], *total[ncol:])
+
+    def fraction(total):  # the power over the step squared: fraction x step^2 is the power
+        return power(total[:ncol]) / step(total) ** 2
 
     amp, amp_err = jackknife(step, columns + split, active, gid, k)
+    f, f_err = jackknife(fraction, columns + split, active, gid, k)
+    add(names[2], "active", f, f_err, "", note="fraction of the active pixels (the power over "
+        "the step squared)")
     add(names[3], "active", amp, amp_err, unit, note="root of the mean fourth power of the "
         "steps over their mean square (the pixels' contrasts' scatter)")
     ty = des["ty"]

@@ -16,13 +16,13 @@ SIGMA, DT, NREADS, SIZE, NDARKS = 4.0, 1.5, 30, 64, 8  # 4 darks: the step's err
 FRACTION, STEP, RATE = 0.1, 30.0, 0.3  # steps of ~5 sd of a difference: most never found
 
 
-def _darks(seed, hot=(), drift=3.0, nreads=NREADS):
+def _darks(seed, hot=(), drift=3.0, nreads=NREADS, rate=RATE):
     """``NDARKS`` darks of one detector (its telegraph pixels fixed by ``seed``) and which
     pixels are telegraph; ``hot``: pixels given a 5 e/s current; ``drift``: the common
-    drift's step per read (e)."""
+    drift's step per read (e); ``rate``: the telegraph's per state (Hz)."""
     rng = np.random.default_rng(seed)
     tel = rng.random((SIZE, SIZE)) < FRACTION
-    p = -np.expm1(-2 * RATE * DT) / 2  # flip chance per interval, rate per state
+    p = -np.expm1(-2 * rate * DT) / 2  # flip chance per interval, rate per state
     t = np.arange(nreads) * DT
     darks = []
     for _ in range(NDARKS):
@@ -115,3 +115,37 @@ def test_lag_design_traces_against_numpy():
         for lag, expect in zip(d["lags"], trace, strict=True):
             q = np.sum((resid[:, lag:] - resid[:, :-lag]) ** 2, axis=1)
             assert abs(q.mean() - expect) < 4 * q.std() / np.sqrt(n), (lag, q.mean(), expect)
+
+
+def test_a_mean_slope_without_shot_noise_is_not_a_negative_population_ruled_out():
+    """A telegraph population (10 %, 30 e, 0.3 Hz) on a noiseless ramp of 5 e/s in every
+    pixel: the fit takes the mean slope for Poisson charge and takes its shot noise (5 e^2/s
+    of a random walk) out of the structure function, more than is there.  The population
+    is then not constrained, saying why, never "ruled out" nor fitted with a negative
+    power (before: -23785 e^2 "ruled out" on such darks of characterize's tests)."""
+    darks, _, t = _darks(3, drift=0.0)
+    ramp = 5.0 * t.to_value(u.s)[:, None, None] * u.electron
+    res = fit_pixel_terms([d + ramp for d in darks], t)
+    for key in ("power", "rate", "fraction", "amplitude"):
+        row = res.row(f"faint_telegraph_{key}", "active")
+        assert row["status"] == "not constrained", (key, row)
+        assert "below 0" in row["note"] and "Poisson" in row["note"]
+    # the same darks without the ramp: the population is fitted
+    clean = fit_pixel_terms(darks, t).row("faint_telegraph_power", "active")
+    assert clean["status"] == "fitted"
+    assert abs(clean["value"] - FRACTION * STEP ** 2) < 3 * clean["error"]
+
+
+def test_a_population_slower_than_the_ramps_shows_only_its_power_times_its_rate():
+    """Steps switching at 0.003 Hz (a flip in 1 of 7 pixel-darks of 45 s): the structure
+    function grows linearly with the lag, so only ``P r`` (0.27 e^2/s) is seen; the power
+    is not constrained and the note gives ``P r`` within 3 of its errors (before: a power
+    "fitted" as ``P r`` over the end of the rate's search range)."""
+    import re
+
+    darks, _, t = _darks(3, drift=0.0, rate=0.003)
+    row = fit_pixel_terms(darks, t).row("faint_telegraph_power", "active")
+    assert row["status"] == "not constrained", row
+    value, error = map(float, re.search(r"P r = (\S+) \+- (\S+) electron2 / s",
+                                        row["note"]).groups())
+    assert abs(value - FRACTION * STEP ** 2 * 0.003) < 3 * error, row["note"]

@@ -362,7 +362,9 @@ def _pixel_darks(s, n, fraction=0.0, amplitude=150.0, flip=0.3, current=0.0, hot
     mean[light & (rng.random(light.shape) < hot)] = hot_current
     out = []
     for k in range(n):
-        data = np.array(dark(s, [{"name": "x", "alpha": 2e-3}], 500 + k).data.data)
+        # no noiseless dark ramp: the per-pixel terms take a mean slope for Poisson charge
+        data = np.array(dark(s, [{"name": "x", "alpha": 2e-3}], 500 + k,
+                             dark_current=0.0).data.data)
         flips = rng.random((rows.size, s.nframes)) < flip
         state = amplitude * (np.cumsum(flips, axis=1) % 2)  # (pixels, frames)
         for p, (r, c) in enumerate(zip(rows, cols, strict=True)):
@@ -401,6 +403,32 @@ def test_dark_current_shot_noise_and_hot_pixels_stay_out_of_the_stream_white_lev
     assert model.pixel_terms.row("hot_pixel_fraction", "active")["value"] > 0.003
     pix = model.spectra["pixels"]
     assert pix.values[0] == pytest.approx(2e-3, abs=max(3 * pix.errors[0], 0.03 * 2e-3))
+
+
+
+@pytest.mark.parametrize("nframes, flip", [(12, 0.3), (24, 0.05)])
+def test_faint_telegraph_population_matches_the_truth(nframes, flip):
+    """Issue 33: 10 % of the pixels with 30 e steps (3 sd of a difference: never found jump
+    by jump) flipping at a frame with probability ``flip`` (rate per state
+    ``-ln(1 - 2 flip) / (2 dt)``: 9.5 and 1.1 Hz) are the faint population, each term
+    within 3 of its errors of the truth, its fraction times its step squared its power
+    (the scene's population has the fitted variance).  Before: the darks' noiseless ramp
+    (5 e a frame) was taken for a Poisson current whose shot noise was taken out of the
+    structure function: 49.5 e steps at 20 Hz and a fraction times step squared twice the
+    power (12 frames), a power of -23785 e^2 "ruled out" (24 frames)."""
+    s = schedule(nrows=128, ncols=128, nframes=nframes, phantom_reads=0)
+    model = characterize(_pixel_darks(s, 8, fraction=0.1, amplitude=30.0, flip=flip),
+                         segments=1)
+    dt = float(np.median(np.diff(s.frame_starts.value)))
+    truth = {"fraction": 0.1, "amplitude": 30.0, "power": 0.1 * 30.0 ** 2,
+             "rate": -np.log1p(-2 * flip) / (2 * dt)}
+    rows = {k: model.pixel_terms.row(f"faint_telegraph_{k}", "active") for k in truth}
+    for key, value in truth.items():
+        assert rows[key]["status"] == "fitted", (key, rows[key]["note"])
+        assert abs(rows[key]["value"] - value) < 3 * rows[key]["error"], (key, rows[key])
+    faint = model.scene()["scene"]["rtn"]
+    assert faint["fraction"] * faint["amplitude"] ** 2 == pytest.approx(
+        rows["power"]["value"], rel=1e-9)
 
 
 # -- memory: one dark's streams at a time ------------------------------------------------

@@ -331,10 +331,14 @@ def add_faint_terms(add, refuse, acc, quiet, active, current, ndarks, k, unit, d
     p, p_err = jackknife(power, columns, active, gid, k)
     _, rate, _, edge = fit(_totals(columns, active))
     value, err = jackknife(lambda total: fit(total)[2], columns, active, gid, k)
-    add(names[5], "active", np.sqrt(max(value, 0.0)), err / (2 * np.sqrt(max(value, 1e-300))),
-        unit, note="root of the white read variance of the pixels that are not hot nor found "
-        "telegraph, from their structure function (the drift common to the pixels read "
-        "together and the faint telegraph taken out)")
+    if value > 0:
+        add(names[5], "active", np.sqrt(value), err / (2 * np.sqrt(value)), unit,
+            note="root of the white read variance of the pixels that are not hot nor found "
+            "telegraph, from their structure function (the drift common to the pixels read "
+            "together and the faint telegraph taken out)")
+    else:  # its root's error would be unbounded
+        refuse(names[5], "active", unit, f"the white read variance from the structure "
+               f"function is {value:.3g} ± {err:.2g}, not above zero")
     slow = edge and rate < 1 / float(np.median(des["dt"]))
     z, seen = (p, p_err), ""
     if slow:  # the structure function grows linearly with the lag: only P r is seen

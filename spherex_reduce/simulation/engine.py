@@ -517,7 +517,6 @@ class NoiseEngine:
         out = np.zeros((self.n_reads, self.ncols), dtype=self.dtype)
         if self.block == 1:
             # frames' fast tiers are independent: the slope is sqrt(sum w^2) times one
-            # frame-length stream with the fast PSD
             # frame-length stream with the fast PSD (its phantom means likewise)
             scale = float(np.sum(w * w))
             fast, fast_ph = self.fast_tier.streams(self.F, self._block_fft_len(), scale,

@@ -147,8 +147,9 @@ def channel_streams(exposure, frames=None, leave_out=None):
         ``(nrows, ncols)`` in physical order: pixels left out of every stream
         (`~spherex_reduce.analysis.pixel_terms.PixelSums.add`'s: those whose noise
         the per-pixel terms hold).  A read's mean is over its other pixels (all
-        of them where every one of a set would be left out); `Box.whites` says
-        by how much that raises the white level.
+        of the channel's where every one would be left out; a parity's where
+        all of its would, for the even/odd stream); `Box.whites` says by how
+        much that raises the white level.
 
     Returns
     -------
@@ -193,8 +194,8 @@ def channel_streams(exposure, frames=None, leave_out=None):
         # one pass over the pixels: the sums of each parity's first k columns, then the rest
         parts = [even[:k], odd[:k], np.concatenate([even[k:], odd[k:]])]
         totals, counts = [], []
-        for part in parts:
-            total, count = _kept_sum(data, part, None if drop is None else drop[:, part])
+        for part, left in zip(parts, _left_out_parts(drop, parts), strict=True):
+            total, count = _kept_sum(data, part, left)
             totals.append(total)
             counts.append(count)
         se, so, rest = totals
@@ -309,14 +310,28 @@ def shot_white(rate, times, sample_rate):
     return float(2 * rate * kappa / sample_rate)
 
 
+def _left_out_parts(drop, parts):
+    """The samples left out of each of a channel's column groups ``parts`` (the two
+    parities' first ``k`` columns, then the rest), ``drop`` ``(reads, columns)`` (None:
+    none): a read whose every column would be left out keeps them all, and a parity
+    group keeps its columns at a read where all of them would be left out (its mean is
+    the even/odd stream's)."""
+    if drop is None:
+        return [None] * len(parts)
+    left = [drop[:, part] for part in parts]
+    every = np.all(np.concatenate(left, axis=1), axis=1)
+    for i in range(len(parts)):
+        keep = every | (np.all(left[i], axis=1) if i < 2 else False)
+        left[i] = left[i] & ~keep[:, None]
+    return left
+
+
 def _kept_sum(data, cols, drop):
     """Per frame and read, the sum over ``cols`` of the values not dropped (``drop``:
-    ``(reads, cols)``, None: none), and how many were summed per read (all of them
-    where every one would be dropped)."""
+    ``(reads, cols)``, None: none), and how many were summed per read."""
     total = np.sum(data[:, :, cols], axis=-1, dtype=np.float64)
     if drop is None or cols.size == 0:
         return total, np.full(data.shape[1], float(cols.size))
-    drop = drop & ~np.all(drop, axis=1, keepdims=True)
     r, j = np.nonzero(drop)
     if r.size:  # few: their values taken back out of the sums
         np.subtract.at(total, (slice(None), r), data[:, r, cols[j]])

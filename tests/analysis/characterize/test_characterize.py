@@ -512,3 +512,31 @@ def test_our_simulator_round_trip_with_phantom_reads():
     got = pulls(model)
     assert len(got) == 16
     assert max(abs(v) for v in got.values()) < 4.5, got
+
+
+@pytest.mark.parametrize("column", [13, 14])
+def test_a_left_out_pixel_leaves_the_stream_whatever_group_its_column_is_in(column):
+    """Channels of 15 columns: 7 of each parity and one more (column 14). A pixel with a
+    1000 e step is left out of its channel's stream, in a parity's columns (13) or the
+    odd one over (14): the stream is the clean dark's within a pixel's share of its
+    noise (each row mean 1/15 of a pixel's, about 0.07 e here), where the step left in
+    moved it by 1000/15. Before, a group of one column kept its pixel, as if every
+    pixel of the channel were left out."""
+    from astropy import units as u
+
+    from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule
+    from spherex_reduce.analysis.characterize.streams import channel_streams
+
+    g = DetectorGeometry(16, 30, 2, ref_border={"top": 2, "bottom": 2})
+    s = ReadoutSchedule(g, skip=1, ref_reads=4, phantom_reads=0, nframes=5, frame_overhead=20)
+    clean = np.random.default_rng(1).normal(0, 1, (5, s.n_reads, 30))
+    stepped = clean.copy()
+    stepped[2:, s.rows == 8, column] += 1000.0
+    drop = np.zeros((16, 30), bool)
+    drop[8, column] = True
+    got = channel_streams(Exposure.from_arrays(stepped, s, unit=u.electron), leave_out=drop)
+    ref = channel_streams(Exposure.from_arrays(clean, s, unit=u.electron))
+    assert np.abs(got.sum - ref.sum).max() < 0.5
+    assert got.boxes["sum"].whites[0] == pytest.approx(np.mean(
+        [15 / 14 if read_row == 8 else 1.0 for read_row in s.rows[~s.is_reference]]
+        + [1.0] * int(np.sum(s.is_reference))))

@@ -12,9 +12,10 @@ them (imported: its `config`, `draw`, NGHXRG's clone and PCA-zero stand-in; 4 ou
 plus kTC noise, the first draw after the seed); the script recomputes it from the seed and
 the template (`bias`), so that each dark is reduced **raw** (as written, uint16) and
 **bias-subtracted** (minus that pattern: a perfect superbias).  For the floor, NGHXRG draws
-each cube a second time on the same seed with every 1/f term ×1000, the white and kTC
-noise at 1e-30 and a 32768 offset (the same random draws; uint16 steps of 0.001 ADU), which
-gives the cube's 1/f part exactly (`one_over_f`).
+each cube a second time on the same seed with every 1/f term ×1000, the white noise at
+1e-30, the kTC noise at 0 (NGHXRG still draws its normals) and a 32768 offset (the same
+random draws; uint16 steps of 0.001 ADU), which gives the cube's 1/f part exactly
+(`one_over_f`).
 
 **Methods**, every one ending in the same numpy least-squares slope per pixel over the
 frames' start times (`slopes`), on the same exposure:
@@ -72,6 +73,7 @@ from spherex_reduce.analysis.characterize import characterize
 from spherex_reduce.analysis.light import light_sensitive
 from spherex_reduce.analysis.sky import inject_sky, measure_against_sky, sky_field
 from spherex_reduce.core.errors import SpherexReduceError
+from spherex_reduce.noise.variance import ls_weights
 from spherex_reduce.reduce.pipeline import Pipeline
 
 JWST_VERSION = "3.0.0"
@@ -85,7 +87,7 @@ JWST_MODES = {
     "evenodd": ("jwst refpix: even/odd", {"odd_even_columns": True,
                                           "use_side_ref_pixels": False}),
 }
-JWST_SIDE = "jwst refpix: side + even/odd"
+JWST_SIDE = JWST_MODES["side_evenodd"][0]
 #: NGHXRG's bias (its mknoise defaults, passed explicitly so the script knows them)
 BIAS = {"bias_amp": 500.0, "bias_offset": 5000.0, "ktc_noise": 29.0}
 #: the 1/f-only redraw: every 1/f term times SCALE, on OFFSET, white and kTC off
@@ -140,7 +142,8 @@ def cubes(module, pca0, case, args, floor):
         b = path.with_suffix(".bias.npy")
         if not (path.is_file() and b.is_file()):
             t0 = time.perf_counter()
-            _, template = ngb.draw(module, pca0, args.size, args.nframes, params, seed, path)
+            _, template = ngb.draw(module, pca0, args.size, args.nframes, params, seed, path,
+                                   record=False)
             np.save(b, bias(template, seed, (args.size, args.size)))
             print(f"  NGHXRG {path.name}: {time.perf_counter() - t0:.0f} s", flush=True)
         pink = None
@@ -149,7 +152,7 @@ def cubes(module, pca0, case, args, floor):
             if not pink.is_file():
                 redraw = {**params, "rd_noise": TINY, "ktc_noise": 0.0, "bias_amp": 0.0,
                           "bias_offset": OFFSET, **{t: SCALE * params[t] for t in PINK_TERMS}}
-                ngb.draw(module, pca0, args.size, args.nframes, redraw, seed, pink)
+                ngb.draw(module, pca0, args.size, args.nframes, redraw, seed, pink, record=False)
         out.append((path, np.load(b), pink))
     return out
 
@@ -182,8 +185,7 @@ def floor_means(pink, geometry):
 def slopes(cube, schedule):
     """One least-squares slope per pixel (ADU/s) over the frames' start times: the same fit
     for every method."""
-    t = schedule.frame_starts.to_value(u.s)
-    w = (t - t.mean()) / np.sum((t - t.mean()) ** 2)
+    w = ls_weights(schedule.frame_starts.to_value(u.s))
     return np.tensordot(w, np.asarray(cube, dtype=np.float64), axes=(0, 0))
 
 
@@ -279,8 +281,8 @@ def run_case(case, darks, cfg, args, jwst_py):
         exposures[("bias-subtracted", k)] = sub
         exposures[("raw", k)] = raw
         if k == 0:
-            white_slope = (ngb.DEFAULTS["rd_noise"] * np.sqrt(12 / (s.nframes * (s.nframes**2 - 1)))
-                           / np.diff(s.frame_starts.to_value(u.s)).mean())
+            white_slope = ngb.DEFAULTS["rd_noise"] * np.sqrt(
+                np.sum(ls_weights(s.frame_starts.to_value(u.s)) ** 2))
             sky = sky_field(g, SKY_RMS * white_slope, SKY_INDEX, seed=11)
             with_sky = inject_sky(Exposure.from_arrays(sub, s, unit=u.electron), sky)
             exposures[("sky", 0)] = np.asarray(with_sky.data.data)

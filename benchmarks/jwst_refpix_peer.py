@@ -83,6 +83,9 @@ def main():
     spec = RefPixStep()
     print(json.dumps({"jwst": jwst.__version__, "stdatamodels": stdatamodels.__version__,
                       "stcal": stcal.__version__, "numpy": np.__version__}), flush=True)
+    kernel = {"refpix_algorithm": "median", "sirs_kernel_model": None,
+              "sigreject": spec.sigreject, "gaussmooth": spec.gaussmooth,
+              "halfwidth": spec.halfwidth}
     for path in request["cubes"]:
         path = Path(path)
         level1b = out / f"{path.stem}_uncal.fits"
@@ -90,9 +93,6 @@ def main():
             model.save(level1b)
         for name, mode in request["modes"].items():
             with datamodels.RampModel(level1b) as model:
-                kernel = {"refpix_algorithm": "median", "sirs_kernel_model": None,
-                          "sigreject": spec.sigreject, "gaussmooth": spec.gaussmooth,
-                          "halfwidth": spec.halfwidth}
                 t0 = time.perf_counter()
                 status = reference_pixels.correct_model(
                     model, bool(mode["odd_even_columns"]), bool(mode["use_side_ref_pixels"]),

@@ -127,7 +127,7 @@ def _telegraph_traces(design, rate):
     return np.einsum("lij,ij->l", design["forms"], corr) / 4.0
 
 
-def lag_sums(e, dt, labels, jumped, lags):
+def lag_sums(e, labels, jumped, lags):
     """Per-pixel structure functions of one band of one dark.
 
     Parameters
@@ -135,8 +135,6 @@ def lag_sums(e, dt, labels, jumped, lags):
     e : `numpy.ndarray`
         ``(m, rows, nx)`` float32: each pixel's differences less its mean rate times
         the intervals.
-    dt : `numpy.ndarray`
-        ``(m,)`` intervals (s), for the shape only.
     labels : `numpy.ndarray`
         ``(rows, nx)`` int: `common_labels` (-1: not used).
     jumped : `numpy.ndarray`
@@ -163,7 +161,7 @@ def lag_sums(e, dt, labels, jumped, lags):
     >>> e = (d - d.mean(axis=0)).astype(np.float32)
     >>> labels = np.repeat(np.arange(64)[:, None], 64, axis=1)      # one group per row
     >>> des = lag_design(np.arange(11) * 1.5)
-    >>> q = lag_sums(e, None, labels, np.zeros((64, 64), bool), des["lags"])
+    >>> q = lag_sums(e, labels, np.zeros((64, 64), bool), des["lags"])
     >>> np.round(q.mean(axis=(1, 2)) / des["a"], 1).tolist()
     [1.0, 1.0, 1.0, 1.0, 1.0]
     """
@@ -283,7 +281,7 @@ def add_faint_terms(add, refuse, acc, quiet, active, current, ndarks, k, unit, d
     ``add``/``refuse`` add a row; ``acc`` the per-pixel sums (``lags``, ``lagq``,
     ``csq``, ``labels``); ``quiet`` the active pixels that are not hot nor found
     telegraph; ``current`` each pixel's slope over the gain (its shot noise,
-    unit²/s); ``des`` the differences' design (``m``, ``dt``, ``ty``, ``mm``,
+    unit²/s); ``des`` the differences' design (``m``, ``dt``, ``mm``,
     ``ar``); ``jackknife`` the delete-a-group jackknife of ``f`` of column sums
     over ``k`` groups: ``jackknife(f, columns, sel, gid, k)``.
 
@@ -397,7 +395,7 @@ def add_faint_terms(add, refuse, acc, quiet, active, current, ndarks, k, unit, d
         "the step squared)")
     add(names[3], "active", amp, amp_err, unit, note="root of the mean fourth power of the "
         "steps over their mean square (the pixels' contrasts' scatter)")
-    ty = des["ty"]
+    ty = design["times"]
     diff = np.diff(np.eye(ty.size), axis=0)
     tel = diff @ np.exp(-2.0 * r * np.abs(np.subtract.outer(ty, ty))) @ diff.T / 4
     per = float(np.sum(des["mm"] * tel)) / des["ar"]

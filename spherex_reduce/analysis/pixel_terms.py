@@ -517,7 +517,7 @@ def _design(t, skip_first):
     p = np.eye(m) - np.outer(dt, w) / (w @ dt)
     mm = p.T @ p
     mr, ms = mm @ c_r, mm @ c_s
-    return dict(dt=dt, w=w, m=m, t_mean=ty.mean(), level=(m - k) / (m + 1.0), mm=mm, ty=ty,
+    return dict(dt=dt, w=w, m=m, t_mean=ty.mean(), level=(m - k) / (m + 1.0), mm=mm,
                 ar=np.trace(mr), as_=np.trace(ms), trr=np.trace(mr @ mr),
                 trs=np.trace(mr @ ms), tss=np.trace(ms @ ms), vr=w @ c_r @ w, vs=w ** 2 @ dt)
 
@@ -653,7 +653,7 @@ def _band(x, t, des, jump_sigma, skip_first, gain=1.0, lags=None, labels=None):
            "q": q, "kept": 1 - jumps / des["m"], "jumps": jumps,
            "jsize": per_pixel(np.abs(res)), "alternate": alternate.reshape(shape), "bad": bad}
     if lags is not None:  # the faint telegraph's structure functions (jumps kept)
-        out["lagq"] = lag_sums(e, dt64, labels, (jumps > 0) | bad, lags["lags"])
+        out["lagq"] = lag_sums(e, labels, (jumps > 0) | bad, lags["lags"])
         a = lags["a"]  # the dark's contrast, squared: its scatter between darks
         out["csq"] = (out["lagq"][-1] / a[-1] - out["lagq"][0] / a[0]) ** 2
     if skip_first:

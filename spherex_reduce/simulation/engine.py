@@ -461,10 +461,11 @@ class NoiseEngine:
         else:  # the ramps' blocks, fitted
             ops += math.ceil(self.N / self.block) * fft(self._block_fft_len(), nfast)
             ops += 4.0 * self.N * self.n_reads * self.ncols
-        if self.phantom_tier.psds():
+        phantom_only = self.phantom_tier.psds()
+        if phantom_only:
             g_lag = math.ceil(2 * self.l_corr / self.rs) + 2
             m = sfft.next_fast_len(max(4 * (g_lag * self.rs + self.c), 8 * self.l_corr, 1024))
-            ops += 2 * len(self.phantom_tier.psds()) * fft(m)
+            ops += 2 * len(phantom_only) * fft(m)
             ops += fft(self.exposure // self.rs + 2 * g_lag, self.nch + 1)
         return ops
 

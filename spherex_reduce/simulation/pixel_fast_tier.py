@@ -118,11 +118,10 @@ class PixelFastTier:
         """Mean over the phantom samples of every read of streams ``x`` ``(ns, n)``:
         ``(frames, n_reads, ns)``, float64."""
         e = self.engine
-        span = e.n_reads * e.rs
+        samples = e.schedule.phantom_samples()  # (n_reads, c) within a frame
         out = np.empty((n // e.F, e.n_reads, x.shape[0]))
-        for j in range(out.shape[0]):  # views: no copy of the streams
-            seg = x[:, j * e.F:j * e.F + span].reshape(x.shape[0], e.n_reads, e.rs)
-            out[j] = seg[..., :e.c].mean(axis=-1, dtype=np.float64).T
+        for j in range(out.shape[0]):
+            out[j] = x[:, j * e.F + samples].mean(axis=-1, dtype=np.float64).T
         return out
 
     def _acn(self, lam, m, n, keys):

@@ -97,10 +97,8 @@ def _acn_power(fits, exponent, band):
 
 def _formal_band_error(fit, band):
     """The error of a fit's β, γ band power over ``band`` from the fit's covariance."""
-    lo, hi = band
-    e = fit.exponent
-    grad = {"alpha": 0.0, "beta": np.log(hi / lo), "gamma": (hi ** (1 - e) - lo ** (1 - e))
-            / (1 - e)}
+    grad = {"alpha": 0.0, "beta": band_power(1.0, 0.0, fit.exponent, band),
+            "gamma": band_power(0.0, 1.0, fit.exponent, band)}
     g = np.array([grad[p] for p in fit.fitted])
     return float(np.sqrt(max(g @ fit.covariance @ g, 0.0)))
 
@@ -171,15 +169,6 @@ PAIRS = (("channel", "common"), ("channel_both", "common_both"),
          ("channel_phantom", "common_phantom"))
 
 
-def _gamma_factor(exponent, band):
-    """``∫ f^-exponent df`` over ``band`` (Hz): ``ln(hi/lo)`` at exponent 1."""
-    lo, hi = band
-    e = float(exponent)
-    if abs(1 - e) < 1e-9:
-        return float(np.log(hi / lo))
-    return float((hi ** (1 - e) - lo ** (1 - e)) / (1 - e))
-
-
 def scene_values(components, exponent, bands):
     """The coefficients a scene can hold (none below zero), keeping what the darks constrain.
 
@@ -234,8 +223,8 @@ def scene_values(components, exponent, bands):
         said.setdefault((name, p), []).append(text)
 
     def within(name, v, band, last):
-        factor = {1: float(np.log(band[1] / band[0])), 2: _gamma_factor(exponent, band)}
-        power = v[1] * factor[1] + v[2] * factor[2]
+        factor = {1: band_power(1.0, 0.0, exponent, band), 2: band_power(0.0, 1.0, exponent, band)}
+        power = band_power(v[1], v[2], exponent, band)
         if power < 0 and not last:
             return
         neg, pos = (1, 2) if v[1] < 0 else (2, 1)

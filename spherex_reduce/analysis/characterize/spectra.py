@@ -348,4 +348,5 @@ def band_power(beta, gamma, exponent, band):
     """
     lo, hi = band
     e = float(exponent)
-    return float(beta * np.log(hi / lo) + gamma * (hi ** (1 - e) - lo ** (1 - e)) / (1 - e))
+    steep = np.log(hi / lo) if abs(1 - e) < 1e-9 else (hi ** (1 - e) - lo ** (1 - e)) / (1 - e)
+    return float(beta * np.log(hi / lo) + gamma * steep)

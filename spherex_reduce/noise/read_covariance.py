@@ -37,18 +37,22 @@ _ASYMPTOTIC = 16
 _NODES = 16
 
 
-#: What a read value is: its pixels' mean, that minus its phantom value, or the phantom value.
-KINDS = ("pixels", "subtracted", "phantom")
+#: What a read value is: its pixels' mean, that minus its phantom value, or the phantom value;
+#: ``side`` and ``side-subtracted``: the mean over the channels that have side reference
+#: columns of their side pixels' mean (minus each channel's phantom value).
+KINDS = ("pixels", "subtracted", "phantom", "side", "side-subtracted")
 
 
-def _functional(component, kind, pixel_offsets, phantom_reads):
-    """Sample offsets (within a read) and coefficients of one component's part of a value."""
+def _functional(component, kind, pixel_offsets, phantom_reads, weights=None):
+    """Sample offsets (within a read) and coefficients of one component's part of a value
+    (``weights``: of each pixel offset; default equal)."""
     offs, coefs = [], []
     c = int(phantom_reads)
-    if kind in ("pixels", "subtracted") and component.seen_by_pixels:
+    if kind != "phantom" and component.seen_by_pixels:
         offs.append(np.asarray(pixel_offsets, dtype=np.int64))
-        coefs.append(np.full(len(pixel_offsets), 1.0 / len(pixel_offsets)))
-    if kind != "pixels" and c and component.seen_by_phantom:
+        coefs.append(np.full(len(pixel_offsets), 1.0 / len(pixel_offsets))
+                     if weights is None else np.asarray(weights, dtype=float))
+    if kind not in ("pixels", "side") and c and component.seen_by_phantom:
         offs.append(np.arange(-c, 0, dtype=np.int64))
         coefs.append(np.full(c, (-1.0 if kind == "subtracted" else 1.0) / c))
     if not offs:
@@ -118,13 +122,17 @@ class ReadCovariance:
     (1.5625, [0.0, 0.0, 0.0])
     """
 
-    def __init__(self, schedule, components, pixel_offsets, domain, *, common=frozenset()):
+    def __init__(self, schedule, components, pixel_offsets, domain, *, common=frozenset(),
+                 side_offsets=()):
         if domain not in DOMAINS:
             raise ValueError(f"domain must be one of {DOMAINS}, got {domain!r}")
         self.schedule, self.domain = schedule, domain
         self.components = [c for c in components if not c.is_zero]
         self.pixel_offsets = np.asarray(pixel_offsets, dtype=np.int64)
         self.common = frozenset(common)
+        self.side_offsets = [np.asarray(o, dtype=np.int64) for o in side_offsets]
+        if any(o.size == 0 for o in self.side_offsets):
+            raise ValueError("side_offsets: every channel's side columns need a pixel")
         fs = schedule.geometry.pixel_rate
         if domain == "slopes":
             w, a, shifts = slope_frames(schedule)
@@ -145,13 +153,66 @@ class ReadCovariance:
         self._far_tables = {}
 
     def white(self, kind, npixels, scope):
-        """White variance of a value of ``kind`` averaging ``npixels`` pixels (array_like)."""
+        """White variance of a value of ``kind`` averaging ``npixels`` pixels (array_like;
+        a side value averages every side pixel: ``npixels`` gives only the shape)."""
         c = max(self.schedule.phantom_reads, 1)
         ph = self._white["phantom"][scope] / c
         if kind == "phantom":
             return np.full(np.shape(npixels), ph)
+        if kind in ("side", "side-subtracted"):
+            nout = len(self.side_offsets)
+            if scope == "channel":  # the channels' samples are independent
+                pix = self._white["pixels"][scope] * sum(1.0 / o.size for o in
+                                                         self.side_offsets) / nout ** 2
+                ph = ph / nout
+            else:  # one common sample at each offset, whatever channel reads it
+                _, w = self._side_functional()
+                pix = self._white["pixels"][scope] * float(np.sum(w * w))
+            pix = np.full(np.shape(npixels), pix)
+            return pix if kind == "side" else pix + ph
         pix = self._white["pixels"][scope] / np.asarray(npixels, dtype=float)
         return pix if kind == "pixels" else pix + ph
+
+    def _side_functional(self, channel=None):
+        """Pixel offsets and weights of a side value (the mean over side channels of each
+        one's side pixels' mean; its common part adds the weights of equal offsets), or,
+        with ``channel``, of that channel's side pixels' mean."""
+        if not self.side_offsets:
+            raise ValueError("this covariance has no side columns (side_offsets)")
+        if channel is not None:
+            o = self.side_offsets[channel]
+            return o, np.full(o.size, 1.0 / o.size)
+        offs = np.concatenate(self.side_offsets)
+        w = np.concatenate([np.full(o.size, 1.0 / (o.size * len(self.side_offsets)))
+                            for o in self.side_offsets])
+        uniq, inv = np.unique(offs, return_inverse=True)
+        return uniq, np.bincount(inv, weights=w)
+
+    def _value_functional(self, comp, kind, channel=None):
+        """`_functional` of one component's part of a value of ``kind``."""
+        c = self.schedule.phantom_reads
+        if kind in ("side", "side-subtracted"):
+            offsets, weights = self._side_functional(channel)
+            return _functional(comp, kind, offsets, c, weights)
+        return _functional(comp, kind, self.pixel_offsets, c)
+
+    def _distribution(self, comp, scope, kind_a, kind_b):
+        """`_pair_distribution` of two values; two side values' channel part is the mean over
+        side channels of each one's own (``1 / nout`` of it: the channels are
+        independent), not the pairs of different channels' samples."""
+        sides = ("side", "side-subtracted")
+        if not (scope == "channel" and kind_a in sides and kind_b in sides):
+            return _pair_distribution(comp, self._value_functional(comp, kind_a),
+                                      self._value_functional(comp, kind_b))
+        nout = len(self.side_offsets)
+        acc = {}
+        for o in range(nout):
+            d, h = _pair_distribution(comp, self._value_functional(comp, kind_a, o),
+                                      self._value_functional(comp, kind_b, o))
+            for di, hi in zip(d.tolist(), h.tolist(), strict=True):
+                acc[di] = acc.get(di, 0.0) + hi / nout ** 2
+        d = np.array(sorted(acc), dtype=np.int64)
+        return d, np.array([acc[k] for k in d.tolist()])
 
     def _pairs(self, kind_a, kind_b):
         key = (kind_a, kind_b)
@@ -160,10 +221,7 @@ class ReadCovariance:
             for comp in self.components:
                 if not (comp.beta or comp.gamma):
                     continue
-                c = self.schedule.phantom_reads
-                d, h = _pair_distribution(
-                    comp, _functional(comp, kind_a, self.pixel_offsets, c),
-                    _functional(comp, kind_b, self.pixel_offsets, c))
+                d, h = self._distribution(comp, self._scope(comp), kind_a, kind_b)
                 if d.size:
                     half = float(self.schedule.row_samples)  # offsets within a read differ
                     alt = np.where(d % 2 == 0, h, -h)        # by less than this

@@ -22,18 +22,19 @@ from astropy.table import Table
 from astropy.utils.exceptions import AstropyUserWarning
 
 from ....core.errors import ConfigError
-from ....core.limits import check_size
 from ....core.parameters import Parameter, validate_parameters
 from ....io.charge_unit import UNITS as CHARGE_UNITS
-from ....noise.read_covariance import DOMAINS, Kriging, ReadCovariance
+from ....noise.read_covariance import DOMAINS, ReadCovariance
 from ...noise_effect import MEASURED_SIGMA, ReferenceEffect
 from ...step import Strategy
+from .drift_model import DriftModel
 from .noise_models import (
     DEFAULT_NOISE,
     PAPER_PIXEL_RATE,
     load_noise_model,
     noise_model,
 )
+from .side_values import side_columns, side_values
 from .strategies import (
     ALL,
     EVEN,
@@ -52,8 +53,6 @@ _MAD_TO_SIGMA = 1.4826
 _MAX_MODELS = 4
 _MODELS = {}
 _MODELS_LOCK = threading.Lock()
-#: Solved systems a model keeps (per kind of observation, channel count and system).
-_MAX_WEIGHTS = 8
 
 
 def _reads_of(side, schedule):
@@ -112,6 +111,9 @@ class WienerReference(Strategy):
         Parameter("phantom", "auto", (str,), "auto: when the phantom values are not yet "
                   "subtracted, estimate from them too (and consume them); ignore: never",
                   choices=("auto", "ignore")),
+        Parameter("side_columns", False, (bool,), "also observe the side reference columns "
+                  "at every row read (the drift common to every channel, from the channels "
+                  "that have them; needs the whole exposure)"),
         Parameter("sigma", 5.0, (float,), "reference pixels beyond this many robust (MAD) "
                   "standard deviations from the channel's median are not used",
                   minimum=0, exclusive_minimum=True),
@@ -132,6 +134,7 @@ class WienerReference(Strategy):
         self.noise, self.acn, self.domain = noise, params["acn"], params["domain"]
         self.phantom = params["phantom"]
         self.regularization, self.sigma = params["regularization"], params["sigma"]
+        self.side_columns = params["side_columns"]
         self.telegraph, self.telegraph_sigma = params["telegraph"], params["telegraph_sigma"]
         self.components, self.model_unit = noise_model(noise)
         names = [c.name for c in self.components]
@@ -149,23 +152,41 @@ class WienerReference(Strategy):
             raise ConfigError("correct_reference.common: expected auto, none or a list of "
                               f"component names, got {common!r}")
 
+    @property
+    def needs_exposure(self):
+        return bool(self.side_columns)
+
+    def side_groups(self, geometry):
+        """`~spherex_reduce.reduce.steps.reference.side_values.side_columns` of each parity
+        group, or None when the side values are not observed (``side_columns`` false, or a
+        geometry without side columns, or one channel: the mean is the channel)."""
+        if not self.side_columns or geometry.nchannels < 2:
+            return None
+        groups = side_columns(geometry, self.acn)
+        return groups if all(groups) else None
+
     def uses_phantom(self, context):
         """Whether the phantom values of every read are observations (and get consumed)."""
         return (phantom_consumed({"phantom": self.phantom}, not context.has_phantom)
                 and context.schedule.phantom_reads > 0)
 
     # -- the model ----------------------------------------------------------------------
-    def _model(self, schedule, domain, offsets):
-        """The model of one parity group; shared by every strategy of this process with the
-        same noise model and schedule (its weights are solved once)."""
+    def _model(self, schedule, domain, offsets, side=None):
+        """The model of one parity group (``side``: its side columns' ``(channel, columns)``,
+        or None); shared by every strategy of this process with the same noise model and
+        schedule (its weights are solved once)."""
+        col = schedule.geometry.column_offsets()
+        side_offsets = [] if side is None else [col[c] for _, c in side]
         key = (repr([c.to_dict() for c in self.components]), tuple(sorted(self.common)),
                json.dumps([schedule.geometry.to_dict(), schedule.to_dict()], sort_keys=True,
-                          default=str), domain, offsets.tobytes(), self.regularization)
+                          default=str), domain, offsets.tobytes(), self.regularization,
+               tuple(o.tobytes() for o in side_offsets))
         with _MODELS_LOCK:
             model = _MODELS.pop(key, None)
             if model is None:
-                model = _Model(ReadCovariance(schedule, self.components, offsets, domain,
-                                              common=self.common))
+                model = DriftModel(ReadCovariance(schedule, self.components, offsets, domain,
+                                                  common=self.common,
+                                                  side_offsets=side_offsets))
             _MODELS[key] = model  # most recently used last
             while len(_MODELS) > _MAX_MODELS:
                 _MODELS.pop(next(iter(_MODELS)))
@@ -208,7 +229,7 @@ class WienerReference(Strategy):
         >>> bool(w[a].mean() < 0.8 * m[a].mean())
         True
         """
-        *_, var, mvar = self._full_weights(context, reads, parity)
+        *_, var, mvar, _ = self._full_weights(context, reads, parity)
         return var, mvar
 
     def read_weights(self, context, parity=0):
@@ -258,8 +279,60 @@ class WienerReference(Strategy):
         use = self.uses_phantom(context)
         return w, wd, self._kind(context, use), use
 
+    def side_weights(self, context, parity=0):
+        """The weights of the side values, when the strategy observes them.
+
+        The estimate of every channel (group ``parity``) adds ``ws @ s`` to
+        `read_weights`' terms: ``s`` the side value of each read in ``reads``,
+        the mean over the channels in ``groups`` of their side pixels' mean.
+
+        Parameters
+        ----------
+        context : `~spherex_reduce.core.block.Context`
+            As `predicted_variance`.
+        parity : int
+            The group (0, or 1 for odd samples with ``acn``).
+
+        Returns
+        -------
+        ws : `numpy.ndarray`, shape ``(n_reads, r)``, or None
+            None when no side value is observed (`side_groups`).
+        reads : `numpy.ndarray` of int, shape ``(r,)``
+            The light-sensitive rows' reads, in read order.
+        groups : list of (int, `numpy.ndarray`)
+            The channels with side columns in the group, and those columns.
+
+        Examples
+        --------
+        Each channel's white noise and a pink drift common to all (a noise table in a
+        temporary file):
+
+        >>> import tempfile, pathlib
+        >>> import numpy as np
+        >>> from astropy.table import Table
+        >>> from spherex_reduce import DetectorGeometry, ReadoutSchedule
+        >>> from spherex_reduce.core.block import Context
+        >>> from spherex_reduce.reduce.steps.reference.wiener import WienerReference
+        >>> g = DetectorGeometry(32, 32, 4, ref_border=4, scan="alternate")
+        >>> s = ReadoutSchedule(g, nframes=3, phantom_reads=0)
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "pink.ecsv"
+        >>> Table({"name": ["white", "pink"], "alpha": [2e-3, 0.0], "beta": [0.0, 1e-3],
+        ...        "gamma": [0.0, 0.0], "scope": ["channel", "common"]}
+        ...       ).write(path, format="ascii.ecsv")
+        >>> w = WienerReference(noise=str(path), side_columns=True)
+        >>> ws, reads, groups = w.side_weights(Context(s, "readout", True))
+        >>> ws.shape == (s.n_reads, 24), [ch for ch, _ in groups]
+        (True, [0, 3])
+        >>> bool(np.allclose(ws.sum(axis=1), 0))  # the side values' own offset cancels
+        True
+        """
+        out = self._full_weights(context, None, parity)
+        groups = self.side_groups(context.schedule.geometry)
+        return out[2], out[5], (None if groups is None else groups[parity])
+
     def _full_weights(self, context, reads, parity):
-        """`_Model.weights` of full reference reads: ``(w, wd, variance, mean variance)``."""
+        """`DriftModel.weights` of full reference reads: ``(w, wd, ws, variance, mean
+        variance, side reads)``."""
         s = context.schedule
         reads = s.reference_read_indices if reads is None else np.asarray(reads, dtype=int)
         groups = group_columns(s.geometry, self.acn)
@@ -267,9 +340,13 @@ class WienerReference(Strategy):
         domain = self._domain(context)
         use = self.uses_phantom(context)
         kind = self._kind(context, use)
-        model = self._model(s, domain, s.geometry.column_offsets()[cols])
-        return model.weights(self, kind, reads, np.full(reads.size, float(cols.size)),
-                             cols.size, s.geometry.nchannels, True, use)
+        sides = self.side_groups(s.geometry)
+        side_reads = None if sides is None else np.sort(s.active_read_indices)
+        model = self._model(s, domain, s.geometry.column_offsets()[cols],
+                            None if sides is None else sides[parity])
+        return (*model.weights(self, kind, reads, np.full(reads.size, float(cols.size)),
+                               cols.size, s.geometry.nchannels, True, use, side_reads),
+                side_reads)
 
     def _domain(self, context):
         """``frames`` or ``slopes``: ``auto`` is frames for ramps (or a single frame)."""
@@ -351,12 +428,19 @@ class WienerReference(Strategy):
         obs, n, clipped = self._reference_values(values, groups)
         weights_n = n if left_out is None else self._counts_with(n, left_out, groups)
         L, n_reads = values.shape[0], s.n_reads
+        sides, sv = self.side_groups(g), None
+        if sides is not None:
+            if exposure is None:
+                raise ValueError("correct_reference (wiener): side_columns needs the exposure "
+                                 "(the side columns of every row)")
+            sv = side_values(exposure, sides, self.sigma)
         rows = np.full((L, n_reads, nch, npar), np.nan)
         predicted = np.full((npar, n_reads), np.nan)
         mean_predicted = np.full((npar, n_reads), np.nan)
         for p in range(npar):
             cols = groups[0, p][groups[0, p] >= 0]
-            model = self._model(s, domain, g.column_offsets()[cols])
+            model = self._model(s, domain, g.column_offsets()[cols],
+                                None if sv is None else sides[p])
             out = np.full((L, n_reads, nch), np.nan)
             # frames with their phantom values, then those without (the pixels' own drift)
             for frames, k, ph in ((~bad, kind, phantom), (bad, "pixels", None)):
@@ -365,7 +449,9 @@ class WienerReference(Strategy):
                 part = out[frames]
                 var = model.estimate(self, k, reads, obs[frames][..., p],
                                      weights_n[frames][..., p],
-                                     cols.size, None if ph is None else ph[frames], part)
+                                     cols.size, None if ph is None else ph[frames], part,
+                                     None if sv is None else (sv.reads,
+                                                              sv.values[p][frames]))
                 out[frames] = part
                 if np.isnan(predicted[p]).all():  # the first frames' prediction
                     predicted[p], mean_predicted[p] = var
@@ -376,7 +462,7 @@ class WienerReference(Strategy):
             offsets = np.nanmean(rows[:, active] if active.size else rows, axis=1)
         parity = [EVEN, ODD] if self.acn else [ALL]
         drift = self._drift_table(rows, parity, context, domain, predicted, mean_predicted,
-                                  active, phantom is not None)
+                                  active, phantom is not None, sv, sides)
         return ReferenceOffsets(offsets, n.sum(axis=1), clipped, parity, rows=rows,
                                 tables={"REFDRIFT": drift}, telegraph=found)
 
@@ -410,7 +496,7 @@ class WienerReference(Strategy):
         return obs, n, clipped.sum(axis=(1, 4))
 
     def _drift_table(self, rows, parity, context, domain, predicted, mean_predicted, active,
-                     used_phantom):
+                     used_phantom, sv=None, sides=None):
         L, n_reads, nch, npar = rows.shape
         fr, ch, pa = np.meshgrid(np.arange(L), np.arange(nch), np.arange(npar), indexing="ij")
         cols = {}
@@ -429,6 +515,10 @@ class WienerReference(Strategy):
             "strategy": self.name, "bunit": unit, "domain": domain,
             "noise": str(self.noise), "common": sorted(self.common),
             "phantom_used": bool(used_phantom),
+            "side_channels": [] if sv is None else sorted({ch for part in sides
+                                                          for ch, _ in part}),
+            "side_pixels_left_out": 0 if sv is None else sv.left_out,
+            "side_reads_clipped": 0 if sv is None else sv.clipped,
             "predicted_rms_error": rms(predicted),
             "mean_predicted_rms_error": rms(mean_predicted),
             # the noise model's unit (the data's: `check_data`)
@@ -437,162 +527,3 @@ class WienerReference(Strategy):
         table["drift"].description = (f"drift subtracted from each read of the frame, in read "
                                       f"order ({unit or 'data unit'})")
         return table
-
-
-class _Model:
-    """The covariance of one parity group's read values, its lag tables and the weights
-    already solved (per set of reference reads and pixel counts)."""
-
-    def __init__(self, cov):
-        self.cov = cov
-        self.n_reads = cov.schedule.n_reads
-        self._lags, self._bases = {}, {}
-        self._lock = threading.RLock()  # one solve per key, whatever thread asks first
-
-    def lags(self, kind_a, kind_b, scale):
-        """Covariance of values ``m`` reads apart, indexed by ``m + n_reads - 1``: the
-        channel's terms plus ``scale`` times the common ones."""
-        key = (kind_a, kind_b)
-        with self._lock:
-            if key not in self._lags:
-                m = np.arange(-(self.n_reads - 1), self.n_reads)
-                self._lags[key] = self.cov.colored(m, kind_a, kind_b)
-            lag = self._lags[key]
-        return lag["channel"] + scale * lag["common"]
-
-    def _white(self, kind, npixels, scale):
-        cov = self.cov
-        return cov.white(kind, npixels, "channel") + scale * cov.white(kind, npixels, "common")
-
-    def _system(self, kind, reads, n_used, n_group, scale, phantom):
-        """Covariances (observations, observations-targets, targets) of the channel's terms
-        plus ``scale`` times the common ones."""
-        off, n = self.n_reads - 1, self.n_reads
-        t = np.arange(n)
-        white_t = self._white(kind, n_group, scale)
-        lag = self.lags(kind, kind, scale)
-        k_oo = lag[reads[None, :] - reads[:, None] + off] + np.diag(
-            self._white(kind, n_used, scale))
-        k_ot = lag[t[None, :] - reads[:, None] + off] + (t[None, :] == reads[:, None]) * white_t
-        k_tt = np.full(n, lag[off] + white_t)
-        if not phantom:
-            return k_oo, k_ot, k_tt
-        # phantom values at every read: Toeplitz blocks (entry [i, j] is the lag j - i)
-        from scipy import linalg  # imported here: a reduction that never solves skips it
-
-        hh = self.lags("phantom", "phantom", scale)
-        ht = self.lags("phantom", kind, scale)
-        rh = self.lags(kind, "phantom", scale)[t[None, :] - reads[:, None] + off]
-        k = reads.size
-        c_oo = np.empty((k + n, k + n))
-        c_oo[:k, :k], c_oo[:k, k:], c_oo[k:, :k] = k_oo, rh, rh.T
-        c_oo[k:, k:] = linalg.toeplitz(hh[off::-1], hh[off:])
-        c_oo[k + t, k + t] += self._white("phantom", n_group, scale)
-        c_ot = np.empty((k + n, n))
-        c_ot[:k], c_ot[k:] = k_ot, linalg.toeplitz(ht[off::-1], ht[off:])
-        return c_oo, c_ot, k_tt
-
-    def _base(self, strategy, kind, reads, n_group, nch, system, phantom):
-        """The solved system of full reads (see `Kriging`): ``system`` is ``'channel'``
-        (the deviations from the channel mean), ``'mean'`` (the channel mean) or
-        ``'total'`` (one channel alone)."""
-        key = (kind, reads.tobytes(), n_group, nch, system, phantom)
-        with self._lock:
-            return self._build(key, strategy, kind, reads, n_group, nch, system, phantom)
-
-    def nbytes(self, nreference, phantom):
-        """Bytes the solve of one system allocates at its peak: its covariances (with the
-        phantom values at every read: ``(k + n_reads)²``) and the `Kriging` of them."""
-        n = float(self.n_reads)
-        m = nreference + n * phantom
-        parts = 8.0 * (m * m + m * n + (n * n if phantom else 0.0))
-        return parts + Kriging.nbytes(m, n, nreference, 1 + int(phantom))
-
-    def _build(self, key, strategy, kind, reads, n_group, nch, system, phantom):
-        if key not in self._bases:
-            with_phantom = f" and {self.n_reads} phantom values" if phantom else ""
-            check_size(self.nbytes(reads.size, phantom),  # before anything is allocated
-                       f"correct_reference (wiener): the kriging solve of {self.n_reads} reads "
-                       f"from {reads.size} reference reads{with_phantom}")
-            full = np.full(reads.size, float(n_group))
-            scale = {"channel": 0, "mean": nch, "total": 1}[system]
-            parts = self._system(kind, reads, full, n_group, scale, phantom)
-            constants = np.r_[np.zeros(reads.size, int), np.ones(self.n_reads * phantom, int)]
-            if len(self._bases) >= _MAX_WEIGHTS:
-                self._bases.pop(next(iter(self._bases)))
-            self._bases[key] = (Kriging(*parts, strategy.regularization, constants,
-                                        nupdate=reads.size), scale)
-            del parts
-        return self._bases[key]
-
-    def weights(self, strategy, kind, reads, n_used, n_group, nch, joint, phantom):
-        """Weights ``(T, k [+ n_reads])`` of the channel deviations and the change for the
-        channel mean (zero without ``joint``), the predicted error variance of one
-        channel's estimate and that of the pixel mean (the ``mean`` strategy) under the
-        same model.  ``n_used`` (per reference read; 0: not usable) only adds white
-        variance to the full-read system (a rank-``k`` update)."""
-        cov = self.cov
-        extra = {}
-        for scope in ("channel", "common"):
-            with np.errstate(divide="ignore", invalid="ignore"):  # n = 0: dropped (inf)
-                extra[scope] = np.where(
-                    n_used > 0, cov.white("pixels", n_used, scope) - cov.white(
-                        "pixels", n_group, scope), np.inf)
-        if joint and nch > 1:
-            (b1, _), (b0, s0) = (self._base(strategy, kind, reads, n_group, nch, name, phantom)
-                                 for name in ("channel", "mean"))
-            w1, v1 = b1.weights(extra["channel"])
-            w0, v0 = b0.weights(extra["channel"] + s0 * extra["common"])
-            out = (w1, w0 - w1, v0 / nch + (1 - 1 / nch) * v1)
-        else:
-            base, _ = self._base(strategy, kind, reads, n_group, nch, "total", phantom)
-            w, v = base.weights(extra["channel"] + extra["common"])
-            out = (w, None, v)
-        mean_kind = "subtracted" if phantom else kind
-        ok = n_used > 0
-        m_oo, m_ot, m_tt = self._system(mean_kind, reads[ok], n_used[ok], n_group, 1, False)
-        mean = n_used[ok] / n_used[ok].sum()
-        mean_var = m_tt - 2 * mean @ m_ot + np.einsum("i,ij,j->", mean, m_oo, mean)
-        return (*out, mean_var)
-
-    def estimate(self, strategy, kind, reads, obs, n, n_group, phantom, out):
-        """Estimates ``out (L, n_reads, nch)`` from the reference reads' values
-        ``obs (L, k, nch)`` averaging ``n (L, k, nch)`` pixels and the phantom values
-        ``(L, n_reads, nch)`` (or None); returns the predicted error variances of the
-        first frame (this strategy's and the mean's).  Frames with the same pixel counts
-        share their weights and one matrix product."""
-        nch = obs.shape[2]
-        use = phantom is not None
-        patterns = {}
-        for f in range(obs.shape[0]):
-            patterns.setdefault(n[f].tobytes(), []).append(f)
-        first = None
-        for frames in patterns.values():
-            nf = n[frames[0]]
-            y = obs[frames] if phantom is None else np.concatenate([obs[frames],
-                                                                     phantom[frames]], axis=1)
-            y = np.where(np.isfinite(y), y, 0.0)  # reads without pixels: weight 0
-            if (nf == nf[:, :1]).all() and nf[:, 0].any():
-                w, wd, var, mvar = self.weights(strategy, kind, reads, nf[:, 0].astype(float),
-                                                n_group, nch, True, use)
-                flat = np.moveaxis(y, 1, 0).reshape(y.shape[1], -1)  # (k [+ n], F * nch)
-                est = (w @ flat).reshape(-1, len(frames), nch)
-                if wd is not None:
-                    est += (wd @ y.mean(axis=2).T)[:, :, None]
-                out[frames] = np.moveaxis(est, 1, 0)
-            else:  # channels differ: each with its own pixel counts
-                var = mvar = np.full(self.n_reads, np.nan)
-                solved = {}
-                for c in range(nch):
-                    if not nf[:, c].any():
-                        continue  # no usable reference pixel: NaN, flagged by the kernel
-                    key = nf[:, c].tobytes()  # channels with the same counts: same weights
-                    if key not in solved:
-                        solved[key] = self.weights(strategy, kind, reads,
-                                                   nf[:, c].astype(float), n_group, nch,
-                                                   False, use)
-                    w, _, var, mvar = solved[key]
-                    out[frames, :, c] = y[:, :, c] @ w.T
-            if first is None or 0 in frames:
-                first = (var, mvar)
-        return first

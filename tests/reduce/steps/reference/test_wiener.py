@@ -750,17 +750,18 @@ def test_threads_asking_for_one_model_solve_it_once(monkeypatch):
     """Bands or dask threads asking at once: each system is solved once."""
     import threading
 
+    from spherex_reduce.reduce.steps.reference import drift_model
     from spherex_reduce.reduce.steps.reference import wiener as wmod
 
     solved = []
-    real = wmod.Kriging
+    real = drift_model.Kriging
 
     class Counting(real):
         def __init__(self, *args, **kwargs):
             solved.append(1)
             super().__init__(*args, **kwargs)
 
-    monkeypatch.setattr(wmod, "Kriging", Counting)
+    monkeypatch.setattr(drift_model, "Kriging", Counting)
     wmod._MODELS.clear()
     s = sched(ref_reads=8, phantom=2)
     e = Exposure.from_arrays(np.random.default_rng(2).normal(0, 1, (3, s.n_reads, NCOLS)), s,

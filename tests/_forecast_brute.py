@@ -147,12 +147,15 @@ def expected_spectrum(samples, lmat, cov, bins):
     return total
 
 
-def wiener_matrix(samples, weights, acn, phantom=False):
+def wiener_matrix(samples, weights, acn, phantom=False, sides=None):
     """``L`` of a ``wiener`` correction: each light pixel minus (with ``phantom``, after its
     read's phantom mean) the estimate ``w @ y_ch + wd @ mean_ch(y)`` of its channel and
     group at its read; ``weights[g]`` is ``(w, wd, kind, uses_phantom)`` of group ``g`` and
     ``y`` the reference reads' group means (minus their phantom means for kind
-    ``'subtracted'``) then, when used, every read's phantom mean."""
+    ``'subtracted'``) then, when used, every read's phantom mean.  ``sides[g]``, if given,
+    is ``(ws, reads, [(channel, columns), ...])``: the estimate adds ``ws @ s``, ``s`` at
+    each of ``reads`` the mean over those channels of their columns' mean (minus the
+    channel's phantom mean for kind ``'subtracted'``)."""
     s, g = samples.schedule, samples.geometry
     rows, cols = light_sensitive(g)
     c, nch = s.phantom_reads, g.nchannels
@@ -179,6 +182,18 @@ def wiener_matrix(samples, weights, acn, phantom=False):
 
     obs = {(ch, grp): observations(ch, grp, *weights[grp][2:])
            for ch in range(nch) for grp in range(len(weights))}
+    side_obs = {}
+    for grp, (ws, reads, groups) in enumerate(sides or []):
+        if ws is None:
+            continue
+        v = np.zeros((len(reads), samples.t.size))
+        for i, q in enumerate(reads):
+            for ch, columns in groups:
+                for k in columns:
+                    v[i, samples.pixel(q, k)] += 1.0 / (len(columns) * len(groups))
+                if weights[grp][2] == "subtracted":
+                    v[i, samples.phantom(q, ch)] -= 1.0 / (c * len(groups))
+        side_obs[grp] = (ws, v)
     light = [(p, j) for p in range(rows.start, rows.stop) for j in range(cols.start, cols.stop)]
     out = np.zeros((len(light), samples.t.size))
     for n, (p, j) in enumerate(light):
@@ -191,4 +206,7 @@ def wiener_matrix(samples, weights, acn, phantom=False):
         out[n] -= w[r] @ obs[ch, grp]
         if wd is not None:
             out[n] -= wd[r] @ (sum(obs[k, grp] for k in range(nch)) / nch)
+        if grp in side_obs:
+            ws, v = side_obs[grp]
+            out[n] -= ws[r] @ v
     return out

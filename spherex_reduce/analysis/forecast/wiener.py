@@ -7,7 +7,10 @@ observations ``y``: the value of every reference read and, when it estimates
 from them, the phantom value of every read.  Its weights come from the
 strategy itself (`~spherex_reduce.reduce.steps.reference.wiener.WienerReference.read_weights`:
 the same code, for the strategy's own noise model); the forecast propagates
-them under the scene's noise.
+them under the scene's noise.  With ``side_columns`` the estimate also adds
+``ws @ s`` (`~spherex_reduce.reduce.steps.reference.wiener.WienerReference.side_weights`),
+``s`` the mean over the side channels of their side pixels at every light row's read:
+one term per side channel, its column factor the sum of every channel's phases.
 
 The correction of cell ``(k_y, k_x)`` is a sum over *terms* ``t`` (family ``w``
 or ``wd``, group, observation kind)::
@@ -118,12 +121,29 @@ class WienerTerms:
             for fam, weights, beta in families:
                 v = scipy.fft.fft(weights[light_reads], axis=0, workers=-1)[np.asarray(ky)]
                 for name, psi, reads, cols_of in kinds:
-                    m = np.zeros((len(ky), n), dtype=complex)
-                    m[:, slots[reads]] = v[:, cols_of]
-                    fm = scipy.fft.fft(m, axis=1, workers=-1)
-                    gt = scipy.fft.ifft(f_light * fm.conj(), axis=1, workers=-1)
-                    self.terms.append(_Term((p, fam, name), beta, psi, fm,
-                                            *table.far_weights(gt)))
+                    self._add((p, fam, name), beta, psi, v[:, cols_of], slots[reads], f_light,
+                              table)
+            ws, side_reads, sides = strategy.side_weights(context, p)
+            if ws is not None:
+                # the side value is the mean over side channels of each one's side pixels'
+                # mean, added to every channel alike: one term per side channel
+                v = scipy.fft.fft(ws[light_reads], axis=0, workers=-1)[np.asarray(ky)]
+                for ch, side_cols in sides:
+                    beta = np.zeros_like(box)
+                    beta[ch] = box.sum(axis=0) / len(sides)
+                    psi = np.zeros(c + width)
+                    psi[c + offsets[side_cols]] = 1.0 / side_cols.size
+                    self._add((p, "ws", f"side{ch}"), beta, (psi, ref_ph), v,
+                              slots[side_reads], f_light, table)
+
+    def _add(self, key, beta, psi, v, obs_slots, f_light, table):
+        """A term of weights ``v`` (FFT over light rows, ``(nky, nobs)``) on observations at
+        slots ``obs_slots``."""
+        m = np.zeros((v.shape[0], self.n), dtype=complex)
+        m[:, obs_slots] = v
+        fm = scipy.fft.fft(m, axis=1, workers=-1)
+        gt = scipy.fft.ifft(f_light * fm.conj(), axis=1, workers=-1)
+        self.terms.append(_Term(key, beta, psi, fm, *table.far_weights(gt)))
 
     def functional(self, term):
         """The term's observations as a functional of each channel at each ``k_x``

@@ -22,6 +22,8 @@ WIENER_CASES = {
     "phantom-subtracted": ({}, True, True),
     "acn-slopes": ({"acn": True}, False, False),
     "phantom-ignored": ({"phantom": "ignore"}, False, True),
+    "side-columns": ({"side_columns": True}, False, True),
+    "side-columns-subtracted-acn": ({"side_columns": True, "acn": True}, True, False),
 }
 
 
@@ -33,10 +35,13 @@ def test_wiener_equals_brute_force(case):
     scene = tiny([PINK_ACN, BOTH, COMMON, PHANTOM], scan="alternate")
     strategy = WienerReference(noise="spherex-table2", **params)
     context = Context(scene.schedule, "readout", ramps, has_phantom=not first)
-    weights = [strategy.read_weights(context, p) for p in range(2 if strategy.acn else 1)]
+    groups = range(2 if strategy.acn else 1)
+    weights = [strategy.read_weights(context, p) for p in groups]
+    sides = [strategy.side_weights(context, p) for p in groups]
+    assert all(w is not None for w, *_ in sides) == bool(params.get("side_columns"))
     samples = Samples(scene)
     cov = sum(samples.covariance(scene.components).values())
-    lmat = wiener_matrix(samples, weights, strategy.acn, phantom=first)
+    lmat = wiener_matrix(samples, weights, strategy.acn, phantom=first, sides=sides)
     expect = expected_spectrum(samples, lmat, cov, BINS)
     steps = [{"unchop": {}}, *([{"subtract_phantom": {}}] if first else []),
              *([] if ramps else [{"fit_ramp": {}}]),

@@ -28,7 +28,8 @@ frames' start times (`slopes`), on the same exposure:
   outer outputs have side columns: the one-line warning is reported); ``wiener`` without a
   noise model (the paper's electronics, refused for ADU at 100 kHz) and with the model
   ``characterize`` fits to the case's darks (``noise: MODEL.yaml``; with and without
-  ``acn: true``);
+  ``acn: true``, and with ``side_columns: true``: the side columns' mean over the outer
+  outputs observes the drift common to every output at every row);
 - jwst's refpix (``jwst.refpix.reference_pixels.correct_model``, the step's defaults:
   running median of the side columns over 11 rows, side gain 1, 3σ clip) with side columns
   and even/odd columns, side columns alone, even/odd alone.  jwst is installed once into its
@@ -50,7 +51,9 @@ of the correction per exposure (ours: ``unchop`` + ``correct_reference`` in this
 median over exposures; jwst: ``correct_model`` alone).  Each with the ratio to what issue
 34's targets compare it with: on ``c_pink`` ≤ 0.4× jwst refpix with side columns and ≤ 2×
 the floor; with ACN never above uncorrected and ≤ 0.5× its even/odd peak; raw offsets ≤ 1.1×
-the plain mean's; time ≤ 2× ``mean``'s.
+the plain mean's; time ≤ 2× ``mean``'s.  The band power of ``uncorrected`` and of the
+``wiener`` methods is also forecast (`~spherex_reduce.analysis.forecast`, no random numbers)
+for the fitted model taken as the scene (gain 1): measured over forecast, within 10 %.
 """
 
 import argparse
@@ -68,6 +71,7 @@ from astropy.io import fits
 from astropy.nddata import CCDData
 
 from spherex_reduce import Exposure
+from spherex_reduce.analysis import forecast
 from spherex_reduce.analysis.case import SpectrumMeasure
 from spherex_reduce.analysis.characterize import characterize
 from spherex_reduce.analysis.light import light_sensitive
@@ -98,7 +102,12 @@ SKY_INDEX, SKY_RMS = -2.0, 10.0
 MODEL = "MODEL.yaml"
 UNCORRECTED, FLOOR, MEAN, PLAIN = ("uncorrected", "floor: true row means", "mean",
                                    "plain mean (unclipped)")
-#: targets of issue 34
+#: ``wiener`` with the fitted model and the side columns (the common drift at every row)
+SIDE = "wiener + model + side"
+#: methods whose band power is also forecast from the fitted model
+FORECAST = (UNCORRECTED, "wiener + model", SIDE)
+#: targets of issue 34 (T_FORECAST: measured within this fraction of the forecast)
+T_FORECAST = 0.10
 T_JWST, T_FLOOR, T_PEAK, T_PLAIN, T_TIME, T_SKY = 0.4, 2.0, 0.5, 1.1, 2.0, 0.99
 
 
@@ -114,7 +123,31 @@ def ours(model):
             "acn + side_columns": {"strategy": "acn", "side_columns": True},
             "wiener (no noise model)": {"strategy": "wiener"},
             "wiener + model": wiener,
-            "wiener + model, acn": {**wiener, "acn": True}}
+            "wiener + model, acn": {**wiener, "acn": True},
+            SIDE: {**wiener, "side_columns": True},
+            "wiener + model + side, acn": {**wiener, "side_columns": True, "acn": True}}
+
+
+def forecasts(model_path, methods, out):
+    """Band power each linear method of ours is forecast to leave on the model's own darks
+    (the `characterize` model as a scene, with gain 1: ADU counted as electrons), and the
+    seconds it took: ``{label: band}``."""
+    scene = out.with_name(out.stem + "_gain1.yaml")
+    scene.write_text("gain: 1.0\n" + model_path.read_text())
+    bands, notes = {}, []
+    for label, params in methods.items():
+        if label not in FORECAST:
+            continue
+        steps = [{"unchop": {}}]
+        if params is not None:
+            steps.append({"correct_reference": {**params, "noise": str(scene)}
+                          if "noise" in params else params})
+        steps.append({"fit_ramp": {}})
+        t0 = time.perf_counter()
+        bands[label] = float(forecast(str(scene), {"steps": steps}).meta["band_power"])
+        notes.append(f"{label} {time.perf_counter() - t0:.1f} s")
+    return bands, "forecasts of the characterize model (band power, ADU/s squared): " + (
+        ", ".join(f"{k} {v:.4g}" for k, v in bands.items()) + "; times " + ", ".join(notes))
 
 
 def pipeline(cfg, params):
@@ -267,6 +300,8 @@ def run_case(case, darks, cfg, args, jwst_py):
     notes = [f"characterize ({len(darks)} darks, the same as reduced): "
              f"{time.perf_counter() - t0:.1f} s, {model_path}"]
     methods = ours(model_path)
+    fc, line = forecasts(model_path, methods, model_path)
+    notes.append(line)
     results = {}   # (variant, method) -> list of measures
     times, errors, warned = {}, {}, {}
     slope_of = {}  # (variant, method, k) -> slope, for the sky
@@ -337,7 +372,7 @@ def run_case(case, darks, cfg, args, jwst_py):
     for (variant, label), msg in errors.items():
         refused.setdefault((label, msg), []).append(variant)
     notes.extend(f"{label} ({', '.join(v)}): refused: {msg}" for (label, msg), v in refused.items())
-    return results, sky_t, times, notes
+    return results, sky_t, times, notes, fc
 
 
 def summary(results, variant):
@@ -354,7 +389,7 @@ def summary(results, variant):
     return out
 
 
-def table(case, variant, results, sky_t, times, white_band):
+def table(case, variant, results, sky_t, times, white_band, fc):
     s = summary(results, variant)
     if not s:
         return []
@@ -370,8 +405,8 @@ def table(case, variant, results, sky_t, times, white_band):
              "| method | band power / white-only | / jwst side+even/odd (≤ 0.4) | / floor (≤ 2) "
              "| / uncorrected (≤ 1 with ACN) | offsets rms, ADU/s | / plain mean (≤ 1.1 raw) "
              "| even/odd peak, (ADU/s)² | / uncorrected (≤ 0.5 with ACN) | sky transfer (≥ 0.99) "
-             "| s per exposure | / mean (≤ 2) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| s per exposure | / mean (≤ 2) | / forecast (within 10 %) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for label, m in s.items():
         band = m["band"] / white_band
         err = m["band_err"] / white_band
@@ -383,11 +418,12 @@ def table(case, variant, results, sky_t, times, white_band):
             f"| {m['offsets']:.3g} | {ratio(m['offsets'], ref['plain'])} | {m['peak']:.3g} "
             f"| {ratio(m['peak'], ref['none'].get('peak'))} "
             f"| {'-' if sky is None else f'{sky:.4f}'} "
-            f"| {'-' if t is None else f'{t:.3g}'} | {ratio(t, ref['time'])} |")
+            f"| {'-' if t is None else f'{t:.3g}'} | {ratio(t, ref['time'])} "
+            f"| {ratio(m['band'], fc.get(label))} |")
     return lines
 
 
-def verdict(case, results, sky_t, times):
+def verdict(case, results, sky_t, times, fc):
     """One line per target of issue 34 that the case measures, for our best method."""
     sub, raw = summary(results, "bias-subtracted"), summary(results, "raw")
     mine = [m for m in sub if m not in (UNCORRECTED, FLOOR) and not m.startswith("jwst")]
@@ -403,6 +439,14 @@ def verdict(case, results, sky_t, times):
         r = sub[best]["band"] / sub[FLOOR]["band"]
         out.append(f"target ≤ {T_FLOOR}× the floor: {r:.3g} "
                    f"({'met' if r <= T_FLOOR else 'not met'})")
+    if case == "c_pink" and SIDE in sub and SIDE in fc:
+        r = sub[SIDE]["band"] / fc[SIDE]
+        none = sub[UNCORRECTED]["band"] / fc[UNCORRECTED]
+        out.append(f"target within {T_FORECAST:.0%} of our forecast for that model ({SIDE}): "
+                   f"measured / forecast {r:.3g} "
+                   f"({'met' if abs(r - 1) <= T_FORECAST else 'not met'}); the uncorrected "
+                   f"darks / the model's forecast {none:.3g} (how well the model describes "
+                   f"them), the gain over uncorrected measured / forecast {r / none:.3g}")
     if case == "c_pink" and best in sky_t:
         out.append(f"target sky transfer ≥ {T_SKY}: {sky_t[best]:.4f} "
                    f"({'met' if sky_t[best] >= T_SKY else 'not met'})")
@@ -467,7 +511,7 @@ def main():
         t0 = time.perf_counter()
         print(f"\n{case}: drawing/reading cubes", flush=True)
         darks = cubes(module, pca0, case, args, case in floors)
-        results, sky_t, times, notes = run_case(case, darks, cfg, args, jwst_py)
+        results, sky_t, times, notes, fc = run_case(case, darks, cfg, args, jwst_py)
         if case == "white":
             white_band = summary(results, "bias-subtracted")[UNCORRECTED]["band"]
             notes.append(f"white-only band power (uncorrected, bias-subtracted): "
@@ -476,9 +520,9 @@ def main():
         text = [f"\n### {case}: " + ", ".join(f"{k} {v:g}" for k, v in params.items())
                 + f" ({time.perf_counter() - t0:.0f} s)"]
         for variant in ("bias-subtracted", "raw"):
-            text.extend(table(case, variant, results, sky_t, times, white_band))
+            text.extend(table(case, variant, results, sky_t, times, white_band, fc))
         text.append("")
-        text.extend(f"- {n}" for n in verdict(case, results, sky_t, times) + notes)
+        text.extend(f"- {n}" for n in verdict(case, results, sky_t, times, fc) + notes)
         print("\n".join(text), flush=True)
         lines.extend(text)
         if args.out:

@@ -197,3 +197,29 @@ def test_phantom_only_is_the_corrections_without_the_reference_step():
     ref = sigma_clip(subtract_phantom(unchop(fit_ramp(raw))), sigma=5.0)
     np.testing.assert_allclose(out.data.data, ref.data.data, rtol=1e-6, atol=1e-6)
     assert "S_REFCOR" not in out.header
+
+
+def test_sidecar_wiener_config_equals_the_functions_by_hand(tmp_path, capsys):
+    """The shipped SIDECAR config, its noise: set as its comments say, through the CLI: the
+    same numbers as the steps called by hand, and the side columns of the first and last
+    channel observed."""
+    import yaml
+
+    assert main(["show-config", "sidecar-wiener"]) == 0
+    cfg = yaml.safe_load(capsys.readouterr().out)
+    step = cfg["steps"][1]["correct_reference"]
+    assert step["side_columns"] is True and step["noise"] is None
+    step["noise"] = "spherex-table2"
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump(cfg))
+    raw = example_raw_exposure(tiny_schedule(nframes=5))
+    path = write(raw, tmp_path / "raw.fits")
+    out_path = tmp_path / "out.fits"
+    assert main(["-q", "reduce", str(path), "-c", str(tmp_path / "p.yaml"), "-o",
+                 str(out_path)]) == 0
+    out = read(out_path)
+    corrected = correct_reference(unchop(raw), "wiener", side_columns=True,
+                                  noise="spherex-table2", domain="slopes")
+    ref = sigma_clip(fit_ramp(corrected), sigma=5.0)
+    np.testing.assert_allclose(out.data.data, ref.data.data, rtol=1e-5, atol=1e-4)
+    nch = raw.schedule.geometry.nchannels
+    assert corrected.tables["REFDRIFT"].meta["side_channels"] == [0, nch - 1]

@@ -54,7 +54,7 @@ def _functional(component, kind, pixel_offsets, phantom_reads, weights=None):
                      if weights is None else np.asarray(weights, dtype=float))
     if kind not in ("pixels", "side") and c and component.seen_by_phantom:
         offs.append(np.arange(-c, 0, dtype=np.int64))
-        coefs.append(np.full(c, (-1.0 if kind == "subtracted" else 1.0) / c))
+        coefs.append(np.full(c, (1.0 if kind == "phantom" else -1.0) / c))
     if not offs:
         return np.zeros(0, np.int64), np.zeros(0)
     return np.concatenate(offs), np.concatenate(coefs)

@@ -74,6 +74,29 @@ class SideValues:
         self.left_out, self.clipped = left_out, clipped
 
 
+def _deviations(v):
+    """Each pixel's departure from the median of the channel's other side pixels of its
+    read (``v (L, r, n)``; 0 without another pixel): the read's shared drift taken out,
+    and a departure with the noise of a pixel and its peers whatever ``n`` (from the
+    median of all ``n``, one of an odd number of pixels would depart by 0, and the
+    others' robust scatter would clip a few percent of good reads)."""
+    dev = np.empty_like(v)
+    for j in range(v.shape[2]):
+        others = np.delete(v, j, axis=2)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # no other usable pixel
+            med = (np.nanmedian(others, axis=2) if others.shape[2]
+                   else np.full(v.shape[:2], np.nan))
+        dev[..., j] = np.where(np.isfinite(med), v[..., j] - med, v[..., j] * 0.0)
+    return dev
+
+
+def _scatter(dev):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # an all-NaN pixel
+        return _MAD_TO_SIGMA * np.nanmedian(np.abs(dev), axis=(0, 1))
+
+
 def _channel_means(v, sigma):
     """``v (L, r, n)`` of one channel's side pixels: the per-read mean of the usable
     ones after each pixel's level is taken out, and the pixels and reads left out.
@@ -84,11 +107,16 @@ def _channel_means(v, sigma):
         # each pixel's own level (a raw frame's bias): its median over the frames (the same
         # pattern taken from every frame: no change to a slope); an image, its column's
         v = v - np.nanmedian(v, axis=0 if v.shape[0] > 1 else (0, 1))
-        dev = v - np.nanmedian(v, axis=2, keepdims=True)  # the read's shared drift out
-        scatter = _MAD_TO_SIGMA * np.nanmedian(np.abs(dev), axis=(0, 1))
+        # a noisy pixel: its scatter about the median of all, the read's shared drift out
+        scatter = _scatter(v - np.nanmedian(v, axis=2, keepdims=True))
     typical = np.nanmedian(scatter) if np.isfinite(scatter).any() else np.nan
     with np.errstate(invalid="ignore"):
         noisy = ~(scatter <= _NOISY * typical) if typical > 0 else ~np.isfinite(scatter)
+    # the reads' clip against the other pixels kept (a noisy pixel left out is left out of
+    # the others' medians too, as a flagged one)
+    dev = _deviations(np.where(noisy, np.nan, v))
+    scatter = _scatter(dev)
+    with np.errstate(invalid="ignore"):
         far = np.abs(dev) > sigma * np.where(scatter > 0, scatter, np.inf)
     keep = np.isfinite(v) & ~noisy & ~far
     n = keep.sum(axis=2)

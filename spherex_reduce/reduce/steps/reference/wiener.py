@@ -515,8 +515,8 @@ class WienerReference(Strategy):
             "strategy": self.name, "bunit": unit, "domain": domain,
             "noise": str(self.noise), "common": sorted(self.common),
             "phantom_used": bool(used_phantom),
-            "side_channels": [] if sv is None else sorted({ch for part in sides
-                                                          for ch, _ in part}),
+            "side_channels": "" if sv is None else " ".join(
+                str(ch) for ch in sorted({ch for part in sides for ch, _ in part})),
             "side_pixels_left_out": 0 if sv is None else sv.left_out,
             "side_reads_clipped": 0 if sv is None else sv.clipped,
             "predicted_rms_error": rms(predicted),

@@ -225,8 +225,8 @@ def reference_rows(side, schedule):
 
 
 def without_telegraph(strategy, reference, side, schedule, columns=None):
-    """Reference pixels ``(L, k, ncols)`` and side columns (None, or ``(values, rows)`` as
-    `_side_columns` gives them) with the reads of telegraph pixels NaN when
+    """Reference pixels ``(L, k, ncols)`` and side columns (None, or ``(values, rows,
+    columns)`` as `_side_columns` gives them) with the reads of telegraph pixels NaN when
     ``strategy.telegraph`` is ``'auto'``, and what was found (a
     `~spherex_reduce.reduce.steps.reference.telegraph.TelegraphSearch`, or None with ``'keep'``).
 
@@ -239,29 +239,31 @@ def without_telegraph(strategy, reference, side, schedule, columns=None):
     reference, found = drop_telegraph(reference, reference_rows(side, schedule), g,
                                       strategy.telegraph_sigma)
     if columns is not None:
-        side_values, more = drop_telegraph(*columns, g, strategy.telegraph_sigma)
+        values, rows, cols = columns
+        side_values, more = drop_telegraph(values, rows, g, strategy.telegraph_sigma, cols)
         found = found.combine(more)
     return reference, side_values, found
 
 
 def _side_columns(exposure):
-    """Side reference columns of the active rows ``(L, rows, ncols)``, NaN elsewhere, and the
-    physical row of each of those rows.
+    """Side reference columns of the active rows ``(L, rows, m)`` (NaN: unusable), the
+    physical row of each of those rows, and the ``m`` columns.
 
-    Only the declared reference columns: ``left`` of ``ref_border`` from column 0,
-    ``right`` at the end, and in a readout frame of quadrants those at the start or end
-    of every channel (`~spherex_reduce.DetectorGeometry.reference_column_mask`).
+    Only the declared reference columns are read (a few MB of a full-size exposure):
+    ``left`` of ``ref_border`` from column 0, ``right`` at the end, and in a readout
+    frame of quadrants those at the start or end of every channel
+    (`~spherex_reduce.DetectorGeometry.reference_column_mask`).
     """
     s = exposure.schedule
     g = s.geometry
-    nd = exposure.data
+    cols = np.flatnonzero(g.reference_column_mask())
     idx = s.active_read_indices if exposure.order == "readout" else g.active_rows
-    vals = np.take(nd.data, idx, axis=-2)
-    m = None if exposure.dq is None else np.take(exposure.dq, idx, axis=-2)
+    vals = np.take(np.asarray(exposure.data.data)[..., cols], idx, axis=-2)
+    m = None if exposure.dq is None else np.take(np.asarray(exposure.dq)[..., cols], idx,
+                                                  axis=-2)
     vals = _usable(vals, m)
-    vals[..., ~g.reference_column_mask()] = np.nan
     rows = s.rows[idx] if exposure.order == "readout" else idx
-    return vals.reshape(-1, *vals.shape[-2:]), rows
+    return vals.reshape(-1, *vals.shape[-2:]), rows, cols
 
 
 def group_columns(geometry, acn):
@@ -305,6 +307,18 @@ def group_columns(geometry, acn):
     for ch, gr in enumerate(groups):
         for p, cols in enumerate(gr):
             out[ch, p, : len(cols)] = cols
+    return out
+
+
+def _side_groups(groups, columns):
+    """`group_columns` ``groups`` restricted to ``columns`` (increasing) and given as
+    indices into them, ``(nch, P, k)`` with -1 pads (``k`` >= 1)."""
+    parts = [[np.searchsorted(columns, c[np.isin(c, columns)]) for c in gr] for gr in groups]
+    k = max(1, max(len(c) for gr in parts for c in gr))
+    out = np.full((*groups.shape[:2], k), -1, dtype=int)
+    for ch, gr in enumerate(parts):
+        for p, c in enumerate(gr):
+            out[ch, p, : len(c)] = c
     return out
 
 
@@ -380,8 +394,8 @@ def _levels(values):
 
 def _offsets_of(geometry, reference, side, *, acn, sigma, maxiters, threads):
     """`reference_offsets` of reference-row pixels ``(L, k, ncols)`` (NaN: unusable)
-    and optionally side-column pixels ``(L, rows, ncols)`` (NaN outside the side columns;
-    a temporary of the caller's, changed in place).
+    and optionally side-column pixels: None or ``(values, columns)``, ``values``
+    ``(L, rows, m)`` (NaN: unusable) of the ``m`` detector ``columns``.
 
     With more than one frame, each pixel is clipped on its departure from its own
     level (its median over the frames), not on its value: on raw darks the
@@ -399,15 +413,14 @@ def _offsets_of(geometry, reference, side, *, acn, sigma, maxiters, threads):
     from astropy.stats import sigma_clip
 
     groups = group_columns(geometry, acn)
-    keep = None
     if side is not None:
-        # channels without side columns get only NaN there; drop the padding cost
-        keep = np.isfinite(_gather(side, groups)).any(axis=(0, 1, 2))
+        side, side_cols = side
+        side_groups = _side_groups(groups, side_cols)
 
     def gathered(ref, more):
         vals = _gather(ref, groups)
         if more is not None:
-            vals = np.concatenate([vals, _gather(more, groups)[..., keep]], axis=-1)
+            vals = np.concatenate([vals, _gather(more, side_groups)], axis=-1)
         return vals
 
     base, dropped = 0.0, 0
@@ -421,9 +434,8 @@ def _offsets_of(geometry, reference, side, *, acn, sigma, maxiters, threads):
         dropped = hot.sum(axis=-1)
         base = np.ma.filled(clipped.mean(axis=-1), np.nan)
         reference = reference - ref_level
-        if side is not None:  # in place, on its side columns only: a full-size array
-            cols = np.flatnonzero(np.isfinite(side).any(axis=(0, 1)))
-            side[..., cols] -= side_level[:, cols]
+        if side is not None:
+            side = side - side_level
     else:
         hot = None
 
@@ -494,9 +506,11 @@ class MeanReference(Strategy):
                    if self.side_columns and g.reference_column_mask().any() else None)
         if columns is not None:
             _warn_unequal(g)
-        reference, columns, found = without_telegraph(
+        reference, values, found = without_telegraph(
             self, reference_pixels(side, context.schedule), side, context.schedule, columns)
-        off, used, clipped = _offsets_of(g, reference, columns, acn=self.acn, sigma=self.sigma,
+        off, used, clipped = _offsets_of(g, reference,
+                                         None if columns is None else (values, columns[2]),
+                                         acn=self.acn, sigma=self.sigma,
                                          maxiters=self.maxiters, threads=context.threads)
         return ReferenceOffsets(off, used, clipped, [EVEN, ODD] if self.acn else [ALL],
                                 telegraph=found)

@@ -157,11 +157,21 @@ def find_telegraph(values, rows, geometry, sigma=5.0, columns=None):
     channel = geometry.channel_of_column()[at]
     score = np.full((uniq.size, ncols), -np.inf)
     tested = np.zeros((uniq.size, ncols), bool)
-    by_row = [resid[:, inverse == i] for i in range(uniq.size)]
-    for scale in _scales(values.shape[0], np.bincount(inverse)):
-        logv = np.full((uniq.size, ncols), np.nan)
-        for i, part in enumerate(by_row):
-            logv[i] = _log_variance(part, scale)
+    counts = np.bincount(inverse)
+    if (counts == counts[0]).all():  # as many reads of every row: all rows at once
+        grouped = resid[:, np.argsort(inverse, kind="stable")].reshape(
+            values.shape[0], uniq.size, counts[0], ncols)
+        grouped = np.moveaxis(grouped, 1, 2).reshape(values.shape[0], counts[0], -1)
+
+        def log_variance(scale):
+            return _log_variance(grouped, scale).reshape(uniq.size, ncols)
+    else:
+        by_row = [resid[:, inverse == i] for i in range(uniq.size)]
+
+        def log_variance(scale):
+            return np.stack([_log_variance(part, scale) for part in by_row])
+    for scale in _scales(values.shape[0], counts):
+        logv = log_variance(scale)
         for ch in range(nch):
             own = logv[:, channel == ch]
             ok = np.isfinite(own)

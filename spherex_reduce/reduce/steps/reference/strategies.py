@@ -138,6 +138,22 @@ def clipped_mean(values, sigma=3.0, maxiters=5):
     >>> float(mean), int(used), int(clipped)
     (1.0, 4, 1)
     """
+    _, c1, mid, lo, hi, nvalid = _clip_range(values, sigma, maxiters)
+    n = hi - lo
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = (_take(c1, hi) - _take(c1, lo)) / n + mid[..., 0]
+    mean = np.where(n > 0, mean, np.nan)
+    return mean, n, nvalid - n
+
+
+def _take(a, i):
+    return np.take_along_axis(a, i[..., None], axis=-1)[..., 0]
+
+
+def _clip_range(values, sigma, maxiters):
+    """`clipped_mean`'s iterations: the values sorted along the last axis (NaN last), the
+    prefix sums of their departures from ``mid``, ``mid``, and the kept ``[lo, hi)`` and
+    the usable count of every row."""
     v = np.asarray(values, dtype=np.float64)
     s = np.sort(np.where(np.isfinite(v), v, np.nan), axis=-1)  # unusable (NaN) sort last
     nvalid = np.isfinite(s).sum(axis=-1)
@@ -150,10 +166,6 @@ def clipped_mean(values, sigma=3.0, maxiters=5):
     sh = np.where(np.isfinite(s), s - mid, 0.0)
     c1 = np.concatenate([np.zeros((*lead, 1)), np.cumsum(sh, axis=-1)], axis=-1)
     c2 = np.concatenate([np.zeros((*lead, 1)), np.cumsum(sh * sh, axis=-1)], axis=-1)
-
-    def take(a, i):
-        return np.take_along_axis(a, i[..., None], axis=-1)[..., 0]
-
     last = max(s.shape[-1] - 1, 0)
     fin = np.isfinite(s)
     it = 0
@@ -162,10 +174,10 @@ def clipped_mean(values, sigma=3.0, maxiters=5):
         n = hi - lo
         ok = n > 0
         safe_n = np.maximum(n, 1)
-        med = 0.5 * (take(sh, np.clip(lo + (n - 1) // 2, 0, last))
-                     + take(sh, np.clip(lo + n // 2, 0, last)))
-        s1 = take(c1, hi) - take(c1, lo)
-        s2 = take(c2, hi) - take(c2, lo)
+        med = 0.5 * (_take(sh, np.clip(lo + (n - 1) // 2, 0, last))
+                     + _take(sh, np.clip(lo + n // 2, 0, last)))
+        s1 = _take(c1, hi) - _take(c1, lo)
+        s2 = _take(c2, hi) - _take(c2, lo)
         var = np.maximum(s2 / safe_n - (s1 / safe_n) ** 2, 0.0)
         std = np.sqrt(var)
         lower = (med - sigma * std)[..., None]
@@ -177,11 +189,47 @@ def clipped_mean(values, sigma=3.0, maxiters=5):
         if np.array_equal(new_lo, lo) and np.array_equal(new_hi, hi):
             break
         lo, hi = new_lo, new_hi
+    return s, c1, mid, lo, hi, nvalid
+
+
+def _read_clipped_mean(blocks, sigma, maxiters):
+    """Clipped mean of the values of ``blocks``, each ``(..., r, k)``: ``r`` reads of ``k``
+    values (NaN: unusable), robust to a drift that moves every value of a read together.
+
+    A value is clipped on its departure from its read's median (what the read's values
+    share: the drift at that read), pooled over every read, with `clipped_mean`'s rules;
+    the mean is each read's mean of its kept values weighted by its usable values' count,
+    so the drift is averaged over the reads as an unclipped mean averages it, whichever
+    values the clip takes.  Returns ``mean, n_used, n_clipped`` of shape ``(...)``.
+    """
+    deps, lead = [], blocks[0].shape[:-2]
+    for b in blocks:
+        with np.errstate(invalid="ignore"):
+            med = np.median(b, axis=-1, keepdims=True)
+        gaps = np.isnan(med[..., 0]) & np.isfinite(b).any(axis=-1)
+        if gaps.any():  # nanmedian, slower, for the reads with an unusable value only
+            med[gaps, 0] = np.nanmedian(b[gaps], axis=-1)
+        with np.errstate(invalid="ignore"):
+            dep = b - med
+        deps.append(np.where(np.isfinite(b) & np.isfinite(dep), dep, np.nan))
+    s, _, _, lo, hi, nvalid = _clip_range(
+        np.concatenate([d.reshape(*lead, -1) for d in deps], axis=-1), sigma, maxiters)
     n = hi - lo
+    last = max(s.shape[-1] - 1, 0)
+    lower = _take(s, np.clip(lo, 0, last))[..., None, None]
+    upper = _take(s, np.clip(hi - 1, 0, last))[..., None, None]
+    kept, usable, total = [], [], []
+    for b, d in zip(blocks, deps, strict=True):
+        with np.errstate(invalid="ignore"):
+            keep = (d >= lower) & (d <= upper) & (n > 0)[..., None, None]  # NaN: False
+        kept.append(keep.sum(axis=-1))
+        usable.append(np.isfinite(d).sum(axis=-1))
+        total.append(np.where(keep, b, 0.0).sum(axis=-1))
+    kept, usable, total = (np.concatenate(x, axis=-1) for x in (kept, usable, total))
+    weight = np.where(kept > 0, usable, 0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        mean = (take(c1, hi) - take(c1, lo)) / n + mid[..., 0]
-    mean = np.where(n > 0, mean, np.nan)
-    return mean, n, nvalid - n
+        mean = (weight * total / np.maximum(kept, 1)).sum(axis=-1) / weight.sum(axis=-1)
+    return np.where(n > 0, mean, np.nan), n, nvalid - n
 
 
 def _usable(values, mask):
@@ -225,8 +273,8 @@ def reference_rows(side, schedule):
 
 
 def without_telegraph(strategy, reference, side, schedule, columns=None):
-    """Reference pixels ``(L, k, ncols)`` and side columns (None, or ``(values, rows)`` as
-    `_side_columns` gives them) with the reads of telegraph pixels NaN when
+    """Reference pixels ``(L, k, ncols)`` and side columns (None, or ``(values, rows,
+    columns)`` as `_side_columns` gives them) with the reads of telegraph pixels NaN when
     ``strategy.telegraph`` is ``'auto'``, and what was found (a
     `~spherex_reduce.reduce.steps.reference.telegraph.TelegraphSearch`, or None with ``'keep'``).
 
@@ -239,29 +287,31 @@ def without_telegraph(strategy, reference, side, schedule, columns=None):
     reference, found = drop_telegraph(reference, reference_rows(side, schedule), g,
                                       strategy.telegraph_sigma)
     if columns is not None:
-        side_values, more = drop_telegraph(*columns, g, strategy.telegraph_sigma)
+        values, rows, cols = columns
+        side_values, more = drop_telegraph(values, rows, g, strategy.telegraph_sigma, cols)
         found = found.combine(more)
     return reference, side_values, found
 
 
 def _side_columns(exposure):
-    """Side reference columns of the active rows ``(L, rows, ncols)``, NaN elsewhere, and the
-    physical row of each of those rows.
+    """Side reference columns of the active rows ``(L, rows, m)`` (NaN: unusable), the
+    physical row of each of those rows, and the ``m`` columns.
 
-    Only the declared reference columns: ``left`` of ``ref_border`` from column 0,
-    ``right`` at the end, and in a readout frame of quadrants those at the start or end
-    of every channel (`~spherex_reduce.DetectorGeometry.reference_column_mask`).
+    Only the declared reference columns are read (a few MB of a full-size exposure):
+    ``left`` of ``ref_border`` from column 0, ``right`` at the end, and in a readout
+    frame of quadrants those at the start or end of every channel
+    (`~spherex_reduce.DetectorGeometry.reference_column_mask`).
     """
     s = exposure.schedule
     g = s.geometry
-    nd = exposure.data
+    cols = np.flatnonzero(g.reference_column_mask())
     idx = s.active_read_indices if exposure.order == "readout" else g.active_rows
-    vals = np.take(nd.data, idx, axis=-2)
-    m = None if exposure.dq is None else np.take(exposure.dq, idx, axis=-2)
+    vals = np.take(np.asarray(exposure.data.data)[..., cols], idx, axis=-2)
+    m = None if exposure.dq is None else np.take(np.asarray(exposure.dq)[..., cols], idx,
+                                                  axis=-2)
     vals = _usable(vals, m)
-    vals[..., ~g.reference_column_mask()] = np.nan
     rows = s.rows[idx] if exposure.order == "readout" else idx
-    return vals.reshape(-1, *vals.shape[-2:]), rows
+    return vals.reshape(-1, *vals.shape[-2:]), rows, cols
 
 
 def group_columns(geometry, acn):
@@ -308,13 +358,24 @@ def group_columns(geometry, acn):
     return out
 
 
+def _side_groups(groups, columns):
+    """`group_columns` ``groups`` restricted to ``columns`` (increasing) and given as
+    indices into them, ``(nch, P, k)`` with -1 pads (``k`` >= 1)."""
+    parts = [[np.searchsorted(columns, c[np.isin(c, columns)]) for c in gr] for gr in groups]
+    k = max(1, max(len(c) for gr in parts for c in gr))
+    out = np.full((*groups.shape[:2], k), -1, dtype=int)
+    for ch, gr in enumerate(parts):
+        for p, c in enumerate(gr):
+            out[ch, p, : len(c)] = c
+    return out
+
+
 def _gather(values, groups):
-    """``values (L, r, ncols)`` -> ``(L, nch, P, r * k)`` by column group, NaN for pads."""
+    """``values (L, r, ncols)`` -> ``(L, nch, P, r, k)`` by column group, NaN for pads."""
     idx = np.maximum(groups, 0)
     out = values[:, :, idx]  # (L, r, nch, P, k)
     out[:, :, groups < 0] = np.nan
-    out = np.moveaxis(out, 1, -2)  # (L, nch, P, r, k)
-    return out.reshape(*out.shape[:3], -1)
+    return np.moveaxis(out, 1, -2)
 
 
 def reference_offsets(exposure, *, acn=False, sigma=3.0, maxiters=5, side_columns=False,
@@ -380,8 +441,8 @@ def _levels(values):
 
 def _offsets_of(geometry, reference, side, *, acn, sigma, maxiters, threads):
     """`reference_offsets` of reference-row pixels ``(L, k, ncols)`` (NaN: unusable)
-    and optionally side-column pixels ``(L, rows, ncols)`` (NaN outside the side columns;
-    a temporary of the caller's, changed in place).
+    and optionally side-column pixels: None or ``(values, columns)``, ``values``
+    ``(L, rows, m)`` (NaN: unusable) of the ``m`` detector ``columns``.
 
     With more than one frame, each pixel is clipped on its departure from its own
     level (its median over the frames), not on its value: on raw darks the
@@ -391,7 +452,12 @@ def _offsets_of(geometry, reference, side, *, acn, sigma, maxiters, threads):
     group's offset is then the clipped mean of its departures plus the clipped
     mean of its pixels' levels (the pixels whose level is clipped, hot ones, are
     left out of every frame and counted in ``n_clipped``).  One frame (an
-    image): the values are clipped.
+    image): the values themselves.  Either is clipped on its departure from its
+    read's median too, with each read weighted as in a plain mean
+    (`_read_clipped_mean`): a drift common to a read (1/f common to the outputs)
+    spreads the pooled reads of a frame into groups, one per read, and a clip of
+    the pool took a different handful from one side in each frame (NGHXRG
+    ``c_pink``: per-output offsets 1.15-1.19x a plain mean's).
 
     Frames are clipped a few at a time (temporaries stay in cache) on
     ``threads`` threads; each group's numbers do not depend on the others.
@@ -399,40 +465,45 @@ def _offsets_of(geometry, reference, side, *, acn, sigma, maxiters, threads):
     from astropy.stats import sigma_clip
 
     groups = group_columns(geometry, acn)
-    keep = None
     if side is not None:
-        # channels without side columns get only NaN there; drop the padding cost
-        keep = np.isfinite(_gather(side, groups)).any(axis=(0, 1, 2))
+        side, side_cols = side
+        side_groups = _side_groups(groups, side_cols)
 
-    def gathered(ref, more):
-        vals = _gather(ref, groups)
-        if more is not None:
-            vals = np.concatenate([vals, _gather(more, groups)[..., keep]], axis=-1)
-        return vals
+    def gathered(ref, more, hot=None):
+        """Blocks ``(F, nch, P, r, k)`` of the reference rows and side columns, the hot
+        pixels NaN."""
+        blocks = [_gather(ref, groups)] + ([] if more is None else [_gather(more, side_groups)])
+        for b, h in zip(blocks, [None] * len(blocks) if hot is None else hot, strict=True):
+            if h is not None:
+                b[np.broadcast_to(h, b.shape)] = np.nan
+        return blocks
 
     base, dropped = 0.0, 0
     if reference.shape[0] > 1:
         ref_level = _levels(reference)
         side_level = None if side is None else _levels(side)
-        levels = gathered(ref_level[None], None if side is None else side_level[None])
-        clipped = sigma_clip(np.ma.masked_invalid(levels), sigma=sigma, maxiters=maxiters,
+        levels = [_gather(ref_level[None], groups)]
+        if side is not None:
+            levels.append(_gather(side_level[None], side_groups))
+        flat = np.concatenate([x.reshape(*x.shape[:3], -1) for x in levels], axis=-1)
+        clipped = sigma_clip(np.ma.masked_invalid(flat), sigma=sigma, maxiters=maxiters,
                              axis=-1, cenfunc="median", stdfunc="std", copy=True)
-        hot = np.ma.getmaskarray(clipped) & np.isfinite(levels)  # out of every frame
+        hot = np.ma.getmaskarray(clipped) & np.isfinite(flat)  # out of every frame
         dropped = hot.sum(axis=-1)
         base = np.ma.filled(clipped.mean(axis=-1), np.nan)
+        ends = np.cumsum([x[0, 0, 0].size for x in levels])[:-1]
+        hot = [h.reshape(x.shape) for h, x in zip(np.split(hot, ends, axis=-1), levels,
+                                                   strict=True)]
         reference = reference - ref_level
-        if side is not None:  # in place, on its side columns only: a full-size array
-            cols = np.flatnonzero(np.isfinite(side).any(axis=(0, 1)))
-            side[..., cols] -= side_level[:, cols]
+        if side is not None:
+            side = side - side_level
     else:
         hot = None
 
     def clip(lo):
-        vals = gathered(reference[lo:lo + _FRAMES_PER_CLIP],
-                        None if side is None else side[lo:lo + _FRAMES_PER_CLIP])
-        if hot is not None:
-            vals[np.broadcast_to(hot, vals.shape)] = np.nan
-        mean, used, out = clipped_mean(vals, sigma=sigma, maxiters=maxiters)
+        blocks = gathered(reference[lo:lo + _FRAMES_PER_CLIP],
+                          None if side is None else side[lo:lo + _FRAMES_PER_CLIP], hot)
+        mean, used, out = _read_clipped_mean(blocks, sigma, maxiters)
         return mean + base, used, out + dropped
 
     starts = range(0, reference.shape[0], _FRAMES_PER_CLIP)
@@ -494,9 +565,11 @@ class MeanReference(Strategy):
                    if self.side_columns and g.reference_column_mask().any() else None)
         if columns is not None:
             _warn_unequal(g)
-        reference, columns, found = without_telegraph(
+        reference, values, found = without_telegraph(
             self, reference_pixels(side, context.schedule), side, context.schedule, columns)
-        off, used, clipped = _offsets_of(g, reference, columns, acn=self.acn, sigma=self.sigma,
+        off, used, clipped = _offsets_of(g, reference,
+                                         None if columns is None else (values, columns[2]),
+                                         acn=self.acn, sigma=self.sigma,
                                          maxiters=self.maxiters, threads=context.threads)
         return ReferenceOffsets(off, used, clipped, [EVEN, ODD] if self.acn else [ALL],
                                 telegraph=found)

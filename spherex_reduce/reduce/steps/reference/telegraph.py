@@ -109,7 +109,7 @@ class TelegraphSearch:
                                self.count + other.count, self.tested + other.tested, self.sigma)
 
 
-def find_telegraph(values, rows, geometry, sigma=5.0):
+def find_telegraph(values, rows, geometry, sigma=5.0, columns=None):
     """Reference pixels whose reads over the exposure are telegraph-like.
 
     Parameters
@@ -117,17 +117,22 @@ def find_telegraph(values, rows, geometry, sigma=5.0):
     values : `numpy.ndarray`
         ``(L, k, ncols)`` float: ``k`` reads of reference pixels in each of
         ``L`` frames, in time order (any unit); NaN where unusable.  Columns
-        never to be tested may be NaN throughout.
+        never to be tested may be NaN throughout.  With ``columns``, ``(L, k, m)``:
+        those columns only.
     rows : array_like of int
         ``(k,)``: the physical row of each read; a pixel's samples are those of
         every read of its row in every frame.
     geometry : `~spherex_reduce.DetectorGeometry`
     sigma : float
         Threshold, in robust standard deviations of the channel's pixels.
+    columns : array_like of int, optional
+        ``(m,)``, increasing: the detector column of each of ``values``' columns (e.g. the
+        side reference columns alone); None: every column.
 
     Returns
     -------
     `TelegraphSearch`
+        ``reads`` has ``values``' columns; ``columns`` are detector columns.
 
     Examples
     --------
@@ -144,17 +149,29 @@ def find_telegraph(values, rows, geometry, sigma=5.0):
     """
     values = np.asarray(values, dtype=np.float64)
     rows = np.asarray(rows, dtype=int)
-    nch, ncols = geometry.nchannels, geometry.ncols
-    resid = _residuals(values, geometry)
+    nch = geometry.nchannels
+    at = np.arange(geometry.ncols) if columns is None else np.asarray(columns, dtype=int)
+    ncols = at.size
+    resid = _residuals(values, geometry, None if columns is None else at)
     uniq, inverse = np.unique(rows, return_inverse=True)
-    channel = geometry.channel_of_column()
+    channel = geometry.channel_of_column()[at]
     score = np.full((uniq.size, ncols), -np.inf)
     tested = np.zeros((uniq.size, ncols), bool)
-    by_row = [resid[:, inverse == i] for i in range(uniq.size)]
-    for scale in _scales(values.shape[0], np.bincount(inverse)):
-        logv = np.full((uniq.size, ncols), np.nan)
-        for i, part in enumerate(by_row):
-            logv[i] = _log_variance(part, scale)
+    counts = np.bincount(inverse)
+    if (counts == counts[0]).all():  # as many reads of every row: all rows at once
+        grouped = resid[:, np.argsort(inverse, kind="stable")].reshape(
+            values.shape[0], uniq.size, counts[0], ncols)
+        grouped = np.moveaxis(grouped, 1, 2).reshape(values.shape[0], counts[0], -1)
+
+        def log_variance(scale):
+            return _log_variance(grouped, scale).reshape(uniq.size, ncols)
+    else:
+        by_row = [resid[:, inverse == i] for i in range(uniq.size)]
+
+        def log_variance(scale):
+            return np.stack([_log_variance(part, scale) for part in by_row])
+    for scale in _scales(values.shape[0], counts):
+        logv = log_variance(scale)
         for ch in range(nch):
             own = logv[:, channel == ch]
             ok = np.isfinite(own)
@@ -168,7 +185,7 @@ def find_telegraph(values, rows, geometry, sigma=5.0):
                 tested[:, channel == ch] |= ok
     found = score > sigma
     r, c = np.nonzero(found)
-    return TelegraphSearch(found[inverse], uniq[r], c, channel[c], score[r, c],
+    return TelegraphSearch(found[inverse], uniq[r], at[c], channel[c], score[r, c],
                            np.bincount(channel[c], minlength=nch),
                            np.bincount(channel, weights=tested.sum(axis=0),
                                        minlength=nch).astype(np.int64), float(sigma))
@@ -204,8 +221,9 @@ def _log_variance(x, frames):
     return np.where(ok, np.log(np.where(ok, var, 1.0)), np.nan)
 
 
-def _residuals(values, geometry):
-    """Each read minus the median of its channel's pixels of the same sample parity.
+def _residuals(values, geometry, columns=None):
+    """Each read minus the median of its channel's pixels of the same sample parity
+    (``values``' columns: ``columns`` of the detector, or every column with None).
 
     Where fewer than `MIN_COMMON` pixels share a read, channel and parity (the side
     reference columns: 2 per parity), the read is left as it is: the median of so few
@@ -214,13 +232,15 @@ def _residuals(values, geometry):
     common drift they all share.
     """
     width = geometry.channel_width
-    if width % 2 == 0:  # the sample parities are the even and odd columns of a channel
+    if columns is None and width % 2 == 0:  # the parities: a channel's even and odd columns
         v = values.reshape(*values.shape[:2], geometry.nchannels, width // 2, 2)
         grouped = np.moveaxis(v, 3, -1)
         med = _median_last(grouped)
         med[np.isfinite(grouped).sum(axis=-1) < MIN_COMMON] = 0.0
         return (v - med[:, :, :, None, :]).reshape(values.shape)
     group = geometry.channel_of_column() * 2 + geometry.column_offsets() % 2
+    if columns is not None:
+        group = group[columns]
     out = np.empty_like(values)
     for gid in np.unique(group):
         cols = np.flatnonzero(group == gid)
@@ -240,7 +260,7 @@ def _median_last(a):
     return np.where(n[..., 0] > 0, 0.5 * (lo + hi), np.nan)
 
 
-def drop_telegraph(values, rows, geometry, sigma=5.0):
+def drop_telegraph(values, rows, geometry, sigma=5.0, columns=None):
     """``values`` with the reads of telegraph pixels NaN (a new array), and the search.
 
     Parameters and ``values`` as `find_telegraph`.
@@ -250,7 +270,7 @@ def drop_telegraph(values, rows, geometry, sigma=5.0):
     values : `numpy.ndarray`
     found : `TelegraphSearch`
     """
-    found = find_telegraph(values, rows, geometry, sigma)
+    found = find_telegraph(values, rows, geometry, sigma, columns)
     out = np.array(values, dtype=np.float64)
     out[:, found.reads] = np.nan
     return out, found

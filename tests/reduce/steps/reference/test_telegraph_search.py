@@ -120,8 +120,10 @@ def test_channels_of_odd_width_group_their_sample_parities():
 def _clipped_offsets(e, leave_out=()):
     """Brute force, the reference mean's rule: each reference pixel's level is its median
     over the frames; per channel, the astropy sigma_clip mean (3 sigma, 5 iterations) of
-    the levels, plus, per frame, that of the kept pixels' departures from their level; the
-    ``leave_out`` pixels excluded."""
+    the levels, plus, per frame, the mean of the kept pixels' departures from their level,
+    clipped (sigma_clip of the frame's pooled reads) on their departure from their read's
+    median, each read's mean of the kept weighted by its pixels' count; the ``leave_out``
+    pixels excluded."""
     s = e.schedule
     g = s.geometry
     ref = s.reference_read_indices
@@ -134,10 +136,16 @@ def _clipped_offsets(e, leave_out=()):
     for ch in range(g.nchannels):
         cols = slice(ch * g.channel_width, (ch + 1) * g.channel_width)
         lev = sigma_clip(level[:, cols][keep[:, cols]], sigma=3, maxiters=5)
-        used = ~np.ma.getmaskarray(lev)
+        used = keep[:, cols].copy()
+        used[used] = ~np.ma.getmaskarray(lev)
         for f in range(s.nframes):
-            d = (values[f][:, cols] - level[:, cols])[keep[:, cols]][used]
-            out[f, ch] = lev.mean() + sigma_clip(d, sigma=3, maxiters=5).mean()
+            d = [(values[f, r, cols] - level[r, cols])[used[r]] for r in range(ref.size)]
+            by = np.concatenate([x - np.median(x) for x in d])
+            kept = np.split(~np.ma.getmaskarray(sigma_clip(by, sigma=3, maxiters=5)),
+                            np.cumsum([x.size for x in d])[:-1])
+            n = np.array([x.size for x, k in zip(d, kept, strict=True) if k.any()])
+            means = [x[k].mean() for x, k in zip(d, kept, strict=True) if k.any()]
+            out[f, ch] = lev.mean() + np.dot(n, means) / n.sum()
     return out
 
 

@@ -80,9 +80,11 @@ class DriftModel:
                 t[None, :] - t[:, None] + off]))
         if side is not None:
             sk = side_kind(kind)
-            # the side pixels are among the group's pixels of their read: its white part
+            # the target of a light row's read is its light pixels' value: the side pixels'
+            # own white noise is not part of it (their phantom value, once subtracted, is)
+            shared = white_t - self._white("pixels", n_group, scale)
             blocks.append((sk, side, self.lags(sk, kind, scale)[t[None, :] - side[:, None] + off]
-                           + (t[None, :] == side[:, None]) * white_t))
+                           + (t[None, :] == side[:, None]) * shared))
         if len(blocks) == 1:
             return k_oo, k_ot, k_tt
         sizes = [b[1].size for b in blocks]

@@ -177,13 +177,33 @@ def _krige(c_oo, c_ot, c_tt, constants):
     return lam.T, var
 
 
+def _light_cross(smp, components, domain, k):
+    """``k`` without the pixels' own white noise: the covariance of a side pixel with the
+    target, whose pixels are the light ones (other samples than the side pixels, with
+    independent white noise; a phantom sample is the same sample for both)."""
+    colored = smp.covariance([c.replace(alpha=0.0) for c in components], domain)
+    return {scope: k[scope] - np.diag((np.diag(k[scope]) - np.diag(colored[scope]))
+                                      * ~smp.phantom) for scope in k}
+
+
+def _cross(obs, tgt, k, k_light, nside):
+    """Covariance of the observations with the target: the last ``nside`` (side values)
+    with the light pixels' white noise apart."""
+    out = _cov(obs, tgt, k)
+    if nside:
+        out[-nside:] = _cov(obs[:, -nside:], tgt, k_light)
+    return out
+
+
 def _brute_mean(s, components, domain, acn, parity, subtract, use_phantom):
     smp = Samples(s)
     k = smp.covariance(components, domain)
     cols, sides = _groups(s.geometry, acn, parity)
     obs, tgt, constants = _functionals(smp, cols, sides, subtract, use_phantom)
     c_tt = np.diag(_cov(tgt, tgt, k))
-    lam, var = _krige(_cov(obs, obs, k), _cov(obs, tgt, k), c_tt, constants)
+    nside = np.sort(s.active_read_indices).size
+    c_ot = _cross(obs, tgt, k, _light_cross(smp, components, domain, k), nside)
+    lam, var = _krige(_cov(obs, obs, k), c_ot, c_tt, constants)
     return lam, var, smp, k, cols, sides
 
 
@@ -238,7 +258,7 @@ def test_side_weights_are_the_brute_force_kriging_weights(case, tmp_path):
     assert mean_w.shape == lam.shape
     np.testing.assert_allclose(mean_w, lam, rtol=0, atol=1e-6 * np.abs(lam).max())
     # the side values are used: their weights are not negligible
-    assert np.abs(ws).max() > 0.05 * np.abs(lam).max()
+    assert np.abs(ws).max() > 1e-3 * np.abs(lam).max()
     # the prediction: v0 / nch (the channel mean, brute force) + (1 - 1/nch) v1 (deviations)
     _, v1 = _brute_channel(smp, k, cols, subtract, use_phantom)
     predicted, _ = strat.predicted_variance(ctx, parity=parity)
@@ -248,14 +268,17 @@ def test_side_weights_are_the_brute_force_kriging_weights(case, tmp_path):
     # and the exact error variance of the strategy's own per-channel estimates, averaged
     # over channels, is the prediction (the side values' correlation with the outer
     # channels' deviations cancels in that average)
+    k_light = _light_cross(smp, comps, domain, k)
     np.testing.assert_allclose(_channel_error_variances(strat, ctx, parity, smp, k, cols,
-                                                        sides, subtract).mean(axis=0),
+                                                        sides, subtract, k_light).mean(axis=0),
                                predicted, rtol=1e-6, atol=1e-8 * predicted.max())
 
 
-def _channel_error_variances(strat, ctx, parity, smp, k, cols, sides, subtract):
+def _channel_error_variances(strat, ctx, parity, smp, k, cols, sides, subtract, k_light):
     """Exact error variance ``(nch, T)`` of each channel's estimate ``w @ y_c + wd @
-    mean(y) + ws @ s`` with the strategy's weights, under the brute-force covariance."""
+    mean(y) + ws @ s`` with the strategy's weights, under the brute-force covariance (the
+    side values' covariance with the target, whose pixels are the light ones, from
+    ``k_light``)."""
     s = smp.s
     g = s.geometry
     nch = g.nchannels
@@ -266,10 +289,15 @@ def _channel_error_variances(strat, ctx, parity, smp, k, cols, sides, subtract):
     own = obs[:, :m] * nch  # each channel's own values (the functionals are / nch)
     out = []
     for c in range(nch):
-        err = np.einsum("tm,dmn->dtn", wd, obs[:, :m]) + np.einsum("tr,drn->dtn", ws,
-                                                                   obs[:, m:])
-        err[c] += w @ own[c] - tgt[c] * nch
-        out.append(np.diag(_cov(err, err, k)))
+        main = np.einsum("tm,dmn->dtn", wd, obs[:, :m])
+        main[c] += w @ own[c]
+        side = np.einsum("tr,drn->dtn", ws, obs[:, m:])
+        target = np.zeros_like(main)
+        target[c] = tgt[c] * nch
+        est = main + side
+        out.append(np.diag(_cov(est, est, k)) - 2 * np.diag(_cov(main, target, k))
+                   - 2 * np.diag(_cov(side, target, k_light))
+                   + np.diag(_cov(target, target, k)))
     return np.array(out)
 
 
@@ -321,10 +349,29 @@ def test_monte_carlo_channel_mean_error_has_the_brute_force_variance(scan, domai
     _, var, smp, k, _, _ = _brute_mean(s, comps, domain, False, 0, False, True)
     rng = np.random.default_rng(11)
     ndraws = 3000
-    x = _draw(smp, k, 4, ndraws, rng)
-    frame, phantom = _frames(smp, x, rng)
+    # the colored terms and the white ones drawn apart: the truth's side pixels get white
+    # noise of their own (the light pixels a correction is for are other samples)
+    colored = smp.covariance([c.replace(alpha=0.0) for c in comps], domain)
+    white = {scope: np.sqrt(np.clip(np.diag(k[scope]) - np.diag(colored[scope]), 0, None))
+             for scope in k}
+
+    def white_draw():
+        return (rng.standard_normal((ndraws, 4, smp.n)) * white["channel"]
+                + rng.standard_normal((ndraws, 1, smp.n)) * white["common"])
+
+    x = _draw(smp, colored, 4, ndraws, rng)
+    w1 = white_draw()
+    frame, phantom = _frames(smp, x + w1, rng)
+    xt = x + w1
+    _, sides = _groups(s.geometry, False, 0)
+    off = s.geometry.column_offsets()
+    w2 = white_draw()
+    for ch in range(4):
+        at = (s.active_read_indices[:, None] * smp.per + smp.c  # the side values' reads
+              + off[sides[ch]][None, :]).ravel()
+        xt[:, ch, at] = x[:, ch, at] + w2[:, ch, at]
     # the truth: each channel's pixel mean at every read, without the constants
-    truth = x.reshape(ndraws, 4, s.n_reads, smp.per)[..., smp.c:].mean(axis=-1)
+    truth = xt.reshape(ndraws, 4, s.n_reads, smp.per)[..., smp.c:].mean(axis=-1)
     strat = _strategy(comps, tmp_path, domain=domain, side_columns=True)
     ctx = Context(s, "readout", True, has_phantom=True)
     rows = _run(strat, s, frame, phantom, ctx)

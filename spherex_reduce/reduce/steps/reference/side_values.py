@@ -16,7 +16,9 @@ rest, and averages them per read.
 import warnings
 
 import numpy as np
+from astropy.utils.exceptions import AstropyUserWarning
 
+from ....core import dq as dq_bits
 from .strategies import group_columns
 
 __all__ = ["SideValues", "side_columns", "side_values"]
@@ -141,8 +143,12 @@ def side_values(exposure, groups, sigma):
     Returns
     -------
     `SideValues`
-        A read where no channel has a usable side pixel takes the mean of its
-        neighbours' values (linear interpolation over reads).
+        Each channel's mean less its median over the frame's reads, averaged over
+        the channels that have a usable pixel in the read; a read where none has
+        takes its neighbours' values (linear interpolation over reads), and a frame
+        without any usable side pixel is warned of (its side values are 0: the
+        estimate then has the reference rows alone, with weights solved for side
+        values too).
     """
     s = exposure.schedule
     g = s.geometry
@@ -161,7 +167,8 @@ def side_values(exposure, groups, sigma):
     if exposure.dq is not None:
         dq = np.asarray(exposure.dq)[..., cols]
         dq = dq.reshape(-1, *dq.shape[-2:])[:, idx] if dq.ndim > 2 else dq[None, idx]
-        block[np.broadcast_to(dq != 0, block.shape)] = np.nan
+        # JUMP and REFERENCE alone leave a read usable (as for the reference rows)
+        block[np.broadcast_to(~dq_bits.read_usable(dq), block.shape)] = np.nan
     where = {c: i for i, c in enumerate(cols.tolist())}
     values, left_out, clipped = [], 0, 0
     for part in groups:
@@ -169,7 +176,11 @@ def side_values(exposure, groups, sigma):
         for _, c in part:
             mean, noisy, far = _channel_means(block[..., [where[x] for x in c.tolist()]],
                                               sigma)
-            means.append(mean)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # a frame without pixels
+                # each channel's offset in the frame out, so that a read one channel misses
+                # does not take the others' offset (the side constant absorbs the rest)
+                means.append(mean - np.nanmedian(mean, axis=1, keepdims=True))
             left_out, clipped = left_out + noisy, clipped + far
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # a read without pixels
@@ -184,7 +195,13 @@ def _fill(v, reads):
     if not bad.any():
         return v
     v = v.copy()
+    empty = 0
     for f in np.flatnonzero(bad.any(axis=1)):
         ok = ~bad[f]
         v[f] = np.interp(reads, reads[ok], v[f, ok]) if ok.any() else 0.0
+        empty += not ok.any()
+    if empty:
+        warnings.warn(f"correct_reference (wiener): {empty} frame(s) without a usable side "
+                      "reference pixel: their drift comes from the reference rows alone",
+                      AstropyUserWarning, stacklevel=3)
     return v

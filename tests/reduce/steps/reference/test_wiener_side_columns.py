@@ -608,3 +608,46 @@ def test_the_cli_runs_side_columns_and_records_them(tmp_path):
             sci[side] = hdul["SCI"].data.astype(float)
     assert np.isfinite(sci["true"]).all()
     assert np.abs(sci["true"] - sci["false"]).max() > 1.0
+
+
+def _offset_frames(rng, s, g, nframes=6, offset=10.0):
+    """White frames with a large offset per frame and channel (8 columns per channel)."""
+    return rng.normal(0, 1, (nframes, s.n_reads, g.ncols)) + np.repeat(
+        rng.normal(0, offset, (nframes, 1, g.nchannels)), g.channel_width, axis=2)
+
+
+def test_a_read_one_side_channel_misses_does_not_take_the_other_channels_offset(tmp_path):
+    """Channel 0's side pixels flagged in one read: that read's side value is the other
+    side channel's alone, which must not bring its frame offset (rms 10 against a pixel
+    noise of 1) into every channel's correction (it moved it by 3.9)."""
+    g = DetectorGeometry(24, 32, 4, ref_border=4, scan="alternate")
+    s = ReadoutSchedule(g, skip=1, ref_mode="repeated", ref_reads=4, phantom_reads=0,
+                        nframes=6)
+    comps = [NoiseComponent("white", alpha=2e-4),
+             NoiseComponent("c_pink", beta=2.0, scope="common")]
+    frame = _offset_frames(np.random.default_rng(1), s, g)
+    strat = _strategy(comps, tmp_path, side_columns=True, domain="slopes", sigma=5.0)
+    ctx = Context(s, "readout", True, has_phantom=False)
+    clean = _run(strat, s, frame, None, ctx)
+    mask = np.zeros(frame.shape, np.uint32)
+    mask[2, s.active_read_indices[7], :4] = dq.DO_NOT_USE
+    flagged = _run(strat, s, frame, None, ctx, mask=mask)
+    assert np.abs(flagged - clean).max() < 1.5  # the read lost half its side pixels
+
+
+def test_reference_flags_leave_the_side_pixels_usable(tmp_path):
+    """REFERENCE (and JUMP) alone leave a read usable, as for the reference rows: the side
+    pixels of a file whose reference pixels are flagged REFERENCE give the same estimate."""
+    g = DetectorGeometry(24, 32, 4, ref_border=4, scan="alternate")
+    s = ReadoutSchedule(g, skip=1, ref_mode="repeated", ref_reads=4, phantom_reads=0,
+                        nframes=6)
+    comps = [NoiseComponent("white", alpha=2e-4),
+             NoiseComponent("c_pink", beta=2.0, scope="common")]
+    frame = _offset_frames(np.random.default_rng(2), s, g)
+    strat = _strategy(comps, tmp_path, side_columns=True, domain="slopes")
+    ctx = Context(s, "readout", True, has_phantom=False)
+    mask = np.zeros(frame.shape, np.uint32)
+    mask[..., g.reference_column_mask()] = dq.REFERENCE
+    mask[:, s.reference_read_indices] = dq.REFERENCE
+    np.testing.assert_allclose(_run(strat, s, frame, None, ctx, mask=mask),
+                               _run(strat, s, frame, None, ctx), rtol=0, atol=1e-9)

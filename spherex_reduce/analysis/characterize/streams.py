@@ -24,6 +24,11 @@ that the model holds them once: a row read's mean is over its other pixels (and
 the white level of a mean of fewer pixels is larger: `Box.white` is the factor,
 so the fits report the white level of one sample), and a reference-row burst
 holding one is left out whole.
+
+A dark is read band by band of reads (`dark_streams`, from any
+`~spherex_reduce.io.sources.Source`: a raw file with ``pread``), never whole:
+each band is reduced to the channels' sums and the few values the reference
+and phantom streams need (`~spherex_reduce.analysis.timestreams.StreamPixels`).
 """
 
 from typing import NamedTuple

@@ -67,7 +67,7 @@ from ..core.errors import SpherexReduceError
 from .faint_telegraph import FAINT_TERMS, add_faint_terms, lag_design, lag_sums
 
 __all__ = ["MIN_READS", "MIN_TELEGRAPH_INTERVALS", "PixelSums", "PixelTerms", "dark_ramps",
-           "dark_rows", "fit_pixel_terms"]
+           "dark_rows", "fit_pixel_terms", "pixel_rows"]
 
 #: Fewest reads a dark needs (two differences after read 0 is kept aside, or with it).
 MIN_READS = 3
@@ -279,17 +279,36 @@ def dark_rows(exposure):
     >>> ramps.shape[1] > rows.size == 16            # reference rows read more than once
     True
     """
-    if not exposure.is_ramp:
-        raise SpherexReduceError("dark_ramps: the exposure holds an image, not ramps")
     s = exposure.schedule
-    rows = None
-    if exposure.order == "readout":
-        rows = s.read_of_row()
-        if (rows < 0).any():
-            raise SpherexReduceError(f"dark_ramps: rows {np.flatnonzero(rows < 0)[:5].tolist()}"
-                                     " are never read")
+    rows = pixel_rows(s, exposure.is_ramp, exposure.order)
     return (u.Quantity(exposure.data.data, exposure.unit, copy=False), s.frame_starts.to(u.s),
             exposure.geometry.reference_pixel_mask(), rows)
+
+
+def pixel_rows(schedule, ramp=True, order="readout"):
+    """The stored row of every row of pixels of darks of ``schedule`` (what `PixelSums.add`
+    takes as ``rows``): in readout order each row's first read of a frame, in physical
+    order None (rows stored as they are).
+
+    Raises `~spherex_reduce.core.errors.SpherexReduceError` for an image (not ``ramp``)
+    and for a row that is never read.
+
+    Examples
+    --------
+    >>> from spherex_reduce import DetectorGeometry, ReadoutSchedule
+    >>> from spherex_reduce.analysis.pixel_terms import pixel_rows
+    >>> g = DetectorGeometry(8, 8, 1, ref_border={"top": 2})
+    >>> s = ReadoutSchedule(g, skip=1, ref_reads=2, phantom_reads=0, nframes=3)
+    >>> pixel_rows(s).size, pixel_rows(s, order="physical")
+    (8, None)
+    """
+    if not ramp:
+        raise SpherexReduceError("dark_ramps: the exposure holds an image, not ramps")
+    rows = schedule.read_of_row()
+    if order == "readout" and (rows < 0).any():
+        raise SpherexReduceError(f"dark_ramps: rows {np.flatnonzero(rows < 0)[:5].tolist()}"
+                                 " are never read")
+    return rows if order == "readout" else None
 
 
 def fit_pixel_terms(ramps, times, *, reference=None, gain=None, jump_sigma=5.0,
@@ -413,8 +432,36 @@ class PixelSums:
         hot by this dark's slopes (above the median plus ``hot_sigma`` = 10 robust
         standard deviations of the light-sensitive pixels', as `fit` flags them): what a
         stream model of the same darks leaves out."""
-        rows = None if rows is None else np.asarray(rows, dtype=np.intp)
-        x, unit, shape = _dark(ramps, rows)
+        unit = getattr(ramps, "unit", None)
+        shape = _checked(unit, np.shape(ramps), None)  # the values are a view: no copy
+        return self.add_rows(lambda idx: ramps.value[:, idx], shape, unit,
+                             np.arange(shape[1]) if rows is None else rows)
+
+    def add_rows(self, take, shape, unit, rows):
+        """Add one dark that is not held whole, as `add` adds it: ``take(idx)`` gives the
+        stored rows ``idx`` (an integer array) of every read, ``(nreads, len(idx), nx)``,
+        in ``unit``; ``shape`` is the dark's ``(nreads, stored rows, nx)`` and ``rows``
+        the stored row of each row of pixels (as `add`'s).  A band of ``band_rows`` rows
+        of pixels is asked for at a time.  Returns what `add` returns.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from astropy import units as u
+        >>> from spherex_reduce.analysis.pixel_terms import PixelSums
+        >>> x = np.random.default_rng(3).normal(0, 4.0, (20, 16, 16))
+        >>> a, b = PixelSums(np.arange(20) * 1.5 * u.s), PixelSums(np.arange(20) * 1.5 * u.s)
+        >>> rows = np.arange(16)[::-1]                    # stored bottom row first
+        >>> _ = a.add(x * u.electron, rows=rows)
+        >>> _ = b.add_rows(lambda idx: x[:, idx], x.shape, u.electron, rows)
+        >>> a.fit().row("read_noise", "active") == b.fit().row("read_noise", "active")
+        True
+        """
+        rows = np.asarray(rows, dtype=np.intp)
+        return self._add(lambda sl: take(rows[sl]), unit, _checked(unit, tuple(shape), rows))
+
+    def _add(self, band, unit, shape):
+        """Add the dark whose band of rows of pixels ``sl`` (a slice) is ``band(sl)``."""
         if self._acc is None:  # times, gain and mask checked once, against the first dark
             self.gain, self.t, self.ref = _settings(*self._given, unit, shape)
             self.unit, self.shape = unit, shape
@@ -424,7 +471,7 @@ class PixelSums:
             raise SpherexReduceError(f"fit_pixel_terms: dark {self.ndarks} has shape {shape} "
                                      f"and unit {unit}; dark 0 {self.shape} and {self.unit} "
                                      "(each (nreads, ny, nx), one unit)")
-        slopes, jumped = _add_dark(self._acc, x, self.t, self.band_rows, rows)
+        slopes, jumped = _add_dark(self._acc, band, shape, self.t, self.band_rows)
         ok = np.isfinite(slopes)
         self._acc["s1"] += np.where(ok, slopes, 0.0)  # the darks' slopes: their scatter
         self._acc["s2"] += np.where(ok, slopes, 0.0) ** 2
@@ -451,13 +498,11 @@ class PixelSums:
 
 
 # -- inputs --------------------------------------------------------------------------
-def _dark(ramps, rows=None):
-    """One dark's values (a view), unit and shape ``(nreads, ny, nx)`` (with ``rows``: the
-    stored rows of each row of pixels)."""
-    unit = getattr(ramps, "unit", None)
+def _checked(unit, shape, rows):
+    """The shape ``(nreads, ny, nx)`` of the pixels of a dark of ``unit`` stored as
+    ``shape`` (with ``rows``: the stored rows of each row of pixels), checked."""
     if unit not in (u.electron, u.adu):
         raise SpherexReduceError(f"fit_pixel_terms: darks must be in electron or adu, got {unit}")
-    shape = ramps.shape
     if len(shape) != 3:
         raise SpherexReduceError(f"fit_pixel_terms: dark 0 has shape {shape} and unit {unit} "
                                  "(each (nreads, ny, nx), one unit)")
@@ -469,7 +514,7 @@ def _dark(ramps, rows=None):
     if shape[0] < MIN_READS:
         raise SpherexReduceError(f"fit_pixel_terms: a dark of {shape[0]} reads; at least "
                                  f"{MIN_READS} are needed (two differences)")
-    return ramps.value, unit, shape  # a view: no copy of the cube
+    return shape
 
 
 def _settings(times, reference, gain, unit, shape):
@@ -551,18 +596,19 @@ def _labels(labels, ref):
     return np.where(ref, -1, labels).astype(np.int64)
 
 
-def _add_dark(acc, x, t, band_rows, rows=None):
-    """Add one dark ``x (n, ny, nx)`` (or its stored rows ``rows``) to the sums, a band of
-    rows at a time (each pixel's sums take the darks in the order they are added).  Returns
-    the dark's slope of every pixel ``(ny, nx)`` (float32, NaN where a read is not finite)
-    and its pixels with a jump (bool; read 0 apart, also those whose read 0 is offset from
-    their line unlike the band's pixels: a step between reads 0 and 1)."""
-    ny = x.shape[1] if rows is None else rows.size
-    slopes = np.empty((ny, x.shape[2]), dtype=np.float32)
-    jumped = np.zeros((ny, x.shape[2]), dtype=bool)
+def _add_dark(acc, band, shape, t, band_rows):
+    """Add one dark of ``shape`` ``(n, ny, nx)``, whose rows ``sl`` (a slice) of every read are
+    ``band(sl)``, to the sums, a band of rows at a time (each pixel's sums take the darks in
+    the order they are added).  Returns the dark's slope of every pixel ``(ny, nx)``
+    (float32, NaN where a read is not finite) and its pixels with a jump (bool; read 0
+    apart, also those whose read 0 is offset from their line unlike the band's pixels: a
+    step between reads 0 and 1)."""
+    _, ny, nx = shape
+    slopes = np.empty((ny, nx), dtype=np.float32)
+    jumped = np.zeros((ny, nx), dtype=bool)
     for r0 in range(0, ny, band_rows):
         sl = slice(r0, min(r0 + band_rows, ny))
-        xb = x[:, sl] if rows is None else x[:, rows[sl]]
+        xb = band(sl)
         part = _band(xb, t, acc["design"], acc["jump_sigma"], acc["skip_first"],
                      acc["gain"], acc.get("lags"), acc["labels"][sl])
         with np.errstate(divide="ignore", invalid="ignore"):

@@ -39,7 +39,7 @@ from ..core.exposure import Exposure
 from ..reduce.steps.reference.noise_models import NEGATIVE_SIGMAS
 from .temporal import PARAMS, aliased_basis, fit_noise_model, temporal_psd
 
-__all__ = ["Timestream", "detrend_frames", "fit_raw_noise", "left_out_samples",
+__all__ = ["StreamPixels", "Timestream", "detrend_frames", "fit_raw_noise", "left_out_samples",
            "phantom_timestream", "reference_timestream"]
 
 
@@ -74,6 +74,55 @@ def _raw(exposure):
     if exposure.schedule.nframes < 3:
         raise SpherexReduceError("noise streams need at least 3 frames (a line is removed "
                                  "from every position across frames)")
+
+
+class StreamPixels(NamedTuple):
+    """What the reference and phantom streams of a raw exposure read: its reference columns
+    at every read, every column of its reference rows' reads and its phantom values.
+
+    A full-size dark's are a few tens of MB: a dark read band by band of reads
+    (`~spherex_reduce.analysis.characterize.streams.dark_streams`) gathers them
+    without holding the dark whole; `of` takes them from an exposure in memory.
+    `reference_timestream` and `phantom_timestream` take either.
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.examples import example_raw_exposure
+    >>> from spherex_reduce.analysis.timestreams import StreamPixels
+    >>> px = StreamPixels.of(example_raw_exposure())
+    >>> px.column_values.shape[-1] == px.columns.size, px.read_values.shape[1] == px.reads.size
+    (True, True)
+    """
+
+    #: the `~spherex_reduce.ReadoutSchedule` of the exposure
+    schedule: object
+    #: the reference columns (`~spherex_reduce.DetectorGeometry.reference_column_mask`),
+    #: ascending
+    columns: np.ndarray
+    #: ``(nframes, n_reads, columns.size)``: their values at every read
+    column_values: np.ndarray
+    #: the reads of reference rows (`reference_row_reads`)
+    reads: np.ndarray
+    #: ``(nframes, reads.size, ncols)``: every column of those reads
+    read_values: np.ndarray
+    #: ``(nframes, n_reads, nchannels)`` or None
+    phantom: np.ndarray | None = None
+
+    @classmethod
+    def of(cls, exposure):
+        """The stream pixels of a raw exposure (ramps in readout order) in memory."""
+        _raw(exposure)
+        s = exposure.schedule
+        data = np.asarray(exposure.data.data)
+        columns = np.flatnonzero(s.geometry.reference_column_mask())
+        reads = reference_row_reads(s)
+        return cls(s, columns, data[:, :, columns], reads, data[:, reads],
+                   None if exposure.phantom is None else np.asarray(exposure.phantom))
+
+
+def _pixels(exposure):
+    """`StreamPixels` of an exposure (checked: raw ramps in readout order), or as given."""
+    return exposure if isinstance(exposure, StreamPixels) else StreamPixels.of(exposure)
 
 
 def detrend_frames(values):
@@ -157,8 +206,8 @@ def phantom_timestream(exposure):
 
     Parameters
     ----------
-    exposure : `~spherex_reduce.Exposure`
-        Raw ramps in readout order with a ``phantom`` array.
+    exposure : `~spherex_reduce.Exposure` or `StreamPixels`
+        Raw ramps in readout order with a ``phantom`` array (or their stream pixels).
 
     Returns
     -------
@@ -168,11 +217,11 @@ def phantom_timestream(exposure):
         is removed at every read position (the Video8 leakage drift and any
         offset) and the residual rescaled by ``sqrt(N/(N−2))``.
     """
-    _raw(exposure)
-    s = exposure.schedule
-    if exposure.phantom is None or s.phantom_reads == 0:
+    px = _pixels(exposure)
+    s = px.schedule
+    if px.phantom is None or s.phantom_reads == 0:
         raise SpherexReduceError("the exposure has no phantom reads (c = 0 or no PHANTOM)")
-    vals = np.moveaxis(np.asarray(exposure.phantom), -1, 0)  # channels, frames, reads
+    vals = np.moveaxis(np.asarray(px.phantom), -1, 0)  # channels, frames, reads
     return Timestream(detrend_frames(vals), _frame_samples(s, s.phantom_samples()[:, 0]),
                       s.phantom_reads, s.geometry.pixel_rate)
 
@@ -182,8 +231,8 @@ def reference_timestream(exposure, source="columns", parity=None, leave_out=None
 
     Parameters
     ----------
-    exposure : `~spherex_reduce.Exposure`
-        Raw ramps in readout order.
+    exposure : `~spherex_reduce.Exposure` or `StreamPixels`
+        Raw ramps in readout order (or their stream pixels).
     source : {'columns', 'rows'}
         ``'columns'``: the side reference columns
         (`~spherex_reduce.DetectorGeometry.reference_column_mask`: left of
@@ -212,13 +261,13 @@ def reference_timestream(exposure, source="columns", parity=None, leave_out=None
         ``samples`` has the sample index of each value (the first averaged
         sample for ``'columns'``).
     """
-    _raw(exposure)
-    s, g = exposure.schedule, exposure.geometry
+    px = _pixels(exposure)
+    s = px.schedule
+    g = s.geometry
     if parity not in (None, "even", "odd"):
         raise SpherexReduceError(f"parity must be None, 'even' or 'odd', got {parity!r}")
     first_off = {None: 0, "even": 0, "odd": 1}[parity]
     stride = 1 if parity is None else 2
-    data = np.asarray(exposure.data.data)
     offs = g.column_offsets()
     if source == "columns":
         sides = _side_columns(g)
@@ -233,19 +282,20 @@ def reference_timestream(exposure, source="columns", parity=None, leave_out=None
         drop = left_out_samples(leave_out, s)
         vals, white = [], []
         for c in sides:
+            values = px.column_values[:, :, np.searchsorted(px.columns, c)]
             if drop is None:
-                vals.append(data[:, :, c].mean(axis=-1))
+                vals.append(values.mean(axis=-1))
                 continue
             keep = ~drop[:, c]
             keep[~keep.any(axis=1)] = True  # a read with every column left out keeps them
             count = keep.sum(axis=1)
-            vals.append(np.sum(data[:, :, c] * keep, axis=-1, dtype=np.float64) / count)
+            vals.append(np.sum(values * keep, axis=-1, dtype=np.float64) / count)
             white.append(float(np.mean(nbox / count)))
         first = s.starts + offs[sides[0]].min()
         return Timestream(detrend_frames(np.stack(vals)), _frame_samples(s, first), nbox,
                           g.pixel_rate, stride, tuple(white))
     if source == "rows":
-        reads = reference_row_reads(exposure.schedule)
+        reads = px.reads
         if reads.size == 0:
             raise SpherexReduceError("the schedule has no reference-row reads")
         w = g.channel_width
@@ -253,7 +303,7 @@ def reference_timestream(exposure, source="columns", parity=None, leave_out=None
         cols = order + (np.arange(g.nchannels) * w)[:, None]  # (nchannels, w) in scan order
         if parity is not None:  # by the offset in the row read (a window's: the full one's)
             cols = cols[:, offs[cols[0]] % 2 == first_off]
-        vals = data[:, reads][:, :, cols]  # frames, nref, nchannels, w'
+        vals = px.read_values[:, :, cols]  # frames, nref, nchannels, w'
         vals = np.moveaxis(vals, 2, 0)  # channels, frames, nref, w'
         flat = detrend_frames(vals.reshape(g.nchannels, s.nframes, -1))
         drop = left_out_samples(leave_out, s)

@@ -148,6 +148,12 @@ class Source(Closing):
         """Rows ``lo:hi`` of every frame (`~spherex_reduce.core.block.Block`)."""
         raise NotImplementedError
 
+    def take(self, rows):
+        """The pixels of rows ``rows`` (integers, any order) of every frame, ``(frames,
+        len(rows), ncols)``: an array of the caller's (a copy), for work on a few rows of
+        an exposure that is not held whole."""
+        raise NotImplementedError
+
     def exposure(self):
         """The whole input as an `~spherex_reduce.Exposure` in memory."""
         raise NotImplementedError
@@ -170,6 +176,8 @@ class MemorySource(Source):
     >>> source = MemorySource(example_raw_exposure())
     >>> source.nrows, source.read(0, 8).data.shape, source.side().order
     (64, (6, 8, 64), 'readout')
+    >>> source.take([5, 2]).shape
+    (6, 2, 64)
     """
 
     in_memory = True
@@ -197,6 +205,9 @@ class MemorySource(Source):
         data, phantom, flags, unc = (None if a is None else a[:, lo:hi] for a in self._arrays)
         return Block(data, np.arange(lo, hi), self.context.order, phantom=phantom, dq=flags,
                      uncertainty=unc)
+
+    def take(self, rows):
+        return np.take(self._arrays[0], rows, axis=1)
 
 
 class FileSource(Source):
@@ -255,6 +266,15 @@ class FileSource(Source):
         idx = np.arange(lo, hi)
         phantom = None if self._phantom is None else self._phantom[:, lo:hi]
         return Block(self._reads(idx), idx, "readout", phantom=phantom, owned={"data"})
+
+    def take(self, rows):
+        rows = np.asarray(rows, dtype=np.intp)
+        if rows.size and (rows.min() < 0 or rows.max() >= self.nrows):
+            raise IndexError(f"rows {rows.min()}..{rows.max()} of a frame of {self.nrows}")
+        if np.all(np.diff(rows) > 0):  # sorted and distinct, as a band of rows is
+            return self._reads(rows)
+        distinct, at = np.unique(rows, return_inverse=True)
+        return self._reads(distinct)[:, at]
 
 
 def _from_reader(reader, owned):

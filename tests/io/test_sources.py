@@ -139,3 +139,18 @@ def test_an_integration_of_an_input_without_integrations_is_refused():
     with open_input(Exposure.from_arrays(_ramps(_schedule()), _schedule())) as inp:
         with pytest.raises(FormatError, match="integration=1 given"):
             inp.source(integration=1)
+
+
+def test_rows_in_any_order_are_taken_from_a_file_and_from_memory(raw):
+    """`Source.take` (characterize's per-pixel bands: each row's first read, in physical row
+    order) gives the rows asked for, in their order, repeated or not, as astropy's pixels."""
+    stored = fits.getdata(raw, "SCI")
+    rows = np.array([7, 2, 3, 3, 0])
+    with open_input(raw) as inp:
+        source = inp.source()
+        np.testing.assert_array_equal(source.take(rows), stored[:, rows])
+        np.testing.assert_array_equal(source.take([4, 5, 6]), stored[:, 4:7])
+        with pytest.raises(IndexError):
+            source.take([source.nrows])
+        memory = MemorySource(source.exposure())
+    np.testing.assert_array_equal(memory.take(rows), stored[:, rows])

@@ -9,13 +9,13 @@ from ...core.errors import SpherexReduceError
 from ...core.exposure import Exposure
 from ...io.sources import open_input
 from ..faint_telegraph import common_labels
-from ..pixel_terms import PixelSums, dark_rows
+from ..pixel_terms import PixelSums, pixel_rows
 from .check import DarkScatter, compare, reduction_pipeline
 from .result import Characterization
 from .spectra import dark_spectra, fit_spectra, pool
-from .streams import MIN_FRAMES, channel_streams, pooled_boxes, shot_white
+from .streams import MIN_FRAMES, dark_streams, pooled_boxes, shot_white
 
-__all__ = ["characterize", "check_model", "dark_exposures"]
+__all__ = ["characterize", "check_model", "dark_exposures", "dark_sources"]
 
 #: Frames of a segment when darks are split to see their scatter (`characterize`).
 SEGMENT_FRAMES = 5
@@ -30,9 +30,19 @@ def _pipeline(config):
     return None if config is None else as_pipeline(config)
 
 
-def dark_exposures(inputs, pipeline):
-    """``(label, exposure)`` of every raw dark of ``inputs`` (each integration of a 4-D file
-    is one), one at a time, read with ``pipeline``'s sections (None: as they are)."""
+def dark_sources(inputs, pipeline):
+    """``(label, source)`` of every raw dark of ``inputs`` (each integration of a 4-D file
+    is one), one at a time, opened with ``pipeline``'s sections (None: as they are): a
+    `~spherex_reduce.io.sources.Source`, from which a raw file is read band by band of
+    reads, never whole (`~spherex_reduce.io.sources.open_input`).
+
+    Examples
+    --------
+    >>> from spherex_reduce.io.examples import example_raw_exposure
+    >>> from spherex_reduce.analysis.characterize.run import dark_sources
+    >>> [(label, source.where) for label, source in dark_sources(example_raw_exposure(), None)]
+    [('exposure in memory', 'memory')]
+    """
     if isinstance(inputs, (str, Exposure)) or hasattr(inputs, "__fspath__"):
         inputs = [inputs]
     for what in inputs:
@@ -41,8 +51,17 @@ def dark_exposures(inputs, pipeline):
             ks = [None] if inp.integrations is None else range(inp.integrations)
             for k in ks:
                 yield inp.label if k is None else f"{inp.label}[{k}]", \
-                    inp.source(integration=k).exposure()
+                    inp.source(integration=k)
         del what, opened, inp  # an exposure given in memory is released before the next
+
+
+def dark_exposures(inputs, pipeline):
+    """``(label, exposure)`` of every raw dark of ``inputs`` (`dark_sources`), each read
+    whole, one at a time."""
+    for label, source in dark_sources(inputs, pipeline):
+        exposure = source.exposure()
+        del source  # released before the next dark is read
+        yield label, exposure
 
 
 def _segments(nframes, segments):
@@ -139,33 +158,34 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
         except SpherexReduceError as exc:
             scatter_mark = str(exc)
     left_out = 0  # pixels left out of the streams (their noise is the per-pixel terms')
-    for label, e in dark_exposures(inputs, pipeline):
-        drop, runs = None, None
+    for label, source in dark_sources(inputs, pipeline):
+        drop, runs = None, []
         if pixels and pixel_mark is None:  # first: the streams leave out what it holds
-            sums, drop, pixel_mark = _add_pixels(sums, e, gain)
+            sums, drop, pixel_mark = _add_pixels(sums, source, gain)
             left_out += 0 if drop is None else int(drop.sum())
+        readout, of = source.context.schedule, source.context.unit
         if schedule is None:
-            schedule, unit = e.schedule, e.unit
+            schedule, unit = readout, of
             if schedule.nframes < MIN_FRAMES:
                 raise SpherexReduceError(
                     f"every term: a dark of {schedule.nframes} reads cannot be characterised "
                     f"(a straight line is removed across at least {MIN_FRAMES} reads)")
             cuts = _segments(schedule.nframes, 1 if segments is None else segments)
             if segments is None and schedule.nframes >= 2 * SEGMENT_FRAMES and not several:
-                # the runs it is split into if it stays alone
-                runs = [channel_streams(e, frames=cut, leave_out=drop)
-                        for cut in _segments(schedule.nframes, None)]
-        elif e.schedule != schedule or e.unit != unit:
-            raise SpherexReduceError(f"{label}: another readout or unit ({e.unit}) than the "
+                runs = _segments(schedule.nframes, None)  # its runs, if it stays alone
+        elif readout != schedule or of != unit:
+            raise SpherexReduceError(f"{label}: another readout or unit ({of}) than the "
                                      f"first dark ({unit}): one model is of one readout")
         else:
             alone = None
-        held = [channel_streams(e, frames=cut, leave_out=drop) for cut in cuts]
-        if reducer is not None and scatter_mark is None:
-            measured, scatter_mark = _add_scatter(measured, reducer, e)
+        # read band by band of reads: the dark is never whole in memory (a raw file's)
+        held = dark_streams(source, cuts + runs, leave_out=drop)
+        held, runs = held[:len(cuts)], held[len(cuts):]
+        if reducer is not None and scatter_mark is None:  # the reduction takes it whole
+            measured, scatter_mark = _add_scatter(measured, reducer, source.exposure())
         darks.append(label)
-        del e, drop
-        if runs is not None:
+        del source, drop
+        if runs:
             alone = ([dark_spectra(st, schedule, nperseg) for st in runs],
                      [st.boxes for st in runs])
         spectra.extend(dark_spectra(st, schedule, nperseg) for st in held)
@@ -306,18 +326,22 @@ def check_model(model, darks, config=None, frames=None, measure=None):
     return compare(model, acc.result(), reducer)
 
 
-def _add_pixels(sums, e, gain):
-    """``(sums, leave_out, mark)``: the per-pixel sums with dark ``e`` added (its rows in
-    physical order, without copying the dark) and the pixels of ``e`` whose noise they hold
-    (`~spherex_reduce.analysis.pixel_terms.PixelSums.add`), or the reason they cannot be
-    (then ``sums`` and ``leave_out`` None)."""
+def _add_pixels(sums, source, gain):
+    """``(sums, leave_out, mark)``: the per-pixel sums with the dark of ``source`` added (its
+    rows in physical order, a band of rows at a time: the dark is not held whole) and the
+    pixels whose noise they hold (`~spherex_reduce.analysis.pixel_terms.PixelSums.add`), or
+    the reason they cannot be (then ``sums`` and ``leave_out`` None)."""
+    ctx = source.context
+    s = ctx.schedule
     try:
-        ramps, times, reference, rows = dark_rows(e)
+        rows = pixel_rows(s, ctx.ramp, ctx.order)
+        rows = np.arange(source.nrows) if rows is None else rows  # physical: as stored
         if sums is None:
-            sums = PixelSums(times, reference=reference,
-                             gain=None if e.unit != u.adu else gain,
-                             labels=common_labels(e.geometry))
-        drop = sums.add(ramps, rows=rows)
+            sums = PixelSums(s.frame_starts.to(u.s), reference=s.geometry.reference_pixel_mask(),
+                             gain=None if ctx.unit != u.adu else gain,
+                             labels=common_labels(s.geometry))
+        drop = sums.add_rows(source.take, (s.nframes, source.nrows, s.geometry.ncols),
+                             ctx.unit, rows)
     except SpherexReduceError as exc:
         return None, None, str(exc)
     return sums, drop, None

@@ -24,14 +24,22 @@ that the model holds them once: a row read's mean is over its other pixels (and
 the white level of a mean of fewer pixels is larger: `Box.white` is the factor,
 so the fits report the white level of one sample), and a reference-row burst
 holding one is left out whole.
+
+A dark is read band by band of reads (`dark_streams`, from any
+`~spherex_reduce.io.sources.Source`: a raw file with ``pread``), never whole:
+each band is reduced to the channels' sums and the few values the reference
+and phantom streams need (`~spherex_reduce.analysis.timestreams.StreamPixels`).
 """
 
 from typing import NamedTuple
 
 import numpy as np
 
+from ...core.dq import read_usable
 from ...core.errors import SpherexReduceError
+from ...io.sources import MemorySource
 from ..timestreams import (
+    StreamPixels,
     detrend_frames,
     left_out_samples,
     phantom_timestream,
@@ -39,13 +47,17 @@ from ..timestreams import (
     reference_timestream,
 )
 
-__all__ = ["Box", "ChannelStreams", "channel_streams", "pooled_boxes", "shot_white"]
+__all__ = ["BAND_READS", "Box", "ChannelStreams", "channel_streams", "dark_streams",
+           "pooled_boxes", "shot_white"]
 
 #: Fewest frames a dark (or a segment of one) needs: a straight line is removed across them.
 MIN_FRAMES = 3
 #: Narrowest channel whose reference-row reads give a spectrum: a parity's burst of 16
 #: samples has the 5 Welch frequencies a fit of the white level uses.
 MIN_BURST = 32
+#: Reads of every frame `dark_streams` reads at a time (a full-size dark's 74 frames: 39 MB of
+#: float32, where the dark is 1.27 GB).
+BAND_READS = 64
 
 
 class Box(NamedTuple):
@@ -110,18 +122,10 @@ class ChannelStreams(NamedTuple):
     reference_kept: np.ndarray | None = None
 
 
-def _active_columns(exposure):
-    """Per channel: the light-sensitive columns with finite values, in scan order, and
-    their offsets in the row read."""
-    g = exposure.geometry
-    data = np.asarray(exposure.data.data)
-    finite = np.ones(data.shape[-1], bool)
-    for frame in data:  # a frame at a time: no cube-sized temporary
-        finite &= np.all(np.isfinite(frame), axis=0)
-    if exposure.data.mask is not None:
-        for frame in np.asarray(exposure.data.mask):
-            finite &= ~np.any(frame, axis=0)
-    light = ~g.reference_column_mask() & finite
+def _active_columns(g, usable):
+    """Per channel: the light-sensitive columns of ``usable`` (bool ``(ncols,)``: finite and
+    unmasked in every read), in scan order, and their offsets in the row read."""
+    light = ~g.reference_column_mask() & usable
     offs, chan = g.column_offsets(), g.channel_of_column()
     out = []
     for c in range(g.nchannels):
@@ -132,6 +136,45 @@ def _active_columns(exposure):
                                      "values in every read: nothing to characterise")
         out.append(cols)
     return out, offs
+
+
+class _Plan(NamedTuple):
+    """What the light-sensitive streams of a run of frames average: per channel, its
+    columns (the first ``n``, every channel as many) in three groups (the two parities'
+    first ``k``, then the rest), the samples left out of each group (``(reads, columns)``
+    or None) and how many each group sums per read."""
+
+    columns: list
+    offs: np.ndarray
+    n: int
+    parts: list
+    lefts: list
+    counts: list
+
+    @property
+    def key(self):
+        return tuple(tuple(cols[:self.n].tolist()) for cols in self.columns)
+
+
+def _plan(g, n_reads, usable, drop):
+    """The `_Plan` of the columns ``usable`` (``(ncols,)``), ``drop`` left out."""
+    columns, offs = _active_columns(g, usable)
+    n = min(cols.size for cols in columns)
+    parts, lefts, counts = [], [], []
+    for cols in columns:
+        cols = cols[:n]  # every channel averages the same number of columns
+        even = cols[offs[cols] % 2 == 0]
+        odd = cols[offs[cols] % 2 == 1]
+        k = min(even.size, odd.size)
+        # one pass over the pixels: the sums of each parity's first k columns, then the rest
+        part = [even[:k], odd[:k], np.concatenate([even[k:], odd[k:]])]
+        left = _left_out_parts(drop, part)
+        parts.append(part)
+        lefts.append(left)
+        counts.append([np.full(n_reads, float(c.size)) if m is None or c.size == 0
+                       else (c.size - m.sum(axis=1)).astype(float)
+                       for c, m in zip(part, left, strict=True)])
+    return _Plan(columns, offs, n, parts, lefts, counts)
 
 
 def channel_streams(exposure, frames=None, leave_out=None):
@@ -169,60 +212,156 @@ def channel_streams(exposure, frames=None, leave_out=None):
     >>> st.sum.shape == st.phantom.shape, st.boxes["phantom"].n
     (True, 2)
     """
-    if not exposure.is_ramp or exposure.order != "readout":
+    return dark_streams(MemorySource(exposure), [slice(None) if frames is None else frames],
+                        leave_out)[0]
+
+
+def dark_streams(source, cuts, leave_out=None, band_reads=BAND_READS):
+    """The detrended per-channel streams of one raw dark read band by band of reads: for
+    each run of frames of ``cuts``, what `channel_streams` gives of it.
+
+    The dark is never held whole: ``band_reads`` reads of every frame at a time
+    are reduced to the channels' sums and the reference pixels' and phantom
+    values the streams need (`~spherex_reduce.analysis.timestreams.StreamPixels`).
+    Which columns are averaged (those finite and unmasked in every read of a
+    run) is known once every band is read: a dark where some column is not is
+    read a second time.
+
+    Parameters
+    ----------
+    source : `~spherex_reduce.io.sources.Source`
+        The dark (`~spherex_reduce.io.sources.open_input`'s: a raw file read in
+        bands, or an exposure in memory).
+    cuts : sequence of slice
+        Runs of frames, each detrended alone.
+    leave_out : array_like of bool, optional
+        As `channel_streams`.
+    band_reads : int
+        Reads of every frame read at a time.
+
+    Returns
+    -------
+    list of `ChannelStreams`
+        One per run of ``cuts``.
+
+    Raises
+    ------
+    SpherexReduceError
+        As `channel_streams`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.io.examples import example_raw_exposure
+    >>> from spherex_reduce.io.sources import MemorySource
+    >>> from spherex_reduce.analysis.characterize.streams import channel_streams, dark_streams
+    >>> e = example_raw_exposure()
+    >>> st = dark_streams(MemorySource(e), [slice(0, 3), slice(3, 6)], band_reads=5)
+    >>> bool(np.array_equal(st[1].sum, channel_streams(e, frames=slice(3, 6)).sum))
+    True
+    """
+    ctx = source.context
+    if not ctx.ramp or ctx.order != "readout":
         raise SpherexReduceError(
             "characterize takes raw darks: ramps in readout order (the files reduce reads), "
             "not reduced images nor single reads (a dark stored one 2-D file per read is one "
             "input: --reads 'DIR/read_*.fits', in Python the list of its files)")
-    if frames is not None:
-        exposure = _frames_of(exposure, frames)
-    s, g = exposure.schedule, exposure.geometry
-    if s.nframes < MIN_FRAMES:
-        raise SpherexReduceError(f"a dark of {s.nframes} reads: every term needs at least "
-                                 f"{MIN_FRAMES} (a straight line is removed across them)")
-    data = np.asarray(exposure.data.data)
-    columns, offs = _active_columns(exposure)
+    s = ctx.schedule
+    g = s.geometry
+    frames = [range(s.nframes)[cut] for cut in cuts]
+    for f in frames:
+        if len(f) < MIN_FRAMES:
+            raise SpherexReduceError(f"a dark of {len(f)} reads: every term needs at least "
+                                     f"{MIN_FRAMES} (a straight line is removed across them)")
     drop = left_out_samples(leave_out, s)  # (reads, columns), or None
-    c = s.phantom_reads
-    n = min(cols.size for cols in columns)
-    sums, diffs, whites, dwhites = [], [], [], []
-    for cols in columns:
-        cols = cols[:n]  # every channel averages the same number of columns
-        even = cols[offs[cols] % 2 == 0]
-        odd = cols[offs[cols] % 2 == 1]
-        k = min(even.size, odd.size)
-        # one pass over the pixels: the sums of each parity's first k columns, then the rest
-        parts = [even[:k], odd[:k], np.concatenate([even[k:], odd[k:]])]
-        totals, counts = [], []
-        for part, left in zip(parts, _left_out_parts(drop, parts), strict=True):
-            total, count = _kept_sum(data, part, left)
-            totals.append(total)
-            counts.append(count)
-        se, so, rest = totals
-        ne, no, nrest = counts
-        sums.append((se + so + rest) / (ne + no + nrest))
+    every = np.ones((s.nframes, g.ncols), bool)  # taken as usable until the bands are read
+    guess = [_plan(g, s.n_reads, every[f].all(axis=0), drop) for f in frames]
+    plans = {p.key: p for p in guess}
+    sums, usable, pixels = _read_bands(source, list(plans.values()), drop, band_reads)
+    found = [_plan(g, s.n_reads, usable[f].all(axis=0), drop) for f in frames]
+    if any(a.key != b.key for a, b in zip(guess, found, strict=True)):  # not every column
+        plans = {p.key: p for p in found}
+        sums, usable, pixels = _read_bands(source, list(plans.values()), drop, band_reads)
+    keys = list(plans)
+    return [_streams(found[i], *sums[keys.index(found[i].key)], cut, len(frames[i]), pixels,
+                     leave_out) for i, cut in enumerate(cuts)]
+
+
+def _read_bands(source, plans, drop, band_reads):
+    """Read ``source`` band by band of reads: per plan, the channels' mean and half the
+    even-odd difference of their light-sensitive columns ``(nchannels, nframes, n_reads)``
+    (float64), the columns finite and unmasked in every read of each frame ``(nframes,
+    ncols)``, and the `~spherex_reduce.analysis.timestreams.StreamPixels`."""
+    s = source.context.schedule
+    g = s.geometry
+    shape = (g.nchannels, s.nframes, s.n_reads)
+    sums = [(np.empty(shape), np.empty(shape) if all(p[0].size for p in plan.parts) else None)
+            for plan in plans]
+    usable = np.ones((s.nframes, g.ncols), bool)
+    columns = np.flatnonzero(g.reference_column_mask())
+    reads = reference_row_reads(s)
+    column_values = read_values = phantom = None
+    for lo in range(0, s.n_reads, max(int(band_reads), 1)):
+        hi = min(lo + max(int(band_reads), 1), s.n_reads)
+        block = source.read(lo, hi)
+        data = np.asarray(block.data)
+        if column_values is None:
+            column_values = np.empty((s.nframes, s.n_reads, columns.size), data.dtype)
+            read_values = np.empty((s.nframes, reads.size, g.ncols), data.dtype)
+            if block.phantom is not None:
+                phantom = np.empty((s.nframes, s.n_reads, g.nchannels), block.phantom.dtype)
+        usable &= np.all(np.isfinite(data), axis=1)
+        if block.dq is not None:
+            usable &= np.all(read_usable(np.asarray(block.dq)), axis=1)
+        column_values[:, lo:hi] = data[:, :, columns]
+        here = (reads >= lo) & (reads < hi)
+        read_values[:, here] = data[:, reads[here] - lo]
+        if phantom is not None:
+            phantom[:, lo:hi] = block.phantom
+        for plan, (mean, diff) in zip(plans, sums, strict=True):
+            for c in range(g.nchannels):
+                se, so, rest = (_kept_sum(data, part, None if left is None else left[lo:hi])
+                                for part, left in zip(plan.parts[c], plan.lefts[c], strict=True))
+                ne, no, nrest = (count[lo:hi] for count in plan.counts[c])
+                mean[c, :, lo:hi] = (se + so + rest) / (ne + no + nrest)
+                if diff is not None:
+                    diff[c, :, lo:hi] = 0.5 * (se / ne - so / no)
+        del block, data
+    return sums, usable, StreamPixels(s, columns, column_values, reads, read_values, phantom)
+
+
+def _streams(plan, mean, diff, cut, nframes, pixels, leave_out):
+    """The `ChannelStreams` of the run of ``nframes`` frames ``cut`` (a slice) of one dark,
+    whose light-sensitive streams of ``plan`` are ``mean`` and ``diff`` (every frame)."""
+    s = pixels.schedule.replace(nframes=nframes)
+    g = s.geometry
+    pixels = pixels._replace(
+        schedule=s, column_values=pixels.column_values[cut], read_values=pixels.read_values[cut],
+        phantom=None if pixels.phantom is None else pixels.phantom[cut])
+    offs, n, c = plan.offs, plan.n, s.phantom_reads
+    whites, dwhites = [], []
+    for (ne, no, nrest), parts in zip(plan.counts, plan.parts, strict=True):
         whites.append(float(np.mean(n / (ne + no + nrest))))
+        k = parts[0].size  # the parities' columns of each
         if k:
-            diffs.append(0.5 * (se / ne - so / no))
             dwhites.append(float(np.mean(0.5 * (k / ne + k / no))))
-    first = offs[columns[0][:n]]
-    centres = tuple(c + float(np.mean(offs[cols[:n]])) for cols in columns)
-    kept = drop is not None
+    first = offs[plan.columns[0][:n]]
+    centres = tuple(c + float(np.mean(offs[cols[:n]])) for cols in plan.columns)
+    kept = leave_out is not None
     boxes = {"sum": Box(n, 1, float(np.mean(centres)), int(np.sum(first % 2 == 0)), centres,
                         tuple(whites) if kept else ())}
-    diff = None
-    if len(diffs) == g.nchannels:
-        half = min(int(np.sum(offs[cols[:n]] % 2 == p)) for cols in columns for p in (0, 1))
-        diff = detrend_frames(np.stack(diffs))
+    if diff is not None:
+        half = min(int(np.sum(offs[cols[:n]] % 2 == p)) for cols in plan.columns for p in (0, 1))
+        diff = detrend_frames(diff[:, cut])
         boxes["diff"] = Box(half, 2, boxes["sum"].centre, whites=tuple(dwhites) if kept else ())
     phantom = None
-    if exposure.phantom is not None and c:
-        phantom = phantom_timestream(exposure).values
+    if pixels.phantom is not None and c:
+        phantom = phantom_timestream(pixels).values
         # phantom sample i has the parity (i - c) % 2 (the simulator's convention)
         boxes["phantom"] = Box(c, 1, (c - 1) / 2, int(np.sum((np.arange(c) - c) % 2 == 0)))
     rows = bursts = None
-    if reference_row_reads(s).size and g.channel_width >= MIN_BURST:
-        rows = np.stack([reference_timestream(exposure, "rows", p, leave_out).values
+    if pixels.reads.size and g.channel_width >= MIN_BURST:
+        rows = np.stack([reference_timestream(pixels, "rows", p, leave_out).values
                          for p in ("even", "odd")], axis=1)
         if kept:  # a burst holding a pixel left out is left out whole
             bursts = ~np.any(np.isnan(rows), axis=(2, 4))
@@ -231,7 +370,7 @@ def channel_streams(exposure, frames=None, leave_out=None):
     sides = {}
     mask = g.reference_column_mask()
     if mask.any():
-        side = reference_timestream(exposure, "columns", leave_out=leave_out)
+        side = reference_timestream(pixels, "columns", leave_out=leave_out)
         cols = np.flatnonzero(mask)
         chan = g.channel_of_column()[cols]
         runs = np.flatnonzero((np.diff(cols) != 1) | (np.diff(chan) != 0)) + 1
@@ -241,7 +380,7 @@ def channel_streams(exposure, frames=None, leave_out=None):
         white = dict(zip(owners, side.white, strict=True)) if side.white else {}
         boxes["sides"] = Box(side.nbox, side.stride, 0.0, whites=tuple(
             white.get(o, 1.0) for o in range(g.nchannels)) if white else ())
-    return ChannelStreams(detrend_frames(np.stack(sums)), diff, phantom, rows, sides, boxes,
+    return ChannelStreams(detrend_frames(mean[:, cut]), diff, phantom, rows, sides, boxes,
                           bursts)
 
 
@@ -328,28 +467,11 @@ def _left_out_parts(drop, parts):
 
 def _kept_sum(data, cols, drop):
     """Per frame and read, the sum over ``cols`` of the values not dropped (``drop``:
-    ``(reads, cols)``, None: none), and how many were summed per read."""
+    ``(reads, cols)``, None: none)."""
     total = np.sum(data[:, :, cols], axis=-1, dtype=np.float64)
     if drop is None or cols.size == 0:
-        return total, np.full(data.shape[1], float(cols.size))
+        return total
     r, j = np.nonzero(drop)
     if r.size:  # few: their values taken back out of the sums
         np.subtract.at(total, (slice(None), r), data[:, r, cols[j]])
-    return total, (cols.size - drop.sum(axis=1)).astype(float)
-
-
-def _frames_of(exposure, frames):
-    """The exposure restricted to ``frames`` (a slice of its frames)."""
-    from ...core.exposure import Exposure
-
-    s = exposure.schedule
-    keep = range(s.nframes)[frames]
-    schedule = s.replace(nframes=len(keep))
-    data = np.asarray(exposure.data.data)[frames]
-    phantom = None if exposure.phantom is None else np.asarray(exposure.phantom)[frames]
-    mask = exposure.data.mask
-    if mask is not None:
-        mask = np.asarray(mask)
-        mask = mask[frames] if mask.ndim == 3 else mask
-    return Exposure.from_arrays(data, schedule, phantom=phantom, unit=exposure.unit,
-                                mask=mask)
+    return total

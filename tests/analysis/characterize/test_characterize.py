@@ -471,15 +471,17 @@ def test_darks_streams_are_held_one_at_a_time_and_the_model_is_unchanged(monkeyp
              {"name": "c", "alpha": 2e-4, "scope": "common"}]
     exposures = [dark(s, comps, 40 + k) for k in range(3)]
     taken, others = [], []  # (the dark, its streams' largest array); earlier darks' alive
-    original = run_module.channel_streams
+    original = run_module.dark_streams
 
-    def counted(exposure, frames=None, leave_out=None):
-        others.append(sum(e is not exposure and r() is not None for e, r in taken))
-        st = original(exposure, frames=frames, leave_out=leave_out)
-        taken.append((exposure, weakref.ref(st.sum)))
-        return st
+    def counted(source, cuts, leave_out=None):
+        exposure = source.exposure()  # the one in memory: not a copy
+        alive = sum(e is not exposure and r() is not None for e, r in taken)
+        got = original(source, cuts, leave_out=leave_out)
+        others.extend([alive] * len(got))
+        taken.extend((exposure, weakref.ref(st.sum)) for st in got)
+        return got
 
-    monkeypatch.setattr(run_module, "channel_streams", counted)
+    monkeypatch.setattr(run_module, "dark_streams", counted)
     whole = [slice(0, 20)]
     runs = [slice(5 * k, 5 * k + 5) for k in range(4)]  # one dark alone: 4 runs of 5 frames
     # streams taken: one per dark; an iterator's first dark also its 4 runs; one dark alone
@@ -540,3 +542,108 @@ def test_a_left_out_pixel_leaves_the_stream_whatever_group_its_column_is_in(colu
     assert got.boxes["sum"].whites[0] == pytest.approx(np.mean(
         [15 / 14 if read_row == 8 else 1.0 for read_row in s.rows[~s.is_reference]]
         + [1.0] * int(np.sum(s.is_reference))))
+
+
+# -- memory: a dark read band by band (issue 33, speed item) -------------------------------
+def _files(tmp_path, nframes, n=2, nrows=256, ncols=256):
+    from spherex_reduce.io import write
+
+    scene = {"geometry": {"nrows": nrows, "ncols": ncols, "nchannels": ncols // 64,
+                          "ref_border": 4},
+             "readout": {"skip": 1, "ref_reads": 8, "phantom_reads": 2, "nframes": nframes,
+                         "frame_overhead": 200},
+             "output": {"mode": "ramps"}}
+    paths = []
+    for k in range(n):
+        e = simulate(scene, seed=k)
+        paths.append(tmp_path / f"dark{k}.fits")
+        write(e, paths[-1])
+    return paths, e.data.data.size * 4  # float32 in the file
+
+
+def test_a_dark_file_is_never_in_memory_whole(tmp_path):
+    """Two full-size darks (2048² × 74) took characterize to 2.36 GB: each was read whole
+    (1.27 GB of float32, converted from the file's big-endian values) beside the per-pixel
+    sums.  Read band by band of reads, the peak of numpy's arrays (tracemalloc sees them)
+    over the whole run stays below 1.6 times one dark's float32 cube at 256² × 100 (1.15
+    times now; 2.17 times when a dark was read whole)."""
+    import tracemalloc
+
+    paths, cube = _files(tmp_path, 100)
+    tracemalloc.start()
+    try:
+        characterize(paths)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 1.6 * cube, peak / cube
+
+
+def test_darks_read_from_files_give_the_model_of_the_darks_in_memory(tmp_path, monkeypatch):
+    """The model of two raw files, read band by band (the file is never read whole: a whole
+    read is refused here), is the model of the same darks read whole into memory, number
+    for number: the streams' terms, the per-pixel terms and ACN."""
+    from spherex_reduce.io import FrameReader, read
+
+    paths, _ = _files(tmp_path, 12, nrows=128, ncols=128)
+    exposures = [read(p) for p in paths]
+    memory = characterize(exposures)
+
+    def whole(self):
+        raise AssertionError("a raw file read whole")
+
+    monkeypatch.setattr(FrameReader, "exposure", whole)
+    banded = characterize(paths)
+    for name, est in memory.components.items():
+        np.testing.assert_array_equal(banded.components[name].values, est.values)
+        np.testing.assert_array_equal(banded.components[name].errors, est.errors)
+    assert banded.acn == memory.acn
+    for a, b in zip(memory.pixel_terms.table, banded.pixel_terms.table, strict=True):
+        np.testing.assert_array_equal([a["value"], a["error"]], [b["value"], b["error"]])
+
+
+def test_the_streams_of_bands_are_the_channel_means_numpy_takes(tmp_path):
+    """`dark_streams` reads a raw file 7 reads at a time (bands that split the reference
+    rows' reads): each channel's stream is the mean of its light-sensitive columns at every
+    read (the reference pixels of those columns in reference-row reads), a line across
+    frames removed at each read and scaled by sqrt(N / (N - 2)), as numpy computes it here
+    from the whole file; the phantom stream likewise; and a column with a value that is
+    not finite in one read is left out (its channel's stream read again without it)."""
+    from astropy.io import fits
+
+    from spherex_reduce.analysis.characterize.streams import dark_streams
+    from spherex_reduce.io import open_input
+
+    paths, _ = _files(tmp_path, 6, n=1, nrows=64, ncols=128)
+    with fits.open(paths[0]) as hdul:
+        data = hdul["SCI"].data.astype(np.float64)
+        phantom = hdul["PHANTOM"].data.astype(np.float64)
+    bad = data.copy()
+    bad[3, 1, 70] = np.nan  # read 1 of frame 3, column 70 (channel 1)
+    bad_path = tmp_path / "bad.fits"
+    with fits.open(paths[0]) as hdul:
+        hdul["SCI"].data = bad.astype(np.float32)
+        hdul.writeto(bad_path, checksum=True)
+
+    def detrended(v):  # (..., frames, reads): a line per read position, by least squares
+        n = v.shape[-2]
+        x = np.vander(np.arange(n, dtype=float), 2)
+        flat = np.moveaxis(v, -2, 0).reshape(n, -1)
+        res = flat - x @ np.linalg.lstsq(x, flat, rcond=None)[0]
+        return np.moveaxis(res.reshape(np.moveaxis(v, -2, 0).shape), 0, -2) * np.sqrt(n / (n - 2))
+
+    for path, values, gone in ((paths[0], data, ()), (bad_path, bad, (70,))):
+        with open_input(path) as inp:
+            source = inp.source()
+            g = source.context.schedule.geometry
+            st = dark_streams(source, [slice(None)], band_reads=7)[0]
+        light = ~g.reference_column_mask()
+        chan = g.channel_of_column()
+        keep = [np.flatnonzero(light & (chan == c) & ~np.isin(np.arange(g.ncols), gone))
+                for c in range(g.nchannels)]
+        n = min(k.size for k in keep)  # every channel as many columns, in scan order
+        offs = g.column_offsets()
+        want = np.stack([values[:, :, k[np.argsort(offs[k])][:n]].mean(axis=-1) for k in keep])
+        np.testing.assert_allclose(st.sum, detrended(want), rtol=0, atol=1e-9)
+        np.testing.assert_allclose(st.phantom, detrended(np.moveaxis(phantom, -1, 0)),
+                                   rtol=0, atol=1e-9)

@@ -108,6 +108,10 @@ class ReadCovariance:
     domain : {'frames', 'slopes'}
     common : set of str
         Names of the components one stream of which all channels see.
+    side_offsets : sequence of array_like of int
+        Sample offsets of the side reference pixels of each channel that has
+        them (the values of kinds ``side`` and ``side-subtracted`` average
+        them per channel, then over those channels).
 
     Examples
     --------
@@ -286,10 +290,11 @@ class ReadCovariance:
         ----------
         reads_apart : array_like of int
             ``m``: the second read is ``m`` reads after the first (in one frame).
-        kind_a, kind_b : {'pixels', 'subtracted', 'phantom'}
-            What the first and the second value are (``kind_b`` defaults to
-            ``kind_a``): the mean of the pixels, that minus the read's phantom
-            value, or the phantom value.
+        kind_a, kind_b : str
+            What the first and the second value are (`KINDS`; ``kind_b``
+            defaults to ``kind_a``): the mean of the pixels, that minus the
+            read's phantom value, the phantom value, or a side value (with or
+            without the phantom values subtracted).
 
         Returns
         -------

@@ -8,8 +8,11 @@ estimate from that channel's reference reads given the noise model's PSDs
 (universal kriging, `~spherex_reduce.noise.read_covariance`).  Each frame's
 and channel's offset is an unknown constant (a flat prior), the rest of the
 drift has the PSDs' covariance.  With white noise only, the estimate is the
-mean of the reference pixels: the ``mean`` strategy.  The ``correct_reference``
-kernel subtracts the estimate row by row.
+mean of the reference pixels: the ``mean`` strategy.  With ``side_columns`` the
+side reference columns of the channels that have them are observed at every
+light row's read too (`~spherex_reduce.reduce.steps.reference.side_values`): the
+drift common to every channel, at every row.  The ``correct_reference`` kernel
+subtracts the estimate row by row.
 """
 
 import json
@@ -88,7 +91,8 @@ class WienerReference(Strategy):
     ----------
     **params
         ``noise``, ``common``, ``acn``, ``domain``, ``regularization``,
-        ``phantom``, ``sigma``, ``telegraph``, ``telegraph_sigma`` (declared,
+        ``phantom``, ``side_columns``, ``sigma``, ``telegraph``,
+        ``telegraph_sigma`` (declared,
         with their defaults and meaning, by :attr:`parameters`; the telegraph
         reference pixels are left out as by ``mean``).
     """
@@ -240,8 +244,9 @@ class WienerReference(Strategy):
         value of each reference read (the mean of the group's pixels, minus the
         read's phantom value once it is subtracted) and, when the strategy
         estimates from them, the phantom value of every read, in read order;
-        ``mean_ch`` their mean over channels.  Linear: the noise forecast
-        propagates them.
+        ``mean_ch`` their mean over channels; with ``side_columns`` it adds
+        ``ws @ s`` (`side_weights`).  Linear: the noise forecast propagates
+        them.
 
         Parameters
         ----------

@@ -293,10 +293,8 @@ class WienerReference(Strategy):
 
         Parameters
         ----------
-        context : `~spherex_reduce.core.block.Context`
-            As `predicted_variance`.
-        parity : int
-            The group (0, or 1 for odd samples with ``acn``).
+        context, parity
+            As `read_weights`.
 
         Returns
         -------

@@ -610,6 +610,15 @@ def test_the_cli_runs_side_columns_and_records_them(tmp_path):
     assert np.abs(sci["true"] - sci["false"]).max() > 1.0
 
 
+def _sidecar_like():
+    """Four outputs, side columns on the outer two, white noise and a common pink."""
+    g = DetectorGeometry(24, 32, 4, ref_border=4, scan="alternate")
+    s = ReadoutSchedule(g, skip=1, ref_mode="repeated", ref_reads=4, phantom_reads=0,
+                        nframes=6)
+    return g, s, [NoiseComponent("white", alpha=2e-4),
+                  NoiseComponent("c_pink", beta=2.0, scope="common")]
+
+
 def _offset_frames(rng, s, g, nframes=6, offset=10.0):
     """White frames with a large offset per frame and channel (8 columns per channel)."""
     return rng.normal(0, 1, (nframes, s.n_reads, g.ncols)) + np.repeat(
@@ -620,11 +629,7 @@ def test_a_read_one_side_channel_misses_does_not_take_the_other_channels_offset(
     """Channel 0's side pixels flagged in one read: that read's side value is the other
     side channel's alone, which must not bring its frame offset (rms 10 against a pixel
     noise of 1) into every channel's correction (it moved it by 3.9)."""
-    g = DetectorGeometry(24, 32, 4, ref_border=4, scan="alternate")
-    s = ReadoutSchedule(g, skip=1, ref_mode="repeated", ref_reads=4, phantom_reads=0,
-                        nframes=6)
-    comps = [NoiseComponent("white", alpha=2e-4),
-             NoiseComponent("c_pink", beta=2.0, scope="common")]
+    g, s, comps = _sidecar_like()
     frame = _offset_frames(np.random.default_rng(1), s, g)
     strat = _strategy(comps, tmp_path, side_columns=True, domain="slopes", sigma=5.0)
     ctx = Context(s, "readout", True, has_phantom=False)
@@ -638,11 +643,7 @@ def test_a_read_one_side_channel_misses_does_not_take_the_other_channels_offset(
 def test_reference_flags_leave_the_side_pixels_usable(tmp_path):
     """REFERENCE (and JUMP) alone leave a read usable, as for the reference rows: the side
     pixels of a file whose reference pixels are flagged REFERENCE give the same estimate."""
-    g = DetectorGeometry(24, 32, 4, ref_border=4, scan="alternate")
-    s = ReadoutSchedule(g, skip=1, ref_mode="repeated", ref_reads=4, phantom_reads=0,
-                        nframes=6)
-    comps = [NoiseComponent("white", alpha=2e-4),
-             NoiseComponent("c_pink", beta=2.0, scope="common")]
+    g, s, comps = _sidecar_like()
     frame = _offset_frames(np.random.default_rng(2), s, g)
     strat = _strategy(comps, tmp_path, side_columns=True, domain="slopes")
     ctx = Context(s, "readout", True, has_phantom=False)

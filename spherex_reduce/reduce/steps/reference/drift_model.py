@@ -13,8 +13,10 @@ averages fewer pixels is a rank-``k`` update (`~spherex_reduce.noise.read_covari
 """
 
 import threading
+import warnings
 
 import numpy as np
+from astropy.utils.exceptions import AstropyUserWarning
 
 from ....core.limits import check_size
 from ....noise.read_covariance import Kriging
@@ -219,6 +221,11 @@ class DriftModel:
                 out[frames] = np.moveaxis(est, 1, 0)
             else:  # a read usable in some channels only: each channel with its own counts
                 # (and no side values)
+                if side is not None:
+                    warnings.warn(f"correct_reference (wiener): {len(frames)} frame(s) with "
+                                  "a reference read usable in some channels only are "
+                                  "estimated without the side values", AstropyUserWarning,
+                                  stacklevel=3)
                 var = mvar = np.full(self.n_reads, np.nan)
                 solved = {}
                 for c in range(nch):

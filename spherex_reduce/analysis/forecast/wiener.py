@@ -123,8 +123,8 @@ class WienerTerms:
                 for name, psi, reads, cols_of in kinds:
                     self._add((p, fam, name), beta, psi, v[:, cols_of], slots[reads], f_light,
                               table)
-            ws, side_reads, sides = strategy.side_weights(context, p)
-            if ws is not None:
+            if strategy.side_groups(g) is not None:
+                ws, side_reads, sides = strategy.side_weights(context, p)
                 # the side value is the mean over side channels of each one's side pixels'
                 # mean, added to every channel alike: one term per side channel
                 v = scipy.fft.fft(ws[light_reads], axis=0, workers=-1)[np.asarray(ky)]

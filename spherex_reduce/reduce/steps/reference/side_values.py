@@ -18,12 +18,11 @@ import warnings
 import numpy as np
 from astropy.utils.exceptions import AstropyUserWarning
 
-from ....core import dq as dq_bits
-from .strategies import group_columns
+from .strategies import group_columns, side_column_values
+from .telegraph import MAD_TO_SIGMA
 
 __all__ = ["SideValues", "side_columns", "side_values"]
 
-_MAD_TO_SIGMA = 1.4826
 #: A side pixel whose robust scatter is above this many times the median side pixel's
 #: is left out (a hot, noisy or flipping pixel that a read-by-read clip would only thin).
 _NOISY = 3.0
@@ -96,7 +95,7 @@ def _deviations(v):
 def _scatter(dev):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # an all-NaN pixel
-        return _MAD_TO_SIGMA * np.nanmedian(np.abs(dev), axis=(0, 1))
+        return MAD_TO_SIGMA * np.nanmedian(np.abs(dev), axis=(0, 1))
 
 
 def _channel_means(v, sigma):
@@ -151,31 +150,16 @@ def side_values(exposure, groups, sigma):
         values too).
     """
     s = exposure.schedule
-    g = s.geometry
-    if exposure.order == "readout":
-        idx = s.active_read_indices
-        reads = idx
-    else:
-        idx = g.active_rows
-        reads = s.read_of_row()[idx]
+    vals, _, cols = side_column_values(exposure)  # (L, r, side columns), NaN: unusable
+    reads = (s.active_read_indices if exposure.order == "readout"
+             else s.read_of_row()[s.geometry.active_rows])
     order = np.argsort(reads, kind="stable")
-    idx, reads = np.asarray(idx)[order], np.asarray(reads)[order]
-    cols = np.unique(np.concatenate([c for part in groups for _, c in part]))
-    data = np.asarray(exposure.data.data)
-    block = np.asarray(data[..., cols], dtype=np.float64)  # (.., rows, side columns)
-    block = block.reshape(-1, *block.shape[-2:])[:, idx]  # (L, r, side columns)
-    if exposure.dq is not None:
-        dq = np.asarray(exposure.dq)[..., cols]
-        dq = dq.reshape(-1, *dq.shape[-2:])[:, idx] if dq.ndim > 2 else dq[None, idx]
-        # JUMP and REFERENCE alone leave a read usable (as for the reference rows)
-        block[np.broadcast_to(~dq_bits.read_usable(dq), block.shape)] = np.nan
-    where = {c: i for i, c in enumerate(cols.tolist())}
+    reads, block = np.asarray(reads)[order], vals[:, order]
     values, left_out, clipped = [], 0, 0
     for part in groups:
         means = []
         for _, c in part:
-            mean, noisy, far = _channel_means(block[..., [where[x] for x in c.tolist()]],
-                                              sigma)
+            mean, noisy, far = _channel_means(block[..., np.searchsorted(cols, c)], sigma)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)  # a frame without pixels
                 # each channel's offset in the frame out, so that a read one channel misses

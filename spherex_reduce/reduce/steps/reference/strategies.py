@@ -42,6 +42,7 @@ __all__ = [
     "reference_offsets",
     "reference_pixels",
     "reference_rows",
+    "side_column_values",
 ]
 
 #: Parity values of the ``REFOFFS`` table: all columns, even samples, odd samples.
@@ -274,7 +275,7 @@ def reference_rows(side, schedule):
 
 def without_telegraph(strategy, reference, side, schedule, columns=None):
     """Reference pixels ``(L, k, ncols)`` and side columns (None, or ``(values, rows,
-    columns)`` as `_side_columns` gives them) with the reads of telegraph pixels NaN when
+    columns)`` as `side_column_values` gives them) with the reads of telegraph pixels NaN when
     ``strategy.telegraph`` is ``'auto'``, and what was found (a
     `~spherex_reduce.reduce.steps.reference.telegraph.TelegraphSearch`, or None with ``'keep'``).
 
@@ -293,7 +294,7 @@ def without_telegraph(strategy, reference, side, schedule, columns=None):
     return reference, side_values, found
 
 
-def _side_columns(exposure):
+def side_column_values(exposure):
     """Side reference columns of the active rows ``(L, rows, m)`` (NaN: unusable), the
     physical row of each of those rows, and the ``m`` columns.
 
@@ -473,8 +474,8 @@ def _offsets_of(geometry, reference, side, *, acn, sigma, maxiters, threads):
         """Blocks ``(F, nch, P, r, k)`` of the reference rows and side columns, the hot
         pixels NaN."""
         blocks = [_gather(ref, groups)] + ([] if more is None else [_gather(more, side_groups)])
-        for b, h in zip(blocks, [None] * len(blocks) if hot is None else hot, strict=True):
-            if h is not None:
+        if hot is not None:
+            for b, h in zip(blocks, hot, strict=True):
                 b[np.broadcast_to(h, b.shape)] = np.nan
         return blocks
 
@@ -482,9 +483,7 @@ def _offsets_of(geometry, reference, side, *, acn, sigma, maxiters, threads):
     if reference.shape[0] > 1:
         ref_level = _levels(reference)
         side_level = None if side is None else _levels(side)
-        levels = [_gather(ref_level[None], groups)]
-        if side is not None:
-            levels.append(_gather(side_level[None], side_groups))
+        levels = gathered(ref_level[None], None if side is None else side_level[None])
         flat = np.concatenate([x.reshape(*x.shape[:3], -1) for x in levels], axis=-1)
         clipped = sigma_clip(np.ma.masked_invalid(flat), sigma=sigma, maxiters=maxiters,
                              axis=-1, cenfunc="median", stdfunc="std", copy=True)
@@ -561,7 +560,7 @@ class MeanReference(Strategy):
 
     def estimate(self, side, context, exposure=None):
         g = context.geometry
-        columns = (_side_columns(exposure)
+        columns = (side_column_values(exposure)
                    if self.side_columns and g.reference_column_mask().any() else None)
         if columns is not None:
             _warn_unequal(g)

@@ -42,7 +42,7 @@ from astropy.table import Table
 
 from ....core.parameters import Parameter
 
-__all__ = ["MIN_COMMON", "MIN_PIXELS", "MIN_SAMPLES", "TELEGRAPH_PARAMETERS", "TelegraphSearch",
+__all__ = ["MAD_TO_SIGMA", "MIN_COMMON", "MIN_PIXELS", "MIN_SAMPLES", "TELEGRAPH_PARAMETERS", "TelegraphSearch",
            "drop_telegraph", "find_telegraph"]
 
 #: Fewest usable samples (frames x reads of its row) a pixel needs to be tested.
@@ -51,7 +51,8 @@ MIN_SAMPLES = 16
 MIN_PIXELS = 16
 #: fewest pixels of a read, channel and parity whose median is taken as their common signal
 MIN_COMMON = 8
-_MAD_TO_SIGMA = 1.4826
+#: Robust standard deviations per median absolute deviation (a Gaussian's).
+MAD_TO_SIGMA = 1.4826
 
 #: The reference strategies' parameters of the search (``mean``, ``acn``, ``wiener``).
 TELEGRAPH_PARAMETERS = (
@@ -178,7 +179,7 @@ def find_telegraph(values, rows, geometry, sigma=5.0, columns=None):
             if ok.sum() < MIN_PIXELS:
                 continue
             med = np.median(own[ok])
-            spread = _MAD_TO_SIGMA * np.median(np.abs(own[ok] - med))
+            spread = MAD_TO_SIGMA * np.median(np.abs(own[ok] - med))
             if spread > 0:
                 z = np.where(ok, (own - med) / spread, -np.inf)
                 score[:, channel == ch] = np.maximum(score[:, channel == ch], z)

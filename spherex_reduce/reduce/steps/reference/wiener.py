@@ -47,11 +47,10 @@ from .strategies import (
     reference_pixels,
     without_telegraph,
 )
-from .telegraph import TELEGRAPH_PARAMETERS
+from .telegraph import MAD_TO_SIGMA, TELEGRAPH_PARAMETERS
 
 __all__ = ["WienerReference", "load_noise_model", "phantom_consumed"]
 
-_MAD_TO_SIGMA = 1.4826
 #: Models kept for reuse (each holds its solved weights: tens of MB at full size).
 _MAX_MODELS = 4
 _MODELS = {}
@@ -233,7 +232,7 @@ class WienerReference(Strategy):
         >>> bool(w[a].mean() < 0.8 * m[a].mean())
         True
         """
-        *_, var, mvar, _ = self._full_weights(context, reads, parity)
+        *_, var, mvar = self._full_weights(context, reads, parity)
         return var, mvar
 
     def read_weights(self, context, parity=0):
@@ -329,13 +328,14 @@ class WienerReference(Strategy):
         >>> bool(np.allclose(ws.sum(axis=1), 0))  # the side values' own offset cancels
         True
         """
-        out = self._full_weights(context, None, parity)
-        groups = self.side_groups(context.schedule.geometry)
-        return out[2], out[5], (None if groups is None else groups[parity])
+        s = context.schedule
+        groups = self.side_groups(s.geometry)
+        ws = self._full_weights(context, None, parity)[2]
+        return ws, np.sort(s.active_read_indices), (None if groups is None else groups[parity])
 
     def _full_weights(self, context, reads, parity):
         """`DriftModel.weights` of full reference reads: ``(w, wd, ws, variance, mean
-        variance, side reads)``."""
+        variance)``."""
         s = context.schedule
         reads = s.reference_read_indices if reads is None else np.asarray(reads, dtype=int)
         groups = group_columns(s.geometry, self.acn)
@@ -347,9 +347,8 @@ class WienerReference(Strategy):
         side_reads = None if sides is None else np.sort(s.active_read_indices)
         model = self._model(s, domain, s.geometry.column_offsets()[cols],
                             None if sides is None else sides[parity])
-        return (*model.weights(self, kind, reads, np.full(reads.size, float(cols.size)),
-                               cols.size, s.geometry.nchannels, True, use, side_reads),
-                side_reads)
+        return model.weights(self, kind, reads, np.full(reads.size, float(cols.size)),
+                             cols.size, s.geometry.nchannels, True, use, side_reads)
 
     def _domain(self, context):
         """``frames`` or ``slopes``: ``auto`` is frames for ramps (or a single frame)."""
@@ -491,7 +490,7 @@ class WienerReference(Strategy):
             med = np.nanmedian(v, axis=(1, 4), keepdims=True)
             mad = np.nanmedian(np.abs(v - med), axis=(1, 4), keepdims=True)
         with np.errstate(invalid="ignore"):
-            clipped = usable & (np.abs(v - med) > self.sigma * _MAD_TO_SIGMA * mad) & (mad > 0)
+            clipped = usable & (np.abs(v - med) > self.sigma * MAD_TO_SIGMA * mad) & (mad > 0)
         v[clipped] = np.nan
         n = np.isfinite(v).sum(axis=-1)
         with np.errstate(invalid="ignore", divide="ignore"):

@@ -42,8 +42,8 @@ from astropy.table import Table
 
 from ....core.parameters import Parameter
 
-__all__ = ["MAD_TO_SIGMA", "MIN_COMMON", "MIN_PIXELS", "MIN_SAMPLES", "TELEGRAPH_PARAMETERS", "TelegraphSearch",
-           "drop_telegraph", "find_telegraph"]
+__all__ = ["MAD_TO_SIGMA", "MIN_COMMON", "MIN_PIXELS", "MIN_SAMPLES", "TELEGRAPH_PARAMETERS",
+           "TelegraphSearch", "drop_telegraph", "find_telegraph"]
 
 #: Fewest usable samples (frames x reads of its row) a pixel needs to be tested.
 MIN_SAMPLES = 16

@@ -44,7 +44,8 @@ from astropy import units as u
 from scipy import sparse
 from scipy.optimize import minimize_scalar
 
-__all__ = ["FAINT_TERMS", "add_faint_terms", "common_labels", "lag_design", "lag_sums"]
+__all__ = ["FAINT_TERMS", "add_faint_terms", "common_labels", "lag_design", "lag_sums",
+           "telegraph_covariance"]
 
 #: The rows `add_faint_terms` adds (active pixels).
 FAINT_TERMS = ("faint_telegraph_power", "faint_telegraph_rate", "faint_telegraph_fraction",
@@ -120,11 +121,26 @@ def lag_design(times):
     return design
 
 
+def telegraph_covariance(times, rate):
+    """Covariance of a telegraph of unit step and switch ``rate`` (Hz) at ``times`` (s):
+    ``exp(-2 rate |t_j - t_k|) / 4`` (the simulator's definition; 1/4 at lag 0 for
+    any rate, an infinite one included).
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.faint_telegraph import telegraph_covariance
+    >>> telegraph_covariance([0.0, 1.0], 0.0).tolist()
+    [[0.25, 0.25], [0.25, 0.25]]
+    """
+    t = np.asarray(times, dtype=np.float64)
+    dt = np.abs(np.subtract.outer(t, t))
+    with np.errstate(invalid="ignore"):
+        return np.where(dt == 0, 1.0, np.exp(-2.0 * float(rate) * dt)) / 4.0
+
+
 def _telegraph_traces(design, rate):
-    """``t_L(rate)``: the traces of the forms with a unit-step telegraph (``/4`` included)."""
-    t = design["times"]
-    corr = np.exp(-2.0 * rate * np.abs(np.subtract.outer(t, t)))
-    return np.einsum("lij,ij->l", design["forms"], corr) / 4.0
+    """``t_L(rate)``: the traces of the forms with a unit-step telegraph."""
+    return np.einsum("lij,ij->l", design["forms"], telegraph_covariance(design["times"], rate))
 
 
 def lag_sums(e, labels, jumped, lags):
@@ -261,9 +277,7 @@ def _fit_split(design, rate, c1, c2, noise, count):
     ``c`` (``c1``), ``c²`` (``c2``) and of their measurement variance (``noise``) over
     ``count`` pixels, at the fitted ``rate`` (NaN where not positive)."""
     c, _ = _contrast_form(design)
-    t = design["times"]
-    corr = np.exp(-2.0 * rate * np.abs(np.subtract.outer(t, t)))
-    kappa = float(np.sum(c * corr)) / 4.0
+    kappa = float(np.sum(c * telegraph_covariance(design["times"], rate)))
     if not (count > 0 and kappa > 0):
         return np.nan
     m1 = c1 / count / kappa  # E[A²]
@@ -397,7 +411,7 @@ def add_faint_terms(add, refuse, acc, quiet, active, current, ndarks, k, unit, d
         "steps over their mean square (the pixels' contrasts' scatter)")
     ty = design["times"]
     diff = np.diff(np.eye(ty.size), axis=0)
-    tel = diff @ np.exp(-2.0 * r * np.abs(np.subtract.outer(ty, ty))) @ diff.T / 4
+    tel = diff @ telegraph_covariance(ty, r) @ diff.T
     per = float(np.sum(des["mm"] * tel)) / des["ar"]
     add(names[4], "active", p * per, p_err * per, unit ** 2, note="what the faint telegraph "
         "adds to the active pixels' mean read-noise variance")

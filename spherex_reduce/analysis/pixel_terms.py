@@ -66,8 +66,8 @@ from scipy.stats import binom, chi2
 from ..core.errors import SpherexReduceError
 from .faint_telegraph import FAINT_TERMS, add_faint_terms, lag_design, lag_sums
 
-__all__ = ["MIN_READS", "MIN_TELEGRAPH_INTERVALS", "PixelSums", "PixelTerms", "dark_ramps",
-           "dark_rows", "fit_pixel_terms", "pixel_rows"]
+__all__ = ["HOT_SIGMA", "MIN_READS", "MIN_TELEGRAPH_INTERVALS", "PixelSums", "PixelTerms",
+           "dark_ramps", "dark_rows", "fit_pixel_terms", "pixel_rows"]
 
 #: Fewest reads a dark needs (two differences after read 0 is kept aside, or with it).
 MIN_READS = 3
@@ -77,6 +77,8 @@ MIN_TELEGRAPH_INTERVALS = 8
 #: than the reads: every interval is close to a coin toss).
 MAX_FLIP_PROBABILITY = 0.45
 _MAD = 1.4826
+#: Robust standard deviations above the median slope from which a pixel is hot.
+HOT_SIGMA = 10.0
 #: Standard deviations of a difference by which a found telegraph pixel's mean jump clears
 #: the jumps' threshold (else it is fitted with the faint population).
 CLEAR_SIGMA = 3.0
@@ -311,8 +313,8 @@ def pixel_rows(schedule, ramp=True, order="readout"):
     return rows if order == "readout" else None
 
 
-def fit_pixel_terms(ramps, times, *, reference=None, gain=None, jump_sigma=5.0,
-                    hot_threshold=None, hot_sigma=10.0, groups=32, band_rows=32, labels=None):
+def fit_pixel_terms(ramps, times, *, reference=None, gain=None, jump_sigma=5.0, labels=None,
+                    hot_threshold=None, hot_sigma=HOT_SIGMA, groups=32, band_rows=32):
     """Read noise, dark current, hot and telegraph pixels and the reset offset of a detector.
 
     Parameters
@@ -473,18 +475,18 @@ class PixelSums:
                                      "(each (nreads, ny, nx), one unit)")
         slopes, jumped = _add_dark(self._acc, band, shape, self.t, self.band_rows)
         ok = np.isfinite(slopes)
-        self._acc["s1"] += np.where(ok, slopes, 0.0)  # the darks' slopes: their scatter
-        self._acc["s2"] += np.where(ok, slopes, 0.0) ** 2
+        self._acc["s1"] += (kept := np.where(ok, slopes, 0.0))  # the darks' slopes: scatter
+        self._acc["s2"] += kept ** 2
         active = ~self.ref & ok
         # the dark's drift common to its pixels (the streams' 1/f): its median slope
-        self._acc["drifts"].append(float(np.median(slopes[active])) if active.any()
-                                   else np.nan)
+        med = float(np.median(slopes[active])) if active.any() else np.nan
+        self._acc["drifts"].append(med)
         self.ndarks += 1
         if active.any():
-            jumped |= active & (slopes > _hot_threshold(slopes, active, 10.0))
+            jumped |= active & (slopes > _hot_threshold(slopes, active, HOT_SIGMA, med))
         return jumped
 
-    def fit(self, *, hot_threshold=None, hot_sigma=10.0, groups=32):
+    def fit(self, *, hot_threshold=None, hot_sigma=HOT_SIGMA, groups=32):
         """The `PixelTerms` of the darks added (``hot_threshold``, ``hot_sigma``,
         ``groups``: as `fit_pixel_terms`)."""
         if self._acc is None:
@@ -799,10 +801,10 @@ def _flip_probability(mean, m):
     return brentq(excess, lo, hi, xtol=1e-12)
 
 
-def _hot_threshold(slope, active, hot_sigma):
-    """The median slope of the ``active`` pixels plus ``hot_sigma`` robust standard
-    deviations: above it a pixel is hot."""
-    med = np.median(slope[active])
+def _hot_threshold(slope, active, hot_sigma, med=None):
+    """The median slope of the ``active`` pixels (``med`` if known) plus ``hot_sigma``
+    robust standard deviations: above it a pixel is hot."""
+    med = np.median(slope[active]) if med is None else med
     return med + hot_sigma * _MAD * np.median(np.abs(slope[active] - med))
 
 

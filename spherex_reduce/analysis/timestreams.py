@@ -39,8 +39,8 @@ from ..core.exposure import Exposure
 from ..reduce.steps.reference.noise_models import NEGATIVE_SIGMAS
 from .temporal import PARAMS, aliased_basis, fit_noise_model, temporal_psd
 
-__all__ = ["StreamPixels", "Timestream", "detrend_frames", "fit_raw_noise", "left_out_samples",
-           "phantom_timestream", "reference_timestream"]
+__all__ = ["StreamPixels", "Timestream", "detrend_frames", "fit_raw_noise", "keep_some",
+           "left_out_samples", "phantom_timestream", "reference_timestream"]
 
 
 # -- streams of a raw exposure ----------------------------------------------------------
@@ -286,8 +286,7 @@ def reference_timestream(exposure, source="columns", parity=None, leave_out=None
             if drop is None:
                 vals.append(values.mean(axis=-1))
                 continue
-            keep = ~drop[:, c]
-            keep[~keep.any(axis=1)] = True  # a read with every column left out keeps them
+            keep = keep_some(~drop[:, c], axis=1)  # a read with every column left out
             count = keep.sum(axis=1)
             vals.append(np.sum(values * keep, axis=-1, dtype=np.float64) / count)
             white.append(float(np.mean(nbox / count)))
@@ -314,6 +313,20 @@ def reference_timestream(exposure, source="columns", parity=None, leave_out=None
         return Timestream(flat.reshape(vals.shape), _frame_samples(s, samples), 1, g.pixel_rate,
                           stride)
     raise SpherexReduceError(f"source must be 'columns' or 'rows', got {source!r}")
+
+
+def keep_some(keep, axis):
+    """``keep`` with every member kept where ``axis`` would keep none of them (the rule
+    that leaves a stream's samples out: never all of a read's, or a channel's).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.analysis.timestreams import keep_some
+    >>> keep_some(np.array([[True, False], [False, False]]), axis=1).tolist()
+    [[True, False], [True, True]]
+    """
+    return keep | ~keep.any(axis=axis, keepdims=True)
 
 
 def left_out_samples(leave_out, schedule):

@@ -220,7 +220,7 @@ def compare(model, measured, pipeline):
         population.
     """
     frames = [int(n) for n in measured["frames"]]
-    clip = next((float(params.get("sigma", 5.0)) for name, params in pipeline.steps
+    clip = next((float(params["sigma"]) for name, params in pipeline.steps
                  if name == "sigma_clip"), None)  # the pipeline's clip of each image
     pred = predict_scatter(model, pipeline, frames, differenced=measured["differenced"],
                            image_clip=clip)

@@ -67,6 +67,7 @@ from scipy.special import ndtr
 from ...core.errors import SpherexReduceError
 from ...noise.components import NoiseComponent
 from ...noise.variance import ls_weights
+from ..faint_telegraph import telegraph_covariance
 from ..forecast.engine import forecast, poisson_variance, prepare_forecast, stored_planes
 from ..spectrum import rfft_weights
 
@@ -127,10 +128,7 @@ def telegraph_slope_variance(times, rate):
     """
     t = np.asarray(times, dtype=np.float64)
     w = ls_weights(t)
-    dt = np.abs(np.subtract.outer(t, t))
-    with np.errstate(invalid="ignore"):
-        corr = np.where(dt == 0, 1.0, np.exp(-2.0 * float(rate) * dt))
-    return float(0.25 * w @ corr @ w)
+    return float(w @ telegraph_covariance(t, rate) @ w)
 
 
 def telegraph_population(model):

@@ -41,6 +41,7 @@ from ...io.sources import MemorySource
 from ..timestreams import (
     StreamPixels,
     detrend_frames,
+    keep_some,
     left_out_samples,
     phantom_timestream,
     reference_row_reads,
@@ -274,12 +275,12 @@ def dark_streams(source, cuts, leave_out=None, band_reads=BAND_READS):
             raise SpherexReduceError(f"a dark of {len(f)} reads: every term needs at least "
                                      f"{MIN_FRAMES} (a straight line is removed across them)")
     drop = left_out_samples(leave_out, s)  # (reads, columns), or None
-    every = np.ones((s.nframes, g.ncols), bool)  # taken as usable until the bands are read
-    guess = [_plan(g, s.n_reads, every[f].all(axis=0), drop) for f in frames]
-    plans = {p.key: p for p in guess}
+    # every column taken as usable until the bands are read
+    guess = _plan(g, s.n_reads, np.ones(g.ncols, bool), drop)
+    plans = {guess.key: guess}
     sums, usable, pixels = _read_bands(source, list(plans.values()), drop, band_reads)
     found = [_plan(g, s.n_reads, usable[f].all(axis=0), drop) for f in frames]
-    if any(a.key != b.key for a, b in zip(guess, found, strict=True)):  # not every column
+    if any(p.key != guess.key for p in found):  # not every column
         plans = {p.key: p for p in found}
         sums, usable, pixels = _read_bands(source, list(plans.values()), drop, band_reads)
     keys = list(plans)
@@ -364,8 +365,8 @@ def _streams(plan, mean, diff, cut, nframes, pixels, leave_out):
         rows = np.stack([reference_timestream(pixels, "rows", p, leave_out).values
                          for p in ("even", "odd")], axis=1)
         if kept:  # a burst holding a pixel left out is left out whole
-            bursts = ~np.any(np.isnan(rows), axis=(2, 4))
-            bursts[~bursts.any(axis=(1, 2))] = True  # a channel keeps its bursts if none is
+            # a channel keeps its bursts if none is
+            bursts = keep_some(~np.any(np.isnan(rows), axis=(2, 4)), axis=(1, 2))
             rows = np.nan_to_num(rows)  # bursts with values left out: kept apart by bursts
     sides = {}
     mask = g.reference_column_mask()

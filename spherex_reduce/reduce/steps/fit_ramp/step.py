@@ -24,7 +24,7 @@ from ...hookspecs import hookimpl
 from ...noise_effect import NoiseEffect
 from ...step import Consumer, Step
 from ..pixel_maps import MAP_TYPES, PixelMap, adu_gain
-from .least_squares import LeastSquares, RampMaps, RampSolution, expected_rates
+from .least_squares import RATE_PIECE, LeastSquares, RampMaps, RampSolution, expected_rates
 from .segments import RampNoise
 
 __all__ = ["WEIGHTINGS", "FitRampStep", "RampFit", "fit_ramp"]
@@ -132,6 +132,22 @@ def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, dark_c
     """
     return FitRampStep()(exposure, weighting=weighting, read_noise=read_noise, gain=gain,
                          dark_current=dark_current, saturation=saturation)
+
+
+def _expected_error(fit, rate):
+    """``fit.var`` (ERR, in place) from the read noise and the shot noise of ``rate`` where
+    both are finite (NaN where not fitted: kept), in pieces that stay in cache."""
+    err, var_rnoise, var_per_rate = (a.reshape(-1) for a in (fit.var, fit.var_rnoise,
+                                                            fit.var_per_rate))
+    rate = rate.reshape(-1)
+    for lo in range(0, err.size, RATE_PIECE):
+        cut = slice(lo, lo + RATE_PIECE)
+        var = rate[cut] * var_per_rate[cut]
+        var += var_rnoise[cut]
+        with np.errstate(invalid="ignore"):
+            redo = np.isfinite(err[cut]) & (var >= 0)
+        redo &= np.isfinite(var)
+        np.sqrt(var, out=err[cut], where=redo)
 
 
 def _validated(params):
@@ -277,9 +293,7 @@ class RampFit(Consumer):
                 bulk = bulk[s.rows]
             rate = expected_rates(fit.slope, fit.var_rnoise, fit.var_per_rate, bulk)
             if rate is not None:  # else too few pixels: each pixel's own slope
-                var = fit.var_rnoise + rate * fit.var_per_rate
-                redo = np.isfinite(fit.var) & np.isfinite(var) & (var >= 0)
-                fit.var[redo] = np.sqrt(var[redo])
+                _expected_error(fit, rate)
             header["ERRRATE"] = ("own" if rate is None else "expected",
                                  "rates of ERR's shot noise (fit_ramp)")
         if reference is not None and np.ndim(reference.data) == 3:

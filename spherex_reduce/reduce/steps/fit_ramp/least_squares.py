@@ -35,6 +35,7 @@ bands of rows and fitted band by band, on any number of threads, gives the fit
 of the whole cube bit for bit.
 """
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -54,11 +55,21 @@ REFIT_PIXELS = 1 << 13
 OWN_RATE_SIGMA = 4.0
 #: pixels `expected_rates` needs to see the bulk of the slopes; fewer: each pixel's own
 EXPECTED_MIN_PIXELS = 100
-#: pixels the bulk of `expected_rates` is measured on at most (every k-th of the bulk)
+#: pixels the bulk of `expected_rates` is measured on at most (every k-th pixel of the
+#: array, k prime to the rows' length, that is in the bulk)
 BULK_SAMPLE = 1 << 16
 #: pixels `expected_rates` works on at once (a few float64 arrays of them stay in cache:
 #: 16 ms for 1 Mpix where whole arrays took 28 ms; a second thread gained nothing)
 RATE_PIECE = 1 << 15
+
+
+def _stride(size, ncols):
+    """The step of a sample of at most `BULK_SAMPLE` of ``size`` pixels, prime to the rows'
+    length ``ncols``."""
+    k = max(1, -(-size // BULK_SAMPLE))
+    while k > 1 and math.gcd(k, ncols) != 1:
+        k += 1
+    return k
 
 
 def ramp_weights(times):
@@ -116,8 +127,9 @@ def expected_rates(slope, var_rnoise, var_per_rate, bulk=None):
         (data unit / s), as `RampSolution` holds them.
     bulk : `numpy.ndarray` of bool, optional
         The pixels the bulk is measured on (e.g. not the reference pixels, which
-        collect no light); all if None.  Measured on every k-th of them, at most
-        `BULK_SAMPLE`.
+        collect no light); all if None.  Measured on the pixels of the bulk among
+        every k-th pixel of the array (k prime to the rows' length, so that the
+        sample walks through every column), at most `BULK_SAMPLE`.
 
     Returns
     -------
@@ -150,10 +162,12 @@ def expected_rates(slope, var_rnoise, var_per_rate, bulk=None):
     def take(v, where):
         return np.float64(v) if v.ndim == 0 else v[where].astype(np.float64)
 
-    # the bulk from every k-th pixel that is in it, at most about BULK_SAMPLE (its medians
-    # to ~0.5 % of the slopes' sigma): three medians of 1 Mpix took 0.06 s of a 0.26 s fit
+    # the bulk from every k-th pixel of the array that is in it, at most BULK_SAMPLE (its
+    # medians to ~0.5 % of the slopes' sigma; three medians of 1 Mpix took 0.06 s of a
+    # 0.26 s fit), k prime to the row's length so that the sample walks through every
+    # column (k = 64 on 2048 columns of 64-column channels sampled one column of each)
     bulk = None if bulk is None else np.broadcast_to(bulk, shape).ravel()
-    for step in (max(1, slope.size // BULK_SAMPLE), 1):  # every pixel if the sample is short
+    for step in dict.fromkeys((_stride(slope.size, shape[-1] if shape else 1), 1)):
         idx = np.arange(0, slope.size, step)
         sel = (np.isfinite(slope[idx]) & np.isfinite(take(var_rnoise, idx))
                & np.isfinite(take(var_per_rate, idx)))
@@ -162,7 +176,7 @@ def expected_rates(slope, var_rnoise, var_per_rate, bulk=None):
         idx = idx[sel]
         if idx.size >= EXPECTED_MIN_PIXELS:
             break
-    else:
+    else:  # too few even with every pixel
         return None
     s = slope[idx]
     m = float(np.median(s))
@@ -173,52 +187,49 @@ def expected_rates(slope, var_rnoise, var_per_rate, bulk=None):
     out = np.empty(slope.size)
     half = OWN_RATE_SIGMA ** 2 / 2
 
-    def rates(lo, hi):
-        """``out[lo:hi]``, in pieces of `RATE_PIECE` that stay in cache through the dozen
-        element-wise steps (each pixel alone)."""
-        for start in range(lo, hi, RATE_PIECE):
-            cut = slice(start, min(hi, start + RATE_PIECE))
-            x = slope[cut]
-            with np.errstate(invalid="ignore", divide="ignore"):
-                spread = mp * take(var_per_rate, cut)  # each slope's noise at the bulk's rate
-                spread = spread + take(var_rnoise, cut)
-                spread += tau2
-                ok = np.isfinite(spread)  # (a variance NaN or inf: the pixel's own rate)
-                ok &= np.isfinite(x)
-                pos = spread > 0  # else 0 / 0: masked divisions (slower)
-                clean = bool(ok.all()) and bool(pos.all())
-                d = x - m
-                far = d * d
-                if tau2 > 0:  # the rates spread: shrink the slope toward the bulk's
-                    shrunk = np.divide(tau2 * d, spread, out=np.zeros_like(d), where=pos)
-                spread *= 2
-                if clean:
-                    far /= spread
-                else:
-                    far = np.divide(far, spread, out=np.full_like(d, np.inf), where=pos)
-                # the logistic weight 1 / (1 + exp(half - far)) (scipy's expit takes 3x
-                # as long); far = inf (spread 0) gives 1, a huge exp 0
-                np.subtract(half, far, out=far)
-                with np.errstate(over="ignore"):
-                    np.exp(far, out=far)
-                far += 1.0
-                np.reciprocal(far, out=far)
-                # (1 - far) (m + shrunk) + far x = m + shrunk + far (d - shrunk), >= 0
-                if tau2 > 0:
-                    d -= shrunk
-                    d *= far
-                    d += shrunk
-                else:  # a flat bulk: every pixel's expected rate is the bulk's
-                    d *= far
-                d += m
-                if clean:
-                    np.maximum(d, 0.0, out=out[cut])
-                else:  # a pixel's own max(x, 0) where not ok
-                    np.maximum(d, 0.0, out=d)
-                    np.maximum(x, 0.0, out=out[cut])
-                    np.copyto(out[cut], d, where=ok)
-
-    rates(0, slope.size)
+    # pieces of RATE_PIECE pixels that stay in cache through the dozen element-wise steps
+    # (each pixel alone)
+    for start in range(0, slope.size, RATE_PIECE):
+        cut = slice(start, start + RATE_PIECE)
+        x = slope[cut]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            spread = mp * take(var_per_rate, cut)  # each slope's noise at the bulk's rate
+            spread = spread + take(var_rnoise, cut)
+            spread += tau2
+            ok = np.isfinite(spread)  # (a variance NaN or inf: the pixel's own rate)
+            ok &= np.isfinite(x)
+            pos = spread > 0  # else 0 / 0: masked divisions (slower)
+            clean = bool(ok.all()) and bool(pos.all())
+            d = x - m
+            far = d * d
+            if tau2 > 0:  # the rates spread: shrink the slope toward the bulk's
+                shrunk = np.divide(tau2 * d, spread, out=np.zeros_like(d), where=pos)
+            spread *= 2
+            if clean:
+                far /= spread
+            else:
+                far = np.divide(far, spread, out=np.full_like(d, np.inf), where=pos)
+            # the logistic weight 1 / (1 + exp(half - far)) (scipy's expit takes 3x
+            # as long); far = inf (spread 0) gives 1, a huge exp 0
+            np.subtract(half, far, out=far)
+            with np.errstate(over="ignore"):
+                np.exp(far, out=far)
+            far += 1.0
+            np.reciprocal(far, out=far)
+            # (1 - far) (m + shrunk) + far x = m + shrunk + far (d - shrunk), >= 0
+            if tau2 > 0:
+                d -= shrunk
+                d *= far
+                d += shrunk
+            else:  # a flat bulk: every pixel's expected rate is the bulk's
+                d *= far
+            d += m
+            if clean:
+                np.maximum(d, 0.0, out=out[cut])
+            else:  # a pixel's own max(x, 0) where not ok
+                np.maximum(d, 0.0, out=d)
+                np.maximum(x, 0.0, out=out[cut])
+                np.copyto(out[cut], d, where=ok)
     return out.reshape(shape)
 
 

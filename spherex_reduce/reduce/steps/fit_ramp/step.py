@@ -137,9 +137,10 @@ def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, dark_c
 def _expected_error(fit, rate):
     """``fit.var`` (ERR, in place) from the read noise and the shot noise of ``rate`` where
     both are finite (NaN where not fitted: kept), in pieces that stay in cache."""
-    err, var_rnoise, var_per_rate = (a.reshape(-1) for a in (fit.var, fit.var_rnoise,
-                                                            fit.var_per_rate))
-    rate = rate.reshape(-1)
+    err = fit.var.reshape(-1)
+    copied = not np.shares_memory(err, fit.var)  # (a strided view: written back below)
+    var_rnoise, var_per_rate, rate = (np.ravel(a) for a in (fit.var_rnoise, fit.var_per_rate,
+                                                           rate))
     for lo in range(0, err.size, RATE_PIECE):
         cut = slice(lo, lo + RATE_PIECE)
         var = rate[cut] * var_per_rate[cut]
@@ -148,6 +149,8 @@ def _expected_error(fit, rate):
             redo = np.isfinite(err[cut]) & (var >= 0)
         redo &= np.isfinite(var)
         np.sqrt(var, out=err[cut], where=redo)
+    if copied:
+        fit.var[...] = err.reshape(fit.var.shape)
 
 
 def _validated(params):

@@ -495,8 +495,9 @@ class PixelSums:
             raise SpherexReduceError(f"fit_pixel_terms: groups must be 2 to 255, got {groups}")
         n, ny, nx = self.shape
         gid = np.random.default_rng(0).integers(0, int(groups), (ny, nx), dtype=np.uint8)
-        return _summarise(self._acc, self.ref, gid, int(groups), self.unit, self.gain, self.t,
-                          n, self.ndarks, hot_threshold, float(hot_sigma))
+        # a shallow copy: the summary takes its sums out of the dict (not out of the arrays)
+        return _summarise(dict(self._acc), self.ref, gid, int(groups), self.unit, self.gain,
+                          self.t, n, self.ndarks, hot_threshold, float(hot_sigma))
 
 
 # -- inputs --------------------------------------------------------------------------
@@ -960,8 +961,7 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
         refuse("first_read_offset", "all", unit, f"{n} reads: read 0 is needed for the line")
     else:
         usable = ~hot & ~telegraph & good
-        off = acc["offset"]
-        off /= ndarks
+        off = acc["offset"] / ndarks  # (not in place: the sums stay for another fit)
         value, err = _jackknife(_ratio, (off, 1.0), usable, gid, k)
         status = "fitted" if abs(value) > 3 * err else "ruled out"
         add("first_read_offset", "all", value, err, unit, status,
@@ -980,8 +980,8 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
 
     maps = {"read_noise": q(noise, unit), "read_noise_error": q(noise_err, unit),
             "dark_current": q(slope, rate_unit), "dark_current_error": q(slope_err, rate_unit),
-            "first_read_offset": q(acc["offset"] if acc["skip_first"]
-                                   else np.full(ref.shape, np.nan), unit),
+            "first_read_offset": q(off if acc["skip_first"] else np.full(ref.shape, np.nan),
+                                   unit),
             "hot": hot, "telegraph": telegraph, "telegraph_amplitude": q(amplitude, unit),
             "telegraph_rate": q(pix_rate, u.Hz)}
     return PixelTerms(table, maps, unit, g)

@@ -297,3 +297,29 @@ def test_pulls_over_twenty_sidecar_detectors_are_standard_normal():
         x = np.array(x)
         assert abs(x.mean()) < 0.75 and 0.6 < x.std(ddof=1) < 1.6, (term, x.round(2))
         assert np.all(np.abs(x) < 5), (term, x.round(2))
+
+
+def test_pixel_sums_fit_again_after_more_darks_is_the_fit_of_them_all():
+    """`PixelSums.fit` leaves the sums as they were: a second fit gives the same terms
+    (it raised KeyError: the first had taken the sums apart), and a fit after one more
+    dark is that of `fit_pixel_terms` on the three darks at once."""
+    from spherex_reduce.analysis.pixel_terms import PixelSums
+
+    rng = np.random.default_rng(41)
+    t = np.arange(20) * 1.5 * u.s
+    darks = [(rng.normal(0, SIGMA, (20, 16, 16)) + 0.5 * t.value[:, None, None]) * u.electron
+             for _ in range(3)]
+    sums = PixelSums(t, gain=1.0)
+    for d in darks[:2]:
+        sums.add(d)
+    first = sums.fit()
+    again = sums.fit()
+    for a, b in zip(first.table, again.table, strict=True):
+        assert a["term"] == b["term"] and np.array_equal(a["value"], b["value"], equal_nan=True)
+    for name, value in first.maps.items():  # the maps too (the offset's was halved)
+        np.testing.assert_array_equal(np.asarray(value), np.asarray(again.maps[name]))
+    sums.add(darks[2])
+    pooled = fit_pixel_terms(darks, t, gain=1.0)
+    for a, b in zip(sums.fit().table, pooled.table, strict=True):
+        assert a["term"] == b["term"]
+        np.testing.assert_allclose(a["value"], b["value"], rtol=1e-9, equal_nan=True)

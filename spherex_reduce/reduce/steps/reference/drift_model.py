@@ -110,6 +110,12 @@ class DriftModel:
         c_ot = np.concatenate([b[2] for b in blocks])
         return c_oo, c_ot, k_tt
 
+    def held_bytes(self):
+        """Bytes of the arrays this model holds now (its lag tables and solved systems)."""
+        with self._lock:
+            held = [*self._lags.values(), *self._bases.values()]
+        return _array_bytes(held)
+
     def nbytes(self, nreference, phantom, nside=0):
         """Bytes the solve of one system allocates at its peak: its covariances (with the
         phantom values at every read and the side values: ``(k + n_reads + r)²``) and the
@@ -241,3 +247,17 @@ class DriftModel:
             if first is None or 0 in frames:
                 first = (var, mvar)
         return first
+
+
+def _array_bytes(value):
+    """Bytes of the numpy arrays in ``value`` (dicts, lists, tuples and objects' attributes,
+    followed down)."""
+    if isinstance(value, np.ndarray):
+        return value.nbytes
+    if isinstance(value, dict):
+        return sum(_array_bytes(v) for v in value.values())
+    if isinstance(value, (list, tuple)):
+        return sum(_array_bytes(v) for v in value)
+    if hasattr(value, "__dict__"):
+        return _array_bytes(vars(value))
+    return 0

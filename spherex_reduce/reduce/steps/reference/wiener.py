@@ -51,8 +51,12 @@ from .telegraph import MAD_TO_SIGMA, TELEGRAPH_PARAMETERS
 
 __all__ = ["WienerReference", "load_noise_model", "phantom_consumed"]
 
-#: Models kept for reuse (each holds its solved weights: tens of MB at full size).
-_MAX_MODELS = 4
+#: Models kept for reuse (each holds its solved weights: 1.8 MB at 2048 x 2048 x 10, 36 MB
+#: with side columns), at most this many and, beyond the newest, these bytes: a run of
+#: several wiener configurations (compare-strategies, the peers' benchmark: six models)
+#: solved them again at every exposure when four were kept
+_MAX_MODELS = 16
+_MODEL_BYTES = 256 << 20
 _MODELS = {}
 _MODELS_LOCK = threading.Lock()
 
@@ -191,7 +195,8 @@ class WienerReference(Strategy):
                                                   common=self.common,
                                                   side_offsets=side_offsets))
             _MODELS[key] = model  # most recently used last
-            while len(_MODELS) > _MAX_MODELS:
+            while len(_MODELS) > 1 and (len(_MODELS) > _MAX_MODELS or sum(
+                    m.held_bytes() for m in _MODELS.values()) > _MODEL_BYTES):
                 _MODELS.pop(next(iter(_MODELS)))
         return model
 

@@ -882,3 +882,43 @@ def test_a_noise_model_file_written_again_is_read_again(tmp_path):
     scene.write_text("noise:\n  components: [{name: w, alpha: 2.0e-3}]\n")  # same size
     os.utime(scene, ns=(stamp + 10**9, stamp + 10**9))  # a clock that did not tick
     assert [c.alpha for c in load_noise_model(str(scene))] == [2.0e-3]
+
+
+def test_several_wiener_configurations_in_one_process_keep_their_solves(monkeypatch):
+    """Six models used in turn (the peers' benchmark, compare-strategies) are kept within
+    the models' byte budget: a second round solves nothing (four were kept by count, so
+    every exposure solved them all again); beyond the budget the oldest are let go."""
+    from spherex_reduce.reduce.steps.reference import drift_model
+    from spherex_reduce.reduce.steps.reference import wiener as wmod
+
+    solved = []
+    real = drift_model.Kriging
+
+    class Counting(real):
+        def __init__(self, *args, **kwargs):
+            solved.append(1)
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(drift_model, "Kriging", Counting)
+    s = sched(ref_reads=8, phantom=2)
+    e = Exposure.from_arrays(np.random.default_rng(3).normal(0, 1, (3, s.n_reads, NCOLS)), s,
+                             phantom=np.zeros((3, s.n_reads, NCH)))
+    configs = [{"strategy": "wiener", "regularization": r}
+               for r in (1e-9, 2e-9, 3e-9, 4e-9, 5e-9, 6e-9)]
+    wmod._MODELS.clear()
+    try:
+        for cfg in configs:
+            correct_reference(e, **cfg)
+        first = len(solved)
+        for cfg in configs:  # the second round: no solve
+            correct_reference(e, **cfg)
+        assert first > 0 and len(solved) == first
+        # a budget below one model's bytes keeps only the newest: every config solves again
+        monkeypatch.setattr(wmod, "_MODEL_BYTES", 1)
+        before = len(solved)
+        for cfg in configs[:2]:
+            correct_reference(e, **cfg)
+        assert len(solved) > before
+        assert len(wmod._MODELS) == 1
+    finally:
+        wmod._MODELS.clear()

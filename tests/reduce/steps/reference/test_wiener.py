@@ -746,12 +746,9 @@ def test_a_frame_with_a_non_finite_phantom_value_uses_its_reference_reads_alone(
     np.testing.assert_allclose(out.data.data[1], ignored.data.data[1], rtol=0, atol=1e-12)
 
 
-def test_threads_asking_for_one_model_solve_it_once(monkeypatch):
-    """Bands or dask threads asking at once: each system is solved once."""
-    import threading
-
+def _count_solves(monkeypatch):
+    """A list that grows by one at every kriging system solved (`Kriging` made)."""
     from spherex_reduce.reduce.steps.reference import drift_model
-    from spherex_reduce.reduce.steps.reference import wiener as wmod
 
     solved = []
     real = drift_model.Kriging
@@ -762,10 +759,25 @@ def test_threads_asking_for_one_model_solve_it_once(monkeypatch):
             super().__init__(*args, **kwargs)
 
     monkeypatch.setattr(drift_model, "Kriging", Counting)
-    wmod._MODELS.clear()
+    return solved
+
+
+def _phantom_exposure(seed):
+    """Three frames of white noise with 8 reference reads and 2 phantom reads per frame."""
     s = sched(ref_reads=8, phantom=2)
-    e = Exposure.from_arrays(np.random.default_rng(2).normal(0, 1, (3, s.n_reads, NCOLS)), s,
-                             phantom=np.zeros((3, s.n_reads, NCH)))
+    return Exposure.from_arrays(np.random.default_rng(seed).normal(0, 1, (3, s.n_reads, NCOLS)),
+                                s, phantom=np.zeros((3, s.n_reads, NCH)))
+
+
+def test_threads_asking_for_one_model_solve_it_once(monkeypatch):
+    """Bands or dask threads asking at once: each system is solved once."""
+    import threading
+
+    from spherex_reduce.reduce.steps.reference import wiener as wmod
+
+    solved = _count_solves(monkeypatch)
+    wmod._MODELS.clear()
+    e = _phantom_exposure(2)
     outs = [None] * 4
 
     def run(i):
@@ -888,21 +900,10 @@ def test_several_wiener_configurations_in_one_process_keep_their_solves(monkeypa
     """Six models used in turn (the peers' benchmark, compare-strategies) are kept within
     the models' byte budget: a second round solves nothing (four were kept by count, so
     every exposure solved them all again); beyond the budget the oldest are let go."""
-    from spherex_reduce.reduce.steps.reference import drift_model
     from spherex_reduce.reduce.steps.reference import wiener as wmod
 
-    solved = []
-    real = drift_model.Kriging
-
-    class Counting(real):
-        def __init__(self, *args, **kwargs):
-            solved.append(1)
-            super().__init__(*args, **kwargs)
-
-    monkeypatch.setattr(drift_model, "Kriging", Counting)
-    s = sched(ref_reads=8, phantom=2)
-    e = Exposure.from_arrays(np.random.default_rng(3).normal(0, 1, (3, s.n_reads, NCOLS)), s,
-                             phantom=np.zeros((3, s.n_reads, NCH)))
+    solved = _count_solves(monkeypatch)
+    e = _phantom_exposure(3)
     configs = [{"strategy": "wiener", "regularization": r}
                for r in (1e-9, 2e-9, 3e-9, 4e-9, 5e-9, 6e-9)]
     wmod._MODELS.clear()

@@ -111,10 +111,10 @@ class DriftModel:
         return c_oo, c_ot, k_tt
 
     def held_bytes(self):
-        """Bytes of the arrays this model holds now (its lag tables and solved systems)."""
-        with self._lock:
-            held = [*self._lags.values(), *self._bases.values()]
-        return _array_bytes(held)
+        """Bytes of the arrays this model holds now (its lag tables and solved systems).
+        Not under the model's lock, which a solve holds for a second or more: the
+        snapshot of its tables is atomic (no Python code runs while the lists are made)."""
+        return _array_bytes([list(self._lags.values()), list(self._bases.values())])
 
     def nbytes(self, nreference, phantom, nside=0):
         """Bytes the solve of one system allocates at its peak: its covariances (with the
@@ -249,15 +249,19 @@ class DriftModel:
         return first
 
 
-def _array_bytes(value):
+def _array_bytes(value, seen=None):
     """Bytes of the numpy arrays in ``value`` (dicts, lists, tuples and objects' attributes,
-    followed down)."""
+    followed down, each object once)."""
+    seen = set() if seen is None else seen
+    if id(value) in seen:
+        return 0
+    seen.add(id(value))
     if isinstance(value, np.ndarray):
         return value.nbytes
     if isinstance(value, dict):
-        return sum(_array_bytes(v) for v in value.values())
+        return sum(_array_bytes(v, seen) for v in value.values())
     if isinstance(value, (list, tuple)):
-        return sum(_array_bytes(v) for v in value)
+        return sum(_array_bytes(v, seen) for v in value)
     if hasattr(value, "__dict__"):
-        return _array_bytes(vars(value))
+        return _array_bytes(vars(value), seen)
     return 0

@@ -8,7 +8,6 @@ the unit of the data it was fitted to), or a scene file's ``noise:`` section.
 """
 
 import contextlib
-import functools
 import math
 from pathlib import Path
 
@@ -88,20 +87,7 @@ def noise_model(source, where="correct_reference.noise", unit=None):
     >>> unit
     Unit("electron")
     """
-    text = str(source)
-    try:  # a file: read again only when it changed (a pipeline run per exposure loads it)
-        st = Path(text).stat()
-        stamp = (st.st_mtime_ns, st.st_size)
-    except (OSError, ValueError):
-        stamp = None
-    comps, unit = _noise_model(text, where, None if unit is None else u.Unit(unit), stamp)
-    return list(comps), unit
-
-
-@functools.lru_cache(maxsize=16)
-def _noise_model(text, where, wanted, stamp):
-    """`noise_model` of ``text`` (``stamp``: its file's modification time and size, so that
-    a file written again is read again): ``(tuple of components, unit)``."""
+    wanted, text = unit, str(source)
     unit = u.electron
     if text.lower().endswith((".yaml", ".yml")):
         config, _ = load_yaml(Path(text), "noise model")
@@ -126,7 +112,7 @@ def _noise_model(text, where, wanted, stamp):
                           f"YAML file, got {text!r}")
     if not comps or all(c.is_zero for c in comps):
         raise ConfigError(f"{where}: {text} describes no noise (every coefficient is zero)")
-    return tuple(comps), unit
+    return comps, unit
 
 
 def _table_components(source, where):

@@ -877,25 +877,6 @@ def test_a_scene_in_adu_is_a_noise_model_of_adu_data_and_with_its_gain_of_electr
         correct_reference(electrons, "wiener", noise=str(path))
 
 
-def test_a_noise_model_file_written_again_is_read_again(tmp_path):
-    """The parsed model is kept between runs (a pipeline run per exposure read the YAML
-    twice, ~0.05 s), but a file written again is read again: never a stale model."""
-    import os
-
-    from spherex_reduce.reduce.steps.reference.wiener import load_noise_model
-
-    scene = tmp_path / "model.yaml"
-    scene.write_text("noise:\n  components: [{name: w, alpha: 1.0e-3}]\n")
-    first = load_noise_model(str(scene))
-    assert [c.alpha for c in first] == [1.0e-3]
-    first.append("not the cache's")  # a caller's list: the next caller's is whole
-    assert [c.alpha for c in load_noise_model(str(scene))] == [1.0e-3]
-    stamp = os.stat(scene).st_mtime_ns
-    scene.write_text("noise:\n  components: [{name: w, alpha: 2.0e-3}]\n")  # same size
-    os.utime(scene, ns=(stamp + 10**9, stamp + 10**9))  # a clock that did not tick
-    assert [c.alpha for c in load_noise_model(str(scene))] == [2.0e-3]
-
-
 def test_several_wiener_configurations_in_one_process_keep_their_solves(monkeypatch):
     """Six models used in turn (the peers' benchmark, compare-strategies) are kept within
     the models' byte budget: a second round solves nothing (four were kept by count, so

@@ -19,7 +19,7 @@ import numpy as np
 from astropy.utils.exceptions import AstropyUserWarning
 
 from .strategies import group_columns, side_column_values
-from .telegraph import MAD_TO_SIGMA
+from .telegraph import MAD_TO_SIGMA, nanmedian
 
 __all__ = ["SideValues", "side_columns", "side_values"]
 
@@ -75,21 +75,6 @@ class SideValues:
         self.left_out, self.clipped = left_out, clipped
 
 
-def _nanmedian(v, axis):
-    """`numpy.nanmedian` of ``v`` over one short ``axis`` (a channel's few side pixels, a
-    dark's frames), the same numbers: numpy takes the medians of short axes through masked
-    arrays, ~0.1 s of the side values of a 2048 x 2048 x 10 exposure.  NaN where the axis
-    holds only NaN."""
-    v = np.sort(v, axis=axis)  # NaN sorted last
-    count = (~np.isnan(v)).sum(axis=axis, keepdims=True)
-    top = v.shape[axis] - 1
-    lo = np.take_along_axis(v, np.clip((count - 1) // 2, 0, top), axis=axis)
-    hi = np.take_along_axis(v, np.clip(count // 2, 0, top), axis=axis)  # = lo when odd
-    with np.errstate(invalid="ignore"):  # -inf and inf in the middle: NaN, as numpy's
-        med = np.where(count > 0, (lo + hi) / 2, np.nan)
-    return np.squeeze(med, axis=axis)
-
-
 def _deviations(v):
     """Each pixel's departure from the median of the channel's other side pixels of its
     read (``v (L, r, n)``; 0 without another pixel): the read's shared drift taken out,
@@ -101,7 +86,7 @@ def _deviations(v):
         others = np.delete(v, j, axis=2)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # no other usable pixel
-            med = (_nanmedian(others, 2) if others.shape[2]
+            med = (nanmedian(others, 2) if others.shape[2]
                    else np.full(v.shape[:2], np.nan))
         dev[..., j] = np.where(np.isfinite(med), v[..., j] - med, v[..., j] * 0.0)
     return dev
@@ -122,9 +107,9 @@ def _channel_means(v, sigma):
         warnings.simplefilter("ignore", RuntimeWarning)  # an all-NaN pixel
         # each pixel's own level (a raw frame's bias): its median over the frames (the same
         # pattern taken from every frame: no change to a slope); an image, its column's
-        v = v - (_nanmedian(v, 0) if v.shape[0] > 1 else np.nanmedian(v, axis=(0, 1)))
+        v = v - (nanmedian(v, 0) if v.shape[0] > 1 else np.nanmedian(v, axis=(0, 1)))
         # a noisy pixel: its scatter about the median of all, the read's shared drift out
-        scatter = _scatter(v - _nanmedian(v, 2)[..., None])
+        scatter = _scatter(v - nanmedian(v, 2)[..., None])
     typical = np.nanmedian(scatter) if np.isfinite(scatter).any() else np.nan
     with np.errstate(invalid="ignore"):
         noisy = ~(scatter <= _NOISY * typical) if typical > 0 else ~np.isfinite(scatter)

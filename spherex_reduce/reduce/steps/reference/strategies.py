@@ -24,7 +24,7 @@ from ....io.sources import context_of, side_block
 from ...noise_effect import MEASURED_SIGMA, ReferenceEffect
 from ...options import RunOptions
 from ...step import Strategy
-from .telegraph import TELEGRAPH_PARAMETERS, drop_telegraph
+from .telegraph import TELEGRAPH_PARAMETERS, drop_telegraph, nanmedian
 
 __all__ = [
     "ALL",
@@ -206,12 +206,7 @@ def _read_clipped_mean(blocks, sigma, maxiters):
     deps, lead = [], blocks[0].shape[:-2]
     for b in blocks:
         with np.errstate(invalid="ignore"):
-            med = np.median(b, axis=-1, keepdims=True)
-        gaps = np.isnan(med[..., 0]) & np.isfinite(b).any(axis=-1)
-        if gaps.any():  # nanmedian, slower, for the reads with an unusable value only
-            med[gaps, 0] = np.nanmedian(b[gaps], axis=-1)
-        with np.errstate(invalid="ignore"):
-            dep = b - med
+            dep = b - nanmedian(b)[..., None]
         deps.append(np.where(np.isfinite(b) & np.isfinite(dep), dep, np.nan))
     s, _, _, lo, hi, nvalid = _clip_range(
         np.concatenate([d.reshape(*lead, -1) for d in deps], axis=-1), sigma, maxiters)

@@ -43,7 +43,7 @@ from astropy.table import Table
 from ....core.parameters import Parameter
 
 __all__ = ["MAD_TO_SIGMA", "MIN_COMMON", "MIN_PIXELS", "MIN_SAMPLES", "TELEGRAPH_PARAMETERS",
-           "TelegraphSearch", "drop_telegraph", "find_telegraph"]
+           "TelegraphSearch", "drop_telegraph", "find_telegraph", "nanmedian"]
 
 #: Fewest usable samples (frames x reads of its row) a pixel needs to be tested.
 MIN_SAMPLES = 16
@@ -236,7 +236,7 @@ def _residuals(values, geometry, columns=None):
     if columns is None and width % 2 == 0:  # the parities: a channel's even and odd columns
         v = values.reshape(*values.shape[:2], geometry.nchannels, width // 2, 2)
         grouped = np.moveaxis(v, 3, -1)
-        med = _median_last(grouped)
+        med = nanmedian(grouped)
         med[np.isfinite(grouped).sum(axis=-1) < MIN_COMMON] = 0.0
         return (v - med[:, :, :, None, :]).reshape(values.shape)
     group = geometry.channel_of_column() * 2 + geometry.column_offsets() % 2
@@ -245,20 +245,33 @@ def _residuals(values, geometry, columns=None):
     out = np.empty_like(values)
     for gid in np.unique(group):
         cols = np.flatnonzero(group == gid)
-        med = _median_last(values[:, :, cols])
+        med = nanmedian(values[:, :, cols])
         med[np.isfinite(values[:, :, cols]).sum(axis=-1) < MIN_COMMON] = 0.0
         out[:, :, cols] = values[:, :, cols] - med[..., None]
     return out
 
 
-def _median_last(a):
-    """Median along the last axis, NaN ignored (NaN where all are): sorting a few tens of
-    values is several times faster than `numpy.nanmedian`."""
-    s = np.sort(a, axis=-1)  # NaN last
-    n = np.isfinite(s).sum(axis=-1, keepdims=True)
-    lo = np.take_along_axis(s, np.maximum((n - 1) // 2, 0), axis=-1)[..., 0]
-    hi = np.take_along_axis(s, np.maximum(n // 2, 0).clip(max=s.shape[-1] - 1), axis=-1)[..., 0]
-    return np.where(n[..., 0] > 0, 0.5 * (lo + hi), np.nan)
+def nanmedian(a, axis=-1):
+    """`numpy.nanmedian` of ``a`` along one short ``axis`` (a read's few tens of reference
+    pixels, a channel's few side pixels, a dark's frames), the same numbers: numpy takes
+    the medians of short axes through masked arrays, several times slower than this one
+    sort.  NaN where the axis holds only NaN.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.reduce.steps.reference.telegraph import nanmedian
+    >>> nanmedian(np.array([[3.0, np.nan, 1.0, 2.0], [np.nan] * 4])).tolist()
+    [2.0, nan]
+    """
+    s = np.sort(a, axis=axis)  # NaN sorted last
+    count = (~np.isnan(s)).sum(axis=axis, keepdims=True)
+    top = s.shape[axis] - 1
+    lo = np.take_along_axis(s, np.clip((count - 1) // 2, 0, top), axis=axis)
+    hi = np.take_along_axis(s, np.clip(count // 2, 0, top), axis=axis)  # = lo when odd
+    with np.errstate(invalid="ignore"):  # -inf and inf in the middle: NaN, as numpy's
+        med = np.where(count > 0, (lo + hi) / 2, np.nan)
+    return np.squeeze(med, axis=axis)
 
 
 def drop_telegraph(values, rows, geometry, sigma=5.0, columns=None):

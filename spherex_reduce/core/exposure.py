@@ -11,7 +11,7 @@ from astropy.nddata import CCDData, NDData, StdDevUncertainty
 from .dq import DO_NOT_USE, DQ_TYPE, REFERENCE, image_usable, read_usable
 from .readout.schedule import ReadoutSchedule
 
-__all__ = ["ORDERS", "Exposure", "ReferenceReads", "as_dq"]
+__all__ = ["ORDERS", "Exposure", "ReferenceReads", "as_dq", "first_frames_schedule"]
 
 #: Row orders of an exposure: as read (``readout``) or as on the array (``physical``).
 ORDERS = ("readout", "physical")
@@ -26,6 +26,28 @@ def expected_shape(schedule, order, ramp):
     n = schedule.n_reads if order == "readout" else schedule.geometry.nrows
     shape = (n, schedule.geometry.ncols)
     return (schedule.nframes, *shape) if ramp else shape
+
+
+def first_frames_schedule(schedule, n):
+    """``schedule`` with its first ``n`` frames (each read alone, not grouped).
+
+    Examples
+    --------
+    >>> from spherex_reduce import DetectorGeometry, ReadoutSchedule
+    >>> from spherex_reduce.core.exposure import first_frames_schedule
+    >>> s = ReadoutSchedule(DetectorGeometry(16, 16, 2, ref_border=2), skip=4, ref_reads=4,
+    ...                     nframes=6)
+    >>> first_frames_schedule(s, 3).nframes
+    3
+    """
+    n = int(n)
+    if schedule.groups is not None or schedule.frames_per_group != 1:
+        raise ValueError("first frames: grouped readouts (reads averaged in groups) are not "
+                         "cut to their first reads")
+    if not 1 <= n <= schedule.nframes:
+        raise ValueError(f"first frames: {n} of a ramp of {schedule.nframes}")
+    times = None if schedule.read_times is None else list(schedule.read_times)[:n]
+    return schedule.replace(nframes=n, read_times=times)
 
 
 def as_dq(mask):
@@ -314,6 +336,36 @@ class Exposure:
         header = changes.pop("header", self.header).copy()
         tables = changes.pop("tables", self.tables)
         return dataclasses.replace(self, data=nd, header=header, tables=dict(tables), **changes)
+
+    def first_frames(self, n):
+        """The ramp's first ``n`` frames, its schedule cut to them (arrays are views; the
+        header is copied as it is).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule
+        >>> s = ReadoutSchedule(DetectorGeometry(16, 16, 2, ref_border=2), skip=4,
+        ...                     ref_reads=4, nframes=6)
+        >>> e = Exposure.from_arrays(np.zeros((6, s.n_reads, 16)), s).first_frames(3)
+        >>> e.schedule.nframes, e.shape
+        (3, (3, 16, 16))
+        """
+        if not self.is_ramp:
+            raise ValueError("first frames: the exposure holds an image, not ramps")
+        schedule = first_frames_schedule(self.schedule, n)
+        n = schedule.nframes
+        unc = self.data.uncertainty
+        ref = self.reference
+        if ref is not None:
+            ref = ref.replace(data=ref.data[:n],
+                              phantom=None if ref.phantom is None else ref.phantom[:n],
+                              dq=None if ref.dq is None else ref.dq[:n])
+        return self.replace(
+            data=self.data.data[:n], schedule=schedule, reference=ref,
+            uncertainty=None if unc is None else unc.array[:n],
+            dq=None if self.dq is None else self.dq[:n],
+            phantom=None if self.phantom is None else self.phantom[:n])
 
     def to_ccddata(self):
         """The 2-D image as `~astropy.nddata.CCDData` with the header as ``meta``."""

@@ -19,6 +19,7 @@ read in bands, or one that returns an `~spherex_reduce.Exposure`) and one
 branch in `open_input`.
 """
 
+import copy
 import os
 from pathlib import Path
 
@@ -26,7 +27,7 @@ import numpy as np
 
 from ..core.block import Block, Context
 from ..core.errors import FormatError
-from ..core.exposure import Exposure
+from ..core.exposure import Exposure, first_frames_schedule
 from .input import InputOptions
 from .readers.description import check_integrations
 from .readers.extension_reads import ExtensionReads
@@ -158,6 +159,12 @@ class Source(Closing):
         """The whole input as an `~spherex_reduce.Exposure` in memory."""
         raise NotImplementedError
 
+    def first_frames(self, n):
+        """The source of this ramp's first ``n`` frames: its bands are read from those
+        frames only (a file's others are never read).  Raises ValueError for an image,
+        grouped reads, or ``n`` out of range."""
+        raise NotImplementedError
+
     def close(self):
         """Release what the source opened (nothing by default)."""
 
@@ -198,6 +205,9 @@ class MemorySource(Source):
     def exposure(self):
         return self._exposure
 
+    def first_frames(self, n):
+        return MemorySource(self._exposure.first_frames(n))
+
     def side(self):
         return side_block(self._exposure)
 
@@ -237,7 +247,19 @@ class FileSource(Source):
         self._phantom = reader.phantom
 
     def exposure(self):
-        return self.reader.exposure()
+        whole = self.reader.exposure()
+        n = self.context.schedule.nframes
+        return whole if n == self.reader.schedule.nframes else whole.first_frames(n)
+
+    def first_frames(self, n):
+        if not self.context.ramp:
+            raise ValueError("first frames: the file holds an image, not ramps")
+        cut = copy.copy(self)  # the same open reader, which the original closes
+        cut._owned = False
+        schedule = first_frames_schedule(self.context.schedule, n)
+        cut.context = self.context.replace(schedule=schedule)
+        cut._phantom = None if self._phantom is None else self._phantom[:schedule.nframes]
+        return cut
 
     def close(self):
         if self._owned:

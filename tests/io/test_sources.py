@@ -154,3 +154,41 @@ def test_rows_in_any_order_are_taken_from_a_file_and_from_memory(raw):
             source.take([source.nrows])
         memory = MemorySource(source.exposure())
     np.testing.assert_array_equal(memory.take(rows), stored[:, rows])
+
+
+def test_the_first_frames_of_a_file_and_of_memory_are_astropys_first_frames(tmp_path):
+    """`Source.first_frames` (characterize reduces each dark at its first N reads): bands,
+    side block, rows and phantom values of the first N frames as astropy reads them, the
+    file's later frames never read, the original source and its reader left as they were."""
+    s = _schedule(nframes=5, phantom_reads=2)
+    rng = np.random.default_rng(8)
+    phantom = rng.normal(size=(5, s.n_reads, GEOMETRY.nchannels))
+    path = tmp_path / "raw.fits"
+    write(Exposure.from_arrays(_ramps(s), s, phantom=phantom), path)
+    stored = fits.getdata(path, "SCI")
+    with open_input(path) as inp:
+        source = inp.source()
+        asked = []
+        reads = source.reader.reads
+        source.reader.reads = lambda k, lo, hi: (asked.append(k), reads(k, lo, hi))[1]
+        cut = source.first_frames(3)
+        memory = MemorySource(Exposure.from_arrays(stored, s, phantom=phantom)).first_frames(3)
+        for got in (cut, memory):
+            assert got.context.schedule.nframes == 3 and got.nrows == source.nrows
+            band = got.read(2, 9)
+            np.testing.assert_array_equal(band.data, stored[:3, 2:9])
+            np.testing.assert_allclose(band.phantom, phantom[:3, 2:9], rtol=1e-6)
+            side = got.side()
+            np.testing.assert_array_equal(side.data, stored[:3, side.index])
+            np.testing.assert_array_equal(got.take([6, 1]), stored[:3, [6, 1]])
+            whole = got.exposure()
+            assert whole.schedule.nframes == 3
+            np.testing.assert_array_equal(whole.data.data, stored[:3])
+        assert asked and max(asked) == 2  # the whole exposure above reads astropy's way
+        asked.clear()
+        cut.close()  # the cut does not own the reader
+        np.testing.assert_array_equal(source.read(0, 4).data, stored[:, 0:4])
+        assert sorted(set(asked)) == [0, 1, 2, 3, 4]
+        for bad in (0, 6):
+            with pytest.raises(ValueError, match="first frames"):
+                source.first_frames(bad)

@@ -25,6 +25,8 @@ from astropy.stats import sigma_clip
 from astropy.table import Table
 
 from ...core.errors import SpherexReduceError
+from ...core.exposure import Exposure
+from ...io.sources import MemorySource
 from ..light import light_sensitive_image
 from ..spectrum import band_power, power_spectrum
 from .predict import CLIP_SIGMA, frame_grid, predict_scatter, predict_spectrum
@@ -47,6 +49,18 @@ def reduction_pipeline(config):
     return as_pipeline(config)
 
 
+def _cut_checked(schedule, ramp, n):
+    """Refuse, in the slope scatter's words, a cut of a dark to its first ``n`` reads that
+    cannot be made."""
+    if not ramp:
+        raise SpherexReduceError("slope scatter: the dark holds an image, not ramps")
+    if schedule.groups is not None or schedule.frames_per_group != 1:
+        raise SpherexReduceError("slope scatter: grouped readouts (reads averaged in groups) "
+                                 "are not cut to their first reads")
+    if not 2 <= n <= schedule.nframes:
+        raise SpherexReduceError(f"slope scatter: {n} reads of a dark of {schedule.nframes}")
+
+
 def first_reads(exposure, n):
     """The raw ``exposure`` read with its first ``n`` frames only (arrays are views).
 
@@ -58,21 +72,15 @@ def first_reads(exposure, n):
     >>> e.schedule.nframes, e.shape[0]
     (3, 3)
     """
-    s = exposure.schedule
-    if not exposure.is_ramp:
-        raise SpherexReduceError("slope scatter: the dark holds an image, not ramps")
-    if s.groups is not None or s.frames_per_group != 1:
-        raise SpherexReduceError("slope scatter: grouped readouts (reads averaged in groups) "
-                                 "are not cut to their first reads")
-    if not 2 <= n <= s.nframes:
-        raise SpherexReduceError(f"slope scatter: {n} reads of a dark of {s.nframes}")
-    times = None if s.read_times is None else list(s.read_times)[:n]
-    unc = exposure.data.uncertainty
-    return exposure.replace(
-        data=exposure.data.data[:n], schedule=s.replace(nframes=n, read_times=times),
-        uncertainty=None if unc is None else unc.array[:n],
-        dq=None if exposure.dq is None else exposure.dq[:n],
-        phantom=None if exposure.phantom is None else exposure.phantom[:n])
+    _cut_checked(exposure.schedule, exposure.is_ramp, n)
+    return exposure.first_frames(n)
+
+
+def _first_reads_source(source, n):
+    """`first_reads` of a `~spherex_reduce.io.sources.Source`: bands of a file are read from
+    its first ``n`` frames only."""
+    _cut_checked(source.context.schedule, source.context.ramp, n)
+    return source.first_frames(n)
 
 
 def _image(pipeline, exposure):
@@ -128,17 +136,25 @@ class DarkScatter:
         self._stats = []  # per pair (or the single dark): sigma per N, P(k), band power
         self.unit = None
 
-    def _images(self, exposure):
+    def _images(self, source):
         out = []
         for n in self.frames:
-            data, unit = _image(self.pipeline, first_reads(exposure, n))
+            data, unit = _image(self.pipeline, _first_reads_source(source, n))
             out.append(data)
         self.unit = unit
         return out
 
-    def add(self, exposure):
-        """Reduce ``exposure`` at every frame count; every second dark closes a pair."""
-        images = self._images(exposure)
+    def add(self, dark):
+        """Reduce ``dark`` at every frame count; every second dark closes a pair.
+
+        ``dark`` is a raw `~spherex_reduce.Exposure` or a
+        `~spherex_reduce.io.sources.Source`: a raw file's source is reduced band by
+        band of rows from its first ``N`` reads (the pipeline's passes,
+        `~spherex_reduce.Pipeline.run`), never read whole unless a step needs the
+        whole exposure.
+        """
+        source = MemorySource(dark) if isinstance(dark, Exposure) else dark
+        images = self._images(source)
         if self._held is None:
             self._held = images
             return

@@ -15,7 +15,7 @@ from .result import Characterization
 from .spectra import dark_spectra, fit_spectra, pool
 from .streams import MIN_FRAMES, dark_streams, pooled_boxes, shot_white
 
-__all__ = ["characterize", "check_model", "dark_exposures", "dark_sources"]
+__all__ = ["characterize", "check_model", "dark_sources"]
 
 #: Frames of a segment when darks are split to see their scatter (`characterize`).
 SEGMENT_FRAMES = 5
@@ -53,15 +53,6 @@ def dark_sources(inputs, pipeline):
                 yield inp.label if k is None else f"{inp.label}[{k}]", \
                     inp.source(integration=k)
         del what, opened, inp  # an exposure given in memory is released before the next
-
-
-def dark_exposures(inputs, pipeline):
-    """``(label, exposure)`` of every raw dark of ``inputs`` (`dark_sources`), each read
-    whole, one at a time."""
-    for label, source in dark_sources(inputs, pipeline):
-        exposure = source.exposure()
-        del source  # released before the next dark is read
-        yield label, exposure
 
 
 def _segments(nframes, segments):
@@ -181,8 +172,8 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
         # read band by band of reads: the dark is never whole in memory (a raw file's)
         held = dark_streams(source, cuts + runs, leave_out=drop)
         held, runs = held[:len(cuts)], held[len(cuts):]
-        if reducer is not None and scatter_mark is None:  # the reduction takes it whole
-            measured, scatter_mark = _add_scatter(measured, reducer, source.exposure())
+        if reducer is not None and scatter_mark is None:  # reduced band by band of rows
+            measured, scatter_mark = _add_scatter(measured, reducer, source)
         darks.append(label)
         del source, drop
         if runs:
@@ -252,13 +243,13 @@ def _shot(terms, schedule, cuts):
     return float(white * np.mean(~schedule.is_reference))
 
 
-def _add_scatter(measured, reducer, e):
-    """``(measured, mark)``: the slope scatter with dark ``e`` added, or the reason it
-    cannot be (then ``measured`` None)."""
+def _add_scatter(measured, reducer, source):
+    """``(measured, mark)``: the slope scatter with the dark of ``source`` added, or the
+    reason it cannot be (then ``measured`` None)."""
     try:
         if measured is None:
-            measured = DarkScatter(reducer, e.schedule.nframes)
-        measured.add(e)
+            measured = DarkScatter(reducer, source.context.schedule.nframes)
+        measured.add(source)
     except SpherexReduceError as exc:
         return None, str(exc)
     return measured, None
@@ -308,19 +299,20 @@ def check_model(model, darks, config=None, frames=None, measure=None):
     reducer = reduction_pipeline(reader)
     acc = None
     fitted = {d for d in model.darks if not d.startswith("exposure in memory")}  # files
-    for label, e in dark_exposures(darks, reader):
-        if e.schedule != model.schedule:
+    for label, source in dark_sources(darks, reader):  # reduced band by band of rows
+        schedule, unit = source.context.schedule, source.context.unit
+        if schedule != model.schedule:
             raise SpherexReduceError(f"{label}: another readout than the model's darks")
-        if (e.unit or u.one) != model.unit:
-            raise SpherexReduceError(f"{label}: in {e.unit}, the model's darks in "
+        if (unit or u.one) != model.unit:
+            raise SpherexReduceError(f"{label}: in {unit}, the model's darks in "
                                      f"{model.unit}: give both in one unit (input: gain)")
         if label in fitted:
             raise SpherexReduceError(f"{label}: a dark the model was fitted to; the check "
                                      "is on held-out darks")
         if acc is None:
-            acc = DarkScatter(reducer, e.schedule.nframes, frames, measure)
-        acc.add(e)
-        del e
+            acc = DarkScatter(reducer, schedule.nframes, frames, measure)
+        acc.add(source)
+        del source
     if acc is None:
         raise SpherexReduceError("check: no dark given")
     return compare(model, acc.result(), reducer)

@@ -602,6 +602,29 @@ def test_darks_read_from_files_give_the_model_of_the_darks_in_memory(tmp_path, m
         np.testing.assert_array_equal([a["value"], a["error"]], [b["value"], b["error"]])
 
 
+def test_the_slope_scatter_of_dark_files_is_that_of_the_darks_in_memory(tmp_path,
+                                                                        monkeypatch):
+    """With the slope scatter, each dark is reduced at its first N reads for every N of the
+    grid: from a file, band by band of rows (a whole read is refused here; it held each
+    full-size dark whole, 2.36 GB for two), the measured scatter, P(k) and band power are
+    those of the darks read whole into memory, number for number.  (Against numpy's own
+    fits: `test_measured_scatter_is_numpys_lstsq_of_the_ramps_differenced_and_clipped`.)"""
+    from spherex_reduce.io import FrameReader, read
+
+    paths, _ = _files(tmp_path, 12, nrows=128, ncols=128)
+    memory = characterize([read(p) for p in paths], "spherex-default", pixels=False,
+                          scatter=True)
+
+    def whole(self):
+        raise AssertionError("a raw file read whole")
+
+    monkeypatch.setattr(FrameReader, "exposure", whole)
+    banded = characterize(paths, "spherex-default", pixels=False, scatter=True)
+    assert memory.check is not None and len(memory.check) > 10, memory.marks
+    for name in ("measured", "error", "predicted"):
+        np.testing.assert_array_equal(banded.check[name], memory.check[name])
+
+
 def test_the_streams_of_bands_are_the_channel_means_numpy_takes(tmp_path):
     """`dark_streams` reads a raw file 7 reads at a time (bands that split the reference
     rows' reads): each channel's stream is the mean of its light-sensitive columns at every

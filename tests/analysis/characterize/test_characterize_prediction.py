@@ -99,7 +99,13 @@ def _plain_schedule(nframes):
     return ReadoutSchedule(g, skip=1, ref_mode="none", phantom_reads=0, nframes=nframes)
 
 
-def test_measured_scatter_is_numpys_lstsq_of_the_ramps_differenced_and_clipped():
+@pytest.mark.parametrize("given", ["memory", "file"])
+def test_measured_scatter_is_numpys_lstsq_of_the_ramps_differenced_and_clipped(
+        given, tmp_path, monkeypatch):
+    """The darks in memory, or as raw files reduced band by band from their first N reads
+    (a file read whole is refused here: characterize's scatter held each dark whole)."""
+    from spherex_reduce.io import FrameReader, open_input, write
+
     s = _plain_schedule(8)
     rng = np.random.default_rng(11)
     t = s.frame_starts.to_value("s")
@@ -112,8 +118,16 @@ def test_measured_scatter_is_numpys_lstsq_of_the_ramps_differenced_and_clipped()
     acc = DarkScatter(reduction_pipeline({"name": "fit", "steps": [
         {"fit_ramp": {"weighting": "uniform"}}]}), 8, frames=frames,
         measure={"kmin": 0.3, "kmax": 1.5, "bins": 4})
-    for x in ramps:
-        acc.add(Exposure.from_arrays(x, s))
+    for k, x in enumerate(ramps):
+        e = Exposure.from_arrays(x, s)
+        if given == "memory":
+            acc.add(e)
+            continue
+        write(e.replace(data=x.astype(np.float32)), tmp_path / f"d{k}.fits")
+        monkeypatch.setattr(FrameReader, "exposure", _refused)
+        with open_input(tmp_path / f"d{k}.fits") as inp:
+            acc.add(inp.source())
+        ramps[k] = x.astype(np.float32).astype(np.float64)  # as stored
     got = acc.result()
     assert got["differenced"] and got["pairs"] == 1
     for i, n in enumerate(frames):
@@ -128,6 +142,10 @@ def test_measured_scatter_is_numpys_lstsq_of_the_ramps_differenced_and_clipped()
                 break
             keep = new
         assert got["sigma"][i] == pytest.approx(d[keep].std(), rel=1e-6)
+
+
+def _refused(self):
+    raise AssertionError("a raw file read whole")
 
 
 def test_held_out_darks_with_telegraph_pixels_and_the_report_and_plot():

@@ -55,6 +55,7 @@ is the stream model's term and is not removed here.
 """
 
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -64,6 +65,7 @@ from scipy.optimize import brentq
 from scipy.stats import binom, chi2
 
 from ..core.errors import SpherexReduceError
+from ..reduce.options import default_threads
 from .faint_telegraph import FAINT_TERMS, add_faint_terms, lag_design, lag_sums
 
 __all__ = ["HOT_SIGMA", "MIN_READS", "MIN_TELEGRAPH_INTERVALS", "PixelSums", "PixelTerms",
@@ -609,27 +611,54 @@ def _add_dark(acc, band, shape, t, band_rows):
     _, ny, nx = shape
     slopes = np.empty((ny, nx), dtype=np.float32)
     jumped = np.zeros((ny, nx), dtype=bool)
-    for r0 in range(0, ny, band_rows):
-        sl = slice(r0, min(r0 + band_rows, ny))
-        xb = band(sl)
-        part = _band(xb, t, acc["design"], acc["jump_sigma"], acc["skip_first"],
+
+    def one(sl):
+        return _band(band(sl), t, acc["design"], acc["jump_sigma"], acc["skip_first"],
                      acc["gain"], acc.get("lags"), acc["labels"][sl])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            slopes[sl] = np.where(part["bad"], np.nan, part["wd"] / part["wdt"])
-        jumped[sl] = part["jumps"] > 0
-        if acc["skip_first"]:  # a step between reads 0 and 1: an offset unlike the band's
-            r = np.where(part["bad"], 0.0, part["offset"] - np.median(part["offset"]))
-            jumped[sl] |= np.abs(r) > acc["jump_sigma"] * _MAD * np.median(np.abs(r))
-        for key, value in part.items():
-            if key == "alternate":
-                acc[key][sl] &= value
-            elif key == "bad":
-                acc[key][sl] |= value
-            elif key == "lagq":
-                acc[key][:, sl] += value
-            else:
-                acc[key][sl] += value
+
+    cuts = [slice(r0, min(r0 + band_rows, ny)) for r0 in range(0, ny, band_rows)]
+    # a band per thread at a time (numpy's work releases the GIL); each band's sums are
+    # added here, in order, to their own rows
+    nthreads = min(default_threads(), len(cuts))
+    with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-pixels") as pool:
+        for i in range(0, len(cuts), nthreads):
+            for sl, part in zip(cuts[i:i + nthreads],
+                                pool.map(one, cuts[i:i + nthreads]), strict=True):
+                _add_band(acc, sl, part, slopes, jumped)
     return slopes, jumped
+
+
+def _add_band(acc, sl, part, slopes, jumped):
+    """Add the sums ``part`` of the band of rows ``sl`` of one dark to ``acc``; its slopes
+    and pixels with a jump into ``slopes`` and ``jumped`` (`_add_dark`'s)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        slopes[sl] = np.where(part["bad"], np.nan, part["wd"] / part["wdt"])
+    jumped[sl] = part["jumps"] > 0
+    if acc["skip_first"]:  # a step between reads 0 and 1: an offset unlike the band's
+        r = np.where(part["bad"], 0.0, part["offset"] - np.median(part["offset"]))
+        jumped[sl] |= np.abs(r) > acc["jump_sigma"] * _MAD * np.median(np.abs(r))
+    for key, value in part.items():
+        if key == "alternate":
+            acc[key][sl] &= value
+        elif key == "bad":
+            acc[key][sl] |= value
+        elif key == "lagq":
+            acc[key][:, sl] += value
+        else:
+            acc[key][sl] += value
+
+
+def _median_of_reads(a):
+    """``numpy.median(a, axis=0)`` of finite ``a`` ``(n, rows, nx)``, the same numbers, ~4
+    times faster: each pixel's ``n`` values made contiguous, then partitioned."""
+    n = a.shape[0]
+    y = np.ascontiguousarray(a.reshape(n, -1).T)
+    k = n // 2
+    y.partition(k, axis=1)  # one kth: numpy's partition at two is several times slower
+    mid = y[:, k]
+    if n % 2 == 0:  # the mean of the two middle values, as numpy takes it
+        mid = (y[:, :k].max(axis=1) + mid) / y.dtype.type(2)
+    return mid.reshape(a.shape[1:])
 
 
 def _band(x, t, des, jump_sigma, skip_first, gain=1.0, lags=None, labels=None):
@@ -655,7 +684,7 @@ def _band(x, t, des, jump_sigma, skip_first, gain=1.0, lags=None, labels=None):
     mean = (total / dt64.sum()).astype(f32)
     e = d - mean * dt
     a = np.abs(e)
-    scale = _MAD * np.median(a, axis=0, overwrite_input=True)
+    scale = _MAD * _median_of_reads(a)
     # a pixel's robust scale from a few tens of differences scatters by ~20 %: floored at the
     # band's typical one, so that a quiet pixel's noise does not pass for jumps; and capped at
     # that plus the pixel's own shot noise (a quarter over), so that a telegraph pixel's jumps,

@@ -43,15 +43,24 @@ def dark_sources(inputs, pipeline):
     >>> [(label, source.where) for label, source in dark_sources(example_raw_exposure(), None)]
     [('exposure in memory', 'memory')]
     """
+    for label, source, _ in _darks(inputs, pipeline):
+        yield label, source
+
+
+def _darks(inputs, pipeline):
+    """`dark_sources`' ``(label, source)`` and whether another dark is known to follow (a
+    list of inputs, or an integration of a 4-D file before its last)."""
     if isinstance(inputs, (str, Exposure)) or hasattr(inputs, "__fspath__"):
         inputs = [inputs]
-    for what in inputs:
+    listed = isinstance(inputs, (list, tuple))
+    for i, what in enumerate(inputs):
         opened = open_input(what) if pipeline is None else pipeline.open(what)
         with opened as inp:
             ks = [None] if inp.integrations is None else range(inp.integrations)
             for k in ks:
-                yield inp.label if k is None else f"{inp.label}[{k}]", \
-                    inp.source(integration=k)
+                more = (listed and i < len(inputs) - 1) or (k is not None and k < ks[-1])
+                yield (inp.label if k is None else f"{inp.label}[{k}]",
+                       inp.source(integration=k), more)
         del what, opened, inp  # an exposure given in memory is released before the next
 
 
@@ -139,8 +148,6 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
     # are not made beside the dark, and no dark's streams are held beside the next dark
     darks, spectra, each = [], [], []
     schedule = unit = alone = None
-    # two inputs or more give two darks or more: the runs of the first are not needed
-    several = isinstance(inputs, (list, tuple)) and len(inputs) > 1
     sums, pixel_mark = None, None
     reducer, measured, scatter_mark = None, None, None
     if scatter:
@@ -149,7 +156,9 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
         except SpherexReduceError as exc:
             scatter_mark = str(exc)
     left_out = 0  # pixels left out of the streams (their noise is the per-pixel terms')
-    for label, source in dark_sources(inputs, pipeline):
+    # a dark known to be followed by another (a list of inputs, the integrations of a 4-D
+    # file) is not split into its runs of frames: they are needed only for a dark alone
+    for label, source, more in _darks(inputs, pipeline):
         drop, runs = None, []
         if pixels and pixel_mark is None:  # first: the streams leave out what it holds
             sums, drop, pixel_mark = _add_pixels(sums, source, gain)
@@ -162,7 +171,7 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
                     f"every term: a dark of {schedule.nframes} reads cannot be characterised "
                     f"(a straight line is removed across at least {MIN_FRAMES} reads)")
             cuts = _segments(schedule.nframes, 1 if segments is None else segments)
-            if segments is None and schedule.nframes >= 2 * SEGMENT_FRAMES and not several:
+            if segments is None and schedule.nframes >= 2 * SEGMENT_FRAMES and not more:
                 runs = _segments(schedule.nframes, None)  # its runs, if it stays alone
         elif readout != schedule or of != unit:
             raise SpherexReduceError(f"{label}: another readout or unit ({of}) than the "

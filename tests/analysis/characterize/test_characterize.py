@@ -671,3 +671,34 @@ def test_the_streams_of_bands_are_the_channel_means_numpy_takes(tmp_path):
         np.testing.assert_allclose(st.sum, detrended(want), rtol=0, atol=1e-9)
         np.testing.assert_allclose(st.phantom, detrended(np.moveaxis(phantom, -1, 0)),
                                    rtol=0, atol=1e-9)
+
+
+def test_the_integrations_of_a_4d_file_are_darks_and_none_is_split(tmp_path, monkeypatch):
+    """Every integration of a 4-D file is a dark, as when the same ramps are given as a
+    list, number for number; the first integration, which has others after it, is not also
+    split into its runs of frames (streams and spectra taken for nothing: only a dark alone
+    is split)."""
+    from astropy.io import fits
+
+    from spherex_reduce.analysis.characterize import run
+    from spherex_reduce.io import read
+
+    paths, _ = _files(tmp_path, 12, nrows=128, ncols=128)
+    four = tmp_path / "darks4d.fits"
+    with fits.open(paths[0]) as hdul:
+        copies = fits.HDUList([h.copy() for h in hdul])
+        for name in ("SCI", "PHANTOM"):  # one per integration
+            copies[name].data = np.stack([fits.getdata(p, name) for p in paths])
+        copies.writeto(four, checksum=True)
+    cuts = []
+    streams = run.dark_streams
+    monkeypatch.setattr(run, "dark_streams",
+                        lambda source, c, **kw: (cuts.append(len(c)), streams(source, c,
+                                                                              **kw))[1])
+    integrations = characterize(four, pixels=False)
+    assert cuts == [1, 1]  # one run (the whole dark) each: no runs of frames
+    listed = characterize([read(p) for p in paths], pixels=False)
+    assert integrations.darks == [f"{four}[0]", f"{four}[1]"]
+    for name, est in listed.components.items():
+        np.testing.assert_array_equal(integrations.components[name].values, est.values)
+        np.testing.assert_array_equal(integrations.components[name].errors, est.errors)

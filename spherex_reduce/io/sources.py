@@ -161,8 +161,10 @@ class Source(Closing):
 
     def first_frames(self, n):
         """The source of this ramp's first ``n`` frames: its bands are read from those
-        frames only (a file's others are never read).  Raises ValueError for an image,
-        grouped reads, or ``n`` out of range."""
+        frames only (a file's others are not read).  A step that needs the whole exposure
+        (`exposure`) has the file read whole, once for every cut of one source, and
+        held while the source is.  Raises ValueError for an image, grouped reads, or
+        ``n`` out of range."""
         raise NotImplementedError
 
     def close(self):
@@ -245,11 +247,16 @@ class FileSource(Source):
         self.nrows = s.n_reads
         self._dtype = reader.stored_dtype.newbyteorder("=")
         self._phantom = reader.phantom
+        self._loaded = {}  # the file read whole for a step of a cut (shared by the cuts)
 
     def exposure(self):
-        whole = self.reader.exposure()
         n = self.context.schedule.nframes
-        return whole if n == self.reader.schedule.nframes else whole.first_frames(n)
+        if n == self.reader.schedule.nframes:
+            return self.reader.exposure()
+        whole = self._loaded.get("exposure")  # read once for every cut of this source
+        if whole is None:
+            whole = self._loaded["exposure"] = self.reader.exposure()
+        return whole.first_frames(n)
 
     def first_frames(self, n):
         if not self.context.ramp:

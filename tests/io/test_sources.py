@@ -192,3 +192,19 @@ def test_the_first_frames_of_a_file_and_of_memory_are_astropys_first_frames(tmp_
         for bad in (0, 6):
             with pytest.raises(ValueError, match="first frames"):
                 source.first_frames(bad)
+
+
+def test_the_first_frames_of_a_file_read_whole_once_for_all_cuts(raw):
+    """A step that needs the whole exposure, on cuts of one file to its first N frames (the
+    slope scatter's grid): the file is read whole once, not once per cut, and each cut is
+    astropy's first N frames."""
+    stored = fits.getdata(raw, "SCI")
+    with open_input(raw) as inp:
+        source = inp.source()
+        calls = []
+        whole = source.reader.exposure
+        source.reader.exposure = lambda: (calls.append(1), whole())[1]
+        for n in (1, 2, 3):  # of 4 frames
+            np.testing.assert_array_equal(source.first_frames(n).exposure().data.data,
+                                          stored[:n])
+        assert len(calls) == 1

@@ -31,8 +31,7 @@ from ..light import light_sensitive_image
 from ..spectrum import band_power, power_spectrum
 from .predict import CLIP_SIGMA, frame_grid, predict_scatter, predict_spectrum
 
-__all__ = ["BAND_TARGET", "SCATTER_TARGET", "DarkScatter", "compare", "first_reads",
-           "reduction_pipeline"]
+__all__ = ["BAND_TARGET", "SCATTER_TARGET", "DarkScatter", "compare", "reduction_pipeline"]
 
 #: Issue 33's targets on held-out darks: the slope scatter within 5 %, the band power 10 %.
 SCATTER_TARGET = 0.05
@@ -49,38 +48,16 @@ def reduction_pipeline(config):
     return as_pipeline(config)
 
 
-def _cut_checked(schedule, ramp, n):
-    """Refuse, in the slope scatter's words, a cut of a dark to its first ``n`` reads that
-    cannot be made."""
-    if not ramp:
-        raise SpherexReduceError("slope scatter: the dark holds an image, not ramps")
-    if schedule.groups is not None or schedule.frames_per_group != 1:
-        raise SpherexReduceError("slope scatter: grouped readouts (reads averaged in groups) "
-                                 "are not cut to their first reads")
-    if not 2 <= n <= schedule.nframes:
-        raise SpherexReduceError(f"slope scatter: {n} reads of a dark of {schedule.nframes}")
-
-
-def first_reads(exposure, n):
-    """The raw ``exposure`` read with its first ``n`` frames only (arrays are views).
-
-    Examples
-    --------
-    >>> from spherex_reduce.io.examples import example_raw_exposure
-    >>> from spherex_reduce.analysis.characterize.check import first_reads
-    >>> e = first_reads(example_raw_exposure(), 3)
-    >>> e.schedule.nframes, e.shape[0]
-    (3, 3)
-    """
-    _cut_checked(exposure.schedule, exposure.is_ramp, n)
-    return exposure.first_frames(n)
-
-
-def _first_reads_source(source, n):
-    """`first_reads` of a `~spherex_reduce.io.sources.Source`: bands of a file are read from
-    its first ``n`` frames only."""
-    _cut_checked(source.context.schedule, source.context.ramp, n)
-    return source.first_frames(n)
+def _first_reads(source, n):
+    """The source of a raw dark's first ``n`` reads
+    (`~spherex_reduce.io.sources.Source.first_frames`: a file's bands are read from those
+    frames only), or the reason it cannot be cut so."""
+    if n < 2:
+        raise SpherexReduceError(f"slope scatter: {n} reads of a dark have no slope")
+    try:
+        return source.first_frames(n)
+    except ValueError as exc:  # an image, grouped reads, more reads than the dark's
+        raise SpherexReduceError(f"slope scatter: {exc}") from None
 
 
 def _image(pipeline, exposure):
@@ -139,7 +116,7 @@ class DarkScatter:
     def _images(self, source):
         out = []
         for n in self.frames:
-            data, unit = _image(self.pipeline, _first_reads_source(source, n))
+            data, unit = _image(self.pipeline, _first_reads(source, n))
             out.append(data)
         self.unit = unit
         return out

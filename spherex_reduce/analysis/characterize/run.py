@@ -45,6 +45,7 @@ def dark_sources(inputs, pipeline):
     """
     for label, source, _ in _darks(inputs, pipeline):
         yield label, source
+        del source  # released before the next dark is read
 
 
 def _darks(inputs, pipeline):

@@ -13,6 +13,7 @@ import dataclasses
 import glob
 import os
 import re
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -250,6 +251,7 @@ class FrameImage:
     def __init__(self, hdu, path, plain, dq, layout):
         self.hdu, self.path, self.dq, self.layout = hdu, path, dq, layout
         self.scale = scaling(hdu, path)
+        self._unpack = threading.Lock()  # astropy's HDU is read by one thread at a time
         self._map = map_frames(hdu, path) if plain and hasattr(os, "preadv") else None
         if self._map is not None:  # read with pread from one descriptor per image
             mm, offset, stored, fd = self._map
@@ -276,7 +278,7 @@ class FrameImage:
         ncols = self.hdu.header["NAXIS1"]
         if self._map is None:  # compressed: astropy unpacks (and scales) the section
             # (the file is kept open; also without pread, e.g. on Windows)
-            with unpacking(self.path):
+            with self._unpack, unpacking(self.path):
                 return np.asarray(self.hdu.section[first:stop]).astype(dtype)
         _, offset, stored, fd = self._map
         buf = pread_into(fd, np.empty((stop - first, ncols), stored),

@@ -702,3 +702,35 @@ def test_the_integrations_of_a_4d_file_are_darks_and_none_is_split(tmp_path, mon
     for name, est in listed.components.items():
         np.testing.assert_array_equal(integrations.components[name].values, est.values)
         np.testing.assert_array_equal(integrations.components[name].errors, est.errors)
+
+
+def test_dark_files_one_gzipped_file_per_read_give_the_model_of_the_darks_in_memory(
+        tmp_path):
+    """Reads stored one gzipped file each are read through astropy's HDU, which one thread
+    at a time may read: the per-pixel sums' bands (two at once) and the scatter's reductions
+    (the executor's threads) read them without a crash or a wrong number (two bands read
+    at once failed every time), the model number for number that of the darks in memory."""
+    from astropy.io import fits
+
+    from spherex_reduce import DetectorGeometry, Exposure, ReadoutSchedule
+
+    g = DetectorGeometry(128, 128, 2, ref_border=4, pixel_rate=1e5)
+    s = ReadoutSchedule(g, skip=1, ref_mode="none", phantom_reads=0, nframes=12)
+    rng = np.random.default_rng(0)
+    darks, exposures = [], []
+    for d in range(2):
+        ramps = rng.normal(100, 5, (12, 128, 128)).astype(np.float32)
+        exposures.append(Exposure.from_arrays(ramps, s))
+        header = s.to_header()
+        darks.append([])
+        for k in range(12):
+            path = tmp_path / f"d{d}_read_{k + 1:02d}.fits.gz"
+            fits.PrimaryHDU(ramps[k], header).writeto(path)
+            darks[-1].append(str(path))
+    files = characterize(darks, scatter=True)
+    memory = characterize(exposures, scatter=True)
+    for name, est in memory.components.items():
+        np.testing.assert_array_equal(files.components[name].values, est.values)
+    for a, b in zip(memory.pixel_terms.table, files.pixel_terms.table, strict=True):
+        np.testing.assert_array_equal([a["value"], a["error"]], [b["value"], b["error"]])
+    np.testing.assert_array_equal(files.check["measured"], memory.check["measured"])

@@ -4,6 +4,7 @@ The ``geometry:``, ``readout:`` and ``window:`` sections use the same keys every
 Errors name the YAML path of the offending entry.
 """
 
+import copy
 import importlib.resources
 from collections.abc import Mapping
 from pathlib import Path
@@ -17,6 +18,7 @@ from ..core.parameters import validate_parameters
 from ..core.presets import apply_preset, apply_window_preset
 from ..core.readout.read_order import ORDER_REPLACES, order_conflict
 from ..core.readout.schedule import ReadoutSchedule
+from ..core.recently_used import RecentlyUsed
 from ..core.window import fill_window_geometry, geometry_of
 
 __all__ = [
@@ -24,6 +26,7 @@ __all__ = [
     "MAX_YAML_BYTES",
     "MAX_YAML_DEPTH",
     "MAX_YAML_EXPANDED",
+    "PARSED_TEXT_BYTES",
     "READOUT_PARAMETERS",
     "WINDOW_PARAMETERS",
     "load_yaml",
@@ -49,7 +52,12 @@ MAX_YAML_DEPTH = 100
 #: its scalars plus one per value.  A file without aliases stays below its own
 #: size; only aliases (a "billion laughs" file) can exceed it.
 MAX_YAML_EXPANDED = 4 << 20
+#: Text of the documents `parse_yaml` keeps parsed, in all (the same text, e.g. a noise
+#: model read once per exposure, is parsed once; an edited file is new text, parsed anew).
+PARSED_TEXT_BYTES = 1 << 20
 _MERGE_TAG = "tag:yaml.org,2002:merge"
+#: (characters of the text, document) by text
+_parsed = RecentlyUsed(PARSED_TEXT_BYTES, size=lambda kept: kept[0])
 
 
 class _BoundedLoader(yaml.SafeLoader):
@@ -207,6 +215,14 @@ def parse_yaml(text, label="config"):
     if len(text) > MAX_YAML_BYTES or len(text.encode("utf-8", "surrogatepass")) > MAX_YAML_BYTES:
         raise ConfigError(f"{label}: larger than {MAX_YAML_BYTES >> 20} MiB, the limit for a "
                           "YAML file")
+    if len(text) > PARSED_TEXT_BYTES // 16:  # a large document: not kept
+        return _parse(text, label)
+    # a copy of the document kept for this text (callers may change what they are given)
+    return copy.deepcopy(_parsed.get(text, lambda: (len(text), _parse(text, label)))[1])
+
+
+def _parse(text, label):
+    """`parse_yaml` of text within the size limit."""
     loader = None
     try:
         loader = _BoundedLoader(text, label)  # checks the characters at once

@@ -126,7 +126,7 @@ def add_dark(acc, band, shape, t, band_rows):
 
 def _add_band(acc, sl, part, slopes, jumped):
     """Add the sums ``part`` of the band of rows ``sl`` of one dark to ``acc``; its slopes
-    and pixels with a jump into ``slopes`` and ``jumped`` (`_add_dark`'s)."""
+    and pixels with a jump into ``slopes`` and ``jumped`` (`add_dark`'s)."""
     with np.errstate(divide="ignore", invalid="ignore"):
         slopes[sl] = np.where(part["bad"], np.nan, part["wd"] / part["wdt"])
     jumped[sl] = part["jumps"] > 0

@@ -26,7 +26,8 @@ __all__ = [
     "MAX_YAML_BYTES",
     "MAX_YAML_DEPTH",
     "MAX_YAML_EXPANDED",
-    "PARSED_TEXT_BYTES",
+    "PARSED_DOCUMENTS",
+    "PARSED_TEXT_CHARACTERS",
     "READOUT_PARAMETERS",
     "WINDOW_PARAMETERS",
     "load_yaml",
@@ -52,12 +53,14 @@ MAX_YAML_DEPTH = 100
 #: its scalars plus one per value.  A file without aliases stays below its own
 #: size; only aliases (a "billion laughs" file) can exceed it.
 MAX_YAML_EXPANDED = 4 << 20
-#: Text of the documents `parse_yaml` keeps parsed, in all (the same text, e.g. a noise
-#: model read once per exposure, is parsed once; an edited file is new text, parsed anew).
-PARSED_TEXT_BYTES = 1 << 20
+#: Documents `parse_yaml` keeps parsed, by their text (the same text, e.g. a noise model
+#: read once per exposure, is parsed once; an edited file is new text, parsed anew), and
+#: the longest text kept (a config or a noise model is a few KiB).  The text and the
+#: document of 16 Ki characters take at most ~0.4 MiB (a list of empty mappings): ~13 MiB
+#: for all.
+PARSED_DOCUMENTS, PARSED_TEXT_CHARACTERS = 32, 1 << 14
 _MERGE_TAG = "tag:yaml.org,2002:merge"
-#: (characters of the text, document) by text
-_parsed = RecentlyUsed(PARSED_TEXT_BYTES, size=lambda kept: kept[0])
+_parsed = RecentlyUsed(PARSED_DOCUMENTS)  # [document] by text
 
 
 class _BoundedLoader(yaml.SafeLoader):
@@ -215,10 +218,10 @@ def parse_yaml(text, label="config"):
     if len(text) > MAX_YAML_BYTES or len(text.encode("utf-8", "surrogatepass")) > MAX_YAML_BYTES:
         raise ConfigError(f"{label}: larger than {MAX_YAML_BYTES >> 20} MiB, the limit for a "
                           "YAML file")
-    if len(text) > PARSED_TEXT_BYTES // 16:  # a large document: not kept
+    if len(text) > PARSED_TEXT_CHARACTERS:  # a large document: not kept
         return _parse(text, label)
     # a copy of the document kept for this text (callers may change what they are given)
-    return copy.deepcopy(_parsed.get(text, lambda: (len(text), _parse(text, label)))[1])
+    return copy.deepcopy(_parsed.get(text, lambda: [_parse(text, label)])[0])
 
 
 def _parse(text, label):

@@ -6,7 +6,7 @@ import pytest
 import yaml
 
 from spherex_reduce.core.errors import ConfigError
-from spherex_reduce.io.config import load_yaml, parse_yaml
+from spherex_reduce.io.config import PARSED_DOCUMENTS, load_yaml, parse_yaml
 
 TEXT = """\
 noise:
@@ -47,3 +47,16 @@ def test_an_edited_file_is_read_anew_and_an_error_is_raised_each_time(tmp_path):
     for _ in range(2):
         with pytest.raises(ConfigError, match="appears twice"):
             parse_yaml("gain: 1\ngain: 2\n", "dup.yaml")
+
+
+def test_the_documents_kept_are_bounded_in_number(monkeypatch):
+    """A stream of distinct texts keeps at most PARSED_DOCUMENTS of them: the oldest is
+    parsed again, the newest is not."""
+    texts = [f"bound_{i}: {i}\n" for i in range(PARSED_DOCUMENTS + 1)]
+    for text in texts:
+        parse_yaml(text)
+    count = _composes(monkeypatch)
+    assert parse_yaml(texts[-1]) == {f"bound_{PARSED_DOCUMENTS}": PARSED_DOCUMENTS}
+    assert len(count) == 0
+    assert parse_yaml(texts[0]) == {"bound_0": 0}
+    assert len(count) == 1

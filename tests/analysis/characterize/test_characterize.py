@@ -607,7 +607,7 @@ def test_the_slope_scatter_of_dark_files_is_that_of_the_darks_in_memory(tmp_path
                                                                         monkeypatch):
     """With the slope scatter, each dark is reduced at its first N reads for every N of the
     grid: from a file, band by band of rows (a whole read is refused here; it held each
-    full-size dark whole, 2.36 GB for two), the measured scatter, P(k) and band power are
+    full-size dark whole: 3.26 GB for two), the measured scatter, P(k) and band power are
     those of the darks read whole into memory, number for number.  (Against numpy's own
     fits: `test_measured_scatter_is_numpys_lstsq_of_the_ramps_differenced_and_clipped`.)"""
     from spherex_reduce.io import FrameReader, read

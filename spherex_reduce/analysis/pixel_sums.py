@@ -13,17 +13,15 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from ..reduce.options import default_threads
+from ..reduce.steps.reference.telegraph import MAD_TO_SIGMA
 from .faint_telegraph import lag_design, lag_sums
 
-__all__ = ["MAD", "MIN_READS", "MIN_TELEGRAPH_INTERVALS", "PIXEL_THREADS", "add_dark",
-           "new_sums"]
+__all__ = ["MIN_READS", "MIN_TELEGRAPH_INTERVALS", "PIXEL_THREADS", "add_dark", "new_sums"]
 
 #: Fewest reads a dark needs (two differences after read 0 is kept aside, or with it).
 MIN_READS = 3
 #: Fewest differences per dark to tell a telegraph's jumps from a pixel's own noise.
 MIN_TELEGRAPH_INTERVALS = 8
-#: A Gaussian's standard deviation over its median absolute deviation.
-MAD = 1.4826
 #: Bands of a dark summed at once, in threads (each holds its reads and ~10 times their
 #: size of work: two bands of 32 rows of a 2048² × 74 dark, ~0.2 GB)
 PIXEL_THREADS = 2
@@ -132,7 +130,7 @@ def _add_band(acc, sl, part, slopes, jumped):
     jumped[sl] = part["jumps"] > 0
     if acc["skip_first"]:  # a step between reads 0 and 1: an offset unlike the band's
         r = np.where(part["bad"], 0.0, part["offset"] - np.median(part["offset"]))
-        jumped[sl] |= np.abs(r) > acc["jump_sigma"] * MAD * np.median(np.abs(r))
+        jumped[sl] |= np.abs(r) > acc["jump_sigma"] * MAD_TO_SIGMA * np.median(np.abs(r))
     for key, value in part.items():
         if key == "alternate":
             acc[key][sl] &= value
@@ -181,7 +179,7 @@ def _band(x, t, des, jump_sigma, skip_first, gain=1.0, lags=None, labels=None):
     mean = (total / dt64.sum()).astype(f32)
     e = d - mean * dt
     a = np.abs(e)
-    scale = MAD * _median_of_reads(a)
+    scale = MAD_TO_SIGMA * _median_of_reads(a)
     # a pixel's robust scale from a few tens of differences scatters by ~20 %: floored at the
     # band's typical one, so that a quiet pixel's noise does not pass for jumps; and capped at
     # that plus the pixel's own shot noise (a quarter over), so that a telegraph pixel's jumps,

@@ -64,8 +64,9 @@ from scipy.optimize import brentq
 from scipy.stats import binom, chi2
 
 from ..core.errors import SpherexReduceError
+from ..reduce.steps.reference.telegraph import MAD_TO_SIGMA
 from .faint_telegraph import FAINT_TERMS, add_faint_terms
-from .pixel_sums import MAD, MIN_READS, MIN_TELEGRAPH_INTERVALS, add_dark, new_sums
+from .pixel_sums import MIN_READS, MIN_TELEGRAPH_INTERVALS, add_dark, new_sums
 
 __all__ = ["HOT_SIGMA", "MIN_READS", "MIN_TELEGRAPH_INTERVALS", "PixelSums", "PixelTerms",
            "dark_ramps", "dark_rows", "fit_pixel_terms", "pixel_rows"]
@@ -589,7 +590,7 @@ def _within(a, sel):
     if not ok.any():
         return ok, np.zeros(a.shape)
     r = np.where(ok, a - np.median(a[ok]), 0.0)
-    return ok & (np.abs(r) <= 5 * MAD * np.median(np.abs(r[ok]))), r
+    return ok & (np.abs(r) <= 5 * MAD_TO_SIGMA * np.median(np.abs(r[ok]))), r
 
 
 def _typical(a, sel, gid, k):
@@ -652,7 +653,7 @@ def _hot_threshold(slope, active, hot_sigma, med=None):
     """The median slope of the ``active`` pixels (``med`` if known) plus ``hot_sigma``
     robust standard deviations: above it a pixel is hot."""
     med = np.median(slope[active]) if med is None else med
-    return med + hot_sigma * MAD * np.median(np.abs(slope[active] - med))
+    return med + hot_sigma * MAD_TO_SIGMA * np.median(np.abs(slope[active] - med))
 
 
 def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma):

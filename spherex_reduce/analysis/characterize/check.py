@@ -21,12 +21,13 @@ clipped pixels' standard error, which leaves out the correlated noise).
 import numpy as np
 from astropy import units as u
 from astropy.nddata import CCDData
-from astropy.stats import sigma_clip
+from astropy.stats import SigmaClip
 from astropy.table import Table
 
 from ...core.errors import SpherexReduceError
 from ...core.exposure import Exposure
 from ...io.sources import MemorySource
+from ...reduce.steps.clipping import clipped_pixels
 from ..light import light_sensitive_image
 from ..spectrum import band_power, power_spectrum
 from .predict import CLIP_SIGMA, frame_grid, predict_scatter, predict_spectrum
@@ -141,20 +142,15 @@ class DarkScatter:
         self._stats.append(self._measure(diff))
 
     def _measure(self, images):
+        clipper = SigmaClip(sigma=CLIP_SIGMA, maxiters=None, cenfunc="median", stdfunc="std")
         sigma, kept = [], []
-        for img in images:
+        for img in images:  # astropy's sigma_clip of the finite pixels
             ok = np.isfinite(img)
-            clipped = sigma_clip(img[ok], sigma=CLIP_SIGMA, maxiters=None, cenfunc="median",
-                                 stdfunc="std")
-            sigma.append(float(np.ma.std(clipped)))
-            kept.append(int(clipped.count()))
-        last = images[-1]
-        ok = np.isfinite(last)
-        cut = sigma_clip(last[ok], sigma=CLIP_SIGMA, maxiters=None, cenfunc="median",
-                         stdfunc="std")
-        mask = ~ok
-        mask[ok] = np.ma.getmaskarray(cut)
-        img = CCDData(np.where(mask, 0.0, last), unit=self.unit, mask=mask)
+            keep = ok & ~clipped_pixels(img, ok, clipper)
+            sigma.append(float(np.std(img[keep])) if keep.any() else np.nan)
+            kept.append(int(np.count_nonzero(keep)))
+        mask = ~keep  # the last frame count's, for its P(k)
+        img = CCDData(np.where(mask, 0.0, images[-1]), unit=self.unit, mask=mask)
         spec = power_spectrum(img, bins=self.bins)
         band = band_power(img, return_error=True, **self.band)
         return {"sigma": np.array(sigma), "kept": np.array(kept),

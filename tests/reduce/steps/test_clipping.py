@@ -160,3 +160,29 @@ def test_reference_pixels_stay_out_of_the_statistics_and_are_never_clipped(width
     # the same image in readout order: each read holds its physical row
     readout = sigma_clip(Exposure.from_arrays(values[s.rows], s, unit=u.electron / u.s))
     np.testing.assert_array_equal((readout.dq & dq.HOT) != 0, expected[s.rows])
+
+
+@pytest.mark.parametrize(("sigma", "cenfunc", "stdfunc"), [
+    (5.0, "median", "std"), (3.0, "mean", "mad_std"), (0.5, "median", "std")])
+def test_clipped_pixels_are_astropys_mask_of_the_usable_pixels(sigma, cenfunc, stdfunc):
+    """`clipped_pixels` (the step's clip, also the slope scatter's) masks exactly what
+    astropy's ``sigma_clip`` masks of the same pixels with the others masked, NaN and
+    outliers included; at 0.5 sigma astropy ends with every pixel kept."""
+    from astropy.stats import SigmaClip
+
+    from spherex_reduce.reduce.steps.clipping import clipped_pixels
+
+    rng = np.random.default_rng(3)
+    data = rng.normal(0.0, 1.0, (64, 48))
+    data[rng.integers(0, 64, 30), rng.integers(0, 48, 30)] = rng.normal(0, 40, 30)
+    data[5, :4] = np.nan
+    usable = np.isfinite(data)
+    usable[:2] = False  # left out: never clipped, not in the statistics
+    data[0, 0] = 1e6
+    clipper = SigmaClip(sigma=sigma, maxiters=None, cenfunc=cenfunc, stdfunc=stdfunc)
+    got = clipped_pixels(data, usable, clipper)
+    expected = np.ma.getmaskarray(astropy_sigma_clip(
+        np.ma.MaskedArray(data, mask=~usable), sigma=sigma, maxiters=None, cenfunc=cenfunc,
+        stdfunc=stdfunc)) & usable
+    np.testing.assert_array_equal(got, expected)
+    assert not got[:2].any() and (got.any() or sigma < 1)

@@ -21,6 +21,7 @@ from astropy import units as u
 from astropy.table import Table
 
 from ..core.errors import SpherexReduceError
+from ..core.recently_used import RecentlyUsed
 
 __all__ = [
     "NoiseModelFit",
@@ -189,6 +190,19 @@ def aliased_basis(frequency, sample_rate, decimation, nbox=1, exponent=1.3, stri
                 f"the averaged samples (nbox={n}, stride={st}) must fit within one "
                 f"decimation period ({mdec} samples)"
             )
+    key = (f.tobytes(), f.shape, fs, mdec, boxes[0], float(exponent),
+           None if cross is None else (boxes[1], float(cross[2])))
+    # the fit over all darks and each of its jackknife fits ask for the same terms
+    return _BASES.get(key, lambda: _aliased_terms(f, fs, mdec, boxes, exponent, cross)).copy()
+
+
+#: Model terms kept (`aliased_basis`): a dark's streams need ~100, each a few kB.
+BASES_KEPT = 1024
+_BASES = RecentlyUsed(BASES_KEPT)
+
+
+def _aliased_terms(f, fs, mdec, boxes, exponent, cross):
+    """`aliased_basis` itself (its arguments checked)."""
     fr = fs / mdec
     alias = f[:, None] + np.arange(mdec)[None, :] * fr
     alias = (alias + fs / 2) % fs - fs / 2  # fold into [-fs/2, fs/2)

@@ -259,3 +259,26 @@ def test_a_weight_column_makes_the_fit_linear():
     bad["weight"] = -w
     with pytest.raises(SpherexReduceError, match="weight column must be positive"):
         fit_noise_model(bad)
+
+
+def test_aliased_basis_is_computed_once_per_set_of_arguments_and_returned_as_a_copy(
+        monkeypatch):
+    """The fit over all darks and each of its jackknife fits ask for the same terms (a
+    third of characterize's spectral fits was spent recomputing them): each set of
+    arguments is computed once, and what a caller does to its array does not reach the
+    next caller, whose numbers are the formula's (the white term of an ``nbox``-sample
+    mean every ``m`` samples is ``m / nbox``)."""
+    from spherex_reduce.analysis import temporal
+
+    calls = []
+    original = temporal._aliased_terms
+    monkeypatch.setattr(temporal, "_aliased_terms",
+                        lambda *a: calls.append(a[2:4]) or original(*a))
+    f = np.array([3.0, 30.0, 300.0]) + np.pi  # arguments no other test asks for
+    first = aliased_basis(f, FS, 72, 4)
+    first[:] = -1.0
+    again = aliased_basis(f, FS, 72, 4)
+    other = aliased_basis(f, FS, 72, 8)
+    assert len(calls) == 2
+    assert again[:, 0] == pytest.approx([18.0] * 3) and other[:, 0] == pytest.approx([9.0] * 3)
+    assert np.all(again[:, 1:] > 0)

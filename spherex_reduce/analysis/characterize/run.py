@@ -212,6 +212,7 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
             pixel_mark = str(exc)
         else:  # its dark current's shot noise is the per-pixel terms', not the streams'
             shot = _shot(terms, schedule, _segments(nframes, None) if split else cuts)
+    sums = None  # its per-pixel sums (~0.6 GB at full size) are fitted: released
 
     def fits(keep):
         return fit_spectra(pool([spectra[i] for i in keep]), pooled_boxes([each[i] for i in keep]),

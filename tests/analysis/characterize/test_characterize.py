@@ -734,3 +734,29 @@ def test_dark_files_one_gzipped_file_per_read_give_the_model_of_the_darks_in_mem
     for a, b in zip(memory.pixel_terms.table, files.pixel_terms.table, strict=True):
         np.testing.assert_array_equal([a["value"], a["error"]], [b["value"], b["error"]])
     np.testing.assert_array_equal(files.check["measured"], memory.check["measured"])
+
+
+def test_the_per_pixel_sums_are_released_before_the_slope_scatter_is_predicted(monkeypatch):
+    """The per-pixel sums (~0.6 GB for a full-size dark) were alive while the scatter was
+    predicted, two frame counts at a time: two full-size darks peaked at 2.17 GB.  Once
+    fitted they are let go: no `PixelSums` is alive when the prediction starts, and the
+    model holds the fitted per-pixel terms."""
+    import gc
+
+    from spherex_reduce.analysis.characterize import run as run_module
+    from spherex_reduce.analysis.pixel_terms import PixelSums
+
+    s = schedule(nrows=64, ncols=64, nchannels=2, nframes=12, phantom_reads=2)
+    comps = [{"name": "x", "alpha": 1e-3, "beta": 0.5, "scope": "channel"}]
+    alive = []
+    original = run_module.compare
+
+    def counted(*args, **kwargs):
+        gc.collect()
+        alive.append(sum(isinstance(o, PixelSums) for o in gc.get_objects()))
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(run_module, "compare", counted)
+    model = characterize([dark(s, comps, 70 + k) for k in range(2)], scatter=True)
+    assert alive == [0]
+    assert model.pixel_terms is not None and model.check is not None

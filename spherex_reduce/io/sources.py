@@ -21,6 +21,7 @@ branch in `open_input`.
 
 import copy
 import os
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -248,14 +249,16 @@ class FileSource(Source):
         self._dtype = reader.stored_dtype.newbyteorder("=")
         self._phantom = reader.phantom
         self._loaded = {}  # the file read whole for a step of a cut (shared by the cuts)
+        self._loading = threading.Lock()  # cuts reduced in threads read it once
 
     def exposure(self):
         n = self.context.schedule.nframes
         if n == self.reader.schedule.nframes:
             return self.reader.exposure()
-        whole = self._loaded.get("exposure")  # read once for every cut of this source
-        if whole is None:
-            whole = self._loaded["exposure"] = self.reader.exposure()
+        with self._loading:  # read once for every cut of this source
+            whole = self._loaded.get("exposure")
+            if whole is None:
+                whole = self._loaded["exposure"] = self.reader.exposure()
         return whole.first_frames(n)
 
     def first_frames(self, n):

@@ -194,17 +194,29 @@ def test_the_first_frames_of_a_file_and_of_memory_are_astropys_first_frames(tmp_
                 source.first_frames(bad)
 
 
-def test_the_first_frames_of_a_file_read_whole_once_for_all_cuts(raw):
+@pytest.mark.parametrize("threads", [1, 3])
+def test_the_first_frames_of_a_file_read_whole_once_for_all_cuts(raw, threads):
     """A step that needs the whole exposure, on cuts of one file to its first N frames (the
-    slope scatter's grid): the file is read whole once, not once per cut, and each cut is
-    astropy's first N frames."""
+    slope scatter's grid, whose frame counts are reduced in threads): the file is read whole
+    once, not once per cut, even by cuts asking at once (a slow read, as of a large file,
+    was read once per thread), and each cut is astropy's first N frames."""
+    import time
+    from concurrent.futures import ThreadPoolExecutor
+
     stored = fits.getdata(raw, "SCI")
     with open_input(raw) as inp:
         source = inp.source()
         calls = []
         whole = source.reader.exposure
-        source.reader.exposure = lambda: (calls.append(1), whole())[1]
-        for n in (1, 2, 3):  # of 4 frames
-            np.testing.assert_array_equal(source.first_frames(n).exposure().data.data,
-                                          stored[:n])
+
+        def slow():
+            calls.append(1)
+            time.sleep(0.2)
+            return whole()
+
+        source.reader.exposure = slow
+        with ThreadPoolExecutor(threads) as pool:
+            got = list(pool.map(lambda n: source.first_frames(n).exposure(), (1, 2, 3)))
+        for n, cut in zip((1, 2, 3), got, strict=True):  # of 4 frames
+            np.testing.assert_array_equal(cut.data.data, stored[:n])
         assert len(calls) == 1

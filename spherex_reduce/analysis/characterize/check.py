@@ -18,6 +18,8 @@ clipped pixels' standard error, which leaves out the correlated noise).
 `~spherex_reduce.analysis.characterize.run.check_model` does it on held-out darks.
 """
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 from astropy import units as u
 from astropy.nddata import CCDData
@@ -27,6 +29,7 @@ from astropy.table import Table
 from ...core.errors import SpherexReduceError
 from ...core.exposure import Exposure
 from ...io.sources import MemorySource
+from ...reduce.options import default_threads
 from ...reduce.steps.clipping import clipped_pixels
 from ..light import light_sensitive_image
 from ..spectrum import band_power, power_spectrum
@@ -37,6 +40,10 @@ __all__ = ["BAND_TARGET", "SCATTER_TARGET", "DarkScatter", "compare", "reduction
 #: Issue 33's targets on held-out darks: the slope scatter within 5 %, the band power 10 %.
 SCATTER_TARGET = 0.05
 BAND_TARGET = 0.10
+#: Frame counts reduced at once (threads), each reduction's bands on its own thread: one
+#: reduction's serial parts (its reference estimate, its image's clip) overlap another's
+#: bands.  Memory: each holds its bands in flight and its slope image.
+SCATTER_THREADS = 2
 
 
 def reduction_pipeline(config):
@@ -61,10 +68,11 @@ def _first_reads(source, n):
         raise SpherexReduceError(f"slope scatter: {exc}") from None
 
 
-def _image(pipeline, exposure):
+def _image(pipeline, exposure, threads=None):
     """The light-sensitive slope image, NaN where masked (float32, as the pipeline's
-    slopes), and its unit."""
-    red = pipeline.run(exposure)
+    slopes), and its unit (``threads``: the reduction's bands at once, as
+    `~spherex_reduce.Pipeline.run`)."""
+    red = pipeline.run(exposure, threads=threads)
     if red.is_ramp:
         raise SpherexReduceError("slope scatter: the pipeline gives ramps, not a slope image "
                                  "(it has no fit_ramp step)")
@@ -115,12 +123,20 @@ class DarkScatter:
         self.unit = None
 
     def _images(self, source):
-        out = []
-        for n in self.frames:
-            data, unit = _image(self.pipeline, _first_reads(source, n))
-            out.append(data)
-        self.unit = unit
-        return out
+        nthreads = min(SCATTER_THREADS, default_threads(), len(self.frames))
+
+        def image(n):
+            return _image(self.pipeline, _first_reads(source, n),
+                          threads=1 if nthreads > 1 else None)
+
+        if nthreads <= 1:
+            done = {n: image(n) for n in self.frames}
+        else:  # the longest first, so that the threads end together
+            longest = sorted(self.frames, reverse=True)
+            with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-scatter") as pool:
+                done = dict(zip(longest, pool.map(image, longest), strict=True))
+        self.unit = done[self.frames[-1]][1]
+        return [done[n][0] for n in self.frames]
 
     def add(self, dark):
         """Reduce ``dark`` at every frame count; every second dark closes a pair.

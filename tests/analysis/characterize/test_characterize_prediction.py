@@ -105,12 +105,17 @@ def _plain_schedule(nframes):
     return ReadoutSchedule(g, skip=1, ref_mode="none", phantom_reads=0, nframes=nframes)
 
 
-@pytest.mark.parametrize("given", ["memory", "file"])
+@pytest.mark.parametrize(("given", "threads"), [("memory", 1), ("memory", 3), ("file", 3)])
 def test_measured_scatter_is_numpys_lstsq_of_the_ramps_differenced_and_clipped(
-        given, tmp_path, monkeypatch):
+        given, threads, tmp_path, monkeypatch):
     """The darks in memory, or as raw files reduced band by band from their first N reads
-    (a file read whole is refused here: characterize's scatter held each dark whole)."""
+    (a file read whole is refused here: characterize's scatter held each dark whole), the
+    frame counts reduced one by one or several at once (threads)."""
+    from spherex_reduce.analysis.characterize import check
     from spherex_reduce.io import FrameReader, open_input, write
+
+    monkeypatch.setattr(check, "SCATTER_THREADS", threads)
+    monkeypatch.setattr(check, "default_threads", lambda: 4)
 
     s = _plain_schedule(8)
     rng = np.random.default_rng(11)

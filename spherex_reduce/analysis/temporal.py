@@ -196,9 +196,10 @@ def aliased_basis(frequency, sample_rate, decimation, nbox=1, exponent=1.3, stri
     return _BASES.get(key, lambda: _aliased_terms(f, fs, mdec, boxes, exponent, cross)).copy()
 
 
-#: Model terms kept (`aliased_basis`): a dark's streams need ~100, each a few kB.
-BASES_KEPT = 1024
-_BASES = RecentlyUsed(BASES_KEPT)
+#: Bytes of model terms kept (`aliased_basis`): a full-size dark's spectra ask for ~100
+#: sets of terms of ~24 kB each (more while an exponent is fitted).
+BASES_BYTES = 16 * 2**20
+_BASES = RecentlyUsed(BASES_BYTES, size=lambda terms: terms.nbytes)
 
 
 def _aliased_terms(f, fs, mdec, boxes, exponent, cross):

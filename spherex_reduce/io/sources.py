@@ -250,22 +250,23 @@ class FileSource(Source):
         self._phantom = reader.phantom
         self._loaded = {}  # the file read whole for a step of a cut (shared by the cuts)
         self._loading = threading.Lock()  # cuts reduced in threads read it once
+        self._cut = False
 
     def exposure(self):
         n = self.context.schedule.nframes
-        if n == self.reader.schedule.nframes:
+        if not self._cut:
             return self.reader.exposure()
-        with self._loading:  # read once for every cut of this source
+        with self._loading:  # read once for every cut of this source, the whole one too
             whole = self._loaded.get("exposure")
             if whole is None:
                 whole = self._loaded["exposure"] = self.reader.exposure()
-        return whole.first_frames(n)
+        return whole if n == self.reader.schedule.nframes else whole.first_frames(n)
 
     def first_frames(self, n):
         if not self.context.ramp:
             raise ValueError("first frames: the file holds an image, not ramps")
         cut = copy.copy(self)  # the same open reader, which the original closes
-        cut._owned = False
+        cut._owned, cut._cut = False, True
         schedule = first_frames_schedule(self.context.schedule, n)
         cut.context = self.context.replace(schedule=schedule)
         cut._phantom = None if self._phantom is None else self._phantom[:schedule.nframes]

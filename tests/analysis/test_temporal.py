@@ -269,16 +269,27 @@ def test_aliased_basis_is_computed_once_per_set_of_arguments_and_returned_as_a_c
     next caller, whose numbers are the formula's (the white term of an ``nbox``-sample
     mean every ``m`` samples is ``m / nbox``)."""
     from spherex_reduce.analysis import temporal
+    from spherex_reduce.core.recently_used import RecentlyUsed
 
     calls = []
     original = temporal._aliased_terms
     monkeypatch.setattr(temporal, "_aliased_terms",
                         lambda *a: calls.append(a[2:4]) or original(*a))
-    f = np.array([3.0, 30.0, 300.0]) + np.pi  # arguments no other test asks for
+    monkeypatch.setattr(temporal, "_BASES", RecentlyUsed(2**20, size=lambda t: t.nbytes))
+    f = np.array([3.0, 30.0, 300.0])
     first = aliased_basis(f, FS, 72, 4)
     first[:] = -1.0
     again = aliased_basis(f, FS, 72, 4)
-    other = aliased_basis(f, FS, 72, 8)
-    assert len(calls) == 2
-    assert again[:, 0] == pytest.approx([18.0] * 3) and other[:, 0] == pytest.approx([9.0] * 3)
-    assert np.all(again[:, 1:] > 0)
+    assert len(calls) == 1
+    assert again[:, 0] == pytest.approx([18.0] * 3) and np.all(again[:, 1:] > 0)
+    # every argument is part of the key: each of these is computed, and is the formula's
+    others = [((f, FS, 72, 8), 9.0), ((f, FS, 72, 4, 2.0), 18.0), ((f, FS, 72, 4, 1.3, 2), 18.0),
+              ((f, FS, 36, 4), 9.0), ((f * 2, FS, 72, 4), 18.0)]
+    for args, white in others:
+        got = aliased_basis(*args)
+        assert got[:, 0] == pytest.approx([white] * 3)
+    assert len(calls) == 1 + len(others)
+    cross = [aliased_basis(f, FS, 72, 4, cross=(4, 1, lag))[:, 2] for lag in (0, 10)]
+    assert len(calls) == 3 + len(others) and not np.allclose(cross[0], cross[1])
+    assert aliased_basis(f, FS, 72, 4, exponent=2.0)[:, 2] == pytest.approx(
+        original(f, FS, 72, [(4, 1)], 2.0, None)[:, 2])

@@ -123,16 +123,17 @@ class DarkScatter:
         self.unit = None
 
     def _images(self, source):
-        nthreads = min(SCATTER_THREADS, default_threads(), len(self.frames))
+        cuts = {n: _first_reads(source, n) for n in self.frames}  # refused before any work
+        nthreads = min(SCATTER_THREADS, default_threads(), len(cuts))
+        bands = max(1, default_threads() // nthreads)  # each reduction's band threads
 
         def image(n):
-            return _image(self.pipeline, _first_reads(source, n),
-                          threads=1 if nthreads > 1 else None)
+            return _image(self.pipeline, cuts[n], threads=bands)
 
         if nthreads <= 1:
-            done = {n: image(n) for n in self.frames}
+            done = {n: image(n) for n in cuts}
         else:  # the longest first, so that the threads end together
-            longest = sorted(self.frames, reverse=True)
+            longest = sorted(cuts, reverse=True)
             with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-scatter") as pool:
                 done = dict(zip(longest, pool.map(image, longest), strict=True))
         self.unit = done[self.frames[-1]][1]
@@ -165,8 +166,8 @@ class DarkScatter:
             keep = ok & ~clipped_pixels(img, ok, clipper)
             sigma.append(float(np.std(img[keep])) if keep.any() else np.nan)
             kept.append(int(np.count_nonzero(keep)))
-        mask = ~keep  # the last frame count's, for its P(k)
-        img = CCDData(np.where(mask, 0.0, images[-1]), unit=self.unit, mask=mask)
+            last_kept = keep  # the last frame count's, for its P(k)
+        img = CCDData(np.where(last_kept, images[-1], 0.0), unit=self.unit, mask=~last_kept)
         spec = power_spectrum(img, bins=self.bins)
         band = band_power(img, return_error=True, **self.band)
         return {"sigma": np.array(sigma), "kept": np.array(kept),

@@ -43,14 +43,15 @@ def dark_sources(inputs, pipeline):
     >>> [(label, source.where) for label, source in dark_sources(example_raw_exposure(), None)]
     [('exposure in memory', 'memory')]
     """
-    for label, source, _ in _darks(inputs, pipeline):
+    for label, source, _, _ in _darks(inputs, pipeline):
         yield label, source
         del source  # released before the next dark is read
 
 
 def _darks(inputs, pipeline):
-    """`dark_sources`' ``(label, source)`` and whether another dark is known to follow (a
-    list of inputs, or an integration of a 4-D file before its last)."""
+    """`dark_sources`' ``(label, source)``, whether another dark is known to follow (a
+    list of inputs, or an integration of a 4-D file before its last), and whether the dark
+    is known to be the last (the last integration of a list's last input)."""
     if isinstance(inputs, (str, Exposure)) or hasattr(inputs, "__fspath__"):
         inputs = [inputs]
     listed = isinstance(inputs, (list, tuple))
@@ -60,8 +61,9 @@ def _darks(inputs, pipeline):
             ks = [None] if inp.integrations is None else range(inp.integrations)
             for k in ks:
                 more = (listed and i < len(inputs) - 1) or (k is not None and k < ks[-1])
+                last = listed and i == len(inputs) - 1 and (k is None or k == ks[-1])
                 yield (inp.label if k is None else f"{inp.label}[{k}]",
-                       inp.source(integration=k), more)
+                       inp.source(integration=k), more, last)
         del what, opened, inp  # an exposure given in memory is released before the next
 
 
@@ -149,7 +151,7 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
     # are not made beside the dark, and no dark's streams are held beside the next dark
     darks, spectra, each = [], [], []
     schedule = unit = alone = None
-    sums, pixel_mark = None, None
+    sums, terms, pixel_mark = None, None, None
     reducer, measured, scatter_mark = None, None, None
     if scatter:
         try:
@@ -159,11 +161,14 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
     left_out = 0  # pixels left out of the streams (their noise is the per-pixel terms')
     # a dark known to be followed by another (a list of inputs, the integrations of a 4-D
     # file) is not split into its runs of frames: they are needed only for a dark alone
-    for label, source, more in _darks(inputs, pipeline):
+    for label, source, more, last in _darks(inputs, pipeline):
         drop, runs = None, []
         if pixels and pixel_mark is None:  # first: the streams leave out what it holds
             sums, drop, pixel_mark = _add_pixels(sums, source, gain)
             left_out += 0 if drop is None else int(drop.sum())
+            if last and pixel_mark is None:  # fitted, its sums let go before the scatter
+                terms, pixel_mark = _fit_pixels(sums)
+                sums = None
         readout, of = source.context.schedule, source.context.unit
         if schedule is None:
             schedule, unit = readout, of
@@ -205,15 +210,12 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
             f"uncertainties: one dark of {nframes} reads gives no scatter to estimate them "
             f"from; give 2 or more darks, or a dark of >= {2 * SEGMENT_FRAMES} reads")
     boxes = pooled_boxes(each)
-    terms, shot = None, 0.0
-    if pixels and pixel_mark is None:
-        try:
-            terms = sums.fit()
-        except SpherexReduceError as exc:
-            pixel_mark = str(exc)
-        else:  # its dark current's shot noise is the per-pixel terms', not the streams'
-            shot = _shot(terms, schedule, _segments(nframes, None) if split else cuts)
+    if pixels and pixel_mark is None and terms is None:  # darks of an iterator
+        terms, pixel_mark = _fit_pixels(sums)
     sums = None  # its per-pixel sums (~0.6 GB at full size) are fitted: released
+    shot = 0.0
+    if terms is not None:  # its dark current's shot noise is the per-pixel terms', not the streams'
+        shot = _shot(terms, schedule, _segments(nframes, None) if split else cuts)
 
     def fits(keep):
         return fit_spectra(pool([spectra[i] for i in keep]), pooled_boxes([each[i] for i in keep]),
@@ -238,6 +240,15 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
     if scatter_mark is not None:
         model.marks.append(f"slope scatter and P(k): not compared: {scatter_mark}")
     return model
+
+
+def _fit_pixels(sums):
+    """``(terms, mark)``: the per-pixel terms fitted to ``sums``, or the reason they cannot
+    be (then ``terms`` None)."""
+    try:
+        return sums.fit(), None
+    except SpherexReduceError as exc:
+        return None, str(exc)
 
 
 def _shot(terms, schedule, cuts):

@@ -296,14 +296,15 @@ def stored_planes(sc, red, rows, cols, comps, nodes=NODES, summed=False):
     nodes : int
         Quadrature nodes of the engine.
     summed : bool
-        Return the sum over the components only (as ``{"total": plane}``, an empty dict
-        without components), each component's plane let go once added: a third of the
-        memory at full size.
+        Return the sum over the components only, each component's plane added in order
+        and let go (the planes are not copied into the stored image's layout one by one:
+        two frame counts forecast at once peaked 0.16 GB lower at full size).
 
     Returns
     -------
     planes : dict of `numpy.ndarray`
-        ``E|FFT|²`` by component name, shape ``(ny, nx // 2 + 1)``.
+        ``E|FFT|²`` by component name, shape ``(ny, nx // 2 + 1)``; with ``summed``,
+        ``{"total": plane}`` (an empty dict without components).
     shape : tuple of int
         ``(ny, nx)`` of the stored light-sensitive image.
 

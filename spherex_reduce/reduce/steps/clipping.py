@@ -73,12 +73,12 @@ def sigma_clip(exposure, *, sigma=5.0, sigma_lower=None, sigma_upper=None, maxit
 
 
 def clipped_pixels(data, usable, clipper):
-    """The pixels of ``data`` among ``usable`` that ``clipper`` clips: exactly those
-    `astropy.stats.sigma_clip` masks of ``data`` with ``usable`` as its unmasked pixels.
+    """The pixels of ``data`` among ``usable`` that ``clipper`` clips, as astropy clips them.
 
-    The usable pixels go to astropy as one column, which it clips along an axis with
-    its compiled code (the same iterations, ~3x faster than its ``axis=None`` path);
-    its bounds then select the same pixels.
+    Exactly those `astropy.stats.sigma_clip` masks of ``data`` with ``usable`` as its
+    unmasked pixels.  The usable pixels go to astropy as one column, which it clips
+    along an axis with its compiled code (the same iterations, ~3x faster than its
+    ``axis=None`` path); its bounds then select the same pixels.
 
     Parameters
     ----------
@@ -87,6 +87,7 @@ def clipped_pixels(data, usable, clipper):
     usable : `numpy.ndarray` of bool
         The pixels that enter the clip (finite), ``data``'s shape.
     clipper : `astropy.stats.SigmaClip`
+        The clip (threshold, iterations, centre and spread functions).
 
     Returns
     -------

@@ -736,27 +736,70 @@ def test_dark_files_one_gzipped_file_per_read_give_the_model_of_the_darks_in_mem
     np.testing.assert_array_equal(files.check["measured"], memory.check["measured"])
 
 
-def test_the_per_pixel_sums_are_released_before_the_slope_scatter_is_predicted(monkeypatch):
-    """The per-pixel sums (~0.6 GB for a full-size dark) were alive while the scatter was
-    predicted, two frame counts at a time: two full-size darks peaked at 2.17 GB.  Once
-    fitted they are let go: no `PixelSums` is alive when the prediction starts, and the
-    model holds the fitted per-pixel terms."""
+@pytest.mark.parametrize("listed", [True, False])
+def test_the_per_pixel_sums_are_released_before_the_last_darks_scatter(monkeypatch, listed):
+    """The per-pixel sums (~0.6 GB for a full-size dark) were alive until the end, through
+    the last dark's reductions (the peak) and the prediction (two frame counts at a time:
+    2.17 GB for two full-size darks).  Once the last dark of a list is summed they are
+    fitted and let go, before its scatter; darks from an iterator (the last not known) are
+    fitted after the loop, before the prediction.  The per-pixel terms are those of the
+    sums fitted at the end (`PixelSums.fit`, in the test)."""
     import gc
+    import weakref
 
     from spherex_reduce.analysis.characterize import run as run_module
-    from spherex_reduce.analysis.pixel_terms import PixelSums
+    from spherex_reduce.analysis.faint_telegraph import common_labels
+    from spherex_reduce.analysis.pixel_terms import PixelSums, dark_ramps, fit_pixel_terms
 
     s = schedule(nrows=64, ncols=64, nchannels=2, nframes=12, phantom_reads=2)
     comps = [{"name": "x", "alpha": 1e-3, "beta": 0.5, "scope": "channel"}]
-    alive = []
-    original = run_module.compare
+    exposures = [dark(s, comps, 70 + k) for k in range(2)]
+    made, alive = [], {"scatter": [], "compare": []}
 
-    def counted(*args, **kwargs):
-        gc.collect()
-        alive.append(sum(isinstance(o, PixelSums) for o in gc.get_objects()))
-        return original(*args, **kwargs)
+    class Recorded(PixelSums):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            made.append(weakref.ref(self))
 
-    monkeypatch.setattr(run_module, "compare", counted)
-    model = characterize([dark(s, comps, 70 + k) for k in range(2)], scatter=True)
-    assert alive == [0]
-    assert model.pixel_terms is not None and model.check is not None
+    def when(name, original):
+        def counted(*args, **kwargs):
+            gc.collect()
+            alive[name].append(sum(r() is not None for r in made))
+            return original(*args, **kwargs)
+        return counted
+
+    monkeypatch.setattr(run_module, "PixelSums", Recorded)
+    monkeypatch.setattr(run_module, "_add_scatter", when("scatter", run_module._add_scatter))
+    monkeypatch.setattr(run_module, "compare", when("compare", run_module.compare))
+    model = characterize(exposures if listed else iter(exposures), scatter=True)
+    assert len(made) == 1
+    assert alive == {"scatter": [1, 0] if listed else [1, 1], "compare": [0]}
+    together = [dark_ramps(e) for e in exposures]
+    expect = fit_pixel_terms([r for r, _, _ in together], together[0][1],
+                             reference=together[0][2], labels=common_labels(s.geometry))
+    np.testing.assert_array_equal(np.asarray(model.pixel_terms.table["value"]),
+                                  np.asarray(expect.table["value"]))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, ">f4"])
+def test_a_channels_column_sums_are_numpys_sums_of_its_columns(dtype):
+    """The streams sum a channel's even or odd columns as a strided view (no copy) when
+    they are evenly spaced: the numbers of numpy's sum over those columns taken as a
+    list, bit for bit (float64 data keep the list); uneven, unsorted and dropped columns
+    too."""
+    from spherex_reduce.analysis.characterize.streams import _kept_sum
+
+    rng = np.random.default_rng(5)
+    data = (rng.normal(0, 1, (3, 7, 96)) * 1e4).astype(dtype)
+    drop = np.zeros((7, 16), bool)
+    drop[2, 3] = True
+    for cols in (np.arange(4, 36, 2), np.arange(5, 37, 2), np.arange(64, 96),
+                 np.array([1, 2, 4, 8]), np.array([9, 3, 5]), np.arange(80, 96)):
+        want = np.sum(np.asarray(data, np.float64)[:, :, cols], axis=-1)
+        exact = np.sum(data[:, :, cols], axis=-1, dtype=np.float64)
+        np.testing.assert_array_equal(_kept_sum(data, cols, None), exact)
+        np.testing.assert_allclose(exact, want, rtol=1e-12, atol=1e-9)
+        if cols.size == 16:
+            got = _kept_sum(data, cols, drop)
+            exact[:, 2] -= data[:, 2, cols[3]]
+            np.testing.assert_array_equal(got, exact)

@@ -8,6 +8,7 @@ T²)``; the measured scatter against numpy's lstsq slopes of the same ramps,
 differenced and clipped here.
 """
 
+import threading
 import warnings
 
 import numpy as np
@@ -116,6 +117,13 @@ def test_measured_scatter_is_numpys_lstsq_of_the_ramps_differenced_and_clipped(
 
     monkeypatch.setattr(check, "SCATTER_THREADS", threads)
     monkeypatch.setattr(check, "default_threads", lambda: 4)
+    image, together = check._image, threading.Barrier(threads, timeout=30)
+
+    def reduced_together(*args, **kwargs):  # every frame count's reduction at once
+        together.wait()
+        return image(*args, **kwargs)
+
+    monkeypatch.setattr(check, "_image", reduced_together)
 
     s = _plain_schedule(8)
     rng = np.random.default_rng(11)

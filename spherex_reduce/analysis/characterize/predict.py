@@ -60,8 +60,6 @@ scene at the darks' readout, plus the telegraph pixels' clipped variance as
 white power (each pixel switches on its own).
 """
 
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
 from astropy import units as u
 from scipy.special import ndtr
@@ -69,7 +67,6 @@ from scipy.special import ndtr
 from ...core.errors import SpherexReduceError
 from ...noise.components import NoiseComponent
 from ...noise.variance import ls_weights
-from ...reduce.options import default_threads
 from ..faint_telegraph import telegraph_covariance
 from ..forecast.engine import forecast, poisson_variance, prepare_forecast, stored_planes
 from ..spectrum import rfft_weights
@@ -83,9 +80,6 @@ CLIP_SIGMA = 5.0
 TELEGRAPH_CHAINS = 20000
 #: Points of the frame-count grid from 2 reads to all (`frame_grid`).
 GRID_POINTS = 10
-#: Frame counts whose streams are forecast at once (threads: the forecast's arrays are
-#: numpy's, ~1.7x faster on 2 cores at full size; each holds up to ~0.3 GB there).
-FRAME_THREADS = 2
 
 
 def frame_grid(nframes, points=GRID_POINTS):
@@ -321,20 +315,6 @@ def _stream_variance(scene, pipeline):
     return var + poisson_variance(prepared[0])
 
 
-def _stream_variances(model, pipeline, frames, differenced):
-    """`_stream_variance` of the model's scene at each frame count (plus the fitted spread
-    of the dark currents with one dark), `FRAME_THREADS` frame counts at a time."""
-    def variance(n):
-        sc, spread = _scene(model, n, not differenced)
-        return _stream_variance(sc, pipeline) + spread**2
-
-    nthreads = min(FRAME_THREADS, default_threads(), len(frames))
-    if nthreads <= 1:
-        return [variance(n) for n in frames]
-    with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-predict") as pool:
-        return list(pool.map(variance, frames))
-
-
 def predict_scatter(model, pipeline, frames, *, differenced=True, sigma=CLIP_SIGMA,
                     image_clip=None):
     """The slope scatter over pixels against the frame count that ``model`` predicts.
@@ -382,8 +362,9 @@ def predict_scatter(model, pipeline, frames, *, differenced=True, sigma=CLIP_SIG
     faint = faint_population(model)
     out = {k: [] for k in ("sigma", "sigma_streams", "telegraph_variance",
                            "telegraph_excess")}
-    for n, v0 in zip(frames, _stream_variances(model, pipeline, frames, differenced),
-                     strict=True):
+    for n in frames:  # one at a time: two forecasts at once peaked at 2.33 GB at full size
+        sc, spread = _scene(model, n, not differenced)
+        v0 = _stream_variance(sc, pipeline) + spread**2
         core = clipped_sigma([1.0], [0.0], v0, sigma)
         out["sigma_streams"].append(core)
         times = model.schedule.frame_starts.to_value(u.s)[:n]

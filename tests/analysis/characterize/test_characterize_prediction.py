@@ -78,19 +78,13 @@ def _white_scene(nframes=12, seed_rtn=None):
     return scene
 
 
-@pytest.mark.parametrize("threads", [1, 3])
-def test_white_darks_scatter_is_the_closed_form(threads, monkeypatch):
-    """Frame counts predicted one by one or several at once (threads), the closed form."""
-    from spherex_reduce.analysis.characterize import predict
-
+def test_white_darks_scatter_is_the_closed_form():
     scene = _white_scene()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         model = characterize([simulate(scene, seed=s) for s in range(4)], SLOPES_ONLY)
     s = model.schedule
     frames = [2, 3, 6, 12]
-    monkeypatch.setattr(predict, "FRAME_THREADS", threads)
-    monkeypatch.setattr(predict, "default_threads", lambda: 4)
     got = predict_scatter(model, SLOPES_ONLY, frames, sigma=None)
     var_read = 2e-3 * s.geometry.pixel_rate / 2  # a white read's variance, e^2
     t = s.frame_time.to_value("s")

@@ -297,8 +297,8 @@ def stored_planes(sc, red, rows, cols, comps, nodes=NODES, summed=False):
         Quadrature nodes of the engine.
     summed : bool
         Return the sum over the components only, each component's plane added in order
-        and let go (the planes are not copied into the stored image's layout one by one:
-        two frame counts forecast at once peaked 0.16 GB lower at full size).
+        and let go: the planes are not each copied into the stored image's layout (at
+        full size ~17 MB a component).
 
     Returns
     -------

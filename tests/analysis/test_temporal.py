@@ -293,3 +293,25 @@ def test_aliased_basis_is_computed_once_per_set_of_arguments_and_returned_as_a_c
     assert len(calls) == 3 + len(others) and not np.allclose(cross[0], cross[1])
     assert aliased_basis(f, FS, 72, 4, exponent=2.0)[:, 2] == pytest.approx(
         original(f, FS, 72, [(4, 1)], 2.0, None)[:, 2])
+
+
+def test_aliased_basis_keeps_its_terms_within_its_bytes(monkeypatch):
+    """The terms kept are bounded by their bytes (`temporal.BASES_BYTES`): past it the
+    oldest are let go and computed again when asked for; the newest are kept."""
+    from spherex_reduce.analysis import temporal
+
+    calls = []
+    original = temporal._aliased_terms
+    monkeypatch.setattr(temporal, "_aliased_terms",
+                        lambda *a: calls.append(a[0][0]) or original(*a))
+    size = 3 * 8 * 20000  # one set of terms of 20000 frequencies
+    kept = temporal.BASES_BYTES // size
+    start = 1e-3 + np.pi  # frequencies no other test asks for
+    sets = [start + k + np.linspace(1.0, 2.0, 20000) for k in range(kept + 2)]
+    for f in sets:
+        aliased_basis(f, FS, 2, 1)
+    assert len(calls) == kept + 2
+    aliased_basis(sets[-1], FS, 2, 1)  # the newest: kept
+    assert len(calls) == kept + 2
+    aliased_basis(sets[0], FS, 2, 1)  # the oldest: let go
+    assert len(calls) == kept + 3

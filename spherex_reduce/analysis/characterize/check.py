@@ -40,7 +40,7 @@ __all__ = ["BAND_TARGET", "SCATTER_TARGET", "DarkScatter", "compare", "reduction
 #: Issue 33's targets on held-out darks: the slope scatter within 5 %, the band power 10 %.
 SCATTER_TARGET = 0.05
 BAND_TARGET = 0.10
-#: Frame counts reduced at once (threads), each reduction's bands on its own thread: one
+#: Frame counts reduced at once (threads), the cores shared between their bands: one
 #: reduction's serial parts (its reference estimate, its image's clip) overlap another's
 #: bands.  Memory: each holds its bands in flight and its slope image.
 SCATTER_THREADS = 2
@@ -123,17 +123,19 @@ class DarkScatter:
         self.unit = None
 
     def _images(self, source):
-        cuts = {n: _first_reads(source, n) for n in self.frames}  # refused before any work
-        nthreads = min(SCATTER_THREADS, default_threads(), len(cuts))
+        counts = list(dict.fromkeys(self.frames))
+        for n in counts:  # every frame count refused before any work (each cut let go)
+            _first_reads(source, n)
+        nthreads = min(SCATTER_THREADS, default_threads(), len(counts))
         bands = max(1, default_threads() // nthreads)  # each reduction's band threads
 
         def image(n):
-            return _image(self.pipeline, cuts[n], threads=bands)
+            return _image(self.pipeline, _first_reads(source, n), threads=bands)
 
         if nthreads <= 1:
-            done = {n: image(n) for n in cuts}
+            done = {n: image(n) for n in counts}
         else:  # the longest first, so that the threads end together
-            longest = sorted(cuts, reverse=True)
+            longest = sorted(counts, reverse=True)
             with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-scatter") as pool:
                 done = dict(zip(longest, pool.map(image, longest), strict=True))
         self.unit = done[self.frames[-1]][1]

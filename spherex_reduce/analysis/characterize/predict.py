@@ -362,7 +362,7 @@ def predict_scatter(model, pipeline, frames, *, differenced=True, sigma=CLIP_SIG
     faint = faint_population(model)
     out = {k: [] for k in ("sigma", "sigma_streams", "telegraph_variance",
                            "telegraph_excess")}
-    for n in frames:  # one at a time: two forecasts at once peaked at 2.33 GB at full size
+    for n in frames:  # one at a time: two forecasts at once went over 2 GB at full size
         sc, spread = _scene(model, n, not differenced)
         v0 = _stream_variance(sc, pipeline) + spread**2
         core = clipped_sigma([1.0], [0.0], v0, sigma)

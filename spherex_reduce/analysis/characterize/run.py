@@ -166,9 +166,6 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
         if pixels and pixel_mark is None:  # first: the streams leave out what it holds
             sums, drop, pixel_mark = _add_pixels(sums, source, gain)
             left_out += 0 if drop is None else int(drop.sum())
-            if last and pixel_mark is None:  # fitted, its sums let go before the scatter
-                terms, pixel_mark = _fit_pixels(sums)
-                sums = None
         readout, of = source.context.schedule, source.context.unit
         if schedule is None:
             schedule, unit = readout, of
@@ -184,6 +181,10 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
                                      f"first dark ({unit}): one model is of one readout")
         else:
             alone = None
+        if last and sums is not None and pixel_mark is None:
+            # no dark follows: fitted, its sums let go before this dark's reductions
+            terms, pixel_mark = _fit_pixels(sums)
+            sums = None
         # read band by band of reads: the dark is never whole in memory (a raw file's)
         held = dark_streams(source, cuts + runs, leave_out=drop)
         held, runs = held[:len(cuts)], held[len(cuts):]
@@ -212,7 +213,7 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
     boxes = pooled_boxes(each)
     if pixels and pixel_mark is None and terms is None:  # darks of an iterator
         terms, pixel_mark = _fit_pixels(sums)
-    sums = None  # its per-pixel sums (~0.6 GB at full size) are fitted: released
+    sums = None  # its per-pixel sums (~0.55 GB at full size) are fitted: released
     shot = 0.0
     if terms is not None:  # its dark current's shot noise is the per-pixel terms', not the streams'
         shot = _shot(terms, schedule, _segments(nframes, None) if split else cuts)

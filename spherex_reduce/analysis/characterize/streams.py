@@ -469,9 +469,9 @@ def _left_out_parts(drop, parts):
 def _columns_view(data, cols):
     """``data[:, :, cols]`` (``cols`` integers): a view when they are evenly spaced (a
     channel's even or odd columns), which is summed without the copy a list of columns
-    takes.  Not for float64 data, whose sum over a view is not bit for bit that of the copy
-    (float32 ones go through numpy's buffer in float64 alike)."""
-    if cols.size > 1 and data.dtype != np.float64 and cols[0] >= 0:
+    takes.  Not for 8-byte data (float64 in either byte order), whose sum over a view is not
+    bit for bit that of the copy (float32 ones go through numpy's buffer in float64 alike)."""
+    if cols.size > 1 and data.dtype.itemsize < 8 and cols[0] >= 0:
         step = int(cols[1] - cols[0])
         if step > 0 and np.all(np.diff(cols) == step):
             return data[:, :, int(cols[0]):int(cols[-1]) + 1:step]

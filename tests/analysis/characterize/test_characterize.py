@@ -781,7 +781,7 @@ def test_the_per_pixel_sums_are_released_before_the_last_darks_scatter(monkeypat
                                   np.asarray(expect.table["value"]))
 
 
-@pytest.mark.parametrize("dtype", [np.float32, np.float64, ">f4"])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, ">f4", ">f8"])
 def test_a_channels_column_sums_are_numpys_sums_of_its_columns(dtype):
     """The streams sum a channel's even or odd columns as a strided view (no copy) when
     they are evenly spaced: the numbers of numpy's sum over those columns taken as a

@@ -111,14 +111,6 @@ def test_measured_scatter_is_numpys_lstsq_of_the_ramps_differenced_and_clipped(
 
     monkeypatch.setattr(check, "SCATTER_THREADS", threads)
     monkeypatch.setattr(check, "default_threads", lambda: 4)
-    image, together = check._image, threading.Barrier(threads, timeout=30)
-
-    def reduced_together(*args, **kwargs):  # every frame count's reduction at once
-        together.wait()
-        return image(*args, **kwargs)
-
-    monkeypatch.setattr(check, "_image", reduced_together)
-
     s = _plain_schedule(8)
     rng = np.random.default_rng(11)
     t = s.frame_starts.to_value("s")
@@ -128,6 +120,13 @@ def test_measured_scatter_is_numpys_lstsq_of_the_ramps_differenced_and_clipped(
         x[:, 4, 7] += np.where(np.arange(8) >= 3, 500.0, 0.0)  # a jump: clipped
         ramps.append(x)
     frames = [2, 4, 8]
+    image, together = check._image, threading.Barrier(min(threads, len(frames)), timeout=60)
+
+    def reduced_together(*args, **kwargs):  # the frame counts' reductions at once
+        together.wait()
+        return image(*args, **kwargs)
+
+    monkeypatch.setattr(check, "_image", reduced_together)
     acc = DarkScatter(reduction_pipeline({"name": "fit", "steps": [
         {"fit_ramp": {"weighting": "uniform"}}]}), 8, frames=frames,
         measure={"kmin": 0.3, "kmax": 1.5, "bins": 4})

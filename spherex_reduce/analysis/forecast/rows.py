@@ -349,11 +349,26 @@ def _slots(s):
 
 def _row_pairs(schedule, rows, ky):
     """``A(k_y, m)`` for the distinct ``min(i, ny - i)`` of ``ky`` and read-slot lag ``m``
-    (index ``m mod 2 slots``): the autocorrelation over read slots of ``exp(-i k_y p)``."""
-    s = schedule
-    slot = _slots(s)
+    (index ``m mod 2 slots``): the autocorrelation over read slots of ``exp(-i k_y p)``.
+
+    It depends on the rows' read slots, not on the frames or the noise: the forecasts of
+    one readout at several frame counts (the slope scatter against N) share it, kept
+    (`ROW_PAIRS_BYTES`) and read-only."""
+    slot = _slots(schedule)
+    first = _light_reads(schedule, rows)
+    ky = np.asarray(ky)
+    key = (slot.tobytes(), first.tobytes(), rows.start, rows.stop, ky.dtype.str, ky.tobytes())
+    return _pairs.get(key, lambda: _autocorrelation(slot, first, rows, ky))
+
+
+#: Bytes of `_row_pairs` kept: one full-size readout's chunks are ~70 MB.
+ROW_PAIRS_BYTES = 96 * 2**20
+_pairs = RecentlyUsed(ROW_PAIRS_BYTES, size=lambda a: a.nbytes)
+
+
+def _autocorrelation(slot, first, rows, ky):
+    """`_row_pairs` itself (read-only)."""
     slots = int(slot.max()) + 1
-    first = _light_reads(s, rows)
     ny = rows.stop - rows.start
     k = 2 * np.pi * np.unique(np.minimum(ky, ny - ky)) / ny
     n = scipy.fft.next_fast_len(2 * slots)  # the lags |m| < slots stay apart at any n >= 2 slots
@@ -365,6 +380,7 @@ def _row_pairs(schedule, rows, ky):
     m = np.arange(-(slots - 1), slots)
     out = np.zeros((k.size, 2 * slots), dtype=complex)
     out[:, m % (2 * slots)] = a[:, m % n]
+    out.flags.writeable = False
     return out
 
 

@@ -156,3 +156,35 @@ def test_column_phases_are_kept_read_only():
     with pytest.raises(ValueError):
         phase[0, 0] = 0
     assert column_phases(sc.schedule.geometry, slice(2, 18), kx.copy())[1] is phase
+
+
+def test_the_rows_autocorrelation_is_shared_by_a_readouts_frame_counts_and_is_numpys():
+    """The slope scatter forecasts one readout at several frame counts: the rows' read-slot
+    autocorrelation ``A(k_y, m)`` (it depends on the rows' slots, not on the frames) is
+    computed once for them, read-only, another row order gets its own, each equal to
+    the sum over pairs of light rows written out, and the forecasts still equal the brute
+    force."""
+    def readout(nframes=4, skip=3):
+        sc = scene(skip=skip)
+        return load_scene({**sc.config, "readout": {**sc.config["readout"],
+                                                     "nframes": nframes}})
+
+    rows, ky = slice(2, 18), np.arange(9)
+    four, eight, other = readout(), readout(nframes=8), readout(skip=5)
+    a = forecast_rows._row_pairs(four.schedule, rows, ky)
+    assert forecast_rows._row_pairs(eight.schedule, rows, ky) is a
+    b = forecast_rows._row_pairs(other.schedule, rows, ky)
+    assert b is not a
+    with pytest.raises(ValueError):
+        a[0, 0] = 0
+    for sc, got in ((four, a), (other, b)):
+        slot = forecast_rows._slots(sc.schedule)[sc.schedule.read_of_row()[2:18]]
+        n = got.shape[1]
+        want = np.zeros_like(got)
+        for i, k in enumerate(2 * np.pi * ky / 16):
+            for p in range(16):
+                for q in range(16):
+                    want[i, (slot[p] - slot[q]) % n] += np.exp(-1j * k * (p - q))
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+    for sc in (four, eight, other):
+        check_against_brute_force(sc, *PIPELINES["spherex-default"])

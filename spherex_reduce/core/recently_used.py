@@ -20,6 +20,8 @@ from collections import OrderedDict
 
 __all__ = ["RecentlyUsed"]
 
+_MISSING = object()
+
 
 class RecentlyUsed:
     """Values by key, the least recently used let go beyond ``limit``.
@@ -43,8 +45,8 @@ class RecentlyUsed:
     def get(self, key, make):
         """The value kept for ``key``, else ``make()`` (called outside the lock), kept."""
         with self._lock:
-            value = self._values.pop(key, None)
-            if value is not None:
+            value = self._values.pop(key, _MISSING)  # a value may be None
+            if value is not _MISSING:
                 self._values[key] = value
                 return value
         value = make()

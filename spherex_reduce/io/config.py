@@ -60,7 +60,7 @@ MAX_YAML_EXPANDED = 4 << 20
 #: for all.
 PARSED_DOCUMENTS, PARSED_TEXT_CHARACTERS = 32, 1 << 14
 _MERGE_TAG = "tag:yaml.org,2002:merge"
-_parsed = RecentlyUsed(PARSED_DOCUMENTS)  # [document] by text
+_parsed = RecentlyUsed(PARSED_DOCUMENTS)  # document by text
 
 
 class _BoundedLoader(yaml.SafeLoader):
@@ -221,7 +221,7 @@ def parse_yaml(text, label="config"):
     if len(text) > PARSED_TEXT_CHARACTERS:  # a large document: not kept
         return _parse(text, label)
     # a copy of the document kept for this text (callers may change what they are given)
-    return copy.deepcopy(_parsed.get(text, lambda: [_parse(text, label)])[0])
+    return copy.deepcopy(_parsed.get(text, lambda: _parse(text, label)))
 
 
 def _parse(text, label):

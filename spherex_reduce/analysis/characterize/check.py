@@ -27,7 +27,7 @@ from astropy.stats import SigmaClip
 from astropy.table import Table
 
 from ...core.errors import SpherexReduceError
-from ...core.exposure import Exposure
+from ...core.exposure import Exposure, first_frames_schedule
 from ...io.sources import MemorySource
 from ...reduce.options import default_threads
 from ...reduce.steps.clipping import clipped_pixels
@@ -56,15 +56,18 @@ def reduction_pipeline(config):
     return as_pipeline(config)
 
 
-def _first_reads(source, n):
-    """The source of a raw dark's first ``n`` reads
-    (`~spherex_reduce.io.sources.Source.first_frames`: a file's bands are read from those
-    frames only), or the reason it cannot be cut so."""
+def _check_count(source, n):
+    """Refuse (`~spherex_reduce.core.errors.SpherexReduceError`) a raw dark that cannot be
+    cut to its first ``n`` reads (`~spherex_reduce.io.sources.Source.first_frames`), before
+    any is cut."""
     if n < 2:
         raise SpherexReduceError(f"slope scatter: {n} reads of a dark have no slope")
+    if not source.context.ramp:
+        raise SpherexReduceError("slope scatter: first frames: the dark holds an image, not "
+                                 "ramps")
     try:
-        return source.first_frames(n)
-    except ValueError as exc:  # an image, grouped reads, more reads than the dark's
+        first_frames_schedule(source.context.schedule, n)
+    except ValueError as exc:  # grouped reads, more reads than the dark's
         raise SpherexReduceError(f"slope scatter: {exc}") from None
 
 
@@ -124,13 +127,13 @@ class DarkScatter:
 
     def _images(self, source):
         counts = list(dict.fromkeys(self.frames))
-        for n in counts:  # every frame count refused before any work (each cut let go)
-            _first_reads(source, n)
+        for n in counts:  # every frame count refused before any work
+            _check_count(source, n)
         nthreads = min(SCATTER_THREADS, default_threads(), len(counts))
         bands = max(1, default_threads() // nthreads)  # each reduction's band threads
 
-        def image(n):
-            return _image(self.pipeline, _first_reads(source, n), threads=bands)
+        def image(n):  # each cut made when reduced, let go with its image
+            return _image(self.pipeline, source.first_frames(n), threads=bands)
 
         if nthreads <= 1:
             done = {n: image(n) for n in counts}

@@ -309,7 +309,7 @@ def _stream_variance(scene, pipeline):
     slope image of ``scene`` (the forecast's plane less its ``k = 0`` cell), plus Poisson."""
     prepared = prepare_forecast(scene, pipeline)
     planes, (ny, nx) = stored_planes(*prepared, summed=True)
-    total = planes.get("total", np.zeros((ny, nx // 2 + 1)))
+    total = planes["total"] if planes else np.zeros((ny, nx // 2 + 1))
     w = np.broadcast_to(rfft_weights(nx), total.shape)
     var = (float(np.sum(total * w)) - float(total[0, 0])) / (ny * nx) ** 2
     return var + poisson_variance(prepared[0])

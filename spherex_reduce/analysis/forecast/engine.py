@@ -329,7 +329,6 @@ def stored_planes(sc, red, rows, cols, comps, nodes=NODES, summed=False):
     for name in list(parts):  # in order: the numbers of the planes' sum
         p = parts.pop(name)
         total = p if total is None else np.add(total, p, out=total)
-        del p
     return ({} if total is None else {"total": total[cells]}), (ny, nx)
 
 

@@ -8,6 +8,7 @@ differences of reads; sums over reads are dot products), the few jumps taken out
 all-read sums afterwards.
 """
 
+from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -23,7 +24,8 @@ MIN_READS = 3
 #: Fewest differences per dark to tell a telegraph's jumps from a pixel's own noise.
 MIN_TELEGRAPH_INTERVALS = 8
 #: Bands of a dark summed at once, in threads (each holds its reads and ~10 times their
-#: size of work: two bands of 32 rows of a 2048² × 74 dark, ~0.2 GB)
+#: size of work: two bands of 32 rows of a 2048² × 74 dark, ~0.2 GB), while the next
+#: band is read (~19 MB)
 PIXEL_THREADS = 2
 
 _SUMS = ("wd", "wdt", "vr", "vs", "q", "kept", "jumps", "jsize", "offset", "s1", "s2")
@@ -109,16 +111,17 @@ def add_dark(acc, band, shape, t, band_rows):
                      acc["gain"], acc.get("lags"), acc["labels"][sl])
 
     cuts = [slice(r0, min(r0 + band_rows, ny)) for r0 in range(0, ny, band_rows)]
-    # up to PIXEL_THREADS bands at a time, each read here (a reader need not be
-    # thread-safe) and worked on in a thread (numpy's work releases the GIL); each band's
-    # sums are added here, in order, to their own rows
+    # up to PIXEL_THREADS bands worked on at a time in threads (numpy's work releases the
+    # GIL), the next band read here meanwhile (a reader need not be thread-safe); each
+    # band's sums are added here, in order, to their own rows
     nthreads = max(1, min(PIXEL_THREADS, default_threads(), len(cuts)))
+    pending = deque()
     with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-pixels") as pool:
-        for i in range(0, len(cuts), nthreads):
-            group = cuts[i:i + nthreads]
-            work = [pool.submit(one, sl, band(sl)) for sl in group]
-            for sl, done in zip(group, work, strict=True):
-                _add_band(acc, sl, done.result(), slopes, jumped)
+        for sl in cuts:
+            pending.append((sl, pool.submit(one, sl, band(sl))))
+            while len(pending) > nthreads or (pending and sl is cuts[-1]):
+                done, work = pending.popleft()
+                _add_band(acc, done, work.result(), slopes, jumped)
     return slopes, jumped
 
 

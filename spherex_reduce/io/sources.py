@@ -277,16 +277,26 @@ class FileSource(Source):
             self.reader.close()
 
     def _reads(self, idx):
-        """Reads ``idx`` (sorted) of every frame ``(frames, len(idx), ncols)``, native order."""
+        """Reads ``idx`` (in any order) of every frame ``(frames, len(idx), ncols)``, native
+        order: each run of consecutive reads read straight into its place, once per frame."""
         s = self.context.schedule
         out = np.empty((s.nframes, idx.size, s.geometry.ncols), self._dtype)
         if idx.size == 0:
             return out
-        runs = np.split(np.arange(idx.size), np.flatnonzero(np.diff(idx) != 1) + 1)
+        cuts = np.flatnonzero(np.diff(idx) != 1) + 1
+        runs = [(int(a), int(b), int(idx[a])) for a, b in zip([0, *cuts], [*cuts, idx.size],
+                                                              strict=True)]
+        into = getattr(self.reader, "reads_into", None)
+        raw = into is not None and into(0, runs[0][2], runs[0][2] + runs[0][1] - runs[0][0],
+                                         out[0, runs[0][0]:runs[0][1]])
         for k in range(s.nframes):
-            for run in runs:
-                out[k, run[0]:run[-1] + 1] = self.reader.reads(k, int(idx[run[0]]),
-                                                              int(idx[run[-1]]) + 1)
+            for a, b, first in runs:
+                if not raw:  # the reader's copy, its byte order converted as it is put
+                    out[k, a:b] = self.reader.reads(k, first, first + b - a)
+                elif k or a:  # the first run of frame 0 is read above
+                    into(k, first, first + b - a, out[k, a:b])
+        if raw and not self.reader.stored_dtype.isnative:
+            out.byteswap(inplace=True)  # the file's bytes: its order made native
         return self.reader.scale(out)  # the gain of input:, as a whole read applies it
 
     def side(self):
@@ -304,10 +314,7 @@ class FileSource(Source):
         rows = np.asarray(rows, dtype=np.intp)
         if rows.size and (rows.min() < 0 or rows.max() >= self.nrows):
             raise IndexError(f"rows {rows.min()}..{rows.max()} of a frame of {self.nrows}")
-        if np.all(np.diff(rows) > 0):  # sorted and distinct, as a band of rows is
-            return self._reads(rows)
-        distinct, at = np.unique(rows, return_inverse=True)
-        return self._reads(distinct)[:, at]
+        return self._reads(rows)
 
 
 def _from_reader(reader, owned):

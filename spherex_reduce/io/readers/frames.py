@@ -196,6 +196,22 @@ class FrameReader(RampReader):
         return np.concatenate([self._stored_rows(k, r[0], r[-1] + 1)
                                for r in consecutive_runs(rows)])[at, column]
 
+    def reads_into(self, k, first, stop, out):
+        """Fill ``out`` (``(stop - first, columns)``, C-contiguous, of `stored_dtype`'s size)
+        with the bytes of reads ``first:stop`` of frame ``k`` as the file holds them (its
+        byte order: the caller swaps them), with one ``pread`` and no copy of its own.
+
+        Returns False, with nothing read, where the file cannot be read so (channels that
+        are not columns, no ``preadv``): `reads` serves it.
+        """
+        if not self._layout.identity or not hasattr(os, "preadv"):
+            return False
+        _, offset, dtype, fd = self._map
+        nreads, ncols = self._stored_shape
+        pos = offset + ((k + self._drop) * nreads + first) * ncols * dtype.itemsize
+        pread_into(fd, out, pos, f"{self.path}: the file ends inside frame {k}")
+        return True
+
     def _stored_columns(self, k, rows, runs):
         """The columns of ``runs`` (runs of consecutive columns) of stored rows ``rows`` of
         frame ``k``, side by side: one ``pread`` a row and run."""

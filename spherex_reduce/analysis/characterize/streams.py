@@ -31,6 +31,8 @@ each band is reduced to the channels' sums and the few values the reference
 and phantom streams need (`~spherex_reduce.analysis.timestreams.StreamPixels`).
 """
 
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import numpy as np
@@ -38,6 +40,7 @@ import numpy as np
 from ...core.dq import read_usable
 from ...core.errors import SpherexReduceError
 from ...io.sources import MemorySource
+from ...reduce.options import default_threads
 from ..timestreams import (
     StreamPixels,
     detrend_frames,
@@ -48,8 +51,8 @@ from ..timestreams import (
     reference_timestream,
 )
 
-__all__ = ["BAND_READS", "Box", "ChannelStreams", "channel_streams", "dark_streams",
-           "pooled_boxes", "shot_white"]
+__all__ = ["BAND_READS", "STREAM_THREADS", "Box", "ChannelStreams", "channel_streams",
+           "dark_streams", "pooled_boxes", "shot_white"]
 
 #: Fewest frames a dark (or a segment of one) needs: a straight line is removed across them.
 MIN_FRAMES = 3
@@ -59,6 +62,9 @@ MIN_BURST = 32
 #: Reads of every frame `dark_streams` reads at a time (a full-size dark's 74 frames: 39 MB of
 #: float32, where the dark is 1.27 GB).
 BAND_READS = 64
+#: Bands of reads `dark_streams` sums at once, in threads, while the next is read (each
+#: holds its band and ~2 bands of work).
+STREAM_THREADS = 2
 
 
 class Box(NamedTuple):
@@ -292,7 +298,11 @@ def _read_bands(source, plans, drop, band_reads):
     """Read ``source`` band by band of reads: per plan, the channels' mean and half the
     even-odd difference of their light-sensitive columns ``(nchannels, nframes, n_reads)``
     (float64), the columns finite and unmasked in every read of each frame ``(nframes,
-    ncols)``, and the `~spherex_reduce.analysis.timestreams.StreamPixels`."""
+    ncols)``, and the `~spherex_reduce.analysis.timestreams.StreamPixels`.
+
+    The bands are read here, in order (a source need not be thread-safe), and up to
+    `STREAM_THREADS` of them are summed at once in threads while the next is read: each
+    writes its own reads of the outputs, so the numbers do not depend on the threads."""
     s = source.context.schedule
     g = s.geometry
     shape = (g.nchannels, s.nframes, s.n_reads)
@@ -301,24 +311,19 @@ def _read_bands(source, plans, drop, band_reads):
     usable = np.ones((s.nframes, g.ncols), bool)
     columns = np.flatnonzero(g.reference_column_mask())
     reads = reference_row_reads(s)
-    column_values = read_values = phantom = None
-    for lo in range(0, s.n_reads, max(int(band_reads), 1)):
-        hi = min(lo + max(int(band_reads), 1), s.n_reads)
-        block = source.read(lo, hi)
+    out = {}
+    step = max(int(band_reads), 1)
+
+    def one(lo, hi, block):  # one band: its reads of every output, and its usable columns
         data = np.asarray(block.data)
-        if column_values is None:
-            column_values = np.empty((s.nframes, s.n_reads, columns.size), data.dtype)
-            read_values = np.empty((s.nframes, reads.size, g.ncols), data.dtype)
-            if block.phantom is not None:
-                phantom = np.empty((s.nframes, s.n_reads, g.nchannels), block.phantom.dtype)
-        usable &= np.all(np.isfinite(data), axis=1)
+        ok = np.all(np.isfinite(data), axis=1)
         if block.dq is not None:
-            usable &= np.all(read_usable(np.asarray(block.dq)), axis=1)
-        column_values[:, lo:hi] = data[:, :, columns]
+            ok &= np.all(read_usable(np.asarray(block.dq)), axis=1)
+        out["columns"][:, lo:hi] = data[:, :, columns]
         here = (reads >= lo) & (reads < hi)
-        read_values[:, here] = data[:, reads[here] - lo]
-        if phantom is not None:
-            phantom[:, lo:hi] = block.phantom
+        out["reads"][:, here] = data[:, reads[here] - lo]
+        if out["phantom"] is not None:
+            out["phantom"][:, lo:hi] = block.phantom
         for plan, (mean, diff) in zip(plans, sums, strict=True):
             for c in range(g.nchannels):
                 se, so, rest = (_kept_sum(data, part, None if left is None else left[lo:hi])
@@ -327,8 +332,28 @@ def _read_bands(source, plans, drop, band_reads):
                 mean[c, :, lo:hi] = (se + so + rest) / (ne + no + nrest)
                 if diff is not None:
                     diff[c, :, lo:hi] = 0.5 * (se / ne - so / no)
-        del block, data
-    return sums, usable, StreamPixels(s, columns, column_values, reads, read_values, phantom)
+        return ok
+
+    bands = [(lo, min(lo + step, s.n_reads)) for lo in range(0, s.n_reads, step)]
+    nthreads = max(1, min(STREAM_THREADS, default_threads(), len(bands)))
+    pending = deque()
+    with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-streams") as pool:
+        for lo, hi in bands:
+            block = source.read(lo, hi)
+            if not out:  # the outputs' types are the first band's
+                dtype = np.asarray(block.data).dtype
+                out["columns"] = np.empty((s.nframes, s.n_reads, columns.size), dtype)
+                out["reads"] = np.empty((s.nframes, reads.size, g.ncols), dtype)
+                out["phantom"] = (None if block.phantom is None else
+                                  np.empty((s.nframes, s.n_reads, g.nchannels),
+                                           block.phantom.dtype))
+            pending.append(pool.submit(one, lo, hi, block))
+            del block
+            while len(pending) > nthreads or (pending and hi == s.n_reads):
+                usable &= pending.popleft().result()
+    pixels = StreamPixels(s, columns, out.get("columns"), reads, out.get("reads"),
+                          out.get("phantom"))
+    return sums, usable, pixels
 
 
 def _streams(plan, mean, diff, cut, nframes, pixels, leave_out):

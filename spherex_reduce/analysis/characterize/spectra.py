@@ -15,12 +15,20 @@ then linear in its spectrum, so coefficients of differences of spectra are
 differences of coefficients).
 """
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 from astropy.table import Table
 
+from ...reduce.options import default_threads
 from ..temporal import aliased_basis, fit_noise_model, temporal_psd
 
-__all__ = ["LONG_BURST", "SPECTRA", "band_power", "dark_spectra", "fit_spectra", "pool"]
+__all__ = ["LONG_BURST", "SPECTRA", "SPECTRA_THREADS", "band_power", "dark_spectra",
+           "fit_spectra", "pool"]
+
+#: Spectra of one dark taken at once, in threads (each a Welch transform of one stream:
+#: tens of MB at full size).
+SPECTRA_THREADS = 2
 
 #: Samples of one column parity in a reference-row burst from which its fit takes the
 #: correlated terms too, not the white level alone (`_burst_terms`): 128 (channels of 256
@@ -78,36 +86,44 @@ def dark_spectra(streams, schedule, nperseg=None):
     rate = fs / schedule.row_samples
     nper = _nperseg(schedule, nperseg)
 
-    def psd(values, r=rate, n=nper):
-        return temporal_psd(values, r, nperseg=n)
+    jobs = {}  # key: (values, rate, nperseg), in the order of the result
 
-    out = {"sum": psd(streams.sum), "sum_mean": psd(streams.sum.mean(axis=0))}
+    def psd(key, values, r=rate, n=nper):
+        jobs[key] = (values, r, n)
+
+    psd("sum", streams.sum)
+    psd("sum_mean", streams.sum.mean(axis=0))
     for c, v in enumerate(streams.sum):
-        out[f"sum[{c}]"] = psd(v)
+        psd(f"sum[{c}]", v)
     if streams.diff is not None:
-        out["diff"] = psd(streams.diff)
+        psd("diff", streams.diff)
     if streams.phantom is not None:
-        out["phantom"] = psd(streams.phantom)
-        out["phantom_mean"] = psd(streams.phantom.mean(axis=0))
-        out["sum+phantom"] = psd(streams.sum + streams.phantom)
-        out["sum+phantom_mean"] = psd((streams.sum + streams.phantom).mean(axis=0))
+        psd("phantom", streams.phantom)
+        psd("phantom_mean", streams.phantom.mean(axis=0))
+        psd("sum+phantom", streams.sum + streams.phantom)
+        psd("sum+phantom_mean", (streams.sum + streams.phantom).mean(axis=0))
         for c, v in enumerate(streams.phantom):
-            out[f"phantom[{c}]"] = psd(v)
+            psd(f"phantom[{c}]", v)
     rows = streams.reference_rows
     if rows is not None:  # even and odd apart: each a stream at half the pixel rate
         kept = streams.reference_kept
         if kept is not None:  # the bursts kept, each a stream: (bursts, frames, width / 2)
             rows = np.moveaxis(rows, 3, 2)
-            out["rows"] = psd(rows[kept], fs / 2, rows.shape[-1])
+            psd("rows", rows[kept], fs / 2, rows.shape[-1])
             for c, v in enumerate(rows):
-                out[f"rows[{c}]"] = psd(v[kept[c]], fs / 2, rows.shape[-1])
+                psd(f"rows[{c}]", v[kept[c]], fs / 2, rows.shape[-1])
         else:
-            out["rows"] = psd(rows, fs / 2, rows.shape[-1])
+            psd("rows", rows, fs / 2, rows.shape[-1])
             for c, v in enumerate(rows):
-                out[f"rows[{c}]"] = psd(v, fs / 2, rows.shape[-1])
+                psd(f"rows[{c}]", v, fs / 2, rows.shape[-1])
     for c, v in streams.reference_sides.items():
-        out[f"sides[{c}]"] = psd(v)
-    return out
+        psd(f"sides[{c}]", v)
+    # each spectrum alone: SPECTRA_THREADS at a time (the transforms release the GIL)
+    nthreads = max(1, min(SPECTRA_THREADS, default_threads()))
+    with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-spectra") as run:
+        done = list(run.map(lambda job: temporal_psd(job[0], job[1], nperseg=job[2]),
+                            jobs.values()))
+    return dict(zip(jobs, done, strict=True))
 
 
 def pool(spectra):

@@ -54,6 +54,9 @@ FAINT_TERMS = ("faint_telegraph_power", "faint_telegraph_rate", "faint_telegraph
 MIN_GROUP = 4
 #: Lags of the structure function, at most (spaced evenly in log from 1 to half the ramp).
 MAX_LAGS = 8
+#: Pixels `lag_sums` takes at a time: their reads' cumulative sums (~2.4 MB at 74 reads)
+#: stay in cache for the squares and every lag's products.
+LAG_PIXELS = 8192
 #: Search range of the rate, in units of 1/(2 dt): from far slower than the ramp to far
 #: faster than the reads.
 _RATE_RANGE = (1e-4, 20.0)
@@ -193,26 +196,34 @@ def lag_sums(e, labels, jumped, lags):
     count = np.bincount(inv[who], minlength=uniq.size).astype(np.float64)
     small = (count < MIN_GROUP) | (uniq < 0)  # too few to take a drift from: none removed
     flat = e.reshape(m, -1)
-    cm = np.asarray(sel @ flat.T).T / np.where(small, np.inf, count).astype(np.float32)
-    r = flat - np.take(cm.astype(np.float32), inv, axis=1)
-    x = np.empty((m + 1, r.shape[1]), np.float32)
-    x[0] = 0.0
-    for k in range(m):  # a cumulative sum read by read (numpy's along axis 0 is slower)
-        np.add(x[k], r[k], out=x[k + 1])
-    del r
+    cm = (np.asarray(sel @ flat.T).T
+          / np.where(small, np.inf, count).astype(np.float32)).astype(np.float32)
+    npx = flat.shape[1]
     # Q_L = sum_k x_{k+L}^2 + x_k^2 - 2 x_k x_{k+L}: the squares' partial sums it needs
     need = {m} | {m - lag for lag in lags} | {lag - 1 for lag in lags}
-    sq, acc = {}, np.zeros(x.shape[1])
-    for k in range(m + 1):
-        acc += np.square(x[k], dtype=np.float64)
-        if k in need:
-            sq[k] = acc.copy()
+    sq = {k: np.empty(npx) for k in need}
+    cross = np.empty((len(lags), npx), np.float32)
+    x = np.empty((m + 1, min(LAG_PIXELS, npx)), np.float32)
+    acc = np.empty(x.shape[1])
+    for p0 in range(0, npx, LAG_PIXELS):  # a chunk of pixels at a time, held in cache
+        p1 = min(p0 + LAG_PIXELS, npx)
+        xc, ac = x[:, :p1 - p0], acc[:p1 - p0]
+        xc[0] = 0.0
+        np.subtract(flat[:, p0:p1], np.take(cm, inv[p0:p1], axis=1), out=xc[1:])
+        for k in range(m):  # a cumulative sum read by read (numpy's along axis 0 is slower)
+            np.add(xc[k], xc[k + 1], out=xc[k + 1])
+        ac[:] = 0.0
+        for k in range(m + 1):
+            ac += np.square(xc[k], dtype=np.float64)
+            if k in sq:
+                sq[k][p0:p1] = ac
+        for i, lag in enumerate(lags):
+            cross[i, p0:p1] = np.einsum("kp,kp->p", xc[:-lag], xc[lag:])
     n = count[inv]
     factor = np.where(member & ~small[inv], (n - 2) / np.maximum(n, 1), 1.0)
     out = np.zeros((len(lags), member.size))
     for i, lag in enumerate(lags):
-        cross = np.einsum("kp,kp->p", x[:-lag], x[lag:])
-        q = sq[m - lag] + (sq[m] - sq[lag - 1]) - 2.0 * cross
+        q = sq[m - lag] + (sq[m] - sq[lag - 1]) - 2.0 * cross[i]
         # the mean's own variance, 1/n² of its members' terms, is their mean q over n - 1
         # (each member's q is (1 - 2/n) of its terms plus that): taken out of every pixel
         own = np.bincount(inv[who], q[who], minlength=uniq.size)

@@ -149,3 +149,44 @@ def test_a_population_slower_than_the_ramps_shows_only_its_power_times_its_rate(
     value, error = map(float, re.search(r"P r = (\S+) \+- (\S+) electron2 / s",
                                         row["note"]).groups())
     assert abs(value - FRACTION * STEP ** 2 * 0.003) < 3 * error, row["note"]
+
+
+def test_lag_sums_against_the_structure_functions_written_out(monkeypatch):
+    """`lag_sums`, taken a few pixels at a time (``LAG_PIXELS`` 7: chunks and a remainder),
+    against its definition in float64: each group's mean at every read (members: not
+    jumped) taken out, ``Q_L`` = the sum over k of the squared steps of the cumulative
+    residual ``L`` reads apart, less the mean's own share, over (n - 2) / n; a group too
+    small keeps its ``Q_L``; reference pixels 0."""
+    from spherex_reduce.analysis import faint_telegraph as ft
+
+    rng = np.random.default_rng(5)
+    m, rows, nx = 11, 3, 12
+    e = rng.normal(0.0, 1.0, (m, rows, nx)).astype(np.float32)
+    labels = np.repeat(np.arange(rows * 2)[:, None], nx // 2, axis=1).reshape(rows, nx)
+    labels[0, :3] = -1  # reference pixels
+    labels[2, 8:] = 99  # a group of 4, one of them jumped: 3 members, too few
+    jumped = np.zeros((rows, nx), bool)
+    jumped[1, 4] = jumped[2, 9] = True
+    lags = np.array([1, 2, 5])
+    monkeypatch.setattr(ft, "LAG_PIXELS", 7)
+    got = ft.lag_sums(e, labels, jumped, lags)
+
+    want = np.zeros((lags.size, rows, nx))
+    x64 = e.astype(np.float64)
+    for lab in np.unique(labels[labels >= 0]):
+        where = labels == lab
+        member = where & ~jumped
+        n = member.sum()
+        small = n < ft.MIN_GROUP
+        mean = 0.0 if small else x64[:, member].mean(axis=1)[:, None]
+        res = x64[:, where] - mean
+        cum = np.concatenate([np.zeros((1, res.shape[1])), np.cumsum(res, axis=0)])
+        for i, lag in enumerate(lags):
+            q = np.sum((cum[lag:] - cum[:-lag]) ** 2, axis=0)
+            if not small:
+                own = q[member[where]].sum() / (n * (n - 1.0))
+                factor = np.where(member[where], (n - 2) / n, 1.0)
+                q = (q - own) / factor
+            want[i][where] = q
+    np.testing.assert_allclose(got, want, rtol=2e-5, atol=1e-5)
+    assert np.all(got[:, 0, :3] == 0)

@@ -18,7 +18,7 @@ clipped pixels' standard error, which leaves out the correlated noise).
 `~spherex_reduce.analysis.characterize.run.check_model` does it on held-out darks.
 """
 
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, as_completed
 
 import numpy as np
 from astropy import units as u
@@ -125,7 +125,10 @@ class DarkScatter:
         self._stats = []  # per pair (or the single dark): sigma per N, P(k), band power
         self.unit = None
 
-    def _images(self, source):
+    def _images(self, source, each=None):
+        """The slope image of ``source`` at every frame count, in the order of
+        ``self.frames``; ``each(n, image)`` (optional) is called in this thread with each
+        image as it is done, while the others are reduced."""
         counts = list(dict.fromkeys(self.frames))
         for n in counts:  # every frame count refused before any work
             _check_count(source, n)
@@ -135,13 +138,24 @@ class DarkScatter:
         def image(n):  # each cut made when reduced, let go with its image
             return _image(self.pipeline, source.first_frames(n), threads=bands)
 
+        done = {}
+
+        def got(n, result):
+            done[n] = result
+            if n == self.frames[-1]:
+                self.unit = result[1]
+            if each is not None:
+                each(n, result[0])
+
         if nthreads <= 1:
-            done = {n: image(n) for n in counts}
+            for n in counts:
+                got(n, image(n))
         else:  # the longest first, so that the threads end together
             longest = sorted(counts, reverse=True)
             with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-scatter") as pool:
-                done = dict(zip(longest, pool.map(image, longest), strict=True))
-        self.unit = done[self.frames[-1]][1]
+                work = {pool.submit(image, n): n for n in longest}
+                for fut in as_completed(work):
+                    got(work[fut], fut.result())
         return [done[n][0] for n in self.frames]
 
     def add(self, dark):
@@ -151,31 +165,51 @@ class DarkScatter:
         `~spherex_reduce.io.sources.Source`: a raw file's source is reduced band by
         band of rows from its first ``N`` reads (the pipeline's passes,
         `~spherex_reduce.Pipeline.run`), never read whole unless a step needs the
-        whole exposure.
+        whole exposure.  A pair's statistics at each frame count are taken as its
+        second image is done, while the others are reduced.
         """
         source = MemorySource(dark) if isinstance(dark, Exposure) else dark
-        images = self._images(source)
         if self._held is None:
-            self._held = images
+            self._held = self._images(source)
             return
-        diff = [(a.astype(np.float64) - b) / np.sqrt(2.0)
-                for a, b in zip(self._held, images, strict=True)]
+        held = dict(zip(self.frames, self._held, strict=True))
+        stats = {}
+
+        def each(n, image):  # the pair's difference at n, over sqrt(2)
+            stats[n] = self._scatter((held.pop(n).astype(np.float64) - image) / np.sqrt(2.0),
+                                     last=n == self.frames[-1])
+
+        self._images(source, each)
         self._held = None
-        self._stats.append(self._measure(diff))
+        self._stats.append(self._combine([stats[n] for n in self.frames]))
 
     def _measure(self, images):
+        """`_combine` of the statistics of ``images`` (float64), one per frame count."""
+        last = len(images) - 1
+        return self._combine([self._scatter(img, last=i == last)
+                              for i, img in enumerate(images)])
+
+    def _scatter(self, img, last=False):
+        """``(sigma, kept, P(k) and band power or None)`` of one image: its standard
+        deviation over the finite pixels that astropy's sigma clip keeps, and (the last
+        frame count's) its P(k) and band power with the pixels clipped masked."""
         clipper = SigmaClip(sigma=CLIP_SIGMA, maxiters=None, cenfunc="median", stdfunc="std")
-        sigma, kept = [], []
-        for img in images:  # astropy's sigma_clip of the finite pixels
-            ok = np.isfinite(img)
-            keep = ok & ~clipped_pixels(img, ok, clipper)
-            sigma.append(float(np.std(img[keep])) if keep.any() else np.nan)
-            kept.append(int(np.count_nonzero(keep)))
-            last_kept = keep  # the last frame count's, for its P(k)
-        img = CCDData(np.where(last_kept, images[-1], 0.0), unit=self.unit, mask=~last_kept)
-        spec = power_spectrum(img, bins=self.bins)
-        band = band_power(img, return_error=True, **self.band)
-        return {"sigma": np.array(sigma), "kept": np.array(kept),
+        ok = np.isfinite(img)
+        keep = ok & ~clipped_pixels(img, ok, clipper)
+        sigma = float(np.std(img[keep])) if keep.any() else np.nan
+        spectra = None
+        if last:
+            masked = CCDData(np.where(keep, img, 0.0), unit=self.unit, mask=~keep)
+            spectra = (power_spectrum(masked, bins=self.bins),
+                       band_power(masked, return_error=True, **self.band))
+        return sigma, int(np.count_nonzero(keep)), spectra
+
+    def _combine(self, per_count):
+        """The statistics of one pair (or the single dark) from `_scatter`'s per frame
+        count."""
+        spec, band = per_count[-1][2]
+        return {"sigma": np.array([s[0] for s in per_count]),
+                "kept": np.array([s[1] for s in per_count]),
                 "k": np.asarray(u.Quantity(spec["k"]).value),
                 "power": np.asarray(u.Quantity(spec["power"]).value),
                 "band": float(band[0].value), "band_err": float(band[1].value),

@@ -160,6 +160,54 @@ def _refused(self):
     raise AssertionError("a raw file read whole")
 
 
+def test_a_pairs_statistics_are_taken_while_its_other_frame_counts_are_reduced(monkeypatch):
+    """The second dark of a pair: the scatter at its longest frame count is measured as soon
+    as that image is done, while the shortest is still being reduced (which waits for it,
+    bounded: measured only once every image was done, it would wait in vain); the numbers
+    are the pair's differences measured after the fact."""
+    from spherex_reduce.analysis.characterize import check
+
+    monkeypatch.setattr(check, "SCATTER_THREADS", 2)
+    monkeypatch.setattr(check, "default_threads", lambda: 2)
+    s = _plain_schedule(8)
+    rng = np.random.default_rng(12)
+    darks = [Exposure.from_arrays(rng.normal(0, 5.0, (8, 32, 32)), s) for _ in range(2)]
+    frames = [2, 8]
+    measure = {"kmin": 0.3, "kmax": 1.5, "bins": 4}
+    pipeline = reduction_pipeline({"name": "fit", "steps": [
+        {"fit_ramp": {"weighting": "uniform"}}]})
+    after = DarkScatter(pipeline, 8, frames=frames, measure=measure)
+    images = []
+    for dark in darks:
+        images.append(after._images(check.MemorySource(dark)))
+    want = after._measure([(a.astype(np.float64) - b) / np.sqrt(2.0)
+                           for a, b in zip(*images, strict=True)])
+
+    acc = DarkScatter(pipeline, 8, frames=frames, measure=measure)
+    acc.add(darks[0])
+    measured, waited = threading.Event(), []
+    image, scatter = check._image, DarkScatter._scatter
+
+    def reduce_shortest_last(pipe, source, threads=None):
+        if source.context.schedule.nframes == 2:
+            waited.append(measured.wait(timeout=20))
+        return image(pipe, source, threads=threads)
+
+    def scattering(self, img, last=False):
+        out = scatter(self, img, last)
+        measured.set()
+        return out
+
+    monkeypatch.setattr(check, "_image", reduce_shortest_last)
+    monkeypatch.setattr(DarkScatter, "_scatter", scattering)
+    acc.add(darks[1])
+    assert waited == [True]
+    got = acc.result()
+    np.testing.assert_array_equal(got["sigma"], want["sigma"])
+    np.testing.assert_array_equal(got["power"], want["power"])
+    assert got["band_power"] == want["band"]
+
+
 def test_held_out_darks_with_telegraph_pixels_and_the_report_and_plot():
     rtn = {"fraction": 0.05, "amplitude": 200.0, "rate": 0.5}
     scene = _white_scene(nframes=16, seed_rtn=rtn)

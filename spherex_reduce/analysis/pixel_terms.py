@@ -567,9 +567,17 @@ def _jackknife(f, columns, sel, gid, k):
     Every summary is a function of sums over pixels, so one pass of `numpy.bincount` gives
     the groups' sums and each delete-a-group value is ``f(total - group)``.
     """
-    g = gid[sel]
-    sums = np.array([np.bincount(g, weights=np.broadcast_to(c, sel.shape)[sel].astype(float),
-                                 minlength=k) for c in columns])
+    g = gid[sel].astype(np.intp)  # once: bincount would convert it for every column
+    count = None
+    sums = []
+    for c in columns:
+        if np.ndim(c) == 0 and c == 1.0:  # a pixel count: the same sums, without weights
+            count = np.bincount(g, minlength=k).astype(np.float64) if count is None else count
+            sums.append(count)
+        else:
+            sums.append(np.bincount(g, weights=np.asarray(np.broadcast_to(c, sel.shape)[sel],
+                                                          dtype=np.float64), minlength=k))
+    sums = np.array(sums)
     total = sums.sum(axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         full = float(f(total))

@@ -80,6 +80,10 @@ class Cells:
     ky: np.ndarray
     kx: np.ndarray
 
+    def __post_init__(self):
+        if np.any(np.diff(self.ky) <= 0):
+            raise ValueError("Cells: the row indices ky must increase")
+
     @classmethod
     def full(cls, ny, nx):
         """Every cell of the rfft2 plane."""
@@ -130,7 +134,7 @@ def component_planes(schedule, rows, cols, comps, reduction, nodes=NODES, cells=
         light_reads = np.zeros(2 * (int(_slots(schedule).max()) + 1))
         light_reads[_slots(schedule)[_light_reads(schedule, rows)]] = 1.0
     first = np.searchsorted(distinct, half)  # row of `distinct` for every cell row
-    negative = cells.ky > ny // 2
+    split = int(np.searchsorted(cells.ky, ny // 2, side="right"))  # k_y < 0 from here
     re, im = (np.zeros((len(comps), distinct.size, cells.kx.size)) for _ in range(2))
     for lo in range(0, distinct.size, CHUNK_ROWS):  # (rows, 2 slots) arrays a chunk at a time
         a = _row_pairs(schedule, rows, distinct[lo:lo + CHUNK_ROWS])
@@ -141,8 +145,12 @@ def component_planes(schedule, rows, cols, comps, reduction, nodes=NODES, cells=
     spectra = light_spectra.fork() if wiener else None  # its terms are this schedule's
     parts = {}
     for i, comp in enumerate(comps):
-        parts[comp.name] = np.where(negative[:, None], re[i, first] + im[i, first],
-                                    re[i, first] - im[i, first])
+        # each cell row from its distinct row: re - im, and re + im for k_y < 0 (the rows
+        # after `split`: cells.ky increases)
+        plane = np.empty((cells.ky.size, cells.kx.size))
+        np.take(re[i] - im[i], first[:split], axis=0, out=plane[:split])
+        np.take(re[i] + im[i], first[split:], axis=0, out=plane[split:])
+        parts[comp.name] = plane
         if ref is not None and has_zero:
             for n, (ind, f) in enumerate(ref):
                 x = ref_spectra.correlate(("light", light), (n, f), comp)

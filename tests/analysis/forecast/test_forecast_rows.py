@@ -188,3 +188,13 @@ def test_the_rows_autocorrelation_is_shared_by_a_readouts_frame_counts_and_is_nu
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
     for sc in (four, eight, other):
         check_against_brute_force(sc, *PIPELINES["spherex-default"])
+
+
+def test_cells_refuse_rows_that_do_not_increase():
+    """`component_planes` puts each cell row from its distinct row in two runs (k_y >= 0,
+    then k_y < 0), which holds for increasing rows only."""
+    with pytest.raises(ValueError, match="must increase"):
+        forecast_rows.Cells(np.array([3, 1, 2]), np.arange(4))
+    with pytest.raises(ValueError, match="must increase"):
+        forecast_rows.Cells(np.array([1, 1]), np.arange(4))
+    assert forecast_rows.Cells.full(8, 8).ky.tolist() == list(range(8))

@@ -508,12 +508,12 @@ class LeastSquares:
                 sq = np.multiply(slope, slope)
                 sq *= self.stt
                 chi2 -= sq
-                with np.errstate(invalid="ignore"):
-                    bad |= chi2 <= np.multiply(ss, kcrit, out=ss)
                 if nf > 2:
+                    with np.errstate(invalid="ignore"):
+                        bad |= chi2 <= np.multiply(ss, kcrit, out=ss)
                     np.multiply(chi2, self.sumw2 / (nf - 2), out=var)
-                else:
-                    var[:] = np.nan
+                else:  # two reads: a line through both, no residual to lose (nor variance);
+                    var[:] = np.nan  # the test would send every pixel to the refit
             elif self.want_var:
                 self._model_variance(slope, var, maps, fit)
                 if work is np.float32 and nf > 2:

@@ -287,16 +287,13 @@ class FileSource(Source):
         runs = [(int(a), int(b), int(idx[a])) for a, b in zip([0, *cuts], [*cuts, idx.size],
                                                               strict=True)]
         into = getattr(self.reader, "reads_into", None)
-        raw = into is not None and into(0, runs[0][2], runs[0][2] + runs[0][1] - runs[0][0],
-                                         out[0, runs[0][0]:runs[0][1]])
-        for k in range(s.nframes):
-            for a, b, first in runs:
-                if not raw:  # the reader's copy, its byte order converted as it is put
+        if into is not None and into(out, runs):  # the file's bytes, straight into place
+            if not self.reader.stored_dtype.isnative:
+                out.byteswap(inplace=True)  # its order made native
+        else:  # the reader's copies, their byte order converted as they are put
+            for k in range(s.nframes):
+                for a, b, first in runs:
                     out[k, a:b] = self.reader.reads(k, first, first + b - a)
-                elif k or a:  # the first run of frame 0 is read above
-                    into(k, first, first + b - a, out[k, a:b])
-        if raw and not self.reader.stored_dtype.isnative:
-            out.byteswap(inplace=True)  # the file's bytes: its order made native
         return self.reader.scale(out)  # the gain of input:, as a whole read applies it
 
     def side(self):

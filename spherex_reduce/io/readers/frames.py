@@ -196,10 +196,11 @@ class FrameReader(RampReader):
         return np.concatenate([self._stored_rows(k, r[0], r[-1] + 1)
                                for r in consecutive_runs(rows)])[at, column]
 
-    def reads_into(self, k, first, stop, out):
-        """Fill ``out`` (``(stop - first, columns)``, C-contiguous, of `stored_dtype`'s size)
-        with the bytes of reads ``first:stop`` of frame ``k`` as the file holds them (its
-        byte order: the caller swaps them), with one ``pread`` and no copy of its own.
+    def reads_into(self, out, runs):
+        """Fill ``out`` (``(frames, n, columns)``, C-contiguous, of `stored_dtype`'s size)
+        with the bytes of the reads of every frame as the file holds them (its byte order:
+        the caller swaps them): ``out[k, a:b]`` gets reads ``first:first + b - a`` of frame
+        ``k`` for each ``(a, b, first)`` of ``runs``, one ``pread`` each, no copy.
 
         Returns False, with nothing read, where the file cannot be read so (channels that
         are not columns, no ``preadv``): `reads` serves it.
@@ -208,8 +209,17 @@ class FrameReader(RampReader):
             return False
         _, offset, dtype, fd = self._map
         nreads, ncols = self._stored_shape
-        pos = offset + ((k + self._drop) * nreads + first) * ncols * dtype.itemsize
-        pread_into(fd, out, pos, f"{self.path}: the file ends inside frame {k}")
+        row = ncols * dtype.itemsize
+        view = memoryview(out).cast("B")
+        per_frame = out.shape[1] * row
+        for k in range(out.shape[0]):
+            base = offset + (k + self._drop) * nreads * row
+            at = k * per_frame
+            for a, b, first in runs:
+                part = view[at + a * row:at + b * row]
+                if os.preadv(fd, [part], base + first * row) != part.nbytes:  # short: again
+                    pread_into(fd, np.frombuffer(part, np.uint8), base + first * row,
+                               f"{self.path}: the file ends inside frame {k}")
         return True
 
     def _stored_columns(self, k, rows, runs):

@@ -186,6 +186,10 @@ def lag_sums(e, labels, jumped, lags):
     """
     m = e.shape[0]
     shape = e.shape[1:]
+    lags = np.asarray(lags)
+    if lags.size and (lags.min() < 1 or lags.max() > m):
+        raise ValueError(f"lag_sums: lags must be 1 to {m} (the differences), got "
+                         f"{lags.tolist()}")
     use = (labels >= 0).ravel()
     uniq, inv = np.unique(np.where(use, labels.ravel(), -1), return_inverse=True)
     member = use & ~np.asarray(jumped).ravel()

@@ -7,6 +7,7 @@ telegraph of steps near the jumps' threshold in a known fraction of the pixels.
 """
 
 import numpy as np
+import pytest
 from astropy import units as u
 
 from spherex_reduce import DetectorGeometry
@@ -190,3 +191,6 @@ def test_lag_sums_against_the_structure_functions_written_out(monkeypatch):
             want[i][where] = q
     np.testing.assert_allclose(got, want, rtol=2e-5, atol=1e-5)
     assert np.all(got[:, 0, :3] == 0)
+    for bad in ([0, 2], [1, m + 1]):  # no lag outside the differences
+        with pytest.raises(ValueError, match="lags must be 1 to 11"):
+            ft.lag_sums(e, labels, jumped, np.array(bad))

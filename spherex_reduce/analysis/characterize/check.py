@@ -127,8 +127,9 @@ class DarkScatter:
 
     def _images(self, source, each=None):
         """The slope image of ``source`` at every frame count, in the order of
-        ``self.frames``; ``each(n, image)`` (optional) is called in this thread with each
-        image as it is done, while the others are reduced."""
+        ``self.frames``; or, given ``each``, None: ``each(n, image)`` is called in this
+        thread with each image as it is done, while the others are reduced, and the image
+        is not kept.  A failure cancels the frame counts not yet started."""
         counts = list(dict.fromkeys(self.frames))
         for n in counts:  # every frame count refused before any work
             _check_count(source, n)
@@ -141,10 +142,11 @@ class DarkScatter:
         done = {}
 
         def got(n, result):
-            done[n] = result
             if n == self.frames[-1]:
                 self.unit = result[1]
-            if each is not None:
+            if each is None:
+                done[n] = result[0]
+            else:
                 each(n, result[0])
 
         if nthreads <= 1:
@@ -154,9 +156,13 @@ class DarkScatter:
             longest = sorted(counts, reverse=True)
             with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-scatter") as pool:
                 work = {pool.submit(image, n): n for n in longest}
-                for fut in as_completed(work):
-                    got(work[fut], fut.result())
-        return [done[n][0] for n in self.frames]
+                try:
+                    for fut in as_completed(work):
+                        got(work[fut], fut.result())
+                except BaseException:
+                    pool.shutdown(cancel_futures=True)
+                    raise
+        return None if each is not None else [done[n] for n in self.frames]
 
     def add(self, dark):
         """Reduce ``dark`` at every frame count; every second dark closes a pair.
@@ -166,13 +172,15 @@ class DarkScatter:
         band of rows from its first ``N`` reads (the pipeline's passes,
         `~spherex_reduce.Pipeline.run`), never read whole unless a step needs the
         whole exposure.  A pair's statistics at each frame count are taken as its
-        second image is done, while the others are reduced.
+        second image is done, while the others are reduced, and both images are let
+        go (a failure drops the pair).
         """
         source = MemorySource(dark) if isinstance(dark, Exposure) else dark
         if self._held is None:
             self._held = self._images(source)
             return
         held = dict(zip(self.frames, self._held, strict=True))
+        self._held = None  # each first image let go once its pair is measured
         stats = {}
 
         def each(n, image):  # the pair's difference at n, over sqrt(2)
@@ -180,7 +188,6 @@ class DarkScatter:
                                      last=n == self.frames[-1])
 
         self._images(source, each)
-        self._held = None
         self._stats.append(self._combine([stats[n] for n in self.frames]))
 
     def _measure(self, images):

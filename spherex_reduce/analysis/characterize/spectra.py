@@ -86,43 +86,49 @@ def dark_spectra(streams, schedule, nperseg=None):
     rate = fs / schedule.row_samples
     nper = _nperseg(schedule, nperseg)
 
-    jobs = {}  # key: (values, rate, nperseg), in the order of the result
+    jobs = {}  # key: (values, rate, nperseg); values made when their spectrum is taken
 
     def psd(key, values, r=rate, n=nper):
         jobs[key] = (values, r, n)
 
-    psd("sum", streams.sum)
-    psd("sum_mean", streams.sum.mean(axis=0))
-    for c, v in enumerate(streams.sum):
-        psd(f"sum[{c}]", v)
+    psd("sum", lambda: streams.sum)
+    psd("sum_mean", lambda: streams.sum.mean(axis=0))
+    for c in range(streams.sum.shape[0]):
+        psd(f"sum[{c}]", lambda c=c: streams.sum[c])
     if streams.diff is not None:
-        psd("diff", streams.diff)
+        psd("diff", lambda: streams.diff)
     if streams.phantom is not None:
-        psd("phantom", streams.phantom)
-        psd("phantom_mean", streams.phantom.mean(axis=0))
-        psd("sum+phantom", streams.sum + streams.phantom)
-        psd("sum+phantom_mean", (streams.sum + streams.phantom).mean(axis=0))
-        for c, v in enumerate(streams.phantom):
-            psd(f"phantom[{c}]", v)
+        psd("phantom", lambda: streams.phantom)
+        psd("phantom_mean", lambda: streams.phantom.mean(axis=0))
+        psd("sum+phantom", lambda: streams.sum + streams.phantom)
+        psd("sum+phantom_mean", lambda: (streams.sum + streams.phantom).mean(axis=0))
+        for c in range(streams.phantom.shape[0]):
+            psd(f"phantom[{c}]", lambda c=c: streams.phantom[c])
     rows = streams.reference_rows
     if rows is not None:  # even and odd apart: each a stream at half the pixel rate
         kept = streams.reference_kept
         if kept is not None:  # the bursts kept, each a stream: (bursts, frames, width / 2)
             rows = np.moveaxis(rows, 3, 2)
-            psd("rows", rows[kept], fs / 2, rows.shape[-1])
-            for c, v in enumerate(rows):
-                psd(f"rows[{c}]", v[kept[c]], fs / 2, rows.shape[-1])
+            psd("rows", lambda: rows[kept], fs / 2, rows.shape[-1])
+            for c in range(rows.shape[0]):
+                psd(f"rows[{c}]", lambda c=c: rows[c][kept[c]], fs / 2, rows.shape[-1])
         else:
-            psd("rows", rows, fs / 2, rows.shape[-1])
-            for c, v in enumerate(rows):
-                psd(f"rows[{c}]", v, fs / 2, rows.shape[-1])
+            psd("rows", lambda: rows, fs / 2, rows.shape[-1])
+            for c in range(rows.shape[0]):
+                psd(f"rows[{c}]", lambda c=c: rows[c], fs / 2, rows.shape[-1])
     for c, v in streams.reference_sides.items():
-        psd(f"sides[{c}]", v)
-    # each spectrum alone: SPECTRA_THREADS at a time (the transforms release the GIL)
+        psd(f"sides[{c}]", lambda v=v: v)
+    # each spectrum alone: SPECTRA_THREADS at a time (the transforms release the GIL);
+    # a failure cancels the spectra not yet started
     nthreads = max(1, min(SPECTRA_THREADS, default_threads()))
     with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-spectra") as run:
-        done = list(run.map(lambda job: temporal_psd(job[0], job[1], nperseg=job[2]),
-                            jobs.values()))
+        work = [run.submit(lambda job: temporal_psd(job[0](), job[1], nperseg=job[2]), job)
+                for job in jobs.values()]
+        try:
+            done = [w.result() for w in work]
+        except BaseException:
+            run.shutdown(cancel_futures=True)
+            raise
     return dict(zip(jobs, done, strict=True))
 
 

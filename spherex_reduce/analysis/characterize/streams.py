@@ -229,7 +229,9 @@ def dark_streams(source, cuts, leave_out=None, band_reads=BAND_READS):
 
     The dark is never held whole: ``band_reads`` reads of every frame at a time
     are reduced to the channels' sums and the reference pixels' and phantom
-    values the streams need (`~spherex_reduce.analysis.timestreams.StreamPixels`).
+    values the streams need (`~spherex_reduce.analysis.timestreams.StreamPixels`),
+    up to `STREAM_THREADS` bands at once in threads while the next is read (so
+    up to `STREAM_THREADS` + 1 bands are held).
     Which columns are averaged (those finite and unmasked in every read of a
     run) is known once every band is read: a dark where some column is not is
     read a second time.
@@ -244,7 +246,7 @@ def dark_streams(source, cuts, leave_out=None, band_reads=BAND_READS):
     leave_out : array_like of bool, optional
         As `channel_streams`.
     band_reads : int
-        Reads of every frame read at a time.
+        Reads of every frame in a band.
 
     Returns
     -------

@@ -148,8 +148,9 @@ def component_planes(schedule, rows, cols, comps, reduction, nodes=NODES, cells=
         # each cell row from its distinct row: re - im, and re + im for k_y < 0 (the rows
         # after `split`: cells.ky increases)
         plane = np.empty((cells.ky.size, cells.kx.size))
-        np.take(re[i] - im[i], first[:split], axis=0, out=plane[:split])
-        np.take(re[i] + im[i], first[split:], axis=0, out=plane[split:])
+        # (mode "clip": the rows are in range, and numpy's default buffers `out`)
+        np.take(re[i] - im[i], first[:split], axis=0, out=plane[:split], mode="clip")
+        np.take(re[i] + im[i], first[split:], axis=0, out=plane[split:], mode="clip")
         parts[comp.name] = plane
         if ref is not None and has_zero:
             for n, (ind, f) in enumerate(ref):

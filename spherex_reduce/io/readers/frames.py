@@ -25,8 +25,10 @@ class RampReader(Closing):
     (``(frames, reads, channels)`` or None), ``has_phantom``, ``stored_dtype``,
     ``readable_in_bands()``, ``reads(k, first, stop)`` (reads of frame ``k``),
     ``scale(values)`` (the gain of ``input:``, in place), ``exposure()`` (the
-    whole ramp) and ``close()``.  A reader of a new layout subclasses it, and
-    `~spherex_reduce.io.sources.open_input` then takes it as an open reader.
+    whole ramp) and ``close()``; optionally ``reads_into(out, runs)`` (runs of reads
+    of every frame straight into ``out``, or False: `FrameReader.reads_into`).  A
+    reader of a new layout subclasses it, and `~spherex_reduce.io.sources.open_input`
+    then takes it as an open reader.
     """
 
 
@@ -34,7 +36,7 @@ class FrameReader(RampReader):
     """Read a raw ramp file by reads of every frame (or by frames), never all of it at once.
 
     The executor (`spherex_reduce.io.sources.FileSource`) reads bands of rows of
-    every frame with `reads` (``pread``), so a `~spherex_reduce.Pipeline`
+    every frame with `reads_into` (or `reads`; ``pread``), so a `~spherex_reduce.Pipeline`
     reduces a file in memory near the output plus a few bands.  Use as a
     context manager.
 
@@ -171,7 +173,8 @@ class FrameReader(RampReader):
         Read with ``pread``: no page of the memory map is touched (a file cut
         while it is read is an error naming it, never ``SIGBUS``), and several
         threads may read at once.  The executor's bands use it for files
-        `readable_in_bands`; `frame` for any file stored as it is on disk.
+        `readable_in_bands` whose channels are not columns (`reads_into` for
+        the others); `frame` for any file stored as it is on disk.
 
         A layout whose channels are not columns reads what holds the band
         (`~spherex_reduce.core.channel_layout.ChannelLayout.stored_rows_of`):
@@ -197,13 +200,25 @@ class FrameReader(RampReader):
                                for r in consecutive_runs(rows)])[at, column]
 
     def reads_into(self, out, runs):
-        """Fill ``out`` (``(frames, n, columns)``, C-contiguous, of `stored_dtype`'s size)
-        with the bytes of the reads of every frame as the file holds them (its byte order:
-        the caller swaps them): ``out[k, a:b]`` gets reads ``first:first + b - a`` of frame
-        ``k`` for each ``(a, b, first)`` of ``runs``, one ``pread`` each, no copy.
+        """Runs of reads of every frame, as the file holds them, straight into ``out``.
 
-        Returns False, with nothing read, where the file cannot be read so (channels that
-        are not columns, no ``preadv``): `reads` serves it.
+        One ``pread`` a run and frame into a view of ``out`` (no copy of its own;
+        read again where the system returns fewer bytes); the file's byte order is
+        kept (the caller swaps them) and `scale` is not applied.
+
+        Parameters
+        ----------
+        out : `numpy.ndarray`
+            ``(frames, n, columns)``, C-contiguous, of `stored_dtype`'s item size.
+        runs : sequence of tuple
+            ``(a, b, first)``: ``out[k, a:b]`` gets reads ``first:first + b - a`` of
+            frame ``k`` (after the dropped frames), for every frame ``k``.
+
+        Returns
+        -------
+        bool
+            False, with nothing read, where the file cannot be read so (channels
+            that are not columns, no ``preadv``): `reads` serves it.
         """
         if not self._layout.identity or not hasattr(os, "preadv"):
             return False
@@ -219,7 +234,7 @@ class FrameReader(RampReader):
                 part = view[at + a * row:at + b * row]
                 if os.preadv(fd, [part], base + first * row) != part.nbytes:  # short: again
                     pread_into(fd, np.frombuffer(part, np.uint8), base + first * row,
-                               f"{self.path}: the file ends inside frame {k}")
+                               f"{self.path}: the file ends inside frame {k + self._drop}")
         return True
 
     def _stored_columns(self, k, rows, runs):

@@ -726,8 +726,8 @@ def test_the_sampled_bulk_sees_every_column(pattern):
 def test_two_reads_are_one_difference_and_no_pixel_is_refitted(monkeypatch, dtype):
     """With two reads the line goes through both: no residual whose precision the
     segment refit would keep (it was given every pixel: ~1 s of a full-size 2-read
-    reduction, for the same slopes), no variance from the data; the slope is numpy's
-    difference over the interval."""
+    reduction, for slopes the same to float32 rounding of float32 reads), no variance from
+    the data; the slope is numpy's difference over the interval."""
     from spherex_reduce.reduce.steps.fit_ramp.least_squares import LeastSquares
 
     refit = []

@@ -8,12 +8,9 @@ differences of reads; sums over reads are dot products), the few jumps taken out
 all-read sums afterwards.
 """
 
-from collections import deque
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
 
-from ..reduce.options import default_threads
+from ..reduce.options import default_threads, in_threads
 from ..reduce.steps.reference.telegraph import MAD_TO_SIGMA
 from .faint_telegraph import lag_design, lag_sums
 
@@ -115,13 +112,9 @@ def add_dark(acc, band, shape, t, band_rows):
     # GIL), the next band read here meanwhile (a reader need not be thread-safe); each
     # band's sums are added here, in order, to their own rows
     nthreads = max(1, min(PIXEL_THREADS, default_threads(), len(cuts)))
-    pending = deque()
-    with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-pixels") as pool:
-        for sl in cuts:
-            pending.append((sl, pool.submit(one, sl, band(sl))))
-            while len(pending) > nthreads or (pending and sl is cuts[-1]):
-                done, work = pending.popleft()
-                _add_band(acc, done, work.result(), slopes, jumped)
+    for sl, part in zip(cuts, in_threads(cuts, one, nthreads, read=band,
+                                         name="spherex-reduce-pixels"), strict=True):
+        _add_band(acc, sl, part, slopes, jumped)
     return slopes, jumped
 
 

@@ -28,13 +28,12 @@ It imports no step, so that the steps can run themselves through it.
 
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..core.exposure import Exposure, ReferenceReads, expected_shape
-from .options import RunOptions
+from .options import RunOptions, in_threads
 
 __all__ = ["RunStats", "execute", "first_in_memory"]
 
@@ -165,23 +164,10 @@ def execute(source, kernels, consumer=None, *, options=None, rows_per_band=None,
 
 def _run_bands(cuts, run, nthreads, progress):
     """``run(lo, hi)`` for every band, on ``nthreads`` threads; ``progress`` after each."""
-    if nthreads == 1 or len(cuts) == 1:
-        for lo, hi in cuts:
-            run(lo, hi)
-            if progress is not None:
-                progress(hi - lo)
-        return
-    with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-band") as pool:
-        futures = [pool.submit(run, lo, hi) for lo, hi in cuts]
-        try:
-            for (lo, hi), future in zip(cuts, futures, strict=True):
-                future.result()
-                if progress is not None:
-                    progress(hi - lo)
-        except BaseException:  # a band failed (or Ctrl-C): the others are not started
-            for future in futures:
-                future.cancel()
-            raise
+    bands = in_threads(cuts, lambda cut: run(*cut), nthreads, name="spherex-reduce-band")
+    for (lo, hi), _ in zip(cuts, bands, strict=True):
+        if progress is not None:
+            progress(hi - lo)
 
 
 class _Chain:

@@ -61,9 +61,8 @@ def _darks(inputs, pipeline):
             ks = [None] if inp.integrations is None else range(inp.integrations)
             for k in ks:
                 more = (listed and i < len(inputs) - 1) or (k is not None and k < ks[-1])
-                last = listed and i == len(inputs) - 1 and (k is None or k == ks[-1])
                 yield (inp.label if k is None else f"{inp.label}[{k}]",
-                       inp.source(integration=k), more, last)
+                       inp.source(integration=k), more, listed and not more)
         del what, opened, inp  # an exposure given in memory is released before the next
 
 

@@ -15,12 +15,10 @@ then linear in its spectrum, so coefficients of differences of spectra are
 differences of coefficients).
 """
 
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
 from astropy.table import Table
 
-from ...reduce.options import default_threads
+from ...reduce.options import default_threads, in_threads
 from ..temporal import aliased_basis, fit_noise_model, temporal_psd
 
 __all__ = ["LONG_BURST", "SPECTRA", "SPECTRA_THREADS", "band_power", "dark_spectra",
@@ -118,17 +116,10 @@ def dark_spectra(streams, schedule, nperseg=None):
                 psd(f"rows[{c}]", lambda c=c: rows[c], fs / 2, rows.shape[-1])
     for c, v in streams.reference_sides.items():
         psd(f"sides[{c}]", lambda v=v: v)
-    # each spectrum alone: SPECTRA_THREADS at a time (the transforms release the GIL);
-    # a failure cancels the spectra not yet started
+    # each spectrum alone: SPECTRA_THREADS at a time (the transforms release the GIL)
     nthreads = max(1, min(SPECTRA_THREADS, default_threads()))
-    with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-spectra") as run:
-        work = [run.submit(lambda job: temporal_psd(job[0](), job[1], nperseg=job[2]), job)
-                for job in jobs.values()]
-        try:
-            done = [w.result() for w in work]
-        except BaseException:
-            run.shutdown(cancel_futures=True)
-            raise
+    done = in_threads(jobs.values(), lambda job: temporal_psd(job[0](), job[1], nperseg=job[2]),
+                      nthreads, name="spherex-reduce-spectra")
     return dict(zip(jobs, done, strict=True))
 
 

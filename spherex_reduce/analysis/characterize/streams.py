@@ -31,8 +31,6 @@ each band is reduced to the channels' sums and the few values the reference
 and phantom streams need (`~spherex_reduce.analysis.timestreams.StreamPixels`).
 """
 
-from collections import deque
-from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import numpy as np
@@ -40,7 +38,7 @@ import numpy as np
 from ...core.dq import read_usable
 from ...core.errors import SpherexReduceError
 from ...io.sources import MemorySource
-from ...reduce.options import default_threads
+from ...reduce.options import default_threads, in_threads
 from ..timestreams import (
     StreamPixels,
     detrend_frames,
@@ -316,7 +314,18 @@ def _read_bands(source, plans, drop, band_reads):
     out = {}
     step = max(int(band_reads), 1)
 
-    def one(lo, hi, block):  # one band: its reads of every output, and its usable columns
+    def read(band):  # here, in order; the outputs' types are the first band's
+        block = source.read(*band)
+        if not out:
+            dtype = np.asarray(block.data).dtype
+            out["columns"] = np.empty((s.nframes, s.n_reads, columns.size), dtype)
+            out["reads"] = np.empty((s.nframes, reads.size, g.ncols), dtype)
+            out["phantom"] = (None if block.phantom is None else
+                              np.empty((s.nframes, s.n_reads, g.nchannels), block.phantom.dtype))
+        return block
+
+    def one(band, block):  # one band: its reads of every output, and its usable columns
+        lo, hi = band
         data = np.asarray(block.data)
         ok = np.all(np.isfinite(data), axis=1)
         if block.dq is not None:
@@ -338,21 +347,8 @@ def _read_bands(source, plans, drop, band_reads):
 
     bands = [(lo, min(lo + step, s.n_reads)) for lo in range(0, s.n_reads, step)]
     nthreads = max(1, min(STREAM_THREADS, default_threads(), len(bands)))
-    pending = deque()
-    with ThreadPoolExecutor(nthreads, thread_name_prefix="spherex-reduce-streams") as pool:
-        for lo, hi in bands:
-            block = source.read(lo, hi)
-            if not out:  # the outputs' types are the first band's
-                dtype = np.asarray(block.data).dtype
-                out["columns"] = np.empty((s.nframes, s.n_reads, columns.size), dtype)
-                out["reads"] = np.empty((s.nframes, reads.size, g.ncols), dtype)
-                out["phantom"] = (None if block.phantom is None else
-                                  np.empty((s.nframes, s.n_reads, g.nchannels),
-                                           block.phantom.dtype))
-            pending.append(pool.submit(one, lo, hi, block))
-            del block
-            while len(pending) > nthreads or (pending and hi == s.n_reads):
-                usable &= pending.popleft().result()
+    for ok in in_threads(bands, one, nthreads, read=read, name="spherex-reduce-streams"):
+        usable &= ok
     pixels = StreamPixels(s, columns, out.get("columns"), reads, out.get("reads"),
                           out.get("phantom"))
     return sums, usable, pixels

@@ -473,7 +473,7 @@ def test_threads_are_the_steps_option_not_fixed_at_import():
     exposure, params, *_ = _case("nan")
     step = FitRampStep(threads=3)
     calls = []
-    import spherex_reduce.reduce.executor as executor_module
+    import spherex_reduce.reduce.options as executor_module  # where the bands' pool is made
 
     real = executor_module.ThreadPoolExecutor
 

@@ -80,6 +80,11 @@ SCALE_OUT_Z = 8.0
 #: ramps whose shot noise (their own slope's) would hold more than this fraction of their
 #: first differences' expected variance are left out of the scatter (read noise, mostly)
 SCALE_SHOT = 0.1
+#: the charge rate whose shot noise a step is tested with: the slope less the best step,
+#: less this many of its read-noise sigmas, clipped at 0 (a dark ramp's slope is read
+#: noise: clipped at 0 alone its mean is 0.4 sigma and the shot noise it adds hides
+#: small steps and lowers the false alarms below the stated rates; at 1 sigma 0.08 sigma)
+SHOT_RATE_SIGMAS = 1.0
 
 
 class StepSearch:
@@ -137,6 +142,8 @@ class StepSearch:
         # shot-noise variance / lambda (none with rho: the shot noise is in q)
         self.s = np.zeros(n - 1) if rho else np.einsum("ki,ij,kj->k", g, walk, g)
         self.slope_of_step = (coef @ h.T)[1]  # change of the line's slope per unit step
+        # read-noise variance of the line's slope, in sigma**2
+        self.slope_var = float(np.sum(coef[1] ** 2 * f))
         self.qq = g @ h.T  # Q[k, l] = h_k' V M h_l: q is its diagonal
         # the random walk's covariance of R: s is its diagonal (none with rho: it is in q)
         self.ss = np.zeros((n - 1, n - 1)) if rho else g @ walk @ g.T
@@ -425,8 +432,16 @@ class StepSearch:
         else:
             var = np.maximum(st.sigma ** 2, st.floor)
         best = fit.r[kb, cols] * self._invq[kb]
-        lam = np.maximum(st.slope - fit.slope_change(kb, best), 0.0) / st.gain
-        return var, lam
+        return var, self._rate(st, fit, kb, best, var, self.q[kb])
+
+    def _rate(self, st, fit, kb, best, var, qb):
+        """Shot noise (lambda) of ramps ``st``: the slope less the best step (at ``kb``,
+        amplitude ``best``, its ``q`` ``qb``) less `SHOT_RATE_SIGMAS` of its read-noise
+        sigma (``var`` the read-noise variance), clipped at 0, over the gain."""
+        slope = st.slope - fit.slope_change(kb, best)
+        sos = self.slope_of_step[kb]
+        sigma = np.sqrt(var * (self.slope_var + sos * sos / qb))
+        return np.maximum(slope - SHOT_RATE_SIGMAS * sigma, 0.0) / st.gain
 
     def _round(self, st, threshold, max_jumps, out):
         """One more step in each ramp of ``st`` (a `_State`), then the next round for the
@@ -449,7 +464,7 @@ class StepSearch:
         else:
             var = np.maximum(st.sigma ** 2, st.floor)
         best = rk[kb, cols] / qk[kb, cols]
-        lam = np.maximum(st.slope - fit.slope_change(kb, best), 0.0) / st.gain
+        lam = self._rate(st, fit, kb, best, var, qk[kb, cols])
         total = var * qk
         total += lam * sk
         z2 = np.divide(r2, total, out=total)

@@ -72,8 +72,8 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
     threshold : float
         ``max |z|`` (sigma) above which a ramp has a jump.  A jump-free dark
         ramp of 74 reads of 1.5 s (10 e read noise, 0.01 e/s, gain 1) is
-        flagged at 4 sigma with probability 2.0e-3 (``read_noise`` given) or
-        4.9e-3 (estimated); the reduction guide tabulates other thresholds and
+        flagged at 4 sigma with probability 2.2e-3 (``read_noise`` given) or
+        5.6e-3 (estimated); the reduction guide tabulates other thresholds and
         numbers of reads.
     read_noise : float, `numpy.ndarray` or str, optional
         Read noise of one read (data unit): one number, a map ``(nrows,

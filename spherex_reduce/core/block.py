@@ -12,10 +12,27 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ARRAYS", "Block", "Context"]
+__all__ = ["ARRAYS", "Block", "Context", "frames_contiguous"]
 
 #: The arrays a block may hold besides its index.
 ARRAYS = frozenset({"data", "phantom", "dq", "uncertainty"})
+
+
+def frames_contiguous(values):
+    """Whether the rows of each frame of ``values`` ``(frames, rows, columns)`` are one
+    C-contiguous run (a C-ordered array, or its rows ``[:, lo:hi]``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from spherex_reduce.core.block import frames_contiguous
+    >>> a = np.zeros((3, 8, 4))
+    >>> frames_contiguous(a[:, 2:5]), frames_contiguous(a[:, :, 1:3])
+    (True, False)
+    """
+    if values.ndim < 2:
+        return values.flags.c_contiguous
+    return values[0].flags.c_contiguous if values.shape[0] else True
 
 
 @dataclass(frozen=True, eq=False)
@@ -72,13 +89,14 @@ class Block:
         return self.data.shape[0]
 
     def writable(self, dtype):
-        """``data`` as a C-contiguous array of ``dtype`` that may be written: itself if
-        owned, of that type and layout, else a copy (a caller's arrays are never
+        """``data`` as an array of ``dtype`` that may be written, each frame's rows
+        C-contiguous: itself if owned, of that type and layout (e.g. rows of an exposure
+        the executor made), else a C-contiguous copy (a caller's arrays are never
         written)."""
         dtype = np.dtype(dtype)
         d = self.data
         if ("data" in self.owned and d.dtype == dtype and d.flags.writeable
-                and d.flags.c_contiguous):
+                and frames_contiguous(d)):
             return d
         return np.array(d, dtype=dtype, order="C")
 

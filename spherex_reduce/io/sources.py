@@ -142,6 +142,12 @@ class Source(Closing):
     in_memory = False
     where = ""
 
+    def arrays(self):
+        """The arrays its bands are views of, by name (``'data'``, ``'phantom'``,
+        ``'dq'``, ``'uncertainty'``, with a leading frame axis), when they are the
+        executor's own and may be written (an exposure a pass made); else None."""
+        return None
+
     def side(self):
         """The side block (`~spherex_reduce.core.block.Block`)."""
         raise NotImplementedError
@@ -173,11 +179,15 @@ class Source(Closing):
 
 
 class MemorySource(Source):
-    """Bands of an in-memory `~spherex_reduce.Exposure` (views: never written).
+    """Bands of an in-memory `~spherex_reduce.Exposure` (views: never written, unless
+    ``owned``).
 
     Parameters
     ----------
     exposure : `~spherex_reduce.Exposure`
+    owned : bool
+        The exposure is the executor's own (made by the kernels of a pass, seen by no
+        caller): its bands are views that the kernels may write in place.
 
     Examples
     --------
@@ -193,8 +203,8 @@ class MemorySource(Source):
     in_memory = True
     where = "memory"
 
-    def __init__(self, exposure):
-        self._exposure = exposure
+    def __init__(self, exposure, owned=False):
+        self._exposure, self._owned = exposure, bool(owned)
         self.context = context_of(exposure)
         self.header, self.tables = exposure.header, exposure.tables
         self.reference = exposure.reference
@@ -217,10 +227,16 @@ class MemorySource(Source):
     def read(self, lo, hi):
         data, phantom, flags, unc = (None if a is None else a[:, lo:hi] for a in self._arrays)
         return Block(data, np.arange(lo, hi), self.context.order, phantom=phantom, dq=flags,
-                     uncertainty=unc)
+                     uncertainty=unc, owned=self._owned)
 
     def take(self, rows):
         return np.take(self._arrays[0], rows, axis=1)
+
+    def arrays(self):
+        if not self._owned:
+            return None
+        names = ("data", "phantom", "dq", "uncertainty")
+        return {n: a for n, a in zip(names, self._arrays, strict=True) if a is not None}
 
 
 class FileSource(Source):

@@ -33,9 +33,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.exposure import Exposure, ReferenceReads, expected_shape
+from ..io.sources import MemorySource
 from .options import RunOptions, in_threads
 
-__all__ = ["RunStats", "execute", "first_in_memory"]
+__all__ = ["RunStats", "execute", "joins"]
 
 #: pixels per band of a file (all frames together): 74 frames x 2**17 x 4 B = 39 MB per
 #: band and thread, so memory stays near the output
@@ -60,6 +61,10 @@ class RunStats:
         Bands of rows the input was cut into.
     threads : int
         Threads the bands ran on.
+    stages : int
+        Runs over the bands: 1, or one more for each kernel after the first whose
+        estimate needs the whole exposure (the bands before it made into an exposure
+        first).
     """
 
     kernels: tuple
@@ -67,14 +72,18 @@ class RunStats:
     read: float
     bands: int
     threads: int
+    stages: int = 1
 
 
-def first_in_memory(kernel, position, source):
-    """Whether ``kernel`` can run at ``position`` of a pass over ``source``: a kernel whose
-    estimate needs the whole exposure (``needs_exposure``) must be the first of a pass
-    over an exposure in memory, or its estimate would see the pixels before the kernels
-    ahead of it."""
-    return not kernel.needs_exposure or (position == 0 and source.in_memory)
+def joins(kernel, position, source):
+    """Whether ``kernel`` can run at ``position`` of a pass over ``source``.
+
+    A kernel whose estimate needs the whole exposure (``needs_exposure``) can, except as
+    the first of a pass over a file (its step then runs on the whole exposure): after
+    other kernels, `execute` runs them over every band first, into an exposure of its
+    own that the estimate sees and the kernels from it on then correct in place.
+    """
+    return not kernel.needs_exposure or position > 0 or source.in_memory
 
 
 def bands(nrows, rows_per_band):
@@ -84,12 +93,24 @@ def bands(nrows, rows_per_band):
 
 
 class _Assembly:
-    """The output arrays of a chain of kernels with no consumer: bands written in place."""
+    """The output arrays of a chain of kernels with no consumer: bands written in place.
 
-    def __init__(self, context):
+    The arrays are made empty (no page is touched until a band writes it, on the thread
+    that works on it: a full-size exposure filled first took a third of a pass, on one
+    thread under the lock); the rows of an array no band wrote (a band without that
+    array, e.g. flags only on the rows never read) are filled when it is taken: NaN, or 0
+    for integers.  ``into`` (arrays by name, ``(frames, rows, columns)``): the arrays of
+    the exposure the bands were read from, the executor's own, taken as the output where
+    shape and type agree; a band that is their rows, corrected in place, is then not
+    copied.
+    """
+
+    def __init__(self, context, into=None):
         self.nrows = expected_shape(context.schedule, context.order, False)[0]
         self.order = context.order
+        self._into = into or {}
         self._arrays = {}
+        self._written = {}  # name -> rows written
         self._lock = threading.Lock()
 
     def _array(self, name, like):
@@ -97,21 +118,40 @@ class _Assembly:
             out = self._arrays.get(name)
             if out is None:
                 shape = (like.shape[0], self.nrows, like.shape[-1])
-                fill = 0 if like.dtype.kind in "ui" else np.nan
-                out = self._arrays[name] = np.full(shape, fill, like.dtype)
-        return out
+                out = self._into.get(name)
+                if out is None or out.shape != shape or out.dtype != like.dtype:
+                    out = np.empty(shape, like.dtype)
+                self._arrays[name] = out
+                self._written[name] = np.zeros(self.nrows, bool)
+        return out, self._written[name]
 
     def band(self, block):
         for name in ("data", "phantom", "dq", "uncertainty"):
             values = getattr(block, name)
             if values is not None:
-                self._array(name, values)[:, block.index] = values
+                out, written = self._array(name, values)
+                if not _rows_of(values, out, block.index):
+                    out[:, block.index] = values
+                written[block.index] = True  # bands hold rows of their own
 
     def get(self, name, ramp):
         values = self._arrays.get(name)
-        if values is None or ramp:
+        if values is None:
             return values
-        return values[0]
+        written = self._written[name]
+        if not written.all():
+            values[:, ~written] = 0 if values.dtype.kind in "uib" else np.nan
+            written[:] = True
+        return values if ramp else values[0]
+
+
+def _rows_of(values, out, index):
+    """Whether ``values`` is the view of ``out``'s rows ``index`` (consecutive)."""
+    if values.dtype != out.dtype or not index.size or index[-1] - index[0] != index.size - 1:
+        return False
+    view = out[:, index[0]:index[-1] + 1]
+    return (values.shape == view.shape and values.strides == view.strides
+            and values.ctypes.data == view.ctypes.data)
 
 
 def execute(source, kernels, consumer=None, *, options=None, rows_per_band=None,
@@ -144,7 +184,10 @@ def execute(source, kernels, consumer=None, *, options=None, rows_per_band=None,
         The seconds spent in each kernel, the consumer and reading, the bands
         and threads.
     """
-    chain = _Chain(kernels, consumer)
+    cut = next((i for i, k in enumerate(kernels) if i and k.needs_exposure), None)
+    if cut is not None:
+        return _staged(source, kernels, cut, consumer, options, rows_per_band, progress)
+    chain = _Chain(kernels, consumer, into=source.arrays())
     side = chain.prepare(source)
     if rows_per_band is None:
         pixels = BAND_PIXELS * (MEMORY_BAND_FACTOR if source.in_memory else 1)
@@ -162,6 +205,21 @@ def execute(source, kernels, consumer=None, *, options=None, rows_per_band=None,
                             bands=len(cuts), threads=nthreads)
 
 
+def _staged(source, kernels, cut, consumer, options, rows_per_band, progress):
+    """`execute` with ``kernels[cut]`` needing the whole exposure: the kernels before it
+    over every band into an exposure of the executor's own (its estimate's input), then
+    the others over that exposure's bands, in place (their output is that exposure's
+    arrays, where the types allow), into ``consumer``.  ``progress`` follows the first
+    stage (which reads the source)."""
+    first, one = execute(source, kernels[:cut], options=options, rows_per_band=rows_per_band,
+                         progress=progress)
+    result, two = execute(MemorySource(first, owned=True), kernels[cut:], consumer,
+                          options=options, rows_per_band=rows_per_band)
+    return result, RunStats(kernels=one.kernels + two.kernels, consumer=two.consumer,
+                            read=one.read + one.consumer + two.read, bands=one.bands,
+                            threads=one.threads, stages=one.stages + two.stages)
+
+
 def _run_bands(cuts, run, nthreads, progress):
     """``run(lo, hi)`` for every band, on ``nthreads`` threads; ``progress`` after each."""
     bands = in_threads(cuts, lambda cut: run(*cut), nthreads, name="spherex-reduce-band")
@@ -175,8 +233,8 @@ class _Chain:
     output arrays), and the seconds spent in each (``busy``: kernels, the consumer or the
     assembly, reading; summed over threads)."""
 
-    def __init__(self, kernels, consumer):
-        self.kernels, self.consumer = kernels, consumer
+    def __init__(self, kernels, consumer, into=None):
+        self.kernels, self.consumer, self.into = kernels, consumer, into
         self.coefficients = []
         self.busy = [0.0] * (len(kernels) + 2)
         self._lock = threading.Lock()
@@ -194,9 +252,9 @@ class _Chain:
         side = source.side()
         t = self._spent(-1, t)
         for i, kernel in enumerate(self.kernels):
-            if not first_in_memory(kernel, i, source):
+            if kernel.needs_exposure and not (i == 0 and source.in_memory):
                 raise ValueError(f"{type(kernel).__name__} needs the whole exposure in "
-                                 "memory, as the first kernel of a pass")
+                                 "memory, as the first kernel of a stage")
             if kernel.needs_exposure:
                 c = kernel.prepare(side, source.exposure())
             else:
@@ -205,7 +263,8 @@ class _Chain:
             self.coefficients.append(c)
             t = self._spent(i, t)
         self.output = self.kernels[-1].output if self.kernels else source.context
-        self.sink = self.consumer if self.consumer is not None else _Assembly(self.output)
+        self.sink = (self.consumer if self.consumer is not None
+                     else _Assembly(self.output, self.into))
         return side
 
     def read(self, source, lo, hi):

@@ -13,7 +13,7 @@ whole exposure (`~spherex_reduce.reduce.step.Step.apply_to`).
 from dataclasses import dataclass, field
 
 from ..core.errors import StepSkipped
-from .executor import execute, first_in_memory
+from .executor import execute, joins
 from .options import RunOptions
 
 __all__ = ["Pass", "PlannedStep", "Whole", "plan_pass", "run_pass"]
@@ -111,7 +111,7 @@ def plan_pass(steps, start, source, options=None):
             j += 1
             continue
         if kernel is not None:
-            if not first_in_memory(kernel, len(plan.kernels), source):
+            if not joins(kernel, len(plan.kernels), source):
                 break
             plan.kernels.append((planned, kernel))
             plan.members.append(planned)
@@ -153,4 +153,6 @@ def run_pass(source, plan, *, options=None, progress=None):
     busy[ran[0]] += stats.read
     route = (f"executor pass of {len(ran)} step(s): {stats.bands} band(s) of rows "
              f"from {source.where} on {stats.threads} thread(s)")
+    if stats.stages > 1:
+        route += f", in {stats.stages} stages (an exposure made for a whole-exposure estimate)"
     return result, busy, route

@@ -67,8 +67,10 @@ class Kernel:
         What its blocks are (set by the constructor).
     needs_exposure : bool
         True if `prepare` needs the whole exposure (``prepare(side,
-        exposure)``), not only the side block: the step then runs on the
-        exposure in memory (e.g. the ``median`` reference strategy).
+        exposure)``), not only the side block (e.g. the ``median`` reference
+        strategy): after other kernels of a pass, the executor first makes
+        their output into an exposure for it (which it then corrects in place:
+        keep no view of it past `prepare`).
     """
 
     context = None
@@ -407,8 +409,9 @@ class Strategy:
     name: ClassVar[str] = ""
     parameters: ClassVar[tuple] = ()
 
-    #: True if `estimate` needs the whole exposure, not only the side block: the step
-    #: then runs on the exposure in memory (False, the default, streams)
+    #: True if `estimate` needs the whole exposure, not only the side block: the step's
+    #: pass then makes the exposure in memory for it (False, the default, streams; the
+    #: exposure given is corrected in place after `estimate`: keep no view of it)
     needs_exposure = False
 
     #: what a reference strategy does to the noise, for the noise forecast: a

@@ -154,6 +154,53 @@ def test_a_per_row_kernel_in_any_bands_and_threads_equals_numpy(raw, rows, threa
     assert sum(done) == nrows and len(done) == -(-nrows // rows)
 
 
+class LessFrameMean(Kernel):
+    """Needs the whole exposure: minus each frame's mean over every pixel, in place where the
+    block may be written; keeps the exposure its estimate saw."""
+
+    needs_exposure = True
+
+    def prepare(self, side, exposure=None):
+        self.seen, self.saw = exposure.data.data, np.array(exposure.data.data)
+        return np.asarray(exposure.data.data, np.float64).mean(axis=(1, 2))
+
+    def apply(self, means, block):
+        out = block.writable(np.float64)
+        for f in range(out.shape[0]):
+            out[f] -= means[f]
+        return block.replace(data=out, owned=block.owned | {"data"})
+
+
+@pytest.mark.parametrize("rows", [1, 5, 1000])
+@pytest.mark.parametrize("threads", [1, 3])
+def test_a_kernel_needing_the_exposure_after_another_sees_its_output(raw, rows, threads):
+    exposure = Exposure.from_arrays(np.asarray(raw.data.data, np.float64), raw.schedule)
+    before = np.array(exposure.data.data)
+    whole = LessFrameMean(context_of(exposure))
+    out, stats = execute(MemorySource(exposure), [AddRowValue(context_of(exposure)), whole],
+                         options=RunOptions(threads=threads), rows_per_band=rows)
+    nrows = before.shape[-2]
+    added = before + (10.0 * np.arange(nrows) + 0.5)[:, None]
+    np.testing.assert_array_equal(whole.saw, added)  # the first kernel's output
+    expected = added - added.mean(axis=(1, 2))[:, None, None]
+    np.testing.assert_allclose(out.data.data, expected, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(exposure.data.data, before)  # the input is not written
+    # corrected in place: the output is the exposure the first stage made
+    assert np.shares_memory(out.data.data, whole.seen)
+    assert len(stats.kernels) == 2
+
+
+def test_an_exposure_of_the_callers_is_never_written_by_a_kernel_needing_it(raw):
+    exposure = Exposure.from_arrays(np.asarray(raw.data.data, np.float64), raw.schedule)
+    before = np.array(exposure.data.data)
+    out, _ = execute(MemorySource(exposure), [LessFrameMean(context_of(exposure))],
+                     options=RunOptions(threads=2), rows_per_band=3)
+    np.testing.assert_array_equal(exposure.data.data, before)
+    assert not np.shares_memory(out.data.data, exposure.data.data)
+    np.testing.assert_allclose(out.data.data, before - before.mean(axis=(1, 2))[:, None, None],
+                               rtol=0, atol=1e-9)
+
+
 @pytest.mark.parametrize("rows", [1, 4, 7, 1000])
 @pytest.mark.parametrize("threads", [1, 3])
 def test_a_consumer_sees_every_row_of_memory_exactly_once(raw, rows, threads):

@@ -49,15 +49,15 @@ def test_a_step_with_nothing_to_do_is_planned_as_skipped_with_its_reason():
     assert _names(p for p, _ in plan.kernels) == ["unchop"]
 
 
-def test_a_strategy_that_needs_the_exposure_is_first_of_a_pass_in_memory_only(tmp_path):
+def test_a_strategy_that_needs_the_exposure_joins_a_pass_but_not_first_over_a_file(tmp_path):
     steps = ["unchop", {"correct_reference": {"strategy": "median"}}, "fit_ramp"]
     raw = example_raw_exposure()
-    # after unchop in the same pass its estimate would see unreduced pixels: the pass ends
+    # after unchop: one pass, the executor stages it (its estimate sees unchopped pixels)
     _, plan = _plan(steps, MemorySource(raw))
-    assert _names(p for p, _ in plan.kernels) == ["unchop"] and plan.end == 1
+    assert _names(p for p, _ in plan.kernels) == ["unchop", "correct_reference"]
+    assert plan.consumer[0].name == "fit_ramp" and plan.end == 3
     # first of a pass over an exposure in memory: a kernel of the pass
-    unchopped = run_pass(MemorySource(raw), plan, options=ONE)[0]
-    _, plan = _plan(steps, MemorySource(unchopped), start=1)
+    _, plan = _plan(steps, MemorySource(raw), start=1)
     assert _names(p for p, _ in plan.kernels) == ["correct_reference"]
     # first of a pass over a file: runs whole, on the exposure read from it
     path = tmp_path / "raw.fits"
@@ -65,6 +65,9 @@ def test_a_strategy_that_needs_the_exposure_is_first_of_a_pass_in_memory_only(tm
     with open_input(path) as inp:
         _, plan = _plan([{"correct_reference": {"strategy": "median"}}], inp.source())
         assert isinstance(plan, Whole)
+        # after unchop, from the file: one pass
+        _, plan = _plan(steps, inp.source())
+        assert isinstance(plan, Pass) and plan.end == 3
 
 
 @pytest.mark.parametrize("step", [{"pair_difference": {"other": "b.fits"}}, "sigma_clip"])

@@ -11,6 +11,8 @@ from spherex_reduce import (
     ConfigError,
     Exposure,
     Pipeline,
+    correct_reference,
+    fit_ramp,
     read,
     unchop,
     write,
@@ -169,9 +171,11 @@ def test_provenance_rows_survive_a_file_and_grow_with_the_next_reduction(tmp_pat
     assert alone.tables["PROVENANCE"]["route"][-1] == "whole exposure"
 
 
-def test_source_masking_runs_on_the_whole_exposure(tmp_path):
+def test_source_masking_runs_in_a_pass_staged_at_its_estimate(tmp_path):
     """The median strategy estimates from every pixel (and masks sources on the last minus
-    the first frame): it cannot run in a streamed pass; the reference strategies can."""
+    the first frame): first of a pass over a file it runs whole; after ``unchop`` the pass
+    is staged at its estimate (the unchopped exposure made first, then corrected and
+    fitted in place), the numbers those of the steps run one by one."""
     raw = example_raw_exposure(tiny_schedule(nframes=3), seed=2)
     path = write(raw, tmp_path / "raw.fits")
 
@@ -179,12 +183,18 @@ def test_source_masking_runs_on_the_whole_exposure(tmp_path):
         out = Pipeline({"steps": steps}).run(path)
         return [(row["step"], row["route"]) for row in out.tables["PROVENANCE"]]
 
-    masked = routes(["unchop", {"correct_reference": {"strategy": "median",
-                                                      "mask_sources": True}}, "fit_ramp"])
-    assert "from a file" in masked[0][1] and "1 step" in masked[0][1]
-    assert all("from memory" in route for _, route in masked[1:])
+    median = {"correct_reference": {"strategy": "median", "mask_sources": True}}
+    masked = routes(["unchop", median, "fit_ramp"])
+    assert all("pass of 3 step(s)" in route and "from a file" in route
+               and route.endswith("in 2 stages (an exposure made for a whole-exposure "
+                                  "estimate)") for _, route in masked)
+    assert routes([median]) == [("correct_reference", "whole exposure")]
+    one_by_one = fit_ramp(correct_reference(unchop(raw), "median", mask_sources=True))
+    staged = Pipeline({"steps": ["unchop", median, "fit_ramp"]}).run(path)
+    np.testing.assert_array_equal(staged.data.data, one_by_one.data.data)
     mean = routes(["unchop", {"correct_reference": {"strategy": "mean"}}, "fit_ramp"])
-    assert all("pass of 3 step(s)" in route and "from a file" in route for _, route in mean)
+    assert all("pass of 3 step(s)" in route and "from a file" in route
+               and "stages" not in route for _, route in mean)
 
 
 def test_streamed_file_keeps_its_tables(tmp_path):

@@ -80,6 +80,11 @@ class ReferencePlan:
     contiguous : bool
         One group per channel, its columns side by side: per-read offsets are
         subtracted channel by channel, without ``column_group``.
+    pairs : `numpy.ndarray` or None
+        ``(nchannels, 2)``: when every channel's columns alternate between two
+        groups (``acn``: even and odd samples), the group of its even and odd
+        columns; per-read offsets are then subtracted by broadcasting over
+        column pairs, without a gathered row of offsets.  Else None.
     """
 
     estimate: ReferenceOffsets
@@ -91,6 +96,7 @@ class ReferencePlan:
     rows_physical: np.ndarray | None = None
     column_group: np.ndarray | None = None
     contiguous: bool = False
+    pairs: np.ndarray | None = None
 
     def rows(self, order):
         """The per-read offsets for blocks in ``order`` (``'readout'`` or ``'physical'``),
@@ -147,6 +153,10 @@ class ReferenceKernel(Kernel):
                 per_channel = out[f].reshape(out.shape[1], nch, -1)
                 np.subtract(per_channel, rows[f][block.index][:, :, None], out=per_channel,
                             casting="unsafe")
+            elif plan.pairs is not None:  # two groups alternating along each channel
+                per_pair = out[f].reshape(out.shape[1], nch, -1, 2)
+                np.subtract(per_pair, rows[f][block.index][:, plan.pairs][:, :, None, :],
+                            out=per_pair, casting="unsafe")
             else:  # an offset per read: the row's own
                 np.subtract(out[f], rows[f][block.index][:, plan.column_group], out=out[f],
                             casting="unsafe")
@@ -220,6 +230,11 @@ def _row_plan(context, est, plan):
     width = s.geometry.channel_width
     contiguous = groups.shape[1] == 1 and np.array_equal(
         colgroup, np.repeat(np.arange(groups.shape[0]), width))
+    pairs = None
+    if not contiguous and width % 2 == 0:
+        by_pair = colgroup.reshape(groups.shape[0], width // 2, 2)
+        if (by_pair == by_pair[:, :1]).all():  # each channel: (even, odd) groups throughout
+            pairs = by_pair[:, 0]
     phys = None
     if context.order == "physical":
         nrows = s.geometry.nrows
@@ -229,7 +244,7 @@ def _row_plan(context, est, plan):
         for row in np.flatnonzero(counts > 1):  # a row read more: the mean of its reads'
             phys[:, row] = rows[:, s.rows == row].mean(axis=1)
     return dataclasses.replace(plan, rows_readout=rows, rows_physical=phys,
-                               column_group=colgroup, contiguous=contiguous)
+                               column_group=colgroup, contiguous=contiguous, pairs=pairs)
 
 
 class _Given(Strategy):

@@ -22,7 +22,7 @@ from ....core.parameters import Parameter, validate_parameters
 from ....core.source_mask import source_mask
 from ....io.sources import context_of, side_block
 from ...noise_effect import MEASURED_SIGMA, ReferenceEffect
-from ...options import RunOptions
+from ...options import RunOptions, in_threads
 from ...step import Strategy
 from .telegraph import TELEGRAPH_PARAMETERS, drop_telegraph, nanmedian
 
@@ -630,24 +630,31 @@ class MedianReference(Strategy):
                                    box_size=box_size, dilate=5, background="sextractor",
                                    two_sided=False, min_boxes=1)
         nch, width = g.nchannels, g.channel_width
-        L = frames.shape[0]
-        off = np.full((L, nch, 1), np.nan)
-        used = np.zeros((L, nch, 1), int)
-        clipped = np.zeros((L, nch, 1), int)
-        for f in range(L):
-            vals = np.array(frames[f], dtype=np.float64)
-            drop = excluded.copy()
-            if bad is not None:
-                drop |= bad[f]
-            vals[drop] = np.nan
-            v = vals.reshape(vals.shape[0], nch, width).transpose(1, 0, 2).reshape(nch, -1)
+        nrows = frames.shape[1]
+
+        def by_channel(values):  # (rows, ncols) -> (nch, rows * width), each channel's run
+            return values.reshape(nrows, nch, width).transpose(1, 0, 2)
+
+        def channel_medians(f):
+            v = np.empty((nch, nrows * width))  # the frame's one float64 copy
+            v.reshape(nch, nrows, width)[...] = by_channel(frames[f])
+            drop = excluded if bad is None else excluded | bad[f]
+            if drop.any():
+                v[by_channel(drop).reshape(nch, -1)] = np.nan
             fin = np.isfinite(v)
             n = fin.sum(axis=1)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
-                med = np.median(v, axis=1) if fin.all() else np.nanmedian(v, axis=1)
-            off[f, :, 0] = np.where(n > 0, med, np.nan)
-            used[f, :, 0] = n
-            ex = excluded.reshape(excluded.shape[0], nch, width).sum(axis=(0, 2))
-            clipped[f, :, 0] = ex
+                med = (np.median(v, axis=1, overwrite_input=True) if fin.all()
+                       else np.nanmedian(v, axis=1, overwrite_input=True))
+            return np.where(n > 0, med, np.nan), n
+
+        L = frames.shape[0]
+        nthreads = min(L, RunOptions(threads=context.threads).thread_count())
+        medians = list(in_threads(range(L), channel_medians, nthreads,
+                                  name="spherex-reduce-median"))  # frames on threads
+        off = np.stack([m for m, _ in medians])[..., None]
+        used = np.stack([n for _, n in medians])[..., None]
+        ex = by_channel(excluded).sum(axis=(1, 2))
+        clipped = np.broadcast_to(ex, (L, nch))[..., None].copy()
         return ReferenceOffsets(off, used, clipped, [ALL])

@@ -42,6 +42,7 @@ __all__ = ["RunStats", "execute", "joins"]
 #: band and thread, so memory stays near the output
 BAND_PIXELS = 1 << 17
 #: in memory a band is a view, so bands twice as large cost nothing and fit ~5 % faster
+#: (unless there would then be fewer bands than threads: a 128 x 2048 strip is two bands)
 MEMORY_BAND_FACTOR = 2
 
 
@@ -173,7 +174,8 @@ def execute(source, kernels, consumer=None, *, options=None, rows_per_band=None,
         `~spherex_reduce.reduce.options.default_threads`).
     rows_per_band : int, optional
         Rows of every frame per band (default: `BAND_PIXELS` pixels of every
-        frame from a file, `MEMORY_BAND_FACTOR` times more in memory).
+        frame from a file, `MEMORY_BAND_FACTOR` times more in memory when every
+        thread still has a band).
     progress : callable, optional
         Called with the number of rows done after each band.
 
@@ -189,11 +191,13 @@ def execute(source, kernels, consumer=None, *, options=None, rows_per_band=None,
         return _staged(source, kernels, cut, consumer, options, rows_per_band, progress)
     chain = _Chain(kernels, consumer, into=source.arrays())
     side = chain.prepare(source)
-    if rows_per_band is None:
-        pixels = BAND_PIXELS * (MEMORY_BAND_FACTOR if source.in_memory else 1)
-        rows_per_band = max(1, pixels // source.context.geometry.ncols)
-    cuts = bands(source.nrows, rows_per_band)
     nthreads = (options or RunOptions()).thread_count()
+    if rows_per_band is None:
+        rows_per_band = max(1, BAND_PIXELS // source.context.geometry.ncols)
+        if source.in_memory and len(bands(source.nrows, MEMORY_BAND_FACTOR * rows_per_band)
+                                    ) >= nthreads:  # larger bands, unless a thread would idle
+            rows_per_band *= MEMORY_BAND_FACTOR
+    cuts = bands(source.nrows, rows_per_band)
     _run_bands(cuts, lambda lo, hi: chain.run(chain.read(source, lo, hi)), nthreads, progress)
     for i, (kernel, c) in enumerate(zip(kernels, chain.coefficients, strict=True)):
         extra = kernel.extra_rows(c)

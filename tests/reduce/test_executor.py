@@ -154,6 +154,21 @@ def test_a_per_row_kernel_in_any_bands_and_threads_equals_numpy(raw, rows, threa
     assert sum(done) == nrows and len(done) == -(-nrows // rows)
 
 
+@pytest.mark.parametrize(("threads", "expected"), [(1, 3), (3, 3), (4, 5), (8, 5)])
+def test_memory_bands_are_doubled_only_while_every_thread_has_one(raw, monkeypatch, threads,
+                                                                  expected):
+    # 8 rows of 16 columns per file band, 16 in memory; the readout frame has 34 reads
+    import spherex_reduce.reduce.executor as executor
+
+    monkeypatch.setattr(executor, "BAND_PIXELS", 8 * raw.data.data.shape[-1])
+    assert raw.data.data.shape[-2] == 34
+    out, stats = execute(MemorySource(raw), [AddRowValue(context_of(raw))],
+                         options=RunOptions(threads=threads))
+    assert stats.bands == expected  # 34 rows: 3 bands of 16 rows, else 5 of 8
+    np.testing.assert_array_equal(out.data.data, raw.data.data + (10.0 * np.arange(34)
+                                                                  + 0.5)[:, None])
+
+
 class LessFrameMean(Kernel):
     """Needs the whole exposure: minus each frame's mean over every pixel, in place where the
     block may be written; keeps the exposure its estimate saw."""

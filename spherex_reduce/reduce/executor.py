@@ -213,15 +213,47 @@ def _staged(source, kernels, cut, consumer, options, rows_per_band, progress):
     """`execute` with ``kernels[cut]`` needing the whole exposure: the kernels before it
     over every band into an exposure of the executor's own (its estimate's input), then
     the others over that exposure's bands, in place (their output is that exposure's
-    arrays, where the types allow), into ``consumer``.  ``progress`` follows the first
-    stage (which reads the source)."""
+    arrays, where the types allow), into ``consumer``.  ``progress`` is told the source's
+    rows, half of them over each stage."""
+    share = None if progress is None else _Share(progress, source.nrows)
     first, one = execute(source, kernels[:cut], options=options, rows_per_band=rows_per_band,
-                         progress=progress)
-    result, two = execute(MemorySource(first, owned=True), kernels[cut:], consumer,
-                          options=options, rows_per_band=rows_per_band)
+                         progress=None if share is None else share.part(source.nrows))
+    inner = MemorySource(first, owned=True)
+    result, two = execute(inner, kernels[cut:], consumer, options=options,
+                          rows_per_band=rows_per_band,
+                          progress=None if share is None else share.part(inner.nrows))
+    if share is not None:
+        share.finish()
     return result, RunStats(kernels=one.kernels + two.kernels, consumer=two.consumer,
                             read=one.read + one.consumer + two.read, bands=one.bands,
                             threads=one.threads, stages=one.stages + two.stages)
+
+
+class _Share:
+    """Rows of stages reported to ``progress`` as shares of ``total`` rows (whole rows, in
+    order): each stage of ``n`` rows counts for half of them."""
+
+    def __init__(self, progress, total):
+        self.progress, self.total = progress, total
+        self.done, self.sent = 0.0, 0
+        self._lock = threading.Lock()
+
+    def part(self, nrows):
+        factor = self.total / (2.0 * max(nrows, 1))
+
+        def report(rows):
+            with self._lock:
+                self.done += rows * factor
+                step = min(int(self.done), self.total) - self.sent
+                self.sent += step
+            if step > 0:
+                self.progress(step)
+        return report
+
+    def finish(self):
+        if self.total > self.sent:
+            self.progress(self.total - self.sent)
+            self.sent = self.total
 
 
 def _run_bands(cuts, run, nthreads, progress):

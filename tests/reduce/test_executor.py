@@ -202,7 +202,18 @@ def test_a_kernel_needing_the_exposure_after_another_sees_its_output(raw, rows, 
     np.testing.assert_array_equal(exposure.data.data, before)  # the input is not written
     # corrected in place: the output is the exposure the first stage made
     assert np.shares_memory(out.data.data, whole.seen)
-    assert len(stats.kernels) == 2
+    assert len(stats.kernels) == 2 and stats.stages == 2
+
+
+def test_a_staged_pass_reports_every_row_once_over_its_two_stages(raw):
+    exposure = Exposure.from_arrays(np.asarray(raw.data.data, np.float64), raw.schedule)
+    done = []
+    execute(MemorySource(exposure), [AddRowValue(context_of(exposure)),
+                                     LessFrameMean(context_of(exposure))],
+            options=RunOptions(threads=2), rows_per_band=5, progress=done.append)
+    nrows = exposure.data.data.shape[-2]
+    assert sum(done) == nrows and all(isinstance(n, int) and n > 0 for n in done)
+    assert len(done) > -(-nrows // 5)  # more calls than one stage has bands: both told
 
 
 def test_an_exposure_of_the_callers_is_never_written_by_a_kernel_needing_it(raw):

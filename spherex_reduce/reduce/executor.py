@@ -159,6 +159,11 @@ def execute(source, kernels, consumer=None, *, options=None, rows_per_band=None,
             progress=None):
     """Run ``kernels`` over bands of ``source``, into ``consumer`` or a new exposure.
 
+    A kernel after the first whose estimate needs the whole exposure (``needs_exposure``)
+    splits the run into stages: the bands through the kernels before it into an exposure
+    of the executor's own, which its ``prepare`` sees, then that exposure's bands through
+    it and the kernels after it, corrected in place (the numbers are those of two passes).
+
     Parameters
     ----------
     source : `~spherex_reduce.io.sources.Source`

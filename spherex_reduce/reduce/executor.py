@@ -162,7 +162,8 @@ def execute(source, kernels, consumer=None, *, options=None, rows_per_band=None,
     A kernel after the first whose estimate needs the whole exposure (``needs_exposure``)
     splits the run into stages: the bands through the kernels before it into an exposure
     of the executor's own, which its ``prepare`` sees, then that exposure's bands through
-    it and the kernels after it, corrected in place (the numbers are those of two passes).
+    it and the kernels after it, corrected in place where the types allow and the rows
+    stay in their order (the numbers are those of two passes).
 
     Parameters
     ----------
@@ -304,8 +305,12 @@ class _Chain:
             self.coefficients.append(c)
             t = self._spent(i, t)
         self.output = self.kernels[-1].output if self.kernels else source.context
+        # the source's own arrays are the output only where every band's rows stay where
+        # they were read (``unchop`` writes readout rows to physical ones: other bands'
+        # rows, some not yet read)
+        into = self.into if self.output.order == source.context.order else None
         self.sink = (self.consumer if self.consumer is not None
-                     else _Assembly(self.output, self.into))
+                     else _Assembly(self.output, into))
         return side
 
     def read(self, source, lo, hi):

@@ -14,6 +14,7 @@ from spherex_reduce import (
     correct_reference,
     fit_ramp,
     read,
+    subtract_phantom,
     unchop,
     write,
 )
@@ -195,6 +196,30 @@ def test_source_masking_runs_in_a_pass_staged_at_its_estimate(tmp_path):
     mean = routes(["unchop", {"correct_reference": {"strategy": "mean"}}, "fit_ramp"])
     assert all("pass of 3 step(s)" in route and "from a file" in route
                and "stages" not in route for _, route in mean)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_a_staged_pass_that_unchops_after_the_estimate_equals_the_steps_one_by_one(
+        monkeypatch, dtype):
+    """``unchop`` after a whole-exposure estimate writes readout rows to physical ones: the
+    second stage must not write them into the first stage's arrays, whose other rows are
+    still to be read (bands of 8 rows here, several on two threads)."""
+    from spherex_reduce.reduce import executor
+
+    raw = example_raw_exposure(seed=3)
+    flags = np.zeros(raw.data.data.shape, np.uint32)
+    flags[:, 5::17, 3::11] = spherex_reduce.dq.DO_NOT_USE
+    e = Exposure.from_arrays(np.asarray(raw.data.data, dtype), raw.schedule, mask=flags,
+                             phantom=raw.phantom, header=raw.header)
+    before = np.array(e.data.data)
+    monkeypatch.setattr(executor, "BAND_PIXELS", 8 * e.data.data.shape[-1])
+    steps = ["subtract_phantom", {"correct_reference": {"strategy": "median"}}, "unchop"]
+    staged = Pipeline({"steps": steps}).run(e, threads=2)
+    assert "in 2 stages" in staged.tables["PROVENANCE"]["route"][1]
+    one_by_one = unchop(correct_reference(subtract_phantom(e), "median"))
+    np.testing.assert_array_equal(staged.data.data, one_by_one.data.data)
+    np.testing.assert_array_equal(staged.dq, one_by_one.dq)
+    np.testing.assert_array_equal(e.data.data, before)  # the input is not written
 
 
 def test_streamed_file_keeps_its_tables(tmp_path):

@@ -437,7 +437,9 @@ class StepSearch:
     def _rate(self, st, fit, kb, best, var, qb):
         """Shot noise (lambda) of ramps ``st``: the slope less the best step (at ``kb``,
         amplitude ``best``, its ``q`` ``qb``) less `SHOT_RATE_SIGMAS` of its read-noise
-        sigma (``var`` the read-noise variance), clipped at 0, over the gain."""
+        sigma (``var`` the read-noise variance), clipped at 0, over the gain.  The sigma
+        is the line's and that step's (a ramp with steps found already has a slightly
+        larger one: this is a margin, not an estimate)."""
         slope = st.slope - fit.slope_change(kb, best)
         sos = self.slope_of_step[kb]
         sigma = np.sqrt(var * (self.slope_var + sos * sos / qb))

@@ -643,11 +643,15 @@ class MedianReference(Strategy):
                 v[by_channel(drop).reshape(nch, -1)] = np.nan
             fin = np.isfinite(v)
             n = fin.sum(axis=1)
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)
-                med = (np.median(v, axis=1, overwrite_input=True) if fin.all()
-                       else np.nanmedian(v, axis=1, overwrite_input=True))
-            return np.where(n > 0, med, np.nan), n
+            if fin.all():
+                return np.median(v, axis=1, overwrite_input=True), n
+            # only channels with a usable pixel: no warning to silence (warnings' filters
+            # are the process's, not this thread's)
+            med = np.full(nch, np.nan)
+            some = n > 0
+            if some.any():
+                med[some] = np.nanmedian(v[some], axis=1, overwrite_input=True)
+            return med, n
 
         L = frames.shape[0]
         nthreads = min(L, RunOptions(threads=context.threads).thread_count())

@@ -246,6 +246,24 @@ def test_median_strategy_and_source_mask():
     assert m[20:30, 5:10].all() and m[:, 40:].mean() < 0.05
 
 
+def test_median_of_each_frame_and_channel_is_numpys_with_a_channel_without_pixels():
+    # frames on threads: a frame where channel 1 has no finite pixel gives NaN there (and
+    # no warning but the step's own: the suite turns warnings into errors, in any thread),
+    # the others numpy's
+    s = sched(nframes=5, nrows=64, ncols=64)
+    rng = np.random.default_rng(5)
+    img = rng.normal(0, 1, (5, 64, 64)) + np.repeat([3.0, -2.0, 1.0, 0.0], 16)
+    img[2, :, 16:32] = np.nan
+    img[3, 7, 40] = np.inf  # a value, as numpy's median takes it
+    e = Exposure.from_arrays(img, s, order="physical")
+    with pytest.warns(NoReferenceWarning, match=r"channel\(s\) \[1\]"):
+        out = correct_reference(e, "median")
+    got = np.asarray(out.tables["REFOFFS"]["offset"].value).reshape(5, 4)
+    expected = np.array([[np.nanmedian(img[f][:, 16 * c:16 * (c + 1)]) if f != 2 or c != 1
+                          else np.nan for c in range(4)] for f in range(5)])
+    np.testing.assert_array_equal(got, expected)
+
+
 def test_unknown_strategy_lists_the_valid_ones():
     s = sched()
     e = Exposure.from_arrays(np.zeros((3, s.n_reads, 32)), s)

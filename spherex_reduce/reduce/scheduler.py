@@ -21,18 +21,28 @@ __all__ = ["HELD_SIGNALS", "check_scheduler", "dask_client", "map_on_dask", "qui
            "signals_held"]
 
 
+#: loggers of the event loops dask's client and workers run on: when a run is interrupted
+#: (Ctrl-C to the process group: the workers die with the client), their loops log
+#: "Exception in callback" errors of dask's own ``sync`` machinery being torn down
+EVENT_LOOP_LOGGERS = ("asyncio", "tornado")
+
+
 def quiet_dask_logs(level=logging.CRITICAL):
-    """Raise the level of dask.distributed's loggers (by default, silence them).
+    """Raise the level of dask.distributed's loggers, and of the event loops' it runs on
+    (`EVENT_LOOP_LOGGERS`); by default, silence them.
 
     They log every connection at INFO and, when a worker dies or a run is
     interrupted, warnings and errors of their own (a task rescheduled, a worker
-    restarted); what matters reaches the command as a task's result or error.
+    restarted, a callback of the client's loop cancelled); what matters reaches the
+    command as a task's result or error.
     """
     import distributed  # noqa: F401  (creates its loggers)
 
     for name in list(logging.root.manager.loggerDict):
         if name.split(".")[0] == "distributed":
             logging.getLogger(name).setLevel(level)
+    for name in EVENT_LOOP_LOGGERS:
+        logging.getLogger(name).setLevel(level)
 
 
 def check_scheduler(address, timeout=5.0, name="scheduler"):

@@ -144,6 +144,12 @@ class WienerReference(Strategy):
         self.side_columns = params["side_columns"]
         self.telegraph, self.telegraph_sigma = params["telegraph"], params["telegraph_sigma"]
         self.components, self.model_unit = noise_model(noise)
+        if self.acn and not any(c.acn for c in self.components):
+            warnings.warn("correct_reference (wiener): acn: true, but the noise model has no "
+                          "ACN component: the even and odd columns are estimated apart, from "
+                          "half the reference pixels each, which only adds noise between "
+                          "them; set acn: false, or give a model with ACN", AstropyUserWarning,
+                          stacklevel=2)
         names = [c.name for c in self.components]
         if common == "auto":
             self.common = frozenset(c.name for c in self.components if c.scope == "common")

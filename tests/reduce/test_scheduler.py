@@ -1,0 +1,44 @@
+"""quiet_dask_logs: what an interrupted dask run's event loops log stays out of the output."""
+
+import asyncio
+import logging
+
+import pytest
+
+from spherex_reduce.reduce.scheduler import EVENT_LOOP_LOGGERS, quiet_dask_logs
+
+
+@pytest.fixture
+def restored_levels():
+    names = [*EVENT_LOOP_LOGGERS, *(n for n in logging.root.manager.loggerDict
+                                    if n.split(".")[0] == "distributed")]
+    levels = {n: logging.getLogger(n).level for n in names}
+    yield
+    for name, level in levels.items():
+        logging.getLogger(name).setLevel(level)
+
+
+def _failing_callback_logs(caplog):
+    """Run an event loop whose callback raises (as dask's ``sync`` cancel did when a
+    batch was interrupted); the records asyncio's handler logged."""
+    caplog.clear()
+    loop = asyncio.new_event_loop()
+    try:
+        def boom():
+            raise RuntimeError("cancelled while the loop closes")
+        loop.call_soon(boom)
+        loop.call_soon(loop.stop)
+        loop.run_forever()
+    finally:
+        loop.close()
+    return [r for r in caplog.records if r.name == "asyncio"]
+
+
+def test_an_event_loop_callback_error_is_silenced_only_once_quieted(caplog, restored_levels):
+    pytest.importorskip("distributed")
+    caplog.set_level(logging.WARNING)
+    logging.getLogger("asyncio").setLevel(logging.NOTSET)
+    assert [r.levelname for r in _failing_callback_logs(caplog)] == ["ERROR"]
+    quiet_dask_logs()
+    assert _failing_callback_logs(caplog) == []
+    assert logging.getLogger("distributed.scheduler").getEffectiveLevel() == logging.CRITICAL

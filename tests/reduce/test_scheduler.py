@@ -10,6 +10,7 @@ from spherex_reduce.reduce.scheduler import EVENT_LOOP_LOGGERS, quiet_dask_logs
 
 @pytest.fixture
 def restored_levels():
+    pytest.importorskip("distributed")  # its loggers exist before their levels are kept
     names = [*EVENT_LOOP_LOGGERS, *(n for n in logging.root.manager.loggerDict
                                     if n.split(".")[0] == "distributed")]
     levels = {n: logging.getLogger(n).level for n in names}
@@ -35,7 +36,6 @@ def _failing_callback_logs(caplog):
 
 
 def test_an_event_loop_callback_error_is_silenced_only_once_quieted(caplog, restored_levels):
-    pytest.importorskip("distributed")
     caplog.set_level(logging.WARNING)
     logging.getLogger("asyncio").setLevel(logging.NOTSET)
     assert [r.levelname for r in _failing_callback_logs(caplog)] == ["ERROR"]

@@ -200,9 +200,9 @@ def execute(source, kernels, consumer=None, *, options=None, rows_per_band=None,
     nthreads = (options or RunOptions()).thread_count()
     if rows_per_band is None:
         rows_per_band = max(1, BAND_PIXELS // source.context.geometry.ncols)
-        if source.in_memory and len(bands(source.nrows, MEMORY_BAND_FACTOR * rows_per_band)
-                                    ) >= nthreads:  # larger bands, unless a thread would idle
-            rows_per_band *= MEMORY_BAND_FACTOR
+        larger = MEMORY_BAND_FACTOR * rows_per_band
+        if source.in_memory and -(-source.nrows // larger) >= nthreads:  # no thread idle
+            rows_per_band = larger
     cuts = bands(source.nrows, rows_per_band)
     _run_bands(cuts, lambda lo, hi: chain.run(chain.read(source, lo, hi)), nthreads, progress)
     for i, (kernel, c) in enumerate(zip(kernels, chain.coefficients, strict=True)):
@@ -242,16 +242,14 @@ class _Share:
     def __init__(self, progress, total):
         self.progress, self.total = progress, total
         self.done, self.sent = 0.0, 0
-        self._lock = threading.Lock()
 
     def part(self, nrows):
         factor = self.total / (2.0 * max(nrows, 1))
 
-        def report(rows):
-            with self._lock:
-                self.done += rows * factor
-                step = min(int(self.done), self.total) - self.sent
-                self.sent += step
+        def report(rows):  # (called in the calling thread, after each band: `_run_bands`)
+            self.done += rows * factor
+            step = min(int(self.done), self.total) - self.sent
+            self.sent += step
             if step > 0:
                 self.progress(step)
         return report

@@ -231,10 +231,9 @@ class FrameReader(RampReader):
             base = offset + (k + self._drop) * nreads * row
             at = k * per_frame
             for a, b, first in runs:
-                part = view[at + a * row:at + b * row]
-                if os.preadv(fd, [part], base + first * row) != part.nbytes:  # short: again
-                    pread_into(fd, np.frombuffer(part, np.uint8), base + first * row,
-                               f"{self.path}: the file ends inside frame {k + self._drop}")
+                pread_into(fd, np.frombuffer(view[at + a * row:at + b * row], np.uint8),
+                           base + first * row,
+                           f"{self.path}: the file ends inside frame {k + self._drop}")
         return True
 
     def _stored_columns(self, k, rows, runs):

@@ -77,14 +77,12 @@ class ReferencePlan:
     column_group : `numpy.ndarray` or None
         ``(ncols,)``: the group (``channel * P + parity``) of every column,
         given with ``rows_readout``.
-    contiguous : bool
-        One group per channel, its columns side by side: per-read offsets are
-        subtracted channel by channel, without ``column_group``.
-    pairs : `numpy.ndarray` or None
-        ``(nchannels, 2)``: when every channel's columns alternate between two
-        groups (``acn``: even and odd samples), the group of its even and odd
-        columns; per-read offsets are then subtracted by broadcasting over
-        column pairs, without a gathered row of offsets.  Else None.
+    cycle : `numpy.ndarray` or None
+        ``(nchannels, P)``: when every channel's columns cycle through ``P`` groups
+        (``P`` = 1: one group per channel, its columns side by side; 2: ``acn``'s
+        even and odd samples), the group of each place in the cycle; per-read
+        offsets are then subtracted by broadcasting over the cycles, without a
+        gathered row of offsets per pixel.  Else None (``column_group`` is used).
     """
 
     estimate: ReferenceOffsets
@@ -95,8 +93,7 @@ class ReferencePlan:
     rows_readout: np.ndarray | None = None
     rows_physical: np.ndarray | None = None
     column_group: np.ndarray | None = None
-    contiguous: bool = False
-    pairs: np.ndarray | None = None
+    cycle: np.ndarray | None = None
 
     def rows(self, order):
         """The per-read offsets for blocks in ``order`` (``'readout'`` or ``'physical'``),
@@ -149,14 +146,10 @@ class ReferenceKernel(Kernel):
         for f in range(out.shape[0]):
             if rows is None:
                 np.subtract(out[f], plan.columns[f], out=out[f])
-            elif plan.contiguous:  # one group per channel: its columns side by side
-                per_channel = out[f].reshape(out.shape[1], nch, -1)
-                np.subtract(per_channel, rows[f][block.index][:, :, None], out=per_channel,
-                            casting="unsafe")
-            elif plan.pairs is not None:  # two groups alternating along each channel
-                per_pair = out[f].reshape(out.shape[1], nch, -1, 2)
-                np.subtract(per_pair, rows[f][block.index][:, plan.pairs][:, :, None, :],
-                            out=per_pair, casting="unsafe")
+            elif plan.cycle is not None:  # each channel's columns cycle through its groups
+                per_cycle = out[f].reshape(out.shape[1], nch, -1, plan.cycle.shape[1])
+                np.subtract(per_cycle, rows[f][block.index][:, plan.cycle][:, :, None, :],
+                            out=per_cycle, casting="unsafe")
             else:  # an offset per read: the row's own
                 np.subtract(out[f], rows[f][block.index][:, plan.column_group], out=out[f],
                             casting="unsafe")
@@ -228,13 +221,13 @@ def _row_plan(context, est, plan):
     rows = np.nan_to_num(rows, copy=False, nan=0.0, posinf=0.0, neginf=0.0)  # no copy held
     rows = rows.reshape(rows.shape[0], rows.shape[1], -1)
     width = s.geometry.channel_width
-    contiguous = groups.shape[1] == 1 and np.array_equal(
-        colgroup, np.repeat(np.arange(groups.shape[0]), width))
-    pairs = None
-    if not contiguous and width % 2 == 0:
-        by_pair = colgroup.reshape(groups.shape[0], width // 2, 2)
-        if (by_pair == by_pair[:, :1]).all():  # each channel: (even, odd) groups throughout
-            pairs = by_pair[:, 0]
+    cycle = None
+    for period in (1, 2):  # one group per channel, or acn's even and odd
+        if width % period == 0:
+            by_place = colgroup.reshape(groups.shape[0], width // period, period)
+            if (by_place == by_place[:, :1]).all():
+                cycle = by_place[:, 0]
+                break
     phys = None
     if context.order == "physical":
         nrows = s.geometry.nrows
@@ -244,7 +237,7 @@ def _row_plan(context, est, plan):
         for row in np.flatnonzero(counts > 1):  # a row read more: the mean of its reads'
             phys[:, row] = rows[:, s.rows == row].mean(axis=1)
     return dataclasses.replace(plan, rows_readout=rows, rows_physical=phys,
-                               column_group=colgroup, contiguous=contiguous, pairs=pairs)
+                               column_group=colgroup, cycle=cycle)
 
 
 class _Given(Strategy):

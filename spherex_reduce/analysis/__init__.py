@@ -40,7 +40,7 @@ _OWN = {
                  "band_label", "band_power", "band_theta", "cross_spectrum", "fft_magnitude",
                  "k_from_theta", "power_spectrum", "theta_from_k"],
     "temporal": ["NoiseModelFit", "aliased_basis", "fit_noise_model", "model_basis",
-                 "temporal_psd"],
+                 "temporal_psd", "welch_terms"],
     "timestreams": ["Timestream", "detrend_frames", "fit_raw_noise", "phantom_timestream",
                     "reference_timestream"],
 }

@@ -315,3 +315,60 @@ def test_aliased_basis_keeps_its_terms_within_its_bytes(monkeypatch):
     assert len(calls) == kept + 2
     aliased_basis(sets[0], FS, 2, 1)  # the oldest: let go
     assert len(calls) == kept + 3
+
+
+def _ar1_periodogram_expectation(phi, n, k, fs):
+    """E[Welch periodogram] at frequencies ``k fs / n`` of an AR(1) process of unit
+    innovations, from its autocovariance ``phi^|d| / (1 - phi^2)`` in the time domain:
+    ``2 / (fs Σw²) Σ_ab w_a w_b R(a - b) cos(2π k (a - b) / n)``."""
+    from scipy.signal import get_window
+
+    w = get_window("hann", n)
+    d = np.subtract.outer(np.arange(n), np.arange(n))
+    r = phi ** np.abs(d) / (1 - phi**2)
+    ww = np.outer(w, w) * r
+    return np.array([2 * np.sum(ww * np.cos(2 * np.pi * kk * d / n)) / (fs * np.sum(w**2))
+                     for kk in k])
+
+
+def test_welch_terms_are_the_periodogram_expectation():
+    """The window's smoothing of a spectrum that curves within a few frequencies (an AR(1)
+    process, phi = 0.95) against its periodogram's expectation summed in the time domain;
+    white noise is unchanged."""
+    from spherex_reduce.analysis import welch_terms
+
+    phi, n, fs = 0.95, 256, 10.0
+
+    def ar1(f, e):  # one-sided PSD of x_t = phi x_(t-1) + e_t, unit innovations
+        z = np.exp(-2j * np.pi * np.asarray(f) / fs)
+        return np.stack([2 / (fs * np.abs(1 - phi * z) ** 2), np.ones(np.shape(f))], axis=-1)
+
+    k = np.array([2, 3, 4, 6, 10, 40, 128])
+    f = k * fs / n
+    meta = {"nperseg": n, "sample_rate": fs, "window": "hann"}
+    got = welch_terms(ar1, f, 1.3, meta)
+    exact = _ar1_periodogram_expectation(phi, n, k, fs)
+    assert got[:, 0] == pytest.approx(exact, rel=1e-4)
+    assert got[:, 1] == pytest.approx(1.0, rel=1e-12)
+    # the smoothing is not negligible where the spectrum curves: the bare PSD is off there
+    assert abs(ar1(f, 1.3)[1, 0] / exact[1] - 1) > 0.02
+    with pytest.raises(SpherexReduceError, match="Hann window"):
+        welch_terms(ar1, f, 1.3, {**meta, "window": "boxcar"})
+    with pytest.raises(SpherexReduceError, match=r"in \(0, 5\] Hz"):
+        welch_terms(ar1, [6.0], 1.3, meta)
+
+
+def test_fit_of_many_segments_is_unbiased_at_the_lowest_frequencies():
+    """~30 000 segments of 256 samples of α + β/f + γ/f^1.3: the fit's β and γ within 3.5
+    of their errors of the truth.  Fitted with the bare terms instead of the window's
+    expectation of them (`welch_terms`), γ came out 6.4 errors high, β 5.1 low, α 3.6 high."""
+    from spherex_reduce.analysis.characterize.spectra import pool
+
+    truth = (1e-2, 2e-2, 2e-2)
+    rng = np.random.default_rng(11)
+    fs = 100.0
+    spectra = [{"x": temporal_psd(synth(2**16, truth, rng, nstreams=8, pad=2, fs=fs), fs,
+                                  nperseg=256)} for _ in range(8)]
+    r = fit_noise_model(pool(spectra)["x"])
+    p = pulls(r, truth)
+    assert np.all(np.abs(p) < 3.5), p

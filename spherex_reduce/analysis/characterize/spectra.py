@@ -19,7 +19,7 @@ import numpy as np
 from astropy.table import Table
 
 from ...reduce.options import default_threads, in_threads
-from ..temporal import aliased_basis, fit_noise_model, temporal_psd
+from ..temporal import aliased_basis, fit_noise_model, temporal_psd, welch_terms
 
 __all__ = ["LONG_BURST", "SPECTRA", "SPECTRA_THREADS", "band_power", "dark_spectra",
            "fit_spectra", "pool"]
@@ -156,11 +156,11 @@ def pool(spectra):
 
 
 def _expected(result, basis, spec):
-    """The spectrum a fit expects at ``spec``'s frequencies (floored above zero): the
-    weights of the spectra derived from the one it fits."""
+    """The spectrum a fit expects at ``spec``'s frequencies (floored above zero), as
+    Welch's estimate sees it: the weights of the spectra derived from the one it fits."""
     f = np.asarray(spec["frequency"].value)
     theta = np.array([result.values[p] for p in ("alpha", "beta", "gamma")])
-    model = basis(f, result.exponent) @ theta
+    model = welch_terms(basis, f, result.exponent, spec.meta) @ theta
     return np.maximum(model, np.max(np.abs(model)) * 1e-6)
 
 

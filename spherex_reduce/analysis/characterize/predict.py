@@ -70,6 +70,7 @@ from ...noise.variance import ls_weights
 from ..faint_telegraph import telegraph_covariance
 from ..forecast.engine import forecast, poisson_variance, prepare_forecast, stored_planes
 from ..spectrum import rfft_weights
+from .result import hold_white
 
 __all__ = ["CLIP_SIGMA", "clipped_sigma", "faint_population", "frame_grid", "predict_scatter",
            "predict_spectrum", "telegraph_population", "telegraph_slope_variance"]
@@ -275,11 +276,7 @@ def _scene(model, nframes, single):
                                                exponent=c["exponent"])
                                 .structure_function(s.frame_samples, g.pixel_rate))
                     for c in seen)
-        alpha = sum(c["alpha"] for c in seen)
-        for c in sc["noise"]["components"]:
-            if c["name"] == "channel":
-                target = own if own is not None else white - drift
-                c["alpha"] = max(c["alpha"] + 2.0 * target / g.pixel_rate - alpha, 0.0)
+        hold_white(sc["noise"]["components"], own if own is not None else white - drift, s)
     terms = sc.pop("scene", {}) or {}
     current = float(terms.get("dark_current", 0.0))
     sc.update(readout=readout, output={"mode": "slopes"},

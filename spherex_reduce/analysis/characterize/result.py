@@ -9,7 +9,7 @@ from astropy.table import Table
 from .model import ACN_SIGMAS, BAD_FIT_PROBABILITY, LAYOUT, PARAMS, combine, goodness, scene_values
 from .spectra import SPECTRA
 
-__all__ = ["Characterization"]
+__all__ = ["Characterization", "hold_white"]
 
 #: A reference-pixel white level this many standard errors from the light-sensitive
 #: pixels' is reported as different.
@@ -181,6 +181,35 @@ class Characterization:
         return out
 
     # -- the scene ------------------------------------------------------------------------
+    def faint_white(self):
+        """The light-sensitive pixels' white read variance per read (the darks' unit
+        squared) that the scene's channel white level holds instead of the streams',
+        where the per-pixel terms fitted a faint telegraph population; else None.
+
+        Faint telegraph pixels (`~spherex_reduce.analysis.faint_telegraph`) cannot be
+        left out of the streams one by one, so part of their steps stays in the streams
+        and is fitted as the channels' white level, while the scene holds the population
+        too (``scene.rtn``): 19 % of the channel white level, 4.8 of its errors, on
+        ``benchmarks/bench_characterize_heldout.py``'s case with one (10 % of the
+        pixels switching 30 e at 0.3 Hz under 3.9 e reads).  What stays depends on
+        which switches each dark's jump search flagged (those pixels are left out of that
+        dark's streams), so it cannot be computed from the population's power and rate
+        (taken out that way, the channel white came out at a fifth of the truth).  The
+        per-pixel fit's ``white_read_noise`` (the pixels' structure function with the
+        drift common to the pixels read together and the faint telegraph taken out) is
+        the white level without them."""
+        pt = self.pixel_terms
+        if pt is None:
+            return None
+        try:
+            rows = [pt.row(k, "active") for k in ("faint_telegraph_power",
+                                                 "faint_telegraph_rate", "white_read_noise")]
+        except KeyError:
+            return None
+        if any(r["status"] != "fitted" for r in rows):
+            return None
+        return float(rows[2]["value"]) ** 2
+
     def _scene_values(self):
         """`scene_values` of the components, each over its spectrum's binned frequencies."""
         bands = {}
@@ -213,6 +242,9 @@ class Characterization:
             comps.append(comp)
         if not comps:  # a scene with no components simulates the default table: not this
             comps.append({"name": "channel", "alpha": 0.0, "exponent": self.exponent})
+        white = self.faint_white()
+        if white is not None:  # the faint telegraph population once: in scene.rtn
+            hold_white(comps, white, self.schedule)
         out = {}
         if self.unit in (u.electron, u.adu):  # the scene's unit: the darks'
             out["unit"] = self.unit.to_string()
@@ -340,3 +372,27 @@ class Characterization:
                 lines.append(f"band power measured / forecast: {band['ratio'][0]:.3f}")
         lines.extend(f"note: {m}" for m in self.marks)
         return lines
+
+
+def hold_white(components, variance, schedule):
+    """Set the ``channel`` component's white level so that what the light-sensitive pixels
+    see of all ``components`` (scene mappings, changed in place) is white read noise of
+    ``variance`` per read: ``Σ alpha = 2 variance / pixel_rate`` over the components the
+    pixels see (clipped at 0; no ``channel`` component, nothing changes).
+
+    Examples
+    --------
+    >>> from spherex_reduce import DetectorGeometry, ReadoutSchedule
+    >>> from spherex_reduce.analysis.characterize.result import hold_white
+    >>> s = ReadoutSchedule(DetectorGeometry(64, 64, 1), nframes=4)
+    >>> comps = [{"name": "channel", "alpha": 3e-3}, {"name": "common", "alpha": 1e-3}]
+    >>> hold_white(comps, 100.0, s)
+    >>> comps[0]["alpha"] * s.geometry.pixel_rate / 2 + comps[1]["alpha"] * 5e4
+    100.0
+    """
+    fs = schedule.geometry.pixel_rate
+    seen = sum(c.get("alpha", 0.0) for c in components
+               if c.get("visibility", "pixels") in ("pixels", "both"))
+    for c in components:
+        if c["name"] == "channel":
+            c["alpha"] = max(c.get("alpha", 0.0) + 2.0 * float(variance) / fs - seen, 0.0)

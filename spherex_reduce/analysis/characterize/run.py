@@ -228,6 +228,7 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
                                    exponent_fitted=exponent is None,
                                    segmented=split or (segments or 1) > 1, gain=gain)
     model.pixel_terms = terms
+    _mark_faint_white(model)
     if pixel_mark is not None:
         also = (f"; the streams of the darks before left out their {left_out} pixels with "
                 "a jump or hot" if left_out else "")
@@ -240,6 +241,21 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
     if scatter_mark is not None:
         model.marks.append(f"slope scatter and P(k): not compared: {scatter_mark}")
     return model
+
+
+def _mark_faint_white(model):
+    """Say in one line that the scene's channel white level is the pixels' own, not the
+    streams', where a faint telegraph population was fitted (`Characterization.faint_white`)."""
+    white = model.faint_white()
+    channel = model.components.get("channel")
+    if white is None or channel is None:
+        return
+    held = [c["alpha"] for c in model.scene()["noise"]["components"] if c["name"] == "channel"]
+    if held:
+        model.marks.append(
+            f"channel.alpha: the streams' {channel.values[0]:.4g} holds part of the faint "
+            f"telegraph population's steps, which scene.rtn holds; the scene takes the pixels' "
+            f"white read noise ({np.sqrt(white):.4g} {model.unit}): {held[0]:.4g}")
 
 
 def _fit_pixels(sums):

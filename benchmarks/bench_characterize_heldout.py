@@ -121,6 +121,15 @@ def run_ours(args):
     print("faint telegraph (fitted as a population): " + (
         "none" if faint is None else
         ", ".join(f"{k} {r['value']:.4g} +- {r['error']:.2g}" for k, r in rows.items())))
+    # the channel white level: the streams' fit, the scene's (the pixels' white read noise
+    # where a faint population is fitted: it is held once, in scene.rtn) and the injected
+    seen = [c for c in model.scene()["noise"]["components"]
+            if c.get("visibility", "pixels") in ("pixels", "both")]
+    truth = sum(a for a, _, _, _, v in TABLE2.values() if v in ("pixels", "both"))
+    streams = model.components["channel"]
+    print(f"white level the pixels see (e^2/Hz): injected {truth:.5g}; the streams' fit "
+          f"{streams.values[0] + sum(c['alpha'] for c in seen if c['name'] != 'channel'):.5g}"
+          f" +- {streams.errors[0]:.2g}; the scene's {sum(c['alpha'] for c in seen):.5g}")
     ok = print_table(table)
     last = table[table["quantity"] == "slope_scatter"][-1]
     print(f"telegraph excess at N = {last['frames']}: measured / streams-only prediction "

@@ -189,9 +189,10 @@ class Characterization:
         Faint telegraph pixels (`~spherex_reduce.analysis.faint_telegraph`) cannot be
         left out of the streams one by one, so part of their steps stays in the streams
         and is fitted as the channels' white level, while the scene holds the population
-        too (``scene.rtn``): 19 % of the channel white level, 4.8 of its errors, on
+        too (``scene.rtn``): 5.9 % of the channel white level, 17 of its errors, on
         ``benchmarks/bench_characterize_heldout.py``'s case with one (10 % of the
-        pixels switching 30 e at 0.3 Hz under 3.9 e reads).  What stays depends on
+        pixels switching 30 e at 0.3 Hz under 3.9 e reads), 17 % and 7 % in the
+        tests' cases.  What stays depends on
         which switches each dark's jump search flagged (those pixels are left out of that
         dark's streams), so it cannot be computed from the population's power and rate
         (taken out that way, the channel white came out at a fifth of the truth).  The

@@ -39,8 +39,8 @@ __all__ = [
 PARAMS = ("alpha", "beta", "gamma")
 
 #: Points per Welch frequency at which `welch_terms` takes a model to smooth it by the
-#: window (the expectation at the third frequency of a 1/f^1.3 spectrum is then within
-#: 5e-5 of its limit)
+#: window (the expectation of a 1/f^1.3 spectrum is then within 1.5e-4 of its limit at
+#: the third frequency, 1e-3 at the second, 1.2e-2 at the first, which the fits leave out)
 WINDOW_OVERSAMPLE = 4
 
 
@@ -68,8 +68,8 @@ def temporal_psd(stream, sample_rate, nperseg=None, noverlap=None, detrend="cons
         Columns ``frequency`` (Hz) and ``psd`` (unit²/Hz), without ``f = 0``
         and the Nyquist frequency (whose one-sided ordinate is not doubled);
         ``meta`` has ``nperseg``, ``noverlap``, ``nsegments`` (per stream),
-        ``nstreams`` and ``sample_rate``, which `fit_noise_model` uses for the
-        uncertainties.
+        ``nstreams``, ``sample_rate``, ``window`` and ``detrend``, which
+        `fit_noise_model` uses for the uncertainties and the model's expectation.
 
     Examples
     --------
@@ -107,7 +107,7 @@ def temporal_psd(stream, sample_rate, nperseg=None, noverlap=None, detrend="cons
     return Table({"frequency": f[keep] * u.Hz, "psd": p[keep] * unit**2 / u.Hz},
                  meta={"nperseg": nperseg, "noverlap": noverlap, "nsegments": int(nseg),
                        "nstreams": int(np.prod(x.shape[:-1], dtype=int)),
-                       "sample_rate": fs, "window": "hann"})
+                       "sample_rate": fs, "window": "hann", "detrend": detrend})
 
 
 def _relative_variance(nperseg, noverlap, nsegments, m):
@@ -144,18 +144,19 @@ def welch_terms(basis, frequency, exponent, meta):
     """Model terms as Welch's estimate expects them: each smoothed by the window.
 
     The periodogram of a Hann-windowed segment of ``nperseg`` samples at rate
-    ``fs`` expects at frequency ``f`` the spectrum convolved with the window's
+    ``fs`` expects at frequency ``f`` the spectrum weighted by the window's
     kernel, ``∫ p(ν) |W(f − ν)|² dν / ∫ |W|² dν``; where ``p`` curves on the
     scale of a few frequencies (``1/f`` at the lowest ones of a segment) that
     is not ``p(f)``: at the third Welch frequency it is 4.2 % above a ``1/f``
     spectrum and 6.5 % above a ``1/f^1.3`` one, 0.5 % and 0.8 % at the eighth.
     A fit with the bare terms reads that excess as a steeper spectrum (``γ``
     high, ``β`` low: a bias of 1-2 standard errors on thousands of segments).
-    The convolution is circular over ``[-fs/2, fs/2)`` on a grid
-    `WINDOW_OVERSAMPLE` times finer than the Welch frequencies (the ``f = 0``
-    term left out: a periodic Hann window's transform vanishes two or more
-    frequencies away, so the mean, which ``detrend`` removes, does not reach
-    them).
+    The integral is a circular convolution over ``[-fs/2, fs/2)`` on a grid
+    `WINDOW_OVERSAMPLE` times finer than the Welch frequencies.  A periodic Hann
+    window's transform vanishes two or more Welch frequencies away from its
+    centre, so there the segment's mean (``detrend="constant"``, removed or not)
+    does not reach; at the first Welch frequency it does, and the kernel there
+    is that of the window less the mean's removal, exactly.
 
     Parameters
     ----------
@@ -168,12 +169,21 @@ def welch_terms(basis, frequency, exponent, meta):
         The exponent of the third term.
     meta : dict
         The spectrum's metadata from `temporal_psd`: ``nperseg``,
-        ``sample_rate`` (Hz) and ``window`` (``"hann"``).
+        ``sample_rate`` (Hz), ``window`` (``"hann"``) and ``detrend``
+        (``"constant"`` or False; absent: ``"constant"``, `temporal_psd`'s
+        default).
 
     Returns
     -------
     `numpy.ndarray`
         The smoothed terms at ``frequency``, shape ``(n, k)``.
+
+    Raises
+    ------
+    `~spherex_reduce.core.errors.SpherexReduceError`
+        Another window or detrending (``"linear"`` reaches every frequency), a
+        frequency outside ``(0, fs/2]``, or the first Welch frequency of a
+        spectrum that was not detrended (it holds the power at ``f = 0``).
 
     Examples
     --------
@@ -188,6 +198,10 @@ def welch_terms(basis, frequency, exponent, meta):
     if meta.get("window") != "hann":
         raise SpherexReduceError(f"the spectrum's window is {meta.get('window')!r}: the fit "
                                  "knows the Hann window of temporal_psd only")
+    detrend = meta.get("detrend", "constant")
+    if detrend not in ("constant", False):
+        raise SpherexReduceError(f"the spectrum's detrend is {detrend!r}: the fit knows "
+                                 "temporal_psd's 'constant' (or none) only")
     f = np.asarray(u.Quantity(frequency, u.Hz).value, dtype=float)
     n, fs = int(meta["nperseg"]), float(meta["sample_rate"])
     m = n * WINDOW_OVERSAMPLE
@@ -196,13 +210,28 @@ def welch_terms(basis, frequency, exponent, meta):
         raise SpherexReduceError(f"welch_terms takes frequencies in (0, {fs / 2:g}] Hz, "
                                  f"got {f.min():g} to {f.max():g}")
     terms = np.asarray(basis(grid, exponent), dtype=float)
-    two_sided = np.zeros((m, terms.shape[1]))
+    two_sided = np.zeros((m, terms.shape[1]))  # on nu_j = j fs / m, j mod m; f = 0 left out
     two_sided[1: m // 2 + 1] = terms
     two_sided[m // 2 + 1:] = terms[: m - m // 2 - 1][::-1]  # p(-f) = p(f)
-    smooth = np.fft.irfft(np.fft.rfft(two_sided, axis=0) * _window_kernel(n, m)[:, None],
+    kernel = _window_kernel(n, m)
+    smooth = np.fft.irfft(np.fft.rfft(two_sided, axis=0) * kernel[:, None],
                           n=m, axis=0)[1: m // 2 + 1]
-    return np.stack([np.interp(f, grid, smooth[:, j]) for j in range(terms.shape[1])],
-                    axis=-1)
+    out = np.stack([np.interp(f, grid, smooth[:, j]) for j in range(terms.shape[1])],
+                   axis=-1)
+    first = np.flatnonzero(f < 1.5 * fs / n)  # the first Welch frequency: the mean reaches it
+    if first.size and detrend is False:
+        raise SpherexReduceError(
+            "the first Welch frequency of a spectrum that was not detrended holds the power "
+            "at f = 0, which no model term gives: leave it out (fmin)")
+    t = np.arange(n)
+    w = scipy.signal.get_window("hann", n)
+    for i in first:  # x_n less its mean, windowed: sum_n g_n x_n, g_n = w_n e^(-i w n) - W / n
+        g = w * np.exp(-2j * np.pi * f[i] * t / fs)
+        g -= g.sum() / n
+        # |sum_n g_n e^(+2 pi i nu n / fs)|^2 on the grid (0 at nu = 0: the mean is gone)
+        gain = np.abs(np.fft.fft(np.conj(g), m)) ** 2
+        out[i] = gain @ two_sided / (m * np.sum(w * w))
+    return out
 
 
 @functools.lru_cache(maxsize=16)
@@ -451,7 +480,8 @@ def _fit_fixed(spectra, exponent, fmin, fmax, nbins, fit, basis, maxiter):
     ys, xs, rv, fb, which, levels = [], [], [], [], [], []
     lo_all, hi_all = np.inf, 0.0
     for s, (spec, fun) in enumerate(zip(spectra, basis, strict=True)):
-        for key in ("nperseg", "noverlap", "nsegments", "nstreams", "sample_rate"):
+        for key in ("nperseg", "noverlap", "nsegments", "nstreams", "sample_rate",
+                    "window"):
             if key not in spec.meta:
                 raise SpherexReduceError(f"spectrum meta lacks {key!r}; use temporal_psd")
         f = np.asarray(u.Quantity(spec["frequency"], u.Hz).value)

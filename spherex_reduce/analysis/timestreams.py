@@ -425,6 +425,8 @@ def _parity_psd(streams, rate, nperseg):
 
 #: Limits of a plausible noise fit (`implausible_fits`).
 MAX_CHI2_PER_DOF, MIN_RELATIVE_ERROR = 10.0, 1e-12  # NEGATIVE_SIGMAS: the rule wiener applies
+#: Fewest degrees of freedom (frequency bins less coefficients) that test a fit
+MIN_DOF = 3
 
 
 def implausible_fits(table):
@@ -432,8 +434,10 @@ def implausible_fits(table):
 
     A coefficient (``alpha``, ``beta``, ``gamma``) below zero by more than 3 of
     its standard errors (the model power would go negative), ``chi2/dof`` above
-    10 (the model does not describe the spectrum), or an error bar smaller
-    than floating-point noise (``< 1e-12`` of the value: a degenerate fit).
+    10 (the model does not describe the spectrum), an error bar smaller
+    than floating-point noise (``< 1e-12`` of the value: a degenerate fit), or
+    fewer than `MIN_DOF` degrees of freedom (too few frequency bins to test
+    the model: a stream of a few reads).
 
     Returns
     -------
@@ -446,7 +450,7 @@ def implausible_fits(table):
     >>> from spherex_reduce.analysis.timestreams import implausible_fits
     >>> t = Table({"stream": ["reference"], "alpha": [0.01], "alpha_err": [1e-3],
     ...            "beta": [-350.0], "beta_err": [9.8], "gamma": [2.6e3], "gamma_err": [1.3],
-    ...            "chi2": [0.5], "dof": [2]})
+    ...            "chi2": [0.5], "dof": [12]})
     >>> implausible_fits(t)
     {'reference': ['beta = -350 is 36 sigma below zero']}
     """
@@ -464,6 +468,9 @@ def implausible_fits(table):
                            "noise")
         if row["dof"] > 0 and row["chi2"] / row["dof"] > MAX_CHI2_PER_DOF:
             why.append(f"chi2/dof = {row['chi2']:.3g}/{row['dof']}")
+        if row["dof"] < MIN_DOF:
+            why.append(f"{row['dof']} degrees of freedom: too few frequency bins to test the "
+                       "model (use more rows or reads)")
         if why:
             out[str(row["stream"])] = why
     return out

@@ -187,7 +187,8 @@ def test_a_good_fit_is_not_flagged_and_bad_ones_are():
                  "dof": [2, 47]})
     assert implausible_fits(bad) == {
         "reference": ["gamma = 2 ± 1e-15, an error below floating-point noise",
-                      "chi2/dof = 30/2"],
+                      "chi2/dof = 30/2", "2 degrees of freedom: too few frequency bins to "
+                      "test the model (use more rows or reads)"],
         "phantom": ["alpha = -0.001 is 10 sigma below zero", "chi2/dof = 6.3e+14/47"]}
 
 
@@ -319,22 +320,27 @@ def test_aliased_basis_keeps_its_terms_within_its_bytes(monkeypatch):
 
 def _ar1_periodogram_expectation(phi, n, k, fs):
     """E[Welch periodogram] at frequencies ``k fs / n`` of an AR(1) process of unit
-    innovations, from its autocovariance ``phi^|d| / (1 - phi^2)`` in the time domain:
-    ``2 / (fs Σw²) Σ_ab w_a w_b R(a - b) cos(2π k (a - b) / n)``."""
+    innovations, each segment less its mean, from the autocovariance ``R = phi^|d| / (1 -
+    phi^2)`` in the time domain: ``2 / (fs Σw²) g R g*`` with ``g = w e^(-2πi k t / n)``
+    less its mean (the mean's removal)."""
     from scipy.signal import get_window
 
     w = get_window("hann", n)
-    d = np.subtract.outer(np.arange(n), np.arange(n))
-    r = phi ** np.abs(d) / (1 - phi**2)
-    ww = np.outer(w, w) * r
-    return np.array([2 * np.sum(ww * np.cos(2 * np.pi * kk * d / n)) / (fs * np.sum(w**2))
-                     for kk in k])
+    t = np.arange(n)
+    r = phi ** np.abs(np.subtract.outer(t, t)) / (1 - phi**2)
+    out = []
+    for kk in k:
+        g = w * np.exp(-2j * np.pi * kk * t / n)
+        g -= g.mean()
+        out.append(2 * np.real(g @ r @ g.conj()) / (fs * np.sum(w**2)))
+    return np.array(out)
 
 
 def test_welch_terms_are_the_periodogram_expectation():
     """The window's smoothing of a spectrum that curves within a few frequencies (an AR(1)
-    process, phi = 0.95) against its periodogram's expectation summed in the time domain;
-    white noise is unchanged."""
+    process, phi = 0.95) against its periodogram's expectation summed in the time domain,
+    the segment's mean removed (it reaches the first Welch frequency only: there white
+    noise loses a sixth of its power); white noise is unchanged elsewhere."""
     from spherex_reduce.analysis import welch_terms
 
     phi, n, fs = 0.95, 256, 10.0
@@ -343,17 +349,25 @@ def test_welch_terms_are_the_periodogram_expectation():
         z = np.exp(-2j * np.pi * np.asarray(f) / fs)
         return np.stack([2 / (fs * np.abs(1 - phi * z) ** 2), np.ones(np.shape(f))], axis=-1)
 
-    k = np.array([2, 3, 4, 6, 10, 40, 128])
+    k = np.array([1, 2, 3, 4, 6, 10, 40, 128])
     f = k * fs / n
-    meta = {"nperseg": n, "sample_rate": fs, "window": "hann"}
+    meta = {"nperseg": n, "sample_rate": fs, "window": "hann", "detrend": "constant"}
     got = welch_terms(ar1, f, 1.3, meta)
     exact = _ar1_periodogram_expectation(phi, n, k, fs)
     assert got[:, 0] == pytest.approx(exact, rel=1e-4)
-    assert got[:, 1] == pytest.approx(1.0, rel=1e-12)
+    assert got[1:, 1] == pytest.approx(1.0, rel=1e-12)
+    assert got[0, 1] == pytest.approx(5 / 6, rel=1e-12)
     # the smoothing is not negligible where the spectrum curves: the bare PSD is off there
     assert abs(ar1(f, 1.3)[1, 0] / exact[1] - 1) > 0.02
     with pytest.raises(SpherexReduceError, match="Hann window"):
         welch_terms(ar1, f, 1.3, {**meta, "window": "boxcar"})
+    with pytest.raises(SpherexReduceError, match="detrend is 'linear'"):
+        welch_terms(ar1, f, 1.3, {**meta, "detrend": "linear"})
+    with pytest.raises(SpherexReduceError, match="not detrended"):
+        welch_terms(ar1, f, 1.3, {**meta, "detrend": False})
+    assert welch_terms(ar1, f[1:], 1.3, {**meta, "detrend": False}) == pytest.approx(got[1:])
+    assert temporal_psd(np.zeros((1, 64)) + np.arange(64), 1.0, nperseg=32).meta[
+        "detrend"] == "constant"
     with pytest.raises(SpherexReduceError, match=r"in \(0, 5\] Hz"):
         welch_terms(ar1, [6.0], 1.3, meta)
 

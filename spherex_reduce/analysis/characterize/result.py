@@ -198,18 +198,21 @@ class Characterization:
         (taken out that way, the channel white came out at a fifth of the truth).  The
         per-pixel fit's ``white_read_noise`` (the pixels' structure function with the
         drift common to the pixels read together and the faint telegraph taken out) is
-        the white level without them."""
+        the white level without them.  Held only where the scene holds the population
+        (its fraction, step and rate fitted, as
+        `~spherex_reduce.analysis.pixel_terms.PixelTerms.to_scene` puts it in ``rtn``)."""
         pt = self.pixel_terms
         if pt is None:
             return None
         try:
-            rows = [pt.row(k, "active") for k in ("faint_telegraph_power",
-                                                 "faint_telegraph_rate", "white_read_noise")]
+            rows = [pt.row(k, "active") for k in (
+                "faint_telegraph_fraction", "faint_telegraph_amplitude",
+                "faint_telegraph_rate", "white_read_noise")]
         except KeyError:
             return None
         if any(r["status"] != "fitted" for r in rows):
             return None
-        return float(rows[2]["value"]) ** 2
+        return float(rows[-1]["value"]) ** 2
 
     def _scene_values(self):
         """`scene_values` of the components, each over its spectrum's binned frequencies."""

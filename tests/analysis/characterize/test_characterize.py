@@ -441,6 +441,60 @@ def test_faint_telegraph_population_matches_the_truth(nframes, flip):
     assert any(m.startswith("channel.alpha: the streams' ") for m in model.marks), model.marks
 
 
+def _faint_terms(fraction_status, white):
+    """Per-pixel terms with a faint population's power, rate and step fitted, its fraction
+    fitted or not, and the white read noise ``white`` (every other term not constrained)."""
+    from spherex_reduce.analysis.pixel_terms import PixelTerms
+
+    rows = [(t, "active", np.nan, np.nan, "", "not constrained", "") for t in (
+        "dark_current", "hot_pixel_fraction", "hot_pixel_current", "dark_current_spread",
+        "hot_pixel_current_spread")]
+    rows += [(f"telegraph_{k}", p, np.nan, np.nan, "", "not constrained", "")
+             for p in ("active", "reference")
+             for k in ("fraction", "amplitude", "rate", "amplitude_spread", "rate_spread")]
+    for term, value, status in (
+            ("faint_telegraph_power", 90.0, "fitted"), ("faint_telegraph_rate", 0.3, "fitted"),
+            ("faint_telegraph_amplitude", 30.0, "fitted"),
+            ("faint_telegraph_fraction", 0.1, fraction_status),
+            ("white_read_noise", white, "fitted")):
+        fitted = status == "fitted"
+        rows.append((term, "active", value if fitted else np.nan,
+                     0.01 * value if fitted else np.nan, "", status, ""))
+    return PixelTerms(Table(rows=rows, names=("term", "pixels", "value", "error", "unit",
+                                              "status", "note")), {})
+
+
+def _seen(scene):
+    """The white level the light-sensitive pixels see, and the channel component's."""
+    comps = scene["noise"]["components"]
+    return (sum(c["alpha"] for c in comps if c.get("visibility", "pixels") in ("pixels", "both")),
+            next(c["alpha"] for c in comps if c["name"] == "channel"))
+
+
+@pytest.mark.parametrize("fraction_status", ["fitted", "not constrained"])
+def test_the_white_level_is_the_pixels_only_where_the_scene_holds_the_faint_population(
+        fraction_status):
+    """The channel white level is taken from the pixels' white read noise only where the
+    scene's ``rtn`` holds the faint population (fraction, step and rate fitted): otherwise
+    the population would be held nowhere (review of issue 33's change)."""
+    from spherex_reduce.io.examples import example_raw_exposure
+
+    model = characterize(example_raw_exposure(), segments=2, pixels=False)
+    seen, channel = _seen(model.scene())
+    rate = model.schedule.geometry.pixel_rate
+    target = seen - channel / 2  # the pixels' white level, below the streams'
+    model.pixel_terms = _faint_terms(fraction_status, np.sqrt(target * rate / 2))
+    scene = model.scene()
+    held = "rtn" in scene.get("scene", {})
+    assert held == (fraction_status == "fitted")
+    if held:
+        assert model.faint_white() == pytest.approx(target * rate / 2, rel=1e-12)
+        assert _seen(scene)[0] == pytest.approx(target, rel=1e-12)
+    else:
+        assert model.faint_white() is None
+        assert _seen(scene) == pytest.approx((seen, channel), rel=1e-12)
+
+
 # -- memory: one dark's streams at a time ------------------------------------------------
 def _old_path(exposures, cuts):
     """The model as characterize made it before its streams were reduced dark by dark: every

@@ -74,6 +74,14 @@ def sidecar_truth(args):
             "common": np.array([0.0, SIDECAR["common_beta"] * args.scale, 0])}
 
 
+def with_acn(want):
+    """The truth as a model that found ACN states it (no phantom reads): the channel
+    component's correlated terms are ACN's (the simulator draws every ACN component's even
+    and odd columns apart), its white level stays in ``channel``."""
+    corr = np.array([0.0, 1.0, 1.0])
+    return {**want, "channel": want["channel"] * (1 - corr), "acn": want["channel"] * corr}
+
+
 def sidecar_scene(args):
     p = SIDECAR_PIXELS
     comps = [{"name": "outputs", "alpha": SIDECAR["white"],
@@ -147,11 +155,12 @@ def main():
         t_sim = t_sim[0]
         if first is None:
             first, timing = model, (t_sim, t_char, peak)
+        truth_now = with_acn(want) if "acn" in model.components else want
         for name, est in model.components.items():
             for i, term in enumerate(("alpha", "beta", "gamma")):
                 if est.errors[i] > 0:
                     pulls.setdefault((name, term), []).append(
-                        (est.values[i] - want[name][i]) / est.errors[i])
+                        (est.values[i] - truth_now[name][i]) / est.errors[i])
         if model.pixel_terms is not None:
             for term, value in SIDECAR_PIXELS.items():
                 row = model.pixel_terms.row(term, "active")
@@ -183,7 +192,8 @@ def main():
             est = first.components[name]
             x = np.array(x)
             sd = f"{x.std(ddof=1):.2f}" if x.size > 1 else "-"
-            print(f"| {name}.{term} | {want[name][i]:.3g} | {est.values[i]:.3g} | "
+            truth_first = with_acn(want) if "acn" in first.components else want
+            print(f"| {name}.{term} | {truth_first[name][i]:.3g} | {est.values[i]:.3g} | "
                   f"{est.errors[i]:.2g} | {x[0]:+.2f} | {x.mean():+.2f} ± {sd} |")
     t_sim, t_char, peak = timing
     print(f"\ntime (seed 0): simulate {args.darks} darks {t_sim:.1f} s; characterize "

@@ -74,6 +74,23 @@ def sidecar_truth(args):
             "common": np.array([0.0, SIDECAR["common_beta"] * args.scale, 0])}
 
 
+def telegraph_power(terms):
+    """``(value, error)`` of the telegraph population's fraction times mean squared step
+    that the model holds: the pixels found jump by jump (fraction x step², their errors
+    propagated) plus the faint population's power where fitted (a pixel one of whose flips
+    was missed is handed to it); None without the first."""
+    f, a = (terms.row(f"telegraph_{k}", "active") for k in ("fraction", "amplitude"))
+    if f["status"] != "fitted" or a["status"] != "fitted":
+        return None
+    value = f["value"] * a["value"] ** 2
+    var = (a["value"] ** 2 * f["error"]) ** 2 + (2 * f["value"] * a["value"] * a["error"]) ** 2
+    faint = terms.row("faint_telegraph_power", "active")
+    if faint["status"] == "fitted":
+        value += faint["value"]
+        var += faint["error"] ** 2
+    return value, float(np.sqrt(var))
+
+
 def with_acn(want):
     """The truth as a model that found ACN states it (no phantom reads): the channel
     component's correlated terms are ACN's (the simulator draws every ACN component's even
@@ -167,6 +184,12 @@ def main():
                 if row["status"] == "fitted" and row["error"] > 0:
                     pulls.setdefault(("pixels", term), []).append(
                         (row["value"] - value) / row["error"])
+            total = telegraph_power(model.pixel_terms)
+            if total is not None:
+                truth_p = SIDECAR_PIXELS["telegraph_fraction"] * SIDECAR_PIXELS[
+                    "telegraph_amplitude"] ** 2
+                pulls.setdefault(("pixels", "telegraph power, found + faint"), []).append(
+                    (total[0] - truth_p) / total[1])
         print(f"seed {seed}: simulate {t_sim:.1f} s, characterize {t_char:.1f} s, "
               f"ACN z = {model.acn['z']:.1f}", flush=True)
     what = (f"Table 2 x {args.scale:g} (beta, gamma), ACN" if args.case == "paper" else

@@ -75,10 +75,11 @@ def sidecar_truth(args):
 
 
 def telegraph_power(terms):
-    """``(value, error)`` of the telegraph population's fraction times mean squared step
-    that the model holds: the pixels found jump by jump (fraction x step², their errors
-    propagated) plus the faint population's power where fitted (a pixel one of whose flips
-    was missed is handed to it); None without the first."""
+    """``(value, error)`` of the telegraph population's fraction times squared step that the
+    model holds: the pixels found jump by jump (fraction x mean step², their errors
+    propagated as independent; the steps' spread left out: the benchmark's is 0) plus the
+    faint population's power where fitted (a pixel one of whose flips was missed is handed
+    to it); None without the first."""
     f, a = (terms.row(f"telegraph_{k}", "active") for k in ("fraction", "amplitude"))
     if f["status"] != "fitted" or a["status"] != "fitted":
         return None

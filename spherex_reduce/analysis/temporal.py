@@ -107,7 +107,10 @@ def temporal_psd(stream, sample_rate, nperseg=None, noverlap=None, detrend="cons
     return Table({"frequency": f[keep] * u.Hz, "psd": p[keep] * unit**2 / u.Hz},
                  meta={"nperseg": nperseg, "noverlap": noverlap, "nsegments": int(nseg),
                        "nstreams": int(np.prod(x.shape[:-1], dtype=int)),
-                       "sample_rate": fs, "window": "hann", "detrend": detrend})
+                       "sample_rate": fs, "window": "hann",
+                       # a callable cannot be written with the table: its name stands for it
+                       "detrend": detrend if isinstance(detrend, str) or not callable(detrend)
+                       else "callable"})
 
 
 def _relative_variance(nperseg, noverlap, nsegments, m):
@@ -199,7 +202,8 @@ def welch_terms(basis, frequency, exponent, meta):
         raise SpherexReduceError(f"the spectrum's window is {meta.get('window')!r}: the fit "
                                  "knows the Hann window of temporal_psd only")
     detrend = meta.get("detrend", "constant")
-    if detrend not in ("constant", False):
+    undetrended = not isinstance(detrend, str) and detrend is not None and not detrend
+    if detrend != "constant" and not undetrended:
         raise SpherexReduceError(f"the spectrum's detrend is {detrend!r}: the fit knows "
                                  "temporal_psd's 'constant' (or none) only")
     f = np.asarray(u.Quantity(frequency, u.Hz).value, dtype=float)
@@ -219,7 +223,7 @@ def welch_terms(basis, frequency, exponent, meta):
     out = np.stack([np.interp(f, grid, smooth[:, j]) for j in range(terms.shape[1])],
                    axis=-1)
     first = np.flatnonzero(f < 1.5 * fs / n)  # the first Welch frequency: the mean reaches it
-    if first.size and detrend is False:
+    if first.size and undetrended:
         raise SpherexReduceError(
             "the first Welch frequency of a spectrum that was not detrended holds the power "
             "at f = 0, which no model term gives: leave it out (fmin)")

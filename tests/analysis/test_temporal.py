@@ -363,8 +363,14 @@ def test_welch_terms_are_the_periodogram_expectation():
         welch_terms(ar1, f, 1.3, {**meta, "window": "boxcar"})
     with pytest.raises(SpherexReduceError, match="detrend is 'linear'"):
         welch_terms(ar1, f, 1.3, {**meta, "detrend": "linear"})
-    with pytest.raises(SpherexReduceError, match="not detrended"):
-        welch_terms(ar1, f, 1.3, {**meta, "detrend": False})
+    for none in (False, np.False_, 0):  # what scipy takes for no detrending
+        with pytest.raises(SpherexReduceError, match="not detrended"):
+            welch_terms(ar1, f, 1.3, {**meta, "detrend": none})
+    made = temporal_psd(np.ones((1, 64)) + np.arange(64), 1.0, nperseg=32,
+                        detrend=lambda s: s - np.median(s))
+    assert made.meta["detrend"] == "callable"  # the table can still be written
+    with pytest.raises(SpherexReduceError, match="detrend is 'callable'"):
+        welch_terms(ar1, f, 1.3, {**meta, "detrend": "callable"})
     assert welch_terms(ar1, f[1:], 1.3, {**meta, "detrend": False}) == pytest.approx(got[1:])
     assert temporal_psd(np.zeros((1, 64)) + np.arange(64), 1.0, nperseg=32).meta[
         "detrend"] == "constant"

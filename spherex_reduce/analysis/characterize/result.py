@@ -192,10 +192,10 @@ class Characterization:
         too (``scene.rtn``): 5.9 % of the channel white level, 17 of its errors, on
         ``benchmarks/bench_characterize_heldout.py``'s case with one (10 % of the
         pixels switching 30 e at 0.3 Hz under 3.9 e reads), 17 % and 7 % in the
-        tests' cases.  What stays depends on
-        which switches each dark's jump search flagged (those pixels are left out of that
-        dark's streams), so it cannot be computed from the population's power and rate
-        (taken out that way, the channel white came out at a fifth of the truth).  The
+        tests' cases.  What stays depends on which switches each dark's jump search
+        flagged (those pixels are left out of that dark's streams), so it cannot be
+        computed from the population's power and rate (taken out that way, the
+        channel white came out at a fifth of the truth).  The
         per-pixel fit's ``white_read_noise`` (the pixels' structure function with the
         drift common to the pixels read together and the faint telegraph taken out) is
         the white level without them.  Held only where the scene holds the population

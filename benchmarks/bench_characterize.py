@@ -207,6 +207,7 @@ def main():
             print(f"| {name}.{term} | {x.size} | {x.mean():+.2f} | {sd} | "
                   f"{np.mean(np.abs(x) > 3):.2f} |")
     else:
+        truth_first = with_acn(want) if "acn" in first.components else want
         print("| term | truth | fitted (seed 0) | error | pull (seed 0) | pulls: mean ± sd |")
         print("|---|---|---|---|---|---|")
         for (name, term), x in pulls.items():
@@ -216,7 +217,6 @@ def main():
             est = first.components[name]
             x = np.array(x)
             sd = f"{x.std(ddof=1):.2f}" if x.size > 1 else "-"
-            truth_first = with_acn(want) if "acn" in first.components else want
             print(f"| {name}.{term} | {truth_first[name][i]:.3g} | {est.values[i]:.3g} | "
                   f"{est.errors[i]:.2g} | {x[0]:+.2f} | {x.mean():+.2f} ± {sd} |")
     t_sim, t_char, peak = timing

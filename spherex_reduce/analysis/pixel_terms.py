@@ -129,6 +129,20 @@ class PixelTerms:
         row = self.table[np.flatnonzero(sel)[0]]
         return {name: row[name].item() for name in self.table.colnames}
 
+    def faint_population(self):
+        """The faint telegraph population as the scene holds it, ``{"fraction",
+        "amplitude", "rate"}`` (the active pixels'), when all three are fitted; else None
+        (also without the faint terms)."""
+        try:
+            rows = [self.row(f"faint_telegraph_{k}", "active")
+                    for k in ("fraction", "amplitude", "rate")]
+        except KeyError:
+            return None
+        if any(r["status"] != "fitted" for r in rows):
+            return None
+        return {k: float(r["value"]) for k, r in zip(("fraction", "amplitude", "rate"), rows,
+                                                     strict=True)}
+
     def to_scene(self):
         """The ``scene:`` mapping of these terms, in the darks' unit (per second for currents).
 
@@ -195,11 +209,9 @@ class PixelTerms:
             for pixels, values in found.items():
                 pops[pixels] = {**dict(zip(keys, (v for v, _ in values), strict=True)),
                                 "pixels": pixels, **self._spreads(pixels)}
-        rows = [self.row(f"faint_telegraph_{k}", "active")
-                for k in ("fraction", "amplitude", "rate")]
-        if all(r["status"] == "fitted" for r in rows):  # steps below the jumps' threshold
-            pops["faint"] = {**dict(zip(keys, (float(r["value"]) for r in rows), strict=True)),
-                             "pixels": "active"}
+        faint = self.faint_population()
+        if faint is not None:  # steps below the jumps' threshold
+            pops["faint"] = {**faint, "pixels": "active"}
         if len(pops) == 1:
             out["rtn"] = next(iter(pops.values()))
         elif pops:

@@ -199,20 +199,13 @@ class Characterization:
         per-pixel fit's ``white_read_noise`` (the pixels' structure function with the
         drift common to the pixels read together and the faint telegraph taken out) is
         the white level without them.  Held only where the scene holds the population
-        (its fraction, step and rate fitted, as
-        `~spherex_reduce.analysis.pixel_terms.PixelTerms.to_scene` puts it in ``rtn``)."""
+        (`~spherex_reduce.analysis.pixel_terms.PixelTerms.faint_population`, what
+        ``to_scene`` puts in ``rtn``)."""
         pt = self.pixel_terms
-        if pt is None:
+        if pt is None or pt.faint_population() is None:
             return None
-        try:
-            rows = [pt.row(k, "active") for k in (
-                "faint_telegraph_fraction", "faint_telegraph_amplitude",
-                "faint_telegraph_rate", "white_read_noise")]
-        except KeyError:
-            return None
-        if any(r["status"] != "fitted" for r in rows):
-            return None
-        return float(rows[-1]["value"]) ** 2
+        white = pt.row("white_read_noise", "active")
+        return float(white["value"]) ** 2 if white["status"] == "fitted" else None
 
     def _scene_values(self):
         """`scene_values` of the components, each over its spectrum's binned frequencies."""

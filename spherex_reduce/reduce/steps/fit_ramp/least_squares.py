@@ -40,8 +40,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ....core import dq
 from ....core.exposure import as_dq
 from .segments import RATIO_BINS, RampNoise, fit_segments
+from .step_model import StepModel
+from .step_posterior import WEIGH_ALL_READS, WEIGH_FROM, step_posterior
 
 __all__ = ["GROUP", "RATE_PIECE", "LeastSquares", "RampMaps", "RampSolution", "expected_rates",
            "ramp_weights"]
@@ -362,10 +365,14 @@ class LeastSquares:
     noise : `~spherex_reduce.reduce.steps.fit_ramp.segments.RampNoise`, optional
         Read-noise factors and shot-noise covariance of the reads (groups of
         averaged frames); those of single reads at ``times`` if None.
+    jump_prior : float, optional
+        Probability that a ramp holds a jump: the slopes and variances of the ramps
+        fitted whole (uniform weights, a read-noise model) weigh the steps they may
+        hold (`~spherex_reduce.reduce.steps.fit_ramp.step_posterior`); None: not.
     """
 
     def __init__(self, times, *, weighting="uniform", saturation=None, want_var=True,
-                 noise=None):
+                 noise=None, jump_prior=None):
         self.times = t = np.asarray(times, dtype=np.float64)
         self.nf = nf = t.size
         self.noise = RampNoise(t) if noise is None else noise
@@ -381,6 +388,9 @@ class LeastSquares:
         self.pfactor = float(self.w @ self.noise.shot @ self.w) if nf >= 2 else 0.0
         self.groups = [slice(g, min(g + GROUP, nf)) for g in range(0, nf, GROUP)]
         self._wwork = {work: self.w.astype(work) for work in (np.float32, np.float64)}
+        self.jump_prior = jump_prior
+        weigh = jump_prior is not None and weighting == "uniform" and want_var and nf >= 3
+        self.steps = StepModel(t, self.noise.read_factors, self.noise.shot) if weigh else None
 
     def work_type(self, dtype):
         """The type sums are formed in for pixels of ``dtype``: float64 or float32."""
@@ -526,8 +536,16 @@ class LeastSquares:
             slope[:] = np.nan
             var[:] = np.nan
             bad = np.ones(npx, bool)
+        one_jump = None  # ramps whose only flag is one JUMP (weighed with jump_prior)
         if rmask is not None:
-            bad |= np.bitwise_or.reduce(rmask.reshape(nf, npx), axis=0) != 0  # no temporary
+            flagged = np.bitwise_or.reduce(rmask.reshape(nf, npx), axis=0)
+            if self.steps is not None and maps.read_noise is not None:
+                one_jump = np.flatnonzero((flagged == dq.JUMP) & ~bad)
+                if one_jump.size:
+                    count = np.count_nonzero(rmask.reshape(nf, npx)[:, one_jump] & dq.JUMP,
+                                             axis=0)
+                    one_jump = one_jump[count == 1]
+            bad |= flagged != 0
         if self.weighting == "optimal" and nf >= 2:
             fitted = self._optimal(block, slope, var, bad, maps, fit)
             if imprecise is not None:  # their slopes are float64 sums now
@@ -537,6 +555,8 @@ class LeastSquares:
                 self._precise(block, np.flatnonzero(imprecise & ~bad), slope, var, maps)
             else:  # not fitted by `_optimal` (rate <= 0): generalised least squares there
                 bad |= imprecise
+        if self.steps is not None and maps.read_noise is not None:
+            self._weigh_steps(block, x, slope, var, bad, maps, fit, rmask, one_jump)
         return np.flatnonzero(bad)
 
     def _model_variance(self, slope, var, maps, fit=None):
@@ -551,6 +571,51 @@ class LeastSquares:
             per_rate = np.broadcast_to(maps.pscale * self.pfactor, slope.shape)
             fit.var_per_rate.reshape(-1)[:] = per_rate
             fit.var_rnoise.reshape(-1)[:] = rnoise + np.multiply(maps.dark, per_rate)
+
+    def _weigh_steps(self, block, x, slope, var, bad, maps, fit, rmask, one_jump):
+        """The slopes and variances of the ramps fitted whole (not ``bad``) where a step is
+        plausible, and of the ramps whose one flag is a JUMP (taken out of ``bad``), over
+        "no jump" and "a step at read k" (``jump_prior``;
+        `~spherex_reduce.reduce.steps.fit_ramp.step_posterior`); ``x`` the block's reads
+        less the first, in the work type.  The variance the steps add goes to
+        ``var_rnoise`` too (it does not grow with the rate)."""
+        npx = slope.size
+        rn2 = np.broadcast_to(np.square(maps.read_noise), (npx,))
+        ok = ~bad & (rn2 > 0)
+        if self.nf >= WEIGH_ALL_READS:  # only where the largest step reaches WEIGH_FROM
+            with np.errstate(invalid="ignore", over="ignore"):
+                best, _ = self.steps.screen(x, False)
+                # (float32 rounding: a margin, the exact test is the posterior's own)
+                ok &= best >= (0.98 * WEIGH_FROM) ** 2 * rn2
+        if one_jump is not None and one_jump.size:
+            one_jump = one_jump[rn2[one_jump] > 0]
+            # the line through every read, in float64 (their float32 sums were not checked
+            # for precision), then weighed over the reads the flagged step may be at
+            self._precise(block, one_jump, slope, var, maps)
+            ok[one_jump] = True
+            bad[one_jump] = False
+            split = rmask.reshape(self.nf, npx)[1:, one_jump] & dq.JUMP
+            split = one_jump[np.any(split, axis=0)]  # (a JUMP on the first read splits none)
+            fit.njumps.reshape(-1)[split] = 1
+            fit.nsegments.reshape(-1)[split] = 2
+            fit.flags.reshape(-1)[split] |= dq.JUMP
+        idx = np.flatnonzero(ok)
+        if not idx.size:
+            return
+        dark = np.broadcast_to(maps.dark, (npx,))[idx]
+        lam = (np.maximum(slope[idx], 0.0) + dark) * np.broadcast_to(maps.pscale, (npx,))[idx]
+        jumped = None
+        if one_jump is not None and one_jump.size:
+            jumped = np.zeros(npx, bool)
+            jumped[one_jump] = True
+            jumped = jumped[idx]
+        shift, extra, _ = step_posterior(self.steps, _relative_reads(block, idx), rn2[idx],
+                                         lam, self.jump_prior, self.w, jumped)
+        slope[idx] += shift
+        var[idx] += extra
+        if fit.var_rnoise is not None:
+            rnoise = fit.var_rnoise.reshape(-1)
+            rnoise[idx] = rnoise[idx] + extra
 
     def _precise(self, block, idx, slope, var, maps):
         """Slopes of the pixels ``idx`` (flat indices of ``block``, every read usable) summed

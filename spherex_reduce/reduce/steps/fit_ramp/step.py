@@ -34,7 +34,7 @@ WEIGHTINGS = ("uniform", "optimal")
 
 
 def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, dark_current=0.0,
-             saturation=None):
+             saturation=None, jump_prior=None):
     """Least-squares slope of every pixel's ramp, segment by segment around jumps.
 
     Parameters
@@ -70,6 +70,18 @@ def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, dark_c
     saturation : float, optional
         Reads above this level (data unit) end the usable ramp, like a read
         flagged `~spherex_reduce.core.dq.SATURATED` in the input.
+    jump_prior : float, optional
+        Probability (dimensionless, in (0, 0.5]) that a ramp holds a jump.  Given
+        (with ``read_noise`` and uniform weighting), the slope and uncertainty of
+        every ramp fitted whole where a step is plausible (every ramp of fewer
+        than 16 reads; longer ones where a step reaches 3 sigma) are the
+        posterior mean and standard deviation over "no jump" and "a step at
+        read k", the step's amplitude a prior over 1-1000 read-noise sigmas
+        (`~spherex_reduce.reduce.steps.fit_ramp.step_posterior`): a step too
+        small for ``detect_jumps`` to flag widens the error instead of biasing
+        the slope unseen.  The variance it adds is in ``var_rnoise``.  Ramps
+        with a flagged jump or a masked read are fitted segment by segment as
+        without it.  None (default): the line's slope and error.
 
     Returns
     -------
@@ -131,7 +143,8 @@ def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, dark_c
     (3.0, Unit("electron / s"))
     """
     return FitRampStep()(exposure, weighting=weighting, read_noise=read_noise, gain=gain,
-                         dark_current=dark_current, saturation=saturation)
+                         dark_current=dark_current, saturation=saturation,
+                         jump_prior=jump_prior)
 
 
 def _expected_error(fit, rate):
@@ -167,6 +180,13 @@ def _validated(params):
             read_noise is None or (isinstance(read_noise, (int, float)) and not read_noise > 0)):
         raise SpherexReduceError("weighting='optimal' needs read_noise > 0 (in the data unit), "
                                  f"got {read_noise!r}")
+    if params["jump_prior"] is not None:
+        if read_noise is None:
+            raise SpherexReduceError("fit_ramp.jump_prior needs read_noise: the steps a ramp "
+                                     "may hold are weighed against it")
+        if params["weighting"] != "uniform":
+            raise SpherexReduceError("fit_ramp.jump_prior is for weighting='uniform' (the "
+                                     f"line it weighs steps against), got {params['weighting']!r}")
     return params
 
 
@@ -210,7 +230,7 @@ class RampFit(Consumer):
         The bands' schedule, row order, unit and whether they carry phantom values.
     **params
         ``weighting``, ``read_noise``, ``gain``, ``dark_current``,
-        ``saturation``: as `fit_ramp` (declared, with their defaults, by
+        ``saturation``, ``jump_prior``: as `fit_ramp` (declared, with their defaults, by
         `FitRampStep.parameters`).
     """
 
@@ -224,7 +244,8 @@ class RampFit(Consumer):
         self.read_noise, self.gain, self.dark = _maps(params, context)
         noise = RampNoise.from_schedule(s)
         self.solver = LeastSquares(times, weighting=params["weighting"],
-                                   saturation=params["saturation"], noise=noise)
+                                   saturation=params["saturation"], noise=noise,
+                                   jump_prior=params["jump_prior"])
         self.phantom_solver = LeastSquares(times, want_var=False, noise=noise)
         self.reference_solver = LeastSquares(times, saturation=params["saturation"],
                                              want_var=False, noise=noise)
@@ -346,11 +367,15 @@ class FitRampStep(Step):
                   minimum=0),
         Parameter("saturation", None, OPTIONAL_NUMBER, "reads above this level are not used "
                   "(data unit)"),
+        Parameter("jump_prior", None, OPTIONAL_NUMBER, "probability that a ramp holds a jump: "
+                  "slopes and errors weigh the steps no search flagged (needs read_noise); "
+                  "null: not", minimum=0, exclusive_minimum=True, maximum=0.5),
     )
     #: linear with uniform weights (optimal weights depend on the signal) and every read
     #: used (a saturation level drops reads)
     noise_effect = NoiseEffect("slope_fit", linear={"weighting": ("uniform",),
-                                                    "saturation": (None,)})
+                                                    "saturation": (None,),
+                                                    "jump_prior": (None,)})
 
     def consumer(self, context, **params):
         params = _validated(params)  # wrong parameters are an error even for an image

@@ -31,6 +31,11 @@ with read noise alone ``z`` can only be larger, so pixels whose read-noise
 ``max z`` is below the threshold have no jump.  The few left are searched in
 float64 with the full noise model.  Each pixel's result depends on its own
 reads only.
+
+The matrices (the line's coefficients, ``q``, ``s``, the slope's change per
+unit step) and the screen are those of
+`~spherex_reduce.reduce.steps.fit_ramp.step_model.StepModel`, which
+``fit_ramp`` weighs the steps it did not flag with (``jump_prior``).
 """
 
 import functools
@@ -41,7 +46,7 @@ from scipy.special import chdtri, log_ndtr  # scipy.stats would load scipy.optim
 
 from ....core.limits import check_size
 from ....core.recently_used import RecentlyUsed
-from ..fit_ramp.segments import accumulate_reads
+from ..fit_ramp.step_model import StepModel
 
 __all__ = ["SCALE_DOF", "SCREEN_MARGIN", "Found", "StepSearch"]
 
@@ -87,8 +92,10 @@ SCALE_SHOT = 0.1
 SHOT_RATE_SIGMAS = 1.0
 
 
-class StepSearch:
-    """The step search for ramps read at ``times``: its matrices, computed once.
+class StepSearch(StepModel):
+    """The step search for ramps read at ``times``: its matrices, computed once (a
+    `~spherex_reduce.reduce.steps.fit_ramp.step_model.StepModel` with those of
+    several steps at once and of the shot-weighted searches).
 
     Parameters
     ----------
@@ -116,34 +123,13 @@ class StepSearch:
     """
 
     def __init__(self, times, factors=None, walk=None, rho=0.0):
-        t = np.asarray(times, np.float64)
-        n = t.size
+        n = np.size(times)
         if n < 4:
             raise ValueError(f"a step search needs at least 4 reads, got {n}")
         check_size(self.nbytes(n), f"detect_jumps: the step search over {n} reads")
-        tau = t - t[0]
-        f = np.ones(n) if factors is None else np.asarray(factors, np.float64)
-        walk = np.minimum.outer(tau, tau) if walk is None else np.asarray(walk, np.float64)
-        w = 1.0 / f
-        # weights: the inverse covariance in units of one read's read-noise variance,
-        # read noise alone (rho = 0), or with the shot noise of rho = lambda / sigma**2
-        v = np.diag(w) if rho == 0 else np.linalg.inv(np.diag(f) + rho * walk)
-        x = np.column_stack([np.ones(n), tau])
-        xtv = x.T @ v
-        coef = np.linalg.solve(xtv @ x, xtv)  # (2, n): intercept and slope of y
-        wm = v - xtv.T @ coef  # V M, symmetric
-        h = (np.arange(n)[None, :] >= np.arange(1, n)[:, None]).astype(np.float64)
-        g = h @ wm  # R_k = g[k - 1] @ y for a step at read k
-        self.n, self.tau, self.w, self.rho = n, tau, w, rho
-        self.coef = coef
-        self.g = g if rho else None  # R = g @ y (with rho = 0: tail sums of weighted residuals)
-        self.wm = wm
-        self.q = np.einsum("ki,ki->k", g, h)  # variance of R_k / sigma**2
-        # shot-noise variance / lambda (none with rho: the shot noise is in q)
-        self.s = np.zeros(n - 1) if rho else np.einsum("ki,ij,kj->k", g, walk, g)
-        self.slope_of_step = (coef @ h.T)[1]  # change of the line's slope per unit step
-        # read-noise variance of the line's slope, in sigma**2
-        self.slope_var = float(np.sum(coef[1] ** 2 * f))
+        super().__init__(times, factors, walk, rho)
+        tau, f, walk, coef, g, h = (self.tau, self.factors, self.walk, self.coef, self.gk,
+                                    self.h)
         self.qq = g @ h.T  # Q[k, l] = h_k' V M h_l: q is its diagonal
         # the random walk's covariance of R: s is its diagonal (none with rho: it is in q)
         self.ss = np.zeros((n - 1, n - 1)) if rho else g @ walk @ g.T
@@ -153,16 +139,9 @@ class StepSearch:
         dd = np.diff(np.eye(n), axis=0) - np.diff(tau)[:, None] * coef[1][None, :]
         self.diff_read = np.einsum("ij,j,ij->i", dd, f, dd)
         self.diff_walk = np.einsum("ij,jk,ik->i", dd, walk, dd)
-        self.factors, self.walk = f, walk
-        self.uniform_w = bool(np.all(w == w[0]))
         # reads averaging several frames: a jump may fall between their frames, a step
         # into the read and another out of it (searched as a pair)
         self.partial = f < 1
-        d = np.diff(tau)
-        self.dtau = d
-        self.uniform_dt = bool(np.all(d == d[0]))
-        self._types = {}  # dtype -> (w, 1 / q, coef) in it
-        self._invq = 1.0 / self.q
         # rho bin -> StepSearch with that shot noise in its weights
         self._shot = RecentlyUsed(SHOT_CACHE_BYTES, size=lambda found: self.nbytes(n))
 
@@ -172,55 +151,6 @@ class StepSearch:
         key = int(np.round(np.log10(rho) / RHO_BIN))
         return self._shot.get(key, lambda: StepSearch(self.tau, self.factors, self.walk,
                                                       10.0 ** (key * RHO_BIN)))
-
-    # -- screen ------------------------------------------------------------------
-    def _typed(self, dtype):
-        """Weights and ``1 / q`` in ``dtype`` (made once per type)."""
-        typed = self._types.get(dtype)
-        if typed is None:
-            typed = self._types[dtype] = (self.w.astype(dtype), self._invq.astype(dtype),
-                                          self.coef.astype(dtype))
-        return typed
-
-    def _screen(self, y, estimate):
-        """``max_k R_k**2 / q_k`` and the weighted RSS of the line (or None), in ``y``'s type."""
-        n, m = y.shape
-        w, invq, coef = self._typed(y.dtype)
-        ab = coef @ y
-        a, b = ab[0], ab[1]
-        c = a.copy()
-        acc = np.zeros(m, y.dtype)
-        best = np.zeros(m, y.dtype)
-        rss = np.zeros(m, y.dtype) if estimate else None
-        r = np.empty(m, y.dtype)
-        tmp = np.empty(m, y.dtype)
-        step = b * y.dtype.type(self.dtau[0]) if self.uniform_dt else None
-        for i in range(n):
-            if i:
-                if step is not None:
-                    c += step
-                else:
-                    np.multiply(b, w.dtype.type(self.dtau[i - 1]), out=tmp)
-                    c += tmp
-            np.subtract(y[i], c, out=r)
-            if estimate:
-                np.multiply(r, r, out=tmp)
-                if not self.uniform_w:
-                    tmp *= w[i]
-                rss += tmp
-            if i == n - 1:
-                break
-            if not self.uniform_w:
-                r *= w[i]
-            acc += r
-            np.multiply(acc, acc, out=tmp)
-            tmp *= invq[i]
-            np.maximum(best, tmp, out=best)
-        if self.uniform_w and w[0] != 1:  # equal weights left out of the loop: put them back
-            best *= w[0] * w[0]  # R_k is w times the tail sum of the residuals
-            if estimate:
-                rss *= w[0]
-        return best, rss
 
     def scatter(self, y, sigma, gain=1.0):
         """How much the ramps ``y`` scatter about their lines, in units of the read noise
@@ -273,7 +203,7 @@ class StepSearch:
         rel = np.asarray(y[:, take], np.float64)
         rel = rel - rel[0]
         with np.errstate(invalid="ignore", over="ignore"):
-            best, _ = self._screen(rel, False)
+            best, _ = self.screen(rel, False)
             s2 = np.broadcast_to(_take(sigma, take) ** 2, take.shape)
             slope = self.coef[1] @ rel
             lam = slope / _take(gain, take)
@@ -289,12 +219,6 @@ class StepSearch:
         return float(np.median(np.median(u, axis=1)) / _chi2_median(1))
 
     # -- search ------------------------------------------------------------------
-    @staticmethod
-    def nbytes(n):
-        """Bytes the search of ``n`` reads allocates: about ten ``n x n`` float64 matrices
-        (the random walk, the weights and their products), checked before any is made."""
-        return 8.0 * 10 * float(n) * n
-
     def find(self, y, *, threshold, sigma=None, gain=1.0, max_jumps=10):
         """The jumps of ramps ``y`` (usable reads only), at most ``max_jumps`` each.
 
@@ -337,7 +261,7 @@ class StepSearch:
             rel = buf[:, :y0.size]
             np.subtract(y[:, part], y0, out=rel, casting="unsafe")  # exact for a pedestal
             with np.errstate(invalid="ignore", over="ignore"):  # non-finite ramps: set aside
-                best, rss = self._screen(rel, estimate)
+                best, rss = self.screen(rel, estimate)
             floor = _floor(y0, rel)
             if estimate:
                 var = np.maximum((rss - best) / (n - 3), floor)
@@ -368,15 +292,7 @@ class StepSearch:
         """The float64 search of the screened pixels: one step more at each round, fitted
         jointly with the steps already found (generalised least squares of a line plus
         steps, from the line's ``R_k`` and the matrices ``Q`` and ``S``)."""
-        ab = np.einsum("ci,im->cm", self.coef, y)
-        r = y - ab[0] - ab[1] * self.tau[:, None]
-        if self.g is None:
-            wr = r * self.w[:, None]
-            big_r = accumulate_reads(np.add, wr[:0:-1])[::-1]  # (n - 1, m): R_k, tail sums
-            rss = np.einsum("im,im->m", wr, r)
-        else:
-            big_r = np.einsum("ki,im->km", self.g, y)
-            rss = np.einsum("im,ij,jm->m", r, self.wm, r)
+        ab, big_r, rss = self.step_sums(y)
         state = _State(big_r, rss, ab[1], np.zeros((pixels.size, 0), np.int64), pixels,
                        sigma, gain, floor)
         out = []

@@ -1,0 +1,173 @@
+"""A line with a step at one read: the matrices both ``detect_jumps`` and ``fit_ramp`` use.
+
+A ramp's usable reads ``y_i`` at times ``t_i`` are modelled as a line with a step of
+amplitude ``A`` at read ``k`` (the first read after the step): ``y_i = a + b t_i + A
+[i >= k] + noise``, the noise white read noise of variance ``sigma**2 f_i`` (``f_i`` a
+factor per read: 1 for single frames, ``1/n`` for a group averaging ``n``) plus the
+shot noise of the charge collected, a random walk of variance ``lambda t``.
+
+The generalised least-squares amplitude of the step, the line's intercept and slope
+free, is ``A_k = R_k / q_k`` with ``R_k = h_k' W M y`` (``h_k`` the step, ``W`` the
+weights, ``M`` the weighted residual maker of the line): with read-noise weights
+``W = diag(1/f)``, ``R_k`` is a tail sum of the line's weighted residuals.  Its
+variance is ``sigma**2 q_k + lambda s_k``; ``z_k = R_k / sqrt(sigma**2 q_k + lambda
+s_k)`` is the matched-filter statistic of a step at ``k``, and a step ``A`` at ``k``
+moves the line's slope by ``A`` times ``slope_of_step[k - 1]``.
+
+`StepModel` holds these for a set of read times, once; ``detect_jumps`` searches
+with them (`~spherex_reduce.reduce.steps.jumps.search.StepSearch`) and ``fit_ramp``
+weighs the steps a ramp may hold (`~spherex_reduce.reduce.steps.fit_ramp.jump_prior`).
+"""
+
+import numpy as np
+
+from ....core.limits import check_size
+from .segments import accumulate_reads
+
+__all__ = ["StepModel"]
+
+
+class StepModel:
+    """The matrices of a line plus a step at each read, for reads at ``times``.
+
+    Parameters
+    ----------
+    times : array_like
+        Times of the usable reads (s), increasing, at least 3.
+    factors : array_like, optional
+        Read-noise variance of each read relative to one frame's (default 1 for
+        every read; a group that averages ``n`` frames has ``1/n``).
+    walk : array_like, optional
+        Covariance of the reads' charge per unit rate (s), ``(n, n)`` (default
+        ``min(t_i, t_j) - t_0``, single frames).
+    rho : float
+        Shot noise in the weights, ``lambda / sigma**2`` (1/s); 0: read-noise weights.
+
+    Attributes
+    ----------
+    q : `numpy.ndarray`
+        ``(n - 1,)``: the variance of ``R_k`` over ``sigma**2`` (read noise).
+    s : `numpy.ndarray`
+        ``(n - 1,)``: the variance of ``R_k`` per unit ``lambda`` (shot noise; zeros
+        with ``rho``, whose weights hold it).
+    slope_of_step : `numpy.ndarray`
+        ``(n - 1,)``: the change of the line's slope per unit step at read ``k``.
+
+    Examples
+    --------
+    Four reads one second apart: with the slope free, a step at the middle read is
+    measured to ``sigma / sqrt(q) = 2.24 sigma`` and moves the slope by 0.4 of itself:
+
+    >>> import numpy as np
+    >>> from spherex_reduce.reduce.steps.fit_ramp.step_model import StepModel
+    >>> m = StepModel(np.arange(4.0))
+    >>> np.round(m.q, 3).tolist(), np.round(m.slope_of_step, 3).tolist()
+    ([0.3, 0.2, 0.3], [0.3, 0.4, 0.3])
+    """
+
+    def __init__(self, times, factors=None, walk=None, rho=0.0):
+        t = np.asarray(times, np.float64)
+        n = t.size
+        if n < 3:
+            raise ValueError(f"a line with a step needs at least 3 reads, got {n}")
+        check_size(self.nbytes(n), f"the step model of {n} reads")
+        tau = t - t[0]
+        f = np.ones(n) if factors is None else np.asarray(factors, np.float64)
+        walk = np.minimum.outer(tau, tau) if walk is None else np.asarray(walk, np.float64)
+        w = 1.0 / f
+        # weights: the inverse covariance in units of one read's read-noise variance,
+        # read noise alone (rho = 0), or with the shot noise of rho = lambda / sigma**2
+        v = np.diag(w) if rho == 0 else np.linalg.inv(np.diag(f) + rho * walk)
+        x = np.column_stack([np.ones(n), tau])
+        xtv = x.T @ v
+        coef = np.linalg.solve(xtv @ x, xtv)  # (2, n): intercept and slope of y
+        wm = v - xtv.T @ coef  # V M, symmetric
+        h = (np.arange(n)[None, :] >= np.arange(1, n)[:, None]).astype(np.float64)
+        g = h @ wm  # R_k = g[k - 1] @ y for a step at read k
+        self.n, self.tau, self.w, self.rho = n, tau, w, rho
+        self.coef, self.h, self.gk = coef, h, g
+        self.g = g if rho else None  # R = g @ y (with rho = 0: tail sums of weighted residuals)
+        self.wm = wm
+        self.q = np.einsum("ki,ki->k", g, h)  # variance of R_k / sigma**2
+        # shot-noise variance / lambda (none with rho: the shot noise is in q)
+        self.s = np.zeros(n - 1) if rho else np.einsum("ki,ij,kj->k", g, walk, g)
+        self.slope_of_step = (coef @ h.T)[1]  # change of the line's slope per unit step
+        # read-noise variance of the line's slope, in sigma**2
+        self.slope_var = float(np.sum(coef[1] ** 2 * f))
+        self.factors, self.walk = f, walk
+        self.uniform_w = bool(np.all(w == w[0]))
+        d = np.diff(tau)
+        self.dtau = d
+        self.uniform_dt = bool(np.all(d == d[0]))
+        self._types = {}  # dtype -> (w, 1 / q, coef) in it
+        self._invq = 1.0 / self.q
+
+    @staticmethod
+    def nbytes(n):
+        """Bytes the matrices of ``n`` reads take: about ten ``n x n`` float64 matrices
+        (the random walk, the weights and their products), checked before any is made."""
+        return 8.0 * 10 * float(n) * n
+
+    def _typed(self, dtype):
+        """Weights and ``1 / q`` in ``dtype`` (made once per type)."""
+        typed = self._types.get(dtype)
+        if typed is None:
+            typed = self._types[dtype] = (self.w.astype(dtype), self._invq.astype(dtype),
+                                          self.coef.astype(dtype))
+        return typed
+
+    def screen(self, y, estimate):
+        """``max_k R_k**2 / q_k`` of ramps ``y`` ``(n, m)`` with read-noise weights, and the
+        weighted RSS of their lines (None unless ``estimate``), in ``y``'s type: a loop over
+        the reads, a few numpy operations on ``m`` ramps each (keep ``y`` in cache)."""
+        n, m = y.shape
+        w, invq, coef = self._typed(y.dtype)
+        ab = coef @ y
+        a, b = ab[0], ab[1]
+        c = a.copy()
+        acc = np.zeros(m, y.dtype)
+        best = np.zeros(m, y.dtype)
+        rss = np.zeros(m, y.dtype) if estimate else None
+        r = np.empty(m, y.dtype)
+        tmp = np.empty(m, y.dtype)
+        step = b * y.dtype.type(self.dtau[0]) if self.uniform_dt else None
+        for i in range(n):
+            if i:
+                if step is not None:
+                    c += step
+                else:
+                    np.multiply(b, w.dtype.type(self.dtau[i - 1]), out=tmp)
+                    c += tmp
+            np.subtract(y[i], c, out=r)
+            if estimate:
+                np.multiply(r, r, out=tmp)
+                if not self.uniform_w:
+                    tmp *= w[i]
+                rss += tmp
+            if i == n - 1:
+                break
+            if not self.uniform_w:
+                r *= w[i]
+            acc += r
+            np.multiply(acc, acc, out=tmp)
+            tmp *= invq[i]
+            np.maximum(best, tmp, out=best)
+        if self.uniform_w and w[0] != 1:  # equal weights left out of the loop: put them back
+            best *= w[0] * w[0]  # R_k is w times the tail sum of the residuals
+            if estimate:
+                rss *= w[0]
+        return best, rss
+
+    def step_sums(self, y):
+        """The line's intercept and slope ``(2, m)``, ``R_k`` of every read ``(n - 1, m)`` and
+        the weighted RSS ``(m,)`` of float64 ramps ``y`` ``(n, m)``."""
+        ab = np.einsum("ci,im->cm", self.coef, y)
+        r = y - ab[0] - ab[1] * self.tau[:, None]
+        if self.g is None:
+            wr = r * self.w[:, None]
+            big_r = accumulate_reads(np.add, wr[:0:-1])[::-1]  # (n - 1, m): R_k, tail sums
+            rss = np.einsum("im,im->m", wr, r)
+        else:
+            big_r = np.einsum("ki,im->km", self.g, y)
+            rss = np.einsum("im,ij,jm->m", r, self.wm, r)
+        return ab, big_r, rss

@@ -115,8 +115,12 @@ def step_posterior(model, y, sigma2, lam, prior, slope_weights, jumped=None):
         known = jumped[cut]
         for tau in AMPLITUDES:
             t2 = tau * tau * s2
-            shrink = t2 / (t2 + v)
-            lw = log_each + 0.5 * (np.log1p(-shrink) + z2 * shrink)
+            shrink = np.add(v, t2, out=np.empty_like(v))
+            np.divide(t2, shrink, out=shrink)
+            lw = np.log1p(-shrink)
+            lw += z2 * shrink
+            lw *= 0.5
+            lw += log_each
             lw[:, known] = -np.inf
             logs.append(lw)
             shrinks.append(shrink)
@@ -131,12 +135,19 @@ def step_posterior(model, y, sigma2, lam, prior, slope_weights, jumped=None):
         w_step = np.zeros_like(total)
         s1 = np.zeros_like(total)
         s2nd = np.zeros_like(total)
+        a = c[:, None] * amp  # a step's full shift of the slope (the shift is -a shrink)
+        a2 = a * a
+        cv = c[:, None] ** 2 * v
         for lw, shrink in zip(logs, shrinks, strict=True):
-            w = np.exp(lw - top)
-            mean = c[:, None] * amp * shrink  # the slope's shift is -mean
+            w = np.subtract(lw, top, out=lw)
+            np.exp(w, out=w)
             w_step += w.sum(axis=0)
-            s1 += (w * mean).sum(axis=0)
-            s2nd += (w * (c[:, None] ** 2 * v * shrink + mean * mean)).sum(axis=0)
+            w *= shrink
+            s1 += np.einsum("km,km->m", w, a)
+            # each model's variance less the line's, c**2 v shrink, plus its mean squared
+            shrink *= a2
+            shrink += cv
+            s2nd += np.einsum("km,km->m", w, shrink)
         total += w_step
         mu = s1 / total
         shift[cut] = -mu

@@ -240,9 +240,9 @@ def run(name, npix, rng, seed, with_stcal, prior):
         e = Exposure.from_arrays(cube, schedule(groups, dt, ny, nx))
         before, read_noise, active = [], RN, np.ones((ny, nx), bool)
     runs = {"ours": ours(e, before, read_noise)}
-    if prior:
-        runs[f"ours, jump_prior {prior:g}"] = ours(e, before, read_noise, prior)
     equal = len({len(g) for g in groups}) == 1 and len(groups) >= 4
+    if prior and len({len(g) for g in groups}) == 1:  # (refused for groups of unequal size)
+        runs[f"ours, jump_prior {prior:g}"] = ours(e, before, read_noise, prior)
     if with_stcal and equal:
         runs["stcal two-point + OLS_C"] = stcal(cube, groups, dt, "OLS_C")
         runs["stcal LIKELY"] = stcal(cube, groups, dt, "LIKELY")

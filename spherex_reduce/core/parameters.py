@@ -50,6 +50,11 @@ class Parameter:
         `validate_parameters` as ``path.key``, and its result (every field,
         defaults filled in) is the value; left out, the value is the fields'
         defaults.
+    quiet_default : bool
+        A parameter added after outputs were made: at its default it is left
+        out of a pipeline's effective configuration (and so of its hash,
+        ``SXRCONF``), so that a batch still recognises those outputs; the step
+        still receives the default.
 
     Numbers must be finite (``.nan`` and ``.inf`` are refused) and within the
     bounds.  Where a number is expected and text is not, text that reads as a
@@ -100,6 +105,7 @@ class Parameter:
     items: "Parameter | None" = None
     length: tuple | None = None
     fields: tuple | None = None
+    quiet_default: bool = False
 
     @property
     def bounds(self):

@@ -126,7 +126,14 @@ class Pipeline:
         return out
 
     def _step_params(self, cls, params, path):
-        return cls(self.registry).validate(params, path)
+        step = cls(self.registry)
+        values = step.validate(params, path)
+        # a parameter added after outputs were made is left out at its default: the
+        # config's hash (SXRCONF) stays the one those outputs carry
+        for p in step.declared(params, path):
+            if p.quiet_default and p.name in values and values[p.name] == p.default:
+                del values[p.name]
+        return values
 
     # -- what it is -----------------------------------------------------------
     @property

@@ -390,6 +390,9 @@ class LeastSquares:
         self._wwork = {work: self.w.astype(work) for work in (np.float32, np.float64)}
         self.jump_prior = jump_prior
         weigh = jump_prior is not None and weighting == "uniform" and want_var and nf >= 3
+        if weigh and np.ptp(self.noise.read_factors) > 0:
+            raise ValueError("jump_prior needs reads of equal read-noise weight (single "
+                             "reads or equal groups)")
         self.steps = StepModel(t, self.noise.read_factors, self.noise.shot) if weigh else None
 
     def work_type(self, dtype):
@@ -574,43 +577,49 @@ class LeastSquares:
 
     def _weigh_steps(self, block, x, slope, var, bad, maps, fit, rmask, one_jump):
         """The slopes and variances of the ramps fitted whole (not ``bad``) where a step is
-        plausible, and of the ramps whose one flag is a JUMP (taken out of ``bad``), over
-        "no jump" and "a step at read k" (``jump_prior``;
+        plausible, and of the ramps whose one flag is a JUMP after the first read (taken
+        out of ``bad``), over "no jump" and "a step at read k" (``jump_prior``;
         `~spherex_reduce.reduce.steps.fit_ramp.step_posterior`); ``x`` the block's reads
         less the first, in the work type.  The variance the steps add goes to
-        ``var_rnoise`` too (it does not grow with the rate)."""
-        npx = slope.size
+        ``var_rnoise`` too (it is computed at the ramp's rate once: ERR's expected rate
+        does not redo it)."""
+        nf, npx = self.nf, slope.size
         rn2 = np.broadcast_to(np.square(maps.read_noise), (npx,))
         ok = ~bad & (rn2 > 0)
-        if self.nf >= WEIGH_ALL_READS:  # only where the largest step reaches WEIGH_FROM
+        weigh_from = None
+        if nf >= WEIGH_ALL_READS:  # only where the largest step reaches WEIGH_FROM
             with np.errstate(invalid="ignore", over="ignore"):
                 best, _ = self.steps.screen(x, False)
-                # (float32 rounding: a margin, the exact test is the posterior's own)
+                # the float32 screen picks the candidates with a margin; the test is
+                # step_posterior's, in float64 on each ramp's own reads
                 ok &= best >= (0.98 * WEIGH_FROM) ** 2 * rn2
+            weigh_from = WEIGH_FROM
+        jumped = np.zeros(npx, bool)
         if one_jump is not None and one_jump.size:
             one_jump = one_jump[rn2[one_jump] > 0]
+            at = np.argmax(rmask.reshape(nf, npx)[:, one_jump] & dq.JUMP, axis=0)
+            # a JUMP on the first read splits nothing: a whole ramp like the others
+            first = one_jump[at == 0]
+            bad[first] = False
+            ok[first] = True  # (weighed if a step is plausible)
+            one_jump, at = one_jump[at > 0], at[at > 0]
             # the line through every read, in float64 (their float32 sums were not checked
             # for precision), then weighed over the reads the flagged step may be at
-            self._precise(block, one_jump, slope, var, maps)
-            ok[one_jump] = True
+            self._precise(block, np.concatenate([first, one_jump]), slope, var, maps)
+            ok[one_jump] = jumped[one_jump] = True
             bad[one_jump] = False
-            split = rmask.reshape(self.nf, npx)[1:, one_jump] & dq.JUMP
-            split = one_jump[np.any(split, axis=0)]  # (a JUMP on the first read splits none)
-            fit.njumps.reshape(-1)[split] = 1
-            fit.nsegments.reshape(-1)[split] = 2
-            fit.flags.reshape(-1)[split] |= dq.JUMP
+            fit.njumps.reshape(-1)[one_jump] = 1
+            # segments of two reads or more, as `fit_segments` counts them
+            fit.nsegments.reshape(-1)[one_jump] = (at >= 2).astype(np.int8) + (nf - at >= 2)
+            fit.flags.reshape(-1)[one_jump] |= dq.JUMP
         idx = np.flatnonzero(ok)
         if not idx.size:
             return
-        dark = np.broadcast_to(maps.dark, (npx,))[idx]
-        lam = (np.maximum(slope[idx], 0.0) + dark) * np.broadcast_to(maps.pscale, (npx,))[idx]
-        jumped = None
-        if one_jump is not None and one_jump.size:
-            jumped = np.zeros(npx, bool)
-            jumped[one_jump] = True
-            jumped = jumped[idx]
-        shift, extra, _ = step_posterior(self.steps, _relative_reads(block, idx), rn2[idx],
-                                         lam, self.jump_prior, self.w, jumped)
+        shift, extra, _ = step_posterior(
+            self.steps, _relative_reads(block, idx), rn2[idx], self.jump_prior, self.w,
+            pscale=np.broadcast_to(maps.pscale, (npx,))[idx],
+            dark=np.broadcast_to(maps.dark, (npx,))[idx], jumped=jumped[idx],
+            weigh_from=weigh_from)
         slope[idx] += shift
         var[idx] += extra
         if fit.var_rnoise is not None:

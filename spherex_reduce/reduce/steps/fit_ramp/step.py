@@ -76,12 +76,15 @@ def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, dark_c
         every ramp fitted whole where a step is plausible (every ramp of fewer
         than 16 reads; longer ones where a step reaches 3 sigma) are the
         posterior mean and standard deviation over "no jump" and "a step at
-        read k", the step's amplitude a prior over 1-1000 read-noise sigmas
-        (`~spherex_reduce.reduce.steps.fit_ramp.step_posterior`): a step too
+        read k", the step's amplitude a prior over 1-1000 (and 1e6) read-noise
+        sigmas (`~spherex_reduce.reduce.steps.fit_ramp.step_posterior`): a step too
         small for ``detect_jumps`` to flag widens the error instead of biasing
-        the slope unseen.  The variance it adds is in ``var_rnoise``.  Ramps
-        with a flagged jump or a masked read are fitted segment by segment as
-        without it.  None (default): the line's slope and error.
+        the slope unseen.  A ramp whose one flag is a ``JUMP`` is weighed
+        over the read its step may be at (amplitude free).  The variance it
+        adds is in ``var_rnoise``.  Ramps with several jumps or a masked read
+        are fitted segment by segment as without it; reads of unequal weight
+        (groups of different sizes) are refused.  None (default): the line's
+        slope and error.
 
     Returns
     -------
@@ -369,7 +372,8 @@ class FitRampStep(Step):
                   "(data unit)"),
         Parameter("jump_prior", None, OPTIONAL_NUMBER, "probability that a ramp holds a jump: "
                   "slopes and errors weigh the steps no search flagged (needs read_noise); "
-                  "null: not", minimum=0, exclusive_minimum=True, maximum=0.5),
+                  "null: not", minimum=0, exclusive_minimum=True, maximum=0.5,
+                  quiet_default=True),
     )
     #: linear with uniform weights (optimal weights depend on the signal) and every read
     #: used (a saturation level drops reads)
@@ -386,6 +390,13 @@ class FitRampStep(Step):
                 f"fit_ramp needs ramps of at least 2 frames; this one has "
                 f"{context.schedule.nframes} (a single image: store it 2-D, or leave fit_ramp "
                 f"out)")
+        if params["jump_prior"] is not None:
+            factors = np.asarray(context.schedule.read_noise_factors, np.float64)
+            if np.ptp(factors) > 0:
+                raise SpherexReduceError(
+                    "fit_ramp.jump_prior needs reads of equal weight (single reads or equal "
+                    f"groups); these groups average {1 / factors.max():g} to "
+                    f"{1 / factors.min():g} frames: leave jump_prior out")
         return RampFit(context, **params)
 
 

@@ -16,7 +16,8 @@ moves the line's slope by ``A`` times ``slope_of_step[k - 1]``.
 
 `StepModel` holds these for a set of read times, once; ``detect_jumps`` searches
 with them (`~spherex_reduce.reduce.steps.jumps.search.StepSearch`) and ``fit_ramp``
-weighs the steps a ramp may hold (`~spherex_reduce.reduce.steps.fit_ramp.jump_prior`).
+weighs the steps a ramp may hold
+(`~spherex_reduce.reduce.steps.fit_ramp.step_posterior`, ``jump_prior``).
 """
 
 import numpy as np

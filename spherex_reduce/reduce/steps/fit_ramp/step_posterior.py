@@ -10,23 +10,28 @@ With a prior probability ``p`` that a ramp holds a jump (``jump_prior``), the sl
 and its variance are the posterior mean and variance over the models "no jump"
 (prior ``1 - p``) and "a step at read k" (``p / (n - 1)`` for each of the ``n - 1``
 reads after the first), the step's amplitude a scale mixture of Gaussians of sigma
-``tau_j`` = `AMPLITUDES` times the read noise, equal weights (a prior spread over
-three decades of amplitude), the line's intercept and slope flat.  For a step at
-``k`` of amplitude prior ``N(0, tau**2)``, with ``A_k``, ``V_k`` the step's
-least-squares amplitude and variance (`~spherex_reduce.reduce.steps.fit_ramp.step_model`)
-and ``z_k**2 = A_k**2 / V_k``, the evidence against "no jump" is
-``sqrt(V_k / (V_k + tau**2)) exp(z_k**2 tau**2 / (2 (V_k + tau**2)))``; the slope is the
-line's less ``c_k s A_k`` (``c_k``: the line's slope change per unit step, ``s = tau**2 /
-(tau**2 + V_k)``) with the line's variance plus ``c_k**2 s V_k``.  For white read noise
-and reads of equal weight these are exact (the step's amplitude is independent of the
-slope of the line fitted to the reads less the step); with shot noise, ``V_k`` holds
-its share and they are a close approximation.
+``tau_j`` = `AMPLITUDES` times the read noise, equal weights (half-decades from one
+read-noise sigma to a thousand, and a million), the line's intercept and slope flat.
+For a step at ``k`` of amplitude prior ``N(0, tau**2)``, with ``A_k``, ``V_k`` the
+step's least-squares amplitude and variance
+(`~spherex_reduce.reduce.steps.fit_ramp.step_model`) and ``z_k**2 = A_k**2 / V_k``, the
+evidence against "no jump" is ``sqrt(V_k / (V_k + tau**2)) exp(z_k**2 tau**2 / (2 (V_k +
+tau**2)))``; the slope is the line's less ``c_k s A_k`` (``c_k``: the line's slope
+change per unit step, ``s = tau**2 / (tau**2 + V_k)``) with the line's variance plus
+``c_k**2 s V_k``.  A ramp a search flagged is known to hold a step: it is weighed over
+the read the step is at, its amplitude free (flat), without "no jump".  For white read
+noise and reads of equal weight (single reads or equal groups) these are exact: the
+step's amplitude is independent of the slope of the line fitted to the reads less the
+step.  With shot noise, ``V_k`` holds its share, at the rate of the line less the
+ramp's best step (so that a jump does not inflate it), and they are a close
+approximation; for reads of unequal weight they are not (``fit_ramp`` refuses them).
 
 Only ramps where a step is plausible are weighed: every ramp of fewer than
-`WEIGH_ALL_READS` reads, and longer ramps whose largest ``|z_k|`` (read noise alone)
-reaches `WEIGH_FROM`.  Below it, on 74 reads of white noise, the steps' posterior moves
-the slope and its error by less than a percent of the line's sigma (a numpy study over
-every ramp: ``benchmarks/bench_jump_marginal.py``).
+`WEIGH_ALL_READS` reads, ramps a search flagged, and longer ramps whose largest
+``|z_k|`` (read noise alone, in float64) reaches `WEIGH_FROM`.  Below it, on 74 reads
+of white noise, leaving the steps out changes the fraction of hit ramps more than 5
+errors off by a few hundredths of a percent (a numpy study over every ramp:
+``benchmarks/bench_jump_marginal.py``).
 """
 
 import numpy as np
@@ -34,8 +39,11 @@ import numpy as np
 __all__ = ["AMPLITUDES", "WEIGH_ALL_READS", "WEIGH_FROM", "step_posterior"]
 
 #: sigmas of the Gaussian components of the prior on a step's amplitude, in read-noise
-#: sigmas (one frame's): an equal-weight mixture over three decades
-AMPLITUDES = np.array([1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 1000.0])
+#: sigmas (one frame's): an equal-weight mixture, half-decades from 1 to 1000 (cosmic rays
+#: near the threshold), and 1e6 (a step far beyond the widest component would keep a share
+#: V / tau**2 of its effect on the slope; one wide component costs an eighth more time
+#: where decades to 1e6 cost two fifths)
+AMPLITUDES = np.array([1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 1e3, 1e6])
 #: ramps of fewer reads are all weighed (few candidate reads, cheap; there the steps of
 #: |z| 2-3 carry the weight that matters: 50-100 e jumps in 4 reads of 10 e)
 WEIGH_ALL_READS = 16
@@ -44,30 +52,39 @@ WEIGH_ALL_READS = 16
 WEIGH_FROM = 3.0
 #: ramps weighed at once (their (n - 1) x ramps arrays stay a few MB)
 PIECE = 2048
+#: z**2 is clipped here (a step of a read noise ~1e-300: no overflow to inf - inf)
+_Z2_MAX = 1e300
 
 
-def step_posterior(model, y, sigma2, lam, prior, slope_weights, jumped=None):
+def step_posterior(model, y, sigma2, prior, slope_weights, *, pscale=0.0, dark=0.0,
+                   jumped=None, weigh_from=None):
     """The posterior shift of each ramp's line slope and the variance it adds.
 
     Parameters
     ----------
     model : `~spherex_reduce.reduce.steps.fit_ramp.step_model.StepModel`
-        The reads' step model (read-noise weights: ``rho = 0``).
+        The reads' step model (read-noise weights: ``rho = 0``), reads of equal
+        read-noise factors.
     y : `numpy.ndarray`
         Reads ``(n, m)`` of ``m`` ramps, float64, every read usable (data unit).
     sigma2 : `numpy.ndarray`
         Read-noise variance of one frame, ``(m,)`` (data unit squared), > 0.
-    lam : `numpy.ndarray`
-        Shot noise, ``(m,)``: rate over gain (data unit squared per second).
     prior : float
         Probability that a ramp holds a jump, in (0, 1).
     slope_weights : `numpy.ndarray`
         ``(n,)``: the weights of the line's slope the caller fits (``sum w y``).
+    pscale, dark : float or `numpy.ndarray`
+        1 / gain (data unit per electron) and the dark current already subtracted
+        (data unit / s), numbers or ``(m,)``: the shot noise of a step's amplitude is
+        that of the rate ``max(line - best step, 0) + dark``.
     jumped : `numpy.ndarray` of bool, optional
         ``(m,)``: ramps known to hold a step (a search flagged one): weighed over the
         reads it may be at only, without "no jump", its amplitude free (a flat prior:
         the search chose the ramp for its step, and a prior that shrinks the step
         would undo the choice).
+    weigh_from : float, optional
+        Ramps (not ``jumped``) whose largest ``|z_k|`` with read noise alone is below
+        this are not weighed (zeros); None: every ramp.
 
     Returns
     -------
@@ -88,69 +105,90 @@ def step_posterior(model, y, sigma2, lam, prior, slope_weights, jumped=None):
     >>> from spherex_reduce.reduce.steps.fit_ramp.least_squares import ramp_weights
     >>> t = np.arange(4.0)
     >>> y = np.column_stack([[0.0, 3.0, -2.0, 1.0], [0.0, 3.0, 98.0, 101.0]])
-    >>> shift, extra, p = step_posterior(StepModel(t), y, np.full(2, 100.0), np.zeros(2),
-    ...                                  0.03, ramp_weights(t))
+    >>> shift, extra, p = step_posterior(StepModel(t), y, np.full(2, 100.0), 0.03,
+    ...                                  ramp_weights(t))
     >>> np.round(p, 2).tolist()  # the flat ramp keeps "no jump"; the other does not
-    [0.01, 0.66]
+    [0.01, 0.63]
     >>> sigma_line = np.sqrt(100.0 * (ramp_weights(t) ** 2).sum())  # the line's ERR
     >>> np.round(np.sqrt(extra) / sigma_line, 2).tolist()  # the error each adds
-    [0.1, 4.04]
+    [0.09, 4.09]
     """
     n, m = y.shape
     shift, extra, p_step = np.zeros(m), np.zeros(m), np.zeros(m)
-    c = model.h @ slope_weights  # (n - 1,): the fitted slope's change per unit step
-    none = np.full(m, np.log1p(-prior))
     jumped = np.zeros(m, bool) if jumped is None else np.asarray(jumped, bool)
-    none[jumped] = -np.inf
-    log_each = np.log(prior / ((n - 1) * AMPLITUDES.size))
+    pscale, dark = (np.broadcast_to(np.asarray(a, np.float64), (m,)) for a in (pscale, dark))
+    c = model.h @ slope_weights  # (n - 1,): the fitted slope's change per unit step
+    q = model.q[:, None]
     for lo in range(0, m, PIECE):
         cut = slice(lo, min(m, lo + PIECE))
         _, big_r, _ = model.step_sums(y[:, cut])
         s2 = sigma2[cut]
-        var = s2 * model.q[:, None] + lam[cut] * model.s[:, None]  # Var(R_k)
-        v = var / model.q[:, None] ** 2  # Var(A_k)
-        amp = big_r / model.q[:, None]
-        z2 = big_r ** 2 / var
-        logs, shrinks = [], []
-        known = jumped[cut]
-        for tau in AMPLITUDES:
-            t2 = tau * tau * s2
-            shrink = np.add(v, t2, out=np.empty_like(v))
-            np.divide(t2, shrink, out=shrink)
-            lw = np.log1p(-shrink)
-            lw += z2 * shrink
-            lw *= 0.5
-            lw += log_each
-            lw[:, known] = -np.inf
-            logs.append(lw)
-            shrinks.append(shrink)
-        if known.any():  # a flat amplitude: the evidence of a step at k is ~ sqrt(V_k) e^(z2/2)
-            lw = np.full_like(z2, -np.inf)
-            lw[:, known] = 0.5 * (np.log(v[:, known]) + z2[:, known])
-            logs.append(lw)
-            shrinks.append(np.ones_like(z2))
-        log_none = none[cut]
-        top = np.maximum(log_none, np.max([lw.max(axis=0) for lw in logs], axis=0))
-        total = np.exp(log_none - top)
-        w_step = np.zeros_like(total)
-        s1 = np.zeros_like(total)
-        s2nd = np.zeros_like(total)
-        a = c[:, None] * amp  # a step's full shift of the slope (the shift is -a shrink)
-        a2 = a * a
-        cv = c[:, None] ** 2 * v
-        for lw, shrink in zip(logs, shrinks, strict=True):
-            w = np.subtract(lw, top, out=lw)
-            np.exp(w, out=w)
-            w_step += w.sum(axis=0)
-            w *= shrink
-            s1 += np.einsum("km,km->m", w, a)
-            # each model's variance less the line's, c**2 v shrink, plus its mean squared
-            shrink *= a2
-            shrink += cv
-            s2nd += np.einsum("km,km->m", w, shrink)
-        total += w_step
-        mu = s1 / total
-        shift[cut] = -mu
-        extra[cut] = np.maximum(s2nd / total - mu * mu, 0.0)
-        p_step[cut] = w_step / total
+        z2 = big_r ** 2 / (s2 * q)  # read noise alone
+        kb = np.argmax(z2, axis=0)
+        take = np.arange(z2.shape[1])
+        if weigh_from is not None:
+            take = take[jumped[cut] | (z2[kb, take] >= weigh_from ** 2)]
+            if not take.size:
+                continue
+        idx = lo + take
+        # a lone ramp is weighed beside a copy of itself: numpy's sums over the reads of
+        # one column take other paths, whose rounding would differ (bands of one pixel)
+        pair = np.concatenate([take, take]) if take.size == 1 else take
+        big_r, s2, kb = big_r[:, pair], s2[pair], kb[pair]
+        cols = np.arange(pair.size)
+        amp = big_r / q
+        line = np.einsum("i,im->m", slope_weights, y[:, lo + pair])
+        rate = np.maximum(line - c[kb] * amp[kb, cols], 0.0)
+        lam = (rate + dark[lo + pair]) * pscale[lo + pair]
+        var = s2 * q + lam * model.s[:, None]  # Var(R_k)
+        v = var / q ** 2  # Var(A_k)
+        z2 = np.minimum(big_r ** 2 / var, _Z2_MAX)
+        out = _posterior(z2, v, amp, s2, c, prior, n, jumped[lo + pair])
+        for arr, value in zip((shift, extra, p_step), out, strict=True):
+            arr[idx] = value[:take.size]
     return shift, extra, p_step
+
+
+def _posterior(z2, v, amp, s2, c, prior, n, known):
+    """``(shift, extra, p_step)`` of ramps whose steps have ``z_k**2``, variances ``v`` and
+    amplitudes ``amp`` (``(n - 1, m)``), read-noise variance ``s2``; ``known``: flagged."""
+    log_each = np.log(prior / ((n - 1) * AMPLITUDES.size))
+    logs, shrinks = [], []
+    for tau in AMPLITUDES:
+        t2 = tau * tau * s2
+        shrink = np.add(v, t2, out=np.empty_like(v))
+        np.divide(t2, shrink, out=shrink)
+        lw = np.log1p(-shrink)
+        lw += z2 * shrink
+        lw *= 0.5
+        lw += log_each
+        lw[:, known] = -np.inf
+        logs.append(lw)
+        shrinks.append(shrink)
+    if known.any():  # a flat amplitude: the evidence of a step at k is ~ sqrt(V_k) e^(z2/2)
+        lw = np.full_like(z2, -np.inf)
+        lw[:, known] = 0.5 * (np.log(v[:, known]) + z2[:, known])
+        logs.append(lw)
+        shrinks.append(np.ones_like(z2))
+    log_none = np.where(known, -np.inf, np.log1p(-prior))
+    top = np.maximum(log_none, np.max([lw.max(axis=0) for lw in logs], axis=0))
+    total = np.exp(log_none - top)
+    w_step = np.zeros_like(total)
+    s1 = np.zeros_like(total)
+    s2nd = np.zeros_like(total)
+    a = c[:, None] * amp  # a step's full shift of the slope (the shift is -a shrink)
+    a2 = a * a
+    cv = c[:, None] ** 2 * v
+    for lw, shrink in zip(logs, shrinks, strict=True):
+        w = np.subtract(lw, top, out=lw)
+        np.exp(w, out=w)
+        w_step += w.sum(axis=0)
+        w *= shrink
+        s1 += np.einsum("km,km->m", w, a)
+        # each model's variance less the line's, c**2 v shrink, plus its mean squared
+        shrink *= a2
+        shrink += cv
+        s2nd += np.einsum("km,km->m", w, shrink)
+    total += w_step
+    mu = s1 / total
+    return -mu, np.maximum(s2nd / total - mu * mu, 0.0), w_step / total

@@ -175,3 +175,108 @@ def test_needs_read_noise_and_uniform_weighting_and_a_probability():
     for bad in (0.0, 0.7, -0.1):
         with pytest.raises(ConfigError, match="jump_prior"):
             fit_ramp(e, jump_prior=bad, read_noise=1.0)
+
+
+def test_a_big_jump_with_shot_noise_keeps_the_segments_error():
+    """Gain 1, 0.5 e/s: a flagged 2e4 e jump leaves no doubt where the step is, so the
+    slope and ERR are the two segments' (the step's shot noise at the rate of the line
+    less the step, not of the line through the jump, which put ERR 7x too high)."""
+    n, shape = 30, (20, 50)
+    rng = np.random.default_rng(3)
+    times = np.arange(n) * DT
+    y = 1e3 + rng.normal(0, RN, (n, *shape)) + rng.poisson(0.5 * DT, (n, *shape)).cumsum(0)
+    y[n // 2:, 0] += 2e4
+    flags = np.zeros(y.shape, np.uint32)
+    flags[n // 2, 0] = dq.JUMP
+    e = Exposure.from_arrays(y, schedule(n, *shape), mask=flags)
+    prior = fit_ramp(e, read_noise=RN, gain=1.0, jump_prior=0.03)
+    segments = fit_ramp(e, read_noise=RN, gain=1.0)
+    np.testing.assert_allclose(prior.data.data[0], segments.data.data[0], rtol=1e-9)
+    ratio = prior.data.uncertainty.array[0] / segments.data.uncertainty.array[0]
+    assert np.all(np.abs(ratio - 1) < 0.05)
+    assert times.size == n
+
+
+def test_bands_of_one_row_give_the_whole_exposures_numbers_bit_for_bit():
+    """One weighed ramp per row (a lone column: numpy's sums take other paths), ramps on
+    the 3-sigma line of 20 reads, flagged and unflagged steps: the whole exposure and
+    bands of 1 and 3 rows on 1 and 2 threads give the same slopes and errors."""
+    from spherex_reduce.io.sources import MemorySource
+    from spherex_reduce.reduce.executor import execute
+    from spherex_reduce.reduce.options import RunOptions
+    from spherex_reduce.reduce.steps.fit_ramp.step import FitRampStep
+
+    n, shape = 20, (6, 40)
+    rng = np.random.default_rng(5)
+    y = 5e3 + rng.normal(0, RN, (n, *shape)).astype(np.float32)
+    y[n // 2:, np.arange(6), np.arange(6)] += np.array([30, 45, 60, 90, 300, 3e3], np.float32)
+    flags = np.zeros(y.shape, np.uint32)
+    flags[n // 2, 4, 4] = dq.JUMP
+    e = Exposure.from_arrays(y, schedule(n, *shape), mask=flags)
+    params = {"read_noise": RN, "jump_prior": 0.03}
+    whole = fit_ramp(e, **params)
+    for rows, threads in ((1, 1), (1, 2), (3, 2)):
+        source = MemorySource(e)
+        part = execute(source, [], FitRampStep().consumer(source.context, **params),
+                       options=RunOptions(threads=threads), rows_per_band=rows)[0]
+        assert np.array_equal(part.data.data, whole.data.data)
+        assert np.array_equal(part.data.uncertainty.array, whole.data.uncertainty.array)
+        assert np.array_equal(part.dq, whole.dq)
+
+
+def test_flags_counts_of_a_single_jump_are_the_segment_fits():
+    """A JUMP on read 0 splits nothing: the ramp is a whole line (weighed like any other);
+    on read 1 or the last read the one-read segment is not counted: nsegments, njumps and
+    the DQ are the segment fit's."""
+    n = 6
+    rng = np.random.default_rng(11)
+    y = 100 + rng.normal(0, RN, (n, 1, n))
+    flags = np.zeros(y.shape, np.uint32)
+    flags[np.arange(n), 0, np.arange(n)] = dq.JUMP
+    e = Exposure.from_arrays(y, schedule(n, 1, n), mask=flags)
+    prior = fit_ramp(e, read_noise=RN, gain=1e12, jump_prior=0.03)
+    segments = fit_ramp(e, read_noise=RN, gain=1e12)
+    for col in ("njumps", "nsegments", "nreads"):
+        assert np.array_equal(prior.tables["RAMPFIT"][col], segments.tables["RAMPFIT"][col])
+    assert np.array_equal(prior.dq, segments.dq)
+    unflagged = fit_ramp(Exposure.from_arrays(y, schedule(n, 1, n)), read_noise=RN, gain=1e12,
+                         jump_prior=0.03)
+    assert prior.data.data[0, 0] == unflagged.data.data[0, 0]
+    assert prior.data.uncertainty.array[0, 0] == unflagged.data.uncertainty.array[0, 0]
+
+
+def test_a_step_far_beyond_the_amplitude_prior_leaves_the_slope():
+    """An unflagged 1e6 e step on 4 reads of 1 e read noise: the slope is the two segments'
+    one (within 3 of its errors of the truth), not the line's."""
+    n = 4
+    times = np.arange(n) * DT
+    rng = np.random.default_rng(2)
+    y = 100 + 2.0 * times[:, None, None] + rng.normal(0, 1.0, (n, 1, 8))
+    y[2:] += 1e6
+    out = fit_ramp(Exposure.from_arrays(y, schedule(n, 1, 8)), read_noise=1.0, gain=1e12,
+                   jump_prior=0.03)
+    pull = (out.data.data - 2.0) / out.data.uncertainty.array
+    assert np.all(np.abs(pull) < 3)
+
+
+def test_reads_of_unequal_weight_are_refused_in_one_line():
+    s = ReadoutSchedule(DetectorGeometry(4, 4, 1, ref_border=0), ref_mode="none",
+                        phantom_reads=0, nframes=4, skip=1, frame_time=DT,
+                        groups=[[0], [1, 2], [3, 4, 5, 6], [8, 9, 10, 11, 12, 13, 14, 15]])
+    e = Exposure.from_arrays(np.zeros((4, 4, 4)), s)
+    with pytest.raises(SpherexReduceError, match=r"equal weight.*1 to 8 frames"):
+        fit_ramp(e, read_noise=RN, jump_prior=0.03)
+
+
+def test_the_config_records_jump_prior_only_when_set():
+    """Left at its default, jump_prior is not in the effective config, so a config's hash
+    (SXRCONF) is the one outputs made before the parameter existed carry; set, it is."""
+    from spherex_reduce import Pipeline
+
+    quiet = Pipeline({"steps": [{"fit_ramp": {"read_noise": 10.0}}]})
+    default = Pipeline({"steps": [{"fit_ramp": {"read_noise": 10.0, "jump_prior": None}}]})
+    given = Pipeline({"steps": [{"fit_ramp": {"read_noise": 10.0, "jump_prior": 0.03}}]})
+    assert "jump_prior" not in quiet.steps[0][1]
+    assert default.config_hash == quiet.config_hash
+    assert given.steps[0][1]["jump_prior"] == 0.03
+    assert given.config_hash != quiet.config_hash

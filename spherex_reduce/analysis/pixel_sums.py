@@ -14,12 +14,16 @@ from ..reduce.options import default_threads, in_threads
 from ..reduce.steps.reference.telegraph import MAD_TO_SIGMA
 from .faint_telegraph import lag_design, lag_sums
 
-__all__ = ["MIN_READS", "MIN_TELEGRAPH_INTERVALS", "PIXEL_THREADS", "add_dark", "new_sums"]
+__all__ = ["MIN_READS", "MIN_TELEGRAPH_INTERVALS", "PIXEL_THREADS", "SCALE_CAP", "add_dark",
+           "new_sums"]
 
 #: Fewest reads a dark needs (two differences after read 0 is kept aside, or with it).
 MIN_READS = 3
 #: Fewest differences per dark to tell a telegraph's jumps from a pixel's own noise.
 MIN_TELEGRAPH_INTERVALS = 8
+#: A pixel's robust scale of its differences, which its jumps are found above, is capped at
+#: this times the band's typical one (with the pixel's shot noise): see `_band`.
+SCALE_CAP = 1.25
 #: Bands of a dark summed at once, in threads (each holds its reads and ~10 times their
 #: size of work: two bands of 32 rows of a 2048² × 74 dark, ~0.2 GB), while the next
 #: band is read (~19 MB)
@@ -183,7 +187,7 @@ def _band(x, t, des, jump_sigma, skip_first, gain=1.0, lags=None, labels=None):
     # above them (its rate came out 17 standard errors low from 4 darks of 10 reads)
     floor = np.median(scale)
     shot = np.maximum(mean, 0) * f32(np.mean(dt64) / gain)  # a difference's, unit^2
-    scale = np.clip(scale, floor, f32(1.25) * np.sqrt(floor * floor + shot))
+    scale = np.clip(scale, floor, f32(SCALE_CAP) * np.sqrt(floor * floor + shot))
     kk, ii, jj = np.nonzero(a > jump_sigma * scale)
     del a
     pix = ii * shape[1] + jj

@@ -99,14 +99,9 @@ class StepSearch(StepModel):
 
     Parameters
     ----------
-    times : array_like
-        Times of the usable reads (s), increasing, at least 4.
-    factors : array_like, optional
-        Read-noise variance of each read relative to one frame's (default 1 for
-        every read; a group that averages ``n`` frames has ``1/n``).
-    walk : array_like, optional
-        Covariance of the reads' charge per unit rate (s), ``(n, n)`` (default
-        ``min(t_i, t_j)``, single frames; a group's is the mean over its frames,
+    times, factors, walk, rho
+        As `~spherex_reduce.reduce.steps.fit_ramp.step_model.StepModel`'s, at least 4
+        reads (a group's ``walk`` is the mean over its frames,
         `~spherex_reduce.ReadoutSchedule.shot_covariance`).
 
     Examples

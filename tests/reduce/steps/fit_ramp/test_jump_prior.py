@@ -18,6 +18,16 @@ def schedule(nframes, nrows, ncols):
                            phantom_reads=0, nframes=nframes, skip=1, frame_time=DT)
 
 
+def mixture(logs, means, variances):
+    """The mean and standard deviation of a mixture of Gaussians of log weights ``logs``."""
+    logs = np.array(logs)
+    w = np.exp(logs - logs.max())
+    w /= w.sum()
+    means, variances = np.array(means), np.array(variances)
+    mean = w @ means
+    return mean, np.sqrt(w @ (variances + (means - mean) ** 2))
+
+
 def exact_posterior(y, times, sigma, prior, taus):
     """The posterior mean and standard deviation of the slope of ramp ``y``, by dense
     linear algebra: models "no jump" and "a step at read k" with amplitude prior N(0,
@@ -43,12 +53,7 @@ def exact_posterior(y, times, sigma, prior, taus):
         logs.append(logp - 0.5 * (logdet + quad))
         means.append(beta[1])
         variances.append(fi[1, 1])
-    logs = np.array(logs)
-    w = np.exp(logs - logs.max())
-    w /= w.sum()
-    means, variances = np.array(means), np.array(variances)
-    mean = w @ means
-    return mean, np.sqrt(w @ (variances + (means - mean) ** 2))
+    return mixture(logs, means, variances)
 
 
 @pytest.mark.parametrize("nframes", [4, 7, 24])
@@ -99,12 +104,7 @@ def exact_position_posterior(y, times, sigma):
         logs.append(-0.5 * (np.linalg.slogdet(f)[1] + rss / sigma**2))
         means.append(beta[1])
         variances.append(sigma**2 * fi[1, 1])
-    logs = np.array(logs)
-    w = np.exp(logs - logs.max())
-    w /= w.sum()
-    means, variances = np.array(means), np.array(variances)
-    mean = w @ means
-    return mean, np.sqrt(w @ (variances + (means - mean) ** 2))
+    return mixture(logs, means, variances)
 
 
 @pytest.mark.parametrize("nframes", [4, 9, 30])

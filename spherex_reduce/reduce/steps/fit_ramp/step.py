@@ -334,7 +334,9 @@ class RampFit(Consumer):
         if self.read_noise is not None:  # the variance's parts: integrations combine on them
             rate = (self.context.unit or u.one) / u.s
             columns["var_rnoise"] = Column(fit.var_rnoise, unit=rate**2, description=(
-                "slope variance at zero rate: read noise and dark-current shot noise"))
+                "slope variance at zero rate: read noise and dark-current shot noise"
+                + ("; and the unflagged steps' (jump_prior)" if self.solver.steps is not None
+                   else "")))
             columns["var_per_rate"] = Column(fit.var_per_rate, unit=rate, description=(
                 "slope variance per unit of rate (shot noise)"))
         tables["RAMPFIT"] = Table(columns, copy=False,

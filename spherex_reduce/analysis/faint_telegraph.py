@@ -230,7 +230,8 @@ def lag_sums(e, labels, jumped, lags):
         q = sq[m - lag] + (sq[m] - sq[lag - 1]) - 2.0 * cross[i]
         # the mean's own variance, 1/n² of its members' terms, is their mean q over n - 1
         # (each member's q is (1 - 2/n) of its terms plus that): taken out of every pixel
-        own = np.bincount(inv[who], q[who], minlength=uniq.size)
+        # (float: with no member at all, bincount gives integers)
+        own = np.bincount(inv[who], q[who], minlength=uniq.size).astype(np.float64)
         own /= np.where(small, np.inf, count * (count - 1.0))
         out[i] = np.where(small[inv], q, (q - own[inv]) / np.where(factor > 0, factor, 1.0))
     out[:, ~use] = 0.0

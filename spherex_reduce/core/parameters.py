@@ -52,9 +52,9 @@ class Parameter:
         defaults.
     quiet_default : bool
         A parameter added after outputs were made: at its default it is left
-        out of a pipeline's effective configuration (and so of its hash,
-        ``SXRCONF``), so that a batch still recognises those outputs; the step
-        still receives the default.
+        out of a pipeline's configuration hash (``SXRCONF``), so that a batch
+        still recognises those outputs; the effective configuration, the step
+        and the provenance have it as any other.
 
     Numbers must be finite (``.nan`` and ``.inf`` are refused) and within the
     bounds.  Where a number is expected and text is not, text that reads as a

@@ -126,14 +126,7 @@ class Pipeline:
         return out
 
     def _step_params(self, cls, params, path):
-        step = cls(self.registry)
-        values = step.validate(params, path)
-        # a parameter added after outputs were made is left out at its default: the
-        # config's hash (SXRCONF) stays the one those outputs carry
-        for p in step.declared(params, path):
-            if p.quiet_default and p.name in values and values[p.name] == p.default:
-                del values[p.name]
-        return values
+        return cls(self.registry).validate(params, path)
 
     # -- what it is -----------------------------------------------------------
     @property
@@ -152,8 +145,17 @@ class Pipeline:
 
     @property
     def config_hash(self):
-        """SHA-256 (first 16 hex digits) of the effective configuration."""
-        text = json.dumps(self._config, sort_keys=True, default=str)
+        """SHA-256 (first 16 hex digits) of the effective configuration, less the parameters
+        added after outputs were made while they are at their defaults (``quiet_default``:
+        the hash stays the one those outputs carry, so a batch still recognises them)."""
+        config = copy.deepcopy(self._config)
+        for item in config["steps"]:
+            (name, params), = item.items()
+            step = self.registry.step(name)(self.registry)
+            for p in step.declared(params, name):
+                if p.quiet_default and p.name in params and params[p.name] == p.default:
+                    del params[p.name]
+        text = json.dumps(config, sort_keys=True, default=str)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
     def schedule(self):

@@ -351,3 +351,15 @@ def test_a_fast_clear_telegraph_is_found_whatever_each_pixels_noise_estimate():
     assert not (found & ~tel).any()
     row = res.row("telegraph_fraction", "active")
     assert abs(row["value"] - tel.mean()) < 3 * row["error"], (row["value"], tel.mean())
+
+
+def test_darks_without_light_sensitive_pixels_are_refused_term_by_term():
+    """Every pixel a reference pixel: the active terms are refused with the reason, the
+    reference read noise is fitted (the faint telegraph's sums crashed on the empty set
+    with a numpy casting error)."""
+    rng = np.random.default_rng(0)
+    darks = [rng.normal(0, 10, (12, 4, 4)) * u.electron for _ in range(3)]
+    res = fit_pixel_terms(darks, np.arange(12) * u.s, gain=1.0, reference=np.ones((4, 4), bool))
+    row = res.row("dark_current", "active")
+    assert row["status"] == "not constrained" and "no light-sensitive" in row["note"]
+    assert abs(res.row("read_noise", "reference")["value"] - 10) < 2

@@ -152,6 +152,9 @@ def step_posterior(model, y, sigma2, prior, slope_weights, *, pscale=0.0, dark=0
 def _posterior(z2, v, amp, s2, c, prior, n, known):
     """``(shift, extra, p_step)`` of ramps whose steps have ``z_k**2``, variances ``v`` and
     amplitudes ``amp`` (``(n - 1, m)``), read-noise variance ``s2``; ``known``: flagged."""
+    # C order whatever the columns taken: numpy's sums over the reads then add each
+    # column's terms in one order, however many columns come with it (bands)
+    z2, v, amp = (np.ascontiguousarray(a) for a in (z2, v, amp))
     log_each = np.log(prior / ((n - 1) * AMPLITUDES.size))
     logs, shrinks = [], []
     for tau in AMPLITUDES:

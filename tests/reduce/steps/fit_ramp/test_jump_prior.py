@@ -177,11 +177,14 @@ def test_needs_read_noise_and_uniform_weighting_and_a_probability():
             fit_ramp(e, jump_prior=bad, read_noise=1.0)
 
 
-def test_a_big_jump_with_shot_noise_keeps_the_segments_error():
+@pytest.mark.parametrize("shape", [(20, 50), (4, 8)])
+def test_a_big_jump_with_shot_noise_keeps_the_segments_error(shape):
     """Gain 1, 0.5 e/s: a flagged 2e4 e jump leaves no doubt where the step is, so the
     slope and ERR are the two segments' (the step's shot noise at the rate of the line
-    less the step, not of the line through the jump, which put ERR 7x too high)."""
-    n, shape = 30, (20, 50)
+    less the step, not of the line through the jump, which put ERR 7x too high; and on
+    fewer than 100 pixels, where ERR keeps each pixel's own rate, the line's variance at
+    the posterior's slope: 14x too high)."""
+    n = 30
     rng = np.random.default_rng(3)
     times = np.arange(n) * DT
     y = 1e3 + rng.normal(0, RN, (n, *shape)) + rng.poisson(0.5 * DT, (n, *shape)).cumsum(0)
@@ -201,21 +204,44 @@ def test_bands_of_one_row_give_the_whole_exposures_numbers_bit_for_bit():
     """One weighed ramp per row (a lone column: numpy's sums take other paths), ramps on
     the 3-sigma line of 20 reads, flagged and unflagged steps: the whole exposure and
     bands of 1 and 3 rows on 1 and 2 threads give the same slopes and errors."""
-    from spherex_reduce.io.sources import MemorySource
-    from spherex_reduce.reduce.executor import execute
-    from spherex_reduce.reduce.options import RunOptions
-    from spherex_reduce.reduce.steps.fit_ramp.step import FitRampStep
-
     n, shape = 20, (6, 40)
     rng = np.random.default_rng(5)
     y = 5e3 + rng.normal(0, RN, (n, *shape)).astype(np.float32)
     y[n // 2:, np.arange(6), np.arange(6)] += np.array([30, 45, 60, 90, 300, 3e3], np.float32)
     flags = np.zeros(y.shape, np.uint32)
     flags[n // 2, 4, 4] = dq.JUMP
-    e = Exposure.from_arrays(y, schedule(n, *shape), mask=flags)
-    params = {"read_noise": RN, "jump_prior": 0.03}
+    _assert_bands_bit_for_bit(Exposure.from_arrays(y, schedule(n, *shape), mask=flags),
+                              {"read_noise": RN, "jump_prior": 0.03})
+
+
+def test_bands_give_the_whole_exposures_numbers_with_many_weighed_ramps():
+    """40 reads of a 3 e/s sky with shot noise (gain 1), a third of the ramps with a 10-80 e
+    step, a twentieth flagged JUMP at a random read: the sums over the reads of the flagged
+    ramps (a flat amplitude) differed in the last bits with the number of ramps weighed
+    together, until the arrays were made C-ordered."""
+    n, shape = 40, (30, 200)
+    rng = np.random.default_rng(n)
+    t = np.arange(n) * DT
+    y = (6e4 + 3.0 * t[:, None, None] + rng.normal(0, RN, (n, *shape))
+         + rng.poisson(3.0 * DT, (n, *shape)).cumsum(0))
+    y += np.where(rng.random(shape) < 0.3, rng.uniform(10, 80, shape), 0) * (
+        np.arange(n)[:, None, None] >= rng.integers(1, n, shape))
+    flags = np.zeros(y.shape, np.uint32)
+    hit = rng.random(shape) < 0.05
+    flags[rng.integers(1, n, shape)[hit], *np.nonzero(hit)] = dq.JUMP
+    _assert_bands_bit_for_bit(
+        Exposure.from_arrays(y.astype(np.float32), schedule(n, *shape), mask=flags),
+        {"read_noise": RN, "gain": 1.0, "jump_prior": 0.03}, ((1, 1), (4, 1)))
+
+
+def _assert_bands_bit_for_bit(e, params, cuts=((1, 1), (1, 2), (3, 2))):
+    from spherex_reduce.io.sources import MemorySource
+    from spherex_reduce.reduce.executor import execute
+    from spherex_reduce.reduce.options import RunOptions
+    from spherex_reduce.reduce.steps.fit_ramp.step import FitRampStep
+
     whole = fit_ramp(e, **params)
-    for rows, threads in ((1, 1), (1, 2), (3, 2)):
+    for rows, threads in cuts:
         source = MemorySource(e)
         part = execute(source, [], FitRampStep().consumer(source.context, **params),
                        options=RunOptions(threads=threads), rows_per_band=rows)[0]
@@ -268,15 +294,17 @@ def test_reads_of_unequal_weight_are_refused_in_one_line():
         fit_ramp(e, read_noise=RN, jump_prior=0.03)
 
 
-def test_the_config_records_jump_prior_only_when_set():
-    """Left at its default, jump_prior is not in the effective config, so a config's hash
-    (SXRCONF) is the one outputs made before the parameter existed carry; set, it is."""
+def test_the_config_hash_leaves_jump_prior_out_at_its_default():
+    """At its default, jump_prior is in the effective config (and the provenance) but not
+    in the config's hash (SXRCONF): outputs made before the parameter existed keep theirs;
+    set, it changes the hash."""
     from spherex_reduce import Pipeline
 
     quiet = Pipeline({"steps": [{"fit_ramp": {"read_noise": 10.0}}]})
     default = Pipeline({"steps": [{"fit_ramp": {"read_noise": 10.0, "jump_prior": None}}]})
     given = Pipeline({"steps": [{"fit_ramp": {"read_noise": 10.0, "jump_prior": 0.03}}]})
-    assert "jump_prior" not in quiet.steps[0][1]
+    assert quiet.steps[0][1]["jump_prior"] is None
     assert default.config_hash == quiet.config_hash
     assert given.steps[0][1]["jump_prior"] == 0.03
     assert given.config_hash != quiet.config_hash
+    assert Pipeline(given.config).config_hash == given.config_hash

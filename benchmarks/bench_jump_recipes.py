@@ -1,7 +1,8 @@
 """Jumps on every kind of ramp: ours against stcal's two-point + OLS_C and its LIKELY fit.
 
     python benchmarks/bench_jump_recipes.py [--pixels 65536] [--seed 1] [--no-stcal]
-                                            [--recipe NAME ...]
+                                            [--recipe NAME ...] [--jump-prior P]
+    python benchmarks/bench_jump_recipes.py --cost 512 2048   # jump_prior's cost
 
 Each recipe is a set of ramps (electrons, gain 1) with cosmic rays: 1 % of the
 pixels with one jump of 10 to 1e4 e at a random frame, and 2 % more with a jump
@@ -254,6 +255,32 @@ def run(name, npix, rng, seed, with_stcal, prior):
     return out
 
 
+def cost(rows, cols, prior, repeat=3):
+    """``fit_ramp`` (``read_noise: 10``) of a white 74-read dark of ``rows`` x ``cols``
+    float32 pixels without and with ``jump_prior``: medians of ``repeat`` wall and CPU
+    seconds, each in turn, one process (the executor's threads)."""
+    nf = 74
+    rng = np.random.default_rng(0)
+    cube = (6e4 + rng.normal(0, RN, (nf, rows, cols))).astype(np.float32)
+    e = Exposure.from_arrays(cube, schedule([[k] for k in range(nf)], 1.5, rows, cols))
+    runs = [Pipeline({"steps": [{"fit_ramp": {"read_noise": RN}}]}),
+            Pipeline({"steps": [{"fit_ramp": {"read_noise": RN, "jump_prior": prior}}]})]
+    for r in runs:  # untimed: imports, matrices
+        r.run(e)
+    times = []
+    for _ in range(repeat):
+        for r in runs:
+            t0, c0 = time.perf_counter(), time.process_time()
+            r.run(e)
+            times.append((time.perf_counter() - t0, time.process_time() - c0))
+    (w0, c0), (w1, c1) = np.median(np.reshape(times, (repeat, 2, 2)), axis=0)
+    print(f"\nfit_ramp of a white dark, {nf} x {rows} x {cols} float32, medians of {repeat}:\n")
+    print("| run | wall (s) | CPU (s) | with / without (wall) |")
+    print("|---|---|---|---|")
+    print(f"| without jump_prior | {w0:.3f} | {c0:.3f} | |")
+    print(f"| jump_prior {prior:g} | {w1:.3f} | {c1:.3f} | {w1 / w0:.1f}x |")
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--pixels", type=int, default=65536)
@@ -263,7 +290,13 @@ def main(argv=None):
                    help="also run ours with fit_ramp's jump_prior (default 0.03: the recipes' "
                         "1 %% + 2 %% of ramps with a jump); 0: not")
     p.add_argument("--recipe", nargs="+", choices=list(RECIPES), default=list(RECIPES))
+    p.add_argument("--cost", nargs=2, type=int, metavar=("ROWS", "COLS"),
+                   help="only time fit_ramp with and without jump_prior on a white 74-read "
+                        "dark of ROWS x COLS (e.g. 512 2048)")
     args = p.parse_args(argv)
+    if args.cost:
+        cost(*args.cost, args.jump_prior or 0.03)
+        return 0
     logging.getLogger("stcal").setLevel(logging.ERROR)
     print(f"{args.pixels} pixels per recipe (table2: 256 x 512), seed {args.seed}\n")
     print("| recipe | run | wrong | hit lost | clean lost | clean rms (σ0) | hits > 5 ERR | "

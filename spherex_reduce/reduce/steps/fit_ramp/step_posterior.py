@@ -29,9 +29,12 @@ approximation; for reads of unequal weight they are not (``fit_ramp`` refuses th
 Only ramps where a step is plausible are weighed: every ramp of fewer than
 `WEIGH_ALL_READS` reads, ramps a search flagged, and longer ramps whose largest
 ``|z_k|`` (read noise alone, in float64) reaches `WEIGH_FROM`.  Below it, on 74 reads
-of white noise, leaving the steps out changes the fraction of hit ramps more than 5
-errors off by a few hundredths of a percent (a numpy study over every ramp:
-``benchmarks/bench_jump_marginal.py``).
+of white noise, the exact posterior's slope is within 0.02 of the line's sigma of the
+line's and its error 1.9 % above the line's on average (6 % at most) for ramps of
+``|z|`` 2.5-3 (less below); leaving them out changes the fraction of hit ramps more than
+5 errors off by a few hundredths of a percent (a numpy study over every ramp:
+``benchmarks/bench_jump_marginal.py``).  At 3.5 the weighing costs a quarter as much,
+but the error of ramps of ``|z|`` 3-3.5 would be 6 % low on average (21 % at most).
 """
 
 import numpy as np

@@ -724,11 +724,11 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
     telegraph = tel_ok & (acc["jumps"] >= 2) & acc["alternate"] & good
     # its steps must be clear of the threshold, or some of its flips were missed (its rate
     # and step come out wrong: 7.5 % at 0.012 Hz for 10 % at 0.3 Hz): such a pixel is left
-    # to the faint population.  The threshold is the one its jumps were found above: its
-    # noise capped as the search caps it (`SCALE_CAP` times the typical), not its own
-    # estimate from a few tens of differences, whose upward scatter (more than a third
-    # above the typical one time in thirty for a pixel that switches at every third
-    # difference) handed 3 % of a clear telegraph population to the faint one
+    # to the faint population.  Its noise is taken no higher than the search's cap on it
+    # (`SCALE_CAP` times the typical): its own estimate from a few tens of differences
+    # scatters up (more than a third above the typical one time in thirty for a pixel
+    # that switches at every third difference) and handed 3 % of a clear telegraph
+    # population to the faint one
     typical = float(np.median(noise[good])) if good.any() else np.inf
     with np.errstate(invalid="ignore"):
         clear = (acc["jsize"] / np.maximum(acc["jumps"], 1)

@@ -228,7 +228,7 @@ def welch_terms(basis, frequency, exponent, meta):
             "the first Welch frequency of a spectrum that was not detrended holds the power "
             "at f = 0, which no model term gives: leave it out (fmin)")
     t = np.arange(n)
-    w = scipy.signal.get_window("hann", n)
+    w = _hann(n)
     for i in first:  # x_n less its mean, windowed: sum_n g_n x_n, g_n = w_n e^(-i w n) - W / n
         g = w * np.exp(-2j * np.pi * f[i] * t / fs)
         g -= g.sum() / n
@@ -239,10 +239,18 @@ def welch_terms(basis, frequency, exponent, meta):
 
 
 @functools.lru_cache(maxsize=16)
+def _hann(n):
+    """`temporal_psd`'s window of ``n`` samples (read only: cached)."""
+    w = scipy.signal.get_window("hann", n)
+    w.setflags(write=False)
+    return w
+
+
+@functools.lru_cache(maxsize=16)
 def _window_kernel(n, m):
     """The Hann window's ``|W|²`` on ``m`` frequencies, normalised to sum 1, transformed
     (real: the kernel is even)."""
-    k = np.abs(np.fft.fft(scipy.signal.get_window("hann", n), m)) ** 2
+    k = np.abs(np.fft.fft(_hann(n), m)) ** 2
     return np.fft.rfft(k / k.sum()).real
 
 

@@ -41,6 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ....core import dq
+from ....core.errors import SpherexReduceError
 from ....core.exposure import as_dq
 from .segments import RATIO_BINS, RampNoise, fit_segments
 from .step_model import StepModel
@@ -390,9 +391,12 @@ class LeastSquares:
         self._wwork = {work: self.w.astype(work) for work in (np.float32, np.float64)}
         self.jump_prior = jump_prior
         weigh = jump_prior is not None and weighting == "uniform" and want_var and nf >= 3
-        if weigh and np.ptp(self.noise.read_factors) > 0:
-            raise ValueError("jump_prior needs reads of equal read-noise weight (single "
-                             "reads or equal groups)")
+        factors = self.noise.read_factors
+        if weigh and np.ptp(factors) > 0:  # (the posterior is exact for equal weights only)
+            raise SpherexReduceError(
+                "fit_ramp.jump_prior needs reads of equal weight (single reads or equal "
+                f"groups); these groups average {1 / factors.max():g} to "
+                f"{1 / factors.min():g} frames: leave jump_prior out")
         self.steps = StepModel(t, self.noise.read_factors, self.noise.shot) if weigh else None
 
     def work_type(self, dtype):
@@ -617,16 +621,15 @@ class LeastSquares:
         idx = np.flatnonzero(ok)
         if not idx.size:
             return
+        px = maps.pixels(idx)
         shift, extra, _ = step_posterior(
-            self.steps, _relative_reads(block, idx), rn2[idx], self.jump_prior, self.w,
-            pscale=np.broadcast_to(maps.pscale, (npx,))[idx],
-            dark=np.broadcast_to(maps.dark, (npx,))[idx], jumped=jumped[idx],
-            weigh_from=weigh_from)
+            self.steps, _relative_reads(block, idx), rn2[idx], self.jump_prior,
+            pscale=px.pscale, dark=px.dark, jumped=jumped[idx], weigh_from=weigh_from)
         slope[idx] += shift
         # the line's variance at the posterior's slope (its shot noise: not at a slope through
         # a step), then the steps'
         line = np.empty(idx.size)
-        self._model_variance(slope[idx], line, maps.pixels(idx))
+        self._model_variance(slope[idx], line, px)
         var[idx] = line + extra
         if fit.var_rnoise is not None:
             rnoise = fit.var_rnoise.reshape(-1)

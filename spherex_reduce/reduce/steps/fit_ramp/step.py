@@ -392,13 +392,6 @@ class FitRampStep(Step):
                 f"fit_ramp needs ramps of at least 2 frames; this one has "
                 f"{context.schedule.nframes} (a single image: store it 2-D, or leave fit_ramp "
                 f"out)")
-        if params["jump_prior"] is not None:
-            factors = np.asarray(context.schedule.read_noise_factors, np.float64)
-            if np.ptp(factors) > 0:
-                raise SpherexReduceError(
-                    "fit_ramp.jump_prior needs reads of equal weight (single reads or equal "
-                    f"groups); these groups average {1 / factors.max():g} to "
-                    f"{1 / factors.min():g} frames: leave jump_prior out")
         return RampFit(context, **params)
 
 

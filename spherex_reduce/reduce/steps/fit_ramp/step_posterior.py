@@ -59,23 +59,21 @@ PIECE = 2048
 _Z2_MAX = 1e300
 
 
-def step_posterior(model, y, sigma2, prior, slope_weights, *, pscale=0.0, dark=0.0,
-                   jumped=None, weigh_from=None):
+def step_posterior(model, y, sigma2, prior, *, pscale=0.0, dark=0.0, jumped=None,
+                   weigh_from=None):
     """The posterior shift of each ramp's line slope and the variance it adds.
 
     Parameters
     ----------
     model : `~spherex_reduce.reduce.steps.fit_ramp.step_model.StepModel`
         The reads' step model (read-noise weights: ``rho = 0``), reads of equal
-        read-noise factors.
+        read-noise factors: its line is then the uniform least-squares line.
     y : `numpy.ndarray`
         Reads ``(n, m)`` of ``m`` ramps, float64, every read usable (data unit).
     sigma2 : `numpy.ndarray`
         Read-noise variance of one frame, ``(m,)`` (data unit squared), > 0.
     prior : float
         Probability that a ramp holds a jump, in (0, 1).
-    slope_weights : `numpy.ndarray`
-        ``(n,)``: the weights of the line's slope the caller fits (``sum w y``).
     pscale, dark : float or `numpy.ndarray`
         1 / gain (data unit per electron) and the dark current already subtracted
         (data unit / s), numbers or ``(m,)``: the shot noise of a step's amplitude is
@@ -108,8 +106,7 @@ def step_posterior(model, y, sigma2, prior, slope_weights, *, pscale=0.0, dark=0
     >>> from spherex_reduce.reduce.steps.fit_ramp.least_squares import ramp_weights
     >>> t = np.arange(4.0)
     >>> y = np.column_stack([[0.0, 3.0, -2.0, 1.0], [0.0, 3.0, 98.0, 101.0]])
-    >>> shift, extra, p = step_posterior(StepModel(t), y, np.full(2, 100.0), 0.03,
-    ...                                  ramp_weights(t))
+    >>> shift, extra, p = step_posterior(StepModel(t), y, np.full(2, 100.0), 0.03)
     >>> np.round(p, 2).tolist()  # the flat ramp keeps "no jump"; the other does not
     [0.01, 0.63]
     >>> sigma_line = np.sqrt(100.0 * (ramp_weights(t) ** 2).sum())  # the line's ERR
@@ -120,11 +117,11 @@ def step_posterior(model, y, sigma2, prior, slope_weights, *, pscale=0.0, dark=0
     shift, extra, p_step = np.zeros(m), np.zeros(m), np.zeros(m)
     jumped = np.zeros(m, bool) if jumped is None else np.asarray(jumped, bool)
     pscale, dark = (np.broadcast_to(np.asarray(a, np.float64), (m,)) for a in (pscale, dark))
-    c = model.h @ slope_weights  # (n - 1,): the fitted slope's change per unit step
+    c = model.slope_of_step  # (n - 1,): the line's slope change per unit step
     q = model.q[:, None]
     for lo in range(0, m, PIECE):
         cut = slice(lo, min(m, lo + PIECE))
-        _, big_r, _ = model.step_sums(y[:, cut])
+        ab, big_r, _ = model.step_sums(y[:, cut])
         s2 = sigma2[cut]
         z2 = big_r ** 2 / (s2 * q)  # read noise alone
         kb = np.argmax(z2, axis=0)
@@ -137,10 +134,9 @@ def step_posterior(model, y, sigma2, prior, slope_weights, *, pscale=0.0, dark=0
         # a lone ramp is weighed beside a copy of itself: numpy's sums over the reads of
         # one column take other paths, whose rounding would differ (bands of one pixel)
         pair = np.concatenate([take, take]) if take.size == 1 else take
-        big_r, s2, kb = big_r[:, pair], s2[pair], kb[pair]
+        big_r, s2, kb, line = big_r[:, pair], s2[pair], kb[pair], ab[1, pair]
         cols = np.arange(pair.size)
         amp = big_r / q
-        line = np.einsum("i,im->m", slope_weights, y[:, lo + pair])
         rate = np.maximum(line - c[kb] * amp[kb, cols], 0.0)
         lam = (rate + dark[lo + pair]) * pscale[lo + pair]
         var = s2 * q + lam * model.s[:, None]  # Var(R_k)

@@ -109,9 +109,11 @@ def exact_position_posterior(y, times, sigma):
 
 @pytest.mark.parametrize("nframes", [4, 9, 30])
 def test_a_flagged_step_is_weighed_over_its_read(nframes):
-    """A ramp whose one flag is a JUMP holds a step: its slope and error are the posterior
-    over the read the step is at (amplitude free), not the two segments at the flagged
-    read; equal to the dense models' to 1e-6 of the line's sigma.  The flags and counts
+    """A ramp whose one flag is a JUMP holds a step: its slope is the posterior mean over
+    the read the step is at (amplitude free), not the two segments at the flagged read,
+    and its error the root mean square distance of that slope from the posterior without
+    the flag ("no jump" and steps of the amplitude prior: the data decided the flag);
+    both equal to the dense models' to 1e-6 of the line's sigma.  The flags and counts
     say it was fitted around a jump."""
     rng = np.random.default_rng(nframes + 1)
     ncols = 6
@@ -123,17 +125,45 @@ def test_a_flagged_step_is_weighed_over_its_read(nframes):
     flags = np.zeros(y.shape, np.uint32)
     flags[at, 0, np.arange(ncols)] = dq.JUMP
     e = Exposure.from_arrays(y, schedule(nframes, 1, ncols), mask=flags)
-    out = fit_ramp(e, read_noise=RN, gain=1e12, jump_prior=0.01)
+    prior = 0.01
+    out = fit_ramp(e, read_noise=RN, gain=1e12, jump_prior=prior)
     segments = fit_ramp(e, read_noise=RN, gain=1e12)
     sig0 = RN / np.sqrt(np.sum((times - times.mean()) ** 2))
     for j in range(ncols):
-        mean, sd = exact_position_posterior(y[:, 0, j], times, RN)
+        mean, _ = exact_position_posterior(y[:, 0, j], times, RN)
+        full_mean, full_sd = exact_posterior(y[:, 0, j], times, RN, prior, AMPLITUDES * RN)
         assert out.data.data[0, j] == pytest.approx(mean, abs=1e-6 * sig0)
-        assert out.data.uncertainty.array[0, j] == pytest.approx(sd, rel=1e-6)
+        assert out.data.uncertainty.array[0, j] == pytest.approx(
+            np.hypot(full_sd, full_mean - mean), rel=1e-6)
     assert np.array_equal(out.dq, segments.dq)
     assert np.array_equal(out.tables["RAMPFIT"]["njumps"], segments.tables["RAMPFIT"]["njumps"])
     # the 2e4 e step leaves no doubt where it is: the two segments' fit
     assert out.data.data[0, -1] == pytest.approx(segments.data.data[0, -1], abs=1e-6 * sig0)
+
+
+def test_clean_ramps_flagged_by_their_noise_get_honest_errors():
+    """2^17 jump-free ramps of 20 reads of 10 e white noise through `detect_jumps` (its 4
+    sigma: ~0.1 % flagged by their noise) then `fit_ramp`: the flagged ones' slopes are
+    those of a step chosen where the noise looked most like one, several of their ERR off
+    (rms of (slope - truth) / ERR 2.5 or more); with ``jump_prior`` their ERR holds "no
+    jump" too, and that rms is within a quarter of 1.  The ramps not flagged keep theirs
+    within 3 % of 1 either way."""
+    nframes, shape, rate = 20, (256, 512), 0.5
+    rng = np.random.default_rng(7)
+    times = np.arange(nframes) * DT
+    y = 1e3 + rate * times[:, None, None] + rng.normal(0, RN, (nframes, *shape))
+    flagged = detect_jumps(Exposure.from_arrays(y.astype(np.float32),
+                                                schedule(nframes, *shape)), read_noise=RN)
+    jumped = (flagged.dq & dq.JUMP).any(axis=0)
+    assert 60 < jumped.sum() < 400
+    rms = {}
+    for prior in (None, 0.01):
+        out = fit_ramp(flagged, read_noise=RN, gain=1e12, jump_prior=prior)
+        pull = (out.data.data - rate) / out.data.uncertainty.array
+        rms[prior] = [np.sqrt(np.mean(pull[sel] ** 2)) for sel in (jumped, ~jumped)]
+    assert rms[None][0] > 2.5
+    assert abs(rms[0.01][0] - 1) < 0.25, rms
+    assert abs(rms[None][1] - 1) < 0.03 and abs(rms[0.01][1] - 1) < 0.03, rms
 
 
 @pytest.mark.parametrize("nframes", [4, 5])

@@ -1,7 +1,8 @@
 """``characterize`` on darks of our simulator: every term against the injected truth.
 
 Run: ``python benchmarks/bench_characterize.py [--case paper|sidecar] [--pulls] [--size 2048]
-[--nframes 74] [--darks 4] [--seeds 20] [--phantom-reads 4] [--scale 1] [--frame-time T]``.
+[--nframes 74] [--darks 4] [--seeds 20] [--first-seed 0] [--phantom-reads 4] [--scale 1]
+[--frame-time T]``.
 
 ``--case sidecar`` is a JWST-like SIDECAR detector instead of the paper's: 4 outputs
 (``--size``/4 columns each), no phantom reads, white noise of 10 e per read,
@@ -135,6 +136,9 @@ def main():
     p.add_argument("--nframes", type=int, default=74)
     p.add_argument("--darks", type=int, default=4)
     p.add_argument("--seeds", type=int, default=20)
+    p.add_argument("--first-seed", type=int, default=0,
+                   help="the seeds are first-seed, first-seed + 1, ...: another set of seeds "
+                   "tells a bias from chance")
     p.add_argument("--phantom-reads", type=int, default=4)
     p.add_argument("--scale", type=float, default=1.0)
     p.add_argument("--case", choices=("paper", "sidecar"), default="paper")
@@ -153,7 +157,7 @@ def main():
     if args.frame_time is not None:
         sc["readout"]["frame_time"] = args.frame_time
     pulls, first, timing = {}, None, None
-    for seed in range(args.seeds):
+    for seed in range(args.first_seed, args.first_seed + args.seeds):
         t_sim = [0.0]
         if args.case == "sidecar":
             sc["scene"]["population_seed"] = seed  # one detector per seed, read --darks times
@@ -197,7 +201,7 @@ def main():
             f"SIDECAR-like (1/f x {args.scale:g}), ACN, 2 % telegraph pixels")
     print(f"\n{platform.node()}: {args.size}², {sc['geometry']['nchannels']} channels, N = "
           f"{args.nframes}, c = {args.phantom_reads}, {args.darks} darks per seed, "
-          f"{args.seeds} seeds, {what}\n")
+          f"{args.seeds} seeds from {args.first_seed}, {what}\n")
     if args.pulls:
         print("| parameter | seeds | mean pull | sd of pulls | fraction beyond 3 |")
         print("|---|---|---|---|---|")
@@ -208,7 +212,9 @@ def main():
                   f"{np.mean(np.abs(x) > 3):.2f} |")
     else:
         truth_first = with_acn(want) if "acn" in first.components else want
-        print("| term | truth | fitted (seed 0) | error | pull (seed 0) | pulls: mean ± sd |")
+        first_seed = f"seed {args.first_seed}"
+        print(f"| term | truth | fitted ({first_seed}) | error | pull ({first_seed}) | "
+              "pulls: mean ± sd |")
         print("|---|---|---|---|---|---|")
         for (name, term), x in pulls.items():
             if name == "pixels":
@@ -220,10 +226,10 @@ def main():
             print(f"| {name}.{term} | {truth_first[name][i]:.3g} | {est.values[i]:.3g} | "
                   f"{est.errors[i]:.2g} | {x[0]:+.2f} | {x.mean():+.2f} ± {sd} |")
     t_sim, t_char, peak = timing
-    print(f"\ntime (seed 0): simulate {args.darks} darks {t_sim:.1f} s; characterize "
-          f"{t_char:.1f} s ({t_char / args.darks:.1f} s per dark, simulation excluded); peak "
-          f"memory of the process {peak:.2f} GiB (the darks are simulated and read one at a "
-          "time)")
+    print(f"\ntime (seed {args.first_seed}): simulate {args.darks} darks {t_sim:.1f} s; "
+          f"characterize {t_char:.1f} s ({t_char / args.darks:.1f} s per dark, simulation "
+          f"excluded); peak memory of the process {peak:.2f} GiB (the darks are simulated and "
+          "read one at a time)")
 
 
 if __name__ == "__main__":

@@ -730,10 +730,11 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
     # that switches at every third difference) and handed 3 % of a clear telegraph
     # population to the faint one
     typical = float(np.median(noise[good])) if good.any() else np.inf
+    clearance = (acc["jump_sigma"] + CLEAR_SIGMA) * np.sqrt(2.0) * np.minimum(
+        noise, SCALE_CAP * typical)
     with np.errstate(invalid="ignore"):
-        clear = (acc["jsize"] / np.maximum(acc["jumps"], 1)
-                 >= (acc["jump_sigma"] + CLEAR_SIGMA) * np.sqrt(2.0)
-                 * np.minimum(noise, SCALE_CAP * typical))
+        clear = acc["jsize"] / np.maximum(acc["jumps"], 1) >= clearance
+    steps = _cross_cleared(acc, telegraph, clearance)
     telegraph &= clear
     amplitude = np.where(telegraph, acc["jsize"] / np.maximum(acc["jumps"], 1),
                          np.nan).astype(f32)
@@ -817,7 +818,7 @@ def _summarise(acc, ref, gid, k, unit, g, t, n, ndarks, hot_threshold, hot_sigma
     for pixels, sel in zip(_POPULATIONS, (active, ref), strict=True):
         reason = _telegraph_reason(sel, pixels, des["m"], regular)
         _telegraph(add, refuse, pixels, sel, telegraph, amplitude, pix_rate, acc, m_total, dt,
-                   gid, k, unit, reason, limit, noise)
+                   gid, k, unit, reason, limit, noise, steps)
     # a pixel that jumped once in all the darks, clear of the threshold, is a cosmic ray or
     # a telegraph of the found population that flipped once (counted there)
     if acc.get("lags") is None:
@@ -882,8 +883,29 @@ def _telegraph_reason(sel, pixels, m, regular):
     return "" if regular else "read times not evenly spaced: no rate"
 
 
+def _cross_cleared(acc, candidate, clearance):
+    """The jumps that measure a telegraph population's step: per pixel, the sizes and the
+    number of the jumps of each half of the intervals (``jumps_a``: the first half of each
+    dark's) where the other half's mean jump is ``clearance`` or more, on the ``candidate``
+    pixels (alternating, 2 jumps or more).
+
+    A pixel found jump by jump must have its mean jump clear of the threshold, but the
+    mean over the pixels that cleared it is a mean over those whose jumps measured high
+    (+3 e on 120 e steps where one pixel in ten fails by noise alone): the half that
+    decides is not the half that is measured, so the sizes are not selected on their own
+    noise (the two halves share one read per dark at most).
+    """
+    n_a, s_a = acc["jumps_a"], acc["jsize_a"]
+    n_b, s_b = acc["jumps"] - n_a, acc["jsize"] - s_a
+    with np.errstate(invalid="ignore"):
+        clear_a = candidate & (n_a > 0) & (s_a >= clearance * n_a)
+        clear_b = candidate & (n_b > 0) & (s_b >= clearance * n_b)
+    return (np.where(clear_b, s_a, 0.0) + np.where(clear_a, s_b, 0.0),
+            np.where(clear_b, n_a, 0.0) + np.where(clear_a, n_b, 0.0))
+
+
 def _telegraph(add, refuse, pixels, sel, telegraph, amplitude, pix_rate, acc, m_total, dt,
-               gid, k, unit, reason, limit, noise):
+               gid, k, unit, reason, limit, noise, steps):
     names = ("telegraph_fraction", "telegraph_amplitude", "telegraph_amplitude_spread",
              "telegraph_rate", "telegraph_rate_spread")
     units = ("", unit, unit, u.Hz, u.Hz)
@@ -916,12 +938,22 @@ def _telegraph(add, refuse, pixels, sel, telegraph, amplitude, pix_rate, acc, m_
     value, err = _jackknife(fraction, columns, sel, gid, k)
     add(names[0], pixels, value, err, "", "fitted",
         f"{nfound} found, corrected for those that flipped < 2 times; {limit_note}")
-    value, err = _jackknife(_ratio, (acc["jsize"], counts), found, gid, k)
+    sizes, used = steps
+    measured = sel & (used > 0)
+    how = ("mean size of the telegraph pixels' jumps, each half of a pixel's intervals where "
+           "the other half's mean jump clears the threshold")
+    value, err = (_jackknife(_ratio, (sizes, used), measured, gid, k) if measured.any()
+                  else (np.nan, np.nan))
+    if not np.isfinite(err):  # too few pixels with jumps in both halves for an error
+        sizes, used, measured = acc["jsize"], counts, found
+        how = ("mean size of the jumps of the telegraph pixels found (too few with jumps in "
+               "both halves of their intervals: a little high, selected on their sizes)")
+        value, err = _jackknife(_ratio, (sizes, used), measured, gid, k)
     # each jump is measured with the noise of a difference: a floor under a jackknife of a few
     # groups holding telegraph pixels (itself uncertain)
-    floor = np.sqrt(np.sum(2 * noise[found] ** 2 * counts[found])) / counts[found].sum()
-    add(names[1], pixels, value, max(err, floor), unit, note="mean size of the jumps of the "
-        "telegraph pixels (error: the jackknife's, at least the jumps' own noise)")
+    floor = np.sqrt(np.sum(2 * noise[measured] ** 2 * used[measured])) / used[measured].sum()
+    add(names[1], pixels, value, max(err, floor), unit,
+        note=f"{how} (error: the jackknife's, at least the jumps' own noise)")
     step_noise = np.sqrt(2) * noise / np.sqrt(np.maximum(counts, 1))
     _add_spread(add, names[2], pixels, _spread(amplitude, step_noise, found, gid, k), unit)
     if reason:

@@ -99,7 +99,8 @@ def step_posterior(model, y, sigma2, prior, *, pscale=0.0, dark=0.0, jumped=None
         ``(m,)``: posterior mean slope less the line's (data unit / s).
     extra : `numpy.ndarray`
         ``(m,)``: posterior variance less the line's ((data unit / s)**2), >= 0 (of a
-        ``jumped`` ramp: its mean squared error about the shift).
+        ``jumped`` ramp: the mean squared distance of the posterior without the flag
+        from the shift, less the line's variance).
     p_step : `numpy.ndarray`
         ``(m,)``: posterior probability that the ramp holds a step.
 

@@ -184,7 +184,9 @@ def _band(x, t, des, jump_sigma, skip_first, gain=1.0, lags=None, labels=None):
     # do not cancel over the dark (a telegraph ending it in the other state, a cosmic ray)
     # move the mean rate by their net size over the intervals, which made one sign of jump
     # smaller, raised the scale, and missed 4 % of the flips of 125 e steps in 10 e noise
-    # (the pixels whose flips measured high kept: their step 1.4 e high)
+    # (the pixels whose flips measured high kept: their step 1.4 e high); a pixel that flips
+    # at more than half of a dark's intervals has its median near a flip instead (228 of
+    # 83 275 telegraph pixels not found on a full-size SIDECAR dark, 197 about the mean)
     robust = d.shape[0] >= MIN_TELEGRAPH_INTERVALS
     a = np.abs(d - _median_of_reads(d / dt) * dt) if robust else np.abs(e)
     scale = MAD_TO_SIGMA * _median_of_reads(a)

@@ -891,7 +891,7 @@ def _cross_cleared(acc, candidate, clearance):
 
     A pixel found jump by jump must have its mean jump clear of the threshold, but the
     mean over the pixels that cleared it is a mean over those whose jumps measured high
-    (+3 e on 120 e steps where one pixel in ten fails by noise alone): the half that
+    (+2.6 e, 20 of its errors, on 125 e steps in 10 e noise): the half that
     decides is not the half that is measured, so the sizes are not selected on their own
     noise (the two halves share one read per dark at most).
     """

@@ -146,7 +146,13 @@ def _classes(g, acn, boxes, nch):
     common_p = t.get("phantom_common", zero) if nch > 1 else zero
     common_x = t.get("both_common", zero) if nch > 1 else zero
     chan_x = (t["both"] - common_x) / k_x
-    chan_p = t["phantom"] - common_p
+    if acn and "phantom_acn" in t:
+        # the phantom values' fit with each parity's own average (`_parity_basis`): its
+        # correlated terms are a parity stream's, plus the common part over k_p
+        chan_p = t["phantom_acn"] - common_p * np.where(corr > 0, 1 / k_p, 1.0)
+        k_p = 1.0
+    else:
+        chan_p = t["phantom"] - common_p
     out["channel"] = np.where(corr > 0, chan_s / k_s - chan_x, chan_s)
     out["channel_both"] = chan_x * corr
     out["channel_phantom"] = np.where(corr > 0, chan_p / k_p - chan_x, chan_p)

@@ -107,7 +107,7 @@ class Characterization:
                    float(exponent.errors[0]) if exponent_fitted else None,
                    got["components"], got["spectra"], got["spreads"], got["acn"],
                    got["acn_on"], [])
-        self.bins = {k: v.bins for k, v in full.items() if k != "channels"}
+        self.bins = {k: v.bins for k, v in full.items() if k not in ("channels", "phantom_acn")}
         self.gain = gain
         self.marks = self._marks(boxes)
         if segmented:

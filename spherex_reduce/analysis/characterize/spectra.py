@@ -219,9 +219,11 @@ def fit_spectra(sp, boxes, schedule, exponent, nbins=30, shot=0.0):
     Returns
     -------
     dict
-        ``{name: NoiseModelFit}`` for the spectra of `SPECTRA` that ``sp`` holds,
-        and ``{"channels": {view: [NoiseModelFit or None per channel]}}`` for
-        ``pixels``, ``phantom`` and ``reference``.
+        ``{name: NoiseModelFit}`` for the spectra of `SPECTRA` that ``sp`` holds
+        (and ``phantom_acn``: the phantom spectrum fitted with its parities' own
+        averages, `_parity_basis`, which the model takes where ACN is found), and
+        ``{"channels": {view: [NoiseModelFit or None per channel]}}`` for ``pixels``,
+        ``phantom`` and ``reference``.
 
     Examples
     --------
@@ -232,7 +234,8 @@ def fit_spectra(sp, boxes, schedule, exponent, nbins=30, shot=0.0):
     >>> st = channel_streams(e)
     >>> fits = fit_spectra(dark_spectra(st, e.schedule), st.boxes, e.schedule, 1.3)
     >>> sorted(k for k in fits if k != "channels")
-    ['acn', 'both', 'both_common', 'phantom', 'phantom_common', 'pixels', 'pixels_common']
+    ['acn', 'both', 'both_common', 'phantom', 'phantom_acn', 'phantom_common', 'pixels',
+     'pixels_common']
     """
     g = schedule.geometry
     fs, m = g.pixel_rate, schedule.row_samples
@@ -274,6 +277,9 @@ def fit_spectra(sp, boxes, schedule, exponent, nbins=30, shot=0.0):
     if "phantom" in sp and np.any(np.asarray(sp["phantom"]["psd"]) > 0):  # not constant
         b_ph = basis(boxes["phantom"])
         out["phantom"] = fit_noise_model(sp["phantom"], basis=b_ph, **fit)
+        if 0 < boxes["phantom"].even < boxes["phantom"].n:  # taken where ACN is found
+            out["phantom_acn"] = fit_noise_model(
+                sp["phantom"], basis=_parity_basis(boxes["phantom"], fs, m), **fit)
         p_w = _expected(out["phantom"], b_ph, sp["phantom"])
         per["phantom"] = [fit_noise_model(sp[f"phantom[{c}]"], basis=b_ph, **fit)
                           for c in range(nch)]
@@ -297,6 +303,37 @@ def fit_spectra(sp, boxes, schedule, exponent, nbins=30, shot=0.0):
                                            **_burst_terms(sp["rows"]))
     out["channels"] = per
     return out
+
+
+def _parity_basis(box, fs, m):
+    """The terms of an average ``box`` (stride 1) whose correlated noise is alternating
+    column noise: its even and its odd samples see streams of their own, so the
+    correlated terms are those of two averages of every other sample, ``(e/n)**2`` and
+    ``(o/n)**2`` of them (`~spherex_reduce.analysis.characterize.streams.Box.acn_factor`
+    at low frequencies).  An average of every other sample passes the pixel rate's
+    Nyquist frequency whole where the whole box nulls it, and the phantom reads' white
+    level (Video8's, 3.71e-5 e²/Hz) sits near the 1/f of 8.4e-3 e² aliased from there:
+    fitted with the whole box's terms it came back ~0.5 % high from ACN phantom values
+    (one pull of `characterize`'s error at full size).
+
+    Examples
+    --------
+    At low frequencies the correlated terms are half the whole box's (2 even, 2 odd):
+
+    >>> from spherex_reduce.analysis.characterize.streams import Box
+    >>> from spherex_reduce.analysis.temporal import aliased_basis
+    >>> t = _parity_basis(Box(4, 1, 1.5, even=2), 1e5, 72)([1.0], 1.3)
+    >>> w = aliased_basis([1.0], 1e5, 72, 4, 1.3)
+    >>> [round(float(x), 3) for x in (t / w)[0]]
+    [1.0, 0.5, 0.5]
+    """
+    parts = [(k, k / box.n) for k in (box.even, box.n - box.even) if k]
+
+    def terms(f, e):
+        whole = aliased_basis(f, fs, m, box.n, e, box.stride)
+        split = sum(w * w * aliased_basis(f, fs, m, k, e, 2 * box.stride) for k, w in parts)
+        return np.concatenate([box.white * whole[:, :1], split[:, 1:]], axis=1)
+    return terms
 
 
 def _cross_basis(boxes, fs, m):

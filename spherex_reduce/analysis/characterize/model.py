@@ -147,10 +147,9 @@ def _classes(g, acn, boxes, nch):
     common_x = t.get("both_common", zero) if nch > 1 else zero
     chan_x = (t["both"] - common_x) / k_x
     if acn and "phantom_acn" in t:
-        # the phantom values' fit with each parity's own average (`_parity_basis`): its
-        # correlated terms are a parity stream's, plus the common part over k_p
-        chan_p = t["phantom_acn"] - common_p * np.where(corr > 0, 1 / k_p, 1.0)
-        k_p = 1.0
+        # each channel's own part of the phantom values fitted with each parity's own
+        # average (`_parity_basis`): its correlated terms are a parity stream's
+        chan_p, k_p = t["phantom_acn"], 1.0
     else:
         chan_p = t["phantom"] - common_p
     out["channel"] = np.where(corr > 0, chan_s / k_s - chan_x, chan_s)
@@ -319,7 +318,9 @@ def combine(full, jack, boxes, nch):
     whole = _classes(full, found, boxes, nch)
     parts = [_classes(j, found, boxes, nch) for j in jack]
     components = {n: Estimate.of(whole[n], [p[n] for p in parts]) for n in whole}
-    names = [k for k in full if k != "channels" and full[k] is not None]
+    # (``phantom_acn``, a channel's own part of the phantom spectrum, is not a spectrum of
+    # the report: the components hold it)
+    names = [k for k in full if k not in ("channels", "phantom_acn") and full[k] is not None]
     spectra = {k: Estimate.of(_theta(full[k]), [_theta(j[k]) for j in jack]) for k in names}
     spreads = {view: _spread(full, jack, view) for view in full["channels"]}
     return {"components": components, "spectra": spectra, "acn": acn, "spreads": spreads,

@@ -220,8 +220,9 @@ def fit_spectra(sp, boxes, schedule, exponent, nbins=30, shot=0.0):
     -------
     dict
         ``{name: NoiseModelFit}`` for the spectra of `SPECTRA` that ``sp`` holds
-        (and ``phantom_acn``: the phantom spectrum fitted with its parities' own
-        averages, `_parity_basis`, which the model takes where ACN is found), and
+        (and ``phantom_acn``: each channel's own part of the phantom spectrum, less
+        the common part's model, fitted with its parities' own averages,
+        `_parity_basis`, which the model takes where ACN is found), and
         ``{"channels": {view: [NoiseModelFit or None per channel]}}`` for ``pixels``,
         ``phantom`` and ``reference``.
 
@@ -277,9 +278,6 @@ def fit_spectra(sp, boxes, schedule, exponent, nbins=30, shot=0.0):
     if "phantom" in sp and np.any(np.asarray(sp["phantom"]["psd"]) > 0):  # not constant
         b_ph = basis(boxes["phantom"])
         out["phantom"] = fit_noise_model(sp["phantom"], basis=b_ph, **fit)
-        if 0 < boxes["phantom"].even < boxes["phantom"].n:  # taken where ACN is found
-            out["phantom_acn"] = fit_noise_model(
-                sp["phantom"], basis=_parity_basis(boxes["phantom"], fs, m), **fit)
         p_w = _expected(out["phantom"], b_ph, sp["phantom"])
         per["phantom"] = [fit_noise_model(sp[f"phantom[{c}]"], basis=b_ph, **fit)
                           for c in range(nch)]
@@ -295,6 +293,18 @@ def fit_spectra(sp, boxes, schedule, exponent, nbins=30, shot=0.0):
             both_mean = _cross(sp, "sum_mean", "phantom_mean", "sum+phantom_mean")
             out["both_common"] = fit_noise_model(
                 _with(sp["sum"], _pairs(both_mean, both, nch), w_x), basis=b_x, **cross_fit)
+        if 0 < boxes["phantom"].even < boxes["phantom"].n:  # taken where ACN is found
+            # each channel's own part (the phantom spectrum less the common part's model,
+            # which is not ACN: the whole box's shape) with its parities' averages
+            own = np.asarray(sp["phantom"]["psd"])
+            if "phantom_common" in out:
+                common = out["phantom_common"]
+                own = own - welch_terms(b_ph, np.asarray(sp["phantom"]["frequency"].value),
+                                        common.exponent, sp["phantom"].meta) @ np.array(
+                    [common.values[p] for p in ("alpha", "beta", "gamma")])
+            out["phantom_acn"] = fit_noise_model(
+                _with(sp["phantom"], own, p_w),
+                basis=_parity_basis(boxes["phantom"], fs, m), **fit)
     ref = _reference(sp, boxes, nch, fs, m, fit)
     if ref:
         per["reference"] = ref

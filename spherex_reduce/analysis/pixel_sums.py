@@ -179,25 +179,36 @@ def _band(x, t, des, jump_sigma, skip_first, gain=1.0, lags=None, labels=None):
     dt = dt64.astype(f32)[:, None, None]
     mean = (total / dt64.sum()).astype(f32)
     e = d - mean * dt
-    # the jumps are sought about each pixel's median rate where a telegraph is sought (of
-    # fewer differences the median is a poor centre: one of three residuals is 0): jumps that
-    # do not cancel over the dark (a telegraph ending it in the other state, a cosmic ray)
-    # move the mean rate by their net size over the intervals, which made one sign of jump
-    # smaller, raised the scale, and missed 4 % of the flips of 125 e steps in 10 e noise
-    # (the pixels whose flips measured high kept: their step 1.4 e high); a pixel that flips
-    # at more than half of a dark's intervals has its median near a flip instead (228 of
-    # 83 275 telegraph pixels not found on a full-size SIDECAR dark, 197 about the mean)
-    robust = d.shape[0] >= MIN_TELEGRAPH_INTERVALS
-    a = np.abs(d - _median_of_reads(d / dt) * dt) if robust else np.abs(e)
+    a = np.abs(e)
     scale = MAD_TO_SIGMA * _median_of_reads(a)
-    # a pixel's robust scale from a few tens of differences scatters by ~20 %: floored at the
-    # band's typical one, so that a quiet pixel's noise does not pass for jumps; and capped at
-    # that plus the pixel's own shot noise (a quarter over), so that a telegraph pixel's jumps,
-    # a third of a dark of ten differences when it switches fast, do not raise its scale
-    # above them (its rate came out 17 standard errors low from 4 darks of 10 reads)
-    floor = np.median(scale)
     shot = np.maximum(mean, 0) * f32(np.mean(dt64) / gain)  # a difference's, unit^2
-    scale = np.clip(scale, floor, f32(SCALE_CAP) * np.sqrt(floor * floor + shot))
+
+    def clipped(scale):
+        # a pixel's robust scale from a few tens of differences scatters by ~20 %: floored at
+        # the band's typical one, so that a quiet pixel's noise does not pass for jumps; and
+        # capped at that plus the pixel's own shot noise (a quarter over), so that a
+        # telegraph pixel's jumps, a third of a dark of ten differences when it switches
+        # fast, do not raise its scale above them (its rate came out 17 standard errors low
+        # from 4 darks of 10 reads)
+        floor = np.median(scale)
+        return np.clip(scale, floor, f32(SCALE_CAP) * np.sqrt(floor * floor + shot))
+
+    if d.shape[0] >= MIN_TELEGRAPH_INTERVALS:
+        # where a telegraph is sought, its jumps are sought about the pixel's median rate
+        # (of fewer differences the median is a poor centre: one of three residuals is 0):
+        # jumps that do not cancel over the dark (a telegraph ending it in the other state)
+        # move the mean rate by their net size over the intervals, which made one sign of
+        # jump smaller, raised the scale and missed 4 % of the flips of 125 e steps in 10 e
+        # noise (the pixels whose flips measured high kept: their step 1.4 e high).  But a
+        # pixel with jumps at half of its intervals or more about its mean rate keeps that:
+        # its median sits near a flip (a full-size SIDECAR dark lost 142 of 83 275
+        # telegraph pixels so, 27 now)
+        a_med = np.abs(d - _median_of_reads(d / dt) * dt)
+        busy = np.count_nonzero(a > jump_sigma * clipped(scale), axis=0) * 2 >= d.shape[0]
+        a = np.where(busy, a, a_med)
+        scale = np.where(busy, scale, MAD_TO_SIGMA * _median_of_reads(a_med))
+        del a_med
+    scale = clipped(scale)
     kk, ii, jj = np.nonzero(a > jump_sigma * scale)
     del a
     pix = ii * shape[1] + jj

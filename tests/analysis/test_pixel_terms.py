@@ -326,6 +326,22 @@ def test_pixel_sums_fit_again_after_more_darks_is_the_fit_of_them_all():
     same(sums.fit(), fit_pixel_terms(darks, times[:20], reference=ref))
 
 
+def _flipping_darks(seed, step, p, shape=(192, 192), nreads=12, ndarks=4):
+    """``ndarks`` darks of ``nreads`` reads (e) of 10 e white noise in which a fifth of the
+    pixels switch ``step`` e with probability ``p`` per interval, by numpy: the darks, the
+    telegraph pixels and each one's flips after read 0 (read 0 is set aside)."""
+    rng = np.random.default_rng(seed)
+    tel = rng.random(shape) < 0.2
+    darks, flips = [], np.zeros(shape, int)
+    for _ in range(ndarks):
+        switch = (rng.random((nreads - 1, *shape)) < p) & tel
+        state = np.concatenate([np.zeros((1, *shape), int), np.cumsum(switch, axis=0)
+                                % 2]) ^ (rng.random(shape) < 0.5)
+        flips += switch[1:].sum(axis=0)
+        darks.append((step * state + rng.normal(0, 10.0, state.shape)) * u.electron)
+    return darks, tel, flips
+
+
 def test_a_fast_clear_telegraph_is_found_whatever_each_pixels_noise_estimate():
     """4 darks of 12 reads, 10 e white noise, a fifth of the pixels switching 150 e steps
     with a flip probability 0.3 per interval (by numpy): the steps clear the threshold by
@@ -333,17 +349,9 @@ def test_a_fast_clear_telegraph_is_found_whatever_each_pixels_noise_estimate():
     twice or more after read 0 is found jump by jump.  Each pixel's own noise, from the ~28
     differences its jumps leave, scatters; taken in the 'clear' test, its upward scatter
     handed 3.5 % of them to the faint population here (found 96.5 %, the fraction 3.5
-    sigma low; 2 sigma on 512² SIDECAR darks, 7.5 sigma at full size); now 99.4 %."""
-    rng = np.random.default_rng(4)
-    nreads, shape, p = 12, (192, 192), 0.3
-    tel = rng.random(shape) < 0.2
-    darks, flips = [], np.zeros(shape, int)
-    for _ in range(4):
-        switch = (rng.random((nreads - 1, *shape)) < p) & tel
-        state = (rng.random(shape) < 0.5) ^ np.cumsum(switch, axis=0) % 2
-        state = np.concatenate([state[:1] * 0 + (state[0] ^ switch[0]), state])
-        flips += switch[1:].sum(axis=0)  # the intervals after read 0 (read 0 set aside)
-        darks.append((150.0 * state + rng.normal(0, 10.0, state.shape)) * u.electron)
+    sigma low; 2 sigma on 512² SIDECAR darks, 7.5 sigma at full size); now 99 % or more."""
+    nreads = 12
+    darks, tel, flips = _flipping_darks(4, 150.0, 0.3, nreads=nreads)
     res = fit_pixel_terms(darks, np.arange(nreads) * u.s, gain=1.0)
     found = np.asarray(res.maps["telegraph"], bool)
     seen = tel & (flips >= 2)
@@ -363,16 +371,9 @@ def test_the_step_of_telegraph_pixels_near_the_clearance_is_not_biased_by_it():
     jumps measured high: +2.6 e, ~20 errors.  Now each half of a pixel's intervals is
     measured where the other half clears: jumps not selected on their own noise.  The step
     within 3 errors of the truth on 3 seeds."""
-    nreads, shape, p, step = 12, (256, 256), 0.05, 125.0
+    nreads, step = 12, 125.0
     for seed in range(3):
-        rng = np.random.default_rng(seed)
-        tel = rng.random(shape) < 0.2
-        darks = []
-        for _ in range(4):
-            switch = (rng.random((nreads - 1, *shape)) < p) & tel
-            state = np.concatenate([np.zeros((1, *shape), int), np.cumsum(switch, axis=0)
-                                    % 2]) ^ (rng.random(shape) < 0.5)
-            darks.append((step * state + rng.normal(0, 10.0, state.shape)) * u.electron)
+        darks, _, _ = _flipping_darks(seed, step, 0.05, shape=(256, 256), nreads=nreads)
         res = fit_pixel_terms(darks, np.arange(nreads) * u.s, gain=1.0)
         row = res.row("telegraph_amplitude", "active")
         assert abs(row["value"] - step) < 3 * row["error"], (seed, row["value"], row["error"])
@@ -405,16 +406,8 @@ def test_a_telegraph_flipping_at_most_intervals_is_sought_about_its_mean_rate():
     (98.96 % of the pixels that flipped twice or more found, the fraction 1 error low);
     about the mean rate, which such a pixel keeps, 99.8 %, and the fraction and rate
     within 2 errors of the truth."""
-    rng = np.random.default_rng(5)
-    nreads, shape, p = 12, (192, 192), 0.4
-    tel = rng.random(shape) < 0.2
-    darks, flips = [], np.zeros(shape, int)
-    for _ in range(4):
-        switch = (rng.random((nreads - 1, *shape)) < p) & tel
-        state = np.concatenate([np.zeros((1, *shape), int), np.cumsum(switch, axis=0)
-                                % 2]) ^ (rng.random(shape) < 0.5)
-        flips += switch[1:].sum(axis=0)  # the intervals after read 0 (read 0 set aside)
-        darks.append((150.0 * state + rng.normal(0, 10.0, state.shape)) * u.electron)
+    nreads, p = 12, 0.4
+    darks, tel, flips = _flipping_darks(5, 150.0, p, nreads=nreads)
     res = fit_pixel_terms(darks, np.arange(nreads) * u.s, gain=1.0)
     found = np.asarray(res.maps["telegraph"], bool)
     seen = tel & (flips >= 2)

@@ -201,7 +201,7 @@ def _band(x, t, des, jump_sigma, skip_first, gain=1.0, lags=None, labels=None):
         # jump smaller, raised the scale and missed 4 % of the flips of 125 e steps in 10 e
         # noise (the pixels whose flips measured high kept: their step 1.4 e high).  But a
         # pixel with jumps at half of its intervals or more about its mean rate keeps that:
-        # its median sits near a flip (a full-size SIDECAR dark lost 142 of 83 275
+        # its median sits near a flip (4 full-size SIDECAR darks lost 142 of 83 275
         # telegraph pixels so, 27 now)
         a_med = np.abs(d - _median_of_reads(d / dt) * dt)
         busy = np.count_nonzero(a > jump_sigma * clipped(scale), axis=0) * 2 >= d.shape[0]

@@ -1,6 +1,7 @@
 """A pipeline: steps and parameters in the order a YAML file lists them."""
 
 import copy
+import functools
 import hashlib
 import json
 import os
@@ -143,11 +144,13 @@ class Pipeline:
         """The effective configuration as YAML text."""
         return yaml.safe_dump(self.config, sort_keys=False)
 
-    @property
+    @functools.cached_property
     def config_hash(self):
         """SHA-256 (first 16 hex digits) of the effective configuration, less the parameters
         added after outputs were made while they are at their defaults (``quiet_default``:
-        the hash stays the one those outputs carry, so a batch still recognises them)."""
+        the hash stays the one those outputs carry, so a batch still recognises them).
+        Computed once: the configuration does not change after the pipeline is made (a
+        batch asks for it per file)."""
         config = copy.deepcopy(self._config)
         for item in config["steps"]:
             (name, params), = item.items()

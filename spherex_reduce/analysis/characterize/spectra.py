@@ -155,12 +155,18 @@ def pool(spectra):
     return out
 
 
-def _expected(result, basis, spec):
-    """The spectrum a fit expects at ``spec``'s frequencies (floored above zero), as
-    Welch's estimate sees it: the weights of the spectra derived from the one it fits."""
+def _model_psd(result, basis, spec):
+    """The spectrum a fit's model gives at ``spec``'s frequencies, as Welch's estimate
+    sees it (the window's smoothing)."""
     f = np.asarray(spec["frequency"].value)
     theta = np.array([result.values[p] for p in ("alpha", "beta", "gamma")])
-    model = welch_terms(basis, f, result.exponent, spec.meta) @ theta
+    return welch_terms(basis, f, result.exponent, spec.meta) @ theta
+
+
+def _expected(result, basis, spec):
+    """`_model_psd` floored above zero: the weights of the spectra derived from the one it
+    fits."""
+    model = _model_psd(result, basis, spec)
     return np.maximum(model, np.max(np.abs(model)) * 1e-6)
 
 
@@ -298,10 +304,7 @@ def fit_spectra(sp, boxes, schedule, exponent, nbins=30, shot=0.0):
             # which is not ACN: the whole box's shape) with its parities' averages
             own = np.asarray(sp["phantom"]["psd"])
             if "phantom_common" in out:
-                common = out["phantom_common"]
-                own = own - welch_terms(b_ph, np.asarray(sp["phantom"]["frequency"].value),
-                                        common.exponent, sp["phantom"].meta) @ np.array(
-                    [common.values[p] for p in ("alpha", "beta", "gamma")])
+                own = own - _model_psd(out["phantom_common"], b_ph, sp["phantom"])
             out["phantom_acn"] = fit_noise_model(
                 _with(sp["phantom"], own, p_w),
                 basis=_parity_basis(boxes["phantom"], fs, m), **fit)

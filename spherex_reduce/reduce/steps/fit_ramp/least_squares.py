@@ -397,7 +397,7 @@ class LeastSquares:
                 "fit_ramp.jump_prior needs reads of equal weight (single reads or equal "
                 f"groups); these groups average {1 / factors.max():g} to "
                 f"{1 / factors.min():g} frames: leave jump_prior out")
-        self.steps = StepModel(t, self.noise.read_factors, self.noise.shot) if weigh else None
+        self.steps = StepModel(t, factors, self.noise.shot) if weigh else None
 
     def work_type(self, dtype):
         """The type sums are formed in for pixels of ``dtype``: float64 or float32."""

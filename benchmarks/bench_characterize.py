@@ -2,7 +2,7 @@
 
 Run: ``python benchmarks/bench_characterize.py [--case paper|sidecar] [--pulls] [--size 2048]
 [--nframes 74] [--darks 4] [--seeds 20] [--first-seed 0] [--phantom-reads 4] [--scale 1]
-[--frame-time T]``.
+[--frame-time T] [--realised]``.
 
 ``--case sidecar`` is a JWST-like SIDECAR detector instead of the paper's: 4 outputs
 (``--size``/4 columns each), no phantom reads, white noise of 10 e per read,
@@ -12,7 +12,11 @@ correlated (common) and uncorrelated (per output) 1/f noise, ACN, a dark current
 terms (telegraph fraction, step and rate, dark current) are compared too.
 ``--pulls`` prints, per parameter, the number of seeds, the mean and the standard
 deviation of the pulls (fit − truth)/error and the fraction beyond 3, instead of the
-table of the first seed.
+table of the first seed.  ``--realised`` (SIDECAR case) simulates each seed's darks again
+with the telegraph pixels alone (same seeds: the same flips, no other noise) and adds two
+rows: the pull of the rate the population's flips realised against the injected one (what
+any fit of those darks sees), and the fit's pull against the realised rate (what the fit
+adds); both in the fit's error.
 
 The paper's readout (S = 24, r = 32 distributed, ``--phantom-reads`` c, N =
 ``--nframes``; ``--size`` rows and columns, 64 columns per channel) with every
@@ -34,6 +38,7 @@ each, and those terms' pulls were -4.3 and +2.3; ``benchmarks/README.md``).
 """
 
 import argparse
+import copy
 import platform
 import resource
 import time
@@ -41,6 +46,7 @@ import time
 import numpy as np
 
 from spherex_reduce.analysis.characterize import characterize
+from spherex_reduce.analysis.pixel_terms import dark_ramps
 from spherex_reduce.simulation import simulate
 
 TABLE2 = {"video8": (3.71e-5, 8.4e-3, 0.0, "channel", "both"),
@@ -101,6 +107,30 @@ def with_acn(want):
     return {**want, "channel": want["channel"] * (1 - corr), "acn": want["channel"] * corr}
 
 
+def realised_rate(sc, seed, darks):
+    """The telegraph rate (Hz) the population of ``sc`` realised in the darks of ``seed``:
+    each dark simulated again with the telegraph pixels alone (the same random streams: the
+    same flips), the flips counted over the intervals ``characterize`` measures (read 0 is
+    kept aside), the rate from their fraction as ``pixel_terms`` takes it from the flip
+    probability (the population: the pixels that flipped at least once)."""
+    alone = copy.deepcopy(sc)
+    alone["noise"] = {"components": [{"name": "none", "alpha": 0.0}]}
+    alone["scene"]["dark_current"] = 0.0
+    flips, intervals, population, dt = 0, 0, False, None
+    for k in range(darks):
+        ramps, times, _ = dark_ramps(simulate(alone, seed=1000 * seed + k))
+        step = np.diff(ramps.value[1:], axis=0)
+        flipped = np.abs(step) > 0.5 * SIDECAR_PIXELS["telegraph_amplitude"]
+        count = flipped.sum(axis=0)
+        population = population | (count > 0)
+        flips = flips + count
+        intervals += flipped.shape[0]
+        dt = float(np.median(np.diff(times.to_value("s"))))
+        del ramps, step, flipped
+    p = flips[population].sum() / (population.sum() * intervals)
+    return -np.log1p(-2 * p) / (2 * dt)
+
+
 def sidecar_scene(args):
     p = SIDECAR_PIXELS
     comps = [{"name": "outputs", "alpha": SIDECAR["white"],
@@ -145,6 +175,9 @@ def main():
     p.add_argument("--frame-time", type=float, default=None,
                    help="frame time (s; default the readout's own: 10.6 s at 2048² for the "
                    "SIDECAR case, whose telegraph switches at 0.05 Hz)")
+    p.add_argument("--realised", action="store_true",
+                   help="SIDECAR case: the telegraph rate's pulls against the rate its flips "
+                   "realised too (the darks simulated again with the telegraph alone)")
     p.add_argument("--pulls", action="store_true",
                    help="print per parameter the mean and sd of the pulls over the seeds")
     args = p.parse_args()
@@ -189,6 +222,12 @@ def main():
                 if row["status"] == "fitted" and row["error"] > 0:
                     pulls.setdefault(("pixels", term), []).append(
                         (row["value"] - value) / row["error"])
+                    if term == "telegraph_rate" and args.realised:
+                        real = realised_rate(sc, seed, args.darks)
+                        pulls.setdefault(("pixels", "telegraph_rate, realised"), []).append(
+                            (real - value) / row["error"])
+                        pulls.setdefault(("pixels", "telegraph_rate − realised"), []).append(
+                            (row["value"] - real) / row["error"])
             total = telegraph_power(model.pixel_terms)
             if total is not None:
                 truth_p = SIDECAR_PIXELS["telegraph_fraction"] * SIDECAR_PIXELS[

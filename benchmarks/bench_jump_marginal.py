@@ -23,12 +23,19 @@ Estimators of the slope and its error:
 * *flagged jump, marginal over k*: as *detect* where it flags, but the flagged
   ramps take the posterior over the jump's read (no "no jump"), the others the
   marginal one.
+* *detect, bulk's slope*: as *detect*, but the search tests a step against the line whose
+  slope is the bulk's (the median of every ramp's slope, with the spread of the true
+  rates about it: none here, as on a flat dark), so a step at mid-ramp is no longer
+  nearly degenerate with a change of slope; the flagged ramps' slope is still the
+  two-segment fit with the slope free (the bulk informs the search, never a slope).
+  At 4σ, and at the threshold whose false alarms on the clean ramps are *detect*'s.
 
 Columns: clean rms of (slope - truth) / sigma0; pull rms (slope - truth) / error on
 clean ramps, and on the clean ramps *detect* flags; wrong (> 5 sigma0) and > 5
 errors among *hit*; mean error of *mid* (sigma0) and its > 5 errors.
 
-Run: ``python benchmarks/bench_jump_marginal.py [--clean 300000] [--seed 2]`` (about a
+Run: ``python benchmarks/bench_jump_marginal.py [--clean 300000] [--seed 2]
+[--rate-spread S]`` (about a
 minute; the ramps are weighed in parts of `CHUNK`, ~0.5 GB at the peak).
 """
 
@@ -37,6 +44,9 @@ import argparse
 import numpy as np
 
 N, DT, RN, THRESHOLD = 74, 1.5, 10.0, 4.0
+#: a ramp whose slope less its best step is this many sigmas off the bulk's is searched
+#: with its slope free
+OWN_SIGMA = 4.0
 TAUS = np.array([10, 30, 100, 300, 1000, 3000, 10000.0])
 CHUNK = 10000  #: ramps whose models are weighed at once (~0.3 GB of float64 arrays)
 
@@ -53,7 +63,21 @@ def design():
     return tc, mh, (mh * h).sum(1), (h @ tc) / (tc @ tc)
 
 
-def estimates(y, p, tc, mh, q, c, mode):
+def bulk_search(y, tc, slope, tau):
+    """``z_k`` of a step at every read k (m, N - 1) against a line of free intercept whose
+    slope has the prior N(``slope``, ``tau``**2) (the bulk's median and the spread of its
+    true rates): generalised least squares with the noise RN**2 I + tau**2 tc tc'."""
+    yk = y - slope * tc[None, :]
+    r = tau ** 2 / RN ** 2
+    cinv = (np.eye(N) - np.outer(tc, tc) * r / (1 + r * (tc @ tc))) / RN ** 2
+    one = cinv.sum(0)
+    m1 = cinv - np.outer(one, one) / one.sum()  # the intercept's GLS residual maker
+    h = (np.arange(N)[None, :] >= np.arange(1, N)[:, None]).astype(float)
+    g = h @ m1
+    return (yk @ g.T) / np.sqrt((g * h).sum(1))
+
+
+def estimates(y, p, tc, mh, q, c, mode, bulk=None, threshold=THRESHOLD):
     """(slope, error, flagged) of ramps ``y`` (m, N) for ``mode`` in detect / marginal /
     flagged."""
     s = tc @ tc
@@ -63,12 +87,22 @@ def estimates(y, p, tc, mh, q, c, mode):
     v = RN ** 2 / q
     z2 = amp ** 2 / v
     m = y.shape[0]
-    flagged = z2.max(1) >= THRESHOLD ** 2
-    kk = np.argmax(z2, 1)
+    if mode == "bulk":  # the search against the bulk's slope
+        slope, tau = bulk
+        zb = bulk_search(y, tc, slope, tau) ** 2
+        # a ramp whose slope, its best step taken out, is off the bulk (a hot pixel, a
+        # source) keeps the search with its slope free
+        kf = np.argmax(z2, 1)
+        own = (np.abs(b0 - c[kf] * amp[np.arange(m), kf] - slope)
+               > OWN_SIGMA * np.sqrt(sig0 ** 2 + c[kf] ** 2 * v[kf] + tau ** 2))
+        zb[own] = z2[own]
+        flagged, kk = zb.max(1) >= threshold ** 2, np.argmax(zb, 1)
+    else:
+        flagged, kk = z2.max(1) >= THRESHOLD ** 2, np.argmax(z2, 1)
     rows = np.arange(m)
     seg = b0 - c[kk] * amp[rows, kk]
     seg_err = np.sqrt(sig0 ** 2 + c[kk] ** 2 * v[kk])
-    if mode == "detect":
+    if mode in ("detect", "bulk"):
         return np.where(flagged, seg, b0), np.where(flagged, seg_err, sig0), flagged
     lw, bs, vs = [np.full((m, 1), np.log1p(-p))], [b0[:, None]], [np.full((m, 1), sig0 ** 2)]
     for tau in TAUS:
@@ -99,6 +133,9 @@ def main(argv=None):
     ap.add_argument("--clean", type=int, default=300000)
     ap.add_argument("--hit", type=int, default=30000)
     ap.add_argument("--seed", type=int, default=2)
+    ap.add_argument("--rate-spread", type=float, default=0.0,
+                    help="true rates of the clean, hit and mid ramps spread by this many "
+                    "sigma0 (Gaussian; 0: a flat dark)")
     a = ap.parse_args(argv)
     rng = np.random.default_rng(a.seed)
     tc, mh, q, c = design()
@@ -111,24 +148,60 @@ def main(argv=None):
     amp = rng.uniform(10, 30, a.hit)
     mid = rng.normal(0, RN, (a.hit, N)) + amp[:, None] * (
         reads >= rng.integers(N // 3, 2 * N // 3, a.hit)[:, None])
-    print("| estimator | clean rms (σ0) | clean pull rms | pull rms, falsely flagged "
-          "| hit wrong | hit > 5 err | mid mean error (σ0) | mid > 5 err |")
-    print("|---|---|---|---|---|---|---|---|")
-    def of(y, p, mode):  # in parts of CHUNK ramps: the models' arrays are (ramps, 512)
-        parts = [estimates(y[lo:lo + CHUNK], p, tc, mh, q, c, mode)
-                 for lo in range(0, y.shape[0], CHUNK)]
+    header = ("| estimator | clean rms (σ0) | clean pull rms | pull rms, falsely flagged "
+              "| hit wrong | hit > 5 err | mid mean error (σ0) | mid > 5 err | hot flagged |\n"
+              "|---|---|---|---|---|---|---|---|---|")
+    def of(y, p, mode, threshold=THRESHOLD):  # in parts of CHUNK ramps: the models' arrays
+        parts = [estimates(y[lo:lo + CHUNK], p, tc, mh, q, c, mode, bulk, threshold)
+                 for lo in range(0, y.shape[0], CHUNK)]  # are (ramps, 512)
         return (np.concatenate(a) for a in zip(*parts, strict=True))
 
-    for mode, p in (("detect", 0.0), ("marginal", 0.01), ("marginal", 0.03),
-                    ("marginal", 0.1), ("flagged", 0.03), ("flagged", 0.1)):
-        bc, ec, fc = of(clean, p, mode)
-        bh, eh, _ = of(hit, p, mode)
-        bm, em, _ = of(mid, p, mode)
-        name = mode if mode == "detect" else f"{mode}, p = {p:g}"
+    # rates spread about zero (a sky, or a dark whose current varies); errors are taken
+    # about each ramp's own rate below
+    truth = {}
+    for name, y in (("clean", clean), ("hit", hit), ("mid", mid)):
+        truth[name] = a.rate_spread * sig0 * rng.standard_normal(y.shape[0])
+        y += truth[name][:, None] * tc[None, :]
+    # hot pixels: clean ramps whose rate is 50 sigma0 above the others' (1 % of the array)
+    hot = rng.normal(0, RN, (a.hit, N)) + 50 * sig0 * tc[None, :]
+    # the bulk: the median of the line slopes of an exposure of the clean ramps with 1 % of
+    # them hit, 1 % hit at mid-ramp and 1 % hot (the populations' first ramps), and the
+    # spread of the true rates, its MAD squared less the line's noise
+    few = max(1, a.clean // 100)
+    slopes = np.concatenate([y @ tc for y in (clean, hit[:few], mid[:few], hot[:few])]
+                            ) / (tc @ tc)
+    med = float(np.median(slopes))
+    mad = 1.482602218505602 * float(np.median(np.abs(slopes - med)))
+    bulk = (med, float(np.sqrt(max(mad ** 2 - sig0 ** 2, 0.0))))
+    del slopes
+    _, _, fc_detect = of(clean, 0.0, "detect")
+    # the threshold of the bulk's search whose false alarms on the clean ramps are detect's
+    zc = np.concatenate([bulk_search(clean[lo:lo + CHUNK], tc, *bulk)
+                         for lo in range(0, clean.shape[0], CHUNK)])
+    matched = float(np.quantile(np.abs(zc).max(1), 1 - fc_detect.mean()))
+    del zc
+    print(f"bulk: median slope {med / sig0:+.4f} σ0, true rates' spread {bulk[1] / sig0:.4f} "
+          f"σ0 (from their MAD)\n")
+    for mode, p, thr in (("detect", 0.0, THRESHOLD), ("marginal", 0.01, None),
+                         ("marginal", 0.03, None), ("marginal", 0.1, None),
+                         ("flagged", 0.03, None), ("flagged", 0.1, None),
+                         ("bulk", 0.0, THRESHOLD), ("bulk", 0.0, matched)):
+        thr = THRESHOLD if thr is None else thr
+        bc, ec, fc = of(clean, p, mode, thr)
+        bh, eh, _ = of(hit, p, mode, thr)
+        bm, em, _ = of(mid, p, mode, thr)
+        bc, bh, bm = bc - truth["clean"], bh - truth["hit"], bm - truth["mid"]
+        _, _, fhot = of(hot, p, mode, thr)
+        if header:
+            print(header)
+            header = None
+        name = (mode if mode == "detect" else f"detect, bulk's slope, {thr:.2f}σ"
+                if mode == "bulk" else f"{mode}, p = {p:g}")
         print(f"| {name} | {np.std(bc) / sig0:.3f} | {np.sqrt(np.mean((bc / ec) ** 2)):.3f} "
               f"| {np.sqrt(np.mean((bc[fc] / ec[fc]) ** 2)):.2f} ({fc.mean():.2%}) "
               f"| {np.mean(abs(bh) > 5 * sig0):.2%} | {np.mean(abs(bh) > 5 * eh):.2%} "
-              f"| {np.mean(bm) / sig0:+.3f} | {np.mean(abs(bm) > 5 * em):.2%} |")
+              f"| {np.mean(bm) / sig0:+.3f} | {np.mean(abs(bm) > 5 * em):.2%} "
+              f"| {fhot.mean():.2%} |")
 
 
 if __name__ == "__main__":

@@ -35,7 +35,7 @@ clean ramps, and on the clean ramps *detect* flags; wrong (> 5 sigma0) and > 5
 errors among *hit*; mean error of *mid* (sigma0) and its > 5 errors.
 
 Run: ``python benchmarks/bench_jump_marginal.py [--clean 300000] [--seed 2]
-[--rate-spread S]`` (about a
+[--rate-spread S] [--reads N]`` (about a
 minute; the ramps are weighed in parts of `CHUNK`, ~0.5 GB at the peak).
 """
 
@@ -129,14 +129,19 @@ def estimates(y, p, tc, mh, q, c, mode, bulk=None, threshold=THRESHOLD):
 
 
 def main(argv=None):
+    global N  # the study's functions take the ramps' length from the module
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--clean", type=int, default=300000)
     ap.add_argument("--hit", type=int, default=30000)
     ap.add_argument("--seed", type=int, default=2)
+    ap.add_argument("--reads", type=int, default=N, help="reads per ramp (at least 4)")
     ap.add_argument("--rate-spread", type=float, default=0.0,
                     help="true rates of the clean, hit and mid ramps spread by this many "
                     "sigma0 (Gaussian; 0: a flat dark)")
     a = ap.parse_args(argv)
+    if a.reads < 4:
+        ap.error("--reads must be at least 4")
+    N = a.reads
     rng = np.random.default_rng(a.seed)
     tc, mh, q, c = design()
     sig0 = RN / np.sqrt(tc @ tc)

@@ -44,6 +44,7 @@ import resource
 import time
 
 import numpy as np
+from scipy.optimize import brentq
 
 from spherex_reduce.analysis.characterize import characterize
 from spherex_reduce.analysis.pixel_terms import dark_ramps
@@ -111,8 +112,10 @@ def realised_rate(sc, seed, darks):
     """The telegraph rate (Hz) the population of ``sc`` realised in the darks of ``seed``:
     each dark simulated again with the telegraph pixels alone (the same random streams: the
     same flips), the flips counted over the intervals ``characterize`` measures (read 0 is
-    kept aside), the rate from their fraction as ``pixel_terms`` takes it from the flip
-    probability (the population: the pixels that flipped at least once)."""
+    kept aside), the flip probability ``p`` the maximum-likelihood one of the counts of the
+    pixels that flipped (a pixel that never flipped cannot be told from one that is not a
+    telegraph: the counts are binomial truncated at 1, ``m p / (1 - (1 - p)**m)`` their
+    mean), and the rate ``-log(1 - 2 p) / (2 dt)`` as ``pixel_terms`` takes it."""
     alone = copy.deepcopy(sc)
     alone["noise"] = {"components": [{"name": "none", "alpha": 0.0}]}
     alone["scene"]["dark_current"] = 0.0
@@ -127,7 +130,11 @@ def realised_rate(sc, seed, darks):
         intervals += flipped.shape[0]
         dt = float(np.median(np.diff(times.to_value("s"))))
         del ramps, step, flipped
-    p = flips[population].sum() / (population.sum() * intervals)
+    mean = flips[population].mean()
+    m = intervals
+    if mean <= 1.0:  # every pixel flipped once: no rate the counts can tell
+        return np.nan
+    p = brentq(lambda q: m * q / -np.expm1(m * np.log1p(-q)) - mean, 1e-12, 0.5)
     return -np.log1p(-2 * p) / (2 * dt)
 
 
@@ -181,6 +188,8 @@ def main():
     p.add_argument("--pulls", action="store_true",
                    help="print per parameter the mean and sd of the pulls over the seeds")
     args = p.parse_args()
+    if args.realised and (args.case != "sidecar" or not args.pulls):
+        p.error("--realised is for the SIDECAR case's pulls: add --case sidecar --pulls")
     if args.case == "sidecar":
         args.phantom_reads = 0
         want = sidecar_truth(args)

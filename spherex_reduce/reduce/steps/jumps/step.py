@@ -428,8 +428,12 @@ class JumpKernel(Kernel):
         for one in np.unique(sets):
             at = np.flatnonzero(sets == one)  # positions among the good pixels
             pix = good[at]
-            sub = y[:, pix]
-            prior = self._bulk(sub, float(sigma[pix[0]]), gain[pix])
+            # a view where the set's good pixels are one run of columns of y (no copy)
+            run = pix[-1] - pix[0] + 1 == pix.size
+            sub = y[:, pix[0]:pix[-1] + 1] if run else y[:, pix]
+            if run:
+                pix = slice(pix[0], pix[-1] + 1)
+            prior = self._bulk(sub, float(sigma[pix][0]), gain[pix])
             found = self._whole.find(sub, threshold=self.params["threshold"],
                                      sigma=sigma[pix], gain=gain[pix],
                                      max_jumps=self.params["max_jumps"], prior=prior)

@@ -162,12 +162,9 @@ def table2_recipe(ny, nx, rng, seed):
     return raw, before, (pix, frame, size, mid), np.zeros(clean.shape[1:]), s0, active
 
 
-def ours(e, before, sigma, prior=None, slope_prior=None):
+def ours(e, before, sigma, prior=None):
     fit = {"read_noise": sigma} if prior is None else {"read_noise": sigma, "jump_prior": prior}
-    detect = {"read_noise": sigma}
-    if slope_prior:
-        detect["slope_prior"] = slope_prior
-    steps = [*before, {"detect_jumps": detect}, {"fit_ramp": fit}]
+    steps = [*before, {"detect_jumps": {"read_noise": sigma}}, {"fit_ramp": fit}]
     t0 = time.perf_counter()
     out = Pipeline({"steps": steps}).run(e)
     return (out.data.data, out.data.uncertainty.array, ~dq.image_usable(out.dq),
@@ -224,7 +221,7 @@ TARGETS = (("wrong", lambda v: v <= 0.02), ("hit_lost", lambda v: v <= 0.01),
            ("mid_bias", lambda v: abs(v) <= 0.1))
 
 
-def run(name, npix, rng, seed, with_stcal, prior, slope_prior=False):
+def run(name, npix, rng, seed, with_stcal, prior):
     groups, dt, kind = RECIPES[name]
     if name == "table2":
         e, before, hit, rate, s0, active = table2_recipe(256, 512, rng, seed)
@@ -247,11 +244,6 @@ def run(name, npix, rng, seed, with_stcal, prior, slope_prior=False):
     equal = len({len(g) for g in groups}) == 1 and len(groups) >= 4
     if prior and len({len(g) for g in groups}) == 1:  # (refused for groups of unequal size)
         runs[f"ours, jump_prior {prior:g}"] = ours(e, before, read_noise, prior)
-    if slope_prior:
-        runs["ours, slope_prior bulk"] = ours(e, before, read_noise, None, "bulk")
-        if prior and len({len(g) for g in groups}) == 1:
-            runs[f"ours, slope_prior bulk, jump_prior {prior:g}"] = ours(
-                e, before, read_noise, prior, "bulk")
     if with_stcal and equal:
         runs["stcal two-point + OLS_C"] = stcal(cube, groups, dt, "OLS_C")
         runs["stcal LIKELY"] = stcal(cube, groups, dt, "LIKELY")
@@ -298,9 +290,6 @@ def main(argv=None):
                    help="also run ours with fit_ramp's jump_prior (default 0.03: the recipes' "
                         "1 %% + 2 %% of ramps with a jump); 0: not")
     p.add_argument("--recipe", nargs="+", choices=list(RECIPES), default=list(RECIPES))
-    p.add_argument("--slope-prior", action="store_true",
-                   help="also run ours with detect_jumps' slope_prior: bulk (with and without "
-                   "jump_prior)")
     p.add_argument("--cost", nargs=2, type=int, metavar=("ROWS", "COLS"),
                    help="only time fit_ramp with and without jump_prior on a white 74-read "
                         "dark of ROWS x COLS (e.g. 512 2048)")
@@ -318,7 +307,7 @@ def main(argv=None):
     for name in args.recipe:
         rng = np.random.default_rng(args.seed)
         for who, sc in run(name, args.pixels, rng, args.seed, not args.no_stcal,
-                           args.jump_prior, args.slope_prior):
+                           args.jump_prior):
             miss = [k for k, ok in TARGETS if not ok(sc[k])]
             if who == "ours":
                 failed += bool(miss)

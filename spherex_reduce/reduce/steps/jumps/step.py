@@ -27,7 +27,7 @@ import numpy as np
 from astropy import units as u
 
 from ....core import dq
-from ....core.errors import ConfigError, StepSkipped
+from ....core.errors import StepSkipped
 from ....core.limits import check_size
 from ....core.parameters import OPTIONAL_NUMBER, Parameter, validate_parameters
 from ....io.sources import MemorySource
@@ -36,7 +36,7 @@ from ...step import Kernel, Record, Step
 from ..fit_ramp.segments import usable_reads
 from ..pixel_maps import MAP_TYPES, PixelMap, adu_gain
 from .events import JumpWarning, event_message, find_read_events
-from .search import SCALE_DOF, SCALE_SAMPLE, Found, SlopePrior, StepSearch
+from .search import SCALE_DOF, SCALE_SAMPLE, StepSearch
 from .showers import large_event_halos
 from .telegraph import telegraph_pixels
 
@@ -47,20 +47,13 @@ __all__ = ["DetectJumpsStep", "JumpKernel", "detect_jumps"]
 SEARCH_PIXELS = 1 << 17
 #: read events looked for in a set of rows (one more in each round of the search)
 MAX_EVENTS = 4
-#: ramps of a set of rows whose line slopes give the bulk's (``slope_prior: bulk``): at
-#: least this many, at most `BULK_RAMPS` (every k-th)
-BULK_MIN_RAMPS = 100
-BULK_RAMPS = 1 << 15
-#: the prior's spread at least this fraction of a ramp's own slope sigma (a flat dark's
-#: true rates spread by ~0: the prior's weight stays finite)
-PRIOR_FLOOR = 0.1
 
 
 def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturation=None,
                  max_jumps=10, neighbours=False, neighbours_above=10.0, radius=0.0,
                  radius_above=1e4, large_events=False, large_event_area=5,
                  large_event_expand=2.0, large_event_reads=1, read_events=True, telegraph=True,
-                 positive_only=False, scale_read_noise=True, slope_prior="none"):
+                 positive_only=False, scale_read_noise=True):
     """Flag `~spherex_reduce.core.dq.JUMP` on the read at which each pixel's charge stepped.
 
     Every pixel's usable reads are fitted with a line plus a step at each read
@@ -156,21 +149,6 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
         jump-free ramps).  Sets too small to measure it (fewer than 2**15
         ramps x (reads - 2)), or too bright (the shot noise above 10 % of the
         residuals), keep the read noise given.
-    slope_prior : {'none', 'bulk'}
-        ``'bulk'``: test each step against a line whose slope has the prior the
-        exposure shows (the median of the line slopes of each set of rows, spread
-        by their scatter less the line's noise) instead of a free slope: on a
-        dark, where every pixel's rate is nearly the same, a step at mid-ramp is
-        then no longer nearly degenerate with a change of slope (its sigma about
-        halves).  A ramp whose slope is off the bulk's (a hot pixel, a source:
-        `~spherex_reduce.reduce.steps.jumps.search.OWN_SIGMA`) or bright enough
-        for shot-noise weights keeps the free slope; where the rates spread (a
-        sky) the prior carries nothing and the search is the free one.  The
-        slopes ``fit_ramp`` fits stay each pixel's own.  Needs ``read_noise`` as
-        one number.  Sets of fewer than 100 ramps with every read usable, and
-        ramps with a masked read, are searched with the slope free.  The bulk of
-        a set needs all of its rows: as with ``neighbours``, the whole exposure
-        is searched first (in memory).
 
     Returns
     -------
@@ -222,8 +200,7 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
         radius=radius, radius_above=radius_above, large_events=large_events,
         large_event_area=large_event_area, large_event_expand=large_event_expand,
         large_event_reads=large_event_reads, read_events=read_events,
-        telegraph=telegraph, positive_only=positive_only, scale_read_noise=scale_read_noise,
-        slope_prior=slope_prior)
+        telegraph=telegraph, positive_only=positive_only, scale_read_noise=scale_read_noise)
 
 
 class JumpKernel(Kernel):
@@ -243,11 +220,6 @@ class JumpKernel(Kernel):
         super().__init__(context)
         s = context.schedule
         self.estimate = params["read_noise"] is None
-        self.prior = params["slope_prior"] == "bulk"
-        if self.prior and not isinstance(params["read_noise"], (int, float)):
-            raise ConfigError("detect_jumps.slope_prior: bulk needs read_noise as one number "
-                              f"(the prior's weight is set per set of rows), got "
-                              f"{type(params['read_noise']).__name__}")
         if s.nframes < (5 if self.estimate else 4):
             raise StepSkipped(_too_few(s.nframes, self.estimate))
         self.params = params
@@ -268,9 +240,8 @@ class JumpKernel(Kernel):
         self.factors = s.read_noise_factors
         self.walk = s.shot_covariance()
         self._whole = self._search(np.ones(s.nframes, bool))  # every read usable
-        # (the bulk's slope of a set of rows needs the whole set, whichever bands hold it)
         self.needs_exposure = bool(params["neighbours"] or params["radius"] > 0
-                                   or params["large_events"] or self.prior)
+                                   or params["large_events"])
         self._lock = threading.Lock()
         self._found = 0  # reads flagged by the search, over the bands (streamed route)
         # read events are decided on sets of rows aligned on the row axis, the same sets
@@ -405,76 +376,13 @@ class JumpKernel(Kernel):
         maps = self._maps(block)
         if self.rescale:
             maps = (self._scaled(block, y, bad, *maps), maps[1])
-        if self.prior:
-            found = self._with_prior(block, y, bad, maps)
-        else:
-            found = self._run(self._whole, y[:, good], maps, pixels)
+        found = self._run(self._whole, y[:, good], maps, pixels)
         parts.append((found.read, pixels[found.pixel], found.amplitude, found.z))
         rest = np.union1d(np.flatnonzero(bad), pixels[found.unsearched])
         if rest.size:
             parts.extend(self._masked(y, block, maps, rest))
         frames, pix, amp, z = (np.concatenate(a) for a in zip(*parts, strict=True))
         return frames, pix, amp, z
-
-    def _with_prior(self, block, y, bad, maps):
-        """The search of the band's ramps with every read usable (``~bad``), each set of
-        `event_rows` rows with the bulk's slope of the set as a prior (`_bulk`); returns a
-        `~spherex_reduce.reduce.steps.jumps.search.Found` of their indices among them."""
-        ncols = block.data.shape[-1]
-        good = np.flatnonzero(~bad)
-        sigma, gain = (np.broadcast_to(v, (y.shape[1],)) for v in maps)
-        sets = (np.asarray(block.index) // self.event_rows)[good // ncols]
-        parts, unsearched = [], []
-        for one in np.unique(sets):
-            at = np.flatnonzero(sets == one)  # positions among the good pixels
-            pix = good[at]
-            # a view where the set's good pixels are one run of columns of y (no copy)
-            run = pix[-1] - pix[0] + 1 == pix.size
-            sub = y[:, pix[0]:pix[-1] + 1] if run else y[:, pix]
-            if run:
-                pix = slice(pix[0], pix[-1] + 1)
-            prior = self._bulk(sub, float(sigma[pix][0]), gain[pix])
-            found = self._whole.find(sub, threshold=self.params["threshold"],
-                                     sigma=sigma[pix], gain=gain[pix],
-                                     max_jumps=self.params["max_jumps"], prior=prior)
-            parts.append((at[found.pixel], found.read, found.amplitude, found.z))
-            unsearched.append(at[found.unsearched])
-        out = Found.of(parts)
-        out.unsearched = (np.concatenate(unsearched) if unsearched
-                          else np.zeros(0, np.int64))
-        return out
-
-    def _bulk(self, y, sigma, gain):
-        """The bulk's slope of a set's ramps ``y`` (every read usable; read noise ``sigma``
-        of the set) as a `~spherex_reduce.reduce.steps.jumps.search.SlopePrior`: the median
-        of their line slopes and the spread of their true rates (the slopes' median absolute
-        deviation below the median, squared, less the line's read and shot noise at that
-        median); None with fewer than `BULK_MIN_RAMPS` finite slopes."""
-        search = self._whole
-        take = slice(None, None, max(1, -(-y.shape[1] // BULK_RAMPS)))
-        rel = np.asarray(y[:, take], np.float64)
-        slopes = search.coef[1] @ (rel - rel[0])
-        slopes = slopes[np.isfinite(slopes)]
-        if slopes.size < BULK_MIN_RAMPS:
-            return None
-        m = float(np.median(slopes))
-        # the spread from the slopes below the median: cosmic rays and hot pixels add
-        # charge, so they widen the upper side only (1-2 % of hits would make a flat
-        # dark's spread ~0.2 of a slope's sigma, and the prior that much weaker)
-        below = m - slopes[slopes < m]
-        if below.size < BULK_MIN_RAMPS // 2:
-            return None
-        mad = 1.482602218505602 * float(np.median(below))
-        lam = max(m, 0.0) / float(np.median(gain))
-        noise = sigma ** 2 * search.slope_var + lam * float(
-            search.coef[1] @ search.walk @ search.coef[1])
-        spread = float(np.sqrt(max(mad ** 2 - noise, 0.0)))
-        weight = max(spread, PRIOR_FLOOR * np.sqrt(noise))
-        if not weight > 0:
-            return None
-        return SlopePrior(_prior_search(search.tau.tobytes(), search.factors.tobytes(),
-                                        np.ascontiguousarray(search.walk).tobytes(),
-                                        sigma ** 2 / weight ** 2), m, spread)
 
     def _scaled(self, block, y, bad, read_noise, gain):
         """The read noise given for the pixels of a band (flat), scaled on each set of
@@ -698,16 +606,6 @@ def _too_few(nframes, estimate):
     return text
 
 
-@functools.lru_cache(maxsize=32)
-def _prior_search(times, factors, walk, precision):
-    """The `StepSearch` of `_step_search`'s reads with a slope prior of weight
-    ``precision`` (``slope_prior``), kept for a set's searches (a band's read events
-    search it again)."""
-    n = len(times) // 8
-    return StepSearch(np.frombuffer(times), np.frombuffer(factors),
-                      np.frombuffer(walk).reshape(n, n), slope_precision=precision)
-
-
 @functools.lru_cache(maxsize=256)
 def _step_search(times, factors, walk):
     """The `StepSearch` of reads at ``times`` with read-noise ``factors`` and charge
@@ -894,10 +792,6 @@ class DetectJumpsStep(Step):
                   "added, as by cosmic rays); the steps down are fitted through"),
         Parameter("scale_read_noise", True, (bool,), "scale the read noise given to the "
                   "ramps' own scatter (each set of rows), so the false alarms stay as stated"),
-        Parameter("slope_prior", "none", (str,), "bulk: test steps against a line whose "
-                  "slope has the prior of each set of rows' slopes (a dark's steps at "
-                  "mid-ramp are found at half the amplitude; needs read_noise as a number); "
-                  "none: the slope free", choices=("none", "bulk"), quiet_default=True),
     )
 
     def kernel(self, context, **params):

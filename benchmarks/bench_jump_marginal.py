@@ -7,7 +7,9 @@ A numpy study, not the pipeline: white read noise (10 e, 74 reads of 1.5 s by de
 * *hit*: one jump of log-uniform amplitude 10-1e4 e at a random read;
 * *mid*: one jump of 10-30 e in the middle third of the ramp (the issue's
   "jumps nobody can see"; on 4 reads always at read 1);
-* *hot*: clean ramps whose rate is 50 sigma0 above the others'.
+* *hot*: clean ramps whose rate is 50 sigma0 above the others';
+* *warm*: clean ramps whose rate is 2 to 8 sigma0 above the others' (uniform): a step at
+  mid-ramp and such a slope are nearly the same change of the reads.
 
 ``--rate-spread S`` gives the clean, hit and mid ramps true rates spread by S sigma0
 (a dark whose current varies, or a sky); errors are taken about each ramp's own rate.
@@ -40,8 +42,8 @@ Estimators of the slope and its error:
 
 Columns: clean rms of (slope - truth) / sigma0; pull rms (slope - truth) / error on
 clean ramps, and on the clean ramps the estimator flags; wrong (> 5 sigma0) and > 5
-errors among *hit*; mean error of *mid* (sigma0) and its > 5 errors; the *hot* ramps
-flagged.
+errors among *hit*; mean error of *mid* (sigma0) and its > 5 errors; the *hot* and
+*warm* ramps flagged.
 
 Run: ``python benchmarks/bench_jump_marginal.py [--clean 300000] [--seed 2]
 [--rate-spread S] [--reads N]`` (about a
@@ -168,8 +170,8 @@ def main(argv=None):
     mid = rng.normal(0, RN, (a.hit, N)) + amp[:, None] * (
         reads >= rng.integers(N // 3, 2 * N // 3, a.hit)[:, None])
     header = ("| estimator | clean rms (σ0) | clean pull rms | pull rms, falsely flagged "
-              "| hit wrong | hit > 5 err | mid mean error (σ0) | mid > 5 err | hot flagged |\n"
-              "|---|---|---|---|---|---|---|---|---|")
+              "| hit wrong | hit > 5 err | mid mean error (σ0) | mid > 5 err | hot flagged "
+              "| warm flagged |\n|---|---|---|---|---|---|---|---|---|---|")
     def of(y, p, mode, threshold=THRESHOLD):  # in parts of CHUNK ramps: the models' arrays
         parts = [estimates(y[lo:lo + CHUNK], p, tc, mh, q, c, mode, bulk, threshold)
                  for lo in range(0, y.shape[0], CHUNK)]  # are (ramps, 512)
@@ -183,12 +185,14 @@ def main(argv=None):
         y += truth[name][:, None] * tc[None, :]
     # hot pixels: clean ramps whose rate is 50 sigma0 above the others' (1 % of the array)
     hot = rng.normal(0, RN, (a.hit, N)) + 50 * sig0 * tc[None, :]
+    warm = (rng.normal(0, RN, (a.hit, N))
+            + rng.uniform(2, 8, a.hit)[:, None] * sig0 * tc[None, :])
     # the bulk: the median of the line slopes of an exposure of the clean ramps with 1 % of
-    # them hit, 1 % hit at mid-ramp and 1 % hot (the populations' first ramps), and the
+    # them hit, 1 % hit at mid-ramp, 1 % hot and 1 % warm (the populations' first ramps), the
     # spread of the true rates, its MAD squared less the line's noise
     few = max(1, a.clean // 100)
-    slopes = np.concatenate([y @ tc for y in (clean, hit[:few], mid[:few], hot[:few])]
-                            ) / (tc @ tc)
+    slopes = np.concatenate([y @ tc for y in (clean, hit[:few], mid[:few], hot[:few],
+                                              warm[:few])]) / (tc @ tc)
     med = float(np.median(slopes))
     mad = 1.482602218505602 * float(np.median(np.abs(slopes - med)))
     bulk = (med, float(np.sqrt(max(mad ** 2 - sig0 ** 2, 0.0))))
@@ -211,6 +215,7 @@ def main(argv=None):
         bm, em, _ = of(mid, p, mode, thr)
         bc, bh, bm = bc - truth["clean"], bh - truth["hit"], bm - truth["mid"]
         _, _, fhot = of(hot, p, mode, thr)
+        _, _, fwarm = of(warm, p, mode, thr)
         if header:
             print(header)
             header = None
@@ -220,7 +225,7 @@ def main(argv=None):
               f"| {np.sqrt(np.mean((bc[fc] / ec[fc]) ** 2)):.2f} ({fc.mean():.2%}) "
               f"| {np.mean(abs(bh) > 5 * sig0):.2%} | {np.mean(abs(bh) > 5 * eh):.2%} "
               f"| {np.mean(bm) / sig0:+.3f} | {np.mean(abs(bm) > 5 * em):.2%} "
-              f"| {fhot.mean():.2%} |")
+              f"| {fhot.mean():.2%} | {fwarm.mean():.2%} |")
 
 
 if __name__ == "__main__":

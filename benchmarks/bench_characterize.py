@@ -132,9 +132,15 @@ def realised_rate(sc, seed, darks):
         del ramps, step, flipped
     mean = flips[population].mean()
     m = intervals
-    if mean <= 1.0:  # every pixel flipped once: no rate the counts can tell
+
+    def excess(q):  # the truncated binomial's mean at q, less the counts'
+        return m * q / -np.expm1(m * np.log1p(-q)) - mean
+
+    if mean <= 1.0:  # every pixel flipped once: the likelihood's maximum is at p = 0
+        return 0.0
+    if excess(0.5) <= 0:  # flips at half the intervals or more: faster than the reads
         return np.nan
-    p = brentq(lambda q: m * q / -np.expm1(m * np.log1p(-q)) - mean, 1e-12, 0.5)
+    p = brentq(excess, 1e-12, 0.5)
     return -np.log1p(-2 * p) / (2 * dt)
 
 
@@ -233,10 +239,11 @@ def main():
                         (row["value"] - value) / row["error"])
                     if term == "telegraph_rate" and args.realised:
                         real = realised_rate(sc, seed, args.darks)
-                        pulls.setdefault(("pixels", "telegraph_rate, realised"), []).append(
-                            (real - value) / row["error"])
-                        pulls.setdefault(("pixels", "telegraph_rate − realised"), []).append(
-                            (row["value"] - real) / row["error"])
+                        if np.isfinite(real):  # (NaN: the flips outpaced the reads)
+                            pulls.setdefault(("pixels", "telegraph_rate, realised"),
+                                             []).append((real - value) / row["error"])
+                            pulls.setdefault(("pixels", "telegraph_rate − realised"),
+                                             []).append((row["value"] - real) / row["error"])
             total = telegraph_power(model.pixel_terms)
             if total is not None:
                 truth_p = SIDECAR_PIXELS["telegraph_fraction"] * SIDECAR_PIXELS[

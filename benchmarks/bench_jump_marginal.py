@@ -32,8 +32,8 @@ Estimators of the slope and its error:
 * *detect, bulk's slope*: as *detect*, but the search tests a step against the line whose
   slope has the prior N(m, tau**2), the bulk's: m the median of the line slopes of an
   exposure of the clean ramps with 1 % of each other population, tau**2 their MAD**2
-  less the line's noise (the true rates' spread; on a flat dark the 3 % of outliers
-  make it ~0.27 sigma0), so a step at mid-ramp is no longer nearly degenerate with a
+  less the line's noise (the true rates' spread; on a flat dark the 4 % of outliers
+  make it ~0.3 sigma0), so a step at mid-ramp is no longer nearly degenerate with a
   change of slope.  A ramp whose two-segment slope at the prior search's best step is
   `OWN_SIGMA` sigmas off m (a hot pixel, a source) keeps the slope-free search.  The
   flagged ramps' slope is still the two-segment fit with the slope free (the bulk

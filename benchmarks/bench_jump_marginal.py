@@ -39,6 +39,15 @@ Estimators of the slope and its error:
   flagged ramps' slope is still the two-segment fit with the slope free (the bulk
   informs the search, never a slope).  At 4 sigma, and at the threshold whose false
   alarms on the clean ramps are *detect*'s (calibrated on the prior's statistic alone).
+* *bulk's slope, odds*: instead of the guard, a step against the bulk's slope is flagged
+  where the posterior odds of "a bulk ramp with a step" (the jump rate, 3 %, spread over
+  the reads; the amplitude prior of *marginal*) over "no step" reach ``K`` (ln K = 0, 2,
+  4), "no step" being a bulk ramp or a ramp of the exposure's warm tail with its own
+  slope: the tail's density is the excess of the upper side of the exposure's
+  two-segment slopes (each ramp's best prior step taken out, so that stepped bulk ramps
+  stay in the bulk) over the mirrored lower side, in bins of 2 sigma0, floored at 1e-4
+  of the ramps spread over 80 sigma0.  The slope-free search's flags are kept as well.
+  ``--warm-share F``: the warm ramps' share of the bulk's exposure (default 0.01).
 
 Columns: clean rms of (slope - truth) / sigma0; pull rms (slope - truth) / error on
 clean ramps, and on the clean ramps the estimator flags; wrong (> 5 sigma0) and > 5
@@ -46,15 +55,17 @@ errors among *hit*; mean error of *mid* (sigma0) and its > 5 errors; the *hot* a
 *warm* ramps flagged.
 
 Run: ``python benchmarks/bench_jump_marginal.py [--clean 300000] [--seed 2]
-[--rate-spread S] [--reads N]`` (about a
+[--rate-spread S] [--reads N] [--warm-share F]`` (about a
 minute; the ramps are weighed in parts of `CHUNK`, ~0.5 GB at the peak).
 """
 
 import argparse
 
 import numpy as np
+from scipy.special import logsumexp
 
 READS, DT, RN, THRESHOLD = 74, 1.5, 10.0, 4.0
+JUMP_RATE = 0.03  #: *bulk's slope, odds*: the share of ramps with a jump
 #: a ramp whose two-segment slope at the prior search's best step is this many sigmas off
 #: the bulk's is searched with its slope free
 OWN_SIGMA = 4.0
@@ -90,6 +101,53 @@ def bulk_search(y, tc, slope, tau):
     return (yk @ g.T) / np.sqrt((g * h).sum(1))
 
 
+def odds_of_step(y, tc, mh, q, c, ctx):
+    """ln posterior odds of "a bulk ramp with a step" over "no step" (a bulk ramp, or one
+    of the warm tail with its own slope), and the prior search's best read, for ramps
+    ``y``; ``ctx`` the bulk (median, spread, the prior model) and the tail's density."""
+    N = tc.size
+    sig0 = RN / np.sqrt(tc @ tc)
+    slope, tau, g, qb, density = ctx
+    b0 = (y @ tc) / (tc @ tc)
+    zb2 = ((y - slope * tc[None, :]) @ g.T) ** 2 / qb
+    vb = 1.0 / qb
+    s2 = sig0 ** 2 + tau ** 2
+    # each evidence over the free line's: a bulk ramp without a step, with one at k (the
+    # amplitude a scale mixture), a warm one with its own slope
+    clean = np.log(sig0 / np.sqrt(s2)) - (b0 - slope) ** 2 / (2 * s2)
+    lk = logsumexp(np.stack([0.5 * np.log(vb / (vb + t ** 2)) + 0.5 * zb2 * t ** 2
+                             / (t ** 2 + vb) for t in TAUS]), axis=0) - np.log(TAUS.size)
+    step = np.log(JUMP_RATE / (N - 1)) + clean + logsumexp(lk, axis=1)
+    warm = np.log(np.sqrt(2 * np.pi) * sig0 * density(b0))
+    return step - np.logaddexp(np.log1p(-JUMP_RATE) + clean, warm), np.argmax(zb2, 1)
+
+
+def warm_tail(y, tc, mh, q, c, slope, g, qb):
+    """The density (per unit slope, a share of the ramps) of the exposure's ramps off its
+    bulk: the excess of the upper side of their two-segment slopes at each one's best prior
+    step over the mirrored lower side, in bins of 2 sigma0 up to 80 sigma0, floored."""
+    sig0 = RN / np.sqrt(tc @ tc)
+    parts = []
+    for lo in range(0, y.shape[0], CHUNK):
+        part = y[lo:lo + CHUNK]
+        amp = (part @ mh.T) / q
+        k = np.argmax(((part - slope * tc[None, :]) @ g.T) ** 2 / qb, 1)
+        parts.append((part @ tc) / (tc @ tc) - c[k] * amp[np.arange(part.shape[0]), k])
+    u = np.concatenate(parts) - slope
+    width = 2 * sig0
+    edges = np.arange(0.0, 80 * sig0 + width, width)
+    upper, _ = np.histogram(u, edges)
+    lower, _ = np.histogram(-u, edges)
+    dens = np.maximum(upper - lower, 0) / (u.size * width)
+    floor = 1e-4 / (80 * sig0)
+
+    def density(b):
+        i = np.clip(((b - slope) // width).astype(int), 0, dens.size - 1)
+        return np.maximum(np.where(b >= slope, dens[i], 0.0), floor)
+
+    return density, float(dens.sum() * width)
+
+
 def estimates(y, p, tc, mh, q, c, mode, bulk=None, threshold=THRESHOLD):
     """(slope, error, flagged) of ramps ``y`` (m, N) for ``mode`` in detect / marginal /
     flagged / bulk (``bulk``: the bulk's median slope and true rates' spread; ``threshold``
@@ -102,7 +160,12 @@ def estimates(y, p, tc, mh, q, c, mode, bulk=None, threshold=THRESHOLD):
     v = RN ** 2 / q
     z2 = amp ** 2 / v
     m = y.shape[0]
-    if mode == "bulk":  # the search against the bulk's slope
+    if mode == "odds":  # the bulk's step where its odds reach exp(threshold)
+        odds, kb = odds_of_step(y, tc, mh, q, c, bulk)
+        via = odds >= threshold
+        flagged = via | (z2.max(1) >= THRESHOLD ** 2)
+        kk = np.where(via, kb, np.argmax(z2, 1))
+    elif mode == "bulk":  # the search against the bulk's slope
         slope, tau = bulk
         zb = bulk_search(y, tc, slope, tau) ** 2
         # a ramp whose two-segment slope at the prior search's best step is off the bulk
@@ -119,7 +182,7 @@ def estimates(y, p, tc, mh, q, c, mode, bulk=None, threshold=THRESHOLD):
     rows = np.arange(m)
     seg = b0 - c[kk] * amp[rows, kk]
     seg_err = np.sqrt(sig0 ** 2 + c[kk] ** 2 * v[kk])
-    if mode in ("detect", "bulk"):
+    if mode in ("detect", "bulk", "odds"):
         return np.where(flagged, seg, b0), np.where(flagged, seg_err, sig0), flagged
     lw, bs, vs = [np.full((m, 1), np.log1p(-p))], [b0[:, None]], [np.full((m, 1), sig0 ** 2)]
     for tau in TAUS:
@@ -151,12 +214,17 @@ def main(argv=None):
     ap.add_argument("--hit", type=int, default=30000)
     ap.add_argument("--seed", type=int, default=2)
     ap.add_argument("--reads", type=int, default=READS, help="reads per ramp (at least 4)")
+    ap.add_argument("--warm-share", type=float, default=0.01,
+                    help="the warm ramps' share of the bulk's exposure (default 0.01)")
     ap.add_argument("--rate-spread", type=float, default=0.0,
                     help="true rates of the clean, hit and mid ramps spread by this many "
                     "sigma0 (Gaussian; 0: a flat dark)")
     a = ap.parse_args(argv)
     if a.reads < 4:
         ap.error("--reads must be at least 4")
+    if not 0 <= a.warm_share <= a.hit / a.clean:
+        ap.error(f"--warm-share must be in [0, {a.hit / a.clean:g}] (the warm ramps drawn: "
+                 "as many as --hit)")
     N = a.reads
     rng = np.random.default_rng(a.seed)
     tc, mh, q, c = design(N)
@@ -173,7 +241,8 @@ def main(argv=None):
               "| hit wrong | hit > 5 err | mid mean error (σ0) | mid > 5 err | hot flagged "
               "| warm flagged |\n|---|---|---|---|---|---|---|---|---|---|")
     def of(y, p, mode, threshold=THRESHOLD):  # in parts of CHUNK ramps: the models' arrays
-        parts = [estimates(y[lo:lo + CHUNK], p, tc, mh, q, c, mode, bulk, threshold)
+        ctx = context if mode == "odds" else bulk
+        parts = [estimates(y[lo:lo + CHUNK], p, tc, mh, q, c, mode, ctx, threshold)
                  for lo in range(0, y.shape[0], CHUNK)]  # are (ramps, 512)
         return (np.concatenate(a) for a in zip(*parts, strict=True))
 
@@ -191,12 +260,28 @@ def main(argv=None):
     # them hit, 1 % hit at mid-ramp, 1 % hot and 1 % warm (the populations' first ramps), the
     # spread of the true rates, its MAD squared less the line's noise
     few = max(1, a.clean // 100)
-    slopes = np.concatenate([y @ tc for y in (clean, hit[:few], mid[:few], hot[:few],
-                                              warm[:few])]) / (tc @ tc)
+    nwarm = min(warm.shape[0], round(a.warm_share * a.clean))
+    exposure = np.concatenate([clean, hit[:few], mid[:few], hot[:few], warm[:nwarm]])
+    slopes = exposure @ tc / (tc @ tc)
     med = float(np.median(slopes))
     mad = 1.482602218505602 * float(np.median(np.abs(slopes - med)))
     bulk = (med, float(np.sqrt(max(mad ** 2 - sig0 ** 2, 0.0))))
     del slopes
+    # the odds' context: the bulk from the lower side of the slopes, the prior model at
+    # its spread (floored at 0.1 sigma0), the warm tail's density
+    low = med - exposure @ tc / (tc @ tc)
+    spread = np.sqrt(max((1.482602218505602 * np.median(low[low > 0])) ** 2 - sig0 ** 2,
+                         0.0))
+    tau_w = max(spread, 0.1 * sig0)
+    r = tau_w ** 2 / RN ** 2
+    cinv = (np.eye(N) - np.outer(tc, tc) * r / (1 + r * (tc @ tc))) / RN ** 2
+    one = cinv.sum(0)
+    hk = (np.arange(N)[None, :] >= np.arange(1, N)[:, None]).astype(float)
+    g = hk @ (cinv - np.outer(one, one) / one.sum())
+    qb = (g * hk).sum(1)
+    density, share = warm_tail(exposure, tc, mh, q, c, med, g, qb)
+    context = (med, tau_w, g, qb, density)
+    del exposure, low
     _, _, fc_detect = of(clean, 0.0, "detect")
     # the threshold of the bulk's search whose false alarms on the clean ramps are detect's
     zc = np.concatenate([bulk_search(clean[lo:lo + CHUNK], tc, *bulk)
@@ -204,11 +289,14 @@ def main(argv=None):
     matched = float(np.quantile(np.abs(zc).max(1), 1 - fc_detect.mean()))
     del zc
     print(f"bulk: median slope {med / sig0:+.4f} σ0, true rates' spread {bulk[1] / sig0:.4f} "
-          f"σ0 (from their MAD)\n")
+          f"σ0 (from their MAD), {spread / sig0:.4f} σ0 (below the median); warm tail "
+          f"{share:.4f} of the ramps (warm share given "
+          f"{nwarm / (a.clean + 3 * few + nwarm):.4f})\n")
     for mode, p, thr in (("detect", 0.0, THRESHOLD), ("marginal", 0.01, None),
                          ("marginal", 0.03, None), ("marginal", 0.1, None),
                          ("flagged", 0.03, None), ("flagged", 0.1, None),
-                         ("bulk", 0.0, THRESHOLD), ("bulk", 0.0, matched)):
+                         ("bulk", 0.0, THRESHOLD), ("bulk", 0.0, matched),
+                         ("odds", 0.0, 0.0), ("odds", 0.0, 2.0), ("odds", 0.0, 4.0)):
         thr = THRESHOLD if thr is None else thr
         bc, ec, fc = of(clean, p, mode, thr)
         bh, eh, _ = of(hit, p, mode, thr)
@@ -220,7 +308,8 @@ def main(argv=None):
             print(header)
             header = None
         name = (mode if mode == "detect" else f"detect, bulk's slope, {thr:.2f}σ"
-                if mode == "bulk" else f"{mode}, p = {p:g}")
+                if mode == "bulk" else f"bulk's slope, odds, ln K = {thr:g}"
+                if mode == "odds" else f"{mode}, p = {p:g}")
         print(f"| {name} | {np.std(bc) / sig0:.3f} | {np.sqrt(np.mean((bc / ec) ** 2)):.3f} "
               f"| {np.sqrt(np.mean((bc[fc] / ec[fc]) ** 2)):.2f} ({fc.mean():.2%}) "
               f"| {np.mean(abs(bh) > 5 * sig0):.2%} | {np.mean(abs(bh) > 5 * eh):.2%} "

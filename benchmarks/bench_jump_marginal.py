@@ -73,6 +73,11 @@ TAUS = np.array([10, 30, 100, 300, 1000, 3000, 10000.0])
 CHUNK = 10000  #: ramps whose models are weighed at once (~0.3 GB of float64 arrays at 74 reads)
 
 
+def steps(n):
+    """``(n - 1, n)``: row k - 1 a step at read k (1 from read k on)."""
+    return (np.arange(n)[None, :] >= np.arange(1, n)[:, None]).astype(float)
+
+
 def design(n):
     """Centred times of ``n`` reads, the line's residual maker applied to each step, and per
     read k: ``q_k`` (step variance / RN**2 inverse), ``c_k`` (slope change per unit step)."""
@@ -81,24 +86,38 @@ def design(n):
     tc = t - t.mean()
     x = np.stack([np.ones(N), tc], 1)
     m = np.eye(N) - x @ np.linalg.solve(x.T @ x, x.T)
-    h = (np.arange(N)[None, :] >= np.arange(1, N)[:, None]).astype(float)
+    h = steps(N)
     mh = h @ m
     return tc, mh, (mh * h).sum(1), (h @ tc) / (tc @ tc)
+
+
+def prior_model(tc, tau):
+    """``(g, q)`` of a step at every read against a line of free intercept whose slope has
+    a prior of spread ``tau``: generalised least squares with the noise RN**2 I + tau**2 tc
+    tc'; a step's ``R_k = g_k' y`` (the reads less the prior's line), its variance ``q_k``."""
+    N = tc.size
+    r = tau ** 2 / RN ** 2
+    cinv = (np.eye(N) - np.outer(tc, tc) * r / (1 + r * (tc @ tc))) / RN ** 2
+    one = cinv.sum(0)
+    m1 = cinv - np.outer(one, one) / one.sum()  # the intercept's GLS residual maker
+    h = steps(N)
+    g = h @ m1
+    return g, (g * h).sum(1)
+
+
+def prior_z2(y, tc, slope, model):
+    """``z_k**2`` of a step at every read k (m, N - 1) of ramps ``y`` against the line of
+    slope ``slope`` under ``model`` (`prior_model`)."""
+    g, q = model
+    return ((y - slope * tc[None, :]) @ g.T) ** 2 / q
 
 
 def bulk_search(y, tc, slope, tau):
     """``z_k`` of a step at every read k (m, N - 1) against a line of free intercept whose
     slope has the prior N(``slope``, ``tau``**2) (the bulk's median and the spread of its
-    true rates): generalised least squares with the noise RN**2 I + tau**2 tc tc'."""
-    N = tc.size
-    yk = y - slope * tc[None, :]
-    r = tau ** 2 / RN ** 2
-    cinv = (np.eye(N) - np.outer(tc, tc) * r / (1 + r * (tc @ tc))) / RN ** 2
-    one = cinv.sum(0)
-    m1 = cinv - np.outer(one, one) / one.sum()  # the intercept's GLS residual maker
-    h = (np.arange(N)[None, :] >= np.arange(1, N)[:, None]).astype(float)
-    g = h @ m1
-    return (yk @ g.T) / np.sqrt((g * h).sum(1))
+    true rates)."""
+    g, q = prior_model(tc, tau)
+    return ((y - slope * tc[None, :]) @ g.T) / np.sqrt(q)
 
 
 def odds_of_step(y, tc, mh, q, c, ctx):
@@ -109,7 +128,7 @@ def odds_of_step(y, tc, mh, q, c, ctx):
     sig0 = RN / np.sqrt(tc @ tc)
     slope, tau, g, qb, density = ctx
     b0 = (y @ tc) / (tc @ tc)
-    zb2 = ((y - slope * tc[None, :]) @ g.T) ** 2 / qb
+    zb2 = prior_z2(y, tc, slope, (g, qb))
     vb = 1.0 / qb
     s2 = sig0 ** 2 + tau ** 2
     # each evidence over the free line's: a bulk ramp without a step, with one at k (the
@@ -131,7 +150,7 @@ def warm_tail(y, tc, mh, q, c, slope, g, qb):
     for lo in range(0, y.shape[0], CHUNK):
         part = y[lo:lo + CHUNK]
         amp = (part @ mh.T) / q
-        k = np.argmax(((part - slope * tc[None, :]) @ g.T) ** 2 / qb, 1)
+        k = np.argmax(prior_z2(part, tc, slope, (g, qb)), 1)
         parts.append((part @ tc) / (tc @ tc) - c[k] * amp[np.arange(part.shape[0]), k])
     u = np.concatenate(parts) - slope
     width = 2 * sig0
@@ -266,22 +285,16 @@ def main(argv=None):
     med = float(np.median(slopes))
     mad = 1.482602218505602 * float(np.median(np.abs(slopes - med)))
     bulk = (med, float(np.sqrt(max(mad ** 2 - sig0 ** 2, 0.0))))
-    del slopes
     # the odds' context: the bulk from the lower side of the slopes, the prior model at
     # its spread (floored at 0.1 sigma0), the warm tail's density
-    low = med - exposure @ tc / (tc @ tc)
+    low = med - slopes
     spread = np.sqrt(max((1.482602218505602 * np.median(low[low > 0])) ** 2 - sig0 ** 2,
                          0.0))
     tau_w = max(spread, 0.1 * sig0)
-    r = tau_w ** 2 / RN ** 2
-    cinv = (np.eye(N) - np.outer(tc, tc) * r / (1 + r * (tc @ tc))) / RN ** 2
-    one = cinv.sum(0)
-    hk = (np.arange(N)[None, :] >= np.arange(1, N)[:, None]).astype(float)
-    g = hk @ (cinv - np.outer(one, one) / one.sum())
-    qb = (g * hk).sum(1)
+    g, qb = prior_model(tc, tau_w)
     density, share = warm_tail(exposure, tc, mh, q, c, med, g, qb)
     context = (med, tau_w, g, qb, density)
-    del exposure, low
+    del exposure, slopes, low
     _, _, fc_detect = of(clean, 0.0, "detect")
     # the threshold of the bulk's search whose false alarms on the clean ramps are detect's
     zc = np.concatenate([bulk_search(clean[lo:lo + CHUNK], tc, *bulk)

@@ -29,7 +29,7 @@ import warnings
 
 import numpy as np
 
-from .spectra import band_power
+from .spectra import NOT_REPORTED, band_power
 
 __all__ = ["ACN_SIGMAS", "BAD_FIT_PROBABILITY", "Estimate", "combine", "goodness",
            "scene_values"]
@@ -318,9 +318,7 @@ def combine(full, jack, boxes, nch):
     whole = _classes(full, found, boxes, nch)
     parts = [_classes(j, found, boxes, nch) for j in jack]
     components = {n: Estimate.of(whole[n], [p[n] for p in parts]) for n in whole}
-    # (``phantom_acn``, a channel's own part of the phantom spectrum, is not a spectrum of
-    # the report: the components hold it)
-    names = [k for k in full if k not in ("channels", "phantom_acn") and full[k] is not None]
+    names = [k for k in full if k not in NOT_REPORTED and full[k] is not None]
     spectra = {k: Estimate.of(_theta(full[k]), [_theta(j[k]) for j in jack]) for k in names}
     spreads = {view: _spread(full, jack, view) for view in full["channels"]}
     return {"components": components, "spectra": spectra, "acn": acn, "spreads": spreads,

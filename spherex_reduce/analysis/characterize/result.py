@@ -7,7 +7,7 @@ from astropy import units as u
 from astropy.table import Table
 
 from .model import ACN_SIGMAS, BAD_FIT_PROBABILITY, LAYOUT, PARAMS, combine, goodness, scene_values
-from .spectra import SPECTRA
+from .spectra import NOT_REPORTED, SPECTRA
 
 __all__ = ["Characterization", "hold_white"]
 
@@ -107,7 +107,7 @@ class Characterization:
                    float(exponent.errors[0]) if exponent_fitted else None,
                    got["components"], got["spectra"], got["spreads"], got["acn"],
                    got["acn_on"], [])
-        self.bins = {k: v.bins for k, v in full.items() if k not in ("channels", "phantom_acn")}
+        self.bins = {k: v.bins for k, v in full.items() if k not in NOT_REPORTED}
         self.gain = gain
         self.marks = self._marks(boxes)
         if segmented:

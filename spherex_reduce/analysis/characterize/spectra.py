@@ -21,8 +21,8 @@ from astropy.table import Table
 from ...reduce.options import default_threads, in_threads
 from ..temporal import aliased_basis, fit_noise_model, temporal_psd, welch_terms
 
-__all__ = ["LONG_BURST", "SPECTRA", "SPECTRA_THREADS", "band_power", "dark_spectra",
-           "fit_spectra", "pool"]
+__all__ = ["LONG_BURST", "NOT_REPORTED", "SPECTRA", "SPECTRA_THREADS", "band_power",
+           "dark_spectra", "fit_spectra", "pool"]
 
 #: Spectra of one dark taken at once, in threads (each a Welch transform of one stream:
 #: tens of MB at full size).
@@ -32,6 +32,11 @@ SPECTRA_THREADS = 2
 #: correlated terms too, not the white level alone (`_burst_terms`): 128 (channels of 256
 #: columns or more).
 LONG_BURST = 64
+
+#: Entries of `fit_spectra`'s result that are not spectra of the report: the channels' own
+#: fits, and a channel's own part of the phantom spectrum fitted with its parities'
+#: averages (``phantom_acn``, which the model's components take where ACN is found).
+NOT_REPORTED = ("channels", "phantom_acn")
 
 #: The spectra `fit_spectra` fits, and what each holds.
 SPECTRA = {

@@ -259,15 +259,25 @@ def main(argv=None):
         print(f"spherex-reduce {args.command}: error: {_message(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        _remove_unfinished()
         print("spherex-reduce: interrupted", file=sys.stderr)
         return 130
     except Terminated:
+        _remove_unfinished()
         print("spherex-reduce: terminated", file=sys.stderr)
         return 128 + signal.SIGTERM
     except Exception as exc:
         if args.debug:
             raise
         return _unexpected(args, exc)
+
+
+def _remove_unfinished():
+    """The temporary files of outputs an interrupt cut short (`atomic_output`'s own clean-up
+    cannot run where the interrupt arrives as it is entered)."""
+    from ..io.atomic import atomic_output
+
+    atomic_output.remove_unfinished()
 
 
 def _unexpected(args, exc):

@@ -12,6 +12,7 @@ import hashlib
 import os
 import socket
 import tempfile
+import threading
 from pathlib import Path
 
 __all__ = ["atomic_output"]
@@ -20,6 +21,14 @@ __all__ = ["atomic_output"]
 _NO_LINKS = frozenset(getattr(errno, n) for n in ("EPERM", "EOPNOTSUPP", "ENOTSUP", "EMLINK",
                                                    "ENOSYS", "EXDEV", "EINVAL")  # EINVAL: FAT
                       if hasattr(errno, n))
+
+
+#: Temporary paths of the outputs this process is writing: each removed by its
+#: `atomic_output.__exit__`, or by `atomic_output.remove_unfinished` where an interrupt
+#: (SIGINT, or SIGTERM raised as an exception) arrived where no ``finally`` of the write
+#: could run: as ``__exit__`` is entered, before its first statement.
+_UNFINISHED = set()
+_UNFINISHED_LOCK = threading.Lock()
 
 
 class atomic_output:
@@ -62,6 +71,29 @@ class atomic_output:
     #: Tag of this host in temporary names: a process id means something only here.
     HOST = hashlib.sha1(socket.gethostname().encode()).hexdigest()[:8]
 
+    @classmethod
+    def remove_unfinished(cls):
+        """Remove the temporary files of the writes this process started and did not end
+        (the command line calls it when interrupted; a clean-up: never raises).
+
+        Examples
+        --------
+        >>> import tempfile, pathlib
+        >>> from spherex_reduce.io.atomic import atomic_output
+        >>> out = pathlib.Path(tempfile.mkdtemp()) / "a.txt"
+        >>> tmp = atomic_output(out).__enter__()  # a write an interrupt cut short
+        >>> _ = tmp.write_text("half")
+        >>> atomic_output.remove_unfinished()
+        >>> tmp.exists(), out.exists()
+        (False, False)
+        """
+        with _UNFINISHED_LOCK:
+            paths = list(_UNFINISHED)
+            _UNFINISHED.clear()
+        for path in paths:
+            with contextlib.suppress(OSError):
+                os.unlink(path)
+
     def _remove_stale(self):
         prefix = f".{self.path.name}.{self.HOST}-"
         for old in self.path.parent.glob(f"{glob.escape(prefix)}*.tmp"):
@@ -86,6 +118,8 @@ class atomic_output:
         except OSError as exc:  # e.g. a read-only file system: say which output
             exc.filename = str(self.path)
             raise
+        with _UNFINISHED_LOCK:
+            _UNFINISHED.add(tmp)
         os.close(fd)
         os.unlink(tmp)
         self.tmp = Path(tmp)
@@ -100,6 +134,8 @@ class atomic_output:
                     self._rename_no_clobber()
         finally:
             self.tmp.unlink(missing_ok=True)
+            with _UNFINISHED_LOCK:
+                _UNFINISHED.discard(str(self.tmp))
         if isinstance(exc, OSError) and exc.errno is not None and (
                 exc.filename is None or os.fspath(exc.filename) == str(self.tmp)):
             exc.filename = str(self.path)  # e.g. a full disk: say which output

@@ -58,3 +58,18 @@ def test_an_existing_output_is_refused_in_astropys_words(tmp_path, monkeypatch):
     assert (tmp_path / "reduced.fits").read_bytes() == before
     write(e.replace(data=np.zeros((4, 4))), "reduced.fits", overwrite=True)
     assert (tmp_path / "reduced.fits").read_bytes() != before
+
+
+def test_a_write_an_interrupt_cut_short_before_its_exit_is_removed(tmp_path):
+    # an interrupt raised as __exit__ is entered skips its clean-up: the command line's
+    # handler removes what is left, and only that (a finished output stays)
+    done = tmp_path / "done.txt"
+    with atomic_output(done) as tmp:
+        tmp.write_text("whole")
+    cut = atomic_output(tmp_path / "cut.txt")
+    left = cut.__enter__()
+    left.write_text("half")
+    assert [p.name for p in tmp_path.glob(".*.tmp")] == [left.name]
+    atomic_output.remove_unfinished()
+    assert not list(tmp_path.glob(".*.tmp"))
+    assert done.read_text() == "whole" and not (tmp_path / "cut.txt").exists()

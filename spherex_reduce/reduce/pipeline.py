@@ -7,6 +7,7 @@ import json
 import os
 from pathlib import Path
 
+import numpy as np
 import yaml
 from astropy.io import fits
 
@@ -156,9 +157,10 @@ class Pipeline:
             (name, params), = item.items()
             step = self.registry.step(name)(self.registry)
             for p in step.declared(params, name):
-                if p.quiet_default and p.name in params and params[p.name] == p.default:
+                if (p.quiet_default and p.name in params
+                        and _is_value(params[p.name], p.default)):
                     del params[p.name]
-        text = json.dumps(config, sort_keys=True, default=str)
+        text = json.dumps(config, sort_keys=True, default=_hashable)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
     def schedule(self):
@@ -388,3 +390,19 @@ def as_pipeline(pipeline):
     if isinstance(pipeline, dict):
         return Pipeline(pipeline, source=str(pipeline.get("name", "pipeline")))
     return Pipeline.from_yaml(pipeline)
+
+
+def _is_value(value, default):
+    """Whether a parameter's ``value`` is ``default`` (an array given in Python never is)."""
+    return not isinstance(value, np.ndarray) and value == default
+
+
+def _hashable(value):
+    """JSON for a configuration's value that JSON has no type for: an array by its type,
+    shape and a digest of its bytes (its ``str`` abbreviates a large one, so two maps
+    would hash alike), anything else as its ``str``."""
+    if isinstance(value, np.ndarray):
+        data = np.ascontiguousarray(value)
+        return {"array": str(data.dtype), "shape": list(data.shape),
+                "sha256": hashlib.sha256(data.tobytes()).hexdigest()}
+    return str(value)

@@ -109,6 +109,18 @@ def test_effective_config_fills_defaults():
     assert same.config_hash == pipe.config_hash
 
 
+def test_maps_given_as_arrays_hash_by_their_values():
+    # str() of a large array abbreviates it: two maps that differ inside must not hash alike
+    a = np.full((64, 64), 10.0)
+    b = a.copy()
+    b[30, 30] = 11.0
+    assert "..." in str(a)
+    hashes = {Pipeline({"steps": [{"detect_jumps": {"read_noise": v}}]}).config_hash
+              for v in (a, b, 10.0)}
+    assert len(hashes) == 3
+    assert Pipeline({"steps": [{"detect_jumps": {"read_noise": a.copy()}}]}).config_hash in hashes
+
+
 @pytest.mark.parametrize(
     ("config", "message"),
     [

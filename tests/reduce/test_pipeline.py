@@ -121,6 +121,16 @@ def test_maps_given_as_arrays_hash_by_their_values():
     assert Pipeline({"steps": [{"detect_jumps": {"read_noise": a.copy()}}]}).config_hash in hashes
 
 
+def test_a_quiet_parameter_given_as_an_array_is_hashed_by_its_values():
+    # a parameter left out of the hash at its default is compared without numpy's ==
+    a = np.full((64, 64), 0.01)
+    b = a.copy()
+    b[3, 3] = 0.02
+    hashes = [Pipeline({"steps": [{"detect_jumps": {"read_noise": 10.0, "expected_rate": v}}]})
+              .config_hash for v in (a, b, a.copy())]
+    assert hashes[0] != hashes[1] and hashes[0] == hashes[2]
+
+
 @pytest.mark.parametrize(
     ("config", "message"),
     [

@@ -182,7 +182,8 @@ class PixelMap:
     label: str
 
     @classmethod
-    def of(cls, value, name, geometry, *, unit=None, gain=None, minimum=None, positive=False):
+    def of(cls, value, name, geometry, *, unit=None, gain=None, minimum=None, positive=False,
+           allow_nan=False):
         """The map of a parameter's ``value`` for an array of ``geometry``.
 
         Parameters
@@ -206,6 +207,9 @@ class PixelMap:
             Smallest allowed value.
         positive : bool
             Values must be > 0 (e.g. a gain).
+        allow_nan : bool
+            A map may hold NaN (a pixel without a value, as a master dark's
+            that no input could give); infinities are still refused.
 
         Raises
         ------
@@ -237,20 +241,22 @@ class PixelMap:
         if arr.ndim == 2 and arr.shape != stored:
             raise ConfigError(f"{name}: a map of shape {arr.shape}; the stored image is "
                               f"{stored} (rows, columns)")
-        if not np.isfinite(arr).all():
+        if not (np.isfinite(arr) | (allow_nan & np.isnan(arr))).all():
             raise ConfigError(f"{name}: {label} holds values that are not finite")
+        if allow_nan and arr.size and np.isnan(arr).all():
+            raise ConfigError(f"{name}: {label} holds no value (every one NaN)")
         if arr.ndim == 2:
             arr = np.ascontiguousarray(geometry.layout.to_readout(arr))
         arr = _in_unit(arr, given, unit, gain, name, label)
         if arr.ndim == 1:  # a number converted with a gain per column
             arr = np.broadcast_to(arr, (geometry.frame.nrows, geometry.frame.ncols))
-        low = float(arr.min())
+        low = float(np.nanmin(arr))
         if minimum is not None and low < minimum:
             raise ConfigError(f"{name}: {label} must be >= {minimum:g}, has {low:g}")
         if positive and low <= 0:
             raise ConfigError(f"{name}: {label} must be > 0, has {low:g}")
         values = float(arr) if arr.ndim == 0 else arr
-        if arr.ndim == 2 and (arr == arr.flat[0]).all():
+        if arr.ndim == 2 and (arr == arr.flat[0]).all():  # (never with a NaN)
             values = float(arr.flat[0])  # a uniform map is a number: the fast paths apply
         return cls(values, label)
 
@@ -274,6 +280,8 @@ class PixelMap:
     def __str__(self):
         if self.per_pixel:
             v = self.values
-            return (f"{self.label} {v.shape[0]}x{v.shape[1]} map, median {np.median(v):.4g}, "
-                    f"range {v.min():.4g}-{v.max():.4g}")
+            nan = int(np.isnan(v).sum())
+            return (f"{self.label} {v.shape[0]}x{v.shape[1]} map, median {np.nanmedian(v):.4g}, "
+                    f"range {np.nanmin(v):.4g}-{np.nanmax(v):.4g}"
+                    + (f", {nan} NaN" if nan else ""))
         return self.label

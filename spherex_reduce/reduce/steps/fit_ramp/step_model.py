@@ -14,6 +14,14 @@ variance is ``sigma**2 q_k + lambda s_k``; ``z_k = R_k / sqrt(sigma**2 q_k + lam
 s_k)`` is the matched-filter statistic of a step at ``k``, and a step ``A`` at ``k``
 moves the line's slope by ``A`` times ``slope_of_step[k - 1]``.
 
+With ``slope_precision`` the line's slope has a prior: one more observation of it, of
+variance ``sigma**2 / slope_precision`` about zero (``detect_jumps``' ``expected_rate``
+subtracts each ramp's expected line from its reads first), so that a step is tested
+against a line whose slope is known beforehand (a master dark's) rather than a free one: the same
+formulas with the generalised least squares of the reads and that observation (``X' W
+X`` gains ``slope_precision`` in its slope's place); ``R_k`` stays a tail sum of the
+weighted residuals about the (posterior) line, since the intercept stays free.
+
 `StepModel` holds these for a set of read times, once; ``detect_jumps`` searches
 with them (`~spherex_reduce.reduce.steps.jumps.search.StepSearch`) and ``fit_ramp``
 weighs the steps a ramp may hold
@@ -43,6 +51,9 @@ class StepModel:
         ``min(t_i, t_j) - t_0``, single frames).
     rho : float
         Shot noise in the weights, ``lambda / sigma**2`` (1/s); 0: read-noise weights.
+    slope_precision : float
+        Weight of a prior observation of the slope, zero on average: ``sigma**2`` over its
+        variance (s**2; 0: the slope free).
 
     Attributes
     ----------
@@ -66,7 +77,7 @@ class StepModel:
     ([0.3, 0.2, 0.3], [0.3, 0.4, 0.3])
     """
 
-    def __init__(self, times, factors=None, walk=None, rho=0.0):
+    def __init__(self, times, factors=None, walk=None, rho=0.0, slope_precision=0.0):
         t = np.asarray(times, np.float64)
         n = t.size
         if n < 3:
@@ -81,11 +92,13 @@ class StepModel:
         v = np.diag(w) if rho == 0 else np.linalg.inv(np.diag(f) + rho * walk)
         x = np.column_stack([np.ones(n), tau])
         xtv = x.T @ v
-        coef = np.linalg.solve(xtv @ x, xtv)  # (2, n): intercept and slope of y
+        # (2, n): intercept and slope of y (with the slope's prior observation of 0)
+        coef = np.linalg.solve(xtv @ x + np.diag([0.0, float(slope_precision)]), xtv)
         wm = v - xtv.T @ coef  # V M, symmetric
         h = (np.arange(n)[None, :] >= np.arange(1, n)[:, None]).astype(np.float64)
         g = h @ wm  # R_k = g[k - 1] @ y for a step at read k
         self.n, self.tau, self.w, self.rho = n, tau, w, rho
+        self.slope_precision = float(slope_precision)
         self.coef, self.h, self.gk = coef, h, g
         self.g = g if rho else None  # R = g @ y (with rho = 0: tail sums of weighted residuals)
         self.wm = wm

@@ -48,7 +48,7 @@ from ....core.limits import check_size
 from ....core.recently_used import RecentlyUsed
 from ..fit_ramp.step_model import StepModel
 
-__all__ = ["SCALE_DOF", "SCREEN_MARGIN", "Found", "StepSearch"]
+__all__ = ["OWN_SIGMA", "SCALE_DOF", "SCREEN_MARGIN", "Found", "SlopePrior", "StepSearch"]
 
 #: the float32 screen keeps pixels down to this fraction of the threshold, so that its
 #: rounding never drops a pixel the float64 search would flag
@@ -90,6 +90,34 @@ SCALE_SHOT = 0.1
 #: noise: clipped at 0 alone its mean is 0.4 sigma and the shot noise it adds hides
 #: small steps and lowers the false alarms below the stated rates; at 1 sigma 0.08 sigma)
 SHOT_RATE_SIGMAS = 1.0
+#: with a slope prior (`SlopePrior`), a ramp whose two-segment slope at the prior search's
+#: best step is this many of its sigmas (and the prior's spread) off its expected slope is
+#: searched with its slope free: a pixel warmer than expected, a source (at the
+#: slope-free search's best step instead, a 10-30 e step placed at the wrong read would
+#: look off the expected slope)
+OWN_SIGMA = 4.0
+
+
+@dataclass(frozen=True)
+class SlopePrior:
+    """The rate each ramp is expected to hold, as a prior on its line's slope in the step
+    search (``detect_jumps``' ``expected_rate``).
+
+    Attributes
+    ----------
+    search : `StepSearch`
+        The search of the same reads whose ``slope_precision`` is the read noise's
+        variance over the prior's (its ``spread``, or its floor), in the ramps' ``sigma``.
+    slope : float or `numpy.ndarray`
+        The expected slope (data unit / s): one for all, or one per ramp given to
+        `StepSearch.find` (its columns).
+    spread : float
+        How much the ramps' true rates spread about ``slope`` (data unit / s).
+    """
+
+    search: object
+    slope: float
+    spread: float
 
 
 class StepSearch(StepModel):
@@ -99,10 +127,11 @@ class StepSearch(StepModel):
 
     Parameters
     ----------
-    times, factors, walk, rho
+    times, factors, walk, rho, slope_precision
         As `~spherex_reduce.reduce.steps.fit_ramp.step_model.StepModel`'s, at least 4
         reads (a group's ``walk`` is the mean over its frames,
-        `~spherex_reduce.ReadoutSchedule.shot_covariance`).
+        `~spherex_reduce.ReadoutSchedule.shot_covariance`); with ``slope_precision`` the
+        reads given to `find` are those less the expected line (`find`'s ``prior``).
 
     Examples
     --------
@@ -117,12 +146,12 @@ class StepSearch(StepModel):
     ([12], [0], 7.5)
     """
 
-    def __init__(self, times, factors=None, walk=None, rho=0.0):
+    def __init__(self, times, factors=None, walk=None, rho=0.0, slope_precision=0.0):
         n = np.size(times)
         if n < 4:
             raise ValueError(f"a step search needs at least 4 reads, got {n}")
         check_size(self.nbytes(n), f"detect_jumps: the step search over {n} reads")
-        super().__init__(times, factors, walk, rho)
+        super().__init__(times, factors, walk, rho, slope_precision)
         tau, f, walk, coef, g, h = (self.tau, self.factors, self.walk, self.coef, self.gk,
                                     self.h)
         self.qq = g @ h.T  # Q[k, l] = h_k' V M h_l: q is its diagonal
@@ -145,7 +174,8 @@ class StepSearch(StepModel):
         1/s), made once per bin of `RHO_BIN` dex."""
         key = int(np.round(np.log10(rho) / RHO_BIN))
         return self._shot.get(key, lambda: StepSearch(self.tau, self.factors, self.walk,
-                                                      10.0 ** (key * RHO_BIN)))
+                                                      10.0 ** (key * RHO_BIN),
+                                                      self.slope_precision))
 
     def scatter(self, y, sigma, gain=1.0):
         """How much the ramps ``y`` scatter about their lines, in units of the read noise
@@ -214,7 +244,7 @@ class StepSearch(StepModel):
         return float(np.median(np.median(u, axis=1)) / _chi2_median(1))
 
     # -- search ------------------------------------------------------------------
-    def find(self, y, *, threshold, sigma=None, gain=1.0, max_jumps=10):
+    def find(self, y, *, threshold, sigma=None, gain=1.0, max_jumps=10, prior=None):
         """The jumps of ramps ``y`` (usable reads only), at most ``max_jumps`` each.
 
         Parameters
@@ -231,6 +261,10 @@ class StepSearch(StepModel):
             Electrons per data unit (shot noise).
         max_jumps : int
             Steps searched for in each ramp.
+        prior : `SlopePrior`, optional
+            Test each step against a line whose slope has this prior (``sigma``
+            needed): a ramp whose slope is off its expected one (`OWN_SIGMA`) or whose
+            shot noise is weighed keeps the free slope.
 
         Returns
         -------
@@ -243,6 +277,8 @@ class StepSearch(StepModel):
         work = np.float64 if y.dtype == np.float64 else np.float32
         n, m = y.shape
         estimate = sigma is None
+        if prior is not None and estimate:
+            raise ValueError("a slope prior needs the read noise (sigma)")
         if estimate and n < 5:
             return Found.empty()
         with np.errstate(over="ignore"):  # a huge threshold squares to inf: no jump
@@ -250,6 +286,8 @@ class StepSearch(StepModel):
         picked, floors, reads, unsearched = [], [], [], []
         width = max(256, SCREEN_BYTES // (n * np.dtype(work).itemsize))
         buf = np.empty((n, min(m, width)), work)  # reused: no page faults
+        if prior is not None:  # the reads less the expected line, for the prior's screen
+            buf_prior = np.empty_like(buf)
         for lo in range(0, m, width):
             part = slice(lo, min(m, lo + width))
             y0 = np.asarray(y[0, part], work)
@@ -268,7 +306,15 @@ class StepSearch(StepModel):
             if not finite.all():
                 unsearched.append(np.flatnonzero(~finite) + lo)
             with np.errstate(over="ignore"):  # limit * var: inf for a huge threshold
-                keep = np.flatnonzero(finite & ~(best <= limit * var))
+                over = ~(best <= limit * var)
+                if prior is not None:  # either search may flag it
+                    relp = buf_prior[:, :y0.size]
+                    line = np.multiply.outer(self.tau, _take(prior.slope, part))
+                    np.subtract(rel, line.reshape(n, -1), out=relp, casting="unsafe")
+                    with np.errstate(invalid="ignore"):
+                        bestp, _ = prior.search.screen(relp, False)
+                    over |= ~(bestp <= limit * var)
+                keep = np.flatnonzero(finite & over)
             if keep.size:
                 picked.append(keep + lo)
                 floors.append(floor[keep])
@@ -278,18 +324,51 @@ class StepSearch(StepModel):
             return Found.empty(skipped)
         pixels = np.concatenate(picked)
         sig = None if estimate else _take(sigma, pixels)
-        found = self._search(np.concatenate(reads, axis=1), pixels, threshold, sig,
-                             _take(gain, pixels), np.concatenate(floors), max_jumps)
+        args = (np.concatenate(reads, axis=1), pixels, threshold, sig, _take(gain, pixels),
+                np.concatenate(floors), max_jumps)
+        found = self._search(*args) if prior is None else self._with_prior(*args, prior)
         found.unsearched = skipped
         return found
 
-    def _search(self, y, pixels, threshold, sigma, gain, floor, max_jumps):
+    def _with_prior(self, y, pixels, threshold, sigma, gain, floor, max_jumps, prior):
+        """The float64 search of the screened ramps ``y`` (reads less the first) with the
+        prior's expected slope, but for the ramps off it or bright enough for shot-noise
+        weights, searched with the slope free."""
+        ps = prior.search
+        cols = np.arange(pixels.size)
+        expected = np.broadcast_to(_take(prior.slope, pixels), (pixels.size,))
+        ab, big_r, _ = self.step_sums(y)
+        yp = y - expected * self.tau[:, None]
+        _, big_rp, _ = ps.step_sums(yp)
+        kp = np.argmax(big_rp ** 2 * ps._invq[:, None], axis=0)
+        # the two-segment slope (slope free) at the prior search's best step
+        amp = big_r[kp, cols] * self._invq[kp]
+        slope = ab[1] - self.slope_of_step[kp] * amp
+        var = np.maximum(np.square(sigma), floor)
+        sos = self.slope_of_step[kp]
+        spread = np.sqrt(var * (self.slope_var + sos * sos * self._invq[kp])
+                         + prior.spread ** 2)
+        own = ~(np.abs(slope - expected) <= OWN_SIGMA * spread)
+        lam = np.maximum(slope, 0.0) / gain
+        own |= lam / var * self.walk_top > SHOT_WEIGHTED
+        parts = []
+        for search, sel, reads, offset in ((self, own, y, 0.0),
+                                           (ps, ~own, yp, expected)):
+            if sel.any():
+                f = search._search(reads[:, sel], pixels[sel], threshold, _take(sigma, sel),
+                                   _take(gain, sel), floor[sel], max_jumps,
+                                   _take(offset, sel))
+                parts.append((f.pixel, f.read, f.amplitude, f.z))
+        return Found.of(parts)
+
+    def _search(self, y, pixels, threshold, sigma, gain, floor, max_jumps, slope_offset=0.0):
         """The float64 search of the screened pixels: one step more at each round, fitted
         jointly with the steps already found (generalised least squares of a line plus
-        steps, from the line's ``R_k`` and the matrices ``Q`` and ``S``)."""
+        steps, from the line's ``R_k`` and the matrices ``Q`` and ``S``); ``slope_offset``
+        the slope taken out of the reads (a prior's), put back for the shot noise."""
         ab, big_r, rss = self.step_sums(y)
-        state = _State(big_r, rss, ab[1], np.zeros((pixels.size, 0), np.int64), pixels,
-                       sigma, gain, floor)
+        state = _State(big_r, rss, ab[1] + slope_offset, np.zeros((pixels.size, 0), np.int64),
+                       pixels, sigma, gain, floor)
         out = []
         if self.rho == 0:
             var, lam = self._noise(state)
@@ -308,7 +387,8 @@ class StepSearch(StepModel):
                     sel = where[bins == b]
                     other = self.with_shot(10.0 ** (b * RHO_BIN))
                     found = other._search(y[:, sel], pixels[sel], threshold, np.sqrt(var[sel]),
-                                          np.inf, floor[sel], max_jumps)
+                                          np.inf, floor[sel], max_jumps,
+                                          _take(slope_offset, sel))
                     out.append((found.pixel, found.read, found.amplitude, found.z))
                 state = state.take(keep, state.steps[keep])
         self._round(state, threshold, max_jumps, out)

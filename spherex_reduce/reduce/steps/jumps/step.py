@@ -27,16 +27,17 @@ import numpy as np
 from astropy import units as u
 
 from ....core import dq
-from ....core.errors import StepSkipped
+from ....core.errors import ConfigError, StepSkipped
 from ....core.limits import check_size
 from ....core.parameters import OPTIONAL_NUMBER, Parameter, validate_parameters
 from ....io.sources import MemorySource
 from ...hookspecs import hookimpl
+from ...options import RunOptions, in_threads
 from ...step import Kernel, Record, Step
 from ..fit_ramp.segments import usable_reads
 from ..pixel_maps import MAP_TYPES, PixelMap, adu_gain
 from .events import JumpWarning, event_message, find_read_events
-from .search import SCALE_DOF, SCALE_SAMPLE, StepSearch
+from .search import SCALE_DOF, SCALE_SAMPLE, Found, SlopePrior, StepSearch
 from .showers import large_event_halos
 from .telegraph import telegraph_pixels
 
@@ -47,13 +48,23 @@ __all__ = ["DetectJumpsStep", "JumpKernel", "detect_jumps"]
 SEARCH_PIXELS = 1 << 17
 #: read events looked for in a set of rows (one more in each round of the search)
 MAX_EVENTS = 4
+#: ramps of a set of rows whose slopes less their ``expected_rate`` give the prior's
+#: offset and spread: at least this many, at most `PRIOR_RAMPS` (every k-th)
+PRIOR_MIN_RAMPS = 100
+PRIOR_RAMPS = 1 << 15
+#: the prior's spread at least this fraction of a ramp's own slope sigma (rates that match
+#: the expected ones to ~0: the prior's weight stays finite)
+PRIOR_FLOOR = 0.1
+#: the prior's weights (read-noise variance over the prior's) are binned by this many dex,
+#: one search for each bin of a set (a read-noise map)
+PRECISION_BIN = 0.02
 
 
 def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturation=None,
                  max_jumps=10, neighbours=False, neighbours_above=10.0, radius=0.0,
                  radius_above=1e4, large_events=False, large_event_area=5,
                  large_event_expand=2.0, large_event_reads=1, read_events=True, telegraph=True,
-                 positive_only=False, scale_read_noise=True):
+                 positive_only=False, scale_read_noise=True, expected_rate=None):
     """Flag `~spherex_reduce.core.dq.JUMP` on the read at which each pixel's charge stepped.
 
     Every pixel's usable reads are fitted with a line plus a step at each read
@@ -149,6 +160,30 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
         jump-free ramps).  Sets too small to measure it (fewer than 2**15
         ramps x (reads - 2)), or too bright (the shot noise above 10 % of the
         residuals), keep the read noise given.
+    expected_rate : float, array, str or `~astropy.units.Quantity`, optional
+        The rate each pixel is expected to hold (data unit / s; one number, or a
+        map as ``read_noise``), e.g. the master dark of the same detector
+        (``combine``) when the exposures are darks.  Each step is then tested
+        against a line whose slope has that prior instead of a free slope: a
+        step at mid-ramp is no longer nearly degenerate with a change of slope
+        (its sigma about halves), so 10-30 e steps at mid-ramp are found rather
+        than left to bias the slope.  On each set of rows the ramps' slopes less
+        their expected rates give the prior's offset (their median: a dark
+        current that drifted) and spread (their scatter below the median, less
+        the line's noise; at least a tenth of a slope's sigma).  A ramp whose
+        slope is off its expected one by more than
+        `~spherex_reduce.reduce.steps.jumps.search.OWN_SIGMA` sigmas (a pixel
+        warmer than in the map, a source), or bright enough for shot-noise
+        weights, keeps the free slope; so does a pixel the map holds NaN for
+        (a master dark's pixel no input gave).  The slopes
+        ``fit_ramp`` fits stay each pixel's own.  Needs ``read_noise``.  Sets of
+        fewer than 100 ramps with the same usable reads are searched with the
+        slope free.  The prior of a set needs all of its rows: as with
+        ``neighbours``, the whole exposure is searched first (in memory).  A
+        number is the same rate for every pixel: warm pixels that are not in a
+        map keep their free slope only from about 4 sigmas up, and below it
+        are flagged as steps often (a tenth to a half of those 2-4 sigmas warm):
+        give a map.
 
     Returns
     -------
@@ -200,7 +235,8 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
         radius=radius, radius_above=radius_above, large_events=large_events,
         large_event_area=large_event_area, large_event_expand=large_event_expand,
         large_event_reads=large_event_reads, read_events=read_events,
-        telegraph=telegraph, positive_only=positive_only, scale_read_noise=scale_read_noise)
+        telegraph=telegraph, positive_only=positive_only, scale_read_noise=scale_read_noise,
+        expected_rate=expected_rate)
 
 
 class JumpKernel(Kernel):
@@ -220,6 +256,10 @@ class JumpKernel(Kernel):
         super().__init__(context)
         s = context.schedule
         self.estimate = params["read_noise"] is None
+        self.prior = params["expected_rate"] is not None
+        if self.prior and self.estimate:
+            raise ConfigError("detect_jumps.expected_rate needs read_noise (the prior's "
+                              "weight is the read noise's variance over the rates' spread)")
         if s.nframes < (5 if self.estimate else 4):
             raise StepSkipped(_too_few(s.nframes, self.estimate))
         self.params = params
@@ -232,6 +272,11 @@ class JumpKernel(Kernel):
                            PixelMap.of(params["read_noise"], "detect_jumps.read_noise", g,
                                        positive=True, unit=unit,
                                        gain=adu_gain(unit, context.header, g, self.gain)))
+        self.expected = (None if not self.prior else
+                         PixelMap.of(params["expected_rate"], "detect_jumps.expected_rate", g,
+                                     unit=None if unit is None else unit / u.s,
+                                     gain=adu_gain(unit, context.header, g, self.gain),
+                                     allow_nan=True))
         # each stored read's time (a group's mean), read-noise variance relative to one
         # frame's (1 / frames averaged) and charge covariance per unit rate
         check_size(StepSearch.nbytes(s.nframes),  # before the first nframes**2 matrix
@@ -240,8 +285,9 @@ class JumpKernel(Kernel):
         self.factors = s.read_noise_factors
         self.walk = s.shot_covariance()
         self._whole = self._search(np.ones(s.nframes, bool))  # every read usable
+        # (the prior of a set of rows needs the whole set, whichever bands hold it)
         self.needs_exposure = bool(params["neighbours"] or params["radius"] > 0
-                                   or params["large_events"])
+                                   or params["large_events"] or self.prior)
         self._lock = threading.Lock()
         self._found = 0  # reads flagged by the search, over the bands (streamed route)
         # read events are decided on sets of rows aligned on the row axis, the same sets
@@ -376,13 +422,93 @@ class JumpKernel(Kernel):
         maps = self._maps(block)
         if self.rescale:
             maps = (self._scaled(block, y, bad, *maps), maps[1])
-        found = self._run(self._whole, y[:, good], maps, pixels)
+        found = self._run(self._whole, y[:, good], maps, pixels, block)
         parts.append((found.read, pixels[found.pixel], found.amplitude, found.z))
         rest = np.union1d(np.flatnonzero(bad), pixels[found.unsearched])
         if rest.size:
             parts.extend(self._masked(y, block, maps, rest))
         frames, pix, amp, z = (np.concatenate(a) for a in zip(*parts, strict=True))
         return frames, pix, amp, z
+
+    def _with_prior(self, search, y, sigma, gain, pixels, block):
+        """The search of ramps ``y`` (the band's flat ``pixels``, their reads usable for
+        ``search``), each set of `event_rows` rows with its prior (`_prior_of`), searched
+        with the slope free where a set has none: a `~spherex_reduce.reduce.steps.jumps.
+        search.Found` of their indices among ``y``'s columns."""
+        ncols = block.data.shape[-1]
+        n = y.shape[1]
+        sigma, gain = (np.broadcast_to(np.asarray(v, np.float64), (n,)) for v in (sigma, gain))
+        expected = self.expected.rows(block.index, self.context.order, self.context.schedule)
+        expected = np.broadcast_to(np.ravel(expected), (block.data[0].size,))[pixels]
+        sets = (np.asarray(block.index) // self.event_rows)[pixels // ncols]
+        p = self.params
+        parts, unsearched = [], []
+        for one in np.unique(sets):
+            at = np.flatnonzero(sets == one)
+            for cols, prior in self._prior_of(search, y[:, _run_of(at)], sigma[at], gain[at],
+                                              expected[at]):
+                sel = at[cols]
+                take = _run_of(sel)
+                found = search.find(y[:, take], threshold=p["threshold"], sigma=sigma[take],
+                                    gain=gain[take], max_jumps=p["max_jumps"], prior=prior)
+                parts.append((sel[found.pixel], found.read, found.amplitude, found.z))
+                unsearched.append(sel[found.unsearched])
+        out = Found.of(parts)
+        out.unsearched = np.concatenate(unsearched) if unsearched else np.zeros(0, np.int64)
+        return out
+
+    def _prior_of(self, search, y, sigma, gain, expected):
+        """The priors of one set's ramps ``y`` (reads usable for ``search``; read noise
+        ``sigma``, ``gain`` and ``expected_rate`` per ramp): ``[(columns of y,
+        SlopePrior or None)]``, one per bin of the prior's weight (`PRECISION_BIN`); None
+        (the slope free) when fewer than `PRIOR_MIN_RAMPS` ramps have a finite slope.
+
+        The offset is the median of the slopes less their expected rates (a sample of
+        at most `PRIOR_RAMPS`), the spread their median absolute deviation below it
+        (cosmic rays and pixels warmer than expected add charge: the upper side is
+        theirs), less the line's read and shot noise there, at least `PRIOR_FLOOR` of
+        the line's noise."""
+        every = np.arange(y.shape[1])
+        known = np.isfinite(expected)
+        if not known.all():  # a pixel the map has no value for: its slope free
+            out = [(every[~known], None)]
+            if known.any():
+                cols = every[known]
+                out += [(cols[c], p) for c, p in self._prior_of(
+                    search, y[:, cols], sigma[cols], gain[cols], expected[cols])]
+            return out
+        take = slice(None, None, max(1, -(-y.shape[1] // PRIOR_RAMPS)))
+        rel = np.asarray(y[:, take], np.float64)
+        d = search.coef[1] @ (rel - rel[0]) - expected[take]
+        finite = np.isfinite(d)
+        d = d[finite]
+        if d.size < PRIOR_MIN_RAMPS:
+            return [(every, None)]
+        offset = float(np.median(d))
+        below = offset - d[d < offset]
+        if below.size < PRIOR_MIN_RAMPS // 2:
+            return [(every, None)]
+        mad = 1.482602218505602 * float(np.median(below))
+        # the line's noise at the sample's median read noise and expected charge rate
+        s2 = float(np.median(np.square(sigma[take][finite])))
+        lam = max(float(np.median(expected[take][finite])) + offset, 0.0) / float(
+            np.median(gain[take][finite]))
+        shot = float(search.coef[1] @ search.walk @ search.coef[1])
+        spread = float(np.sqrt(max(mad ** 2 - s2 * search.slope_var - lam * shot, 0.0)))
+        weight2 = np.maximum(spread ** 2, PRIOR_FLOOR ** 2 * (np.square(sigma)
+                                                               * search.slope_var))
+        precision = np.square(sigma) / weight2
+        if not np.isfinite(precision).all():
+            return [(every, None)]
+        bins = np.round(np.log10(precision) / PRECISION_BIN).astype(np.int64)
+        out = []
+        key = (search.tau.tobytes(), search.factors.tobytes(),
+               np.ascontiguousarray(search.walk).tobytes())
+        for b in np.unique(bins):
+            cols = every[bins == b]
+            out.append((cols, SlopePrior(_prior_search(*key, 10.0 ** (b * PRECISION_BIN)),
+                                         expected[cols] + offset, spread)))
+        return out
 
     def _scaled(self, block, y, bad, read_noise, gain):
         """The read noise given for the pixels of a band (flat), scaled on each set of
@@ -423,8 +549,12 @@ class JumpKernel(Kernel):
                 self._scales[int(one)] = (factor, set_pixels.size)
         return out
 
-    def _run(self, search, y, maps, pixels):
+    def _run(self, search, y, maps, pixels, block):
+        """The search of ramps ``y`` (the band's flat ``pixels``, their reads usable for
+        ``search``), with ``expected_rate``'s prior when given."""
         sigma, gain = (v if v is None or np.ndim(v) == 0 else v[pixels] for v in maps)
+        if self.prior:
+            return self._with_prior(search, y, sigma, gain, pixels, block)
         return search.find(y, threshold=self.params["threshold"], sigma=sigma, gain=gain,
                            max_jumps=self.params["max_jumps"])
 
@@ -446,7 +576,7 @@ class JumpKernel(Kernel):
                 continue
             members = np.flatnonzero(inverse == g)
             found = self._run(self._search(mask), sub[idx][:, members], maps,
-                              pixels[members])
+                              pixels[members], block)
             out.append((idx[found.read], pixels[members][found.pixel], found.amplitude,
                         found.z))
         return out
@@ -460,9 +590,15 @@ class JumpKernel(Kernel):
         source = MemorySource(exposure)
         rows = max(1, SEARCH_PIXELS // self.context.geometry.ncols)
         parts, events, quiet = [], [], []
-        for lo in range(0, source.nrows, rows):
+        starts = range(0, source.nrows, rows)
+        nthreads = min(len(starts), RunOptions(threads=self.context.threads).thread_count())
+
+        def search(lo):  # each set of rows on its own (its events, its prior): any thread
             block = source.read(lo, min(source.nrows, lo + rows))
-            (frames, pix, amp, z), flags, left_out = self.find(block)
+            return block, self.find(block)
+
+        for block, ((frames, pix, amp, z), flags, left_out) in in_threads(
+                starts, search, nthreads, name="spherex-reduce-jumps"):
             ncols = block.data.shape[-1]
             parts.append((frames, block.index[pix // ncols], pix % ncols, amp, z))
             if flags is not None:
@@ -604,6 +740,23 @@ def _too_few(nframes, estimate):
         text = f"{nframes} reads: too few to search for jumps (4 needed)"
     warnings.warn(f"detect_jumps: {text}; the step is skipped", JumpWarning, stacklevel=3)
     return text
+
+
+def _run_of(index):
+    """``index`` (increasing) as a slice when it is one run of consecutive columns (a
+    view, no copy), else itself."""
+    return (slice(int(index[0]), int(index[-1]) + 1)
+            if index.size and index[-1] - index[0] + 1 == index.size else index)
+
+
+@functools.lru_cache(maxsize=32)
+def _prior_search(times, factors, walk, precision):
+    """The `StepSearch` of `_step_search`'s reads with a slope prior of weight
+    ``precision`` (``expected_rate``), kept for a set's searches (a band's read events
+    search it again)."""
+    n = len(times) // 8
+    return StepSearch(np.frombuffer(times), np.frombuffer(factors),
+                      np.frombuffer(walk).reshape(n, n), slope_precision=precision)
 
 
 @functools.lru_cache(maxsize=256)
@@ -792,6 +945,11 @@ class DetectJumpsStep(Step):
                   "added, as by cosmic rays); the steps down are fitted through"),
         Parameter("scale_read_noise", True, (bool,), "scale the read noise given to the "
                   "ramps' own scatter (each set of rows), so the false alarms stay as stated"),
+        Parameter("expected_rate", None, (*MAP_TYPES, type(None)), "the rate each pixel "
+                  "is expected to hold (data unit / s; a number or a FITS image, e.g. the "
+                  "master dark): steps are tested against a line with that slope's prior, "
+                  "so mid-ramp steps are found at half the amplitude (needs read_noise); "
+                  "null: the slope free", quiet_default=True),
     )
 
     def kernel(self, context, **params):

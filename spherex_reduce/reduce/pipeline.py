@@ -400,9 +400,12 @@ def _is_value(value, default):
 def _hashable(value):
     """JSON for a configuration's value that JSON has no type for: an array by its type,
     shape and a digest of its bytes (its ``str`` abbreviates a large one, so two maps
-    would hash alike), anything else as its ``str``."""
+    would hash alike) and a Quantity's unit, anything else as its ``str``."""
     if isinstance(value, np.ndarray):
-        data = np.ascontiguousarray(value)
-        return {"array": str(data.dtype), "shape": list(data.shape),
-                "sha256": hashlib.sha256(data.tobytes()).hexdigest()}
+        data = np.ascontiguousarray(getattr(value, "value", value))
+        out = {"array": str(data.dtype), "shape": list(data.shape),
+               "sha256": hashlib.sha256(data.tobytes()).hexdigest()}
+        if hasattr(value, "unit"):  # a Quantity: 10 e and 10 ADU are not one map
+            out["unit"] = str(value.unit)
+        return out
     return str(value)

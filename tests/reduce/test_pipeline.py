@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pytest
 from _toy_steps import OffsetPlugin, registry_with
+from astropy import units as u
 
 import spherex_reduce
 from spherex_reduce import (
@@ -119,6 +120,10 @@ def test_maps_given_as_arrays_hash_by_their_values():
               for v in (a, b, 10.0)}
     assert len(hashes) == 3
     assert Pipeline({"steps": [{"detect_jumps": {"read_noise": a.copy()}}]}).config_hash in hashes
+    # a Quantity's unit is part of it: 10 e and 10 ADU of read noise are not one map
+    q = [Pipeline({"steps": [{"detect_jumps": {"read_noise": a * unit}}]}).config_hash
+         for unit in (u.electron, u.adu)]
+    assert q[0] != q[1] and not set(q) & hashes
 
 
 def test_a_quiet_parameter_given_as_an_array_is_hashed_by_its_values():

@@ -349,9 +349,13 @@ class StepSearch(StepModel):
         spread = np.sqrt(var * (self.slope_var + sos * sos * self._invq[kp])
                          + prior.spread ** 2)
         own = ~(np.abs(slope - expected) <= OWN_SIGMA * spread)
-        lam = np.maximum(slope, 0.0) / gain
+        # bright enough for shot-noise weights at its expected rate (not at this noisy
+        # two-segment slope: clean dark ramps whose noise looked like a step down were sent
+        # to the free search there, and flagged by it at ~4 line sigmas of error)
+        lam = np.maximum(expected, 0.0) / gain
         own |= lam / var * self.walk_top > SHOT_WEIGHTED
         parts = []
+        free = int(np.count_nonzero(own))
         for search, sel, reads, offset in ((self, own, y, 0.0),
                                            (ps, ~own, yp, expected)):
             if sel.any():
@@ -359,7 +363,9 @@ class StepSearch(StepModel):
                                    _take(gain, sel), floor[sel], max_jumps,
                                    _take(offset, sel))
                 parts.append((f.pixel, f.read, f.amplitude, f.z))
-        return Found.of(parts)
+        out = Found.of(parts)
+        out.free = free
+        return out
 
     def _search(self, y, pixels, threshold, sigma, gain, floor, max_jumps, slope_offset=0.0):
         """The float64 search of the screened pixels: one step more at each round, fitted
@@ -638,14 +644,16 @@ def _take(values, index):
 
 
 class Found:
-    """Jumps found: parallel arrays ``pixel``, ``read``, ``amplitude``, ``z``; and
-    ``unsearched``, the ramps not searched (a read not finite)."""
+    """Jumps found: parallel arrays ``pixel``, ``read``, ``amplitude``, ``z``;
+    ``unsearched``, the ramps not searched (a read not finite); and ``free``, how many
+    ramps a search with a slope prior searched with the slope free instead."""
 
-    __slots__ = ("amplitude", "pixel", "read", "unsearched", "z")
+    __slots__ = ("amplitude", "free", "pixel", "read", "unsearched", "z")
 
     def __init__(self, pixel, read, amplitude, z, unsearched=None):
         self.pixel, self.read, self.amplitude, self.z = pixel, read, amplitude, z
         self.unsearched = np.zeros(0, np.int64) if unsearched is None else unsearched
+        self.free = 0
 
     @classmethod
     def empty(cls, unsearched=None):

@@ -161,29 +161,30 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
         ramps x (reads - 2)), or too bright (the shot noise above 10 % of the
         residuals), keep the read noise given.
     expected_rate : float, array, str or `~astropy.units.Quantity`, optional
-        The rate each pixel is expected to hold (data unit / s; one number, or a
-        map as ``read_noise``), e.g. the master dark of the same detector
-        (``combine``) when the exposures are darks.  Each step is then tested
-        against a line whose slope has that prior instead of a free slope: a
-        step at mid-ramp is no longer nearly degenerate with a change of slope
-        (its sigma about halves), so 10-30 e steps at mid-ramp are found rather
-        than left to bias the slope.  On each set of rows the ramps' slopes less
-        their expected rates give the prior's offset (their median: a dark
-        current that drifted) and spread (their scatter below the median, less
-        the line's noise; at least a tenth of a slope's sigma).  A ramp whose
-        slope is off its expected one by more than
-        `~spherex_reduce.reduce.steps.jumps.search.OWN_SIGMA` sigmas (a pixel
-        warmer than in the map, a source), or bright enough for shot-noise
-        weights, keeps the free slope; so does a pixel the map holds NaN for
-        (a master dark's pixel no input gave).  The slopes
-        ``fit_ramp`` fits stay each pixel's own.  Needs ``read_noise``.  Sets of
-        fewer than 100 ramps with the same usable reads are searched with the
-        slope free.  The prior of a set needs all of its rows: as with
+        The rate each pixel is expected to hold (data unit / s; a map as
+        ``read_noise``, NaN where it has no value), e.g. the master dark of the
+        same detector (``combine``) when the exposures are darks.  Each step is
+        then tested against a line whose slope has that prior instead of a free
+        slope: a step at mid-ramp is no longer nearly degenerate with a change
+        of slope (its sigma about halves), so 10-30 e steps at mid-ramp are
+        found rather than left to bias the slope.  On each set of rows the
+        ramps' slopes less their expected rates give the prior's offset (their
+        median: a dark current that drifted) and spread (their scatter below
+        the median, less the line's noise; at least a tenth of a slope's
+        sigma).  A ramp whose two-segment slope is off its expected one by more
+        than `~spherex_reduce.reduce.steps.jumps.search.OWN_SIGMA` of its sigmas
+        (a pixel warmer than in the map, a source), or bright enough at its
+        expected rate for shot-noise weights, keeps the free slope; so do a
+        pixel the map holds NaN for and the ramps of a set where no prior can
+        be weighed (fewer than 100 with the same usable reads; rates whose
+        squares overflow).  The header's ``NEXPRATE`` and ``NEXPFREE`` count
+        both kinds.  The slopes ``fit_ramp`` fits stay each pixel's own.  Needs
+        ``read_noise``.  The prior of a set needs all of its rows: as with
         ``neighbours``, the whole exposure is searched first (in memory).  A
-        number is the same rate for every pixel: warm pixels that are not in a
-        map keep their free slope only from about 4 sigmas up, and below it
-        are flagged as steps often (a tenth to a half of those 2-4 sigmas warm):
-        give a map.
+        number is the same rate for every pixel, and the offset makes any number
+        the set's median slope: warm pixels are then off their prior and those
+        3-6 line sigmas warm are flagged as steps 20-40 % of the time: give a
+        map.
 
     Returns
     -------
@@ -297,6 +298,10 @@ class JumpKernel(Kernel):
         self._telegraph = 0  # telegraph pixels, over the bands
         self.rescale = not self.estimate and params["scale_read_noise"]
         self._scales = {}  # set of rows -> (factor the read noise given is scaled by, pixels)
+        # expected_rate: ramps searched against it and with the slope free, per band (its
+        # last search: a read event searches it again), and this thread's count so far
+        self._prior_counts = {}
+        self._tally = threading.local()
 
     # -- the search of one band -------------------------------------------------------
     def _search(self, usable):
@@ -355,6 +360,7 @@ class JumpKernel(Kernel):
         the reads next to it are then gone too."""
         found = self._jumps(block)
         if not self.params["read_events"]:
+            self._count_prior(block)
             return found, None
         flags, events = None, []
         for _ in range(MAX_EVENTS):
@@ -368,6 +374,7 @@ class JumpKernel(Kernel):
             events += new
             # search again without the reads that are off and the array's steps
             found = self._jumps(_without_events(block, flags, self.times))
+        self._count_prior(block)
         if flags is None:
             return found, None
         with self._lock:
@@ -383,6 +390,13 @@ class JumpKernel(Kernel):
         stepped = (flags[frames, pix // block.data.shape[-1], 0] & np.uint32(dq.JUMP)) != 0
         keep = ~stepped  # the array's step is an event, not the pixels' jumps
         return (frames[keep], pix[keep], amp[keep], z[keep]), flags
+
+    def _count_prior(self, block):
+        """Keep the band's last search's counts of ramps searched against their expected
+        rate and with the slope free (``expected_rate``)."""
+        if self.prior:
+            with self._lock:
+                self._prior_counts[int(np.asarray(block.index)[0])] = tuple(self._tally.counts)
 
     def _read_events(self, block, found, flags):
         """The strongest new read event of each set of `event_rows` rows of a band, judged
@@ -411,6 +425,7 @@ class JumpKernel(Kernel):
         p = self.params
         nf = block.nframes
         y = block.data.reshape(nf, -1)
+        self._tally.counts = [0, 0]  # this search's ramps: against the expected rate, free
         bad = np.zeros(y.shape[1], bool)  # pixels with a read flagged or above saturation
         if block.dq is not None:
             bad |= (~dq.read_usable(block.dq.reshape(nf, -1))).any(axis=0)
@@ -451,6 +466,9 @@ class JumpKernel(Kernel):
                 take = _run_of(sel)
                 found = search.find(y[:, take], threshold=p["threshold"], sigma=sigma[take],
                                     gain=gain[take], max_jumps=p["max_jumps"], prior=prior)
+                free = sel.size if prior is None else found.free
+                self._tally.counts[0] += sel.size - free
+                self._tally.counts[1] += free
                 parts.append((sel[found.pixel], found.read, found.amplitude, found.z))
                 unsearched.append(sel[found.unsearched])
         out = Found.of(parts)
@@ -488,18 +506,23 @@ class JumpKernel(Kernel):
         below = offset - d[d < offset]
         if below.size < PRIOR_MIN_RAMPS // 2:
             return [(every, None)]
-        mad = 1.482602218505602 * float(np.median(below))
-        # the line's noise at the sample's median read noise and expected charge rate
-        s2 = float(np.median(np.square(sigma[take][finite])))
-        lam = max(float(np.median(expected[take][finite])) + offset, 0.0) / float(
-            np.median(gain[take][finite]))
-        shot = float(search.coef[1] @ search.walk @ search.coef[1])
-        spread = float(np.sqrt(max(mad ** 2 - s2 * search.slope_var - lam * shot, 0.0)))
-        weight2 = np.maximum(spread ** 2, PRIOR_FLOOR ** 2 * (np.square(sigma)
-                                                               * search.slope_var))
-        precision = np.square(sigma) / weight2
-        if not np.isfinite(precision).all():
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            mad = 1.482602218505602 * np.median(below)
+            # the line's noise at the sample's median read noise and expected charge rate
+            s2 = np.median(np.square(sigma[take][finite]))
+            lam = max(np.median(expected[take][finite]) + offset, 0.0) / np.median(
+                gain[take][finite])
+            shot = search.coef[1] @ search.walk @ search.coef[1]
+            spread = np.sqrt(max(mad * mad - s2 * search.slope_var - lam * shot, 0.0))
+            weight2 = np.maximum(spread * spread, PRIOR_FLOOR ** 2 * (np.square(sigma)
+                                                                      * search.slope_var))
+            precision = np.square(sigma) / weight2
+        # rates too large for their squares (an absurd map), a read noise that underflows:
+        # no prior this set can be weighed with (counted as searched free)
+        if not (np.isfinite(offset) and np.isfinite(spread)
+                and (np.isfinite(precision) & (precision > 0)).all()):
             return [(every, None)]
+        spread = float(spread)
         bins = np.round(np.log10(precision) / PRECISION_BIN).astype(np.int64)
         out = []
         key = (search.tau.tobytes(), search.factors.tobytes(),
@@ -648,6 +671,11 @@ class JumpKernel(Kernel):
             cards.append(("NJUMPNB", coefficients.around, "reads flagged around jumps"))
         if self.params["telegraph"]:
             cards.append(("NTELEGR", self._telegraph, "telegraph pixels (flips left out)"))
+        if self.prior:
+            on, free = (int(v) for v in np.sum(list(self._prior_counts.values()) or [[0, 0]],
+                                               axis=0))
+            cards += [("NEXPRATE", on, "ramps searched against their expected_rate"),
+                      ("NEXPFREE", free, "ramps searched free: off it, NaN, too few")]
         if self._scales:
             factor, pixels = np.array(list(self._scales.values())).T
             cards += [("RNSCALE", round(float(factor @ pixels / pixels.sum()), 4),

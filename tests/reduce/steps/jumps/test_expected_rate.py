@@ -1,6 +1,8 @@
 """detect_jumps' slope_prior: the step search against the bulk's slope, checked against
 brute-force generalised least squares and a numpy matched filter with the slope known."""
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -224,6 +226,10 @@ def test_pixels_the_map_holds_no_value_for_keep_the_free_slope():
     got = flagged(detect_jumps(e, expected_rate=given, **kw))
     np.testing.assert_array_equal(got[::4], free[::4])
     assert got[::4].mean() < 0.01
+    # the header says how many ramps were searched against the map and how many free
+    h = detect_jumps(e, expected_rate=given, **kw).header
+    assert h["NEXPRATE"] + h["NEXPFREE"] == 64 * 512
+    assert 16 * 512 <= h["NEXPFREE"] < 16 * 512 + 100  # the NaN rows, and a few off it
     assert flagged(detect_jumps(e, expected_rate=0.0, **kw))[::4].mean() > 0.02  # 0.039
     with pytest.raises(ConfigError, match="expected_rate: array holds no value"):
         detect_jumps(e, expected_rate=np.full((64, 512), np.nan), **kw)
@@ -266,3 +272,74 @@ def test_a_master_dark_file_from_combine_is_the_map(tmp_path):
     assert flagged(detect_jumps(e, expected_rate=0.0, **kw))[warm].mean() > 0.02
     # the configuration recorded (HISTORY, wrapped at 72 characters) names the file
     assert f'"expected_rate": "{path}"' in "".join(out.header["HISTORY"])
+
+
+def test_clean_ramps_flagged_are_those_a_known_slope_flags_and_fit_as_its_segments():
+    """Every clean ramp the search flags (at 3.2 sigma: ~3 %) is one numpy's known-slope
+    test flags, at the same read, and its slope is the numpy least squares of its two
+    segments (a common slope): no ramp is flagged by a free-slope search instead (a clean
+    ramp whose noise looked like a step down used to be, with its two-segment slope taken
+    for a bright pixel's, and then fitted ~4 line sigmas off)."""
+    from spherex_reduce import Pipeline
+
+    rng = np.random.default_rng(16)
+    s = schedule(64, 512)
+    rate = 0.01
+    t = np.arange(NF) * DT
+    cube = white((NF, 64, 512), rng) + rate * t[:, None, None]
+    e = Exposure.from_arrays(cube.astype(np.float32), s)
+    search = {"read_noise": RN, "threshold": 3.2, "expected_rate": rate,
+              "read_events": False, "telegraph": False, "scale_read_noise": False}
+    out = Pipeline({"steps": [{"detect_jumps": search},
+                              {"fit_ramp": {"read_noise": RN}}]}).run(e)
+    jumps = ((detect_jumps(e, **search).dq & dq.JUMP) != 0).reshape(NF, -1)
+    y = cube.reshape(NF, -1) - 6e4 - rate * t[:, None]
+    z = np.abs(np.stack([known_step(y, k) for k in range(1, NF)]))  # (NF - 1, pixels)
+    expect = z.max(axis=0) >= 3.2
+    got = jumps.any(axis=0)
+    assert 500 < expect.sum() < 1500  # ~3 % of 32768
+    assert np.mean(expect[got]) > 0.97  # 0.76 with the free search's flags
+    # the prior is not the exact slope (its spread measured, at least a tenth of the
+    # line's sigma): a few of the known slope's flags are missed (766 of 920 here)
+    assert 0.75 * expect.sum() < got.sum() <= expect.sum()
+    both = np.flatnonzero(got & expect)
+    read = np.argmax(jumps[:, both], axis=0)
+    assert np.mean(read == 1 + np.argmax(z[:, both], axis=0)) > 0.97
+    # the fit: numpy's least squares of the segments between the flags (own intercepts,
+    # one slope), to a few hundredths of a line's sigma (fit_ramp weighs the reads with the
+    # ramp's shot noise); ramps cut where they were not flagged would be ~a sigma off
+    ref = np.empty(got.sum())
+    for i, p in enumerate(np.flatnonzero(got)):
+        seg = np.searchsorted(np.flatnonzero(jumps[:, p]), np.arange(NF), side="right")
+        x = np.column_stack([t] + [seg == k for k in range(seg[-1] + 1)]).astype(float)
+        ref[i] = np.linalg.lstsq(x, y[:, p], rcond=None)[0][0]
+    diff = (out.data.data.reshape(-1)[got] - rate - ref) / slope_sigma()
+    assert np.sqrt(np.mean(diff ** 2)) < 0.05  # 0.034 (one short segment 0.6 off)
+
+
+def known_step(y, k):
+    """z of a step at read ``k`` against a line of known slope 0 and free intercept, white
+    read noise RN (numpy means of the reads before and after)."""
+    n = y.shape[0]
+    amp = y[k:].mean(axis=0) - y[:k].mean(axis=0)
+    return amp / (RN * np.sqrt(1.0 / k + 1.0 / (n - k)))
+
+
+@pytest.mark.parametrize("case", ["huge map", "tiny read noise"])
+def test_a_prior_that_cannot_be_weighed_leaves_the_slope_free_without_a_warning(case):
+    rng = np.random.default_rng(17)
+    s = schedule(64, 256)
+    cube = white((NF, 64, 256), rng)
+    rate = np.zeros((64, 256))
+    rn = RN
+    if case == "huge map":
+        rate[:, ::2] = 1e160  # squares overflow: no spread can be measured
+    else:
+        rn = 1e-200  # its square underflows: no weight
+    e = Exposure.from_arrays(cube.astype(np.float32), s)
+    kw = dict(read_noise=rn, read_events=False, telegraph=False, scale_read_noise=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out = detect_jumps(e, expected_rate=rate, **kw)
+    np.testing.assert_array_equal(out.dq, detect_jumps(e, **kw).dq)
+    assert out.header["NEXPRATE"] == 0 and out.header["NEXPFREE"] == 64 * 256

@@ -160,7 +160,7 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
         jump-free ramps).  Sets too small to measure it (fewer than 2**15
         ramps x (reads - 2)), or too bright (the shot noise above 10 % of the
         residuals), keep the read noise given.
-    expected_rate : float, array, str or `~astropy.units.Quantity`, optional
+    expected_rate : array, str or `~astropy.units.Quantity`, optional
         The rate each pixel is expected to hold (data unit / s; a map as
         ``read_noise``, NaN where it has no value), e.g. the master dark of the
         same detector (``combine``) when the exposures are darks.  Each step is
@@ -180,11 +180,10 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
         squares overflow).  The header's ``NEXPRATE`` and ``NEXPFREE`` count
         both kinds.  The slopes ``fit_ramp`` fits stay each pixel's own.  Needs
         ``read_noise``.  The prior of a set needs all of its rows: as with
-        ``neighbours``, the whole exposure is searched first (in memory).  A
-        number is the same rate for every pixel, and the offset makes any number
-        the set's median slope: warm pixels are then off their prior and those
-        3-6 line sigmas warm are flagged as steps 20-40 % of the time: give a
-        map.
+        ``neighbours``, the whole exposure is searched first (in memory).  One
+        number is refused: the offset would make it each set's median slope, the
+        bulk's, and warm pixels 3-8 line sigmas warm would be flagged as steps
+        25-98 % of the time (an array of one value is taken, as asked).
 
     Returns
     -------
@@ -258,6 +257,11 @@ class JumpKernel(Kernel):
         s = context.schedule
         self.estimate = params["read_noise"] is None
         self.prior = params["expected_rate"] is not None
+        if self.prior and isinstance(params["expected_rate"], (int, float)):
+            raise ConfigError(
+                "detect_jumps.expected_rate: a map of each pixel's rate (e.g. the master "
+                "dark's FITS file), not one number: one rate for all is the bulk's slope, "
+                "and warm pixels would be flagged as steps")
         if self.prior and self.estimate:
             raise ConfigError("detect_jumps.expected_rate needs read_noise (the prior's "
                               "weight is the read noise's variance over the rates' spread)")
@@ -974,8 +978,8 @@ class DetectJumpsStep(Step):
         Parameter("scale_read_noise", True, (bool,), "scale the read noise given to the "
                   "ramps' own scatter (each set of rows), so the false alarms stay as stated"),
         Parameter("expected_rate", None, (*MAP_TYPES, type(None)), "the rate each pixel "
-                  "is expected to hold (data unit / s; a number or a FITS image, e.g. the "
-                  "master dark): steps are tested against a line with that slope's prior, "
+                  "is expected to hold (data unit / s; a FITS image, e.g. the master "
+                  "dark): steps are tested against a line with that slope's prior, "
                   "so mid-ramp steps are found at half the amplitude (needs read_noise); "
                   "null: the slope free", quiet_default=True),
     )

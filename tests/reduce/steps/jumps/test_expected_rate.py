@@ -43,6 +43,11 @@ def known_slope_z(y):
     return best
 
 
+def uniform(e, rate=0.0):
+    """A map of one rate for every pixel of ``e`` (a number is refused: see below)."""
+    return np.full(e.shape[1:], rate)
+
+
 def flagged(out):
     return ((out.dq & dq.JUMP) != 0).any(axis=0)
 
@@ -83,7 +88,7 @@ def test_the_prior_finds_mid_ramp_steps_as_a_known_slope_does():
     e = Exposure.from_arrays(cube.astype(np.float32), s)
     free = flagged(detect_jumps(e, read_noise=RN, read_events=False, telegraph=False))
     prior = flagged(detect_jumps(e, read_noise=RN, read_events=False, telegraph=False,
-                                 expected_rate=0.0))
+                                 expected_rate=uniform(e)))
     expect = known_slope_z(cube[:, hit] - 6e4) >= 4.0  # the slope known (0), numpy
     assert expect.mean() > 0.6 and free[hit].mean() < 0.2
     # the prior's weight is finite (its floor) and the bulk measured: a few ramps differ
@@ -97,7 +102,7 @@ def test_clean_darks_flag_what_the_known_slope_test_flags():
     cube = white((NF, 128, 512), rng)
     e = Exposure.from_arrays(cube.astype(np.float32), s)
     out = detect_jumps(e, read_noise=RN, read_events=False, telegraph=False,
-                       expected_rate=0.0, scale_read_noise=False)
+                       expected_rate=uniform(e), scale_read_noise=False)
     got = int(flagged(out).sum())
     expect = int((known_slope_z(cube.reshape(NF, -1) - 6e4) >= 4.0).sum())
     # the same false alarms as the numpy test (~0.2 % of 65536), to 4 Poisson sigmas
@@ -116,7 +121,7 @@ def test_hot_pixels_keep_the_free_slope():
     e = Exposure.from_arrays(cube.astype(np.float32), s)
     free = flagged(detect_jumps(e, read_noise=RN, read_events=False, telegraph=False))
     prior = flagged(detect_jumps(e, read_noise=RN, read_events=False, telegraph=False,
-                                 expected_rate=0.0))
+                                 expected_rate=uniform(e)))
     # against the bulk's slope every hot ramp would look like a step
     np.testing.assert_array_equal(prior[hot], free[hot])
     assert prior[hot].mean() < 0.02
@@ -130,8 +135,8 @@ def test_bands_and_threads_give_the_whole_exposures_flags_with_the_prior():
     cube[40:, 17, 9] += 16.0
     e = Exposure.from_arrays(cube.astype(np.float32), s)
     step = DetectJumpsStep()
-    params = step.validate({"read_noise": RN, "expected_rate": 0.0})
-    whole = step(e, read_noise=RN, expected_rate=0.0).dq
+    params = step.validate({"read_noise": RN, "expected_rate": uniform(e)})
+    whole = step(e, read_noise=RN, expected_rate=uniform(e)).dq
     assert (whole[:, 5, 3] & dq.JUMP).any() and (whole[:, 17, 9] & dq.JUMP).any()
     for rows, threads in ((1, 1), (5, 2)):
         kernel = step.kernel(MemorySource(e).context, **params)
@@ -140,11 +145,18 @@ def test_bands_and_threads_give_the_whole_exposures_flags_with_the_prior():
         np.testing.assert_array_equal(out.dq, whole)
 
 
+def test_a_number_is_refused_as_the_bulks_slope():
+    s = schedule(8, 8)
+    e = Exposure.from_arrays(white((NF, 8, 8), np.random.default_rng(9)).astype(np.float32), s)
+    with pytest.raises(ConfigError, match="expected_rate: a map of each pixel's rate"):
+        detect_jumps(e, read_noise=RN, expected_rate=0.01)
+
+
 def test_needs_the_read_noise():
     s = schedule(8, 8)
     e = Exposure.from_arrays(white((NF, 8, 8), np.random.default_rng(9)).astype(np.float32), s)
     with pytest.raises(ConfigError, match="expected_rate needs read_noise"):
-        detect_jumps(e, expected_rate=0.0)
+        detect_jumps(e, expected_rate=uniform(e))
 
 
 def slope_sigma(rn=RN):
@@ -165,7 +177,7 @@ def test_warm_pixels_in_the_map_are_searched_as_a_known_slope_would():
     e = Exposure.from_arrays(cube.astype(np.float32), s)
     kw = dict(read_noise=RN, read_events=False, telegraph=False, scale_read_noise=False)
     mapped = flagged(detect_jumps(e, expected_rate=rate, **kw))
-    uniform = flagged(detect_jumps(e, expected_rate=0.0, **kw))
+    bulk = flagged(detect_jumps(e, expected_rate=uniform(e), **kw))
     # numpy: a step against a line of each pixel's known rate (the map), free intercept
     expect = known_slope_z(cube.reshape(NF, -1) - 6e4 - np.outer(t, rate.ravel())) >= 4.0
     expect = expect.reshape(128, 512)
@@ -173,7 +185,7 @@ def test_warm_pixels_in_the_map_are_searched_as_a_known_slope_would():
     assert abs(int(mapped.sum()) - int(expect.sum())) <= 4 * np.sqrt(expect.sum())
     assert mapped[warm].mean() < 0.01
     # the same warm pixels against one rate for all look like steps
-    assert uniform[warm].mean() > 0.05
+    assert bulk[warm].mean() > 0.05
 
 
 def test_a_read_noise_map_weighs_each_pixels_prior_with_its_own_noise():
@@ -182,7 +194,7 @@ def test_a_read_noise_map_weighs_each_pixels_prior_with_its_own_noise():
     rn = np.where(np.arange(512) < 256, RN, 2.0 * RN)[None, :] * np.ones((128, 1))
     cube = 6e4 + rng.normal(0.0, 1.0, (NF, 128, 512)) * rn
     e = Exposure.from_arrays(cube.astype(np.float32), s)
-    got = flagged(detect_jumps(e, read_noise=rn, expected_rate=0.0, read_events=False,
+    got = flagged(detect_jumps(e, read_noise=rn, expected_rate=uniform(e), read_events=False,
                                telegraph=False, scale_read_noise=False))
     for cols, noise in ((slice(0, 256), RN), (slice(256, 512), 2.0 * RN)):
         z = known_slope_z((cube[:, :, cols].reshape(NF, -1) - 6e4) * (RN / noise))
@@ -202,7 +214,7 @@ def test_a_read_event_keeps_the_prior():
     cube[:, hit] += 12.0 * (np.arange(NF)[:, None] >= k[None, :])
     e = Exposure.from_arrays(cube.astype(np.float32), s)
     with pytest.warns(JumpWarning, match="read 0 is off in most pixels"):
-        out = detect_jumps(e, read_noise=RN, telegraph=False, expected_rate=0.0)
+        out = detect_jumps(e, read_noise=RN, telegraph=False, expected_rate=uniform(e))
     assert (out.dq[0] & dq.DO_NOT_USE).all()  # the event found and left out
     expect = known_slope_z(cube[1:, hit] - 6e4) >= 4.0  # the slope known, read 0 left out
     got = ((out.dq[1:] & dq.JUMP) != 0).any(axis=0)
@@ -230,7 +242,7 @@ def test_pixels_the_map_holds_no_value_for_keep_the_free_slope():
     h = detect_jumps(e, expected_rate=given, **kw).header
     assert h["NEXPRATE"] + h["NEXPFREE"] == 64 * 512
     assert 16 * 512 <= h["NEXPFREE"] < 16 * 512 + 100  # the NaN rows, and a few off it
-    assert flagged(detect_jumps(e, expected_rate=0.0, **kw))[::4].mean() > 0.02  # 0.039
+    assert flagged(detect_jumps(e, expected_rate=uniform(e), **kw))[::4].mean() > 0.02  # 0.039
     with pytest.raises(ConfigError, match="expected_rate: array holds no value"):
         detect_jumps(e, expected_rate=np.full((64, 512), np.nan), **kw)
     with pytest.raises(ConfigError, match="expected_rate: array holds values that are not "):
@@ -269,7 +281,7 @@ def test_a_master_dark_file_from_combine_is_the_map(tmp_path):
     from_array = detect_jumps(e, expected_rate=np.asarray(master.data.data), **kw)
     np.testing.assert_array_equal(out.dq, from_array.dq)
     assert flagged(out)[warm].mean() < 0.01
-    assert flagged(detect_jumps(e, expected_rate=0.0, **kw))[warm].mean() > 0.02
+    assert flagged(detect_jumps(e, expected_rate=uniform(e), **kw))[warm].mean() > 0.02
     # the configuration recorded (HISTORY, wrapped at 72 characters) names the file
     assert f'"expected_rate": "{path}"' in "".join(out.header["HISTORY"])
 
@@ -288,7 +300,7 @@ def test_clean_ramps_flagged_are_those_a_known_slope_flags_and_fit_as_its_segmen
     t = np.arange(NF) * DT
     cube = white((NF, 64, 512), rng) + rate * t[:, None, None]
     e = Exposure.from_arrays(cube.astype(np.float32), s)
-    search = {"read_noise": RN, "threshold": 3.2, "expected_rate": rate,
+    search = {"read_noise": RN, "threshold": 3.2, "expected_rate": uniform(e, rate),
               "read_events": False, "telegraph": False, "scale_read_noise": False}
     out = Pipeline({"steps": [{"detect_jumps": search},
                               {"fit_ramp": {"read_noise": RN}}]}).run(e)

@@ -106,8 +106,9 @@ class StepModel:
         # shot-noise variance / lambda (none with rho: the shot noise is in q)
         self.s = np.zeros(n - 1) if rho else np.einsum("ki,ij,kj->k", g, walk, g)
         self.slope_of_step = (coef @ h.T)[1]  # change of the line's slope per unit step
-        # read-noise variance of the line's slope, in sigma**2
+        # read-noise variance of the line's slope, in sigma**2, and its shot noise / lambda
         self.slope_var = float(np.sum(coef[1] ** 2 * f))
+        self.shot_var = float(coef[1] @ walk @ coef[1])
         self.factors, self.walk = f, walk
         self.uniform_w = bool(np.all(w == w[0]))
         d = np.diff(tau)

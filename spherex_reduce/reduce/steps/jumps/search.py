@@ -263,8 +263,8 @@ class StepSearch(StepModel):
             Steps searched for in each ramp.
         prior : `SlopePrior`, optional
             Test each step against a line whose slope has this prior (``sigma``
-            needed): a ramp whose slope is off its expected one (`OWN_SIGMA`) or whose
-            shot noise is weighed keeps the free slope.
+            needed; a bright ramp with shot-noise weights too): a ramp whose slope is
+            off its expected one (`OWN_SIGMA`) keeps the free slope.
 
         Returns
         -------
@@ -309,9 +309,9 @@ class StepSearch(StepModel):
                 over = ~(best <= limit * var)
                 if prior is not None:  # either search may flag it
                     relp = buf_prior[:, :y0.size]
-                    line = np.multiply.outer(self.tau, _take(prior.slope, part))
-                    np.subtract(rel, line.reshape(n, -1), out=relp, casting="unsafe")
-                    with np.errstate(invalid="ignore"):
+                    with np.errstate(invalid="ignore", over="ignore"):  # (absurd rates)
+                        line = np.multiply.outer(self.tau, _take(prior.slope, part))
+                        np.subtract(rel, line.reshape(n, -1), out=relp, casting="unsafe")
                         bestp, _ = prior.search.screen(relp, False)
                     over |= ~(bestp <= limit * var)
                 keep = np.flatnonzero(finite & over)
@@ -332,28 +332,30 @@ class StepSearch(StepModel):
 
     def _with_prior(self, y, pixels, threshold, sigma, gain, floor, max_jumps, prior):
         """The float64 search of the screened ramps ``y`` (reads less the first) with the
-        prior's expected slope, but for the ramps off it or bright enough for shot-noise
-        weights, searched with the slope free."""
+        prior's expected slope, but for the ramps off it, searched with the slope free."""
         ps = prior.search
         cols = np.arange(pixels.size)
         expected = np.broadcast_to(_take(prior.slope, pixels), (pixels.size,))
         ab, big_r, _ = self.step_sums(y)
-        yp = y - expected * self.tau[:, None]
-        _, big_rp, _ = ps.step_sums(yp)
-        kp = np.argmax(big_rp ** 2 * ps._invq[:, None], axis=0)
+        with np.errstate(over="ignore", invalid="ignore"):  # an absurd rate: searched free
+            yp = y - expected * self.tau[:, None]
+            _, big_rp, _ = ps.step_sums(yp)
+            kp = np.argmax(big_rp ** 2 * ps._invq[:, None], axis=0)
         # the two-segment slope (slope free) at the prior search's best step
         amp = big_r[kp, cols] * self._invq[kp]
         slope = ab[1] - self.slope_of_step[kp] * amp
         var = np.maximum(np.square(sigma), floor)
         sos = self.slope_of_step[kp]
-        spread = np.sqrt(var * (self.slope_var + sos * sos * self._invq[kp])
-                         + prior.spread ** 2)
-        own = ~(np.abs(slope - expected) <= OWN_SIGMA * spread)
-        # bright enough for shot-noise weights at its expected rate (not at this noisy
-        # two-segment slope: clean dark ramps whose noise looked like a step down were sent
-        # to the free search there, and flagged by it at ~4 line sigmas of error)
-        lam = np.maximum(expected, 0.0) / gain
-        own |= lam / var * self.walk_top > SHOT_WEIGHTED
+        # the two-segment slope's variance over the line's, its read noise and its shot
+        # noise at the expected rate (a warm pixel's slope scatters by both)
+        wide = 1.0 + sos * sos * self._invq[kp] / self.slope_var
+        with np.errstate(over="ignore", invalid="ignore"):
+            lam = np.maximum(expected, 0.0) / gain
+            spread = np.sqrt(wide * (var * self.slope_var + lam * self.shot_var)
+                             + prior.spread ** 2)
+            own = ~(np.abs(slope - expected) <= OWN_SIGMA * spread)
+        # a ramp bright enough for shot-noise weights keeps the prior: its search weighs
+        # them (`with_shot` keeps the prior's weight), as the free search does
         parts = []
         free = int(np.count_nonzero(own))
         for search, sel, reads, offset in ((self, own, y, 0.0),

@@ -37,7 +37,8 @@ from ...step import Kernel, Record, Step
 from ..fit_ramp.segments import usable_reads
 from ..pixel_maps import MAP_TYPES, PixelMap, adu_gain
 from .events import JumpWarning, event_message, find_read_events
-from .search import SCALE_DOF, SCALE_SAMPLE, Found, SlopePrior, StepSearch
+from .prior import set_priors
+from .search import SCALE_DOF, SCALE_SAMPLE, Found, StepSearch
 from .showers import large_event_halos
 from .telegraph import telegraph_pixels
 
@@ -48,16 +49,6 @@ __all__ = ["DetectJumpsStep", "JumpKernel", "detect_jumps"]
 SEARCH_PIXELS = 1 << 17
 #: read events looked for in a set of rows (one more in each round of the search)
 MAX_EVENTS = 4
-#: ramps of a set of rows whose slopes less their ``expected_rate`` give the prior's
-#: offset and spread: at least this many, at most `PRIOR_RAMPS` (every k-th)
-PRIOR_MIN_RAMPS = 100
-PRIOR_RAMPS = 1 << 15
-#: the prior's spread at least this fraction of a ramp's own slope sigma (rates that match
-#: the expected ones to ~0: the prior's weight stays finite)
-PRIOR_FLOOR = 0.1
-#: the prior's weights (read-noise variance over the prior's) are binned by this many dex,
-#: one search for each bin of a set (a read-noise map)
-PRECISION_BIN = 0.02
 
 
 def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturation=None,
@@ -171,19 +162,20 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
         ramps' slopes less their expected rates give the prior's offset (their
         median: a dark current that drifted) and spread (their scatter below
         the median, less the line's noise; at least a tenth of a slope's
-        sigma).  A ramp whose two-segment slope is off its expected one by more
-        than `~spherex_reduce.reduce.steps.jumps.search.OWN_SIGMA` of its sigmas
-        (a pixel warmer than in the map, a source), or bright enough at its
-        expected rate for shot-noise weights, keeps the free slope; so do a
-        pixel the map holds NaN for and the ramps of a set where no prior can
-        be weighed (fewer than 100 with the same usable reads; rates whose
-        squares overflow).  The header's ``NEXPRATE`` and ``NEXPFREE`` count
-        both kinds.  The slopes ``fit_ramp`` fits stay each pixel's own.  Needs
-        ``read_noise``.  The prior of a set needs all of its rows: as with
-        ``neighbours``, the whole exposure is searched first (in memory).  One
-        number is refused: the offset would make it each set's median slope, the
-        bulk's, and warm pixels 3-8 line sigmas warm would be flagged as steps
-        25-98 % of the time (an array of one value is taken, as asked).
+        sigma).  A ramp bright enough for shot-noise weights is searched with
+        them and the prior.  A ramp whose two-segment slope is off its expected
+        one by more than `~spherex_reduce.reduce.steps.jumps.search.OWN_SIGMA` of
+        its sigmas (read and shot noise; a pixel warmer than in the map, a
+        source) keeps the free slope; so do a pixel the map holds NaN for and
+        the ramps of a set where no prior can be weighed (fewer than 100 with
+        the same usable reads; rates whose squares overflow).  The header's
+        ``NEXPRATE`` and ``NEXPFREE`` count both kinds.  The slopes ``fit_ramp``
+        fits stay each pixel's own.  Needs ``read_noise``.  The prior of a set
+        needs all of its rows: as with ``neighbours``, the whole exposure is
+        searched first (in memory).  One number is refused: the offset would
+        make it each set's median slope, the bulk's, and warm pixels 3-8 line
+        sigmas warm would be flagged as steps 25-98 % of the time (an array of
+        one value is taken, as asked).
 
     Returns
     -------
@@ -257,11 +249,14 @@ class JumpKernel(Kernel):
         s = context.schedule
         self.estimate = params["read_noise"] is None
         self.prior = params["expected_rate"] is not None
-        if self.prior and isinstance(params["expected_rate"], (int, float)):
+        given = params["expected_rate"]
+        if self.prior and not isinstance(given, str) and np.ndim(given) != 2:
             raise ConfigError(
                 "detect_jumps.expected_rate: a map of each pixel's rate (e.g. the master "
-                "dark's FITS file), not one number: one rate for all is the bulk's slope, "
-                "and warm pixels would be flagged as steps")
+                "dark's FITS file, or a 2-D array of the stored image), not "
+                + ("one number: one rate for all is the bulk's slope, and warm pixels "
+                   "would be flagged as steps" if np.ndim(given) == 0 else
+                   f"an array of shape {np.shape(given)}"))
         if self.prior and self.estimate:
             raise ConfigError("detect_jumps.expected_rate needs read_noise (the prior's "
                               "weight is the read noise's variance over the rates' spread)")
@@ -451,7 +446,7 @@ class JumpKernel(Kernel):
 
     def _with_prior(self, search, y, sigma, gain, pixels, block):
         """The search of ramps ``y`` (the band's flat ``pixels``, their reads usable for
-        ``search``), each set of `event_rows` rows with its prior (`_prior_of`), searched
+        ``search``), each set of `event_rows` rows with its prior (`set_priors`), searched
         with the slope free where a set has none: a `~spherex_reduce.reduce.steps.jumps.
         search.Found` of their indices among ``y``'s columns."""
         ncols = block.data.shape[-1]
@@ -464,77 +459,20 @@ class JumpKernel(Kernel):
         parts, unsearched = [], []
         for one in np.unique(sets):
             at = np.flatnonzero(sets == one)
-            for cols, prior in self._prior_of(search, y[:, _run_of(at)], sigma[at], gain[at],
-                                              expected[at]):
+            for cols, prior in set_priors(search, y[:, _run_of(at)], sigma[at], gain[at],
+                                          expected[at]):
                 sel = at[cols]
                 take = _run_of(sel)
                 found = search.find(y[:, take], threshold=p["threshold"], sigma=sigma[take],
                                     gain=gain[take], max_jumps=p["max_jumps"], prior=prior)
-                free = sel.size if prior is None else found.free
-                self._tally.counts[0] += sel.size - free
+                searched = sel.size - found.unsearched.size  # (those searched on)
+                free = searched if prior is None else found.free
+                self._tally.counts[0] += searched - free
                 self._tally.counts[1] += free
                 parts.append((sel[found.pixel], found.read, found.amplitude, found.z))
                 unsearched.append(sel[found.unsearched])
         out = Found.of(parts)
         out.unsearched = np.concatenate(unsearched) if unsearched else np.zeros(0, np.int64)
-        return out
-
-    def _prior_of(self, search, y, sigma, gain, expected):
-        """The priors of one set's ramps ``y`` (reads usable for ``search``; read noise
-        ``sigma``, ``gain`` and ``expected_rate`` per ramp): ``[(columns of y,
-        SlopePrior or None)]``, one per bin of the prior's weight (`PRECISION_BIN`); None
-        (the slope free) when fewer than `PRIOR_MIN_RAMPS` ramps have a finite slope.
-
-        The offset is the median of the slopes less their expected rates (a sample of
-        at most `PRIOR_RAMPS`), the spread their median absolute deviation below it
-        (cosmic rays and pixels warmer than expected add charge: the upper side is
-        theirs), less the line's read and shot noise there, at least `PRIOR_FLOOR` of
-        the line's noise."""
-        every = np.arange(y.shape[1])
-        known = np.isfinite(expected)
-        if not known.all():  # a pixel the map has no value for: its slope free
-            out = [(every[~known], None)]
-            if known.any():
-                cols = every[known]
-                out += [(cols[c], p) for c, p in self._prior_of(
-                    search, y[:, cols], sigma[cols], gain[cols], expected[cols])]
-            return out
-        take = slice(None, None, max(1, -(-y.shape[1] // PRIOR_RAMPS)))
-        rel = np.asarray(y[:, take], np.float64)
-        d = search.coef[1] @ (rel - rel[0]) - expected[take]
-        finite = np.isfinite(d)
-        d = d[finite]
-        if d.size < PRIOR_MIN_RAMPS:
-            return [(every, None)]
-        offset = float(np.median(d))
-        below = offset - d[d < offset]
-        if below.size < PRIOR_MIN_RAMPS // 2:
-            return [(every, None)]
-        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            mad = 1.482602218505602 * np.median(below)
-            # the line's noise at the sample's median read noise and expected charge rate
-            s2 = np.median(np.square(sigma[take][finite]))
-            lam = max(np.median(expected[take][finite]) + offset, 0.0) / np.median(
-                gain[take][finite])
-            shot = search.coef[1] @ search.walk @ search.coef[1]
-            spread = np.sqrt(max(mad * mad - s2 * search.slope_var - lam * shot, 0.0))
-            weight2 = np.maximum(spread * spread, PRIOR_FLOOR ** 2 * (np.square(sigma)
-                                                                      * search.slope_var))
-            precision = np.square(sigma) / weight2
-        # rates too large for their squares (an absurd map), a read noise that underflows:
-        # no prior this set can be weighed with (counted as searched free)
-        if not (np.isfinite(offset) and np.isfinite(spread)
-                and (np.isfinite(precision) & (precision > 0)).all()):
-            return [(every, None)]
-        spread = float(spread)
-        bins = np.round(np.log10(precision) / PRECISION_BIN).astype(np.int64)
-        out = []
-        key = (search.tau.tobytes(), search.factors.tobytes(),
-               np.ascontiguousarray(search.walk).tobytes())
-        for b in np.unique(bins):
-            cols = every[bins == b]
-            out.append((cols, SlopePrior(_prior_search(*key, 10.0 ** (b * PRECISION_BIN)),
-                                         expected[cols] + offset, spread)))
         return out
 
     def _scaled(self, block, y, bad, read_noise, gain):
@@ -779,16 +717,6 @@ def _run_of(index):
     view, no copy), else itself."""
     return (slice(int(index[0]), int(index[-1]) + 1)
             if index.size and index[-1] - index[0] + 1 == index.size else index)
-
-
-@functools.lru_cache(maxsize=32)
-def _prior_search(times, factors, walk, precision):
-    """The `StepSearch` of `_step_search`'s reads with a slope prior of weight
-    ``precision`` (``expected_rate``), kept for a set's searches (a band's read events
-    search it again)."""
-    n = len(times) // 8
-    return StepSearch(np.frombuffer(times), np.frombuffer(factors),
-                      np.frombuffer(walk).reshape(n, n), slope_precision=precision)
 
 
 @functools.lru_cache(maxsize=256)

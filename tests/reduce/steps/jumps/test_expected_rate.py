@@ -14,6 +14,7 @@ from spherex_reduce.reduce.executor import execute
 from spherex_reduce.reduce.options import RunOptions
 from spherex_reduce.reduce.steps.fit_ramp.step_model import StepModel
 from spherex_reduce.reduce.steps.jumps.events import JumpWarning
+from spherex_reduce.reduce.steps.jumps.search import StepSearch
 from spherex_reduce.reduce.steps.jumps.step import DetectJumpsStep
 
 NF, DT, RN = 74, 1.5, 10.0
@@ -74,6 +75,33 @@ def test_a_prior_step_model_is_the_gls_of_the_reads_and_one_observation_of_the_s
         # the step's amplitude R_k / q_k and its variance 1 / q_k (read-noise units)
         np.testing.assert_allclose(big_r[k - 1] / model.q[k - 1], coef[2], rtol=1e-10)
         np.testing.assert_allclose(1.0 / model.q[k - 1], cov[2, 2], rtol=1e-10)
+
+
+def test_with_shot_noise_weights_too_it_is_that_gls_with_the_ramps_covariance():
+    """A bright ramp's search (``rho`` > 0: read noise plus the charge's random walk) with
+    the prior: the generalised least squares with the full covariance of the reads and
+    the prior's observation of the slope, brute force."""
+    rng = np.random.default_rng(4)
+    times = np.sort(rng.uniform(0, 30, 9))
+    tau = times - times[0]
+    walk = np.minimum.outer(tau, tau)
+    rho, kappa = 0.3, 7.0
+    model = StepSearch(times, None, walk, rho=0.0, slope_precision=kappa).with_shot(rho)
+    rho = model.rho  # (binned by RHO_BIN dex)
+    y = rng.normal(0, 1, (9, 5))
+    _, big_r, _ = model.step_sums(y)
+    cov_y = np.eye(9) + rho * walk  # in read-noise variance
+    for k in range(1, 9):
+        x = np.column_stack([np.ones(9), tau, np.arange(9) >= k]).astype(float)
+        # the reads and the prior's row (slope observed as 0, variance 1 / kappa)
+        xa = np.vstack([x, [0.0, 1.0, 0.0]])
+        ca = np.zeros((10, 10))
+        ca[:9, :9], ca[9, 9] = cov_y, 1.0 / kappa
+        wa = np.linalg.inv(ca)
+        cov = np.linalg.inv(xa.T @ wa @ xa)
+        coef = cov @ xa.T @ wa @ np.vstack([y, np.zeros((1, 5))])
+        np.testing.assert_allclose(big_r[k - 1] / model.q[k - 1], coef[2], rtol=1e-9)
+        np.testing.assert_allclose(1.0 / model.q[k - 1], cov[2, 2], rtol=1e-9)
 
 
 def test_the_prior_finds_mid_ramp_steps_as_a_known_slope_does():

@@ -17,7 +17,8 @@ import numpy as np
 
 from .search import SlopePrior, StepSearch
 
-__all__ = ["PRECISION_BIN", "PRIOR_FLOOR", "PRIOR_MIN_RAMPS", "PRIOR_RAMPS", "set_priors"]
+__all__ = ["PRECISION_BIN", "PRIOR_FLOOR", "PRIOR_MIN_RAMPS", "PRIOR_RAMPS", "SPREAD_MAX",
+           "set_priors"]
 
 #: ramps of a set of rows whose slopes less their ``expected_rate`` give the prior's
 #: offset and spread: at least this many, at most `PRIOR_RAMPS` (every k-th)
@@ -29,6 +30,10 @@ PRIOR_FLOOR = 0.1
 #: the prior's weights (read-noise variance over the prior's) are binned by this many dex,
 #: one search for each bin of a set (a read-noise map)
 PRECISION_BIN = 0.02
+#: a set whose true rates spread about their expected ones by more than this many of a
+#: line's sigmas gets no prior (a sky under a dark's map: the prior would add nothing but
+#: the bias of its centre, the set's median)
+SPREAD_MAX = 3.0
 
 
 def set_priors(search, y, sigma, gain, expected):
@@ -42,7 +47,7 @@ def set_priors(search, y, sigma, gain, expected):
     at most `PRIOR_RAMPS`), the spread their median absolute deviation below it
     (cosmic rays and pixels warmer than expected add charge: the upper side is
     theirs), less the line's read and shot noise there, at least `PRIOR_FLOOR` of
-    the line's noise."""
+    the line's noise; more than `SPREAD_MAX` of it (a sky's rates), no prior."""
     every = np.arange(y.shape[1])
     known = np.isfinite(expected)
     if not known.all():  # a pixel the map has no value for: its slope free
@@ -70,7 +75,8 @@ def set_priors(search, y, sigma, gain, expected):
         lam = max(np.median(expected[take][finite]) + offset, 0.0) / np.median(
             gain[take][finite])
         shot = search.shot_var
-        spread = np.sqrt(max(mad * mad - s2 * search.slope_var - lam * shot, 0.0))
+        line2 = s2 * search.slope_var + lam * shot  # the line's variance there
+        spread = np.sqrt(max(mad * mad - line2, 0.0))
         weight2 = np.maximum(spread * spread, PRIOR_FLOOR ** 2 * (np.square(sigma)
                                                                   * search.slope_var))
         precision = np.square(sigma) / weight2
@@ -78,6 +84,8 @@ def set_priors(search, y, sigma, gain, expected):
     # no prior this set can be weighed with (counted as searched free)
     if not (np.isfinite(offset) and np.isfinite(spread)
             and (np.isfinite(precision) & (precision > 0)).all()):
+        return [(every, None)]
+    if spread * spread > SPREAD_MAX ** 2 * line2:  # rates that spread like a sky's
         return [(every, None)]
     spread = float(spread)
     bins = np.round(np.log10(precision) / PRECISION_BIN).astype(np.int64)

@@ -162,13 +162,16 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
         ramps' slopes less their expected rates give the prior's offset (their
         median: a dark current that drifted) and spread (their scatter below
         the median, less the line's noise; at least a tenth of a slope's
-        sigma).  A ramp bright enough for shot-noise weights is searched with
-        them and the prior.  A ramp whose two-segment slope is off its expected
-        one by more than `~spherex_reduce.reduce.steps.jumps.search.OWN_SIGMA` of
-        its sigmas (read and shot noise; a pixel warmer than in the map, a
-        source) keeps the free slope; so do a pixel the map holds NaN for and
-        the ramps of a set where no prior can be weighed (fewer than 100 with
-        the same usable reads; rates whose squares overflow).  The header's
+        sigma).  A ramp whose two-segment slope is off its expected one by more
+        than `~spherex_reduce.reduce.steps.jumps.search.OWN_SIGMA` of its sigmas
+        (a pixel warmer than in the map, a source), or bright enough at its
+        expected rate for shot-noise weights (a hot pixel's rate is seldom known
+        to the few per cent its prior would need), keeps the free slope; so do
+        a pixel the map holds NaN for and the ramps of a set whose rates spread
+        by more than `~spherex_reduce.reduce.steps.jumps.prior.SPREAD_MAX` line
+        sigmas about the map (a sky under a dark's map) or where no prior can
+        be weighed (fewer than 100 with the same usable reads; rates whose
+        squares overflow).  The header's
         ``NEXPRATE`` and ``NEXPFREE`` count both kinds.  The slopes ``fit_ramp``
         fits stay each pixel's own.  Needs ``read_noise``.  The prior of a set
         needs all of its rows: as with ``neighbours``, the whole exposure is

@@ -252,14 +252,7 @@ class JumpKernel(Kernel):
         s = context.schedule
         self.estimate = params["read_noise"] is None
         self.prior = params["expected_rate"] is not None
-        given = params["expected_rate"]
-        if self.prior and not isinstance(given, str) and np.ndim(given) != 2:
-            raise ConfigError(
-                "detect_jumps.expected_rate: a map of each pixel's rate (e.g. the master "
-                "dark's FITS file, or a 2-D array of the stored image), not "
-                + ("one number: one rate for all is the bulk's slope, and warm pixels "
-                   "would be flagged as steps" if np.ndim(given) == 0 else
-                   f"an array of shape {np.shape(given)}"))
+        _check_expected_rate(params["expected_rate"])
         if self.prior and self.estimate:
             raise ConfigError("detect_jumps.expected_rate needs read_noise (the prior's "
                               "weight is the read noise's variance over the rates' spread)")
@@ -715,6 +708,18 @@ def _too_few(nframes, estimate):
     return text
 
 
+def _check_expected_rate(given):
+    """Refuse an ``expected_rate`` that is not a map (a file or a 2-D array): one number
+    would be each set's median slope, the bulk's."""
+    if given is not None and not isinstance(given, str) and np.ndim(given) != 2:
+        raise ConfigError(
+            "detect_jumps.expected_rate: a map of each pixel's rate (e.g. the master "
+            "dark's FITS file, or a 2-D array of the stored image), not "
+            + ("one number: one rate for all is the bulk's slope, and warm pixels "
+               "would be flagged as steps" if np.ndim(given) == 0 else
+               f"an array of shape {np.shape(given)}"))
+
+
 def _run_of(index):
     """``index`` (increasing) as a slice when it is one run of consecutive columns (a
     view, no copy), else itself."""
@@ -914,6 +919,13 @@ class DetectJumpsStep(Step):
                   "so mid-ramp steps are found at half the amplitude (needs read_noise); "
                   "null: the slope free", quiet_default=True),
     )
+
+    def validate(self, params, path=None):
+        """The parameters checked (`~spherex_reduce.reduce.step.Step.validate`), and
+        ``expected_rate`` a map, when the pipeline is made rather than run."""
+        out = super().validate(params, path)
+        _check_expected_rate(out["expected_rate"])
+        return out
 
     def kernel(self, context, **params):
         return JumpKernel(context, **params)

@@ -181,6 +181,10 @@ def test_a_number_is_refused_as_the_bulks_slope(value):
     e = Exposure.from_arrays(white((NF, 8, 8), np.random.default_rng(9)).astype(np.float32), s)
     with pytest.raises(ConfigError, match="expected_rate: a map of each pixel's rate"):
         detect_jumps(e, read_noise=RN, expected_rate=value)
+    # when the pipeline is made (``show-config`` validates), not only when it runs
+    from spherex_reduce import Pipeline
+    with pytest.raises(ConfigError, match="expected_rate: a map of each pixel's rate"):
+        Pipeline({"steps": [{"detect_jumps": {"read_noise": RN, "expected_rate": value}}]})
 
 
 def test_needs_the_read_noise():

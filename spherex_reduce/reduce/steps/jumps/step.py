@@ -613,7 +613,7 @@ class JumpKernel(Kernel):
             on, free = (int(v) for v in np.sum(list(self._prior_counts.values()) or [[0, 0]],
                                                axis=0))
             cards += [("NEXPRATE", on, "ramps searched against their expected_rate"),
-                      ("NEXPFREE", free, "ramps searched free: off it, NaN, too few")]
+                      ("NEXPFREE", free, "ramps searched with the slope free instead")]
         if self._scales:
             factor, pixels = np.array(list(self._scales.values())).T
             cards += [("RNSCALE", round(float(factor @ pixels / pixels.sum()), 4),

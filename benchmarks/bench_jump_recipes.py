@@ -180,14 +180,19 @@ def table2_recipe(ny, nx, rng, seed):
 THRESHOLD = [4.0]  # detect_jumps' threshold for our runs (``--threshold``)
 
 
-def ours(e, before, sigma, prior=None, expected=None):
+def our_pipeline(before, sigma, threshold=4.0, prior=None, expected=None):
+    """Our reduction: the steps ``before``, ``detect_jumps`` (``threshold``, with
+    ``expected_rate`` if given) and ``fit_ramp`` (with ``jump_prior`` if given)."""
     fit = {"read_noise": sigma} if prior is None else {"read_noise": sigma, "jump_prior": prior}
-    search = {"read_noise": sigma, "threshold": THRESHOLD[0]}
+    search = {"read_noise": sigma, "threshold": threshold}
     if expected is not None:
         search["expected_rate"] = expected
-    steps = [*before, {"detect_jumps": search}, {"fit_ramp": fit}]
+    return Pipeline({"steps": [*before, {"detect_jumps": search}, {"fit_ramp": fit}]})
+
+
+def ours(e, before, sigma, prior=None, expected=None):
     t0 = time.perf_counter()
-    out = Pipeline({"steps": steps}).run(e)
+    out = our_pipeline(before, sigma, THRESHOLD[0], prior, expected).run(e)
     return (out.data.data, out.data.uncertainty.array, ~dq.image_usable(out.dq),
             (out.dq & dq.JUMP) != 0, time.perf_counter() - t0)
 
@@ -246,6 +251,16 @@ TARGETS = (("wrong", lambda v: v <= 0.02), ("hit_lost", lambda v: v <= 0.01),
            ("mid_bias", lambda v: abs(v) <= 0.1))
 
 
+def recipe_exposure(groups, dt, rate, rng):
+    """Ramps of ``groups`` of frames at ``rate`` with the recipes' cosmic rays (`hits`):
+    ``(exposure, hits, cube)``."""
+    nfr = max(max(g) for g in groups) + 1
+    hit = hits(rate.size, nfr, rng)
+    # a jump at frame f lands in the group holding f or the next one read
+    cube = frames_cube(groups, dt, rate, rng, hit)
+    return Exposure.from_arrays(cube, schedule(groups, dt, *rate.shape)), hit, cube
+
+
 def master_dark(name, ndarks, shape, rng, seed):
     """The master dark a user would give ``expected_rate``: ``ndarks`` more darks of the
     recipe's detector (the same pixels' dark rates, cosmic rays of their own; for ``sky``
@@ -260,13 +275,10 @@ def master_dark(name, ndarks, shape, rng, seed):
             e, before, *_ = table2_recipe(*shape, rng, seed + 1000 + i)
             sigma = 10.03
         else:
-            nfr = max(max(g) for g in groups) + 1
             rate = shape if kind != "sky" else np.full(shape.shape, 0.01)
-            cube = frames_cube(groups, dt, rate, rng, hits(rate.size, nfr, rng))
-            e = Exposure.from_arrays(cube, schedule(groups, dt, *rate.shape))
+            e, _, _ = recipe_exposure(groups, dt, rate, rng)
             before, sigma = [], RN
-        slopes.append(Pipeline({"steps": [*before, {"detect_jumps": {"read_noise": sigma}},
-                                          {"fit_ramp": {"read_noise": sigma}}]}).run(e))
+        slopes.append(our_pipeline(before, sigma).run(e))
     return np.asarray(combine_darks(slopes).data.data, np.float64)
 
 
@@ -282,12 +294,8 @@ def run(name, npix, rng, seed, with_stcal, prior, ndarks=4):
         ny = 256
         nx = max(64, npix // ny)
         rate = rates(kind, (ny, nx), rng)
-        nfr = max(max(g) for g in groups) + 1
-        hit = hits(ny * nx, nfr, rng)
-        # a jump at frame f lands in the group holding f or the next one read
-        cube = frames_cube(groups, dt, rate, rng, hit)
+        e, hit, cube = recipe_exposure(groups, dt, rate, rng)
         s0 = sigma0(groups, dt, rate)
-        e = Exposure.from_arrays(cube, schedule(groups, dt, ny, nx))
         before, read_noise, active = [], RN, np.ones((ny, nx), bool)
     runs = {"ours": ours(e, before, read_noise)}
     equal = len({len(g) for g in groups}) == 1 and len(groups) >= 4
@@ -325,14 +333,12 @@ def cost(rows, cols, prior, repeat=3):
     cube = (6e4 + rng.normal(0, RN, (nf, rows, cols))
             + rate * (1.5 * np.arange(nf))[:, None, None]).astype(np.float32)
     e = Exposure.from_arrays(cube, schedule([[k] for k in range(nf)], 1.5, rows, cols))
-    search = {"detect_jumps": {"read_noise": RN}}
-    mapped = {"detect_jumps": {"read_noise": RN, "expected_rate": rate}}
     fit = {"fit_ramp": {"read_noise": RN}}
     runs = {"fit_ramp": Pipeline({"steps": [fit]}),
             f"fit_ramp, jump_prior {prior:g}": Pipeline(
                 {"steps": [{"fit_ramp": {"read_noise": RN, "jump_prior": prior}}]}),
-            "detect_jumps + fit_ramp": Pipeline({"steps": [search, fit]}),
-            "detect_jumps (expected_rate map) + fit_ramp": Pipeline({"steps": [mapped, fit]})}
+            "detect_jumps + fit_ramp": our_pipeline([], RN),
+            "detect_jumps (expected_rate map) + fit_ramp": our_pipeline([], RN, expected=rate)}
     for r in runs.values():  # untimed: imports, matrices
         r.run(e)
     times = []

@@ -11,11 +11,9 @@ noise), which weighs the prior in the step search's generalised least squares
 (`~spherex_reduce.reduce.steps.fit_ramp.step_model.StepModel`'s ``slope_precision``).
 """
 
-import functools
-
 import numpy as np
 
-from .search import SlopePrior, StepSearch
+from .search import SlopePrior, cached_search
 
 __all__ = ["PRECISION_BIN", "PRIOR_FLOOR", "PRIOR_MIN_RAMPS", "PRIOR_RAMPS", "SPREAD_MAX",
            "set_priors"]
@@ -90,20 +88,9 @@ def set_priors(search, y, sigma, gain, expected):
     spread = float(spread)
     bins = np.round(np.log10(precision) / PRECISION_BIN).astype(np.int64)
     out = []
-    key = (search.tau.tobytes(), search.factors.tobytes(),
-           np.ascontiguousarray(search.walk).tobytes())
     for b in np.unique(bins):
         cols = every[bins == b]
-        out.append((cols, SlopePrior(_prior_search(*key, 10.0 ** (b * PRECISION_BIN)),
-                                     expected[cols] + offset, spread)))
+        prior_search = cached_search(search.tau, search.factors, search.walk,
+                                     10.0 ** (b * PRECISION_BIN))
+        out.append((cols, SlopePrior(prior_search, expected[cols] + offset, spread)))
     return out
-
-
-@functools.lru_cache(maxsize=32)
-def _prior_search(times, factors, walk, precision):
-    """The `StepSearch` of reads at ``times`` (read-noise ``factors``, charge ``walk``; the
-    bytes of a search's arrays) with a slope prior of weight ``precision``, kept for a
-    set's searches (a band's read events search it again)."""
-    n = len(times) // 8
-    return StepSearch(np.frombuffer(times), np.frombuffer(factors),
-                      np.frombuffer(walk).reshape(n, n), slope_precision=precision)

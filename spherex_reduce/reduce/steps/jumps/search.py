@@ -48,7 +48,8 @@ from ....core.limits import check_size
 from ....core.recently_used import RecentlyUsed
 from ..fit_ramp.step_model import StepModel
 
-__all__ = ["OWN_SIGMA", "SCALE_DOF", "SCREEN_MARGIN", "Found", "SlopePrior", "StepSearch"]
+__all__ = ["OWN_SIGMA", "SCALE_DOF", "SCREEN_MARGIN", "Found", "SlopePrior", "StepSearch",
+           "cached_search"]
 
 #: the float32 screen keeps pixels down to this fraction of the threshold, so that its
 #: rounding never drops a pixel the float64 search would flag
@@ -288,6 +289,7 @@ class StepSearch(StepModel):
         buf = np.empty((n, min(m, width)), work)  # reused: no page faults
         if prior is not None:  # the reads less the expected line, for the prior's screen
             buf_prior = np.empty_like(buf)
+            buf_line = np.empty(buf.shape)  # the expected line, in float64
             brights, n_bright = [], 0  # ramps bright for shot weights: the slope free
         for lo in range(0, m, width):
             part = slice(lo, min(m, lo + width))
@@ -312,8 +314,9 @@ class StepSearch(StepModel):
                     relp = buf_prior[:, :y0.size]
                     with np.errstate(invalid="ignore", over="ignore"):  # (absurd rates)
                         expected = _take(prior.slope, part)
-                        line = np.multiply.outer(self.tau, expected)
-                        np.subtract(rel, line.reshape(n, -1), out=relp, casting="unsafe")
+                        line = buf_line[:, :y0.size]
+                        np.multiply(self.tau[:, None], expected, out=line)
+                        np.subtract(rel, line, out=relp, casting="unsafe")
                         bestp, _ = prior.search.screen(relp, False)
                         bright = np.broadcast_to(self._bright(expected, _take(gain, part),
                                                               var), finite.shape)
@@ -693,3 +696,21 @@ class Found:
 
     def __len__(self):
         return self.pixel.size
+
+
+def cached_search(times, factors, walk, slope_precision=0.0):
+    """The `StepSearch` of reads at ``times`` (s) with read-noise ``factors``, charge
+    covariance ``walk`` and ``slope_precision``, made once per process: its matrices depend
+    on nothing else (``detect_jumps`` asks for one per set of usable reads and, with
+    ``expected_rate``, per bin of the prior's weight)."""
+    return _cached_search(np.ascontiguousarray(times, np.float64).tobytes(),
+                          np.ascontiguousarray(factors, np.float64).tobytes(),
+                          np.ascontiguousarray(walk, np.float64).tobytes(),
+                          float(slope_precision))
+
+
+@functools.lru_cache(maxsize=256)
+def _cached_search(times, factors, walk, slope_precision):
+    n = len(times) // 8
+    return StepSearch(np.frombuffer(times), np.frombuffer(factors),
+                      np.frombuffer(walk).reshape(n, n), slope_precision=slope_precision)

@@ -19,7 +19,6 @@ again without it), not thousands of jumps; and each pixel's own
 not jumps.
 """
 
-import functools
 import threading
 import warnings
 
@@ -38,7 +37,7 @@ from ..fit_ramp.segments import usable_reads
 from ..pixel_maps import MAP_TYPES, PixelMap, adu_gain
 from .events import JumpWarning, event_message, find_read_events
 from .prior import set_priors
-from .search import SCALE_DOF, SCALE_SAMPLE, Found, StepSearch
+from .search import SCALE_DOF, SCALE_SAMPLE, Found, StepSearch, cached_search
 from .showers import large_event_halos
 from .telegraph import telegraph_pixels
 
@@ -251,9 +250,9 @@ class JumpKernel(Kernel):
         super().__init__(context)
         s = context.schedule
         self.estimate = params["read_noise"] is None
-        self.prior = params["expected_rate"] is not None
+        prior = params["expected_rate"] is not None
         _check_expected_rate(params["expected_rate"])
-        if self.prior and self.estimate:
+        if prior and self.estimate:
             raise ConfigError("detect_jumps.expected_rate needs read_noise (the prior's "
                               "weight is the read noise's variance over the rates' spread)")
         if s.nframes < (5 if self.estimate else 4):
@@ -268,7 +267,7 @@ class JumpKernel(Kernel):
                            PixelMap.of(params["read_noise"], "detect_jumps.read_noise", g,
                                        positive=True, unit=unit,
                                        gain=adu_gain(unit, context.header, g, self.gain)))
-        self.expected = (None if not self.prior else
+        self.expected = (None if not prior else
                          PixelMap.of(params["expected_rate"], "detect_jumps.expected_rate", g,
                                      unit=None if unit is None else unit / u.s,
                                      gain=adu_gain(unit, context.header, g, self.gain),
@@ -283,7 +282,7 @@ class JumpKernel(Kernel):
         self._whole = self._search(np.ones(s.nframes, bool))  # every read usable
         # (the prior of a set of rows needs the whole set, whichever bands hold it)
         self.needs_exposure = bool(params["neighbours"] or params["radius"] > 0
-                                   or params["large_events"] or self.prior)
+                                   or params["large_events"] or prior)
         self._lock = threading.Lock()
         self._found = 0  # reads flagged by the search, over the bands (streamed route)
         # read events are decided on sets of rows aligned on the row axis, the same sets
@@ -302,8 +301,7 @@ class JumpKernel(Kernel):
     def _search(self, usable):
         """The `StepSearch` of the reads ``usable`` (bool per frame)."""
         idx = np.flatnonzero(usable)
-        return _step_search(self.times[idx].tobytes(), self.factors[idx].tobytes(),
-                            np.ascontiguousarray(self.walk[np.ix_(idx, idx)]).tobytes())
+        return cached_search(self.times[idx], self.factors[idx], self.walk[np.ix_(idx, idx)])
 
     def _maps(self, block):
         """Read noise (or None) and gain of the band: numbers, or flat arrays of its pixels."""
@@ -389,7 +387,7 @@ class JumpKernel(Kernel):
     def _count_prior(self, block):
         """Keep the band's last search's counts of ramps searched against their expected
         rate and with the slope free (``expected_rate``)."""
-        if self.prior:
+        if self.expected is not None:
             with self._lock:
                 self._prior_counts[int(np.asarray(block.index)[0])] = tuple(self._tally.counts)
 
@@ -514,7 +512,7 @@ class JumpKernel(Kernel):
         """The search of ramps ``y`` (the band's flat ``pixels``, their reads usable for
         ``search``), with ``expected_rate``'s prior when given."""
         sigma, gain = (v if v is None or np.ndim(v) == 0 else v[pixels] for v in maps)
-        if self.prior:
+        if self.expected is not None:
             return self._with_prior(search, y, sigma, gain, pixels, block)
         return search.find(y, threshold=self.params["threshold"], sigma=sigma, gain=gain,
                            max_jumps=self.params["max_jumps"])
@@ -609,7 +607,7 @@ class JumpKernel(Kernel):
             cards.append(("NJUMPNB", coefficients.around, "reads flagged around jumps"))
         if self.params["telegraph"]:
             cards.append(("NTELEGR", self._telegraph, "telegraph pixels (flips left out)"))
-        if self.prior:
+        if self.expected is not None:
             on, free = (int(v) for v in np.sum(list(self._prior_counts.values()) or [[0, 0]],
                                                axis=0))
             cards += [("NEXPRATE", on, "ramps searched against their expected_rate"),
@@ -725,16 +723,6 @@ def _run_of(index):
     view, no copy), else itself."""
     return (slice(int(index[0]), int(index[-1]) + 1)
             if index.size and index[-1] - index[0] + 1 == index.size else index)
-
-
-@functools.lru_cache(maxsize=256)
-def _step_search(times, factors, walk):
-    """The `StepSearch` of reads at ``times`` with read-noise ``factors`` and charge
-    covariance ``walk`` (float64 bytes), made once per process: its matrices depend on
-    nothing else."""
-    n = len(times) // 8
-    return StepSearch(np.frombuffer(times), np.frombuffer(factors),
-                      np.frombuffer(walk).reshape(n, n))
 
 
 class _Flags:

@@ -2233,7 +2233,7 @@ def _numpy_slopes_and_errors(d):
     slope = np.polyfit(t, data.reshape(6, -1), 1)[0].reshape(data.shape[1:])
     w = (t - t.mean()) / ((t - t.mean()) @ (t - t.mean()))
     pf = w @ np.minimum.outer(t, t) @ w
-    from spherex_reduce.reduce.steps.fit_ramp.least_squares import expected_rates
+    from spherex_reduce.reduce.steps.fit_ramp.expected_rates import expected_rates
 
     # the shot noise of fit_ramp's expected rates (issue 35; tested against the truth in
     # tests/reduce/steps/fit_ramp/test_fit_ramp.py), the pixels' own where too few

@@ -15,7 +15,7 @@ from astropy.io import fits
 
 import spherex_reduce as sr
 from spherex_reduce import ConfigError, DetectorGeometry, Exposure, ReadoutSchedule, dq
-from spherex_reduce.reduce.steps.fit_ramp.least_squares import expected_rates
+from spherex_reduce.reduce.steps.fit_ramp.expected_rates import expected_rates
 
 N, NF, DT = 16, 6, 2.0
 T = DT * np.arange(NF)

@@ -13,7 +13,12 @@ works through it a few rows at a time (a work buffer that stays in cache): the
 first read is subtracted (exact in float32 for values within a factor two of
 each other, e.g. a 6e4 pedestal), and the sums ``sum w d``, ``sum d`` and
 ``sum d**2`` are formed in float32 over groups of `GROUP` frames whose partial
-sums are accumulated in float64.  Bright ramps whose float32 sums are too
+sums are accumulated in float64.  Where only the slope is wanted (a read-noise
+model gives the variance; no saturation level, no ``jump_prior``) and the read
+times are symmetric about their mean (equal spacing, equal groups), ``w`` is
+antisymmetric and the slope is ``sum_(f < n/2) w_(n-1-f) (y_(n-1-f) - y_f)``:
+half as many differences, each as exact as a read less the first, and half the
+float32 sums (the fit of 74 reads took 0.65 of the time).  Bright ramps whose float32 sums are too
 coarse for the slope (with a read-noise model) are summed again in float64 with
 the same weights, from their reads minus the first in float64.  Pixels with a
 NaN, saturated or flagged read (a masked read, a jump), and the few whose
@@ -35,7 +40,6 @@ bands of rows and fitted band by band, on any number of threads, gives the fit
 of the whole cube bit for bit.
 """
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,35 +51,12 @@ from .segments import RATIO_BINS, RampNoise, fit_segments
 from .step_model import StepModel
 from .step_posterior import WEIGH_ALL_READS, WEIGH_FROM, step_posterior
 
-__all__ = ["GROUP", "RATE_PIECE", "LeastSquares", "RampMaps", "RampSolution", "expected_rates",
-           "ramp_weights"]
+__all__ = ["GROUP", "LeastSquares", "RampMaps", "RampSolution", "ramp_weights"]
 
 GROUP = 32  #: frames per float32 partial sum; the groups are summed in float64
 BLOCK_PIXELS = 1 << 14  #: pixels per block of the work buffer (74 frames: 4.8 MB in float32)
 #: pixels fitted segment by segment at once (74 frames: 4.8 MB for each float64 copy)
 REFIT_PIXELS = 1 << 13
-#: a slope this many of its sigmas from the bulk of the exposure's slopes is taken as its
-#: pixel's own rate for the shot noise (half its weight there; `expected_rates`)
-OWN_RATE_SIGMA = 4.0
-#: pixels `expected_rates` needs to see the bulk of the slopes; fewer: each pixel's own
-EXPECTED_MIN_PIXELS = 100
-#: pixels the bulk of `expected_rates` is measured on at most (every k-th pixel of the
-#: array, k prime to the rows' length, that is in the bulk)
-BULK_SAMPLE = 1 << 16
-#: pixels `expected_rates` works on at once (a few float64 arrays of them stay in cache:
-#: 16 ms for 1 Mpix where whole arrays took 28 ms; a second thread gained nothing)
-RATE_PIECE = 1 << 15
-
-
-def _stride(size, ncols):
-    """The step of a sample of at most `BULK_SAMPLE` of ``size`` pixels, prime to the rows'
-    length ``ncols``."""
-    k = max(1, -(-size // BULK_SAMPLE))
-    while k > 1 and math.gcd(k, ncols) != 1:
-        k += 1
-    return k
-
-
 def ramp_weights(times):
     """Uniform least-squares slope weights for reads at ``times``.
 
@@ -103,138 +84,6 @@ def ramp_weights(times):
     t = np.asarray(times, dtype=np.float64)
     tc = t - t.mean()
     return tc / (tc @ tc)
-
-
-def expected_rates(slope, var_rnoise, var_per_rate, bulk=None):
-    """Each pixel's expected rate given its slope and the exposure's: the rate whose shot
-    noise its uncertainty holds.
-
-    A pixel's own slope, clipped at 0, is a biased rate where its noise is as large as
-    the rate (a dark): ``max(slope, 0)`` of a slope of 0.01 +- 0.038 e/s averages
-    0.02 e/s, and the shot noise taken from it is largest where the slope fluctuated up,
-    so the uncertainties of a dark overstate its scatter (by ~6 % on 74 reads of
-    10 e).  The exposure's slopes are a Gaussian bulk of median ``m`` and spread
-    ``tau**2`` (their MAD squared less the median noise variance ``v`` at ``m``) and
-    each pixel's expected rate given that bulk is ``m + tau**2 / (tau**2 + v) (slope -
-    m)`` (empirical Bayes: ``m`` for a flat dark, the pixel's own slope where the rates
-    spread more than the noise, as on a sky).  A slope `OWN_RATE_SIGMA` sigmas or more
-    from the bulk is its own pixel's (a hot pixel): a logistic weight in its distance
-    squared, 1/2 at `OWN_RATE_SIGMA`, moves the rate from the bulk's to the slope.
-    Rates are clipped at 0.
-
-    Parameters
-    ----------
-    slope : `numpy.ndarray`
-        Slopes (data unit / s), any shape; NaN where not fitted.
-    var_rnoise, var_per_rate : `numpy.ndarray`
-        The slopes' variance at zero rate ((data unit / s)**2) and per unit rate
-        (data unit / s), as `RampSolution` holds them.
-    bulk : `numpy.ndarray` of bool, optional
-        The pixels the bulk is measured on (e.g. not the reference pixels, which
-        collect no light); all if None.  Measured on the pixels of the bulk among
-        every k-th pixel of the array (k prime to the rows' length, so that the
-        sample walks through every column), at most `BULK_SAMPLE`.
-
-    Returns
-    -------
-    `numpy.ndarray` or None
-        The expected rates (data unit / s), float64, ``max(slope, 0)`` where ``slope``
-        or its variance is not finite; None with fewer than `EXPECTED_MIN_PIXELS` such
-        pixels in ``bulk`` (too few to see the bulk).
-
-    Examples
-    --------
-    A dark of 0.01 e/s whose slopes scatter by 0.04 e/s, and one hot pixel:
-
-    >>> import numpy as np
-    >>> from spherex_reduce.reduce.steps.fit_ramp.least_squares import expected_rates
-    >>> slope = 0.01 + 0.04 * np.random.default_rng(0).standard_normal(10000)
-    >>> slope[0] = 5.0
-    >>> r = expected_rates(slope, np.full(10000, 0.0016), np.full(10000, 0.01))
-    >>> np.round(r[:4], 3).tolist()  # the hot pixel its own; the others the dark's
-    [5.0, 0.01, 0.01, 0.01]
-    """
-    slope = np.asarray(slope, np.float64)
-    shape = slope.shape
-    slope = slope.ravel()
-    # per pixel, flat (a view of a full array of any float type, made float64 piece by
-    # piece), or one number
-    var_rnoise, var_per_rate = (np.asarray(v) for v in (var_rnoise, var_per_rate))
-    var_rnoise, var_per_rate = (v.reshape(()) if v.size == 1 else np.broadcast_to(v, shape).ravel()
-                                for v in (var_rnoise, var_per_rate))
-
-    def take(v, where):
-        return np.float64(v) if v.ndim == 0 else v[where].astype(np.float64)
-
-    # the bulk from every k-th pixel of the array that is in it, at most BULK_SAMPLE (its
-    # medians to ~0.5 % of the slopes' sigma; three medians of 1 Mpix took 0.06 s of a
-    # 0.26 s fit), k prime to the row's length so that the sample walks through every
-    # column (k = 64 on 2048 columns of 64-column channels sampled one column of each)
-    bulk = None if bulk is None else np.broadcast_to(bulk, shape).ravel()
-    for step in dict.fromkeys((_stride(slope.size, shape[-1] if shape else 1), 1)):
-        idx = np.arange(0, slope.size, step)
-        sel = (np.isfinite(slope[idx]) & np.isfinite(take(var_rnoise, idx))
-               & np.isfinite(take(var_per_rate, idx)))
-        if bulk is not None:
-            sel &= bulk[idx]
-        idx = idx[sel]
-        if idx.size >= EXPECTED_MIN_PIXELS:
-            break
-    else:  # too few even with every pixel
-        return None
-    s = slope[idx]
-    m = float(np.median(s))
-    mad2 = (1.482602218505602 * float(np.median(np.abs(s - m)))) ** 2
-    mp = max(m, 0.0)
-    tau2 = max(mad2 - float(np.median(take(var_rnoise, idx) + mp * take(var_per_rate, idx))),
-               0.0)
-    out = np.empty(slope.size)
-    half = OWN_RATE_SIGMA ** 2 / 2
-
-    # pieces of RATE_PIECE pixels that stay in cache through the dozen element-wise steps
-    # (each pixel alone)
-    for start in range(0, slope.size, RATE_PIECE):
-        cut = slice(start, start + RATE_PIECE)
-        x = slope[cut]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            spread = mp * take(var_per_rate, cut)  # each slope's noise at the bulk's rate
-            spread = spread + take(var_rnoise, cut)
-            spread += tau2
-            ok = np.isfinite(spread)  # (a variance NaN or inf: the pixel's own rate)
-            ok &= np.isfinite(x)
-            pos = spread > 0  # else 0 / 0: masked divisions (slower)
-            clean = bool(ok.all()) and bool(pos.all())
-            d = x - m
-            far = d * d
-            if tau2 > 0:  # the rates spread: shrink the slope toward the bulk's
-                shrunk = np.divide(tau2 * d, spread, out=np.zeros_like(d), where=pos)
-            spread *= 2
-            if clean:
-                far /= spread
-            else:
-                far = np.divide(far, spread, out=np.full_like(d, np.inf), where=pos)
-            # the logistic weight 1 / (1 + exp(half - far)) (scipy's expit takes 3x
-            # as long); far = inf (spread 0) gives 1, a huge exp 0
-            np.subtract(half, far, out=far)
-            with np.errstate(over="ignore"):
-                np.exp(far, out=far)
-            far += 1.0
-            np.reciprocal(far, out=far)
-            # (1 - far) (m + shrunk) + far x = m + shrunk + far (d - shrunk), >= 0
-            if tau2 > 0:
-                d -= shrunk
-                d *= far
-                d += shrunk
-            else:  # a flat bulk: every pixel's expected rate is the bulk's
-                d *= far
-            d += m
-            if clean:
-                np.maximum(d, 0.0, out=out[cut])
-            else:  # a pixel's own max(x, 0) where not ok
-                np.maximum(d, 0.0, out=d)
-                np.maximum(x, 0.0, out=out[cut])
-                np.copyto(out[cut], d, where=ok)
-    return out.reshape(shape)
 
 
 @dataclass(frozen=True)
@@ -389,6 +238,15 @@ class LeastSquares:
         self.pfactor = float(self.w @ self.noise.shot @ self.w) if nf >= 2 else 0.0
         self.groups = [slice(g, min(g + GROUP, nf)) for g in range(0, nf, GROUP)]
         self._wwork = {work: self.w.astype(work) for work in (np.float32, np.float64)}
+        # read times symmetric about their mean (equal spacing, equal groups): w_f = -w_(n-1-f),
+        # and the slope is sum_(f < n/2) w_(n-1-f) (y_(n-1-f) - y_f), half as many
+        # differences as the reads less the first (`_block`, where only the slope is wanted)
+        self.pairs = None
+        if nf >= 2 and np.all(np.abs(tc + tc[::-1]) <= 1e-9 * np.abs(tc).max()):
+            half = nf // 2
+            wpair = (self.w[::-1][:half] - self.w[:half]) / 2
+            self.pairs = (half, [slice(g, min(g + GROUP, half)) for g in range(0, half, GROUP)],
+                          {work: wpair.astype(work) for work in (np.float32, np.float64)})
         self.jump_prior = jump_prior
         weigh = jump_prior is not None and weighting == "uniform" and want_var and nf >= 3
         factors = self.noise.read_factors
@@ -497,23 +355,35 @@ class LeastSquares:
         kcrit = self._kcrit(work)
         imprecise = None  # pixels whose float32 sums are too coarse for a uniform slope
         if nf >= 2:
-            # one pass: reads minus the first read, into a buffer that stays in cache
-            if block.dtype == work and block.dtype.isnative:
+            pairs = (self.pairs is not None and not resid and saturation is None
+                     and self.steps is None)
+            if pairs:
+                # the slope alone is wanted (no residuals, saturation or steps): from the
+                # differences of symmetric reads, half as many as the reads less the first
+                half, groups, weights = self.pairs
                 b = block.reshape(nf, npx)
-                np.subtract(b, b[0], out=x)
+                np.subtract(b[:nf - 1 - half:-1], b[:half], out=x[:half], dtype=work)
             else:
-                np.copyto(x.reshape(nf, nr, m), block, casting="unsafe")
-                x -= x[0].copy()
+                # one pass: reads minus the first read, into a buffer that stays in cache
+                groups, weights = self.groups, self._wwork
+                if block.dtype == work and block.dtype.isnative:
+                    b = block.reshape(nf, npx)
+                    np.subtract(b, b[0], out=x)
+                else:
+                    np.copyto(x.reshape(nf, nr, m), block, casting="unsafe")
+                    x -= x[0].copy()
             # float32 partial sums over groups of frames, accumulated in float64; each
             # adds the frames in order (einsum, and a reduction over the first axis)
             part = buf[nf, :npx]
             sumd = np.empty(npx) if resid else None
-            for i, g in enumerate(self.groups):
-                np.einsum("f,fp->p", self._wwork[work][g], x[g], out=part)
+            for i, g in enumerate(groups):
+                np.einsum("f,fp->p", weights[work][g], x[g], out=part)
                 _accumulate(slope, part, i)
                 if resid:
                     _accumulate(sumd, np.add.reduce(x[g], axis=0, out=part), i)
             bad = ~np.isfinite(slope)  # pixels with an unusable read, then imprecise ones
+            if pairs and nf % 2:  # the middle read weighs nothing; usable, the ramp is whole
+                bad |= ~np.isfinite(b[half])
             if saturation is not None:
                 with np.errstate(invalid="ignore"):
                     bad |= np.max(x, axis=0) + np.asarray(block[0]).reshape(npx) > saturation
@@ -569,15 +439,14 @@ class LeastSquares:
     def _model_variance(self, slope, var, maps, fit=None):
         """``var`` = read noise + shot noise of ``max(slope, 0)`` and of the dark current (uniform
         weights, every read usable), and its two parts in ``fit`` (if given)."""
+        per_rate = maps.pscale * self.pfactor  # (numbers or arrays of the pixels)
+        zero = np.square(maps.read_noise) * self.sumw2f + np.multiply(maps.dark, per_rate)
         np.maximum(slope, 0, out=var)
-        var += maps.dark
-        var *= maps.pscale * self.pfactor
-        rnoise = np.square(maps.read_noise) * self.sumw2f
-        var += rnoise
+        var *= per_rate
+        var += zero
         if fit is not None and fit.var_rnoise is not None:
-            per_rate = np.broadcast_to(maps.pscale * self.pfactor, slope.shape)
             fit.var_per_rate.reshape(-1)[:] = per_rate
-            fit.var_rnoise.reshape(-1)[:] = rnoise + np.multiply(maps.dark, per_rate)
+            fit.var_rnoise.reshape(-1)[:] = zero
 
     def _weigh_steps(self, block, x, slope, var, bad, maps, fit, rmask, one_jump):
         """The slopes and variances of the ramps fitted whole (not ``bad``) where a step is

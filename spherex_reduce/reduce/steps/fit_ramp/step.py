@@ -24,7 +24,8 @@ from ...hookspecs import hookimpl
 from ...noise_effect import NoiseEffect
 from ...step import Consumer, Step
 from ..pixel_maps import MAP_TYPES, PixelMap, adu_gain
-from .least_squares import RATE_PIECE, LeastSquares, RampMaps, RampSolution, expected_rates
+from .expected_rates import expected_errors
+from .least_squares import LeastSquares, RampMaps, RampSolution
 from .segments import RampNoise
 
 __all__ = ["WEIGHTINGS", "FitRampStep", "RampFit", "fit_ramp"]
@@ -56,7 +57,7 @@ def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, dark_c
         the data unit: ``reduce/steps/pixel_maps.py``).  Given, the
         uncertainty is the model ``read_noise**2 sum(w**2)`` plus the shot
         noise of the pixel's expected rate given the exposure's slopes
-        (`~spherex_reduce.reduce.steps.fit_ramp.least_squares.expected_rates`;
+        (`~spherex_reduce.reduce.steps.fit_ramp.expected_rates.expected_rates`;
         data unit = electrons / ``gain``; header ``ERRRATE``); not
         given, it comes from the fit residuals, ``chi2 / (n - 2) * sum(w**2)``
         (NaN for two reads).
@@ -148,25 +149,6 @@ def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, dark_c
     return FitRampStep()(exposure, weighting=weighting, read_noise=read_noise, gain=gain,
                          dark_current=dark_current, saturation=saturation,
                          jump_prior=jump_prior)
-
-
-def _expected_error(fit, rate):
-    """``fit.var`` (ERR, in place) from the read noise and the shot noise of ``rate`` where
-    both are finite (NaN where not fitted: kept), in pieces that stay in cache."""
-    err = fit.var.reshape(-1)
-    copied = not np.shares_memory(err, fit.var)  # (a strided view: written back below)
-    var_rnoise, var_per_rate, rate = (np.ravel(a) for a in (fit.var_rnoise, fit.var_per_rate,
-                                                           rate))
-    for lo in range(0, err.size, RATE_PIECE):
-        cut = slice(lo, lo + RATE_PIECE)
-        var = rate[cut] * var_per_rate[cut]
-        var += var_rnoise[cut]
-        with np.errstate(invalid="ignore"):
-            redo = np.isfinite(err[cut]) & (var >= 0)
-        redo &= np.isfinite(var)
-        np.sqrt(var, out=err[cut], where=redo)
-    if copied:
-        fit.var[...] = err.reshape(fit.var.shape)
 
 
 def _validated(params):
@@ -318,10 +300,10 @@ class RampFit(Consumer):
             bulk = ~s.geometry.reference_pixel_mask()  # not the reference pixels
             if self.context.order == "readout":
                 bulk = bulk[s.rows]
-            rate = expected_rates(fit.slope, fit.var_rnoise, fit.var_per_rate, bulk)
-            if rate is not None:  # else too few pixels: each pixel's own slope
-                _expected_error(fit, rate)
-            header["ERRRATE"] = ("own" if rate is None else "expected",
+            expected = expected_errors(fit.slope, fit.var_rnoise, fit.var_per_rate, fit.var,
+                                       bulk)
+            # (else too few pixels: each pixel's own slope)
+            header["ERRRATE"] = ("expected" if expected else "own",
                                  "rates of ERR's shot noise (fit_ramp)")
         if reference is not None and np.ndim(reference.data) == 3:
             rfit = self.reference_solver.fit(reference.data, reference.dq)

@@ -11,7 +11,7 @@ from spherex_reduce.io.examples import example_raw_exposure, tiny_schedule
 from spherex_reduce.io.sources import MemorySource
 from spherex_reduce.reduce.executor import execute
 from spherex_reduce.reduce.options import RunOptions
-from spherex_reduce.reduce.steps.fit_ramp.least_squares import expected_rates
+from spherex_reduce.reduce.steps.fit_ramp.expected_rates import expected_rates
 from spherex_reduce.reduce.steps.fit_ramp.step import FitRampStep, RampFit
 
 
@@ -290,7 +290,7 @@ def test_unknown_weighting_is_one_clear_error():
 # -- the consumer of bands -------------------------------------------------------------
 
 CASES = ["masked", "saturation", "nan", "optimal", "read_noise", "phantom_reference",
-         "raw_phantom", "int", "two_frames"]
+         "raw_phantom", "int", "two_frames", "read_noise_middle", "read_noise_uint16"]
 
 
 def _case(name):
@@ -325,8 +325,17 @@ def _case(name):
             params = {"weighting": "optimal", "read_noise": 5.0}
         elif name == "read_noise":
             params = {"read_noise": 5.0, "gain": 2.0}
+    elif name == "read_noise_middle":  # the middle of 9 symmetric reads weighs nothing in the
+        # slope, but a ramp with it unusable is not whole (nreads)
+        cube[4, 2, 2] = np.nan
+        cube[4, 5, :3] = np.inf
+        params = {"read_noise": 5.0, "gain": 2.0}
+    elif name == "read_noise_uint16":  # integer ADU, made float32 read by read
+        params = {"read_noise": 5.0}
     if name == "int":
         cube = np.round(cube).astype(np.int32)
+    elif name == "read_noise_uint16":
+        cube = np.round(cube).astype(np.uint16)
     else:
         cube = cube.astype(np.float32)
     good = np.isfinite(cube)
@@ -410,6 +419,13 @@ def test_every_path_matches_float64_least_squares(name):
                                            rel=1e-6)
     else:
         np.testing.assert_allclose(slope, ref, rtol=1e-6, atol=1e-3 * sigma)
+    if name.startswith("read_noise"):  # the ramps fitted whole: the variance of their reads
+        whole = n == t.size
+        tc = t - t.mean()
+        shot = rate[whole] / params.get("gain", 1.0) * (tc @ np.minimum.outer(t, t) @ tc)
+        np.testing.assert_allclose(out.data.uncertainty.array[whole] ** 2,
+                                   (params["read_noise"] ** 2 * (tc @ tc) + shot) / (tc @ tc) ** 2,
+                                   rtol=1e-6)
     unc2 = out.data.uncertainty.array ** 2
     if "read_noise" not in params:
         np.testing.assert_allclose(unc2, var, rtol=1e-3, atol=1e-12)

@@ -301,9 +301,10 @@ class Exposure:
         """
         if self.is_ramp:
             return self
-        flags = np.zeros(self.shape, DQ_TYPE) if self.dq is None else self.dq
-        marked = flags | np.where(self.reference_pixel_mask(), DQ_TYPE(REFERENCE), DQ_TYPE(0))
-        return self.replace(dq=marked.astype(DQ_TYPE, copy=False))
+        marked = (np.zeros(self.shape, DQ_TYPE) if self.dq is None
+                  else np.array(self.dq, DQ_TYPE))  # (a copy: the input's flags stay)
+        np.bitwise_or(marked, DQ_TYPE(REFERENCE), out=marked, where=self.reference_pixel_mask())
+        return self.replace(dq=marked)
 
     def replace(self, **changes):
         """A new Exposure with some fields changed (the input is left as it was).

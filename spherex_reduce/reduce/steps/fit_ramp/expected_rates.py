@@ -174,20 +174,33 @@ class RateBulk:
         ``var_rnoise`` and ``var_per_rate``: float64 pieces or numbers) into ``out``; a
         piece of `RATE_PIECE` pixels stays in cache through the dozen element-wise
         steps."""
+        self._rates(x, var_rnoise, var_per_rate, out)
+        return out
+
+    def _rates(self, x, var_rnoise, var_per_rate, out):
+        """`rates` into ``out``; returns whether the piece was clean (every slope and
+        variance finite, every spread positive: each rate is then finite and >= 0)."""
         m, mp, tau2 = self.m, self.mp, self.tau2
         half = OWN_RATE_SIGMA ** 2 / 2
-        with np.errstate(invalid="ignore", divide="ignore"):
-            spread = mp * var_per_rate  # each slope's noise at the bulk's rate
-            spread = spread + var_rnoise
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            spread = np.multiply(mp, var_per_rate, out=np.empty(x.size))  # each slope's
+            spread += var_rnoise  # noise at the bulk's rate, and the rates' spread
             spread += tau2
-            ok = np.isfinite(spread)  # (a variance NaN or inf: the pixel's own rate)
-            ok &= np.isfinite(x)
-            pos = spread > 0  # else 0 / 0: masked divisions (slower)
-            clean = bool(ok.all()) and bool(pos.all())
+            # clean: three reductions (a NaN or inf makes a sum non-finite, a min not > 0)
+            clean = bool(x.size and spread.min() > 0 and np.isfinite(spread.sum())
+                         and np.isfinite(x.sum()))
+            if not clean:  # a variance NaN or inf, or a slope: the pixel's own rate
+                ok = np.isfinite(spread)
+                ok &= np.isfinite(x)
+                pos = spread > 0  # else 0 / 0: masked divisions (slower)
             d = x - m
             far = d * d
             if tau2 > 0:  # the rates spread: shrink the slope toward the bulk's
-                shrunk = np.divide(tau2 * d, spread, out=np.zeros_like(d), where=pos)
+                shrunk = d * tau2
+                if clean:
+                    shrunk /= spread
+                else:
+                    shrunk = np.divide(shrunk, spread, out=np.zeros_like(d), where=pos)
             spread *= 2
             if clean:
                 far /= spread
@@ -196,8 +209,7 @@ class RateBulk:
             # the logistic weight 1 / (1 + exp(half - far)) (scipy's expit takes 3x
             # as long); far = inf (spread 0) gives 1, a huge exp 0
             np.subtract(half, far, out=far)
-            with np.errstate(over="ignore"):
-                np.exp(far, out=far)
+            np.exp(far, out=far)
             far += 1.0
             np.reciprocal(far, out=far)
             # (1 - far) (m + shrunk) + far x = m + shrunk + far (d - shrunk), >= 0
@@ -214,7 +226,7 @@ class RateBulk:
                 np.maximum(d, 0.0, out=d)
                 np.maximum(x, 0.0, out=out)
                 np.copyto(out, d, where=ok)
-        return out
+        return clean
 
 
 def expected_errors(slope, var_rnoise, var_per_rate, err, bulk=None):
@@ -266,12 +278,15 @@ def expected_errors(slope, var_rnoise, var_per_rate, err, bulk=None):
     flat = err.reshape(-1)
     for lo in range(0, flat.size, RATE_PIECE):
         cut = slice(lo, lo + RATE_PIECE)
-        per_rate = _take(var_per_rate, cut)
-        var = bulk.rates(slope[cut], _take(var_rnoise, cut), per_rate, np.empty(per_rate.size))
+        x, rnoise, per_rate = slope[cut], _take(var_rnoise, cut), _take(var_per_rate, cut)
+        var = np.empty(x.size)
+        clean = bulk._rates(x, rnoise, per_rate, var)
         var *= per_rate
-        var += var_rnoise[cut] if var_rnoise.ndim else var_rnoise
-        with np.errstate(invalid="ignore"):
-            redo = np.isfinite(flat[cut]) & (var >= 0)
-        redo &= np.isfinite(var)
+        var += rnoise
+        redo = np.isfinite(flat[cut])  # (not fitted: kept)
+        if not clean:  # (a clean piece's variances are finite and >= 0)
+            with np.errstate(invalid="ignore"):
+                redo &= var >= 0
+            redo &= np.isfinite(var)
         np.sqrt(var, out=flat[cut], where=redo)
     return True

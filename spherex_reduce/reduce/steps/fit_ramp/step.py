@@ -265,9 +265,12 @@ class RampFit(Consumer):
                                maps=self._band_maps(block))
         # uncertainties and the count of unfitted pixels here, in the band's thread
         np.sqrt(part.var, out=part.var)
-        few = int(np.count_nonzero(part.flags & dq.FEW_READS))
         jumped = int(np.count_nonzero(part.njumps))
-        saturated = int(np.count_nonzero(part.flags & dq.SATURATED))
+        cut = part.flags & (dq.FEW_READS | dq.SATURATED)  # (rare: counted where set)
+        few = saturated = 0
+        if cut.any():
+            few = int(np.count_nonzero(cut & dq.FEW_READS))
+            saturated = int(np.count_nonzero(cut & dq.SATURATED))
         if not isinstance(rows, slice):
             self.fit.put(rows, part)
         with self._lock:

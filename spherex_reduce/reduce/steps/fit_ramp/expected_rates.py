@@ -5,13 +5,15 @@ rate (a dark), and the shot noise taken from it is largest where the slope fluct
 ``fit_ramp`` takes the shot noise of each pixel's rate *expected* given the bulk of the
 exposure's slopes (`expected_rates`).  `RateBulk` measures the bulk once; its `rates`
 then work on pieces of pixels that stay in cache; `expected_errors` turns each piece's
-rates into its uncertainties at once.
+rates into its uncertainties at once, the pieces on threads.
 """
 
 import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from ...options import in_threads
 
 __all__ = ["RATE_PIECE", "RateBulk", "expected_errors", "expected_rates"]
 
@@ -23,9 +25,11 @@ EXPECTED_MIN_PIXELS = 100
 #: pixels the bulk of `expected_rates` is measured on at most (every k-th pixel of the
 #: array, k prime to the rows' length, that is in the bulk)
 BULK_SAMPLE = 1 << 16
-#: pixels `expected_rates` works on at once (a few float64 arrays of them stay in cache:
-#: 16 ms for 1 Mpix where whole arrays took 28 ms; a second thread gained nothing)
-RATE_PIECE = 1 << 15
+#: pixels `expected_rates` and `expected_errors` work on at once (a few float64 arrays of
+#: them stay in cache: 17-19 ms for 1 Mpix where whole arrays took 28 ms; pieces of 2**15
+#: were as fast on one thread, but two threads then gained nothing: each numpy call holds
+#: the interpreter's lock too briefly between two; with 2**17, 12-13 ms on two threads)
+RATE_PIECE = 1 << 17
 
 
 def _stride(size, ncols):
@@ -229,17 +233,15 @@ class RateBulk:
         return clean
 
 
-def expected_errors(slope, var_rnoise, var_per_rate, err, bulk=None):
+def expected_errors(slope, var_rnoise, var_per_rate, err, bulk=None, threads=1):
     """Uncertainties from the read noise and the shot noise of each pixel's expected rate.
 
     ``err`` (written in place: the caller's own array) becomes ``sqrt(var_rnoise +
     rate * var_per_rate)`` for the `expected_rates` ``rate``, where ``err`` is
     finite (a pixel not fitted keeps its NaN) and that variance finite and
     non-negative.  The rates are never held whole: each piece of `RATE_PIECE`
-    pixels goes from slopes to uncertainties in cache (each pixel's number is its
-    own, whatever the pieces).  One thread: the pieces' two dozen numpy calls
-    each hold the interpreter's lock, and a second thread made 1 Mpix slower
-    (27 ms against 22 ms).
+    pixels goes from slopes to uncertainties in cache, the pieces on ``threads``
+    threads (each pixel's number is its own, whatever the pieces and threads).
 
     Parameters
     ----------
@@ -252,6 +254,8 @@ def expected_errors(slope, var_rnoise, var_per_rate, err, bulk=None):
         Uncertainties (data unit / s) of ``slope``'s shape, C-ordered; rewritten.
     bulk : `numpy.ndarray` of bool, optional
         As `expected_rates`.
+    threads : int
+        Threads the pieces are worked on.
 
     Returns
     -------
@@ -276,7 +280,8 @@ def expected_errors(slope, var_rnoise, var_per_rate, err, bulk=None):
         raise ValueError("err must be C-ordered (it is written through a flat view)")
     slope, var_rnoise, var_per_rate = bulk.flat(slope, var_rnoise, var_per_rate)
     flat = err.reshape(-1)
-    for lo in range(0, flat.size, RATE_PIECE):
+
+    def piece(lo):
         cut = slice(lo, lo + RATE_PIECE)
         x, rnoise, per_rate = slope[cut], _take(var_rnoise, cut), _take(var_per_rate, cut)
         var = np.empty(x.size)
@@ -289,4 +294,8 @@ def expected_errors(slope, var_rnoise, var_per_rate, err, bulk=None):
                 redo &= var >= 0
             redo &= np.isfinite(var)
         np.sqrt(var, out=flat[cut], where=redo)
+
+    for _ in in_threads(range(0, flat.size, RATE_PIECE), piece, threads,
+                        name="spherex-reduce-err"):
+        pass
     return True

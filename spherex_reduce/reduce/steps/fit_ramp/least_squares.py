@@ -322,6 +322,10 @@ class LeastSquares:
             rows = min(self.rows_per_block(m), max(n, 1))
             buf = np.empty((nf + 1, rows * m), self.work_type(cube.dtype))
         per = max(1, min(buf.shape[1] // max(m, 1), n))
+        # every ramp whole until a block finds otherwise (one call each for the band)
+        out.nreads[:] = nf
+        out.nsegments[:] = 1 if nf >= 2 else 0
+        out.flags[:] = 0
         mask = None if mask is None else np.asarray(mask)
         refit = []  # flat indices of the pixels fitted segment by segment, block by block
         for r0 in range(0, n, per):
@@ -349,9 +353,6 @@ class LeastSquares:
         x = buf[:nf, :npx]
         slope = fit.slope.reshape(npx)
         var = fit.var.reshape(npx)
-        fit.nreads[:] = nf
-        fit.nsegments[:] = 1 if nf >= 2 else 0
-        fit.flags[:] = 0
         saturation = self.saturation
         resid = self.want_var and maps.read_noise is None
         kcrit = self._kcrit(work)

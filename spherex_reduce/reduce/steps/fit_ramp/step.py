@@ -22,6 +22,7 @@ from ....core.exposure import Exposure, ReferenceReads
 from ....core.parameters import OPTIONAL_NUMBER, Parameter, validate_parameters
 from ...hookspecs import hookimpl
 from ...noise_effect import NoiseEffect
+from ...options import RunOptions
 from ...step import Consumer, Step
 from ..pixel_maps import MAP_TYPES, PixelMap, adu_gain
 from .expected_rates import expected_errors
@@ -304,7 +305,8 @@ class RampFit(Consumer):
             if self.context.order == "readout":
                 bulk = bulk[s.rows]
             expected = expected_errors(fit.slope, fit.var_rnoise, fit.var_per_rate, fit.var,
-                                       bulk)
+                                       bulk, RunOptions(threads=self.context.threads)
+                                       .thread_count())
             # (else too few pixels: each pixel's own slope)
             header["ERRRATE"] = ("expected" if expected else "own",
                                  "rates of ERR's shot noise (fit_ramp)")

@@ -1,4 +1,4 @@
-"""`expected_errors`: ERR from each pixel's expected rate, piece by piece."""
+"""`expected_errors`: ERR from each pixel's expected rate, piece by piece on threads."""
 
 import numpy as np
 import pytest
@@ -18,9 +18,10 @@ def _slopes(n, seed=3):
     return slope, var_rnoise, var_per_rate
 
 
-def test_errors_are_those_of_the_expected_rates_whatever_the_pieces(monkeypatch):
+@pytest.mark.parametrize("threads", [1, 3])
+def test_errors_are_those_of_the_expected_rates_whatever_the_pieces(monkeypatch, threads):
     """sqrt(var_rnoise + rate * var_per_rate) at `expected_rates`' rates (numpy on the whole
-    arrays), bit for bit with pieces of 1000 pixels; NaN kept."""
+    arrays), bit for bit with pieces of 1000 pixels on any threads; NaN kept."""
     slope, vr, vp = _slopes(20000)
     rate = er.expected_rates(slope, vr, vp)
     want = np.sqrt(rate * vp.astype(np.float64) + vr)
@@ -28,7 +29,7 @@ def test_errors_are_those_of_the_expected_rates_whatever_the_pieces(monkeypatch)
     err = np.where(np.isnan(slope), np.nan, 1.0).reshape(100, 200)
     monkeypatch.setattr(er, "RATE_PIECE", 1000)
     assert er.expected_errors(slope.reshape(100, 200), vr.reshape(100, 200),
-                              vp.reshape(100, 200), err)
+                              vp.reshape(100, 200), err, threads=threads)
     np.testing.assert_array_equal(err.ravel(), want)
     # hot pixels take their own rate, the dark the bulk's (0.01 e/s)
     hot = slope > 0.4

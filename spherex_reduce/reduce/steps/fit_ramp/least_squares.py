@@ -54,9 +54,10 @@ from .step_posterior import WEIGH_ALL_READS, WEIGH_FROM, step_posterior
 __all__ = ["GROUP", "LeastSquares", "RampMaps", "RampSolution", "ramp_weights"]
 
 GROUP = 32  #: frames per float32 partial sum; the groups are summed in float64
-#: pixels per block of the work buffer (74 frames: 9.7 MB in float32, of which the
-#: symmetric reads' differences use half; 2**14 was 4-6 % slower, 2**16-2**17 no faster)
-BLOCK_PIXELS = 1 << 15
+#: bytes of a block of the work buffer, one row per frame and one for sums: 2**15 pixels of 74
+#: float32 frames (the symmetric reads' differences use half; 2**14 pixels was 4-6 %
+#: slower, 2**16-2**17 no faster); longer ramps or float64 take fewer pixels
+BLOCK_BYTES = 75 * 4 << 15
 #: pixels fitted segment by segment at once (74 frames: 4.8 MB for each float64 copy)
 REFIT_PIXELS = 1 << 13
 def ramp_weights(times):
@@ -264,16 +265,19 @@ class LeastSquares:
         # by type, not byte order: big-endian float64 (as FITS stores it) is float64 too
         return np.float64 if np.dtype(dtype).newbyteorder("=") == np.float64 else np.float32
 
-    def rows_per_block(self, ncols):
-        """Rows of a block of the work buffer for ``ncols`` columns."""
-        return max(1, BLOCK_PIXELS // max(ncols, 1))
+    def rows_per_block(self, ncols, dtype=np.float32):
+        """Rows of a block of the work buffer for ``ncols`` columns of pixels of ``dtype``
+        (about `BLOCK_BYTES`, at least one row)."""
+        size = (self.nf + 1) * np.dtype(self.work_type(dtype)).itemsize * max(ncols, 1)
+        return max(1, BLOCK_BYTES // size)
 
     def buffer(self, ncols, dtype):
         """A work buffer for blocks of ``ncols`` columns of pixels of ``dtype``.
 
         One row per frame (the reads minus the first read) and one for partial sums.
         """
-        return np.empty((self.nf + 1, self.rows_per_block(ncols) * ncols), self.work_type(dtype))
+        return np.empty((self.nf + 1, self.rows_per_block(ncols, dtype) * ncols),
+                        self.work_type(dtype))
 
     def _kcrit(self, work):
         # refit in float64 where chi2 < kcrit * sum(d^2): (a) float32 sums of squares lose
@@ -319,7 +323,7 @@ class LeastSquares:
             raise ValueError("out must hold C-ordered arrays (they are written through views)")
         if (buf is None or buf.dtype != self.work_type(cube.dtype) or buf.shape[0] != nf + 1
                 or buf.shape[1] < m):
-            rows = min(self.rows_per_block(m), max(n, 1))
+            rows = min(self.rows_per_block(m, cube.dtype), max(n, 1))
             buf = np.empty((nf + 1, rows * m), self.work_type(cube.dtype))
         per = max(1, min(buf.shape[1] // max(m, 1), n))
         # every ramp whole until a block finds otherwise (one call each for the band)

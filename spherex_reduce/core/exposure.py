@@ -304,12 +304,7 @@ class Exposure:
         marked = (np.zeros(self.shape, DQ_TYPE) if self.dq is None
                   else np.array(self.dq, DQ_TYPE))  # (a copy: the input's flags stay)
         np.bitwise_or(marked, DQ_TYPE(REFERENCE), out=marked, where=self.reference_pixel_mask())
-        if self.data.mask is None:
-            return self.replace(dq=marked)
-        # an informational bit: the mask (what may not be used) is the input's, shared
-        nd = self.data
-        return self.replace(data=CCDData(nd.data, unit=nd.unit, uncertainty=nd.uncertainty,
-                                         mask=nd.mask), dq=marked)
+        return self.replace(dq=marked)
 
     def replace(self, **changes):
         """A new Exposure with some fields changed (the input is left as it was).

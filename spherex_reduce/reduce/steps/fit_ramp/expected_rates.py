@@ -170,7 +170,8 @@ class RateBulk:
         m = _median(s)
         mad2 = (1.482602218505602 * _median(np.abs(s - m))) ** 2
         mp = max(m, 0.0)
-        noise = _median(_take(var_rnoise, idx) + mp * _take(var_per_rate, idx))
+        noise = _median(np.broadcast_to(_take(var_rnoise, idx) + mp * _take(var_per_rate, idx),
+                                        idx.shape))  # (the variances may be numbers)
         return cls(m, mp, max(mad2 - noise, 0.0))
 
     def rates(self, x, var_rnoise, var_per_rate, out):
@@ -289,7 +290,7 @@ def expected_errors(slope, var_rnoise, var_per_rate, err, bulk=None, threads=1):
         var *= per_rate
         var += rnoise
         redo = np.isfinite(flat[cut])  # (not fitted: kept)
-        if not clean:  # (a clean piece's variances are finite and >= 0)
+        if not (clean and var.min() >= 0):  # (else every variance is finite and >= 0)
             with np.errstate(invalid="ignore"):
                 redo &= var >= 0
             redo &= np.isfinite(var)

@@ -48,3 +48,28 @@ def test_a_strided_error_array_is_refused():
     err = np.ones((20, 40))[:, ::2]
     with pytest.raises(ValueError, match="C-ordered"):
         er.expected_errors(slope.reshape(20, 20), vr.reshape(20, 20), vp.reshape(20, 20), err)
+
+
+def test_variances_given_as_numbers_are_those_of_every_pixel():
+    """One number for a variance (the docs allow it) is that variance at every pixel: the
+    rates and errors of full arrays of it (the bulk's noise was a median of one number)."""
+    slope, _, _ = _slopes(5000)
+    full = er.expected_rates(slope, np.full(5000, 0.0016), np.full(5000, 0.01))
+    np.testing.assert_array_equal(er.expected_rates(slope, 0.0016, np.float64(0.01)), full)
+    err, want = np.ones(5000), np.ones(5000)
+    assert er.expected_errors(slope, 0.0016, 0.01, err)
+    assert er.expected_errors(slope, np.full(5000, 0.0016), np.full(5000, 0.01), want)
+    np.testing.assert_array_equal(err, want)
+
+
+def test_a_negative_variance_keeps_the_pixels_error():
+    """A variance below zero at a pixel's expected rate (not from a fit: a caller's, here
+    var_rnoise < 0 on a sky whose spreads stay positive) leaves that pixel's error as it
+    was, the others computed, without NaN or an invalid-value warning."""
+    rng = np.random.default_rng(0)
+    slope = 10 + rng.standard_normal(1000)
+    slope[0] = 0.0  # its expected rate is its own (far from the bulk): var < 0 there
+    err = np.ones(1000)
+    with np.errstate(invalid="raise"):
+        assert er.expected_errors(slope, np.full(1000, -0.05), np.full(1000, 0.01), err)
+    assert err[0] == 1.0 and np.isfinite(err).all() and (err[1:] != 1).all()

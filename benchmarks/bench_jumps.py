@@ -307,8 +307,8 @@ def false_alarms(seed, npix):
                  stated, *flagged(e, steps, True))
         del e
     # short ramps: single reads, and JWST-like groups of 4 frames with a gap of 1; the docs
-    # state no rate for them, but their 10 and 20 reads follow (n - 1) tests at the
-    # per-test two-sided tail (9 x 6.3e-5 = 5.7e-4), taken here as the stated rate
+    # state (n - 1) tests at the per-test two-sided tail (9 x 6.3e-5 = 5.7e-4 for 10 reads)
+    # for 4 reads and more, one test for 3 (its two steps leave the same residual)
     p1 = 2 * norm.sf(4.0)
     for n in (3, 4, 5):
         for fpg, gap in ((1, 0), (4, 1)):
@@ -319,12 +319,8 @@ def false_alarms(seed, npix):
                        {"read_noise": 1.2 * RN, "gain": 1e9}):
                 what = (f"read_noise given ({jd['read_noise']:g} e)"
                         + (", gain 1e9 (no shot term)" if len(jd) > 1 else ""))
-                if n < 4:  # the search needs 4 reads (docs): the step is skipped
-                    what += " (skipped: fewer than 4 reads)"
-                case(f"dark, {n} {kind}, {what}", (n - 1) * p1 if n >= 4 else 0.0,
+                case(f"dark, {n} {kind}, {what}", (1 if n == 3 else n - 1) * p1,
                      *flagged(e, [{"detect_jumps": jd}]))
-                if n < 4:
-                    break
             del e
     return rows
 

@@ -129,7 +129,7 @@ class StepSearch(StepModel):
     Parameters
     ----------
     times, factors, walk, rho, slope_precision
-        As `~spherex_reduce.reduce.steps.fit_ramp.step_model.StepModel`'s, at least 4
+        As `~spherex_reduce.reduce.steps.fit_ramp.step_model.StepModel`'s, at least 3
         reads (a group's ``walk`` is the mean over its frames,
         `~spherex_reduce.ReadoutSchedule.shot_covariance`); with ``slope_precision`` the
         reads given to `find` are those less the expected line (`find`'s ``prior``).
@@ -149,8 +149,8 @@ class StepSearch(StepModel):
 
     def __init__(self, times, factors=None, walk=None, rho=0.0, slope_precision=0.0):
         n = np.size(times)
-        if n < 4:
-            raise ValueError(f"a step search needs at least 4 reads, got {n}")
+        if n < 3:
+            raise ValueError(f"a step search needs at least 3 reads, got {n}")
         check_size(self.nbytes(n), f"detect_jumps: the step search over {n} reads")
         super().__init__(times, factors, walk, rho, slope_precision)
         tau, f, walk, coef, g, h = (self.tau, self.factors, self.walk, self.coef, self.gk,
@@ -451,7 +451,7 @@ class StepSearch(StepModel):
         cols = np.arange(st.pixels.size)
         fit = _Given(self, st.big_r, st.steps)
         rq = fit.r ** 2 * self._invq[:, None]
-        kb = np.argmax(rq, axis=0)
+        kb = self._best(rq, fit.r)
         if st.sigma is None:
             var = np.maximum((st.rss - rq[kb, cols]) / (self.n - 3), st.floor)
         else:
@@ -470,11 +470,24 @@ class StepSearch(StepModel):
         sigma = np.sqrt(var * (self.slope_var + sos * sos / qb))
         return np.maximum(slope - SHOT_RATE_SIGMAS * sigma, 0.0) / st.gain
 
+    def _best(self, score, r):
+        """The read of each ramp's best step: the largest ``score`` (``(n - 1, m)``).  On
+        three reads with the slope free a step after the first read and one after the
+        second leave the same residual (the line fits two of three points): the data say
+        only that the ramp bends, and a positive step (a cosmic ray) bends it one way at
+        the first and the other at the second, so the step whose amplitude (the sign of
+        its ``R``, ``r``) is positive is taken, as the larger of the two differences
+        is by two-point detection."""
+        if self.n == 3 and not self.slope_precision:
+            return (r[0] <= 0).astype(np.intp)
+        return np.argmax(score, axis=0)
+
     def _round(self, st, threshold, max_jumps, out):
         """One more step in each ramp of ``st`` (a `_State`), then the next round for the
         ramps where one was found; ``out`` collects them."""
         n, j = self.n, st.steps.shape[1]
-        if not st.pixels.size or j >= max_jumps or (st.sigma is None and n - 4 - j < 0):
+        if (not st.pixels.size or j >= max_jumps or n - 2 - j <= 0  # (the reads fitted)
+                or (st.sigma is None and n - 4 - j < 0)):
             return
         cols = np.arange(st.pixels.size)
         fit = _Given(self, st.big_r, st.steps)
@@ -485,7 +498,7 @@ class StepSearch(StepModel):
             qk = np.where(valid, qk, np.inf)
             r2[~valid] = 0.0
         rq = r2 / qk
-        kb = np.argmax(rq, axis=0)
+        kb = self._best(rq, rk)
         if st.sigma is None:
             var = np.maximum((st.rss - fit.explained - rq[kb, cols]) / (n - 3 - j), st.floor)
         else:
@@ -495,7 +508,7 @@ class StepSearch(StepModel):
         total = var * qk
         total += lam * sk
         z2 = np.divide(r2, total, out=total)
-        k = np.argmax(z2, axis=0)
+        k = self._best(z2, rk)
         peak = z2[k, cols]
         # log p-value of the best step (two-sided normal) against the threshold's
         logp = np.log(2.0) + log_ndtr(-np.sqrt(peak))

@@ -69,7 +69,7 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
     ----------
     exposure : `~spherex_reduce.Exposure`
         Ramps ``(frames, rows or reads, columns)`` in readout or physical
-        order, at least 4 frames (5 without ``read_noise``).  Not modified.
+        order, at least 3 frames (5 without ``read_noise``).  Not modified.
     threshold : float
         ``max |z|`` (sigma) above which a ramp has a jump.  A jump-free dark
         ramp of 74 reads of 1.5 s (10 e read noise, 0.01 e/s, gain 1) is
@@ -206,9 +206,13 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
     searched before its bands are flagged (it is held in memory); so it is
     with ``large_events``.
 
-    On 4 reads without ``read_noise`` (or fewer than 4 with it) the step is
-    skipped with a `~spherex_reduce.reduce.steps.jumps.events.JumpWarning`
-    saying why and, for 4 reads, to give ``read_noise``.
+    On 3 or 4 reads without ``read_noise`` (or 2 with it) the step is skipped
+    with a `~spherex_reduce.reduce.steps.jumps.events.JumpWarning` saying why
+    and, for 3-4 reads, to give ``read_noise``.  On 3 reads (with it) a step
+    after the first read and one after the second leave the same residual
+    (the line fits two of three points): the ramp's bend is tested once, and
+    the step is placed where it is positive (a cosmic ray raises the larger
+    of the two differences, as two-point detection flags it).
 
     Examples
     --------
@@ -255,7 +259,7 @@ class JumpKernel(Kernel):
         if prior and self.estimate:
             raise ConfigError("detect_jumps.expected_rate needs read_noise (the prior's "
                               "weight is the read noise's variance over the rates' spread)")
-        if s.nframes < (5 if self.estimate else 4):
+        if s.nframes < (5 if self.estimate else 3):
             raise StepSkipped(_too_few(s.nframes, self.estimate))
         self.params = params
         g = s.geometry
@@ -492,7 +496,7 @@ class JumpKernel(Kernel):
                                                return_inverse=True, return_counts=True)
                 common = inverse.ravel() == np.argmax(counts)
                 members, mask = pix[common], usable[:, np.argmax(common)]
-                if mask.sum() < 4:
+                if mask.sum() < 3:
                     continue
                 search = self._search(mask)
                 sub = y[:, members][mask]
@@ -523,7 +527,7 @@ class JumpKernel(Kernel):
         sub = y[:, pixels]
         flags = None if block.dq is None else block.dq.reshape(sub.shape[0], -1)[:, pixels]
         usable, _ = usable_reads(sub, flags, self.params["saturation"])
-        least = 5 if self.estimate else 4
+        least = 5 if self.estimate else 3
         keys = np.packbits(usable, axis=0).T.copy()
         _, first, inverse = np.unique(keys.view(f"V{keys.shape[1]}").ravel(),
                                       return_index=True, return_inverse=True)
@@ -696,12 +700,12 @@ def _read_offset(block, rows, flags, read, times):
 def _too_few(nframes, estimate):
     """Why ``nframes`` reads are not searched, said once as a warning too (a skipped step
     is otherwise only a status keyword): with the read noise estimated, how to search."""
-    if estimate and nframes == 4:
-        text = ("4 reads: too few to estimate each ramp's read noise (5 needed), so no "
-                "jumps are searched; give detect_jumps.read_noise (a number in the data "
-                "unit, or a read-noise map as a FITS image) to search 4 reads")
+    if estimate and nframes in (3, 4):
+        text = (f"{nframes} reads: too few to estimate each ramp's read noise (5 needed), so "
+                "no jumps are searched; give detect_jumps.read_noise (a number in the data "
+                f"unit, or a read-noise map as a FITS image) to search {nframes} reads")
     else:
-        text = f"{nframes} reads: too few to search for jumps (4 needed)"
+        text = f"{nframes} reads: too few to search for jumps (3 needed)"
     warnings.warn(f"detect_jumps: {text}; the step is skipped", JumpWarning, stacklevel=3)
     return text
 

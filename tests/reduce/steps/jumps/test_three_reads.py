@@ -1,0 +1,117 @@
+"""Three reads: one test of the ramp's bend, the step placed where it is positive."""
+
+import numpy as np
+import pytest
+from scipy.stats import norm
+
+from spherex_reduce import DetectorGeometry, Exposure, Pipeline, ReadoutSchedule, detect_jumps, dq
+from spherex_reduce.reduce.steps.jumps.events import JumpWarning
+
+RN, DT = 10.0, 1.5
+
+
+def schedule(nrows, ncols, frames_per_group=1, group_gap=0):
+    return ReadoutSchedule(DetectorGeometry(nrows, ncols, max(1, ncols // 64), ref_border=0),
+                           skip=1, ref_reads=0, ref_mode="none", phantom_reads=0, nframes=3,
+                           frame_time=DT, frames_per_group=frames_per_group,
+                           group_gap=group_gap)
+
+
+def white(rng, nrows, ncols, frames_per_group=1):
+    """Three reads of white read noise (each the mean of ``frames_per_group`` frames) on a
+    pedestal, no charge."""
+    noise = rng.standard_normal((3, nrows, ncols)) * RN / np.sqrt(frames_per_group)
+    return (6e4 + noise).astype(np.float32)
+
+
+@pytest.mark.parametrize("frames_per_group, group_gap", [(1, 0), (4, 1)])
+@pytest.mark.parametrize("threshold", [2.5, 3.0])
+def test_false_alarms_are_one_two_sided_test(frames_per_group, group_gap, threshold):
+    """Jump-free ramps of white read noise (given, no shot term) are flagged with the
+    probability of one two-sided normal test, 2 Phi(-threshold): the two steps of three
+    reads are one test, not two (within 5 Poisson sigmas of 2^17 ramps)."""
+    rng = np.random.default_rng(int(threshold * 10) + frames_per_group)
+    s = schedule(256, 512, frames_per_group, group_gap)
+    e = Exposure.from_arrays(white(rng, 256, 512, frames_per_group), s)
+    out = detect_jumps(e, read_noise=RN, gain=1e9, threshold=threshold,
+                       scale_read_noise=False)
+    n = 256 * 512
+    flagged = int(((out.dq & dq.JUMP) != 0).any(axis=0).sum())
+    expected = 2 * norm.sf(threshold) * n
+    assert abs(flagged - expected) <= 5 * np.sqrt(expected)
+
+
+def test_a_positive_step_is_placed_at_its_read_and_the_slope_is_the_other_difference():
+    """150 e steps (6.1 sigmas of the bend) after read 1 or read 2: found at their read, never
+    at the other; the slope of a found one is the difference of the two reads on the other
+    side (numpy), its error that difference's read noise, sqrt(2) RN / DT; clean ramps keep
+    the line through three reads, error RN / sqrt(sum (t - mean t)**2)."""
+    rng = np.random.default_rng(3)
+    cube = white(rng, 128, 512)
+    flat = cube.reshape(3, -1)
+    pix = rng.choice(flat.shape[1], 1200, replace=False)
+    first, second = pix[:600], pix[600:]
+    flat[1:, first] += np.float32(150)
+    flat[2:, second] += np.float32(150)
+    e = Exposure.from_arrays(cube, schedule(128, 512))
+    steps = [{"detect_jumps": {"read_noise": RN, "gain": 1e9}},
+             {"fit_ramp": {"read_noise": RN, "gain": 1e9}}]
+    flags = (detect_jumps(e, read_noise=RN, gain=1e9).dq & dq.JUMP).reshape(3, -1) != 0
+    assert flags[1, first].mean() > 0.95 and not flags[2, first].any()
+    assert flags[2, second].mean() > 0.95 and not flags[1, second].any()
+    out = Pipeline({"steps": steps}).run(e)
+    slope, err = out.data.data.ravel(), out.data.uncertainty.array.ravel()
+    d = np.diff(flat.astype(np.float64), axis=0) / DT
+    for px, other, read in ((first, d[1], 1), (second, d[0], 2)):
+        found = px[flags[read, px]]
+        np.testing.assert_allclose(slope[found], other[found], rtol=0, atol=1e-4)
+        np.testing.assert_allclose(err[found], np.sqrt(2) * RN / DT, rtol=1e-6)
+    clean = np.setdiff1d(np.arange(flat.shape[1]), pix)
+    clean = clean[~flags[:, clean].any(axis=0)]
+    np.testing.assert_allclose(slope[clean], (flat[2, clean] - flat[0, clean]) / (2 * DT),
+                               rtol=0, atol=1e-4)
+    np.testing.assert_allclose(err[clean], RN / np.sqrt(2 * DT ** 2), rtol=1e-6)
+
+
+def test_three_groups_flag_the_reads_stcal_flags():
+    """stcal 1.20's two-point detection on the same three groups (its read noise that of a
+    difference, gain 1): every pixel with a step of 200 e or 1000 e is flagged by both at
+    the same group, and by neither at the other; on the jump-free pixels we flag no more
+    often than stcal does."""
+    stcal_jump = pytest.importorskip("stcal.jump.jump")
+    from stcal.jump.jump_class import JumpData
+
+    rng = np.random.default_rng(7)
+    cube = white(rng, 64, 256)
+    flat = cube.reshape(3, -1)
+    pix = rng.choice(flat.shape[1], 400, replace=False)
+    at = rng.integers(1, 3, pix.size)
+    amp = rng.choice([200.0, 1000.0], pix.size)
+    for k in (1, 2):
+        flat[k:, pix[at == k]] += amp[at == k].astype(np.float32)
+    ours = (detect_jumps(Exposure.from_arrays(cube, schedule(64, 256)),
+                         read_noise=RN).dq & dq.JUMP).reshape(3, -1) != 0
+    names = {"GOOD": 0, "DO_NOT_USE": 1, "SATURATED": 2, "JUMP_DET": 4, "NO_GAIN_VALUE": 8,
+             "UNRELIABLE_SLOPE": 16, "PERSISTENCE": 32, "CHARGELOSS": 64,
+             "REFERENCE_PIXEL": 128}
+    jd = JumpData(gain2d=np.ones((64, 256), np.float32),
+                  rnoise2d=np.full((64, 256), RN * np.sqrt(2), np.float32), dqflags=names)
+    jd.init_arrays_from_arrays(cube[None].copy(), np.zeros((1, 3, 64, 256), np.uint8),
+                               np.zeros((64, 256), np.uint32))
+    jd.nframes, jd.dt_group, jd.n_reads_groupdiff = 1, np.ones(1) * DT, np.ones(1) * 2
+    jd.max_cores = "none"
+    theirs = (stcal_jump.detect_jumps_data(jd)[0][0] & names["JUMP_DET"]).reshape(3, -1) != 0
+    np.testing.assert_array_equal(ours[at, pix], True)
+    np.testing.assert_array_equal(theirs[at, pix], True)
+    np.testing.assert_array_equal(ours[3 - at, pix], False)
+    clean = np.setdiff1d(np.arange(flat.shape[1]), pix)
+    assert ours[:, clean].any(axis=0).sum() <= theirs[:, clean].any(axis=0).sum()
+
+
+def test_without_read_noise_three_reads_say_to_give_it():
+    s = schedule(8, 8)
+    e = Exposure.from_arrays(white(np.random.default_rng(1), 8, 8), s)
+    with pytest.warns(JumpWarning, match=r"3 reads: too few to estimate .*give "
+                                         r"detect_jumps\.read_noise"):
+        out = detect_jumps(e)
+    assert out.header["S_JUMP"] == "SKIPPED"

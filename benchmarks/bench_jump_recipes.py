@@ -16,7 +16,7 @@ whose bias the issue "Jumps you can trust" bounds).  The recipes:
 * ``warm``: the dark with 5 % warm pixels (rates log-uniform over 0.05-0.5 e/s,
   1-14 sigma0 above the others): a search that took the others' slope for every
   pixel would read their slopes as steps;
-* ``short4``, ``short5``: 4 and 5 reads of the dark;
+* ``short3``, ``short4``, ``short5``: 3, 4 and 5 reads of the dark;
 * ``jwst``: JWST grouped ramps (NIRCam MEDIUM8-like: 10 groups of 8 frames
   averaged, 2 frames dropped between groups), read noise 10 e per frame;
 * ``roman``: Roman resultants (48 reads of 3.04 s averaged into 9 resultants
@@ -75,6 +75,7 @@ RECIPES = {  # name: (groups of frames, frame time, rate)
     "dark": ([[k] for k in range(74)], 1.5, "dark"),
     "sky": ([[k] for k in range(74)], 1.5, "sky"),
     "warm": ([[k] for k in range(74)], 1.5, "warm"),
+    "short3": ([[k] for k in range(3)], 1.5, "dark"),
     "short4": ([[k] for k in range(4)], 1.5, "dark"),
     "short5": ([[k] for k in range(5)], 1.5, "dark"),
     "jwst": (jwst_groups(), 1.5, "dark"),
@@ -298,7 +299,7 @@ def run(name, npix, rng, seed, with_stcal, prior, ndarks=4):
         s0 = sigma0(groups, dt, rate)
         before, read_noise, active = [], RN, np.ones((ny, nx), bool)
     runs = {"ours": ours(e, before, read_noise)}
-    equal = len({len(g) for g in groups}) == 1 and len(groups) >= 4
+    equal = len({len(g) for g in groups}) == 1 and len(groups) >= 3
     uniform = len({len(g) for g in groups}) == 1  # (jump_prior refused for unequal groups)
     if prior and uniform:
         runs[f"ours, jump_prior {prior:g}"] = ours(e, before, read_noise, prior)

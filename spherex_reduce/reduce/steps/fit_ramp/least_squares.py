@@ -427,7 +427,10 @@ class LeastSquares:
         one_jump = None  # ramps whose only flag is one JUMP (weighed with jump_prior)
         if rmask is not None:
             flagged = np.bitwise_or.reduce(rmask.reshape(nf, npx), axis=0)
-            if self.steps is not None and maps.read_noise is not None:
+            # (on 3 reads a step after the first read and one after the second fit alike:
+            # weighing a flagged ramp over both would put half its jump in the slope, so it
+            # keeps the search's read and is fitted around it)
+            if self.steps is not None and maps.read_noise is not None and nf > 3:
                 one_jump = np.flatnonzero((flagged == dq.JUMP) & ~bad)
                 if one_jump.size:
                     count = np.count_nonzero(rmask.reshape(nf, npx)[:, one_jump] & dq.JUMP,

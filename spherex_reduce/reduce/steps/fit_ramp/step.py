@@ -82,7 +82,9 @@ def fit_ramp(exposure, *, weighting="uniform", read_noise=None, gain=1.0, dark_c
         sigmas (`~spherex_reduce.reduce.steps.fit_ramp.step_posterior`): a step too
         small for ``detect_jumps`` to flag widens the error instead of biasing
         the slope unseen.  A ramp whose one flag is a ``JUMP`` is weighed
-        over the read its step may be at (amplitude free).  The variance it
+        over the read its step may be at (amplitude free), except on 3 reads,
+        where a step after the first read and one after the second fit alike:
+        it is fitted around the search's read as without it.  The variance it
         adds is in ``var_rnoise``.  Ramps with several jumps or a masked read
         are fitted segment by segment as without it; reads of unequal weight
         (groups of different sizes) are refused.  None (default): the line's

@@ -361,3 +361,23 @@ def test_three_reads_where_no_search_runs_get_honest_errors():
         far[prior] = np.mean(np.abs(pull[hit]) > 5)
         assert abs(np.sqrt(np.mean(pull[~hit] ** 2)) - 1) < 0.02
     assert far[None] > 0.5 and far[0.03] < 0.015
+
+
+def test_on_three_reads_a_flagged_jump_keeps_the_searchs_read():
+    """On 3 reads a step after read 1 and one after read 2 fit the ramp alike: weighed over
+    both, a flagged 200 e jump put half of itself in the slope (the recipes' 3-read dark:
+    50 % of hit pixels > 5 sigma0 wrong).  With jump_prior a flagged ramp's slope is the
+    difference away from its jump (numpy), as without it."""
+    rng = np.random.default_rng(9)
+    y = (5e3 + rng.normal(0, RN, (3, 4, 16))).astype(np.float32)
+    y[1:, 0, :8] += np.float32(200.0)  # a jump after read 1, flagged by the search
+    y[2:, 1, :8] += np.float32(200.0)  # and after read 2
+    flagged = detect_jumps(Exposure.from_arrays(y, schedule(3, 4, 16)), read_noise=RN)
+    assert (flagged.dq[1, 0, :8] & dq.JUMP).all() and (flagged.dq[2, 1, :8] & dq.JUMP).all()
+    plain = fit_ramp(flagged, read_noise=RN)
+    weighed = fit_ramp(flagged, read_noise=RN, jump_prior=0.05)
+    for out in (plain, weighed):
+        np.testing.assert_allclose(out.data.data[0, :8], (y[2, 0, :8] - y[1, 0, :8]) / DT,
+                                   rtol=1e-6)
+        np.testing.assert_allclose(out.data.data[1, :8], (y[1, 1, :8] - y[0, 1, :8]) / DT,
+                                   rtol=1e-6)

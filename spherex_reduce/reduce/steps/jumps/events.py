@@ -62,7 +62,10 @@ class ReadEvent:
     read : int
         The read that is off (0 the first of the ramp), or the first read after
         the step (``kind`` ``'step'``).
-    kind : {'first read', 'last read', 'frame glitch', 'step'}
+    kind : {'first read', 'last read', 'frame glitch', 'step', 'bend'}
+        ``'bend'``: on 3 reads, where a read that is off (the first low, the middle
+        high or the last low, or the other way) bends every ramp alike and no read
+        can be named; ``read`` is where the search placed the steps.
     jumps : int
         Pixels whose jump search flagged a jump there.
     expected : float
@@ -83,8 +86,8 @@ class ReadEvent:
 
     @property
     def dropped(self):
-        """Whether the read is left out of every fit (all but a step)."""
-        return self.kind != "step"
+        """Whether the read is left out of every fit (all but a step and a bend)."""
+        return self.kind not in ("step", "bend")
 
 
 def excess_reads(counts, npixels, alpha=ALPHA):
@@ -198,7 +201,9 @@ def find_read_events(reads, rows, cols, amplitudes, *, nreads, nrows, ncols,
     for k in np.flatnonzero(excess):
         if k in skip:
             continue
-        if k + 1 < nreads and excess[k + 1] and offsets[k] * offsets[k + 1] < 0:
+        if nreads == 3:  # two reads after the first, each step the other's bend: no read named
+            read, kind, offset = k, "bend", offsets[k]
+        elif k + 1 < nreads and excess[k + 1] and offsets[k] * offsets[k + 1] < 0:
             read, kind, offset = k, "frame glitch", offsets[k]
             skip.add(k + 1)
         elif k == 1:
@@ -228,6 +233,13 @@ def event_message(read, kind, jumps, expected, pixels, offset, dropped_before=0)
     others): left out of every fit (DO_NOT_USE on that read), not counted as jumps;
     to leave it out from the start give input: drop_first_reads: 1
     """
+    if kind == "bend":
+        return (f"detect_jumps: 3 reads: the ramps of most pixels bend alike ({jumps} of "
+                f"{pixels} pixels step at read {read}, {expected:.1f} expected, median "
+                f"{offset:+.1f}): a read off for every pixel (the first low, the middle high "
+                f"or the last low, or the other way), which 3 reads cannot name; no read left "
+                f"out, not counted as jumps, each ramp fitted as its line; if the first read "
+                f"is off give input: drop_first_reads: {dropped_before + 1}")
     what = (f"the array stepped at read {read}" if kind == "step"
             else f"read {read} is off in most pixels")
     how = (f"{kind}: {jumps} of {pixels} pixels step there, {expected:.1f} expected from the "

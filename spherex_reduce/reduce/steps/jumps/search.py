@@ -465,6 +465,11 @@ class StepSearch(StepModel):
         sigma (``var`` the read-noise variance), clipped at 0, over the gain.  The sigma
         is the line's and that step's (a ramp with steps found already has a slightly
         larger one: this is a margin, not an estimate)."""
+        if self.n == 3 and not self.slope_precision:
+            # three reads: the slope less the positive step is the smaller difference, and
+            # one of its sigmas (sqrt 2 read noises over one interval) more than a bright
+            # ramp's shot noise: the line's slope, which no clean ramp's noise biases
+            return np.maximum(st.slope, 0.0) / st.gain
         slope = st.slope - fit.slope_change(kb, best)
         sos = self.slope_of_step[kb]
         sigma = np.sqrt(var * (self.slope_var + sos * sos / qb))

@@ -212,7 +212,12 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
     after the first read and one after the second leave the same residual
     (the line fits two of three points): the ramp's bend is tested once, and
     the step is placed where it is positive (a cosmic ray raises the larger
-    of the two differences, as two-point detection flags it).
+    of the two differences, as two-point detection flags it), so
+    ``positive_only`` changes nothing there and a step down is placed at the
+    other read; its shot noise is that of the line's rate.  A read off for
+    every pixel (the first low, the middle high, the last low) bends every
+    ramp alike, and 3 reads cannot name it: it is said once (a ``'bend'``
+    read event), no read is left out and the bend's steps are not jumps.
 
     Examples
     --------
@@ -364,16 +369,22 @@ class JumpKernel(Kernel):
             new = self._read_events(block, found, flags)
             if not new:
                 break
+            events += new
+            bends = [(rows, e.read) for rows, e in new if e.kind == "bend"]
+            if bends:  # (3 reads: no read to leave out; the bend's steps are not jumps)
+                frames, pix, amp, z = found
+                keep = np.ones(frames.size, bool)
+                for rows, read in bends:
+                    keep &= ~((frames == read) & np.isin(pix // block.data.shape[-1], rows))
+                found = (frames[keep], pix[keep], amp[keep], z[keep])
+                continue
             if flags is None:
                 flags = np.zeros((block.nframes, block.data.shape[1], 1), np.uint32)
             for rows, e in new:
                 flags[e.read, rows] |= np.uint32(dq.DO_NOT_USE if e.dropped else dq.JUMP)
-            events += new
             # search again without the reads that are off and the array's steps
             found = self._jumps(_without_events(block, flags, self.times))
         self._count_prior(block)
-        if flags is None:
-            return found, None
         with self._lock:
             for rows, e in events:
                 offset = (_read_offset(block, rows, flags, e.read, self.times) if e.dropped
@@ -383,6 +394,8 @@ class JumpKernel(Kernel):
                 total[1] += e.expected
                 total[2] += e.pixels
                 total[3] += offset * e.pixels
+        if flags is None:
+            return found, None
         frames, pix, amp, z = found
         stepped = (flags[frames, pix // block.data.shape[-1], 0] & np.uint32(dq.JUMP)) != 0
         keep = ~stepped  # the array's step is an event, not the pixels' jumps
@@ -705,7 +718,8 @@ def _too_few(nframes, estimate):
                 "no jumps are searched; give detect_jumps.read_noise (a number in the data "
                 f"unit, or a read-noise map as a FITS image) to search {nframes} reads")
     else:
-        text = f"{nframes} reads: too few to search for jumps (3 needed)"
+        text = (f"{nframes} reads: too few to search for jumps (3 needed with "
+                "detect_jumps.read_noise, 5 without)")
     warnings.warn(f"detect_jumps: {text}; the step is skipped", JumpWarning, stacklevel=3)
     return text
 
@@ -838,6 +852,8 @@ def _around(context, params, frames, index, cols, amp, z, saturated=None):
         read = first[fr] < never
         hit[f[read], fr[read], fc[read]] = True
     for dr, dcs, which in reach:
+        if not dcs.size:  # (no column within reach: an image one column wide)
+            continue
         chosen = np.flatnonzero(big[which])
         step = max(1, AROUND_CHUNK // dcs.size)
         for lo in range(0, chosen.size, step):

@@ -839,3 +839,22 @@ def test_the_ramps_scatter_is_their_read_noise_whatever_the_read_that_is_off(n):
     assert search.scatter(off, 10.0) == pytest.approx(1.44, rel=0.02)
     shot = y + np.cumsum(rng.poisson(0.05 * ROMAN_TIME, (n, m)), axis=0)
     assert search.scatter(shot, 10.0) == pytest.approx(1.44, rel=0.02)
+
+
+def test_a_one_column_image_is_searched_with_a_radius():
+    """``radius`` on an image one column wide (no column within reach) raised
+    ZeroDivisionError; the jump is flagged, its read above it too."""
+    s = schedule(8, 1, nframes=6)
+    cube = dark(s, np.random.default_rng(5))
+    cube[2:, 3, 0] += 1e5
+    out = detect_jumps(Exposure.from_arrays(cube, s), read_noise=RN, radius=2.0,
+                       radius_above=10.0)
+    assert out.dq[2, 3, 0] & dq.JUMP and out.header["NJUMPS"] == 1
+
+
+def test_two_reads_without_read_noise_say_how_many_are_needed():
+    s = schedule(8, 8, nframes=2)
+    e = Exposure.from_arrays(dark(s, np.random.default_rng(6)), s)
+    with pytest.warns(JumpWarning, match=r"2 reads: too few .*3 needed with "
+                                         r"detect_jumps\.read_noise, 5 without"):
+        assert detect_jumps(e).header["S_JUMP"] == "SKIPPED"

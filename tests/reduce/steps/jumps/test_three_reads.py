@@ -115,3 +115,48 @@ def test_without_read_noise_three_reads_say_to_give_it():
                                          r"detect_jumps\.read_noise"):
         out = detect_jumps(e)
     assert out.header["S_JUMP"] == "SKIPPED"
+
+
+def test_bright_ramps_false_alarm_at_one_tests_rate():
+    """Jump-free ramps of 100 e/s (gain 1: Poisson charge, 10 e reads) are flagged at 2
+    Phi(-3) within 5 Poisson sigmas (2^18 ramps): their shot noise is the line's rate.  The
+    slope less the positive step (the smaller difference) less one of its sigmas (9.4 e/s on
+    3 reads), the rule of longer ramps, understated it: 1.5-3.5x the rate."""
+    rng = np.random.default_rng(17)
+    charge = np.cumsum(rng.poisson(100.0 * DT, (3, 512, 512)), axis=0).astype(np.float64)
+    cube = (6e4 + charge - charge[0] + rng.standard_normal((3, 512, 512)) * RN)
+    out = detect_jumps(Exposure.from_arrays(cube.astype(np.float32), schedule(512, 512)),
+                       read_noise=RN, gain=1.0, threshold=3.0, scale_read_noise=False,
+                       read_events=False)
+    flagged = int(((out.dq & dq.JUMP) != 0).any(axis=0).sum())
+    expected = 2 * norm.sf(3.0) * 512 * 512
+    assert abs(flagged - expected) <= 5 * np.sqrt(expected)
+
+
+def test_a_read_off_for_every_pixel_is_a_bend_said_once_not_thousands_of_jumps():
+    """The first read 60 e low in every pixel bends every 3-read ramp alike (so would the
+    middle read high or the last low: 3 reads cannot name the read).  It is said in one
+    line and recorded (RDEVT), no read is left out and no clean ramp flagged: each is
+    fitted as its line (numpy), while the cosmic rays are still flagged at their read."""
+    rng = np.random.default_rng(21)
+    cube = white(rng, 64, 64)
+    flat = cube.reshape(3, -1)
+    flat[0] -= np.float32(60)
+    cr = rng.choice(flat.shape[1], 30, replace=False)
+    flat[2:, cr] += np.float32(300)
+    e = Exposure.from_arrays(cube, schedule(64, 64))
+    with pytest.warns(JumpWarning, match=r"3 reads: the ramps of most pixels bend alike "
+                                         r".*drop_first_reads: 1") as w:
+        out = detect_jumps(e, read_noise=RN, gain=1e9)
+    assert all("\n" not in str(x.message) for x in w)
+    assert "bend" in out.header["RDEVT1"]
+    flags = ((out.dq & dq.JUMP) != 0).reshape(3, -1)
+    assert flags[2, cr].all() and out.header["NJUMPS"] == 30
+    assert not (out.dq & dq.DO_NOT_USE).any()
+    steps = [{"detect_jumps": {"read_noise": RN, "gain": 1e9}},
+             {"fit_ramp": {"read_noise": RN, "gain": 1e9}}]
+    with pytest.warns(JumpWarning):
+        slope = Pipeline({"steps": steps}).run(e).data.data.ravel()
+    clean = np.setdiff1d(np.arange(flat.shape[1]), cr)
+    y = flat.astype(np.float64)
+    np.testing.assert_allclose(slope[clean], (y[2, clean] - y[0, clean]) / (2 * DT), atol=1e-4)

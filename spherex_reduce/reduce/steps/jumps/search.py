@@ -466,9 +466,12 @@ class StepSearch(StepModel):
         is the line's and that step's (a ramp with steps found already has a slightly
         larger one: this is a margin, not an estimate)."""
         if self.n == 3 and not self.slope_precision:
-            # three reads: the slope less the positive step is the smaller difference, and
-            # one of its sigmas (sqrt 2 read noises over one interval) more than a bright
-            # ramp's shot noise: the line's slope, which no clean ramp's noise biases
+            # three reads: the line's slope, which is independent of the bend tested when
+            # there is no jump (the slope less the positive step, the smaller difference,
+            # is lowest where the bend is largest: bright jump-free ramps were flagged
+            # 1.6-3.3x the rate with it, with or without the margin below; less one of the
+            # line's sigmas, 1.1-1.4x).  A jump inflates the line's slope and so its own
+            # test's noise: the 3-read dark's hits end > 5 sigma0 wrong 9.6 % against 7.9 %
             return np.maximum(st.slope, 0.0) / st.gain
         slope = st.slope - fit.slope_change(kb, best)
         sos = self.slope_of_step[kb]

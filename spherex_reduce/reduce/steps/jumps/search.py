@@ -91,6 +91,16 @@ SCALE_SHOT = 0.1
 #: noise: clipped at 0 alone its mean is 0.4 sigma and the shot noise it adds hides
 #: small steps and lowers the false alarms below the stated rates; at 1 sigma 0.08 sigma)
 SHOT_RATE_SIGMAS = 1.0
+#: ramps of at most this many reads take the line's slope as their shot noise's rate instead:
+#: the slope less the best step is lowest where the step statistic is largest (on 3 reads
+#: it is the smaller difference), so the jump-free ramps it searched false-alarmed at
+#: 0.63-0.81 of the stated rate on 4-5 reads of a 0.01 e/s dark (gain 1) and up to 1.42x
+#: on 100 e/s, 1.6-3.3x on 3 bright reads; with the line 0.86-0.93 and 0.90-1.04 (1.01-1.17
+#: on 3).  A jump inflates the line's slope and so its own test's noise: on 4 / 5 reads
+#: 4.27 -> 5.19 % / 3.05 -> 3.51 % of hit pixels > 5 sigma0 wrong, acceptable where the
+#: false-alarm rate is otherwise wrong; on JWST's 10 groups 3.66 -> 5.34 %, so not there
+#: (6-10 reads keep the slope less the step: 0.72-0.85 of the rate, stated)
+LINE_RATE_READS = 5
 #: with a slope prior (`SlopePrior`), a ramp whose two-segment slope at the prior search's
 #: best step is this many of its sigmas (and the prior's spread) off its expected slope is
 #: searched with its slope free: a pixel warmer than expected, a source (at the
@@ -464,14 +474,10 @@ class StepSearch(StepModel):
         amplitude ``best``, its ``q`` ``qb``) less `SHOT_RATE_SIGMAS` of its read-noise
         sigma (``var`` the read-noise variance), clipped at 0, over the gain.  The sigma
         is the line's and that step's (a ramp with steps found already has a slightly
-        larger one: this is a margin, not an estimate)."""
-        if self.n == 3 and not self.slope_precision:
-            # three reads: the line's slope, which is independent of the bend tested when
-            # there is no jump (the slope less the positive step, the smaller difference,
-            # is lowest where the bend is largest: bright jump-free ramps were flagged
-            # 1.6-3.3x the rate with it, with or without the margin below; less one of the
-            # line's sigmas, 1.1-1.4x).  A jump inflates the line's slope and so its own
-            # test's noise: the 3-read dark's hits end > 5 sigma0 wrong 9.6 % against 7.9 %
+        larger one: this is a margin, not an estimate).  Ramps of at most
+        `LINE_RATE_READS` reads take the line's slope, clipped at 0."""
+        if self.n <= LINE_RATE_READS and not self.slope_precision:
+            # the line's slope, independent of the step statistic when there is no jump
             return np.maximum(st.slope, 0.0) / st.gain
         slope = st.slope - fit.slope_change(kb, best)
         sos = self.slope_of_step[kb]

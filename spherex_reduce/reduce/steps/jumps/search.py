@@ -21,7 +21,10 @@ test for one step at an unknown read.  The step found is subtracted and the
 search repeated, for ramps with several jumps.
 
 ``lambda`` comes from the pixel's slope with the best step removed (so a jump
-does not inflate it), ``sigma`` from the read-noise map or, when none is
+does not inflate it; in the first round of a ramp of at most `LINE_RATE_READS`
+reads with the read noise given, from the line's slope: a jump inflates it, but
+it is independent of the step statistic when there is none), ``sigma`` from the
+read-noise map or, when none is
 given, from the pixel's own residuals about the line with the best step
 (``(RSS - R_k**2 / q_k) / (n - 3)``, which a jump does not inflate either).
 
@@ -91,7 +94,8 @@ SCALE_SHOT = 0.1
 #: noise: clipped at 0 alone its mean is 0.4 sigma and the shot noise it adds hides
 #: small steps and lowers the false alarms below the stated rates; at 1 sigma 0.08 sigma)
 SHOT_RATE_SIGMAS = 1.0
-#: ramps of at most this many reads take the line's slope as their shot noise's rate instead:
+#: ramps of at most this many reads, read noise given, take the line's slope as their shot
+#: noise's rate in their first round instead:
 #: the slope less the best step is lowest where the step statistic is largest (on 3 reads
 #: it is the smaller difference), so the jump-free ramps it searched false-alarmed at
 #: 0.63-0.81 of the stated rate on 4-5 reads of a 0.01 e/s dark (gain 1) and up to 1.42x
@@ -475,9 +479,14 @@ class StepSearch(StepModel):
         sigma (``var`` the read-noise variance), clipped at 0, over the gain.  The sigma
         is the line's and that step's (a ramp with steps found already has a slightly
         larger one: this is a margin, not an estimate).  Ramps of at most
-        `LINE_RATE_READS` reads take the line's slope, clipped at 0."""
-        if self.n <= LINE_RATE_READS and not self.slope_precision:
-            # the line's slope, independent of the step statistic when there is no jump
+        `LINE_RATE_READS` reads with the read noise given take the line's slope,
+        clipped at 0, in their first round."""
+        if (self.n <= LINE_RATE_READS and not self.slope_precision and st.sigma is not None
+                and not st.steps.shape[1]):
+            # the line's slope, independent of the step statistic when there is no jump (the
+            # first round only: a step found is not a false alarm any more; and with the read
+            # noise given only: estimated from 5 reads, a jump's inflated rate sent the ramp
+            # to the shot-weighted search, whose differences missed 3x the jumps)
             return np.maximum(st.slope, 0.0) / st.gain
         slope = st.slope - fit.slope_change(kb, best)
         sos = self.slope_of_step[kb]
@@ -500,8 +509,11 @@ class StepSearch(StepModel):
         """One more step in each ramp of ``st`` (a `_State`), then the next round for the
         ramps where one was found; ``out`` collects them."""
         n, j = self.n, st.steps.shape[1]
-        if (not st.pixels.size or j >= max_jumps or n - 2 - j <= 0  # (the reads fitted)
-                or (st.sigma is None and n - 4 - j < 0)):
+        # (no read left to test once the line and its steps fit every read; with sigma from
+        # the ramp, 2 degrees of freedom at least for it: with 1, 5 reads split 37 % of the
+        # ramps whose one jump had been found a second time)
+        if (not st.pixels.size or j >= max_jumps or n - 2 - j <= 0
+                or (st.sigma is None and n - 3 - j < 2)):
             return
         cols = np.arange(st.pixels.size)
         fit = _Given(self, st.big_r, st.steps)

@@ -858,3 +858,20 @@ def test_two_reads_without_read_noise_say_how_many_are_needed():
     with pytest.warns(JumpWarning, match=r"2 reads: too few .*3 needed with "
                                          r"detect_jumps\.read_noise, 5 without"):
         assert detect_jumps(e).header["S_JUMP"] == "SKIPPED"
+
+
+def test_five_reads_with_the_read_noise_from_the_ramp_flag_one_jump_once():
+    """On 5 reads with the read noise from each ramp, a found jump leaves 1 degree of freedom
+    for the next round's noise: ramps with one 100-2000 e jump were flagged a second time in
+    37 % of them.  Now once (and the jump found in >= 98 % of them, at its read)."""
+    from spherex_reduce.reduce.steps.jumps.search import StepSearch
+
+    rng = np.random.default_rng(5)
+    t = np.arange(5) * 1.5
+    m = 4000
+    y = 6e4 + rng.normal(0, RN, (5, m))
+    k = rng.integers(1, 5, m)
+    y += 10 ** rng.uniform(2, 3.3, m) * (np.arange(5)[:, None] >= k)
+    found = StepSearch(t).find(y, threshold=4.0, gain=1.0)
+    assert np.unique(found.pixel).size == found.pixel.size  # one flag per ramp
+    assert found.pixel.size >= 0.98 * m and (found.read == k[found.pixel]).all()

@@ -165,10 +165,10 @@ def test_a_read_off_for_every_pixel_is_a_bend_said_once_not_thousands_of_jumps()
 @pytest.mark.parametrize("nframes", [4, 5])
 def test_short_dark_ramps_false_alarm_as_without_shot_noise(nframes):
     """On 4-5 reads of a 0.01 e/s dark (gain 1: Poisson charge) the shot term takes the
-    line's rate: the jump-free ramps flagged at 4 sigma are 0.88-1.2 of those flagged with
-    no shot term (gain 1e9), whose rate is the docs' table (2^20 ramps; measured 0.96-1.1).
-    The slope less the best step, lowest where the step statistic is largest, made them
-    0.76-0.77."""
+    line's rate: the jump-free ramps flagged at 4 sigma are 0.85-1.2 of those flagged with
+    no shot term (gain 1e9), whose rate is the docs' (2^20 ramps; 0.90-0.97 over 7 seeds in
+    a review).  The slope less the best step, lowest where the step statistic is largest,
+    made them 0.76-0.77."""
     rng = np.random.default_rng(nframes)
     charge = np.cumsum(rng.poisson(0.01 * DT, (nframes, 1024, 1024)), axis=0)
     cube = (6e4 + charge + rng.standard_normal((nframes, 1024, 1024), np.float32) * RN)
@@ -179,4 +179,4 @@ def test_short_dark_ramps_false_alarm_as_without_shot_noise(nframes):
         out = detect_jumps(Exposure.from_arrays(cube.astype(np.float32), s), read_noise=RN,
                            gain=gain, scale_read_noise=False, read_events=False)
         counts.append(int(((out.dq & dq.JUMP) != 0).any(axis=0).sum()))
-    assert 0.88 <= counts[0] / counts[1] <= 1.2
+    assert 0.85 <= counts[0] / counts[1] <= 1.2

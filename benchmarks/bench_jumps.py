@@ -386,7 +386,7 @@ def main(argv=None):
     p.add_argument("--false-alarms", action="store_true",
                    help="only the table of false alarms on jump-free ramps")
     p.add_argument("--pixels", type=int, default=1 << 18,
-                   help="jump-free ramps per false-alarm case (x4 for the short ramps)")
+                   help="jump-free ramps per false-alarm case (x16 for the short ramps)")
     args = p.parse_args(argv)
     if args.false_alarms:
         false_alarms(args.seed, args.pixels)

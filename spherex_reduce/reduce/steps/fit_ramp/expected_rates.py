@@ -41,7 +41,6 @@ def _stride(size, ncols):
     return k
 
 
-
 def expected_rates(slope, var_rnoise, var_per_rate, bulk=None):
     """Each pixel's expected rate given its slope and the exposure's: the rate whose shot
     noise its uncertainty holds.

@@ -18,9 +18,10 @@ model gives the variance; no saturation level, no ``jump_prior``) and the read
 times are symmetric about their mean (equal spacing, equal groups), ``w`` is
 antisymmetric and the slope is ``sum_(f < n/2) w_(n-1-f) (y_(n-1-f) - y_f)``:
 half as many differences, each as exact as a read less the first, and half the
-float32 sums (the fit of 74 reads took 0.65 of the time).  Bright ramps whose float32 sums are too
-coarse for the slope (with a read-noise model) are summed again in float64 with
-the same weights, from their reads minus the first in float64.  Pixels with a
+float32 sums (the fit of 74 reads took 0.65 of the time).  Bright ramps whose
+float32 sums are too coarse for the slope (with a read-noise model) are summed
+again in float64 with the same weights, from their reads minus the first in
+float64.  Pixels with a
 NaN, saturated or flagged read (a masked read, a jump), and the few whose
 residuals are too small to be computed from float32 sums, are refitted in
 float64 on their usable reads, segment by segment
@@ -60,6 +61,8 @@ GROUP = 32  #: frames per float32 partial sum; the groups are summed in float64
 BLOCK_BYTES = 75 * 4 << 15
 #: pixels fitted segment by segment at once (74 frames: 4.8 MB for each float64 copy)
 REFIT_PIXELS = 1 << 13
+
+
 def ramp_weights(times):
     """Uniform least-squares slope weights for reads at ``times``.
 

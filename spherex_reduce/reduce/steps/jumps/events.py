@@ -239,7 +239,8 @@ def event_message(read, kind, jumps, expected, pixels, offset, dropped_before=0)
                 f"{offset:+.1f}): a read off for every pixel (the first low, the middle high "
                 f"or the last low, or the other way), which 3 reads cannot name; no read left "
                 f"out, not counted as jumps, each ramp fitted as its line; if the first read "
-                f"is off give input: drop_first_reads: {dropped_before + 1}")
+                f"is off give input: drop_first_reads: {dropped_before + 1} (the 2 reads "
+                f"left are then fitted without a jump search)")
     what = (f"the array stepped at read {read}" if kind == "step"
             else f"read {read} is off in most pixels")
     how = (f"{kind}: {jumps} of {pixels} pixels step there, {expected:.1f} expected from the "

@@ -22,7 +22,8 @@ search repeated, for ramps with several jumps.
 
 ``lambda`` comes from the pixel's slope with the best step removed (so a jump
 does not inflate it; in the first round of a ramp of at most `LINE_RATE_READS`
-reads with the read noise given, from the line's slope: a jump inflates it, but
+reads with the read noise given and no slope prior, from the line's slope: a jump
+inflates it, but
 it is independent of the step statistic when there is none), ``sigma`` from the
 read-noise map or, when none is
 given, from the pixel's own residuals about the line with the best step
@@ -94,15 +95,16 @@ SCALE_SHOT = 0.1
 #: noise: clipped at 0 alone its mean is 0.4 sigma and the shot noise it adds hides
 #: small steps and lowers the false alarms below the stated rates; at 1 sigma 0.08 sigma)
 SHOT_RATE_SIGMAS = 1.0
-#: ramps of at most this many reads, read noise given, take the line's slope as their shot
-#: noise's rate in their first round instead:
+#: ramps of at most this many reads, read noise given and no slope prior, take the line's
+#: slope as their shot noise's rate in their first round instead:
 #: the slope less the best step is lowest where the step statistic is largest (on 3 reads
 #: it is the smaller difference), so the jump-free ramps it searched false-alarmed at
 #: 0.63-0.81 of the stated rate on 4-5 reads of a 0.01 e/s dark (gain 1) and up to 1.42x
-#: on 100 e/s, 1.6-3.3x on 3 bright reads; with the line 0.86-0.93 and 0.90-1.04 (1.01-1.17
-#: on 3).  A jump inflates the line's slope and so its own test's noise: on 4 / 5 reads
-#: 4.27 -> 5.19 % / 3.05 -> 3.51 % of hit pixels > 5 sigma0 wrong, acceptable where the
-#: false-alarm rate is otherwise wrong; on JWST's 10 groups 3.66 -> 5.34 %, so not there
+#: on 100 e/s, 1.6-3.3x on 3 bright reads; with the line 0.85-0.98 (2^22 ramps per case)
+#: and 0.90-1.04 (1.01-1.17 on 3).  A jump inflates the line's slope and so its own test's
+#: noise: on 4 / 5 reads 4.27 -> 5.19 % / 3.05 -> 3.51 % of hit pixels > 5 sigma0 wrong,
+#: acceptable where the false-alarm rate is otherwise wrong; on JWST's 10 groups 3.66 ->
+#: 5.34 %, so not there
 #: (6-10 reads keep the slope less the step: 0.72-0.85 of the rate, stated)
 LINE_RATE_READS = 5
 #: with a slope prior (`SlopePrior`), a ramp whose two-segment slope at the prior search's
@@ -479,8 +481,8 @@ class StepSearch(StepModel):
         sigma (``var`` the read-noise variance), clipped at 0, over the gain.  The sigma
         is the line's and that step's (a ramp with steps found already has a slightly
         larger one: this is a margin, not an estimate).  Ramps of at most
-        `LINE_RATE_READS` reads with the read noise given take the line's slope,
-        clipped at 0, in their first round."""
+        `LINE_RATE_READS` reads with the read noise given and no slope prior take
+        the line's slope, clipped at 0, in their first round."""
         if (self.n <= LINE_RATE_READS and not self.slope_precision and st.sigma is not None
                 and not st.steps.shape[1]):
             # the line's slope, independent of the step statistic when there is no jump (the

@@ -127,7 +127,8 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
         every pixel (left out of every fit; a step: `~spherex_reduce.core.dq.JUMP`
         for every pixel), not counted as jumps, and told in one
         `~spherex_reduce.reduce.steps.jumps.events.JumpWarning` naming the read
-        and the fix.
+        and the fix.  On 3 reads, where no read can be named, a ``'bend'``:
+        nothing flagged, the ramps searched again about the set's median bend.
     telegraph : bool
         Take a pixel whose steps (two or more) alternate in sign, each pair
         coming back to the same level, as a telegraph pixel
@@ -214,7 +215,8 @@ def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturati
     the step is placed where it is positive (a cosmic ray raises the larger
     of the two differences, as two-point detection flags it), so
     ``positive_only`` changes nothing there and a step down is placed at the
-    other read; its shot noise is that of the line's rate.  A read off for
+    other read; its shot noise is that of the line's rate (without
+    ``expected_rate``).  A read off for
     every pixel (the first low, the middle high, the last low) bends every
     ramp alike, and 3 reads cannot name it: it is said once (a ``'bend'``
     read event), no read is left out and the bend's steps are not jumps.
@@ -370,13 +372,9 @@ class JumpKernel(Kernel):
             if not new:
                 break
             events += new
-            bends = [(rows, e.read) for rows, e in new if e.kind == "bend"]
-            if bends:  # (3 reads: no read to leave out; the bend's steps are not jumps)
-                frames, pix, amp, z = found
-                keep = np.ones(frames.size, bool)
-                for rows, read in bends:
-                    keep &= ~((frames == read) & np.isin(pix // block.data.shape[-1], rows))
-                found = (frames[keep], pix[keep], amp[keep], z[keep])
+            bent = [rows for rows, e in events if e.kind == "bend"]
+            if bent:  # (3 reads: no read to leave out; search again about the set's bend)
+                found = self._jumps(_without_bends(block, bent, self.times))
                 continue
             if flags is None:
                 flags = np.zeros((block.nframes, block.data.shape[1], 1), np.uint32)
@@ -670,6 +668,24 @@ def _saturating(exposure, params):
     if not out:
         return (np.zeros(0, np.int64),) * 3
     return tuple(np.concatenate(a) for a in zip(*out, strict=True))
+
+
+def _without_bends(block, bent, times):
+    """A copy of ``block`` (3 reads) whose ramps on each set of rows in ``bent`` have the
+    set's median bend taken out: ``v . y`` with ``v`` orthogonal to the line (a read off
+    for every pixel adds the same to every ramp's), so the line's slope and intercept stay
+    and the search measures each ramp's bend from the set's; a cosmic ray at the read where
+    the array bent is found again."""
+    v = np.array([times[2] - times[1], times[0] - times[2], times[1] - times[0]], np.float64)
+    data = np.array(block.data, np.float64)
+    for rows in bent:
+        y = data[:, rows]
+        with warnings.catch_warnings():  # (a set of NaN ramps: nothing to take out)
+            warnings.simplefilter("ignore", RuntimeWarning)
+            median = np.nanmedian(np.einsum("f,frc->rc", v, y))
+        if np.isfinite(median):
+            data[:, rows] = y - (median / (v @ v)) * v[:, None, None]
+    return block.replace(data=data, owned=block.owned | {"data"})
 
 
 def _without_events(block, flags, times):

@@ -343,7 +343,7 @@ def test_the_config_hash_leaves_jump_prior_out_at_its_default():
 
 
 def test_three_reads_where_no_search_runs_get_honest_errors():
-    """3 reads (detect_jumps needs 4): 3 % of ramps with a jump of 10 to 1e4 e.  The line's
+    """3 reads fitted without a jump search: 3 % of ramps with a jump of 10 to 1e4 e.  The line's
     ERR leaves 71 % of them more than 5 ERR off; the posterior's about 1 % (3 reads cannot
     tell a step from a slope, so the error widens instead), the clean pulls within 2 %."""
     n, shape = 3, (300, 300)

@@ -539,10 +539,15 @@ class LeastSquares:
         rn2 = np.square(maps.read_noise)
         rate = (np.maximum(np.where(bad, 0, slope), 0) + maps.dark) * maps.pscale
         # quantise rate / read_noise**2 (0.02 dex): pixels in a bin share weights
-        with np.errstate(divide="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore"):
             ratio = rate / rn2
             q = np.where(ratio > 1e-6, np.round(np.log10(ratio) * RATIO_BINS), -np.inf)
-        idx = np.flatnonzero(~bad & np.isfinite(q))
+        weighed = np.isfinite(q)
+        if np.ptp(self.noise.read_factors) > 0:  # reads of unequal weight (groups of different
+            # sizes): at no rate the weights are the read noise's alone (key -inf: ratio 0),
+            # not the uniform ones the other ramps keep
+            weighed |= (q == -np.inf) & np.isfinite(ratio)
+        idx = np.flatnonzero(~bad & weighed)
         if not idx.size:
             return idx
         keys, inv = np.unique(q[idx], return_inverse=True)

@@ -758,3 +758,25 @@ def test_two_reads_are_one_difference_and_no_pixel_is_refitted(monkeypatch, dtyp
     want = (cube[1].astype(np.float64) - cube[0]) / 1.37
     np.testing.assert_allclose(out.slope, want, rtol=2e-7 if dtype == np.float32 else 1e-14)
     assert np.isnan(out.var).all() and (out.nsegments == 1).all()
+
+
+def test_optimal_weighting_of_unequal_groups_at_no_rate_is_weighted_least_squares():
+    """Groups of 1, 2, 4 and 8 frames of read noise alone (gain 1e9: no shot noise): the
+    optimal slope is weighted least squares with weights 1, 2, 4, 8 (numpy), and its error
+    that fit's; they were the uniform fit's, the weights of equal reads at no rate."""
+    groups = [[0], [1, 2], [3, 4, 5, 6], [7, 8, 9, 10, 11, 12, 13, 14]]
+    s = ReadoutSchedule(DetectorGeometry(16, 16, 1, ref_border=0), skip=1, ref_reads=0,
+                        ref_mode="none", phantom_reads=0, nframes=4, frame_time=1.5,
+                        groups=groups)
+    t = s.frame_starts.to_value(u.s)
+    n = np.array([1.0, 2.0, 4.0, 8.0])
+    rng = np.random.default_rng(5)
+    cube = 6e4 + rng.standard_normal((4, 16, 16)) * 10.0 / np.sqrt(n)[:, None, None]
+    out = fit_ramp(Exposure.from_arrays(cube.astype(np.float32), s), weighting="optimal",
+                   read_noise=10.0, gain=1e9)
+    x = np.stack([np.ones(4), t], 1)
+    cov = np.linalg.inv(x.T @ np.diag(n) @ x)
+    want = (cov @ x.T @ np.diag(n) @ cube.reshape(4, -1).astype(np.float32).astype(float))[1]
+    np.testing.assert_allclose(out.data.data.ravel(), want, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(out.data.uncertainty.array, 10.0 * np.sqrt(cov[1, 1]),
+                               rtol=1e-6)

@@ -192,6 +192,13 @@ def _relative_reads(block, idx):
     return y - y[0]
 
 
+def _group_sums(w):
+    """The groups of at most `GROUP` rows that float32 partial sums with weights ``w`` are
+    formed over (slices), and ``w`` in each work type."""
+    return ([slice(g, min(g + GROUP, w.size)) for g in range(0, w.size, GROUP)],
+            {work: w.astype(work) for work in (np.float32, np.float64)})
+
+
 def _accumulate(total, part, i):
     """``total = 0 + part`` for the first group (``i == 0``), else ``total += part``."""
     if i:
@@ -242,8 +249,7 @@ class LeastSquares:
         self.sumw2f = float(self.w @ (self.w * self.noise.read_factors))  # read-noise factor
         self.wmax = float(np.abs(self.w).max()) if nf else 0.0
         self.pfactor = float(self.w @ self.noise.shot @ self.w) if nf >= 2 else 0.0
-        self.groups = [slice(g, min(g + GROUP, nf)) for g in range(0, nf, GROUP)]
-        self._wwork = {work: self.w.astype(work) for work in (np.float32, np.float64)}
+        self._sums = _group_sums(self.w)  # (groups of rows, weights by work type)
         # read times symmetric about their mean (equal spacing, equal groups): w_f = -w_(n-1-f),
         # and the slope is sum_(f < n/2) w_(n-1-f) (y_(n-1-f) - y_f), half as many
         # differences as the reads less the first (`_block`, where only the slope is wanted)
@@ -251,8 +257,7 @@ class LeastSquares:
         if nf >= 2 and np.all(np.abs(tc + tc[::-1]) <= 1e-9 * np.abs(tc).max()):
             half = nf // 2
             wpair = (self.w[::-1][:half] - self.w[:half]) / 2
-            self.pairs = (half, [slice(g, min(g + GROUP, half)) for g in range(0, half, GROUP)],
-                          {work: wpair.astype(work) for work in (np.float32, np.float64)})
+            self.pairs = (half, *_group_sums(wpair))
         self.jump_prior = jump_prior
         weigh = jump_prior is not None and weighting == "uniform" and want_var and nf >= 3
         factors = self.noise.read_factors
@@ -375,7 +380,7 @@ class LeastSquares:
                 np.subtract(b[:nf - 1 - half:-1], b[:half], out=x[:half], dtype=work)
             else:
                 # one pass: reads minus the first read, into a buffer that stays in cache
-                groups, weights = self.groups, self._wwork
+                groups, weights = self._sums
                 if block.dtype == work and block.dtype.isnative:
                     b = block.reshape(nf, npx)
                     np.subtract(b, b[0], out=x)

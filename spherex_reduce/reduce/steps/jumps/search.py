@@ -368,8 +368,7 @@ class StepSearch(StepModel):
         slope free (a hot pixel's rate is seldom known to the few per cent its prior
         would need: a map 10-20 % off flagged 13-44 % of such ramps where the free
         search flags ~1 %)."""
-        lam = np.maximum(expected, 0.0) / gain
-        return lam / var * self.walk_top > SHOT_WEIGHTED
+        return _expected_lambda(expected, gain) / var * self.walk_top > SHOT_WEIGHTED
 
     def _with_prior(self, y, pixels, threshold, sigma, gain, floor, max_jumps, prior,
                     bright):
@@ -393,7 +392,7 @@ class StepSearch(StepModel):
         # noise at the expected rate (a warm pixel's slope scatters by both)
         wide = 1.0 + sos * sos * self._invq[kp] / self.slope_var
         with np.errstate(over="ignore", invalid="ignore"):
-            lam = np.maximum(expected, 0.0) / gain
+            lam = _expected_lambda(expected, gain)
             spread = np.sqrt(wide * (var * self.slope_var + lam * self.shot_var)
                              + prior.spread ** 2)
             own = ~(np.abs(slope - expected) <= OWN_SIGMA * spread)
@@ -685,6 +684,11 @@ class _State:
                        slope=self.slope[hit], steps=steps, pixels=self.pixels[hit],
                        sigma=None if self.sigma is None else _take(self.sigma, hit),
                        gain=_take(self.gain, hit), floor=self.floor[hit])
+
+
+def _expected_lambda(expected, gain):
+    """The shot noise (lambda) of ramps expected at ``expected`` (data unit / s)."""
+    return np.maximum(expected, 0.0) / gain
 
 
 @functools.lru_cache(maxsize=64)

@@ -48,6 +48,9 @@ __all__ = ["DetectJumpsStep", "JumpKernel", "detect_jumps"]
 SEARCH_PIXELS = 1 << 17
 #: read events looked for in a set of rows (one more in each round of the search)
 MAX_EVENTS = 4
+#: usable reads a ramp needs to be searched: with ``read_noise`` given, and with the read
+#: noise from the ramp (2 degrees of freedom for it beside the line and a step)
+LEAST_READS, LEAST_READS_ESTIMATED = 3, 5
 
 
 def detect_jumps(exposure, *, threshold=4.0, read_noise=None, gain=1.0, saturation=None,
@@ -266,7 +269,8 @@ class JumpKernel(Kernel):
         if prior and self.estimate:
             raise ConfigError("detect_jumps.expected_rate needs read_noise (the prior's "
                               "weight is the read noise's variance over the rates' spread)")
-        if s.nframes < (5 if self.estimate else 3):
+        self.least = LEAST_READS_ESTIMATED if self.estimate else LEAST_READS
+        if s.nframes < self.least:
             raise StepSkipped(_too_few(s.nframes, self.estimate))
         self.params = params
         g = s.geometry
@@ -507,7 +511,7 @@ class JumpKernel(Kernel):
                                                return_inverse=True, return_counts=True)
                 common = inverse.ravel() == np.argmax(counts)
                 members, mask = pix[common], usable[:, np.argmax(common)]
-                if mask.sum() < 3:
+                if mask.sum() < self.least:
                     continue
                 search = self._search(mask)
                 sub = y[:, members][mask]
@@ -538,7 +542,6 @@ class JumpKernel(Kernel):
         sub = y[:, pixels]
         flags = None if block.dq is None else block.dq.reshape(sub.shape[0], -1)[:, pixels]
         usable, _ = usable_reads(sub, flags, self.params["saturation"])
-        least = 5 if self.estimate else 3
         keys = np.packbits(usable, axis=0).T.copy()
         _, first, inverse = np.unique(keys.view(f"V{keys.shape[1]}").ravel(),
                                       return_index=True, return_inverse=True)
@@ -546,7 +549,7 @@ class JumpKernel(Kernel):
         for g, col in enumerate(first):
             mask = usable[:, col]
             idx = np.flatnonzero(mask)
-            if idx.size < least:
+            if idx.size < self.least:
                 continue
             members = np.flatnonzero(inverse == g)
             found = self._run(self._search(mask), sub[idx][:, members], maps,
@@ -729,13 +732,14 @@ def _read_offset(block, rows, flags, read, times):
 def _too_few(nframes, estimate):
     """Why ``nframes`` reads are not searched, said once as a warning too (a skipped step
     is otherwise only a status keyword): with the read noise estimated, how to search."""
-    if estimate and nframes in (3, 4):
-        text = (f"{nframes} reads: too few to estimate each ramp's read noise (5 needed), so "
+    if estimate and LEAST_READS <= nframes < LEAST_READS_ESTIMATED:
+        text = (f"{nframes} reads: too few to estimate each ramp's read noise "
+                f"({LEAST_READS_ESTIMATED} needed), so "
                 "no jumps are searched; give detect_jumps.read_noise (a number in the data "
                 f"unit, or a read-noise map as a FITS image) to search {nframes} reads")
     else:
-        text = (f"{nframes} reads: too few to search for jumps (3 needed with "
-                "detect_jumps.read_noise, 5 without)")
+        text = (f"{nframes} reads: too few to search for jumps ({LEAST_READS} needed with "
+                f"detect_jumps.read_noise, {LEAST_READS_ESTIMATED} without)")
     warnings.warn(f"detect_jumps: {text}; the step is skipped", JumpWarning, stacklevel=3)
     return text
 

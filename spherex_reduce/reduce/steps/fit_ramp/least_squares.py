@@ -100,8 +100,9 @@ class RampMaps:
     ----------
     read_noise : float or `numpy.ndarray` or None
         Read noise per read (data unit); None: variance from the residuals.
-    pscale : float or `numpy.ndarray` or None
-        1 / gain (data unit per electron) for the shot noise; None: no shot noise.
+    pscale : float or `numpy.ndarray`
+        1 / gain (data unit per electron) for the shot noise; None given: no shot noise
+        (kept as 0).
     dark : float or `numpy.ndarray`
         Dark current already subtracted from the reads (data unit / s).
     """
@@ -109,6 +110,10 @@ class RampMaps:
     read_noise: object = None
     pscale: object = None
     dark: object = 0.0
+
+    def __post_init__(self):
+        if self.pscale is None:  # every use is arithmetic: no shot noise is a zero factor
+            object.__setattr__(self, "pscale", 0.0)
 
     def rows(self, rows):
         """The maps of rows ``rows`` (a slice) of the band, flattened to pixels."""

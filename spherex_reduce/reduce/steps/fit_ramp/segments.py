@@ -284,7 +284,7 @@ def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=No
         Read noise per read (data unit), one or ``(m,)``; None: variance from
         the residuals.
     pscale : float or `numpy.ndarray` or None
-        1 / gain (shot noise; None: none).
+        1 / gain (shot noise; None or 0: none, in the weights too).
     dark : float or `numpy.ndarray`
         Dark current already subtracted from the reads (data unit / s), whose
         shot noise the variance includes.
@@ -321,6 +321,7 @@ def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=No
                            want_var=want_var)
         return SegmentFit(*(getattr(fit, k)[:1] for k in SegmentFit.__dataclass_fields__))
     y = np.ascontiguousarray(y)
+    pscale = 0.0 if pscale is None else pscale  # no shot noise: a zero factor
     usable, saturated = usable_reads(y, flags, saturation)
     jumps = np.zeros(y.shape, bool) if flags is None else (flags & dq.JUMP) != 0
     count = accumulate_reads(np.add, jumps, np.intp)
@@ -354,7 +355,7 @@ def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=No
             w = tc / stt
         slopes[s, cols] = slope[:k]
         rvars[s, cols] = (w * w * noise.read_factors[:, None]).sum(axis=0)[:k]
-        if pscale is not None:
+        if rn2 is not None:  # (a residual variance needs no shot noise)
             pfs[s, cols] = noise.shot_variance(w)[:k]
         stts[s, cols] = stt[:k]
         if chi2 is not None:
@@ -380,16 +381,16 @@ def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=No
         else:
             seg_var = rn2 * rvars  # read noise alone first
             slope, var = _combine(slopes, seg_var, fitted)
-            if pscale is not None and rate_used is not None:
+            if rate_used is not None:
                 seg_var = rn2 * rvars + rate_used * pscale * pfs
                 slope, var = _combine(slopes, seg_var, fitted)
-            elif pscale is not None:
+            elif np.any(pscale):
                 for _ in range(2):  # pooled rate -> shot noise of every segment -> again
                     rate = np.maximum(np.where(np.isfinite(slope), slope, 0.0), 0.0) + dark
                     seg_var = rn2 * rvars + rate * pscale * pfs
                     slope, var = _combine(slopes, seg_var, fitted)
             a = np.where(fitted, (1.0 / seg_var) * var, 0.0)  # the final weights
-            shot = 0.0 if pscale is None else pscale * np.where(fitted, pfs, 0.0)
+            shot = pscale * np.where(fitted, pfs, 0.0)
             per_rate = (a * a * shot).sum(axis=0)
             rnoise = (a * a * np.where(fitted, rn2 * rvars, 0.0)).sum(axis=0) + dark * per_rate
     few = nseg == 0
@@ -435,7 +436,7 @@ def _optimal_segments(y, usable, seg, noise, slopes, rvars, pfs, fitted, rn2, ps
     with np.errstate(invalid="ignore", divide="ignore"):
         pooled, _ = _combine(slopes, rvars, fitted)
         rate = np.maximum(np.where(np.isfinite(pooled), pooled, 0.0), 0.0) + dark
-        ratio = rate * (1.0 if pscale is None else pscale) / rn2
+        ratio = rate * pscale / rn2
         key = np.where(ratio > 1e-6, np.round(np.log10(ratio) * RATIO_BINS), -np.inf)
     for s in range(slopes.shape[0]):
         good = usable & (seg == s)
@@ -457,4 +458,6 @@ def _optimal_segments(y, usable, seg, noise, slopes, rvars, pfs, fitted, rn2, ps
             pfs[s, members] = float(w @ noise.shot[np.ix_(reads, reads)] @ w)
     with np.errstate(invalid="ignore"):
         used = np.where(np.isfinite(key), 10 ** (key / RATIO_BINS), 0.0) * rn2
-    return slopes, rvars, pfs, used / (1.0 if pscale is None else pscale)
+    pscale = np.broadcast_to(pscale, used.shape)  # (no shot noise: the weights' rate is 0)
+    return slopes, rvars, pfs, np.divide(used, pscale, out=np.zeros(used.shape),
+                                         where=pscale > 0)

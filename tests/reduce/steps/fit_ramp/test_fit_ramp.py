@@ -780,3 +780,41 @@ def test_optimal_weighting_of_unequal_groups_at_no_rate_is_weighted_least_square
     np.testing.assert_allclose(out.data.data.ravel(), want, rtol=0, atol=1e-6)
     np.testing.assert_allclose(out.data.uncertainty.array, 10.0 * np.sqrt(cov[1, 1]),
                                rtol=1e-6)
+
+
+@pytest.mark.parametrize("kind", ["uniform", "optimal", "jump_prior"])
+def test_maps_without_a_gain_mean_read_noise_alone_on_every_path(kind):
+    """``RampMaps(read_noise=..., pscale=None)`` ("no shot noise") on ramps fitted whole and
+    on a ramp split by a JUMP: the slopes are numpy's least squares and their variances
+    the read noise's alone, ``sigma**2 / sum(tc**2)`` (and the two segments' inverse-variance
+    combination).  It raised (None times a number) on every path but the split ramp's."""
+    from spherex_reduce.reduce.steps.fit_ramp.least_squares import LeastSquares, RampMaps
+
+    t = np.arange(12) * 1.5
+    rng = np.random.default_rng(8)
+    cube = 6e4 + 0.5 * t[:, None, None] + rng.standard_normal((12, 3, 4)) * 2.0
+    mask = np.zeros(cube.shape, np.uint32)
+    mask[5, 1, 2] = dq.JUMP  # a step starts at read 5
+    cube[5:, 1, 2] += 300.0
+    fitter = LeastSquares(t, weighting="optimal" if kind == "optimal" else "uniform",
+                          jump_prior=0.01 if kind == "jump_prior" else None)
+    fit = fitter.fit(cube.astype(np.float32), mask, maps=RampMaps(read_noise=2.0, pscale=None))
+
+    def lsq(y, tt):
+        tc = tt - tt.mean()
+        return tc @ (y - y.mean()) / (tc @ tc), 4.0 / (tc @ tc)
+
+    y = cube.astype(np.float32).astype(np.float64)
+    slope, var = np.empty((3, 4)), np.empty((3, 4))
+    for r in range(3):
+        for c in range(4):
+            slope[r, c], var[r, c] = lsq(y[:, r, c], t)
+    (s1, v1), (s2, v2) = lsq(y[:5, 1, 2], t[:5]), lsq(y[5:, 1, 2], t[5:])
+    var[1, 2] = 1.0 / (1.0 / v1 + 1.0 / v2)
+    slope[1, 2] = (s1 / v1 + s2 / v2) * var[1, 2]
+    if kind != "jump_prior":  # (the prior weighs plausible steps: its slopes are its own)
+        np.testing.assert_allclose(fit.slope, slope, rtol=0, atol=1e-4)
+        np.testing.assert_allclose(fit.var, var, rtol=1e-6)
+    else:
+        assert np.all(np.isfinite(fit.var)) and np.all(fit.var >= var * (1 - 1e-6))
+        np.testing.assert_allclose(fit.slope[1, 2], slope[1, 2], rtol=0, atol=1e-4)

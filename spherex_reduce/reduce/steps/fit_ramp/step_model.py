@@ -113,7 +113,6 @@ class StepModel:
         self.uniform_w = bool(np.all(w == w[0]))
         d = np.diff(tau)
         self.dtau = d
-        self.uniform_dt = bool(np.all(d == d[0]))
         self._types = {}  # dtype -> (w, 1 / q, coef) in it
         self._invq = 1.0 / self.q
 
@@ -131,43 +130,36 @@ class StepModel:
                                           self.coef.astype(dtype))
         return typed
 
-    def screen(self, y, estimate):
+    def screen(self, y, estimate, work=None):
         """``max_k R_k**2 / q_k`` of ramps ``y`` ``(n, m)`` with read-noise weights, and the
-        weighted RSS of their lines (None unless ``estimate``), in ``y``'s type: a loop over
-        the reads, a few numpy operations on ``m`` ramps each (keep ``y`` in cache)."""
+        weighted RSS of their lines (None unless ``estimate``), in ``y``'s type.
+
+        Whole-array operations on ``(n, m)`` (the line, the residuals, their squares and
+        the maximum over the reads) and one addition per read for the tail sums: each call
+        long enough to leave the interpreter's lock to the other threads (a loop of six
+        operations per read on ``m`` ramps held it most of the time: two threads screened
+        no faster than one).  ``work``: a float ``(n, m')`` buffer of ``y``'s type, ``m'
+        >= m``, to write in (made if None); keep ``y`` and it in cache.
+        """
         n, m = y.shape
         w, invq, coef = self._typed(y.dtype)
+        r = np.empty(y.shape, y.dtype) if work is None else work[:, :m]
         ab = coef @ y
-        a, b = ab[0], ab[1]
-        c = a.copy()
-        acc = np.zeros(m, y.dtype)
-        best = np.zeros(m, y.dtype)
-        rss = np.zeros(m, y.dtype) if estimate else None
-        r = np.empty(m, y.dtype)
-        tmp = np.empty(m, y.dtype)
-        step = b * y.dtype.type(self.dtau[0]) if self.uniform_dt else None
-        for i in range(n):
-            if i:
-                if step is not None:
-                    c += step
-                else:
-                    np.multiply(b, w.dtype.type(self.dtau[i - 1]), out=tmp)
-                    c += tmp
-            np.subtract(y[i], c, out=r)
-            if estimate:
-                np.multiply(r, r, out=tmp)
-                if not self.uniform_w:
-                    tmp *= w[i]
-                rss += tmp
-            if i == n - 1:
-                break
-            if not self.uniform_w:
-                r *= w[i]
-            acc += r
-            np.multiply(acc, acc, out=tmp)
-            tmp *= invq[i]
-            np.maximum(best, tmp, out=best)
-        if self.uniform_w and w[0] != 1:  # equal weights left out of the loop: put them back
+        np.multiply(self.tau.astype(y.dtype)[:, None], ab[1], out=r)  # the line
+        r += ab[0]
+        np.subtract(y, r, out=r)  # its residuals
+        rss = None
+        if estimate:
+            rss = w @ np.square(r) if not self.uniform_w else np.einsum("im,im->m", r, r)
+        if not self.uniform_w:
+            r *= w[:, None]
+        for i in range(1, n - 1):  # R_(i+1) = -(the sum of the residuals up to read i)
+            np.add(r[i - 1], r[i], out=r[i])
+        acc = r[:n - 1]
+        np.multiply(acc, acc, out=acc)
+        acc *= invq[:, None]
+        best = acc.max(axis=0)
+        if self.uniform_w and w[0] != 1:  # equal weights left out: put them back
             best *= w[0] * w[0]  # R_k is w times the tail sum of the residuals
             if estimate:
                 rss *= w[0]

@@ -30,7 +30,7 @@ given, from the pixel's own residuals about the line with the best step
 (``(RSS - R_k**2 / q_k) / (n - 3)``, which a jump does not inflate either).
 
 `StepSearch.find` first screens every pixel with float32 cumulative sums over
-the reads (a loop over reads on a few thousand pixels at a time, in cache):
+the reads (whole-array operations on a few thousand pixels at a time, in cache):
 with read noise alone ``z`` can only be larger, so pixels whose read-noise
 ``max z`` is below the threshold have no jump.  The few left are searched in
 float64 with the full noise model.  Each pixel's result depends on its own
@@ -72,11 +72,12 @@ RHO_BIN = 0.05
 #: a pair of steps whose chi2 is within this of the best one's is flagged too (shot noise
 #: can make the groups on either side of a jump almost equally likely to hold it)
 PAIR_MARGIN = 9.0
-#: bytes of reads screened at once: each numpy call of the screen works on a read of this many
-#: bytes / nframes ramps, long enough that the calls' overhead does not dominate, and the
-#: reads minus the first stay in a core's 2 MB L2 cache between the line's fit and the loop
+#: bytes of reads screened at once: the reads minus the first and the screen's residuals
+#: (as many bytes again) stay in a core's 2 MB L2 cache between the line's fit and the sums
 #: over reads (1.5 MB: the 128 x 2048 strip's search in 0.10-0.14 s of CPU where 6 MB took
-#: 0.21-0.29 s, 2 MB 0.34-0.40 s and 1 MB 0.15-0.16 s, on two cores shared with other work)
+#: 0.21-0.29 s, 2 MB 0.34-0.40 s and 1 MB 0.15-0.16 s, on two cores shared with other work;
+#: with the screen's whole-array operations, 262 144 ramps of 74 reads in 45 ms on one
+#: thread and two such bands in 57 ms on two at 1.5 MB, 106 ms at 2.3 MB)
 SCREEN_BYTES = 3 << 19
 #: the read noise given is scaled to the ramps' own scatter (`StepSearch.scatter`) when
 #: their ramps x degrees of freedom (reads - 2) reach this: the median's relative error is
@@ -303,6 +304,7 @@ class StepSearch(StepModel):
         picked, floors, reads, unsearched = [], [], [], []
         width = max(256, SCREEN_BYTES // (n * np.dtype(work).itemsize))
         buf = np.empty((n, min(m, width)), work)  # reused: no page faults
+        scratch = np.empty_like(buf)  # the screen's
         if prior is not None:  # the reads less the expected line, for the prior's screen
             buf_prior = np.empty_like(buf)
             buf_line = np.empty(buf.shape)  # the expected line, in float64
@@ -313,7 +315,7 @@ class StepSearch(StepModel):
             rel = buf[:, :y0.size]
             np.subtract(y[:, part], y0, out=rel, casting="unsafe")  # exact for a pedestal
             with np.errstate(invalid="ignore", over="ignore"):  # non-finite ramps: set aside
-                best, rss = self.screen(rel, estimate)
+                best, rss = self.screen(rel, estimate, scratch)
             floor = _floor(y0, rel)
             if estimate:
                 var = np.maximum((rss - best) / (n - 3), floor)
@@ -333,7 +335,7 @@ class StepSearch(StepModel):
                         line = buf_line[:, :y0.size]
                         np.multiply(self.tau[:, None], expected, out=line)
                         np.subtract(rel, line, out=relp, casting="unsafe")
-                        bestp, _ = prior.search.screen(relp, False)
+                        bestp, _ = prior.search.screen(relp, False, scratch)
                         bright = np.broadcast_to(self._bright(expected, _take(gain, part),
                                                               var), finite.shape)
                     over |= ~(bestp <= limit * var)

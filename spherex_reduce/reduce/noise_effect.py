@@ -114,6 +114,11 @@ class NoiseEffect:
         values that keep it so (a tuple, which must hold the parameter's
         default) or an `AtLeast` bound.  Parameters not named may take any
         value.
+    masks_beyond : tuple of str
+        For a step that masks the slope image's outlying pixels (``sigma_clip``): its
+        parameters that set the upper threshold in standard deviations, the first
+        given one deciding (the forecast leaves out the fixed offsets beyond it:
+        `~spherex_reduce.analysis.forecast.populations`).
 
     Examples
     --------
@@ -125,6 +130,7 @@ class NoiseEffect:
 
     action: str
     linear: dict = field(default_factory=dict)
+    masks_beyond: tuple = ()
 
     def __post_init__(self):
         if self.action not in ACTIONS:

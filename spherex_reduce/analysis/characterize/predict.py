@@ -69,6 +69,7 @@ from ...noise.components import NoiseComponent
 from ...noise.variance import ls_weights
 from ..faint_telegraph import telegraph_covariance
 from ..forecast.engine import forecast, poisson_variance, prepare_forecast, stored_planes
+from ..forecast.populations import clipped_sigma
 from ..spectrum import rfft_weights
 from .result import hold_white
 
@@ -199,58 +200,6 @@ def _kept(y, variance, cut):
         return np.ones_like(y)
     s = np.sqrt(variance)
     return ndtr((cut - y) / s) - ndtr((-cut - y) / s)
-
-
-def clipped_sigma(weights, means, variance, sigma=CLIP_SIGMA, tol=1e-10, maxiter=200):
-    """Standard deviation, after iterative clipping at ``sigma``, of a Gaussian mixture.
-
-    The large-sample limit of `astropy.stats.sigma_clipped_stats` (centre 0: the
-    mixture is symmetric) for values drawn from ``Σ_i weights_i N(means_i, variance)``.
-
-    Parameters
-    ----------
-    weights, means : array_like
-        Weight and mean of each Gaussian (weights summing to 1).
-    variance : float
-        The Gaussians' common variance (> 0).
-    sigma : float or None
-        The clip; None: no clip.
-
-    Returns
-    -------
-    float
-
-    Examples
-    --------
-    One Gaussian clipped at 5 σ keeps almost all its width, ``σ (1 − 2 c φ(c))^½``
-    for ``c = 5``:
-
-    >>> from spherex_reduce.analysis.characterize.predict import clipped_sigma
-    >>> round(clipped_sigma([1.0], [0.0], 4.0), 6)
-    1.999985
-    """
-    wt = np.asarray(weights, dtype=np.float64)
-    mu = np.asarray(means, dtype=np.float64)
-    s = np.sqrt(float(variance))
-    total = float(np.sum(wt * (mu * mu + variance)))
-    if sigma is None:
-        return float(np.sqrt(total))
-    std = np.sqrt(total)
-    for _ in range(maxiter):
-        c = sigma * std
-        a, b = (-c - mu) / s, (c - mu) / s
-        pa, pb = np.exp(-a * a / 2), np.exp(-b * b / 2)
-        pa, pb = pa / np.sqrt(2 * np.pi), pb / np.sqrt(2 * np.pi)
-        kept = ndtr(b) - ndtr(a)
-        m1 = mu * kept + s * (pa - pb)
-        m2 = (mu * mu + variance) * kept + 2 * mu * s * (pa - pb) + variance * (a * pa - b * pb)
-        frac = float(np.sum(wt * kept))
-        mean = float(np.sum(wt * m1)) / frac
-        new = np.sqrt(max(float(np.sum(wt * m2)) / frac - mean * mean, 0.0))
-        if abs(new - std) <= tol * std:
-            return float(new)
-        std = new
-    return float(std)
 
 
 def _scene(model, nframes, single):

@@ -30,7 +30,6 @@ import numpy as np
 from astropy import units as u
 
 from ...core.errors import ConfigError, SpherexReduceError
-from ...noise.variance import slope_frames
 from ...simulation.scene import Scene, load_scene
 from ..case import SpectrumMeasure, measure_section
 from ..light import light_sensitive
@@ -44,6 +43,7 @@ from ..spectrum import (
     spectrum_table,
 )
 from .layout import frame_cells, transposed
+from .populations import POPULATIONS, clipped_populations, population_variances, shot_factor
 from .rows import NODES, Cells, component_planes
 from .steps import reduction
 
@@ -53,6 +53,8 @@ __all__ = ["band_power_forecast", "forecast", "forecast_measure", "forecast_tabl
 _SLOPE_UNIT = u.electron / u.s
 #: Name of the Poisson noise of the dark current and photocurrent in the table's columns.
 _POISSON = "poisson"
+#: Name of what the mask of a clip moves between scales (`populations`).
+_MASKED = "masked"
 
 
 def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SCALE,
@@ -100,7 +102,10 @@ def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SC
         component (zero for one the reduced pixels do not see: a component only
         the phantom samples see is seen once phantom values are subtracted) and ``power_poisson``
         for the Poisson noise of the scene's dark current and photocurrent
-        (white, `poisson_variance`), if any.  ``meta`` as
+        (white, `poisson_variance`), if any; ``power_dark_spread``,
+        ``power_hot_pixels``, ``power_telegraph`` for the scene's pixel populations
+        and ``power_masked`` for what a clip's mask of them moves between scales
+        (`~spherex_reduce.analysis.forecast.populations`), if any.  ``meta`` as
         `~spherex_reduce.analysis.power_spectrum`'s, with ``band_power`` (the
         paper's band, e/s squared), ``band_power_err`` (the standard error of
         one realisation's band power as `~spherex_reduce.analysis.band_power`
@@ -111,10 +116,13 @@ def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SC
     Raises
     ------
     SpherexReduceError
-        A scene term that is neither Gaussian noise of the readout nor the
-        Poisson noise of a current (hot pixels, telegraph noise), channels as
-        quadrants, a window, or reference pixels inside the light-sensitive
-        rectangle.
+        Channels as quadrants, a window, or reference pixels inside the
+        light-sensitive rectangle.
+
+    Warns
+    -----
+    AstropyUserWarning
+        Telegraph noise of reference pixels: left out.
     ConfigError
         A scene that has no slope image (fewer than 2 frames, or groups); a
         pipeline step the forecast does not know (the message names it) or a
@@ -170,6 +178,15 @@ def forecast_tables(scene, pipeline, measures, *, pixel_scale=SPHEREX_PIXEL_SCAL
     shot = poisson_variance(sc)
     if shot:  # white: the same in every cell
         parts[_POISSON] = np.full((ny, nx // 2 + 1), shot * ny * nx)
+    full = np.broadcast_to(rfft_weights(nx), (ny, nx // 2 + 1))
+    variance = sum(float(np.sum(p * full)) for p in parts.values()) / (ny * nx) ** 2
+    pops, unmasked = population_variances(sc, red.clip, variance)
+    for name, var in pops.items():
+        parts[name] = np.full((ny, nx // 2 + 1), var * ny * nx)  # white as well
+    if unmasked < 1:  # the clip's mask spreads (1 - u) of the variance over every scale
+        total = sum(parts.values())
+        variance = float(np.sum(total * full)) / (ny * nx) ** 2
+        parts[_MASKED] = (1.0 - unmasked) * (variance * ny * nx - total)
     return [_forecast_table(sc, red, parts, (ny, nx), m, pixel_scale) for m in ms]
 
 
@@ -182,7 +199,8 @@ def _forecast_table(sc, red, parts, shape, m, pixel_scale):
     exclude_horizontal = bool(m.exclude_horizontal)
     total = sum(parts.values()) if parts else np.zeros((ny, nx // 2 + 1))
     table = spectrum_table(total, shape, edges, unit, 1.0, pixel_scale, exclude_horizontal)
-    names = [c.name for c in sc.components] + ([_POISSON] if _POISSON in parts else [])
+    names = [c.name for c in sc.components] + [k for k in (_POISSON, *POPULATIONS, _MASKED)
+                                               if k in parts]
     for name in names:
         if name in parts:
             power = spectrum_table(parts[name], shape, edges, unit, 1.0, pixel_scale,
@@ -250,6 +268,11 @@ def band_power_forecast(scene, pipeline=None, kmin=BAND_KMIN, kmax=BAND_KMAX, *,
     True
     """
     sc, red, rows, cols, comps = prepare_forecast(scene, pipeline)
+    if red.clip is not None and clipped_populations(sc.terms):  # the whole plane's variance
+        measure = {"kmin": kmin, "kmax": kmax, "bins": 1,
+                   "exclude_horizontal": exclude_horizontal}
+        return float(forecast_tables(sc, pipeline, [measure], nodes=nodes)[0]
+                     .meta["band_power"])
     frame, flip, (ny, nx) = _frames(sc.schedule.geometry, rows, cols)
     sy, sx = _band_cells(ny, nx, float(kmin), float(kmax), bool(exclude_horizontal))
     if not sy.size:
@@ -261,7 +284,8 @@ def band_power_forecast(scene, pipeline=None, kmin=BAND_KMIN, kmax=BAND_KMAX, *,
     pick = np.searchsorted(cells.ky, fy), np.searchsorted(cells.kx, fx)
     w = rfft_weights(nx)[sx]
     power = sum(np.sum(p[pick] * w) for p in parts.values()) / np.sum(w) / (ny * nx)
-    return float(power + poisson_variance(sc))
+    pops, _ = population_variances(sc)
+    return float(power + poisson_variance(sc) + sum(pops.values()))  # white as well
 
 
 @functools.lru_cache(maxsize=8)
@@ -368,7 +392,6 @@ def prepare_forecast(scene, pipeline):
     sc = sc.in_electrons("forecast")  # a scene in adu, with its gain
     red = reduction(pipeline)
     sc.check_mode("slopes")
-    _check_terms(sc.terms)
     g = sc.schedule.geometry  # the readout frame, where the engine works
     if g.window is not None or g.layout.channels == "quadrants":
         raise SpherexReduceError("forecast: only full arrays with channels as columns or rows "
@@ -456,19 +479,4 @@ def poisson_variance(scene):
     rate = t.dark_current + t.photocurrent
     if not (t.poisson and rate > 0):
         return 0.0
-    s = scene.schedule
-    w, _, _ = slope_frames(s)
-    times = s.frame_starts.to_value(u.s)  # per unit rate, Cov(q_j, q_k) = min(t_j, t_k) - t_0
-    return float(rate * (w @ (np.minimum.outer(times, times) - times[0]) @ w))
-
-
-def _check_terms(terms):
-    """Refuse the scene terms that add noise other than Gaussian readout and Poisson noise."""
-    named = [name for name, on in (
-        ("hot pixels", terms.hot_pixel_fraction > 0),
-        ("telegraph noise", any(r.on for r in terms.telegraphs)),
-        ("a dark current spread", terms.dark_current_spread > 0),
-    ) if on]
-    if named:
-        raise SpherexReduceError(f"forecast: the scene has {', '.join(named)}; only the "
-                                 "readout's noise and Poisson noise are forecast so far")
+    return float(rate * shot_factor(scene.schedule))

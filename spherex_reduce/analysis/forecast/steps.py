@@ -153,6 +153,9 @@ class Reduction:
         depend on them).
     reference_ramps : bool
         The reference step works on ramps (``fit_ramp`` comes after it).
+    clip : float or None
+        The upper threshold (standard deviations) beyond which a step masks the slope
+        image's pixels (``sigma_clip``), or None.
     """
 
     steps: tuple = ()
@@ -162,6 +165,7 @@ class Reduction:
     side_columns: bool = False
     reference_params: dict = field(default_factory=dict)
     reference_ramps: bool = True
+    clip: float | None = None
 
     def describe(self):
         """The pipeline's steps as ``'a > b'`` (``'none'`` without steps)."""
@@ -197,7 +201,7 @@ def reduction(pipeline):
         return Reduction()
     p = as_pipeline(pipeline)
     table = forecast_steps(p.registry)
-    names, phantom, fitted, ref = [], False, False, {}
+    names, phantom, fitted, ref, clip = [], False, False, {}, None
     for i, item in enumerate(p.config["steps"]):
         (name, params), = item.items()
         effect = table.get(name)
@@ -231,9 +235,13 @@ def reduction(pipeline):
                    "side_columns": bool(params.get("side_columns", False)),
                    "reference_params": rest, "reference_ramps": not fitted,
                    "consumed": strategy.consumes_phantom(params, phantom)}
+        if effect.masks_beyond:
+            given = {q.name: q.default for q in p.registry.step(name).parameters} | params
+            sigma = next(given[k] for k in effect.masks_beyond if given.get(k) is not None)
+            clip = float(sigma) if clip is None else min(clip, float(sigma))
         names.append(name)
     ref.pop("consumed", None)
-    return Reduction(tuple(names), phantom, **ref)
+    return Reduction(tuple(names), phantom, clip=clip, **ref)
 
 
 def linear_steps(pipeline):

@@ -159,9 +159,11 @@ class SigmaClipStep(Step):
         Parameter("cenfunc", "median", (str,), "centre", choices=("median", "mean")),
         Parameter("stdfunc", "std", (str,), "spread", choices=("std", "mad_std")),
     )
-    #: forecast as no clipping (its effect on Gaussian noise was measured from 3 σ up)
+    #: forecast as no clipping (its effect on Gaussian noise was measured from 3 σ up); hot
+    #: pixels beyond the upper threshold are masked
     noise_effect = NoiseEffect("identity", linear={
-        "sigma": MEASURED_SIGMA, "sigma_lower": MEASURED_SIGMA, "sigma_upper": MEASURED_SIGMA})
+        "sigma": MEASURED_SIGMA, "sigma_lower": MEASURED_SIGMA, "sigma_upper": MEASURED_SIGMA},
+        masks_beyond=("sigma_upper", "sigma"))
 
     def run(self, exposure, **params):
         return _sigma_clip(exposure, **params)

@@ -13,7 +13,7 @@ from spherex_reduce.analysis import forecast, power_spectrum
 from spherex_reduce.analysis.forecast.sweep import SweepForecast
 from spherex_reduce.analysis.light import light_sensitive_image
 from spherex_reduce.analysis.sweep import load_sweep
-from spherex_reduce.core.errors import ConfigError, ResourceError, SpherexReduceError
+from spherex_reduce.core.errors import ConfigError, ResourceError
 from spherex_reduce.noise.variance import slope_covariance
 from spherex_reduce.simulation import load_scene, simulate
 
@@ -115,13 +115,6 @@ def test_poisson_noise_is_white_at_the_analytic_slope_variance():
     without = forecast(tiny([PINK]), measure={"bins": BINS})
     np.testing.assert_allclose(u.Quantity(got["power"]).value,
                                u.Quantity(without["power"]).value + expect, rtol=1e-12)
-
-
-def test_refuses_what_it_does_not_forecast():
-    scene = load_scene({"geometry": {"nrows": 20, "ncols": 20, "nchannels": 2},
-                        "scene": {"hot_pixel_fraction": 0.01}})
-    with pytest.raises(SpherexReduceError, match="hot pixels"):
-        forecast(scene)
 
 
 def test_refuses_a_measure_that_is_not_linear_and_unknown_steps():

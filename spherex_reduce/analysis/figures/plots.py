@@ -169,11 +169,13 @@ def plot_forecast(table, measured=None, measured_label="measured", title="",
         if not name.startswith("power_") or name == "power_err":
             continue
         power = u.Quantity(table[name])
+        label = f"forecast: {name.removeprefix('power_')}"
+        if name == "power_masked":  # signed: the power a clip's mask moves between scales
+            power, label = np.abs(power), "forecast: |masked| (moved by the clip's mask)"
         kept = np.where(power.value > rounding, power.value, 0.0)
         if np.any(kept > 0):
-            label = f"forecast: {name.removeprefix('power_')}"
             spectra[label] = Table({"k": k, "power": kept * power.unit})
-            styles[label] = {"marker": "", "ls": "--"}
+            styles[label] = {"marker": "", "ls": ":" if name == "power_masked" else "--"}
     if measured is not None:
         label = f"measured: {measured_label}"
         spectra[label] = measured

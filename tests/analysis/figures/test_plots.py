@@ -249,3 +249,21 @@ def test_plot_forecast_draws_the_photon_line_as_the_spectrum_plot_does():
                        photon_label="p").axes[0]
     (same,) = [ln for ln in ref.get_lines() if ln.get_label() == "p"]
     assert (line.get_linestyle(), line.get_color()) == (same.get_linestyle(), same.get_color())
+
+
+def test_plot_forecast_draws_the_masked_power_as_its_magnitude():
+    """``power_masked`` is signed (a clip's mask moves power from the strong scales to the
+    weak ones): drawn as its magnitude, dotted and named so, its negative bins not lost."""
+
+    from spherex_reduce.analysis.figures.plots import plot_forecast
+
+    k = np.array([0.05, 0.1, 0.5, 1.0]) * u.rad / u.pix
+    unit = u.electron ** 2 * u.pix ** 2 / u.s ** 2
+    masked = np.array([-30.0, -5.0, 2.0, 3.0]) * unit
+    t = Table({"k": k, "power": [300.0, 100.0, 60.0, 60.0] * unit,
+               "power_white": [330.0, 105.0, 58.0, 57.0] * unit, "power_masked": masked})
+    ax = plot_forecast(t).axes[0]
+    line = next(x for x in ax.get_lines() if "masked" in x.get_label())
+    assert line.get_label() == "forecast: |masked| (moved by the clip's mask)"
+    assert line.get_linestyle() == ":"
+    np.testing.assert_allclose(line.get_ydata(), [30.0, 5.0, 2.0, 3.0])

@@ -114,11 +114,15 @@ class NoiseEffect:
         values that keep it so (a tuple, which must hold the parameter's
         default) or an `AtLeast` bound.  Parameters not named may take any
         value.
-    masks_beyond : tuple of str
-        For a step that masks the slope image's outlying pixels (``sigma_clip``): its
-        parameters that set the upper threshold in standard deviations, the first
-        given one deciding (the forecast leaves out the fixed offsets beyond it:
-        `~spherex_reduce.analysis.forecast.populations`).
+    clips_slopes : bool
+        The step masks the slope image's outlying pixels as
+        `astropy.stats.sigma_clip` does, with its parameters (``sigma``,
+        ``sigma_lower``, ``sigma_upper``, ``maxiters``, ``cenfunc``, ``stdfunc``):
+        the forecast takes the pixel populations it masks through them
+        (`~spherex_reduce.analysis.forecast.populations`).
+    cancels_fixed : bool
+        The step takes the difference of two exposures of one detector: a fixed
+        pattern (a spread of the dark current, hot pixels' excess) cancels.
 
     Examples
     --------
@@ -130,7 +134,8 @@ class NoiseEffect:
 
     action: str
     linear: dict = field(default_factory=dict)
-    masks_beyond: tuple = ()
+    clips_slopes: bool = False
+    cancels_fixed: bool = False
 
     def __post_init__(self):
         if self.action not in ACTIONS:

@@ -191,10 +191,10 @@ class Design:
         return {**scene, "scene": {**(scene.get("scene") or {}), **self.left_out}}
 
 
-#: The scene terms the forecast does not model (it refuses a scene with them), each with
-#: what it is: a design minimises the readout's noise, so a scene that holds them
-#: (characterize's MODEL.yaml of a real detector does) is searched without them, says so
-#: in one line per term, and its best scene carries them unchanged (simulate draws them).
+#: The scene's pixel populations, each with what it is: a design minimises the readout's
+#: noise, so a scene that holds them (characterize's MODEL.yaml of a real detector does) is
+#: searched without them, says so in one line per term, and its best scene carries them
+#: unchanged (simulate draws them; the forecast adds their white power).
 POPULATION_TERMS = {
     "hot_pixel_fraction": "hot pixels",
     "hot_pixel_current_spread": "the hot pixels' current spread",
@@ -219,8 +219,8 @@ def _without_populations(scene):
         if k == "rtn" and isinstance(value, list):
             what = f"{what} ({len(value)} populations)"
         notes.append(f"scene.{k}: {what} left out of the search and its Monte Carlo (the "
-                     f"forecast models the readout's noise, not {POPULATION_TERMS[k]}); written "
-                     "unchanged into the best scene, for simulate")
+                     f"design is for the readout's noise, not {POPULATION_TERMS[k]}); written "
+                     "unchanged into the best scene, for simulate and forecast")
     return {**scene, "scene": kept}, gone, tuple(notes)
 
 
@@ -234,8 +234,8 @@ def load_design(source):
         ``gain:``, converted to electrons): the geometry, the readout's other
         fields (``nframes``, ``row_overhead`` ...) and the noise; default: the
         paper's case.  Every term is validated as ``simulate`` validates it; its
-        pixel populations (`POPULATION_TERMS`), which the forecast does not
-        model, are left out of the search with one note per term
+        pixel populations (`POPULATION_TERMS`), not the readout's noise, are
+        left out of the search with one note per term
         (`Design.notes`) and carried unchanged into the best scene
         (`Design.carried`).
     ``noise``

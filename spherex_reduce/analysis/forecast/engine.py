@@ -47,7 +47,8 @@ from .populations import POPULATIONS, clipped_populations, population_variances,
 from .rows import NODES, Cells, component_planes
 from .steps import reduction
 
-__all__ = ["band_power_forecast", "forecast", "forecast_measure", "forecast_tables",
+__all__ = ["add_white_parts", "band_power_forecast", "forecast", "forecast_measure",
+           "forecast_tables",
            "poisson_variance", "prepare_forecast", "stored_planes"]
 
 _SLOPE_UNIT = u.electron / u.s
@@ -118,18 +119,20 @@ def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SC
     SpherexReduceError
         Channels as quadrants, a window, or reference pixels inside the
         light-sensitive rectangle.
+    ConfigError
+        A scene that has no slope image (fewer than 2 frames, or groups); a
+        pipeline step the forecast does not know (the message names it) or a
+        measure that is not linear (``mask_sources``); a clip of the pixel
+        populations it cannot follow
+        (`~spherex_reduce.analysis.forecast.populations`).
+    ResourceError
+        A forecast whose arrays this machine cannot hold (estimated before any
+        is allocated).
 
     Warns
     -----
     AstropyUserWarning
-        Telegraph noise of reference pixels: left out.
-    ConfigError
-        A scene that has no slope image (fewer than 2 frames, or groups); a
-        pipeline step the forecast does not know (the message names it) or a
-        measure that is not linear (``mask_sources``).
-    ResourceError
-        A forecast whose arrays this machine cannot hold (estimated before any
-        is allocated).
+        Telegraph noise of reference pixels under a reference correction: left out.
 
     Examples
     --------
@@ -175,19 +178,28 @@ def forecast_tables(scene, pipeline, measures, *, pixel_scale=SPHEREX_PIXEL_SCAL
     ms = [forecast_measure(m) for m in measures]
     sc, red, rows, cols, comps = prepare_forecast(scene, pipeline)
     parts, (ny, nx) = stored_planes(sc, red, rows, cols, comps, nodes)
+    add_white_parts(sc, red, parts, (ny, nx))
+    return [_forecast_table(sc, red, parts, (ny, nx), m, pixel_scale) for m in ms]
+
+
+def add_white_parts(sc, red, parts, shape):
+    """Add to the planes ``parts`` (name -> ``E|FFT|²`` on the rfft2 grid of ``shape``)
+    the white parts: the Poisson noise of the currents (`poisson_variance`), the pixel
+    populations (`~spherex_reduce.analysis.forecast.populations.population_variances`,
+    with the clip of ``red``) and what the clip's mask moves between scales."""
+    ny, nx = shape
     shot = poisson_variance(sc)
     if shot:  # white: the same in every cell
         parts[_POISSON] = np.full((ny, nx // 2 + 1), shot * ny * nx)
     full = np.broadcast_to(rfft_weights(nx), (ny, nx // 2 + 1))
     variance = sum(float(np.sum(p * full)) for p in parts.values()) / (ny * nx) ** 2
-    pops, unmasked = population_variances(sc, red.clip, variance)
+    pops, unmasked = population_variances(sc, red, variance)
     for name, var in pops.items():
         parts[name] = np.full((ny, nx // 2 + 1), var * ny * nx)  # white as well
     if unmasked < 1:  # the clip's mask spreads (1 - u) of the variance over every scale
         total = sum(parts.values())
         variance = float(np.sum(total * full)) / (ny * nx) ** 2
         parts[_MASKED] = (1.0 - unmasked) * (variance * ny * nx - total)
-    return [_forecast_table(sc, red, parts, (ny, nx), m, pixel_scale) for m in ms]
 
 
 def _forecast_table(sc, red, parts, shape, m, pixel_scale):
@@ -284,7 +296,7 @@ def band_power_forecast(scene, pipeline=None, kmin=BAND_KMIN, kmax=BAND_KMAX, *,
     pick = np.searchsorted(cells.ky, fy), np.searchsorted(cells.kx, fx)
     w = rfft_weights(nx)[sx]
     power = sum(np.sum(p[pick] * w) for p in parts.values()) / np.sum(w) / (ny * nx)
-    pops, _ = population_variances(sc)
+    pops, _ = population_variances(sc, red)
     return float(power + poisson_variance(sc) + sum(pops.values()))  # white as well
 
 

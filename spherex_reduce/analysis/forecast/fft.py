@@ -12,7 +12,7 @@ import numpy as np
 from astropy import units as u
 
 from ..spectrum import FFTImage
-from .engine import poisson_variance, prepare_forecast, stored_planes
+from .engine import add_white_parts, prepare_forecast, stored_planes
 from .rows import NODES
 
 __all__ = ["forecast_fft_magnitude"]
@@ -57,7 +57,8 @@ def forecast_fft_magnitude(scene, pipeline=None, size=129, *, nodes=NODES):
     """
     sc, red, rows, cols, comps = prepare_forecast(scene, pipeline)
     parts, (ny, nx) = stored_planes(sc, red, rows, cols, comps, nodes)
-    half = np.full((ny, nx // 2 + 1), poisson_variance(sc) * ny * nx)
+    add_white_parts(sc, red, parts, (ny, nx))  # Poisson noise, pixel populations, a clip's
+    half = np.zeros((ny, nx // 2 + 1))
     for part in parts.values():
         half += part
     plane = np.empty((ny, nx))  # a real image: E|Y(-k)|² = E|Y(k)|²

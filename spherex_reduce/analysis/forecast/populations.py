@@ -11,19 +11,8 @@ one detector in every realisation: the forecast is then the average over detecto
   ``σ_D²``, a fixed pattern; its Poisson noise is that of the mean current, already in
   the ``poisson`` part;
 - **hot pixels** (a fraction ``p`` of the active pixels, their excess current ``x``
-  gamma-distributed about ``hot_pixel_current``): ``p E[x²] - (p E[x])²`` and their
-  Poisson noise, ``p E[x]`` times the slope's Poisson factor.  A pipeline's
-  ``sigma_clip`` masks, in the measurement, the pixels beyond its upper threshold
-  (``sigma_upper`` or ``sigma`` times the standard deviation of the pixels it keeps,
-  the forecast's with the hot pixels kept, to its fixed point): a pixel of excess ``x``
-  is kept with the chance ``Φ((threshold - x) / σ)`` its noise ``σ`` (the forecast's
-  pixel standard deviation without hot pixels) gives it, averaged over the gamma's
-  quantiles, and the kept ones weighed as the unmasked pixels they are (the measured
-  spectrum is divided by the unmasked fraction ``u``); the mask itself moves power
-  between scales: on a field of spectrum ``P`` and pixel variance ``V`` a mask of
-  pixels chosen independently of it measures ``u P(k) + (1 - u) V`` (the forecast's
-  ``power_masked`` column, ``(1 - u) (V - P)``: a field with most of its variance in
-  stripes gains it at every scale);
+  gamma-distributed about ``hot_pixel_current``): ``p E[x²] - (p E[x])²`` (a fixed
+  pattern) and their Poisson noise, ``p E[x]`` times the slope's Poisson factor;
 - **telegraph pixels** of ``rtn`` populations on the active pixels (``pixels: active`` or
   ``all``; a fraction ``f``, steps ``A`` and rates ``r`` per state, each
   gamma-distributed about its mean): a pixel switches, frame to frame, between two
@@ -31,11 +20,38 @@ one detector in every realisation: the forecast is then the average over detecto
   (``T`` the frame time; the simulator's chain,
   `~spherex_reduce.simulation.telegraph`), so its least-squares slope (weights ``w``)
   has the variance ``E[A²]/4 Σ_jk w_j w_k E[exp(-2 r |j - k| T)]``, the rates' average
-  that of a gamma: ``(1 + 2 |j - k| T θ)^(-κ)`` (shape ``κ``, scale ``θ``); times
-  ``f``.  Not clipped (a ``sigma_clip`` is forecast as no clipping);
-- **telegraph reference pixels** (``pixels: reference`` or ``all``) are left out, with
-  a warning: their steps reach the image only through the reference average, each at
-  one over the number of reference pixels averaged.
+  that of a gamma: ``(1 + 2 |j - k| T θ)^(-κ)`` (shape ``κ``, scale ``θ``); times ``f``.
+
+A **pair difference** (a step whose noise effect ``cancels_fixed``: two exposures of one
+detector) cancels the fixed patterns: the dark-current spread and the hot pixels'
+excess go, their Poisson noise stays, and a telegraph pixel's two exposures switch
+independently (the same variance; ``(y₁ - y₂)/√2`` for the clip below).
+
+A **clip of the slope image** (a step whose noise effect ``clips_slopes``: the
+``sigma_clip`` step, as `astropy.stats.sigma_clip` with the median as centre and the
+standard deviation as spread) masks, in the measurement, the pixels whose slope left its
+thresholds.  The pixels are a mixture: a Gaussian part (variance ``V``, every other term)
+and each population's pixels, that part plus an offset (the hot pixels' excess on
+`HOT_QUANTILES` quantiles of its gamma, `TELEGRAPH_CHAINS` telegraph slopes drawn from
+the chain with a fixed seed).  The clip's thresholds (``sigma_lower`` and
+``sigma_upper`` times the standard deviation of the pixels it keeps) are followed pass
+by pass to the fixed point, a pixel of offset ``y`` kept with
+the chance ``Φ((hi - y) / √V) - Φ((lo - y) / √V)``; what the populations add to the kept
+pixels' variance, beyond the Gaussian part's own, is split between them as their kept
+offsets' covariance with the kept mean taken out.  The kept ones are weighed as the
+unmasked pixels they are (the measured spectrum is divided by the unmasked fraction
+``u``); the mask itself moves power between scales: on a field of spectrum ``P`` and
+pixel variance ``V`` a mask of pixels chosen independently of it measures ``u P(k) + (1
+- u) V`` (the forecast's ``power_masked`` column, ``(1 - u) (V - P)``).  Refused in one
+line: a clip with another centre or spread (``cenfunc``, ``stdfunc``) or a fixed number
+of passes (``maxiters``: one pass takes each image's standard deviation with its own
+outliers, which the mixture's expectation does not follow: 1570 forecast against
+2050-2160 measured on the tests' telegraph scene), a clip before a pair difference,
+populations whose fractions add up to more than 1.
+
+**Telegraph reference pixels** (``pixels: reference`` or ``all``) are left out, with a
+warning where a reference correction averages them: their steps reach the image only
+through that average, each at one over the number of reference pixels averaged.
 """
 
 import warnings
@@ -44,6 +60,8 @@ import numpy as np
 from astropy.utils.exceptions import AstropyUserWarning
 from scipy.special import gammaincinv, ndtr  # (scipy.stats would load scipy.optimize)
 
+from ...core.errors import ConfigError
+from ...core.limits import check_size
 from ...noise.variance import slope_frames
 
 __all__ = ["POPULATIONS", "clipped_populations", "clipped_sigma", "population_variances",
@@ -85,16 +103,25 @@ def clipped_sigma(weights, means, variance, sigma=5.0, tol=1e-10, maxiter=200):
     >>> round(clipped_sigma([1.0], [0.0], 4.0), 6)
     1.999985
     """
+    if sigma is None:
+        wt, mu = np.asarray(weights, np.float64), np.asarray(means, np.float64)
+        return float(np.sqrt(np.sum(wt * (mu * mu + variance))))
+    return _clip_passes(weights, means, variance, sigma, sigma, maxiter, tol)[0]
+
+
+def _clip_passes(weights, means, variance, lower, upper, passes, tol=1e-10):
+    """The clip of a Gaussian mixture (`clipped_sigma`) pass by pass, thresholds ``lower``
+    and ``upper`` standard deviations below and above 0, at most ``passes`` passes (or
+    until the standard deviation settles): ``(standard deviation of the kept values, the
+    last pass's thresholds (lo, hi))``."""
     wt = np.asarray(weights, dtype=np.float64)
     mu = np.asarray(means, dtype=np.float64)
     s = np.sqrt(float(variance))
-    total = float(np.sum(wt * (mu * mu + variance)))
-    if sigma is None:
-        return float(np.sqrt(total))
-    std = np.sqrt(total)
-    for _ in range(maxiter):
-        c = sigma * std
-        a, b = (-c - mu) / s, (c - mu) / s
+    std = np.sqrt(float(np.sum(wt * (mu * mu + variance))))
+    lo = hi = None
+    for _ in range(passes):
+        lo, hi = -lower * std, upper * std
+        a, b = (lo - mu) / s, (hi - mu) / s
         pa, pb = np.exp(-a * a / 2), np.exp(-b * b / 2)
         pa, pb = pa / np.sqrt(2 * np.pi), pb / np.sqrt(2 * np.pi)
         kept = ndtr(b) - ndtr(a)
@@ -104,9 +131,9 @@ def clipped_sigma(weights, means, variance, sigma=5.0, tol=1e-10, maxiter=200):
         mean = float(np.sum(wt * m1)) / frac
         new = np.sqrt(max(float(np.sum(wt * m2)) / frac - mean * mean, 0.0))
         if abs(new - std) <= tol * std:
-            return float(new)
+            return float(new), (lo, hi)
         std = new
-    return float(std)
+    return float(std), (lo, hi)
 
 
 def clipped_populations(terms):
@@ -156,20 +183,27 @@ def gammainc_quantiles(shape, n):
     return gammaincinv(shape, (np.arange(n) + 0.5) / n)
 
 
-def _telegraph_slopes(schedule, population, n, seed):
+def _telegraph_slopes(schedule, population, n, seed, differenced=False):
     """``n`` draws of a telegraph pixel's least-squares slope (e/s): the simulator's chain
     (a flip from one frame to the next with the chance ``(1 - exp(-2 r T)) / 2``, the
     first state either), its step and rate from their gammas, scaled so that their mean
-    square is the exact variance (`_telegraph_variance`)."""
-    rng = np.random.default_rng(seed)
+    square is the exact variance (`_telegraph_variance`); ``differenced``: of two
+    exposures' chains of the same pixel, ``(y₁ - y₂)/√2``."""
     w, _, _ = slope_frames(schedule)
+    check_size(2.0 * n * w.size * 9, "forecast: the telegraph chains of a clip")
+    rng = np.random.default_rng(seed)
     frame = schedule.frame_samples / schedule.geometry.pixel_rate
     amp = _draw(rng, population.amplitude, population.amplitude_spread, n)
-    rate = _draw(rng, population.rate, population.rate_spread, n)
-    flips = rng.random((n, w.size - 1)) < (-np.expm1(-2.0 * rate * frame) / 2.0)[:, None]
-    start = rng.random((n, 1)) < 0.5
-    states = np.concatenate([start, start ^ np.logical_xor.accumulate(flips, axis=1)], axis=1)
-    y = amp * (states @ w)
+    flip = -np.expm1(-2.0 * _draw(rng, population.rate, population.rate_spread, n)
+                     * frame) / 2.0
+
+    def chain():
+        flips = rng.random((n, w.size - 1)) < flip[:, None]
+        start = rng.random((n, 1)) < 0.5
+        return np.concatenate([start, start ^ np.logical_xor.accumulate(flips, axis=1)],
+                              axis=1) @ w
+
+    y = amp * ((chain() - chain()) / np.sqrt(2.0) if differenced else chain())
     ms = float(np.mean(y * y))
     return y * np.sqrt(_telegraph_variance(schedule, population) / ms) if ms > 0 else y
 
@@ -196,18 +230,18 @@ def _telegraph_variance(schedule, population):
     return float(step2 / 4.0 * (w @ cov @ w))
 
 
-def population_variances(scene, clip=None, others=0.0):
-    """The white variance each pixel population adds to a slope image ((e/s)²).
+def population_variances(scene, reduction=None, others=0.0):
+    """The white variance each pixel population adds to a reduced slope image ((e/s)²).
 
     Parameters
     ----------
     scene : `~spherex_reduce.simulation.Scene`
         In electrons (`~spherex_reduce.simulation.Scene.in_electrons`), slopes mode.
-    clip : float, optional
-        The pipeline's ``sigma_clip`` upper threshold (standard deviations); None: no
-        clip.
+    reduction : `~spherex_reduce.analysis.forecast.steps.Reduction`, optional
+        The pipeline: its clip of the slope image, its pair difference and its reference
+        correction (None: none of them).
     others : float
-        The pixel variance of everything else ((e/s)²): the clip's standard deviation.
+        The pixel variance of every other term ((e/s)²): the clip's Gaussian part.
 
     Returns
     -------
@@ -217,10 +251,15 @@ def population_variances(scene, clip=None, others=0.0):
     unmasked : float
         The fraction of the pixels the clip keeps (1 without a clip).
 
+    Raises
+    ------
+    ConfigError
+        A clip of the populations the forecast cannot follow (see the module).
+
     Warns
     -----
     AstropyUserWarning
-        Telegraph reference pixels, left out.
+        Telegraph reference pixels under a reference correction: left out.
 
     Examples
     --------
@@ -235,43 +274,47 @@ def population_variances(scene, clip=None, others=0.0):
     """
     t = scene.terms
     s = scene.schedule
+    differenced = reduction is not None and reduction.differenced
+    clip = None if reduction is None else reduction.clip
+    if clip is not None and clipped_populations(t):
+        _check_clip(clip, reduction, t)
+    else:
+        clip = None
     out = {}
-    if t.dark_current_spread > 0:
+    if t.dark_current_spread > 0 and not differenced:  # (a fixed pattern)
         out["dark_spread"] = float(t.dark_current_spread) ** 2
-    core = others + out.get("dark_spread", 0.0)  # the Gaussian part of every pixel
     offsets = {}  # population -> (weights, offsets): each pixel's slope less its core
-    telegraphs, reference = [], False
-    for i, r in enumerate(t.telegraphs):
-        if not r.on:
-            continue
-        if r.pixels in ("active", "all"):
-            telegraphs.append((i, r))
-        reference |= r.pixels in ("reference", "all")
+    telegraphs = [(i, r) for i, r in enumerate(t.telegraphs)
+                  if r.on and r.pixels in ("active", "all")]
     if telegraphs:
         if clip is None:
             out["telegraph"] = sum(r.fraction * _telegraph_variance(s, r) for _, r in telegraphs)
         else:
-            y = [_telegraph_slopes(s, r, TELEGRAPH_CHAINS, i) for i, r in telegraphs]
+            y = [_telegraph_slopes(s, r, TELEGRAPH_CHAINS, i, differenced)
+                 for i, r in telegraphs]
             offsets["telegraph"] = (np.concatenate([np.full(v.size, r.fraction / v.size)
                                                     for (_, r), v in zip(telegraphs, y,
                                                                          strict=True)]),
                                     np.concatenate(y))
+    shot = shot_factor(s) if t.poisson else 0.0
     hot = t.hot_pixel_fraction > 0 and t.hot_pixel_current > 0
     if hot:
-        p = float(t.hot_pixel_fraction)
-        x = _hot_excess(t.hot_pixel_current, t.hot_pixel_current_spread)
-        shot = shot_factor(s) if t.poisson else 0.0
-        if clip is None:
-            m1, m2 = float(t.hot_pixel_current), float(t.hot_pixel_current ** 2
-                                                       + t.hot_pixel_current_spread ** 2)
+        p, m1 = float(t.hot_pixel_fraction), float(t.hot_pixel_current)
+        if differenced:  # the excess cancels, its Poisson noise stays: Gaussian
+            out["hot_pixels"] = p * m1 * shot
+        elif clip is None:
+            m2 = m1 * m1 + float(t.hot_pixel_current_spread) ** 2
             out["hot_pixels"] = p * m2 - (p * m1) ** 2 + p * m1 * shot
         else:
+            x = _hot_excess(t.hot_pixel_current, t.hot_pixel_current_spread)
             offsets["hot_pixels"] = (np.full(x.size, p / x.size), x)
     unmasked = 1.0
-    if offsets:  # the clip keeps the pixels within its threshold: the mixture's fixed point
-        kept, unmasked = _clipped(offsets, core, clip, shot if hot else 0.0)
+    if offsets:  # the clip keeps the pixels within its thresholds: the mixture's fixed point
+        core = others + sum(out.values())  # (a differenced pair's hot pixels: Gaussian)
+        kept, unmasked = _clipped(offsets, core, clip, shot)
         out.update(kept)
-    if reference:
+    if (reduction is not None and reduction.reference is not None
+            and any(r.on and r.pixels in ("reference", "all") for r in t.telegraphs)):
         warnings.warn("forecast: the telegraph noise of reference pixels (scene.rtn with "
                       "pixels: reference or all) is left out: it reaches the image through "
                       "the reference average only, at 1 / (reference pixels averaged) of "
@@ -279,31 +322,58 @@ def population_variances(scene, clip=None, others=0.0):
     return out, unmasked
 
 
+def _check_clip(clip, reduction, terms):
+    """Refuse, in one line, a clip of the populations the forecast cannot follow."""
+    what = "forecast: scene populations (hot or telegraph pixels) under sigma_clip"
+    if clip.get("cenfunc", "median") != "median" or clip.get("stdfunc", "std") != "std":
+        raise ConfigError(f"{what} with cenfunc {clip.get('cenfunc')!r} and stdfunc "
+                          f"{clip.get('stdfunc')!r} are not forecast; only median and std")
+    if clip.get("maxiters") is not None:
+        raise ConfigError(f"{what} with maxiters {clip['maxiters']} are not forecast; only "
+                          "maxiters null (until no pixel is clipped: a few passes leave an "
+                          "image's clip to its own outliers)")
+    if reduction.clip_before_difference:
+        raise ConfigError(f"{what} before pair_difference are not forecast; clip after it")
+    total = terms.hot_pixel_fraction + sum(r.fraction for r in terms.telegraphs
+                                           if r.on and r.pixels in ("active", "all"))
+    if total > 1:
+        raise ConfigError(f"{what}: their fractions add up to {total:g} > 1 (the forecast "
+                          "takes them as distinct pixels)")
+
+
 def _clipped(offsets, core, clip, shot):
-    """Each population's share of the variance of the pixels a clip keeps ((e/s)²).
+    """Each population's share of the variance of the pixels a clip keeps ((e/s)²), and
+    the fraction of the pixels it keeps.
 
     The pixels are a mixture: the core alone (Gaussian of variance ``core``) and each
     population's pixels, the core plus an offset (``offsets``: name -> (weights,
-    offsets)).  The clip keeps a pixel of offset ``y`` with the chance ``Φ((c - y) / s) -
-    Φ((-c - y) / s)`` (``s² = core``, ``c`` the threshold times the standard deviation of
-    the kept pixels, the mixture's fixed point: `clipped_sigma`); what the populations add
-    to the kept pixels' variance, beyond the core's own, is split between them as their
-    kept offsets' second moments; hot pixels add their kept ones' shot noise
-    (``shot`` per unit current, e/s)."""
+    offsets)).  The clip (``clip``: the step's parameters) keeps a pixel of offset ``y``
+    with the chance ``Φ((hi - y) / s) - Φ((lo - y) / s)`` (``s² = core``, ``lo`` and
+    ``hi`` the thresholds of its last pass: `_clip_passes`); what the populations add to
+    the kept pixels' variance, beyond the core's own, is split between them as their
+    kept offsets' covariance with the kept mean; hot pixels add their kept ones' shot
+    noise (``shot`` per unit current, e/s)."""
+    sigma = float(clip["sigma"])
+    lower = float(clip.get("sigma_lower") or sigma)
+    upper = float(clip.get("sigma_upper") or sigma)
+    passes = 200  # (until it settles: maxiters null, `_check_clip`)
     weights = np.concatenate([[1.0 - sum(float(w.sum()) for w, _ in offsets.values())],
                               *(w for w, _ in offsets.values())])
     means = np.concatenate([[0.0], *(y for _, y in offsets.values())])
-    sigma = clipped_sigma(weights, means, core, clip)
-    excess = max(sigma ** 2 - clipped_sigma([1.0], [0.0], core, clip) ** 2, 0.0)
-    c, sd = clip * sigma, np.sqrt(core)
-    frac = float(np.sum(weights * (ndtr((c - means) / sd) - ndtr((-c - means) / sd))))
-    unmasked = frac / float(ndtr(c / sd) - ndtr(-c / sd))  # (the core's own clip: none)
-    moments, out = {}, {}
+    std, (lo, hi) = _clip_passes(weights, means, core, lower, upper, passes)
+    own, (olo, ohi) = _clip_passes([1.0], [0.0], core, lower, upper, passes)
+    excess = max(std ** 2 - own ** 2, 0.0)
+    sd = np.sqrt(core)
+    frac = float(np.sum(weights * (ndtr((hi - means) / sd) - ndtr((lo - means) / sd))))
+    unmasked = frac / float(ndtr(ohi / sd) - ndtr(olo / sd))  # (the core's own clip: none)
+    m1, m2 = {}, {}
     for name, (w, y) in offsets.items():
-        kept = w * (ndtr((c - y) / sd) - ndtr((-c - y) / sd))
-        moments[name] = float(np.sum(kept * y * y))
-        out[name] = float(np.sum(kept * y)) / frac * shot if name == "hot_pixels" else 0.0
-    total = sum(moments.values())
-    for name, m in moments.items():
-        out[name] += excess * m / total if total > 0 else 0.0
+        kept = w * (ndtr((hi - y) / sd) - ndtr((lo - y) / sd)) / frac
+        m1[name], m2[name] = float(np.sum(kept * y)), float(np.sum(kept * y * y))
+    mean = sum(m1.values())
+    share = {name: m2[name] - m1[name] * mean for name in offsets}
+    total = sum(share.values())
+    out = {name: excess * v / total if total > 0 else 0.0 for name, v in share.items()}
+    if "hot_pixels" in out:
+        out["hot_pixels"] += m1["hot_pixels"] * shot
     return out, min(unmasked, 1.0)

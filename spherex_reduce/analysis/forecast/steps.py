@@ -153,9 +153,15 @@ class Reduction:
         depend on them).
     reference_ramps : bool
         The reference step works on ramps (``fit_ramp`` comes after it).
-    clip : float or None
-        The upper threshold (standard deviations) beyond which a step masks the slope
-        image's pixels (``sigma_clip``), or None.
+    clip : dict or None
+        The parameters (defaults filled in) of the step that masks the slope image's
+        outlying pixels (``sigma_clip``: its ``NoiseEffect`` declares ``clips_slopes``),
+        or None.
+    differenced : bool
+        A step takes the difference of two exposures of one detector
+        (``pair_difference``: ``cancels_fixed``).
+    clip_before_difference : bool
+        The clip masks each exposure before their difference.
     """
 
     steps: tuple = ()
@@ -165,7 +171,9 @@ class Reduction:
     side_columns: bool = False
     reference_params: dict = field(default_factory=dict)
     reference_ramps: bool = True
-    clip: float | None = None
+    clip: dict | None = None
+    differenced: bool = False
+    clip_before_difference: bool = False
 
     def describe(self):
         """The pipeline's steps as ``'a > b'`` (``'none'`` without steps)."""
@@ -201,7 +209,8 @@ def reduction(pipeline):
         return Reduction()
     p = as_pipeline(pipeline)
     table = forecast_steps(p.registry)
-    names, phantom, fitted, ref, clip = [], False, False, {}, None
+    names, phantom, fitted, ref = [], False, False, {}
+    clip, differenced, clip_first = None, False, False
     for i, item in enumerate(p.config["steps"]):
         (name, params), = item.items()
         effect = table.get(name)
@@ -235,13 +244,17 @@ def reduction(pipeline):
                    "side_columns": bool(params.get("side_columns", False)),
                    "reference_params": rest, "reference_ramps": not fitted,
                    "consumed": strategy.consumes_phantom(params, phantom)}
-        if effect.masks_beyond:
-            given = {q.name: q.default for q in p.registry.step(name).parameters} | params
-            sigma = next(given[k] for k in effect.masks_beyond if given.get(k) is not None)
-            clip = float(sigma) if clip is None else min(clip, float(sigma))
+        if effect.clips_slopes:
+            if clip is not None:
+                raise ConfigError(f"forecast: steps[{i}].{name}: a second clip of the slope "
+                                  "image is not forecast; only one")
+            clip = {q.name: q.default for q in p.registry.step(name).parameters} | params
+        if effect.cancels_fixed:
+            differenced, clip_first = True, clip is not None
         names.append(name)
     ref.pop("consumed", None)
-    return Reduction(tuple(names), phantom, clip=clip, **ref)
+    return Reduction(tuple(names), phantom, clip=clip, differenced=differenced,
+                     clip_before_difference=clip_first, **ref)
 
 
 def linear_steps(pipeline):

@@ -159,11 +159,11 @@ class SigmaClipStep(Step):
         Parameter("cenfunc", "median", (str,), "centre", choices=("median", "mean")),
         Parameter("stdfunc", "std", (str,), "spread", choices=("std", "mad_std")),
     )
-    #: forecast as no clipping (its effect on Gaussian noise was measured from 3 σ up); hot
-    #: pixels beyond the upper threshold are masked
+    #: forecast as no clipping of Gaussian noise (its effect measured from 3 σ up); the
+    #: pixel populations it masks, through its parameters
     noise_effect = NoiseEffect("identity", linear={
         "sigma": MEASURED_SIGMA, "sigma_lower": MEASURED_SIGMA, "sigma_upper": MEASURED_SIGMA},
-        masks_beyond=("sigma_upper", "sigma"))
+        clips_slopes=True)
 
     def run(self, exposure, **params):
         return _sigma_clip(exposure, **params)

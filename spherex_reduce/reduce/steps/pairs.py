@@ -130,8 +130,9 @@ class PairDifferenceStep(Step):
         Parameter("reduce_other", True, (bool,), "run the preceding steps on it first"),
     )
     #: two exposures reduced alike, independent noise: the spectrum of one (the identity);
-    #: an other exposure not reduced the same way is not
-    noise_effect = NoiseEffect("identity", linear={"reduce_other": (True,)})
+    #: an other exposure not reduced the same way is not; a detector's fixed pattern cancels
+    noise_effect = NoiseEffect("identity", linear={"reduce_other": (True,)},
+                               cancels_fixed=True)
 
     def run(self, exposure, other, reduce_other):
         if other is None:

@@ -11,9 +11,9 @@ from astropy import units as u
 from astropy.utils.exceptions import AstropyUserWarning
 
 from spherex_reduce.analysis import forecast, power_spectrum
-from spherex_reduce.analysis.forecast.engine import band_power_forecast
 from spherex_reduce.analysis.forecast.populations import population_variances
 from spherex_reduce.analysis.light import light_sensitive_image
+from spherex_reduce.core.errors import ConfigError
 from spherex_reduce.reduce.pipeline import as_pipeline
 from spherex_reduce.simulation import load_scene, simulate
 
@@ -59,49 +59,96 @@ def _monte_carlo(scene, pipeline, runs):
     return power.mean(axis=0), power.std(axis=0, ddof=1) / np.sqrt(runs)
 
 
-@pytest.mark.parametrize("pipeline, terms, runs", [
-    # no clip: every population's variance in every bin (telegraph ~20x the readout's)
-    (None, {"dark_current_spread": 2.0, "hot_pixel_fraction": 0.03, "hot_pixel_current": 30.0,
-            "hot_pixel_current_spread": 10.0, "rtn": TELEGRAPH}, 300),
-    # the shipped pipeline's 5-sigma clip masks the steps of most telegraph pixels and
-    # every hot pixel of 2000 e/s, keeps those of 30 e/s
-    ("spherex-default", {"dark_current_spread": 2.0, "hot_pixel_fraction": 0.005,
-                         "hot_pixel_current": 2000.0, "hot_pixel_current_spread": 100.0,
-                         "rtn": TELEGRAPH}, 400),
-    ("spherex-default", {"hot_pixel_fraction": 0.03, "hot_pixel_current": 30.0,
-                         "hot_pixel_current_spread": 10.0}, 400),
-])
-def test_monte_carlo_of_the_populations_within_three_standard_errors(pipeline, terms, runs):
-    """Slope images of the package's simulator (each seed another detector) reduced by the
-    pipeline and measured as `spherex-reduce spectrum` measures them, against the forecast
-    in every bin; and the band power of the band's cells alone is the forecast's."""
-    scene = tiny([ROIC], terms={"dark_current": 5.0, **terms})
+def _forecast(scene, pipeline):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", AstropyUserWarning)  # (reference pixels' telegraph)
-        table = forecast(scene, pipeline, {"bins": BINS})
-        band = band_power_forecast(scene, pipeline, 0.3, 1.2)
-        full = forecast(scene, pipeline, {"kmin": 0.3, "kmax": 1.2, "bins": BINS})
+        return forecast(scene, pipeline, {"bins": BINS})
+
+
+def _clip(**params):
+    """spherex-default with its sigma_clip's parameters changed."""
+    steps = as_pipeline("spherex-default").config["steps"]
+    return {"steps": [s if "sigma_clip" not in s else {"sigma_clip": {**s["sigma_clip"],
+                                                                      **params}}
+                      for s in steps]}
+
+
+HOT = {"hot_pixel_fraction": 0.03, "hot_pixel_current": 300.0, "hot_pixel_current_spread": 100.0}
+
+
+@pytest.mark.parametrize("pipeline, terms, runs, without", [
+    # no clip, each population the largest term in turn (the others' columns could go)
+    (None, {"dark_current_spread": 2.0, "rtn": TELEGRAPH}, 300, "telegraph"),
+    (None, {"dark_current_spread": 2.0, **HOT}, 300, "hot_pixels"),
+    (None, {"dark_current_spread": 40.0}, 300, "dark_spread"),
+    # the shipped pipeline's 5-sigma clip masks the steps of most telegraph pixels and
+    # every hot pixel of 2000 e/s; keeps those of 30 e/s
+    ("spherex-default", {"hot_pixel_fraction": 0.005, "hot_pixel_current": 2000.0,
+                         "hot_pixel_current_spread": 100.0, "rtn": TELEGRAPH}, 400, None),
+    ("spherex-default", {"hot_pixel_fraction": 0.03, "hot_pixel_current": 30.0,
+                         "hot_pixel_current_spread": 10.0}, 400, "hot_pixels"),
+    # a clip above only (telegraph steps down kept) and one below only
+    (_clip(sigma_lower=50.0), {"rtn": TELEGRAPH}, 300, "telegraph"),
+    (_clip(sigma_upper=50.0), {"rtn": TELEGRAPH}, 300, "telegraph"),
+])
+def test_monte_carlo_of_the_populations_within_three_standard_errors(pipeline, terms, runs,
+                                                                     without):
+    """Slope images of the package's simulator (each seed another detector) reduced by the
+    pipeline and measured as `spherex-reduce spectrum` measures them, against the forecast
+    in every bin; the forecast without the population named (``without``), or with every
+    population unclipped (the clip cases), is rejected by the same Monte Carlo."""
+    scene = tiny([ROIC], terms={"dark_current": 5.0, **terms})
+    table = _forecast(scene, pipeline)
     expect = u.Quantity(table["power"]).value
     mean, se = _monte_carlo(scene, pipeline, runs)
     assert np.all(np.abs(mean - expect) < 3 * se), (mean - expect) / se
-    assert abs(band / full.meta["band_power"] - 1) < 1e-9
-    parts = [c for c in table.colnames if c.startswith("power_") and c != "power_err"]
-    np.testing.assert_allclose(sum(table[c].value for c in parts), expect, rtol=1e-9)
+    if without is not None:
+        wrong = expect - table[f"power_{without}"].value
+    else:  # the populations as if nothing were masked
+        free = _forecast(scene, None)
+        wrong = expect + sum(free[f"power_{k}"].value for k in ("hot_pixels", "telegraph"))
+    assert np.any(np.abs(mean - wrong) > 5 * se), (mean - wrong) / se
 
 
-def test_without_the_clip_the_telegraph_would_be_forecast_twentyfold():
-    """The clip matters: the unclipped telegraph power is ~20x what the clipped pipeline
-    measures (the test above), so the clip's mixture is what the agreement rests on."""
+def test_a_clip_with_populations_it_cannot_follow_is_refused_in_one_line():
     scene = tiny([ROIC], terms={"dark_current": 5.0, "rtn": TELEGRAPH})
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", AstropyUserWarning)
-        clipped = forecast(scene, "spherex-default", {"bins": BINS})["power_telegraph"]
-        free = forecast(scene, None, {"bins": BINS})["power_telegraph"]
-    assert free[0] > 1000 * clipped[0] > 0
+    for params, words in (({"maxiters": 1}, "maxiters 1"), ({"stdfunc": "mad_std"}, "mad_std")):
+        with pytest.raises(ConfigError, match=words):
+            forecast(scene, _clip(**params))
+    without = tiny([ROIC], terms={"dark_current": 5.0})
+    forecast(without, _clip(maxiters=1))  # (Gaussian noise alone: forecast as no clipping)
+
+
+def test_a_pair_of_one_detectors_exposures_cancels_its_fixed_patterns():
+    """``pair_difference`` of two exposures of one detector (``population_seed`` per
+    pair), then the reference correction and the clip (``measured-dark-pair``): the
+    dark-current spread and the hot pixels' excess cancel, their Poisson noise stays
+    (numbers from the real steps, each pair its own detector)."""
+    from spherex_reduce import correct_reference, pair_difference, sigma_clip
+
+    terms = {"dark_current": 5.0, "dark_current_spread": 10.0, **HOT}
+    table = _forecast(tiny([ROIC], terms=terms), "measured-dark-pair")
+    assert "power_dark_spread" not in table.colnames
+    expect = u.Quantity(table["power"]).value
+    pre = as_pipeline({"steps": [{"unchop": {}}, {"subtract_phantom": {}}]})
+    power = []
+    for i in range(150):
+        sc = tiny([ROIC], terms={**terms, "population_seed": 1000 + i})
+        a, b = (pre.run(simulate(sc, seed=s)) for s in (i, 100_000 + i))
+        d = sigma_clip(correct_reference(pair_difference(a, b), "mean"))
+        power.append(power_spectrum(light_sensitive_image(d), bins=BINS)["power"].value)
+    mean, se = np.mean(power, axis=0), np.std(power, axis=0, ddof=1) / np.sqrt(len(power))
+    assert np.all(np.abs(mean - expect) < 3 * se), (mean - expect) / se
+    fixed = 10.0 ** 2 + 0.03 * (300.0 ** 2 + 100.0 ** 2) - (0.03 * 300.0) ** 2
+    assert np.all(np.abs(mean - (expect + fixed)) > 5 * se)  # (had it not cancelled)
 
 
 def test_reference_pixels_telegraph_is_left_out_with_one_warning():
     scene = tiny([ROIC], terms={"rtn": {**TELEGRAPH, "pixels": "reference"}})
-    with pytest.warns(AstropyUserWarning, match="reference pixels .* left out"):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         table = forecast(scene, "spherex-default", {"bins": BINS})
+        forecast(scene, None, {"bins": BINS})  # no reference correction: nothing left out
+    said = [w for w in caught if "reference pixels" in str(w.message)]
+    assert len(said) == 1 and issubclass(said[0].category, AstropyUserWarning)
     assert "power_telegraph" not in table.colnames

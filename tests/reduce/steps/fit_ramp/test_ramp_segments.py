@@ -10,6 +10,7 @@ import pytest
 from astropy.io import fits
 
 from spherex_reduce import DetectorGeometry, Exposure, Pipeline, ReadoutSchedule, dq, fit_ramp
+from spherex_reduce.reduce.steps.fit_ramp.segments import RampNoise, fit_segments
 
 
 def schedule(nframes=12, nrows=8, ncols=8, skip=1, frame_time=1.5):
@@ -287,3 +288,29 @@ def test_pixels_with_any_number_of_segments_are_fitted_as_alone(read_noise):
         segment = np.cumsum((flags[:, p] & dq.JUMP) != 0)
         assert batch.slope[p] == pytest.approx(common_slope(y[:, p], t, segment, usable),
                                                rel=1e-9)
+
+
+def test_optimal_segments_without_a_gain_are_read_noise_weighted_least_squares():
+    """``fit_segments(pscale=None)`` means no shot noise, in the weights too: the optimal
+    fit of ramps of 2 e/s under read noise 1 is then uniform least squares of each
+    segment, combined by inverse variance (numpy).  It weighed them for shot noise at
+    gain 1 (slopes 0.05-0.2 off), with a variance of read noise alone."""
+    t = np.arange(10) * 1.5
+    rng = np.random.default_rng(3)
+    y = 2.0 * t[:, None] + rng.standard_normal((10, 3))
+    y[6:, 1] += 80.0
+    flags = np.zeros(y.shape, np.uint32)
+    flags[6, 1] = dq.JUMP
+    fit = fit_segments(y, flags, RampNoise(t), read_noise=1.0, pscale=None,
+                       weighting="optimal")
+
+    def lsq(v, tt):
+        tc = tt - tt.mean()
+        return tc @ v / (tc @ tc), 1.0 / (tc @ tc)
+
+    want = [lsq(y[:, 0], t), None, lsq(y[:, 2], t)]
+    (s1, v1), (s2, v2) = lsq(y[:6, 1], t[:6]), lsq(y[6:, 1], t[6:])
+    var = 1.0 / (1.0 / v1 + 1.0 / v2)
+    want[1] = ((s1 / v1 + s2 / v2) * var, var)
+    np.testing.assert_allclose(fit.slope, [w[0] for w in want], rtol=0, atol=1e-10)
+    np.testing.assert_allclose(fit.var, [w[1] for w in want], rtol=1e-10)

@@ -341,6 +341,32 @@ def report(case, params, model, want, seconds):
     return lines
 
 
+def spectra(model, case, params, lines):
+    """The binned spectra ``model``'s plot draws (`Characterization.bins`), one row per bin
+    (``name``: the spectrum): what the docs draw a case's figure from without NGHXRG."""
+    from astropy import units as u
+    from astropy.table import Table, vstack
+
+    parts = []
+    for name, b in model.bins.items():
+        t = Table({"name": [name] * len(b)})
+        for col in ("frequency", "psd", "psd_err", "model"):
+            c = b[col]
+            t[col] = np.asarray(getattr(c, "value", c), dtype=float)
+            t[col].unit = c.unit if getattr(c, "unit", None) is not None else (
+                model.unit**2 / u.Hz)
+        parts.append(t)
+    t = vstack(parts)
+    t.meta.update({"case": case, "noise": {k: float(v) for k, v in params.items()},
+                   "darks": [Path(d).name for d in model.darks],
+                   "segments": int(model.ngroups), "exponent": float(model.exponent),
+                   "unit": model.unit.to_string(),
+                   "printed": [ln.replace("±", "+/-").replace("χ²", "chi2")
+                               for ln in lines if ln.startswith(("| ", "χ²"))
+                               and not ln.startswith("| term")]})
+    return t
+
+
 def cube_arguments(p):
     """The options of every benchmark on NGHXRG's cubes, added to parser ``p``: where
     NGHXRG is, the cubes' size and frames, darks per case and the cases."""
@@ -357,7 +383,8 @@ def main():
     p.add_argument("--out", default="/tmp/nghxrg_cubes", help="where the cubes are written")
     p.add_argument("--exponent", type=float, default=1.3)
     p.add_argument("--plot", metavar="DIR", help="write each case's characterisation plot "
-                   "(spectra and fits) as DIR/CASE.png")
+                   "(spectra and fits) as DIR/CASE.png, its binned spectra as "
+                   "DIR/CASE-spectra.ecsv and the model's report as DIR/CASE-report.ecsv")
     args = p.parse_args()
     out = Path(args.out)
     d, module, pca0 = peer(args.nghxrg, out)
@@ -385,8 +412,13 @@ def main():
         if args.plot:
             from spherex_reduce.analysis.characterize.figure import plot_characterization
 
-            Path(args.plot).mkdir(parents=True, exist_ok=True)
-            plot_characterization(model).savefig(Path(args.plot) / f"{case}.png", dpi=100)
+            plot = Path(args.plot)
+            plot.mkdir(parents=True, exist_ok=True)
+            plot_characterization(model).savefig(plot / f"{case}.png", dpi=100)
+            spectra(model, case, params, text).write(plot / f"{case}-spectra.ecsv",
+                                                     format="ascii.ecsv", overwrite=True)
+            model.report().write(plot / f"{case}-report.ecsv", format="ascii.ecsv",
+                                 overwrite=True)
 
 
 if __name__ == "__main__":

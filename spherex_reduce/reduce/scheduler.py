@@ -38,8 +38,12 @@ def quiet_dask_logs(level=logging.CRITICAL):
     """
     import distributed  # noqa: F401  (creates its loggers)
 
+    # every logger under them: distributed's own configuration sets some children's level
+    # (tornado.application at ERROR, whose "Exception in callback ... sync.<locals>.cancel"
+    # an interrupted batch printed as a second line)
+    families = {"distributed", *EVENT_LOOP_LOGGERS}
     for name in list(logging.root.manager.loggerDict):
-        if name.split(".")[0] == "distributed":
+        if name.split(".")[0] in families:
             logging.getLogger(name).setLevel(level)
     for name in EVENT_LOOP_LOGGERS:
         logging.getLogger(name).setLevel(level)

@@ -12,7 +12,7 @@ from spherex_reduce.reduce.scheduler import EVENT_LOOP_LOGGERS, quiet_dask_logs
 def restored_levels():
     pytest.importorskip("distributed")  # its loggers exist before their levels are kept
     names = [*EVENT_LOOP_LOGGERS, *(n for n in logging.root.manager.loggerDict
-                                    if n.split(".")[0] == "distributed")]
+                                    if n.split(".")[0] in ("distributed", *EVENT_LOOP_LOGGERS))]
     levels = {n: logging.getLogger(n).level for n in names}
     yield
     for name, level in levels.items():
@@ -42,3 +42,33 @@ def test_an_event_loop_callback_error_is_silenced_only_once_quieted(caplog, rest
     quiet_dask_logs()
     assert _failing_callback_logs(caplog) == []
     assert logging.getLogger("distributed.scheduler").getEffectiveLevel() == logging.CRITICAL
+
+
+def _tornado_callback_logs(caplog):
+    """Run tornado's IOLoop (dask's client loop) with a callback that raises, as
+    distributed's ``sync`` cancel did in an interrupted batch; the records it logged."""
+    from tornado.ioloop import IOLoop
+
+    caplog.clear()
+    loop = IOLoop(make_current=False)
+    try:
+        def boom():
+            raise RuntimeError("cancelled while the loop closes")
+        loop.add_callback(boom)
+        loop.add_callback(loop.stop)
+        loop.start()
+    finally:
+        loop.close()
+    return [r for r in caplog.records if r.name.split(".")[0] == "tornado"]
+
+
+def test_tornados_callback_error_is_silenced_though_dask_sets_its_level(caplog,
+                                                                         restored_levels):
+    """distributed's own logging configuration sets ``tornado.application`` to ERROR, so
+    silencing ``tornado`` alone left its "Exception in callback" line: a batch interrupted
+    on dask printed it as a second line (CI, 2026-12-01)."""
+    caplog.set_level(logging.WARNING)
+    logging.getLogger("tornado.application").setLevel(logging.ERROR)  # (distributed's)
+    assert [r.levelname for r in _tornado_callback_logs(caplog)] == ["ERROR"]
+    quiet_dask_logs()
+    assert _tornado_callback_logs(caplog) == []

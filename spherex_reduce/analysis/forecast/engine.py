@@ -83,7 +83,9 @@ def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SC
         ``subtract_phantom``, ``correct_reference`` with the ``mean``, ``acn``
         (forecast unclipped, with or without side columns) or ``wiener``
         strategy, ``fit_ramp`` with uniform weights, ``sigma_clip`` (forecast
-        as no clipping) and ``pair_difference`` (the identity); the shipped
+        as no clipping of Gaussian noise; the pixel populations it masks
+        through it) and ``pair_difference`` (the identity; a detector's fixed
+        pattern cancels); the shipped
         pipelines but ``median`` are.
     measure : `~spherex_reduce.analysis.case.SpectrumMeasure` or dict, optional
         ``kmin``, ``kmax`` (the band of ``band_power``, rad/pixel), ``bins`` and

@@ -112,13 +112,16 @@ def clipped_sigma(weights, means, variance, sigma=5.0, tol=1e-10, maxiter=200):
 def _clip_passes(weights, means, variance, lower, upper, passes, tol=1e-10):
     """The clip of a Gaussian mixture (`clipped_sigma`) pass by pass, thresholds ``lower``
     and ``upper`` standard deviations below and above 0, at most ``passes`` passes (or
-    until the standard deviation settles): ``(standard deviation of the kept values, the
-    last pass's thresholds (lo, hi))``."""
+    until the standard deviation settles); ``variance`` one for all the Gaussians or one
+    each.  Returns the standard deviation of the kept values, the last pass's thresholds
+    ``(lo, hi)`` and, for each Gaussian at them, the chance it is kept and its kept first
+    and second moments (``E[x; kept]``, ``E[x²; kept]``)."""
     wt = np.asarray(weights, dtype=np.float64)
     mu = np.asarray(means, dtype=np.float64)
-    s = np.sqrt(float(variance))
+    variance = np.asarray(variance, dtype=np.float64)
+    s = np.sqrt(variance)
     std = np.sqrt(float(np.sum(wt * (mu * mu + variance))))
-    lo = hi = None
+    lo = hi = kept = m1 = m2 = None
     for _ in range(passes):
         lo, hi = -lower * std, upper * std
         a, b = (lo - mu) / s, (hi - mu) / s
@@ -131,15 +134,16 @@ def _clip_passes(weights, means, variance, lower, upper, passes, tol=1e-10):
         mean = float(np.sum(wt * m1)) / frac
         new = np.sqrt(max(float(np.sum(wt * m2)) / frac - mean * mean, 0.0))
         if abs(new - std) <= tol * std:
-            return float(new), (lo, hi)
+            return float(new), (lo, hi), kept, m1, m2
         std = new
-    return float(std), (lo, hi)
+    return float(std), (lo, hi), kept, m1, m2
 
 
 def clipped_populations(terms):
     """Whether a clip of the slope image acts on these scene terms' populations (hot
-    pixels, telegraph light-sensitive pixels)."""
+    pixels, a dark-current spread, telegraph light-sensitive pixels)."""
     return bool((terms.hot_pixel_fraction > 0 and terms.hot_pixel_current > 0)
+                or terms.dark_current_spread > 0
                 or any(r.on and r.pixels in ("active", "all") for r in terms.telegraphs))
 
 
@@ -280,39 +284,24 @@ def population_variances(scene, reduction=None, others=0.0):
         _check_clip(clip, reduction, t)
     else:
         clip = None
-    out = {}
-    if t.dark_current_spread > 0 and not differenced:  # (a fixed pattern)
-        out["dark_spread"] = float(t.dark_current_spread) ** 2
-    offsets = {}  # population -> (weights, offsets): each pixel's slope less its core
+    shot = shot_factor(s) if t.poisson else 0.0
     telegraphs = [(i, r) for i, r in enumerate(t.telegraphs)
                   if r.on and r.pixels in ("active", "all")]
-    if telegraphs:
-        if clip is None:
-            out["telegraph"] = sum(r.fraction * _telegraph_variance(s, r) for _, r in telegraphs)
-        else:
-            y = [_telegraph_slopes(s, r, TELEGRAPH_CHAINS, i, differenced)
-                 for i, r in telegraphs]
-            offsets["telegraph"] = (np.concatenate([np.full(v.size, r.fraction / v.size)
-                                                    for (_, r), v in zip(telegraphs, y,
-                                                                         strict=True)]),
-                                    np.concatenate(y))
-    shot = shot_factor(s) if t.poisson else 0.0
     hot = t.hot_pixel_fraction > 0 and t.hot_pixel_current > 0
-    if hot:
-        p, m1 = float(t.hot_pixel_fraction), float(t.hot_pixel_current)
-        if differenced:  # the excess cancels, its Poisson noise stays: Gaussian
-            out["hot_pixels"] = p * m1 * shot
-        elif clip is None:
-            m2 = m1 * m1 + float(t.hot_pixel_current_spread) ** 2
-            out["hot_pixels"] = p * m2 - (p * m1) ** 2 + p * m1 * shot
-        else:
-            x = _hot_excess(t.hot_pixel_current, t.hot_pixel_current_spread)
-            offsets["hot_pixels"] = (np.full(x.size, p / x.size), x)
-    unmasked = 1.0
-    if offsets:  # the clip keeps the pixels within its thresholds: the mixture's fixed point
-        core = others + sum(out.values())  # (a differenced pair's hot pixels: Gaussian)
-        kept, unmasked = _clipped(offsets, core, clip, shot)
-        out.update(kept)
+    spread = 0.0 if differenced else float(t.dark_current_spread)  # (a fixed pattern)
+    if clip is not None:
+        out, unmasked = _clipped(s, t, telegraphs, spread, differenced, others, clip, shot)
+    else:
+        out, unmasked = {}, 1.0
+        if spread:
+            out["dark_spread"] = spread ** 2
+        if telegraphs:
+            out["telegraph"] = sum(r.fraction * _telegraph_variance(s, r) for _, r in telegraphs)
+        if hot:
+            p, m1 = float(t.hot_pixel_fraction), float(t.hot_pixel_current)
+            m2 = 0.0 if differenced else m1 * m1 + float(t.hot_pixel_current_spread) ** 2
+            fixed = 0.0 if differenced else (p * m1) ** 2  # (the excess cancels in a pair)
+            out["hot_pixels"] = p * m2 - fixed + p * m1 * shot
     if (reduction is not None and reduction.reference is not None
             and any(r.on and r.pixels in ("reference", "all") for r in t.telegraphs)):
         warnings.warn("forecast: the telegraph noise of reference pixels (scene.rtn with "
@@ -328,10 +317,13 @@ def _check_clip(clip, reduction, terms):
     if clip.get("cenfunc", "median") != "median" or clip.get("stdfunc", "std") != "std":
         raise ConfigError(f"{what} with cenfunc {clip.get('cenfunc')!r} and stdfunc "
                           f"{clip.get('stdfunc')!r} are not forecast; only median and std")
-    if clip.get("maxiters") is not None:
-        raise ConfigError(f"{what} with maxiters {clip['maxiters']} are not forecast; only "
-                          "maxiters null (until no pixel is clipped: a few passes leave an "
-                          "image's clip to its own outliers)")
+    if not isinstance(clip.get("sigma"), (int, float)):
+        raise ConfigError(f"{what}: the clip's step has no sigma (its NoiseEffect declares "
+                          "clips_slopes: sigma, sigma_lower, sigma_upper and maxiters as "
+                          "astropy.stats.sigma_clip takes them)")
+    if reduction.clips > 1:
+        raise ConfigError(f"{what}: {reduction.clips} clips of the slope image are not "
+                          "forecast; only one")
     if reduction.clip_before_difference:
         raise ConfigError(f"{what} before pair_difference are not forecast; clip after it")
     total = terms.hot_pixel_fraction + sum(r.fraction for r in terms.telegraphs
@@ -341,39 +333,59 @@ def _check_clip(clip, reduction, terms):
                           "takes them as distinct pixels)")
 
 
-def _clipped(offsets, core, clip, shot):
+def _clipped(s, t, telegraphs, spread, differenced, others, clip, shot):
     """Each population's share of the variance of the pixels a clip keeps ((e/s)²), and
     the fraction of the pixels it keeps.
 
-    The pixels are a mixture: the core alone (Gaussian of variance ``core``) and each
-    population's pixels, the core plus an offset (``offsets``: name -> (weights,
-    offsets)).  The clip (``clip``: the step's parameters) keeps a pixel of offset ``y``
-    with the chance ``Φ((hi - y) / s) - Φ((lo - y) / s)`` (``s² = core``, ``lo`` and
-    ``hi`` the thresholds of its last pass: `_clip_passes`); what the populations add to
-    the kept pixels' variance, beyond the core's own, is split between them as their
-    kept offsets' covariance with the kept mean; hot pixels add their kept ones' shot
-    noise (``shot`` per unit current, e/s)."""
+    The pixels are a mixture of Gaussians, each a kind of pixel with its offset and its
+    variance: the pixels of no population (their dark current's offset on `HOT_QUANTILES`
+    quantiles of its gamma, variance ``others``), hot pixels (their excess on quantiles,
+    ``others`` + the dark spread's + their own Poisson noise; in a pair difference no
+    excess), telegraph pixels (`TELEGRAPH_CHAINS` slopes from the chain, ``others`` + the
+    dark spread's).  The clip (``clip``: the step's parameters) is followed pass by pass
+    (`_clip_passes`); what the populations add to the kept pixels' variance, beyond
+    ``others`` clipped alone, is split between them exactly: each kind's kept second
+    moment less ``others`` times its kept share, less its kept mean times the kept mean.
+    """
     sigma = float(clip["sigma"])
     lower = float(clip.get("sigma_lower") or sigma)
     upper = float(clip.get("sigma_upper") or sigma)
-    passes = 200  # (until it settles: maxiters null, `_check_clip`)
-    weights = np.concatenate([[1.0 - sum(float(w.sum()) for w, _ in offsets.values())],
-                              *(w for w, _ in offsets.values())])
-    means = np.concatenate([[0.0], *(y for _, y in offsets.values())])
-    std, (lo, hi) = _clip_passes(weights, means, core, lower, upper, passes)
-    own, (olo, ohi) = _clip_passes([1.0], [0.0], core, lower, upper, passes)
-    excess = max(std ** 2 - own ** 2, 0.0)
-    sd = np.sqrt(core)
-    frac = float(np.sum(weights * (ndtr((hi - means) / sd) - ndtr((lo - means) / sd))))
-    unmasked = frac / float(ndtr(ohi / sd) - ndtr(olo / sd))  # (the core's own clip: none)
-    m1, m2 = {}, {}
-    for name, (w, y) in offsets.items():
-        kept = w * (ndtr((hi - y) / sd) - ndtr((lo - y) / sd)) / frac
-        m1[name], m2[name] = float(np.sum(kept * y)), float(np.sum(kept * y * y))
-    mean = sum(m1.values())
-    share = {name: m2[name] - m1[name] * mean for name in offsets}
-    total = sum(share.values())
-    out = {name: excess * v / total if total > 0 else 0.0 for name, v in share.items()}
-    if "hot_pixels" in out:
-        out["hot_pixels"] += m1["hot_pixels"] * shot
+    passes = int(clip.get("maxiters") or 200)  # (null: until it settles)
+    kinds = []  # (name, weights, offsets, variances)
+    p = float(t.hot_pixel_fraction) if t.hot_pixel_fraction > 0 and t.hot_pixel_current > 0 \
+        else 0.0
+    tel = sum(r.fraction for _, r in telegraphs)
+    if spread:
+        gs = _gamma_shape_scale(float(t.dark_current), spread)
+        dark = gammainc_quantiles(gs[0], HOT_QUANTILES) * gs[1] - float(t.dark_current)
+        kinds.append(("dark_spread", np.full(dark.size, (1.0 - p - tel) / dark.size), dark,
+                      np.full(dark.size, others)))
+    else:
+        kinds.append(("", np.array([1.0 - p - tel]), np.zeros(1), np.full(1, others)))
+    if p:
+        x = _hot_excess(t.hot_pixel_current, t.hot_pixel_current_spread)
+        kinds.append(("hot_pixels", np.full(x.size, p / x.size),
+                      np.zeros(x.size) if differenced else x,
+                      others + spread ** 2 + x * shot))
+    if telegraphs:
+        y = [_telegraph_slopes(s, r, TELEGRAPH_CHAINS, i, differenced) for i, r in telegraphs]
+        kinds.append(("telegraph", np.concatenate([np.full(v.size, r.fraction / v.size)
+                                                   for (_, r), v in zip(telegraphs, y,
+                                                                        strict=True)]),
+                      np.concatenate(y), np.full(sum(v.size for v in y), others + spread ** 2)))
+    weights, means, variances = (np.concatenate([k[i] for k in kinds]) for i in (1, 2, 3))
+    _, _, kept, m1, m2 = _clip_passes(weights, means, variances, lower, upper, passes)
+    own, (olo, ohi), _, _, _ = _clip_passes([1.0], [0.0], others, lower, upper, passes)
+    frac = float(np.sum(weights * kept))
+    mean = float(np.sum(weights * m1)) / frac
+    out, at = {}, 0
+    for name, w, _, _ in kinds:
+        part = slice(at, at + w.size)
+        at += w.size
+        if name:
+            wk = weights[part] / frac
+            out[name] = (float(np.sum(wk * (m2[part] - own ** 2 * kept[part])))
+                         - float(np.sum(wk * m1[part])) * mean)
+    sd = np.sqrt(others)
+    unmasked = frac / float(ndtr(ohi / sd) - ndtr(olo / sd))  # (others' own clip: none)
     return out, min(unmasked, 1.0)

@@ -22,10 +22,11 @@ spectrum of one exposure (``(E|A|² + E|B|²) / 2``; the dark current and any
 fixed pattern cancel, the Poisson noise of both adds up to one's): it is
 forecast as the identity.
 σ-clipping (the clipped mean of the reference pixels, the ``sigma_clip``
-step's hot pixels) is forecast as no clipping: on Gaussian noise it changes
-the spectrum by less than the Monte Carlo resolves (measured at 3 σ for the
-reference pixels and 5 σ for the slopes: see docs/forecast.rst), so a clip
-below 3 σ is refused
+step's hot pixels) is forecast as no clipping of Gaussian noise: on it it
+changes the spectrum by less than the Monte Carlo resolves (measured at 3 σ for
+the reference pixels and 5 σ for the slopes: see docs/forecast.rst), so a clip
+below 3 σ is refused; the scene's pixel populations it masks are forecast
+through it (`Reduction.clip`, `~spherex_reduce.analysis.forecast.populations`),
 (`~spherex_reduce.reduce.noise_effect.MEASURED_SIGMA`), as are ``fit_ramp``'s
 ``saturation`` (it drops reads: not linear), a pair difference whose other
 exposure is not reduced the same way (``reduce_other: false``) and a second
@@ -155,8 +156,11 @@ class Reduction:
         The reference step works on ramps (``fit_ramp`` comes after it).
     clip : dict or None
         The parameters (defaults filled in) of the step that masks the slope image's
-        outlying pixels (``sigma_clip``: its ``NoiseEffect`` declares ``clips_slopes``),
-        or None.
+        outlying pixels (``sigma_clip``: its ``NoiseEffect`` declares ``clips_slopes``;
+        the last of them), or None.
+    clips : int
+        How many such steps the pipeline has (a second is forecast as no clipping of
+        Gaussian noise, as the first; with pixel populations, refused).
     differenced : bool
         A step takes the difference of two exposures of one detector
         (``pair_difference``: ``cancels_fixed``).
@@ -172,6 +176,7 @@ class Reduction:
     reference_params: dict = field(default_factory=dict)
     reference_ramps: bool = True
     clip: dict | None = None
+    clips: int = 0
     differenced: bool = False
     clip_before_difference: bool = False
 
@@ -210,7 +215,7 @@ def reduction(pipeline):
     p = as_pipeline(pipeline)
     table = forecast_steps(p.registry)
     names, phantom, fitted, ref = [], False, False, {}
-    clip, differenced, clip_first = None, False, False
+    clip, clips, differenced, clip_first = None, 0, False, False
     for i, item in enumerate(p.config["steps"]):
         (name, params), = item.items()
         effect = table.get(name)
@@ -245,15 +250,13 @@ def reduction(pipeline):
                    "reference_params": rest, "reference_ramps": not fitted,
                    "consumed": strategy.consumes_phantom(params, phantom)}
         if effect.clips_slopes:
-            if clip is not None:
-                raise ConfigError(f"forecast: steps[{i}].{name}: a second clip of the slope "
-                                  "image is not forecast; only one")
+            clips += 1
             clip = {q.name: q.default for q in p.registry.step(name).parameters} | params
         if effect.cancels_fixed:
             differenced, clip_first = True, clip is not None
         names.append(name)
     ref.pop("consumed", None)
-    return Reduction(tuple(names), phantom, clip=clip, differenced=differenced,
+    return Reduction(tuple(names), phantom, clip=clip, clips=clips, differenced=differenced,
                      clip_before_difference=clip_first, **ref)
 
 

@@ -11,7 +11,7 @@ from astropy import units as u
 from astropy.utils.exceptions import AstropyUserWarning
 
 from spherex_reduce.analysis import forecast, power_spectrum
-from spherex_reduce.analysis.forecast.populations import population_variances
+from spherex_reduce.analysis.forecast.populations import POPULATIONS, population_variances
 from spherex_reduce.analysis.light import light_sensitive_image
 from spherex_reduce.core.errors import ConfigError
 from spherex_reduce.reduce.pipeline import as_pipeline
@@ -78,18 +78,20 @@ HOT = {"hot_pixel_fraction": 0.03, "hot_pixel_current": 300.0, "hot_pixel_curren
 
 @pytest.mark.parametrize("pipeline, terms, runs, without", [
     # no clip, each population the largest term in turn (the others' columns could go)
-    (None, {"dark_current_spread": 2.0, "rtn": TELEGRAPH}, 300, "telegraph"),
-    (None, {"dark_current_spread": 2.0, **HOT}, 300, "hot_pixels"),
-    (None, {"dark_current_spread": 40.0}, 300, "dark_spread"),
+    (None, {"dark_current_spread": 2.0, "rtn": TELEGRAPH}, 200, "telegraph"),
+    (None, {"dark_current_spread": 2.0, **HOT}, 200, "hot_pixels"),
+    (None, {"dark_current_spread": 40.0}, 200, "dark_spread"),
     # the shipped pipeline's 5-sigma clip masks the steps of most telegraph pixels and
-    # every hot pixel of 2000 e/s; keeps those of 30 e/s
+    # every hot pixel of 2000 e/s; keeps those of 30 e/s; masks the far tail of a dark
+    # current spread as skewed as 5 +- 40 e/s
     ("spherex-default", {"hot_pixel_fraction": 0.005, "hot_pixel_current": 2000.0,
-                         "hot_pixel_current_spread": 100.0, "rtn": TELEGRAPH}, 400, None),
+                         "hot_pixel_current_spread": 100.0, "rtn": TELEGRAPH}, 250, None),
     ("spherex-default", {"hot_pixel_fraction": 0.03, "hot_pixel_current": 30.0,
-                         "hot_pixel_current_spread": 10.0}, 400, "hot_pixels"),
+                         "hot_pixel_current_spread": 10.0}, 250, "hot_pixels"),
+    ("spherex-default", {"dark_current_spread": 40.0}, 250, None),
     # a clip above only (telegraph steps down kept) and one below only
-    (_clip(sigma_lower=50.0), {"rtn": TELEGRAPH}, 300, "telegraph"),
-    (_clip(sigma_upper=50.0), {"rtn": TELEGRAPH}, 300, "telegraph"),
+    (_clip(sigma_lower=50.0), {"rtn": TELEGRAPH}, 200, "telegraph"),
+    (_clip(sigma_upper=50.0), {"rtn": TELEGRAPH}, 200, "telegraph"),
 ])
 def test_monte_carlo_of_the_populations_within_three_standard_errors(pipeline, terms, runs,
                                                                      without):
@@ -106,17 +108,56 @@ def test_monte_carlo_of_the_populations_within_three_standard_errors(pipeline, t
         wrong = expect - table[f"power_{without}"].value
     else:  # the populations as if nothing were masked
         free = _forecast(scene, None)
-        wrong = expect + sum(free[f"power_{k}"].value for k in ("hot_pixels", "telegraph"))
+        wrong = expect + sum(free[f"power_{k}"].value for k in POPULATIONS
+                             if f"power_{k}" in free.colnames)
     assert np.any(np.abs(mean - wrong) > 5 * se), (mean - wrong) / se
 
 
 def test_a_clip_with_populations_it_cannot_follow_is_refused_in_one_line():
     scene = tiny([ROIC], terms={"dark_current": 5.0, "rtn": TELEGRAPH})
-    for params, words in (({"maxiters": 1}, "maxiters 1"), ({"stdfunc": "mad_std"}, "mad_std")):
-        with pytest.raises(ConfigError, match=words):
-            forecast(scene, _clip(**params))
+    pair = {"steps": [{"sigma_clip": {}}, {"pair_difference": {"other": "b.fits"}}]}
+    twice = {"steps": [*_clip()["steps"], {"sigma_clip": {}}]}
+    for pipeline, words in ((_clip(stdfunc="mad_std"), "stdfunc 'mad_std'"),
+                            (_clip(cenfunc="mean"), "cenfunc 'mean'"),
+                            (pair, "before pair_difference"), (twice, "2 clips")):
+        with pytest.raises(ConfigError, match=words) as info:
+            forecast(scene, pipeline)
+        assert "\n" not in str(info.value)
+    many = tiny([ROIC], terms={"dark_current": 5.0, "hot_pixel_fraction": 0.5,
+                               "rtn": {**TELEGRAPH, "fraction": 0.6}})
+    with pytest.raises(ConfigError, match=r"add up to 1\.1 > 1"):
+        forecast(many, "spherex-default")
+    # without populations a clip is forecast as no clipping of Gaussian noise, twice too
     without = tiny([ROIC], terms={"dark_current": 5.0})
-    forecast(without, _clip(maxiters=1))  # (Gaussian noise alone: forecast as no clipping)
+    once = forecast(without, "spherex-default")["power"]
+    np.testing.assert_array_equal(forecast(without, twice)["power"], once)
+
+
+def test_the_band_and_the_fft_image_forecast_hold_the_populations_too():
+    """`band_power_forecast` (the band's cells alone) and the FFT image forecast take the
+    populations as `forecast` does: the band power its table's, the FFT image's mean
+    power over the plane less the image without them the populations' columns."""
+    from spherex_reduce.analysis.forecast.engine import band_power_forecast
+    from spherex_reduce.analysis.forecast.fft import forecast_fft_magnitude
+
+    terms = {"dark_current": 5.0, "dark_current_spread": 3.0, "hot_pixel_fraction": 0.02,
+             "hot_pixel_current": 40.0, "rtn": TELEGRAPH}
+    scene = tiny([ROIC], terms=terms)
+    for pipeline in (None, "spherex-default", "measured-dark-pair"):
+        band = {"kmin": 0.3, "kmax": 1.2, "bins": BINS}
+        table = _forecast(scene, pipeline) if pipeline != "spherex-default" else None
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", AstropyUserWarning)
+            full = forecast(scene, pipeline, band)
+            assert abs(band_power_forecast(scene, pipeline, 0.3, 1.2)
+                       / full.meta["band_power"] - 1) < 1e-9
+        if table is not None and pipeline is None:
+            with_pops = forecast_fft_magnitude(scene, pipeline, size=16).magnitude.value ** 2
+            bare = forecast_fft_magnitude(tiny([ROIC], terms={"dark_current": 5.0}), pipeline,
+                                          size=16).magnitude.value ** 2
+            added = sum(table[f"power_{k}"].value[0] for k in POPULATIONS)
+            nonzero = bare > 0  # (the k = 0 cell: the mean, subtracted)
+            np.testing.assert_allclose((with_pops - bare)[nonzero], added, rtol=1e-9)
 
 
 def test_a_pair_of_one_detectors_exposures_cancels_its_fixed_patterns():
@@ -126,7 +167,8 @@ def test_a_pair_of_one_detectors_exposures_cancels_its_fixed_patterns():
     (numbers from the real steps, each pair its own detector)."""
     from spherex_reduce import correct_reference, pair_difference, sigma_clip
 
-    terms = {"dark_current": 5.0, "dark_current_spread": 10.0, **HOT}
+    terms = {"dark_current": 5.0, "dark_current_spread": 10.0, "hot_pixel_fraction": 0.03,
+             "hot_pixel_current": 30.0, "hot_pixel_current_spread": 10.0}  # (within the clip)
     table = _forecast(tiny([ROIC], terms=terms), "measured-dark-pair")
     assert "power_dark_spread" not in table.colnames
     expect = u.Quantity(table["power"]).value
@@ -139,8 +181,9 @@ def test_a_pair_of_one_detectors_exposures_cancels_its_fixed_patterns():
         power.append(power_spectrum(light_sensitive_image(d), bins=BINS)["power"].value)
     mean, se = np.mean(power, axis=0), np.std(power, axis=0, ddof=1) / np.sqrt(len(power))
     assert np.all(np.abs(mean - expect) < 3 * se), (mean - expect) / se
-    fixed = 10.0 ** 2 + 0.03 * (300.0 ** 2 + 100.0 ** 2) - (0.03 * 300.0) ** 2
-    assert np.all(np.abs(mean - (expect + fixed)) > 5 * se)  # (had it not cancelled)
+    dark, hot = 10.0 ** 2, 0.03 * (30.0 ** 2 + 10.0 ** 2) - (0.03 * 30.0) ** 2
+    for fixed in (dark, hot):  # had either not cancelled
+        assert np.any(np.abs(mean - (expect + fixed)) > 5 * se), fixed
 
 
 def test_reference_pixels_telegraph_is_left_out_with_one_warning():

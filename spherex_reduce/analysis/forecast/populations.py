@@ -179,10 +179,10 @@ def _hot_excess(mean, spread):
     gs = _gamma_shape_scale(mean, spread)
     if gs is None:
         return np.array([float(mean)])
-    return gammainc_quantiles(gs[0], HOT_QUANTILES) * gs[1]
+    return _gamma_quantiles(gs[0], HOT_QUANTILES) * gs[1]
 
 
-def gammainc_quantiles(shape, n):
+def _gamma_quantiles(shape, n):
     """``n`` mid-quantiles of the unit-scale gamma of ``shape``."""
     return gammaincinv(shape, (np.arange(n) + 0.5) / n)
 
@@ -357,7 +357,7 @@ def _clipped(s, t, telegraphs, spread, differenced, others, clip, shot):
     tel = sum(r.fraction for _, r in telegraphs)
     if spread:
         gs = _gamma_shape_scale(float(t.dark_current), spread)
-        dark = gammainc_quantiles(gs[0], HOT_QUANTILES) * gs[1] - float(t.dark_current)
+        dark = _gamma_quantiles(gs[0], HOT_QUANTILES) * gs[1] - float(t.dark_current)
         kinds.append(("dark_spread", np.full(dark.size, (1.0 - p - tel) / dark.size), dark,
                       np.full(dark.size, others)))
     else:

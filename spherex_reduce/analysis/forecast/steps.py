@@ -22,15 +22,16 @@ spectrum of one exposure (``(E|A|² + E|B|²) / 2``; the dark current and any
 fixed pattern cancel, the Poisson noise of both adds up to one's): it is
 forecast as the identity.
 σ-clipping (the clipped mean of the reference pixels, the ``sigma_clip``
-step's hot pixels) is forecast as no clipping of Gaussian noise: on it it
-changes the spectrum by less than the Monte Carlo resolves (measured at 3 σ for
-the reference pixels and 5 σ for the slopes: see docs/forecast.rst), so a clip
-below 3 σ is refused; the scene's pixel populations it masks are forecast
-through it (`Reduction.clip`, `~spherex_reduce.analysis.forecast.populations`),
-(`~spherex_reduce.reduce.noise_effect.MEASURED_SIGMA`), as are ``fit_ramp``'s
-``saturation`` (it drops reads: not linear), a pair difference whose other
-exposure is not reduced the same way (``reduce_other: false``) and a second
-reference correction.
+step) is forecast as no clipping of Gaussian noise: on it it changes the
+spectrum by less than the Monte Carlo resolves (measured at 3 σ for the
+reference pixels and 5 σ for the slopes: see docs/forecast.rst), so a clip
+below 3 σ is refused (`~spherex_reduce.reduce.noise_effect.MEASURED_SIGMA`), as
+are ``fit_ramp``'s ``saturation`` (it drops reads: not linear), a pair
+difference whose other exposure is not reduced the same way (``reduce_other:
+false``) and a second reference correction.  The scene's pixel populations
+(hot and telegraph pixels, a dark-current spread), which the ``sigma_clip``
+step masks, are forecast through it (`Reduction.clip`,
+`~spherex_reduce.analysis.forecast.populations`).
 """
 
 from dataclasses import dataclass, field

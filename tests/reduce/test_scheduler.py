@@ -19,15 +19,17 @@ def restored_levels():
         logging.getLogger(name).setLevel(level)
 
 
+def _boom():
+    raise RuntimeError("cancelled while the loop closes")
+
+
 def _failing_callback_logs(caplog):
     """Run an event loop whose callback raises (as dask's ``sync`` cancel did when a
     batch was interrupted); the records asyncio's handler logged."""
     caplog.clear()
     loop = asyncio.new_event_loop()
     try:
-        def boom():
-            raise RuntimeError("cancelled while the loop closes")
-        loop.call_soon(boom)
+        loop.call_soon(_boom)
         loop.call_soon(loop.stop)
         loop.run_forever()
     finally:
@@ -45,16 +47,13 @@ def test_an_event_loop_callback_error_is_silenced_only_once_quieted(caplog, rest
 
 
 def _tornado_callback_logs(caplog):
-    """Run tornado's IOLoop (dask's client loop) with a callback that raises, as
-    distributed's ``sync`` cancel did in an interrupted batch; the records it logged."""
+    """The same on tornado's IOLoop (dask's client loop): the records it logged."""
     from tornado.ioloop import IOLoop
 
     caplog.clear()
     loop = IOLoop(make_current=False)
     try:
-        def boom():
-            raise RuntimeError("cancelled while the loop closes")
-        loop.add_callback(boom)
+        loop.add_callback(_boom)
         loop.add_callback(loop.stop)
         loop.start()
     finally:

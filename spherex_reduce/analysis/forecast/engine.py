@@ -178,10 +178,15 @@ def forecast_tables(scene, pipeline, measures, *, pixel_scale=SPHEREX_PIXEL_SCAL
     (4, 1, True)
     """
     ms = [forecast_measure(m) for m in measures]
-    sc, red, rows, cols, comps = prepare_forecast(scene, pipeline)
+    return _tables(prepare_forecast(scene, pipeline), ms, pixel_scale, nodes)
+
+
+def _tables(prepared, measures, pixel_scale, nodes):
+    """The tables of `forecast_tables` from `prepare_forecast`'s ``prepared``."""
+    sc, red, rows, cols, comps = prepared
     parts, (ny, nx) = stored_planes(sc, red, rows, cols, comps, nodes)
     add_white_parts(sc, red, parts, (ny, nx))
-    return [_forecast_table(sc, red, parts, (ny, nx), m, pixel_scale) for m in ms]
+    return [_forecast_table(sc, red, parts, (ny, nx), m, pixel_scale) for m in measures]
 
 
 def add_white_parts(sc, red, parts, shape):
@@ -281,11 +286,11 @@ def band_power_forecast(scene, pipeline=None, kmin=BAND_KMIN, kmax=BAND_KMAX, *,
     >>> abs(band / full - 1) < 1e-12
     True
     """
-    sc, red, rows, cols, comps = prepare_forecast(scene, pipeline)
+    prepared = sc, red, rows, cols, comps = prepare_forecast(scene, pipeline)
     if red.clip is not None and clipped_populations(sc.terms):  # the whole plane's variance
-        measure = {"kmin": kmin, "kmax": kmax, "bins": 1,
-                   "exclude_horizontal": exclude_horizontal}
-        return float(forecast_tables(sc, pipeline, [measure], nodes=nodes)[0]
+        measure = forecast_measure({"kmin": kmin, "kmax": kmax, "bins": 1,
+                                    "exclude_horizontal": exclude_horizontal})
+        return float(_tables(prepared, [measure], SPHEREX_PIXEL_SCALE, nodes)[0]
                      .meta["band_power"])
     frame, flip, (ny, nx) = _frames(sc.schedule.geometry, rows, cols)
     sy, sx = _band_cells(ny, nx, float(kmin), float(kmax), bool(exclude_horizontal))

@@ -175,18 +175,20 @@ def _gamma_shape_scale(mean, spread):
     return mean * mean / (spread * spread), spread * spread / mean
 
 
-def _hot_excess(mean, spread):
-    """The hot pixels' excess current on `HOT_QUANTILES` quantiles of its gamma (one value
+def _gamma_quantiles(mean, spread):
+    """The gamma of that mean and spread on `HOT_QUANTILES` mid-quantiles (the mean alone
     without a spread)."""
     gs = _gamma_shape_scale(mean, spread)
     if gs is None:
         return np.array([float(mean)])
-    return _gamma_quantiles(gs[0], HOT_QUANTILES) * gs[1]
+    return gammaincinv(gs[0], (np.arange(HOT_QUANTILES) + 0.5) / HOT_QUANTILES) * gs[1]
 
 
-def _gamma_quantiles(shape, n):
-    """``n`` mid-quantiles of the unit-scale gamma of ``shape``."""
-    return gammaincinv(shape, (np.arange(n) + 0.5) / n)
+def _chain(schedule):
+    """The least-squares weights of the frames and the telegraph chain's step, the frame
+    time (s): what both of a telegraph pixel's slope functions need."""
+    w, _, _ = slope_frames(schedule)
+    return w, schedule.frame_samples / schedule.geometry.pixel_rate
 
 
 def _telegraph_slopes(schedule, population, n, seed, differenced=False):
@@ -195,10 +197,9 @@ def _telegraph_slopes(schedule, population, n, seed, differenced=False):
     first state either), its step and rate from their gammas, scaled so that their mean
     square is the exact variance (`_telegraph_variance`); ``differenced``: of two
     exposures' chains of the same pixel, ``(y₁ - y₂)/√2``."""
-    w, _, _ = slope_frames(schedule)
+    w, frame = _chain(schedule)
     check_size(2.0 * n * w.size * 9, "forecast: the telegraph chains of a clip")
     rng = np.random.default_rng(seed)
-    frame = schedule.frame_samples / schedule.geometry.pixel_rate
     amp = _draw(rng, population.amplitude, population.amplitude_spread, n)
     flip = -np.expm1(-2.0 * _draw(rng, population.rate, population.rate_spread, n)
                      * frame) / 2.0
@@ -222,9 +223,8 @@ def _draw(rng, mean, spread, n):
 
 def _telegraph_variance(schedule, population):
     """The variance of a telegraph pixel's least-squares slope ((e/s)²)."""
-    w, _, _ = slope_frames(schedule)
+    w, frame = _chain(schedule)
     n = w.size
-    frame = schedule.frame_samples / schedule.geometry.pixel_rate  # s: the chain's step
     lag = np.abs(np.subtract.outer(np.arange(n), np.arange(n))) * frame
     gs = _gamma_shape_scale(population.rate, population.rate_spread)
     if gs is None:
@@ -358,14 +358,13 @@ def _clipped(s, t, telegraphs, spread, differenced, others, clip, shot):
         else 0.0
     tel = sum(r.fraction for _, r in telegraphs)
     if spread:
-        gs = _gamma_shape_scale(float(t.dark_current), spread)
-        dark = _gamma_quantiles(gs[0], HOT_QUANTILES) * gs[1] - float(t.dark_current)
+        dark = _gamma_quantiles(float(t.dark_current), spread) - float(t.dark_current)
         kinds.append(("dark_spread", np.full(dark.size, (1.0 - p - tel) / dark.size), dark,
                       np.full(dark.size, others)))
     else:
         kinds.append(("", np.array([1.0 - p - tel]), np.zeros(1), np.full(1, others)))
     if p:
-        x = _hot_excess(t.hot_pixel_current, t.hot_pixel_current_spread)
+        x = _gamma_quantiles(t.hot_pixel_current, t.hot_pixel_current_spread)
         kinds.append(("hot_pixels", np.full(x.size, p / x.size),
                       np.zeros(x.size) if differenced else x,
                       others + spread ** 2 + x * shot))

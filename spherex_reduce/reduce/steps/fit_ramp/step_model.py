@@ -123,11 +123,12 @@ class StepModel:
         return 8.0 * 10 * float(n) * n
 
     def _typed(self, dtype):
-        """Weights and ``1 / q`` in ``dtype`` (made once per type)."""
+        """Weights, ``1 / q``, the line's coefficients and the times in ``dtype`` (made once
+        per type)."""
         typed = self._types.get(dtype)
         if typed is None:
             typed = self._types[dtype] = (self.w.astype(dtype), self._invq.astype(dtype),
-                                          self.coef.astype(dtype))
+                                          self.coef.astype(dtype), self.tau.astype(dtype))
         return typed
 
     def screen(self, y, estimate, work=None):
@@ -142,10 +143,10 @@ class StepModel:
         >= m``, to write in (made if None); keep ``y`` and it in cache.
         """
         n, m = y.shape
-        w, invq, coef = self._typed(y.dtype)
+        w, invq, coef, tau = self._typed(y.dtype)
         r = np.empty(y.shape, y.dtype) if work is None else work[:, :m]
         ab = coef @ y
-        np.multiply(self.tau.astype(y.dtype)[:, None], ab[1], out=r)  # the line
+        np.multiply(tau[:, None], ab[1], out=r)  # the line
         r += ab[0]
         np.subtract(y, r, out=r)  # its residuals
         rss = None

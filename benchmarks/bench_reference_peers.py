@@ -378,11 +378,13 @@ def run_case(case, darks, cfg, args, jwst_py):
                     errors[(variant, label)] = f"refpix status {status} (skipped)"
         for key in [key for key in exposures if key[1] == k]:
             del exposures[key]
-    # measures per variant and method
-    for (variant, label, _), slope in slope_of.items():
-        if variant == "sky":
-            continue
-        results.setdefault((variant, label), []).append(measures(slope, g))
+        # measures per variant and method, dark by dark: only the first dark's slopes (the
+        # sky transfer's) are kept, so memory does not grow with --darks
+        for key in [key for key in slope_of if key[2] == k]:
+            if key[0] != "sky":
+                results.setdefault(key[:2], []).append(measures(slope_of[key], g))
+            if k != 0 or key[0] not in ("sky", "bias-subtracted"):
+                del slope_of[key]
     sky_t = {label: transfer(slope_of[("sky", label, 0)], slope_of[("bias-subtracted", label, 0)],
                              sky, g)
              for (variant, label, k) in slope_of if variant == "sky"}

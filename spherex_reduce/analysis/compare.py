@@ -66,6 +66,7 @@ from .case import (
     seed_section,
 )
 from .figures.plots import plot_comparison
+from .forecast.engine import active_white_variance
 from .light import light_sensitive
 from .photon_noise import photon_noise_label, photon_noise_power
 from .sky import RMS_RANGE, inject_sky, measure_against_sky, sky_field
@@ -228,7 +229,9 @@ def white_floor(scene):
 
     The sum over the components the pixels see of the slope variance of
     their white part (``alpha``; `~spherex_reduce.noise.expected_slope_variance`
-    of ``component.replace(beta=0, gamma=0)``).  Each pixel's white noise is
+    of ``component.replace(beta=0, gamma=0)``), and the light-sensitive pixels' own
+    white read noise (`~spherex_reduce.analysis.forecast.engine.active_white_variance`).
+    Each pixel's white noise is
     independent, so the image it makes is spatially white and its power
     spectrum (`power_spectrum`'s normalisation) is flat at that variance.
 
@@ -252,7 +255,7 @@ def white_floor(scene):
     sc = scene if hasattr(scene, "schedule") else load_scene(scene)
     white = [c.replace(beta=0.0, gamma=0.0) for c in sc.components if c.seen_by_pixels]
     var = expected_slope_variance(white, sc.schedule) if white else 0.0 * _POWER / u.pix**2
-    return var * u.pix**2
+    return var * u.pix**2 + active_white_variance(sc) * _POWER
 
 
 def run_realization(task):

@@ -45,6 +45,10 @@ SCENE_PARAMETERS = (
     Parameter("hot_pixel_current_spread", 0.0, _NUM, "standard deviation of the hot pixels' "
               "current (e/s; gamma-distributed about hot_pixel_current)", minimum=0,
               maximum=MAX_RATE),
+    Parameter("active_read_noise", 0.0, _NUM, "white read noise of the light-sensitive "
+              "pixels on top of the noise components' (standard deviation of one read, e): "
+              "the reference pixels do not see it, so they read quieter, as NGHXRG's and "
+              "JWST's do", minimum=0, maximum=MAX_RATE),
     Parameter("population_seed", None, (int, type(None)), "seed of the detector's pixel "
               "populations (which pixels are hot or telegraph, their currents, amplitudes and "
               "rates): the same for every simulation seed; null: drawn from the simulation's "
@@ -84,7 +88,7 @@ TOP_KEYS = ("geometry", "readout", "noise", "scene", "output", "synthesis", "see
 #: The scene terms in the scene's unit (times the gain in electrons); the others are
 #: fractions, rates in Hz or options.
 CHARGE_TERMS = ("dark_current", "dark_current_spread", "hot_pixel_current",
-                "hot_pixel_current_spread", "photocurrent", "leakage")
+                "hot_pixel_current_spread", "photocurrent", "leakage", "active_read_noise")
 RTN_CHARGE_TERMS = ("amplitude", "amplitude_spread")
 
 
@@ -166,6 +170,7 @@ class SceneTerms:
     rtn: Telegraph | tuple | None
     dark_current_spread: float = 0.0
     hot_pixel_current_spread: float = 0.0
+    active_read_noise: float = 0.0
     population_seed: int | None = None
 
     @classmethod

@@ -25,6 +25,8 @@ log = logging.getLogger("spherex_reduce")
 TIER_SIGNAL, TIER_HOT, TIER_RTN, TIER_RTN_REFERENCE, TIER_DARK = 100, 101, 102, 103, 104
 #: The first key of every generator drawn from a scene's ``population_seed``.
 TIER_POPULATION = 105
+#: The generator of the light-sensitive pixels' own white read noise.
+TIER_ACTIVE_WHITE = 106
 
 
 class SpherexSimulator(Simulator):
@@ -155,7 +157,8 @@ def _frames(sc, engine):
 
 
 class _Terms:
-    """Scene terms: dark current, hot pixels, photocurrent, leakage, telegraph noise.
+    """Scene terms: dark current, hot pixels, photocurrent, leakage, telegraph noise, the
+    light-sensitive pixels' own white read noise.
 
     The pixel populations (hot and telegraph pixels, per-pixel currents, steps and
     rates) come from `_population` generators: the scene's ``population_seed`` when it
@@ -213,6 +216,16 @@ class _Terms:
         s_ph = s.phantom_samples()
         self.tau_ph = (s_ph.mean(axis=1) / g.pixel_rate) if s.phantom_reads else None
         self.sig_rng = rng_for(engine.entropy, TIER_SIGNAL)
+        # white read noise of the light-sensitive pixels alone: sigma where they are, else 0
+        self.white = (np.where(self.active, t.active_read_noise, 0.0).astype(engine.dtype)
+                      if t.active_read_noise > 0 else None)
+        self.white_rng = rng_for(engine.entropy, TIER_ACTIVE_WHITE)
+
+    def _white_noise(self, scale=1.0):
+        """A draw of the light-sensitive pixels' white read noise (times ``scale``)."""
+        noise = self.white_rng.standard_normal(self.white.shape, dtype=self.white.dtype)
+        noise *= self.white
+        return noise * np.asarray(scale, dtype=noise.dtype) if scale != 1.0 else noise
 
     def _population(self, *key):
         """The generator of a pixel population: from the scene's ``population_seed`` (its
@@ -256,6 +269,8 @@ class _Terms:
                 phantom += (leak * (t0 + self.tau_ph))[:, None]
         for idx, val in self._telegraph_values(k):
             frame.reshape(-1)[idx] += val.astype(frame.dtype)
+        if self.white is not None:
+            frame += self._white_noise()
 
     def add_slopes(self, data, phantom):
         w = self.e.frame_weights()
@@ -268,6 +283,8 @@ class _Terms:
                                                 np.minimum(k[:, None], k[None, :]))
                 noise = self.sig_rng.standard_normal(data.shape)
                 data += (noise * np.sqrt(self.rate * var_unit * self.shot)).astype(data.dtype)
+        if self.white is not None:  # each frame's read weighed by the fit: sqrt(sum w^2)
+            data += self._white_noise(float(np.sqrt(np.sum(w * w))))
         leak = self.t.leakage
         if leak:
             data += np.asarray(leak, dtype=data.dtype)

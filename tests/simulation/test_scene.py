@@ -81,7 +81,9 @@ def test_scene_terms_are_a_record_and_the_simulation_history_names_them_as_writt
         "photocurrent": 2.0, "leakage": 0.0, "poisson": True,
         "rtn": {"fraction": 0.5, "amplitude": 3.0, "rate": 0.1, "pixels": "active",
                 "amplitude_spread": 0.0, "rate_spread": 0.0},
-        "dark_current_spread": 0.0, "hot_pixel_current_spread": 0.0, "population_seed": None}
+        "dark_current_spread": 0.0, "hot_pixel_current_spread": 0.0, "active_read_noise": 0.0,
+        "population_seed": None}
     assert list(written) == [
         "dark_current", "hot_pixel_fraction", "hot_pixel_current", "photocurrent", "leakage",
-        "poisson", "rtn", "dark_current_spread", "hot_pixel_current_spread", "population_seed"]
+        "poisson", "rtn", "dark_current_spread", "hot_pixel_current_spread",
+        "active_read_noise", "population_seed"]

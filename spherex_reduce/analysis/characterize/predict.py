@@ -20,7 +20,10 @@ predicts that statistic from a `~spherex_reduce.analysis.characterize.Characteri
   pixel's steps stay in a stream once its line over the frames is removed and
   raise the streams' white level (12 % in variance in
   ``benchmarks/bench_characterize_heldout.py``), though in a pixel they are
-  not white; the difference goes to the ``channel`` component's white term.
+  not white; the difference goes to the ``channel`` component's white term,
+  or, where the model's reference pixels read quieter
+  (``scene.active_read_noise``), the components keep the reference pixels'
+  level and the light-sensitive pixels' own read noise is the rest.
   The map's spread adds nothing to the mean and is not modelled in the clip;
 - **the telegraph pixels** found by the fit (fraction ``f``, mean amplitude
   and its spread, rate ``r`` of the light-sensitive population): a pixel
@@ -68,7 +71,13 @@ from ...core.errors import SpherexReduceError
 from ...noise.components import NoiseComponent
 from ...noise.variance import ls_weights
 from ..faint_telegraph import telegraph_covariance
-from ..forecast.engine import forecast, poisson_variance, prepare_forecast, stored_planes
+from ..forecast.engine import (
+    active_white_variance,
+    forecast,
+    poisson_variance,
+    prepare_forecast,
+    stored_planes,
+)
 from ..forecast.populations import clipped_sigma
 from ..spectrum import rfft_weights
 from .result import hold_white
@@ -204,7 +213,8 @@ def _kept(y, variance, cut):
 
 def _scene(model, nframes, single):
     """The model's scene read with its first ``nframes`` frames, in slopes mode, with the
-    terms the forecast takes (the dark current and its Poisson noise)."""
+    terms the forecast takes (the dark current and its Poisson noise, the light-sensitive
+    pixels' own white read noise)."""
     sc = model.scene()
     readout = dict(sc["readout"])
     readout["nframes"] = int(nframes)
@@ -215,6 +225,10 @@ def _scene(model, nframes, single):
                                  "(reads averaged in groups)")
     white = _read_noise_white(model)
     own = _read_noise_white(model, "white_read_noise")
+    terms = sc.pop("scene", {}) or {}
+    # the light-sensitive pixels' own white read noise, which the reference pixels do not
+    # see: where the model has it, the components hold the reference pixels' white level
+    active = float(terms.get("active_read_noise", 0.0))
     if white is not None:
         g, s = model.schedule.geometry, model.schedule
         seen = [c for c in sc["noise"]["components"]
@@ -225,11 +239,18 @@ def _scene(model, nframes, single):
                                                exponent=c["exponent"])
                                 .structure_function(s.frame_samples, g.pixel_rate))
                     for c in seen)
-        hold_white(sc["noise"]["components"], own if own is not None else white - drift, s)
-    terms = sc.pop("scene", {}) or {}
-    current = float(terms.get("dark_current", 0.0))
-    sc.update(readout=readout, output={"mode": "slopes"},
-              scene={"dark_current": current, "poisson": model.unit == u.electron})
+        light = own if own is not None else white - drift
+        level = sum(c.get("alpha", 0.0) for c in seen) * g.pixel_rate / 2
+        if active and light > level:  # the reference pixels' level stays; the rest is theirs
+            active = float(np.sqrt(light - level))
+        else:
+            active = 0.0
+            hold_white(sc["noise"]["components"], light, s)
+    kept = {"dark_current": float(terms.get("dark_current", 0.0)),
+            "poisson": model.unit == u.electron}
+    if active:
+        kept["active_read_noise"] = active
+    sc.update(readout=readout, output={"mode": "slopes"}, scene=kept)
     spread = 0.0
     if single and model.pixel_terms is not None:
         row = model.pixel_terms.row("dark_current_spread", "active")
@@ -258,7 +279,7 @@ def _stream_variance(scene, pipeline):
     total = planes["total"] if planes else np.zeros((ny, nx // 2 + 1))
     w = np.broadcast_to(rfft_weights(nx), total.shape)
     var = (float(np.sum(total * w)) - float(total[0, 0])) / (ny * nx) ** 2
-    return var + poisson_variance(prepared[0])
+    return var + poisson_variance(prepared[0]) + active_white_variance(prepared[0])
 
 
 def predict_scatter(model, pipeline, frames, *, differenced=True, sigma=CLIP_SIGMA,

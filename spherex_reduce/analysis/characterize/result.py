@@ -147,17 +147,17 @@ class Characterization:
         if "reference" not in self.spreads:
             out.append("reference: not constrained: the darks have no reference-row reads or "
                        "side reference columns")
-        else:
-            ref, pix = self.spectra.get("reference"), self.spectra["pixels"]
-            if ref is not None:
-                d = ref.values[0] - pix.values[0]
-                err = float(np.hypot(ref.errors[0], pix.errors[0]))
-                if err > 0 and abs(d) > DIFFERENT_SIGMAS * err:
-                    out.append(
-                        f"reference: white level {ref.values[0]:.4g} ± {ref.errors[0]:.2g} "
-                        f"differs from the light-sensitive pixels' {pix.values[0]:.4g} ± "
-                        f"{pix.errors[0]:.2g} ({abs(d) / err:.1f} sigma); the model holds the "
-                        "light-sensitive value (a per-pixel read-noise map would hold both)")
+        elif (gap := self._reference_gap()) is not None:
+            d, err = gap
+            if err > 0 and abs(d) > DIFFERENT_SIGMAS * err:
+                ref, pix = self.spectra["reference"], self.spectra["pixels"]
+                held = ("the model holds both: the light-sensitive pixels' excess as "
+                        "scene.active_read_noise, white noise the reference pixels do not see"
+                        if d < 0 else "the model holds the light-sensitive value (a white "
+                        "level of the reference pixels above theirs is not a scene term)")
+                out.append(f"reference: white level {ref.values[0]:.4g} ± {ref.errors[0]:.2g} "
+                           f"differs from the light-sensitive pixels' {pix.values[0]:.4g} ± "
+                           f"{pix.errors[0]:.2g} ({abs(d) / err:.1f} sigma); {held}")
         for view, sp in self.spreads.items():
             for i, p in enumerate(PARAMS):
                 if sp["real"][i]:
@@ -242,6 +242,7 @@ class Characterization:
         white = self.faint_white()
         if white is not None:  # the faint telegraph population once: in scene.rtn
             hold_white(comps, white, self.schedule)
+        active = self._active_read_noise(comps)
         out = {}
         if self.unit in (u.electron, u.adu):  # the scene's unit: the darks'
             out["unit"] = self.unit.to_string()
@@ -249,11 +250,43 @@ class Characterization:
                 out["gain"] = float(self.gain)
         out.update({"geometry": self.schedule.geometry.to_dict(),
                     "readout": self.schedule.to_dict(), "noise": {"components": comps}})
-        if self.pixel_terms is not None:
-            terms = self.pixel_terms.to_scene()
-            if terms:
-                out["scene"] = terms
+        terms = {} if self.pixel_terms is None else self.pixel_terms.to_scene()
+        if active:
+            terms["active_read_noise"] = active
+        if terms:
+            out["scene"] = terms
         return out
+
+    def _reference_gap(self):
+        """``(reference white level − the light-sensitive pixels', its standard error)`` of
+        the fitted spectra (the darks' unit squared per Hz), or None without both."""
+        ref, pix = self.spectra.get("reference"), self.spectra.get("pixels")
+        if ref is None or pix is None:
+            return None
+        return (float(ref.values[0] - pix.values[0]),
+                float(np.hypot(ref.errors[0], pix.errors[0])))
+
+    def _active_read_noise(self, components):
+        """Where the reference pixels read quieter than the light-sensitive ones (by more
+        than `DIFFERENT_SIGMAS` standard errors), the white read noise (per read, the
+        darks' unit) only the light-sensitive pixels see: the ``channel`` component's
+        white level (in ``components``, scene mappings, changed in place) is lowered to
+        what the reference pixels show and the difference becomes
+        ``scene.active_read_noise``; else 0 and nothing changes."""
+        gap = self._reference_gap()
+        if gap is None or not (gap[1] > 0 and -gap[0] > DIFFERENT_SIGMAS * gap[1]):
+            return 0.0
+        seen = sum(c.get("alpha", 0.0) for c in components
+                   if c.get("visibility", "pixels") in ("pixels", "both"))
+        channel = next((c for c in components if c["name"] == "channel"), None)
+        if channel is None:
+            return 0.0
+        # the light-sensitive total may have been held otherwise (`faint_white`)
+        take = min(seen - float(self.spectra["reference"].values[0]), channel["alpha"])
+        if not take > 0:
+            return 0.0
+        channel["alpha"] -= take
+        return float(np.sqrt(take * self.schedule.geometry.pixel_rate / 2))
 
     def to_yaml(self):
         """The scene as YAML text, its unit and provenance in comments."""

@@ -30,6 +30,7 @@ import numpy as np
 from astropy import units as u
 
 from ...core.errors import ConfigError, SpherexReduceError
+from ...noise.variance import slope_frames
 from ...simulation.scene import Scene, load_scene
 from ..case import SpectrumMeasure, measure_section
 from ..light import light_sensitive
@@ -47,13 +48,15 @@ from .populations import POPULATIONS, clipped_populations, population_variances,
 from .rows import NODES, Cells, component_planes
 from .steps import reduction
 
-__all__ = ["add_white_parts", "band_power_forecast", "forecast", "forecast_measure",
-           "forecast_tables",
+__all__ = ["active_white_variance", "add_white_parts", "band_power_forecast", "forecast",
+           "forecast_measure", "forecast_tables",
            "poisson_variance", "prepare_forecast", "stored_planes"]
 
 _SLOPE_UNIT = u.electron / u.s
 #: Name of the Poisson noise of the dark current and photocurrent in the table's columns.
 _POISSON = "poisson"
+#: Name of the light-sensitive pixels' own white read noise (``scene.active_read_noise``).
+_ACTIVE = "active_white"
 #: Name of what the mask of a clip moves between scales (`populations`).
 _MASKED = "masked"
 
@@ -105,7 +108,9 @@ def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SC
         component (zero for one the reduced pixels do not see: a component only
         the phantom samples see is seen once phantom values are subtracted) and ``power_poisson``
         for the Poisson noise of the scene's dark current and photocurrent
-        (white, `poisson_variance`), if any; ``power_dark_spread``,
+        (white, `poisson_variance`), if any; ``power_active_white`` for the
+        light-sensitive pixels' own white read noise (`active_white_variance`), if
+        any; ``power_dark_spread``,
         ``power_hot_pixels``, ``power_telegraph`` for the scene's pixel populations
         and ``power_masked`` for what a clip's mask of them moves between scales
         (`~spherex_reduce.analysis.forecast.populations`), if any.  ``meta`` as
@@ -191,13 +196,14 @@ def _tables(prepared, measures, pixel_scale, nodes):
 
 def add_white_parts(sc, red, parts, shape):
     """Add to the planes ``parts`` (name -> ``E|FFT|²`` on the rfft2 grid of ``shape``)
-    the white parts: the Poisson noise of the currents (`poisson_variance`), the pixel
+    the white parts: the Poisson noise of the currents (`poisson_variance`), the
+    light-sensitive pixels' own read noise (`active_white_variance`), the pixel
     populations (`~spherex_reduce.analysis.forecast.populations.population_variances`,
     with the clip of ``red``) and what the clip's mask moves between scales."""
     ny, nx = shape
-    shot = poisson_variance(sc)
-    if shot:  # white: the same in every cell
-        parts[_POISSON] = np.full((ny, nx // 2 + 1), shot * ny * nx)
+    for name, var in ((_POISSON, poisson_variance(sc)), (_ACTIVE, active_white_variance(sc))):
+        if var:  # white: the same in every cell
+            parts[name] = np.full((ny, nx // 2 + 1), var * ny * nx)
     full = np.broadcast_to(rfft_weights(nx), (ny, nx // 2 + 1))
     variance = sum(float(np.sum(p * full)) for p in parts.values()) / (ny * nx) ** 2
     pops, unmasked = population_variances(sc, red, variance)
@@ -218,7 +224,8 @@ def _forecast_table(sc, red, parts, shape, m, pixel_scale):
     exclude_horizontal = bool(m.exclude_horizontal)
     total = sum(parts.values()) if parts else np.zeros((ny, nx // 2 + 1))
     table = spectrum_table(total, shape, edges, unit, 1.0, pixel_scale, exclude_horizontal)
-    names = [c.name for c in sc.components] + [k for k in (_POISSON, *POPULATIONS, _MASKED)
+    names = [c.name for c in sc.components] + [k for k in (_POISSON, _ACTIVE, *POPULATIONS,
+                                                           _MASKED)
                                                if k in parts]
     for name in names:
         if name in parts:
@@ -304,7 +311,8 @@ def band_power_forecast(scene, pipeline=None, kmin=BAND_KMIN, kmax=BAND_KMAX, *,
     w = rfft_weights(nx)[sx]
     power = sum(np.sum(p[pick] * w) for p in parts.values()) / np.sum(w) / (ny * nx)
     pops, _ = population_variances(sc, red)
-    return float(power + poisson_variance(sc) + sum(pops.values()))  # white as well
+    white = poisson_variance(sc) + active_white_variance(sc)
+    return float(power + white + sum(pops.values()))  # white as well
 
 
 @functools.lru_cache(maxsize=8)
@@ -499,3 +507,38 @@ def poisson_variance(scene):
     if not (t.poisson and rate > 0):
         return 0.0
     return float(rate * shot_factor(scene.schedule))
+
+
+def active_white_variance(scene):
+    """Slope variance (e/s)² of the light-sensitive pixels' own white read noise.
+
+    ``scene.active_read_noise`` ``σ`` (e per read; the reference pixels do not see
+    it, so no reference correction moves it) in every light-sensitive pixel: ``σ²
+    Σ w_k²``, ``w`` the uniform least-squares slope's weights of the frames
+    (`~spherex_reduce.noise.variance.slope_frames`); 0 without it.
+
+    Parameters
+    ----------
+    scene : `~spherex_reduce.simulation.Scene`
+        In electrons (`~spherex_reduce.simulation.Scene.in_electrons`).
+
+    Returns
+    -------
+    float
+
+    Examples
+    --------
+    Two frames one frame time ``T`` apart: the slope's variance is ``2 σ² / T²``.
+
+    >>> from spherex_reduce.simulation import load_scene
+    >>> from spherex_reduce.analysis.forecast.engine import active_white_variance
+    >>> sc = load_scene({"readout": {"nframes": 2}, "scene": {"active_read_noise": 10.0}})
+    >>> t = sc.schedule.frame_time.to_value("s")
+    >>> round(active_white_variance(sc) * t**2 / (2 * 10.0**2), 12)
+    1.0
+    """
+    sigma = float(scene.terms.active_read_noise)
+    if not sigma > 0:
+        return 0.0
+    w, _, _ = slope_frames(scene.schedule)
+    return sigma * sigma * float(np.sum(w * w))

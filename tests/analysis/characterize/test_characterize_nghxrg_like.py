@@ -11,6 +11,7 @@ from _darks import dark, schedule
 from spherex_reduce.analysis.characterize import characterize
 from spherex_reduce.analysis.characterize.model import goodness
 from spherex_reduce.analysis.characterize.spectra import band_power
+from spherex_reduce.simulation import load_scene, simulate
 
 FS = 1e5
 #: white per pixel sample: reference pixels (sigma 4) and light-sensitive ones (sigma 5)
@@ -55,6 +56,28 @@ def test_reference_white_level_is_not_raised_by_the_common_one_over_f():
     assert ref.values[0] == pytest.approx(REF, abs=4 * ref.errors[0])
     assert ref.values[0] == pytest.approx(REF, rel=0.05)
     assert not any("visibly bad" in m for m in model.marks), model.marks
+
+
+def test_the_model_holds_the_reference_and_the_light_sensitive_white_levels_apart():
+    """Reference pixels quieter than the light-sensitive ones (sigma 4 and 5 per sample):
+    the model's components hold the reference level, ``scene.active_read_noise`` the
+    light-sensitive pixels' excess (3 per read), each within its errors, and a simulation
+    of the model reads both: its reference and light-sensitive pixels' reads differ by the
+    darks' variances (16 and 25) within 5 % and 10 % (the light-sensitive level's fit
+    has an error of 7 %)."""
+    model = characterize(nghxrg_like([], n=16, seed=1), segments=1)
+    ref, pix = model.spectra["reference"], model.spectra["pixels"]
+    sc = load_scene(model.scene())
+    held = sum(c.alpha for c in sc.components if c.seen_by_pixels)
+    assert held == pytest.approx(REF, abs=3 * ref.errors[0])
+    excess = 2 * sc.terms.active_read_noise**2 / FS  # as a white level
+    assert excess == pytest.approx(LIGHT - REF, abs=3 * np.hypot(ref.errors[0], pix.errors[0]))
+    assert any(m.startswith("reference:") and "holds both" in m for m in model.marks)
+    e = simulate(dict(model.scene(), output={"mode": "ramps"}), seed=0)
+    d = np.diff(np.asarray(e.data.data, dtype=np.float64), axis=0) / np.sqrt(2)
+    mask = np.asarray(e.reference_pixel_mask())
+    assert d[:, mask].var() == pytest.approx(REF * FS / 2, rel=0.05)
+    assert d[:, ~mask].var() == pytest.approx(LIGHT * FS / 2, rel=0.1)  # (fit: 7 %)
 
 
 def test_acn_is_a_component_of_its_own_beside_each_outputs_one_over_f():

@@ -5,7 +5,7 @@ through `power_spectrum`, and the package's Monte Carlo."""
 import numpy as np
 import pytest
 from _forecast_brute import Samples, expected_spectrum, read_time_covariance, reduction_matrix
-from _forecast_scenes import BINS, COMMON, PINK, PINK_ACN, ROIC, tiny
+from _forecast_scenes import BINS, COMMON, PINK, PINK_ACN, PIPELINES, ROIC, tiny
 from astropy import units as u
 
 from spherex_reduce import expected_slope_variance
@@ -115,6 +115,40 @@ def test_poisson_noise_is_white_at_the_analytic_slope_variance():
     without = forecast(tiny([PINK]), measure={"bins": BINS})
     np.testing.assert_allclose(u.Quantity(got["power"]).value,
                                u.Quantity(without["power"]).value + expect, rtol=1e-12)
+
+
+@pytest.mark.parametrize("pipeline", ["spherex-default", "side-columns"])
+def test_light_sensitive_read_noise_equals_brute_force_and_the_reference_pixels_miss_it(
+        pipeline):
+    """``scene.active_read_noise`` σ: each light-sensitive sample's slope gets ``σ² Σ w²``
+    more variance (``w`` the least-squares weights, computed here), no reference pixel
+    any; the covariance of every sample pushed through the pipeline as a matrix.  Had the
+    reference pixels seen it too (a white level of every pixel), their mean would move
+    the band power by far more than the tolerance."""
+    sigma = 40.0
+    scene = tiny([ROIC, PINK_ACN, COMMON], scan="alternate",
+                 terms={"active_read_noise": sigma})
+    s = scene.schedule
+    g = s.geometry
+    samples = Samples(scene)
+    t = np.arange(s.nframes) * s.frame_samples / g.pixel_rate
+    w = (t - t.mean()) / np.sum((t - t.mean()) ** 2)
+    active = np.zeros(samples.t.size, bool)
+    active[:samples.npix] = ((~s.is_reference)[:, None]
+                             & ~g.reference_column_mask()[None, :]).ravel()
+    cov = sum(samples.covariance(scene.components).values())
+    subtract, config = PIPELINES[pipeline]
+    lmat = reduction_matrix(samples, **subtract)
+    expect = expected_spectrum(samples, lmat, cov + np.diag(active * sigma**2 * np.sum(w * w)),
+                               BINS)
+    got = forecast(scene, config, {"bins": BINS})
+    p = u.Quantity(got["power"]).value
+    np.testing.assert_allclose(p, expect, rtol=1e-3)
+    np.testing.assert_allclose(u.Quantity(got["power_active_white"]).value,
+                               sigma**2 * np.sum(w * w), rtol=1e-12)
+    seen = samples.is_pixel * sigma**2 * np.sum(w * w)
+    wrong = expected_spectrum(samples, lmat, cov + np.diag(seen), BINS)
+    assert np.max(np.abs(wrong / expect - 1)) > 0.1, wrong / expect - 1
 
 
 def test_refuses_a_measure_that_is_not_linear_and_unknown_steps():

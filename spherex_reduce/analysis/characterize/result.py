@@ -147,17 +147,6 @@ class Characterization:
         if "reference" not in self.spreads:
             out.append("reference: not constrained: the darks have no reference-row reads or "
                        "side reference columns")
-        elif (gap := self._reference_gap()) is not None:
-            d, err = gap
-            if err > 0 and abs(d) > DIFFERENT_SIGMAS * err:
-                ref, pix = self.spectra["reference"], self.spectra["pixels"]
-                held = ("the model holds both: the light-sensitive pixels' excess as "
-                        "scene.active_read_noise, white noise the reference pixels do not see"
-                        if d < 0 else "the model holds the light-sensitive value (a white "
-                        "level of the reference pixels above theirs is not a scene term)")
-                out.append(f"reference: white level {ref.values[0]:.4g} ± {ref.errors[0]:.2g} "
-                           f"differs from the light-sensitive pixels' {pix.values[0]:.4g} ± "
-                           f"{pix.errors[0]:.2g} ({abs(d) / err:.1f} sigma); {held}")
         for view, sp in self.spreads.items():
             for i, p in enumerate(PARAMS):
                 if sp["real"][i]:
@@ -257,36 +246,74 @@ class Characterization:
             out["scene"] = terms
         return out
 
-    def _reference_gap(self):
-        """``(reference white level − the light-sensitive pixels', its standard error)`` of
-        the fitted spectra (the darks' unit squared per Hz), or None without both."""
+    def _white_levels(self):
+        """``(light, light_err, reference, reference_err)``: the white levels (the darks'
+        unit squared per Hz) of the light-sensitive pixels as the scene holds them (the
+        pixels' ``white_read_noise`` where `faint_white` holds it, else the streams') and
+        of the reference pixels, with their standard errors; None without both."""
         ref, pix = self.spectra.get("reference"), self.spectra.get("pixels")
-        if ref is None or pix is None:
+        if ref is None or pix is None or "reference" not in self.spreads:
             return None
-        return (float(ref.values[0] - pix.values[0]),
-                float(np.hypot(ref.errors[0], pix.errors[0])))
+        light, err = float(pix.values[0]), float(pix.errors[0])
+        white = self.faint_white()
+        if white is not None:  # its error: d(v^2) = 2 v dv, per read; as a level, 2 / fs
+            fs = self.schedule.geometry.pixel_rate
+            row = self.pixel_terms.row("white_read_noise", "active")
+            light, err = 2.0 * white / fs, 4.0 * float(row["value"]) * float(row["error"]) / fs
+        return light, err, float(ref.values[0]), float(ref.errors[0])
+
+    def _white_gap(self):
+        """``(light - reference, its standard error)`` of `_white_levels`, or None."""
+        levels = self._white_levels()
+        if levels is None:
+            return None
+        light, light_err, ref, ref_err = levels
+        return light - ref, float(np.hypot(light_err, ref_err))
 
     def _active_read_noise(self, components):
         """Where the reference pixels read quieter than the light-sensitive ones (by more
-        than `DIFFERENT_SIGMAS` standard errors), the white read noise (per read, the
-        darks' unit) only the light-sensitive pixels see: the ``channel`` component's
-        white level (in ``components``, scene mappings, changed in place) is lowered to
-        what the reference pixels show and the difference becomes
+        than `DIFFERENT_SIGMAS` standard errors of `_white_gap`), the white read noise (per
+        read, the darks' unit) only the light-sensitive pixels see: the ``channel``
+        component's white level (in ``components``, scene mappings, changed in place) is
+        lowered to what the reference pixels show and the difference becomes
         ``scene.active_read_noise``; else 0 and nothing changes."""
-        gap = self._reference_gap()
-        if gap is None or not (gap[1] > 0 and -gap[0] > DIFFERENT_SIGMAS * gap[1]):
+        gap = self._white_gap()
+        if gap is None or not (gap[1] > 0 and gap[0] > DIFFERENT_SIGMAS * gap[1]):
             return 0.0
         seen = sum(c.get("alpha", 0.0) for c in components
                    if c.get("visibility", "pixels") in ("pixels", "both"))
         channel = next((c for c in components if c["name"] == "channel"), None)
         if channel is None:
             return 0.0
-        # the light-sensitive total may have been held otherwise (`faint_white`)
-        take = min(seen - float(self.spectra["reference"].values[0]), channel["alpha"])
+        take = min(seen - self._white_levels()[2], channel["alpha"])
         if not take > 0:
             return 0.0
         channel["alpha"] -= take
         return float(np.sqrt(take * self.schedule.geometry.pixel_rate / 2))
+
+    def reference_white_mark(self):
+        """The line saying how the reference pixels' white level differs from the
+        light-sensitive pixels' (by more than `DIFFERENT_SIGMAS` standard errors) and what
+        the scene holds, or None; made once the per-pixel terms are known (the
+        light-sensitive level may be theirs: `faint_white`)."""
+        gap, levels = self._white_gap(), self._white_levels()
+        if gap is None or not (gap[1] > 0 and abs(gap[0]) > DIFFERENT_SIGMAS * gap[1]):
+            return None
+        light, light_err, ref, ref_err = levels
+        active = (self.scene().get("scene") or {}).get("active_read_noise")
+        if gap[0] < 0:
+            held = ("the model holds the light-sensitive value for every pixel (a white "
+                    "level of the reference pixels above theirs is not a scene term)")
+        elif active:
+            held = (f"the model holds both: the reference level in the components, the "
+                    f"light-sensitive pixels' excess as scene.active_read_noise = "
+                    f"{active:.4g} {self.unit} per read")
+        else:
+            held = ("the model holds the light-sensitive value for every pixel (no channel "
+                    "component's white level to lower to the reference pixels')")
+        return (f"reference: white level {ref:.4g} ± {ref_err:.2g} differs from the "
+                f"light-sensitive pixels' {light:.4g} ± {light_err:.2g} "
+                f"({abs(gap[0]) / gap[1]:.1f} sigma); {held}")
 
     def to_yaml(self):
         """The scene as YAML text, its unit and provenance in comments."""

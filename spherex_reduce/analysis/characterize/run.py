@@ -229,6 +229,9 @@ def characterize(inputs, config=None, *, exponent=1.3, segments=None, nbins=30,
                                    segmented=split or (segments or 1) > 1, gain=gain)
     model.pixel_terms = terms
     _mark_faint_white(model)
+    reference = model.reference_white_mark()
+    if reference is not None:
+        model.marks.append(reference)
     if pixel_mark is not None:
         also = (f"; the streams of the darks before left out their {left_out} pixels with "
                 "a jump or hot" if left_out else "")
@@ -250,12 +253,18 @@ def _mark_faint_white(model):
     channel = model.components.get("channel")
     if white is None or channel is None:
         return
-    held = [c["alpha"] for c in model.scene()["noise"]["components"] if c["name"] == "channel"]
-    if held:
+    scene = model.scene()
+    comps = scene["noise"]["components"]
+    if any(c["name"] == "channel" for c in comps):
+        active = (scene.get("scene") or {}).get("active_read_noise", 0.0)
+        level = (sum(c.get("alpha", 0.0) for c in comps
+                     if c.get("visibility", "pixels") in ("pixels", "both"))
+                 + 2.0 * active**2 / model.schedule.geometry.pixel_rate)
         model.marks.append(
             f"channel.alpha: the streams' {channel.values[0]:.4g} holds part of the faint "
             f"telegraph population's steps, which scene.rtn holds; the scene takes the pixels' "
-            f"white read noise ({np.sqrt(white):.4g} {model.unit}): {held[0]:.4g}")
+            f"white read noise ({np.sqrt(white):.4g} {model.unit}): a white level of "
+            f"{level:.4g} on the light-sensitive pixels")
 
 
 def _fit_pixels(sums):

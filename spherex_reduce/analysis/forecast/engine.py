@@ -417,6 +417,10 @@ def prepare_forecast(scene, pipeline):
     """
     sc = scene if isinstance(scene, Scene) else load_scene(scene)
     sc = sc.in_electrons("forecast")  # a scene in adu, with its gain
+    clash = sorted({c.name for c in sc.components} & {_POISSON, _ACTIVE, *POPULATIONS, _MASKED})
+    if clash:
+        raise ConfigError(f"noise.components: {clash[0]!r} is the name of one of the forecast's "
+                          f"own columns (power_{clash[0]}); rename the component")
     red = reduction(pipeline)
     sc.check_mode("slopes")
     g = sc.schedule.geometry  # the readout frame, where the engine works
@@ -534,7 +538,7 @@ def active_white_variance(scene):
     >>> from spherex_reduce.analysis.forecast.engine import active_white_variance
     >>> sc = load_scene({"readout": {"nframes": 2}, "scene": {"active_read_noise": 10.0}})
     >>> t = sc.schedule.frame_time.to_value("s")
-    >>> round(active_white_variance(sc) * t**2 / (2 * 10.0**2), 12)
+    >>> round(float(active_white_variance(sc) * t**2 / (2 * 10.0**2)), 12)
     1.0
     """
     sigma = float(scene.terms.active_read_noise)

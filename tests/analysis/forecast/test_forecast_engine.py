@@ -160,6 +160,14 @@ def test_refuses_a_measure_that_is_not_linear_and_unknown_steps():
                                    {"fit_ramp": {"weighting": "optimal", "read_noise": 5.0}}]})
 
 
+@pytest.mark.parametrize("name", ["poisson", "active_white", "telegraph", "masked"])
+def test_a_component_named_as_one_of_the_forecasts_own_columns_is_refused(name):
+    """Its plane would be overwritten by the forecast's own part of that name (and the band's
+    fast path, which sums them apart, would disagree with the table)."""
+    with pytest.raises(ConfigError, match=f"'{name}' is the name of one of the forecast's"):
+        forecast(tiny([{**PINK, "name": name}], terms={"active_read_noise": 5.0}))
+
+
 def test_band_follows_the_measure():
     """The band power is the bin of the measure's band, by the spectrum's own estimator."""
     scene = tiny([PINK_ACN])

@@ -205,6 +205,7 @@ def main():
     if args.frame_time is not None:
         sc["readout"]["frame_time"] = args.frame_time
     pulls, first, timing = {}, None, None
+    splits = []  # seeds whose scene holds two white levels (the simulated one has one)
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         t_sim = [0.0]
         if args.case == "sidecar":
@@ -226,6 +227,8 @@ def main():
         if first is None:
             first, timing = model, (t_sim, t_char, peak)
         truth_now = with_acn(want) if "acn" in model.components else want
+        if (model.scene().get("scene") or {}).get("active_read_noise"):
+            splits.append(seed)
         for name, est in model.components.items():
             for i, term in enumerate(("alpha", "beta", "gamma")):
                 if est.errors[i] > 0:
@@ -280,6 +283,10 @@ def main():
             sd = f"{x.std(ddof=1):.2f}" if x.size > 1 else "-"
             print(f"| {name}.{term} | {truth_first[name][i]:.3g} | {est.values[i]:.3g} | "
                   f"{est.errors[i]:.2g} | {x[0]:+.2f} | {x.mean():+.2f} ± {sd} |")
+    print(f"\ntwo white levels (scene.active_read_noise: the reference pixels read quieter by "
+          f"> 3 errors) held for {len(splits)} of {args.seeds} seeds"
+          + (f" ({', '.join(map(str, splits))})" if splits else "")
+          + "; the simulated darks have one white level")
     t_sim, t_char, peak = timing
     print(f"\ntime (seed {args.first_seed}): simulate {args.darks} darks {t_sim:.1f} s; "
           f"characterize {t_char:.1f} s ({t_char / args.darks:.1f} s per dark, simulation "

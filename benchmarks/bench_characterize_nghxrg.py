@@ -290,6 +290,18 @@ def rows(model, want):
         r, re_ = ref.values[0], ref.errors[0]
         out.append(("white, reference pixels", want["white_ref"], r, re_,
                     f"within {WHITE_TOL:.0%}", abs(r / want["white_ref"] - 1) <= WHITE_TOL))
+    # what the scene holds (simulate, forecast and wiener take it): the components' white
+    # level on every pixel, the light-sensitive pixels' own read noise on top
+    scene = model.scene()
+    fs = model.schedule.geometry.pixel_rate
+    held = sum(c.get("alpha", 0.0) for c in scene["noise"]["components"]
+               if c.get("visibility", "pixels") in ("pixels", "both"))
+    active = (scene.get("scene") or {}).get("active_read_noise", 0.0)
+    for term, t, v in (("scene: reference pixels' white (components)", want["white_ref"], held),
+                       ("scene: light-sensitive white (+ active_read_noise)", want["white"],
+                        held + 2 * active**2 / fs)):
+        out.append((term, t, v, None, f"within {WHITE_TOL:.0%}",
+                    abs(v / t - 1) <= WHITE_TOL))
     for key, name in (("common", "common"), ("channel", "per-output")):
         v, err = band(comps[key], e)
         tb = want[key] * ln

@@ -125,7 +125,21 @@ def _acn_test(full, jack, exponent):
 
 
 def _classes(g, acn, boxes, nch):
-    """The six components' ``alpha, beta, gamma`` of one dark's fits ``g`` (missing: None)."""
+    """The six components' ``alpha, beta, gamma`` of one dark's fits ``g`` (missing: None).
+
+    The common white level is the reference-row bursts' cross-spectrum's where the darks
+    have one (``reference_common``: read at the pixel rate, where white noise dominates),
+    not the light-sensitive streams' (row means, where a strong common 1/f leaves it loose:
+    on NGHXRG's ``c_pink`` darks ± 1.5e-4 about a white level of 5.4e-4)."""
+    out = _split(g, acn, boxes, nch)
+    ref = g.get("reference_common")
+    if ref is not None and nch > 1 and "common" in out:
+        out["common"] = np.array([ref.values["alpha"], *out["common"][1:]])
+    return out
+
+
+def _split(g, acn, boxes, nch):
+    """`_classes` from the light-sensitive and phantom streams alone."""
     zero = np.zeros(3)
     t = {k: _theta(v) for k, v in g.items() if k != "channels" and v is not None}
     common = t.get("pixels_common", zero) if nch > 1 else zero

@@ -6,7 +6,16 @@ import numpy as np
 from astropy import units as u
 from astropy.table import Table
 
-from .model import ACN_SIGMAS, BAD_FIT_PROBABILITY, LAYOUT, PARAMS, combine, goodness, scene_values
+from .model import (
+    ACN_SIGMAS,
+    BAD_FIT_PROBABILITY,
+    LAYOUT,
+    PARAMS,
+    Estimate,
+    combine,
+    goodness,
+    scene_values,
+)
 from .spectra import NOT_REPORTED, SPECTRA
 
 __all__ = ["Characterization", "hold_white"]
@@ -249,12 +258,16 @@ class Characterization:
     def _white_levels(self):
         """``(light, light_err, reference, reference_err)``: the white levels (the darks'
         unit squared per Hz) of the light-sensitive pixels as the scene holds them (the
-        pixels' ``white_read_noise`` where `faint_white` holds it, else the streams') and
-        of the reference pixels, with their standard errors; None without both."""
-        ref, pix = self.spectra.get("reference"), self.spectra.get("pixels")
-        if ref is None or pix is None or "reference" not in self.spreads:
+        pixels' ``white_read_noise`` where `faint_white` holds it, else the components'
+        ``channel + common``) and of the reference pixels, with their standard errors;
+        None without both."""
+        ref = self.spectra.get("reference")
+        parts = [self.components[n] for n in ("channel", "common") if n in self.components]
+        if ref is None or not parts or "reference" not in self.spreads:
             return None
-        light, err = float(pix.values[0]), float(pix.errors[0])
+        # each pixel's white level: channel + common, its jackknife error of the sum
+        light = Estimate.of(sum(p.values for p in parts), sum(p.leave_one_out for p in parts))
+        light, err = float(light.values[0]), float(light.errors[0])
         white = self.faint_white()
         if white is not None:  # its error: d(v^2) = 2 v dv, per read; as a level, 2 / fs
             fs = self.schedule.geometry.pixel_rate

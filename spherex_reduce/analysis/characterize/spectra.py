@@ -49,6 +49,9 @@ SPECTRA = {
     "both_common": "pixels x phantom of different channels",
     "reference": "reference pixels: white level (and 1/f of long bursts) of the reference-row "
                  "bursts",
+    "reference_common": "reference pixels: mean cross-spectrum of different channels' "
+                        "reference-row bursts (read at the same times): the white level "
+                        "common to all channels",
 }
 
 
@@ -119,6 +122,10 @@ def dark_spectra(streams, schedule, nperseg=None):
             psd("rows", lambda: rows, fs / 2, rows.shape[-1])
             for c in range(rows.shape[0]):
                 psd(f"rows[{c}]", lambda c=c: rows[c], fs / 2, rows.shape[-1])
+        if rows.shape[0] > 1:  # the channels read their reference rows at the same times
+            both = (slice(None),) if kept is None else (slice(None), kept.all(axis=0))
+            psd("rows_each", lambda: rows[both], fs / 2, rows.shape[-1])
+            psd("rows_mean", lambda: rows[both].mean(axis=0), fs / 2, rows.shape[-1])
     for c, v in streams.reference_sides.items():
         psd(f"sides[{c}]", lambda v=v: v)
     # each spectrum alone: SPECTRA_THREADS at a time (the transforms release the GIL)
@@ -319,6 +326,15 @@ def fit_spectra(sp, boxes, schedule, exponent, nbins=30, shot=0.0):
     if "rows" in sp:
         out["reference"] = fit_noise_model(sp["rows"], basis=_burst_basis(fs), **fit,
                                            **_burst_terms(sp["rows"]))
+    each = sp.get("rows_each")
+    if each is not None and nch > 1 and each.meta["nperseg"] >= LONG_BURST:
+        # the common white level where white noise dominates, from bursts long enough that
+        # their fit takes the common 1/f apart (short ones would take it for white)
+        r_w = _expected(fit_noise_model(each, basis=_burst_basis(fs), **fit,
+                                        **_burst_terms(each)), _burst_basis(fs), each)
+        out["reference_common"] = fit_noise_model(
+            _with(each, _pairs(sp["rows_mean"]["psd"], each["psd"], nch), r_w),
+            basis=_burst_basis(fs), **fit, **_burst_terms(each))
     out["channels"] = per
     return out
 

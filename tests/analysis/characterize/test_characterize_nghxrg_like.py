@@ -80,6 +80,26 @@ def test_the_model_holds_the_reference_and_the_light_sensitive_white_levels_apar
     assert d[:, ~mask].var() == pytest.approx(LIGHT * FS / 2, rel=0.1)  # (fit: 7 %)
 
 
+def test_the_common_white_level_comes_from_the_reference_bursts_under_a_strong_common_drift():
+    """NGHXRG's common 1/f drowns the white level of the light-sensitive streams' cross-
+    spectrum (row means: before, ``common.alpha`` came out ± 9e-4 about a white level of
+    5e-4, and with it each pixel's white level): the reference-row bursts of the outputs,
+    read at the same times at the pixel rate, give it (0 here, none of the white noise is
+    common) to a few 1e-6, and with it the scene's two white levels, each within 3 of its
+    errors."""
+    model = characterize(nghxrg_like([{"name": "c", "beta": C_PINK, "scope": "common"}],
+                                     n=16, seed=1), segments=1)
+    common = model.components["common"]
+    assert abs(common.values[0]) < 3 * common.errors[0] < 0.05 * REF
+    _, light_err, _, ref_err = model._white_levels()
+    sc = load_scene(model.scene())
+    held = sum(c.alpha for c in sc.components if c.seen_by_pixels)
+    assert held == pytest.approx(REF, abs=3 * ref_err)
+    assert held + 2 * sc.terms.active_read_noise**2 / FS == pytest.approx(LIGHT,
+                                                                         abs=3 * light_err)
+    assert any(m.startswith("reference:") and "holds both" in m for m in model.marks)
+
+
 def test_acn_is_a_component_of_its_own_beside_each_outputs_one_over_f():
     """Each output's own 1/f (one stream for both parities) and ACN (one per parity) come
     back apart: the channel component is the output's 1/f, the acn component ACN's (when

@@ -124,15 +124,16 @@ def _acn_test(full, jack, exponent):
             "found": bool(z > ACN_SIGMAS)}
 
 
-def _classes(g, acn, boxes, nch):
+def _classes(g, acn, boxes, nch, reference=True):
     """The six components' ``alpha, beta, gamma`` of one dark's fits ``g`` (missing: None).
 
     The common white level is the reference-row bursts' cross-spectrum's where the darks
     have one (``reference_common``: read at the pixel rate, where white noise dominates),
     not the light-sensitive streams' (row means, where a strong common 1/f leaves it loose:
-    on NGHXRG's ``c_pink`` darks ± 1.5e-4 about a white level of 5.4e-4)."""
+    on NGHXRG's ``c_pink`` darks ± 1.5e-4 about a white level of 5.4e-4); ``reference``
+    False: the streams' (every fit of a jackknife takes it from one source)."""
     out = _split(g, acn, boxes, nch)
-    ref = g.get("reference_common")
+    ref = g.get("reference_common") if reference else None
     if ref is not None and nch > 1 and "common" in out:
         out["common"] = np.array([ref.values["alpha"], *out["common"][1:]])
     return out
@@ -329,8 +330,9 @@ def combine(full, jack, boxes, nch):
     exponent = full["pixels"].exponent
     acn = _acn_test(full, jack, exponent)
     found = bool(acn and acn["found"])
-    whole = _classes(full, found, boxes, nch)
-    parts = [_classes(j, found, boxes, nch) for j in jack]
+    reference = "reference_common" in full  # (then every dark had it, and every pool)
+    whole = _classes(full, found, boxes, nch, reference)
+    parts = [_classes(j, found, boxes, nch, reference) for j in jack]
     components = {n: Estimate.of(whole[n], [p[n] for p in parts]) for n in whole}
     names = [k for k in full if k not in NOT_REPORTED and full[k] is not None]
     spectra = {k: Estimate.of(_theta(full[k]), [_theta(j[k]) for j in jack]) for k in names}
@@ -403,6 +405,10 @@ def goodness(bins, nch):
     if nch > 1 and pix is not None and common is not None and len(pix) == len(common):
         rho = np.asarray(common["model"]) / np.maximum(np.asarray(pix["model"]), 1e-300)
         kappa["pixels"], kappa["pixels_common"] = _common_mode(rho, nch)
+    ref, ref_common = bins.get("reference"), bins.get("reference_common")
+    if nch > 1 and ref is not None and ref_common is not None and len(ref) == len(ref_common):
+        rho = np.asarray(ref_common["model"]) / np.maximum(np.asarray(ref["model"]), 1e-300)
+        kappa["reference_common"] = _common_mode(rho, nch)[1]
     out = {}
     for name, b in bins.items():
         r2 = ((np.asarray(b["psd"]) - np.asarray(b["model"])) / np.asarray(b["psd_err"])) ** 2

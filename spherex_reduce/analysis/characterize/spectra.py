@@ -76,7 +76,9 @@ def dark_spectra(streams, schedule, nperseg=None):
     dict
         ``{key: Table}`` (``sum``, ``sum_mean``, ``diff``, ``phantom``,
         ``phantom_mean``, ``sum+phantom``, ``sum+phantom_mean``, ``sum[c]``,
-        ``phantom[c]``, ``rows[c]``, ``rows``, ``sides[c]``: those the dark has).
+        ``phantom[c]``, ``rows[c]``, ``rows``, ``rows_each`` and ``rows_mean`` (the
+        bursts every channel keeps, each channel's and their mean over channels),
+        ``sides[c]``: those the dark has).
 
     Examples
     --------
@@ -122,8 +124,10 @@ def dark_spectra(streams, schedule, nperseg=None):
             psd("rows", lambda: rows, fs / 2, rows.shape[-1])
             for c in range(rows.shape[0]):
                 psd(f"rows[{c}]", lambda c=c: rows[c], fs / 2, rows.shape[-1])
-        if rows.shape[0] > 1:  # the channels read their reference rows at the same times
-            both = (slice(None),) if kept is None else (slice(None), kept.all(axis=0))
+        every = None if kept is None else kept.all(axis=0)  # bursts every channel keeps
+        if rows.shape[0] > 1 and (every is None or every.any()):
+            # the channels read their reference rows at the same times
+            both = (slice(None),) if every is None else (slice(None), every)
             psd("rows_each", lambda: rows[both], fs / 2, rows.shape[-1])
             psd("rows_mean", lambda: rows[both].mean(axis=0), fs / 2, rows.shape[-1])
     for c, v in streams.reference_sides.items():
@@ -155,7 +159,7 @@ def pool(spectra):
     4
     """
     out = {}
-    for key in spectra[0]:
+    for key in [k for k in spectra[0] if all(k in s for s in spectra)]:
         tabs = [s[key] for s in spectra]
         t = Table(tabs[0], copy=True)
         # summed as plain arrays: Column arithmetic per dark made the jackknife's pools

@@ -100,6 +100,19 @@ def test_the_common_white_level_comes_from_the_reference_bursts_under_a_strong_c
     assert any(m.startswith("reference:") and "holds both" in m for m in model.marks)
 
 
+def test_the_common_reference_spectrums_fit_is_judged_with_its_own_scatter():
+    """The bursts' mean cross-spectrum over channel pairs scatters less than one channel's
+    spectrum (its pairs of independent channels average: 1/(C − 1) of the variance for
+    white noise): its chi2 over 3 sets of darks is ~1 per degree of freedom when judged
+    with that scatter (it came out ~1/3: a bad fit could not be called so)."""
+    per_dof = []
+    for seed in (1, 2, 3):
+        model = characterize(nghxrg_like([], n=16, seed=seed), segments=1)
+        chi2, dof, _ = goodness(model.bins, 4)["reference_common"]
+        per_dof.append(chi2 / dof)
+    assert 0.7 < np.mean(per_dof) < 2.5, per_dof
+
+
 def test_acn_is_a_component_of_its_own_beside_each_outputs_one_over_f():
     """Each output's own 1/f (one stream for both parities) and ACN (one per parity) come
     back apart: the channel component is the output's 1/f, the acn component ACN's (when

@@ -61,3 +61,29 @@ def test_phantom_values_of_acn_fit_their_white_level_with_each_paritys_average()
     assert (whole.values["alpha"] - alpha) / whole.errors["alpha"] > 3
     assert abs(parity.values["alpha"] - alpha) < 3 * parity.errors["alpha"]
     assert parity.values["beta"] == pytest.approx(beta, rel=0.03)
+
+
+def test_no_burst_kept_in_every_channel_leaves_the_common_reference_spectrum_out():
+    """Channel 0 loses its even reference-row bursts, channel 1 its odd ones (a pixel left
+    out in each): no burst is clean in both, so the bursts' cross-spectrum between channels
+    has nothing to average (it raised inside scipy: review); the rest is there, and
+    pooling it with a dark that has it keeps only the spectra both darks have."""
+    from spherex_reduce.io.config import schedule_from_config
+
+    s = schedule_from_config({"nrows": 64, "ncols": 128, "nchannels": 2, "ref_border": 4,
+                              "scan": "alternate"},
+                             {"skip": 4, "ref_reads": 8, "phantom_reads": 2, "nframes": 4,
+                              "frame_overhead": 100})
+    e = example_raw_exposure(s)
+    g = e.schedule.geometry
+    left = np.zeros((g.nrows, g.ncols), bool)
+    offs, chan = g.column_offsets(), g.channel_of_column()
+    for r in np.flatnonzero(g.reference_pixel_mask().all(axis=1)):
+        left[r, np.flatnonzero((chan == 0) & (offs == 2))[0]] = True
+        left[r, np.flatnonzero((chan == 1) & (offs == 3))[0]] = True
+    lacking = dark_spectra(channel_streams(e, leave_out=left), e.schedule)
+    assert "rows_mean" not in lacking and {"rows", "rows[0]", "rows[1]"} <= set(lacking)
+    whole = dark_spectra(channel_streams(e), e.schedule)
+    assert {"rows_each", "rows_mean"} <= set(whole)
+    pooled = spectra.pool([whole, lacking])
+    assert "rows_mean" not in pooled and set(pooled) == set(lacking)

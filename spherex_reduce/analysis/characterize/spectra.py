@@ -125,8 +125,10 @@ def dark_spectra(streams, schedule, nperseg=None):
             for c in range(rows.shape[0]):
                 psd(f"rows[{c}]", lambda c=c: rows[c], fs / 2, rows.shape[-1])
         every = None if kept is None else kept.all(axis=0)  # bursts every channel keeps
-        if rows.shape[0] > 1 and (every is None or every.any()):
-            # the channels read their reference rows at the same times
+        if rows.shape[0] > 1 and rows.shape[-1] >= LONG_BURST and (every is None
+                                                                   or every.any()):
+            # the channels read their reference rows at the same times (bursts long enough
+            # for `fit_spectra` to take their common white level from)
             both = (slice(None),) if every is None else (slice(None), every)
             psd("rows_each", lambda: rows[both], fs / 2, rows.shape[-1])
             psd("rows_mean", lambda: rows[both].mean(axis=0), fs / 2, rows.shape[-1])

@@ -275,9 +275,9 @@ class Characterization:
             light, err = 2.0 * white / fs, 4.0 * float(row["value"]) * float(row["error"]) / fs
         return light, err, float(ref.values[0]), float(ref.errors[0])
 
-    def _white_gap(self):
-        """``(light - reference, its standard error)`` of `_white_levels`, or None."""
-        levels = self._white_levels()
+    def _white_gap(self, levels):
+        """``(light - reference, its standard error)`` of ``levels`` (`_white_levels`), or
+        None."""
         if levels is None:
             return None
         light, light_err, ref, ref_err = levels
@@ -290,7 +290,8 @@ class Characterization:
         component's white level (in ``components``, scene mappings, changed in place) is
         lowered to what the reference pixels show and the difference becomes
         ``scene.active_read_noise``; else 0 and nothing changes."""
-        gap = self._white_gap()
+        levels = self._white_levels()
+        gap = self._white_gap(levels)
         if gap is None or not (gap[1] > 0 and gap[0] > DIFFERENT_SIGMAS * gap[1]):
             return 0.0
         seen = sum(c.get("alpha", 0.0) for c in components
@@ -298,7 +299,7 @@ class Characterization:
         channel = next((c for c in components if c["name"] == "channel"), None)
         if channel is None:
             return 0.0
-        take = min(seen - self._white_levels()[2], channel["alpha"])
+        take = min(seen - levels[2], channel["alpha"])
         if not take > 0:
             return 0.0
         channel["alpha"] -= take
@@ -309,7 +310,8 @@ class Characterization:
         light-sensitive pixels' (by more than `DIFFERENT_SIGMAS` standard errors) and what
         the scene holds, or None; made once the per-pixel terms are known (the
         light-sensitive level may be theirs: `faint_white`)."""
-        gap, levels = self._white_gap(), self._white_levels()
+        levels = self._white_levels()
+        gap = self._white_gap(levels)
         if gap is None or not (gap[1] > 0 and abs(gap[0]) > DIFFERENT_SIGMAS * gap[1]):
             return None
         light, light_err, ref, ref_err = levels

@@ -58,6 +58,7 @@ for the fitted model taken as the scene (gain 1): measured over forecast, within
 
 import argparse
 import json
+import shutil
 import subprocess
 import sys
 import time
@@ -366,7 +367,9 @@ def run_case(case, darks, cfg, args, jwst_py):
                 slope_of[(variant, FLOOR, k)] = slopes(data - floor, s)
         if jwst_py is not None:
             named = {f"{v}_{kk}": (exposures[(v, kk)], s) for (v, kk) in exposures if kk == k}
-            res, versions = run_jwst(jwst_py, named, Path(args.cubes) / "jwst" / f"{case}_{k}")
+            scratch = Path(args.cubes) / "jwst" / f"{case}_{k}"
+            res, versions = run_jwst(jwst_py, named, scratch)
+            shutil.rmtree(scratch, ignore_errors=True)  # its level-1b files and outputs: read
             versions = "peer versions: " + ", ".join(f"{n} {v}" for n, v in versions.items())
             if versions not in notes:
                 notes.append(versions)

@@ -80,7 +80,7 @@ from ..forecast.engine import (
 )
 from ..forecast.populations import clipped_sigma
 from ..spectrum import rfft_weights
-from .result import hold_white
+from .result import group_drift, hold_white
 
 __all__ = ["CLIP_SIGMA", "clipped_sigma", "faint_population", "frame_grid", "predict_scatter",
            "predict_spectrum", "telegraph_population", "telegraph_slope_variance"]
@@ -239,7 +239,10 @@ def _scene(model, nframes, single):
                                                exponent=c["exponent"])
                                 .structure_function(s.frame_samples, g.pixel_rate))
                     for c in seen)
-        light = own if own is not None else white - drift
+        # the fit's white read noise holds the drift about the mean of the pixels read
+        # together (`group_drift`), which the components hold as well
+        light = (own - group_drift(sc["noise"]["components"], s) if own is not None
+                 else white - drift)
         level = sum(c.get("alpha", 0.0) for c in seen) * g.pixel_rate / 2
         if active and light > level:  # the reference pixels' level stays; the rest is theirs
             active = float(np.sqrt(light - level))

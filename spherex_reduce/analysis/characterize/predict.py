@@ -38,7 +38,9 @@ predicts that statistic from a `~spherex_reduce.analysis.characterize.Characteri
   power times the same variance added to the core as Gaussian).  The white
   level is then the ``white_read_noise`` of the fit (the pixels' structure
   function with the drift common to the pixels read together and the faint
-  telegraph taken out), which holds neither the drift nor the telegraph;
+  telegraph taken out), which holds neither the telegraph nor that common
+  drift, but does hold what the drift does about the group's mean within the
+  row: that is taken out (`~spherex_reduce.analysis.characterize.result.group_drift`);
 - **the clip**: a telegraph pixel that switched during the ramp can lie
   beyond 5 σ of a dark's image (the pipeline's ``sigma_clip`` step masks it
   in that dark: `predict_scatter`'s ``image_clip``) or of the difference, and

@@ -457,18 +457,20 @@ class Characterization:
 
 
 def group_drift(components, schedule):
-    """The variance per read (the darks' unit squared) of the correlated noise of
-    ``components`` (scene mappings) about the mean of the pixels read with it, averaged
-    over the light-sensitive pixels.
+    """What the correlated noise of ``components`` (scene mappings) adds per read (the
+    darks' unit squared) to the per-pixel fit's white read noise, averaged over the
+    light-sensitive pixels.
 
-    The per-pixel fit's ``white_read_noise`` takes out the drift common to the pixels read
-    together (one row of one channel and one column parity:
+    The fit (`~spherex_reduce.analysis.faint_telegraph`) takes out the drift common to the
+    pixels read together (one row of one channel and one column parity:
     `~spherex_reduce.analysis.faint_telegraph.common_labels`); what a drift does *within*
     the row, about that mean, is the same at every read and so is fitted as white.  For a
-    group of ``n`` pixels at sample offsets ``o`` that is ``Σ_ij D(o_i − o_j) / (2 n²)``,
-    ``D`` the structure function of the correlated terms (``beta``, ``gamma``) the
-    light-sensitive pixels see.  On NGHXRG's correlated pink (256², 64-column outputs)
-    3.1 ADU² of the fit's 30.4, against its read noise's 27.1.
+    group of ``n`` pixels at sample offsets ``o`` its variance about the group's mean is
+    ``Σ_ij D(o_i − o_j) / (2 n²)``, ``D`` the structure function of the correlated terms
+    (``beta``, ``gamma``) the light-sensitive pixels see, and the fit, which divides a
+    member's terms by ``1 − 2/n`` for what the mean takes of its own white noise, holds
+    ``n/(n − 1)`` of it: ``Σ_ij D / (2 n (n − 1))``.  On NGHXRG's correlated pink (256²,
+    64-column outputs) 3.2 ADU² of the fit's 30.4, against its read noise's 27.1.
 
     Examples
     --------
@@ -498,7 +500,7 @@ def group_drift(components, schedule):
                 continue
             lags, pairs = np.unique(np.abs(o[:, None] - o[None, :]), return_counts=True)
             d = sum(comp.structure_function(lags, g.pixel_rate) for comp in comps)
-            total += float(np.sum(pairs * d)) / (2.0 * o.size)  # n pixels x (1 / 2n^2)
+            total += float(np.sum(pairs * d)) / (2.0 * (o.size - 1))  # n x 1/(2n(n-1))
             count += o.size
     return total / count if count else 0.0
 

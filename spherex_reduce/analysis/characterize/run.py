@@ -263,8 +263,8 @@ def _mark_faint_white(model):
         model.marks.append(
             f"channel.alpha: the streams' {channel.values[0]:.4g} holds part of the faint "
             f"telegraph population's steps, which scene.rtn holds; the scene takes the pixels' "
-            f"white read noise ({np.sqrt(white):.4g} {model.unit}): a white level of "
-            f"{level:.4g} on the light-sensitive pixels")
+            f"white read noise less the components' drift within a row ({np.sqrt(white):.4g} "
+            f"{model.unit}): a white level of {level:.4g} on the light-sensitive pixels")
 
 
 def _fit_pixels(sums):

@@ -66,7 +66,8 @@ _GRID = 240
 def common_labels(geometry):
     """Labels ``(nrows, ncols)`` of the pixels read together: one row of one channel and
     one column parity (ACN's even and odd streams), -1 on the reference pixels; in the
-    stored orientation of ``geometry``.
+    orientation of ``geometry``: the stored image's, or the readout frame's when it is a
+    frame (`~spherex_reduce.DetectorGeometry.frame`, as a reader's schedule has it).
 
     Examples
     --------
@@ -81,7 +82,8 @@ def common_labels(geometry):
     rows = np.arange(frame.nrows)[:, None]
     cols = np.arange(frame.ncols)[None, :]
     lab = rows * (2 * nch) + frame.channel_of_column()[None, :] * 2 + cols % 2
-    lab = np.asarray(geometry.layout.to_stored(lab))
+    if frame is not geometry:  # the stored image of a frame (quadrants, rows)
+        lab = np.asarray(geometry.layout.to_stored(lab))
     return np.where(geometry.reference_pixel_mask(), -1, lab).astype(np.int64)
 
 

@@ -100,6 +100,30 @@ def test_common_labels_are_rows_of_a_channel_and_a_column_parity():
     np.testing.assert_array_equal(lab[rows, cols], expect)
 
 
+@pytest.mark.parametrize("layout", [{"channels": "quadrants"}, {"channels": "rows"},
+                                    {"channels": "quadrants", "fast_axis": "columns"}])
+def test_common_labels_of_a_readout_frame_are_in_the_frame(layout):
+    """A reader's schedule holds the readout frame (quadrants side by side, or rows turned
+    to columns): its labels are in the frame, one row of one channel and one parity each
+    there (they were mapped to the stored image: a quadrant frame raised a ValueError out
+    of characterize, a rows frame grouped pixels read at other times), and the stored
+    image's labels are the same pixels' groups."""
+    from spherex_reduce.analysis.faint_telegraph import common_labels
+
+    g = DetectorGeometry(64, 64, 4, ref_border=4, **layout)
+    f = g.frame
+    assert f is not g
+    lab = common_labels(f)
+    ref = f.reference_pixel_mask()
+    assert lab.shape == (f.nrows, f.ncols) and (lab[ref] == -1).all()
+    rows, cols = np.nonzero(~ref)
+    chan = f.channel_of_column()[cols]
+    expect = rows * (2 * f.nchannels) + chan * 2 + cols % 2
+    np.testing.assert_array_equal(lab[rows, cols], expect)
+    stored = np.asarray(g.layout.to_stored(lab))
+    np.testing.assert_array_equal(stored, common_labels(g))
+
+
 def test_lag_design_traces_against_numpy():
     """The white and shot traces of the structure function's forms, against a brute
     force: the mean of the forms over many numpy ramps."""

@@ -891,3 +891,19 @@ def test_a_channels_column_sums_are_numpys_sums_of_its_columns(dtype):
             got = _kept_sum(data, cols, drop)
             exact[:, 2] -= data[:, 2, cols[3]]
             np.testing.assert_array_equal(got, exact)
+
+
+def test_darks_read_in_quadrants_are_characterised_with_their_per_pixel_terms():
+    """Four quadrants read side by side (WFC3-IR's layout): the per-pixel terms' groups of
+    pixels read together are taken in the readout frame the darks are read in (they were
+    mapped to the stored image and raised a ValueError out of characterize)."""
+    scene = {"geometry": {"nrows": 64, "ncols": 64, "nchannels": 4, "ref_border": 4,
+                          "channels": "quadrants"},
+             "readout": {"nframes": 8, "phantom_reads": 0},
+             "noise": {"components": [{"name": "w", "alpha": 2e-3}]},
+             "output": {"mode": "ramps"}}
+    model = characterize([simulate(scene, seed=k) for k in range(4)], segments=1)
+    assert model.pixel_terms is not None
+    row = model.pixel_terms.row("read_noise", "active")
+    assert row["status"] == "fitted"
+    assert row["value"] == pytest.approx(10.0, rel=0.05)  # 2e-3 e^2/Hz at 100 kHz: 10 e

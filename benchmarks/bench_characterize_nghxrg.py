@@ -55,6 +55,7 @@ from astropy.io import fits
 
 from spherex_reduce.analysis.characterize import characterize
 from spherex_reduce.analysis.characterize.model import BAD_FIT_PROBABILITY, goodness
+from spherex_reduce.analysis.characterize.result import seen_white
 from spherex_reduce.analysis.characterize.spectra import band_power
 from spherex_reduce.reduce.pipeline import Pipeline
 
@@ -294,8 +295,7 @@ def rows(model, want):
     # level on every pixel, the light-sensitive pixels' own read noise on top
     scene = model.scene()
     fs = model.schedule.geometry.pixel_rate
-    held = sum(c.get("alpha", 0.0) for c in scene["noise"]["components"]
-               if c.get("visibility", "pixels") in ("pixels", "both"))
+    held = seen_white(scene["noise"]["components"])
     active = (scene.get("scene") or {}).get("active_read_noise", 0.0)
     for term, t, v in (("scene: reference pixels' white (components)", want["white_ref"], held),
                        ("scene: light-sensitive white (+ active_read_noise)", want["white"],

@@ -82,7 +82,7 @@ from ..forecast.engine import (
 )
 from ..forecast.populations import clipped_sigma
 from ..spectrum import rfft_weights
-from .result import group_drift, hold_white
+from .result import group_drift, hold_white, seen_white
 
 __all__ = ["CLIP_SIGMA", "clipped_sigma", "faint_population", "frame_grid", "predict_scatter",
            "predict_spectrum", "telegraph_population", "telegraph_slope_variance"]
@@ -233,19 +233,18 @@ def _scene(model, nframes, single):
     active = float(terms.get("active_read_noise", 0.0))
     if white is not None:
         g, s = model.schedule.geometry, model.schedule
-        seen = [c for c in sc["noise"]["components"]
-                if c.get("visibility", "pixels") in ("pixels", "both")]
-        # the map's variance of a read holds half the structure function at one frame of
-        # the correlated terms (a pixel's differences are a frame apart)
-        drift = sum(0.5 * float(NoiseComponent(c["name"], beta=c["beta"], gamma=c["gamma"],
-                                               exponent=c["exponent"])
-                                .structure_function(s.frame_samples, g.pixel_rate))
-                    for c in seen)
-        # the fit's white read noise holds the drift about the mean of the pixels read
-        # together (`group_drift`), which the components hold as well
-        light = (own - group_drift(sc["noise"]["components"], s) if own is not None
-                 else white - drift)
-        level = sum(c.get("alpha", 0.0) for c in seen) * g.pixel_rate / 2
+        comps = sc["noise"]["components"]
+        if own is not None:  # the fit's white read noise holds the drift about the mean
+            # of the pixels read together (`group_drift`), which the components hold too
+            light = own - group_drift(comps, s)
+        else:  # the map's variance of a read holds half the structure function at one
+            # frame of the correlated terms (a pixel's differences are a frame apart)
+            light = white - sum(
+                0.5 * float(NoiseComponent(c["name"], beta=c["beta"], gamma=c["gamma"],
+                                           exponent=c["exponent"])
+                            .structure_function(s.frame_samples, g.pixel_rate))
+                for c in comps if c.get("visibility", "pixels") in ("pixels", "both"))
+        level = seen_white(comps) * g.pixel_rate / 2
         if active and light > level:  # the reference pixels' level stays; the rest is theirs
             active = float(np.sqrt(light - level))
         else:

@@ -20,7 +20,7 @@ from .model import (
 )
 from .spectra import NOT_REPORTED, SPECTRA
 
-__all__ = ["Characterization", "group_drift", "hold_white"]
+__all__ = ["Characterization", "group_drift", "hold_white", "seen_white"]
 
 #: A reference-pixel white level this many standard errors from the light-sensitive
 #: pixels' is reported as different.
@@ -304,8 +304,7 @@ class Characterization:
         gap = self._white_gap(levels)
         if gap is None or not (gap[1] > 0 and gap[0] > DIFFERENT_SIGMAS * gap[1]):
             return 0.0
-        seen = sum(c.get("alpha", 0.0) for c in components
-                   if c.get("visibility", "pixels") in ("pixels", "both"))
+        seen = seen_white(components)
         channel = next((c for c in components if c["name"] == "channel"), None)
         if channel is None:
             return 0.0
@@ -505,6 +504,21 @@ def group_drift(components, schedule):
     return total / count if count else 0.0
 
 
+def seen_white(components):
+    """The white level (``alpha`` summed) of the components (scene mappings) the array's
+    pixels see (visibility ``pixels`` or ``both``).
+
+    Examples
+    --------
+    >>> from spherex_reduce.analysis.characterize.result import seen_white
+    >>> seen_white([{"name": "a", "alpha": 1.0}, {"name": "b", "alpha": 2.0,
+    ...             "visibility": "phantom"}, {"name": "c", "alpha": 4.0, "visibility": "both"}])
+    5.0
+    """
+    return float(sum(c.get("alpha", 0.0) for c in components
+                     if c.get("visibility", "pixels") in ("pixels", "both")))
+
+
 def hold_white(components, variance, schedule):
     """Set the ``channel`` component's white level so that what the light-sensitive pixels
     see of all ``components`` (scene mappings, changed in place) is white read noise of
@@ -522,8 +536,7 @@ def hold_white(components, variance, schedule):
     100.0
     """
     fs = schedule.geometry.pixel_rate
-    seen = sum(c.get("alpha", 0.0) for c in components
-               if c.get("visibility", "pixels") in ("pixels", "both"))
+    seen = seen_white(components)
     for c in components:
         if c["name"] == "channel":
             c["alpha"] = max(c.get("alpha", 0.0) + 2.0 * float(variance) / fs - seen, 0.0)

@@ -11,7 +11,7 @@ from ...io.sources import open_input
 from ..faint_telegraph import common_labels
 from ..pixel_terms import PixelSums, pixel_rows
 from .check import DarkScatter, compare, reduction_pipeline
-from .result import Characterization
+from .result import Characterization, seen_white
 from .spectra import dark_spectra, fit_spectra, pool
 from .streams import MIN_FRAMES, dark_streams, pooled_boxes, shot_white
 
@@ -257,9 +257,7 @@ def _mark_faint_white(model):
     comps = scene["noise"]["components"]
     if any(c["name"] == "channel" for c in comps):
         active = (scene.get("scene") or {}).get("active_read_noise", 0.0)
-        level = (sum(c.get("alpha", 0.0) for c in comps
-                     if c.get("visibility", "pixels") in ("pixels", "both"))
-                 + 2.0 * active**2 / model.schedule.geometry.pixel_rate)
+        level = seen_white(comps) + 2.0 * active**2 / model.schedule.geometry.pixel_rate
         model.marks.append(
             f"channel.alpha: the streams' {channel.values[0]:.4g} holds part of the faint "
             f"telegraph population's steps, which scene.rtn holds; the scene takes the pixels' "

@@ -250,7 +250,7 @@ class Characterization:
         white = self.faint_white()
         if white is not None:  # the faint telegraph population once: in scene.rtn
             hold_white(comps, white, self.schedule)
-        active = self._active_read_noise(comps)
+        active = self._active_read_noise(comps, white)
         out = {}
         if self.unit in (u.electron, u.adu):  # the scene's unit: the darks'
             out["unit"] = self.unit.to_string()
@@ -265,44 +265,46 @@ class Characterization:
             out["scene"] = terms
         return out
 
-    def _white_levels(self):
+    def _white_levels(self, white):
         """``(light, light_err, reference, reference_err)``: the white levels (the darks'
         unit squared per Hz) of the light-sensitive pixels as the scene holds them (the
-        pixels' ``white_read_noise`` where `faint_white` holds it, else the components'
-        ``channel + common``) and of the reference pixels, with their standard errors;
-        None without both."""
+        pixels' white read noise ``white``, `faint_white`, where it is held, else the
+        components' ``channel + common``) and of the reference pixels, with their standard
+        errors; None without both."""
         ref = self.spectra.get("reference")
         parts = [self.components[n] for n in ("channel", "common") if n in self.components]
         if ref is None or not parts or "reference" not in self.spreads:
             return None
-        # each pixel's white level: channel + common, its jackknife error of the sum
-        light = Estimate.of(sum(p.values for p in parts), sum(p.leave_one_out for p in parts))
-        light, err = float(light.values[0]), float(light.errors[0])
-        white = self.faint_white()
         if white is not None:  # its error: d(v^2) = 2 v dv, per read; as a level, 2 / fs
             fs = self.schedule.geometry.pixel_rate
             row = self.pixel_terms.row("white_read_noise", "active")
             light, err = 2.0 * white / fs, 4.0 * float(row["value"]) * float(row["error"]) / fs
+        else:  # each pixel's white level: channel + common, the jackknife error of the sum
+            est = Estimate.of(sum(p.values for p in parts), sum(p.leave_one_out for p in parts))
+            light, err = float(est.values[0]), float(est.errors[0])
         return light, err, float(ref.values[0]), float(ref.errors[0])
 
-    def _white_gap(self, levels):
-        """``(light - reference, its standard error)`` of ``levels`` (`_white_levels`), or
-        None."""
+    @staticmethod
+    def _white_gap(levels):
+        """``(light - reference, its standard error)`` of ``levels`` (`_white_levels`) where
+        they differ by more than `DIFFERENT_SIGMAS` standard errors, else None."""
         if levels is None:
             return None
         light, light_err, ref, ref_err = levels
-        return light - ref, float(np.hypot(light_err, ref_err))
+        err = float(np.hypot(light_err, ref_err))
+        d = light - ref
+        return (d, err) if err > 0 and abs(d) > DIFFERENT_SIGMAS * err else None
 
-    def _active_read_noise(self, components):
-        """Where the reference pixels read quieter than the light-sensitive ones (by more
-        than `DIFFERENT_SIGMAS` standard errors of `_white_gap`), the white read noise (per
-        read, the darks' unit) only the light-sensitive pixels see: the ``channel``
-        component's white level (in ``components``, scene mappings, changed in place) is
-        lowered to what the reference pixels show and the difference becomes
-        ``scene.active_read_noise``; else 0 and nothing changes."""
-        levels = self._white_levels()
+    def _active_read_noise(self, components, white):
+        """Where the reference pixels read quieter than the light-sensitive ones (`_white_gap`;
+        ``white``: `faint_white`), the white read noise (per read, the darks' unit) only the
+        light-sensitive pixels see: the ``channel`` component's white level (in
+        ``components``, scene mappings, changed in place) is lowered to what the reference
+        pixels show and the difference becomes ``scene.active_read_noise``; else 0 and
+        nothing changes."""
+        levels = self._white_levels(white)
         gap = self._white_gap(levels)
-        if gap is None or not (gap[1] > 0 and gap[0] > DIFFERENT_SIGMAS * gap[1]):
+        if gap is None or gap[0] < 0:
             return 0.0
         seen = seen_white(components)
         channel = next((c for c in components if c["name"] == "channel"), None)
@@ -319,9 +321,9 @@ class Characterization:
         light-sensitive pixels' (by more than `DIFFERENT_SIGMAS` standard errors) and what
         the scene holds, or None; made once the per-pixel terms are known (the
         light-sensitive level may be theirs: `faint_white`)."""
-        levels = self._white_levels()
+        levels = self._white_levels(self.faint_white())
         gap = self._white_gap(levels)
-        if gap is None or not (gap[1] > 0 and abs(gap[0]) > DIFFERENT_SIGMAS * gap[1]):
+        if gap is None:
             return None
         light, light_err, ref, ref_err = levels
         active = (self.scene().get("scene") or {}).get("active_read_noise")

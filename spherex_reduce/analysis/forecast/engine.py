@@ -59,6 +59,8 @@ _POISSON = "poisson"
 _ACTIVE = "active_white"
 #: Name of what the mask of a clip moves between scales (`populations`).
 _MASKED = "masked"
+#: The table's columns of the forecast's own parts, after the components', in order.
+_OWN_PARTS = (_POISSON, _ACTIVE, *POPULATIONS, _MASKED)
 
 
 def forecast(scene, pipeline=None, measure=None, *, pixel_scale=SPHEREX_PIXEL_SCALE,
@@ -224,9 +226,7 @@ def _forecast_table(sc, red, parts, shape, m, pixel_scale):
     exclude_horizontal = bool(m.exclude_horizontal)
     total = sum(parts.values()) if parts else np.zeros((ny, nx // 2 + 1))
     table = spectrum_table(total, shape, edges, unit, 1.0, pixel_scale, exclude_horizontal)
-    names = [c.name for c in sc.components] + [k for k in (_POISSON, _ACTIVE, *POPULATIONS,
-                                                           _MASKED)
-                                               if k in parts]
+    names = [c.name for c in sc.components] + [k for k in _OWN_PARTS if k in parts]
     for name in names:
         if name in parts:
             power = spectrum_table(parts[name], shape, edges, unit, 1.0, pixel_scale,
@@ -417,7 +417,7 @@ def prepare_forecast(scene, pipeline):
     """
     sc = scene if isinstance(scene, Scene) else load_scene(scene)
     sc = sc.in_electrons("forecast")  # a scene in adu, with its gain
-    clash = sorted({c.name for c in sc.components} & {_POISSON, _ACTIVE, *POPULATIONS, _MASKED})
+    clash = sorted({c.name for c in sc.components} & set(_OWN_PARTS))
     if clash:
         raise ConfigError(f"noise.components: {clash[0]!r} is the name of one of the forecast's "
                           f"own columns (power_{clash[0]}); rename the component")

@@ -91,7 +91,7 @@ def test_the_common_white_level_comes_from_the_reference_bursts_under_a_strong_c
                                      n=16, seed=1), segments=1)
     common = model.components["common"]
     assert abs(common.values[0]) < 3 * common.errors[0] < 0.05 * REF
-    _, light_err, _, ref_err = model._white_levels()
+    _, light_err, _, ref_err = model._white_levels(model.faint_white())
     sc = load_scene(model.scene())
     held = sum(c.alpha for c in sc.components if c.seen_by_pixels)
     assert held == pytest.approx(REF, abs=3 * ref_err)

@@ -240,14 +240,14 @@ class StepSearch(StepModel):
         n, m = y.shape
         k = n - 2
         every = max(1, -(-m * k // SCALE_SAMPLE))
-        take = np.arange(0, m, every)
-        if take.size * k < SCALE_DOF:
+        take = slice(0, m, every)  # a view: one copy, to float64
+        if -(-m // every) * k < SCALE_DOF:
             return None
-        rel = np.asarray(y[:, take], np.float64)
-        rel = rel - rel[0]
+        rel = np.array(y[:, take], np.float64)
+        rel -= rel[0].copy()
         with np.errstate(invalid="ignore", over="ignore"):
             best, _ = self.screen(rel, False)
-            s2 = np.broadcast_to(_take(sigma, take) ** 2, take.shape)
+            s2 = np.broadcast_to(_take(sigma, take) ** 2, rel.shape[1:])
             slope = self.coef[1] @ rel
             lam = slope / _take(gain, take)
             shot = np.abs(lam) * self.diff_walk.max()
@@ -255,10 +255,13 @@ class StepSearch(StepModel):
                   & (shot < SCALE_SHOT * self.diff_read.min() * s2))
             if np.count_nonzero(ok) * k < SCALE_DOF:
                 return None
-            u = np.diff(rel[:, ok], axis=0) - self.dtau[:, None] * slope[ok]
+            if not ok.all():
+                rel, slope, lam, s2 = rel[:, ok], slope[ok], lam[ok], s2[ok]
+            u = np.diff(rel, axis=0)
+            u -= self.dtau[:, None] * slope
             u *= u
-            u -= self.diff_walk[:, None] * lam[ok]
-            u /= self.diff_read[:, None] * s2[ok]
+            u -= self.diff_walk[:, None] * lam
+            u /= self.diff_read[:, None] * s2
         return float(np.median(np.median(u, axis=1)) / _chi2_median(1))
 
     # -- search ------------------------------------------------------------------

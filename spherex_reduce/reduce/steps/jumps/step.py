@@ -516,8 +516,11 @@ class JumpKernel(Kernel):
                 search = self._search(mask)
                 sub = y[:, members][mask]
             else:
-                members = members[::max(1, -(-members.size * (nf - 2) // SCALE_SAMPLE))]
-                sub = y[:, members]
+                every = max(1, -(-members.size * (nf - 2) // SCALE_SAMPLE))
+                members = members[::every]
+                # every pixel of the set usable: a view of every k-th ramp, no gather
+                sub = (y[:, pix[0]:pix[-1] + 1:every] if members.size == -(-pix.size // every)
+                       and whole.size == pix.size else y[:, members])
             ratio = search.scatter(sub, out[members], gain[members])
             if ratio is None or not ratio > 0:
                 continue

@@ -22,7 +22,9 @@ at how the jumps of a set of pixels fall over the reads and over the array:
    shower of cosmic rays is local; a read that is off is off everywhere).
 
 Each excess read is then named: a pair of excess reads ``k``, ``k + 1`` with
-steps of opposite signs is one read ``k`` that is off (a *frame glitch*);
+steps of opposite signs and counts within a factor `GLITCH_BALANCE` is one read ``k``
+that is off (a *frame glitch*; with unequal counts the smaller read's are the second
+steps of pairs, and the larger read is named alone);
 a lone excess at read 1 is the first read off (*first read*); at the last
 read, the last read off (*last read*); elsewhere the whole array stepped at
 ``k`` (*step*).  A read that is off is left out of every pixel's fit
@@ -35,7 +37,7 @@ import numpy as np
 from astropy.utils.exceptions import AstropyUserWarning
 from scipy.special import bdtrc  # scipy.stats would load scipy.optimize with reduce
 
-__all__ = ["ALPHA", "EDGE_FACTOR", "MIN_FRACTION", "JumpWarning", "ReadEvent",
+__all__ = ["ALPHA", "EDGE_FACTOR", "GLITCH_BALANCE", "MIN_FRACTION", "JumpWarning", "ReadEvent",
            "event_message", "excess_reads", "find_read_events"]
 
 #: false-alarm probability of a read event in one set of pixels (no read off)
@@ -47,6 +49,10 @@ EDGE_FACTOR = 3.0
 MIN_FRACTION = 0.01
 #: cells of rows and of columns over which a read event's jumps must spread (half of them)
 CELLS = 4
+#: a read that is off (a frame glitch) steps every pixel into it and out of it alike: the
+#: counts of the two reads are within this ratio (else the smaller are the second steps of
+#: pairs found about a read that groups several frames)
+GLITCH_BALANCE = 0.5
 
 
 class JumpWarning(AstropyUserWarning):
@@ -203,10 +209,20 @@ def find_read_events(reads, rows, cols, amplitudes, *, nreads, nrows, ncols,
             continue
         if nreads == 3:  # two reads after the first, each step the other's bend: no read named
             read, kind, offset = k, "bend", offsets[k]
-        elif k + 1 < nreads and excess[k + 1] and offsets[k] * offsets[k + 1] < 0:
-            read, kind, offset = k, "frame glitch", offsets[k]
+            events.append(ReadEvent(int(read), kind, int(counts[k]), float(expected[k]),
+                                    npix, float(offset)))
+            continue
+        if k + 1 < nreads and excess[k + 1] and offsets[k] * offsets[k + 1] < 0:
             skip.add(k + 1)
-        elif k == 1:
+            pair = counts[k:k + 2]
+            if pair.min() >= GLITCH_BALANCE * pair.max():
+                events.append(ReadEvent(int(k), "frame glitch", int(counts[k]),
+                                        float(expected[k]), npix, float(offsets[k])))
+                continue
+            # one read holds most of them: the other's are its pairs' second steps (a
+            # step into a group of frames and out of it), not an event of their own
+            k += int(counts[k + 1] > counts[k])
+        if k == 1:
             read, kind, offset = 0, "first read", -offsets[k]
         elif k == nreads - 1:
             read, kind, offset = k, "last read", offsets[k]

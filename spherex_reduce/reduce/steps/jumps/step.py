@@ -416,9 +416,12 @@ class JumpKernel(Kernel):
         jumps at a read where the set already stepped (``flags``) are not counted."""
         frames, pix, amp, _ = found
         nf, ncols = block.nframes, block.data.shape[-1]
+        # (a read flagged beside a step to leave out the group it may have fallen in has
+        # no amplitude of its own: the step is counted once, at its read)
+        keep = amp != 0
         if flags is not None:
-            keep = (flags[frames, pix // ncols, 0] & np.uint32(dq.JUMP)) == 0
-            frames, pix, amp = frames[keep], pix[keep], amp[keep]
+            keep &= (flags[frames, pix // ncols, 0] & np.uint32(dq.JUMP)) == 0
+        frames, pix, amp = frames[keep], pix[keep], amp[keep]
         sets = np.asarray(block.index) // self.event_rows
         out = []
         for one in np.unique(sets):

@@ -8,6 +8,7 @@ from scipy.stats import binom
 from spherex_reduce.reduce.steps.jumps.events import (
     ALPHA,
     EDGE_FACTOR,
+    GLITCH_BALANCE,
     MIN_FRACTION,
     event_message,
     excess_reads,
@@ -93,6 +94,25 @@ def test_the_read_that_is_off_is_named(reads, signs, expected):
                               np.concatenate(a), nreads=56, nrows=40, ncols=40)
     assert [(e.read, e.kind) for e in events] == expected
     assert events[0].jumps == 480 and events[0].pixels == 1600
+
+
+@pytest.mark.parametrize("echo, expected", [(60, (0, "first read")),
+                                             (300, (1, "frame glitch"))])
+def test_the_second_steps_of_pairs_are_not_a_glitch(echo, expected):
+    """Read 0 low in a readout of groups of frames: 480 of 1600 pixels step up at read 1,
+    and where the search took the step as a pair into and out of group 1 (60 of them) a
+    small step down at read 2, significant too.  Those are the pairs' second steps: one
+    event, the first read (it was named a frame glitch of read 1, left out instead of read
+    0).  Counts within GLITCH_BALANCE (300 of 480) are a read 1 that is off."""
+    rng = np.random.default_rng(3522)
+    rows, cols = _scatter(rng, 480, 40, 40)
+    f = np.r_[np.ones(480, int), np.full(echo, 2)]
+    r, c = np.r_[rows, rows[:echo]], np.r_[cols, cols[:echo]]
+    a = np.r_[rng.uniform(15, 25, 480), -rng.uniform(2, 8, echo)]
+    events = find_read_events(f, r, c, a, nreads=56, nrows=40, ncols=40)
+    assert echo / 480 < GLITCH_BALANCE or expected[1] == "frame glitch"
+    assert [(e.read, e.kind) for e in events] == [expected]
+    assert events[0].jumps == 480
 
 
 def test_a_shower_is_local_not_a_read_event():

@@ -414,14 +414,14 @@ class JumpKernel(Kernel):
         """The strongest new read event of each set of `event_rows` rows of a band, judged
         on its own jumps (`find_read_events`): ``[(rows of the band, ReadEvent)]``; the
         jumps at a read where the set already stepped (``flags``) are not counted."""
-        frames, pix, amp, _ = found
+        frames, pix, amp, z = found
         nf, ncols = block.nframes, block.data.shape[-1]
         # (a read flagged beside a step to leave out the group it may have fallen in has
         # no amplitude of its own: the step is counted once, at its read)
         keep = amp != 0
         if flags is not None:
             keep &= (flags[frames, pix // ncols, 0] & np.uint32(dq.JUMP)) == 0
-        frames, pix, amp = frames[keep], pix[keep], amp[keep]
+        frames, pix, amp, z = frames[keep], pix[keep], amp[keep], z[keep]
         sets = np.asarray(block.index) // self.event_rows
         out = []
         for one in np.unique(sets):
@@ -429,7 +429,8 @@ class JumpKernel(Kernel):
             at = np.isin(pix // ncols, rows)
             local = np.searchsorted(rows, pix[at] // ncols)
             events = find_read_events(frames[at], local, pix[at] % ncols, amp[at], nreads=nf,
-                                      nrows=rows.size, ncols=ncols)
+                                      nrows=rows.size, ncols=ncols, z=z[at],
+                                      threshold=self.params["threshold"])
             if events:
                 out.append((rows, max(events, key=lambda e: e.jumps)))
         return out

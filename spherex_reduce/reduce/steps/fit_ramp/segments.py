@@ -231,40 +231,95 @@ def usable_reads(y, flags, saturation):
     >>> usable.T.astype(int).tolist(), saturated.tolist()
     ([[1, 1, 0, 0], [1, 0, 1, 1]], [True, False])
     """
-    finite = np.isfinite(y)
-    sat = np.zeros(y.shape, bool)
+    usable = np.isfinite(y)
+    sat = None
     if saturation is not None:
         with np.errstate(invalid="ignore"):
             sat = y > saturation
-    if flags is not None:
-        sat |= (flags & dq.SATURATED) != 0
-    cut = accumulate_reads(np.logical_or, sat)  # the first saturated read and every later one
-    usable = finite & ~cut
-    if flags is not None:
+    present = 0 if flags is None else np.bitwise_or.reduce(flags, axis=None)  # bits set
+    if present & dq.SATURATED:
+        flagged = (flags & dq.SATURATED) != 0
+        sat = flagged if sat is None else sat | flagged
+    if present & ~dq.DQ_TYPE(dq.READ_INFORMATIONAL):
         usable &= dq.read_usable(flags)
+    if sat is None:
+        return usable, np.zeros(y.shape[1:], bool)
+    if sat.any():  # the first saturated read and every later one
+        usable &= ~accumulate_reads(np.logical_or, sat)
     return usable, sat.any(axis=0)
 
 
-def _segment_sums(y, good, t, residuals=True):
-    """Per pixel least squares on the reads ``good``: ``(n, stt, tc, slope, chi2)`` (``chi2``
-    None unless ``residuals``)."""
+def _weights(good, t, noise, shot):
+    """Least-squares weights of the reads ``good`` (``(nframes, k)``, ``k >= 2``, a column
+    each): ``(tbar, stt, rvar, pf)``, the mean of their times ``t``, ``sum tc**2`` (``tc``:
+    times less the mean, 0 off the reads), ``sum w**2 a`` (``w = tc / stt``: the slope's
+    weights; ``a``: the read-noise factors) and ``w^T M w`` (`RampNoise.shot_variance`;
+    None unless ``shot``)."""
     g = good.astype(np.float64)
-    n = g.sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        tbar = (g * t).sum(axis=0) / n
+        tbar = (g * t).sum(axis=0) / g.sum(axis=0)
         tc = (t - tbar) * g
         stt = (tc * tc).sum(axis=0)
-        # reads minus the pixel's first usable read of the segment: float32 pedestals stay exact
-        first = np.argmax(good, axis=0)
-        y0 = np.take_along_axis(y, first[None], axis=0)[0]
-        d = np.where(good, y - y0, 0.0)
-        slope = (tc * d).sum(axis=0) / stt
-        if not residuals:
-            return n, stt, tc, slope, None
-        dbar = d.sum(axis=0) / n
-        resid = (d - dbar - slope * tc) * g
-        chi2 = (resid * resid).sum(axis=0)
-    return n, stt, tc, slope, chi2
+        w = tc / stt
+        rvar = (w * w * noise.read_factors[:, None]).sum(axis=0)
+        return tbar, stt, rvar, noise.shot_variance(w) if shot else None
+
+
+def _fit_segment(y, good, cols, n, a, b, t, noise, work, shot, residuals):
+    """Least squares of one segment of the pixels ``cols`` (columns of ``y``): their reads
+    ``good``, ``n`` (two or more) of them, between reads ``a`` and ``b - 1``.  Returns
+    ``(slope, stt, rvar, pf, chi2)`` of those pixels (`_weights`; ``chi2``, the sum of
+    squared residuals, None unless ``residuals``).
+
+    Every column is summed on its own, read after read (C-ordered, two columns or more), so
+    a pixel's numbers do not depend on the others: the weights are computed once per
+    pattern of reads (most a run ``a..b-1``), and the slopes on every column of ``y`` when
+    most pixels have the segment (no gather; ``work``: a float64 buffer of two ``y``).
+    """
+    nf, m = y.shape
+    k = cols.size
+    part = np.flatnonzero(n != b - a)  # reads missing (masked, saturated): the first, last
+    if part.size:
+        some = good[:, cols[part]]
+        a[part] = np.argmax(some, axis=0)
+        b[part] = nf - np.argmax(some[::-1], axis=0)
+    run = n == b - a
+    found, inverse = np.unique(a[run] * (nf + 1) + b[run], return_inverse=True)
+    holes = np.flatnonzero(~run)  # each its own pattern
+    pat = np.empty(k, np.intp)
+    pat[run] = inverse.ravel()
+    pat[holes] = found.size + np.arange(holes.size)
+    rows = np.arange(nf)[:, None]
+    pats = np.concatenate([(rows >= found // (nf + 1)) & (rows < found % (nf + 1)),
+                           good[:, cols[holes]]], axis=1)
+    tbar, stt, rvar, pf = (None if v is None else v[pat] for v in _weights(
+        pats if pats.shape[1] > 1 else np.repeat(pats, 2, axis=1), t, noise, shot))
+    if 2 * k >= m:
+        yw, gw, at = y, good, cols
+    else:
+        pick = cols if k > 1 else np.repeat(cols, 2)
+        yw, gw, at = y[:, pick], good[:, pick], np.arange(k)
+    kw = yw.shape[1]
+    first, tw, sw = np.zeros(kw, np.intp), np.zeros(kw), np.ones(kw)
+    first[at], tw[at], sw[at] = a, tbar, stt
+    chi2 = None
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # reads minus the pixel's first read of the segment (float32 pedestals stay exact),
+        # 0 off the segment (+0.0: all bits cleared); times less their mean
+        d = np.subtract(yw, yw[first, np.arange(kw)], out=work[:nf * kw].reshape(nf, kw))
+        np.bitwise_and(d.view(np.int64), np.negative(gw.view(np.int8)), out=d.view(np.int64))
+        tc = np.subtract(t, tw, out=work[nf * m:nf * (m + kw)].reshape(nf, kw))
+        if residuals:
+            g = gw.astype(np.float64)
+            tc *= g
+            slope = (tc * d).sum(axis=0) / sw
+            nw = np.ones(kw)
+            nw[at] = n
+            resid = (d - d.sum(axis=0) / nw - slope * tc) * g
+            chi2 = (resid * resid).sum(axis=0)[at]
+        else:  # (off the segment (t - tbar) * 0.0: the product of the masked tc)
+            slope = np.multiply(tc, d, out=tc).sum(axis=0) / sw
+    return slope[at], stt, rvar, pf, chi2
 
 
 def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=None, dark=0.0,
@@ -321,48 +376,50 @@ def fit_segments(y, flags, noise, *, saturation=None, read_noise=None, pscale=No
                            want_var=want_var)
         return SegmentFit(*(getattr(fit, k)[:1] for k in SegmentFit.__dataclass_fields__))
     y = np.ascontiguousarray(y)
+    nf = y.shape[0]
     pscale = 0.0 if pscale is None else pscale  # no shot noise: a zero factor
     usable, saturated = usable_reads(y, flags, saturation)
     jumps = np.zeros(y.shape, bool) if flags is None else (flags & dq.JUMP) != 0
-    count = accumulate_reads(np.add, jumps, np.intp)
-    seg = np.minimum(count, MAX_SEGMENTS)
-    usable &= count <= MAX_SEGMENTS
+    # the segment of each read: the jumps up to it (the reads after MAX_SEGMENTS unused);
+    # segment s of a pixel: reads starts[s] to starts[s + 1] - 1
+    itype = np.int16 if nf < 1 << 15 else np.intp
+    seg = accumulate_reads(np.add, jumps, itype)
+    usable &= seg <= MAX_SEGMENTS
+    nseg_max = min(int(seg.max(initial=0)), MAX_SEGMENTS) + 1
+    jr, jc = np.divmod(np.flatnonzero(jumps), m)
+    js = seg[jr, jc]
+    starts = np.full((nseg_max + 1, m), nf)
+    starts[0] = 0
+    starts[js[js <= nseg_max], jc[js <= nseg_max]] = jr[js <= nseg_max]
+    cum = np.concatenate([np.zeros((1, m), itype), accumulate_reads(np.add, usable, itype)])
+    counts = np.diff(np.take_along_axis(cum, starts, axis=0), axis=0)  # usable reads
     # a jump counts (njumps, the JUMP flag) where it splits usable reads: on a usable read
     # with usable reads before it (a JUMP on a read that is not used, or on the first
     # usable read, changes nothing in the fit)
-    before = accumulate_reads(np.add, usable, np.intp) - usable
-    njumps = (jumps & usable & (before > 0)).sum(axis=0)
+    njumps = np.bincount(jc[usable[jr, jc] & (cum[jr, jc] > 0)], minlength=m)
     t = (noise.times - noise.times.mean())[:, None]  # centred times
     rn2 = None if read_noise is None else np.broadcast_to(np.asarray(read_noise) ** 2, (m,))
-    nseg_max = int(seg.max(initial=0)) + 1
 
     # each segment fitted on the pixels where it has two usable reads (its reads' numbers do
     # not depend on the other pixels); elsewhere it carries no slope
     slopes, rvars, pfs, stts = np.full((4, nseg_max, m), np.nan)
     chi2s, ns = np.zeros((nseg_max, m)), np.zeros((nseg_max, m))
+    work = np.empty(2 * y.size)
     for s in range(nseg_max):
-        good = usable & (seg == s)
-        cols = np.flatnonzero(good.sum(axis=0) >= 2)
+        cols = np.flatnonzero(counts[s] >= 2)
         if not cols.size:
             continue
-        pick = slice(None) if cols.size == m else cols if cols.size > 1 else np.repeat(cols, 2)
-        # C order, as ``y``: each column's sums over reads then add read after read
-        n, stt, tc, slope, chi2 = _segment_sums(np.ascontiguousarray(y[:, pick]),
-                                                np.ascontiguousarray(good[:, pick]), t,
-                                                residuals=rn2 is None)
-        k = cols.size
-        with np.errstate(invalid="ignore", divide="ignore"):
-            w = tc / stt
-        slopes[s, cols] = slope[:k]
-        rvars[s, cols] = (w * w * noise.read_factors[:, None]).sum(axis=0)[:k]
-        if rn2 is not None:  # (a residual variance needs no shot noise)
-            pfs[s, cols] = noise.shot_variance(w)[:k]
-        stts[s, cols] = stt[:k]
+        n = counts[s, cols]
+        slope, stt, rvar, pf, chi2 = _fit_segment(
+            y, usable & (seg == s), cols, n, starts[s, cols], starts[s + 1, cols], t, noise,
+            work, rn2 is not None, rn2 is None)
+        slopes[s, cols], stts[s, cols], rvars[s, cols], ns[s, cols] = slope, stt, rvar, n
+        if pf is not None:  # (a residual variance needs no shot noise)
+            pfs[s, cols] = pf
         if chi2 is not None:
-            chi2s[s, cols] = chi2[:k]
-        ns[s, cols] = n[:k]
+            chi2s[s, cols] = chi2
     nseg = np.array(ns).astype(bool).sum(axis=0)
-    nreads = usable.sum(axis=0)
+    nreads = cum[-1]
     fitted = np.isfinite(slopes)
 
     rate_used = None  # the rate of the GLS weights (optimal): it sets the shot noise too

@@ -522,9 +522,10 @@ class JumpKernel(Kernel):
             else:
                 every = max(1, -(-members.size * (nf - 2) // SCALE_SAMPLE))
                 members = members[::every]
-                # every pixel of the set usable: a view of every k-th ramp, no gather
-                sub = (y[:, pix[0]:pix[-1] + 1:every] if members.size == -(-pix.size // every)
-                       and whole.size == pix.size else y[:, members])
+                # every pixel of the set usable and its rows together in the band (not so
+                # in readout order): a view of every k-th ramp, no gather
+                together = whole.size == pix.size and pix[-1] - pix[0] + 1 == pix.size
+                sub = y[:, pix[0]:pix[-1] + 1:every] if together else y[:, members]
             ratio = search.scatter(sub, out[members], gain[members])
             if ratio is None or not ratio > 0:
                 continue

@@ -21,8 +21,8 @@ at how the jumps of a set of pixels fall over the reads and over the array:
    columns; the jumps at the read must fall in at least half of them (a
    shower of cosmic rays is local; a read that is off is off everywhere).
 3. **Their size**: steps whose median ``|z|`` is well above the search's
-   threshold in fewer than half the pixels are the pixels' own: an offset of
-   the whole set that large would have been found in nearly all of them.
+   threshold in fewer than a tenth of the pixels are the pixels' own: an offset
+   of the whole set that large would have been found in nearly all of them.
 
 Each excess read is then named: a pair of excess reads ``k``, ``k + 1`` with
 steps of opposite signs and counts within a factor `GLITCH_BALANCE` is one read ``k``
@@ -56,8 +56,10 @@ CELLS = 4
 #: a read's steps whose median |z| is this far above the threshold (sigma), in fewer than
 #: this fraction of the pixels, are the pixels' own (an offset of the whole set that large
 #: would be found in ~98 % of them): 10-30 e cosmic rays falling in 1.2 % of the pixels at
-#: one of Roman's 8-frame resultants (median z ~ 7) were taken for the array stepping
-BIG_STEP_MARGIN, BIG_STEP_FRACTION = 2.0, 0.5
+#: one of Roman's 8-frame resultants (median z ~ 7) were taken for the array stepping.  (A
+#: read off in a few outputs only, under a tenth of the pixels, is then its pixels' jumps:
+#: each fitted around, not told as an event.)
+BIG_STEP_MARGIN, BIG_STEP_FRACTION = 2.0, 0.1
 #: a read that is off (a frame glitch) steps every pixel into it and out of it alike: the
 #: counts of the two reads are within this ratio (else the smaller are the second steps of
 #: pairs found about a read that groups several frames)
@@ -197,6 +199,8 @@ def find_read_events(reads, rows, cols, amplitudes, *, nreads, nrows, ncols,
     ...     reads, rows, cols, amp, nreads=56, nrows=40, ncols=40)]
     [(0, 'first read', 500)]
     """
+    if (z is None) != (threshold is None):
+        raise ValueError("find_read_events: z and threshold go together")
     reads = np.asarray(reads, np.int64)
     amplitudes = np.asarray(amplitudes, np.float64)
     npix = int(nrows) * int(ncols)

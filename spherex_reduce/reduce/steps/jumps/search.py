@@ -365,7 +365,7 @@ class StepSearch(StepModel):
             found = self._with_prior(*args, prior, np.concatenate(brights))
             found.free += n_bright  # (those off the prior, and the bright ones)
         found.unsearched = skipped
-        return found
+        return _keep_a_segment(found, n)
 
     def _bright(self, expected, gain, var):
         """Whether ramps expected at ``expected`` (data unit / s; ``gain``, read-noise
@@ -568,8 +568,10 @@ class StepSearch(StepModel):
                     near = inside & (chis[np.clip(side, 0, chis.shape[0] - 1), c]
                                      >= pchi[hit] - PAIR_MARGIN)
                     if near.any():
+                        # (no amplitude of its own; its z carries the pair's sign, for
+                        # positive_only)
                         out.append((st.pixels[hit][near], read[near] + 0, np.zeros(near.sum()),
-                                    z[near]))
+                                    (np.sign(amp1 + amp2) * z)[near]))
                 new = np.column_stack([st.steps[hit], i, i + 1])
             else:
                 kk = k[hit]
@@ -721,6 +723,46 @@ class _State:
                        slope=self.slope[hit], steps=steps, pixels=self.pixels[hit],
                        sigma=None if self.sigma is None else _take(self.sigma, hit),
                        gain=_take(self.gain, hit), floor=self.floor[hit])
+
+
+def _keep_a_segment(found, n):
+    """``found`` less the flags without a step of their own (amplitude 0: beside a step, to
+    leave a group out, `StepSearch._mixed`, or a pair's neighbour) where they would leave a
+    ramp of ``n`` reads no segment of two reads, the latest first: the ramp keeps a slope
+    (each such flag is checked against its own step only, not against the ramp's others)."""
+    zero = found.amplitude == 0
+    if not zero.any():
+        return found
+    idx = np.flatnonzero(np.isin(found.pixel, found.pixel[zero]))
+    idx = idx[np.lexsort((found.read[idx], found.pixel[idx]))]
+    p, r = found.pixel[idx], found.read[idx]
+    first = np.flatnonzero(np.r_[True, p[1:] != p[:-1]])
+    bounds = np.r_[first, idx.size]
+
+    def longest(reads):  # the longest segment the flags at ``reads`` (sorted) leave
+        return int(np.diff(np.r_[0, reads, n]).max())
+
+    before = np.where(np.r_[True, p[1:] != p[:-1]], 0, np.r_[0, r[:-1]])
+    after = np.r_[r[1:], n]
+    after[bounds[1:] - 1] = n
+    short = np.maximum.reduceat(np.maximum(r - before, after - r), first) < 2
+    drop = []
+    for lo, hi in zip(bounds[:-1][short], bounds[1:][short], strict=True):
+        mine = idx[lo:hi]  # this ramp's flags, in read order
+        for j in mine[::-1]:
+            if found.amplitude[j] != 0:
+                continue
+            drop.append(j)
+            if longest(np.sort(found.read[np.setdiff1d(mine, drop)])) >= 2:
+                break
+    if not drop:
+        return found
+    keep = np.ones(len(found), bool)
+    keep[drop] = False
+    out = Found(found.pixel[keep], found.read[keep], found.amplitude[keep], found.z[keep],
+                found.unsearched)
+    out.free = found.free
+    return out
 
 
 def _expected_lambda(expected, gain):

@@ -345,15 +345,22 @@ class JumpKernel(Kernel):
                 if flags is not None:
                     usable &= (flags & np.uint32(dq.DO_NOT_USE)) == 0
                 usable = usable.reshape(nf, -1)
-            flips, left_out = telegraph_pixels(pix, frames, amp, block.data.reshape(nf, -1),
-                                               self.times, usable)
+            # (the flags beside a step, leaving a group out, have no amplitude of their own:
+            # the flips are judged on the steps, and those flags go with their pixel's)
+            steps = amp != 0
+            flips = np.zeros(amp.size, bool)
+            flips[steps], left_out = telegraph_pixels(pix[steps], frames[steps], amp[steps],
+                                                      block.data.reshape(nf, -1), self.times,
+                                                      usable)
             if flips.any():
+                flips |= ~steps & np.isin(pix, pix[flips])
                 keep = ~flips
                 frames, pix, amp, z = frames[keep], pix[keep], amp[keep], z[keep]
                 with self._lock:
                     self._telegraph += np.unique(left_out[1]).size
         if self.params["positive_only"]:
-            keep = amp >= 0  # (0: a mixed group's neighbour, flagged with its pair)
+            # (a flag beside a step, of no amplitude, carries the step's sign in its z)
+            keep = np.where(amp != 0, amp, z) >= 0
             frames, pix, amp, z = frames[keep], pix[keep], amp[keep], z[keep]
         return (frames, pix, amp, z), flags, left_out
 

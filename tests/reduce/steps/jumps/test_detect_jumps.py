@@ -408,6 +408,84 @@ def test_a_small_jump_inside_a_group_leaves_the_slopes_found_unbiased():
         assert slope[p] == pytest.approx(expected, abs=1e-3 * sigma0)
 
 
+def _groups_of_four(ngroups, side=32):
+    groups = [list(range(4 * g, 4 * g + 4)) for g in range(ngroups)]
+    return groups, ReadoutSchedule(DetectorGeometry(side, side, 1, ref_border=0), skip=1,
+                                   ref_reads=0, ref_mode="none", phantom_reads=0,
+                                   nframes=ngroups, frame_time=DT, groups=groups)
+
+
+def test_positive_only_drops_the_flags_beside_a_step_it_drops():
+    """Steps down of 30-40 e inside group 7 of 16 groups of 4 frames: found with the read
+    beside them flagged too (no amplitude of its own), or as a pair and its neighbour.
+    ``positive_only`` drops the steps and, with them, those flags: no JUMP is left (a read
+    flagged beside a dropped step split the ramp for nothing)."""
+    _, s = _groups_of_four(16)
+    rng = np.random.default_rng(3525)
+    frames = 6e4 + rng.normal(0, RN, (64, 32, 32))
+    for i in range(8):
+        frames[28 + i % 4:, 2 + i, 5] -= 30 + 10 * (i // 4)
+    cube = frames.reshape(16, 4, 32, 32).mean(axis=1).astype(np.float32)
+    e = Exposure.from_arrays(cube, s)
+    assert ((detect_jumps(e, read_noise=RN).dq[:, 2:10, 5] & dq.JUMP) != 0).any(axis=0).sum() >= 6
+    out = detect_jumps(e, read_noise=RN, positive_only=True)
+    assert out.dq is None or not (out.dq & dq.JUMP).any()
+
+
+def test_the_flags_beside_steps_leave_every_ramp_a_segment_of_two_reads():
+    """Two 300 e cosmic rays at group boundaries (reads 1 and 4 of 6 groups of 4 frames): a
+    read beside each step, flagged to leave out a group it may have fallen in, left some
+    ramps no segment of two reads (NaN slopes, 5 of 30).  Each keeps one now, and its
+    slope is numpy's least squares of a line and the steps on the groups its flags leave
+    in segments of two reads or more."""
+    groups, s = _groups_of_four(6)
+    rng = np.random.default_rng(5)
+    frames = 6e4 + rng.normal(0, RN, (24, 32, 32))
+    pixels = [(p // 8 * 8 + 1, p % 8 * 4 + 1) for p in range(30)]
+    for r, c in pixels:
+        frames[4:, r, c] += 300
+        frames[16:, r, c] += 300
+    cube = frames.reshape(6, 4, 32, 32).mean(axis=1).astype(np.float32)
+    out = detect_jumps(Exposure.from_arrays(cube, s), read_noise=RN)
+    slopes = fit_ramp(out, read_noise=RN, gain=1e9).data.data
+    t = np.array([np.mean(g) for g in groups]) * DT
+    for r, c in pixels:
+        flags = np.flatnonzero(out.dq[:, r, c] & dq.JUMP)
+        edges = np.r_[0, flags, 6]
+        assert np.diff(edges).max() >= 2, flags
+        seg = np.searchsorted(flags, np.arange(6), side="right")  # each read's segment
+        size = np.bincount(seg, minlength=seg.max() + 1)
+        keep = size[seg] >= 2
+        x = np.column_stack([t, *(seg == k for k in np.unique(seg[keep]))])[keep]
+        y = cube[keep, r, c].astype(np.float64)
+        assert slopes[r, c] == pytest.approx(np.linalg.lstsq(x, y, rcond=None)[0][0], abs=1e-3)
+
+
+def test_telegraph_pixels_on_groups_are_judged_on_their_steps():
+    """200 of 4096 pixels flip 60 e down and back twice, at frames inside groups of 4: the
+    reads flagged beside their steps (amplitude 0) broke the alternation of signs the
+    telegraph test looks for, and none was found (the code before them: 6).  Judged on the
+    steps alone, the telegraph pixels found are taken out whole, flags beside included."""
+    _, s = _groups_of_four(16, side=64)
+    rng = np.random.default_rng(2)
+    frames = 6e4 + rng.normal(0, RN, (64, 64, 64))
+    tele = rng.choice(64 * 64, 200, replace=False)
+    for p in tele:
+        r, c = divmod(p, 64)
+        a = rng.integers(8, 24)
+        b = a + rng.integers(8, 16)
+        c2 = b + rng.integers(6, 12)
+        d = min(c2 + rng.integers(6, 12), 63)
+        frames[a:b, r, c] -= 60
+        frames[c2:d, r, c] -= 60
+    cube = frames.reshape(16, 4, 64, 64).mean(axis=1).astype(np.float32)
+    out = detect_jumps(Exposure.from_arrays(cube, s), read_noise=RN)
+    assert out.header["NTELEGR"] >= 5
+    told = ((out.dq & dq.DO_NOT_USE) != 0).any(axis=0)  # their rarer level left out
+    assert not (out.dq[:, told] & dq.JUMP).any()
+    assert told.ravel()[tele].sum() == out.header["NTELEGR"]
+
+
 def test_the_read_noise_scale_where_a_set_of_rows_is_not_together_in_a_band():
     """The paper's readout (reference rows read among the others) through the steps a user
     runs first: a set of rows whose read noise is scaled is not one run of a band's rows.

@@ -158,3 +158,23 @@ def test_many_large_steps_at_one_read_in_few_pixels_are_no_event():
         assert [(e.read, e.kind) for e in events] == expected
     assert find_read_events(reads, rows, cols, amp, nreads=10, nrows=side, ncols=side)
     assert BIG_STEP_MARGIN > 0 and BIG_STEP_FRACTION > 0.012
+
+
+def test_a_read_off_in_many_outputs_stays_an_event_however_large():
+    """A read 100 e high in 14 of 32 outputs (44 % of the pixels, z ~ 10, every cell of the
+    set): more than a tenth of the pixels, so an event (the size rule is for steps in a
+    few per cent), and ``z`` without ``threshold`` is refused."""
+    side = 256
+    cols = np.flatnonzero((np.arange(side) // 8) % 32 < 14)  # 14 outputs of 8 columns
+    rows, cc = np.meshgrid(np.arange(side), cols, indexing="ij")
+    rows, cc = rows.ravel(), cc.ravel()
+    n = rows.size
+    reads = np.r_[np.full(n, 10), np.full(n, 11)]
+    amp = np.r_[np.full(n, 100.0), np.full(n, -100.0)]
+    z = amp / 10.0
+    events = find_read_events(reads, np.r_[rows, rows], np.r_[cc, cc], amp, nreads=30,
+                              nrows=side, ncols=side, z=z, threshold=4.0)
+    assert [(e.read, e.kind) for e in events] == [(10, "frame glitch")]
+    with pytest.raises(ValueError, match="z and threshold"):
+        find_read_events(reads, np.r_[rows, rows], np.r_[cc, cc], amp, nreads=30,
+                         nrows=side, ncols=side, z=z)

@@ -345,15 +345,9 @@ class JumpKernel(Kernel):
                 if flags is not None:
                     usable &= (flags & np.uint32(dq.DO_NOT_USE)) == 0
                 usable = usable.reshape(nf, -1)
-            # (the flags beside a step, leaving a group out, have no amplitude of their own:
-            # the flips are judged on the steps, and those flags go with their pixel's)
-            steps = amp != 0
-            flips = np.zeros(amp.size, bool)
-            flips[steps], left_out = telegraph_pixels(pix[steps], frames[steps], amp[steps],
-                                                      block.data.reshape(nf, -1), self.times,
-                                                      usable)
+            flips, left_out = _telegraph(pix, frames, amp, z, block.data.reshape(nf, -1),
+                                         self.times, usable)
             if flips.any():
-                flips |= ~steps & np.isin(pix, pix[flips])
                 keep = ~flips
                 frames, pix, amp, z = frames[keep], pix[keep], amp[keep], z[keep]
                 with self._lock:
@@ -776,6 +770,32 @@ def _run_of(index):
     view, no copy), else itself."""
     return (slice(int(index[0]), int(index[-1]) + 1)
             if index.size and index[-1] - index[0] + 1 == index.size else index)
+
+
+def _telegraph(pix, frames, amp, z, ramps, times, usable):
+    """`telegraph_pixels` of the jumps found, judged on their steps: a flag beside a step
+    (no amplitude of its own, leaving a group out) is left out of the judgement, and a
+    pair found together (a step into a group of frames and out of it: adjacent reads,
+    one ``|z|``) is one step, their sum, at its first read (judged apart, a cosmic ray's
+    pair of opposite signs looked like a flip and its return).  The flips of a telegraph
+    pixel and the flags beside them are returned as flips."""
+    idx = np.flatnonzero(amp != 0)
+    idx = idx[np.lexsort((frames[idx], pix[idx]))]
+    p, f, a = pix[idx], frames[idx], np.abs(z[idx])
+    second = np.r_[False, (p[1:] == p[:-1]) & (f[1:] == f[:-1] + 1) & (a[1:] == a[:-1])]
+    second[1:] &= ~second[:-1]  # (a pair is two reads)
+    step = amp[idx].copy()
+    step[np.flatnonzero(second) - 1] += step[second]
+    one = ~second
+    judged, left_out = telegraph_pixels(p[one], f[one], step[one], ramps, times, usable)
+    flips_idx = np.zeros(idx.size, bool)
+    flips_idx[one] = judged
+    flips_idx[second] = flips_idx[np.flatnonzero(second) - 1]
+    flips = np.zeros(amp.size, bool)
+    flips[idx] = flips_idx
+    if flips.any():
+        flips |= (amp == 0) & np.isin(pix, pix[flips])
+    return flips, left_out
 
 
 class _Flags:

@@ -749,11 +749,13 @@ def _keep_a_segment(found, n):
     drop = []
     for lo, hi in zip(bounds[:-1][short], bounds[1:][short], strict=True):
         mine = idx[lo:hi]  # this ramp's flags, in read order
-        for j in mine[::-1]:
-            if found.amplitude[j] != 0:
+        left = np.ones(mine.size, bool)
+        for q in range(mine.size - 1, -1, -1):
+            if found.amplitude[mine[q]] != 0:
                 continue
-            drop.append(j)
-            if longest(np.sort(found.read[np.setdiff1d(mine, drop)])) >= 2:
+            left[q] = False
+            drop.append(mine[q])
+            if longest(found.read[mine[left]]) >= 2:
                 break
     if not drop:
         return found

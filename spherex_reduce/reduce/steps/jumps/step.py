@@ -775,14 +775,23 @@ def _run_of(index):
 def _telegraph(pix, frames, amp, z, ramps, times, usable):
     """`telegraph_pixels` of the jumps found, judged on their steps: a flag beside a step
     (no amplitude of its own, leaving a group out) is left out of the judgement, and a
-    pair found together (a step into a group of frames and out of it: adjacent reads,
-    one ``|z|``) is one step, their sum, at its first read (judged apart, a cosmic ray's
-    pair of opposite signs looked like a flip and its return).  The flips of a telegraph
-    pixel and the flags beside them are returned as flips."""
+    pair found together (a step into a group of frames and out of it: reads with no
+    usable read between them, one ``|z|``) is one step, their sum, at its first read,
+    where its two steps share a sign or are the ramp's only ones (judged apart, a cosmic
+    ray's pair of opposite signs looked like a flip and its return; a pixel's stay of one
+    group in its other level, twice, is a pair of opposite signs that is not merged).
+    The flips of a telegraph pixel and the flags beside them are returned as flips."""
     idx = np.flatnonzero(amp != 0)
     idx = idx[np.lexsort((frames[idx], pix[idx]))]
-    p, f, a = pix[idx], frames[idx], np.abs(z[idx])
-    second = np.r_[False, (p[1:] == p[:-1]) & (f[1:] == f[:-1] + 1) & (a[1:] == a[:-1])]
+    p, f, a, sign = pix[idx], frames[idx], np.abs(z[idx]), np.sign(amp[idx])
+    same = np.r_[False, p[1:] == p[:-1]]
+    second = same & np.r_[False, a[1:] == a[:-1]] & np.r_[False, f[1:] > f[:-1]]
+    for j in np.flatnonzero(second & np.r_[False, f[1:] > f[:-1] + 1]):
+        # (a read between them: a pair only if that read is not usable for the pixel)
+        second[j] = usable is not None and not usable[f[j - 1] + 1:f[j], p[j]].any()
+    runs = np.diff(np.r_[np.flatnonzero(~same), p.size])  # each pixel's steps
+    only_two = np.repeat(runs, runs) == 2
+    second &= np.r_[False, sign[1:] == sign[:-1]] | only_two
     second[1:] &= ~second[:-1]  # (a pair is two reads)
     step = amp[idx].copy()
     step[np.flatnonzero(second) - 1] += step[second]

@@ -39,7 +39,7 @@ from .events import JumpWarning, event_message, find_read_events
 from .prior import set_priors
 from .search import SCALE_DOF, SCALE_SAMPLE, Found, StepSearch, cached_search
 from .showers import large_event_halos
-from .telegraph import telegraph_pixels
+from .telegraph import telegraph_flips
 
 __all__ = ["DetectJumpsStep", "JumpKernel", "detect_jumps"]
 
@@ -345,8 +345,8 @@ class JumpKernel(Kernel):
                 if flags is not None:
                     usable &= (flags & np.uint32(dq.DO_NOT_USE)) == 0
                 usable = usable.reshape(nf, -1)
-            flips, left_out = _telegraph(pix, frames, amp, z, block.data.reshape(nf, -1),
-                                         self.times, usable)
+            flips, left_out = telegraph_flips(pix, frames, amp, z,
+                                              block.data.reshape(nf, -1), self.times, usable)
             if flips.any():
                 keep = ~flips
                 frames, pix, amp, z = frames[keep], pix[keep], amp[keep], z[keep]
@@ -770,41 +770,6 @@ def _run_of(index):
     view, no copy), else itself."""
     return (slice(int(index[0]), int(index[-1]) + 1)
             if index.size and index[-1] - index[0] + 1 == index.size else index)
-
-
-def _telegraph(pix, frames, amp, z, ramps, times, usable):
-    """`telegraph_pixels` of the jumps found, judged on their steps: a flag beside a step
-    (no amplitude of its own, leaving a group out) is left out of the judgement, and a
-    pair found together (a step into a group of frames and out of it: reads with no
-    usable read between them, one ``|z|``) is one step, their sum, at its first read,
-    where its two steps share a sign or are the ramp's only ones (judged apart, a cosmic
-    ray's pair of opposite signs looked like a flip and its return; a pixel's stay of one
-    group in its other level, twice, is a pair of opposite signs that is not merged).
-    The flips of a telegraph pixel and the flags beside them are returned as flips."""
-    idx = np.flatnonzero(amp != 0)
-    idx = idx[np.lexsort((frames[idx], pix[idx]))]
-    p, f, a, sign = pix[idx], frames[idx], np.abs(z[idx]), np.sign(amp[idx])
-    same = np.r_[False, p[1:] == p[:-1]]
-    second = same & np.r_[False, a[1:] == a[:-1]] & np.r_[False, f[1:] > f[:-1]]
-    for j in np.flatnonzero(second & np.r_[False, f[1:] > f[:-1] + 1]):
-        # (a read between them: a pair only if that read is not usable for the pixel)
-        second[j] = usable is not None and not usable[f[j - 1] + 1:f[j], p[j]].any()
-    runs = np.diff(np.r_[np.flatnonzero(~same), p.size])  # each pixel's steps
-    only_two = np.repeat(runs, runs) == 2
-    second &= np.r_[False, sign[1:] == sign[:-1]] | only_two
-    second[1:] &= ~second[:-1]  # (a pair is two reads)
-    step = amp[idx].copy()
-    step[np.flatnonzero(second) - 1] += step[second]
-    one = ~second
-    judged, left_out = telegraph_pixels(p[one], f[one], step[one], ramps, times, usable)
-    flips_idx = np.zeros(idx.size, bool)
-    flips_idx[one] = judged
-    flips_idx[second] = flips_idx[np.flatnonzero(second) - 1]
-    flips = np.zeros(amp.size, bool)
-    flips[idx] = flips_idx
-    if flips.any():
-        flips |= (amp == 0) & np.isin(pix, pix[flips])
-    return flips, left_out
 
 
 class _Flags:

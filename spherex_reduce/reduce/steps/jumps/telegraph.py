@@ -12,7 +12,7 @@ out of its fit, so that its other reads lie on one line.
 
 import numpy as np
 
-__all__ = ["TELEGRAPH_SIGMA", "telegraph_pixels"]
+__all__ = ["TELEGRAPH_SIGMA", "telegraph_flips", "telegraph_pixels"]
 
 #: two steps of opposite signs cancel (a flip and its return) when their sum is within
 #: this many of its standard errors
@@ -119,3 +119,76 @@ def _flips_cancel(y, times, reads, usable):
     c = cov[2:, 2:]
     var = np.diagonal(c)[1:] + np.diagonal(c)[:-1] + 2 * np.diagonal(c, 1)
     return bool((np.abs(a[1:] + a[:-1]) <= TELEGRAPH_SIGMA * np.sqrt(var)).all())
+
+
+def telegraph_flips(pixel, read, amplitude, z, ramps, times, usable=None):
+    """`telegraph_pixels` of a search's jumps, judged on their steps.
+
+    A flag beside a step (amplitude 0: it leaves out a group of frames the step may have
+    fallen in) is left out of the judgement and goes with its pixel.  A pair found
+    together (a step into a group of frames and out of it: reads with no usable read
+    between them, one ``|z|``) is one step, their sum, at its first read, where its two
+    steps share a sign or are the ramp's only steps: judged apart, a cosmic ray's pair
+    of opposite signs looked like a flip and its return, while a pixel's stay of one
+    group in its other level, twice, is two pairs of opposite signs that stay apart.
+
+    Parameters
+    ----------
+    pixel, read : array_like of int
+        The pixel of each jump (a column of ``ramps``) and its read.
+    amplitude, z : array_like of float
+        The search's step (data unit; 0 for a flag beside a step) and its ``z``.
+    ramps, times, usable
+        As `telegraph_pixels`.
+
+    Returns
+    -------
+    flips : `numpy.ndarray` of bool
+        Per jump: a flip of a telegraph pixel, or a flag beside one (not a jump).
+    left_out : tuple of two `numpy.ndarray` of int
+        As `telegraph_pixels`.
+
+    Examples
+    --------
+    Pixel 0 drops by 40 at read 15 and comes back at 25, twice; its steps each carry a
+    flag beside them (amplitude 0).  Pixel 1 has a cosmic ray found as a pair of steps
+    of opposite signs at reads 30 and 31, its only steps: one step up, not a flip.
+
+    >>> import numpy as np
+    >>> from spherex_reduce.reduce.steps.jumps.telegraph import telegraph_flips
+    >>> t = np.arange(56) * 3.0
+    >>> y = 100 + np.random.default_rng(0).normal(0, 5, (56, 2))
+    >>> y[15:25, 0] -= 40; y[35:45, 0] -= 40; y[30:, 1] += 300; y[30, 1] += 20
+    >>> flips, _ = telegraph_flips([0, 0, 0, 0, 0, 1, 1], [15, 25, 35, 45, 16, 30, 31],
+    ...                            [-40, 40, -40, 40, 0, 320, -20],
+    ...                            [-8, 8, -8, 8, -8, 30, -30], y, t)
+    >>> flips.tolist()
+    [True, True, True, True, True, False, False]
+    """
+    pix = np.asarray(pixel, np.int64)
+    frames = np.asarray(read, np.int64)
+    amp = np.asarray(amplitude, np.float64)
+    z = np.asarray(z, np.float64)
+    idx = np.flatnonzero(amp != 0)
+    idx = idx[np.lexsort((frames[idx], pix[idx]))]
+    p, f, a, sign = pix[idx], frames[idx], np.abs(z[idx]), np.sign(amp[idx])
+    same = np.r_[False, p[1:] == p[:-1]]
+    second = same & np.r_[False, a[1:] == a[:-1]] & np.r_[False, f[1:] > f[:-1]]
+    for j in np.flatnonzero(second & np.r_[False, f[1:] > f[:-1] + 1]):
+        # (a read between them: a pair only if that read is not usable for the pixel)
+        second[j] = usable is not None and not usable[f[j - 1] + 1:f[j], p[j]].any()
+    runs = np.diff(np.r_[np.flatnonzero(~same), p.size])  # each pixel's steps
+    second &= np.r_[False, sign[1:] == sign[:-1]] | (np.repeat(runs, runs) == 2)
+    second[1:] &= ~second[:-1]  # (a pair is two reads)
+    step = amp[idx].copy()
+    step[np.flatnonzero(second) - 1] += step[second]
+    one = ~second
+    judged, left_out = telegraph_pixels(p[one], f[one], step[one], ramps, times, usable)
+    flips_idx = np.zeros(idx.size, bool)
+    flips_idx[one] = judged
+    flips_idx[second] = flips_idx[np.flatnonzero(second) - 1]
+    flips = np.zeros(amp.size, bool)
+    flips[idx] = flips_idx
+    if flips.any():
+        flips |= (amp == 0) & np.isin(pix, pix[flips])
+    return flips, left_out

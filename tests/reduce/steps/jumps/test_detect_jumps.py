@@ -465,25 +465,40 @@ def test_the_flags_beside_steps_leave_every_ramp_a_segment_of_two_reads():
         assert slopes[r, c] == pytest.approx(np.linalg.lstsq(x, y, rcond=None)[0][0], abs=1e-3)
 
 
+def _telegraph_on_groups(seed, stays):
+    """200 of 64 x 64 pixels 60 e low over the frames ``stays(rng)`` gives each, ``[(lo,
+    hi), ...]``, read in 16 groups of 4 frames: ``detect_jumps``' output and the pixels."""
+    _, s = _groups_of_four(16, side=64)
+    rng = np.random.default_rng(seed)
+    frames = 6e4 + rng.normal(0, RN, (64, 64, 64))
+    tele = rng.choice(64 * 64, 200, replace=False)
+    for p in tele:
+        r, c = divmod(p, 64)
+        for lo, hi in stays(rng):
+            frames[lo:hi, r, c] -= 60
+    cube = frames.reshape(16, 4, 64, 64).mean(axis=1).astype(np.float32)
+    return detect_jumps(Exposure.from_arrays(cube, s), read_noise=RN), tele
+
+
+def _random_stays(rng):
+    a = rng.integers(8, 24)
+    b = a + rng.integers(8, 16)
+    c = b + rng.integers(6, 12)
+    return [(a, b), (c, min(c + rng.integers(6, 12), 63))]
+
+
+def _one_group_stays(rng):
+    g1 = rng.integers(3, 7)
+    g2 = g1 + rng.integers(4, 7)
+    return [(4 * g1, 4 * g1 + 4), (4 * g2, 4 * g2 + 4)]
+
+
 def test_telegraph_pixels_on_groups_are_judged_on_their_steps():
     """200 of 4096 pixels flip 60 e down and back twice, at frames inside groups of 4: the
     reads flagged beside their steps (amplitude 0) broke the alternation of signs the
     telegraph test looks for, and none was found (the code before them: 6).  Judged on the
     steps alone, the telegraph pixels found are taken out whole, flags beside included."""
-    _, s = _groups_of_four(16, side=64)
-    rng = np.random.default_rng(2)
-    frames = 6e4 + rng.normal(0, RN, (64, 64, 64))
-    tele = rng.choice(64 * 64, 200, replace=False)
-    for p in tele:
-        r, c = divmod(p, 64)
-        a = rng.integers(8, 24)
-        b = a + rng.integers(8, 16)
-        c2 = b + rng.integers(6, 12)
-        d = min(c2 + rng.integers(6, 12), 63)
-        frames[a:b, r, c] -= 60
-        frames[c2:d, r, c] -= 60
-    cube = frames.reshape(16, 4, 64, 64).mean(axis=1).astype(np.float32)
-    out = detect_jumps(Exposure.from_arrays(cube, s), read_noise=RN)
+    out, tele = _telegraph_on_groups(2, _random_stays)
     assert out.header["NTELEGR"] >= 5
     told = ((out.dq & dq.DO_NOT_USE) != 0).any(axis=0)  # their rarer level left out
     assert not (out.dq[:, told] & dq.JUMP).any()
@@ -495,18 +510,7 @@ def test_telegraph_pixels_one_group_in_their_other_level_are_found():
     pair of steps of opposite signs (into the group and out of it), which is not merged
     into one step (the two stays' four steps alternate and cancel: telegraph pixels), where
     a cosmic ray's lone pair of opposite signs is (f0b54f0 merged every pair: none found)."""
-    _, s = _groups_of_four(16, side=64)
-    rng = np.random.default_rng(7)
-    frames = 6e4 + rng.normal(0, RN, (64, 64, 64))
-    tele = rng.choice(64 * 64, 200, replace=False)
-    for p in tele:
-        r, c = divmod(p, 64)
-        g1 = rng.integers(3, 7)
-        g2 = g1 + rng.integers(4, 7)
-        frames[4 * g1:4 * g1 + 4, r, c] -= 60
-        frames[4 * g2:4 * g2 + 4, r, c] -= 60
-    cube = frames.reshape(16, 4, 64, 64).mean(axis=1).astype(np.float32)
-    out = detect_jumps(Exposure.from_arrays(cube, s), read_noise=RN)
+    out, tele = _telegraph_on_groups(7, _one_group_stays)
     assert out.header["NTELEGR"] >= 180
     told = ((out.dq & dq.DO_NOT_USE) != 0).any(axis=0).ravel()
     assert told[tele].sum() == out.header["NTELEGR"]

@@ -249,7 +249,7 @@ def _scene(model, nframes, single):
             active = float(np.sqrt(light - level))
         else:
             active = 0.0
-            hold_white(sc["noise"]["components"], light, s)
+            hold_white(comps, light, s)
     kept = {"dark_current": float(terms.get("dark_current", 0.0)),
             "poisson": model.unit == u.electron}
     if active:

@@ -181,7 +181,7 @@ class Characterization:
         return out
 
     # -- the scene ------------------------------------------------------------------------
-    def faint_white(self):
+    def faint_white(self, components=None):
         """The light-sensitive pixels' white read variance per read (the darks' unit
         squared) that the scene's channel white level holds instead of the streams',
         where the per-pixel terms fitted a faint telegraph population; else None.
@@ -203,16 +203,15 @@ class Characterization:
         the fit holds it, where the components hold it too).  Held only where the scene
         holds the population
         (`~spherex_reduce.analysis.pixel_terms.PixelTerms.faint_population`, what
-        ``to_scene`` puts in ``rtn``)."""
+        ``to_scene`` puts in ``rtn``).  ``components``: the scene's (`_scene_components`),
+        made here if None."""
         pt = self.pixel_terms
         if pt is None or pt.faint_population() is None:
             return None
         white = pt.row("white_read_noise", "active")
         if white["status"] != "fitted":
             return None
-        comps = [{"name": n, "beta": float(v[1]), "gamma": float(v[2]),
-                  "exponent": self.exponent, "visibility": LAYOUT[n][1]}
-                 for n, v in self._scene_values()[0].items()]
+        comps = self._scene_components() if components is None else components
         return max(float(white["value"]) ** 2 - group_drift(comps, self.schedule), 0.0)
 
     def _scene_values(self):
@@ -226,14 +225,9 @@ class Characterization:
         return scene_values({n: est.values for n, est in self.components.items()},
                             self.exponent, bands)
 
-    def scene(self):
-        """The model as a scene mapping (``unit``, ``gain`` in adu where known,
-        ``geometry``, ``readout``, ``noise``, ``scene``), in the darks' unit: what
-        `~spherex_reduce.simulation.load_scene` takes.
-
-        No coefficient is below zero: one fitted below zero is moved into the term it
-        is constrained with (`~spherex_reduce.analysis.characterize.model.scene_values`),
-        and `marks` says what was moved, one line per term."""
+    def _scene_components(self):
+        """The components as the scene's mappings (`_scene_values`; those all zero left
+        out, a white ``channel`` of 0 where none is left)."""
         comps = []
         for name, held in self._scene_values()[0].items():
             scope, visibility = LAYOUT[name]
@@ -247,7 +241,18 @@ class Characterization:
             comps.append(comp)
         if not comps:  # a scene with no components simulates the default table: not this
             comps.append({"name": "channel", "alpha": 0.0, "exponent": self.exponent})
-        white = self.faint_white()
+        return comps
+
+    def scene(self):
+        """The model as a scene mapping (``unit``, ``gain`` in adu where known,
+        ``geometry``, ``readout``, ``noise``, ``scene``), in the darks' unit: what
+        `~spherex_reduce.simulation.load_scene` takes.
+
+        No coefficient is below zero: one fitted below zero is moved into the term it
+        is constrained with (`~spherex_reduce.analysis.characterize.model.scene_values`),
+        and `marks` says what was moved, one line per term."""
+        comps = self._scene_components()
+        white = self.faint_white(comps)
         if white is not None:  # the faint telegraph population once: in scene.rtn
             hold_white(comps, white, self.schedule)
         active = self._active_read_noise(comps, white)
